@@ -1,0 +1,45 @@
+"""ament_python package: builds with colcon on ROS 2 Jazzy and installs with pip on bare Python 3.11."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'lidar_sim_ros'
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE + '/meshes', glob('meshes/*.obj') + glob('meshes/*.mtl')),
+        ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
+    ],
+    # ROS client libraries are deliberately absent: colcon users get them from
+    # their distro, pip users from requirements-ros.txt.
+    install_requires=[
+        'setuptools',
+        'numpy>=1.26',
+        'scipy>=1.11',
+        'trimesh>=4.0',
+        'embreex>=2.17',
+        'rosbags>=0.10',
+        'matplotlib>=3.8',
+        'pydantic>=2.6',
+        'PyYAML>=6.0',
+    ],
+    zip_safe=True,
+    maintainer='lidar_sim_ros developers',
+    maintainer_email='lidar-sim@example.com',
+    description='LiDAR simulator for rendezvous with space debris (Cepton Vista P-60 model).',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'lidar-sim = lidar_sim_ros.cli:main',
+            'lidar_sim_node = lidar_sim_ros.ros.lidar_sim_node:main',
+            'target_pose_player = lidar_sim_ros.ros.target_pose_player:main',
+        ],
+    },
+)
