@@ -1,0 +1,51 @@
+"""The ``lidar-sim`` command. Each subcommand lives with the package it drives.
+
+A command module exposes ``register(subparsers)``, which adds its parser and sets
+``func`` to a function taking the parsed args. User errors (bad config, bad bag,
+missing file) print one line naming the problem, without a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+COMMAND_MODULES = (
+    'lidar_sim_ros.offline',             # simulate
+    'lidar_sim_ros.compare.command',     # compare
+    'lidar_sim_ros.calibrate.command',   # calibrate brdf | range-errors | scan
+)
+
+USER_ERRORS = (ValueError, KeyError, FileNotFoundError, FileExistsError, NotADirectoryError)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog='lidar-sim', description=__doc__.splitlines()[0])
+    parser.add_argument('--debug', action='store_true', help='show tracebacks for errors')
+    sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name and name.startswith(exc.name):
+                continue  # command not built yet
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except USER_ERRORS as exc:
+        if args.debug:
+            raise
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f'lidar-sim {args.command}: error: {msg}', file=sys.stderr)
+        return 2
+
+
+if __name__ == '__main__':
+    sys.exit(main())

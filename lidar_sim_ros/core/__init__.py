@@ -1,0 +1,1 @@
+"""The ROS-free simulator core: scan, geometry, reflection, detection, effects, pose."""

@@ -1,0 +1,325 @@
+"""Validated configuration: sensor, materials and scenario, loaded from YAML.
+
+Every model is a frozen pydantic model with ``extra='forbid'``: an unknown key, a
+missing key or an out-of-range value raises :class:`ConfigError`, whose message
+names the file, the key path and the offending value.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+import numpy as np
+import yaml
+from pydantic import (BaseModel, ConfigDict, Field, ValidationError,
+                      field_validator, model_validator)
+
+from lidar_sim_ros.paths import share_dir
+
+
+class ConfigError(ValueError):
+    """A configuration problem, naming file, key and value."""
+
+    def __init__(self, file: str | Path, key: str, value: Any, reason: str):
+        self.file, self.key, self.value, self.reason = str(file), key, value, reason
+        super().__init__(f'{file}: key "{key}" = {value!r}: {reason}')
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra='forbid', frozen=True)
+
+
+PositiveFloat = Annotated[float, Field(gt=0.0)]
+NonNegFloat = Annotated[float, Field(ge=0.0)]
+Fraction = Annotated[float, Field(ge=0.0, le=1.0)]
+
+
+# --------------------------------------------------------------------- sensor
+class LaserOverride(_Model):
+    """Per-laser Lissajous parameters (degrees, hertz, radians); unset = tile default."""
+
+    center_az_deg: float | None = None
+    center_el_deg: float | None = None
+    amp_az_deg: PositiveFloat | None = None
+    amp_el_deg: PositiveFloat | None = None
+    freq_az_hz: PositiveFloat | None = None
+    freq_el_hz: PositiveFloat | None = None
+    phase_az_rad: float | None = None
+    phase_el_rad: float | None = None
+
+
+class LissajousArrayScan(_Model):
+    """Tiled Lissajous-like scan (Cepton Vista P-60: 8 x 3 tiles, paper Sec. 3)."""
+
+    type: Literal['lissajous_array']
+    fov_az_deg: PositiveFloat
+    fov_el_deg: PositiveFloat
+    tiles_az: Annotated[int, Field(ge=1)]
+    tiles_el: Annotated[int, Field(ge=1)]
+    shots_per_laser: Annotated[int, Field(ge=1)]
+    overlap: NonNegFloat = Field(description='fraction of a tile half-width the curve overruns')
+    freq_az_hz: PositiveFloat
+    freq_el_hz: PositiveFloat
+    phase_az_rad: float = 0.0
+    phase_el_rad: float = 0.0
+    phase_step_rad: float = Field(0.0, description='extra phase per laser index, decorrelates tiles')
+    lasers: list[LaserOverride] | None = None
+
+    @model_validator(mode='after')
+    def _lasers_match_tiles(self):
+        if self.lasers is not None and len(self.lasers) != self.tiles_az * self.tiles_el:
+            raise ValueError(f'lasers has {len(self.lasers)} entries, expected '
+                             f'tiles_az*tiles_el = {self.tiles_az * self.tiles_el}')
+        return self
+
+
+class RotatingScan(_Model):
+    """Generic spinning multi-beam LiDAR: beams at fixed elevations, azimuth sweeps."""
+
+    type: Literal['rotating']
+    elevations_deg: list[float] = Field(min_length=1)
+    az_min_deg: float = -180.0
+    az_max_deg: float = 180.0
+    shots_per_beam: Annotated[int, Field(ge=1)]
+
+    @model_validator(mode='after')
+    def _az_order(self):
+        if self.az_max_deg <= self.az_min_deg:
+            raise ValueError('az_max_deg must exceed az_min_deg')
+        return self
+
+
+class FileScan(_Model):
+    """Scan pattern read from a CSV/NPY of (t_s, az_deg, el_deg, laser) rows."""
+
+    type: Literal['file']
+    path: str
+
+
+ScanConfig = Annotated[Union[LissajousArrayScan, RotatingScan, FileScan],
+                       Field(discriminator='type')]
+
+
+class OpticsConfig(_Model):
+    """Transmitter/receiver parameters of paper Eqs. 1-3."""
+
+    peak_power_w: PositiveFloat
+    transmit_efficiency: Annotated[float, Field(gt=0.0, le=1.0)]
+    receive_efficiency: Annotated[float, Field(gt=0.0, le=1.0)]
+    beam_divergence_rad: PositiveFloat
+    aperture_diameter_m: PositiveFloat
+
+
+class DetectionConfig(_Model):
+    """Detector limits: returns outside [threshold, saturation) are omitted (paper Sec. 7)."""
+
+    threshold_power_w: PositiveFloat
+    saturation_power_w: PositiveFloat
+    min_range_m: NonNegFloat = 0.0
+    max_range_m: PositiveFloat = 300.0
+
+    @model_validator(mode='after')
+    def _order(self):
+        if self.saturation_power_w <= self.threshold_power_w:
+            raise ValueError('saturation_power_w must exceed threshold_power_w')
+        if self.max_range_m <= self.min_range_m:
+            raise ValueError('max_range_m must exceed min_range_m')
+        return self
+
+
+class SensorConfig(_Model):
+    name: str
+    frame_rate_hz: PositiveFloat
+    scan: ScanConfig
+    optics: OpticsConfig
+    detection: DetectionConfig
+
+    @property
+    def frame_period_s(self) -> float:
+        return 1.0 / self.frame_rate_hz
+
+
+# ------------------------------------------------------------------ materials
+class MaterialConfig(_Model):
+    """Modified Phong parameters (paper Eq. 5) and range error (paper Table 2)."""
+
+    name: str = Field(min_length=1)
+    kd: Fraction = Field(description='diffuse reflectivity')
+    ks: Fraction = Field(description='specular reflectivity')
+    n: NonNegFloat = Field(description='specular exponent')
+    bias_m: float = Field(description='range bias, measured minus true (m)')
+    sigma_m: NonNegFloat = Field(description='range random error, 1 sigma (m)')
+
+    @model_validator(mode='after')
+    def _energy(self):
+        if self.kd + self.ks > 1.0 + 1e-9:
+            raise ValueError(f'kd + ks = {self.kd + self.ks:g} > 1 violates energy conservation')
+        return self
+
+
+class MaterialsConfig(_Model):
+    materials: list[MaterialConfig] = Field(min_length=1)
+
+    @field_validator('materials')
+    @classmethod
+    def _unique(cls, v):
+        names = [m.name for m in v]
+        dup = {n for n in names if names.count(n) > 1}
+        if dup:
+            raise ValueError(f'duplicate material names {sorted(dup)}')
+        if len(v) > 255:
+            raise ValueError('at most 255 materials fit the uint8 material field')
+        return v
+
+    @property
+    def names(self) -> list[str]:
+        return [m.name for m in self.materials]
+
+    def index(self, name: str) -> int:
+        return self.names.index(name)
+
+    def column(self, attr: str) -> np.ndarray:
+        """One parameter for all materials as a float array indexed by material id."""
+        return np.array([getattr(m, attr) for m in self.materials], dtype=float)
+
+
+# ------------------------------------------------------------------- scenario
+class PoseConfig(_Model):
+    """Target body pose in the lidar frame: p_lidar = R(q) p_body + position."""
+
+    position_m: tuple[float, float, float]
+    quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+
+    @field_validator('quat_xyzw')
+    @classmethod
+    def _unit(cls, q):
+        norm = float(np.linalg.norm(q))
+        if not 0.9 < norm < 1.1:
+            raise ValueError(f'quaternion norm {norm:g} is far from 1')
+        return tuple(float(x) / norm for x in q)
+
+
+class MotionConfig(_Model):
+    """Relative motion: approach along the line of sight plus a constant tumble."""
+
+    approach_speed_mps: float = Field(0.0, description='closing speed toward the sensor (m/s)')
+    tumble_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    tumble_rate_dps: float = Field(0.0, description='tumble rate about tumble_axis, lidar frame (deg/s)')
+
+    @field_validator('tumble_axis')
+    @classmethod
+    def _nonzero(cls, a):
+        if float(np.linalg.norm(a)) == 0.0:
+            raise ValueError('tumble_axis must be non-zero')
+        return a
+
+
+class EffectConfig(_Model):
+    """An extra physical effect from the catalogue (or module:Class) with its parameters."""
+
+    name: str
+    params: dict[str, Any] = Field(default_factory=dict)
+
+
+class ScenarioConfig(_Model):
+    seed: int
+    mesh: str
+    sensor: str
+    materials: str
+    frame_id: str = 'lidar'
+    initial_pose: PoseConfig
+    motion: MotionConfig = MotionConfig()
+    effects: list[EffectConfig] = Field(default_factory=list)
+
+
+# -------------------------------------------------------------------- loading
+def _format_loc(loc: tuple) -> str:
+    return '.'.join(str(p) for p in loc if not (isinstance(p, str) and p in
+                                                 ('lissajous_array', 'rotating', 'file')))
+
+
+def _lookup(data: Any, loc: tuple) -> Any:
+    for part in loc:
+        try:
+            data = data[part]
+        except (KeyError, IndexError, TypeError):
+            return None
+    return data
+
+
+def parse(model: type[_Model], data: Any, file: str | Path) -> Any:
+    """Validate a plain dict against ``model``; raise ConfigError naming file/key/value."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = tuple(err['loc'])
+        key = _format_loc(loc) or '<root>'
+        if err['type'] == 'extra_forbidden':
+            reason = 'unknown key'
+        elif err['type'] == 'missing':
+            reason = 'missing key'
+        else:
+            reason = err['msg']
+        value = err.get('input', _lookup(data, loc)) if err['type'] != 'missing' else None
+        more = len(exc.errors()) - 1
+        if more:
+            reason += f' (and {more} more problem{"s" if more > 1 else ""})'
+        raise ConfigError(file, key, value, reason) from None
+
+
+def read_yaml(path: str | Path) -> Any:
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(path, '<file>', str(path), 'file not found')
+    try:
+        with path.open() as fh:
+            return yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        raise ConfigError(path, '<yaml>', None, f'not valid YAML: {exc}') from None
+
+
+def load_sensor(path: str | Path) -> SensorConfig:
+    return parse(SensorConfig, read_yaml(path), path)
+
+
+def load_materials(path: str | Path) -> MaterialsConfig:
+    return parse(MaterialsConfig, read_yaml(path), path)
+
+
+def resolve(path: str, base: Path) -> Path:
+    """Resolve a config-relative path; bare names fall back to the package share dir."""
+    p = Path(path).expanduser()
+    if p.is_absolute():
+        return p
+    for root in (base, share_dir() / 'config', share_dir() / 'meshes', share_dir()):
+        if (root / p).exists():
+            return (root / p).resolve()
+    return (base / p).resolve()
+
+
+class Scenario:
+    """A loaded scenario: its config plus the sensor and materials it names."""
+
+    def __init__(self, config: ScenarioConfig, sensor: SensorConfig,
+                 materials: MaterialsConfig, mesh_path: Path, source: Path | None = None):
+        self.config, self.sensor, self.materials = config, sensor, materials
+        self.mesh_path, self.source = mesh_path, source
+
+    @property
+    def seed(self) -> int:
+        return self.config.seed
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Load scenario YAML and the sensor/materials/mesh files it references."""
+    path = Path(path)
+    cfg = parse(ScenarioConfig, read_yaml(path), path)
+    base = path.resolve().parent
+    sensor_path = resolve(cfg.sensor, base)
+    materials_path = resolve(cfg.materials, base)
+    mesh_path = resolve(cfg.mesh, base)
+    if not mesh_path.is_file():
+        raise ConfigError(path, 'mesh', cfg.mesh, f'mesh file not found at {mesh_path}')
+    return Scenario(cfg, load_sensor(sensor_path), load_materials(materials_path),
+                    mesh_path, path)

@@ -1,0 +1,36 @@
+"""Detection model (paper Secs. 6-7): dropouts, range bias and noise, intensity.
+
+A return is detected when threshold <= P_r < saturation (weaker returns are lost
+in the detector, saturated ones are omitted, as the paper does). The measured
+range is true range + bias + N(0, sigma^2); bias is measured minus true.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from lidar_sim_ros.core.config import DetectionConfig
+
+
+def detected_mask(power_w: np.ndarray, range_m: np.ndarray, det: DetectionConfig) -> np.ndarray:
+    """Which returns the detector reports: inside [threshold, saturation) and the range gate."""
+    power_w = np.asarray(power_w)
+    range_m = np.asarray(range_m)
+    return ((power_w >= det.threshold_power_w) & (power_w < det.saturation_power_w)
+            & (range_m >= det.min_range_m) & (range_m <= det.max_range_m))
+
+
+def measured_range_m(true_range_m: np.ndarray, bias_m: np.ndarray, sigma_m: np.ndarray,
+                     rng: np.random.Generator) -> np.ndarray:
+    """True range plus bias plus zero-mean Gaussian noise of std sigma (all metres)."""
+    true_range_m = np.asarray(true_range_m, dtype=float)
+    return true_range_m + bias_m + sigma_m * rng.standard_normal(true_range_m.shape)
+
+
+def intensity_from_power(power_w: np.ndarray, det: DetectionConfig) -> np.ndarray:
+    """Reported intensity: received power as a fraction of saturation power (-), in (0, 1)."""
+    return np.asarray(power_w) / det.saturation_power_w
+
+
+def power_from_intensity(intensity: np.ndarray, det: DetectionConfig) -> np.ndarray:
+    """Inverse of intensity_from_power (W)."""
+    return np.asarray(intensity) * det.saturation_power_w

@@ -1,0 +1,72 @@
+"""Physical effects beyond the paper's baseline model: a registry by name.
+
+``get_effect_class('range_walk')`` finds a catalogue effect; ``'pkg.module:Class'``
+or ``'path/to/file.py:Class'`` loads a user-defined one.
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+from pathlib import Path
+
+from lidar_sim_ros.core.effects.base import Effect, NoParams, ReturnContext
+
+REGISTRY: dict[str, type[Effect]] = {}
+
+# Catalogue modules register themselves on import.
+_CATALOGUE = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
+              'beam_divergence', 'time_offset')
+
+
+def register(cls: type[Effect]) -> type[Effect]:
+    """Class decorator: make an effect available by its ``name``."""
+    if not cls.name:
+        raise ValueError(f'{cls.__name__} has no name')
+    REGISTRY[cls.name] = cls
+    return cls
+
+
+def _load_catalogue() -> None:
+    for mod in _CATALOGUE:
+        try:
+            importlib.import_module(f'lidar_sim_ros.core.effects.{mod}')
+        except ModuleNotFoundError as exc:
+            if exc.name != f'lidar_sim_ros.core.effects.{mod}':
+                raise
+
+
+def get_effect_class(spec: str) -> type[Effect]:
+    """Resolve a catalogue name, ``module:Class`` or ``file.py:Class`` to an Effect class."""
+    _load_catalogue()
+    if spec in REGISTRY:
+        return REGISTRY[spec]
+    if ':' not in spec:
+        raise KeyError(f'unknown effect {spec!r}; catalogue: {sorted(REGISTRY)}; '
+                       'or give module:Class / path.py:Class')
+    where, cls_name = spec.rsplit(':', 1)
+    if where.endswith('.py') or Path(where).is_file():
+        path = Path(where)
+        if not path.is_file():
+            raise FileNotFoundError(f'effect file not found: {path}')
+        mod_spec = importlib.util.spec_from_file_location(f'user_effect_{path.stem}', path)
+        module = importlib.util.module_from_spec(mod_spec)
+        mod_spec.loader.exec_module(module)
+    else:
+        module = importlib.import_module(where)
+    cls = getattr(module, cls_name, None)
+    if not (isinstance(cls, type) and issubclass(cls, Effect)):
+        raise TypeError(f'{spec}: {cls_name} is not an Effect subclass')
+    return cls
+
+
+def make_effect(spec: str, params: dict | None = None) -> Effect:
+    return get_effect_class(spec)(params)
+
+
+def catalogue() -> dict[str, type[Effect]]:
+    _load_catalogue()
+    return {k: REGISTRY[k] for k in _CATALOGUE if k in REGISTRY}
+
+
+__all__ = ['Effect', 'NoParams', 'ReturnContext', 'REGISTRY', 'register', 'get_effect_class',
+           'make_effect', 'catalogue']

@@ -1,0 +1,1 @@
+"""Message and file formats: the PointCloud2 layout and rosbag2 reading/writing."""

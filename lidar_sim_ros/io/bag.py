@@ -1,0 +1,246 @@
+"""rosbag2 reading and writing with `rosbags` (no ROS installation needed).
+
+Bags are written as rosbag2 version 9 (what Jazzy writes) with the Jazzy typestore;
+reading goes through `rosbags.highlevel.AnyReader`, so MCAP and sqlite3 rosbag2
+directories (and ROS 1 .bag files) all load. Timestamps are integer nanoseconds; the
+bag's log time of every message written here is its header stamp.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Sequence
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import Connection
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from lidar_sim_ros.io.pointcloud import from_pointcloud2, ns_to_stamp, stamp_to_ns, to_rosbags_msg
+
+CLOUD_TOPIC = '/lidar/points'
+POSE_TOPIC = '/target/pose'
+MATERIAL_NAMES_TOPIC = '/lidar/material_names'
+
+POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
+POSE_STAMPED = 'geometry_msgs/msg/PoseStamped'
+STRING = 'std_msgs/msg/String'
+
+_STORAGE_PLUGINS = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+_BAG_VERSION = 9
+_QUAT_NORM_TOL = 1e-5
+
+
+class BagContentError(ValueError):
+    """A bag lacks an expected topic or holds an unexpected message type or content."""
+
+
+class _MissingTopicError(BagContentError):
+    """The requested topic is not in the bag."""
+
+
+@dataclass(frozen=True)
+class CloudFrame:
+    """One PointCloud2: header stamp [ns], frame id, points as decoded by from_pointcloud2."""
+
+    stamp_ns: int
+    frame_id: str
+    points: np.ndarray
+
+
+@dataclass(frozen=True)
+class PoseSeries:
+    """Stamped poses of one frame, sorted by header stamp.
+
+    stamp_ns is int64 (N,), position_m float64 (N, 3), quat_xyzw float64 (N, 4).
+    """
+
+    stamp_ns: np.ndarray
+    frame_id: str
+    position_m: np.ndarray
+    quat_xyzw: np.ndarray
+
+
+def encode_material_names(names: Sequence[str]) -> str:
+    """Material names -> the JSON text published on /lidar/material_names."""
+    names = list(names)
+    if not all(isinstance(name, str) for name in names):
+        raise ValueError(f'material names must be strings, got {names!r}')
+    return json.dumps(names)
+
+
+def decode_material_names(text: str, source: str = 'material names') -> list[str]:
+    """JSON text from /lidar/material_names -> list of names; source names the origin."""
+    try:
+        names = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise BagContentError(f'{source}: not valid JSON ({err}): {text[:80]!r}') from None
+    if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
+        raise BagContentError(f'{source}: expected a JSON list of strings, got {text[:80]!r}')
+    return names
+
+
+class BagWriter:
+    """Write a new rosbag2 directory; use as a context manager.
+
+    Connections are created on the first message of each topic. On leaving the
+    `with` block, even through an exception, the bag is closed with its metadata so
+    that what was written stays readable.
+    """
+
+    def __init__(self, path: str | Path, storage: str = 'mcap') -> None:
+        self.path = Path(path)
+        if storage not in _STORAGE_PLUGINS:
+            raise ValueError(f'storage must be one of {sorted(_STORAGE_PLUGINS)}, got {storage!r}')
+        if self.path.exists():
+            raise FileExistsError(f'bag directory {self.path} already exists; not overwriting it')
+        self.typestore = get_typestore(Stores.ROS2_JAZZY)
+        self._writer = Writer(self.path, version=_BAG_VERSION,
+                              storage_plugin=_STORAGE_PLUGINS[storage])
+        self._connections: dict[str, Connection] = {}
+        self._is_open = False
+
+    def open(self) -> None:
+        """Create the bag directory and storage file."""
+        self._writer.open()
+        self._is_open = True
+
+    def close(self) -> None:
+        """Write the index and metadata.yaml; idempotent."""
+        if self._is_open:
+            self._is_open = False
+            self._writer.close()
+
+    def __enter__(self) -> BagWriter:
+        self.open()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def write_cloud(self, topic: str, points: np.ndarray, stamp_ns: int, frame_id: str) -> None:
+        """Write a POINT_DTYPE array as sensor_msgs/msg/PointCloud2."""
+        msg = to_rosbags_msg(points, stamp_ns, frame_id, self.typestore)
+        self._write_msg(topic, POINTCLOUD2, stamp_ns, msg)
+
+    def write_pose(self, topic: str, stamp_ns: int, frame_id: str,
+                   position_xyz_m: Sequence[float] | np.ndarray,
+                   quat_xyzw: Sequence[float] | np.ndarray) -> None:
+        """Write geometry_msgs/msg/PoseStamped: position [m] and unit quaternion (x, y, z, w)."""
+        position = np.asarray(position_xyz_m, dtype=float)
+        quat = np.asarray(quat_xyzw, dtype=float)
+        if position.shape != (3,) or not np.isfinite(position).all():
+            raise ValueError(f'position_xyz_m must be 3 finite numbers, got {position_xyz_m!r}')
+        if quat.shape != (4,) or abs(np.linalg.norm(quat) - 1.0) > _QUAT_NORM_TOL:
+            raise ValueError(f'quat_xyzw must be a unit quaternion (x, y, z, w), got {quat_xyzw!r}')
+        types = self.typestore.types
+        msg = types[POSE_STAMPED](
+            header=self._header(stamp_ns, frame_id),
+            pose=types['geometry_msgs/msg/Pose'](
+                position=types['geometry_msgs/msg/Point'](
+                    x=float(position[0]), y=float(position[1]), z=float(position[2])),
+                orientation=types['geometry_msgs/msg/Quaternion'](
+                    x=float(quat[0]), y=float(quat[1]), z=float(quat[2]), w=float(quat[3])),
+            ),
+        )
+        self._write_msg(topic, POSE_STAMPED, stamp_ns, msg)
+
+    def write_string(self, topic: str, stamp_ns: int, text: str) -> None:
+        """Write std_msgs/msg/String."""
+        self._write_msg(topic, STRING, stamp_ns, self.typestore.types[STRING](data=text))
+
+    def write_material_names(self, topic: str, stamp_ns: int, names: Sequence[str]) -> None:
+        """Write the material names list as JSON in a std_msgs/msg/String."""
+        self.write_string(topic, stamp_ns, encode_material_names(names))
+
+    def write_raw(self, topic: str, msgtype: str, stamp_ns: int, cdr_bytes: bytes) -> None:
+        """Write an already CDR-serialised message of a type known to the Jazzy typestore."""
+        self._writer.write(self._connection(topic, msgtype), int(stamp_ns), cdr_bytes)
+
+    def _header(self, stamp_ns: int, frame_id: str) -> Any:
+        types = self.typestore.types
+        return types['std_msgs/msg/Header'](
+            stamp=ns_to_stamp(stamp_ns, types['builtin_interfaces/msg/Time']), frame_id=frame_id)
+
+    def _write_msg(self, topic: str, msgtype: str, stamp_ns: int, msg: Any) -> None:
+        cdr = self.typestore.serialize_cdr(msg, msgtype)
+        self.write_raw(topic, msgtype, stamp_ns, cdr)
+
+    def _connection(self, topic: str, msgtype: str) -> Connection:
+        """The topic's connection, created on first use; one message type per topic."""
+        if not self._is_open:
+            raise RuntimeError(f'bag {self.path} is not open; use BagWriter in a with block')
+        connection = self._connections.get(topic)
+        if connection is None:
+            if msgtype not in self.typestore.types:
+                raise ValueError(f'message type {msgtype!r} for topic {topic!r} is not in '
+                                 'the ROS 2 Jazzy typestore')
+            connection = self._writer.add_connection(topic, msgtype, typestore=self.typestore)
+            self._connections[topic] = connection
+        elif connection.msgtype != msgtype:
+            raise ValueError(f'topic {topic!r} in bag {self.path} already carries '
+                             f'{connection.msgtype}, cannot write {msgtype}')
+        return connection
+
+
+def read_clouds(path: str | Path, topic: str = CLOUD_TOPIC) -> list[CloudFrame]:
+    """All PointCloud2 messages of a topic, in bag order, decoded with from_pointcloud2."""
+    return [
+        CloudFrame(stamp_to_ns(msg.header.stamp), msg.header.frame_id, from_pointcloud2(msg))
+        for msg in _read_messages(path, topic, POINTCLOUD2)
+    ]
+
+
+def read_poses(path: str | Path, topic: str = POSE_TOPIC) -> PoseSeries:
+    """All PoseStamped messages of a topic as arrays sorted by header stamp.
+
+    Raises BagContentError if the messages do not share one frame_id.
+    """
+    msgs = _read_messages(path, topic, POSE_STAMPED)
+    frames = sorted({msg.header.frame_id for msg in msgs})
+    if len(frames) > 1:
+        raise BagContentError(f'poses on {topic!r} in bag {path} use several frames: {frames}')
+    stamp_ns = np.array([stamp_to_ns(msg.header.stamp) for msg in msgs], dtype=np.int64)
+    position_m = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z]
+                           for m in msgs], dtype=np.float64).reshape(-1, 3)
+    quat_xyzw = np.array([[m.pose.orientation.x, m.pose.orientation.y,
+                           m.pose.orientation.z, m.pose.orientation.w]
+                          for m in msgs], dtype=np.float64).reshape(-1, 4)
+    order = np.argsort(stamp_ns, kind='stable')
+    return PoseSeries(stamp_ns[order], frames[0] if frames else '',
+                      position_m[order], quat_xyzw[order])
+
+
+def read_material_names(path: str | Path, topic: str = MATERIAL_NAMES_TOPIC) -> list[str] | None:
+    """The material names list (JSON String, last message wins), or None if the topic is absent."""
+    try:
+        msgs = _read_messages(path, topic, STRING)
+    except _MissingTopicError:
+        return None
+    if not msgs:
+        return None
+    return decode_material_names(msgs[-1].data, f'{topic!r} in bag {path}')
+
+
+def _read_messages(path: str | Path, topic: str, msgtype: str) -> list[Any]:
+    """Deserialised messages of one topic, checking that it exists with the expected type."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f'bag {path} does not exist')
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        connections = [c for c in reader.connections if c.topic == topic]
+        if not connections:
+            available = ', '.join(f'{name} ({info.msgtype})'
+                                  for name, info in sorted(reader.topics.items())) or 'none'
+            raise _MissingTopicError(
+                f'bag {path} has no topic {topic!r}; topics in the bag: {available}')
+        found = sorted({c.msgtype for c in connections if c.msgtype != msgtype})
+        if found:
+            raise BagContentError(
+                f'topic {topic!r} in bag {path} has type {", ".join(found)}, expected {msgtype}')
+        return [reader.deserialize(raw, c.msgtype)
+                for c, _, raw in reader.messages(connections=connections)]
