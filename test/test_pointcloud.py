@@ -63,7 +63,8 @@ def test_make_points_packs_columns(points: np.ndarray) -> None:
     np.testing.assert_array_equal(p['t'], np.float32([0.05, 0.05]))
     np.testing.assert_array_equal(p['ring'], [3, 7])
     np.testing.assert_array_equal(p['material'], [2, 2])
-    assert make_points(np.empty((0, 3)), [], [], np.array([], int), np.array([], int)).shape == (0,)
+    empty = make_points(np.empty((0, 3)), [], [], np.array([], int), np.array([], int))
+    assert empty.shape == (0,)
 
 
 @pytest.mark.parametrize('kwargs, match', [
@@ -97,13 +98,49 @@ def test_stamp_conversion_both_implementations() -> None:
         assert stamp_to_ns(ns_to_stamp(999, cls)) == 999
 
 
+def cdr_value_mask(cdr: bytes) -> np.ndarray:
+    """True where a little-endian PointCloud2 CDR byte holds a value, False for padding.
+
+    rclpy (Fast CDR) leaves alignment padding uninitialised, so only value bytes can
+    be compared between implementations.
+    """
+    mask = np.zeros(len(cdr), dtype=bool)
+    mask[:4] = True  # encapsulation header; alignment counts from its end
+    pos = 4
+
+    def take(size: int, align: int) -> bytes:
+        nonlocal pos
+        pos += -(pos - 4) % align
+        mask[pos:pos + size] = True
+        pos += size
+        return cdr[pos - size:pos]
+
+    def u32() -> int:
+        return struct.unpack('<I', take(4, 4))[0]
+
+    u32(), u32(), take(u32(), 1)          # header: sec, nanosec, frame_id
+    u32(), u32()                          # height, width
+    for _ in range(u32()):                # fields: name, offset, datatype, count
+        take(u32(), 1), u32(), take(1, 1), u32()
+    take(1, 1), u32(), u32()              # is_bigendian, point_step, row_step
+    take(u32(), 1), take(1, 1)            # data, is_dense
+    assert len(cdr) - pos < 4, 'unexpected trailing bytes'
+    return mask
+
+
 @pytest.mark.parametrize('n', [1000, 0])
 def test_rosbags_and_rclpy_cdr_identical_and_cross_decodable(points: np.ndarray, n: int) -> None:
     points = points[:n]
     rosbags_cdr = bytes(TYPESTORE.serialize_cdr(
         to_rosbags_msg(points, STAMP_NS, FRAME, TYPESTORE), 'sensor_msgs/msg/PointCloud2'))
     rclpy_cdr = serialize_message(to_rclpy_msg(points, STAMP_NS, FRAME))
-    assert rosbags_cdr == rclpy_cdr
+    assert len(rosbags_cdr) == len(rclpy_cdr)
+    values = cdr_value_mask(rosbags_cdr)
+    np.testing.assert_array_equal(values, cdr_value_mask(rclpy_cdr))
+    rosbags_u8, rclpy_u8 = np.frombuffer(rosbags_cdr, np.uint8), np.frombuffer(rclpy_cdr, np.uint8)
+    np.testing.assert_array_equal(rosbags_u8[values], rclpy_u8[values])
+    assert not rosbags_u8[~values].any(), 'rosbags writes zero padding'
+    assert rosbags_cdr[-24 * n - 1:-1] == points.tobytes()
 
     from_rclpy = TYPESTORE.deserialize_cdr(rclpy_cdr, 'sensor_msgs/msg/PointCloud2')
     from_rosbags = deserialize_message(rosbags_cdr, RclpyPointCloud2)

@@ -188,12 +188,15 @@ def _revolve(profile, seg_mats, thetas):
 
 
 def _blanket(th0_deg, th1_deg, z0, z1, dtheta, step):
-    """Closed MLI slab on the tank between r = TANK_R and BLANKET_R.
+    """Closed MLI slab on the tank, outer face at r = BLANKET_R.
 
     Cross-section loop (counter-clockwise, as for profiles): bottom edge out,
-    outer face up, top edge in, inner face (against the tank) down; swept
-    from th0 to th1 and closed by two flat end walls.
+    outer face up, top edge in, inner face down; swept from th0 to th1 and
+    closed by two flat end walls.  The inner face lies 5 mm inside the
+    faceted tank (below its chords), so no grazing ray can slip under the
+    blanket and hit its back.
     """
+    r_in = TANK_R * math.cos(dtheta / 2.0) - 0.005
     span = math.radians(th1_deg - th0_deg)
     n = max(1, math.ceil(span / dtheta - 1e-9))
     thetas = math.radians(th0_deg) + span * np.arange(n + 1) / n
@@ -201,7 +204,7 @@ def _blanket(th0_deg, th1_deg, z0, z1, dtheta, step):
     m = len(zs)
     # points 0..m-1: outer column O_k, m..2m-1: inner column I_k (same z_k)
     pts = np.vstack([np.column_stack([np.full(m, BLANKET_R), zs]),
-                     np.column_stack([np.full(m, TANK_R), zs])])
+                     np.column_stack([np.full(m, r_in), zs])])
     verts = np.column_stack([
         (pts[:, :1] * np.cos(thetas)).ravel(),
         (pts[:, :1] * np.sin(thetas)).ravel(),
@@ -276,13 +279,13 @@ def build_rocket_body(segments: int = DEFAULT_SEGMENTS) -> tuple[trimesh.Trimesh
     segments: circumferential segments of every full surface of revolution;
     the profile is subdivided at the same spacing as the tank circumference
     (2*pi*2.0/segments), so the triangle count scales with segments**2
-    (128 -> ~42k triangles, 640 -> ~1M).
+    (128 -> 48,844 triangles, 600 -> 1,009,724).
 
     Returns (mesh, face_material_names); faces are ordered by group in the
     order of MATERIALS, exactly as written to the OBJ.
     """
-    if segments < 8:
-        raise ValueError("segments must be >= 8")
+    if segments < 32:
+        raise ValueError("segments must be >= 32 (coarser tanks would swallow the 2 cm MLI blankets)")
     step = 2.0 * math.pi * TANK_R / segments
     full = 2.0 * math.pi * np.arange(segments) / segments
 
@@ -380,7 +383,7 @@ def write_obj_with_groups(path_stem, mesh: trimesh.Trimesh, face_material_names)
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--segments", type=int, default=DEFAULT_SEGMENTS,
-                    help=f"circumferential segments (default {DEFAULT_SEGMENTS}; ~640 gives ~1M triangles)")
+                    help=f"circumferential segments (default {DEFAULT_SEGMENTS}; 600 gives ~1.0M triangles)")
     ap.add_argument("--out", default=str(DEFAULT_OUT),
                     help="output path without extension (default meshes/rocket_body)")
     args = ap.parse_args(argv)

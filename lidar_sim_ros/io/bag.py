@@ -136,7 +136,8 @@ class BagWriter:
         if position.shape != (3,) or not np.isfinite(position).all():
             raise ValueError(f'position_xyz_m must be 3 finite numbers, got {position_xyz_m!r}')
         if quat.shape != (4,) or abs(np.linalg.norm(quat) - 1.0) > _QUAT_NORM_TOL:
-            raise ValueError(f'quat_xyzw must be a unit quaternion (x, y, z, w), got {quat_xyzw!r}')
+            raise ValueError(
+                f'quat_xyzw must be a unit quaternion (x, y, z, w), got {quat_xyzw!r}')
         types = self.typestore.types
         msg = types[POSE_STAMPED](
             header=self._header(stamp_ns, frame_id),
