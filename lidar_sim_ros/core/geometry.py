@@ -97,10 +97,7 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
     o_body = poses.to_body(origin)
     d_body = poses.vector_to_body(directions_lidar)
     hits = target.cast(o_body, d_body)
-    normal_lidar = np.zeros_like(hits.normal)
-    if np.any(hits.hit):
-        normal_lidar[hits.hit] = poses.rotation[hits.hit].apply(hits.normal[hits.hit]) \
-            if n > 1 else poses.rotation.apply(hits.normal[hits.hit])
+    normal_lidar = poses.vector_to_lidar(hits.normal)
     return Hits(hits.hit, hits.range_m, normal_lidar, hits.incidence_rad, hits.material, hits.face)
 
 

@@ -6,12 +6,54 @@ expressed in the lidar frame, as carried by ``/target/pose``).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.core.config import ScenarioConfig
+
+
+def quat_multiply(q1_xyzw: np.ndarray, q2_xyzw: np.ndarray) -> np.ndarray:
+    """Hamilton product q1 * q2 of (N, 4) or (4,) xyzw quaternions (broadcasts).
+
+    scipy's ``Rotation.__mul__`` costs ~9 ms for 21k rotations here, most of a
+    frame's budget; this vectorised product is ~50x faster.
+    """
+    x1, y1, z1, w1 = np.moveaxis(np.asarray(q1_xyzw, dtype=float), -1, 0)
+    x2, y2, z2, w2 = np.moveaxis(np.asarray(q2_xyzw, dtype=float), -1, 0)
+    return np.stack([w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                     w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+                     w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2], axis=-1)
+
+
+def rotvec_to_quat(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation vectors (N, 3) (rad) to xyzw quaternions (N, 4)."""
+    rotvec = np.asarray(rotvec, dtype=float)
+    angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    # sin(a/2)/a -> 1/2 as a -> 0
+    scale = np.where(angle > 1e-12, np.sin(half) / np.where(angle > 1e-12, angle, 1.0), 0.5)
+    return np.concatenate([rotvec * scale, np.cos(half)], axis=-1)
+
+
+def slerp_quat(q0_xyzw: np.ndarray, q1_xyzw: np.ndarray, frac: np.ndarray) -> np.ndarray:
+    """Spherical linear interpolation between quaternion rows at fractions in [0, 1]."""
+    q0 = np.asarray(q0_xyzw, dtype=float)
+    q1 = np.asarray(q1_xyzw, dtype=float)
+    dot = np.einsum('ij,ij->i', q0, q1)
+    q1 = np.where(dot[:, None] < 0, -q1, q1)  # shortest arc
+    dot = np.abs(dot)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    sin_t = np.sin(theta)
+    small = sin_t < 1e-9
+    safe = np.where(small, 1.0, sin_t)
+    w0 = np.where(small, 1.0 - frac, np.sin((1.0 - frac) * theta) / safe)
+    w1 = np.where(small, frac, np.sin(frac * theta) / safe)
+    q = w0[:, None] * q0 + w1[:, None] * q1
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
 class PoseCoverageError(ValueError):
@@ -25,18 +67,29 @@ class Poses:
     rotation: Rotation
     position_m: np.ndarray
 
+    @cached_property
+    def matrix(self) -> np.ndarray:
+        """Rotation matrices (N, 3, 3) (or (3, 3) for a single rotation)."""
+        return self.rotation.as_matrix()
+
+    def _apply(self, vec: np.ndarray, inverse: bool) -> np.ndarray:
+        m = self.matrix
+        if m.ndim == 2:
+            return vec @ m if inverse else vec @ m.T
+        return np.einsum('nji,nj->ni' if inverse else 'nij,nj->ni', m, vec)
+
     def to_body(self, points_lidar: np.ndarray) -> np.ndarray:
         """Lidar-frame points or origins (N, 3) into the body frame."""
-        return self.rotation.inv().apply(points_lidar - self.position_m)
+        return self._apply(np.asarray(points_lidar, dtype=float) - self.position_m, inverse=True)
 
     def vector_to_body(self, vec_lidar: np.ndarray) -> np.ndarray:
-        return self.rotation.inv().apply(vec_lidar)
+        return self._apply(np.asarray(vec_lidar, dtype=float), inverse=True)
 
     def to_lidar(self, points_body: np.ndarray) -> np.ndarray:
-        return self.rotation.apply(points_body) + self.position_m
+        return self._apply(np.asarray(points_body, dtype=float), inverse=False) + self.position_m
 
     def vector_to_lidar(self, vec_body: np.ndarray) -> np.ndarray:
-        return self.rotation.apply(vec_body)
+        return self._apply(np.asarray(vec_body, dtype=float), inverse=False)
 
 
 class PoseSource(Protocol):
@@ -72,8 +125,8 @@ class ScenarioTrajectory:
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         los = self.position0_m / np.linalg.norm(self.position0_m)
         pos = self.position0_m[None, :] - (self.approach_speed_mps * t)[:, None] * los[None, :]
-        spin = Rotation.from_rotvec((self.tumble_rate_rad_s * t)[:, None] * self.tumble_axis[None, :])
-        return Poses(spin * self.rotation0, pos)
+        spin = rotvec_to_quat((self.tumble_rate_rad_s * t)[:, None] * self.tumble_axis[None, :])
+        return Poses(Rotation.from_quat(quat_multiply(spin, self.rotation0.as_quat())), pos)
 
 
 class PoseTrack:
@@ -98,7 +151,7 @@ class PoseTrack:
         self.position_m = np.asarray(position_m, dtype=float).reshape(-1, 3)
         self.rotation = Rotation.from_quat(np.asarray(quat_xyzw, dtype=float).reshape(-1, 4))
         self.max_extrapolation_s = float(max_extrapolation_s)
-        self._slerp = Slerp(t, self.rotation) if len(t) > 1 else None
+        self._quat = self.rotation.as_quat()
         if velocity_mps is not None:
             self._v_end = np.asarray(velocity_mps, dtype=float)
         elif len(t) > 1:
@@ -125,23 +178,35 @@ class PoseTrack:
 
     def at(self, t_s: np.ndarray) -> Poses:
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
-        if len(t) == 0:
-            return Poses(Rotation.identity(0) if hasattr(Rotation, 'identity') else
-                         Rotation.from_quat(np.zeros((0, 4))), np.zeros((0, 3)))
         eps = 1e-9
         if t.min() < self.start_s - eps or t.max() > self.end_s + self.max_extrapolation_s + eps:
             raise PoseCoverageError(
                 f'times [{t.min():.6f}, {t.max():.6f}] s outside pose coverage '
                 f'[{self.start_s:.6f}, {self.end_s:.6f}] s + {self.max_extrapolation_s:g} s extrapolation')
         inside = np.clip(t, self.start_s, self.end_s)
-        if self._slerp is None:
-            rot = Rotation.from_quat(np.repeat(self.rotation.as_quat(), len(t), axis=0))
+        if len(self.t_s) == 1:
+            quat = np.repeat(self._quat, len(t), axis=0)
             pos = np.repeat(self.position_m, len(t), axis=0)
         else:
-            rot = self._slerp(inside)
-            pos = np.column_stack([np.interp(inside, self.t_s, self.position_m[:, i]) for i in range(3)])
+            seg = np.clip(np.searchsorted(self.t_s, inside, side='right') - 1, 0, len(self.t_s) - 2)
+            frac = (inside - self.t_s[seg]) / (self.t_s[seg + 1] - self.t_s[seg])
+            quat = slerp_quat(self._quat[seg], self._quat[seg + 1], frac)
+            pos = self.position_m[seg] + frac[:, None] * (self.position_m[seg + 1] - self.position_m[seg])
         ahead = np.maximum(t - self.end_s, 0.0)
         if np.any(ahead > 0):
             pos = pos + ahead[:, None] * self._v_end[None, :]
-            rot = Rotation.from_rotvec(ahead[:, None] * self._w_end[None, :]) * rot
-        return Poses(rot, pos)
+            quat = quat_multiply(rotvec_to_quat(ahead[:, None] * self._w_end[None, :]), quat)
+        return Poses(Rotation.from_quat(quat), pos)
+
+
+@dataclass(frozen=True)
+class StaticPose:
+    """A target that does not move relative to the sensor (e.g. a lab calibration setup)."""
+
+    position_m: tuple[float, float, float]
+    quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+
+    def at(self, t_s: np.ndarray) -> Poses:
+        n = len(np.atleast_1d(t_s))
+        quat = np.repeat(np.asarray(self.quat_xyzw, dtype=float)[None], n, axis=0)
+        return Poses(Rotation.from_quat(quat), np.repeat(np.asarray(self.position_m, float)[None], n, axis=0))

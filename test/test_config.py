@@ -1,0 +1,109 @@
+"""Config loading: defaults reproduce the paper; bad files name file, key and value."""
+import shutil
+
+import numpy as np
+import pytest
+import yaml
+
+from lidar_sim_ros.core.config import ConfigError, load_materials, load_scenario, load_sensor
+from conftest import CONFIG
+
+# Paper Table 2 (bias, 1-sigma random error), rows at 5 m and 15 m.
+TABLE2 = {
+    'PIF': ((-0.1417, -0.1349), (0.0228, 0.0334)),
+    'MLI': ((-0.1361, -0.1337), (0.0228, 0.0387)),
+    'BULKHEAD': ((-0.1334, -0.1093), (0.0306, 0.0344)),
+    'PSS': ((-0.1179, -0.1053), (0.0357, 0.0390)),
+    'PAF': ((-0.1146, -0.1199), (0.0437, 0.0472)),
+    'ADAPTER': ((-0.1329, -0.1304), (0.0338, 0.0393)),
+}
+
+
+def test_materials_default_to_table2_means():
+    mats = {m.name: m for m in load_materials(CONFIG / 'materials.yaml').materials}
+    assert list(mats) == ['PIF', 'MLI', 'PAF', 'PSS', 'NOZZLE', 'BULKHEAD', 'ADAPTER']
+    for name, (bias, sigma) in TABLE2.items():
+        assert mats[name].bias_m == pytest.approx(np.mean(bias), abs=1e-6)
+        assert mats[name].sigma_m == pytest.approx(np.mean(sigma), abs=1e-6)
+    metals = ['PAF', 'PSS', 'BULKHEAD', 'ADAPTER']
+    assert mats['NOZZLE'].bias_m == pytest.approx(np.mean([np.mean(TABLE2[m][0]) for m in metals]))
+    # qualitative BRDF findings: PIF diffuse, MLI and PSS strongly specular
+    assert mats['PIF'].ks < 0.1 < mats['PIF'].kd
+    assert mats['MLI'].ks > 0.6 and mats['PSS'].ks > 0.6
+
+
+def test_detection_threshold_matches_range_spec():
+    """Table 1: 200 m at 30 % reflectivity sits exactly at the detection threshold."""
+    from lidar_sim_ros.core.reflection import return_power_w
+    s = load_sensor(CONFIG / 'cepton_vista_p60.yaml')
+    p = return_power_w(200.0, 0.0, 0.3, 0.0, 1.0, s.optics)
+    assert p == pytest.approx(s.detection.threshold_power_w, rel=1e-6)
+
+
+def _copy_config(tmp_path):
+    for name in ('scenario.yaml', 'cepton_vista_p60.yaml', 'materials.yaml'):
+        shutil.copy(CONFIG / name, tmp_path / name)
+    scen = yaml.safe_load((tmp_path / 'scenario.yaml').read_text())
+    scen['mesh'] = str(CONFIG.parent / 'meshes' / 'rocket_body.obj')
+    (tmp_path / 'scenario.yaml').write_text(yaml.safe_dump(scen))
+    return tmp_path
+
+
+def _edit(path, fn):
+    data = yaml.safe_load(path.read_text())
+    fn(data)
+    path.write_text(yaml.safe_dump(data))
+
+
+def test_unknown_key_names_file_and_key(tmp_path):
+    d = _copy_config(tmp_path)
+    _edit(d / 'cepton_vista_p60.yaml', lambda s: s['optics'].update(peak_pwr_w=3))
+    with pytest.raises(ConfigError) as exc:
+        load_scenario(d / 'scenario.yaml')
+    msg = str(exc.value)
+    assert 'cepton_vista_p60.yaml' in msg and 'optics.peak_pwr_w' in msg and 'unknown key' in msg
+
+
+def test_missing_key(tmp_path):
+    d = _copy_config(tmp_path)
+    _edit(d / 'scenario.yaml', lambda s: s.pop('seed'))
+    with pytest.raises(ConfigError, match=r'scenario.yaml: key "seed".*missing key'):
+        load_scenario(d / 'scenario.yaml')
+
+
+def test_negative_sigma_names_value(tmp_path):
+    d = _copy_config(tmp_path)
+    _edit(d / 'materials.yaml', lambda m: m['materials'][1].update(sigma_m=-0.01))
+    with pytest.raises(ConfigError) as exc:
+        load_scenario(d / 'scenario.yaml')
+    assert exc.value.key == 'materials.1.sigma_m' and exc.value.value == -0.01
+    assert 'materials.yaml' in exc.value.file
+
+
+def test_bad_scan_type_and_energy(tmp_path):
+    d = _copy_config(tmp_path)
+    _edit(d / 'materials.yaml', lambda m: m['materials'][0].update(kd=0.8, ks=0.5))
+    with pytest.raises(ConfigError, match='energy'):
+        load_materials(d / 'materials.yaml')
+    _edit(d / 'cepton_vista_p60.yaml', lambda s: s['scan'].update(type='spiral'))
+    with pytest.raises(ConfigError, match='scan'):
+        load_sensor(d / 'cepton_vista_p60.yaml')
+
+
+def test_unknown_material_in_mesh(tmp_path):
+    from lidar_sim_ros.core.geometry import MeshMaterialError, load_target
+    obj = tmp_path / 'm.obj'
+    (tmp_path / 'm.mtl').write_text('newmtl PIF\nKd 1 1 1\nnewmtl GOLD_FOIL\nKd 1 1 0\n')
+    obj.write_text('mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n'
+                   'g PIF\nusemtl PIF\nf 1 2 3\ng GOLD_FOIL\nusemtl GOLD_FOIL\nf 1 2 4\n')
+    with pytest.raises(MeshMaterialError, match='GOLD_FOIL'):
+        load_target(obj, ['PIF', 'MLI'])
+    assert load_target(obj, ['PIF', 'GOLD_FOIL']).n_faces == 2
+
+
+def test_missing_file_and_bad_yaml(tmp_path):
+    with pytest.raises(ConfigError, match='file not found'):
+        load_sensor(tmp_path / 'nope.yaml')
+    (tmp_path / 'bad.yaml').write_text('a: [1, 2\n')
+    with pytest.raises(ConfigError, match='not valid YAML'):
+        load_sensor(tmp_path / 'bad.yaml')

@@ -1,0 +1,63 @@
+"""Geometric model: raycast range, incidence and material against closed forms."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from lidar_sim_ros.core.geometry import cast_at_poses, load_target
+from lidar_sim_ros.core.pose import PoseTrack
+from lidar_sim_ros.core.scan import directions_from_angles
+from conftest import REPO, plate_target, sphere_target
+
+
+def _static(position, rotation=Rotation.identity()):
+    return PoseTrack([0.0], [position], rotation.as_quat()[None])
+
+
+def test_plate_range_and_incidence():
+    # Plate normal (body +z) tilted 30 deg about y, plate 7 m ahead on x.
+    tilt = Rotation.from_euler('y', -90 + 30, degrees=True)  # body +z -> toward -x, 30 deg off
+    poses = _static([7.0, 0, 0], tilt).at(np.zeros(1))
+    hits = cast_at_poses(plate_target(), np.array([[1.0, 0, 0]]), poses)
+    assert hits.hit[0]
+    assert hits.range_m[0] == pytest.approx(7.0, abs=1e-5)
+    assert np.degrees(hits.incidence_rad[0]) == pytest.approx(30.0, abs=1e-4)
+    assert hits.normal[0] @ np.array([-1.0, 0, 0]) == pytest.approx(np.cos(np.radians(30)), abs=1e-6)
+
+
+def test_sphere_range_and_incidence():
+    radius, dist = 1.0, 5.0
+    target = sphere_target(radius, subdivisions=6)
+    beta = np.radians(np.linspace(-11, 11, 41))  # asin(1/5) = 11.54 deg is the limb
+    dirs = directions_from_angles(beta, np.zeros_like(beta))
+    poses = _static([dist, 0, 0]).at(np.zeros(len(beta)))
+    hits = cast_at_poses(target, dirs, poses)
+    assert hits.hit.all()
+    expected = dist * np.cos(beta) - np.sqrt(radius ** 2 - (dist * np.sin(beta)) ** 2)
+    assert np.allclose(hits.range_m, expected, atol=2e-3)
+    inc = np.arcsin(np.clip(dist * np.sin(np.abs(beta)) / radius, 0, 1))
+    assert np.allclose(hits.incidence_rad, inc, atol=0.03)
+    miss = cast_at_poses(target, directions_from_angles(np.radians([12.0]), np.zeros(1)),
+                         _static([dist, 0, 0]).at(np.zeros(1)))
+    assert not miss.hit[0] and np.isinf(miss.range_m[0]) and miss.material[0] == -1
+
+
+def test_rocket_mesh_has_every_material_and_visible_faces(default_scenario):
+    target = load_target(default_scenario.mesh_path, default_scenario.materials.names)
+    assert set(np.unique(target.face_material)) == set(range(7))
+    lo, hi = target.vertices_m.min(0), target.vertices_m.max(0)
+    assert hi[2] - lo[2] == pytest.approx(10.0, abs=0.5)       # about 10 m long
+    assert hi[0] - lo[0] == pytest.approx(4.0, abs=0.2)        # about 4 m diameter
+    # Seen from the side, the tank's foam faces the sensor at ~8 m.
+    hits = cast_at_poses(target, np.array([[1.0, 0, 0]]), _static([10.0, 0, 0],
+                         Rotation.from_euler('x', -90, degrees=True)).at(np.zeros(1)))
+    assert target.material_names[hits.material[0]] in ('PIF', 'MLI')
+    assert hits.range_m[0] == pytest.approx(8.0, abs=0.05)
+
+
+def test_mesh_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match='nope.obj'):
+        load_target(tmp_path / 'nope.obj', ['PIF'])
+
+
+def test_repo_mesh_path_exists():
+    assert (REPO / 'meshes' / 'rocket_body.obj').is_file()
