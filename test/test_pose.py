@@ -50,3 +50,17 @@ def test_scenario_trajectory_closed_form(default_scenario):
     assert np.degrees(rel.magnitude()) == pytest.approx(2.0 * cfg.motion.tumble_rate_dps)
     axis = np.array(cfg.motion.tumble_axis) / np.linalg.norm(cfg.motion.tumble_axis)
     assert rel.as_rotvec() / rel.magnitude() == pytest.approx(axis)
+
+
+def test_quaternion_product_matches_scipy_both_branches():
+    from lidar_sim_ros.core.pose import quat_multiply, rotvec_to_quat
+    a = Rotation.random(20, random_state=1)
+    b = Rotation.random(20, random_state=2)
+    one = Rotation.random(random_state=3)
+    assert np.allclose(Rotation.from_quat(quat_multiply(a.as_quat(), b.as_quat())).as_matrix(),
+                       (a * b).as_matrix())
+    assert np.allclose(Rotation.from_quat(quat_multiply(a.as_quat(), one.as_quat())).as_matrix(),
+                       (a * one).as_matrix())
+    rv = np.random.default_rng(0).normal(size=(20, 3))
+    rv[0] = 0.0
+    assert np.allclose(Rotation.from_quat(rotvec_to_quat(rv)).as_matrix(), Rotation.from_rotvec(rv).as_matrix())

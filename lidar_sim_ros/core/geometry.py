@@ -72,16 +72,14 @@ class Target:
         face = res['primID'].astype(np.int64)
         hit = face >= 0
         rng = np.where(hit, res['tfar'].astype(np.float64), np.inf)
-        normal = np.zeros((len(face), 3))
-        normal[hit] = self.face_normals[face[hit]]
+        safe_face = np.where(hit, face, 0)
+        normal = self.face_normals.take(safe_face, axis=0)
+        normal[~hit] = 0.0
         # Two-sided surfaces: orient the normal toward the sensor.
         cos_i = -np.einsum('ij,ij->i', normal, np.asarray(directions, dtype=np.float64))
-        flip = cos_i < 0
-        normal[flip] *= -1.0
-        cos_i = np.abs(cos_i)
-        incidence = np.where(hit, np.arccos(np.clip(cos_i, 0.0, 1.0)), np.nan)
-        material = np.full(len(face), -1, dtype=np.int16)
-        material[hit] = self.face_material[face[hit]]
+        normal *= np.where(cos_i < 0, -1.0, 1.0)[:, None]
+        incidence = np.where(hit, np.arccos(np.minimum(np.abs(cos_i), 1.0)), np.nan)
+        material = np.where(hit, self.face_material.take(safe_face), -1).astype(np.int16)
         return Hits(hit, rng, normal, incidence, material, np.where(hit, face, -1))
 
 
@@ -93,8 +91,10 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
     come back to the lidar frame. Ranges are frame-independent.
     """
     n = len(directions_lidar)
-    origin = np.zeros((n, 3)) if origin_lidar_m is None else np.broadcast_to(origin_lidar_m, (n, 3))
-    o_body = poses.to_body(origin)
+    if origin_lidar_m is None:
+        o_body = poses.vector_to_body(-np.broadcast_to(poses.position_m, (n, 3)))
+    else:
+        o_body = poses.to_body(np.broadcast_to(origin_lidar_m, (n, 3)))
     d_body = poses.vector_to_body(directions_lidar)
     hits = target.cast(o_body, d_body)
     normal_lidar = poses.vector_to_lidar(hits.normal)

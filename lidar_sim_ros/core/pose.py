@@ -19,10 +19,17 @@ def quat_multiply(q1_xyzw: np.ndarray, q2_xyzw: np.ndarray) -> np.ndarray:
     """Hamilton product q1 * q2 of (N, 4) or (4,) xyzw quaternions (broadcasts).
 
     scipy's ``Rotation.__mul__`` costs ~9 ms for 21k rotations here, most of a
-    frame's budget; this vectorised product is ~50x faster.
+    frame's budget; this vectorised product is ~20x faster.
     """
-    x1, y1, z1, w1 = np.moveaxis(np.asarray(q1_xyzw, dtype=float), -1, 0)
-    x2, y2, z2, w2 = np.moveaxis(np.asarray(q2_xyzw, dtype=float), -1, 0)
+    q1 = np.asarray(q1_xyzw, dtype=float)
+    q2 = np.asarray(q2_xyzw, dtype=float)
+    if q2.ndim == 1:
+        # q1 * q2 is linear in q1: one (N,4) x (4,4) product.
+        x, y, z, w = q2
+        right = np.array([[w, -z, y, -x], [z, w, -x, -y], [-y, x, w, -z], [x, y, z, w]])
+        return q1 @ right
+    x1, y1, z1, w1 = np.moveaxis(q1, -1, 0)
+    x2, y2, z2, w2 = np.moveaxis(q2, -1, 0)
     return np.stack([w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
                      w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
                      w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
@@ -125,7 +132,10 @@ class ScenarioTrajectory:
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         los = self.position0_m / np.linalg.norm(self.position0_m)
         pos = self.position0_m[None, :] - (self.approach_speed_mps * t)[:, None] * los[None, :]
-        spin = rotvec_to_quat((self.tumble_rate_rad_s * t)[:, None] * self.tumble_axis[None, :])
+        half = 0.5 * self.tumble_rate_rad_s * t
+        spin = np.empty((len(t), 4))
+        spin[:, :3] = np.sin(half)[:, None] * self.tumble_axis[None, :]
+        spin[:, 3] = np.cos(half)
         return Poses(Rotation.from_quat(quat_multiply(spin, self.rotation0.as_quat())), pos)
 
 
