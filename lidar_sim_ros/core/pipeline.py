@@ -14,7 +14,7 @@ import numpy as np
 from lidar_sim_ros.core import detection, reflection
 from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
-from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, load_target
+from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target
 from lidar_sim_ros.core.pose import PoseSource
 from lidar_sim_ros.core.scan import Shots, frame_shots
 
@@ -80,6 +80,7 @@ class Simulator:
         self.effects: list[Effect] = list(effects or [])
         self.shots: Shots = frame_shots(sensor, scan_base)
         self.directions = self.shots.directions()
+        self._cast_order = coherent_order(self.shots.az_rad, self.shots.el_rad)
         self._kd, self._ks, self._n = (materials.column(k) for k in ('kd', 'ks', 'n'))
         self._bias, self._sigma = materials.column('bias_m'), materials.column('sigma_m')
 
@@ -102,8 +103,11 @@ class Simulator:
     # ------------------------------------------------------------------ stages
     def predict(self, t_abs_s: np.ndarray, directions: np.ndarray, pose_source: PoseSource,
                 t_frame_s: np.ndarray | None = None, az_rad=None, el_rad=None,
-                laser: np.ndarray | None = None) -> Prediction:
-        """Raycast + reflection + error model for rays at absolute times (no random draws)."""
+                laser: np.ndarray | None = None, cast_order: np.ndarray | None = None) -> Prediction:
+        """Raycast + reflection + error model for rays at absolute times (no random draws).
+
+        ``cast_order``: optional coherent ray order for Embree (results keep input order).
+        """
         t_abs_s = np.asarray(t_abs_s, dtype=float)
         n = len(t_abs_s)
         t_pose = t_abs_s
@@ -117,7 +121,7 @@ class Simulator:
             if hits is not None:
                 break
         if hits is None:
-            hits = cast_at_poses(self.target, directions, poses)
+            hits = cast_at_poses(self.target, directions, poses, order=cast_order)
         mat = np.where(hits.hit, hits.material, 0).astype(np.intp)
         rng_m = np.where(hits.hit, hits.range_m, np.nan)
         power = np.where(hits.hit, reflection.return_power_w(
@@ -161,7 +165,7 @@ class Simulator:
         shots = self.shots
         t_abs = frame_start_s + shots.t_s
         pred = self.predict(t_abs, self.directions, pose_source, shots.t_s,
-                            shots.az_rad, shots.el_rad, shots.laser)
+                            shots.az_rad, shots.el_rad, shots.laser, self._cast_order)
         ctx, hit = pred.ctx, pred.ctx.hit
         det = self.sensor.detection
         true_range = np.where(hit, ctx.range_m, 0.0)

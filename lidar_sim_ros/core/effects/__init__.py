@@ -12,6 +12,8 @@ from pathlib import Path
 from lidar_sim_ros.core.effects.base import Effect, NoParams, ReturnContext
 
 REGISTRY: dict[str, type[Effect]] = {}
+# User effect files already executed, by resolved path: loading twice gives the same class.
+_FILE_MODULES: dict[Path, object] = {}
 
 # Catalogue modules register themselves on import.
 _CATALOGUE = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
@@ -45,21 +47,30 @@ def get_effect_class(spec: str) -> type[Effect]:
                        'or give module:Class / path.py:Class')
     where, cls_name = spec.rsplit(':', 1)
     if where.endswith('.py') or Path(where).is_file():
-        path = Path(where)
+        path = Path(where).expanduser()
         if not path.is_file():
             raise FileNotFoundError(f'effect file not found: {path}')
-        mod_spec = importlib.util.spec_from_file_location(f'user_effect_{path.stem}', path)
-        module = importlib.util.module_from_spec(mod_spec)
-        mod_spec.loader.exec_module(module)
+        path = path.resolve()
+        module = _FILE_MODULES.get(path)
+        if module is None:
+            mod_spec = importlib.util.spec_from_file_location(f'user_effect_{path.stem}', path)
+            module = importlib.util.module_from_spec(mod_spec)
+            mod_spec.loader.exec_module(module)
+            _FILE_MODULES[path] = module
+        load_spec = f'{path}:{cls_name}'
     else:
         module = importlib.import_module(where)
+        load_spec = spec
     cls = getattr(module, cls_name, None)
     if not (isinstance(cls, type) and issubclass(cls, Effect)):
         raise TypeError(f'{spec}: {cls_name} is not an Effect subclass')
+    if not cls.__module__.startswith(__name__ + '.'):
+        cls.load_spec = load_spec
     return cls
 
 
 def make_effect(spec: str, params: dict | None = None) -> Effect:
+    """An effect instance from a catalogue name / ``module:Class`` / ``file.py:Class``."""
     return get_effect_class(spec)(params)
 
 
@@ -68,5 +79,8 @@ def catalogue() -> dict[str, type[Effect]]:
     return {k: REGISTRY[k] for k in _CATALOGUE if k in REGISTRY}
 
 
+from lidar_sim_ros.core.effects.fitting import (FitData, FitResult, evaluate,  # noqa: E402
+                                                fit_effect)
+
 __all__ = ['Effect', 'NoParams', 'ReturnContext', 'REGISTRY', 'register', 'get_effect_class',
-           'make_effect', 'catalogue']
+           'make_effect', 'catalogue', 'FitData', 'FitResult', 'evaluate', 'fit_effect']

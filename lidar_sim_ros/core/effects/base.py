@@ -3,15 +3,17 @@
 An effect changes what the paper's baseline model predicts through a small set of
 hooks, each a pure function over per-shot arrays. The simulator calls the forward
 hooks; ``lidar-sim compare`` uses the same hooks to predict and ``fit`` to estimate
-the parameters from measured-minus-predicted residuals.
+the parameters by maximum likelihood from the measured ranges (``fitting.py``).
 
-Write your own::
+Write your own (``examples/drift_effect.py``)::
 
     from pydantic import BaseModel
     from lidar_sim_ros.core.effects import Effect
 
     class DriftInFrame(Effect):
         name = 'drift_in_frame'
+        bounds = {'rate_m_per_s': (-5.0, 5.0)}   # free parameters and their search box
+        initial = {'rate_m_per_s': 0.0}
 
         class Params(BaseModel):
             rate_m_per_s: float = 0.0
@@ -19,15 +21,21 @@ Write your own::
         def range_bias_m(self, ctx):
             return self.params.rate_m_per_s * ctx.t_s
 
-Every hook has a neutral default, so an effect overrides only what it changes.
+Every hook has a neutral default, so an effect overrides only what it changes; a
+class that declares ``bounds`` is fitted by the generic bounded maximum-likelihood
+fit with no extra code.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
+import yaml
 from pydantic import BaseModel, ConfigDict
+
+if TYPE_CHECKING:
+    from lidar_sim_ros.core.effects.fitting import FitData, FitResult
 
 
 @dataclass(frozen=True)
@@ -37,7 +45,8 @@ class ReturnContext:
     range_m: true range (m); incidence_rad; material: id (-1 = miss);
     power_w: received power (W); intensity: power / saturation (-);
     t_s: time since frame start (s); az_rad, el_rad: pointing; laser: id;
-    divergence_rad: full beam divergence; hit: bool mask.
+    divergence_rad: full beam divergence; hit: bool mask;
+    threshold_power_w: detection threshold (W); min_range_m, max_range_m: range gate.
     """
 
     range_m: np.ndarray
@@ -53,6 +62,7 @@ class ReturnContext:
     hit: np.ndarray
     threshold_power_w: float = 0.0
     max_range_m: float = 300.0
+    min_range_m: float = 0.0
 
     def __len__(self) -> int:
         return len(self.range_m)
@@ -68,10 +78,23 @@ class NoParams(BaseModel):
 
 
 class Effect:
-    """Base class of all effects. Subclasses set ``name`` and a pydantic ``Params``."""
+    """Base class of all effects. Subclasses set ``name`` and a pydantic ``Params``.
+
+    Fitting: ``bounds`` maps each free parameter to its (low, high) search box and
+    ``initial`` gives the starting value (default: the Params default); parameters
+    not in ``bounds`` stay at their Params values. ``needs_repredict`` marks effects
+    that change the pose time or the raycast, which the fit must re-run the
+    prediction for (``FitData.predict``) instead of applying hooks to the baseline.
+    """
 
     name: ClassVar[str] = ''
     Params: ClassVar[type[BaseModel]] = NoParams
+    bounds: ClassVar[dict[str, tuple[float, float]]] = {}
+    initial: ClassVar[dict[str, float]] = {}
+    needs_repredict: ClassVar[bool] = False
+    # How to load the class again (``module:Class`` / ``file.py:Class``); set by the
+    # registry when it loads a user effect, used by ``to_yaml_snippet``.
+    load_spec: ClassVar[str | None] = None
 
     def __init__(self, params: BaseModel | dict[str, Any] | None = None):
         if isinstance(params, BaseModel):
@@ -105,3 +128,51 @@ class Effect:
     def false_returns(self, ctx: ReturnContext, rng: np.random.Generator):
         """Spurious returns: (mask over shots, range_m) replacing those shots' returns, or None."""
         return None
+
+    def outlier_fraction(self, ctx: ReturnContext) -> np.ndarray | float:
+        """Probability (-) that a shot's return is a spurious point at a uniform range.
+
+        The likelihood of a measured range r becomes
+        (1 - w) N(r; expected, sigma) + w / (range window width).
+        """
+        return 0.0
+
+    # ---- fitting and export -----------------------------------------------------
+    @classmethod
+    def fit(cls, data: 'FitData', base_effects=()) -> 'FitResult':
+        """Maximum-likelihood estimate of the free parameters (``bounds``) on ``data``.
+
+        Default: the generic bounded fit of ``fitting.fit_bounded``. Override with a
+        closed form or a 1-D search where the physics allows.
+        """
+        from lidar_sim_ros.core.effects.fitting import fit_bounded
+        return fit_bounded(cls, data, base_effects)
+
+    @classmethod
+    def spec(cls) -> str:
+        """The name that ``make_effect`` / a scenario's ``effects:`` entry loads this class by."""
+        from lidar_sim_ros.core.effects import REGISTRY
+        if cls.__module__.startswith('lidar_sim_ros.core.effects.') and REGISTRY.get(cls.name) is cls:
+            return cls.name
+        if cls.__dict__.get('load_spec'):
+            return cls.__dict__['load_spec']
+        return f'{cls.__module__}:{cls.__qualname__}'
+
+    def to_yaml_snippet(self) -> str:
+        """The scenario ``effects:`` entry for this effect, e.g.
+        ``- {name: range_walk, params: {k_m: 0.0213}}``."""
+        values = self.params.model_dump()
+        defaults = type(self)().params.model_dump()
+        # The free parameters always; the others only where they differ from the default.
+        params = {k: _round(v) for k, v in values.items()
+                  if k in self.bounds or v != defaults.get(k)}
+        entry = {'name': self.spec(), 'params': params}
+        return '- ' + yaml.safe_dump(entry, default_flow_style=True, sort_keys=False,
+                                     width=1000).strip()
+
+
+def _round(value: Any) -> Any:
+    """Six significant digits for floats: readable snippets, no false precision."""
+    if isinstance(value, float) and np.isfinite(value):
+        return float(f'{value:.6g}')
+    return value
