@@ -1,0 +1,355 @@
+#!/usr/bin/env python3
+"""Benchmark of the core pipeline on the default scenario (`make bench`).
+
+Prints a summary and writes JSON with:
+
+* full pipeline (``Simulator.simulate_frame`` + packing to PointCloud2): ms per
+  frame, shots/s and points/s (median over frames);
+* raw embreex rays/s on the SAME rays in the same run: the body-frame rays of
+  each benchmarked frame, ``EmbreeScene().run(o, d, output=1)`` on a scene built
+  from the same triangles, and the ratio pipeline shots/s over raw rays/s;
+* a per-stage breakdown (pose, raycast, reflection, detection, packing), the
+  stages timed one by one through the public core functions;
+* peak RSS, and the cost per ray of a ~1M-triangle rocket mesh vs a ~10k one;
+* the top cProfile entries of simulate_frame (where the time goes).
+
+By default the process is pinned to one CPU (``--cpus 1``) so that the "one
+core" target is measured as such, whatever threads Embree or numpy start;
+CPU-time / wall-time ratios are recorded to show any remaining parallelism.
+Targets (issue 2): ratio >= 0.5; <= 10 ms per P-60 frame on one core;
+1M-triangle mesh <= 2x a 10k-triangle mesh per ray.
+"""
+from __future__ import annotations
+
+import os
+
+for _var in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS'):
+    os.environ.setdefault(_var, '1')  # numpy BLAS single-threaded; set before numpy loads
+
+import argparse  # noqa: E402
+import cProfile  # noqa: E402
+import importlib.util  # noqa: E402
+import io  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import pstats  # noqa: E402
+import resource  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Callable  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TARGET_RATIO = 0.5
+TARGET_MS_PER_FRAME = 10.0
+TARGET_MESH_COST = 2.0
+
+
+def timed(fn: Callable[[], object], repeats: int) -> tuple[float, float, object]:
+    """Median wall time and median CPU time (s) of ``repeats`` calls, plus the last result."""
+    walls, cpus, result = [], [], None
+    for _ in range(repeats):
+        c0, w0 = time.process_time(), time.perf_counter()
+        result = fn()
+        walls.append(time.perf_counter() - w0)
+        cpus.append(time.process_time() - c0)
+    return statistics.median(walls), statistics.median(cpus), result
+
+
+def pin_cpus(n: int) -> list[int]:
+    """Restrict this process to its first n allowed CPUs (0 = leave as is)."""
+    allowed = sorted(os.sched_getaffinity(0))
+    if n > 0:
+        os.sched_setaffinity(0, allowed[:n])
+    return sorted(os.sched_getaffinity(0))
+
+
+def load_mesh_tool():
+    """tools/make_rocket_mesh.py is a script, not a package: import it by path."""
+    path = ROOT / 'tools' / 'make_rocket_mesh.py'
+    spec = importlib.util.spec_from_file_location('make_rocket_mesh', path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--out', type=Path, default=Path('bench.json'), help='JSON output file')
+    ap.add_argument('--scenario', type=Path, default=ROOT / 'config' / 'scenario.yaml')
+    ap.add_argument('--frames', type=int, default=10, help='frames benchmarked (default 10)')
+    ap.add_argument('--repeats', type=int, default=3, help='timed repeats per frame (median)')
+    ap.add_argument('--cpus', type=int, default=1, help='pin to this many CPUs (0: no pinning)')
+    ap.add_argument('--small-segments', type=int, default=56, help='~10k-triangle rocket mesh')
+    ap.add_argument('--big-segments', type=int, default=600, help='~1M-triangle rocket mesh')
+    ap.add_argument('--no-mesh-scaling', action='store_true', help='skip the 1M-triangle test')
+    ap.add_argument('--profile-top', type=int, default=12, help='cProfile entries reported')
+    args = ap.parse_args(argv)
+
+    cpus = pin_cpus(args.cpus)
+    # Import after pinning, so any thread pool sizes itself to the allowed CPUs.
+    import numpy as np
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+
+    from lidar_sim_ros.core import detection, reflection
+    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.geometry import Target, cast_at_poses
+    from lidar_sim_ros.core.pipeline import Simulator
+    from lidar_sim_ros.core.pose import ScenarioTrajectory
+    from lidar_sim_ros.core.scan import frame_shots
+    from lidar_sim_ros.io.pointcloud import make_points, to_rosbags_msg
+    from rosbags.typesys import Stores, get_typestore
+
+    scenario = load_scenario(args.scenario)
+    t0 = time.perf_counter()
+    sim = Simulator.from_scenario(scenario)
+    setup_s = time.perf_counter() - t0
+    traj = ScenarioTrajectory.from_config(scenario.config)
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    target = sim.target
+    period = sim.frame_period_s
+    n_shots = len(sim.shots)
+    frame_id = scenario.config.frame_id
+
+    raw_scene = rtcore_scene.EmbreeScene()
+    TriangleMesh(raw_scene, target.vertices_m[target.faces].astype(np.float32))
+
+    def pack(frame):
+        points = make_points(frame.xyz_m, frame.intensity, frame.t_s, frame.ring, frame.material)
+        return to_rosbags_msg(points, int(frame.stamp_s * 1e9), frame_id, typestore)
+
+    # Warm-up: first calls pay for lazy imports, caches and Embree's first-use setup.
+    for i in range(2):
+        pack(sim.simulate_frame(i * period, traj, i))
+
+    rows = []
+    for i in range(args.frames):
+        start = i * period
+        sim_wall, sim_cpu, frame = timed(lambda: sim.simulate_frame(start, traj, i), args.repeats)
+        pack_wall, _, _ = timed(lambda: pack(frame), args.repeats)
+
+        # The same rays in the body frame, and raw Embree on them.
+        t_abs = start + sim.shots.t_s
+        poses = traj.at(t_abs)
+        o = np.ascontiguousarray(poses.to_body(np.zeros((n_shots, 3))), dtype=np.float32)
+        d = np.ascontiguousarray(poses.vector_to_body(sim.directions), dtype=np.float32)
+        raw_wall, raw_cpu, _ = timed(lambda: raw_scene.run(o, d, output=1), args.repeats)
+
+        # Stages, one by one through the public functions the simulator uses.
+        pose_wall, _, poses = timed(lambda: traj.at(t_abs), args.repeats)
+        cast_wall, _, hits = timed(lambda: cast_at_poses(target, sim.directions, poses),
+                                   args.repeats)
+        body_wall, _, _ = timed(lambda: target.cast(o, d), args.repeats)
+        mat = np.where(hits.hit, hits.material, 0).astype(np.intp)
+        kd, ks, n_exp = (scenario.materials.column(k)[mat] for k in ('kd', 'ks', 'n'))
+        optics, det = scenario.sensor.optics, scenario.sensor.detection
+
+        def reflect():
+            return np.where(hits.hit, reflection.return_power_w(
+                np.where(hits.hit, hits.range_m, 1.0), np.where(hits.hit, hits.incidence_rad, 0.0),
+                kd, ks, n_exp, optics), 0.0)
+
+        refl_wall, _, power = timed(reflect, args.repeats)
+        bias = scenario.materials.column('bias_m')[mat]
+        sigma = scenario.materials.column('sigma_m')[mat]
+
+        def detect():
+            rng = sim.frame_rng(i)
+            true_range = np.where(hits.hit, hits.range_m, 0.0)
+            keep = hits.hit & detection.detected_mask(power, true_range, det)
+            measured = detection.measured_range_m(true_range, bias, sigma, rng)
+            intensity = detection.intensity_from_power(power, det)
+            return sim.directions[keep] * measured[keep, None], intensity[keep]
+
+        det_wall, _, _ = timed(detect, args.repeats)
+        rows.append(dict(sim=sim_wall, sim_cpu=sim_cpu, pack=pack_wall, raw=raw_wall,
+                         raw_cpu=raw_cpu, pose=pose_wall, raycast=cast_wall, body_cast=body_wall,
+                         reflection=refl_wall, detection=det_wall, points=len(frame)))
+
+    med = {k: statistics.median(r[k] for r in rows) for k in rows[0]}
+    pipeline_s = med['sim'] + med['pack']
+    scan_wall, _, _ = timed(lambda: frame_shots(scenario.sensor), 3)
+    stages_ms = {
+        'scan (built once per Simulator, cached)': scan_wall * 1e3,
+        'pose (trajectory at every shot time)': med['pose'] * 1e3,
+        'raycast (cast_at_poses: to body, Embree, normals, incidence)': med['raycast'] * 1e3,
+        '  of which raw Embree run': med['raw'] * 1e3,
+        '  of which Target.cast post-processing': (med['body_cast'] - med['raw']) * 1e3,
+        'reflection (Phong BRDF, Eqs. 1-3)': med['reflection'] * 1e3,
+        'detection (dropouts, bias, noise, xyz)': med['detection'] * 1e3,
+        'packing (make_points + to_rosbags_msg)': med['pack'] * 1e3,
+    }
+    staged = med['pose'] + med['raycast'] + med['reflection'] + med['detection']
+    stages_ms['simulate_frame overhead (not in the stages above)'] = (med['sim'] - staged) * 1e3
+
+    pack_rclpy_ms = None
+    try:
+        from lidar_sim_ros.io.pointcloud import to_rclpy_msg
+        pts = make_points(frame.xyz_m, frame.intensity, frame.t_s, frame.ring, frame.material)
+        pack_rclpy_ms = timed(lambda: to_rclpy_msg(pts, 0, frame_id), 5)[0] * 1e3
+    except ImportError:
+        pass
+
+    result = {
+        'scenario': str(args.scenario),
+        'mesh_triangles': int(target.n_faces),
+        'frames': args.frames,
+        'repeats_per_frame': args.repeats,
+        'cpus_pinned': cpus,
+        'python': platform.python_version(),
+        'machine': platform.machine(),
+        'setup_s': setup_s,
+        'shots_per_frame': n_shots,
+        'points_per_frame_median': med['points'],
+        'pipeline': {
+            'definition': 'Simulator.simulate_frame + make_points + to_rosbags_msg',
+            'ms_per_frame': pipeline_s * 1e3,
+            'shots_per_s': n_shots / pipeline_s,
+            'points_per_s': med['points'] / pipeline_s,
+            'simulate_frame_ms': med['sim'] * 1e3,
+            'simulate_frame_cpu_over_wall': med['sim_cpu'] / med['sim'],
+        },
+        'embree_raw': {
+            'definition': 'EmbreeScene().run(o, d, output=1) on the same body-frame rays',
+            'ms_per_frame': med['raw'] * 1e3,
+            'rays_per_s': n_shots / med['raw'],
+            'cpu_over_wall': med['raw_cpu'] / med['raw'],
+        },
+        'ratio_pipeline_over_embree': (n_shots / pipeline_s) / (n_shots / med['raw']),
+        'stages_ms': stages_ms,
+        'pack_rclpy_ms': pack_rclpy_ms,
+    }
+    result['hot_spots'] = profile(sim, traj, period, args.profile_top)
+    result['peak_rss_mb_pipeline'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    if not args.no_mesh_scaling:
+        result['mesh_scaling'] = mesh_scaling(args, sim, traj, Target, scenario, np,
+                                              rtcore_scene, TriangleMesh)
+    result['peak_rss_mb'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    result['targets'] = targets(result)
+
+    report(result)
+    args.out.write_text(json.dumps(result, indent=2) + '\n')
+    print(f'\nwrote {args.out}')
+    return 0
+
+
+def profile(sim, traj, period: float, top: int) -> list[dict]:
+    """cProfile over a few frames: the functions with the most own time."""
+    prof = cProfile.Profile()
+    prof.enable()
+    for i in range(5):
+        sim.simulate_frame(i * period, traj, i)
+    prof.disable()
+    stats = pstats.Stats(prof, stream=io.StringIO())
+    total = sum(v[2] for v in stats.stats.values())
+    rows = sorted(stats.stats.items(), key=lambda kv: kv[1][2], reverse=True)[:top]
+    return [{'function': f'{Path(file).name}:{line}({name})', 'calls': nc,
+             'own_ms_per_frame': tt / 5 * 1e3, 'cum_ms_per_frame': ct / 5 * 1e3,
+             'own_share': tt / total}
+            for (file, line, name), (_, nc, tt, ct, _) in rows]
+
+
+def coherent_order(az_rad, el_rad, cell_deg: float = 1.0):
+    """Shot permutation that visits 1-degree angular cells row by row (ray coherence)."""
+    import numpy as np
+    row = np.floor(np.degrees(el_rad) / cell_deg)
+    col = np.floor(np.degrees(az_rad) / cell_deg)
+    return np.lexsort((az_rad, col, row))
+
+
+def mesh_scaling(args, sim, traj, Target, scenario, np, rtcore_scene, TriangleMesh) -> dict:
+    """Cost per ray of a fine vs a coarse rocket mesh on the same rays (frame 0).
+
+    Measured twice: in firing order (what the pipeline casts: the 24 lasers fire
+    round-robin, so consecutive rays land in different tiles) and with the same
+    rays sorted into 1-degree angular cells (coherent: neighbours share BVH nodes).
+    """
+    tool = load_mesh_tool()
+    names = scenario.materials.names
+    poses = traj.at(sim.shots.t_s)
+    o = np.ascontiguousarray(poses.to_body(np.zeros((len(sim.shots), 3))), dtype=np.float32)
+    d = np.ascontiguousarray(poses.vector_to_body(sim.directions), dtype=np.float32)
+    order = coherent_order(sim.shots.az_rad, sim.shots.el_rad)
+    o_sorted, d_sorted = np.ascontiguousarray(o[order]), np.ascontiguousarray(d[order])
+    out = {}
+    for label, segments in (('small', args.small_segments), ('big', args.big_segments)):
+        mesh, mats = tool.build_rocket_body(segments)
+        t0 = time.perf_counter()
+        target = Target(np.asarray(mesh.vertices), np.asarray(mesh.faces),
+                        np.array([names.index(m) for m in mats]), names)
+        build_s = time.perf_counter() - t0
+        scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene, target.vertices_m[target.faces].astype(np.float32))
+        scene.run(o[:100], d[:100], output=1)  # BVH build happens on the first query
+        raw_s, raw_cpu, res = timed(lambda: scene.run(o, d, output=1), 7)
+        sorted_s, _, _ = timed(lambda: scene.run(o_sorted, d_sorted, output=1), 7)
+        cast_s, _, _ = timed(lambda: target.cast(o, d), 7)
+        out[label] = {'segments': segments, 'triangles': int(target.n_faces),
+                      'target_build_s': build_s,
+                      'hit_fraction': float(np.mean(res['primID'] >= 0)),
+                      'embree_ns_per_ray': raw_s / len(o) * 1e9,
+                      'embree_coherent_ns_per_ray': sorted_s / len(o) * 1e9,
+                      'embree_cpu_over_wall': raw_cpu / raw_s,
+                      'target_cast_ns_per_ray': cast_s / len(o) * 1e9}
+        del target, scene, mesh
+    big, small = out['big'], out['small']
+    out['embree_cost_ratio_big_over_small'] = big['embree_ns_per_ray'] / small['embree_ns_per_ray']
+    out['embree_coherent_cost_ratio_big_over_small'] = (big['embree_coherent_ns_per_ray']
+                                                        / small['embree_coherent_ns_per_ray'])
+    out['target_cast_cost_ratio_big_over_small'] = (big['target_cast_ns_per_ray']
+                                                    / small['target_cast_ns_per_ray'])
+    return out
+
+
+def targets(r: dict) -> dict:
+    t = {
+        'ratio_ge_0.5': r['ratio_pipeline_over_embree'] >= TARGET_RATIO,
+        'ms_per_frame_le_10': r['pipeline']['ms_per_frame'] <= TARGET_MS_PER_FRAME,
+    }
+    if 'mesh_scaling' in r:
+        t['mesh_1M_le_2x_10k'] = r['mesh_scaling']['embree_cost_ratio_big_over_small'] <= TARGET_MESH_COST
+    return t
+
+
+def report(r: dict) -> None:
+    p, e = r['pipeline'], r['embree_raw']
+    ok = {True: 'ok', False: 'MISSED'}
+    print(f"scenario {r['scenario']}: {r['mesh_triangles']} triangles, {r['shots_per_frame']} "
+          f"shots/frame, {r['points_per_frame_median']:.0f} points/frame; CPUs {r['cpus_pinned']}")
+    print(f"pipeline ({p['definition']}):")
+    print(f"  {p['ms_per_frame']:8.2f} ms/frame   {p['shots_per_s'] / 1e6:6.2f} M shots/s   "
+          f"{p['points_per_s'] / 1e6:6.2f} M points/s   [target <= {TARGET_MS_PER_FRAME:g} ms: "
+          f"{ok[r['targets']['ms_per_frame_le_10']]}]")
+    print(f"raw embreex on the same rays: {e['ms_per_frame']:.2f} ms/frame, "
+          f"{e['rays_per_s'] / 1e6:.2f} M rays/s (CPU/wall {e['cpu_over_wall']:.2f})")
+    print(f"ratio pipeline / embree rays per second: {r['ratio_pipeline_over_embree']:.3f}   "
+          f"[target >= {TARGET_RATIO}: {ok[r['targets']['ratio_ge_0.5']]}]")
+    print('stages (median ms per frame):')
+    for name, ms in r['stages_ms'].items():
+        print(f'  {ms:8.3f}  {name}')
+    if r['pack_rclpy_ms'] is not None:
+        print(f"  {r['pack_rclpy_ms']:8.3f}  (packing for the node: to_rclpy_msg)")
+    print('hot spots (cProfile own time per frame):')
+    for h in r['hot_spots']:
+        print(f"  {h['own_ms_per_frame']:8.3f} ms  {100 * h['own_share']:5.1f} %  "
+              f"{h['calls'] // 5:>4} calls  {h['function']}")
+    if 'mesh_scaling' in r:
+        m = r['mesh_scaling']
+        for k in ('small', 'big'):
+            print(f"mesh {k}: {m[k]['triangles']:>9} triangles  embree {m[k]['embree_ns_per_ray']:7.1f} "
+                  f"ns/ray (coherent order {m[k]['embree_coherent_ns_per_ray']:6.1f})  "
+                  f"Target.cast {m[k]['target_cast_ns_per_ray']:7.1f} ns/ray  "
+                  f"(build {m[k]['target_build_s']:.2f} s, hits {100 * m[k]['hit_fraction']:.0f} %)")
+        print(f"1M vs 10k triangles, cost per ray: embree x{m['embree_cost_ratio_big_over_small']:.2f}, "
+              f"Target.cast x{m['target_cast_cost_ratio_big_over_small']:.2f}   "
+              f"[target <= {TARGET_MESH_COST:g}x: {ok[r['targets']['mesh_1M_le_2x_10k']]}]; "
+              f"rays in coherent order: embree x{m['embree_coherent_cost_ratio_big_over_small']:.2f}")
+    print(f"peak RSS: {r['peak_rss_mb_pipeline']:.0f} MB for the pipeline, "
+          f"{r['peak_rss_mb']:.0f} MB at the end (incl. the mesh-scaling meshes)")
+
+
+if __name__ == '__main__':
+    sys.exit(main())

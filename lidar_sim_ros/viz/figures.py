@@ -1,0 +1,322 @@
+"""PNG figures of one LiDAR frame, like the paper's Figs. 6 and 13-16.
+
+* ``scan_pattern``: azimuth/elevation of every shot coloured by laser, with the
+  tile grid of a tiled (Lissajous array) scanner (paper Fig. 6). Without the
+  frame's shots (e.g. from a bag) it shows the returns' angles coloured by ``ring``.
+* ``points_3d_range``: the points in 3D coloured by range (Fig. 13).
+* ``range_image``: azimuth vs elevation coloured by range, showing the scan
+  lattice on the target (Fig. 14).
+* ``points_material``: the points by material, legend with the names (Fig. 15).
+* ``points_intensity``: the points by intensity on a log colour scale (Fig. 16).
+
+Angular plots are the sensor's view: azimuth grows to the LEFT (REP-103, +y is
+left), elevation up, equal degrees on both axes. Figures are drawn with the
+object-oriented matplotlib API on the Agg canvas, so importing this module never
+changes the pyplot backend of the caller.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import LogNorm, Normalize
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from lidar_sim_ros.core.scan import Shots, angles_from_directions
+from lidar_sim_ros.io.bag import BagContentError, read_clouds, read_material_names
+
+DPI = 150
+FIGURE_NAMES = ('scan_pattern', 'points_3d_range', 'range_image', 'points_material',
+                'points_intensity')
+NO_MATERIAL = 255  # same code as core.pipeline.NO_MATERIAL: a return not on the target
+
+# tab20 reordered dark hues first, so consecutive ids (neighbouring tiles) differ in hue.
+_DISCRETE = [colormaps['tab20'].colors[i] for i in (*range(0, 20, 2), *range(1, 20, 2))]
+_AZ_LABEL = 'azimuth [deg] (+ = left, REP-103)'
+_EL_LABEL = 'elevation [deg]'
+
+
+def render_frame_figures(points_structured: np.ndarray, out_dir: str | Path,
+                         material_names: Sequence[str] | None, shots: Shots | None = None,
+                         prefix: str = '', *, label: str = '') -> list[Path]:
+    """Write the five figures of one frame as ``out_dir/<prefix><name>.png``.
+
+    points_structured: a structured array with at least ``x, y, z`` [m, sensor frame]
+    (the layout of ``io.pointcloud``; ``ring``, ``material``, ``intensity`` are used
+    when present, and a figure whose field is missing is skipped).
+    material_names: index -> name for the ``material`` field (None: numbered).
+    shots: the frame's shots; given, the scan-pattern figure shows every shot and
+    the tile grid, otherwise the returns' angles. label: appended to every title.
+    Returns the written paths in the order of FIGURE_NAMES.
+    """
+    pts = _check_points(points_structured)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    names = list(material_names or [])
+    xyz = np.column_stack([pts['x'], pts['y'], pts['z']]).astype(float)
+    rng_m = np.linalg.norm(xyz, axis=1)
+    az_rad, el_rad = angles_from_directions(xyz) if len(xyz) else (np.zeros(0), np.zeros(0))
+    az_deg, el_deg = np.degrees(az_rad), np.degrees(el_rad)
+    fields = set(pts.dtype.names)
+    suffix = f'\n{label}' if label else ''
+
+    drawers = {
+        'scan_pattern': (lambda: _scan_pattern(shots, az_deg, el_deg, pts, suffix))
+        if shots is not None or 'ring' in fields else None,
+        'points_3d_range': lambda: _points_3d(xyz, rng_m, suffix),
+        'range_image': lambda: _range_image(az_deg, el_deg, rng_m, suffix),
+        'points_material': (lambda: _materials(az_deg, el_deg, pts['material'], names, suffix))
+        if 'material' in fields else None,
+        'points_intensity': (lambda: _intensity(az_deg, el_deg, pts['intensity'], suffix))
+        if 'intensity' in fields else None,
+    }
+    paths = []
+    for name in FIGURE_NAMES:
+        draw = drawers[name]
+        if draw is None:
+            continue
+        fig = draw()
+        path = out / f'{prefix}{name}.png'
+        fig.savefig(path, dpi=DPI)
+        paths.append(path)
+    return paths
+
+
+def render_bag_figures(bag_path: str | Path, out_dir: str | Path,
+                       material_names: Sequence[str] | None = None,
+                       frames: str | int | Sequence[int] = 'last') -> list[Path]:
+    """Read ``/lidar/points`` (and ``/lidar/material_names``) of a bag and render figures.
+
+    frames: 'last' (files named ``<figure>.png``), or 'first', 'all', a frame index
+    or a list of indices (files named ``frame_NNNN_<figure>.png``); negative indices
+    count from the end. material_names: overrides the names stored in the bag.
+    """
+    bag_path = Path(bag_path)
+    clouds = read_clouds(bag_path)
+    if not clouds:
+        raise BagContentError(f'bag {bag_path} has no messages on /lidar/points')
+    if material_names is None:
+        material_names = read_material_names(bag_path)
+    selected, prefixed = _select_frames(frames, len(clouds))
+    paths: list[Path] = []
+    for i in selected:
+        cloud = clouds[i]
+        label = f'{bag_path.name}: frame {i} of {len(clouds)}, stamp {cloud.stamp_ns / 1e9:.3f} s'
+        prefix = f'frame_{i:04d}_' if prefixed else ''
+        paths += render_frame_figures(cloud.points, out_dir, material_names, None, prefix,
+                                      label=label)
+    return paths
+
+
+# ------------------------------------------------------------------ helpers
+def _check_points(points: np.ndarray) -> np.ndarray:
+    names = getattr(getattr(points, 'dtype', None), 'names', None)
+    if not names or not {'x', 'y', 'z'} <= set(names):
+        raise ValueError(f'points must be a structured array with fields x, y, z, got dtype '
+                         f'{getattr(points, "dtype", type(points).__name__)}')
+    return np.asarray(points).reshape(-1)
+
+
+def _select_frames(frames: str | int | Sequence[int], n: int) -> tuple[list[int], bool]:
+    """Frame indices to draw and whether file names carry the frame index."""
+    if isinstance(frames, str):
+        choice = {'last': ([n - 1], False), 'first': ([0], True), 'all': (list(range(n)), True)}
+        if frames not in choice:
+            raise ValueError(f"frames must be 'last', 'first', 'all', an index or a list of "
+                             f'indices, got {frames!r}')
+        return choice[frames]
+    wanted = [frames] if isinstance(frames, (int, np.integer)) else list(frames)
+    out = []
+    for i in wanted:
+        if not isinstance(i, (int, np.integer)) or not -n <= i < n:
+            raise ValueError(f'frames: index {i!r} outside the bag\'s {n} frames')
+        out.append(int(i) % n)
+    return out, True
+
+
+def _new_figure(size: tuple[float, float]) -> Figure:
+    fig = Figure(figsize=size, layout='constrained')
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _angular_axes(fig: Figure, title: str):
+    ax = fig.add_subplot()
+    ax.set_title(title)
+    ax.set_xlabel(_AZ_LABEL)
+    ax.set_ylabel(_EL_LABEL)
+    ax.set_aspect('equal', adjustable='box')
+    ax.grid(True, linewidth=0.3, alpha=0.5)
+    return ax
+
+
+def _finish_angular(ax, az_deg: np.ndarray, el_deg: np.ndarray) -> None:
+    """Axis limits around the data (with a margin) and azimuth increasing to the left."""
+    if len(az_deg):
+        pad = 1.0
+        ax.set_xlim(az_deg.max() + pad, az_deg.min() - pad)
+        ax.set_ylim(el_deg.min() - pad, el_deg.max() + pad)
+    else:
+        ax.invert_xaxis()
+        ax.text(0.5, 0.5, 'no returns in this frame', transform=ax.transAxes,
+                ha='center', va='center')
+
+
+def _laser_colours(laser: np.ndarray) -> np.ndarray:
+    return np.asarray(_DISCRETE)[np.asarray(laser, dtype=np.int64) % len(_DISCRETE)]
+
+
+def _scan_pattern(shots: Shots | None, az_deg: np.ndarray, el_deg: np.ndarray,
+                  pts: np.ndarray, suffix: str) -> Figure:
+    fig = _new_figure((10.0, 5.0))
+    if shots is not None:
+        s_az, s_el = np.degrees(shots.az_rad), np.degrees(shots.el_rad)
+        laser = np.asarray(shots.laser)
+        title = (f'Scan pattern of one frame (cf. paper Fig. 6): {len(s_az)} shots, '
+                 f'{len(np.unique(laser))} lasers')
+    else:
+        s_az, s_el, laser = az_deg, el_deg, np.asarray(pts['ring'])
+        title = (f'Scan pattern seen in the returns: {len(s_az)} points, '
+                 f'{len(np.unique(laser))} rings (angles from x, y, z)')
+    ax = _angular_axes(fig, title + suffix)
+    if len(s_az):
+        ax.scatter(s_az, s_el, c=_laser_colours(laser), s=1.0, linewidths=0, rasterized=True)
+    grid = _tile_grid(s_az, s_el, laser) if shots is not None else None
+    if grid is not None:
+        az_edges, el_edges = grid
+        for a in az_edges:
+            ax.plot([a, a], [el_edges[0], el_edges[-1]], color='k', linewidth=0.8)
+        for e in el_edges:
+            ax.plot([az_edges[0], az_edges[-1]], [e, e], color='k', linewidth=0.8)
+    for lid in np.unique(laser):
+        sel = laser == lid
+        # labels at the laser's own centre: tile centre for shots, median of its returns otherwise
+        ca = 0.5 * (s_az[sel].min() + s_az[sel].max()) if shots is not None else np.median(s_az[sel])
+        ce = 0.5 * (s_el[sel].min() + s_el[sel].max()) if shots is not None else np.median(s_el[sel])
+        ax.text(ca, ce, str(int(lid)), ha='center', va='center', fontsize=7,
+                bbox=dict(boxstyle='round,pad=0.15', fc='white', ec='none', alpha=0.7))
+    _finish_angular(ax, s_az, s_el)
+    ax.set_xlabel(_AZ_LABEL + ('; colour and label = laser id' if shots is not None
+                               else '; colour and label = ring'))
+    return fig
+
+
+def _tile_grid(az_deg: np.ndarray, el_deg: np.ndarray,
+               laser: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Tile edges (deg) when the lasers' own extents tile a regular grid, else None.
+
+    A laser's tile centre is the middle of its angular extent; edges sit midway
+    between neighbouring centres (outer edges half a spacing out). Patterns whose
+    lasers have no 2D extent (a spinning multi-beam sensor) get no grid.
+    """
+    ids = np.unique(laser)
+    if len(ids) < 2:
+        return None
+    centres = []
+    for lid in ids:
+        sel = laser == lid
+        a0, a1, e0, e1 = (az_deg[sel].min(), az_deg[sel].max(),
+                              el_deg[sel].min(), el_deg[sel].max())
+        if a1 - a0 < 1e-6 or e1 - e0 < 1e-6:
+            return None
+        centres.append(((a0 + a1) / 2, (e0 + e1) / 2))
+    centres = np.round(np.asarray(centres), 3)
+    az_c, el_c = np.unique(centres[:, 0]), np.unique(centres[:, 1])
+    if len(az_c) * len(el_c) != len(ids) or len(np.unique(centres, axis=0)) != len(ids):
+        return None
+
+    def edges(c: np.ndarray, lo: float, hi: float) -> np.ndarray:
+        if len(c) == 1:
+            return np.array([lo, hi])
+        mid = (c[1:] + c[:-1]) / 2
+        return np.concatenate([[c[0] - (mid[0] - c[0])], mid, [c[-1] + (c[-1] - mid[-1])]])
+
+    return (edges(az_c, az_deg.min(), az_deg.max()), edges(el_c, el_deg.min(), el_deg.max()))
+
+
+def _points_3d(xyz: np.ndarray, rng_m: np.ndarray, suffix: str) -> Figure:
+    fig = _new_figure((9.0, 7.0))
+    ax = fig.add_subplot(projection='3d')
+    ax.set_title(f'Simulated points coloured by range (cf. paper Fig. 13): {len(xyz)} points'
+                 + suffix)
+    norm = _range_norm(rng_m)
+    sc = ax.scatter(xyz[:, 0], xyz[:, 1], xyz[:, 2], c=rng_m, cmap='viridis', norm=norm,
+                    s=0.6, linewidths=0, depthshade=False, rasterized=True)
+    if len(xyz):
+        lo, hi = xyz.min(axis=0), xyz.max(axis=0)
+        ax.set_box_aspect(np.maximum(hi - lo, 1e-3))  # equal metres on every axis
+    else:
+        ax.text2D(0.5, 0.5, 'no returns in this frame', transform=ax.transAxes, ha='center')
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+        axis.set_major_locator(MaxNLocator(5))
+    ax.set_xlabel('x [m] (forward)', labelpad=8)
+    ax.set_ylabel('y [m] (left)', labelpad=8)
+    ax.set_zlabel('z [m] (up)', labelpad=8)
+    # Camera behind and above the sensor, looking along +x: the side the LiDAR sees.
+    ax.view_init(elev=20.0, azim=-150.0)
+    fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.1, label='range [m]')
+    return fig
+
+
+def _range_norm(rng_m: np.ndarray) -> Normalize:
+    if len(rng_m) == 0:
+        return Normalize(0.0, 1.0)
+    lo, hi = np.percentile(rng_m, [0.5, 99.5])
+    return Normalize(lo, max(hi, lo + 1e-3))
+
+
+def _range_image(az_deg: np.ndarray, el_deg: np.ndarray, rng_m: np.ndarray,
+                 suffix: str) -> Figure:
+    fig = _new_figure((10.0, 5.0))
+    ax = _angular_axes(fig, 'Range image: the scan lattice on the target (cf. paper Fig. 14)'
+                       + suffix)
+    sc = ax.scatter(az_deg, el_deg, c=rng_m, cmap='viridis', norm=_range_norm(rng_m),
+                    s=1.5, linewidths=0, rasterized=True)
+    _finish_angular(ax, az_deg, el_deg)
+    fig.colorbar(sc, ax=ax, shrink=0.9, label='range [m]')
+    return fig
+
+
+def _materials(az_deg: np.ndarray, el_deg: np.ndarray, material: np.ndarray,
+               names: list[str], suffix: str) -> Figure:
+    fig = _new_figure((10.0, 5.0))
+    ax = _angular_axes(fig, 'Points by surface material (cf. paper Fig. 15)' + suffix)
+    material = np.asarray(material, dtype=np.int64)
+    for mid in np.unique(material):
+        sel = material == mid
+        if mid == NO_MATERIAL:
+            name, colour = 'no material (false return)', (0.5, 0.5, 0.5)
+        else:
+            name = names[mid] if mid < len(names) else f'material {mid}'
+            colour = _DISCRETE[mid % len(_DISCRETE)]
+        ax.scatter(az_deg[sel], el_deg[sel], color=colour, s=1.5, linewidths=0,
+                   label=f'{name} ({int(sel.sum())})', rasterized=True)
+    _finish_angular(ax, az_deg, el_deg)
+    if len(material):
+        ax.legend(title='material (points)', loc='center left', bbox_to_anchor=(1.01, 0.5),
+                  markerscale=6, fontsize=8, frameon=False)
+    return fig
+
+
+def _intensity(az_deg: np.ndarray, el_deg: np.ndarray, intensity: np.ndarray,
+               suffix: str) -> Figure:
+    fig = _new_figure((10.0, 5.0))
+    ax = _angular_axes(fig, 'Points by signal intensity (cf. paper Fig. 16)' + suffix)
+    intensity = np.asarray(intensity, dtype=float)
+    positive = intensity[intensity > 0]
+    lo = positive.min() if len(positive) else 1e-6
+    hi = max(positive.max(), lo * 10) if len(positive) else 1.0
+    # Non-positive intensities (possible in measured data) sit at the bottom of the scale.
+    sc = ax.scatter(az_deg, el_deg, c=np.clip(intensity, lo, None), cmap='plasma',
+                    norm=LogNorm(lo, hi), s=1.5, linewidths=0, rasterized=True)
+    _finish_angular(ax, az_deg, el_deg)
+    fig.colorbar(sc, ax=ax, shrink=0.9,
+                 label='intensity = received / saturation power [-] (log scale)')
+    return fig
+
+
+__all__ = ['DPI', 'FIGURE_NAMES', 'render_bag_figures', 'render_frame_figures']
