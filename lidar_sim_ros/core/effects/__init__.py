@@ -1,7 +1,8 @@
 """Physical effects beyond the paper's baseline model: a registry by name.
 
 ``get_effect_class('range_walk')`` finds a catalogue effect; ``'pkg.module:Class'``
-or ``'path/to/file.py:Class'`` loads a user-defined one.
+or ``'path/to/file.py:Class'`` loads a user-defined one. ``fit_effect`` / ``evaluate``
+(from ``fitting.py``) fit and score effects against measurements.
 """
 from __future__ import annotations
 

@@ -152,7 +152,8 @@ class Effect:
     def spec(cls) -> str:
         """The name that ``make_effect`` / a scenario's ``effects:`` entry loads this class by."""
         from lidar_sim_ros.core.effects import REGISTRY
-        if cls.__module__.startswith('lidar_sim_ros.core.effects.') and REGISTRY.get(cls.name) is cls:
+        in_catalogue = cls.__module__.startswith('lidar_sim_ros.core.effects.')
+        if in_catalogue and REGISTRY.get(cls.name) is cls:
             return cls.name
         if cls.__dict__.get('load_spec'):
             return cls.__dict__['load_spec']

@@ -65,7 +65,7 @@ class BeamDivergence(Effect):
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
         footprint_scale: float = Field(
-            0.0, ge=0.0, description='cone full angle in units of the beam divergence (-); 0 = single ray')
+            0.0, ge=0.0, description='cone full angle / beam divergence (-); 0 = single ray')
         rings: int = Field(2, ge=1, le=5, description='sub-ray rings (K = 1 + 3 rings (rings + 1))')
         range_mode: Literal['mean', 'first'] = 'mean'
 
@@ -77,7 +77,8 @@ class BeamDivergence(Effect):
         self._fraction: np.ndarray | None = None
         self._token: np.ndarray | None = None
 
-    def cast(self, target, directions_lidar: np.ndarray, poses, divergence_rad: float) -> Hits | None:
+    def cast(self, target, directions_lidar: np.ndarray, poses,
+             divergence_rad: float) -> Hits | None:
         half_angle = 0.5 * self.params.footprint_scale * divergence_rad
         if half_angle <= 0:
             return None

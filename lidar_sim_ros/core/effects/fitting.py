@@ -48,14 +48,17 @@ MIN_MATERIAL_POINTS = 30      # fewer matched points: no per-material nuisance f
 MODEL_FLOOR = 1e-6            # least outlier weight of the predictive density (module doc)
 ROBUST_FLOOR = 1e-3           # outlier weight assumed while fitting non-outlier effects
 MISS_WEIGHT = 1e-3            # least outlier weight of a point the model cannot place
-UNMATCHED_Z = 5.0             # an unmatched point is explained if the model now hits within this
+UNMATCHED_Z = 5.0             # an unmatched ray that now hits within this many sigma is explained
+SMOOTH_SLACK = 5.0            # nats a smoothed 1-D estimate may lose against the best step
 CHI2_1_MEDIAN = 0.454936423   # median of z^2 for z ~ N(0, 1)
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
 @dataclass(frozen=True)
 class FitData:
-    """Ray-matched measurement vs model, the input of every fit. Matched = the measured point's ray hits the target.
+    """Ray-matched measurement vs model, the input of every fit.
+
+    Matched = the measured point's ray hits the target.
 
     ``baseline`` is the model WITHOUT the effects being evaluated: every effect passed
     to :func:`evaluate` / :func:`fit_effect` (``base_effects`` and the candidate) is
@@ -66,14 +69,15 @@ class FitData:
     """
 
     measured_range_m: np.ndarray          # (N,) matched points' measured ranges
-    baseline: 'Prediction'                # pipeline.Prediction on those rays with NO candidate effect
+    baseline: 'Prediction'                # the model on those rays with NO candidate effect
     measured_intensity: np.ndarray | None  # (N,) in sensor units, or None
-    predict: Callable[[list[Effect]], 'Prediction']   # Simulator.predict on the SAME matched rays with these effects added
-    unmatched_range_m: np.ndarray         # (M,) ranges of measured points whose rays miss the target
+    # Simulator.predict on the SAME matched rays with these effects added:
+    predict: Callable[[list[Effect]], 'Prediction']
+    unmatched_range_m: np.ndarray         # (M,) ranges of points whose rays miss the target
     predict_unmatched: Callable[[list[Effect]], 'Prediction']  # same for the unmatched rays
     range_window_m: tuple[float, float]   # support of spurious-return ranges (min, max)
     n_shots: int | None = None            # shots fired if known (else None)
-    baseline_effects: tuple[Effect, ...] = ()   # effects inside baseline (for their outlier_fraction)
+    baseline_effects: tuple[Effect, ...] = ()   # inside baseline; for their outlier_fraction
 
     @property
     def window_width_m(self) -> float:
@@ -90,7 +94,7 @@ class FitResult:
     params: dict                  # fitted parameter values (plain floats)
     effect: Effect                # instance with those params
     nll_per_point: float          # mean NLL over matched points after adding the effect
-    range_rmse_m: float           # RMS(measured - expected) over matched points after adding the effect
+    range_rmse_m: float           # RMS(measured - expected), matched points, with the effect
     unmatched_explained: float    # fraction of unmatched points the effect accounts for (0..1)
     n_params: int
     nll_before_per_point: float = float('nan')
@@ -233,7 +237,7 @@ def point_nll(data: FitData, model: ModelOnRays, floor: float = 0.0,
     return -ll, np.where(np.isfinite(residual), residual, 0.0)
 
 
-def _uniform_share(ranges_m: np.ndarray, window: tuple[float, float],
+def uniform_share(ranges_m: np.ndarray, window: tuple[float, float],
                    target_ranges_m: np.ndarray) -> float:
     """ML share of points at uniform ranges over ``window`` rather than near the target.
 
@@ -295,7 +299,7 @@ def unmatched_explained(data: FitData, effects: Sequence[Effect],
     if w_mean > 0 and len(rest):
         n = len(data.measured_range_m)
         missed = max(data.n_shots - n, 0) if data.n_shots is not None else n
-        share = _uniform_share(rest, data.range_window_m, np.asarray(data.measured_range_m))
+        share = uniform_share(rest, data.range_window_m, np.asarray(data.measured_range_m))
         spurious = min(share * len(rest), w_mean * missed)
     return float(min(1.0, (hit_now.sum() + spurious) / m))
 
@@ -359,12 +363,14 @@ def objective(data: FitData, effects: Sequence[Effect], floor: float = ROBUST_FL
 
 # ------------------------------------------------------------------------ fitting
 def search_1d(f: Callable[[float], float], lo: float, hi: float, x0: float | None = None,
-              n_grid: int = 13, prefer_low: float = 0.0) -> float:
+              n_grid: int = 13, prefer_low: float = 0.0, smooth: bool = False) -> float:
     """Minimise f on [lo, hi]: a grid (plus x0), then Brent in the best grid cell.
 
     ``prefer_low`` > 0 returns instead the smallest x whose f is within that many nats
     of the minimum (bisection below the minimum): for likelihoods that go flat beyond
     the true value, e.g. a footprint size once every edge point is explained.
+    ``smooth`` replaces the minimum by the vertex of a parabola fitted through the
+    basin (``quadratic_vertex``): for step-like likelihoods of raycast parameters.
     """
     grid = np.linspace(lo, hi, max(n_grid, 3))
     if x0 is not None and lo <= x0 <= hi:
@@ -395,7 +401,48 @@ def search_1d(f: Callable[[float], float], lo: float, hi: float, x0: float | Non
             else:
                 lower = mid
         x_best = upper
+    elif smooth:
+        vertex = quadratic_vertex(f, x_best, f_best, lo, hi)
+        # The vertex may sit a fraction of a step above the lowest step, not several
+        # steps (rays put on the wrong surface) above it.
+        if f(vertex) <= f_best + SMOOTH_SLACK:
+            x_best = vertex
     return x_best
+
+
+def quadratic_vertex(f: Callable[[float], float], x: float, f_x: float, lo: float, hi: float,
+                     rise: float = 50.0, n: int = 11) -> float:
+    """Vertex of a parabola least-squares fitted to f over its basin around x.
+
+    When a parameter moves the raycast (a pose time, a footprint), rays near depth
+    steps switch surface one by one: the likelihood is a staircase with ~15-nat
+    steps and its lowest step is a matter of luck. Its trend is smooth: the basin is
+    widened until f has risen by ``rise`` nats on one side, sampled at n points
+    symmetrically about x, and the parabola's vertex is the estimate. Falls back to x
+    if the basin is not convex.
+    """
+    def reach(sign: float) -> float:
+        d = (hi - lo) * 1e-4
+        while True:
+            edge = x + sign * d
+            if edge <= lo or edge >= hi:
+                return min(d, x - lo) if sign < 0 else min(d, hi - x)
+            if f(edge) >= f_x + rise:
+                return d
+            d *= 2.0
+
+    # A symmetric window: on a lopsided basin the parabola would lean to the flat side.
+    d_lo = d_hi = min(reach(-1.0), reach(+1.0))
+    xs = np.linspace(x - d_lo, x + d_hi, n)
+    ys = np.array([f(float(v)) for v in xs])
+    ok = np.isfinite(ys)
+    if ok.sum() < 4 or d_lo + d_hi <= 0:
+        return x
+    a, b, _ = np.polyfit(xs[ok] - x, ys[ok] - f_x, 2)
+    if a <= 0:
+        return x
+    vertex = x - b / (2.0 * a)
+    return float(vertex) if x - d_lo <= vertex <= x + d_hi else x
 
 
 def _defaults(cls: type[Effect]) -> dict:
@@ -414,14 +461,18 @@ def make_effect_safe(cls: type[Effect], params: dict) -> Effect | None:
 
 
 def fit_bounded(cls: type[Effect], data: FitData, base_effects: Sequence[Effect] = (),
-                n_grid: int = 13, sweeps: int = 3, prefer_low: float = 0.0) -> FitResult:
+                n_grid: int = 13, sweeps: int = 3, prefer_low: float = 0.0,
+                smooth: bool | None = None) -> FitResult:
     """Generic bounded maximum likelihood over ``cls.bounds``, for any effect.
 
     Coordinate descent: each free parameter in turn gets a grid-and-Brent line search
     (``search_1d``) over its bounds, for a few sweeps, starting from ``cls.initial``
     (or the Params defaults). The grid makes it robust to several minima; the robust
-    objective (``objective``) makes it robust to spurious points.
+    objective (``objective``) makes it robust to spurious points. Effects that
+    re-predict the raycast are smoothed (``quadratic_vertex``) unless ``smooth`` says.
     """
+    if smooth is None:
+        smooth = bool(cls.needs_repredict) and prefer_low == 0
     base_effects = list(base_effects)
     names = free_params(cls)
     params = _defaults(cls)
@@ -442,7 +493,7 @@ def fit_bounded(cls: type[Effect], data: FitData, base_effects: Sequence[Effect]
         for k in names:
             lo, hi = cls.bounds[k]
             params[k] = search_1d(lambda x: total({**params, k: x}), lo, hi, params[k],
-                                  n_grid=n_grid, prefer_low=prefer_low)
+                                  n_grid=n_grid, prefer_low=prefer_low, smooth=smooth)
         if sweep and before - total(params) < 1e-3:
             break
     return make_result(cls(params), data, base_effects)
@@ -467,7 +518,8 @@ def make_result(effect: Effect, data: FitData, base_effects: Sequence[Effect] = 
                      extras=dict(extras or {}))
 
 
-def fit_effect(effect_cls: type[Effect], data: FitData, base_effects: Sequence[Effect] = ()) -> FitResult:
+def fit_effect(effect_cls: type[Effect], data: FitData,
+               base_effects: Sequence[Effect] = ()) -> FitResult:
     """Maximum-likelihood fit of effect_cls's free parameters on top of base_effects."""
     return effect_cls.fit(data, tuple(base_effects))
 

@@ -44,7 +44,8 @@ class IncidenceAngle(Effect):
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
         bias_gain: float = Field(0.0, description='bias per metre of footprint depth (-)')
-        sigma_gain: float = Field(0.0, ge=0.0, description='extra sigma per metre of footprint depth (-)')
+        sigma_gain: float = Field(0.0, ge=0.0,
+                                  description='extra sigma per metre of footprint depth (-)')
         max_incidence_deg: float = Field(85.0, gt=0.0, lt=90.0,
                                          description='tan(theta) is clipped here (grazing)')
 
@@ -66,6 +67,7 @@ class IncidenceAngle(Effect):
             model = model_on_rays(data, [*base_effects, cls({'sigma_gain': s})])
             b = linear_bias_coefficient(data, model, footprint_depth_m(model.ctx),
                                         cls.bounds['bias_gain'])
-            s = search_1d(lambda x: objective(data, [*base_effects, cls({'bias_gain': b, 'sigma_gain': x})]),
-                          *cls.bounds['sigma_gain'], x0=s)
+            s = search_1d(lambda x: objective(
+                data, [*base_effects, cls({'bias_gain': b, 'sigma_gain': x})]),
+                *cls.bounds['sigma_gain'], x0=s)
         return make_result(cls({'bias_gain': b, 'sigma_gain': s}), data, base_effects)

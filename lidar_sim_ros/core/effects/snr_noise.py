@@ -37,7 +37,8 @@ class SnrNoise(Effect):
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
         c_m: float = Field(0.0, ge=0.0, description='extra range noise at the threshold power (m)')
-        exponent: float = Field(0.5, gt=0.0, description='power-law exponent (-); 0.5 shot-noise limited')
+        exponent: float = Field(0.5, gt=0.0,
+                                description='power-law exponent (-); 0.5 = shot-noise limited')
 
     def range_sigma_m(self, ctx: ReturnContext) -> np.ndarray:
         return self.params.c_m * threshold_power_ratio(ctx) ** self.params.exponent

@@ -19,8 +19,8 @@ from scipy.optimize import minimize_scalar
 
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect, ReturnContext
-from lidar_sim_ros.core.effects.fitting import (FitData, FitResult, _uniform_share, make_result,
-                                                objective)
+from lidar_sim_ros.core.effects.fitting import (FitData, FitResult, make_result, objective,
+                                                uniform_share)
 
 
 @register
@@ -34,8 +34,10 @@ class SolarBackground(Effect):
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
         probability: float = Field(0.0, ge=0.0, le=1.0, description='false returns per shot (-)')
-        min_range_m: float | None = Field(None, ge=0.0, description='window start (m); None = range gate')
-        max_range_m: float | None = Field(None, gt=0.0, description='window end (m); None = range gate')
+        min_range_m: float | None = Field(None, ge=0.0,
+                                          description='window start (m); None = range gate')
+        max_range_m: float | None = Field(None, gt=0.0,
+                                          description='window end (m); None = range gate')
 
     def window_m(self, ctx: ReturnContext) -> tuple[float, float]:
         lo = self.params.min_range_m if self.params.min_range_m is not None else ctx.min_range_m
@@ -67,7 +69,7 @@ class SolarBackground(Effect):
 
         res = minimize_scalar(nll, bounds=(lo, hi), method='bounded', options={'xatol': 1e-7})
         p = float(res.x) if res.fun <= nll(lo) else lo
-        share = _uniform_share(np.asarray(data.unmatched_range_m, float), data.range_window_m,
+        share = uniform_share(np.asarray(data.unmatched_range_m, float), data.range_window_m,
                                np.asarray(data.measured_range_m, float))
         return make_result(cls({'probability': p}), data, base_effects,
                            extras={'unmatched_uniform_share': share,
