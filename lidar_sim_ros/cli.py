@@ -21,7 +21,10 @@ USER_ERRORS = (ValueError, KeyError, FileNotFoundError, FileExistsError, NotADir
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog='lidar-sim', description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog='lidar-sim',
+        description='LiDAR simulator for rendezvous with space debris: simulate frames to a '
+                    'rosbag2, compare the model with measurements, calibrate it from lab data.')
     parser.add_argument('--debug', action='store_true', help='show tracebacks for errors')
     sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
     for name in COMMAND_MODULES:
