@@ -29,7 +29,9 @@ class Hits:
     hit: bool mask; range_m: true range along the ray (inf on a miss);
     normal: unit face normal in the frame the rays were given in (zeros on a miss);
     incidence_rad: angle between the reversed ray and the normal, in [0, pi/2];
-    material: material id (-1 on a miss); face: triangle index (-1 on a miss).
+    material: material id (-1 on a miss); face: triangle index (-1 on a miss);
+    power_fraction: share of the beam's energy that hit (-), None = the whole beam
+    (set by footprint-sampling casts such as the beam_divergence effect).
     """
 
     hit: np.ndarray
@@ -38,6 +40,7 @@ class Hits:
     incidence_rad: np.ndarray
     material: np.ndarray
     face: np.ndarray
+    power_fraction: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.hit)

@@ -69,6 +69,15 @@ class Frame:
         return len(self.range_m)
 
 
+def _scenario_relative(spec: str, base: Path | None) -> str:
+    """``file.py:Class`` effect specs resolve next to the scenario file when they exist there."""
+    where, _, cls_name = spec.rpartition(':')
+    if base is None or not where.endswith('.py') or Path(where).is_absolute():
+        return spec
+    candidate = base / where
+    return f'{candidate}:{cls_name}' if candidate.is_file() else spec
+
+
 class Simulator:
     """The paper's four modules around one target, one sensor and a material table."""
 
@@ -87,9 +96,10 @@ class Simulator:
     @classmethod
     def from_scenario(cls, scenario: Scenario, effects: list[Effect] | None = None) -> 'Simulator':
         target = load_target(scenario.mesh_path, scenario.materials.names)
-        if effects is None:
-            effects = [make_effect(e.name, e.params) for e in scenario.config.effects]
         base = scenario.source.parent if scenario.source else None
+        if effects is None:
+            effects = [make_effect(_scenario_relative(e.name, base), e.params)
+                       for e in scenario.config.effects]
         return cls(scenario.sensor, scenario.materials, target, scenario.seed, effects, base)
 
     @property
@@ -127,6 +137,8 @@ class Simulator:
         power = np.where(hits.hit, reflection.return_power_w(
             np.where(hits.hit, hits.range_m, 1.0), np.where(hits.hit, hits.incidence_rad, 0.0),
             self._kd[mat], self._ks[mat], self._n[mat], optics), 0.0)
+        if hits.power_fraction is not None:
+            power = power * hits.power_fraction
         if az_rad is None or el_rad is None:
             from lidar_sim_ros.core.scan import angles_from_directions
             az_rad, el_rad = angles_from_directions(directions)
@@ -138,7 +150,8 @@ class Simulator:
             az_rad=np.asarray(az_rad), el_rad=np.asarray(el_rad),
             laser=np.zeros(n, np.uint16) if laser is None else np.asarray(laser),
             divergence_rad=optics.beam_divergence_rad, hit=hits.hit,
-            threshold_power_w=det.threshold_power_w, max_range_m=det.max_range_m)
+            threshold_power_w=det.threshold_power_w, min_range_m=det.min_range_m,
+            max_range_m=det.max_range_m)
         scale = np.ones(n)
         for eff in self.effects:
             scale = scale * eff.power_scale(ctx)

@@ -69,14 +69,6 @@ class BeamDivergence(Effect):
         rings: int = Field(2, ge=1, le=5, description='sub-ray rings (K = 1 + 3 rings (rings + 1))')
         range_mode: Literal['mean', 'first'] = 'mean'
 
-    def __init__(self, params=None):
-        super().__init__(params)
-        # The energy fraction of the last cast, handed to power_scale. The pipeline
-        # passes the cast's incidence array into the ReturnContext unchanged, so its
-        # identity tells power_scale the context belongs to that cast.
-        self._fraction: np.ndarray | None = None
-        self._token: np.ndarray | None = None
-
     def cast(self, target, directions_lidar: np.ndarray, poses,
              divergence_rad: float) -> Hits | None:
         half_angle = 0.5 * self.params.footprint_scale * divergence_rad
@@ -113,13 +105,7 @@ class BeamDivergence(Effect):
         incidence = np.where(hit, h.incidence_rad[rep], np.nan)
         material = np.where(hit, h.material[rep], -1).astype(np.int16)
         face = np.where(hit, h.face[rep], -1)
-        self._fraction, self._token = fraction, incidence
-        return Hits(hit, range_m, normal, incidence, material, face)
-
-    def power_scale(self, ctx: ReturnContext) -> np.ndarray | float:
-        if self._token is not None and ctx.incidence_rad is self._token:
-            return self._fraction
-        return 1.0
+        return Hits(hit, range_m, normal, incidence, material, face, power_fraction=fraction)
 
     @classmethod
     def fit(cls, data: FitData, base_effects=()) -> FitResult:
