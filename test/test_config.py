@@ -107,3 +107,15 @@ def test_missing_file_and_bad_yaml(tmp_path):
     (tmp_path / 'bad.yaml').write_text('a: [1, 2\n')
     with pytest.raises(ConfigError, match='not valid YAML'):
         load_sensor(tmp_path / 'bad.yaml')
+
+
+def test_bad_effect_stops_at_load(tmp_path):
+    d = _copy_config(tmp_path)
+    _edit(d / 'scenario.yaml', lambda s: s.update(effects=[{'name': 'range_wlak'}]))
+    with pytest.raises(ConfigError) as exc:
+        load_scenario(d / 'scenario.yaml')
+    assert exc.value.key == 'effects.0.name' and exc.value.value == 'range_wlak'
+    _edit(d / 'scenario.yaml', lambda s: s.update(effects=[{'name': 'range_walk', 'params': {'kk': 1}}]))
+    with pytest.raises(ConfigError) as exc:
+        load_scenario(d / 'scenario.yaml')
+    assert exc.value.key == 'effects.0.params.kk'

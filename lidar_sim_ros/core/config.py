@@ -321,5 +321,29 @@ def load_scenario(path: str | Path) -> Scenario:
     mesh_path = resolve(cfg.mesh, base)
     if not mesh_path.is_file():
         raise ConfigError(path, 'mesh', cfg.mesh, f'mesh file not found at {mesh_path}')
+    _check_effects(cfg, path)
     return Scenario(cfg, load_sensor(sensor_path), load_materials(materials_path),
                     mesh_path, path)
+
+
+def _check_effects(cfg: ScenarioConfig, path: Path) -> None:
+    """Every listed effect must resolve and accept its params: fail at load, not mid-run."""
+    from lidar_sim_ros.core.effects import get_effect_class  # effects import the pipeline
+    base = path.resolve().parent
+    for i, eff in enumerate(cfg.effects):
+        spec = eff.name
+        where, _, cls_name = spec.rpartition(':')
+        if where.endswith('.py') and not Path(where).is_absolute() and (base / where).is_file():
+            spec = f'{base / where}:{cls_name}'
+        try:
+            cls = get_effect_class(spec)
+        except (KeyError, ImportError, FileNotFoundError, TypeError, AttributeError) as exc:
+            raise ConfigError(path, f'effects.{i}.name', eff.name,
+                              exc.args[0] if exc.args else str(exc)) from None
+        try:
+            cls(eff.params)
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            key = '.'.join(str(p) for p in err['loc'])
+            raise ConfigError(path, f'effects.{i}.params.{key}', err.get('input'),
+                              f'{err["msg"]} (effect {eff.name!r})') from None
