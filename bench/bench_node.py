@@ -1,0 +1,193 @@
+"""Benchmark of lidar_sim_node over real DDS (``make bench-node``).
+
+Runs the node and the pose player on a private ROS domain at the P-60 frame rate
+(wall clock), subscribes to /lidar/points from this process and measures, over
+``--seconds`` after a warm-up:
+
+* frames expected (windows that ended in the interval) vs received;
+* latency from the end of each frame's scan window (stamp + T) to its receipt here;
+* period jitter: |inter-arrival time - T| of consecutive frames;
+* node CPU (share of one core) from /proc/<pid>/stat and peak RSS (VmHWM).
+
+Prints a summary with the targets (no missed frames, p99 latency <= 20 ms, p99 jitter
+<= 5 ms, RSS <= 400 MB) and writes it as JSON to ``--out``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import signal
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+TARGETS = {'missed_frames': 0, 'latency_p99_ms': 20.0, 'jitter_p99_ms': 5.0, 'peak_rss_mb': 400.0}
+
+
+def proc_cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process (/proc/<pid>/stat fields 14 and 15)."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def proc_status_kb(pid: int, key: str) -> int:
+    for line in Path(f'/proc/{pid}/status').read_text().splitlines():
+        if line.startswith(key + ':'):
+            return int(line.split()[1])
+    raise KeyError(key)
+
+
+def cdr_stamp_ns(raw: bytes) -> int:
+    """Header stamp of a CDR-serialised message whose first field is a std_msgs/Header."""
+    if raw[1] != 1:
+        raise ValueError(f'expected little-endian CDR, encapsulation {raw[:4]!r}')
+    sec, nanosec = struct.unpack_from('<iI', raw, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+def start(module: str, args: list[str], env: dict, log: Path) -> subprocess.Popen:
+    with open(log, 'wb') as fh:
+        return subprocess.Popen([sys.executable, '-m', module, '--ros-args', *args],
+                                env=env, stdout=fh, stderr=subprocess.STDOUT)
+
+
+def stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def percentile_ms(values_ns: np.ndarray, q: float) -> float | None:
+    return round(float(np.percentile(values_ns, q)) / 1e6, 3) if len(values_ns) else None
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--seconds', type=float, default=60.0, help='measured duration (s)')
+    parser.add_argument('--warmup', type=float, default=3.0, help='unmeasured time after the first frame (s)')
+    parser.add_argument('--params', type=Path, default=REPO / 'config' / 'params.yaml')
+    parser.add_argument('--out', type=Path, default=Path('bench_node.json'))
+    args = parser.parse_args(argv)
+
+    domain = random.randint(1, 101)
+    os.environ['ROS_DOMAIN_ID'] = str(domain)
+    env = {**os.environ, 'PYTHONUNBUFFERED': '1'}
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import PointCloud2
+
+    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.paths import config_path
+
+    period_ns = round(1e9 / load_scenario(config_path('scenario.yaml')).sensor.frame_rate_hz)
+    logdir = Path(tempfile.mkdtemp(prefix='bench_node_'))
+    node_log, player_log = logdir / 'lidar_sim_node.log', logdir / 'target_pose_player.log'
+    params = ['--params-file', str(args.params)]
+    node = start('lidar_sim_ros.ros.lidar_sim_node', params, env, node_log)
+    player = start('lidar_sim_ros.ros.target_pose_player', params, env, player_log)
+
+    received: list[tuple[int, int, int]] = []  # (stamp ns, receipt ns, bytes)
+    rclpy.init()
+    sub_node = rclpy.create_node('bench_node_subscriber')
+    sub_node.create_subscription(
+        PointCloud2, '/lidar/points',
+        lambda raw: received.append((cdr_stamp_ns(raw), time.time_ns(), len(raw))),
+        qos_profile_sensor_data, raw=True)
+    try:
+        deadline = time.monotonic() + 30
+        while not received:
+            rclpy.spin_once(sub_node, timeout_sec=0.1)
+            if time.monotonic() > deadline or node.poll() is not None:
+                print(f'no frame within 30 s; node log:\n{node_log.read_text()}', file=sys.stderr)
+                return 1
+        print(f'ROS_DOMAIN_ID={domain}: first frame received; warming up {args.warmup:g} s, '
+              f'then measuring {args.seconds:g} s', flush=True)
+        spin_until = time.monotonic() + args.warmup
+        while time.monotonic() < spin_until:
+            rclpy.spin_once(sub_node, timeout_sec=0.05)
+        t0_ns, cpu0 = time.time_ns(), proc_cpu_s(node.pid)
+        spin_until = time.monotonic() + args.seconds
+        while time.monotonic() < spin_until:
+            rclpy.spin_once(sub_node, timeout_sec=0.05)
+        t1_ns, cpu1 = time.time_ns(), proc_cpu_s(node.pid)
+        # Let the frames whose windows ended just before t1 arrive.
+        spin_until = time.monotonic() + 0.5
+        while time.monotonic() < spin_until:
+            rclpy.spin_once(sub_node, timeout_sec=0.05)
+        peak_rss_kb, rss_kb = proc_status_kb(node.pid, 'VmHWM'), proc_status_kb(node.pid, 'VmRSS')
+    finally:
+        sub_node.destroy_node()
+        rclpy.try_shutdown()
+        stop(player)
+        stop(node)
+
+    stamps = np.array([r[0] for r in received], dtype=np.int64)
+    recv = np.array([r[1] for r in received], dtype=np.int64)
+    k = stamps // period_ns
+    expected = np.arange(-(-t0_ns // period_ns) - 1, t1_ns // period_ns)  # windows ending in [t0, t1]
+    in_window = np.isin(k, expected)
+    got = np.unique(k[in_window])
+    latency = recv[in_window] - (stamps[in_window] + period_ns)
+    order = np.argsort(k[in_window])
+    k_w, recv_w = k[in_window][order], recv[in_window][order]
+    consecutive = np.diff(k_w) == 1
+    jitter = np.abs(np.diff(recv_w)[consecutive] - period_ns)
+    node_stats = [line.split(']: ', 1)[1] for line in node_log.read_text().splitlines()
+                  if 'frames published' in line]
+    result = {
+        'seconds': round((t1_ns - t0_ns) / 1e9, 3),
+        'frame_rate_hz': 1e9 / period_ns,
+        'frames_expected': int(len(expected)),
+        'frames_received': int(len(got)),
+        'missed_frames': int(len(expected) - len(got)),
+        'duplicate_frames': int(in_window.sum() - len(got)),
+        'latency_p50_ms': percentile_ms(latency, 50),
+        'latency_p99_ms': percentile_ms(latency, 99),
+        'latency_max_ms': percentile_ms(latency, 100),
+        'jitter_p99_ms': percentile_ms(jitter, 99),
+        'node_cpu_percent_of_one_core': round(100 * (cpu1 - cpu0) / ((t1_ns - t0_ns) / 1e9), 1),
+        'peak_rss_mb': round(peak_rss_kb / 1024, 1),
+        'rss_mb': round(rss_kb / 1024, 1),
+        'mean_points_per_frame': round(float(np.mean([r[2] for r in received])) / 24, 0),
+        'node_stats': node_stats,
+        'targets': TARGETS,
+    }
+    checks = {
+        'missed_frames': result['missed_frames'] <= TARGETS['missed_frames'],
+        'latency_p99_ms': (result['latency_p99_ms'] or 1e9) <= TARGETS['latency_p99_ms'],
+        'jitter_p99_ms': (result['jitter_p99_ms'] or 1e9) <= TARGETS['jitter_p99_ms'],
+        'peak_rss_mb': result['peak_rss_mb'] <= TARGETS['peak_rss_mb'],
+    }
+    result['meets_targets'] = checks
+    args.out.write_text(json.dumps(result, indent=2) + '\n')
+    print(f"frames: {result['frames_received']} received of {result['frames_expected']} expected "
+          f"({result['missed_frames']} missed) over {result['seconds']:g} s "
+          f"at {result['frame_rate_hz']:g} Hz")
+    for key, unit in (('latency_p50_ms', 'ms'), ('latency_p99_ms', 'ms'), ('latency_max_ms', 'ms'),
+                      ('jitter_p99_ms', 'ms'), ('node_cpu_percent_of_one_core', '%'),
+                      ('peak_rss_mb', 'MB')):
+        target = TARGETS.get(key)
+        verdict = '' if target is None else (
+            f"  (target <= {target:g}: {'ok' if checks[key] else 'MISSED'}, ratio {result[key] / target:.2f})"
+            if result[key] is not None else '  (no data)')
+        print(f'{key:32s} {result[key]} {unit}{verdict}')
+    for line in node_stats:
+        print(f'node: {line}')
+    print(f'written {args.out}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,97 @@
+"""A small rosbag2 recorder: rclpy raw subscriptions straight into a ``BagWriter``.
+
+``rclpy`` hands raw subscriptions the CDR bytes as they came off the wire, which is
+exactly what rosbag2 stores, so nothing is deserialised. The log time of each
+message is its receipt time on the recording node's clock, as ``ros2 bag record``
+does. Like ``ros2 bag record``, each topic is subscribed once its first publisher
+is discovered, with QoS adapted to the publishers': reliable if they all are (so
+nothing is lost), transient local if they all are (so latched messages arrive).
+"""
+from __future__ import annotations
+
+from typing import Any, NamedTuple, Sequence
+
+from geometry_msgs.msg import PoseStamped
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
+
+from lidar_sim_ros.io.bag import BagWriter
+
+QUEUE_DEPTH = 50
+DISCOVERY_PERIOD_S = 0.1
+
+
+class TopicSpec(NamedTuple):
+    """One recorded topic: name, rclpy message class, rosbag2 type name."""
+
+    topic: str
+    msg_class: Any
+    msgtype: str
+
+
+NODE_TOPICS = (
+    TopicSpec('/lidar/points', PointCloud2, 'sensor_msgs/msg/PointCloud2'),
+    TopicSpec('/lidar/points_truth', PointCloud2, 'sensor_msgs/msg/PointCloud2'),
+    TopicSpec('/target/pose', PoseStamped, 'geometry_msgs/msg/PoseStamped'),
+    TopicSpec('/lidar/material_names', String, 'std_msgs/msg/String'),
+)
+"""What the lidar_sim_node system publishes."""
+
+
+def adapted_qos(offered: Sequence[QoSProfile], depth: int = QUEUE_DEPTH) -> QoSProfile:
+    """A subscription QoS that matches every offered publisher QoS and loses least."""
+    reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
+    latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+class BagRecorder:
+    """Record ``topics`` seen by ``node`` into an open ``writer``; ``counts`` per topic.
+
+    The node must be spun (an executor) for discovery and recording to happen.
+    """
+
+    def __init__(self, node: Node, writer: BagWriter, topics: Sequence[TopicSpec] = NODE_TOPICS):
+        self.node, self.writer = node, writer
+        self.counts: dict[str, int] = {spec.topic: 0 for spec in topics}
+        self.qos: dict[str, QoSProfile] = {}
+        self._pending = {spec.topic: spec for spec in topics}
+        self._subs = []
+        self._timer = node.create_timer(DISCOVERY_PERIOD_S, self._discover,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._discover()
+
+    @property
+    def subscribed(self) -> bool:
+        """Whether every topic has a publisher and a subscription."""
+        return not self._pending
+
+    def _discover(self) -> None:
+        for topic, spec in list(self._pending.items()):
+            offered = [info.qos_profile for info in self.node.get_publishers_info_by_topic(topic)]
+            if not offered:
+                continue
+            qos = adapted_qos(offered)
+            self._subs.append(self.node.create_subscription(
+                spec.msg_class, topic, self._callback(spec), qos, raw=True))
+            self.qos[topic] = qos
+            del self._pending[topic]
+
+    def _callback(self, spec: TopicSpec):
+        def record(cdr: bytes) -> None:
+            self.writer.write_raw(spec.topic, spec.msgtype,
+                                  self.node.get_clock().now().nanoseconds, cdr)
+            self.counts[spec.topic] += 1
+        return record
+
+    def close(self) -> None:
+        """Stop recording (the writer stays open; close it separately)."""
+        self.node.destroy_timer(self._timer)
+        for sub in self._subs:
+            self.node.destroy_subscription(sub)
+        self._subs = []
