@@ -196,16 +196,18 @@ class Simulator:
             material = np.where(mask, NO_MATERIAL, material).astype(np.uint8)
             intensity = np.where(mask, det.threshold_power_w / det.saturation_power_w, intensity)
         detected &= np.isfinite(measured) & (measured > 0)
+        # Index lists once: take() is ~5x cheaper than repeated boolean masks.
+        out, true = np.flatnonzero(detected), np.flatnonzero(hit)
         dirs = self.directions
-        truth_xyz = dirs[hit] * ctx.range_m[hit, None]
-        stats = {'shots': len(shots), 'hits': int(hit.sum()), 'detected': int(detected.sum()),
+        stats = {'shots': len(shots), 'hits': len(true), 'detected': len(out),
                  'below_threshold': int((hit & (ctx.power_w < det.threshold_power_w)).sum()),
                  'saturated': int((hit & (ctx.power_w >= det.saturation_power_w)).sum())}
+        range_out, range_true = measured.take(out), ctx.range_m.take(true)
         return Frame(
             stamp_s=float(frame_start_s), index=int(frame_index),
-            xyz_m=dirs[detected] * measured[detected, None], range_m=measured[detected],
-            intensity=intensity[detected], t_s=shots.t_s[detected], ring=shots.laser[detected],
-            material=material[detected],
-            truth_xyz_m=truth_xyz, truth_range_m=ctx.range_m[hit],
-            truth_intensity=ctx.intensity[hit], truth_t_s=shots.t_s[hit],
-            truth_ring=shots.laser[hit], truth_material=material[hit], stats=stats)
+            xyz_m=dirs.take(out, axis=0) * range_out[:, None], range_m=range_out,
+            intensity=intensity.take(out), t_s=shots.t_s.take(out), ring=shots.laser.take(out),
+            material=material.take(out),
+            truth_xyz_m=dirs.take(true, axis=0) * range_true[:, None], truth_range_m=range_true,
+            truth_intensity=ctx.intensity.take(true), truth_t_s=shots.t_s.take(true),
+            truth_ring=shots.laser.take(true), truth_material=material.take(true), stats=stats)

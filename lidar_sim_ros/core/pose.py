@@ -67,16 +67,58 @@ class PoseCoverageError(ValueError):
     """Requested times fall outside what the pose history can answer."""
 
 
-@dataclass(frozen=True)
-class Poses:
-    """Poses at N times: rotation (N,) and position (N, 3) in metres."""
+def quat_to_matrix(quat_xyzw: np.ndarray) -> np.ndarray:
+    """Rotation matrices (N, 3, 3) of unit xyzw quaternions (N, 4).
 
-    rotation: Rotation
-    position_m: np.ndarray
+    ~3x faster than ``Rotation.from_quat(q).as_matrix()``, whose input
+    normalisation alone costs ~0.7 ms for a 21k-shot frame.
+    """
+    x, y, z, w = np.asarray(quat_xyzw, dtype=float).T
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    m = np.empty((len(x), 3, 3))
+    m[:, 0, 0] = 1 - 2 * (yy + zz)
+    m[:, 0, 1] = 2 * (xy - wz)
+    m[:, 0, 2] = 2 * (xz + wy)
+    m[:, 1, 0] = 2 * (xy + wz)
+    m[:, 1, 1] = 1 - 2 * (xx + zz)
+    m[:, 1, 2] = 2 * (yz - wx)
+    m[:, 2, 0] = 2 * (xz - wy)
+    m[:, 2, 1] = 2 * (yz + wx)
+    m[:, 2, 2] = 1 - 2 * (xx + yy)
+    return m
+
+
+class Poses:
+    """Poses at N times: rotation (N,) and position (N, 3) in metres.
+
+    Build from a scipy ``Rotation`` (``Poses(rotation, position_m)``) or, on hot
+    paths, from unit quaternions (``Poses.from_quat``) without scipy's overhead.
+    """
+
+    def __init__(self, rotation: Rotation | None, position_m: np.ndarray,
+                 *, quat_xyzw: np.ndarray | None = None):
+        if rotation is None and quat_xyzw is None:
+            raise ValueError('Poses needs a rotation or unit quaternions')
+        self._rotation = rotation
+        self._quat = None if quat_xyzw is None else np.asarray(quat_xyzw, dtype=float).reshape(-1, 4)
+        self.position_m = np.asarray(position_m, dtype=float)
+
+    @classmethod
+    def from_quat(cls, quat_xyzw: np.ndarray, position_m: np.ndarray) -> 'Poses':
+        """From unit xyzw quaternions (N, 4); they are not re-normalised."""
+        return cls(None, position_m, quat_xyzw=quat_xyzw)
+
+    @cached_property
+    def rotation(self) -> Rotation:
+        return self._rotation if self._rotation is not None else Rotation.from_quat(self._quat)
 
     @cached_property
     def matrix(self) -> np.ndarray:
         """Rotation matrices (N, 3, 3) (or (3, 3) for a single rotation)."""
+        if self._quat is not None:
+            return quat_to_matrix(self._quat)
         return self.rotation.as_matrix()
 
     def _apply(self, vec: np.ndarray, inverse: bool) -> np.ndarray:
@@ -136,7 +178,7 @@ class ScenarioTrajectory:
         spin = np.empty((len(t), 4))
         spin[:, :3] = np.sin(half)[:, None] * self.tumble_axis[None, :]
         spin[:, 3] = np.cos(half)
-        return Poses(Rotation.from_quat(quat_multiply(spin, self.rotation0.as_quat())), pos)
+        return Poses.from_quat(quat_multiply(spin, self.rotation0.as_quat()), pos)
 
 
 class PoseTrack:
@@ -206,7 +248,7 @@ class PoseTrack:
         if np.any(ahead > 0):
             pos = pos + ahead[:, None] * self._v_end[None, :]
             quat = quat_multiply(rotvec_to_quat(ahead[:, None] * self._w_end[None, :]), quat)
-        return Poses(Rotation.from_quat(quat), pos)
+        return Poses.from_quat(quat, pos)
 
 
 @dataclass(frozen=True)
@@ -219,4 +261,5 @@ class StaticPose:
     def at(self, t_s: np.ndarray) -> Poses:
         n = len(np.atleast_1d(t_s))
         quat = np.repeat(np.asarray(self.quat_xyzw, dtype=float)[None], n, axis=0)
-        return Poses(Rotation.from_quat(quat), np.repeat(np.asarray(self.position_m, float)[None], n, axis=0))
+        quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+        return Poses.from_quat(quat, np.repeat(np.asarray(self.position_m, float)[None], n, axis=0))
