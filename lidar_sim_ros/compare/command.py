@@ -1,0 +1,55 @@
+"""``lidar-sim compare``: measured bag vs model; where it fails and which effect is missing."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from lidar_sim_ros.io.bag import CLOUD_TOPIC, POSE_TOPIC
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        'compare', help='compare measured point clouds with the model',
+        description=(
+            'Ray-matched comparison of a measured rosbag2 (PointCloud2 + target PoseStamped) '
+            'with the model: writes DIR/summary.json, DIR/report.html, DIR/materials.yaml, '
+            'DIR/effects.yaml (with --fit) and appends to DIR/../history.json.'))
+    p.add_argument('bag', type=Path, metavar='BAG', help='rosbag2 directory (MCAP or sqlite3)')
+    p.add_argument('--mesh', type=Path, required=True, metavar='OBJ',
+                   help='target OBJ (+MTL) with one usemtl group per material')
+    p.add_argument('--config', type=Path, default=None, metavar='SCENARIO',
+                   help='scenario YAML giving sensor, materials and effects '
+                        '(default: the package scenario)')
+    p.add_argument('--effect', action='append', default=[], metavar='NAME_OR_MODULE:CLASS',
+                   help='add an effect to the model: catalogue name, module:Class or '
+                        'file.py:Class, optionally NAME={param: value}; repeatable')
+    p.add_argument('--fit', action='store_true',
+                   help='estimate the --effect parameters by maximum likelihood, print them '
+                        'and write DIR/effects.yaml; refit each material\'s bias/sigma too')
+    p.add_argument('--out', type=Path, required=True, metavar='DIR', help='output directory')
+    p.add_argument('--cloud-topic', default=CLOUD_TOPIC, metavar='TOPIC',
+                   help=f'PointCloud2 topic (default {CLOUD_TOPIC})')
+    p.add_argument('--pose-topic', default=POSE_TOPIC, metavar='TOPIC',
+                   help=f'PoseStamped topic of the target body pose (default {POSE_TOPIC})')
+    p.add_argument('--history', type=Path, default=None, metavar='FILE',
+                   help='history file to append to (default DIR/../history.json)')
+    p.add_argument('--max-points', type=int, default=None, metavar='N',
+                   help='analyse a random subset of at most this many points '
+                        '(default 300000)')
+    p.add_argument('--candidates', nargs='*', default=None, metavar='EFFECT',
+                   help='effects to diagnose (default: the whole catalogue)')
+    p.add_argument('--no-report', action='store_true', help='skip report.html')
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from lidar_sim_ros.compare.run import DEFAULT_MAX_POINTS, CompareOptions, run_compare
+    if args.max_points is not None and args.max_points < 100:
+        raise ValueError(f'--max-points must be at least 100, got {args.max_points}')
+    result = run_compare(CompareOptions(
+        bag=args.bag, mesh=args.mesh, out=args.out, config=args.config, effects=args.effect,
+        fit=args.fit, cloud_topic=args.cloud_topic, pose_topic=args.pose_topic,
+        history=args.history, max_points=args.max_points or DEFAULT_MAX_POINTS,
+        candidates=args.candidates, report=not args.no_report))
+    print('\n'.join(result.lines))
+    return 0

@@ -1,0 +1,268 @@
+"""Which effect is missing: fit the catalogue, score each on held-out points, decide.
+
+Every candidate is fitted by maximum likelihood (``fitting.fit_effect``; for effects
+with discrete options, e.g. a footprint's range mode, each option is fitted and the
+best kept). The likelihood profiles each material's range offset and sigma scale
+(nuisance parameters), so a per-material calibration mismatch cannot pose as an
+effect. The score is the held-out gain in log likelihood, in nats per measured
+point: the points are split in two halves, the candidate is fitted on one and scored
+on the other and vice versa, so extra parameters cannot win on noise. The held-out
+likelihood is outlier tolerant (a small uniform floor), so a handful of odd returns
+cannot dominate. Unmatched points a candidate explains (returns beyond the
+silhouette, false returns off the target) count too.
+
+A candidate is the missing effect when it ranks first and its held-out gain is both
+decisive (a held-out likelihood ratio of at least e^20) and large enough to matter
+(at least MIN_GAIN nats per point), or it explains enough unmatched points; else null.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Callable, Literal, get_args, get_origin
+
+import numpy as np
+from pydantic import create_model
+
+from lidar_sim_ros.compare.matching import Model, predict_rays
+from lidar_sim_ros.compare.measurements import Measurements
+from lidar_sim_ros.core.effects import Effect
+from lidar_sim_ros.core.pipeline import Prediction
+
+OUTLIER_FLOOR = 1e-5        # outlier weight every held-out likelihood carries (robustness)
+UNMATCHED_NATS = 3.0        # gain credited per unmatched point a candidate explains
+MIN_TOTAL_GAIN = 15.0       # nats of held-out log-likelihood ratio (odds e^15 : 1), and ...
+MIN_GAIN = 0.001            # ... nats per point: smaller gains do not matter in practice
+MIN_UNMATCHED_EXPLAINED = 20   # unmatched points explained count only from this many ...
+MIN_UNMATCHED_FRACTION = 0.002  # ... and this share of all points (grazing rays aside)
+N_FOLDS = 2
+
+
+def fitting_module():
+    """The effect-fitting machinery (core/effects/fitting.py), imported when needed."""
+    from lidar_sim_ros.core.effects import fitting
+    return fitting
+
+
+@dataclass(frozen=True)
+class RaySet:
+    """Measured points split into matched and unmatched rays, as index arrays."""
+
+    meas: Measurements
+    matched: np.ndarray
+    unmatched: np.ndarray
+
+    def sample(self, max_points: int, seed: int) -> 'RaySet':
+        """At most ``max_points`` matched and as many unmatched rays, drawn at random."""
+        rng = np.random.default_rng(seed)
+
+        def pick(idx: np.ndarray) -> np.ndarray:
+            return idx if len(idx) <= max_points else np.sort(rng.choice(idx, max_points, False))
+        return RaySet(self.meas, pick(self.matched), pick(self.unmatched))
+
+    def split(self, n_folds: int, seed: int) -> list['RaySet']:
+        rng = np.random.default_rng(seed)
+        fm = rng.permutation(len(self.matched)) % n_folds
+        fu = rng.permutation(len(self.unmatched)) % n_folds
+        return [RaySet(self.meas, np.sort(self.matched[fm == k]), np.sort(self.unmatched[fu == k]))
+                for k in range(n_folds)]
+
+
+def range_window_m(meas: Measurements) -> tuple[float, float]:
+    """Support of spurious-return ranges: the measured ranges, at least 1 m wide."""
+    lo, hi = float(meas.range_m.min()), float(meas.range_m.max())
+    if hi - lo < 1.0:
+        lo, hi = max(0.0, lo - 0.5), hi + 0.5
+    return lo, hi
+
+
+def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet):
+    """FitData for ``rays``: the baseline is the model with ``base_effects``;
+    ``predict(effects)`` adds ``effects`` on top of them."""
+    fitting = fitting_module()
+    meas = rays.meas
+    m_sub, u_sub = meas.subset(rays.matched), meas.subset(rays.unmatched)
+
+    def predictor(sub: Measurements) -> Callable[[list[Effect]], Prediction]:
+        def predict(effects: list[Effect]) -> Prediction:
+            return predict_rays(model.simulator(effects=list(base_effects) + list(effects)), sub)
+        return predict
+
+    predict = predictor(m_sub)
+    return fitting.FitData(
+        measured_range_m=m_sub.range_m, baseline=predict([]),
+        measured_intensity=m_sub.intensity, predict=predict,
+        unmatched_range_m=u_sub.range_m, predict_unmatched=predictor(u_sub),
+        range_window_m=range_window_m(meas), n_shots=None,
+        baseline_effects=tuple(base_effects))
+
+
+def heldout_nll(data, effects: list[Effect]) -> np.ndarray:
+    """Per-point NLL (nats) of ``data``'s matched ranges under baseline + ``effects``:
+    the fitting likelihood (per-material nuisance profiled) with an outlier floor."""
+    fitting = fitting_module()
+    model = fitting.model_on_rays(data, effects)
+    return fitting.point_nll(data, model, OUTLIER_FLOOR)[0]
+
+
+def literal_choices(effect_cls: type[Effect]) -> dict[str, tuple]:
+    """The effect's discrete options (``Literal`` params that are not fitted), e.g. a
+    beam footprint's range mode: the fit is run for each and the best kept."""
+    out = {}
+    for name, info in effect_cls.Params.model_fields.items():
+        if name not in effect_cls.bounds and get_origin(info.annotation) is Literal:
+            out[name] = get_args(info.annotation)
+    return out
+
+
+def with_defaults(effect_cls: type[Effect], defaults: dict) -> type[Effect]:
+    """``effect_cls`` whose Params default to ``defaults`` (fixed, non-fitted values),
+    so the generic fit keeps them while it estimates the free parameters."""
+    if not defaults:
+        return effect_cls
+    fields = {k: (effect_cls.Params.model_fields[k].annotation, v) for k, v in defaults.items()}
+    params = create_model(effect_cls.Params.__name__, __base__=effect_cls.Params, **fields)
+    return type(effect_cls.__name__, (effect_cls,), {
+        'Params': params, '__module__': effect_cls.__module__,
+        '__qualname__': effect_cls.__qualname__, '__doc__': effect_cls.__doc__})
+
+
+def variants(effect_cls: type[Effect], fixed: dict | None = None,
+             max_variants: int = 4) -> list[type[Effect]]:
+    """``effect_cls`` with ``fixed`` params, once per combination of its discrete options
+    (the combination closest to the class's own defaults first)."""
+    fixed = dict(fixed or {})
+    choices = {k: v for k, v in literal_choices(effect_cls).items() if k not in fixed}
+    own = effect_cls.Params.model_fields
+    combos = [dict(zip(choices, combo)) for combo in itertools.product(*choices.values())]
+    combos.sort(key=lambda c: sum(c[k] != own[k].default for k in c))
+    return [with_defaults(effect_cls, {**fixed, **c}) for c in combos[:max_variants]]
+
+
+def fit_best_variant(effect_cls: type[Effect], data, fixed: dict | None = None):
+    """ML fit over the free parameters and the discrete options: (FitResult, variant class)."""
+    fitting = fitting_module()
+    best = None
+    for v in variants(effect_cls, fixed):
+        fit = fitting.fit_effect(v, data)
+        if best is None or fit.nll_per_point < best[0].nll_per_point - 1e-9:
+            best = (fit, v)
+    return best
+
+
+def plain(effect_cls: type[Effect], effect: Effect) -> Effect:
+    """A variant's fitted instance as an instance of the original class (same params)."""
+    return effect_cls(effect.params.model_dump())
+
+
+@dataclass
+class Candidate:
+    """One catalogue effect fitted to the residuals and what it would bring."""
+
+    name: str
+    score: float = 0.0                 # held-out gain, nats per measured point
+    params: dict = field(default_factory=dict)
+    range_rmse_after_m: float = float('nan')
+    nll_after: float = float('nan')
+    unmatched_explained: float = 0.0
+    matched_gain: float = 0.0          # held-out, nats per matched point
+    z: float = 0.0
+    unmatched_gain_points: float = 0.0
+    n_params: int = 0
+    calibrated_after: tuple[float, float] = (float('nan'), float('nan'))
+    significant: bool = False
+    effect: Effect | None = None
+    yaml: str = ''
+    error: str | None = None
+
+    def as_dict(self) -> dict:
+        return {'name': self.name, 'score': _num(self.score), 'params': self.params,
+                'range_rmse_after_m': _num(self.range_rmse_after_m),
+                'nll_after': _num(self.nll_after),
+                'range_rmse_after_calibrated_m': _num(self.calibrated_after[0]),
+                'nll_after_calibrated': _num(self.calibrated_after[1]),
+                'unmatched_explained': _num(self.unmatched_explained),
+                'heldout_gain_per_matched_point': _num(self.matched_gain), 'z': _num(self.z),
+                'n_params': self.n_params, 'significant': self.significant,
+                **({'error': self.error} if self.error else {})}
+
+
+def _num(x: float) -> float | None:
+    return None if x is None or not np.isfinite(x) else round(float(x), 6)
+
+
+class Diagnosis:
+    """Scores effect classes against the model with ``base_effects`` (materials as
+    configured; the likelihood profiles each material's offset and sigma scale)."""
+
+    def __init__(self, model: Model, base_effects: list[Effect], rays: RaySet, seed: int = 0):
+        self.model, self.base, self.rays = model, list(base_effects), rays
+        self.full = make_fit_data(model, self.base, rays)
+        self.folds = rays.split(N_FOLDS, seed)
+        self.fold_data = [make_fit_data(model, self.base, f) for f in self.folds]
+        self.n_total = len(rays.matched) + len(rays.unmatched)
+        self._base_nll = [heldout_nll(d, []) for d in self.fold_data]
+
+    def score(self, effect_cls: type[Effect]) -> Candidate:
+        """Fit on all points (reported params) and cross-fitted on halves (the score)."""
+        fitting = fitting_module()
+        name = getattr(effect_cls, 'name', '') or effect_cls.__name__
+        cand = Candidate(name)
+        try:
+            fit, variant = fit_best_variant(effect_cls, self.full)
+            options = {k: getattr(fit.effect.params, k) for k in literal_choices(effect_cls)}
+            cand.params = {**{k: float(v) for k, v in fit.params.items()}, **options}
+            cand.range_rmse_after_m = fit.range_rmse_m     # callers may replace these
+            cand.nll_after = fit.nll_per_point
+            cand.calibrated_after = (fit.range_rmse_m, fit.nll_per_point)
+            cand.unmatched_explained = fit.unmatched_explained
+            cand.n_params = fit.n_params
+            cand.effect = plain(effect_cls, fit.effect)
+            cand.yaml = _snippet(cand.effect)
+            gains, explained = [], 0.0
+            for k, train in enumerate(self.fold_data):
+                test = self.fold_data[(k + 1) % N_FOLDS]
+                effect_k = fitting.fit_effect(variant, train).effect
+                gains.append(self._base_nll[(k + 1) % N_FOLDS] - heldout_nll(test, [effect_k]))
+                if len(test.unmatched_range_m):
+                    _, _, u = fitting.evaluate(test, [effect_k])
+                    explained += u * len(test.unmatched_range_m)
+            d = np.concatenate(gains)
+            d = d[np.isfinite(d)]
+            if len(d) > 1:
+                cand.matched_gain = float(d.mean())
+                se = float(d.std(ddof=1)) / np.sqrt(len(d))
+                cand.z = float(cand.matched_gain / se) if se > 0 else 0.0
+            cand.unmatched_gain_points = float(explained)
+            counts = explained >= max(MIN_UNMATCHED_EXPLAINED,
+                                      MIN_UNMATCHED_FRACTION * self.n_total)
+            total = d.sum() + (UNMATCHED_NATS * explained if counts else 0.0)
+            cand.score = float(total / max(self.n_total, 1))
+            cand.significant = bool(total >= max(MIN_TOTAL_GAIN, MIN_GAIN * self.n_total)
+                                    and cand.matched_gain > -MIN_GAIN)
+        except Exception as exc:  # noqa: BLE001 - one failing candidate must not stop the rest
+            cand.error = f'{type(exc).__name__}: {exc}'
+            cand.score = float('-inf')
+        return cand
+
+
+def rank(candidates: list[Candidate]) -> list[Candidate]:
+    return sorted(candidates, key=lambda c: (c.error is not None, -c.score))
+
+
+def missing_effect(candidates: list[Candidate]) -> str | None:
+    """The best candidate's name if it is significant, else None."""
+    ranked = rank(candidates)
+    if ranked and ranked[0].error is None and ranked[0].significant:
+        return ranked[0].name
+    return None
+
+
+def _snippet(effect: Effect) -> str:
+    to_yaml = getattr(effect, 'to_yaml_snippet', None)
+    if to_yaml is not None:
+        return to_yaml().strip()
+    params = effect.params.model_dump() if hasattr(effect.params, 'model_dump') else {}
+    inner = ', '.join(f'{k}: {v:.6g}' if isinstance(v, float) else f'{k}: {v}'
+                      for k, v in params.items())
+    return f'- {{name: {effect.name}, params: {{{inner}}}}}'

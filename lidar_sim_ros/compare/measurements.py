@@ -1,0 +1,277 @@
+"""Measured points from a rosbag2: directions, ranges, times and the target pose track.
+
+A lab recording holds ``sensor_msgs/PointCloud2`` (x, y, z required; intensity and
+per-point ``t`` optional) and ``geometry_msgs/PoseStamped`` (target body pose in the
+lidar frame). This module turns it into flat per-point arrays: measured range = |xyz|,
+direction = xyz / |xyz|, absolute time = cloud stamp + t (or the stamp when the cloud
+has no ``t``), plus a :class:`PoseTrack` that answers the pose at every point's time.
+Every problem raises :class:`MeasurementError` naming the bag, topic and what is wrong.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, read_clouds,
+                                  read_material_names, read_poses)
+from lidar_sim_ros.core.pose import PoseTrack
+from lidar_sim_ros.core.scan import Shots
+
+NS_PER_S = 1_000_000_000
+# A per-point time field larger than this cannot be seconds within one frame.
+_MAX_FRAME_TIME_S = 2.0
+# Clouds without ``t``: directions matching the configured scan pattern this closely
+# (rad) give each point its shot's time, if this share of the points match.
+SCAN_MATCH_TOL_RAD = 2e-4
+SCAN_MATCH_MIN_FRACTION = 0.9
+# Prediction may evaluate poses slightly outside the recording (a fitted time offset).
+PREDICTION_POSE_PAD_S = 0.5
+
+
+class MeasurementError(ValueError):
+    """The bag cannot be compared: names the bag, topic and what is missing or wrong."""
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """All measured points of a bag, flattened over clouds, in bag order.
+
+    xyz_m (N, 3) lidar frame; range_m = |xyz|; directions = xyz / range (unit);
+    intensity (N,) in the sensor's own units or None; t_s (N,) absolute time (s since
+    ``epoch_s``); t_frame_s (N,) seconds since the point's cloud stamp (0 without a
+    ``t`` field); cloud (N,) index of the cloud; laser (N,) ring/laser id (0 if absent).
+    ``poses`` answers the target pose at any t_s (padded for prediction).
+    """
+
+    bag: Path
+    xyz_m: np.ndarray
+    range_m: np.ndarray
+    directions: np.ndarray
+    intensity: np.ndarray | None
+    t_s: np.ndarray
+    t_frame_s: np.ndarray
+    cloud: np.ndarray
+    laser: np.ndarray
+    has_point_time: bool
+    cloud_stamps_s: np.ndarray
+    epoch_s: float
+    poses: PoseTrack
+    material_names: list[str] | None
+    notes: list[str] = field(default_factory=list)
+    dropped: dict = field(default_factory=dict)
+    time_source: str = 'field'      # 'field' (per-point t), 'scan pattern' or 'stamp'
+
+    def __len__(self) -> int:
+        return len(self.range_m)
+
+    def subset(self, index: np.ndarray) -> 'Measurements':
+        """The measurements restricted to ``index`` (bool mask or integer indices)."""
+        pick = {k: getattr(self, k)[index] for k in
+                ('xyz_m', 'range_m', 'directions', 't_s', 't_frame_s', 'cloud', 'laser')}
+        inten = None if self.intensity is None else self.intensity[index]
+        return Measurements(self.bag, intensity=inten, has_point_time=self.has_point_time,
+                            cloud_stamps_s=self.cloud_stamps_s, epoch_s=self.epoch_s,
+                            poses=self.poses, material_names=self.material_names,
+                            notes=self.notes, dropped=self.dropped,
+                            time_source=self.time_source, **pick)
+
+
+def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
+                      pose_topic: str = POSE_TOPIC, max_points: int | None = None,
+                      seed: int = 0) -> Measurements:
+    """Read clouds and poses from ``bag`` and check that they can be compared.
+
+    ``max_points`` keeps a random (seeded) subset when the bag holds more points,
+    so very long recordings stay tractable; the dropped count is in ``dropped``.
+    """
+    bag = Path(bag)
+    if not bag.exists():
+        raise FileNotFoundError(f'bag {bag} does not exist')
+    try:
+        clouds = read_clouds(bag, cloud_topic)
+        poses = read_poses(bag, pose_topic)
+        names = read_material_names(bag)
+    except BagContentError as exc:
+        raise MeasurementError(
+            f'{exc} (choose the topics with --cloud-topic / --pose-topic)') from None
+    if not clouds:
+        raise MeasurementError(f'bag {bag}: topic {cloud_topic!r} has no messages')
+    if len(poses.stamp_ns) == 0:
+        raise MeasurementError(f'bag {bag}: topic {pose_topic!r} has no messages')
+
+    notes: list[str] = []
+    fields = clouds[0].points.dtype.names or ()
+    missing = [f for f in ('x', 'y', 'z') if f not in fields]
+    if missing:
+        raise MeasurementError(
+            f'bag {bag}: clouds on {cloud_topic!r} lack field(s) {missing}; fields present: '
+            f'{list(fields)} (x, y, z in metres, lidar frame, are required)')
+    has_t = 't' in fields
+    has_i = 'intensity' in fields
+    if not has_t:
+        notes.append(f'clouds have no per-point "t" field: every point takes its cloud stamp')
+    if not has_i:
+        notes.append('clouds have no "intensity" field: the intensity feature uses the model')
+
+    epoch_ns = int(min(int(poses.stamp_ns[0]), min(c.stamp_ns for c in clouds)))
+    cols: dict[str, list] = {k: [] for k in ('xyz', 'i', 't', 'cloud', 'laser')}
+    stamps = []
+    n_nonfinite = n_zero = 0
+    for k, c in enumerate(clouds):
+        p = c.points
+        stamps.append((c.stamp_ns - epoch_ns) / NS_PER_S)
+        if len(p) == 0:
+            continue
+        xyz = np.column_stack([np.asarray(p[f], dtype=float).reshape(len(p), -1)[:, 0]
+                               for f in ('x', 'y', 'z')])
+        ok = np.isfinite(xyz).all(axis=1)
+        rng = np.linalg.norm(xyz, axis=1)
+        n_nonfinite += int((~ok).sum())
+        zero = ok & (rng <= 1e-6)   # drivers report "no return" as (0, 0, 0)
+        n_zero += int(zero.sum())
+        ok &= ~zero
+        cols['xyz'].append(xyz[ok])
+        cols['i'].append(np.asarray(p['intensity'], dtype=float)[ok] if has_i
+                         else np.zeros(ok.sum()))
+        cols['t'].append(np.asarray(p['t'], dtype=float)[ok] if has_t else np.zeros(ok.sum()))
+        cols['cloud'].append(np.full(ok.sum(), k))
+        cols['laser'].append(np.asarray(p['ring']).astype(np.int64)[ok] if 'ring' in fields
+                             else np.zeros(ok.sum(), np.int64))
+    total = sum(len(x) for x in cols['xyz'])
+    if total == 0:
+        raise MeasurementError(
+            f'bag {bag}: all {len(clouds)} cloud(s) on {cloud_topic!r} are empty '
+            f'(no finite, non-zero points; {n_nonfinite} non-finite, {n_zero} at the origin)')
+    xyz = np.vstack(cols['xyz'])
+    t_frame = np.concatenate(cols['t'])
+    if has_t:
+        t_frame, note = _point_time_seconds(t_frame, clouds[0].points.dtype['t'])
+        if note:
+            notes.append(note)
+    cloud = np.concatenate(cols['cloud'])
+    stamps_s = np.asarray(stamps)
+    t_abs = stamps_s[cloud] + t_frame
+
+    pose_t = (poses.stamp_ns - epoch_ns) / NS_PER_S
+    track = _checked_pose_track(bag, pose_topic, cloud_topic, pose_t, poses.position_m,
+                                poses.quat_xyzw, t_abs, cloud, stamps_s, notes)
+    intensity = np.concatenate(cols['i']) if has_i else None
+    if intensity is not None and not np.any(np.isfinite(intensity) & (intensity > 0)):
+        notes.append('intensity field holds no positive values: ignored')
+        intensity = None
+    rng = np.linalg.norm(xyz, axis=1)
+    dropped = {'non_finite': n_nonfinite, 'at_origin': n_zero, 'subsampled': 0}
+    keep = np.arange(len(rng))
+    if max_points is not None and len(rng) > max_points:
+        keep = np.sort(np.random.default_rng(seed).choice(len(rng), max_points, replace=False))
+        dropped['subsampled'] = len(rng) - max_points
+        notes.append(f'{len(rng)} points: a random subset of {max_points} is analysed')
+    return Measurements(
+        bag=bag, xyz_m=xyz[keep], range_m=rng[keep], directions=xyz[keep] / rng[keep, None],
+        intensity=None if intensity is None else intensity[keep], t_s=t_abs[keep],
+        t_frame_s=t_frame[keep], cloud=cloud[keep],
+        laser=np.concatenate(cols['laser'])[keep].astype(np.uint16), has_point_time=has_t,
+        cloud_stamps_s=stamps_s, epoch_s=epoch_ns / NS_PER_S, poses=track,
+        material_names=names, notes=notes, dropped=dropped,
+        time_source='field' if has_t else 'stamp')
+
+
+def with_scan_times(meas: Measurements, shots: Shots) -> Measurements:
+    """Point times from the sensor's scan pattern, for clouds without a ``t`` field.
+
+    Each measured direction is matched to the nearest shot of the configured frame
+    pattern; if nearly all match within SCAN_MATCH_TOL_RAD (the recording comes from
+    that pattern, stamped at frame start), the points take their shots' times (and
+    lasers). Otherwise the cloud stamp stays every point's time.
+    """
+    if meas.time_source != 'stamp' or len(shots) == 0:
+        return meas
+    dist, idx = cKDTree(shots.directions()).query(meas.directions)
+    ok = dist < SCAN_MATCH_TOL_RAD
+    if ok.mean() < SCAN_MATCH_MIN_FRACTION:
+        return replace(meas, notes=meas.notes + [
+            f'clouds have no "t" field and only {100 * ok.mean():.0f} % of the directions match '
+            'the configured scan pattern: every point takes its cloud stamp'])
+    t_frame = np.where(ok, shots.t_s[idx], np.median(shots.t_s[idx[ok]]))
+    laser = np.where(ok, shots.laser[idx], meas.laser).astype(np.uint16)
+    notes = [n for n in meas.notes if 'no per-point "t"' not in n] + [
+        f'clouds have no "t" field: point times taken from the scan pattern '
+        f'({100 * ok.mean():.1f} % of directions match a shot within '
+        f'{np.degrees(SCAN_MATCH_TOL_RAD):g} deg)']
+    return replace(meas, t_frame_s=t_frame, t_s=meas.cloud_stamps_s[meas.cloud] + t_frame,
+                   laser=laser, has_point_time=True, time_source='scan pattern', notes=notes)
+
+
+def _point_time_seconds(t: np.ndarray, dtype: np.dtype) -> tuple[np.ndarray, str | None]:
+    """Per-point ``t`` in seconds; integer fields in ns/us (common in drivers) are rescaled."""
+    span = float(np.nanmax(np.abs(t))) if len(t) else 0.0
+    if span <= _MAX_FRAME_TIME_S:
+        return t, None
+    for scale, unit in ((1e-3, 'ms'), (1e-6, 'us'), (1e-9, 'ns')):
+        if span * scale <= _MAX_FRAME_TIME_S:
+            return t * scale, (f'per-point "t" ({dtype}) spans {span:g}: read as {unit}, '
+                               f'not seconds')
+    return t * 1e-9, f'per-point "t" spans {span:g}: read as ns'
+
+
+def _checked_pose_track(bag: Path, pose_topic: str, cloud_topic: str, pose_t: np.ndarray,
+                        position_m: np.ndarray, quat_xyzw: np.ndarray, t_abs: np.ndarray,
+                        cloud: np.ndarray, stamps_s: np.ndarray, notes: list[str]) -> PoseTrack:
+    """The pose track, after checking it covers every cloud; padded for prediction.
+
+    A cloud is covered when its stamp lies within the pose samples; its points may run
+    past the last pose by at most the cloud's own duration (poses stamped once per
+    cloud are common), where the pose is extrapolated with the last velocity.
+    """
+    pose_t, first = np.unique(pose_t, return_index=True)
+    position_m, quat_xyzw = position_m[first], quat_xyzw[first]
+    if len(pose_t) == 1:
+        notes.append(f'only one pose on {pose_topic!r}: the target is taken as static')
+        lo, hi = min(t_abs.min(), pose_t[0]), max(t_abs.max(), pose_t[0])
+        pose_t = np.array([lo - 1.0, hi + 1.0])
+        position_m = np.repeat(position_m, 2, axis=0)
+        quat_xyzw = np.repeat(quat_xyzw, 2, axis=0)
+    start, end = float(pose_t[0]), float(pose_t[-1])
+    n_clouds = len(stamps_s)
+    t_lo = np.full(n_clouds, np.inf)
+    t_hi = np.full(n_clouds, -np.inf)
+    np.minimum.at(t_lo, cloud, t_abs)
+    np.maximum.at(t_hi, cloud, t_abs)
+    eps = 1e-6
+    # Points before the first pose, or a cloud starting after the last pose.
+    bad = np.isfinite(t_lo) & ((t_lo < start - eps) | (np.minimum(stamps_s, t_lo) > end + eps))
+    if np.any(bad):
+        k = int(np.flatnonzero(bad)[0])
+        raise MeasurementError(
+            f'bag {bag}: poses on {pose_topic!r} cover [{start:.6f}, {end:.6f}] s but '
+            f'{int(bad.sum())} of {n_clouds} cloud(s) on {cloud_topic!r} fall outside, first '
+            f'cloud #{k} with points at [{t_lo[k]:.6f}, {t_hi[k]:.6f}] s '
+            f'(times relative to the earliest stamp in the bag)')
+    over = float(max(0.0, t_abs.max() - end))
+    if over > 0:
+        notes.append(f'last cloud runs {over * 1e3:.1f} ms past the last pose: extrapolated')
+    return padded_pose_track(pose_t, position_m, quat_xyzw, PREDICTION_POSE_PAD_S + over)
+
+
+def padded_pose_track(t_s: np.ndarray, position_m: np.ndarray, quat_xyzw: np.ndarray,
+                      pad_s: float) -> PoseTrack:
+    """A PoseTrack that also answers up to ``pad_s`` before the first and after the last
+    sample, extrapolating with the end velocities (a fitted clock offset needs this)."""
+    t = np.asarray(t_s, float)
+    pos = np.asarray(position_m, float)
+    rot = Rotation.from_quat(quat_xyzw)
+    if len(t) >= 2 and pad_s > 0:
+        dt = t[1] - t[0]
+        v0 = (pos[1] - pos[0]) / dt
+        w0 = (rot[1] * rot[0].inv()).as_rotvec() / dt
+        pre_rot = Rotation.from_rotvec(-w0 * pad_s) * rot[0]
+        t = np.concatenate([[t[0] - pad_s], t])
+        pos = np.vstack([pos[0] - v0 * pad_s, pos])
+        quat = np.vstack([pre_rot.as_quat()[None, :], rot.as_quat()])
+    else:
+        quat = rot.as_quat()
+    return PoseTrack(t, pos, quat, max_extrapolation_s=pad_s)

@@ -1,0 +1,312 @@
+"""report.html: one self-contained page (PNG figures embedded as base64) per comparison.
+
+Sections: the verdict in plain words, the headline numbers, the ranked candidate
+effects with their fitted parameters and what each brings, the residual against the
+top features (binned median and 16-84 % band), per-material residual histograms, the
+residual painted on the target (body frame, two views), the unmatched points and
+the history of runs (RMSE and NLL falling as effects are added).
+"""
+from __future__ import annotations
+
+import base64
+import html
+import io
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from lidar_sim_ros.compare.features import CATEGORICAL, feature_values  # noqa: E402
+from lidar_sim_ros.compare.materials import robust_sigma  # noqa: E402
+
+FEATURE_LABELS = {'range': 'range (m)', 'incidence': 'incidence angle (deg)',
+                  'intensity': 'log10 intensity', 'azimuth': 'azimuth (deg)',
+                  'elevation': 'elevation (deg)', 'time': 'time since cloud stamp (s)',
+                  'material': 'material', 'edge': 'distance to edge (mrad)'}
+MAX_SCATTER = 4000
+
+
+def _png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format='png', dpi=90, bbox_inches='tight')
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _img(png: bytes, alt: str) -> str:
+    data = base64.b64encode(png).decode('ascii')
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+
+
+def features_figure(feats, values: dict, residual_m: np.ndarray, material_names: list[str],
+                    top: int = 4) -> bytes:
+    """Residual (cm) against the top features: points, binned median and 16-84 % band."""
+    chosen = feats[:top]
+    fig, axes = plt.subplots(1, len(chosen), figsize=(4.2 * len(chosen), 3.6), squeeze=False)
+    rng = np.random.default_rng(0)
+    pick = rng.choice(len(residual_m), min(MAX_SCATTER, len(residual_m)), replace=False)
+    lim = 4 * max(robust_sigma(residual_m), 1e-4) * 100
+    for ax, f in zip(axes[0], chosen):
+        x = values[f.name]
+        if f.name in CATEGORICAL:
+            pos = {c: i for i, c in enumerate(f.labels)}
+            xs = np.array([pos.get(v.item() if hasattr(v, 'item') else v, -1) for v in x[pick]])
+            jitter = rng.uniform(-0.3, 0.3, len(pick))
+            ax.plot(xs + jitter, residual_m[pick] * 100, '.', ms=2, alpha=0.25, color='0.4')
+            centers = np.arange(len(f.labels))
+            names = ([material_names[int(c)] if 0 <= int(c) < len(material_names) else str(c)
+                      for c in f.labels] if f.name == 'material'
+                     else [f'{c:g}' for c in f.labels])
+            ax.set_xticks(centers, names, rotation=45 if f.name == 'material' else 0,
+                          fontsize=8)
+        else:
+            ax.plot(x[pick], residual_m[pick] * 100, '.', ms=2, alpha=0.25, color='0.4')
+            centers = f.centers
+        ok = f.counts > 0
+        ax.fill_between(np.asarray(centers)[ok], f.p16_m[ok] * 100, f.p84_m[ok] * 100,
+                        color='tab:orange', alpha=0.3, label='16-84 %')
+        ax.plot(np.asarray(centers)[ok], f.median_m[ok] * 100, 'o-', color='tab:red', ms=4,
+                label='binned median')
+        ax.axhline(0, color='k', lw=0.8)
+        ax.set_ylim(-lim, lim)
+        ax.set_xlabel(FEATURE_LABELS[f.name])
+        ax.set_title(f'{f.name}: score {f.score:.4f}', fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel('range residual, measured - model (cm)')
+    axes[0][0].legend(fontsize=8, loc='upper right')
+    fig.tight_layout()
+    return _png(fig)
+
+
+def target_figure(matching, residual_m: np.ndarray) -> bytes:
+    """The residual painted on the target: matched points at their model hit in the body
+    frame, seen along the two shorter body axes (the longest body axis runs across)."""
+    meas, sel = matching.meas, matching.matched
+    poses = meas.poses.at(meas.t_s)
+    pts = meas.directions * np.where(sel, matching.pred.ctx.range_m, meas.range_m)[:, None]
+    body = poses.to_body(pts)
+    hit = body[sel]
+    extent = np.ptp(hit, axis=0) if len(hit) else np.ones(3)
+    long_axis = int(np.argmax(extent))
+    others = [i for i in range(3) if i != long_axis]
+    lim = 3 * max(robust_sigma(residual_m), 1e-4) * 100
+    axis_name = 'xyz'
+    ratio = extent[others].max() / max(extent[long_axis], 1e-6)
+    fig, axes = plt.subplots(2, 1, figsize=(10, 2 * (1.2 + 4.5 * min(max(ratio, 0.3), 1.0))))
+    for ax, j, k in zip(axes, others, others[::-1]):
+        order = np.argsort(hit[:, k])       # nearest-to-viewer last
+        sc = ax.scatter(hit[order, long_axis], hit[order, j], c=(residual_m * 100)[order],
+                        s=4, cmap='coolwarm', vmin=-lim, vmax=lim)
+        if np.any(~sel):
+            ax.plot(body[~sel, long_axis], body[~sel, j], 'kx', ms=3,
+                    label='unmatched (measured point)')
+            ax.legend(fontsize=8, loc='upper right')
+        ax.set_xlabel(f'body {axis_name[long_axis]} (m)')
+        ax.set_ylabel(f'body {axis_name[j]} (m)')
+        ax.set_title(f'seen along body {axis_name[k]}', fontsize=10)
+        ax.set_aspect('equal')
+        ax.grid(alpha=0.3)
+    fig.colorbar(sc, ax=list(axes), label='range residual (cm)', shrink=0.9)
+    return _png(fig)
+
+
+def candidates_figure(cands) -> bytes:
+    ok = [c for c in cands if c.error is None]
+    fig, ax = plt.subplots(figsize=(7, 0.45 * max(len(ok), 1) + 1.2))
+    names = [c.name for c in ok][::-1]
+    scores = [c.score for c in ok][::-1]
+    colors = ['tab:red' if c.significant else 'tab:gray' for c in ok][::-1]
+    ax.barh(names, scores, color=colors)
+    ax.axvline(0, color='k', lw=0.8)
+    ax.set_xlabel('held-out log-likelihood gain (nats per point); red = significant')
+    ax.grid(alpha=0.3, axis='x')
+    fig.tight_layout()
+    return _png(fig)
+
+
+def history_figure(runs: list[dict]) -> bytes:
+    """RMSE and NLL of every recorded run: the error falling as effects are added."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
+    k = np.arange(1, len(runs) + 1)
+    labels = [f'{i}\n' + ('+'.join(r.get('effects') or []) or 'baseline').replace('+', '+\n')
+              for i, r in zip(k, runs)]
+    series = (('range_rmse_m', 100.0, 'range RMSE (cm)', 'tab:blue'),
+              ('nll_per_point', 1.0, 'NLL per point', 'tab:red'))
+    for ax, (key, scale, label, color) in zip(axes, series):
+        y = np.array([r.get(key) if r.get(key) is not None else np.nan for r in runs], float)
+        ax.plot(k, y * scale, 'o-', color=color)
+        ax.set_ylabel(label)
+        ax.set_xticks(k, labels, fontsize=7)
+        ax.set_xlabel('run')
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def unmatched_figure(matching, divergence_rad: float) -> bytes:
+    un = ~matching.matched
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
+    r = matching.meas.range_m
+    bins = np.linspace(r.min(), r.max(), 50) if np.ptp(r) > 0 else 10
+    axes[0].hist(r[matching.matched], bins=bins, alpha=0.5, density=True, label='matched')
+    axes[0].hist(r[un], bins=bins, alpha=0.6, density=True, label='unmatched')
+    axes[0].set_xlabel('measured range (m)')
+    axes[0].legend(fontsize=8)
+    d = matching.edge_rad[un] / divergence_rad
+    levels, counts = np.unique(np.round(d, 3), return_counts=True)
+    axes[1].bar([f'{x:g}' for x in levels], counts, color='tab:purple')
+    axes[1].set_xlabel('angular distance to the silhouette (beam divergences; 16 = far)')
+    axes[1].set_ylabel('unmatched points')
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _table(rows: list[list], header: list[str]) -> str:
+    head = ''.join(f'<th>{html.escape(str(h))}</th>' for h in header)
+    body = ''.join('<tr>' + ''.join(f'<td>{html.escape(_fmt(c))}</td>' for c in row) + '</tr>'
+                   for row in rows)
+    return f'<table><tr>{head}</tr>{body}</table>'
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return 'n/a' if not np.isfinite(v) else f'{v:.5g}'
+    if isinstance(v, dict):
+        return ', '.join(f'{k} = {_fmt(x)}' for k, x in v.items())
+    return '' if v is None else str(v)
+
+
+CSS = """body{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}
+table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 8px;
+font-size:13px;text-align:left}th{background:#eee}.verdict{background:#fff6e0;padding:1em;
+border-left:4px solid #e0a000}img{max-width:100%}code{background:#f3f3f3}"""
+
+
+def write_report(out: Path, summary: dict, matching, configured, residual_m: np.ndarray,
+                 stats, feats, cands, runs: list[dict], model) -> list[Path]:
+    """Write DIR/report.html (figures embedded); return the written paths.
+
+    ``matching``: the model's prediction on every ray; ``configured``: the same with the
+    materials as configured (for the per-material histograms); ``residual_m``: matched
+    residuals with the per-material offsets removed.
+    """
+    names = list(model.materials.names)
+    values = feature_values(matching)
+    s = summary
+    figs = {
+        'features': features_figure(feats, values, residual_m, names),
+        'materials': materials_figure(configured, stats, names),
+        'target': target_figure(matching, residual_m),
+        'history': history_figure(runs),
+    }
+    if any(c.error is None for c in cands):
+        figs['candidates'] = candidates_figure(cands)
+    if s['unmatched_points']:
+        figs['unmatched'] = unmatched_figure(matching, model.divergence_rad)
+    cand_rows = [[c.name, c.score, c.params, c.range_rmse_after_m, c.nll_after,
+                  c.unmatched_explained, c.z, 'yes' if c.significant else 'no',
+                  c.yaml or c.error or ''] for c in cands]
+    feat_rows = [[f.name, f.score, f.mean_part, f.spread_part, f.significance, f.trend]
+                 for f in feats]
+    mat_rows = [[n, m['points'], m['model_bias_m'], m['measured_bias_m'], m['model_sigma_m'],
+                 m['measured_sigma_m'],
+                 'yes' if (m['bias_mismatch'] or m['sigma_mismatch']) else 'no']
+                for n, m in s['materials'].items()]
+    unmatched = f'{s["unmatched_points"]} ({100 * s["unmatched_fraction"]:.2f} %)'
+    head = [['points', s['points']],
+            ['matched / unmatched', f'{s["matched_points"]} / {unmatched}'],
+            ['range RMSE (m)', s['range_rmse_m']], ['NLL per point', s['nll_per_point']],
+            ['range RMSE, per-material offsets refit (m)', s['range_rmse_calibrated_m']],
+            ['NLL, per-material offsets and sigmas refit', s['nll_calibrated']],
+            ['effects in the model', ', '.join(e['name'] for e in s['effects']) or 'none'],
+            ['missing effect', s['missing_effect'] or 'none (null)'],
+            ['intensity gain (measured / model)',
+             s['intensity_gain']['gain'] if s['intensity_gain'] else 'no intensity']]
+    parts = [
+        '<!DOCTYPE html><html><head><meta charset="utf-8"><title>lidar-sim compare</title>',
+        f'<style>{CSS}</style></head><body>',
+        f'<h1>lidar-sim compare: {html.escape(Path(s["bag"]).name)}</h1>',
+        f'<p class="verdict">{html.escape(s["verdict"])}</p>',
+        _table(head, ['quantity', 'value']),
+        '<h2>Candidate effects (fitted by maximum likelihood, best first)</h2>',
+        '<p>Score: held-out log-likelihood gain in nats per measured point (fitted on one '
+        'half of the points, scored on the other) with per-material offsets and sigmas refit. '
+        'RMSE and NLL after: the model as configured with the effect added.</p>',
+        _table(cand_rows, ['effect', 'score', 'fitted params', 'RMSE after (m)', 'NLL after',
+                           'unmatched explained', 'z', 'significant', 'scenario snippet']),
+        _img(figs['candidates'], 'candidates') if 'candidates' in figs else
+        '<p>No candidate effects were diagnosed in this run.</p>',
+        '<h2>Where the model fails: residual against each feature</h2>',
+        _table(feat_rows, ['feature', 'score', 'mean part', 'spread part', 'significance',
+                           'trend']),
+        _img(figs['features'], 'residual vs top features'),
+        '<h2>Per-material range error</h2>',
+        _table(mat_rows, ['material', 'points', 'model bias (m)', 'measured bias (m)',
+                          'model sigma (m)', 'measured sigma (m)', 'mismatch']),
+        _img(figs['materials'], 'per-material residual histograms'),
+        '<h2>Residual on the target</h2>',
+        '<p>Matched points at their model hit position in the target body frame, coloured '
+        'by the range residual (per-material offsets removed); crosses: unmatched points.</p>',
+        _img(figs['target'], 'residual painted on the target'),
+    ]
+    if 'unmatched' in figs:
+        u = s['unmatched']
+        parts += ['<h2>Unmatched points (rays that miss the target model)</h2>',
+                  f'<p>{u["points"]} points; {100 * u["near_silhouette_fraction"]:.0f} % within '
+                  f'2 beam divergences of the silhouette; '
+                  f'{100 * u["within_target_ranges_fraction"]:.0f} % at target ranges: '
+                  f'{html.escape(u["interpretation"])}.</p>',
+                  _img(figs['unmatched'], 'unmatched points')]
+    parts += ['<h2>History: the error across runs</h2>',
+              f'<p>From {html.escape(s.get("history", ""))}.</p>',
+              _img(figs['history'], 'history'),
+              _table([[i + 1, r.get('timestamp'), '+'.join(r.get('effects') or []) or 'baseline',
+                       r.get('range_rmse_m'), r.get('nll_per_point'),
+                       r.get('unmatched_fraction'), r.get('missing_effect')]
+                      for i, r in enumerate(runs)],
+                     ['run', 'time', 'effects', 'RMSE (m)', 'NLL', 'unmatched', 'missing effect'])]
+    if s['notes']:
+        parts += (['<h2>Notes</h2><ul>'] + [f'<li>{html.escape(n)}</li>' for n in s['notes']]
+                  + ['</ul>'])
+    parts.append('</body></html>')
+    path = Path(out) / 'report.html'
+    path.write_text('\n'.join(parts))
+    return [path]
+
+
+def materials_figure(matching, stats, names: list[str]) -> bytes:
+    """Per-material histograms of measured minus modelled range (materials as configured)."""
+    mat = np.asarray(matching.pred.ctx.material)
+    shown = [s for s in stats if s.points >= 5]
+    n = max(len(shown), 1)
+    cols = min(n, 4)
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.9 * rows), squeeze=False)
+    for ax in axes.ravel()[len(shown):]:
+        ax.axis('off')
+    for ax, s in zip(axes.ravel(), shown):
+        sel = matching.matched & (mat == names.index(s.name))
+        r = matching.residual_m[sel] * 100
+        d = (s.measured_bias_m - s.model_bias_m) * 100
+        half = 5 * max(s.model_sigma_m, s.measured_sigma_m, 1e-3) * 100
+        lo, hi = min(0.0, d) - half, max(0.0, d) + half
+        bins = np.linspace(lo, hi, 41)
+        ax.hist(np.clip(r, lo, hi), bins=bins, density=True, color='tab:blue', alpha=0.6,
+                label='measured')
+        xs = np.linspace(lo, hi, 200)
+        sig = max(s.model_sigma_m * 100, 1e-3)
+        ax.plot(xs, np.exp(-0.5 * (xs / sig) ** 2) / (sig * np.sqrt(2 * np.pi)), 'k-', lw=1.2,
+                label='model')
+        ax.axvline(d, color='tab:red', lw=1.2,
+                   label='bias difference')
+        ax.set_title(f'{s.name} ({s.points} pts)', fontsize=10)
+        ax.set_xlabel('measured - model range (cm)')
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    return _png(fig)

@@ -1,0 +1,392 @@
+"""The comparison loop, top to bottom: load, match, calibrate materials, attribute,
+diagnose, report.
+
+``run_compare`` is what ``lidar-sim compare`` calls. It reads a bag of measured
+points and target poses, predicts every measured ray with the model (the scenario's
+sensor and materials, the given mesh, the scenario's effects plus any ``--effect``),
+and writes ``summary.json``, ``report.html`` (+ PNGs), ``effects.yaml`` (with
+``--fit``), ``materials.yaml`` and one line of ``history.json``.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+from pydantic import ValidationError
+
+from lidar_sim_ros.compare import diagnosis, features, history, materials as mat
+from lidar_sim_ros.compare.matching import Matching, Model, match
+from lidar_sim_ros.compare.measurements import (Measurements, load_measurements,
+                                                 with_scan_times)
+from lidar_sim_ros.core.config import Scenario, load_scenario
+from lidar_sim_ros.core.effects import Effect, catalogue, get_effect_class
+from lidar_sim_ros.core.geometry import load_target
+from lidar_sim_ros.io.bag import CLOUD_TOPIC, POSE_TOPIC
+from lidar_sim_ros.paths import config_path
+
+DEFAULT_MAX_POINTS = 300_000
+# Candidate fits re-run the raycast many times: a random subset of this many matched
+# points (and as many unmatched) keeps them fast with ample statistical power.
+DIAGNOSIS_MAX_MATCHED = 30_000
+SILHOUETTE_NEAR_DIVERGENCES = 2.0
+
+
+@dataclass
+class CompareOptions:
+    bag: Path
+    mesh: Path
+    out: Path
+    config: Path | None = None
+    effects: list[str] = field(default_factory=list)
+    fit: bool = False
+    cloud_topic: str = CLOUD_TOPIC
+    pose_topic: str = POSE_TOPIC
+    history: Path | None = None
+    max_points: int = DEFAULT_MAX_POINTS
+    candidates: list[str] | None = None     # effect specs to diagnose (default: catalogue)
+    seed: int = 0
+    report: bool = True
+
+
+@dataclass
+class CompareResult:
+    summary: dict
+    out: Path
+    files: list[Path]
+    fitted: list[Effect]
+    lines: list[str]
+
+
+def parse_effect_spec(spec: str) -> tuple[str, dict]:
+    """``NAME`` / ``module:Class`` / ``file.py:Class``, optionally ``=`` a YAML mapping."""
+    name, sep, text = spec.partition('=')
+    if not sep:
+        return spec, {}
+    try:
+        params = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ValueError(f'--effect {spec!r}: parameters are not valid YAML: {exc}') from None
+    if not isinstance(params, dict):
+        raise ValueError(f'--effect {spec!r}: parameters must be a mapping, e.g. '
+                         f'{name}={{k_m: 0.02}}')
+    return name, params
+
+
+def make_effects(specs: list[str]) -> list[Effect]:
+    out = []
+    for spec in specs:
+        name, params = parse_effect_spec(spec)
+        try:
+            cls = get_effect_class(name)
+        except (TypeError, ImportError) as exc:
+            raise ValueError(f'--effect {spec!r}: {exc}') from None
+        try:
+            out.append(cls(params))
+        except ValidationError as exc:
+            raise ValueError(f'--effect {spec!r}: bad parameters: {exc.errors()[0]["msg"]} '
+                             f'at {exc.errors()[0]["loc"]}') from None
+    return out
+
+
+def _rays(m: Matching) -> diagnosis.RaySet:
+    return diagnosis.RaySet(m.meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched))
+
+
+def fit_user_effects(model: Model, base: list[Effect], user: list[Effect],
+                     meas: Measurements) -> list[Effect]:
+    """ML-fit each user effect in turn on top of the base and the previously fitted ones.
+
+    The likelihood profiles each material's offset and sigma scale, so a constant
+    per-material mismatch does not leak into the effect's parameters.
+    """
+    done: list[Effect] = []
+    for eff in user:
+        cls = type(eff)
+        # Parameters the user gave (e.g. beam_divergence={range_mode: first}) stay fixed.
+        fixed = {k: v for k, v in eff.params.model_dump(exclude_unset=True).items()
+                 if k not in cls.bounds}
+        m = match(model.simulator(effects=base + done), meas, model.divergence_rad, edges=False)
+        data = diagnosis.make_fit_data(model, base + done, _rays(m))
+        fit, _ = diagnosis.fit_best_variant(cls, data, fixed)
+        done.append(diagnosis.plain(cls, fit.effect))
+    return done
+
+
+def run_compare(opts: CompareOptions) -> CompareResult:
+    opts.out = Path(opts.out)
+    scenario = load_scenario(opts.config or config_path('scenario.yaml'))
+    target = load_target(opts.mesh, scenario.materials.names)
+    meas = load_measurements(opts.bag, opts.cloud_topic, opts.pose_topic, opts.max_points,
+                             opts.seed)
+    scenario_effects = [get_effect_class(e.name)(e.params) for e in scenario.config.effects]
+    user = make_effects(opts.effects)
+    model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
+                  scenario.source.parent if scenario.source else None)
+
+    meas = with_scan_times(meas, model.simulator().shots)
+
+    fitted: list[Effect] = []
+    if opts.fit and user:
+        user = fitted = fit_user_effects(model, scenario_effects, user, meas)
+    effects = scenario_effects + user
+    notes = list(meas.notes) + _material_name_notes(meas, scenario)
+    if opts.fit and not user:
+        notes.append('--fit without --effect: nothing to fit')
+
+    # Predict every measured ray; per-material bias/sigma as measured vs configured.
+    matching = match(model.simulator(effects=effects), meas, model.divergence_rad,
+                     edges=not opts.fit)
+    stats = mat.material_stats(model.materials, matching.pred, matching.residual_m,
+                               matching.matched)
+    refit = mat.refit_materials(model.materials, stats)
+    configured = matching
+    if opts.fit:
+        # --fit estimates the model's free parameters: the effects' and, as in the
+        # paper's Table 2 calibration, each material's range bias and sigma.
+        model = replace(model, materials=refit)
+        matching = match(model.simulator(effects=effects), meas, model.divergence_rad)
+    rays = _rays(matching)
+    if len(rays.matched) < 10:
+        raise ValueError(
+            f'only {len(rays.matched)} of {len(meas)} measured rays hit the target mesh '
+            f'{opts.mesh}: check the mesh, the pose topic {opts.pose_topic!r} (target body '
+            f'pose in the lidar frame) and that the clouds are in the lidar frame')
+    pred, sel = matching.pred, matching.matched
+    fitting = diagnosis.fitting_module()
+    everything = diagnosis.make_fit_data(model, effects, rays)
+    # Headline: the model (materials as configured, or refit with --fit). Calibrated:
+    # each material's offset and sigma scale profiled out.
+    nll, rmse, _ = fitting.evaluate(everything, [], profile_materials=False)
+    cal_nll, cal_rmse, _ = fitting.evaluate(everything, [])
+
+    # Where the residual depends, model-free, once the material offsets are removed.
+    res = matching.residual_m[sel]
+    sigma = np.maximum(pred.sigma_m[sel], 1e-6)
+    offset, scale = fitting.material_nuisance(res, sigma, np.asarray(pred.ctx.material[sel], int),
+                                              np.isfinite(res))
+    res = res - offset
+    feats = features.score_features(features.feature_values(matching), res,
+                                    res / (sigma * scale), opts.seed)
+
+    # Which effect is missing.
+    in_model = {e.name for e in effects}
+    classes = ([get_effect_class(parse_effect_spec(s)[0]) for s in opts.candidates]
+               if opts.candidates is not None else list(catalogue().values()))
+    classes = [c for c in classes if c.name not in in_model]
+    cands = []
+    if classes:
+        diag = diagnosis.Diagnosis(model, effects, rays.sample(DIAGNOSIS_MAX_MATCHED, opts.seed),
+                                   opts.seed)
+        cands = diagnosis.rank([diag.score(c) for c in classes])
+        for c in cands:
+            if c.effect is not None:   # what the next run's headline would show
+                c.nll_after, c.range_rmse_after_m, _ = fitting.evaluate(
+                    everything, [c.effect], profile_materials=False)
+    missing = diagnosis.missing_effect(cands)
+
+    summary = {
+        'bag': str(opts.bag), 'mesh': str(opts.mesh),
+        'config': str(scenario.source) if scenario.source else None,
+        'effects': [_effect_record(e) for e in effects],
+        'points': int(len(meas) + meas.dropped.get('subsampled', 0)),
+        'points_analysed': int(len(meas)),
+        'matched_points': int(sel.sum()),
+        'unmatched_points': int((~sel).sum()),
+        'unmatched_fraction': float(matching.unmatched_fraction),
+        'range_rmse_m': float(rmse), 'nll_per_point': float(nll),
+        'range_rmse_calibrated_m': float(cal_rmse), 'nll_calibrated': float(cal_nll),
+        'materials_refit': bool(opts.fit),
+        'range_residual_robust_sigma_m': mat.robust_sigma(res),
+        'intensity_gain': _intensity_gain(meas, pred, sel),
+        'materials': {s.name: s.as_dict() for s in stats},
+        'features': [f.as_dict() for f in feats],
+        'candidates': [c.as_dict() for c in cands],
+        'missing_effect': missing,
+        'unmatched': _unmatched_summary(matching, model.divergence_rad),
+        'fitted_effects': [_effect_record(e, fitted_only=True) for e in fitted],
+        'clouds': int(len(meas.cloud_stamps_s)),
+        'point_times': meas.time_source,
+        'has_intensity': meas.intensity is not None,
+        'dropped': meas.dropped,
+        'notes': notes,
+    }
+    summary['verdict'] = verdict(summary, feats, cands)
+
+    opts.out.mkdir(parents=True, exist_ok=True)
+    files = []
+    if fitted:
+        files.append(_write(opts.out / 'effects.yaml', effects_yaml(fitted)))
+    files.append(_write(opts.out / 'materials.yaml', mat.materials_yaml(refit, stats)))
+    hist_path = Path(opts.history) if opts.history else opts.out.resolve().parent / 'history.json'
+    runs = history.append_run(hist_path, history.run_entry(
+        summary, [e.name for e in effects], opts.out, opts.bag))
+    summary['history'] = str(hist_path)
+    files.append(_write(opts.out / 'summary.json', json.dumps(summary, indent=2) + '\n'))
+    if opts.report:
+        from lidar_sim_ros.compare.report import write_report
+        files += write_report(opts.out, summary, matching, configured, res, stats, feats,
+                              cands, runs, model)
+    return CompareResult(summary, opts.out, files, fitted, summary_lines(summary, files))
+
+
+def effects_yaml(effects: list[Effect]) -> str:
+    lines = ['# fitted by lidar-sim compare --fit: paste under "effects:" in the scenario']
+    for e in effects:
+        lines += [line for line in diagnosis._snippet(e).splitlines()]
+    return '\n'.join(lines) + '\n'
+
+
+def _effect_record(e: Effect, fitted_only: bool = False) -> dict:
+    """name and params; ``fitted_only`` keeps the fitted ones and discrete options."""
+    params = e.params.model_dump() if hasattr(e.params, 'model_dump') else {}
+    if fitted_only:
+        keep = set(type(e).bounds) | set(diagnosis.literal_choices(type(e)))
+        params = {k: v for k, v in params.items() if k in keep}
+    return {'name': e.name or type(e).__name__,
+            'params': {k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
+                           else v) for k, v in params.items()}}
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def _material_name_notes(meas: Measurements, scenario: Scenario) -> list[str]:
+    names = meas.material_names
+    if names is None or names == scenario.materials.names:
+        return []
+    return [f'bag material names {names} differ from the materials config '
+            f'{scenario.materials.names}: the model uses the config and the mesh groups']
+
+
+def _intensity_gain(meas: Measurements, pred, sel: np.ndarray) -> dict | None:
+    """Measured intensity vs model intensity up to one global gain (robust, in log)."""
+    if meas.intensity is None:
+        return None
+    mi, pi = meas.intensity[sel], pred.ctx.intensity[sel]
+    ok = np.isfinite(mi) & (mi > 0) & np.isfinite(pi) & (pi > 0)
+    if ok.sum() < 10:
+        return None
+    d = np.log(mi[ok]) - np.log(pi[ok])
+    g = float(np.median(d))
+    spread = mat.robust_sigma(d)
+    corr = float(np.corrcoef(np.log(mi[ok]), np.log(pi[ok]))[0, 1])
+    return {'gain': float(np.exp(g)), 'log_residual_robust_sigma': spread,
+            'log_correlation': corr}
+
+
+def _unmatched_summary(m: Matching, divergence_rad: float) -> dict:
+    un = ~m.matched
+    n = int(un.sum())
+    out = {'points': n, 'fraction': float(m.unmatched_fraction)}
+    if n == 0:
+        return out
+    rng = m.meas.range_m
+    r_lo, r_hi = np.percentile(rng[m.matched], [1, 99]) if m.matched.any() else (0.0, 0.0)
+    near = m.edge_rad[un] <= SILHOUETTE_NEAR_DIVERGENCES * divergence_rad + 1e-12
+    within = (rng[un] >= r_lo - 1.0) & (rng[un] <= r_hi + 1.0)
+    out.update({
+        'near_silhouette_fraction': float(near.mean()),
+        'within_target_ranges_fraction': float(within.mean()),
+        'range_median_m': float(np.median(rng[un])),
+        'range_p05_m': float(np.percentile(rng[un], 5)),
+        'range_p95_m': float(np.percentile(rng[un], 95)),
+        'silhouette_distance_median_mrad': float(np.median(m.edge_rad[un]) * 1e3),
+        'interpretation': _unmatched_words(near.mean(), within.mean()),
+    })
+    return out
+
+
+def _unmatched_words(near: float, within: float) -> str:
+    if near > 0.6 and within > 0.6:
+        return ('mostly just beyond the silhouette at target ranges: returns from the beam '
+                'edge (beam divergence) or a pose/mesh offset')
+    if near < 0.4 and within < 0.6:
+        return 'spread over the field of view at random ranges: false returns (background light)'
+    return 'mixed: part near the silhouette, part elsewhere'
+
+
+EFFECT_WORDS = {
+    'range_walk': 'range walk (intensity-dependent timing bias)',
+    'incidence_angle': 'footprint elongation at oblique incidence',
+    'snr_noise': 'range noise growing as the signal falls',
+    'solar_background': 'false returns from background light (outliers at random ranges)',
+    'beam_divergence': 'returns from the beam edge beyond the silhouette and mixed ranges at '
+                       'depth steps',
+    'time_offset': 'a clock offset between the pose and LiDAR stamps',
+}
+# The feature whose profile shows each catalogue effect best.
+EFFECT_FEATURE = {'range_walk': 'intensity', 'incidence_angle': 'incidence',
+                  'snr_noise': 'intensity', 'beam_divergence': 'edge'}
+
+
+def verdict(summary: dict, feats: list, cands: list) -> str:
+    """One plain-language paragraph: where it fails, which effect, what adding it brings."""
+    by_name = {f.name: f for f in feats}
+    top = feats[0] if feats else None
+    parts = []
+    if top is not None and top.significance > 5 and top.score > 1e-3:
+        parts.append(f'The range residual depends most on {top.name}: {top.trend}.')
+    missing = summary['missing_effect']
+    if missing:
+        c = next(c for c in cands if c.name == missing)
+        feat = by_name.get(EFFECT_FEATURE.get(missing, ''))
+        seen = (f'Against {feat.name}, {feat.trend}: ' if feat is not None and feat is not top
+                and feat.score > 0 else '')
+        params = ', '.join(f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
+                           for k, v in c.params.items())
+        parts.append(
+            f'{seen}this is {EFFECT_WORDS.get(missing, missing)}. Adding {missing} with '
+            f'{params} cuts the range RMSE from {summary["range_rmse_m"]:.4f} m to '
+            f'{c.range_rmse_after_m:.4f} m and the NLL from {summary["nll_per_point"]:.3f} to '
+            f'{c.nll_after:.3f} per point (held-out gain {c.score:.4f} nats/point, '
+            f'z = {c.z:.1f}). Run again with --effect {missing} --fit to add it.')
+        parts[-1] = parts[-1][0].upper() + parts[-1][1:]
+    else:
+        parts.append('No catalogue effect improves the held-out likelihood significantly: '
+                     'the model matches the measurements up to noise.')
+        if top is not None and top.significance > 8 and top.score > 0.01 and top.name != 'material':
+            parts[-1] = ('No catalogue effect improves the held-out likelihood significantly, '
+                         f'yet the residual depends on {top.name}: an effect outside the '
+                         'catalogue. Write one (README, "Write your own effect") and add it '
+                         'with --effect file.py:Class --fit.')
+    mats = summary['materials']
+    bad = [n for n, m in mats.items() if m['bias_mismatch'] or m['sigma_mismatch']]
+    if bad:
+        def row(n: str) -> str:
+            m = mats[n]
+            return (f'{n} (bias {100 * (m["measured_bias_m"] - m["model_bias_m"]):+.1f} cm, '
+                    f'sigma x {m["measured_sigma_m"] / max(m["model_sigma_m"], 1e-9):.2f})')
+        rows = ', '.join(row(n) for n in bad)
+        parts.append(f'Per-material range bias/sigma differ from the configuration for {rows}: '
+                     'see materials.yaml (--fit refits them).')
+    un = summary['unmatched']
+    if un['points']:
+        parts.append(f'{un["points"]} points ({100 * un["fraction"]:.2f} %) miss the target '
+                     f'model: {un.get("interpretation", "")}.')
+    return ' '.join(parts)
+
+
+def summary_lines(s: dict, files: list[Path]) -> list[str]:
+    lines = [f'points: {s["points"]} ({s["matched_points"]} matched, '
+             f'{s["unmatched_points"]} unmatched = {100 * s["unmatched_fraction"]:.2f} %)',
+             f'range RMSE: {s["range_rmse_m"]:.4f} m   NLL: {s["nll_per_point"]:.3f} per point'
+             f'   (per-material offsets refit: {s["range_rmse_calibrated_m"]:.4f} m, '
+             f'{s["nll_calibrated"]:.3f})']
+    for e in s['fitted_effects']:
+        params = ', '.join(f'{k} = {v:.6g}' if isinstance(v, float) else f'{k} = {v}'
+                           for k, v in e['params'].items())
+        lines.append(f'fitted {e["name"]}: {params}')
+    lines.append('features: ' + ', '.join(f'{f["name"]} {f["score"]:.4f}'
+                                          for f in s['features'][:4]))
+    lines.append('candidates: ' + ', '.join(
+        f'{c["name"]} {c["score"]:.4f}' if c['score'] is not None else f'{c["name"]} failed'
+        for c in s['candidates']))
+    lines.append(f'missing effect: {s["missing_effect"]}')
+    lines.append(f'verdict: {s["verdict"]}')
+    lines += [f'wrote {p}' for p in files]
+    return lines

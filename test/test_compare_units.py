@@ -1,0 +1,135 @@
+"""Unit tests of the compare modules on small closed-form cases (no full pipeline)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from lidar_sim_ros.compare.features import FEATURE_NAMES, score_features
+from lidar_sim_ros.compare.history import append_run, load_history
+from lidar_sim_ros.compare.matching import EDGE_FAR, edge_distance_rad, predict_rays
+from lidar_sim_ros.compare.measurements import (Measurements, load_measurements,
+                                                padded_pose_track)
+from lidar_sim_ros.core.pipeline import Simulator
+from lidar_sim_ros.core.scan import directions_from_angles
+
+from conftest import materials, plate_target, sensor
+from datasets import EPOCH_NS, write_custom_cloud
+
+
+# ------------------------------------------------------------------ features
+def _feature_values(rng, n):
+    return {'range': rng.uniform(8, 14, n), 'incidence': rng.uniform(0, 80, n),
+            'intensity': rng.uniform(-3, 0, n), 'azimuth': rng.uniform(-30, 30, n),
+            'elevation': rng.uniform(-11, 11, n), 'time': rng.uniform(0, 0.1, n),
+            'material': rng.integers(0, 5, n), 'edge': rng.choice([0.75, 1.5, 24.0], n)}
+
+
+def test_feature_with_a_conditional_mean_ranks_first():
+    rng = np.random.default_rng(3)
+    values = _feature_values(rng, 6000)
+    z = rng.standard_normal(6000) + 0.6 * (values['time'] - 0.05) / 0.029
+    ranked = score_features(values, 0.03 * z, z)
+    assert [f.name for f in ranked][0] == 'time'
+    assert {f.name for f in ranked} == set(FEATURE_NAMES)
+    top = ranked[0]
+    # Gaussian information of a linear trend with slope 0.6 sd: 0.5 ln(1 + 0.36) ~ 0.15 nats.
+    assert top.score == pytest.approx(0.5 * np.log(1.36), rel=0.35)
+    assert top.mean_part > 10 * top.spread_part
+    assert all(f.score < 0.01 for f in ranked[1:])
+
+
+def test_feature_with_a_conditional_spread_ranks_first():
+    rng = np.random.default_rng(4)
+    values = _feature_values(rng, 6000)
+    # Noise growing 4 x from high to low intensity (an SNR effect).
+    z = rng.standard_normal(6000) * (1.0 + (-values['intensity']))
+    ranked = score_features(values, 0.03 * z, z)
+    assert ranked[0].name == 'intensity'
+    assert ranked[0].spread_part > 5 * ranked[0].mean_part
+    assert 'spread shrinks' in ranked[0].trend
+
+
+def test_pure_noise_scores_near_zero():
+    rng = np.random.default_rng(5)
+    values = _feature_values(rng, 6000)
+    z = rng.standard_normal(6000)
+    assert max(f.score for f in score_features(values, 0.03 * z, z)) < 0.004
+
+
+# ---------------------------------------------------------------- edge probe
+def _plate_measurements(az_rad: np.ndarray) -> tuple[Measurements, Simulator]:
+    """Rays toward a 4 m plate facing the sensor 10 m away, static pose."""
+    n = len(az_rad)
+    q = Rotation.from_euler('y', -90, degrees=True).as_quat()     # body +z -> lidar -x
+    track = padded_pose_track(np.array([0.0, 1.0]), np.array([[10.0, 0, 0]] * 2),
+                              np.array([q, q]), 0.5)
+    dirs = directions_from_angles(az_rad, np.zeros(n))
+    meas = Measurements(bag=None, xyz_m=dirs * 10, range_m=np.full(n, 10.0), directions=dirs,
+                        intensity=None, t_s=np.full(n, 0.5), t_frame_s=np.zeros(n),
+                        cloud=np.zeros(n, int), laser=np.zeros(n, np.uint16),
+                        has_point_time=True, cloud_stamps_s=np.zeros(1), epoch_s=0.0,
+                        poses=track, material_names=None)
+    sim = Simulator(sensor(), materials(), plate_target(4.0))
+    return meas, sim
+
+
+def test_edge_distance_on_a_plate_matches_its_geometry():
+    div = 1e-3
+    edge = np.arctan(0.2)                  # plate edge at y = 2 m, x = 10 m
+    az = np.array([0.0, edge - 0.0025, edge + 0.0025, edge - 0.0007])
+    meas, sim = _plate_measurements(az)
+    pred = predict_rays(sim, meas)
+    assert list(pred.ctx.hit) == [True, True, False, True]
+    dist = edge_distance_rad(sim.target, meas, pred, div)
+    # Rings at 0.5, 1, 2, 4, 8 mrad: the first to cross the edge 2.5 mrad away is 4 mrad,
+    # 0.7 mrad away is 1 mrad; the plate centre sees no edge within 8 mrad.
+    assert dist == pytest.approx([EDGE_FAR * div, 4e-3, 4e-3, 1e-3])
+
+
+# ------------------------------------------------------------------- history
+def test_history_appends_and_rejects_a_foreign_file(tmp_path):
+    path = tmp_path / 'history.json'
+    append_run(path, {'effects': [], 'range_rmse_m': 0.05})
+    runs = append_run(path, {'effects': ['range_walk'], 'range_rmse_m': 0.03})
+    assert [r['effects'] for r in load_history(path)] == [[], ['range_walk']] == \
+        [r['effects'] for r in runs]
+    assert all('timestamp' in r for r in runs)
+    path.write_text('{not json')
+    with pytest.raises(ValueError, match='history.json'):
+        append_run(path, {})
+
+
+# -------------------------------------------------------------- measurements
+def _bag(tmp_path, points_per_cloud, t_values, pose_times_s, cloud_times_s, t_dtype='<f4'):
+    from lidar_sim_ros.io.bag import BagWriter
+    bag = tmp_path / 'bag'
+    with BagWriter(bag) as w:
+        for t in pose_times_s:
+            w.write_pose('/target/pose', EPOCH_NS + int(round(t * 1e9)), 'lidar',
+                         [10.0, 0, 0], [0, 0, 0, 1])
+        for stamp in cloud_times_s:
+            pts = np.zeros(points_per_cloud, dtype=[('x', '<f4'), ('y', '<f4'), ('z', '<f4'),
+                                                    ('t', t_dtype)])
+            pts['x'] = 10.0
+            pts['t'] = t_values
+            write_custom_cloud(w, '/lidar/points', pts, EPOCH_NS + int(round(stamp * 1e9)))
+    return bag
+
+
+def test_poses_once_per_cloud_cover_the_last_cloud_by_extrapolation(tmp_path):
+    t = np.linspace(0, 0.099, 4)
+    bag = _bag(tmp_path, 4, t, [0.0, 0.1, 0.2], [0.0, 0.1, 0.2])
+    meas = load_measurements(bag)
+    assert len(meas) == 12
+    assert meas.t_s[-1] == pytest.approx(0.2 + 0.099)
+    assert any('past the last pose' in n for n in meas.notes)
+    assert meas.poses.at(meas.t_s).position_m[:, 0] == pytest.approx(np.full(12, 10.0))
+
+
+def test_integer_point_times_in_nanoseconds_are_read_as_seconds(tmp_path):
+    t_ns = np.array([0, 25_000_000, 50_000_000, 75_000_000], np.uint32)
+    bag = _bag(tmp_path, 4, t_ns, [0.0, 0.2], [0.0], t_dtype='<u4')
+    meas = load_measurements(bag)
+    assert meas.t_frame_s == pytest.approx([0.0, 0.025, 0.05, 0.075])
+    assert any('read as ns' in n for n in meas.notes)
