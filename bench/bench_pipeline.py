@@ -252,21 +252,15 @@ def profile(sim, traj, period: float, top: int) -> list[dict]:
             for (file, line, name), (_, nc, tt, ct, _) in rows]
 
 
-def coherent_order(az_rad, el_rad, cell_deg: float = 1.0):
-    """Shot permutation that visits 1-degree angular cells row by row (ray coherence)."""
-    import numpy as np
-    row = np.floor(np.degrees(el_rad) / cell_deg)
-    col = np.floor(np.degrees(az_rad) / cell_deg)
-    return np.lexsort((az_rad, col, row))
-
-
 def mesh_scaling(args, sim, traj, Target, scenario, np, rtcore_scene, TriangleMesh) -> dict:
     """Cost per ray of a fine vs a coarse rocket mesh on the same rays (frame 0).
 
-    Measured twice: in firing order (what the pipeline casts: the 24 lasers fire
-    round-robin, so consecutive rays land in different tiles) and with the same
-    rays sorted into 1-degree angular cells (coherent: neighbours share BVH nodes).
+    Raw Embree is measured twice: in firing order (the 24 lasers fire round-robin,
+    so consecutive rays land in different tiles) and with the same rays sorted into
+    1-degree angular cells (coherent: neighbours share BVH nodes), which is how
+    ``Target.cast`` is called by the pipeline.
     """
+    from lidar_sim_ros.core.geometry import coherent_order
     tool = load_mesh_tool()
     names = scenario.materials.names
     poses = traj.at(sim.shots.t_s)
@@ -286,7 +280,7 @@ def mesh_scaling(args, sim, traj, Target, scenario, np, rtcore_scene, TriangleMe
         scene.run(o[:100], d[:100], output=1)  # BVH build happens on the first query
         raw_s, raw_cpu, res = timed(lambda: scene.run(o, d, output=1), 7)
         sorted_s, _, _ = timed(lambda: scene.run(o_sorted, d_sorted, output=1), 7)
-        cast_s, _, _ = timed(lambda: target.cast(o, d), 7)
+        cast_s, _, _ = timed(lambda: target.cast(o, d, order), 7)  # as the pipeline casts
         out[label] = {'segments': segments, 'triangles': int(target.n_faces),
                       'target_build_s': build_s,
                       'hit_fraction': float(np.mean(res['primID'] >= 0)),

@@ -18,15 +18,13 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-import yaml
-from pydantic import ValidationError
 
-from lidar_sim_ros.core.config import ConfigError, Scenario, load_scenario
-from lidar_sim_ros.core.effects import Effect, make_effect
-from lidar_sim_ros.core.pipeline import Frame, Simulator
+from lidar_sim_ros.core.config import Scenario, load_scenario
+from lidar_sim_ros.core.effects import effect_from_spec
+from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.pose import ScenarioTrajectory
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, MATERIAL_NAMES_TOPIC, POSE_TOPIC, BagWriter
-from lidar_sim_ros.io.pointcloud import make_points
+from lidar_sim_ros.io.pointcloud import frame_points
 
 TRUTH_TOPIC = '/lidar/points_truth'
 DEFAULT_EPOCH_S = 1_700_000_000.0
@@ -48,51 +46,6 @@ def to_stamp_ns(t_s: float | np.ndarray, epoch_s: float = DEFAULT_EPOCH_S) -> np
     """Scenario time [s] -> ROS stamp [ns] (int64): epoch plus t, rounded to the nanosecond."""
     return np.int64(round(epoch_s * NS_PER_S)) + np.rint(
         np.asarray(t_s, dtype=float) * NS_PER_S).astype(np.int64)
-
-
-def frame_points(frame: Frame, truth: bool = False) -> np.ndarray:
-    """A simulated frame as the shared PointCloud2 layout (detected returns, or the truth)."""
-    if truth:
-        return make_points(frame.truth_xyz_m, frame.truth_intensity, frame.truth_t_s,
-                           frame.truth_ring, frame.truth_material)
-    return make_points(frame.xyz_m, frame.intensity, frame.t_s, frame.ring, frame.material)
-
-
-def parse_effect_spec(spec: str) -> tuple[str, dict]:
-    """``NAME`` or ``NAME={key: value, ...}`` (YAML/JSON mapping) -> (name, params)."""
-    name, sep, params_text = spec.partition('=')
-    if not sep:
-        return spec, {}
-    try:
-        params = yaml.safe_load(params_text)
-    except yaml.YAMLError as exc:
-        raise ValueError(f'--effect {spec!r}: parameters are not valid YAML: {exc}') from None
-    if not isinstance(params, dict):
-        raise ValueError(f'--effect {spec!r}: parameters must be a mapping, e.g. '
-                         f'{name}={{k_m: 0.02}}')
-    return name, params
-
-
-def build_effects(scenario: Scenario, extra: Sequence[str] = ()) -> list[Effect]:
-    """The scenario's effects followed by the extra ``--effect`` specs.
-
-    A bad parameter raises ConfigError naming the scenario file (or ``--effect``),
-    the key and the value.
-    """
-    specs = [(scenario.source or 'scenario', f'effects.{i}', e.name, e.params)
-             for i, e in enumerate(scenario.config.effects)]
-    specs += [('--effect', spec, *parse_effect_spec(spec)) for spec in extra]
-    effects = []
-    for where, key, name, params in specs:
-        try:
-            effects.append(make_effect(name, params))
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            param = '.'.join(str(p) for p in err['loc'])
-            raise ConfigError(where, f'{key}.params.{param}' if where != '--effect' else
-                              f'{name}.{param}', err.get('input'),
-                              f'{err["msg"]} (effect {name!r})') from None
-    return effects
 
 
 def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames: int,
@@ -117,7 +70,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
         raise FileExistsError(f'{bag_path} already exists; choose another --out or remove it')
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
-    sim = Simulator.from_scenario(scenario, build_effects(scenario, effects))
+    sim = Simulator.from_scenario(scenario, extra_effects=[effect_from_spec(e) for e in effects])
     trajectory = ScenarioTrajectory.from_config(scenario.config)
     frame_id = scenario.config.frame_id
     period = sim.frame_period_s

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from lidar_sim_ros.core.config import (DetectionConfig, MaterialConfig, MaterialsConfig,
-                                       OpticsConfig, SensorConfig, load_scenario, parse)
+from lidar_sim_ros.core.config import (MaterialConfig, MaterialsConfig,
+                                       SensorConfig, load_scenario, parse)
 from lidar_sim_ros.core.geometry import Target
 
 REPO = Path(__file__).resolve().parents[1]

@@ -19,7 +19,8 @@ from lidar_sim_ros.core.config import load_scenario
 from lidar_sim_ros.core.pose import PoseTrack
 from lidar_sim_ros.io.bag import read_clouds, read_material_names, read_poses
 from lidar_sim_ros.io.pointcloud import POINT_DTYPE
-from lidar_sim_ros.offline import DEFAULT_EPOCH_S, TRUTH_TOPIC, parse_effect_spec
+from lidar_sim_ros.core.effects import parse_effect_spec
+from lidar_sim_ros.offline import DEFAULT_EPOCH_S, TRUTH_TOPIC
 from lidar_sim_ros.paths import config_path
 from lidar_sim_ros.viz.figures import FIGURE_NAMES
 

@@ -113,7 +113,7 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
     has_t = 't' in fields
     has_i = 'intensity' in fields
     if not has_t:
-        notes.append(f'clouds have no per-point "t" field: every point takes its cloud stamp')
+        notes.append('clouds have no per-point "t" field: every point takes its cloud stamp')
     if not has_i:
         notes.append('clouds have no "intensity" field: the intensity feature uses the model')
 

@@ -14,15 +14,14 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import yaml
-from pydantic import ValidationError
 
 from lidar_sim_ros.compare import diagnosis, features, history, materials as mat
 from lidar_sim_ros.compare.matching import Matching, Model, match
 from lidar_sim_ros.compare.measurements import (Measurements, load_measurements,
                                                  with_scan_times)
 from lidar_sim_ros.core.config import Scenario, load_scenario
-from lidar_sim_ros.core.effects import Effect, catalogue, get_effect_class
+from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
+                                        parse_effect_spec)
 from lidar_sim_ros.core.geometry import load_target
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, POSE_TOPIC
 from lidar_sim_ros.paths import config_path
@@ -60,37 +59,6 @@ class CompareResult:
     lines: list[str]
 
 
-def parse_effect_spec(spec: str) -> tuple[str, dict]:
-    """``NAME`` / ``module:Class`` / ``file.py:Class``, optionally ``=`` a YAML mapping."""
-    name, sep, text = spec.partition('=')
-    if not sep:
-        return spec, {}
-    try:
-        params = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ValueError(f'--effect {spec!r}: parameters are not valid YAML: {exc}') from None
-    if not isinstance(params, dict):
-        raise ValueError(f'--effect {spec!r}: parameters must be a mapping, e.g. '
-                         f'{name}={{k_m: 0.02}}')
-    return name, params
-
-
-def make_effects(specs: list[str]) -> list[Effect]:
-    out = []
-    for spec in specs:
-        name, params = parse_effect_spec(spec)
-        try:
-            cls = get_effect_class(name)
-        except (TypeError, ImportError) as exc:
-            raise ValueError(f'--effect {spec!r}: {exc}') from None
-        try:
-            out.append(cls(params))
-        except ValidationError as exc:
-            raise ValueError(f'--effect {spec!r}: bad parameters: {exc.errors()[0]["msg"]} '
-                             f'at {exc.errors()[0]["loc"]}') from None
-    return out
-
-
 def _rays(m: Matching) -> diagnosis.RaySet:
     return diagnosis.RaySet(m.meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched))
 
@@ -122,7 +90,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     meas = load_measurements(opts.bag, opts.cloud_topic, opts.pose_topic, opts.max_points,
                              opts.seed)
     scenario_effects = [get_effect_class(e.name)(e.params) for e in scenario.config.effects]
-    user = make_effects(opts.effects)
+    user = [effect_from_spec(spec) for spec in opts.effects]
     model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
                   scenario.source.parent if scenario.source else None)
 

@@ -94,13 +94,16 @@ class Simulator:
         self._bias, self._sigma = materials.column('bias_m'), materials.column('sigma_m')
 
     @classmethod
-    def from_scenario(cls, scenario: Scenario, effects: list[Effect] | None = None) -> 'Simulator':
+    def from_scenario(cls, scenario: Scenario, effects: list[Effect] | None = None,
+                      extra_effects: list[Effect] = ()) -> 'Simulator':
+        """The scenario's simulator; ``effects`` replaces the scenario's list, ``extra_effects`` extends it."""
         target = load_target(scenario.mesh_path, scenario.materials.names)
         base = scenario.source.parent if scenario.source else None
         if effects is None:
             effects = [make_effect(_scenario_relative(e.name, base), e.params)
                        for e in scenario.config.effects]
-        return cls(scenario.sensor, scenario.materials, target, scenario.seed, effects, base)
+        return cls(scenario.sensor, scenario.materials, target, scenario.seed,
+                   list(effects) + list(extra_effects), base)
 
     @property
     def frame_period_s(self) -> float:

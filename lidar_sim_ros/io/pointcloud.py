@@ -250,3 +250,11 @@ def _as_uint8(data: Any) -> np.ndarray:
     if isinstance(data, (list, tuple)):
         return np.asarray(data, dtype=np.uint8)
     return np.frombuffer(data, dtype=np.uint8)
+
+
+def frame_points(frame: Any, truth: bool = False) -> np.ndarray:
+    """A simulated ``core.pipeline.Frame`` in this layout: detected returns, or the noise-free truth."""
+    if truth:
+        return make_points(frame.truth_xyz_m, frame.truth_intensity, frame.truth_t_s,
+                           frame.truth_ring, frame.truth_material)
+    return make_points(frame.xyz_m, frame.intensity, frame.t_s, frame.ring, frame.material)

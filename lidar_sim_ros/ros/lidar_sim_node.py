@@ -40,9 +40,9 @@ from lidar_sim_ros.core.config import (ConfigError, Scenario, load_materials, lo
                                        load_sensor)
 from lidar_sim_ros.core.effects import Effect, make_effect
 from lidar_sim_ros.core.geometry import MeshMaterialError
-from lidar_sim_ros.core.pipeline import Frame, Simulator
+from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.io.bag import encode_material_names
-from lidar_sim_ros.io.pointcloud import make_points, stamp_to_ns, to_rclpy_msg
+from lidar_sim_ros.io.pointcloud import frame_points, stamp_to_ns, to_rclpy_msg
 from lidar_sim_ros.paths import config_path
 from lidar_sim_ros.ros.pose_input import (NS_PER_S, PoseHistory, PoseSample, ReasonThrottle,
                                           check_pose, twist_to_lidar)
@@ -417,9 +417,10 @@ class LidarSimNode(Node):
             frame = self.sim.simulate_frame(0.0, track, frame_index=k)
             t1 = time.perf_counter()
             frame_id = self.get_parameter('frame_id').value
-            self.points_pub.publish(to_rclpy_msg(_points(frame), start_ns, frame_id))
+            self.points_pub.publish(to_rclpy_msg(frame_points(frame), start_ns, frame_id))
             if self.get_parameter('publish_truth').value:
-                self.truth_pub.publish(to_rclpy_msg(_truth_points(frame), start_ns, frame_id))
+                truth = frame_points(frame, truth=True)
+                self.truth_pub.publish(to_rclpy_msg(truth, start_ns, frame_id))
         except Exception as exc:  # noqa: BLE001 - a bad frame must never kill the node
             self._stats['failed'] += 1
             self._warn('frame_error', f'frame {k} (stamp {start_ns / NS_PER_S:.3f} s) failed: '
@@ -450,15 +451,6 @@ class LidarSimNode(Node):
         self.get_logger().info(f'last {STATS_PERIOD_S:g} s: {s["published"]} frames published, '
                                f'{s["skipped"]} skipped, {s["failed"]} failed{timing}')
         self._stats = {'published': 0, 'skipped': 0, 'failed': 0, 'compute_ms': [], 'publish_ms': []}
-
-
-def _points(frame: Frame) -> np.ndarray:
-    return make_points(frame.xyz_m, frame.intensity, frame.t_s, frame.ring, frame.material)
-
-
-def _truth_points(frame: Frame) -> np.ndarray:
-    return make_points(frame.truth_xyz_m, frame.truth_intensity, frame.truth_t_s,
-                       frame.truth_ring, frame.truth_material)
 
 
 def main(args: list[str] | None = None) -> int:

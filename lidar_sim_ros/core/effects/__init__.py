@@ -70,6 +70,44 @@ def get_effect_class(spec: str) -> type[Effect]:
     return cls
 
 
+def parse_effect_spec(spec: str) -> tuple[str, dict]:
+    """``NAME`` / ``module:Class`` / ``file.py:Class``, optionally ``=`` a YAML mapping.
+
+    ``'range_walk={k_m: 0.02}'`` -> ``('range_walk', {'k_m': 0.02})``.
+    """
+    import yaml
+    name, sep, text = spec.partition('=')
+    if not sep:
+        return spec, {}
+    try:
+        params = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ValueError(f'--effect {spec!r}: parameters are not valid YAML: {exc}') from None
+    if not isinstance(params, dict):
+        raise ValueError(f'--effect {spec!r}: parameters must be a mapping, e.g. '
+                         f'{name}={{k_m: 0.02}}')
+    return name, params
+
+
+def effect_from_spec(spec: str) -> Effect:
+    """An effect from a command-line ``--effect`` spec; errors name the spec, key and value."""
+    from pydantic import ValidationError
+
+    from lidar_sim_ros.core.config import ConfigError
+    name, params = parse_effect_spec(spec)
+    try:
+        cls = get_effect_class(name)
+    except (KeyError, TypeError, ImportError, AttributeError) as exc:
+        raise ConfigError('--effect', spec, name, exc.args[0] if exc.args else str(exc)) from None
+    try:
+        return cls(params)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        key = '.'.join(str(p) for p in err['loc'])
+        raise ConfigError('--effect', f'{name}.{key}', err.get('input'),
+                          f'{err["msg"]} (effect {name!r})') from None
+
+
 def make_effect(spec: str, params: dict | None = None) -> Effect:
     """An effect instance from a catalogue name / ``module:Class`` / ``file.py:Class``."""
     return get_effect_class(spec)(params)
@@ -84,4 +122,5 @@ from lidar_sim_ros.core.effects.fitting import (FitData, FitResult, evaluate,  #
                                                 fit_effect)
 
 __all__ = ['Effect', 'NoParams', 'ReturnContext', 'REGISTRY', 'register', 'get_effect_class',
-           'make_effect', 'catalogue', 'FitData', 'FitResult', 'evaluate', 'fit_effect']
+           'make_effect', 'parse_effect_spec', 'effect_from_spec', 'catalogue',
+           'FitData', 'FitResult', 'evaluate', 'fit_effect']

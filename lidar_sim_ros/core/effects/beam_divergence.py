@@ -28,7 +28,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from lidar_sim_ros.core.effects import register
-from lidar_sim_ros.core.effects.base import Effect, ReturnContext
+from lidar_sim_ros.core.effects.base import Effect
 from lidar_sim_ros.core.effects.fitting import FitData, FitResult, fit_bounded
 from lidar_sim_ros.core.geometry import Hits
 
