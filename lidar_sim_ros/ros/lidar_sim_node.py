@@ -19,14 +19,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
@@ -44,6 +42,7 @@ from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.io.bag import encode_material_names
 from lidar_sim_ros.io.pointcloud import frame_points, stamp_to_ns, to_rclpy_msg
 from lidar_sim_ros.paths import config_path
+from lidar_sim_ros.ros.spin import run_node
 from lidar_sim_ros.ros.pose_input import (NS_PER_S, PoseHistory, PoseSample, ReasonThrottle,
                                           check_pose, twist_to_lidar)
 from lidar_sim_ros.ros.scheduler import COMPUTE, WAIT, FrameScheduler, readiness
@@ -454,23 +453,7 @@ class LidarSimNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    node = LidarSimNode()
-    try:
-        node.setup()
-    except USER_ERRORS as exc:
-        node.get_logger().fatal(f'cannot start: {type(exc).__name__}: {exc}')
-        node.destroy_node()
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(LidarSimNode, args, USER_ERRORS)
 
 
 if __name__ == '__main__':

@@ -10,12 +10,10 @@ from __future__ import annotations
 
 import sys
 
-import rclpy
 from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -23,6 +21,7 @@ from lidar_sim_ros.core.config import ConfigError, load_scenario
 from lidar_sim_ros.core.pose import ScenarioTrajectory
 from lidar_sim_ros.io.pointcloud import ns_to_stamp
 from lidar_sim_ros.paths import config_path
+from lidar_sim_ros.ros.spin import run_node
 from lidar_sim_ros.ros.scheduler import NS_PER_S, FrameScheduler
 
 NODE_NAME = 'target_pose_player'
@@ -97,23 +96,7 @@ class TargetPosePlayer(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    rclpy.init(args=args)
-    node = TargetPosePlayer()
-    try:
-        node.setup()
-    except (ConfigError, ValueError, ParameterException) as exc:
-        node.get_logger().fatal(f'cannot start: {type(exc).__name__}: {exc}')
-        node.destroy_node()
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(TargetPosePlayer, args, (ConfigError, ValueError, ParameterException))
 
 
 if __name__ == '__main__':
