@@ -9,6 +9,7 @@ plus each summary's features and candidates, as JSON.
 
     python bench/hidden_effect_eval.py --out hidden_effect_eval.json
     python bench/hidden_effect_eval.py --only clean range_walk_poly --keep /tmp/foreign
+    python bench/hidden_effect_eval.py --seeds 3      # each dataset with 3 seeds (~15 min)
 """
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ import json
 import sys
 import tempfile
 import time
+from collections import defaultdict
+from dataclasses import replace
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -87,17 +90,26 @@ def table(rows: list[dict]) -> str:
     for r in rows:
         tf = r.get('top_feature') or {}
         tc = r.get('top_candidate') or {}
+        unm = r.get('unmatched_fraction')
         lines.append(
             f'{r["name"]:24s} {str(r["effect"]):17s} {str(r["found"]):17s} '
             f'{"yes" if r["ok"] else "NO ":3s} '
             f'{(tf.get("name", "-") + " " + _fmt(tf.get("score"), ".3f")):18s} '
             f'{(tc.get("name", "-") + " " + _fmt(tc.get("score"), ".4f")):28s} '
             f'{_fmt(r.get("range_rmse_m"), "7.4f")} {_fmt(r.get("nll_per_point"), "7.3f")} '
-            f'{_fmt(100 * r["unmatched_fraction"] if r.get("unmatched_fraction") is not None else None, "5.1f")} '
+            f'{_fmt(None if unm is None else 100 * unm, "5.1f")} '
             f'{r["points"]:6d} {r["compare_s"]:6.1f}')
     n_ok = sum(r['ok'] for r in rows)
     lines.append(f'{n_ok} of {len(rows)} verdicts right')
     return '\n'.join(lines)
+
+
+def per_dataset(rows: list[dict]) -> dict[str, str]:
+    """Right verdicts per battery dataset over its seeds, e.g. {'clean': '3/3'}."""
+    tally: dict[str, list[bool]] = defaultdict(list)
+    for r in rows:
+        tally[r['name'].split('@')[0]].append(bool(r['ok']))
+    return {k: f'{sum(v)}/{len(v)}' for k, v in tally.items()}
 
 
 def main_cli(argv: list[str] | None = None) -> int:
@@ -108,8 +120,11 @@ def main_cli(argv: list[str] | None = None) -> int:
     ap.add_argument('--keep', type=Path, default=None, metavar='DIR',
                     help='write datasets and compare outputs here instead of a temp dir')
     ap.add_argument('--report', action='store_true', help='also render report.html (slower)')
+    ap.add_argument('--seeds', type=int, default=1, metavar='N',
+                    help='run every dataset with N seeds (noise, pose, jitter; default 1)')
     args = ap.parse_args(argv)
-    specs = battery(args.only)
+    specs = [s if k == 0 else replace(s, name=f'{s.name}@{k}', seed=s.seed + 1000 * k)
+             for k in range(args.seeds) for s in battery(args.only)]
     rows = []
     with tempfile.TemporaryDirectory(prefix='foreign_') as tmp:
         root = args.keep or Path(tmp)
@@ -121,7 +136,11 @@ def main_cli(argv: list[str] | None = None) -> int:
                   f'({row["compare_s"]:.1f} s)', flush=True)
     print()
     print(table(rows))
-    args.out.write_text(json.dumps({'rows': rows}, indent=2, default=str) + '\n')
+    tally = per_dataset(rows)
+    if args.seeds > 1:
+        print('right per dataset: ' + ', '.join(f'{k} {v}' for k, v in tally.items()))
+    args.out.write_text(json.dumps({'per_dataset': tally, 'rows': rows}, indent=2,
+                                   default=str) + '\n')
     print(f'wrote {args.out}')
     return 0
 

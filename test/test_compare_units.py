@@ -101,7 +101,8 @@ def test_history_appends_and_rejects_a_foreign_file(tmp_path):
 
 
 # -------------------------------------------------------------- measurements
-def _bag(tmp_path, points_per_cloud, t_values, pose_times_s, cloud_times_s, t_dtype='<f4'):
+def _bag(tmp_path, points_per_cloud, t_values, pose_times_s, cloud_times_s, t_dtype='<f4',
+         t_name='t'):
     from lidar_sim_ros.io.bag import BagWriter
     bag = tmp_path / 'bag'
     with BagWriter(bag) as w:
@@ -110,9 +111,9 @@ def _bag(tmp_path, points_per_cloud, t_values, pose_times_s, cloud_times_s, t_dt
                          [10.0, 0, 0], [0, 0, 0, 1])
         for stamp in cloud_times_s:
             pts = np.zeros(points_per_cloud, dtype=[('x', '<f4'), ('y', '<f4'), ('z', '<f4'),
-                                                    ('t', t_dtype)])
+                                                    (t_name, t_dtype)])
             pts['x'] = 10.0
-            pts['t'] = t_values
+            pts[t_name] = t_values(stamp) if callable(t_values) else t_values
             write_custom_cloud(w, '/lidar/points', pts, EPOCH_NS + int(round(stamp * 1e9)))
     return bag
 
@@ -133,3 +134,32 @@ def test_integer_point_times_in_nanoseconds_are_read_as_seconds(tmp_path):
     meas = load_measurements(bag)
     assert meas.t_frame_s == pytest.approx([0.0, 0.025, 0.05, 0.075])
     assert any('read as ns' in n for n in meas.notes)
+
+
+@pytest.mark.parametrize('name, dtype, values, read_as', [
+    ('time', '<f4', lambda stamp: [0.0, 0.025, 0.05, 0.075], 's since stamp'),
+    ('t_ns', '<u4', lambda stamp: [0, 25_000_000, 50_000_000, 75_000_000], 'ns since stamp'),
+    ('offset_time', '<u4', lambda stamp: [0, 25_000_000, 50_000_000, 75_000_000],
+     'ns since stamp'),
+    # Hesai/Robosense style: absolute float64 epoch seconds, stamp at scan start.
+    ('timestamp', '<f8', lambda stamp: EPOCH_NS / 1e9 + stamp + np.array([0, 0.025, 0.05, 0.075]),
+     'absolute s'),
+    # Absolute seconds on another clock (device uptime): the earliest point is the stamp.
+    ('Timestamp', '<f8', lambda stamp: 5.0e5 + stamp + np.array([0, 0.025, 0.05, 0.075]),
+     'absolute s on another clock (cloud stamp = first point)'),
+])
+def test_point_times_under_other_field_names_and_units(tmp_path, name, dtype, values, read_as):
+    bag = _bag(tmp_path, 4, values, [0.0, 0.1, 0.3], [0.0, 0.1], t_dtype=dtype, t_name=name)
+    meas = load_measurements(bag)
+    assert meas.time_source == 'field'
+    assert meas.time_field['name'] == name and meas.time_field['read_as'] == [read_as]
+    assert meas.t_frame_s == pytest.approx([0.0, 0.025, 0.05, 0.075] * 2, abs=1e-6)
+    assert meas.t_s[4:] == pytest.approx(0.1 + np.array([0.0, 0.025, 0.05, 0.075]), abs=1e-6)
+
+
+def test_cloud_without_a_time_field_keeps_the_stamp_and_says_so(tmp_path):
+    bag = _bag(tmp_path, 4, [0.0, 1.0, 2.0, 3.0], [0.0, 0.2], [0.0], t_name='intensity')
+    meas = load_measurements(bag)
+    assert meas.time_source == 'stamp' and meas.time_field is None
+    assert meas.t_frame_s == pytest.approx(np.zeros(4))
+    assert any('no per-point time field' in n for n in meas.notes)

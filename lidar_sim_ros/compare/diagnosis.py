@@ -11,9 +11,19 @@ likelihood is outlier tolerant (a small uniform floor), so a handful of odd retu
 cannot dominate. Unmatched points a candidate explains (returns beyond the
 silhouette, false returns off the target) count too.
 
-A candidate is the missing effect when it ranks first and its held-out gain is both
-decisive (a held-out likelihood ratio of at least e^20) and large enough to matter
-(at least MIN_GAIN nats per point), or it explains enough unmatched points; else null.
+A candidate is the missing effect when it is the best admissible one and its
+held-out gain is both decisive (a held-out likelihood ratio of at least e^15) and
+large enough to matter in practice (at least MIN_GAIN nats per point:
+real data are never exactly the model's shape, and a slightly misspecified noise
+model lends any flexible candidate a few thousandths of a nat per point), or it
+explains enough unmatched points; else null.
+
+Admissible: an outlier effect (one that adds spurious returns, e.g. solar background)
+must show its signature, points far beyond the noise (|residual| > max(FAR_MIN_M,
+FAR_SIGMAS sigma)) or unmatched returns it explains, in number comparable to the
+spurious returns it claims; otherwise its gain comes from mildly heavy noise tails,
+which no false-return process explains. A time offset fitted on clouds without
+per-point times must exceed the spread of the unknown point times within a frame.
 """
 from __future__ import annotations
 
@@ -33,6 +43,10 @@ OUTLIER_FLOOR = 1e-5        # outlier weight every held-out likelihood carries (
 UNMATCHED_NATS = 3.0        # gain credited per unmatched point a candidate explains
 MIN_TOTAL_GAIN = 15.0       # nats of held-out log-likelihood ratio (odds e^15 : 1), and ...
 MIN_GAIN = 0.001            # ... nats per point: smaller gains do not matter in practice
+FAR_MIN_M = 0.5             # a point "far beyond the noise": |residual| above this and ...
+FAR_SIGMAS = 10.0           # ... this many predicted sigmas
+MIN_FAR_POINTS = 20         # an outlier effect needs this many far or unmatched points ...
+MIN_FAR_SHARE = 0.5         # ... and this share of the spurious matched returns it claims
 MIN_UNMATCHED_EXPLAINED = 20   # unmatched points explained count only from this many ...
 MIN_UNMATCHED_FRACTION = 0.002  # ... and this share of all points (grazing rays aside)
 N_FOLDS = 2
@@ -171,6 +185,8 @@ class Candidate:
     n_params: int = 0
     calibrated_after: tuple[float, float] = (float('nan'), float('nan'))
     significant: bool = False
+    vetoed: str | None = None          # why it cannot be the missing effect despite its gain
+    far_points: float = 0.0            # outlier effects: far or unmatched points it explains
     effect: Effect | None = None
     yaml: str = ''
     error: str | None = None
@@ -184,6 +200,7 @@ class Candidate:
                 'unmatched_explained': _num(self.unmatched_explained),
                 'heldout_gain_per_matched_point': _num(self.matched_gain), 'z': _num(self.z),
                 'n_params': self.n_params, 'significant': self.significant,
+                **({'vetoed': self.vetoed} if self.vetoed else {}),
                 **({'error': self.error} if self.error else {})}
 
 
@@ -195,13 +212,20 @@ class Diagnosis:
     """Scores effect classes against the model with ``base_effects`` (materials as
     configured; the likelihood profiles each material's offset and sigma scale)."""
 
-    def __init__(self, model: Model, base_effects: list[Effect], rays: RaySet, seed: int = 0):
+    def __init__(self, model: Model, base_effects: list[Effect], rays: RaySet, seed: int = 0,
+                 frame_time_spread_s: float | None = None):
+        """``frame_time_spread_s``: when the point times within a frame are unknown (every
+        point stamped with its cloud), the standard deviation of their true times."""
         self.model, self.base, self.rays = model, list(base_effects), rays
         self.full = make_fit_data(model, self.base, rays)
         self.folds = rays.split(N_FOLDS, seed)
         self.fold_data = [make_fit_data(model, self.base, f) for f in self.folds]
         self.n_total = len(rays.matched) + len(rays.unmatched)
         self._base_nll = [heldout_nll(d, []) for d in self.fold_data]
+        self.n_far = int(far_from_surface(self.full).sum())
+        self._base_outlier_w = float(np.mean(fitting_module().model_on_rays(
+            self.full, []).outlier_w)) if len(self.rays.matched) else 0.0
+        self.frame_time_spread_s = frame_time_spread_s
 
     def score(self, effect_cls: type[Effect]) -> Candidate:
         """Fit on all points (reported params) and cross-fitted on halves (the score)."""
@@ -240,10 +264,56 @@ class Diagnosis:
             cand.score = float(total / max(self.n_total, 1))
             cand.significant = bool(total >= max(MIN_TOTAL_GAIN, MIN_GAIN * self.n_total)
                                     and cand.matched_gain > -MIN_GAIN)
+            cand.vetoed = self._veto(cand, explained)
         except Exception as exc:  # noqa: BLE001 - one failing candidate must not stop the rest
             cand.error = f'{type(exc).__name__}: {exc}'
             cand.score = float('-inf')
         return cand
+
+
+    def _veto(self, cand: Candidate, unmatched_explained: float) -> str | None:
+        """Why a candidate with a gain cannot be the missing effect (module doc), or None."""
+        fitting = fitting_module()
+        eff = cand.effect
+        if eff is None or not len(self.rays.matched):
+            return None
+        spurious = 0.0
+        if type(eff).outlier_fraction is not Effect.outlier_fraction:   # adds false returns
+            w = float(np.mean(fitting.model_on_rays(self.full, [eff]).outlier_w))
+            spurious = max(w - self._base_outlier_w, 0.0) * len(self.rays.matched)
+        if spurious >= 1.0:
+            cand.far_points = float(self.n_far + unmatched_explained)
+            need = max(MIN_FAR_POINTS, MIN_FAR_SHARE * spurious)
+            if cand.far_points < need:
+                return (f'it claims {spurious:.0f} spurious returns among the matched points but only '
+                        f'{cand.far_points:.0f} lie far beyond the noise (|residual| > '
+                        f'max({FAR_MIN_M:g} m, {FAR_SIGMAS:g} sigma)) or off the target: '
+                        'heavy noise tails, not false returns')
+        spread = self.frame_time_spread_s
+        if spread and type(eff).pose_time_s is not Effect.pose_time_s:
+            t = self.rays.meas.t_s[self.rays.matched]
+            dt = float(np.median(np.asarray(eff.pose_time_s(t), float) - t))
+        else:
+            dt = None
+        if dt is not None and abs(dt) <= spread:
+            return (f'the clouds carry no per-point times: an offset of {1e3 * dt:.1f} ms is '
+                    f'within the spread of the point times in a frame ({1e3 * spread:.1f} ms) '
+                    'and cannot be told from the scan motion')
+        return None
+
+
+def far_from_surface(data) -> np.ndarray:
+    """Matched points far beyond the noise: |residual| > max(FAR_MIN_M, FAR_SIGMAS sigma),
+    residual and sigma after the per-material nuisance (offset, sigma scale)."""
+    fitting = fitting_module()
+    model = fitting.model_on_rays(data, [])
+    r = np.asarray(data.measured_range_m, float) - model.expected_range_m
+    sigma = np.maximum(model.sigma_m, fitting.MIN_SIGMA_M)
+    use = model.placed & np.isfinite(r)
+    offset, scale = fitting.material_nuisance(
+        r, sigma, np.asarray(data.baseline.ctx.material, int), use)
+    with np.errstate(invalid='ignore'):
+        return use & (np.abs(r - offset) > np.maximum(FAR_MIN_M, FAR_SIGMAS * sigma * scale))
 
 
 def rank(candidates: list[Candidate]) -> list[Candidate]:
@@ -251,10 +321,13 @@ def rank(candidates: list[Candidate]) -> list[Candidate]:
 
 
 def missing_effect(candidates: list[Candidate]) -> str | None:
-    """The best candidate's name if it is significant, else None."""
-    ranked = rank(candidates)
-    if ranked and ranked[0].error is None and ranked[0].significant:
-        return ranked[0].name
+    """The best admissible candidate's name if it is significant, else None. A vetoed
+    candidate (module doc) steps aside: the next one may still be named."""
+    for c in rank(candidates):
+        if c.error is not None:
+            return None
+        if c.vetoed is None:
+            return c.name if c.significant else None
     return None
 
 

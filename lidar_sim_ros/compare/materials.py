@@ -15,6 +15,7 @@ from lidar_sim_ros.core.config import MaterialConfig, MaterialsConfig
 from lidar_sim_ros.core.pipeline import Prediction
 
 MAD_TO_SIGMA = 1.4826
+CHI2_1_MEDIAN = 0.454936423   # median of z^2 for z ~ N(0, 1)
 MIN_POINTS = 20          # fewer points leave a material's bias/sigma as configured
 MISMATCH_Z = 5.0         # significance of a bias or sigma mismatch (standard errors)
 MISMATCH_MIN_FRACTION = 0.1   # ... and at least this fraction of the modelled sigma
@@ -60,10 +61,10 @@ def material_stats(materials: MaterialsConfig, pred: Prediction, residual_m: np.
         if n == 0:
             continue
         res = residual_m[sel]
-        extra_var = float(np.mean(np.maximum(pred.sigma_m[sel] ** 2 - cfg.sigma_m ** 2, 0.0)))
+        extra_var = np.maximum(pred.sigma_m[sel] ** 2 - cfg.sigma_m ** 2, 0.0)
         spread = robust_sigma(res)
-        meas_sigma = float(np.sqrt(max(spread ** 2 - extra_var, 0.0)))
         d_bias = float(np.median(res))
+        meas_sigma = material_sigma_m(res - d_bias, extra_var)
         se_bias = 1.2533 * max(spread, 1e-6) / np.sqrt(n)
         se_sigma = 1.65 * max(spread, 1e-6) / np.sqrt(2 * n)    # MAD is ~37 % efficient
         floor = MISMATCH_MIN_FRACTION * max(cfg.sigma_m, 1e-3)
@@ -74,6 +75,34 @@ def material_stats(materials: MaterialsConfig, pred: Prediction, residual_m: np.
             sigma_mismatch=bool(n >= MIN_POINTS and abs(meas_sigma - cfg.sigma_m)
                                 > max(MISMATCH_Z * se_sigma, floor))))
     return out
+
+
+def material_sigma_m(residual_m: np.ndarray, extra_var_m2: np.ndarray) -> float:
+    """Robust ML-like material sigma s (m) when each point's noise is s^2 + extra_var
+    (the enabled effects' noise, in quadrature): the s at which the median of
+    residual^2 / (s^2 + extra_var) is the median of chi2(1).
+
+    Subtracting the mean extra variance from a robust spread instead would be biased
+    low when the extra noise varies from point to point (the MAD of a scale mixture is
+    below its RMS), and a too small material sigma lends any noise effect a false gain.
+    """
+    r2 = np.asarray(residual_m, float) ** 2
+    e2 = np.broadcast_to(np.asarray(extra_var_m2, float), r2.shape)
+    if len(r2) == 0:
+        return float('nan')
+
+    def excess(s: float) -> float:
+        return float(np.median(r2 / np.maximum(s * s + e2, 1e-18))) - CHI2_1_MEDIAN
+
+    if excess(0.0) <= 0:
+        return 0.0
+    lo, hi = 0.0, 4.0 * float(np.sqrt(np.median(r2) / CHI2_1_MEDIAN)) + 1e-6
+    while excess(hi) > 0:
+        hi *= 2.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if excess(mid) > 0 else (lo, mid)
+    return 0.5 * (lo + hi)
 
 
 def refit_materials(materials: MaterialsConfig, stats: list[MaterialStats]) -> MaterialsConfig:

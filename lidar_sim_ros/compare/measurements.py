@@ -1,10 +1,16 @@
 """Measured points from a rosbag2: directions, ranges, times and the target pose track.
 
 A lab recording holds ``sensor_msgs/PointCloud2`` (x, y, z required; intensity and
-per-point ``t`` optional) and ``geometry_msgs/PoseStamped`` (target body pose in the
+per-point time optional) and ``geometry_msgs/PoseStamped`` (target body pose in the
 lidar frame). This module turns it into flat per-point arrays: measured range = |xyz|,
-direction = xyz / |xyz|, absolute time = cloud stamp + t (or the stamp when the cloud
-has no ``t``), plus a :class:`PoseTrack` that answers the pose at every point's time.
+direction = xyz / |xyz|, absolute time = cloud stamp + time since the stamp (or the
+stamp when the cloud has no time field), plus a :class:`PoseTrack` that answers the
+pose at every point's time.
+
+Per-point time comes under many names (``t``, ``time``, ``timestamp``, ``t_ns``,
+``offset_time``, ...; :data:`POINT_TIME_FIELDS`), in seconds or nanoseconds, relative
+to the stamp or absolute: :func:`point_time_since_stamp_s` decides from the field's
+name, type and magnitude against the header stamp, and the choice is recorded.
 Every problem raises :class:`MeasurementError` naming the bag, topic and what is wrong.
 """
 from __future__ import annotations
@@ -24,6 +30,18 @@ from lidar_sim_ros.core.scan import Shots
 NS_PER_S = 1_000_000_000
 # A per-point time field larger than this cannot be seconds within one frame.
 _MAX_FRAME_TIME_S = 2.0
+# Per-point time field names of common drivers (matched case-insensitively, in this
+# order): ours/Ouster ``t``, Velodyne ``time``, Hesai/Robosense ``timestamp``, Livox
+# ``offset_time``, and variants with a unit suffix.
+POINT_TIME_FIELDS = ('t', 'time', 'timestamp', 't_ns', 'time_ns', 'timestamp_ns',
+                     'offset_time', 'time_offset', 'timeoffset', 't_us', 'time_us',
+                     't_ms', 'time_ms', 'time_stamp', 'ts', 'stamp', 't_s', 'time_s')
+_UNIT_SUFFIX = {'_ns': 1e-9, '_us': 1e-6, '_ms': 1e-3, '_s': 1.0}
+# A time value (s) above this is an absolute clock reading (epoch seconds), not an
+# offset within a frame; within ABSOLUTE_MATCH_S of the header stamp it is on the
+# stamp's clock.
+_ABSOLUTE_MIN_S = 1.0e5
+ABSOLUTE_MATCH_S = 60.0
 # Clouds without ``t``: directions matching the configured scan pattern this closely
 # (rad) give each point its shot's time, if this share of the points match.
 SCAN_MATCH_TOL_RAD = 2e-4
@@ -63,7 +81,8 @@ class Measurements:
     material_names: list[str] | None
     notes: list[str] = field(default_factory=list)
     dropped: dict = field(default_factory=dict)
-    time_source: str = 'field'      # 'field' (per-point t), 'scan pattern' or 'stamp'
+    time_source: str = 'field'      # 'field' (per-point time), 'scan pattern' or 'stamp'
+    time_field: dict | None = None  # the time field used: name, type, unit, reference
 
     def __len__(self) -> int:
         return len(self.range_m)
@@ -77,7 +96,7 @@ class Measurements:
                             cloud_stamps_s=self.cloud_stamps_s, epoch_s=self.epoch_s,
                             poses=self.poses, material_names=self.material_names,
                             notes=self.notes, dropped=self.dropped,
-                            time_source=self.time_source, **pick)
+                            time_source=self.time_source, time_field=self.time_field, **pick)
 
 
 def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
@@ -110,10 +129,12 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         raise MeasurementError(
             f'bag {bag}: clouds on {cloud_topic!r} lack field(s) {missing}; fields present: '
             f'{list(fields)} (x, y, z in metres, lidar frame, are required)')
-    has_t = 't' in fields
+    t_name = find_time_field(fields)
+    has_t = t_name is not None
     has_i = 'intensity' in fields
     if not has_t:
-        notes.append('clouds have no per-point "t" field: every point takes its cloud stamp')
+        notes.append(f'clouds have no per-point time field (none of {list(POINT_TIME_FIELDS)}): '
+                     'every point takes its cloud stamp')
     if not has_i:
         notes.append('clouds have no "intensity" field: the intensity feature uses the model')
 
@@ -121,6 +142,7 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
     cols: dict[str, list] = {k: [] for k in ('xyz', 'i', 't', 'cloud', 'laser')}
     stamps = []
     n_nonfinite = n_zero = 0
+    t_kinds: list[str] = []
     for k, c in enumerate(clouds):
         p = c.points
         stamps.append((c.stamp_ns - epoch_ns) / NS_PER_S)
@@ -137,7 +159,12 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         cols['xyz'].append(xyz[ok])
         cols['i'].append(np.asarray(p['intensity'], dtype=float)[ok] if has_i
                          else np.zeros(ok.sum()))
-        cols['t'].append(np.asarray(p['t'], dtype=float)[ok] if has_t else np.zeros(ok.sum()))
+        if has_t:
+            t_rel, kind = point_time_since_stamp_s(p[t_name][ok], t_name, c.stamp_ns)
+            t_kinds.append(kind)
+            cols['t'].append(t_rel)
+        else:
+            cols['t'].append(np.zeros(ok.sum()))
         cols['cloud'].append(np.full(ok.sum(), k))
         cols['laser'].append(np.asarray(p['ring']).astype(np.int64)[ok] if 'ring' in fields
                              else np.zeros(ok.sum(), np.int64))
@@ -148,10 +175,14 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
             f'(no finite, non-zero points; {n_nonfinite} non-finite, {n_zero} at the origin)')
     xyz = np.vstack(cols['xyz'])
     t_frame = np.concatenate(cols['t'])
+    time_field = None
     if has_t:
-        t_frame, note = _point_time_seconds(t_frame, clouds[0].points.dtype['t'])
-        if note:
-            notes.append(note)
+        kinds = sorted(set(t_kinds))
+        time_field = {'name': t_name, 'dtype': str(clouds[0].points.dtype[t_name]),
+                      'read_as': kinds}
+        if kinds != ['s since stamp'] or t_name != 't':
+            notes.append(f'per-point time from field {t_name!r} '
+                         f'({clouds[0].points.dtype[t_name]}): read as {", ".join(kinds)}')
     cloud = np.concatenate(cols['cloud'])
     stamps_s = np.asarray(stamps)
     t_abs = stamps_s[cloud] + t_frame
@@ -177,11 +208,11 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         laser=np.concatenate(cols['laser'])[keep].astype(np.uint16), has_point_time=has_t,
         cloud_stamps_s=stamps_s, epoch_s=epoch_ns / NS_PER_S, poses=track,
         material_names=names, notes=notes, dropped=dropped,
-        time_source='field' if has_t else 'stamp')
+        time_source='field' if has_t else 'stamp', time_field=time_field)
 
 
 def with_scan_times(meas: Measurements, shots: Shots) -> Measurements:
-    """Point times from the sensor's scan pattern, for clouds without a ``t`` field.
+    """Point times from the sensor's scan pattern, for clouds without a time field.
 
     Each measured direction is matched to the nearest shot of the configured frame
     pattern; if nearly all match within SCAN_MATCH_TOL_RAD (the recording comes from
@@ -194,28 +225,63 @@ def with_scan_times(meas: Measurements, shots: Shots) -> Measurements:
     ok = dist < SCAN_MATCH_TOL_RAD
     if ok.mean() < SCAN_MATCH_MIN_FRACTION:
         return replace(meas, notes=meas.notes + [
-            f'clouds have no "t" field and only {100 * ok.mean():.0f} % of the directions match '
-            'the configured scan pattern: every point takes its cloud stamp'])
+            f'clouds have no per-point time field and only {100 * ok.mean():.0f} % of the '
+            'directions match the configured scan pattern: every point takes its cloud stamp'])
     t_frame = np.where(ok, shots.t_s[idx], np.median(shots.t_s[idx[ok]]))
     laser = np.where(ok, shots.laser[idx], meas.laser).astype(np.uint16)
-    notes = [n for n in meas.notes if 'no per-point "t"' not in n] + [
-        f'clouds have no "t" field: point times taken from the scan pattern '
+    notes = [n for n in meas.notes if 'no per-point time field' not in n] + [
+        f'clouds have no per-point time field: point times taken from the scan pattern '
         f'({100 * ok.mean():.1f} % of directions match a shot within '
         f'{np.degrees(SCAN_MATCH_TOL_RAD):g} deg)']
     return replace(meas, t_frame_s=t_frame, t_s=meas.cloud_stamps_s[meas.cloud] + t_frame,
                    laser=laser, has_point_time=True, time_source='scan pattern', notes=notes)
 
 
-def _point_time_seconds(t: np.ndarray, dtype: np.dtype) -> tuple[np.ndarray, str | None]:
-    """Per-point ``t`` in seconds; integer fields in ns/us (common in drivers) are rescaled."""
-    span = float(np.nanmax(np.abs(t))) if len(t) else 0.0
+def find_time_field(fields) -> str | None:
+    """The per-point time field among ``fields`` (POINT_TIME_FIELDS, any case), or None."""
+    by_lower = {f.lower(): f for f in fields}
+    return next((by_lower[n] for n in POINT_TIME_FIELDS if n in by_lower), None)
+
+
+def point_time_since_stamp_s(raw: np.ndarray, name: str,
+                             stamp_ns: int) -> tuple[np.ndarray, str]:
+    """One cloud's per-point time field as seconds since its header stamp, and how it
+    was read (e.g. ``'ns since stamp'``, ``'absolute s'``).
+
+    Unit: a ``_ns``/``_us``/``_ms``/``_s`` suffix of the name, else integer = ns and
+    float = s. Absolute or relative by magnitude: a value above a day's worth of
+    seconds is a clock reading; on the stamp's clock (within ABSOLUTE_MATCH_S) the
+    stamp is subtracted, on another clock the cloud's earliest point is taken as the
+    stamp. Relative values too large for one frame are read in a finer unit.
+    """
+    raw = np.asarray(raw)
+    if len(raw) == 0:
+        return np.zeros(0), 's since stamp'
+    integer = raw.dtype.kind in 'iu'
+    suffix = next((sfx for sfx in _UNIT_SUFFIX if name.lower().endswith(sfx)
+                   and name.lower() != sfx.lstrip('_')), None)
+    scale = _UNIT_SUFFIX[suffix] if suffix else (1e-9 if integer else 1.0)
+    unit = {1e-9: 'ns', 1e-6: 'us', 1e-3: 'ms', 1.0: 's'}[scale]
+    finite = np.isfinite(raw.astype(float))
+    typical_s = float(np.median(np.abs(raw[finite].astype(float)))) * scale if finite.any() else 0.0
+    if typical_s > _ABSOLUTE_MIN_S:
+        if integer and scale == 1e-9:     # exact integer arithmetic: ns clocks exceed float64
+            since = (raw.astype(np.int64) - np.int64(stamp_ns)).astype(float) * 1e-9
+        else:
+            since = raw.astype(float) * scale - stamp_ns / NS_PER_S
+        if np.nanmedian(np.abs(since)) <= ABSOLUTE_MATCH_S:
+            return since, f'absolute {unit}'
+        first = np.nanmin(raw[finite].astype(float)) if finite.any() else 0.0
+        return ((raw.astype(float) - first) * scale,
+                f'absolute {unit} on another clock (cloud stamp = first point)')
+    t = raw.astype(float) * scale
+    span = float(np.nanmax(np.abs(t))) if finite.any() else 0.0
     if span <= _MAX_FRAME_TIME_S:
-        return t, None
-    for scale, unit in ((1e-3, 'ms'), (1e-6, 'us'), (1e-9, 'ns')):
-        if span * scale <= _MAX_FRAME_TIME_S:
-            return t * scale, (f'per-point "t" ({dtype}) spans {span:g}: read as {unit}, '
-                               f'not seconds')
-    return t * 1e-9, f'per-point "t" spans {span:g}: read as ns'
+        return t, f'{unit} since stamp'
+    for finer, finer_unit in ((1e-3, 'ms'), (1e-6, 'us'), (1e-9, 'ns')):
+        if finer < scale and span * finer / scale <= _MAX_FRAME_TIME_S:
+            return t * finer / scale, f'{finer_unit} since stamp'
+    return t * 1e-9 / scale, 'ns since stamp'
 
 
 def _checked_pose_track(bag: Path, pose_topic: str, cloud_topic: str, pose_t: np.ndarray,

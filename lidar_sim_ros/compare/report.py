@@ -209,7 +209,8 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
     if s['unmatched_points']:
         figs['unmatched'] = unmatched_figure(matching, model.divergence_rad)
     cand_rows = [[c.name, c.score, c.params, c.range_rmse_after_m, c.nll_after,
-                  c.unmatched_explained, c.z, 'yes' if c.significant else 'no',
+                  c.unmatched_explained, c.z,
+                  'vetoed' if c.vetoed else 'yes' if c.significant else 'no',
                   c.yaml or c.error or ''] for c in cands]
     feat_rows = [[f.name, f.score, f.mean_part, f.spread_part, f.significance, f.trend]
                  for f in feats]

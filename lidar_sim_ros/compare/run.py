@@ -147,7 +147,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     cands = []
     if classes:
         diag = diagnosis.Diagnosis(model, effects, rays.sample(DIAGNOSIS_MAX_MATCHED, opts.seed),
-                                   opts.seed)
+                                   opts.seed, frame_time_spread_s(meas, scenario))
         cands = diagnosis.rank([diag.score(c) for c in classes])
         for c in cands:
             if c.effect is not None:   # what the next run's headline would show
@@ -177,6 +177,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         'fitted_effects': [_effect_record(e, fitted_only=True) for e in fitted],
         'clouds': int(len(meas.cloud_stamps_s)),
         'point_times': meas.time_source,
+        'point_time_field': meas.time_field,
         'has_intensity': meas.intensity is not None,
         'dropped': meas.dropped,
         'notes': notes,
@@ -198,6 +199,19 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         files += write_report(opts.out, summary, matching, configured, res, stats, feats,
                               cands, runs, model)
     return CompareResult(summary, opts.out, files, fitted, summary_lines(summary, files))
+
+
+def frame_time_spread_s(meas: Measurements, scenario: Scenario) -> float | None:
+    """Standard deviation (s) of the unknown true point times within a frame when every
+    point carries its cloud stamp (no time field, no scan-pattern match); else None.
+    The points spread over about one frame period (the clouds' median stamp step, or
+    the configured frame rate for a single cloud)."""
+    if meas.time_source != 'stamp':
+        return None
+    steps = np.diff(np.unique(meas.cloud_stamps_s))
+    period = (float(np.median(steps)) if len(steps)
+              else scenario.sensor.frame_period_s)
+    return period / np.sqrt(12.0)
 
 
 def effects_yaml(effects: list[Effect]) -> str:
@@ -322,6 +336,10 @@ def verdict(summary: dict, feats: list, cands: list) -> str:
                          f'yet the residual depends on {top.name}: an effect outside the '
                          'catalogue. Write one (README, "Write your own effect") and add it '
                          'with --effect file.py:Class --fit.')
+    vetoed = [c for c in cands if c.vetoed and c.significant and c.name != missing]
+    if vetoed:
+        parts.append(f'{vetoed[0].name} would raise the likelihood but is not the missing '
+                     f'effect: {vetoed[0].vetoed}.')
     mats = summary['materials']
     bad = [n for n, m in mats.items() if m['bias_mismatch'] or m['sigma_mismatch']]
     if bad:

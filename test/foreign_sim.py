@@ -1,0 +1,744 @@
+"""A deliberately foreign LiDAR simulator: measured-looking bags for testing `lidar-sim compare`.
+
+`lidar-sim compare` will be judged on data "made by a different simulator (or a real
+sensor)". Datasets made by our own simulator share its scan pattern, mesh, power model
+and effect formulas with the model under test, which flatters it. This module shares
+none of them: it never imports ``lidar_sim_ros.core`` (pipeline, scan, reflection,
+detection, effects). Only the public contract of issue 4 is common: a rosbag2 with
+``sensor_msgs/PointCloud2`` on ``/lidar/points`` (lidar frame, REP-103) and the target
+body pose in the lidar frame (``p_lidar = R p_body + t``) as ``geometry_msgs/PoseStamped``
+on ``/target/pose``, and an OBJ+MTL whose ``usemtl`` names are those of
+``config/materials.yaml``.
+
+What differs from our simulator, on purpose:
+
+* scan: a boustrophedon raster or a two-prism rosette over 40 x 20 deg (no Lissajous
+  tiles, no laser/ring field);
+* target: a satellite (box bus, adapter cylinder, fairing cone, nozzle, a detached
+  solar panel on a gap) built here with trimesh, cast with trimesh's Embree intersector;
+* radiometry: a Blinn-Phong BRDF with its own reflectances and a single cos(theta)
+  link budget (paper Eqs. 1-3 have cos^2), in its own units;
+* intensity: 8-bit log counts, 16-bit saturating counts, range-compensated
+  reflectivity, or no intensity field at all;
+* per-point time: ``t`` float32 seconds, ``t`` uint32 nanoseconds, a float64 absolute
+  ``timestamp`` field (another name), or none (cloud stamped mid-scan);
+* baseline range error: the paper's Table 2 per material, each bias moved by up to
+  +-1 cm and each sigma scaled by 0.8-1.2 (seeded), i.e. close to but not exactly the
+  materials config;
+* every effect with its own functional form (see the ``*_m`` functions below).
+
+Entry point: :func:`generate` (a :class:`ForeignSpec` -> bag, mesh and scenario YAML).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+import yaml
+from scipy.spatial.transform import Rotation
+from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+from lidar_sim_ros.io.bag import BagWriter
+
+REPO = Path(__file__).resolve().parents[1]
+CLOUD_TOPIC = '/lidar/points'
+POSE_TOPIC = '/target/pose'
+FRAME_ID = 'lidar'
+EPOCH_NS = 1_712_000_000 * 1_000_000_000
+NS_PER_S = 1_000_000_000
+
+EFFECTS = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
+           'beam_divergence', 'time_offset')
+
+# ------------------------------------------------------------------ materials
+# Range error per material from the paper's Table 2: mean of the 5 m and 15 m rows
+# (bias = measured - true, sigma = 1-sigma random error, metres). The nozzle has no
+# row: the mean of the four metallic materials.
+_TABLE2_BIAS_M = {'PIF': (-0.1417, -0.1349), 'MLI': (-0.1361, -0.1337),
+                  'BULKHEAD': (-0.1334, -0.1093), 'PSS': (-0.1179, -0.1053),
+                  'PAF': (-0.1146, -0.1199), 'ADAPTER': (-0.1329, -0.1304)}
+_TABLE2_SIGMA_M = {'PIF': (0.0228, 0.0334), 'MLI': (0.0228, 0.0387),
+                   'BULKHEAD': (0.0306, 0.0344), 'PSS': (0.0357, 0.0390),
+                   'PAF': (0.0437, 0.0472), 'ADAPTER': (0.0338, 0.0393)}
+_METALS = ('PAF', 'PSS', 'BULKHEAD', 'ADAPTER')
+
+
+def table2_error_m() -> dict[str, tuple[float, float]]:
+    """Material name -> (bias_m, sigma_m) from the paper's Table 2 (row means)."""
+    out = {k: (float(np.mean(_TABLE2_BIAS_M[k])), float(np.mean(_TABLE2_SIGMA_M[k])))
+           for k in _TABLE2_BIAS_M}
+    out['NOZZLE'] = (float(np.mean([out[k][0] for k in _METALS])),
+                     float(np.mean([out[k][1] for k in _METALS])))
+    return out
+
+
+@dataclass(frozen=True)
+class Surface:
+    """Blinn-Phong reflectance of one material: diffuse and specular albedo (-), exponent."""
+
+    diffuse: float
+    specular: float
+    exponent: float
+
+
+# Our own guesses (not materials.yaml): foam diffuse, MLI and PSS mirror-like,
+# metals in between. Blinn exponents are about 4x a Phong exponent of the same width.
+SURFACES = {
+    'PIF': Surface(0.50, 0.00, 1.0),
+    'MLI': Surface(0.07, 0.80, 70.0),
+    'PAF': Surface(0.18, 0.40, 45.0),
+    'PSS': Surface(0.08, 0.60, 110.0),
+    'NOZZLE': Surface(0.30, 0.20, 20.0),
+    'BULKHEAD': Surface(0.24, 0.30, 35.0),
+    'ADAPTER': Surface(0.20, 0.32, 30.0),
+}
+MATERIALS = tuple(SURFACES)
+
+
+# -------------------------------------------------------------------- sensor
+@dataclass(frozen=True)
+class Sensor:
+    """The foreign sensor: link budget in watts, detector limits, beam, frame."""
+
+    peak_power_w: float = 30.0
+    efficiency: float = 0.75                 # transmit x receive optics (-)
+    aperture_diameter_m: float = 0.03
+    threshold_power_w: float = 5.0e-8
+    divergence_rad: float = 1.2e-3           # nominal full-angle beam divergence
+    min_range_m: float = 0.5
+    max_range_m: float = 150.0
+    frame_rate_hz: float = 10.0
+    fov_az_deg: float = 40.0
+    fov_el_deg: float = 20.0
+    scan_fraction: float = 0.9               # share of the frame period spent scanning
+
+    @property
+    def aperture_area_m2(self) -> float:
+        return float(np.pi * (0.5 * self.aperture_diameter_m) ** 2)
+
+
+def raster_scan(sensor: Sensor, n_shots: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Boustrophedon raster: rows top to bottom, azimuth sweeping back and forth.
+
+    Returns t_s (since frame start), az_rad, el_rad, each (n,).
+    """
+    rows, cols = raster_shape(sensor, n_shots)
+    az = np.radians(np.linspace(-0.5, 0.5, cols) * sensor.fov_az_deg)
+    el = np.radians(np.linspace(0.5, -0.5, rows) * sensor.fov_el_deg)
+    az_grid = np.tile(az, (rows, 1))
+    az_grid[1::2] = az_grid[1::2, ::-1]
+    el_grid = np.repeat(el[:, None], cols, axis=1)
+    n = rows * cols
+    t = np.arange(n) * (sensor.scan_fraction / sensor.frame_rate_hz / n)
+    return t, az_grid.ravel(), el_grid.ravel()
+
+
+def raster_shape(sensor: Sensor, n_shots: int) -> tuple[int, int]:
+    """(rows, cols) of the raster: about square angular steps, rows * cols <= n_shots."""
+    rows = max(2, int(round(np.sqrt(n_shots * sensor.fov_el_deg / sensor.fov_az_deg))))
+    return rows, max(2, n_shots // rows)
+
+
+def rosette_scan(sensor: Sensor, n_shots: int, t0_s: float,
+                 prism_hz: tuple[float, float] = (211.0, -137.0)) -> tuple[np.ndarray, ...]:
+    """Two counter-rotating prisms (Risley pair): a non-repeating rosette.
+
+    The deflection is the sum of two equal rotating vectors, stretched to the FOV
+    ellipse; the pattern depends on absolute time t0_s, so frames differ.
+    """
+    t = np.arange(n_shots) * (sensor.scan_fraction / sensor.frame_rate_hz / n_shots)
+    ta = t0_s + t
+    w1, w2 = 2 * np.pi * prism_hz[0], 2 * np.pi * prism_hz[1]
+    x = 0.5 * (np.cos(w1 * ta) + np.cos(w2 * ta))
+    y = 0.5 * (np.sin(w1 * ta) + np.sin(w2 * ta))
+    az = np.radians(0.5 * sensor.fov_az_deg) * x
+    el = np.radians(0.5 * sensor.fov_el_deg) * y
+    return t, az, el
+
+
+def directions_lidar(az_rad: np.ndarray, el_rad: np.ndarray) -> np.ndarray:
+    """REP-103 unit vectors: x forward, y left (positive azimuth), z up."""
+    ce = np.cos(el_rad)
+    return np.column_stack([ce * np.cos(az_rad), ce * np.sin(az_rad), np.sin(el_rad)])
+
+
+# -------------------------------------------------------------------- target
+def satellite_parts() -> dict[str, trimesh.Trimesh]:
+    """The satellite in its body frame (long axis +z), one mesh per material name."""
+    bus = trimesh.creation.box(extents=(1.6, 1.6, 2.0))
+    n = bus.face_normals
+    groups = {'MLI': np.abs(n[:, 0]) > 0.5, 'PIF': np.abs(n[:, 1]) > 0.5,
+              'BULKHEAD': n[:, 2] > 0.5}
+    parts = {name: bus.submesh([np.flatnonzero(sel)], append=True) for name, sel in groups.items()}
+    # The bus floor and the detached panel share PSS (support-structure metal).
+    floor = bus.submesh([np.flatnonzero(n[:, 2] < -0.5)], append=True)
+    panel = trimesh.creation.box(extents=(0.04, 2.4, 1.1))
+    panel.apply_translation((0.0, 0.8 + 0.35 + 1.2, 0.2))
+    parts['PSS'] = trimesh.util.concatenate([floor, panel])
+    parts['ADAPTER'] = trimesh.creation.cylinder(radius=0.55, height=0.4, sections=48)
+    parts['ADAPTER'].apply_translation((0.0, 0.0, 1.2))
+    parts['PAF'] = trimesh.creation.cone(radius=0.55, height=0.9, sections=48)
+    parts['PAF'].apply_translation((0.0, 0.0, 1.4))
+    parts['NOZZLE'] = trimesh.creation.cone(radius=0.45, height=0.7, sections=32)
+    parts['NOZZLE'].apply_translation((0.0, 0.0, -1.7))
+    return parts
+
+
+def write_obj(parts: dict[str, trimesh.Trimesh], obj_path: Path) -> Path:
+    """OBJ + MTL with one ``g``/``usemtl`` block per material (our own writer)."""
+    obj_path = Path(obj_path)
+    mtl_path = obj_path.with_suffix('.mtl')
+    obj = [f'# foreign satellite target, {sum(len(m.faces) for m in parts.values())} faces',
+           f'mtllib {mtl_path.name}']
+    mtl = ['# Blinn-Phong guesses of the foreign simulator (display only)']
+    base = 1
+    for name, mesh in parts.items():
+        s = SURFACES[name]
+        mtl += [f'newmtl {name}', f'Kd {s.diffuse:.3f} {s.diffuse:.3f} {s.diffuse:.3f}',
+                f'Ks {s.specular:.3f} {s.specular:.3f} {s.specular:.3f}', f'Ns {s.exponent:g}', '']
+        obj += [f'g {name}', f'usemtl {name}']
+        obj += [f'v {x:.6f} {y:.6f} {z:.6f}' for x, y, z in mesh.vertices]
+        obj += [f'f {a + base} {b + base} {c + base}' for a, b, c in mesh.faces]
+        base += len(mesh.vertices)
+    obj_path.write_text('\n'.join(obj) + '\n')
+    mtl_path.write_text('\n'.join(mtl) + '\n')
+    return obj_path
+
+
+class Target:
+    """The satellite as one mesh with a material name index per face, and its raycaster."""
+
+    def __init__(self, parts: dict[str, trimesh.Trimesh]):
+        names = list(parts)
+        self.mesh = trimesh.util.concatenate([parts[k] for k in names])
+        self.face_material = np.concatenate(
+            [np.full(len(parts[k].faces), MATERIALS.index(k)) for k in names])
+        self._rays = RayMeshIntersector(self.mesh)
+
+    def cast(self, origins_m: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, ...]:
+        """First hit of body-frame rays: (hit, range_m, cos_incidence, material id)."""
+        n = len(dirs)
+        tri, ray, loc = self._rays.intersects_id(origins_m, dirs, multiple_hits=False,
+                                                 return_locations=True)
+        hit = np.zeros(n, bool)
+        rng = np.full(n, np.inf)
+        cos_i = np.zeros(n)
+        mat = np.full(n, -1)
+        hit[ray] = True
+        rng[ray] = np.linalg.norm(loc - origins_m[ray], axis=1)
+        cos_i[ray] = np.abs(np.einsum('ij,ij->i', self.mesh.face_normals[tri], dirs[ray]))
+        mat[ray] = self.face_material[tri]
+        return hit, rng, np.clip(cos_i, 1e-6, 1.0), mat
+
+
+# ---------------------------------------------------------------- trajectory
+@dataclass(frozen=True)
+class Trajectory:
+    """Target pose in the lidar frame: drift in position, spin about a body axis and
+    a slower precession of that axis about a lidar-frame axis."""
+
+    position_m: tuple[float, float, float]
+    velocity_mps: tuple[float, float, float]
+    attitude: Rotation
+    spin_axis_body: tuple[float, float, float]
+    spin_dps: float
+    precession_axis_lidar: tuple[float, float, float]
+    precession_dps: float
+
+    def at(self, t_s: np.ndarray) -> tuple[Rotation, np.ndarray]:
+        t = np.asarray(t_s, float)
+        spin = Rotation.from_rotvec(np.outer(np.radians(self.spin_dps) * t,
+                                             _unit(self.spin_axis_body)))
+        prec = Rotation.from_rotvec(np.outer(np.radians(self.precession_dps) * t,
+                                             _unit(self.precession_axis_lidar)))
+        pos = np.asarray(self.position_m) + np.outer(t, self.velocity_mps)
+        return prec * self.attitude * spin, pos
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v)
+
+
+# ---------------------------------------------------------------- radiometry
+def blinn_brdf_per_sr(surface: Surface, cos_half: np.ndarray) -> np.ndarray:
+    """Energy-normalised Blinn-Phong BRDF (1/sr). Monostatic: the half vector is the
+    view direction, so cos_half = cos(incidence)."""
+    lobe = surface.specular * (surface.exponent + 8.0) / (8.0 * np.pi)
+    return surface.diffuse / np.pi + lobe * np.power(cos_half, surface.exponent)
+
+
+def received_power_w(sensor: Sensor, range_m: np.ndarray, cos_i: np.ndarray,
+                     material: np.ndarray) -> np.ndarray:
+    """Whole beam on an extended surface: P = P0 eta f cos(theta) A_rx / r^2 (W)."""
+    f = np.zeros(len(range_m))
+    for k, name in enumerate(MATERIALS):
+        sel = material == k
+        if sel.any():
+            f[sel] = blinn_brdf_per_sr(SURFACES[name], cos_i[sel])
+    r = np.where(np.isfinite(range_m), range_m, 1.0)
+    return np.where(material >= 0, sensor.peak_power_w * sensor.efficiency * f * cos_i
+                    * sensor.aperture_area_m2 / r ** 2, 0.0)
+
+
+def intensity_units(power_w: np.ndarray, range_m: np.ndarray, mode: str,
+                    sensor: Sensor) -> np.ndarray | None:
+    """The sensor's own intensity: not proportional to power in any mode."""
+    p = np.maximum(power_w, sensor.threshold_power_w)
+    if mode == 'counts8':       # log-compressed 8-bit counts, 1 at threshold, clipped
+        u = np.log(p / sensor.threshold_power_w) / np.log(2e-3 / sensor.threshold_power_w)
+        return np.clip(np.round(1 + 254 * u ** 0.85), 1, 255).astype(np.uint8)
+    if mode == 'counts16':      # square-root amplifier with soft saturation
+        return np.round(65535 * (1 - np.exp(-np.sqrt(p / 4e-4)))).astype(np.uint16)
+    if mode == 'reflectivity':  # range-compensated, float
+        return (p * range_m ** 2 * 1e3).astype(np.float32)
+    if mode == 'none':
+        return None
+    raise ValueError(f'intensity mode must be counts8, counts16, reflectivity or none, '
+                     f'got {mode!r}')
+
+
+# ------------------------------------------------------- effects (own forms)
+def range_walk_bias_m(power_w: np.ndarray, sensor: Sensor, p: dict) -> np.ndarray:
+    """Leading-edge walk. 'poly_log': -(a u + b u^2), u = log10(P/P_thr);
+    'inv_sqrt': c sqrt(P_ref / P) (weak returns read long), P_ref = 100 P_thr."""
+    form = p.get('form', 'poly_log')
+    if form == 'poly_log':
+        u = np.log10(np.maximum(power_w / sensor.threshold_power_w, 1.0))
+        return -(p.get('a_m', 0.012) * u + p.get('b_m', 0.003) * u ** 2)
+    if form == 'inv_sqrt':
+        ref = 100.0 * sensor.threshold_power_w
+        return p.get('c_m', 0.015) * np.sqrt(ref / np.maximum(power_w, sensor.threshold_power_w))
+    raise ValueError(f'range_walk form {form!r}')
+
+
+def incidence_bias_m(cos_i: np.ndarray, p: dict) -> np.ndarray:
+    """Footprint smear read early: -g (1/cos(theta) - 1), theta clipped at 80 deg."""
+    sec = 1.0 / np.maximum(cos_i, np.cos(np.radians(80.0)))
+    return -p.get('g_m', 0.012) * (sec - 1.0)
+
+
+def incidence_sigma_m(range_m: np.ndarray, cos_i: np.ndarray, sensor: Sensor,
+                      p: dict) -> np.ndarray:
+    """Extra jitter h r dtheta tan(theta) (the footprint's depth), theta clipped at 80 deg."""
+    c = np.maximum(cos_i, np.cos(np.radians(80.0)))
+    tan = np.sqrt(1 - c ** 2) / c
+    return p.get('h', 0.4) * range_m * sensor.divergence_rad * tan
+
+
+def snr_sigma_m(power_w: np.ndarray, p: dict) -> np.ndarray:
+    """Extra jitter s0 (P0/P)^0.4 (P0 = 1 uW: a typical weak return)."""
+    ratio = p.get('p0_w', 1e-6) / np.maximum(power_w, 1e-12)
+    return p.get('s0_m', 0.05) * ratio ** p.get('exponent', 0.4)
+
+
+def background_range_m(n: int, rng: np.random.Generator, sensor: Sensor, p: dict) -> np.ndarray:
+    """First background photon: an exponential in range (a Poisson arrival process),
+    truncated to the range gate, not uniform."""
+    lam = p.get('mean_range_m', 40.0)
+    lo, hi = sensor.min_range_m, p.get('max_range_m', sensor.max_range_m)
+    u = rng.random(n)
+    return lo - lam * np.log(1 - u * (1 - np.exp(-(hi - lo) / lam)))
+
+
+def footprint_returns(target: Target, origins_b: np.ndarray, dirs_b: np.ndarray,
+                      sensor: Sensor, rng: np.random.Generator, p: dict) -> tuple[np.ndarray, ...]:
+    """The beam as K random sub-rays in a cone of ``scale`` x the nominal divergence,
+    Gaussian-weighted. Returns (detected, range_m, power_w, cos_i, material) of the
+    shot: power = weighted mean over sub-rays (misses count 0), range = energy-weighted
+    mean ('weighted') or nearest ('first') of the hit sub-rays; material and incidence
+    from the strongest hit sub-ray."""
+    k = int(p.get('subrays', 12))
+    half = 0.5 * p.get('scale', 6.0) * sensor.divergence_rad
+    n = len(dirs_b)
+    rho = np.sqrt(rng.random((n, k)))       # uniform over the disk
+    rho[:, 0] = 0.0                         # keep the axis
+    phi = 2 * np.pi * rng.random((n, k))
+    helper = np.where(np.abs(dirs_b[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    u = np.cross(dirs_b, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(dirs_b, u)
+    off = np.tan(half * rho)[..., None] * (np.cos(phi)[..., None] * u[:, None]
+                                           + np.sin(phi)[..., None] * v[:, None])
+    sub = dirs_b[:, None, :] + off
+    sub /= np.linalg.norm(sub, axis=2, keepdims=True)
+    hit, r, cos_i, mat = target.cast(np.repeat(origins_b, k, axis=0), sub.reshape(-1, 3))
+    weight = np.exp(-2.0 * rho ** 2)
+    weight /= weight.sum(axis=1, keepdims=True)
+    power = received_power_w(sensor, r, cos_i, mat).reshape(n, k)
+    hit, r = hit.reshape(n, k), r.reshape(n, k)
+    e = np.where(hit, weight * power, 0.0)
+    total = e.sum(axis=1)
+    ok = total > 0
+    if p.get('mode', 'weighted') == 'first':
+        rng_m = np.min(np.where(hit, r, np.inf), axis=1)
+    else:
+        rng_m = np.where(ok, (e * np.where(hit, r, 0.0)).sum(axis=1) / np.where(ok, total, 1),
+                         np.inf)
+    best = np.argmax(e, axis=1)
+    pick = np.arange(n) * k + best
+    return ok, rng_m, total, cos_i[pick], np.where(ok, mat[pick], -1)
+
+
+# ------------------------------------------------------------------- dataset
+@dataclass(frozen=True)
+class ForeignSpec:
+    """One foreign dataset. ``effect`` is hidden in the data (a catalogue name or None);
+    ``expected`` is what compare should report (defaults to ``effect``)."""
+
+    name: str
+    effect: str | None = None
+    params: dict = field(default_factory=dict)
+    seed: int = 1
+    scan: str = 'raster'                 # raster | rosette
+    shots_per_frame: int = 24_000
+    frames: int = 3
+    distance_m: float = 11.0
+    storage: str = 'mcap'                # mcap | sqlite3
+    intensity: str = 'counts8'           # counts8 | counts16 | reflectivity | none
+    point_time: str = 't_s'              # t_s | t_ns | timestamp | none
+    spin_dps: float = 7.0
+    precession_dps: float = 2.0
+    speed_mps: float = 0.06
+    pose_rate_hz: float = 50.0
+    frame_rate_hz: float = 10.0
+    stamp: str = 'auto'                  # start | mid | end of the scan; auto: mid without time
+    organized: bool = False              # height x width cloud, NaN where a shot gave nothing
+    noise: str = 'gauss'                 # gauss | studentN (t, N dof, same sigma: heavier tails)
+    pose_noise: tuple[float, float] = (0.0, 0.0)   # motion-capture noise: metres, degrees
+    material_bias_shift_m: dict = field(default_factory=dict)   # on top of the +-1 cm jitter
+    material_sigma_scale: dict = field(default_factory=dict)
+    expected: str | None = 'same'
+    note: str = ''
+
+    @property
+    def expected_effect(self) -> str | None:
+        return self.effect if self.expected == 'same' else self.expected
+
+
+@dataclass(frozen=True)
+class ForeignDataset:
+    spec: ForeignSpec
+    bag: Path
+    mesh: Path
+    scenario: Path
+    points: int
+    truth: dict
+
+
+def trajectory_for(spec: ForeignSpec) -> Trajectory:
+    """A seeded pose near the boresight at spec.distance_m, with the spec's tumble."""
+    rng = np.random.default_rng([spec.seed, 7])
+    bearing = rng.uniform(-0.06, 0.06, 2)
+    pos = spec.distance_m * _unit([1.0, bearing[0], bearing[1]])
+    vel = -spec.speed_mps * _unit(pos) + rng.normal(0, 0.3 * spec.speed_mps, 3)
+    # Body +z roughly across the line of sight, tipped so the top or bottom shows.
+    attitude = Rotation.from_euler('zyx', [rng.uniform(-60, 60), rng.uniform(-70, -20),
+                                           rng.uniform(-30, 30)], degrees=True)
+    return Trajectory(tuple(pos), tuple(vel), attitude, tuple(rng.normal(0, 0.3, 3) + [0, 0, 1]),
+                      spec.spin_dps, tuple(_unit(rng.normal(size=3))), spec.precession_dps)
+
+
+def material_errors(spec: ForeignSpec) -> dict[str, tuple[float, float]]:
+    """Per-material (bias_m, sigma_m): Table 2, jittered +-1 cm / x0.8-1.2, then shifted."""
+    rng = np.random.default_rng([spec.seed, 11])
+    out = {}
+    for name, (bias, sigma) in table2_error_m().items():
+        b = bias + rng.uniform(-0.01, 0.01) + spec.material_bias_shift_m.get(name, 0.0)
+        s = sigma * rng.uniform(0.8, 1.2) * spec.material_sigma_scale.get(name, 1.0)
+        out[name] = (b, s)
+    return out
+
+
+def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Trajectory,
+                   t0_s: float, rng: np.random.Generator,
+                   errors: dict[str, tuple[float, float]]) -> dict[str, Any]:
+    """One frame: shots -> raycast (or footprint) -> power -> detection -> range error.
+
+    Returns per-point arrays: xyz_m (lidar frame), power_w, t_s (since t0_s), range_m,
+    true_range_m (nan for false returns), material (-1 for false returns), shot (index
+    into the frame's shots); and grid, the raster's (rows, cols) or None.
+    """
+    eff, p = spec.effect, spec.params
+    grid = None
+    if spec.scan == 'raster':
+        t, az, el = raster_scan(sensor, spec.shots_per_frame)
+        grid = raster_shape(sensor, spec.shots_per_frame)
+    elif spec.scan == 'rosette':
+        t, az, el = rosette_scan(sensor, spec.shots_per_frame, t0_s)
+    else:
+        raise ValueError(f'scan must be raster or rosette, got {spec.scan!r}')
+    d = directions_lidar(az, el)
+    rot, pos = traj.at(t0_s + t)
+    origins_b = rot.inv().apply(-pos)
+    dirs_b = rot.inv().apply(d)
+    if eff == 'beam_divergence':
+        hit, true_r, power, cos_i, mat = footprint_returns(target, origins_b, dirs_b, sensor,
+                                                           rng, p)
+    else:
+        hit, true_r, cos_i, mat = target.cast(origins_b, dirs_b)
+        power = received_power_w(sensor, true_r, cos_i, mat)
+    r_hit = np.where(hit, true_r, 0.0)
+    bias = np.zeros(len(d))
+    var = np.zeros(len(d))
+    for k, name in enumerate(MATERIALS):
+        sel = mat == k
+        bias[sel], var[sel] = errors[name][0], errors[name][1] ** 2
+    if eff == 'range_walk':
+        bias += range_walk_bias_m(power, sensor, p)
+    elif eff == 'incidence_angle':
+        bias += incidence_bias_m(cos_i, p)
+        var += incidence_sigma_m(r_hit, cos_i, sensor, p) ** 2
+    elif eff == 'snr_noise':
+        var += snr_sigma_m(power, p) ** 2
+    measured = r_hit + bias + np.sqrt(var) * unit_noise(spec.noise, len(d), rng)
+    detected = hit & (power >= sensor.threshold_power_w)
+    if eff == 'solar_background':
+        false = rng.random(len(d)) < p.get('fraction', 0.015)
+        measured = np.where(false, background_range_m(len(d), rng, sensor, p), measured)
+        power = np.where(false, sensor.threshold_power_w * rng.uniform(1.0, 3.0, len(d)), power)
+        r_hit = np.where(false, np.nan, r_hit)
+        mat = np.where(false, -1, mat)
+        detected |= false
+    detected &= (measured > sensor.min_range_m) & (measured < sensor.max_range_m)
+    i = np.flatnonzero(detected)
+    return {'xyz_m': d[i] * measured[i, None], 'power_w': power[i], 't_s': t[i],
+            'range_m': measured[i], 'true_range_m': r_hit[i], 'material': mat[i],
+            'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid}
+
+
+def unit_noise(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Zero-mean, unit-variance range noise: 'gauss', or 'studentN' (Student t with N > 2
+    degrees of freedom, default 4: the same sigma with heavier tails)."""
+    if kind == 'gauss':
+        return rng.standard_normal(n)
+    if kind.startswith('student'):
+        dof = float(kind[len('student'):] or 4)
+        if dof <= 2:
+            raise ValueError(f'Student t noise needs more than 2 dof, got {kind!r}')
+        return rng.standard_t(dof, n) / np.sqrt(dof / (dof - 2))
+    raise ValueError(f'noise must be gauss or studentN, got {kind!r}')
+
+
+# ---------------------------------------------------------------- bag output
+_POINTFIELD_CODE = {'u1': 2, 'u2': 4, 'u4': 6, 'f4': 7, 'f8': 8}
+
+
+def cloud_fields(spec: ForeignSpec, frame: dict, intensity: np.ndarray | None,
+                 stamp_s: float, t_abs0_s: float) -> np.ndarray:
+    """The per-point record of this sensor: xyz, optional intensity and time, padded to
+    a multiple of 16 bytes (drivers often pad). Organized clouds hold every shot of the
+    raster, NaN where it gave no return (as Ouster-like drivers publish them)."""
+    n_out = frame['n_shots'] if spec.organized else len(frame['range_m'])
+    at = frame['shot'] if spec.organized else np.arange(n_out)
+    t_point = frame['shot_t_s'] if spec.organized else frame['t_s']   # s since frame start
+    xyz = np.full((n_out, 3), np.nan)
+    xyz[at] = frame['xyz_m']
+    names, formats, values = ['x', 'y', 'z'], ['<f4'] * 3, list(xyz.T)
+    if intensity is not None:
+        full = np.zeros(n_out, intensity.dtype)
+        full[at] = intensity
+        names.append('intensity')
+        formats.append('<' + intensity.dtype.str[1:])
+        values.append(full)
+    since_stamp_s = t_point + t_abs0_s - stamp_s
+    if spec.point_time == 't_s':
+        names.append('t'), formats.append('<f4'), values.append(since_stamp_s)
+    elif spec.point_time == 't_ns':       # Ouster-style: uint32 ns since the stamp
+        if since_stamp_s.min() < 0:
+            raise ValueError('t_ns (unsigned) needs the stamp at the scan start')
+        names.append('t'), formats.append('<u4')
+        values.append(np.round(since_stamp_s * 1e9).astype(np.uint32))
+    elif spec.point_time == 'timestamp':  # Velodyne/Hesai-style absolute float64 seconds
+        names.append('timestamp'), formats.append('<f8')
+        values.append(EPOCH_NS / NS_PER_S + t_abs0_s + t_point)
+    elif spec.point_time != 'none':
+        raise ValueError(f'point_time must be t_s, t_ns, timestamp or none, '
+                         f'got {spec.point_time!r}')
+    offsets, off = [], 0
+    for f in formats:
+        size = np.dtype(f).itemsize
+        off = -(-off // size) * size
+        offsets.append(off)
+        off += size
+    step = -(-off // 16) * 16
+    dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': step})
+    rec = np.zeros(n_out, dtype=dtype)
+    for n, v in zip(names, values):
+        rec[n] = v
+    return rec
+
+
+def write_cloud(writer: BagWriter, rec: np.ndarray, stamp_ns: int,
+                shape: tuple[int, int] | None = None) -> None:
+    """Serialise a structured array as sensor_msgs/msg/PointCloud2 and write it;
+    ``shape`` (rows, cols) makes it an organized, non-dense cloud."""
+    types = writer.typestore.types
+    fields = [types['sensor_msgs/msg/PointField'](
+        name=n, offset=rec.dtype.fields[n][1], datatype=_POINTFIELD_CODE[rec.dtype[n].str[1:]],
+        count=1) for n in rec.dtype.names]
+    height, width = shape if shape is not None else (1, len(rec))
+    sec, nsec = divmod(int(stamp_ns), NS_PER_S)
+    msg = types['sensor_msgs/msg/PointCloud2'](
+        header=types['std_msgs/msg/Header'](
+            stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nsec), frame_id=FRAME_ID),
+        height=height, width=width, fields=fields, is_bigendian=False,
+        point_step=rec.dtype.itemsize, row_step=rec.dtype.itemsize * width,
+        data=np.frombuffer(rec.tobytes(), np.uint8), is_dense=shape is None)
+    cdr = writer.typestore.serialize_cdr(msg, 'sensor_msgs/msg/PointCloud2')
+    writer.write_raw(CLOUD_TOPIC, 'sensor_msgs/msg/PointCloud2', stamp_ns, cdr)
+
+
+def stamp_offset_s(spec: ForeignSpec, sensor: Sensor) -> float:
+    """Cloud stamp relative to the scan start: start, mid or end of the scan. Without a
+    usable per-point time ('auto') the cloud is stamped mid-scan, the least-biased
+    single time; an absolute 'timestamp' field goes with a start stamp, like drivers."""
+    scan_s = sensor.scan_fraction / sensor.frame_rate_hz
+    where = spec.stamp if spec.stamp != 'auto' else ('mid' if spec.point_time == 'none'
+                                                      else 'start')
+    offsets = {'start': 0.0, 'mid': 0.5 * scan_s, 'end': scan_s}
+    if where not in offsets:
+        raise ValueError(f'stamp must be start, mid, end or auto, got {spec.stamp!r}')
+    return offsets[where]
+
+
+def write_compare_scenario(path: Path, mesh: Path, traj: Trajectory) -> Path:
+    """The scenario compare is given: the P-60 sensor config and materials.yaml (with no
+    hidden effect); its pose fields are required by the format but unused by compare."""
+    q = traj.attitude.as_quat()
+    scenario = {'seed': 5, 'mesh': str(mesh),
+                'sensor': str(REPO / 'config' / 'cepton_vista_p60.yaml'),
+                'materials': str(REPO / 'config' / 'materials.yaml'),
+                'initial_pose': {'position_m': [float(x) for x in traj.position_m],
+                                 'quat_xyzw': [float(x) for x in q]},
+                'effects': []}
+    path.write_text(yaml.safe_dump(scenario, sort_keys=False))
+    return path
+
+
+def generate(spec: ForeignSpec, out_dir: str | Path,
+             sensor: Sensor | None = None) -> ForeignDataset:
+    """Simulate ``spec`` and write out_dir/{satellite.obj,.mtl, scenario.yaml, bag/}."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if spec.effect is not None and spec.effect not in EFFECTS:
+        raise ValueError(f'effect must be one of {EFFECTS} or None, got {spec.effect!r}')
+    if spec.organized and spec.scan != 'raster':
+        raise ValueError('organized clouds need the raster scan')
+    sensor = sensor or Sensor(frame_rate_hz=spec.frame_rate_hz)
+    parts = satellite_parts()
+    mesh = write_obj(parts, out / 'satellite.obj')
+    target = Target(parts)
+    traj = trajectory_for(spec)
+    errors = material_errors(spec)
+    rng = np.random.default_rng([spec.seed, 23])
+    period = 1.0 / sensor.frame_rate_hz
+    # Pose clock minus lidar clock: the pose stamped s shows the target at lidar time s - dt.
+    dt_s = float(spec.params.get('dt_s', 0.05)) if spec.effect == 'time_offset' else 0.0
+    n_points = 0
+    bag = out / 'bag'
+    with BagWriter(bag, storage=spec.storage) as writer:
+        span = spec.frames * period
+        t_pose = np.arange(-0.2, span + 0.2, 1.0 / spec.pose_rate_hz)
+        rot, pos = traj.at(t_pose)
+        pos_sigma_m, att_sigma_deg = spec.pose_noise
+        if pos_sigma_m > 0 or att_sigma_deg > 0:
+            noise = np.random.default_rng([spec.seed, 29])
+            pos = pos + pos_sigma_m * noise.standard_normal(pos.shape)
+            rot = Rotation.from_rotvec(np.radians(att_sigma_deg)
+                                       * noise.standard_normal((len(t_pose), 3))) * rot
+        for tk, q, p in zip(t_pose, rot.as_quat(), pos):
+            writer.write_pose(POSE_TOPIC, EPOCH_NS + int(round((tk + dt_s) * NS_PER_S)),
+                              FRAME_ID, p, q)
+        for k in range(spec.frames):
+            t0 = k * period
+            frame = simulate_frame(spec, sensor, target, traj, t0, rng, errors)
+            stamp_s = t0 + stamp_offset_s(spec, sensor)
+            inten = intensity_units(frame['power_w'], frame['range_m'], spec.intensity, sensor)
+            rec = cloud_fields(spec, frame, inten, stamp_s, t0)
+            write_cloud(writer, rec, EPOCH_NS + int(round(stamp_s * NS_PER_S)),
+                        frame['grid'] if spec.organized else None)
+            n_points += len(frame['range_m'])
+    truth = {'effect': spec.effect, 'params': spec.params, 'time_offset_s': dt_s,
+             'material_errors_m': {k: [round(b, 5), round(s, 5)] for k, (b, s) in errors.items()},
+             'distance_m': spec.distance_m}
+    scen = write_compare_scenario(out / 'scenario.yaml', mesh, traj)
+    return ForeignDataset(spec, bag, mesh, scen, n_points, truth)
+
+
+def describe(ds: ForeignDataset) -> dict[str, Any]:
+    """A JSON-able record of what was generated."""
+    s = ds.spec
+    return {'name': s.name, 'effect': s.effect, 'expected': s.expected_effect,
+            'params': s.params, 'scan': s.scan, 'storage': s.storage, 'intensity': s.intensity,
+            'point_time': s.point_time, 'stamp': s.stamp, 'organized': s.organized,
+            'noise': s.noise, 'distance_m': s.distance_m, 'frames': s.frames,
+            'frame_rate_hz': s.frame_rate_hz, 'pose_rate_hz': s.pose_rate_hz,
+            'points': ds.points, 'note': s.note}
+
+
+# ------------------------------------------------------------------- battery
+# Every hidden effect in its own form at a realistic magnitude, spread over scan
+# patterns, storages, intensity encodings, time fields and distances (6-25 m); clean
+# datasets (expected: null) in several recording styles, including two robustness
+# probes a real sensor would present: motion-capture pose noise and heavy-tailed noise.
+BATTERY: tuple[ForeignSpec, ...] = (
+    ForeignSpec('clean', None, seed=1),
+    ForeignSpec('clean_materials', None, seed=2, scan='rosette', storage='sqlite3',
+                intensity='counts16',
+                material_bias_shift_m={'PIF': 0.05, 'PAF': -0.04, 'ADAPTER': 0.03},
+                material_sigma_scale={'MLI': 1.6},
+                note='per-material bias/sigma off the config: belongs under materials'),
+    ForeignSpec('clean_no_time', None, seed=3, scan='rosette', intensity='none',
+                point_time='none', note='no intensity, no per-point time, stamped mid-scan'),
+    ForeignSpec('clean_organized', None, seed=5, organized=True, frame_rate_hz=20.0, frames=5,
+                stamp='end', pose_rate_hz=20.0, storage='sqlite3', intensity='counts16',
+                note='organized NaN-padded clouds, 20 Hz frames stamped at scan end '
+                     '(negative t), poses at 20 Hz'),
+    ForeignSpec('clean_timestamp_field', None, seed=4, point_time='timestamp', spin_dps=12.0,
+                note='per-point time only as an absolute float64 "timestamp" field, '
+                     'clouds stamped at scan start'),
+    ForeignSpec('clean_pose_noise', None, seed=6, pose_noise=(0.002, 0.05),
+                note='motion-capture pose noise 2 mm / 0.05 deg per pose sample'),
+    ForeignSpec('clean_heavy_tails', None, seed=7, noise='student6',
+                note='range noise Student t (6 dof) with the Table 2 sigma'),
+    ForeignSpec('range_walk_poly', 'range_walk', {'form': 'poly_log', 'a_m': 0.012, 'b_m': 0.003},
+                seed=11, storage='sqlite3', point_time='t_ns', distance_m=9.0),
+    ForeignSpec('range_walk_sqrt', 'range_walk', {'form': 'inv_sqrt', 'c_m': 0.02}, seed=12,
+                scan='rosette', intensity='reflectivity', distance_m=7.0, shots_per_frame=12_000),
+    ForeignSpec('incidence_angle', 'incidence_angle', {'g_m': 0.012, 'h': 0.4}, seed=13,
+                intensity='counts16', distance_m=12.0),
+    ForeignSpec('snr_noise', 'snr_noise', {'s0_m': 0.05, 'exponent': 0.4, 'p0_w': 1e-6},
+                seed=14, scan='rosette', distance_m=18.0, shots_per_frame=50_000),
+    ForeignSpec('solar_background', 'solar_background', {'fraction': 0.015,
+                                                         'mean_range_m': 40.0}, seed=15,
+                storage='sqlite3', intensity='none'),
+    ForeignSpec('solar_background_far', 'solar_background', {'fraction': 0.006,
+                                                             'mean_range_m': 25.0}, seed=16,
+                scan='rosette', distance_m=22.0, shots_per_frame=50_000),
+    ForeignSpec('beam_divergence', 'beam_divergence', {'scale': 6.0, 'subrays': 12,
+                                                       'mode': 'weighted'}, seed=17),
+    ForeignSpec('beam_divergence_first', 'beam_divergence', {'scale': 9.0, 'subrays': 8,
+                                                             'mode': 'first'}, seed=18,
+                scan='rosette', storage='sqlite3', distance_m=8.0, shots_per_frame=14_000),
+    ForeignSpec('time_offset', 'time_offset', {'dt_s': 0.06}, seed=19, spin_dps=20.0,
+                speed_mps=0.25),
+    ForeignSpec('time_offset_small', 'time_offset', {'dt_s': 0.03}, seed=20, spin_dps=15.0,
+                point_time='t_ns', distance_m=6.5, scan='rosette', shots_per_frame=12_000),
+    ForeignSpec('time_offset_no_time', 'time_offset', {'dt_s': -0.04}, seed=21, spin_dps=15.0,
+                point_time='none', intensity='none', note='negative offset, no t field'),
+)
+
+
+def battery(names: list[str] | None = None) -> list[ForeignSpec]:
+    """The battery, or the named datasets of it (in battery order)."""
+    if not names:
+        return list(BATTERY)
+    known = {s.name: s for s in BATTERY}
+    bad = [n for n in names if n not in known]
+    if bad:
+        raise KeyError(f'unknown dataset(s) {bad}; known: {sorted(known)}')
+    return [s for s in BATTERY if s.name in names]
