@@ -149,8 +149,19 @@ def test_hidden_effect_is_named_and_fitting_it_reaches_the_noise_floor(name, dat
     before = compare(ds, root / name / 'out')
     assert before['missing_effect'] == name, before['candidates']
     assert before['candidates'][0]['name'] == name
+    # The quoted "after" figures are on the same basis as "before" (per-material offsets
+    # and sigmas refit): the true effect never makes them worse, and the verdict says so.
+    quoted = before['candidates'][0]
+    assert quoted['range_rmse_after_m'] <= before['range_rmse_calibrated_m'] + 1e-6
+    assert quoted['nll_after'] < before['nll_calibrated']
+    assert 'raises the' not in before['verdict'] and 'widens' not in before['verdict']
+    assert f'{before["nll_calibrated"]:.3f} to {quoted["nll_after"]:.3f}' in before['verdict']
 
     after = compare(ds, root / name / 'out_fit', effects=[name], fit=True, candidates=[])
+    # ... and they are what the run with --effect NAME --fit then shows.
+    assert after['nll_per_point'] == pytest.approx(quoted['nll_after'], abs=0.05)
+    if kind == 'bias':
+        assert after['range_rmse_m'] == pytest.approx(quoted['range_rmse_after_m'], rel=0.05)
     fitted = after['fitted_effects'][0]
     assert fitted['name'] == name
     true_nll, true_rmse = truth_metrics(ds, [make_effect(name, params)])

@@ -35,6 +35,7 @@ import numpy as np
 from pydantic import create_model
 
 from lidar_sim_ros.compare.matching import Model, predict_rays
+from lidar_sim_ros.compare.materials import robust_sigma
 from lidar_sim_ros.compare.measurements import Measurements
 from lidar_sim_ros.core.effects import Effect
 from lidar_sim_ros.core.pipeline import Prediction
@@ -111,6 +112,28 @@ def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet):
         baseline_effects=tuple(base_effects))
 
 
+def calibrated_figures(data, effects: list[Effect]) -> tuple[float, float, float]:
+    """(nll_per_point, range_rmse_m, range_robust_sigma_m) of ``data``'s matched points
+    under baseline + ``effects``, each material's range offset and sigma scale profiled
+    out: the "calibrated" basis, i.e. what a ``--fit`` run (materials refit) reports.
+    The robust sigma (MAD) of the same residuals is not swayed by far outliers."""
+    fitting = fitting_module()
+    model = fitting.model_on_rays(data, effects)
+    nll, residual = fitting.point_nll(data, model)
+    if len(nll) == 0:
+        return float('nan'), float('nan'), float('nan')
+    use = model.placed & np.isfinite(residual)
+    robust = robust_sigma(residual[use]) if use.any() else float('nan')
+    return float(np.mean(nll)), float(np.sqrt(np.mean(residual ** 2))), robust
+
+
+def is_outlier_effect(effect_cls: type[Effect]) -> bool:
+    """Whether the effect adds spurious returns (judged by the likelihood and the robust
+    spread, not by a plain RMSE that its far outliers dominate)."""
+    return (effect_cls.outlier_fraction is not Effect.outlier_fraction
+            or effect_cls.false_returns is not Effect.false_returns)
+
+
 def heldout_nll(data, effects: list[Effect]) -> np.ndarray:
     """Per-point NLL (nats) of ``data``'s matched ranges under baseline + ``effects``:
     the fitting likelihood (per-material nuisance profiled) with an outlier floor."""
@@ -176,14 +199,17 @@ class Candidate:
     name: str
     score: float = 0.0                 # held-out gain, nats per measured point
     params: dict = field(default_factory=dict)
+    # What the model with this effect would show on the calibrated basis (each
+    # material's offset and sigma scale profiled out, as a --fit run): comparable with
+    # the summary's range_rmse_calibrated_m / nll_calibrated / robust sigma.
     range_rmse_after_m: float = float('nan')
     nll_after: float = float('nan')
+    range_robust_sigma_after_m: float = float('nan')
     unmatched_explained: float = 0.0
     matched_gain: float = 0.0          # held-out, nats per matched point
     z: float = 0.0
     unmatched_gain_points: float = 0.0
     n_params: int = 0
-    calibrated_after: tuple[float, float] = (float('nan'), float('nan'))
     significant: bool = False
     vetoed: str | None = None          # why it cannot be the missing effect despite its gain
     far_points: float = 0.0            # outlier effects: far or unmatched points it explains
@@ -195,8 +221,7 @@ class Candidate:
         return {'name': self.name, 'score': _num(self.score), 'params': self.params,
                 'range_rmse_after_m': _num(self.range_rmse_after_m),
                 'nll_after': _num(self.nll_after),
-                'range_rmse_after_calibrated_m': _num(self.calibrated_after[0]),
-                'nll_after_calibrated': _num(self.calibrated_after[1]),
+                'range_robust_sigma_after_m': _num(self.range_robust_sigma_after_m),
                 'unmatched_explained': _num(self.unmatched_explained),
                 'heldout_gain_per_matched_point': _num(self.matched_gain), 'z': _num(self.z),
                 'n_params': self.n_params, 'significant': self.significant,
@@ -236,9 +261,9 @@ class Diagnosis:
             fit, variant = fit_best_variant(effect_cls, self.full)
             options = {k: getattr(fit.effect.params, k) for k in literal_choices(effect_cls)}
             cand.params = {**{k: float(v) for k, v in fit.params.items()}, **options}
-            cand.range_rmse_after_m = fit.range_rmse_m     # callers may replace these
-            cand.nll_after = fit.nll_per_point
-            cand.calibrated_after = (fit.range_rmse_m, fit.nll_per_point)
+            # Calibrated basis, on the rays diagnosed; run_compare re-evaluates them on
+            # all matched points (calibrated_figures).
+            cand.range_rmse_after_m, cand.nll_after = fit.range_rmse_m, fit.nll_per_point
             cand.unmatched_explained = fit.unmatched_explained
             cand.n_params = fit.n_params
             cand.effect = plain(effect_cls, fit.effect)

@@ -209,7 +209,7 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
     if s['unmatched_points']:
         figs['unmatched'] = unmatched_figure(matching, model.divergence_rad)
     cand_rows = [[c.name, c.score, c.params, c.range_rmse_after_m, c.nll_after,
-                  c.unmatched_explained, c.z,
+                  c.range_robust_sigma_after_m, c.unmatched_explained, c.z,
                   'vetoed' if c.vetoed else 'yes' if c.significant else 'no',
                   c.yaml or c.error or ''] for c in cands]
     feat_rows = [[f.name, f.score, f.mean_part, f.spread_part, f.significance, f.trend]
@@ -224,6 +224,8 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
             ['range RMSE (m)', s['range_rmse_m']], ['NLL per point', s['nll_per_point']],
             ['range RMSE, per-material offsets refit (m)', s['range_rmse_calibrated_m']],
             ['NLL, per-material offsets and sigmas refit', s['nll_calibrated']],
+            ['robust (MAD) sigma of the residual, per-material offsets refit (m)',
+             s['range_robust_sigma_calibrated_m']],
             ['effects in the model', ', '.join(e['name'] for e in s['effects']) or 'none'],
             ['missing effect', s['missing_effect'] or 'none (null)'],
             ['intensity gain (measured / model)',
@@ -237,9 +239,12 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
         '<h2>Candidate effects (fitted by maximum likelihood, best first)</h2>',
         '<p>Score: held-out log-likelihood gain in nats per measured point (fitted on one '
         'half of the points, scored on the other) with per-material offsets and sigmas refit. '
-        'RMSE and NLL after: the model as configured with the effect added.</p>',
+        'RMSE, NLL and robust spread after: the model with the effect added, per-material '
+        'offsets and sigmas refit (what --effect NAME --fit gives); compare them with the '
+        'per-material-refit rows above, not with the headline RMSE/NLL.</p>',
         _table(cand_rows, ['effect', 'score', 'fitted params', 'RMSE after (m)', 'NLL after',
-                           'unmatched explained', 'z', 'significant', 'scenario snippet']),
+                           'robust sigma after (m)', 'unmatched explained', 'z', 'significant',
+                           'scenario snippet']),
         _img(figs['candidates'], 'candidates') if 'candidates' in figs else
         '<p>No candidate effects were diagnosed in this run.</p>',
         '<h2>Where the model fails: residual against each feature</h2>',

@@ -126,9 +126,10 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     fitting = diagnosis.fitting_module()
     everything = diagnosis.make_fit_data(model, effects, rays)
     # Headline: the model (materials as configured, or refit with --fit). Calibrated:
-    # each material's offset and sigma scale profiled out.
+    # each material's offset and sigma scale profiled out (what --fit delivers); the
+    # candidates' "after" figures are on this basis too.
     nll, rmse, _ = fitting.evaluate(everything, [], profile_materials=False)
-    cal_nll, cal_rmse, _ = fitting.evaluate(everything, [])
+    cal_nll, cal_rmse, cal_robust = diagnosis.calibrated_figures(everything, [])
 
     # Where the residual depends, model-free, once the material offsets are removed.
     res = matching.residual_m[sel]
@@ -150,9 +151,9 @@ def run_compare(opts: CompareOptions) -> CompareResult:
                                    opts.seed, frame_time_spread_s(meas, scenario))
         cands = diagnosis.rank([diag.score(c) for c in classes])
         for c in cands:
-            if c.effect is not None:   # what the next run's headline would show
-                c.nll_after, c.range_rmse_after_m, _ = fitting.evaluate(
-                    everything, [c.effect], profile_materials=False)
+            if c.effect is not None:   # what a run with --effect NAME --fit would show
+                c.nll_after, c.range_rmse_after_m, c.range_robust_sigma_after_m = \
+                    diagnosis.calibrated_figures(everything, [c.effect])
     missing = diagnosis.missing_effect(cands)
 
     summary = {
@@ -166,6 +167,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         'unmatched_fraction': float(matching.unmatched_fraction),
         'range_rmse_m': float(rmse), 'nll_per_point': float(nll),
         'range_rmse_calibrated_m': float(cal_rmse), 'nll_calibrated': float(cal_nll),
+        'range_robust_sigma_calibrated_m': float(cal_robust),
         'materials_refit': bool(opts.fit),
         'range_residual_robust_sigma_m': mat.robust_sigma(res),
         'intensity_gain': _intensity_gain(meas, pred, sel),
@@ -321,12 +323,12 @@ def verdict(summary: dict, feats: list, cands: list) -> str:
                 and feat.score > 0 else '')
         params = ', '.join(f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
                            for k, v in c.params.items())
+        gain, caveat = _gain_words(summary, c)
         parts.append(
-            f'{seen}this is {EFFECT_WORDS.get(missing, missing)}. Adding {missing} with '
-            f'{params} cuts the range RMSE from {summary["range_rmse_m"]:.4f} m to '
-            f'{c.range_rmse_after_m:.4f} m and the NLL from {summary["nll_per_point"]:.3f} to '
-            f'{c.nll_after:.3f} per point (held-out gain {c.score:.4f} nats/point, '
-            f'z = {c.z:.1f}). Run again with --effect {missing} --fit to add it.')
+            f'{seen}this is {EFFECT_WORDS.get(missing, missing)}. With per-material offsets '
+            f'and sigmas refit (as --fit does), adding {missing} with {params} {gain} '
+            f'(held-out gain {c.score:.4f} nats/point, z = {c.z:.1f}).{caveat} '
+            f'Run again with --effect {missing} --fit to add it.')
         parts[-1] = parts[-1][0].upper() + parts[-1][1:]
     else:
         parts.append('No catalogue effect improves the held-out likelihood significantly: '
@@ -355,6 +357,42 @@ def verdict(summary: dict, feats: list, cands: list) -> str:
         parts.append(f'{un["points"]} points ({100 * un["fraction"]:.2f} %) miss the target '
                      f'model: {un.get("interpretation", "")}.')
     return ' '.join(parts)
+
+
+def _change(what: str, before: float, after: float, unit: str, fmt: str, down: str,
+            up: str = 'raises') -> str:
+    """'cuts WHAT from a to b', 'raises WHAT from a to b' or 'leaves WHAT at a'."""
+    a, b = f'{before:{fmt}}', f'{after:{fmt}}'
+    if a == b:
+        return f'leaves {what} at {a}{unit}'
+    return f'{down if after < before else up} {what} from {a}{unit} to {b}{unit}'
+
+
+def _gain_words(summary: dict, c) -> tuple[str, str]:
+    """What adding candidate ``c`` brings, before and after on one basis (each
+    material's offset and sigma scale refit, as --fit does), and any caveat sentence.
+    An outlier effect is judged by the NLL and the robust (MAD) spread: a plain RMSE is
+    dominated by the far outliers, which stay in the data whether or not the model
+    expects them."""
+    nll = _change('the NLL', summary['nll_calibrated'], c.nll_after, '', '.3f',
+                  'lowers') + ' per point'
+    if c.effect is None or not diagnosis.is_outlier_effect(type(c.effect)):
+        rmse = _change('the range RMSE', summary['range_rmse_calibrated_m'],
+                       c.range_rmse_after_m, ' m', '.4f', 'cuts')
+        return f'{rmse} and {nll}', ''
+    text = nll
+    before = summary.get('range_robust_sigma_calibrated_m', float('nan'))
+    after = c.range_robust_sigma_after_m
+    if np.isfinite(before) and np.isfinite(after):
+        text += ' and ' + _change('the robust (MAD) spread of the range residual', before,
+                                  after, ' m', '.4f', 'narrows', 'widens')
+    caveat = (f' The plain range RMSE ({summary["range_rmse_calibrated_m"]:.4g} m) is '
+              'dominated by the far outliers, which stay in the data: it does not measure '
+              'this effect.')
+    if c.unmatched_explained > 0.01:
+        caveat += (f' It also explains {100 * c.unmatched_explained:.0f} % of the points '
+                   'that miss the target.')
+    return text, caveat
 
 
 def summary_lines(s: dict, files: list[Path]) -> list[str]:
