@@ -304,7 +304,10 @@ def targets(r: dict) -> dict:
         'ms_per_frame_le_10': r['pipeline']['ms_per_frame'] <= TARGET_MS_PER_FRAME,
     }
     if 'mesh_scaling' in r:
-        t['mesh_1M_le_2x_10k'] = r['mesh_scaling']['embree_cost_ratio_big_over_small'] <= TARGET_MESH_COST
+        # What the simulator pays per ray for the mesh: Target.cast, which casts in the
+        # coherent order the pipeline uses (raw Embree in firing order is shown for reference).
+        t['mesh_1M_le_2x_10k'] = (r['mesh_scaling']['target_cast_cost_ratio_big_over_small']
+                                  <= TARGET_MESH_COST)
     return t
 
 
@@ -337,10 +340,11 @@ def report(r: dict) -> None:
                   f"ns/ray (coherent order {m[k]['embree_coherent_ns_per_ray']:6.1f})  "
                   f"Target.cast {m[k]['target_cast_ns_per_ray']:7.1f} ns/ray  "
                   f"(build {m[k]['target_build_s']:.2f} s, hits {100 * m[k]['hit_fraction']:.0f} %)")
-        print(f"1M vs 10k triangles, cost per ray: embree x{m['embree_cost_ratio_big_over_small']:.2f}, "
-              f"Target.cast x{m['target_cast_cost_ratio_big_over_small']:.2f}   "
+        print(f"1M vs 10k triangles, cost per ray: Target.cast (the simulator's raycast) "
+              f"x{m['target_cast_cost_ratio_big_over_small']:.2f}   "
               f"[target <= {TARGET_MESH_COST:g}x: {ok[r['targets']['mesh_1M_le_2x_10k']]}]; "
-              f"rays in coherent order: embree x{m['embree_coherent_cost_ratio_big_over_small']:.2f}")
+              f"raw embree in firing order x{m['embree_cost_ratio_big_over_small']:.2f}, "
+              f"in coherent order x{m['embree_coherent_cost_ratio_big_over_small']:.2f}")
     print(f"peak RSS: {r['peak_rss_mb_pipeline']:.0f} MB for the pipeline, "
           f"{r['peak_rss_mb']:.0f} MB at the end (incl. the mesh-scaling meshes)")
 
