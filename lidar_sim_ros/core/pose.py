@@ -46,23 +46,6 @@ def rotvec_to_quat(rotvec: np.ndarray) -> np.ndarray:
     return np.concatenate([rotvec * scale, np.cos(half)], axis=-1)
 
 
-def slerp_quat(q0_xyzw: np.ndarray, q1_xyzw: np.ndarray, frac: np.ndarray) -> np.ndarray:
-    """Spherical linear interpolation between quaternion rows at fractions in [0, 1]."""
-    q0 = np.asarray(q0_xyzw, dtype=float)
-    q1 = np.asarray(q1_xyzw, dtype=float)
-    dot = np.einsum('ij,ij->i', q0, q1)
-    q1 = np.where(dot[:, None] < 0, -q1, q1)  # shortest arc
-    dot = np.abs(dot)
-    theta = np.arccos(np.clip(dot, -1.0, 1.0))
-    sin_t = np.sin(theta)
-    small = sin_t < 1e-9
-    safe = np.where(small, 1.0, sin_t)
-    w0 = np.where(small, 1.0 - frac, np.sin((1.0 - frac) * theta) / safe)
-    w1 = np.where(small, frac, np.sin(frac * theta) / safe)
-    q = w0[:, None] * q0 + w1[:, None] * q1
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
-
-
 class PoseCoverageError(ValueError):
     """Requested times fall outside what the pose history can answer."""
 
@@ -204,6 +187,13 @@ class PoseTrack:
         self.rotation = Rotation.from_quat(np.asarray(quat_xyzw, dtype=float).reshape(-1, 4))
         self.max_extrapolation_s = float(max_extrapolation_s)
         self._quat = self.rotation.as_quat()
+        if len(t) > 1:
+            # Per-segment SLERP constants, so a query costs two sines per time.
+            q0, q1 = self._quat[:-1], self._quat[1:]
+            dot = np.einsum('ij,ij->i', q0, q1)
+            self._q1 = np.where(dot[:, None] < 0, -q1, q1)  # shortest arc
+            self._theta = np.arccos(np.clip(np.abs(dot), 0.0, 1.0))
+            self._sin_theta = np.sin(self._theta)
         if velocity_mps is not None:
             self._v_end = np.asarray(velocity_mps, dtype=float)
         elif len(t) > 1:
@@ -242,8 +232,13 @@ class PoseTrack:
         else:
             seg = np.clip(np.searchsorted(self.t_s, inside, side='right') - 1, 0, len(self.t_s) - 2)
             frac = (inside - self.t_s[seg]) / (self.t_s[seg + 1] - self.t_s[seg])
-            quat = slerp_quat(self._quat[seg], self._quat[seg + 1], frac)
-            pos = self.position_m[seg] + frac[:, None] * (self.position_m[seg + 1] - self.position_m[seg])
+            theta, sin_t = self._theta[seg], self._sin_theta[seg]
+            small = sin_t < 1e-9  # (nearly) equal rotations: linear weights
+            safe = np.where(small, 1.0, sin_t)
+            w0 = np.where(small, 1.0 - frac, np.sin((1.0 - frac) * theta) / safe)
+            w1 = np.where(small, frac, np.sin(frac * theta) / safe)
+            quat = w0[:, None] * self._quat[seg] + w1[:, None] * self._q1[seg]
+            pos = np.column_stack([np.interp(inside, self.t_s, self.position_m[:, i]) for i in range(3)])
         ahead = np.maximum(t - self.end_s, 0.0)
         if np.any(ahead > 0):
             pos = pos + ahead[:, None] * self._v_end[None, :]
