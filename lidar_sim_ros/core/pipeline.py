@@ -14,9 +14,10 @@ import numpy as np
 from lidar_sim_ros.core import detection, reflection
 from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
+from lidar_sim_ros.core.effects.base import apply_effects
 from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target
 from lidar_sim_ros.core.pose import PoseSource
-from lidar_sim_ros.core.scan import Shots, frame_shots
+from lidar_sim_ros.core.scan import Shots, angles_from_directions, frame_shots
 
 NO_MATERIAL = 255  # material id of a return that is not on the target (e.g. solar background)
 
@@ -143,7 +144,6 @@ class Simulator:
         if hits.power_fraction is not None:
             power = power * hits.power_fraction
         if az_rad is None or el_rad is None:
-            from lidar_sim_ros.core.scan import angles_from_directions
             az_rad, el_rad = angles_from_directions(directions)
         det = self.sensor.detection
         ctx = ReturnContext(
@@ -155,21 +155,10 @@ class Simulator:
             divergence_rad=optics.beam_divergence_rad, hit=hits.hit,
             threshold_power_w=det.threshold_power_w, min_range_m=det.min_range_m,
             max_range_m=det.max_range_m)
-        scale = np.ones(n)
-        for eff in self.effects:
-            scale = scale * eff.power_scale(ctx)
-        if np.any(scale != 1.0):
-            ctx = ReturnContext(**{**ctx.__dict__, 'power_w': power * scale,
-                                   'intensity': detection.intensity_from_power(power * scale, det)})
-        bias = np.where(hits.hit, self._bias[mat], 0.0)
-        var = np.where(hits.hit, self._sigma[mat] ** 2, 0.0)
-        for eff in self.effects:
-            bias = bias + eff.range_bias_m(ctx)
-            var = var + np.asarray(eff.range_sigma_m(ctx)) ** 2
+        ctx, bias, var = apply_effects(ctx, self.effects, np.where(hits.hit, self._bias[mat], 0.0),
+                                       np.where(hits.hit, self._sigma[mat] ** 2, 0.0))
         bias = np.where(hits.hit, bias, 0.0)
-        return Prediction(ctx, hits, np.asarray(directions, dtype=float),
-                          np.broadcast_to(bias, (n,)).astype(float),
-                          np.sqrt(np.broadcast_to(var, (n,))).astype(float))
+        return Prediction(ctx, hits, np.asarray(directions, dtype=float), bias, np.sqrt(var))
 
     # -------------------------------------------------------------- the frame
     def simulate_frame(self, frame_start_s: float, pose_source: PoseSource,

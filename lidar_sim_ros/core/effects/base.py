@@ -27,8 +27,8 @@ fit with no extra code.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, ClassVar, Sequence
 
 import numpy as np
 import yaml
@@ -170,6 +170,26 @@ class Effect:
         entry = {'name': self.spec(), 'params': params}
         return '- ' + yaml.safe_dump(entry, default_flow_style=True, sort_keys=False,
                                      width=1000).strip()
+
+
+def apply_effects(ctx: ReturnContext, effects: Sequence['Effect'], bias_m: np.ndarray,
+                  var_m2: np.ndarray) -> tuple[ReturnContext, np.ndarray, np.ndarray]:
+    """The effects' power scale, then their extra bias (m) and variance (m^2) on top of
+    ``bias_m`` / ``var_m2``: the one place the simulator and the fits combine effects."""
+    scale = np.ones(len(ctx))
+    for eff in effects:
+        scale = scale * eff.power_scale(ctx)
+    if np.any(scale != 1.0):
+        # intensity is power / saturation power: it scales with the power.
+        ctx = replace(ctx, power_w=ctx.power_w * scale, intensity=ctx.intensity * scale)
+    bias = np.asarray(bias_m, float)
+    var = np.asarray(var_m2, float)
+    with np.errstate(invalid='ignore', divide='ignore', over='ignore'):  # misses carry NaN range
+        for eff in effects:
+            bias = bias + eff.range_bias_m(ctx)
+            var = var + np.asarray(eff.range_sigma_m(ctx), float) ** 2
+    n = len(ctx)
+    return ctx, np.broadcast_to(bias, (n,)), np.broadcast_to(var, (n,))
 
 
 def _round(value: Any) -> Any:

@@ -30,14 +30,14 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 from pydantic import ValidationError
 from scipy.optimize import minimize_scalar
 
-from lidar_sim_ros.core.effects.base import Effect, ReturnContext
+from lidar_sim_ros.core.effects.base import Effect, ReturnContext, apply_effects
 from lidar_sim_ros.core.pose import PoseCoverageError
 
 if TYPE_CHECKING:
@@ -142,15 +142,6 @@ def _outlier_weight(effects: Sequence[Effect], ctx: ReturnContext, n: int) -> np
     return 1.0 - keep
 
 
-def _scaled_ctx(ctx: ReturnContext, effects: Sequence[Effect]) -> ReturnContext:
-    scale = np.ones(len(ctx))
-    for eff in effects:
-        scale = scale * eff.power_scale(ctx)
-    if np.all(scale == 1.0):
-        return ctx
-    return replace(ctx, power_w=ctx.power_w * scale, intensity=ctx.intensity * scale)
-
-
 def needs_repredict(effects: Sequence[Effect]) -> bool:
     return any(getattr(e, 'needs_repredict', False) for e in effects)
 
@@ -164,15 +155,9 @@ def model_on_rays(data: FitData, effects: Sequence[Effect]) -> ModelOnRays:
         ctx, expected, sigma = pred.ctx, pred.expected_range_m, pred.sigma_m
     else:
         base = data.baseline
-        ctx = _scaled_ctx(base.ctx, effects)
-        bias = np.asarray(base.bias_m, float)
-        var = np.asarray(base.sigma_m, float) ** 2
-        with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
-            for eff in effects:
-                bias = bias + eff.range_bias_m(ctx)
-                var = var + np.asarray(eff.range_sigma_m(ctx), float) ** 2
-        expected = ctx.range_m + np.broadcast_to(bias, (n,))
-        sigma = np.sqrt(np.broadcast_to(var, (n,)))
+        ctx, bias, var = apply_effects(base.ctx, effects, base.bias_m, np.asarray(base.sigma_m) ** 2)
+        expected = ctx.range_m + bias
+        sigma = np.sqrt(var)
     placed = np.asarray(ctx.hit, bool) & np.isfinite(expected) & np.isfinite(sigma)
     w = _outlier_weight([*data.baseline_effects, *effects], ctx, n)
     return ModelOnRays(ctx, np.asarray(expected, float), np.asarray(sigma, float), w, placed)
