@@ -24,6 +24,7 @@ setup(
         'scipy>=1.11',
         'trimesh>=4.0',
         'embreex>=2.17',
+        'numba>=0.59',
         'rosbags>=0.10',
         'matplotlib>=3.8',
         'pydantic>=2.6',

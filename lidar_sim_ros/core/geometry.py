@@ -15,6 +15,7 @@ import trimesh
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
+from lidar_sim_ros.core import geometry_kernels as kernels
 from lidar_sim_ros.core.pose import Poses
 
 
@@ -31,7 +32,8 @@ class Hits:
     incidence_rad: angle between the reversed ray and the normal, in [0, pi/2];
     material: material id (-1 on a miss); face: triangle index (-1 on a miss);
     power_fraction: share of the beam's energy that hit (-), None = the whole beam
-    (set by footprint-sampling casts such as the beam_divergence effect).
+    (set by footprint-sampling casts such as the beam_divergence effect);
+    cos_incidence: cos(incidence_rad) where the raycast has it (saves recomputing it).
     """
 
     hit: np.ndarray
@@ -41,6 +43,7 @@ class Hits:
     material: np.ndarray
     face: np.ndarray
     power_fraction: np.ndarray | None = None
+    cos_incidence: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.hit)
@@ -53,7 +56,7 @@ class Target:
                  material_names: list[str]):
         self.vertices_m = np.ascontiguousarray(vertices_m, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
-        self.face_material = np.asarray(face_material, dtype=np.int16)
+        self.face_material = np.ascontiguousarray(face_material, dtype=np.int16)
         self.material_names = list(material_names)
         tri = self.vertices_m[self.faces]
         cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -67,6 +70,11 @@ class Target:
     def n_faces(self) -> int:
         return len(self.faces)
 
+    def intersect(self, origins_m: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Raw Embree query: face id (-1 = miss) and distance (m) per ray, float32 rays as given."""
+        res = self._scene.run(origins_m, directions, output=1)
+        return res['primID'], res['tfar']
+
     def cast(self, origins_m: np.ndarray, directions: np.ndarray,
              order: np.ndarray | None = None) -> Hits:
         """Intersect rays (body frame; unit directions) with the mesh: first hit per ray.
@@ -74,27 +82,30 @@ class Target:
         ``order`` optionally casts the rays in a coherent order (neighbouring
         directions together, see ``coherent_order``); results stay in input order.
         """
-        o = np.ascontiguousarray(origins_m, dtype=np.float32)
-        d = np.ascontiguousarray(directions, dtype=np.float32)
-        if order is None:
-            res = self._scene.run(o, d, output=1)
-            face, tfar = res['primID'], res['tfar']
-        else:
-            res = self._scene.run(o[order], d[order], output=1)
-            face, tfar = np.empty_like(res['primID']), np.empty_like(res['tfar'])
-            face[order], tfar[order] = res['primID'], res['tfar']
-        face = face.astype(np.int64)
-        hit = face >= 0
-        rng = np.where(hit, tfar.astype(np.float64), np.inf)
-        safe_face = np.where(hit, face, 0)
-        normal = self.face_normals.take(safe_face, axis=0)
-        normal[~hit] = 0.0
-        # Two-sided surfaces: orient the normal toward the sensor.
-        cos_i = -np.einsum('ij,ij->i', normal, np.asarray(directions, dtype=np.float64))
-        normal *= np.where(cos_i < 0, -1.0, 1.0)[:, None]
-        incidence = np.where(hit, np.arccos(np.minimum(np.abs(cos_i), 1.0)), np.nan)
-        material = np.where(hit, self.face_material.take(safe_face), -1).astype(np.int16)
-        return Hits(hit, rng, normal, incidence, material, np.where(hit, face, -1))
+        d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+        origins = np.asarray(origins_m, dtype=np.float64).reshape(-1, 3)
+        order = _cast_order(order, len(d))
+        o32, d32 = kernels.rays_to_body(_IDENTITY, _ZERO, origins, d, order)
+        return self._hits(o32, d32, order, _IDENTITY, d)
+
+    def _hits(self, o32, d32, order, quat_xyzw, dir_out) -> Hits:
+        face, tfar = self.intersect(o32, d32)
+        hit, range_m, normal, cos_i, material, face = kernels.hit_geometry(
+            face, tfar, order, self.face_normals, self.face_material, quat_xyzw, dir_out)
+        return Hits(hit, range_m, normal, np.arccos(cos_i), material, face, cos_incidence=cos_i)
+
+
+_IDENTITY = np.array([[0.0, 0.0, 0.0, 1.0]])
+_ZERO = np.zeros((1, 3))
+
+
+def _cast_order(order: np.ndarray | None, n: int) -> np.ndarray:
+    if order is None:
+        return np.arange(n, dtype=np.int64)
+    order = np.asarray(order, dtype=np.int64)
+    if order.shape != (n,):
+        raise ValueError(f'cast order has shape {order.shape}, expected ({n},)')
+    return order
 
 
 def coherent_order(az_rad: np.ndarray, el_rad: np.ndarray, cell_rad: float = np.radians(1.0)) -> np.ndarray:
@@ -115,15 +126,12 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
     Rays go into the body frame with their pose, are cast there, and the normals
     come back to the lidar frame. Ranges are frame-independent.
     """
-    n = len(directions_lidar)
-    if origin_lidar_m is None:
-        o_body = poses.vector_to_body(-np.broadcast_to(poses.position_m, (n, 3)))
-    else:
-        o_body = poses.to_body(np.broadcast_to(origin_lidar_m, (n, 3)))
-    d_body = poses.vector_to_body(directions_lidar)
-    hits = target.cast(o_body, d_body, order)
-    normal_lidar = poses.vector_to_lidar(hits.normal)
-    return Hits(hits.hit, hits.range_m, normal_lidar, hits.incidence_rad, hits.material, hits.face)
+    d = np.ascontiguousarray(directions_lidar, dtype=np.float64).reshape(-1, 3)
+    origin = np.zeros((1, 3)) if origin_lidar_m is None else np.asarray(origin_lidar_m, float).reshape(-1, 3)
+    quat, position = poses.quat_xyzw, poses.position_m.reshape(-1, 3)
+    order = _cast_order(order, len(d))
+    o32, d32 = kernels.rays_to_body(quat, position, origin, d, order)
+    return target._hits(o32, d32, order, quat, d)
 
 
 def load_target(obj_path: str | Path, material_names: list[str]) -> Target:

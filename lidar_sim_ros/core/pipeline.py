@@ -7,6 +7,7 @@ for given rays (measured directions at measured times) without the random draws.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +47,8 @@ class Frame:
     """One simulated frame: the published points and the noise-free truth.
 
     Point arrays (``xyz_m``, ``range_m``, ``intensity``, ``t_s``, ``ring``, ``material``)
-    hold detected returns only; ``truth_*`` hold every hit without noise or dropouts.
+    hold detected returns only; ``truth_*`` hold every hit without noise or dropouts
+    (gathered on first use: most frames never publish their truth).
     ``stamp_s`` is the frame start (absolute seconds); ``t_s`` is since frame start.
     """
 
@@ -58,16 +60,62 @@ class Frame:
     t_s: np.ndarray
     ring: np.ndarray
     material: np.ndarray
-    truth_xyz_m: np.ndarray
-    truth_range_m: np.ndarray
-    truth_intensity: np.ndarray
-    truth_t_s: np.ndarray
-    truth_ring: np.ndarray
-    truth_material: np.ndarray
     stats: dict = field(default_factory=dict)
+    shots: '_FrameShots | None' = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.range_m)
+
+    @cached_property
+    def truth_range_m(self) -> np.ndarray:
+        return self.shots.range_m.take(self.shots.hit_index)
+
+    @cached_property
+    def truth_xyz_m(self) -> np.ndarray:
+        return self.shots.directions.take(self.shots.hit_index, axis=0) * self.truth_range_m[:, None]
+
+    @cached_property
+    def truth_intensity(self) -> np.ndarray:
+        return self.shots.intensity.take(self.shots.hit_index)
+
+    @cached_property
+    def truth_t_s(self) -> np.ndarray:
+        return self.shots.t_s.take(self.shots.hit_index)
+
+    @cached_property
+    def truth_ring(self) -> np.ndarray:
+        return self.shots.ring.take(self.shots.hit_index)
+
+    @cached_property
+    def truth_material(self) -> np.ndarray:
+        return _material_ids(self.shots.material.take(self.shots.hit_index))
+
+
+@dataclass(frozen=True)
+class _FrameShots:
+    """Every shot of a frame, noise-free, in cast order: the source of ``Frame.truth_*``.
+
+    cast_position[i] is where firing-order shot i sits in these arrays.
+    """
+
+    hit: np.ndarray
+    cast_position: np.ndarray
+    directions: np.ndarray
+    range_m: np.ndarray
+    intensity: np.ndarray
+    t_s: np.ndarray
+    ring: np.ndarray
+    material: np.ndarray
+
+    @cached_property
+    def hit_index(self) -> np.ndarray:
+        """The hits, in firing order."""
+        return _fired(self.hit, self.cast_position)
+
+
+def _material_ids(material: np.ndarray) -> np.ndarray:
+    """Material ids as published (uint8): -1 (not on the target) becomes NO_MATERIAL."""
+    return np.where(material < 0, NO_MATERIAL, material).astype(np.uint8)
 
 
 def _scenario_relative(spec: str, base: Path | None) -> str:
@@ -90,7 +138,14 @@ class Simulator:
         self.effects: list[Effect] = list(effects or [])
         self.shots: Shots = frame_shots(sensor, scan_base)
         self.directions = self.shots.directions()
+        # Frames are simulated with the shots in a coherent order (neighbouring directions
+        # together): Embree traverses its BVH faster and every per-shot pass reads memory
+        # in sequence. Published points go back to firing order (``_cast_position``).
         self._cast_order = coherent_order(self.shots.az_rad, self.shots.el_rad)
+        self._cast_shots = self.shots.subset(self._cast_order)
+        self._cast_directions = np.ascontiguousarray(self.directions[self._cast_order])
+        self._cast_position = np.empty_like(self._cast_order)
+        self._cast_position[self._cast_order] = np.arange(len(self._cast_order))
         self._kd, self._ks, self._n = (materials.column(k) for k in ('kd', 'ks', 'n'))
         self._bias, self._sigma = materials.column('bias_m'), materials.column('sigma_m')
 
@@ -136,13 +191,21 @@ class Simulator:
                 break
         if hits is None:
             hits = cast_at_poses(self.target, directions, poses, order=cast_order)
-        mat = np.where(hits.hit, hits.material, 0).astype(np.intp)
-        rng_m = np.where(hits.hit, hits.range_m, np.nan)
-        power = np.where(hits.hit, reflection.return_power_w(
-            np.where(hits.hit, hits.range_m, 1.0), np.where(hits.hit, hits.incidence_rad, 0.0),
-            self._kd[mat], self._ks[mat], self._n[mat], optics), 0.0)
+        # Reflection and error model on the shots that hit (index lists: one gather each).
+        on = np.flatnonzero(hits.hit)
+        mat = hits.material.take(on)
+        range_on = hits.range_m.take(on)
+        power = np.zeros(n)
+        cos_on = None if hits.cos_incidence is None else hits.cos_incidence.take(on)
+        power[on] = reflection.return_power_w(range_on, hits.incidence_rad.take(on), self._kd.take(mat),
+                                              self._ks.take(mat), self._n.take(mat), optics, cos_on)
         if hits.power_fraction is not None:
             power = power * hits.power_fraction
+        rng_m = np.full(n, np.nan)
+        rng_m[on] = range_on
+        bias, var = np.zeros(n), np.zeros(n)
+        bias[on] = self._bias.take(mat)
+        var[on] = self._sigma.take(mat) ** 2
         if az_rad is None or el_rad is None:
             az_rad, el_rad = angles_from_directions(directions)
         det = self.sensor.detection
@@ -155,9 +218,9 @@ class Simulator:
             divergence_rad=optics.beam_divergence_rad, hit=hits.hit,
             threshold_power_w=det.threshold_power_w, min_range_m=det.min_range_m,
             max_range_m=det.max_range_m)
-        ctx, bias, var = apply_effects(ctx, self.effects, np.where(hits.hit, self._bias[mat], 0.0),
-                                       np.where(hits.hit, self._sigma[mat] ** 2, 0.0))
-        bias = np.where(hits.hit, bias, 0.0)
+        if self.effects:
+            ctx, bias, var = apply_effects(ctx, self.effects, bias, var)
+            bias = np.where(hits.hit, bias, 0.0)
         return Prediction(ctx, hits, np.asarray(directions, dtype=float), bias, np.sqrt(var))
 
     # -------------------------------------------------------------- the frame
@@ -167,17 +230,15 @@ class Simulator:
         if frame_index is None:
             frame_index = int(round(frame_start_s / self.frame_period_s))
         rng = self.frame_rng(frame_index)
-        shots = self.shots
-        t_abs = frame_start_s + shots.t_s
-        pred = self.predict(t_abs, self.directions, pose_source, shots.t_s,
-                            shots.az_rad, shots.el_rad, shots.laser, self._cast_order)
+        shots = self._cast_shots
+        pred = self.predict(frame_start_s + shots.t_s, self._cast_directions, pose_source, shots.t_s,
+                            shots.az_rad, shots.el_rad, shots.laser)
         ctx, hit = pred.ctx, pred.ctx.hit
         det = self.sensor.detection
-        true_range = np.where(hit, ctx.range_m, 0.0)
-        detected = hit & detection.detected_mask(ctx.power_w, true_range, det)
-        measured = detection.measured_range_m(true_range, pred.bias_m, pred.sigma_m, rng)
-        material = np.where(hit, ctx.material, NO_MATERIAL).astype(np.uint8)
-        intensity = ctx.intensity.copy()
+        # Misses carry NaN range and zero power: never detected, NaN measured range.
+        detected = hit & detection.detected_mask(ctx.power_w, ctx.range_m, det)
+        measured = detection.measured_range_m(ctx.range_m, pred.bias_m, pred.sigma_m, rng)
+        material, intensity = ctx.material, ctx.intensity
         for eff in self.effects:
             spurious = eff.false_returns(ctx, rng)
             if spurious is None:
@@ -185,21 +246,25 @@ class Simulator:
             mask, rng_false = spurious
             measured = np.where(mask, rng_false, measured)
             detected = detected | mask
-            material = np.where(mask, NO_MATERIAL, material).astype(np.uint8)
+            material = np.where(mask, -1, material)
             intensity = np.where(mask, det.threshold_power_w / det.saturation_power_w, intensity)
         detected &= np.isfinite(measured) & (measured > 0)
-        # Index lists once: take() is ~5x cheaper than repeated boolean masks.
-        out, true = np.flatnonzero(detected), np.flatnonzero(hit)
-        dirs = self.directions
-        stats = {'shots': len(shots), 'hits': len(true), 'detected': len(out),
-                 'below_threshold': int((hit & (ctx.power_w < det.threshold_power_w)).sum()),
-                 'saturated': int((hit & (ctx.power_w >= det.saturation_power_w)).sum())}
-        range_out, range_true = measured.take(out), ctx.range_m.take(true)
+        # Index lists once (take() is ~5x cheaper than repeated boolean masks), in firing order.
+        out = _fired(detected, self._cast_position)
+        stats = {'shots': len(shots), 'hits': int(np.count_nonzero(hit)), 'detected': len(out),
+                 'below_threshold': int(np.count_nonzero(hit & (ctx.power_w < det.threshold_power_w))),
+                 'saturated': int(np.count_nonzero(hit & (ctx.power_w >= det.saturation_power_w)))}
+        range_out = measured.take(out)
+        xyz = self._cast_directions.take(out, axis=0)
+        xyz *= range_out[:, None]
         return Frame(
-            stamp_s=float(frame_start_s), index=int(frame_index),
-            xyz_m=dirs.take(out, axis=0) * range_out[:, None], range_m=range_out,
+            stamp_s=float(frame_start_s), index=int(frame_index), xyz_m=xyz, range_m=range_out,
             intensity=intensity.take(out), t_s=shots.t_s.take(out), ring=shots.laser.take(out),
-            material=material.take(out),
-            truth_xyz_m=dirs.take(true, axis=0) * range_true[:, None], truth_range_m=range_true,
-            truth_intensity=ctx.intensity.take(true), truth_t_s=shots.t_s.take(true),
-            truth_ring=shots.laser.take(true), truth_material=material.take(true), stats=stats)
+            material=_material_ids(material.take(out)), stats=stats,
+            shots=_FrameShots(hit, self._cast_position, self._cast_directions, ctx.range_m,
+                              ctx.intensity, shots.t_s, shots.laser, ctx.material))
+
+
+def _fired(mask: np.ndarray, cast_position: np.ndarray) -> np.ndarray:
+    """Indices (into cast-ordered arrays) of the shots in ``mask``, in firing order."""
+    return cast_position.take(np.flatnonzero(mask.take(cast_position)))

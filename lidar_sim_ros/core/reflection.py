@@ -24,13 +24,24 @@ def phong_brdf(alpha_rad, kd, ks, n):
     direction and the outgoing direction. The lobe is zero beyond alpha = pi/2.
     With kd + ks <= 1 the directional albedo never exceeds 1.
     """
-    cos_a = np.clip(np.cos(alpha_rad), 0.0, 1.0)
+    return phong_brdf_cos(np.cos(alpha_rad), kd, ks, n)
+
+
+def phong_brdf_cos(cos_alpha, kd, ks, n):
+    """``phong_brdf`` from cos(alpha) (-) instead of alpha (1/sr)."""
+    cos_a = np.clip(cos_alpha, 0.0, 1.0)
     return np.asarray(kd) / np.pi + np.asarray(ks) * (np.asarray(n) + 2.0) / (2.0 * np.pi) * cos_a ** np.asarray(n)
 
 
 def monostatic_alpha(incidence_rad):
     """alpha (rad) for a co-located emitter and receiver: the mirror ray is 2*theta off the return."""
     return 2.0 * np.asarray(incidence_rad)
+
+
+def monostatic_cos_alpha(cos_incidence):
+    """cos(alpha) = cos(2 theta) = 2 cos^2(theta) - 1 for the monostatic sensor (-)."""
+    cos_t = np.asarray(cos_incidence)
+    return 2.0 * cos_t * cos_t - 1.0
 
 
 def specular_alpha(theta_in_rad, phi_in_rad, theta_out_rad, phi_out_rad):
@@ -66,13 +77,14 @@ def received_power_w(radiance, tau_r, area_m2, cos_theta, aperture_diameter_m, r
     return radiance * tau_r * area_m2 * cos_theta * 4.0 * np.pi * aperture_fraction
 
 
-def return_power_w(range_m, incidence_rad, kd, ks, n, optics: OpticsConfig):
+def return_power_w(range_m, incidence_rad, kd, ks, n, optics: OpticsConfig, cos_incidence=None):
     """Received power (W) of a monostatic shot hitting a surface: Eqs. 1-3 with Eq. 5.
 
-    ``kd, ks, n`` are per-shot arrays (or scalars) of the material hit.
+    ``kd, ks, n`` are per-shot arrays (or scalars) of the material hit;
+    ``cos_incidence``: cos(incidence_rad) if the caller has it (saves two cosines).
     """
-    cos_t = np.cos(incidence_rad)
-    f = phong_brdf(monostatic_alpha(incidence_rad), kd, ks, n)
+    cos_t = np.cos(incidence_rad) if cos_incidence is None else np.asarray(cos_incidence)
+    f = phong_brdf_cos(monostatic_cos_alpha(cos_t), kd, ks, n)
     e = laser_irradiance_w_m2(range_m, optics.peak_power_w, optics.transmit_efficiency,
                               optics.beam_divergence_rad)
     radiance = laser_radiance(f, e, cos_t)
