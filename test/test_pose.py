@@ -29,6 +29,15 @@ def test_coverage_errors_and_bounded_extrapolation():
     poses = track.at([1.5])  # extrapolated with the last segment's velocities
     assert poses.position_m[0] == pytest.approx([1.5, 0, 0])
     assert poses.rotation.as_rotvec()[0] == pytest.approx([0, 0, 0.15])
+    # Inside and extrapolated times mixed in one query: each as if asked alone.
+    times = [1.2, 0.25, 1.5, 0.9, 1.0]
+    mixed = track.at(times)
+    for k, ti in enumerate(times):
+        alone = track.at([ti])
+        assert mixed.position_m[k] == pytest.approx(alone.position_m[0], abs=1e-12)
+        assert mixed.rotation[k].as_rotvec() == pytest.approx(alone.rotation.as_rotvec()[0], abs=1e-12)
+    assert mixed.position_m[0] == pytest.approx([1.2, 0, 0])
+    assert mixed.rotation[0].as_rotvec() == pytest.approx([0, 0, 0.12])
 
 
 def test_body_lidar_round_trip():

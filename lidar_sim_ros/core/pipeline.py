@@ -17,7 +17,7 @@ from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import apply_effects
 from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target
-from lidar_sim_ros.core.pose import PoseSource
+from lidar_sim_ros.core.pose import PoseSource, PoseTrack, StaticPose
 from lidar_sim_ros.core.scan import Shots, angles_from_directions, frame_shots
 
 NO_MATERIAL = 255  # material id of a return that is not on the target (e.g. solar background)
@@ -160,6 +160,13 @@ class Simulator:
                        for e in scenario.config.effects]
         return cls(scenario.sensor, scenario.materials, target, scenario.seed,
                    list(effects) + list(extra_effects), base)
+
+    def warm_up(self) -> None:
+        """Compile the per-ray kernels now (or load them from numba's on-disk cache), so
+        the first real frame does not pay for it: ~0.1 s cached, a few s the first time."""
+        self.simulate_frame(0.0, StaticPose((10.0, 0.0, 0.0)), 0)
+        self.predict(np.zeros(1), self.directions[:1], PoseTrack([0.0, 1.0], np.zeros((2, 3)),
+                                                                 np.tile([0.0, 0.0, 0.0, 1.0], (2, 1))))
 
     @property
     def frame_period_s(self) -> float:

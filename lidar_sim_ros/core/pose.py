@@ -263,10 +263,12 @@ class PoseTrack:
             pos = np.repeat(self.position_m, len(t), axis=0)
         else:
             quat, pos = self._interpolate(inside)
-        ahead = np.maximum(t - self.end_s, 0.0)
-        if np.any(ahead > 0):
-            pos = pos + ahead[:, None] * self._v_end[None, :]
-            quat = quat_multiply(rotvec_to_quat(ahead[:, None] * self._w_end[None, :]), quat)
+        late = np.flatnonzero(t > self.end_s)
+        if len(late):
+            # Only the times past the last sample: dead-reckon with the end velocities.
+            ahead = (t.take(late) - self.end_s)[:, None]
+            pos[late] += ahead * self._v_end
+            quat[late] = quat_multiply(rotvec_to_quat(ahead * self._w_end), quat.take(late, axis=0))
         return Poses.from_quat(quat, pos)
 
 

@@ -146,6 +146,7 @@ class LidarSimNode(Node):
             # stretches or compresses it over the new period.
             self.scenario.sensor = self.scenario.sensor.model_copy(update={'frame_rate_hz': rate})
         self.sim = Simulator.from_scenario(self.scenario, effects=[])
+        self.sim.warm_up()  # compiled kernels ready before the first frame is due
 
         self.declare_parameter('frame_id', self.scenario.config.frame_id,
                                _descriptor(S, "header frame_id of the clouds; poses must carry it "
