@@ -65,6 +65,11 @@ def test_monostatic_specular_peak_at_normal_incidence():
     assert np.all(np.diff(f) < 0)
     assert f[0] == pytest.approx(0.05 / np.pi + 0.9 * 22 / (2 * np.pi))
     assert f[-1] == pytest.approx(0.05 / np.pi)  # alpha = 120 deg: the lobe is gone
+    # The pipeline's path from cos(incidence) gives the same BRDF and power.
+    theta = np.radians([0, 5, 30, 44, 60, 85])
+    from_cos = reflection.phong_brdf_cos(reflection.monostatic_cos_alpha(np.cos(theta)), 0.05, 0.9, 20.0)
+    assert np.allclose(from_cos, reflection.phong_brdf(reflection.monostatic_alpha(theta), 0.05, 0.9, 20.0),
+                       rtol=1e-12, atol=0)
 
 
 def test_specular_alpha_mirror_direction():

@@ -3,8 +3,9 @@
 A P-60 frame has ~21k shots, each with its own target pose. In numpy, moving the
 rays into the body frame and turning Embree's face ids back into ranges, normals
 and incidence angles took ~60 array passes (about twice Embree's own time); each
-loop below does one shot per iteration in one pass. ``Poses`` / ``Target.cast``
-in numpy stay the reference the tests check these against.
+loop below does one shot per iteration in one pass. ``Poses.to_body`` /
+``vector_to_body`` (rotation matrices, numpy) stay the reference the tests
+(``test/test_geometry_kernels.py``) check these against.
 
 Conventions (``pose.py``): ``p_lidar = R p_body + position``, R from the unit xyzw
 quaternion. A quaternion or position array with one row applies to every ray.

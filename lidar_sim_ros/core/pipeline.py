@@ -61,34 +61,34 @@ class Frame:
     ring: np.ndarray
     material: np.ndarray
     stats: dict = field(default_factory=dict)
-    shots: '_FrameShots | None' = field(default=None, repr=False)
+    truth_source: '_FrameShots | None' = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.range_m)
 
     @cached_property
     def truth_range_m(self) -> np.ndarray:
-        return self.shots.range_m.take(self.shots.hit_index)
+        return self.truth_source.range_m.take(self.truth_source.hit_index)
 
     @cached_property
     def truth_xyz_m(self) -> np.ndarray:
-        return self.shots.directions.take(self.shots.hit_index, axis=0) * self.truth_range_m[:, None]
+        return _along(self.truth_source.directions, self.truth_source.hit_index, self.truth_range_m)
 
     @cached_property
     def truth_intensity(self) -> np.ndarray:
-        return self.shots.intensity.take(self.shots.hit_index)
+        return self.truth_source.intensity.take(self.truth_source.hit_index)
 
     @cached_property
     def truth_t_s(self) -> np.ndarray:
-        return self.shots.t_s.take(self.shots.hit_index)
+        return self.truth_source.t_s.take(self.truth_source.hit_index)
 
     @cached_property
     def truth_ring(self) -> np.ndarray:
-        return self.shots.ring.take(self.shots.hit_index)
+        return self.truth_source.ring.take(self.truth_source.hit_index)
 
     @cached_property
     def truth_material(self) -> np.ndarray:
-        return _material_ids(self.shots.material.take(self.shots.hit_index))
+        return _material_ids(self.truth_source.material.take(self.truth_source.hit_index))
 
 
 @dataclass(frozen=True)
@@ -111,6 +111,13 @@ class _FrameShots:
     def hit_index(self) -> np.ndarray:
         """The hits, in firing order."""
         return _fired(self.hit, self.cast_position)
+
+
+def _along(directions: np.ndarray, index: np.ndarray, range_m: np.ndarray) -> np.ndarray:
+    """Points (N, 3) (m) at range_m along the unit directions picked by index."""
+    xyz = directions.take(index, axis=0)
+    xyz *= range_m[:, None]
+    return xyz
 
 
 def _material_ids(material: np.ndarray) -> np.ndarray:
@@ -262,13 +269,12 @@ class Simulator:
                  'below_threshold': int(np.count_nonzero(hit & (ctx.power_w < det.threshold_power_w))),
                  'saturated': int(np.count_nonzero(hit & (ctx.power_w >= det.saturation_power_w)))}
         range_out = measured.take(out)
-        xyz = self._cast_directions.take(out, axis=0)
-        xyz *= range_out[:, None]
         return Frame(
-            stamp_s=float(frame_start_s), index=int(frame_index), xyz_m=xyz, range_m=range_out,
+            stamp_s=float(frame_start_s), index=int(frame_index),
+            xyz_m=_along(self._cast_directions, out, range_out), range_m=range_out,
             intensity=intensity.take(out), t_s=shots.t_s.take(out), ring=shots.laser.take(out),
             material=_material_ids(material.take(out)), stats=stats,
-            shots=_FrameShots(hit, self._cast_position, self._cast_directions, ctx.range_m,
+            truth_source=_FrameShots(hit, self._cast_position, self._cast_directions, ctx.range_m,
                               ctx.intensity, shots.t_s, shots.laser, ctx.material))
 
 
