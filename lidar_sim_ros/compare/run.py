@@ -336,7 +336,7 @@ def verdict(summary: dict, feats: list, cands: list) -> str:
         if top is not None and top.significance > 8 and top.score > 0.01 and top.name != 'material':
             parts[-1] = ('No catalogue effect improves the held-out likelihood significantly, '
                          f'yet the residual depends on {top.name}: an effect outside the '
-                         'catalogue. Write one (README, "Write your own effect") and add it '
+                         'catalogue. Write one (docs/effects.md, "Write your own effect") and add it '
                          'with --effect file.py:Class --fit.')
     vetoed = [c for c in cands if c.vetoed and c.significant and c.name != missing]
     if vetoed:
