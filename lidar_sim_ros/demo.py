@@ -22,7 +22,7 @@ from pathlib import Path
 from lidar_sim_ros.paths import config_path
 
 STARTUP_TIMEOUT_S = 30.0
-TOPICS_TIMEOUT_S = 3.0  # after the first cloud, how long to wait for the other topics
+TOPICS_TIMEOUT_S = 10.0  # after the first cloud, how long to wait for the other topics to flow
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -81,9 +81,9 @@ def record(bag: Path, seconds: float, procs: dict[str, subprocess.Popen], logs: 
     executor.add_node(node)
     try:
         with BagWriter(bag) as writer:
-            recorder = BagRecorder(node, writer)
+            recorder = BagRecorder(node, writer, armed=False)
             deadline = time.monotonic() + STARTUP_TIMEOUT_S
-            while recorder.counts['/lidar/points'] == 0:
+            while recorder.seen['/lidar/points'] == 0:
                 executor.spin_once(timeout_sec=0.1)
                 for name, proc in procs.items():
                     if proc.poll() is not None:
@@ -91,10 +91,15 @@ def record(bag: Path, seconds: float, procs: dict[str, subprocess.Popen], logs: 
                 if time.monotonic() > deadline:
                     raise RuntimeError(f'no cloud on /lidar/points within {STARTUP_TIMEOUT_S:g} s; '
                                        f'see {logs["lidar_sim_node"]}')
-            # Discovery of the other topics may lag the first cloud a little.
+            # Discovery of the other topics may lag the first cloud: the bag starts once
+            # every topic flows, so that no stretch of clouds lacks its poses.
             settle = time.monotonic() + TOPICS_TIMEOUT_S
-            while not recorder.subscribed and time.monotonic() < settle:
+            while not recorder.flowing and time.monotonic() < settle:
                 executor.spin_once(timeout_sec=0.05)
+            missing = [t for t, n in recorder.seen.items() if n == 0]
+            if missing:
+                print(f'demo: warning: nothing on {missing} yet; recording anyway', file=sys.stderr)
+            recorder.arm()
             print(f'first cloud received; recording {seconds:g} s ...', flush=True)
             stop_at = time.monotonic() + seconds
             while time.monotonic() < stop_at:

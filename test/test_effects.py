@@ -108,8 +108,12 @@ def test_incidence_angle_bias_and_sigma_grow_with_footprint_depth(yaw_deg):
     pred = predict_on_axis(sim, facing_plate(12.0, yaw_deg))
     depth = 12.0 * s.optics.beam_divergence_rad * np.tan(np.radians(yaw_deg))
     assert pred.ctx.incidence_rad[0] == pytest.approx(np.radians(yaw_deg), abs=1e-6)
-    assert pred.bias_m[0] == pytest.approx(-0.1 + b * depth, abs=1e-9)
-    assert pred.sigma_m[0] == pytest.approx(np.hypot(sigma_m, g * depth), abs=1e-9)
+    # Embree intersects in float32: the 12 m range is exact only to a few ulps (8 ulps of
+    # 12 m ~ 1e-5 m allowed), and the depth inherits that error times dtheta tan(theta).
+    depth_tol = 12.0 * 8 * np.finfo(np.float32).eps * s.optics.beam_divergence_rad \
+        * np.tan(np.radians(yaw_deg))
+    assert pred.bias_m[0] == pytest.approx(-0.1 + b * depth, abs=abs(b) * depth_tol + 1e-12)
+    assert pred.sigma_m[0] == pytest.approx(np.hypot(sigma_m, g * depth), abs=g * depth_tol + 1e-12)
 
 
 def test_incidence_angle_clips_tan_at_grazing():

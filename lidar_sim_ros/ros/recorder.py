@@ -54,11 +54,17 @@ class BagRecorder:
     """Record ``topics`` seen by ``node`` into an open ``writer``; ``counts`` per topic.
 
     The node must be spun (an executor) for discovery and recording to happen.
+    With ``armed=False`` messages are only counted in ``seen`` (latched ones are
+    written all the same: they come once) until ``arm()``: a caller can wait until
+    every topic flows, so that the bag has no stretch where one is missing.
     """
 
-    def __init__(self, node: Node, writer: BagWriter, topics: Sequence[TopicSpec] = NODE_TOPICS):
+    def __init__(self, node: Node, writer: BagWriter, topics: Sequence[TopicSpec] = NODE_TOPICS,
+                 armed: bool = True):
         self.node, self.writer = node, writer
+        self.armed = armed
         self.counts: dict[str, int] = {spec.topic: 0 for spec in topics}
+        self.seen: dict[str, int] = {spec.topic: 0 for spec in topics}
         self.qos: dict[str, QoSProfile] = {}
         self._pending = {spec.topic: spec for spec in topics}
         self._subs = []
@@ -70,6 +76,15 @@ class BagRecorder:
     def subscribed(self) -> bool:
         """Whether every topic has a publisher and a subscription."""
         return not self._pending
+
+    @property
+    def flowing(self) -> bool:
+        """Whether every topic is subscribed and has delivered at least one message."""
+        return self.subscribed and all(self.seen.values())
+
+    def arm(self) -> None:
+        """Start writing every topic's messages."""
+        self.armed = True
 
     def _discover(self) -> None:
         for topic, spec in list(self._pending.items()):
@@ -84,6 +99,10 @@ class BagRecorder:
 
     def _callback(self, spec: TopicSpec):
         def record(cdr: bytes) -> None:
+            self.seen[spec.topic] += 1
+            latched = self.qos[spec.topic].durability == DurabilityPolicy.TRANSIENT_LOCAL
+            if not (self.armed or latched):
+                return
             self.writer.write_raw(spec.topic, spec.msgtype,
                                   self.node.get_clock().now().nanoseconds, cdr)
             self.counts[spec.topic] += 1
