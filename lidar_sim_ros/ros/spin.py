@@ -24,6 +24,11 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None,
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:  # noqa: BLE001 - re-raised unless it is the shutdown race below
+        # SIGINT landing between two waits shuts the context down under the executor,
+        # which then fails to build its wait set (RCLError): a clean stop all the same.
+        if rclpy.ok():
+            raise
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
