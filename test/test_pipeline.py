@@ -78,7 +78,7 @@ def test_every_material_of_the_table_reaches_its_own_faces(tmp_path, default_sce
     """Seven plates, one per material, in an OBJ whose groups are shuffled against the
     table (neither the file order nor its reverse is the table's: the mesh loader may
     read groups either way): each plate's power is Eqs. 1-3 and 5 with its own kd, ks,
-    n from materials.yaml."""
+    n from materials.yaml, and its range error model its own bias and sigma."""
     table = yaml.safe_load((CONFIG / 'materials.yaml').read_text())['materials']
     names = [m['name'] for m in table]
     lines, centre_y = [], {}
@@ -103,6 +103,11 @@ def test_every_material_of_the_table_reaches_its_own_faces(tmp_path, default_sce
     kd, ks, n = (np.repeat([m[key] for m in table], 2) for key in ('kd', 'ks', 'n'))
     expected = paper_power_w(range_m, np.arccos(10.0 / range_m), kd, ks, n, default_scenario.sensor.optics)
     np.testing.assert_allclose(pred.ctx.power_w, expected, rtol=2 * EMBREE_RTOL, atol=0)
+    # and its own range bias and noise (Table 2 rows); sigma goes through a variance and
+    # back (float64: a few ulps)
+    for key, got in (('bias_m', pred.bias_m), ('sigma_m', pred.sigma_m)):
+        np.testing.assert_allclose(got, np.repeat([m[key] for m in table], 2),
+                                   rtol=4 * np.finfo(float).eps, atol=0, err_msg=key)
 
 
 @pytest.mark.parametrize('yaw_deg', [0.0, 35.0])
