@@ -131,7 +131,7 @@ def test_ring_bag_recovers_every_laser(ring_fit, lab):
     assert_lasers_recovered(ring_fit.out, lab['doc'])
     assert_noise_level(ring_fit)
     assert ring_fit.tiles == (8, 3) and ring_fit.shots_per_laser == 880
-    assert abs(ring_fit.frame_period_s - 0.1) < 1e-9
+    assert abs(ring_fit.frame_period_s - 0.1) < 1e-9  # integer-ns stamps: exact to 1 ns
     # the input (unperturbed) config is degrees off: the fit is what makes the pattern match
     assert np.sqrt(np.mean(ring_fit.prior_error_deg ** 2)) > 1.0
     assert 'angular error per shot (fitted pattern): RMS' in ring_fit.report
@@ -142,7 +142,7 @@ def test_written_sensor_reproduces_the_pattern(ring_fit, lab):
     fitted = frame_shots(load_sensor(ring_fit.out))
     truth = frame_shots(lab['sensor'])
     np.testing.assert_array_equal(fitted.laser, truth.laser)
-    np.testing.assert_allclose(fitted.t_s, truth.t_s, atol=1e-12)
+    np.testing.assert_allclose(fitted.t_s, truth.t_s, atol=1e-12)  # float64, same closed form
     cos = np.einsum('ij,ij->i', fitted.directions(), truth.directions())
     assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 0.005
     # everything but the scan (and frame rate) is copied from the input sensor
@@ -185,6 +185,8 @@ def test_fit_sine_closed_form():
     t = np.sort(rng.choice(np.arange(2000) * 5e-5, 400, replace=False))
     y = 0.3 + 0.07 * np.sin(2 * np.pi * 123.4 * t + 2.0)
     fit = fit_sine(t, y, 5.0, 5000.0)
+    # Noise-free float64 samples: the least-squares optimum is the truth; the bounds are
+    # the optimiser's convergence, the frequency and phase being the least constrained.
     assert (abs(fit.center - 0.3) < 1e-9 and abs(fit.amp - 0.07) < 1e-9
             and abs(fit.freq_hz - 123.4) < 1e-6 and abs(fit.phase_rad - 2.0) < 1e-7)
 

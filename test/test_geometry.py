@@ -6,7 +6,7 @@ from scipy.spatial.transform import Rotation
 from lidar_sim_ros.core.geometry import cast_at_poses, load_target
 from lidar_sim_ros.core.pose import PoseTrack
 from lidar_sim_ros.core.scan import directions_from_angles
-from conftest import REPO, plate_target, sphere_target
+from conftest import REPO, embree_range_tol_m, plate_target, sphere_target
 
 
 def _static(position, rotation=Rotation.identity()):
@@ -19,9 +19,10 @@ def test_plate_range_and_incidence():
     poses = _static([7.0, 0, 0], tilt).at(np.zeros(1))
     hits = cast_at_poses(plate_target(), np.array([[1.0, 0, 0]]), poses)
     assert hits.hit[0]
-    assert hits.range_m[0] == pytest.approx(7.0, abs=1e-5)
-    assert np.degrees(hits.incidence_rad[0]) == pytest.approx(30.0, abs=1e-4)
-    assert hits.normal[0] @ np.array([-1.0, 0, 0]) == pytest.approx(np.cos(np.radians(30)), abs=1e-6)
+    assert hits.range_m[0] == pytest.approx(7.0, abs=embree_range_tol_m(7.0))  # float32 Embree
+    # Normal and incidence come from float64 face normals and rays.
+    assert np.degrees(hits.incidence_rad[0]) == pytest.approx(30.0, abs=1e-10)
+    assert hits.normal[0] @ np.array([-1.0, 0, 0]) == pytest.approx(np.cos(np.radians(30)), abs=1e-12)
 
 
 def test_sphere_range_and_incidence():
@@ -33,9 +34,13 @@ def test_sphere_range_and_incidence():
     hits = cast_at_poses(target, dirs, poses)
     assert hits.hit.all()
     expected = dist * np.cos(beta) - np.sqrt(radius ** 2 - (dist * np.sin(beta)) ** 2)
-    assert np.allclose(hits.range_m, expected, atol=2e-3)
     inc = np.arcsin(np.clip(dist * np.sin(np.abs(beta)) / radius, 0, 1))
-    assert np.allclose(hits.incidence_rad, inc, atol=0.03)
+    # The mesh is a faceted sphere: flat faces dip up to depth inside it (7e-5 m here),
+    # which a ray at incidence i meets up to depth / cos(i) early or late. Float32 is far below.
+    depth = radius - np.linalg.norm(target.vertices_m[target.faces].mean(axis=1), axis=1).min()
+    np.testing.assert_array_less(np.abs(hits.range_m - expected), 2 * depth / np.cos(inc))
+    # Face normals tilt from the sphere's by up to 0.7 deg at a face's corners.
+    assert np.allclose(hits.incidence_rad, inc, atol=np.radians(1.0))
     miss = cast_at_poses(target, directions_from_angles(np.radians([12.0]), np.zeros(1)),
                          _static([dist, 0, 0]).at(np.zeros(1)))
     assert not miss.hit[0] and np.isinf(miss.range_m[0]) and miss.material[0] == -1

@@ -14,6 +14,7 @@ def test_interpolation_matches_scipy_slerp_and_linear_position():
     track = PoseTrack(t, p, q.as_quat())
     tq = rng.uniform(t[0], t[-1], 500)
     poses = track.at(tq)
+    # float64, two SLERP implementations: agree to ~1e-15; 1e-12 still fails NLERP by 1e-3.
     assert np.allclose(poses.rotation.as_matrix(), Slerp(t, q)(tq).as_matrix(), atol=1e-12)
     assert np.allclose(poses.position_m[:, 0], np.interp(tq, t, p[:, 0]))
 
@@ -32,7 +33,7 @@ def test_coverage_errors_and_bounded_extrapolation():
     # Inside and extrapolated times mixed in one query: each as if asked alone.
     times = [1.2, 0.25, 1.5, 0.9, 1.0]
     mixed = track.at(times)
-    for k, ti in enumerate(times):
+    for k, ti in enumerate(times):  # the same float64 arithmetic either way: 1e-12
         alone = track.at([ti])
         assert mixed.position_m[k] == pytest.approx(alone.position_m[0], abs=1e-12)
         assert mixed.rotation[k].as_rotvec() == pytest.approx(alone.rotation.as_rotvec()[0], abs=1e-12)

@@ -30,6 +30,7 @@ def test_good_pose_is_accepted_unchanged():
 def test_near_unit_quaternion_is_normalised():
     good, rejection = check(sample(quat=Q_UNIT * (1 + 0.5 * QUAT_NORM_TOL)))
     assert rejection is None
+    # float64: normalising costs a couple of ulps of 1 (2.2e-16 each).
     assert np.linalg.norm(good.quat_xyzw) == pytest.approx(1.0, abs=1e-15)
     np.testing.assert_allclose(good.quat_xyzw, Q_UNIT, atol=1e-15)
 
@@ -72,6 +73,7 @@ def test_twist_is_rotated_from_body_to_lidar_frame():
     # Body rotated 90 deg about z: body +x is lidar +y.
     quat = Rotation.from_euler('z', 90, degrees=True).as_quat()
     v, w = twist_to_lidar(quat, np.array([1.0, 0, 0]), np.array([0, 0.0, 0.3]))
+    # float64: cos(90 deg) is 6e-17, not 0; a few ulps of 1 allowed.
     np.testing.assert_allclose(v, [0, 1.0, 0], atol=1e-15)
     np.testing.assert_allclose(w, [0, 0, 0.3], atol=1e-15)
 
@@ -97,7 +99,8 @@ def test_track_interpolates_exactly_for_constant_rates():
     rot = Rotation.from_rotvec(t_abs[:, None] * np.array([0, 0, 0.5])) * Rotation.from_quat(Q_UNIT)
     np.testing.assert_allclose(poses.position_m,
                                np.array([10.0, 1.0, -0.5]) + t_abs[:, None] * [-0.1, 0.02, 0.0],
-                               atol=1e-12)
+                               atol=1e-12)  # float64 (~1e4 ulps at 10 m: interpolation arithmetic)
+    # SLERP of a constant-rate spin is exact; float64 arccos near 0 limits this to ~1e-8 rad.
     assert np.all((poses.rotation * rot.inv()).magnitude() < 1e-9)
     with pytest.raises(PoseCoverageError):
         track.at(np.array([0.1 + 0.05 + 0.001 - 0.005]))

@@ -55,6 +55,38 @@ def test_pattern_is_lattice_like_and_uneven(p60):
     assert h.max() >= 8 * max(h.mean(), 1)  # pile-ups at turning points/crossings
 
 
+def test_lissajous_shots_closed_form():
+    """Every shot of a 3 x 2 array with one laser overridden, against the tile layout
+    computed by hand: laser = row * tiles_az + col, column 0 at the most negative
+    azimuth, row 0 at the top; az = c_az + A_az sin(2 pi f_az t + phase_az + j step),
+    el likewise; lasers fire round-robin at t = k T / (shots per frame)."""
+    scan = {'type': 'lissajous_array', 'fov_az_deg': 30.0, 'fov_el_deg': 12.0,
+            'tiles_az': 3, 'tiles_el': 2, 'shots_per_laser': 40, 'overlap': 0.2,
+            'freq_az_hz': 70.0, 'freq_el_hz': 50.0, 'phase_az_rad': 0.3, 'phase_el_rad': 1.1,
+            'phase_step_rad': 0.25,
+            'lasers': [{}, {}, {}, {}, {'freq_az_hz': 90.0, 'phase_el_rad': -0.4, 'amp_el_deg': 2.0}, {}]}
+    s = sensor(scan)
+    shots = frame_shots(s)
+    n = 6 * 40
+    k = np.arange(n)
+    t = k * s.frame_period_s / n
+    np.testing.assert_allclose(shots.t_s, t, rtol=0, atol=1e-15)
+    laser = k % 6
+    np.testing.assert_array_equal(shots.laser, laser)
+    col, row = laser % 3, laser // 3
+    c_az, c_el = -15.0 + 10.0 * (col + 0.5), 6.0 - 6.0 * (row + 0.5)     # tiles 10 x 6 deg
+    a_az, a_el = np.full(n, 5.0 * 1.2), np.full(n, 3.0 * 1.2)
+    f_az, f_el = np.full(n, 70.0), np.full(n, 50.0)
+    p_az, p_el = 0.3 + 0.25 * laser, np.full(n, 1.1)
+    four = laser == 4
+    f_az[four], p_el[four], a_el[four] = 90.0, -0.4, 2.0
+    az = c_az + a_az * np.sin(2 * np.pi * f_az * t + p_az)
+    el = c_el + a_el * np.sin(2 * np.pi * f_el * t + p_el)
+    # float64 end to end: 1e-12 deg.
+    np.testing.assert_allclose(np.degrees(shots.az_rad), az, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.degrees(shots.el_rad), el, rtol=0, atol=1e-12)
+
+
 def test_laser_rows_and_columns(p60):
     lasers = lissajous_lasers(p60.scan)
     c_az = np.degrees(lasers.center_az_rad).reshape(3, 8)
@@ -69,6 +101,27 @@ def test_rotating_pattern():
     assert len(shots) == 3 * 360
     assert np.allclose(np.unique(np.degrees(shots.el_rad)), [-10, 0, 10])
     assert np.degrees(shots.az_rad).min() == pytest.approx(-180)
+    # A full turn: the last step stops one step short of +180 (= -180, already fired).
+    assert np.degrees(shots.az_rad).max() == pytest.approx(180 - 1)
+
+
+def test_rotating_pattern_closed_form():
+    """Shot k of beam i: az = az_min + k (az_max - az_min) / N, el = elevations_deg[i],
+    t = k T / N; all beams fire together at each step. Elevations deliberately unsorted."""
+    elevations = [3.0, -15.0, 7.5, 0.0]
+    n_steps, az_min, az_max = 16, -30.0, 50.0
+    s = sensor({'type': 'rotating', 'elevations_deg': elevations, 'az_min_deg': az_min,
+                'az_max_deg': az_max, 'shots_per_beam': n_steps})
+    shots = frame_shots(s)
+    assert len(shots) == len(elevations) * n_steps
+    k = np.arange(n_steps)
+    for ring, el in enumerate(elevations):
+        mine = shots.laser == ring
+        # float64 end to end (degrees -> radians -> degrees): 1e-12 deg.
+        np.testing.assert_allclose(np.degrees(shots.el_rad[mine]), el, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(np.degrees(shots.az_rad[mine]), az_min + k * (az_max - az_min) / n_steps,
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_allclose(shots.t_s[mine], k * s.frame_period_s / n_steps, rtol=0, atol=1e-15)
 
 
 def test_file_pattern(tmp_path):
