@@ -97,7 +97,8 @@ class PoseTrackerNode(Node):
         if not (np.isfinite(period_s) and period_s > 0):
             raise ConfigError('<parameters>', 'scan_period_s', period_s, 'must be positive')
         self.half_scan_ns = round(0.5 * period_s * NS_PER_S)
-        self.initial_guess = self._initial_guess(param('initial_pose'))
+        initial = self.get_parameter_or('initial_pose', Parameter('initial_pose', value=None)).value
+        self.initial_guess = self._initial_guess(initial)
         self.recapture_from_pose = bool(param('recapture_from_pose'))
 
         target = load_target(mesh, scenario.materials.names)
