@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= demo-output
 
-.PHONY: venv demo demo-offline demo-gnc test bench bench-node constraints clean
+.PHONY: venv demo demo-offline demo-gnc test bench bench-node bench-gnc constraints clean
 
 venv: $(STAMP)
 
@@ -41,6 +41,10 @@ bench: $(STAMP)
 bench-node: $(STAMP)
 	$(BIN)/python bench/bench_node.py --out bench_node.json
 
+## What each LiDAR error costs the pose tracker, and its time per frame (offline).
+bench-gnc: $(STAMP)
+	$(BIN)/python bench/bench_tracker.py --out bench_tracker.json
+
 ## Rewrite constraints.txt from the venv: the versions just tested (the package itself left out).
 constraints: $(STAMP)
 	{ echo '# Tested versions, used by make venv (pip install -c). Regenerate: make constraints'; \
@@ -48,4 +52,4 @@ constraints: $(STAMP)
 	touch $(STAMP)
 
 clean:
-	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json
+	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_tracker.json

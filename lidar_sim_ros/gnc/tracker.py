@@ -46,7 +46,8 @@ class TrackerConfig(BaseModel):
     prediction: Literal['constant_velocity', 'previous_pose'] = Field(
         'constant_velocity', description='where tracking starts each frame: the last two poses '
         'extrapolated, or the last pose')
-    max_iterations: Annotated[int, Field(ge=1)] = Field(30, description='ICP iterations per gate')
+    max_iterations: Annotated[int, Field(ge=1)] = Field(
+        10, description='ICP iterations per gate (more only slide further along a weakly observed roll)')
     min_points: Annotated[int, Field(ge=6)] = Field(
         30, description='fewest cloud points (after the voxel grid) for an estimate')
     min_inlier_fraction: Annotated[float, Field(ge=0, le=1)] = Field(
