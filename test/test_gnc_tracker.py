@@ -144,7 +144,8 @@ def test_pose_parts_round_trip():
     assert np.allclose(pose_matrix(position, quat), TRUE, atol=1e-12)
 
 
-def test_the_tracker_follows_a_tumbling_box_from_one_guess(model):
+@pytest.mark.parametrize('prediction', ['translation', 'constant_velocity', 'previous_pose'])
+def test_the_tracker_follows_a_tumbling_box_from_one_guess(model, prediction):
     axis = np.array([0.3, 0.1, 1.0]) / np.linalg.norm([0.3, 0.1, 1.0])
     rate, v = np.radians(20.0), np.array([-0.2, 0.1, 0.0])
 
@@ -152,7 +153,7 @@ def test_the_tracker_follows_a_tumbling_box_from_one_guess(model):
         return pose_matrix(TRUE[:3, 3] + v * t,
                            (Rotation.from_rotvec(rate * t * axis) * Rotation.from_matrix(TRUE[:3, :3])).as_quat())
 
-    tracker = PoseTracker(model, CONFIG)
+    tracker = PoseTracker(model, CONFIG.model_copy(update={'prediction': prediction}))
     for k in range(8):
         t = 0.1 * k
         est = tracker.update(t, box_scan(at(t)), guess=nudged(at(0.0)) if k == 0 else None)

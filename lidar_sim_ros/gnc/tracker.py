@@ -43,9 +43,10 @@ class TrackerConfig(BaseModel):
         description='correspondence gates (m) used in turn when capturing from a guess, wide to tight')
     tracking_gate_m: Annotated[float, Field(gt=0)] = Field(
         0.3, description='correspondence gate (m) while tracking from the prediction')
-    prediction: Literal['constant_velocity', 'previous_pose'] = Field(
-        'constant_velocity', description='where tracking starts each frame: the last two poses '
-        'extrapolated, or the last pose')
+    prediction: Literal['translation', 'constant_velocity', 'previous_pose'] = Field(
+        'translation', description='where tracking starts each frame: the last pose with its '
+        'position extrapolated from the last two (translation), the whole pose extrapolated '
+        '(constant_velocity), or the last pose')
     max_iterations: Annotated[int, Field(ge=1)] = Field(
         10, description='ICP iterations per gate (more only slide further along a weakly observed roll)')
     min_points: Annotated[int, Field(ge=6)] = Field(
@@ -207,11 +208,15 @@ class PoseTracker:
         if self._track and t_s <= self._track[-1][0]:
             self.reset()  # time went back: the motion model no longer applies
         if self._track:
-            if len(self._track) == 2 and self.config.prediction == 'constant_velocity':
+            start = self._track[-1][1]
+            if len(self._track) == 2 and self.config.prediction != 'previous_pose':
                 (t0, T0), (t1, T1) = self._track
-                start = predict_constant_velocity(T0, t0, T1, t1, t_s)
-            else:
-                start = self._track[-1][1]
+                predicted = predict_constant_velocity(T0, t0, T1, t1, t_s)
+                if self.config.prediction == 'constant_velocity':
+                    start = predicted
+                else:  # 'translation': the position moves on, the attitude starts where it was
+                    start = start.copy()
+                    start[:3, 3] = predicted[:3, 3]
             gates = [self.config.tracking_gate_m]
         else:
             start = guess if guess is not None else self._last_good
