@@ -62,7 +62,8 @@ def error_figure(errors: dict[str, TrackingErrors], path: Path) -> Path:
     ax_t.set_title('pose_tracker (point-to-plane ICP against the mesh) vs the true pose')
     ax_r.set_ylabel('rotation error [deg]')
     ax_r.set_xlabel('time [s]')
-    ax_r.set_yscale('symlog', linthresh=0.1)
+    ax_r.set_yscale('log')
+    ax_r.set_ylim(bottom=0.01)
     ax_r.legend(fontsize=8)
     for ax in (ax_t, ax_r):
         ax.grid(alpha=0.3)

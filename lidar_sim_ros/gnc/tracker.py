@@ -9,8 +9,10 @@ The registration is small_gicp's point-to-plane ICP. Its robust kernel is the
 truncated quadratic: a point whose nearest model point lies farther than the gate gets
 zero weight, so spurious returns and unmodelled structure cannot pull the estimate.
 The gates are annealed: a wide one captures from a rough guess, a tight one then
-ignores what is not on the target. ``PoseTracker`` adds the state of tracking: a
-constant-velocity prediction from the last two estimates, and loss detection.
+ignores what is not on the target. ``PoseTracker`` adds the state of tracking: where
+each frame starts (by default the last pose with its position carried on at the last
+velocity: the roll of a body of revolution is weakly observed, and extrapolating it
+feeds its drift back as velocity) and loss detection.
 
 Pure numpy in and out; small_gicp objects stay inside ``TargetModel``.
 """
@@ -183,7 +185,8 @@ def register(model: TargetModel, xyz_m: np.ndarray, guess: np.ndarray, gates_m: 
 
 # ----------------------------------------------------------------- tracking
 class PoseTracker:
-    """Frame-to-frame tracking: capture from a guess, then predict and refine each frame.
+    """Frame-to-frame tracking: capture from a guess, then predict (``config.prediction``)
+    and refine each frame.
 
     ``update`` returns the frame's ``Estimate``; an unacceptable one (too few points
     on the model) drops the track, and the next frame is captured again, from the
