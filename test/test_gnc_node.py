@@ -107,3 +107,16 @@ def test_the_node_tracks_a_box_and_stamps_mid_scan(tmp_path):
         p, q = msg.pose.position, msg.pose.orientation
         dt, dr = errors(pose_matrix([p.x, p.y, p.z], [q.x, q.y, q.z, q.w]), at(k * 0.1 + 0.05))
         assert dt < 2e-3 and dr < 0.1, (k, dt, dr)
+
+
+@pytest.mark.parametrize('args, message', [
+    (['-p', 'scan_voxel_m:=-1.0'], 'key "scan_voxel_m" = -1.0: Input should be greater than or equal to 0'),
+    (['-p', 'initial_pose:=[1.0, 2.0]'], 'key "initial_pose" = [1.0, 2.0]: expected [x, y, z, qx, qy, qz, qw]'),
+])
+def test_bad_parameters_stop_the_node_with_one_line(args, message):
+    env = {**os.environ, 'ROS_DOMAIN_ID': str(DOMAIN_ID)}
+    run = subprocess.run([sys.executable, '-m', 'lidar_sim_ros.gnc.pose_tracker_node', '--ros-args', *args],
+                         env=env, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2
+    fatal = [line for line in (run.stdout + run.stderr).splitlines() if 'FATAL' in line]
+    assert len(fatal) == 1 and message in fatal[0], run.stdout + run.stderr

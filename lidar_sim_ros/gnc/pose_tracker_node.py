@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
+from pydantic import ValidationError
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
@@ -92,7 +93,7 @@ class PoseTrackerNode(Node):
         param = lambda name: self.get_parameter(name).value  # noqa: E731
         scenario = load_scenario(param('scenario_file') or config_path('scenario.yaml'))
         mesh = Path(param('mesh_file')).expanduser() if param('mesh_file') else scenario.mesh_path
-        self.config = TrackerConfig(**{name: param(name) for name in TrackerConfig.model_fields})
+        self.config = self._tracker_config({name: param(name) for name in TrackerConfig.model_fields})
         period_s = param('scan_period_s') or scenario.sensor.frame_period_s
         if not (np.isfinite(period_s) and period_s > 0):
             raise ConfigError('<parameters>', 'scan_period_s', period_s, 'must be positive')
@@ -112,7 +113,7 @@ class PoseTrackerNode(Node):
         self._stats = {'clouds': 0, 'published': 0, 'rejected': 0, 'ms': []}
 
         # Best effort matches reliable and best-effort publishers; a short queue keeps the
-        # newest clouds when a registration overruns a period (the rest are counted lost).
+        # newest clouds when a registration overruns a period.
         cloud_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2,
                                reliability=ReliabilityPolicy.BEST_EFFORT)
         self.create_subscription(PointCloud2, param('points_topic'), self._on_cloud, cloud_qos)
@@ -125,6 +126,15 @@ class PoseTrackerNode(Node):
         self.get_logger().info(
             f'tracking {mesh.name} ({len(self.tracker.model)} model points, built in {model_s:.2f} s) '
             f'on {param("points_topic")} -> {param("estimate_topic")}; capture from {source}')
+
+    @staticmethod
+    def _tracker_config(values: dict[str, Any]) -> TrackerConfig:
+        try:
+            return TrackerConfig(**values)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            key = '.'.join(str(part) for part in first['loc'])
+            raise ConfigError('<parameters>', key, values.get(first['loc'][0]), first['msg']) from None
 
     def _initial_guess(self, value) -> np.ndarray | None:
         if value is None or len(value) == 0:
