@@ -6,15 +6,18 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= demo-output
 
-.PHONY: venv demo demo-offline test bench bench-node clean
+.PHONY: venv demo demo-offline demo-gnc test bench bench-node bench-gnc constraints clean
 
 venv: $(STAMP)
 
-$(STAMP): requirements.txt requirements-ros.txt requirements-dev.txt setup.py
+# constraints.txt pins the versions that were tested (make constraints rewrites it);
+# the warm-up compiles the numba kernels once, so no node compiles at its first start.
+$(STAMP): requirements.txt requirements-ros.txt requirements-dev.txt requirements-gnc.txt constraints.txt setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -r requirements.txt -r requirements-ros.txt -r requirements-dev.txt
+	$(BIN)/pip install --quiet -c constraints.txt -r requirements.txt -r requirements-ros.txt -r requirements-dev.txt -r requirements-gnc.txt
 	$(BIN)/pip install --quiet --no-deps -e .
+	$(BIN)/python -m lidar_sim_ros.warm_up
 	touch $(STAMP)
 
 ## The main job: pose player + node over real DDS, recorded to a rosbag2, figures rendered.
@@ -25,6 +28,10 @@ demo: $(STAMP)
 demo-offline: $(STAMP)
 	$(BIN)/lidar-sim simulate config/scenario.yaml --frames 10 --out $(OUT)/offline
 
+## Navigation in the loop: player + simulator + two pose trackers over DDS -> gnc.json + figure.
+demo-gnc: $(STAMP)
+	$(BIN)/python -m lidar_sim_ros.gnc.demo --out $(OUT)/gnc
+
 test: $(STAMP)
 	$(BIN)/python -m pytest -q test
 
@@ -34,5 +41,15 @@ bench: $(STAMP)
 bench-node: $(STAMP)
 	$(BIN)/python bench/bench_node.py --out bench_node.json
 
+## What each LiDAR error costs the pose tracker, and its time per frame (offline).
+bench-gnc: $(STAMP)
+	$(BIN)/python bench/bench_tracker.py --out bench_tracker.json
+
+## Rewrite constraints.txt from the venv: the versions just tested (the package itself left out).
+constraints: $(STAMP)
+	{ echo '# Tested versions, used by make venv (pip install -c). Regenerate: make constraints'; \
+	  $(BIN)/pip freeze --exclude-editable | grep -iv '^lidar[-_]sim[-_]ros'; } > constraints.txt
+	touch $(STAMP)
+
 clean:
-	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json
+	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_tracker.json

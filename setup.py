@@ -30,6 +30,10 @@ setup(
         'pydantic>=2.6',
         'PyYAML>=6.0',
     ],
+    # Optional subsystems with heavy dependencies: pip install lidar_sim_ros[gnc]
+    extras_require={
+        'gnc': ['small_gicp>=1.0'],
+    },
     zip_safe=True,
     maintainer='lidar_sim_ros developers',
     maintainer_email='lidar-sim@example.com',
@@ -41,6 +45,7 @@ setup(
             'lidar-sim = lidar_sim_ros.cli:main',
             'lidar_sim_node = lidar_sim_ros.ros.lidar_sim_node:main',
             'target_pose_player = lidar_sim_ros.ros.target_pose_player:main',
+            'pose_tracker = lidar_sim_ros.gnc.pose_tracker_node:main',
         ],
     },
 )

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.core.geometry import cast_at_poses, load_target
+from lidar_sim_ros.core.geometry import MeshFileError, MeshMaterialError, cast_at_poses, load_target
 from lidar_sim_ros.core.pose import PoseTrack
 from lidar_sim_ros.core.scan import directions_from_angles
 from conftest import REPO, embree_range_tol_m, plate_target, sphere_target
@@ -66,3 +66,51 @@ def test_mesh_missing_file(tmp_path):
 
 def test_repo_mesh_path_exists():
     assert (REPO / 'meshes' / 'rocket_body.obj').is_file()
+
+
+# ------------------------------------------------------------ bad mesh files
+TRIANGLES = 'v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nusemtl PIF\nf 1 2 3\nusemtl MLI\nf 1 2 4\n'
+
+
+def _mesh(folder, name, text, mtl='newmtl PIF\nKd 1 1 1\nnewmtl MLI\nKd 1 1 0\n'):
+    if mtl is not None:
+        (folder / 'm.mtl').write_text(mtl)
+    path = folder / name
+    path.write_text(text) if isinstance(text, str) else path.write_bytes(text)
+    return path
+
+
+def test_a_good_obj_with_its_mtl_loads(tmp_path):
+    target = load_target(_mesh(tmp_path, 'm.obj', 'mtllib m.mtl\n' + TRIANGLES), ['PIF', 'MLI'])
+    assert target.n_faces == 2 and sorted(target.face_material) == [0, 1]
+
+
+@pytest.mark.parametrize('name, text, mtl, message', [
+    ('m.mtl', None, 'newmtl PIF\nKd 1 1 1\n', r'm\.mtl: this is a material library \(\.mtl\), not a mesh'),
+    ('m.stl', 'solid x\nendsolid x\n', None, r'm\.stl: the mesh must be a Wavefront \.obj'),
+    ('m.obj', 'mtllib gone.mtl\n' + TRIANGLES, None,
+     r"m\.obj: its MTL file 'gone\.mtl' \(mtllib, line 1\) is missing"),
+    ('m.obj', TRIANGLES, None, r'm\.obj: usemtl names but no mtllib line'),
+    ('m.obj', 'mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n', 'newmtl PIF\n', r'm\.obj: no usemtl lines'),
+    ('m.obj', '', None, r'm\.obj: no faces'),
+    ('m.obj', 'hello\nthis is not a mesh\n', None, r'm\.obj: no faces'),
+    ('m.obj', bytes(range(256)) * 4, None, r'm\.obj: not a text OBJ file'),
+    ('m.obj', 'mtllib m.mtl\nv 0 0 0\nusemtl PIF\nf 1 2 x y\n', 'newmtl PIF\n',
+     r'm\.obj: trimesh cannot read it'),
+])
+def test_bad_mesh_files_get_one_line_naming_file_and_problem(tmp_path, name, text, mtl, message):
+    path = tmp_path / name
+    if text is None:
+        path.write_text(mtl)
+    else:
+        _mesh(tmp_path, name, text, mtl)
+    with pytest.raises(MeshFileError, match=message) as info:
+        load_target(path, ['PIF', 'MLI'])
+    assert '\n' not in str(info.value)
+
+
+def test_an_unknown_material_name_is_named(tmp_path):
+    path = _mesh(tmp_path, 'm.obj', 'mtllib m.mtl\n' + TRIANGLES.replace('usemtl MLI', 'usemtl GOLD'),
+                 'newmtl PIF\nnewmtl GOLD\n')
+    with pytest.raises(MeshMaterialError, match=r"\['GOLD'\] not in the materials config"):
+        load_target(path, ['PIF', 'MLI'])

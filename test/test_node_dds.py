@@ -606,6 +606,9 @@ def test_bad_config_file_exits_non_zero_naming_file_key_and_value(tmp_path):
 
 def test_pose_player_publishes_the_scenario_trajectory(harness, tmp_path):
     block = PLAYER_S * NS
+    # The clock is at the block before the player starts: its first tick (right after
+    # start-up, its kernel compiled in setup) publishes the present, i.e. the block start.
+    harness.clock(block)
     proc = start_process('lidar_sim_ros.ros.target_pose_player', '-p', 'use_sim_time:=true',
                          '-p', 'topic:=/player_test/pose', '-p', f'epoch_s:={PLAYER_S}.0',
                          log=tmp_path / 'player.log')

@@ -23,6 +23,10 @@ class MeshMaterialError(ValueError):
     """A mesh group/material name that the materials config does not know."""
 
 
+class MeshFileError(ValueError):
+    """A mesh file that is not an OBJ with usable material names: names the file and the problem."""
+
+
 @dataclass(frozen=True)
 class Hits:
     """Per-ray raycast result. Arrays have one row per ray.
@@ -137,12 +141,18 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
 def load_target(obj_path: str | Path, material_names: list[str]) -> Target:
     """Load an OBJ+MTL whose ``usemtl`` names are material names from the config.
 
-    Raises MeshMaterialError naming every group it cannot map.
+    Raises MeshFileError for a file that is not such an OBJ (see ``check_obj_file``)
+    and MeshMaterialError naming every group it cannot map.
     """
     obj_path = Path(obj_path)
     if not obj_path.is_file():
         raise FileNotFoundError(f'mesh file not found: {obj_path}')
-    scene = trimesh.load(obj_path, force='scene', process=False)
+    check_obj_file(obj_path)
+    try:
+        scene = trimesh.load(obj_path, force='scene', process=False)
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds on malformed files
+        raise MeshFileError(f'{obj_path}: trimesh cannot read it as an OBJ mesh '
+                            f'({type(exc).__name__}: {exc})') from None
     verts, faces, mats, unknown = [], [], [], []
     offset = 0
     for key, geom in scene.geometry.items():
@@ -164,3 +174,48 @@ def load_target(obj_path: str | Path, material_names: list[str]) -> Target:
     if not faces:
         raise MeshMaterialError(f'{obj_path}: no triangles found')
     return Target(np.vstack(verts), np.vstack(faces), np.concatenate(mats), material_names)
+
+
+def check_obj_file(obj_path: Path) -> None:
+    """Reject, with one line naming the file, what trimesh would report obscurely or not at all.
+
+    A file that is not ``.obj`` (an ``.mtl`` given as the mesh raises NotImplementedError
+    in trimesh); binary or garbled text; no faces; and material names that cannot
+    survive loading: trimesh keeps ``usemtl`` names only when the ``mtllib`` file is
+    there, and otherwise names the groups after the file (``x.obj``, ``x.obj_1``).
+    """
+    suffix = obj_path.suffix.lower()
+    if suffix == '.mtl':
+        raise MeshFileError(f'{obj_path}: this is a material library (.mtl), not a mesh; give the '
+                            f'.obj file that names it (mtllib {obj_path.name})')
+    if suffix != '.obj':
+        raise MeshFileError(f'{obj_path}: the mesh must be a Wavefront .obj whose usemtl names are '
+                            f'materials of the config, not {suffix or "a file without extension"}')
+    data = obj_path.read_bytes()
+    try:
+        text = data.decode('utf-8')
+    except UnicodeDecodeError as exc:
+        raise MeshFileError(f'{obj_path}: not a text OBJ file (byte {exc.start} is not UTF-8)') from None
+    if '\x00' in text:
+        raise MeshFileError(f'{obj_path}: not a text OBJ file (it holds NUL bytes)')
+    mtllibs, usemtl, faces = [], 0, 0
+    for number, line in enumerate(text.splitlines(), start=1):
+        keyword, _, rest = line.strip().partition(' ')
+        if keyword == 'f':
+            faces += 1
+        elif keyword == 'usemtl':
+            usemtl += 1
+        elif keyword == 'mtllib':
+            mtllibs += [(number, name) for name in rest.split()]
+    if faces == 0:
+        raise MeshFileError(f'{obj_path}: no faces (no "f" lines): the file is empty or not an OBJ mesh')
+    for number, name in mtllibs:
+        if not (obj_path.parent / name).is_file():
+            raise MeshFileError(f'{obj_path}: its MTL file {name!r} (mtllib, line {number}) is missing; '
+                                'without it the usemtl material names are lost')
+    if usemtl == 0:
+        raise MeshFileError(f'{obj_path}: no usemtl lines: every face needs a material name '
+                            'from the materials config (usemtl NAME, with an mtllib file)')
+    if not mtllibs:
+        raise MeshFileError(f'{obj_path}: usemtl names but no mtllib line: the names are only kept '
+                            'with an MTL file (add "mtllib NAME.mtl" and the file)')

@@ -172,8 +172,10 @@ class Simulator:
         """Compile the per-ray kernels now (or load them from numba's on-disk cache), so
         the first real frame does not pay for it: ~0.1 s cached, a few s the first time."""
         self.simulate_frame(0.0, StaticPose((10.0, 0.0, 0.0)), 0)
-        self.predict(np.zeros(1), self.directions[:1], PoseTrack([0.0, 1.0], np.zeros((2, 3)),
-                                                                 np.tile([0.0, 0.0, 0.0, 1.0], (2, 1))))
+        # A track the last shots lie past, as the node's are: interpolation and extrapolation.
+        track = PoseTrack([0.0, 0.05], np.zeros((2, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (2, 1)),
+                          max_extrapolation_s=1.0)
+        self.predict(np.array([0.0, 0.5]), self.directions[:2], track)
 
     @property
     def frame_period_s(self) -> float:

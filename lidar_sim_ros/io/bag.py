@@ -1,21 +1,29 @@
 """rosbag2 reading and writing with `rosbags` (no ROS installation needed).
 
-Bags are written as rosbag2 version 9 (what Jazzy writes) with the Jazzy typestore;
-reading goes through `rosbags.highlevel.AnyReader`, so MCAP and sqlite3 rosbag2
-directories (and ROS 1 .bag files) all load. Timestamps are integer nanoseconds; the
-bag's log time of every message written here is its header stamp.
+Bags are written as rosbag2 version 9 (what Jazzy writes) with the Jazzy typestore.
+Every reader opens its input with ``open_bag``, which takes what recorders produce:
+a rosbag2 directory (MCAP or sqlite3, with metadata.yaml), a bare ``.mcap`` file (as
+Foxglove or ``ros2 bag record`` without its directory leave it), a bare ``.db3`` and a
+ROS 1 ``.bag`` file, all through `rosbags.highlevel.AnyReader`; anything else is
+refused with one line saying what was expected. ROS 1 messages come back with ROS 2
+type names (``sensor_msgs/msg/PointCloud2``) and the same fields. Timestamps are
+integer nanoseconds; the bag's log time of every message written here is its header
+stamp.
 """
 from __future__ import annotations
 
 import json
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
-from rosbags.highlevel import AnyReader
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.rosbag1 import ReaderError as Rosbag1ReaderError
 from rosbags.interfaces import Connection
+from rosbags.rosbag2 import ReaderError as Rosbag2ReaderError
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
@@ -36,6 +44,10 @@ _QUAT_NORM_TOL = 1e-5
 
 class BagContentError(ValueError):
     """A bag lacks an expected topic or holds an unexpected message type or content."""
+
+
+class BagFormatError(ValueError):
+    """A path that is not a bag of a supported kind, or a bag file that cannot be read."""
 
 
 class _MissingTopicError(BagContentError):
@@ -230,9 +242,7 @@ def read_material_names(path: str | Path, topic: str = MATERIAL_NAMES_TOPIC) -> 
 def _read_messages(path: str | Path, topic: str, msgtype: str) -> list[Any]:
     """Deserialised messages of one topic, checking that it exists with the expected type."""
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f'bag {path} does not exist')
-    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+    with open_bag(path) as reader:
         connections = [c for c in reader.connections if c.topic == topic]
         if not connections:
             available = ', '.join(f'{name} ({info.msgtype})'
@@ -245,3 +255,51 @@ def _read_messages(path: str | Path, topic: str, msgtype: str) -> list[Any]:
                 f'topic {topic!r} in bag {path} has type {", ".join(found)}, expected {msgtype}')
         return [reader.deserialize(raw, c.msgtype)
                 for c, _, raw in reader.messages(connections=connections)]
+
+
+# ------------------------------------------------------------------ opening
+BAG_KINDS = ('a rosbag2 directory (with metadata.yaml), a bare .mcap file (e.g. from Foxglove) '
+             'or a ROS 1 .bag file')
+_FILE_KINDS = {'.mcap': 'MCAP file', '.db3': 'rosbag2 sqlite3 file', '.bag': 'ROS 1 bag'}
+
+
+def bag_kind(path: str | Path) -> str:
+    """What ``path`` holds: 'rosbag2 directory', 'MCAP file', 'rosbag2 sqlite3 file' or
+    'ROS 1 bag'; FileNotFoundError or BagFormatError (one line) for anything else."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f'bag {path} does not exist')
+    if path.is_dir():
+        if (path / 'metadata.yaml').is_file():
+            return 'rosbag2 directory'
+        inside = sorted(p.name for p in path.iterdir() if p.suffix in _FILE_KINDS)
+        hint = f'; it holds {", ".join(inside)}: give that file instead' if inside else ''
+        raise BagFormatError(f'{path} is a directory without metadata.yaml, so not a rosbag2 bag '
+                             f'(expected {BAG_KINDS}){hint}')
+    kind = _FILE_KINDS.get(path.suffix)
+    if kind is None:
+        raise BagFormatError(f'{path} is not a bag: expected {BAG_KINDS}, got '
+                             f'{"a " + path.suffix + " file" if path.suffix else "a file without extension"}')
+    return kind
+
+
+@contextmanager
+def open_bag(path: str | Path) -> Iterator[AnyReader]:
+    """An open ``AnyReader`` over one bag of any supported kind (see ``bag_kind``).
+
+    Messages without embedded definitions are decoded with the ROS 2 Jazzy types.
+    A damaged or unreadable file raises BagFormatError naming it.
+    """
+    path = Path(path)
+    kind = bag_kind(path)
+    # rosbags picks the rosbag1 reader by the exact suffix '.bag'.
+    reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY))
+    try:
+        reader.open()
+    except (AnyReaderError, Rosbag1ReaderError, Rosbag2ReaderError, OSError, ValueError, KeyError) as exc:
+        text = ' '.join(str(exc).split()) or type(exc).__name__
+        raise BagFormatError(f'{path}: cannot read this {kind}: {text}') from None
+    try:
+        yield reader
+    finally:
+        reader.close()

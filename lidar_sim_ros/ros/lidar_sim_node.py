@@ -146,7 +146,6 @@ class LidarSimNode(Node):
             # stretches or compresses it over the new period.
             self.scenario.sensor = self.scenario.sensor.model_copy(update={'frame_rate_hz': rate})
         self.sim = Simulator.from_scenario(self.scenario, effects=[])
-        self.sim.warm_up()  # compiled kernels ready before the first frame is due
 
         self.declare_parameter('frame_id', self.scenario.config.frame_id,
                                _descriptor(S, "header frame_id of the clouds; poses must carry it "
@@ -159,6 +158,11 @@ class LidarSimNode(Node):
             "enabled effects: catalogue names, 'module:Class' or 'file.py:Class' (parameters "
             "from the scenario's effects list, else defaults); default: the scenario's"))
         self.sim.effects = self._build_effects(self._effects_value())
+        # Compiled kernels (and the effects' first calls) before anything is timed: the
+        # frame grid, the pose subscriptions and their staleness checks all start after
+        # this, so a slow first start (numba compiling) is not followed by a catch-up
+        # burst of frames or stale poses.
+        self.sim.warm_up()
         self.declare_parameter('material_names', list(self.scenario.materials.names),
                                _descriptor(ParameterType.PARAMETER_STRING_ARRAY,
                                            'material index -> name of the material field',

@@ -59,6 +59,7 @@ class TargetPosePlayer(Node):
             'epoch_s', -1.0, _param(F, 'clock time (s) of trajectory time zero; < 0 = the '
                                        'first published stamp', lo=-1.0, hi=1e12)).value
         self.trajectory = ScenarioTrajectory.from_config(scenario.config)
+        self.trajectory.at(0.0)  # compile the trajectory kernel now, not in the first tick
         self.grid = FrameScheduler(rate_hz)
         self.epoch_ns: int | None = None if self.epoch_s < 0 else round(self.epoch_s * NS_PER_S)
         self.last_index: int | None = None

@@ -1,0 +1,164 @@
+"""``make demo-gnc``: navigation in the loop over real DDS, and what the LiDAR's errors cost it.
+
+Starts, as separate processes on a private random ROS domain: ``target_pose_player``,
+``lidar_sim_node`` (publishing the model cloud and the truth cloud) and two
+``pose_tracker`` nodes, one on each cloud. The poses and both trackers' estimates are
+recorded into a rosbag2 with ``ros.recorder.BagRecorder`` for a few seconds; then the
+estimates are scored against the true pose: ``gnc.json`` and ``gnc_errors.png``.
+
+    python -m lidar_sim_ros.gnc.demo --out demo-output/gnc [--seconds 10]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import sys
+import time
+from pathlib import Path
+
+from lidar_sim_ros.demo import remove_old_bag, start, stop
+from lidar_sim_ros.paths import config_path
+
+STARTUP_TIMEOUT_S = 90.0  # a first start compiles the simulator's kernels (see make venv)
+POSE = '/target/pose'
+CLOUDS = {'model_cloud': '/lidar/points', 'truth_cloud': '/lidar/points_truth'}
+ESTIMATES = {'model_cloud': '/target/pose_estimate', 'truth_cloud': '/target/pose_estimate_truth'}
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog='python -m lidar_sim_ros.gnc.demo',
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument('--out', type=Path, default=Path('demo-output/gnc'), help='output directory')
+    parser.add_argument('--seconds', type=float, default=10.0,
+                        help='how long to record once both trackers publish (s)')
+    parser.add_argument('--params', type=Path, default=config_path('params.yaml'),
+                        help='parameters file of the simulator node and the pose player')
+    parser.add_argument('--domain-id', type=int, default=None,
+                        help='ROS_DOMAIN_ID (default: a random private one)')
+    return parser.parse_args(argv)
+
+
+def tracker_args(key: str) -> list[str]:
+    return ['-r', f'__node:=pose_tracker_{key.split("_")[0]}', '-p', f'points_topic:={CLOUDS[key]}',
+            '-p', f'estimate_topic:={ESTIMATES[key]}', '-p', f'pose_topic:={POSE}']
+
+
+def record(bag: Path, seconds: float, procs: dict, logs: dict[str, Path]) -> dict[str, int]:
+    """Record the truth and both estimates for ``seconds`` once all flow; count the clouds too."""
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+
+    from lidar_sim_ros.io.bag import BagWriter
+    from lidar_sim_ros.ros.recorder import BagRecorder, TopicSpec
+
+    topics = [TopicSpec(t, PoseStamped, 'geometry_msgs/msg/PoseStamped') for t in (POSE, *ESTIMATES.values())]
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('lidar_sim_gnc_demo_recorder', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    clouds = {topic: 0 for topic in CLOUDS.values()}
+    armed = [False]
+
+    def counter(topic):
+        def count(_raw: bytes) -> None:
+            clouds[topic] += armed[0]
+        return count
+
+    # Counted, not recorded (raw bytes, never deserialised): did each tracker keep up?
+    for topic in CLOUDS.values():
+        node.create_subscription(PointCloud2, topic, counter(topic),
+                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True)
+    try:
+        with BagWriter(bag) as writer:
+            recorder = BagRecorder(node, writer, topics, armed=False)
+            deadline = time.monotonic() + STARTUP_TIMEOUT_S
+            while not recorder.flowing:
+                executor.spin_once(timeout_sec=0.1)
+                for name, proc in procs.items():
+                    if proc.poll() is not None:
+                        raise RuntimeError(f'{name} exited with {proc.returncode}:\n{logs[name].read_text()}')
+                if time.monotonic() > deadline:
+                    silent = [t for t, n in recorder.seen.items() if n == 0]
+                    raise RuntimeError(f'nothing on {silent} within {STARTUP_TIMEOUT_S:g} s; see {out_logs(logs)}')
+            recorder.arm()
+            armed[0] = True
+            print(f'both trackers publish; recording {seconds:g} s ...', flush=True)
+            stop_at = time.monotonic() + seconds
+            while time.monotonic() < stop_at:
+                executor.spin_once(timeout_sec=0.05)
+            armed[0] = False
+            recorder.close()
+            return {**recorder.counts, **clouds}
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def out_logs(logs: dict[str, Path]) -> str:
+    return ', '.join(str(p) for p in logs.values())
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    bag = out / 'bag'
+    try:
+        remove_old_bag(bag)
+    except FileExistsError as exc:
+        print(f'demo-gnc: error: {exc}', file=sys.stderr)
+        return 2
+    domain = args.domain_id if args.domain_id is not None else random.randint(1, 101)
+    os.environ['ROS_DOMAIN_ID'] = str(domain)  # this process records on the same private domain
+    env = {**os.environ, 'PYTHONUNBUFFERED': '1'}
+    params = ['--params-file', str(args.params)]
+    commands = {
+        'target_pose_player': ('lidar_sim_ros.ros.target_pose_player', params),
+        'lidar_sim_node': ('lidar_sim_ros.ros.lidar_sim_node', params + ['-p', 'publish_truth:=true']),
+        'pose_tracker_model': ('lidar_sim_ros.gnc.pose_tracker_node', tracker_args('model_cloud')),
+        'pose_tracker_truth': ('lidar_sim_ros.gnc.pose_tracker_node', tracker_args('truth_cloud')),
+    }
+    logs = {name: out / f'{name}.log' for name in commands}
+    print(f'ROS_DOMAIN_ID={domain}: starting {", ".join(commands)}', flush=True)
+    procs = {name: start(module, ros_args, env, logs[name]) for name, (module, ros_args) in commands.items()}
+    try:
+        counts = record(bag, args.seconds, procs, logs)
+    except RuntimeError as exc:
+        print(f'demo-gnc: error: {exc}', file=sys.stderr)
+        return 1
+    finally:
+        codes = {name: stop(proc) for name, proc in procs.items()}
+    print('recorded ' + ', '.join(f'{n} on {t}' for t, n in counts.items()))
+    if any(codes.values()):
+        print(f'demo-gnc: warning: exit codes {codes}', file=sys.stderr)
+
+    from lidar_sim_ros.gnc.report import errors_from_bag, write_report
+    errors = errors_from_bag(bag, POSE, ESTIMATES)
+    details = {key: {'cloud_topic': CLOUDS[key], 'estimate_topic': ESTIMATES[key],
+                     'clouds': counts[CLOUDS[key]]} for key in ESTIMATES}
+    meta = {'seconds': args.seconds,
+            'note': 'errors are estimate minus truth at the estimate stamp (cloud stamp + half '
+                    'the scan); trans_los: along the line of sight, negative = toward the sensor; '
+                    'axis: pointing of the body long axis; roll: about it. See docs/gnc.md.'}
+    json_path, figure = write_report(errors, out, details, meta)
+    for key, e in errors.items():
+        s = e.summary()
+        print(f'{key}: {s["frames"]} estimates for {counts[CLOUDS[key]]} clouds, translation RMS '
+              f'{100 * s["trans_rms_m"]:.1f} cm (mean along the line of sight '
+              f'{100 * s["trans_los_mean_m"]:+.1f} cm), rotation RMS {s["rot_rms_deg"]:.2f} deg '
+              f'(axis {s["axis_rms_deg"]:.2f} deg, roll {s["roll_rms_deg"]:.2f} deg)')
+    print(f'wrote {json_path} and {figure}; bag {bag}; logs {out_logs(logs)}')
+    if any(len(e) == 0 for e in errors.values()):
+        print('demo-gnc: error: a tracker published no estimate in the recording', file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,218 @@
+"""``pose_tracker``: clouds in, the target body pose in the lidar frame out.
+
+A thin rclpy shell around ``gnc.tracker.PoseTracker``: it loads the target mesh of the
+scenario, turns each ``sensor_msgs/PointCloud2`` into points, and publishes every
+accepted estimate as ``geometry_msgs/PoseStamped`` stamped at the middle of the scan
+(cloud stamp + half the scan period), when the cloud's points were taken on average.
+
+The first capture starts from the ``initial_pose`` parameter, or else from the pose
+on ``pose_topic`` nearest that time (e.g. ``/target/pose``, the truth the simulator
+runs on); after a lost track the capture starts from the pose topic again
+(``recapture_from_pose``) or from the last accepted estimate.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from pydantic import ValidationError
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import ParameterException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+
+from lidar_sim_ros.core.config import ConfigError, load_scenario
+from lidar_sim_ros.core.geometry import MeshMaterialError, load_target
+from lidar_sim_ros.gnc.tracker import PoseTracker, TrackerConfig, build_model, pose_matrix, pose_parts
+from lidar_sim_ros.io.pointcloud import from_pointcloud2, ns_to_stamp, stamp_to_ns
+from lidar_sim_ros.paths import config_path
+from lidar_sim_ros.ros.spin import run_node
+
+NODE_NAME = 'pose_tracker'
+NS_PER_S = 1_000_000_000
+STATS_PERIOD_S = 10.0
+POSES_KEPT = 500  # recent poses on pose_topic searched for a capture guess
+USER_ERRORS = (ConfigError, MeshMaterialError, ParameterException, ValueError, KeyError,
+               TypeError, FileNotFoundError)
+
+S, F, I, B = (ParameterType.PARAMETER_STRING, ParameterType.PARAMETER_DOUBLE,
+              ParameterType.PARAMETER_INTEGER, ParameterType.PARAMETER_BOOL)
+FA = ParameterType.PARAMETER_DOUBLE_ARRAY
+
+
+def _read_only(ptype: int, text: str) -> ParameterDescriptor:
+    return ParameterDescriptor(type=ptype, description=text, read_only=True)
+
+
+PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
+    'scenario_file': ('', _read_only(S, "scenario YAML (its mesh and sensor); '' = the package's")),
+    'mesh_file': ('', _read_only(S, "target mesh (.obj) instead of the scenario's; '' = the scenario's")),
+    'points_topic': ('/lidar/points', _read_only(S, 'sensor_msgs/PointCloud2 input')),
+    'pose_topic': ('/target/pose', _read_only(
+        S, "geometry_msgs/PoseStamped giving the capture guess; '' = none")),
+    'estimate_topic': ('/target/pose_estimate', _read_only(S, 'geometry_msgs/PoseStamped output')),
+    'initial_pose': (Parameter.Type.DOUBLE_ARRAY, _read_only(
+        FA, 'first capture guess [x, y, z, qx, qy, qz, qw] (m, unit quaternion); unset = '
+            'the pose on pose_topic')),
+    'recapture_from_pose': (True, _read_only(
+        B, 'after a lost track, capture from the pose on pose_topic (else the last estimate)')),
+    'scan_period_s': (0.0, _read_only(F, "scan period (s); 0 = the scenario sensor's frame period")),
+}
+
+# TrackerConfig fields become parameters of the same name (read-only, set at start-up).
+_PTYPE = {float: F, int: I, str: S}
+
+
+def _tracker_parameters() -> dict[str, tuple[Any, ParameterDescriptor]]:
+    params = {}
+    for name, field in TrackerConfig.model_fields.items():
+        default = field.get_default()
+        ptype = FA if isinstance(default, list) else _PTYPE[type(default)]
+        params[name] = (default, _read_only(ptype, field.description or name))
+    return params
+
+
+class PoseTrackerNode(Node):
+    """Clouds in, PoseStamped out. Call ``setup()`` after construction (it may raise)."""
+
+    def __init__(self, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+
+    def setup(self) -> None:
+        """Declare parameters, build the target model and the ROS interfaces."""
+        for name, (value, desc) in {**PARAMETERS, **_tracker_parameters()}.items():
+            self.declare_parameter(name, value, desc)
+        param = lambda name: self.get_parameter(name).value  # noqa: E731
+        scenario = load_scenario(param('scenario_file') or config_path('scenario.yaml'))
+        mesh = Path(param('mesh_file')).expanduser() if param('mesh_file') else scenario.mesh_path
+        self.config = self._tracker_config({name: param(name) for name in TrackerConfig.model_fields})
+        period_s = param('scan_period_s') or scenario.sensor.frame_period_s
+        if not (np.isfinite(period_s) and period_s > 0):
+            raise ConfigError('<parameters>', 'scan_period_s', period_s, 'must be positive')
+        self.half_scan_ns = round(0.5 * period_s * NS_PER_S)
+        initial = self.get_parameter_or('initial_pose', Parameter('initial_pose', value=None)).value
+        self.initial_guess = self._initial_guess(initial)
+        self.recapture_from_pose = bool(param('recapture_from_pose'))
+
+        target = load_target(mesh, scenario.materials.names)
+        t0 = time.perf_counter()
+        self.tracker = PoseTracker(build_model(target.vertices_m, target.faces, self.config), self.config)
+        model_s = time.perf_counter() - t0
+        self.poses: deque[tuple[int, np.ndarray]] = deque(maxlen=POSES_KEPT)
+        self._captured_once = False
+        self._epoch_ns: int | None = None
+        self._last_warn: dict[str, float] = {}
+        self._stats = {'clouds': 0, 'published': 0, 'rejected': 0, 'ms': []}
+
+        # Best effort matches reliable and best-effort publishers; a short queue keeps the
+        # newest clouds when a registration overruns a period.
+        cloud_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2,
+                               reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.create_subscription(PointCloud2, param('points_topic'), self._on_cloud, cloud_qos)
+        if param('pose_topic'):
+            self.create_subscription(PoseStamped, param('pose_topic'), self._on_pose,
+                                     QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self.pub = self.create_publisher(PoseStamped, param('estimate_topic'), 10)
+        self.create_timer(STATS_PERIOD_S, self._log_stats, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        source = 'initial_pose' if self.initial_guess is not None else param('pose_topic') or 'nothing'
+        self.get_logger().info(
+            f'tracking {mesh.name} ({len(self.tracker.model)} model points, built in {model_s:.2f} s) '
+            f'on {param("points_topic")} -> {param("estimate_topic")}; capture from {source}')
+
+    @staticmethod
+    def _tracker_config(values: dict[str, Any]) -> TrackerConfig:
+        try:
+            return TrackerConfig(**values)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            key = '.'.join(str(part) for part in first['loc'])
+            raise ConfigError('<parameters>', key, values.get(first['loc'][0]), first['msg']) from None
+
+    def _initial_guess(self, value) -> np.ndarray | None:
+        if value is None or len(value) == 0:
+            return None
+        v = np.asarray(value, dtype=float)
+        if v.shape != (7,) or not np.isfinite(v).all() or abs(np.linalg.norm(v[3:]) - 1) > 0.01:
+            raise ConfigError('<parameters>', 'initial_pose', list(value),
+                              'expected [x, y, z, qx, qy, qz, qw] with a unit quaternion')
+        return pose_matrix(v[:3], v[3:] / np.linalg.norm(v[3:]))
+
+    # ------------------------------------------------------------ callbacks
+    def _on_pose(self, msg: PoseStamped) -> None:
+        p, q = msg.pose.position, msg.pose.orientation
+        quat = np.array([q.x, q.y, q.z, q.w])
+        if not (np.isfinite(quat).all() and abs(np.linalg.norm(quat) - 1) < 0.01):
+            return
+        self.poses.append((stamp_to_ns(msg.header.stamp),
+                           pose_matrix([p.x, p.y, p.z], quat / np.linalg.norm(quat))))
+
+    def _guess(self, t_ns: int) -> np.ndarray | None:
+        """The capture guess for a scan centred at t_ns, or None to use the last estimate."""
+        if not self._captured_once and self.initial_guess is not None:
+            return self.initial_guess
+        if (self.recapture_from_pose or not self._captured_once) and self.poses:
+            return min(self.poses, key=lambda sp: abs(sp[0] - t_ns))[1]
+        return None
+
+    def _on_cloud(self, msg: PointCloud2) -> None:
+        self._stats['clouds'] += 1
+        t_ns = stamp_to_ns(msg.header.stamp) + self.half_scan_ns
+        guess = None if self.tracker.tracking else self._guess(t_ns)
+        if guess is None and not self.tracker.tracking and not self._captured_once:
+            self._warn('no_guess', 'no initial pose yet (initial_pose unset, nothing on the pose topic): '
+                                   'waiting')
+            return
+        if self._epoch_ns is None:
+            self._epoch_ns = t_ns  # seconds since the first scan keep float64 resolution
+        points = from_pointcloud2(msg)
+        xyz = np.column_stack([points['x'], points['y'], points['z']]).astype(float)
+        t0 = time.perf_counter()
+        estimate = self.tracker.update((t_ns - self._epoch_ns) / NS_PER_S, xyz, guess)
+        self._stats['ms'].append(1e3 * (time.perf_counter() - t0))
+        if not estimate.acceptable(self.config):
+            self._stats['rejected'] += 1
+            self._warn('lost', f'track lost at {t_ns / NS_PER_S:.3f} s: {estimate.inliers} of '
+                               f'{estimate.points} points on the model (need '
+                               f'{self.config.min_inlier_fraction:.0%} of at least {self.config.min_points})')
+            return
+        self._captured_once = True
+        position, quat = pose_parts(estimate.pose)
+        out = PoseStamped()
+        out.header.stamp = ns_to_stamp(t_ns, type(out.header.stamp))
+        out.header.frame_id = msg.header.frame_id
+        out.pose.position.x, out.pose.position.y, out.pose.position.z = (float(v) for v in position)
+        o = out.pose.orientation
+        o.x, o.y, o.z, o.w = (float(v) for v in quat)
+        self.pub.publish(out)
+        self._stats['published'] += 1
+
+    # -------------------------------------------------------------- logging
+    def _warn(self, kind: str, text: str) -> None:
+        now = time.monotonic()
+        if now - self._last_warn.get(kind, -np.inf) >= 1.0:
+            self._last_warn[kind] = now
+            self.get_logger().warning(text)
+
+    def _log_stats(self) -> None:
+        s = self._stats
+        ms = np.array(s['ms'])
+        timing = f'; registration p50 {np.median(ms):.1f} ms, max {ms.max():.1f} ms' if len(ms) else ''
+        self.get_logger().info(f'last {STATS_PERIOD_S:g} s: {s["clouds"]} clouds, {s["published"]} '
+                               f'estimates, {s["rejected"]} rejected{timing}')
+        self._stats = {'clouds': 0, 'published': 0, 'rejected': 0, 'ms': []}
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(PoseTrackerNode, args, USER_ERRORS)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

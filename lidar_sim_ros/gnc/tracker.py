@@ -1,0 +1,235 @@
+"""Model-based pose tracking: robust point-to-plane registration of a cloud to the target mesh.
+
+The mesh is sampled once into model points in the body frame, with normals and a k-d
+tree (``build_model``). Each frame, ``register`` aligns the cloud (lidar frame) to the
+model from an initial guess and returns the target body pose in the lidar frame as a
+4 x 4 matrix, ``p_lidar = R p_body + t`` (the convention of ``/target/pose``).
+
+The registration is small_gicp's point-to-plane ICP. Its robust kernel is the
+truncated quadratic: a point whose nearest model point lies farther than the gate gets
+zero weight, so spurious returns and unmodelled structure cannot pull the estimate.
+The gates are annealed: a wide one captures from a rough guess, a tight one then
+ignores what is not on the target. ``PoseTracker`` adds the state of tracking: where
+each frame starts (by default the last pose with its position carried on at the last
+velocity: the roll of a body of revolution is weakly observed, and extrapolating it
+feeds its drift back as velocity) and loss detection.
+
+Pure numpy in and out; small_gicp objects stay inside ``TargetModel``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import small_gicp
+import trimesh
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.spatial.transform import Rotation
+
+
+class TrackerConfig(BaseModel):
+    """Registration settings (metres, counts). Defaults suit the 4 m x 10 m rocket body at 10 m."""
+
+    model_config = ConfigDict(extra='forbid', frozen=True)
+
+    model_spacing_m: Annotated[float, Field(gt=0)] = Field(
+        0.05, description='spacing of the model points sampled on the mesh (m)')
+    normal_neighbors: Annotated[int, Field(ge=5)] = Field(
+        10, description='model points per normal estimate')
+    scan_voxel_m: Annotated[float, Field(ge=0)] = Field(
+        0.15, description='voxel grid applied to each cloud before registration (m); 0 = all points')
+    capture_gates_m: list[Annotated[float, Field(gt=0)]] = Field(
+        [1.0, 0.3], min_length=1,
+        description='correspondence gates (m) used in turn when capturing from a guess, wide to tight')
+    tracking_gate_m: Annotated[float, Field(gt=0)] = Field(
+        0.3, description='correspondence gate (m) while tracking from the prediction')
+    prediction: Literal['translation', 'constant_velocity', 'previous_pose'] = Field(
+        'translation', description='where tracking starts each frame: the last pose with its '
+        'position extrapolated from the last two (translation), the whole pose extrapolated '
+        '(constant_velocity), or the last pose')
+    max_iterations: Annotated[int, Field(ge=1)] = Field(
+        10, description='ICP iterations per gate (more only slide further along a weakly observed roll)')
+    min_points: Annotated[int, Field(ge=6)] = Field(
+        30, description='fewest cloud points (after the voxel grid) for an estimate')
+    min_inlier_fraction: Annotated[float, Field(ge=0, le=1)] = Field(
+        0.5, description='share of the cloud points within the gate for the estimate to count')
+    num_threads: Annotated[int, Field(ge=1)] = 1
+    seed: int = Field(0, description='seed of the model surface sampling')
+
+
+# ------------------------------------------------------------------ poses
+def pose_matrix(position_m: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
+    """4 x 4 homogeneous transform from a position (m) and an xyzw unit quaternion."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(np.asarray(quat_xyzw, dtype=float)).as_matrix()
+    T[:3, 3] = np.asarray(position_m, dtype=float)
+    return T
+
+
+def pose_parts(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(position (3,) m, xyzw quaternion (4,) with w >= 0) of a 4 x 4 transform."""
+    quat = Rotation.from_matrix(T[:3, :3]).as_quat()
+    return T[:3, 3].copy(), quat if quat[3] >= 0 else -quat
+
+
+def predict_constant_velocity(T_prev: np.ndarray, t_prev_s: float, T_last: np.ndarray,
+                              t_last_s: float, t_next_s: float) -> np.ndarray:
+    """Carry the motion from T_prev (at t_prev_s) to T_last on to t_next_s.
+
+    Position moves linearly and the rotation keeps turning about the same lidar-frame
+    axis at the same rate: exact for a target drifting at constant velocity while
+    tumbling about a fixed axis (the scenario's motion model).
+    """
+    dt = t_last_s - t_prev_s
+    if dt <= 0:
+        return T_last.copy()
+    scale = (t_next_s - t_last_s) / dt
+    R_prev, R_last = T_prev[:3, :3], T_last[:3, :3]
+    turn = Rotation.from_matrix(R_last @ R_prev.T).as_rotvec()
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(scale * turn).as_matrix() @ R_last
+    T[:3, 3] = T_last[:3, 3] + scale * (T_last[:3, 3] - T_prev[:3, 3])
+    return T
+
+
+# ------------------------------------------------------------------ model
+@dataclass(frozen=True)
+class TargetModel:
+    """Model points (N, 3) and unit normals (N, 3) in the body frame (m), ready for registration."""
+
+    points_m: np.ndarray
+    normals: np.ndarray
+    cloud: Any  # small_gicp.PointCloud of points_m, normals estimated
+    tree: Any   # small_gicp.KdTree over cloud
+
+    def __len__(self) -> int:
+        return len(self.points_m)
+
+
+def build_model(vertices_m: np.ndarray, faces: np.ndarray,
+                config: TrackerConfig = TrackerConfig()) -> TargetModel:
+    """Sample the mesh surface evenly every ``model_spacing_m`` and estimate the normals there.
+
+    small_gicp takes no given normals, so they come from the model points' neighbours
+    (a plane fit over ``normal_neighbors`` points): the face normal on flat and gently
+    curved surfaces, a blend within a spacing or two of sharp edges.
+    """
+    mesh = trimesh.Trimesh(np.asarray(vertices_m, dtype=float), np.asarray(faces, dtype=np.int64),
+                           process=False)
+    if len(mesh.faces) == 0 or mesh.area <= 0:
+        raise ValueError('the target mesh has no surface to sample')
+    spacing = config.model_spacing_m
+    # Area-weighted random points, twice as many as a square grid of that spacing would
+    # hold: every point lies exactly on the surface (a voxel grid's centroids would not).
+    count = max(100, math.ceil(2.0 * mesh.area / spacing ** 2))
+    points, _ = trimesh.sample.sample_surface(mesh, count, seed=config.seed)
+    cloud = small_gicp.PointCloud(np.asarray(points, dtype=float))
+    tree = small_gicp.KdTree(cloud, num_threads=config.num_threads)
+    small_gicp.estimate_normals(cloud, tree, num_neighbors=config.normal_neighbors,
+                                num_threads=config.num_threads)
+    return TargetModel(cloud.points()[:, :3].copy(), cloud.normals()[:, :3].copy(), cloud, tree)
+
+
+# ------------------------------------------------------------ registration
+@dataclass(frozen=True)
+class Estimate:
+    """One registration: the body pose in the lidar frame and how well the cloud fitted.
+
+    points: cloud points used (after the voxel grid); inliers: those within the last
+    gate; iterations: ICP iterations over all gates.
+    """
+
+    pose: np.ndarray
+    points: int
+    inliers: int
+    iterations: int
+    converged: bool
+
+    @property
+    def inlier_fraction(self) -> float:
+        return self.inliers / self.points if self.points else 0.0
+
+    def acceptable(self, config: TrackerConfig) -> bool:
+        """Whether enough of the cloud lies on the model for the pose to be trusted."""
+        return self.points >= config.min_points and self.inlier_fraction >= config.min_inlier_fraction
+
+
+def register(model: TargetModel, xyz_m: np.ndarray, guess: np.ndarray, gates_m: list[float],
+             config: TrackerConfig = TrackerConfig()) -> Estimate:
+    """Align cloud points (N, 3) in the lidar frame to the model, from the pose ``guess`` (4 x 4).
+
+    Runs point-to-plane ICP once per gate in ``gates_m`` (m), each from the last result.
+    """
+    xyz = np.asarray(xyz_m, dtype=float).reshape(-1, 3)
+    xyz = xyz[np.isfinite(xyz).all(axis=1)]
+    source = small_gicp.PointCloud(xyz)
+    if config.scan_voxel_m > 0 and len(xyz):
+        source = small_gicp.voxelgrid_sampling(source, config.scan_voxel_m, config.num_threads)
+    n = source.size()
+    if n < config.min_points:
+        return Estimate(np.asarray(guess, dtype=float).copy(), n, 0, 0, False)
+    # small_gicp solves for T_target_source: the model (body) frame from the cloud (lidar) frame.
+    T_body_lidar = np.linalg.inv(guess)
+    iterations, result = 0, None
+    for gate in gates_m:
+        result = small_gicp.align(model.cloud, source, model.tree, init_T_target_source=T_body_lidar,
+                                  registration_type='PLANE_ICP', max_correspondence_distance=gate,
+                                  max_iterations=config.max_iterations, num_threads=config.num_threads)
+        T_body_lidar = result.T_target_source
+        iterations += result.iterations
+    return Estimate(np.linalg.inv(T_body_lidar), n, int(result.num_inliers), iterations,
+                    bool(result.converged))
+
+
+# ----------------------------------------------------------------- tracking
+class PoseTracker:
+    """Frame-to-frame tracking: capture from a guess, then predict (``config.prediction``)
+    and refine each frame.
+
+    ``update`` returns the frame's ``Estimate``; an unacceptable one (too few points
+    on the model) drops the track, and the next frame is captured again, from the
+    guess it is given or else from the last accepted pose.
+    """
+
+    def __init__(self, model: TargetModel, config: TrackerConfig = TrackerConfig()):
+        self.model, self.config = model, config
+        self._track: list[tuple[float, np.ndarray]] = []  # the last two accepted (t_s, pose)
+        self._last_good: np.ndarray | None = None
+
+    @property
+    def tracking(self) -> bool:
+        return bool(self._track)
+
+    def reset(self) -> None:
+        """Forget the track (e.g. the clock went back); the next update captures again."""
+        self._track = []
+
+    def update(self, t_s: float, xyz_m: np.ndarray, guess: np.ndarray | None = None) -> Estimate:
+        """Estimate the pose at ``t_s`` (s) from the cloud; ``guess`` (4 x 4) is used when not tracking."""
+        if self._track and t_s <= self._track[-1][0]:
+            self.reset()  # time went back: the motion model no longer applies
+        if self._track:
+            start = self._track[-1][1]
+            if len(self._track) == 2 and self.config.prediction != 'previous_pose':
+                (t0, T0), (t1, T1) = self._track
+                predicted = predict_constant_velocity(T0, t0, T1, t1, t_s)
+                if self.config.prediction == 'constant_velocity':
+                    start = predicted
+                else:  # 'translation': the position moves on, the attitude starts where it was
+                    start = start.copy()
+                    start[:3, 3] = predicted[:3, 3]
+            gates = [self.config.tracking_gate_m]
+        else:
+            start = guess if guess is not None else self._last_good
+            if start is None:
+                raise ValueError('no initial guess: the tracker needs one to capture the target')
+            gates = list(self.config.capture_gates_m)
+        estimate = register(self.model, xyz_m, start, gates, self.config)
+        if estimate.acceptable(self.config):
+            self._track = (self._track + [(t_s, estimate.pose)])[-2:]
+            self._last_good = estimate.pose
+        else:
+            self._track = []
+        return estimate

@@ -1,0 +1,78 @@
+"""Compile every cached numba kernel once, so that no node compiles at its first start.
+
+``make venv`` runs ``python -m lidar_sim_ros.warm_up`` after installing. numba writes
+the compiled kernels next to their sources (``__pycache__``, or ``NUMBA_CACHE_DIR``)
+and later processes load them in a fraction of a second instead of compiling for
+~10 s. The run exercises what the nodes run (a frame with interpolated and
+extrapolated poses, the pose player's trajectory), then checks that every cached
+kernel of the package has been compiled, so a new kernel the warm-up misses is
+reported rather than compiled at a node's first start.
+
+    python -m lidar_sim_ros.warm_up
+"""
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import sys
+import time
+
+import numpy as np
+
+import lidar_sim_ros
+from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.pipeline import Simulator
+from lidar_sim_ros.core.pose import ScenarioTrajectory
+from lidar_sim_ros.paths import config_path
+
+# Packages whose modules may hold kernels; the optional ones (ros, gnc) need extras.
+KERNEL_PACKAGES = ('lidar_sim_ros.core',)
+
+
+def cached_kernels() -> dict[str, object]:
+    """Every ``@njit(cache=True)`` dispatcher in KERNEL_PACKAGES, by qualified name.
+
+    Kernels inlined into their callers (``inline='always'``) are compiled with them and
+    left out.
+    """
+    from numba.core.caching import FunctionCache
+    from numba.core.registry import CPUDispatcher
+
+    found = {}
+    for pkg_name in KERNEL_PACKAGES:
+        pkg = importlib.import_module(pkg_name)
+        names = [pkg_name] + [m.name for m in pkgutil.walk_packages(pkg.__path__, pkg_name + '.')]
+        for name in names:
+            module = importlib.import_module(name)
+            for attr, obj in vars(module).items():
+                # numba keeps cache=True only as the dispatcher's cache object.
+                if (isinstance(obj, CPUDispatcher) and obj.__module__ == name
+                        and isinstance(obj._cache, FunctionCache)
+                        and obj.targetoptions.get('inline') != 'always'):
+                    found[f'{name}.{attr}'] = obj
+    return found
+
+
+def warm_up() -> list[str]:
+    """Run the kernels the nodes run; return the cached kernels still not compiled."""
+    scenario = load_scenario(config_path('scenario.yaml'))
+    Simulator.from_scenario(scenario).warm_up()
+    ScenarioTrajectory.from_config(scenario.config).at(np.zeros(1))
+    return sorted(name for name, kernel in cached_kernels().items() if not kernel.signatures)
+
+
+def main() -> int:
+    t0 = time.perf_counter()
+    missing = warm_up()
+    kernels = cached_kernels()
+    if missing:
+        print(f'warm-up: error: kernels not compiled by the warm-up: {missing}; add a call that '
+              f'runs them to {__name__}.warm_up', file=sys.stderr)
+        return 1
+    print(f'warm-up: {len(kernels)} numba kernels of {lidar_sim_ros.__name__} compiled or loaded '
+          f'from the cache in {time.perf_counter() - t0:.1f} s')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
