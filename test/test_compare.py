@@ -25,7 +25,8 @@ from lidar_sim_ros.compare.matching import Model, match
 from lidar_sim_ros.compare.measurements import load_measurements
 from lidar_sim_ros.compare.run import CompareOptions, run_compare
 from lidar_sim_ros.core.config import EffectConfig, load_scenario
-from lidar_sim_ros.core.effects import evaluate, get_effect_class, make_effect
+from lidar_sim_ros.compare.likelihood import evaluate
+from lidar_sim_ros.core.effects import get_effect_class, make_effect
 from lidar_sim_ros.core.geometry import load_target
 
 from datasets import REPO, make_dataset

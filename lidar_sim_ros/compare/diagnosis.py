@@ -1,6 +1,6 @@
 """Which effect is missing: fit the catalogue, score each on held-out points, decide.
 
-Every candidate is fitted by maximum likelihood (``fitting.fit_effect``; for effects
+Every candidate is fitted by maximum likelihood (``compare.fit.fit_effect``; for effects
 with discrete options, e.g. a footprint's range mode, each option is fitted and the
 best kept). The likelihood profiles each material's range offset and sigma scale
 (nuisance parameters), so a per-material calibration mismatch cannot pose as an
@@ -34,6 +34,9 @@ from typing import Callable, Literal, get_args, get_origin
 import numpy as np
 from pydantic import create_model
 
+from lidar_sim_ros.compare import likelihood as lk
+from lidar_sim_ros.compare.fit import fit_effect
+from lidar_sim_ros.compare.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
 from lidar_sim_ros.compare.matching import Model, predict_rays
 from lidar_sim_ros.compare.materials import robust_sigma
 from lidar_sim_ros.compare.measurements import Measurements
@@ -51,12 +54,6 @@ MIN_FAR_SHARE = 0.5         # ... and this share of the spurious matched returns
 MIN_UNMATCHED_EXPLAINED = 20   # unmatched points explained count only from this many ...
 MIN_UNMATCHED_FRACTION = 0.002  # ... and this share of all points (grazing rays aside)
 N_FOLDS = 2
-
-
-def fitting_module():
-    """The effect-fitting machinery (core/effects/fitting.py), imported when needed."""
-    from lidar_sim_ros.core.effects import fitting
-    return fitting
 
 
 @dataclass(frozen=True)
@@ -94,7 +91,6 @@ def range_window_m(meas: Measurements) -> tuple[float, float]:
 def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet):
     """FitData for ``rays``: the baseline is the model with ``base_effects``;
     ``predict(effects)`` adds ``effects`` on top of them."""
-    fitting = fitting_module()
     meas = rays.meas
     m_sub, u_sub = meas.subset(rays.matched), meas.subset(rays.unmatched)
 
@@ -104,7 +100,7 @@ def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet):
         return predict
 
     predict = predictor(m_sub)
-    return fitting.FitData(
+    return lk.FitData(
         measured_range_m=m_sub.range_m, baseline=predict([]),
         measured_intensity=m_sub.intensity, predict=predict,
         unmatched_range_m=u_sub.range_m, predict_unmatched=predictor(u_sub),
@@ -117,9 +113,8 @@ def calibrated_figures(data, effects: list[Effect]) -> tuple[float, float, float
     under baseline + ``effects``, each material's range offset and sigma scale profiled
     out: the "calibrated" basis, i.e. what a ``--fit`` run (materials refit) reports.
     The robust sigma (MAD) of the same residuals is not swayed by far outliers."""
-    fitting = fitting_module()
-    model = fitting.model_on_rays(data, effects)
-    nll, residual = fitting.point_nll(data, model)
+    model = lk.model_on_rays(data, effects)
+    nll, residual = lk.point_nll(data, model)
     if len(nll) == 0:
         return float('nan'), float('nan'), float('nan')
     use = model.placed & np.isfinite(residual)
@@ -127,19 +122,11 @@ def calibrated_figures(data, effects: list[Effect]) -> tuple[float, float, float
     return float(np.mean(nll)), float(np.sqrt(np.mean(residual ** 2))), robust
 
 
-def is_outlier_effect(effect_cls: type[Effect]) -> bool:
-    """Whether the effect adds spurious returns (judged by the likelihood and the robust
-    spread, not by a plain RMSE that its far outliers dominate)."""
-    return (effect_cls.outlier_fraction is not Effect.outlier_fraction
-            or effect_cls.false_returns is not Effect.false_returns)
-
-
 def heldout_nll(data, effects: list[Effect]) -> np.ndarray:
     """Per-point NLL (nats) of ``data``'s matched ranges under baseline + ``effects``:
     the fitting likelihood (per-material nuisance profiled) with an outlier floor."""
-    fitting = fitting_module()
-    model = fitting.model_on_rays(data, effects)
-    return fitting.point_nll(data, model, OUTLIER_FLOOR)[0]
+    model = lk.model_on_rays(data, effects)
+    return lk.point_nll(data, model, OUTLIER_FLOOR)[0]
 
 
 def literal_choices(effect_cls: type[Effect]) -> dict[str, tuple]:
@@ -178,10 +165,9 @@ def variants(effect_cls: type[Effect], fixed: dict | None = None,
 
 def fit_best_variant(effect_cls: type[Effect], data, fixed: dict | None = None):
     """ML fit over the free parameters and the discrete options: (FitResult, variant class)."""
-    fitting = fitting_module()
     best = None
     for v in variants(effect_cls, fixed):
-        fit = fitting.fit_effect(v, data)
+        fit = fit_effect(v, data)
         if best is None or fit.nll_per_point < best[0].nll_per_point - 1e-9:
             best = (fit, v)
     return best
@@ -248,13 +234,12 @@ class Diagnosis:
         self.n_total = len(rays.matched) + len(rays.unmatched)
         self._base_nll = [heldout_nll(d, []) for d in self.fold_data]
         self.n_far = int(far_from_surface(self.full).sum())
-        self._base_outlier_w = float(np.mean(fitting_module().model_on_rays(
+        self._base_outlier_w = float(np.mean(lk.model_on_rays(
             self.full, []).outlier_w)) if len(self.rays.matched) else 0.0
         self.frame_time_spread_s = frame_time_spread_s
 
     def score(self, effect_cls: type[Effect]) -> Candidate:
         """Fit on all points (reported params) and cross-fitted on halves (the score)."""
-        fitting = fitting_module()
         name = getattr(effect_cls, 'name', '') or effect_cls.__name__
         cand = Candidate(name)
         try:
@@ -271,10 +256,10 @@ class Diagnosis:
             gains, explained = [], 0.0
             for k, train in enumerate(self.fold_data):
                 test = self.fold_data[(k + 1) % N_FOLDS]
-                effect_k = fitting.fit_effect(variant, train).effect
+                effect_k = fit_effect(variant, train).effect
                 gains.append(self._base_nll[(k + 1) % N_FOLDS] - heldout_nll(test, [effect_k]))
                 if len(test.unmatched_range_m):
-                    _, _, u = fitting.evaluate(test, [effect_k])
+                    _, _, u = lk.evaluate(test, [effect_k])
                     explained += u * len(test.unmatched_range_m)
             d = np.concatenate(gains)
             d = d[np.isfinite(d)]
@@ -298,13 +283,12 @@ class Diagnosis:
 
     def _veto(self, cand: Candidate, unmatched_explained: float) -> str | None:
         """Why a candidate with a gain cannot be the missing effect (module doc), or None."""
-        fitting = fitting_module()
         eff = cand.effect
         if eff is None or not len(self.rays.matched):
             return None
         spurious = 0.0
         if type(eff).outlier_fraction is not Effect.outlier_fraction:   # adds false returns
-            w = float(np.mean(fitting.model_on_rays(self.full, [eff]).outlier_w))
+            w = float(np.mean(lk.model_on_rays(self.full, [eff]).outlier_w))
             spurious = max(w - self._base_outlier_w, 0.0) * len(self.rays.matched)
         if spurious >= 1.0:
             cand.far_points = float(self.n_far + unmatched_explained)
@@ -330,12 +314,11 @@ class Diagnosis:
 def far_from_surface(data) -> np.ndarray:
     """Matched points far beyond the noise: |residual| > max(FAR_MIN_M, FAR_SIGMAS sigma),
     residual and sigma after the per-material nuisance (offset, sigma scale)."""
-    fitting = fitting_module()
-    model = fitting.model_on_rays(data, [])
+    model = lk.model_on_rays(data, [])
     r = np.asarray(data.measured_range_m, float) - model.expected_range_m
-    sigma = np.maximum(model.sigma_m, fitting.MIN_SIGMA_M)
+    sigma = np.maximum(model.sigma_m, lk.MIN_SIGMA_M)
     use = model.placed & np.isfinite(r)
-    offset, scale = fitting.material_nuisance(
+    offset, scale = lk.material_nuisance(
         r, sigma, np.asarray(data.baseline.ctx.material, int), use)
     with np.errstate(invalid='ignore'):
         return use & (np.abs(r - offset) > np.maximum(FAR_MIN_M, FAR_SIGMAS * sigma * scale))

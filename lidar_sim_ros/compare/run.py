@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare import diagnosis, features, history, materials as mat
+from lidar_sim_ros.compare import diagnosis, features, history, likelihood as lk, materials as mat
 from lidar_sim_ros.compare.matching import Matching, Model, match
 from lidar_sim_ros.compare.measurements import (Measurements, load_measurements,
                                                  with_scan_times)
@@ -123,18 +123,17 @@ def run_compare(opts: CompareOptions) -> CompareResult:
             f'{opts.mesh}: check the mesh, the pose topic {opts.pose_topic!r} (target body '
             f'pose in the lidar frame) and that the clouds are in the lidar frame')
     pred, sel = matching.pred, matching.matched
-    fitting = diagnosis.fitting_module()
     everything = diagnosis.make_fit_data(model, effects, rays)
     # Headline: the model (materials as configured, or refit with --fit). Calibrated:
     # each material's offset and sigma scale profiled out (what --fit delivers); the
     # candidates' "after" figures are on this basis too.
-    nll, rmse, _ = fitting.evaluate(everything, [], profile_materials=False)
+    nll, rmse, _ = lk.evaluate(everything, [], profile_materials=False)
     cal_nll, cal_rmse, cal_robust = diagnosis.calibrated_figures(everything, [])
 
     # Where the residual depends, model-free, once the material offsets are removed.
     res = matching.residual_m[sel]
     sigma = np.maximum(pred.sigma_m[sel], 1e-6)
-    offset, scale = fitting.material_nuisance(res, sigma, np.asarray(pred.ctx.material[sel], int),
+    offset, scale = lk.material_nuisance(res, sigma, np.asarray(pred.ctx.material[sel], int),
                                               np.isfinite(res))
     res = res - offset
     feats = features.score_features(features.feature_values(matching), res,
