@@ -120,9 +120,9 @@ def handmade_data(residual_m, sigma_m, window=(0.0, 100.0)) -> FitData:
     hits = Hits(np.ones(n, bool), rng, np.zeros((n, 3)), np.zeros(n), np.zeros(n, int),
                 np.zeros(n, int))
     pred = Prediction(ctx, hits, np.tile([1.0, 0, 0], (n, 1)), np.zeros(n), np.full(n, sigma_m))
-    return FitData(measured_range_m=rng + residual_m, baseline=pred, measured_intensity=None,
-                   predict=lambda e: pred, unmatched_range_m=np.zeros(0),
-                   predict_unmatched=lambda e: pred, range_window_m=window)
+    return FitData(measured_range_m=rng + residual_m, baseline=pred, cast=lambda e: pred,
+                   unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
+                   range_window_m=window)
 
 
 def test_nll_is_the_gaussian_and_outlier_mixture():
@@ -160,7 +160,7 @@ def test_fit_data_splits_matched_and_unmatched_rays():
     assert len(data.measured_range_m) > 3000
     assert len(data.unmatched_range_m) > 50                 # returns beyond the silhouettes
     assert data.baseline.ctx.hit.all()
-    assert not data.predict_unmatched([]).ctx.hit.any()
+    assert not data.cast_unmatched([]).ctx.hit.any()
     assert data.n_shots == len(model_sim().shots)
 
 

@@ -28,8 +28,8 @@ per-point times must exceed the spread of the unknown point times within a frame
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
-from typing import Callable, Literal, get_args, get_origin
+from dataclasses import dataclass, field, replace
+from typing import Literal, get_args, get_origin
 
 import numpy as np
 from pydantic import create_model
@@ -41,6 +41,7 @@ from lidar_sim_ros.compare.matching import Model, predict_rays
 from lidar_sim_ros.compare.materials import robust_sigma
 from lidar_sim_ros.compare.measurements import Measurements
 from lidar_sim_ros.core.effects import Effect
+from lidar_sim_ros.core.geometry import Hits
 from lidar_sim_ros.core.pipeline import Prediction
 
 OUTLIER_FLOOR = 1e-5        # outlier weight every held-out likelihood carries (robustness)
@@ -58,11 +59,21 @@ N_FOLDS = 2
 
 @dataclass(frozen=True)
 class RaySet:
-    """Measured points split into matched and unmatched rays, as index arrays."""
+    """Measured points split into matched and unmatched rays, as index arrays into
+    ``meas``, with what the comparison knows about every point (arrays over ``meas``):
+    the model's geometry prediction (``pred``: raycast, reflection and per-material
+    bias/sigma with the model's ray-moving effects, no effect hooks), the received power
+    from the measured intensity, and any variance the model adds (unknown point times)."""
 
     meas: Measurements
     matched: np.ndarray
     unmatched: np.ndarray
+    pred: Prediction | None = None
+    measured_power_w: np.ndarray | None = None
+    extra_var_m2: np.ndarray | None = None
+
+    def _with(self, matched: np.ndarray, unmatched: np.ndarray) -> 'RaySet':
+        return replace(self, matched=matched, unmatched=unmatched)
 
     def sample(self, max_points: int, seed: int) -> 'RaySet':
         """At most ``max_points`` matched and as many unmatched rays, drawn at random."""
@@ -70,14 +81,24 @@ class RaySet:
 
         def pick(idx: np.ndarray) -> np.ndarray:
             return idx if len(idx) <= max_points else np.sort(rng.choice(idx, max_points, False))
-        return RaySet(self.meas, pick(self.matched), pick(self.unmatched))
+        return self._with(pick(self.matched), pick(self.unmatched))
 
     def split(self, n_folds: int, seed: int) -> list['RaySet']:
         rng = np.random.default_rng(seed)
         fm = rng.permutation(len(self.matched)) % n_folds
         fu = rng.permutation(len(self.unmatched)) % n_folds
-        return [RaySet(self.meas, np.sort(self.matched[fm == k]), np.sort(self.unmatched[fu == k]))
+        return [self._with(np.sort(self.matched[fm == k]), np.sort(self.unmatched[fu == k]))
                 for k in range(n_folds)]
+
+
+def take_prediction(pred: Prediction, index: np.ndarray) -> Prediction:
+    """The prediction on a subset of its rays (integer indices or a mask)."""
+    h = pred.hits
+    hits = Hits(*(None if v is None else v[index] for v in (
+        h.hit, h.range_m, h.normal, h.incidence_rad, h.material, h.face, h.power_fraction,
+        h.cos_incidence)))
+    return Prediction(pred.ctx.subset(index), hits, pred.directions[index], pred.bias_m[index],
+                      pred.sigma_m[index])
 
 
 def range_window_m(meas: Measurements) -> tuple[float, float]:
@@ -88,24 +109,29 @@ def range_window_m(meas: Measurements) -> tuple[float, float]:
     return lo, hi
 
 
-def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet):
-    """FitData for ``rays``: the baseline is the model with ``base_effects``;
-    ``predict(effects)`` adds ``effects`` on top of them."""
+def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet) -> lk.FitData:
+    """FitData for ``rays``: the model with ``base_effects`` (their hooks applied by the
+    likelihood); ``cast(effects)`` re-predicts the rays with extra ray-moving effects.
+    The baseline is sliced from ``rays.pred`` when given (it must have been predicted
+    with the ray geometry of ``base_effects``), else predicted here."""
     meas = rays.meas
     m_sub, u_sub = meas.subset(rays.matched), meas.subset(rays.unmatched)
 
-    def predictor(sub: Measurements) -> Callable[[list[Effect]], Prediction]:
-        def predict(effects: list[Effect]) -> Prediction:
-            return predict_rays(model.simulator(effects=list(base_effects) + list(effects)), sub)
-        return predict
+    def caster(sub: Measurements) -> lk.PredictionCache:
+        def cast(effects: list[Effect]) -> Prediction:
+            return predict_rays(model.simulator(effects=[lk.RaysOnly(e) for e in effects]), sub)
+        return lk.PredictionCache(cast)
 
-    predict = predictor(m_sub)
+    cast = caster(m_sub)
+    baseline = (take_prediction(rays.pred, rays.matched) if rays.pred is not None
+                else cast(lk.moving(base_effects)))
+    power = None if rays.measured_power_w is None else rays.measured_power_w[rays.matched]
+    extra = 0.0 if rays.extra_var_m2 is None else rays.extra_var_m2[rays.matched]
     return lk.FitData(
-        measured_range_m=m_sub.range_m, baseline=predict([]),
-        measured_intensity=m_sub.intensity, predict=predict,
-        unmatched_range_m=u_sub.range_m, predict_unmatched=predictor(u_sub),
-        range_window_m=range_window_m(meas), n_shots=None,
-        baseline_effects=tuple(base_effects))
+        measured_range_m=m_sub.range_m, baseline=baseline, cast=cast,
+        unmatched_range_m=u_sub.range_m, cast_unmatched=caster(u_sub),
+        range_window_m=range_window_m(meas), base_effects=tuple(base_effects),
+        measured_power_w=power, extra_var_m2=extra)
 
 
 def calibrated_figures(data, effects: list[Effect]) -> tuple[float, float, float]:

@@ -33,8 +33,9 @@ from pydantic import ValidationError
 from scipy.optimize import minimize_scalar
 
 from lidar_sim_ros.compare.likelihood import (MIN_SIGMA_M, ROBUST_FLOOR, FitData, ModelOnRays,
-                                              _groups, is_outlier_effect, material_nuisance,
-                                              model_on_rays, objective, scores)
+                                              PredictionCache, RaysOnly, _groups,
+                                              is_outlier_effect, material_nuisance,
+                                              model_on_rays, moving, objective, scores)
 from lidar_sim_ros.core.effects.base import Effect
 from lidar_sim_ros.core.pipeline import Simulator
 
@@ -324,22 +325,26 @@ def _centre(v: np.ndarray, group: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- building FitData
-def with_effects(sim: Simulator, effects: Sequence[Effect]) -> Simulator:
-    """A shallow copy of ``sim`` with extra effects appended (shares target and scan)."""
+def geometry_simulator(sim: Simulator, effects: Sequence[Effect]) -> Simulator:
+    """A shallow copy of ``sim`` (shares target and scan) whose only effects are the ray
+    geometry of ``effects`` (``RaysOnly``): its predictions carry the per-material bias
+    and sigma, and the likelihood applies every effect's hooks itself."""
     out = copy.copy(sim)
-    out.effects = [*sim.effects, *effects]
+    out.effects = [RaysOnly(e) for e in moving(effects)]
     return out
 
 
 def fit_data_from_rays(sim: Simulator, t_abs_s: np.ndarray, directions: np.ndarray,
                        measured_range_m: np.ndarray, pose_source, t_frame_s=None,
-                       laser=None, measured_intensity=None, n_shots: int | None = None,
+                       laser=None, measured_power_w=None, n_shots: int | None = None,
                        range_window_m: tuple[float, float] | None = None) -> FitData:
     """FitData for measured points (absolute times, lidar-frame directions, ranges).
 
-    Points whose ray hits the target under ``sim`` are matched, the others
-    unmatched; ``predict`` / ``predict_unmatched`` re-run ``sim`` with extra effects.
-    The range window defaults to the sensor's range gate.
+    The model is ``sim`` with its effects (``base_effects``). Points whose ray hits the
+    target under it are matched, the others unmatched; ``cast`` / ``cast_unmatched``
+    re-run it with extra ray-moving effects. ``measured_power_w`` (optional, per point):
+    the received power the sensor measured, read by power-driven effects. The range
+    window defaults to the sensor's range gate.
     """
     t_abs_s = np.asarray(t_abs_s, float)
     directions = np.asarray(directions, float)
@@ -347,21 +352,22 @@ def fit_data_from_rays(sim: Simulator, t_abs_s: np.ndarray, directions: np.ndarr
     n = len(t_abs_s)
     t_frame = np.zeros(n) if t_frame_s is None else np.asarray(t_frame_s, float)
     laser = np.zeros(n, np.uint16) if laser is None else np.asarray(laser)
-    first = sim.predict(t_abs_s, directions, pose_source, t_frame, laser=laser)
-    matched = np.asarray(first.ctx.hit, bool)
+    base = list(sim.effects)
 
     def predictor(mask):
         def run(effects):
-            return with_effects(sim, effects).predict(
+            return geometry_simulator(sim, effects).predict(
                 t_abs_s[mask], directions[mask], pose_source, t_frame[mask], laser=laser[mask])
         return run
 
-    predict, predict_unmatched = predictor(matched), predictor(~matched)
+    everything = np.ones(n, bool)
+    matched = np.asarray(predictor(everything)(base).ctx.hit, bool)
+    cast = PredictionCache(predictor(matched))
     det = sim.sensor.detection
     window = range_window_m or (det.min_range_m, det.max_range_m)
-    intensity = None if measured_intensity is None else np.asarray(measured_intensity)[matched]
-    return FitData(measured_range_m=measured_range_m[matched], baseline=predict([]),
-                   measured_intensity=intensity, predict=predict,
-                   unmatched_range_m=measured_range_m[~matched],
-                   predict_unmatched=predict_unmatched, range_window_m=tuple(window),
-                   n_shots=n_shots)
+    power = None if measured_power_w is None else np.asarray(measured_power_w, float)[matched]
+    return FitData(measured_range_m=measured_range_m[matched], baseline=cast(moving(base)),
+                   cast=cast, unmatched_range_m=measured_range_m[~matched],
+                   cast_unmatched=PredictionCache(predictor(~matched)),
+                   range_window_m=tuple(window), base_effects=tuple(base),
+                   measured_power_w=power, n_shots=n_shots)

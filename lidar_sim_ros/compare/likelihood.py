@@ -29,7 +29,7 @@ maximise it are in ``compare/fit.py``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -52,31 +52,81 @@ _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 class FitData:
     """Ray-matched measurement vs model, the input of every fit.
 
-    Matched = the measured point's ray hits the target.
+    Matched = the measured point's ray hits the target (under the model's geometry).
 
-    ``baseline`` is the model WITHOUT the effects being evaluated: every effect passed
-    to :func:`evaluate` / :func:`fit_effect` (``base_effects`` and the candidate) is
-    applied on top of it, through its hooks on ``baseline.ctx`` or, if one of them
-    ``needs_repredict``, through ``predict(effects)``. ``baseline_effects`` (optional)
-    lists effects already inside ``baseline`` whose ``outlier_fraction`` the likelihood
-    must still count (a Prediction carries bias and sigma, not outlier weights).
+    ``baseline`` is the raycast, reflection and per-material bias/sigma on the matched
+    rays, with the ray-moving effects of ``base_effects`` (pose time, cast) in its
+    geometry but NO effect's bias, noise, power or outlier hooks: every effect, those
+    of ``base_effects`` and the candidates, acts through its hooks in
+    :func:`model_on_rays`, so that power-driven effects can read the measured power.
+    ``cast(effects)`` re-predicts the same rays with these ray-moving effects (hooks
+    not applied; results cached).
     """
 
     measured_range_m: np.ndarray          # (N,) matched points' measured ranges
-    baseline: Prediction                # the model on those rays with NO candidate effect
-    measured_intensity: np.ndarray | None  # (N,) in sensor units, or None
-    # Simulator.predict on the SAME matched rays with these effects added:
-    predict: Callable[[list[Effect]], Prediction]
+    baseline: Prediction                  # the model's geometry on those rays (class doc)
+    cast: Callable[[list[Effect]], Prediction]   # the same rays, these ray-moving effects
     unmatched_range_m: np.ndarray         # (M,) ranges of points whose rays miss the target
-    predict_unmatched: Callable[[list[Effect]], Prediction]  # same for the unmatched rays
+    cast_unmatched: Callable[[list[Effect]], Prediction]   # same for the unmatched rays
     range_window_m: tuple[float, float]   # support of spurious-return ranges (min, max)
+    base_effects: tuple[Effect, ...] = ()   # the model's effects, applied through their hooks
+    # (N,) received power (W, model units) from the measured intensity, NaN where unknown;
+    # power-driven effects read it instead of the model's power (None: model power).
+    measured_power_w: np.ndarray | None = None
+    extra_var_m2: np.ndarray | float = 0.0   # (N,) variance the model adds (unknown point times)
     n_shots: int | None = None            # shots fired if known (else None)
-    baseline_effects: tuple[Effect, ...] = ()   # inside baseline; for their outlier_fraction
 
     @property
     def window_width_m(self) -> float:
         lo, hi = self.range_window_m
         return max(float(hi) - float(lo), 1e-3)
+
+
+class RaysOnly(Effect):
+    """An effect's ray geometry only (``pose_time_s``, ``cast``) for ``Simulator.predict``:
+    its bias, noise, power and outlier hooks are applied by the likelihood instead."""
+
+    name = 'rays_only'
+    needs_repredict = True
+
+    def __init__(self, effect: Effect):   # no Params of its own
+        self.inner = effect
+        self.params = effect.params
+
+    def pose_time_s(self, t_s: np.ndarray) -> np.ndarray:
+        return self.inner.pose_time_s(t_s)
+
+    def cast(self, target, directions_lidar, poses, divergence_rad):
+        return self.inner.cast(target, directions_lidar, poses, divergence_rad)
+
+
+def moving(effects: Sequence[Effect]) -> list[Effect]:
+    """The effects that change the pose time or the raycast."""
+    return [e for e in effects if getattr(e, 'needs_repredict', False)]
+
+
+def effect_key(effects: Sequence[Effect]) -> tuple:
+    """A hashable identity of a list of effects (class and parameter values)."""
+    return tuple((type(e).__module__, type(e).__qualname__,
+                  tuple(sorted((k, repr(v)) for k, v in e.params.model_dump().items())))
+                 for e in effects)
+
+
+class PredictionCache:
+    """``predict(effects)`` memoised by the effects' classes and parameters: a fit that
+    re-visits a trial value (grid, Brent, final scoring) pays one raycast for it."""
+
+    def __init__(self, predict: Callable[[list[Effect]], Prediction], size: int = 24):
+        self._predict, self._size = predict, size
+        self._memo: dict[tuple, Prediction] = {}
+
+    def __call__(self, effects: Sequence[Effect]) -> Prediction:
+        key = effect_key(effects)
+        if key not in self._memo:
+            if len(self._memo) >= self._size:
+                self._memo.pop(next(iter(self._memo)))
+            self._memo[key] = self._predict(list(effects))
+        return self._memo[key]
 
 
 # ----------------------------------------------------------------- the model on rays
@@ -100,24 +150,59 @@ def _outlier_weight(effects: Sequence[Effect], ctx: ReturnContext, n: int) -> np
 
 
 def needs_repredict(effects: Sequence[Effect]) -> bool:
-    return any(getattr(e, 'needs_repredict', False) for e in effects)
+    return bool(moving(effects))
+
+
+def apply_hooks(pred: Prediction, effects: Sequence[Effect],
+                measured_power_w: np.ndarray | None = None,
+                extra_var_m2: np.ndarray | float = 0.0) -> tuple[ReturnContext, np.ndarray,
+                                                                   np.ndarray]:
+    """(ctx, expected range m, sigma m) of ``pred`` with the effects' hooks applied.
+
+    Power-driven effects (``Effect.power_driven``) read ``measured_power_w`` where it is
+    known (the sensor's own measure of the pulse that made the point), the others the
+    model's power; ``extra_var_m2`` adds to every point's variance.
+    """
+    effects = list(effects)
+    driven = ([e for e in effects if getattr(e, 'power_driven', False)]
+              if measured_power_w is not None else [])
+    rest = [e for e in effects if not any(e is d for d in driven)]
+    var0 = np.asarray(pred.sigma_m, float) ** 2 + extra_var_m2
+    ctx, bias, var = apply_effects(pred.ctx, rest, pred.bias_m, var0)
+    if driven:
+        model_p = np.asarray(ctx.power_w, float)
+        known = np.isfinite(measured_power_w) & (measured_power_w > 0) & (model_p > 0)
+        power = np.where(known, measured_power_w, model_p)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            intensity = np.where(model_p > 0, ctx.intensity * power / model_p, ctx.intensity)
+        measured_ctx = replace(ctx, power_w=power, intensity=intensity)
+        _, bias, var = apply_effects(measured_ctx, driven, bias, var)
+    expected = np.where(np.asarray(ctx.hit, bool), ctx.range_m + bias, np.nan)
+    return ctx, np.asarray(expected, float), np.sqrt(np.asarray(var, float))
 
 
 def model_on_rays(data: FitData, effects: Sequence[Effect]) -> ModelOnRays:
-    """The baseline plus ``effects`` on the matched rays (re-predicted if an effect needs it)."""
+    """The model's effects plus ``effects`` on the matched rays (re-cast if one of
+    ``effects`` moves the rays; every hook applied here)."""
     effects = list(effects)
+    everything = [*data.base_effects, *effects]
     n = len(data.measured_range_m)
-    if needs_repredict(effects):
-        pred = data.predict(effects)
-        ctx, expected, sigma = pred.ctx, pred.expected_range_m, pred.sigma_m
-    else:
-        base = data.baseline
-        ctx, bias, var = apply_effects(base.ctx, effects, base.bias_m, np.asarray(base.sigma_m) ** 2)
-        expected = ctx.range_m + bias
-        sigma = np.sqrt(var)
+    pred = data.cast(moving(everything)) if moving(effects) else data.baseline
+    ctx, expected, sigma = apply_hooks(pred, everything, data.measured_power_w,
+                                       data.extra_var_m2)
     placed = np.asarray(ctx.hit, bool) & np.isfinite(expected) & np.isfinite(sigma)
-    w = _outlier_weight([*data.baseline_effects, *effects], ctx, n)
-    return ModelOnRays(ctx, np.asarray(expected, float), np.asarray(sigma, float), w, placed)
+    w = _outlier_weight(everything, ctx, n)
+    return ModelOnRays(ctx, expected, sigma, w, placed)
+
+
+def recast_unmatched(data: FitData, effects: Sequence[Effect]):
+    """(ctx, expected range, sigma) of the unmatched rays under the model's effects plus
+    ``effects`` (which move the rays), or None if none of ``effects`` moves them."""
+    effects = list(effects)
+    if not moving(effects) or len(data.unmatched_range_m) == 0:
+        return None
+    everything = [*data.base_effects, *effects]
+    return apply_hooks(data.cast_unmatched(moving(everything)), everything)
 
 
 # --------------------------------------------------------------------- likelihood
@@ -226,13 +311,13 @@ def unmatched_explained(data: FitData, effects: Sequence[Effect],
     if m == 0:
         return 0.0
     hit_now = np.zeros(m, bool)
-    if needs_repredict(effects):
-        pu = data.predict_unmatched(effects)
-        sig = np.maximum(np.nan_to_num(pu.sigma_m, nan=np.inf), MIN_SIGMA_M)
+    recast = recast_unmatched(data, effects)
+    if recast is not None:
+        ctx, expected, sigma = recast
+        sig = np.maximum(np.nan_to_num(sigma, nan=np.inf), MIN_SIGMA_M)
         with np.errstate(invalid='ignore'):
-            hit_now = (np.asarray(pu.ctx.hit, bool)
-                       & (pu.ctx.power_w >= pu.ctx.threshold_power_w)
-                       & (np.abs(r_u - pu.expected_range_m) <= UNMATCHED_Z * sig))
+            hit_now = (np.asarray(ctx.hit, bool) & (ctx.power_w >= ctx.threshold_power_w)
+                       & (np.abs(r_u - expected) <= UNMATCHED_Z * sig))
     rest = r_u[~hit_now]
     if model is None:
         model = model_on_rays(data, effects)
@@ -289,15 +374,16 @@ def objective(data: FitData, effects: Sequence[Effect], floor: float = ROBUST_FL
         return total
     width = data.window_width_m
     ll_u = np.full(m, math.log(max(floor, MISS_WEIGHT) / width))
-    if needs_repredict(effects):
-        try:
-            pu = data.predict_unmatched(effects)
-        except PoseCoverageError:
-            return math.inf
-        sig = np.maximum(np.nan_to_num(pu.sigma_m, nan=1.0), MIN_SIGMA_M)
-        ok = np.asarray(pu.ctx.hit, bool) & (pu.ctx.power_w >= pu.ctx.threshold_power_w)
+    try:
+        recast = recast_unmatched(data, effects)
+    except PoseCoverageError:
+        return math.inf
+    if recast is not None:
+        ctx, expected, sigma = recast
+        sig = np.maximum(np.nan_to_num(sigma, nan=1.0), MIN_SIGMA_M)
+        ok = np.asarray(ctx.hit, bool) & (ctx.power_w >= ctx.threshold_power_w)
         with np.errstate(invalid='ignore', over='ignore'):
-            z = (np.asarray(data.unmatched_range_m) - pu.expected_range_m) / sig
+            z = (np.asarray(data.unmatched_range_m) - expected) / sig
             log_in = math.log1p(-floor) - 0.5 * z * z - np.log(sig) - _LOG_SQRT_2PI
             ll_u = np.where(ok & np.isfinite(z), np.logaddexp(log_in, ll_u), ll_u)
     return total - float(np.sum(ll_u))

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from lidar_sim_ros.compare import diagnosis, features, history, likelihood as lk, materials as mat
+from lidar_sim_ros.compare.intensity import IntensityCalibration, calibrate_intensity
 from lidar_sim_ros.compare.matching import Matching, Model, match
 from lidar_sim_ros.compare.measurements import (Measurements, load_measurements,
                                                  with_scan_times)
@@ -59,12 +60,8 @@ class CompareResult:
     lines: list[str]
 
 
-def _rays(m: Matching) -> diagnosis.RaySet:
-    return diagnosis.RaySet(m.meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched))
-
-
 def fit_user_effects(model: Model, base: list[Effect], user: list[Effect],
-                     meas: Measurements) -> list[Effect]:
+                     meas: Measurements, power: PowerFromIntensity) -> list[Effect]:
     """ML-fit each user effect in turn on top of the base and the previously fitted ones.
 
     The likelihood profiles each material's offset and sigma scale, so a constant
@@ -76,11 +73,44 @@ def fit_user_effects(model: Model, base: list[Effect], user: list[Effect],
         # Parameters the user gave (e.g. beam_divergence={range_mode: first}) stay fixed.
         fixed = {k: v for k, v in eff.params.model_dump(exclude_unset=True).items()
                  if k not in cls.bounds}
-        m = match(model.simulator(effects=base + done), meas, model.divergence_rad, edges=False)
-        data = diagnosis.make_fit_data(model, base + done, _rays(m))
+        m = match(geometry(model, base + done), meas, model.divergence_rad, edges=False)
+        rays = rays_of(m, power(m))
+        data = diagnosis.make_fit_data(model, base + done, rays.sample(DIAGNOSIS_MAX_MATCHED, 0))
         fit, _ = diagnosis.fit_best_variant(cls, data, fixed)
         done.append(diagnosis.plain(cls, fit.effect))
     return done
+
+
+def geometry(model: Model, effects: list[Effect]):
+    """The simulator that casts the model's rays: the ray geometry of ``effects`` only
+    (pose time, footprint); their hooks are applied by the likelihood."""
+    return model.simulator(effects=[lk.RaysOnly(e) for e in lk.moving(effects)])
+
+
+def rays_of(m: Matching, measured_power_w: np.ndarray | None) -> diagnosis.RaySet:
+    return diagnosis.RaySet(m.meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
+                            pred=m.pred, measured_power_w=measured_power_w)
+
+
+class PowerFromIntensity:
+    """Received power from the measured intensity (``compare/intensity.py``), calibrated
+    once against the model's power; None for recordings without (usable) intensity."""
+
+    def __init__(self) -> None:
+        self.calibration: IntensityCalibration | None = None
+        self.done = False
+
+    def __call__(self, m: Matching) -> np.ndarray | None:
+        if m.meas.intensity is None:
+            return None
+        if not self.done:
+            sel = m.matched
+            self.calibration = calibrate_intensity(m.meas.intensity[sel], m.meas.range_m[sel],
+                                                   m.pred.ctx.power_w[sel])
+            self.done = True
+        if self.calibration is None or not self.calibration.usable:
+            return None
+        return self.calibration.power_w(m.meas.intensity, m.meas.range_m)
 
 
 def run_compare(opts: CompareOptions) -> CompareResult:
@@ -95,35 +125,39 @@ def run_compare(opts: CompareOptions) -> CompareResult:
                   scenario.source.parent if scenario.source else None)
 
     meas = with_scan_times(meas, model.simulator().shots)
+    power = PowerFromIntensity()
 
     fitted: list[Effect] = []
     if opts.fit and user:
-        user = fitted = fit_user_effects(model, scenario_effects, user, meas)
+        user = fitted = fit_user_effects(model, scenario_effects, user, meas, power)
     effects = scenario_effects + user
     notes = list(meas.notes) + _material_name_notes(meas, scenario)
     if opts.fit and not user:
         notes.append('--fit without --effect: nothing to fit')
 
     # Predict every measured ray; per-material bias/sigma as measured vs configured.
-    matching = match(model.simulator(effects=effects), meas, model.divergence_rad,
-                     edges=not opts.fit)
-    stats = mat.material_stats(model.materials, matching.pred, matching.residual_m,
-                               matching.matched)
+    matching = match(geometry(model, effects), meas, model.divergence_rad, edges=not opts.fit)
+    rays = rays_of(matching, power(matching))
+    pred, sel = matching.pred, matching.matched
+    residual, sigma = model_residuals(diagnosis.make_fit_data(model, effects, rays), rays)
+    stats = mat.material_stats(model.materials, replace(pred, sigma_m=sigma), residual, sel)
     refit = mat.refit_materials(model.materials, stats)
-    configured = matching
+    configured = replace(matching, residual_m=residual)
     if opts.fit:
         # --fit estimates the model's free parameters: the effects' and, as in the
         # paper's Table 2 calibration, each material's range bias and sigma.
         model = replace(model, materials=refit)
-        matching = match(model.simulator(effects=effects), meas, model.divergence_rad)
-    rays = _rays(matching)
+        matching = match(geometry(model, effects), meas, model.divergence_rad)
+        rays = rays_of(matching, rays.measured_power_w)
+        pred = matching.pred
     if len(rays.matched) < 10:
         raise ValueError(
             f'only {len(rays.matched)} of {len(meas)} measured rays hit the target mesh '
             f'{opts.mesh}: check the mesh, the pose topic {opts.pose_topic!r} (target body '
             f'pose in the lidar frame) and that the clouds are in the lidar frame')
-    pred, sel = matching.pred, matching.matched
     everything = diagnosis.make_fit_data(model, effects, rays)
+    residual, sigma = model_residuals(everything, rays)
+    matching = replace(matching, residual_m=residual)
     # Headline: the model (materials as configured, or refit with --fit). Calibrated:
     # each material's offset and sigma scale profiled out (what --fit delivers); the
     # candidates' "after" figures are on this basis too.
@@ -131,13 +165,13 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     cal_nll, cal_rmse, cal_robust = diagnosis.calibrated_figures(everything, [])
 
     # Where the residual depends, model-free, once the material offsets are removed.
-    res = matching.residual_m[sel]
-    sigma = np.maximum(pred.sigma_m[sel], 1e-6)
-    offset, scale = lk.material_nuisance(res, sigma, np.asarray(pred.ctx.material[sel], int),
-                                              np.isfinite(res))
+    res = residual[sel]
+    sig = np.maximum(sigma[sel], 1e-6)
+    offset, scale = lk.material_nuisance(res, sig, np.asarray(pred.ctx.material[sel], int),
+                                         np.isfinite(res))
     res = res - offset
     feats = features.score_features(features.feature_values(matching), res,
-                                    res / (sigma * scale), opts.seed)
+                                    res / (sig * scale), opts.seed)
 
     # Which effect is missing.
     in_model = {e.name for e in effects}
@@ -169,7 +203,10 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         'range_robust_sigma_calibrated_m': float(cal_robust),
         'materials_refit': bool(opts.fit),
         'range_residual_robust_sigma_m': mat.robust_sigma(res),
-        'intensity_gain': _intensity_gain(meas, pred, sel),
+        'intensity_gain': (power.calibration.as_dict() if power.calibration is not None
+                           else None),
+        'power_driven_effects_use': ('measured intensity' if rays.measured_power_w is not None
+                                     else 'model power'),
         'materials': {s.name: s.as_dict() for s in stats},
         'features': [f.as_dict() for f in feats],
         'candidates': [c.as_dict() for c in cands],
@@ -200,6 +237,18 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         files += write_report(opts.out, summary, matching, configured, res, stats, feats,
                               cands, runs, model)
     return CompareResult(summary, opts.out, files, fitted, summary_lines(summary, files))
+
+
+def model_residuals(data: lk.FitData, rays: diagnosis.RaySet) -> tuple[np.ndarray, np.ndarray]:
+    """Measured minus expected range (m) and predicted sigma (m) of every measured point
+    under the model with its effects (NaN where unmatched)."""
+    n = len(rays.meas)
+    model = lk.model_on_rays(data, [])
+    residual = np.full(n, np.nan)
+    sigma = np.full(n, np.nan)
+    residual[rays.matched] = data.measured_range_m - model.expected_range_m
+    sigma[rays.matched] = model.sigma_m
+    return residual, sigma
 
 
 def frame_time_spread_s(meas: Measurements, scenario: Scenario) -> float | None:
@@ -244,22 +293,6 @@ def _material_name_notes(meas: Measurements, scenario: Scenario) -> list[str]:
         return []
     return [f'bag material names {names} differ from the materials config '
             f'{scenario.materials.names}: the model uses the config and the mesh groups']
-
-
-def _intensity_gain(meas: Measurements, pred, sel: np.ndarray) -> dict | None:
-    """Measured intensity vs model intensity up to one global gain (robust, in log)."""
-    if meas.intensity is None:
-        return None
-    mi, pi = meas.intensity[sel], pred.ctx.intensity[sel]
-    ok = np.isfinite(mi) & (mi > 0) & np.isfinite(pi) & (pi > 0)
-    if ok.sum() < 10:
-        return None
-    d = np.log(mi[ok]) - np.log(pi[ok])
-    g = float(np.median(d))
-    spread = mat.robust_sigma(d)
-    corr = float(np.corrcoef(np.log(mi[ok]), np.log(pi[ok]))[0, 1])
-    return {'gain': float(np.exp(g)), 'log_residual_robust_sigma': spread,
-            'log_correlation': corr}
 
 
 def _unmatched_summary(m: Matching, divergence_rad: float) -> dict:
