@@ -24,6 +24,7 @@ import argparse
 import contextlib
 import io
 import json
+import shutil
 import sys
 import tempfile
 import time
@@ -113,6 +114,7 @@ def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
 def run_one(spec: ForeignSpec, root: Path, report: bool) -> dict:
     """Generate one dataset, walk the loop, distil it into a result row."""
     t0 = time.perf_counter()
+    shutil.rmtree(root / spec.name, ignore_errors=True)
     ds = generate(spec, root / spec.name)
     t_gen = time.perf_counter() - t0
     steps = walk_loop(spec, ds, root / spec.name, report)

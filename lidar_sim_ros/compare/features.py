@@ -131,7 +131,7 @@ class Attribution:
 
 
 def feature_values(matching, intensity_model: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Per matched point: the eight feature values (see UNITS)."""
+    """Per matched point: the feature values (see UNITS); range_rate if the matching has it."""
     m = matching.meas
     sel = matching.matched
     ctx = matching.pred.ctx
@@ -151,6 +151,8 @@ def feature_values(matching, intensity_model: np.ndarray | None = None) -> dict[
         'azimuth': az, 'elevation': el, 'time': time,
         'material': np.asarray(ctx.material[sel], int),
         'edge': np.round(matching.edge_rad[sel] * 1e3, 4),
+        **({'range_rate': np.asarray(matching.range_rate_mps[sel], float)}
+           if getattr(matching, 'range_rate_mps', None) is not None else {}),
     }
 
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import Callable, Sequence
 
 import numpy as np
@@ -75,11 +76,27 @@ class FitData:
     measured_power_w: np.ndarray | None = None
     extra_var_m2: np.ndarray | float = 0.0   # (N,) variance the model adds (unknown point times)
     n_shots: int | None = None            # shots fired if known (else None)
+    # (M,) unmatched points no neighbouring ray sees at the same range: only these can be
+    # spurious returns (a surface that is not the target, e.g. lab clutter, is not).
+    unmatched_isolated: np.ndarray | None = None
 
     @property
     def window_width_m(self) -> float:
         lo, hi = self.range_window_m
         return max(float(hi) - float(lo), 1e-3)
+
+    @cached_property
+    def members(self) -> list[tuple[int, np.ndarray]]:
+        """(material id, indices of its matched points), computed once."""
+        return group_members(np.asarray(self.baseline.ctx.material, int))
+
+
+def group_members(group: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """(value, indices) of every distinct value of ``group``."""
+    order = np.argsort(group, kind='stable')
+    values, starts = np.unique(group[order], return_index=True)
+    bounds = np.append(starts, len(group))
+    return [(int(v), order[bounds[k]:bounds[k + 1]]) for k, v in enumerate(values)]
 
 
 class RaysOnly(Effect):
@@ -211,25 +228,26 @@ def _groups(data: FitData) -> np.ndarray:
 
 
 def material_nuisance(residual_m: np.ndarray, sigma_m: np.ndarray, group: np.ndarray,
-                      use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                      use: np.ndarray, members: list | None = None) -> tuple[np.ndarray,
+                                                                            np.ndarray]:
     """Per-point offset c_m (m) and sigma scale s_m (-) of each point's material.
 
     c_m = median residual, s_m^2 = median((r - c_m)^2 / sigma^2) / median(chi2_1), over
     the material's usable points; materials with fewer than MIN_MATERIAL_POINTS keep
-    (0, 1). Medians keep spurious points from moving either.
+    (0, 1). Medians keep spurious points from moving either. ``members``: the groups'
+    point indices, if known (``group_members``).
     """
     offset = np.zeros(len(residual_m))
     scale = np.ones(len(residual_m))
-    for g in np.unique(group[use]):
-        member = group == g
-        sel = member & use
-        if sel.sum() < MIN_MATERIAL_POINTS:
+    for _, idx in (members if members is not None else group_members(np.asarray(group))):
+        sel = idx[use[idx]]
+        if len(sel) < MIN_MATERIAL_POINTS:
             continue
         c = float(np.median(residual_m[sel]))
         z2 = ((residual_m[sel] - c) / sigma_m[sel]) ** 2
         s = math.sqrt(max(float(np.median(z2)) / CHI2_1_MEDIAN, 1e-6))
-        offset[member] = c
-        scale[member] = s
+        offset[idx] = c
+        scale[idx] = s
     return offset, scale
 
 
@@ -248,7 +266,7 @@ def point_nll(data: FitData, model: ModelOnRays, floor: float = 0.0,
     sigma = np.maximum(np.where(placed, model.sigma_m, MIN_SIGMA_M), MIN_SIGMA_M)
     use = placed & np.isfinite(residual)
     if profile_materials:
-        offset, scale = material_nuisance(residual, sigma, _groups(data), use)
+        offset, scale = material_nuisance(residual, sigma, _groups(data), use, data.members)
         residual = residual - offset
         sigma = sigma * scale
     w = 1.0 - (1.0 - model.outlier_w) * (1.0 - max(floor, MODEL_FLOOR))
@@ -302,7 +320,7 @@ def unmatched_explained(data: FitData, effects: Sequence[Effect],
     Two ways: a re-predicted ray now hits the target with a detectable power and a
     range within UNMATCHED_Z sigma (beam divergence, time offset); or spurious
     returns on shots that miss the target (outlier fraction x missed shots, at most
-    the share of unmatched ranges that look uniform over the window). Missed shots
+    the share of the isolated unmatched ranges that look uniform over the window). Missed shots
     are ``n_shots - N`` when ``n_shots`` is known, else assumed to be N.
     """
     effects = list(effects)
@@ -318,7 +336,8 @@ def unmatched_explained(data: FitData, effects: Sequence[Effect],
         with np.errstate(invalid='ignore'):
             hit_now = (np.asarray(ctx.hit, bool) & (ctx.power_w >= ctx.threshold_power_w)
                        & (np.abs(r_u - expected) <= UNMATCHED_Z * sig))
-    rest = r_u[~hit_now]
+    rest = r_u[~hit_now & (True if data.unmatched_isolated is None
+                           else np.asarray(data.unmatched_isolated, bool))]
     if model is None:
         model = model_on_rays(data, effects)
     w_mean = float(np.mean(model.outlier_w)) if len(model.outlier_w) else 0.0

@@ -121,6 +121,12 @@ class Effect:
         """Replace the single-ray raycast (e.g. sample the beam footprint). None = default."""
         return None
 
+    def cast_reach_rad(self, divergence_rad: float) -> float | None:
+        """How far (rad) from its axis a ``cast`` override looks: rays farther than this
+        from any silhouette or depth step return as with the single-ray cast. None =
+        any ray may change (the default; the comparison then re-casts every ray)."""
+        return None
+
     def power_scale(self, ctx: ReturnContext) -> np.ndarray | float:
         """Multiplier on received power (-)."""
         return 1.0

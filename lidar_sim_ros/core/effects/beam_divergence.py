@@ -71,6 +71,10 @@ class BeamDivergence(Effect):
         rings: int = Field(2, ge=1, le=5, description='sub-ray rings (K = 1 + 3 rings (rings + 1))')
         range_mode: Literal['mean', 'first'] = 'mean'
 
+    def cast_reach_rad(self, divergence_rad: float) -> float:
+        """Half-angle of the cone (rad): rays farther from an edge see one plane only."""
+        return 0.5 * self.params.footprint_scale * divergence_rad
+
     def cast(self, target, directions_lidar: np.ndarray, poses,
              divergence_rad: float) -> Hits | None:
         half_angle = 0.5 * self.params.footprint_scale * divergence_rad
