@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= demo-output
 
-.PHONY: venv demo demo-offline test bench bench-node clean
+.PHONY: venv demo demo-offline test bench bench-node bench-compare clean
 
 venv: $(STAMP)
 
@@ -34,5 +34,9 @@ bench: $(STAMP)
 bench-node: $(STAMP)
 	$(BIN)/python bench/bench_node.py --out bench_node.json
 
+## lidar-sim compare on a 12-frame and a one-minute recording: seconds per stage, peak RSS.
+bench-compare: $(STAMP)
+	$(BIN)/python bench/bench_compare.py --out bench_compare.json --data bench_compare_data
+
 clean:
-	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json
+	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_compare.json bench_compare_data

@@ -107,9 +107,9 @@ class Attribution:
     structure_gain: held-out nats per point the joint model of all features gains over
     a constant mean and spread (what a perfect catalogue effect could at most explain
     through these features), structure_z its block-robust z. driver: the feature that
-    explains most given the others, if it does so significantly and holds most of the
-    structure; confounded: features that each explain the residual alone but not given
-    the others (they stand in for each other in this recording).
+    explains most given the others, significantly, with no other adding half as much;
+    confounded: when no feature explains the structure given the others, those that
+    explain it alone (they stand in for each other in this recording).
     """
 
     features: list[FeatureScore]
@@ -241,16 +241,15 @@ def attribute(values: dict[str, np.ndarray], residual_m: np.ndarray, z: np.ndarr
     driver = None
     confounded: list[str] = []
     if structure:
-        if explains and explains[0].score >= 0.5 * gain:
+        second = explains[1].score if len(explains) > 1 else 0.0
+        if explains and second < 0.5 * explains[0].score:
+            # It explains the residual given all the others, and no other feature adds
+            # half as much given the rest: the driver.
             driver = explains[0].name
-        else:
-            # The structure is there but no feature holds most of it on its own: the
+        elif not explains:
+            # The structure is there but no feature holds any of it on its own: the
             # features that explain it alone stand in for each other.
-            confounded = [n for n in alone if n not in {f.name for f in explains[:1]}][:4]
-            if explains:
-                confounded = [explains[0].name] + confounded[:3]
-            if len(confounded) < 2:
-                confounded = []
+            confounded = alone[:4] if len(alone) >= 2 else []
     return Attribution(feats, float(gain), float(gain_z), z_crit, driver, confounded,
                        cond['per_point'])
 
