@@ -19,7 +19,8 @@ from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.core.config import (EffectConfig, MaterialsConfig, SensorConfig, parse)
 from lidar_sim_ros.compare.fit import fit_data_from_rays, fit_effect
-from lidar_sim_ros.compare.likelihood import FitData, evaluate, model_on_rays, point_nll
+from lidar_sim_ros.compare.likelihood import (MISS_WEIGHT, MODEL_FLOOR, FitData, evaluate,
+                                              model_on_rays, point_nll)
 from lidar_sim_ros.core.effects import catalogue, get_effect_class, make_effect
 from lidar_sim_ros.core.geometry import Hits, Target
 from lidar_sim_ros.core.pipeline import Prediction, Simulator
@@ -130,7 +131,7 @@ def test_nll_is_the_gaussian_and_outlier_mixture():
     sigma = 0.03
     data = handmade_data(z * sigma, sigma)
     gauss = 0.5 * z ** 2 + np.log(sigma) + 0.5 * np.log(2 * np.pi)
-    floor = 1e-6                                    # fitting.MODEL_FLOOR
+    floor = MODEL_FLOOR                 # the least outlier weight of the predictive density
     mixed = (1 - floor) * np.exp(-gauss) + floor / 100.0
     nll, rmse, _ = evaluate(data, [], profile_materials=False)
     assert nll == pytest.approx(np.mean(-np.log(mixed)), rel=1e-12)
@@ -268,4 +269,5 @@ def test_unplaced_points_score_as_spurious_returns():
     assert 0 < (~model.placed).sum() < len(model.placed)
     nll, _ = point_nll(data, model)
     assert np.all(np.isfinite(nll))
-    assert nll[~model.placed] == pytest.approx(-np.log(1e-3 / data.window_width_m))
+    # An unplaced point is a spurious return of weight MISS_WEIGHT, uniform over the window.
+    assert nll[~model.placed] == pytest.approx(-np.log(MISS_WEIGHT / data.window_width_m))

@@ -10,7 +10,7 @@ intensity, converted to received power in the model's units (W) by
     ln P = f(ln I) + c (ln r - mean ln r)
 
 f: a monotone increasing map (isotonic regression of the model's ln P on ln I over
-quantile bins, linear between bin centres, flat outside), fitted to the model's own
+quantile bins, linear between bin centres and out to the extreme points), fitted to the model's own
 predicted power on the matched points (robustly: bin medians); c: 0 for an
 intensity that grows with the received power, -2 for a range-compensated
 reflectivity (proportional to P r^2), whichever explains the model's power better. For a sensor whose intensity is
@@ -132,5 +132,15 @@ def _monotone_map(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     by = np.array([np.median(y[order[bounds[b]:bounds[b + 1]]]) for b in keep])
     if len(bx) == 1:
         return np.array([bx[0] - 1.0, bx[0] + 1.0]), np.array([by[0], by[0]])
-    fy = IsotonicRegression(increasing=True).fit_transform(bx, by, sample_weight=counts[keep])
-    return bx, np.asarray(fy, float)
+    fy = np.asarray(IsotonicRegression(increasing=True).fit_transform(
+        bx, by, sample_weight=counts[keep]), float)
+    # The outermost points lie beyond the end bins' medians: continue the end slopes
+    # out to them (flat beyond).
+    lo_slope = (fy[1] - fy[0]) / max(bx[1] - bx[0], 1e-12)
+    hi_slope = (fy[-1] - fy[-2]) / max(bx[-1] - bx[-2], 1e-12)
+    x_lo, x_hi = float(x.min()), float(x.max())
+    if x_lo < bx[0]:
+        bx, fy = np.append(x_lo, bx), np.append(fy[0] - lo_slope * (bx[0] - x_lo), fy)
+    if x_hi > bx[-1]:
+        bx, fy = np.append(bx, x_hi), np.append(fy, fy[-1] + hi_slope * (x_hi - bx[-1]))
+    return bx, fy
