@@ -366,21 +366,17 @@ class Diagnosis:
             self.full, []).outlier_w)) if len(self.rays.matched) else 0.0
 
     def score(self, effect_cls: type[Effect]) -> Candidate:
-        """Fit on all points (reported params) and cross-fitted on halves (the score)."""
+        """Cross-fitted on halves (the score): fitted on one half, scored on the other,
+        both ways; the discrete options are chosen on the first half. ``finalize`` then
+        fits the candidates that count on all the points (their reported figures)."""
         name = getattr(effect_cls, 'name', '') or effect_cls.__name__
         cand = Candidate(name)
         t0 = time.perf_counter()
         try:
-            fit, variant = fit_best_variant(effect_cls, self.full)
-            options = {k: getattr(fit.effect.params, k) for k in literal_choices(effect_cls)}
-            cand.params = {**{k: float(v) for k, v in fit.params.items()}, **options}
-            cand.range_rmse_after_m, cand.nll_after = fit.range_rmse_m, fit.nll_per_point
-            cand.unmatched_explained = fit.unmatched_explained
-            cand.n_params = fit.n_params
-            cand.effect = plain(effect_cls, fit.effect)
+            first, variant = fit_best_variant(effect_cls, self.fold_data[0])
+            self._describe(cand, effect_cls, first)
             cand.variant = variant
-            cand.yaml = _snippet(cand.effect)
-            nll, explained = self.cross_fit(variant, [])
+            nll, explained = self.cross_fit(variant, [], first=first.effect)
             self._set_gain(cand, nll, explained)
             cand.vetoed = self._veto(cand, explained)
         except Exception as exc:  # noqa: BLE001 - one failing candidate must not stop the rest
@@ -389,13 +385,37 @@ class Diagnosis:
         cand.seconds = time.perf_counter() - t0
         return cand
 
-    def cross_fit(self, variant: type[Effect], on_top: list[Effect]) -> tuple[np.ndarray, float]:
+    def finalize(self, cand: Candidate) -> None:
+        """Fit the candidate on all the diagnosed points: the parameters, snippet and
+        "after" figures the summary reports (what --effect NAME --fit would show)."""
+        if cand.variant is None or cand.error is not None:
+            return
+        t0 = time.perf_counter()
+        effect_cls = type(cand.effect)
+        fit = fit_effect(cand.variant, self.full)
+        self._describe(cand, effect_cls, fit)
+        cand.nll_after, cand.range_rmse_after_m, cand.range_robust_sigma_after_m = \
+            calibrated_figures(self.full, [cand.effect])
+        cand.seconds += time.perf_counter() - t0
+
+    def _describe(self, cand: Candidate, effect_cls: type[Effect], fit) -> None:
+        options = {k: getattr(fit.effect.params, k) for k in literal_choices(effect_cls)}
+        cand.params = {**{k: float(v) for k, v in fit.params.items()}, **options}
+        cand.unmatched_explained = fit.unmatched_explained
+        cand.n_params = fit.n_params
+        cand.effect = plain(effect_cls, fit.effect)
+        cand.yaml = _snippet(cand.effect)
+
+    def cross_fit(self, variant: type[Effect], on_top: list[Effect],
+                  first: Effect | None = None) -> tuple[np.ndarray, float]:
         """Held-out per-point NLL (test sides concatenated) of the model with ``on_top``
-        plus ``variant`` fitted on the other fold, and the unmatched points it explains."""
+        plus ``variant`` fitted on the other fold, and the unmatched points it explains.
+        ``first``: the fit on fold 0, if already made."""
         nll, explained = [], 0.0
         for k, train in enumerate(self.fold_data):
             test = self.fold_data[(k + 1) % N_FOLDS]
-            effect_k = fit_effect(variant, train, on_top).effect
+            effect_k = first if (k == 0 and first is not None) else \
+                fit_effect(variant, train, on_top).effect
             nll.append(heldout_nll(test, [*on_top, effect_k]))
             if len(test.unmatched_range_m):
                 explained += lk.unmatched_explained(test, [*on_top, effect_k]) \

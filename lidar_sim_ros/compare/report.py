@@ -27,6 +27,7 @@ FEATURE_LABELS = {'range': 'range (m)', 'incidence': 'incidence angle (deg)',
                   'elevation': 'elevation (deg)', 'time': 'time since cloud stamp (s)',
                   'material': 'material', 'edge': 'distance to edge (mrad)'}
 MAX_SCATTER = 4000
+MAX_TARGET_POINTS = 8000
 
 
 def _png(fig) -> bytes:
@@ -89,6 +90,10 @@ def target_figure(matching, residual_m: np.ndarray) -> bytes:
     pts = meas.directions * np.where(sel, matching.pred.ctx.range_m, meas.range_m)[:, None]
     body = poses.to_body(pts)
     hit = body[sel]
+    residual_m = np.asarray(residual_m)
+    if len(hit) > MAX_TARGET_POINTS:      # a scatter of more points shows nothing more
+        pick = np.sort(np.random.default_rng(1).choice(len(hit), MAX_TARGET_POINTS, False))
+        hit, residual_m = hit[pick], residual_m[pick]
     extent = np.ptp(hit, axis=0) if len(hit) else np.ones(3)
     long_axis = int(np.argmax(extent))
     others = [i for i in range(3) if i != long_axis]
@@ -182,7 +187,7 @@ def scene_figure(matching, divergence_rad: float, isolated: np.ndarray | None) -
     fig, ax = plt.subplots(figsize=(10, 4.2))
     rng = np.random.default_rng(0)
     show = np.flatnonzero(on)
-    show = show if len(show) <= 3 * MAX_SCATTER else rng.choice(show, 3 * MAX_SCATTER, False)
+    show = show if len(show) <= MAX_SCATTER else rng.choice(show, MAX_SCATTER, False)
     ax.plot(az[show], el[show], '.', ms=1.5, color='0.7', label='on the target model')
     for mask, color, label in ((near, 'tab:blue', 'unmatched, near the silhouette'),
                                (clutter, 'tab:orange', 'unmatched, clutter surface'),

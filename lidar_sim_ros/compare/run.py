@@ -43,7 +43,10 @@ from lidar_sim_ros.paths import config_path
 DEFAULT_MAX_POINTS = 300_000
 # Candidate fits re-run the raycast many times: a random subset of this many matched
 # points (and as many unmatched) keeps them fast with ample statistical power.
-DIAGNOSIS_MAX_MATCHED = 20_000
+DIAGNOSIS_MAX_MATCHED = 12_000
+# Candidates fitted on all the diagnosed points (reported parameters and "after"
+# figures): the best few; the others report their fit on half of the points.
+FINALIZED = 3
 SILHOUETTE_NEAR_DIVERGENCES = 2.0
 
 
@@ -288,10 +291,9 @@ def run_compare(opts: CompareOptions) -> CompareResult:
                 diag.share_veto(c, attribution)
             cands = diagnosis.rank(cands)
             decision = diag.decide(cands)
-            for c in cands:
-                if c.effect is not None:   # what a run with --effect NAME --fit would show
-                    c.nll_after, c.range_rmse_after_m, c.range_robust_sigma_after_m = \
-                        diagnosis.calibrated_figures(diag.full, [c.effect])
+            for c in cands[:FINALIZED]:
+                if c.significant or c is cands[0]:
+                    diag.finalize(c)      # what a run with --effect NAME --fit would show
             before = diagnosis.calibrated_figures(diag.full, [])
     else:
         before = (cal_nll, cal_rmse, cal_robust)
