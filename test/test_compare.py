@@ -221,7 +221,8 @@ def test_cli_loop_report_snippet_and_history(datasets, root, capsys):
     assert summary['unmatched']['points'] > 0
     report = (loop / 'run1' / 'report.html').read_text()
     pngs = report.split('src="data:image/png;base64,')[1:]
-    assert len(pngs) == 6          # candidates, features, materials, target, unmatched, history
+    # candidates, features, materials, target, unmatched, scene (clutter painted), history
+    assert len(pngs) == 7
     for png in pngs:
         image = imread(io.BytesIO(base64.b64decode(png.split('"', 1)[0])), format='png')
         assert image.shape[0] > 100 and image.shape[1] > 100
