@@ -23,6 +23,13 @@ from foreign_sim import ForeignSpec
 from lidar_sim_ros.cli import main
 
 MAX_STEPS = 4
+# An effect matters when it is worth this many nats per point (docs/compare.md: an RMS
+# change of the expected range of 10 % of sigma, 0.5 x 0.1^2); a hidden effect the
+# generator says is worth less (ForeignDataset.truth['effect_gain_nats']) is expected
+# to give null, like noise. Within BORDERLINE of the margin (what the held-out estimate
+# of a gain can miss by on a few frames) either answer is right.
+PRACTICAL_NATS = 0.005
+BORDERLINE = (0.7, 1.5)
 
 
 def compare_once(ds, out: Path, history: Path, effects: list[str], report: bool) -> dict:
@@ -65,18 +72,24 @@ def walk_loop(spec: ForeignSpec, ds, root: Path, report: bool) -> list[dict]:
 
 def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
     """Right or wrong, and why, from the loop's summaries."""
-    expected = list(spec.expected_effects)
+    worth = truth.get('effect_gain_nats', {})
+    expected = [n for n in spec.expected_effects
+                if worth.get(n, 1.0) >= BORDERLINE[1] * PRACTICAL_NATS]
+    either = [n for n in spec.expected_effects if n not in expected
+              and worth.get(n, 1.0) >= BORDERLINE[0] * PRACTICAL_NATS]
     if any('error' in s for s in steps):
         return {'ok': False, 'why': 'error: ' + steps[-1]['error'][-300:]}
     named = [s.get('missing_effect') for s in steps]
     found = [n for n in named if n is not None]
     first = steps[0]
     why = []
-    if sorted(found) != sorted(expected) or len(set(found)) != len(found):
-        why.append(f'named {found}, expected {expected}')
+    core = [n for n in found if n not in either]
+    if sorted(core) != sorted(expected) or len(set(found)) != len(found):
+        why.append(f'named {found}, expected {expected}'
+                   + (f' (either way: {either})' if either else ''))
     if named[-1] is not None:
         why.append(f'loop ended naming {named[-1]}')
-    if len(steps) > len(expected) + 1:
+    if len(steps) > len(expected) + len(either) + 1:
         why.append('too many steps')
     ties = [s.get('confounded_with') for s in steps if s.get('confounded_with')]
     nll = [s.get('nll_calibrated') for s in steps]

@@ -589,16 +589,23 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
         power = power * rng.gamma(m, 1.0 / m, len(d))
     r_hit = np.where(hit, true_r, 0.0)
     on_target = hit & (mat >= 0) & (mat < CLUTTER)
+    base_sigma = np.sqrt(var)
+    contrib: dict[str, tuple[np.ndarray, np.ndarray]] = {}   # effect -> (bias, extra var)
     for eff, p in spec.hidden:
+        b, v = np.zeros(len(d)), np.zeros(len(d))
         if eff == 'range_walk':
-            bias += np.where(hit, range_walk_bias_m(power, sensor, p), 0.0)
+            b = np.where(hit, range_walk_bias_m(power, sensor, p), 0.0)
         elif eff == 'incidence_angle':
-            bias += np.where(on_target, incidence_bias_m(cos_i, p), 0.0)
-            var += np.where(on_target, incidence_sigma_m(r_hit, cos_i, sensor, p) ** 2, 0.0)
+            b = np.where(on_target, incidence_bias_m(cos_i, p), 0.0)
+            v = np.where(on_target, incidence_sigma_m(r_hit, cos_i, sensor, p) ** 2, 0.0)
         elif eff == 'snr_noise':
-            var += np.where(hit, snr_sigma_m(power, p) ** 2, 0.0)
+            v = np.where(hit, snr_sigma_m(power, p) ** 2, 0.0)
         elif eff == 'azimuth_bias':
-            bias += np.where(hit, azimuth_bias_m(az, p), 0.0)
+            b = np.where(hit, azimuth_bias_m(az, p), 0.0)
+        else:
+            continue
+        bias, var = bias + b, var + v
+        contrib[eff] = (b, v)
     measured = r_hit + bias + np.sqrt(var) * unit_noise(spec.noise, len(d), rng)
     detected = hit & (power >= sensor.threshold_power_w)
     solar = spec.params_of('solar_background')
@@ -614,7 +621,30 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     i = np.flatnonzero(detected)
     return {'xyz_m': d[i] * measured[i, None], 'power_w': power[i], 't_s': t[i],
             'range_m': measured[i], 'true_range_m': r_hit[i], 'material': mat[i],
-            'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid}
+            'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid,
+            'base_sigma_m': base_sigma[i],
+            'effects': {k: (b[i], v[i]) for k, (b, v) in contrib.items()}}
+
+
+def effect_gain_nats(frames: list[dict], name: str) -> float:
+    """What a bias/noise effect is worth, nats per target point: the expected
+    log-likelihood gain of the true model over one without the effect whose
+    per-material offset and sigma are refit (0.5 d^2 / var for the bias d about its
+    material mean, plus the Gaussian KL of the variance about the material's mean)."""
+    mat = np.concatenate([f['material'] for f in frames])
+    sig2 = np.concatenate([f['base_sigma_m'] for f in frames]) ** 2
+    b = np.concatenate([f['effects'][name][0] for f in frames])
+    v = np.concatenate([f['effects'][name][1] for f in frames])
+    gain = []
+    for k in range(len(MATERIALS)):
+        sel = mat == k
+        if sel.sum() < 30:
+            continue
+        total = sig2[sel] + v[sel]
+        ratio = total / np.mean(total)
+        d = b[sel] - np.mean(b[sel])
+        gain.append(0.5 * d ** 2 / total + 0.5 * (ratio - 1.0 - np.log(ratio)))
+    return float(np.mean(np.concatenate(gain))) if gain else 0.0
 
 
 def unit_noise(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -749,6 +779,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
     offset = spec.params_of('time_offset')
     dt_s = float(offset.get('dt_s', 0.05)) if offset is not None else 0.0
     n_points = n_clutter = n_false = 0
+    kept: list[dict] = []
     bag = out / 'bag'
     with BagWriter(bag, storage=spec.storage) as writer:
         span = spec.frames * period
@@ -772,11 +803,14 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
             write_cloud(writer, rec, EPOCH_NS + int(round(stamp_s * NS_PER_S)),
                         frame['grid'] if spec.organized else None)
             n_points += len(frame['range_m'])
+            kept.append({k: frame[k] for k in ('material', 'base_sigma_m', 'effects')})
             n_clutter += int(np.sum(frame['material'] == CLUTTER))
             n_false += int(np.sum(frame['material'] < 0))
     truth = {'hidden': [[n, p] for n, p in spec.hidden], 'time_offset_s': dt_s,
              'material_errors_m': {k: [round(b, 5), round(s, 5)] for k, (b, s) in errors.items()},
              'distance_m': spec.distance_m,
+             'effect_gain_nats': {n: round(effect_gain_nats(kept, n), 5)
+                                  for n in kept[0]['effects']} if kept else {},
              'clutter_fraction': n_clutter / max(n_points, 1),
              'false_return_fraction': n_false / max(n_points, 1)}
     scen = write_compare_scenario(out / 'scenario.yaml', mesh, traj)

@@ -232,7 +232,7 @@ def attribute(values: dict[str, np.ndarray], residual_m: np.ndarray, z: np.ndarr
         unique, unique_z = cond['unique'].get(name, (0.0, 0.0))
         feats.append(replace(f, score=float(max(unique, 0.0)), score_z=float(unique_z),
                              marginal=f.score))
-    feats.sort(key=lambda f: (-(f.score if f.score_z >= z_crit else 0.0), -f.marginal))
+    feats.sort(key=lambda f: (-f.score, -f.marginal))
     gain, gain_z = cond['structure']
     explains = [f for f in feats if f.score_z >= z_crit and f.score >= MIN_FEATURE_GAIN]
     alone = [f.name for f in sorted(feats, key=lambda f: -f.marginal)

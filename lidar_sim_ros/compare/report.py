@@ -32,7 +32,9 @@ MAX_TARGET_POINTS = 8000
 
 def _png(fig) -> bytes:
     buf = io.BytesIO()
-    fig.savefig(buf, format='png', dpi=90, bbox_inches='tight')
+    # Layouts are set by tight_layout / constrained layout: a 'tight' bounding box would
+    # draw every figure twice.
+    fig.savefig(buf, format='png', dpi=80)
     plt.close(fig)
     return buf.getvalue()
 
@@ -100,7 +102,8 @@ def target_figure(matching, residual_m: np.ndarray) -> bytes:
     lim = 3 * max(robust_sigma(residual_m), 1e-4) * 100
     axis_name = 'xyz'
     ratio = extent[others].max() / max(extent[long_axis], 1e-6)
-    fig, axes = plt.subplots(2, 1, figsize=(10, 2 * (1.2 + 4.5 * min(max(ratio, 0.3), 1.0))))
+    fig, axes = plt.subplots(2, 1, figsize=(10, 2 * (1.2 + 4.5 * min(max(ratio, 0.3), 1.0))),
+                             layout='constrained')
     for ax, j, k in zip(axes, others, others[::-1]):
         order = np.argsort(hit[:, k])       # nearest-to-viewer last
         sc = ax.scatter(hit[order, long_axis], hit[order, j], c=(residual_m * 100)[order],

@@ -272,8 +272,17 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         offset, scale = lk.material_nuisance(res, sig, np.asarray(sub_pred.ctx.material[lsel], int),
                                              np.isfinite(res))
         res = res - offset
-        attribution = features.attribute(features.feature_values(local), res, res / (sig * scale),
-                                         opts.seed, sample.blocks[picked][lsel])
+        values = features.feature_values(local)
+        if rays.measured_power_w is not None:
+            # The measured power, not the raw intensity: a range-compensated reflectivity
+            # is computed with the measured range and would leak its noise to the
+            # attribution (the calibration divides it out again).
+            mp = rays.measured_power_w[picked][lsel]
+            values['intensity'] = np.log10(np.where(np.isfinite(mp) & (mp > 0), mp,
+                                                    np.nanmin(mp[mp > 0]) if np.any(mp > 0)
+                                                    else 1e-12))
+        attribution = features.attribute(values, res, res / (sig * scale), opts.seed,
+                                         sample.blocks[picked][lsel])
         feats = attribution.features
 
     in_model = {e.name for e in effects}
