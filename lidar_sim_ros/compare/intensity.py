@@ -50,7 +50,7 @@ class IntensityCalibration:
     knots_log_p: np.ndarray
     range_exponent: float
     mean_log_range: float
-    gain: float                  # median I / P_model (sensor units per W)
+    gain: float                  # median I / model intensity (sensor units per model unit)
     explained: float             # share of the model's ln P variance explained (-)
     log_residual_robust_sigma: float
     log_correlation: float
@@ -78,10 +78,11 @@ class IntensityCalibration:
                 'used_for_power_driven_effects': self.usable}
 
 
-def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray,
-                        model_power_w: np.ndarray) -> IntensityCalibration | None:
+def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_w: np.ndarray,
+                        model_intensity: np.ndarray | None = None) -> IntensityCalibration | None:
     """Fit the map from measured intensity to the model's received power (module doc)
-    on matched points; None if fewer than MIN_POINTS usable points."""
+    on matched points; None if fewer than MIN_POINTS usable points. ``gain``: median
+    measured / ``model_intensity`` (the model's intensity units; default its power)."""
     i = np.asarray(intensity, float)
     p = np.asarray(model_power_w, float)
     r = np.asarray(range_m, float)
@@ -101,7 +102,8 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray,
     spread, c, knots_x, knots_y = best
     var_y = float(np.var(y))
     explained = 1.0 - spread / var_y if var_y > 0 else 0.0
-    d = x - y
+    d = x - (y if model_intensity is None
+             else np.log(np.maximum(np.asarray(model_intensity, float)[ok], 1e-300)))
     return IntensityCalibration(
         knots_log_i=knots_x, knots_log_p=knots_y, range_exponent=c, mean_log_range=mean_lr,
         gain=float(np.exp(np.median(d))),

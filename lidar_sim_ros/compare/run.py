@@ -158,7 +158,8 @@ class PowerFromIntensity:
         if not self.done:
             sel = m.matched
             self.calibration = calibrate_intensity(m.meas.intensity[sel], m.meas.range_m[sel],
-                                                   m.pred.ctx.power_w[sel])
+                                                   m.pred.ctx.power_w[sel],
+                                                   m.pred.ctx.intensity[sel])
             self.done = True
         if self.calibration is None or not self.calibration.usable:
             return None
