@@ -203,7 +203,8 @@ def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet,
         measured_range_m=m_sub.range_m, baseline=baseline, cast=cast,
         unmatched_range_m=u_sub.range_m, cast_unmatched=cast_un,
         range_window_m=range_window_m(meas), base_effects=tuple(base_effects),
-        measured_power_w=power, extra_var_m2=extra, unmatched_isolated=isolated)
+        measured_power_w=power, extra_var_m2=extra, unmatched_isolated=isolated,
+        placement_uncertain=rays.extra_var_m2 is not None)
 
 
 def calibrated_figures(data, effects: list[Effect]) -> tuple[float, float, float]:

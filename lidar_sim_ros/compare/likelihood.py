@@ -79,6 +79,11 @@ class FitData:
     # (M,) unmatched points no neighbouring ray sees at the same range: only these can be
     # spurious returns (a surface that is not the target, e.g. lab clutter, is not).
     unmatched_isolated: np.ndarray | None = None
+    # The points' own times are unknown (clouds without a time field): whether a ray near
+    # the silhouette hits the target at its real time is unknown too, so a candidate that
+    # moves the rays neither loses the points it no longer places (they keep the
+    # model's prediction) nor gains the unmatched ones it now places.
+    placement_uncertain: bool = False
 
     @property
     def window_width_m(self) -> float:
@@ -208,6 +213,13 @@ def model_on_rays(data: FitData, effects: Sequence[Effect]) -> ModelOnRays:
     ctx, expected, sigma = apply_hooks(pred, everything, data.measured_power_w,
                                        data.extra_var_m2)
     placed = np.asarray(ctx.hit, bool) & np.isfinite(expected) & np.isfinite(sigma)
+    if data.placement_uncertain and moving(effects) and not placed.all():
+        _, base_expected, base_sigma = apply_hooks(data.baseline, everything,
+                                                   data.measured_power_w, data.extra_var_m2)
+        lost = ~placed & np.isfinite(base_expected) & np.isfinite(base_sigma)
+        expected = np.where(lost, base_expected, expected)
+        sigma = np.where(lost, base_sigma, sigma)
+        placed = placed | lost
     w = _outlier_weight(everything, ctx, n)
     return ModelOnRays(ctx, expected, sigma, w, placed)
 
@@ -216,7 +228,7 @@ def recast_unmatched(data: FitData, effects: Sequence[Effect]):
     """(ctx, expected range, sigma) of the unmatched rays under the model's effects plus
     ``effects`` (which move the rays), or None if none of ``effects`` moves them."""
     effects = list(effects)
-    if not moving(effects) or len(data.unmatched_range_m) == 0:
+    if not moving(effects) or len(data.unmatched_range_m) == 0 or data.placement_uncertain:
         return None
     everything = [*data.base_effects, *effects]
     return apply_hooks(data.cast_unmatched(moving(everything)), everything)
