@@ -31,9 +31,9 @@ all of these hold, each chosen from a principle, not from a dataset:
   a structure it does not have the shape of is a phantom (the rest of the structure
   is outside the catalogue);
 * **it is decisively the best**: the paired held-out per-point NLL difference to
-  every other admissible candidate is both decisive and practically meaningful
-  (MIN_PRACTICAL_GAIN). Otherwise the two explain the data equally within their
-  uncertainty: if fitting one on top of the other still gains (they explain
+  every other admissible candidate is decisive (z above the same bound). Otherwise the
+  two explain the data equally within their uncertainty (both matter: which of them
+  is a statistical question): if fitting one on top of the other still gains (they explain
   different parts, two effects at once) the better is named and the other comes
   next; if not, they are confounded in this recording (``confounded_with``), none is
   named, and the verdict says which recording would separate them.
@@ -500,7 +500,7 @@ class Diagnosis:
         for c in ok[1:]:
             margin, z = self.paired(best, c)
             pair_z[c.name] = {'margin': _num(margin), 'z': _num(z)}
-            if margin >= MIN_PRACTICAL_GAIN and z >= self.z_crit:
+            if margin > 0 and z >= self.z_crit:
                 continue          # decisively worse
             if self.adds_to(best, c):
                 also = also or c.name   # explains another part: two effects at once

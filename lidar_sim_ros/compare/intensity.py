@@ -36,6 +36,11 @@ MIN_POINTS = 50
 # model's power best. A fitted exponent would also soak up whatever in the model's
 # reflectance happens to correlate with range over the target.
 RANGE_EXPONENTS = (0.0, -2.0)
+# ... and the range-compensated reading is taken only if it leaves a fifth less of the
+# model's ln P unexplained: a few per cent come from whatever in the model's reflectance
+# correlates with range over the target, and a wrong compensation would put the
+# measured range's noise into the power.
+RANGE_TERM_GAIN = 0.2
 # Below this share of the model's ln P variance explained, the intensity does not
 # measure the received power (or not of these returns): power-driven effects keep the
 # model's power.
@@ -97,7 +102,7 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
         knots_x, knots_y = _monotone_map(x, y - c * lr)
         resid = y - np.interp(x, knots_x, knots_y) - c * lr
         spread = float(np.var(resid))
-        if best is None or spread < best[0] * (1.0 - 1e-3):
+        if best is None or spread < best[0] * (1.0 - RANGE_TERM_GAIN):
             best = (spread, c, knots_x, knots_y)
     spread, c, knots_x, knots_y = best
     var_y = float(np.var(y))
