@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= demo-output
 
-.PHONY: venv demo demo-offline demo-gnc test bench bench-node bench-gnc constraints clean
+.PHONY: venv demo demo-offline demo-gnc test bench bench-node bench-gnc bench-compare constraints clean
 
 venv: $(STAMP)
 
@@ -45,6 +45,10 @@ bench-node: $(STAMP)
 bench-gnc: $(STAMP)
 	$(BIN)/python bench/bench_tracker.py --out bench_tracker.json
 
+## lidar-sim compare on a 12-frame and a one-minute recording: seconds per stage, peak RSS.
+bench-compare: $(STAMP)
+	$(BIN)/python bench/bench_compare.py --out bench_compare.json --data bench_compare_data
+
 ## Rewrite constraints.txt from the venv: the versions just tested (the package itself left out).
 constraints: $(STAMP)
 	{ echo '# Tested versions, used by make venv (pip install -c). Regenerate: make constraints'; \
@@ -52,4 +56,4 @@ constraints: $(STAMP)
 	touch $(STAMP)
 
 clean:
-	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_tracker.json
+	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_tracker.json bench_compare.json bench_compare_data

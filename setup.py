@@ -27,6 +27,7 @@ setup(
         'numba>=0.59',
         'rosbags>=0.10',
         'matplotlib>=3.8',
+        'scikit-learn>=1.4',
         'pydantic>=2.6',
         'PyYAML>=6.0',
     ],

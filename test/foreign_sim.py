@@ -25,7 +25,13 @@ What differs from our simulator, on purpose:
 * baseline range error: the paper's Table 2 per material, each bias moved by up to
   +-1 cm and each sigma scaled by 0.8-1.2 (seeded), i.e. close to but not exactly the
   materials config;
-* every effect with its own functional form (see the ``*_m`` functions below).
+* every effect with its own functional form (see the ``*_m`` functions below), one or
+  several at once, and one outside the compare catalogue (a range bias that depends on
+  the scan azimuth, as an encoder or mirror-facet error gives);
+* what labs add: shot-to-shot amplitude fluctuation (speckle: the pulse that drives
+  both the intensity and the timing walk), lab clutter (a wall behind the target, a
+  support jig, a cable across the view: static returns that are not the target), and
+  clouds without per-point time stamped at the start, middle or end of the scan.
 
 Entry point: :func:`generate` (a :class:`ForeignSpec` -> bag, mesh and scenario YAML).
 """
@@ -52,6 +58,8 @@ NS_PER_S = 1_000_000_000
 
 EFFECTS = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
            'beam_divergence', 'time_offset')
+# Hidden effects compare has no candidate for: expected answer null (and the feature).
+OUTSIDE_CATALOGUE = ('azimuth_bias',)
 
 # ------------------------------------------------------------------ materials
 # Range error per material from the paper's Table 2: mean of the 5 m and 15 m rows
@@ -295,10 +303,12 @@ def intensity_units(power_w: np.ndarray, range_m: np.ndarray, mode: str,
         return np.round(65535 * (1 - np.exp(-np.sqrt(p / 4e-4)))).astype(np.uint16)
     if mode == 'reflectivity':  # range-compensated, float
         return (p * range_m ** 2 * 1e3).astype(np.float32)
+    if mode == 'linear':        # proportional to the received power, arbitrary units
+        return (p * 2.5e7).astype(np.float32)
     if mode == 'none':
         return None
-    raise ValueError(f'intensity mode must be counts8, counts16, reflectivity or none, '
-                     f'got {mode!r}')
+    raise ValueError(f'intensity mode must be counts8, counts16, reflectivity, linear or '
+                     f'none, got {mode!r}')
 
 
 # ------------------------------------------------------- effects (own forms)
@@ -312,7 +322,16 @@ def range_walk_bias_m(power_w: np.ndarray, sensor: Sensor, p: dict) -> np.ndarra
     if form == 'inv_sqrt':
         ref = 100.0 * sensor.threshold_power_w
         return p.get('c_m', 0.015) * np.sqrt(ref / np.maximum(power_w, sensor.threshold_power_w))
+    if form == 'ln':            # -g ln(P / 1 uW): log of the received power, own reference
+        return -p.get('g_m', 0.02) * np.log(np.maximum(power_w, sensor.threshold_power_w) / 1e-6)
     raise ValueError(f'range_walk form {form!r}')
+
+
+def azimuth_bias_m(az_rad: np.ndarray, p: dict) -> np.ndarray:
+    """Outside the compare catalogue: a range bias periodic in the scan azimuth,
+    A sin(2 pi az / period + phase) (a scanner encoder or mirror-facet error)."""
+    period = np.radians(p.get('period_deg', 12.0))
+    return p.get('a_m', 0.02) * np.sin(2 * np.pi * az_rad / period + p.get('phase', 0.3))
 
 
 def incidence_bias_m(cos_i: np.ndarray, p: dict) -> np.ndarray:
@@ -383,6 +402,51 @@ def footprint_returns(target: Target, origins_b: np.ndarray, dirs_b: np.ndarray,
     return ok, rng_m, total, cos_i[pick], np.where(ok, mat[pick], -1)
 
 
+# -------------------------------------------------------------------- clutter
+CLUTTER = len(MATERIALS)          # material id of lab clutter (not in the target mesh)
+CLUTTER_SIGMA_M = 0.02            # range noise on clutter (painted walls, anodised jigs)
+CLUTTER_SURFACE_RATIO = 1.6       # clutter power relative to the PIF-like diffuse surface
+
+
+class Clutter:
+    """Static lab fixtures in the lidar frame: a wall panel 4 m behind the target, a
+    support jig (a post rising to just under the target) and a cable across the view."""
+
+    def __init__(self, distance_m: float = 11.0):
+        wall = trimesh.creation.box(extents=(0.1, 4.0, 3.0))
+        wall.apply_translation((distance_m + 4.0, 1.8, 0.3))
+        jig = trimesh.creation.cylinder(radius=0.06, height=3.0, sections=16)
+        jig.apply_translation((distance_m + 0.3, -0.4, -3.0))
+        cable = trimesh.creation.cylinder(radius=0.012, height=7.0, sections=8)
+        cable.apply_transform(trimesh.transformations.rotation_matrix(
+            np.radians(70.0), (1.0, 0.0, 0.0)))
+        cable.apply_translation((distance_m - 2.5, 0.3, 0.4))
+        self.mesh = trimesh.util.concatenate([wall, jig, cable])
+        self._rays = RayMeshIntersector(self.mesh)
+
+    def cast(self, origins_m: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(hit, range_m, cos_incidence) of lidar-frame rays."""
+        n = len(dirs)
+        tri, ray, loc = self._rays.intersects_id(origins_m, dirs, multiple_hits=False,
+                                                 return_locations=True)
+        hit = np.zeros(n, bool)
+        rng = np.full(n, np.inf)
+        cos_i = np.ones(n)
+        hit[ray] = True
+        rng[ray] = np.linalg.norm(loc - origins_m[ray], axis=1)
+        cos_i[ray] = np.abs(np.einsum('ij,ij->i', self.mesh.face_normals[tri], dirs[ray]))
+        return hit, rng, np.clip(cos_i, 1e-6, 1.0)
+
+
+_CLUTTER: dict[float, Clutter] = {}
+
+
+def lab_clutter(distance_m: float = 11.0) -> Clutter:
+    if distance_m not in _CLUTTER:
+        _CLUTTER[distance_m] = Clutter(distance_m)
+    return _CLUTTER[distance_m]
+
+
 # ------------------------------------------------------------------- dataset
 @dataclass(frozen=True)
 class ForeignSpec:
@@ -411,12 +475,35 @@ class ForeignSpec:
     pose_noise: tuple[float, float] = (0.0, 0.0)   # motion-capture noise: metres, degrees
     material_bias_shift_m: dict = field(default_factory=dict)   # on top of the +-1 cm jitter
     material_sigma_scale: dict = field(default_factory=dict)
+    also: tuple = ()                     # further hidden effects: ((name, params), ...)
+    amplitude_cv: float = 0.0            # shot-to-shot power fluctuation (speckle), rel. sd
+    clutter: bool = False                # lab fixtures in view: wall, jig, cable
     expected: str | None = 'same'
+    expected_feature: str | None = None  # the feature the residual should be attributed to
     note: str = ''
 
     @property
+    def hidden(self) -> tuple[tuple[str, dict], ...]:
+        """Every hidden effect, (name, params)."""
+        first = () if self.effect is None else ((self.effect, self.params),)
+        return first + tuple((n, dict(p)) for n, p in self.also)
+
+    def params_of(self, name: str) -> dict | None:
+        """The params of hidden effect ``name``, or None if it is not hidden."""
+        return next((p for n, p in self.hidden if n == name), None)
+
+    @property
+    def expected_effects(self) -> tuple[str, ...]:
+        """The catalogue effects compare should name, one per step of the loop."""
+        if self.expected != 'same':
+            return () if self.expected is None else (self.expected,)
+        return tuple(n for n, _ in self.hidden if n in EFFECTS)
+
+    @property
     def expected_effect(self) -> str | None:
-        return self.effect if self.expected == 'same' else self.expected
+        """What the first compare run should name (any of them if several are hidden)."""
+        found = self.expected_effects
+        return found[0] if found else None
 
 
 @dataclass(frozen=True)
@@ -462,7 +549,6 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     true_range_m (nan for false returns), material (-1 for false returns), shot (index
     into the frame's shots); and grid, the raster's (rows, cols) or None.
     """
-    eff, p = spec.effect, spec.params
     grid = None
     if spec.scan == 'raster':
         t, az, el = raster_scan(sensor, spec.shots_per_frame)
@@ -475,28 +561,56 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     rot, pos = traj.at(t0_s + t)
     origins_b = rot.inv().apply(-pos)
     dirs_b = rot.inv().apply(d)
-    if eff == 'beam_divergence':
+    beam = spec.params_of('beam_divergence')
+    if beam is not None:
         hit, true_r, power, cos_i, mat = footprint_returns(target, origins_b, dirs_b, sensor,
-                                                           rng, p)
+                                                           rng, beam)
     else:
         hit, true_r, cos_i, mat = target.cast(origins_b, dirs_b)
         power = received_power_w(sensor, true_r, cos_i, mat)
-    r_hit = np.where(hit, true_r, 0.0)
     bias = np.zeros(len(d))
     var = np.zeros(len(d))
     for k, name in enumerate(MATERIALS):
         sel = mat == k
         bias[sel], var[sel] = errors[name][0], errors[name][1] ** 2
-    if eff == 'range_walk':
-        bias += range_walk_bias_m(power, sensor, p)
-    elif eff == 'incidence_angle':
-        bias += incidence_bias_m(cos_i, p)
-        var += incidence_sigma_m(r_hit, cos_i, sensor, p) ** 2
-    elif eff == 'snr_noise':
-        var += snr_sigma_m(power, p) ** 2
+    if spec.clutter:
+        # Lab fixtures are static in the lidar frame; a nearer fixture hides the target.
+        c_hit, c_r, c_cos = lab_clutter(spec.distance_m).cast(np.zeros((len(d), 3)), d)
+        front = c_hit & (~hit | (c_r < true_r))
+        hit, true_r, cos_i = hit | front, np.where(front, c_r, true_r), np.where(front, c_cos, cos_i)
+        mat = np.where(front, CLUTTER, mat)
+        power = np.where(front, received_power_w(sensor, c_r, c_cos, np.zeros(len(d), int))
+                         * CLUTTER_SURFACE_RATIO, power)
+        bias, var = np.where(front, 0.0, bias), np.where(front, CLUTTER_SIGMA_M ** 2, var)
+    if spec.amplitude_cv > 0:
+        # Speckle: the received pulse energy fluctuates shot to shot (Gamma, mean 1); the
+        # fluctuating pulse is what both the intensity and the timing walk see.
+        m = 1.0 / spec.amplitude_cv ** 2
+        power = power * rng.gamma(m, 1.0 / m, len(d))
+    r_hit = np.where(hit, true_r, 0.0)
+    on_target = hit & (mat >= 0) & (mat < CLUTTER)
+    base_sigma = np.sqrt(var)
+    contrib: dict[str, tuple[np.ndarray, np.ndarray]] = {}   # effect -> (bias, extra var)
+    for eff, p in spec.hidden:
+        b, v = np.zeros(len(d)), np.zeros(len(d))
+        if eff == 'range_walk':
+            b = np.where(hit, range_walk_bias_m(power, sensor, p), 0.0)
+        elif eff == 'incidence_angle':
+            b = np.where(on_target, incidence_bias_m(cos_i, p), 0.0)
+            v = np.where(on_target, incidence_sigma_m(r_hit, cos_i, sensor, p) ** 2, 0.0)
+        elif eff == 'snr_noise':
+            v = np.where(hit, snr_sigma_m(power, p) ** 2, 0.0)
+        elif eff == 'azimuth_bias':
+            b = np.where(hit, azimuth_bias_m(az, p), 0.0)
+        else:
+            continue
+        bias, var = bias + b, var + v
+        contrib[eff] = (b, v)
     measured = r_hit + bias + np.sqrt(var) * unit_noise(spec.noise, len(d), rng)
     detected = hit & (power >= sensor.threshold_power_w)
-    if eff == 'solar_background':
+    solar = spec.params_of('solar_background')
+    if solar is not None:
+        p = solar
         false = rng.random(len(d)) < p.get('fraction', 0.015)
         measured = np.where(false, background_range_m(len(d), rng, sensor, p), measured)
         power = np.where(false, sensor.threshold_power_w * rng.uniform(1.0, 3.0, len(d)), power)
@@ -507,7 +621,30 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     i = np.flatnonzero(detected)
     return {'xyz_m': d[i] * measured[i, None], 'power_w': power[i], 't_s': t[i],
             'range_m': measured[i], 'true_range_m': r_hit[i], 'material': mat[i],
-            'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid}
+            'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid,
+            'base_sigma_m': base_sigma[i],
+            'effects': {k: (b[i], v[i]) for k, (b, v) in contrib.items()}}
+
+
+def effect_gain_nats(frames: list[dict], name: str) -> float:
+    """What a bias/noise effect is worth, nats per target point: the expected
+    log-likelihood gain of the true model over one without the effect whose
+    per-material offset and sigma are refit (0.5 d^2 / var for the bias d about its
+    material mean, plus the Gaussian KL of the variance about the material's mean)."""
+    mat = np.concatenate([f['material'] for f in frames])
+    sig2 = np.concatenate([f['base_sigma_m'] for f in frames]) ** 2
+    b = np.concatenate([f['effects'][name][0] for f in frames])
+    v = np.concatenate([f['effects'][name][1] for f in frames])
+    gain = []
+    for k in range(len(MATERIALS)):
+        sel = mat == k
+        if sel.sum() < 30:
+            continue
+        total = sig2[sel] + v[sel]
+        ratio = total / np.mean(total)
+        d = b[sel] - np.mean(b[sel])
+        gain.append(0.5 * d ** 2 / total + 0.5 * (ratio - 1.0 - np.log(ratio)))
+    return float(np.mean(np.concatenate(gain))) if gain else 0.0
 
 
 def unit_noise(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -624,8 +761,10 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
     """Simulate ``spec`` and write out_dir/{satellite.obj,.mtl, scenario.yaml, bag/}."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    if spec.effect is not None and spec.effect not in EFFECTS:
-        raise ValueError(f'effect must be one of {EFFECTS} or None, got {spec.effect!r}')
+    for name, _ in spec.hidden:
+        if name not in EFFECTS + OUTSIDE_CATALOGUE:
+            raise ValueError(f'effect must be one of {EFFECTS + OUTSIDE_CATALOGUE} or None, '
+                             f'got {name!r}')
     if spec.organized and spec.scan != 'raster':
         raise ValueError('organized clouds need the raster scan')
     sensor = sensor or Sensor(frame_rate_hz=spec.frame_rate_hz)
@@ -637,8 +776,10 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
     rng = np.random.default_rng([spec.seed, 23])
     period = 1.0 / sensor.frame_rate_hz
     # Pose clock minus lidar clock: the pose stamped s shows the target at lidar time s - dt.
-    dt_s = float(spec.params.get('dt_s', 0.05)) if spec.effect == 'time_offset' else 0.0
-    n_points = 0
+    offset = spec.params_of('time_offset')
+    dt_s = float(offset.get('dt_s', 0.05)) if offset is not None else 0.0
+    n_points = n_clutter = n_false = 0
+    kept: list[dict] = []
     bag = out / 'bag'
     with BagWriter(bag, storage=spec.storage) as writer:
         span = spec.frames * period
@@ -662,9 +803,16 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
             write_cloud(writer, rec, EPOCH_NS + int(round(stamp_s * NS_PER_S)),
                         frame['grid'] if spec.organized else None)
             n_points += len(frame['range_m'])
-    truth = {'effect': spec.effect, 'params': spec.params, 'time_offset_s': dt_s,
+            kept.append({k: frame[k] for k in ('material', 'base_sigma_m', 'effects')})
+            n_clutter += int(np.sum(frame['material'] == CLUTTER))
+            n_false += int(np.sum(frame['material'] < 0))
+    truth = {'hidden': [[n, p] for n, p in spec.hidden], 'time_offset_s': dt_s,
              'material_errors_m': {k: [round(b, 5), round(s, 5)] for k, (b, s) in errors.items()},
-             'distance_m': spec.distance_m}
+             'distance_m': spec.distance_m,
+             'effect_gain_nats': {n: round(effect_gain_nats(kept, n), 5)
+                                  for n in kept[0]['effects']} if kept else {},
+             'clutter_fraction': n_clutter / max(n_points, 1),
+             'false_return_fraction': n_false / max(n_points, 1)}
     scen = write_compare_scenario(out / 'scenario.yaml', mesh, traj)
     return ForeignDataset(spec, bag, mesh, scen, n_points, truth)
 
@@ -672,8 +820,9 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
 def describe(ds: ForeignDataset) -> dict[str, Any]:
     """A JSON-able record of what was generated."""
     s = ds.spec
-    return {'name': s.name, 'effect': s.effect, 'expected': s.expected_effect,
-            'params': s.params, 'scan': s.scan, 'storage': s.storage, 'intensity': s.intensity,
+    return {'name': s.name, 'effect': s.effect, 'expected': list(s.expected_effects),
+            'hidden': [[n, p] for n, p in s.hidden], 'clutter': s.clutter,
+            'amplitude_cv': s.amplitude_cv, 'scan': s.scan, 'storage': s.storage, 'intensity': s.intensity,
             'point_time': s.point_time, 'stamp': s.stamp, 'organized': s.organized,
             'noise': s.noise, 'distance_m': s.distance_m, 'frames': s.frames,
             'frame_rate_hz': s.frame_rate_hz, 'pose_rate_hz': s.pose_rate_hz,
@@ -730,6 +879,55 @@ BATTERY: tuple[ForeignSpec, ...] = (
                 point_time='t_ns', distance_m=6.5, scan='rosette', shots_per_frame=12_000),
     ForeignSpec('time_offset_no_time', 'time_offset', {'dt_s': -0.04}, seed=21, spin_dps=15.0,
                 point_time='none', intensity='none', note='negative offset, no t field'),
+    # --- what labs record: short passes at near-constant range (1 s at ~11 m), where
+    # the intensity is nearly a function of incidence and material
+    ForeignSpec('short_range_walk', 'range_walk', {'form': 'ln', 'g_m': 0.02}, seed=31,
+                frames=10, speed_mps=0.0, spin_dps=3.0, precession_dps=1.0,
+                intensity='linear', shots_per_frame=8000,
+                note='walk in ln(received power), intensity proportional to power'),
+    ForeignSpec('short_range_walk_speckle', 'range_walk', {'form': 'ln', 'g_m': 0.015},
+                seed=32, frames=10, speed_mps=0.0, spin_dps=3.0, precession_dps=1.0,
+                intensity='counts16', amplitude_cv=0.25, shots_per_frame=8000, scan='rosette',
+                note='speckle: the pulse amplitude fluctuates and drives intensity and walk'),
+    ForeignSpec('short_snr_noise', 'snr_noise', {'s0_m': 0.04, 'exponent': 0.5, 'p0_w': 2e-6},
+                seed=33, frames=10, speed_mps=0.0, spin_dps=3.0, precession_dps=1.0,
+                intensity='linear', shots_per_frame=8000),
+    ForeignSpec('short_incidence', 'incidence_angle', {'g_m': 0.015, 'h': 0.5}, seed=34,
+                frames=10, speed_mps=0.0, spin_dps=3.0, precession_dps=1.0,
+                intensity='counts8', shots_per_frame=8000),
+    # --- an effect outside the catalogue: null, and the residual's feature named
+    ForeignSpec('azimuth_bias', 'azimuth_bias', {'a_m': 0.02, 'period_deg': 12.0}, seed=35,
+                expected=None, expected_feature='azimuth', note='range bias periodic in scan azimuth (encoder error)'),
+    ForeignSpec('azimuth_bias_short', 'azimuth_bias', {'a_m': 0.015, 'period_deg': 8.0},
+                seed=36, frames=10, speed_mps=0.0, spin_dps=3.0, intensity='linear',
+                shots_per_frame=8000, scan='rosette', expected=None, expected_feature='azimuth'),
+    # --- two effects at once, walked step by step
+    ForeignSpec('walk_and_offset', 'range_walk', {'form': 'poly_log', 'a_m': 0.015, 'b_m': 0.002},
+                seed=37, also=(('time_offset', {'dt_s': 0.05}),), spin_dps=15.0,
+                intensity='counts16'),
+    ForeignSpec('incidence_and_solar', 'incidence_angle', {'g_m': 0.015, 'h': 0.5}, seed=38,
+                also=(('solar_background', {'fraction': 0.01, 'mean_range_m': 30.0}),),
+                scan='rosette', storage='sqlite3'),
+    ForeignSpec('snr_and_beam', 'snr_noise', {'s0_m': 0.05, 'exponent': 0.4, 'p0_w': 1e-6},
+                seed=39, also=(('beam_divergence', {'scale': 7.0, 'subrays': 12,
+                                                    'mode': 'weighted'}),),
+                distance_m=16.0, shots_per_frame=40_000, intensity='linear'),
+    # --- lab clutter: a wall behind, a support jig, a cable in front
+    ForeignSpec('clutter', None, seed=40, clutter=True, note='wall, jig and cable in view'),
+    ForeignSpec('clutter_solar', 'solar_background', {'fraction': 0.008, 'mean_range_m': 30.0},
+                seed=41, clutter=True, scan='rosette', intensity='counts16'),
+    # --- clouds without per-point time, stamped at the start, middle or end of the scan
+    ForeignSpec('time_offset_no_time_end', 'time_offset', {'dt_s': 0.07}, seed=42,
+                spin_dps=15.0, point_time='none', stamp='end', intensity='counts16'),
+    ForeignSpec('time_offset_no_time_start', 'time_offset', {'dt_s': -0.08}, seed=43,
+                spin_dps=12.0, point_time='none', stamp='start', scan='rosette'),
+    ForeignSpec('clean_no_time_end', None, seed=44, spin_dps=12.0, point_time='none',
+                stamp='end', expected='time_offset',
+                note='a stamp half a scan late is the same data as a clock offset: named as '
+                     'time_offset, with the stamp caveat'),
+    ForeignSpec('clean_no_time_mid_fast', None, seed=45, spin_dps=20.0, point_time='none',
+                stamp='mid', scan='rosette',
+                note='fast tumble, no point times: the smear is no physical effect'),
 )
 
 

@@ -74,14 +74,21 @@ def test_fitted_true_effect_leaves_nothing_missing(tmp_path):
     assert json.loads((out / 'summary.json').read_text())['missing_effect'] is None
 
 
-def test_unknown_point_times_spread_over_one_frame_period():
-    from types import SimpleNamespace
-    from lidar_sim_ros.compare.run import frame_time_spread_s
-    scenario = SimpleNamespace(sensor=SimpleNamespace(frame_period_s=0.05))
-    stamps = np.array([0.0, 0.1, 0.2])
-    assert frame_time_spread_s(SimpleNamespace(time_source='stamp', cloud_stamps_s=stamps),
-                               scenario) == pytest.approx(0.1 / np.sqrt(12))
-    assert frame_time_spread_s(SimpleNamespace(time_source='stamp', cloud_stamps_s=stamps[:1]),
-                               scenario) == pytest.approx(0.05 / np.sqrt(12))
-    assert frame_time_spread_s(SimpleNamespace(time_source='field', cloud_stamps_s=stamps),
-                               scenario) is None
+@pytest.mark.parametrize('stamp_offset_s', [0.0, 0.05, 0.1])
+def test_unknown_point_times_give_their_spread_whatever_the_stamp(stamp_offset_s):
+    """Points measured uniformly over a 0.1 s frame, stamped at its start, middle or
+    end: the residual is range_rate x (t - stamp); the fitted spread of the unknown
+    times is the uniform's 0.1 / sqrt(12) s whatever the constant shift, and 0 when
+    the residual does not follow the motion."""
+    from lidar_sim_ros.compare.point_times import time_spread_s
+    rng = np.random.default_rng(3)
+    n = 20000
+    rr = rng.normal(0.0, 0.4, n)                        # m/s along each ray
+    material = rng.integers(0, 3, n)
+    sigma = np.full(n, 0.01)
+    tau = rng.uniform(0.0, 0.1, n) - stamp_offset_s
+    residual = rr * tau + sigma * rng.standard_normal(n) + 0.02 * material
+    assert time_spread_s(residual, sigma, material, rr, 0.1) == pytest.approx(
+        0.1 / np.sqrt(12), rel=0.15)
+    still = sigma * rng.standard_normal(n)
+    assert time_spread_s(still, sigma, material, rr, 0.1) < 0.005

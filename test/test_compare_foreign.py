@@ -2,13 +2,15 @@
 
 The datasets share nothing with our simulator but the bag/mesh contract of issue 4:
 another scan pattern, target, BRDF and link budget, intensity units, time fields,
-baseline range error and effect formulas. A small subset of the battery of
-``bench/hidden_effect_eval.py`` runs here (2 frames each to stay fast); the verdicts
-compare is known to get wrong are xfail with the reason read off its summary.json.
+baseline range error, effect formulas, lab clutter and speckle. Every dataset of the
+battery reported in docs/compare.md runs here (one seed; 2 frames, or the short
+passes' 10 small frames), and the comparison loop is walked as a user would
+(test/foreign_loop.py): name, fit, repeat, until null. The loops compare is known to
+get wrong are xfail, with the reason read off its summaries (``WRONG``); they run all
+the same, so a fix shows as XPASS.
 """
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from dataclasses import replace
@@ -17,44 +19,41 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lidar_sim_ros.cli import main
-
 import foreign_sim
+from foreign_loop import judge, walk_loop
 from foreign_sim import (MATERIALS, ForeignSpec, Sensor, Target, battery, generate,
                          material_errors, satellite_parts, simulate_frame, trajectory_for)
 
 TEST_DIR = Path(__file__).resolve().parent
 FRAMES = 2
 
-# Battery datasets whose verdict compare gets right on foreign data, including the
-# realistic flaws that used to fool it: an absolute "timestamp" time field and
-# Student-t range noise (heavy tails are no solar background).
-PASSING = ('clean', 'clean_materials', 'clean_timestamp_field', 'clean_heavy_tails',
-           'solar_background', 'beam_divergence', 'time_offset')
+# Loops compare gets wrong on these datasets (bench/hidden_effect_eval.py, seed 0), and why.
+WRONG: dict[str, str] = {}
 
 
-def _compare(spec: ForeignSpec, root: Path) -> dict:
-    ds = generate(replace(spec, frames=FRAMES), root / spec.name)
-    out = root / spec.name / 'compare'
-    code = main(['compare', str(ds.bag), '--mesh', str(ds.mesh), '--config', str(ds.scenario),
-                 '--out', str(out), '--no-report'])
-    assert code == 0
-    return json.loads((out / 'summary.json').read_text())
+def _small(spec: ForeignSpec) -> ForeignSpec:
+    """Fewer frames for the suite; the short passes keep their second of small frames."""
+    return spec if spec.frames >= 10 else replace(spec, frames=FRAMES)
 
 
-def _why(summary: dict) -> str:
-    cands = ', '.join(f'{c["name"]} {c["score"]}' for c in summary['candidates'][:3])
-    feats = ', '.join(f'{f["name"]} {f["score"]}' for f in summary['features'][:3])
-    return f'candidates: {cands}; features: {feats}; verdict: {summary["verdict"]}'
+def _params():
+    for spec in battery():
+        marks = [pytest.mark.xfail(reason=WRONG[spec.name], strict=False)] \
+            if spec.name in WRONG else []
+        yield pytest.param(spec, id=spec.name, marks=marks)
 
 
-@pytest.mark.parametrize('spec', battery(list(PASSING)), ids=lambda s: s.name)
-def test_foreign_verdict(spec: ForeignSpec, tmp_path: Path):
-    summary = _compare(spec, tmp_path)
-    assert summary['missing_effect'] == spec.expected_effect, _why(summary)
+@pytest.mark.parametrize('spec', list(_params()))
+def test_foreign_loop(spec: ForeignSpec, tmp_path: Path):
+    spec = _small(spec)
+    ds = generate(spec, tmp_path / spec.name)
+    steps = walk_loop(spec, ds, tmp_path / spec.name, report=False)
+    result = judge(spec, steps, ds.truth)
+    assert result['ok'], result['why'] + ' | ' + str(steps[-1].get('verdict', ''))[:400]
+    first = steps[0]
     # A per-material bias shift is no missing effect, but it is flagged per material.
     for name, shift in spec.material_bias_shift_m.items():
-        m = summary['materials'][name]
+        m = first['materials'][name]
         assert m['bias_mismatch'], (name, m)
         # The shift rides on the generator's own +-1 cm jitter of each Table 2 bias.
         assert m['measured_bias_m'] - m['model_bias_m'] == pytest.approx(shift, abs=0.015)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.compare.features import FEATURE_NAMES, score_features
+from lidar_sim_ros.compare.features import FEATURE_NAMES, attribute, score_features
 from lidar_sim_ros.compare.history import append_run, load_history
 from lidar_sim_ros.compare.matching import EDGE_FAR, edge_distance_rad, predict_rays
 from lidar_sim_ros.compare.measurements import (Measurements, load_measurements,
@@ -22,7 +22,8 @@ def _feature_values(rng, n):
     return {'range': rng.uniform(8, 14, n), 'incidence': rng.uniform(0, 80, n),
             'intensity': rng.uniform(-3, 0, n), 'azimuth': rng.uniform(-30, 30, n),
             'elevation': rng.uniform(-11, 11, n), 'time': rng.uniform(0, 0.1, n),
-            'material': rng.integers(0, 5, n), 'edge': rng.choice([0.75, 1.5, 24.0], n)}
+            'material': rng.integers(0, 5, n), 'edge': rng.choice([0.75, 1.5, 24.0], n),
+            'range_rate': rng.normal(0, 0.1, n)}
 
 
 def test_feature_with_a_conditional_mean_ranks_first():
@@ -33,10 +34,47 @@ def test_feature_with_a_conditional_mean_ranks_first():
     assert [f.name for f in ranked][0] == 'time'
     assert {f.name for f in ranked} == set(FEATURE_NAMES)
     top = ranked[0]
-    # Gaussian information of a linear trend with slope 0.6 sd: 0.5 ln(1 + 0.36) ~ 0.15 nats.
+    # Gaussian information of a linear trend with slope 0.6 sd: 0.5 ln(1 + 0.36) ~ 0.15 nats,
+    # alone (marginal) and given the others (score: nothing else carries it).
+    assert top.marginal == pytest.approx(0.5 * np.log(1.36), rel=0.35)
     assert top.score == pytest.approx(0.5 * np.log(1.36), rel=0.35)
     assert top.mean_part > 10 * top.spread_part
     assert all(f.score < 0.01 for f in ranked[1:])
+
+
+def test_the_driver_ranks_first_among_correlated_features():
+    """Intensity drives the residual; incidence is correlated with it (rho ~ 0.9), as in
+    a short pass at near-constant range. Alone both explain it; given the other, only
+    the driver does, so it ranks first and is named the driver."""
+    rng = np.random.default_rng(6)
+    n = 8000
+    values = _feature_values(rng, n)
+    inc = rng.uniform(0, 80, n)
+    values['incidence'] = inc
+    values['intensity'] = -inc / 40.0 + rng.normal(0, 0.45, n)     # rho ~ -0.9
+    z = rng.standard_normal(n) - 0.5 * (values['intensity'] - values['intensity'].mean())
+    att = attribute(values, 0.03 * z, z)
+    by = {f.name: f for f in att.features}
+    assert att.features[0].name == 'intensity'
+    assert att.driver == 'intensity'
+    assert by['incidence'].marginal > 0.02             # it explains a lot alone ...
+    assert by['incidence'].score < 0.2 * by['intensity'].score   # ... little given intensity
+
+
+def test_features_that_stand_in_for_each_other_are_called_confounded():
+    """Intensity is a function of incidence (no noise of its own): the residual's
+    dependence cannot be pinned on either; the attribution says so."""
+    rng = np.random.default_rng(7)
+    n = 8000
+    values = _feature_values(rng, n)
+    inc = rng.uniform(0, 80, n)
+    values['incidence'] = inc
+    values['intensity'] = np.log10(np.cos(np.radians(inc)) + 0.05)
+    z = rng.standard_normal(n) - 0.6 * (values['intensity'] - values['intensity'].mean()) / \
+        values['intensity'].std()
+    att = attribute(values, 0.03 * z, z)
+    assert att.significant and att.driver is None
+    assert {'intensity', 'incidence'} <= set(att.confounded)
 
 
 def test_feature_with_a_conditional_spread_ranks_first():

@@ -18,9 +18,10 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.core.config import (EffectConfig, MaterialsConfig, SensorConfig, parse)
-from lidar_sim_ros.core.effects import (FitData, catalogue, evaluate, fit_effect,
-                                        get_effect_class, make_effect)
-from lidar_sim_ros.core.effects.fitting import fit_data_from_rays, point_nll, model_on_rays
+from lidar_sim_ros.compare.fit import fit_data_from_rays, fit_effect
+from lidar_sim_ros.compare.likelihood import (MISS_WEIGHT, MODEL_FLOOR, FitData, evaluate,
+                                              model_on_rays, point_nll)
+from lidar_sim_ros.core.effects import catalogue, get_effect_class, make_effect
 from lidar_sim_ros.core.geometry import Hits, Target
 from lidar_sim_ros.core.pipeline import Prediction, Simulator
 from lidar_sim_ros.core.pose import ScenarioTrajectory
@@ -120,9 +121,9 @@ def handmade_data(residual_m, sigma_m, window=(0.0, 100.0)) -> FitData:
     hits = Hits(np.ones(n, bool), rng, np.zeros((n, 3)), np.zeros(n), np.zeros(n, int),
                 np.zeros(n, int))
     pred = Prediction(ctx, hits, np.tile([1.0, 0, 0], (n, 1)), np.zeros(n), np.full(n, sigma_m))
-    return FitData(measured_range_m=rng + residual_m, baseline=pred, measured_intensity=None,
-                   predict=lambda e: pred, unmatched_range_m=np.zeros(0),
-                   predict_unmatched=lambda e: pred, range_window_m=window)
+    return FitData(measured_range_m=rng + residual_m, baseline=pred, cast=lambda e: pred,
+                   unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
+                   range_window_m=window)
 
 
 def test_nll_is_the_gaussian_and_outlier_mixture():
@@ -130,7 +131,7 @@ def test_nll_is_the_gaussian_and_outlier_mixture():
     sigma = 0.03
     data = handmade_data(z * sigma, sigma)
     gauss = 0.5 * z ** 2 + np.log(sigma) + 0.5 * np.log(2 * np.pi)
-    floor = 1e-6                                    # fitting.MODEL_FLOOR
+    floor = MODEL_FLOOR                 # the least outlier weight of the predictive density
     mixed = (1 - floor) * np.exp(-gauss) + floor / 100.0
     nll, rmse, _ = evaluate(data, [], profile_materials=False)
     assert nll == pytest.approx(np.mean(-np.log(mixed)), rel=1e-12)
@@ -160,7 +161,7 @@ def test_fit_data_splits_matched_and_unmatched_rays():
     assert len(data.measured_range_m) > 3000
     assert len(data.unmatched_range_m) > 50                 # returns beyond the silhouettes
     assert data.baseline.ctx.hit.all()
-    assert not data.predict_unmatched([]).ctx.hit.any()
+    assert not data.cast_unmatched([]).ctx.hit.any()
     assert data.n_shots == len(model_sim().shots)
 
 
@@ -268,4 +269,5 @@ def test_unplaced_points_score_as_spurious_returns():
     assert 0 < (~model.placed).sum() < len(model.placed)
     nll, _ = point_nll(data, model)
     assert np.all(np.isfinite(nll))
-    assert nll[~model.placed] == pytest.approx(-np.log(1e-3 / data.window_width_m))
+    # An unplaced point is a spurious return of weight MISS_WEIGHT, uniform over the window.
+    assert nll[~model.placed] == pytest.approx(-np.log(MISS_WEIGHT / data.window_width_m))

@@ -1,6 +1,6 @@
 """Which effect is missing: fit the catalogue, score each on held-out points, decide.
 
-Every candidate is fitted by maximum likelihood (``fitting.fit_effect``; for effects
+Every candidate is fitted by maximum likelihood (``compare.fit.fit_effect``; for effects
 with discrete options, e.g. a footprint's range mode, each option is fitted and the
 best kept). The likelihood profiles each material's range offset and sigma scale
 (nuisance parameters), so a per-material calibration mismatch cannot pose as an
@@ -11,39 +11,64 @@ likelihood is outlier tolerant (a small uniform floor), so a handful of odd retu
 cannot dominate. Unmatched points a candidate explains (returns beyond the
 silhouette, false returns off the target) count too.
 
-A candidate is the missing effect when it is the best admissible one and its
-held-out gain is both decisive (a held-out likelihood ratio of at least e^15) and
-large enough to matter in practice (at least MIN_GAIN nats per point:
-real data are never exactly the model's shape, and a slightly misspecified noise
-model lends any flexible candidate a few thousandths of a nat per point), or it
-explains enough unmatched points; else null.
+A diagnosis is a claim to a user. A candidate is named (``missing_effect``) only if
+all of these hold, each chosen from a principle, not from a dataset:
 
-Admissible: an outlier effect (one that adds spurious returns, e.g. solar background)
-must show its signature, points far beyond the noise (|residual| > max(FAR_MIN_M,
-FAR_SIGMAS sigma)) or unmatched returns it explains, in number comparable to the
-spurious returns it claims; otherwise its gain comes from mildly heavy noise tails,
-which no false-return process explains. A time offset fitted on clouds without
-per-point times must exceed the spread of the unknown point times within a frame.
+* **decisive**: its held-out gain is Z_CRIT block-robust standard errors above zero,
+  Bonferroni-corrected for testing every candidate (one-sided family error rate
+  FAMILY_ALPHA), and at least MIN_TOTAL_GAIN nats in total (odds e^15);
+* **it matters**: at least MIN_PRACTICAL_GAIN nats per point, the gain of an effect
+  that moves the predicted range by 10 % of the noise sigma RMS over all points
+  (0.5 x 0.1^2), or changes the sigma by ~7 %: below that the model's clouds and the
+  sensor's are the same to anyone using them;
+* **its signature is there**: an outlier effect (solar background) needs isolated
+  points far beyond the noise (|residual| > max(FAR_MIN_M, FAR_SIGMAS sigma)) or
+  isolated unmatched returns, comparable in number to the spurious returns it
+  claims (surfaces that are not the target, e.g. lab clutter, are not isolated: a
+  neighbouring ray sees the same range); a bias or noise effect must account for at
+  least MIN_SHARE of the residual's dependence on the features that the attribution's
+  joint model finds (``features.Attribution``): a candidate that soaks up a sliver of
+  a structure it does not have the shape of is a phantom (the rest of the structure
+  is outside the catalogue);
+* **it is decisively the best**: the paired held-out per-point NLL difference to
+  every other admissible candidate is decisive (z above the same bound). Otherwise the
+  two explain the data equally within their uncertainty (both matter: which of them
+  is a statistical question): if fitting one on top of the other still gains (they explain
+  different parts, two effects at once) the better is named and the other comes
+  next; if not, they are confounded in this recording (``confounded_with``), none is
+  named, and the verdict says which recording would separate them.
+
+Otherwise ``missing_effect`` is null, and the verdict says what the residual depends
+on, if anything, and that no catalogue effect explains it.
 """
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
-from typing import Callable, Literal, get_args, get_origin
+import time
+from dataclasses import dataclass, field, replace
+from typing import Literal, get_args, get_origin
 
 import numpy as np
 from pydantic import create_model
+from scipy.stats import norm
 
+from lidar_sim_ros.compare import likelihood as lk
+from lidar_sim_ros.compare.features import Attribution, block_mean_se
+from lidar_sim_ros.compare.fit import fit_effect
+from lidar_sim_ros.compare.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
 from lidar_sim_ros.compare.matching import Model, predict_rays
 from lidar_sim_ros.compare.materials import robust_sigma
 from lidar_sim_ros.compare.measurements import Measurements
 from lidar_sim_ros.core.effects import Effect
+from lidar_sim_ros.core.geometry import Hits
 from lidar_sim_ros.core.pipeline import Prediction
 
 OUTLIER_FLOOR = 1e-5        # outlier weight every held-out likelihood carries (robustness)
 UNMATCHED_NATS = 3.0        # gain credited per unmatched point a candidate explains
-MIN_TOTAL_GAIN = 15.0       # nats of held-out log-likelihood ratio (odds e^15 : 1), and ...
-MIN_GAIN = 0.001            # ... nats per point: smaller gains do not matter in practice
+MIN_TOTAL_GAIN = 15.0       # nats of held-out log-likelihood ratio (odds e^15 : 1)
+FAMILY_ALPHA = 0.01         # family-wise error rate of the candidate tests (one-sided)
+MIN_PRACTICAL_GAIN = 0.005  # nats per point: 0.5 (0.1 sigma)^2 (module doc)
+MIN_SHARE = 0.25            # least share of the feature structure a bias/noise effect explains
 FAR_MIN_M = 0.5             # a point "far beyond the noise": |residual| above this and ...
 FAR_SIGMAS = 10.0           # ... this many predicted sigmas
 MIN_FAR_POINTS = 20         # an outlier effect needs this many far or unmatched points ...
@@ -53,19 +78,26 @@ MIN_UNMATCHED_FRACTION = 0.002  # ... and this share of all points (grazing rays
 N_FOLDS = 2
 
 
-def fitting_module():
-    """The effect-fitting machinery (core/effects/fitting.py), imported when needed."""
-    from lidar_sim_ros.core.effects import fitting
-    return fitting
-
-
 @dataclass(frozen=True)
 class RaySet:
-    """Measured points split into matched and unmatched rays, as index arrays."""
+    """Measured points split into matched and unmatched rays, as index arrays into
+    ``meas``, with what the comparison knows about every point (arrays over ``meas``):
+    the model's geometry prediction (``pred``: raycast, reflection and per-material
+    bias/sigma with the model's ray-moving effects, no effect hooks), the received power
+    from the measured intensity, and any variance the model adds (unknown point times)."""
 
     meas: Measurements
     matched: np.ndarray
     unmatched: np.ndarray
+    pred: Prediction | None = None
+    measured_power_w: np.ndarray | None = None
+    extra_var_m2: np.ndarray | None = None
+    isolated: np.ndarray | None = None     # bool: no neighbouring ray sees the same range
+    blocks: np.ndarray | None = None       # int: neighbourhood of each point (for SEs)
+    edge_rad: np.ndarray | None = None     # distance to the nearest edge (NaN: unknown)
+
+    def _with(self, matched: np.ndarray, unmatched: np.ndarray) -> 'RaySet':
+        return replace(self, matched=matched, unmatched=unmatched)
 
     def sample(self, max_points: int, seed: int) -> 'RaySet':
         """At most ``max_points`` matched and as many unmatched rays, drawn at random."""
@@ -73,14 +105,24 @@ class RaySet:
 
         def pick(idx: np.ndarray) -> np.ndarray:
             return idx if len(idx) <= max_points else np.sort(rng.choice(idx, max_points, False))
-        return RaySet(self.meas, pick(self.matched), pick(self.unmatched))
+        return self._with(pick(self.matched), pick(self.unmatched))
 
     def split(self, n_folds: int, seed: int) -> list['RaySet']:
         rng = np.random.default_rng(seed)
         fm = rng.permutation(len(self.matched)) % n_folds
         fu = rng.permutation(len(self.unmatched)) % n_folds
-        return [RaySet(self.meas, np.sort(self.matched[fm == k]), np.sort(self.unmatched[fu == k]))
+        return [self._with(np.sort(self.matched[fm == k]), np.sort(self.unmatched[fu == k]))
                 for k in range(n_folds)]
+
+
+def take_prediction(pred: Prediction, index: np.ndarray) -> Prediction:
+    """The prediction on a subset of its rays (integer indices or a mask)."""
+    h = pred.hits
+    hits = Hits(*(None if v is None else v[index] for v in (
+        h.hit, h.range_m, h.normal, h.incidence_rad, h.material, h.face, h.power_fraction,
+        h.cos_incidence)))
+    return Prediction(pred.ctx.subset(index), hits, pred.directions[index], pred.bias_m[index],
+                      pred.sigma_m[index])
 
 
 def range_window_m(meas: Measurements) -> tuple[float, float]:
@@ -91,25 +133,78 @@ def range_window_m(meas: Measurements) -> tuple[float, float]:
     return lo, hi
 
 
-def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet):
-    """FitData for ``rays``: the baseline is the model with ``base_effects``;
-    ``predict(effects)`` adds ``effects`` on top of them."""
-    fitting = fitting_module()
+def put_prediction(pred: Prediction, index: np.ndarray, part: Prediction) -> Prediction:
+    """``pred`` with the rays ``index`` replaced by ``part`` (a prediction of those rays)."""
+    def put(full, sub):
+        if full is None and sub is None:
+            return None
+        if full is None:      # e.g. power_fraction: the whole beam elsewhere
+            full = np.ones(len(pred.bias_m), np.asarray(sub).dtype)
+        out = np.array(full, copy=True)
+        out[index] = sub
+        return out
+
+    h, q = pred.hits, part.hits
+    hits = Hits(*(put(getattr(h, k), getattr(q, k)) for k in (
+        'hit', 'range_m', 'normal', 'incidence_rad', 'material', 'face', 'power_fraction',
+        'cos_incidence')))
+    ctx = replace(pred.ctx, **{k: put(v, getattr(part.ctx, k)) for k, v in pred.ctx.__dict__.items()
+                               if isinstance(v, np.ndarray) and len(v) == len(pred.bias_m)})
+    return Prediction(ctx, hits, pred.directions, put(pred.bias_m, part.bias_m),
+                      put(pred.sigma_m, part.sigma_m))
+
+
+def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet,
+                  parent: tuple[lk.FitData, RaySet] | None = None) -> lk.FitData:
+    """FitData for ``rays``: the model with ``base_effects`` (their hooks applied by the
+    likelihood); ``cast(effects)`` re-predicts the rays with extra ray-moving effects.
+    The baseline is sliced from ``rays.pred`` when given (it must have been predicted
+    with the ray geometry of ``base_effects``), else predicted here. With ``parent`` (a
+    FitData of a superset of the rays), casts are sliced from the parent's, so folds
+    share the raycasts of the whole. An effect whose cast reaches only so far from its
+    axis (``Effect.cast_reach_rad``) is re-cast on the rays near an edge only
+    (``rays.edge_rad``), the others keep the baseline."""
     meas = rays.meas
     m_sub, u_sub = meas.subset(rays.matched), meas.subset(rays.unmatched)
+    base_moving = lk.moving(base_effects)
 
-    def predictor(sub: Measurements) -> Callable[[list[Effect]], Prediction]:
-        def predict(effects: list[Effect]) -> Prediction:
-            return predict_rays(model.simulator(effects=list(base_effects) + list(effects)), sub)
-        return predict
+    def caster(index: np.ndarray, sub: Measurements, base: Prediction | None) -> lk.PredictionCache:
+        edge = None if rays.edge_rad is None else rays.edge_rad[index]
 
-    predict = predictor(m_sub)
-    return fitting.FitData(
-        measured_range_m=m_sub.range_m, baseline=predict([]),
-        measured_intensity=m_sub.intensity, predict=predict,
-        unmatched_range_m=u_sub.range_m, predict_unmatched=predictor(u_sub),
-        range_window_m=range_window_m(meas), n_shots=None,
-        baseline_effects=tuple(base_effects))
+        def cast(effects: list[Effect]) -> Prediction:
+            sim = model.simulator(effects=[lk.RaysOnly(e) for e in effects])
+            reach = [e.cast_reach_rad(model.divergence_rad) for e in effects]
+            if (base is not None and edge is not None and effects and not base_moving
+                    and all(r is not None for r in reach)):
+                near = np.flatnonzero(~(edge > max(reach) + 1e-9))   # NaN edge: near
+                if len(near) == 0:
+                    return base
+                return put_prediction(base, near, predict_rays(sim, sub.subset(near)))
+            return predict_rays(sim, sub)
+        return lk.PredictionCache(cast)
+
+    if parent is not None:
+        pdata, prays = parent
+        im = np.searchsorted(prays.matched, rays.matched)
+        iu = np.searchsorted(prays.unmatched, rays.unmatched)
+        cast = lk.PredictionCache(lambda e: take_prediction(pdata.cast(e), im))
+        cast_un = lk.PredictionCache(lambda e: take_prediction(pdata.cast_unmatched(e), iu))
+        baseline = take_prediction(pdata.baseline, im)
+    else:
+        base_m = (take_prediction(rays.pred, rays.matched) if rays.pred is not None else None)
+        base_u = (take_prediction(rays.pred, rays.unmatched) if rays.pred is not None else None)
+        cast = caster(rays.matched, m_sub, base_m)
+        cast_un = caster(rays.unmatched, u_sub, base_u)
+        baseline = base_m if base_m is not None else cast(base_moving)
+    power = None if rays.measured_power_w is None else rays.measured_power_w[rays.matched]
+    extra = 0.0 if rays.extra_var_m2 is None else rays.extra_var_m2[rays.matched]
+    isolated = None if rays.isolated is None else rays.isolated[rays.unmatched]
+    return lk.FitData(
+        measured_range_m=m_sub.range_m, baseline=baseline, cast=cast,
+        unmatched_range_m=u_sub.range_m, cast_unmatched=cast_un,
+        range_window_m=range_window_m(meas), base_effects=tuple(base_effects),
+        measured_power_w=power, extra_var_m2=extra, unmatched_isolated=isolated,
+        placement_uncertain=rays.extra_var_m2 is not None)
 
 
 def calibrated_figures(data, effects: list[Effect]) -> tuple[float, float, float]:
@@ -117,9 +212,8 @@ def calibrated_figures(data, effects: list[Effect]) -> tuple[float, float, float
     under baseline + ``effects``, each material's range offset and sigma scale profiled
     out: the "calibrated" basis, i.e. what a ``--fit`` run (materials refit) reports.
     The robust sigma (MAD) of the same residuals is not swayed by far outliers."""
-    fitting = fitting_module()
-    model = fitting.model_on_rays(data, effects)
-    nll, residual = fitting.point_nll(data, model)
+    model = lk.model_on_rays(data, effects)
+    nll, residual = lk.point_nll(data, model)
     if len(nll) == 0:
         return float('nan'), float('nan'), float('nan')
     use = model.placed & np.isfinite(residual)
@@ -127,19 +221,11 @@ def calibrated_figures(data, effects: list[Effect]) -> tuple[float, float, float
     return float(np.mean(nll)), float(np.sqrt(np.mean(residual ** 2))), robust
 
 
-def is_outlier_effect(effect_cls: type[Effect]) -> bool:
-    """Whether the effect adds spurious returns (judged by the likelihood and the robust
-    spread, not by a plain RMSE that its far outliers dominate)."""
-    return (effect_cls.outlier_fraction is not Effect.outlier_fraction
-            or effect_cls.false_returns is not Effect.false_returns)
-
-
 def heldout_nll(data, effects: list[Effect]) -> np.ndarray:
     """Per-point NLL (nats) of ``data``'s matched ranges under baseline + ``effects``:
     the fitting likelihood (per-material nuisance profiled) with an outlier floor."""
-    fitting = fitting_module()
-    model = fitting.model_on_rays(data, effects)
-    return fitting.point_nll(data, model, OUTLIER_FLOOR)[0]
+    model = lk.model_on_rays(data, effects)
+    return lk.point_nll(data, model, OUTLIER_FLOOR)[0]
 
 
 def literal_choices(effect_cls: type[Effect]) -> dict[str, tuple]:
@@ -178,10 +264,9 @@ def variants(effect_cls: type[Effect], fixed: dict | None = None,
 
 def fit_best_variant(effect_cls: type[Effect], data, fixed: dict | None = None):
     """ML fit over the free parameters and the discrete options: (FitResult, variant class)."""
-    fitting = fitting_module()
     best = None
     for v in variants(effect_cls, fixed):
-        fit = fitting.fit_effect(v, data)
+        fit = fit_effect(v, data)
         if best is None or fit.nll_per_point < best[0].nll_per_point - 1e-9:
             best = (fit, v)
     return best
@@ -207,15 +292,25 @@ class Candidate:
     range_robust_sigma_after_m: float = float('nan')
     unmatched_explained: float = 0.0
     matched_gain: float = 0.0          # held-out, nats per matched point
-    z: float = 0.0
+    z: float = 0.0                     # matched_gain in block-robust standard errors
     unmatched_gain_points: float = 0.0
     n_params: int = 0
-    significant: bool = False
+    significant: bool = False          # decisive: z and total gain (module doc)
+    practical: bool = False            # matters: score >= MIN_PRACTICAL_GAIN
+    share: float | None = None         # of the attribution's feature structure
     vetoed: str | None = None          # why it cannot be the missing effect despite its gain
     far_points: float = 0.0            # outlier effects: far or unmatched points it explains
     effect: Effect | None = None
+    variant: type | None = None
     yaml: str = ''
     error: str | None = None
+    heldout_nll: np.ndarray | None = None   # per matched point, folds concatenated
+    seconds: float = 0.0
+
+    @property
+    def admissible(self) -> bool:
+        return (self.error is None and self.significant and self.practical
+                and self.vetoed is None)
 
     def as_dict(self) -> dict:
         return {'name': self.name, 'score': _num(self.score), 'params': self.params,
@@ -225,6 +320,9 @@ class Candidate:
                 'unmatched_explained': _num(self.unmatched_explained),
                 'heldout_gain_per_matched_point': _num(self.matched_gain), 'z': _num(self.z),
                 'n_params': self.n_params, 'significant': self.significant,
+                'seconds': round(self.seconds, 2),
+                'practical': self.practical,
+                **({'structure_share': _num(self.share)} if self.share is not None else {}),
                 **({'vetoed': self.vetoed} if self.vetoed else {}),
                 **({'error': self.error} if self.error else {})}
 
@@ -233,78 +331,136 @@ def _num(x: float) -> float | None:
     return None if x is None or not np.isfinite(x) else round(float(x), 6)
 
 
-class Diagnosis:
-    """Scores effect classes against the model with ``base_effects`` (materials as
-    configured; the likelihood profiles each material's offset and sigma scale)."""
+@dataclass
+class Decision:
+    """What the diagnosis concludes: the missing effect (or None), the candidates that
+    are confounded in this recording, and a candidate that also explains a separate
+    part of the residual (two effects at once: expect it next)."""
 
-    def __init__(self, model: Model, base_effects: list[Effect], rays: RaySet, seed: int = 0,
-                 frame_time_spread_s: float | None = None):
-        """``frame_time_spread_s``: when the point times within a frame are unknown (every
-        point stamped with its cloud), the standard deviation of their true times."""
+    missing: str | None
+    confounded_with: list[str]
+    also: str | None = None
+    pair_z: dict = field(default_factory=dict)
+
+
+class Diagnosis:
+    """Scores effect classes against the model with ``base_effects`` (the likelihood
+    profiles each material's offset and sigma scale)."""
+
+    def __init__(self, model: Model, base_effects: list[Effect], rays: RaySet, seed: int = 0):
         self.model, self.base, self.rays = model, list(base_effects), rays
         self.full = make_fit_data(model, self.base, rays)
         self.folds = rays.split(N_FOLDS, seed)
-        self.fold_data = [make_fit_data(model, self.base, f) for f in self.folds]
+        self.fold_data = [make_fit_data(model, self.base, f, (self.full, rays))
+                          for f in self.folds]
         self.n_total = len(rays.matched) + len(rays.unmatched)
         self._base_nll = [heldout_nll(d, []) for d in self.fold_data]
-        self.n_far = int(far_from_surface(self.full).sum())
-        self._base_outlier_w = float(np.mean(fitting_module().model_on_rays(
+        # Per matched point of the folds' test sides (in fold order): neighbourhoods.
+        blocks = rays.blocks if rays.blocks is not None else np.arange(len(rays.meas))
+        self.blocks = np.concatenate([blocks[self.folds[(k + 1) % N_FOLDS].matched]
+                                      for k in range(N_FOLDS)])
+        far = far_from_surface(self.full)
+        if rays.isolated is not None:
+            far &= rays.isolated[rays.matched]
+        self.n_far = int(far.sum())
+        self._base_outlier_w = float(np.mean(lk.model_on_rays(
             self.full, []).outlier_w)) if len(self.rays.matched) else 0.0
-        self.frame_time_spread_s = frame_time_spread_s
 
     def score(self, effect_cls: type[Effect]) -> Candidate:
-        """Fit on all points (reported params) and cross-fitted on halves (the score)."""
-        fitting = fitting_module()
+        """Cross-fitted on halves (the score): fitted on one half, scored on the other,
+        both ways; the discrete options are chosen on the first half. ``finalize`` then
+        fits the candidates that count on all the points (their reported figures)."""
         name = getattr(effect_cls, 'name', '') or effect_cls.__name__
         cand = Candidate(name)
+        t0 = time.perf_counter()
         try:
-            fit, variant = fit_best_variant(effect_cls, self.full)
-            options = {k: getattr(fit.effect.params, k) for k in literal_choices(effect_cls)}
-            cand.params = {**{k: float(v) for k, v in fit.params.items()}, **options}
-            # Calibrated basis, on the rays diagnosed; run_compare re-evaluates them on
-            # all matched points (calibrated_figures).
-            cand.range_rmse_after_m, cand.nll_after = fit.range_rmse_m, fit.nll_per_point
-            cand.unmatched_explained = fit.unmatched_explained
-            cand.n_params = fit.n_params
-            cand.effect = plain(effect_cls, fit.effect)
-            cand.yaml = _snippet(cand.effect)
-            gains, explained = [], 0.0
-            for k, train in enumerate(self.fold_data):
-                test = self.fold_data[(k + 1) % N_FOLDS]
-                effect_k = fitting.fit_effect(variant, train).effect
-                gains.append(self._base_nll[(k + 1) % N_FOLDS] - heldout_nll(test, [effect_k]))
-                if len(test.unmatched_range_m):
-                    _, _, u = fitting.evaluate(test, [effect_k])
-                    explained += u * len(test.unmatched_range_m)
-            d = np.concatenate(gains)
-            d = d[np.isfinite(d)]
-            if len(d) > 1:
-                cand.matched_gain = float(d.mean())
-                se = float(d.std(ddof=1)) / np.sqrt(len(d))
-                cand.z = float(cand.matched_gain / se) if se > 0 else 0.0
-            cand.unmatched_gain_points = float(explained)
-            counts = explained >= max(MIN_UNMATCHED_EXPLAINED,
-                                      MIN_UNMATCHED_FRACTION * self.n_total)
-            total = d.sum() + (UNMATCHED_NATS * explained if counts else 0.0)
-            cand.score = float(total / max(self.n_total, 1))
-            cand.significant = bool(total >= max(MIN_TOTAL_GAIN, MIN_GAIN * self.n_total)
-                                    and cand.matched_gain > -MIN_GAIN)
+            first, variant = fit_best_variant(effect_cls, self.fold_data[0])
+            self._describe(cand, effect_cls, first)
+            cand.variant = variant
+            nll, explained = self.cross_fit(variant, [], first=first.effect)
+            self._set_gain(cand, nll, explained)
             cand.vetoed = self._veto(cand, explained)
         except Exception as exc:  # noqa: BLE001 - one failing candidate must not stop the rest
             cand.error = f'{type(exc).__name__}: {exc}'
             cand.score = float('-inf')
+        cand.seconds = time.perf_counter() - t0
         return cand
 
+    def finalize(self, cand: Candidate) -> None:
+        """Fit the candidate on all the diagnosed points: the parameters, snippet and
+        "after" figures the summary reports (what --effect NAME --fit would show)."""
+        if cand.variant is None or cand.error is not None:
+            return
+        t0 = time.perf_counter()
+        effect_cls = type(cand.effect)
+        fit = fit_effect(cand.variant, self.full)
+        self._describe(cand, effect_cls, fit)
+        cand.nll_after, cand.range_rmse_after_m, cand.range_robust_sigma_after_m = \
+            calibrated_figures(self.full, [cand.effect])
+        cand.seconds += time.perf_counter() - t0
+
+    def _describe(self, cand: Candidate, effect_cls: type[Effect], fit) -> None:
+        options = {k: getattr(fit.effect.params, k) for k in literal_choices(effect_cls)}
+        cand.params = {**{k: float(v) for k, v in fit.params.items()}, **options}
+        cand.unmatched_explained = fit.unmatched_explained
+        cand.n_params = fit.n_params
+        cand.effect = plain(effect_cls, fit.effect)
+        cand.yaml = _snippet(cand.effect)
+
+    def cross_fit(self, variant: type[Effect], on_top: list[Effect],
+                  first: Effect | None = None) -> tuple[np.ndarray, float]:
+        """Held-out per-point NLL (test sides concatenated) of the model with ``on_top``
+        plus ``variant`` fitted on the other fold, and the unmatched points it explains.
+        ``first``: the fit on fold 0, if already made."""
+        nll, explained = [], 0.0
+        for k, train in enumerate(self.fold_data):
+            test = self.fold_data[(k + 1) % N_FOLDS]
+            effect_k = first if (k == 0 and first is not None) else \
+                fit_effect(variant, train, on_top).effect
+            nll.append(heldout_nll(test, [*on_top, effect_k]))
+            if len(test.unmatched_range_m):
+                explained += lk.unmatched_explained(test, [*on_top, effect_k]) \
+                    * len(test.unmatched_range_m)
+        return np.concatenate(nll), explained
+
+    def base_heldout(self) -> np.ndarray:
+        """The model without a candidate, per matched point, in ``cross_fit`` order
+        (test folds 1, 2, ..., 0)."""
+        return np.concatenate([self._base_nll[(k + 1) % N_FOLDS] for k in range(N_FOLDS)])
+
+    def _set_gain(self, cand: Candidate, nll: np.ndarray, explained: float) -> None:
+        cand.heldout_nll = nll
+        d = self.base_heldout() - nll
+        ok = np.isfinite(d)
+        cand.unmatched_gain_points = float(explained)
+        if ok.sum() > 1:
+            cand.matched_gain, se = block_mean_se(d[ok], self.blocks[ok])
+            cand.z = float(cand.matched_gain / se) if se > 0 and np.isfinite(se) else 0.0
+        counts = explained >= max(MIN_UNMATCHED_EXPLAINED, MIN_UNMATCHED_FRACTION * self.n_total)
+        total = float(np.sum(d[ok])) + (UNMATCHED_NATS * explained if counts else 0.0)
+        cand.score = float(total / max(self.n_total, 1))
+        z_unmatched = counts and explained >= MIN_UNMATCHED_EXPLAINED
+        cand.significant = bool(total >= MIN_TOTAL_GAIN
+                                and (cand.z >= self.z_crit or z_unmatched)
+                                and cand.matched_gain > -MIN_PRACTICAL_GAIN)
+        cand.practical = cand.score >= MIN_PRACTICAL_GAIN
+
+    @property
+    def z_crit(self) -> float:
+        return getattr(self, '_z_crit', float(norm.isf(FAMILY_ALPHA / 6)))
+
+    def set_family(self, n_candidates: int) -> None:
+        """Bonferroni: the z a candidate needs when ``n_candidates`` are tested."""
+        self._z_crit = float(norm.isf(FAMILY_ALPHA / max(n_candidates, 1)))
 
     def _veto(self, cand: Candidate, unmatched_explained: float) -> str | None:
-        """Why a candidate with a gain cannot be the missing effect (module doc), or None."""
-        fitting = fitting_module()
+        """Why a candidate with a gain lacks its physical signature (module doc), or None."""
         eff = cand.effect
         if eff is None or not len(self.rays.matched):
             return None
         spurious = 0.0
         if type(eff).outlier_fraction is not Effect.outlier_fraction:   # adds false returns
-            w = float(np.mean(fitting.model_on_rays(self.full, [eff]).outlier_w))
+            w = float(np.mean(lk.model_on_rays(self.full, [eff]).outlier_w))
             spurious = max(w - self._base_outlier_w, 0.0) * len(self.rays.matched)
         if spurious >= 1.0:
             cand.far_points = float(self.n_far + unmatched_explained)
@@ -312,30 +468,90 @@ class Diagnosis:
             if cand.far_points < need:
                 return (f'it claims {spurious:.0f} spurious returns among the matched points but only '
                         f'{cand.far_points:.0f} lie far beyond the noise (|residual| > '
-                        f'max({FAR_MIN_M:g} m, {FAR_SIGMAS:g} sigma)) or off the target: '
-                        'heavy noise tails, not false returns')
-        spread = self.frame_time_spread_s
-        if spread and type(eff).pose_time_s is not Effect.pose_time_s:
-            t = self.rays.meas.t_s[self.rays.matched]
-            dt = float(np.median(np.asarray(eff.pose_time_s(t), float) - t))
-        else:
-            dt = None
-        if dt is not None and abs(dt) <= spread:
-            return (f'the clouds carry no per-point times: an offset of {1e3 * dt:.1f} ms is '
-                    f'within the spread of the point times in a frame ({1e3 * spread:.1f} ms) '
-                    'and cannot be told from the scan motion')
+                        f'max({FAR_MIN_M:g} m, {FAR_SIGMAS:g} sigma)) or off the target, '
+                        'isolated from their neighbours: heavy noise tails or surfaces that are '
+                        'not the target, not false returns')
         return None
+
+    def share_veto(self, cand: Candidate, attribution: Attribution | None) -> None:
+        """A bias/noise candidate must explain MIN_SHARE of the feature structure."""
+        if (attribution is None or not attribution.significant or cand.effect is None
+                or is_outlier_effect(type(cand.effect)) or cand.vetoed):
+            return
+        n_matched = max(len(self.rays.matched), 1)
+        matched_total = cand.matched_gain * n_matched
+        if matched_total < 0.5 * cand.score * self.n_total:
+            return    # its evidence is mostly off the target (unmatched points)
+        cand.share = float(cand.matched_gain / attribution.structure_gain)
+        if cand.share < MIN_SHARE:
+            what = attribution.driver or ', '.join(attribution.confounded) or 'the features'
+            cand.vetoed = (f'it explains only {100 * cand.share:.0f} % of the residual\'s '
+                           f'dependence on {what} ({cand.matched_gain:.4f} of '
+                           f'{attribution.structure_gain:.4f} nats/point): the residual has '
+                           'another shape than this effect')
+
+    def decide(self, cands: list[Candidate]) -> Decision:
+        """The missing effect, ties and confounding (module doc)."""
+        ok = [c for c in rank(cands) if c.admissible]
+        if not ok:
+            return Decision(None, [])
+        best = ok[0]
+        tied, pair_z, also = [], {}, None
+        for c in ok[1:]:
+            margin, z = self.paired(best, c)
+            pair_z[c.name] = {'margin': _num(margin), 'z': _num(z)}
+            if margin > 0 and z >= self.z_crit:
+                continue          # decisively worse
+            if self.adds_to(best, c):
+                also = also or c.name   # explains another part: two effects at once
+                continue
+            tied.append(c.name)
+        if tied:
+            return Decision(None, [best.name, *tied], also, pair_z)
+        return Decision(best.name, [], also, pair_z)
+
+    def paired(self, a: Candidate, b: Candidate) -> tuple[float, float]:
+        """How much better ``a`` explains the data than ``b``: the paired held-out per-point
+        NLL difference (plus their unmatched credit), nats per point, and its z."""
+        d = b.heldout_nll - a.heldout_nll
+        ok = np.isfinite(d)
+        mean, se = block_mean_se(d[ok], self.blocks[ok])
+        n_m = max(int(ok.sum()), 1)
+        unmatched = (a.score - a.matched_gain * n_m / self.n_total) \
+            - (b.score - b.matched_gain * n_m / self.n_total)
+        margin = mean * n_m / self.n_total + unmatched
+        z = (mean / se if se > 0 and np.isfinite(se) else 0.0) + (
+            np.inf if unmatched * self.n_total >= MIN_TOTAL_GAIN else 0.0)
+        return float(margin), float(z)
+
+    def adds_to(self, best: Candidate, other: Candidate) -> bool:
+        """Whether ``other``, fitted on top of ``best``, still gains decisively and
+        practically on held-out points: they explain different parts of the residual."""
+        if best.effect is None or other.variant is None:
+            return False
+        try:
+            nll, explained = self.cross_fit(other.variant, [best.effect])
+        except Exception:  # noqa: BLE001
+            return False
+        probe = Candidate(other.name)
+        d = best.heldout_nll - nll
+        ok = np.isfinite(d)
+        if ok.sum() < 2:
+            return False
+        gain, se = block_mean_se(d[ok], self.blocks[ok])
+        z = gain / se if se > 0 and np.isfinite(se) else 0.0
+        probe.score = float(np.sum(d[ok])) / max(self.n_total, 1)
+        return bool(z >= self.z_crit and probe.score >= MIN_PRACTICAL_GAIN)
 
 
 def far_from_surface(data) -> np.ndarray:
     """Matched points far beyond the noise: |residual| > max(FAR_MIN_M, FAR_SIGMAS sigma),
     residual and sigma after the per-material nuisance (offset, sigma scale)."""
-    fitting = fitting_module()
-    model = fitting.model_on_rays(data, [])
+    model = lk.model_on_rays(data, [])
     r = np.asarray(data.measured_range_m, float) - model.expected_range_m
-    sigma = np.maximum(model.sigma_m, fitting.MIN_SIGMA_M)
+    sigma = np.maximum(model.sigma_m, lk.MIN_SIGMA_M)
     use = model.placed & np.isfinite(r)
-    offset, scale = fitting.material_nuisance(
+    offset, scale = lk.material_nuisance(
         r, sigma, np.asarray(data.baseline.ctx.material, int), use)
     with np.errstate(invalid='ignore'):
         return use & (np.abs(r - offset) > np.maximum(FAR_MIN_M, FAR_SIGMAS * sigma * scale))
@@ -346,14 +562,9 @@ def rank(candidates: list[Candidate]) -> list[Candidate]:
 
 
 def missing_effect(candidates: list[Candidate]) -> str | None:
-    """The best admissible candidate's name if it is significant, else None. A vetoed
-    candidate (module doc) steps aside: the next one may still be named."""
-    for c in rank(candidates):
-        if c.error is not None:
-            return None
-        if c.vetoed is None:
-            return c.name if c.significant else None
-    return None
+    """The best admissible candidate's name (no tie test; ``Diagnosis.decide`` does that)."""
+    ok = [c for c in rank(candidates) if c.admissible]
+    return ok[0].name if ok else None
 
 
 def _snippet(effect: Effect) -> str:

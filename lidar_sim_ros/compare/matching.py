@@ -12,7 +12,8 @@ and the smallest ring that misses the target or jumps off the local plane wins.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import copy
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -25,10 +26,10 @@ from lidar_sim_ros.core.pipeline import Prediction, Simulator
 from lidar_sim_ros.core.pose import Poses
 
 # Ring radii of the edge probe, in beam divergences (full angle).
-EDGE_RING_DIVERGENCES = (0.5, 1.0, 2.0, 4.0, 8.0)
+EDGE_RING_DIVERGENCES = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
 EDGE_RING_RAYS = 8
 # Past the largest ring: "far from any edge".
-EDGE_FAR = 16.0
+EDGE_FAR = 32.0
 
 
 @dataclass(frozen=True)
@@ -41,11 +42,20 @@ class Model:
     effects: tuple[Effect, ...] = ()
     seed: int = 0
     scan_base: Path | None = None
+    # Simulators built so far, by materials: building one (scan pattern, cast order)
+    # costs ~25 ms, and the fits ask for one per trial value.
+    _built: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def simulator(self, materials: MaterialsConfig | None = None,
                   effects: list[Effect] | tuple[Effect, ...] | None = None) -> Simulator:
-        return Simulator(self.sensor, materials or self.materials, self.target, self.seed,
-                         list(self.effects if effects is None else effects), self.scan_base)
+        materials = materials or self.materials
+        key = id(materials)
+        if key not in self._built:
+            self._built[key] = (materials, Simulator(self.sensor, materials, self.target,
+                                                     self.seed, [], self.scan_base))
+        sim = copy.copy(self._built[key][1])     # shares scan, target and tables
+        sim.effects = list(self.effects if effects is None else effects)
+        return sim
 
     @property
     def divergence_rad(self) -> float:
@@ -72,6 +82,7 @@ class Matching:
     matched: np.ndarray
     residual_m: np.ndarray
     edge_rad: np.ndarray
+    range_rate_mps: np.ndarray | None = None    # (N,) m/s, see range_rate_mps()
 
     @property
     def n_matched(self) -> int:
@@ -148,3 +159,16 @@ def edge_distance_rad(target: Target, meas: Measurements, pred: Prediction,
 
 def _take_poses(poses: Poses, index: np.ndarray) -> Poses:
     return Poses(poses.rotation[index], poses.position_m[index])
+
+
+def range_rate_mps(sim: Simulator, meas: Measurements, pred: Prediction,
+                   dt_s: float = 0.005) -> np.ndarray:
+    """How fast the range along each measured ray changes with the target's motion (m/s):
+    the model's range at the point's time + dt minus at its time, over dt. NaN where the
+    ray misses at either time or jumps to another surface (|change| > 2.5 cm)."""
+    later = sim.predict(meas.t_s + dt_s, meas.directions, meas.poses, t_frame_s=meas.t_frame_s,
+                        laser=meas.laser)
+    hit = np.asarray(pred.ctx.hit, bool) & np.asarray(later.ctx.hit, bool)
+    with np.errstate(invalid='ignore'):
+        change = later.ctx.range_m - pred.ctx.range_m
+        return np.where(hit & (np.abs(change) <= 0.025), change / dt_s, np.nan)

@@ -15,6 +15,7 @@ Every problem raises :class:`MeasurementError` naming the bag, topic and what is
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -22,8 +23,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, read_clouds,
-                                  read_material_names, read_poses)
+from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, cloud_count,
+                                  iter_clouds, read_material_names, read_poses)
 from lidar_sim_ros.core.pose import PoseTrack
 from lidar_sim_ros.core.scan import Shots
 
@@ -104,26 +105,32 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
                       seed: int = 0) -> Measurements:
     """Read clouds and poses from ``bag`` and check that they can be compared.
 
-    ``max_points`` keeps a random (seeded) subset when the bag holds more points,
-    so very long recordings stay tractable; the dropped count is in ``dropped``.
+    ``max_points`` keeps a random (seeded) subset when the bag holds more points, so
+    very long recordings stay tractable: clouds are read one at a time and each keeps
+    at most its share (max_points / clouds), so the subset spans the whole recording;
+    the dropped count is in ``dropped``.
     """
     bag = Path(bag)
     if not bag.exists():
         raise FileNotFoundError(f'bag {bag} does not exist')
     try:
-        clouds = read_clouds(bag, cloud_topic)
         poses = read_poses(bag, pose_topic)
         names = read_material_names(bag)
+        n_clouds = cloud_count(bag, cloud_topic)
+        clouds = iter_clouds(bag, cloud_topic)
+        first = next(clouds, None)
     except BagContentError as exc:
         raise MeasurementError(
             f'{exc} (choose the topics with --cloud-topic / --pose-topic)') from None
-    if not clouds:
+    if first is None:
         raise MeasurementError(f'bag {bag}: topic {cloud_topic!r} has no messages')
     if len(poses.stamp_ns) == 0:
         raise MeasurementError(f'bag {bag}: topic {pose_topic!r} has no messages')
+    per_cloud = (None if max_points is None
+                 else int(np.ceil(max_points / max(n_clouds, 1))))
 
     notes: list[str] = []
-    fields = clouds[0].points.dtype.names or ()
+    fields = first.points.dtype.names or ()
     missing = [f for f in ('x', 'y', 'z') if f not in fields]
     if missing:
         raise MeasurementError(
@@ -138,14 +145,14 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
     if not has_i:
         notes.append('clouds have no "intensity" field: the intensity feature uses the model')
 
-    epoch_ns = int(min(int(poses.stamp_ns[0]), min(c.stamp_ns for c in clouds)))
+    time_dtype = str(first.points.dtype[t_name]) if has_t else None
     cols: dict[str, list] = {k: [] for k in ('xyz', 'i', 't', 'cloud', 'laser')}
-    stamps = []
-    n_nonfinite = n_zero = 0
+    stamp_ns = []
+    n_nonfinite = n_zero = n_thinned = 0
     t_kinds: list[str] = []
-    for k, c in enumerate(clouds):
+    for k, c in enumerate(itertools.chain([first], clouds)):
         p = c.points
-        stamps.append((c.stamp_ns - epoch_ns) / NS_PER_S)
+        stamp_ns.append(c.stamp_ns)
         if len(p) == 0:
             continue
         xyz = np.column_stack([np.asarray(p[f], dtype=float).reshape(len(p), -1)[:, 0]
@@ -156,6 +163,13 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         zero = ok & (rng <= 1e-6)   # drivers report "no return" as (0, 0, 0)
         n_zero += int(zero.sum())
         ok &= ~zero
+        if per_cloud is not None and ok.sum() > per_cloud:
+            # The cloud's share of max_points, at random (seeded per cloud).
+            keep = np.flatnonzero(ok)
+            keep = np.sort(np.random.default_rng([seed, k]).choice(keep, per_cloud, False))
+            n_thinned += int(ok.sum()) - per_cloud
+            ok = np.zeros(len(ok), bool)
+            ok[keep] = True
         cols['xyz'].append(xyz[ok])
         cols['i'].append(np.asarray(p['intensity'], dtype=float)[ok] if has_i
                          else np.zeros(ok.sum()))
@@ -171,20 +185,20 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
     total = sum(len(x) for x in cols['xyz'])
     if total == 0:
         raise MeasurementError(
-            f'bag {bag}: all {len(clouds)} cloud(s) on {cloud_topic!r} are empty '
+            f'bag {bag}: all {len(stamp_ns)} cloud(s) on {cloud_topic!r} are empty '
             f'(no finite, non-zero points; {n_nonfinite} non-finite, {n_zero} at the origin)')
     xyz = np.vstack(cols['xyz'])
     t_frame = np.concatenate(cols['t'])
     time_field = None
     if has_t:
         kinds = sorted(set(t_kinds))
-        time_field = {'name': t_name, 'dtype': str(clouds[0].points.dtype[t_name]),
-                      'read_as': kinds}
+        time_field = {'name': t_name, 'dtype': time_dtype, 'read_as': kinds}
         if kinds != ['s since stamp'] or t_name != 't':
             notes.append(f'per-point time from field {t_name!r} '
-                         f'({clouds[0].points.dtype[t_name]}): read as {", ".join(kinds)}')
+                         f'({time_dtype}): read as {", ".join(kinds)}')
     cloud = np.concatenate(cols['cloud'])
-    stamps_s = np.asarray(stamps)
+    epoch_ns = int(min(int(poses.stamp_ns[0]), min(stamp_ns)))
+    stamps_s = (np.asarray(stamp_ns, np.int64) - epoch_ns) / NS_PER_S
     t_abs = stamps_s[cloud] + t_frame
 
     pose_t = (poses.stamp_ns - epoch_ns) / NS_PER_S
@@ -195,11 +209,14 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         notes.append('intensity field holds no positive values: ignored')
         intensity = None
     rng = np.linalg.norm(xyz, axis=1)
-    dropped = {'non_finite': n_nonfinite, 'at_origin': n_zero, 'subsampled': 0}
+    dropped = {'non_finite': n_nonfinite, 'at_origin': n_zero, 'subsampled': n_thinned}
+    if n_thinned:
+        notes.append(f'{len(rng) + n_thinned} points in {len(stamp_ns)} clouds: at most '
+                     f'{per_cloud} per cloud are analysed, at random')
     keep = np.arange(len(rng))
     if max_points is not None and len(rng) > max_points:
         keep = np.sort(np.random.default_rng(seed).choice(len(rng), max_points, replace=False))
-        dropped['subsampled'] = len(rng) - max_points
+        dropped['subsampled'] = n_thinned + len(rng) - max_points
         notes.append(f'{len(rng)} points: a random subset of {max_points} is analysed')
     return Measurements(
         bag=bag, xyz_m=xyz[keep], range_m=rng[keep], directions=xyz[keep] / rng[keep, None],

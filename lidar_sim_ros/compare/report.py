@@ -27,11 +27,14 @@ FEATURE_LABELS = {'range': 'range (m)', 'incidence': 'incidence angle (deg)',
                   'elevation': 'elevation (deg)', 'time': 'time since cloud stamp (s)',
                   'material': 'material', 'edge': 'distance to edge (mrad)'}
 MAX_SCATTER = 4000
+MAX_TARGET_POINTS = 8000
 
 
 def _png(fig) -> bytes:
     buf = io.BytesIO()
-    fig.savefig(buf, format='png', dpi=90, bbox_inches='tight')
+    # Layouts are set by tight_layout / constrained layout: a 'tight' bounding box would
+    # draw every figure twice.
+    fig.savefig(buf, format='png', dpi=80)
     plt.close(fig)
     return buf.getvalue()
 
@@ -89,19 +92,27 @@ def target_figure(matching, residual_m: np.ndarray) -> bytes:
     pts = meas.directions * np.where(sel, matching.pred.ctx.range_m, meas.range_m)[:, None]
     body = poses.to_body(pts)
     hit = body[sel]
+    residual_m = np.asarray(residual_m)
+    if len(hit) > MAX_TARGET_POINTS:      # a scatter of more points shows nothing more
+        pick = np.sort(np.random.default_rng(1).choice(len(hit), MAX_TARGET_POINTS, False))
+        hit, residual_m = hit[pick], residual_m[pick]
     extent = np.ptp(hit, axis=0) if len(hit) else np.ones(3)
     long_axis = int(np.argmax(extent))
     others = [i for i in range(3) if i != long_axis]
     lim = 3 * max(robust_sigma(residual_m), 1e-4) * 100
     axis_name = 'xyz'
     ratio = extent[others].max() / max(extent[long_axis], 1e-6)
-    fig, axes = plt.subplots(2, 1, figsize=(10, 2 * (1.2 + 4.5 * min(max(ratio, 0.3), 1.0))))
+    fig, axes = plt.subplots(2, 1, figsize=(10, 2 * (1.2 + 4.5 * min(max(ratio, 0.3), 1.0))),
+                             layout='constrained')
     for ax, j, k in zip(axes, others, others[::-1]):
         order = np.argsort(hit[:, k])       # nearest-to-viewer last
         sc = ax.scatter(hit[order, long_axis], hit[order, j], c=(residual_m * 100)[order],
                         s=4, cmap='coolwarm', vmin=-lim, vmax=lim)
-        if np.any(~sel):
-            ax.plot(body[~sel, long_axis], body[~sel, j], 'kx', ms=3,
+        # Unmatched points close to the target (clutter far away has its own figure).
+        lo, hi = hit.min(axis=0) - 0.5, hit.max(axis=0) + 0.5
+        close = ~sel & np.all((body >= lo) & (body <= hi), axis=1)
+        if np.any(close):
+            ax.plot(body[close, long_axis], body[close, j], 'kx', ms=3,
                     label='unmatched (measured point)')
             ax.legend(fontsize=8, loc='upper right')
         ax.set_xlabel(f'body {axis_name[long_axis]} (m)')
@@ -166,6 +177,37 @@ def unmatched_figure(matching, divergence_rad: float) -> bytes:
     return _png(fig)
 
 
+def scene_figure(matching, divergence_rad: float, isolated: np.ndarray | None) -> bytes:
+    """Azimuth/elevation view of the analysed points: target points grey, unmatched points
+    painted by class (near the silhouette, clutter surface, isolated)."""
+    d = matching.meas.directions
+    az = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    el = np.degrees(np.arcsin(np.clip(d[:, 2], -1, 1)))
+    on = matching.matched
+    near = ~on & (matching.edge_rad <= 2.0 * divergence_rad + 1e-12)
+    alone = ~on & ~near & (isolated if isolated is not None else np.zeros(len(on), bool))
+    clutter = ~on & ~near & ~alone
+    fig, ax = plt.subplots(figsize=(10, 4.2))
+    rng = np.random.default_rng(0)
+    show = np.flatnonzero(on)
+    show = show if len(show) <= MAX_SCATTER else rng.choice(show, MAX_SCATTER, False)
+    ax.plot(az[show], el[show], '.', ms=1.5, color='0.7', label='on the target model')
+    for mask, color, label in ((near, 'tab:blue', 'unmatched, near the silhouette'),
+                               (clutter, 'tab:orange', 'unmatched, clutter surface'),
+                               (alone, 'tab:red', 'unmatched, isolated')):
+        if mask.any():
+            ax.plot(az[mask], el[mask], '.', ms=3, color=color,
+                    label=f'{label} ({int(mask.sum())})')
+    ax.invert_xaxis()        # azimuth grows to the left (REP-103): as seen from the sensor
+    ax.set_xlabel('azimuth (deg)')
+    ax.set_ylabel('elevation (deg)')
+    ax.set_aspect('equal')
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc='upper right', markerscale=3)
+    fig.tight_layout()
+    return _png(fig)
+
+
 def _table(rows: list[list], header: list[str]) -> str:
     head = ''.join(f'<th>{html.escape(str(h))}</th>' for h in header)
     body = ''.join('<tr>' + ''.join(f'<td>{html.escape(_fmt(c))}</td>' for c in row) + '</tr>'
@@ -188,12 +230,14 @@ border-left:4px solid #e0a000}img{max-width:100%}code{background:#f3f3f3}"""
 
 
 def write_report(out: Path, summary: dict, matching, configured, residual_m: np.ndarray,
-                 stats, feats, cands, runs: list[dict], model) -> list[Path]:
+                 stats, feats, cands, runs: list[dict], model,
+                 isolated: np.ndarray | None = None) -> list[Path]:
     """Write DIR/report.html (figures embedded); return the written paths.
 
-    ``matching``: the model's prediction on every ray; ``configured``: the same with the
-    materials as configured (for the per-material histograms); ``residual_m``: matched
-    residuals with the per-material offsets removed.
+    ``matching``: the model's prediction on the analysed sample of rays; ``configured``:
+    on every ray, materials as configured (for the per-material histograms);
+    ``residual_m``: the sample's matched residuals, per-material offsets removed;
+    ``isolated``: per sample point, no neighbouring ray at the same range.
     """
     names = list(model.materials.names)
     values = feature_values(matching)
@@ -208,12 +252,13 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
         figs['candidates'] = candidates_figure(cands)
     if s['unmatched_points']:
         figs['unmatched'] = unmatched_figure(matching, model.divergence_rad)
+        figs['scene'] = scene_figure(matching, model.divergence_rad, isolated)
     cand_rows = [[c.name, c.score, c.params, c.range_rmse_after_m, c.nll_after,
                   c.range_robust_sigma_after_m, c.unmatched_explained, c.z,
                   'vetoed' if c.vetoed else 'yes' if c.significant else 'no',
                   c.yaml or c.error or ''] for c in cands]
-    feat_rows = [[f.name, f.score, f.mean_part, f.spread_part, f.significance, f.trend]
-                 for f in feats]
+    feat_rows = [[f.name, f.score, f.score_z, f.marginal, f.mean_part, f.spread_part,
+                  f.significance, f.trend] for f in feats]
     mat_rows = [[n, m['points'], m['model_bias_m'], m['measured_bias_m'], m['model_sigma_m'],
                  m['measured_sigma_m'],
                  'yes' if (m['bias_mismatch'] or m['sigma_mismatch']) else 'no']
@@ -248,8 +293,13 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
         _img(figs['candidates'], 'candidates') if 'candidates' in figs else
         '<p>No candidate effects were diagnosed in this run.</p>',
         '<h2>Where the model fails: residual against each feature</h2>',
-        _table(feat_rows, ['feature', 'score', 'mean part', 'spread part', 'significance',
-                           'trend']),
+        '<p>Score: held-out log-likelihood (nats per point) a joint model of the residual on '
+        'all features loses without this one: what it explains given the others. Marginal: '
+        'what it explains alone (binned). Features that explain the residual alone but not '
+        'given the others stand in for each other: '
+        f'{html.escape(", ".join(s["residual_structure"]["confounded"]) or "none")}.</p>',
+        _table(feat_rows, ['feature', 'score', 'score z', 'marginal', 'mean part',
+                           'spread part', 'significance', 'trend']),
         _img(figs['features'], 'residual vs top features'),
         '<h2>Per-material range error</h2>',
         _table(mat_rows, ['material', 'points', 'model bias (m)', 'measured bias (m)',
@@ -267,7 +317,12 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
                   f'2 beam divergences of the silhouette; '
                   f'{100 * u["within_target_ranges_fraction"]:.0f} % at target ranges: '
                   f'{html.escape(u["interpretation"])}.</p>',
-                  _img(figs['unmatched'], 'unmatched points')]
+                  _img(figs['unmatched'], 'unmatched points'),
+                  '<p>The view from the sensor: points on the target model in grey, the '
+                  'unmatched ones coloured by what they look like: near the silhouette (beam '
+                  'edge, pose), on a surface that is not the target (lab clutter: walls, '
+                  'jigs, cables) or isolated (random ranges: false returns).</p>',
+                  _img(figs['scene'], 'unmatched points in the view, clutter painted')]
     parts += ['<h2>History: the error across runs</h2>',
               f'<p>From {html.escape(s.get("history", ""))}.</p>',
               _img(figs['history'], 'history'),

@@ -5,31 +5,48 @@ diagnose, report.
 points and target poses, predicts every measured ray with the model (the scenario's
 sensor and materials, the given mesh, the scenario's effects plus any ``--effect``),
 and writes ``summary.json``, ``report.html`` (+ PNGs), ``effects.yaml`` (with
-``--fit``), ``materials.yaml`` and one line of ``history.json``.
+``--fit``), ``materials.yaml`` and one line of ``history.json``. Each stage prints a
+progress line on stderr; ``summary.json`` keeps their durations (``stage_seconds``).
+
+Speed: the headline figures and the per-material statistics use every point
+analysed (one raycast); the edge probe, the attribution and the candidate fits use
+a random sample of at most DIAGNOSIS_MAX_MATCHED matched (and as many unmatched)
+points, which holds ample statistical power for effects that matter.
 """
 from __future__ import annotations
 
 import json
+import sys
+import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare import diagnosis, features, history, materials as mat
-from lidar_sim_ros.compare.matching import Matching, Model, match
+from lidar_sim_ros.compare import (diagnosis, features, history, likelihood as lk,
+                                   materials as mat, neighbours, point_times)
+from lidar_sim_ros.compare.intensity import IntensityCalibration, calibrate_intensity
+from lidar_sim_ros.compare.matching import (Matching, Model, edge_distance_rad, match,
+                                            range_rate_mps)
 from lidar_sim_ros.compare.measurements import (Measurements, load_measurements,
                                                  with_scan_times)
-from lidar_sim_ros.core.config import Scenario, load_scenario
+from lidar_sim_ros.compare.verdict import summary_lines, verdict
+from lidar_sim_ros.core.config import MaterialsConfig, Scenario, load_scenario
 from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
                                         parse_effect_spec)
 from lidar_sim_ros.core.geometry import load_target
+from lidar_sim_ros.core.pipeline import Prediction
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, POSE_TOPIC
 from lidar_sim_ros.paths import config_path
 
 DEFAULT_MAX_POINTS = 300_000
 # Candidate fits re-run the raycast many times: a random subset of this many matched
 # points (and as many unmatched) keeps them fast with ample statistical power.
-DIAGNOSIS_MAX_MATCHED = 30_000
+DIAGNOSIS_MAX_MATCHED = 12_000
+# Candidates fitted on all the diagnosed points (reported parameters and "after"
+# figures): the best few; the others report their fit on half of the points.
+FINALIZED = 3
 SILHOUETTE_NEAR_DIVERGENCES = 2.0
 
 
@@ -48,6 +65,7 @@ class CompareOptions:
     candidates: list[str] | None = None     # effect specs to diagnose (default: catalogue)
     seed: int = 0
     report: bool = True
+    progress: bool = True                   # one line per stage on stderr
 
 
 @dataclass
@@ -59,13 +77,33 @@ class CompareResult:
     lines: list[str]
 
 
-def _rays(m: Matching) -> diagnosis.RaySet:
-    return diagnosis.RaySet(m.meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched))
+class Stages:
+    """Times each stage of the run and prints a progress line per stage on stderr."""
+
+    def __init__(self, show: bool):
+        self.show, self.seconds = show, {}
+        self._t0 = time.perf_counter()
+
+    @contextmanager
+    def __call__(self, name: str, what: str = ''):
+        t0 = time.perf_counter()
+        yield
+        dt = time.perf_counter() - t0
+        self.seconds[name] = round(self.seconds.get(name, 0.0) + dt, 3)
+        if self.show:
+            print(f'lidar-sim compare: {name} {dt:.1f} s{(" (" + what + ")") if what else ""}',
+                  file=sys.stderr, flush=True)
+
+    @property
+    def total(self) -> float:
+        return time.perf_counter() - self._t0
 
 
-def fit_user_effects(model: Model, base: list[Effect], user: list[Effect],
-                     meas: Measurements) -> list[Effect]:
-    """ML-fit each user effect in turn on top of the base and the previously fitted ones.
+def fit_user_effects(model: Model, base: list[Effect], user: list[Effect], meas: Measurements,
+                     power: 'PowerFromIntensity', extra_var: np.ndarray | None,
+                     seed: int) -> list[Effect]:
+    """ML-fit each user effect in turn on top of the base and the previously fitted ones
+    (on the diagnosis sample of points).
 
     The likelihood profiles each material's offset and sigma scale, so a constant
     per-material mismatch does not leak into the effect's parameters.
@@ -76,85 +114,199 @@ def fit_user_effects(model: Model, base: list[Effect], user: list[Effect],
         # Parameters the user gave (e.g. beam_divergence={range_mode: first}) stay fixed.
         fixed = {k: v for k, v in eff.params.model_dump(exclude_unset=True).items()
                  if k not in cls.bounds}
-        m = match(model.simulator(effects=base + done), meas, model.divergence_rad, edges=False)
-        data = diagnosis.make_fit_data(model, base + done, _rays(m))
+        m = match(geometry(model, base + done), meas, model.divergence_rad, edges=False)
+        rays = replace(rays_of(m, power(m)), extra_var_m2=extra_var)
+        data = diagnosis.make_fit_data(model, base + done,
+                                       rays.sample(DIAGNOSIS_MAX_MATCHED, seed))
         fit, _ = diagnosis.fit_best_variant(cls, data, fixed)
         done.append(diagnosis.plain(cls, fit.effect))
     return done
 
 
+def geometry(model: Model, effects: list[Effect]):
+    """The simulator that casts the model's rays: the ray geometry of ``effects`` only
+    (pose time, footprint); their hooks are applied by the likelihood."""
+    return model.simulator(effects=[lk.RaysOnly(e) for e in lk.moving(effects)])
+
+
+def rays_of(m: Matching, measured_power_w: np.ndarray | None) -> diagnosis.RaySet:
+    return diagnosis.RaySet(m.meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
+                            pred=m.pred, measured_power_w=measured_power_w)
+
+
+def with_materials(pred: Prediction, materials: MaterialsConfig) -> Prediction:
+    """The prediction with other per-material bias and sigma (same rays, no raycast)."""
+    mat_id = np.asarray(pred.ctx.material, int)
+    hit = np.asarray(pred.ctx.hit, bool) & (mat_id >= 0)
+    safe = np.where(hit, mat_id, 0)
+    bias = np.where(hit, materials.column('bias_m')[safe], 0.0)
+    sigma = np.where(hit, materials.column('sigma_m')[safe], 0.0)
+    return replace(pred, bias_m=bias, sigma_m=sigma)
+
+
+class PowerFromIntensity:
+    """Received power from the measured intensity (``compare/intensity.py``), calibrated
+    once against the model's power; None for recordings without (usable) intensity."""
+
+    def __init__(self) -> None:
+        self.calibration: IntensityCalibration | None = None
+        self.done = False
+
+    def __call__(self, m: Matching) -> np.ndarray | None:
+        if m.meas.intensity is None:
+            return None
+        if not self.done:
+            sel = m.matched
+            self.calibration = calibrate_intensity(m.meas.intensity[sel], m.meas.range_m[sel],
+                                                   m.pred.ctx.power_w[sel],
+                                                   m.pred.ctx.intensity[sel])
+            self.done = True
+        if self.calibration is None or not self.calibration.usable:
+            return None
+        return self.calibration.power_w(m.meas.intensity, m.meas.range_m)
+
+
+def unknown_time_variance(model: Model, effects: list[Effect], meas: Measurements,
+                          scenario: Scenario, seed: int) -> tuple[np.ndarray | None, float]:
+    """Clouds without per-point time: the variance (m^2, per point) the unknown point
+    times add, and the fitted time spread (s) (``point_times.py``); (None, 0) otherwise."""
+    if meas.time_source != 'stamp':
+        return None, 0.0
+    sim = geometry(model, effects)
+    m = match(sim, meas, model.divergence_rad, edges=False)
+    rays = rays_of(m, None)
+    sample = rays.sample(DIAGNOSIS_MAX_MATCHED, seed)
+    data = diagnosis.make_fit_data(model, effects, sample)
+    on = lk.model_on_rays(data, [])
+    sub = meas.subset(sample.matched)
+    rr = range_rate_mps(sim, sub, diagnosis.take_prediction(m.pred, sample.matched))
+    steps = np.diff(np.unique(meas.cloud_stamps_s))
+    period = float(np.median(steps)) if len(steps) else scenario.sensor.frame_period_s
+    spread = point_times.time_spread_s(data.measured_range_m - on.expected_range_m, on.sigma_m,
+                                       np.asarray(data.baseline.ctx.material, int), rr, period)
+    if spread <= 0:
+        return None, 0.0
+    rr_all = np.full(len(meas), np.nan)
+    hit = np.flatnonzero(m.matched)
+    rr_all[hit] = range_rate_mps(sim, meas.subset(hit), diagnosis.take_prediction(m.pred, hit))
+    return point_times.extra_variance_m2(rr_all, spread), spread
+
+
 def run_compare(opts: CompareOptions) -> CompareResult:
+    stage = Stages(opts.progress)
     opts.out = Path(opts.out)
-    scenario = load_scenario(opts.config or config_path('scenario.yaml'))
-    target = load_target(opts.mesh, scenario.materials.names)
-    meas = load_measurements(opts.bag, opts.cloud_topic, opts.pose_topic, opts.max_points,
-                             opts.seed)
-    scenario_effects = [get_effect_class(e.name)(e.params) for e in scenario.config.effects]
-    user = [effect_from_spec(spec) for spec in opts.effects]
-    model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
-                  scenario.source.parent if scenario.source else None)
-
-    meas = with_scan_times(meas, model.simulator().shots)
-
+    with stage('load'):
+        scenario = load_scenario(opts.config or config_path('scenario.yaml'))
+        target = load_target(opts.mesh, scenario.materials.names)
+        meas = load_measurements(opts.bag, opts.cloud_topic, opts.pose_topic, opts.max_points,
+                                 opts.seed)
+        scenario_effects = [get_effect_class(e.name)(e.params) for e in scenario.config.effects]
+        user = [effect_from_spec(spec) for spec in opts.effects]
+        model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
+                      scenario.source.parent if scenario.source else None)
+        meas = with_scan_times(meas, model.simulator().shots)
+    power = PowerFromIntensity()
+    with stage('point times'):
+        extra_var, time_spread = unknown_time_variance(model, scenario_effects, meas, scenario,
+                                                       opts.seed)
     fitted: list[Effect] = []
     if opts.fit and user:
-        user = fitted = fit_user_effects(model, scenario_effects, user, meas)
+        with stage('fit effects', ', '.join(e.name for e in user)):
+            user = fitted = fit_user_effects(model, scenario_effects, user, meas, power,
+                                             extra_var, opts.seed)
     effects = scenario_effects + user
     notes = list(meas.notes) + _material_name_notes(meas, scenario)
     if opts.fit and not user:
         notes.append('--fit without --effect: nothing to fit')
 
-    # Predict every measured ray; per-material bias/sigma as measured vs configured.
-    matching = match(model.simulator(effects=effects), meas, model.divergence_rad,
-                     edges=not opts.fit)
-    stats = mat.material_stats(model.materials, matching.pred, matching.residual_m,
-                               matching.matched)
-    refit = mat.refit_materials(model.materials, stats)
-    configured = matching
-    if opts.fit:
-        # --fit estimates the model's free parameters: the effects' and, as in the
-        # paper's Table 2 calibration, each material's range bias and sigma.
-        model = replace(model, materials=refit)
-        matching = match(model.simulator(effects=effects), meas, model.divergence_rad)
-    rays = _rays(matching)
-    if len(rays.matched) < 10:
-        raise ValueError(
-            f'only {len(rays.matched)} of {len(meas)} measured rays hit the target mesh '
-            f'{opts.mesh}: check the mesh, the pose topic {opts.pose_topic!r} (target body '
-            f'pose in the lidar frame) and that the clouds are in the lidar frame')
-    pred, sel = matching.pred, matching.matched
-    fitting = diagnosis.fitting_module()
-    everything = diagnosis.make_fit_data(model, effects, rays)
-    # Headline: the model (materials as configured, or refit with --fit). Calibrated:
-    # each material's offset and sigma scale profiled out (what --fit delivers); the
-    # candidates' "after" figures are on this basis too.
-    nll, rmse, _ = fitting.evaluate(everything, [], profile_materials=False)
-    cal_nll, cal_rmse, cal_robust = diagnosis.calibrated_figures(everything, [])
+    with stage('match', f'{len(meas)} rays'):
+        matching = match(geometry(model, effects), meas, model.divergence_rad, edges=False)
+        rays = replace(rays_of(matching, power(matching)), extra_var_m2=extra_var)
+        pred, sel = matching.pred, matching.matched
+        if len(rays.matched) < 10:
+            raise ValueError(
+                f'only {len(rays.matched)} of {len(meas)} measured rays hit the target mesh '
+                f'{opts.mesh}: check the mesh, the pose topic {opts.pose_topic!r} (target body '
+                f'pose in the lidar frame) and that the clouds are in the lidar frame')
+    with stage('materials'):
+        # Per-material bias/sigma as measured vs configured.
+        residual, sigma = model_residuals(diagnosis.make_fit_data(model, effects, rays), rays)
+        stats = mat.material_stats(model.materials, replace(pred, sigma_m=sigma), residual, sel)
+        refit = mat.refit_materials(model.materials, stats)
+        configured = replace(matching, residual_m=residual)
+        if opts.fit:
+            # --fit estimates the model's free parameters: the effects' and, as in the
+            # paper's Table 2 calibration, each material's range bias and sigma.
+            model = replace(model, materials=refit)
+            pred = with_materials(pred, refit)
+            matching = replace(matching, pred=pred)
+            rays = replace(rays, pred=pred)
+        everything = diagnosis.make_fit_data(model, effects, rays)
+        residual, sigma = model_residuals(everything, rays)
+        matching = replace(matching, residual_m=residual)
+        # Headline: the model (materials as configured, or refit with --fit). Calibrated:
+        # each material's offset and sigma scale profiled out (what --fit delivers).
+        nll, rmse, _ = lk.evaluate(everything, [], profile_materials=False)
+        cal_nll, cal_rmse, cal_robust = diagnosis.calibrated_figures(everything, [])
 
-    # Where the residual depends, model-free, once the material offsets are removed.
-    res = matching.residual_m[sel]
-    sigma = np.maximum(pred.sigma_m[sel], 1e-6)
-    offset, scale = fitting.material_nuisance(res, sigma, np.asarray(pred.ctx.material[sel], int),
-                                              np.isfinite(res))
-    res = res - offset
-    feats = features.score_features(features.feature_values(matching), res,
-                                    res / (sigma * scale), opts.seed)
+    with stage('neighbours'):
+        sample = rays.sample(DIAGNOSIS_MAX_MATCHED, opts.seed)
+        picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
+        isolated = np.zeros(len(meas), bool)
+        isolated[picked] = neighbours.isolated(meas.directions, meas.range_m, meas.cloud, picked)
+        sample = replace(sample, isolated=isolated,
+                         blocks=neighbours.blocks(meas.directions, meas.cloud))
+        # The analysed sample as a Matching of its own (features, report).
+        sub = meas.subset(picked)
+        sub_pred = diagnosis.take_prediction(pred, picked)
+    with stage('features', f'{len(sample.matched)} matched points'):
+        sim = geometry(model, effects)
+        edge = edge_distance_rad(sim.target, sub, sub_pred, model.divergence_rad)
+        edge_all = np.full(len(meas), np.nan)
+        edge_all[picked] = edge
+        sample = replace(sample, edge_rad=edge_all)
+        rr = range_rate_mps(sim, sub, sub_pred)
+        local = Matching(sub, sub_pred, sel[picked], residual[picked], edge, rr)
+        lsel = local.matched
+        res = residual[picked][lsel]
+        sig = np.maximum(sigma[picked][lsel], 1e-6)
+        offset, scale = lk.material_nuisance(res, sig, np.asarray(sub_pred.ctx.material[lsel], int),
+                                             np.isfinite(res))
+        res = res - offset
+        values = features.feature_values(local)
+        if rays.measured_power_w is not None:
+            # The measured power, not the raw intensity: a range-compensated reflectivity
+            # is computed with the measured range and would leak its noise to the
+            # attribution (the calibration divides it out again).
+            mp = rays.measured_power_w[picked][lsel]
+            values['intensity'] = np.log10(np.where(np.isfinite(mp) & (mp > 0), mp,
+                                                    np.nanmin(mp[mp > 0]) if np.any(mp > 0)
+                                                    else 1e-12))
+        attribution = features.attribute(values, res, res / (sig * scale), opts.seed,
+                                         sample.blocks[picked][lsel])
+        feats = attribution.features
 
-    # Which effect is missing.
     in_model = {e.name for e in effects}
     classes = ([get_effect_class(parse_effect_spec(s)[0]) for s in opts.candidates]
                if opts.candidates is not None else list(catalogue().values()))
     classes = [c for c in classes if c.name not in in_model]
-    cands = []
+    cands: list[diagnosis.Candidate] = []
+    decision = diagnosis.Decision(None, [])
     if classes:
-        diag = diagnosis.Diagnosis(model, effects, rays.sample(DIAGNOSIS_MAX_MATCHED, opts.seed),
-                                   opts.seed, frame_time_spread_s(meas, scenario))
-        cands = diagnosis.rank([diag.score(c) for c in classes])
-        for c in cands:
-            if c.effect is not None:   # what a run with --effect NAME --fit would show
-                c.nll_after, c.range_rmse_after_m, c.range_robust_sigma_after_m = \
-                    diagnosis.calibrated_figures(everything, [c.effect])
-    missing = diagnosis.missing_effect(cands)
+        with stage('candidates', ', '.join(c.name for c in classes)):
+            diag = diagnosis.Diagnosis(model, effects, sample, opts.seed)
+            diag.set_family(len(classes))
+            cands = [diag.score(c) for c in classes]
+            for c in cands:
+                diag.share_veto(c, attribution)
+            cands = diagnosis.rank(cands)
+            decision = diag.decide(cands)
+            for c in cands[:FINALIZED]:
+                if c.significant or c is cands[0]:
+                    diag.finalize(c)      # what a run with --effect NAME --fit would show
+            before = diagnosis.calibrated_figures(diag.full, [])
+    else:
+        before = (cal_nll, cal_rmse, cal_robust)
 
     summary = {
         'bag': str(opts.bag), 'mesh': str(opts.mesh),
@@ -170,21 +322,36 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         'range_robust_sigma_calibrated_m': float(cal_robust),
         'materials_refit': bool(opts.fit),
         'range_residual_robust_sigma_m': mat.robust_sigma(res),
-        'intensity_gain': _intensity_gain(meas, pred, sel),
+        'range_span_m': [float(x) for x in np.percentile(meas.range_m[sel], [5, 95])],
+        'intensity_gain': (power.calibration.as_dict() if power.calibration is not None
+                           else None),
+        'power_driven_effects_use': ('measured intensity' if rays.measured_power_w is not None
+                                     else 'model power'),
         'materials': {s.name: s.as_dict() for s in stats},
         'features': [f.as_dict() for f in feats],
+        'residual_structure': attribution.as_dict(),
         'candidates': [c.as_dict() for c in cands],
-        'missing_effect': missing,
-        'unmatched': _unmatched_summary(matching, model.divergence_rad),
+        'candidates_basis': {'points': int(len(sample.matched)),
+                             'nll_calibrated': before[0], 'range_rmse_calibrated_m': before[1],
+                             'range_robust_sigma_calibrated_m': before[2]},
+        'missing_effect': decision.missing,
+        'confounded_with': decision.confounded_with,
+        'also_explains': decision.also,
+        'unmatched': _unmatched_summary(local, model.divergence_rad, int((~sel).sum()),
+                                        float(matching.unmatched_fraction), isolated[picked]),
         'fitted_effects': [_effect_record(e, fitted_only=True) for e in fitted],
         'clouds': int(len(meas.cloud_stamps_s)),
         'point_times': meas.time_source,
         'point_time_field': meas.time_field,
+        'point_time_spread_s': time_spread or None,
         'has_intensity': meas.intensity is not None,
         'dropped': meas.dropped,
         'notes': notes,
     }
-    summary['verdict'] = verdict(summary, feats, cands)
+    # The verdict quotes candidates against the figures of the points they were fitted on.
+    basis = {**summary, 'nll_calibrated': before[0], 'range_rmse_calibrated_m': before[1],
+             'range_robust_sigma_calibrated_m': before[2]}
+    summary['verdict'] = verdict(basis, attribution, cands, decision)
 
     opts.out.mkdir(parents=True, exist_ok=True)
     files = []
@@ -195,25 +362,28 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     runs = history.append_run(hist_path, history.run_entry(
         summary, [e.name for e in effects], opts.out, opts.bag))
     summary['history'] = str(hist_path)
-    files.append(_write(opts.out / 'summary.json', json.dumps(summary, indent=2) + '\n'))
     if opts.report:
-        from lidar_sim_ros.compare.report import write_report
-        files += write_report(opts.out, summary, matching, configured, res, stats, feats,
-                              cands, runs, model)
+        with stage('report'):
+            from lidar_sim_ros.compare.report import write_report
+            files += write_report(opts.out, summary, local, configured, res, stats, feats,
+                                  cands, runs, model, isolated[picked])
+    summary['stage_seconds'] = dict(stage.seconds)
+    summary['total_seconds'] = round(stage.total, 3)
+    files.insert(len(files) - (1 if opts.report else 0),
+                 _write(opts.out / 'summary.json', json.dumps(summary, indent=2) + '\n'))
     return CompareResult(summary, opts.out, files, fitted, summary_lines(summary, files))
 
 
-def frame_time_spread_s(meas: Measurements, scenario: Scenario) -> float | None:
-    """Standard deviation (s) of the unknown true point times within a frame when every
-    point carries its cloud stamp (no time field, no scan-pattern match); else None.
-    The points spread over about one frame period (the clouds' median stamp step, or
-    the configured frame rate for a single cloud)."""
-    if meas.time_source != 'stamp':
-        return None
-    steps = np.diff(np.unique(meas.cloud_stamps_s))
-    period = (float(np.median(steps)) if len(steps)
-              else scenario.sensor.frame_period_s)
-    return period / np.sqrt(12.0)
+def model_residuals(data: lk.FitData, rays: diagnosis.RaySet) -> tuple[np.ndarray, np.ndarray]:
+    """Measured minus expected range (m) and predicted sigma (m) of every measured point
+    under the model with its effects (NaN where unmatched)."""
+    n = len(rays.meas)
+    model = lk.model_on_rays(data, [])
+    residual = np.full(n, np.nan)
+    sigma = np.full(n, np.nan)
+    residual[rays.matched] = data.measured_range_m - model.expected_range_m
+    sigma[rays.matched] = model.sigma_m
+    return residual, sigma
 
 
 def effects_yaml(effects: list[Effect]) -> str:
@@ -247,170 +417,47 @@ def _material_name_notes(meas: Measurements, scenario: Scenario) -> list[str]:
             f'{scenario.materials.names}: the model uses the config and the mesh groups']
 
 
-def _intensity_gain(meas: Measurements, pred, sel: np.ndarray) -> dict | None:
-    """Measured intensity vs model intensity up to one global gain (robust, in log)."""
-    if meas.intensity is None:
-        return None
-    mi, pi = meas.intensity[sel], pred.ctx.intensity[sel]
-    ok = np.isfinite(mi) & (mi > 0) & np.isfinite(pi) & (pi > 0)
-    if ok.sum() < 10:
-        return None
-    d = np.log(mi[ok]) - np.log(pi[ok])
-    g = float(np.median(d))
-    spread = mat.robust_sigma(d)
-    corr = float(np.corrcoef(np.log(mi[ok]), np.log(pi[ok]))[0, 1])
-    return {'gain': float(np.exp(g)), 'log_residual_robust_sigma': spread,
-            'log_correlation': corr}
-
-
-def _unmatched_summary(m: Matching, divergence_rad: float) -> dict:
+def _unmatched_summary(m: Matching, divergence_rad: float, n_all: int, fraction: float,
+                       isolated: np.ndarray | None) -> dict:
+    """The unmatched points (``m`` is the analysed sample): where they are and what they
+    look like: near the silhouette (beam edge, pose), on surfaces that are not the
+    target (lab clutter: neighbouring rays see the same range) or isolated (random
+    ranges: false returns)."""
     un = ~m.matched
     n = int(un.sum())
-    out = {'points': n, 'fraction': float(m.unmatched_fraction)}
+    out = {'points': n_all, 'fraction': fraction}
     if n == 0:
         return out
     rng = m.meas.range_m
     r_lo, r_hi = np.percentile(rng[m.matched], [1, 99]) if m.matched.any() else (0.0, 0.0)
     near = m.edge_rad[un] <= SILHOUETTE_NEAR_DIVERGENCES * divergence_rad + 1e-12
     within = (rng[un] >= r_lo - 1.0) & (rng[un] <= r_hi + 1.0)
+    alone = (isolated[un] if isolated is not None else np.zeros(n, bool)) & ~near
+    surface = ~near & ~alone
     out.update({
+        'analysed': n,
         'near_silhouette_fraction': float(near.mean()),
+        'surface_fraction': float(surface.mean()),
+        'isolated_fraction': float(alone.mean()),
         'within_target_ranges_fraction': float(within.mean()),
         'range_median_m': float(np.median(rng[un])),
         'range_p05_m': float(np.percentile(rng[un], 5)),
         'range_p95_m': float(np.percentile(rng[un], 95)),
         'silhouette_distance_median_mrad': float(np.median(m.edge_rad[un]) * 1e3),
-        'interpretation': _unmatched_words(near.mean(), within.mean()),
+        'interpretation': _unmatched_words(near.mean(), within.mean(), surface.mean(),
+                                           alone.mean()),
     })
     return out
 
 
-def _unmatched_words(near: float, within: float) -> str:
+def _unmatched_words(near: float, within: float, surface: float, alone: float) -> str:
     if near > 0.6 and within > 0.6:
         return ('mostly just beyond the silhouette at target ranges: returns from the beam '
                 'edge (beam divergence) or a pose/mesh offset')
-    if near < 0.4 and within < 0.6:
-        return 'spread over the field of view at random ranges: false returns (background light)'
-    return 'mixed: part near the silhouette, part elsewhere'
-
-
-EFFECT_WORDS = {
-    'range_walk': 'range walk (intensity-dependent timing bias)',
-    'incidence_angle': 'footprint elongation at oblique incidence',
-    'snr_noise': 'range noise growing as the signal falls',
-    'solar_background': 'false returns from background light (outliers at random ranges)',
-    'beam_divergence': 'returns from the beam edge beyond the silhouette and mixed ranges at '
-                       'depth steps',
-    'time_offset': 'a clock offset between the pose and LiDAR stamps',
-}
-# The feature whose profile shows each catalogue effect best.
-EFFECT_FEATURE = {'range_walk': 'intensity', 'incidence_angle': 'incidence',
-                  'snr_noise': 'intensity', 'beam_divergence': 'edge'}
-
-
-def verdict(summary: dict, feats: list, cands: list) -> str:
-    """One plain-language paragraph: where it fails, which effect, what adding it brings."""
-    by_name = {f.name: f for f in feats}
-    top = feats[0] if feats else None
-    parts = []
-    if top is not None and top.significance > 5 and top.score > 1e-3:
-        parts.append(f'The range residual depends most on {top.name}: {top.trend}.')
-    missing = summary['missing_effect']
-    if missing:
-        c = next(c for c in cands if c.name == missing)
-        feat = by_name.get(EFFECT_FEATURE.get(missing, ''))
-        seen = (f'Against {feat.name}, {feat.trend}: ' if feat is not None and feat is not top
-                and feat.score > 0 else '')
-        params = ', '.join(f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
-                           for k, v in c.params.items())
-        gain, caveat = _gain_words(summary, c)
-        parts.append(
-            f'{seen}this is {EFFECT_WORDS.get(missing, missing)}. With per-material offsets '
-            f'and sigmas refit (as --fit does), adding {missing} with {params} {gain} '
-            f'(held-out gain {c.score:.4f} nats/point, z = {c.z:.1f}).{caveat} '
-            f'Run again with --effect {missing} --fit to add it.')
-        parts[-1] = parts[-1][0].upper() + parts[-1][1:]
-    else:
-        parts.append('No catalogue effect improves the held-out likelihood significantly: '
-                     'the model matches the measurements up to noise.')
-        if top is not None and top.significance > 8 and top.score > 0.01 and top.name != 'material':
-            parts[-1] = ('No catalogue effect improves the held-out likelihood significantly, '
-                         f'yet the residual depends on {top.name}: an effect outside the '
-                         'catalogue. Write one (docs/effects.md, "Write your own effect") and add it '
-                         'with --effect file.py:Class --fit.')
-    vetoed = [c for c in cands if c.vetoed and c.significant and c.name != missing]
-    if vetoed:
-        parts.append(f'{vetoed[0].name} would raise the likelihood but is not the missing '
-                     f'effect: {vetoed[0].vetoed}.')
-    mats = summary['materials']
-    bad = [n for n, m in mats.items() if m['bias_mismatch'] or m['sigma_mismatch']]
-    if bad:
-        def row(n: str) -> str:
-            m = mats[n]
-            return (f'{n} (bias {100 * (m["measured_bias_m"] - m["model_bias_m"]):+.1f} cm, '
-                    f'sigma x {m["measured_sigma_m"] / max(m["model_sigma_m"], 1e-9):.2f})')
-        rows = ', '.join(row(n) for n in bad)
-        parts.append(f'Per-material range bias/sigma differ from the configuration for {rows}: '
-                     'see materials.yaml (--fit refits them).')
-    un = summary['unmatched']
-    if un['points']:
-        parts.append(f'{un["points"]} points ({100 * un["fraction"]:.2f} %) miss the target '
-                     f'model: {un.get("interpretation", "")}.')
-    return ' '.join(parts)
-
-
-def _change(what: str, before: float, after: float, unit: str, fmt: str, down: str,
-            up: str = 'raises') -> str:
-    """'cuts WHAT from a to b', 'raises WHAT from a to b' or 'leaves WHAT at a'."""
-    a, b = f'{before:{fmt}}', f'{after:{fmt}}'
-    if a == b:
-        return f'leaves {what} at {a}{unit}'
-    return f'{down if after < before else up} {what} from {a}{unit} to {b}{unit}'
-
-
-def _gain_words(summary: dict, c) -> tuple[str, str]:
-    """What adding candidate ``c`` brings, before and after on one basis (each
-    material's offset and sigma scale refit, as --fit does), and any caveat sentence.
-    An outlier effect is judged by the NLL and the robust (MAD) spread: a plain RMSE is
-    dominated by the far outliers, which stay in the data whether or not the model
-    expects them."""
-    nll = _change('the NLL', summary['nll_calibrated'], c.nll_after, '', '.3f',
-                  'lowers') + ' per point'
-    if c.effect is None or not diagnosis.is_outlier_effect(type(c.effect)):
-        rmse = _change('the range RMSE', summary['range_rmse_calibrated_m'],
-                       c.range_rmse_after_m, ' m', '.4f', 'cuts')
-        return f'{rmse} and {nll}', ''
-    text = nll
-    before = summary.get('range_robust_sigma_calibrated_m', float('nan'))
-    after = c.range_robust_sigma_after_m
-    if np.isfinite(before) and np.isfinite(after):
-        text += ' and ' + _change('the robust (MAD) spread of the range residual', before,
-                                  after, ' m', '.4f', 'narrows', 'widens')
-    caveat = (f' The plain range RMSE ({summary["range_rmse_calibrated_m"]:.4g} m) is '
-              'dominated by the far outliers, which stay in the data: it does not measure '
-              'this effect.')
-    if c.unmatched_explained > 0.01:
-        caveat += (f' It also explains {100 * c.unmatched_explained:.0f} % of the points '
-                   'that miss the target.')
-    return text, caveat
-
-
-def summary_lines(s: dict, files: list[Path]) -> list[str]:
-    lines = [f'points: {s["points"]} ({s["matched_points"]} matched, '
-             f'{s["unmatched_points"]} unmatched = {100 * s["unmatched_fraction"]:.2f} %)',
-             f'range RMSE: {s["range_rmse_m"]:.4f} m   NLL: {s["nll_per_point"]:.3f} per point'
-             f'   (per-material offsets refit: {s["range_rmse_calibrated_m"]:.4f} m, '
-             f'{s["nll_calibrated"]:.3f})']
-    for e in s['fitted_effects']:
-        params = ', '.join(f'{k} = {v:.6g}' if isinstance(v, float) else f'{k} = {v}'
-                           for k, v in e['params'].items())
-        lines.append(f'fitted {e["name"]}: {params}')
-    lines.append('features: ' + ', '.join(f'{f["name"]} {f["score"]:.4f}'
-                                          for f in s['features'][:4]))
-    lines.append('candidates: ' + ', '.join(
-        f'{c["name"]} {c["score"]:.4f}' if c['score'] is not None else f'{c["name"]} failed'
-        for c in s['candidates']))
-    lines.append(f'missing effect: {s["missing_effect"]}')
-    lines.append(f'verdict: {s["verdict"]}')
-    lines += [f'wrote {p}' for p in files]
-    return lines
+    if surface > 0.6:
+        return ('mostly on surfaces that are not the target (neighbouring rays see the same '
+                'range): lab clutter such as walls, jigs or cables, not false returns')
+    if alone > 0.6:
+        return 'isolated returns at random ranges: false returns (background light)'
+    return (f'mixed: {100 * near:.0f} % near the silhouette, {100 * surface:.0f} % on other '
+            f'surfaces (clutter), {100 * alone:.0f} % isolated')

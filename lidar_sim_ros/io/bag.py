@@ -208,6 +208,31 @@ def read_clouds(path: str | Path, topic: str = CLOUD_TOPIC) -> list[CloudFrame]:
     ]
 
 
+def cloud_count(path: str | Path, topic: str = CLOUD_TOPIC) -> int:
+    """Number of PointCloud2 messages on ``topic`` (from the bag's index, nothing decoded)."""
+    with AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        return sum(c.msgcount for c in reader.connections if c.topic == topic)
+
+
+def iter_clouds(path: str | Path, topic: str = CLOUD_TOPIC):
+    """The PointCloud2 messages of a topic one at a time, in bag order (long recordings
+    need not fit in memory); same checks and decoding as ``read_clouds``."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f'bag {path} does not exist')
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        connections = [c for c in reader.connections if c.topic == topic]
+        if not connections:
+            _read_messages(path, topic, POINTCLOUD2)      # raises, naming the topics
+        for c, _, raw in reader.messages(connections=connections):
+            if c.msgtype != POINTCLOUD2:
+                raise BagContentError(f'topic {topic!r} in bag {path} has type {c.msgtype}, '
+                                      f'expected {POINTCLOUD2}')
+            msg = reader.deserialize(raw, c.msgtype)
+            yield CloudFrame(stamp_to_ns(msg.header.stamp), msg.header.frame_id,
+                             from_pointcloud2(msg))
+
+
 def read_poses(path: str | Path, topic: str = POSE_TOPIC) -> PoseSeries:
     """All PoseStamped messages of a topic as arrays sorted by header stamp.
 

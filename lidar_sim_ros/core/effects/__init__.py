@@ -1,8 +1,8 @@
 """Physical effects beyond the paper's baseline model: a registry by name.
 
 ``get_effect_class('range_walk')`` finds a catalogue effect; ``'pkg.module:Class'``
-or ``'path/to/file.py:Class'`` loads a user-defined one. ``fit_effect`` / ``evaluate``
-(from ``fitting.py``) fit and score effects against measurements.
+or ``'path/to/file.py:Class'`` loads a user-defined one. Fitting effects to
+measurements lives above the pipeline, in ``lidar_sim_ros.compare.fit``.
 """
 from __future__ import annotations
 
@@ -118,9 +118,5 @@ def catalogue() -> dict[str, type[Effect]]:
     return {k: REGISTRY[k] for k in _CATALOGUE if k in REGISTRY}
 
 
-from lidar_sim_ros.core.effects.fitting import (FitData, FitResult, evaluate,  # noqa: E402
-                                                fit_effect)
-
 __all__ = ['Effect', 'NoParams', 'ReturnContext', 'REGISTRY', 'register', 'get_effect_class',
-           'make_effect', 'parse_effect_spec', 'effect_from_spec', 'catalogue',
-           'FitData', 'FitResult', 'evaluate', 'fit_effect']
+           'make_effect', 'parse_effect_spec', 'effect_from_spec', 'catalogue']

@@ -2,8 +2,10 @@
 
 An effect changes what the paper's baseline model predicts through a small set of
 hooks, each a pure function over per-shot arrays. The simulator calls the forward
-hooks; ``lidar-sim compare`` uses the same hooks to predict and ``fit`` to estimate
-the parameters by maximum likelihood from the measured ranges (``fitting.py``).
+hooks; ``lidar-sim compare`` uses the same hooks to predict, and estimates the
+parameters by maximum likelihood from the measured ranges (``compare/fit.py``). An
+effect never imports that machinery: it declares what a fit needs (``bounds``,
+``initial``, ``linear_bias``, ``fit_options``, ``power_driven``) and the fit reads it.
 
 Write your own (``examples/drift_effect.py``)::
 
@@ -28,14 +30,11 @@ fit with no extra code.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, ClassVar, Sequence
+from typing import Any, ClassVar, Sequence
 
 import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict
-
-if TYPE_CHECKING:
-    from lidar_sim_ros.core.effects.fitting import FitData, FitResult
 
 
 @dataclass(frozen=True)
@@ -80,18 +79,27 @@ class NoParams(BaseModel):
 class Effect:
     """Base class of all effects. Subclasses set ``name`` and a pydantic ``Params``.
 
-    Fitting: ``bounds`` maps each free parameter to its (low, high) search box and
+    What a fit needs, declared (``lidar_sim_ros.compare.fit`` reads it; nothing here
+    imports it): ``bounds`` maps each free parameter to its (low, high) search box and
     ``initial`` gives the starting value (default: the Params default); parameters
-    not in ``bounds`` stay at their Params values. ``needs_repredict`` marks effects
-    that change the pose time or the raycast, which the fit must re-run the
-    prediction for (``FitData.predict``) instead of applying hooks to the baseline.
+    not in ``bounds`` stay at their Params values. ``linear_bias`` names free
+    parameters the range bias is linear in (estimated in closed form).
+    ``fit_options`` tunes the generic 1-D searches (``n_grid``, ``prefer_low``,
+    ``smooth``). ``needs_repredict`` marks effects that change the pose time or the
+    raycast, which the fit must re-run the prediction for. ``power_driven`` marks
+    effects whose hooks read the received power (``ctx.power_w``): the comparison
+    fits them against the power measured by the sensor (its intensity, calibrated)
+    when the recording has intensity; the simulator uses its own power.
     """
 
     name: ClassVar[str] = ''
     Params: ClassVar[type[BaseModel]] = NoParams
     bounds: ClassVar[dict[str, tuple[float, float]]] = {}
     initial: ClassVar[dict[str, float]] = {}
+    linear_bias: ClassVar[tuple[str, ...]] = ()
+    fit_options: ClassVar[dict[str, Any]] = {}
     needs_repredict: ClassVar[bool] = False
+    power_driven: ClassVar[bool] = False
     # How to load the class again (``module:Class`` / ``file.py:Class``); set by the
     # registry when it loads a user effect, used by ``to_yaml_snippet``.
     load_spec: ClassVar[str | None] = None
@@ -111,6 +119,12 @@ class Effect:
 
     def cast(self, target, directions_lidar: np.ndarray, poses, divergence_rad: float):
         """Replace the single-ray raycast (e.g. sample the beam footprint). None = default."""
+        return None
+
+    def cast_reach_rad(self, divergence_rad: float) -> float | None:
+        """How far (rad) from its axis a ``cast`` override looks: rays farther than this
+        from any silhouette or depth step return as with the single-ray cast. None =
+        any ray may change (the default; the comparison then re-casts every ray)."""
         return None
 
     def power_scale(self, ctx: ReturnContext) -> np.ndarray | float:
@@ -137,17 +151,7 @@ class Effect:
         """
         return 0.0
 
-    # ---- fitting and export -----------------------------------------------------
-    @classmethod
-    def fit(cls, data: 'FitData', base_effects=()) -> 'FitResult':
-        """Maximum-likelihood estimate of the free parameters (``bounds``) on ``data``.
-
-        Default: the generic bounded fit of ``fitting.fit_bounded``. Override with a
-        closed form or a 1-D search where the physics allows.
-        """
-        from lidar_sim_ros.core.effects.fitting import fit_bounded
-        return fit_bounded(cls, data, base_effects)
-
+    # ---- export -------------------------------------------------------------------
     @classmethod
     def spec(cls) -> str:
         """The name that ``make_effect`` / a scenario's ``effects:`` entry loads this class by."""

@@ -20,9 +20,6 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect, ReturnContext
-from lidar_sim_ros.core.effects.fitting import (FitData, FitResult, linear_bias_coefficient,
-                                                make_result, model_on_rays, objective,
-                                                search_1d)
 
 
 def footprint_depth_m(ctx: ReturnContext, max_incidence_deg: float = 85.0) -> np.ndarray:
@@ -40,6 +37,7 @@ class IncidenceAngle(Effect):
     name = 'incidence_angle'
     bounds = {'bias_gain': (-10.0, 10.0), 'sigma_gain': (0.0, 10.0)}
     initial = {'bias_gain': 0.0, 'sigma_gain': 0.0}
+    linear_bias = ('bias_gain',)   # closed form on L; sigma_gain by a 1-D search
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
@@ -57,17 +55,3 @@ class IncidenceAngle(Effect):
 
     def range_sigma_m(self, ctx: ReturnContext) -> np.ndarray:
         return self.params.sigma_gain * self._depth(ctx)
-
-    @classmethod
-    def fit(cls, data: FitData, base_effects=()) -> FitResult:
-        """bias_gain in closed form (robust WLS on L), sigma_gain by a 1-D search, twice."""
-        base_effects = list(base_effects)
-        b, s = 0.0, 0.0
-        for _ in range(2):
-            model = model_on_rays(data, [*base_effects, cls({'sigma_gain': s})])
-            b = linear_bias_coefficient(data, model, footprint_depth_m(model.ctx),
-                                        cls.bounds['bias_gain'])
-            s = search_1d(lambda x: objective(
-                data, [*base_effects, cls({'bias_gain': b, 'sigma_gain': x})]),
-                *cls.bounds['sigma_gain'], x0=s)
-        return make_result(cls({'bias_gain': b, 'sigma_gain': s}), data, base_effects)

@@ -20,8 +20,6 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect, ReturnContext
-from lidar_sim_ros.core.effects.fitting import (FitData, FitResult, linear_bias_coefficient,
-                                                make_result, model_on_rays)
 
 
 def log_power_ratio(ctx: ReturnContext, reference_power_w: float | None = None) -> np.ndarray:
@@ -41,6 +39,8 @@ class RangeWalk(Effect):
     name = 'range_walk'
     bounds = {'k_m': (-0.5, 0.5)}
     initial = {'k_m': 0.0}
+    linear_bias = ('k_m',)      # closed form: robust weighted least squares on -ln(P/P_ref)
+    power_driven = True
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
@@ -52,13 +52,3 @@ class RangeWalk(Effect):
     def range_bias_m(self, ctx: ReturnContext) -> np.ndarray:
         p = self.params
         return p.offset_m - p.k_m * log_power_ratio(ctx, p.reference_power_w)
-
-    @classmethod
-    def fit(cls, data: FitData, base_effects=()) -> FitResult:
-        """Closed form: robust weighted least squares of the residual on -ln(P/P_ref)."""
-        base_effects = list(base_effects)
-        neutral = cls()
-        model = model_on_rays(data, [*base_effects, neutral])
-        feature = -log_power_ratio(model.ctx, neutral.params.reference_power_w)
-        k = linear_bias_coefficient(data, model, feature, cls.bounds['k_m'])
-        return make_result(cls({'k_m': k}), data, base_effects)

@@ -33,6 +33,7 @@ class SnrNoise(Effect):
     name = 'snr_noise'
     bounds = {'c_m': (0.0, 2.0), 'exponent': (0.1, 2.0)}
     initial = {'c_m': 0.0, 'exponent': 0.5}
+    power_driven = True
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')

@@ -9,18 +9,15 @@ gate by default), with threshold intensity. Shots that miss the target thus make
 points off the target too.
 
 Likelihood: a measured range is (1 - p) N(expected, sigma) + p / W (``outlier_fraction``).
-Fit: p by a 1-D maximum-likelihood search (the log-likelihood is concave in p).
+Fit: p by a 1-D maximum-likelihood search on the mixture likelihood (concave in p).
 """
 from __future__ import annotations
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
-from scipy.optimize import minimize_scalar
 
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect, ReturnContext
-from lidar_sim_ros.core.effects.fitting import (FitData, FitResult, make_result, objective,
-                                                uniform_share)
 
 
 @register
@@ -57,20 +54,3 @@ class SolarBackground(Effect):
 
     def outlier_fraction(self, ctx: ReturnContext) -> float:
         return self.params.probability
-
-    @classmethod
-    def fit(cls, data: FitData, base_effects=()) -> FitResult:
-        """p maximising the mixture likelihood of the matched ranges (no extra floor)."""
-        base_effects = list(base_effects)
-        lo, hi = cls.bounds['probability']
-
-        def nll(p: float) -> float:
-            return objective(data, [*base_effects, cls({'probability': p})], floor=0.0)
-
-        res = minimize_scalar(nll, bounds=(lo, hi), method='bounded', options={'xatol': 1e-7})
-        p = float(res.x) if res.fun <= nll(lo) else lo
-        share = uniform_share(np.asarray(data.unmatched_range_m, float), data.range_window_m,
-                               np.asarray(data.measured_range_m, float))
-        return make_result(cls({'probability': p}), data, base_effects,
-                           extras={'unmatched_uniform_share': share,
-                                   'expected_spurious_matched': p * len(data.measured_range_m)})

@@ -18,7 +18,6 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect
-from lidar_sim_ros.core.effects.fitting import FitData, FitResult, fit_bounded
 
 
 @register
@@ -29,6 +28,7 @@ class TimeOffset(Effect):
     bounds = {'dt_s': (-0.5, 0.5)}
     initial = {'dt_s': 0.0}
     needs_repredict = True
+    fit_options = {'n_grid': 21}
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
@@ -36,7 +36,3 @@ class TimeOffset(Effect):
 
     def pose_time_s(self, t_s: np.ndarray) -> np.ndarray:
         return np.asarray(t_s, float) + self.params.dt_s
-
-    @classmethod
-    def fit(cls, data: FitData, base_effects=()) -> FitResult:
-        return fit_bounded(cls, data, base_effects, n_grid=21)

@@ -1,0 +1,373 @@
+"""Maximum-likelihood fits of effects to ray-matched measurements (``likelihood.py``).
+
+``fit_effect(cls, data, base_effects)`` estimates an effect's free parameters
+(``cls.bounds``) on top of ``base_effects``. Effects never import this module: they
+declare what a fit needs and the fit reads it (dependency injection, not imports):
+
+* ``bounds`` / ``initial``: the free parameters, their search box and start;
+* ``linear_bias``: free parameters the range bias is linear in (bias = a * feature
+  + rest); each is estimated in closed form (robust weighted least squares of the
+  residual on the feature, one intercept per material) with the others held, the
+  feature being the bias at a = 1 minus the bias at a = 0;
+* ``fit_options``: options of the 1-D searches (``n_grid``; ``prefer_low`` for a
+  likelihood that goes flat beyond the true value; ``smooth`` for a staircase);
+* an outlier effect (one with ``outlier_fraction``) is fitted on the plain mixture
+  likelihood, any other with a small outlier floor (ROBUST_FLOOR) so a handful of
+  spurious points cannot drive it.
+
+The generic fit is coordinate descent over the free parameters (closed form for the
+linear ones, a grid then Brent for the others), so a user effect that declares
+``bounds`` is fitted with no extra code. A fit that needs more can be registered
+here with :func:`register_fit` (or, for a user class, defined as its own ``fit``
+classmethod taking ``(data, base_effects)``).
+"""
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+from pydantic import ValidationError
+from scipy.optimize import minimize_scalar
+
+from lidar_sim_ros.compare.likelihood import (MIN_SIGMA_M, ROBUST_FLOOR, FitData, ModelOnRays,
+                                              PredictionCache, RaysOnly, _groups,
+                                              is_outlier_effect, material_nuisance,
+                                              model_on_rays, moving, objective, scores)
+from lidar_sim_ros.core.effects.base import Effect
+from lidar_sim_ros.core.pipeline import Simulator
+
+SMOOTH_SLACK = 5.0            # nats a smoothed 1-D estimate may lose against the best step
+FitFunction = Callable[[type[Effect], FitData, Sequence[Effect]], 'FitResult']
+_FITS: dict[type[Effect], FitFunction] = {}
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """One fitted effect and what it brings. ``*_before`` are the same numbers for the
+    model without it (``evaluate(data, base_effects)``), so gains compare like with like."""
+
+    name: str
+    params: dict                  # fitted parameter values (plain floats)
+    effect: Effect                # instance with those params
+    nll_per_point: float          # mean NLL over matched points after adding the effect
+    range_rmse_m: float           # RMS(measured - expected), matched points, with the effect
+    unmatched_explained: float    # fraction of unmatched points the effect accounts for (0..1)
+    n_params: int
+    nll_before_per_point: float = float('nan')
+    range_rmse_before_m: float = float('nan')
+    unmatched_explained_before: float = float('nan')
+    # The same NLL with an extra ROBUST_FLOOR outlier weight: a few gross points
+    # (which a pure Gaussian scores by z^2) cannot dominate it. Rank candidates by
+    # its gain; the plain NLL is what the model predicts.
+    nll_robust_per_point: float = float('nan')
+    nll_robust_before_per_point: float = float('nan')
+    extras: dict = field(default_factory=dict)   # effect-specific diagnostics
+
+    @property
+    def nll_gain_per_point(self) -> float:
+        """Drop of the mean NLL the effect brings (nats per matched point; > 0 is better)."""
+        return self.nll_before_per_point - self.nll_per_point
+
+    @property
+    def robust_gain_per_point(self) -> float:
+        """Drop of the robust mean NLL (nats per matched point)."""
+        return self.nll_robust_before_per_point - self.nll_robust_per_point
+
+    @property
+    def yaml_snippet(self) -> str:
+        return self.effect.to_yaml_snippet()
+
+
+# ------------------------------------------------------------------------ fitting
+def search_1d(f: Callable[[float], float], lo: float, hi: float, x0: float | None = None,
+              n_grid: int = 13, prefer_low: float = 0.0, smooth: bool = False) -> float:
+    """Minimise f on [lo, hi]: a grid (plus x0), then Brent in the best grid cell.
+
+    ``prefer_low`` > 0 returns instead the smallest x whose f is within that many nats
+    of the minimum (bisection below the minimum): for likelihoods that go flat beyond
+    the true value, e.g. a footprint size once every edge point is explained.
+    ``smooth`` replaces the minimum by the vertex of a parabola fitted through the
+    basin (``quadratic_vertex``): for step-like likelihoods of raycast parameters.
+    """
+    grid = np.linspace(lo, hi, max(n_grid, 3))
+    if x0 is not None and lo <= x0 <= hi:
+        grid = np.unique(np.append(grid, x0))
+    values = np.array([f(float(x)) for x in grid])
+    if not np.any(np.isfinite(values)):
+        return float(x0 if x0 is not None else grid[0])
+    best = int(np.nanargmin(values))
+    x_best, f_best = float(grid[best]), float(values[best])
+    a, b = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
+    if b > a:
+        res = minimize_scalar(f, bounds=(a, b), method='bounded',
+                              options={'xatol': (hi - lo) * 1e-5})
+        if res.fun < f_best:
+            x_best, f_best = float(res.x), float(res.fun)
+    if prefer_low > 0:
+        level = f_best + prefer_low
+        ok = np.flatnonzero(values <= level)
+        upper = min(float(grid[ok[0]]), x_best) if len(ok) else x_best
+        below = grid[grid < upper]
+        lower = float(below.max()) if len(below) else upper
+        for _ in range(12):
+            if upper - lower <= (hi - lo) * 1e-4:
+                break
+            mid = 0.5 * (lower + upper)
+            if f(mid) <= level:
+                upper = mid
+            else:
+                lower = mid
+        x_best = upper
+    elif smooth:
+        vertex = quadratic_vertex(f, x_best, f_best, lo, hi)
+        # The vertex may sit a fraction of a step above the lowest step, not several
+        # steps (rays put on the wrong surface) above it.
+        if f(vertex) <= f_best + SMOOTH_SLACK:
+            x_best = vertex
+    return x_best
+
+
+def quadratic_vertex(f: Callable[[float], float], x: float, f_x: float, lo: float, hi: float,
+                     rise: float = 50.0, n: int = 11) -> float:
+    """Vertex of a parabola least-squares fitted to f over its basin around x.
+
+    When a parameter moves the raycast (a pose time, a footprint), rays near depth
+    steps switch surface one by one: the likelihood is a staircase with ~15-nat
+    steps and its lowest step is a matter of luck. Its trend is smooth: the basin is
+    widened until f has risen by ``rise`` nats on one side, sampled at n points
+    symmetrically about x, and the parabola's vertex is the estimate. Falls back to x
+    if the basin is not convex.
+    """
+    def reach(sign: float) -> float:
+        d = (hi - lo) * 1e-4
+        while True:
+            edge = x + sign * d
+            if edge <= lo or edge >= hi:
+                return min(d, x - lo) if sign < 0 else min(d, hi - x)
+            if f(edge) >= f_x + rise:
+                return d
+            d *= 2.0
+
+    # A symmetric window: on a lopsided basin the parabola would lean to the flat side.
+    d_lo = d_hi = min(reach(-1.0), reach(+1.0))
+    xs = np.linspace(x - d_lo, x + d_hi, n)
+    ys = np.array([f(float(v)) for v in xs])
+    ok = np.isfinite(ys)
+    if ok.sum() < 4 or d_lo + d_hi <= 0:
+        return x
+    a, b, _ = np.polyfit(xs[ok] - x, ys[ok] - f_x, 2)
+    if a <= 0:
+        return x
+    vertex = x - b / (2.0 * a)
+    return float(vertex) if x - d_lo <= vertex <= x + d_hi else x
+
+
+def _defaults(cls: type[Effect]) -> dict:
+    return cls().params.model_dump()
+
+
+def free_params(cls: type[Effect]) -> list[str]:
+    return list(cls.bounds)
+
+
+def make_effect_safe(cls: type[Effect], params: dict) -> Effect | None:
+    try:
+        return cls(params)
+    except (ValidationError, ValueError):
+        return None
+
+
+def fit_bounded(cls: type[Effect], data: FitData, base_effects: Sequence[Effect] = (),
+                n_grid: int = 13, sweeps: int = 3, prefer_low: float = 0.0,
+                smooth: bool | None = None) -> FitResult:
+    """Generic bounded maximum likelihood over ``cls.bounds``, for any effect.
+
+    Coordinate descent: each free parameter in turn is estimated with the others held,
+    in closed form if the bias is linear in it (``cls.linear_bias``), else by a
+    grid-and-Brent line search (``search_1d``) over its bounds; a few sweeps, starting
+    from ``cls.initial`` (or the Params defaults). The grid makes it robust to several
+    minima; the robust objective (``objective``) to spurious points. Effects that
+    re-predict the raycast are smoothed (``quadratic_vertex``) unless ``smooth`` says.
+    """
+    if smooth is None:
+        smooth = bool(cls.needs_repredict) and prefer_low == 0
+    floor = 0.0 if is_outlier_effect(cls) else ROBUST_FLOOR
+    base_effects = list(base_effects)
+    names = free_params(cls)
+    linear = set(getattr(cls, 'linear_bias', ())) & set(names)
+    params = _defaults(cls)
+    for k in names:
+        lo, hi = cls.bounds[k]
+        params[k] = float(np.clip(cls.initial.get(k, params[k]), lo, hi))
+    cache: dict[tuple, float] = {}
+
+    def total(p: dict) -> float:
+        key = tuple(p[k] for k in names)
+        if key not in cache:
+            eff = make_effect_safe(cls, p)
+            cache[key] = (math.inf if eff is None
+                          else objective(data, [*base_effects, eff], floor=floor))
+        return cache[key]
+
+    for sweep in range(sweeps if len(names) > 1 else 1):
+        before = total(params)
+        for k in names:
+            lo, hi = cls.bounds[k]
+            value = linear_parameter(cls, params, k, data, base_effects) if k in linear else None
+            if value is None:
+                value = search_1d(lambda x: total({**params, k: x}), lo, hi, params[k],
+                                  n_grid=n_grid, prefer_low=prefer_low, smooth=smooth)
+            params[k] = value
+        if sweep and before - total(params) < 1e-3:
+            break
+    return make_result(cls(params), data, base_effects)
+
+
+def linear_parameter(cls: type[Effect], params: dict, name: str, data: FitData,
+                     base_effects: Sequence[Effect]) -> float | None:
+    """Closed-form ML value of a parameter the range bias is linear in, the others held:
+    the feature is the bias at ``name`` = 1 minus the bias at 0 (None if the effect
+    rejects those values)."""
+    at0, at1 = (make_effect_safe(cls, {**params, name: v}) for v in (0.0, 1.0))
+    if at0 is None or at1 is None:
+        return None
+    model = model_on_rays(data, [*base_effects, at0])
+    feature = model_on_rays(data, [*base_effects, at1]).expected_range_m - model.expected_range_m
+    return linear_bias_coefficient(data, model, feature, cls.bounds[name])
+
+
+def make_result(effect: Effect, data: FitData, base_effects: Sequence[Effect] = (),
+                extras: dict | None = None) -> FitResult:
+    """Score a fitted effect against the model without it."""
+    base_effects = list(base_effects)
+    cls = type(effect)
+    after = scores(data, [*base_effects, effect])
+    before = scores(data, base_effects)
+    values = effect.params.model_dump()
+    params = {k: float(values[k]) for k in free_params(cls)}
+    return FitResult(name=cls.name or cls.__name__, params=params, effect=effect,
+                     nll_per_point=after['nll'], range_rmse_m=after['rmse'],
+                     unmatched_explained=after['unmatched'], n_params=len(params),
+                     nll_before_per_point=before['nll'], range_rmse_before_m=before['rmse'],
+                     unmatched_explained_before=before['unmatched'],
+                     nll_robust_per_point=after['nll_robust'],
+                     nll_robust_before_per_point=before['nll_robust'],
+                     extras=dict(extras or {}))
+
+
+def register_fit(effect_cls: type[Effect]) -> Callable[[FitFunction], FitFunction]:
+    """Decorator: use ``fn(cls, data, base_effects) -> FitResult`` to fit ``effect_cls``
+    (and its subclasses) instead of the generic bounded fit."""
+    def deco(fn: FitFunction) -> FitFunction:
+        _FITS[effect_cls] = fn
+        return fn
+    return deco
+
+
+def fit_effect(effect_cls: type[Effect], data: FitData,
+               base_effects: Sequence[Effect] = ()) -> FitResult:
+    """Maximum-likelihood fit of effect_cls's free parameters on top of base_effects:
+    a registered fit, the class's own ``fit`` classmethod, or the generic bounded fit
+    with the class's ``fit_options``."""
+    base_effects = tuple(base_effects)
+    for klass in effect_cls.__mro__:
+        if klass in _FITS:
+            return _FITS[klass](effect_cls, data, base_effects)
+    own = getattr(effect_cls, 'fit', None)
+    if own is not None:
+        return own(data, base_effects)
+    return fit_bounded(effect_cls, data, base_effects, **dict(effect_cls.fit_options))
+
+
+def linear_bias_coefficient(data: FitData, model: ModelOnRays, feature: np.ndarray,
+                            bounds: tuple[float, float], iterations: int = 6) -> float:
+    """ML coefficient a of an extra bias a * feature (m per feature unit), closed form.
+
+    Weighted least squares of the residual on the feature with one intercept per
+    material (the nuisance offsets), iterated with robust inlier weights (Gaussian vs
+    a ROBUST_FLOOR uniform) and per-material noise scales: spurious points get no say.
+    """
+    y = np.asarray(data.measured_range_m, float) - model.expected_range_m
+    x = np.asarray(feature, float)
+    sigma = np.maximum(model.sigma_m, MIN_SIGMA_M)
+    use = model.placed & np.isfinite(x) & np.isfinite(y)
+    if use.sum() < 3:
+        return 0.0
+    y, x, sigma, group = y[use], x[use], sigma[use], _groups(data)[use]
+    width = data.window_width_m
+    q = np.ones(len(y))
+    a = 0.0
+    for _ in range(iterations):
+        wt = q / sigma ** 2
+        xc, yc = _centre(x, group, wt), _centre(y, group, wt)
+        den = float(np.sum(wt * xc * xc))
+        if den <= 0:
+            return 0.0
+        a = float(np.clip(np.sum(wt * xc * yc) / den, *bounds))
+        e = yc - a * xc
+        _, scale = material_nuisance(e, sigma, group, np.ones(len(e), bool))
+        s = sigma * scale
+        g = (1 - ROBUST_FLOOR) * np.exp(-0.5 * (e / s) ** 2) / (s * math.sqrt(2 * math.pi))
+        q = g / (g + ROBUST_FLOOR / width)
+    return a
+
+
+def _centre(v: np.ndarray, group: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    out = np.empty_like(v)
+    for g in np.unique(group):
+        sel = group == g
+        wsum = weight[sel].sum()
+        out[sel] = v[sel] - (np.sum(weight[sel] * v[sel]) / wsum if wsum > 0 else 0.0)
+    return out
+
+
+# ---------------------------------------------------------------- building FitData
+def geometry_simulator(sim: Simulator, effects: Sequence[Effect]) -> Simulator:
+    """A shallow copy of ``sim`` (shares target and scan) whose only effects are the ray
+    geometry of ``effects`` (``RaysOnly``): its predictions carry the per-material bias
+    and sigma, and the likelihood applies every effect's hooks itself."""
+    out = copy.copy(sim)
+    out.effects = [RaysOnly(e) for e in moving(effects)]
+    return out
+
+
+def fit_data_from_rays(sim: Simulator, t_abs_s: np.ndarray, directions: np.ndarray,
+                       measured_range_m: np.ndarray, pose_source, t_frame_s=None,
+                       laser=None, measured_power_w=None, n_shots: int | None = None,
+                       range_window_m: tuple[float, float] | None = None) -> FitData:
+    """FitData for measured points (absolute times, lidar-frame directions, ranges).
+
+    The model is ``sim`` with its effects (``base_effects``). Points whose ray hits the
+    target under it are matched, the others unmatched; ``cast`` / ``cast_unmatched``
+    re-run it with extra ray-moving effects. ``measured_power_w`` (optional, per point):
+    the received power the sensor measured, read by power-driven effects. The range
+    window defaults to the sensor's range gate.
+    """
+    t_abs_s = np.asarray(t_abs_s, float)
+    directions = np.asarray(directions, float)
+    measured_range_m = np.asarray(measured_range_m, float)
+    n = len(t_abs_s)
+    t_frame = np.zeros(n) if t_frame_s is None else np.asarray(t_frame_s, float)
+    laser = np.zeros(n, np.uint16) if laser is None else np.asarray(laser)
+    base = list(sim.effects)
+
+    def predictor(mask):
+        def run(effects):
+            return geometry_simulator(sim, effects).predict(
+                t_abs_s[mask], directions[mask], pose_source, t_frame[mask], laser=laser[mask])
+        return run
+
+    everything = np.ones(n, bool)
+    matched = np.asarray(predictor(everything)(base).ctx.hit, bool)
+    cast = PredictionCache(predictor(matched))
+    det = sim.sensor.detection
+    window = range_window_m or (det.min_range_m, det.max_range_m)
+    power = None if measured_power_w is None else np.asarray(measured_power_w, float)[matched]
+    return FitData(measured_range_m=measured_range_m[matched], baseline=cast(moving(base)),
+                   cast=cast, unmatched_range_m=measured_range_m[~matched],
+                   cast_unmatched=PredictionCache(predictor(~matched)),
+                   range_window_m=tuple(window), base_effects=tuple(base),
+                   measured_power_w=power, n_shots=n_shots)

@@ -1,0 +1,153 @@
+"""The sensor's intensity as received power: a calibration fitted against the model.
+
+A recording's ``intensity`` is the sensor's own measure of each returned pulse, in
+its own units: proportional to the received power, log-compressed counts, a
+saturating amplifier's counts, or a range-compensated reflectivity. Effects driven
+by the received power (range walk, SNR noise: ``Effect.power_driven``) see the
+pulse that actually came back, so the comparison fits them against the measured
+intensity, converted to received power in the model's units (W) by
+
+    ln P = f(ln I) + c (ln r - mean ln r)
+
+f: a monotone increasing map (isotonic regression of the model's ln P on ln I over
+quantile bins, linear between bin centres and out to the extreme points), fitted to the model's own
+predicted power on the matched points (robustly: bin medians); c: 0 for an
+intensity that grows with the received power, -2 for a range-compensated
+reflectivity (proportional to P r^2), whichever explains the model's power better. For a sensor whose intensity is
+proportional to power, f(ln I) = ln I - ln G with G the intensity gain. The model's
+power differs from the true one only through its reflectance numbers, which shift
+ln P per material and incidence and average out in f; the shot-to-shot variation
+the sensor saw (speckle, reflectance the mesh does not carry) stays in.
+
+The simulator keeps using its own predicted power; see docs/compare.md.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from sklearn.isotonic import IsotonicRegression
+
+MAX_BINS = 48
+MIN_BIN_POINTS = 25
+MIN_POINTS = 50
+# Intensity proportional to the received power (0), or a range-compensated
+# reflectivity, proportional to P r^2 (-2 in ln P per ln r): the one that explains the
+# model's power best. A fitted exponent would also soak up whatever in the model's
+# reflectance happens to correlate with range over the target.
+RANGE_EXPONENTS = (0.0, -2.0)
+# ... and the range-compensated reading is taken only if it leaves a fifth less of the
+# model's ln P unexplained: a few per cent come from whatever in the model's reflectance
+# correlates with range over the target, and a wrong compensation would put the
+# measured range's noise into the power.
+RANGE_TERM_GAIN = 0.2
+# Below this share of the model's ln P variance explained, the intensity does not
+# measure the received power (or not of these returns): power-driven effects keep the
+# model's power.
+MIN_EXPLAINED = 0.25
+
+
+@dataclass(frozen=True)
+class IntensityCalibration:
+    """ln P = interp(ln I; knots) + range_exponent (ln r - mean_log_range)."""
+
+    knots_log_i: np.ndarray
+    knots_log_p: np.ndarray
+    range_exponent: float
+    mean_log_range: float
+    gain: float                  # median I / model intensity (sensor units per model unit)
+    explained: float             # share of the model's ln P variance explained (-)
+    log_residual_robust_sigma: float
+    log_correlation: float
+    points: int
+
+    @property
+    def usable(self) -> bool:
+        return self.explained >= MIN_EXPLAINED
+
+    def power_w(self, intensity: np.ndarray, range_m: np.ndarray) -> np.ndarray:
+        """Received power (W, model units) per point; NaN where the intensity is not
+        positive and finite."""
+        i = np.asarray(intensity, float)
+        ok = np.isfinite(i) & (i > 0) & np.isfinite(range_m) & (range_m > 0)
+        log_p = np.full(len(i), np.nan)
+        log_p[ok] = (np.interp(np.log(i[ok]), self.knots_log_i, self.knots_log_p)
+                     + self.range_exponent * (np.log(range_m[ok]) - self.mean_log_range))
+        return np.exp(log_p)
+
+    def as_dict(self) -> dict:
+        return {'gain': self.gain, 'log_residual_robust_sigma': self.log_residual_robust_sigma,
+                'log_correlation': self.log_correlation,
+                'power_explained': round(self.explained, 4),
+                'range_exponent': round(self.range_exponent, 4), 'points': self.points,
+                'used_for_power_driven_effects': self.usable}
+
+
+def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_w: np.ndarray,
+                        model_intensity: np.ndarray | None = None) -> IntensityCalibration | None:
+    """Fit the map from measured intensity to the model's received power (module doc)
+    on matched points; None if fewer than MIN_POINTS usable points. ``gain``: median
+    measured / ``model_intensity`` (the model's intensity units; default its power)."""
+    i = np.asarray(intensity, float)
+    p = np.asarray(model_power_w, float)
+    r = np.asarray(range_m, float)
+    ok = np.isfinite(i) & (i > 0) & np.isfinite(p) & (p > 0) & np.isfinite(r) & (r > 0)
+    if ok.sum() < MIN_POINTS:
+        return None
+    x, y, lr = np.log(i[ok]), np.log(p[ok]), np.log(r[ok])
+    mean_lr = float(np.mean(lr))
+    lr = lr - mean_lr
+    best = None
+    for c in RANGE_EXPONENTS:
+        knots_x, knots_y = _monotone_map(x, y - c * lr)
+        resid = y - np.interp(x, knots_x, knots_y) - c * lr
+        spread = float(np.var(resid))
+        if best is None or spread < best[0] * (1.0 - RANGE_TERM_GAIN):
+            best = (spread, c, knots_x, knots_y)
+    spread, c, knots_x, knots_y = best
+    var_y = float(np.var(y))
+    explained = 1.0 - spread / var_y if var_y > 0 else 0.0
+    d = x - (y if model_intensity is None
+             else np.log(np.maximum(np.asarray(model_intensity, float)[ok], 1e-300)))
+    return IntensityCalibration(
+        knots_log_i=knots_x, knots_log_p=knots_y, range_exponent=c, mean_log_range=mean_lr,
+        gain=float(np.exp(np.median(d))),
+        explained=float(max(explained, 0.0)),
+        log_residual_robust_sigma=float(1.4826 * np.median(np.abs(d - np.median(d)))),
+        log_correlation=float(np.corrcoef(x, y)[0, 1]) if np.ptp(x) > 0 else 0.0,
+        points=int(ok.sum()))
+
+
+def _monotone_map(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Knots of a monotone increasing y(x): bin medians over quantile bins of x (one bin
+    per distinct value when there are few, as for integer counts), made monotone by
+    isotonic regression weighted by the bin counts."""
+    values = np.unique(x)
+    if len(values) <= MAX_BINS:
+        idx = np.searchsorted(values, x)
+        n_bins = len(values)
+    else:
+        n_bins = int(np.clip(len(x) // MIN_BIN_POINTS, 2, MAX_BINS))
+        edges = np.unique(np.quantile(x, np.linspace(0.0, 1.0, n_bins + 1)))
+        idx = np.clip(np.searchsorted(edges, x, side='right') - 1, 0, len(edges) - 2)
+        n_bins = len(edges) - 1
+    counts = np.bincount(idx, minlength=n_bins)
+    keep = np.flatnonzero(counts > 0)
+    order = np.argsort(idx, kind='stable')
+    bounds = np.concatenate([[0], np.cumsum(counts)])
+    bx = np.array([np.median(x[order[bounds[b]:bounds[b + 1]]]) for b in keep])
+    by = np.array([np.median(y[order[bounds[b]:bounds[b + 1]]]) for b in keep])
+    if len(bx) == 1:
+        return np.array([bx[0] - 1.0, bx[0] + 1.0]), np.array([by[0], by[0]])
+    fy = np.asarray(IsotonicRegression(increasing=True).fit_transform(
+        bx, by, sample_weight=counts[keep]), float)
+    # The outermost points lie beyond the end bins' medians: continue the end slopes
+    # out to them (flat beyond).
+    lo_slope = (fy[1] - fy[0]) / max(bx[1] - bx[0], 1e-12)
+    hi_slope = (fy[-1] - fy[-2]) / max(bx[-1] - bx[-2], 1e-12)
+    x_lo, x_hi = float(x.min()), float(x.max())
+    if x_lo < bx[0]:
+        bx, fy = np.append(x_lo, bx), np.append(fy[0] - lo_slope * (bx[0] - x_lo), fy)
+    if x_hi > bx[-1]:
+        bx, fy = np.append(bx, x_hi), np.append(fy, fy[-1] + hi_slope * (x_hi - bx[-1]))
+    return bx, fy

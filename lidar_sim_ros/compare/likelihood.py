@@ -1,0 +1,427 @@
+"""The likelihood of measured ranges under the model plus effects: what every fit maximises.
+
+``lidar-sim compare`` casts every measured point's own ray through the model
+(``Simulator.predict``) and hands the result here as :class:`FitData`. The model's
+predictive density of a matched point's measured range r is
+
+    p(r) = (1 - w) N(r; mu + c_m, (s_m sigma)^2) + w / W
+
+mu: expected range (true range + material bias + effect biases); sigma: predicted
+noise (material sigma and effect sigmas in quadrature); w: the effects' outlier
+fraction; W: width of the range window of spurious returns. ``c_m`` and ``s_m``
+are per-material nuisance parameters (a bias offset and a sigma scale, re-estimated
+robustly for every model: median and median of z^2). They keep a per-material
+constant mismatch -- a calibration matter, reported by the comparison under
+``materials`` -- from ever being credited to a physical effect, and they make
+effects whose bias has a per-material mean (range walk, incidence angle) be
+identified from the variation within each material, not from the offsets.
+
+w never drops below MODEL_FLOOR (1e-6): no real sensor is free of spurious returns,
+and without a floor one point on the wrong side of a depth step (z ~ 100) would
+outweigh thousands of good ones. A matched point whose ray misses the target under
+a candidate model (a pose shift, a different footprint) counts as a spurious return
+of weight max(w, MISS_WEIGHT).
+
+This module sits above the pipeline (it re-runs ``Simulator.predict`` through the
+callables of :class:`FitData`); effect classes never import it. The fits that
+maximise it are in ``compare/fit.py``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from functools import cached_property
+from typing import Callable, Sequence
+
+import numpy as np
+
+from lidar_sim_ros.core.effects.base import Effect, ReturnContext, apply_effects
+from lidar_sim_ros.core.pipeline import Prediction
+from lidar_sim_ros.core.pose import PoseCoverageError
+
+MIN_SIGMA_M = 1e-4            # noise floor of the likelihood (m): a zero sigma is never exact
+MIN_MATERIAL_POINTS = 30      # fewer matched points: no per-material nuisance for that material
+MODEL_FLOOR = 1e-6            # least outlier weight of the predictive density (module doc)
+ROBUST_FLOOR = 1e-3           # outlier weight assumed while fitting non-outlier effects
+MISS_WEIGHT = 1e-3            # least outlier weight of a point the model cannot place
+UNMATCHED_Z = 5.0             # an unmatched ray that now hits within this many sigma is explained
+CHI2_1_MEDIAN = 0.454936423   # median of z^2 for z ~ N(0, 1)
+_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+
+
+@dataclass(frozen=True)
+class FitData:
+    """Ray-matched measurement vs model, the input of every fit.
+
+    Matched = the measured point's ray hits the target (under the model's geometry).
+
+    ``baseline`` is the raycast, reflection and per-material bias/sigma on the matched
+    rays, with the ray-moving effects of ``base_effects`` (pose time, cast) in its
+    geometry but NO effect's bias, noise, power or outlier hooks: every effect, those
+    of ``base_effects`` and the candidates, acts through its hooks in
+    :func:`model_on_rays`, so that power-driven effects can read the measured power.
+    ``cast(effects)`` re-predicts the same rays with these ray-moving effects (hooks
+    not applied; results cached).
+    """
+
+    measured_range_m: np.ndarray          # (N,) matched points' measured ranges
+    baseline: Prediction                  # the model's geometry on those rays (class doc)
+    cast: Callable[[list[Effect]], Prediction]   # the same rays, these ray-moving effects
+    unmatched_range_m: np.ndarray         # (M,) ranges of points whose rays miss the target
+    cast_unmatched: Callable[[list[Effect]], Prediction]   # same for the unmatched rays
+    range_window_m: tuple[float, float]   # support of spurious-return ranges (min, max)
+    base_effects: tuple[Effect, ...] = ()   # the model's effects, applied through their hooks
+    # (N,) received power (W, model units) from the measured intensity, NaN where unknown;
+    # power-driven effects read it instead of the model's power (None: model power).
+    measured_power_w: np.ndarray | None = None
+    extra_var_m2: np.ndarray | float = 0.0   # (N,) variance the model adds (unknown point times)
+    n_shots: int | None = None            # shots fired if known (else None)
+    # (M,) unmatched points no neighbouring ray sees at the same range: only these can be
+    # spurious returns (a surface that is not the target, e.g. lab clutter, is not).
+    unmatched_isolated: np.ndarray | None = None
+    # The points' own times are unknown (clouds without a time field): whether a ray near
+    # the silhouette hits the target at its real time is unknown too, so a candidate that
+    # moves the rays neither loses the points it no longer places (they keep the
+    # model's prediction) nor gains the unmatched ones it now places.
+    placement_uncertain: bool = False
+
+    @property
+    def window_width_m(self) -> float:
+        lo, hi = self.range_window_m
+        return max(float(hi) - float(lo), 1e-3)
+
+    @cached_property
+    def members(self) -> list[tuple[int, np.ndarray]]:
+        """(material id, indices of its matched points), computed once."""
+        return group_members(np.asarray(self.baseline.ctx.material, int))
+
+
+def group_members(group: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """(value, indices) of every distinct value of ``group``."""
+    order = np.argsort(group, kind='stable')
+    values, starts = np.unique(group[order], return_index=True)
+    bounds = np.append(starts, len(group))
+    return [(int(v), order[bounds[k]:bounds[k + 1]]) for k, v in enumerate(values)]
+
+
+class RaysOnly(Effect):
+    """An effect's ray geometry only (``pose_time_s``, ``cast``) for ``Simulator.predict``:
+    its bias, noise, power and outlier hooks are applied by the likelihood instead."""
+
+    name = 'rays_only'
+    needs_repredict = True
+
+    def __init__(self, effect: Effect):   # no Params of its own
+        self.inner = effect
+        self.params = effect.params
+
+    def pose_time_s(self, t_s: np.ndarray) -> np.ndarray:
+        return self.inner.pose_time_s(t_s)
+
+    def cast(self, target, directions_lidar, poses, divergence_rad):
+        return self.inner.cast(target, directions_lidar, poses, divergence_rad)
+
+
+def moving(effects: Sequence[Effect]) -> list[Effect]:
+    """The effects that change the pose time or the raycast."""
+    return [e for e in effects if getattr(e, 'needs_repredict', False)]
+
+
+def effect_key(effects: Sequence[Effect]) -> tuple:
+    """A hashable identity of a list of effects (class and parameter values)."""
+    return tuple((type(e).__module__, type(e).__qualname__,
+                  tuple(sorted((k, repr(v)) for k, v in e.params.model_dump().items())))
+                 for e in effects)
+
+
+class PredictionCache:
+    """``predict(effects)`` memoised by the effects' classes and parameters: a fit that
+    re-visits a trial value (grid, Brent, final scoring) pays one raycast for it."""
+
+    def __init__(self, predict: Callable[[list[Effect]], Prediction], size: int = 24):
+        self._predict, self._size = predict, size
+        self._memo: dict[tuple, Prediction] = {}
+
+    def __call__(self, effects: Sequence[Effect]) -> Prediction:
+        key = effect_key(effects)
+        if key not in self._memo:
+            if len(self._memo) >= self._size:
+                self._memo.pop(next(iter(self._memo)))
+            self._memo[key] = self._predict(list(effects))
+        return self._memo[key]
+
+
+# ----------------------------------------------------------------- the model on rays
+@dataclass(frozen=True)
+class ModelOnRays:
+    """Predictive distribution of each matched point's range under a model."""
+
+    ctx: ReturnContext
+    expected_range_m: np.ndarray
+    sigma_m: np.ndarray
+    outlier_w: np.ndarray
+    placed: np.ndarray            # the model's ray hits the target
+
+
+def _outlier_weight(effects: Sequence[Effect], ctx: ReturnContext, n: int) -> np.ndarray:
+    keep = np.ones(n)
+    for eff in effects:
+        w = np.clip(np.broadcast_to(np.asarray(eff.outlier_fraction(ctx), float), (n,)), 0.0, 1.0)
+        keep = keep * (1.0 - w)
+    return 1.0 - keep
+
+
+def needs_repredict(effects: Sequence[Effect]) -> bool:
+    return bool(moving(effects))
+
+
+def apply_hooks(pred: Prediction, effects: Sequence[Effect],
+                measured_power_w: np.ndarray | None = None,
+                extra_var_m2: np.ndarray | float = 0.0) -> tuple[ReturnContext, np.ndarray,
+                                                                   np.ndarray]:
+    """(ctx, expected range m, sigma m) of ``pred`` with the effects' hooks applied.
+
+    Power-driven effects (``Effect.power_driven``) read ``measured_power_w`` where it is
+    known (the sensor's own measure of the pulse that made the point), the others the
+    model's power; ``extra_var_m2`` adds to every point's variance.
+    """
+    effects = list(effects)
+    driven = ([e for e in effects if getattr(e, 'power_driven', False)]
+              if measured_power_w is not None else [])
+    rest = [e for e in effects if not any(e is d for d in driven)]
+    var0 = np.asarray(pred.sigma_m, float) ** 2 + extra_var_m2
+    ctx, bias, var = apply_effects(pred.ctx, rest, pred.bias_m, var0)
+    if driven:
+        model_p = np.asarray(ctx.power_w, float)
+        known = np.isfinite(measured_power_w) & (measured_power_w > 0) & (model_p > 0)
+        power = np.where(known, measured_power_w, model_p)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            intensity = np.where(model_p > 0, ctx.intensity * power / model_p, ctx.intensity)
+        measured_ctx = replace(ctx, power_w=power, intensity=intensity)
+        _, bias, var = apply_effects(measured_ctx, driven, bias, var)
+    expected = np.where(np.asarray(ctx.hit, bool), ctx.range_m + bias, np.nan)
+    return ctx, np.asarray(expected, float), np.sqrt(np.asarray(var, float))
+
+
+def model_on_rays(data: FitData, effects: Sequence[Effect]) -> ModelOnRays:
+    """The model's effects plus ``effects`` on the matched rays (re-cast if one of
+    ``effects`` moves the rays; every hook applied here)."""
+    effects = list(effects)
+    everything = [*data.base_effects, *effects]
+    n = len(data.measured_range_m)
+    pred = data.cast(moving(everything)) if moving(effects) else data.baseline
+    ctx, expected, sigma = apply_hooks(pred, everything, data.measured_power_w,
+                                       data.extra_var_m2)
+    placed = np.asarray(ctx.hit, bool) & np.isfinite(expected) & np.isfinite(sigma)
+    if data.placement_uncertain and moving(effects) and not placed.all():
+        _, base_expected, base_sigma = apply_hooks(data.baseline, everything,
+                                                   data.measured_power_w, data.extra_var_m2)
+        lost = ~placed & np.isfinite(base_expected) & np.isfinite(base_sigma)
+        expected = np.where(lost, base_expected, expected)
+        sigma = np.where(lost, base_sigma, sigma)
+        placed = placed | lost
+    w = _outlier_weight(everything, ctx, n)
+    return ModelOnRays(ctx, expected, sigma, w, placed)
+
+
+def recast_unmatched(data: FitData, effects: Sequence[Effect]):
+    """(ctx, expected range, sigma) of the unmatched rays under the model's effects plus
+    ``effects`` (which move the rays), or None if none of ``effects`` moves them."""
+    effects = list(effects)
+    if not moving(effects) or len(data.unmatched_range_m) == 0 or data.placement_uncertain:
+        return None
+    everything = [*data.base_effects, *effects]
+    return apply_hooks(data.cast_unmatched(moving(everything)), everything)
+
+
+# --------------------------------------------------------------------- likelihood
+def _groups(data: FitData) -> np.ndarray:
+    return np.asarray(data.baseline.ctx.material, int)
+
+
+def material_nuisance(residual_m: np.ndarray, sigma_m: np.ndarray, group: np.ndarray,
+                      use: np.ndarray, members: list | None = None) -> tuple[np.ndarray,
+                                                                            np.ndarray]:
+    """Per-point offset c_m (m) and sigma scale s_m (-) of each point's material.
+
+    c_m = median residual, s_m^2 = median((r - c_m)^2 / sigma^2) / median(chi2_1), over
+    the material's usable points; materials with fewer than MIN_MATERIAL_POINTS keep
+    (0, 1). Medians keep spurious points from moving either. ``members``: the groups'
+    point indices, if known (``group_members``).
+    """
+    offset = np.zeros(len(residual_m))
+    scale = np.ones(len(residual_m))
+    for _, idx in (members if members is not None else group_members(np.asarray(group))):
+        sel = idx[use[idx]]
+        if len(sel) < MIN_MATERIAL_POINTS:
+            continue
+        c = float(np.median(residual_m[sel]))
+        z2 = ((residual_m[sel] - c) / sigma_m[sel]) ** 2
+        s = math.sqrt(max(float(np.median(z2)) / CHI2_1_MEDIAN, 1e-6))
+        offset[idx] = c
+        scale[idx] = s
+    return offset, scale
+
+
+def point_nll(data: FitData, model: ModelOnRays, floor: float = 0.0,
+              profile_materials: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Per-point negative log-likelihood (nats) and residual (m) of the matched points.
+
+    ``floor`` adds an outlier weight (robust fitting); unplaced points score as
+    spurious returns; residuals of unplaced points are taken against the baseline.
+    """
+    r = np.asarray(data.measured_range_m, float)
+    placed = model.placed
+    base_expected = np.asarray(data.baseline.expected_range_m, float)
+    expected = np.where(placed, model.expected_range_m, base_expected)
+    residual = r - expected
+    sigma = np.maximum(np.where(placed, model.sigma_m, MIN_SIGMA_M), MIN_SIGMA_M)
+    use = placed & np.isfinite(residual)
+    if profile_materials:
+        offset, scale = material_nuisance(residual, sigma, _groups(data), use, data.members)
+        residual = residual - offset
+        sigma = sigma * scale
+    w = 1.0 - (1.0 - model.outlier_w) * (1.0 - max(floor, MODEL_FLOOR))
+    width = data.window_width_m
+    with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
+        z = residual / sigma
+        log_gauss = -0.5 * z * z - np.log(sigma) - _LOG_SQRT_2PI
+        log_in = np.log1p(-np.minimum(w, 1.0)) + log_gauss
+        log_out = np.log(w / width)
+        ll = np.logaddexp(log_in, log_out)
+        ll_miss = np.log(np.maximum(w, MISS_WEIGHT) / width)
+    ll = np.where(use, ll, ll_miss)
+    return -ll, np.where(np.isfinite(residual), residual, 0.0)
+
+
+def uniform_share(ranges_m: np.ndarray, window: tuple[float, float],
+                   target_ranges_m: np.ndarray) -> float:
+    """ML share of points at uniform ranges over ``window`` rather than near the target.
+
+    Two-component mixture: uniform over the window, or uniform over the target's
+    span of ranges (+-1 m). Points of a beam edge or a pose error sit near the target;
+    sunlight triggers are spread over the window.
+    """
+    if len(ranges_m) == 0:
+        return 0.0
+    lo, hi = window
+    a = ((ranges_m >= lo) & (ranges_m <= hi)) / max(hi - lo, 1e-3)
+    if len(target_ranges_m):
+        t_lo, t_hi = np.min(target_ranges_m) - 1.0, np.max(target_ranges_m) + 1.0
+        b = ((ranges_m >= t_lo) & (ranges_m <= t_hi)) / (t_hi - t_lo)
+    else:
+        b = np.zeros(len(ranges_m))
+    keep = (a > 0) | (b > 0)
+    if not np.any(keep):
+        return 0.0
+    a, b = a[keep], b[keep]
+    share = 0.5
+    for _ in range(200):
+        resp = share * a / (share * a + (1.0 - share) * b)
+        new = float(np.mean(resp))
+        if abs(new - share) < 1e-7:
+            break
+        share = new
+    return share * keep.mean()
+
+
+def unmatched_explained(data: FitData, effects: Sequence[Effect],
+                        model: ModelOnRays | None = None) -> float:
+    """Fraction (0..1) of unmatched points the effects account for.
+
+    Two ways: a re-predicted ray now hits the target with a detectable power and a
+    range within UNMATCHED_Z sigma (beam divergence, time offset); or spurious
+    returns on shots that miss the target (outlier fraction x missed shots, at most
+    the share of the isolated unmatched ranges that look uniform over the window). Missed shots
+    are ``n_shots - N`` when ``n_shots`` is known, else assumed to be N.
+    """
+    effects = list(effects)
+    r_u = np.asarray(data.unmatched_range_m, float)
+    m = len(r_u)
+    if m == 0:
+        return 0.0
+    hit_now = np.zeros(m, bool)
+    recast = recast_unmatched(data, effects)
+    if recast is not None:
+        ctx, expected, sigma = recast
+        sig = np.maximum(np.nan_to_num(sigma, nan=np.inf), MIN_SIGMA_M)
+        with np.errstate(invalid='ignore'):
+            hit_now = (np.asarray(ctx.hit, bool) & (ctx.power_w >= ctx.threshold_power_w)
+                       & (np.abs(r_u - expected) <= UNMATCHED_Z * sig))
+    rest = r_u[~hit_now & (True if data.unmatched_isolated is None
+                           else np.asarray(data.unmatched_isolated, bool))]
+    if model is None:
+        model = model_on_rays(data, effects)
+    w_mean = float(np.mean(model.outlier_w)) if len(model.outlier_w) else 0.0
+    spurious = 0.0
+    if w_mean > 0 and len(rest):
+        n = len(data.measured_range_m)
+        missed = max(data.n_shots - n, 0) if data.n_shots is not None else n
+        share = uniform_share(rest, data.range_window_m, np.asarray(data.measured_range_m))
+        spurious = min(share * len(rest), w_mean * missed)
+    return float(min(1.0, (hit_now.sum() + spurious) / m))
+
+
+def evaluate(data: FitData, effects: Sequence[Effect], profile_materials: bool = True,
+             floor: float = 0.0) -> tuple[float, float, float]:
+    """(nll_per_point, range_rmse_m, unmatched_explained) of the model with these effects.
+
+    Both figures include the per-material nuisance (module docstring) unless
+    ``profile_materials`` is False; the RMSE is the plain RMS over all matched points.
+    ``floor`` > 0 scores with that extra outlier weight (the robust NLL of fits).
+    """
+    effects = list(effects)
+    model = model_on_rays(data, effects)
+    nll, residual = point_nll(data, model, floor, profile_materials)
+    explained = unmatched_explained(data, effects, model)
+    if len(nll) == 0:
+        return float('nan'), float('nan'), explained
+    return float(np.mean(nll)), float(np.sqrt(np.mean(residual ** 2))), explained
+
+
+def scores(data: FitData, effects: Sequence[Effect]) -> dict:
+    """All figures of a model in one prediction: nll, robust nll, rmse, unmatched."""
+    effects = list(effects)
+    model = model_on_rays(data, effects)
+    nll, residual = point_nll(data, model, 0.0)
+    nll_robust, _ = point_nll(data, model, ROBUST_FLOOR)
+    n = max(len(nll), 1)
+    return {'nll': float(np.sum(nll) / n), 'nll_robust': float(np.sum(nll_robust) / n),
+            'rmse': float(np.sqrt(np.sum(residual ** 2) / n)),
+            'unmatched': unmatched_explained(data, effects, model)}
+
+
+def objective(data: FitData, effects: Sequence[Effect], floor: float = ROBUST_FLOOR) -> float:
+    """Total NLL (nats) a fit minimises: matched points, plus unmatched points that a
+    re-predicted model (new pose time or raycast) places back on the target."""
+    effects = list(effects)
+    try:
+        model = model_on_rays(data, effects)
+    except PoseCoverageError:
+        return math.inf
+    total = float(np.sum(point_nll(data, model, floor)[0]))
+    m = len(data.unmatched_range_m)
+    if m == 0:
+        return total
+    width = data.window_width_m
+    ll_u = np.full(m, math.log(max(floor, MISS_WEIGHT) / width))
+    try:
+        recast = recast_unmatched(data, effects)
+    except PoseCoverageError:
+        return math.inf
+    if recast is not None:
+        ctx, expected, sigma = recast
+        sig = np.maximum(np.nan_to_num(sigma, nan=1.0), MIN_SIGMA_M)
+        ok = np.asarray(ctx.hit, bool) & (ctx.power_w >= ctx.threshold_power_w)
+        with np.errstate(invalid='ignore', over='ignore'):
+            z = (np.asarray(data.unmatched_range_m) - expected) / sig
+            log_in = math.log1p(-floor) - 0.5 * z * z - np.log(sig) - _LOG_SQRT_2PI
+            ll_u = np.where(ok & np.isfinite(z), np.logaddexp(log_in, ll_u), ll_u)
+    return total - float(np.sum(ll_u))
+
+
+def is_outlier_effect(effect_cls: type[Effect]) -> bool:
+    """Whether the effect adds spurious returns (its likelihood is a mixture: it is fitted
+    without the robust floor, and judged by the likelihood and the robust spread)."""
+    return (effect_cls.outlier_fraction is not Effect.outlier_fraction
+            or effect_cls.false_returns is not Effect.false_returns)

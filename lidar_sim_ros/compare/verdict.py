@@ -1,0 +1,214 @@
+"""The verdict in plain words, and the lines ``lidar-sim compare`` prints.
+
+The verdict says only what the diagnosis showed (``diagnosis.Decision``): where the
+residual depends (given the other features, or on a confounded group of them), which
+effect is missing and what adding it brings, or that two candidates are confounded in
+this recording and which recording would separate them, or that no catalogue effect
+explains what is left (with the pointer to writing one). Physics words for an effect
+appear only when that effect is named.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from lidar_sim_ros.compare import diagnosis
+
+EFFECT_WORDS = {
+    'range_walk': 'range walk (intensity-dependent timing bias)',
+    'incidence_angle': 'footprint elongation at oblique incidence',
+    'snr_noise': 'range noise growing as the signal falls',
+    'solar_background': 'false returns from background light (outliers at random ranges)',
+    'beam_divergence': 'returns from the beam edge beyond the silhouette and mixed ranges at '
+                       'depth steps',
+    'time_offset': 'a clock offset between the pose and LiDAR stamps',
+}
+# What varies each catalogue effect independently of the others: the recording that
+# separates two confounded candidates varies what drives one at fixed values of what
+# drives the other.
+DRIVEN_BY = {
+    'range_walk': ('received power', 'another distance (power falls as 1/r^2 at the same '
+                   'incidence) or surfaces of other reflectance'),
+    'snr_noise': ('received power', 'another distance (weaker returns at the same incidence)'),
+    'incidence_angle': ('incidence angle', 'another attitude of the target (other incidence '
+                        'angles at the same distance)'),
+    'beam_divergence': ('distance to silhouettes and depth steps', 'another distance (the '
+                        'footprint grows with range) or a target with other edges in view'),
+    'time_offset': ('the target\'s motion', 'another tumble rate or a static target (the '
+                    'offset acts through the motion only)'),
+    'solar_background': ('returns at random ranges', 'the target away from the sun or with '
+                         'the sun off (false returns change, the target does not)'),
+}
+
+
+def verdict(summary: dict, attribution, cands: list, decision) -> str:
+    """One plain-language paragraph (module doc)."""
+    feats = attribution.features if attribution is not None else []
+    by_name = {f.name: f for f in feats}
+    parts = []
+    if attribution is not None and attribution.driver:
+        f = by_name[attribution.driver]
+        parts.append(f'The range residual depends most on {f.name}, given the other '
+                     f'features: {f.trend}.')
+    elif attribution is not None and attribution.confounded:
+        names = attribution.confounded
+        parts.append(f'The range residual depends on {_join(names)} together; in this '
+                     'recording they stand in for each other (each explains the residual '
+                     'alone, none given the others), so which of them drives it cannot be '
+                     'told from the features.')
+    elif attribution is not None and attribution.significant:
+        parts.append(f'The range residual depends on the features jointly '
+                     f'({attribution.structure_gain:.4f} nats/point held out), no single one '
+                     'dominating.')
+    missing = decision.missing
+    if missing:
+        c = next(c for c in cands if c.name == missing)
+        params = ', '.join(f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
+                           for k, v in c.params.items())
+        gain, caveat = _gain_words(summary, c)
+        words = EFFECT_WORDS.get(missing, missing)
+        if missing == 'time_offset' and summary.get('point_times') == 'stamp':
+            words = ('a time offset between the poses and the points: a clock offset, or, '
+                     'as these clouds carry no per-point time, the place of the cloud stamp in '
+                     'the scan (start, middle or end), which gives the same data')
+        parts.append(
+            f'This is {words}. With per-material offsets and sigmas refit (as --fit does), '
+            f'adding {missing} with {params} {gain} (held-out gain {c.score:.4f} nats/point, '
+            f'z = {c.z:.1f}).{caveat} Run again with --effect {missing} --fit to add it.')
+        if decision.also:
+            parts.append(f'{decision.also} also explains a separate part of the residual: '
+                         'expect it in the next run.')
+    elif decision.confounded_with:
+        names = decision.confounded_with
+        scores = ', '.join(f'{n} {next(c.score for c in cands if c.name == n):.4f}'
+                           for n in names)
+        advice = _separation(names, summary)
+        parts.append(
+            f'{_join(names)} explain the data equally well within their uncertainty (held-out '
+            f'gains {scores} nats/point): they are confounded in this recording, so none is '
+            f'named. {advice} If you know which it is, add it with --effect NAME --fit.')
+    else:
+        parts.append(_nothing_named(summary, attribution, cands))
+    vetoed = [c for c in cands if c.vetoed and c.significant and c.practical
+              and c.name != missing and c.name not in decision.confounded_with]
+    if vetoed and (missing or decision.confounded_with):
+        parts.append(f'{vetoed[0].name} would raise the likelihood but is not the missing '
+                     f'effect: {vetoed[0].vetoed}.')
+    mats = summary['materials']
+    bad = [n for n, m in mats.items() if m['bias_mismatch'] or m['sigma_mismatch']]
+    if bad:
+        def row(n: str) -> str:
+            m = mats[n]
+            return (f'{n} (bias {100 * (m["measured_bias_m"] - m["model_bias_m"]):+.1f} cm, '
+                    f'sigma x {m["measured_sigma_m"] / max(m["model_sigma_m"], 1e-9):.2f})')
+        rows = ', '.join(row(n) for n in bad)
+        parts.append(f'Per-material range bias/sigma differ from the configuration for {rows}: '
+                     'see materials.yaml (--fit refits them).')
+    un = summary['unmatched']
+    if un['points']:
+        parts.append(f'{un["points"]} points ({100 * un["fraction"]:.2f} %) miss the target '
+                     f'model: {un.get("interpretation", "")}.')
+    spread = summary.get('point_time_spread_s')
+    if spread:
+        parts.append(f'The clouds carry no per-point time: the model widens each point\'s '
+                     f'spread by the target\'s motion over the unknown point times (fitted '
+                     f'spread {1e3 * spread:.0f} ms), which is not a physical effect.')
+    return ' '.join(parts)
+
+
+def _nothing_named(summary: dict, attribution, cands: list) -> str:
+    """Why no effect is named: nothing to explain, or nothing in the catalogue explains it."""
+    best = next((c for c in diagnosis.rank(cands) if c.error is None and c.significant), None)
+    why = ''
+    if best is not None and best.vetoed:
+        why = f' The best candidate, {best.name}, is set aside: {best.vetoed}.'
+    elif best is not None and not best.practical:
+        why = (f' The best candidate, {best.name}, gains {best.score:.4f} nats/point held out '
+               f'(z = {best.z:.1f}), less than the {diagnosis.MIN_PRACTICAL_GAIN:g} nats/point '
+               'that would matter (an RMS change of the expected range of 10 % of the noise).')
+    if attribution is not None and attribution.significant:
+        return ('No catalogue effect explains it by a margin that matters.' + why
+                + ' The missing physics is outside the catalogue: write an effect '
+                '(docs/effects.md, "Write your own effect") that depends on what the residual '
+                'depends on, and add it with --effect file.py:Class --fit.')
+    return ('No catalogue effect improves the held-out likelihood by a margin that matters: '
+            'the model matches the measurements up to noise.' + why)
+
+
+def _separation(names: list[str], summary: dict) -> str:
+    """Which recording would tell the confounded candidates apart."""
+    known = [n for n in names if n in DRIVEN_BY]
+    if len(known) < 2:
+        return ('A recording in which what drives each of them varies independently would '
+                'separate them.')
+    a, b = known[:2]
+    span = summary.get('range_span_m')
+    narrow = (f' (this one spans only {span[0]:.1f}-{span[1]:.1f} m)' if span
+              and span[1] - span[0] < 0.35 * span[1] else '')
+    return (f'{a} follows the {DRIVEN_BY[a][0]}, {b} the {DRIVEN_BY[b][0]}; here the two vary '
+            f'together{narrow}. A recording at {DRIVEN_BY[a][1]}, or at {DRIVEN_BY[b][1]}, '
+            'would separate them.')
+
+
+def _join(names: list[str]) -> str:
+    return names[0] if len(names) == 1 else ', '.join(names[:-1]) + ' and ' + names[-1]
+
+
+def _change(what: str, before: float, after: float, unit: str, fmt: str, down: str,
+            up: str = 'raises') -> str:
+    """'cuts WHAT from a to b', 'raises WHAT from a to b' or 'leaves WHAT at a'."""
+    a, b = f'{before:{fmt}}', f'{after:{fmt}}'
+    if a == b:
+        return f'leaves {what} at {a}{unit}'
+    return f'{down if after < before else up} {what} from {a}{unit} to {b}{unit}'
+
+
+def _gain_words(summary: dict, c) -> tuple[str, str]:
+    """What adding candidate ``c`` brings, before and after on one basis (each
+    material's offset and sigma scale refit, as --fit does), and any caveat sentence.
+    An outlier effect is judged by the NLL and the robust (MAD) spread: a plain RMSE is
+    dominated by the far outliers, which stay in the data whether or not the model
+    expects them."""
+    nll = _change('the NLL', summary['nll_calibrated'], c.nll_after, '', '.3f',
+                  'lowers') + ' per point'
+    if c.effect is None or not diagnosis.is_outlier_effect(type(c.effect)):
+        rmse = _change('the range RMSE', summary['range_rmse_calibrated_m'],
+                       c.range_rmse_after_m, ' m', '.4f', 'cuts')
+        return f'{rmse} and {nll}', ''
+    text = nll
+    before = summary.get('range_robust_sigma_calibrated_m', float('nan'))
+    after = c.range_robust_sigma_after_m
+    if np.isfinite(before) and np.isfinite(after):
+        text += ' and ' + _change('the robust (MAD) spread of the range residual', before,
+                                  after, ' m', '.4f', 'narrows', 'widens')
+    caveat = (f' The plain range RMSE ({summary["range_rmse_calibrated_m"]:.4g} m) is '
+              'dominated by the far outliers, which stay in the data: it does not measure '
+              'this effect.')
+    if c.unmatched_explained > 0.01:
+        caveat += (f' It also explains {100 * c.unmatched_explained:.0f} % of the points '
+                   'that miss the target.')
+    return text, caveat
+
+
+def summary_lines(s: dict, files: list[Path]) -> list[str]:
+    lines = [f'points: {s["points"]} ({s["matched_points"]} matched, '
+             f'{s["unmatched_points"]} unmatched = {100 * s["unmatched_fraction"]:.2f} %)',
+             f'range RMSE: {s["range_rmse_m"]:.4f} m   NLL: {s["nll_per_point"]:.3f} per point'
+             f'   (per-material offsets refit: {s["range_rmse_calibrated_m"]:.4f} m, '
+             f'{s["nll_calibrated"]:.3f})']
+    for e in s['fitted_effects']:
+        params = ', '.join(f'{k} = {v:.6g}' if isinstance(v, float) else f'{k} = {v}'
+                           for k, v in e['params'].items())
+        lines.append(f'fitted {e["name"]}: {params}')
+    lines.append('features: ' + ', '.join(f'{f["name"]} {f["score"]:.4f}'
+                                          for f in s['features'][:4]))
+    lines.append('candidates: ' + ', '.join(
+        f'{c["name"]} {c["score"]:.4f}' if c['score'] is not None else f'{c["name"]} failed'
+        for c in s['candidates']))
+    lines.append(f'missing effect: {s["missing_effect"]}')
+    if s.get('confounded_with'):
+        lines.append(f'confounded: {", ".join(s["confounded_with"])}')
+    lines.append(f'verdict: {s["verdict"]}')
+    lines += [f'wrote {p}' for p in files]
+    return lines
