@@ -14,7 +14,7 @@ def register(subparsers) -> None:
             'Ray-matched comparison of a measured rosbag2 (PointCloud2 + target PoseStamped) '
             'with the model: writes DIR/summary.json, DIR/report.html, DIR/materials.yaml, '
             'DIR/effects.yaml (with --fit) and appends to DIR/../history.json.'))
-    p.add_argument('bag', type=Path, metavar='BAG', help='rosbag2 directory (MCAP or sqlite3)')
+    p.add_argument('bag', type=Path, metavar='BAG', help='recording: a rosbag2 directory (MCAP or sqlite3), a bare .mcap or .db3, or a ROS 1 .bag')
     p.add_argument('--mesh', type=Path, required=True, metavar='OBJ',
                    help='target OBJ (+MTL) with one usemtl group per material')
     p.add_argument('--config', type=Path, default=None, metavar='SCENARIO',
