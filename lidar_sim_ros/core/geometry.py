@@ -7,6 +7,7 @@ handled by transforming each ray with the pose of its own shot time.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,11 +50,46 @@ class Hits:
         return len(self.hit)
 
 
+@dataclass(frozen=True)
+class BodyRays:
+    """Rays moved into the target body frame, as Embree takes them.
+
+    origins_m, directions (N, 3) float32, in cast order (row k is ray ``order[k]``);
+    quat_xyzw (N|1, 4): each ray's pose, which rotates normals back to the frame of
+    ``directions_out`` (N, 3) float64, the rays' unit directions in input order.
+    """
+
+    origins_m: np.ndarray
+    directions: np.ndarray
+    order: np.ndarray
+    quat_xyzw: np.ndarray
+    directions_out: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.order)
+
+
+# Rays per thread below which splitting a cast over threads costs more than it saves.
+MIN_RAYS_PER_THREAD = 2048
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    if threads not in _POOLS:
+        _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix='raycast')
+    return _POOLS[threads]
+
+
 class Target:
-    """A triangle mesh in the target body frame with a material id per face."""
+    """A triangle mesh in the target body frame with a material id per face.
+
+    ``threads``: how many threads a large cast is split over (embreex releases the GIL
+    while it casts; each ray's answer does not depend on the split, so results are
+    the same for any thread count).
+    """
 
     def __init__(self, vertices_m: np.ndarray, faces: np.ndarray, face_material: np.ndarray,
-                 material_names: list[str]):
+                 material_names: list[str], threads: int = 1):
         self.vertices_m = np.ascontiguousarray(vertices_m, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         self.face_material = np.ascontiguousarray(face_material, dtype=np.int16)
@@ -65,15 +101,31 @@ class Target:
         self._scene = rtcore_scene.EmbreeScene()
         # Embree keeps its own float32 copy; the scene is static for the target's life.
         TriangleMesh(self._scene, tri.astype(np.float32))
+        # The first query builds the BVH: do it now, so that threads never race to it.
+        self._scene.run(np.zeros((1, 3), np.float32), np.array([[1.0, 0.0, 0.0]], np.float32))
+        self.threads = int(threads)
 
     @property
     def n_faces(self) -> int:
         return len(self.faces)
 
     def intersect(self, origins_m: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Raw Embree query: face id (-1 = miss) and distance (m) per ray, float32 rays as given."""
-        res = self._scene.run(origins_m, directions, output=1)
-        return res['primID'], res['tfar']
+        """Raw Embree query: face id (-1 = miss) and distance (m) per ray, float32 rays as given.
+
+        Split over ``self.threads`` threads when there are enough rays.
+        """
+        n = len(origins_m)
+        threads = min(self.threads, n // MIN_RAYS_PER_THREAD)
+        if threads <= 1:
+            res = self._scene.run(origins_m, directions, output=1)
+            return res['primID'], res['tfar']
+        bounds = np.linspace(0, n, threads + 1).astype(int)
+        parts = list(_pool(threads).map(
+            lambda k: self._scene.run(origins_m[bounds[k]:bounds[k + 1]],
+                                      directions[bounds[k]:bounds[k + 1]], output=1),
+            range(threads)))
+        return (np.concatenate([p['primID'] for p in parts]),
+                np.concatenate([p['tfar'] for p in parts]))
 
     def cast(self, origins_m: np.ndarray, directions: np.ndarray,
              order: np.ndarray | None = None) -> Hits:
@@ -86,12 +138,14 @@ class Target:
         origins = np.asarray(origins_m, dtype=np.float64).reshape(-1, 3)
         order = _cast_order(order, len(d))
         o32, d32 = kernels.rays_to_body(_IDENTITY, _ZERO, origins, d, order)
-        return self._hits(o32, d32, order, _IDENTITY, d)
+        return self.cast_body_rays(BodyRays(o32, d32, order, _IDENTITY, d))
 
-    def _hits(self, o32, d32, order, quat_xyzw, dir_out) -> Hits:
-        face, tfar = self.intersect(o32, d32)
+    def cast_body_rays(self, rays: BodyRays) -> Hits:
+        """First hit of each body-frame ray; normals in the frame of ``rays.directions_out``."""
+        face, tfar = self.intersect(rays.origins_m, rays.directions)
         hit, range_m, normal, cos_i, material, face = kernels.hit_geometry(
-            face, tfar, order, self.face_normals, self.face_material, quat_xyzw, dir_out)
+            face, tfar, rays.order, self.face_normals, self.face_material, rays.quat_xyzw,
+            rays.directions_out)
         return Hits(hit, range_m, normal, np.arccos(cos_i), material, face, cos_incidence=cos_i)
 
 
@@ -126,15 +180,22 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
     Rays go into the body frame with their pose, are cast there, and the normals
     come back to the lidar frame. Ranges are frame-independent.
     """
+    return target.cast_body_rays(body_rays(directions_lidar, poses, origin_lidar_m, order))
+
+
+def body_rays(directions_lidar: np.ndarray, poses: Poses, origin_lidar_m: np.ndarray | None = None,
+              order: np.ndarray | None = None) -> BodyRays:
+    """Lidar-frame rays (unit directions; origin default: the sensor) in the body frame,
+    each with the pose of its own shot, in cast order."""
     d = np.ascontiguousarray(directions_lidar, dtype=np.float64).reshape(-1, 3)
     origin = np.zeros((1, 3)) if origin_lidar_m is None else np.asarray(origin_lidar_m, float).reshape(-1, 3)
     quat, position = poses.quat_xyzw, poses.position_m.reshape(-1, 3)
     order = _cast_order(order, len(d))
     o32, d32 = kernels.rays_to_body(quat, position, origin, d, order)
-    return target._hits(o32, d32, order, quat, d)
+    return BodyRays(o32, d32, order, quat, d)
 
 
-def load_target(obj_path: str | Path, material_names: list[str]) -> Target:
+def load_target(obj_path: str | Path, material_names: list[str], threads: int = 1) -> Target:
     """Load an OBJ+MTL whose ``usemtl`` names are material names from the config.
 
     Raises MeshMaterialError naming every group it cannot map.
@@ -163,4 +224,4 @@ def load_target(obj_path: str | Path, material_names: list[str]) -> Target:
             f'(known: {material_names})')
     if not faces:
         raise MeshMaterialError(f'{obj_path}: no triangles found')
-    return Target(np.vstack(verts), np.vstack(faces), np.concatenate(mats), material_names)
+    return Target(np.vstack(verts), np.vstack(faces), np.concatenate(mats), material_names, threads)
