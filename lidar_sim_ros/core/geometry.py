@@ -10,6 +10,7 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, TypeVar
 
 import numpy as np
 import trimesh
@@ -18,6 +19,9 @@ from embreex.mesh_construction import TriangleMesh
 
 from lidar_sim_ros.core import geometry_kernels as kernels
 from lidar_sim_ros.core.pose import Poses
+
+
+T = TypeVar('T')
 
 
 class MeshMaterialError(ValueError):
@@ -74,10 +78,22 @@ MIN_RAYS_PER_THREAD = 2048
 _POOLS: dict[int, ThreadPoolExecutor] = {}
 
 
-def _pool(threads: int) -> ThreadPoolExecutor:
-    if threads not in _POOLS:
-        _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix='raycast')
-    return _POOLS[threads]
+def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
+                       min_per_thread: int = MIN_RAYS_PER_THREAD) -> list[T]:
+    """``work`` on contiguous parts of range(n), one per thread, results in order.
+
+    For GIL-free work (Embree casts, ``nogil`` kernels); the calling thread does the
+    first part. Fewer threads when parts would hold less than ``min_per_thread``.
+    """
+    threads = max(1, min(int(threads), n // max(min_per_thread, 1)))
+    if threads == 1:
+        return [work(slice(0, n))]
+    bounds = np.linspace(0, n, threads + 1).astype(int)
+    parts = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    if threads - 1 not in _POOLS:
+        _POOLS[threads - 1] = ThreadPoolExecutor(threads - 1, thread_name_prefix='raycast')
+    futures = [_POOLS[threads - 1].submit(work, part) for part in parts[1:]]
+    return [work(parts[0])] + [f.result() for f in futures]
 
 
 class Target:
@@ -114,16 +130,10 @@ class Target:
 
         Split over ``self.threads`` threads when there are enough rays.
         """
-        n = len(origins_m)
-        threads = min(self.threads, n // MIN_RAYS_PER_THREAD)
-        if threads <= 1:
-            res = self._scene.run(origins_m, directions, output=1)
-            return res['primID'], res['tfar']
-        bounds = np.linspace(0, n, threads + 1).astype(int)
-        parts = list(_pool(threads).map(
-            lambda k: self._scene.run(origins_m[bounds[k]:bounds[k + 1]],
-                                      directions[bounds[k]:bounds[k + 1]], output=1),
-            range(threads)))
+        parts = split_over_threads(len(origins_m), self.threads, lambda part: self._scene.run(
+            origins_m[part], directions[part], output=1))
+        if len(parts) == 1:
+            return parts[0]['primID'], parts[0]['tfar']
         return (np.concatenate([p['primID'] for p in parts]),
                 np.concatenate([p['tfar'] for p in parts]))
 

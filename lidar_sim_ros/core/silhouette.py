@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -35,7 +36,7 @@ from numba import njit
 WELD_M = 1e-6           # vertices closer than this are one vertex (OBJ groups repeat them)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class MeshEdges:
     """The undirected edges and face adjacency of a triangle mesh.
 
@@ -66,6 +67,7 @@ class MeshEdges:
     face_edge_normal: np.ndarray
     face_edge_offset: np.ndarray
     face_planes: np.ndarray
+    face_edge_flat: np.ndarray
 
     def __len__(self) -> int:
         return len(self.a_m)
@@ -81,28 +83,40 @@ class MeshEdges:
         """``candidates`` as a mask over the edges."""
         lo = np.asarray(origin_lo_m, float)
         hi = np.asarray(origin_hi_m, float)
-        return _maybe_silhouette(self.a_m, self.n1, self.n2, self.always, self.coplanar,
-                                 0.5 * (lo + hi), 0.5 * (hi - lo))
+        # The float32 copies are exact to ~1e-6 m at 10 m: widen the box by 1e-5 m.
+        return _maybe_silhouette(self._sign_test, self._sign_edge, len(self.a_m),
+                                 0.5 * (lo + hi), 0.5 * (hi - lo) + 1e-5)
+
+    @cached_property
+    def _sign_test(self) -> np.ndarray:
+        """(a, n1, n2, always) per non-coplanar edge, float32, packed for the classification."""
+        keep = ~self.coplanar
+        return np.ascontiguousarray(np.column_stack(
+            [self.a_m[keep], self.n1[keep], self.n2[keep], self.always[keep]]), dtype=np.float32)
+
+    @cached_property
+    def _sign_edge(self) -> np.ndarray:
+        return np.flatnonzero(~self.coplanar)
 
 
 @njit(cache=True, nogil=True)
-def _maybe_silhouette(a, n1, n2, always, coplanar, centre, half):
+def _maybe_silhouette(packed, edge, n_edges, centre, half):
     """Edges not smooth for every viewpoint o in the box centre +- half: s_k(o) =
-    n_k . (o - a) over the box is [mid - rad, mid + rad] with rad = |n_k| . half."""
-    out = np.zeros(a.shape[0], np.bool_)
-    for e in range(a.shape[0]):
-        if coplanar[e]:
-            continue
+    n_k . (o - a) over the box is [mid - rad, mid + rad] with rad = |n_k| . half.
+    packed (M, 10): a, n1, n2, always of the non-coplanar edges ``edge`` (M,)."""
+    out = np.zeros(n_edges, np.bool_)
+    for row in range(packed.shape[0]):
         mid1, rad1, mid2, rad2 = 0.0, 0.0, 0.0, 0.0
         for k in range(3):
-            off = centre[k] - a[e, k]
-            mid1 += n1[e, k] * off
-            rad1 += abs(n1[e, k]) * half[k]
-            mid2 += n2[e, k] * off
-            rad2 += abs(n2[e, k]) * half[k]
+            off = centre[k] - np.float64(packed[row, k])
+            n1k, n2k = np.float64(packed[row, 3 + k]), np.float64(packed[row, 6 + k])
+            mid1 += n1k * off
+            rad1 += abs(n1k) * half[k]
+            mid2 += n2k * off
+            rad2 += abs(n2k) * half[k]
         smooth = ((mid1 - rad1 > 0.0 and mid2 + rad2 < 0.0)
                   or (mid1 + rad1 < 0.0 and mid2 - rad2 > 0.0))
-        out[e] = always[e] or not smooth
+        out[edge[row]] = packed[row, 9] != 0.0 or not smooth
     return out
 
 
@@ -171,6 +185,12 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     with np.errstate(invalid='ignore', divide='ignore'):
         cos_fold = -np.einsum('ij,ij->i', n1, n2) / (len1 * len2)
     coplanar = pair & (cos_fold > 1.0 - 1e-12) & (span > 0)
+    # A flat quad: coplanar, and the diagonal c1-c2 crosses the shared edge a-b.
+    c1, c2 = position[c[first]], position[c[second]]
+    across = np.einsum('ij,ij->i', np.cross(pb - pa, c1 - pa), np.cross(pb - pa, c2 - pa)) < 0
+    along = np.einsum('ij,ij->i', np.cross(c2 - c1, pa - c1), np.cross(c2 - c1, pb - c1)) < 0
+    flat = coplanar & across & along
+    face_edge_flat = flat[face_edge] & (face_edge >= 0)
     plane_offset = np.einsum('ij,ij->i', normal, tri[:, 0])
     planes = np.empty((n_faces, 4, 4))
     planes[:, 0, :3], planes[:, 0, 3] = normal, plane_offset
@@ -178,7 +198,7 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     return MeshEdges(a_m=pa, b_m=pb, n1=n1, n2=n2, always=~pair, coplanar=coplanar,
                      face_edge=face_edge, face_normal=normal, face_plane_offset=plane_offset,
                      face_neighbour=neighbour, face_edge_normal=inward, face_edge_offset=offset,
-                     face_planes=planes)
+                     face_planes=planes, face_edge_flat=face_edge_flat)
 
 
 def origin_box(origins_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -48,6 +48,7 @@ the best (the likelihood goes flat once every edge point is explained).
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Literal
 
 import numpy as np
@@ -57,7 +58,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect
 from lidar_sim_ros.core.effects.fitting import FitData, FitResult, fit_bounded
-from lidar_sim_ros.core.geometry import BodyRays, Hits, Target, body_rays
+from lidar_sim_ros.core.geometry import BodyRays, Hits, Target, body_rays, split_over_threads
 from lidar_sim_ros.core.geometry_kernels import _rotate
 from lidar_sim_ros.core.silhouette import cones_touching_edges, mesh_edges, origin_box
 
@@ -99,49 +100,42 @@ def footprint_cast(target: Target, directions_lidar: np.ndarray, poses, half_ang
                    rings: int = 2, range_mode: str = 'mean') -> Hits:
     """The same model as ``sample_footprint``; sub-rays cast only where a silhouette may
     cross the footprint (module docstring)."""
-    d = np.asarray(directions_lidar, float)
-    d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    rays = body_rays(d, poses)          # no cast order: body-frame rows in input order
-    axis = target.cast_body_rays(rays)
+    rays = body_rays(directions_lidar, poses)   # no cast order: rows in input order
+    axis = target.cast_body_rays(rays)          # fresh arrays: updated in place below
     edges = mesh_edges(target)
     tan_a = np.tan(half_angle_rad)
     rho, phi, energy = footprint_pattern(rings)
     tilt = np.tan(half_angle_rad * rho)
-    range_m = axis.range_m.copy()
-    sample = np.zeros(len(d), bool)
+    sample = np.zeros(len(rays), bool)
     for block in _blocks(rays.origins_m):
         o, dirs = rays.origins_m[block], rays.directions[block]
         candidate = edges.candidate_mask(*origin_box(o))
-        hits = block[axis.hit[block]]
-        mean_m, first_m, reach_m, ok = _sheet_footprint_ranges(
-            rays.origins_m, rays.directions, hits, axis.face, axis.range_m, tilt, np.cos(phi),
-            np.sin(phi), energy, edges.face_planes, edges.face_neighbour, edges.face_edge,
-            candidate, WALK_STEPS)
-        range_m[hits[ok]] = (first_m if range_mode == 'first' else mean_m)[ok]
+        hit = axis.hit[block]
+        hits = np.arange(len(rays))[block][hit]
+        parts = split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
+            rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
+            energy, rings, range_mode == 'first', edges.face_planes, edges.face_neighbour,
+            edges.face_edge, edges.face_edge_flat, candidate, WALK_STEPS))
+        sheet_m, reach_m, ok = (np.concatenate([p[n] for p in parts]) for n in range(3))
+        axis.range_m[hits[ok]] = sheet_m[ok]
         sample[hits[~ok]] = True            # the walk met a silhouette or gave up: cast these
         # Occluders in front of the footprint (or anything in a missed shot's cone): a
         # silhouette edge in the cone, up to the farthest sub-ray hit (misses: any depth).
-        # The margin covers an occluder touching the sheet (a blanket lying on the tank)
-        # and the sheet's depth between the sampled azimuths.
-        limit = np.full(len(block), np.inf)
-        margin = (reach_m - first_m) + 1e-3 * reach_m + OCCLUDER_MARGIN_M
-        limit[axis.hit[block]] = np.where(ok, reach_m + margin, -1.0)
-        index = np.flatnonzero(candidate)
-        sample[block] |= cones_touching_edges(o, dirs, tan_a, edges.a_m[index], edges.b_m[index],
-                                              limit)
+        # The margin covers an occluder touching the sheet (a blanket lying on the tank).
+        limit = np.full(len(o), np.inf)
+        limit[hit] = np.where(ok, 2.0 * reach_m - axis.range_m[hits] + 1e-3 * reach_m
+                              + OCCLUDER_MARGIN_M, -1.0)
+        a_m, b_m = edges.a_m[candidate], edges.b_m[candidate]
+        sample[block] |= np.concatenate(split_over_threads(len(o), target.threads, lambda part: (
+            cones_touching_edges(o[part], dirs[part], tan_a, a_m, b_m, limit[part]))))
     fraction = axis.hit.astype(float)
-    hit, normal, cos_incidence = axis.hit.copy(), axis.normal.copy(), axis.cos_incidence.copy()
-    material, face = axis.material.copy(), axis.face.copy()
     idx = np.flatnonzero(sample)
     if len(idx):
         sub = _cast_subrays(target, rays, idx, half_angle_rad, rings, range_mode)
-        hit[idx], range_m[idx], fraction[idx] = sub.hit, sub.range_m, sub.power_fraction
-        normal[idx], cos_incidence[idx] = sub.normal, sub.cos_incidence
-        material[idx], face[idx] = sub.material, sub.face
-    incidence = axis.incidence_rad.copy()
-    incidence[idx] = sub.incidence_rad if len(idx) else incidence[idx]
-    return Hits(hit, range_m, normal, incidence, material, face, power_fraction=fraction,
-                cos_incidence=cos_incidence)
+        for name in ('hit', 'range_m', 'normal', 'incidence_rad', 'cos_incidence', 'material', 'face'):
+            getattr(axis, name)[idx] = getattr(sub, name)
+        fraction[idx] = sub.power_fraction
+    return replace(axis, power_fraction=fraction)
 
 
 def _cast_subrays(target: Target, rays: BodyRays, index: np.ndarray, half_angle_rad: float,
@@ -244,52 +238,58 @@ def _combine_subrays(face_k, tfar_k, d_sub, index, energy, first, face_normals, 
     return hit, range_m, fraction, normal, cos_i, face
 
 
-def _blocks(origins_m: np.ndarray) -> list[np.ndarray]:
-    """Ray indices split until each block's sensor positions lie within BLOCK_SPREAD_M:
-    one block per frame in the simulator, a few in a comparison spanning many frames."""
+def _blocks(origins_m: np.ndarray) -> list:
+    """Ray rows (a slice, or index arrays) split until each block's sensor positions lie
+    within BLOCK_SPREAD_M: one block per frame in the simulator, a few in a comparison
+    spanning many frames."""
+    lo, hi = origin_box(origins_m)
+    if len(origins_m) == 0 or np.linalg.norm(hi - lo) <= BLOCK_SPREAD_M:
+        return [slice(None)]
     out, todo = [], [np.arange(len(origins_m))]
     while todo:
         idx = todo.pop()
         lo, hi = origin_box(origins_m[idx])
-        extent = hi - lo if len(idx) else np.zeros(3)
-        if len(idx) < 64 or np.linalg.norm(extent) <= BLOCK_SPREAD_M:
+        if len(idx) < 64 or np.linalg.norm(hi - lo) <= BLOCK_SPREAD_M:
             out.append(idx)
             continue
-        axis = int(np.argmax(extent))
-        split = np.argsort(origins_m[idx, axis], kind='stable')
+        split = np.argsort(origins_m[idx, int(np.argmax(hi - lo))], kind='stable')
         half = len(idx) // 2
         todo += [idx[split[:half]], idx[split[half:]]]
     return out
 
 
 @njit(cache=True, nogil=True)
-def _sheet_footprint_ranges(origins, directions, index, face, range_m, tilt, cos_phi, sin_phi,
-                            energy, planes, neighbour, face_edge, silhouette, max_steps):
-    """Energy-weighted mean and nearest sub-ray range (m) of shots whose footprint stays on
-    one sheet of facets.
+def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin_phi, energy,
+                            rings, first_mode, planes, neighbour, face_edge, flat_edge,
+                            silhouette, max_steps):
+    """Energy-weighted mean (or nearest) sub-ray range (m) of shots whose footprint stays
+    on one sheet of facets.
 
     origins, directions (N, 3): body-frame rays as cast (float32); index: the shots to
-    do; face, range_m: their axis hits; planes (F, 4, 4): ``MeshEdges.face_planes``.
-    Sub-ray j (as in ``_subrays``) is intersected with the axis facet's plane and, if it
-    lands outside the facet, with the plane of the facet across the edge it left by,
-    and so on. The walk fails (ok False: cast the shot) at an edge marked in
-    ``silhouette`` (indexed by ``face_edge``), at a boundary, or after max_steps facets.
-    Returns mean, first, reach (the farthest sub-ray range) and ok, each (len(index),).
+    do; face: their axis facets; tilt, cos_phi, sin_phi, energy: the sub-ray pattern
+    (``footprint_pattern``, ``rings`` rings of 6 i equally spaced rays, odd rings turned
+    by half a step); planes (F, 4, 4): ``MeshEdges.face_planes``.
+
+    Each sub-ray is intersected with the axis facet's plane; one that lands outside the
+    facet is followed across the edge it leaves by to the next facet, and so on. The
+    walk fails (ok False: cast the shot) at an edge marked in ``silhouette`` (indexed by
+    ``face_edge``), at a boundary, or after max_steps facets. On the axis facet's plane
+    the sum over a ring has a closed form (below), so only the sub-rays that leave the
+    facet are computed one by one.
+    Returns range (mean or nearest), reach (at least the farthest sub-ray range) and ok.
     """
     m = index.shape[0]
     k = energy.shape[0]
-    mean = np.full(m, np.nan)
-    first = np.full(m, np.nan)
+    out = np.full(m, np.nan)
     reach = np.full(m, np.nan)
     ok = np.ones(m, np.bool_)
     total = 0.0
     for j in range(k):
         total += energy[j]
-    scale = 1.0 / np.sqrt(1.0 + tilt * tilt)
+    lifts = np.sqrt(1.0 + tilt * tilt)
+    scale = 1.0 / lifts
     ct, st = cos_phi * tilt * scale, sin_phi * tilt * scale
     t_max = tilt[k - 1]
-    r_sub = np.empty(k)
-    margin = np.empty((3, k))
     # Per facet in use (the axis facet, slot 0, and its neighbours across edge e, slot
     # 1 + e): the plane and edge-distance coefficients against (1, d, u, v) of the shot.
     coef = np.empty((4, 4, 4))
@@ -303,74 +303,141 @@ def _sheet_footprint_ranges(origins, directions, index, face, range_m, tilt, cos
         _facet_coefficients(planes, f0, ox, oy, oz, dx, dy, dz, ux, uy, uz, vx, vy, vz, coef, 0)
         ready[:] = False
         ready[0] = True
-        nd, nu, nv, num = coef[0, 0, 1], coef[0, 0, 2], coef[0, 0, 3], coef[0, 0, 0]
-        # Sub-ray j (unit: (d + t cos u + t sin v) / sqrt(1 + t^2)) meets the axis facet's
-        # plane at range num / (n . s_j).
-        for j in range(k):
-            r_sub[j] = num / (nd * scale[j] + ct[j] * nu + st[j] * nv)
+        num, nd, nu, nv = coef[0, 0, 0], coef[0, 0, 1], coef[0, 0, 2], coef[0, 0, 3]
+        r0 = num / nd                        # the axis ray's range on the facet's plane
+        grad = np.sqrt(nu * nu + nv * nv) / abs(nd)         # tan(incidence)
+        if r0 <= 0.0 or grad * t_max >= 1.0:
+            ok[q] = False                    # the plane cannot hold the footprint
+            continue
+        plane_sum, plane_reach = _plane_ring_sums(r0, nu / nd, nv / nd, grad, tilt, lifts, energy,
+                                                  rings)
         # Footprint wholly inside the axis facet? The cone meets the plane within
         # r0 sin a / cos(theta + a) of the axis point; compare with its distance to the edges.
-        r0 = range_m[i]
-        cos_i = abs(nd)
+        cos_i = abs(nd) / np.sqrt(nd * nd + nu * nu + nv * nv)
         sin_i = np.sqrt(max(1.0 - cos_i * cos_i, 0.0))
-        inside = False
-        if cos_i > sin_i * t_max:
-            spread = 1.01 * r0 * t_max / (cos_i - sin_i * t_max) + 1e-6
-            inside = True
-            for e in range(3):
-                if coef[0, 1 + e, 0] + r0 * coef[0, 1 + e, 1] < spread:
-                    inside = False
-        if not inside:
-            # Signed distance of each sub-ray's point to each edge of the axis facet.
-            for e in range(3):
-                g0, gd, gu, gv = coef[0, 1 + e, 0], coef[0, 1 + e, 1], coef[0, 1 + e, 2], coef[0, 1 + e, 3]
-                for j in range(k):
-                    margin[e, j] = g0 + r_sub[j] * (gd * scale[j] + gu * ct[j] + gv * st[j])
-            for j in range(k):
-                leave = _leaving_edge(margin[0, j], margin[1, j], margin[2, j])
-                if r_sub[j] > 0.0 and leave < 0:
-                    continue
-                r = -1.0
-                if r_sub[j] > 0.0 and not silhouette[face_edge[f0, leave]]:
-                    f1 = neighbour[f0, leave]
-                    if f1 >= 0:
-                        slot = 1 + leave
-                        if not ready[slot]:
-                            _facet_coefficients(planes, f1, ox, oy, oz, dx, dy, dz, ux, uy, uz,
-                                                vx, vy, vz, coef, slot)
-                            ready[slot] = True
-                        ns = coef[slot, 0, 1] * scale[j] + coef[slot, 0, 2] * ct[j] + coef[slot, 0, 3] * st[j]
-                        if ns != 0.0:
-                            r = coef[slot, 0, 0] / ns
-                            onward = _leaving_edge(_edge_margin(coef, slot, 0, r, scale[j], ct[j], st[j]),
-                                                   _edge_margin(coef, slot, 1, r, scale[j], ct[j], st[j]),
-                                                   _edge_margin(coef, slot, 2, r, scale[j], ct[j], st[j]))
-                            if r <= 0.0:
-                                r = -1.0
-                            elif onward >= 0:
-                                r = _walk(ox, oy, oz, dx * scale[j] + ux * ct[j] + vx * st[j],
-                                          dy * scale[j] + uy * ct[j] + vy * st[j],
-                                          dz * scale[j] + uz * ct[j] + vz * st[j], f1, onward,
-                                          planes, neighbour, face_edge, silhouette, max_steps - 2)
-                if r <= 0.0:
-                    ok[q] = False
-                    break
-                r_sub[j] = r
-        if not ok[q]:
+        spread = 1.01 * r0 * t_max / (cos_i - sin_i * t_max) + 1e-6
+        # Only edges nearer than the footprint's reach can be crossed.
+        near0 = coef[0, 1, 0] + r0 * coef[0, 1, 1] < spread
+        near1 = coef[0, 2, 0] + r0 * coef[0, 2, 1] < spread
+        near2 = coef[0, 3, 0] + r0 * coef[0, 3, 1] < spread
+        inside = not (near0 or near1 or near2)
+        if near0 + near1 + near2 == 1:
+            # Near one edge only: if it is a flat quad's diagonal, the footprint may still
+            # lie within the quad (the neighbour's other two edges are far enough).
+            e = 0 if near0 else (1 if near1 else 2)
+            if flat_edge[f0, e]:
+                _facet_coefficients(planes, neighbour[f0, e], ox, oy, oz, dx, dy, dz, ux, uy, uz,
+                                    vx, vy, vz, coef, 1 + e)
+                ready[1 + e] = True
+                inside = True
+                for e1 in range(3):
+                    if (coef[1 + e, 1 + e1, 0] + r0 * coef[1 + e, 1 + e1, 1] < spread
+                            and planes_share(neighbour, f0, e, e1)):
+                        inside = False
+                if inside:
+                    near0, near1, near2 = False, False, False
+        if inside and not first_mode:
+            out[q], reach[q] = plane_sum / total, plane_reach
             continue
-        acc, low, high = 0.0, np.inf, 0.0
+        # Sub-ray by sub-ray: sign(nd) * (distance to edge e) * (n . s_j) needs no division.
+        sign = 1.0 if nd > 0.0 else -1.0
+        correction, low, high = 0.0, np.inf, 0.0
         for j in range(k):
-            r = r_sub[j]
-            if r <= 0.0:                    # behind the sensor: not a sheet in front of it
+            ns = nd * scale[j] + nu * ct[j] + nv * st[j]
+            leave, worst = -1, -1e-9 * abs(ns)
+            for e in range(3):
+                if not (near0 if e == 0 else (near1 if e == 1 else near2)):
+                    continue
+                h = sign * (coef[0, 1 + e, 0] * ns + num * (coef[0, 1 + e, 1] * scale[j]
+                                                           + coef[0, 1 + e, 2] * ct[j]
+                                                           + coef[0, 1 + e, 3] * st[j]))
+                if h < worst:
+                    worst, leave = h, e
+            if leave < 0:
+                if first_mode:
+                    low = min(low, num / ns)
+                continue
+            r_plane = num / ns
+            r = -1.0
+            if not silhouette[face_edge[f0, leave]] and neighbour[f0, leave] >= 0:
+                f1 = neighbour[f0, leave]
+                slot = 1 + leave
+                if not ready[slot]:
+                    _facet_coefficients(planes, f1, ox, oy, oz, dx, dy, dz, ux, uy, uz, vx, vy,
+                                        vz, coef, slot)
+                    ready[slot] = True
+                ns1 = coef[slot, 0, 1] * scale[j] + coef[slot, 0, 2] * ct[j] + coef[slot, 0, 3] * st[j]
+                if ns1 != 0.0:
+                    r = coef[slot, 0, 0] / ns1
+                    onward = _leaving_edge(_edge_margin(coef, slot, 0, r, scale[j], ct[j], st[j]),
+                                           _edge_margin(coef, slot, 1, r, scale[j], ct[j], st[j]),
+                                           _edge_margin(coef, slot, 2, r, scale[j], ct[j], st[j]))
+                    if r <= 0.0:
+                        r = -1.0
+                    elif onward >= 0:
+                        r = _walk(ox, oy, oz, dx * scale[j] + ux * ct[j] + vx * st[j],
+                                  dy * scale[j] + uy * ct[j] + vy * st[j],
+                                  dz * scale[j] + uz * ct[j] + vz * st[j], f1, onward,
+                                  planes, neighbour, face_edge, silhouette, max_steps - 2)
+            if r <= 0.0:
                 ok[q] = False
-            acc += energy[j] * r
+                break
+            correction += energy[j] * (r - r_plane)
             low = min(low, r)
             high = max(high, r)
         if ok[q]:
-            mean[q] = acc / total
-            first[q] = low
-            reach[q] = high
-    return mean, first, reach, ok
+            out[q] = low if first_mode else (plane_sum + correction) / total
+            reach[q] = max(plane_reach, high)
+    return out, reach, ok
+
+
+@njit(cache=True, nogil=True, inline='always')
+def planes_share(neighbour, f0, e, e1):
+    """Whether edge e1 of the face across edge e of f0 is one of its outer edges (not the
+    shared edge, whose far side is f0 itself)."""
+    return neighbour[neighbour[f0, e], e1] != f0
+
+
+@njit(cache=True, nogil=True, inline='always')
+def _plane_ring_sums(r0, a_u, a_v, grad, tilt, lifts, energy, rings):
+    """sum_j e_j r_j over the pattern on one plane, and a bound on max_j r_j (m).
+
+    On a plane, r_j = r0 sqrt(1 + t^2) / (1 + t (A cos phi_j + B sin phi_j)) with
+    (A, B) = (n.u, n.v) / n.d = tan(theta) (cos psi, sin psi). Over a ring of M equally
+    spaced azimuths phi_k = phi_0 + 2 pi k / M (M even), with a = t tan(theta),
+    rho = a / (1 + sqrt(1 - a^2)) and the Poisson-kernel series of 1 / (1 + a cos x),
+        sum_k 1 / (1 + a cos(phi_k - psi))
+            = M / sqrt(1 - a^2) (1 - rho^2M) / (1 - 2 rho^M cos(M (phi_0 - psi)) + rho^2M).
+    Ring i has M = 6 i and M phi_0 = pi (i odd) or 0, so cos(M (phi_0 - psi)) = +-cos(M psi).
+    """
+    total = energy[0] * r0                  # the axis sub-ray
+    bound = r0
+    cos_psi, sin_psi = (a_u / grad, a_v / grad) if grad > 0.0 else (1.0, 0.0)
+    # w6 = (cos psi + i sin psi)^6, then w6^i for ring i.
+    re2, im2 = cos_psi * cos_psi - sin_psi * sin_psi, 2.0 * cos_psi * sin_psi
+    re3, im3 = re2 * cos_psi - im2 * sin_psi, re2 * sin_psi + im2 * cos_psi
+    re6, im6 = re3 * re3 - im3 * im3, 2.0 * re3 * im3
+    re_m, im_m = 1.0, 0.0
+    j = 1
+    for ring in range(1, rings + 1):
+        count = 6 * ring
+        t = tilt[j]
+        re_m, im_m = re_m * re6 - im_m * im6, re_m * im6 + im_m * re6
+        a = t * grad
+        root = np.sqrt(1.0 - a * a)
+        rho = a / (1.0 + root)
+        rho2 = rho * rho
+        rho6 = rho2 * rho2 * rho2
+        rho_m = rho6
+        for _ in range(ring - 1):
+            rho_m *= rho6
+        cos_m = re_m if ring % 2 == 0 else -re_m
+        ring_sum = count / root * (1.0 - rho_m * rho_m) / (1.0 - 2.0 * rho_m * cos_m + rho_m * rho_m)
+        lift = lifts[j]
+        total += energy[j] * r0 * lift * ring_sum
+        bound = max(bound, r0 * lift / (1.0 - a))
+        j += count
+    return total, bound
 
 
 @njit(cache=True, nogil=True, inline='always')
