@@ -27,7 +27,7 @@ one facet to the next across the sheet (``face_neighbour``, ``face_edge_normal``
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -68,6 +68,11 @@ class MeshEdges:
     face_edge_offset: np.ndarray
     face_planes: np.ndarray
     face_edge_flat: np.ndarray
+    edge_vertices: np.ndarray
+    edge_faces: np.ndarray
+    face_vertices: np.ndarray
+    crossing_a_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    crossing_b_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     def __len__(self) -> int:
         return len(self.a_m)
@@ -128,8 +133,70 @@ def mesh_edges(target) -> MeshEdges:
     edges = _EDGES.get(target)
     if edges is None:
         edges = build_mesh_edges(target.vertices_m, target.faces)
+        edges = replace(edges, **dict(zip(('crossing_a_m', 'crossing_b_m'),
+                                          intersection_segments(edges, target.intersect))))
         _EDGES[target] = edges
     return edges
+
+
+def intersection_segments(edges: MeshEdges, intersect, max_hits: int = 16,
+                          step_m: float = 1e-5) -> tuple[np.ndarray, np.ndarray]:
+    """Segments (C, 3), (C, 3) (m) where the mesh passes through itself.
+
+    Parts that interpenetrate (a blanket dipping into the hull, a nozzle buried in a
+    dome) meet along curves that are no mesh edge. Two triangles intersect along a
+    segment whose ends are points where an edge of one pierces the other, so every mesh
+    edge is cast as a ray from one end to the other through ``intersect`` (the target's
+    Embree query: float32 rays -> face id, distance), continuing past each hit; a hit
+    on a face sharing no vertex with the edge is a piercing point; the segments join the
+    points on each face (a lone point: a segment of zero length).
+    """
+    a, b = edges.a_m, edges.b_m
+    span = b - a
+    length = np.linalg.norm(span, axis=1)
+    ok = length > 10 * step_m
+    direction = np.divide(span, length[:, None], out=np.zeros_like(span), where=ok[:, None])
+    todo = np.flatnonzero(ok)
+    start = np.zeros(len(a))
+    found_edge, found_face, found_point = [], [], []
+    for _ in range(max_hits):
+        if len(todo) == 0:
+            break
+        origin = a[todo] + start[todo, None] * direction[todo]
+        face, t = intersect(origin.astype(np.float32), direction[todo].astype(np.float32))
+        t_at = start[todo] + t
+        hit = (face >= 0) & (t_at < length[todo] - step_m)
+        todo, face, t_at = todo[hit], face[hit], t_at[hit]
+        ends = edges.edge_vertices[todo]
+        corners = edges.face_vertices[face]
+        shares = (corners == ends[:, :1]).any(axis=1) | (corners == ends[:, 1:]).any(axis=1)
+        found_edge.append(todo[~shares])
+        found_face.append(face[~shares])
+        found_point.append(a[todo[~shares]] + t_at[~shares, None] * direction[todo[~shares]])
+        start[todo] = t_at + step_m
+    if not found_edge or not sum(len(e) for e in found_edge):
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    edge_id, pierced, point = (np.concatenate(x) for x in (found_edge, found_face, found_point))
+    # Every point lies on the pierced face and on both faces of the piercing edge. The
+    # curve crosses each face between the points on it (a piercing point on a pierced
+    # face's own edge is credited to one side only, so pair faces, not face pairs).
+    own = edges.edge_faces[edge_id]
+    face = np.concatenate([pierced, own[:, 0], own[:, 1]])
+    point = np.concatenate([point, point, point])
+    keys, first = np.unique(np.column_stack([face, np.round(point / step_m)]), axis=0,
+                            return_index=True)
+    face, point = keys[:, 0], point[first]
+    seg_a, seg_b = [], []
+    for f in np.unique(face):
+        p = point[face == f]
+        if len(p) == 1:
+            seg_a.append(p[0])
+            seg_b.append(p[0])
+        for i in range(len(p)):
+            for j in range(i + 1, len(p)):
+                seg_a.append(p[i])
+                seg_b.append(p[j])
+    return np.array(seg_a), np.array(seg_b)
 
 
 def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
@@ -198,7 +265,9 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     return MeshEdges(a_m=pa, b_m=pb, n1=n1, n2=n2, always=~pair, coplanar=coplanar,
                      face_edge=face_edge, face_normal=normal, face_plane_offset=plane_offset,
                      face_neighbour=neighbour, face_edge_normal=inward, face_edge_offset=offset,
-                     face_planes=planes, face_edge_flat=face_edge_flat)
+                     face_planes=planes, face_edge_flat=face_edge_flat,
+                     edge_vertices=np.column_stack([a[first], b[first]]),
+                     edge_faces=np.column_stack([face[first], face[second]]), face_vertices=f)
 
 
 def origin_box(origins_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -64,6 +64,7 @@ from lidar_sim_ros.core.silhouette import cones_touching_edges, mesh_edges, orig
 
 WALK_STEPS = 8          # facets a sub-ray is followed across before the shot is cast instead
 BLOCK_SPREAD_M = 0.25   # sensor positions (body frame) per silhouette set, at most this apart
+SERIES_LIMIT = 0.01     # tan(a) tan(theta) below which the plane sum's series is exact enough
 OCCLUDER_MARGIN_M = 0.002   # occluders this far behind the footprint's farthest sub-ray count
 
 
@@ -125,7 +126,9 @@ def footprint_cast(target: Target, directions_lidar: np.ndarray, poses, half_ang
         limit = np.full(len(o), np.inf)
         limit[hit] = np.where(ok, 2.0 * reach_m - axis.range_m[hits] + 1e-3 * reach_m
                               + OCCLUDER_MARGIN_M, -1.0)
-        a_m, b_m = edges.a_m[candidate], edges.b_m[candidate]
+        # Silhouettes that may be, and curves where parts of the mesh pass through each other.
+        a_m = np.concatenate([edges.a_m[candidate], edges.crossing_a_m])
+        b_m = np.concatenate([edges.b_m[candidate], edges.crossing_b_m])
         sample[block] |= np.concatenate(split_over_threads(len(o), target.threads, lambda part: (
             cones_touching_edges(o[part], dirs[part], tan_a, a_m, b_m, limit[part]))))
     fraction = axis.hit.astype(float)
@@ -288,6 +291,9 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
         total += energy[j]
     lifts = np.sqrt(1.0 + tilt * tilt)
     scale = 1.0 / lifts
+    moment2 = 0.0                            # sum_j e_j t_j^2
+    for j in range(k):
+        moment2 += energy[j] * tilt[j] * tilt[j]
     ct, st = cos_phi * tilt * scale, sin_phi * tilt * scale
     t_max = tilt[k - 1]
     # Per facet in use (the axis facet, slot 0, and its neighbours across edge e, slot
@@ -309,8 +315,15 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
         if r0 <= 0.0 or grad * t_max >= 1.0:
             ok[q] = False                    # the plane cannot hold the footprint
             continue
-        plane_sum, plane_reach = _plane_ring_sums(r0, nu / nd, nv / nd, grad, tilt, lifts, energy,
-                                                  rings)
+        a_max = grad * t_max
+        if a_max < SERIES_LIMIT:
+            # To second order: the ring mean of sqrt(1 + t^2) / (1 + a cos x) is
+            # 1 + (t^2 + a^2) / 2, off by < a^4 / 2 + t^4 (relative), below float32.
+            plane_sum = r0 * (total + 0.5 * moment2 * (1.0 + grad * grad))
+            plane_reach = r0 * lifts[k - 1] / (1.0 - a_max)
+        else:
+            plane_sum, plane_reach = _plane_ring_sums(r0, nu / nd, nv / nd, grad, tilt, lifts,
+                                                      energy, rings)
         # Footprint wholly inside the axis facet? The cone meets the plane within
         # r0 sin a / cos(theta + a) of the axis point; compare with its distance to the edges.
         cos_i = abs(nd) / np.sqrt(nd * nd + nu * nu + nv * nv)
