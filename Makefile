@@ -31,8 +31,9 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python bench/bench_pipeline.py --out bench.json
 
+## `make bench-node SCENARIO=config/scenario_all_effects.yaml` runs the node with that scenario.
 bench-node: $(STAMP)
-	$(BIN)/python bench/bench_node.py --out bench_node.json
+	$(BIN)/python bench/bench_node.py --out bench_node.json $(if $(SCENARIO),--scenario $(SCENARIO))
 
 clean:
 	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json

@@ -71,6 +71,7 @@ class MeshEdges:
     edge_vertices: np.ndarray
     edge_faces: np.ndarray
     face_vertices: np.ndarray
+    median_edge_m: float = 0.0
     crossing_a_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     crossing_b_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
@@ -267,7 +268,8 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
                      face_neighbour=neighbour, face_edge_normal=inward, face_edge_offset=offset,
                      face_planes=planes, face_edge_flat=face_edge_flat,
                      edge_vertices=np.column_stack([a[first], b[first]]),
-                     edge_faces=np.column_stack([face[first], face[second]]), face_vertices=f)
+                     edge_faces=np.column_stack([face[first], face[second]]), face_vertices=f,
+                     median_edge_m=float(np.median(span[~coplanar])) if np.any(~coplanar) else 0.0)
 
 
 def origin_box(origins_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

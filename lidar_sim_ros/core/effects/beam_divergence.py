@@ -65,7 +65,8 @@ from lidar_sim_ros.core.silhouette import cones_touching_edges, mesh_edges, orig
 WALK_STEPS = 8          # facets a sub-ray is followed across before the shot is cast instead
 BLOCK_SPREAD_M = 0.25   # sensor positions (body frame) per silhouette set, at most this apart
 SERIES_LIMIT = 0.01     # tan(a) tan(theta) below which the plane sum's series is exact enough
-OCCLUDER_MARGIN_M = 0.002   # occluders this far behind the footprint's farthest sub-ray count
+OCCLUDER_MARGIN_M = 0.002
+WIDE_FOOTPRINT = 0.8    # footprint radius / median mesh edge above which every shot is cast   # occluders this far behind the footprint's farthest sub-ray count
 
 
 def footprint_pattern(rings: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -103,6 +104,44 @@ def footprint_cast(target: Target, directions_lidar: np.ndarray, poses, half_ang
     cross the footprint (module docstring)."""
     rays = body_rays(directions_lidar, poses)   # no cast order: rows in input order
     axis = target.cast_body_rays(rays)          # fresh arrays: updated in place below
+    if _wider_than_facets(target, axis, half_angle_rad):
+        return _cast_subrays(target, rays, np.arange(len(rays)), half_angle_rad, rings, range_mode)
+    sample = _footprints_on_sheets(target, rays, axis, half_angle_rad, rings, range_mode)
+    fraction = axis.hit.astype(float)
+    idx = np.flatnonzero(sample)
+    if len(idx):
+        sub = _cast_subrays(target, rays, idx, half_angle_rad, rings, range_mode)
+        for name in ('hit', 'range_m', 'normal', 'incidence_rad', 'cos_incidence', 'material', 'face'):
+            getattr(axis, name)[idx] = getattr(sub, name)
+        fraction[idx] = sub.power_fraction
+    return replace(axis, power_fraction=fraction)
+
+
+def _wider_than_facets(target: Target, axis: Hits, half_angle_rad: float) -> bool:
+    """Footprints wider than WIDE_FOOTPRINT x the mesh's median edge (at the median range):
+    nearly every shot would be walked far or cast anyway, so cast them all."""
+    ranges = axis.range_m[axis.hit]
+    if len(ranges) == 0:
+        return False
+    radius = float(np.median(ranges)) * np.tan(half_angle_rad)
+    return radius > WIDE_FOOTPRINT * mesh_edges(target).median_edge_m
+
+
+def sampled_shots(target: Target, directions_lidar: np.ndarray, poses, half_angle_rad: float,
+                  rings: int = 2, range_mode: str = 'mean') -> np.ndarray:
+    """The shots ``footprint_cast`` casts sub-rays for (bool mask); the others follow from
+    their axis ray."""
+    rays = body_rays(directions_lidar, poses)
+    axis = target.cast_body_rays(rays)
+    if _wider_than_facets(target, axis, half_angle_rad):
+        return np.ones(len(rays), bool)
+    return _footprints_on_sheets(target, rays, axis, half_angle_rad, rings, range_mode)
+
+
+def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle_rad: float,
+                          rings: int, range_mode: str) -> np.ndarray:
+    """Ranges of the footprints that lie on one sheet of facets, written into
+    ``axis.range_m``; returns the shots whose sub-rays must be cast instead."""
     edges = mesh_edges(target)
     tan_a = np.tan(half_angle_rad)
     rho, phi, energy = footprint_pattern(rings)
@@ -131,14 +170,7 @@ def footprint_cast(target: Target, directions_lidar: np.ndarray, poses, half_ang
         b_m = np.concatenate([edges.b_m[candidate], edges.crossing_b_m])
         sample[block] |= np.concatenate(split_over_threads(len(o), target.threads, lambda part: (
             cones_touching_edges(o[part], dirs[part], tan_a, a_m, b_m, limit[part]))))
-    fraction = axis.hit.astype(float)
-    idx = np.flatnonzero(sample)
-    if len(idx):
-        sub = _cast_subrays(target, rays, idx, half_angle_rad, rings, range_mode)
-        for name in ('hit', 'range_m', 'normal', 'incidence_rad', 'cos_incidence', 'material', 'face'):
-            getattr(axis, name)[idx] = getattr(sub, name)
-        fraction[idx] = sub.power_fraction
-    return replace(axis, power_fraction=fraction)
+    return sample
 
 
 def _cast_subrays(target: Target, rays: BodyRays, index: np.ndarray, half_angle_rad: float,
@@ -186,12 +218,18 @@ def _axis_basis(dx, dy, dz):
     dx, dy, dz = np.float64(dx), np.float64(dy), np.float64(dz)
     norm = np.sqrt(dx * dx + dy * dy + dz * dz)
     dx, dy, dz = dx / norm, dy / norm, dz / norm
+    ux, uy, uz, vx, vy, vz = _perpendicular_pair(dx, dy, dz)
+    return dx, dy, dz, ux, uy, uz, vx, vy, vz
+
+
+@njit(cache=True, nogil=True, inline='always')
+def _perpendicular_pair(dx, dy, dz):
+    """u = unit(d x h) (h = z, or x when d is near z) and v = d x u, for a unit d."""
     hx, hy, hz = (0.0, 0.0, 1.0) if abs(dz) < 0.9 else (1.0, 0.0, 0.0)
     ux, uy, uz = dy * hz - dz * hy, dz * hx - dx * hz, dx * hy - dy * hx
     norm = np.sqrt(ux * ux + uy * uy + uz * uz)
     ux, uy, uz = ux / norm, uy / norm, uz / norm
-    vx, vy, vz = dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
-    return dx, dy, dz, ux, uy, uz, vx, vy, vz
+    return ux, uy, uz, dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
 
 
 @njit(cache=True, nogil=True)
@@ -303,36 +341,52 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
     for q in range(m):
         i = index[q]
         ox, oy, oz = np.float64(origins[i, 0]), np.float64(origins[i, 1]), np.float64(origins[i, 2])
-        dx, dy, dz, ux, uy, uz, vx, vy, vz = _axis_basis(directions[i, 0], directions[i, 1],
-                                                         directions[i, 2])
+        dx, dy, dz = (np.float64(directions[i, 0]), np.float64(directions[i, 1]),
+                      np.float64(directions[i, 2]))
+        norm = np.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz = dx / norm, dy / norm, dz / norm
         f0 = face[i]
+        # The axis ray's range on the facet's plane (n . p = w), its incidence, and the
+        # distance of its hit point to the facet's edges: no sub-ray needed yet.
+        nx, ny, nz, w = planes[f0, 0, 0], planes[f0, 0, 1], planes[f0, 0, 2], planes[f0, 0, 3]
+        nd = nx * dx + ny * dy + nz * dz
+        num = w - (nx * ox + ny * oy + nz * oz)
+        r0 = num / nd
+        cos_i = abs(nd)                      # unit normal, unit d
+        sin_i = np.sqrt(max(1.0 - cos_i * cos_i, 0.0))
+        if r0 <= 0.0 or cos_i <= sin_i * t_max:
+            ok[q] = False                    # the plane cannot hold the footprint
+            continue
+        grad = sin_i / cos_i                 # tan(incidence)
+        a_max = grad * t_max
+        # Footprint wholly inside the axis facet? The cone meets the plane within
+        # r0 sin a / cos(theta + a) of the axis point; compare with its distance to the edges.
+        spread = 1.01 * r0 * t_max / (cos_i - sin_i * t_max) + 1e-6
+        px, py, pz = ox + r0 * dx, oy + r0 * dy, oz + r0 * dz
+        near0 = (planes[f0, 1, 0] * px + planes[f0, 1, 1] * py + planes[f0, 1, 2] * pz
+                 - planes[f0, 1, 3]) < spread
+        near1 = (planes[f0, 2, 0] * px + planes[f0, 2, 1] * py + planes[f0, 2, 2] * pz
+                 - planes[f0, 2, 3]) < spread
+        near2 = (planes[f0, 3, 0] * px + planes[f0, 3, 1] * py + planes[f0, 3, 2] * pz
+                 - planes[f0, 3, 3]) < spread
+        if a_max < SERIES_LIMIT and not (near0 or near1 or near2) and not first_mode:
+            # The common case: to second order the ring mean of sqrt(1 + t^2) /
+            # (1 + a cos x) is 1 + (t^2 + a^2) / 2, off by < a^4 / 2 + t^4 (relative,
+            # below float32), and the footprint never leaves the facet.
+            out[q] = r0 * (1.0 + 0.5 * moment2 * (1.0 + grad * grad) / total)
+            reach[q] = r0 * lifts[k - 1] / (1.0 - a_max)
+            continue
+        ux, uy, uz, vx, vy, vz = _perpendicular_pair(dx, dy, dz)
         _facet_coefficients(planes, f0, ox, oy, oz, dx, dy, dz, ux, uy, uz, vx, vy, vz, coef, 0)
         ready[:] = False
         ready[0] = True
-        num, nd, nu, nv = coef[0, 0, 0], coef[0, 0, 1], coef[0, 0, 2], coef[0, 0, 3]
-        r0 = num / nd                        # the axis ray's range on the facet's plane
-        grad = np.sqrt(nu * nu + nv * nv) / abs(nd)         # tan(incidence)
-        if r0 <= 0.0 or grad * t_max >= 1.0:
-            ok[q] = False                    # the plane cannot hold the footprint
-            continue
-        a_max = grad * t_max
+        nu, nv = coef[0, 0, 2], coef[0, 0, 3]
         if a_max < SERIES_LIMIT:
-            # To second order: the ring mean of sqrt(1 + t^2) / (1 + a cos x) is
-            # 1 + (t^2 + a^2) / 2, off by < a^4 / 2 + t^4 (relative), below float32.
             plane_sum = r0 * (total + 0.5 * moment2 * (1.0 + grad * grad))
             plane_reach = r0 * lifts[k - 1] / (1.0 - a_max)
         else:
             plane_sum, plane_reach = _plane_ring_sums(r0, nu / nd, nv / nd, grad, tilt, lifts,
                                                       energy, rings)
-        # Footprint wholly inside the axis facet? The cone meets the plane within
-        # r0 sin a / cos(theta + a) of the axis point; compare with its distance to the edges.
-        cos_i = abs(nd) / np.sqrt(nd * nd + nu * nu + nv * nv)
-        sin_i = np.sqrt(max(1.0 - cos_i * cos_i, 0.0))
-        spread = 1.01 * r0 * t_max / (cos_i - sin_i * t_max) + 1e-6
-        # Only edges nearer than the footprint's reach can be crossed.
-        near0 = coef[0, 1, 0] + r0 * coef[0, 1, 1] < spread
-        near1 = coef[0, 2, 0] + r0 * coef[0, 2, 1] < spread
-        near2 = coef[0, 3, 0] + r0 * coef[0, 3, 1] < spread
         inside = not (near0 or near1 or near2)
         if near0 + near1 + near2 == 1:
             # Near one edge only: if it is a flat quad's diagonal, the footprint may still
