@@ -34,6 +34,8 @@ import numpy as np
 from numba import njit
 
 WELD_M = 1e-6           # vertices closer than this are one vertex (OBJ groups repeat them)
+REGION_LINES = 8        # most edge lines a flat region keeps (more: its faces stand alone)
+COPLANAR_RAD = 1e-5     # faces folded by less than this are one plane (a sub-ray moves < 1 um per 0.1 m)
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,7 +69,8 @@ class MeshEdges:
     face_edge_normal: np.ndarray
     face_edge_offset: np.ndarray
     face_planes: np.ndarray
-    face_edge_flat: np.ndarray
+    face_region: np.ndarray
+    region_lines: np.ndarray
     edge_vertices: np.ndarray
     edge_faces: np.ndarray
     face_vertices: np.ndarray
@@ -84,6 +87,13 @@ class MeshEdges:
         lo = np.asarray(origin_lo_m, float)
         hi = np.asarray(origin_hi_m, float)
         return np.flatnonzero(self.candidate_mask(lo, hi))
+
+    def candidate_segments(self, candidate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """End points (M, 3), (M, 3) of the edges in the mask ``candidate`` followed by the
+        self-intersection segments: everything a footprint cannot be followed across."""
+        index = np.flatnonzero(candidate)
+        return (np.concatenate([self.a_m[index], self.crossing_a_m]),
+                np.concatenate([self.b_m[index], self.crossing_b_m]))
 
     def candidate_mask(self, origin_lo_m: np.ndarray, origin_hi_m: np.ndarray) -> np.ndarray:
         """``candidates`` as a mask over the edges."""
@@ -197,7 +207,11 @@ def intersection_segments(edges: MeshEdges, intersect, max_hits: int = 16,
             for j in range(i + 1, len(p)):
                 seg_a.append(p[i])
                 seg_b.append(p[j])
-    return np.array(seg_a), np.array(seg_b)
+    seg_a, seg_b = np.array(seg_a), np.array(seg_b)
+    # The same piece lies on both faces it separates: keep one.
+    ends = np.sort(np.stack([seg_a, seg_b], axis=1).reshape(len(seg_a), 6).reshape(-1, 2, 3), axis=1)
+    _, unique = np.unique(np.round(ends.reshape(len(seg_a), 6) / step_m), axis=0, return_index=True)
+    return seg_a[np.sort(unique)], seg_b[np.sort(unique)]
 
 
 def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
@@ -252,24 +266,70 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     len1, len2 = np.linalg.norm(n1, axis=1), np.linalg.norm(n2, axis=1)
     with np.errstate(invalid='ignore', divide='ignore'):
         cos_fold = -np.einsum('ij,ij->i', n1, n2) / (len1 * len2)
-    coplanar = pair & (cos_fold > 1.0 - 1e-12) & (span > 0)
-    # A flat quad: coplanar, and the diagonal c1-c2 crosses the shared edge a-b.
-    c1, c2 = position[c[first]], position[c[second]]
-    across = np.einsum('ij,ij->i', np.cross(pb - pa, c1 - pa), np.cross(pb - pa, c2 - pa)) < 0
-    along = np.einsum('ij,ij->i', np.cross(c2 - c1, pa - c1), np.cross(c2 - c1, pb - c1)) < 0
-    flat = coplanar & across & along
-    face_edge_flat = flat[face_edge] & (face_edge >= 0)
+    # Within 1e-5 rad: OBJ files round vertices (1e-6 m), which tilts thin flat quads.
+    coplanar = pair & (cos_fold > np.cos(COPLANAR_RAD)) & (span > 0)
     plane_offset = np.einsum('ij,ij->i', normal, tri[:, 0])
     planes = np.empty((n_faces, 4, 4))
     planes[:, 0, :3], planes[:, 0, 3] = normal, plane_offset
-    planes[:, 1:, :3], planes[:, 1:, 3] = inward, offset
+    planes[:, 1:4, :3], planes[:, 1:4, 3] = inward, offset
+    region, lines = flat_regions(position, f, face_edge, coplanar, neighbour, inward, offset)
     return MeshEdges(a_m=pa, b_m=pb, n1=n1, n2=n2, always=~pair, coplanar=coplanar,
                      face_edge=face_edge, face_normal=normal, face_plane_offset=plane_offset,
                      face_neighbour=neighbour, face_edge_normal=inward, face_edge_offset=offset,
-                     face_planes=planes, face_edge_flat=face_edge_flat,
+                     face_planes=planes, face_region=region, region_lines=lines,
                      edge_vertices=np.column_stack([a[first], b[first]]),
                      edge_faces=np.column_stack([face[first], face[second]]), face_vertices=f,
                      median_edge_m=float(np.median(span[~coplanar])) if np.any(~coplanar) else 0.0)
+
+
+def flat_regions(position, faces, face_edge, coplanar, neighbour, inward, offset
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Group faces into flat regions: faces joined across coplanar edges (the quads of a
+    cylinder's column, a flat disc), kept whole when the region is convex and bounded by
+    at most REGION_LINES lines (collinear edges are one line); any other face is a
+    region of its own (its three edges). A footprint that stays inside its region lies on
+    one plane. Returns face -> region (F,) and the regions' lines (R, REGION_LINES, 4).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    n_faces = len(faces)
+    i, k = np.nonzero(coplanar[np.maximum(face_edge, 0)] & (face_edge >= 0) & (neighbour >= 0))
+    graph = coo_matrix((np.ones(len(i)), (i, neighbour[i, k])), shape=(n_faces, n_faces))
+    n_labels, label = connected_components(graph, directed=False)
+    # Boundary edges of each region: face edges whose neighbour is in another region;
+    # one line per distinct (region, direction, offset), so collinear edges merge.
+    fi, ki = np.nonzero((neighbour < 0) | (label[np.maximum(neighbour, 0)] != label[:, None]))
+    m, c, lab = inward[fi, ki], offset[fi, ki], label[fi]
+    key = np.column_stack([lab, np.round(m / 1e-9), np.round(c / 1e-9)])
+    _, first = np.unique(key, axis=0, return_index=True)
+    first = first[np.argsort(lab[first], kind='stable')]
+    m, c, lab = m[first], c[first], lab[first]
+    count = np.bincount(lab, minlength=n_labels)
+    start = np.r_[0, np.cumsum(count)]
+    good = (count >= 3) & (count <= REGION_LINES)
+    # Padded per-region lines; convex when every corner of its faces is on the inner side.
+    lines = np.zeros((n_labels, REGION_LINES, 4))
+    lines[:, :, 3] = -np.inf
+    slot = np.arange(len(lab)) - start[lab]
+    keep = good[lab]
+    lines[lab[keep], slot[keep], :3], lines[lab[keep], slot[keep], 3] = m[keep], c[keep]
+    own = lines[label]                                     # (F, L, 4)
+    corner_margin = np.einsum('flj,fvj->fvl', own[:, :, :3], position[faces]) - own[:, None, :, 3]
+    worst = np.full(n_labels, np.inf)
+    np.minimum.at(worst, label, corner_margin.min(axis=(1, 2)))
+    good &= worst > -1e-7
+    # Whole regions keep their lines; every other face becomes a region of its own.
+    kept = np.flatnonzero(good)
+    renumber = np.full(n_labels, -1)
+    renumber[kept] = np.arange(len(kept))
+    region = renumber[label]
+    loose = np.flatnonzero(region < 0)
+    region[loose] = len(kept) + np.arange(len(loose))
+    out = np.zeros((len(kept) + len(loose), REGION_LINES, 4))
+    out[:, :, 3] = -np.inf
+    out[:len(kept)] = lines[kept]
+    out[len(kept):, :3, :3], out[len(kept):, :3, 3] = inward[loose], offset[loose]
+    return region, out
 
 
 def origin_box(origins_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -386,6 +446,7 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
     # Segments closer to c than z_floor are tested against every ray (never, in practice).
     z_floor = max(10.0 * spread, 1e-2)
     seg = np.empty((m, 4))
+    seg_z = np.empty(m)                  # nearest depth along f
     binned = np.zeros(m, np.bool_)
     z_lo, z_hi = np.inf, -np.inf
     for k in range(m):
@@ -396,6 +457,7 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
         if za < z_floor or zb < z_floor:
             continue
         binned[k] = True
+        seg_z[k] = min(za, zb)
         seg[k, 0] = (ax * e1x + ay * e1y + az * e1z) / za
         seg[k, 1] = (ax * e2x + ay * e2y + az * e2z) / za
         seg[k, 2] = (bx * e1x + by * e1y + bz * e1z) / zb
@@ -403,6 +465,7 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
         z_lo, z_hi = min(z_lo, za, zb), max(z_hi, za, zb)
     # Rays: their projected track over [z_lo, min(z_hi, limit)], undilated.
     track = np.empty((n, 4))
+    ray_z = np.empty(n)                  # farthest depth along f the cone counts to
     active = np.zeros(n, np.bool_)       # binned
     brute = z_limit >= 0.0               # tested against every segment (unless binned)
     pad = 0.0
@@ -417,6 +480,7 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
                 continue                      # more than 84 deg off the mean: brute force
             # The cone up to the depth limit reaches at most this far along f.
             z_end = min(z_hi, zo + z_limit[i] * (zd + tan_a))
+            ray_z[i] = z_end
             brute[i] = False
             if z_end < z_lo:
                 continue                      # stops in front of every binned segment
@@ -437,7 +501,8 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
             pad = max(pad, 1.25 * tan_a * stretch * (1.0 + 1.0 / zd) / zd
                       * (1.0 + 2.0 * spread / z_lo))
     pad += 1e-9
-    # The grid over the active rays' tracks; cells about as large as a track plus the pad.
+    # The grid over the active rays' tracks; cells a few times a track plus the pad (the
+    # 2-D pre-check makes rays cheap; cell visits are what costs).
     gx0, gy0, gx1, gy1 = np.inf, np.inf, -np.inf, -np.inf
     size, count = 0.0, 0
     for i in range(n):
@@ -447,7 +512,7 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
             size += max(track[i, 2] - track[i, 0], track[i, 3] - track[i, 1])
             count += 1
     if count > 0:
-        size = max(size / count, pad, (gx1 - gx0) / 2048.0, (gy1 - gy0) / 2048.0, 1e-9)
+        size = 2.5 * max(size / count, pad, (gx1 - gx0) / 2048.0, (gy1 - gy0) / 2048.0, 1e-9)
         nx = int((gx1 - gx0) / size) + 1
         ny = int((gy1 - gy0) / size) + 1
         start = np.zeros(nx * ny + 1, np.int64)
@@ -462,6 +527,7 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
             start[cell + 1] += start[cell]
         fill = start[:-1].copy()
         cell_ray = np.empty(start[-1], np.int64)
+        cell_z = np.full(nx * ny, -np.inf)   # farthest depth any ray of the cell counts to
         for i in range(n):
             if active[i]:
                 i0, i1 = int((track[i, 0] - gx0) / size), int((track[i, 2] - gx0) / size)
@@ -470,6 +536,7 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
                     for cj in range(j0, j1 + 1):
                         cell_ray[fill[ci * ny + cj]] = i
                         fill[ci * ny + cj] += 1
+                        cell_z[ci * ny + cj] = max(cell_z[ci * ny + cj], ray_z[i])
         # Each segment visits the cells within pad of its projection (sampled every half
         # cell, each point dilated by pad + half a cell), each cell once.
         stamp = np.full(nx * ny, -1, np.int64)
@@ -481,7 +548,9 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
             if (max(x0, x1) + reach < gx0 or min(x0, x1) - reach > gx1
                     or max(y0, y1) + reach < gy0 or min(y0, y1) - reach > gy1):
                 continue
-            steps = int(np.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2) / (0.5 * size)) + 1
+            ex, ey = x1 - x0, y1 - y0
+            inv_len2 = 1.0 / (ex * ex + ey * ey) if ex * ex + ey * ey > 0.0 else 0.0
+            steps = int(np.sqrt(ex * ex + ey * ey) / (0.5 * size)) + 1
             for step in range(steps + 1):
                 x = x0 + (x1 - x0) * step / steps
                 y = y0 + (y1 - y0) * step / steps
@@ -495,9 +564,20 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
                         if stamp[cell] == k:
                             continue
                         stamp[cell] = k
+                        if seg_z[k] > cell_z[cell]:
+                            continue             # behind every lit surface of the cell
                         for p in range(start[cell], start[cell + 1]):
                             i = cell_ray[p]
-                            if out[i]:
+                            if out[i] or seg_z[k] > ray_z[i]:
+                                continue
+                            # The gnomonic projections first: the track's centre within
+                            # pad + its half-diagonal of the segment's projection.
+                            tx = 0.5 * (track[i, 0] + track[i, 2]) - x0
+                            ty = 0.5 * (track[i, 1] + track[i, 3]) - y0
+                            h = min(max((tx * ex + ty * ey) * inv_len2, 0.0), 1.0)
+                            gx, gy = tx - h * ex, ty - h * ey
+                            slack = pad + 0.5 * (track[i, 2] - track[i, 0] + track[i, 3] - track[i, 1])
+                            if gx * gx + gy * gy > slack * slack:
                                 continue
                             if _segment_in_cone(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1],
                                                 d[i, 2], a[k, 0], a[k, 1], a[k, 2], b[k, 0],

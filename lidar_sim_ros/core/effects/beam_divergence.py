@@ -49,6 +49,7 @@ the best (the likelihood goes flat once every edge point is explained).
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import lru_cache
 from typing import Literal
 
 import numpy as np
@@ -69,8 +70,10 @@ OCCLUDER_MARGIN_M = 0.002
 WIDE_FOOTPRINT = 0.8    # footprint radius / median mesh edge above which every shot is cast   # occluders this far behind the footprint's farthest sub-ray count
 
 
+@lru_cache(maxsize=8)
 def footprint_pattern(rings: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sub-ray layout: normalised radius rho (0..1), azimuth phi (rad), energy weight."""
+    """Sub-ray layout: normalised radius rho (0..1), azimuth phi (rad), energy weight
+    (read-only arrays, computed once per ring count)."""
     rho, phi = [0.0], [0.0]
     for i in range(1, rings + 1):
         k = 6 * i
@@ -78,7 +81,10 @@ def footprint_pattern(rings: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         # Stagger alternate rings so sub-rays do not line up radially.
         phi += list(2 * np.pi * (np.arange(k) + 0.5 * (i % 2)) / k)
     rho, phi = np.array(rho), np.array(phi)
-    return rho, phi, np.exp(-2.0 * rho ** 2)
+    out = rho, phi, np.exp(-2.0 * rho ** 2)
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
 def perpendicular_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -150,24 +156,18 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
     for block in _blocks(rays.origins_m):
         o, dirs = rays.origins_m[block], rays.directions[block]
         candidate = edges.candidate_mask(*origin_box(o))
-        hit = axis.hit[block]
-        hits = np.arange(len(rays))[block][hit]
-        parts = split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
+        hits = np.flatnonzero(axis.hit) if isinstance(block, slice) else block[axis.hit[block]]
+        # Ranges of the footprints on one sheet (in place), the shots to cast instead, and
+        # how deep an occluder may sit for each (misses: any depth).
+        limit = np.full(len(rays), np.inf)
+        split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
             rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
-            energy, rings, range_mode == 'first', edges.face_planes, edges.face_neighbour,
-            edges.face_edge, edges.face_edge_flat, candidate, WALK_STEPS))
-        sheet_m, reach_m, ok = (np.concatenate([p[n] for p in parts]) for n in range(3))
-        axis.range_m[hits[ok]] = sheet_m[ok]
-        sample[hits[~ok]] = True            # the walk met a silhouette or gave up: cast these
-        # Occluders in front of the footprint (or anything in a missed shot's cone): a
-        # silhouette edge in the cone, up to the farthest sub-ray hit (misses: any depth).
-        # The margin covers an occluder touching the sheet (a blanket lying on the tank).
-        limit = np.full(len(o), np.inf)
-        limit[hit] = np.where(ok, 2.0 * reach_m - axis.range_m[hits] + 1e-3 * reach_m
-                              + OCCLUDER_MARGIN_M, -1.0)
+            energy, rings, range_mode == 'first', edges.face_planes, edges.face_region,
+            edges.region_lines, edges.face_neighbour, edges.face_edge, candidate, WALK_STEPS,
+            axis.range_m, limit, sample))
+        limit = limit[block]
         # Silhouettes that may be, and curves where parts of the mesh pass through each other.
-        a_m = np.concatenate([edges.a_m[candidate], edges.crossing_a_m])
-        b_m = np.concatenate([edges.b_m[candidate], edges.crossing_b_m])
+        a_m, b_m = edges.candidate_segments(candidate)
         sample[block] |= np.concatenate(split_over_threads(len(o), target.threads, lambda part: (
             cones_touching_edges(o[part], dirs[part], tan_a, a_m, b_m, limit[part]))))
     return sample
@@ -301,8 +301,8 @@ def _blocks(origins_m: np.ndarray) -> list:
 
 @njit(cache=True, nogil=True)
 def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin_phi, energy,
-                            rings, first_mode, planes, neighbour, face_edge, flat_edge,
-                            silhouette, max_steps):
+                            rings, first_mode, planes, region, region_lines, neighbour,
+                            face_edge, silhouette, max_steps, range_m, limit, sample):
     """Energy-weighted mean (or nearest) sub-ray range (m) of shots whose footprint stays
     on one sheet of facets.
 
@@ -313,17 +313,17 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
 
     Each sub-ray is intersected with the axis facet's plane; one that lands outside the
     facet is followed across the edge it leaves by to the next facet, and so on. The
-    walk fails (ok False: cast the shot) at an edge marked in ``silhouette`` (indexed by
+    walk fails (the shot is cast instead) at an edge marked in ``silhouette`` (indexed by
     ``face_edge``), at a boundary, or after max_steps facets. On the axis facet's plane
     the sum over a ring has a closed form (below), so only the sub-rays that leave the
     facet are computed one by one.
-    Returns range (mean or nearest), reach (at least the farthest sub-ray range) and ok.
+    Writes, per shot i of ``index``: range_m[i] (the mean or nearest sub-ray range) and
+    limit[i] (how far along the axis an occluder of the footprint may sit: past the
+    farthest sub-ray hit, with a margin for an occluder touching the sheet, e.g. a
+    blanket lying on the tank), or sample[i] = True and limit[i] = -1 (cast the shot).
     """
     m = index.shape[0]
     k = energy.shape[0]
-    out = np.full(m, np.nan)
-    reach = np.full(m, np.nan)
-    ok = np.ones(m, np.bool_)
     total = 0.0
     for j in range(k):
         total += energy[j]
@@ -355,7 +355,7 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
         cos_i = abs(nd)                      # unit normal, unit d
         sin_i = np.sqrt(max(1.0 - cos_i * cos_i, 0.0))
         if r0 <= 0.0 or cos_i <= sin_i * t_max:
-            ok[q] = False                    # the plane cannot hold the footprint
+            sample[i], limit[i] = True, -1.0  # the plane cannot hold the footprint
             continue
         grad = sin_i / cos_i                 # tan(incidence)
         a_max = grad * t_max
@@ -363,18 +363,27 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
         # r0 sin a / cos(theta + a) of the axis point; compare with its distance to the edges.
         spread = 1.01 * r0 * t_max / (cos_i - sin_i * t_max) + 1e-6
         px, py, pz = ox + r0 * dx, oy + r0 * dy, oz + r0 * dz
-        near0 = (planes[f0, 1, 0] * px + planes[f0, 1, 1] * py + planes[f0, 1, 2] * pz
-                 - planes[f0, 1, 3]) < spread
-        near1 = (planes[f0, 2, 0] * px + planes[f0, 2, 1] * py + planes[f0, 2, 2] * pz
-                 - planes[f0, 2, 3]) < spread
-        near2 = (planes[f0, 3, 0] * px + planes[f0, 3, 1] * py + planes[f0, 3, 2] * pz
-                 - planes[f0, 3, 3]) < spread
+        near0 = _margin(planes, f0, 1, px, py, pz) < spread
+        near1 = _margin(planes, f0, 2, px, py, pz) < spread
+        near2 = _margin(planes, f0, 3, px, py, pz) < spread
+        if near0 or near1 or near2:
+            # Still inside the flat region of the facet (a cylinder's column of quads)?
+            lines = region_lines[region[f0]]
+            inside_region = True
+            for row in range(lines.shape[0]):
+                if (lines[row, 0] * px + lines[row, 1] * py + lines[row, 2] * pz
+                        - lines[row, 3]) < spread:
+                    inside_region = False
+                    break
+            if inside_region:
+                near0, near1, near2 = False, False, False
         if a_max < SERIES_LIMIT and not (near0 or near1 or near2) and not first_mode:
             # The common case: to second order the ring mean of sqrt(1 + t^2) /
             # (1 + a cos x) is 1 + (t^2 + a^2) / 2, off by < a^4 / 2 + t^4 (relative,
             # below float32), and the footprint never leaves the facet.
-            out[q] = r0 * (1.0 + 0.5 * moment2 * (1.0 + grad * grad) / total)
-            reach[q] = r0 * lifts[k - 1] / (1.0 - a_max)
+            far = r0 * lifts[k - 1] / (1.0 - a_max)
+            range_m[i] = r0 * (1.0 + 0.5 * moment2 * (1.0 + grad * grad) / total)
+            limit[i] = _occluder_limit(far, r0)
             continue
         ux, uy, uz, vx, vy, vz = _perpendicular_pair(dx, dy, dz)
         _facet_coefficients(planes, f0, ox, oy, oz, dx, dy, dz, ux, uy, uz, vx, vy, vz, coef, 0)
@@ -388,27 +397,12 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
             plane_sum, plane_reach = _plane_ring_sums(r0, nu / nd, nv / nd, grad, tilt, lifts,
                                                       energy, rings)
         inside = not (near0 or near1 or near2)
-        if near0 + near1 + near2 == 1:
-            # Near one edge only: if it is a flat quad's diagonal, the footprint may still
-            # lie within the quad (the neighbour's other two edges are far enough).
-            e = 0 if near0 else (1 if near1 else 2)
-            if flat_edge[f0, e]:
-                _facet_coefficients(planes, neighbour[f0, e], ox, oy, oz, dx, dy, dz, ux, uy, uz,
-                                    vx, vy, vz, coef, 1 + e)
-                ready[1 + e] = True
-                inside = True
-                for e1 in range(3):
-                    if (coef[1 + e, 1 + e1, 0] + r0 * coef[1 + e, 1 + e1, 1] < spread
-                            and planes_share(neighbour, f0, e, e1)):
-                        inside = False
-                if inside:
-                    near0, near1, near2 = False, False, False
         if inside and not first_mode:
-            out[q], reach[q] = plane_sum / total, plane_reach
+            range_m[i], limit[i] = plane_sum / total, _occluder_limit(plane_reach, r0)
             continue
         # Sub-ray by sub-ray: sign(nd) * (distance to edge e) * (n . s_j) needs no division.
         sign = 1.0 if nd > 0.0 else -1.0
-        correction, low, high = 0.0, np.inf, 0.0
+        correction, low, high, walked = 0.0, np.inf, 0.0, True
         for j in range(k):
             ns = nd * scale[j] + nu * ct[j] + nv * st[j]
             leave, worst = -1, -1e-9 * abs(ns)
@@ -447,22 +441,31 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
                                   dz * scale[j] + uz * ct[j] + vz * st[j], f1, onward,
                                   planes, neighbour, face_edge, silhouette, max_steps - 2)
             if r <= 0.0:
-                ok[q] = False
+                walked = False
                 break
             correction += energy[j] * (r - r_plane)
             low = min(low, r)
             high = max(high, r)
-        if ok[q]:
-            out[q] = low if first_mode else (plane_sum + correction) / total
-            reach[q] = max(plane_reach, high)
-    return out, reach, ok
+        if walked:
+            range_m[i] = low if first_mode else (plane_sum + correction) / total
+            limit[i] = _occluder_limit(max(plane_reach, high), r0)
+        else:
+            sample[i], limit[i] = True, -1.0
 
 
 @njit(cache=True, nogil=True, inline='always')
-def planes_share(neighbour, f0, e, e1):
-    """Whether edge e1 of the face across edge e of f0 is one of its outer edges (not the
-    shared edge, whose far side is f0 itself)."""
-    return neighbour[neighbour[f0, e], e1] != f0
+def _occluder_limit(farthest, axis_range):
+    """Depth (m) along the axis up to which an edge in the cone may hide part of the
+    footprint: the farthest sub-ray hit plus its spread past the axis hit (edges between
+    the sampled azimuths), 1e-3 of the range and OCCLUDER_MARGIN_M (an occluder lying on
+    the surface, like a blanket on the tank)."""
+    return 2.0 * farthest - axis_range + 1e-3 * farthest + OCCLUDER_MARGIN_M
+
+
+@njit(cache=True, nogil=True, inline='always')
+def _margin(planes, f, row, px, py, pz):
+    """Signed distance (m) of the point p to the edge line of ``planes[f, row]`` (> 0 inside)."""
+    return planes[f, row, 0] * px + planes[f, row, 1] * py + planes[f, row, 2] * pz - planes[f, row, 3]
 
 
 @njit(cache=True, nogil=True, inline='always')
