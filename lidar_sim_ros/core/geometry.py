@@ -38,7 +38,9 @@ class Hits:
     material: material id (-1 on a miss); face: triangle index (-1 on a miss);
     power_fraction: share of the beam's energy that hit (-), None = the whole beam
     (set by footprint-sampling casts such as the beam_divergence effect);
-    cos_incidence: cos(incidence_rad) where the raycast has it (saves recomputing it).
+    cos_incidence: cos(incidence_rad) where the raycast has it (saves recomputing it);
+    barycentric: (N, 2) float32 (u, v) of each hit on its triangle, the point being
+    (1 - u - v) v0 + u v1 + v v2, when asked for (``Target.cast_body_rays``).
     """
 
     hit: np.ndarray
@@ -49,6 +51,7 @@ class Hits:
     face: np.ndarray
     power_fraction: np.ndarray | None = None
     cos_incidence: np.ndarray | None = None
+    barycentric: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.hit)
@@ -125,17 +128,19 @@ class Target:
     def n_faces(self) -> int:
         return len(self.faces)
 
-    def intersect(self, origins_m: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Raw Embree query: face id (-1 = miss) and distance (m) per ray, float32 rays as given.
+    def intersect(self, origins_m: np.ndarray, directions: np.ndarray,
+                  barycentric: bool = False) -> tuple[np.ndarray, ...]:
+        """Raw Embree query: face id (-1 = miss) and distance (m) per ray, float32 rays as
+        given; with ``barycentric`` also the hit's (u, v) on its triangle.
 
         Split over ``self.threads`` threads when there are enough rays.
         """
+        keys = ('primID', 'tfar', 'u', 'v') if barycentric else ('primID', 'tfar')
         parts = split_over_threads(len(origins_m), self.threads, lambda part: self._scene.run(
             origins_m[part], directions[part], output=1))
         if len(parts) == 1:
-            return parts[0]['primID'], parts[0]['tfar']
-        return (np.concatenate([p['primID'] for p in parts]),
-                np.concatenate([p['tfar'] for p in parts]))
+            return tuple(parts[0][k] for k in keys)
+        return tuple(np.concatenate([p[k] for p in parts]) for k in keys)
 
     def cast(self, origins_m: np.ndarray, directions: np.ndarray,
              order: np.ndarray | None = None) -> Hits:
@@ -150,13 +155,19 @@ class Target:
         o32, d32 = kernels.rays_to_body(_IDENTITY, _ZERO, origins, d, order)
         return self.cast_body_rays(BodyRays(o32, d32, order, _IDENTITY, d))
 
-    def cast_body_rays(self, rays: BodyRays) -> Hits:
-        """First hit of each body-frame ray; normals in the frame of ``rays.directions_out``."""
-        face, tfar = self.intersect(rays.origins_m, rays.directions)
+    def cast_body_rays(self, rays: BodyRays, barycentric: bool = False) -> Hits:
+        """First hit of each body-frame ray; normals in the frame of ``rays.directions_out``;
+        with ``barycentric`` the hits' (u, v) too."""
+        face, tfar, *uv = self.intersect(rays.origins_m, rays.directions, barycentric)
         hit, range_m, normal, cos_i, material, face = kernels.hit_geometry(
             face, tfar, rays.order, self.face_normals, self.face_material, rays.quat_xyzw,
             rays.directions_out)
-        return Hits(hit, range_m, normal, np.arccos(cos_i), material, face, cos_incidence=cos_i)
+        bary = None
+        if barycentric:
+            bary = np.empty((len(rays), 2), np.float32)
+            bary[rays.order] = np.column_stack(uv)
+        return Hits(hit, range_m, normal, np.arccos(cos_i), material, face, cos_incidence=cos_i,
+                    barycentric=bary)
 
 
 _IDENTITY = np.array([[0.0, 0.0, 0.0, 1.0]])

@@ -71,6 +71,7 @@ class MeshEdges:
     face_planes: np.ndarray
     face_region: np.ndarray
     region_lines: np.ndarray
+    face_altitude: np.ndarray
     edge_vertices: np.ndarray
     edge_faces: np.ndarray
     face_vertices: np.ndarray
@@ -115,7 +116,7 @@ class MeshEdges:
         return np.flatnonzero(~self.coplanar)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model='numpy')
 def _maybe_silhouette(packed, edge, n_edges, centre, half):
     """Edges not smooth for every viewpoint o in the box centre +- half: s_k(o) =
     n_k . (o - a) over the box is [mid - rad, mid + rad] with rad = |n_k| . half.
@@ -273,10 +274,16 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     planes[:, 0, :3], planes[:, 0, 3] = normal, plane_offset
     planes[:, 1:4, :3], planes[:, 1:4, 3] = inward, offset
     region, lines = flat_regions(position, f, face_edge, coplanar, neighbour, inward, offset)
+    # Vertex k's distance to edge k + 1 (the opposite one): twice the area over its length.
+    double_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    opposite = np.linalg.norm(np.roll(edge, -1, axis=1), axis=2)
+    altitude = np.divide(double_area[:, None], opposite, out=np.zeros_like(opposite),
+                         where=opposite > 0).astype(np.float32)
     return MeshEdges(a_m=pa, b_m=pb, n1=n1, n2=n2, always=~pair, coplanar=coplanar,
                      face_edge=face_edge, face_normal=normal, face_plane_offset=plane_offset,
                      face_neighbour=neighbour, face_edge_normal=inward, face_edge_offset=offset,
                      face_planes=planes, face_region=region, region_lines=lines,
+                     face_altitude=altitude,
                      edge_vertices=np.column_stack([a[first], b[first]]),
                      edge_faces=np.column_stack([face[first], face[second]]), face_vertices=f,
                      median_edge_m=float(np.median(span[~coplanar])) if np.any(~coplanar) else 0.0)
@@ -337,7 +344,7 @@ def origin_box(origins_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return _box(np.ascontiguousarray(origins_m))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model='numpy')
 def _box(p):
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
@@ -373,7 +380,7 @@ def cones_touching_edges(origins_m: np.ndarray, directions: np.ndarray, tan_half
 _Z_MIN_M = 1e-3     # segment parts closer than this in front of the viewpoint are ignored
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model='numpy')
 def _segment_in_cone(ox, oy, oz, dx, dy, dz, ax, ay, az, bx, by, bz, z_hi, tan_a):
     """Whether the segment a-b meets the cone (apex o, unit axis d, tan half-angle tan_a)
     at depths in [_Z_MIN_M, z_hi] along d: the segment's central projection on the plane
@@ -413,7 +420,7 @@ def _segment_in_cone(ox, oy, oz, dx, dy, dz, ax, ay, az, bx, by, bz, z_hi, tan_a
     return cx * cx + cy * cy + cz * cz <= r * r
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model='numpy')
 def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
     """Rays binned on a gnomonic grid seen from their mean origin c (each ray over the
     depth range of the segments, as it moves across the grid with its offset from c);

@@ -109,7 +109,7 @@ def footprint_cast(target: Target, directions_lidar: np.ndarray, poses, half_ang
     """The same model as ``sample_footprint``; sub-rays cast only where a silhouette may
     cross the footprint (module docstring)."""
     rays = body_rays(directions_lidar, poses)   # no cast order: rows in input order
-    axis = target.cast_body_rays(rays)          # fresh arrays: updated in place below
+    axis = target.cast_body_rays(rays, barycentric=True)    # fresh arrays: updated in place
     if _wider_than_facets(target, axis, half_angle_rad):
         return _cast_subrays(target, rays, np.arange(len(rays)), half_angle_rad, rings, range_mode)
     sample = _footprints_on_sheets(target, rays, axis, half_angle_rad, rings, range_mode)
@@ -138,7 +138,7 @@ def sampled_shots(target: Target, directions_lidar: np.ndarray, poses, half_angl
     """The shots ``footprint_cast`` casts sub-rays for (bool mask); the others follow from
     their axis ray."""
     rays = body_rays(directions_lidar, poses)
-    axis = target.cast_body_rays(rays)
+    axis = target.cast_body_rays(rays, barycentric=True)
     if _wider_than_facets(target, axis, half_angle_rad):
         return np.ones(len(rays), bool)
     return _footprints_on_sheets(target, rays, axis, half_angle_rad, rings, range_mode)
@@ -158,8 +158,14 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
         candidate = edges.candidate_mask(*origin_box(o))
         hits = np.flatnonzero(axis.hit) if isinstance(block, slice) else block[axis.hit[block]]
         # Ranges of the footprints on one sheet (in place), the shots to cast instead, and
-        # how deep an occluder may sit for each (misses: any depth).
+        # how deep an occluder may sit for each (misses: any depth). Most footprints lie
+        # inside the axis facet: that takes the hit's barycentric coordinates only.
         limit = np.full(len(rays), np.inf)
+        if range_mode == 'mean':
+            beyond = np.zeros(len(rays), bool)
+            _footprints_in_facets(hits, axis.range_m, axis.cos_incidence, axis.face,
+                                  axis.barycentric, edges.face_altitude, tilt, energy, limit, beyond)
+            hits = hits[beyond[hits]]
         split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
             rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
             energy, rings, range_mode == 'first', edges.face_planes, edges.face_region,
@@ -188,7 +194,7 @@ def _cast_subrays(target: Target, rays: BodyRays, index: np.ndarray, half_angle_
                 cos_incidence=cos_i)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model='numpy')
 def _subrays(origins, directions, index, tilt, cos_phi, sin_phi):
     """Body-frame sub-rays (float32, K per shot, shot-major) of shots ``index``: sub-ray j
     is d + tan(a rho_j) (cos phi_j u + sin phi_j v), unit, from the shot's origin."""
@@ -212,7 +218,7 @@ def _subrays(origins, directions, index, tilt, cos_phi, sin_phi):
     return o_sub, d_sub
 
 
-@njit(cache=True, nogil=True, inline='always')
+@njit(cache=True, nogil=True, inline='always', error_model='numpy')
 def _axis_basis(dx, dy, dz):
     """Unit d and two unit vectors u, v perpendicular to it (as ``perpendicular_basis``)."""
     dx, dy, dz = np.float64(dx), np.float64(dy), np.float64(dz)
@@ -222,7 +228,7 @@ def _axis_basis(dx, dy, dz):
     return dx, dy, dz, ux, uy, uz, vx, vy, vz
 
 
-@njit(cache=True, nogil=True, inline='always')
+@njit(cache=True, nogil=True, inline='always', error_model='numpy')
 def _perpendicular_pair(dx, dy, dz):
     """u = unit(d x h) (h = z, or x when d is near z) and v = d x u, for a unit d."""
     hx, hy, hz = (0.0, 0.0, 1.0) if abs(dz) < 0.9 else (1.0, 0.0, 0.0)
@@ -232,7 +238,7 @@ def _perpendicular_pair(dx, dy, dz):
     return ux, uy, uz, dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model='numpy')
 def _combine_subrays(face_k, tfar_k, d_sub, index, energy, first, face_normals, quat_xyzw):
     """Per shot: hit (any sub-ray), range (energy-weighted mean or nearest), power
     fraction, and the strongest hit sub-ray's normal (lidar frame, toward the sensor),
@@ -299,7 +305,48 @@ def _blocks(origins_m: np.ndarray) -> list:
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model='numpy')
+def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, altitude, tilt,
+                          energy, limit, beyond):
+    """The energy-weighted mean range of shots whose footprint lies inside the axis facet,
+    from the axis hit alone (range_m, cos_incidence, barycentric (u, v) on the facet, the
+    facet's vertex-to-edge altitudes); others get ``beyond[i] = True``.
+
+    The cone meets the facet's plane within r0 sin a / cos(theta + a) of the axis point,
+    which lies w_k h_k from the edge facing vertex k. On the plane, the sub-rays' ranges
+    average to r0 (1 + sum_j e_j t_j^2 (1 + tan^2 theta) / (2 sum_j e_j)) to second order
+    in t tan(theta) (off by < (t tan theta)^4 / 2 relative: used below SERIES_LIMIT).
+    """
+    k = energy.shape[0]
+    total, moment2 = 0.0, 0.0
+    for j in range(k):
+        total += energy[j]
+        moment2 += energy[j] * tilt[j] * tilt[j]
+    t_max = tilt[k - 1]
+    lift = np.sqrt(1.0 + t_max * t_max)
+    for q in range(index.shape[0]):
+        i = index[q]
+        r0 = range_m[i]
+        cos_i = min(cos_incidence[i], 1.0)
+        sin_i = np.sqrt(1.0 - cos_i * cos_i)
+        a_max = sin_i * t_max
+        if a_max >= SERIES_LIMIT * cos_i:
+            beyond[i] = True
+            continue
+        a_max /= cos_i
+        spread = 1.01 * r0 * t_max / (cos_i - sin_i * t_max) + 1e-6
+        f = face[i]
+        u, v = np.float64(barycentric[i, 0]), np.float64(barycentric[i, 1])
+        margin = min((1.0 - u - v) * altitude[f, 0], u * altitude[f, 1], v * altitude[f, 2])
+        if margin < spread:
+            beyond[i] = True
+            continue
+        tan2 = (sin_i * sin_i) / (cos_i * cos_i)
+        range_m[i] = r0 * (1.0 + 0.5 * moment2 * (1.0 + tan2) / total)
+        limit[i] = _occluder_limit(r0 * lift / (1.0 - a_max), r0)
+
+
+@njit(cache=True, nogil=True, error_model='numpy')
 def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin_phi, energy,
                             rings, first_mode, planes, region, region_lines, neighbour,
                             face_edge, silhouette, max_steps, range_m, limit, sample):
@@ -453,7 +500,7 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
             sample[i], limit[i] = True, -1.0
 
 
-@njit(cache=True, nogil=True, inline='always')
+@njit(cache=True, nogil=True, inline='always', error_model='numpy')
 def _occluder_limit(farthest, axis_range):
     """Depth (m) along the axis up to which an edge in the cone may hide part of the
     footprint: the farthest sub-ray hit plus its spread past the axis hit (edges between
@@ -462,13 +509,13 @@ def _occluder_limit(farthest, axis_range):
     return 2.0 * farthest - axis_range + 1e-3 * farthest + OCCLUDER_MARGIN_M
 
 
-@njit(cache=True, nogil=True, inline='always')
+@njit(cache=True, nogil=True, inline='always', error_model='numpy')
 def _margin(planes, f, row, px, py, pz):
     """Signed distance (m) of the point p to the edge line of ``planes[f, row]`` (> 0 inside)."""
     return planes[f, row, 0] * px + planes[f, row, 1] * py + planes[f, row, 2] * pz - planes[f, row, 3]
 
 
-@njit(cache=True, nogil=True, inline='always')
+@njit(cache=True, nogil=True, inline='always', error_model='numpy')
 def _plane_ring_sums(r0, a_u, a_v, grad, tilt, lifts, energy, rings):
     """sum_j e_j r_j over the pattern on one plane, and a bound on max_j r_j (m).
 
@@ -510,7 +557,7 @@ def _plane_ring_sums(r0, a_u, a_v, grad, tilt, lifts, energy, rings):
     return total, bound
 
 
-@njit(cache=True, nogil=True, inline='always')
+@njit(cache=True, nogil=True, inline='always', error_model='numpy')
 def _leaving_edge(g0, g1, g2):
     """The edge (0-2) a point leaves a facet by (the most negative signed distance), or -1
     if it is inside; on an edge counts as inside (both facets give the same range)."""
@@ -524,14 +571,14 @@ def _leaving_edge(g0, g1, g2):
     return leave
 
 
-@njit(cache=True, nogil=True, inline='always')
+@njit(cache=True, nogil=True, inline='always', error_model='numpy')
 def _edge_margin(coef, slot, e, r, scale, ct, st):
     """Signed distance (m) to edge e of facet ``slot`` of the sub-ray point at range r."""
     return coef[slot, 1 + e, 0] + r * (coef[slot, 1 + e, 1] * scale + coef[slot, 1 + e, 2] * ct
                                        + coef[slot, 1 + e, 3] * st)
 
 
-@njit(cache=True, nogil=True, inline='always')
+@njit(cache=True, nogil=True, inline='always', error_model='numpy')
 def _facet_coefficients(planes, f, ox, oy, oz, dx, dy, dz, ux, uy, uz, vx, vy, vz, coef, slot):
     """coef[slot, row] = (w - a . o, a . d, a . u, a . v) for each row (a, w) of planes[f]:
     the plane (row 0: range numerator and denominator terms) and the three edges (rows
@@ -545,7 +592,7 @@ def _facet_coefficients(planes, f, ox, oy, oz, dx, dy, dz, ux, uy, uz, vx, vy, v
         coef[slot, row, 3] = ax * vx + ay * vy + az * vz
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model='numpy')
 def _walk(ox, oy, oz, sx, sy, sz, f, leave, planes, neighbour, face_edge, silhouette, max_steps):
     """Range (m) at which the ray o + r s meets the sheet, starting from facet f which it
     leaves by edge ``leave``; -1 if the walk meets a silhouette, a boundary or runs out."""
