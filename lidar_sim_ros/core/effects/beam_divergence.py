@@ -126,7 +126,7 @@ def footprint_cast(target: Target, directions_lidar: np.ndarray, poses, half_ang
 def _wider_than_facets(target: Target, axis: Hits, half_angle_rad: float) -> bool:
     """Footprints wider than WIDE_FOOTPRINT x the mesh's median edge (at the median range):
     nearly every shot would be walked far or cast anyway, so cast them all."""
-    ranges = axis.range_m[axis.hit]
+    ranges = axis.range_m[axis.hit][::64]        # a sample is enough for a median
     if len(ranges) == 0:
         return False
     radius = float(np.median(ranges)) * np.tan(half_angle_rad)
@@ -385,6 +385,8 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
     # 1 + e): the plane and edge-distance coefficients against (1, d, u, v) of the shot.
     coef = np.empty((4, 4, 4))
     ready = np.zeros(4, np.bool_)
+    ns_sub, worst_sub = np.empty(k), np.empty(k)
+    leave_sub = np.empty(k, np.int64)
     for q in range(m):
         i = index[q]
         ox, oy, oz = np.float64(origins[i, 0]), np.float64(origins[i, 1]), np.float64(origins[i, 2])
@@ -447,20 +449,26 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
         if inside and not first_mode:
             range_m[i], limit[i] = plane_sum / total, _occluder_limit(plane_reach, r0)
             continue
-        # Sub-ray by sub-ray: sign(nd) * (distance to edge e) * (n . s_j) needs no division.
+        # Sub-ray by sub-ray: sign(nd) * (distance to edge e) * (n . s_j) needs no division;
+        # straight loops over the pattern per near edge (vectorised), then the leavers.
         sign = 1.0 if nd > 0.0 else -1.0
+        for j in range(k):
+            ns_sub[j] = nd * scale[j] + nu * ct[j] + nv * st[j]
+            worst_sub[j] = -1e-9 * abs(ns_sub[j])
+            leave_sub[j] = -1
+        for e in range(3):
+            if not (near0 if e == 0 else (near1 if e == 1 else near2)):
+                continue
+            c0, cd, cu, cv = sign * coef[0, 1 + e, 0], sign * num * coef[0, 1 + e, 1], \
+                sign * num * coef[0, 1 + e, 2], sign * num * coef[0, 1 + e, 3]
+            for j in range(k):
+                h = c0 * ns_sub[j] + cd * scale[j] + cu * ct[j] + cv * st[j]
+                if h < worst_sub[j]:
+                    worst_sub[j], leave_sub[j] = h, e
         correction, low, high, walked = 0.0, np.inf, 0.0, True
         for j in range(k):
-            ns = nd * scale[j] + nu * ct[j] + nv * st[j]
-            leave, worst = -1, -1e-9 * abs(ns)
-            for e in range(3):
-                if not (near0 if e == 0 else (near1 if e == 1 else near2)):
-                    continue
-                h = sign * (coef[0, 1 + e, 0] * ns + num * (coef[0, 1 + e, 1] * scale[j]
-                                                           + coef[0, 1 + e, 2] * ct[j]
-                                                           + coef[0, 1 + e, 3] * st[j]))
-                if h < worst:
-                    worst, leave = h, e
+            ns = ns_sub[j]
+            leave = leave_sub[j]
             if leave < 0:
                 if first_mode:
                     low = min(low, num / ns)
