@@ -38,8 +38,9 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python bench/bench_pipeline.py --out bench.json
 
+## `make bench-node SCENARIO=config/scenario_all_effects.yaml` runs the node with that scenario.
 bench-node: $(STAMP)
-	$(BIN)/python bench/bench_node.py --out bench_node.json
+	$(BIN)/python bench/bench_node.py --out bench_node.json $(if $(SCENARIO),--scenario $(SCENARIO))
 
 ## What each LiDAR error costs the pose tracker, and its time per frame (offline).
 bench-gnc: $(STAMP)

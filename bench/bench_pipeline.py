@@ -11,13 +11,21 @@ Prints a summary and writes JSON with:
 * a per-stage breakdown (pose, raycast, reflection, detection, packing), the
   stages timed one by one through the public core functions;
 * peak RSS, and the cost per ray of a ~1M-triangle rocket mesh vs a ~10k one;
-* the top cProfile entries of simulate_frame (where the time goes).
+* the top cProfile entries of simulate_frame (where the time goes);
+* the effects: every catalogue effect of ``--effects-scenario`` (config/
+  scenario_all_effects.yaml: each at its documented example parameters) on its own and
+  all together, against the plain model, frame by frame in the same loop
+  (``all_effects_ms_per_frame``, ``all_effects_over_plain``, ``effects``), with the beam
+  footprint's full sampling of every shot for reference;
+* threads: plain and all-effects frames with the raycast split over 1 and 2 threads
+  (on 2 CPUs; ``threads``).
 
 By default the process is pinned to one CPU (``--cpus 1``) so that the "one
 core" target is measured as such, whatever threads Embree or numpy start;
 CPU-time / wall-time ratios are recorded to show any remaining parallelism.
 Targets (issue 2): ratio >= 0.5; <= 10 ms per P-60 frame on one core;
-1M-triangle mesh <= 2x a 10k-triangle mesh per ray.
+1M-triangle mesh <= 2x a 10k-triangle mesh per ray. Issue 10: every effect on at
+its example parameters <= 2x a plain frame (one core, the same run).
 """
 from __future__ import annotations
 
@@ -45,6 +53,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TARGET_RATIO = 0.5
 TARGET_MS_PER_FRAME = 10.0
 TARGET_MESH_COST = 2.0
+TARGET_ALL_EFFECTS = 2.0
 
 
 def timed(fn: Callable[[], object], repeats: int) -> tuple[float, float, object]:
@@ -86,6 +95,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--big-segments', type=int, default=600, help='~1M-triangle rocket mesh')
     ap.add_argument('--no-mesh-scaling', action='store_true', help='skip the 1M-triangle test')
     ap.add_argument('--profile-top', type=int, default=12, help='cProfile entries reported')
+    ap.add_argument('--effects-scenario', type=Path,
+                    default=ROOT / 'config' / 'scenario_all_effects.yaml',
+                    help='the scenario whose effects list is measured, one by one and together')
+    ap.add_argument('--no-effects', action='store_true', help='skip the effects and threads figures')
     args = ap.parse_args(argv)
 
     cpus = pin_cpus(args.cpus)
@@ -232,6 +245,14 @@ def main(argv: list[str] | None = None) -> int:
     }
     result['hot_spots'] = profile(sim, traj, period, args.profile_top)
     result['peak_rss_mb_pipeline'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    if not args.no_effects:
+        fx = effects_costs(args, scenario, traj, pack, Simulator, np)
+        result.update(all_effects_ms_per_frame=fx['all effects']['ms_per_frame'],
+                      all_effects_over_plain=fx['all effects']['over_plain'], effects=fx)
+        result['beam_footprint'] = beam_footprint(args, load_scenario(args.effects_scenario), traj, np)
+        result['threads'] = thread_scaling(args, load_scenario(args.effects_scenario), traj, pack,
+                                           Simulator, np)
+        result['peak_rss_mb_effects'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     if not args.no_mesh_scaling:
         result['mesh_scaling'] = mesh_scaling(args, sim, traj, Target, scenario, np,
                                               rtcore_scene, TriangleMesh)
@@ -258,6 +279,99 @@ def profile(sim, traj, period: float, top: int) -> list[dict]:
              'own_ms_per_frame': tt / 5 * 1e3, 'cum_ms_per_frame': ct / 5 * 1e3,
              'own_share': tt / total}
             for (file, line, name), (_, nc, tt, ct, _) in rows]
+
+
+def interleaved_ms(variants: dict, traj, period: float, pack, frames: int, repeats: int,
+                   cpu: bool = False) -> dict:
+    """Median ms per frame (simulate_frame + packing) of each simulator, measured frame by
+    frame in turn, so that every variant sees the same frames and the same machine load."""
+    times = {k: [] for k in variants}
+    for sim in variants.values():                  # warm-up: kernels, caches, mesh tables
+        pack(sim.simulate_frame(0.0, traj, 0))
+    for i in range(frames):
+        for _ in range(repeats):
+            for name, sim in variants.items():
+                clock = time.process_time if cpu else time.perf_counter
+                t0 = clock()
+                pack(sim.simulate_frame(i * period, traj, i))
+                times[name].append(clock() - t0)
+    return {k: statistics.median(v) * 1e3 for k, v in times.items()}
+
+
+def effects_costs(args, scenario, traj, pack, Simulator, np) -> dict:
+    """Each effect of the effects scenario alone and all together vs none, in one run."""
+    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.effects import make_effect
+    fx_scenario = load_scenario(args.effects_scenario)
+    specs = [(e.name, dict(e.params)) for e in fx_scenario.config.effects]
+    plain = Simulator.from_scenario(scenario, effects=[])
+    variants = {'plain': plain}
+    for name, params in specs:
+        variants[name] = Simulator(plain.sensor, plain.materials, plain.target, plain.seed,
+                                   [make_effect(name, params)])
+    variants['all effects'] = Simulator(plain.sensor, plain.materials, plain.target, plain.seed,
+                                        [make_effect(n, p) for n, p in specs])
+    ms = interleaved_ms(variants, traj, plain.frame_period_s, pack, args.frames, args.repeats)
+    out = {k: {'ms_per_frame': v, 'over_plain': v / ms['plain']} for k, v in ms.items()}
+    for name, params in specs:
+        out[name]['params'] = params
+    out['all effects']['scenario'] = str(args.effects_scenario)
+    return out
+
+
+def beam_footprint(args, fx_scenario, traj, np) -> dict:
+    """How many shots the beam footprint samples, and the full sampling's cost for reference."""
+    from lidar_sim_ros.core.effects.beam_divergence import (footprint_cast, sampled_shots,
+                                                            sample_footprint)
+    from lidar_sim_ros.core.pipeline import Simulator
+    spec = next((e for e in fx_scenario.config.effects if e.name == 'beam_divergence'), None)
+    if spec is None:
+        return {}
+    sim = Simulator.from_scenario(fx_scenario, effects=[])
+    half = 0.5 * spec.params.get('footprint_scale', 0.0) * sim.sensor.optics.beam_divergence_rad
+    if half <= 0:
+        return {}
+    period = sim.frame_period_s
+    poses = [traj.at(i * period + sim._cast_shots.t_s) for i in range(min(args.frames, 5))]
+    d = sim._cast_directions
+    footprint_cast(sim.target, d, poses[0], half)          # warm-up
+    fast = [timed(lambda: footprint_cast(sim.target, d, p, half), 1)[0] for p in poses]
+    full = [timed(lambda: sample_footprint(sim.target, d, p, half), 1)[0] for p in poses]
+    sampled = [int(np.count_nonzero(sampled_shots(sim.target, d, p, half))) for p in poses]
+    return {'footprint_scale': spec.params.get('footprint_scale'), 'shots': len(d),
+            'sampled_shots_per_frame': statistics.median(sampled),
+            'cast_ms_per_frame': statistics.median(fast) * 1e3,
+            'full_sampling_ms_per_frame': statistics.median(full) * 1e3,
+            'full_over_fast': statistics.median(full) / statistics.median(fast)}
+
+
+def thread_scaling(args, fx_scenario, traj, pack, Simulator, np) -> dict:
+    """Plain and all-effects frames with the raycast on 1 and 2 threads, on 2 CPUs."""
+    allowed = sorted(os.sched_getaffinity(0))
+    try:
+        os.sched_setaffinity(0, sorted(set(allowed) | set(range(os.cpu_count() or 1)))[:2])
+    except OSError:
+        pass
+    cpus = sorted(os.sched_getaffinity(0))
+    variants = {}
+    for threads in (1, 2):
+        plain = Simulator.from_scenario(fx_scenario, effects=[])
+        plain.target.threads = threads
+        variants[f'plain, {threads} thread(s)'] = plain
+        variants[f'all effects, {threads} thread(s)'] = Simulator(
+            plain.sensor, plain.materials, plain.target, plain.seed,
+            Simulator.from_scenario(fx_scenario).effects)
+    ms = interleaved_ms(variants, traj, variants['plain, 1 thread(s)'].frame_period_s, pack,
+                        args.frames, args.repeats)
+    os.sched_setaffinity(0, allowed)
+    out = {'cpus': cpus, 'ms_per_frame': ms}
+    for t in (1, 2):
+        out[f'all_effects_over_plain_{t}_thread'] = (ms[f'all effects, {t} thread(s)']
+                                                     / ms[f'plain, {t} thread(s)'])
+    out['plain_speedup_2_threads'] = ms['plain, 1 thread(s)'] / ms['plain, 2 thread(s)']
+    out['all_effects_speedup_2_threads'] = (ms['all effects, 1 thread(s)']
+                                            / ms['all effects, 2 thread(s)'])
+    return out
 
 
 def mesh_scaling(args, sim, traj, Target, scenario, np, rtcore_scene, TriangleMesh) -> dict:
@@ -311,6 +425,8 @@ def targets(r: dict) -> dict:
         'ratio_ge_0.5': r['ratio_pipeline_over_embree'] >= TARGET_RATIO,
         'ms_per_frame_le_10': r['pipeline']['ms_per_frame'] <= TARGET_MS_PER_FRAME,
     }
+    if 'all_effects_over_plain' in r:
+        t['all_effects_le_2x_plain'] = r['all_effects_over_plain'] <= TARGET_ALL_EFFECTS
     if 'mesh_scaling' in r:
         # What the simulator pays per ray for the mesh: Target.cast, which casts in the
         # coherent order the pipeline uses (raw Embree in firing order is shown for reference).
@@ -353,6 +469,23 @@ def report(r: dict) -> None:
               f"[target <= {TARGET_MESH_COST:g}x: {ok[r['targets']['mesh_1M_le_2x_10k']]}]; "
               f"raw embree in firing order x{m['embree_cost_ratio_big_over_small']:.2f}, "
               f"in coherent order x{m['embree_coherent_cost_ratio_big_over_small']:.2f}")
+    if 'effects' in r:
+        print('effects (ms per frame, ratio to plain; one run, frame by frame in turn):')
+        for name, e in r['effects'].items():
+            print(f"  {e['ms_per_frame']:8.2f} ms  x{e['over_plain']:.2f}  {name}")
+        print(f"all effects / plain: {r['all_effects_over_plain']:.2f}   [target <= "
+              f"{TARGET_ALL_EFFECTS:g}: {ok[r['targets']['all_effects_le_2x_plain']]}]")
+        b = r.get('beam_footprint') or {}
+        if b:
+            print(f"beam footprint (scale {b['footprint_scale']}): {b['sampled_shots_per_frame']:.0f} of "
+                  f"{b['shots']} shots sampled; cast {b['cast_ms_per_frame']:.1f} ms vs full sampling "
+                  f"{b['full_sampling_ms_per_frame']:.1f} ms (x{b['full_over_fast']:.1f})")
+        th = r['threads']
+        print(f"threads (CPUs {th['cpus']}): " + ', '.join(
+            f'{k} {v:.2f} ms' for k, v in th['ms_per_frame'].items()))
+        print(f"  2 threads speed-up: plain x{th['plain_speedup_2_threads']:.2f}, all effects "
+              f"x{th['all_effects_speedup_2_threads']:.2f}; all effects / plain: 1 thread "
+              f"{th['all_effects_over_plain_1_thread']:.2f}, 2 threads {th['all_effects_over_plain_2_thread']:.2f}")
     print(f"peak RSS: {r['peak_rss_mb_pipeline']:.0f} MB for the pipeline, "
           f"{r['peak_rss_mb']:.0f} MB at the end (incl. the mesh-scaling meshes)")
 

@@ -7,8 +7,10 @@ handled by transforming each ray with the pose of its own shot time.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, TypeVar
 
 import numpy as np
 import trimesh
@@ -17,6 +19,9 @@ from embreex.mesh_construction import TriangleMesh
 
 from lidar_sim_ros.core import geometry_kernels as kernels
 from lidar_sim_ros.core.pose import Poses
+
+
+T = TypeVar('T')
 
 
 class MeshMaterialError(ValueError):
@@ -37,7 +42,9 @@ class Hits:
     material: material id (-1 on a miss); face: triangle index (-1 on a miss);
     power_fraction: share of the beam's energy that hit (-), None = the whole beam
     (set by footprint-sampling casts such as the beam_divergence effect);
-    cos_incidence: cos(incidence_rad) where the raycast has it (saves recomputing it).
+    cos_incidence: cos(incidence_rad) where the raycast has it (saves recomputing it);
+    barycentric: (N, 2) float32 (u, v) of each hit on its triangle, the point being
+    (1 - u - v) v0 + u v1 + v v2, when asked for (``Target.cast_body_rays``).
     """
 
     hit: np.ndarray
@@ -48,16 +55,64 @@ class Hits:
     face: np.ndarray
     power_fraction: np.ndarray | None = None
     cos_incidence: np.ndarray | None = None
+    barycentric: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.hit)
 
 
+@dataclass(frozen=True)
+class BodyRays:
+    """Rays moved into the target body frame, as Embree takes them.
+
+    origins_m, directions (N, 3) float32, in cast order (row k is ray ``order[k]``);
+    quat_xyzw (N|1, 4): each ray's pose, which rotates normals back to the frame of
+    ``directions_out`` (N, 3) float64, the rays' unit directions in input order.
+    """
+
+    origins_m: np.ndarray
+    directions: np.ndarray
+    order: np.ndarray
+    quat_xyzw: np.ndarray
+    directions_out: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.order)
+
+
+# Rays per thread below which splitting a cast over threads costs more than it saves.
+MIN_RAYS_PER_THREAD = 2048
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
+                       min_per_thread: int = MIN_RAYS_PER_THREAD) -> list[T]:
+    """``work`` on contiguous parts of range(n), one per thread, results in order.
+
+    For GIL-free work (Embree casts, ``nogil`` kernels); the calling thread does the
+    first part. Fewer threads when parts would hold less than ``min_per_thread``.
+    """
+    threads = max(1, min(int(threads), n // max(min_per_thread, 1)))
+    if threads == 1:
+        return [work(slice(0, n))]
+    bounds = np.linspace(0, n, threads + 1).astype(int)
+    parts = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    if threads - 1 not in _POOLS:
+        _POOLS[threads - 1] = ThreadPoolExecutor(threads - 1, thread_name_prefix='raycast')
+    futures = [_POOLS[threads - 1].submit(work, part) for part in parts[1:]]
+    return [work(parts[0])] + [f.result() for f in futures]
+
+
 class Target:
-    """A triangle mesh in the target body frame with a material id per face."""
+    """A triangle mesh in the target body frame with a material id per face.
+
+    ``threads``: how many threads a large cast is split over (embreex releases the GIL
+    while it casts; each ray's answer does not depend on the split, so results are
+    the same for any thread count).
+    """
 
     def __init__(self, vertices_m: np.ndarray, faces: np.ndarray, face_material: np.ndarray,
-                 material_names: list[str]):
+                 material_names: list[str], threads: int = 1):
         self.vertices_m = np.ascontiguousarray(vertices_m, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         self.face_material = np.ascontiguousarray(face_material, dtype=np.int16)
@@ -69,15 +124,27 @@ class Target:
         self._scene = rtcore_scene.EmbreeScene()
         # Embree keeps its own float32 copy; the scene is static for the target's life.
         TriangleMesh(self._scene, tri.astype(np.float32))
+        # The first query builds the BVH: do it now, so that threads never race to it.
+        self._scene.run(np.zeros((1, 3), np.float32), np.array([[1.0, 0.0, 0.0]], np.float32))
+        self.threads = int(threads)
 
     @property
     def n_faces(self) -> int:
         return len(self.faces)
 
-    def intersect(self, origins_m: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Raw Embree query: face id (-1 = miss) and distance (m) per ray, float32 rays as given."""
-        res = self._scene.run(origins_m, directions, output=1)
-        return res['primID'], res['tfar']
+    def intersect(self, origins_m: np.ndarray, directions: np.ndarray,
+                  barycentric: bool = False) -> tuple[np.ndarray, ...]:
+        """Raw Embree query: face id (-1 = miss) and distance (m) per ray, float32 rays as
+        given; with ``barycentric`` also the hit's (u, v) on its triangle.
+
+        Split over ``self.threads`` threads when there are enough rays.
+        """
+        keys = ('primID', 'tfar', 'u', 'v') if barycentric else ('primID', 'tfar')
+        parts = split_over_threads(len(origins_m), self.threads, lambda part: self._scene.run(
+            origins_m[part], directions[part], output=1))
+        if len(parts) == 1:
+            return tuple(parts[0][k] for k in keys)
+        return tuple(np.concatenate([p[k] for p in parts]) for k in keys)
 
     def cast(self, origins_m: np.ndarray, directions: np.ndarray,
              order: np.ndarray | None = None) -> Hits:
@@ -90,13 +157,21 @@ class Target:
         origins = np.asarray(origins_m, dtype=np.float64).reshape(-1, 3)
         order = _cast_order(order, len(d))
         o32, d32 = kernels.rays_to_body(_IDENTITY, _ZERO, origins, d, order)
-        return self._hits(o32, d32, order, _IDENTITY, d)
+        return self.cast_body_rays(BodyRays(o32, d32, order, _IDENTITY, d))
 
-    def _hits(self, o32, d32, order, quat_xyzw, dir_out) -> Hits:
-        face, tfar = self.intersect(o32, d32)
+    def cast_body_rays(self, rays: BodyRays, barycentric: bool = False) -> Hits:
+        """First hit of each body-frame ray; normals in the frame of ``rays.directions_out``;
+        with ``barycentric`` the hits' (u, v) too."""
+        face, tfar, *uv = self.intersect(rays.origins_m, rays.directions, barycentric)
         hit, range_m, normal, cos_i, material, face = kernels.hit_geometry(
-            face, tfar, order, self.face_normals, self.face_material, quat_xyzw, dir_out)
-        return Hits(hit, range_m, normal, np.arccos(cos_i), material, face, cos_incidence=cos_i)
+            face, tfar, rays.order, self.face_normals, self.face_material, rays.quat_xyzw,
+            rays.directions_out)
+        bary = None
+        if barycentric:
+            bary = np.empty((len(rays), 2), np.float32)
+            bary[rays.order] = np.column_stack(uv)
+        return Hits(hit, range_m, normal, np.arccos(cos_i), material, face, cos_incidence=cos_i,
+                    barycentric=bary)
 
 
 _IDENTITY = np.array([[0.0, 0.0, 0.0, 1.0]])
@@ -130,15 +205,22 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
     Rays go into the body frame with their pose, are cast there, and the normals
     come back to the lidar frame. Ranges are frame-independent.
     """
+    return target.cast_body_rays(body_rays(directions_lidar, poses, origin_lidar_m, order))
+
+
+def body_rays(directions_lidar: np.ndarray, poses: Poses, origin_lidar_m: np.ndarray | None = None,
+              order: np.ndarray | None = None) -> BodyRays:
+    """Lidar-frame rays (unit directions; origin default: the sensor) in the body frame,
+    each with the pose of its own shot, in cast order."""
     d = np.ascontiguousarray(directions_lidar, dtype=np.float64).reshape(-1, 3)
     origin = np.zeros((1, 3)) if origin_lidar_m is None else np.asarray(origin_lidar_m, float).reshape(-1, 3)
     quat, position = poses.quat_xyzw, poses.position_m.reshape(-1, 3)
     order = _cast_order(order, len(d))
     o32, d32 = kernels.rays_to_body(quat, position, origin, d, order)
-    return target._hits(o32, d32, order, quat, d)
+    return BodyRays(o32, d32, order, quat, d)
 
 
-def load_target(obj_path: str | Path, material_names: list[str]) -> Target:
+def load_target(obj_path: str | Path, material_names: list[str], threads: int = 1) -> Target:
     """Load an OBJ+MTL whose ``usemtl`` names are material names from the config.
 
     Raises MeshFileError for a file that is not such an OBJ (see ``check_obj_file``)
@@ -173,7 +255,7 @@ def load_target(obj_path: str | Path, material_names: list[str]) -> Target:
             f'(known: {material_names})')
     if not faces:
         raise MeshMaterialError(f'{obj_path}: no triangles found')
-    return Target(np.vstack(verts), np.vstack(faces), np.concatenate(mats), material_names)
+    return Target(np.vstack(verts), np.vstack(faces), np.concatenate(mats), material_names, threads)
 
 
 def check_obj_file(obj_path: Path) -> None:

@@ -139,8 +139,12 @@ class Simulator:
 
     def __init__(self, sensor: SensorConfig, materials: MaterialsConfig, target: Target,
                  seed: int = 0, effects: list[Effect] | None = None,
-                 scan_base: Path | None = None):
+                 scan_base: Path | None = None, threads: int | None = None):
+        """``threads``: raycast threads (``Target.threads``; None keeps the target's).
+        Frames do not depend on it: each ray's answer is the same however they are split."""
         self.sensor, self.materials, self.target = sensor, materials, target
+        if threads is not None:
+            target.threads = int(threads)
         self.seed = int(seed)
         self.effects: list[Effect] = list(effects or [])
         self.shots: Shots = frame_shots(sensor, scan_base)
@@ -158,15 +162,16 @@ class Simulator:
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, effects: list[Effect] | None = None,
-                      extra_effects: list[Effect] = ()) -> 'Simulator':
-        """The scenario's simulator; ``effects`` replaces the scenario's list, ``extra_effects`` extends it."""
+                      extra_effects: list[Effect] = (), threads: int | None = None) -> 'Simulator':
+        """The scenario's simulator; ``effects`` replaces the scenario's list, ``extra_effects``
+        extends it; ``threads`` as in ``__init__``."""
         target = load_target(scenario.mesh_path, scenario.materials.names)
         base = scenario.source.parent if scenario.source else None
         if effects is None:
             effects = [make_effect(_scenario_relative(e.name, base), e.params)
                        for e in scenario.config.effects]
         return cls(scenario.sensor, scenario.materials, target, scenario.seed,
-                   list(effects) + list(extra_effects), base)
+                   list(effects) + list(extra_effects), base, threads)
 
     def warm_up(self) -> None:
         """Compile the per-ray kernels now (or load them from numba's on-disk cache), so

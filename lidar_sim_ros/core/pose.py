@@ -146,6 +146,18 @@ class Poses:
     def vector_to_lidar(self, vec_body: np.ndarray) -> np.ndarray:
         return self._apply(np.asarray(vec_body, dtype=float), inverse=False)
 
+    def take(self, index: np.ndarray) -> 'Poses':
+        """The poses of rows ``index`` (a single pose stays single). Rotation matrices
+        already computed are reused, so the rows transform vectors bit for bit alike."""
+        quat = self.quat_xyzw
+        position = self.position_m.reshape(-1, 3)
+        out = Poses.from_quat(quat if len(quat) == 1 else quat[index],
+                              position if len(position) == 1 else position[index])
+        if 'matrix' in self.__dict__:
+            m = self.__dict__['matrix']
+            out.__dict__['matrix'] = m if m.ndim == 2 else m[index]
+        return out
+
 
 class PoseSource(Protocol):
     """Anything that gives the target pose at absolute times (s)."""

@@ -102,6 +102,9 @@ STARTUP_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     'ticks_per_frame': (2, _startup(
         I, 'fallback checks for due frames per frame period, on top of the wake-up at '
            'each frame end', int_range=(1, 1000))),
+    'threads': (2, _startup(
+        I, 'threads a frame is split over (Embree and the beam-footprint kernels release the '
+           'GIL); frames are the same for any count', int_range=(1, 64))),
     'max_catch_up_frames': (10, _startup(
         I, 'most frames computed at once after a clock jump; older ones are dropped',
         int_range=(1, 1000))),
@@ -145,7 +148,8 @@ class LidarSimNode(Node):
             # The scan pattern is laid over the frame period, so a rate override
             # stretches or compresses it over the new period.
             self.scenario.sensor = self.scenario.sensor.model_copy(update={'frame_rate_hz': rate})
-        self.sim = Simulator.from_scenario(self.scenario, effects=[])
+        self.sim = Simulator.from_scenario(self.scenario, effects=[],
+                                           threads=self.get_parameter('threads').value)
 
         self.declare_parameter('frame_id', self.scenario.config.frame_id,
                                _descriptor(S, "header frame_id of the clouds; poses must carry it "

@@ -30,6 +30,19 @@ def footprint_depth_m(ctx: ReturnContext, max_incidence_deg: float = 85.0) -> np
     return np.where(ctx.hit, r * ctx.divergence_rad * np.tan(theta), 0.0)
 
 
+class _LastDepth:
+    """The depth of the last context asked for: bias and sigma hooks share one."""
+
+    def __init__(self):
+        self.ctx, self.max_deg, self.depth = None, None, None
+
+    def __call__(self, ctx: ReturnContext, max_incidence_deg: float) -> np.ndarray:
+        if ctx is not self.ctx or max_incidence_deg != self.max_deg:
+            self.depth = footprint_depth_m(ctx, max_incidence_deg)
+            self.ctx, self.max_deg = ctx, max_incidence_deg
+        return self.depth
+
+
 @register
 class IncidenceAngle(Effect):
     """Bias and noise proportional to the footprint depth r dtheta tan(theta)."""
@@ -48,7 +61,9 @@ class IncidenceAngle(Effect):
                                          description='tan(theta) is clipped here (grazing)')
 
     def _depth(self, ctx: ReturnContext) -> np.ndarray:
-        return footprint_depth_m(ctx, self.params.max_incidence_deg)
+        if not hasattr(self, '_last'):
+            self._last = _LastDepth()
+        return self._last(ctx, self.params.max_incidence_deg)
 
     def range_bias_m(self, ctx: ReturnContext) -> np.ndarray:
         return self.params.bias_gain * self._depth(ctx)

@@ -50,7 +50,9 @@ class SolarBackground(Effect):
         lo, hi = self.window_m(ctx)
         n = len(ctx)
         mask = rng.random(n) < p
-        return mask, rng.uniform(lo, hi, n)
+        range_m = np.full(n, np.nan)
+        range_m[mask] = rng.uniform(lo, hi, np.count_nonzero(mask))   # only where used
+        return mask, range_m
 
     def outlier_fraction(self, ctx: ReturnContext) -> float:
         return self.params.probability

@@ -1,0 +1,606 @@
+"""Where a narrow cone around a ray can see more than one surface: silhouette edges.
+
+A beam footprint (``effects/beam_divergence.py``) lands on one connected, front-facing
+sheet of the mesh unless an edge where the visible surface ends crosses it. On a
+triangle mesh those edges are:
+
+- **silhouette edges**: the two faces of the edge lie on the same side of the plane
+  through the viewpoint and the edge (the surface folds away: the limb of a cylinder,
+  the rim of a plate seen edge-on, the near side of every depth step);
+- **boundary edges** (one face) and non-manifold edges (three or more): always.
+
+The test is independent of the triangles' winding: for the edge a-b with opposite
+vertices c1 and c2, ``s_k(o) = ((b - a) x (c_k - a)) . (o - a)`` has the sign of the
+side of the plane (o, a, b) that c_k is on, and is affine in the viewpoint o. Over a
+box of viewpoints (a frame's sensor positions in the body frame, which move with the
+target) the interval of each s_k is exact, so an edge is kept unless it is smooth for
+*every* viewpoint in the box: the candidate set is conservative.
+
+``cones_touching_edges`` then tells, for each ray, whether any candidate edge enters
+its cone (half-angle ``alpha``): the exact test of a segment against a cone is a
+segment against a disc of radius tan(alpha) in the ray's own gnomonic plane, done in
+a compiled loop over the edges binned on a coarse angular grid.
+
+``MeshEdges`` also carries the face adjacency that lets a sub-ray be followed from
+one facet to the next across the sheet (``face_neighbour``, ``face_edge_normal``).
+"""
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+
+import numpy as np
+from numba import njit
+
+WELD_M = 1e-6           # vertices closer than this are one vertex (OBJ groups repeat them)
+REGION_LINES = 8        # most edge lines a flat region keeps (more: its faces stand alone)
+COPLANAR_RAD = 1e-5     # faces folded by less than this are one plane (a sub-ray moves < 1 um per 0.1 m)
+
+
+@dataclass(frozen=True, eq=False)
+class MeshEdges:
+    """The undirected edges and face adjacency of a triangle mesh.
+
+    a_m, b_m (E, 3): endpoints (m); n1, n2 (E, 3): normals of the two faces, both
+    oriented along a -> b (``(b - a) x (c_k - a)``, unnormalised; zero for a missing
+    face); always (E,): boundary or non-manifold edge.
+    face_normal (F, 3): unit face normals (the faces' own winding); face_plane_offset
+    (F,): n . p on the face's plane (m); face_neighbour (F, 3): the face across edge k
+    (vertices k, k + 1) of each face,
+    -1 at a boundary or non-manifold edge; face_edge_normal (F, 3, 3): unit vectors in
+    the face's plane, perpendicular to edge k, pointing inside; face_edge_offset (F, 3):
+    a point p of the plane is inside the face when face_edge_normal[f, k] . p >=
+    face_edge_offset[f, k] for every k (the margin is the distance to edge k, m);
+    face_planes (F, 4, 4): the same packed per face for compiled loops, rows (n, offset),
+    (m_0, c_0), (m_1, c_1), (m_2, c_2).
+    """
+
+    a_m: np.ndarray
+    b_m: np.ndarray
+    n1: np.ndarray
+    n2: np.ndarray
+    always: np.ndarray
+    coplanar: np.ndarray
+    face_edge: np.ndarray
+    face_normal: np.ndarray
+    face_plane_offset: np.ndarray
+    face_neighbour: np.ndarray
+    face_edge_normal: np.ndarray
+    face_edge_offset: np.ndarray
+    face_planes: np.ndarray
+    face_region: np.ndarray
+    region_lines: np.ndarray
+    face_altitude: np.ndarray
+    edge_vertices: np.ndarray
+    edge_faces: np.ndarray
+    face_vertices: np.ndarray
+    median_edge_m: float = 0.0
+    crossing_a_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    crossing_b_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    def __len__(self) -> int:
+        return len(self.a_m)
+
+    def candidates(self, origin_lo_m: np.ndarray, origin_hi_m: np.ndarray) -> np.ndarray:
+        """Indices of the edges that may be a silhouette or a boundary for some viewpoint
+        in the box [origin_lo_m, origin_hi_m] (body frame, m)."""
+        lo = np.asarray(origin_lo_m, float)
+        hi = np.asarray(origin_hi_m, float)
+        return np.flatnonzero(self.candidate_mask(lo, hi))
+
+    def candidate_segments(self, candidate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """End points (M, 3), (M, 3) of the edges in the mask ``candidate`` followed by the
+        self-intersection segments: everything a footprint cannot be followed across."""
+        index = np.flatnonzero(candidate)
+        return (np.concatenate([self.a_m[index], self.crossing_a_m]),
+                np.concatenate([self.b_m[index], self.crossing_b_m]))
+
+    def candidate_mask(self, origin_lo_m: np.ndarray, origin_hi_m: np.ndarray) -> np.ndarray:
+        """``candidates`` as a mask over the edges."""
+        lo = np.asarray(origin_lo_m, float)
+        hi = np.asarray(origin_hi_m, float)
+        # The float32 copies are exact to ~1e-6 m at 10 m: widen the box by 1e-5 m.
+        return _maybe_silhouette(self._sign_test, self._sign_edge, len(self.a_m),
+                                 0.5 * (lo + hi), 0.5 * (hi - lo) + 1e-5)
+
+    @cached_property
+    def _sign_test(self) -> np.ndarray:
+        """(a, n1, n2, always) per non-coplanar edge, float32, packed for the classification."""
+        keep = ~self.coplanar
+        return np.ascontiguousarray(np.column_stack(
+            [self.a_m[keep], self.n1[keep], self.n2[keep], self.always[keep]]), dtype=np.float32)
+
+    @cached_property
+    def _sign_edge(self) -> np.ndarray:
+        return np.flatnonzero(~self.coplanar)
+
+
+@njit(cache=True, nogil=True, error_model='numpy')
+def _maybe_silhouette(packed, edge, n_edges, centre, half):
+    """Edges not smooth for every viewpoint o in the box centre +- half: s_k(o) =
+    n_k . (o - a) over the box is [mid - rad, mid + rad] with rad = |n_k| . half.
+    packed (M, 10): a, n1, n2, always of the non-coplanar edges ``edge`` (M,)."""
+    out = np.zeros(n_edges, np.bool_)
+    for row in range(packed.shape[0]):
+        mid1, rad1, mid2, rad2 = 0.0, 0.0, 0.0, 0.0
+        for k in range(3):
+            off = centre[k] - np.float64(packed[row, k])
+            n1k, n2k = np.float64(packed[row, 3 + k]), np.float64(packed[row, 6 + k])
+            mid1 += n1k * off
+            rad1 += abs(n1k) * half[k]
+            mid2 += n2k * off
+            rad2 += abs(n2k) * half[k]
+        smooth = ((mid1 - rad1 > 0.0 and mid2 + rad2 < 0.0)
+                  or (mid1 + rad1 < 0.0 and mid2 - rad2 > 0.0))
+        out[edge[row]] = packed[row, 9] != 0.0 or not smooth
+    return out
+
+
+_EDGES: 'weakref.WeakKeyDictionary[object, MeshEdges]' = weakref.WeakKeyDictionary()
+
+
+def mesh_edges(target) -> MeshEdges:
+    """The edge table of a ``geometry.Target`` (built once per target, ~0.1 s for 50k faces)."""
+    edges = _EDGES.get(target)
+    if edges is None:
+        edges = build_mesh_edges(target.vertices_m, target.faces)
+        edges = replace(edges, **dict(zip(('crossing_a_m', 'crossing_b_m'),
+                                          intersection_segments(edges, target.intersect))))
+        _EDGES[target] = edges
+    return edges
+
+
+def intersection_segments(edges: MeshEdges, intersect, max_hits: int = 16,
+                          step_m: float = 1e-5) -> tuple[np.ndarray, np.ndarray]:
+    """Segments (C, 3), (C, 3) (m) where the mesh passes through itself.
+
+    Parts that interpenetrate (a blanket dipping into the hull, a nozzle buried in a
+    dome) meet along curves that are no mesh edge. Two triangles intersect along a
+    segment whose ends are points where an edge of one pierces the other, so every mesh
+    edge is cast as a ray from one end to the other through ``intersect`` (the target's
+    Embree query: float32 rays -> face id, distance), continuing past each hit; a hit
+    on a face sharing no vertex with the edge is a piercing point; the segments join the
+    points on each face (a lone point: a segment of zero length).
+    """
+    a, b = edges.a_m, edges.b_m
+    span = b - a
+    length = np.linalg.norm(span, axis=1)
+    ok = length > 10 * step_m
+    direction = np.divide(span, length[:, None], out=np.zeros_like(span), where=ok[:, None])
+    todo = np.flatnonzero(ok)
+    start = np.zeros(len(a))
+    found_edge, found_face, found_point = [], [], []
+    for _ in range(max_hits):
+        if len(todo) == 0:
+            break
+        origin = a[todo] + start[todo, None] * direction[todo]
+        face, t = intersect(origin.astype(np.float32), direction[todo].astype(np.float32))
+        t_at = start[todo] + t
+        hit = (face >= 0) & (t_at < length[todo] - step_m)
+        todo, face, t_at = todo[hit], face[hit], t_at[hit]
+        ends = edges.edge_vertices[todo]
+        corners = edges.face_vertices[face]
+        shares = (corners == ends[:, :1]).any(axis=1) | (corners == ends[:, 1:]).any(axis=1)
+        found_edge.append(todo[~shares])
+        found_face.append(face[~shares])
+        found_point.append(a[todo[~shares]] + t_at[~shares, None] * direction[todo[~shares]])
+        start[todo] = t_at + step_m
+    if not found_edge or not sum(len(e) for e in found_edge):
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    edge_id, pierced, point = (np.concatenate(x) for x in (found_edge, found_face, found_point))
+    # Every point lies on the pierced face and on both faces of the piercing edge. The
+    # curve crosses each face between the points on it (a piercing point on a pierced
+    # face's own edge is credited to one side only, so pair faces, not face pairs).
+    own = edges.edge_faces[edge_id]
+    face = np.concatenate([pierced, own[:, 0], own[:, 1]])
+    point = np.concatenate([point, point, point])
+    keys, first = np.unique(np.column_stack([face, np.round(point / step_m)]), axis=0,
+                            return_index=True)
+    face, point = keys[:, 0], point[first]
+    seg_a, seg_b = [], []
+    for f in np.unique(face):
+        p = point[face == f]
+        if len(p) == 1:
+            seg_a.append(p[0])
+            seg_b.append(p[0])
+        for i in range(len(p)):
+            for j in range(i + 1, len(p)):
+                seg_a.append(p[i])
+                seg_b.append(p[j])
+    seg_a, seg_b = np.array(seg_a), np.array(seg_b)
+    # The same piece lies on both faces it separates: keep one.
+    ends = np.sort(np.stack([seg_a, seg_b], axis=1).reshape(len(seg_a), 6).reshape(-1, 2, 3), axis=1)
+    _, unique = np.unique(np.round(ends.reshape(len(seg_a), 6) / step_m), axis=0, return_index=True)
+    return seg_a[np.sort(unique)], seg_b[np.sort(unique)]
+
+
+def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
+    """Edge table of a triangle mesh; vertices within WELD_M are merged first."""
+    vertices_m = np.asarray(vertices_m, float)
+    faces = np.asarray(faces, np.int64)
+    key = np.round(vertices_m / WELD_M).astype(np.int64)
+    _, weld = np.unique(key, axis=0, return_inverse=True)
+    weld = weld.reshape(-1)
+    position = np.empty((weld.max() + 1 if len(weld) else 0, 3))
+    position[weld] = vertices_m
+    f = weld[faces]
+    n_faces = len(f)
+    # Directed edges (a, b) = face vertices (k, k + 1), with the third vertex c.
+    a = f[:, [0, 1, 2]].T.reshape(-1)
+    b = f[:, [1, 2, 0]].T.reshape(-1)
+    c = f[:, [2, 0, 1]].T.reshape(-1)
+    face = np.tile(np.arange(n_faces), 3)
+    slot = np.repeat(np.arange(3), n_faces)
+    ok = (a != b) & (b != c) & (c != a)           # degenerate faces have no edges
+    a, b, c, face, slot = a[ok], b[ok], c[ok], face[ok], slot[ok]
+    undirected = np.minimum(a, b) * len(position) + np.maximum(a, b)
+    order = np.argsort(undirected, kind='stable')
+    undirected, a, b, c = undirected[order], a[order], b[order], c[order]
+    face, slot = face[order], slot[order]
+    first = np.flatnonzero(np.r_[True, undirected[1:] != undirected[:-1]])
+    count = np.diff(np.r_[first, len(undirected)])
+    pair = count == 2
+    second = np.where(pair, first + 1, first)
+    pa, pb = position[a[first]], position[b[first]]
+    n1 = np.cross(pb - pa, position[c[first]] - pa)
+    n2 = np.where(pair[:, None], np.cross(pb - pa, position[c[second]] - pa), 0.0)
+    edge_id = np.cumsum(np.r_[True, undirected[1:] != undirected[:-1]]) - 1
+    face_edge = np.full((n_faces, 3), -1, np.int64)
+    face_edge[face, slot] = edge_id
+    neighbour = np.full((n_faces, 3), -1, np.int64)
+    neighbour[face[first[pair]], slot[first[pair]]] = face[second[pair]]
+    neighbour[face[second[pair]], slot[second[pair]]] = face[first[pair]]
+    # In-plane inward edge normals: n x (v_{k+1} - v_k) for the face's own winding.
+    tri = position[f]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+    edge = np.roll(tri, -1, axis=1) - tri
+    inward = np.cross(normal[:, None, :], edge)
+    length = np.linalg.norm(inward, axis=2, keepdims=True)
+    inward = np.divide(inward, length, out=np.zeros_like(inward), where=length > 0)
+    offset = np.einsum('fkj,fkj->fk', inward, tri)
+    offset[(length[..., 0] == 0).any(axis=1)] = np.inf       # degenerate: nothing is inside
+    # Coplanar: the opposite vertices on opposite sides and both on the other face's plane.
+    span = np.linalg.norm(pb - pa, axis=1)
+    len1, len2 = np.linalg.norm(n1, axis=1), np.linalg.norm(n2, axis=1)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        cos_fold = -np.einsum('ij,ij->i', n1, n2) / (len1 * len2)
+    # Within 1e-5 rad: OBJ files round vertices (1e-6 m), which tilts thin flat quads.
+    coplanar = pair & (cos_fold > np.cos(COPLANAR_RAD)) & (span > 0)
+    plane_offset = np.einsum('ij,ij->i', normal, tri[:, 0])
+    planes = np.empty((n_faces, 4, 4))
+    planes[:, 0, :3], planes[:, 0, 3] = normal, plane_offset
+    planes[:, 1:4, :3], planes[:, 1:4, 3] = inward, offset
+    region, lines = flat_regions(position, f, face_edge, coplanar, neighbour, inward, offset)
+    # Vertex k's distance to edge k + 1 (the opposite one): twice the area over its length.
+    double_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    opposite = np.linalg.norm(np.roll(edge, -1, axis=1), axis=2)
+    altitude = np.divide(double_area[:, None], opposite, out=np.zeros_like(opposite),
+                         where=opposite > 0).astype(np.float32)
+    return MeshEdges(a_m=pa, b_m=pb, n1=n1, n2=n2, always=~pair, coplanar=coplanar,
+                     face_edge=face_edge, face_normal=normal, face_plane_offset=plane_offset,
+                     face_neighbour=neighbour, face_edge_normal=inward, face_edge_offset=offset,
+                     face_planes=planes, face_region=region, region_lines=lines,
+                     face_altitude=altitude,
+                     edge_vertices=np.column_stack([a[first], b[first]]),
+                     edge_faces=np.column_stack([face[first], face[second]]), face_vertices=f,
+                     median_edge_m=float(np.median(span[~coplanar])) if np.any(~coplanar) else 0.0)
+
+
+def flat_regions(position, faces, face_edge, coplanar, neighbour, inward, offset
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Group faces into flat regions: faces joined across coplanar edges (the quads of a
+    cylinder's column, a flat disc), kept whole when the region is convex and bounded by
+    at most REGION_LINES lines (collinear edges are one line); any other face is a
+    region of its own (its three edges). A footprint that stays inside its region lies on
+    one plane. Returns face -> region (F,) and the regions' lines (R, REGION_LINES, 4).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    n_faces = len(faces)
+    i, k = np.nonzero(coplanar[np.maximum(face_edge, 0)] & (face_edge >= 0) & (neighbour >= 0))
+    graph = coo_matrix((np.ones(len(i)), (i, neighbour[i, k])), shape=(n_faces, n_faces))
+    n_labels, label = connected_components(graph, directed=False)
+    # Boundary edges of each region: face edges whose neighbour is in another region;
+    # one line per distinct (region, direction, offset), so collinear edges merge.
+    fi, ki = np.nonzero((neighbour < 0) | (label[np.maximum(neighbour, 0)] != label[:, None]))
+    m, c, lab = inward[fi, ki], offset[fi, ki], label[fi]
+    key = np.column_stack([lab, np.round(m / 1e-9), np.round(c / 1e-9)])
+    _, first = np.unique(key, axis=0, return_index=True)
+    first = first[np.argsort(lab[first], kind='stable')]
+    m, c, lab = m[first], c[first], lab[first]
+    count = np.bincount(lab, minlength=n_labels)
+    start = np.r_[0, np.cumsum(count)]
+    good = (count >= 3) & (count <= REGION_LINES)
+    # Padded per-region lines; convex when every corner of its faces is on the inner side.
+    lines = np.zeros((n_labels, REGION_LINES, 4))
+    lines[:, :, 3] = -np.inf
+    slot = np.arange(len(lab)) - start[lab]
+    keep = good[lab]
+    lines[lab[keep], slot[keep], :3], lines[lab[keep], slot[keep], 3] = m[keep], c[keep]
+    own = lines[label]                                     # (F, L, 4)
+    corner_margin = np.einsum('flj,fvj->fvl', own[:, :, :3], position[faces]) - own[:, None, :, 3]
+    worst = np.full(n_labels, np.inf)
+    np.minimum.at(worst, label, corner_margin.min(axis=(1, 2)))
+    good &= worst > -1e-7
+    # Whole regions keep their lines; every other face becomes a region of its own.
+    kept = np.flatnonzero(good)
+    renumber = np.full(n_labels, -1)
+    renumber[kept] = np.arange(len(kept))
+    region = renumber[label]
+    loose = np.flatnonzero(region < 0)
+    region[loose] = len(kept) + np.arange(len(loose))
+    out = np.zeros((len(kept) + len(loose), REGION_LINES, 4))
+    out[:, :, 3] = -np.inf
+    out[:len(kept)] = lines[kept]
+    out[len(kept):, :3, :3], out[len(kept):, :3, 3] = inward[loose], offset[loose]
+    return region, out
+
+
+def origin_box(origins_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper corners (3,) of the bounding box of points (N, 3)."""
+    return _box(np.ascontiguousarray(origins_m))
+
+
+@njit(cache=True, nogil=True, error_model='numpy')
+def _box(p):
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for i in range(p.shape[0]):
+        for k in range(3):
+            lo[k] = min(lo[k], p[i, k])
+            hi[k] = max(hi[k], p[i, k])
+    return lo, hi
+
+
+def cones_touching_edges(origins_m: np.ndarray, directions: np.ndarray, tan_half_angle: float,
+                         a_m: np.ndarray, b_m: np.ndarray,
+                         depth_limit_m: np.ndarray | None = None) -> np.ndarray:
+    """For each ray, whether any segment [a_m, b_m] enters its cone (exact test).
+
+    origins_m, directions (N, 3): rays (unit directions); tan_half_angle: tan of the
+    cone's half-angle; a_m, b_m (M, 3): segments in the same frame (m);
+    depth_limit_m (N,): count only the parts of segments up to this depth along each
+    ray (m; inf: all; < 0: skip the ray). Returns a bool mask (N,).
+    """
+    n = len(origins_m)
+    if depth_limit_m is None:
+        depth_limit_m = np.full(n, np.inf)
+    if n == 0 or len(a_m) == 0:
+        return np.zeros(n, bool)
+    return _cones_touching_edges(np.ascontiguousarray(origins_m), np.ascontiguousarray(directions),
+                                 float(tan_half_angle),
+                                 np.ascontiguousarray(a_m, dtype=np.float64),
+                                 np.ascontiguousarray(b_m, dtype=np.float64),
+                                 np.ascontiguousarray(depth_limit_m, dtype=np.float64))
+
+
+_Z_MIN_M = 1e-3     # segment parts closer than this in front of the viewpoint are ignored
+
+
+@njit(cache=True, nogil=True, error_model='numpy')
+def _segment_in_cone(ox, oy, oz, dx, dy, dz, ax, ay, az, bx, by, bz, z_hi, tan_a):
+    """Whether the segment a-b meets the cone (apex o, unit axis d, tan half-angle tan_a)
+    at depths in [_Z_MIN_M, z_hi] along d: the segment's central projection on the plane
+    at unit depth must pass within tan_a of the axis."""
+    ax -= ox
+    ay -= oy
+    az -= oz
+    bx -= ox
+    by -= oy
+    bz -= oz
+    za = ax * dx + ay * dy + az * dz
+    zb = bx * dx + by * dy + bz * dz
+    if (za < _Z_MIN_M and zb < _Z_MIN_M) or (za > z_hi and zb > z_hi):
+        return False
+    # Clip the segment a + t (b - a), t in [0, 1], to the depth slab.
+    t0, t1 = 0.0, 1.0
+    if za != zb:
+        ta, tb = (_Z_MIN_M - za) / (zb - za), (z_hi - za) / (zb - za)
+        t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
+        if t0 > t1:
+            return False
+    px, py, pz = ax + t0 * (bx - ax), ay + t0 * (by - ay), az + t0 * (bz - az)
+    qx, qy, qz = ax + t1 * (bx - ax), ay + t1 * (by - ay), az + t1 * (bz - az)
+    zp = max(px * dx + py * dy + pz * dz, _Z_MIN_M)
+    zq = max(qx * dx + qy * dy + qz * dz, _Z_MIN_M)
+    # Points on the unit-depth plane, relative to the axis (vectors perpendicular to d).
+    px, py, pz = px / zp - dx, py / zp - dy, pz / zp - dz
+    qx, qy, qz = qx / zq - dx, qy / zq - dy, qz / zq - dz
+    ex, ey, ez = qx - px, qy - py, qz - pz
+    ee = ex * ex + ey * ey + ez * ez
+    s = 0.0
+    if ee > 0.0:
+        s = min(max(-(px * ex + py * ey + pz * ez) / ee, 0.0), 1.0)
+    cx, cy, cz = px + s * ex, py + s * ey, pz + s * ez
+    # A relative margin for float32 rays: never decides a physical case.
+    r = tan_a * (1.0 + 1e-4) + 1e-7
+    return cx * cx + cy * cy + cz * cz <= r * r
+
+
+@njit(cache=True, nogil=True, error_model='numpy')
+def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
+    """Rays binned on a gnomonic grid seen from their mean origin c (each ray over the
+    depth range of the segments, as it moves across the grid with its offset from c);
+    each segment then tests the rays in the cells its dilated projection covers."""
+    n, m = o.shape[0], a.shape[0]
+    out = np.zeros(n, np.bool_)
+    cx, cy, cz, fx, fy, fz = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    for i in range(n):
+        cx += o[i, 0]
+        cy += o[i, 1]
+        cz += o[i, 2]
+        fx += d[i, 0]
+        fy += d[i, 1]
+        fz += d[i, 2]
+    cx, cy, cz = cx / n, cy / n, cz / n
+    norm = np.sqrt(fx * fx + fy * fy + fz * fz)
+    if norm == 0.0:
+        fx, fy, fz = 1.0, 0.0, 0.0
+    else:
+        fx, fy, fz = fx / norm, fy / norm, fz / norm
+    hx, hy, hz = (0.0, 0.0, 1.0) if abs(fz) < 0.9 else (1.0, 0.0, 0.0)
+    e1x, e1y, e1z = fy * hz - fz * hy, fz * hx - fx * hz, fx * hy - fy * hx
+    norm = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+    e1x, e1y, e1z = e1x / norm, e1y / norm, e1z / norm
+    e2x, e2y, e2z = fy * e1z - fz * e1y, fz * e1x - fx * e1z, fx * e1y - fy * e1x
+    spread = 0.0
+    for i in range(n):
+        ddx, ddy, ddz = o[i, 0] - cx, o[i, 1] - cy, o[i, 2] - cz
+        spread = max(spread, np.sqrt(ddx * ddx + ddy * ddy + ddz * ddz))
+    # Segments closer to c than z_floor are tested against every ray (never, in practice).
+    z_floor = max(10.0 * spread, 1e-2)
+    seg = np.empty((m, 4))
+    seg_z = np.empty(m)                  # nearest depth along f
+    binned = np.zeros(m, np.bool_)
+    z_lo, z_hi = np.inf, -np.inf
+    for k in range(m):
+        ax, ay, az = a[k, 0] - cx, a[k, 1] - cy, a[k, 2] - cz
+        bx, by, bz = b[k, 0] - cx, b[k, 1] - cy, b[k, 2] - cz
+        za = ax * fx + ay * fy + az * fz
+        zb = bx * fx + by * fy + bz * fz
+        if za < z_floor or zb < z_floor:
+            continue
+        binned[k] = True
+        seg_z[k] = min(za, zb)
+        seg[k, 0] = (ax * e1x + ay * e1y + az * e1z) / za
+        seg[k, 1] = (ax * e2x + ay * e2y + az * e2z) / za
+        seg[k, 2] = (bx * e1x + by * e1y + bz * e1z) / zb
+        seg[k, 3] = (bx * e2x + by * e2y + bz * e2z) / zb
+        z_lo, z_hi = min(z_lo, za, zb), max(z_hi, za, zb)
+    # Rays: their projected track over [z_lo, min(z_hi, limit)], undilated.
+    track = np.empty((n, 4))
+    ray_z = np.empty(n)                  # farthest depth along f the cone counts to
+    active = np.zeros(n, np.bool_)       # binned
+    brute = z_limit >= 0.0               # tested against every segment (unless binned)
+    pad = 0.0
+    if z_hi >= z_lo:
+        for i in range(n):
+            if z_limit[i] < 0.0:
+                continue
+            rx, ry, rz = o[i, 0] - cx, o[i, 1] - cy, o[i, 2] - cz
+            zo = rx * fx + ry * fy + rz * fz
+            zd = d[i, 0] * fx + d[i, 1] * fy + d[i, 2] * fz
+            if zd <= 0.1:
+                continue                      # more than 84 deg off the mean: brute force
+            # The cone up to the depth limit reaches at most this far along f.
+            z_end = min(z_hi, zo + z_limit[i] * (zd + tan_a))
+            ray_z[i] = z_end
+            brute[i] = False
+            if z_end < z_lo:
+                continue                      # stops in front of every binned segment
+            x0, y0, x1, y1 = np.inf, np.inf, -np.inf, -np.inf
+            for zz in (z_lo, z_end):
+                t = max((zz - zo) / zd, 0.0)
+                px, py, pz = rx + t * d[i, 0], ry + t * d[i, 1], rz + t * d[i, 2]
+                zp = max(px * fx + py * fy + pz * fz, 1e-9)
+                u = (px * e1x + py * e1y + pz * e1z) / zp
+                v = (px * e2x + py * e2y + pz * e2z) / zp
+                x0, y0, x1, y1 = min(x0, u), min(y0, v), max(x1, u), max(y1, v)
+            track[i, 0], track[i, 1], track[i, 2], track[i, 3] = x0, y0, x1, y1
+            active[i] = True
+            # A point of the cone lies within t tan_a of the axis point at its own distance
+            # t, and within (1 + 1/zd) t tan_a of the axis point at its depth along f; seen
+            # from c (at least z_lo - spread away) and stretched by the gnomonic map.
+            stretch = 1.0 + max(x0 * x0, x1 * x1) + max(y0 * y0, y1 * y1)
+            pad = max(pad, 1.25 * tan_a * stretch * (1.0 + 1.0 / zd) / zd
+                      * (1.0 + 2.0 * spread / z_lo))
+    pad += 1e-9
+    # The grid over the active rays' tracks; cells a few times a track plus the pad (the
+    # 2-D pre-check makes rays cheap; cell visits are what costs).
+    gx0, gy0, gx1, gy1 = np.inf, np.inf, -np.inf, -np.inf
+    size, count = 0.0, 0
+    for i in range(n):
+        if active[i]:
+            gx0, gy0 = min(gx0, track[i, 0]), min(gy0, track[i, 1])
+            gx1, gy1 = max(gx1, track[i, 2]), max(gy1, track[i, 3])
+            size += max(track[i, 2] - track[i, 0], track[i, 3] - track[i, 1])
+            count += 1
+    if count > 0:
+        size = 2.5 * max(size / count, pad, (gx1 - gx0) / 2048.0, (gy1 - gy0) / 2048.0, 1e-9)
+        nx = int((gx1 - gx0) / size) + 1
+        ny = int((gy1 - gy0) / size) + 1
+        start = np.zeros(nx * ny + 1, np.int64)
+        for i in range(n):
+            if active[i]:
+                i0, i1 = int((track[i, 0] - gx0) / size), int((track[i, 2] - gx0) / size)
+                j0, j1 = int((track[i, 1] - gy0) / size), int((track[i, 3] - gy0) / size)
+                for ci in range(i0, i1 + 1):
+                    for cj in range(j0, j1 + 1):
+                        start[ci * ny + cj + 1] += 1
+        for cell in range(nx * ny):
+            start[cell + 1] += start[cell]
+        fill = start[:-1].copy()
+        cell_ray = np.empty(start[-1], np.int64)
+        cell_z = np.full(nx * ny, -np.inf)   # farthest depth any ray of the cell counts to
+        for i in range(n):
+            if active[i]:
+                i0, i1 = int((track[i, 0] - gx0) / size), int((track[i, 2] - gx0) / size)
+                j0, j1 = int((track[i, 1] - gy0) / size), int((track[i, 3] - gy0) / size)
+                for ci in range(i0, i1 + 1):
+                    for cj in range(j0, j1 + 1):
+                        cell_ray[fill[ci * ny + cj]] = i
+                        fill[ci * ny + cj] += 1
+                        cell_z[ci * ny + cj] = max(cell_z[ci * ny + cj], ray_z[i])
+        # Each segment visits the cells within pad of its projection (sampled every half
+        # cell, each point dilated by pad + half a cell), each cell once.
+        stamp = np.full(nx * ny, -1, np.int64)
+        reach = pad + 0.5 * size
+        for k in range(m):
+            if not binned[k]:
+                continue
+            x0, y0, x1, y1 = seg[k, 0], seg[k, 1], seg[k, 2], seg[k, 3]
+            if (max(x0, x1) + reach < gx0 or min(x0, x1) - reach > gx1
+                    or max(y0, y1) + reach < gy0 or min(y0, y1) - reach > gy1):
+                continue
+            ex, ey = x1 - x0, y1 - y0
+            inv_len2 = 1.0 / (ex * ex + ey * ey) if ex * ex + ey * ey > 0.0 else 0.0
+            steps = int(np.sqrt(ex * ex + ey * ey) / (0.5 * size)) + 1
+            for step in range(steps + 1):
+                x = x0 + (x1 - x0) * step / steps
+                y = y0 + (y1 - y0) * step / steps
+                i0 = min(max(int((x - reach - gx0) / size), 0), nx - 1)
+                i1 = min(max(int((x + reach - gx0) / size), 0), nx - 1)
+                j0 = min(max(int((y - reach - gy0) / size), 0), ny - 1)
+                j1 = min(max(int((y + reach - gy0) / size), 0), ny - 1)
+                for ci in range(i0, i1 + 1):
+                    for cj in range(j0, j1 + 1):
+                        cell = ci * ny + cj
+                        if stamp[cell] == k:
+                            continue
+                        stamp[cell] = k
+                        if seg_z[k] > cell_z[cell]:
+                            continue             # behind every lit surface of the cell
+                        for p in range(start[cell], start[cell + 1]):
+                            i = cell_ray[p]
+                            if out[i] or seg_z[k] > ray_z[i]:
+                                continue
+                            # The gnomonic projections first: the track's centre within
+                            # pad + its half-diagonal of the segment's projection.
+                            tx = 0.5 * (track[i, 0] + track[i, 2]) - x0
+                            ty = 0.5 * (track[i, 1] + track[i, 3]) - y0
+                            h = min(max((tx * ex + ty * ey) * inv_len2, 0.0), 1.0)
+                            gx, gy = tx - h * ex, ty - h * ey
+                            slack = pad + 0.5 * (track[i, 2] - track[i, 0] + track[i, 3] - track[i, 1])
+                            if gx * gx + gy * gy > slack * slack:
+                                continue
+                            if _segment_in_cone(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1],
+                                                d[i, 2], a[k, 0], a[k, 1], a[k, 2], b[k, 0],
+                                                b[k, 1], b[k, 2], z_limit[i], tan_a):
+                                out[i] = True
+    # Rays not binned (far off the mean direction) against every segment, and segments
+    # too near c against every ray: never, in practice.
+    loose = np.flatnonzero(~binned)
+    every = np.arange(m)
+    for i in range(n):
+        if out[i] or z_limit[i] < 0.0:
+            continue
+        for k in (every if brute[i] else loose):
+            if _segment_in_cone(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2],
+                                a[k, 0], a[k, 1], a[k, 2], b[k, 0], b[k, 1], b[k, 2],
+                                z_limit[i], tan_a):
+                out[i] = True
+                break
+    return out
