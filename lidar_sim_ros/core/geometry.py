@@ -88,6 +88,11 @@ class Target:
         o32, d32 = kernels.rays_to_body(_IDENTITY, _ZERO, origins, d, order)
         return self._hits(o32, d32, order, _IDENTITY, d)
 
+    def occluded(self, origins_m: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Whether each ray (body frame, float32 as Embree takes them) meets the mesh at all:
+        Embree's occlusion query, cheaper than a closest hit (shadow rays)."""
+        return self._scene.run(origins_m, directions, query='OCCLUDED') >= 0
+
     def _hits(self, o32, d32, order, quat_xyzw, dir_out) -> Hits:
         face, tfar = self.intersect(o32, d32)
         hit, range_m, normal, cos_i, material, face = kernels.hit_geometry(
@@ -132,6 +137,19 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
     order = _cast_order(order, len(d))
     o32, d32 = kernels.rays_to_body(quat, position, origin, d, order)
     return target._hits(o32, d32, order, quat, d)
+
+
+def occluded_at_poses(target: Target, origins_lidar_m: np.ndarray, directions_lidar: np.ndarray,
+                      poses: Poses) -> np.ndarray:
+    """Shadow rays: does the ray from each lidar-frame origin along its unit direction meet
+    the target (at the pose of its row, or one pose for all)? Bool per ray."""
+    d = np.ascontiguousarray(directions_lidar, dtype=np.float64).reshape(-1, 3)
+    origins = np.ascontiguousarray(origins_lidar_m, dtype=np.float64).reshape(-1, 3)
+    if len(d) == 0:
+        return np.zeros(0, bool)
+    o32, d32 = kernels.rays_to_body(poses.quat_xyzw, poses.position_m.reshape(-1, 3), origins, d,
+                                    np.arange(len(d), dtype=np.int64))
+    return target.occluded(o32, d32)
 
 
 def load_target(obj_path: str | Path, material_names: list[str]) -> Target:

@@ -18,7 +18,7 @@ _FILE_MODULES: dict[Path, object] = {}
 
 # Catalogue modules register themselves on import.
 _CATALOGUE = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-              'beam_divergence', 'time_offset')
+              'beam_divergence', 'time_offset', 'sunlight')
 
 
 def register(cls: type[Effect]) -> type[Effect]:

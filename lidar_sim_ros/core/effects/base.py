@@ -35,7 +35,44 @@ import yaml
 from pydantic import BaseModel, ConfigDict
 
 if TYPE_CHECKING:
+    from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
     from lidar_sim_ros.core.effects.fitting import FitData, FitResult
+    from lidar_sim_ros.core.geometry import Target
+    from lidar_sim_ros.core.pose import Poses
+    from lidar_sim_ros.core.sun import Illumination
+
+
+@dataclass(frozen=True)
+class Scene:
+    """The world around a set of shots, for effects that follow light beyond the laser's
+    own ray (shadows, background light): the target at each shot's pose, the material
+    table, the sensor, and the illumination at each shot's time (None = no sun)."""
+
+    target: 'Target'
+    poses: 'Poses'
+    materials: 'MaterialsConfig'
+    sensor: 'SensorConfig'
+    illumination: 'Illumination | None' = None
+
+    def occluded(self, origins_lidar_m: np.ndarray, directions_lidar: np.ndarray,
+                 shots: np.ndarray) -> np.ndarray:
+        """Shadow rays from lidar-frame origins along unit directions, each against the
+        target at the pose of shot ``shots[i]``: True where the ray meets the target."""
+        from lidar_sim_ros.core.geometry import occluded_at_poses
+        from lidar_sim_ros.core.pose import Poses
+        quat, pos = self.poses.quat_xyzw, self.poses.position_m.reshape(-1, 3)
+        if len(quat) > 1:
+            quat, pos = quat.take(shots, axis=0), pos.take(shots, axis=0)
+        return occluded_at_poses(self.target, origins_lidar_m, directions_lidar,
+                                 Poses.from_quat(quat, pos))
+
+    def subset(self, mask: np.ndarray) -> 'Scene':
+        from lidar_sim_ros.core.pose import Poses
+        quat, pos = self.poses.quat_xyzw, self.poses.position_m.reshape(-1, 3)
+        if len(quat) > 1:
+            quat, pos = quat[mask], pos[mask]
+        return replace(self, poses=Poses.from_quat(quat, pos),
+                       illumination=None if self.illumination is None else self.illumination.subset(mask))
 
 
 @dataclass(frozen=True)
@@ -46,7 +83,10 @@ class ReturnContext:
     power_w: received power (W); intensity: power / saturation (-);
     t_s: time since frame start (s); az_rad, el_rad: pointing; laser: id;
     divergence_rad: full beam divergence; hit: bool mask;
-    threshold_power_w: detection threshold (W); min_range_m, max_range_m: range gate.
+    threshold_power_w: detection threshold (W); min_range_m, max_range_m: range gate;
+    direction (N, 3): unit ray directions and normal (N, 3): surface normals toward the
+    sensor (zeros on a miss), both in the lidar frame; scene: the target, poses, materials,
+    sensor and light (``Scene``). The last three are None where the caller has no geometry.
     """
 
     range_m: np.ndarray
@@ -63,6 +103,9 @@ class ReturnContext:
     threshold_power_w: float = 0.0
     max_range_m: float = 300.0
     min_range_m: float = 0.0
+    direction: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    scene: Scene | None = None
 
     def __len__(self) -> int:
         return len(self.range_m)
@@ -70,6 +113,8 @@ class ReturnContext:
     def subset(self, mask: np.ndarray) -> 'ReturnContext':
         fields = {k: (v[mask] if isinstance(v, np.ndarray) and v.shape[:1] == self.range_m.shape[:1] else v)
                   for k, v in self.__dict__.items()}
+        if self.scene is not None:
+            fields['scene'] = self.scene.subset(mask)
         return ReturnContext(**fields)
 
 
@@ -126,7 +171,9 @@ class Effect:
         return 0.0
 
     def false_returns(self, ctx: ReturnContext, rng: np.random.Generator):
-        """Spurious returns: (mask over shots, range_m) replacing those shots' returns, or None."""
+        """Spurious returns: (mask over shots, range_m) replacing those shots' returns, or None.
+
+        A NaN range under the mask removes the shot's return (e.g. a blinded detector)."""
         return None
 
     def outlier_fraction(self, ctx: ReturnContext) -> np.ndarray | float:
