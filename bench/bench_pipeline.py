@@ -16,8 +16,13 @@ Prints a summary and writes JSON with:
 By default the process is pinned to one CPU (``--cpus 1``) so that the "one
 core" target is measured as such, whatever threads Embree or numpy start;
 CPU-time / wall-time ratios are recorded to show any remaining parallelism.
+* the cost of sunlight (issue 11): ``Simulator.simulate_frame`` on
+  config/scenario_sunlit.yaml with its sun and the ``sunlight`` effect vs the same
+  scenario without them, frames interleaved, and the ratio.
+
 Targets (issue 2): ratio >= 0.5; <= 10 ms per P-60 frame on one core;
-1M-triangle mesh <= 2x a 10k-triangle mesh per ray.
+1M-triangle mesh <= 2x a 10k-triangle mesh per ray. Issue 11: a sunlit frame
+<= 1.5x a plain one.
 """
 from __future__ import annotations
 
@@ -45,6 +50,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TARGET_RATIO = 0.5
 TARGET_MS_PER_FRAME = 10.0
 TARGET_MESH_COST = 2.0
+TARGET_SUNLIT_COST = 1.5
 
 
 def timed(fn: Callable[[], object], repeats: int) -> tuple[float, float, object]:
@@ -86,6 +92,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--big-segments', type=int, default=600, help='~1M-triangle rocket mesh')
     ap.add_argument('--no-mesh-scaling', action='store_true', help='skip the 1M-triangle test')
     ap.add_argument('--profile-top', type=int, default=12, help='cProfile entries reported')
+    ap.add_argument('--sunlit-scenario', type=Path, default=ROOT / 'config' / 'scenario_sunlit.yaml',
+                    help="scenario with a sun for the sunlight cost ('' to skip)")
     args = ap.parse_args(argv)
 
     cpus = pin_cpus(args.cpus)
@@ -231,6 +239,8 @@ def main(argv: list[str] | None = None) -> int:
         'pack_rclpy_ms': pack_rclpy_ms,
     }
     result['hot_spots'] = profile(sim, traj, period, args.profile_top)
+    if str(args.sunlit_scenario):
+        result['sunlight'] = sunlight_cost(args, load_scenario, Simulator, ScenarioTrajectory)
     result['peak_rss_mb_pipeline'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     if not args.no_mesh_scaling:
         result['mesh_scaling'] = mesh_scaling(args, sim, traj, Target, scenario, np,
@@ -306,6 +316,32 @@ def mesh_scaling(args, sim, traj, Target, scenario, np, rtcore_scene, TriangleMe
     return out
 
 
+def sunlight_cost(args, load_scenario, Simulator, ScenarioTrajectory) -> dict:
+    """simulate_frame with the scenario's sun and effects vs without, frames interleaved so
+    that a busy machine slows both alike; medians over frames of the per-frame medians."""
+    scenario = load_scenario(args.sunlit_scenario)
+    sunlit = Simulator.from_scenario(scenario)
+    plain = Simulator.from_scenario(scenario, effects=[])
+    plain.sun = None
+    traj = ScenarioTrajectory.from_config(scenario.config)
+    for sim in (plain, sunlit):            # warm-up: compiled kernels, caches
+        sim.simulate_frame(0.0, traj, 0)
+    rows = []
+    for i in range(args.frames):
+        start = i * sunlit.frame_period_s
+        p_wall, _, _ = timed(lambda: plain.simulate_frame(start, traj, i), args.repeats)
+        s_wall, _, frame = timed(lambda: sunlit.simulate_frame(start, traj, i), args.repeats)
+        rows.append((p_wall, s_wall, int((frame.material == 255).sum())))
+    plain_ms = statistics.median(r[0] for r in rows) * 1e3
+    sunlit_ms = statistics.median(r[1] for r in rows) * 1e3
+    return {'scenario': str(args.sunlit_scenario),
+            'definition': 'Simulator.simulate_frame with the sun and the sunlight effect vs '
+                          'the same scenario without them',
+            'plain_ms_per_frame': plain_ms, 'sunlit_ms_per_frame': sunlit_ms,
+            'ratio_sunlit_over_plain': sunlit_ms / plain_ms,
+            'false_returns_per_frame_median': statistics.median(r[2] for r in rows)}
+
+
 def targets(r: dict) -> dict:
     t = {
         'ratio_ge_0.5': r['ratio_pipeline_over_embree'] >= TARGET_RATIO,
@@ -316,6 +352,8 @@ def targets(r: dict) -> dict:
         # coherent order the pipeline uses (raw Embree in firing order is shown for reference).
         t['mesh_1M_le_2x_10k'] = (r['mesh_scaling']['target_cast_cost_ratio_big_over_small']
                                   <= TARGET_MESH_COST)
+    if 'sunlight' in r:
+        t['sunlit_le_1.5x_plain'] = r['sunlight']['ratio_sunlit_over_plain'] <= TARGET_SUNLIT_COST
     return t
 
 
@@ -353,6 +391,12 @@ def report(r: dict) -> None:
               f"[target <= {TARGET_MESH_COST:g}x: {ok[r['targets']['mesh_1M_le_2x_10k']]}]; "
               f"raw embree in firing order x{m['embree_cost_ratio_big_over_small']:.2f}, "
               f"in coherent order x{m['embree_coherent_cost_ratio_big_over_small']:.2f}")
+    if 'sunlight' in r:
+        sun = r['sunlight']
+        print(f"sunlight: {sun['sunlit_ms_per_frame']:.2f} ms/frame sunlit vs {sun['plain_ms_per_frame']:.2f} "
+              f"plain, x{sun['ratio_sunlit_over_plain']:.2f}   [target <= {TARGET_SUNLIT_COST:g}x: "
+              f"{ok[r['targets']['sunlit_le_1.5x_plain']]}]; "
+              f"{sun['false_returns_per_frame_median']:.0f} false returns per frame")
     print(f"peak RSS: {r['peak_rss_mb_pipeline']:.0f} MB for the pipeline, "
           f"{r['peak_rss_mb']:.0f} MB at the end (incl. the mesh-scaling meshes)")
 

@@ -289,12 +289,18 @@ def test_sunward_surfaces_matches_the_numpy_formulas():
     e_band = np.full(n, 36.8)
     on = np.flatnonzero(rng.random(n) < 0.8)
     rng_m = rng.uniform(5, 15, n)
-    facing, radiance, origin = sunward_surfaces(on, d, rng_m, normal, material, s, e_band,
-                                                kd, ks, n_exp, 0.002)
+    rot = Rotation.random(n, random_state=7)
+    position = rng.normal(size=(n, 3)) + [10, 0, 0]
+    facing, radiance, o_body, d_body = sunward_surfaces(
+        on, d, rng_m, normal, material, s, e_band, kd, ks, n_exp, 0.002, rot.as_quat(), position)
     cos_sun = np.einsum('ij,ij->i', normal, s)
-    np.testing.assert_array_equal(facing, cos_sun[on] > 0)
+    np.testing.assert_array_equal(facing, on[cos_sun[on] > 0])
     f = rad.bistatic_phong_brdf(normal, s, -d, kd[material], ks[material], n_exp[material])
     ref = np.where(cos_sun > 0, rad.reflected_radiance_w_m2_sr(e_band, f, cos_sun), 0.0)
     np.testing.assert_allclose(radiance[on], ref[on], rtol=1e-12, atol=0)
     assert np.all(radiance[np.setdiff1d(np.arange(n), on)] == 0)
-    np.testing.assert_allclose(origin[facing], (d * rng_m[:, None] + 0.002 * normal)[on][facing])
+    # Shadow rays in the body frame: p_body = R^T (p_lidar - t), float32 as Embree takes them.
+    origin = d * rng_m[:, None] + 0.002 * normal
+    ref_o = rot[facing].inv().apply(origin[facing] - position[facing])
+    np.testing.assert_allclose(o_body, ref_o, atol=1e-5)
+    np.testing.assert_allclose(d_body, rot[facing].inv().apply(s[facing]), atol=1e-6)

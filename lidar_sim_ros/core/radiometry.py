@@ -60,7 +60,10 @@ def unit(v: np.ndarray) -> np.ndarray:
 
 def row_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise dot product of (N, 3) arrays (either may be a single (3,) vector)."""
-    return np.einsum('...i,...i->...', np.asarray(a, float), np.asarray(b, float))
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if a.ndim == 2 and b.ndim == 2 and b.strides[0] == 0:
+        return a @ b[0]      # one vector broadcast to every row (a fixed sun): a matrix-vector product
+    return np.einsum('...i,...i->...', a, b)
 
 
 def mirror_cos_alpha(normal: np.ndarray, to_source: np.ndarray, to_viewer: np.ndarray) -> np.ndarray:

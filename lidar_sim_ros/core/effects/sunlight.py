@@ -45,6 +45,7 @@ from lidar_sim_ros.core import detection, radiometry as rad
 from lidar_sim_ros.core.config import ReceiverConfig, SensorConfig
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect, ReturnContext, Scene
+from lidar_sim_ros.core.geometry_kernels import _rotate
 
 # Shadow rays start this far off the surface along its normal, so they do not hit the
 # face they leave (Embree works in float32: ~1e-6 relative at the target's size).
@@ -144,24 +145,22 @@ def background_of(ctx: ReturnContext, scale: float = 1.0) -> Background | None:
     area = rad.aperture_area_m2(optics.aperture_diameter_m)
     tau = optics.receive_efficiency
     radiance = np.zeros(n)                                           # W m^-2 sr^-1 in the band
-    sunlit = np.zeros(n, bool)
-    shadowed = np.zeros(n, bool)
+    sunlit = shadowed = np.zeros(n, bool)
 
     on = np.flatnonzero(ctx.hit)
     if len(on):
         kd, ks, n_exp = _phong_columns(scene.materials)
         # Which hits face the sun, their radiance if lit, and where their shadow rays start.
-        facing, lit_radiance, origin = sunward_surfaces(
+        facing, radiance, o_body, d_body = sunward_surfaces(
             on, d, ctx.range_m, ctx.normal, ctx.material, s, e_sun, kd, ks, n_exp,
-            SHADOW_RAY_OFFSET_M)
-        cand = np.flatnonzero(facing)
-        lit = on.take(cand)
-        if len(cand):
-            lit = lit[~scene.occluded(origin.take(cand, axis=0), s.take(lit, axis=0), lit)]
-        radiance[lit] = lit_radiance[lit]
-        sunlit[lit] = True
-        shadowed[on] = True
-        shadowed[lit] = False
+            SHADOW_RAY_OFFSET_M, scene.poses.quat_xyzw, scene.poses.position_m.reshape(-1, 3))
+        sunlit = np.zeros(n, bool)
+        sunlit[facing] = True
+        if len(facing):
+            shade = facing[scene.target.occluded(o_body, d_body)]
+            radiance[shade] = 0.0
+            sunlit[shade] = False
+        shadowed = ctx.hit & ~sunlit
         if light.earth_direction is not None:
             normal, mat = ctx.normal.take(on, axis=0), ctx.material.take(on)
             e = light.earth_direction
@@ -205,36 +204,46 @@ def background_of(ctx: ReturnContext, scale: float = 1.0) -> Background | None:
     power *= scale
     surface_power *= scale
 
-    rate, sigma = crossing_rate_hz(power, sensor)
-    echo = ctx.hit & detection.detected_mask(ctx.power_w, ctx.range_m, det)
+    # Shots with no background share the dark rate: evaluate the noise where there is light.
+    dark_rate, dark_sigma = (float(x[0]) for x in crossing_rate_hz(np.zeros(1), sensor))
+    rate, sigma = np.full(n, dark_rate), np.full(n, dark_sigma)
+    bright = np.flatnonzero(power > 0)
+    rate[bright], sigma[bright] = crossing_rate_hz(power.take(bright), sensor)
+    echo = np.flatnonzero(ctx.hit & detection.detected_mask(ctx.power_w, ctx.range_m, det))
     c_half = 0.5 * rad.SPEED_OF_LIGHT_M_S
     window_s = (det.max_range_m - det.min_range_m) / c_half
-    before_echo = np.clip((np.nan_to_num(ctx.range_m) - det.min_range_m) / c_half, 0.0, window_s)
-    listen = np.where(echo, before_echo, window_s)
-    dark = float(noise_sigma_w(0.0, rx)) if rx.detector == 'linear' else float('nan')
+    listen = np.full(n, window_s)
+    listen[echo] = np.clip((ctx.range_m.take(echo) - det.min_range_m) / c_half, 0.0, window_s)
+    dark = dark_sigma
     return Background(power, surface_power, sunlit, shadowed, sigma, dark, rate,
                       listen, power >= rx.blinding_power_w)
 
 
 @njit(cache=True)
 def sunward_surfaces(on, direction, range_m, normal, material, sun_direction, band_irradiance_w_m2,
-                     kd, ks, n_exp, offset_m):
+                     kd, ks, n_exp, offset_m, quat_xyzw, position_m):
     """The surface terms of the hits ``on`` (indices into the shots), one pass per hit.
 
-    direction, normal, sun_direction (N, 3) unit vectors in one frame (normals toward the
-    sensor); band_irradiance_w_m2 (N,) solar irradiance in the band; kd, ks, n_exp per
-    material id. Returns, per shot: facing (the surface faces the sun, in ``on`` order),
-    radiance toward the sensor if lit, L = E f(sun -> sensor) cos(theta_sun) (W m^-2 sr^-1,
-    ``radiometry.reflected_radiance_w_m2_sr`` with ``radiometry.bistatic_phong_brdf``, the
-    numpy reference the tests check this against), and the shadow-ray origins (hit point
-    + offset_m along the normal). The same arithmetic as the reference, without its dozen
-    temporary arrays.
+    direction, normal, sun_direction (N, 3): unit vectors in the lidar frame (normals
+    toward the sensor); band_irradiance_w_m2 (N,): solar irradiance in the band (W m^-2);
+    kd, ks, n_exp per material id; quat_xyzw (N|1, 4), position_m (N|1, 3): the target
+    pose of each shot (``p_lidar = R p_body + t``).
+    Returns ``facing`` (shot indices of the hits that face the sun), ``radiance`` (N,):
+    what those would send toward the sensor if lit, L = E f(sun -> sensor) cos(theta_sun)
+    (W m^-2 sr^-1; ``radiometry.reflected_radiance_w_m2_sr`` of
+    ``radiometry.bistatic_phong_brdf``, the numpy reference the tests check this against),
+    and their shadow rays in the body frame as Embree takes them (float32 origins: hit
+    point + offset_m along the normal; directions: toward the sun). One loop instead of
+    a dozen temporary arrays and three gathers.
     """
-    n = direction.shape[0]
-    facing = np.zeros(on.shape[0], np.bool_)
-    radiance = np.zeros(n)
-    origin = np.zeros((on.shape[0], 3))
-    for k in range(on.shape[0]):
+    n_on = on.shape[0]
+    radiance = np.zeros(direction.shape[0])
+    facing = np.empty(n_on, np.int64)
+    o_body = np.empty((n_on, 3), np.float32)
+    d_body = np.empty((n_on, 3), np.float32)
+    one_q, one_p = quat_xyzw.shape[0] == 1, position_m.shape[0] == 1
+    m = 0
+    for k in range(n_on):
         i = on[k]
         nx, ny, nz = normal[i, 0], normal[i, 1], normal[i, 2]
         sx, sy, sz = sun_direction[i, 0], sun_direction[i, 1], sun_direction[i, 2]
@@ -245,15 +254,23 @@ def sunward_surfaces(on, direction, range_m, normal, material, sun_direction, ba
         # Toward the sensor v = -d; cos(alpha) = 2 (n.s)(n.v) - s.v (radiometry.mirror_cos_alpha).
         cos_a = -2.0 * cos_sun * (nx * dx + ny * dy + nz * dz) + (sx * dx + sy * dy + sz * dz)
         cos_a = min(max(cos_a, 0.0), 1.0)
-        m = material[i]
-        f = kd[m] / math.pi + ks[m] * (n_exp[m] + 2.0) / (2.0 * math.pi) * cos_a ** n_exp[m]
+        mat = material[i]
+        f = kd[mat] / math.pi + ks[mat] * (n_exp[mat] + 2.0) / (2.0 * math.pi) * cos_a ** n_exp[mat]
         radiance[i] = f * band_irradiance_w_m2[i] * cos_sun
-        facing[k] = True
+        # The shadow ray, into the body frame with the inverse (conjugate) rotation.
         r = range_m[i]
-        origin[k, 0] = dx * r + offset_m * nx
-        origin[k, 1] = dy * r + offset_m * ny
-        origin[k, 2] = dz * r + offset_m * nz
-    return facing, radiance, origin
+        iq, ip = (0 if one_q else i), (0 if one_p else i)
+        qx, qy, qz, qw = -quat_xyzw[iq, 0], -quat_xyzw[iq, 1], -quat_xyzw[iq, 2], quat_xyzw[iq, 3]
+        ox, oy, oz = _rotate(qx, qy, qz, qw,
+                             dx * r + offset_m * nx - position_m[ip, 0],
+                             dy * r + offset_m * ny - position_m[ip, 1],
+                             dz * r + offset_m * nz - position_m[ip, 2])
+        bx, by, bz = _rotate(qx, qy, qz, qw, sx, sy, sz)
+        o_body[m, 0], o_body[m, 1], o_body[m, 2] = ox, oy, oz
+        d_body[m, 0], d_body[m, 1], d_body[m, 2] = bx, by, bz
+        facing[m] = i
+        m += 1
+    return facing[:m], radiance, o_body[:m], d_body[:m]
 
 
 @register
