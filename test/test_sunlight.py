@@ -291,10 +291,18 @@ def test_sunward_surfaces_matches_the_numpy_formulas():
     rng_m = rng.uniform(5, 15, n)
     rot = Rotation.random(n, random_state=7)
     position = rng.normal(size=(n, 3)) + [10, 0, 0]
-    facing, radiance, o_body, d_body = sunward_surfaces(
-        on, d, rng_m, normal, material, s, e_band, kd, ks, n_exp, 0.002, rot.as_quat(), position)
+    # Half the faces are supporting; the hits on them seen from outside need no shadow ray.
+    face = rng.integers(0, 2 * n, n)
+    supporting = np.arange(2 * n) % 2 == 0
+    face_normals = rad.unit(rng.normal(size=(2 * n, 3)))
+    facing, radiance, shots, o_body, d_body = sunward_surfaces(
+        on, d, rng_m, normal, material, s, e_band, kd, ks, n_exp, 0.002, rot.as_quat(), position,
+        face, supporting, face_normals)
     cos_sun = np.einsum('ij,ij->i', normal, s)
-    np.testing.assert_array_equal(facing, on[cos_sun[on] > 0])
+    np.testing.assert_array_equal(np.flatnonzero(facing), on[cos_sun[on] > 0])
+    outward = np.einsum('ij,ij->i', rot.apply(face_normals[face]), normal) > 0
+    np.testing.assert_array_equal(shots, np.flatnonzero(facing & ~(supporting[face] & outward)))
+    facing = shots
     f = rad.bistatic_phong_brdf(normal, s, -d, kd[material], ks[material], n_exp[material])
     ref = np.where(cos_sun > 0, rad.reflected_radiance_w_m2_sr(e_band, f, cos_sun), 0.0)
     np.testing.assert_allclose(radiance[on], ref[on], rtol=1e-12, atol=0)

@@ -8,12 +8,14 @@ handled by transforming each ray with the pose of its own shot time.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 import trimesh
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
+from scipy.spatial import ConvexHull, QhullError
 
 from lidar_sim_ros.core import geometry_kernels as kernels
 from lidar_sim_ros.core.pose import Poses
@@ -87,6 +89,25 @@ class Target:
         order = _cast_order(order, len(d))
         o32, d32 = kernels.rays_to_body(_IDENTITY, _ZERO, origins, d, order)
         return self._hits(o32, d32, order, _IDENTITY, d)
+
+    @cached_property
+    def supporting_faces(self) -> np.ndarray:
+        """Bool per face: every vertex of the mesh lies on or behind the face's plane (its
+        normal side is empty space), i.e. the face lies on the convex hull. A ray that leaves
+        such a face on its normal side never meets the mesh again, so shadow rays from it can
+        be skipped. Computed on first use (~0.1 s for 50k faces) against the hull's vertices."""
+        try:
+            hull = self.vertices_m[ConvexHull(self.vertices_m).vertices]
+        except QhullError:   # a flat mesh has no 3-D hull: test against every vertex
+            hull = self.vertices_m
+        base = np.einsum('ij,ij->i', self.face_normals, self.vertices_m[self.faces[:, 0]])
+        tol = 1e-6 * max(float(np.ptp(self.vertices_m, axis=0).max()), 1.0)
+        out = np.empty(self.n_faces, bool)
+        for lo in range(0, self.n_faces, 8192):   # bounded memory: (hull vertices x 8192)
+            hi = min(lo + 8192, self.n_faces)
+            ahead = hull @ self.face_normals[lo:hi].T - base[lo:hi]
+            out[lo:hi] = ahead.max(axis=0) <= tol
+        return out & np.any(self.face_normals != 0, axis=1)
 
     def occluded(self, origins_m: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Whether each ray (body frame, float32 as Embree takes them) meets the mesh at all:

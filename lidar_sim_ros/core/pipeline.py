@@ -236,7 +236,7 @@ class Simulator:
             laser=np.zeros(n, np.uint16) if laser is None else np.asarray(laser),
             divergence_rad=optics.beam_divergence_rad, hit=hits.hit,
             threshold_power_w=det.threshold_power_w, min_range_m=det.min_range_m,
-            max_range_m=det.max_range_m, direction=directions, normal=hits.normal,
+            max_range_m=det.max_range_m, direction=directions, normal=hits.normal, face=hits.face,
             scene=Scene(self.target, poses, self.materials, self.sensor,
                         None if self.sun is None else self.sun.at(t_abs_s)))
         if self.effects:

@@ -150,7 +150,6 @@ class LidarSimNode(Node):
             # stretches or compresses it over the new period.
             self.scenario.sensor = self.scenario.sensor.model_copy(update={'frame_rate_hz': rate})
         self.sim = Simulator.from_scenario(self.scenario, effects=[])
-        self.sim.warm_up()  # compiled kernels ready before the first frame is due
 
         self.declare_parameter('frame_id', self.scenario.config.frame_id,
                                _descriptor(S, "header frame_id of the clouds; poses must carry it "
@@ -164,11 +163,13 @@ class LidarSimNode(Node):
             "from the scenario's effects list, else defaults); default: the scenario's"))
         self.sim.effects = self._build_effects(self._effects_value())
         sun = self.scenario.config.sun
-        self.declare_parameter('sun_direction', list(sun.direction) if sun else Parameter.Type.DOUBLE_ARRAY,
-                               _descriptor(FA, "direction toward the sun, lidar frame (normalised); "
-                                               "[] = no sun; default: the scenario's sun.direction; "
-                                               'the sun topic overrides it at run time'))
+        self.declare_parameter(
+            'sun_direction', list(sun.direction) if sun else Parameter.Type.DOUBLE_ARRAY,
+            _descriptor(FA, "direction toward the sun, lidar frame (normalised); [] = no sun; "
+                            "default: the scenario's sun.direction; the sun topic overrides it"))
         self._set_sun(self.get_parameter_or('sun_direction').value)
+        # Compiled kernels (the effects' too) and lazy caches ready before the first frame is due.
+        self.sim.warm_up()
         self.declare_parameter('material_names', list(self.scenario.materials.names),
                                _descriptor(ParameterType.PARAMETER_STRING_ARRAY,
                                            'material index -> name of the material field',
@@ -232,8 +233,9 @@ class LidarSimNode(Node):
         self.names_pub = self.create_publisher(String, param('material_names_topic'), latched)
         self.pose_sub = self.create_subscription(PoseStamped, param('pose_topic'),
                                                  self._on_pose, pose_qos)
-        self.sun_sub = self.create_subscription(Vector3Stamped, param('sun_topic'), self._on_sun,
-                                                QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self.sun_sub = self.create_subscription(
+            Vector3Stamped, param('sun_topic'), self._on_sun,
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.odom_sub = None
         if param('odom_topic'):
             self.odom_sub = self.create_subscription(Odometry, param('odom_topic'),

@@ -85,8 +85,9 @@ class ReturnContext:
     divergence_rad: full beam divergence; hit: bool mask;
     threshold_power_w: detection threshold (W); min_range_m, max_range_m: range gate;
     direction (N, 3): unit ray directions and normal (N, 3): surface normals toward the
-    sensor (zeros on a miss), both in the lidar frame; scene: the target, poses, materials,
-    sensor and light (``Scene``). The last three are None where the caller has no geometry.
+    sensor (zeros on a miss), both in the lidar frame; face: the target triangle hit (-1 on
+    a miss); scene: the target, poses, materials, sensor and light (``Scene``). The last
+    four are None where the caller has no geometry.
     """
 
     range_m: np.ndarray
@@ -105,6 +106,7 @@ class ReturnContext:
     min_range_m: float = 0.0
     direction: np.ndarray | None = None
     normal: np.ndarray | None = None
+    face: np.ndarray | None = None
     scene: Scene | None = None
 
     def __len__(self) -> int:

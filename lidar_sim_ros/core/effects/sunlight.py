@@ -151,15 +151,16 @@ def background_of(ctx: ReturnContext, scale: float = 1.0) -> Background | None:
     if len(on):
         kd, ks, n_exp = _phong_columns(scene.materials)
         # Which hits face the sun, their radiance if lit, and where their shadow rays start.
-        facing, radiance, o_body, d_body = sunward_surfaces(
+        target = scene.target
+        face = ctx.face if ctx.face is not None else np.zeros(n, np.int64)
+        supporting = target.supporting_faces if ctx.face is not None else np.zeros(1, bool)
+        sunlit, radiance, shots, o_body, d_body = sunward_surfaces(
             on, d, ctx.range_m, ctx.normal, ctx.material, s, e_sun, kd, ks, n_exp,
-            SHADOW_RAY_OFFSET_M, scene.poses.quat_xyzw, scene.poses.position_m.reshape(-1, 3))
-        sunlit = np.zeros(n, bool)
-        sunlit[facing] = True
-        if len(facing):
-            shade = facing[scene.target.occluded(o_body, d_body)]
-            radiance[shade] = 0.0
-            sunlit[shade] = False
+            SHADOW_RAY_OFFSET_M, scene.poses.quat_xyzw, scene.poses.position_m.reshape(-1, 3),
+            face, supporting, target.face_normals)
+        if len(shots):
+            shade = shots[target.occluded(o_body, d_body)]
+            radiance[shade], sunlit[shade] = 0.0, False
         shadowed = ctx.hit & ~sunlit
         if light.earth_direction is not None:
             normal, mat = ctx.normal.take(on, axis=0), ctx.material.take(on)
@@ -221,24 +222,27 @@ def background_of(ctx: ReturnContext, scale: float = 1.0) -> Background | None:
 
 @njit(cache=True)
 def sunward_surfaces(on, direction, range_m, normal, material, sun_direction, band_irradiance_w_m2,
-                     kd, ks, n_exp, offset_m, quat_xyzw, position_m):
+                     kd, ks, n_exp, offset_m, quat_xyzw, position_m, face, supporting, face_normals):
     """The surface terms of the hits ``on`` (indices into the shots), one pass per hit.
 
     direction, normal, sun_direction (N, 3): unit vectors in the lidar frame (normals
     toward the sensor); band_irradiance_w_m2 (N,): solar irradiance in the band (W m^-2);
     kd, ks, n_exp per material id; quat_xyzw (N|1, 4), position_m (N|1, 3): the target
-    pose of each shot (``p_lidar = R p_body + t``).
-    Returns ``facing`` (shot indices of the hits that face the sun), ``radiance`` (N,):
+    pose of each shot (``p_lidar = R p_body + t``); face (N,): triangle hit; supporting,
+    face_normals: ``Target.supporting_faces`` and the body-frame face normals.
+    Returns ``facing`` (N,): the hit faces the sun; ``radiance`` (N,):
     what those would send toward the sensor if lit, L = E f(sun -> sensor) cos(theta_sun)
     (W m^-2 sr^-1; ``radiometry.reflected_radiance_w_m2_sr`` of
-    ``radiometry.bistatic_phong_brdf``, the numpy reference the tests check this against),
-    and their shadow rays in the body frame as Embree takes them (float32 origins: hit
-    point + offset_m along the normal; directions: toward the sun). One loop instead of
-    a dozen temporary arrays and three gathers.
+    ``radiometry.bistatic_phong_brdf``, the numpy reference the tests check this against);
+    and the shadow rays still needed: ``shots`` (M,) and the rays in the body frame as
+    Embree takes them (float32 origins: hit point + offset_m along the normal; directions:
+    toward the sun). Hits seen from the outside of a supporting face need none: nothing
+    can shade them. One loop instead of a dozen temporary arrays and three gathers.
     """
     n_on = on.shape[0]
     radiance = np.zeros(direction.shape[0])
-    facing = np.empty(n_on, np.int64)
+    facing = np.zeros(direction.shape[0], np.bool_)
+    shots = np.empty(n_on, np.int64)
     o_body = np.empty((n_on, 3), np.float32)
     d_body = np.empty((n_on, 3), np.float32)
     one_q, one_p = quat_xyzw.shape[0] == 1, position_m.shape[0] == 1
@@ -257,9 +261,18 @@ def sunward_surfaces(on, direction, range_m, normal, material, sun_direction, ba
         mat = material[i]
         f = kd[mat] / math.pi + ks[mat] * (n_exp[mat] + 2.0) / (2.0 * math.pi) * cos_a ** n_exp[mat]
         radiance[i] = f * band_irradiance_w_m2[i] * cos_sun
+        facing[i] = True
+        iq, ip = (0 if one_q else i), (0 if one_p else i)
+        fc = face[i]
+        if supporting[fc]:
+            # Seen from its outer side (the sensor-facing normal is the outward one)?
+            ux, uy, uz = _rotate(quat_xyzw[iq, 0], quat_xyzw[iq, 1], quat_xyzw[iq, 2],
+                                 quat_xyzw[iq, 3], face_normals[fc, 0], face_normals[fc, 1],
+                                 face_normals[fc, 2])
+            if ux * nx + uy * ny + uz * nz > 0.0:
+                continue
         # The shadow ray, into the body frame with the inverse (conjugate) rotation.
         r = range_m[i]
-        iq, ip = (0 if one_q else i), (0 if one_p else i)
         qx, qy, qz, qw = -quat_xyzw[iq, 0], -quat_xyzw[iq, 1], -quat_xyzw[iq, 2], quat_xyzw[iq, 3]
         ox, oy, oz = _rotate(qx, qy, qz, qw,
                              dx * r + offset_m * nx - position_m[ip, 0],
@@ -268,9 +281,9 @@ def sunward_surfaces(on, direction, range_m, normal, material, sun_direction, ba
         bx, by, bz = _rotate(qx, qy, qz, qw, sx, sy, sz)
         o_body[m, 0], o_body[m, 1], o_body[m, 2] = ox, oy, oz
         d_body[m, 0], d_body[m, 1], d_body[m, 2] = bx, by, bz
-        facing[m] = i
+        shots[m] = i
         m += 1
-    return facing[:m], radiance, o_body[:m], d_body[:m]
+    return facing, radiance, shots[:m], o_body[:m], d_body[:m]
 
 
 @register
