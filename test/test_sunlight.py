@@ -291,17 +291,24 @@ def test_sunward_surfaces_matches_the_numpy_formulas():
     rng_m = rng.uniform(5, 15, n)
     rot = Rotation.random(n, random_state=7)
     position = rng.normal(size=(n, 3)) + [10, 0, 0]
-    # Half the faces are supporting; the hits on them seen from outside need no shadow ray.
-    face = rng.integers(0, 2 * n, n)
-    supporting = np.arange(2 * n) % 2 == 0
-    face_normals = rad.unit(rng.normal(size=(2 * n, 3)))
-    facing, radiance, shots, o_body, d_body = sunward_surfaces(
+    # Each shot hits its own face, seen from outside (face normal = the sensor-facing one,
+    # in the body frame) or from inside. A third of the faces lie on the hull (clearance
+    # <= 0), the rest have 0.5 m in front: hits seen from outside need no ray or a ray of
+    # (0.5 - 0.002 + 0.001) / cos(theta_sun); from inside, an unbounded one.
+    face = rng.permutation(n)
+    clearance = np.where(np.arange(n) % 3 == 0, -0.1, 0.5)
+    outward = rng.random(n) < 0.5
+    face_normals = np.empty((n, 3))
+    face_normals[face] = rot.inv().apply(normal) * np.where(outward, 1.0, -1.0)[:, None]
+    facing, radiance, shots, o_body, d_body, length = sunward_surfaces(
         on, d, rng_m, normal, material, s, e_band, kd, ks, n_exp, 0.002, rot.as_quat(), position,
-        face, supporting, face_normals)
+        face, clearance, face_normals)
     cos_sun = np.einsum('ij,ij->i', normal, s)
     np.testing.assert_array_equal(np.flatnonzero(facing), on[cos_sun[on] > 0])
-    outward = np.einsum('ij,ij->i', rot.apply(face_normals[face]), normal) > 0
-    np.testing.assert_array_equal(shots, np.flatnonzero(facing & ~(supporting[face] & outward)))
+    on_hull = clearance[face] < 0
+    np.testing.assert_array_equal(shots, np.flatnonzero(facing & ~(on_hull & outward)))
+    expected_length = np.where(outward, (0.5 - 0.002 + 0.001) / cos_sun, np.inf)[shots]
+    np.testing.assert_allclose(length, expected_length.astype(np.float32), rtol=1e-6)
     facing = shots
     f = rad.bistatic_phong_brdf(normal, s, -d, kd[material], ks[material], n_exp[material])
     ref = np.where(cos_sun > 0, rad.reflected_radiance_w_m2_sr(e_band, f, cos_sun), 0.0)
@@ -312,3 +319,52 @@ def test_sunward_surfaces_matches_the_numpy_formulas():
     ref_o = rot[facing].inv().apply(origin[facing] - position[facing])
     np.testing.assert_allclose(o_body, ref_o, atol=1e-5)
     np.testing.assert_allclose(d_body, rot[facing].inv().apply(s[facing]), atol=1e-6)
+
+
+def test_apd_response_matches_the_numpy_formulas():
+    from lidar_sim_ros.core import detection
+    from lidar_sim_ros.core.effects.sunlight import apd_response
+    s = sun_sensor(receiver={'apd_gain': 60.0, 'excess_noise_factor': 3.5})
+    rx, det = s.receiver, s.detection
+    rng = np.random.default_rng(8)
+    n = 400
+    power = np.where(rng.random(n) < 0.3, 0.0, 10 ** rng.uniform(-10, -6, n))
+    hit = rng.random(n) < 0.7
+    signal = np.where(hit, 10 ** rng.uniform(-9, -3, n), 0.0)
+    range_m = np.where(hit, rng.uniform(0.1, 300, n), np.nan)
+    sigma, rate, listen = apd_response(
+        power, hit, signal, range_m, det.threshold_power_w, det.saturation_power_w, det.min_range_m,
+        det.max_range_m, rx.responsivity_a_per_w, rx.apd_gain, rx.excess_noise_factor,
+        rx.bandwidth_hz, rx.amplifier_noise_a_per_rthz, rx.dark_current_a)
+    ref_sigma = rad.apd_noise_sigma_w(power, rx.responsivity_a_per_w, rx.apd_gain,
+                                      rx.excess_noise_factor, rx.bandwidth_hz,
+                                      rx.amplifier_noise_a_per_rthz, rx.dark_current_a)
+    np.testing.assert_allclose(sigma, ref_sigma, rtol=1e-12)
+    np.testing.assert_allclose(rate, rad.rice_rate_hz(det.threshold_power_w, ref_sigma, rx.bandwidth_hz),
+                               rtol=1e-9)
+    echo = hit & detection.detected_mask(signal, range_m, det)
+    window = 2 * (det.max_range_m - det.min_range_m) / C
+    expected = np.where(echo, 2 * (np.nan_to_num(range_m) - det.min_range_m) / C, window)
+    np.testing.assert_allclose(listen, expected, rtol=1e-12)
+    assert 0 < echo.sum() < n
+
+
+def test_first_crossings_are_exact_poisson_first_arrivals():
+    """Per shot: crossed with probability 1 - exp(-nu T), first delay truncated-exponential;
+    checked by groups of equal hazard (binomial spread, 4 sigma), busy shots included."""
+    from lidar_sim_ros.core.effects.sunlight import first_crossings
+    rng = np.random.default_rng(21)
+    hazards = np.array([1e-4, 0.01, 0.3, 2.0, 40.0])
+    n_per = 40_000
+    nu = np.repeat([1e4, 1e6, 3e6, 2e7, 1e8], n_per)
+    listen = np.repeat(hazards, n_per) / nu
+    shots, delay = first_crossings(nu, listen, rng)
+    assert len(np.unique(shots)) == len(shots) and np.all(delay >= 0) and np.all(delay < listen[shots])
+    for g, h in enumerate(hazards):
+        mine = (shots >= g * n_per) & (shots < (g + 1) * n_per)
+        p = -np.expm1(-h)
+        assert abs(mine.sum() - n_per * p) < 4 * np.sqrt(n_per * p * (1 - p)) + 1, (h, mine.sum())
+        if mine.sum() > 100:   # E[t | t < T] for an exponential of rate nu cut at T
+            t, rate_g, t_max = delay[mine], nu[g * n_per], listen[g * n_per]
+            mean = 1 / rate_g - t_max / np.expm1(rate_g * t_max)
+            assert abs(t.mean() - mean) < 4 * t.std() / np.sqrt(len(t)), h

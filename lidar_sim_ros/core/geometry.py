@@ -91,28 +91,35 @@ class Target:
         return self._hits(o32, d32, order, _IDENTITY, d)
 
     @cached_property
-    def supporting_faces(self) -> np.ndarray:
-        """Bool per face: every vertex of the mesh lies on or behind the face's plane (its
-        normal side is empty space), i.e. the face lies on the convex hull. A ray that leaves
-        such a face on its normal side never meets the mesh again, so shadow rays from it can
-        be skipped. Computed on first use (~0.1 s for 50k faces) against the hull's vertices."""
+    def face_clearance_m(self) -> np.ndarray:
+        """Per face, how far the mesh reaches in front of the face's plane, along its normal
+        (m; <= 0: nothing in front, the face lies on the convex hull). A ray leaving the face
+        on its normal side at elevation angle beta can only meet the mesh within
+        clearance / sin(beta): shadow rays get that length. The maximum over the hull's
+        vertices; computed on first use (~0.1 s for 50k faces)."""
         try:
             hull = self.vertices_m[ConvexHull(self.vertices_m).vertices]
         except QhullError:   # a flat mesh has no 3-D hull: test against every vertex
             hull = self.vertices_m
         base = np.einsum('ij,ij->i', self.face_normals, self.vertices_m[self.faces[:, 0]])
-        tol = 1e-6 * max(float(np.ptp(self.vertices_m, axis=0).max()), 1.0)
-        out = np.empty(self.n_faces, bool)
+        out = np.empty(self.n_faces)
         for lo in range(0, self.n_faces, 8192):   # bounded memory: (hull vertices x 8192)
             hi = min(lo + 8192, self.n_faces)
-            ahead = hull @ self.face_normals[lo:hi].T - base[lo:hi]
-            out[lo:hi] = ahead.max(axis=0) <= tol
-        return out & np.any(self.face_normals != 0, axis=1)
+            out[lo:hi] = (hull @ self.face_normals[lo:hi].T - base[lo:hi]).max(axis=0)
+        # Degenerate faces (no normal) get no clearance bound.
+        return np.where(np.any(self.face_normals != 0, axis=1), out, np.inf)
 
-    def occluded(self, origins_m: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """Whether each ray (body frame, float32 as Embree takes them) meets the mesh at all:
-        Embree's occlusion query, cheaper than a closest hit (shadow rays)."""
-        return self._scene.run(origins_m, directions, query='OCCLUDED') >= 0
+    @property
+    def supporting_faces(self) -> np.ndarray:
+        """Bool per face: every vertex lies on or behind its plane (the face is on the convex
+        hull), so nothing can shade it from a source on its normal side."""
+        return self.face_clearance_m <= 1e-6 * max(float(np.ptp(self.vertices_m, axis=0).max()), 1.0)
+
+    def occluded(self, origins_m: np.ndarray, directions: np.ndarray,
+                 length_m: np.ndarray | None = None) -> np.ndarray:
+        """Whether each ray (body frame, float32 as Embree takes them) meets the mesh within
+        ``length_m`` (float32 per ray; None = unbounded): Embree's occlusion query (shadow rays)."""
+        return self._scene.run(origins_m, directions, dists=length_m, query='OCCLUDED') >= 0
 
     def _hits(self, o32, d32, order, quat_xyzw, dir_out) -> Hits:
         face, tfar = self.intersect(o32, d32)

@@ -225,9 +225,12 @@ def apply_effects(ctx: ReturnContext, effects: Sequence['Effect'], bias_m: np.nd
                   var_m2: np.ndarray) -> tuple[ReturnContext, np.ndarray, np.ndarray]:
     """The effects' power scale, then their extra bias (m) and variance (m^2) on top of
     ``bias_m`` / ``var_m2``: the one place the simulator and the fits combine effects."""
-    scale = np.ones(len(ctx))
+    # Hooks left at their neutral scalar defaults cost no pass over the shots.
+    scale = 1.0
     for eff in effects:
-        scale = scale * eff.power_scale(ctx)
+        factor = eff.power_scale(ctx)
+        if not (np.isscalar(factor) and factor == 1.0):
+            scale = scale * np.asarray(factor, float)
     if np.any(scale != 1.0):
         # intensity is power / saturation power: it scales with the power.
         ctx = replace(ctx, power_w=ctx.power_w * scale, intensity=ctx.intensity * scale)
@@ -235,8 +238,12 @@ def apply_effects(ctx: ReturnContext, effects: Sequence['Effect'], bias_m: np.nd
     var = np.asarray(var_m2, float)
     with np.errstate(invalid='ignore', divide='ignore', over='ignore'):  # misses carry NaN range
         for eff in effects:
-            bias = bias + eff.range_bias_m(ctx)
-            var = var + np.asarray(eff.range_sigma_m(ctx), float) ** 2
+            extra_bias = eff.range_bias_m(ctx)
+            if not (np.isscalar(extra_bias) and extra_bias == 0.0):
+                bias = bias + extra_bias
+            extra_sigma = eff.range_sigma_m(ctx)
+            if not (np.isscalar(extra_sigma) and extra_sigma == 0.0):
+                var = var + np.asarray(extra_sigma, float) ** 2
     n = len(ctx)
     return ctx, np.broadcast_to(bias, (n,)), np.broadcast_to(var, (n,))
 

@@ -144,23 +144,26 @@ def background_of(ctx: ReturnContext, scale: float = 1.0) -> Background | None:
     e_sun = light.sun_irradiance_w_m2_nm * rx.bandpass_nm            # W m^-2 in the band
     area = rad.aperture_area_m2(optics.aperture_diameter_m)
     tau = optics.receive_efficiency
-    radiance = np.zeros(n)                                           # W m^-2 sr^-1 in the band
+    to_power = area * rx.ifov_sr * tau * scale                       # W per W m^-2 sr^-1
+    surface_power = np.zeros(n)
     sunlit = shadowed = np.zeros(n, bool)
 
     on = np.flatnonzero(ctx.hit)
     if len(on):
         kd, ks, n_exp = _phong_columns(scene.materials)
-        # Which hits face the sun, their radiance if lit, and where their shadow rays start.
+        # Which hits face the sun, their power if lit, and the shadow rays still needed.
         target = scene.target
-        face = ctx.face if ctx.face is not None else np.zeros(n, np.int64)
-        supporting = target.supporting_faces if ctx.face is not None else np.zeros(1, bool)
-        sunlit, radiance, shots, o_body, d_body = sunward_surfaces(
-            on, d, ctx.range_m, ctx.normal, ctx.material, s, e_sun, kd, ks, n_exp,
+        if ctx.face is not None:
+            face, clearance = ctx.face, target.face_clearance_m
+        else:   # no face ids: every ray unbounded
+            face, clearance = np.zeros(n, np.int64), np.full(1, np.inf)
+        sunlit, surface_power, shots, o_body, d_body, length = sunward_surfaces(
+            on, d, ctx.range_m, ctx.normal, ctx.material, s, e_sun * to_power, kd, ks, n_exp,
             SHADOW_RAY_OFFSET_M, scene.poses.quat_xyzw, scene.poses.position_m.reshape(-1, 3),
-            face, supporting, target.face_normals)
+            face, clearance, target.face_normals)
         if len(shots):
-            shade = shots[target.occluded(o_body, d_body)]
-            radiance[shade], sunlit[shade] = 0.0, False
+            shade = shots[target.occluded(o_body, d_body, length)]
+            surface_power[shade], sunlit[shade] = 0.0, False
         shadowed = ctx.hit & ~sunlit
         if light.earth_direction is not None:
             normal, mat = ctx.normal.take(on, axis=0), ctx.material.take(on)
@@ -169,8 +172,7 @@ def background_of(ctx: ReturnContext, scale: float = 1.0) -> Background | None:
                        * rad.disk_irradiance_factor(light.earth_angular_radius_rad))
             f_earth = rad.bistatic_phong_brdf(normal, e, -d.take(on, axis=0), kd.take(mat),
                                               ks.take(mat), n_exp.take(mat))
-            radiance[on] += rad.reflected_radiance_w_m2_sr(e_earth, f_earth, normal @ e)
-    surface_power = rad.collected_power_w(radiance, area, rx.ifov_sr, tau)
+            surface_power[on] += rad.reflected_radiance_w_m2_sr(e_earth, f_earth, normal @ e) * to_power
 
     power = surface_power.copy()
     off = np.flatnonzero(~ctx.hit)
@@ -179,15 +181,15 @@ def background_of(ctx: ReturnContext, scale: float = 1.0) -> Background | None:
         if light.earth_direction is not None:
             behind_earth = d.take(off, axis=0) @ light.earth_direction > np.cos(light.earth_angular_radius_rad)
             sky = np.where(behind_earth, light.earth_radiance_w_m2_sr_nm.take(off) * rx.bandpass_nm, sky)
-        power[off] += rad.collected_power_w(sky, area, rx.ifov_sr, tau)
+        power[off] += sky * to_power
     # The sun itself: the share of its disk inside the field of view (misses only: a hit
     # means the target stands in front of it), and stray light from near the axis. Only
     # shots close enough to the sun for either to matter are looked at.
-    into_aperture = e_sun * area * tau                                # W entering the aperture
+    into_aperture = e_sun * area * tau * scale                        # W entering the aperture
     negligible_w = negligible_background_w(sensor)
     field_rad = rad.field_radius_rad(rx.ifov_sr)
     reach_rad = max(rad.SUN_ANGULAR_RADIUS_RAD + field_rad, rad.stray_light_reach_rad(
-        rx.stray_light_pst_at_1deg, scale * float(np.max(into_aperture, initial=0.0)), negligible_w))
+        rx.stray_light_pst_at_1deg, float(np.max(into_aperture, initial=0.0)), negligible_w))
     cos_off = rad.row_dot(d, s)
     near = np.flatnonzero(cos_off > np.cos(min(reach_rad, np.pi / 2)))
     if len(near):
@@ -195,49 +197,92 @@ def background_of(ctx: ReturnContext, scale: float = 1.0) -> Background | None:
         into = into_aperture.take(near)
         direct = rad.disk_overlap_fraction(off_axis, rad.SUN_ANGULAR_RADIUS_RAD, field_rad) * into
         stray = rad.stray_light_pst(off_axis, rx.stray_light_pst_at_1deg) * into
-        seen = np.flatnonzero(stray * scale > negligible_w)
+        seen = np.flatnonzero(stray > negligible_w)
         if len(seen):
             # The aperture may lie in the target's shadow (the sun behind the target).
             shaded = scene.occluded(np.zeros((len(seen), 3)), s.take(near[seen], axis=0), near[seen])
             stray[seen[shaded]] = 0.0
-        power[near] += np.where(ctx.hit.take(near), 0.0, direct) + np.where(
-            stray * scale > negligible_w, stray, 0.0)
-    power *= scale
-    surface_power *= scale
+        power[near] += np.where(ctx.hit.take(near), 0.0, direct) + np.where(stray > negligible_w, stray, 0.0)
 
-    # Shots with no background share the dark rate: evaluate the noise where there is light.
-    dark_rate, dark_sigma = (float(x[0]) for x in crossing_rate_hz(np.zeros(1), sensor))
-    rate, sigma = np.full(n, dark_rate), np.full(n, dark_sigma)
-    bright = np.flatnonzero(power > 0)
-    rate[bright], sigma[bright] = crossing_rate_hz(power.take(bright), sensor)
-    echo = np.flatnonzero(ctx.hit & detection.detected_mask(ctx.power_w, ctx.range_m, det))
-    c_half = 0.5 * rad.SPEED_OF_LIGHT_M_S
-    window_s = (det.max_range_m - det.min_range_m) / c_half
-    listen = np.full(n, window_s)
-    listen[echo] = np.clip((ctx.range_m.take(echo) - det.min_range_m) / c_half, 0.0, window_s)
-    dark = dark_sigma
+    if rx.detector == 'linear':
+        sigma, rate, listen = apd_response(
+            power, ctx.hit, ctx.power_w, ctx.range_m, det.threshold_power_w, det.saturation_power_w,
+            det.min_range_m, det.max_range_m, rx.responsivity_a_per_w, rx.apd_gain,
+            rx.excess_noise_factor, rx.bandwidth_hz, rx.amplifier_noise_a_per_rthz, rx.dark_current_a)
+        dark = float(noise_sigma_w(0.0, rx))
+    else:
+        rate, sigma = crossing_rate_hz(power, sensor)
+        echo = ctx.hit & detection.detected_mask(ctx.power_w, ctx.range_m, det)
+        c_half = 0.5 * rad.SPEED_OF_LIGHT_M_S
+        window_s = (det.max_range_m - det.min_range_m) / c_half
+        listen = np.where(echo, np.clip((np.nan_to_num(ctx.range_m) - det.min_range_m) / c_half,
+                                        0.0, window_s), window_s)
+        dark = float('nan')
     return Background(power, surface_power, sunlit, shadowed, sigma, dark, rate,
                       listen, power >= rx.blinding_power_w)
 
 
 @njit(cache=True)
-def sunward_surfaces(on, direction, range_m, normal, material, sun_direction, band_irradiance_w_m2,
-                     kd, ks, n_exp, offset_m, quat_xyzw, position_m, face, supporting, face_normals):
+def apd_response(power_w, hit, signal_w, range_m, threshold_w, saturation_w, min_range_m,
+                 max_range_m, responsivity, gain, excess_noise, bandwidth_hz, amplifier_noise,
+                 dark_current_a):
+    """Per shot, for a linear-mode APD receiver: noise sigma (W, optical equivalent), Rice
+    crossing rate (Hz), and how long the detector listens (s): until the echo if the
+    detector reports it (threshold <= signal < saturation inside the range gate), else the
+    whole gate. One pass; the numpy reference the tests check it against is
+    ``radiometry.apd_noise_sigma_w``, ``radiometry.rice_rate_hz`` and
+    ``detection.detected_mask``."""
+    n = power_w.shape[0]
+    sigma = np.empty(n)
+    rate = np.empty(n)
+    listen = np.empty(n)
+    c_half = 0.5 * rad.SPEED_OF_LIGHT_M_S
+    window = (max_range_m - min_range_m) / c_half
+    shot = 2.0 * rad.ELEMENTARY_CHARGE_C * gain * gain * excess_noise * bandwidth_hz
+    amp = amplifier_noise * amplifier_noise * bandwidth_hz
+    prefactor = bandwidth_hz / math.sqrt(3.0)
+    dark_sigma = math.sqrt(shot * dark_current_a + amp) / (gain * responsivity)
+    dark_rate = prefactor * math.exp(-0.5 * (threshold_w / dark_sigma) ** 2)
+    for i in range(n):
+        if power_w[i] > 0.0:
+            s = math.sqrt(shot * (responsivity * power_w[i] + dark_current_a) + amp) / (gain * responsivity)
+            z = threshold_w / s
+            sigma[i] = s
+            rate[i] = prefactor * math.exp(-0.5 * z * z)
+        else:   # most shots see no light: the dark values
+            sigma[i] = dark_sigma
+            rate[i] = dark_rate
+        r = range_m[i]
+        p = signal_w[i]
+        if hit[i] and p >= threshold_w and p < saturation_w and r >= min_range_m and r <= max_range_m:
+            listen[i] = min(max((r - min_range_m) / c_half, 0.0), window)
+        else:
+            listen[i] = window
+    return sigma, rate, listen
+
+
+@njit(cache=True)
+def sunward_surfaces(on, direction, range_m, normal, material, sun_direction, band_irradiance,
+                     kd, ks, n_exp, offset_m, quat_xyzw, position_m, face, clearance_m, face_normals):
     """The surface terms of the hits ``on`` (indices into the shots), one pass per hit.
 
     direction, normal, sun_direction (N, 3): unit vectors in the lidar frame (normals
-    toward the sensor); band_irradiance_w_m2 (N,): solar irradiance in the band (W m^-2);
+    toward the sensor); band_irradiance (N,): solar irradiance in the band (W m^-2), or
+    that times A_rx Omega_IFOV tau_r to get collected power (W) instead of radiance;
     kd, ks, n_exp per material id; quat_xyzw (N|1, 4), position_m (N|1, 3): the target
-    pose of each shot (``p_lidar = R p_body + t``); face (N,): triangle hit; supporting,
-    face_normals: ``Target.supporting_faces`` and the body-frame face normals.
+    pose of each shot (``p_lidar = R p_body + t``); face (N,): triangle hit; clearance_m,
+    face_normals: ``Target.face_clearance_m`` and the body-frame face normals.
     Returns ``facing`` (N,): the hit faces the sun; ``radiance`` (N,):
     what those would send toward the sensor if lit, L = E f(sun -> sensor) cos(theta_sun)
-    (W m^-2 sr^-1; ``radiometry.reflected_radiance_w_m2_sr`` of
+    (W m^-2 sr^-1, or W with the scaled irradiance; ``radiometry.reflected_radiance_w_m2_sr`` of
     ``radiometry.bistatic_phong_brdf``, the numpy reference the tests check this against);
     and the shadow rays still needed: ``shots`` (M,) and the rays in the body frame as
     Embree takes them (float32 origins: hit point + offset_m along the normal; directions:
-    toward the sun). Hits seen from the outside of a supporting face need none: nothing
-    can shade them. One loop instead of a dozen temporary arrays and three gathers.
+    toward the sun; lengths). Seen from the outside of a face, a ray can only meet the mesh
+    while it is within the face's clearance of its plane: its length is
+    (clearance - offset) / cos(theta_sun) plus 1 mm, and a face whose clearance is below
+    the offset (on the convex hull) needs no ray at all. Seen from the inside, the length
+    is unbounded. One loop instead of a dozen temporary arrays and three gathers.
     """
     n_on = on.shape[0]
     radiance = np.zeros(direction.shape[0])
@@ -245,6 +290,7 @@ def sunward_surfaces(on, direction, range_m, normal, material, sun_direction, ba
     shots = np.empty(n_on, np.int64)
     o_body = np.empty((n_on, 3), np.float32)
     d_body = np.empty((n_on, 3), np.float32)
+    length = np.empty(n_on, np.float32)
     one_q, one_p = quat_xyzw.shape[0] == 1, position_m.shape[0] == 1
     m = 0
     for k in range(n_on):
@@ -252,7 +298,7 @@ def sunward_surfaces(on, direction, range_m, normal, material, sun_direction, ba
         nx, ny, nz = normal[i, 0], normal[i, 1], normal[i, 2]
         sx, sy, sz = sun_direction[i, 0], sun_direction[i, 1], sun_direction[i, 2]
         cos_sun = nx * sx + ny * sy + nz * sz
-        if cos_sun <= 0.0 or band_irradiance_w_m2[i] <= 0.0:
+        if cos_sun <= 0.0 or band_irradiance[i] <= 0.0:
             continue
         dx, dy, dz = direction[i, 0], direction[i, 1], direction[i, 2]
         # Toward the sensor v = -d; cos(alpha) = 2 (n.s)(n.v) - s.v (radiometry.mirror_cos_alpha).
@@ -260,30 +306,59 @@ def sunward_surfaces(on, direction, range_m, normal, material, sun_direction, ba
         cos_a = min(max(cos_a, 0.0), 1.0)
         mat = material[i]
         f = kd[mat] / math.pi + ks[mat] * (n_exp[mat] + 2.0) / (2.0 * math.pi) * cos_a ** n_exp[mat]
-        radiance[i] = f * band_irradiance_w_m2[i] * cos_sun
+        radiance[i] = f * band_irradiance[i] * cos_sun
         facing[i] = True
         iq, ip = (0 if one_q else i), (0 if one_p else i)
-        fc = face[i]
-        if supporting[fc]:
-            # Seen from its outer side (the sensor-facing normal is the outward one)?
-            ux, uy, uz = _rotate(quat_xyzw[iq, 0], quat_xyzw[iq, 1], quat_xyzw[iq, 2],
-                                 quat_xyzw[iq, 3], face_normals[fc, 0], face_normals[fc, 1],
-                                 face_normals[fc, 2])
-            if ux * nx + uy * ny + uz * nz > 0.0:
-                continue
-        # The shadow ray, into the body frame with the inverse (conjugate) rotation.
-        r = range_m[i]
+        # The sun into the body frame with the inverse (conjugate) rotation.
         qx, qy, qz, qw = -quat_xyzw[iq, 0], -quat_xyzw[iq, 1], -quat_xyzw[iq, 2], quat_xyzw[iq, 3]
+        bx, by, bz = _rotate(qx, qy, qz, qw, sx, sy, sz)
+        # Seen from its outer side, the sensor-facing normal is the outward one, so the sun
+        # (n.s > 0) is on the outward side too: n_face . s_body > 0.
+        fc = face[i]
+        reach = math.inf
+        if face_normals[fc, 0] * bx + face_normals[fc, 1] * by + face_normals[fc, 2] * bz > 0.0:
+            if clearance_m[fc] <= offset_m:
+                continue                      # nothing in front of the face: lit
+            reach = (clearance_m[fc] - offset_m + 1e-3) / cos_sun
+        r = range_m[i]
         ox, oy, oz = _rotate(qx, qy, qz, qw,
                              dx * r + offset_m * nx - position_m[ip, 0],
                              dy * r + offset_m * ny - position_m[ip, 1],
                              dz * r + offset_m * nz - position_m[ip, 2])
-        bx, by, bz = _rotate(qx, qy, qz, qw, sx, sy, sz)
         o_body[m, 0], o_body[m, 1], o_body[m, 2] = ox, oy, oz
         d_body[m, 0], d_body[m, 1], d_body[m, 2] = bx, by, bz
+        length[m] = reach
         shots[m] = i
         m += 1
-    return facing, radiance, shots[:m], o_body[:m], d_body[:m]
+    return facing, radiance, shots[:m], o_body[:m], d_body[:m], length[:m]
+
+
+def first_crossings(rate_hz: np.ndarray, listen_s: np.ndarray,
+                    rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The shots whose noise crosses the threshold while the detector listens, and the delay
+    (s) of each one's first crossing after the gate opens.
+
+    Each shot's crossings are a Poisson process of rate nu_i over [0, T_i): one crossing or
+    more with probability 1 - exp(-nu_i T_i), the first at an exponential delay. Drawn
+    exactly, but without a draw per shot (false returns are rare): the expected counts
+    h_i = nu_i T_i are laid end to end, the arrivals of one unit-rate Poisson process on
+    [0, sum h) fall into shot i's segment independently with mean h_i, and the first
+    arrival's offset x in the segment is the delay x / nu_i. Shots with h_i > 1 (near the
+    sun) draw their own exponential delay instead, which keeps the arrivals few.
+    """
+    hazard = rate_hz * listen_s                                   # expected crossings per shot
+    busy = np.flatnonzero(hazard > 1.0)
+    quiet_hazard = hazard.copy()
+    quiet_hazard[busy] = 0.0
+    cum = np.cumsum(quiet_hazard)
+    total = float(cum[-1]) if len(cum) else 0.0
+    x = np.sort(rng.uniform(0.0, total, rng.poisson(total)))
+    shot = np.minimum(np.searchsorted(cum, x, side='right'), len(cum) - 1)
+    shot, first = np.unique(shot, return_index=True)               # x sorted: first arrivals
+    delay = (x[first] - (cum[shot] - quiet_hazard[shot])) / rate_hz[shot]
+    busy_delay = rng.standard_exponential(len(busy)) / rate_hz[busy]
+    crossed = busy_delay < listen_s[busy]
+    return (np.concatenate([shot, busy[crossed]]), np.concatenate([delay, busy_delay[crossed]]))
 
 
 @register
@@ -315,24 +390,26 @@ class Sunlight(Effect):
         bg = self.background(ctx)
         if bg is None or ctx.scene.sensor.receiver.detector != 'linear':
             return 0.0
-        # Only the noise the background adds: Table 2's sigma already holds the dark noise.
-        extra = np.sqrt(np.clip(bg.noise_sigma_w ** 2 - bg.dark_sigma_w ** 2, 0.0, None))
-        jitter = rad.timing_jitter_range_m(extra, ctx.power_w, ctx.scene.sensor.receiver.bandwidth_hz)
-        return np.where(ctx.hit, jitter, 0.0)
+        # Only the noise the background adds (Table 2's sigma already holds the dark noise),
+        # so only hits with some background get any.
+        lit = np.flatnonzero(ctx.hit & (bg.power_w > 0))
+        extra = np.sqrt(np.clip(bg.noise_sigma_w.take(lit) ** 2 - bg.dark_sigma_w ** 2, 0.0, None))
+        jitter = np.zeros(len(ctx))
+        jitter[lit] = rad.timing_jitter_range_m(extra, ctx.power_w.take(lit),
+                                                ctx.scene.sensor.receiver.bandwidth_hz)
+        return jitter
 
     def false_returns(self, ctx: ReturnContext, rng: np.random.Generator):
         bg = self.background(ctx)
         if bg is None:
             return None
         det = ctx.scene.sensor.detection
-        # First crossing of a Poisson process of rate nu: exponential delay after the
-        # window opens; it is a false return if it comes before the echo.
-        with np.errstate(divide='ignore'):
-            delay_s = rng.exponential(1.0, len(ctx)) / bg.rate_hz
-        false = delay_s < bg.listen_s
-        range_m = det.min_range_m + 0.5 * rad.SPEED_OF_LIGHT_M_S * np.where(false, delay_s, 0.0)
-        range_m = np.where(bg.blinded, np.nan, range_m)
-        return false | bg.blinded, range_m
+        shots, delay_s = first_crossings(bg.rate_hz, np.where(bg.blinded, 0.0, bg.listen_s), rng)
+        mask = bg.blinded.copy()
+        mask[shots] = True
+        range_m = np.full(len(ctx), np.nan)      # NaN under the mask: blinded, no return
+        range_m[shots] = det.min_range_m + 0.5 * rad.SPEED_OF_LIGHT_M_S * delay_s
+        return mask, range_m
 
     def outlier_fraction(self, ctx: ReturnContext) -> np.ndarray | float:
         bg = self.background(ctx)
