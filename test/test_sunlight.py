@@ -368,3 +368,19 @@ def test_first_crossings_are_exact_poisson_first_arrivals():
             t, rate_g, t_max = delay[mine], nu[g * n_per], listen[g * n_per]
             mean = 1 / rate_g - t_max / np.expm1(rate_g * t_max)
             assert abs(t.mean() - mean) < 4 * t.std() / np.sqrt(len(t)), h
+
+
+def test_photon_counting_receiver_fires_at_the_poisson_rate():
+    """A Geiger-mode receiver: detections at eta P lambda/(h c) + DCR, 2-photon coincidence."""
+    rx = {'detector': 'photon_counting', 'photon_detection_efficiency': 0.05,
+          'dark_count_rate_hz': 2e3, 'coincidence_photons': 2, 'coincidence_window_s': 2e-9,
+          'stray_light_pst_at_1deg': 0.0}
+    s = sun_sensor(receiver=rx)
+    sim = sunlit_sim(s, lambertian(0.45), plate_target(4.0), sun(BEHIND_SENSOR))
+    ctx, bg = frame_background(sim, StaticPose((10.0, 0.0, 0.0), tuple(FACING.as_quat())))
+    photon_j = 6.62607015e-34 * C / 905e-9
+    lam = 0.05 * plate_power_w(s, 0.45, 1.0) / photon_j + 2e3
+    nu = lam * (1 - np.exp(-lam * 2e-9))                  # P[Poisson(lam tau) >= 1]
+    np.testing.assert_allclose(bg.rate_hz, nu, rtol=1e-9)
+    np.testing.assert_allclose(bg.false_return_probability, 1 - np.exp(-nu * bg.listen_s), rtol=1e-9)
+    assert np.isnan(bg.dark_sigma_w)

@@ -34,7 +34,7 @@ Both are Poisson processes of crossings: the chance of a false return before tim
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import poisson
+from scipy.special import gammainc
 
 from lidar_sim_ros.core.reflection import phong_brdf_cos
 
@@ -190,11 +190,12 @@ def photon_rate_hz(power_w, efficiency: float, wavelength_nm: float) -> np.ndarr
 
 def coincidence_rate_hz(event_rate_hz, photons: int, window_s: float) -> np.ndarray:
     """Firing rate (Hz) of a detector that needs ``photons`` detections within ``window_s``,
-    for Poisson detections of rate lambda: nu = lambda P[Poisson(lambda tau) >= k - 1]."""
+    for Poisson detections of rate lambda: nu = lambda P[Poisson(lambda tau) >= k - 1]
+    (P[Poisson(mu) >= m] is the regularised lower incomplete gamma function P(m, mu))."""
     lam = np.asarray(event_rate_hz, float)
     if photons <= 1:
         return lam
-    return lam * poisson.sf(photons - 2, lam * window_s)
+    return lam * gammainc(photons - 1, lam * window_s)
 
 
 def crossing_probability(rate_hz, duration_s) -> np.ndarray:

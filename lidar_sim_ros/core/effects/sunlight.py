@@ -179,8 +179,10 @@ def background_of(ctx: ReturnContext, scale: float = 1.0) -> Background | None:
     if len(off) and (light.deep_space_radiance_w_m2_sr_nm > 0 or light.earth_direction is not None):
         sky = np.full(len(off), light.deep_space_radiance_w_m2_sr_nm * rx.bandpass_nm)
         if light.earth_direction is not None:
-            behind_earth = d.take(off, axis=0) @ light.earth_direction > np.cos(light.earth_angular_radius_rad)
-            sky = np.where(behind_earth, light.earth_radiance_w_m2_sr_nm.take(off) * rx.bandpass_nm, sky)
+            cos_rho = np.cos(light.earth_angular_radius_rad)
+            behind_earth = d.take(off, axis=0) @ light.earth_direction > cos_rho
+            sky = np.where(behind_earth, light.earth_radiance_w_m2_sr_nm.take(off) * rx.bandpass_nm,
+                           sky)
         power[off] += sky * to_power
     # The sun itself: the share of its disk inside the field of view (misses only: a hit
     # means the target stands in front of it), and stray light from near the axis. Only
