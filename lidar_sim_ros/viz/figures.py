@@ -323,7 +323,7 @@ def render_sunlight_figure(az_deg: np.ndarray, el_deg: np.ndarray, hit: np.ndarr
                            background_w: np.ndarray, sunlit: np.ndarray,
                            false_probability: np.ndarray, false_az_deg: np.ndarray,
                            false_el_deg: np.ndarray, out_path: str | Path,
-                           label: str = '') -> Path:
+                           label: str = '', dpi: int = DPI) -> Path:
     """Sunlight on the target, one frame (docs/sunlight.md): two panels over the sensor's view.
 
     Top: background power (W) of every shot that sees the target, log colour where the
@@ -360,14 +360,14 @@ def render_sunlight_figure(az_deg: np.ndarray, el_deg: np.ndarray, hit: np.ndarr
     sc = bottom.scatter(az_deg, el_deg, c=p, cmap='viridis', norm=LogNorm(1e-7, 1.0), s=1.5,
                         linewidths=0, rasterized=True)
     bottom.scatter(false_az_deg, false_el_deg, marker='x', color='red', s=14, linewidths=0.8,
-                   label=f'false returns in this frame ({len(false_az_deg)})')
+                   label=f'false returns ({len(false_az_deg)})')
     bottom.set_title('False returns: probability per shot (threshold crossings before the echo)')
     bottom.legend(loc='upper right', fontsize=8)
     _finish_angular(bottom, az_deg, el_deg)
     fig.colorbar(sc, ax=bottom, shrink=0.9, label='P(false return) per shot [-] (log)')
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_path, dpi=DPI)
+    fig.savefig(out_path, dpi=dpi)
     return out_path
 
 
