@@ -169,7 +169,11 @@ class LidarSimNode(Node):
                             "default: the scenario's sun.direction; the sun topic overrides it"))
         self._set_sun(self.get_parameter_or('sun_direction').value)
         # Compiled kernels (the effects' too) and lazy caches ready before the first frame is due.
-        self.sim.warm_up()
+        try:
+            self.sim.warm_up()
+        except Exception as exc:  # noqa: BLE001 - a broken effect fails its frames, not start-up
+            self.get_logger().warning(f'warm-up failed ({type(exc).__name__}: {exc}); '
+                                      'frames will report it')
         self.declare_parameter('material_names', list(self.scenario.materials.names),
                                _descriptor(ParameterType.PARAMETER_STRING_ARRAY,
                                            'material index -> name of the material field',
