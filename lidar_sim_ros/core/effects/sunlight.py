@@ -105,19 +105,6 @@ def crossing_rate_hz(background_w, sensor: SensorConfig) -> tuple[np.ndarray, np
     return rad.rice_rate_hz(sensor.detection.threshold_power_w, sigma, rx.bandwidth_hz), sigma
 
 
-_PHONG_COLUMNS: dict[int, tuple] = {}
-
-
-def _phong_columns(materials) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """kd, ks, n per material id, built once per materials table (configs are frozen)."""
-    cached = _PHONG_COLUMNS.get(id(materials))
-    if cached is None or cached[0] is not materials:
-        cached = (materials, *(materials.column(k) for k in ('kd', 'ks', 'n')))
-        _PHONG_COLUMNS.clear()  # one table at a time is the common case; keep it small
-        _PHONG_COLUMNS[id(materials)] = cached
-    return cached[1:]
-
-
 def negligible_background_w(sensor: SensorConfig) -> float:
     """Background power (W) that changes the receiver's dark noise by 1 %: the noise
     variance (linear APD) or the count rate (photon counting)."""
@@ -150,7 +137,7 @@ def background_of(ctx: ReturnContext, scale: float = 1.0) -> Background | None:
 
     on = np.flatnonzero(ctx.hit)
     if len(on):
-        kd, ks, n_exp = _phong_columns(scene.materials)
+        kd, ks, n_exp = (scene.materials.column(k) for k in ('kd', 'ks', 'n'))
         # Which hits face the sun, their power if lit, and the shadow rays still needed.
         target = scene.target
         if ctx.face is not None:
