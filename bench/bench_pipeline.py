@@ -23,9 +23,14 @@ Prints a summary and writes JSON with:
 By default the process is pinned to one CPU (``--cpus 1``) so that the "one
 core" target is measured as such, whatever threads Embree or numpy start;
 CPU-time / wall-time ratios are recorded to show any remaining parallelism.
+* the cost of sunlight (issue 11): ``Simulator.simulate_frame`` on
+  config/scenario_sunlit.yaml with its sun and the ``sunlight`` effect vs the same
+  scenario without them, frames interleaved, and the ratio.
+
 Targets (issue 2): ratio >= 0.5; <= 10 ms per P-60 frame on one core;
 1M-triangle mesh <= 2x a 10k-triangle mesh per ray. Issue 10: every effect on at
-its example parameters <= 2x a plain frame (one core, the same run).
+its example parameters <= 2x a plain frame (one core, the same run). Issue 11: a sunlit
+frame <= 1.5x a plain one.
 """
 from __future__ import annotations
 
@@ -54,6 +59,7 @@ TARGET_RATIO = 0.5
 TARGET_MS_PER_FRAME = 10.0
 TARGET_MESH_COST = 2.0
 TARGET_ALL_EFFECTS = 2.0
+TARGET_SUNLIT_COST = 1.5
 
 
 def timed(fn: Callable[[], object], repeats: int) -> tuple[float, float, object]:
@@ -99,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
                     default=ROOT / 'config' / 'scenario_all_effects.yaml',
                     help='the scenario whose effects list is measured, one by one and together')
     ap.add_argument('--no-effects', action='store_true', help='skip the effects and threads figures')
+    ap.add_argument('--sunlit-scenario', type=Path, default=ROOT / 'config' / 'scenario_sunlit.yaml',
+                    help="scenario with a sun for the sunlight cost ('' to skip)")
     args = ap.parse_args(argv)
 
     cpus = pin_cpus(args.cpus)
@@ -244,6 +252,8 @@ def main(argv: list[str] | None = None) -> int:
         'pack_rclpy_ms': pack_rclpy_ms,
     }
     result['hot_spots'] = profile(sim, traj, period, args.profile_top)
+    if str(args.sunlit_scenario):
+        result['sunlight'] = sunlight_cost(args, load_scenario, Simulator, ScenarioTrajectory)
     result['peak_rss_mb_pipeline'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     if not args.no_effects:
         fx = effects_costs(args, scenario, traj, pack, Simulator, np)
@@ -420,6 +430,35 @@ def mesh_scaling(args, sim, traj, Target, scenario, np, rtcore_scene, TriangleMe
     return out
 
 
+def sunlight_cost(args, load_scenario, Simulator, ScenarioTrajectory) -> dict:
+    """simulate_frame with the scenario's sun and effects vs without, frames interleaved so
+    that a busy machine slows both alike; medians over frames of the per-frame medians.
+    The ratio is taken on CPU time (the same as wall time on an idle pinned core, and less
+    disturbed than wall time when other processes share it); wall times are recorded too."""
+    scenario = load_scenario(args.sunlit_scenario)
+    sunlit = Simulator.from_scenario(scenario)
+    plain = Simulator.from_scenario(scenario, effects=[])
+    plain.sun = None
+    traj = ScenarioTrajectory.from_config(scenario.config)
+    for sim in (plain, sunlit):            # warm-up: compiled kernels, caches
+        sim.simulate_frame(0.0, traj, 0)
+    rows = []
+    for i in range(args.frames):
+        start = i * sunlit.frame_period_s
+        p_wall, p_cpu, _ = timed(lambda: plain.simulate_frame(start, traj, i), args.repeats)
+        s_wall, s_cpu, frame = timed(lambda: sunlit.simulate_frame(start, traj, i), args.repeats)
+        rows.append((p_wall, s_wall, p_cpu, s_cpu, int((frame.material == 255).sum())))
+    med = [statistics.median(r[k] for r in rows) for k in range(5)]
+    return {'scenario': str(args.sunlit_scenario),
+            'definition': 'Simulator.simulate_frame with the sun and the sunlight effect vs '
+                          'the same scenario without them; ratio on CPU time',
+            'plain_ms_per_frame': med[0] * 1e3, 'sunlit_ms_per_frame': med[1] * 1e3,
+            'plain_cpu_ms_per_frame': med[2] * 1e3, 'sunlit_cpu_ms_per_frame': med[3] * 1e3,
+            'ratio_sunlit_over_plain': med[3] / med[2],
+            'ratio_sunlit_over_plain_wall': med[1] / med[0],
+            'false_returns_per_frame_median': med[4]}
+
+
 def targets(r: dict) -> dict:
     t = {
         'ratio_ge_0.5': r['ratio_pipeline_over_embree'] >= TARGET_RATIO,
@@ -432,6 +471,8 @@ def targets(r: dict) -> dict:
         # coherent order the pipeline uses (raw Embree in firing order is shown for reference).
         t['mesh_1M_le_2x_10k'] = (r['mesh_scaling']['target_cast_cost_ratio_big_over_small']
                                   <= TARGET_MESH_COST)
+    if 'sunlight' in r:
+        t['sunlit_le_1.5x_plain'] = r['sunlight']['ratio_sunlit_over_plain'] <= TARGET_SUNLIT_COST
     return t
 
 
@@ -486,6 +527,13 @@ def report(r: dict) -> None:
         print(f"  2 threads speed-up: plain x{th['plain_speedup_2_threads']:.2f}, all effects "
               f"x{th['all_effects_speedup_2_threads']:.2f}; all effects / plain: 1 thread "
               f"{th['all_effects_over_plain_1_thread']:.2f}, 2 threads {th['all_effects_over_plain_2_thread']:.2f}")
+    if 'sunlight' in r:
+        sun = r['sunlight']
+        print(f"sunlight: {sun['sunlit_cpu_ms_per_frame']:.2f} ms CPU/frame sunlit vs "
+              f"{sun['plain_cpu_ms_per_frame']:.2f} plain, x{sun['ratio_sunlit_over_plain']:.2f} "
+              f"(wall x{sun['ratio_sunlit_over_plain_wall']:.2f})   [target <= {TARGET_SUNLIT_COST:g}x: "
+              f"{ok[r['targets']['sunlit_le_1.5x_plain']]}]; "
+              f"{sun['false_returns_per_frame_median']:.0f} false returns per frame")
     print(f"peak RSS: {r['peak_rss_mb_pipeline']:.0f} MB for the pipeline, "
           f"{r['peak_rss_mb']:.0f} MB at the end (incl. the mesh-scaling meshes)")
 

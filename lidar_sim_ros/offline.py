@@ -23,7 +23,7 @@ from lidar_sim_ros.core.config import Scenario, load_scenario
 from lidar_sim_ros.core.effects import effect_from_spec
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.pose import ScenarioTrajectory
-from lidar_sim_ros.io.bag import CLOUD_TOPIC, MATERIAL_NAMES_TOPIC, POSE_TOPIC, BagWriter
+from lidar_sim_ros.io.bag import CLOUD_TOPIC, MATERIAL_NAMES_TOPIC, POSE_TOPIC, SUN_TOPIC, BagWriter
 from lidar_sim_ros.io.pointcloud import frame_points
 
 TRUTH_TOPIC = '/lidar/points_truth'
@@ -57,8 +57,10 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     Topics: /lidar/points (detected returns), /lidar/points_truth (every hit, no
     noise or dropouts), /target/pose (target body pose in the lidar frame,
     ``poses_per_frame`` evenly spaced samples per frame plus one at the end of the
-    last frame), /lidar/material_names (JSON list, once). Figures of the last frame
-    go to ``out_dir/figures``. Raises FileExistsError if the bag already exists.
+    last frame), /lidar/material_names (JSON list, once), and with a sun in the scenario
+    /sun/direction (Vector3Stamped toward the sun, lidar frame, one per frame start).
+    Figures of the last frame go to ``out_dir/figures`` (plus ``sunlight.png`` with a
+    sun). Raises FileExistsError if the bag already exists.
     """
     if frames < 1:
         raise ValueError(f'frames must be >= 1, got {frames}')
@@ -90,6 +92,9 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
                          frame_id, epoch_s)
             last = sim.simulate_frame(frame_start, trajectory, first_index + i)
             stamp = int(to_stamp_ns(frame_start, epoch_s))
+            if sim.sun is not None:
+                bag.write_vector3(SUN_TOPIC, stamp, frame_id,
+                                  sim.sun.at(np.array([frame_start])).sun_direction[0])
             bag.write_cloud(CLOUD_TOPIC, frame_points(last), stamp, frame_id)
             bag.write_cloud(TRUTH_TOPIC, frame_points(last, truth=True), stamp, frame_id)
             stamps.append(stamp)
@@ -102,7 +107,27 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
                 f'frame {last.index}, t = {last.stamp_s:.3f} s'
         figure_paths = render_frame_figures(frame_points(last), out / 'figures',
                                             scenario.materials.names, sim.shots, label=label)
+        if sim.sun is not None:
+            figure_paths.append(_sunlight_figure(sim, last, trajectory, out / 'figures', label))
     return OfflineResult(bag_path, figure_paths, stamps, stats)
+
+
+def _sunlight_figure(sim: Simulator, frame, trajectory, out_dir: Path, label: str) -> Path:
+    """Background power and false returns of ``frame`` painted on the target (sunlight.png)."""
+    from lidar_sim_ros.core.effects.sunlight import Sunlight, background_of
+    from lidar_sim_ros.core.pipeline import NO_MATERIAL
+    from lidar_sim_ros.viz.figures import render_sunlight_figure
+    shots = sim.shots
+    pred = sim.predict(frame.stamp_s + shots.t_s, sim.directions, trajectory, shots.t_s)
+    scale = next((e.params.background_scale for e in sim.effects if isinstance(e, Sunlight)), 1.0)
+    bg = background_of(pred.ctx, scale)
+    false = frame.material == NO_MATERIAL
+    az, el = np.degrees(shots.az_rad), np.degrees(shots.el_rad)
+    f_az = np.degrees(np.arctan2(frame.xyz_m[false, 1], frame.xyz_m[false, 0]))
+    f_el = np.degrees(np.arcsin(np.clip(frame.xyz_m[false, 2] / frame.range_m[false], -1, 1)))
+    p_false = np.where(bg.blinded, 1.0, bg.false_return_probability)
+    return render_sunlight_figure(az, el, pred.ctx.hit, bg.power_w, bg.sunlit, p_false, f_az, f_el,
+                                  out_dir / 'sunlight.png', label)
 
 
 def _write_poses(bag: BagWriter, trajectory: ScenarioTrajectory, t_s: np.ndarray,

@@ -119,3 +119,42 @@ def test_bad_effect_stops_at_load(tmp_path):
     with pytest.raises(ConfigError) as exc:
         load_scenario(d / 'scenario.yaml')
     assert exc.value.key == 'effects.0.params.kk'
+
+
+def test_sunlit_scenario_loads_its_sun():
+    sc = load_scenario(CONFIG / 'scenario_sunlit.yaml')
+    d = np.array(sc.config.sun.direction)
+    np.testing.assert_allclose(d, np.array([0.0, 0.34, 0.94]) / np.hypot(0.34, 0.94))
+    assert sc.config.sun.spectral_irradiance_w_m2_nm == 0.92
+    assert [e.name for e in sc.config.effects] == ['sunlight']
+    assert load_scenario(CONFIG / 'scenario.yaml').config.sun is None
+
+
+@pytest.mark.parametrize('file, edit, key, value, words', [
+    ('scenario_sunlit.yaml', lambda d: d['sun'].update(direction=[0, 0, 0]), 'sun.direction',
+     [0, 0, 0], 'non-zero finite vector'),
+    ('scenario_sunlit.yaml', lambda d: d['sun'].update(spectral_irradiance_w_m2_nm=-1),
+     'sun.spectral_irradiance_w_m2_nm', -1, 'greater than 0'),
+    ('scenario_sunlit.yaml', lambda d: d['sun'].update(earth={'direction': [0, 0, -1], 'albedo': 2}),
+     'sun.earth.albedo', 2, 'less than or equal to 1'),
+    ('cepton_vista_p60.yaml', lambda d: d['receiver'].update(bandpass_nm=-5), 'receiver.bandpass_nm',
+     -5, 'greater than 0'),
+    ('cepton_vista_p60.yaml', lambda d: d['receiver'].update(detector='geiger'), 'receiver.detector',
+     'geiger', "'linear' or 'photon_counting'"),
+    ('cepton_vista_p60.yaml', lambda d: d['receiver'].update(apd_gain=0.5), 'receiver.apd_gain', 0.5,
+     'greater than or equal to 1'),
+])
+def test_bad_sun_and_receiver_values_name_file_key_and_value(tmp_path, file, edit, key, value, words):
+    data = yaml.safe_load((CONFIG / file).read_text())
+    edit(data)
+    is_scenario = file.startswith('scenario')
+    if is_scenario:   # the files it names, next to it
+        for name in ('cepton_vista_p60.yaml', 'materials.yaml'):
+            shutil.copy(CONFIG / name, tmp_path / name)
+        data['mesh'] = str(CONFIG.parent / 'meshes' / 'rocket_body.obj')
+    path = tmp_path / file
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as err:
+        (load_scenario if is_scenario else load_sensor)(path)
+    assert err.value.file == str(path) and err.value.key == key and err.value.value == value
+    assert words in err.value.reason

@@ -57,6 +57,9 @@ def test_catalogue_has_the_six_effects_and_their_defaults_change_nothing(default
     names = list(catalogue())
     assert names == ['range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
                      'beam_divergence', 'time_offset']
+    # sunlight loads by name (it needs a sun, so it is no default diagnosis candidate);
+    # without a sun it changes nothing either.
+    names.append('sunlight')
     plain = Simulator.from_scenario(default_scenario, effects=[])
     with_all = Simulator.from_scenario(default_scenario, effects=[make_effect(n) for n in names])
     from lidar_sim_ros.core.pose import ScenarioTrajectory

@@ -1,9 +1,10 @@
 """Geometric model: raycast range, incidence and material against closed forms."""
 import numpy as np
 import pytest
+import trimesh
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.core.geometry import MeshFileError, MeshMaterialError, cast_at_poses, load_target
+from lidar_sim_ros.core.geometry import MeshFileError, MeshMaterialError, Target, cast_at_poses, load_target
 from lidar_sim_ros.core.pose import PoseTrack
 from lidar_sim_ros.core.scan import directions_from_angles
 from conftest import REPO, embree_range_tol_m, plate_target, sphere_target
@@ -114,3 +115,21 @@ def test_an_unknown_material_name_is_named(tmp_path):
                  'newmtl PIF\nnewmtl GOLD\n')
     with pytest.raises(MeshMaterialError, match=r"\['GOLD'\] not in the materials config"):
         load_target(path, ['PIF', 'MLI'])
+
+
+def test_supporting_faces_are_those_on_the_convex_hull():
+    """A cube: every face supports it. A cube on a larger plate: the cube's top and sides
+    stand above the plate's plane, so the plate's upper side is not supporting, and the
+    cube's sides (whose planes the plate's corners poke through) are not either."""
+    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    alone = Target(cube.vertices, cube.faces, np.zeros(len(cube.faces), int), ['PIF'])
+    assert alone.supporting_faces.all()
+    plate = trimesh.Trimesh(vertices=[[-3, -3, -0.5], [3, -3, -0.5], [3, 3, -0.5], [-3, 3, -0.5]],
+                            faces=[[0, 1, 2], [0, 2, 3]])
+    both = trimesh.util.concatenate([plate, cube])
+    target = Target(both.vertices, both.faces, np.zeros(len(both.faces), int), ['PIF'])
+    normals = target.face_normals
+    top = normals[:, 2] > 0.99
+    expected = np.zeros(len(normals), bool)
+    expected[2:] = top[2:] | (normals[2:, 2] < -0.99)   # cube top, and its bottom on the plate
+    np.testing.assert_array_equal(target.supporting_faces, expected)

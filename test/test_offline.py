@@ -280,3 +280,75 @@ def test_parse_effect_spec():
     assert parse_effect_spec('my.mod:Cls={"a": 1}') == ('my.mod:Cls', {'a': 1})
     with pytest.raises(ValueError, match='mapping'):
         parse_effect_spec('range_walk=3')
+
+
+# --------------------------------------------------------------------- sunlight
+SUNLIT_FRAMES = 10
+
+
+@pytest.fixture(scope='module')
+def sunlit_run(tmp_path_factory):
+    """`lidar-sim simulate` of config/scenario_sunlit.yaml: the bag and figures."""
+    out = tmp_path_factory.mktemp('sunlit') / 'out'
+    with contextlib.redirect_stdout(io.StringIO()):
+        code = main(['simulate', str(config_path('scenario_sunlit.yaml')), '--frames',
+                     str(SUNLIT_FRAMES), '--out', str(out)])
+    assert code == 0
+    return out
+
+
+def what_shots_see(bag_points, stamp_ns, poses, sun_dir, target):
+    """For points of one cloud: does the shot's ray hit the target, and is that surface point
+    in direct sunlight (facing the sun, shadow ray clear)? Posed at each shot's own time."""
+    from lidar_sim_ros.core.geometry import cast_at_poses
+    xyz = np.column_stack([bag_points['x'], bag_points['y'], bag_points['z']]).astype(float)
+    d = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+    pose = poses.at((stamp_ns - EPOCH_NS) / 1e9 + bag_points['t'].astype(float))
+    hits = cast_at_poses(target, d, pose)
+    point = d * np.where(hits.hit, hits.range_m, 0.0)[:, None]
+    origin = point + 2e-3 * hits.normal
+    blocked = cast_at_poses(target, np.broadcast_to(sun_dir, d.shape), pose, origin_lidar_m=origin).hit
+    sunlit = hits.hit & (hits.normal @ sun_dir > 0) & ~blocked
+    return hits.hit, sunlit, hits.range_m
+
+
+def test_sunlit_bag_false_returns_come_from_sunlit_surfaces(sunlit_run):
+    """The issue's check on a recorded bag: false returns (material 255) come from shots that
+    see sunlit surfaces; their rate on shadowed surfaces is at most a tenth of the sunlit one."""
+    from lidar_sim_ros.core.geometry import load_target
+    from lidar_sim_ros.io.bag import read_vectors
+    bag = sunlit_run / 'bag'
+    scenario = load_scenario(config_path('scenario_sunlit.yaml'))
+    target = load_target(scenario.mesh_path, scenario.materials.names)
+    p = read_poses(bag)
+    poses = PoseTrack((p.stamp_ns - EPOCH_NS) / 1e9, p.position_m, p.quat_xyzw)
+    sun = read_vectors(bag, '/sun/direction')
+    clouds, truth = read_clouds(bag), read_clouds(bag, TRUTH_TOPIC)
+    assert len(sun.stamp_ns) == SUNLIT_FRAMES and sun.frame_id == 'lidar'
+    np.testing.assert_allclose(sun.vector[0], np.array([0.0, 0.34, 0.94]) / np.hypot(0.34, 0.94))
+    counts = dict(false_sunlit=0, false_shadowed=0, false_space=0, sunlit=0, shadowed=0)
+    for cloud, all_hits, s_ns, s_dir in zip(clouds, truth, sun.stamp_ns, sun.vector):
+        assert cloud.stamp_ns == all_hits.stamp_ns == s_ns
+        hit, sunlit, _ = what_shots_see(all_hits.points, cloud.stamp_ns, poses, s_dir, target)
+        assert hit.mean() > 0.999                     # the truth cloud is every hit
+        counts['sunlit'] += int(sunlit.sum())
+        counts['shadowed'] += int((hit & ~sunlit).sum())
+        false = cloud.points[cloud.points['material'] == 255]
+        hit, sunlit, range_m = what_shots_see(false, cloud.stamp_ns, poses, s_dir, target)
+        r_false = np.linalg.norm(np.column_stack([false['x'], false['y'], false['z']]), axis=1)
+        assert np.all(r_false[hit] < range_m[hit] + 0.01)   # the first crossing precedes the echo
+        counts['false_sunlit'] += int(sunlit.sum())
+        counts['false_shadowed'] += int((hit & ~sunlit).sum())
+        counts['false_space'] += int((~hit).sum())
+    rate_sunlit = counts['false_sunlit'] / counts['sunlit']
+    rate_shadowed = counts['false_shadowed'] / counts['shadowed']
+    assert counts['sunlit'] > 30_000 and counts['shadowed'] > 30_000, counts
+    assert counts['false_sunlit'] >= 30, counts
+    assert rate_shadowed <= 0.1 * rate_sunlit, counts
+    assert counts['false_sunlit'] > 3 * (counts['false_shadowed'] + counts['false_space']), counts
+
+
+def test_sunlit_run_draws_the_sunlight_figure(sunlit_run):
+    path = sunlit_run / 'figures' / 'sunlight.png'
+    img = imread(path)
+    assert img.shape[0] > 800 and img.shape[1] > 800

@@ -127,12 +127,46 @@ class DetectionConfig(_Model):
         return self
 
 
+class ReceiverConfig(_Model):
+    """Receiver radiometry and noise: what sunlight does to the detector (docs/sunlight.md).
+
+    Not in the paper and not public for the P-60: the defaults are plausible 905 nm
+    values (Si APD, uncooled diode laser), chosen so that the sensor's detection
+    threshold sits at 5.5 sigma of the dark noise, the usual design rule for a low
+    false-alarm rate.
+    """
+
+    wavelength_nm: PositiveFloat = 905.0
+    bandpass_nm: PositiveFloat = Field(40.0, description='optical band-pass filter width (nm)')
+    ifov_sr: PositiveFloat = Field(1.9e-5, description='receiver field of view per shot (sr)')
+    detector: Literal['linear', 'photon_counting'] = 'linear'
+    # linear-mode APD (Rice threshold-crossing rate)
+    responsivity_a_per_w: PositiveFloat = Field(0.5, description='unity-gain responsivity (A/W)')
+    apd_gain: Annotated[float, Field(ge=1.0)] = 100.0
+    excess_noise_factor: Annotated[float, Field(ge=1.0)] = 5.0
+    bandwidth_hz: PositiveFloat = 2.5e8
+    amplifier_noise_a_per_rthz: NonNegFloat = Field(
+        2.18e-11, description='amplifier input current noise density (A/sqrt(Hz))')
+    dark_current_a: NonNegFloat = Field(1e-10, description='bulk (multiplied) dark current, primary (A)')
+    # photon counting (Poisson)
+    photon_detection_efficiency: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1
+    dark_count_rate_hz: NonNegFloat = 1000.0
+    coincidence_photons: Annotated[int, Field(ge=1)] = 1
+    coincidence_window_s: PositiveFloat = 1e-9
+    # saturation and stray light
+    blinding_power_w: PositiveFloat = Field(
+        5e-7, description='background power (W) that saturates the front end: no return')
+    stray_light_pst_at_1deg: NonNegFloat = Field(
+        1e-4, description='point-source transmittance of the receiver optics 1 deg off axis (-)')
+
+
 class SensorConfig(_Model):
     name: str
     frame_rate_hz: PositiveFloat
     scan: ScanConfig
     optics: OpticsConfig
     detection: DetectionConfig
+    receiver: ReceiverConfig = ReceiverConfig()
 
     @property
     def frame_period_s(self) -> float:
@@ -214,6 +248,51 @@ class MotionConfig(_Model):
         return a
 
 
+def _unit_vector(v: tuple[float, float, float]) -> tuple[float, float, float]:
+    """A direction normalised to unit length; zero or non-finite vectors are refused."""
+    arr = np.asarray(v, dtype=float)
+    norm = float(np.linalg.norm(arr))
+    if not np.all(np.isfinite(arr)) or norm < 1e-9:
+        raise ValueError('must be a non-zero finite vector')
+    return tuple(float(x) for x in arr / norm)
+
+
+class EarthConfig(_Model):
+    """The Earth: a diffuse second source lighting the target and the background behind it."""
+
+    direction: tuple[float, float, float] = Field(
+        description='toward the Earth centre, lidar frame (normalised)')
+    angular_radius_deg: Annotated[float, Field(gt=0.0, lt=90.0)] = Field(
+        70.2, description='apparent radius of the Earth disk (deg); 70.2 = 400 km altitude')
+    albedo: Fraction = 0.3
+
+    @field_validator('direction')
+    @classmethod
+    def _unit(cls, v):
+        return _unit_vector(v)
+
+
+class SunConfig(_Model):
+    """The scenario's sunlight (docs/sunlight.md). ``direction``: toward the sun, lidar frame."""
+
+    direction: tuple[float, float, float] = Field(
+        description='unit vector toward the sun, lidar frame (normalised)')
+    spectral_irradiance_w_m2_nm: PositiveFloat = Field(
+        0.92, description='solar spectral irradiance at the laser wavelength (W m^-2 nm^-1); '
+                          '0.92 = ASTM E490 AM0 at 905 nm, 1 AU')
+    orbit_rate_dps: float = Field(0.0, description='the sun turns about orbit_axis at this rate '
+                                                   '(deg/s; offline runs; 0.065 = a 92 min orbit)')
+    orbit_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    earth: EarthConfig | None = None
+    deep_space_radiance_w_m2_sr_nm: NonNegFloat = Field(
+        0.0, description='spectral radiance of empty sky (W m^-2 sr^-1 nm^-1)')
+
+    @field_validator('direction', 'orbit_axis')
+    @classmethod
+    def _unit(cls, v):
+        return _unit_vector(v)
+
+
 class EffectConfig(_Model):
     """An extra physical effect from the catalogue (or module:Class) with its parameters."""
 
@@ -229,6 +308,7 @@ class ScenarioConfig(_Model):
     frame_id: str = 'lidar'
     initial_pose: PoseConfig
     motion: MotionConfig = MotionConfig()
+    sun: SunConfig | None = None
     effects: list[EffectConfig] = Field(default_factory=list)
 
 

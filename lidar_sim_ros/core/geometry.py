@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Callable, TypeVar
 
@@ -16,6 +17,7 @@ import numpy as np
 import trimesh
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
+from scipy.spatial import ConvexHull, QhullError
 
 from lidar_sim_ros.core import geometry_kernels as kernels
 from lidar_sim_ros.core.pose import Poses
@@ -159,6 +161,37 @@ class Target:
         o32, d32 = kernels.rays_to_body(_IDENTITY, _ZERO, origins, d, order)
         return self.cast_body_rays(BodyRays(o32, d32, order, _IDENTITY, d))
 
+    @cached_property
+    def face_clearance_m(self) -> np.ndarray:
+        """Per face, how far the mesh reaches in front of the face's plane, along its normal
+        (m; <= 0: nothing in front, the face lies on the convex hull). A ray leaving the face
+        on its normal side at elevation angle beta can only meet the mesh within
+        clearance / sin(beta): shadow rays get that length. The maximum over the hull's
+        vertices; computed on first use (~0.1 s for 50k faces)."""
+        try:
+            hull = self.vertices_m[ConvexHull(self.vertices_m).vertices]
+        except QhullError:   # a flat mesh has no 3-D hull: test against every vertex
+            hull = self.vertices_m
+        base = np.einsum('ij,ij->i', self.face_normals, self.vertices_m[self.faces[:, 0]])
+        out = np.empty(self.n_faces)
+        for lo in range(0, self.n_faces, 8192):   # bounded memory: (hull vertices x 8192)
+            hi = min(lo + 8192, self.n_faces)
+            out[lo:hi] = (hull @ self.face_normals[lo:hi].T - base[lo:hi]).max(axis=0)
+        # Degenerate faces (no normal) get no clearance bound.
+        return np.where(np.any(self.face_normals != 0, axis=1), out, np.inf)
+
+    @property
+    def supporting_faces(self) -> np.ndarray:
+        """Bool per face: every vertex lies on or behind its plane (the face is on the convex
+        hull), so nothing can shade it from a source on its normal side."""
+        return self.face_clearance_m <= 1e-6 * max(float(np.ptp(self.vertices_m, axis=0).max()), 1.0)
+
+    def occluded(self, origins_m: np.ndarray, directions: np.ndarray,
+                 length_m: np.ndarray | None = None) -> np.ndarray:
+        """Whether each ray (body frame, float32 as Embree takes them) meets the mesh within
+        ``length_m`` (float32 per ray; None = unbounded): Embree's occlusion query (shadow rays)."""
+        return self._scene.run(origins_m, directions, dists=length_m, query='OCCLUDED') >= 0
+
     def cast_body_rays(self, rays: BodyRays, barycentric: bool = False) -> Hits:
         """First hit of each body-frame ray; normals in the frame of ``rays.directions_out``;
         with ``barycentric`` the hits' (u, v) too."""
@@ -218,6 +251,19 @@ def body_rays(directions_lidar: np.ndarray, poses: Poses, origin_lidar_m: np.nda
     order = _cast_order(order, len(d))
     o32, d32 = kernels.rays_to_body(quat, position, origin, d, order)
     return BodyRays(o32, d32, order, quat, d)
+
+
+def occluded_at_poses(target: Target, origins_lidar_m: np.ndarray, directions_lidar: np.ndarray,
+                      poses: Poses) -> np.ndarray:
+    """Shadow rays: does the ray from each lidar-frame origin along its unit direction meet
+    the target (at the pose of its row, or one pose for all)? Bool per ray."""
+    d = np.ascontiguousarray(directions_lidar, dtype=np.float64).reshape(-1, 3)
+    origins = np.ascontiguousarray(origins_lidar_m, dtype=np.float64).reshape(-1, 3)
+    if len(d) == 0:
+        return np.zeros(0, bool)
+    o32, d32 = kernels.rays_to_body(poses.quat_xyzw, poses.position_m.reshape(-1, 3), origins, d,
+                                    np.arange(len(d), dtype=np.int64))
+    return target.occluded(o32, d32)
 
 
 def load_target(obj_path: str | Path, material_names: list[str], threads: int = 1) -> Target:

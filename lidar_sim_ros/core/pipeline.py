@@ -15,10 +15,11 @@ import numpy as np
 from lidar_sim_ros.core import detection, reflection
 from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
-from lidar_sim_ros.core.effects.base import apply_effects
+from lidar_sim_ros.core.effects.base import Scene, apply_effects
 from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target
 from lidar_sim_ros.core.pose import PoseSource, PoseTrack, StaticPose
 from lidar_sim_ros.core.scan import Shots, angles_from_directions, frame_shots
+from lidar_sim_ros.core.sun import ScenarioSun, SunSource
 
 NO_MATERIAL = 255  # material id of a return that is not on the target (e.g. solar background)
 
@@ -139,14 +140,18 @@ class Simulator:
 
     def __init__(self, sensor: SensorConfig, materials: MaterialsConfig, target: Target,
                  seed: int = 0, effects: list[Effect] | None = None,
-                 scan_base: Path | None = None, threads: int | None = None):
-        """``threads``: raycast threads (``Target.threads``; None keeps the target's).
-        Frames do not depend on it: each ray's answer is the same however they are split."""
+                 scan_base: Path | None = None, sun: SunSource | None = None,
+                 threads: int | None = None):
+        """``sun``: the light around the target (None: none). ``threads``: raycast threads
+        (``Target.threads``; None keeps the target's). Frames do not depend on it: each
+        ray's answer is the same however they are split."""
         self.sensor, self.materials, self.target = sensor, materials, target
         if threads is not None:
             target.threads = int(threads)
         self.seed = int(seed)
         self.effects: list[Effect] = list(effects or [])
+        # The light around the target (None: no sun); effects read it from ctx.scene.
+        self.sun: SunSource | None = sun
         self.shots: Shots = frame_shots(sensor, scan_base)
         self.directions = self.shots.directions()
         # Frames are simulated with the shots in a coherent order (neighbouring directions
@@ -170,8 +175,9 @@ class Simulator:
         if effects is None:
             effects = [make_effect(_scenario_relative(e.name, base), e.params)
                        for e in scenario.config.effects]
+        sun = ScenarioSun(scenario.config.sun) if scenario.config.sun is not None else None
         return cls(scenario.sensor, scenario.materials, target, scenario.seed,
-                   list(effects) + list(extra_effects), base, threads)
+                   list(effects) + list(extra_effects), base, sun, threads)
 
     def warm_up(self) -> None:
         """Compile the per-ray kernels now (or load them from numba's on-disk cache), so
@@ -199,6 +205,7 @@ class Simulator:
         ``cast_order``: optional coherent ray order for Embree (results keep input order).
         """
         t_abs_s = np.asarray(t_abs_s, dtype=float)
+        directions = np.asarray(directions, dtype=float)
         n = len(t_abs_s)
         t_pose = t_abs_s
         for eff in self.effects:
@@ -238,11 +245,13 @@ class Simulator:
             laser=np.zeros(n, np.uint16) if laser is None else np.asarray(laser),
             divergence_rad=optics.beam_divergence_rad, hit=hits.hit,
             threshold_power_w=det.threshold_power_w, min_range_m=det.min_range_m,
-            max_range_m=det.max_range_m)
+            max_range_m=det.max_range_m, direction=directions, normal=hits.normal, face=hits.face,
+            scene=Scene(self.target, poses, self.materials, self.sensor,
+                        None if self.sun is None else self.sun.at(t_abs_s)))
         if self.effects:
             ctx, bias, var = apply_effects(ctx, self.effects, bias, var)
             bias = np.where(hits.hit, bias, 0.0)
-        return Prediction(ctx, hits, np.asarray(directions, dtype=float), bias, np.sqrt(var))
+        return Prediction(ctx, hits, directions, bias, np.sqrt(var))
 
     # -------------------------------------------------------------- the frame
     def simulate_frame(self, frame_start_s: float, pose_source: PoseSource,

@@ -32,10 +32,12 @@ from lidar_sim_ros.io.pointcloud import from_pointcloud2, ns_to_stamp, stamp_to_
 CLOUD_TOPIC = '/lidar/points'
 POSE_TOPIC = '/target/pose'
 MATERIAL_NAMES_TOPIC = '/lidar/material_names'
+SUN_TOPIC = '/sun/direction'
 
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 POSE_STAMPED = 'geometry_msgs/msg/PoseStamped'
 STRING = 'std_msgs/msg/String'
+VECTOR3_STAMPED = 'geometry_msgs/msg/Vector3Stamped'
 
 _STORAGE_PLUGINS = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 _BAG_VERSION = 9
@@ -74,6 +76,16 @@ class PoseSeries:
     frame_id: str
     position_m: np.ndarray
     quat_xyzw: np.ndarray
+
+
+@dataclass(frozen=True)
+class VectorSeries:
+    """Stamped 3-vectors of one frame (e.g. the sun direction), sorted by header stamp:
+    stamp_ns int64 (N,), vector float64 (N, 3)."""
+
+    stamp_ns: np.ndarray
+    frame_id: str
+    vector: np.ndarray
 
 
 def encode_material_names(names: Sequence[str]) -> str:
@@ -161,6 +173,18 @@ class BagWriter:
             ),
         )
         self._write_msg(topic, POSE_STAMPED, stamp_ns, msg)
+
+    def write_vector3(self, topic: str, stamp_ns: int, frame_id: str,
+                      vector: Sequence[float] | np.ndarray) -> None:
+        """Write geometry_msgs/msg/Vector3Stamped (e.g. the sun direction, lidar frame)."""
+        v = np.asarray(vector, dtype=float)
+        if v.shape != (3,) or not np.isfinite(v).all():
+            raise ValueError(f'vector must be 3 finite numbers, got {vector!r}')
+        types = self.typestore.types
+        msg = types[VECTOR3_STAMPED](header=self._header(stamp_ns, frame_id),
+                                     vector=types['geometry_msgs/msg/Vector3'](
+                                         x=float(v[0]), y=float(v[1]), z=float(v[2])))
+        self._write_msg(topic, VECTOR3_STAMPED, stamp_ns, msg)
 
     def write_string(self, topic: str, stamp_ns: int, text: str) -> None:
         """Write std_msgs/msg/String."""
@@ -262,6 +286,21 @@ def read_material_names(path: str | Path, topic: str = MATERIAL_NAMES_TOPIC) -> 
     if not msgs:
         return None
     return decode_material_names(msgs[-1].data, f'{topic!r} in bag {path}')
+
+
+def read_vectors(path: str | Path, topic: str = SUN_TOPIC) -> VectorSeries | None:
+    """All Vector3Stamped messages of a topic sorted by stamp, or None if the topic is absent."""
+    try:
+        msgs = _read_messages(path, topic, VECTOR3_STAMPED)
+    except _MissingTopicError:
+        return None
+    frames = sorted({m.header.frame_id for m in msgs})
+    if len(frames) > 1:
+        raise BagContentError(f'vectors on {topic!r} in bag {path} use several frames: {frames}')
+    stamp_ns = np.array([stamp_to_ns(m.header.stamp) for m in msgs], dtype=np.int64)
+    vector = np.array([[m.vector.x, m.vector.y, m.vector.z] for m in msgs], dtype=float).reshape(-1, 3)
+    order = np.argsort(stamp_ns, kind='stable')
+    return VectorSeries(stamp_ns[order], frames[0] if frames else '', vector[order])
 
 
 def _read_messages(path: str | Path, topic: str, msgtype: str) -> list[Any]:

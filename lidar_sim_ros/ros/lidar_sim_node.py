@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
@@ -46,6 +46,7 @@ from lidar_sim_ros.ros.spin import run_node
 from lidar_sim_ros.ros.pose_input import (NS_PER_S, PoseHistory, PoseSample, ReasonThrottle,
                                           check_pose, twist_to_lidar)
 from lidar_sim_ros.ros.scheduler import COMPUTE, WAIT, FrameScheduler, readiness
+from lidar_sim_ros.ros.sun_input import check_sun_direction, sun_with_direction
 
 NODE_NAME = 'lidar_sim_node'
 QOS_CHOICES = ('best_effort', 'reliable')
@@ -70,6 +71,7 @@ def _descriptor(ptype: int, text: str, read_only: bool = False, float_range=None
 
 S, F, I, B = (ParameterType.PARAMETER_STRING, ParameterType.PARAMETER_DOUBLE,
               ParameterType.PARAMETER_INTEGER, ParameterType.PARAMETER_BOOL)
+FA = ParameterType.PARAMETER_DOUBLE_ARRAY
 
 
 def _startup(ptype: int, text: str, **ranges) -> ParameterDescriptor:
@@ -91,6 +93,8 @@ STARTUP_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
         S, 'noise-free PointCloud2 output (see publish_truth)')),
     'material_names_topic': ('/lidar/material_names', _startup(
         S, 'std_msgs/String JSON list of material names, latched')),
+    'sun_topic': ('/sun/direction', _startup(
+        S, 'geometry_msgs/Vector3Stamped input: direction toward the sun in the lidar frame')),
     'rate_hz': (0.0, _startup(F, "frame rate (Hz); 0 = the sensor's frame_rate_hz",
                               float_range=(0.0, 1000.0))),
     'seed': (-1, _startup(I, "random seed; -1 = the scenario's seed", int_range=(-1, 2**31 - 1))),
@@ -162,11 +166,21 @@ class LidarSimNode(Node):
             "enabled effects: catalogue names, 'module:Class' or 'file.py:Class' (parameters "
             "from the scenario's effects list, else defaults); default: the scenario's"))
         self.sim.effects = self._build_effects(self._effects_value())
+        sun = self.scenario.config.sun
+        self.declare_parameter(
+            'sun_direction', list(sun.direction) if sun else Parameter.Type.DOUBLE_ARRAY,
+            _descriptor(FA, "direction toward the sun, lidar frame (normalised); [] = no sun; "
+                            "default: the scenario's sun.direction; the sun topic overrides it"))
+        self._set_sun(self.get_parameter_or('sun_direction').value)
         # Compiled kernels (and the effects' first calls) before anything is timed: the
         # frame grid, the pose subscriptions and their staleness checks all start after
         # this, so a slow first start (numba compiling) is not followed by a catch-up
         # burst of frames or stale poses.
-        self.sim.warm_up()
+        try:
+            self.sim.warm_up()
+        except Exception as exc:  # noqa: BLE001 - a broken effect fails its frames, not start-up
+            self.get_logger().warning(f'warm-up failed ({type(exc).__name__}: {exc}); '
+                                      'frames will report it')
         self.declare_parameter('material_names', list(self.scenario.materials.names),
                                _descriptor(ParameterType.PARAMETER_STRING_ARRAY,
                                            'material index -> name of the material field',
@@ -188,7 +202,8 @@ class LidarSimNode(Node):
             f'({len(self.sim.shots)} shots a frame), seed {self.sim.seed}, '
             f'target {self.scenario.mesh_path.name}; '
             f'poses on {self.pose_sub.topic_name}, clouds on {self.points_pub.topic_name} '
-            f'({self.get_parameter("qos_reliability").value})')
+            f'({self.get_parameter("qos_reliability").value}); sun {self._sun_text()} '
+            f'(topic {self.sun_sub.topic_name})')
         self._ready = True
 
     def _load_scenario(self) -> Scenario:
@@ -229,6 +244,9 @@ class LidarSimNode(Node):
         self.names_pub = self.create_publisher(String, param('material_names_topic'), latched)
         self.pose_sub = self.create_subscription(PoseStamped, param('pose_topic'),
                                                  self._on_pose, pose_qos)
+        self.sun_sub = self.create_subscription(
+            Vector3Stamped, param('sun_topic'), self._on_sun,
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.odom_sub = None
         if param('odom_topic'):
             self.odom_sub = self.create_subscription(Odometry, param('odom_topic'),
@@ -312,6 +330,10 @@ class LidarSimNode(Node):
         elif name in ('max_extrapolation_s', 'stale_pose_timeout_s', 'rate_hz') and value is not None:
             if not np.isfinite(value):
                 return 'must be finite'
+        elif name == 'sun_direction' and value is not None and len(value):
+            _, rejection = check_sun_direction(list(value))
+            if rejection is not None:
+                return rejection.reason
         elif name == 'effects' and value:
             if len(set(value)) != len(value):
                 return 'an effect is listed twice'
@@ -331,6 +353,33 @@ class LidarSimNode(Node):
                 self.sim.effects = self._build_effects(list(p.value or []))
                 names = [e.name or type(e).__name__ for e in self.sim.effects]
                 self.get_logger().info(f'effects now {names}')
+            if p.name == 'sun_direction':
+                self._set_sun(p.value)
+                self.get_logger().info(f'sun direction now {self._sun_text()}')
+
+    # ---------------------------------------------------------------- sun
+    def _set_sun(self, direction) -> None:
+        """Point the simulator's sun along ``direction`` (a checked vector); empty = no sun."""
+        if direction is None or len(direction) == 0:
+            self.sim.sun = None
+            return
+        unit, _ = check_sun_direction(list(direction))
+        self.sim.sun = sun_with_direction(self.sim.sun, unit)
+
+    def _sun_text(self) -> str:
+        if self.sim.sun is None:
+            return 'none'
+        return '[' + ', '.join(f'{x:.4f}' for x in self.sim.sun.config.direction) + ']'
+
+    def _on_sun(self, msg: Vector3Stamped) -> None:
+        v = msg.vector
+        unit, rejection = check_sun_direction([v.x, v.y, v.z], msg.header.frame_id,
+                                              self.get_parameter('frame_id').value)
+        if rejection is not None:
+            self._warn(rejection.kind, f'dropped sun direction on {self.sun_sub.topic_name}: '
+                                       f'{rejection.reason}')
+            return
+        self.sim.sun = sun_with_direction(self.sim.sun, unit)
 
     # -------------------------------------------------------------- poses
     def _on_pose(self, msg: PoseStamped) -> None:

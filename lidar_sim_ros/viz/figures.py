@@ -319,4 +319,57 @@ def _intensity(az_deg: np.ndarray, el_deg: np.ndarray, intensity: np.ndarray,
     return fig
 
 
-__all__ = ['DPI', 'FIGURE_NAMES', 'render_bag_figures', 'render_frame_figures']
+def render_sunlight_figure(az_deg: np.ndarray, el_deg: np.ndarray, hit: np.ndarray,
+                           background_w: np.ndarray, sunlit: np.ndarray,
+                           false_probability: np.ndarray, false_az_deg: np.ndarray,
+                           false_el_deg: np.ndarray, out_path: str | Path,
+                           label: str = '', dpi: int = DPI) -> Path:
+    """Sunlight on the target, one frame (docs/sunlight.md): two panels over the sensor's view.
+
+    Top: background power (W) of every shot that sees the target, log colour where the
+    surface is sunlit, grey where it lies in shadow. Bottom: each shot's probability of a
+    false return (log colour), with the frame's actual false returns (material 255) as red
+    crosses. Arrays are per shot (az_deg, el_deg, hit, background_w, sunlit,
+    false_probability) and per false return (false_az_deg, false_el_deg).
+    """
+    az_deg, el_deg = np.asarray(az_deg, float), np.asarray(el_deg, float)
+    hit, sunlit = np.asarray(hit, bool), np.asarray(sunlit, bool)
+    fig = _new_figure((10.0, 9.0))
+    suffix = f'\n{label}' if label else ''
+    top, bottom = fig.subplots(2, 1)
+    shadowed = hit & ~sunlit
+    for ax in (top, bottom):
+        ax.set_xlabel(_AZ_LABEL)
+        ax.set_ylabel(_EL_LABEL)
+        ax.set_aspect('equal', adjustable='box')
+        ax.grid(True, linewidth=0.3, alpha=0.5)
+    top.set_title(f'Solar background on the target: {int(sunlit.sum())} shots see sunlit surfaces, '
+                  f'{int(shadowed.sum())} shadowed' + suffix)
+    top.scatter(az_deg[shadowed], el_deg[shadowed], color=(0.7, 0.7, 0.7), s=1.5, linewidths=0,
+                rasterized=True, label='in shadow')
+    lit_bg = np.asarray(background_w, float)[sunlit]
+    if len(lit_bg) and lit_bg.max() > 0:
+        lo = max(np.percentile(lit_bg[lit_bg > 0], 1), 1e-15) if np.any(lit_bg > 0) else 1e-12
+        sc = top.scatter(az_deg[sunlit], el_deg[sunlit], c=np.clip(lit_bg, lo, None) * 1e9,
+                         cmap='inferno', norm=LogNorm(lo * 1e9, max(lit_bg.max(), lo * 10) * 1e9),
+                         s=1.5, linewidths=0, rasterized=True)
+        fig.colorbar(sc, ax=top, shrink=0.9, label='background power [nW] (log)')
+    top.legend(loc='upper right', markerscale=6, fontsize=8)
+    _finish_angular(top, az_deg[hit], el_deg[hit])
+    p = np.clip(np.asarray(false_probability, float), 1e-9, 1.0)
+    sc = bottom.scatter(az_deg, el_deg, c=p, cmap='viridis', norm=LogNorm(1e-7, 1.0), s=1.5,
+                        linewidths=0, rasterized=True)
+    bottom.scatter(false_az_deg, false_el_deg, marker='x', color='red', s=14, linewidths=0.8,
+                   label=f'false returns ({len(false_az_deg)})')
+    bottom.set_title('False returns: probability per shot (threshold crossings before the echo)')
+    bottom.legend(loc='upper right', fontsize=8)
+    _finish_angular(bottom, az_deg, el_deg)
+    fig.colorbar(sc, ax=bottom, shrink=0.9, label='P(false return) per shot [-] (log)')
+    out_path = Path(out_path)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_path, dpi=dpi)
+    return out_path
+
+
+__all__ = ['DPI', 'FIGURE_NAMES', 'render_bag_figures', 'render_frame_figures',
+           'render_sunlight_figure']

@@ -16,9 +16,12 @@ REGISTRY: dict[str, type[Effect]] = {}
 # User effect files already executed, by resolved path: loading twice gives the same class.
 _FILE_MODULES: dict[Path, object] = {}
 
-# Catalogue modules register themselves on import.
+# Catalogue modules register themselves on import. ``catalogue()`` lists the effects the
+# comparison diagnoses on any recording; those that need more than the recording's points
+# and poses (``sunlight`` needs its sun direction, see compare/sunlight.py) load by name only.
 _CATALOGUE = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
               'beam_divergence', 'time_offset')
+_BY_NAME_ONLY = ('sunlight',)
 
 
 def register(cls: type[Effect]) -> type[Effect]:
@@ -30,7 +33,7 @@ def register(cls: type[Effect]) -> type[Effect]:
 
 
 def _load_catalogue() -> None:
-    for mod in _CATALOGUE:
+    for mod in _CATALOGUE + _BY_NAME_ONLY:
         try:
             importlib.import_module(f'lidar_sim_ros.core.effects.{mod}')
         except ModuleNotFoundError as exc:

@@ -30,11 +30,50 @@ fit with no extra code.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any, ClassVar, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar, Sequence
 
 import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict
+
+if TYPE_CHECKING:
+    from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
+    from lidar_sim_ros.core.geometry import Target
+    from lidar_sim_ros.core.pose import Poses
+    from lidar_sim_ros.core.sun import Illumination
+
+
+@dataclass(frozen=True)
+class Scene:
+    """The world around a set of shots, for effects that follow light beyond the laser's
+    own ray (shadows, background light): the target at each shot's pose, the material
+    table, the sensor, and the illumination at each shot's time (None = no sun)."""
+
+    target: 'Target'
+    poses: 'Poses'
+    materials: 'MaterialsConfig'
+    sensor: 'SensorConfig'
+    illumination: 'Illumination | None' = None
+
+    def occluded(self, origins_lidar_m: np.ndarray, directions_lidar: np.ndarray,
+                 shots: np.ndarray) -> np.ndarray:
+        """Shadow rays from lidar-frame origins along unit directions, each against the
+        target at the pose of shot ``shots[i]``: True where the ray meets the target."""
+        from lidar_sim_ros.core.geometry import occluded_at_poses
+        from lidar_sim_ros.core.pose import Poses
+        quat, pos = self.poses.quat_xyzw, self.poses.position_m.reshape(-1, 3)
+        if len(quat) > 1:
+            quat, pos = quat.take(shots, axis=0), pos.take(shots, axis=0)
+        return occluded_at_poses(self.target, origins_lidar_m, directions_lidar,
+                                 Poses.from_quat(quat, pos))
+
+    def subset(self, mask: np.ndarray) -> 'Scene':
+        from lidar_sim_ros.core.pose import Poses
+        quat, pos = self.poses.quat_xyzw, self.poses.position_m.reshape(-1, 3)
+        if len(quat) > 1:
+            quat, pos = quat[mask], pos[mask]
+        return replace(self, poses=Poses.from_quat(quat, pos),
+                       illumination=None if self.illumination is None else self.illumination.subset(mask))
 
 
 @dataclass(frozen=True)
@@ -45,7 +84,11 @@ class ReturnContext:
     power_w: received power (W); intensity: power / saturation (-);
     t_s: time since frame start (s); az_rad, el_rad: pointing; laser: id;
     divergence_rad: full beam divergence; hit: bool mask;
-    threshold_power_w: detection threshold (W); min_range_m, max_range_m: range gate.
+    threshold_power_w: detection threshold (W); min_range_m, max_range_m: range gate;
+    direction (N, 3): unit ray directions and normal (N, 3): surface normals toward the
+    sensor (zeros on a miss), both in the lidar frame; face: the target triangle hit (-1 on
+    a miss); scene: the target, poses, materials, sensor and light (``Scene``). The last
+    four are None where the caller has no geometry.
     """
 
     range_m: np.ndarray
@@ -62,6 +105,10 @@ class ReturnContext:
     threshold_power_w: float = 0.0
     max_range_m: float = 300.0
     min_range_m: float = 0.0
+    direction: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    face: np.ndarray | None = None
+    scene: Scene | None = None
 
     def __len__(self) -> int:
         return len(self.range_m)
@@ -69,6 +116,8 @@ class ReturnContext:
     def subset(self, mask: np.ndarray) -> 'ReturnContext':
         fields = {k: (v[mask] if isinstance(v, np.ndarray) and v.shape[:1] == self.range_m.shape[:1] else v)
                   for k, v in self.__dict__.items()}
+        if self.scene is not None:
+            fields['scene'] = self.scene.subset(mask)
         return ReturnContext(**fields)
 
 
@@ -140,7 +189,9 @@ class Effect:
         return 0.0
 
     def false_returns(self, ctx: ReturnContext, rng: np.random.Generator):
-        """Spurious returns: (mask over shots, range_m) replacing those shots' returns, or None."""
+        """Spurious returns: (mask over shots, range_m) replacing those shots' returns, or None.
+
+        A NaN range under the mask removes the shot's return (e.g. a blinded detector)."""
         return None
 
     def outlier_fraction(self, ctx: ReturnContext) -> np.ndarray | float:
@@ -180,9 +231,12 @@ def apply_effects(ctx: ReturnContext, effects: Sequence['Effect'], bias_m: np.nd
                   var_m2: np.ndarray) -> tuple[ReturnContext, np.ndarray, np.ndarray]:
     """The effects' power scale, then their extra bias (m) and variance (m^2) on top of
     ``bias_m`` / ``var_m2``: the one place the simulator and the fits combine effects."""
-    scale = np.ones(len(ctx))
+    # Hooks left at their neutral scalar defaults cost no pass over the shots.
+    scale = 1.0
     for eff in effects:
-        scale = scale * eff.power_scale(ctx)
+        factor = eff.power_scale(ctx)
+        if not (np.isscalar(factor) and factor == 1.0):
+            scale = scale * np.asarray(factor, float)
     if np.any(scale != 1.0):
         # intensity is power / saturation power: it scales with the power.
         ctx = replace(ctx, power_w=ctx.power_w * scale, intensity=ctx.intensity * scale)
@@ -190,8 +244,12 @@ def apply_effects(ctx: ReturnContext, effects: Sequence['Effect'], bias_m: np.nd
     var = np.asarray(var_m2, float)
     with np.errstate(invalid='ignore', divide='ignore', over='ignore'):  # misses carry NaN range
         for eff in effects:
-            bias = bias + eff.range_bias_m(ctx)
-            var = var + np.asarray(eff.range_sigma_m(ctx), float) ** 2
+            extra_bias = eff.range_bias_m(ctx)
+            if not (np.isscalar(extra_bias) and extra_bias == 0.0):
+                bias = bias + extra_bias
+            extra_sigma = eff.range_sigma_m(ctx)
+            if not (np.isscalar(extra_sigma) and extra_sigma == 0.0):
+                var = var + np.asarray(extra_sigma, float) ** 2
     n = len(ctx)
     return ctx, np.broadcast_to(bias, (n,)), np.broadcast_to(var, (n,))
 

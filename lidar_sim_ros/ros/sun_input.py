@@ -1,0 +1,39 @@
+"""Sun direction input of the node, free of rclpy: validate a direction and turn it into
+the simulator's sun.
+
+The direction is a vector toward the sun in the lidar frame, from the ``sun_direction``
+parameter or a ``geometry_msgs/Vector3Stamped`` on the sun topic (whose ``frame_id`` must
+be the node's). Any non-zero finite vector is accepted and normalised.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from lidar_sim_ros.core.config import SunConfig
+from lidar_sim_ros.core.sun import ScenarioSun
+from lidar_sim_ros.ros.pose_input import Rejection
+
+
+def check_sun_direction(vector, frame_id: str | None = None,
+                        node_frame_id: str | None = None) -> tuple[np.ndarray | None, Rejection | None]:
+    """(unit vector, None) or (None, why not). ``frame_id`` None skips the frame check."""
+    if frame_id is not None and frame_id != node_frame_id:
+        return None, Rejection('sun_frame_id', f'frame_id {frame_id!r} is not the node '
+                                               f'frame_id {node_frame_id!r}')
+    v = np.asarray(vector, dtype=float)
+    if v.shape != (3,):
+        return None, Rejection('sun_shape', f'needs 3 components, got {v.size}')
+    if not np.isfinite(v).all():
+        return None, Rejection('sun_finite', f'direction {v.tolist()} is not finite')
+    norm = float(np.linalg.norm(v))
+    if norm < 1e-9:
+        return None, Rejection('sun_zero', 'direction is zero')
+    return v / norm, None
+
+
+def sun_with_direction(current: ScenarioSun | None, direction: np.ndarray) -> ScenarioSun:
+    """The node's sun pointing along ``direction`` (fixed: no orbit motion at run time);
+    irradiance, Earth and the rest stay as the scenario set them (defaults without a sun)."""
+    if current is None:
+        return ScenarioSun(SunConfig(direction=tuple(float(x) for x in direction)))
+    return current.with_direction(direction)
