@@ -15,14 +15,14 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
 from lidar_sim_ros.core.config import Scenario, load_scenario
 from lidar_sim_ros.core.effects import effect_from_spec
-from lidar_sim_ros.core.pipeline import Simulator
-from lidar_sim_ros.core.pose import ScenarioTrajectory
+from lidar_sim_ros.core.pipeline import Frame, Simulator
+from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, MATERIAL_NAMES_TOPIC, POSE_TOPIC, BagWriter
 from lidar_sim_ros.io.pointcloud import frame_points
 
@@ -51,7 +51,9 @@ def to_stamp_ns(t_s: float | np.ndarray, epoch_s: float = DEFAULT_EPOCH_S) -> np
 def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames: int,
                     start_s: float = 0.0, storage: str = 'mcap', effects: Sequence[str] = (),
                     figures: bool = True, epoch_s: float = DEFAULT_EPOCH_S,
-                    poses_per_frame: int = POSES_PER_FRAME) -> OfflineResult:
+                    poses_per_frame: int = POSES_PER_FRAME, simulator: Simulator | None = None,
+                    pose_source: PoseSource | None = None,
+                    on_frame: Callable[[Frame], None] | None = None) -> OfflineResult:
     """Simulate ``frames`` frames from scenario time ``start_s`` into ``out_dir/bag``.
 
     Topics: /lidar/points (detected returns), /lidar/points_truth (every hit, no
@@ -59,6 +61,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     ``poses_per_frame`` evenly spaced samples per frame plus one at the end of the
     last frame), /lidar/material_names (JSON list, once). Figures of the last frame
     go to ``out_dir/figures``. Raises FileExistsError if the bag already exists.
+    ``simulator`` / ``pose_source`` replace the scenario's own (campaigns reuse a
+    worker's mesh and move the sensor mount); ``on_frame`` sees every simulated frame.
     """
     if frames < 1:
         raise ValueError(f'frames must be >= 1, got {frames}')
@@ -70,8 +74,9 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
         raise FileExistsError(f'{bag_path} already exists; choose another --out or remove it')
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
-    sim = Simulator.from_scenario(scenario, extra_effects=[effect_from_spec(e) for e in effects])
-    trajectory = ScenarioTrajectory.from_config(scenario.config)
+    sim = simulator or Simulator.from_scenario(
+        scenario, extra_effects=[effect_from_spec(e) for e in effects])
+    trajectory = pose_source or ScenarioTrajectory.from_config(scenario.config)
     frame_id = scenario.config.frame_id
     period = sim.frame_period_s
     first_index = int(round(start_s / period))
@@ -89,6 +94,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
             _write_poses(bag, trajectory, frame_start + k * (period / poses_per_frame),
                          frame_id, epoch_s)
             last = sim.simulate_frame(frame_start, trajectory, first_index + i)
+            if on_frame is not None:
+                on_frame(last)
             stamp = int(to_stamp_ns(frame_start, epoch_s))
             bag.write_cloud(CLOUD_TOPIC, frame_points(last), stamp, frame_id)
             bag.write_cloud(TRUTH_TOPIC, frame_points(last, truth=True), stamp, frame_id)
@@ -105,7 +112,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     return OfflineResult(bag_path, figure_paths, stamps, stats)
 
 
-def _write_poses(bag: BagWriter, trajectory: ScenarioTrajectory, t_s: np.ndarray,
+def _write_poses(bag: BagWriter, trajectory: PoseSource, t_s: np.ndarray,
                  frame_id: str, epoch_s: float) -> None:
     poses = trajectory.at(t_s)
     quat = poses.rotation.as_quat()
