@@ -6,14 +6,15 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= demo-output
 
-.PHONY: venv demo demo-offline test bench bench-node clean
+.PHONY: venv demo demo-offline test bench bench-node bench-campaign clean
 
 venv: $(STAMP)
 
-$(STAMP): requirements.txt requirements-ros.txt requirements-dev.txt setup.py
+$(STAMP): requirements.txt requirements-ros.txt requirements-dev.txt requirements-campaign.txt setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -r requirements.txt -r requirements-ros.txt -r requirements-dev.txt
+	$(BIN)/pip install --quiet -r requirements-campaign.txt
 	$(BIN)/pip install --quiet --no-deps -e .
 	touch $(STAMP)
 
@@ -34,5 +35,9 @@ bench: $(STAMP)
 bench-node: $(STAMP)
 	$(BIN)/python bench/bench_node.py --out bench_node.json
 
+## Campaign engine: frames/s on 1 and 2 Dask workers, speedup, overhead per run.
+bench-campaign: $(STAMP)
+	$(BIN)/python bench/bench_campaign.py --out bench_campaign.json
+
 clean:
-	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json
+	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_campaign.json

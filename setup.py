@@ -30,6 +30,10 @@ setup(
         'pydantic>=2.6',
         'PyYAML>=6.0',
     ],
+    extras_require={
+        # lidar-sim campaign: the distributed engine and its progress bar (requirements-campaign.txt).
+        'campaign': ['distributed>=2024.1', 'tqdm>=4.60'],
+    },
     zip_safe=True,
     maintainer='lidar_sim_ros developers',
     maintainer_email='lidar-sim@example.com',

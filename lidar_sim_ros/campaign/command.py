@@ -71,6 +71,10 @@ def run(args: argparse.Namespace) -> int:
     except EngineError as exc:
         print(f'lidar-sim campaign: error: {exc}', file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f'\nlidar-sim campaign: interrupted; finished runs are in {args.out / "manifest.csv"}, '
+              'the same command resumes', file=sys.stderr)
+        return 130
     frames = report.ran * campaign.frames_per_run
     print(f'manifest: {report.manifest_path}  ({report.runs} runs: {report.skipped} already '
           f'finished, {report.ok} ok, {report.failed} failed now)')

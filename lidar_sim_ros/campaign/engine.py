@@ -3,9 +3,8 @@
 Without ``address`` a ``LocalCluster`` starts one single-threaded worker process per
 core (``workers`` to choose), nothing to set up; with ``address`` the client joins a
 running scheduler (``dask scheduler`` + ``dask worker ADDRESS`` on each node, see
-docs/campaign.md). The campaign (spec + base scenario) is sent to every worker once;
-a task is just (campaign, run id): workers sample and simulate, the client only
-writes manifest rows as results arrive. Why Dask and not Ray: docs/campaign.md.
+docs/campaign.md). A task is (campaign, run id), a few kB: workers sample and
+simulate, the client only writes manifest rows as results arrive. Why Dask and not Ray: docs/campaign.md.
 """
 from __future__ import annotations
 
@@ -59,17 +58,22 @@ def connect(workers: int | None = None, address: str | None = None) -> Iterator[
             yield client
         return
     n = workers or os.cpu_count() or 1
-    # One thread per process: the kernels hold the GIL for part of a frame, and one
-    # process per core lets each worker keep its own mesh and compiled kernels.
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster:
-        try:
-            with Client(cluster) as client:
-                yield client
-        finally:
-            # A worker whose interpreter takes > 4 s to tear down (numba, Embree, on a busy
-            # machine) is killed by its nanny with a warning; harmless once the runs are in.
-            logging.getLogger('distributed.nanny').setLevel(logging.ERROR)
+    nanny_log = logging.getLogger('distributed.nanny')
+    level = nanny_log.level
+    try:
+        # One thread per process: the kernels hold the GIL for part of a frame, and one
+        # process per core lets each worker keep its own mesh and compiled kernels.
+        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                          dashboard_address=None) as cluster:
+            try:
+                with Client(cluster) as client:
+                    yield client
+            finally:
+                # A worker whose interpreter takes > 4 s to tear down (numba, Embree, on a
+                # busy machine) is killed by its nanny with a warning: harmless at the end.
+                nanny_log.setLevel(logging.ERROR)
+    finally:
+        nanny_log.setLevel(level)
 
 
 def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = None,
@@ -88,13 +92,12 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
     n_workers = 0
     if pending:
         with connect(workers, address) as client:
-            shared = client.scatter(campaign, broadcast=True)
             # Mesh and kernels on every worker now, in parallel, so that runs time only runs.
             client.run(prepare_worker, campaign.scenario)
             n_workers = len(client.scheduler_info()['workers'])
             startup_s = time.perf_counter() - t0
             t1 = time.perf_counter()
-            compute_s = _gather(client, campaign, shared, pending, out_dir, manifest, progress)
+            compute_s = _gather(client, campaign, pending, out_dir, manifest, progress)
             wall_s = time.perf_counter() - t1
     manifest.rewrite()
     parquet = manifest.write_parquet()
@@ -104,10 +107,13 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
                           startup_s, wall_s, compute_s)
 
 
-def _gather(client: Client, campaign: Campaign, shared, pending: list[int], out_dir: str | Path,
+def _gather(client: Client, campaign: Campaign, pending: list[int], out_dir: str | Path,
             manifest: Manifest, progress: bool) -> float:
     """Submit the pending runs, record each as it finishes; returns the summed compute (s)."""
-    futures = {client.submit(run_one, shared, i, str(out_dir), pure=False): i for i in pending}
+    # The campaign travels inside each task (~4 kB pickled): tasks without dependencies
+    # are queued on the scheduler and handed to whichever worker frees up first, where a
+    # scattered campaign made them data-dependent and let one worker take most of them.
+    futures = {client.submit(run_one, campaign, i, str(out_dir), pure=False): i for i in pending}
     bar = _progress_bar(campaign.spec.runs, campaign.spec.runs - len(pending), progress)
     remaining = len(futures)
     if bar is not None:
