@@ -32,6 +32,7 @@ from lidar_sim_ros.core.config import ConfigError
 from lidar_sim_ros.core.geometry import Target
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.pose import Poses, StaticPose
+from lidar_sim_ros.io.bag import read_clouds, read_material_names
 
 dask_distributed = pytest.importorskip('dask.distributed')
 
@@ -201,6 +202,25 @@ def test_range_error_and_dropout_statistics_on_a_plate():
             + s['dropped_other']) == s['shots'] - s['points'] + s['false_returns']
 
 
+def test_frame_points_carry_their_face_and_true_range():
+    # Plate at x = 10 m facing the sensor: true range 10 / d_x along unit direction d.
+    sens = sensor(scan={'type': 'rotating', 'elevations_deg': [-3.0, 0.0, 2.0],
+                        'az_min_deg': -4.0, 'az_max_deg': 4.0, 'shots_per_beam': 30})
+    sim = Simulator(sens, materials(bias_m=0.0, sigma_m=0.02), plate_target(4.0), seed=2)
+    facing = tuple(Rotation.from_euler('y', -90, degrees=True).as_quat())
+    frame = sim.simulate_frame(0.0, StaticPose((10.0, 0.0, 0.0), facing), 0)
+    d = frame.xyz_m / np.linalg.norm(frame.xyz_m, axis=1, keepdims=True)
+    assert len(frame) == 90
+    assert frame.true_range_m == pytest.approx(10.0 / d[:, 0], rel=1e-6)
+    assert set(frame.face.tolist()) <= {0, 1} and set(frame.truth_face.tolist()) == {0, 1}
+    # Which triangle: the plate's diagonal y = x (body frame) splits it into face 0
+    # (y < x) and face 1 (y > x); each return's body point decides, not the raycast.
+    body = Rotation.from_quat(facing).inv().apply(frame.xyz_m - [10.0, 0.0, 0.0])
+    upper = body[:, 1] > body[:, 0]
+    clear = np.abs(body[:, 1] - body[:, 0]) > 0.1  # noise moves points along the ray
+    assert np.array_equal(frame.face[clear], upper[clear].astype(int))
+
+
 def test_range_error_sigma_matches_the_material():
     sens = sensor(scan={'type': 'rotating', 'elevations_deg': list(np.linspace(-2, 2, 40)),
                         'az_min_deg': -2.0, 'az_max_deg': 2.0, 'shots_per_beam': 100})
@@ -247,6 +267,19 @@ def test_an_occluded_plate_is_not_visible():
     pose = Poses(facing, np.array([[10.0, 0.0, 0.0]]))
     visible = visible_faces(target, faces, pose, (-1.0, 1.0), (-1.0, 1.0))
     assert visible.tolist() == [True, True, False, False]
+
+
+def test_bags_hold_the_runs_frames_and_change_no_statistic(tmp_path):
+    stats_only = load_campaign(write_campaign(tmp_path / 's.yaml', duration_s=0.2))
+    with_bags = load_campaign(write_campaign(tmp_path / 'b.yaml', duration_s=0.2, save='bags'))
+    row_s, _ = rerun(stats_only, tmp_path / 'out_s', 1)
+    row_b, _ = rerun(with_bags, tmp_path / 'out_b', 1)
+    assert row_b['status'] == 'ok' and results(row_b) == results(row_s)
+    bag = tmp_path / 'out_b' / 'runs' / 'run_00001' / 'bag'
+    clouds = read_clouds(bag)
+    assert len(clouds) == 2 and sum(len(c.points) for c in clouds) == int(row_b['stat.points'])
+    assert read_material_names(bag) == stats_only.scenario.materials.names
+    assert not (tmp_path / 'out_s' / 'runs').exists()
 
 
 # ------------------------------------------------------------ the engine
