@@ -94,7 +94,7 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
         with connect(workers, address) as client:
             # Mesh and kernels on every worker now, in parallel, so that runs time only runs.
             client.run(prepare_worker, campaign.scenario)
-            n_workers = len(client.scheduler_info()['workers'])
+            n_workers = len(client.nthreads())
             startup_s = time.perf_counter() - t0
             t1 = time.perf_counter()
             compute_s = _gather(client, campaign, pending, out_dir, manifest, progress)
@@ -113,7 +113,8 @@ def _gather(client: Client, campaign: Campaign, pending: list[int], out_dir: str
     # The campaign travels inside each task (~4 kB pickled): tasks without dependencies
     # are queued on the scheduler and handed to whichever worker frees up first, where a
     # scattered campaign made them data-dependent and let one worker take most of them.
-    futures = {client.submit(run_one, campaign, i, str(out_dir), pure=False): i for i in pending}
+    out = str(Path(out_dir).resolve())  # workers may run elsewhere, in another directory
+    futures = {client.submit(run_one, campaign, i, out, pure=False): i for i in pending}
     bar = _progress_bar(campaign.spec.runs, campaign.spec.runs - len(pending), progress)
     remaining = len(futures)
     if bar is not None:

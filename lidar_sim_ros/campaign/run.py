@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.campaign.manifest import Manifest
 from lidar_sim_ros.campaign.coverage import FaceGeometry, covered_fraction, visible_faces
+from lidar_sim_ros.campaign.manifest import Manifest
 from lidar_sim_ros.campaign.sample import RunCase, run_seed, sample_run
 from lidar_sim_ros.campaign.spec import Campaign
 from lidar_sim_ros.campaign.statistics import RunStatistics

@@ -19,8 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar_sim_ros.campaign.spec import Campaign, Dispersions
-from lidar_sim_ros.core.config import (EffectConfig, MaterialConfig, MaterialsConfig, Scenario,
-                                       ScenarioConfig)
+from lidar_sim_ros.core.config import MaterialConfig, MaterialsConfig, Scenario, ScenarioConfig
 from lidar_sim_ros.core.pose import quat_multiply
 
 
@@ -122,7 +121,7 @@ def sample_run(campaign: Campaign, run_index: int) -> RunCase:
     config = ScenarioConfig.model_validate({
         **cfg.model_dump(), 'seed': seed, 'motion': motion,
         'initial_pose': {'position_m': tuple(position), 'quat_xyzw': tuple(quat)},
-        'effects': [EffectConfig.model_validate(e).model_dump() for e in effects]})
+        'effects': effects})
     scenario = Scenario(config, base.sensor, MaterialsConfig(materials=materials),
                         base.mesh_path, base.source)
     return RunCase(run_index, seed, campaign.frames_per_run, params, scenario, misalignment,

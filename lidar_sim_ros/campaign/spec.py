@@ -232,12 +232,14 @@ def load_campaign(path: str | Path) -> Campaign:
 
 def _check_supports(disp: Dispersions, path: Path) -> None:
     """Laws that can draw impossible values fail at load, not in run 4711."""
-    if disp.initial_distance_m is not None and disp.initial_distance_m.support()[0] <= 0.0:
-        raise ConfigError(path, 'dispersions.initial_distance_m', disp.initial_distance_m.model_dump(exclude_none=True),
+    distance = disp.initial_distance_m
+    if distance is not None and distance.support()[0] <= 0.0:
+        raise ConfigError(path, 'dispersions.initial_distance_m', distance.model_dump(exclude_none=True),
                           'can draw a distance <= 0 m; bound it above zero (uniform low, normal low)')
     for name, mat in disp.materials.items():
         if mat.sigma_m is not None and mat.sigma_m.support()[0] < 0.0:
-            raise ConfigError(path, f'dispersions.materials.{name}.sigma_m', mat.sigma_m.model_dump(exclude_none=True),
+            raise ConfigError(path, f'dispersions.materials.{name}.sigma_m',
+                              mat.sigma_m.model_dump(exclude_none=True),
                               'can draw a negative sigma; bound it at or above zero')
 
 
