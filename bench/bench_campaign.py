@@ -16,11 +16,14 @@ down):
   so the figure is the engine's cost alone; ``parallel_efficiency`` (2 workers: sum of
   compute / (2 x wall)) adds the tail where one worker waits for the other's last run;
 * start-up (cluster + preparing the workers), worker memory, load average before and
-  after (the machine is shared: a load above ~0.5 at the start disturbs the figures).
+  after (the machine is shared: a load above ~0.5 at the start disturbs the figures),
+  and ``cpu_share_of_compute``: the runs' CPU time over their wall time on the workers;
+  below 1 a run waited for a core that something else held.
 """
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import platform
@@ -66,18 +69,23 @@ def measure(campaign, workers: int, repeats: int, tmp: Path) -> dict:
         for k in range(repeats):
             out = tmp / f'out_{workers}_{k}'
             report = run_campaign(campaign, out, address=cluster.scheduler_address, progress=False)
-            shutil.rmtree(out)
             if report.failed:
-                raise RuntimeError(f'{report.failed} runs failed; see the manifest')
-            if best is None or report.wall_s < best.wall_s:
-                best = report
+                raise RuntimeError(f'{report.failed} runs failed; see {report.manifest_path}')
+            with report.manifest_path.open(newline='') as fh:
+                cpu_s = sum(float(row['cpu_s']) for row in csv.DictReader(fh))
+            shutil.rmtree(out)
+            if best is None or report.wall_s < best[0].wall_s:
+                best = report, cpu_s
         rss = client.run(worker_rss_mb)
+    best, cpu_s = best
     frames = best.ran * campaign.frames_per_run
     return {
         'workers': workers, 'runs': best.ran, 'frames': frames,
         'wall_s': round(best.wall_s, 3), 'compute_s': round(best.compute_s, 3),
         'frames_per_s': round(frames / best.wall_s, 2),
         'compute_per_run_s': round(best.compute_s / best.ran, 4),
+        'cpu_per_run_s': round(cpu_s / best.ran, 4),
+        'cpu_share_of_compute': round(cpu_s / best.compute_s, 3),
         'overhead_per_run_fraction': round((workers * best.wall_s - best.compute_s) / best.compute_s, 4),
         'parallel_efficiency': round(best.compute_s / (workers * best.wall_s), 3),
         'cluster_start_s': round(cluster_s, 2), 'startup_s': round(startup_s, 2),

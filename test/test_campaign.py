@@ -79,7 +79,7 @@ def read_manifest(out: Path) -> dict[int, dict[str, str]]:
 
 def results(row: dict[str, str]) -> dict[str, str]:
     """What a run computes: seed, status, parameters and statistics (not its timing)."""
-    return {k: v for k, v in row.items() if k not in ('compute_s', 'worker')}
+    return {k: v for k, v in row.items() if k not in ('compute_s', 'cpu_s', 'worker')}
 
 
 # ------------------------------------------------------------------- spec

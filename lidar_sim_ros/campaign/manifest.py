@@ -2,8 +2,8 @@
 
 Columns: ``run_id``, ``seed``, ``status`` (ok | failed), ``error``, the dispersed
 parameters ``param.<name>``, the statistics ``stat.<name>``, then bookkeeping that is
-not a result of the run (``compute_s``: the run's wall time on its worker, ``worker``:
-host:pid). Floats are written with ``repr`` (shortest round-trip text), so a value
+not a result of the run (``compute_s`` / ``cpu_s``: the run's wall / CPU time on its
+worker, ``worker``: host:pid). Floats are written with ``repr`` (shortest round-trip text), so a value
 read back equals the one computed, bit for bit.
 
 A row is appended (and flushed) the moment its run finishes, so a campaign killed
@@ -27,7 +27,7 @@ from lidar_sim_ros.campaign.statistics import stat_names
 MANIFEST = 'manifest.csv'
 FINGERPRINT = 'campaign.json'
 HEAD = ['run_id', 'seed', 'status', 'error']
-TAIL = ['compute_s', 'worker']
+TAIL = ['compute_s', 'cpu_s', 'worker']
 
 
 def columns(campaign: Campaign) -> list[str]:

@@ -118,10 +118,11 @@ def run_case(case: RunCase, out_dir: str | Path | None = None) -> dict:
     """One manifest row: never raises; a failure becomes ``status: failed`` with its error."""
     row = {'run_id': case.run_id, 'seed': case.seed,
            **{f'param.{k}': v for k, v in case.params.items()}}
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     try:
         prepare_worker(case.scenario)
-        start = time.perf_counter()  # the worker's one-time preparation is not the run's compute
+        # The worker's one-time preparation is not the run's compute.
+        start, cpu = time.perf_counter(), time.process_time()
         stats = simulate_case(case, out_dir)
     except Exception as exc:  # a run's failure must not stop the campaign
         last = traceback.extract_tb(exc.__traceback__)[-1]
@@ -130,6 +131,7 @@ def run_case(case: RunCase, out_dir: str | Path | None = None) -> dict:
     else:
         row.update(status='ok', error='', **{f'stat.{k}': v for k, v in stats.items()})
     row['compute_s'] = time.perf_counter() - start
+    row['cpu_s'] = time.process_time() - cpu
     row['worker'] = f'{socket.gethostname()}:{os.getpid()}'
     return row
 
