@@ -74,9 +74,10 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
         raise FileExistsError(f'{bag_path} already exists; choose another --out or remove it')
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
-    sim = simulator or Simulator.from_scenario(
+    sim = simulator if simulator is not None else Simulator.from_scenario(
         scenario, extra_effects=[effect_from_spec(e) for e in effects])
-    trajectory = pose_source or ScenarioTrajectory.from_config(scenario.config)
+    trajectory = pose_source if pose_source is not None else ScenarioTrajectory.from_config(
+        scenario.config)
     frame_id = scenario.config.frame_id
     period = sim.frame_period_s
     first_index = int(round(start_s / period))
