@@ -330,6 +330,9 @@ def test_rerun_by_id_gives_identical_statistics(finished, capsys):
     assert cli_main(['campaign', str(campaign.source), '--out', str(out), '--run', '1']) == 0
     assert 'statistics identical to the manifest row' in capsys.readouterr().out
     assert results(read_manifest(out)[1]) == results(run1)
+    assert cli_main(['campaign', str(campaign.source), '--out', str(out), '--run', '4']) == 2
+    assert 'the campaign has runs 0..3' in capsys.readouterr().err
+    assert sorted(read_manifest(out)) == [0, 1, 2, 3]
 
 
 def test_resume_skips_finished_runs(finished, cluster, tmp_path):

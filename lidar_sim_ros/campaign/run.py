@@ -153,6 +153,8 @@ def rerun(campaign: Campaign, out_dir: str | Path, run_id: int) -> tuple[dict, d
     Returns the new row and the one the manifest held (None if none), both as manifest
     text, so that equal statistics compare equal character for character.
     """
+    if not 0 <= run_id < campaign.spec.runs:
+        raise ValueError(f'--run {run_id}: the campaign has runs 0..{campaign.spec.runs - 1}')
     manifest = Manifest.open(out_dir, campaign)
     old = manifest.rows.get(run_id)
     row = manifest.text_row(run_one(campaign, run_id, out_dir))
