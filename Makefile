@@ -6,16 +6,16 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= demo-output
 
-.PHONY: venv demo demo-offline demo-gnc test bench bench-node bench-gnc bench-compare constraints clean
+.PHONY: venv demo demo-offline demo-gnc test bench bench-node bench-gnc bench-compare bench-campaign constraints clean
 
 venv: $(STAMP)
 
 # constraints.txt pins the versions that were tested (make constraints rewrites it);
 # the warm-up compiles the numba kernels once, so no node compiles at its first start.
-$(STAMP): requirements.txt requirements-ros.txt requirements-dev.txt requirements-gnc.txt constraints.txt setup.py
+$(STAMP): requirements.txt requirements-ros.txt requirements-dev.txt requirements-gnc.txt requirements-campaign.txt constraints.txt setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -c constraints.txt -r requirements.txt -r requirements-ros.txt -r requirements-dev.txt -r requirements-gnc.txt
+	$(BIN)/pip install --quiet -c constraints.txt -r requirements.txt -r requirements-ros.txt -r requirements-dev.txt -r requirements-gnc.txt -r requirements-campaign.txt
 	$(BIN)/pip install --quiet --no-deps -e .
 	$(BIN)/python -m lidar_sim_ros.warm_up
 	touch $(STAMP)
@@ -56,5 +56,9 @@ constraints: $(STAMP)
 	  $(BIN)/pip freeze --exclude-editable | grep -iv '^lidar[-_]sim[-_]ros'; } > constraints.txt
 	touch $(STAMP)
 
+## Campaign engine: frames/s on 1 and 2 Dask workers, speedup, overhead per run.
+bench-campaign: $(STAMP)
+	$(BIN)/python bench/bench_campaign.py --out bench_campaign.json
+
 clean:
-	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_tracker.json bench_compare.json bench_compare_data
+	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_tracker.json bench_compare.json bench_compare_data bench_campaign.json

@@ -34,6 +34,8 @@ setup(
     # Optional subsystems with heavy dependencies: pip install lidar_sim_ros[gnc]
     extras_require={
         'gnc': ['small_gicp>=1.0'],
+        # lidar-sim campaign: the distributed engine and its progress bar (requirements-campaign.txt).
+        'campaign': ['distributed>=2024.1', 'tqdm>=4.60'],
     },
     zip_safe=True,
     maintainer='lidar_sim_ros developers',

@@ -15,6 +15,7 @@ COMMAND_MODULES = (
     'lidar_sim_ros.offline',             # simulate
     'lidar_sim_ros.compare.command',     # compare
     'lidar_sim_ros.calibrate.command',   # calibrate brdf | range-errors | scan
+    'lidar_sim_ros.campaign.command',    # campaign (engine: the [campaign] extra)
 )
 
 USER_ERRORS = (ValueError, KeyError, FileNotFoundError, FileExistsError, NotADirectoryError)

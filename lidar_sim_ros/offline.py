@@ -15,14 +15,14 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
 from lidar_sim_ros.core.config import Scenario, load_scenario
 from lidar_sim_ros.core.effects import effect_from_spec
-from lidar_sim_ros.core.pipeline import Simulator
-from lidar_sim_ros.core.pose import ScenarioTrajectory
+from lidar_sim_ros.core.pipeline import Frame, Simulator
+from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, MATERIAL_NAMES_TOPIC, POSE_TOPIC, SUN_TOPIC, BagWriter
 from lidar_sim_ros.io.pointcloud import frame_points
 
@@ -51,7 +51,9 @@ def to_stamp_ns(t_s: float | np.ndarray, epoch_s: float = DEFAULT_EPOCH_S) -> np
 def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames: int,
                     start_s: float = 0.0, storage: str = 'mcap', effects: Sequence[str] = (),
                     figures: bool = True, epoch_s: float = DEFAULT_EPOCH_S,
-                    poses_per_frame: int = POSES_PER_FRAME) -> OfflineResult:
+                    poses_per_frame: int = POSES_PER_FRAME, simulator: Simulator | None = None,
+                    pose_source: PoseSource | None = None,
+                    on_frame: Callable[[Frame], None] | None = None) -> OfflineResult:
     """Simulate ``frames`` frames from scenario time ``start_s`` into ``out_dir/bag``.
 
     Topics: /lidar/points (detected returns), /lidar/points_truth (every hit, no
@@ -61,6 +63,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     /sun/direction (Vector3Stamped toward the sun, lidar frame, one per frame start).
     Figures of the last frame go to ``out_dir/figures`` (plus ``sunlight.png`` with a
     sun). Raises FileExistsError if the bag already exists.
+    ``simulator`` / ``pose_source`` replace the scenario's own (campaigns reuse a
+    worker's mesh and move the sensor mount); ``on_frame`` sees every simulated frame.
     """
     if frames < 1:
         raise ValueError(f'frames must be >= 1, got {frames}')
@@ -72,8 +76,10 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
         raise FileExistsError(f'{bag_path} already exists; choose another --out or remove it')
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
-    sim = Simulator.from_scenario(scenario, extra_effects=[effect_from_spec(e) for e in effects])
-    trajectory = ScenarioTrajectory.from_config(scenario.config)
+    sim = simulator if simulator is not None else Simulator.from_scenario(
+        scenario, extra_effects=[effect_from_spec(e) for e in effects])
+    trajectory = pose_source if pose_source is not None else ScenarioTrajectory.from_config(
+        scenario.config)
     frame_id = scenario.config.frame_id
     period = sim.frame_period_s
     first_index = int(round(start_s / period))
@@ -91,6 +97,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
             _write_poses(bag, trajectory, frame_start + k * (period / poses_per_frame),
                          frame_id, epoch_s)
             last = sim.simulate_frame(frame_start, trajectory, first_index + i)
+            if on_frame is not None:
+                on_frame(last)
             stamp = int(to_stamp_ns(frame_start, epoch_s))
             if sim.sun is not None:
                 bag.write_vector3(SUN_TOPIC, stamp, frame_id,
@@ -130,7 +138,7 @@ def _sunlight_figure(sim: Simulator, frame, trajectory, out_dir: Path, label: st
                                   out_dir / 'sunlight.png', label)
 
 
-def _write_poses(bag: BagWriter, trajectory: ScenarioTrajectory, t_s: np.ndarray,
+def _write_poses(bag: BagWriter, trajectory: PoseSource, t_s: np.ndarray,
                  frame_id: str, epoch_s: float) -> None:
     poses = trajectory.at(t_s)
     quat = poses.rotation.as_quat()

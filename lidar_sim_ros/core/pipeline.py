@@ -51,6 +51,9 @@ class Frame:
     hold detected returns only; ``truth_*`` hold every hit without noise or dropouts
     (gathered on first use: most frames never publish their truth).
     ``stamp_s`` is the frame start (absolute seconds); ``t_s`` is since frame start.
+    ``face`` (mesh triangle, -1 off the target) and ``true_range_m`` (noise-free range,
+    m) of each point serve error statistics (campaigns); a false return keeps the face
+    and range of the shot it replaced, or -1 / NaN on a miss.
     """
 
     stamp_s: float
@@ -63,6 +66,8 @@ class Frame:
     material: np.ndarray
     stats: dict = field(default_factory=dict)
     truth_source: '_FrameShots | None' = field(default=None, repr=False)
+    face: np.ndarray | None = field(default=None, repr=False)
+    true_range_m: np.ndarray | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.range_m)
@@ -91,6 +96,10 @@ class Frame:
     def truth_material(self) -> np.ndarray:
         return _material_ids(self.truth_source.material.take(self.truth_source.hit_index))
 
+    @cached_property
+    def truth_face(self) -> np.ndarray:
+        return self.truth_source.face.take(self.truth_source.hit_index)
+
 
 @dataclass(frozen=True)
 class _FrameShots:
@@ -107,6 +116,7 @@ class _FrameShots:
     t_s: np.ndarray
     ring: np.ndarray
     material: np.ndarray
+    face: np.ndarray
 
     @cached_property
     def hit_index(self) -> np.ndarray:
@@ -167,10 +177,15 @@ class Simulator:
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, effects: list[Effect] | None = None,
-                      extra_effects: list[Effect] = (), threads: int | None = None) -> 'Simulator':
+                      extra_effects: list[Effect] = (), threads: int | None = None,
+                      target: Target | None = None) -> 'Simulator':
         """The scenario's simulator; ``effects`` replaces the scenario's list, ``extra_effects``
-        extends it; ``threads`` as in ``__init__``."""
-        target = load_target(scenario.mesh_path, scenario.materials.names)
+        extends it; ``threads`` as in ``__init__``.
+
+        ``target``: an already loaded mesh of the scenario (campaign workers reuse its BVH).
+        """
+        if target is None:
+            target = load_target(scenario.mesh_path, scenario.materials.names)
         base = scenario.source.parent if scenario.source else None
         if effects is None:
             effects = [make_effect(_scenario_relative(e.name, base), e.params)
@@ -291,7 +306,8 @@ class Simulator:
             intensity=intensity.take(out), t_s=shots.t_s.take(out), ring=shots.laser.take(out),
             material=_material_ids(material.take(out)), stats=stats,
             truth_source=_FrameShots(hit, self._cast_position, self._cast_directions, ctx.range_m,
-                              ctx.intensity, shots.t_s, shots.laser, ctx.material))
+                              ctx.intensity, shots.t_s, shots.laser, ctx.material, pred.hits.face),
+            face=pred.hits.face.take(out), true_range_m=ctx.range_m.take(out))
 
 
 def _fired(mask: np.ndarray, cast_position: np.ndarray) -> np.ndarray:

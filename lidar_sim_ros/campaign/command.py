@@ -1,0 +1,107 @@
+"""``lidar-sim campaign``: Monte Carlo campaigns of dispersed runs on Dask distributed.
+
+The engine (Dask) is an optional extra, imported only when a campaign runs, so the
+rest of the ``lidar-sim`` command works without it.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from lidar_sim_ros.campaign.spec import load_campaign
+
+INSTALL_HINT = "pip install 'lidar_sim_ros[campaign]' (or -r requirements-campaign.txt)"
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a positive integer, got {text!r}') from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'expected a positive integer, got {value}')
+    return value
+
+
+def _run_id(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a run id (0, 1, ...), got {text!r}') from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f'expected a run id (0, 1, ...), got {value}')
+    return value
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        'campaign', help='run a Monte Carlo campaign of dispersed runs (Dask distributed)',
+        description='Run every run of CAMPAIGN.yaml that DIR/manifest.csv does not hold yet, on '
+                    'a local Dask cluster (default: one worker per core) or the cluster at '
+                    '--address; one manifest row per run. See docs/campaign.md.')
+    p.add_argument('campaign', type=Path, help='campaign YAML (e.g. config/campaign_example.yaml)')
+    p.add_argument('--out', type=Path, required=True, metavar='DIR',
+                   help='output directory: manifest.csv (+ runs/run_NNNNN/bag with save: bags)')
+    p.add_argument('--workers', type=_positive_int, default=None, metavar='N',
+                   help='local worker processes (default: all cores); ignored with --address')
+    p.add_argument('--address', default=None, metavar='ADDR',
+                   help='join a running Dask scheduler, e.g. tcp://10.0.0.5:8786')
+    p.add_argument('--run', type=_run_id, default=None, metavar='RUN_ID',
+                   help='re-run this one run here (no cluster) and compare with the manifest')
+    p.add_argument('--retry-failed', action='store_true',
+                   help='run the runs recorded as failed again (default: skip them)')
+    p.add_argument('--no-progress', action='store_true', help='no progress bar')
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    campaign = load_campaign(args.campaign)
+    if args.run is not None:
+        return _rerun(campaign, args.out, args.run)
+    try:
+        from lidar_sim_ros.campaign.engine import EngineError, run_campaign
+    except ImportError as exc:
+        print(f'lidar-sim campaign: error: the engine is not installed ({exc.name}): {INSTALL_HINT}',
+              file=sys.stderr)
+        return 2
+    try:
+        report = run_campaign(campaign, args.out, workers=args.workers, address=args.address,
+                              retry_failed=args.retry_failed, progress=not args.no_progress)
+    except EngineError as exc:
+        print(f'lidar-sim campaign: error: {exc}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'\nlidar-sim campaign: interrupted; finished runs are in {args.out / "manifest.csv"}, '
+              'the same command resumes', file=sys.stderr)
+        return 130
+    frames = report.ran * campaign.frames_per_run
+    print(f'manifest: {report.manifest_path}  ({report.runs} runs: {report.skipped} already '
+          f'finished, {report.ok} ok, {report.failed} failed now)')
+    if report.ran:
+        print(f'engine: {report.workers} Dask workers, start-up {report.startup_s:.1f} s, '
+              f'{report.ran} runs ({frames} frames) in {report.wall_s:.1f} s '
+              f'= {frames / report.wall_s:.1f} frames/s')
+    if report.parquet_path:
+        print(f'parquet: {report.parquet_path}')
+    return 1 if report.failed else 0
+
+
+def _rerun(campaign, out_dir: Path, run_id: int) -> int:
+    from lidar_sim_ros.campaign.run import rerun
+    row, old = rerun(campaign, out_dir, run_id)
+    stats = {k: v for k, v in row.items() if k.startswith('stat.')}
+    print(f'run {run_id}: seed {row["seed"]}, status {row["status"]}'
+          + (f': {row["error"]}' if row['error'] else ''))
+    for key, value in stats.items():
+        print(f'  {key} = {value}')
+    if old is None:
+        print(f'run {run_id} was not in {out_dir}/manifest.csv; it is now')
+        return 0 if row['status'] == 'ok' else 1
+    changed = [k for k in stats if old.get(k) != row[k]]
+    if old['status'] != row['status'] or changed:
+        print(f'run {run_id} differs from the manifest: status {old["status"]} -> {row["status"]}'
+              + (f'; {", ".join(changed)}' if changed else ''))
+        return 1
+    print(f'run {run_id}: statistics identical to the manifest row')
+    return 0

@@ -1,0 +1,151 @@
+"""The distributed engine: Dask distributed runs the campaign, locally or on a cluster.
+
+Without ``address`` a ``LocalCluster`` starts one single-threaded worker process per
+core (``workers`` to choose), nothing to set up; with ``address`` the client joins a
+running scheduler (``dask scheduler`` + ``dask worker ADDRESS`` on each node, see
+docs/campaign.md). A task is (campaign, run id), a few kB: workers sample and
+simulate, the client only writes manifest rows as results arrive. Why Dask and not Ray: docs/campaign.md.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+from dask.distributed import Client, LocalCluster, as_completed
+
+from lidar_sim_ros.campaign.manifest import Manifest
+from lidar_sim_ros.campaign.run import prepare_worker, run_one
+from lidar_sim_ros.campaign.sample import run_seed
+from lidar_sim_ros.campaign.spec import Campaign
+
+
+class EngineError(RuntimeError):
+    """The engine could not start or reach its cluster."""
+
+
+@dataclass(frozen=True)
+class CampaignReport:
+    """What a ``run_campaign`` call did. Times in seconds (wall clock of the client)."""
+
+    manifest_path: Path
+    parquet_path: Path | None
+    runs: int
+    skipped: int
+    ran: int
+    ok: int
+    failed: int
+    workers: int
+    startup_s: float
+    wall_s: float
+    compute_s: float
+
+
+@contextmanager
+def connect(workers: int | None = None, address: str | None = None) -> Iterator[Client]:
+    """A Dask client: of a new local cluster (``workers`` processes, default all cores)
+    or of the running scheduler at ``address``."""
+    if address:
+        try:
+            client = Client(address, timeout='20s')
+        except (OSError, TimeoutError) as exc:
+            raise EngineError(f'cannot reach a Dask scheduler at {address}: {exc}') from None
+        with client:
+            yield client
+        return
+    n = workers or os.cpu_count() or 1
+    nanny_log = logging.getLogger('distributed.nanny')
+    level = nanny_log.level
+    try:
+        # One thread per process: the kernels hold the GIL for part of a frame, and one
+        # process per core lets each worker keep its own mesh and compiled kernels.
+        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                          dashboard_address=None) as cluster:
+            try:
+                with Client(cluster) as client:
+                    yield client
+            finally:
+                # A worker whose interpreter takes > 4 s to tear down (numba, Embree, on a
+                # busy machine) is killed by its nanny with a warning: harmless at the end.
+                nanny_log.setLevel(logging.ERROR)
+    finally:
+        nanny_log.setLevel(level)
+
+
+def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = None,
+                 address: str | None = None, retry_failed: bool = False,
+                 progress: bool = True) -> CampaignReport:
+    """Run every run of ``campaign`` not yet in ``out_dir/manifest.csv``.
+
+    A run that fails (or whose worker dies) is recorded as failed and the others go on;
+    ``retry_failed`` runs the failed ones again.
+    """
+    manifest = Manifest.open(out_dir, campaign)
+    finished = manifest.finished(retry_failed)
+    pending = [i for i in range(campaign.spec.runs) if i not in finished]
+    t0 = time.perf_counter()
+    startup_s = wall_s = compute_s = 0.0
+    n_workers = 0
+    if pending:
+        with connect(workers, address) as client:
+            # Mesh and kernels on every worker now, in parallel, so that runs time only runs.
+            client.run(prepare_worker, campaign.scenario)
+            n_workers = len(client.nthreads())
+            startup_s = time.perf_counter() - t0
+            t1 = time.perf_counter()
+            compute_s = _gather(client, campaign, pending, out_dir, manifest, progress)
+            wall_s = time.perf_counter() - t1
+    manifest.rewrite()
+    parquet = manifest.write_parquet()
+    done = [manifest.rows[i]['status'] for i in pending if i in manifest.rows]
+    return CampaignReport(manifest.path, parquet, campaign.spec.runs, campaign.spec.runs - len(pending),
+                          len(done), done.count('ok'), done.count('failed'), n_workers,
+                          startup_s, wall_s, compute_s)
+
+
+def _gather(client: Client, campaign: Campaign, pending: list[int], out_dir: str | Path,
+            manifest: Manifest, progress: bool) -> float:
+    """Submit the pending runs, record each as it finishes; returns the summed compute (s)."""
+    # The campaign travels inside each task (~4 kB pickled): tasks without dependencies
+    # are queued on the scheduler and handed to whichever worker frees up first, where a
+    # scattered campaign made them data-dependent and let one worker take most of them.
+    out = str(Path(out_dir).resolve())  # workers may run elsewhere, in another directory
+    futures = {client.submit(run_one, campaign, i, out, pure=False): i for i in pending}
+    bar = _progress_bar(campaign.spec.runs, campaign.spec.runs - len(pending), progress)
+    remaining = len(futures)
+    if bar is not None:
+        bar.set_postfix_str(_counts(manifest, remaining))
+    compute_s = 0.0
+    for future in as_completed(futures):
+        run_id = futures[future]
+        try:
+            row = future.result()
+        except Exception as exc:  # the worker died (KilledWorker) or the task was lost
+            row = {'run_id': run_id, 'seed': run_seed(campaign.spec.seed, run_id),
+                   'status': 'failed', 'error': f'engine: {type(exc).__name__}: {exc}'}
+        future.release()
+        compute_s += float(row.get('compute_s') or 0.0)
+        manifest.append(row)
+        remaining -= 1
+        if bar is not None:
+            bar.set_postfix_str(_counts(manifest, remaining), refresh=False)
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    return compute_s
+
+
+def _counts(manifest: Manifest, remaining: int) -> str:
+    return f'done {manifest.count("ok")}, failed {manifest.count("failed")}, remaining {remaining}'
+
+
+def _progress_bar(total: int, skipped: int, enabled: bool):
+    """tqdm over all runs of the campaign, the skipped ones counted in from the start."""
+    if not enabled:
+        return None
+    from tqdm import tqdm
+    return tqdm(total=total, initial=skipped, unit='run', desc='campaign', dynamic_ncols=True)

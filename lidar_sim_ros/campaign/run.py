@@ -1,0 +1,163 @@
+"""One campaign run: dispersed scenario -> frames -> statistics (and optionally a rosbag2).
+
+Runs execute in engine workers. Each worker process keeps the expensive parts of the
+simulator, the mesh with its Embree BVH and the compiled kernels, in a per-process
+cache keyed by mesh file and material names, and reuses them for every run it gets;
+only the cheap per-run shell (scan directions, material table, effects: a few ms) is
+rebuilt, because the dispersed materials and effects differ from run to run.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import threading
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lidar_sim_ros.campaign.coverage import FaceGeometry, covered_fraction, visible_faces
+from lidar_sim_ros.campaign.manifest import Manifest
+from lidar_sim_ros.campaign.sample import RunCase, run_seed, sample_run
+from lidar_sim_ros.campaign.spec import Campaign
+from lidar_sim_ros.campaign.statistics import RunStatistics
+from lidar_sim_ros.core.config import Scenario
+from lidar_sim_ros.core.geometry import Target, load_target
+from lidar_sim_ros.core.pipeline import NO_MATERIAL, Frame, Simulator
+from lidar_sim_ros.core.pose import (PoseSource, Poses, ScenarioTrajectory, quat_multiply,
+                                     quat_to_matrix)
+
+
+@dataclass(frozen=True)
+class MountedPose:
+    """A pose source seen through a misaligned sensor mount M (unit quaternion xyzw):
+    p_lidar = M (R p_body + t), i.e. rotation M R and position M t."""
+
+    source: PoseSource
+    mount_xyzw: tuple[float, float, float, float]
+
+    def at(self, t_s: np.ndarray) -> Poses:
+        poses = self.source.at(t_s)
+        mount = np.asarray(self.mount_xyzw, dtype=float)
+        position = poses.position_m.reshape(-1, 3) @ quat_to_matrix(mount[None])[0].T
+        return Poses.from_quat(quat_multiply(mount, poses.quat_xyzw), position)
+
+
+# ------------------------------------------------------------ worker cache
+_TARGETS: dict[tuple, tuple[Target, FaceGeometry]] = {}
+_WARM: set[str] = set()  # 'kernels' once this process compiled (or cache-loaded) them
+_LOCK = threading.Lock()  # a multi-threaded worker builds each mesh once
+
+
+def worker_target(scenario: Scenario) -> tuple[Target, FaceGeometry]:
+    """The scenario's mesh (BVH built) and face geometry, loaded once per process."""
+    path = Path(scenario.mesh_path)
+    stat = path.stat()
+    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size, tuple(scenario.materials.names))
+    with _LOCK:
+        if key not in _TARGETS:
+            target = load_target(path, scenario.materials.names)
+            _TARGETS[key] = (target, FaceGeometry.of(target))
+        return _TARGETS[key]
+
+
+def prepare_worker(scenario: Scenario) -> None:
+    """Load the mesh and compile the kernels now, so that no run pays for them."""
+    target, _ = worker_target(scenario)
+    with _LOCK:
+        if 'kernels' not in _WARM:
+            Simulator.from_scenario(scenario, target=target).warm_up()
+            _WARM.add('kernels')
+
+
+# ------------------------------------------------------------------ one run
+def run_dir(out_dir: str | Path, run_id: int) -> Path:
+    return Path(out_dir) / 'runs' / f'run_{run_id:05d}'
+
+
+def simulate_case(case: RunCase, out_dir: str | Path | None = None) -> dict[str, float | int]:
+    """Simulate one run and return its statistics; raises on failure."""
+    scenario = case.scenario
+    target, faces = worker_target(scenario)
+    sim = Simulator.from_scenario(scenario, target=target)
+    pose: PoseSource = ScenarioTrajectory.from_config(scenario.config)
+    if case.misalignment_xyzw is not None:
+        pose = MountedPose(pose, case.misalignment_xyzw)
+    stats = RunStatistics(scenario.materials.names)
+    coverage_at = set(np.unique(np.linspace(0, case.frames - 1, case.coverage_frames)
+                                .round().astype(int)).tolist()) if case.coverage_frames else set()
+    fov = ((float(sim.shots.az_rad.min()), float(sim.shots.az_rad.max())),
+           (float(sim.shots.el_rad.min()), float(sim.shots.el_rad.max())))
+    period = sim.frame_period_s
+
+    def on_frame(frame: Frame) -> None:
+        stats.add_frame(frame)
+        if frame.index in coverage_at:
+            visible = visible_faces(target, faces, pose.at(frame.stamp_s + 0.5 * period), *fov)
+            stats.add_coverage(
+                covered_fraction(faces.area_m2, visible, frame.face[frame.material != NO_MATERIAL]),
+                covered_fraction(faces.area_m2, visible, frame.truth_face))
+
+    if case.save == 'bags':
+        from lidar_sim_ros.offline import simulate_to_bag
+        bag_dir = run_dir(out_dir, case.run_id)
+        if bag_dir.exists():
+            shutil.rmtree(bag_dir)  # left by an interrupted attempt: finished runs are skipped
+        simulate_to_bag(scenario, bag_dir, case.frames, storage=case.storage, figures=False,
+                        simulator=sim, pose_source=pose, on_frame=on_frame)
+    else:
+        for i in range(case.frames):
+            on_frame(sim.simulate_frame(i * period, pose, i))
+    return stats.summary()
+
+
+def run_case(case: RunCase, out_dir: str | Path | None = None) -> dict:
+    """One manifest row: never raises; a failure becomes ``status: failed`` with its error."""
+    row = {'run_id': case.run_id, 'seed': case.seed,
+           **{f'param.{k}': v for k, v in case.params.items()}}
+    start, cpu = time.perf_counter(), time.process_time()
+    try:
+        prepare_worker(case.scenario)
+        # The worker's one-time preparation is not the run's compute.
+        start, cpu = time.perf_counter(), time.process_time()
+        stats = simulate_case(case, out_dir)
+    except Exception as exc:  # a run's failure must not stop the campaign
+        last = traceback.extract_tb(exc.__traceback__)[-1]
+        row.update(status='failed', error=f'{type(exc).__name__}: {exc} '
+                                          f'({Path(last.filename).name}:{last.lineno})')
+    else:
+        row.update(status='ok', error='', **{f'stat.{k}': v for k, v in stats.items()})
+    row['compute_s'] = time.perf_counter() - start
+    row['cpu_s'] = time.process_time() - cpu
+    row['worker'] = f'{socket.gethostname()}:{os.getpid()}'
+    return row
+
+
+def run_one(campaign: Campaign, run_id: int, out_dir: str | Path | None = None) -> dict:
+    """Sample run ``run_id`` of ``campaign`` and simulate it: the engine's task. Never raises."""
+    try:
+        case = sample_run(campaign, run_id)
+    except Exception as exc:  # e.g. a dispersed value that a config model rejects
+        return {'run_id': run_id, 'seed': run_seed(campaign.spec.seed, run_id), 'status': 'failed',
+                'error': f'sampling: {type(exc).__name__}: {exc}', 'compute_s': 0.0,
+                'worker': f'{socket.gethostname()}:{os.getpid()}'}
+    return run_case(case, out_dir)
+
+
+def rerun(campaign: Campaign, out_dir: str | Path, run_id: int) -> tuple[dict, dict | None]:
+    """Run one case again in this process; its manifest row is replaced.
+
+    Returns the new row and the one the manifest held (None if none), both as manifest
+    text, so that equal statistics compare equal character for character.
+    """
+    if not 0 <= run_id < campaign.spec.runs:
+        raise ValueError(f'--run {run_id}: the campaign has runs 0..{campaign.spec.runs - 1}')
+    manifest = Manifest.open(out_dir, campaign)
+    old = manifest.rows.get(run_id)
+    row = manifest.text_row(run_one(campaign, run_id, out_dir))
+    manifest.rows[run_id] = row
+    manifest.rewrite()
+    return row, old

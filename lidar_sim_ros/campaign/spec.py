@@ -1,0 +1,288 @@
+"""CAMPAIGN.yaml: a base scenario, dispersions, a number of runs and a duration.
+
+Every distribution is a mapping with a ``dist`` key; a quantity that is not listed
+under ``dispersions`` keeps the base scenario's value. A bad spec raises
+:class:`~lidar_sim_ros.core.config.ConfigError` naming the file, the key path and the
+value (``campaign.yaml: key "dispersions.tumble_rate_dps.sigma" = -1.0: ...``).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Literal, Union
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from lidar_sim_ros.core.config import ConfigError, Scenario, load_scenario, parse, read_yaml
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra='forbid', frozen=True)
+
+
+# -------------------------------------------------------------- scalar laws
+class Uniform(_Model):
+    """Uniform on [low, high]."""
+
+    dist: Literal['uniform']
+    low: float
+    high: float
+
+    @model_validator(mode='after')
+    def _order(self):
+        if not self.high > self.low:
+            raise ValueError(f'high ({self.high:g}) must exceed low ({self.low:g})')
+        return self
+
+    def support(self) -> tuple[float, float]:
+        return self.low, self.high
+
+    def sample(self, rng: np.random.Generator) -> float:
+        return float(rng.uniform(self.low, self.high))
+
+
+class Normal(_Model):
+    """Gaussian N(mean, sigma^2), truncated to [low, high] when either bound is given."""
+
+    dist: Literal['normal']
+    mean: float
+    sigma: Annotated[float, Field(gt=0.0)]
+    low: float | None = None
+    high: float | None = None
+
+    @model_validator(mode='after')
+    def _order(self):
+        lo, hi = self.support()
+        if not hi > lo:
+            raise ValueError(f'high ({hi:g}) must exceed low ({lo:g})')
+        if not lo <= self.mean <= hi:
+            raise ValueError(f'mean {self.mean:g} lies outside [low, high] = [{lo:g}, {hi:g}]')
+        return self
+
+    def support(self) -> tuple[float, float]:
+        return (-math.inf if self.low is None else self.low,
+                math.inf if self.high is None else self.high)
+
+    def sample(self, rng: np.random.Generator) -> float:
+        if self.low is None and self.high is None:
+            return float(rng.normal(self.mean, self.sigma))
+        from scipy.stats import truncnorm
+        lo, hi = self.support()
+        a, b = (lo - self.mean) / self.sigma, (hi - self.mean) / self.sigma
+        return float(truncnorm.rvs(a, b, loc=self.mean, scale=self.sigma, random_state=rng))
+
+
+class Choice(_Model):
+    """One of ``values``, each equally likely."""
+
+    dist: Literal['choice']
+    values: list[float] = Field(min_length=1)
+
+    def support(self) -> tuple[float, float]:
+        return min(self.values), max(self.values)
+
+    def sample(self, rng: np.random.Generator) -> float:
+        return float(self.values[int(rng.integers(len(self.values)))])
+
+
+Scalar = Annotated[Union[Uniform, Normal, Choice], Field(discriminator='dist')]
+
+
+# ------------------------------------------------------------ attitude laws
+class UniformAttitude(_Model):
+    """Any attitude, uniformly distributed over the rotation group (Haar measure)."""
+
+    dist: Literal['uniform_attitude']
+
+    def sample(self, rng: np.random.Generator) -> np.ndarray:
+        """A unit quaternion (x, y, z, w)."""
+        from scipy.spatial.transform import Rotation
+        return Rotation.random(random_state=rng).as_quat()
+
+
+class SmallRotation(_Model):
+    """A rotation vector with independent N(0, sigma_deg^2) components (lidar frame)."""
+
+    dist: Literal['small_rotation']
+    sigma_deg: Annotated[float, Field(gt=0.0, le=45.0)]
+
+    def sample(self, rng: np.random.Generator) -> np.ndarray:
+        from scipy.spatial.transform import Rotation
+        return Rotation.from_rotvec(rng.normal(0.0, np.radians(self.sigma_deg), 3)).as_quat()
+
+
+Attitude = Annotated[Union[UniformAttitude, SmallRotation], Field(discriminator='dist')]
+
+
+# ----------------------------------------------------------- direction laws
+class UniformSphere(_Model):
+    """A direction uniformly distributed on the unit sphere."""
+
+    dist: Literal['uniform_sphere']
+
+    def sample(self, rng: np.random.Generator, nominal: np.ndarray) -> np.ndarray:
+        v = rng.standard_normal(3)
+        return v / np.linalg.norm(v)
+
+
+class Cone(_Model):
+    """A direction uniform on the spherical cap of ``half_angle_deg`` around ``axis``
+    (default: the base scenario's direction)."""
+
+    dist: Literal['cone']
+    half_angle_deg: Annotated[float, Field(gt=0.0, le=180.0)]
+    axis: tuple[float, float, float] | None = None
+
+    @model_validator(mode='after')
+    def _nonzero(self):
+        if self.axis is not None and float(np.linalg.norm(self.axis)) == 0.0:
+            raise ValueError('axis must be non-zero')
+        return self
+
+    def sample(self, rng: np.random.Generator, nominal: np.ndarray) -> np.ndarray:
+        from scipy.spatial.transform import Rotation
+        axis = np.asarray(self.axis if self.axis is not None else nominal, dtype=float)
+        axis = axis / np.linalg.norm(axis)
+        # Uniform on the cap: cos(theta) uniform in [cos(half angle), 1].
+        cos_t = rng.uniform(math.cos(math.radians(self.half_angle_deg)), 1.0)
+        phi = rng.uniform(0.0, 2.0 * math.pi)
+        sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+        local = np.array([sin_t * math.cos(phi), sin_t * math.sin(phi), cos_t])
+        to_axis, _ = Rotation.align_vectors(axis[None], np.array([[0.0, 0.0, 1.0]]))
+        return to_axis.apply(local)
+
+
+Direction = Annotated[Union[UniformSphere, Cone], Field(discriminator='dist')]
+
+
+# --------------------------------------------------------------- the spec
+class MaterialDispersion(_Model):
+    """Per-material range error (paper Table 2): bias (m) and 1-sigma noise (m)."""
+
+    bias_m: Scalar | None = None
+    sigma_m: Scalar | None = None
+
+
+class Dispersions(_Model):
+    """What varies from run to run; omitted keys keep the base scenario's values."""
+
+    initial_distance_m: Scalar | None = Field(
+        None, description='distance to the target at t = 0 along the base line of sight (m)')
+    initial_attitude: Attitude | None = Field(
+        None, description='uniform_attitude replaces the base attitude; small_rotation '
+                          'perturbs it (applied in the lidar frame)')
+    tumble_axis: Direction | None = None
+    tumble_rate_dps: Scalar | None = None
+    approach_speed_mps: Scalar | None = None
+    mounting_misalignment: Attitude | None = Field(
+        None, description='rotation M of the sensor mount: the pose in the lidar frame '
+                          'becomes p_lidar = M (R p_body + t)')
+    materials: dict[str, MaterialDispersion] = Field(default_factory=dict)
+    effects: dict[str, dict[str, Scalar]] = Field(
+        default_factory=dict, description='effect name -> parameter -> law; an effect that '
+                                          'the base scenario lacks is added')
+
+
+class CampaignSpec(_Model):
+    """CAMPAIGN.yaml."""
+
+    scenario: str = Field(description='base scenario YAML, relative to the campaign file')
+    seed: Annotated[int, Field(ge=0)]
+    runs: Annotated[int, Field(ge=1)]
+    duration_s: Annotated[float, Field(gt=0.0)] = Field(description='simulated time per run (s)')
+    save: Literal['stats', 'bags'] = 'stats'
+    storage: Literal['mcap', 'sqlite3'] = 'mcap'
+    coverage_frames: Annotated[int, Field(ge=0)] = Field(
+        3, description='frames per run on which target coverage is evaluated (evenly spaced)')
+    dispersions: Dispersions = Dispersions()
+
+
+class Campaign:
+    """A loaded campaign: its spec, the base scenario and the file it came from."""
+
+    def __init__(self, spec: CampaignSpec, scenario: Scenario, source: Path):
+        self.spec, self.scenario, self.source = spec, scenario, source
+
+    @property
+    def frames_per_run(self) -> int:
+        """Frames simulated per run: duration times frame rate, at least one."""
+        return max(1, int(round(self.spec.duration_s * self.scenario.sensor.frame_rate_hz)))
+
+
+def load_campaign(path: str | Path) -> Campaign:
+    """Load CAMPAIGN.yaml and its base scenario; check every dispersion against it."""
+    path = Path(path)
+    data = read_yaml(path)
+    try:
+        spec = parse(CampaignSpec, data, path)
+    except ConfigError as exc:
+        raise ConfigError(exc.file, _without_tags(data, exc.key), exc.value, exc.reason) from None
+    scenario_path = Path(spec.scenario).expanduser()
+    if not scenario_path.is_absolute():
+        scenario_path = path.resolve().parent / scenario_path
+    if not scenario_path.is_file():
+        raise ConfigError(path, 'scenario', spec.scenario, f'file not found at {scenario_path}')
+    scenario = load_scenario(scenario_path)
+    _check_supports(spec.dispersions, path)
+    _check_materials(spec.dispersions, scenario, path)
+    _check_effects(spec.dispersions, path)
+    return Campaign(spec, scenario, path.resolve())
+
+
+def _check_supports(disp: Dispersions, path: Path) -> None:
+    """Laws that can draw impossible values fail at load, not in run 4711."""
+    distance = disp.initial_distance_m
+    if distance is not None and distance.support()[0] <= 0.0:
+        raise ConfigError(path, 'dispersions.initial_distance_m', distance.model_dump(exclude_none=True),
+                          'can draw a distance <= 0 m; bound it above zero (uniform low, normal low)')
+    for name, mat in disp.materials.items():
+        if mat.sigma_m is not None and mat.sigma_m.support()[0] < 0.0:
+            raise ConfigError(path, f'dispersions.materials.{name}.sigma_m',
+                              mat.sigma_m.model_dump(exclude_none=True),
+                              'can draw a negative sigma; bound it at or above zero')
+
+
+def _check_materials(disp: Dispersions, scenario: Scenario, path: Path) -> None:
+    names = scenario.materials.names
+    for name in disp.materials:
+        if name not in names:
+            raise ConfigError(path, f'dispersions.materials.{name}', name,
+                              f'not a material of the base scenario (known: {names})')
+
+
+def _check_effects(disp: Dispersions, path: Path) -> None:
+    """Each effect must resolve, each parameter exist and accept both ends of its law."""
+    from lidar_sim_ros.core.effects import get_effect_class
+    for name, laws in disp.effects.items():
+        try:
+            cls = get_effect_class(name)
+        except (KeyError, ImportError, FileNotFoundError, TypeError, AttributeError) as exc:
+            raise ConfigError(path, f'dispersions.effects.{name}', name,
+                              exc.args[0] if exc.args else str(exc)) from None
+        for param, law in laws.items():
+            key = f'dispersions.effects.{name}.{param}'
+            if param not in cls.Params.model_fields:
+                raise ConfigError(path, key, law.model_dump(exclude_none=True),
+                                  f'effect {name!r} has no parameter {param!r} '
+                                  f'(it has {sorted(cls.Params.model_fields)})')
+            for end in law.support():
+                if not math.isfinite(end):
+                    continue
+                try:
+                    cls({param: end})
+                except ValidationError as exc:
+                    raise ConfigError(path, key, end, f'reachable value rejected by effect '
+                                      f'{name!r}: {exc.errors()[0]["msg"]}') from None
+
+
+def _without_tags(data, key: str) -> str:
+    """Drop the ``dist`` tags pydantic puts in error paths (``x.normal.sigma`` -> ``x.sigma``):
+    a segment that is not a key of the YAML mapping but is its ``dist`` value."""
+    kept = []
+    for part in key.split('.'):
+        if isinstance(data, dict) and part not in data and data.get('dist') == part:
+            continue
+        kept.append(part)
+        data = data.get(part) if isinstance(data, dict) else None
+    return '.'.join(kept)
