@@ -28,7 +28,13 @@ TEST_DIR = Path(__file__).resolve().parent
 FRAMES = 2
 
 # Loops compare gets wrong on these datasets (bench/hidden_effect_eval.py, seed 0), and why.
-WRONG: dict[str, str] = {}
+WRONG: dict[str, str] = {
+    'beam_divergence_first': (
+        'after beam_divergence (range_mode first) is fitted, the foreign first-return '
+        'footprint (8 sub-rays, scale 9) leaves an incidence-dependent short bias that the '
+        "catalogue's footprint (19 sub-rays) does not reproduce; incidence_angle then gains "
+        '0.010 nats/point (z 4.9) and is named: a phantom by the loop rule'),
+}
 
 
 def _small(spec: ForeignSpec) -> ForeignSpec:
