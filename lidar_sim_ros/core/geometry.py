@@ -174,8 +174,8 @@ class Target:
             hull = self.vertices_m
         base = np.einsum('ij,ij->i', self.face_normals, self.vertices_m[self.faces[:, 0]])
         out = np.empty(self.n_faces)
-        for lo in range(0, self.n_faces, 8192):   # bounded memory: (hull vertices x 8192)
-            hi = min(lo + 8192, self.n_faces)
+        for lo in range(0, self.n_faces, 1024):   # bounded memory: (hull vertices x 1024) doubles
+            hi = min(lo + 1024, self.n_faces)
             out[lo:hi] = (hull @ self.face_normals[lo:hi].T - base[lo:hi]).max(axis=0)
         # Degenerate faces (no normal) get no clearance bound.
         return np.where(np.any(self.face_normals != 0, axis=1), out, np.inf)
