@@ -19,8 +19,8 @@ the phenomenological ``solar_background`` effect (a constant probability per sho
 measured ray with it, marks the points short of the model's range by FALSE_RETURN_SIGMAS
 sigma (``short_points``; only the listening time before that mark counts), tells lab
 clutter in front of the target from the crowded false returns of a bright patch
-(``fit_sunlight``), fits g (``fit_background_scale``, with its profile-likelihood
-intervals) and writes ``summary_section`` under ``sunlight`` in summary.json. The data support sunlight-driven false returns (``supported``) when the
+and leaves out the rays near blinding (``fit_sunlight``), fits g
+(``fit_background_scale``, with its profile-likelihood intervals) and writes ``summary_section`` under ``sunlight`` in summary.json. The data support sunlight-driven false returns (``supported``) when the
 rate on sunlit rays is above the rate on shadowed ones by a one-sided binomial test at
 SUPPORT_ALPHA, with at least MIN_SUNLIT_FALSE false returns on sunlit rays.
 """
@@ -38,7 +38,8 @@ from lidar_sim_ros.compare.likelihood import material_nuisance
 from lidar_sim_ros.core import detection
 from lidar_sim_ros.core.config import SunConfig
 from lidar_sim_ros.core.effects.base import ReturnContext
-from lidar_sim_ros.core.effects.sunlight import MAX_OUTLIER_FRACTION, background_of, crossing_rate_hz
+from lidar_sim_ros.core.effects.sunlight import (MAX_OUTLIER_FRACTION, Background,
+                                                 background_of, crossing_rate_hz)
 from lidar_sim_ros.core.radiometry import SPEED_OF_LIGHT_M_S, crossing_probability
 from lidar_sim_ros.core.sun import SunTrack
 from lidar_sim_ros.io.bag import SUN_TOPIC, read_vectors
@@ -53,6 +54,8 @@ SURFACE_NEIGHBOURS = 2
 SURFACE_NOISE_SIGMAS = 3.0 * np.sqrt(2.0)
 SURFACE_SLOPE = float(np.tan(np.radians(75.0)))
 CLUTTER_MAX_PROBABILITY = 0.05   # a surface of short points where sunlight rarely crosses
+NEAR_BLINDING = 0.5           # rays with this share of the blinding power are left out
+MAX_PASSES = 4                # of fit_sunlight
 # Profile-likelihood intervals of g: -log L within these of its minimum (chi2(1)/2 at 68.3 %
 # and 95 %).
 DELTA_NLL_68 = 0.5
@@ -85,6 +88,7 @@ class SunFit:
     interval_95: tuple[float, float] = (float('nan'), float('nan'))
     nll_zero: float = float('nan')
     clutter_points: int = 0       # short points left out as clutter (``fit_sunlight``)
+    bright_rays: int = 0          # rays left out as near blinding (``fit_sunlight``)
 
     @property
     def sigma(self) -> float:
@@ -188,29 +192,41 @@ def short_points(range_m: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarra
 def fit_sunlight(ctx: ReturnContext, points: ShortPoints,
                  bounds: tuple[float, float] = (0.0, 30.0)) -> SunFit:
     """The receiver factor g from the short points of a prediction ``ctx`` made with the
-    recording's sun, in two passes.
+    recording's sun: ``fit_background_scale`` on the rays that speak for it, in passes
+    until the rays left out no longer change (at most MAX_PASSES).
 
-    A false return of a bright patch and a piece of clutter both may have neighbours at
-    the same range: the false returns crowd near the start of the range gate where the
-    crossing rate is high. So g is fitted first with every short point false; then a
-    short point on a surface whose ray the fitted sunlight leaves unlikely to cross
-    (P < CLUTTER_MAX_PROBABILITY) is clutter: its ray, whose echo the clutter hides, is
-    left out, and g is fitted again. Leaving out (rather than counting as "no false
-    return") keeps the rays of a bright patch from pulling g down.
+    Left out, by what the fitted model predicts for them (never by their outcome, which
+    would bias g):
+
+    * clutter: a false return of a bright patch and a piece of clutter may both have
+      neighbours at the same range (the false returns crowd near the start of the range
+      gate where the crossing rate is high), so a short point on a surface counts as
+      clutter only where the fitted sunlight makes a crossing unlikely
+      (P < CLUTTER_MAX_PROBABILITY); its ray, whose echo the clutter hides, says nothing
+      about sunlight;
+    * rays near blinding: where the background reaches NEAR_BLINDING of the blinding
+      power, the crossing rate changes by orders of magnitude for a few per cent of
+      power and blinding switches the ray off, so a per-cent error of the model's glint
+      power (pose, BRDF) would decide g.
     """
-    first = fit_background_scale(ctx, points.short, bounds, points.counted_below_m)
-    suspects = np.flatnonzero(points.on_surface)
-    if len(suspects) == 0:
-        return first
-    nll = FalseReturnLikelihood(ctx, points.short, points.counted_below_m)
-    p = np.ones(len(points.short))
-    p[nll.use] = nll.probability(first.background_scale)
-    clutter = np.zeros(len(points.short), bool)
-    clutter[suspects] = p[suspects] < CLUTTER_MAX_PROBABILITY
-    if not clutter.any():
-        return first
-    fit = fit_background_scale(ctx, points.short, bounds, points.counted_below_m, ~clutter)
-    return replace(fit, clutter_points=int(clutter.sum()))
+    bg = background_of(ctx)
+    if bg is None:
+        raise ValueError("the prediction has no sun: give the simulator the recording's sun track")
+    blinding_w = ctx.scene.sensor.receiver.blinding_power_w
+    n = len(points.short)
+    out = np.zeros(n, bool)
+    for _ in range(MAX_PASSES):
+        fit = fit_background_scale(ctx, points.short, bounds, points.counted_below_m, ~out, bg)
+        g = fit.background_scale
+        nll = FalseReturnLikelihood(ctx, points.short, points.counted_below_m, None, bg)
+        p = np.ones(n)
+        p[nll.use] = nll.probability(g)
+        clutter = points.on_surface & (p < CLUTTER_MAX_PROBABILITY)
+        bright = ctx.hit & (g * bg.power_w >= NEAR_BLINDING * blinding_w)
+        if np.array_equal(clutter | bright, out):
+            break
+        out = clutter | bright
+    return replace(fit, clutter_points=int(clutter.sum()), bright_rays=int(bright.sum()))
 
 
 class FalseReturnLikelihood:
@@ -222,12 +238,13 @@ class FalseReturnLikelihood:
     each g rescales it."""
 
     def __init__(self, ctx: ReturnContext, is_false: np.ndarray,
-                 counted_below_m: np.ndarray | None = None, keep: np.ndarray | None = None):
+                 counted_below_m: np.ndarray | None = None, keep: np.ndarray | None = None,
+                 background: Background | None = None):
         """``counted_below_m`` (N,): the range (m) below which a point was counted false
         (``is_false``), if it lies short of the echo: a crossing between it and the echo
         passes for the echo, so only the time before it counts. ``keep`` (N,): the rays
-        to use (default all)."""
-        bg = background_of(ctx)
+        to use (default all). ``background``: ``background_of(ctx)`` if already made."""
+        bg = background if background is not None else background_of(ctx)
         if bg is None:
             raise ValueError("the prediction has no sun: give the simulator the recording's sun track")
         self.sensor = ctx.scene.sensor
@@ -260,11 +277,12 @@ class FalseReturnLikelihood:
 def fit_background_scale(ctx: ReturnContext, is_false: np.ndarray,
                          bounds: tuple[float, float] = (0.0, 30.0),
                          counted_below_m: np.ndarray | None = None,
-                         keep: np.ndarray | None = None) -> SunFit:
+                         keep: np.ndarray | None = None,
+                         background: Background | None = None) -> SunFit:
     """Maximum-likelihood receiver factor g (``FalseReturnLikelihood``): a log grid over
     ``bounds``, then Brent's method around the best grid point; its profile-likelihood
     intervals."""
-    nll = FalseReturnLikelihood(ctx, is_false, counted_below_m, keep)
+    nll = FalseReturnLikelihood(ctx, is_false, counted_below_m, keep, background)
     lo, hi = bounds
     grid = np.concatenate([[lo], np.geomspace(max(lo, 1e-3), hi, 40)])
     values = [nll(g) for g in grid]
@@ -316,7 +334,7 @@ def summary_section(fit: SunFit, topic: str, samples: int,
         'background_scale_interval_95': [num(x) for x in fit.interval_95],
         'sunlit_points': fit.sunlit_points, 'shadowed_points': fit.shadowed_points,
         'sunlit_false_returns': fit.sunlit_false, 'shadowed_false_returns': fit.shadowed_false,
-        'clutter_points': fit.clutter_points,
+        'clutter_points': fit.clutter_points, 'near_blinding_rays': fit.bright_rays,
         'sunlit_rate': num(fit.sunlit_rate), 'shadowed_rate': num(fit.shadowed_rate),
         'rate_ratio': num(ratio) if ratio is not None else None,
         'predicted_sunlit_rate': num(fit.predicted_sunlit_rate),
