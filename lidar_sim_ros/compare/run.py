@@ -259,6 +259,9 @@ def run_compare(opts: CompareOptions) -> CompareResult:
                 f'{opts.sun_topic or SUN_TOPIC!r} (record it as geometry_msgs/msg/Vector3Stamped '
                 'toward the sun in the lidar frame, or name its topic with --sun-topic); '
                 'without one, false returns are modelled by solar_background')
+        if any(isinstance(e, Sunlight) for e in user):
+            # One receiver: the --effect's sunlight replaces the scenario's.
+            scenario_effects = [e for e in scenario_effects if not isinstance(e, Sunlight)]
         model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
                       scenario.source.parent if scenario.source else None, sun)
         meas = with_scan_times(meas, model.simulator().shots)
