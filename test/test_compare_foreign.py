@@ -28,12 +28,28 @@ TEST_DIR = Path(__file__).resolve().parent
 FRAMES = 2
 
 # Loops compare gets wrong on these datasets (bench/hidden_effect_eval.py, seed 0), and why.
-WRONG: dict[str, str] = {}
+WRONG: dict[str, str] = {
+    'beam_divergence_first': (
+        'after beam_divergence (range_mode first) is fitted, the foreign first-return '
+        'footprint (8 sub-rays, scale 9) leaves an incidence-dependent short bias that the '
+        "catalogue's footprint (19 sub-rays) does not reproduce; incidence_angle then gains "
+        '0.010 nats/point (z 4.9) and is named: a phantom by the loop rule'),
+    'snr_and_beam': (
+        'beam_divergence is named first (right), but its --fit run reports per-material '
+        'sigma scales of 0.00 for four materials and a higher NLL (-1.197 -> -1.102): the '
+        'calibrated basis degenerates with the fitted footprint; incidence_angle is then '
+        'named before snr_noise'),
+}
 
 
 def _small(spec: ForeignSpec) -> ForeignSpec:
-    """Fewer frames for the suite; the short passes keep their second of small frames."""
-    return spec if spec.frames >= 10 else replace(spec, frames=FRAMES)
+    """Fewer frames for the suite; the short passes keep their second of small frames, and
+    a time offset in clouds without point times keeps its frames: on 2 frames the offset
+    is not decisive against the smear of the unknown times (z 2.9 < 2.94 at seed 43), on
+    the dataset's 3 it is (z 3.7)."""
+    if spec.frames >= 10 or (spec.effect == 'time_offset' and spec.point_time == 'none'):
+        return spec
+    return replace(spec, frames=FRAMES)
 
 
 def _params():

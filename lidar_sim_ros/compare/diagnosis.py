@@ -25,7 +25,12 @@ all of these hold, each chosen from a principle, not from a dataset:
   points far beyond the noise (|residual| > max(FAR_MIN_M, FAR_SIGMAS sigma)) or
   isolated unmatched returns, comparable in number to the spurious returns it
   claims (surfaces that are not the target, e.g. lab clutter, are not isolated: a
-  neighbouring ray sees the same range); a bias or noise effect must account for at
+  neighbouring ray sees the same range), and, since background light triggers at
+  random times, the far points must spread over the range window as random ranges
+  would: not mostly behind the surface when the window puts many in front
+  (``far_sides``), and evenly within each side (``far_positions``, Kolmogorov-Smirnov
+  at the same Bonferroni level), else they come at a preferred range (multipath, a
+  ghost, a second surface: outside the catalogue); a bias or noise effect must account for at
   least MIN_SHARE of the residual's dependence on the features that the attribution's
   joint model finds (``features.Attribution``): a candidate that soaks up a sliver of
   a structure it does not have the shape of is a phantom (the rest of the structure
@@ -50,7 +55,7 @@ from typing import Literal, get_args, get_origin
 
 import numpy as np
 from pydantic import create_model
-from scipy.stats import norm
+from scipy.stats import kstest, norm
 
 from lidar_sim_ros.compare import likelihood as lk
 from lidar_sim_ros.compare.features import Attribution, block_mean_se
@@ -359,10 +364,14 @@ class Diagnosis:
         blocks = rays.blocks if rays.blocks is not None else np.arange(len(rays.meas))
         self.blocks = np.concatenate([blocks[self.folds[(k + 1) % N_FOLDS].matched]
                                       for k in range(N_FOLDS)])
-        far = far_from_surface(self.full)
+        far, residual, expected, threshold = far_from_surface(self.full, details=True)
         if rays.isolated is not None:
             far &= rays.isolated[rays.matched]
         self.n_far = int(far.sum())
+        self.far_sides = far_sides(residual[far], expected[far], threshold[far],
+                                   self.full.range_window_m)
+        self.far_u = far_positions(residual[far], expected[far], threshold[far],
+                                   self.full.range_window_m)
         self._base_outlier_w = float(np.mean(lk.model_on_rays(
             self.full, []).outlier_w)) if len(self.rays.matched) else 0.0
 
@@ -471,6 +480,21 @@ class Diagnosis:
                         f'max({FAR_MIN_M:g} m, {FAR_SIGMAS:g} sigma)) or off the target, '
                         'isolated from their neighbours: heavy noise tails or surfaces that are '
                         'not the target, not false returns')
+            front, mu, var = self.far_sides
+            if mu - front > self.z_crit * np.sqrt(max(var, 1e-12)) and front < 0.5 * mu:
+                return (f'its false returns come at random times, so about {mu:.0f} of the '
+                        f'{self.n_far} far points would lie in front of the surface, but '
+                        f'{front} do: the far returns come from behind the surface (a longer '
+                        'path: multipath via a specular surface, or a second surface seen '
+                        'through), not from background light')
+            if len(self.far_u) >= MIN_FAR_POINTS:
+                ks = kstest(self.far_u, 'uniform')
+                if ks.pvalue < norm.sf(self.z_crit):
+                    return (f'its false returns come at random times, so the {len(self.far_u)} far '
+                            'points would spread evenly over the range window on either side of '
+                            f'the surface, but they bunch (Kolmogorov-Smirnov D = {ks.statistic:.2f}, '
+                            f'p = {ks.pvalue:.1e}): returns at a preferred range (multipath via a '
+                            'specular surface, a ghost, a second surface), not background light')
         return None
 
     def share_veto(self, cand: Candidate, attribution: Attribution | None) -> None:
@@ -544,17 +568,51 @@ class Diagnosis:
         return bool(z >= self.z_crit and probe.score >= MIN_PRACTICAL_GAIN)
 
 
-def far_from_surface(data) -> np.ndarray:
+def far_from_surface(data, details: bool = False):
     """Matched points far beyond the noise: |residual| > max(FAR_MIN_M, FAR_SIGMAS sigma),
-    residual and sigma after the per-material nuisance (offset, sigma scale)."""
+    residual and sigma after the per-material nuisance (offset, sigma scale). With
+    ``details`` also the residual (m), the expected range (m) and the threshold (m)."""
     model = lk.model_on_rays(data, [])
     r = np.asarray(data.measured_range_m, float) - model.expected_range_m
     sigma = np.maximum(model.sigma_m, lk.MIN_SIGMA_M)
     use = model.placed & np.isfinite(r)
     offset, scale = lk.material_nuisance(
         r, sigma, np.asarray(data.baseline.ctx.material, int), use)
+    threshold = np.maximum(FAR_MIN_M, FAR_SIGMAS * sigma * scale)
     with np.errstate(invalid='ignore'):
-        return use & (np.abs(r - offset) > np.maximum(FAR_MIN_M, FAR_SIGMAS * sigma * scale))
+        far = use & (np.abs(r - offset) > threshold)
+    if not details:
+        return far
+    return far, r - offset, model.expected_range_m + offset, threshold
+
+
+def far_positions(residual_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
+                  window_m: tuple[float, float]) -> np.ndarray:
+    """Where each far point lies within its side of the surface, 0..1 (in front: from the
+    window's start to the band around the surface; behind: from the band to the window's
+    end): uniform if the ranges are random over the window."""
+    lo, hi = window_m
+    front = residual_m < 0
+    r = expected_m + residual_m
+    start = np.where(front, lo, expected_m + threshold_m)
+    end = np.where(front, expected_m - threshold_m, hi)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        u = (r - start) / (end - start)
+    return np.clip(u[np.isfinite(u)], 0.0, 1.0)
+
+
+def far_sides(residual_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
+              window_m: tuple[float, float]) -> tuple[int, float, float]:
+    """Far points in front of the surface: how many there are, and the mean and variance
+    of that count if their ranges were random over ``window_m`` (a false return from
+    background light): each point's chance is the window's share in front of its
+    surface, outside the +-threshold band a far point cannot fall in."""
+    lo, hi = window_m
+    front = np.maximum(expected_m - threshold_m - lo, 0.0)
+    behind = np.maximum(hi - expected_m - threshold_m, 0.0)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        p = np.where(front + behind > 0, front / (front + behind), 0.5)
+    return int(np.sum(residual_m < 0)), float(p.sum()), float(np.sum(p * (1 - p)))
 
 
 def rank(candidates: list[Candidate]) -> list[Candidate]:

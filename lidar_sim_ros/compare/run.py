@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from lidar_sim_ros.compare import (diagnosis, features, history, likelihood as lk,
-                                   materials as mat, neighbours, point_times)
+                                   materials as mat, neighbours, point_times,
+                                   stamp_place)
 from lidar_sim_ros.compare.intensity import IntensityCalibration, calibrate_intensity
 from lidar_sim_ros.compare.matching import (Matching, Model, edge_distance_rad, match,
                                             range_rate_mps)
@@ -242,6 +243,25 @@ def unknown_time_variance(model: Model, effects: list[Effect], meas: Measurement
     return point_times.extra_variance_m2(rr_all, spread), spread
 
 
+def _stamp_place(diag, decision, cands, meas: Measurements, scenario: Scenario):
+    """Clouds without per-point time whose named time offset is the stamp's place in the
+    scan (``stamp_place.py``), or None."""
+    if decision.missing != 'time_offset' or meas.time_source != 'stamp':
+        return None
+    cand = next(c for c in cands if c.name == 'time_offset')
+    if cand.effect is None:
+        return None
+    steps = np.diff(np.unique(meas.cloud_stamps_s))
+    period = float(np.median(steps)) if len(steps) else scenario.sensor.frame_period_s
+
+    def total_nll(effect):
+        nll = lk.point_nll(diag.full, lk.model_on_rays(diag.full, [effect]))[0]
+        return float(np.sum(nll))
+    return stamp_place.stamp_place(total_nll, float(cand.effect.params.dt_s), period,
+                                   diag.z_crit ** 2, len(diag.rays.matched),
+                                   diagnosis.MIN_PRACTICAL_GAIN)
+
+
 def run_compare(opts: CompareOptions) -> CompareResult:
     stage = Stages(opts.progress)
     opts.out = Path(opts.out)
@@ -362,6 +382,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     classes = [c for c in classes if c.name not in in_model]
     cands: list[diagnosis.Candidate] = []
     decision = diagnosis.Decision(None, [])
+    stamp = None
     if classes:
         with stage('candidates', ', '.join(c.name for c in classes)):
             diag = diagnosis.Diagnosis(model, effects, sample, opts.seed)
@@ -374,6 +395,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
             for c in cands[:FINALIZED]:
                 if c.significant or c is cands[0]:
                     diag.finalize(c)      # what a run with --effect NAME --fit would show
+            stamp = _stamp_place(diag, decision, cands, meas, scenario)
             before = diagnosis.calibrated_figures(diag.full, [])
     else:
         before = (cal_nll, cal_rmse, cal_robust)
@@ -414,6 +436,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         'point_times': meas.time_source,
         'point_time_field': meas.time_field,
         'point_time_spread_s': time_spread or None,
+        'stamp_place': stamp.as_dict() if stamp is not None else None,
         'has_intensity': meas.intensity is not None,
         'dropped': meas.dropped,
         'notes': notes,

@@ -72,6 +72,13 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             words = ('a time offset between the poses and the points: a clock offset, or, '
                      'as these clouds carry no per-point time, the place of the cloud stamp in '
                      'the scan (start, middle or end), which gives the same data')
+            st = summary.get('stamp_place')
+            if st:
+                words += (f' (here it is what stamps at the {st["place"]} of the scan give: '
+                          f'{1e3 * st["dt_s"]:+.0f} ms, half the {1e3 * st["period_s"]:.0f} ms '
+                          f'frame, against {1e3 * st["fitted_dt_s"]:+.1f} ms fitted; if your '
+                          'driver stamps there, no clock is off, but the model needs the '
+                          'offset all the same)')
         parts.append(
             f'This is {words}. With per-material offsets and sigmas refit (as --fit does), '
             f'adding {missing} with {params} {gain} (held-out gain {c.score:.4f} nats/point, '

@@ -1,0 +1,37 @@
+"""Clouds without per-point time: which stamp convention a fitted time offset equals."""
+import pytest
+
+from lidar_sim_ros.compare.stamp_place import stamp_place
+
+PERIOD = 0.1
+
+
+def quadratic_nll(best_dt: float, curvature: float):
+    """Total NLL (nats) of a time offset: a parabola with its minimum at ``best_dt``
+    (curvature in nats / s^2), as a large sample gives."""
+    return lambda effect: 0.5 * curvature * (effect.params.dt_s - best_dt) ** 2
+
+
+@pytest.mark.parametrize('fitted, place', [(0.0502, 'start'), (-0.0497, 'end')])
+def test_half_a_frame_is_the_stamp_at_start_or_end(fitted, place):
+    st = stamp_place(quadratic_nll(fitted, 1e6), fitted, PERIOD, bound=8.6, n_points=10_000,
+                     margin=0.005)
+    assert st is not None and st.place == place
+    assert st.dt_s == pytest.approx(0.5 * PERIOD if place == 'start' else -0.5 * PERIOD)
+    # LR = curvature (dt - T/2)^2, the parabola's closed form.
+    assert st.likelihood_ratio == pytest.approx(1e6 * (fitted - st.dt_s) ** 2, rel=1e-6)
+
+
+def test_an_offset_far_from_half_a_frame_is_a_clock_offset():
+    # 0.17 s: a start stamp plus a 0.12 s clock offset. The convention costs
+    # 1e6 (0.12)^2 = 14 400 nats, 0.72 nats per point: decisive and it matters.
+    assert stamp_place(quadratic_nll(0.17, 1e6), 0.17, PERIOD, 8.6, 10_000, 0.005) is None
+    # -30 ms, 20 ms from a stamp at the end, with a sharp likelihood: a clock offset.
+    assert stamp_place(quadratic_nll(-0.03, 1e9), -0.03, PERIOD, 8.6, 10_000, 0.005) is None
+
+
+def test_a_remainder_that_does_not_matter_is_the_convention():
+    # 2 ms short of half a frame on 10 000 points: LR 40 (significant) but 0.002 nats per
+    # point, below the 0.005 margin: a scan that does not fill the frame.
+    st = stamp_place(quadratic_nll(0.048, 1e7), 0.048, PERIOD, 8.6, 10_000, 0.005)
+    assert st is not None and st.place == 'start' and st.likelihood_ratio == pytest.approx(40.0)
