@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lidar_sim_ros.io.bag import CLOUD_TOPIC, POSE_TOPIC
+from lidar_sim_ros.io.bag import CLOUD_TOPIC, POSE_TOPIC, SUN_TOPIC
 
 
 def register(subparsers) -> None:
@@ -31,6 +31,10 @@ def register(subparsers) -> None:
                    help=f'PointCloud2 topic (default {CLOUD_TOPIC})')
     p.add_argument('--pose-topic', default=POSE_TOPIC, metavar='TOPIC',
                    help=f'PoseStamped topic of the target body pose (default {POSE_TOPIC})')
+    p.add_argument('--sun-topic', default=None, metavar='TOPIC',
+                   help=f'Vector3Stamped topic of the sun direction in the lidar frame (default '
+                        f'{SUN_TOPIC} if the bag has it): fits the sunlight receiver factor '
+                        'from false returns on sunlit vs shadowed surfaces')
     p.add_argument('--history', type=Path, default=None, metavar='FILE',
                    help='history file to append to (default DIR/../history.json)')
     p.add_argument('--max-points', type=int, default=None, metavar='N',
@@ -49,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
     result = run_compare(CompareOptions(
         bag=args.bag, mesh=args.mesh, out=args.out, config=args.config, effects=args.effect,
         fit=args.fit, cloud_topic=args.cloud_topic, pose_topic=args.pose_topic,
-        history=args.history, max_points=args.max_points or DEFAULT_MAX_POINTS,
+        sun_topic=args.sun_topic, history=args.history,
+        max_points=args.max_points or DEFAULT_MAX_POINTS,
         candidates=args.candidates, report=not args.no_report))
     print('\n'.join(result.lines))
     return 0

@@ -24,6 +24,7 @@ from lidar_sim_ros.core.effects import Effect
 from lidar_sim_ros.core.geometry import Target, cast_at_poses
 from lidar_sim_ros.core.pipeline import Prediction, Simulator
 from lidar_sim_ros.core.pose import Poses
+from lidar_sim_ros.core.sun import SunSource
 
 # Ring radii of the edge probe, in beam divergences (full angle).
 EDGE_RING_DIVERGENCES = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
@@ -42,6 +43,9 @@ class Model:
     effects: tuple[Effect, ...] = ()
     seed: int = 0
     scan_base: Path | None = None
+    # The recording's sun (its /sun/direction track), None without one: effects that
+    # need the light (``sunlight``) read it from every prediction's scene.
+    sun: SunSource | None = None
     # Simulators built so far, by materials: building one (scan pattern, cast order)
     # costs ~25 ms, and the fits ask for one per trial value.
     _built: dict = field(default_factory=dict, init=False, repr=False, compare=False)
@@ -52,7 +56,7 @@ class Model:
         key = id(materials)
         if key not in self._built:
             self._built[key] = (materials, Simulator(self.sensor, materials, self.target,
-                                                     self.seed, [], self.scan_base))
+                                                     self.seed, [], self.scan_base, self.sun))
         sim = copy.copy(self._built[key][1])     # shares scan, target and tables
         sim.effects = list(self.effects if effects is None else effects)
         return sim

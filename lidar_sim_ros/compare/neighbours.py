@@ -21,10 +21,14 @@ _CLOUD_GAP = 10.0              # separates clouds in the search space (unit vect
 
 
 def isolated(directions: np.ndarray, range_m: np.ndarray, cloud: np.ndarray,
-             query: np.ndarray) -> np.ndarray:
-    """For the points ``query`` (indices): True where none of the NEIGHBOURS nearest rays
-    of the same cloud, within SPACING_REACH typical spacings, measured a range within
-    max(SAME_SURFACE_M, SAME_SURFACE_FRACTION r) of the point's."""
+             query: np.ndarray, same_surface_m: np.ndarray | None = None, slope: float = 0.0,
+             min_agreeing: int = 1) -> np.ndarray:
+    """For the points ``query`` (indices): True where fewer than ``min_agreeing`` of the
+    NEIGHBOURS nearest rays of the same cloud, within SPACING_REACH typical spacings,
+    measured a range within max(SAME_SURFACE_M, SAME_SURFACE_FRACTION r) of the point's
+    (the comparison's rule), or, if given, within ``same_surface_m`` (per query point, m)
+    plus ``slope`` r theta (theta: the neighbour's angular distance, rad; ``slope`` is the
+    tangent of the steepest incidence a surface may be seen at)."""
     query = np.asarray(query, int)
     if len(query) == 0:
         return np.zeros(0, bool)
@@ -38,10 +42,14 @@ def isolated(directions: np.ndarray, range_m: np.ndarray, cloud: np.ndarray,
     spacing = float(np.median(dist[:, 0])) if np.isfinite(dist[:, 0]).any() else 0.0
     reach = SPACING_REACH * max(spacing, 1e-6)
     r = np.asarray(range_m, float)
-    tol = np.maximum(SAME_SURFACE_M, SAME_SURFACE_FRACTION * r[query])
+    if same_surface_m is None:
+        tol = np.maximum(SAME_SURFACE_M, SAME_SURFACE_FRACTION * r[query])[:, None]
+    else:
+        # dist is a chord of unit vectors: the angle for the small reaches looked at.
+        tol = np.asarray(same_surface_m, float)[:, None] + slope * r[query][:, None] * dist
     safe = np.minimum(idx, len(r) - 1)
-    same = (dist <= reach) & (np.abs(r[safe] - r[query][:, None]) <= tol[:, None])
-    return ~np.any(same, axis=1)
+    same = (dist <= reach) & (np.abs(r[safe] - r[query][:, None]) <= tol)
+    return np.count_nonzero(same, axis=1) < min_agreeing
 
 
 def blocks(directions: np.ndarray, cloud: np.ndarray) -> np.ndarray:

@@ -8,6 +8,12 @@ and writes ``summary.json``, ``report.html`` (+ PNGs), ``effects.yaml`` (with
 ``--fit``), ``materials.yaml`` and one line of ``history.json``. Each stage prints a
 progress line on stderr; ``summary.json`` keeps their durations (``stage_seconds``).
 
+A recording with the sun direction (``/sun/direction`` or ``--sun-topic``) is predicted
+under its sun, and the receiver factor of the ``sunlight`` effect is fitted from the
+false returns on sunlit versus shadowed rays (``compare/sunlight.py``; summary.json's
+``sunlight``). Without one nothing changes: the phenomenological ``solar_background``
+is the candidate for false returns.
+
 Speed: the headline figures and the per-material statistics use every point
 analysed (one raycast); the edge probe, the attribution and the candidate fits use
 a random sample of at most DIAGNOSIS_MAX_MATCHED matched (and as many unmatched)
@@ -30,15 +36,19 @@ from lidar_sim_ros.compare import (diagnosis, features, history, likelihood as l
 from lidar_sim_ros.compare.intensity import IntensityCalibration, calibrate_intensity
 from lidar_sim_ros.compare.matching import (Matching, Model, edge_distance_rad, match,
                                             range_rate_mps)
-from lidar_sim_ros.compare.measurements import (Measurements, load_measurements,
-                                                 with_scan_times)
+from lidar_sim_ros.compare.measurements import (Measurements, MeasurementError,
+                                                 load_measurements, with_scan_times)
+from lidar_sim_ros.compare.sunlight import (SunFit, fit_sunlight, read_sun_track, short_points,
+                                            summary_section)
 from lidar_sim_ros.compare.verdict import summary_lines, verdict
 from lidar_sim_ros.core.config import MaterialsConfig, Scenario, load_scenario
 from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
                                         parse_effect_spec)
 from lidar_sim_ros.core.geometry import load_target
+from lidar_sim_ros.core.effects.sunlight import Sunlight
 from lidar_sim_ros.core.pipeline import Prediction
-from lidar_sim_ros.io.bag import CLOUD_TOPIC, POSE_TOPIC
+from lidar_sim_ros.core.sun import SunTrack
+from lidar_sim_ros.io.bag import CLOUD_TOPIC, POSE_TOPIC, SUN_TOPIC, BagContentError, open_bag
 from lidar_sim_ros.paths import config_path
 
 DEFAULT_MAX_POINTS = 300_000
@@ -61,6 +71,7 @@ class CompareOptions:
     fit: bool = False
     cloud_topic: str = CLOUD_TOPIC
     pose_topic: str = POSE_TOPIC
+    sun_topic: str | None = None            # None: SUN_TOPIC if the bag has it
     history: Path | None = None
     max_points: int = DEFAULT_MAX_POINTS
     candidates: list[str] | None = None     # effect specs to diagnose (default: catalogue)
@@ -102,14 +113,17 @@ class Stages:
 
 def fit_user_effects(model: Model, base: list[Effect], user: list[Effect], meas: Measurements,
                      power: 'PowerFromIntensity', extra_var: np.ndarray | None,
-                     seed: int) -> list[Effect]:
+                     seed: int) -> tuple[list[Effect], SunFit | None]:
     """ML-fit each user effect in turn on top of the base and the previously fitted ones
-    (on the diagnosis sample of points).
+    (on the diagnosis sample of points); also the sunlight fit, if one was made.
 
     The likelihood profiles each material's offset and sigma scale, so a constant
-    per-material mismatch does not leak into the effect's parameters.
+    per-material mismatch does not leak into the effect's parameters. ``sunlight`` is
+    fitted instead from which points are false returns, on all the points
+    (``sunlight_of_recording``): they are rare, and its likelihood is that of the false returns.
     """
     done: list[Effect] = []
+    sun_fit = None
     for eff in user:
         cls = type(eff)
         # Parameters the user gave (e.g. beam_divergence={range_mode: first}) stay fixed.
@@ -117,11 +131,47 @@ def fit_user_effects(model: Model, base: list[Effect], user: list[Effect], meas:
                  if k not in cls.bounds}
         m = match(geometry(model, base + done), meas, model.divergence_rad, edges=False)
         rays = replace(rays_of(m, power(m)), extra_var_m2=extra_var)
+        if isinstance(eff, Sunlight):
+            residual, sigma = model_residuals(diagnosis.make_fit_data(model, base + done, rays),
+                                              rays)
+            sun_fit = sunlight_of_recording(m, residual, sigma)
+            done.append(Sunlight({'background_scale': sun_fit.background_scale}))
+            continue
         data = diagnosis.make_fit_data(model, base + done,
                                        rays.sample(DIAGNOSIS_MAX_MATCHED, seed))
         fit, _ = diagnosis.fit_best_variant(cls, data, fixed)
         done.append(diagnosis.plain(cls, fit.effect))
-    return done
+    return done, sun_fit
+
+
+def sunlight_of_recording(m: Matching, residual_m: np.ndarray, sigma_m: np.ndarray) -> SunFit:
+    """The receiver factor of ``sunlight`` from the false returns among the measured points
+    (``m``: predicted under the recording's sun; residual and sigma (m) under the model)."""
+    meas = m.meas
+    return fit_sunlight(m.pred.ctx, short_points(meas.range_m, residual_m, sigma_m,
+                                                 m.pred.ctx.material, meas.directions,
+                                                 meas.cloud))
+
+
+def recording_sun(opts: CompareOptions, scenario: Scenario,
+                  meas: Measurements) -> SunTrack | None:
+    """The sun directions the bag carries (``opts.sun_topic``, else SUN_TOPIC if present),
+    on the measurements' clock; None without. The scenario's ``sun:`` section, if any,
+    supplies the irradiance and the Earth; the recording the direction."""
+    topic = opts.sun_topic or SUN_TOPIC
+    try:
+        track = read_sun_track(opts.bag, scenario.config.sun, topic, meas.epoch_s)
+    except BagContentError as exc:
+        raise MeasurementError(f'{exc} (choose the topic with --sun-topic)') from None
+    if track is None and opts.sun_topic is not None:
+        with open_bag(opts.bag) as reader:
+            topics = ', '.join(f'{name} ({info.msgtype})'
+                               for name, info in sorted(reader.topics.items()))
+        raise MeasurementError(
+            f'bag {opts.bag} has no sun directions on {opts.sun_topic!r} (--sun-topic: '
+            f'geometry_msgs/msg/Vector3Stamped toward the sun, lidar frame); topics in the '
+            f'bag: {topics}')
+    return track
 
 
 def geometry(model: Model, effects: list[Effect]):
@@ -220,20 +270,32 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         target = load_target(opts.mesh, scenario.materials.names)
         meas = load_measurements(opts.bag, opts.cloud_topic, opts.pose_topic, opts.max_points,
                                  opts.seed)
+        sun = recording_sun(opts, scenario, meas)
         scenario_effects = [get_effect_class(e.name)(e.params) for e in scenario.config.effects]
         user = [effect_from_spec(spec) for spec in opts.effects]
+        if sun is None and any(isinstance(e, Sunlight) for e in user):
+            raise ValueError(
+                f'--effect sunlight needs the sun direction, and bag {opts.bag} has none on '
+                f'{opts.sun_topic or SUN_TOPIC!r} (record it as geometry_msgs/msg/Vector3Stamped '
+                'toward the sun in the lidar frame, or name its topic with --sun-topic); '
+                'without one, false returns are modelled by solar_background')
+        if any(isinstance(e, Sunlight) for e in user):
+            # One receiver: the --effect's sunlight replaces the scenario's.
+            scenario_effects = [e for e in scenario_effects if not isinstance(e, Sunlight)]
         model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
-                      scenario.source.parent if scenario.source else None)
+                      scenario.source.parent if scenario.source else None, sun)
         meas = with_scan_times(meas, model.simulator().shots)
     power = PowerFromIntensity()
     with stage('point times'):
         extra_var, time_spread = unknown_time_variance(model, scenario_effects, meas, scenario,
                                                        opts.seed)
     fitted: list[Effect] = []
+    sun_fit = None
     if opts.fit and user:
         with stage('fit effects', ', '.join(e.name for e in user)):
-            user = fitted = fit_user_effects(model, scenario_effects, user, meas, power,
+            user, sun_fit = fit_user_effects(model, scenario_effects, user, meas, power,
                                              extra_var, opts.seed)
+            fitted = user
     effects = scenario_effects + user
     notes = list(meas.notes) + _material_name_notes(meas, scenario)
     if opts.fit and not user:
@@ -268,6 +330,14 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         # each material's offset and sigma scale profiled out (what --fit delivers).
         nll, rmse, _ = lk.evaluate(everything, [], profile_materials=False)
         cal_nll, cal_rmse, cal_robust = diagnosis.calibrated_figures(everything, [])
+    sunlight = None
+    if sun is not None:
+        with stage('sunlight', f'{len(sun.t_s)} sun directions'):
+            if sun_fit is None:
+                sun_fit = sunlight_of_recording(matching, residual, sigma)
+            in_model = [e.params.background_scale for e in effects if isinstance(e, Sunlight)]
+            sunlight = summary_section(sun_fit, opts.sun_topic or SUN_TOPIC, len(sun.t_s),
+                                       in_model[-1] if in_model else None)
 
     with stage('neighbours'):
         sample = rays.sample(DIAGNOSIS_MAX_MATCHED, opts.seed)
@@ -370,6 +440,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         'has_intensity': meas.intensity is not None,
         'dropped': meas.dropped,
         'notes': notes,
+        **({'sunlight': sunlight} if sunlight is not None else {}),
     }
     # The verdict quotes candidates against the figures of the points they were fitted on.
     basis = {**summary, 'nll_calibrated': before[0], 'range_rmse_calibrated_m': before[1],

@@ -121,7 +121,37 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         parts.append(f'The clouds carry no per-point time: the model widens each point\'s '
                      f'spread by the target\'s motion over the unknown point times (fitted '
                      f'spread {1e3 * spread:.0f} ms), which is not a physical effect.')
+    if summary.get('sunlight'):
+        parts.append(sunlight_words(summary['sunlight']))
     return ' '.join(parts)
+
+
+def sunlight_words(sun: dict) -> str:
+    """What the false returns say about sunlight, for a recording with the sun direction
+    (summary.json's ``sunlight``, ``compare/sunlight.py``)."""
+    counts = (f'{sun["sunlit_false_returns"]} of {sun["sunlit_points"]} sunlit rays against '
+              f'{sun["shadowed_false_returns"]} of {sun["shadowed_points"]} shadowed ones, '
+              f'p = {sun["excess_p_value"]:.2g}')
+    lo, hi = sun['background_scale_interval_95']
+    scale = (f'background_scale = {sun["background_scale"]:.3g} +- '
+             f'{sun["background_scale_sigma"]:.2g} (95 % interval {lo:.3g}-{hi:.3g})')
+    if not sun['supported']:
+        return (f'The recording carries the sun direction, but its false returns are not '
+                f'clearly more frequent on sunlit surfaces than on shadowed ones ({counts}): '
+                f'the data do not show sunlight-driven false returns ({scale}).')
+    where = (f'{sun["rate_ratio"]:.0f} times as often on sunlit surfaces as on shadowed ones'
+             if sun['rate_ratio'] is not None else 'on sunlit surfaces only')
+    text = (f'The recording carries the sun direction: false returns come {where} '
+            f'({counts}), as sunlight makes them. The receiver factor fitted from them is '
+            f'{scale}.')
+    in_model = sun.get('model_background_scale')
+    if in_model is None:
+        text += (' With the sun recorded, run again with --effect sunlight --fit, which models '
+                 'them from the sun, rather than with the phenomenological solar_background.')
+    elif not lo <= in_model <= hi:
+        text += (f' The model\'s sunlight effect has background_scale = {in_model:.3g}, outside '
+                 'that interval: --effect sunlight --fit adopts the fitted value.')
+    return text
 
 
 def _nothing_named(summary: dict, attribution, cands: list) -> str:
@@ -213,6 +243,13 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
     lines.append('candidates: ' + ', '.join(
         f'{c["name"]} {c["score"]:.4f}' if c['score'] is not None else f'{c["name"]} failed'
         for c in s['candidates']))
+    sun = s.get('sunlight')
+    if sun:
+        lines.append(f'sunlight: background_scale {sun["background_scale"]:.4g} +- '
+                     f'{sun["background_scale_sigma"]:.2g}; false returns on '
+                     f'{sun["sunlit_false_returns"]}/{sun["sunlit_points"]} sunlit, '
+                     f'{sun["shadowed_false_returns"]}/{sun["shadowed_points"]} shadowed rays '
+                     f'({"sunlight-driven" if sun["supported"] else "not shown to follow the sun"})')
     lines.append(f'missing effect: {s["missing_effect"]}')
     if s.get('confounded_with'):
         lines.append(f'confounded: {", ".join(s["confounded_with"])}')
