@@ -428,8 +428,11 @@ class Diagnosis:
                 fit_effect(variant, train, on_top).effect
             nll.append(heldout_nll(test, [*on_top, effect_k]))
             if len(test.unmatched_range_m):
-                explained += lk.unmatched_explained(test, [*on_top, effect_k]) \
-                    * len(test.unmatched_range_m)
+                # What the candidate adds: the model's own effects (a fitted solar
+                # background, say) already account for some unmatched points.
+                before = lk.unmatched_explained(test, list(on_top))
+                after = lk.unmatched_explained(test, [*on_top, effect_k])
+                explained += max(after - before, 0.0) * len(test.unmatched_range_m)
         return np.concatenate(nll), explained
 
     def base_heldout(self) -> np.ndarray:
