@@ -103,3 +103,30 @@ def test_time_offset_shifts_pose_stamps(tmp_path: Path):
     _, pos = trajectory_for(spec).at(t - 0.07)
     np.testing.assert_allclose(poses.position_m, pos, atol=1e-9)
     assert t[1] - t[0] == pytest.approx(1 / spec.pose_rate_hz)
+
+
+def test_multipath_extra_path_in_a_hand_made_room():
+    """From (11, 0, 0) with the room's defaults (floor 2.5 m below, back wall at 15 m,
+    the sensor's wall at x = -1): down, the floor at 2.5 m (12.8 deg below the
+    boresight: out of the 10 deg half-FOV, bright); ahead, the back wall at 4 m, in
+    view (black backdrop: none); back, the sensor's wall at 12 m."""
+    sensor = Sensor()
+    point = np.tile([11.0, 0.0, 0.0], (3, 1))
+    mirror = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    extra = foreign_sim.multipath_extra_m(point, mirror, sensor, 11.0, {})
+    np.testing.assert_allclose(extra, [2.5, np.nan, 12.0])
+    n = np.array([[0.0, -np.sqrt(0.5), np.sqrt(0.5)]])
+    np.testing.assert_allclose(foreign_sim.mirror_direction(np.array([[0.0, 1.0, 0.0]]), n),
+                               [[0.0, 0.0, 1.0]], atol=1e-12)
+
+
+def test_multipath_returns_lie_behind_mirror_like_surfaces():
+    spec = ForeignSpec('mp', 'multipath', {'p': 0.2}, seed=46, expected=None)
+    frame = simulate_frame(spec, Sensor(), Target(satellite_parts()), trajectory_for(spec), 0.0,
+                           np.random.default_rng(0), material_errors(spec))
+    mp = frame['multipath']
+    assert mp.sum() > 100
+    assert set(np.unique(frame['material'][mp])) <= {MATERIALS.index('MLI'),
+                                                     MATERIALS.index('PSS')}
+    extra = frame['range_m'][mp] - frame['true_range_m'][mp]
+    assert extra.min() > 0.5 and np.median(extra) < 6.0
