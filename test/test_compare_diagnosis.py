@@ -178,3 +178,57 @@ def test_returns_bunched_behind_the_surface_are_flagged():
     behind = expected + threshold + rng.uniform(0, 1, n) * (WINDOW_M[1] - expected - threshold)
     u = far_positions(behind - expected, expected, threshold, WINDOW_M)
     assert kstest(u, 'uniform').pvalue > 1e-3
+
+
+def _far_exponential(n: int, seed: int, mean_m: float):
+    """First arrivals of a strong background: ranges exponential from the window's
+    start (mean ``mean_m``), truncated to WINDOW_M; the far ones."""
+    rng = np.random.default_rng(seed)
+    lo, hi = WINDOW_M
+    expected = rng.uniform(8.0, 14.0, n)
+    threshold = np.full(n, 0.5)
+    r = lo - mean_m * np.log(1 - rng.random(n) * (1 - np.exp(-(hi - lo) / mean_m)))
+    far = np.abs(r - expected) > threshold
+    return r[far] - expected[far], expected[far], threshold[far]
+
+
+def test_arrival_cdf_closed_form():
+    from lidar_sim_ros.compare.diagnosis import arrival_cdf
+    x = np.array([-0.5, 0.0, 0.25, 1.0, 2.0])
+    np.testing.assert_allclose(arrival_cdf(x, 0.0), [0.0, 0.0, 0.25, 1.0, 1.0])
+    rate = 3.0
+    np.testing.assert_allclose(arrival_cdf(x, rate)[2],
+                               (1 - np.exp(-0.75)) / (1 - np.exp(-3.0)), rtol=1e-12)
+    assert arrival_cdf(np.array([0.25]), 1e-7)[0] == pytest.approx(0.25, abs=1e-6)
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_strong_background_first_arrivals_pass_with_the_fitted_rate(seed):
+    """Ranges exponential with a 10 m mean over a 40 m window (rate 4 per window): the
+    fitted rate is about 4, and under it the side count and the within-side positions
+    are consistent; the uniform law (rate 0) would call them bunched."""
+    from scipy.stats import kstest
+
+    from lidar_sim_ros.compare.diagnosis import background_rate, far_positions, far_sides
+    far = _far_exponential(600, seed, 10.0)
+    rate = background_rate(*far, WINDOW_M)
+    assert rate == pytest.approx(4.0, rel=0.2)
+    front, mu, var = far_sides(*far, WINDOW_M, rate)
+    assert abs(front - mu) < 3 * np.sqrt(var)
+    assert kstest(far_positions(*far, WINDOW_M, rate), 'uniform').pvalue > 1e-3
+    assert kstest(far_positions(*far, WINDOW_M), 'uniform').pvalue < 1e-6
+
+
+def test_fitted_rate_is_small_for_even_ranges_and_bunches_stay_flagged():
+    """Uniform ranges fit a rate near 0; returns 2-4 m behind the surface (multipath)
+    are still far too few in front under the fitted law."""
+    from lidar_sim_ros.compare.diagnosis import background_rate, far_sides
+    assert background_rate(*_far_uniform(600, 3), WINDOW_M) < 0.5
+    rng = np.random.default_rng(8)
+    n = 80
+    expected = rng.uniform(8.0, 14.0, n)
+    residual = rng.uniform(2.0, 4.0, n)
+    threshold = np.full(n, 0.5)
+    rate = background_rate(residual, expected, threshold, WINDOW_M)
+    front, mu, var = far_sides(residual, expected, threshold, WINDOW_M, rate)
+    assert front == 0 and mu > 4 * np.sqrt(var)
