@@ -40,6 +40,15 @@ WRONG: dict[str, str] = {
         '= 1.19e-3 r tan(theta) is that jitter (1.17e-3): gain 0.010 nats/point, z 4.9, and '
         'the loop names it second. The residual is right, the label is not: the catalogue '
         'splits this footprint into two effects'),
+    'snr_and_beam': (
+        'the fitted footprint (mean mode) puts the 9 % of points beyond the silhouette back '
+        'on the target: weak, noisy edge returns join the matched points, so the NLL per '
+        'matched point rises (-1.185 -> -1.088) although more points are explained. The '
+        'random foreign footprint then leaves the same jitter as in beam_divergence_first, '
+        'in proportion to the footprint depth, and the SNR noise grows where the power is '
+        'low (oblique incidence, edges): incidence_angle (sigma_gain 1.3) takes the larger '
+        'part and is named; snr_noise is then set aside, explaining 25 % of the residual '
+        'structure (just under MIN_SHARE)'),
 }
 
 
