@@ -26,8 +26,14 @@ What differs from our simulator, on purpose:
   +-1 cm and each sigma scaled by 0.8-1.2 (seeded), i.e. close to but not exactly the
   materials config;
 * every effect with its own functional form (see the ``*_m`` functions below), one or
-  several at once, and one outside the compare catalogue (a range bias that depends on
-  the scan azimuth, as an encoder or mirror-facet error gives);
+  several at once, and two outside the compare catalogue: a range bias that depends on
+  the scan azimuth, as an encoder or mirror-facet error gives, and lab multipath: with
+  probability p a shot on a mirror-like material (specular albedo >= 0.5: MLI, PSS)
+  beyond 25 deg incidence, whose mirror direction d - 2 (d.n) n meets a bright lab
+  surface, returns that way and back, so its range is r + L, L the path from the
+  surface to the room (a box around the target, its parts outside the sensor's view
+  bright, the rest a black backdrop; with clutter the fixtures too): a few metres,
+  set by the lab, so the returns bunch behind the surface (``multipath_extra_m``);
 * what labs add: shot-to-shot amplitude fluctuation (speckle: the pulse that drives
   both the intensity and the timing walk), lab clutter (a wall behind the target, a
   support jig, a cable across the view: static returns that are not the target), and
@@ -59,7 +65,7 @@ NS_PER_S = 1_000_000_000
 EFFECTS = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
            'beam_divergence', 'time_offset')
 # Hidden effects compare has no candidate for: expected answer null (and the feature).
-OUTSIDE_CATALOGUE = ('azimuth_bias',)
+OUTSIDE_CATALOGUE = ('azimuth_bias', 'multipath')
 
 # ------------------------------------------------------------------ materials
 # Range error per material from the paper's Table 2: mean of the 5 m and 15 m rows
@@ -226,8 +232,11 @@ class Target:
             [np.full(len(parts[k].faces), MATERIALS.index(k)) for k in names])
         self._rays = RayMeshIntersector(self.mesh)
 
-    def cast(self, origins_m: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, ...]:
-        """First hit of body-frame rays: (hit, range_m, cos_incidence, material id)."""
+    def cast(self, origins_m: np.ndarray, dirs: np.ndarray,
+             with_normal: bool = False) -> tuple[np.ndarray, ...]:
+        """First hit of body-frame rays: (hit, range_m, cos_incidence, material id), and
+        with ``with_normal`` the hit face's unit normal turned towards the ray (NaN on
+        a miss)."""
         n = len(dirs)
         tri, ray, loc = self._rays.intersects_id(origins_m, dirs, multiple_hits=False,
                                                  return_locations=True)
@@ -237,9 +246,15 @@ class Target:
         mat = np.full(n, -1)
         hit[ray] = True
         rng[ray] = np.linalg.norm(loc - origins_m[ray], axis=1)
-        cos_i[ray] = np.abs(np.einsum('ij,ij->i', self.mesh.face_normals[tri], dirs[ray]))
+        dot = np.einsum('ij,ij->i', self.mesh.face_normals[tri], dirs[ray])
+        cos_i[ray] = np.abs(dot)
         mat[ray] = self.face_material[tri]
-        return hit, rng, np.clip(cos_i, 1e-6, 1.0), mat
+        out = (hit, rng, np.clip(cos_i, 1e-6, 1.0), mat)
+        if not with_normal:
+            return out
+        normal = np.full((n, 3), np.nan)
+        normal[ray] = -np.sign(dot)[:, None] * self.mesh.face_normals[tri]
+        return out + (normal,)
 
 
 # ---------------------------------------------------------------- trajectory
@@ -361,6 +376,37 @@ def background_range_m(n: int, rng: np.random.Generator, sensor: Sensor, p: dict
     lo, hi = sensor.min_range_m, p.get('max_range_m', sensor.max_range_m)
     u = rng.random(n)
     return lo - lam * np.log(1 - u * (1 - np.exp(-(hi - lo) / lam)))
+
+
+def mirror_direction(dirs: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Specular reflection of unit rays on surfaces of unit normal: d - 2 (d.n) n."""
+    return dirs - 2.0 * np.einsum('ij,ij->i', dirs, normal)[:, None] * normal
+
+
+def multipath_extra_m(point_m: np.ndarray, mirror: np.ndarray, sensor: Sensor,
+                      distance_m: float, p: dict) -> np.ndarray:
+    """Outside the compare catalogue: the extra one-way path L (m) of a mirror path, or
+    NaN where there is none. The beam leaves the specular point ``point_m`` (lidar
+    frame) along ``mirror`` and meets the lab room, a box around the target (lidar
+    frame: floor at z = -floor_m, ceiling at z = ceiling_m, side walls at y = +-side_m,
+    back wall back_m behind the target, the sensor's wall 1 m behind it), at the exit
+    distance L of the box. Only the room's surfaces outside the sensor's field of view
+    are bright: a black backdrop covers what the sensor sees directly, as labs hang
+    one behind the target. The range is then r + L: L is set by how far the room's
+    surfaces are from the target, a few metres."""
+    lo = np.array([-1.0, -p.get('side_m', 4.0), -p.get('floor_m', 2.5)])
+    hi = np.array([distance_m + p.get('back_m', 4.0), p.get('side_m', 4.0),
+                   p.get('ceiling_m', 3.0)])
+    with np.errstate(invalid='ignore', divide='ignore'):
+        bound = np.where(mirror > 0, hi, lo)
+        extra = np.nanmin(np.where(np.abs(mirror) > 1e-9, (bound - point_m) / mirror, np.inf),
+                          axis=1)
+        wall = point_m + extra[:, None] * mirror
+        az = np.degrees(np.arctan2(np.abs(wall[:, 1]), wall[:, 0]))
+        el = np.degrees(np.arctan2(np.abs(wall[:, 2]), np.hypot(wall[:, 0], wall[:, 1])))
+        bright = ((extra > 0) & np.isfinite(extra) & ((wall[:, 0] <= 0)
+                  | (az > 0.5 * sensor.fov_az_deg) | (el > 0.5 * sensor.fov_el_deg)))
+    return np.where(bright, extra, np.nan)
 
 
 def footprint_returns(target: Target, origins_b: np.ndarray, dirs_b: np.ndarray,
@@ -607,6 +653,15 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
         bias, var = bias + b, var + v
         contrib[eff] = (b, v)
     measured = r_hit + bias + np.sqrt(var) * unit_noise(spec.noise, len(d), rng)
+    multipath = np.zeros(len(d), bool)
+    mp = spec.params_of('multipath')
+    if mp is not None:
+        normal = rot.apply(target.cast(origins_b, dirs_b, with_normal=True)[4])
+        multipath, extra, wall_power = multipath_returns(spec, sensor, d, r_hit, normal, cos_i,
+                                                         mat, on_target, rng, mp)
+        measured = np.where(multipath, r_hit + extra
+                            + CLUTTER_SIGMA_M * rng.standard_normal(len(d)), measured)
+        power = np.where(multipath, wall_power, power)
     detected = hit & (power >= sensor.threshold_power_w)
     solar = spec.params_of('solar_background')
     if solar is not None:
@@ -622,8 +677,43 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     return {'xyz_m': d[i] * measured[i, None], 'power_w': power[i], 't_s': t[i],
             'range_m': measured[i], 'true_range_m': r_hit[i], 'material': mat[i],
             'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid,
-            'base_sigma_m': base_sigma[i],
+            'base_sigma_m': base_sigma[i], 'multipath': multipath[i],
             'effects': {k: (b[i], v[i]) for k, (b, v) in contrib.items()}}
+
+
+SPECULAR_MIN = 0.5     # specular albedo of a mirror-like material (MLI, PSS)
+
+
+def multipath_returns(spec: ForeignSpec, sensor: Sensor, dirs: np.ndarray, true_r: np.ndarray,
+                      normal: np.ndarray, cos_i: np.ndarray, mat: np.ndarray,
+                      on_target: np.ndarray, rng: np.random.Generator,
+                      p: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which shots return via a mirror path, their extra one-way path (m) and the
+    power of that return (W). A shot on a mirror-like material, beyond
+    min_incidence_deg (the direct glint is gone, its lobe points elsewhere), whose
+    mirror ray meets a bright lab surface (``multipath_extra_m``; with clutter, the
+    fixtures too, the nearer wins) returns that way with probability p. The bright
+    surface scatters like the clutter; the light meets the mirror twice."""
+    n = len(dirs)
+    specular = np.array([SURFACES[m].specular for m in MATERIALS] + [0.0])
+    mirror_like = on_target & (specular[np.clip(mat, 0, len(MATERIALS))] >= SPECULAR_MIN)
+    oblique = cos_i < np.cos(np.radians(p.get('min_incidence_deg', 25.0)))
+    point = dirs * np.where(on_target, true_r, 0.0)[:, None]
+    mirror = mirror_direction(dirs, np.where(np.isfinite(normal), normal, 0.0))
+    extra = multipath_extra_m(point, mirror, sensor, spec.distance_m, p)
+    cos_wall = np.full(n, 0.5)       # a typical incidence on the room's surfaces
+    if spec.clutter:
+        idx = np.flatnonzero(mirror_like & oblique)
+        c_hit, c_r, c_cos = lab_clutter(spec.distance_m).cast(point[idx], mirror[idx])
+        nearer = c_hit & ~(extra[idx] <= c_r)
+        extra[idx[nearer]] = c_r[nearer]
+        cos_wall[idx[nearer]] = c_cos[nearer]
+    chosen = mirror_like & oblique & np.isfinite(extra) & (rng.random(n) < p.get('p', 0.15))
+    s = specular[np.clip(mat, 0, len(MATERIALS))]
+    path = np.where(chosen, true_r + extra, 1.0)
+    power = (received_power_w(sensor, path, cos_wall, np.zeros(n, int))
+             * CLUTTER_SURFACE_RATIO * s ** 2)
+    return chosen, np.where(chosen, extra, 0.0), np.where(chosen, power, 0.0)
 
 
 def effect_gain_nats(frames: list[dict], name: str) -> float:
@@ -778,7 +868,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
     # Pose clock minus lidar clock: the pose stamped s shows the target at lidar time s - dt.
     offset = spec.params_of('time_offset')
     dt_s = float(offset.get('dt_s', 0.05)) if offset is not None else 0.0
-    n_points = n_clutter = n_false = 0
+    n_points = n_clutter = n_false = n_multipath = 0
     kept: list[dict] = []
     bag = out / 'bag'
     with BagWriter(bag, storage=spec.storage) as writer:
@@ -806,13 +896,15 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
             kept.append({k: frame[k] for k in ('material', 'base_sigma_m', 'effects')})
             n_clutter += int(np.sum(frame['material'] == CLUTTER))
             n_false += int(np.sum(frame['material'] < 0))
+            n_multipath += int(np.sum(frame['multipath']))
     truth = {'hidden': [[n, p] for n, p in spec.hidden], 'time_offset_s': dt_s,
              'material_errors_m': {k: [round(b, 5), round(s, 5)] for k, (b, s) in errors.items()},
              'distance_m': spec.distance_m,
              'effect_gain_nats': {n: round(effect_gain_nats(kept, n), 5)
                                   for n in kept[0]['effects']} if kept else {},
              'clutter_fraction': n_clutter / max(n_points, 1),
-             'false_return_fraction': n_false / max(n_points, 1)}
+             'false_return_fraction': n_false / max(n_points, 1),
+             'multipath_fraction': n_multipath / max(n_points, 1)}
     scen = write_compare_scenario(out / 'scenario.yaml', mesh, traj)
     return ForeignDataset(spec, bag, mesh, scen, n_points, truth)
 
@@ -901,6 +993,13 @@ BATTERY: tuple[ForeignSpec, ...] = (
     ForeignSpec('azimuth_bias_short', 'azimuth_bias', {'a_m': 0.015, 'period_deg': 8.0},
                 seed=36, frames=10, speed_mps=0.0, spin_dps=3.0, intensity='linear',
                 shots_per_frame=8000, scan='rosette', expected=None, expected_feature='azimuth'),
+    # --- outside the catalogue and no outlier effect: lab multipath (a mirror path via
+    # a specular surface to the lab's walls returns a few metres behind the surface)
+    ForeignSpec('multipath', 'multipath', {'p': 0.05}, seed=46, expected=None,
+                note='mirror path via MLI/PSS to the lab room: returns 1-5 m behind the surface'),
+    ForeignSpec('clutter_multipath', 'multipath', {'p': 0.08}, seed=47, clutter=True,
+                scan='rosette', intensity='counts16', expected=None,
+                note='lab clutter, and mirror paths to the room and the fixtures'),
     # --- two effects at once, walked step by step
     ForeignSpec('walk_and_offset', 'range_walk', {'form': 'poly_log', 'a_m': 0.015, 'b_m': 0.002},
                 seed=37, also=(('time_offset', {'dt_s': 0.05}),), spin_dps=15.0,

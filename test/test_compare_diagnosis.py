@@ -92,3 +92,143 @@ def test_unknown_point_times_give_their_spread_whatever_the_stamp(stamp_offset_s
         0.1 / np.sqrt(12), rel=0.15)
     still = sigma * rng.standard_normal(n)
     assert time_spread_s(still, sigma, material, rr, 0.1) < 0.005
+
+
+# ------------------------------------------ physical signature of background light
+# Far points (|residual| above a threshold) of rays whose surface lies at ``expected``;
+# background light triggers at random times, so its ranges are uniform over the window.
+WINDOW_M = (1.0, 41.0)
+
+
+def _far_uniform(n: int, seed: int):
+    """Ranges uniform over WINDOW_M on rays whose surfaces lie at 8-14 m; the far ones."""
+    rng = np.random.default_rng(seed)
+    expected = rng.uniform(8.0, 14.0, n)
+    threshold = np.full(n, 0.5)
+    r = rng.uniform(*WINDOW_M, n)
+    far = np.abs(r - expected) > threshold
+    return r[far] - expected[far], expected[far], threshold[far]
+
+
+def test_far_sides_closed_form_on_a_hand_made_case():
+    """Window 0-20 m, threshold 1 m: a surface at 10 m has 9 m of window on each side
+    (p = 1/2), one at 5 m has 4 m in front and 14 m behind (p = 4/18)."""
+    from lidar_sim_ros.compare.diagnosis import far_sides
+    residual = np.array([-3.0, 4.0, 2.0])
+    expected = np.array([10.0, 10.0, 5.0])
+    threshold = np.ones(3)
+    front, mu, var = far_sides(residual, expected, threshold, (0.0, 20.0))
+    p = np.array([0.5, 0.5, 4.0 / 18.0])
+    assert front == 1
+    assert mu == pytest.approx(p.sum())
+    assert var == pytest.approx(np.sum(p * (1 - p)))
+    # A surface at the window's start: nothing can lie in front of it.
+    assert far_sides(np.array([3.0]), np.array([0.5]), np.ones(1), (0.0, 20.0))[1] == 0.0
+
+
+def test_far_positions_closed_form_on_a_hand_made_case():
+    """Same window: in front, u = r / (e - thr); behind, u = (r - e - thr) / (hi - e - thr)."""
+    from lidar_sim_ros.compare.diagnosis import far_positions
+    residual = np.array([-8.0, 3.0, -2.0, 15.0])   # ranges 2, 13, 8, 20 m
+    expected = np.array([10.0, 10.0, 10.0, 5.0])
+    u = far_positions(residual, expected, np.ones(4), (0.0, 20.0))
+    np.testing.assert_allclose(u, [2.0 / 9.0, 2.0 / 9.0, 8.0 / 9.0, 1.0])
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_random_ranges_pass_the_background_light_signature(seed):
+    """Uniform ranges: the count in front is within 3 sigma of its expectation (whose
+    mean and variance match a Monte Carlo of the same rays) and the within-side
+    positions pass Kolmogorov-Smirnov (p not small)."""
+    from scipy.stats import kstest
+
+    from lidar_sim_ros.compare.diagnosis import far_positions, far_sides
+    residual, expected, threshold = _far_uniform(400, seed)
+    front, mu, var = far_sides(residual, expected, threshold, WINDOW_M)
+    assert abs(front - mu) < 3 * np.sqrt(var)
+    # Reference: each far point's chance to lie in front, by simulation on its own ray.
+    rng = np.random.default_rng(100 + seed)
+    draws = rng.uniform(*WINDOW_M, (4000, len(expected)))
+    far = np.abs(draws - expected) > threshold
+    p_mc = np.sum(far & (draws < expected), axis=0) / np.sum(far, axis=0)
+    assert mu == pytest.approx(p_mc.sum(), rel=0.02)
+    assert var == pytest.approx(np.sum(p_mc * (1 - p_mc)), rel=0.05)
+    u = far_positions(residual, expected, threshold, WINDOW_M)
+    assert len(u) == len(residual)
+    assert kstest(u, 'uniform').pvalue > 1e-3
+
+
+def test_returns_bunched_behind_the_surface_are_flagged():
+    """A mirror path (multipath): returns 2-4 m behind the surface. The count in front is
+    far below its expectation and the positions fail Kolmogorov-Smirnov."""
+    from scipy.stats import kstest
+
+    from lidar_sim_ros.compare.diagnosis import far_positions, far_sides
+    rng = np.random.default_rng(7)
+    n = 60
+    expected = rng.uniform(8.0, 14.0, n)
+    residual = rng.uniform(2.0, 4.0, n)
+    threshold = np.full(n, 0.5)
+    front, mu, var = far_sides(residual, expected, threshold, WINDOW_M)
+    assert front == 0
+    assert mu - front > 4 * np.sqrt(var)       # above the Bonferroni z of the diagnosis
+    u = far_positions(residual, expected, threshold, WINDOW_M)
+    assert kstest(u, 'uniform').pvalue < 1e-6
+    # All on the far side but spread evenly behind: the side test flags it, KS does not.
+    behind = expected + threshold + rng.uniform(0, 1, n) * (WINDOW_M[1] - expected - threshold)
+    u = far_positions(behind - expected, expected, threshold, WINDOW_M)
+    assert kstest(u, 'uniform').pvalue > 1e-3
+
+
+def _far_exponential(n: int, seed: int, mean_m: float):
+    """First arrivals of a strong background: ranges exponential from the window's
+    start (mean ``mean_m``), truncated to WINDOW_M; the far ones."""
+    rng = np.random.default_rng(seed)
+    lo, hi = WINDOW_M
+    expected = rng.uniform(8.0, 14.0, n)
+    threshold = np.full(n, 0.5)
+    r = lo - mean_m * np.log(1 - rng.random(n) * (1 - np.exp(-(hi - lo) / mean_m)))
+    far = np.abs(r - expected) > threshold
+    return r[far] - expected[far], expected[far], threshold[far]
+
+
+def test_arrival_cdf_closed_form():
+    from lidar_sim_ros.compare.diagnosis import arrival_cdf
+    x = np.array([-0.5, 0.0, 0.25, 1.0, 2.0])
+    np.testing.assert_allclose(arrival_cdf(x, 0.0), [0.0, 0.0, 0.25, 1.0, 1.0])
+    rate = 3.0
+    np.testing.assert_allclose(arrival_cdf(x, rate)[2],
+                               (1 - np.exp(-0.75)) / (1 - np.exp(-3.0)), rtol=1e-12)
+    assert arrival_cdf(np.array([0.25]), 1e-7)[0] == pytest.approx(0.25, abs=1e-6)
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_strong_background_first_arrivals_pass_with_the_fitted_rate(seed):
+    """Ranges exponential with a 10 m mean over a 40 m window (rate 4 per window): the
+    fitted rate is about 4, and under it the side count and the within-side positions
+    are consistent; the uniform law (rate 0) would call them bunched."""
+    from scipy.stats import kstest
+
+    from lidar_sim_ros.compare.diagnosis import background_rate, far_positions, far_sides
+    far = _far_exponential(600, seed, 10.0)
+    rate = background_rate(*far, WINDOW_M)
+    assert rate == pytest.approx(4.0, rel=0.2)
+    front, mu, var = far_sides(*far, WINDOW_M, rate)
+    assert abs(front - mu) < 3 * np.sqrt(var)
+    assert kstest(far_positions(*far, WINDOW_M, rate), 'uniform').pvalue > 1e-3
+    assert kstest(far_positions(*far, WINDOW_M), 'uniform').pvalue < 1e-6
+
+
+def test_fitted_rate_is_small_for_even_ranges_and_bunches_stay_flagged():
+    """Uniform ranges fit a rate near 0; returns 2-4 m behind the surface (multipath)
+    are still far too few in front under the fitted law."""
+    from lidar_sim_ros.compare.diagnosis import background_rate, far_sides
+    assert background_rate(*_far_uniform(600, 3), WINDOW_M) < 0.5
+    rng = np.random.default_rng(8)
+    n = 80
+    expected = rng.uniform(8.0, 14.0, n)
+    residual = rng.uniform(2.0, 4.0, n)
+    threshold = np.full(n, 0.5)
+    rate = background_rate(residual, expected, threshold, WINDOW_M)
+    front, mu, var = far_sides(residual, expected, threshold, WINDOW_M, rate)
+    assert front == 0 and mu > 4 * np.sqrt(var)

@@ -26,11 +26,16 @@ all of these hold, each chosen from a principle, not from a dataset:
   isolated unmatched returns, comparable in number to the spurious returns it
   claims (surfaces that are not the target, e.g. lab clutter, are not isolated: a
   neighbouring ray sees the same range), and, since background light triggers at
-  random times, the far points must spread over the range window as random ranges
-  would: not mostly behind the surface when the window puts many in front
-  (``far_sides``), and evenly within each side (``far_positions``, Kolmogorov-Smirnov
-  at the same Bonferroni level), else they come at a preferred range (multipath, a
-  ghost, a second surface: outside the catalogue); a bias or noise effect must account for at
+  random times, the far points must spread over the range window as background
+  arrivals would. Background photons are a Poisson process, so the first to trigger
+  falls at range x (share of the window) with density ~ exp(-rate x): evenly for a
+  weak background, crowding the window's start for a strong one (``arrival_cdf``;
+  the rate is fitted to the far points, ``background_rate``, rate >= 0). Under that
+  law they must not lie mostly behind the surface when the window puts many in front
+  (``far_sides``), and must spread within each side as the law says
+  (``far_positions``, Kolmogorov-Smirnov at the same Bonferroni level), else they
+  come at a preferred range (multipath, a ghost, a second surface: outside the
+  catalogue); a bias or noise effect must account for at
   least MIN_SHARE of the residual's dependence on the features that the attribution's
   joint model finds (``features.Attribution``): a candidate that soaks up a sliver of
   a structure it does not have the shape of is a phantom (the rest of the structure
@@ -55,6 +60,7 @@ from typing import Literal, get_args, get_origin
 
 import numpy as np
 from pydantic import create_model
+from scipy.optimize import minimize_scalar
 from scipy.stats import kstest, norm
 
 from lidar_sim_ros.compare import likelihood as lk
@@ -368,10 +374,10 @@ class Diagnosis:
         if rays.isolated is not None:
             far &= rays.isolated[rays.matched]
         self.n_far = int(far.sum())
-        self.far_sides = far_sides(residual[far], expected[far], threshold[far],
-                                   self.full.range_window_m)
-        self.far_u = far_positions(residual[far], expected[far], threshold[far],
-                                   self.full.range_window_m)
+        far_args = (residual[far], expected[far], threshold[far], self.full.range_window_m)
+        self.far_rate = background_rate(*far_args)
+        self.far_sides = far_sides(*far_args, self.far_rate)
+        self.far_u = far_positions(*far_args, self.far_rate)
         self._base_outlier_w = float(np.mean(lk.model_on_rays(
             self.full, []).outlier_w)) if len(self.rays.matched) else 0.0
 
@@ -485,7 +491,8 @@ class Diagnosis:
                         'not the target, not false returns')
             front, mu, var = self.far_sides
             if mu - front > self.z_crit * np.sqrt(max(var, 1e-12)) and front < 0.5 * mu:
-                return (f'its false returns come at random times, so about {mu:.0f} of the '
+                return (f'its false returns come at random times (background arrivals over '
+                        f'the range window), so about {mu:.0f} of the '
                         f'{self.n_far} far points would lie in front of the surface, but '
                         f'{front} do: the far returns come from behind the surface (a longer '
                         'path: multipath via a specular surface, or a second surface seen '
@@ -494,8 +501,10 @@ class Diagnosis:
                 ks = kstest(self.far_u, 'uniform')
                 if ks.pvalue < norm.sf(self.z_crit):
                     return (f'its false returns come at random times, so the {len(self.far_u)} far '
-                            'points would spread evenly over the range window on either side of '
-                            f'the surface, but they bunch (Kolmogorov-Smirnov D = {ks.statistic:.2f}, '
+                            'points would spread over the range window on either side of the '
+                            'surface as the first arrivals of a background do (evenly, or falling '
+                            f'off with range; fitted rate {self.far_rate:.2g} per window), but '
+                            f'they bunch (Kolmogorov-Smirnov D = {ks.statistic:.2f}, '
                             f'p = {ks.pvalue:.1e}): returns at a preferred range (multipath via a '
                             'specular surface, a ghost, a second surface), not background light')
         return None
@@ -589,30 +598,83 @@ def far_from_surface(data, details: bool = False):
     return far, r - offset, model.expected_range_m + offset, threshold
 
 
-def far_positions(residual_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
-                  window_m: tuple[float, float]) -> np.ndarray:
-    """Where each far point lies within its side of the surface, 0..1 (in front: from the
-    window's start to the band around the surface; behind: from the band to the window's
-    end): uniform if the ranges are random over the window."""
+MAX_ARRIVAL_RATE = 50.0    # background arrivals per window length fitted at most
+
+
+def arrival_cdf(x: np.ndarray, rate: float) -> np.ndarray:
+    """CDF of the first background arrival over the window, x = share of the window
+    (0..1): a Poisson process of ``rate`` arrivals per window length triggers first at
+    x with density ~ exp(-rate x), i.e. F = (1 - e^(-rate x)) / (1 - e^(-rate));
+    uniform (F = x) for a weak background (rate -> 0)."""
+    x = np.clip(np.asarray(x, float), 0.0, 1.0)
+    if rate < 1e-9:
+        return x
+    return np.expm1(-rate * x) / np.expm1(-rate)
+
+
+def _far_segments(expected_m: np.ndarray, threshold_m: np.ndarray,
+                  window_m: tuple[float, float], rate: float):
+    """Per far point: the first-arrival probability of the window in front of its
+    surface and behind it (outside the +-threshold band a far point cannot fall in),
+    and the CDF at the band's two ends."""
     lo, hi = window_m
+    width = max(hi - lo, 1e-9)
+    f_a = arrival_cdf((expected_m - threshold_m - lo) / width, rate)
+    f_b = arrival_cdf((expected_m + threshold_m - lo) / width, rate)
+    return f_a, 1.0 - f_b, f_a, f_b
+
+
+def background_rate(residual_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
+                    window_m: tuple[float, float]) -> float:
+    """Maximum-likelihood rate (arrivals per window length, >= 0) of the first-arrival
+    law ``arrival_cdf`` for the far points' ranges, each given that it lies outside
+    its surface's band: 0 if they are spread evenly, larger if they crowd the window's
+    start as the first photons of a strong background do."""
+    lo, hi = window_m
+    width = max(hi - lo, 1e-9)
+    x = np.clip((expected_m + residual_m - lo) / width, 0.0, 1.0)
+    if len(x) < 2:
+        return 0.0
+
+    def nll(rate: float) -> float:
+        front, behind, _, _ = _far_segments(expected_m, threshold_m, window_m, rate)
+        mass = np.maximum(front + behind, 1e-300)
+        if rate < 1e-9:
+            return float(np.sum(np.log(mass)))
+        log_density = np.log(rate / -np.expm1(-rate)) - rate * x
+        return float(-np.sum(log_density - np.log(mass)))
+
+    res = minimize_scalar(nll, bounds=(0.0, MAX_ARRIVAL_RATE), method='bounded',
+                          options={'xatol': 1e-3})
+    return float(res.x) if res.fun < nll(0.0) else 0.0
+
+
+def far_positions(residual_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
+                  window_m: tuple[float, float], rate: float = 0.0) -> np.ndarray:
+    """Where each far point lies within its side of the surface, 0..1, in the
+    first-arrival probability of ``rate`` (in front: from the window's start to the band
+    around the surface; behind: from the band to the window's end): uniform if the
+    ranges are background arrivals. With rate 0, the share of the side's length."""
+    lo, hi = window_m
+    width = max(hi - lo, 1e-9)
     front = residual_m < 0
-    r = expected_m + residual_m
-    start = np.where(front, lo, expected_m + threshold_m)
-    end = np.where(front, expected_m - threshold_m, hi)
+    f = arrival_cdf((expected_m + residual_m - lo) / width, rate)
+    _, _, f_a, f_b = _far_segments(expected_m, threshold_m, window_m, rate)
+    start = np.where(front, 0.0, f_b)
+    end = np.where(front, f_a, 1.0)
     with np.errstate(invalid='ignore', divide='ignore'):
-        u = (r - start) / (end - start)
+        u = (f - start) / (end - start)
     return np.clip(u[np.isfinite(u)], 0.0, 1.0)
 
 
 def far_sides(residual_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
-              window_m: tuple[float, float]) -> tuple[int, float, float]:
+              window_m: tuple[float, float], rate: float = 0.0) -> tuple[int, float, float]:
     """Far points in front of the surface: how many there are, and the mean and variance
-    of that count if their ranges were random over ``window_m`` (a false return from
-    background light): each point's chance is the window's share in front of its
-    surface, outside the +-threshold band a far point cannot fall in."""
-    lo, hi = window_m
-    front = np.maximum(expected_m - threshold_m - lo, 0.0)
-    behind = np.maximum(hi - expected_m - threshold_m, 0.0)
+    of that count if their ranges were background arrivals over ``window_m``
+    (``arrival_cdf`` of ``rate``; rate 0: uniform): each point's chance is the
+    probability in front of its surface over that outside the +-threshold band a far
+    point cannot fall in."""
+    front, behind, _, _ = _far_segments(expected_m, threshold_m, window_m, rate)
     with np.errstate(invalid='ignore', divide='ignore'):
         p = np.where(front + behind > 0, front / (front + behind), 0.5)
     return int(np.sum(residual_m < 0)), float(p.sum()), float(np.sum(p * (1 - p)))
