@@ -24,6 +24,7 @@ from lidar_sim_ros.core.effects import effect_from_spec
 from lidar_sim_ros.core.pipeline import Frame, Simulator
 from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, MATERIAL_NAMES_TOPIC, POSE_TOPIC, SUN_TOPIC, BagWriter
+from lidar_sim_ros.cli_types import positive_int
 from lidar_sim_ros.io.pointcloud import frame_points
 
 TRUTH_TOPIC = '/lidar/points_truth'
@@ -147,16 +148,6 @@ def _write_poses(bag: BagWriter, trajectory: PoseSource, t_s: np.ndarray,
 
 
 # ----------------------------------------------------------------------- CLI
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'expected a positive integer, got {text!r}') from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'expected a positive integer, got {value}')
-    return value
-
-
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         'simulate', help='simulate a scenario into a rosbag2 and figures',
@@ -164,7 +155,7 @@ def register(subparsers) -> None:
                     f'{CLOUD_TOPIC}, {TRUTH_TOPIC}, {POSE_TOPIC} and {MATERIAL_NAMES_TOPIC}, '
                     'plus PNG figures of the last frame in DIR/figures.')
     p.add_argument('scenario', type=Path, help='scenario YAML (e.g. config/scenario.yaml)')
-    p.add_argument('--frames', type=_positive_int, required=True, help='number of frames')
+    p.add_argument('--frames', type=positive_int, required=True, help='number of frames')
     p.add_argument('--out', type=Path, required=True, metavar='DIR',
                    help='output directory; DIR/bag must not exist yet')
     p.add_argument('--start-s', type=float, default=0.0, metavar='S',

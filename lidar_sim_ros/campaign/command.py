@@ -9,29 +9,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from lidar_sim_ros.cli_types import positive_int, run_id
 from lidar_sim_ros.campaign.spec import load_campaign
 
 INSTALL_HINT = "pip install 'lidar_sim_ros[campaign]' (or -r requirements-campaign.txt)"
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'expected a positive integer, got {text!r}') from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'expected a positive integer, got {value}')
-    return value
-
-
-def _run_id(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'expected a run id (0, 1, ...), got {text!r}') from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f'expected a run id (0, 1, ...), got {value}')
-    return value
 
 
 def register(subparsers) -> None:
@@ -43,11 +24,11 @@ def register(subparsers) -> None:
     p.add_argument('campaign', type=Path, help='campaign YAML (e.g. config/campaign_example.yaml)')
     p.add_argument('--out', type=Path, required=True, metavar='DIR',
                    help='output directory: manifest.csv (+ runs/run_NNNNN/bag with save: bags)')
-    p.add_argument('--workers', type=_positive_int, default=None, metavar='N',
+    p.add_argument('--workers', type=positive_int, default=None, metavar='N',
                    help='local worker processes (default: all cores); ignored with --address')
     p.add_argument('--address', default=None, metavar='ADDR',
                    help='join a running Dask scheduler, e.g. tcp://10.0.0.5:8786')
-    p.add_argument('--run', type=_run_id, default=None, metavar='RUN_ID',
+    p.add_argument('--run', type=run_id, default=None, metavar='RUN_ID',
                    help='re-run this one run here (no cluster) and compare with the manifest')
     p.add_argument('--retry-failed', action='store_true',
                    help='run the runs recorded as failed again (default: skip them)')
