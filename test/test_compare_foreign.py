@@ -53,8 +53,13 @@ WRONG: dict[str, str] = {
 
 
 def _small(spec: ForeignSpec) -> ForeignSpec:
-    """Fewer frames for the suite; the short passes keep their second of small frames."""
-    return spec if spec.frames >= 10 else replace(spec, frames=FRAMES)
+    """Fewer frames for the suite; the short passes keep their second of small frames, and
+    a time offset in clouds without point times keeps its frames: on 2 frames the offset
+    is not decisive against the smear of the unknown times (z 2.9 < 2.94 at seed 43), on
+    the dataset's 3 it is (z 3.7)."""
+    if spec.frames >= 10 or (spec.effect == 'time_offset' and spec.point_time == 'none'):
+        return spec
+    return replace(spec, frames=FRAMES)
 
 
 def _params():
