@@ -9,7 +9,8 @@ point: the points are split in two halves, the candidate is fitted on one and sc
 on the other and vice versa, so extra parameters cannot win on noise. The held-out
 likelihood is outlier tolerant (a small uniform floor), so a handful of odd returns
 cannot dominate. Unmatched points a candidate explains (returns beyond the
-silhouette, false returns off the target) count too.
+silhouette, false returns off the target) count too, as many as it explains beyond
+those the model's own effects already explain.
 
 A diagnosis is a claim to a user. A candidate is named (``missing_effect``) only if
 all of these hold, each chosen from a principle, not from a dataset:
