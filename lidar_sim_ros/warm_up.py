@@ -66,14 +66,32 @@ def warm_up() -> list[str]:
         sim = Simulator.from_scenario(every, threads=threads)
         sim.warm_up()
         sim.simulate_frame(0.0, trajectory, 0)
-    return sorted(name for name, kernel in cached_kernels().items() if not _ready(kernel))
+    kernels = cached_kernels()
+    ready = {name for name, kernel in kernels.items() if _ready(kernel)}
+    # A kernel called only from other kernels is compiled into them (their cache holds
+    # its code), so it is ready when a ready kernel calls it.
+    while True:
+        called = {name for name, kernel in kernels.items() if name not in ready
+                  and any(_calls(kernels[r], kernel) for r in ready)}
+        if not called:
+            break
+        ready |= called
+    return sorted(set(kernels) - ready)
 
 
 def _ready(kernel) -> bool:
-    """Compiled in this process, or on disk: a kernel called only from other kernels is not
-    compiled here when its callers load from the cache, but its own cache was written
-    when they were compiled."""
+    """Compiled in this process, or its own cache is on disk."""
     return bool(kernel.signatures) or bool(kernel._cache._cache_file._load_index())
+
+
+def _calls(caller, callee) -> bool:
+    """Whether ``caller``'s Python source names ``callee`` (a global of its module)."""
+    code = caller.py_func.__code__
+    names = set(code.co_names)
+    for const in code.co_consts:            # nested functions and generator bodies
+        if hasattr(const, 'co_names'):
+            names |= set(const.co_names)
+    return any(caller.py_func.__globals__.get(n) is callee for n in names)
 
 
 def main() -> int:

@@ -19,7 +19,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from lidar_sim_ros.io.pointcloud import stamp_to_ns
-from lidar_sim_ros.warm_up import cached_kernels
+from lidar_sim_ros.warm_up import _calls, cached_kernels
 
 REPO = Path(__file__).resolve().parents[1]
 PARAMS = REPO / 'config' / 'params.yaml'
@@ -101,6 +101,10 @@ def test_cold_first_start_publishes_on_the_grid_and_warm_up_caches_every_kernel(
     assert run.returncode == 0, run.stderr
     cached = {p.name.split('-')[0] for p in cache.rglob('*.nbi')}
     # numba names a cache file module.function (e.g. pose._slerp_track, in a folder per
-    # subpackage: effects/beam_divergence._walk-602.py311.nbi).
-    expected = {'.'.join(name.split('.')[-2:]) for name in cached_kernels()}
-    assert expected and expected <= cached, (expected, cached)
+    # subpackage: effects/beam_divergence._walk-602.py311.nbi). A kernel called only
+    # from other kernels may have no file of its own: its code is in its callers'.
+    kernels = cached_kernels()
+    short = {name: '.'.join(name.split('.')[-2:]) for name in kernels}
+    on_disk = {name for name in kernels if short[name] in cached}
+    inside = {name for name in kernels if any(_calls(kernels[c], kernels[name]) for c in on_disk)}
+    assert on_disk and set(kernels) <= on_disk | inside, (sorted(kernels), sorted(cached))
