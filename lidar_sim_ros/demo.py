@@ -18,6 +18,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 from lidar_sim_ros.paths import config_path
 
@@ -112,6 +113,27 @@ def record(bag: Path, seconds: float, procs: dict[str, subprocess.Popen], logs: 
         rclpy.try_shutdown(context=context)
 
 
+def run_nodes(commands: dict[str, tuple[str, list[str]]], out: Path, bag: Path, seconds: float,
+              domain: int, recorder: Callable | None = None) -> tuple[dict, dict, dict[str, Path]]:
+    """Start each node (module, ROS arguments) on the private ROS domain ``domain`` (this
+    process joins it to record), its output in ``out/NAME.log``; record ``bag`` for
+    ``seconds`` with ``recorder`` (default: ``record``); stop them all.
+
+    Returns (counts per topic, exit codes, logs); a RuntimeError of the recording passes
+    through after the nodes are stopped.
+    """
+    os.environ['ROS_DOMAIN_ID'] = str(domain)
+    env = {**os.environ, 'PYTHONUNBUFFERED': '1'}
+    logs = {name: out / f'{name}.log' for name in commands}
+    procs = {name: start(module, ros_args, env, logs[name])
+             for name, (module, ros_args) in commands.items()}
+    try:
+        counts = (recorder or record)(bag, seconds, procs, logs)
+    finally:
+        codes = {name: stop(proc) for name, proc in procs.items()}
+    return counts, codes, logs
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     out = args.out
@@ -123,24 +145,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f'demo: error: {exc}', file=sys.stderr)
         return 2
     domain = args.domain_id if args.domain_id is not None else random.randint(1, 101)
-    # The recorder (this process) and both nodes share the private domain.
-    os.environ['ROS_DOMAIN_ID'] = str(domain)
-    env = {**os.environ, 'PYTHONUNBUFFERED': '1'}
     names = ('lidar_sim_node', 'target_pose_player')
-    logs = {name: out / f'{name}.log' for name in names}
     print(f'ROS_DOMAIN_ID={domain}: starting {" and ".join(names)} with {args.params}', flush=True)
     # Reliable clouds so that the recording is lossless (best effort drops whole clouds
     # when two 350 kB messages a frame overrun the shared-memory transport).
-    ros_args = {'lidar_sim_node': ['--params-file', str(args.params), '-p', 'qos_reliability:=reliable'],
-                'target_pose_player': ['--params-file', str(args.params)]}
-    procs = {name: start(f'lidar_sim_ros.ros.{name}', ros_args[name], env, logs[name]) for name in names}
+    params = ['--params-file', str(args.params)]
+    commands = {'lidar_sim_node': ('lidar_sim_ros.ros.lidar_sim_node',
+                                   params + ['-p', 'qos_reliability:=reliable']),
+                'target_pose_player': ('lidar_sim_ros.ros.target_pose_player', params)}
     try:
-        counts = record(bag, args.seconds, procs, logs)
+        counts, codes, logs = run_nodes(commands, out, bag, args.seconds, domain)
     except RuntimeError as exc:
         print(f'demo: error: {exc}', file=sys.stderr)
         return 1
-    finally:
-        codes = {name: stop(proc) for name, proc in procs.items()}
     print('recorded ' + ', '.join(f'{n} on {t}' for t, n in counts.items()))
     print(f'bag: {bag}')
     print(f'logs: {logs["lidar_sim_node"]}, {logs["target_pose_player"]}')

@@ -11,13 +11,12 @@ estimates are scored against the true pose: ``gnc.json`` and ``gnc_errors.png``.
 from __future__ import annotations
 
 import argparse
-import os
 import random
 import sys
 import time
 from pathlib import Path
 
-from lidar_sim_ros.demo import remove_old_bag, start, stop
+from lidar_sim_ros.demo import remove_old_bag, run_nodes
 from lidar_sim_ros.paths import config_path
 
 STARTUP_TIMEOUT_S = 90.0  # a first start compiles the simulator's kernels (see make venv)
@@ -115,8 +114,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f'demo-gnc: error: {exc}', file=sys.stderr)
         return 2
     domain = args.domain_id if args.domain_id is not None else random.randint(1, 101)
-    os.environ['ROS_DOMAIN_ID'] = str(domain)  # this process records on the same private domain
-    env = {**os.environ, 'PYTHONUNBUFFERED': '1'}
     params = ['--params-file', str(args.params)]
     commands = {
         'target_pose_player': ('lidar_sim_ros.ros.target_pose_player', params),
@@ -124,16 +121,12 @@ def main(argv: list[str] | None = None) -> int:
         'pose_tracker_model': ('lidar_sim_ros.gnc.pose_tracker_node', tracker_args('model_cloud')),
         'pose_tracker_truth': ('lidar_sim_ros.gnc.pose_tracker_node', tracker_args('truth_cloud')),
     }
-    logs = {name: out / f'{name}.log' for name in commands}
     print(f'ROS_DOMAIN_ID={domain}: starting {", ".join(commands)}', flush=True)
-    procs = {name: start(module, ros_args, env, logs[name]) for name, (module, ros_args) in commands.items()}
     try:
-        counts = record(bag, args.seconds, procs, logs)
+        counts, codes, logs = run_nodes(commands, out, bag, args.seconds, domain, record)
     except RuntimeError as exc:
         print(f'demo-gnc: error: {exc}', file=sys.stderr)
         return 1
-    finally:
-        codes = {name: stop(proc) for name, proc in procs.items()}
     print('recorded ' + ', '.join(f'{n} on {t}' for t, n in counts.items()))
     if any(codes.values()):
         print(f'demo-gnc: warning: exit codes {codes}', file=sys.stderr)
