@@ -367,6 +367,10 @@ class Diagnosis:
                           for f in self.folds]
         self.n_total = len(rays.matched) + len(rays.unmatched)
         self._base_nll = [heldout_nll(d, []) for d in self.fold_data]
+        # Unmatched points the model's own effects explain, per fold (every candidate's
+        # unmatched credit is counted beyond these).
+        self._base_unmatched = [lk.unmatched_explained(d, []) if len(d.unmatched_range_m)
+                                else 0.0 for d in self.fold_data]
         # Per matched point of the folds' test sides (in fold order): neighbourhoods.
         blocks = rays.blocks if rays.blocks is not None else np.arange(len(rays.meas))
         self.blocks = np.concatenate([blocks[self.folds[(k + 1) % N_FOLDS].matched]
@@ -437,7 +441,8 @@ class Diagnosis:
             if len(test.unmatched_range_m):
                 # What the candidate adds: the model's own effects (a fitted solar
                 # background, say) already account for some unmatched points.
-                before = lk.unmatched_explained(test, list(on_top))
+                before = (lk.unmatched_explained(test, list(on_top)) if on_top
+                          else self._base_unmatched[(k + 1) % N_FOLDS])
                 after = lk.unmatched_explained(test, [*on_top, effect_k])
                 explained += max(after - before, 0.0) * len(test.unmatched_range_m)
         return np.concatenate(nll), explained

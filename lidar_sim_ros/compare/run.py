@@ -217,6 +217,13 @@ class PowerFromIntensity:
         return self.calibration.power_w(m.meas.intensity, m.meas.range_m)
 
 
+def frame_period_s(meas: Measurements, scenario: Scenario) -> float:
+    """The recording's frame period (s): the median step between cloud stamps, else the
+    configured sensor's."""
+    steps = np.diff(np.unique(meas.cloud_stamps_s))
+    return float(np.median(steps)) if len(steps) else scenario.sensor.frame_period_s
+
+
 def unknown_time_variance(model: Model, effects: list[Effect], meas: Measurements,
                           scenario: Scenario, seed: int) -> tuple[np.ndarray | None, float]:
     """Clouds without per-point time: the variance (m^2, per point) the unknown point
@@ -231,8 +238,7 @@ def unknown_time_variance(model: Model, effects: list[Effect], meas: Measurement
     on = lk.model_on_rays(data, [])
     sub = meas.subset(sample.matched)
     rr = range_rate_mps(sim, sub, diagnosis.take_prediction(m.pred, sample.matched))
-    steps = np.diff(np.unique(meas.cloud_stamps_s))
-    period = float(np.median(steps)) if len(steps) else scenario.sensor.frame_period_s
+    period = frame_period_s(meas, scenario)
     spread = point_times.time_spread_s(data.measured_range_m - on.expected_range_m, on.sigma_m,
                                        np.asarray(data.baseline.ctx.material, int), rr, period)
     if spread <= 0:
@@ -251,8 +257,7 @@ def _stamp_place(diag, decision, cands, meas: Measurements, scenario: Scenario):
     cand = next(c for c in cands if c.name == 'time_offset')
     if cand.effect is None:
         return None
-    steps = np.diff(np.unique(meas.cloud_stamps_s))
-    period = float(np.median(steps)) if len(steps) else scenario.sensor.frame_period_s
+    period = frame_period_s(meas, scenario)
 
     def total_nll(effect):
         nll = lk.point_nll(diag.full, lk.model_on_rays(diag.full, [effect]))[0]
