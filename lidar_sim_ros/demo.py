@@ -100,7 +100,9 @@ def record(bag: Path, seconds: float, procs: dict[str, subprocess.Popen], logs: 
             missing = [t for t, n in recorder.seen.items() if n == 0]
             if missing:
                 print(f'demo: warning: nothing on {missing} yet; recording anyway', file=sys.stderr)
-            recorder.arm()
+            # From now on by header stamp: clouds a lagging node publishes late belong
+            # to a time before the poses in the bag.
+            recorder.arm(since_ns=node.get_clock().now().nanoseconds)
             print(f'first cloud received; recording {seconds:g} s ...', flush=True)
             stop_at = time.monotonic() + seconds
             while time.monotonic() < stop_at:

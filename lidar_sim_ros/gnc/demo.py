@@ -16,6 +16,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from lidar_sim_ros.demo import remove_old_bag, run_nodes
 from lidar_sim_ros.paths import config_path
 
@@ -52,7 +54,7 @@ def record(bag: Path, seconds: float, procs: dict, logs: dict[str, Path]) -> dic
     from sensor_msgs.msg import PointCloud2
 
     from lidar_sim_ros.io.bag import BagWriter
-    from lidar_sim_ros.ros.recorder import BagRecorder, TopicSpec
+    from lidar_sim_ros.ros.recorder import BagRecorder, TopicSpec, header_stamp_ns
 
     topics = [TopicSpec(t, PoseStamped, 'geometry_msgs/msg/PoseStamped') for t in (POSE, *ESTIMATES.values())]
     context = rclpy.Context()
@@ -60,15 +62,15 @@ def record(bag: Path, seconds: float, procs: dict, logs: dict[str, Path]) -> dic
     node = rclpy.create_node('lidar_sim_gnc_demo_recorder', context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
-    clouds = {topic: 0 for topic in CLOUDS.values()}
-    armed = [False]
+    stamps: dict[str, set[int]] = {topic: set() for topic in CLOUDS.values()}
 
     def counter(topic):
-        def count(_raw: bytes) -> None:
-            clouds[topic] += armed[0]
+        def count(raw: bytes) -> None:
+            stamps[topic].add(header_stamp_ns(raw))
         return count
 
-    # Counted, not recorded (raw bytes, never deserialised): did each tracker keep up?
+    # Seen, not recorded (raw bytes, never deserialised): how many clouds the node
+    # published in the window, to tell whether each tracker kept up.
     for topic in CLOUDS.values():
         node.create_subscription(PointCloud2, topic, counter(topic),
                                  QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True)
@@ -84,19 +86,36 @@ def record(bag: Path, seconds: float, procs: dict, logs: dict[str, Path]) -> dic
                 if time.monotonic() > deadline:
                     silent = [t for t, n in recorder.seen.items() if n == 0]
                     raise RuntimeError(f'nothing on {silent} within {STARTUP_TIMEOUT_S:g} s; see {out_logs(logs)}')
-            recorder.arm()
-            armed[0] = True
+            since_ns = node.get_clock().now().nanoseconds
+            recorder.arm(since_ns)  # by header stamp: a lagging tracker's backlog stays out
             print(f'both trackers publish; recording {seconds:g} s ...', flush=True)
             stop_at = time.monotonic() + seconds
             while time.monotonic() < stop_at:
                 executor.spin_once(timeout_sec=0.05)
-            armed[0] = False
+            until_ns = node.get_clock().now().nanoseconds
             recorder.close()
-            return {**recorder.counts, **clouds}
+            return {**recorder.counts, **{t: published(s, since_ns, until_ns) for t, s in stamps.items()}}
     finally:
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def published(stamps: set[int], since_ns: int, until_ns: int) -> int:
+    """Clouds stamped in [since_ns, until_ns), from the header stamps (ns) of those received.
+
+    The count subscription is best effort, so it may miss clouds; the stamps lie on a
+    frame grid (step: the smallest gap between received stamps), so the grid counts
+    the missed ones too.
+    """
+    got = np.array(sorted(stamps), dtype=np.int64)
+    if len(got) < 2:
+        return int(((got >= since_ns) & (got < until_ns)).sum())
+    step = int(np.diff(got).min())
+    phase = int(got[0]) % step
+    first = -(-(since_ns - phase) // step)  # grid index of the first stamp >= since_ns
+    last = -(-(until_ns - phase) // step)  # ... and of the first >= until_ns
+    return max(0, last - first)
 
 
 def out_logs(logs: dict[str, Path]) -> str:

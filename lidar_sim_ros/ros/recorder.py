@@ -9,6 +9,7 @@ nothing is lost), transient local if they all are (so latched messages arrive).
 """
 from __future__ import annotations
 
+import struct
 from typing import Any, NamedTuple, Sequence
 
 from geometry_msgs.msg import PoseStamped
@@ -30,15 +31,29 @@ class TopicSpec(NamedTuple):
     topic: str
     msg_class: Any
     msgtype: str
+    stamped: bool = True
+    """Whether the message starts with a std_msgs/Header (its stamp bounds the window)."""
 
 
 NODE_TOPICS = (
     TopicSpec('/lidar/points', PointCloud2, 'sensor_msgs/msg/PointCloud2'),
     TopicSpec('/lidar/points_truth', PointCloud2, 'sensor_msgs/msg/PointCloud2'),
     TopicSpec('/target/pose', PoseStamped, 'geometry_msgs/msg/PoseStamped'),
-    TopicSpec('/lidar/material_names', String, 'std_msgs/msg/String'),
+    TopicSpec('/lidar/material_names', String, 'std_msgs/msg/String', stamped=False),
 )
 """What the lidar_sim_node system publishes."""
+
+
+def header_stamp_ns(cdr: bytes) -> int:
+    """header.stamp (ns) of a serialised message that starts with a std_msgs/Header.
+
+    CDR: a 4-byte encapsulation header (byte 1 is 1 for little endian), then the
+    stamp's int32 sec and uint32 nanosec.
+    """
+    if len(cdr) < 12:
+        raise ValueError(f'{len(cdr)} bytes are too few for a CDR message with a header')
+    sec, nanosec = struct.unpack_from('<iI' if cdr[1] & 1 else '>iI', cdr, 4)
+    return sec * 1_000_000_000 + nanosec
 
 
 def adapted_qos(offered: Sequence[QoSProfile], depth: int = QUEUE_DEPTH) -> QoSProfile:
@@ -57,12 +72,16 @@ class BagRecorder:
     With ``armed=False`` messages are only counted in ``seen`` (latched ones are
     written all the same: they come once) until ``arm()``: a caller can wait until
     every topic flows, so that the bag has no stretch where one is missing.
+    ``arm(since_ns)`` also drops stamped messages older than ``since_ns``: a backlog
+    that a late publisher or a lagging subscriber delivers after arming would
+    otherwise start one topic earlier than the others.
     """
 
     def __init__(self, node: Node, writer: BagWriter, topics: Sequence[TopicSpec] = NODE_TOPICS,
                  armed: bool = True):
         self.node, self.writer = node, writer
         self.armed = armed
+        self.since_ns: int | None = None
         self.counts: dict[str, int] = {spec.topic: 0 for spec in topics}
         self.seen: dict[str, int] = {spec.topic: 0 for spec in topics}
         self.qos: dict[str, QoSProfile] = {}
@@ -82,8 +101,10 @@ class BagRecorder:
         """Whether every topic is subscribed and has delivered at least one message."""
         return self.subscribed and all(self.seen.values())
 
-    def arm(self) -> None:
-        """Start writing every topic's messages."""
+    def arm(self, since_ns: int | None = None) -> None:
+        """Start writing every topic's messages; with ``since_ns`` (header stamp, ns) only
+        the stamped ones from that time on."""
+        self.since_ns = since_ns
         self.armed = True
 
     def _discover(self) -> None:
@@ -102,6 +123,9 @@ class BagRecorder:
             self.seen[spec.topic] += 1
             latched = self.qos[spec.topic].durability == DurabilityPolicy.TRANSIENT_LOCAL
             if not (self.armed or latched):
+                return
+            if (spec.stamped and not latched and self.since_ns is not None
+                    and header_stamp_ns(cdr) < self.since_ns):
                 return
             self.writer.write_raw(spec.topic, spec.msgtype,
                                   self.node.get_clock().now().nanoseconds, cdr)
