@@ -102,13 +102,14 @@ def sunlit_bag(tmp_path_factory):
 
 
 def _compare(bag, mesh, out, **kw):
-    return run_compare(CompareOptions(bag=bag, mesh=mesh, out=out, candidates=[], report=False,
+    kw = {'candidates': [], **kw}
+    return run_compare(CompareOptions(bag=bag, mesh=mesh, out=out, report=False,
                                       progress=False, **kw)).summary
 
 
 def test_compare_fits_the_receiver_factor_of_a_recording_with_the_sun(sunlit_bag, tmp_path):
     bag, mesh = sunlit_bag
-    s = _compare(bag, mesh, tmp_path / 'base')
+    s = _compare(bag, mesh, tmp_path / 'base', candidates=['solar_background'])
     sun = s['sunlight']
     lo, hi = sun['background_scale_interval_95']
     assert lo <= BAG_SCALE <= hi, sun
@@ -121,11 +122,16 @@ def test_compare_fits_the_receiver_factor_of_a_recording_with_the_sun(sunlit_bag
     assert sun['predicted_sunlit_rate'] == pytest.approx(sun['sunlit_rate'], rel=0.3)
     assert sun['model_background_scale'] is None
     assert '--effect sunlight --fit' in s['verdict']
+    # The false returns are named as what the sun test showed them to be, not as the
+    # phenomenological candidate that scored them.
+    assert s['missing_effect'] == 'sunlight', s['verdict']
+    assert s['verdict'].startswith('This is false returns from sunlight') or \
+        'This is false returns from sunlight' in s['verdict']
 
     # The loop's next step: the fitted sunlight in the model explains the false returns.
     out = tmp_path / 'fit'
     code = main(['compare', str(bag), '--mesh', str(mesh), '--out', str(out), '--effect',
-                 'sunlight', '--fit', '--candidates', '--no-report'])
+                 'sunlight', '--fit', '--candidates', 'solar_background', '--no-report'])
     assert code == 0
     fitted = json.loads((out / 'summary.json').read_text())
     assert fitted['sunlight']['background_scale'] == pytest.approx(sun['background_scale'],
@@ -134,6 +140,7 @@ def test_compare_fits_the_receiver_factor_of_a_recording_with_the_sun(sunlit_bag
         sun['background_scale'], rel=1e-3)
     assert 'name: sunlight' in (out / 'effects.yaml').read_text()
     assert fitted['nll_calibrated'] < s['nll_calibrated'] - 0.01
+    assert fitted['missing_effect'] is None, fitted['verdict']  # nothing left to name
 
 
 def test_compare_without_the_sun_is_unchanged(tmp_path, capsys):

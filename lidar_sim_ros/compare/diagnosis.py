@@ -347,12 +347,15 @@ def _num(x: float) -> float | None:
 class Decision:
     """What the diagnosis concludes: the missing effect (or None), the candidates that
     are confounded in this recording, and a candidate that also explains a separate
-    part of the residual (two effects at once: expect it next)."""
+    part of the residual (two effects at once: expect it next). ``evidence``: the
+    candidate whose held-out gain supports ``missing`` when that is not a candidate
+    itself (``sunlight``, named on ``solar_background``'s gain and the sun test)."""
 
     missing: str | None
     confounded_with: list[str]
     also: str | None = None
     pair_z: dict = field(default_factory=dict)
+    evidence: str | None = None
 
 
 class Diagnosis:

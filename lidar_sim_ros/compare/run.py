@@ -39,7 +39,7 @@ from lidar_sim_ros.compare.matching import (Matching, Model, edge_distance_rad, 
 from lidar_sim_ros.compare.measurements import (Measurements, MeasurementError,
                                                  load_measurements, with_scan_times)
 from lidar_sim_ros.compare.sunlight import (SunFit, fit_sunlight, read_sun_track, short_points,
-                                            summary_section)
+                                            summary_section, sunlit_decision)
 from lidar_sim_ros.compare.verdict import summary_lines, verdict
 from lidar_sim_ros.core.config import MaterialsConfig, Scenario, load_scenario
 from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
@@ -401,6 +401,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
                 if c.significant or c is cands[0]:
                     diag.finalize(c)      # what a run with --effect NAME --fit would show
             stamp = _stamp_place(diag, decision, cands, meas, scenario)
+            decision = sunlit_decision(decision, sunlight)
             before = diagnosis.calibrated_figures(diag.full, [])
     else:
         before = (cal_nll, cal_rmse, cal_robust)

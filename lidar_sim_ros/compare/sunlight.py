@@ -23,6 +23,11 @@ and leaves out the rays near blinding (``fit_sunlight``), fits g
 (``fit_background_scale``, with its profile-likelihood intervals) and writes ``summary_section`` under ``sunlight`` in summary.json. The data support sunlight-driven false returns (``supported``) when the
 rate on sunlit rays is above the rate on shadowed ones by a one-sided binomial test at
 SUPPORT_ALPHA, with at least MIN_SUNLIT_FALSE false returns on sunlit rays.
+
+The diagnosis tests ``solar_background`` (false returns at random ranges) like any
+candidate; when it is named on a recording whose false returns are shown to follow the
+sun, ``sunlit_decision`` names ``sunlight`` instead: the same false returns, with the
+physics that the sun test showed.
 """
 from __future__ import annotations
 
@@ -34,6 +39,7 @@ from scipy.optimize import brentq, minimize_scalar
 from scipy.stats import binomtest
 
 from lidar_sim_ros.compare import neighbours
+from lidar_sim_ros.compare.diagnosis import Decision
 from lidar_sim_ros.compare.likelihood import material_nuisance
 from lidar_sim_ros.core import detection
 from lidar_sim_ros.core.config import SunConfig
@@ -346,3 +352,18 @@ def summary_section(fit: SunFit, topic: str, samples: int,
         'model_background_scale': None if model_scale is None else float(model_scale),
         'effect_yaml': fit.yaml_snippet,
     }
+
+
+def sunlit_decision(decision: Decision, section: dict | None) -> Decision:
+    """``sunlight`` in place of a named ``solar_background`` when the recording's false
+    returns follow the sun (``section``: summary.json's ``sunlight``, ``supported``) and
+    the model's own sunlight does not already account for them (absent, or its
+    background_scale outside the fitted 95 % interval). Otherwise ``decision`` as it is:
+    background light that does not follow the sun stays phenomenological."""
+    if decision.missing != 'solar_background' or not section or not section['supported']:
+        return decision
+    in_model = section.get('model_background_scale')
+    lo, hi = section['background_scale_interval_95']
+    if in_model is not None and lo <= in_model <= hi:
+        return decision
+    return replace(decision, missing='sunlight', evidence='solar_background')

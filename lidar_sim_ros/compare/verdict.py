@@ -62,7 +62,10 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                      f'({attribution.structure_gain:.4f} nats/point held out), no single one '
                      'dominating.')
     missing = decision.missing
-    if missing:
+    if missing == 'sunlight':
+        parts.append(_sunlight_named(summary, next(c for c in cands
+                                                   if c.name == decision.evidence)))
+    elif missing:
         c = next(c for c in cands if c.name == missing)
         params = ', '.join(f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
                            for k, v in c.params.items())
@@ -122,13 +125,25 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                      f'spread by the target\'s motion over the unknown point times (fitted '
                      f'spread {1e3 * spread:.0f} ms), which is not a physical effect.')
     if summary.get('sunlight'):
-        parts.append(sunlight_words(summary['sunlight']))
+        parts.append(sunlight_words(summary['sunlight'], hint=missing != 'sunlight'))
     return ' '.join(parts)
 
 
-def sunlight_words(sun: dict) -> str:
+def _sunlight_named(summary: dict, c) -> str:
+    """``sunlight`` named on the gain of ``c`` (``solar_background``) and the sun test
+    (``compare/sunlight.py``, ``sunlit_decision``)."""
+    gain, caveat = _gain_words(summary, c)
+    return (f'This is false returns from sunlight. Adding background false returns at random ranges '
+            f'({c.name} with its fitted probability) {gain} (held-out gain {c.score:.4f} '
+            f'nats/point, z = {c.z:.1f}), and the recording\'s sun direction shows that they '
+            f'follow the sun (below).{caveat} Run again with --effect sunlight --fit: it '
+            'models them from the sun, where solar_background would spread them evenly.')
+
+
+def sunlight_words(sun: dict, hint: bool = True) -> str:
     """What the false returns say about sunlight, for a recording with the sun direction
-    (summary.json's ``sunlight``, ``compare/sunlight.py``)."""
+    (summary.json's ``sunlight``, ``compare/sunlight.py``); ``hint``: say which run models
+    them (not when the verdict already named sunlight)."""
     counts = (f'{sun["sunlit_false_returns"]} of {sun["sunlit_points"]} sunlit rays against '
               f'{sun["shadowed_false_returns"]} of {sun["shadowed_points"]} shadowed ones, '
               f'p = {sun["excess_p_value"]:.2g}')
@@ -145,10 +160,10 @@ def sunlight_words(sun: dict) -> str:
             f'({counts}), as sunlight makes them. The receiver factor fitted from them is '
             f'{scale}.')
     in_model = sun.get('model_background_scale')
-    if in_model is None:
+    if in_model is None and hint:
         text += (' With the sun recorded, run again with --effect sunlight --fit, which models '
                  'them from the sun, rather than with the phenomenological solar_background.')
-    elif not lo <= in_model <= hi:
+    elif in_model is not None and not lo <= in_model <= hi:
         text += (f' The model\'s sunlight effect has background_scale = {in_model:.3g}, outside '
                  'that interval: --effect sunlight --fit adopts the fitted value.')
     return text
