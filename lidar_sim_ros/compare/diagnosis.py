@@ -107,6 +107,9 @@ class RaySet:
     isolated: np.ndarray | None = None     # bool: no neighbouring ray sees the same range
     blocks: np.ndarray | None = None       # int: neighbourhood of each point (for SEs)
     edge_rad: np.ndarray | None = None     # distance to the nearest edge (NaN: unknown)
+    # Shots without a matched point per unmatched point, in the whole recording (``shots``);
+    # a sample keeps it: matched and unmatched rays are drawn separately.
+    missed_per_unmatched: float | None = None
 
     def _with(self, matched: np.ndarray, unmatched: np.ndarray) -> 'RaySet':
         return replace(self, matched=matched, unmatched=unmatched)
@@ -216,7 +219,8 @@ def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet,
         unmatched_range_m=u_sub.range_m, cast_unmatched=cast_un,
         range_window_m=range_window_m(meas), base_effects=tuple(base_effects),
         measured_power_w=power, extra_var_m2=extra, unmatched_isolated=isolated,
-        placement_uncertain=rays.extra_var_m2 is not None)
+        placement_uncertain=rays.extra_var_m2 is not None,
+        missed_per_unmatched=rays.missed_per_unmatched)
 
 
 def calibrated_figures(data, effects: list[Effect]) -> tuple[float, float, float]:

@@ -38,6 +38,7 @@ from lidar_sim_ros.compare.matching import (Matching, Model, edge_distance_rad, 
                                             range_rate_mps)
 from lidar_sim_ros.compare.measurements import (Measurements, MeasurementError,
                                                  load_measurements, with_scan_times)
+from lidar_sim_ros.compare.shots import missed_per_unmatched, shots_per_frame
 from lidar_sim_ros.compare.sunlight import (SunFit, fit_sunlight, read_sun_track, short_points,
                                             summary_section, sunlit_decision)
 from lidar_sim_ros.compare.verdict import summary_lines, verdict
@@ -130,7 +131,7 @@ def fit_user_effects(model: Model, base: list[Effect], user: list[Effect], meas:
         fixed = {k: v for k, v in eff.params.model_dump(exclude_unset=True).items()
                  if k not in cls.bounds}
         m = match(geometry(model, base + done), meas, model.divergence_rad, edges=False)
-        rays = replace(rays_of(m, power(m)), extra_var_m2=extra_var)
+        rays = replace(rays_of(m, power(m), model), extra_var_m2=extra_var)
         if isinstance(eff, Sunlight):
             residual, sigma = model_residuals(diagnosis.make_fit_data(model, base + done, rays),
                                               rays)
@@ -180,9 +181,15 @@ def geometry(model: Model, effects: list[Effect]):
     return model.simulator(effects=[lk.RaysOnly(e) for e in lk.moving(effects)])
 
 
-def rays_of(m: Matching, measured_power_w: np.ndarray | None) -> diagnosis.RaySet:
+def rays_of(m: Matching, measured_power_w: np.ndarray | None,
+            model: Model | None = None) -> diagnosis.RaySet:
+    """The matched and unmatched rays of ``m``; with ``model``, how many shots missed the
+    target per unmatched point (``shots.py``)."""
+    missed = (missed_per_unmatched(m.meas, m.matched, shots_per_frame(model.sensor, model.scan_base))
+              if model is not None else None)
     return diagnosis.RaySet(m.meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
-                            pred=m.pred, measured_power_w=measured_power_w)
+                            pred=m.pred, measured_power_w=measured_power_w,
+                            missed_per_unmatched=missed)
 
 
 def with_materials(pred: Prediction, materials: MaterialsConfig) -> Prediction:
@@ -308,7 +315,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
 
     with stage('match', f'{len(meas)} rays'):
         matching = match(geometry(model, effects), meas, model.divergence_rad, edges=False)
-        rays = replace(rays_of(matching, power(matching)), extra_var_m2=extra_var)
+        rays = replace(rays_of(matching, power(matching), model), extra_var_m2=extra_var)
         pred, sel = matching.pred, matching.matched
         if len(rays.matched) < 10:
             raise ValueError(
@@ -439,6 +446,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
                                         float(matching.unmatched_fraction), isolated[picked]),
         'fitted_effects': [_effect_record(e, fitted_only=True) for e in fitted],
         'clouds': int(len(meas.cloud_stamps_s)),
+        'missed_shots_per_unmatched': rays.missed_per_unmatched,
         'point_times': meas.time_source,
         'point_time_field': meas.time_field,
         'point_time_spread_s': time_spread or None,
