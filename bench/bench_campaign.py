@@ -63,7 +63,7 @@ def measure(campaign, workers: int, repeats: int, tmp: Path) -> dict:
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                       dashboard_address=None) as cluster, Client(cluster) as client:
         cluster_s = time.perf_counter() - t0
-        client.run(prepare_worker, campaign.scenario)
+        client.run(prepare_worker, campaign)
         startup_s = time.perf_counter() - t0
         best = None
         for k in range(repeats):
