@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -120,7 +121,7 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
     if pending:
         with connect(workers, address) as client:
             # Mesh and kernels on every worker now, in parallel, so that runs time only runs.
-            client.run(prepare_worker, campaign)
+            _check_workers(client.run(prepare_worker, campaign))
             n_workers = len(client.nthreads())
             startup_s = time.perf_counter() - t0
             t1 = time.perf_counter()
@@ -132,6 +133,17 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
     return CampaignReport(manifest.path, parquet, campaign.spec.runs, campaign.spec.runs - len(pending),
                           len(done), done.count('ok'), done.count('failed'), n_workers,
                           startup_s, wall_s, compute_s)
+
+
+def _check_workers(trim_thresholds: dict[str, str | None]) -> None:
+    """Warn about workers started with a fixed glibc trim threshold (``dask worker``'s
+    default): every run then costs 1.5-1.9x the CPU (``WORKER_ENVIRON``)."""
+    fixed = sorted(addr for addr, value in trim_thresholds.items() if value is not None)
+    if fixed:
+        warnings.warn(f'{len(fixed)} of {len(trim_thresholds)} Dask workers run with '
+                      f'MALLOC_TRIM_THRESHOLD_ set (Dask\'s default): runs cost up to 1.9x the CPU; '
+                      f'start them with distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_: '
+                      f'null in the Dask config (docs/campaign.md)', stacklevel=3)
 
 
 def _gather(client: Client, campaign: Campaign, pending: list[int], out_dir: str | Path,
