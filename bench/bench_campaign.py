@@ -24,7 +24,8 @@ apart in the same conditions:
   runs side by side slow each other down (shared memory bandwidth, caches, locks);
 * per configuration: compute and CPU per run, ``cpu_share_of_compute`` (the runs' CPU
   over their wall time: below 1 a run waited for a core), start-up, worker memory; the
-  load average and the CPU steal by the hypervisor (/proc/stat) over the benchmark.
+  load average, the CPU steal by the hypervisor and the cores busy on the whole machine
+  (/proc/stat) over the benchmark.
 """
 from __future__ import annotations
 
@@ -193,6 +194,10 @@ def main() -> int:
         'load_average_before': [round(v, 2) for v in load_before],
         'load_average_after': [round(v, 2) for v in load_after],
         'cpu_steal_fraction': round(jiffies[7] / sum(jiffies), 4) if len(jiffies) > 7 else None,
+        # Cores busy on the whole machine (all sessions) over the benchmark: ~2 with no
+        # steal means the VM delivered both cores and they were all in use.
+        'machine_busy_cores': round((os.cpu_count() or 1) * (1 - (jiffies[3] + jiffies[4])
+                                                             / sum(jiffies)), 2),
         'bench_autogroup': worker_facts()['autogroup'],
         'machine': {'cpus': os.cpu_count(), 'python': platform.python_version(),
                     'platform': platform.platform(),
@@ -205,7 +210,7 @@ def main() -> int:
           f'(target >= {TARGET_SPEEDUP}); CPU per run 2 vs 1 worker x{result["cpu_per_run_2_over_1"]:.2f}')
     print(f'machine  : 2 spin processes get {throughput:.2f}x the CPU of one in this session '
           f'(2.0 on free cores); speedup / that = {result["speedup_vs_cpu_throughput"]:.2f}; '
-          f'steal {result["cpu_steal_fraction"]}, load {result["load_average_before"][0]} -> '
+          f'steal {result["cpu_steal_fraction"]}, machine busy cores {result["machine_busy_cores"]}, load {result["load_average_before"][0]} -> '
           f'{result["load_average_after"][0]}')
     print(f'wrote {args.out}')
     return 0
