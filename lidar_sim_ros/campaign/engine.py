@@ -51,7 +51,7 @@ class CampaignReport:
 # spawns the worker; None removes one of Dask's own). Dask's MALLOC_TRIM_THRESHOLD_=65536
 # (to hand freed memory back to the OS) also fixes glibc's mmap threshold at 128 kB:
 # every array of a frame is then mapped afresh and page-faulted in, 16x the page faults
-# and 1.5-1.9x the CPU per run measured here. A worker holds ~280 MB steady, so glibc's
+# and 1.5-1.9x the CPU per run measured here. A worker holds ~335 MB steady, so glibc's
 # adaptive default suits it. One BLAS / OpenMP thread per worker: there is one worker
 # per core (Dask's defaults, restated because they matter here).
 WORKER_ENVIRON: dict[str, str | None] = {
