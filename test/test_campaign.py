@@ -287,9 +287,9 @@ def test_bags_hold_the_runs_frames_and_change_no_statistic(tmp_path):
 # ------------------------------------------------------------ the engine
 @pytest.fixture(scope='module')
 def cluster():
-    """A real local Dask cluster: 2 single-threaded worker processes."""
-    with dask_distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                       dashboard_address=None) as local:
+    """A real local Dask cluster: 2 single-threaded worker processes, as the engine starts them."""
+    from lidar_sim_ros.campaign.engine import local_cluster
+    with local_cluster(2) as local:
         yield local.scheduler_address
 
 
@@ -321,6 +321,26 @@ def test_four_runs_on_two_workers(finished):
         assert 0.0 < float(row['stat.coverage']) <= float(row['stat.coverage_hit']) <= 1.0
         # Range errors sit at the Table 2 biases (all about -0.1 to -0.15 m, walk adds < 0).
         assert -0.3 < float(row['stat.range_error_mean_m']) < -0.09
+
+
+def _worker_state() -> dict:
+    from lidar_sim_ros.campaign import run
+    return {'env': {k: os.environ.get(k) for k in ('MALLOC_TRIM_THRESHOLD_', 'OMP_NUM_THREADS',
+                                                  'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')},
+            'warm': sorted(run._WARM)}
+
+
+def test_workers_are_prepared_with_one_thread_and_glibc_defaults(finished, cluster):
+    """Dask's MALLOC_TRIM_THRESHOLD_ is removed (it pins glibc's mmap threshold: every
+    frame's arrays page-faulted in afresh), one BLAS / OpenMP thread per worker, and
+    the dispersed scenario's effect list (range_walk, added by the campaign) was warmed."""
+    with dask_distributed.Client(cluster) as client:
+        states = client.run(_worker_state)
+    assert len(states) == 2
+    for state in states.values():
+        assert state['env'] == {'MALLOC_TRIM_THRESHOLD_': None, 'OMP_NUM_THREADS': '1',
+                                'OPENBLAS_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1'}
+        assert ('range_walk',) in state['warm']
 
 
 def test_rerun_by_id_gives_identical_statistics(finished, capsys):

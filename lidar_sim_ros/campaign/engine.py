@@ -11,11 +11,13 @@ from __future__ import annotations
 import logging
 import os
 import time
+import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
+import dask
 from dask.distributed import Client, LocalCluster, as_completed
 
 from lidar_sim_ros.campaign.manifest import Manifest
@@ -45,6 +47,35 @@ class CampaignReport:
     compute_s: float
 
 
+# What a local worker process is started with (Dask's nanny sets these before it
+# spawns the worker; None removes one of Dask's own). Dask's MALLOC_TRIM_THRESHOLD_=65536
+# (to hand freed memory back to the OS) also fixes glibc's mmap threshold at 128 kB:
+# every array of a frame is then mapped afresh and page-faulted in, 16x the page faults
+# and 1.5-1.9x the CPU per run measured here. A worker holds ~335 MB steady, so glibc's
+# adaptive default suits it. One BLAS / OpenMP thread per worker: there is one worker
+# per core (Dask's defaults, restated because they matter here).
+WORKER_ENVIRON: dict[str, str | None] = {
+    'MALLOC_TRIM_THRESHOLD_': None,
+    'OMP_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1', 'OPENBLAS_NUM_THREADS': '1',
+}
+_USER_ENVIRON = {key: os.environ.get(key) for key in WORKER_ENVIRON}  # the user's own win
+
+
+def local_cluster(workers: int) -> LocalCluster:
+    """A local Dask cluster of ``workers`` single-threaded worker processes."""
+    environ = {f'distributed.nanny.pre-spawn-environ.{k}': v for k, v in WORKER_ENVIRON.items()}
+    # The nanny copies its environment into this process's os.environ before spawning,
+    # and a worker inherits os.environ: drop what an earlier cluster left there.
+    for key, value in WORKER_ENVIRON.items():
+        if value is None and _USER_ENVIRON[key] is None:
+            os.environ.pop(key, None)
+    with dask.config.set(environ):
+        # One thread per process: the kernels hold the GIL for part of a frame, and one
+        # process per core lets each worker keep its own mesh and compiled kernels.
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                            dashboard_address=None)
+
+
 @contextmanager
 def connect(workers: int | None = None, address: str | None = None) -> Iterator[Client]:
     """A Dask client: of a new local cluster (``workers`` processes, default all cores)
@@ -61,10 +92,7 @@ def connect(workers: int | None = None, address: str | None = None) -> Iterator[
     nanny_log = logging.getLogger('distributed.nanny')
     level = nanny_log.level
     try:
-        # One thread per process: the kernels hold the GIL for part of a frame, and one
-        # process per core lets each worker keep its own mesh and compiled kernels.
-        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                          dashboard_address=None) as cluster:
+        with local_cluster(n) as cluster:
             try:
                 with Client(cluster) as client:
                     yield client
@@ -93,7 +121,7 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
     if pending:
         with connect(workers, address) as client:
             # Mesh and kernels on every worker now, in parallel, so that runs time only runs.
-            client.run(prepare_worker, campaign.scenario)
+            _check_workers(client.run(prepare_worker, campaign))
             n_workers = len(client.nthreads())
             startup_s = time.perf_counter() - t0
             t1 = time.perf_counter()
@@ -105,6 +133,17 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
     return CampaignReport(manifest.path, parquet, campaign.spec.runs, campaign.spec.runs - len(pending),
                           len(done), done.count('ok'), done.count('failed'), n_workers,
                           startup_s, wall_s, compute_s)
+
+
+def _check_workers(trim_thresholds: dict[str, str | None]) -> None:
+    """Warn about workers started with a fixed glibc trim threshold (``dask worker``'s
+    default): every run then costs 1.5-1.9x the CPU (``WORKER_ENVIRON``)."""
+    fixed = sorted(addr for addr, value in trim_thresholds.items() if value is not None)
+    if fixed:
+        warnings.warn(f'{len(fixed)} of {len(trim_thresholds)} Dask workers run with '
+                      f'MALLOC_TRIM_THRESHOLD_ set (Dask\'s default): runs cost up to 1.9x the CPU; '
+                      f'start them with distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_: '
+                      f'null in the Dask config (docs/campaign.md)', stacklevel=3)
 
 
 def _gather(client: Client, campaign: Campaign, pending: list[int], out_dir: str | Path,

@@ -48,7 +48,7 @@ class MountedPose:
 
 # ------------------------------------------------------------ worker cache
 _TARGETS: dict[tuple, tuple[Target, FaceGeometry]] = {}
-_WARM: set[str] = set()  # 'kernels' once this process compiled (or cache-loaded) them
+_WARM: set[tuple[str, ...]] = set()  # effect lists this process has run a frame with
 _LOCK = threading.Lock()  # a multi-threaded worker builds each mesh once
 
 
@@ -64,13 +64,33 @@ def worker_target(scenario: Scenario) -> tuple[Target, FaceGeometry]:
         return _TARGETS[key]
 
 
-def prepare_worker(scenario: Scenario) -> None:
-    """Load the mesh and compile the kernels now, so that no run pays for them."""
+def prepare_scenario(scenario: Scenario) -> bool:
+    """Load the mesh and compile the kernels of this scenario's effects now, so that no
+    run pays for them (once per process and list of effects). True if it had work to do."""
+    effects = tuple(e.name for e in scenario.config.effects)
+    if effects in _WARM:
+        return False
     target, _ = worker_target(scenario)
     with _LOCK:
-        if 'kernels' not in _WARM:
+        if effects not in _WARM:
             Simulator.from_scenario(scenario, target=target).warm_up()
-            _WARM.add('kernels')
+            _WARM.add(effects)
+    return True
+
+
+def prepare_worker(campaign: Campaign) -> str | None:
+    """Everything a run of ``campaign`` needs that is paid once per worker process: the
+    mesh and BVH, the kernels of the dispersed effects, and the modules the samplers
+    import on first use (scipy.stats alone takes ~0.6 s): run 0 is sampled for that.
+
+    Returns the worker's MALLOC_TRIM_THRESHOLD_ (None: unset, glibc's adaptive default),
+    which the engine checks (docs/campaign.md, "Running on a cluster").
+    """
+    try:
+        prepare_scenario(sample_run(campaign, 0).scenario)
+    except Exception:  # run 0's own failure is recorded when it runs, not here
+        prepare_scenario(campaign.scenario)
+    return os.environ.get('MALLOC_TRIM_THRESHOLD_')
 
 
 # ------------------------------------------------------------------ one run
@@ -114,15 +134,18 @@ def simulate_case(case: RunCase, out_dir: str | Path | None = None) -> dict[str,
     return stats.summary()
 
 
-def run_case(case: RunCase, out_dir: str | Path | None = None) -> dict:
-    """One manifest row: never raises; a failure becomes ``status: failed`` with its error."""
+def run_case(case: RunCase, out_dir: str | Path | None = None,
+             start: tuple[float, float] | None = None) -> dict:
+    """One manifest row: never raises; a failure becomes ``status: failed`` with its error.
+
+    ``start``: (perf_counter, process_time) at which the run's compute began (default:
+    now, after the worker's one-time preparation, which is not the run's compute).
+    """
     row = {'run_id': case.run_id, 'seed': case.seed,
            **{f'param.{k}': v for k, v in case.params.items()}}
-    start, cpu = time.perf_counter(), time.process_time()
     try:
-        prepare_worker(case.scenario)
-        # The worker's one-time preparation is not the run's compute.
-        start, cpu = time.perf_counter(), time.process_time()
+        if prepare_scenario(case.scenario) or start is None:
+            start = time.perf_counter(), time.process_time()  # preparing is not the run's
         stats = simulate_case(case, out_dir)
     except Exception as exc:  # a run's failure must not stop the campaign
         last = traceback.extract_tb(exc.__traceback__)[-1]
@@ -130,21 +153,26 @@ def run_case(case: RunCase, out_dir: str | Path | None = None) -> dict:
                                           f'({Path(last.filename).name}:{last.lineno})')
     else:
         row.update(status='ok', error='', **{f'stat.{k}': v for k, v in stats.items()})
-    row['compute_s'] = time.perf_counter() - start
-    row['cpu_s'] = time.process_time() - cpu
+    start = start or (time.perf_counter(), time.process_time())
+    row['compute_s'] = time.perf_counter() - start[0]
+    row['cpu_s'] = time.process_time() - start[1]
     row['worker'] = f'{socket.gethostname()}:{os.getpid()}'
     return row
 
 
 def run_one(campaign: Campaign, run_id: int, out_dir: str | Path | None = None) -> dict:
-    """Sample run ``run_id`` of ``campaign`` and simulate it: the engine's task. Never raises."""
+    """Sample run ``run_id`` of ``campaign`` and simulate it: the engine's task. Never raises.
+
+    The run's compute (``compute_s``, ``cpu_s``) counts the sampling: it is the run's own work.
+    """
+    start = time.perf_counter(), time.process_time()
     try:
         case = sample_run(campaign, run_id)
     except Exception as exc:  # e.g. a dispersed value that a config model rejects
         return {'run_id': run_id, 'seed': run_seed(campaign.spec.seed, run_id), 'status': 'failed',
                 'error': f'sampling: {type(exc).__name__}: {exc}', 'compute_s': 0.0,
                 'worker': f'{socket.gethostname()}:{os.getpid()}'}
-    return run_case(case, out_dir)
+    return run_case(case, out_dir, start)
 
 
 def rerun(campaign: Campaign, out_dir: str | Path, run_id: int) -> tuple[dict, dict | None]:
