@@ -43,12 +43,19 @@ SERIAL_MODULES = {'test_node_dds', 'test_node_sun_dds', 'test_node_demo', 'test_
 SPREAD_TESTS = {'test_compare_foreign.py::test_foreign_loop'}
 
 
+def _spread(nodeid: str) -> bool:
+    return nodeid.split('[', 1)[0].endswith(tuple(SPREAD_TESTS))
+
+
 @pytest.hookimpl(tryfirst=True)   # before ``-m`` deselects by marker
 def pytest_collection_modifyitems(config, items):
-    """The tests of SERIAL_MODULES get the marker ``serial``."""
+    """The tests of SERIAL_MODULES get the marker ``serial``. On a pytest-xdist worker
+    the SPREAD_TESTS come first: the long units start first and the modules fill the end."""
     for item in items:
         if item.module.__name__ in SERIAL_MODULES:
             item.add_marker(pytest.mark.serial)
+    if hasattr(config, 'workerinput'):
+        items.sort(key=lambda item: not _spread(item.nodeid))
 
 
 @pytest.hookimpl(optionalhook=True)
@@ -67,10 +74,9 @@ def pytest_xdist_make_scheduler(config, log):
             path = nodeid.split('::', 1)[0]
             if Path(path).stem in SERIAL_MODULES:
                 return 'serial'
-            if nodeid.split('[', 1)[0].endswith(tuple(SPREAD_TESTS)):
-                return nodeid
-            return path
+            return nodeid if _spread(nodeid) else path
 
+    config.option.loadscopereorder = False   # units in collection order (above)
     return ModuleScheduling(config, log)
 
 
