@@ -32,8 +32,15 @@ demo-offline: $(STAMP)
 demo-gnc: $(STAMP)
 	$(BIN)/python -m lidar_sim_ros.gnc.demo --out $(OUT)/gnc
 
+# Two parts: the tests that start nodes or a cluster of their own (marker serial, see
+# test/conftest.py) alone, the rest first on TEST_WORKERS pytest-xdist workers. Both
+# parts always run; the target fails if either failed.
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(BIN)/python -m pytest -q test
+	status=0; \
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope -m 'not serial' test || status=1; \
+	$(BIN)/python -m pytest -q -m serial test || status=1; \
+	exit $$status
 
 bench: $(STAMP)
 	$(BIN)/python bench/bench_pipeline.py --out bench.json

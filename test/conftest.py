@@ -1,6 +1,7 @@
 """Shared fixtures: small scenes built in code so tests know their closed forms."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,64 @@ CONFIG = REPO / 'config'
 # tests allow EMBREE_ULPS. Relative to the range that is at most EMBREE_ULPS * eps32.
 EMBREE_ULPS = 8
 EMBREE_RTOL = EMBREE_ULPS * float(np.finfo(np.float32).eps)
+
+
+def private_domain_id(base: int, span: int) -> int:
+    """A ROS domain id in [base, base + span) for a test's DDS traffic.
+
+    From the pid, so that runs of the suite side by side rarely meet; and distinct for
+    the workers of one pytest-xdist run (each worker takes every W-th id, W workers).
+    """
+    workers = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
+    index = int(os.environ.get('PYTEST_XDIST_WORKER', 'gw0')[2:])
+    slots = max(span // workers, 1)
+    return base + (os.getpid() % slots) * workers + index
+
+
+# Modules that start processes of their own whose timing matters (ROS 2 nodes over DDS,
+# a Dask cluster): `make test` runs them after the rest, alone (marker ``serial``). A new
+# module that starts nodes or joins a DDS domain belongs here.
+SERIAL_MODULES = {'test_node_dds', 'test_node_sun_dds', 'test_node_demo', 'test_gnc_demo',
+                  'test_gnc_node', 'test_warm_up', 'test_recorder', 'test_campaign'}
+# Tests that share no module fixture and each run long: pytest-xdist spreads them one by one.
+SPREAD_TESTS = {'test_compare_foreign.py::test_foreign_loop'}
+
+
+def _spread(nodeid: str) -> bool:
+    return nodeid.split('[', 1)[0].endswith(tuple(SPREAD_TESTS))
+
+
+@pytest.hookimpl(tryfirst=True)   # before ``-m`` deselects by marker
+def pytest_collection_modifyitems(config, items):
+    """The tests of SERIAL_MODULES get the marker ``serial``. On a pytest-xdist worker
+    the SPREAD_TESTS come first: the long units start first and the modules fill the end."""
+    for item in items:
+        if item.module.__name__ in SERIAL_MODULES:
+            item.add_marker(pytest.mark.serial)
+    if hasattr(config, 'workerinput'):
+        items.sort(key=lambda item: not _spread(item.nodeid))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``pytest -n N --dist loadscope`` (make test): one work unit per module, so that a
+    module fixture (a simulated recording, a node) is built on one worker only, except
+    the tests of SPREAD_TESTS, each a unit of its own; SERIAL_MODULES form one unit, so
+    that they never run side by side. (``--dist loadgroup`` cannot do this: pytest-xdist
+    3.8 groups by rewriting node ids, which pytest 9.2 ignores.)"""
+    if config.getvalue('dist') != 'loadscope':
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModuleScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            path = nodeid.split('::', 1)[0]
+            if Path(path).stem in SERIAL_MODULES:
+                return 'serial'
+            return nodeid if _spread(nodeid) else path
+
+    config.option.loadscopereorder = False   # units in collection order (above)
+    return ModuleScheduling(config, log)
 
 
 def embree_range_tol_m(range_m) -> float:

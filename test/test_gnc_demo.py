@@ -5,14 +5,18 @@ import sys
 
 import pytest
 
+from conftest import private_domain_id
+
 pytest.importorskip('small_gicp')
+# Not the demo's random domain (1-101): two workers of pytest -n could draw the same one.
+DOMAIN = ['--domain-id', str(private_domain_id(1, 19))]
 
 
 @pytest.mark.timeout(180)
 def test_demo_gnc_scores_both_clouds(tmp_path):
     out = tmp_path / 'gnc'
     result = subprocess.run([sys.executable, '-m', 'lidar_sim_ros.gnc.demo', '--out', str(out),
-                             '--seconds', '1.5'], capture_output=True, text=True, timeout=170)
+                             '--seconds', '1.5', *DOMAIN], capture_output=True, text=True, timeout=170)
     assert result.returncode == 0, result.stdout + result.stderr
     doc = json.loads((out / 'gnc.json').read_text())
     for key in ('truth_cloud', 'model_cloud'):

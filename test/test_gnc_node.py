@@ -26,8 +26,9 @@ pytest.importorskip('small_gicp')
 from lidar_sim_ros.gnc.tracker import pose_matrix, pose_parts  # noqa: E402
 from lidar_sim_ros.io.pointcloud import make_points, stamp_to_ns, to_rclpy_msg  # noqa: E402
 from test_gnc_tracker import HALF, box_scan, errors, nudged  # noqa: E402
+from conftest import private_domain_id  # noqa: E402
 
-DOMAIN_ID = 220 + os.getpid() % 10
+DOMAIN_ID = private_domain_id(220, 10)
 NS = 1_000_000_000
 PERIOD_NS = 100_000_000
 

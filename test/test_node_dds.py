@@ -38,9 +38,9 @@ from lidar_sim_ros.io.pointcloud import from_pointcloud2, stamp_to_ns
 from lidar_sim_ros.paths import config_path
 from lidar_sim_ros.ros.pose_input import PoseHistory, PoseSample
 from lidar_sim_ros.ros.recorder import BagRecorder
-from conftest import embree_range_tol_m
+from conftest import embree_range_tol_m, private_domain_id
 
-DOMAIN_ID = 120 + os.getpid() % 100
+DOMAIN_ID = private_domain_id(120, 100)
 REPO = Path(__file__).resolve().parents[1]
 PARAMS = REPO / 'config' / 'params.yaml'
 NS = 1_000_000_000

@@ -186,7 +186,9 @@ def test_figures_are_readable_pngs(run):
         rgb = image[..., :3]
         # not blank: a good share of non-white pixels and many distinct colours
         assert (rgb.min(axis=2) < 0.9).mean() > 0.05, name
-        assert len(np.unique((rgb * 255).astype(np.uint8).reshape(-1, 3), axis=0)) > 50, name
+        # Distinct colours, each packed into one integer (np.unique by rows is ~20x slower).
+        r, g, b = np.moveaxis((rgb * 255).astype(np.uint8).astype(np.uint32), -1, 0)
+        assert len(np.unique(r << 16 | g << 8 | b)) > 50, name
 
 
 def test_existing_bag_is_an_error(run, capsys):

@@ -1,5 +1,4 @@
 """The bag recorder's stamp window: header stamps read from CDR, cloud counts on the frame grid."""
-import os
 import time
 
 import numpy as np
@@ -14,8 +13,9 @@ from sensor_msgs.msg import PointCloud2
 from lidar_sim_ros.gnc.demo import published
 from lidar_sim_ros.io.bag import BagWriter, read_poses
 from lidar_sim_ros.ros.recorder import BagRecorder, TopicSpec, header_stamp_ns
+from conftest import private_domain_id
 
-DOMAIN_ID = 20 + os.getpid() % 100
+DOMAIN_ID = private_domain_id(20, 100)
 
 
 @pytest.mark.parametrize('msg_class', [PointCloud2, PoseStamped])

@@ -20,10 +20,11 @@ from sensor_msgs.msg import PointCloud2
 
 from lidar_sim_ros.io.pointcloud import stamp_to_ns
 from lidar_sim_ros.warm_up import _calls, cached_kernels
+from conftest import private_domain_id
 
 REPO = Path(__file__).resolve().parents[1]
 PARAMS = REPO / 'config' / 'params.yaml'
-DOMAIN_ID = 20 + os.getpid() % 100
+DOMAIN_ID = private_domain_id(20, 100)
 PERIOD_NS = 100_000_000  # P-60 at 10 Hz
 FRAMES = 6
 # A frame is published once its window has ended and it is computed; a catch-up burst

@@ -60,16 +60,17 @@ def _profile_nll(r: np.ndarray, sig: np.ndarray, rr: np.ndarray, group: np.ndarr
     total = 0.0
     for k in np.unique(group):
         sel = group == k
+        e2, sig2, extra_k = e[sel] ** 2, sig[sel] ** 2, extra[sel]
         # Sigma scale of the material's own noise, the smear kept as it is.
         lo, hi = 0.05, 20.0
         for _ in range(40):
             mid = math.sqrt(lo * hi)
-            if np.median(e[sel] ** 2 / (mid ** 2 * sig[sel] ** 2 + extra[sel])) > CHI2_1_MEDIAN:
+            if np.median(e2 / (mid ** 2 * sig2 + extra_k)) > CHI2_1_MEDIAN:
                 lo = mid
             else:
                 hi = mid
-        v = (lo * sig[sel]) ** 2 + extra[sel]
-        z2 = np.minimum(e[sel] ** 2 / v, 25.0)      # robust: a far outlier counts as 5 sigma
+        v = (lo * sig[sel]) ** 2 + extra_k
+        z2 = np.minimum(e2 / v, 25.0)      # robust: a far outlier counts as 5 sigma
         total += float(0.5 * np.sum(np.log(v) + z2))
     return total
 
