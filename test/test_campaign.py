@@ -404,7 +404,9 @@ def test_failing_runs_are_recorded_and_the_others_finish(cluster, tmp_path):
 
 def test_interrupted_cli_campaign_resumes(cluster, tmp_path):
     """Ctrl-C in the middle of a real `lidar-sim campaign`, then the same command again."""
-    path = write_campaign(tmp_path / 'c.yaml', runs=40, seed=5, duration_s=0.5)
+    # Runs of 20 frames (~0.3 s each here): an interrupt sent after the second row lands
+    # with most of the 40 still to do, even if the client is slow to see it.
+    path = write_campaign(tmp_path / 'c.yaml', runs=40, seed=5, duration_s=2.0)
     out = tmp_path / 'out'
     cmd = [sys.executable, '-m', 'lidar_sim_ros.cli', 'campaign', str(path), '--out', str(out),
            '--address', cluster, '--no-progress']

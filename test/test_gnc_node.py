@@ -96,7 +96,9 @@ def test_the_node_tracks_a_box_and_stamps_mid_scan(tmp_path):
             spin_until(lambda: len(estimates) == k + 1, 20, f'estimate {k}')
     finally:
         proc.send_signal(2)
-        proc.wait(timeout=10)
+        # The exit code is the check, not how fast it comes: a registration in progress
+        # (C++, GIL released) finishes before the interrupt is seen, slowly on a busy machine.
+        proc.wait(timeout=30)
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
