@@ -54,6 +54,9 @@ class MeshEdges:
     face_edge_offset[f, k] for every k (the margin is the distance to edge k, m);
     face_planes (F, 4, 4): the same packed per face for compiled loops, rows (n, offset),
     (m_0, c_0), (m_1, c_1), (m_2, c_2).
+    vertex_m (V, 3): the welded vertices (m) that face_vertices (F, 3) index;
+    vertex_tilt_rad, vertex_reach_m (V,): how far each vertex's star bends and reaches
+    (``vertex_stars``).
     """
 
     a_m: np.ndarray
@@ -76,6 +79,9 @@ class MeshEdges:
     edge_faces: np.ndarray
     face_vertices: np.ndarray
     median_edge_m: float = 0.0
+    vertex_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    vertex_tilt_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    vertex_reach_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
     crossing_a_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     crossing_b_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
@@ -103,6 +109,23 @@ class MeshEdges:
         # The float32 copies are exact to ~1e-6 m at 10 m: widen the box by 1e-5 m.
         return _maybe_silhouette(self._sign_test, self._sign_edge, len(self.a_m),
                                  0.5 * (lo + hi), 0.5 * (hi - lo) + 1e-5)
+
+    @cached_property
+    def face_star(self) -> np.ndarray:
+        """(F, 16) float32 per face, one cache line for compiled loops: the altitudes of
+        vertices 0-2 over their opposite edges (m), the squared lengths of edges 0-2 (m^2),
+        and of vertices 0-2 the star's reach (m) and tan(tilt) (inf: none)."""
+        corners = self.face_vertices
+        tri = self.vertex_m[corners]
+        edge = np.roll(tri, -1, axis=1) - tri
+        out = np.zeros((len(corners), 16), np.float32)
+        out[:, 0:3] = self.face_altitude
+        out[:, 3:6] = np.einsum('fkj,fkj->fk', edge, edge)
+        out[:, 6:9] = self.vertex_reach_m[corners]
+        tilt = self.vertex_tilt_rad[corners]
+        acute = tilt < 0.5 * np.pi
+        out[:, 9:12] = np.where(acute, np.tan(np.where(acute, tilt, 0.0)), np.inf)
+        return out
 
     @cached_property
     def _sign_test(self) -> np.ndarray:
@@ -279,6 +302,8 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     opposite = np.linalg.norm(np.roll(edge, -1, axis=1), axis=2)
     altitude = np.divide(double_area[:, None], opposite, out=np.zeros_like(opposite),
                          where=opposite > 0).astype(np.float32)
+    fold = np.where(pair, np.arccos(np.clip(np.nan_to_num(cos_fold, nan=-1.0), -1.0, 1.0)), np.pi)
+    tilt, reach = vertex_stars(position, f, a, b, face, slot, first, second, pair, fold)
     return MeshEdges(a_m=pa, b_m=pb, n1=n1, n2=n2, always=~pair, coplanar=coplanar,
                      face_edge=face_edge, face_normal=normal, face_plane_offset=plane_offset,
                      face_neighbour=neighbour, face_edge_normal=inward, face_edge_offset=offset,
@@ -286,7 +311,59 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
                      face_altitude=altitude,
                      edge_vertices=np.column_stack([a[first], b[first]]),
                      edge_faces=np.column_stack([face[first], face[second]]), face_vertices=f,
-                     median_edge_m=float(np.median(span[~coplanar])) if np.any(~coplanar) else 0.0)
+                     median_edge_m=float(np.median(span[~coplanar])) if np.any(~coplanar) else 0.0,
+                     vertex_m=position, vertex_tilt_rad=tilt, vertex_reach_m=reach)
+
+
+def vertex_stars(position, faces, a, b, face, slot, first, second, pair, fold
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Per welded vertex v, how far its star (the faces around it) bends and reaches.
+
+    tilt (V,) rad: a bound on the angle between the normals of any two faces of the star,
+    half the sum of the fold angles of the edges at v (going around a closed fan from one
+    face to another crosses folds adding up to at most half of the total one way or the
+    other); inf unless the star is one closed fan of non-degenerate faces (every edge at
+    v has two faces and they join in a single cycle). reach (V,) m: the shortest distance
+    from v to the far edge of a face of its star, so every surface path from v shorter
+    than that stays inside the star.
+    a, b, face, slot, first, second, pair: the directed edges of ``build_mesh_edges``
+    (sorted by undirected edge; ``first``/``second`` the two faces of each pair); fold
+    (E,): fold angle of each undirected edge (pi where not a pair).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    n_vertices, n_faces = len(position), len(faces)
+    tilt = np.zeros(n_vertices)
+    np.add.at(tilt, a[first], fold)
+    np.add.at(tilt, b[first], fold)
+    tilt *= 0.5
+    # Corners (face, slot of the vertex) of the same vertex joined across each paired edge.
+    p1, p2 = first[pair], second[pair]
+
+    def corner(k, vertex):
+        return face[k] * 3 + np.where(a[k] == vertex, slot[k], (slot[k] + 1) % 3)
+
+    src = np.concatenate([corner(p1, a[p1]), corner(p1, b[p1])])
+    dst = np.concatenate([corner(p2, a[p1]), corner(p2, b[p1])])
+    graph = coo_matrix((np.ones(len(src)), (src, dst)), shape=(3 * n_faces, 3 * n_faces))
+    n_labels, label = connected_components(graph, directed=False)
+    vertex = faces.reshape(-1)
+    fans = np.bincount(np.unique(vertex * n_labels + label) // n_labels, minlength=n_vertices)
+    tilt[fans != 1] = np.inf
+    # Far edge of each corner: the point-to-segment distance from the corner's vertex.
+    tri = position[faces]
+    v = tri.reshape(-1, 3)
+    p, q = np.roll(tri, -1, axis=1).reshape(-1, 3), np.roll(tri, -2, axis=1).reshape(-1, 3)
+    span = q - p
+    length2 = np.einsum('ij,ij->i', span, span)
+    t = np.clip(np.einsum('ij,ij->i', v - p, span) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+    dist = np.linalg.norm(p + t[:, None] * span - v, axis=1)
+    reach = np.full(n_vertices, np.inf)
+    np.minimum.at(reach, vertex, dist)
+    degenerate = np.repeat(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
+                                          axis=1) == 0, 3)
+    tilt[vertex[degenerate]] = np.inf
+    return tilt, reach
 
 
 def flat_regions(position, faces, face_edge, coplanar, neighbour, inward, offset

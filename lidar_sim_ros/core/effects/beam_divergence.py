@@ -65,8 +65,9 @@ from lidar_sim_ros.core.silhouette import cones_touching_edges, mesh_edges, orig
 WALK_STEPS = 8          # facets a sub-ray is followed across before the shot is cast instead
 BLOCK_SPREAD_M = 0.25   # sensor positions (body frame) per silhouette set, at most this apart
 SERIES_LIMIT = 0.01     # tan(a) tan(theta) below which the plane sum's series is exact enough
-OCCLUDER_MARGIN_M = 0.002
-WIDE_FOOTPRINT = 0.8    # footprint radius / median mesh edge above which every shot is cast   # occluders this far behind the footprint's farthest sub-ray count
+OCCLUDER_MARGIN_M = 0.002   # occluders this far behind the footprint's farthest sub-ray count
+WIDE_FOOTPRINT = 0.8    # footprint radius / median mesh edge above which every shot is cast
+CREASE_TOL_M = 1e-3     # range error allowed where a footprint crosses only slight creases
 
 
 @lru_cache(maxsize=8)
@@ -104,14 +105,17 @@ def sample_footprint(target: Target, directions_lidar: np.ndarray, poses, half_a
 
 
 def footprint_cast(target: Target, directions_lidar: np.ndarray, poses, half_angle_rad: float,
-                   rings: int = 2, range_mode: str = 'mean') -> Hits:
+                   rings: int = 2, range_mode: str = 'mean',
+                   crease_tol_m: float = CREASE_TOL_M) -> Hits:
     """The same model as ``sample_footprint``; sub-rays cast only where a silhouette may
-    cross the footprint (module docstring)."""
+    cross the footprint (module docstring). ``crease_tol_m``: range error allowed where a
+    footprint crosses only slight creases (0: follow every sub-ray across them)."""
     rays = body_rays(directions_lidar, poses)   # no cast order: rows in input order
     axis = target.cast_body_rays(rays, barycentric=True)    # fresh arrays: updated in place
     if _wider_than_facets(target, axis, half_angle_rad):
         return _cast_subrays(target, rays, np.arange(len(rays)), half_angle_rad, rings, range_mode)
-    sample = _footprints_on_sheets(target, rays, axis, half_angle_rad, rings, range_mode)
+    sample = _footprints_on_sheets(target, rays, axis, half_angle_rad, rings, range_mode,
+                                   crease_tol_m)
     fraction = axis.hit.astype(float)
     idx = np.flatnonzero(sample)
     if len(idx):
@@ -133,18 +137,20 @@ def _wider_than_facets(target: Target, axis: Hits, half_angle_rad: float) -> boo
 
 
 def sampled_shots(target: Target, directions_lidar: np.ndarray, poses, half_angle_rad: float,
-                  rings: int = 2, range_mode: str = 'mean') -> np.ndarray:
+                  rings: int = 2, range_mode: str = 'mean',
+                  crease_tol_m: float = CREASE_TOL_M) -> np.ndarray:
     """The shots ``footprint_cast`` casts sub-rays for (bool mask); the others follow from
     their axis ray."""
     rays = body_rays(directions_lidar, poses)
     axis = target.cast_body_rays(rays, barycentric=True)
     if _wider_than_facets(target, axis, half_angle_rad):
         return np.ones(len(rays), bool)
-    return _footprints_on_sheets(target, rays, axis, half_angle_rad, rings, range_mode)
+    return _footprints_on_sheets(target, rays, axis, half_angle_rad, rings, range_mode,
+                                 crease_tol_m)
 
 
 def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle_rad: float,
-                          rings: int, range_mode: str) -> np.ndarray:
+                          rings: int, range_mode: str, crease_tol_m: float) -> np.ndarray:
     """Ranges of the footprints that lie on one sheet of facets, written into
     ``axis.range_m``; returns the shots whose sub-rays must be cast instead."""
     edges = mesh_edges(target)
@@ -163,7 +169,8 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
         if range_mode == 'mean':
             beyond = np.zeros(len(rays), bool)
             _footprints_in_facets(hits, axis.range_m, axis.cos_incidence, axis.face,
-                                  axis.barycentric, edges.face_altitude, tilt, energy, limit, beyond)
+                                  axis.barycentric, edges.face_star, tilt, energy, crease_tol_m,
+                                  limit, beyond)
             hits = hits[beyond[hits]]
         split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
             rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
@@ -305,16 +312,29 @@ def _blocks(origins_m: np.ndarray) -> list:
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, altitude, tilt,
-                          energy, limit, beyond):
-    """The energy-weighted mean range of shots whose footprint lies inside the axis facet,
-    from the axis hit alone (range_m, cos_incidence, barycentric (u, v) on the facet, the
-    facet's vertex-to-edge altitudes); others get ``beyond[i] = True``.
+def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_star, tilt,
+                          energy, crease_tol, limit, beyond):
+    """The energy-weighted mean range of shots whose footprint lies on the axis facet's
+    plane, or within ``crease_tol`` (m) of it, from the axis hit alone (range_m,
+    cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_star``); others get
+    ``beyond[i] = True``.
 
     The cone meets the facet's plane within r0 sin a / cos(theta + a) of the axis point,
     which lies w_k h_k from the edge facing vertex k. On the plane, the sub-rays' ranges
     average to r0 (1 + sum_j e_j t_j^2 (1 + tan^2 theta) / (2 sum_j e_j)) to second order
     in t tan(theta) (off by < (t tan theta)^4 / 2 relative: used below SERIES_LIMIT).
+
+    A footprint that leaves the facet but stays in the star of one of its vertices v (the
+    faces around v, normals within tau of each other: ``MeshEdges.vertex_tilt_rad``) gets
+    the plane's answer when that is within crease_tol of the sub-rays' ranges on the star
+    (``_bend_bound``): over the facet's plane the star is a surface of slope <= tan(tau)
+    through the axis point p, so a sub-ray at incidence <= theta' (theta plus the
+    half-angle) meeting the plane at x' (|x' - p| <= spread) meets the star at x with
+    |x - x'| (cot theta' - tan tau) <= tan tau |x' - p|, i.e. |x - p| <= spread / (1 - lean),
+    lean = tan tau tan theta'; there the star lies within tan tau |x - p| of the plane,
+    which moves the range by at most that over cos theta'. This holds while the footprint
+    stays in the star: |p - v| (from the barycentric coordinates and the edge lengths)
+    plus its length over the surface, |x - p| / cos(tau), within the star's reach.
     """
     k = energy.shape[0]
     total, moment2 = 0.0, 0.0
@@ -334,15 +354,35 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, alti
             continue
         a_max /= cos_i
         spread = 1.01 * r0 * t_max / (cos_i - sin_i * t_max) + 1e-6
-        f = face[i]
-        u, v = np.float64(barycentric[i, 0]), np.float64(barycentric[i, 1])
-        margin = min((1.0 - u - v) * altitude[f, 0], u * altitude[f, 1], v * altitude[f, 2])
+        star = face_star[face[i]]
+        w1, w2 = np.float64(barycentric[i, 0]), np.float64(barycentric[i, 1])
+        w0 = 1.0 - w1 - w2
+        margin = min(w0 * star[0], w1 * star[1], w2 * star[2])
+        err = 0.0
         if margin < spread:
-            beyond[i] = True
-            continue
+            err = np.inf
+            if crease_tol > 0.0:
+                cos_far = (cos_i - sin_i * t_max) / lift
+                tan_far = (sin_i + cos_i * t_max) / (cos_i - sin_i * t_max)
+                l01, l12, l20 = np.float64(star[3]), np.float64(star[4]), np.float64(star[5])
+                for c in range(3):
+                    bound, reach = _bend_bound(np.float64(star[9 + c]), tan_far, cos_far, spread)
+                    if bound > crease_tol:
+                        continue
+                    if c == 0:
+                        d2 = w1 * w1 * l01 + w2 * w2 * l20 + w1 * w2 * (l01 + l20 - l12)
+                    elif c == 1:
+                        d2 = w0 * w0 * l01 + w2 * w2 * l12 + w0 * w2 * (l01 + l12 - l20)
+                    else:
+                        d2 = w0 * w0 * l20 + w1 * w1 * l12 + w0 * w1 * (l20 + l12 - l01)
+                    if np.sqrt(max(d2, 0.0)) + reach <= star[6 + c]:
+                        err = min(err, bound)
+            if not err <= crease_tol:
+                beyond[i] = True
+                continue
         tan2 = (sin_i * sin_i) / (cos_i * cos_i)
         range_m[i] = r0 * (1.0 + 0.5 * moment2 * (1.0 + tan2) / total)
-        limit[i] = _occluder_limit(r0 * lift / (1.0 - a_max), r0)
+        limit[i] = _occluder_limit(r0 * lift / (1.0 - a_max) + err, r0)
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
@@ -505,6 +545,19 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
             limit[i] = _occluder_limit(max(plane_reach, high), r0)
         else:
             sample[i], limit[i] = True, -1.0
+
+
+@njit(cache=True, nogil=True, inline='always', error_model='numpy')
+def _bend_bound(tan_tau, tan_far, cos_far, spread):
+    """Range error bound (m) of the plane's answer, and the footprint's length over the
+    surface (m), for faces within atan(tan_tau) of the plane (``_footprints_in_facets``);
+    tan_far, cos_far: of the most oblique sub-ray's incidence; inf, inf when its slope is
+    within a factor 2 of the surface's (or tan_tau is inf)."""
+    lean = tan_tau * tan_far
+    if not lean < 0.5:
+        return np.inf, np.inf
+    grow = spread / (1.0 - lean)
+    return tan_tau * grow / cos_far, grow * np.sqrt(1.0 + tan_tau * tan_tau)
 
 
 @njit(cache=True, nogil=True, inline='always', error_model='numpy')
