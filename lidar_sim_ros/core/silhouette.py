@@ -106,15 +106,16 @@ class MeshEdges:
         """``candidates`` as a mask over the edges."""
         lo = np.asarray(origin_lo_m, float)
         hi = np.asarray(origin_hi_m, float)
-        # The float32 copies are exact to ~1e-6 m at 10 m: widen the box by 1e-5 m.
-        return _maybe_silhouette(self._sign_test, self._sign_edge, len(self.a_m),
-                                 0.5 * (lo + hi), 0.5 * (hi - lo) + 1e-5)
+        # The float32 planes are exact to ~1e-6 m at 10 m: widen the box by 1e-5 m.
+        return _maybe_silhouette(self._sign_planes, self._sign_always, self._sign_edge,
+                                 len(self.a_m), 0.5 * (lo + hi), 0.5 * (hi - lo) + 1e-5)
 
     @cached_property
     def face_star(self) -> np.ndarray:
         """(F, 16) float32 per face, one cache line for compiled loops: the altitudes of
         vertices 0-2 over their opposite edges (m), the squared lengths of edges 0-2 (m^2),
-        and of vertices 0-2 the star's reach (m) and tan(tilt) (inf: none)."""
+        and of the stars of vertices 0-2 the reach (m), tan(tilt) and 1 / cos(tilt) (inf
+        from a right angle on)."""
         corners = self.face_vertices
         tri = self.vertex_m[corners]
         edge = np.roll(tri, -1, axis=1) - tri
@@ -124,15 +125,23 @@ class MeshEdges:
         out[:, 6:9] = self.vertex_reach_m[corners]
         tilt = self.vertex_tilt_rad[corners]
         acute = tilt < 0.5 * np.pi
-        out[:, 9:12] = np.where(acute, np.tan(np.where(acute, tilt, 0.0)), np.inf)
+        tilt = np.where(acute, tilt, 0.0)
+        out[:, 9:12] = np.where(acute, np.tan(tilt), np.inf)
+        out[:, 12:15] = np.where(acute, 1.0 / np.cos(tilt), np.inf)
         return out
 
     @cached_property
-    def _sign_test(self) -> np.ndarray:
-        """(a, n1, n2, always) per non-coplanar edge, float32, packed for the classification."""
+    def _sign_planes(self) -> np.ndarray:
+        """(8, M) float32 rows n1, n1 . a, n2, n2 . a of the non-coplanar edges: s_k(o) =
+        n_k . o - n_k . a, one row per component so the classification loop vectorises."""
         keep = ~self.coplanar
-        return np.ascontiguousarray(np.column_stack(
-            [self.a_m[keep], self.n1[keep], self.n2[keep], self.always[keep]]), dtype=np.float32)
+        a, n1, n2 = self.a_m[keep], self.n1[keep], self.n2[keep]
+        return np.ascontiguousarray(np.vstack([n1.T, np.einsum('ij,ij->i', n1, a),
+                                               n2.T, np.einsum('ij,ij->i', n2, a)]), dtype=np.float32)
+
+    @cached_property
+    def _sign_always(self) -> np.ndarray:
+        return np.ascontiguousarray(self.always[~self.coplanar])
 
     @cached_property
     def _sign_edge(self) -> np.ndarray:
@@ -140,23 +149,26 @@ class MeshEdges:
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _maybe_silhouette(packed, edge, n_edges, centre, half):
+def _maybe_silhouette(planes, always, edge, n_edges, centre, half):
     """Edges not smooth for every viewpoint o in the box centre +- half: s_k(o) =
-    n_k . (o - a) over the box is [mid - rad, mid + rad] with rad = |n_k| . half.
-    packed (M, 10): a, n1, n2, always of the non-coplanar edges ``edge`` (M,)."""
+    n_k . o - n_k . a over the box is [mid - rad, mid + rad] with rad = |n_k| . half.
+    planes (8, M), always (M,): the non-coplanar edges ``edge`` (M,)
+    (``MeshEdges._sign_planes``); returns a mask over all n_edges edges."""
+    m = planes.shape[1]
+    cx, cy, cz = centre[0], centre[1], centre[2]
+    hx, hy, hz = half[0], half[1], half[2]
+    keep = np.empty(m, np.bool_)
+    for r in range(m):
+        mid1 = planes[0, r] * cx + planes[1, r] * cy + planes[2, r] * cz - planes[3, r]
+        rad1 = abs(planes[0, r]) * hx + abs(planes[1, r]) * hy + abs(planes[2, r]) * hz
+        mid2 = planes[4, r] * cx + planes[5, r] * cy + planes[6, r] * cz - planes[7, r]
+        rad2 = abs(planes[4, r]) * hx + abs(planes[5, r]) * hy + abs(planes[6, r]) * hz
+        smooth = ((((mid1 - rad1) > 0.0) & ((mid2 + rad2) < 0.0))
+                  | (((mid1 + rad1) < 0.0) & ((mid2 - rad2) > 0.0)))
+        keep[r] = always[r] | ~smooth
     out = np.zeros(n_edges, np.bool_)
-    for row in range(packed.shape[0]):
-        mid1, rad1, mid2, rad2 = 0.0, 0.0, 0.0, 0.0
-        for k in range(3):
-            off = centre[k] - np.float64(packed[row, k])
-            n1k, n2k = np.float64(packed[row, 3 + k]), np.float64(packed[row, 6 + k])
-            mid1 += n1k * off
-            rad1 += abs(n1k) * half[k]
-            mid2 += n2k * off
-            rad2 += abs(n2k) * half[k]
-        smooth = ((mid1 - rad1 > 0.0 and mid2 + rad2 < 0.0)
-                  or (mid1 + rad1 < 0.0 and mid2 - rad2 > 0.0))
-        out[edge[row]] = packed[row, 9] != 0.0 or not smooth
+    for r in range(m):
+        out[edge[r]] = keep[r]
     return out
 
 
@@ -552,14 +564,15 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
     ray_z = np.empty(n)                  # farthest depth along f the cone counts to
     active = np.zeros(n, np.bool_)       # binned
     brute = z_limit >= 0.0               # tested against every segment (unless binned)
-    pad = 0.0
+    widest = 0.0                         # max over binned rays of stretch (1 + 1/zd) / zd
     if z_hi >= z_lo:
         for i in range(n):
             if z_limit[i] < 0.0:
                 continue
+            dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
             rx, ry, rz = o[i, 0] - cx, o[i, 1] - cy, o[i, 2] - cz
             zo = rx * fx + ry * fy + rz * fz
-            zd = d[i, 0] * fx + d[i, 1] * fy + d[i, 2] * fz
+            zd = dx * fx + dy * fy + dz * fz
             if zd <= 0.1:
                 continue                      # more than 84 deg off the mean: brute force
             # The cone up to the depth limit reaches at most this far along f.
@@ -568,22 +581,28 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
             brute[i] = False
             if z_end < z_lo:
                 continue                      # stops in front of every binned segment
-            x0, y0, x1, y1 = np.inf, np.inf, -np.inf, -np.inf
-            for zz in (z_lo, z_end):
-                t = max((zz - zo) / zd, 0.0)
-                px, py, pz = rx + t * d[i, 0], ry + t * d[i, 1], rz + t * d[i, 2]
-                zp = max(px * fx + py * fy + pz * fz, 1e-9)
-                u = (px * e1x + py * e1y + pz * e1z) / zp
-                v = (px * e2x + py * e2y + pz * e2z) / zp
-                x0, y0, x1, y1 = min(x0, u), min(y0, v), max(x1, u), max(y1, v)
+            inv_zd = 1.0 / zd
+            # The ray's points at depths z_lo and z_end along f, seen from c.
+            t = max((z_lo - zo) * inv_zd, 0.0)
+            px, py, pz = rx + t * dx, ry + t * dy, rz + t * dz
+            inv = 1.0 / max(px * fx + py * fy + pz * fz, 1e-9)
+            u0, v0 = (px * e1x + py * e1y + pz * e1z) * inv, (px * e2x + py * e2y + pz * e2z) * inv
+            t = max((z_end - zo) * inv_zd, 0.0)
+            px, py, pz = rx + t * dx, ry + t * dy, rz + t * dz
+            inv = 1.0 / max(px * fx + py * fy + pz * fz, 1e-9)
+            u1, v1 = (px * e1x + py * e1y + pz * e1z) * inv, (px * e2x + py * e2y + pz * e2z) * inv
+            x0, x1 = min(u0, u1), max(u0, u1)
+            y0, y1 = min(v0, v1), max(v0, v1)
             track[i, 0], track[i, 1], track[i, 2], track[i, 3] = x0, y0, x1, y1
             active[i] = True
-            # A point of the cone lies within t tan_a of the axis point at its own distance
-            # t, and within (1 + 1/zd) t tan_a of the axis point at its depth along f; seen
-            # from c (at least z_lo - spread away) and stretched by the gnomonic map.
             stretch = 1.0 + max(x0 * x0, x1 * x1) + max(y0 * y0, y1 * y1)
-            pad = max(pad, 1.25 * tan_a * stretch * (1.0 + 1.0 / zd) / zd
-                      * (1.0 + 2.0 * spread / z_lo))
+            widest = max(widest, stretch * (1.0 + inv_zd) * inv_zd)
+    # A point of the cone lies within t tan_a of the axis point at its own distance t, and
+    # within (1 + 1/zd) t tan_a of the axis point at its depth along f; seen from c (at
+    # least z_lo - spread away) and stretched by the gnomonic map.
+    pad = 0.0
+    if widest > 0.0:
+        pad = 1.25 * tan_a * widest * (1.0 + 2.0 * spread / z_lo)
     pad += 1e-9
     # The grid over the active rays' tracks; cells a few times a track plus the pad (the
     # 2-D pre-check makes rays cheap; cell visits are what costs).
@@ -670,11 +689,11 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
     # Rays not binned (far off the mean direction) against every segment, and segments
     # too near c against every ray: never, in practice.
     loose = np.flatnonzero(~binned)
-    every = np.arange(m)
     for i in range(n):
-        if out[i] or z_limit[i] < 0.0:
+        if out[i] or z_limit[i] < 0.0 or not (brute[i] or loose.shape[0] > 0):
             continue
-        for k in (every if brute[i] else loose):
+        for q in range(m if brute[i] else loose.shape[0]):
+            k = q if brute[i] else loose[q]
             if _segment_in_cone(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2],
                                 a[k, 0], a[k, 1], a[k, 2], b[k, 0], b[k, 1], b[k, 2],
                                 z_limit[i], tan_a):

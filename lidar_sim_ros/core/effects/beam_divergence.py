@@ -319,55 +319,67 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
     cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_star``); others get
     ``beyond[i] = True``.
 
-    The cone meets the facet's plane within r0 sin a / cos(theta + a) of the axis point,
-    which lies w_k h_k from the edge facing vertex k. On the plane, the sub-rays' ranges
-    average to r0 (1 + sum_j e_j t_j^2 (1 + tan^2 theta) / (2 sum_j e_j)) to second order
-    in t tan(theta) (off by < (t tan theta)^4 / 2 relative: used below SERIES_LIMIT).
+    The cone meets the facet's plane within spread = r0 sin a / cos(theta + a) of the
+    axis point p, which lies w_k h_k from the edge facing vertex k. On the plane, the
+    sub-rays' ranges average to r0 (1 + sum_j e_j t_j^2 (1 + tan^2 theta) / (2 sum_j e_j))
+    to second order in t tan(theta) (off by < (t tan theta)^4 / 2 relative: used below
+    SERIES_LIMIT).
 
     A footprint that leaves the facet but stays in the star of one of its vertices v (the
     faces around v, normals within tau of each other: ``MeshEdges.vertex_tilt_rad``) gets
-    the plane's answer when that is within crease_tol of the sub-rays' ranges on the star
-    (``_bend_bound``): over the facet's plane the star is a surface of slope <= tan(tau)
-    through the axis point p, so a sub-ray at incidence <= theta' (theta plus the
-    half-angle) meeting the plane at x' (|x' - p| <= spread) meets the star at x with
-    |x - x'| (cot theta' - tan tau) <= tan tau |x' - p|, i.e. |x - p| <= spread / (1 - lean),
-    lean = tan tau tan theta'; there the star lies within tan tau |x - p| of the plane,
-    which moves the range by at most that over cos theta'. This holds while the footprint
-    stays in the star: |p - v| (from the barycentric coordinates and the edge lengths)
-    plus its length over the surface, |x - p| / cos(tau), within the star's reach.
+    the plane's answer when that is within crease_tol of the mean of the sub-rays' ranges
+    on the star. Over the facet's plane the star is a surface of slope <= tan(tau)
+    through p. Sub-ray j, at incidence <= theta' (theta plus the half-angle), meets the
+    plane at x'_j, |x'_j - p| <= spread t_j / t_max, and the star at x_j with
+    |x_j - x'_j| (cot theta' - tan tau) <= tan tau |x'_j - p|, so
+    |x_j - p| <= |x'_j - p| / (1 - lean), lean = tan tau tan theta'. The star lies within
+    tan tau |x_j - p| of the plane there, which moves the range by at most that over
+    cos theta': at most ``worst`` for any sub-ray and sum_j e_j t_j / (t_max sum_j e_j)
+    (~0.55) of it for their weighted mean. This holds while the footprint stays in the
+    star: |p - v| (from the barycentric coordinates and the edge lengths) plus its
+    length over the surface, spread / ((1 - lean) cos(tau)), within the star's reach.
     """
     k = energy.shape[0]
-    total, moment2 = 0.0, 0.0
+    total, moment2, first_moment = 0.0, 0.0, 0.0
     for j in range(k):
         total += energy[j]
         moment2 += energy[j] * tilt[j] * tilt[j]
+        first_moment += energy[j] * tilt[j]
     t_max = tilt[k - 1]
     lift = np.sqrt(1.0 + t_max * t_max)
+    mean_share = first_moment / (t_max * total) if t_max > 0.0 else 0.0
     for q in range(index.shape[0]):
         i = index[q]
         r0 = range_m[i]
         cos_i = min(cos_incidence[i], 1.0)
         sin_i = np.sqrt(1.0 - cos_i * cos_i)
-        a_max = sin_i * t_max
-        if a_max >= SERIES_LIMIT * cos_i:
+        if sin_i * t_max >= SERIES_LIMIT * cos_i:
             beyond[i] = True
             continue
-        a_max /= cos_i
-        spread = 1.01 * r0 * t_max / (cos_i - sin_i * t_max) + 1e-6
+        inv_cos = 1.0 / cos_i
+        a_max = sin_i * t_max * inv_cos
+        inv_far = 1.0 / (cos_i - sin_i * t_max)
+        spread = 1.01 * r0 * t_max * inv_far + 1e-6
         star = face_star[face[i]]
         w1, w2 = np.float64(barycentric[i, 0]), np.float64(barycentric[i, 1])
         w0 = 1.0 - w1 - w2
         margin = min(w0 * star[0], w1 * star[1], w2 * star[2])
-        err = 0.0
+        worst = 0.0
         if margin < spread:
-            err = np.inf
+            worst = np.inf
             if crease_tol > 0.0:
-                cos_far = (cos_i - sin_i * t_max) / lift
-                tan_far = (sin_i + cos_i * t_max) / (cos_i - sin_i * t_max)
+                tan_far = (sin_i + cos_i * t_max) * inv_far         # tan(theta')
+                sec_far = lift * inv_far                            # 1 / cos(theta')
                 l01, l12, l20 = np.float64(star[3]), np.float64(star[4]), np.float64(star[5])
                 for c in range(3):
-                    bound, reach = _bend_bound(np.float64(star[9 + c]), tan_far, cos_far, spread)
-                    if bound > crease_tol:
+                    tan_tau = np.float64(star[9 + c])
+                    lean = tan_tau * tan_far
+                    if not lean < 0.5:                 # also inf: not one closed fan
+                        continue
+                    grow = spread / (1.0 - lean)
+                    bound = tan_tau * grow * sec_far
+                    room = star[6 + c] - grow * star[12 + c]
+                    if bound * mean_share > crease_tol or room <= 0.0:
                         continue
                     if c == 0:
                         d2 = w1 * w1 * l01 + w2 * w2 * l20 + w1 * w2 * (l01 + l20 - l12)
@@ -375,14 +387,14 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                         d2 = w0 * w0 * l01 + w2 * w2 * l12 + w0 * w2 * (l01 + l12 - l20)
                     else:
                         d2 = w0 * w0 * l20 + w1 * w1 * l12 + w0 * w1 * (l20 + l12 - l01)
-                    if np.sqrt(max(d2, 0.0)) + reach <= star[6 + c]:
-                        err = min(err, bound)
-            if not err <= crease_tol:
+                    if d2 <= room * room:
+                        worst = min(worst, bound)
+            if not worst * mean_share <= crease_tol:
                 beyond[i] = True
                 continue
-        tan2 = (sin_i * sin_i) / (cos_i * cos_i)
+        tan2 = sin_i * sin_i * inv_cos * inv_cos
         range_m[i] = r0 * (1.0 + 0.5 * moment2 * (1.0 + tan2) / total)
-        limit[i] = _occluder_limit(r0 * lift / (1.0 - a_max) + err, r0)
+        limit[i] = _occluder_limit(r0 * lift / (1.0 - a_max) + worst, r0)
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
@@ -545,19 +557,6 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
             limit[i] = _occluder_limit(max(plane_reach, high), r0)
         else:
             sample[i], limit[i] = True, -1.0
-
-
-@njit(cache=True, nogil=True, inline='always', error_model='numpy')
-def _bend_bound(tan_tau, tan_far, cos_far, spread):
-    """Range error bound (m) of the plane's answer, and the footprint's length over the
-    surface (m), for faces within atan(tan_tau) of the plane (``_footprints_in_facets``);
-    tan_far, cos_far: of the most oblique sub-ray's incidence; inf, inf when its slope is
-    within a factor 2 of the surface's (or tan_tau is inf)."""
-    lean = tan_tau * tan_far
-    if not lean < 0.5:
-        return np.inf, np.inf
-    grow = spread / (1.0 - lean)
-    return tan_tau * grow / cos_far, grow * np.sqrt(1.0 + tan_tau * tan_tau)
 
 
 @njit(cache=True, nogil=True, inline='always', error_model='numpy')
