@@ -202,7 +202,7 @@ class Target:
         bary = None
         if barycentric:
             bary = np.empty((len(rays), 2), np.float32)
-            bary[rays.order] = np.column_stack(uv)
+            bary[rays.order, 0], bary[rays.order, 1] = uv
         return Hits(hit, range_m, normal, np.arccos(cos_i), material, face, cos_incidence=cos_i,
                     barycentric=bary)
 

@@ -87,6 +87,15 @@ def footprint_pattern(rings: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return out
 
 
+def footprint_rings(half_angle_rad: float, rings: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per ring of the pattern (axis excluded): tan of its angle off the axis, and its
+    share of the beam's energy."""
+    rho, _, energy = footprint_pattern(rings)
+    radius = np.arange(1, rings + 1) / rings
+    share = np.array([energy[rho == r].sum() for r in radius]) / energy.sum()
+    return np.tan(half_angle_rad * radius), share
+
+
 def perpendicular_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors (N, 3) perpendicular to unit vectors d and to each other."""
     helper = np.where(np.abs(d[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
@@ -129,7 +138,7 @@ def footprint_cast(target: Target, directions_lidar: np.ndarray, poses, half_ang
 def _wider_than_facets(target: Target, axis: Hits, half_angle_rad: float) -> bool:
     """Footprints wider than WIDE_FOOTPRINT x the mesh's median edge (at the median range):
     nearly every shot would be walked far or cast anyway, so cast them all."""
-    ranges = axis.range_m[axis.hit][::64]        # a sample is enough for a median
+    ranges = axis.range_m[::64][axis.hit[::64]]  # a sample is enough for a median
     if len(ranges) == 0:
         return False
     radius = float(np.median(ranges)) * np.tan(half_angle_rad)
@@ -158,9 +167,9 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
     rho, phi, energy = footprint_pattern(rings)
     tilt = np.tan(half_angle_rad * rho)
     sample = np.zeros(len(rays), bool)
-    for block in _blocks(rays.origins_m):
+    for block, lo, hi in _blocks(rays.origins_m):
         o, dirs = rays.origins_m[block], rays.directions[block]
-        candidate = edges.candidate_mask(*origin_box(o))
+        candidate = edges.candidate_mask(lo, hi)
         hits = np.flatnonzero(axis.hit) if isinstance(block, slice) else block[axis.hit[block]]
         # Ranges of the footprints on one sheet (in place), the shots to cast instead, and
         # how deep an occluder may sit for each (misses: any depth). Most footprints lie
@@ -168,9 +177,10 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
         limit = np.full(len(rays), np.inf)
         if range_mode == 'mean':
             beyond = np.zeros(len(rays), bool)
+            ring_tilt, ring_share = footprint_rings(half_angle_rad, rings)
             _footprints_in_facets(hits, axis.range_m, axis.cos_incidence, axis.face,
-                                  axis.barycentric, edges.face_star, tilt, energy, crease_tol_m,
-                                  limit, beyond)
+                                  axis.barycentric, edges.face_star, tilt, energy, ring_tilt,
+                                  ring_share, crease_tol_m, limit, beyond)
             hits = hits[beyond[hits]]
         split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
             rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
@@ -293,17 +303,17 @@ def _combine_subrays(face_k, tfar_k, d_sub, index, energy, first, face_normals, 
 
 def _blocks(origins_m: np.ndarray) -> list:
     """Ray rows (a slice, or index arrays) split until each block's sensor positions lie
-    within BLOCK_SPREAD_M: one block per frame in the simulator, a few in a comparison
-    spanning many frames."""
+    within BLOCK_SPREAD_M, each with the corners of its positions' box: one block per
+    frame in the simulator, a few in a comparison spanning many frames."""
     lo, hi = origin_box(origins_m)
     if len(origins_m) == 0 or np.linalg.norm(hi - lo) <= BLOCK_SPREAD_M:
-        return [slice(None)]
+        return [(slice(None), lo, hi)]
     out, todo = [], [np.arange(len(origins_m))]
     while todo:
         idx = todo.pop()
         lo, hi = origin_box(origins_m[idx])
         if len(idx) < 64 or np.linalg.norm(hi - lo) <= BLOCK_SPREAD_M:
-            out.append(idx)
+            out.append((idx, lo, hi))
             continue
         split = np.argsort(origins_m[idx, int(np.argmax(hi - lo))], kind='stable')
         half = len(idx) // 2
@@ -313,7 +323,7 @@ def _blocks(origins_m: np.ndarray) -> list:
 
 @njit(cache=True, nogil=True, error_model='numpy')
 def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_star, tilt,
-                          energy, crease_tol, limit, beyond):
+                          energy, ring_tilt, ring_share, crease_tol, limit, beyond):
     """The energy-weighted mean range of shots whose footprint lies on the axis facet's
     plane, or within ``crease_tol`` (m) of it, from the axis hit alone (range_m,
     cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_star``); others get
@@ -328,26 +338,26 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
     A footprint that leaves the facet but stays in the star of one of its vertices v (the
     faces around v, normals within tau of each other: ``MeshEdges.vertex_tilt_rad``) gets
     the plane's answer when that is within crease_tol of the mean of the sub-rays' ranges
-    on the star. Over the facet's plane the star is a surface of slope <= tan(tau)
-    through p. Sub-ray j, at incidence <= theta' (theta plus the half-angle), meets the
-    plane at x'_j, |x'_j - p| <= spread t_j / t_max, and the star at x_j with
-    |x_j - x'_j| (cot theta' - tan tau) <= tan tau |x'_j - p|, so
-    |x_j - p| <= |x'_j - p| / (1 - lean), lean = tan tau tan theta'. The star lies within
-    tan tau |x_j - p| of the plane there, which moves the range by at most that over
-    cos theta': at most ``worst`` for any sub-ray and sum_j e_j t_j / (t_max sum_j e_j)
-    (~0.55) of it for their weighted mean. This holds while the footprint stays in the
-    star: |p - v| (from the barycentric coordinates and the edge lengths) plus its
-    length over the surface, spread / ((1 - lean) cos(tau)), within the star's reach.
+    on the star. Over the facet's plane the star is a surface through p that is the
+    plane itself up to the facet's edges (``margin`` from p) and rises at slope
+    <= tan(tau) beyond. Sub-ray j, at incidence <= theta' (theta plus the half-angle),
+    meets the plane at x'_j, |x'_j - p| <= s_j = spread t_j / t_max, and the star at x_j
+    with |x_j - x'_j| (cot theta' - tan tau) <= tan tau |x'_j - p|, so
+    |x_j - p| <= s_j / (1 - lean), lean = tan tau tan theta'. The star lies within
+    tan tau (|x_j - p| - margin) of the plane there, which moves the range by at most
+    that over cos theta': at most ``worst`` for any sub-ray, and the energy-weighted
+    mean of the bounds over the rings (ring_tilt, ring_share: each ring's t_j and share
+    of the energy) for their mean. This holds while the footprint stays in the star:
+    |p - v| (from the barycentric coordinates and the edge lengths) plus its length over
+    the surface, spread / ((1 - lean) cos(tau)), within the star's reach.
     """
     k = energy.shape[0]
-    total, moment2, first_moment = 0.0, 0.0, 0.0
+    total, moment2 = 0.0, 0.0
     for j in range(k):
         total += energy[j]
         moment2 += energy[j] * tilt[j] * tilt[j]
-        first_moment += energy[j] * tilt[j]
     t_max = tilt[k - 1]
     lift = np.sqrt(1.0 + t_max * t_max)
-    mean_share = first_moment / (t_max * total) if t_max > 0.0 else 0.0
     for q in range(index.shape[0]):
         i = index[q]
         r0 = range_m[i]
@@ -364,9 +374,9 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
         w1, w2 = np.float64(barycentric[i, 0]), np.float64(barycentric[i, 1])
         w0 = 1.0 - w1 - w2
         margin = min(w0 * star[0], w1 * star[1], w2 * star[2])
-        worst = 0.0
+        worst, mean_err = 0.0, 0.0
         if margin < spread:
-            worst = np.inf
+            worst, mean_err = np.inf, np.inf
             if crease_tol > 0.0:
                 tan_far = (sin_i + cos_i * t_max) * inv_far         # tan(theta')
                 sec_far = lift * inv_far                            # 1 / cos(theta')
@@ -377,9 +387,12 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                     if not lean < 0.5:                 # also inf: not one closed fan
                         continue
                     grow = spread / (1.0 - lean)
-                    bound = tan_tau * grow * sec_far
+                    slope = tan_tau * sec_far
+                    mean_bound = 0.0
+                    for r in range(ring_tilt.shape[0]):
+                        mean_bound += ring_share[r] * max(grow * ring_tilt[r] / t_max - margin, 0.0)
                     room = star[6 + c] - grow * star[12 + c]
-                    if bound * mean_share > crease_tol or room <= 0.0:
+                    if slope * mean_bound > mean_err or room <= 0.0:
                         continue
                     if c == 0:
                         d2 = w1 * w1 * l01 + w2 * w2 * l20 + w1 * w2 * (l01 + l20 - l12)
@@ -388,8 +401,9 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                     else:
                         d2 = w0 * w0 * l20 + w1 * w1 * l12 + w0 * w1 * (l20 + l12 - l01)
                     if d2 <= room * room:
-                        worst = min(worst, bound)
-            if not worst * mean_share <= crease_tol:
+                        mean_err = slope * mean_bound
+                        worst = min(worst, slope * (grow - margin))
+            if not mean_err <= crease_tol:
                 beyond[i] = True
                 continue
         tan2 = sin_i * sin_i * inv_cos * inv_cos
