@@ -630,18 +630,26 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
             start[cell + 1] += start[cell]
         fill = start[:-1].copy()
         cell_ray = np.empty(start[-1], np.int64)
+        # Per entry, the ray's track centre, half-diagonal and depth reach: read in order.
+        cell_track = np.empty((start[-1], 4))
         cell_z = np.full(nx * ny, -np.inf)   # farthest depth any ray of the cell counts to
         for i in range(n):
             if active[i]:
                 i0, i1 = int((track[i, 0] - gx0) / size), int((track[i, 2] - gx0) / size)
                 j0, j1 = int((track[i, 1] - gy0) / size), int((track[i, 3] - gy0) / size)
+                mid_x, mid_y = 0.5 * (track[i, 0] + track[i, 2]), 0.5 * (track[i, 1] + track[i, 3])
+                half_diagonal = 0.5 * (track[i, 2] - track[i, 0] + track[i, 3] - track[i, 1])
                 for ci in range(i0, i1 + 1):
                     for cj in range(j0, j1 + 1):
-                        cell_ray[fill[ci * ny + cj]] = i
+                        entry = fill[ci * ny + cj]
+                        cell_ray[entry] = i
+                        cell_track[entry, 0], cell_track[entry, 1] = mid_x, mid_y
+                        cell_track[entry, 2], cell_track[entry, 3] = half_diagonal, ray_z[i]
                         fill[ci * ny + cj] += 1
                         cell_z[ci * ny + cj] = max(cell_z[ci * ny + cj], ray_z[i])
-        # Each segment visits the cells within pad of its projection (sampled every half
-        # cell, each point dilated by pad + half a cell), each cell once.
+        # Each segment visits the cells within pad of its projection, each cell once: the
+        # cells of its grown box when that is small, else those near points sampled every
+        # half cell (each point grown by pad + half a cell).
         stamp = np.full(nx * ny, -1, np.int64)
         reach = pad + 0.5 * size
         for k in range(m):
@@ -653,6 +661,35 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
                 continue
             ex, ey = x1 - x0, y1 - y0
             inv_len2 = 1.0 / (ex * ex + ey * ey) if ex * ex + ey * ey > 0.0 else 0.0
+            i0 = min(max(int((min(x0, x1) - pad - gx0) / size), 0), nx - 1)
+            i1 = min(max(int((max(x0, x1) + pad - gx0) / size), 0), nx - 1)
+            j0 = min(max(int((min(y0, y1) - pad - gy0) / size), 0), ny - 1)
+            j1 = min(max(int((max(y0, y1) + pad - gy0) / size), 0), ny - 1)
+            if (i1 - i0 + 1) * (j1 - j0 + 1) <= 9:
+                for ci in range(i0, i1 + 1):
+                    for cj in range(j0, j1 + 1):
+                        cell = ci * ny + cj
+                        if seg_z[k] > cell_z[cell]:
+                            continue             # behind every lit surface of the cell
+                        for p in range(start[cell], start[cell + 1]):
+                            if seg_z[k] > cell_track[p, 3]:
+                                continue
+                            i = cell_ray[p]
+                            if out[i]:
+                                continue
+                            # The gnomonic projections first: the track's centre within
+                            # pad + its half-diagonal of the segment's projection.
+                            tx, ty = cell_track[p, 0] - x0, cell_track[p, 1] - y0
+                            h = min(max((tx * ex + ty * ey) * inv_len2, 0.0), 1.0)
+                            gx, gy = tx - h * ex, ty - h * ey
+                            slack = pad + cell_track[p, 2]
+                            if gx * gx + gy * gy > slack * slack:
+                                continue
+                            if _segment_in_cone(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1],
+                                                d[i, 2], a[k, 0], a[k, 1], a[k, 2], b[k, 0],
+                                                b[k, 1], b[k, 2], z_limit[i], tan_a):
+                                out[i] = True
+                continue
             steps = int(np.sqrt(ex * ex + ey * ey) / (0.5 * size)) + 1
             for step in range(steps + 1):
                 x = x0 + (x1 - x0) * step / steps
@@ -670,16 +707,17 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
                         if seg_z[k] > cell_z[cell]:
                             continue             # behind every lit surface of the cell
                         for p in range(start[cell], start[cell + 1]):
+                            if seg_z[k] > cell_track[p, 3]:
+                                continue
                             i = cell_ray[p]
-                            if out[i] or seg_z[k] > ray_z[i]:
+                            if out[i]:
                                 continue
                             # The gnomonic projections first: the track's centre within
                             # pad + its half-diagonal of the segment's projection.
-                            tx = 0.5 * (track[i, 0] + track[i, 2]) - x0
-                            ty = 0.5 * (track[i, 1] + track[i, 3]) - y0
+                            tx, ty = cell_track[p, 0] - x0, cell_track[p, 1] - y0
                             h = min(max((tx * ex + ty * ey) * inv_len2, 0.0), 1.0)
                             gx, gy = tx - h * ex, ty - h * ey
-                            slack = pad + 0.5 * (track[i, 2] - track[i, 0] + track[i, 3] - track[i, 1])
+                            slack = pad + cell_track[p, 2]
                             if gx * gx + gy * gy > slack * slack:
                                 continue
                             if _segment_in_cone(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1],
