@@ -131,6 +131,37 @@ class MeshEdges:
         return out
 
     @cached_property
+    def face_crease(self) -> np.ndarray:
+        """(F, 3, 8) float32 per face and edge k (vertices k, k + 1): tan and 1 / cos of the
+        fold to the face beyond (inf: none, or a right angle or more), then sin and cos of
+        that face's angles at vertex k and at vertex k + 1 (the rest zeros)."""
+        corners = self.face_vertices
+        n_faces = len(corners)
+        out = np.zeros((n_faces, 3, 8), np.float32)
+        out[:, :, 0:2] = np.inf
+        for k in range(3):
+            face = np.flatnonzero(self.face_neighbour[:, k] >= 0)
+            beyond = self.face_neighbour[face, k]
+            edge = self.face_edge[face, k]
+            n1, n2 = self.n1[edge], self.n2[edge]
+            with np.errstate(invalid='ignore', divide='ignore'):
+                cos_fold = -np.einsum('ij,ij->i', n1, n2) / (np.linalg.norm(n1, axis=1)
+                                                           * np.linalg.norm(n2, axis=1))
+            start, end = corners[face, k], corners[face, (k + 1) % 3]
+            others = corners[beyond]
+            third = (others != start[:, None]) & (others != end[:, None])
+            far = others[np.arange(len(face)), np.argmax(third, axis=1)]
+            ok = (cos_fold > 0.0) & third.any(axis=1)
+            a, b, w = self.vertex_m[start], self.vertex_m[end], self.vertex_m[far]
+            row = out[face[ok], k]
+            row[:, 0] = np.sqrt(np.clip(1.0 - cos_fold[ok] ** 2, 0.0, None)) / cos_fold[ok]
+            row[:, 1] = 1.0 / cos_fold[ok]
+            row[:, 2:4] = _sin_cos_between(b - a, w - a)[ok]
+            row[:, 4:6] = _sin_cos_between(a - b, w - b)[ok]
+            out[face[ok], k] = row
+        return out
+
+    @cached_property
     def _sign_planes(self) -> np.ndarray:
         """(8, M) float32 rows n1, n1 . a, n2, n2 . a of the non-coplanar edges: s_k(o) =
         n_k . o - n_k . a, one row per component so the classification loop vectorises."""
@@ -170,6 +201,15 @@ def _maybe_silhouette(planes, always, edge, n_edges, centre, half):
     for r in range(m):
         out[edge[r]] = keep[r]
     return out
+
+
+def _sin_cos_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(N, 2) sin and cos of the angles between vectors u and v (N, 3); 0, 1 if either is 0."""
+    norm = np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1)
+    safe = np.where(norm > 0, norm, 1.0)
+    sin = np.where(norm > 0, np.linalg.norm(np.cross(u, v), axis=1) / safe, 0.0)
+    cos = np.where(norm > 0, np.einsum('ij,ij->i', u, v) / safe, 1.0)
+    return np.column_stack([sin, cos])
 
 
 _EDGES: 'weakref.WeakKeyDictionary[object, MeshEdges]' = weakref.WeakKeyDictionary()

@@ -179,8 +179,8 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
             beyond = np.zeros(len(rays), bool)
             ring_tilt, ring_share = footprint_rings(half_angle_rad, rings)
             _footprints_in_facets(hits, axis.range_m, axis.cos_incidence, axis.face,
-                                  axis.barycentric, edges.face_star, tilt, energy, ring_tilt,
-                                  ring_share, crease_tol_m, limit, beyond)
+                                  axis.barycentric, edges.face_star, edges.face_crease, tilt,
+                                  energy, ring_tilt, ring_share, crease_tol_m, limit, beyond)
             hits = hits[beyond[hits]]
         split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
             rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
@@ -322,8 +322,9 @@ def _blocks(origins_m: np.ndarray) -> list:
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_star, tilt,
-                          energy, ring_tilt, ring_share, crease_tol, limit, beyond):
+def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_star,
+                          face_crease, tilt, energy, ring_tilt, ring_share, crease_tol, limit,
+                          beyond):
     """The energy-weighted mean range of shots whose footprint lies on the axis facet's
     plane, or within ``crease_tol`` (m) of it, from the axis hit alone (range_m,
     cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_star``); others get
@@ -349,7 +350,11 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
     mean of the bounds over the rings (ring_tilt, ring_share: each ring's t_j and share
     of the energy) for their mean. This holds while the footprint stays in the star:
     |p - v| (from the barycentric coordinates and the edge lengths) plus its length over
-    the surface, spread / ((1 - lean) cos(tau)), within the star's reach.
+    the surface, spread / ((1 - lean) cos(tau)), within the star's reach. A footprint
+    that reaches a single edge of the facet is bounded the same way with tau the fold of
+    that edge (``MeshEdges.face_crease``) while it stays on the facet beyond: p's
+    distances to that facet's two other edges, unfolded across the crease, exceed its
+    length over the surface.
     """
     k = energy.shape[0]
     total, moment2 = 0.0, 0.0
@@ -373,7 +378,9 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
         star = face_star[face[i]]
         w1, w2 = np.float64(barycentric[i, 0]), np.float64(barycentric[i, 1])
         w0 = 1.0 - w1 - w2
-        margin = min(w0 * star[0], w1 * star[1], w2 * star[2])
+        # Distances to edges 1, 2, 0 (vertices k + 1, k + 2: facing vertex k).
+        m0, m1, m2 = w0 * star[0], w1 * star[1], w2 * star[2]
+        margin = min(m0, m1, m2)
         worst, mean_err = 0.0, 0.0
         if margin < spread:
             worst, mean_err = np.inf, np.inf
@@ -403,6 +410,32 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                     if d2 <= room * room:
                         mean_err = slope * mean_bound
                         worst = min(worst, slope * (grow - margin))
+                near = (m0 < spread) + (m1 < spread) + (m2 < spread)
+                if not mean_err <= crease_tol and near == 1:
+                    # One crease: across edge e only, into the facet beyond it.
+                    e = 0 if m2 < spread else (1 if m0 < spread else 2)
+                    crease = face_crease[face[i], e]
+                    tan_tau = np.float64(crease[0])
+                    lean = tan_tau * tan_far
+                    if lean < 0.5:
+                        grow = spread / (1.0 - lean)
+                        slope = tan_tau * sec_far
+                        mean_bound = 0.0
+                        for r in range(ring_tilt.shape[0]):
+                            mean_bound += ring_share[r] * max(grow * ring_tilt[r] / t_max - margin, 0.0)
+                        # Where p lies along the edge (from vertex e), from the Gram matrix.
+                        w_next, w_far = (w1, w2) if e == 0 else ((w2, w0) if e == 1 else (w0, w1))
+                        span2 = np.float64(star[3 + e])
+                        side_next = np.float64(star[3 + (e + 1) % 3])
+                        side_far = np.float64(star[3 + (e + 2) % 3])
+                        span = np.sqrt(span2)
+                        along = (w_next * span2 + 0.5 * w_far * (side_far + span2 - side_next)) / span
+                        # Distances of p to the facet's two other edges, unfolded.
+                        room = min(along * crease[2] + margin * crease[3],
+                                   (span - along) * crease[4] + margin * crease[5])
+                        if slope * mean_bound <= crease_tol and room >= grow * crease[1]:
+                            mean_err = slope * mean_bound
+                            worst = slope * (grow - margin)
             if not mean_err <= crease_tol:
                 beyond[i] = True
                 continue
