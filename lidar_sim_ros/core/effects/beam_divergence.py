@@ -88,12 +88,13 @@ def footprint_pattern(rings: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def footprint_rings(half_angle_rad: float, rings: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per ring of the pattern (axis excluded): tan of its angle off the axis, and its
-    share of the beam's energy."""
+    """Per ring of the pattern (axis excluded): how far its sub-rays land on a plane
+    relative to the outer ring's (tan of its angle off the axis over tan of the
+    half-angle), and its share of the beam's energy."""
     rho, _, energy = footprint_pattern(rings)
     radius = np.arange(1, rings + 1) / rings
     share = np.array([energy[rho == r].sum() for r in radius]) / energy.sum()
-    return np.tan(half_angle_rad * radius), share
+    return np.tan(half_angle_rad * radius) / np.tan(half_angle_rad), share
 
 
 def perpendicular_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -177,10 +178,10 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
         limit = np.full(len(rays), np.inf)
         if range_mode == 'mean':
             beyond = np.zeros(len(rays), bool)
-            ring_tilt, ring_share = footprint_rings(half_angle_rad, rings)
+            ring_reach, ring_share = footprint_rings(half_angle_rad, rings)
             _footprints_in_facets(hits, axis.range_m, axis.cos_incidence, axis.face,
                                   axis.barycentric, edges.face_star, edges.face_crease, tilt,
-                                  energy, ring_tilt, ring_share, crease_tol_m, limit, beyond)
+                                  energy, ring_reach, ring_share, crease_tol_m, limit, beyond)
             hits = hits[beyond[hits]]
         split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
             rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
@@ -323,7 +324,7 @@ def _blocks(origins_m: np.ndarray) -> list:
 
 @njit(cache=True, nogil=True, error_model='numpy')
 def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_star,
-                          face_crease, tilt, energy, ring_tilt, ring_share, crease_tol, limit,
+                          face_crease, tilt, energy, ring_reach, ring_share, crease_tol, limit,
                           beyond):
     """The energy-weighted mean range of shots whose footprint lies on the axis facet's
     plane, or within ``crease_tol`` (m) of it, from the axis hit alone (range_m,
@@ -347,8 +348,8 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
     |x_j - p| <= s_j / (1 - lean), lean = tan tau tan theta'. The star lies within
     tan tau (|x_j - p| - margin) of the plane there, which moves the range by at most
     that over cos theta': at most ``worst`` for any sub-ray, and the energy-weighted
-    mean of the bounds over the rings (ring_tilt, ring_share: each ring's t_j and share
-    of the energy) for their mean. This holds while the footprint stays in the star:
+    mean of the bounds over the rings (ring_reach, ring_share: each ring's t_j / t_max and
+    share of the energy) for their mean. This holds while the footprint stays in the star:
     |p - v| (from the barycentric coordinates and the edge lengths) plus its length over
     the surface, spread / ((1 - lean) cos(tau)), within the star's reach. A footprint
     that reaches a single edge of the facet is bounded the same way with tau the fold of
@@ -389,17 +390,17 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                 sec_far = lift * inv_far                            # 1 / cos(theta')
                 l01, l12, l20 = np.float64(star[3]), np.float64(star[4]), np.float64(star[5])
                 for c in range(3):
+                    # Only the star of a vertex on every edge the footprint crosses can hold
+                    # it: not if it reaches the edge facing vertex c.
+                    if (m0 if c == 0 else (m1 if c == 1 else m2)) < spread:
+                        continue
                     tan_tau = np.float64(star[9 + c])
                     lean = tan_tau * tan_far
                     if not lean < 0.5:                 # also inf: not one closed fan
                         continue
                     grow = spread / (1.0 - lean)
-                    slope = tan_tau * sec_far
-                    mean_bound = 0.0
-                    for r in range(ring_tilt.shape[0]):
-                        mean_bound += ring_share[r] * max(grow * ring_tilt[r] / t_max - margin, 0.0)
                     room = star[6 + c] - grow * star[12 + c]
-                    if slope * mean_bound > mean_err or room <= 0.0:
+                    if room <= 0.0:
                         continue
                     if c == 0:
                         d2 = w1 * w1 * l01 + w2 * w2 * l20 + w1 * w2 * (l01 + l20 - l12)
@@ -407,7 +408,13 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                         d2 = w0 * w0 * l01 + w2 * w2 * l12 + w0 * w2 * (l01 + l12 - l20)
                     else:
                         d2 = w0 * w0 * l20 + w1 * w1 * l12 + w0 * w1 * (l20 + l12 - l01)
-                    if d2 <= room * room:
+                    if d2 > room * room:
+                        continue
+                    slope = tan_tau * sec_far
+                    mean_bound = 0.0
+                    for r in range(ring_reach.shape[0]):
+                        mean_bound += ring_share[r] * max(grow * ring_reach[r] - margin, 0.0)
+                    if slope * mean_bound < mean_err:
                         mean_err = slope * mean_bound
                         worst = min(worst, slope * (grow - margin))
                 near = (m0 < spread) + (m1 < spread) + (m2 < spread)
@@ -421,8 +428,8 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                         grow = spread / (1.0 - lean)
                         slope = tan_tau * sec_far
                         mean_bound = 0.0
-                        for r in range(ring_tilt.shape[0]):
-                            mean_bound += ring_share[r] * max(grow * ring_tilt[r] / t_max - margin, 0.0)
+                        for r in range(ring_reach.shape[0]):
+                            mean_bound += ring_share[r] * max(grow * ring_reach[r] - margin, 0.0)
                         # Where p lies along the edge (from vertex e), from the Gram matrix.
                         w_next, w_far = (w1, w2) if e == 0 else ((w2, w0) if e == 1 else (w0, w1))
                         span2 = np.float64(star[3 + e])

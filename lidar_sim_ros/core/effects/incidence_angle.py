@@ -24,10 +24,11 @@ from lidar_sim_ros.core.effects.base import Effect, ReturnContext
 
 def footprint_depth_m(ctx: ReturnContext, max_incidence_deg: float = 85.0) -> np.ndarray:
     """L = r dtheta tan(theta) (m): range extent of the footprint; 0 on a miss."""
-    theta = np.clip(np.nan_to_num(np.asarray(ctx.incidence_rad, float), nan=0.0),
-                    0.0, np.radians(max_incidence_deg))
-    r = np.nan_to_num(np.asarray(ctx.range_m, float), nan=0.0, posinf=0.0)
-    return np.where(ctx.hit, r * ctx.divergence_rad * np.tan(theta), 0.0)
+    # fmax / fmin take the number over NaN: a NaN incidence counts as 0 (a miss).
+    theta = np.fmin(np.fmax(np.asarray(ctx.incidence_rad, float), 0.0), np.radians(max_incidence_deg))
+    r = np.asarray(ctx.range_m, float)
+    with np.errstate(invalid='ignore'):
+        return np.where(ctx.hit & np.isfinite(r), r * ctx.divergence_rad * np.tan(theta), 0.0)
 
 
 class _LastDepth:
