@@ -87,6 +87,7 @@ def footprint_pattern(rings: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return out
 
 
+@lru_cache(maxsize=64)
 def footprint_rings(half_angle_rad: float, rings: int) -> tuple[np.ndarray, np.ndarray]:
     """Per ring of the pattern (axis excluded): how far its sub-rays land on a plane
     relative to the outer ring's (tan of its angle off the axis over tan of the
@@ -94,7 +95,10 @@ def footprint_rings(half_angle_rad: float, rings: int) -> tuple[np.ndarray, np.n
     rho, _, energy = footprint_pattern(rings)
     radius = np.arange(1, rings + 1) / rings
     share = np.array([energy[rho == r].sum() for r in radius]) / energy.sum()
-    return np.tan(half_angle_rad * radius) / np.tan(half_angle_rad), share
+    out = np.tan(half_angle_rad * radius) / np.tan(half_angle_rad), share
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
 def perpendicular_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -139,10 +143,10 @@ def footprint_cast(target: Target, directions_lidar: np.ndarray, poses, half_ang
 def _wider_than_facets(target: Target, axis: Hits, half_angle_rad: float) -> bool:
     """Footprints wider than WIDE_FOOTPRINT x the mesh's median edge (at the median range):
     nearly every shot would be walked far or cast anyway, so cast them all."""
-    ranges = axis.range_m[::64][axis.hit[::64]]  # a sample is enough for a median
+    ranges = np.sort(axis.range_m[::64][axis.hit[::64]])  # a sample is enough for a median
     if len(ranges) == 0:
         return False
-    radius = float(np.median(ranges)) * np.tan(half_angle_rad)
+    radius = float(ranges[len(ranges) // 2]) * np.tan(half_angle_rad)
     return radius > WIDE_FOOTPRINT * mesh_edges(target).median_edge_m
 
 
