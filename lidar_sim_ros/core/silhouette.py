@@ -97,10 +97,18 @@ class MeshEdges:
 
     def candidate_segments(self, candidate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """End points (M, 3), (M, 3) of the edges in the mask ``candidate`` followed by the
-        self-intersection segments: everything a footprint cannot be followed across."""
-        index = np.flatnonzero(candidate)
-        return (np.concatenate([self.a_m[index], self.crossing_a_m]),
-                np.concatenate([self.b_m[index], self.crossing_b_m]))
+        self-intersection segments: everything a footprint cannot be followed across (views
+        of one (M, 6) array: each segment's end points gathered together)."""
+        ends = np.concatenate([self._ends[np.flatnonzero(candidate)], self._crossing_ends])
+        return ends[:, :3], ends[:, 3:]
+
+    @cached_property
+    def _ends(self) -> np.ndarray:
+        return np.ascontiguousarray(np.hstack([self.a_m, self.b_m]))
+
+    @cached_property
+    def _crossing_ends(self) -> np.ndarray:
+        return np.ascontiguousarray(np.hstack([self.crossing_a_m, self.crossing_b_m]))
 
     def candidate_mask(self, origin_lo_m: np.ndarray, origin_hi_m: np.ndarray) -> np.ndarray:
         """``candidates`` as a mask over the edges."""
@@ -499,11 +507,16 @@ def cones_touching_edges(origins_m: np.ndarray, directions: np.ndarray, tan_half
         depth_limit_m = np.full(n, np.inf)
     if n == 0 or len(a_m) == 0:
         return np.zeros(n, bool)
+    # End points may be row views of one (M, 6) array (``MeshEdges.candidate_segments``).
     return _cones_touching_edges(np.ascontiguousarray(origins_m), np.ascontiguousarray(directions),
-                                 float(tan_half_angle),
-                                 np.ascontiguousarray(a_m, dtype=np.float64),
-                                 np.ascontiguousarray(b_m, dtype=np.float64),
+                                 float(tan_half_angle), _float64_rows(a_m), _float64_rows(b_m),
                                  np.ascontiguousarray(depth_limit_m, dtype=np.float64))
+
+
+def _float64_rows(points: np.ndarray) -> np.ndarray:
+    """(M, 3) float64 points, as given when their rows are already contiguous."""
+    points = np.asarray(points, dtype=np.float64)
+    return points if points.strides[1] == 8 else np.ascontiguousarray(points)
 
 
 _Z_MIN_M = 1e-3     # segment parts closer than this in front of the viewpoint are ignored
@@ -606,6 +619,7 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
     brute = z_limit >= 0.0               # tested against every segment (unless binned)
     widest = 0.0                         # max over binned rays of stretch (1 + 1/zd) / zd
     if z_hi >= z_lo:
+        inv_lo = 1.0 / z_lo
         for i in range(n):
             if z_limit[i] < 0.0:
                 continue
@@ -622,15 +636,15 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
             if z_end < z_lo:
                 continue                      # stops in front of every binned segment
             inv_zd = 1.0 / zd
-            # The ray's points at depths z_lo and z_end along f, seen from c.
-            t = max((z_lo - zo) * inv_zd, 0.0)
-            px, py, pz = rx + t * dx, ry + t * dy, rz + t * dz
-            inv = 1.0 / max(px * fx + py * fy + pz * fz, 1e-9)
-            u0, v0 = (px * e1x + py * e1y + pz * e1z) * inv, (px * e2x + py * e2y + pz * e2z) * inv
-            t = max((z_end - zo) * inv_zd, 0.0)
-            px, py, pz = rx + t * dx, ry + t * dy, rz + t * dz
-            inv = 1.0 / max(px * fx + py * fy + pz * fz, 1e-9)
-            u1, v1 = (px * e1x + py * e1y + pz * e1z) * inv, (px * e2x + py * e2y + pz * e2z) * inv
+            # Seen from c, the ray's point at depth z along f is u + w / z: u the direction's
+            # point, w = (o - c)_perp - zo u (z_lo >= z_floor lies past the origin's zo).
+            ux = (dx * e1x + dy * e1y + dz * e1z) * inv_zd
+            uy = (dx * e2x + dy * e2y + dz * e2z) * inv_zd
+            wx = rx * e1x + ry * e1y + rz * e1z - zo * ux
+            wy = rx * e2x + ry * e2y + rz * e2z - zo * uy
+            u0, v0 = ux + wx * inv_lo, uy + wy * inv_lo
+            inv_end = 1.0 / z_end
+            u1, v1 = ux + wx * inv_end, uy + wy * inv_end
             x0, x1 = min(u0, u1), max(u0, u1)
             y0, y1 = min(v0, v1), max(v0, v1)
             track[i, 0], track[i, 1], track[i, 2], track[i, 3] = x0, y0, x1, y1

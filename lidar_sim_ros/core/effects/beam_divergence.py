@@ -378,7 +378,9 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
             continue
         inv_cos = 1.0 / cos_i
         a_max = sin_i * t_max * inv_cos
-        inv_far = 1.0 / (cos_i - sin_i * t_max)
+        # 1 / (1 - a) <= 1 + a + 2 a^2 for a <= 0.5: bounds from above, one division less.
+        above = 1.0 + a_max + 2.0 * a_max * a_max
+        inv_far = inv_cos * above                 # >= 1 / (cos_i - sin_i t_max)
         spread = 1.01 * r0 * t_max * inv_far + 1e-6
         star = face_star[face[i]]
         w1, w2 = np.float64(barycentric[i, 0]), np.float64(barycentric[i, 1])
@@ -452,7 +454,7 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                 continue
         tan2 = sin_i * sin_i * inv_cos * inv_cos
         range_m[i] = r0 * (1.0 + 0.5 * moment2 * (1.0 + tan2) / total)
-        limit[i] = _occluder_limit(r0 * lift / (1.0 - a_max) + worst, r0)
+        limit[i] = _occluder_limit(r0 * lift * above + worst, r0)
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
