@@ -141,8 +141,8 @@ class MeshEdges:
     @cached_property
     def face_crease(self) -> np.ndarray:
         """(F, 3, 8) float32 per face and edge k (vertices k, k + 1): tan and 1 / cos of the
-        fold to the face beyond (inf: none, or a right angle or more), then sin and cos of
-        that face's angles at vertex k and at vertex k + 1 (the rest zeros)."""
+        fold to the face beyond (inf: none, or a right angle or more), sin and cos of that
+        face's angles at vertex k and at vertex k + 1, and the edge's length (m)."""
         corners = self.face_vertices
         n_faces = len(corners)
         out = np.zeros((n_faces, 3, 8), np.float32)
@@ -166,6 +166,7 @@ class MeshEdges:
             row[:, 1] = 1.0 / cos_fold[ok]
             row[:, 2:4] = _sin_cos_between(b - a, w - a)[ok]
             row[:, 4:6] = _sin_cos_between(a - b, w - b)[ok]
+            row[:, 6] = np.linalg.norm(b - a, axis=1)[ok]
             out[face[ok], k] = row
         return out
 

@@ -404,7 +404,7 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                     lean = tan_tau * tan_far
                     if not lean < 0.5:                 # also inf: not one closed fan
                         continue
-                    grow = spread / (1.0 - lean)
+                    grow = spread * (1.0 + lean + 2.0 * lean * lean)   # >= spread / (1 - lean)
                     room = star[6 + c] - grow * star[12 + c]
                     if room <= 0.0:
                         continue
@@ -431,7 +431,7 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                     tan_tau = np.float64(crease[0])
                     lean = tan_tau * tan_far
                     if lean < 0.5:
-                        grow = spread / (1.0 - lean)
+                        grow = spread * (1.0 + lean + 2.0 * lean * lean)
                         slope = tan_tau * sec_far
                         mean_bound = 0.0
                         for r in range(ring_reach.shape[0]):
@@ -441,7 +441,7 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                         span2 = np.float64(star[3 + e])
                         side_next = np.float64(star[3 + (e + 1) % 3])
                         side_far = np.float64(star[3 + (e + 2) % 3])
-                        span = np.sqrt(span2)
+                        span = np.float64(crease[6])
                         along = (w_next * span2 + 0.5 * w_far * (side_far + span2 - side_next)) / span
                         # Distances of p to the facet's two other edges, unfolded.
                         room = min(along * crease[2] + margin * crease[3],
