@@ -484,13 +484,13 @@ def origin_box(origins_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @njit(cache=True, nogil=True, error_model='numpy')
 def _box(p):
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
+    x0, y0, z0 = np.inf, np.inf, np.inf
+    x1, y1, z1 = -np.inf, -np.inf, -np.inf
     for i in range(p.shape[0]):
-        for k in range(3):
-            lo[k] = min(lo[k], p[i, k])
-            hi[k] = max(hi[k], p[i, k])
-    return lo, hi
+        x, y, z = np.float64(p[i, 0]), np.float64(p[i, 1]), np.float64(p[i, 2])
+        x0, y0, z0 = min(x0, x), min(y0, y), min(z0, z)
+        x1, y1, z1 = max(x1, x), max(y1, y), max(z1, z)
+    return np.array([x0, y0, z0]), np.array([x1, y1, z1])
 
 
 def cones_touching_edges(origins_m: np.ndarray, directions: np.ndarray, tan_half_angle: float,
