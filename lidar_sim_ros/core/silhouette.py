@@ -565,20 +565,21 @@ def _segment_in_cone(ox, oy, oz, dx, dy, dz, ax, ay, az, bx, by, bz, z_hi, tan_a
 
 @njit(cache=True, nogil=True, error_model='numpy')
 def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
-    """Rays binned on a gnomonic grid seen from their mean origin c (each ray over the
-    depth range of the segments, as it moves across the grid with its offset from c);
-    each segment then tests the rays in the cells its dilated projection covers."""
+    """Rays binned on a gnomonic grid seen from the centre c of their origins' box, about
+    their mean direction f (each ray over the depth range of the segments, as it moves
+    across the grid with its offset from c); each segment then tests the rays in the
+    cells its dilated projection covers."""
     n, m = o.shape[0], a.shape[0]
     out = np.zeros(n, np.bool_)
-    cx, cy, cz, fx, fy, fz = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    for i in range(n):
-        cx += o[i, 0]
-        cy += o[i, 1]
-        cz += o[i, 2]
+    lo, hi = _box(o)
+    cx, cy, cz = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])
+    # Every origin lies within the box's half-diagonal of c.
+    spread = 0.5 * np.sqrt((hi[0] - lo[0]) ** 2 + (hi[1] - lo[1]) ** 2 + (hi[2] - lo[2]) ** 2)
+    fx, fy, fz = 0.0, 0.0, 0.0
+    for i in range(0, n, 8):                  # a sample is enough for a central direction
         fx += d[i, 0]
         fy += d[i, 1]
         fz += d[i, 2]
-    cx, cy, cz = cx / n, cy / n, cz / n
     norm = np.sqrt(fx * fx + fy * fy + fz * fz)
     if norm == 0.0:
         fx, fy, fz = 1.0, 0.0, 0.0
@@ -589,10 +590,6 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
     norm = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
     e1x, e1y, e1z = e1x / norm, e1y / norm, e1z / norm
     e2x, e2y, e2z = fy * e1z - fz * e1y, fz * e1x - fx * e1z, fx * e1y - fy * e1x
-    spread = 0.0
-    for i in range(n):
-        ddx, ddy, ddz = o[i, 0] - cx, o[i, 1] - cy, o[i, 2] - cz
-        spread = max(spread, np.sqrt(ddx * ddx + ddy * ddy + ddz * ddz))
     # Segments closer to c than z_floor are tested against every ray (never, in practice).
     z_floor = max(10.0 * spread, 1e-2)
     seg = np.empty((m, 4))
