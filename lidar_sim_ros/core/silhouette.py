@@ -613,9 +613,12 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
     # Rays: their projected track over [z_lo, min(z_hi, limit)], undilated.
     track = np.empty((n, 4))
     ray_z = np.empty(n)                  # farthest depth along f the cone counts to
-    active = np.zeros(n, np.bool_)       # binned
     brute = z_limit >= 0.0               # tested against every segment (unless binned)
     widest = 0.0                         # max over binned rays of stretch (1 + 1/zd) / zd
+    binned_rays = np.empty(n, np.int64)  # the rays binned, in order
+    # The grid over the binned rays' tracks (their box and mean size, gathered on the way).
+    gx0, gy0, gx1, gy1 = np.inf, np.inf, -np.inf, -np.inf
+    size, count = 0.0, 0
     if z_hi >= z_lo:
         inv_lo = 1.0 / z_lo
         for i in range(n):
@@ -646,7 +649,10 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
             x0, x1 = min(u0, u1), max(u0, u1)
             y0, y1 = min(v0, v1), max(v0, v1)
             track[i, 0], track[i, 1], track[i, 2], track[i, 3] = x0, y0, x1, y1
-            active[i] = True
+            binned_rays[count] = i
+            count += 1
+            gx0, gy0, gx1, gy1 = min(gx0, x0), min(gy0, y0), max(gx1, x1), max(gy1, y1)
+            size += max(x1 - x0, y1 - y0)
             stretch = 1.0 + max(x0 * x0, x1 * x1) + max(y0 * y0, y1 * y1)
             widest = max(widest, stretch * (1.0 + inv_zd) * inv_zd)
     # A point of the cone lies within t tan_a of the axis point at its own distance t, and
@@ -656,28 +662,23 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
     if widest > 0.0:
         pad = 1.25 * tan_a * widest * (1.0 + 2.0 * spread / z_lo)
     pad += 1e-9
-    # The grid over the active rays' tracks; cells a few times a track plus the pad (the
-    # 2-D pre-check makes rays cheap; cell visits are what costs).
-    gx0, gy0, gx1, gy1 = np.inf, np.inf, -np.inf, -np.inf
-    size, count = 0.0, 0
-    for i in range(n):
-        if active[i]:
-            gx0, gy0 = min(gx0, track[i, 0]), min(gy0, track[i, 1])
-            gx1, gy1 = max(gx1, track[i, 2]), max(gy1, track[i, 3])
-            size += max(track[i, 2] - track[i, 0], track[i, 3] - track[i, 1])
-            count += 1
+    # Cells a few times a track plus the pad (the 2-D pre-check makes rays cheap; cell
+    # visits are what costs).
     if count > 0:
         size = 2.5 * max(size / count, pad, (gx1 - gx0) / 2048.0, (gy1 - gy0) / 2048.0, 1e-9)
-        nx = int((gx1 - gx0) / size) + 1
-        ny = int((gy1 - gy0) / size) + 1
+        inv_size = 1.0 / size
+        nx = int((gx1 - gx0) * inv_size) + 1
+        ny = int((gy1 - gy0) * inv_size) + 1
         start = np.zeros(nx * ny + 1, np.int64)
-        for i in range(n):
-            if active[i]:
-                i0, i1 = int((track[i, 0] - gx0) / size), int((track[i, 2] - gx0) / size)
-                j0, j1 = int((track[i, 1] - gy0) / size), int((track[i, 3] - gy0) / size)
-                for ci in range(i0, i1 + 1):
-                    for cj in range(j0, j1 + 1):
-                        start[ci * ny + cj + 1] += 1
+        cells = np.empty((count, 4), np.int64)     # each binned ray's cell ranges
+        for q in range(count):
+            i = binned_rays[q]
+            i0, i1 = int((track[i, 0] - gx0) * inv_size), int((track[i, 2] - gx0) * inv_size)
+            j0, j1 = int((track[i, 1] - gy0) * inv_size), int((track[i, 3] - gy0) * inv_size)
+            cells[q, 0], cells[q, 1], cells[q, 2], cells[q, 3] = i0, i1, j0, j1
+            for ci in range(i0, i1 + 1):
+                for cj in range(j0, j1 + 1):
+                    start[ci * ny + cj + 1] += 1
         for cell in range(nx * ny):
             start[cell + 1] += start[cell]
         fill = start[:-1].copy()
@@ -685,20 +686,18 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
         # Per entry, the ray's track centre, half-diagonal and depth reach: read in order.
         cell_track = np.empty((start[-1], 4))
         cell_z = np.full(nx * ny, -np.inf)   # farthest depth any ray of the cell counts to
-        for i in range(n):
-            if active[i]:
-                i0, i1 = int((track[i, 0] - gx0) / size), int((track[i, 2] - gx0) / size)
-                j0, j1 = int((track[i, 1] - gy0) / size), int((track[i, 3] - gy0) / size)
-                mid_x, mid_y = 0.5 * (track[i, 0] + track[i, 2]), 0.5 * (track[i, 1] + track[i, 3])
-                half_diagonal = 0.5 * (track[i, 2] - track[i, 0] + track[i, 3] - track[i, 1])
-                for ci in range(i0, i1 + 1):
-                    for cj in range(j0, j1 + 1):
-                        entry = fill[ci * ny + cj]
-                        cell_ray[entry] = i
-                        cell_track[entry, 0], cell_track[entry, 1] = mid_x, mid_y
-                        cell_track[entry, 2], cell_track[entry, 3] = half_diagonal, ray_z[i]
-                        fill[ci * ny + cj] += 1
-                        cell_z[ci * ny + cj] = max(cell_z[ci * ny + cj], ray_z[i])
+        for q in range(count):
+            i = binned_rays[q]
+            mid_x, mid_y = 0.5 * (track[i, 0] + track[i, 2]), 0.5 * (track[i, 1] + track[i, 3])
+            half_diagonal = 0.5 * (track[i, 2] - track[i, 0] + track[i, 3] - track[i, 1])
+            for ci in range(cells[q, 0], cells[q, 1] + 1):
+                for cj in range(cells[q, 2], cells[q, 3] + 1):
+                    entry = fill[ci * ny + cj]
+                    cell_ray[entry] = i
+                    cell_track[entry, 0], cell_track[entry, 1] = mid_x, mid_y
+                    cell_track[entry, 2], cell_track[entry, 3] = half_diagonal, ray_z[i]
+                    fill[ci * ny + cj] += 1
+                    cell_z[ci * ny + cj] = max(cell_z[ci * ny + cj], ray_z[i])
         # Each segment visits the cells within pad of its projection, each cell once: the
         # cells of its grown box when that is small, else those near points sampled every
         # half cell (each point grown by pad + half a cell).
