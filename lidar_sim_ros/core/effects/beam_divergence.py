@@ -372,6 +372,7 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
         moment2 += energy[j] * tilt[j] * tilt[j]
     t_max = tilt[k - 1]
     lift = np.sqrt(1.0 + t_max * t_max)
+    half_moment = 0.5 * moment2 / total
     for q in range(index.shape[0]):
         i = index[q]
         r0 = range_m[i]
@@ -386,11 +387,12 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
         above = 1.0 + a_max + 2.0 * a_max * a_max
         inv_far = inv_cos * above                 # >= 1 / (cos_i - sin_i t_max)
         spread = 1.01 * r0 * t_max * inv_far + 1e-6
-        star = face_star[face[i]]
+        f = face[i]
         w1, w2 = np.float64(barycentric[i, 0]), np.float64(barycentric[i, 1])
         w0 = 1.0 - w1 - w2
-        # Distances to edges 1, 2, 0 (vertices k + 1, k + 2: facing vertex k).
-        m0, m1, m2 = w0 * star[0], w1 * star[1], w2 * star[2]
+        # Distances to edges 1, 2, 0 (vertices k + 1, k + 2: facing vertex k). Rows are
+        # indexed in place: a view per shot costs reference counting.
+        m0, m1, m2 = w0 * face_star[f, 0], w1 * face_star[f, 1], w2 * face_star[f, 2]
         margin = min(m0, m1, m2)
         worst, mean_err = 0.0, 0.0
         if margin < spread:
@@ -398,18 +400,19 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
             if crease_tol > 0.0:
                 tan_far = (sin_i + cos_i * t_max) * inv_far         # tan(theta')
                 sec_far = lift * inv_far                            # 1 / cos(theta')
-                l01, l12, l20 = np.float64(star[3]), np.float64(star[4]), np.float64(star[5])
+                l01 = np.float64(face_star[f, 3])
+                l12, l20 = np.float64(face_star[f, 4]), np.float64(face_star[f, 5])
                 for c in range(3):
                     # Only the star of a vertex on every edge the footprint crosses can hold
                     # it: not if it reaches the edge facing vertex c.
                     if (m0 if c == 0 else (m1 if c == 1 else m2)) < spread:
                         continue
-                    tan_tau = np.float64(star[9 + c])
+                    tan_tau = np.float64(face_star[f, 9 + c])
                     lean = tan_tau * tan_far
                     if not lean < 0.5:                 # also inf: not one closed fan
                         continue
                     grow = spread * (1.0 + lean + 2.0 * lean * lean)   # >= spread / (1 - lean)
-                    room = star[6 + c] - grow * star[12 + c]
+                    room = face_star[f, 6 + c] - grow * face_star[f, 12 + c]
                     if room <= 0.0:
                         continue
                     if c == 0:
@@ -431,8 +434,7 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                 if not mean_err <= crease_tol and near == 1:
                     # One crease: across edge e only, into the facet beyond it.
                     e = 0 if m2 < spread else (1 if m0 < spread else 2)
-                    crease = face_crease[face[i], e]
-                    tan_tau = np.float64(crease[0])
+                    tan_tau = np.float64(face_crease[f, e, 0])
                     lean = tan_tau * tan_far
                     if lean < 0.5:
                         grow = spread * (1.0 + lean + 2.0 * lean * lean)
@@ -442,22 +444,24 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                             mean_bound += ring_share[r] * max(grow * ring_reach[r] - margin, 0.0)
                         # Where p lies along the edge (from vertex e), from the Gram matrix.
                         w_next, w_far = (w1, w2) if e == 0 else ((w2, w0) if e == 1 else (w0, w1))
-                        span2 = np.float64(star[3 + e])
-                        side_next = np.float64(star[3 + (e + 1) % 3])
-                        side_far = np.float64(star[3 + (e + 2) % 3])
-                        span = np.float64(crease[6])
-                        along = (w_next * span2 + 0.5 * w_far * (side_far + span2 - side_next)) / span
+                        span2 = np.float64(face_star[f, 3 + e])
+                        side_next = np.float64(face_star[f, 3 + (e + 1) % 3])
+                        side_far = np.float64(face_star[f, 3 + (e + 2) % 3])
+                        span = np.float64(face_crease[f, e, 6])
+                        along = (w_next * span2
+                                 + 0.5 * w_far * (side_far + span2 - side_next)) / span
                         # Distances of p to the facet's two other edges, unfolded.
-                        room = min(along * crease[2] + margin * crease[3],
-                                   (span - along) * crease[4] + margin * crease[5])
-                        if slope * mean_bound <= crease_tol and room >= grow * crease[1]:
+                        room = min(along * face_crease[f, e, 2] + margin * face_crease[f, e, 3],
+                                   (span - along) * face_crease[f, e, 4]
+                                   + margin * face_crease[f, e, 5])
+                        if slope * mean_bound <= crease_tol and room >= grow * face_crease[f, e, 1]:
                             mean_err = slope * mean_bound
                             worst = slope * (grow - margin)
             if not mean_err <= crease_tol:
                 beyond[i] = True
                 continue
         tan2 = sin_i * sin_i * inv_cos * inv_cos
-        range_m[i] = r0 * (1.0 + 0.5 * moment2 * (1.0 + tan2) / total)
+        range_m[i] = r0 * (1.0 + half_moment * (1.0 + tan2))
         limit[i] = _occluder_limit(r0 * lift * above + worst, r0)
 
 
@@ -532,11 +536,11 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
         near2 = _margin(planes, f0, 3, px, py, pz) < spread
         if near0 or near1 or near2:
             # Still inside the flat region of the facet (a cylinder's column of quads)?
-            lines = region_lines[region[f0]]
+            g = region[f0]
             inside_region = True
-            for row in range(lines.shape[0]):
-                if (lines[row, 0] * px + lines[row, 1] * py + lines[row, 2] * pz
-                        - lines[row, 3]) < spread:
+            for row in range(region_lines.shape[1]):
+                if (region_lines[g, row, 0] * px + region_lines[g, row, 1] * py
+                        + region_lines[g, row, 2] * pz - region_lines[g, row, 3]) < spread:
                     inside_region = False
                     break
             if inside_region:
