@@ -99,12 +99,15 @@ class MeshEdges:
         """End points (M, 3), (M, 3) of the edges in the mask ``candidate`` followed by the
         self-intersection segments: everything a footprint cannot be followed across (views
         of one (M, 6) array: each segment's end points gathered together)."""
-        ends = np.concatenate([self._ends[np.flatnonzero(candidate)], self._crossing_ends])
+        # Only non-coplanar edges can be candidates: their end points, packed once.
+        rows = np.flatnonzero(candidate[self._sign_edge])
+        ends = np.concatenate([self._sign_ends[rows], self._crossing_ends])
         return ends[:, :3], ends[:, 3:]
 
     @cached_property
-    def _ends(self) -> np.ndarray:
-        return np.ascontiguousarray(np.hstack([self.a_m, self.b_m]))
+    def _sign_ends(self) -> np.ndarray:
+        keep = self._sign_edge
+        return np.ascontiguousarray(np.hstack([self.a_m[keep], self.b_m[keep]]))
 
     @cached_property
     def _crossing_ends(self) -> np.ndarray:
