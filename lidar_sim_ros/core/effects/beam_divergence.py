@@ -187,9 +187,10 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
         if range_mode == 'mean':
             beyond = np.zeros(len(rays), bool)
             ring_reach, ring_share = footprint_rings(half_angle_rad, rings)
-            _footprints_in_facets(hits, axis.range_m, axis.cos_incidence, axis.face,
-                                  axis.barycentric, edges.face_star, edges.face_crease, tilt,
-                                  energy, ring_reach, ring_share, crease_tol_m, limit, beyond)
+            split_over_threads(len(hits), target.threads, lambda part: _footprints_in_facets(
+                hits[part], axis.range_m, axis.cos_incidence, axis.face, axis.barycentric,
+                edges.face_star, edges.face_crease, tilt, energy, ring_reach, ring_share,
+                crease_tol_m, limit, beyond))
             hits = hits[beyond[hits]]
         split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
             rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
