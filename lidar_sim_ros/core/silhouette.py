@@ -673,7 +673,7 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
         nx = int((gx1 - gx0) * inv_size) + 1
         ny = int((gy1 - gy0) * inv_size) + 1
         start = np.zeros(nx * ny + 1, np.int64)
-        cells = np.empty((count, 4), np.int64)     # each binned ray's cell ranges
+        cells = np.empty((count, 4), np.int32)     # each binned ray's cell ranges
         for q in range(count):
             i = binned_rays[q]
             i0, i1 = int((track[i, 0] - gx0) * inv_size), int((track[i, 2] - gx0) * inv_size)
@@ -685,20 +685,23 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
         for cell in range(nx * ny):
             start[cell + 1] += start[cell]
         fill = start[:-1].copy()
-        cell_ray = np.empty(start[-1], np.int64)
-        # Per entry, the ray's track centre, half-diagonal and depth reach: read in order.
-        cell_track = np.empty((start[-1], 4))
+        cell_ray = np.empty(start[-1], np.int32)
+        # Per entry, the ray's track centre, half-diagonal (+ float32 rounding) and depth
+        # reach (rounded up): read in order, half the bytes of float64.
+        cell_track = np.empty((start[-1], 4), np.float32)
         cell_z = np.full(nx * ny, -np.inf)   # farthest depth any ray of the cell counts to
         for q in range(count):
             i = binned_rays[q]
             mid_x, mid_y = 0.5 * (track[i, 0] + track[i, 2]), 0.5 * (track[i, 1] + track[i, 3])
-            half_diagonal = 0.5 * (track[i, 2] - track[i, 0] + track[i, 3] - track[i, 1])
+            half_diagonal = (0.5 * (track[i, 2] - track[i, 0] + track[i, 3] - track[i, 1])
+                             + 1e-6 * (1.0 + abs(mid_x) + abs(mid_y)))
+            reach_z = ray_z[i] * (1.0 + 1e-6) + 1e-6
             for ci in range(cells[q, 0], cells[q, 1] + 1):
                 for cj in range(cells[q, 2], cells[q, 3] + 1):
                     entry = fill[ci * ny + cj]
                     cell_ray[entry] = i
                     cell_track[entry, 0], cell_track[entry, 1] = mid_x, mid_y
-                    cell_track[entry, 2], cell_track[entry, 3] = half_diagonal, ray_z[i]
+                    cell_track[entry, 2], cell_track[entry, 3] = half_diagonal, reach_z
                     fill[ci * ny + cj] += 1
                     cell_z[ci * ny + cj] = max(cell_z[ci * ny + cj], ray_z[i])
         # Each segment visits the cells within pad of its projection, each cell once: the
