@@ -117,9 +117,13 @@ class MeshEdges:
         """``candidates`` as a mask over the edges."""
         lo = np.asarray(origin_lo_m, float)
         hi = np.asarray(origin_hi_m, float)
-        # The float32 planes are exact to ~1e-6 m at 10 m: widen the box by 1e-5 m.
+        # The planes and the sums are float32 (the loop runs twice as wide): s_k is exact to
+        # ~3e-7 |n_k| |o| (~3e-6 |n_k| at 10 m); widen the box by more than that.
+        centre = 0.5 * (lo + hi)
+        widen = 1e-5 + 1e-6 * float(np.abs(centre).max() + np.abs(hi - lo).max())
         return _maybe_silhouette(self._sign_planes, self._sign_always, self._sign_edge,
-                                 len(self.a_m), 0.5 * (lo + hi), 0.5 * (hi - lo) + 1e-5)
+                                 len(self.a_m), centre.astype(np.float32),
+                                 (0.5 * (hi - lo) + widen).astype(np.float32))
 
     @cached_property
     def face_star(self) -> np.ndarray:
