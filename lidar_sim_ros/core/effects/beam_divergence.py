@@ -64,7 +64,8 @@ from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect
 from lidar_sim_ros.core.geometry import BodyRays, Hits, Target, body_rays, split_over_threads
 from lidar_sim_ros.core.geometry_kernels import _rotate
-from lidar_sim_ros.core.silhouette import cones_touching_edges, mesh_edges, origin_box
+from lidar_sim_ros.core.silhouette import (FAST_ALGEBRA, cones_touching_edges, mesh_edges,
+                                          origin_box)
 
 WALK_STEPS = 8          # facets a sub-ray is followed across before the shot is cast instead
 BLOCK_SPREAD_M = 0.25   # sensor positions (body frame) per silhouette set, at most this apart
@@ -331,7 +332,8 @@ def _blocks(origins_m: np.ndarray) -> list:
     return out
 
 
-@njit(cache=True, nogil=True, error_model='numpy')
+# Reassociation and FMA only (no finite-math flags: inf marks a missing star or crease).
+@njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
 def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_star,
                           face_crease, tilt, energy, ring_reach, ring_share, crease_tol, limit,
                           beyond):
