@@ -24,11 +24,16 @@ from lidar_sim_ros.core.effects.base import Effect, ReturnContext
 
 def footprint_depth_m(ctx: ReturnContext, max_incidence_deg: float = 85.0) -> np.ndarray:
     """L = r dtheta tan(theta) (m): range extent of the footprint; 0 on a miss."""
-    # fmax / fmin take the number over NaN: a NaN incidence counts as 0 (a miss).
-    theta = np.fmin(np.fmax(np.asarray(ctx.incidence_rad, float), 0.0), np.radians(max_incidence_deg))
+    # fmax takes the number over NaN: a NaN incidence counts as 0 (a miss). In place: one
+    # array through tan and the products.
+    depth = np.fmax(np.asarray(ctx.incidence_rad, float), 0.0)
+    np.minimum(depth, np.radians(max_incidence_deg), out=depth)
+    np.tan(depth, out=depth)
     r = np.asarray(ctx.range_m, float)
     with np.errstate(invalid='ignore'):
-        return np.where(ctx.hit & np.isfinite(r), r * ctx.divergence_rad * np.tan(theta), 0.0)
+        np.multiply(depth, r * ctx.divergence_rad, out=depth)
+    np.copyto(depth, 0.0, where=~(ctx.hit & np.isfinite(r)))
+    return depth
 
 
 class _LastDepth:
