@@ -468,7 +468,7 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
         limit[i] = _occluder_limit(r0 * lift * above + worst, r0)
 
 
-@njit(cache=True, nogil=True, error_model='numpy')
+@njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
 def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin_phi, energy,
                             rings, first_mode, planes, region, region_lines, neighbour,
                             face_edge, silhouette, max_steps, range_m, limit, sample):
@@ -722,7 +722,7 @@ def _facet_coefficients(planes, f, ox, oy, oz, dx, dy, dz, ux, uy, uz, vx, vy, v
         coef[slot, row, 3] = ax * vx + ay * vy + az * vz
 
 
-@njit(cache=True, nogil=True, error_model='numpy')
+@njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
 def _walk(ox, oy, oz, sx, sy, sz, f, leave, planes, neighbour, face_edge, silhouette, max_steps):
     """Range (m) at which the ray o + r s meets the sheet, starting from facet f which it
     leaves by edge ``leave``; -1 if the walk meets a silhouette, a boundary or runs out."""
