@@ -186,13 +186,12 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
         # inside the axis facet: that takes the hit's barycentric coordinates only.
         limit = np.full(len(rays), np.inf)
         if range_mode == 'mean':
-            beyond = np.zeros(len(rays), bool)
             ring_reach, ring_share = footprint_rings(half_angle_rad, rings)
-            split_over_threads(len(hits), target.threads, lambda part: _footprints_in_facets(
-                hits[part], axis.range_m, axis.cos_incidence, axis.face, axis.barycentric,
-                edges.face_star, edges.face_crease, tilt, energy, ring_reach, ring_share,
-                crease_tol_m, limit, beyond))
-            hits = hits[beyond[hits]]
+            hits = np.concatenate(split_over_threads(
+                len(hits), target.threads, lambda part: _footprints_in_facets(
+                    hits[part], axis.range_m, axis.cos_incidence, axis.face, axis.barycentric,
+                    edges.face_star, edges.face_crease, tilt, energy, ring_reach, ring_share,
+                    crease_tol_m, limit)))
         split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
             rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
             energy, rings, range_mode == 'first', edges.face_planes, edges.face_region,
@@ -335,12 +334,11 @@ def _blocks(origins_m: np.ndarray) -> list:
 # Reassociation and FMA only (no finite-math flags: inf marks a missing star or crease).
 @njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
 def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_star,
-                          face_crease, tilt, energy, ring_reach, ring_share, crease_tol, limit,
-                          beyond):
+                          face_crease, tilt, energy, ring_reach, ring_share, crease_tol, limit):
     """The energy-weighted mean range of shots whose footprint lies on the axis facet's
     plane, or within ``crease_tol`` (m) of it, from the axis hit alone (range_m,
-    cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_star``); others get
-    ``beyond[i] = True``.
+    cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_star``); returns the
+    others (the shots of ``index`` to walk), in order.
 
     The cone meets the facet's plane within spread = r0 sin a / cos(theta + a) of the
     axis point p, which lies w_k h_k from the edge facing vertex k. On the plane, the
@@ -376,13 +374,16 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
     t_max = tilt[k - 1]
     lift = np.sqrt(1.0 + t_max * t_max)
     half_moment = 0.5 * moment2 / total
+    beyond = np.empty(index.shape[0], np.int64)
+    count = 0
     for q in range(index.shape[0]):
         i = index[q]
         r0 = range_m[i]
         cos_i = min(cos_incidence[i], 1.0)
         sin_i = np.sqrt(1.0 - cos_i * cos_i)
         if sin_i * t_max >= SERIES_LIMIT * cos_i:
-            beyond[i] = True
+            beyond[count] = i
+            count += 1
             continue
         inv_cos = 1.0 / cos_i
         a_max = sin_i * t_max * inv_cos
@@ -461,11 +462,13 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
                             mean_err = slope * mean_bound
                             worst = slope * (grow - margin)
             if not mean_err <= crease_tol:
-                beyond[i] = True
+                beyond[count] = i
+                count += 1
                 continue
         tan2 = sin_i * sin_i * inv_cos * inv_cos
         range_m[i] = r0 * (1.0 + half_moment * (1.0 + tan2))
         limit[i] = _occluder_limit(r0 * lift * above + worst, r0)
+    return beyond[:count]
 
 
 @njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
