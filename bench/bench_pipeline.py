@@ -252,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
         'pack_rclpy_ms': pack_rclpy_ms,
     }
     result['hot_spots'] = profile(sim, traj, period, args.profile_top)
-    if str(args.sunlit_scenario):
+    if str(args.sunlit_scenario) not in ('', '.'):     # Path('') is '.'
         result['sunlight'] = sunlight_cost(args, load_scenario, Simulator, ScenarioTrajectory)
     result['peak_rss_mb_pipeline'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     if not args.no_effects:

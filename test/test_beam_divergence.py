@@ -2,9 +2,11 @@
 
 Two kinds of check: the footprint model against closed forms for a Gaussian beam on a
 half-plane edge (power fraction and the mixed range at a depth step), and the fast path
-(``sampling: edges``: sub-rays cast only near silhouettes, walked across facets elsewhere)
-against the full sampling of every shot (``sampling: all``) on plates, a thin strip and
-the tumbling rocket body.
+(``sampling: edges``: sub-rays cast only near silhouettes, the plane's answer or a walk
+across facets elsewhere) against the full sampling of every shot (``sampling: all``) on
+plates, a thin strip, creases, a cylinder and the tumbling rocket body: identical hit/miss
+decisions and power fractions everywhere, ranges to float32 rounding on flat plates and
+within the stated crease tolerance (CREASE_TOL_M) where footprints cross creases.
 """
 from __future__ import annotations
 
@@ -17,7 +19,8 @@ from scipy import integrate, special
 
 from lidar_sim_ros.core.config import load_scenario
 from lidar_sim_ros.core.effects import make_effect
-from lidar_sim_ros.core.effects.beam_divergence import footprint_cast, sample_footprint
+from lidar_sim_ros.core.effects.beam_divergence import (CREASE_TOL_M, footprint_cast,
+                                                        sample_footprint)
 from lidar_sim_ros.core.geometry import Target
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.pose import ScenarioTrajectory, StaticPose
@@ -47,12 +50,15 @@ def target_of(*parts) -> Target:
 
 
 def cast(target: Target, az_rad, el_rad, half_angle_rad: float, sampling: str = 'edges',
-         rings: int = 2, range_mode: str = 'mean', pose=AT_ORIGIN):
+         rings: int = 2, range_mode: str = 'mean', pose=AT_ORIGIN, **fast):
     az = np.atleast_1d(np.asarray(az_rad, float))
     el = np.broadcast_to(np.asarray(el_rad, float), az.shape)
     d = directions_from_angles(az, el)
-    method = footprint_cast if sampling == 'edges' else sample_footprint
-    return method(target, d, pose.at(np.zeros(len(d))), half_angle_rad, rings, range_mode)
+    if sampling != 'edges':
+        return sample_footprint(target, d, pose.at(np.zeros(len(d))), half_angle_rad, rings,
+                                range_mode)
+    return footprint_cast(target, d, pose.at(np.zeros(len(d))), half_angle_rad, rings,
+                          range_mode, **fast)
 
 
 # --------------------------------------------------------------- closed forms
@@ -157,7 +163,8 @@ def test_full_footprint_on_a_tilted_plane_averages_the_sub_ray_ranges():
 
 # ------------------------------------------------------- fast path vs full sampling
 def assert_same_footprint(fast, full, range_tol_m: float = 1e-4):
-    """Identical hit/miss decisions and power fractions; ranges to float32 ray rounding."""
+    """Identical hit/miss decisions and power fractions; ranges within range_tol_m (float32
+    ray rounding by default)."""
     np.testing.assert_array_equal(fast.hit, full.hit)
     np.testing.assert_array_equal(fast.power_fraction, full.power_fraction)
     hit = full.hit
@@ -202,15 +209,77 @@ def test_fast_path_sees_a_strip_thinner_than_the_footprint():
 
 
 def test_fast_path_equals_full_sampling_on_a_tessellated_cylinder_at_grazing_incidence():
-    # Sub-rays walk across the facets of a curved surface up to its limb.
+    # Footprints cross the cylinder's creases up to its limb: the plane's answer within
+    # the crease tolerance, or sub-rays walked across the facets (exact with no tolerance).
     mesh = trimesh.creation.cylinder(radius=1.0, height=4.0, sections=96)
     target = Target(mesh.vertices + [8.0, 0.0, 0.0], mesh.faces, np.zeros(len(mesh.faces), int), ['PIF'])
     limb = np.arcsin(1.0 / 8.0)
     az, el = np.meshgrid(np.linspace(-limb - 0.01, limb + 0.01, 301), [0.0, 0.05])
     for half in (0.0015, 0.006):
-        fast = cast(target, az.ravel(), el.ravel(), half)
         full = cast(target, az.ravel(), el.ravel(), half, 'all')
-        assert_same_footprint(fast, full)
+        assert_same_footprint(cast(target, az.ravel(), el.ravel(), half), full,
+                              range_tol_m=CREASE_TOL_M)
+        assert_same_footprint(cast(target, az.ravel(), el.ravel(), half, crease_tol_m=0.0), full)
+
+
+def folded_plate(fold_rad: float, yaw_rad: float = 0.0) -> Target:
+    """Two 2 m x 2 m plates at 10 m meeting along a vertical crease through (10, 0, 0), the
+    right one folded back by fold_rad, the pair turned by yaw_rad about the crease."""
+    def turn(angle, y, z):                 # a point y along a plate turned by angle from +y
+        return [10.0 + y * np.sin(angle), y * np.cos(angle), z]
+    left = [turn(yaw_rad, y, z) for y, z in ((-2, -1), (0, -1), (0, 1), (-2, 1))]
+    right = [turn(yaw_rad + fold_rad, y, z) for y, z in ((0, -1), (2, -1), (2, 1), (0, 1))]
+    quads = np.array([[0, 1, 2], [0, 2, 3]])
+    return target_of((np.array(left), quads), (np.array(right), quads))
+
+
+def low_pyramid(slope_rad: float, sides: int = 6) -> Target:
+    """A low pyramid at 10 m, apex toward the sensor, its faces sloping by slope_rad: the
+    footprints near the apex lie on the star of one vertex."""
+    angle = 2 * np.pi * np.arange(sides) / sides
+    rim = np.column_stack([np.full(sides, 10.0), np.cos(angle), np.sin(angle)])
+    apex = [[10.0 - np.tan(slope_rad), 0.0, 0.0]]
+    faces = np.array([[sides, k, (k + 1) % sides] for k in range(sides)])
+    return target_of((np.vstack([rim, apex]), faces))
+
+
+@pytest.mark.parametrize('shape', ['crease', 'crease turned', 'vertex'])
+def test_plane_answer_across_slight_creases_is_within_the_tolerance_asked(shape):
+    # Shots over a crease folded by 2 deg (seen head-on and at ~50 deg) and over the apex
+    # of a pyramid sloping by 2 deg, at several footprint sizes: the fast path keeps the
+    # full sampling's hits and power fractions, its ranges stay within each tolerance
+    # asked, and the looser ones are used (ranges differ from the exact walk's).
+    target = {'crease': folded_plate(np.radians(2.0)),
+              'crease turned': folded_plate(np.radians(2.0), np.radians(50.0)),
+              'vertex': low_pyramid(np.radians(2.0))}[shape]
+    crease_az = 0.0 if shape == 'vertex' else np.arctan2(0.0, 10.0)
+    s = sensor()
+    approximated = 0
+    for scale in (1.0, 4.0, 16.0):
+        half = 0.5 * scale * s.optics.beam_divergence_rad
+        az, el = np.meshgrid(crease_az + np.linspace(-3, 3, 25) * half, np.linspace(-3, 3, 7) * half)
+        full = cast(target, az.ravel(), el.ravel(), half, 'all')
+        exact = cast(target, az.ravel(), el.ravel(), half, crease_tol_m=0.0)
+        assert_same_footprint(exact, full)
+        for tol in (1e-5, 1e-4, CREASE_TOL_M):
+            fast = cast(target, az.ravel(), el.ravel(), half, crease_tol_m=tol)
+            assert_same_footprint(fast, full, range_tol_m=tol + 2e-6)
+            approximated += np.count_nonzero(np.abs(fast.range_m - exact.range_m)[full.hit] > 1e-6)
+    assert approximated > 20
+
+
+def test_steep_creases_are_walked_at_the_default_tolerance():
+    # A 40 deg fold bends too much for the plane's answer within CREASE_TOL_M: footprints
+    # over the crease are walked (or cast), exact to float32 rounding; a looser tolerance
+    # takes the plane's answer, still within it.
+    target = folded_plate(np.radians(40.0))
+    half = 0.5 * 4.0 * sensor().optics.beam_divergence_rad
+    az, el = np.meshgrid(np.linspace(-3, 3, 25) * half, [0.0, half])
+    full = cast(target, az.ravel(), el.ravel(), half, 'all')
+    assert_same_footprint(cast(target, az.ravel(), el.ravel(), half), full)
+    loose = cast(target, az.ravel(), el.ravel(), half, crease_tol_m=0.02)
+    assert_same_footprint(loose, full, range_tol_m=0.02)
+    assert np.abs(loose.range_m - full.range_m)[full.hit].max() > 1e-4
 
 
 @pytest.mark.parametrize('scale', [1.0, 6.0])
@@ -221,9 +290,11 @@ def test_fast_path_equals_full_sampling_on_the_tumbling_rocket(default_scenario,
     poses = traj.at(0.7 + sim.shots.t_s)
     fast = footprint_cast(sim.target, sim.directions, poses, half)
     full = sample_footprint(sim.target, sim.directions, poses, half)
+    assert_same_footprint(fast, full, range_tol_m=CREASE_TOL_M)
     # The blankets and the nozzle pass through the hull: where a footprint straddles such
     # an intersection the walk stays on one surface (module docstring); here < 0.5 mm.
-    assert_same_footprint(fast, full, range_tol_m=5e-4)
+    exact = footprint_cast(sim.target, sim.directions, poses, half, crease_tol_m=0.0)
+    assert_same_footprint(exact, full, range_tol_m=5e-4)
     assert np.count_nonzero((full.power_fraction > 0) & (full.power_fraction < 1)) > 100
 
 

@@ -202,13 +202,21 @@ class Target:
         bary = None
         if barycentric:
             bary = np.empty((len(rays), 2), np.float32)
-            bary[rays.order] = np.column_stack(uv)
+            # Rays cast in input order (no cast order) need no scatter: plain copies.
+            rows = slice(None) if _in_order(rays.order) else rays.order
+            bary[rows, 0], bary[rows, 1] = uv
         return Hits(hit, range_m, normal, np.arccos(cos_i), material, face, cos_incidence=cos_i,
                     barycentric=bary)
 
 
 _IDENTITY = np.array([[0.0, 0.0, 0.0, 1.0]])
 _ZERO = np.zeros((1, 3))
+
+
+def _in_order(order: np.ndarray) -> bool:
+    """Whether a cast order is 0, 1, ..., n - 1."""
+    n = len(order)
+    return n == 0 or (order[0] == 0 and order[-1] == n - 1 and bool(np.all(np.diff(order) == 1)))
 
 
 def _cast_order(order: np.ndarray | None, n: int) -> np.ndarray:

@@ -289,10 +289,15 @@ class Simulator:
             if spurious is None:
                 continue
             mask, rng_false = spurious
-            measured = np.where(mask, rng_false, measured)
-            detected = detected | mask
-            material = np.where(mask, -1, material)
-            intensity = np.where(mask, det.threshold_power_w / det.saturation_power_w, intensity)
+            # A few shots each: written by index (measured and detected are this frame's own
+            # arrays; material and intensity are the context's, copied before the first write).
+            rows = np.flatnonzero(mask)
+            measured[rows] = rng_false[rows]
+            detected[rows] = True
+            if material is ctx.material:
+                material, intensity = material.copy(), intensity.copy()
+            material[rows] = -1
+            intensity[rows] = det.threshold_power_w / det.saturation_power_w
         detected &= np.isfinite(measured) & (measured > 0)
         # Index lists once (take() is ~5x cheaper than repeated boolean masks), in firing order.
         out = _fired(detected, self._cast_position)

@@ -36,6 +36,9 @@ from numba import njit
 WELD_M = 1e-6           # vertices closer than this are one vertex (OBJ groups repeat them)
 REGION_LINES = 8        # most edge lines a flat region keeps (more: its faces stand alone)
 COPLANAR_RAD = 1e-5     # faces folded by less than this are one plane (a sub-ray moves < 1 um per 0.1 m)
+# numba fastmath flags for the compiled loops that allow it: reassociation, FMA, reciprocals
+# (~5 % faster); never nnan / ninf, which would let the compiler drop inf and NaN handling.
+FAST_ALGEBRA = {'contract', 'arcp', 'reassoc', 'nsz'}
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,6 +57,9 @@ class MeshEdges:
     face_edge_offset[f, k] for every k (the margin is the distance to edge k, m);
     face_planes (F, 4, 4): the same packed per face for compiled loops, rows (n, offset),
     (m_0, c_0), (m_1, c_1), (m_2, c_2).
+    vertex_m (V, 3): the welded vertices (m) that face_vertices (F, 3) index;
+    vertex_tilt_rad, vertex_reach_m (V,): how far each vertex's star bends and reaches
+    (``vertex_stars``).
     """
 
     a_m: np.ndarray
@@ -76,6 +82,9 @@ class MeshEdges:
     edge_faces: np.ndarray
     face_vertices: np.ndarray
     median_edge_m: float = 0.0
+    vertex_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    vertex_tilt_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    vertex_reach_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
     crossing_a_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     crossing_b_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
@@ -91,25 +100,98 @@ class MeshEdges:
 
     def candidate_segments(self, candidate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """End points (M, 3), (M, 3) of the edges in the mask ``candidate`` followed by the
-        self-intersection segments: everything a footprint cannot be followed across."""
-        index = np.flatnonzero(candidate)
-        return (np.concatenate([self.a_m[index], self.crossing_a_m]),
-                np.concatenate([self.b_m[index], self.crossing_b_m]))
+        self-intersection segments: everything a footprint cannot be followed across (views
+        of one (M, 6) array: each segment's end points gathered together)."""
+        # Only non-coplanar edges can be candidates: their end points, packed once.
+        rows = np.flatnonzero(candidate[self._sign_edge])
+        ends = np.concatenate([self._sign_ends[rows], self._crossing_ends])
+        return ends[:, :3], ends[:, 3:]
+
+    @cached_property
+    def _sign_ends(self) -> np.ndarray:
+        keep = self._sign_edge
+        return np.ascontiguousarray(np.hstack([self.a_m[keep], self.b_m[keep]]))
+
+    @cached_property
+    def _crossing_ends(self) -> np.ndarray:
+        return np.ascontiguousarray(np.hstack([self.crossing_a_m, self.crossing_b_m]))
 
     def candidate_mask(self, origin_lo_m: np.ndarray, origin_hi_m: np.ndarray) -> np.ndarray:
         """``candidates`` as a mask over the edges."""
         lo = np.asarray(origin_lo_m, float)
         hi = np.asarray(origin_hi_m, float)
-        # The float32 copies are exact to ~1e-6 m at 10 m: widen the box by 1e-5 m.
-        return _maybe_silhouette(self._sign_test, self._sign_edge, len(self.a_m),
-                                 0.5 * (lo + hi), 0.5 * (hi - lo) + 1e-5)
+        # The planes and the sums are float32 (the loop runs twice as wide): s_k is exact to
+        # ~3e-7 |n_k| |o| (~3e-6 |n_k| at 10 m); widen the box by more than that.
+        centre = 0.5 * (lo + hi)
+        widen = 1e-5 + 1e-6 * float(np.abs(centre).max() + np.abs(hi - lo).max())
+        return _maybe_silhouette(self._sign_planes, self._sign_always, self._sign_edge,
+                                 len(self.a_m), centre.astype(np.float32),
+                                 (0.5 * (hi - lo) + widen).astype(np.float32))
 
     @cached_property
-    def _sign_test(self) -> np.ndarray:
-        """(a, n1, n2, always) per non-coplanar edge, float32, packed for the classification."""
+    def face_star(self) -> np.ndarray:
+        """(F, 16) float32 per face, one cache line for compiled loops: the altitudes of
+        vertices 0-2 over their opposite edges (m), the squared lengths of edges 0-2 (m^2),
+        and of the stars of vertices 0-2 the reach (m), tan(tilt) and 1 / cos(tilt) (inf
+        from a right angle on)."""
+        corners = self.face_vertices
+        tri = self.vertex_m[corners]
+        edge = np.roll(tri, -1, axis=1) - tri
+        out = np.zeros((len(corners), 16), np.float32)
+        out[:, 0:3] = self.face_altitude
+        out[:, 3:6] = np.einsum('fkj,fkj->fk', edge, edge)
+        out[:, 6:9] = self.vertex_reach_m[corners]
+        tilt = self.vertex_tilt_rad[corners]
+        acute = tilt < 0.5 * np.pi
+        tilt = np.where(acute, tilt, 0.0)
+        out[:, 9:12] = np.where(acute, np.tan(tilt), np.inf)
+        out[:, 12:15] = np.where(acute, 1.0 / np.cos(tilt), np.inf)
+        return out
+
+    @cached_property
+    def face_crease(self) -> np.ndarray:
+        """(F, 3, 8) float32 per face and edge k (vertices k, k + 1): tan and 1 / cos of the
+        fold to the face beyond (inf: none, or a right angle or more), sin and cos of that
+        face's angles at vertex k and at vertex k + 1, and the edge's length (m)."""
+        corners = self.face_vertices
+        n_faces = len(corners)
+        out = np.zeros((n_faces, 3, 8), np.float32)
+        out[:, :, 0:2] = np.inf
+        for k in range(3):
+            face = np.flatnonzero(self.face_neighbour[:, k] >= 0)
+            beyond = self.face_neighbour[face, k]
+            edge = self.face_edge[face, k]
+            n1, n2 = self.n1[edge], self.n2[edge]
+            with np.errstate(invalid='ignore', divide='ignore'):
+                cos_fold = -np.einsum('ij,ij->i', n1, n2) / (np.linalg.norm(n1, axis=1)
+                                                           * np.linalg.norm(n2, axis=1))
+            start, end = corners[face, k], corners[face, (k + 1) % 3]
+            others = corners[beyond]
+            third = (others != start[:, None]) & (others != end[:, None])
+            far = others[np.arange(len(face)), np.argmax(third, axis=1)]
+            ok = (cos_fold > 0.0) & third.any(axis=1)
+            a, b, w = self.vertex_m[start], self.vertex_m[end], self.vertex_m[far]
+            row = out[face[ok], k]
+            row[:, 0] = np.sqrt(np.clip(1.0 - cos_fold[ok] ** 2, 0.0, None)) / cos_fold[ok]
+            row[:, 1] = 1.0 / cos_fold[ok]
+            row[:, 2:4] = _sin_cos_between(b - a, w - a)[ok]
+            row[:, 4:6] = _sin_cos_between(a - b, w - b)[ok]
+            row[:, 6] = np.linalg.norm(b - a, axis=1)[ok]
+            out[face[ok], k] = row
+        return out
+
+    @cached_property
+    def _sign_planes(self) -> np.ndarray:
+        """(8, M) float32 rows n1, n1 . a, n2, n2 . a of the non-coplanar edges: s_k(o) =
+        n_k . o - n_k . a, one row per component so the classification loop vectorises."""
         keep = ~self.coplanar
-        return np.ascontiguousarray(np.column_stack(
-            [self.a_m[keep], self.n1[keep], self.n2[keep], self.always[keep]]), dtype=np.float32)
+        a, n1, n2 = self.a_m[keep], self.n1[keep], self.n2[keep]
+        return np.ascontiguousarray(np.vstack([n1.T, np.einsum('ij,ij->i', n1, a),
+                                               n2.T, np.einsum('ij,ij->i', n2, a)]), dtype=np.float32)
+
+    @cached_property
+    def _sign_always(self) -> np.ndarray:
+        return np.ascontiguousarray(self.always[~self.coplanar])
 
     @cached_property
     def _sign_edge(self) -> np.ndarray:
@@ -117,24 +199,36 @@ class MeshEdges:
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _maybe_silhouette(packed, edge, n_edges, centre, half):
+def _maybe_silhouette(planes, always, edge, n_edges, centre, half):
     """Edges not smooth for every viewpoint o in the box centre +- half: s_k(o) =
-    n_k . (o - a) over the box is [mid - rad, mid + rad] with rad = |n_k| . half.
-    packed (M, 10): a, n1, n2, always of the non-coplanar edges ``edge`` (M,)."""
+    n_k . o - n_k . a over the box is [mid - rad, mid + rad] with rad = |n_k| . half.
+    planes (8, M), always (M,): the non-coplanar edges ``edge`` (M,)
+    (``MeshEdges._sign_planes``); returns a mask over all n_edges edges."""
+    m = planes.shape[1]
+    cx, cy, cz = centre[0], centre[1], centre[2]
+    hx, hy, hz = half[0], half[1], half[2]
+    keep = np.empty(m, np.bool_)
+    for r in range(m):
+        mid1 = planes[0, r] * cx + planes[1, r] * cy + planes[2, r] * cz - planes[3, r]
+        rad1 = abs(planes[0, r]) * hx + abs(planes[1, r]) * hy + abs(planes[2, r]) * hz
+        mid2 = planes[4, r] * cx + planes[5, r] * cy + planes[6, r] * cz - planes[7, r]
+        rad2 = abs(planes[4, r]) * hx + abs(planes[5, r]) * hy + abs(planes[6, r]) * hz
+        smooth = ((((mid1 - rad1) > 0.0) & ((mid2 + rad2) < 0.0))
+                  | (((mid1 + rad1) < 0.0) & ((mid2 - rad2) > 0.0)))
+        keep[r] = always[r] | ~smooth
     out = np.zeros(n_edges, np.bool_)
-    for row in range(packed.shape[0]):
-        mid1, rad1, mid2, rad2 = 0.0, 0.0, 0.0, 0.0
-        for k in range(3):
-            off = centre[k] - np.float64(packed[row, k])
-            n1k, n2k = np.float64(packed[row, 3 + k]), np.float64(packed[row, 6 + k])
-            mid1 += n1k * off
-            rad1 += abs(n1k) * half[k]
-            mid2 += n2k * off
-            rad2 += abs(n2k) * half[k]
-        smooth = ((mid1 - rad1 > 0.0 and mid2 + rad2 < 0.0)
-                  or (mid1 + rad1 < 0.0 and mid2 - rad2 > 0.0))
-        out[edge[row]] = packed[row, 9] != 0.0 or not smooth
+    for r in range(m):
+        out[edge[r]] = keep[r]
     return out
+
+
+def _sin_cos_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(N, 2) sin and cos of the angles between vectors u and v (N, 3); 0, 1 if either is 0."""
+    norm = np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1)
+    safe = np.where(norm > 0, norm, 1.0)
+    sin = np.where(norm > 0, np.linalg.norm(np.cross(u, v), axis=1) / safe, 0.0)
+    cos = np.where(norm > 0, np.einsum('ij,ij->i', u, v) / safe, 1.0)
+    return np.column_stack([sin, cos])
 
 
 _EDGES: 'weakref.WeakKeyDictionary[object, MeshEdges]' = weakref.WeakKeyDictionary()
@@ -279,6 +373,8 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     opposite = np.linalg.norm(np.roll(edge, -1, axis=1), axis=2)
     altitude = np.divide(double_area[:, None], opposite, out=np.zeros_like(opposite),
                          where=opposite > 0).astype(np.float32)
+    fold = np.where(pair, np.arccos(np.clip(np.nan_to_num(cos_fold, nan=-1.0), -1.0, 1.0)), np.pi)
+    tilt, reach = vertex_stars(position, f, a, b, face, slot, first, second, pair, fold)
     return MeshEdges(a_m=pa, b_m=pb, n1=n1, n2=n2, always=~pair, coplanar=coplanar,
                      face_edge=face_edge, face_normal=normal, face_plane_offset=plane_offset,
                      face_neighbour=neighbour, face_edge_normal=inward, face_edge_offset=offset,
@@ -286,7 +382,59 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
                      face_altitude=altitude,
                      edge_vertices=np.column_stack([a[first], b[first]]),
                      edge_faces=np.column_stack([face[first], face[second]]), face_vertices=f,
-                     median_edge_m=float(np.median(span[~coplanar])) if np.any(~coplanar) else 0.0)
+                     median_edge_m=float(np.median(span[~coplanar])) if np.any(~coplanar) else 0.0,
+                     vertex_m=position, vertex_tilt_rad=tilt, vertex_reach_m=reach)
+
+
+def vertex_stars(position, faces, a, b, face, slot, first, second, pair, fold
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Per welded vertex v, how far its star (the faces around it) bends and reaches.
+
+    tilt (V,) rad: a bound on the angle between the normals of any two faces of the star,
+    half the sum of the fold angles of the edges at v (going around a closed fan from one
+    face to another crosses folds adding up to at most half of the total one way or the
+    other); inf unless the star is one closed fan of non-degenerate faces (every edge at
+    v has two faces and they join in a single cycle). reach (V,) m: the shortest distance
+    from v to the far edge of a face of its star, so every surface path from v shorter
+    than that stays inside the star.
+    a, b, face, slot, first, second, pair: the directed edges of ``build_mesh_edges``
+    (sorted by undirected edge; ``first``/``second`` the two faces of each pair); fold
+    (E,): fold angle of each undirected edge (pi where not a pair).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    n_vertices, n_faces = len(position), len(faces)
+    tilt = np.zeros(n_vertices)
+    np.add.at(tilt, a[first], fold)
+    np.add.at(tilt, b[first], fold)
+    tilt *= 0.5
+    # Corners (face, slot of the vertex) of the same vertex joined across each paired edge.
+    p1, p2 = first[pair], second[pair]
+
+    def corner(k, vertex):
+        return face[k] * 3 + np.where(a[k] == vertex, slot[k], (slot[k] + 1) % 3)
+
+    src = np.concatenate([corner(p1, a[p1]), corner(p1, b[p1])])
+    dst = np.concatenate([corner(p2, a[p1]), corner(p2, b[p1])])
+    graph = coo_matrix((np.ones(len(src)), (src, dst)), shape=(3 * n_faces, 3 * n_faces))
+    n_labels, label = connected_components(graph, directed=False)
+    vertex = faces.reshape(-1)
+    fans = np.bincount(np.unique(vertex * n_labels + label) // n_labels, minlength=n_vertices)
+    tilt[fans != 1] = np.inf
+    # Far edge of each corner: the point-to-segment distance from the corner's vertex.
+    tri = position[faces]
+    v = tri.reshape(-1, 3)
+    p, q = np.roll(tri, -1, axis=1).reshape(-1, 3), np.roll(tri, -2, axis=1).reshape(-1, 3)
+    span = q - p
+    length2 = np.einsum('ij,ij->i', span, span)
+    t = np.clip(np.einsum('ij,ij->i', v - p, span) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+    dist = np.linalg.norm(p + t[:, None] * span - v, axis=1)
+    reach = np.full(n_vertices, np.inf)
+    np.minimum.at(reach, vertex, dist)
+    degenerate = np.repeat(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
+                                          axis=1) == 0, 3)
+    tilt[vertex[degenerate]] = np.inf
+    return tilt, reach
 
 
 def flat_regions(position, faces, face_edge, coplanar, neighbour, inward, offset
@@ -346,13 +494,13 @@ def origin_box(origins_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @njit(cache=True, nogil=True, error_model='numpy')
 def _box(p):
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
+    x0, y0, z0 = np.inf, np.inf, np.inf
+    x1, y1, z1 = -np.inf, -np.inf, -np.inf
     for i in range(p.shape[0]):
-        for k in range(3):
-            lo[k] = min(lo[k], p[i, k])
-            hi[k] = max(hi[k], p[i, k])
-    return lo, hi
+        x, y, z = np.float64(p[i, 0]), np.float64(p[i, 1]), np.float64(p[i, 2])
+        x0, y0, z0 = min(x0, x), min(y0, y), min(z0, z)
+        x1, y1, z1 = max(x1, x), max(y1, y), max(z1, z)
+    return np.array([x0, y0, z0]), np.array([x1, y1, z1])
 
 
 def cones_touching_edges(origins_m: np.ndarray, directions: np.ndarray, tan_half_angle: float,
@@ -370,11 +518,16 @@ def cones_touching_edges(origins_m: np.ndarray, directions: np.ndarray, tan_half
         depth_limit_m = np.full(n, np.inf)
     if n == 0 or len(a_m) == 0:
         return np.zeros(n, bool)
+    # End points may be row views of one (M, 6) array (``MeshEdges.candidate_segments``).
     return _cones_touching_edges(np.ascontiguousarray(origins_m), np.ascontiguousarray(directions),
-                                 float(tan_half_angle),
-                                 np.ascontiguousarray(a_m, dtype=np.float64),
-                                 np.ascontiguousarray(b_m, dtype=np.float64),
+                                 float(tan_half_angle), _float64_rows(a_m), _float64_rows(b_m),
                                  np.ascontiguousarray(depth_limit_m, dtype=np.float64))
+
+
+def _float64_rows(points: np.ndarray) -> np.ndarray:
+    """(M, 3) float64 points, as given when their rows are already contiguous."""
+    points = np.asarray(points, dtype=np.float64)
+    return points if points.strides[1] == 8 else np.ascontiguousarray(points)
 
 
 _Z_MIN_M = 1e-3     # segment parts closer than this in front of the viewpoint are ignored
@@ -420,22 +573,24 @@ def _segment_in_cone(ox, oy, oz, dx, dy, dz, ax, ay, az, bx, by, bz, z_hi, tan_a
     return cx * cx + cy * cy + cz * cz <= r * r
 
 
-@njit(cache=True, nogil=True, error_model='numpy')
+# Reassociation and FMA only (no finite-math flags: inf limits, -inf cell depths).
+@njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
 def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
-    """Rays binned on a gnomonic grid seen from their mean origin c (each ray over the
-    depth range of the segments, as it moves across the grid with its offset from c);
-    each segment then tests the rays in the cells its dilated projection covers."""
+    """Rays binned on a gnomonic grid seen from the centre c of their origins' box, about
+    their mean direction f (each ray over the depth range of the segments, as it moves
+    across the grid with its offset from c); each segment then tests the rays in the
+    cells its dilated projection covers."""
     n, m = o.shape[0], a.shape[0]
     out = np.zeros(n, np.bool_)
-    cx, cy, cz, fx, fy, fz = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    for i in range(n):
-        cx += o[i, 0]
-        cy += o[i, 1]
-        cz += o[i, 2]
+    lo, hi = _box(o)
+    cx, cy, cz = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])
+    # Every origin lies within the box's half-diagonal of c.
+    spread = 0.5 * np.sqrt((hi[0] - lo[0]) ** 2 + (hi[1] - lo[1]) ** 2 + (hi[2] - lo[2]) ** 2)
+    fx, fy, fz = 0.0, 0.0, 0.0
+    for i in range(0, n, 8):                  # a sample is enough for a central direction
         fx += d[i, 0]
         fy += d[i, 1]
         fz += d[i, 2]
-    cx, cy, cz = cx / n, cy / n, cz / n
     norm = np.sqrt(fx * fx + fy * fy + fz * fz)
     if norm == 0.0:
         fx, fy, fz = 1.0, 0.0, 0.0
@@ -446,10 +601,6 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
     norm = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
     e1x, e1y, e1z = e1x / norm, e1y / norm, e1z / norm
     e2x, e2y, e2z = fy * e1z - fz * e1y, fz * e1x - fx * e1z, fx * e1y - fy * e1x
-    spread = 0.0
-    for i in range(n):
-        ddx, ddy, ddz = o[i, 0] - cx, o[i, 1] - cy, o[i, 2] - cz
-        spread = max(spread, np.sqrt(ddx * ddx + ddy * ddy + ddz * ddz))
     # Segments closer to c than z_floor are tested against every ray (never, in practice).
     z_floor = max(10.0 * spread, 1e-2)
     seg = np.empty((m, 4))
@@ -473,16 +624,21 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
     # Rays: their projected track over [z_lo, min(z_hi, limit)], undilated.
     track = np.empty((n, 4))
     ray_z = np.empty(n)                  # farthest depth along f the cone counts to
-    active = np.zeros(n, np.bool_)       # binned
     brute = z_limit >= 0.0               # tested against every segment (unless binned)
-    pad = 0.0
+    widest = 0.0                         # max over binned rays of stretch (1 + 1/zd) / zd
+    binned_rays = np.empty(n, np.int64)  # the rays binned, in order
+    # The grid over the binned rays' tracks (their box and mean size, gathered on the way).
+    gx0, gy0, gx1, gy1 = np.inf, np.inf, -np.inf, -np.inf
+    size, count = 0.0, 0
     if z_hi >= z_lo:
+        inv_lo = 1.0 / z_lo
         for i in range(n):
             if z_limit[i] < 0.0:
                 continue
+            dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
             rx, ry, rz = o[i, 0] - cx, o[i, 1] - cy, o[i, 2] - cz
             zo = rx * fx + ry * fy + rz * fz
-            zd = d[i, 0] * fx + d[i, 1] * fy + d[i, 2] * fz
+            zd = dx * fx + dy * fy + dz * fz
             if zd <= 0.1:
                 continue                      # more than 84 deg off the mean: brute force
             # The cone up to the depth limit reaches at most this far along f.
@@ -491,61 +647,74 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
             brute[i] = False
             if z_end < z_lo:
                 continue                      # stops in front of every binned segment
-            x0, y0, x1, y1 = np.inf, np.inf, -np.inf, -np.inf
-            for zz in (z_lo, z_end):
-                t = max((zz - zo) / zd, 0.0)
-                px, py, pz = rx + t * d[i, 0], ry + t * d[i, 1], rz + t * d[i, 2]
-                zp = max(px * fx + py * fy + pz * fz, 1e-9)
-                u = (px * e1x + py * e1y + pz * e1z) / zp
-                v = (px * e2x + py * e2y + pz * e2z) / zp
-                x0, y0, x1, y1 = min(x0, u), min(y0, v), max(x1, u), max(y1, v)
+            inv_zd = 1.0 / zd
+            # Seen from c, the ray's point at depth z along f is u + w / z: u the direction's
+            # point, w = (o - c)_perp - zo u (z_lo >= z_floor lies past the origin's zo).
+            ux = (dx * e1x + dy * e1y + dz * e1z) * inv_zd
+            uy = (dx * e2x + dy * e2y + dz * e2z) * inv_zd
+            wx = rx * e1x + ry * e1y + rz * e1z - zo * ux
+            wy = rx * e2x + ry * e2y + rz * e2z - zo * uy
+            u0, v0 = ux + wx * inv_lo, uy + wy * inv_lo
+            inv_end = 1.0 / z_end
+            u1, v1 = ux + wx * inv_end, uy + wy * inv_end
+            x0, x1 = min(u0, u1), max(u0, u1)
+            y0, y1 = min(v0, v1), max(v0, v1)
             track[i, 0], track[i, 1], track[i, 2], track[i, 3] = x0, y0, x1, y1
-            active[i] = True
-            # A point of the cone lies within t tan_a of the axis point at its own distance
-            # t, and within (1 + 1/zd) t tan_a of the axis point at its depth along f; seen
-            # from c (at least z_lo - spread away) and stretched by the gnomonic map.
-            stretch = 1.0 + max(x0 * x0, x1 * x1) + max(y0 * y0, y1 * y1)
-            pad = max(pad, 1.25 * tan_a * stretch * (1.0 + 1.0 / zd) / zd
-                      * (1.0 + 2.0 * spread / z_lo))
-    pad += 1e-9
-    # The grid over the active rays' tracks; cells a few times a track plus the pad (the
-    # 2-D pre-check makes rays cheap; cell visits are what costs).
-    gx0, gy0, gx1, gy1 = np.inf, np.inf, -np.inf, -np.inf
-    size, count = 0.0, 0
-    for i in range(n):
-        if active[i]:
-            gx0, gy0 = min(gx0, track[i, 0]), min(gy0, track[i, 1])
-            gx1, gy1 = max(gx1, track[i, 2]), max(gy1, track[i, 3])
-            size += max(track[i, 2] - track[i, 0], track[i, 3] - track[i, 1])
+            binned_rays[count] = i
             count += 1
+            gx0, gy0, gx1, gy1 = min(gx0, x0), min(gy0, y0), max(gx1, x1), max(gy1, y1)
+            size += max(x1 - x0, y1 - y0)
+            stretch = 1.0 + max(x0 * x0, x1 * x1) + max(y0 * y0, y1 * y1)
+            widest = max(widest, stretch * (1.0 + inv_zd) * inv_zd)
+    # A point of the cone lies within t tan_a of the axis point at its own distance t, and
+    # within (1 + 1/zd) t tan_a of the axis point at its depth along f; seen from c (at
+    # least z_lo - spread away) and stretched by the gnomonic map.
+    pad = 0.0
+    if widest > 0.0:
+        pad = 1.25 * tan_a * widest * (1.0 + 2.0 * spread / z_lo)
+    pad += 1e-9
+    # Cells a few times a track plus the pad (the 2-D pre-check makes rays cheap; cell
+    # visits are what costs).
     if count > 0:
         size = 2.5 * max(size / count, pad, (gx1 - gx0) / 2048.0, (gy1 - gy0) / 2048.0, 1e-9)
-        nx = int((gx1 - gx0) / size) + 1
-        ny = int((gy1 - gy0) / size) + 1
+        inv_size = 1.0 / size
+        nx = int((gx1 - gx0) * inv_size) + 1
+        ny = int((gy1 - gy0) * inv_size) + 1
         start = np.zeros(nx * ny + 1, np.int64)
-        for i in range(n):
-            if active[i]:
-                i0, i1 = int((track[i, 0] - gx0) / size), int((track[i, 2] - gx0) / size)
-                j0, j1 = int((track[i, 1] - gy0) / size), int((track[i, 3] - gy0) / size)
-                for ci in range(i0, i1 + 1):
-                    for cj in range(j0, j1 + 1):
-                        start[ci * ny + cj + 1] += 1
+        cells = np.empty((count, 4), np.int32)     # each binned ray's cell ranges
+        for q in range(count):
+            i = binned_rays[q]
+            i0, i1 = int((track[i, 0] - gx0) * inv_size), int((track[i, 2] - gx0) * inv_size)
+            j0, j1 = int((track[i, 1] - gy0) * inv_size), int((track[i, 3] - gy0) * inv_size)
+            cells[q, 0], cells[q, 1], cells[q, 2], cells[q, 3] = i0, i1, j0, j1
+            for ci in range(i0, i1 + 1):
+                for cj in range(j0, j1 + 1):
+                    start[ci * ny + cj + 1] += 1
         for cell in range(nx * ny):
             start[cell + 1] += start[cell]
         fill = start[:-1].copy()
-        cell_ray = np.empty(start[-1], np.int64)
+        cell_ray = np.empty(start[-1], np.int32)
+        # Per entry, the ray's track centre, half-diagonal (+ float32 rounding) and depth
+        # reach (rounded up): read in order, half the bytes of float64.
+        cell_track = np.empty((start[-1], 4), np.float32)
         cell_z = np.full(nx * ny, -np.inf)   # farthest depth any ray of the cell counts to
-        for i in range(n):
-            if active[i]:
-                i0, i1 = int((track[i, 0] - gx0) / size), int((track[i, 2] - gx0) / size)
-                j0, j1 = int((track[i, 1] - gy0) / size), int((track[i, 3] - gy0) / size)
-                for ci in range(i0, i1 + 1):
-                    for cj in range(j0, j1 + 1):
-                        cell_ray[fill[ci * ny + cj]] = i
-                        fill[ci * ny + cj] += 1
-                        cell_z[ci * ny + cj] = max(cell_z[ci * ny + cj], ray_z[i])
-        # Each segment visits the cells within pad of its projection (sampled every half
-        # cell, each point dilated by pad + half a cell), each cell once.
+        for q in range(count):
+            i = binned_rays[q]
+            mid_x, mid_y = 0.5 * (track[i, 0] + track[i, 2]), 0.5 * (track[i, 1] + track[i, 3])
+            half_diagonal = (0.5 * (track[i, 2] - track[i, 0] + track[i, 3] - track[i, 1])
+                             + 1e-6 * (1.0 + abs(mid_x) + abs(mid_y)))
+            reach_z = ray_z[i] * (1.0 + 1e-6) + 1e-6
+            for ci in range(cells[q, 0], cells[q, 1] + 1):
+                for cj in range(cells[q, 2], cells[q, 3] + 1):
+                    entry = fill[ci * ny + cj]
+                    cell_ray[entry] = i
+                    cell_track[entry, 0], cell_track[entry, 1] = mid_x, mid_y
+                    cell_track[entry, 2], cell_track[entry, 3] = half_diagonal, reach_z
+                    fill[ci * ny + cj] += 1
+                    cell_z[ci * ny + cj] = max(cell_z[ci * ny + cj], ray_z[i])
+        # Each segment visits the cells within pad of its projection, each cell once: the
+        # cells of its grown box when that is small, else those near points sampled every
+        # half cell (each point grown by pad + half a cell).
         stamp = np.full(nx * ny, -1, np.int64)
         reach = pad + 0.5 * size
         for k in range(m):
@@ -557,6 +726,35 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
                 continue
             ex, ey = x1 - x0, y1 - y0
             inv_len2 = 1.0 / (ex * ex + ey * ey) if ex * ex + ey * ey > 0.0 else 0.0
+            i0 = min(max(int((min(x0, x1) - pad - gx0) / size), 0), nx - 1)
+            i1 = min(max(int((max(x0, x1) + pad - gx0) / size), 0), nx - 1)
+            j0 = min(max(int((min(y0, y1) - pad - gy0) / size), 0), ny - 1)
+            j1 = min(max(int((max(y0, y1) + pad - gy0) / size), 0), ny - 1)
+            if (i1 - i0 + 1) * (j1 - j0 + 1) <= 9:
+                for ci in range(i0, i1 + 1):
+                    for cj in range(j0, j1 + 1):
+                        cell = ci * ny + cj
+                        if seg_z[k] > cell_z[cell]:
+                            continue             # behind every lit surface of the cell
+                        for p in range(start[cell], start[cell + 1]):
+                            if seg_z[k] > cell_track[p, 3]:
+                                continue
+                            i = cell_ray[p]
+                            if out[i]:
+                                continue
+                            # The gnomonic projections first: the track's centre within
+                            # pad + its half-diagonal of the segment's projection.
+                            tx, ty = cell_track[p, 0] - x0, cell_track[p, 1] - y0
+                            h = min(max((tx * ex + ty * ey) * inv_len2, 0.0), 1.0)
+                            gx, gy = tx - h * ex, ty - h * ey
+                            slack = pad + cell_track[p, 2]
+                            if gx * gx + gy * gy > slack * slack:
+                                continue
+                            if _segment_in_cone(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1],
+                                                d[i, 2], a[k, 0], a[k, 1], a[k, 2], b[k, 0],
+                                                b[k, 1], b[k, 2], z_limit[i], tan_a):
+                                out[i] = True
+                continue
             steps = int(np.sqrt(ex * ex + ey * ey) / (0.5 * size)) + 1
             for step in range(steps + 1):
                 x = x0 + (x1 - x0) * step / steps
@@ -574,16 +772,17 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
                         if seg_z[k] > cell_z[cell]:
                             continue             # behind every lit surface of the cell
                         for p in range(start[cell], start[cell + 1]):
+                            if seg_z[k] > cell_track[p, 3]:
+                                continue
                             i = cell_ray[p]
-                            if out[i] or seg_z[k] > ray_z[i]:
+                            if out[i]:
                                 continue
                             # The gnomonic projections first: the track's centre within
                             # pad + its half-diagonal of the segment's projection.
-                            tx = 0.5 * (track[i, 0] + track[i, 2]) - x0
-                            ty = 0.5 * (track[i, 1] + track[i, 3]) - y0
+                            tx, ty = cell_track[p, 0] - x0, cell_track[p, 1] - y0
                             h = min(max((tx * ex + ty * ey) * inv_len2, 0.0), 1.0)
                             gx, gy = tx - h * ex, ty - h * ey
-                            slack = pad + 0.5 * (track[i, 2] - track[i, 0] + track[i, 3] - track[i, 1])
+                            slack = pad + cell_track[p, 2]
                             if gx * gx + gy * gy > slack * slack:
                                 continue
                             if _segment_in_cone(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1],
@@ -593,11 +792,11 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
     # Rays not binned (far off the mean direction) against every segment, and segments
     # too near c against every ray: never, in practice.
     loose = np.flatnonzero(~binned)
-    every = np.arange(m)
     for i in range(n):
-        if out[i] or z_limit[i] < 0.0:
+        if out[i] or z_limit[i] < 0.0 or not (brute[i] or loose.shape[0] > 0):
             continue
-        for k in (every if brute[i] else loose):
+        for q in range(m if brute[i] else loose.shape[0]):
+            k = q if brute[i] else loose[q]
             if _segment_in_cone(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2],
                                 a[k, 0], a[k, 1], a[k, 2], b[k, 0], b[k, 1], b[k, 2],
                                 z_limit[i], tan_a):

@@ -26,20 +26,24 @@ from the axis ray's. So the axis ray is cast for every shot, then:
   the call, since the target moves during a frame, so the set is conservative) cast
   all K sub-rays, as ``sampling: all`` does;
 - every other shot sees one connected, front-facing sheet: all sub-rays hit it if the
-  axis does, none if the axis misses (power fraction 1 or 0). Each sub-ray's range is
-  found without Embree: it is intersected with the plane of the axis facet and, where
-  it leaves that facet, followed across the shared edge to the next one (at most
-  WALK_STEPS facets), so creases and curved, tessellated surfaces give the ranges
-  Embree would. A footprint the walk cannot place (more facets away, or seen
-  edge-on) is cast after all.
+  axis does, none if the axis misses (power fraction 1 or 0). A footprint inside the
+  axis facet (or its flat region) has the plane's closed-form mean range. One that
+  crosses slight creases only takes the plane's answer too when a bound on the error
+  (``_footprints_in_facets``) is within ``crease_tol_m`` (CREASE_TOL_M = 1 mm): the one
+  approximation. Any other footprint is walked: each sub-ray is intersected with the
+  plane of the axis facet and, where it leaves that facet, followed across the shared
+  edge to the next one (at most WALK_STEPS facets), so creases and curved, tessellated
+  surfaces give the ranges Embree would. A footprint the walk cannot place (more
+  facets away, or seen edge-on) is cast after all.
 
-The result is the full sampling's up to float32 rounding of the rays (~1e-5 m): the
-hit/miss decisions and power fractions are identical, and the tests check it on plate
-edges, depth steps and the tumbling rocket body. What it can miss: nothing the full
-sampling sees, as long as the viewpoints of one call lie within a box (sensor
-positions are split into blocks of at most BLOCK_SPREAD_M); its cost grows with the
-number of shots near silhouettes, i.e. with the footprint (scale 30 samples most
-shots).
+The hit/miss decisions and power fractions are the full sampling's; ranges are too, up
+to float32 rounding of the rays (~1e-5 m), except across slight creases, within
+crease_tol_m (0: walk every footprint; seen on the rocket body: 0.3 mm at most). The
+tests check it on plate edges, creases, a pyramid's apex, a cylinder and the tumbling
+rocket body. What it can miss: nothing the full sampling sees, as long as the
+viewpoints of one call lie within a box (sensor positions are split into blocks of at
+most BLOCK_SPREAD_M); its cost grows with the number of shots near silhouettes, i.e.
+with the footprint (scale 30 samples most shots).
 ``sampling: all`` casts every sub-ray of every shot (the reference the tests use).
 
 Fit: 1-D search of footprint_scale on the likelihood of matched points plus the
@@ -60,13 +64,15 @@ from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect
 from lidar_sim_ros.core.geometry import BodyRays, Hits, Target, body_rays, split_over_threads
 from lidar_sim_ros.core.geometry_kernels import _rotate
-from lidar_sim_ros.core.silhouette import cones_touching_edges, mesh_edges, origin_box
+from lidar_sim_ros.core.silhouette import (FAST_ALGEBRA, cones_touching_edges, mesh_edges,
+                                          origin_box)
 
 WALK_STEPS = 8          # facets a sub-ray is followed across before the shot is cast instead
 BLOCK_SPREAD_M = 0.25   # sensor positions (body frame) per silhouette set, at most this apart
 SERIES_LIMIT = 0.01     # tan(a) tan(theta) below which the plane sum's series is exact enough
-OCCLUDER_MARGIN_M = 0.002
-WIDE_FOOTPRINT = 0.8    # footprint radius / median mesh edge above which every shot is cast   # occluders this far behind the footprint's farthest sub-ray count
+OCCLUDER_MARGIN_M = 0.002   # occluders this far behind the footprint's farthest sub-ray count
+WIDE_FOOTPRINT = 0.8    # footprint radius / median mesh edge above which every shot is cast
+CREASE_TOL_M = 1e-3     # range error allowed where a footprint crosses only slight creases
 
 
 @lru_cache(maxsize=8)
@@ -81,6 +87,20 @@ def footprint_pattern(rings: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         phi += list(2 * np.pi * (np.arange(k) + 0.5 * (i % 2)) / k)
     rho, phi = np.array(rho), np.array(phi)
     out = rho, phi, np.exp(-2.0 * rho ** 2)
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
+@lru_cache(maxsize=64)
+def footprint_rings(half_angle_rad: float, rings: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per ring of the pattern (axis excluded): how far its sub-rays land on a plane
+    relative to the outer ring's (tan of its angle off the axis over tan of the
+    half-angle), and its share of the beam's energy."""
+    rho, _, energy = footprint_pattern(rings)
+    radius = np.arange(1, rings + 1) / rings
+    share = np.array([energy[rho == r].sum() for r in radius]) / energy.sum()
+    out = np.tan(half_angle_rad * radius) / np.tan(half_angle_rad), share
     for a in out:
         a.flags.writeable = False
     return out
@@ -104,14 +124,17 @@ def sample_footprint(target: Target, directions_lidar: np.ndarray, poses, half_a
 
 
 def footprint_cast(target: Target, directions_lidar: np.ndarray, poses, half_angle_rad: float,
-                   rings: int = 2, range_mode: str = 'mean') -> Hits:
+                   rings: int = 2, range_mode: str = 'mean',
+                   crease_tol_m: float = CREASE_TOL_M) -> Hits:
     """The same model as ``sample_footprint``; sub-rays cast only where a silhouette may
-    cross the footprint (module docstring)."""
+    cross the footprint (module docstring). ``crease_tol_m``: range error allowed where a
+    footprint crosses only slight creases (0: follow every sub-ray across them)."""
     rays = body_rays(directions_lidar, poses)   # no cast order: rows in input order
     axis = target.cast_body_rays(rays, barycentric=True)    # fresh arrays: updated in place
     if _wider_than_facets(target, axis, half_angle_rad):
         return _cast_subrays(target, rays, np.arange(len(rays)), half_angle_rad, rings, range_mode)
-    sample = _footprints_on_sheets(target, rays, axis, half_angle_rad, rings, range_mode)
+    sample = _footprints_on_sheets(target, rays, axis, half_angle_rad, rings, range_mode,
+                                   crease_tol_m)
     fraction = axis.hit.astype(float)
     idx = np.flatnonzero(sample)
     if len(idx):
@@ -125,26 +148,28 @@ def footprint_cast(target: Target, directions_lidar: np.ndarray, poses, half_ang
 def _wider_than_facets(target: Target, axis: Hits, half_angle_rad: float) -> bool:
     """Footprints wider than WIDE_FOOTPRINT x the mesh's median edge (at the median range):
     nearly every shot would be walked far or cast anyway, so cast them all."""
-    ranges = axis.range_m[axis.hit][::64]        # a sample is enough for a median
+    ranges = np.sort(axis.range_m[::64][axis.hit[::64]])  # a sample is enough for a median
     if len(ranges) == 0:
         return False
-    radius = float(np.median(ranges)) * np.tan(half_angle_rad)
+    radius = float(ranges[len(ranges) // 2]) * np.tan(half_angle_rad)
     return radius > WIDE_FOOTPRINT * mesh_edges(target).median_edge_m
 
 
 def sampled_shots(target: Target, directions_lidar: np.ndarray, poses, half_angle_rad: float,
-                  rings: int = 2, range_mode: str = 'mean') -> np.ndarray:
+                  rings: int = 2, range_mode: str = 'mean',
+                  crease_tol_m: float = CREASE_TOL_M) -> np.ndarray:
     """The shots ``footprint_cast`` casts sub-rays for (bool mask); the others follow from
     their axis ray."""
     rays = body_rays(directions_lidar, poses)
     axis = target.cast_body_rays(rays, barycentric=True)
     if _wider_than_facets(target, axis, half_angle_rad):
         return np.ones(len(rays), bool)
-    return _footprints_on_sheets(target, rays, axis, half_angle_rad, rings, range_mode)
+    return _footprints_on_sheets(target, rays, axis, half_angle_rad, rings, range_mode,
+                                 crease_tol_m)
 
 
 def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle_rad: float,
-                          rings: int, range_mode: str) -> np.ndarray:
+                          rings: int, range_mode: str, crease_tol_m: float) -> np.ndarray:
     """Ranges of the footprints that lie on one sheet of facets, written into
     ``axis.range_m``; returns the shots whose sub-rays must be cast instead."""
     edges = mesh_edges(target)
@@ -152,19 +177,21 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
     rho, phi, energy = footprint_pattern(rings)
     tilt = np.tan(half_angle_rad * rho)
     sample = np.zeros(len(rays), bool)
-    for block in _blocks(rays.origins_m):
+    for block, lo, hi in _blocks(rays.origins_m):
         o, dirs = rays.origins_m[block], rays.directions[block]
-        candidate = edges.candidate_mask(*origin_box(o))
+        candidate = edges.candidate_mask(lo, hi)
         hits = np.flatnonzero(axis.hit) if isinstance(block, slice) else block[axis.hit[block]]
         # Ranges of the footprints on one sheet (in place), the shots to cast instead, and
         # how deep an occluder may sit for each (misses: any depth). Most footprints lie
         # inside the axis facet: that takes the hit's barycentric coordinates only.
         limit = np.full(len(rays), np.inf)
         if range_mode == 'mean':
-            beyond = np.zeros(len(rays), bool)
-            _footprints_in_facets(hits, axis.range_m, axis.cos_incidence, axis.face,
-                                  axis.barycentric, edges.face_altitude, tilt, energy, limit, beyond)
-            hits = hits[beyond[hits]]
+            ring_reach, ring_share = footprint_rings(half_angle_rad, rings)
+            hits = np.concatenate(split_over_threads(
+                len(hits), target.threads, lambda part: _footprints_in_facets(
+                    hits[part], axis.range_m, axis.cos_incidence, axis.face, axis.barycentric,
+                    edges.face_star, edges.face_crease, tilt, energy, ring_reach, ring_share,
+                    crease_tol_m, limit)))
         split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
             rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
             energy, rings, range_mode == 'first', edges.face_planes, edges.face_region,
@@ -286,17 +313,17 @@ def _combine_subrays(face_k, tfar_k, d_sub, index, energy, first, face_normals, 
 
 def _blocks(origins_m: np.ndarray) -> list:
     """Ray rows (a slice, or index arrays) split until each block's sensor positions lie
-    within BLOCK_SPREAD_M: one block per frame in the simulator, a few in a comparison
-    spanning many frames."""
+    within BLOCK_SPREAD_M, each with the corners of its positions' box: one block per
+    frame in the simulator, a few in a comparison spanning many frames."""
     lo, hi = origin_box(origins_m)
     if len(origins_m) == 0 or np.linalg.norm(hi - lo) <= BLOCK_SPREAD_M:
-        return [slice(None)]
+        return [(slice(None), lo, hi)]
     out, todo = [], [np.arange(len(origins_m))]
     while todo:
         idx = todo.pop()
         lo, hi = origin_box(origins_m[idx])
         if len(idx) < 64 or np.linalg.norm(hi - lo) <= BLOCK_SPREAD_M:
-            out.append(idx)
+            out.append((idx, lo, hi))
             continue
         split = np.argsort(origins_m[idx, int(np.argmax(hi - lo))], kind='stable')
         half = len(idx) // 2
@@ -304,17 +331,40 @@ def _blocks(origins_m: np.ndarray) -> list:
     return out
 
 
-@njit(cache=True, nogil=True, error_model='numpy')
-def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, altitude, tilt,
-                          energy, limit, beyond):
-    """The energy-weighted mean range of shots whose footprint lies inside the axis facet,
-    from the axis hit alone (range_m, cos_incidence, barycentric (u, v) on the facet, the
-    facet's vertex-to-edge altitudes); others get ``beyond[i] = True``.
+# Reassociation and FMA only (no finite-math flags: inf marks a missing star or crease).
+@njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
+def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_star,
+                          face_crease, tilt, energy, ring_reach, ring_share, crease_tol, limit):
+    """The energy-weighted mean range of shots whose footprint lies on the axis facet's
+    plane, or within ``crease_tol`` (m) of it, from the axis hit alone (range_m,
+    cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_star``); returns the
+    others (the shots of ``index`` to walk), in order.
 
-    The cone meets the facet's plane within r0 sin a / cos(theta + a) of the axis point,
-    which lies w_k h_k from the edge facing vertex k. On the plane, the sub-rays' ranges
-    average to r0 (1 + sum_j e_j t_j^2 (1 + tan^2 theta) / (2 sum_j e_j)) to second order
-    in t tan(theta) (off by < (t tan theta)^4 / 2 relative: used below SERIES_LIMIT).
+    The cone meets the facet's plane within spread = r0 sin a / cos(theta + a) of the
+    axis point p, which lies w_k h_k from the edge facing vertex k. On the plane, the
+    sub-rays' ranges average to r0 (1 + sum_j e_j t_j^2 (1 + tan^2 theta) / (2 sum_j e_j))
+    to second order in t tan(theta) (off by < (t tan theta)^4 / 2 relative: used below
+    SERIES_LIMIT).
+
+    A footprint that leaves the facet but stays in the star of one of its vertices v (the
+    faces around v, normals within tau of each other: ``MeshEdges.vertex_tilt_rad``) gets
+    the plane's answer when that is within crease_tol of the mean of the sub-rays' ranges
+    on the star. Over the facet's plane the star is a surface through p that is the
+    plane itself up to the facet's edges (``margin`` from p) and rises at slope
+    <= tan(tau) beyond. Sub-ray j, at incidence <= theta' (theta plus the half-angle),
+    meets the plane at x'_j, |x'_j - p| <= s_j = spread t_j / t_max, and the star at x_j
+    with |x_j - x'_j| (cot theta' - tan tau) <= tan tau |x'_j - p|, so
+    |x_j - p| <= s_j / (1 - lean), lean = tan tau tan theta'. The star lies within
+    tan tau (|x_j - p| - margin) of the plane there, which moves the range by at most
+    that over cos theta': at most ``worst`` for any sub-ray, and the energy-weighted
+    mean of the bounds over the rings (ring_reach, ring_share: each ring's t_j / t_max and
+    share of the energy) for their mean. This holds while the footprint stays in the star:
+    |p - v| (from the barycentric coordinates and the edge lengths) plus its length over
+    the surface, spread / ((1 - lean) cos(tau)), within the star's reach. A footprint
+    that reaches a single edge of the facet is bounded the same way with tau the fold of
+    that edge (``MeshEdges.face_crease``) while it stays on the facet beyond: p's
+    distances to that facet's two other edges, unfolded across the crease, exceed its
+    length over the surface.
     """
     k = energy.shape[0]
     total, moment2 = 0.0, 0.0
@@ -323,29 +373,105 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, alti
         moment2 += energy[j] * tilt[j] * tilt[j]
     t_max = tilt[k - 1]
     lift = np.sqrt(1.0 + t_max * t_max)
+    half_moment = 0.5 * moment2 / total
+    beyond = np.empty(index.shape[0], np.int64)
+    count = 0
     for q in range(index.shape[0]):
         i = index[q]
         r0 = range_m[i]
         cos_i = min(cos_incidence[i], 1.0)
         sin_i = np.sqrt(1.0 - cos_i * cos_i)
-        a_max = sin_i * t_max
-        if a_max >= SERIES_LIMIT * cos_i:
-            beyond[i] = True
+        if sin_i * t_max >= SERIES_LIMIT * cos_i:
+            beyond[count] = i
+            count += 1
             continue
-        a_max /= cos_i
-        spread = 1.01 * r0 * t_max / (cos_i - sin_i * t_max) + 1e-6
+        inv_cos = 1.0 / cos_i
+        a_max = sin_i * t_max * inv_cos
+        # 1 / (1 - a) <= 1 + a + 2 a^2 for a <= 0.5: bounds from above, one division less.
+        above = 1.0 + a_max + 2.0 * a_max * a_max
+        inv_far = inv_cos * above                 # >= 1 / (cos_i - sin_i t_max)
+        spread = 1.01 * r0 * t_max * inv_far + 1e-6
         f = face[i]
-        u, v = np.float64(barycentric[i, 0]), np.float64(barycentric[i, 1])
-        margin = min((1.0 - u - v) * altitude[f, 0], u * altitude[f, 1], v * altitude[f, 2])
+        w1, w2 = np.float64(barycentric[i, 0]), np.float64(barycentric[i, 1])
+        w0 = 1.0 - w1 - w2
+        # Distances to edges 1, 2, 0 (vertices k + 1, k + 2: facing vertex k). Rows are
+        # indexed in place: a view per shot costs reference counting.
+        m0, m1, m2 = w0 * face_star[f, 0], w1 * face_star[f, 1], w2 * face_star[f, 2]
+        margin = min(m0, m1, m2)
+        worst, mean_err = 0.0, 0.0
         if margin < spread:
-            beyond[i] = True
-            continue
-        tan2 = (sin_i * sin_i) / (cos_i * cos_i)
-        range_m[i] = r0 * (1.0 + 0.5 * moment2 * (1.0 + tan2) / total)
-        limit[i] = _occluder_limit(r0 * lift / (1.0 - a_max), r0)
+            worst, mean_err = np.inf, np.inf
+            if crease_tol > 0.0:
+                tan_far = (sin_i + cos_i * t_max) * inv_far         # tan(theta')
+                sec_far = lift * inv_far                            # 1 / cos(theta')
+                l01 = np.float64(face_star[f, 3])
+                l12, l20 = np.float64(face_star[f, 4]), np.float64(face_star[f, 5])
+                for c in range(3):
+                    # Only the star of a vertex on every edge the footprint crosses can hold
+                    # it: not if it reaches the edge facing vertex c.
+                    if (m0 if c == 0 else (m1 if c == 1 else m2)) < spread:
+                        continue
+                    tan_tau = np.float64(face_star[f, 9 + c])
+                    lean = tan_tau * tan_far
+                    if not lean < 0.5:                 # also inf: not one closed fan
+                        continue
+                    grow = spread * (1.0 + lean + 2.0 * lean * lean)   # >= spread / (1 - lean)
+                    room = face_star[f, 6 + c] - grow * face_star[f, 12 + c]
+                    if room <= 0.0:
+                        continue
+                    if c == 0:
+                        d2 = w1 * w1 * l01 + w2 * w2 * l20 + w1 * w2 * (l01 + l20 - l12)
+                    elif c == 1:
+                        d2 = w0 * w0 * l01 + w2 * w2 * l12 + w0 * w2 * (l01 + l12 - l20)
+                    else:
+                        d2 = w0 * w0 * l20 + w1 * w1 * l12 + w0 * w1 * (l20 + l12 - l01)
+                    if d2 > room * room:
+                        continue
+                    slope = tan_tau * sec_far
+                    mean_bound = 0.0
+                    for r in range(ring_reach.shape[0]):
+                        mean_bound += ring_share[r] * max(grow * ring_reach[r] - margin, 0.0)
+                    if slope * mean_bound < mean_err:
+                        mean_err = slope * mean_bound
+                        worst = min(worst, slope * (grow - margin))
+                near = (m0 < spread) + (m1 < spread) + (m2 < spread)
+                if not mean_err <= crease_tol and near == 1:
+                    # One crease: across edge e only, into the facet beyond it.
+                    e = 0 if m2 < spread else (1 if m0 < spread else 2)
+                    tan_tau = np.float64(face_crease[f, e, 0])
+                    lean = tan_tau * tan_far
+                    if lean < 0.5:
+                        grow = spread * (1.0 + lean + 2.0 * lean * lean)
+                        slope = tan_tau * sec_far
+                        mean_bound = 0.0
+                        for r in range(ring_reach.shape[0]):
+                            mean_bound += ring_share[r] * max(grow * ring_reach[r] - margin, 0.0)
+                        # Where p lies along the edge (from vertex e), from the Gram matrix.
+                        w_next, w_far = (w1, w2) if e == 0 else ((w2, w0) if e == 1 else (w0, w1))
+                        span2 = np.float64(face_star[f, 3 + e])
+                        side_next = np.float64(face_star[f, 3 + (e + 1) % 3])
+                        side_far = np.float64(face_star[f, 3 + (e + 2) % 3])
+                        span = np.float64(face_crease[f, e, 6])
+                        along = (w_next * span2
+                                 + 0.5 * w_far * (side_far + span2 - side_next)) / span
+                        # Distances of p to the facet's two other edges, unfolded.
+                        room = min(along * face_crease[f, e, 2] + margin * face_crease[f, e, 3],
+                                   (span - along) * face_crease[f, e, 4]
+                                   + margin * face_crease[f, e, 5])
+                        if slope * mean_bound <= crease_tol and room >= grow * face_crease[f, e, 1]:
+                            mean_err = slope * mean_bound
+                            worst = slope * (grow - margin)
+            if not mean_err <= crease_tol:
+                beyond[count] = i
+                count += 1
+                continue
+        tan2 = sin_i * sin_i * inv_cos * inv_cos
+        range_m[i] = r0 * (1.0 + half_moment * (1.0 + tan2))
+        limit[i] = _occluder_limit(r0 * lift * above + worst, r0)
+    return beyond[:count]
 
 
-@njit(cache=True, nogil=True, error_model='numpy')
+@njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
 def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin_phi, energy,
                             rings, first_mode, planes, region, region_lines, neighbour,
                             face_edge, silhouette, max_steps, range_m, limit, sample):
@@ -416,11 +542,11 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
         near2 = _margin(planes, f0, 3, px, py, pz) < spread
         if near0 or near1 or near2:
             # Still inside the flat region of the facet (a cylinder's column of quads)?
-            lines = region_lines[region[f0]]
+            g = region[f0]
             inside_region = True
-            for row in range(lines.shape[0]):
-                if (lines[row, 0] * px + lines[row, 1] * py + lines[row, 2] * pz
-                        - lines[row, 3]) < spread:
+            for row in range(region_lines.shape[1]):
+                if (region_lines[g, row, 0] * px + region_lines[g, row, 1] * py
+                        + region_lines[g, row, 2] * pz - region_lines[g, row, 3]) < spread:
                     inside_region = False
                     break
             if inside_region:
@@ -599,7 +725,7 @@ def _facet_coefficients(planes, f, ox, oy, oz, dx, dy, dz, ux, uy, uz, vx, vy, v
         coef[slot, row, 3] = ax * vx + ay * vy + az * vz
 
 
-@njit(cache=True, nogil=True, error_model='numpy')
+@njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
 def _walk(ox, oy, oz, sx, sy, sz, f, leave, planes, neighbour, face_edge, silhouette, max_steps):
     """Range (m) at which the ray o + r s meets the sheet, starting from facet f which it
     leaves by edge ``leave``; -1 if the walk meets a silhouette, a boundary or runs out."""

@@ -24,10 +24,16 @@ from lidar_sim_ros.core.effects.base import Effect, ReturnContext
 
 def footprint_depth_m(ctx: ReturnContext, max_incidence_deg: float = 85.0) -> np.ndarray:
     """L = r dtheta tan(theta) (m): range extent of the footprint; 0 on a miss."""
-    theta = np.clip(np.nan_to_num(np.asarray(ctx.incidence_rad, float), nan=0.0),
-                    0.0, np.radians(max_incidence_deg))
-    r = np.nan_to_num(np.asarray(ctx.range_m, float), nan=0.0, posinf=0.0)
-    return np.where(ctx.hit, r * ctx.divergence_rad * np.tan(theta), 0.0)
+    # fmax takes the number over NaN: a NaN incidence counts as 0 (a miss). In place: one
+    # array through tan and the products.
+    depth = np.fmax(np.asarray(ctx.incidence_rad, float), 0.0)
+    np.minimum(depth, np.radians(max_incidence_deg), out=depth)
+    np.tan(depth, out=depth)
+    r = np.asarray(ctx.range_m, float)
+    with np.errstate(invalid='ignore'):
+        np.multiply(depth, r * ctx.divergence_rad, out=depth)
+    np.copyto(depth, 0.0, where=~(ctx.hit & np.isfinite(r)))
+    return depth
 
 
 class _LastDepth:

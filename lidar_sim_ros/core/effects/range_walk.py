@@ -28,8 +28,8 @@ def log_power_ratio(ctx: ReturnContext, reference_power_w: float | None = None) 
     power = np.asarray(ctx.power_w, float)
     if not ref or ref <= 0:
         raise ValueError(f'range_walk needs a positive reference power, got {ref!r} W')
-    ok = power > 0
-    return np.where(ok, np.log(np.where(ok, power, ref) / ref), 0.0)
+    out = np.zeros(power.shape)
+    return np.log(power / ref, out=out, where=power > 0)
 
 
 @register

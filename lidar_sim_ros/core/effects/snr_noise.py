@@ -22,8 +22,8 @@ from lidar_sim_ros.core.effects.base import Effect, ReturnContext
 def threshold_power_ratio(ctx: ReturnContext) -> np.ndarray:
     """P_threshold / P per shot (-); 0 on a miss."""
     power = np.asarray(ctx.power_w, float)
-    ok = power > 0
-    return np.where(ok, ctx.threshold_power_w / np.where(ok, power, 1.0), 0.0)
+    out = np.zeros(power.shape)
+    return np.divide(ctx.threshold_power_w, power, out=out, where=power > 0)
 
 
 @register
