@@ -755,6 +755,9 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
                                                 b[k, 1], b[k, 2], z_limit[i], tan_a):
                                 out[i] = True
                 continue
+            # The cell visit below repeats the small-box one above on purpose: as an njit
+            # helper it is not inlined, and the call per cell cost a third more per frame
+            # (all_effects_over_plain 2.59 against 1.97, same run conditions).
             steps = int(np.sqrt(ex * ex + ey * ey) / (0.5 * size)) + 1
             for step in range(steps + 1):
                 x = x0 + (x1 - x0) * step / steps
