@@ -4,8 +4,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from lidar_sim_ros.compare.shots import missed_per_unmatched, shots_per_frame
+from lidar_sim_ros.compare.matching import Model
+from lidar_sim_ros.compare.shots import missed_per_unmatched
 from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.geometry import load_target
 from lidar_sim_ros.paths import config_path
 
 
@@ -53,6 +55,9 @@ def test_unknown_when_the_pattern_fires_fewer_shots_than_the_points():
 def test_shots_per_frame_of_the_p60_pattern():
     scenario = load_scenario(config_path('scenario.yaml'))
     scan = scenario.sensor.scan
-    # 8 x 3 tiles, one laser each (paper Sec. 3), shots_per_laser each per frame.
-    assert shots_per_frame(scenario.sensor, scenario.source.parent) == \
-        scan.tiles_az * scan.tiles_el * scan.shots_per_laser
+    target = load_target(scenario.mesh_path, scenario.materials.names)
+    model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
+                  scenario.source.parent)
+    # What compare passes as the frame's shots: 8 x 3 tiles, one laser each (paper
+    # Sec. 3), shots_per_laser each per frame.
+    assert len(model.simulator().shots) == scan.tiles_az * scan.tiles_el * scan.shots_per_laser

@@ -366,8 +366,11 @@ def fit_data_from_rays(sim: Simulator, t_abs_s: np.ndarray, directions: np.ndarr
     det = sim.sensor.detection
     window = range_window_m or (det.min_range_m, det.max_range_m)
     power = None if measured_power_w is None else np.asarray(measured_power_w, float)[matched]
+    n_unmatched = int((~matched).sum())
+    missed = (max(n_shots - int(matched.sum()), 0) / n_unmatched
+              if n_shots is not None and n_unmatched else None)
     return FitData(measured_range_m=measured_range_m[matched], baseline=cast(moving(base)),
                    cast=cast, unmatched_range_m=measured_range_m[~matched],
                    cast_unmatched=PredictionCache(predictor(~matched)),
                    range_window_m=tuple(window), base_effects=tuple(base),
-                   measured_power_w=power, n_shots=n_shots)
+                   measured_power_w=power, n_shots=n_shots, missed_per_unmatched=missed)

@@ -76,8 +76,9 @@ class FitData:
     measured_power_w: np.ndarray | None = None
     extra_var_m2: np.ndarray | float = 0.0   # (N,) variance the model adds (unknown point times)
     n_shots: int | None = None            # shots fired if known (else None)
-    # Shots that gave no matched point, per unmatched point (from the scan pattern's shots
-    # per frame or an organised cloud's size; ``compare.shots``); None: unknown.
+    # Shots that gave no matched point, per unmatched point (``fit_data_from_rays``: from
+    # ``n_shots``; compare: from the scan pattern's shots per frame or an organised
+    # cloud's size, ``compare.shots``); None: unknown.
     missed_per_unmatched: float | None = None
     # (M,) unmatched points no neighbouring ray sees at the same range: only these can be
     # spurious returns (a surface that is not the target, e.g. lab clutter, is not).
@@ -336,8 +337,8 @@ def unmatched_explained(data: FitData, effects: Sequence[Effect],
     range within UNMATCHED_Z sigma (beam divergence, time offset); or spurious
     returns on shots that miss the target (outlier fraction x missed shots, at most
     the share of the isolated unmatched ranges that look uniform over the window). Missed
-    shots are ``missed_per_unmatched x M`` when the recording's shot count is known
-    (the scan pattern), else ``n_shots - N`` when ``n_shots`` is, else assumed to be N.
+    shots are ``missed_per_unmatched x M`` when the shots fired are known, else assumed
+    to be N.
     """
     effects = list(effects)
     r_u = np.asarray(data.unmatched_range_m, float)
@@ -360,10 +361,7 @@ def unmatched_explained(data: FitData, effects: Sequence[Effect],
     spurious = 0.0
     if w_mean > 0 and len(rest):
         n = len(data.measured_range_m)
-        if data.missed_per_unmatched is not None:
-            missed = data.missed_per_unmatched * m
-        else:
-            missed = max(data.n_shots - n, 0) if data.n_shots is not None else n
+        missed = data.missed_per_unmatched * m if data.missed_per_unmatched is not None else n
         share = uniform_share(rest, data.range_window_m, np.asarray(data.measured_range_m))
         spurious = min(share * len(rest), w_mean * missed)
     return float(min(1.0, (hit_now.sum() + spurious) / m))

@@ -38,7 +38,7 @@ from lidar_sim_ros.compare.matching import (Matching, Model, edge_distance_rad, 
                                             range_rate_mps)
 from lidar_sim_ros.compare.measurements import (Measurements, MeasurementError,
                                                  load_measurements, with_scan_times)
-from lidar_sim_ros.compare.shots import missed_per_unmatched, shots_per_frame
+from lidar_sim_ros.compare.shots import missed_per_unmatched
 from lidar_sim_ros.compare.sunlight import (SunFit, fit_sunlight, read_sun_track, short_points,
                                             summary_section, sunlit_decision)
 from lidar_sim_ros.compare.verdict import summary_lines, verdict
@@ -185,7 +185,7 @@ def rays_of(m: Matching, measured_power_w: np.ndarray | None,
             model: Model | None = None) -> diagnosis.RaySet:
     """The matched and unmatched rays of ``m``; with ``model``, how many shots missed the
     target per unmatched point (``shots.py``)."""
-    missed = (missed_per_unmatched(m.meas, m.matched, shots_per_frame(model.sensor, model.scan_base))
+    missed = (missed_per_unmatched(m.meas, m.matched, len(model.simulator().shots))
               if model is not None else None)
     return diagnosis.RaySet(m.meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
                             pred=m.pred, measured_power_w=measured_power_w,

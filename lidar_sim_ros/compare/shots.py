@@ -14,19 +14,13 @@ from __future__ import annotations
 import numpy as np
 
 from lidar_sim_ros.compare.measurements import Measurements
-from lidar_sim_ros.core.config import SensorConfig
-from lidar_sim_ros.core.scan import frame_shots
-
-
-def shots_per_frame(sensor: SensorConfig, base=None) -> int:
-    """Shots of one frame of the configured scan pattern."""
-    return len(frame_shots(sensor, base).t_s)
 
 
 def missed_per_unmatched(meas: Measurements, matched: np.ndarray, per_frame: int) -> float | None:
     """Shots without a matched point per unmatched point analysed (module doc), or None.
 
-    ``matched``: bool per analysed point. The shots are scaled to the analysed share of
+    ``matched``: bool per analysed point; ``per_frame``: shots of one frame of the
+    configured scan pattern (``Simulator.shots``). The shots are scaled to the analysed share of
     the recording's points (a random subset may be analysed)."""
     matched = np.asarray(matched, bool)
     n_unmatched = int((~matched).sum())
