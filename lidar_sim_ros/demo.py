@@ -83,15 +83,10 @@ def record(bag: Path, seconds: float, procs: dict[str, subprocess.Popen], logs: 
     try:
         with BagWriter(bag) as writer:
             recorder = BagRecorder(node, writer, armed=False)
-            deadline = time.monotonic() + STARTUP_TIMEOUT_S
-            while recorder.seen['/lidar/points'] == 0:
-                executor.spin_once(timeout_sec=0.1)
-                for name, proc in procs.items():
-                    if proc.poll() is not None:
-                        raise RuntimeError(f'{name} exited with {proc.returncode}:\n{logs[name].read_text()}')
-                if time.monotonic() > deadline:
-                    raise RuntimeError(f'no cloud on /lidar/points within {STARTUP_TIMEOUT_S:g} s; '
-                                       f'see {logs["lidar_sim_node"]}')
+            spin_until_started(executor, lambda: recorder.seen['/lidar/points'] > 0, procs, logs,
+                               STARTUP_TIMEOUT_S,
+                               lambda: (f'no cloud on /lidar/points within {STARTUP_TIMEOUT_S:g} s; '
+                                        f'see {logs["lidar_sim_node"]}'))
             # Discovery of the other topics may lag the first cloud: the bag starts once
             # every topic flows, so that no stretch of clouds lacks its poses.
             settle = time.monotonic() + TOPICS_TIMEOUT_S
@@ -104,15 +99,34 @@ def record(bag: Path, seconds: float, procs: dict[str, subprocess.Popen], logs: 
             # to a time before the poses in the bag.
             recorder.arm(since_ns=node.get_clock().now().nanoseconds)
             print(f'first cloud received; recording {seconds:g} s ...', flush=True)
-            stop_at = time.monotonic() + seconds
-            while time.monotonic() < stop_at:
-                executor.spin_once(timeout_sec=0.05)
+            spin_for(executor, seconds)
             recorder.close()
             return dict(recorder.counts)
     finally:
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def spin_until_started(executor, started: Callable[[], bool], procs: dict[str, subprocess.Popen],
+                       logs: dict[str, Path], timeout_s: float, timed_out: Callable[[], str]) -> None:
+    """Spin ``executor`` until ``started()``. RuntimeError with the node's log if a node
+    exits meanwhile, or with ``timed_out()`` after ``timeout_s`` (s)."""
+    deadline = time.monotonic() + timeout_s
+    while not started():
+        executor.spin_once(timeout_sec=0.1)
+        for name, proc in procs.items():
+            if proc.poll() is not None:
+                raise RuntimeError(f'{name} exited with {proc.returncode}:\n{logs[name].read_text()}')
+        if time.monotonic() > deadline:
+            raise RuntimeError(timed_out())
+
+
+def spin_for(executor, seconds: float) -> None:
+    """Spin ``executor`` for ``seconds`` (s) of wall time."""
+    stop_at = time.monotonic() + seconds
+    while time.monotonic() < stop_at:
+        executor.spin_once(timeout_sec=0.05)
 
 
 def run_nodes(commands: dict[str, tuple[str, list[str]]], out: Path, bag: Path, seconds: float,

@@ -13,12 +13,11 @@ from __future__ import annotations
 import argparse
 import random
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.demo import remove_old_bag, run_nodes
+from lidar_sim_ros.demo import remove_old_bag, run_nodes, spin_for, spin_until_started
 from lidar_sim_ros.paths import config_path
 
 STARTUP_TIMEOUT_S = 90.0  # a first start compiles the simulator's kernels (see make venv)
@@ -77,21 +76,14 @@ def record(bag: Path, seconds: float, procs: dict, logs: dict[str, Path]) -> dic
     try:
         with BagWriter(bag) as writer:
             recorder = BagRecorder(node, writer, topics, armed=False)
-            deadline = time.monotonic() + STARTUP_TIMEOUT_S
-            while not recorder.flowing:
-                executor.spin_once(timeout_sec=0.1)
-                for name, proc in procs.items():
-                    if proc.poll() is not None:
-                        raise RuntimeError(f'{name} exited with {proc.returncode}:\n{logs[name].read_text()}')
-                if time.monotonic() > deadline:
-                    silent = [t for t, n in recorder.seen.items() if n == 0]
-                    raise RuntimeError(f'nothing on {silent} within {STARTUP_TIMEOUT_S:g} s; see {out_logs(logs)}')
+            spin_until_started(
+                executor, lambda: recorder.flowing, procs, logs, STARTUP_TIMEOUT_S,
+                lambda: (f'nothing on {[t for t, n in recorder.seen.items() if n == 0]} within '
+                         f'{STARTUP_TIMEOUT_S:g} s; see {out_logs(logs)}'))
             since_ns = node.get_clock().now().nanoseconds
             recorder.arm(since_ns)  # by header stamp: a lagging tracker's backlog stays out
             print(f'both trackers publish; recording {seconds:g} s ...', flush=True)
-            stop_at = time.monotonic() + seconds
-            while time.monotonic() < stop_at:
-                executor.spin_once(timeout_sec=0.05)
+            spin_for(executor, seconds)
             until_ns = node.get_clock().now().nanoseconds
             recorder.close()
             return {**recorder.counts, **{t: published(s, since_ns, until_ns) for t, s in stamps.items()}}
