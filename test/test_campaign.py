@@ -323,23 +323,27 @@ def test_four_runs_on_two_workers(finished):
         assert -0.3 < float(row['stat.range_error_mean_m']) < -0.09
 
 
-def _worker_state() -> dict:
+def _worker_state(dask_worker) -> dict:
     from lidar_sim_ros.campaign import run
     return {'env': {k: os.environ.get(k) for k in ('MALLOC_TRIM_THRESHOLD_', 'OMP_NUM_THREADS',
                                                   'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')},
-            'warm': sorted(run._WARM)}
+            'warm': sorted(run._WARM),
+            'profiler_callbacks': [name for name in dask_worker.periodic_callbacks
+                                   if 'profile' in name]}
 
 
 def test_workers_are_prepared_with_one_thread_and_glibc_defaults(finished, cluster):
     """Dask's MALLOC_TRIM_THRESHOLD_ is removed (it pins glibc's mmap threshold: every
-    frame's arrays page-faulted in afresh), one BLAS / OpenMP thread per worker, and
-    the dispersed scenario's effect list (range_walk, added by the campaign) was warmed."""
+    frame's arrays page-faulted in afresh), one BLAS / OpenMP thread per worker, no
+    stack profiler, and the dispersed scenario's effect list (range_walk, added by the
+    campaign) was warmed."""
     with dask_distributed.Client(cluster) as client:
         states = client.run(_worker_state)
     assert len(states) == 2
     for state in states.values():
         assert state['env'] == {'MALLOC_TRIM_THRESHOLD_': None, 'OMP_NUM_THREADS': '1',
                                 'OPENBLAS_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1'}
+        assert state['profiler_callbacks'] == []
         assert ('range_walk',) in state['warm']
 
 

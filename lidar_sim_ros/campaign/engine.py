@@ -60,6 +60,12 @@ WORKER_ENVIRON: dict[str, str | None] = {
 }
 _USER_ENVIRON = {key: os.environ.get(key) for key in WORKER_ENVIRON}  # the user's own win
 
+# Dask's worker profiler samples every worker thread's stack each 10 ms (for the
+# dashboard's profile page, which a campaign does not use): walking a frame's deep
+# numpy / numba stack costs ~20 % of a run's CPU here (119 -> 145 frames/s on one
+# worker, measured on an idle machine). Off on the workers we start.
+WORKER_CONFIG = {'distributed.worker.profile.enabled': False}
+
 
 def local_cluster(workers: int) -> LocalCluster:
     """A local Dask cluster of ``workers`` single-threaded worker processes."""
@@ -69,7 +75,7 @@ def local_cluster(workers: int) -> LocalCluster:
     for key, value in WORKER_ENVIRON.items():
         if value is None and _USER_ENVIRON[key] is None:
             os.environ.pop(key, None)
-    with dask.config.set(environ):
+    with dask.config.set({**environ, **WORKER_CONFIG}):
         # One thread per process: the kernels hold the GIL for part of a frame, and one
         # process per core lets each worker keep its own mesh and compiled kernels.
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -135,15 +141,23 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
                           startup_s, wall_s, compute_s)
 
 
-def _check_workers(trim_thresholds: dict[str, str | None]) -> None:
-    """Warn about workers started with a fixed glibc trim threshold (``dask worker``'s
-    default): every run then costs 1.5-1.9x the CPU (``WORKER_ENVIRON``)."""
-    fixed = sorted(addr for addr, value in trim_thresholds.items() if value is not None)
-    if fixed:
-        warnings.warn(f'{len(fixed)} of {len(trim_thresholds)} Dask workers run with '
+def _check_workers(facts: dict[str, dict]) -> None:
+    """Warn about workers started with Dask's defaults that cost us CPU (``dask worker``
+    on a cluster): a fixed glibc trim threshold (runs cost 1.5-1.9x the CPU,
+    ``WORKER_ENVIRON``) or the stack profiler (~1.2x, ``WORKER_CONFIG``)."""
+    n = len(facts)
+    trimmed = sum(f['MALLOC_TRIM_THRESHOLD_'] is not None for f in facts.values())
+    profiled = sum(bool(f['profile']) for f in facts.values())
+    if trimmed:
+        warnings.warn(f'{trimmed} of {n} Dask workers run with '
                       f'MALLOC_TRIM_THRESHOLD_ set (Dask\'s default): runs cost up to 1.9x the CPU; '
                       f'start them with distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_: '
                       f'null in the Dask config (docs/campaign.md)', stacklevel=3)
+    if profiled:
+        warnings.warn(f'{profiled} of {n} Dask workers run the stack profiler (Dask\'s default): '
+                      f'runs cost ~1.2x the CPU; start them with '
+                      f'DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False (docs/campaign.md)',
+                      stacklevel=3)
 
 
 def _gather(client: Client, campaign: Campaign, pending: list[int], out_dir: str | Path,

@@ -78,19 +78,23 @@ def prepare_scenario(scenario: Scenario) -> bool:
     return True
 
 
-def prepare_worker(campaign: Campaign) -> str | None:
+def prepare_worker(campaign: Campaign) -> dict[str, str | bool | None]:
     """Everything a run of ``campaign`` needs that is paid once per worker process: the
     mesh and BVH, the kernels of the dispersed effects, and the modules the samplers
     import on first use (scipy.stats alone takes ~0.6 s): run 0 is sampled for that.
 
-    Returns the worker's MALLOC_TRIM_THRESHOLD_ (None: unset, glibc's adaptive default),
-    which the engine checks (docs/campaign.md, "Running on a cluster").
+    Returns what the engine checks of the worker (docs/campaign.md, "Running on a
+    cluster"): its ``MALLOC_TRIM_THRESHOLD_`` (None: unset, glibc's adaptive default) and
+    whether Dask's stack profiler runs (``profile``).
     """
+    import dask  # a worker has it; the core and `--run` in-process do not need it
+
     try:
         prepare_scenario(sample_run(campaign, 0).scenario)
     except Exception:  # run 0's own failure is recorded when it runs, not here
         prepare_scenario(campaign.scenario)
-    return os.environ.get('MALLOC_TRIM_THRESHOLD_')
+    return {'MALLOC_TRIM_THRESHOLD_': os.environ.get('MALLOC_TRIM_THRESHOLD_'),
+            'profile': bool(dask.config.get('distributed.worker.profile.enabled', True))}
 
 
 # ------------------------------------------------------------------ one run
