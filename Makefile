@@ -47,7 +47,7 @@ bench: $(STAMP)
 
 ## `make bench-node SCENARIO=config/scenario_all_effects.yaml` runs the node with that scenario.
 bench-node: $(STAMP)
-	$(BIN)/python bench/bench_node.py --out bench_node.json $(if $(SCENARIO),--scenario $(SCENARIO))
+	$(BIN)/python bench/bench_node.py --out bench_node.json $(if $(SCENARIO),--scenario $(SCENARIO)) $(if $(PUBLISH_LATENCY),--publish-latency $(PUBLISH_LATENCY))
 
 ## What each LiDAR error costs the pose tracker, and its time per frame (offline).
 bench-gnc: $(STAMP)

@@ -42,6 +42,7 @@ from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.io.bag import encode_material_names
 from lidar_sim_ros.io.pointcloud import frame_points, stamp_to_ns, to_rclpy_msg
 from lidar_sim_ros.paths import config_path
+from lidar_sim_ros.ros.deadline import DeadlinePublisher
 from lidar_sim_ros.ros.spin import run_node
 from lidar_sim_ros.ros.pose_input import (NS_PER_S, PoseHistory, PoseSample, ReasonThrottle,
                                           check_pose, twist_to_lidar)
@@ -109,6 +110,11 @@ STARTUP_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     'threads': (2, _startup(
         I, 'threads a frame is split over (Embree and the beam-footprint kernels release the '
            'GIL); frames are the same for any count', int_range=(1, 64))),
+    'publish_latency_s': (0.0, _startup(
+        F, "publish each frame this long after its scan window ends (wall clock), as a "
+           "sensor's fixed processing latency: the period jitter is then the wake-up's, not "
+           "the computation's; a frame computed later is published at once (late); "
+           '0 = as soon as computed; ignored under use_sim_time', float_range=(0.0, 1.0))),
     'max_catch_up_frames': (10, _startup(
         I, 'most frames computed at once after a clock jump; older ones are dropped',
         int_range=(1, 1000))),
@@ -195,6 +201,12 @@ class LidarSimNode(Node):
         self._waiting = False
         self._warned_no_pose = False
         self._stats = {'published': 0, 'skipped': 0, 'failed': 0, 'compute_ms': [], 'publish_ms': []}
+        self._latency_ns = round(self.get_parameter('publish_latency_s').value * NS_PER_S)
+        if self._latency_ns and self.get_parameter('use_sim_time').value:
+            self.get_logger().warning('publish_latency_s is ignored under use_sim_time (it holds '
+                                      'frames on the wall clock): frames go out when computed')
+            self._latency_ns = 0
+        self._deadline = DeadlinePublisher() if self._latency_ns else None
 
         self._create_interfaces()
         self.get_logger().info(
@@ -295,6 +307,8 @@ class LidarSimNode(Node):
     def destroy_node(self):
         if hasattr(self, '_stop'):
             self._stop.set()
+        if getattr(self, '_deadline', None) is not None:
+            self._deadline.close()
         return super().destroy_node()
 
     # --------------------------------------------------------- parameters
@@ -474,12 +488,18 @@ class LidarSimNode(Node):
             frame = self.sim.simulate_frame(0.0, track, frame_index=k)
             t1 = time.perf_counter()
             frame_id = self.get_parameter('frame_id').value
-            self.points_pub.publish(to_rclpy_msg(frame_points(frame), start_ns, frame_id))
+            out = [(self.points_pub, to_rclpy_msg(frame_points(frame), start_ns, frame_id))]
             # Packing and serialising the truth cloud costs ~1 ms: only for listeners.
             if (self.get_parameter('publish_truth').value
                     and self.truth_pub.get_subscription_count() > 0):
                 truth = frame_points(frame, truth=True)
-                self.truth_pub.publish(to_rclpy_msg(truth, start_ns, frame_id))
+                out.append((self.truth_pub, to_rclpy_msg(truth, start_ns, frame_id)))
+            if self._deadline is None:
+                for pub, msg in out:
+                    pub.publish(msg)
+            else:
+                self._deadline.submit(self.scheduler.end_ns(k) + self._latency_ns,
+                                      lambda: [pub.publish(msg) for pub, msg in out])
         except Exception as exc:  # noqa: BLE001 - a bad frame must never kill the node
             self._stats['failed'] += 1
             self._warn('frame_error', f'frame {k} (stamp {start_ns / NS_PER_S:.3f} s) failed: '
@@ -507,6 +527,14 @@ class LidarSimNode(Node):
         ms, pub = np.array(s['compute_ms']), np.array(s['publish_ms'])
         timing = (f'; simulate p50 {np.median(ms):.1f} ms, max {ms.max():.1f} ms; publish '
                   f'p50 {np.median(pub):.1f} ms, max {pub.max():.1f} ms' if len(ms) else '')
+        if self._deadline is not None:
+            late, held, errors = self._deadline.take_stats()
+            timing += (f'; held to the {self._latency_ns / 1e6:g} ms latency: p50 '
+                       f'{np.median(held) if held else 0.0:.1f} ms, {late} late')
+            for error in errors[:1]:
+                self._warn('publish_error', f'publishing a held frame failed: {error} '
+                                            f'({len(errors)} in the last {STATS_PERIOD_S:g} s)',
+                           error=True)
         self.get_logger().info(f'last {STATS_PERIOD_S:g} s: {s["published"]} frames published, '
                                f'{s["skipped"]} skipped, {s["failed"]} failed{timing}')
         self._stats = {'published': 0, 'skipped': 0, 'failed': 0, 'compute_ms': [], 'publish_ms': []}
