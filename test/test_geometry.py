@@ -86,12 +86,22 @@ def test_a_good_obj_with_its_mtl_loads(tmp_path):
     assert target.n_faces == 2 and sorted(target.face_material) == [0, 1]
 
 
+@pytest.mark.parametrize('text, mtl', [
+    (TRIANGLES, None),                              # no mtllib line (many exporters)
+    ('mtllib gone.mtl\n' + TRIANGLES, None),         # its MTL file is missing
+    ('mtllib m.mtl\n' + TRIANGLES, 'newmtl PIF\n'),  # the MTL lacks a name it uses
+])
+def test_usemtl_names_are_kept_without_their_mtl_file(tmp_path, text, mtl):
+    """The names alone map faces to materials: PIF on the z = 0 face, MLI on y = 0."""
+    target = load_target(_mesh(tmp_path, 'm.obj', text, mtl), ['MLI', 'PIF'])
+    normal_axis = np.argmax(np.abs(target.face_normals), axis=1)
+    names = [target.material_names[m] for m in target.face_material]
+    assert sorted(zip(normal_axis.tolist(), names)) == [(1, 'MLI'), (2, 'PIF')]
+
+
 @pytest.mark.parametrize('name, text, mtl, message', [
     ('m.mtl', None, 'newmtl PIF\nKd 1 1 1\n', r'm\.mtl: this is a material library \(\.mtl\), not a mesh'),
     ('m.stl', 'solid x\nendsolid x\n', None, r'm\.stl: the mesh must be a Wavefront \.obj'),
-    ('m.obj', 'mtllib gone.mtl\n' + TRIANGLES, None,
-     r"m\.obj: its MTL file 'gone\.mtl' \(mtllib, line 1\) is missing"),
-    ('m.obj', TRIANGLES, None, r'm\.obj: usemtl names but no mtllib line'),
     ('m.obj', 'mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n', 'newmtl PIF\n', r'm\.obj: no usemtl lines'),
     ('m.obj', '', None, r'm\.obj: no faces'),
     ('m.obj', 'hello\nthis is not a mesh\n', None, r'm\.obj: no faces'),

@@ -7,11 +7,13 @@ handled by transforming each ray with the pose of its own shot time.
 """
 from __future__ import annotations
 
+import tempfile
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Callable, TypeVar
+from typing import Callable, Iterator, TypeVar
 
 import numpy as np
 import trimesh
@@ -283,9 +285,10 @@ def load_target(obj_path: str | Path, material_names: list[str], threads: int = 
     obj_path = Path(obj_path)
     if not obj_path.is_file():
         raise FileNotFoundError(f'mesh file not found: {obj_path}')
-    check_obj_file(obj_path)
+    names_only = check_obj_file(obj_path)
     try:
-        scene = trimesh.load(obj_path, force='scene', process=False)
+        with _with_names_mtl(obj_path, names_only) as loadable:
+            scene = trimesh.load(loadable, force='scene', process=False)
     except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds on malformed files
         raise MeshFileError(f'{obj_path}: trimesh cannot read it as an OBJ mesh '
                             f'({type(exc).__name__}: {exc})') from None
@@ -312,13 +315,31 @@ def load_target(obj_path: str | Path, material_names: list[str], threads: int = 
     return Target(np.vstack(verts), np.vstack(faces), np.concatenate(mats), material_names, threads)
 
 
-def check_obj_file(obj_path: Path) -> None:
+@contextmanager
+def _with_names_mtl(obj_path: Path, names: list[str] | None) -> Iterator[Path]:
+    """``obj_path`` itself, or (``names`` given) a copy beside a material library that
+    defines just those names. trimesh keeps ``usemtl`` names only when the ``mtllib``
+    file is there, and otherwise names the groups after the file (``x.obj``,
+    ``x.obj_1``); the simulator needs the names alone (materials come from the config)."""
+    if names is None:
+        yield obj_path
+        return
+    with tempfile.TemporaryDirectory(prefix='lidar_sim_obj_') as tmp:
+        lines = [line for line in obj_path.read_text(encoding='utf-8').splitlines()
+                 if line.strip().partition(' ')[0] != 'mtllib']
+        (Path(tmp) / 'names.mtl').write_text(''.join(f'newmtl {n}\n' for n in names))
+        copy = Path(tmp) / obj_path.name
+        copy.write_text('mtllib names.mtl\n' + '\n'.join(lines) + '\n', encoding='utf-8')
+        yield copy
+
+
+def check_obj_file(obj_path: Path) -> list[str] | None:
     """Reject, with one line naming the file, what trimesh would report obscurely or not at all.
 
     A file that is not ``.obj`` (an ``.mtl`` given as the mesh raises NotImplementedError
-    in trimesh); binary or garbled text; no faces; and material names that cannot
-    survive loading: trimesh keeps ``usemtl`` names only when the ``mtllib`` file is
-    there, and otherwise names the groups after the file (``x.obj``, ``x.obj_1``).
+    in trimesh); binary or garbled text; no faces; no ``usemtl`` names. Returns the
+    ``usemtl`` names when no ``mtllib`` file carries them (no ``mtllib`` line, or its file
+    is missing: many exporters write the names alone), else None.
     """
     suffix = obj_path.suffix.lower()
     if suffix == '.mtl':
@@ -334,24 +355,25 @@ def check_obj_file(obj_path: Path) -> None:
         raise MeshFileError(f'{obj_path}: not a text OBJ file (byte {exc.start} is not UTF-8)') from None
     if '\x00' in text:
         raise MeshFileError(f'{obj_path}: not a text OBJ file (it holds NUL bytes)')
-    mtllibs, usemtl, faces = [], 0, 0
-    for number, line in enumerate(text.splitlines(), start=1):
+    mtllibs, usemtl, faces = [], [], 0
+    for line in text.splitlines():
         keyword, _, rest = line.strip().partition(' ')
         if keyword == 'f':
             faces += 1
-        elif keyword == 'usemtl':
-            usemtl += 1
+        elif keyword == 'usemtl' and rest.strip() and rest.strip() not in usemtl:
+            usemtl.append(rest.strip())
         elif keyword == 'mtllib':
-            mtllibs += [(number, name) for name in rest.split()]
+            mtllibs += rest.split()
     if faces == 0:
         raise MeshFileError(f'{obj_path}: no faces (no "f" lines): the file is empty or not an OBJ mesh')
-    for number, name in mtllibs:
-        if not (obj_path.parent / name).is_file():
-            raise MeshFileError(f'{obj_path}: its MTL file {name!r} (mtllib, line {number}) is missing; '
-                                'without it the usemtl material names are lost')
-    if usemtl == 0:
+    if not usemtl:
         raise MeshFileError(f'{obj_path}: no usemtl lines: every face needs a material name '
-                            'from the materials config (usemtl NAME, with an mtllib file)')
-    if not mtllibs:
-        raise MeshFileError(f'{obj_path}: usemtl names but no mtllib line: the names are only kept '
-                            'with an MTL file (add "mtllib NAME.mtl" and the file)')
+                            'from the materials config (usemtl NAME)')
+    libraries = [obj_path.parent / name for name in mtllibs]
+    if libraries and all(lib.is_file() for lib in libraries):
+        defined = {line.split(None, 1)[1].strip() for lib in libraries
+                   for line in lib.read_text(encoding='utf-8', errors='replace').splitlines()
+                   if line.strip().startswith('newmtl ')}
+        if defined.issuperset(usemtl):
+            return None
+    return usemtl
