@@ -15,6 +15,7 @@ from lidar_sim_ros.core.geometry import Target
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / 'config'
 
+
 # Embree intersects in float32, so a raycast range is exact only to a few float32 ulps.
 # Measured worst case on plates 2-60 m away at 0-60 deg incidence: 2.3 ulps of the range;
 # tests allow EMBREE_ULPS. Relative to the range that is at most EMBREE_ULPS * eps32.

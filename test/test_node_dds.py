@@ -30,6 +30,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
+from lidar_sim_ros.demo import start as start_ros_process, stop as stop_ros_process
 from lidar_sim_ros.core.config import load_scenario
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.pose import ScenarioTrajectory
@@ -188,20 +189,7 @@ class Harness:
 
 
 def start_process(module: str, *ros_args: str, log: Path) -> subprocess.Popen:
-    with open(log, 'wb') as fh:
-        return subprocess.Popen([sys.executable, '-m', module, '--ros-args', *ros_args],
-                                env=ros_env(), stdout=fh, stderr=subprocess.STDOUT)
-
-
-def stop_process(proc: subprocess.Popen) -> int:
-    if proc.poll() is None:
-        proc.send_signal(2)  # SIGINT: rclpy shuts down cleanly
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    return proc.returncode
+    return start_ros_process(module, list(ros_args), ros_env(), log)
 
 
 @pytest.fixture(scope='module')
@@ -228,7 +216,7 @@ def node(harness, tmp_path_factory):
         time.sleep(0.5)  # let the matched endpoints settle
         yield proc
     finally:
-        code = stop_process(proc)
+        code = stop_ros_process(proc)
         print(log.read_text())
     assert code == 0, f'node exited with {code}'
 
@@ -621,7 +609,7 @@ def test_pose_player_publishes_the_scenario_trajectory(harness, tmp_path):
             harness.wait(lambda: any(stamp_to_ns(m.header.stamp) == harness.clock_ns
                                      for m in harness.player_poses), what='player poses')
     finally:
-        assert stop_process(proc) == 0, (tmp_path / 'player.log').read_text()
+        assert stop_ros_process(proc) == 0, (tmp_path / 'player.log').read_text()
     stamps = np.array([stamp_to_ns(m.header.stamp) for m in harness.player_poses])
     # The first tick publishes the present; every later grid stamp is published once.
     expected = np.arange(block, block + 3 * PERIOD_NS + 1, POSE_STEP_NS)

@@ -8,8 +8,6 @@ The thread that holds them is also tested alone with a clock the test controls.
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 import threading
 import time
 
@@ -20,11 +18,12 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
+from lidar_sim_ros.demo import start as start_ros_process, stop as stop_ros_process
 from lidar_sim_ros.ros.deadline import DeadlinePublisher
 from lidar_sim_ros.ros.recorder import header_stamp_ns
 from conftest import private_domain_id
 
-DOMAIN_ID = private_domain_id(230, 20)
+DOMAIN_ID = private_domain_id(20, 100)  # Fast DDS takes ids <= 232; serial tests run one at a time
 LATENCY_S = 0.25
 PERIOD_NS = 100_000_000  # the P-60 at 10 Hz
 
@@ -66,23 +65,6 @@ def ros_env() -> dict:
     return {**os.environ, 'ROS_DOMAIN_ID': str(DOMAIN_ID), 'PYTHONUNBUFFERED': '1'}
 
 
-def start(module: str, *ros_args: str, log) -> subprocess.Popen:
-    with open(log, 'wb') as fh:
-        return subprocess.Popen([sys.executable, '-m', module, '--ros-args', *ros_args],
-                                env=ros_env(), stdout=fh, stderr=subprocess.STDOUT)
-
-
-def stop(proc: subprocess.Popen) -> int:
-    if proc.poll() is None:
-        proc.send_signal(2)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    return proc.returncode
-
-
 def test_held_frames_never_arrive_before_window_end_plus_latency(tmp_path):
     os.environ['ROS_DOMAIN_ID'] = str(DOMAIN_ID)
     context = rclpy.Context()
@@ -94,15 +76,17 @@ def test_held_frames_never_arrive_before_window_end_plus_latency(tmp_path):
                              QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE), raw=True)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
-    sim = start('lidar_sim_ros.ros.lidar_sim_node', '-p', 'qos_reliability:=reliable',
-                '-p', f'publish_latency_s:={LATENCY_S}', log=tmp_path / 'node.log')
-    player = start('lidar_sim_ros.ros.target_pose_player', log=tmp_path / 'player.log')
+    sim = start_ros_process('lidar_sim_ros.ros.lidar_sim_node',
+                            ['-p', 'qos_reliability:=reliable',
+                             '-p', f'publish_latency_s:={LATENCY_S}'], ros_env(), tmp_path / 'node.log')
+    player = start_ros_process('lidar_sim_ros.ros.target_pose_player', [], ros_env(),
+                               tmp_path / 'player.log')
     try:
         deadline = time.monotonic() + 90
         while len(received) < 12 and time.monotonic() < deadline and sim.poll() is None:
             executor.spin_once(timeout_sec=0.1)
     finally:
-        codes = stop(sim), stop(player)
+        codes = stop_ros_process(sim, 20.0), stop_ros_process(player, 20.0)
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=context)

@@ -18,6 +18,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
+from lidar_sim_ros.demo import start as start_ros_process, stop as stop_ros_process
 from lidar_sim_ros.io.pointcloud import stamp_to_ns
 from lidar_sim_ros.warm_up import _calls, cached_kernels
 from conftest import private_domain_id
@@ -31,22 +32,6 @@ FRAMES = 6
 # publishes frames whose windows ended seconds before (while the node was compiling).
 MAX_LATENCY_S = 0.5
 SYMPTOMS = ('stale', 'clock jumped', 'not published')
-
-
-def start(module: str, env: dict, log: Path, *ros_args: str) -> subprocess.Popen:
-    with open(log, 'wb') as fh:
-        return subprocess.Popen([sys.executable, '-m', module, '--ros-args', *ros_args],
-                                env=env, stdout=fh, stderr=subprocess.STDOUT)
-
-
-def stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.send_signal(2)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 @pytest.mark.timeout(240)
@@ -69,9 +54,9 @@ def test_cold_first_start_publishes_on_the_grid_and_warm_up_caches_every_kernel(
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     logs = {name: tmp_path / f'{name}.log' for name in ('lidar_sim_node', 'target_pose_player')}
-    procs = {name: start(f'lidar_sim_ros.ros.{name}', env, logs[name], '--params-file', str(PARAMS),
-                         '-p', 'qos_reliability:=reliable') if name == 'lidar_sim_node' else
-             start(f'lidar_sim_ros.ros.{name}', env, logs[name], '--params-file', str(PARAMS))
+    node_args = {'lidar_sim_node': ('-p', 'qos_reliability:=reliable'), 'target_pose_player': ()}
+    procs = {name: start_ros_process(f'lidar_sim_ros.ros.{name}',
+                                     ['--params-file', str(PARAMS), *node_args[name]], env, logs[name])
              for name in logs}
     try:
         deadline = time.monotonic() + 150
@@ -83,7 +68,7 @@ def test_cold_first_start_publishes_on_the_grid_and_warm_up_caches_every_kernel(
             executor.spin_once(timeout_sec=0.01)  # late /rosout lines
     finally:
         for proc in procs.values():
-            stop(proc)
+            stop_ros_process(proc)
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
