@@ -30,10 +30,10 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
-from lidar_sim_ros.demo import start as start_ros_process, stop as stop_ros_process
 from lidar_sim_ros.core.config import load_scenario
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.pose import ScenarioTrajectory
+from lidar_sim_ros.demo import start as start_ros_process, stop as stop_ros_process
 from lidar_sim_ros.io.bag import BagWriter, read_clouds, read_material_names, read_poses
 from lidar_sim_ros.io.pointcloud import from_pointcloud2, stamp_to_ns
 from lidar_sim_ros.paths import config_path

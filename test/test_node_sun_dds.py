@@ -16,9 +16,10 @@ from rcl_interfaces.msg import Log
 from rclpy.parameter import Parameter
 
 from lidar_sim_ros.core.scan import directions_from_angles
+from lidar_sim_ros.demo import stop as stop_ros_process
 from lidar_sim_ros.io.pointcloud import from_pointcloud2
 from lidar_sim_ros.paths import config_path
-from test_node_dds import NS, PARAMS, PERIOD_NS, RELIABLE, Harness, start_process, stop_process
+from test_node_dds import NS, PARAMS, PERIOD_NS, RELIABLE, Harness, start_process
 
 pytestmark = pytest.mark.timeout(120)
 SUN_S = 30                                          # simulated-time block (s)
@@ -51,7 +52,7 @@ def node(harness, tmp_path_factory):
         time.sleep(0.5)
         yield proc
     finally:
-        code = stop_process(proc)
+        code = stop_ros_process(proc)
         print(log.read_text())
     assert code == 0, f'node exited with {code}'
 

@@ -640,18 +640,22 @@ def _far_segments(expected_m: np.ndarray, threshold_m: np.ndarray,
 def background_rate(residual_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
                     window_m: tuple[float, float]) -> float:
     """Maximum-likelihood rate (arrivals per window length, >= 0) of the first-arrival
-    law ``arrival_cdf`` for the far points' ranges, each given that it lies outside
-    its surface's band: 0 if they are spread evenly, larger if they crowd the window's
-    start as the first photons of a strong background do."""
+    law ``arrival_cdf`` for the far points' ranges, each given the side of its surface
+    it lies on: 0 if they are spread evenly, larger if they crowd the window's start as
+    the first photons of a strong background do. Conditioned on the side because how
+    many fall in front is the receiver's business, not the background's: a first-return
+    receiver reports a background trigger only before the echo, so on shots that hit
+    the target every false return lies in front (``far_sides`` judges the sides)."""
     lo, hi = window_m
     width = max(hi - lo, 1e-9)
     x = np.clip((expected_m + residual_m - lo) / width, 0.0, 1.0)
+    in_front = residual_m < 0
     if len(x) < 2:
         return 0.0
 
     def nll(rate: float) -> float:
         front, behind, _, _ = _far_segments(expected_m, threshold_m, window_m, rate)
-        mass = np.maximum(front + behind, 1e-300)
+        mass = np.maximum(np.where(in_front, front, behind), 1e-300)
         if rate < 1e-9:
             return float(np.sum(np.log(mass)))
         log_density = np.log(rate / -np.expm1(-rate)) - rate * x
