@@ -730,42 +730,18 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
             i1 = min(max(int((max(x0, x1) + pad - gx0) / size), 0), nx - 1)
             j0 = min(max(int((min(y0, y1) - pad - gy0) / size), 0), ny - 1)
             j1 = min(max(int((max(y0, y1) + pad - gy0) / size), 0), ny - 1)
-            if (i1 - i0 + 1) * (j1 - j0 + 1) <= 9:
-                for ci in range(i0, i1 + 1):
-                    for cj in range(j0, j1 + 1):
-                        cell = ci * ny + cj
-                        if seg_z[k] > cell_z[cell]:
-                            continue             # behind every lit surface of the cell
-                        for p in range(start[cell], start[cell + 1]):
-                            if seg_z[k] > cell_track[p, 3]:
-                                continue
-                            i = cell_ray[p]
-                            if out[i]:
-                                continue
-                            # The gnomonic projections first: the track's centre within
-                            # pad + its half-diagonal of the segment's projection.
-                            tx, ty = cell_track[p, 0] - x0, cell_track[p, 1] - y0
-                            h = min(max((tx * ex + ty * ey) * inv_len2, 0.0), 1.0)
-                            gx, gy = tx - h * ex, ty - h * ey
-                            slack = pad + cell_track[p, 2]
-                            if gx * gx + gy * gy > slack * slack:
-                                continue
-                            if _segment_in_cone(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1],
-                                                d[i, 2], a[k, 0], a[k, 1], a[k, 2], b[k, 0],
-                                                b[k, 1], b[k, 2], z_limit[i], tan_a):
-                                out[i] = True
-                continue
-            # The cell visit below repeats the small-box one above on purpose: as an njit
-            # helper it is not inlined, and the call per cell cost a third more per frame
-            # (all_effects_over_plain 2.59 against 1.97, same run conditions).
-            steps = int(np.sqrt(ex * ex + ey * ey) / (0.5 * size)) + 1
+            # One box of cells when the grown box is small, else a box around every
+            # sampled point (the stamp keeps each cell to one visit per segment).
+            small = (i1 - i0 + 1) * (j1 - j0 + 1) <= 9
+            steps = 0 if small else int(np.sqrt(ex * ex + ey * ey) / (0.5 * size)) + 1
             for step in range(steps + 1):
-                x = x0 + (x1 - x0) * step / steps
-                y = y0 + (y1 - y0) * step / steps
-                i0 = min(max(int((x - reach - gx0) / size), 0), nx - 1)
-                i1 = min(max(int((x + reach - gx0) / size), 0), nx - 1)
-                j0 = min(max(int((y - reach - gy0) / size), 0), ny - 1)
-                j1 = min(max(int((y + reach - gy0) / size), 0), ny - 1)
+                if not small:
+                    x = x0 + (x1 - x0) * step / steps
+                    y = y0 + (y1 - y0) * step / steps
+                    i0 = min(max(int((x - reach - gx0) / size), 0), nx - 1)
+                    i1 = min(max(int((x + reach - gx0) / size), 0), nx - 1)
+                    j0 = min(max(int((y - reach - gy0) / size), 0), ny - 1)
+                    j1 = min(max(int((y + reach - gy0) / size), 0), ny - 1)
                 for ci in range(i0, i1 + 1):
                     for cj in range(j0, j1 + 1):
                         cell = ci * ny + cj
