@@ -15,7 +15,7 @@ import threading
 import time
 from typing import Callable
 
-NS_PER_S = 1_000_000_000
+from lidar_sim_ros.ros.pose_input import NS_PER_S
 
 
 class DeadlinePublisher:

@@ -15,6 +15,7 @@ import sys
 import threading
 import time
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -495,11 +496,10 @@ class LidarSimNode(Node):
                 truth = frame_points(frame, truth=True)
                 out.append((self.truth_pub, to_rclpy_msg(truth, start_ns, frame_id)))
             if self._deadline is None:
-                for pub, msg in out:
-                    pub.publish(msg)
+                _publish_all(out)
             else:
                 self._deadline.submit(self.scheduler.end_ns(k) + self._latency_ns,
-                                      lambda: [pub.publish(msg) for pub, msg in out])
+                                      partial(_publish_all, out))
         except Exception as exc:  # noqa: BLE001 - a bad frame must never kill the node
             self._stats['failed'] += 1
             self._warn('frame_error', f'frame {k} (stamp {start_ns / NS_PER_S:.3f} s) failed: '
@@ -531,13 +531,19 @@ class LidarSimNode(Node):
             late, held, errors = self._deadline.take_stats()
             timing += (f'; held to the {self._latency_ns / 1e6:g} ms latency: p50 '
                        f'{np.median(held) if held else 0.0:.1f} ms, {late} late')
-            for error in errors[:1]:
-                self._warn('publish_error', f'publishing a held frame failed: {error} '
+            if errors:
+                self._warn('publish_error', f'publishing a held frame failed: {errors[0]} '
                                             f'({len(errors)} in the last {STATS_PERIOD_S:g} s)',
                            error=True)
         self.get_logger().info(f'last {STATS_PERIOD_S:g} s: {s["published"]} frames published, '
                                f'{s["skipped"]} skipped, {s["failed"]} failed{timing}')
         self._stats = {'published': 0, 'skipped': 0, 'failed': 0, 'compute_ms': [], 'publish_ms': []}
+
+
+def _publish_all(out: list[tuple[Any, Any]]) -> None:
+    """Publish each (publisher, message) of a frame."""
+    for pub, msg in out:
+        pub.publish(msg)
 
 
 def main(args: list[str] | None = None) -> int:
