@@ -12,10 +12,10 @@ venv: $(STAMP)
 
 # constraints.txt pins the versions that were tested (make constraints rewrites it);
 # the warm-up compiles the numba kernels once, so no node compiles at its first start.
-$(STAMP): requirements.txt requirements-ros.txt requirements-dev.txt requirements-gnc.txt requirements-campaign.txt constraints.txt setup.py
+$(STAMP): requirements.txt requirements-ros.txt requirements-dev.txt requirements-gnc.txt requirements-campaign.txt requirements-loop.txt constraints.txt setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -c constraints.txt -r requirements.txt -r requirements-ros.txt -r requirements-dev.txt -r requirements-gnc.txt -r requirements-campaign.txt
+	$(BIN)/pip install --quiet -c constraints.txt -r requirements.txt -r requirements-ros.txt -r requirements-dev.txt -r requirements-gnc.txt -r requirements-campaign.txt -r requirements-loop.txt
 	$(BIN)/pip install --quiet --no-deps -e .
 	$(BIN)/python -m lidar_sim_ros.warm_up
 	touch $(STAMP)

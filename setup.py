@@ -36,13 +36,14 @@ setup(
         'gnc': ['small_gicp>=1.0'],
         # lidar-sim campaign: the distributed engine and its progress bar (requirements-campaign.txt).
         'campaign': ['distributed>=2024.1', 'tqdm>=4.60'],
+        # The closed GNC loop's dynamics (lidar_sim_ros.loop): Basilisk (requirements-loop.txt).
+        'loop': ['bsk>=2.12,<2.13'],
     },
     zip_safe=True,
     maintainer='lidar_sim_ros developers',
     maintainer_email='lidar-sim@example.com',
     description='LiDAR simulator for rendezvous with space debris (Cepton Vista P-60 model).',
     license='Apache-2.0',
-    tests_require=['pytest'],
     entry_points={
         'console_scripts': [
             'lidar-sim = lidar_sim_ros.cli:main',

@@ -201,3 +201,19 @@ def test_cloud_without_a_time_field_keeps_the_stamp_and_says_so(tmp_path):
     assert meas.time_source == 'stamp' and meas.time_field is None
     assert meas.t_frame_s == pytest.approx(np.zeros(4))
     assert any('no per-point time field' in n for n in meas.notes)
+
+
+def test_every_feature_the_attribution_can_rank_is_plottable():
+    """The report plots the top features: each one ranked first draws (range_rate crashed it)."""
+    from lidar_sim_ros.compare.features import LABELS
+    from lidar_sim_ros.compare.report import features_figure
+    assert set(LABELS) == set(FEATURE_NAMES)
+    rng = np.random.default_rng(5)
+    values = _feature_values(rng, 3000)
+    z = rng.standard_normal(3000)
+    ranked = score_features(values, 0.03 * z, z)
+    assert {f.name for f in ranked} == set(FEATURE_NAMES)
+    for first in ranked:
+        order = [first] + [f for f in ranked if f is not first]
+        png = features_figure(order, values, 0.03 * z, ['PIF', 'MLI', 'PAF', 'PSS', 'NOZZLE'], top=2)
+        assert png[:8] == b'\x89PNG\r\n\x1a\n', first.name

@@ -200,11 +200,20 @@ def harness():
 
 
 @pytest.fixture(scope='module')
-def node(harness, tmp_path_factory):
+def faulty_plugin(tmp_path_factory) -> str:
+    """A user effect whose frames fail, loaded by the node at start-up (plugin_effects)."""
+    path = tmp_path_factory.mktemp('plugin') / 'faulty_effect.py'
+    path.write_text(FAULTY_EFFECT)
+    return f'{path}:Faulty'
+
+
+@pytest.fixture(scope='module')
+def node(harness, tmp_path_factory, faulty_plugin):
     log = tmp_path_factory.mktemp('node') / 'lidar_sim_node.log'
     proc = start_process('lidar_sim_ros.ros.lidar_sim_node', '--params-file', str(PARAMS),
                          '-p', 'use_sim_time:=true', '-p', 'qos_reliability:=reliable',
                          '-p', 'pose_qos_reliability:=reliable',
+                         '-p', f'plugin_effects:=["{faulty_plugin}"]',
                          '-p', 'publish_truth:=true', '-p', 'odom_topic:=/target/odom', log=log)
     n = harness.node
     try:
@@ -530,14 +539,39 @@ class Faulty(Effect):
 '''
 
 
-def test_a_failing_frame_does_not_kill_the_node(harness, node, tmp_path):
-    path = tmp_path / 'faulty_effect.py'
-    path.write_text(FAULTY_EFFECT)
+PLANTED_EFFECT = '''
+from pathlib import Path
+Path(__file__).with_suffix('.ran').write_text('imported')  # proof that the file ran
+from lidar_sim_ros.core.effects import Effect
+
+class Planted(Effect):
+    name = 'planted'
+'''
+
+
+def test_no_runtime_parameter_loads_code(harness, node, faulty_plugin, tmp_path):
+    """Any DDS peer can call SetParameters: a plugin not loaded at start-up is refused, unrun."""
+    path = tmp_path / 'planted_effect.py'
+    path.write_text(PLANTED_EFFECT)
+    SA = Parameter.Type.STRING_ARRAY
+    for value in ([f'{path}:Planted'], ['range_walk', f'{path}:Planted'],
+                  [f'{path}:Planted={{}}'], ['os.path:join']):
+        result = harness.set_parameter('effects', SA, value)
+        assert not result.successful, value
+        assert 'would load code at run time' in result.reason and 'start-up' in result.reason, result.reason
+    assert not path.with_suffix('.ran').exists(), 'the planted file was imported'
+    # What the operator loaded at start-up may still be switched on and off.
+    assert harness.set_parameter('effects', SA, ['range_walk']).successful
+    assert harness.set_parameter('effects', SA, []).successful
+    assert node.poll() is None
+
+
+def test_a_failing_frame_does_not_kill_the_node(harness, node, faulty_plugin):
     block = FAIL_S * NS
     mark = len(harness.rosout)
     harness.begin_block(block)
     harness.step_frames(0, 0)
-    assert harness.set_parameter('effects', Parameter.Type.STRING_ARRAY, [f'{path}:Faulty']).successful
+    assert harness.set_parameter('effects', Parameter.Type.STRING_ARRAY, [faulty_plugin]).successful
     harness.poses_to(block + 2 * PERIOD_NS + POSE_STEP_NS)
     harness.clock(block + 2 * PERIOD_NS)
     harness.wait(lambda: any('injected failure' in m for m in harness.rosout_since(mark, Log.ERROR)),

@@ -46,6 +46,13 @@ FEATURE_NAMES = ('range', 'incidence', 'intensity', 'azimuth', 'elevation', 'tim
 CATEGORICAL = ('material', 'edge')
 UNITS = {'range': 'm', 'incidence': 'deg', 'intensity': 'log10', 'azimuth': 'deg',
          'elevation': 'deg', 'time': 's', 'material': '', 'edge': 'mrad', 'range_rate': 'm/s'}
+# Axis labels, one per feature the attribution can rank (the report plots any of them).
+LABELS = {'range': 'range (m)', 'incidence': 'incidence angle (deg)',
+          'intensity': 'log10 intensity', 'azimuth': 'azimuth (deg)',
+          'elevation': 'elevation (deg)', 'time': 'time since cloud stamp (s)',
+          'material': 'material', 'edge': 'distance to edge (mrad)',
+          'range_rate': 'range rate along the ray (m/s)'}
+POWER_LABEL = 'log10 measured power (W)'
 MIN_BIN_POINTS = 30
 MAX_BINS = 16
 N_SHUFFLES = 4

@@ -19,13 +19,9 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from lidar_sim_ros.compare.features import CATEGORICAL, feature_values  # noqa: E402
+from lidar_sim_ros.compare.features import CATEGORICAL, LABELS  # noqa: E402
 from lidar_sim_ros.compare.materials import robust_sigma  # noqa: E402
 
-FEATURE_LABELS = {'range': 'range (m)', 'incidence': 'incidence angle (deg)',
-                  'intensity': 'log10 intensity', 'azimuth': 'azimuth (deg)',
-                  'elevation': 'elevation (deg)', 'time': 'time since cloud stamp (s)',
-                  'material': 'material', 'edge': 'distance to edge (mrad)'}
 MAX_SCATTER = 4000
 MAX_TARGET_POINTS = 8000
 
@@ -45,8 +41,13 @@ def _img(png: bytes, alt: str) -> str:
 
 
 def features_figure(feats, values: dict, residual_m: np.ndarray, material_names: list[str],
-                    top: int = 4) -> bytes:
-    """Residual (cm) against the top features: points, binned median and 16-84 % band."""
+                    top: int = 4, labels: dict | None = None) -> bytes:
+    """Residual (cm) against the top features: points, binned median and 16-84 % band.
+
+    ``values``: the feature values the attribution ranked (the same points as
+    ``residual_m``), so that the scatter and the binned curve share one axis.
+    """
+    labels = {**LABELS, **(labels or {})}
     chosen = feats[:top]
     fig, axes = plt.subplots(1, len(chosen), figsize=(4.2 * len(chosen), 3.6), squeeze=False)
     rng = np.random.default_rng(0)
@@ -75,7 +76,7 @@ def features_figure(feats, values: dict, residual_m: np.ndarray, material_names:
                 label='binned median')
         ax.axhline(0, color='k', lw=0.8)
         ax.set_ylim(-lim, lim)
-        ax.set_xlabel(FEATURE_LABELS[f.name])
+        ax.set_xlabel(labels[f.name])
         ax.set_title(f'{f.name}: score {f.score:.4f}', fontsize=10)
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel('range residual, measured - model (cm)')
@@ -230,20 +231,21 @@ border-left:4px solid #e0a000}img{max-width:100%}code{background:#f3f3f3}"""
 
 
 def write_report(out: Path, summary: dict, matching, configured, residual_m: np.ndarray,
-                 stats, feats, cands, runs: list[dict], model,
-                 isolated: np.ndarray | None = None) -> list[Path]:
+                 stats, feats, cands, runs: list[dict], model, values: dict,
+                 isolated: np.ndarray | None = None, labels: dict | None = None) -> list[Path]:
     """Write DIR/report.html (figures embedded); return the written paths.
 
     ``matching``: the model's prediction on the analysed sample of rays; ``configured``:
     on every ray, materials as configured (for the per-material histograms);
     ``residual_m``: the sample's matched residuals, per-material offsets removed;
+    ``values``: the feature values the attribution ranked, per matched sample point
+    (``labels`` overrides their axis labels, e.g. intensity read as measured power);
     ``isolated``: per sample point, no neighbouring ray at the same range.
     """
     names = list(model.materials.names)
-    values = feature_values(matching)
     s = summary
     figs = {
-        'features': features_figure(feats, values, residual_m, names),
+        'features': features_figure(feats, values, residual_m, names, labels=labels),
         'materials': materials_figure(configured, stats, names),
         'target': target_figure(matching, residual_m),
         'history': history_figure(runs),

@@ -376,6 +376,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
                                              np.isfinite(res))
         res = res - offset
         values = features.feature_values(local)
+        labels = {}
         if rays.measured_power_w is not None:
             # The measured power, not the raw intensity: a range-compensated reflectivity
             # is computed with the measured range and would leak its noise to the
@@ -384,6 +385,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
             values['intensity'] = np.log10(np.where(np.isfinite(mp) & (mp > 0), mp,
                                                     np.nanmin(mp[mp > 0]) if np.any(mp > 0)
                                                     else 1e-12))
+            labels['intensity'] = features.POWER_LABEL
         attribution = features.attribute(values, res, res / (sig * scale), opts.seed,
                                          sample.blocks[picked][lsel])
         feats = attribution.features
@@ -474,7 +476,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         with stage('report'):
             from lidar_sim_ros.compare.report import write_report
             files += write_report(opts.out, summary, local, configured, res, stats, feats,
-                                  cands, runs, model, isolated[picked])
+                                  cands, runs, model, values, isolated[picked], labels)
     summary['stage_seconds'] = dict(stage.seconds)
     summary['total_seconds'] = round(stage.total, 3)
     files.insert(len(files) - (1 if opts.report else 0),

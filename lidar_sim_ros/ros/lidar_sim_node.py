@@ -37,7 +37,7 @@ from std_msgs.msg import String
 
 from lidar_sim_ros.core.config import (ConfigError, Scenario, load_materials, load_scenario,
                                        load_sensor)
-from lidar_sim_ros.core.effects import Effect, make_effect
+from lidar_sim_ros.core.effects import Effect, is_plugin_spec, make_effect
 from lidar_sim_ros.core.geometry import MeshMaterialError
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.io.bag import encode_material_names
@@ -119,6 +119,11 @@ STARTUP_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     'max_catch_up_frames': (10, _startup(
         I, 'most frames computed at once after a clock jump; older ones are dropped',
         int_range=(1, 1000))),
+    'plugin_effects': (Parameter.Type.STRING_ARRAY, _startup(
+        ParameterType.PARAMETER_STRING_ARRAY,
+        "user effects ('module:Class' or 'file.py:Class') loaded once at start-up, from the "
+        "parameters file: a plugin is code run as the node's user. 'effects' may switch "
+        'them on and off at run time; no runtime change loads code')),
 }
 
 # Parameters that may change while running.
@@ -141,6 +146,7 @@ class LidarSimNode(Node):
         self.scenario: Scenario | None = None
         self.sim: Simulator | None = None
         self._effects_specs: dict[str, dict] = {}
+        self._plugins: frozenset[str] = frozenset()  # plugin specs loaded at start-up
         self._ready = False
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -172,6 +178,14 @@ class LidarSimNode(Node):
             ParameterType.PARAMETER_STRING_ARRAY,
             "enabled effects: catalogue names, 'module:Class' or 'file.py:Class' (parameters "
             "from the scenario's effects list, else defaults); default: the scenario's"))
+        # Plugins are code: they load here, at start-up, from what the operator's files name
+        # (the scenario's effects list, plugin_effects, effects as started); a runtime change
+        # may only switch them on and off (_invalid_reason).
+        self._plugins = frozenset(
+            name for name in [*self._effects_specs, *(self.get_parameter_or('plugin_effects').value or []),
+                              *self._effects_value()] if is_plugin_spec(name))
+        for name in sorted(self._plugins):
+            make_effect(name, self._effects_specs.get(name))
         self.sim.effects = self._build_effects(self._effects_value())
         sun = self.scenario.config.sun
         self.declare_parameter(
@@ -352,6 +366,12 @@ class LidarSimNode(Node):
         elif name == 'effects' and value:
             if len(set(value)) != len(value):
                 return 'an effect is listed twice'
+            new_code = [v for v in value if is_plugin_spec(v) and v not in self._plugins]
+            if self._ready and new_code:
+                return (f'{new_code[0]!r} would load code at run time, which no parameter change '
+                        'may do: plugin effects load at start-up only (plugin_effects in the '
+                        'parameters file); loaded at start-up: '
+                        f'{sorted(self._plugins) or "none"}')
             try:
                 self._build_effects(list(value))
             except Exception as exc:  # noqa: BLE001 - any failure to build is the reason

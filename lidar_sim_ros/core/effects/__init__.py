@@ -41,6 +41,11 @@ def _load_catalogue() -> None:
                 raise
 
 
+def is_plugin_spec(spec: str) -> bool:
+    """True for ``module:Class`` or ``file.py:Class``: a spec whose loading runs user code."""
+    return ':' in spec.partition('=')[0]
+
+
 def get_effect_class(spec: str) -> type[Effect]:
     """Resolve a catalogue name, ``module:Class`` or ``file.py:Class`` to an Effect class."""
     _load_catalogue()
