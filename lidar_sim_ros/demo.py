@@ -150,6 +150,27 @@ def run_nodes(commands: dict[str, tuple[str, list[str]]], out: Path, bag: Path, 
     return counts, codes, logs
 
 
+def sensor_scan(params: Path):
+    """The node's sensor shots and field of view, for the scan-pattern figure: from the
+    ``sensor_file`` / ``scenario_file`` parameters in ``params`` ('' = package defaults).
+    (None, None) if they cannot be loaded: the figure then shows the returns alone."""
+    from lidar_sim_ros.core.config import ConfigError, load_scenario, load_sensor, read_yaml
+    from lidar_sim_ros.core.scan import frame_shots
+    from lidar_sim_ros.viz.figures import ScanLayout
+    try:
+        node = (read_yaml(params) or {}).get('lidar_sim_node', {}).get('ros__parameters', {})
+        if node.get('sensor_file'):
+            sensor_path = Path(node['sensor_file'])
+            sensor = load_sensor(sensor_path)
+        else:
+            scenario = load_scenario(node.get('scenario_file') or config_path('scenario.yaml'))
+            sensor, sensor_path = scenario.sensor, scenario.source
+        return frame_shots(sensor, Path(sensor_path).resolve().parent), ScanLayout.of_sensor(sensor)
+    except (ConfigError, OSError, AttributeError) as exc:
+        print(f'demo: note: scan pattern without the sensor\'s shots ({exc})', file=sys.stderr)
+        return None, None
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     out = args.out
@@ -187,7 +208,8 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError as exc:
         print(f'note: figures skipped, lidar_sim_ros.viz.figures is not available ({exc})')
         return 0
-    figures = render_bag_figures(bag, out)
+    shots, layout = sensor_scan(args.params)
+    figures = render_bag_figures(bag, out, shots=shots, layout=layout)
     print('figures:')
     for path in figures:
         print(f'  {path}')

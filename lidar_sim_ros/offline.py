@@ -62,8 +62,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     ``poses_per_frame`` evenly spaced samples per frame plus one at the end of the
     last frame), /lidar/material_names (JSON list, once), and with a sun in the scenario
     /sun/direction (Vector3Stamped toward the sun, lidar frame, one per frame start).
-    Figures of the last frame go to ``out_dir/figures`` (plus ``sunlight.png`` with a
-    sun). Raises FileExistsError if the bag already exists.
+    Figures of the last frame and of the whole run go to ``out_dir/figures`` (plus
+    ``sunlight.png`` with a sun), drawn from the bag. Raises FileExistsError if the bag already exists.
     ``simulator`` / ``pose_source`` replace the scenario's own (campaigns reuse a
     worker's mesh and move the sensor mount); ``on_frame`` sees every simulated frame.
     """
@@ -111,12 +111,14 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
 
     figure_paths: list[Path] = []
     if figures:
-        from lidar_sim_ros.viz.figures import render_frame_figures
-        label = f'scenario {Path(scenario.source).name if scenario.source else ""}, ' \
-                f'frame {last.index}, t = {last.stamp_s:.3f} s'
-        figure_paths = render_frame_figures(frame_points(last), out / 'figures',
-                                            scenario.materials.names, sim.shots, label=label)
+        # Drawn from the bag just written, as `make demo` draws from its recording.
+        from lidar_sim_ros.viz.figures import ScanLayout, render_run
+        from lidar_sim_ros.viz.run import frame_label, read_run
+        run = read_run(bag_path)
+        figure_paths = render_run(run, out / 'figures', scenario.materials.names,
+                                  shots=sim.shots, layout=ScanLayout.of_sensor(sim.sensor))
         if sim.sun is not None:
+            label = frame_label(run, len(run.clouds) - 1)
             figure_paths.append(_sunlight_figure(sim, last, trajectory, out / 'figures', label))
     return OfflineResult(bag_path, figure_paths, stamps, stats)
 

@@ -56,8 +56,8 @@ def test_frame_figures_sizes_and_order(tmp_path, p60_shots):
     for path in paths:
         image = imread(path)
         assert path.stat().st_size > 20_000
-        # 150 dpi on a 10 x 5 in (angular) or 9 x 7 in (3D) canvas
-        assert image.shape[:2] in {(750, 1500), (1050, 1350)}, (path.name, image.shape)
+        # 150 dpi on a 10 x 5 in (angular), 10 x 5.5 in (scan pattern) or 9 x 7 in (3D) canvas
+        assert image.shape[:2] in {(750, 1500), (825, 1500), (1050, 1350)}, (path.name, image.shape)
         assert (image[..., :3].min(axis=2) < 0.9).mean() > 0.02, path.name
 
 
@@ -69,8 +69,49 @@ def test_material_legend_names_and_counts():
     fig = figures._materials(az, el, material, NAMES, '')
     texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     counts = np.bincount(material[material != 255], minlength=3)
-    assert texts == [f'PIF ({counts[0]})', f'MLI ({counts[1]})', f'PAF ({counts[2]})',
+    assert texts == [f'PIF: poly-isocyanate foam (insulation) ({counts[0]})',
+                     f'MLI: multi-layer insulation ({counts[1]})',
+                     f'PAF: payload attachment fitting ({counts[2]})',
                      'no material (false return) (5)']
+
+
+def test_small_material_drawn_on_top_and_absent_ones_named():
+    """A 5-point class gets larger dots above the others; a material not in view is
+    still in the legend (with 0), so the legend names every material of the file."""
+    names = ['PIF', 'MLI', 'NOZZLE', 'ADAPTER']
+    material = np.array([0] * 500 + [1] * 300 + [2] * 5)
+    az = np.linspace(-10, 10, len(material))
+    fig = figures._materials(az, np.zeros_like(az), material, names, '')
+    ax = fig.axes[0]
+    nozzle = next(c for c in ax.collections if c.get_label().startswith('NOZZLE'))
+    pif = next(c for c in ax.collections if c.get_label().startswith('PIF'))
+    assert nozzle.get_sizes()[0] > 4 * pif.get_sizes()[0]
+    assert nozzle.get_zorder() > pif.get_zorder()
+    texts = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert texts[2] == 'NOZZLE: engine nozzle (5)' and texts[3] == 'ADAPTER (0)'
+
+
+def test_scan_pattern_outlines_the_fov_and_names_absent_rings(p60_shots):
+    pts = plate_points()
+    pts['ring'] = np.where(np.isin(pts['ring'], [3, 23]), 4, pts['ring'])
+    az, el = figures.angles_from_directions(np.column_stack([pts['x'], pts['y'], pts['z']]))
+    layout = figures.ScanLayout(60.0, 22.0, 8, 3)
+    fig = figures._scan_pattern(p60_shots, np.degrees(az), np.degrees(el), pts, '', layout)
+    ax = fig.axes[0]
+    assert 'returns in 22 rings, none from rings 3, 23' in ax.get_title()
+    (fov,) = [p for p in ax.patches if type(p).__name__ == 'Rectangle']
+    assert (fov.get_x(), fov.get_y(), fov.get_width(), fov.get_height()) == (-30, -11, 60, 22)
+    # 7 inner azimuth and 2 inner elevation tile edges
+    assert len(ax.lines) == 9
+    # 24 lasers, 24 different colours
+    assert len({tuple(c) for c in figures.palette(24)}) == 24
+
+
+def test_3d_z_label_reads_upright():
+    fig = figures._points_3d(np.array([[10.0, 0, 0], [11.0, 1, 1]]), np.array([10.0, 11.5]), '')
+    ax = fig.axes[0]
+    assert ax.get_zlabel() == 'z [m]\n(up)'
+    assert not ax.zaxis.get_rotate_label(ax.get_zlabel())
 
 
 def test_azimuth_grows_to_the_left():
@@ -113,12 +154,14 @@ def small_bag(tmp_path_factory) -> Path:
 
 def test_bag_figures_last_frame(tmp_path, small_bag):
     paths = render_bag_figures(small_bag, tmp_path)
-    assert paths == [tmp_path / f'{name}.png' for name in FIGURE_NAMES]
+    # no truth cloud in this bag: of the run figures only run.png
+    assert paths == [tmp_path / f'{name}.png' for name in (*FIGURE_NAMES, 'run')]
     assert all(imread(p).shape[2] == 4 for p in paths)
 
 
 def test_bag_figures_frame_selection(tmp_path, small_bag):
-    paths = render_bag_figures(small_bag, tmp_path, material_names=['a', 'b', 'c'], frames=[0, -1])
+    paths = render_bag_figures(small_bag, tmp_path, material_names=['a', 'b', 'c'], frames=[0, -1],
+                               run_figures=False)
     assert [p.name for p in paths] == ([f'frame_0000_{n}.png' for n in FIGURE_NAMES]
                                        + [f'frame_0002_{n}.png' for n in FIGURE_NAMES])
     with pytest.raises(ValueError, match='index 3'):

@@ -23,6 +23,7 @@ from lidar_sim_ros.core.effects import parse_effect_spec
 from lidar_sim_ros.offline import DEFAULT_EPOCH_S, TRUTH_TOPIC
 from lidar_sim_ros.paths import config_path
 from lidar_sim_ros.viz.figures import FIGURE_NAMES
+from lidar_sim_ros.viz.run import RUN_FIGURE_NAMES
 from conftest import embree_range_tol_m
 
 SCENARIO = config_path('scenario.yaml')
@@ -47,7 +48,8 @@ def test_prints_bag_and_figure_paths(run):
     lines = stdout.splitlines()
     assert lines[0].startswith(f'bag: {out / "bag"}')
     printed = [Path(line.removeprefix('figure: ')) for line in lines[1:]]
-    assert printed == [out / 'figures' / f'{name}.png' for name in FIGURE_NAMES]
+    assert printed == [out / 'figures' / f'{name}.png'
+                       for name in (*FIGURE_NAMES, *RUN_FIGURE_NAMES)]
 
 
 def test_bag_topics_and_counts_with_rosbags(run):

@@ -41,7 +41,7 @@ def write_report(errors: dict[str, TrackingErrors], out_dir: str | Path,
 
 def error_figure(errors: dict[str, TrackingErrors], path: Path) -> Path:
     """Translation and rotation error vs time, one line per cloud."""
-    fig = Figure(figsize=(9, 6.5), constrained_layout=True)
+    fig = Figure(figsize=(12, 6.5), constrained_layout=True)
     FigureCanvasAgg(fig)
     ax_t, ax_r = fig.subplots(2, 1, sharex=True)
     colours = {'truth_cloud': 'tab:blue', 'model_cloud': 'tab:red'}
@@ -58,13 +58,13 @@ def error_figure(errors: dict[str, TrackingErrors], path: Path) -> Path:
                   label=f'long-axis pointing, RMS {s["axis_rms_deg"]:.2f} deg')
     ax_t.axhline(0, color='0.6', lw=0.8)
     ax_t.set_ylabel('translation error [cm]')
-    ax_t.legend(fontsize=8)
+    ax_t.legend(fontsize=8, loc='upper left', bbox_to_anchor=(1.01, 1.0), frameon=False)
     ax_t.set_title('pose_tracker (point-to-plane ICP against the mesh) vs the true pose')
     ax_r.set_ylabel('rotation error [deg]')
-    ax_r.set_xlabel('time [s]')
+    ax_r.set_xlabel('time since the first true pose [s]')
     ax_r.set_yscale('log')
     ax_r.set_ylim(bottom=0.01)
-    ax_r.legend(fontsize=8)
+    ax_r.legend(fontsize=8, loc='upper left', bbox_to_anchor=(1.01, 1.0), frameon=False)
     for ax in (ax_t, ax_r):
         ax.grid(alpha=0.3)
     fig.savefig(path, dpi=DPI)

@@ -17,32 +17,53 @@ changes the pyplot backend of the caller.
 from __future__ import annotations
 
 from pathlib import Path
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-from matplotlib import colormaps
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import LogNorm, Normalize
 from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 from matplotlib.ticker import MaxNLocator
 
 from lidar_sim_ros.core.scan import Shots, angles_from_directions
-from lidar_sim_ros.io.bag import BagContentError, read_clouds, read_material_names
+from lidar_sim_ros.io.bag import read_material_names
+from lidar_sim_ros.viz.run import RunRecord, frame_label, read_run, render_run_figures
+from lidar_sim_ros.viz.style import (AZ_LABEL as _AZ_LABEL, DPI, EL_LABEL as _EL_LABEL,
+                                     NO_MATERIAL, material_label, new_figure as _new_figure,
+                                     palette)
 
-DPI = 150
 FIGURE_NAMES = ('scan_pattern', 'points_3d_range', 'range_image', 'points_material',
                 'points_intensity')
-NO_MATERIAL = 255  # same code as core.pipeline.NO_MATERIAL: a return not on the target
 
-# tab20 reordered dark hues first, so consecutive ids (neighbouring tiles) differ in hue.
-_DISCRETE = [colormaps['tab20'].colors[i] for i in (*range(0, 20, 2), *range(1, 20, 2))]
-_AZ_LABEL = 'azimuth [deg] (+ = left, REP-103)'
-_EL_LABEL = 'elevation [deg]'
+
+@dataclass(frozen=True)
+class ScanLayout:
+    """The sensor's nominal field of view [deg] and tile array (None: not a tiled scan)."""
+
+    fov_az_deg: float | None = None
+    fov_el_deg: float | None = None
+    tiles_az: int | None = None
+    tiles_el: int | None = None
+
+    @classmethod
+    def of_sensor(cls, sensor) -> 'ScanLayout':
+        """From a SensorConfig: the fields its scan has (a spinning scan has no tiles)."""
+        scan = sensor.scan
+        return cls(getattr(scan, 'fov_az_deg', None), getattr(scan, 'fov_el_deg', None),
+                   getattr(scan, 'tiles_az', None), getattr(scan, 'tiles_el', None))
+
+    def tile_edges_deg(self) -> tuple[np.ndarray, np.ndarray] | None:
+        if None in (self.fov_az_deg, self.fov_el_deg, self.tiles_az, self.tiles_el):
+            return None
+        return (np.linspace(-self.fov_az_deg / 2, self.fov_az_deg / 2, self.tiles_az + 1),
+                np.linspace(-self.fov_el_deg / 2, self.fov_el_deg / 2, self.tiles_el + 1))
 
 
 def render_frame_figures(points_structured: np.ndarray, out_dir: str | Path,
                          material_names: Sequence[str] | None, shots: Shots | None = None,
-                         prefix: str = '', *, label: str = '') -> list[Path]:
+                         prefix: str = '', *, label: str = '',
+                         layout: ScanLayout | None = None) -> list[Path]:
     """Write the five figures of one frame as ``out_dir/<prefix><name>.png``.
 
     points_structured: a structured array with at least ``x, y, z`` [m, sensor frame]
@@ -51,6 +72,7 @@ def render_frame_figures(points_structured: np.ndarray, out_dir: str | Path,
     material_names: index -> name for the ``material`` field (None: numbered).
     shots: the frame's shots; given, the scan-pattern figure shows every shot and
     the tile grid, otherwise the returns' angles. label: appended to every title.
+    layout: the sensor's field of view and tiles, outlined on the scan pattern.
     Returns the written paths in the order of FIGURE_NAMES.
     """
     pts = _check_points(points_structured)
@@ -65,7 +87,7 @@ def render_frame_figures(points_structured: np.ndarray, out_dir: str | Path,
     suffix = f'\n{label}' if label else ''
 
     drawers = {
-        'scan_pattern': (lambda: _scan_pattern(shots, az_deg, el_deg, pts, suffix))
+        'scan_pattern': (lambda: _scan_pattern(shots, az_deg, el_deg, pts, suffix, layout))
         if shots is not None or 'ring' in fields else None,
         'points_3d_range': lambda: _points_3d(xyz, rng_m, suffix),
         'range_image': lambda: _range_image(az_deg, el_deg, rng_m, suffix),
@@ -88,27 +110,38 @@ def render_frame_figures(points_structured: np.ndarray, out_dir: str | Path,
 
 def render_bag_figures(bag_path: str | Path, out_dir: str | Path,
                        material_names: Sequence[str] | None = None,
-                       frames: str | int | Sequence[int] = 'last') -> list[Path]:
-    """Read ``/lidar/points`` (and ``/lidar/material_names``) of a bag and render figures.
+                       frames: str | int | Sequence[int] = 'last', *, shots: Shots | None = None,
+                       layout: ScanLayout | None = None, run_figures: bool = True) -> list[Path]:
+    """Read a recording (``/lidar/points``, ``/lidar/points_truth``, ``/target/pose``,
+    ``/sun/direction``, ``/lidar/material_names``) and render its figures.
 
     frames: 'last' (files named ``<figure>.png``), or 'first', 'all', a frame index
     or a list of indices (files named ``frame_NNNN_<figure>.png``); negative indices
     count from the end. material_names: overrides the names stored in the bag.
+    shots, layout: the sensor's shots and field of view for the scan pattern.
+    run_figures: also the whole-run figures of ``viz.run`` (run, range_error, dropouts).
+    Titles give the time since the run started and the scenario (range, attitude,
+    tumble rate, sun) at that frame.
     """
     bag_path = Path(bag_path)
-    clouds = read_clouds(bag_path)
-    if not clouds:
-        raise BagContentError(f'bag {bag_path} has no messages on /lidar/points')
     if material_names is None:
         material_names = read_material_names(bag_path)
-    selected, prefixed = _select_frames(frames, len(clouds))
+    return render_run(read_run(bag_path), out_dir, material_names, frames, shots=shots,
+                      layout=layout, run_figures=run_figures)
+
+
+def render_run(run: RunRecord, out_dir: str | Path, material_names: Sequence[str] | None,
+               frames: str | int | Sequence[int] = 'last', *, shots: Shots | None = None,
+               layout: ScanLayout | None = None, run_figures: bool = True) -> list[Path]:
+    """``render_bag_figures`` on a recording already read (``viz.run.read_run``)."""
+    selected, prefixed = _select_frames(frames, len(run.clouds))
     paths: list[Path] = []
     for i in selected:
-        cloud = clouds[i]
-        label = f'{bag_path.name}: frame {i} of {len(clouds)}, stamp {cloud.stamp_ns / 1e9:.3f} s'
         prefix = f'frame_{i:04d}_' if prefixed else ''
-        paths += render_frame_figures(cloud.points, out_dir, material_names, None, prefix,
-                                      label=label)
+        paths += render_frame_figures(run.clouds[i].points, out_dir, material_names, shots, prefix,
+                                      label=frame_label(run, i), layout=layout)
+    if run_figures:
+        paths += render_run_figures(run, out_dir, material_names)
     return paths
 
 
@@ -138,12 +171,6 @@ def _select_frames(frames: str | int | Sequence[int], n: int) -> tuple[list[int]
     return out, True
 
 
-def _new_figure(size: tuple[float, float]) -> Figure:
-    fig = Figure(figsize=size, layout='constrained')
-    FigureCanvasAgg(fig)
-    return fig
-
-
 def _angular_axes(fig: Figure, title: str):
     ax = fig.add_subplot()
     ax.set_title(title)
@@ -166,42 +193,76 @@ def _finish_angular(ax, az_deg: np.ndarray, el_deg: np.ndarray) -> None:
                 ha='center', va='center')
 
 
-def _laser_colours(laser: np.ndarray) -> np.ndarray:
-    return np.asarray(_DISCRETE)[np.asarray(laser, dtype=np.int64) % len(_DISCRETE)]
+def _laser_colours(laser: np.ndarray, n_lasers: int) -> np.ndarray:
+    return np.asarray(palette(n_lasers))[np.asarray(laser, dtype=np.int64) % max(n_lasers, 1)]
 
 
 def _scan_pattern(shots: Shots | None, az_deg: np.ndarray, el_deg: np.ndarray,
-                  pts: np.ndarray, suffix: str) -> Figure:
-    fig = _new_figure((10.0, 5.0))
+                  pts: np.ndarray, suffix: str, layout: ScanLayout | None = None) -> Figure:
+    """Shots (faint) and returns (full colour) per laser, the FOV outline and the tiles."""
+    fig = _new_figure((10.0, 5.5))
+    rings = np.asarray(pts['ring']) if 'ring' in pts.dtype.names else None
     if shots is not None:
         s_az, s_el = np.degrees(shots.az_rad), np.degrees(shots.el_rad)
         laser = np.asarray(shots.laser)
+        lasers = np.unique(laser)
         title = (f'Scan pattern of one frame (cf. paper Fig. 6): {len(s_az)} shots, '
-                 f'{len(np.unique(laser))} lasers')
+                 f'{len(lasers)} lasers')
     else:
-        s_az, s_el, laser = az_deg, el_deg, np.asarray(pts['ring'])
-        title = (f'Scan pattern seen in the returns: {len(s_az)} points, '
-                 f'{len(np.unique(laser))} rings (angles from x, y, z)')
+        s_az, s_el, laser = az_deg, el_deg, rings
+        lasers = np.unique(laser)
+        title = f'Scan pattern seen in the returns: {len(s_az)} points'
+    n_colours = int(lasers.max()) + 1 if len(lasers) else 1
+    if rings is not None:
+        n_colours = max(n_colours, int(rings.max()) + 1 if len(rings) else 0)
+        present = np.unique(rings)
+        title += f'; returns in {len(present)} rings'
+        if shots is not None:
+            absent = np.setdiff1d(lasers, present)
+            title += (', none from ' + ('ring ' if len(absent) == 1 else 'rings ')
+                      + ', '.join(str(int(a)) for a in absent) if len(absent) else ', every laser')
     ax = _angular_axes(fig, title + suffix)
-    if len(s_az):
-        ax.scatter(s_az, s_el, c=_laser_colours(laser), s=1.0, linewidths=0, rasterized=True)
-    grid = _tile_grid(s_az, s_el, laser) if shots is not None else None
+    if shots is not None and len(s_az):
+        ax.scatter(s_az, s_el, c=_laser_colours(laser, n_colours), s=0.6, linewidths=0,
+                   alpha=0.25, rasterized=True)
+    if rings is not None and len(az_deg):
+        ax.scatter(az_deg, el_deg, c=_laser_colours(rings, n_colours), s=1.2, linewidths=0,
+                   rasterized=True)
+    grid = layout.tile_edges_deg() if layout is not None else None
+    if grid is None and shots is not None:
+        grid = _tile_grid(s_az, s_el, laser)
     if grid is not None:
         az_edges, el_edges = grid
-        for a in az_edges:
-            ax.plot([a, a], [el_edges[0], el_edges[-1]], color='k', linewidth=0.8)
-        for e in el_edges:
-            ax.plot([az_edges[0], az_edges[-1]], [e, e], color='k', linewidth=0.8)
-    for lid in np.unique(laser):
+        for a in az_edges[1:-1]:
+            ax.plot([a, a], [el_edges[0], el_edges[-1]], color='k', linewidth=0.6, alpha=0.7)
+        for e in el_edges[1:-1]:
+            ax.plot([az_edges[0], az_edges[-1]], [e, e], color='k', linewidth=0.6, alpha=0.7)
+    fov = (layout.fov_az_deg, layout.fov_el_deg) if layout is not None else (None, None)
+    if None not in fov:
+        ax.add_patch(Rectangle((-fov[0] / 2, -fov[1] / 2), fov[0], fov[1], fill=False,
+                               edgecolor='k', linewidth=1.6))
+    elif grid is not None:
+        ax.add_patch(Rectangle((grid[0][0], grid[1][0]), grid[0][-1] - grid[0][0],
+                               grid[1][-1] - grid[1][0], fill=False, edgecolor='k',
+                               linewidth=1.6))
+    for lid in lasers:
         sel = laser == lid
         # labels at the laser's own centre: tile centre for shots, median of its returns otherwise
         ca = 0.5 * (s_az[sel].min() + s_az[sel].max()) if shots is not None else np.median(s_az[sel])
         ce = 0.5 * (s_el[sel].min() + s_el[sel].max()) if shots is not None else np.median(s_el[sel])
         ax.text(ca, ce, str(int(lid)), ha='center', va='center', fontsize=7,
                 bbox=dict(boxstyle='round,pad=0.15', fc='white', ec='none', alpha=0.7))
-    _finish_angular(ax, s_az, s_el)
-    ax.set_xlabel(_AZ_LABEL + ('; colour and label = laser id' if shots is not None
-                               else '; colour and label = ring'))
+    if None not in fov:
+        ax_az = np.concatenate([s_az, [-fov[0] / 2, fov[0] / 2]])
+        ax_el = np.concatenate([s_el, [-fov[1] / 2, fov[1] / 2]])
+        _finish_angular(ax, ax_az, ax_el)
+        ax.text(fov[0] / 2, fov[1] / 2, f'field of view {fov[0]:g} x {fov[1]:g} deg',
+                ha='left', va='bottom', fontsize=8)
+    else:
+        _finish_angular(ax, s_az, s_el)
+    what = ('colour and label = laser id; faint: every shot, full colour: returns'
+            if shots is not None else 'colour and label = ring')
+    ax.set_xlabel(_AZ_LABEL + '; ' + what)
     return fig
 
 
@@ -255,7 +316,9 @@ def _points_3d(xyz: np.ndarray, rng_m: np.ndarray, suffix: str) -> Figure:
         axis.set_major_locator(MaxNLocator(5))
     ax.set_xlabel('x [m] (forward)', labelpad=8)
     ax.set_ylabel('y [m] (left)', labelpad=8)
-    ax.set_zlabel('z [m] (up)', labelpad=8)
+    # Unrotated: mplot3d otherwise turns the z label upside down at this view.
+    ax.zaxis.set_rotate_label(False)
+    ax.set_zlabel('z [m]\n(up)', labelpad=8, rotation=0)
     # Camera behind and above the sensor, looking along +x: the side the LiDAR sees.
     ax.view_init(elev=20.0, azim=-150.0)
     fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.1, label='range [m]')
@@ -286,20 +349,32 @@ def _materials(az_deg: np.ndarray, el_deg: np.ndarray, material: np.ndarray,
     fig = _new_figure((10.0, 5.0))
     ax = _angular_axes(fig, 'Points by surface material (cf. paper Fig. 15)' + suffix)
     material = np.asarray(material, dtype=np.int64)
-    for mid in np.unique(material):
+    ids, counts = np.unique(material, return_counts=True)
+    colours = palette(max(len(names), int(ids[ids != NO_MATERIAL].max(initial=-1)) + 1))
+    # Large classes first, small ones on top with larger dots: a 5-point nozzle stays visible.
+    for mid, count in sorted(zip(ids, counts), key=lambda ic: -ic[1]):
         sel = material == mid
-        if mid == NO_MATERIAL:
-            name, colour = 'no material (false return)', (0.5, 0.5, 0.5)
-        else:
-            name = names[mid] if mid < len(names) else f'material {mid}'
-            colour = _DISCRETE[mid % len(_DISCRETE)]
-        ax.scatter(az_deg[sel], el_deg[sel], color=colour, s=1.5, linewidths=0,
-                   label=f'{name} ({int(sel.sum())})', rasterized=True)
+        colour = (0.5, 0.5, 0.5) if mid == NO_MATERIAL else colours[mid]
+        small = count < 0.02 * len(material)
+        ax.scatter(az_deg[sel], el_deg[sel], color=colour, s=8.0 if small else 1.5,
+                   linewidths=0, label=f'{material_label(int(mid), names)} ({int(count)})',
+                   rasterized=True, zorder=3 if small else 2)
+    for mid in sorted(set(range(len(names))) - set(int(i) for i in ids)):
+        ax.scatter([], [], color=colours[mid], s=1.5, label=f'{material_label(mid, names)} (0)')
     _finish_angular(ax, az_deg, el_deg)
     if len(material):
-        ax.legend(title='material (points)', loc='center left', bbox_to_anchor=(1.01, 0.5),
-                  markerscale=6, fontsize=8, frameon=False)
+        # Legend in material order (the order of the materials file), not drawing order.
+        handles, labels = ax.get_legend_handles_labels()
+        order = sorted(range(len(labels)), key=lambda k: _legend_key(labels[k], names))
+        ax.legend([handles[k] for k in order], [labels[k] for k in order],
+                  title='material (points)', loc='center left', bbox_to_anchor=(1.01, 0.5),
+                  markerscale=4, fontsize=8, frameon=False)
     return fig
+
+
+def _legend_key(label: str, names: list[str]) -> int:
+    name = label.split(':')[0].split(' (')[0]
+    return names.index(name) if name in names else len(names) + 1
 
 
 def _intensity(az_deg: np.ndarray, el_deg: np.ndarray, intensity: np.ndarray,
@@ -371,5 +446,5 @@ def render_sunlight_figure(az_deg: np.ndarray, el_deg: np.ndarray, hit: np.ndarr
     return out_path
 
 
-__all__ = ['DPI', 'FIGURE_NAMES', 'render_bag_figures', 'render_frame_figures',
-           'render_sunlight_figure']
+__all__ = ['DPI', 'FIGURE_NAMES', 'ScanLayout', 'render_bag_figures', 'render_frame_figures',
+           'render_run', 'render_sunlight_figure']
