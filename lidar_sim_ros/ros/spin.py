@@ -1,7 +1,10 @@
 """Run one node as a process: set it up, spin until interrupted, shut down cleanly."""
 from __future__ import annotations
 
-from typing import Callable
+import re
+import sys
+from pathlib import Path
+from typing import Callable, Sequence
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -10,8 +13,20 @@ from rclpy.node import Node
 
 def run_node(make_node: Callable[[], Node], args: list[str] | None,
              startup_errors: tuple[type[BaseException], ...]) -> int:
-    """Exit code 2 (after a fatal log naming the problem) when ``setup()`` rejects the config."""
-    rclpy.init(args=args)
+    """Exit code 2 with one line on stderr when the ROS arguments are wrong (a parameters
+    file that is missing or not parameters YAML, an unknown ``--ros-args`` option), and
+    after a fatal log naming the problem when ``setup()`` rejects the config."""
+    argv = sys.argv if args is None else list(args)
+    prog = Path(argv[0]).stem if argv else 'node'
+    problem = ros_args_problem(argv)
+    if problem is None:
+        try:
+            rclpy.init(args=args)
+        except Exception as exc:  # noqa: BLE001 - rcl's RCLError / UnknownROSArgsError
+            problem = rcl_error_line(exc)
+    if problem is not None:
+        print(f'{prog}: error: {problem}', file=sys.stderr)
+        return 2
     node = make_node()
     try:
         node.setup()
@@ -33,3 +48,27 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None,
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def ros_args_problem(argv: Sequence[str]) -> str | None:
+    """What rcl would reject in ``argv`` that a user can be told plainly (None: nothing):
+    a ``--params-file`` that does not exist or is not a file."""
+    args = list(argv)
+    for i, arg in enumerate(args):
+        if arg == '--params-file':
+            if i + 1 >= len(args):
+                return '--params-file needs a file name'
+            path = Path(args[i + 1])
+            if not path.is_file():
+                what = 'is a directory' if path.is_dir() else 'does not exist'
+                return f'parameters file {args[i + 1]!r} {what} (--params-file)'
+    return None
+
+
+def rcl_error_line(exc: BaseException, limit: int = 300) -> str:
+    """rcl's initialisation error as one line, without its C source locations."""
+    text = re.sub(r',? at /\S+:\d+', '', str(exc))
+    text = ' '.join(text.split())
+    if type(exc).__name__ == 'UnknownROSArgsError':
+        text = f'unknown ROS arguments {text}'
+    return text if len(text) <= limit else text[:limit - 3] + '...'

@@ -1,0 +1,47 @@
+"""Tests for lidar_sim_ros/ros/spin.py: wrong ROS arguments end in one line and exit 2."""
+import subprocess
+import sys
+
+import pytest
+
+from lidar_sim_ros.ros import spin
+
+
+class NeverBuilt:
+    """run_node must fail before it builds a node: building this one fails the test."""
+
+    def __init__(self):
+        raise AssertionError('the node was built despite bad ROS arguments')
+
+
+@pytest.mark.parametrize('argv, expected', [
+    (['lidar_sim_node', '--ros-args', '--params-file', 'config/param.yaml'],
+     "lidar_sim_node: error: parameters file 'config/param.yaml' does not exist (--params-file)"),
+    (['lidar_sim_node', '--ros-args', '--params-file'],
+     'lidar_sim_node: error: --params-file needs a file name'),
+    (['lidar_sim_node', '--ros-args', '--bogus'],
+     "lidar_sim_node: error: unknown ROS arguments ['--bogus']"),
+])
+def test_bad_ros_arguments_exit_2_with_one_line(argv, expected, capsys):
+    assert spin.run_node(NeverBuilt, argv, (ValueError,)) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == expected
+
+
+def test_params_file_that_is_not_parameters_yaml(tmp_path, capsys):
+    bad = tmp_path / 'params.yaml'
+    bad.write_text('a: [\n')
+    assert spin.run_node(NeverBuilt, ['n', '--ros-args', '--params-file', str(bad)], ()) == 2
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert line.startswith("n: error: failed to initialize rcl: Couldn't parse params file")
+    assert str(bad) in line and '.c:' not in line  # no C source locations
+
+
+def test_the_installed_node_process(tmp_path):
+    """The real entry point, as a user runs it: no traceback, exit 2."""
+    proc = subprocess.run([sys.executable, '-m', 'lidar_sim_ros.ros.lidar_sim_node', '--ros-args',
+                           '--params-file', str(tmp_path / 'param.yaml')],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert 'Traceback' not in proc.stderr
+    assert proc.stderr.strip().endswith('does not exist (--params-file)')
