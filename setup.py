@@ -28,6 +28,7 @@ setup(
         'rosbags>=0.10',
         'matplotlib>=3.8',
         'scikit-learn>=1.4',
+        'threadpoolctl>=3.1',
         'pydantic>=2.6',
         'PyYAML>=6.0',
     ],
