@@ -158,3 +158,32 @@ def test_poses_with_several_frames_are_refused(tmp_path: Path) -> None:
         bag.write_pose('/target/pose', T0_NS + 1, 'chaser', [0, 0, 0], [0, 0, 0, 1])
     with pytest.raises(BagContentError, match=r"\['chaser', 'world'\]"):
         read_poses(tmp_path / 'f')
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_material_names_are_recorded_latched(tmp_path, storage):
+    """offered_qos_profiles of /lidar/material_names: depth 1, reliable, transient local, as
+    the node offers it, in metadata.yaml (Jazzy's v9 list form) and read back by rosbags;
+    the clouds keep the empty list (replay defaults)."""
+    from rosbags.interfaces import QosDurability, QosReliability
+    from rosbags.rosbag2 import Reader
+    path = tmp_path / 'bag'
+    with BagWriter(path, storage=storage) as bag:
+        bag.write_material_names('/lidar/material_names', T0_NS, MATERIALS)
+        bag.write_cloud('/lidar/points', make_points(np.ones((2, 3)), 0.5, 0.0, 0, 0), T0_NS,
+                        'lidar')
+    metadata = (path / 'metadata.yaml').read_text()
+    assert 'durability: transient_local' in metadata
+    with Reader(path) as reader:
+        qos = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
+    (names_qos,) = qos['/lidar/material_names']
+    assert names_qos.durability == QosDurability.TRANSIENT_LOCAL
+    assert names_qos.reliability == QosReliability.RELIABLE and names_qos.depth == 1
+    assert qos['/lidar/points'] == []
+
+
+def test_qos_is_offered_before_the_first_message(tmp_path):
+    with BagWriter(tmp_path / 'bag') as bag:
+        bag.write_material_names('/names', T0_NS, MATERIALS)
+        with pytest.raises(ValueError, match="'/names' already has messages"):
+            bag.offer_qos('/names', [])

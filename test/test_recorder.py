@@ -6,9 +6,12 @@ import pytest
 import rclpy
 from geometry_msgs.msg import PoseStamped
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
+from rosbags.interfaces import QosDurability, QosReliability
+from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
 
 from lidar_sim_ros.gnc.demo import published
 from lidar_sim_ros.io.bag import BagWriter, read_poses
@@ -74,6 +77,40 @@ def test_armed_recorder_drops_messages_stamped_before_the_window(tmp_path):
             executor.shutdown()
         assert recorder.seen['/window/pose'] == 3 and recorder.counts['/window/pose'] == 2
         np.testing.assert_array_equal(read_poses(bag, '/window/pose').stamp_ns, stamps[1:])
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def test_recorded_topics_keep_their_publishers_qos(tmp_path):
+    """A latched publisher (depth 1, reliable, transient local) is recorded with that QoS in
+    offered_qos_profiles, so that a replay republishes it latched."""
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    node = rclpy.create_node('recorder_qos_test', context=context)
+    try:
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        pub = node.create_publisher(String, '/qos/names', latched)
+        pub.publish(String(data='["PIF"]'))
+        bag = tmp_path / 'bag'
+        with BagWriter(bag) as writer:
+            spec = TopicSpec('/qos/names', String, 'std_msgs/msg/String', stamped=False)
+            recorder = BagRecorder(node, writer, [spec])
+            executor = SingleThreadedExecutor(context=context)
+            executor.add_node(node)
+            deadline = time.monotonic() + 20
+            while recorder.counts['/qos/names'] < 1 and time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.05)
+            recorder.close()
+            executor.shutdown()
+        assert recorder.counts['/qos/names'] == 1
+        with Reader(bag) as reader:
+            (conn,) = reader.connections
+            (offered,) = conn.ext.offered_qos_profiles
+        assert offered.durability == QosDurability.TRANSIENT_LOCAL
+        assert offered.reliability == QosReliability.RELIABLE
+        # (the depth is not: DDS discovery does not carry it, and ros2 bag record's is 0 too)
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)

@@ -22,7 +22,8 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.rosbag1 import ReaderError as Rosbag1ReaderError
-from rosbags.interfaces import Connection
+from rosbags.interfaces import (Connection, Qos, QosDurability, QosHistory, QosLiveliness,
+                                QosReliability, QosTime)
 from rosbags.rosbag2 import ReaderError as Rosbag2ReaderError
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
@@ -42,6 +43,14 @@ VECTOR3_STAMPED = 'geometry_msgs/msg/Vector3Stamped'
 _STORAGE_PLUGINS = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 _BAG_VERSION = 9
 _QUAT_NORM_TOL = 1e-5
+
+
+# rmw's "infinite" duration as rosbag2 (Jazzy) writes it in offered_qos_profiles.
+QOS_INFINITE = QosTime(9223372036, 854775807)
+LATCHED_QOS = Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL,
+                  QOS_INFINITE, QOS_INFINITE, QosLiveliness.AUTOMATIC, QOS_INFINITE, False)
+"""What the node offers on /lidar/material_names (depth 1, reliable, transient local):
+recorded with the topic so that ``ros2 bag play`` republishes it latched."""
 
 
 class BagContentError(ValueError):
@@ -125,7 +134,17 @@ class BagWriter:
         self._writer = Writer(self.path, version=_BAG_VERSION,
                               storage_plugin=_STORAGE_PLUGINS[storage])
         self._connections: dict[str, Connection] = {}
+        self._offered_qos: dict[str, list[Qos]] = {}
         self._is_open = False
+
+    def offer_qos(self, topic: str, profiles: Sequence[Qos]) -> None:
+        """The QoS profiles the topic's publishers offered, recorded in the bag's metadata
+        (``offered_qos_profiles``) so that a replay publishes with them. Only before the
+        topic's first message: the profiles are part of its connection."""
+        if topic in self._connections:
+            raise ValueError(f'topic {topic!r} already has messages in bag {self.path}; '
+                             'offer its QoS before the first one')
+        self._offered_qos[topic] = list(profiles)
 
     def open(self) -> None:
         """Create the bag directory and storage file."""
@@ -191,7 +210,10 @@ class BagWriter:
         self._write_msg(topic, STRING, stamp_ns, self.typestore.types[STRING](data=text))
 
     def write_material_names(self, topic: str, stamp_ns: int, names: Sequence[str]) -> None:
-        """Write the material names list as JSON in a std_msgs/msg/String."""
+        """Write the material names list as JSON in a std_msgs/msg/String, on a topic
+        recorded as latched (``LATCHED_QOS``) unless other QoS was offered for it."""
+        if topic not in self._connections:
+            self._offered_qos.setdefault(topic, [LATCHED_QOS])
         self.write_string(topic, stamp_ns, encode_material_names(names))
 
     def write_raw(self, topic: str, msgtype: str, stamp_ns: int, cdr_bytes: bytes) -> None:
@@ -216,7 +238,9 @@ class BagWriter:
             if msgtype not in self.typestore.types:
                 raise ValueError(f'message type {msgtype!r} for topic {topic!r} is not in '
                                  'the ROS 2 Jazzy typestore')
-            connection = self._writer.add_connection(topic, msgtype, typestore=self.typestore)
+            connection = self._writer.add_connection(
+                topic, msgtype, typestore=self.typestore,
+                offered_qos_profiles=self._offered_qos.get(topic, ()))
             self._connections[topic] = connection
         elif connection.msgtype != msgtype:
             raise ValueError(f'topic {topic!r} in bag {self.path} already carries '

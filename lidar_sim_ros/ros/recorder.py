@@ -19,6 +19,9 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
+from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
+                                QosTime)
+
 from lidar_sim_ros.io.bag import BagWriter
 
 QUEUE_DEPTH = 50
@@ -63,6 +66,19 @@ def adapted_qos(offered: Sequence[QoSProfile], depth: int = QUEUE_DEPTH) -> QoSP
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+def bag_qos(profile: QoSProfile) -> Qos:
+    """An rclpy QoS profile as rosbag2 stores it in ``offered_qos_profiles``. The enums
+    share rmw's numbering; a duration is (sec, nsec)."""
+    def time(duration) -> QosTime:
+        ns = duration.nanoseconds
+        return QosTime(ns // 1_000_000_000, ns % 1_000_000_000)
+
+    return Qos(QosHistory(int(profile.history)), int(profile.depth),
+               QosReliability(int(profile.reliability)), QosDurability(int(profile.durability)),
+               time(profile.deadline), time(profile.lifespan), QosLiveliness(int(profile.liveliness)),
+               time(profile.liveliness_lease_duration), bool(profile.avoid_ros_namespace_conventions))
 
 
 class BagRecorder:
@@ -113,6 +129,9 @@ class BagRecorder:
             if not offered:
                 continue
             qos = adapted_qos(offered)
+            # As ros2 bag record does: the publishers' QoS goes into the bag, so that a
+            # replay offers the same (a latched topic stays latched).
+            self.writer.offer_qos(topic, [bag_qos(q) for q in offered])
             self._subs.append(self.node.create_subscription(
                 spec.msg_class, topic, self._callback(spec), qos, raw=True))
             self.qos[topic] = qos
