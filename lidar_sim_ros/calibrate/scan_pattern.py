@@ -537,6 +537,7 @@ def run_scan(bag: str | Path, out: str | Path, sensor: str | Path | None = None,
              figure: str | Path | None = None, topic: str = CLOUD_TOPIC) -> ScanCalibration:
     """``lidar-sim calibrate scan``: fit, write the sensor YAML, check it reloads, plot."""
     sensor = Path(sensor) if sensor else config_path('cepton_vista_p60.yaml')
+    load_sensor(sensor)  # a wrong --sensor fails before the bag is read
     samples = read_scan_samples(bag, topic)
     cal = calibrate_scan(samples, sensor)
     header = [f'Sensor calibrated by `lidar-sim calibrate scan {bag}` from {sensor}:',

@@ -14,7 +14,8 @@ from typing import Annotated, Literal, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from lidar_sim_ros.core.config import ConfigError, Scenario, load_scenario, parse, read_yaml
+from lidar_sim_ros.core.config import (ConfigError, Scenario, check_file_kind, load_scenario, parse,
+                                       read_yaml)
 
 
 class _Model(BaseModel):
@@ -214,6 +215,7 @@ def load_campaign(path: str | Path) -> Campaign:
     """Load CAMPAIGN.yaml and its base scenario; check every dispersion against it."""
     path = Path(path)
     data = read_yaml(path)
+    check_file_kind(data, 'campaign spec', path)
     try:
         spec = parse(CampaignSpec, data, path)
     except ConfigError as exc:

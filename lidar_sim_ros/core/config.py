@@ -6,6 +6,8 @@ names the file, the key path and the offending value.
 """
 from __future__ import annotations
 
+import difflib
+import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
@@ -22,7 +24,25 @@ class ConfigError(ValueError):
 
     def __init__(self, file: str | Path, key: str, value: Any, reason: str):
         self.file, self.key, self.value, self.reason = str(file), key, value, reason
-        super().__init__(f'{file}: key "{key}" = {value!r}: {reason}')
+        super().__init__(f'{file}: key "{key}" = {_short_repr(value)}: {reason}')
+
+
+class WrongFileKindError(ConfigError):
+    """A file of one kind (a campaign spec) given where another (a scenario) is expected."""
+
+    def __init__(self, file: str | Path, kind: str, expected: str, hint: str):
+        self.file, self.key, self.value = str(file), '<file>', kind
+        self.reason = f'this is a {kind}, not a {expected}: {hint}'
+        ValueError.__init__(self, f'{file}: {self.reason}')
+
+
+VALUE_REPR_CHARS = 80
+
+
+def _short_repr(value: Any, limit: int = VALUE_REPR_CHARS) -> str:
+    """repr of a config value, cut to ``limit`` characters: a message, not a dump."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 5] + ' ...' + text[-1]
 
 
 class _Model(BaseModel):
@@ -327,16 +347,64 @@ def _lookup(data: Any, loc: tuple) -> Any:
     return data
 
 
+def _models_in(tp: Any) -> list[type[BaseModel]]:
+    """The pydantic models an annotation can hold (through Optional, Union, list, Annotated)."""
+    if isinstance(tp, type) and issubclass(tp, BaseModel):
+        return [tp]
+    return [m for arg in typing.get_args(tp) for m in _models_in(arg)]
+
+
+def _fields_at(model: type[BaseModel], loc: tuple) -> set[str]:
+    """Field names of the (sub)model that ``loc`` points into: the keys a mapping there may
+    have. Union members are chosen by their ``type`` tag where the location names one."""
+    types: list[Any] = [model]
+    for part in loc:
+        nxt: list[Any] = []
+        for tp in types:
+            if isinstance(part, int):
+                nxt.append(tp)  # a list index: the element type is unwrapped below
+                continue
+            if typing.get_origin(tp) is dict:
+                nxt.append(typing.get_args(tp)[1])
+                continue
+            for m in _models_in(tp):
+                if part in m.model_fields:
+                    nxt.append(m.model_fields[part].annotation)
+                elif 'type' in m.model_fields and part in typing.get_args(
+                        m.model_fields['type'].annotation):
+                    nxt.append(m)
+        types = nxt
+    return {f for tp in types for m in _models_in(tp) for f in m.model_fields}
+
+
+def _did_you_mean(model: type[BaseModel], loc: tuple, data: Any) -> str:
+    """' did you mean "seed"?' for an unknown key close to a known one ('' otherwise)."""
+    parent = _lookup(data, loc[:-1])
+    present = set(parent) if isinstance(parent, dict) else set()
+    known = _fields_at(model, loc[:-1])
+    # Keys still missing first: "sed" next to a missing "seed" is almost surely a typo.
+    for pool in (known - present, known):
+        close = difflib.get_close_matches(str(loc[-1]), sorted(pool), n=1, cutoff=0.6)
+        if close:
+            return f'; did you mean "{close[0]}"?'
+    return ''
+
+
 def parse(model: type[_Model], data: Any, file: str | Path) -> Any:
-    """Validate a plain dict against ``model``; raise ConfigError naming file/key/value."""
+    """Validate a plain dict against ``model``; raise ConfigError naming file/key/value.
+
+    Of several problems the first unknown key is reported (a typo also leaves its
+    intended key missing), with the closest known key as a suggestion.
+    """
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
+        errors = exc.errors()
+        err = next((e for e in errors if e['type'] == 'extra_forbidden'), errors[0])
         loc = tuple(err['loc'])
         key = _format_loc(loc) or '<root>'
         if err['type'] == 'extra_forbidden':
-            reason = 'unknown key'
+            reason = 'unknown key' + _did_you_mean(model, loc, data)
         elif err['type'] == 'missing':
             reason = 'missing key'
         else:
@@ -359,12 +427,50 @@ def read_yaml(path: str | Path) -> Any:
         raise ConfigError(path, '<yaml>', None, f'not valid YAML: {exc}') from None
 
 
+# What each kind of YAML file must have at its top, and what takes it: a file of one kind
+# given where another is expected is named for what it is.
+FILE_KINDS: dict[str, tuple[frozenset[str], str]] = {
+    'campaign spec': (frozenset({'runs', 'dispersions'}), 'use lidar-sim campaign {file}'),
+    'scenario': (frozenset({'mesh', 'sensor', 'materials'}),
+                 'use lidar-sim simulate {file}, or name it in a campaign spec\'s "scenario:" key'),
+    'sensor file': (frozenset({'scan', 'optics', 'detection'}),
+                    'name it in a scenario\'s "sensor:" key, or pass it to '
+                    'lidar-sim calibrate scan --sensor'),
+    'materials file': (frozenset({'materials'}), 'name it in a scenario\'s "materials:" key'),
+}
+
+
+def file_kind(data: Any) -> str | None:
+    """Which kind of configuration ``data`` (a loaded YAML mapping) is, None if unknown."""
+    if not isinstance(data, dict):
+        return None
+    keys = set(data)
+    for kind, (required, _) in FILE_KINDS.items():
+        if required <= keys and not (kind == 'materials file' and 'mesh' in keys):
+            return kind
+    return None
+
+
+def check_file_kind(data: Any, expected: str, file: str | Path) -> None:
+    """WrongFileKindError if ``data`` is recognisably another kind of file than ``expected``."""
+    kind = file_kind(data)
+    if kind is not None and kind != expected:
+        hint = FILE_KINDS[kind][1].format(file=file)
+        if kind == 'scenario' and expected == 'sensor file':
+            hint = f'its sensor file is {data["sensor"]!r} (the "sensor:" key): pass that'
+        raise WrongFileKindError(file, kind, expected, hint)
+
+
 def load_sensor(path: str | Path) -> SensorConfig:
-    return parse(SensorConfig, read_yaml(path), path)
+    data = read_yaml(path)
+    check_file_kind(data, 'sensor file', path)
+    return parse(SensorConfig, data, path)
 
 
 def load_materials(path: str | Path) -> MaterialsConfig:
-    return parse(MaterialsConfig, read_yaml(path), path)
+    data = read_yaml(path)
+    check_file_kind(data, 'materials file', path)
+    return parse(MaterialsConfig, data, path)
 
 
 def resolve(path: str, base: Path) -> Path:
@@ -394,7 +500,9 @@ class Scenario:
 def load_scenario(path: str | Path) -> Scenario:
     """Load scenario YAML and the sensor/materials/mesh files it references."""
     path = Path(path)
-    cfg = parse(ScenarioConfig, read_yaml(path), path)
+    data = read_yaml(path)
+    check_file_kind(data, 'scenario', path)
+    cfg = parse(ScenarioConfig, data, path)
     base = path.resolve().parent
     sensor_path = resolve(cfg.sensor, base)
     materials_path = resolve(cfg.materials, base)

@@ -1,0 +1,88 @@
+"""Config errors that help: the wrong kind of file, a typo's nearest key, no dumps."""
+import shutil
+
+import pytest
+import yaml
+
+from lidar_sim_ros.cli import main as cli_main
+from lidar_sim_ros.core.config import (ConfigError, WrongFileKindError, file_kind, load_materials,
+                                       load_scenario, load_sensor)
+from conftest import CONFIG
+
+
+def copy_config(tmp_path, edit_file: str, edit) -> None:
+    for name in ('scenario.yaml', 'cepton_vista_p60.yaml', 'materials.yaml',
+                 'campaign_example.yaml'):
+        shutil.copy(CONFIG / name, tmp_path / name)
+    data = yaml.safe_load((tmp_path / edit_file).read_text())
+    edit(data)
+    (tmp_path / edit_file).write_text(yaml.safe_dump(data))
+
+
+@pytest.mark.parametrize('name, kind', [('campaign_example.yaml', 'campaign spec'),
+                                        ('scenario.yaml', 'scenario'),
+                                        ('cepton_vista_p60.yaml', 'sensor file'),
+                                        ('materials.yaml', 'materials file')])
+def test_each_shipped_file_is_recognised(name, kind):
+    assert file_kind(yaml.safe_load((CONFIG / name).read_text())) == kind
+
+
+def test_campaign_spec_given_as_scenario():
+    with pytest.raises(WrongFileKindError) as err:
+        load_scenario(CONFIG / 'campaign_example.yaml')
+    assert str(err.value).endswith('campaign_example.yaml: this is a campaign spec, not a '
+                                   'scenario: use lidar-sim campaign '
+                                   f'{CONFIG / "campaign_example.yaml"}')
+
+
+def test_scenario_given_as_sensor_names_its_sensor_file():
+    with pytest.raises(WrongFileKindError, match="its sensor file is 'cepton_vista_p60.yaml'"):
+        load_sensor(CONFIG / 'scenario.yaml')
+    with pytest.raises(WrongFileKindError, match='this is a sensor file, not a materials file'):
+        load_materials(CONFIG / 'cepton_vista_p60.yaml')
+
+
+@pytest.mark.parametrize('argv', [
+    ['simulate', str(CONFIG / 'campaign_example.yaml'), '--frames', '1', '--out', 'OUT'],
+    ['calibrate', 'scan', 'BAG', '--sensor', str(CONFIG / 'campaign_example.yaml'), '--out', 'S'],
+])
+def test_cli_says_use_lidar_sim_campaign(tmp_path, capsys, argv):
+    argv = [a.replace('OUT', str(tmp_path / 'o')).replace('BAG', str(tmp_path)) for a in argv]
+    assert cli_main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'this is a campaign spec' in err[0]
+    assert err[0].endswith('use lidar-sim campaign ' + str(CONFIG / 'campaign_example.yaml'))
+
+
+@pytest.mark.parametrize('file, edit, key, suggestion', [
+    ('scenario.yaml', lambda d: d.update(sed=d.pop('seed')), 'sed', 'seed'),
+    ('scenario.yaml', lambda d: d['motion'].update(tumble_rate=d['motion'].pop('tumble_rate_dps')),
+     'motion.tumble_rate', 'tumble_rate_dps'),
+    # inside the tagged scan union and inside a list
+    ('cepton_vista_p60.yaml', lambda d: d['scan'].update(tile_az=d['scan'].pop('tiles_az')),
+     'scan.tile_az', 'tiles_az'),
+    ('materials.yaml', lambda d: d['materials'][2].update(kdd=d['materials'][2].pop('kd')),
+     'materials.2.kdd', 'kd'),
+])
+def test_unknown_key_suggests_the_nearest(tmp_path, file, edit, key, suggestion):
+    copy_config(tmp_path, file, edit)
+    with pytest.raises(ConfigError) as err:
+        load_scenario(tmp_path / 'scenario.yaml')
+    assert err.value.key == key
+    assert f'unknown key; did you mean "{suggestion}"?' in str(err.value)
+
+
+def test_no_suggestion_for_a_key_like_nothing(tmp_path):
+    copy_config(tmp_path, 'scenario.yaml', lambda d: d.update(zzzz=1))
+    with pytest.raises(ConfigError) as err:
+        load_scenario(tmp_path / 'scenario.yaml')
+    assert str(err.value).endswith('key "zzzz" = 1: unknown key')
+
+
+def test_a_mapping_value_is_cut_not_dumped(tmp_path):
+    big = {f'key_{i}': list(range(20)) for i in range(30)}
+    copy_config(tmp_path, 'scenario.yaml', lambda d: d.update(motions=big))
+    with pytest.raises(ConfigError) as err:
+        load_scenario(tmp_path / 'scenario.yaml')
+    message = str(err.value)
+    assert len(message) < 300 and " ...}: unknown key; did you mean \"motion\"?" in message
