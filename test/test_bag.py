@@ -187,3 +187,14 @@ def test_qos_is_offered_before_the_first_message(tmp_path):
         bag.write_material_names('/names', T0_NS, MATERIALS)
         with pytest.raises(ValueError, match="'/names' already has messages"):
             bag.offer_qos('/names', [])
+
+
+def test_a_folder_holding_a_bag_names_it(tmp_path):
+    """`lidar-sim compare demo-output` (make demo's folder): the bag inside is suggested."""
+    from lidar_sim_ros.io.bag import BagFormatError, bag_kind
+    with BagWriter(tmp_path / 'bag') as bag:
+        bag.write_material_names('/lidar/material_names', T0_NS, MATERIALS)
+    (tmp_path / 'scan_pattern.png').write_bytes(b'')
+    with pytest.raises(BagFormatError) as err:
+        bag_kind(tmp_path)
+    assert str(err.value).endswith(f'; it holds the bag {tmp_path / "bag"}: give that instead')

@@ -22,7 +22,7 @@ from lidar_sim_ros.core.config import MaterialsConfig, load_materials, load_sens
 from lidar_sim_ros.core.geometry import MeshMaterialError, load_target
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.pose import PoseTrack
-from lidar_sim_ros.io.bag import BagContentError, BagWriter
+from lidar_sim_ros.io.bag import BagWriter
 from lidar_sim_ros.io.pointcloud import make_points
 from lidar_sim_ros.paths import config_path
 
@@ -193,8 +193,10 @@ def test_cli_with_figure(lab, tmp_path, capsys):
 # ----------------------------------------------------------------- bad input
 def test_missing_pose_topic_names_topic(lab, tmp_path):
     bag = write_bag(tmp_path / 'nopose', lab['frames'][:2], poses=False)
-    with pytest.raises(BagContentError, match="no topic '/target/pose'"):
+    with pytest.raises(CalibrationInputError, match="no topic '/target/pose'") as err:
         run_range_errors(bag, lab['mesh'], tmp_path / 'o.yaml', materials=lab['materials'])
+    # the same hint as lidar-sim compare's
+    assert str(err.value).endswith('(choose the topics with --cloud-topic / --pose-topic)')
 
 
 def test_mesh_with_unknown_materials_is_an_error(lab, tmp_path):

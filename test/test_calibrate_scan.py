@@ -22,7 +22,7 @@ from lidar_sim_ros.calibrate.scan_pattern import (CalibrationInputError, fit_sin
                                                   read_scan_samples, run_scan)
 from lidar_sim_ros.core.config import SensorConfig, load_sensor, parse, read_yaml
 from lidar_sim_ros.core.scan import directions_from_angles, frame_shots, lissajous_lasers
-from lidar_sim_ros.io.bag import BagContentError, BagWriter
+from lidar_sim_ros.io.bag import BagWriter
 from lidar_sim_ros.io.pointcloud import FLOAT32, make_points, ns_to_stamp
 from lidar_sim_ros.paths import config_path
 
@@ -215,8 +215,9 @@ def test_missing_time_field_is_an_error(lab, tmp_path):
 
 
 def test_missing_topic_is_an_error(lab, tmp_path):
-    with pytest.raises(BagContentError, match="no topic '/velodyne_points'"):
+    with pytest.raises(CalibrationInputError, match="no topic '/velodyne_points'") as err:
         run_scan(lab['ring_bag'], tmp_path / 's.yaml', topic='/velodyne_points')
+    assert str(err.value).endswith('(choose the topic with --cloud-topic)')
 
 
 def test_uncovered_laser_keeps_the_config_curve(lab, tmp_path):

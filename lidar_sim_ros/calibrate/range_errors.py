@@ -23,7 +23,8 @@ from lidar_sim_ros.calibrate.common import (CalibrationInputError, format_table,
 from lidar_sim_ros.core.config import load_scenario, resolve
 from lidar_sim_ros.core.geometry import MeshMaterialError, Target, cast_at_poses, load_target
 from lidar_sim_ros.core.pose import Poses
-from lidar_sim_ros.io.bag import CLOUD_TOPIC, POSE_TOPIC, read_clouds, read_poses
+from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, read_clouds,
+                                  read_poses)
 from lidar_sim_ros.paths import config_path
 
 MAD_TO_SIGMA = 1.4826        # sigma of a normal distribution per median absolute deviation
@@ -87,8 +88,12 @@ class _StaticFrame:
 def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
                    counts: dict[str, int]) -> list[_StaticFrame]:
     """The frames of one bag with the target static at a known pose (counts the rest)."""
-    clouds = read_clouds(bag, cloud_topic)
-    poses = read_poses(bag, pose_topic)
+    try:
+        clouds = read_clouds(bag, cloud_topic)
+        poses = read_poses(bag, pose_topic)
+    except BagContentError as exc:  # as lidar-sim compare says it
+        raise CalibrationInputError(
+            f'{exc} (choose the topics with --cloud-topic / --pose-topic)') from None
     if not clouds:
         raise CalibrationInputError(f'bag {bag}: topic {cloud_topic!r} has no messages')
     if len(poses.stamp_ns) == 0:

@@ -25,7 +25,7 @@ from lidar_sim_ros.core.config import LissajousArrayScan, load_sensor, read_yaml
 from lidar_sim_ros.core.scan import (LissajousLaser, angles_from_directions,
                                      directions_from_angles, frame_shots, lissajous_angles,
                                      lissajous_lasers)
-from lidar_sim_ros.io.bag import CLOUD_TOPIC, read_clouds
+from lidar_sim_ros.io.bag import CLOUD_TOPIC, BagContentError, read_clouds
 from lidar_sim_ros.paths import config_path
 
 MIN_POINTS_PER_LASER = 40
@@ -58,7 +58,10 @@ def read_scan_samples(bag: str | Path, topic: str = CLOUD_TOPIC) -> ScanSamples:
     missing or no finite point is left. The frame period is the median header
     stamp step (None with a single cloud).
     """
-    clouds = read_clouds(bag, topic)
+    try:
+        clouds = read_clouds(bag, topic)
+    except BagContentError as exc:
+        raise CalibrationInputError(f'{exc} (choose the topic with --cloud-topic)') from None
     src = f'bag {bag}, topic {topic!r}'
     if not clouds:
         raise CalibrationInputError(f'{src}: no messages')

@@ -362,6 +362,10 @@ def bag_kind(path: str | Path) -> str:
             return 'rosbag2 directory'
         inside = sorted(p.name for p in path.iterdir() if p.suffix in _FILE_KINDS)
         hint = f'; it holds {", ".join(inside)}: give that file instead' if inside else ''
+        bags = sorted(str(p) for p in path.iterdir() if (p / 'metadata.yaml').is_file())
+        if bags and not inside:  # e.g. `make demo`'s demo-output/ holding demo-output/bag
+            hint = f'; it holds the bag {" and ".join(bags[:3])}: give that instead'
+
         raise BagFormatError(f'{path} is a directory without metadata.yaml, so not a rosbag2 bag '
                              f'(expected {BAG_KINDS}){hint}')
     kind = _FILE_KINDS.get(path.suffix)
