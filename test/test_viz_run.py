@@ -87,7 +87,7 @@ def test_tumble_rate_and_scenario_caption():
 def run_bag(tmp_path_factory) -> Path:
     """Three frames 0.1 s apart with truth and poses, poses starting 50 ms before the first
     cloud: the run starts at the first pose."""
-    path = tmp_path_factory.mktemp('run') / 'recording' / 'bag'
+    path = tmp_path_factory.mktemp('run') / 'flight_03' / 'bag'
     with BagWriter(path) as bag:
         bag.write_material_names('/lidar/material_names', T0_NS, NAMES)
         for k in range(8):
@@ -108,7 +108,7 @@ def test_bag_run_figures_and_relative_time(tmp_path, run_bag):
     assert [p.stem for p in paths][-3:] == ['run', 'range_error', 'dropouts']
     assert all(p.stat().st_size > 20_000 for p in paths)
     run = vrun.read_run(run_bag)
-    assert run.source == 'recording/bag'
+    assert run.source == 'flight_03'  # the recording's folder: its bag is just "bag"
     label = vrun.frame_label(run, 2)
-    assert label.startswith('recording/bag: frame 3 of 3, t = 0.25 s into the run\n')
+    assert label.startswith('flight_03: frame 3 of 3, t = 0.25 s into the run\n')
     assert 'range 10.00 m' in label and 'tumble 0.0 deg/s' in label

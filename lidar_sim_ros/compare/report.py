@@ -19,6 +19,7 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from lidar_sim_ros.compare import opening  # noqa: E402
 from lidar_sim_ros.compare.features import CATEGORICAL, LABELS  # noqa: E402
 from lidar_sim_ros.compare.materials import robust_sigma  # noqa: E402
 
@@ -227,7 +228,9 @@ def _fmt(v) -> str:
 CSS = """body{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}
 table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 8px;
 font-size:13px;text-align:left}th{background:#eee}.verdict{background:#fff6e0;padding:1em;
-border-left:4px solid #e0a000}img{max-width:100%}code{background:#f3f3f3}"""
+border-left:4px solid #e0a000}img{max-width:100%}code{background:#f3f3f3}
+.headline{font-size:1.25em;font-weight:bold}pre.command{background:#f3f3f3;padding:0.8em;
+white-space:pre-wrap;word-break:break-all;border-left:4px solid #2a7ae2}"""
 
 
 def write_report(out: Path, summary: dict, matching, configured, residual_m: np.ndarray,
@@ -255,10 +258,11 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
     if s['unmatched_points']:
         figs['unmatched'] = unmatched_figure(matching, model.divergence_rad)
         figs['scene'] = scene_figure(matching, model.divergence_rad, isolated)
+    why = opening.candidate_reasons(s)
     cand_rows = [[c.name, c.score, c.params, c.range_rmse_after_m, c.nll_after,
                   c.range_robust_sigma_after_m, c.unmatched_explained, c.z,
                   'vetoed' if c.vetoed else 'yes' if c.significant else 'no',
-                  c.yaml or c.error or ''] for c in cands]
+                  why.get(c.name, ''), c.yaml or c.error or ''] for c in cands]
     feat_rows = [[f.name, f.score, f.score_z, f.marginal, f.mean_part, f.spread_part,
                   f.significance, f.trend] for f in feats]
     mat_rows = [[n, m['points'], m['model_bias_m'], m['measured_bias_m'], m['model_sigma_m'],
@@ -277,10 +281,18 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
             ['missing effect', s['missing_effect'] or 'none (null)'],
             ['intensity gain (measured / model)',
              s['intensity_gain']['gain'] if s['intensity_gain'] else 'no intensity']]
+    # The opening: verdict in one line, the next command to copy, then the evidence.
+    title = html.escape(opening.title(s))
+    action = opening.next_command(s, out)
     parts = [
-        '<!DOCTYPE html><html><head><meta charset="utf-8"><title>lidar-sim compare</title>',
+        '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">',
+        f'<title>{title}</title>',
         f'<style>{CSS}</style></head><body>',
-        f'<h1>lidar-sim compare: {html.escape(Path(s["bag"]).name)}</h1>',
+        f'<h1>{title}</h1>',
+        f'<p class="headline">{html.escape(opening.headline(s))}</p>',
+        (f'<p>{html.escape(action[0])}</p><pre class="command"><code>{html.escape(action[1])}'
+         '</code></pre>') if action else '<p>Nothing to do: no effect to add.</p>',
+        '<h2>Evidence</h2>',
         f'<p class="verdict">{html.escape(s["verdict"])}</p>',
         _table(head, ['quantity', 'value']),
         '<h2>Candidate effects (fitted by maximum likelihood, best first)</h2>',
@@ -291,7 +303,7 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
         'per-material-refit rows above, not with the headline RMSE/NLL.</p>',
         _table(cand_rows, ['effect', 'score', 'fitted params', 'RMSE after (m)', 'NLL after',
                            'robust sigma after (m)', 'unmatched explained', 'z', 'significant',
-                           'scenario snippet']),
+                           'why (or why not) the missing effect', 'scenario snippet']),
         _img(figs['candidates'], 'candidates') if 'candidates' in figs else
         '<p>No candidate effects were diagnosed in this run.</p>',
         '<h2>Where the model fails: residual against each feature</h2>',

@@ -345,6 +345,23 @@ def _read_messages(path: str | Path, topic: str, msgtype: str) -> list[Any]:
                 for c, _, raw in reader.messages(connections=connections)]
 
 
+# ------------------------------------------------------------------ naming
+_GENERIC_BAG_NAMES = {'bag', 'bags', 'rosbag', 'rosbag2', 'recording', 'data'}
+
+
+def recording_name(path: str | Path) -> str:
+    """A recording's name for titles: ``measured`` for ``measured/bag`` (``make demo`` and
+    ``lidar-sim simulate`` call every bag ``bag``), the stem of a bare file
+    (``flight_03`` for ``flight_03.mcap``), otherwise the folder's own name."""
+    path = Path(path)
+    if path.suffix in _FILE_KINDS:
+        return path.stem
+    resolved = path.resolve()
+    if resolved.name.lower() in _GENERIC_BAG_NAMES and resolved.parent.name:
+        return resolved.parent.name
+    return resolved.name or str(path)
+
+
 # ------------------------------------------------------------------ opening
 BAG_KINDS = ('a rosbag2 directory (with metadata.yaml), a bare .mcap file (e.g. from Foxglove) '
              'or a ROS 1 .bag file')

@@ -23,7 +23,8 @@ from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.core.scan import angles_from_directions
 from lidar_sim_ros.io.bag import (CLOUD_TOPIC, BagContentError, CloudFrame, PoseSeries,
-                                  VectorSeries, read_clouds, read_poses, read_vectors)
+                                  VectorSeries, read_clouds, read_poses, read_vectors,
+                                  recording_name)
 from lidar_sim_ros.viz.style import (AZ_LABEL, EL_LABEL, NO_MATERIAL, material_label,
                                      new_figure, palette)
 
@@ -54,12 +55,6 @@ class RunRecord:
         return (np.asarray(stamp_ns, dtype=np.int64) - self.start_ns) / NS_PER_S
 
 
-def run_name(bag_path: Path) -> str:
-    """The recording's name for titles: ``demo-output/bag``, not just ``bag``."""
-    bag_path = Path(bag_path).resolve()
-    return f'{bag_path.parent.name}/{bag_path.name}' if bag_path.parent.name else bag_path.name
-
-
 def read_run(bag_path: str | Path) -> RunRecord:
     """Read the topics the run figures need; BagContentError without clouds."""
     bag_path = Path(bag_path)
@@ -72,7 +67,7 @@ def read_run(bag_path: str | Path) -> RunRecord:
     if poses is not None and len(poses.stamp_ns) == 0:
         poses = None
     stamps = [c.stamp_ns for c in clouds] + ([int(poses.stamp_ns[0])] if poses is not None else [])
-    return RunRecord(run_name(bag_path), int(min(stamps)), clouds, truth, poses, sun)
+    return RunRecord(recording_name(bag_path), int(min(stamps)), clouds, truth, poses, sun)
 
 
 def _optional(read):
@@ -322,4 +317,4 @@ def _angles_deg(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 __all__ = ['DROPOUT_CLASSES', 'RUN_FIGURE_NAMES', 'RunRecord', 'classify_shots', 'frame_label',
            'match_truth', 'range_errors_by_material', 'read_run', 'render_run_figures',
-           'run_name', 'scenario_caption', 'tumble_rate_dps']
+           'scenario_caption', 'tumble_rate_dps']
