@@ -232,7 +232,7 @@ def coverage(model: TargetModel, xyz_m: np.ndarray, pose: np.ndarray, config: Ac
     model_lidar = model.points_m[::2] @ pose[:3, :3].T + pose[:3, 3]
     angles, r_model, cell_model = _cells(model_lidar, cell_rad)
     in_view = (np.abs(angles[:, 0]) <= math.radians(config.fov_az_deg) / 2) & \
-        (np.abs(angles[:, 1]) <= math.radians(config.fov_el_deg) / 2) & (model_lidar[:, 0] > 0)
+        (np.abs(angles[:, 1]) <= math.radians(config.fov_el_deg) / 2)
     if not in_view.any():
         return 0.0
     cell_model, r_model = cell_model[in_view], r_model[in_view]
