@@ -15,8 +15,8 @@ Principal axes give the hypotheses, ICP refines them, a score picks one:
    cloud's centroid across the axis; along the axis, the cloud's extent is matched to
    the visible model's at both ends and at steps of ``axial_step_m`` between (a body
    larger than the field of view is seen as a patch whose place along it is unknown).
-4. **Refinement.** Every hypothesis is aligned by point-to-plane ICP through the wide
-   ``coarse_gates_m``, on the coarse cloud and a coarse copy of the model
+4. **Refinement.** Every hypothesis is aligned by point-to-plane ICP through the widest
+   of ``coarse_gates_m`` (the ``coarse_keep`` best on through the others), on the coarse cloud and a coarse copy of the model
    (``model_voxel_m``: a wrong hypothesis puts points far from the surface, where a
    k-d tree query walks much of the tree, and a small tree keeps that cheap). The best
    ``refine_best`` distinct results are refined again on the tracker's model, cloud
@@ -81,6 +81,8 @@ class AcquisitionConfig(BaseModel):
         [1.5, 0.5], min_length=1, description='ICP gates of the coarse stage, wide to tight (m)')
     coarse_iterations: Annotated[int, Field(ge=1)] = Field(
         8, description='ICP iterations per gate in the coarse stage')
+    coarse_keep: Annotated[int, Field(ge=1)] = Field(
+        24, description='hypotheses (best fits after the widest gate) taken on through the other gates')
     refine_best: Annotated[int, Field(ge=1)] = Field(
         6, description='distinct coarse results refined on the tracker\'s cloud and gates')
     score_gate_m: Annotated[float, Field(gt=0)] = Field(
@@ -297,14 +299,16 @@ def acquire(model: TargetModel, xyz_m: np.ndarray, config: AcquisitionConfig = A
     rough = coarse_model(model, config)
     starts = hypotheses(rough.points_m, axis_body, coarse_xyz, directions, config)
 
-    # Coarse stage: every hypothesis through the wide gates, on the coarse cloud and model.
+    # Coarse stage, on the coarse cloud and model: every hypothesis through the widest
+    # gate, the ``coarse_keep`` best fits on through the others.
     coarse_config = tracker.model_copy(update={'scan_voxel_m': 0.0, 'max_iterations': config.coarse_iterations,
                                                'min_points': 6})
-    ranked = []
-    for start in starts:
-        estimate = register(rough, coarse_xyz, start, config.coarse_gates_m, coarse_config)
-        ranked.append((fit_score(rough, coarse_xyz, estimate.pose, config.score_gate_m), estimate.pose))
-    ranked.sort(key=lambda item: -item[0])
+    poses = starts
+    for k, gate in enumerate(config.coarse_gates_m):
+        poses = [register(rough, coarse_xyz, T, [gate], coarse_config).pose for T in poses]
+        ranked = sorted(((fit_score(rough, coarse_xyz, T, config.score_gate_m), T) for T in poses),
+                        key=lambda item: -item[0])
+        poses = [T for _, T in ranked[:config.coarse_keep]]
     distinct: list[np.ndarray] = []
     for _, pose in ranked:
         if all(_differs(pose, other) for other in distinct):
