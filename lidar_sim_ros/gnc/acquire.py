@@ -304,11 +304,15 @@ def acquire(model: TargetModel, xyz_m: np.ndarray, config: AcquisitionConfig = A
     coarse_config = tracker.model_copy(update={'scan_voxel_m': 0.0, 'max_iterations': config.coarse_iterations,
                                                'min_points': 6})
     poses = starts
-    for k, gate in enumerate(config.coarse_gates_m):
+    for gate in config.coarse_gates_m:
         poses = [register(rough, coarse_xyz, T, [gate], coarse_config).pose for T in poses]
         ranked = sorted(((fit_score(rough, coarse_xyz, T, config.score_gate_m), T) for T in poses),
                         key=lambda item: -item[0])
         poses = [T for _, T in ranked[:config.coarse_keep]]
+    # The survivors ranked by the whole score: among equal fits (a patch that may slide
+    # along the body), the coverage prefers the places that hide nothing seen through.
+    ranked = sorted(((fit_score(rough, coarse_xyz, T, config.score_gate_m) * coverage(rough, xyz, T, config), T)
+                     for T in poses), key=lambda item: -item[0])
     distinct: list[np.ndarray] = []
     for _, pose in ranked:
         if all(_differs(pose, other) for other in distinct):
@@ -327,7 +331,7 @@ def acquire(model: TargetModel, xyz_m: np.ndarray, config: AcquisitionConfig = A
     score, fit, cov, best = results[0]
     axis_best = best.pose[:3, :3] @ axis_body
     others = [r for r in results[1:] if _differs(r[3].pose, best.pose)]
-    same_place = [math.degrees(math.acos(min(1.0, float(axis_best @ (r[3].pose[:3, :3] @ axis_body))))) < 5.0
+    same_place = [float(axis_best @ (r[3].pose[:3, :3] @ axis_body)) > math.cos(math.radians(5.0))
                   and np.linalg.norm(r[3].pose[:3, 3] - best.pose[:3, 3]) < 0.3 for r in others]
     rolled = [r for r, same in zip(others, same_place) if same]
     elsewhere = [r for r, same in zip(others, same_place) if not same]
