@@ -237,8 +237,10 @@ class PoseTrackerNode(Node):
                 f'{acq.score:.3f} (fit {acq.fit:.3f}, coverage {acq.coverage:.3f}), {acq.hypotheses} '
                 f'hypotheses in {acq.seconds:.2f} s')
         if acq.success:
-            text += (f'; roll {"ambiguous" if acq.roll_ambiguous else "resolved"}, next other pose '
-                     f'scored {acq.runner_up_score:.3f}')
+            other = ('no other place or end fitted' if np.isnan(acq.runner_up_score)
+                     else f'another place or end scored {acq.runner_up_score:.3f}')
+            text += f'; roll {"ambiguous" if acq.roll_ambiguous else "resolved"}, {other}'
+
             self.get_logger().info(text)
         else:
             self._warn('acquisition', text)
