@@ -16,11 +16,12 @@ Principal axes give the hypotheses, ICP refines them, a score picks one:
    the visible model's at both ends and at steps of ``axial_step_m`` between (a body
    larger than the field of view is seen as a patch whose place along it is unknown).
 4. **Refinement.** Every hypothesis is aligned by point-to-plane ICP through the widest
-   of ``coarse_gates_m`` (the ``coarse_keep`` best on through the others), on the coarse cloud and a coarse copy of the model
-   (``model_voxel_m``: a wrong hypothesis puts points far from the surface, where a
-   k-d tree query walks much of the tree, and a small tree keeps that cheap). The best
-   ``refine_best`` distinct results are refined again on the tracker's model, cloud
-   and capture gates (``tracker.register``).
+   of ``coarse_gates_m`` (the ``coarse_keep`` best fits on through the others), on the
+   coarse cloud and a coarse copy of the model (``model_voxel_m``: a wrong hypothesis
+   puts points far from the surface, where a k-d tree query walks much of the tree, and
+   a small tree keeps that cheap). The survivors are ranked by the score (below), and
+   the best ``refine_best`` distinct ones are refined again on the tracker's model,
+   cloud and capture gates (``tracker.register``).
 5. **Score** (0-1, higher is better): the fit (one minus the mean truncated quadratic
    point-to-plane cost at ``score_gate_m``) times the coverage (the share of the
    angular cells where the pose puts visible model surface in the field of view that

@@ -10,9 +10,10 @@ truncated quadratic: a point whose nearest model point lies farther than the gat
 zero weight, so spurious returns and unmodelled structure cannot pull the estimate.
 The gates are annealed: a wide one captures from a rough guess, a tight one then
 ignores what is not on the target. ``PoseTracker`` adds the state of tracking: the
-capture without a guess (``gnc.acquire``: from the cloud alone), where each frame starts (by default the last pose with its position carried on at the last
-velocity: the roll of a body of revolution is weakly observed, and extrapolating it
-feeds its drift back as velocity) and loss detection.
+capture without a guess (``gnc.acquire``: from the cloud alone), where each frame
+starts (by default the last pose with its position carried on at the last velocity:
+the roll of a body of revolution is weakly observed, and extrapolating it feeds its
+drift back as velocity) and loss detection.
 
 Pure numpy in and out; small_gicp objects stay inside ``TargetModel``.
 """
