@@ -215,8 +215,9 @@ def fit_score(model: TargetModel, xyz_m: np.ndarray, pose: np.ndarray, gate_m: f
     index, sq = model.tree.batch_nearest_neighbor_search(body)
     index, sq = np.asarray(index).ravel(), np.asarray(sq).ravel()
     plane = np.einsum('ij,ij->i', body - model.points_m[index], model.normals[index])
+    # Within the gate the plane distance is at most the point distance, so below the gate.
     d2 = np.where(sq <= gate_m ** 2, plane ** 2, gate_m ** 2)
-    return float(1.0 - np.mean(np.minimum(d2, gate_m ** 2)) / gate_m ** 2)
+    return float(1.0 - np.mean(d2) / gate_m ** 2)
 
 
 def _cells(xyz_m: np.ndarray, cell_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -230,7 +231,7 @@ def _cells(xyz_m: np.ndarray, cell_rad: float) -> tuple[np.ndarray, np.ndarray, 
 
 def coverage(model: TargetModel, xyz_m: np.ndarray, pose: np.ndarray, config: AcquisitionConfig) -> float:
     """Share of the angular cells where ``pose`` puts visible model surface in the field of
-    view that hold a return within ``coverage_tolerance_m`` of that surface's range."""
+    view that hold a return not farther than ``coverage_tolerance_m`` behind that surface."""
     cell_rad = math.radians(config.cell_deg)
     model_lidar = model.points_m[::2] @ pose[:3, :3].T + pose[:3, 3]
     angles, r_model, cell_model = _cells(model_lidar, cell_rad)
@@ -287,57 +288,73 @@ def acquire(model: TargetModel, xyz_m: np.ndarray, config: AcquisitionConfig = A
     xyz = xyz[np.isfinite(xyz).all(axis=1) & (np.linalg.norm(xyz, axis=1) > 0)]
     coarse = _voxel_cloud(xyz, config.voxel_m, config.normal_neighbors) if len(xyz) else None
     if coarse is None or coarse.size() < max(tracker.min_points // 4, config.normal_neighbors):
-        n = 0 if coarse is None else coarse.size()
-        failed = Estimate(np.eye(4), n, 0, 0, False)
+        failed = Estimate(np.eye(4), 0 if coarse is None else coarse.size(), 0, 0, False)
         return Acquisition(np.eye(4), False, 0.0, 0.0, 0.0, failed, 0, time.perf_counter() - t0, False, math.nan)
     coarse_xyz = coarse.points()[:, :3]
     axis_body = (np.asarray(config.primary_axis_body, dtype=float) if config.primary_axis_body is not None
                  else primary_axis(model.points_m))
     axis_body = axis_body / np.linalg.norm(axis_body)
     directions = candidate_directions(coarse_xyz, coarse.normals()[:, :3], config.direction_merge_deg)
-    # A coarse copy of the model for the search: a query far from the surface (a wrong
-    # hypothesis) walks much of a k-d tree, and a small tree keeps that cheap.
     rough = coarse_model(model, config)
     starts = hypotheses(rough.points_m, axis_body, coarse_xyz, directions, config)
+    candidates = coarse_stage(rough, coarse_xyz, xyz, starts, config, tracker)
+    results = fine_stage(model, coarse_xyz, xyz, candidates, config, tracker)
+    score, fit, cov, best = results[0]
+    roll_ambiguous, runner_up = ambiguities(results, axis_body, config.ambiguity_margin)
+    success = bool(best.acceptable(tracker) and fit >= config.min_fit and cov >= config.min_coverage)
+    return Acquisition(best.pose, success, score, fit, cov, best, len(starts), time.perf_counter() - t0,
+                       roll_ambiguous, runner_up)
 
-    # Coarse stage, on the coarse cloud and model: every hypothesis through the widest
-    # gate, the ``coarse_keep`` best fits on through the others.
-    coarse_config = tracker.model_copy(update={'scan_voxel_m': 0.0, 'max_iterations': config.coarse_iterations,
-                                               'min_points': 6})
+
+def coarse_stage(rough: TargetModel, coarse_xyz: np.ndarray, xyz_m: np.ndarray, starts: list[np.ndarray],
+                 config: AcquisitionConfig, tracker: TrackerConfig) -> list[np.ndarray]:
+    """ICP of every start on the coarse cloud and model through the widest gate, of the
+    ``coarse_keep`` best fits through the others; the ``refine_best`` distinct best by score."""
+    icp = tracker.model_copy(update={'scan_voxel_m': 0.0, 'max_iterations': config.coarse_iterations,
+                                     'min_points': 6})
     poses = starts
     for gate in config.coarse_gates_m:
-        poses = [register(rough, coarse_xyz, T, [gate], coarse_config).pose for T in poses]
-        ranked = sorted(((fit_score(rough, coarse_xyz, T, config.score_gate_m), T) for T in poses),
-                        key=lambda item: -item[0])
-        poses = [T for _, T in ranked[:config.coarse_keep]]
-    # The survivors ranked by the whole score: among equal fits (a patch that may slide
-    # along the body), the coverage prefers the places that hide nothing seen through.
-    ranked = sorted(((fit_score(rough, coarse_xyz, T, config.score_gate_m) * coverage(rough, xyz, T, config), T)
-                     for T in poses), key=lambda item: -item[0])
+        poses = [register(rough, coarse_xyz, T, [gate], icp).pose for T in poses]
+        fits = [fit_score(rough, coarse_xyz, T, config.score_gate_m) for T in poses]
+        poses = [poses[i] for i in np.argsort(fits, kind='stable')[::-1][:config.coarse_keep]]
+    # Ranked by the whole score: among equal fits (a patch that may slide along the body)
+    # the coverage prefers the places that hide nothing the sensor saw through.
+    scores = [fit_score(rough, coarse_xyz, T, config.score_gate_m) * coverage(rough, xyz_m, T, config)
+              for T in poses]
     distinct: list[np.ndarray] = []
-    for _, pose in ranked:
-        if all(_differs(pose, other) for other in distinct):
-            distinct.append(pose)
+    for i in np.argsort(scores, kind='stable')[::-1]:
+        if all(_differs(poses[i], other) for other in distinct):
+            distinct.append(poses[i])
         if len(distinct) == config.refine_best:
             break
+    return distinct
 
-    # Fine stage: the tracker's cloud and capture gates, scored by fit x coverage.
+
+def fine_stage(model: TargetModel, coarse_xyz: np.ndarray, xyz_m: np.ndarray, candidates: list[np.ndarray],
+               config: AcquisitionConfig, tracker: TrackerConfig) -> list[tuple[float, float, float, Estimate]]:
+    """Each candidate registered on the tracker's model, cloud and capture gates;
+    (score, fit, coverage, estimate) best first."""
     results = []
-    for pose in distinct:
-        estimate = register(model, xyz, pose, list(tracker.capture_gates_m), tracker)
+    for pose in candidates:
+        estimate = register(model, xyz_m, pose, list(tracker.capture_gates_m), tracker)
         fit = fit_score(model, coarse_xyz, estimate.pose, config.score_gate_m)
-        cov = coverage(model, xyz, estimate.pose, config)
+        cov = coverage(model, xyz_m, estimate.pose, config)
         results.append((fit * cov, fit, cov, estimate))
-    results.sort(key=lambda item: -item[0])
-    score, fit, cov, best = results[0]
-    axis_best = best.pose[:3, :3] @ axis_body
-    others = [r for r in results[1:] if _differs(r[3].pose, best.pose)]
-    same_place = [float(axis_best @ (r[3].pose[:3, :3] @ axis_body)) > math.cos(math.radians(5.0))
-                  and np.linalg.norm(r[3].pose[:3, 3] - best.pose[:3, 3]) < 0.3 for r in others]
-    rolled = [r for r, same in zip(others, same_place) if same]
-    elsewhere = [r for r, same in zip(others, same_place) if not same]
-    roll_ambiguous = bool(rolled) and rolled[0][0] >= score - config.ambiguity_margin
-    runner_up = elsewhere[0][0] if elsewhere else math.nan
-    success = bool(best.acceptable(tracker) and fit >= config.min_fit and cov >= config.min_coverage)
-    return Acquisition(best.pose, success, float(score), float(fit), float(cov), best, len(starts),
-                       time.perf_counter() - t0, roll_ambiguous, float(runner_up))
+    return sorted(results, key=lambda item: -item[0])
+
+
+def ambiguities(results: list[tuple[float, float, float, Estimate]], axis_body: np.ndarray,
+                margin: float) -> tuple[bool, float]:
+    """(whether a pose rolled from the best scored within ``margin`` of it, the best score
+    of a pose elsewhere: the axis > 5 deg or the centre > 0.3 m away; nan if none)."""
+    score, best = results[0][0], results[0][3].pose
+    axis_best = best[:3, :3] @ axis_body
+    rolled, elsewhere = [], []
+    for item in results[1:]:
+        pose = item[3].pose
+        if not _differs(pose, best):
+            continue
+        same_place = (float(axis_best @ (pose[:3, :3] @ axis_body)) > math.cos(math.radians(5.0))
+                      and np.linalg.norm(pose[:3, 3] - best[:3, 3]) < 0.3)
+        (rolled if same_place else elsewhere).append(item[0])
+    return bool(rolled) and rolled[0] >= score - margin, float(elsewhere[0]) if elsewhere else math.nan
