@@ -2,9 +2,11 @@
 
 Starts, as separate processes on a private random ROS domain: ``target_pose_player``,
 ``lidar_sim_node`` (publishing the model cloud and the truth cloud) and two
-``pose_tracker`` nodes, one on each cloud. The poses and both trackers' estimates are
-recorded into a rosbag2 with ``ros.recorder.BagRecorder`` for a few seconds; then the
-estimates are scored against the true pose: ``gnc.json`` and ``gnc_errors.png``.
+``pose_tracker`` nodes, one on each cloud, each acquiring the target from its cloud
+alone (nothing on the GNC side reads ``/target/pose``: only the scoring here does).
+The poses and both trackers' estimates are recorded into a rosbag2 with
+``ros.recorder.BagRecorder`` for a few seconds; then the estimates are scored against
+the true pose: ``gnc.json`` and ``gnc_errors.png``.
 
     python -m lidar_sim_ros.gnc.demo --out demo-output/gnc [--seconds 10]
 """
@@ -41,7 +43,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def tracker_args(key: str) -> list[str]:
     return ['-r', f'__node:=pose_tracker_{key.split("_")[0]}', '-p', f'points_topic:={CLOUDS[key]}',
-            '-p', f'estimate_topic:={ESTIMATES[key]}', '-p', f'pose_topic:={POSE}']
+            '-p', f'estimate_topic:={ESTIMATES[key]}']
 
 
 def record(bag: Path, seconds: float, procs: dict, logs: dict[str, Path]) -> dict[str, int]:

@@ -5,10 +5,13 @@ scenario, turns each ``sensor_msgs/PointCloud2`` into points, and publishes ever
 accepted estimate as ``geometry_msgs/PoseStamped`` stamped at the middle of the scan
 (cloud stamp + half the scan period), when the cloud's points were taken on average.
 
-The first capture starts from the ``initial_pose`` parameter, or else from the pose
-on ``pose_topic`` nearest that time (e.g. ``/target/pose``, the truth the simulator
-runs on); after a lost track the capture starts from the pose topic again
-(``recapture_from_pose``) or from the last accepted estimate.
+By default nothing but the cloud is read: the first capture, and every capture after
+a lost track, acquires the pose from the cloud alone (``gnc.acquire``; its settings are
+the ``acquire.*`` parameters, the field of view defaulting to the scenario sensor's).
+The first capture may instead start from the ``initial_pose`` parameter, and, when
+``pose_topic`` is set (e.g. ``/target/pose``, the truth the simulator runs on), from
+the pose there nearest the scan's mid time, first and (``recapture_from_pose``) after
+each loss.
 """
 from __future__ import annotations
 
@@ -31,6 +34,7 @@ from sensor_msgs.msg import PointCloud2
 
 from lidar_sim_ros.core.config import ConfigError, load_scenario
 from lidar_sim_ros.core.geometry import MeshMaterialError, load_target
+from lidar_sim_ros.gnc.acquire import AcquisitionConfig
 from lidar_sim_ros.gnc.tracker import PoseTracker, TrackerConfig, build_model, pose_matrix, pose_parts
 from lidar_sim_ros.io.pointcloud import from_pointcloud2, ns_to_stamp, stamp_to_ns
 from lidar_sim_ros.paths import config_path
@@ -56,14 +60,16 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     'scenario_file': ('', _read_only(S, "scenario YAML (its mesh and sensor); '' = the package's")),
     'mesh_file': ('', _read_only(S, "target mesh (.obj) instead of the scenario's; '' = the scenario's")),
     'points_topic': ('/lidar/points', _read_only(S, 'sensor_msgs/PointCloud2 input')),
-    'pose_topic': ('/target/pose', _read_only(
-        S, "geometry_msgs/PoseStamped giving the capture guess; '' = none")),
+    'pose_topic': ('', _read_only(
+        S, "geometry_msgs/PoseStamped giving capture guesses (e.g. the truth, /target/pose); "
+           "'' = none: the tracker acquires from the cloud")),
     'estimate_topic': ('/target/pose_estimate', _read_only(S, 'geometry_msgs/PoseStamped output')),
     'initial_pose': (Parameter.Type.DOUBLE_ARRAY, _read_only(
         FA, 'first capture guess [x, y, z, qx, qy, qz, qw] (m, unit quaternion); unset = '
-            'the pose on pose_topic')),
+            'the pose on pose_topic, or else acquisition from the cloud')),
     'recapture_from_pose': (True, _read_only(
-        B, 'after a lost track, capture from the pose on pose_topic (else the last estimate)')),
+        B, 'after a lost track, capture from the pose on pose_topic when set (else acquire '
+           'from the cloud)')),
     'scan_period_s': (0.0, _read_only(F, "scan period (s); 0 = the scenario sensor's frame period")),
 }
 
@@ -71,13 +77,31 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
 _PTYPE = {float: F, int: I, str: S}
 
 
-def _tracker_parameters() -> dict[str, tuple[Any, ParameterDescriptor]]:
+ACQUIRE_PREFIX = 'acquire.'
+
+
+def _config_parameters(model: type, prefix: str = '',
+                       defaults: dict[str, Any] | None = None) -> dict[str, tuple[Any, ParameterDescriptor]]:
+    """A parameter per field of a pydantic config (fields without a default value are left out)."""
     params = {}
-    for name, field in TrackerConfig.model_fields.items():
-        default = field.get_default()
+    for name, field in model.model_fields.items():
+        default = (defaults or {}).get(name, field.get_default())
+        if default is None:
+            continue
         ptype = FA if isinstance(default, list) else _PTYPE[type(default)]
-        params[name] = (default, _read_only(ptype, field.description or name))
+        params[prefix + name] = (default, _read_only(ptype, field.description or name))
     return params
+
+
+def sensor_fov(scan) -> dict[str, float]:
+    """The field of view (deg, centred on +x) of a scan config, as ``AcquisitionConfig`` fields;
+    {} for a scan read from a file (the acquisition's defaults then apply)."""
+    if scan.type == 'lissajous_array':
+        return {'fov_az_deg': float(scan.fov_az_deg), 'fov_el_deg': float(scan.fov_el_deg)}
+    if scan.type == 'rotating':
+        return {'fov_az_deg': min(360.0, 2 * max(abs(scan.az_min_deg), abs(scan.az_max_deg))),
+                'fov_el_deg': min(180.0, 2 * max(abs(e) for e in scan.elevations_deg) + 1.0)}
+    return {}
 
 
 class PoseTrackerNode(Node):
@@ -88,12 +112,18 @@ class PoseTrackerNode(Node):
 
     def setup(self) -> None:
         """Declare parameters, build the target model and the ROS interfaces."""
-        for name, (value, desc) in {**PARAMETERS, **_tracker_parameters()}.items():
+        for name, (value, desc) in {**PARAMETERS, **_config_parameters(TrackerConfig)}.items():
             self.declare_parameter(name, value, desc)
         param = lambda name: self.get_parameter(name).value  # noqa: E731
         scenario = load_scenario(param('scenario_file') or config_path('scenario.yaml'))
         mesh = Path(param('mesh_file')).expanduser() if param('mesh_file') else scenario.mesh_path
-        self.config = self._tracker_config({name: param(name) for name in TrackerConfig.model_fields})
+        self.config = self._config(TrackerConfig, {name: param(name) for name in TrackerConfig.model_fields})
+        # The acquisition's field of view is the scenario sensor's unless set.
+        acquire_params = _config_parameters(AcquisitionConfig, ACQUIRE_PREFIX, sensor_fov(scenario.sensor.scan))
+        for name, (value, desc) in acquire_params.items():
+            self.declare_parameter(name, value, desc)
+        self.acquisition = self._config(AcquisitionConfig, {
+            name[len(ACQUIRE_PREFIX):]: param(name) for name in acquire_params}, ACQUIRE_PREFIX)
         period_s = param('scan_period_s') or scenario.sensor.frame_period_s
         if not (np.isfinite(period_s) and period_s > 0):
             raise ConfigError('<parameters>', 'scan_period_s', period_s, 'must be positive')
@@ -104,13 +134,14 @@ class PoseTrackerNode(Node):
 
         target = load_target(mesh, scenario.materials.names)
         t0 = time.perf_counter()
-        self.tracker = PoseTracker(build_model(target.vertices_m, target.faces, self.config), self.config)
+        self.tracker = PoseTracker(build_model(target.vertices_m, target.faces, self.config), self.config,
+                                   self.acquisition)
         model_s = time.perf_counter() - t0
         self.poses: deque[tuple[int, np.ndarray]] = deque(maxlen=POSES_KEPT)
         self._captured_once = False
         self._epoch_ns: int | None = None
         self._last_warn: dict[str, float] = {}
-        self._stats = {'clouds': 0, 'published': 0, 'rejected': 0, 'ms': []}
+        self._stats = {'clouds': 0, 'published': 0, 'rejected': 0, 'ms': [], 'acquisitions': 0}
 
         # Best effort matches reliable and best-effort publishers; a short queue keeps the
         # newest clouds when a registration overruns a period.
@@ -122,18 +153,19 @@ class PoseTrackerNode(Node):
                                      QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.pub = self.create_publisher(PoseStamped, param('estimate_topic'), 10)
         self.create_timer(STATS_PERIOD_S, self._log_stats, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        source = 'initial_pose' if self.initial_guess is not None else param('pose_topic') or 'nothing'
+        source = ('initial_pose' if self.initial_guess is not None else param('pose_topic')
+                  or 'the cloud alone (acquisition)')
         self.get_logger().info(
             f'tracking {mesh.name} ({len(self.tracker.model)} model points, built in {model_s:.2f} s) '
             f'on {param("points_topic")} -> {param("estimate_topic")}; capture from {source}')
 
     @staticmethod
-    def _tracker_config(values: dict[str, Any]) -> TrackerConfig:
+    def _config(model: type, values: dict[str, Any], prefix: str = ''):
         try:
-            return TrackerConfig(**values)
+            return model(**values)
         except ValidationError as exc:
             first = exc.errors()[0]
-            key = '.'.join(str(part) for part in first['loc'])
+            key = prefix + '.'.join(str(part) for part in first['loc'])
             raise ConfigError('<parameters>', key, values.get(first['loc'][0]), first['msg']) from None
 
     def _initial_guess(self, value) -> np.ndarray | None:
@@ -155,7 +187,7 @@ class PoseTrackerNode(Node):
                            pose_matrix([p.x, p.y, p.z], quat / np.linalg.norm(quat))))
 
     def _guess(self, t_ns: int) -> np.ndarray | None:
-        """The capture guess for a scan centred at t_ns, or None to use the last estimate."""
+        """The capture guess for a scan centred at t_ns, or None to acquire from the cloud."""
         if not self._captured_once and self.initial_guess is not None:
             return self.initial_guess
         if (self.recapture_from_pose or not self._captured_once) and self.poses:
@@ -166,10 +198,6 @@ class PoseTrackerNode(Node):
         self._stats['clouds'] += 1
         t_ns = stamp_to_ns(msg.header.stamp) + self.half_scan_ns
         guess = None if self.tracker.tracking else self._guess(t_ns)
-        if guess is None and not self.tracker.tracking and not self._captured_once:
-            self._warn('no_guess', 'no initial pose yet (initial_pose unset, nothing on the pose topic): '
-                                   'waiting')
-            return
         if self._epoch_ns is None:
             self._epoch_ns = t_ns  # seconds since the first scan keep float64 resolution
         points = from_pointcloud2(msg)
@@ -177,6 +205,8 @@ class PoseTrackerNode(Node):
         t0 = time.perf_counter()
         estimate = self.tracker.update((t_ns - self._epoch_ns) / NS_PER_S, xyz, guess)
         self._stats['ms'].append(1e3 * (time.perf_counter() - t0))
+        if self.tracker.last_acquisition is not None:
+            self._log_acquisition(t_ns, self.tracker.last_acquisition)
         if not estimate.acceptable(self.config):
             self._stats['rejected'] += 1
             self._warn('lost', f'track lost at {t_ns / NS_PER_S:.3f} s: {estimate.inliers} of '
@@ -201,13 +231,28 @@ class PoseTrackerNode(Node):
             self._last_warn[kind] = now
             self.get_logger().warning(text)
 
+    def _log_acquisition(self, t_ns: int, acq) -> None:
+        self._stats['acquisitions'] += 1
+        text = (f'acquisition at {t_ns / NS_PER_S:.3f} s: {"acquired" if acq.success else "failed"}, score '
+                f'{acq.score:.3f} (fit {acq.fit:.3f}, coverage {acq.coverage:.3f}), {acq.hypotheses} '
+                f'hypotheses in {acq.seconds:.2f} s')
+        if acq.success:
+            other = ('no other place or end fitted' if np.isnan(acq.runner_up_score)
+                     else f'another place or end scored {acq.runner_up_score:.3f}')
+            text += f'; roll {"ambiguous" if acq.roll_ambiguous else "resolved"}, {other}'
+
+            self.get_logger().info(text)
+        else:
+            self._warn('acquisition', text)
+
     def _log_stats(self) -> None:
         s = self._stats
         ms = np.array(s['ms'])
         timing = f'; registration p50 {np.median(ms):.1f} ms, max {ms.max():.1f} ms' if len(ms) else ''
         self.get_logger().info(f'last {STATS_PERIOD_S:g} s: {s["clouds"]} clouds, {s["published"]} '
-                               f'estimates, {s["rejected"]} rejected{timing}')
-        self._stats = {'clouds': 0, 'published': 0, 'rejected': 0, 'ms': []}
+                               f'estimates, {s["rejected"]} rejected, {s["acquisitions"]} '
+                               f'acquisitions{timing}')
+        self._stats = {'clouds': 0, 'published': 0, 'rejected': 0, 'ms': [], 'acquisitions': 0}
 
 
 def main(args: list[str] | None = None) -> int:

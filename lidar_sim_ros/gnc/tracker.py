@@ -9,10 +9,11 @@ The registration is small_gicp's point-to-plane ICP. Its robust kernel is the
 truncated quadratic: a point whose nearest model point lies farther than the gate gets
 zero weight, so spurious returns and unmodelled structure cannot pull the estimate.
 The gates are annealed: a wide one captures from a rough guess, a tight one then
-ignores what is not on the target. ``PoseTracker`` adds the state of tracking: where
-each frame starts (by default the last pose with its position carried on at the last
-velocity: the roll of a body of revolution is weakly observed, and extrapolating it
-feeds its drift back as velocity) and loss detection.
+ignores what is not on the target. ``PoseTracker`` adds the state of tracking: the
+capture without a guess (``gnc.acquire``: from the cloud alone), where each frame
+starts (by default the last pose with its position carried on at the last velocity:
+the roll of a body of revolution is weakly observed, and extrapolating it feeds its
+drift back as velocity) and loss detection.
 
 Pure numpy in and out; small_gicp objects stay inside ``TargetModel``.
 """
@@ -20,13 +21,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 import small_gicp
 import trimesh
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial.transform import Rotation
+
+if TYPE_CHECKING:
+    from lidar_sim_ros.gnc.acquire import Acquisition, AcquisitionConfig
 
 
 class TrackerConfig(BaseModel):
@@ -146,6 +150,7 @@ class Estimate:
     inliers: int
     iterations: int
     converged: bool
+    rejected: bool = False  # set when an acquisition's score refused the pose
 
     @property
     def inlier_fraction(self) -> float:
@@ -153,7 +158,8 @@ class Estimate:
 
     def acceptable(self, config: TrackerConfig) -> bool:
         """Whether enough of the cloud lies on the model for the pose to be trusted."""
-        return self.points >= config.min_points and self.inlier_fraction >= config.min_inlier_fraction
+        return (not self.rejected and self.points >= config.min_points
+                and self.inlier_fraction >= config.min_inlier_fraction)
 
 
 def register(model: TargetModel, xyz_m: np.ndarray, guess: np.ndarray, gates_m: list[float],
@@ -185,18 +191,24 @@ def register(model: TargetModel, xyz_m: np.ndarray, guess: np.ndarray, gates_m: 
 
 # ----------------------------------------------------------------- tracking
 class PoseTracker:
-    """Frame-to-frame tracking: capture from a guess, then predict (``config.prediction``)
-    and refine each frame.
+    """Frame-to-frame tracking: capture (from a guess, or by acquisition from the cloud
+    alone), then predict (``config.prediction``) and refine each frame.
 
     ``update`` returns the frame's ``Estimate``; an unacceptable one (too few points
-    on the model) drops the track, and the next frame is captured again, from the
-    guess it is given or else from the last accepted pose.
+    on the model) drops the track, and the next frame is captured again: from the
+    guess it is given, or else acquired from the cloud (``gnc.acquire``, settings
+    ``acquisition``; ``last_acquisition`` holds the result while that frame's is the
+    last update, None otherwise).
     """
 
-    def __init__(self, model: TargetModel, config: TrackerConfig = TrackerConfig()):
+    def __init__(self, model: TargetModel, config: TrackerConfig = TrackerConfig(),
+                 acquisition: AcquisitionConfig | None = None):
+        # Imported here: acquire.py builds on this module's registration.
+        from lidar_sim_ros.gnc.acquire import AcquisitionConfig
         self.model, self.config = model, config
+        self.acquisition = acquisition if acquisition is not None else AcquisitionConfig()
+        self.last_acquisition: Acquisition | None = None
         self._track: list[tuple[float, np.ndarray]] = []  # the last two accepted (t_s, pose)
-        self._last_good: np.ndarray | None = None
 
     @property
     def tracking(self) -> bool:
@@ -207,7 +219,9 @@ class PoseTracker:
         self._track = []
 
     def update(self, t_s: float, xyz_m: np.ndarray, guess: np.ndarray | None = None) -> Estimate:
-        """Estimate the pose at ``t_s`` (s) from the cloud; ``guess`` (4 x 4) is used when not tracking."""
+        """Estimate the pose at ``t_s`` (s) from the cloud. When not tracking, capture from
+        ``guess`` (4 x 4) if given, else acquire the pose from the cloud alone."""
+        self.last_acquisition = None
         if self._track and t_s <= self._track[-1][0]:
             self.reset()  # time went back: the motion model no longer applies
         if self._track:
@@ -220,16 +234,22 @@ class PoseTracker:
                 else:  # 'translation': the position moves on, the attitude starts where it was
                     start = start.copy()
                     start[:3, 3] = predicted[:3, 3]
-            gates = [self.config.tracking_gate_m]
+            estimate = register(self.model, xyz_m, start, [self.config.tracking_gate_m], self.config)
+        elif guess is not None:
+            estimate = register(self.model, xyz_m, guess, list(self.config.capture_gates_m), self.config)
         else:
-            start = guess if guess is not None else self._last_good
-            if start is None:
-                raise ValueError('no initial guess: the tracker needs one to capture the target')
-            gates = list(self.config.capture_gates_m)
-        estimate = register(self.model, xyz_m, start, gates, self.config)
+            estimate = self._acquire(xyz_m)
         if estimate.acceptable(self.config):
             self._track = (self._track + [(t_s, estimate.pose)])[-2:]
-            self._last_good = estimate.pose
         else:
             self._track = []
         return estimate
+
+    def _acquire(self, xyz_m: np.ndarray) -> Estimate:
+        from lidar_sim_ros.gnc.acquire import acquire
+        self.last_acquisition = acquire(self.model, xyz_m, self.acquisition, self.config)
+        estimate = self.last_acquisition.estimate
+        if self.last_acquisition.success:
+            return estimate
+        return Estimate(estimate.pose, estimate.points, estimate.inliers, estimate.iterations,
+                        estimate.converged, rejected=True)
