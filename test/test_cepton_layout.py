@@ -1,0 +1,142 @@
+"""The Cepton driver's layouts: our clouds in it (io/cepton.py, core/driver_layout.py) and
+recordings in it read by compare (compare/fields.py, compare/measurements.py).
+
+The decoder below is written here from the driver's published field list, by field name
+and PointField datatype (as sensor_msgs_py.point_cloud2.read_points decodes), not with
+lidar_sim_ros.io.pointcloud.
+"""
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+import pytest
+
+from lidar_sim_ros.compare.fields import FieldError, point_time_ns, resolve_fields
+from lidar_sim_ros.compare.measurements import find_time_field, load_measurements
+from lidar_sim_ros.compare.run import CompareOptions, run_compare
+from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.driver_layout import reflectivity_estimate
+from lidar_sim_ros.io.bag import read_clouds
+from lidar_sim_ros.offline import simulate_to_bag
+from lidar_sim_ros.core.driver_layout import OutputLayout
+
+from datasets import REPO
+
+# The SDK3 driver's fields, in order (issue 20): name -> PointField datatype code.
+DRIVER_FIELDS = [('x', 7), ('y', 7), ('z', 7), ('intensity', 7), ('timestamp_s', 5),
+                 ('timestamp_us', 5), ('flags', 4), ('channel_id', 4)]
+_STRUCT = {2: 'B', 4: 'H', 5: 'i', 7: 'f', 8: 'd'}      # PointField code -> struct letter
+SATURATED, NO_RETURN = 1, 32
+FRAMES = 2
+
+
+def read_points(msg) -> list[dict]:
+    """A subscriber's decoder: by field name and datatype, point by point."""
+    data = bytes(np.asarray(msg.data, np.uint8))
+    fmt = '>' if msg.is_bigendian else '<'
+    out = []
+    for k in range(msg.width * msg.height):
+        base = k * msg.point_step
+        out.append({f.name: struct.unpack_from(fmt + _STRUCT[f.datatype], data,
+                                               base + f.offset)[0] for f in msg.fields})
+    return out
+
+
+@pytest.fixture(scope='module')
+def bags(tmp_path_factory):
+    root = tmp_path_factory.mktemp('cepton')
+    scenario = REPO / 'config' / 'scenario.yaml'
+    native = simulate_to_bag(scenario, root / 'native', FRAMES, figures=False)
+    cep = simulate_to_bag(scenario, root / 'cepton', FRAMES, figures=False,
+                          layout=OutputLayout(point_layout='cepton', no_return_points=True))
+    return {'native': native.bag_path, 'cepton': cep.bag_path, 'root': root,
+            'mesh': load_scenario(scenario).mesh_path}
+
+
+def test_cepton_cloud_is_the_driver_layout(bags):
+    from rosbags.highlevel import AnyReader
+    with AnyReader([bags['cepton']]) as reader:
+        conns = [c for c in reader.connections if c.topic == '/cepton_pcl2']
+        assert conns, [c.topic for c in reader.connections]
+        c, _, raw = next(reader.messages(connections=conns))
+        msg = reader.deserialize(raw, c.msgtype)
+    assert msg.header.frame_id == 'cepton3'
+    assert [(f.name, f.datatype) for f in msg.fields] == DRIVER_FIELDS
+    assert not msg.is_bigendian and all(f.count == 1 for f in msg.fields)
+    pts = read_points(msg)
+    stamp_us = msg.header.stamp.sec * 1_000_000 + msg.header.stamp.nanosec // 1000
+    t_us = np.array([p['timestamp_s'] * 1_000_000 + p['timestamp_us'] for p in pts])
+    # Header stamp = frame start: every point at or after it, within one frame (0.1 s).
+    assert t_us.min() >= stamp_us and t_us.max() - stamp_us < 100_000
+    flags = np.array([p['flags'] for p in pts])
+    inten = np.array([p['intensity'] for p in pts])
+    # Reflectivity in 1 % steps.
+    assert np.allclose(inten * 100, np.round(inten * 100), atol=1e-3)
+    ret = flags == 0
+    assert ret.sum() > 1000 and np.any(flags & SATURATED) and np.any(flags & NO_RETURN)
+    xyz = np.array([[p['x'], p['y'], p['z']] for p in pts])
+    assert np.all(xyz[flags == NO_RETURN] == 0) and np.all(np.linalg.norm(xyz[ret], axis=1) > 1)
+    # The same returns as the native layout of the same frame (same seed, same shots).
+    native = read_clouds(bags['native'])[0].points
+    assert ret.sum() == len(native)
+
+
+def test_reflectivity_reads_a_30_percent_lambertian_plate_as_030():
+    sensor = load_scenario(REPO / 'config' / 'scenario.yaml').sensor
+    o = sensor.optics
+    for r in (2.0, 20.0, 150.0):
+        # Hand link budget of a Lambertian plate at normal incidence (config comment):
+        # P = P0 tau_t tau_r (rho / pi) pi (D/2)^2 / r^2.
+        p = (o.peak_power_w * o.transmit_efficiency * o.receive_efficiency * 0.30
+             * (o.aperture_diameter_m / 2) ** 2 / r ** 2)
+        assert reflectivity_estimate(p, r, sensor) == pytest.approx(0.30, rel=1e-9)
+
+
+def test_fields_of_the_sdk2_driver_and_named_fields():
+    sdk2 = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('reflectivity', '<f4'),
+                     ('relative_timestamp', 'u1'), ('flags', 'u1'), ('channel_id', 'u1'),
+                     ('valid', 'u1')])
+    fm = resolve_fields(sdk2, find_time=find_time_field)
+    assert (fm.intensity, fm.laser, fm.flags, fm.valid, fm.time) == \
+        ('reflectivity', 'channel_id', 'flags', 'valid', ())
+    assert 'relative_timestamp' in fm.ignored and fm.layout == 'cepton sdk2 driver'
+    text = '\n'.join(fm.lines())
+    assert 'relative_timestamp (UINT8): ignored' in text and 'reflectivity (FLOAT32)' in text
+    other = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('amp', '<u2'),
+                      ('sec', '<u4'), ('nsec', '<u4'), ('beam', 'u1')])
+    fm = resolve_fields(other, 'amp', 'sec,nsec', 'beam', find_time_field)
+    assert (fm.intensity, fm.time, fm.laser) == ('amp', ('sec', 'nsec'), 'beam')
+    rec = np.zeros(2, other)
+    rec['sec'], rec['nsec'] = 1_700_000_000, [5, 999_999_999]
+    ns, unit = point_time_ns(rec, ('sec', 'nsec'))
+    assert unit == 'ns' and ns.tolist() == [1_700_000_000_000_000_005, 1_700_000_000_999_999_999]
+    with pytest.raises(FieldError, match="--time-field 'stamp'.*fields present"):
+        resolve_fields(other, time_field='stamp')
+
+
+def test_compare_reads_the_cepton_bag_like_the_native_one(bags, capsys):
+    meas = load_measurements(bags['cepton'], '/cepton_pcl2')
+    assert meas.time_source == 'field'
+    assert meas.time_field['name'] == 'timestamp_s+timestamp_us'
+    assert meas.known_misses > 1000 and meas.saturated.sum() > 0
+    native = load_measurements(bags['native'])
+    # Point times agree with ours to the driver's microsecond.
+    n_ret = ~meas.saturated
+    assert np.allclose(np.sort(meas.t_frame_s[n_ret]), np.sort(native.t_frame_s), atol=1.1e-6)
+    summaries = {}
+    for kind, topic in (('native', '/lidar/points'), ('cepton', '/cepton_pcl2')):
+        res = run_compare(CompareOptions(
+            bag=bags[kind], mesh=bags['mesh'], out=bags['root'] / f'out_{kind}',
+            cloud_topic=topic, max_points=6000, report=False, progress=False,
+            candidates=['time_offset', 'range_walk']))
+        summaries[kind] = res.summary
+    nat, cep = summaries['native'], summaries['cepton']
+    assert cep['point_time_field']['name'] == 'timestamp_s+timestamp_us'
+    assert nat['missing_effect'] is None and cep['missing_effect'] is None
+    assert cep['point_fields']['layout'] == 'cepton sdk3 driver'
+    assert any('range-compensated reflectivity' in line for line in cep['point_fields']['lines'])
+    assert 'grows with the received power' in nat['point_fields']['lines'][-1]
+    assert cep['range_rmse_m'] == pytest.approx(nat['range_rmse_m'], rel=0.1)
+    json.dumps(cep)
