@@ -180,19 +180,31 @@ def _kind(dt: np.dtype) -> str:
     return base.get(dt.base.str[1:], str(dt))
 
 
-def intensity_reading(calibration: dict | None, field_name: str | None) -> str:
+def range_exponents(field_map: dict | None) -> tuple[float, ...]:
+    """The intensity readings ``intensity.calibrate_intensity`` may choose from: the
+    Cepton drivers publish a range-compensated reflectivity (-2 only); any other layout
+    lets the data decide (0 or -2)."""
+    from lidar_sim_ros.compare.intensity import RANGE_EXPONENTS
+    layout = (field_map or {}).get('layout', '')
+    return (-2.0,) if layout.startswith('cepton') else RANGE_EXPONENTS
+
+
+def intensity_reading(calibration: dict | None, field_name: str | None,
+                      known: bool = False) -> str:
     """One terminal line: how the intensity was read (proportional to the received power,
-    or a range-compensated reflectivity: ``intensity.py``'s range exponent 0 or -2)."""
+    or a range-compensated reflectivity: ``intensity.py``'s range exponent 0 or -2),
+    ``known`` from the layout or detected from the data."""
     if field_name is None:
         return 'intensity: none in the recording (the model\'s power drives power effects)'
     if calibration is None:
         return f'intensity ({field_name}): too few matched points to calibrate'
     kind = ('a range-compensated reflectivity (~ P r^2)'
             if calibration.get('range_exponent', 0.0) < -1.0
-            else 'grows with the received power (not range-compensated)')
+            else 'grows with the received power (no range compensation detected)')
+    kind += ' (as the layout says)' if known else ' (detected from the data)'
     use = ('used for power-driven effects' if calibration.get('used_for_power_driven_effects')
            else 'not used: it explains too little of the model\'s power')
-    return (f'intensity ({field_name}): looks like {kind}; explains '
+    return (f'intensity ({field_name}): read as {kind}; explains '
             f'{100 * calibration.get("power_explained", 0.0):.0f} % of the model\'s ln power, {use}')
 
 

@@ -220,7 +220,8 @@ class PowerFromIntensity:
             sel = m.matched
             self.calibration = calibrate_intensity(m.meas.intensity[sel], m.meas.range_m[sel],
                                                    m.pred.ctx.power_w[sel],
-                                                   m.pred.ctx.intensity[sel])
+                                                   m.pred.ctx.intensity[sel],
+                                                   fields.range_exponents(m.meas.fields))
             self.done = True
         if self.calibration is None or not self.calibration.usable:
             return None
@@ -460,7 +461,8 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         'has_intensity': meas.intensity is not None,
         'point_fields': {**(meas.fields or {}), 'lines': meas.field_lines + [
             fields.intensity_reading(power.calibration.as_dict() if power.calibration else None,
-                                     (meas.fields or {}).get('intensity'))]},
+                                     (meas.fields or {}).get('intensity'),
+                                     len(fields.range_exponents(meas.fields)) == 1)]},
         'point_flags': {'counts': meas.flag_counts, 'known_misses': meas.known_misses,
                         'saturation': fields.saturation_evidence(
                             None if meas.saturated is None else meas.saturated[sel],
