@@ -1101,6 +1101,14 @@ BATTERY: tuple[ForeignSpec, ...] = (
     ForeignSpec('clean_no_time_mid_fast', None, seed=45, spin_dps=20.0, point_time='none',
                 stamp='mid', scan='rosette',
                 note='fast tumble, no point times: the smear is no physical effect'),
+    # --- multi-laser sensors: a range offset per laser; the Cepton driver's layout
+    ForeignSpec('laser_bias', 'laser_bias', {'sd_m': 0.03}, seed=61, lasers=6,
+                shots_per_frame=12_000, expected_feature='laser',
+                note='6 lasers round-robin, each its own range offset (sd 3 cm)'),
+    ForeignSpec('clean_cepton', None, seed=62, layout='cepton', lasers=6, scan='rosette',
+                shots_per_frame=12_000,
+                note="the Cepton SDK3 driver's fields: timestamp_s + timestamp_us, flags "
+                     '(NO_RETURN points), channel_id, reflectivity in 1 % steps'),
 )
 
 

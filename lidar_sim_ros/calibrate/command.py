@@ -60,6 +60,8 @@ def register(subparsers) -> None:
                    help='the same for sigma (default 0.005)')
     p.add_argument('--cloud-topic', default=CLOUD_TOPIC)
     p.add_argument('--pose-topic', default=POSE_TOPIC)
+    from lidar_sim_ros.compare.command import add_field_options
+    add_field_options(p)
     p.set_defaults(func=_range_errors)
 
     p = sub.add_parser('scan', help='measured point times and angles -> Lissajous scan config',
@@ -96,7 +98,9 @@ def _range_errors(args: argparse.Namespace) -> int:
     from lidar_sim_ros.calibrate.range_errors import run_range_errors
     cal = run_range_errors(args.bag, args.mesh, args.out, args.config, args.figure, args.gate_m,
                            args.bin_m, args.min_points, args.tolerance_m, args.sigma_tolerance_m,
-                           args.cloud_topic, args.pose_topic, args.materials)
+                           args.cloud_topic, args.pose_topic, args.materials,
+                           {'intensity_field': args.intensity_field,
+                            'time_field': args.time_field, 'laser_field': args.laser_field})
     return _finish(cal.report, cal.warnings, cal.out, args.figure)
 
 

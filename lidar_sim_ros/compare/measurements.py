@@ -222,13 +222,8 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         cols['i'].append(np.asarray(p[fmap.intensity], dtype=float)[ok] if has_i
                          else np.zeros(ok.sum()))
         cols['sat'].append((flags[ok] & cepton.SATURATED) != 0)
-        if len(fmap.time) == 2:
-            raw_ns, sub_unit = point_time_ns(p[ok], fmap.time)
-            t_rel, kind = point_time_since_stamp_s(raw_ns, 'time_ns', c.stamp_ns)
-            t_kinds.append(kind.replace('ns', f's + {sub_unit}', 1))
-            cols['t'].append(t_rel)
-        elif has_t:
-            t_rel, kind = point_time_since_stamp_s(p[t_name][ok], t_name, c.stamp_ns)
+        if has_t:
+            t_rel, kind = field_time_since_stamp_s(p[ok], fmap.time, c.stamp_ns)
             t_kinds.append(kind)
             cols['t'].append(t_rel)
         else:
@@ -323,6 +318,27 @@ def with_scan_times(meas: Measurements, shots: Shots) -> Measurements:
         f'{np.degrees(SCAN_MATCH_TOL_RAD):g} deg)']
     return replace(meas, t_frame_s=t_frame, t_s=meas.cloud_stamps_s[meas.cloud] + t_frame,
                    laser=laser, has_point_time=True, time_source='scan pattern', notes=notes)
+
+
+def field_time_since_stamp_s(points: np.ndarray, time: tuple[str, ...],
+                             stamp_ns: int) -> tuple[np.ndarray, str]:
+    """Seconds since the stamp from the time field(s) of ``FieldMap.time``: one field
+    (``point_time_since_stamp_s``) or a seconds + sub-seconds pair (exact integer ns)."""
+    if len(time) == 2:
+        raw_ns, sub_unit = point_time_ns(points, time)
+        t_rel, kind = point_time_since_stamp_s(raw_ns, 'time_ns', stamp_ns)
+        return t_rel, kind.replace('ns', f's + {sub_unit}', 1)
+    return point_time_since_stamp_s(points[time[0]], time[0], stamp_ns)
+
+
+def usable_points(points: np.ndarray, fmap) -> np.ndarray:
+    """Bool per point: not a NO_RETURN shot (Cepton flags) nor ``valid`` = 0 (SDK2)."""
+    ok = np.ones(len(points), bool)
+    if fmap.flags:
+        ok &= (np.asarray(points[fmap.flags]).astype(np.int64) & cepton.NO_RETURN) == 0
+    if fmap.valid:
+        ok &= np.asarray(points[fmap.valid]) != 0
+    return ok
 
 
 def find_time_field(fields) -> str | None:
