@@ -51,7 +51,13 @@ def bags(tmp_path_factory):
     native = simulate_to_bag(scenario, root / 'native', FRAMES, figures=False)
     cep = simulate_to_bag(scenario, root / 'cepton', FRAMES, figures=False,
                           layout=OutputLayout(point_layout='cepton', no_return_points=True))
+    walk = ['range_walk={k_m: 0.02}']
+    walk_native = simulate_to_bag(scenario, root / 'walk_native', FRAMES, figures=False,
+                                  effects=walk)
+    walk_cep = simulate_to_bag(scenario, root / 'walk_cepton', FRAMES, figures=False,
+                               effects=walk, layout=OutputLayout(point_layout='cepton'))
     return {'native': native.bag_path, 'cepton': cep.bag_path, 'root': root,
+            'walk_native': walk_native.bag_path, 'walk_cepton': walk_cep.bag_path,
             'mesh': load_scenario(scenario).mesh_path}
 
 
@@ -140,3 +146,24 @@ def test_compare_reads_the_cepton_bag_like_the_native_one(bags, capsys):
     assert 'grows with the received power' in nat['point_fields']['lines'][-1]
     assert cep['range_rmse_m'] == pytest.approx(nat['range_rmse_m'], rel=0.1)
     json.dumps(cep)
+
+
+def test_same_verdict_on_a_walk_in_both_layouts(bags):
+    """The same simulated frames with a range walk (k_m 0.02): both layouts name it and fit
+    the same slope and figures, up to what the 1 % reflectivity steps lose of the power."""
+    out = {}
+    for kind, topic in (('walk_native', '/lidar/points'), ('walk_cepton', '/cepton_pcl2')):
+        out[kind] = run_compare(CompareOptions(
+            bag=bags[kind], mesh=bags['mesh'], out=bags['root'] / f'out_{kind}',
+            cloud_topic=topic, max_points=6000, report=False, progress=False,
+            candidates=['range_walk', 'incidence_angle', 'laser_bias'])).summary
+    nat, cep = out['walk_native'], out['walk_cepton']
+    assert nat['missing_effect'] == cep['missing_effect'] == 'range_walk'
+    k = {n: next(c for c in s['candidates'] if c['name'] == 'range_walk')
+         for n, s in out.items()}
+    assert k['walk_native']['params']['k_m'] == pytest.approx(0.02, rel=0.05)
+    assert k['walk_cepton']['params']['k_m'] == pytest.approx(
+        k['walk_native']['params']['k_m'], rel=0.06)
+    assert k['walk_cepton']['range_rmse_after_m'] == pytest.approx(
+        k['walk_native']['range_rmse_after_m'], rel=0.05)
+    assert cep['intensity_gain']['range_exponent'] == -2.0

@@ -9,10 +9,9 @@
   configured optics), so a 30 % Lambertian plate at normal incidence reads 0.30 at
   any range; in the driver's 1 % steps;
 * saturated returns (received power at or above the saturation power), which the
-  paper's detector omits, are kept with the SATURATED flag, at the true range plus
-  the material's bias and noise (drawn from a generator seeded by the scenario seed
-  and the frame index) and the reflectivity a clipped pulse reads (the saturation
-  power, range-compensated);
+  paper's detector omits, are kept with the SATURATED flag, at the range the model
+  measured for them (material bias, effects and noise, as for any return) and the
+  reflectivity a clipped pulse reads (the saturation power, range-compensated);
 * optionally, one NO_RETURN point (x = y = z = 0) per shot that returned nothing;
 * time: timestamp_s + timestamp_us = frame start + the shot's time, header stamp =
   frame start.
@@ -24,7 +23,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
+from lidar_sim_ros.core.config import SensorConfig
 from lidar_sim_ros.core.reflection import return_power_w
 from lidar_sim_ros.io import cepton
 
@@ -44,12 +43,10 @@ def reflectivity_estimate(power_w: np.ndarray, range_m: np.ndarray,
 
 
 def cepton_frame_points(frame, sensor: SensorConfig, stamp_ns: int, no_return: bool = False,
-                        polar: bool = False, materials: MaterialsConfig | None = None,
-                        seed: int = 0) -> np.ndarray:
+                        polar: bool = False) -> np.ndarray:
     """The SDK3 driver's points (``io.cepton.SDK3_DTYPE``) of a simulated ``Frame``
     stamped ``stamp_ns`` (= its start): detected returns, saturated returns flagged,
-    and with ``no_return`` a NO_RETURN point per silent shot; in firing order.
-    ``materials``: the table whose bias and sigma the saturated returns carry."""
+    and with ``no_return`` a NO_RETURN point per silent shot; in firing order."""
     det = sensor.detection
     sat_w = det.saturation_power_w
     xyz = [np.asarray(frame.xyz_m, float)]
@@ -61,24 +58,23 @@ def cepton_frame_points(frame, sensor: SensorConfig, stamp_ns: int, no_return: b
     if shots is not None:
         power = np.asarray(shots.intensity, float) * sat_w
         rng = np.asarray(shots.range_m, float)
+        measured = (rng if shots.measured_range_m is None
+                    else np.asarray(shots.measured_range_m, float))
+        # A shot returned when one of the frame's points carries its time (one time per shot).
+        returned = np.isin(shots.t_s, frame.t_s)
         with np.errstate(invalid='ignore'):
             sat = (np.asarray(shots.hit, bool) & (power >= sat_w) & (rng >= det.min_range_m)
-                   & (rng <= det.max_range_m))
+                   & (rng <= det.max_range_m) & np.isfinite(measured) & (measured > 0)
+                   & ~returned)
         idx = np.flatnonzero(sat)
-        r_sat = rng[idx]
-        if materials is not None and len(idx):
-            mat = np.asarray(shots.material)[idx]
-            draw = np.random.default_rng([seed, int(frame.index), 7]).standard_normal(len(idx))
-            r_sat = (r_sat + materials.column('bias_m')[mat]
-                     + materials.column('sigma_m')[mat] * draw)
+        r_sat = measured[idx]
         xyz.append(shots.directions[idx] * r_sat[:, None])
         refl.append(reflectivity_estimate(np.full(len(idx), sat_w), r_sat, sensor))
         t.append(np.asarray(shots.t_s)[idx])
         laser.append(np.asarray(shots.ring)[idx])
         flags.append(np.full(len(idx), cepton.SATURATED, np.uint16))
         if no_return:
-            # A shot returned when one of the frame's points carries its time (one time per shot).
-            silent = ~np.isin(shots.t_s, frame.t_s) & ~sat
+            silent = ~returned & ~sat
             idx = np.flatnonzero(silent)
             xyz.append(np.zeros((len(idx), 3)))
             refl.append(np.zeros(len(idx)))
@@ -119,7 +115,6 @@ class OutputLayout(BaseModel):
         """The frame's detected returns in this layout (``sim``: the Simulator that made
         it: sensor, materials, seed)."""
         if self.point_layout == 'cepton':
-            return cepton_frame_points(frame, sim.sensor, stamp_ns, self.no_return_points,
-                                       materials=sim.materials, seed=sim.seed)
+            return cepton_frame_points(frame, sim.sensor, stamp_ns, self.no_return_points)
         from lidar_sim_ros.io.pointcloud import frame_points
         return frame_points(frame)
