@@ -167,3 +167,25 @@ def test_same_verdict_on_a_walk_in_both_layouts(bags):
     assert k['walk_cepton']['range_rmse_after_m'] == pytest.approx(
         k['walk_native']['range_rmse_after_m'], rel=0.05)
     assert cep['intensity_gain']['range_exponent'] == -2.0
+
+
+def test_no_return_points_are_misses_wherever_the_driver_puts_them(bags, tmp_path):
+    """NO_RETURN points count as known misses by their flag, not by sitting at the origin
+    (here moved to 100 m ahead); SATURATED returns are marked."""
+    from lidar_sim_ros.io.bag import BagWriter, read_poses
+    clouds = read_clouds(bags['cepton'], '/cepton_pcl2')
+    poses = read_poses(bags['cepton'])
+    path = tmp_path / 'moved'
+    with BagWriter(path) as bag:
+        for s, p, q in zip(poses.stamp_ns, poses.position_m, poses.quat_xyzw):
+            bag.write_pose('/target/pose', int(s), poses.frame_id, p, q)
+        for c in clouds:
+            pts = c.points.copy()
+            pts['x'][(pts['flags'] & NO_RETURN) != 0] = 100.0
+            bag.write_cloud('/cepton_pcl2', pts, c.stamp_ns, c.frame_id)
+    moved = load_measurements(path, '/cepton_pcl2')
+    orig = load_measurements(bags['cepton'], '/cepton_pcl2')
+    assert len(moved) == len(orig) and moved.known_misses == orig.known_misses > 1000
+    assert moved.dropped['at_origin'] == 0
+    assert moved.saturated.sum() == sum(int(np.sum(c.points['flags'] & SATURATED))
+                                        for c in clouds) > 0
