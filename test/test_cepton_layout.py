@@ -189,3 +189,23 @@ def test_no_return_points_are_misses_wherever_the_driver_puts_them(bags, tmp_pat
     assert moved.dropped['at_origin'] == 0
     assert moved.saturated.sum() == sum(int(np.sum(c.points['flags'] & SATURATED))
                                         for c in clouds) > 0
+
+
+def test_mount_transform_message_layout():
+    """The node's static transform, built with rosbags' Jazzy types (no tf2_msgs wheel):
+    serialises as tf2_msgs/msg/TFMessage and reads back parent -> sensor frame."""
+    from rosbags.typesys import Stores, get_typestore
+    from lidar_sim_ros.ros.mount import check_mount, mount_message
+    store = get_typestore(Stores.ROS2_JAZZY)
+    msg = mount_message(lambda name: store.types[name], 'base_link', 'cepton3',
+                        [1.0, 0.0, 0.5], [0.0, 0.0, 0.38268343, 0.92387953], 12 * 10**9 + 5)
+    back = store.deserialize_cdr(store.serialize_cdr(msg, 'tf2_msgs/msg/TFMessage'),
+                                 'tf2_msgs/msg/TFMessage')
+    (tf,) = back.transforms
+    assert (tf.header.frame_id, tf.child_frame_id) == ('base_link', 'cepton3')
+    assert (tf.header.stamp.sec, tf.header.stamp.nanosec) == (12, 5)
+    assert (tf.transform.translation.x, tf.transform.translation.z) == (1.0, 0.5)
+    assert tf.transform.rotation.w == pytest.approx(0.92387953)
+    assert check_mount([0, 0, 0], [0, 0, 0, 1]) is None
+    assert 'unit quaternion' in check_mount([0, 0, 0], [0, 0, 1, 1])
+    assert '3 finite numbers' in check_mount([0, float('nan'), 0], [0, 0, 0, 1])

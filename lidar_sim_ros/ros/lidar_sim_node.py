@@ -42,6 +42,7 @@ from lidar_sim_ros.core.geometry import MeshMaterialError
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.io.bag import encode_material_names
 from lidar_sim_ros.core.driver_layout import OutputLayout
+from lidar_sim_ros.ros.mount import check_mount, mount_message, rclpy_lookup
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.pointcloud import frame_points, stamp_to_ns, to_rclpy_msg
 from lidar_sim_ros.paths import config_path
@@ -322,35 +323,30 @@ class LidarSimNode(Node):
 
     def _publish_mount(self) -> None:
         """The sensor mount as a static transform (mount_parent_frame -> frame_id), when one
-        is configured. tf2_msgs comes with ROS (no wheel exists): without it, log once."""
+        is configured (``mount.py``). tf2_msgs comes with ROS (no wheel exists): without
+        it, say so once."""
         parent = self.get_parameter('mount_parent_frame').value
         if not parent:
             return
-        xyz = [float(v) for v in self.get_parameter('mount_translation_m').value]
-        quat = np.asarray(self.get_parameter('mount_quat_xyzw').value, float)
-        if len(xyz) != 3 or not np.all(np.isfinite(xyz)) or quat.shape != (4,) \
-                or abs(np.linalg.norm(quat) - 1.0) > 1e-6:
+        xyz = list(self.get_parameter('mount_translation_m').value)
+        quat = list(self.get_parameter('mount_quat_xyzw').value)
+        problem = check_mount(xyz, quat)
+        if problem:
             raise ConfigError('<parameters>', 'mount_translation_m / mount_quat_xyzw',
-                              f'{xyz} / {quat.tolist()}', '3 finite numbers and a unit quaternion')
+                              f'{xyz} / {quat}', problem)
         try:
-            from geometry_msgs.msg import TransformStamped
             from tf2_msgs.msg import TFMessage
         except ImportError:
             self.get_logger().warning(
                 f'mount_parent_frame {parent!r} is set but tf2_msgs is not installed: the '
                 'sensor mount is not published on /tf_static')
             return
-        tf = TransformStamped()
-        tf.header.stamp = self.get_clock().now().to_msg()
-        tf.header.frame_id = parent
-        tf.child_frame_id = self.get_parameter('frame_id').value
-        tf.transform.translation.x, tf.transform.translation.y, tf.transform.translation.z = xyz
-        (tf.transform.rotation.x, tf.transform.rotation.y, tf.transform.rotation.z,
-         tf.transform.rotation.w) = (float(q) for q in quat)
+        msg = mount_message(rclpy_lookup, parent, self.get_parameter('frame_id').value, xyz,
+                            quat, self.get_clock().now().nanoseconds)
         static = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                             reliability=ReliabilityPolicy.RELIABLE)
         self.tf_static_pub = self.create_publisher(TFMessage, '/tf_static', static)
-        self.tf_static_pub.publish(TFMessage(transforms=[tf]))
+        self.tf_static_pub.publish(msg)
 
     def _wake_at_frame_ends(self) -> None:
         """Waker thread (wall clock only): trigger a tick just after each frame window ends."""
