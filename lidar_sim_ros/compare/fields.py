@@ -62,13 +62,11 @@ class FieldMap:
     def lines(self) -> list[str]:
         """One line per field: what it was recognised as and how it is read."""
         out = [f'point layout: {self.layout}']
-        used = {'x': 'x', 'y': 'y', 'z': 'z'}
         for name in ('x', 'y', 'z'):
             out.append(f'  {name} ({self.dtypes[name]}): position, m')
         if self.intensity:
             out.append(f'  {self.intensity} ({self.dtypes[self.intensity]}): intensity '
                        '(converted to received power by the intensity calibration)')
-            used[self.intensity] = 1
         if len(self.time) == 1:
             out.append(f'  {self.time[0]} ({self.dtypes[self.time[0]]}): point time '
                        '(unit and reference from the name, type and magnitude)')
@@ -76,19 +74,14 @@ class FieldMap:
             s, sub = self.time
             out.append(f'  {s} ({self.dtypes[s]}) + {sub} ({self.dtypes[sub]}): point time, '
                        'seconds + sub-seconds, read as integer nanoseconds')
-        for name in self.time:
-            used[name] = 1
         if self.laser:
             out.append(f'  {self.laser} ({self.dtypes[self.laser]}): laser id')
-            used[self.laser] = 1
         if self.flags:
             out.append(f'  {self.flags} ({self.dtypes[self.flags]}): Cepton point flags '
                        '(SATURATED, NO_RETURN, NOISE, BLOCKED counted; NO_RETURN points are '
                        'known misses, not points)')
-            used[self.flags] = 1
         if self.valid:
             out.append(f'  {self.valid} ({self.dtypes[self.valid]}): points with 0 dropped')
-            used[self.valid] = 1
         for name, why in self.ignored.items():
             out.append(f'  {name} ({self.dtypes.get(name, "?")}): ignored ({why})')
         return out
