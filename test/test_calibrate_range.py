@@ -278,3 +278,5 @@ def test_per_laser_offsets_from_a_cepton_layout_bag(lab, tmp_path):
     assert np.all(np.abs(err) < 0.01), err
     assert np.all(np.abs(err) <= 2 * np.array([x.ci_m for x in cal.lasers])), err
     assert 'range offset per laser' in cal.report and '{name: laser_bias' in cal.report
+    assert 'point layout: cepton sdk3 driver' in cal.report
+    assert 'channel_id (UINT16): laser id' in cal.report

@@ -61,10 +61,16 @@ class MatchedPoints:
     bin_distance_m: np.ndarray
     counts: dict[str, int]
     laser: np.ndarray | None = None       # laser id per point (None: no laser field)
+    field_lines: list[str] = field(default_factory=list)   # how each bag's fields were read
 
     @property
     def error_m(self) -> np.ndarray:
         return self.measured_m - self.true_m
+
+
+def _described(lines: list[str], bag: Path) -> bool:
+    """Whether ``bag``'s fields are already described in ``lines``."""
+    return any(line.startswith(f'{bag}: ') for line in lines)
 
 
 def _pose_index(pose_stamp_ns: np.ndarray, stamp_ns: int) -> int:
@@ -98,7 +104,8 @@ class _StaticFrame:
 
 
 def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
-                   counts: dict[str, int], fields: dict | None = None) -> list[_StaticFrame]:
+                   counts: dict[str, int], fields: dict | None = None,
+                   lines: list[str] | None = None) -> list[_StaticFrame]:
     """The frames of one bag with the target static at a known pose (counts the rest).
     ``fields``: --intensity-field / --time-field / --laser-field values by name."""
     clouds = read_clouds(bag, cloud_topic)
@@ -119,6 +126,8 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
             fmap = resolve_fields(pts.dtype, find_time=find_time_field, **(fields or {}))
         except FieldError as exc:
             raise CalibrationInputError(f'bag {bag}, topic {cloud_topic!r}: {exc}') from None
+        if lines is not None and not _described(lines, bag):
+            lines += [f'{bag}: ' + fmap.lines()[0]] + fmap.lines()[1:]
         pts = pts[usable_points(pts, fmap)]
         k = _pose_index(poses.stamp_ns, cloud.stamp_ns)
         if k < 0:
@@ -157,8 +166,9 @@ def match_points(bags: str | Path | list, target: Target, gate_m: float = 0.5,
     bags = [Path(b) for b in (bags if isinstance(bags, (list, tuple)) else [bags])]
     counts = dict(frames=0, frames_no_pose=0, frames_moving=0, points=0,
                   points_missed=0, points_gated=0, points_used=0)
+    lines: list[str] = []
     frames = [f for bag in bags
-              for f in _static_frames(bag, cloud_topic, pose_topic, counts, fields)]
+              for f in _static_frames(bag, cloud_topic, pose_topic, counts, fields, lines)]
     where = ', '.join(str(b) for b in bags)
     if not frames:
         raise CalibrationInputError(
@@ -188,7 +198,7 @@ def match_points(bags: str | Path | list, target: Target, gate_m: float = 0.5,
     laser = (np.concatenate([f.laser for f in frames])[keep]
              if all(f.laser is not None for f in frames) else None)
     return MatchedPoints(measured[keep], true, hits.material[keep].astype(int), bins, frame[keep],
-                         list(target.material_names), bin_distance, counts, laser)
+                         list(target.material_names), bin_distance, counts, laser, lines)
 
 
 # ------------------------------------------------------------------ statistics
@@ -376,7 +386,7 @@ def laser_bias_snippet(lasers: list[LaserOffset]) -> str:
 
 def format_report(cal: RangeCalibration) -> str:
     c = cal.matched.counts
-    lines = [f'{c["frames"]} frames ({c["frames_no_pose"]} without pose, {c["frames_moving"]} with '
+    lines = list(cal.matched.field_lines) + [f'{c["frames"]} frames ({c["frames_no_pose"]} without pose, {c["frames_moving"]} with '
              f'the target moving: skipped); {c["points"]} points, {c["points_missed"]} miss the '
              f'mesh, {c["points_gated"]} gated as outliers, {c["points_used"]} used']
     rows = [[s.material, f'{s.distance_m:.2f}', str(s.n), f'{s.bias_median_m:+.4f}',
