@@ -184,6 +184,8 @@ def register(subparsers) -> None:
                         'scenario\'s frame_id)')
     p.add_argument('--no-return-points', action='store_true',
                    help='cepton layout: one NO_RETURN point per shot that returned nothing')
+    p.add_argument('--polar-fields', action='store_true',
+                   help="cepton layout: the driver's optional azimuth, elevation, range fields")
     p.set_defaults(func=run)
 
 
@@ -193,7 +195,8 @@ def run(args: argparse.Namespace) -> int:
                              figures=not args.no_figures, epoch_s=args.epoch_s,
                              layout=OutputLayout(point_layout=args.point_layout,
                                                  topic=args.cloud_topic, frame_id=args.frame_id,
-                                                 no_return_points=args.no_return_points))
+                                                 no_return_points=args.no_return_points,
+                                                 polar_fields=args.polar_fields))
     points = sum(s.get('detected', 0) for s in result.frame_stats)
     print(f'bag: {result.bag_path}  ({len(result.frame_stamps_ns)} frames, {points} points)')
     for path in result.figure_paths:

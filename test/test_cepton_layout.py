@@ -209,3 +209,22 @@ def test_mount_transform_message_layout():
     assert check_mount([0, 0, 0], [0, 0, 0, 1]) is None
     assert 'unit quaternion' in check_mount([0, 0, 0], [0, 0, 1, 1])
     assert '3 finite numbers' in check_mount([0, float('nan'), 0], [0, 0, 0, 1])
+
+
+def test_polar_fields_follow_the_driver_fields():
+    """The optional azimuth, elevation, range (FLOAT32) come after channel_id and agree with
+    x, y, z (REP-103: azimuth from x toward y, elevation up)."""
+    from rosbags.typesys import Stores, get_typestore
+    from lidar_sim_ros.io.cepton import cepton_points
+    from lidar_sim_ros.io.pointcloud import to_rosbags_msg
+    xyz = np.array([[10.0, 0.0, 0.0], [0.0, 5.0, 0.0], [3.0, 0.0, 4.0], [0.0, 0.0, 0.0]])
+    pts = cepton_points(xyz, np.full(4, 0.3), np.arange(4) + 10**18, [0, 0, 1, 32], [1, 2, 3, 4],
+                        polar=True)
+    msg = to_rosbags_msg(pts, 10**18, 'cepton3', get_typestore(Stores.ROS2_JAZZY))
+    assert [(f.name, f.datatype) for f in msg.fields] == DRIVER_FIELDS + [
+        ('azimuth', 7), ('elevation', 7), ('range', 7)]
+    rows = read_points(msg)
+    assert [round(r['range'], 5) for r in rows] == [10.0, 5.0, 5.0, 0.0]
+    assert rows[1]['azimuth'] == pytest.approx(np.pi / 2)
+    assert rows[2]['elevation'] == pytest.approx(np.arcsin(0.8))
+    assert [r['flags'] for r in rows] == [0, 0, 1, 32]

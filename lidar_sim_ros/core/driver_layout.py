@@ -98,6 +98,7 @@ class OutputLayout(BaseModel):
     topic: str | None = None
     frame_id: str | None = None
     no_return_points: bool = False
+    polar_fields: bool = False            # cepton: also azimuth, elevation (rad), range (m)
 
     def cloud_topic(self, native_default: str) -> str:
         """The cloud topic: the configured one, else ``/cepton_pcl2`` or ``native_default``."""
@@ -115,6 +116,7 @@ class OutputLayout(BaseModel):
         """The frame's detected returns in this layout (``sim``: the Simulator that made
         it: sensor, materials, seed)."""
         if self.point_layout == 'cepton':
-            return cepton_frame_points(frame, sim.sensor, stamp_ns, self.no_return_points)
+            return cepton_frame_points(frame, sim.sensor, stamp_ns, self.no_return_points,
+                                       self.polar_fields)
         from lidar_sim_ros.io.pointcloud import frame_points
         return frame_points(frame)

@@ -128,6 +128,9 @@ STARTUP_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
            'frame_id say otherwise; docs/real-data.md)')),
     'no_return_points': (False, _startup(
         B, 'cepton layout: also one NO_RETURN point (0, 0, 0) per shot that returned nothing')),
+    'polar_fields': (False, _startup(
+        B, "cepton layout: also the driver's optional azimuth, elevation (rad) and range (m) "
+           'fields')),
     'mount_parent_frame': ('', _startup(
         S, "parent frame of the sensor mount, published as a static transform to frame_id "
            "on /tf_static; '' = no transform")),
@@ -188,7 +191,8 @@ class LidarSimNode(Node):
         if layout not in ('native', 'cepton'):
             raise ConfigError('<parameters>', 'point_layout', layout, "must be 'native' or 'cepton'")
         self.layout = OutputLayout(point_layout=layout,
-                                   no_return_points=self.get_parameter('no_return_points').value)
+                                   no_return_points=self.get_parameter('no_return_points').value,
+                                   polar_fields=self.get_parameter('polar_fields').value)
         self.declare_parameter('frame_id', self.layout.frame(self.scenario.config.frame_id),
                                _descriptor(S, "header frame_id of the clouds; poses must carry it "
                                               "(default: cepton3 for the cepton layout, else "
