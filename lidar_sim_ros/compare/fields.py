@@ -182,6 +182,25 @@ def range_exponents(field_map: dict | None) -> tuple[float, ...]:
     return (-2.0,) if layout.startswith('cepton') else RANGE_EXPONENTS
 
 
+def flag_lines(fmap: FieldMap, counts: dict[str, int], no_return: int,
+               invalid: int) -> list[str]:
+    """Terminal lines: the Cepton flags seen, the known misses, NOISE/BLOCKED kept, and
+    the points dropped for ``valid`` = 0."""
+    lines = []
+    if fmap.flags:
+        seen = ', '.join(f'{k} {v}' for k, v in counts.items()) or 'none set'
+        lines.append(f'  flags seen: {seen}')
+        if no_return:
+            lines.append(f'  {no_return} NO_RETURN shots: known misses (fired, nothing came back)')
+        if counts.get('NOISE') or counts.get('BLOCKED'):
+            lines.append(f'  NOISE {counts.get("NOISE", 0)}, BLOCKED {counts.get("BLOCKED", 0)} '
+                         'points kept as measured (the driver marked them; the false-return '
+                         'candidates see them)')
+    if fmap.valid and invalid:
+        lines.append(f'  {invalid} points with {fmap.valid} = 0 dropped')
+    return lines
+
+
 def intensity_reading(calibration: dict | None, field_name: str | None,
                       known: bool = False) -> str:
     """One terminal line: how the intensity was read (proportional to the received power,

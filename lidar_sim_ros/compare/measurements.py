@@ -30,7 +30,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.compare.fields import FieldError, flag_counts, point_time_ns, resolve_fields
+from lidar_sim_ros.compare.fields import (FieldError, flag_counts, flag_lines, point_time_ns,
+                                           resolve_fields)
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, cloud_count,
                                   iter_clouds, read_material_names, read_poses)
@@ -110,7 +111,8 @@ class Measurements:
         sat = None if self.saturated is None else self.saturated[index]
         return Measurements(self.bag, intensity=inten, saturated=sat,
                             field_lines=self.field_lines, fields=self.fields,
-                            flag_counts=self.flag_counts, known_misses=self.known_misses, has_point_time=self.has_point_time,
+                            flag_counts=self.flag_counts, known_misses=self.known_misses,
+                            has_point_time=self.has_point_time,
                             cloud_stamps_s=self.cloud_stamps_s, epoch_s=self.epoch_s,
                             poses=self.poses, material_names=self.material_names,
                             notes=self.notes, dropped=self.dropped,
@@ -190,20 +192,14 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
             continue
         xyz = np.column_stack([np.asarray(p[f], dtype=float).reshape(len(p), -1)[:, 0]
                                for f in ('x', 'y', 'z')])
-        ok = np.ones(len(p), bool)
         flags = (np.asarray(p[fmap.flags]).astype(np.int64) if fmap.flags
                  else np.zeros(len(p), np.int64))
-        if fmap.flags:
-            for name, n in flag_counts(flags).items():
-                counts[name] = counts.get(name, 0) + n
-            # A NO_RETURN point is a shot that came back empty: a known miss, not a point.
-            no_return = (flags & cepton.NO_RETURN) != 0
-            n_no_return += int(no_return.sum())
-            ok &= ~no_return
-        if fmap.valid:
-            invalid = ok & (np.asarray(p[fmap.valid]) == 0)
-            n_invalid += int(invalid.sum())
-            ok &= ~invalid
+        for name, n in flag_counts(flags).items():
+            counts[name] = counts.get(name, 0) + n
+        no_return, invalid = not_points(p, fmap)
+        n_no_return += int(no_return.sum())
+        n_invalid += int((invalid & ~no_return).sum())
+        ok = ~(no_return | invalid)
         finite = np.isfinite(xyz).all(axis=1)
         n_nonfinite += int((ok & ~finite).sum())
         ok &= finite
@@ -262,18 +258,7 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
                **({'invalid': n_invalid} if fmap.valid else {}),
                **({'no_return': n_no_return} if fmap.flags else {})}
     saturated = np.concatenate(cols['sat'])
-    lines = fmap.lines()
-    if fmap.flags:
-        seen = ', '.join(f'{k} {v}' for k, v in counts.items()) or 'none set'
-        lines.append(f'  flags seen: {seen}')
-        if n_no_return:
-            lines.append(f'  {n_no_return} NO_RETURN shots: known misses (fired, nothing came back)')
-        if counts.get('NOISE') or counts.get('BLOCKED'):
-            lines.append(f'  NOISE {counts.get("NOISE", 0)}, BLOCKED {counts.get("BLOCKED", 0)} '
-                         'points kept as measured (the driver marked them; the false-return '
-                         'candidates see them)')
-    if fmap.valid and n_invalid:
-        lines.append(f'  {n_invalid} points with {fmap.valid} = 0 dropped')
+    lines = fmap.lines() + flag_lines(fmap, counts, n_no_return, n_invalid)
     if n_thinned:
         notes.append(f'{len(rng) + n_thinned} points in {len(stamp_ns)} clouds: at most '
                      f'{per_cloud} per cloud are analysed, at random')
@@ -331,14 +316,20 @@ def field_time_since_stamp_s(points: np.ndarray, time: tuple[str, ...],
     return point_time_since_stamp_s(points[time[0]], time[0], stamp_ns)
 
 
+def not_points(points: np.ndarray, fmap) -> tuple[np.ndarray, np.ndarray]:
+    """Bool per point: a NO_RETURN shot (Cepton flags: a known miss, not a point), and
+    ``valid`` = 0 (SDK2)."""
+    none = np.zeros(len(points), bool)
+    no_return = ((np.asarray(points[fmap.flags]).astype(np.int64) & cepton.NO_RETURN) != 0
+                 if fmap.flags else none)
+    invalid = np.asarray(points[fmap.valid]) == 0 if fmap.valid else none
+    return no_return, invalid
+
+
 def usable_points(points: np.ndarray, fmap) -> np.ndarray:
-    """Bool per point: not a NO_RETURN shot (Cepton flags) nor ``valid`` = 0 (SDK2)."""
-    ok = np.ones(len(points), bool)
-    if fmap.flags:
-        ok &= (np.asarray(points[fmap.flags]).astype(np.int64) & cepton.NO_RETURN) == 0
-    if fmap.valid:
-        ok &= np.asarray(points[fmap.valid]) != 0
-    return ok
+    """Bool per point: neither a NO_RETURN shot nor ``valid`` = 0 (``not_points``)."""
+    no_return, invalid = not_points(points, fmap)
+    return ~(no_return | invalid)
 
 
 def find_time_field(fields) -> str | None:
