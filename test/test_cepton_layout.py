@@ -228,3 +228,43 @@ def test_polar_fields_follow_the_driver_fields():
     assert rows[1]['azimuth'] == pytest.approx(np.pi / 2)
     assert rows[2]['elevation'] == pytest.approx(np.arcsin(0.8))
     assert [r['flags'] for r in rows] == [0, 0, 1, 32]
+
+
+def test_sdk2_layout_loads_with_its_names(bags, tmp_path):
+    """The SDK2 driver's point (reflectivity, relative_timestamp, flags, channel_id, valid;
+    UINT8 each): reflectivity is the intensity, channel_id the laser, valid = 0 dropped,
+    relative_timestamp ignored (times from the scan pattern, the directions match it)."""
+    from lidar_sim_ros.compare.measurements import with_scan_times
+    from lidar_sim_ros.core.pipeline import Simulator
+    from lidar_sim_ros.io.bag import BagWriter, read_poses
+    sdk2 = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('reflectivity', '<f4'),
+                     ('relative_timestamp', 'u1'), ('flags', 'u1'), ('channel_id', 'u1'),
+                     ('valid', 'u1')])
+    clouds = read_clouds(bags['native'])
+    poses = read_poses(bags['native'])
+    path = tmp_path / 'sdk2'
+    n_invalid = 0
+    with BagWriter(path) as bag:
+        for s, p, q in zip(poses.stamp_ns, poses.position_m, poses.quat_xyzw):
+            bag.write_pose('/target/pose', int(s), poses.frame_id, p, q)
+        for c in clouds:
+            rec = np.zeros(len(c.points), sdk2)
+            for f in 'xyz':
+                rec[f] = c.points[f]
+            rec['reflectivity'] = c.points['intensity'] * 7.0
+            rec['channel_id'] = c.points['ring']
+            rec['relative_timestamp'] = np.arange(len(rec)) % 256
+            rec['valid'] = np.arange(len(rec)) % 10 != 0
+            n_invalid += int(np.sum(rec['valid'] == 0))
+            bag.write_cloud('/lidar/points', rec, c.stamp_ns, c.frame_id)
+    meas = load_measurements(path)
+    native = load_measurements(bags['native'])
+    assert len(meas) == len(native) - n_invalid and meas.dropped['invalid'] == n_invalid
+    assert meas.intensity is not None and meas.time_source == 'stamp'
+    assert meas.fields['layout'] == 'cepton sdk2 driver' and meas.fields['laser'] == 'channel_id'
+    assert any('relative_timestamp (UINT8): ignored' in line for line in meas.field_lines)
+    scenario = load_scenario(REPO / 'config' / 'scenario.yaml')
+    timed = with_scan_times(meas, Simulator.from_scenario(scenario).shots)
+    assert timed.time_source == 'scan pattern'
+    # The pattern's laser of each matched shot is the channel_id the cloud carried.
+    assert np.mean(timed.laser == meas.laser) > 0.99
