@@ -145,7 +145,22 @@ def test_compare_reads_the_cepton_bag_like_the_native_one(bags, capsys):
     assert any('range-compensated reflectivity' in line for line in cep['point_fields']['lines'])
     assert 'grows with the received power' in nat['point_fields']['lines'][-1]
     assert cep['range_rmse_m'] == pytest.approx(nat['range_rmse_m'], rel=0.1)
+    # Our sensor saturates exactly at the configured power: every SATURATED return the
+    # model places is at or above it.
+    sat = cep['point_flags']['saturation']
+    assert sat['points'] > 0 and sat['saturated_below_configured'] == 0.0
+    assert nat['point_flags']['saturation'] is None
     json.dumps(cep)
+
+
+def test_saturated_returns_below_the_configured_level_say_so():
+    from lidar_sim_ros.compare.fields import saturation_evidence, saturation_line
+    power = np.array([1e-5, 2e-5, 5e-5, 1e-6, 2e-6])
+    ev = saturation_evidence(np.array([True, True, True, False, False]), power, 3e-4)
+    assert ev['saturated_below_configured'] == 1.0
+    assert 'saturates earlier than configured' in saturation_line(ev)
+    ev = saturation_evidence(np.array([True, False, False, False, False]), power * 100, 3e-4)
+    assert ev['saturated_below_configured'] == 0.0 and 'earlier' not in saturation_line(ev)
 
 
 def test_same_verdict_on_a_walk_in_both_layouts(bags):
