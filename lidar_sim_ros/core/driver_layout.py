@@ -46,7 +46,8 @@ def cepton_frame_points(frame, sensor: SensorConfig, stamp_ns: int, no_return: b
                         polar: bool = False) -> np.ndarray:
     """The SDK3 driver's points (``io.cepton.SDK3_DTYPE``) of a simulated ``Frame``
     stamped ``stamp_ns`` (= its start): detected returns, saturated returns flagged,
-    and with ``no_return`` a NO_RETURN point per silent shot; in firing order."""
+    and with ``no_return`` a NO_RETURN point per silent shot; in firing order. ``polar``:
+    with the driver's optional azimuth, elevation and range fields."""
     det = sensor.detection
     sat_w = det.saturation_power_w
     xyz = [np.asarray(frame.xyz_m, float)]
@@ -113,8 +114,8 @@ class OutputLayout(BaseModel):
         return cepton.FRAME_ID if self.point_layout == 'cepton' else native_default
 
     def points(self, frame, sim, stamp_ns: int) -> np.ndarray:
-        """The frame's detected returns in this layout (``sim``: the Simulator that made
-        it: sensor, materials, seed)."""
+        """The frame's points in this layout (``sim``: the Simulator that made it, for
+        its sensor's optics and detection limits)."""
         if self.point_layout == 'cepton':
             return cepton_frame_points(frame, sim.sensor, stamp_ns, self.no_return_points,
                                        self.polar_fields)
