@@ -74,6 +74,11 @@ def register(subparsers) -> None:
                    'package config/cepton_vista_p60.yaml)')
     p.add_argument('--figure', metavar='PNG', help='measured vs fitted pattern')
     p.add_argument('--cloud-topic', default=CLOUD_TOPIC)
+    p.add_argument('--time-field', default=None, metavar='NAME[,SUBSECONDS]',
+                   help='per-point time since the frame stamp (default: t, ..., or the '
+                        'Cepton timestamp_s,timestamp_us)')
+    p.add_argument('--laser-field', default=None, metavar='NAME',
+                   help='the laser id field (default: ring, channel_id, ...)')
     p.set_defaults(func=_scan)
 
 
@@ -106,5 +111,6 @@ def _range_errors(args: argparse.Namespace) -> int:
 
 def _scan(args: argparse.Namespace) -> int:
     from lidar_sim_ros.calibrate.scan_pattern import run_scan
-    cal = run_scan(args.bag, args.out, args.sensor, args.figure, args.cloud_topic)
+    cal = run_scan(args.bag, args.out, args.sensor, args.figure, args.cloud_topic,
+                   {'time_field': args.time_field, 'laser_field': args.laser_field})
     return _finish(cal.report, cal.warnings, cal.out, args.figure)
