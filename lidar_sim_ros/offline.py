@@ -20,6 +20,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from lidar_sim_ros.core.config import Scenario, load_scenario
+from lidar_sim_ros.core.driver_layout import OutputLayout
 from lidar_sim_ros.core.effects import effect_from_spec
 from lidar_sim_ros.core.pipeline import Frame, Simulator
 from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
@@ -54,7 +55,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
                     figures: bool = True, epoch_s: float = DEFAULT_EPOCH_S,
                     poses_per_frame: int = POSES_PER_FRAME, simulator: Simulator | None = None,
                     pose_source: PoseSource | None = None,
-                    on_frame: Callable[[Frame], None] | None = None) -> OfflineResult:
+                    on_frame: Callable[[Frame], None] | None = None,
+                    layout: OutputLayout | None = None) -> OfflineResult:
     """Simulate ``frames`` frames from scenario time ``start_s`` into ``out_dir/bag``.
 
     Topics: /lidar/points (detected returns), /lidar/points_truth (every hit, no
@@ -66,7 +68,10 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     ``sunlight.png`` with a sun), drawn from the bag. Raises FileExistsError if the bag already exists.
     ``simulator`` / ``pose_source`` replace the scenario's own (campaigns reuse a
     worker's mesh and move the sensor mount); ``on_frame`` sees every simulated frame.
+    ``layout`` (``core/driver_layout.py``): the Cepton driver's point layout, topic
+    (``/cepton_pcl2``) and frame (``cepton3``) instead of ours; the truth stays ours.
     """
+    layout = layout or OutputLayout()
     if frames < 1:
         raise ValueError(f'frames must be >= 1, got {frames}')
     if poses_per_frame < 1:
@@ -81,7 +86,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
         scenario, extra_effects=[effect_from_spec(e) for e in effects])
     trajectory = pose_source if pose_source is not None else ScenarioTrajectory.from_config(
         scenario.config)
-    frame_id = scenario.config.frame_id
+    frame_id = layout.frame(scenario.config.frame_id)
+    cloud_topic = layout.cloud_topic(CLOUD_TOPIC)
     period = sim.frame_period_s
     first_index = int(round(start_s / period))
 
@@ -104,7 +110,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
             if sim.sun is not None:
                 bag.write_vector3(SUN_TOPIC, stamp, frame_id,
                                   sim.sun.at(np.array([frame_start])).sun_direction[0])
-            bag.write_cloud(CLOUD_TOPIC, frame_points(last), stamp, frame_id)
+            bag.write_cloud(cloud_topic, layout.points(last, sim, stamp), stamp, frame_id)
             bag.write_cloud(TRUTH_TOPIC, frame_points(last, truth=True), stamp, frame_id)
             stamps.append(stamp)
             stats.append(last.stats)
@@ -170,13 +176,29 @@ def register(subparsers) -> None:
     p.add_argument('--effect', action='append', default=[], metavar='NAME[=PARAMS]',
                    help='add an effect to the scenario\'s list, e.g. --effect range_walk or '
                         '--effect "range_walk={k_m: 0.02}"; repeatable')
+    p.add_argument('--point-layout', choices=('native', 'cepton'), default='native',
+                   help='native: our layout on /lidar/points; cepton: the Cepton SDK3 '
+                        "driver's layout (docs/real-data.md) on /cepton_pcl2, frame cepton3")
+    p.add_argument('--cloud-topic', default=None, metavar='TOPIC',
+                   help='cloud topic (default: the layout\'s)')
+    p.add_argument('--frame-id', default=None, metavar='FRAME',
+                   help='frame of clouds and poses (default: the layout\'s; native: the '
+                        'scenario\'s frame_id)')
+    p.add_argument('--no-return-points', action='store_true',
+                   help='cepton layout: one NO_RETURN point per shot that returned nothing')
+    p.add_argument('--polar-fields', action='store_true',
+                   help="cepton layout: the driver's optional azimuth, elevation, range fields")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     result = simulate_to_bag(args.scenario, args.out, args.frames, start_s=args.start_s,
                              storage=args.storage, effects=args.effect,
-                             figures=not args.no_figures, epoch_s=args.epoch_s)
+                             figures=not args.no_figures, epoch_s=args.epoch_s,
+                             layout=OutputLayout(point_layout=args.point_layout,
+                                                 topic=args.cloud_topic, frame_id=args.frame_id,
+                                                 no_return_points=args.no_return_points,
+                                                 polar_fields=args.polar_fields))
     points = sum(s.get('detected', 0) for s in result.frame_stats)
     print(f'bag: {result.bag_path}  ({len(result.frame_stamps_ns)} frames, {points} points)')
     for path in result.figure_paths:

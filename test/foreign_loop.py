@@ -18,7 +18,7 @@ import json
 import time
 from pathlib import Path
 
-from foreign_sim import ForeignSpec
+from foreign_sim import CEPTON_TOPIC, ForeignSpec
 
 from lidar_sim_ros.cli import main
 
@@ -36,6 +36,8 @@ def compare_once(ds, out: Path, history: Path, effects: list[str], report: bool)
     """One ``lidar-sim compare`` run; the summary, or {'error': ...}."""
     argv = ['compare', str(ds.bag), '--mesh', str(ds.mesh), '--config', str(ds.scenario),
             '--out', str(out), '--history', str(history)]
+    if ds.spec.layout == 'cepton':
+        argv += ['--cloud-topic', CEPTON_TOPIC]
     for e in effects:
         argv += ['--effect', e]
     if effects:

@@ -34,6 +34,15 @@ What differs from our simulator, on purpose:
   surface to the room (a box around the target, its parts outside the sensor's view
   bright, the rest a black backdrop; with clutter the fixtures too): a few metres,
   set by the lab, so the returns bunch behind the surface (``multipath_extra_m``);
+* lasers (``lasers`` > 0): the shots are fired round-robin by that many lasers over the
+  whole scan (as multi-laser Risley scanners do), written as a laser id field; the
+  hidden ``laser_bias`` gives each laser its own range offset (a seeded draw of sd
+  ``sd_m`` about zero, or the given ``offsets_m``);
+* layout: ours-like generic fields, or the Cepton SDK3 driver's (``layout='cepton'``:
+  x, y, z, intensity = a reflectivity in 1 % steps of this sensor's own scale,
+  timestamp_s + timestamp_us INT32, flags UINT16 with SATURATED/NO_RETURN, channel_id
+  UINT16, on ``/cepton_pcl2`` in frame ``cepton3`` stamped at the frame start), from
+  the issue's field list, not from lidar_sim_ros.io.cepton;
 * what labs add: shot-to-shot amplitude fluctuation (speckle: the pulse that drives
   both the intensity and the timing walk), lab clutter (a wall behind the target, a
   support jig, a cable across the view: static returns that are not the target), and
@@ -63,7 +72,11 @@ EPOCH_NS = 1_712_000_000 * 1_000_000_000
 NS_PER_S = 1_000_000_000
 
 EFFECTS = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-           'beam_divergence', 'time_offset')
+           'beam_divergence', 'time_offset', 'laser_bias')
+CEPTON_TOPIC = '/cepton_pcl2'
+CEPTON_FRAME = 'cepton3'
+CEPTON_SATURATED, CEPTON_NO_RETURN = 1, 32
+SATURATION_POWER_W = 1.0e-3      # this sensor's detector clips above this
 # Hidden effects compare has no candidate for: expected answer null (and the feature).
 OUTSIDE_CATALOGUE = ('azimuth_bias', 'multipath')
 
@@ -342,6 +355,20 @@ def range_walk_bias_m(power_w: np.ndarray, sensor: Sensor, p: dict) -> np.ndarra
     raise ValueError(f'range_walk form {form!r}')
 
 
+def laser_offsets_of(spec: ForeignSpec) -> np.ndarray:
+    """The hidden per-laser range offsets (m): ``offsets_m`` as given, else a seeded draw
+    of sd ``sd_m`` (default 2 cm) about zero."""
+    p = spec.params_of('laser_bias') or {}
+    if not spec.lasers:
+        raise ValueError('laser_bias needs lasers > 0')
+    if 'offsets_m' in p:
+        off = np.asarray(p['offsets_m'], float)
+        if len(off) != spec.lasers:
+            raise ValueError(f'laser_bias offsets_m has {len(off)} values for {spec.lasers} lasers')
+        return off
+    return np.random.default_rng([spec.seed, 53]).normal(0.0, p.get('sd_m', 0.02), spec.lasers)
+
+
 def azimuth_bias_m(az_rad: np.ndarray, p: dict) -> np.ndarray:
     """Outside the compare catalogue: a range bias periodic in the scan azimuth,
     A sin(2 pi az / period + phase) (a scanner encoder or mirror-facet error)."""
@@ -524,6 +551,8 @@ class ForeignSpec:
     also: tuple = ()                     # further hidden effects: ((name, params), ...)
     amplitude_cv: float = 0.0            # shot-to-shot power fluctuation (speckle), rel. sd
     clutter: bool = False                # lab fixtures in view: wall, jig, cable
+    lasers: int = 0                      # lasers firing round-robin; 0 = no laser field
+    layout: str = 'generic'              # generic | cepton (the SDK3 driver's fields)
     expected: str | None = 'same'
     expected_feature: str | None = None  # the feature the residual should be attributed to
     note: str = ''
@@ -604,6 +633,7 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     else:
         raise ValueError(f'scan must be raster or rosette, got {spec.scan!r}')
     d = directions_lidar(az, el)
+    laser = np.arange(len(d)) % spec.lasers if spec.lasers else np.zeros(len(d), int)
     rot, pos = traj.at(t0_s + t)
     origins_b = rot.inv().apply(-pos)
     dirs_b = rot.inv().apply(d)
@@ -648,6 +678,8 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
             v = np.where(hit, snr_sigma_m(power, p) ** 2, 0.0)
         elif eff == 'azimuth_bias':
             b = np.where(hit, azimuth_bias_m(az, p), 0.0)
+        elif eff == 'laser_bias':
+            b = np.where(hit, laser_offsets_of(spec)[laser], 0.0)
         else:
             continue
         bias, var = bias + b, var + v
@@ -674,7 +706,9 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
         detected |= false
     detected &= (measured > sensor.min_range_m) & (measured < sensor.max_range_m)
     i = np.flatnonzero(detected)
+    silent = np.flatnonzero(~detected)
     return {'xyz_m': d[i] * measured[i, None], 'power_w': power[i], 't_s': t[i],
+            'laser': laser[i], 'silent_t_s': t[silent], 'silent_laser': laser[silent],
             'range_m': measured[i], 'true_range_m': r_hit[i], 'material': mat[i],
             'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid,
             'base_sigma_m': base_sigma[i], 'multipath': multipath[i],
@@ -751,7 +785,7 @@ def unit_noise(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- bag output
-_POINTFIELD_CODE = {'u1': 2, 'u2': 4, 'u4': 6, 'f4': 7, 'f8': 8}
+_POINTFIELD_CODE = {'u1': 2, 'u2': 4, 'i4': 5, 'u4': 6, 'f4': 7, 'f8': 8}
 
 
 def cloud_fields(spec: ForeignSpec, frame: dict, intensity: np.ndarray | None,
@@ -759,6 +793,10 @@ def cloud_fields(spec: ForeignSpec, frame: dict, intensity: np.ndarray | None,
     """The per-point record of this sensor: xyz, optional intensity and time, padded to
     a multiple of 16 bytes (drivers often pad). Organized clouds hold every shot of the
     raster, NaN where it gave no return (as Ouster-like drivers publish them)."""
+    if spec.layout == 'cepton':
+        return cepton_fields(spec, frame, stamp_s, t_abs0_s)
+    if spec.layout != 'generic':
+        raise ValueError(f'layout must be generic or cepton, got {spec.layout!r}')
     n_out = frame['n_shots'] if spec.organized else len(frame['range_m'])
     at = frame['shot'] if spec.organized else np.arange(n_out)
     t_point = frame['shot_t_s'] if spec.organized else frame['t_s']   # s since frame start
@@ -785,6 +823,10 @@ def cloud_fields(spec: ForeignSpec, frame: dict, intensity: np.ndarray | None,
     elif spec.point_time != 'none':
         raise ValueError(f'point_time must be t_s, t_ns, timestamp or none, '
                          f'got {spec.point_time!r}')
+    if spec.lasers:
+        full = np.zeros(n_out, np.uint16)
+        full[at] = frame['laser']
+        names.append('ring'), formats.append('<u2'), values.append(full)
     offsets, off = [], 0
     for f in formats:
         size = np.dtype(f).itemsize
@@ -799,8 +841,35 @@ def cloud_fields(spec: ForeignSpec, frame: dict, intensity: np.ndarray | None,
     return rec
 
 
+def cepton_fields(spec: ForeignSpec, frame: dict, stamp_s: float, t_abs0_s: float) -> np.ndarray:
+    """The Cepton SDK3 driver's record (issue 20's field list, packed, 28 bytes): returns,
+    then one NO_RETURN point (0, 0, 0) per silent shot; intensity = this sensor's
+    range-compensated reflectivity in 1 % steps; returns above SATURATION_POWER_W flagged
+    SATURATED (kept, as the driver does)."""
+    p = frame['power_w']
+    refl = np.round(p * frame['range_m'] ** 2 / 3.0e-5 * 100) / 100
+    t = np.concatenate([frame['t_s'], frame['silent_t_s']])
+    n_ret = len(p)
+    names = ['x', 'y', 'z', 'intensity', 'timestamp_s', 'timestamp_us', 'flags', 'channel_id']
+    formats = ['<f4'] * 4 + ['<i4', '<i4', '<u2', '<u2']
+    offsets = [0, 4, 8, 12, 16, 20, 24, 26]
+    rec = np.zeros(len(t), np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
+                                     'itemsize': 28}))
+    rec['x'][:n_ret], rec['y'][:n_ret], rec['z'][:n_ret] = frame['xyz_m'].T
+    rec['intensity'][:n_ret] = refl
+    t_us = EPOCH_NS // 1000 + np.floor((t_abs0_s + t) * 1e6).astype(np.int64)
+    rec['timestamp_s'], rec['timestamp_us'] = np.divmod(t_us, 1_000_000)
+    flags = np.zeros(len(t), np.uint16)
+    flags[:n_ret][p >= SATURATION_POWER_W] = CEPTON_SATURATED
+    flags[n_ret:] = CEPTON_NO_RETURN
+    rec['flags'] = flags
+    rec['channel_id'] = np.concatenate([frame['laser'], frame['silent_laser']])
+    return rec
+
+
 def write_cloud(writer: BagWriter, rec: np.ndarray, stamp_ns: int,
-                shape: tuple[int, int] | None = None) -> None:
+                shape: tuple[int, int] | None = None, topic: str = CLOUD_TOPIC,
+                frame_id: str = FRAME_ID) -> None:
     """Serialise a structured array as sensor_msgs/msg/PointCloud2 and write it;
     ``shape`` (rows, cols) makes it an organized, non-dense cloud."""
     types = writer.typestore.types
@@ -811,12 +880,12 @@ def write_cloud(writer: BagWriter, rec: np.ndarray, stamp_ns: int,
     sec, nsec = divmod(int(stamp_ns), NS_PER_S)
     msg = types['sensor_msgs/msg/PointCloud2'](
         header=types['std_msgs/msg/Header'](
-            stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nsec), frame_id=FRAME_ID),
+            stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nsec), frame_id=frame_id),
         height=height, width=width, fields=fields, is_bigendian=False,
         point_step=rec.dtype.itemsize, row_step=rec.dtype.itemsize * width,
         data=np.frombuffer(rec.tobytes(), np.uint8), is_dense=shape is None)
     cdr = writer.typestore.serialize_cdr(msg, 'sensor_msgs/msg/PointCloud2')
-    writer.write_raw(CLOUD_TOPIC, 'sensor_msgs/msg/PointCloud2', stamp_ns, cdr)
+    writer.write_raw(topic, 'sensor_msgs/msg/PointCloud2', stamp_ns, cdr)
 
 
 def stamp_offset_s(spec: ForeignSpec, sensor: Sensor) -> float:
@@ -883,21 +952,26 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
                                        * noise.standard_normal((len(t_pose), 3))) * rot
         for tk, q, p in zip(t_pose, rot.as_quat(), pos):
             writer.write_pose(POSE_TOPIC, EPOCH_NS + int(round((tk + dt_s) * NS_PER_S)),
-                              FRAME_ID, p, q)
+                              CEPTON_FRAME if spec.layout == 'cepton' else FRAME_ID, p, q)
         for k in range(spec.frames):
             t0 = k * period
             frame = simulate_frame(spec, sensor, target, traj, t0, rng, errors)
             stamp_s = t0 + stamp_offset_s(spec, sensor)
             inten = intensity_units(frame['power_w'], frame['range_m'], spec.intensity, sensor)
             rec = cloud_fields(spec, frame, inten, stamp_s, t0)
+            cepton = spec.layout == 'cepton'
             write_cloud(writer, rec, EPOCH_NS + int(round(stamp_s * NS_PER_S)),
-                        frame['grid'] if spec.organized else None)
+                        frame['grid'] if spec.organized else None,
+                        CEPTON_TOPIC if cepton else CLOUD_TOPIC,
+                        CEPTON_FRAME if cepton else FRAME_ID)
             n_points += len(frame['range_m'])
             kept.append({k: frame[k] for k in ('material', 'base_sigma_m', 'effects')})
             n_clutter += int(np.sum(frame['material'] == CLUTTER))
             n_false += int(np.sum(frame['material'] < 0))
             n_multipath += int(np.sum(frame['multipath']))
     truth = {'hidden': [[n, p] for n, p in spec.hidden], 'time_offset_s': dt_s,
+             **({'laser_offsets_m': laser_offsets_of(spec).tolist()}
+                if spec.params_of('laser_bias') is not None else {}),
              'material_errors_m': {k: [round(b, 5), round(s, 5)] for k, (b, s) in errors.items()},
              'distance_m': spec.distance_m,
              'effect_gain_nats': {n: round(effect_gain_nats(kept, n), 5)
@@ -1029,13 +1103,25 @@ BATTERY: tuple[ForeignSpec, ...] = (
                 note='fast tumble, no point times: the smear is no physical effect'),
 )
 
+# Multi-laser sensors (a range offset per laser) and the Cepton driver's layout (issue 20):
+# tested by test/test_compare_laser.py, outside the battery's loop test to keep the suite short.
+VENDOR: tuple[ForeignSpec, ...] = (
+    ForeignSpec('laser_bias', 'laser_bias', {'sd_m': 0.03}, seed=61, lasers=6,
+                shots_per_frame=12_000, expected_feature='laser',
+                note='6 lasers round-robin, each its own range offset (sd 3 cm)'),
+    ForeignSpec('clean_cepton', None, seed=62, layout='cepton', lasers=6, scan='rosette',
+                shots_per_frame=12_000,
+                note="the Cepton SDK3 driver's fields: timestamp_s + timestamp_us, flags "
+                     '(NO_RETURN points), channel_id, reflectivity in 1 % steps'),
+)
+
 
 def battery(names: list[str] | None = None) -> list[ForeignSpec]:
-    """The battery, or the named datasets of it (in battery order)."""
+    """The battery, or the named datasets of it or of VENDOR (in that order)."""
     if not names:
         return list(BATTERY)
-    known = {s.name: s for s in BATTERY}
+    known = {s.name: s for s in BATTERY + VENDOR}
     bad = [n for n in names if n not in known]
     if bad:
         raise KeyError(f'unknown dataset(s) {bad}; known: {sorted(known)}')
-    return [s for s in BATTERY if s.name in names]
+    return [s for s in BATTERY + VENDOR if s.name in names]

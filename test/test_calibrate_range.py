@@ -242,3 +242,43 @@ def test_frame_with_the_target_moving_is_skipped(lab, tmp_path):
                            materials=lab['materials'])
     assert cal.matched.counts['frames_moving'] == 1
     assert len(np.unique(cal.matched.frame)) == FRAMES_PER_DISTANCE - 1
+
+
+def test_per_laser_offsets_from_a_cepton_layout_bag(lab, tmp_path):
+    """The P-60's 24 lasers each read long or short by their own offset; the bag is in the
+    Cepton driver's layout (channel_id, timestamp_s + timestamp_us, NO_RETURN points)."""
+    from lidar_sim_ros.io.cepton import NO_RETURN, cepton_points
+    offsets = 0.02 * np.sin(np.arange(24) * 1.7)
+    offsets -= offsets.mean()
+    path = tmp_path / 'cepton_static'
+    with BagWriter(path) as bag:
+        written = set()
+        for stamp, (pose_ns, pos, q), pts in lab['frames']:
+            if pose_ns not in written:
+                bag.write_pose('/target/pose', pose_ns, 'cepton3', pos, q)
+                written.add(pose_ns)
+            xyz = np.column_stack([pts['x'], pts['y'], pts['z']]).astype(float)
+            r = np.linalg.norm(xyz, axis=1)
+            xyz *= ((r + offsets[pts['ring']]) / r)[:, None]
+            xyz = np.vstack([xyz, np.zeros((5, 3))])           # five shots with no return
+            n = len(xyz)
+            t_ns = stamp + np.round(np.append(pts['t'], np.zeros(5)) * 1e9).astype(np.int64)
+            flags = np.append(np.zeros(len(pts), np.uint16), np.full(5, NO_RETURN, np.uint16))
+            bag.write_cloud('/cepton_pcl2', cepton_points(
+                xyz, np.full(n, 0.3), t_ns, flags, np.append(pts['ring'], np.zeros(5, np.uint16))),
+                stamp, 'cepton3')
+    cal = run_range_errors(path, lab['mesh'], tmp_path / 'out.yaml', materials=lab['materials'],
+                           cloud_topic='/cepton_pcl2')
+    # The plate fills the central tiles only: the lasers that saw it.
+    seen = [x.laser for x in cal.lasers]
+    assert len(seen) >= 4 and all(x.n >= 100 for x in cal.lasers), [(x.laser, x.n) for x in cal.lasers]
+    n = np.array([x.n for x in cal.lasers])
+    got = np.array([x.offset_m for x in cal.lasers])
+    true = offsets[seen]
+    # Their common mean sits in the material biases: compare about the point-weighted mean.
+    err = (got - np.average(got, weights=n)) - (true - np.average(true, weights=n))
+    assert np.all(np.abs(err) < 0.01), err
+    assert np.all(np.abs(err) <= 2 * np.array([x.ci_m for x in cal.lasers])), err
+    assert 'range offset per laser' in cal.report and '{name: laser_bias' in cal.report
+    assert 'point layout: cepton sdk3 driver' in cal.report
+    assert 'channel_id (UINT16): laser id' in cal.report

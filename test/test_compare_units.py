@@ -23,7 +23,9 @@ def _feature_values(rng, n):
             'intensity': rng.uniform(-3, 0, n), 'azimuth': rng.uniform(-30, 30, n),
             'elevation': rng.uniform(-11, 11, n), 'time': rng.uniform(0, 0.1, n),
             'material': rng.integers(0, 5, n), 'edge': rng.choice([0.75, 1.5, 24.0], n),
-            'range_rate': rng.normal(0, 0.1, n)}
+            'range_rate': rng.normal(0, 0.1, n),
+            # its own generator: the draws of the tests after this stay as they were
+            'laser': np.random.default_rng([7, n]).integers(0, 24, n)}
 
 
 def test_feature_with_a_conditional_mean_ranks_first():
@@ -40,6 +42,18 @@ def test_feature_with_a_conditional_mean_ranks_first():
     assert top.score == pytest.approx(0.5 * np.log(1.36), rel=0.35)
     assert top.mean_part > 10 * top.spread_part
     assert all(f.score < 0.01 for f in ranked[1:])
+
+
+def test_a_per_laser_offset_ranks_laser_first():
+    """A range offset per laser (24 lasers, 0.5 sigma RMS): laser explains it, given the
+    others; the angles (independent of the laser here) do not."""
+    rng = np.random.default_rng(8)
+    values = _feature_values(rng, 6000)
+    offsets = 0.5 * np.random.default_rng(9).standard_normal(24)
+    z = rng.standard_normal(6000) + offsets[values['laser']]
+    att = attribute(values, 0.03 * z, z)
+    assert att.features[0].name == 'laser' and att.driver == 'laser'
+    assert all(f.score < 0.01 for f in att.features[1:])
 
 
 def test_the_driver_ranks_first_among_correlated_features():

@@ -1,7 +1,7 @@
 """The effect catalogue's forward models against closed forms, and the effect registry."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -53,10 +53,10 @@ def context(**arrays) -> ReturnContext:
 
 
 # ------------------------------------------------------------------------ neutrality
-def test_catalogue_has_the_six_effects_and_their_defaults_change_nothing(default_scenario):
+def test_catalogue_has_the_seven_effects_and_their_defaults_change_nothing(default_scenario):
     names = list(catalogue())
     assert names == ['range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-                     'beam_divergence', 'time_offset']
+                     'beam_divergence', 'time_offset', 'laser_bias']
     # sunlight loads by name (it needs a sun, so it is no default diagnosis candidate);
     # without a sun it changes nothing either.
     names.append('sunlight')
@@ -317,3 +317,14 @@ def test_registry_errors_name_the_problem(tmp_path):
         get_effect_class(f'{bad}:NotAnEffect')
     with pytest.raises(ValueError):
         make_effect('range_walk', {'no_such_param': 1.0})
+
+
+# ------------------------------------------------------------------------ laser bias
+def test_laser_bias_is_the_offset_of_each_shots_laser():
+    bias = make_effect('laser_bias', {'offsets_m': [0.01, -0.02, 0.005]})
+    ctx = context(power_w=np.full(5, 1e-9), hit=np.ones(5, bool))
+    ctx = replace(ctx, laser=np.array([0, 1, 2, 1, 7], np.uint16))
+    # A laser beyond the list has no offset.
+    np.testing.assert_array_equal(bias.range_bias_m(ctx), [0.01, -0.02, 0.005, -0.02, 0.0])
+    with pytest.raises(ValueError, match='within'):
+        make_effect('laser_bias', {'offsets_m': [0.0, 2.0]})

@@ -259,3 +259,16 @@ def test_from_pointcloud2_errors() -> None:
         from_pointcloud2(cloud(**{**good, 'fields': [field('x', 0, 7), field('x', 4, 7)]}))
     with pytest.raises(ValueError, match=r'row_step 12'):
         from_pointcloud2(cloud(**{**good, 'rows': [row[:12]], 'row_step': 12}))
+
+
+def test_builders_take_another_layout_by_its_fields() -> None:
+    from lidar_sim_ros.io.cepton import SDK3_DTYPE
+    pts = np.zeros(3, SDK3_DTYPE)
+    pts['x'], pts['channel_id'] = [1.0, 2.0, 3.0], [0, 5, 7]
+    msg = to_rosbags_msg(pts, 0, FRAME, TYPESTORE)
+    assert [(f.name, f.offset, f.datatype) for f in msg.fields][-2:] == [('flags', 24, 4),
+                                                                         ('channel_id', 26, 4)]
+    assert msg.point_step == 28 and from_pointcloud2(msg)['channel_id'].tolist() == [0, 5, 7]
+    with pytest.raises(ValueError, match="field 'w'"):
+        to_rosbags_msg(np.zeros(2, [('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('w', '<i8')]),
+                       0, FRAME, TYPESTORE)

@@ -60,6 +60,8 @@ def register(subparsers) -> None:
                    help='the same for sigma (default 0.005)')
     p.add_argument('--cloud-topic', default=CLOUD_TOPIC)
     p.add_argument('--pose-topic', default=POSE_TOPIC)
+    from lidar_sim_ros.compare.command import add_field_options
+    add_field_options(p)
     p.set_defaults(func=_range_errors)
 
     p = sub.add_parser('scan', help='measured point times and angles -> Lissajous scan config',
@@ -72,6 +74,11 @@ def register(subparsers) -> None:
                    'package config/cepton_vista_p60.yaml)')
     p.add_argument('--figure', metavar='PNG', help='measured vs fitted pattern')
     p.add_argument('--cloud-topic', default=CLOUD_TOPIC)
+    p.add_argument('--time-field', default=None, metavar='NAME[,SUBSECONDS]',
+                   help='per-point time since the frame stamp (default: t, ..., or the '
+                        'Cepton timestamp_s,timestamp_us)')
+    p.add_argument('--laser-field', default=None, metavar='NAME',
+                   help='the laser id field (default: ring, channel_id, ...)')
     p.set_defaults(func=_scan)
 
 
@@ -96,11 +103,14 @@ def _range_errors(args: argparse.Namespace) -> int:
     from lidar_sim_ros.calibrate.range_errors import run_range_errors
     cal = run_range_errors(args.bag, args.mesh, args.out, args.config, args.figure, args.gate_m,
                            args.bin_m, args.min_points, args.tolerance_m, args.sigma_tolerance_m,
-                           args.cloud_topic, args.pose_topic, args.materials)
+                           args.cloud_topic, args.pose_topic, args.materials,
+                           {'intensity_field': args.intensity_field,
+                            'time_field': args.time_field, 'laser_field': args.laser_field})
     return _finish(cal.report, cal.warnings, cal.out, args.figure)
 
 
 def _scan(args: argparse.Namespace) -> int:
     from lidar_sim_ros.calibrate.scan_pattern import run_scan
-    cal = run_scan(args.bag, args.out, args.sensor, args.figure, args.cloud_topic)
+    cal = run_scan(args.bag, args.out, args.sensor, args.figure, args.cloud_topic,
+                   {'time_field': args.time_field, 'laser_field': args.laser_field})
     return _finish(cal.report, cal.warnings, cal.out, args.figure)

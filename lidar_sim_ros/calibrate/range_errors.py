@@ -7,6 +7,14 @@ at the frame's pose, which gives the true range and the material. Then, per
 material and distance bin, bias = median(measured - true) and sigma = robust
 (MAD) standard deviation; the paper's conclusion, that neither depends on
 distance, is tested on the data; bias_m and sigma_m go into a materials YAML.
+
+Multi-laser sensors: the laser of each point (``ring``, the Cepton driver's
+``channel_id``, or ``--laser-field``) gives per-laser range offsets beside the
+per-material biases: the median of each laser's errors after its material's median
+bias, with a 95 % interval; they are printed with the scenario line of the
+``laser_bias`` effect that carries them (materials.yaml has no place for them).
+Fields are read as ``lidar-sim compare`` reads them (``compare/fields.py``): the
+Cepton layouts, NO_RETURN and ``valid`` = 0 points dropped, named fields.
 """
 from __future__ import annotations
 
@@ -20,6 +28,9 @@ from scipy.spatial.transform import Rotation
 from lidar_sim_ros.calibrate.common import (CalibrationInputError, format_table,
                                             load_materials_document, new_figure, save_figure,
                                             sig, update_materials, write_materials)
+from lidar_sim_ros.compare.fields import FieldError, resolve_fields
+from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field,
+                                                 usable_points)
 from lidar_sim_ros.core.config import load_scenario, resolve
 from lidar_sim_ros.core.geometry import MeshMaterialError, Target, cast_at_poses, load_target
 from lidar_sim_ros.core.pose import Poses
@@ -50,10 +61,17 @@ class MatchedPoints:
     material_names: list[str]
     bin_distance_m: np.ndarray
     counts: dict[str, int]
+    laser: np.ndarray | None = None       # laser id per point (None: no laser field)
+    field_lines: list[str] = field(default_factory=list)   # how each bag's fields were read
 
     @property
     def error_m(self) -> np.ndarray:
         return self.measured_m - self.true_m
+
+
+def _described(lines: list[str], bag: Path) -> bool:
+    """Whether ``bag``'s fields are already described in ``lines``."""
+    return any(line.startswith(f'{bag}: ') for line in lines)
 
 
 def _pose_index(pose_stamp_ns: np.ndarray, stamp_ns: int) -> int:
@@ -83,11 +101,14 @@ class _StaticFrame:
     quat_xyzw: np.ndarray
     directions: np.ndarray
     range_m: np.ndarray
+    laser: np.ndarray | None = None
 
 
 def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
-                   counts: dict[str, int]) -> list[_StaticFrame]:
-    """The frames of one bag with the target static at a known pose (counts the rest)."""
+                   counts: dict[str, int], fields: dict | None = None,
+                   lines: list[str] | None = None) -> list[_StaticFrame]:
+    """The frames of one bag with the target static at a known pose (counts the rest).
+    ``fields``: --intensity-field / --time-field / --laser-field values by name."""
     try:
         clouds = read_clouds(bag, cloud_topic)
         poses = read_poses(bag, pose_topic)
@@ -106,12 +127,20 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
         if not {'x', 'y', 'z'} <= set(names):
             raise CalibrationInputError(f'bag {bag}: topic {cloud_topic!r} has no x, y, z fields '
                                         f'(fields: {list(names)})')
+        try:
+            fmap = resolve_fields(pts.dtype, find_time=find_time_field, **(fields or {}))
+        except FieldError as exc:
+            raise CalibrationInputError(f'bag {bag}, topic {cloud_topic!r}: {exc}') from None
+        if lines is not None and not _described(lines, bag):
+            lines += [f'{bag}: ' + fmap.lines()[0]] + fmap.lines()[1:]
+        pts = pts[usable_points(pts, fmap)]
         k = _pose_index(poses.stamp_ns, cloud.stamp_ns)
         if k < 0:
             counts['frames_no_pose'] += 1
             continue
         # A different pose published during the frame means the target moved.
-        t_max = float(np.max(pts['t'])) if 't' in names and len(pts) else 0.0
+        t_max = (float(np.nanmax(field_time_since_stamp_s(pts, fmap.time, cloud.stamp_ns)[0]))
+                 if fmap.time and len(pts) else 0.0)
         k_end = _pose_index(poses.stamp_ns, cloud.stamp_ns + int(t_max * 1e9))
         if any(not _same_pose(poses.position_m[k], poses.quat_xyzw[k], poses.position_m[j],
                               poses.quat_xyzw[j]) for j in range(k + 1, k_end + 1)):
@@ -121,14 +150,15 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
         rng = np.linalg.norm(xyz, axis=1)
         ok = np.isfinite(rng) & (rng > 0)
         counts['points'] += int(ok.sum())
+        laser = np.asarray(pts[fmap.laser]).astype(np.int64)[ok] if fmap.laser else None
         frames.append(_StaticFrame(poses.position_m[k], poses.quat_xyzw[k],
-                                   xyz[ok] / rng[ok, None], rng[ok]))
+                                   xyz[ok] / rng[ok, None], rng[ok], laser))
     return frames
 
 
 def match_points(bags: str | Path | list, target: Target, gate_m: float = 0.5,
                  bin_m: float = 1.0, cloud_topic: str = CLOUD_TOPIC,
-                 pose_topic: str = POSE_TOPIC) -> MatchedPoints:
+                 pose_topic: str = POSE_TOPIC, fields: dict | None = None) -> MatchedPoints:
     """Read the bag(s) and ray-match every point against the target at its frame's pose.
 
     A frame takes the last pose stamped at or before its header stamp (in its own
@@ -141,7 +171,9 @@ def match_points(bags: str | Path | list, target: Target, gate_m: float = 0.5,
     bags = [Path(b) for b in (bags if isinstance(bags, (list, tuple)) else [bags])]
     counts = dict(frames=0, frames_no_pose=0, frames_moving=0, points=0,
                   points_missed=0, points_gated=0, points_used=0)
-    frames = [f for bag in bags for f in _static_frames(bag, cloud_topic, pose_topic, counts)]
+    lines: list[str] = []
+    frames = [f for bag in bags
+              for f in _static_frames(bag, cloud_topic, pose_topic, counts, fields, lines)]
     where = ', '.join(str(b) for b in bags)
     if not frames:
         raise CalibrationInputError(
@@ -168,8 +200,10 @@ def match_points(bags: str | Path | list, target: Target, gate_m: float = 0.5,
     true = hits.range_m[keep]
     bin_distance = np.array([np.median(true[bins == b]) if np.any(bins == b) else np.nan
                              for b in range(bins.max() + 1)])
+    laser = (np.concatenate([f.laser for f in frames])[keep]
+             if all(f.laser is not None for f in frames) else None)
     return MatchedPoints(measured[keep], true, hits.material[keep].astype(int), bins, frame[keep],
-                         list(target.material_names), bin_distance, counts)
+                         list(target.material_names), bin_distance, counts, laser, lines)
 
 
 # ------------------------------------------------------------------ statistics
@@ -267,6 +301,7 @@ class RangeCalibration:
     tests: dict[str, DistanceTest]
     written: dict[str, dict[str, float]]
     warnings: list[str] = field(default_factory=list)
+    lasers: list['LaserOffset'] = field(default_factory=list)
     out: Path | None = None
     report: str = ''
 
@@ -309,12 +344,54 @@ def analyse(matched: MatchedPoints, min_points: int = 30, tol_bias_m: float = 0.
     if not per_bin:
         raise CalibrationInputError(f'no material has {min_points} matched points in any '
                                     'distance bin; record more frames')
-    return RangeCalibration(matched, per_bin, tests, written, warnings)
+    return RangeCalibration(matched, per_bin, tests, written, warnings,
+                            lasers=laser_offsets(matched, min_points))
+
+
+@dataclass(frozen=True)
+class LaserOffset:
+    """One laser's range offset (m): median error after its material's median bias, 95 %
+    half-width, and how many points."""
+
+    laser: int
+    n: int
+    offset_m: float
+    ci_m: float
+
+
+def laser_offsets(matched: MatchedPoints, min_points: int = 30) -> list[LaserOffset]:
+    """Per-laser offsets beside the per-material biases (module doc); [] without a laser
+    field or with one laser. Lasers with fewer than ``min_points`` points are left out."""
+    if matched.laser is None or len(np.unique(matched.laser)) < 2:
+        return []
+    err = matched.error_m.copy()
+    for m in np.unique(matched.material):
+        sel = matched.material == m
+        err[sel] -= np.median(err[sel])
+    out = []
+    for k in np.unique(matched.laser):
+        e = err[matched.laser == k]
+        if len(e) < min_points:
+            continue
+        med = float(np.median(e))
+        sigma = MAD_TO_SIGMA * float(np.median(np.abs(e - med)))
+        out.append(LaserOffset(int(k), len(e), med, 1.96 * MEDIAN_SE * sigma / np.sqrt(len(e))))
+    return out
+
+
+def laser_bias_snippet(lasers: list[LaserOffset]) -> str:
+    """The scenario ``effects:`` line of ``laser_bias`` with these offsets (0 for a laser
+    without enough points)."""
+    off = np.zeros(max(x.laser for x in lasers) + 1)
+    for x in lasers:
+        off[x.laser] = x.offset_m
+    return '- {name: laser_bias, params: {offsets_m: [' + ', '.join(
+        f'{v:.5f}' for v in off) + ']}}'
 
 
 def format_report(cal: RangeCalibration) -> str:
     c = cal.matched.counts
-    lines = [f'{c["frames"]} frames ({c["frames_no_pose"]} without pose, {c["frames_moving"]} with '
+    lines = list(cal.matched.field_lines) + [f'{c["frames"]} frames ({c["frames_no_pose"]} without pose, {c["frames_moving"]} with '
              f'the target moving: skipped); {c["points"]} points, {c["points_missed"]} miss the '
              f'mesh, {c["points_gated"]} gated as outliers, {c["points_used"]} used']
     rows = [[s.material, f'{s.distance_m:.2f}', str(s.n), f'{s.bias_median_m:+.4f}',
@@ -337,6 +414,12 @@ def format_report(cal: RangeCalibration) -> str:
                      'tolerances; the distance-independent per-material model fits')
     lines.append('written: ' + ', '.join(f'{k} bias_m={v["bias_m"]:+.4f} sigma_m={v["sigma_m"]:.4f}'
                                          for k, v in cal.written.items()))
+    if cal.lasers:
+        lines.append('range offset per laser (median error after its material\'s bias):')
+        lines.append(format_table(['laser', 'n', 'offset [m]', '+-95%'],
+                                  [[str(x.laser), str(x.n), f'{x.offset_m:+.4f}', f'{x.ci_m:.4f}']
+                                   for x in cal.lasers]))
+        lines.append('scenario effects line for them: ' + laser_bias_snippet(cal.lasers))
     return '\n'.join(lines)
 
 
@@ -372,7 +455,8 @@ def run_range_errors(bag: str | Path | list, mesh: str | Path, out: str | Path,
                      gate_m: float = 0.5, bin_m: float = 1.0, min_points: int = 30,
                      tol_bias_m: float = 0.01, tol_sigma_m: float = 0.005,
                      cloud_topic: str = CLOUD_TOPIC, pose_topic: str = POSE_TOPIC,
-                     materials: str | Path | None = None) -> RangeCalibration:
+                     materials: str | Path | None = None,
+                     fields: dict | None = None) -> RangeCalibration:
     """``lidar-sim calibrate range-errors``: match, analyse, write the materials YAML.
 
     ``bag`` is one bag or a list (e.g. one per distance). The materials file (names for the mesh groups, and the base of the update) is
@@ -391,7 +475,7 @@ def run_range_errors(bag: str | Path | list, mesh: str | Path, out: str | Path,
     except MeshMaterialError as exc:
         raise MeshMaterialError(f'{exc}; pass --materials (or --config) with a materials file '
                                 'that lists them') from None
-    matched = match_points(bag, target, gate_m, bin_m, cloud_topic, pose_topic)
+    matched = match_points(bag, target, gate_m, bin_m, cloud_topic, pose_topic, fields)
     cal = analyse(matched, min_points, tol_bias_m, tol_sigma_m)
     doc, warnings = update_materials(document, cal.written, materials_path)
     cal.warnings += warnings

@@ -25,11 +25,13 @@ from lidar_sim_ros.core.config import LissajousArrayScan, load_sensor, read_yaml
 from lidar_sim_ros.core.scan import (LissajousLaser, angles_from_directions,
                                      directions_from_angles, frame_shots, lissajous_angles,
                                      lissajous_lasers)
+from lidar_sim_ros.compare.fields import FieldError, resolve_fields
+from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field,
+                                                 usable_points)
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, BagContentError, read_clouds
 from lidar_sim_ros.paths import config_path
 
 MIN_POINTS_PER_LASER = 40
-LASER_FIELDS = ('ring', 'laser', 'laser_id', 'channel')  # first one present is the laser id
 _OUTLIER_SIGMAS = 6.0
 _ASSIGN_ITERATIONS = 10
 
@@ -51,12 +53,16 @@ class ScanSamples:
         return len(self.t_s)
 
 
-def read_scan_samples(bag: str | Path, topic: str = CLOUD_TOPIC) -> ScanSamples:
-    """Points of every cloud with their ``t`` (and laser id, ``ring`` or an alias, if present).
+def read_scan_samples(bag: str | Path, topic: str = CLOUD_TOPIC,
+                      fields: dict | None = None) -> ScanSamples:
+    """Points of every cloud with their time since the frame stamp (and laser id, if present).
 
-    Raises CalibrationInputError naming bag, topic and fields when x, y, z or t is
-    missing or no finite point is left. The frame period is the median header
-    stamp step (None with a single cloud).
+    Fields are read as ``lidar-sim compare`` reads them (``compare/fields.py``): ``t`` or
+    another driver's time field, the Cepton pair ``timestamp_s`` + ``timestamp_us``;
+    ``ring``, ``channel_id`` or an alias; NO_RETURN and ``valid`` = 0 points dropped;
+    ``fields`` names them (--time-field, --laser-field). Raises CalibrationInputError
+    naming bag, topic and fields when x, y, z or the time is missing or no finite point
+    is left. The frame period is the median header stamp step (None with a single cloud).
     """
     try:
         clouds = read_clouds(bag, topic)
@@ -65,18 +71,26 @@ def read_scan_samples(bag: str | Path, topic: str = CLOUD_TOPIC) -> ScanSamples:
     src = f'bag {bag}, topic {topic!r}'
     if not clouds:
         raise CalibrationInputError(f'{src}: no messages')
-    fields = clouds[0].points.dtype.names or ()
-    missing = [f for f in ('x', 'y', 'z', 't') if f not in fields]
+    names = clouds[0].points.dtype.names or ()
+    try:
+        fmap = resolve_fields(clouds[0].points.dtype, find_time=find_time_field,
+                              **(fields or {}))
+    except FieldError as exc:
+        raise CalibrationInputError(f'{src}: {exc}') from None
+    missing = [f for f in ('x', 'y', 'z') if f not in names] + ([] if fmap.time else ['t'])
     if missing:
         raise CalibrationInputError(f'{src}: point field(s) {missing} missing (fields: '
-                                    f'{list(fields)}); the scan fit needs x, y, z and the per-point '
-                                    'time t since the frame stamp')
-    ring_field = next((f for f in LASER_FIELDS if f in fields), None)
+                                    f'{list(names)}); the scan fit needs x, y, z and the per-point '
+                                    'time t since the frame stamp (or the Cepton timestamp_s + '
+                                    'timestamp_us, or --time-field)')
+    ring_field = fmap.laser
     cols = {k: [] for k in ('x', 'y', 'z', 't', 'ring', 'frame')}
     for i, c in enumerate(clouds):
-        p = c.points
-        for k in ('x', 'y', 'z', 't'):
+        p = c.points[usable_points(c.points, fmap)]
+        for k in ('x', 'y', 'z'):
             cols[k].append(np.asarray(p[k], dtype=float))
+        cols['t'].append(field_time_since_stamp_s(p, fmap.time, c.stamp_ns)[0]
+                         if len(p) else np.zeros(0))
         if ring_field:
             cols['ring'].append(np.asarray(p[ring_field], dtype=int))
         cols['frame'].append(np.full(len(p), i))
@@ -537,11 +551,12 @@ def plot_scan(cal: ScanCalibration, sensor_out: Path, path: str | Path) -> Path:
 
 
 def run_scan(bag: str | Path, out: str | Path, sensor: str | Path | None = None,
-             figure: str | Path | None = None, topic: str = CLOUD_TOPIC) -> ScanCalibration:
+             figure: str | Path | None = None, topic: str = CLOUD_TOPIC,
+             fields: dict | None = None) -> ScanCalibration:
     """``lidar-sim calibrate scan``: fit, write the sensor YAML, check it reloads, plot."""
     sensor = Path(sensor) if sensor else config_path('cepton_vista_p60.yaml')
     load_sensor(sensor)  # a wrong --sensor fails before the bag is read
-    samples = read_scan_samples(bag, topic)
+    samples = read_scan_samples(bag, topic, fields)
     cal = calibrate_scan(samples, sensor)
     header = [f'Sensor calibrated by `lidar-sim calibrate scan {bag}` from {sensor}:',
               'per-laser Lissajous parameters (scan.lasers), frame rate and shots per laser fitted;',

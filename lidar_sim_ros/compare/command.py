@@ -42,6 +42,7 @@ def register(subparsers) -> None:
                         '(default 300000)')
     p.add_argument('--candidates', nargs='*', default=None, metavar='EFFECT',
                    help='effects to diagnose (default: the whole catalogue)')
+    add_field_options(p)
     p.add_argument('--no-report', action='store_true', help='skip report.html')
     p.set_defaults(func=run)
 
@@ -55,6 +56,29 @@ def run(args: argparse.Namespace) -> int:
         fit=args.fit, cloud_topic=args.cloud_topic, pose_topic=args.pose_topic,
         sun_topic=args.sun_topic, history=args.history,
         max_points=args.max_points or DEFAULT_MAX_POINTS,
-        candidates=args.candidates, report=not args.no_report))
-    print('\n'.join(result.lines))
+        candidates=args.candidates, report=not args.no_report,
+        intensity_field=args.intensity_field, time_field=args.time_field,
+        laser_field=args.laser_field))
+    print('\n'.join(field_lines(result.summary) + result.lines))
     return 0
+
+
+def add_field_options(p) -> None:
+    """--intensity-field, --time-field, --laser-field (compare and calibrate)."""
+    p.add_argument('--intensity-field', default=None, metavar='NAME',
+                   help='the intensity field (default: intensity, else reflectivity)')
+    p.add_argument('--time-field', default=None, metavar='NAME[,SUBSECONDS]',
+                   help='per-point time: one field, or a seconds + sub-seconds pair of '
+                        'integer fields (default: timestamp_s,timestamp_us of the Cepton '
+                        'driver, else t, time, timestamp, offset_time, ...)')
+    p.add_argument('--laser-field', default=None, metavar='NAME',
+                   help='the laser id field (default: ring, channel_id, channel, laser, ...)')
+
+
+def field_lines(summary: dict) -> list[str]:
+    """What every field of the recording was read as, and what the flags said."""
+    from lidar_sim_ros.compare.fields import saturation_line
+    lines = list(summary.get('point_fields', {}).get('lines', []))
+    flags = summary.get('point_flags') or {}
+    sat = saturation_line(flags.get('saturation'))
+    return lines + ([sat] if sat else [])

@@ -1,8 +1,9 @@
 """Attribution: which variable does the range residual depend on, given the others?
 
 Features per matched point: range, incidence, intensity (measured, else the model's),
-azimuth, elevation, time, material, edge (distance to a silhouette or depth step) and
-range_rate (how fast the target surface moves along the ray). The residual is
+azimuth, elevation, time, material, edge (distance to a silhouette or depth step),
+range_rate (how fast the target surface moves along the ray) and laser (the ring or
+channel id, when the recording has more than one: a per-laser calibration residue). The residual is
 normalised, z = (measured - expected) / predicted sigma, per-material offsets removed.
 
 Two scores per feature, both in nats per point:
@@ -42,16 +43,19 @@ from threadpoolctl import threadpool_limits
 from lidar_sim_ros.compare.materials import MAD_TO_SIGMA
 
 FEATURE_NAMES = ('range', 'incidence', 'intensity', 'azimuth', 'elevation', 'time',
-                 'material', 'edge', 'range_rate')
-CATEGORICAL = ('material', 'edge')
+                 'material', 'edge', 'range_rate', 'laser')
+CATEGORICAL = ('material', 'edge', 'laser')
+# Categories the joint model can split on (HistGradientBoosting: below its max_bins).
+MAX_TREE_CATEGORIES = 64
 UNITS = {'range': 'm', 'incidence': 'deg', 'intensity': 'log10', 'azimuth': 'deg',
-         'elevation': 'deg', 'time': 's', 'material': '', 'edge': 'mrad', 'range_rate': 'm/s'}
+         'elevation': 'deg', 'time': 's', 'material': '', 'edge': 'mrad', 'range_rate': 'm/s',
+         'laser': ''}
 # Axis labels, one per feature the attribution can rank (the report plots any of them).
 LABELS = {'range': 'range (m)', 'incidence': 'incidence angle (deg)',
           'intensity': 'log10 intensity', 'azimuth': 'azimuth (deg)',
           'elevation': 'elevation (deg)', 'time': 'time since cloud stamp (s)',
           'material': 'material', 'edge': 'distance to edge (mrad)',
-          'range_rate': 'range rate along the ray (m/s)'}
+          'range_rate': 'range rate along the ray (m/s)', 'laser': 'laser (ring / channel id)'}
 POWER_LABEL = 'log10 measured power (W)'
 MIN_BIN_POINTS = 30
 MAX_BINS = 16
@@ -160,6 +164,8 @@ def feature_values(matching, intensity_model: np.ndarray | None = None) -> dict[
         'edge': np.round(matching.edge_rad[sel] * 1e3, 4),
         **({'range_rate': np.asarray(matching.range_rate_mps[sel], float)}
            if getattr(matching, 'range_rate_mps', None) is not None else {}),
+        **({'laser': np.asarray(m.laser[sel], int)} if len(np.unique(m.laser[sel])) > 1
+           else {}),
     }
 
 
@@ -330,7 +336,14 @@ def conditional_scores(values: dict[str, np.ndarray], names: list[str], z: np.nd
         test_idx = np.sort(rng.choice(test_idx, MAX_FIT_POINTS, replace=False))
     zc = np.clip(np.asarray(z, float), -Z_CLIP, Z_CLIP)
     X = np.column_stack([np.asarray(values[k], float) for k in names])
-    cat = [names.index(k) for k in CATEGORICAL if k in names and k == 'material']
+    if 'laser' in names:
+        # Dense category codes; a sensor with more lasers than the trees take splits on
+        # the id as a number.
+        k = names.index('laser')
+        codes = np.unique(X[:, k], return_inverse=True)[1]
+        X[:, k] = codes
+    cat = [names.index(k) for k in CATEGORICAL if k in names and (
+        k == 'material' or (k == 'laser' and X[:, names.index(k)].max() < MAX_TREE_CATEGORIES))]
     X[:, cat] = np.where(np.isfinite(X[:, cat]) & (X[:, cat] >= 0), X[:, cat], np.nan)
     z_tr, z_te = zc[train_idx], zc[test_idx]
     centre = float(np.median(z_tr))

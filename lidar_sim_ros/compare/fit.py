@@ -374,3 +374,83 @@ def fit_data_from_rays(sim: Simulator, t_abs_s: np.ndarray, directions: np.ndarr
                    cast_unmatched=PredictionCache(predictor(~matched)),
                    range_window_m=tuple(window), base_effects=tuple(base),
                    measured_power_w=power, n_shots=n_shots, missed_per_unmatched=missed)
+
+
+# ------------------------------------------------------------ per-laser offsets
+MIN_LASER_POINTS = 20          # fewer matched points: the laser's offset stays 0
+
+
+def laser_offsets_m(residual_m: np.ndarray, sigma_m: np.ndarray, material: np.ndarray,
+                    laser: np.ndarray, window_width_m: float,
+                    iterations: int = 12) -> np.ndarray:
+    """ML range offset (m) of each laser id 0..max(laser), one intercept per material:
+    alternating robust weighted means (Gaussian vs a ROBUST_FLOOR uniform, per-material
+    noise scales); the offsets average to zero over the points (the material intercepts
+    carry the mean); lasers with fewer than MIN_LASER_POINTS points get 0."""
+    y = np.asarray(residual_m, float)
+    sigma = np.maximum(np.asarray(sigma_m, float), MIN_SIGMA_M)
+    group = np.asarray(material, int)
+    lz = np.asarray(laser, np.int64)
+    n_lasers = int(lz.max()) + 1 if len(lz) else 0
+    off = np.zeros(n_lasers)
+    if len(y) < MIN_LASER_POINTS:
+        return off
+    enough = np.bincount(lz, minlength=n_lasers) >= MIN_LASER_POINTS
+    q = np.ones(len(y))
+    for _ in range(iterations):
+        wt = q / sigma ** 2
+        c = y - off[lz] - _centre(y - off[lz], group, wt)        # per-material intercepts
+        r = y - c
+        wsum = np.bincount(lz, weights=wt, minlength=n_lasers)
+        off = np.where(enough & (wsum > 0),
+                       np.bincount(lz, weights=wt * r, minlength=n_lasers) / np.maximum(wsum, 1e-300),
+                       0.0)
+        off -= np.sum(wt * off[lz]) / np.sum(wt)
+        e = y - c - off[lz]
+        _, scale = material_nuisance(e, sigma, group, np.ones(len(e), bool))
+        s = sigma * scale
+        g = (1 - ROBUST_FLOOR) * np.exp(-0.5 * (e / s) ** 2) / (s * math.sqrt(2 * math.pi))
+        q = g / (g + ROBUST_FLOOR / window_width_m)
+    return np.where(enough, off, 0.0)
+
+
+def _fit_laser_bias(cls: type[Effect], data: FitData,
+                    base_effects: Sequence[Effect] = ()) -> FitResult:
+    """Closed-form fit of ``laser_bias`` (one offset per laser, ``laser_offsets_m``)."""
+    base_effects = list(base_effects)
+    model = model_on_rays(data, base_effects)
+    use = model.placed & np.isfinite(model.expected_range_m)
+    y = np.asarray(data.measured_range_m, float) - model.expected_range_m
+    laser = np.asarray(data.baseline.ctx.laser, np.int64)
+    off = np.zeros(int(laser.max()) + 1 if len(laser) else 0)
+    if use.sum() >= MIN_LASER_POINTS:
+        fitted = laser_offsets_m(y[use], model.sigma_m[use], _groups(data)[use], laser[use],
+                                 data.window_width_m)
+        off[:len(fitted)] = fitted
+    lo, hi = cls.bounds['offsets_m']
+    effect = cls({'offsets_m': [round(float(v), 6) for v in np.clip(off, lo, hi)]})
+    return make_result_vector(effect, data, base_effects,
+                              {f'laser_{i}_m': float(v) for i, v in enumerate(off)})
+
+
+def make_result_vector(effect: Effect, data: FitData, base_effects: Sequence[Effect],
+                       params: dict) -> FitResult:
+    """``make_result`` for an effect whose free parameter is a vector: ``params`` names
+    its elements (plain floats)."""
+    after = scores(data, [*base_effects, effect])
+    before = scores(data, list(base_effects))
+    return FitResult(name=type(effect).name, params=params, effect=effect,
+                     nll_per_point=after['nll'], range_rmse_m=after['rmse'],
+                     unmatched_explained=after['unmatched'], n_params=len(params),
+                     nll_before_per_point=before['nll'], range_rmse_before_m=before['rmse'],
+                     unmatched_explained_before=before['unmatched'],
+                     nll_robust_per_point=after['nll_robust'],
+                     nll_robust_before_per_point=before['nll_robust'])
+
+
+def _register_catalogue_fits() -> None:
+    from lidar_sim_ros.core.effects.laser_bias import LaserBias
+    register_fit(LaserBias)(_fit_laser_bias)
+
+
+_register_catalogue_fits()

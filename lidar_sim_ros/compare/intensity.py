@@ -84,10 +84,14 @@ class IntensityCalibration:
 
 
 def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_w: np.ndarray,
-                        model_intensity: np.ndarray | None = None) -> IntensityCalibration | None:
+                        model_intensity: np.ndarray | None = None,
+                        range_exponents: tuple[float, ...] = RANGE_EXPONENTS,
+                        ) -> IntensityCalibration | None:
     """Fit the map from measured intensity to the model's received power (module doc)
     on matched points; None if fewer than MIN_POINTS usable points. ``gain``: median
-    measured / ``model_intensity`` (the model's intensity units; default its power)."""
+    measured / ``model_intensity`` (the model's intensity units; default its power).
+    ``range_exponents``: the readings to choose from; ``(-2.0,)`` where the layout says
+    the intensity is a range-compensated reflectivity (the Cepton drivers')."""
     i = np.asarray(intensity, float)
     p = np.asarray(model_power_w, float)
     r = np.asarray(range_m, float)
@@ -98,7 +102,7 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
     mean_lr = float(np.mean(lr))
     lr = lr - mean_lr
     best = None
-    for c in RANGE_EXPONENTS:
+    for c in range_exponents:
         knots_x, knots_y = _monotone_map(x, y - c * lr)
         resid = y - np.interp(x, knots_x, knots_y) - c * lr
         spread = float(np.var(resid))

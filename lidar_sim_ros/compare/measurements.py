@@ -11,6 +11,13 @@ Per-point time comes under many names (``t``, ``time``, ``timestamp``, ``t_ns``,
 ``offset_time``, ...; :data:`POINT_TIME_FIELDS`), in seconds or nanoseconds, relative
 to the stamp or absolute: :func:`point_time_since_stamp_s` decides from the field's
 name, type and magnitude against the header stamp, and the choice is recorded.
+Which field is the intensity, the time (one field or a seconds + sub-seconds pair such
+as the Cepton driver's ``timestamp_s`` + ``timestamp_us``), the laser and the Cepton
+point flags is decided by ``compare/fields.py`` (or named with ``--intensity-field``,
+``--time-field``, ``--laser-field``); ``Measurements.field_lines`` says it for the
+terminal. Flagged Cepton points: NO_RETURN shots are not points but known misses
+(counted), SATURATED returns are kept and marked (``saturated``), NOISE and BLOCKED are
+counted (``flag_counts``).
 Every problem raises :class:`MeasurementError` naming the bag, topic and what is wrong.
 """
 from __future__ import annotations
@@ -23,6 +30,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from lidar_sim_ros.compare.fields import (FieldError, flag_counts, flag_lines, point_time_ns,
+                                           resolve_fields)
+from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, cloud_count,
                                   iter_clouds, read_material_names, read_poses)
 from lidar_sim_ros.core.pose import PoseTrack
@@ -84,6 +94,11 @@ class Measurements:
     dropped: dict = field(default_factory=dict)
     time_source: str = 'field'      # 'field' (per-point time), 'scan pattern' or 'stamp'
     time_field: dict | None = None  # the time field used: name, type, unit, reference
+    saturated: np.ndarray | None = None   # (N,) bool: the sensor flagged the return SATURATED
+    field_lines: list[str] = field(default_factory=list)   # what each field was read as
+    fields: dict | None = None            # FieldMap.as_dict()
+    flag_counts: dict = field(default_factory=dict)   # Cepton flag -> points (before thinning)
+    known_misses: int = 0                 # NO_RETURN shots: fired, nothing came back
 
     def __len__(self) -> int:
         return len(self.range_m)
@@ -93,7 +108,11 @@ class Measurements:
         pick = {k: getattr(self, k)[index] for k in
                 ('xyz_m', 'range_m', 'directions', 't_s', 't_frame_s', 'cloud', 'laser')}
         inten = None if self.intensity is None else self.intensity[index]
-        return Measurements(self.bag, intensity=inten, has_point_time=self.has_point_time,
+        sat = None if self.saturated is None else self.saturated[index]
+        return Measurements(self.bag, intensity=inten, saturated=sat,
+                            field_lines=self.field_lines, fields=self.fields,
+                            flag_counts=self.flag_counts, known_misses=self.known_misses,
+                            has_point_time=self.has_point_time,
                             cloud_stamps_s=self.cloud_stamps_s, epoch_s=self.epoch_s,
                             poses=self.poses, material_names=self.material_names,
                             notes=self.notes, dropped=self.dropped,
@@ -102,13 +121,17 @@ class Measurements:
 
 def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
                       pose_topic: str = POSE_TOPIC, max_points: int | None = None,
-                      seed: int = 0) -> Measurements:
+                      seed: int = 0, intensity_field: str | None = None,
+                      time_field: str | None = None,
+                      laser_field: str | None = None) -> Measurements:
     """Read clouds and poses from ``bag`` and check that they can be compared.
 
     ``max_points`` keeps a random (seeded) subset when the bag holds more points, so
     very long recordings stay tractable: clouds are read one at a time and each keeps
     at most its share (max_points / clouds), so the subset spans the whole recording;
-    the dropped count is in ``dropped``.
+    the dropped count is in ``dropped``. ``intensity_field``, ``time_field`` (one name
+    or ``SECONDS,SUBSECONDS``) and ``laser_field`` name the fields where the driver's
+    names are not recognised (``compare/fields.py``).
     """
     bag = Path(bag)
     if not bag.exists():
@@ -136,20 +159,32 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         raise MeasurementError(
             f'bag {bag}: clouds on {cloud_topic!r} lack field(s) {missing}; fields present: '
             f'{list(fields)} (x, y, z in metres, lidar frame, are required)')
-    t_name = find_time_field(fields)
+    try:
+        fmap = resolve_fields(first.points.dtype, intensity_field, time_field, laser_field,
+                              find_time_field)
+    except FieldError as exc:
+        raise MeasurementError(f'bag {bag}, topic {cloud_topic!r}: {exc}') from None
+    t_name = fmap.time_name
     has_t = t_name is not None
-    has_i = 'intensity' in fields
+    has_i = fmap.intensity is not None
     if not has_t:
-        notes.append(f'clouds have no per-point time field (none of {list(POINT_TIME_FIELDS)}): '
+        notes.append(f'clouds have no per-point time field (none of {list(POINT_TIME_FIELDS)}, '
+                     'no timestamp_s + timestamp_us; name one with --time-field): '
                      'every point takes its cloud stamp')
     if not has_i:
-        notes.append('clouds have no "intensity" field: the intensity feature uses the model')
+        notes.append('clouds have no "intensity" or "reflectivity" field (name one with '
+                     '--intensity-field): the intensity feature uses the model')
+    if fmap.intensity not in (None, 'intensity'):
+        notes.append(f'intensity read from field {fmap.intensity!r}')
+    if fmap.laser not in (None, 'ring'):
+        notes.append(f'laser id read from field {fmap.laser!r}')
 
-    time_dtype = str(first.points.dtype[t_name]) if has_t else None
-    cols: dict[str, list] = {k: [] for k in ('xyz', 'i', 't', 'cloud', 'laser')}
+    time_dtype = ('+'.join(fmap.dtypes[n] for n in fmap.time).lower() if has_t else None)
+    cols: dict[str, list] = {k: [] for k in ('xyz', 'i', 't', 'cloud', 'laser', 'sat')}
     stamp_ns = []
-    n_nonfinite = n_zero = n_thinned = 0
+    n_nonfinite = n_zero = n_thinned = n_invalid = n_no_return = 0
     t_kinds: list[str] = []
+    counts: dict[str, int] = {}
     for k, c in enumerate(itertools.chain([first], clouds)):
         p = c.points
         stamp_ns.append(c.stamp_ns)
@@ -157,9 +192,18 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
             continue
         xyz = np.column_stack([np.asarray(p[f], dtype=float).reshape(len(p), -1)[:, 0]
                                for f in ('x', 'y', 'z')])
-        ok = np.isfinite(xyz).all(axis=1)
-        rng = np.linalg.norm(xyz, axis=1)
-        n_nonfinite += int((~ok).sum())
+        flags = (np.asarray(p[fmap.flags]).astype(np.int64) if fmap.flags
+                 else np.zeros(len(p), np.int64))
+        for name, n in flag_counts(flags).items():
+            counts[name] = counts.get(name, 0) + n
+        no_return, invalid = not_points(p, fmap)
+        n_no_return += int(no_return.sum())
+        n_invalid += int((invalid & ~no_return).sum())
+        ok = ~(no_return | invalid)
+        finite = np.isfinite(xyz).all(axis=1)
+        n_nonfinite += int((ok & ~finite).sum())
+        ok &= finite
+        rng = np.linalg.norm(np.where(finite[:, None], xyz, 0.0), axis=1)
         zero = ok & (rng <= 1e-6)   # drivers report "no return" as (0, 0, 0)
         n_zero += int(zero.sum())
         ok &= ~zero
@@ -171,16 +215,17 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
             ok = np.zeros(len(ok), bool)
             ok[keep] = True
         cols['xyz'].append(xyz[ok])
-        cols['i'].append(np.asarray(p['intensity'], dtype=float)[ok] if has_i
+        cols['i'].append(np.asarray(p[fmap.intensity], dtype=float)[ok] if has_i
                          else np.zeros(ok.sum()))
+        cols['sat'].append((flags[ok] & cepton.SATURATED) != 0)
         if has_t:
-            t_rel, kind = point_time_since_stamp_s(p[t_name][ok], t_name, c.stamp_ns)
+            t_rel, kind = field_time_since_stamp_s(p[ok], fmap.time, c.stamp_ns)
             t_kinds.append(kind)
             cols['t'].append(t_rel)
         else:
             cols['t'].append(np.zeros(ok.sum()))
         cols['cloud'].append(np.full(ok.sum(), k))
-        cols['laser'].append(np.asarray(p['ring']).astype(np.int64)[ok] if 'ring' in fields
+        cols['laser'].append(np.asarray(p[fmap.laser]).astype(np.int64)[ok] if fmap.laser
                              else np.zeros(ok.sum(), np.int64))
     total = sum(len(x) for x in cols['xyz'])
     if total == 0:
@@ -209,7 +254,11 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         notes.append('intensity field holds no positive values: ignored')
         intensity = None
     rng = np.linalg.norm(xyz, axis=1)
-    dropped = {'non_finite': n_nonfinite, 'at_origin': n_zero, 'subsampled': n_thinned}
+    dropped = {'non_finite': n_nonfinite, 'at_origin': n_zero, 'subsampled': n_thinned,
+               **({'invalid': n_invalid} if fmap.valid else {}),
+               **({'no_return': n_no_return} if fmap.flags else {})}
+    saturated = np.concatenate(cols['sat'])
+    lines = fmap.lines() + flag_lines(fmap, counts, n_no_return, n_invalid)
     if n_thinned:
         notes.append(f'{len(rng) + n_thinned} points in {len(stamp_ns)} clouds: at most '
                      f'{per_cloud} per cloud are analysed, at random')
@@ -225,7 +274,9 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         laser=np.concatenate(cols['laser'])[keep].astype(np.uint16), has_point_time=has_t,
         cloud_stamps_s=stamps_s, epoch_s=epoch_ns / NS_PER_S, poses=track,
         material_names=names, notes=notes, dropped=dropped,
-        time_source='field' if has_t else 'stamp', time_field=time_field)
+        time_source='field' if has_t else 'stamp', time_field=time_field,
+        saturated=saturated[keep] if fmap.flags else None, field_lines=lines,
+        fields=fmap.as_dict(), flag_counts=counts, known_misses=n_no_return)
 
 
 def with_scan_times(meas: Measurements, shots: Shots) -> Measurements:
@@ -252,6 +303,33 @@ def with_scan_times(meas: Measurements, shots: Shots) -> Measurements:
         f'{np.degrees(SCAN_MATCH_TOL_RAD):g} deg)']
     return replace(meas, t_frame_s=t_frame, t_s=meas.cloud_stamps_s[meas.cloud] + t_frame,
                    laser=laser, has_point_time=True, time_source='scan pattern', notes=notes)
+
+
+def field_time_since_stamp_s(points: np.ndarray, time: tuple[str, ...],
+                             stamp_ns: int) -> tuple[np.ndarray, str]:
+    """Seconds since the stamp from the time field(s) of ``FieldMap.time``: one field
+    (``point_time_since_stamp_s``) or a seconds + sub-seconds pair (exact integer ns)."""
+    if len(time) == 2:
+        raw_ns, sub_unit = point_time_ns(points, time)
+        t_rel, kind = point_time_since_stamp_s(raw_ns, 'time_ns', stamp_ns)
+        return t_rel, kind.replace('ns', f's + {sub_unit}', 1)
+    return point_time_since_stamp_s(points[time[0]], time[0], stamp_ns)
+
+
+def not_points(points: np.ndarray, fmap) -> tuple[np.ndarray, np.ndarray]:
+    """Bool per point: a NO_RETURN shot (Cepton flags: a known miss, not a point), and
+    ``valid`` = 0 (SDK2)."""
+    none = np.zeros(len(points), bool)
+    no_return = ((np.asarray(points[fmap.flags]).astype(np.int64) & cepton.NO_RETURN) != 0
+                 if fmap.flags else none)
+    invalid = np.asarray(points[fmap.valid]) == 0 if fmap.valid else none
+    return no_return, invalid
+
+
+def usable_points(points: np.ndarray, fmap) -> np.ndarray:
+    """Bool per point: neither a NO_RETURN shot nor ``valid`` = 0 (``not_points``)."""
+    no_return, invalid = not_points(points, fmap)
+    return ~(no_return | invalid)
 
 
 def find_time_field(fields) -> str | None:

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare import (diagnosis, features, history, likelihood as lk,
+from lidar_sim_ros.compare import (diagnosis, features, fields, history, likelihood as lk,
                                    materials as mat, neighbours, point_times,
                                    stamp_place)
 from lidar_sim_ros.compare.intensity import IntensityCalibration, calibrate_intensity
@@ -79,6 +79,9 @@ class CompareOptions:
     seed: int = 0
     report: bool = True
     progress: bool = True                   # one line per stage on stderr
+    intensity_field: str | None = None      # field names where the driver's are not known
+    time_field: str | None = None           # one field or SECONDS,SUBSECONDS
+    laser_field: str | None = None
 
 
 @dataclass
@@ -217,7 +220,8 @@ class PowerFromIntensity:
             sel = m.matched
             self.calibration = calibrate_intensity(m.meas.intensity[sel], m.meas.range_m[sel],
                                                    m.pred.ctx.power_w[sel],
-                                                   m.pred.ctx.intensity[sel])
+                                                   m.pred.ctx.intensity[sel],
+                                                   fields.range_exponents(m.meas.fields))
             self.done = True
         if self.calibration is None or not self.calibration.usable:
             return None
@@ -281,7 +285,8 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         scenario = load_scenario(opts.config or config_path('scenario.yaml'))
         target = load_target(opts.mesh, scenario.materials.names)
         meas = load_measurements(opts.bag, opts.cloud_topic, opts.pose_topic, opts.max_points,
-                                 opts.seed)
+                                 opts.seed, opts.intensity_field, opts.time_field,
+                                 opts.laser_field)
         sun = recording_sun(opts, scenario, meas)
         scenario_effects = [get_effect_class(e.name)(e.params) for e in scenario.config.effects]
         user = [effect_from_spec(spec) for spec in opts.effects]
@@ -454,6 +459,14 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         'point_time_spread_s': time_spread or None,
         'stamp_place': stamp.as_dict() if stamp is not None else None,
         'has_intensity': meas.intensity is not None,
+        'point_fields': {**(meas.fields or {}), 'lines': meas.field_lines + [
+            fields.intensity_reading(power.calibration.as_dict() if power.calibration else None,
+                                     (meas.fields or {}).get('intensity'),
+                                     len(fields.range_exponents(meas.fields)) == 1)]},
+        'point_flags': {'counts': meas.flag_counts, 'known_misses': meas.known_misses,
+                        'saturation': fields.saturation_evidence(
+                            None if meas.saturated is None else meas.saturated[sel],
+                            pred.ctx.power_w[sel], scenario.sensor.detection.saturation_power_w)},
         'dropped': meas.dropped,
         'notes': notes,
         **({'sunlight': sunlight} if sunlight is not None else {}),

@@ -105,7 +105,9 @@ class Frame:
 class _FrameShots:
     """Every shot of a frame, noise-free, in cast order: the source of ``Frame.truth_*``.
 
-    cast_position[i] is where firing-order shot i sits in these arrays.
+    cast_position[i] is where firing-order shot i sits in these arrays. measured_range_m:
+    every shot's measured range (bias, effects and noise; NaN on a miss), whether the
+    detector reported it or not (the Cepton layout keeps saturated returns).
     """
 
     hit: np.ndarray
@@ -117,6 +119,7 @@ class _FrameShots:
     ring: np.ndarray
     material: np.ndarray
     face: np.ndarray
+    measured_range_m: np.ndarray | None = None
 
     @cached_property
     def hit_index(self) -> np.ndarray:
@@ -311,7 +314,8 @@ class Simulator:
             intensity=intensity.take(out), t_s=shots.t_s.take(out), ring=shots.laser.take(out),
             material=_material_ids(material.take(out)), stats=stats,
             truth_source=_FrameShots(hit, self._cast_position, self._cast_directions, ctx.range_m,
-                              ctx.intensity, shots.t_s, shots.laser, ctx.material, pred.hits.face),
+                              ctx.intensity, shots.t_s, shots.laser, ctx.material, pred.hits.face,
+                              measured),
             face=pred.hits.face.take(out), true_range_m=ctx.range_m.take(out))
 
 

@@ -109,13 +109,36 @@ def _per_point(name: str, values: Any, n: int, int_max: int | None = None) -> np
 
 
 def _check_points(points: np.ndarray) -> np.ndarray:
-    """Return points as a contiguous 1-D POINT_DTYPE array or raise naming the mismatch."""
-    if not isinstance(points, np.ndarray) or points.dtype != POINT_DTYPE:
+    """Return points as a contiguous 1-D array of a known layout (POINT_DTYPE or another
+    little-endian structured dtype of PointField types, e.g. ``io/cepton.py``'s)."""
+    names = getattr(getattr(points, 'dtype', None), 'names', None) or ()
+    if not isinstance(points, np.ndarray) or not all(
+            n in names and points.dtype[n] == np.dtype('<f4') for n in 'xyz'):
         found = getattr(points, 'dtype', type(points).__name__)
-        raise ValueError(f'points must be a POINT_DTYPE array (see make_points), got {found}')
+        raise ValueError(f'points must be a POINT_DTYPE array (see make_points) or another '
+                         f'layout with x, y, z FLOAT32 fields, got {found}')
     if points.ndim != 1:
         raise ValueError(f'points must be 1-D, got shape {points.shape}')
+    fields_of(points.dtype)       # raises naming a field no PointField can carry
     return np.ascontiguousarray(points)
+
+
+_NUMPY_TO_DATATYPE = {v: k for k, v in DATATYPE_TO_NUMPY.items()}
+
+
+def fields_of(dtype: np.dtype) -> list[FieldSpec]:
+    """The PointFields of a structured point dtype (POINT_FIELDS for POINT_DTYPE)."""
+    if dtype == POINT_DTYPE:
+        return POINT_FIELDS
+    out = []
+    for name in dtype.names or ():
+        sub, offset = dtype.fields[name][:2]
+        code = _NUMPY_TO_DATATYPE.get(sub.base.str[1:])
+        if code is None or sub.base.byteorder == '>' or sub.ndim:
+            raise ValueError(f'point field {name!r} of dtype {sub} has no PointField datatype '
+                             '(scalar little-endian int/uint 8-32 bit or float 32/64 expected)')
+        out.append(FieldSpec(name, offset, code, 1))
+    return out
 
 
 def stamp_to_ns(stamp: Any) -> int:
@@ -130,8 +153,10 @@ def ns_to_stamp(ns: int, cls: type) -> Any:
 
 
 def to_rosbags_msg(points: np.ndarray, stamp_ns: int, frame_id: str, typestore: Any) -> Any:
-    """Build a rosbags sensor_msgs/msg/PointCloud2 from a POINT_DTYPE array."""
+    """Build a rosbags sensor_msgs/msg/PointCloud2 from a POINT_DTYPE array (or another
+    layout, ``fields_of``)."""
     points = _check_points(points)
+    step = points.dtype.itemsize
     types = typestore.types
     field_cls = types['sensor_msgs/msg/PointField']
     header = types['std_msgs/msg/Header'](
@@ -143,17 +168,18 @@ def to_rosbags_msg(points: np.ndarray, stamp_ns: int, frame_id: str, typestore: 
         height=1,
         width=len(points),
         fields=[field_cls(name=f.name, offset=f.offset, datatype=f.datatype, count=f.count)
-                for f in POINT_FIELDS],
+                for f in fields_of(points.dtype)],
         is_bigendian=False,
-        point_step=POINT_STEP,
-        row_step=POINT_STEP * len(points),
+        point_step=step,
+        row_step=step * len(points),
         data=np.frombuffer(points.tobytes(), dtype=np.uint8),
         is_dense=True,
     )
 
 
 def to_rclpy_msg(points: np.ndarray, stamp_ns: int, frame_id: str) -> Any:
-    """Build an rclpy sensor_msgs.msg.PointCloud2 from a POINT_DTYPE array.
+    """Build an rclpy sensor_msgs.msg.PointCloud2 from a POINT_DTYPE array (or another
+    layout, ``fields_of``).
 
     ROS is imported here so this module loads without a ROS installation.
     """
@@ -167,10 +193,10 @@ def to_rclpy_msg(points: np.ndarray, stamp_ns: int, frame_id: str) -> Any:
     msg.height = 1
     msg.width = len(points)
     msg.fields = [PointField(name=f.name, offset=f.offset, datatype=f.datatype, count=f.count)
-                  for f in POINT_FIELDS]
+                  for f in fields_of(points.dtype)]
     msg.is_bigendian = False
-    msg.point_step = POINT_STEP
-    msg.row_step = POINT_STEP * len(points)
+    msg.point_step = points.dtype.itemsize
+    msg.row_step = points.dtype.itemsize * len(points)
     # The generated setter takes an array.array('B') as is (bytes or lists are checked
     # element by element). frombytes() on a uint8 view is one memcpy: ~15 us for 25k
     # points, whereas array.array('B', points.tobytes()) takes ~300 us.

@@ -41,6 +41,9 @@ from lidar_sim_ros.core.effects import Effect, is_plugin_spec, make_effect
 from lidar_sim_ros.core.geometry import MeshMaterialError
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.io.bag import encode_material_names
+from lidar_sim_ros.core.driver_layout import OutputLayout
+from lidar_sim_ros.ros.mount import check_mount, mount_message, rclpy_lookup
+from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.pointcloud import frame_points, stamp_to_ns, to_rclpy_msg
 from lidar_sim_ros.paths import config_path
 from lidar_sim_ros.ros.deadline import DeadlinePublisher
@@ -119,6 +122,22 @@ STARTUP_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     'max_catch_up_frames': (10, _startup(
         I, 'most frames computed at once after a clock jump; older ones are dropped',
         int_range=(1, 1000))),
+    'point_layout': ('native', _startup(
+        S, "cloud layout: 'native' (ours: x y z intensity t ring material) or 'cepton' (the "
+           "Cepton SDK3 driver's: topic cepton_pcl2 and frame cepton3 unless points_topic / "
+           'frame_id say otherwise; docs/real-data.md)')),
+    'no_return_points': (False, _startup(
+        B, 'cepton layout: also one NO_RETURN point (0, 0, 0) per shot that returned nothing')),
+    'polar_fields': (False, _startup(
+        B, "cepton layout: also the driver's optional azimuth, elevation (rad) and range (m) "
+           'fields')),
+    'mount_parent_frame': ('', _startup(
+        S, "parent frame of the sensor mount, published as a static transform to frame_id "
+           "on /tf_static; '' = no transform")),
+    'mount_translation_m': ([0.0, 0.0, 0.0], _startup(
+        FA, 'sensor origin in mount_parent_frame (m)')),
+    'mount_quat_xyzw': ([0.0, 0.0, 0.0, 1.0], _startup(
+        FA, 'sensor orientation in mount_parent_frame (unit quaternion x, y, z, w)')),
     'plugin_effects': (Parameter.Type.STRING_ARRAY, _startup(
         ParameterType.PARAMETER_STRING_ARRAY,
         "user effects ('module:Class' or 'file.py:Class') loaded once at start-up, from the "
@@ -168,9 +187,16 @@ class LidarSimNode(Node):
         self.sim = Simulator.from_scenario(self.scenario, effects=[],
                                            threads=self.get_parameter('threads').value)
 
-        self.declare_parameter('frame_id', self.scenario.config.frame_id,
+        layout = self.get_parameter('point_layout').value
+        if layout not in ('native', 'cepton'):
+            raise ConfigError('<parameters>', 'point_layout', layout, "must be 'native' or 'cepton'")
+        self.layout = OutputLayout(point_layout=layout,
+                                   no_return_points=self.get_parameter('no_return_points').value,
+                                   polar_fields=self.get_parameter('polar_fields').value)
+        self.declare_parameter('frame_id', self.layout.frame(self.scenario.config.frame_id),
                                _descriptor(S, "header frame_id of the clouds; poses must carry it "
-                                              "(default: the scenario's frame_id)"))
+                                              "(default: cepton3 for the cepton layout, else "
+                                              "the scenario's frame_id)"))
         for name, (value, desc) in DYNAMIC_PARAMETERS.items():
             self.declare_parameter(name, value, desc)
         default_effects = list(self._effects_specs) or Parameter.Type.STRING_ARRAY
@@ -266,7 +292,11 @@ class LidarSimNode(Node):
                               if param('pose_qos_reliability') == 'reliable'
                               else ReliabilityPolicy.BEST_EFFORT,
                               durability=DurabilityPolicy.VOLATILE)
-        self.points_pub = self.create_publisher(PointCloud2, param('points_topic'), cloud_qos)
+        points_topic = param('points_topic')
+        if self.layout.point_layout == 'cepton' and points_topic == STARTUP_PARAMETERS['points_topic'][0]:
+            points_topic = cepton.TOPIC     # the driver's topic, relative as the driver's
+        self.points_pub = self.create_publisher(PointCloud2, points_topic, cloud_qos)
+        self._publish_mount()
         self.truth_pub = self.create_publisher(PointCloud2, param('truth_topic'), cloud_qos)
         self.names_pub = self.create_publisher(String, param('material_names_topic'), latched)
         self.pose_sub = self.create_subscription(PoseStamped, param('pose_topic'),
@@ -294,6 +324,33 @@ class LidarSimNode(Node):
         self.create_timer(self.scheduler.period_s / param('ticks_per_frame'), self._tick,
                           clock=steady)
         self.create_timer(STATS_PERIOD_S, self._log_stats, clock=steady)
+
+    def _publish_mount(self) -> None:
+        """The sensor mount as a static transform (mount_parent_frame -> frame_id), when one
+        is configured (``mount.py``). tf2_msgs comes with ROS (no wheel exists): without
+        it, say so once."""
+        parent = self.get_parameter('mount_parent_frame').value
+        if not parent:
+            return
+        xyz = list(self.get_parameter('mount_translation_m').value)
+        quat = list(self.get_parameter('mount_quat_xyzw').value)
+        problem = check_mount(xyz, quat)
+        if problem:
+            raise ConfigError('<parameters>', 'mount_translation_m / mount_quat_xyzw',
+                              f'{xyz} / {quat}', problem)
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            self.get_logger().warning(
+                f'mount_parent_frame {parent!r} is set but tf2_msgs is not installed: the '
+                'sensor mount is not published on /tf_static')
+            return
+        msg = mount_message(rclpy_lookup, parent, self.get_parameter('frame_id').value, xyz,
+                            quat, self.get_clock().now().nanoseconds)
+        static = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                            reliability=ReliabilityPolicy.RELIABLE)
+        self.tf_static_pub = self.create_publisher(TFMessage, '/tf_static', static)
+        self.tf_static_pub.publish(msg)
 
     def _wake_at_frame_ends(self) -> None:
         """Waker thread (wall clock only): trigger a tick just after each frame window ends."""
@@ -509,7 +566,8 @@ class LidarSimNode(Node):
             frame = self.sim.simulate_frame(0.0, track, frame_index=k)
             t1 = time.perf_counter()
             frame_id = self.get_parameter('frame_id').value
-            out = [(self.points_pub, to_rclpy_msg(frame_points(frame), start_ns, frame_id))]
+            points = self.layout.points(frame, self.sim, start_ns)
+            out = [(self.points_pub, to_rclpy_msg(points, start_ns, frame_id))]
             # Packing and serialising the truth cloud costs ~1 ms: only for listeners.
             if (self.get_parameter('publish_truth').value
                     and self.truth_pub.get_subscription_count() > 0):

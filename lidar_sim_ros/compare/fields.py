@@ -1,0 +1,250 @@
+"""Which fields of a measured PointCloud2 mean what: intensity, point time, laser, flags.
+
+Every driver names its fields its own way. ``resolve_fields`` reads the field list of
+the first cloud and decides, once for the recording, which field is
+
+* the intensity: ``--intensity-field``, else ``intensity`` or ``reflectivity`` (the
+  Cepton SDK2 driver's name);
+* the point time: ``--time-field`` (one field, or ``SECONDS,SUBSECONDS``), else the
+  Cepton SDK3 pair ``timestamp_s`` + ``timestamp_us``, else one of
+  ``measurements.POINT_TIME_FIELDS``. A pair is read as integer nanoseconds,
+  seconds x 1e9 + sub-seconds x their unit (``_ms``/``_us``/``_ns`` suffix of the
+  second name, else from its largest value), exactly, whatever the clock;
+* the laser: ``--laser-field``, else ``ring``, ``channel_id``, ``channel``, ``laser``,
+  ``laser_id``, ``line``;
+* the Cepton point flags (``io/cepton.py``): ``flags`` in a recording with the Cepton
+  layout (``channel_id`` present); the SDK2 driver's ``valid`` (0: not a return).
+
+Everything else is listed as ignored. ``FieldMap.lines()`` is what the terminal
+prints: every field recognised, converted or ignored, with its datatype.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lidar_sim_ros.io import cepton
+
+INTENSITY_FIELDS = ('intensity', 'reflectivity')
+LASER_FIELDS = ('ring', 'channel_id', 'channel', 'laser', 'laser_id', 'line')
+CEPTON_TIME_PAIR = ('timestamp_s', 'timestamp_us')
+_SUB_UNITS = {'_ms': 1_000_000, '_us': 1_000, '_ns': 1}
+# Fields known to carry nothing the comparison needs (the measured x, y, z decide).
+KNOWN_UNUSED = {'azimuth': 'the direction is taken from x, y, z',
+                'elevation': 'the direction is taken from x, y, z',
+                'range': 'the range is taken from |x, y, z|',
+                'relative_timestamp': 'a narrow counter, not a time since the stamp'}
+
+
+class FieldError(ValueError):
+    """A named field is missing or cannot carry what it was named for."""
+
+
+@dataclass(frozen=True)
+class FieldMap:
+    """The recording's fields and what each is used for (module doc)."""
+
+    intensity: str | None
+    time: tuple[str, ...]                # () none, (name,) one field, (seconds, sub) a pair
+    laser: str | None
+    flags: str | None                    # Cepton point flags
+    valid: str | None                    # SDK2 valid byte
+    dtypes: dict[str, str]
+    ignored: dict[str, str] = field(default_factory=dict)
+    layout: str = 'generic'              # 'native', 'cepton sdk3', 'cepton sdk2' or 'generic'
+
+    @property
+    def time_name(self) -> str | None:
+        """The time field's name for the summary (``a+b`` for a pair)."""
+        return '+'.join(self.time) if self.time else None
+
+    def lines(self) -> list[str]:
+        """One line per field: what it was recognised as and how it is read."""
+        out = [f'point layout: {self.layout}']
+        for name in ('x', 'y', 'z'):
+            out.append(f'  {name} ({self.dtypes[name]}): position, m')
+        if self.intensity:
+            out.append(f'  {self.intensity} ({self.dtypes[self.intensity]}): intensity '
+                       '(converted to received power by the intensity calibration)')
+        if len(self.time) == 1:
+            out.append(f'  {self.time[0]} ({self.dtypes[self.time[0]]}): point time '
+                       '(unit and reference from the name, type and magnitude)')
+        elif len(self.time) == 2:
+            s, sub = self.time
+            out.append(f'  {s} ({self.dtypes[s]}) + {sub} ({self.dtypes[sub]}): point time, '
+                       'seconds + sub-seconds, read as integer nanoseconds')
+        if self.laser:
+            out.append(f'  {self.laser} ({self.dtypes[self.laser]}): laser id')
+        if self.flags:
+            out.append(f'  {self.flags} ({self.dtypes[self.flags]}): Cepton point flags '
+                       '(SATURATED, NO_RETURN, NOISE, BLOCKED counted; NO_RETURN points are '
+                       'known misses, not points)')
+        if self.valid:
+            out.append(f'  {self.valid} ({self.dtypes[self.valid]}): points with 0 dropped')
+        for name, why in self.ignored.items():
+            out.append(f'  {name} ({self.dtypes.get(name, "?")}): ignored ({why})')
+        return out
+
+    def as_dict(self) -> dict:
+        return {'layout': self.layout, 'intensity': self.intensity, 'time': list(self.time),
+                'laser': self.laser, 'flags': self.flags, 'valid': self.valid,
+                'ignored': dict(self.ignored), 'dtypes': dict(self.dtypes)}
+
+
+def resolve_fields(dtype: np.dtype, intensity_field: str | None = None,
+                   time_field: str | None = None, laser_field: str | None = None,
+                   find_time=None) -> FieldMap:
+    """The FieldMap of a decoded cloud's dtype (module doc). ``find_time``: the single-field
+    time finder (``measurements.find_time_field``). Raises FieldError for a named field
+    that is not there or not numeric, naming the fields present."""
+    names = list(dtype.names or ())
+    dtypes = {n: _kind(dtype[n]) for n in names}
+
+    def named(option: str, value: str) -> str:
+        if value not in names:
+            raise FieldError(f'{option} {value!r}: no such field; fields present: {names}')
+        if dtype[value].kind not in 'iuf':
+            raise FieldError(f'{option} {value!r} has dtype {dtype[value]}, expected a number')
+        return value
+
+    if intensity_field:
+        inten = named('--intensity-field', intensity_field)
+    else:
+        inten = next((n for n in INTENSITY_FIELDS if n in names), None)
+    if time_field:
+        parts = tuple(p.strip() for p in time_field.split(','))
+        if len(parts) > 2 or not all(parts):
+            raise FieldError(f'--time-field {time_field!r}: give one field or SECONDS,SUBSECONDS')
+        times = tuple(named('--time-field', p) for p in parts)
+        if len(times) == 2 and not all(dtype[t].kind in 'iu' for t in times):
+            raise FieldError(f'--time-field {time_field!r}: a seconds + sub-seconds pair must be '
+                             f'integers, got {[str(dtype[t]) for t in times]}')
+    elif all(n in names for n in CEPTON_TIME_PAIR):
+        times = CEPTON_TIME_PAIR
+    else:
+        single = find_time(names) if find_time is not None else None
+        times = (single,) if single else ()
+    laser = (named('--laser-field', laser_field) if laser_field
+             else next((n for n in LASER_FIELDS if n in names), None))
+    is_cepton = 'channel_id' in names
+    flags = 'flags' if is_cepton and 'flags' in names and dtype['flags'].kind in 'iu' else None
+    valid = 'valid' if 'valid' in names and dtype['valid'].kind in 'iu' else None
+    used = {'x', 'y', 'z', inten, laser, flags, valid, *times}
+    ignored = {n: KNOWN_UNUSED.get(n, 'not used by the comparison') for n in names
+               if n not in used}
+    if names[:3] == ['x', 'y', 'z'] and {'t', 'ring', 'material'} <= set(names):
+        layout = 'native (lidar_sim_ros)'
+    elif is_cepton and times == CEPTON_TIME_PAIR:
+        layout = 'cepton sdk3 driver'
+    elif is_cepton and 'reflectivity' in names:
+        layout = 'cepton sdk2 driver'
+    else:
+        layout = 'generic'
+    if 'material' in ignored:
+        ignored['material'] = 'the model casts the mesh itself'
+    return FieldMap(inten, times, laser, flags, valid, dtypes, ignored, layout)
+
+
+def point_time_ns(points: np.ndarray, pair: tuple[str, str]) -> tuple[np.ndarray, str]:
+    """A seconds + sub-seconds pair as integer nanoseconds (exact), and the sub-seconds'
+    unit (``'us'``...): from the second name's suffix, else its largest value (below 1e3
+    ms, below 1e6 us, else ns)."""
+    s_name, sub_name = pair
+    sec = np.asarray(points[s_name]).astype(np.int64)
+    sub = np.asarray(points[sub_name]).astype(np.int64)
+    suffix = next((k for k in _SUB_UNITS if sub_name.lower().endswith(k)), None)
+    if suffix is None:
+        top = int(np.abs(sub).max()) if len(sub) else 0
+        suffix = '_ms' if top < 1_000 else '_us' if top < 1_000_000 else '_ns'
+    return sec * 1_000_000_000 + sub * _SUB_UNITS[suffix], suffix[1:]
+
+
+def flag_counts(flags: np.ndarray) -> dict[str, int]:
+    """How many points carry each Cepton flag (only the flags seen)."""
+    f = np.asarray(flags, np.int64)
+    return {name: int(np.count_nonzero(f & bit)) for name, bit in cepton.FLAGS.items()
+            if np.any(f & bit)}
+
+
+def _kind(dt: np.dtype) -> str:
+    base = {'f4': 'FLOAT32', 'f8': 'FLOAT64', 'i1': 'INT8', 'u1': 'UINT8', 'i2': 'INT16',
+            'u2': 'UINT16', 'i4': 'INT32', 'u4': 'UINT32'}
+    return base.get(dt.base.str[1:], str(dt))
+
+
+def range_exponents(field_map: dict | None) -> tuple[float, ...]:
+    """The intensity readings ``intensity.calibrate_intensity`` may choose from: the
+    Cepton drivers publish a range-compensated reflectivity (-2 only); any other layout
+    lets the data decide (0 or -2)."""
+    from lidar_sim_ros.compare.intensity import RANGE_EXPONENTS
+    layout = (field_map or {}).get('layout', '')
+    return (-2.0,) if layout.startswith('cepton') else RANGE_EXPONENTS
+
+
+def flag_lines(fmap: FieldMap, counts: dict[str, int], no_return: int,
+               invalid: int) -> list[str]:
+    """Terminal lines: the Cepton flags seen, the known misses, NOISE/BLOCKED kept, and
+    the points dropped for ``valid`` = 0."""
+    lines = []
+    if fmap.flags:
+        seen = ', '.join(f'{k} {v}' for k, v in counts.items()) or 'none set'
+        lines.append(f'  flags seen: {seen}')
+        if no_return:
+            lines.append(f'  {no_return} NO_RETURN shots: known misses (fired, nothing came back)')
+        if counts.get('NOISE') or counts.get('BLOCKED'):
+            lines.append(f'  NOISE {counts.get("NOISE", 0)}, BLOCKED {counts.get("BLOCKED", 0)} '
+                         'points kept as measured (the driver marked them; the false-return '
+                         'candidates see them)')
+    if fmap.valid and invalid:
+        lines.append(f'  {invalid} points with {fmap.valid} = 0 dropped')
+    return lines
+
+
+def intensity_reading(calibration: dict | None, field_name: str | None,
+                      known: bool = False) -> str:
+    """One terminal line: how the intensity was read (proportional to the received power,
+    or a range-compensated reflectivity: ``intensity.py``'s range exponent 0 or -2),
+    ``known`` from the layout or detected from the data."""
+    if field_name is None:
+        return 'intensity: none in the recording (the model\'s power drives power effects)'
+    if calibration is None:
+        return f'intensity ({field_name}): too few matched points to calibrate'
+    kind = ('a range-compensated reflectivity (~ P r^2)'
+            if calibration.get('range_exponent', 0.0) < -1.0
+            else 'grows with the received power (no range compensation detected)')
+    kind += ' (as the layout says)' if known else ' (detected from the data)'
+    use = ('used for power-driven effects' if calibration.get('used_for_power_driven_effects')
+           else 'not used: it explains too little of the model\'s power')
+    return (f'intensity ({field_name}): read as {kind}; explains '
+            f'{100 * calibration.get("power_explained", 0.0):.0f} % of the model\'s ln power, {use}')
+
+
+def saturation_evidence(saturated: np.ndarray | None, model_power_w: np.ndarray,
+                        saturation_power_w: float) -> dict | None:
+    """What the SATURATED returns say about the saturation level: the model's received
+    power on the matched saturated and unsaturated returns against the configured level.
+    ``saturated`` and ``model_power_w`` are over the matched points (None: no flags)."""
+    if saturated is None:
+        return None
+    sat = np.asarray(saturated, bool)
+    p = np.asarray(model_power_w, float)
+    out = {'points': int(sat.sum()), 'configured_saturation_power_w': float(saturation_power_w)}
+    if sat.any():
+        out['model_power_w_saturated_p5_p50'] = [float(x) for x in np.percentile(p[sat], [5, 50])]
+        out['saturated_below_configured'] = float(np.mean(p[sat] < saturation_power_w))
+    if (~sat).any():
+        out['model_power_w_unsaturated_p95'] = float(np.percentile(p[~sat], 95))
+        out['unsaturated_above_configured'] = float(np.mean(p[~sat] >= saturation_power_w))
+    return out
+
+
+def saturation_line(ev: dict | None) -> str | None:
+    """The terminal line of ``saturation_evidence``."""
+    if not ev or not ev['points']:
+        return None if not ev else 'saturation: no matched return is flagged SATURATED'
+    below = ev.get('saturated_below_configured', 0.0)
+    return (f'saturation: {ev["points"]} matched returns flagged SATURATED, model power median '
+            f'{ev["model_power_w_saturated_p5_p50"][1]:.3g} W; {100 * below:.0f} % of them below '
+            f'the configured {ev["configured_saturation_power_w"]:.3g} W'
+            + (' (the sensor saturates earlier than configured)' if below > 0.5 else ''))
