@@ -177,15 +177,25 @@ class Target:
         on its normal side at elevation angle beta can only meet the mesh within
         clearance / sin(beta): shadow rays get that length. The maximum over the hull's
         vertices; computed on first use (~0.1 s for 50k faces)."""
+        return self._clearance_m(1.0)
+
+    @cached_property
+    def face_clearance_back_m(self) -> np.ndarray:
+        """``face_clearance_m`` on the other side of each face (against its normal): for rays
+        leaving a face whose winding points away from where the light came from."""
+        return self._clearance_m(-1.0)
+
+    def _clearance_m(self, side: float) -> np.ndarray:
         try:
             hull = self.vertices_m[ConvexHull(self.vertices_m).vertices]
         except QhullError:   # a flat mesh has no 3-D hull: test against every vertex
             hull = self.vertices_m
-        base = np.einsum('ij,ij->i', self.face_normals, self.vertices_m[self.faces[:, 0]])
+        normals = side * self.face_normals
+        base = np.einsum('ij,ij->i', normals, self.vertices_m[self.faces[:, 0]])
         out = np.empty(self.n_faces)
         for lo in range(0, self.n_faces, 1024):   # bounded memory: (hull vertices x 1024) doubles
             hi = min(lo + 1024, self.n_faces)
-            out[lo:hi] = (hull @ self.face_normals[lo:hi].T - base[lo:hi]).max(axis=0)
+            out[lo:hi] = (hull @ normals[lo:hi].T - base[lo:hi]).max(axis=0)
         # Degenerate faces (no normal) get no clearance bound.
         return np.where(np.any(self.face_normals != 0, axis=1), out, np.inf)
 

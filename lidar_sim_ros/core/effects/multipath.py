@@ -64,6 +64,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from lidar_sim_ros.core import reflection
 from lidar_sim_ros.core.config import OpticsConfig
+from lidar_sim_ros.core.geometry_kernels import rays_to_body
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect, ExtraReturns, ReturnContext
 
@@ -71,6 +72,8 @@ from lidar_sim_ros.core.effects.base import Effect, ExtraReturns, ReturnContext
 # plus a floor: clears Embree's float32 rounding so that the ray does not hit A again.
 SELF_HIT_OFFSET_PER_M = 2e-5
 SELF_HIT_OFFSET_M = 1e-4
+# Clearance (m) below which a face counts as on the convex hull (float rounding).
+CLEARANCE_TOL_M = 1e-6
 
 
 def mirror_directions(directions: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -150,11 +153,19 @@ class Multipath(Effect):
         if ctx.face is not None:
             # The mirror ray leaves A at elevation 90 deg - theta_A above A's plane: it can meet
             # the mesh only within clearance / cos(theta_A) (none for a face on the convex hull).
-            target = scene.target
-            clearance = target.face_clearance_m.take(ctx.face.take(on))
-            clearance = np.where(target.supporting_faces.take(ctx.face.take(on)), 0.0, clearance)
+            # The side the ray leaves by: the face's winding normal, or its reverse where the
+            # shot came from behind the winding (meshes need not be consistently wound).
+            target, face = scene.target, ctx.face.take(on)
+            quat, pos = scene.poses.quat_xyzw, scene.poses.position_m.reshape(-1, 3)
+            if len(quat) > 1:
+                quat, pos = quat.take(on, axis=0), pos.take(on, axis=0)
+            _, d_body = rays_to_body(quat, pos, np.zeros((1, 3)), ctx.direction.take(on, axis=0),
+                                     np.arange(len(on), dtype=np.int64))
+            front = np.einsum('ij,ij->i', target.face_normals.take(face, axis=0), d_body) < 0
+            clearance = np.where(front, target.face_clearance_m.take(face),
+                                 target.face_clearance_back_m.take(face))
             with np.errstate(divide='ignore', invalid='ignore'):
-                reach = np.minimum(reach, np.where(clearance > 0, clearance / cos_a, 0.0))
+                reach = np.minimum(reach, np.where(clearance > CLEARANCE_TOL_M, clearance / cos_a, 0.0))
         follow = reach >= max(self.params.min_path_m, 1e-9)
         shots, cos_a, reach = on[follow], cos_a[follow], reach[follow]
         if len(shots) == 0:
@@ -163,19 +174,22 @@ class Multipath(Effect):
         normal = ctx.normal.take(shots, axis=0)
         range_a = ctx.range_m.take(shots)
         mirror = mirror_directions(d, normal)
-        origin = d * range_a[:, None] + normal * (SELF_HIT_OFFSET_M + SELF_HIT_OFFSET_PER_M * range_a)[:, None]
+        lift = SELF_HIT_OFFSET_M + SELF_HIT_OFFSET_PER_M * range_a
+        origin = d * range_a[:, None] + normal * lift[:, None]
         quat, pos = scene.poses.quat_xyzw, scene.poses.position_m.reshape(-1, 3)
         if len(quat) > 1:
             quat, pos = quat.take(shots, axis=0), pos.take(shots, axis=0)
-        hits = cast_at_poses(scene.target, mirror, Poses.from_quat(quat, pos), origin_lidar_m=origin)
+        hits = cast_at_poses(scene.target, mirror, Poses.from_quat(quat, pos), origin_lidar_m=origin,
+                             length_m=reach)
+        # |AB| from A itself: the lifted origin sits lift * cos(theta_A) along the mirror ray.
         # Closer than min_path_m the ghost is one pulse with A's echo (and no ray leaves A
         # for a surface it lies on, such as a blanket's own tank).
-        keep = hits.hit & (hits.range_m <= reach) & (hits.range_m >= self.params.min_path_m)
+        path = hits.range_m + lift * cos_a
+        keep = hits.hit & (path >= self.params.min_path_m)
         if not np.any(keep):
             return None
         rows = np.flatnonzero(keep)
-        shots, cos_a, range_a = shots[rows], cos_a[rows], range_a[rows]
-        path = hits.range_m[rows]
+        shots, cos_a, range_a, path = shots[rows], cos_a[rows], range_a[rows], path[rows]
         mat_b = hits.material[rows]
         cos_b = hits.cos_incidence[rows]
         f_b = reflection.phong_brdf_cos(reflection.monostatic_cos_alpha(cos_b), kd.take(mat_b),
