@@ -31,7 +31,10 @@ SCAN = {'type': 'rotating', 'elevations_deg': [0.0], 'az_min_deg': -1.0, 'az_max
         'shots_per_beam': 8}
 
 
-def mirror_scene(plate: dict = MIRROR) -> tuple[Target, MaterialsConfig]:
+GLOSSY_WALL = dict(WALL, kd=0.3, ks=0.2, n=5.0)
+
+
+def mirror_scene(plate: dict = MIRROR, wall: dict = WALL) -> tuple[Target, MaterialsConfig]:
     """A 1 m plate through (5, 0, 0) with normal (-1, 1, 0)/sqrt 2 (45 deg to the shots along
     +x: the mirror ray goes +y) and a diffuse wall y = 1 m facing it (x 4..7 m)."""
     u = np.array([1.0, 1.0, 0.0]) / np.sqrt(2) * 0.5            # in the plate, horizontal
@@ -41,12 +44,12 @@ def mirror_scene(plate: dict = MIRROR) -> tuple[Target, MaterialsConfig]:
     wall_v = np.array([[4.0, 1.0, -1.0], [7.0, 1.0, -1.0], [7.0, 1.0, 1.0], [4.0, 1.0, 1.0]])
     faces = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
     target = Target(np.vstack([plate_v, wall_v]), faces, np.array([0, 0, 1, 1]), ['P', 'WALL'])
-    mats = MaterialsConfig(materials=[MaterialConfig(**plate), MaterialConfig(**WALL)])
+    mats = MaterialsConfig(materials=[MaterialConfig(**plate), MaterialConfig(**wall)])
     return target, mats
 
 
-def simulate(plate: dict = MIRROR, returns: dict | None = None, **params):
-    target, mats = mirror_scene(plate)
+def simulate(plate: dict = MIRROR, returns: dict | None = None, wall: dict = WALL, **params):
+    target, mats = mirror_scene(plate, wall)
     sens = sensor(scan=SCAN, returns=returns or {})
     sim = Simulator(sens, mats, target, seed=3, effects=[make_effect('multipath', params)])
     return sim, sim.simulate_frame(0.0, AT_ORIGIN, 0)
@@ -64,8 +67,9 @@ def test_mirror_direction_of_45_deg_plate():
     np.testing.assert_allclose(mirror_directions(np.array([[1.0, 0.0, 0.0]]), n), [[0, 1, 0]], atol=1e-15)
 
 
-def test_ghost_lies_on_the_mirrored_wall_with_the_hand_calculated_power():
-    sim, frame = simulate(returns={'max_returns': 2})
+@pytest.mark.parametrize('wall', [WALL, GLOSSY_WALL], ids=['lambertian', 'glossy'])
+def test_ghost_lies_on_the_mirrored_wall_with_the_hand_calculated_power(wall):
+    sim, frame = simulate(returns={'max_returns': 2}, wall=wall)
     assert len(frame) == 16                                   # 8 echoes off the plate, 8 ghosts
     ghost = frame.return_number == 2
     assert np.count_nonzero(ghost) == 8
@@ -87,7 +91,9 @@ def test_ghost_lies_on_the_mirrored_wall_with_the_hand_calculated_power():
     cos_b = mirror[:, 1]                                       # wall normal is -y
     path = (1.0 - y_a) / mirror[:, 1]
     lobe = 0.9 ** 2 * 22.0 ** 2 / (2 * np.pi * 41.0)           # 1/sr
-    f_b = 0.5 / np.pi                                          # Lambertian wall
+    # The wall's Phong BRDF (Eq. 5) for light sent back the way it came: alpha = 2 theta_B.
+    f_b = (wall['kd'] / np.pi + wall['ks'] * (wall['n'] + 2) / (2 * np.pi)
+           * np.cos(2 * np.arccos(cos_b)) ** wall['n'])
     beam_sr = np.pi * (o.beam_divergence_rad / 2) ** 2
     p_hand = (o.peak_power_w * o.transmit_efficiency * o.receive_efficiency
               * np.pi * (o.aperture_diameter_m / 2) ** 2 * beam_sr * lobe * cos_a ** 2
