@@ -16,7 +16,7 @@ from scipy import integrate
 
 from lidar_sim_ros.core import detection
 from lidar_sim_ros.core.config import MaterialConfig, MaterialsConfig, ReturnsConfig
-from lidar_sim_ros.core.effects import make_effect
+from lidar_sim_ros.core.effects import Effect, ExtraReturns, make_effect
 from lidar_sim_ros.core.effects.multipath import (lobe_integral_sr, mirror_directions)
 from lidar_sim_ros.core.geometry import Target
 from lidar_sim_ros.core.pipeline import Simulator
@@ -169,3 +169,31 @@ def test_default_receiver_keeps_the_single_return_frame(default_scenario):
     np.testing.assert_array_equal(frame.range_m, measured[ok][firing])
     assert frame.range_m.tobytes() == measured[ok][firing].tobytes()
     assert np.all(frame.return_number == 1)
+
+
+class _QuietGhosts(Effect):
+    """Extra returns on every hit, all far below threshold: the multi-return path runs and
+    must add nothing."""
+
+    name = 'quiet_ghosts'
+
+    def extra_returns(self, ctx):
+        on = np.flatnonzero(ctx.hit)
+        return ExtraReturns(shot=on, range_m=ctx.range_m[on] + 1.0, power_w=np.zeros(len(on)),
+                            material=ctx.material[on], face=ctx.face[on],
+                            via_material=ctx.material[on], source=self.name)
+
+
+def test_multi_return_path_with_one_return_is_the_default_frame(default_scenario):
+    """Below-threshold extra returns send the frame through the multi-return assembly; with
+    the default receiver it must give the default frame bit for bit (false returns too)."""
+    from lidar_sim_ros.core.pose import ScenarioTrajectory
+    traj = ScenarioTrajectory.from_config(default_scenario.config)
+    fx = [make_effect('solar_background', {'probability': 0.02})]
+    plain = Simulator.from_scenario(default_scenario, effects=fx)
+    multi = Simulator.from_scenario(default_scenario, effects=fx + [_QuietGhosts()])
+    a, b = plain.simulate_frame(0.0, traj, 0), multi.simulate_frame(0.0, traj, 0)
+    assert 'multipath' in b.stats and 'multipath' not in a.stats     # the other path ran
+    for key in ('xyz_m', 'range_m', 'intensity', 't_s', 'ring', 'material', 'face',
+                'true_range_m', 'return_number'):
+        assert getattr(a, key).tobytes() == getattr(b, key).tobytes(), key

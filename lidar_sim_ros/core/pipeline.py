@@ -334,23 +334,33 @@ class Simulator:
                             detected: np.ndarray, measured: np.ndarray, extras: list[ExtraReturns],
                             rng: np.random.Generator) -> Frame:
         """A frame whose shots may report several returns (``core/returns.py``): each shot's
-        echo, the effects' extra returns (multipath ghosts) and false returns are candidates
-        side by side (a false return replaces nothing here; a NaN one still blinds the shot),
-        and the receiver keeps those the sensor's ``detection.returns`` asks for."""
+        echo, the effects' extra returns (multipath ghosts) and false returns are candidates,
+        and the receiver keeps those the sensor's ``detection.returns`` asks for. A false
+        return replaces its shot's other returns for the single-return receiver (as in the
+        default frame: the trigger comes first) and stands beside them for a multi-return
+        one; a NaN false return blinds the shot either way."""
         ctx, det, shots = pred.ctx, self.sensor.detection, self._cast_shots
         n = len(ctx)
         blinded = np.zeros(n, bool)
         false_shot, false_range = [], []
+        last_false = np.full(n, np.nan)            # single-return receiver: the last one stands
         for eff in self.effects:
             spurious = eff.false_returns(ctx, rng)
             if spurious is None:
                 continue
             mask, rng_false = spurious
             rows = np.flatnonzero(mask)
+            if det.returns.single:
+                blinded[rows] = True
+                last_false[rows] = rng_false[rows]
+                continue
             finite = np.isfinite(rng_false[rows])
             blinded[rows[~finite]] = True
             false_shot.append(rows[finite])
             false_range.append(rng_false[rows[finite]])
+        if det.returns.single:
+            rows = np.flatnonzero(np.isfinite(last_false))
+            false_shot, false_range = [rows], [last_false.take(rows)]
         echo = np.flatnonzero(detected & ~blinded & np.isfinite(measured) & (measured > 0))
         # Extra returns: the detector's window and the bias and noise of their surface, drawn
         # after every other draw of the frame (the other streams stay as they were).
@@ -373,10 +383,13 @@ class Simulator:
         thr = det.threshold_power_w
         cand_range = np.concatenate([measured.take(echo), x_meas[x_ok], f_range[f_ok]])
         cand_power = np.concatenate([ctx.power_w.take(echo), x_power[x_ok], np.full(np.count_nonzero(f_ok), thr)])
+        cand_intensity = np.concatenate([ctx.intensity.take(echo),
+                                         detection.intensity_from_power(x_power[x_ok], det),
+                                         np.full(np.count_nonzero(f_ok), thr / det.saturation_power_w)])
         cand_mat = np.concatenate([ctx.material.take(echo), x_mat[x_ok], np.full(np.count_nonzero(f_ok), -1)])
         cand_face = np.concatenate([pred.hits.face.take(echo), x_face[x_ok], pred.hits.face.take(f_shot[f_ok])])
         cand_true = np.concatenate([ctx.range_m.take(echo), x_range[x_ok], ctx.range_m.take(f_shot[f_ok])])
-        keep, number = returns.select_returns(self._cast_position.take(cand_shot), cand_range,
+        keep, number = returns.select_returns(self._cast_order.take(cand_shot), cand_range,
                                               cand_power, det.returns)
         out = cand_shot.take(keep)
         range_out = cand_range.take(keep)
@@ -392,7 +405,7 @@ class Simulator:
         return Frame(
             stamp_s=float(frame_start_s), index=int(frame_index),
             xyz_m=_along(self._cast_directions, out, range_out), range_m=range_out,
-            intensity=detection.intensity_from_power(cand_power.take(keep), det),
+            intensity=cand_intensity.take(keep),
             t_s=shots.t_s.take(out), ring=shots.laser.take(out),
             material=_material_ids(cand_mat.take(keep)), stats=stats, truth_source=self._truth(pred),
             face=cand_face.take(keep), true_range_m=cand_true.take(keep), return_number=number)
