@@ -177,7 +177,7 @@ class _QuietGhosts(Effect):
 
     name = 'quiet_ghosts'
 
-    def extra_returns(self, ctx):
+    def extra_returns(self, ctx, shots=None):
         on = np.flatnonzero(ctx.hit)
         return ExtraReturns(shot=on, range_m=ctx.range_m[on] + 1.0, power_w=np.zeros(len(on)),
                             material=ctx.material[on], face=ctx.face[on],

@@ -287,7 +287,11 @@ class Simulator:
         # Misses carry NaN range and zero power: never detected, NaN measured range.
         detected = hit & detection.detected_mask(ctx.power_w, ctx.range_m, det)
         measured = detection.measured_range_m(ctx.range_m, pred.bias_m, pred.sigma_m, rng)
-        extras = [x for x in (eff.extra_returns(ctx) for eff in self.effects) if x is not None and len(x)]
+        # Extra returns lie behind their echo: a first-return receiver can report them only
+        # where the echo went undetected (no ray needs following elsewhere).
+        open_shots = np.flatnonzero(hit & ~detected) if det.returns.single else None
+        extras = [x for x in (eff.extra_returns(ctx, open_shots) for eff in self.effects)
+                  if x is not None and len(x)]
         if extras or not det.returns.single:
             return self._multi_return_frame(frame_start_s, frame_index, pred, detected, measured,
                                             extras, rng)

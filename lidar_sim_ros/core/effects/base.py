@@ -217,9 +217,11 @@ class Effect:
         A NaN range under the mask removes the shot's return (e.g. a blinded detector)."""
         return None
 
-    def extra_returns(self, ctx: ReturnContext) -> ExtraReturns | None:
-        """Further returns of some shots, behind or in front of their echo (``ExtraReturns``),
-        deterministic; None = none. Changes frames only where the effect is on."""
+    def extra_returns(self, ctx: ReturnContext, shots: np.ndarray | None = None) -> ExtraReturns | None:
+        """Further returns of some shots behind their echo (``ExtraReturns``), deterministic;
+        None = none. ``shots``: indices of the shots whose returns behind the echo the receiver
+        can still report (a first-return receiver: those whose echo went undetected); None =
+        every shot. Changes frames only where the effect is on."""
         return None
 
     def outlier_fraction(self, ctx: ReturnContext) -> np.ndarray | float:

@@ -134,7 +134,7 @@ class Multipath(Effect):
             'follow a specular hit only if a ghost could be detected at least this far behind '
             'it (m): closer ghosts merge with the surface echo'))
 
-    def extra_returns(self, ctx: ReturnContext) -> ExtraReturns | None:
+    def extra_returns(self, ctx: ReturnContext, shots: np.ndarray | None = None) -> ExtraReturns | None:
         scene = ctx.scene
         if self.params.strength <= 0 or scene is None or ctx.normal is None or ctx.direction is None:
             return None
@@ -145,7 +145,7 @@ class Multipath(Effect):
         lobe = lobe_integral_sr(ks, n)
         # The brightest B there is: any material at normal incidence (alpha = 0).
         f_b_max = float(np.max(reflection.phong_brdf_cos(1.0, kd, ks, n)))
-        on = np.flatnonzero(ctx.hit)
+        on = np.flatnonzero(ctx.hit) if shots is None else shots[ctx.hit.take(shots)]
         mat_on = ctx.material.take(on)
         cos_a = np.abs(np.einsum('ij,ij->i', ctx.direction.take(on, axis=0), ctx.normal.take(on, axis=0)))
         reach = max_detectable_path_m(cos_a, lobe.take(mat_on), f_b_max, ctx.threshold_power_w,
