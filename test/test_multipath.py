@@ -197,3 +197,15 @@ def test_multi_return_path_with_one_return_is_the_default_frame(default_scenario
     for key in ('xyz_m', 'range_m', 'intensity', 't_s', 'ring', 'material', 'face',
                 'true_range_m', 'return_number'):
         assert getattr(a, key).tobytes() == getattr(b, key).tobytes(), key
+
+
+def test_offline_summary_names_share_mirrors_and_paths():
+    from lidar_sim_ros.offline import multipath_summary
+    assert multipath_summary([{'detected': 10}]) is None
+    line = multipath_summary([
+        {'detected': 100, 'multipath': 3, 'second_returns': 1,
+         'multipath_by_mirror': {'MLI': 2, 'PSS': 1}, 'multipath_path_m': [0.1, 0.2, 0.4]},
+        {'detected': 100, 'multipath': 1, 'multipath_by_mirror': {'MLI': 1},
+         'multipath_path_m': [0.3]}])
+    assert '4 ghost points (2 % of 200)' in line and 'MLI 75 %, PSS 25 %' in line
+    assert '0.10 / 0.25 / 0.40 m' in line
