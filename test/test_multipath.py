@@ -209,3 +209,16 @@ def test_offline_summary_names_share_mirrors_and_paths():
          'multipath_path_m': [0.3]}])
     assert '4 ghost points (2 % of 200)' in line and 'MLI 75 %, PSS 25 %' in line
     assert '0.10 / 0.25 / 0.40 m' in line
+
+
+def test_rocket_body_ghosts_come_from_mli(default_scenario):
+    """The tumbling rocket body at 10 m, t = 40 s (MLI blankets face the sensor near
+    normal incidence, their echo saturates): the ghosts that show lie a few cm behind MLI."""
+    from lidar_sim_ros.core.pose import ScenarioTrajectory
+    traj = ScenarioTrajectory.from_config(default_scenario.config)
+    sim = Simulator.from_scenario(default_scenario, extra_effects=[make_effect('multipath')])
+    frame = sim.simulate_frame(40.0, traj, 400)
+    assert frame.stats['multipath'] >= 5
+    assert set(frame.stats['multipath_by_mirror']) == {'MLI'}
+    path = np.asarray(frame.stats['multipath_path_m'])
+    assert np.all((path >= 0.05) & (path < 0.5))
