@@ -138,7 +138,7 @@ class Multipath(Effect):
         scene = ctx.scene
         if self.params.strength <= 0 or scene is None or ctx.normal is None or ctx.direction is None:
             return None
-        from lidar_sim_ros.core.geometry import cast_at_poses
+        from lidar_sim_ros.core.geometry import cast_at_poses, coherent_order
         from lidar_sim_ros.core.pose import Poses
         mats, optics = scene.materials, scene.sensor.optics
         kd, ks, n = (mats.column(k) for k in ('kd', 'ks', 'n'))
@@ -166,7 +166,10 @@ class Multipath(Effect):
                                  target.face_clearance_back_m.take(face))
             with np.errstate(divide='ignore', invalid='ignore'):
                 reach = np.minimum(reach, np.where(clearance > CLEARANCE_TOL_M, clearance / cos_a, 0.0))
-        follow = reach >= max(self.params.min_path_m, 1e-9)
+        # A multi-return receiver merges a ghost closer than min_separation_m to its echo.
+        receiver = scene.sensor.detection.returns
+        min_path = max(self.params.min_path_m, 0.0 if receiver.single else receiver.min_separation_m)
+        follow = reach >= max(min_path, 1e-9)
         shots, cos_a, reach = on[follow], cos_a[follow], reach[follow]
         if len(shots) == 0:
             return None
@@ -179,13 +182,16 @@ class Multipath(Effect):
         quat, pos = scene.poses.quat_xyzw, scene.poses.position_m.reshape(-1, 3)
         if len(quat) > 1:
             quat, pos = quat.take(shots, axis=0), pos.take(shots, axis=0)
+        # Mirror rays of neighbouring shots point all over: cast them grouped by direction.
+        order = coherent_order(np.arctan2(mirror[:, 1], mirror[:, 0]),
+                               np.arcsin(np.clip(mirror[:, 2], -1.0, 1.0)))
         hits = cast_at_poses(scene.target, mirror, Poses.from_quat(quat, pos), origin_lidar_m=origin,
-                             length_m=reach)
+                             order=order, length_m=reach)
         # |AB| from A itself: the lifted origin sits lift * cos(theta_A) along the mirror ray.
         # Closer than min_path_m the ghost is one pulse with A's echo (and no ray leaves A
         # for a surface it lies on, such as a blanket's own tank).
         path = hits.range_m + lift * cos_a
-        keep = hits.hit & (path >= self.params.min_path_m)
+        keep = hits.hit & (path >= min_path)
         if not np.any(keep):
             return None
         rows = np.flatnonzero(keep)
