@@ -145,6 +145,10 @@ def test_select_returns_modes():
     assert keep.tolist() == [0, 2, 1, 3, 4, 5] and num.tolist() == [1, 2, 3, 1, 2, 1]
     keep, num = select_returns(shot, rng, power, ReturnsConfig(max_returns=1))
     assert keep.tolist() == [0, 3, 5]
+    # The farthest two, reported nearest first.
+    keep, num = select_returns(shot, rng, power, ReturnsConfig(max_returns=2, mode='last',
+                                                                min_separation_m=0.0))
+    assert keep.tolist() == [2, 1, 3, 4, 5] and num.tolist() == [1, 2, 1, 2, 1]
 
 
 def test_default_receiver_keeps_the_single_return_frame(default_scenario):
