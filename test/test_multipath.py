@@ -226,3 +226,46 @@ def test_rocket_body_ghosts_come_from_mli(default_scenario):
     assert set(frame.stats['multipath_by_mirror']) == {'MLI'}
     path = np.asarray(frame.stats['multipath_path_m'])
     assert np.all((path >= 0.05) & (path < 0.5))
+
+
+# ------------------------------------------------------- a footprint across a depth step
+def test_footprint_across_a_depth_step_gives_both_surfaces():
+    """A plate at x = 5 m over y > 1 mm and a wall at x = 8 m behind it, one shot along +x
+    whose footprint (half-angle 10 mrad) straddles the plate's edge: a multi-return
+    receiver reports the plate and the wall, each at the energy-weighted mean range of its
+    sub-rays and with its share of the beam's energy; the mixed echo is gone."""
+    from lidar_sim_ros.core.effects.beam_divergence import footprint_pattern
+    from conftest import materials, paper_power_w
+    plate = np.array([[5.0, 0.001, -1.0], [5.0, 1.0, -1.0], [5.0, 1.0, 1.0], [5.0, 0.001, 1.0]])
+    wall = np.array([[8.0, -2.0, -2.0], [8.0, 2.0, -2.0], [8.0, 2.0, 2.0], [8.0, -2.0, 2.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    target = Target(np.vstack([plate, wall]), faces, np.zeros(4, int), ['PIF'])
+    scan = {'type': 'rotating', 'elevations_deg': [0.0], 'az_min_deg': -0.5, 'az_max_deg': 0.5,
+            'shots_per_beam': 2}                                   # azimuths -0.5 and 0 deg
+    sens = sensor(scan=scan, returns={'mode': 'all', 'min_separation_m': 0.3})
+    half = 0.01
+    beam = make_effect('beam_divergence', {'footprint_scale': 2 * half / sens.optics.beam_divergence_rad})
+    sim = Simulator(sens, materials(), target, effects=[beam])
+    frame = sim.simulate_frame(0.0, AT_ORIGIN, 0)
+    on_axis = np.abs(frame.xyz_m[:, 1] / frame.xyz_m[:, 0]) < 1e-9
+    assert np.count_nonzero(on_axis) == 2
+    near, far = np.sort(frame.range_m[on_axis])
+    rho, phi, energy = footprint_pattern(2)
+    t = np.tan(half * rho)
+    on_plate = -t * np.cos(phi) * 5.0 > 0.001                    # sub-ray y at the plate (u = -y)
+    share = energy[on_plate].sum() / energy.sum()
+    assert 0.2 < share < 0.5
+    assert near == pytest.approx(np.average(5.0 * np.sqrt(1 + t[on_plate] ** 2), weights=energy[on_plate]), abs=2e-5)
+    assert far == pytest.approx(np.average(8.0 * np.sqrt(1 + t[~on_plate] ** 2), weights=energy[~on_plate]), abs=2e-5)
+    # Power: the group's strongest sub-ray's incidence, times its energy share.
+    power = frame.intensity[on_axis][np.argsort(frame.range_m[on_axis])] * sens.detection.saturation_power_w
+    m = materials().materials[0]
+    t_near = t[on_plate][np.argmax(energy[on_plate])]
+    p_near = share * paper_power_w(near, np.arctan(t_near), m.kd, m.ks, m.n, sens.optics)
+    p_far = (1 - share) * paper_power_w(far, 0.0, m.kd, m.ks, m.n, sens.optics)
+    np.testing.assert_allclose(power, [p_near, p_far], rtol=1e-6)
+    assert frame.return_number[on_axis].tolist() == [1, 2]
+    # The single-return receiver keeps the one mixed echo.
+    single = Simulator(sensor(scan=scan), materials(), target, effects=[beam]).simulate_frame(0.0, AT_ORIGIN, 0)
+    mixed = single.range_m[np.abs(single.xyz_m[:, 1]) < 1e-9]
+    assert len(mixed) == 1 and near < mixed[0] < far

@@ -365,7 +365,11 @@ class Simulator:
         if det.returns.single:
             rows = np.flatnonzero(np.isfinite(last_false))
             false_shot, false_range = [rows], [last_false.take(rows)]
-        echo = np.flatnonzero(detected & ~blinded & np.isfinite(measured) & (measured > 0))
+        split = np.zeros(n, bool)
+        for x in extras:
+            if x.replaces_echo:
+                split[x.shot] = True
+        echo = np.flatnonzero(detected & ~blinded & ~split & np.isfinite(measured) & (measured > 0))
         # Extra returns: the detector's window and the bias and noise of their surface, drawn
         # after every other draw of the frame (the other streams stay as they were).
         x_shot = np.concatenate([x.shot for x in extras]) if extras else np.zeros(0, np.int64)
@@ -374,15 +378,17 @@ class Simulator:
         x_mat = np.concatenate([x.material for x in extras]) if extras else np.zeros(0, np.int16)
         x_face = np.concatenate([x.face for x in extras]) if extras else np.zeros(0, np.int64)
         x_via = np.concatenate([x.via_material for x in extras]) if extras else np.zeros(0, np.int16)
+
         x_meas = detection.measured_range_m(x_range, self._bias.take(x_mat), self._sigma.take(x_mat), rng)
         x_ok = (detection.detected_mask(x_power, x_range, det) & ~blinded.take(x_shot)
                 & (x_meas > 0))
         f_shot = np.concatenate(false_shot) if false_shot else np.zeros(0, np.int64)
         f_range = np.concatenate(false_range) if false_range else np.zeros(0)
         f_ok = f_range > 0
-        # Candidates: echoes, extras, false returns (kind 0, 1, 2).
+        # Candidates: echoes (kind 0), extras (1 or 3), false returns (2).
         cand_shot = np.concatenate([echo, x_shot[x_ok], f_shot[f_ok]])
-        kind = np.concatenate([np.zeros(len(echo), np.int8), np.ones(np.count_nonzero(x_ok), np.int8),
+        # kind 1: returns by way of another surface (multipath ghosts), 3: other extra returns.
+        kind = np.concatenate([np.zeros(len(echo), np.int8), np.where(x_via[x_ok] >= 0, 1, 3).astype(np.int8),
                                np.full(np.count_nonzero(f_ok), 2, np.int8)])
         thr = det.threshold_power_w
         cand_range = np.concatenate([measured.take(echo), x_meas[x_ok], f_range[f_ok]])
@@ -401,6 +407,7 @@ class Simulator:
         ghost = keep[kind.take(keep) == 1]
         stats['multipath'] = len(ghost)
         stats['second_returns'] = int(np.count_nonzero(number > 1))
+        stats['split_footprint_returns'] = int(np.count_nonzero(kind.take(keep) == 3))
         if len(ghost):
             via = x_via[x_ok].take(ghost - len(echo))
             names = self.materials.names

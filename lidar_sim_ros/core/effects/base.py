@@ -128,7 +128,8 @@ class ExtraReturns:
     shot: index of the shot in the context (int); range_m: true range along the shot
     (m); power_w: received power (W); material, face: the surface the light came from
     (its id and triangle); via_material: the surface that redirected it (-1: none);
-    source: the effect's name. The receiver (``core/returns.py``) decides which of a
+    source: the effect's name; replaces_echo: these rows are the shot's echo, split (its
+    own echo is dropped). The receiver (``core/returns.py``) decides which of a
     shot's returns it reports; the pipeline adds range bias and noise of ``material``.
     """
 
@@ -139,6 +140,7 @@ class ExtraReturns:
     face: np.ndarray
     via_material: np.ndarray
     source: str = ''
+    replaces_echo: bool = False      # the rows stand for their shots' echo (a split footprint)
 
     def __len__(self) -> int:
         return len(self.shot)
