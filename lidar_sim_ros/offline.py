@@ -201,6 +201,33 @@ def run(args: argparse.Namespace) -> int:
                                                  polar_fields=args.polar_fields))
     points = sum(s.get('detected', 0) for s in result.frame_stats)
     print(f'bag: {result.bag_path}  ({len(result.frame_stamps_ns)} frames, {points} points)')
+    summary = multipath_summary(result.frame_stats)
+    if summary:
+        print(summary)
     for path in result.figure_paths:
         print(f'figure: {path}')
     return 0
+
+
+def multipath_summary(frame_stats: list[dict]) -> str | None:
+    """One line on the multipath ghosts of a run (frames' ``multipath*`` stats): their count
+    and share of the points, the mirror materials they came from, and how far behind their
+    mirror surface they lie (|AB|, m). None when multipath was off."""
+    if not any('multipath' in s for s in frame_stats):
+        return None
+    ghosts = sum(s.get('multipath', 0) for s in frame_stats)
+    points = sum(s.get('detected', 0) for s in frame_stats)
+    seconds = sum(s.get('second_returns', 0) for s in frame_stats)
+    by: dict[str, int] = {}
+    paths: list[float] = []
+    for s in frame_stats:
+        for name, count in s.get('multipath_by_mirror', {}).items():
+            by[name] = by.get(name, 0) + count
+        paths += s.get('multipath_path_m', [])
+    line = (f'multipath: {ghosts} ghost points ({100.0 * ghosts / max(points, 1):.3g} % of {points}), '
+            f'{seconds} second-or-later returns')
+    if ghosts:
+        mirrors = ', '.join(f'{k} {100.0 * v / ghosts:.0f} %' for k, v in sorted(by.items(), key=lambda kv: -kv[1]))
+        lo, mid, hi = np.percentile(paths, [0, 50, 100])
+        line += f'; mirror surfaces: {mirrors}; behind the mirror by {lo:.2f} / {mid:.2f} / {hi:.2f} m (min / median / max)'
+    return line

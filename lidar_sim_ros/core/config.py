@@ -130,6 +130,25 @@ class OpticsConfig(_Model):
     aperture_diameter_m: PositiveFloat
 
 
+class ReturnsConfig(_Model):
+    """Which of a shot's returns the receiver reports (``core/returns.py``).
+
+    The default (one return, ``first``) is the paper's single-return sensor. ``mode``:
+    the ``max_returns`` nearest (first), farthest (last) or strongest returns, or every
+    detected return (all). Returns closer than ``min_separation_m`` (m) to the one before
+    them in the same shot merge into it (one pulse).
+    """
+
+    max_returns: Annotated[int, Field(ge=1, le=8)] = 1
+    mode: Literal['first', 'strongest', 'last', 'all'] = 'first'
+    min_separation_m: NonNegFloat = 0.3
+
+    @property
+    def single(self) -> bool:
+        """The paper's receiver: one return per shot, the first."""
+        return self.max_returns == 1 and self.mode == 'first'
+
+
 class DetectionConfig(_Model):
     """Detector limits: returns outside [threshold, saturation) are omitted (paper Sec. 7)."""
 
@@ -137,6 +156,7 @@ class DetectionConfig(_Model):
     saturation_power_w: PositiveFloat
     min_range_m: NonNegFloat = 0.0
     max_range_m: PositiveFloat = 300.0
+    returns: ReturnsConfig = ReturnsConfig()
 
     @model_validator(mode='after')
     def _order(self):

@@ -137,15 +137,22 @@ class Target:
         return len(self.faces)
 
     def intersect(self, origins_m: np.ndarray, directions: np.ndarray,
-                  barycentric: bool = False) -> tuple[np.ndarray, ...]:
+                  barycentric: bool = False, length_m: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
         """Raw Embree query: face id (-1 = miss) and distance (m) per ray, float32 rays as
-        given; with ``barycentric`` also the hit's (u, v) on its triangle.
+        given; with ``barycentric`` also the hit's (u, v) on its triangle; ``length_m``
+        (float32 per ray, None = unbounded): hits farther along a ray are misses.
 
         Split over ``self.threads`` threads when there are enough rays.
         """
         keys = ('primID', 'tfar', 'u', 'v') if barycentric else ('primID', 'tfar')
-        parts = split_over_threads(len(origins_m), self.threads, lambda part: self._scene.run(
-            origins_m[part], directions[part], output=1))
+        if length_m is None:
+            def work(part):
+                return self._scene.run(origins_m[part], directions[part], output=1)
+        else:
+            def work(part):
+                return self._scene.run(origins_m[part], directions[part], dists=length_m[part].copy(),
+                                       output=1)
+        parts = split_over_threads(len(origins_m), self.threads, work)
         if len(parts) == 1:
             return tuple(parts[0][k] for k in keys)
         return tuple(np.concatenate([p[k] for p in parts]) for k in keys)
@@ -170,15 +177,25 @@ class Target:
         on its normal side at elevation angle beta can only meet the mesh within
         clearance / sin(beta): shadow rays get that length. The maximum over the hull's
         vertices; computed on first use (~0.1 s for 50k faces)."""
+        return self._clearance_m(1.0)
+
+    @cached_property
+    def face_clearance_back_m(self) -> np.ndarray:
+        """``face_clearance_m`` on the other side of each face (against its normal): for rays
+        leaving a face whose winding points away from where the light came from."""
+        return self._clearance_m(-1.0)
+
+    def _clearance_m(self, side: float) -> np.ndarray:
         try:
             hull = self.vertices_m[ConvexHull(self.vertices_m).vertices]
         except QhullError:   # a flat mesh has no 3-D hull: test against every vertex
             hull = self.vertices_m
-        base = np.einsum('ij,ij->i', self.face_normals, self.vertices_m[self.faces[:, 0]])
+        normals = side * self.face_normals
+        base = np.einsum('ij,ij->i', normals, self.vertices_m[self.faces[:, 0]])
         out = np.empty(self.n_faces)
         for lo in range(0, self.n_faces, 1024):   # bounded memory: (hull vertices x 1024) doubles
             hi = min(lo + 1024, self.n_faces)
-            out[lo:hi] = (hull @ self.face_normals[lo:hi].T - base[lo:hi]).max(axis=0)
+            out[lo:hi] = (hull @ normals[lo:hi].T - base[lo:hi]).max(axis=0)
         # Degenerate faces (no normal) get no clearance bound.
         return np.where(np.any(self.face_normals != 0, axis=1), out, np.inf)
 
@@ -194,10 +211,14 @@ class Target:
         ``length_m`` (float32 per ray; None = unbounded): Embree's occlusion query (shadow rays)."""
         return self._scene.run(origins_m, directions, dists=length_m, query='OCCLUDED') >= 0
 
-    def cast_body_rays(self, rays: BodyRays, barycentric: bool = False) -> Hits:
+    def cast_body_rays(self, rays: BodyRays, barycentric: bool = False,
+                       length_m: np.ndarray | None = None) -> Hits:
         """First hit of each body-frame ray; normals in the frame of ``rays.directions_out``;
-        with ``barycentric`` the hits' (u, v) too."""
-        face, tfar, *uv = self.intersect(rays.origins_m, rays.directions, barycentric)
+        with ``barycentric`` the hits' (u, v) too; ``length_m`` (m per ray, input order;
+        None = unbounded) bounds each ray (Embree skips what lies beyond)."""
+        if length_m is not None:
+            length_m = np.ascontiguousarray(np.asarray(length_m, np.float32).take(rays.order))
+        face, tfar, *uv = self.intersect(rays.origins_m, rays.directions, barycentric, length_m)
         hit, range_m, normal, cos_i, material, face = kernels.hit_geometry(
             face, tfar, rays.order, self.face_normals, self.face_material, rays.quat_xyzw,
             rays.directions_out)
@@ -242,13 +263,16 @@ def coherent_order(az_rad: np.ndarray, el_rad: np.ndarray, cell_rad: float = np.
 
 
 def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
-                  origin_lidar_m: np.ndarray | None = None, order: np.ndarray | None = None) -> Hits:
+                  origin_lidar_m: np.ndarray | None = None, order: np.ndarray | None = None,
+                  length_m: np.ndarray | None = None) -> Hits:
     """Cast lidar-frame rays, each against the target at its own pose.
 
     Rays go into the body frame with their pose, are cast there, and the normals
-    come back to the lidar frame. Ranges are frame-independent.
+    come back to the lidar frame. Ranges are frame-independent. ``length_m``: each
+    ray's length (m; None = unbounded), hits beyond it are misses.
     """
-    return target.cast_body_rays(body_rays(directions_lidar, poses, origin_lidar_m, order))
+    return target.cast_body_rays(body_rays(directions_lidar, poses, origin_lidar_m, order),
+                                 length_m=length_m)
 
 
 def body_rays(directions_lidar: np.ndarray, poses: Poses, origin_lidar_m: np.ndarray | None = None,

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.core import detection, reflection
+from lidar_sim_ros.core import detection, reflection, returns
 from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
-from lidar_sim_ros.core.effects.base import Scene, apply_effects
+from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
 from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target
 from lidar_sim_ros.core.pose import PoseSource, PoseTrack, StaticPose
 from lidar_sim_ros.core.scan import Shots, angles_from_directions, frame_shots
@@ -53,7 +53,10 @@ class Frame:
     ``stamp_s`` is the frame start (absolute seconds); ``t_s`` is since frame start.
     ``face`` (mesh triangle, -1 off the target) and ``true_range_m`` (noise-free range,
     m) of each point serve error statistics (campaigns); a false return keeps the face
-    and range of the shot it replaced, or -1 / NaN on a miss.
+    and range of the shot it replaced, or -1 / NaN on a miss. ``return_number`` (uint8):
+    1 for a shot's first reported return, 2 for its second, ... (the receiver's
+    ``detection.returns``; all 1 for the default single-return sensor); a multipath
+    ghost carries the face of the surface seen in the mirror and its path range.
     """
 
     stamp_s: float
@@ -68,6 +71,7 @@ class Frame:
     truth_source: '_FrameShots | None' = field(default=None, repr=False)
     face: np.ndarray | None = field(default=None, repr=False)
     true_range_m: np.ndarray | None = field(default=None, repr=False)
+    return_number: np.ndarray | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.range_m)
@@ -286,6 +290,14 @@ class Simulator:
         # Misses carry NaN range and zero power: never detected, NaN measured range.
         detected = hit & detection.detected_mask(ctx.power_w, ctx.range_m, det)
         measured = detection.measured_range_m(ctx.range_m, pred.bias_m, pred.sigma_m, rng)
+        # Extra returns lie behind their echo: a first-return receiver can report them only
+        # where the echo went undetected (no ray needs following elsewhere).
+        open_shots = np.flatnonzero(hit & ~detected) if det.returns.single else None
+        extras = [x for x in (eff.extra_returns(ctx, open_shots) for eff in self.effects)
+                  if x is not None and len(x)]
+        if extras or not det.returns.single:
+            return self._multi_return_frame(frame_start_s, frame_index, pred, detected, measured,
+                                            extras, rng)
         material, intensity = ctx.material, ctx.intensity
         for eff in self.effects:
             spurious = eff.false_returns(ctx, rng)
@@ -304,19 +316,114 @@ class Simulator:
         detected &= np.isfinite(measured) & (measured > 0)
         # Index lists once (take() is ~5x cheaper than repeated boolean masks), in firing order.
         out = _fired(detected, self._cast_position)
-        stats = {'shots': len(shots), 'hits': int(np.count_nonzero(hit)), 'detected': len(out),
-                 'below_threshold': int(np.count_nonzero(hit & (ctx.power_w < det.threshold_power_w))),
-                 'saturated': int(np.count_nonzero(hit & (ctx.power_w >= det.saturation_power_w)))}
         range_out = measured.take(out)
         return Frame(
             stamp_s=float(frame_start_s), index=int(frame_index),
             xyz_m=_along(self._cast_directions, out, range_out), range_m=range_out,
-            intensity=intensity.take(out), t_s=shots.t_s.take(out), ring=shots.laser.take(out),
-            material=_material_ids(material.take(out)), stats=stats,
-            truth_source=_FrameShots(hit, self._cast_position, self._cast_directions, ctx.range_m,
-                              ctx.intensity, shots.t_s, shots.laser, ctx.material, pred.hits.face,
-                              measured),
-            face=pred.hits.face.take(out), true_range_m=ctx.range_m.take(out))
+            intensity=intensity.take(out), t_s=self._cast_shots.t_s.take(out),
+            ring=self._cast_shots.laser.take(out),
+            material=_material_ids(material.take(out)), stats=self._frame_stats(pred, len(out)),
+            truth_source=self._truth(pred, measured), face=pred.hits.face.take(out),
+            true_range_m=ctx.range_m.take(out), return_number=np.ones(len(out), np.uint8))
+
+    def _frame_stats(self, pred: Prediction, detected: int) -> dict:
+        ctx, hit, det = pred.ctx, pred.ctx.hit, self.sensor.detection
+        return {'shots': len(hit), 'hits': int(np.count_nonzero(hit)), 'detected': detected,
+                'below_threshold': int(np.count_nonzero(hit & (ctx.power_w < det.threshold_power_w))),
+                'saturated': int(np.count_nonzero(hit & (ctx.power_w >= det.saturation_power_w)))}
+
+    def _truth(self, pred: Prediction, measured: np.ndarray) -> '_FrameShots':
+        ctx, shots = pred.ctx, self._cast_shots
+        return _FrameShots(ctx.hit, self._cast_position, self._cast_directions, ctx.range_m,
+                           ctx.intensity, shots.t_s, shots.laser, ctx.material, pred.hits.face,
+                           measured)
+
+    def _multi_return_frame(self, frame_start_s: float, frame_index: int, pred: Prediction,
+                            detected: np.ndarray, measured: np.ndarray, extras: list[ExtraReturns],
+                            rng: np.random.Generator) -> Frame:
+        """A frame whose shots may report several returns (``core/returns.py``): each shot's
+        echo, the effects' extra returns (multipath ghosts) and false returns are candidates,
+        and the receiver keeps those the sensor's ``detection.returns`` asks for. A false
+        return replaces its shot's other returns for the single-return receiver (as in the
+        default frame: the trigger comes first) and stands beside them for a multi-return
+        one; a NaN false return blinds the shot either way."""
+        ctx, det, shots = pred.ctx, self.sensor.detection, self._cast_shots
+        n = len(ctx)
+        blinded = np.zeros(n, bool)
+        false_shot, false_range = [], []
+        last_false = np.full(n, np.nan)            # single-return receiver: the last one stands
+        for eff in self.effects:
+            spurious = eff.false_returns(ctx, rng)
+            if spurious is None:
+                continue
+            mask, rng_false = spurious
+            rows = np.flatnonzero(mask)
+            if det.returns.single:
+                blinded[rows] = True
+                last_false[rows] = rng_false[rows]
+                continue
+            finite = np.isfinite(rng_false[rows])
+            blinded[rows[~finite]] = True
+            false_shot.append(rows[finite])
+            false_range.append(rng_false[rows[finite]])
+        if det.returns.single:
+            rows = np.flatnonzero(np.isfinite(last_false))
+            false_shot, false_range = [rows], [last_false.take(rows)]
+        split = np.zeros(n, bool)
+        for x in extras:
+            if x.replaces_echo:
+                split[x.shot] = True
+        echo = np.flatnonzero(detected & ~blinded & ~split & np.isfinite(measured) & (measured > 0))
+        # Extra returns: the detector's window and the bias and noise of their surface, drawn
+        # after every other draw of the frame (the other streams stay as they were).
+        x_shot = np.concatenate([x.shot for x in extras]) if extras else np.zeros(0, np.int64)
+        x_range = np.concatenate([x.range_m for x in extras]) if extras else np.zeros(0)
+        x_power = np.concatenate([x.power_w for x in extras]) if extras else np.zeros(0)
+        x_mat = np.concatenate([x.material for x in extras]) if extras else np.zeros(0, np.int16)
+        x_face = np.concatenate([x.face for x in extras]) if extras else np.zeros(0, np.int64)
+        x_via = np.concatenate([x.via_material for x in extras]) if extras else np.zeros(0, np.int16)
+
+        x_meas = detection.measured_range_m(x_range, self._bias.take(x_mat), self._sigma.take(x_mat), rng)
+        x_ok = (detection.detected_mask(x_power, x_range, det) & ~blinded.take(x_shot)
+                & (x_meas > 0))
+        f_shot = np.concatenate(false_shot) if false_shot else np.zeros(0, np.int64)
+        f_range = np.concatenate(false_range) if false_range else np.zeros(0)
+        f_ok = f_range > 0
+        # Candidates: echoes (kind 0), extras (1 or 3), false returns (2).
+        cand_shot = np.concatenate([echo, x_shot[x_ok], f_shot[f_ok]])
+        # kind 1: returns by way of another surface (multipath ghosts), 3: other extra returns.
+        kind = np.concatenate([np.zeros(len(echo), np.int8), np.where(x_via[x_ok] >= 0, 1, 3).astype(np.int8),
+                               np.full(np.count_nonzero(f_ok), 2, np.int8)])
+        thr = det.threshold_power_w
+        cand_range = np.concatenate([measured.take(echo), x_meas[x_ok], f_range[f_ok]])
+        cand_power = np.concatenate([ctx.power_w.take(echo), x_power[x_ok], np.full(np.count_nonzero(f_ok), thr)])
+        cand_intensity = np.concatenate([ctx.intensity.take(echo),
+                                         detection.intensity_from_power(x_power[x_ok], det),
+                                         np.full(np.count_nonzero(f_ok), thr / det.saturation_power_w)])
+        cand_mat = np.concatenate([ctx.material.take(echo), x_mat[x_ok], np.full(np.count_nonzero(f_ok), -1)])
+        cand_face = np.concatenate([pred.hits.face.take(echo), x_face[x_ok], pred.hits.face.take(f_shot[f_ok])])
+        cand_true = np.concatenate([ctx.range_m.take(echo), x_range[x_ok], ctx.range_m.take(f_shot[f_ok])])
+        keep, number = returns.select_returns(self._cast_order.take(cand_shot), cand_range,
+                                              cand_power, det.returns)
+        out = cand_shot.take(keep)
+        range_out = cand_range.take(keep)
+        stats = self._frame_stats(pred, len(keep))
+        ghost = keep[kind.take(keep) == 1]
+        stats['multipath'] = len(ghost)
+        stats['second_returns'] = int(np.count_nonzero(number > 1))
+        stats['split_footprint_returns'] = int(np.count_nonzero(kind.take(keep) == 3))
+        if len(ghost):
+            via = x_via[x_ok].take(ghost - len(echo))
+            names = self.materials.names
+            stats['multipath_by_mirror'] = {names[m]: int(c) for m, c in zip(*np.unique(via, return_counts=True))}
+            stats['multipath_path_m'] = (cand_true.take(ghost) - ctx.range_m.take(out[kind.take(keep) == 1])).tolist()
+        return Frame(
+            stamp_s=float(frame_start_s), index=int(frame_index),
+            xyz_m=_along(self._cast_directions, out, range_out), range_m=range_out,
+            intensity=cand_intensity.take(keep),
+            t_s=shots.t_s.take(out), ring=shots.laser.take(out),
+            material=_material_ids(cand_mat.take(keep)), stats=stats, truth_source=self._truth(pred, measured),
+            face=cand_face.take(keep), true_range_m=cand_true.take(keep), return_number=number)
 
 
 def _fired(mask: np.ndarray, cast_position: np.ndarray) -> np.ndarray:

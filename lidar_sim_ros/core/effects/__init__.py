@@ -10,7 +10,7 @@ import importlib
 import importlib.util
 from pathlib import Path
 
-from lidar_sim_ros.core.effects.base import Effect, NoParams, ReturnContext
+from lidar_sim_ros.core.effects.base import Effect, ExtraReturns, NoParams, ReturnContext
 
 REGISTRY: dict[str, type[Effect]] = {}
 # User effect files already executed, by resolved path: loading twice gives the same class.
@@ -21,7 +21,7 @@ _FILE_MODULES: dict[Path, object] = {}
 # and poses (``sunlight`` needs its sun direction, see compare/sunlight.py) load by name only.
 _CATALOGUE = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
               'beam_divergence', 'time_offset', 'laser_bias')
-_BY_NAME_ONLY = ('sunlight',)
+_BY_NAME_ONLY = ('sunlight', 'multipath')
 
 
 def register(cls: type[Effect]) -> type[Effect]:
@@ -126,5 +126,5 @@ def catalogue() -> dict[str, type[Effect]]:
     return {k: REGISTRY[k] for k in _CATALOGUE if k in REGISTRY}
 
 
-__all__ = ['Effect', 'NoParams', 'ReturnContext', 'REGISTRY', 'register', 'get_effect_class',
+__all__ = ['Effect', 'ExtraReturns', 'NoParams', 'ReturnContext', 'REGISTRY', 'register', 'get_effect_class',
            'make_effect', 'parse_effect_spec', 'effect_from_spec', 'catalogue']

@@ -121,6 +121,31 @@ class ReturnContext:
         return ReturnContext(**fields)
 
 
+@dataclass(frozen=True)
+class ExtraReturns:
+    """Returns a shot makes besides its own echo (e.g. a multipath ghost), one row each.
+
+    shot: index of the shot in the context (int); range_m: true range along the shot
+    (m); power_w: received power (W); material, face: the surface the light came from
+    (its id and triangle); via_material: the surface that redirected it (-1: none);
+    source: the effect's name; replaces_echo: these rows are the shot's echo, split (its
+    own echo is dropped). The receiver (``core/returns.py``) decides which of a
+    shot's returns it reports; the pipeline adds range bias and noise of ``material``.
+    """
+
+    shot: np.ndarray
+    range_m: np.ndarray
+    power_w: np.ndarray
+    material: np.ndarray
+    face: np.ndarray
+    via_material: np.ndarray
+    source: str = ''
+    replaces_echo: bool = False      # the rows stand for their shots' echo (a split footprint)
+
+    def __len__(self) -> int:
+        return len(self.shot)
+
+
 class NoParams(BaseModel):
     model_config = ConfigDict(extra='forbid')
 
@@ -192,6 +217,13 @@ class Effect:
         """Spurious returns: (mask over shots, range_m) replacing those shots' returns, or None.
 
         A NaN range under the mask removes the shot's return (e.g. a blinded detector)."""
+        return None
+
+    def extra_returns(self, ctx: ReturnContext, shots: np.ndarray | None = None) -> ExtraReturns | None:
+        """Further returns of some shots behind their echo (``ExtraReturns``), deterministic;
+        None = none. ``shots``: indices of the shots whose returns behind the echo the receiver
+        can still report (a first-return receiver: those whose echo went undetected); None =
+        every shot. Changes frames only where the effect is on."""
         return None
 
     def outlier_fraction(self, ctx: ReturnContext) -> np.ndarray | float:

@@ -205,6 +205,50 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
     return sample
 
 
+def footprint_surfaces(target: Target, directions_lidar: np.ndarray, poses, half_angle_rad: float,
+                       rings: int, index: np.ndarray, min_separation_m: float) -> dict:
+    """The separate surfaces in the footprints of shots ``index``: a multi-return receiver's
+    view of a depth step. Each shot's hit sub-rays, sorted by range, split where consecutive
+    ranges differ by more than ``min_separation_m`` (m); shots with two or more groups give
+    one row per group: ``shot``, ``range_m`` (energy-weighted mean of the group, m),
+    ``fraction`` (the group's share of the beam's energy, -), and the ``face``, ``material``
+    and ``cos_incidence`` of the group's strongest sub-ray."""
+    rho, phi, energy = footprint_pattern(rings)
+    k = len(rho)
+    rays = body_rays(np.asarray(directions_lidar, float), poses)
+    o_sub, d_sub = _subrays(rays.origins_m, rays.directions, index, np.tan(half_angle_rad * rho),
+                            np.cos(phi), np.sin(phi))
+    face, tfar = target.intersect(o_sub, d_sub)
+    face, rng = face.reshape(-1, k), np.where(face >= 0, tfar, np.inf).reshape(-1, k)
+    order = np.argsort(rng, axis=1, kind='stable')
+    rng = np.take_along_axis(rng, order, 1)
+    face = np.take_along_axis(face, order, 1)
+    e = energy[order]
+    hit = np.isfinite(rng)
+    step = np.zeros_like(hit)
+    with np.errstate(invalid='ignore'):
+        step[:, 1:] = hit[:, 1:] & (np.diff(rng, axis=1) > min_separation_m)
+    group = np.cumsum(step, axis=1)
+    split = np.flatnonzero(group[:, -1] > 0)
+    if len(split) == 0:
+        return {'shot': np.zeros(0, np.int64)}
+    rows, cols = np.nonzero(hit[split])
+    key = rows * k + group[split][rows, cols]                 # (shot, group), in order
+    uniq, start = np.unique(key, return_index=True)
+    w = e[split][rows, cols]
+    e_sum = np.add.reduceat(w, start)
+    r_mean = np.add.reduceat(w * rng[split][rows, cols], start) / e_sum
+    # The group's strongest sub-ray: the largest energy (first of equals) within each group.
+    best = np.lexsort((-w, key))[start]
+    f = face[split][rows, cols][best]
+    d = np.take_along_axis(d_sub.reshape(-1, k, 3)[split], order[split][:, :, None], 1)
+    d = d[rows, cols][best].astype(float)
+    cos_i = np.abs(np.einsum('ij,ij->i', target.face_normals[f], d / np.linalg.norm(d, axis=1)[:, None]))
+    return {'shot': index[split][uniq // k], 'range_m': r_mean, 'fraction': e_sum / energy.sum(),
+            'face': f.astype(np.int64), 'material': target.face_material[f].astype(np.int16),
+            'cos_incidence': cos_i}
+
+
 def _cast_subrays(target: Target, rays: BodyRays, index: np.ndarray, half_angle_rad: float,
                   rings: int, range_mode: str) -> Hits:
     """Cast the K sub-rays of shots ``index`` (rows of ``rays``) and combine them."""
@@ -773,6 +817,35 @@ class BeamDivergence(Effect):
         sampling: Literal['edges', 'all'] = Field(
             'edges', description="'edges': sub-rays only where the footprint may see more than "
                                  "one surface (same model, a fraction of the cost); 'all': every shot")
+
+    def extra_returns(self, ctx, shots: np.ndarray | None = None):
+        """A multi-return receiver (``shots`` None) sees a footprint across a depth step as
+        separate returns: one per surface farther apart than its ``min_separation_m``, each
+        with its share of the beam's energy, in place of the shot's mixed echo. Only shots
+        whose footprint may cross an edge (``sampled_shots``) are looked at."""
+        half = 0.5 * self.params.footprint_scale * ctx.divergence_rad
+        if shots is not None or half <= 0 or ctx.scene is None or ctx.direction is None:
+            return None
+        from lidar_sim_ros.core import reflection
+        from lidar_sim_ros.core.effects.base import ExtraReturns
+        scene = ctx.scene
+        sep = scene.sensor.detection.returns.min_separation_m
+        index = np.flatnonzero(sampled_shots(scene.target, ctx.direction, scene.poses, half,
+                                             self.params.rings) & ctx.hit)
+        if len(index) == 0:
+            return None
+        g = footprint_surfaces(scene.target, ctx.direction, scene.poses, half, self.params.rings,
+                               index, sep)
+        if len(g['shot']) == 0:
+            return None
+        kd, ks, n = (scene.materials.column(c) for c in ('kd', 'ks', 'n'))
+        m = g['material']
+        power = g['fraction'] * reflection.return_power_w(
+            g['range_m'], np.arccos(np.clip(g['cos_incidence'], 0.0, 1.0)), kd.take(m), ks.take(m),
+            n.take(m), scene.sensor.optics, g['cos_incidence'])
+        return ExtraReturns(shot=g['shot'], range_m=g['range_m'], power_w=power, material=m,
+                            face=g['face'], via_material=np.full(len(m), -1, np.int16),
+                            source=self.name, replaces_echo=True)
 
     def cast_reach_rad(self, divergence_rad: float) -> float:
         """Half-angle of the cone (rad): rays farther from an edge see one plane only."""
