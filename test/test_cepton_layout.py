@@ -283,3 +283,29 @@ def test_sdk2_layout_loads_with_its_names(bags, tmp_path):
     assert timed.time_source == 'scan pattern'
     # The pattern's laser of each matched shot is the channel_id the cloud carried.
     assert np.mean(timed.laser == meas.laser) > 0.99
+
+
+def test_second_returns_carry_the_return_field_and_the_second_return_flag():
+    """A two-return receiver with multipath: points after a shot's first return carry
+    return >= 2 in our layout and SECOND_RETURN in the driver's; first returns neither."""
+    from lidar_sim_ros.core import pipeline
+    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.driver_layout import cepton_frame_points
+    from lidar_sim_ros.core.effects import make_effect
+    from lidar_sim_ros.core.pose import ScenarioTrajectory
+    from lidar_sim_ros.io import cepton
+    from lidar_sim_ros.io.pointcloud import frame_points
+    from lidar_sim_ros.paths import config_path
+    scenario = load_scenario(config_path('scenario.yaml'))
+    det = scenario.sensor.detection
+    returns = det.returns.model_copy(update={'max_returns': 2, 'mode': 'all', 'min_separation_m': 0.03})
+    scenario.sensor = scenario.sensor.model_copy(update={'detection': det.model_copy(update={'returns': returns})})
+    sim = pipeline.Simulator.from_scenario(scenario, effects=[make_effect('multipath', None)])
+    traj = ScenarioTrajectory.from_config(scenario.config)
+    frame = next(f for f in (sim.simulate_frame(40.0 + 0.1 * i, traj, 400 + i) for i in range(10))
+                 if np.any(f.return_number > 1))
+    native = frame_points(frame)
+    np.testing.assert_array_equal(native['return'], frame.return_number)
+    pts = cepton_frame_points(frame, scenario.sensor, 0)
+    second = (pts['flags'] & cepton.SECOND_RETURN) != 0
+    assert second.sum() == np.count_nonzero(frame.return_number > 1) > 0

@@ -271,7 +271,7 @@ def test_cloud_field_layout(harness, main_block):
     msg = harness.points[main_block[1][0]]
     assert [(f.name, f.offset, f.datatype, f.count) for f in msg.fields] == [
         ('x', 0, 7, 1), ('y', 4, 7, 1), ('z', 8, 7, 1), ('intensity', 12, 7, 1), ('t', 16, 7, 1),
-        ('ring', 20, 4, 1), ('material', 22, 2, 1)]  # FLOAT32 = 7, UINT16 = 4, UINT8 = 2
+        ('ring', 20, 4, 1), ('material', 22, 2, 1), ('return', 23, 2, 1)]  # FLOAT32 = 7, UINT16 = 4, UINT8 = 2
     assert (msg.point_step, msg.height, msg.is_bigendian, msg.is_dense) == (24, 1, False, True)
     assert msg.row_step == 24 * msg.width and len(msg.data) == msg.row_step
     assert msg.header.frame_id == 'lidar' and msg.width > 10_000

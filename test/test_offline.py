@@ -74,7 +74,8 @@ def test_bag_topics_and_counts_with_rosbags(run):
     ours = read_clouds(out / 'bag')
     for (log_ns, msg), frame in zip(clouds, ours):
         assert msg.header.frame_id == 'lidar' == frame.frame_id
-        assert [f.name for f in msg.fields] == ['x', 'y', 'z', 'intensity', 't', 'ring', 'material']
+        assert [f.name for f in msg.fields] == ['x', 'y', 'z', 'intensity', 't', 'ring', 'material',
+                                                    'return']
         assert (msg.point_step, msg.height, msg.is_bigendian) == (24, 1, False)
         raw_points = np.frombuffer(bytes(msg.data), dtype=POINT_DTYPE)
         assert len(raw_points) == msg.width == len(frame.points) > 10_000

@@ -46,7 +46,7 @@ def test_point_fields_match_point_dtype() -> None:
     assert POINT_DTYPE.isalignedstruct
     assert [tuple(f) for f in POINT_FIELDS] == [
         ('x', 0, 7, 1), ('y', 4, 7, 1), ('z', 8, 7, 1), ('intensity', 12, 7, 1),
-        ('t', 16, 7, 1), ('ring', 20, 4, 1), ('material', 22, 2, 1),
+        ('t', 16, 7, 1), ('ring', 20, 4, 1), ('material', 22, 2, 1), ('return', 23, 2, 1),
     ]
     assert POINT_DTYPE.names == tuple(f.name for f in POINT_FIELDS)
     for field in POINT_FIELDS:

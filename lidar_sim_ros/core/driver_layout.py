@@ -54,7 +54,8 @@ def cepton_frame_points(frame, sensor: SensorConfig, stamp_ns: int, no_return: b
     refl = [reflectivity_estimate(np.asarray(frame.intensity) * sat_w, frame.range_m, sensor)]
     t = [np.asarray(frame.t_s, float)]
     laser = [np.asarray(frame.ring)]
-    flags = [np.zeros(len(frame.range_m), np.uint16)]
+    # The driver flags every return after a shot's first one SECOND_RETURN.
+    flags = [np.where(np.asarray(frame.return_number if frame.return_number is not None else 1) > 1, cepton.SECOND_RETURN, 0).astype(np.uint16)]
     shots = frame.truth_source
     if shots is not None:
         power = np.asarray(shots.intensity, float) * sat_w

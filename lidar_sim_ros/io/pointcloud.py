@@ -26,16 +26,17 @@ DATATYPE_TO_NUMPY: dict[int, str] = {
 
 POINT_DTYPE = np.dtype(
     {
-        'names': ['x', 'y', 'z', 'intensity', 't', 'ring', 'material'],
-        'formats': ['<f4', '<f4', '<f4', '<f4', '<f4', '<u2', 'u1'],
-        'offsets': [0, 4, 8, 12, 16, 20, 22],
+        'names': ['x', 'y', 'z', 'intensity', 't', 'ring', 'material', 'return'],
+        'formats': ['<f4', '<f4', '<f4', '<f4', '<f4', '<u2', 'u1', 'u1'],
+        'offsets': [0, 4, 8, 12, 16, 20, 22, 23],
         'itemsize': 24,
     },
     align=True,
 )
 """One simulated return: x, y, z [m, sensor frame], intensity [arbitrary units],
 t [s since the header stamp], ring [laser id], material [index into the materials
-list]; one trailing pad byte."""
+list], return [1 = the shot's nearest reported return, 2 the next, ...; see
+``core/returns.py``]."""
 
 POINT_STEP = POINT_DTYPE.itemsize
 
@@ -57,6 +58,7 @@ POINT_FIELDS: list[FieldSpec] = [
     FieldSpec('t', 16, FLOAT32, 1),
     FieldSpec('ring', 20, UINT16, 1),
     FieldSpec('material', 22, UINT8, 1),
+    FieldSpec('return', 23, UINT8, 1),
 ]
 
 _NS_PER_S = 1_000_000_000
@@ -68,13 +70,15 @@ def make_points(
     t_s: np.ndarray | float,
     ring: np.ndarray | int,
     material: np.ndarray | int,
+    return_number: np.ndarray | int = 1,
 ) -> np.ndarray:
     """Pack per-point arrays into a `POINT_DTYPE` array of length N.
 
     xyz_m is (N, 3) in metres, sensor frame, and must be finite (clouds are
     published with is_dense=True). The other arguments are (N,) arrays or scalars
     broadcast to N: intensity, t_s [s since the header stamp], ring [laser id,
-    0..65535], material [index into the materials list, 0..255].
+    0..65535], material [index into the materials list, 0..255], return_number [1 = the
+    shot's nearest reported return, 1..255].
     """
     xyz = np.asarray(xyz_m)
     if xyz.ndim != 2 or xyz.shape[1] != 3:
@@ -89,6 +93,7 @@ def make_points(
     points['t'] = _per_point('t_s', t_s, n)
     points['ring'] = _per_point('ring', ring, n, np.iinfo(np.uint16).max)
     points['material'] = _per_point('material', material, n, np.iinfo(np.uint8).max)
+    points['return'] = _per_point('return_number', return_number, n, np.iinfo(np.uint8).max)
     return points
 
 
@@ -283,4 +288,5 @@ def frame_points(frame: Any, truth: bool = False) -> np.ndarray:
     if truth:
         return make_points(frame.truth_xyz_m, frame.truth_intensity, frame.truth_t_s,
                            frame.truth_ring, frame.truth_material)
-    return make_points(frame.xyz_m, frame.intensity, frame.t_s, frame.ring, frame.material)
+    return make_points(frame.xyz_m, frame.intensity, frame.t_s, frame.ring, frame.material,
+                       1 if frame.return_number is None else frame.return_number)
