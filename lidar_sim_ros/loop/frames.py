@@ -85,10 +85,10 @@ def attitude_hold_lvlh(R_NH: np.ndarray) -> np.ndarray:
 def attitude_point_at_target(r_chaser_m, r_target_m, R_NH, R_BL, t_B) -> np.ndarray:
     """R_NB that puts the lidar's boresight (lidar +x) on the target centre, lidar z toward
     LVLH +x (radial out) as far as it can. The lidar sits t_B off the chaser's centre, so the
-    line of sight depends on the attitude: a fixed point, two passes (the offset is metres at
-    tens of metres, the second pass moves it by micro-radians)."""
+    line of sight depends on the attitude: a fixed point, six passes (each shrinks the
+    pointing error by about offset / range, ~0.04 at 20 m: 1e-9 rad after six)."""
     R_NB = attitude_hold_lvlh(R_NH)
-    for _ in range(2):
+    for _ in range(6):
         lidar_n = np.asarray(r_chaser_m, float) + R_NB @ t_B
         R_NL = frame_from_axes(np.asarray(r_target_m, float) - lidar_n, R_NH[:, 0])
         R_NB = R_NL @ R_BL.T
