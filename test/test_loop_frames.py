@@ -14,21 +14,29 @@ RZ90 = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # +90 deg
 
 
 def test_target_in_lidar_by_hand():
-    """Chaser at the origin turned +90 deg about z (body x = inertial y), lidar 1 m along
-    body x and turned +90 deg about z again (lidar x = inertial -x). A target 11 m along
-    inertial -x, unrotated: it sits 10 m along lidar x; its body x (inertial x) is lidar -x."""
-    mount = MountConfig(position_m=(1.0, 0.0, 0.0), quat_xyzw=tuple(Rotation.from_matrix(RZ90).as_quat()))
+    """Chaser at the origin turned +90 deg about z (body x = inertial y, body y = inertial -x);
+    lidar 1 m along body x, turned +90 deg about body x (lidar y = body z, lidar z = body -y).
+    So lidar x, y, z = inertial y, z, x, and the lidar sits at inertial (0, 1, 0). A target at
+    inertial (0, 11, 0), unrotated: 10 m along lidar x; its body x (inertial x) is lidar z,
+    its body z (inertial z) lidar y."""
+    RX90 = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    mount = MountConfig(position_m=(1.0, 0.0, 0.0), quat_xyzw=tuple(Rotation.from_matrix(RX90).as_quat()))
     R_BL, t_B = frames.mount_transform(mount)
     origin, R_NL = frames.lidar_pose(np.zeros(3), RZ90, R_BL, t_B)
-    np.testing.assert_allclose(origin, [0.0, 1.0, 0.0], atol=1e-12)   # body x = inertial y
-    R_LT, t_L = frames.target_in_lidar(np.zeros(3), RZ90, R_BL, t_B, np.array([-11.0, 1.0, 0.0]), np.eye(3))
-    np.testing.assert_allclose(t_L, [11.0, 0.0, 0.0], atol=1e-12)
-    np.testing.assert_allclose(R_LT @ [1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], atol=1e-12)
-    np.testing.assert_allclose(R_LT @ [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], atol=1e-12)
-    # The sun along inertial +y is lidar -y (lidar y = inertial -y ... lidar x = -x, z = z).
-    np.testing.assert_allclose(frames.sun_in_lidar(np.array([0.0, 2.0, 0.0]), RZ90, R_BL), [0, -1, 0], atol=1e-12)
-    # Back from the estimate: the chaser relative to the target, here in inertial (R_HB = R_NB).
-    np.testing.assert_allclose(frames.chaser_from_estimate(t_L, RZ90, R_BL, t_B), [11.0, -1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(origin, [0.0, 1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(R_NL, [[0, 0, 1], [1, 0, 0], [0, 1, 0]], atol=1e-12)
+    R_LT, t_L = frames.target_in_lidar(np.zeros(3), RZ90, R_BL, t_B, np.array([0.0, 11.0, 0.0]), np.eye(3))
+    np.testing.assert_allclose(t_L, [10.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(R_LT @ [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(R_LT @ [0.0, 0.0, 1.0], [0.0, 1.0, 0.0], atol=1e-12)
+    # A target body turned +90 deg about inertial z: its body x is inertial y = lidar x.
+    R_LT2, _ = frames.target_in_lidar(np.zeros(3), RZ90, R_BL, t_B, np.array([0.0, 11.0, 0.0]), RZ90)
+    np.testing.assert_allclose(R_LT2 @ [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], atol=1e-12)
+    # The sun along inertial +z is lidar +y; along inertial +y, lidar +x.
+    np.testing.assert_allclose(frames.sun_in_lidar(np.array([0.0, 0.0, 3.0]), RZ90, R_BL), [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(frames.sun_in_lidar(np.array([0.0, 2.0, 0.0]), RZ90, R_BL), [1, 0, 0], atol=1e-12)
+    # Back from the estimate: the chaser relative to the target (R_HB = R_NB: LVLH = inertial here).
+    np.testing.assert_allclose(frames.chaser_from_estimate(t_L, RZ90, R_BL, t_B), [0.0, -11.0, 0.0], atol=1e-12)
 
 
 def test_lvlh_round_trip_and_rate():
