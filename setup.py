@@ -52,6 +52,7 @@ setup(
             'pose_tracker = lidar_sim_ros.gnc.pose_tracker_node:main',
             'loop_dynamics = lidar_sim_ros.loop.dynamics_node:main',
             'loop_controller = lidar_sim_ros.loop.controller_node:main',
+            'loop_cloud_gate = lidar_sim_ros.loop.cloud_gate_node:main',
         ],
     },
 )

@@ -5,7 +5,8 @@ pose_tracker publishes it) and ``/chaser/attitude`` (QuaternionStamped, the chas
 own attitude in LVLH: to turn the estimate into LVLH; it says nothing about the target),
 and for each estimate publishes a ``/chaser/force_command`` (WrenchStamped, frame
 ``lvlh``, stamped with the estimate's stamp, which is how the lock-step dynamics knows
-the command answers the period it published). The stages are the in-process loop's
+the command answers the period it published), and the guidance reference it flew to on
+``/loop/reference`` (PointStamped, LVLH, same stamp: for plots and scoring). The stages are the in-process loop's
 (``step.navigate``'s frame chain, ``guidance``, ``control``). Run it with use_sim_time.
 """
 from __future__ import annotations
@@ -15,7 +16,7 @@ import sys
 from collections import deque
 
 import numpy as np
-from geometry_msgs.msg import PoseStamped, QuaternionStamped, WrenchStamped
+from geometry_msgs.msg import PointStamped, PoseStamped, QuaternionStamped, WrenchStamped
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -56,6 +57,7 @@ class LoopControllerNode(Node):
         self.create_subscription(QuaternionStamped, '/chaser/attitude', self._on_attitude, reliable)
         self.create_subscription(PoseStamped, estimate_topic, self._on_estimate, QoSProfile(depth=20))
         self.pub = self.create_publisher(WrenchStamped, command_topic, QoSProfile(depth=20))
+        self.ref_pub = self.create_publisher(PointStamped, '/loop/reference', QoSProfile(depth=20))
         self.get_logger().info(f'estimates on {estimate_topic} -> commands on {command_topic} (frame lvlh)')
 
     def _on_attitude(self, msg: QuaternionStamped) -> None:
@@ -83,6 +85,10 @@ class LoopControllerNode(Node):
         cmd.header.frame_id, cmd.header.stamp = 'lvlh', msg.header.stamp
         cmd.wrench.force.x, cmd.wrench.force.y, cmd.wrench.force.z = map(float, force)
         self.pub.publish(cmd)
+        ref_msg = PointStamped()
+        ref_msg.header = cmd.header
+        ref_msg.point.x, ref_msg.point.y, ref_msg.point.z = map(float, ref.rho_m)
+        self.ref_pub.publish(ref_msg)
 
 
 def main(args: list[str] | None = None) -> int:

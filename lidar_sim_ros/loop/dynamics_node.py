@@ -10,10 +10,10 @@ the simulated clock (``epoch_s`` + loop time):
 - ``/chaser/attitude`` (geometry_msgs/QuaternionStamped, frame ``lvlh``): the chaser
   body's attitude in LVLH at every sub-step, what its own attitude determination would
   give the GNC (no target information);
+- ``/loop/chaser_pose``, ``/loop/target_pose`` (PoseStamped, frame ``lvlh``), once per
+  period: the truth for plots and scoring (no GNC node may read them);
 - ``/tf``: lvlh -> chaser, chaser -> lidar (the mount), lvlh -> target, when tf2_msgs is
-  installed (a Jazzy install has it; the pip wheels do not): otherwise it logs so once
-  and publishes the same poses as PoseStamped on ``/loop/chaser_pose`` and
-  ``/loop/target_pose`` (frame ``lvlh``);
+  installed (a Jazzy install has it; the pip wheels do not: then it logs so once);
 - then ``/clock`` (rosgraph_msgs/Clock) at the period's end.
 
 It subscribes to ``/chaser/force_command`` (geometry_msgs/WrenchStamped; frame ``lvlh``
@@ -49,7 +49,10 @@ NODE_NAME = 'loop_dynamics'
 NS_PER_S = 1_000_000_000
 POLL_S = 0.001       # lock-step: how often to look whether the command has come (wall)
 STATS_PERIOD_S = 10.0
-PEER_SETTLE_S = 0.5  # after discovery, let the publishers and subscriptions match
+PEER_SETTLE_S = 0.5
+START_DELAY_S = 0.2  # between the first /clock (loop time zero) and the first period
+CLOCK_DELAY_S = 0.002  # /clock goes out this long after the period's poses: DDS does not
+                       # order two topics, and a frame computed on part of its poses fails  # after discovery, let the publishers and subscriptions match
 
 
 def _stamp(t_s: float):
@@ -82,8 +85,14 @@ class LoopDynamicsNode(Node):
         timeout = p('command_timeout_s', 0.0, "lock-step wait for a command (s); 0 = the config's")
         command_topic = p('command_topic', '/chaser/force_command', 'geometry_msgs/WrenchStamped in')
         self.wait_for_peers = p('wait_for_peers', True, 'lock-step: start once /target/pose has a '
-                                                        'subscriber and the command topic a publisher')
+                                                        'subscriber and each of wait_for_publishers a publisher')
+        self.wait_for_publishers = list(p('wait_for_publishers', [command_topic],
+                                          'topics that need a publisher before the lock-step starts'))
         self.command_topic = command_topic
+        self.clock_delay_s = float(p('clock_delay_s', 0.002, (
+            "/clock goes out this long (wall s) after the period's poses: DDS does not order two "
+            'topics, nor does an executor serve one queue before another, and a frame computed on '
+            'part of its poses can fail')))
         self.config, _ = load_loop_config(config_file or config_path('loop.yaml'))
         cfg = self.config
         mode = mode or cfg.timing.mode
@@ -96,6 +105,8 @@ class LoopDynamicsNode(Node):
         self.steps = int(round(cfg.duration_s / cfg.control_period_s))
         self.k = 0
         self.peers_since: float | None = None
+        self.pending_clock: tuple[float, float, float] | None = None
+        self.start_wall: float | None = None
         self.force_lvlh = np.zeros(3)
         self.R_HB = np.eye(3)
         self.delta_v = 0.0
@@ -118,16 +129,16 @@ class LoopDynamicsNode(Node):
 
     # ------------------------------------------------------------------ tf
     def _setup_tf(self) -> None:
+        self.chaser_pose_pub = self.create_publisher(PoseStamped, '/loop/chaser_pose', QoSProfile(depth=50))
+        self.target_pose_pub = self.create_publisher(PoseStamped, '/loop/target_pose', QoSProfile(depth=50))
         try:
             from geometry_msgs.msg import TransformStamped
             from tf2_msgs.msg import TFMessage
         except ImportError:
             self.tf_pub = None
             self.get_logger().info('tf2_msgs is not installed (no pip wheel for Jazzy): no /tf; '
-                                   'the same poses go out as PoseStamped on /loop/chaser_pose, '
-                                   '/loop/target_pose (frame lvlh); the mount is config chaser.mount')
-            self.chaser_pose_pub = self.create_publisher(PoseStamped, '/loop/chaser_pose', QoSProfile(depth=10))
-            self.target_pose_pub = self.create_publisher(PoseStamped, '/loop/target_pose', QoSProfile(depth=10))
+                                   'the same poses are on /loop/chaser_pose, /loop/target_pose '
+                                   '(PoseStamped, frame lvlh); the mount is config chaser.mount')
             return
         self._TransformStamped, self._TFMessage = TransformStamped, TFMessage
         self.tf_pub = self.create_publisher(TFMessage, '/tf', QoSProfile(depth=100))
@@ -144,9 +155,9 @@ class LoopDynamicsNode(Node):
         """LVLH -> chaser, chaser -> lidar, LVLH -> target at the period's end."""
         R_HB, rho = truth.R_HB[-1], truth.rho_m[-1]
         R_HT = R_HB @ self.R_BL @ truth.R_LT[-1]
+        self.chaser_pose_pub.publish(_pose_msg('lvlh', t_s, R_HB, rho))
+        self.target_pose_pub.publish(_pose_msg('lvlh', t_s, R_HT, np.zeros(3)))
         if self.tf_pub is None:
-            self.chaser_pose_pub.publish(_pose_msg('lvlh', t_s, R_HB, rho))
-            self.target_pose_pub.publish(_pose_msg('lvlh', t_s, R_HT, np.zeros(3)))
             return
         self.tf_pub.publish(self._TFMessage(transforms=[
             self._transform('lvlh', 'chaser', t_s, R_HB, rho),
@@ -170,16 +181,34 @@ class LoopDynamicsNode(Node):
     def _peers_ready(self) -> bool:
         """Lock-step starts when the loop is there: nothing published before is lost."""
         if self.peers_since is None:
-            if self.count_subscribers('/target/pose') and self.count_publishers(self.command_topic):
+            if self.count_subscribers('/target/pose') and all(
+                    self.count_publishers(topic) for topic in self.wait_for_publishers):
                 self.peers_since = time.monotonic()
                 self.get_logger().info('peers found: starting in 0.5 s')
             return False
         return time.monotonic() - self.peers_since >= PEER_SETTLE_S
 
     def _tick(self) -> None:
+        if self.pending_clock is not None:
+            t_end, t0, wall = self.pending_clock
+            if time.monotonic() < wall:
+                return
+            self.clock_pub.publish(ClockMsg(clock=_stamp(t_end)))
+            self.gate.published(t0, time.monotonic())
+            self.pending_clock = None
+            if self.k == self.steps:
+                self._log_stats()
+                self.get_logger().info('done: the configured duration is simulated; the clock stops here')
+            return
         if self.k >= self.steps:
             return
         if self.k == 0 and self.gate.mode == 'lockstep' and self.wait_for_peers and not self._peers_ready():
+            return
+        if self.k == 0 and self.start_wall is None:
+            # The clock at loop time zero first: a use_sim_time node drops poses before any /clock.
+            self.clock_pub.publish(ClockMsg(clock=_stamp(self.epoch_s)))
+            self.start_wall = time.monotonic() + START_DELAY_S
+        if self.k == 0 and time.monotonic() < self.start_wall:
             return
         wall = time.monotonic()
         if not self.gate.due(wall):
@@ -191,9 +220,6 @@ class LoopDynamicsNode(Node):
                                    f'(wall): going on with no force')
         self.force_lvlh = force
         self._advance()
-        if self.k == self.steps:
-            self._log_stats()
-            self.get_logger().info('done: the configured duration is simulated; the clock stops here')
 
     def _advance(self) -> None:
         cfg = self.config
@@ -216,8 +242,7 @@ class LoopDynamicsNode(Node):
         t_end = self.epoch_s + float(truth.t_s[-1])
         self._publish_scene(t_end, truth)
         self.R_HB = truth.R_HB[-1]
-        self.clock_pub.publish(ClockMsg(clock=_stamp(t_end)))
-        self.gate.published(t0, time.monotonic())
+        self.pending_clock = (t_end, t0, time.monotonic() + self.clock_delay_s)
         self.k += 1
         self.range_m = float(np.linalg.norm(truth.t_L_m[-1]))
         self.rho = truth.rho_m[-1]

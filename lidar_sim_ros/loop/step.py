@@ -290,14 +290,14 @@ def run_loop(config: LoopConfig, cloud: str | None = 'model', scenario_path: Pat
 
 
 def score(config: LoopConfig, outputs: list[StepOutput]) -> LoopResult:
-    """Metrics and series of a run's step outputs (truth used here only, after the fact)."""
+    """Metrics (``metrics.loop_metrics``) and series of a run's step outputs."""
+    from lidar_sim_ros.loop.metrics import loop_metrics
     n = len(outputs)
     t = np.array([o.truth.t_s[-1] for o in outputs])
-    rho_true = np.array([o.truth.rho_m[-1] for o in outputs])
+    rho_true = np.array([o.truth.rho_m[-1] for o in outputs]).reshape(-1, 3)
     rng = np.array([np.linalg.norm(o.truth.t_L_m[-1]) for o in outputs])
-    force = np.array([o.force_lvlh_n for o in outputs])
-    # The force of step k acts over period k + 1.
-    dv = np.cumsum(np.linalg.norm(force, axis=1) * config.control_period_s / config.chaser.mass_kg)
+    force = np.array([o.force_lvlh_n for o in outputs]).reshape(-1, 3)
+    ref = np.array([o.reference.rho_m for o in outputs]).reshape(-1, 3)
     rho_est = np.full((n, 3), np.nan)
     trans_err, axis_err = np.full(n, np.nan), np.full(n, np.nan)
     for i, o in enumerate(outputs):
@@ -306,25 +306,16 @@ def score(config: LoopConfig, outputs: list[StepOutput]) -> LoopResult:
             axis_err[i] = _axis_angle_deg(o.est_pose[:3, :3], o.true_pose[:3, :3])
         if o.rho_est_m is not None:
             rho_est[i] = o.rho_est_m
-    settled = np.array([o.reference.settled for o in outputs])
-    ref_y = np.array([o.reference.rho_m[1] for o in outputs])
     got = np.flatnonzero(np.isfinite(trans_err))
-    rms = lambda x: float(np.sqrt(np.mean(np.square(x)))) if len(x) else float('nan')  # noqa: E731
-    metrics = {
-        'hold_error_m': rms((rho_true[:, 1] - ref_y)[settled]),
-        'delta_v_mps': float(dv[-1]) if n else 0.0,
-        'min_range_m': float(rng.min()) if n else float('nan'),
-        'est_trans_rms_m': rms(trans_err[got]),
-        'est_axis_rms_deg': rms(axis_err[got]),
-        'acquired_at_s': float(outputs[got[0]].est_t_s) if len(got) else None,
-        'losses': int(sum(o.lost for o in outputs)),
-        'truth_captures': int(sum(o.truth_capture for o in outputs)),
-        'holds_reached': int(max((o.reference.index + (o.reference.settled) for o in outputs), default=0)),
-        'final_hold_error_m': float(np.linalg.norm(rho_true[-1] - outputs[-1].reference.rho_m)) if n else None,
-        'steps': n,
-    }
-    series = {'t_s': t, 'rho_true_m': rho_true, 'rho_est_m': rho_est, 'range_m': rng,
+    metrics = loop_metrics(t, rho_true, ref, rng, force, config.control_period_s, config.chaser.mass_kg,
+                           config.guidance.hold_time_s, [outputs[i].est_t_s for i in got],
+                           trans_err[got], axis_err[got], sum(o.lost for o in outputs))
+    metrics['truth_captures'] = int(sum(o.truth_capture for o in outputs))
+    metrics['holds_reached'] = int(max((o.reference.index + o.reference.settled for o in outputs), default=0))
+    dv = np.cumsum(np.linalg.norm(force, axis=1)) * config.control_period_s / config.chaser.mass_kg
+    series = {'t_s': t, 'rho_true_m': rho_true, 'rho_est_m': rho_est, 'ref_m': ref, 'range_m': rng,
               'force_lvlh_n': force, 'delta_v_mps': dv, 'phase': [o.reference.phase for o in outputs],
-              'hold_index': np.array([o.reference.index for o in outputs]), 'settled': settled,
+              'hold_index': np.array([o.reference.index for o in outputs]),
+              'settled': np.array([o.reference.settled for o in outputs]),
               'est_trans_err_m': trans_err, 'est_axis_err_deg': axis_err}
     return LoopResult(metrics, series)
