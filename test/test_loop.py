@@ -125,3 +125,29 @@ def test_lock_step_runs_are_identical(config):
         np.testing.assert_array_equal(a.series[key], b.series[key])
     c = run(with_(cfg, seed=cfg.seed + 1))
     assert not np.array_equal(a.series['rho_true_m'], c.series['rho_true_m'])
+
+
+def test_capture_adapter_uses_the_truth_only_to_capture():
+    """``step.track``: with acquire_from_cloud off the true pose starts the capture and only
+    the capture; on, the tracker gets no guess (and falls back to the truth only where it
+    cannot acquire alone: a tracker without gnc/acquire.py raises ValueError)."""
+    pytest.importorskip('small_gicp')
+    import trimesh
+
+    from lidar_sim_ros.gnc.tracker import PoseTracker, TrackerConfig, build_model, pose_matrix
+    from lidar_sim_ros.loop.step import track
+    box = trimesh.creation.box(extents=[1.2, 0.8, 0.5])
+    cfg = TrackerConfig(model_spacing_m=0.03, min_points=20)
+    T = pose_matrix([5.0, 0.2, -0.1], [0.0, 0.0, 0.0, 1.0])
+    points = trimesh.sample.sample_surface(box, 3000, seed=1)[0]
+    xyz = points[points[:, 0] < 0] + T[:3, 3]       # the face toward the sensor and the edges
+
+    tracker = PoseTracker(build_model(box.vertices, box.faces, cfg), cfg)
+    est, used = track(tracker, 0.0, xyz, T, from_cloud=False)
+    assert used and est.acceptable(cfg)
+    est, used = track(tracker, 0.1, xyz, np.eye(4), from_cloud=False)   # tracking: the guess is unused
+    assert not used and np.linalg.norm(est.pose[:3, 3] - T[:3, 3]) < 0.05
+
+    fresh = PoseTracker(build_model(box.vertices, box.faces, cfg), cfg)
+    est, used = track(fresh, 0.0, xyz, T, from_cloud=True)
+    assert est.acceptable(cfg) and np.linalg.norm(est.pose[:3, 3] - T[:3, 3]) < 0.05
