@@ -114,3 +114,14 @@ def test_config_loads_and_names_bad_keys(tmp_path):
                                 f'scenario: {config_path("scenario_all_effects.yaml")}'))
     with pytest.raises(ConfigError, match='guidance.hold_ranges_m'):
         load_loop_config(bad)
+
+
+def test_hold_windows_are_the_dwells_before_each_departure_and_at_the_end():
+    from lidar_sim_ros.loop.metrics import hold_windows
+    t = np.arange(0.0, 40.0, 1.0)
+    y = np.full(len(t), -30.0)
+    y[10:20] = np.linspace(-29.0, -16.0, 10)      # leaves the first hold after t = 9
+    y[20:] = -15.0                                # then stands at the next to the end
+    y[15] = y[14]                                 # a repeated sample mid-transfer: no hold
+    mask = hold_windows(t, y, hold_time_s=5.0)
+    assert np.flatnonzero(mask).tolist() == [5, 6, 7, 8, 9, 35, 36, 37, 38, 39]

@@ -17,8 +17,12 @@ def hold_windows(t_s: np.ndarray, ref_y_m: np.ndarray, hold_time_s: float) -> np
     if len(t) < 2:
         return mask
     moving = np.abs(np.diff(y)) > 1e-9
-    for k in np.flatnonzero(moving[1:] & ~moving[:-1]) + 1:  # the reference starts to move after k
-        mask |= (t > t[k] - hold_time_s) & (t <= t[k])
+    # Runs of a still reference: a hold only if it stood at least hold_time_s (a missed
+    # reference sample in a transfer repeats the last one: not a hold).
+    edges = np.flatnonzero(np.diff(np.concatenate([[1], moving.astype(int), [1]])))
+    for a, b in zip(edges[::2], edges[1::2]):        # y[a..b] stands still
+        if b < len(t) - 1 and t[b] - t[a] >= hold_time_s - 1e-9:
+            mask |= (t > t[b] - hold_time_s) & (t <= t[b])
     still_since = t[0]
     changed = np.flatnonzero(moving)
     if len(changed):
