@@ -38,7 +38,7 @@ PERIOD_NS = 100_000_000
 RELIABLE = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
 
 
-def write_config(path, duration_s: float) -> None:
+def write_config(path, duration_s: float, mode: str = 'lockstep') -> None:
     text = config_path('loop.yaml').read_text()
     text = text.replace('scenario: scenario_all_effects.yaml', f'scenario: {config_path("scenario.yaml")}')
     text = text.replace('duration_s: 150.0', f'duration_s: {duration_s}')
@@ -47,6 +47,7 @@ def write_config(path, duration_s: float) -> None:
     text = text.replace('position_sigma_m: 0.5', 'position_sigma_m: 0.0')
     text = text.replace('velocity_sigma_mps: 0.005', 'velocity_sigma_mps: 0.0')
     text = text.replace('command_timeout_s: 2.0', 'command_timeout_s: 0.5')
+    text = text.replace('mode: lockstep', f'mode: {mode}')
     assert 'duration_s: 150.0' not in text and 'position_sigma_m: 0.0' in text
     path.write_text(text)
 
@@ -164,3 +165,34 @@ def test_lock_step_loop_over_dds(tmp_path):
     # The controller pulls the chaser from 31 m toward its 30 m hold point.
     y = [m.pose.position.y for m in relay.chaser]
     assert y[0] < -30.9 and y[-1] > y[0] + 0.5, (y[0], y[-1])
+
+
+def test_real_time_paces_on_the_wall(tmp_path):
+    """Real time: the clock keeps wall pace (commands or not) and late commands are counted."""
+    cfg = tmp_path / 'loop.yaml'
+    write_config(cfg, duration_s=4.0, mode='realtime')
+    relay = Relay()
+    env = {**os.environ, 'ROS_DOMAIN_ID': str(DOMAIN_ID), 'PYTHONUNBUFFERED': '1'}
+    log = tmp_path / 'dynamics.log'
+    dynamics = start_ros_process('lidar_sim_ros.loop.dynamics_node', ['-p', f'config_file:={cfg}'], env, log)
+    wall: list[float] = []
+    try:
+        relay.wait(lambda: relay.clocks, 60, 'the first /clock')
+        relay.relaying = False     # no GNC at all: real time must not wait
+        wall.append(time.monotonic())
+        first = relay.clocks[-1]
+        relay.wait(lambda: relay.clocks[-1] >= EPOCH_NS + 4 * NS, 30, 'the end of the run')
+        wall.append(time.monotonic())
+        last = relay.clocks[-1]
+        relay.wait(lambda: 'done' in log.read_text(), 10, 'the summary')
+    finally:
+        code = stop_ros_process(dynamics)
+        text = log.read_text()
+        relay.close()
+        print(text)
+    assert code == 0, text
+    rate = (last - first) / NS / (wall[1] - wall[0])
+    assert 0.8 < rate < 1.1, rate          # simulated seconds per wall second
+    stats = [line for line in text.splitlines() if ', late ' in line][-1]
+    late = int(stats.split('late ')[1].split()[0])
+    assert late >= 30, stats               # every period after the relay stopped was late

@@ -47,7 +47,7 @@ from lidar_sim_ros.ros.spin import run_node
 
 NODE_NAME = 'loop_dynamics'
 NS_PER_S = 1_000_000_000
-POLL_S = 0.001       # lock-step: how often to look whether the command has come (wall)
+POLL_S = 0.001       # how often to look whether the command has come / the period is due (wall)
 STATS_PERIOD_S = 10.0
 PEER_SETTLE_S = 0.5
 START_DELAY_S = 0.2  # between the first /clock (loop time zero) and the first period
@@ -120,7 +120,7 @@ class LoopDynamicsNode(Node):
         self._setup_tf()
         self.create_subscription(WrenchStamped, command_topic, self._on_command, QoSProfile(depth=20))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_timer(POLL_S if mode == 'lockstep' else cfg.control_period_s / 4, self._tick, clock=steady)
+        self.create_timer(POLL_S, self._tick, clock=steady)
         self.create_timer(STATS_PERIOD_S, self._log_stats, clock=steady)
         self.get_logger().info(
             f'{mode}: {self.steps} periods of {cfg.control_period_s:g} s, poses at '

@@ -30,6 +30,7 @@ class CommandGate:
     timeout_s: float
     period_start_s: float = 0.0          # t_k of the period last published
     published_wall_s: float | None = None
+    next_wall_s: float | None = None     # real time: when the next period is due (a fixed grid)
     newest_stamp_s: float | None = None
     newest_force: np.ndarray = field(default_factory=lambda: np.zeros(3))
     commands: int = 0
@@ -45,6 +46,8 @@ class CommandGate:
     def published(self, period_start_s: float, wall_s: float) -> None:
         """Period [period_start_s, +period_s] and its /clock are out at ``wall_s``."""
         self.period_start_s, self.published_wall_s = period_start_s, wall_s
+        # Real time keeps an absolute grid: a late tick does not push the later ones back.
+        self.next_wall_s = wall_s + self.period_s if self.next_wall_s is None else self.next_wall_s + self.period_s
 
     def _arrived(self) -> bool:
         return self.newest_stamp_s is not None and \
@@ -57,7 +60,7 @@ class CommandGate:
         waited = wall_s - self.published_wall_s
         if self.mode == 'lockstep':
             return self._arrived() or waited >= self.timeout_s
-        return waited >= self.period_s - 1e-4
+        return wall_s >= self.next_wall_s - 1e-4
 
     def take(self) -> tuple[np.ndarray, str | None]:
         """The force (N) for the next period and what went wrong (None: the command was there)."""
