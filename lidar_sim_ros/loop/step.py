@@ -247,9 +247,11 @@ class LoopResult:
     series: dict
 
 
-def build_context(config: LoopConfig, scenario_path: Path | str | None, cloud: str | None,
-                  dynamics=None) -> LoopContext:
-    """Load the scenario's simulator and the tracker (not for ``cloud=None``) and start Basilisk."""
+def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics=None) -> LoopContext:
+    """Load the scenario's simulator and the tracker (not for ``cloud=None``) and start Basilisk.
+
+    ``scenario_path``: a scenario file, or an already loaded (e.g. dispersed) core
+    ``Scenario``, as a campaign case would pass."""
     from lidar_sim_ros.loop.dynamics import Dynamics
     if cloud not in (None, 'model', 'truth'):
         raise ValueError(f"cloud must be 'model', 'truth' or None, not {cloud!r}")
@@ -258,7 +260,7 @@ def build_context(config: LoopConfig, scenario_path: Path | str | None, cloud: s
         from lidar_sim_ros.core.config import load_scenario
         from lidar_sim_ros.core.pipeline import Simulator
         from lidar_sim_ros.gnc.tracker import PoseTracker, TrackerConfig, build_model
-        scenario = load_scenario(scenario_path)
+        scenario = scenario_path if hasattr(scenario_path, 'sensor') else load_scenario(scenario_path)
         simulator = Simulator.from_scenario(scenario)
         tcfg = TrackerConfig()
         tracker = PoseTracker(build_model(simulator.target.vertices_m, simulator.target.faces, tcfg), tcfg)
@@ -272,9 +274,12 @@ def _axis_angle_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:
     return math.degrees(math.acos(c))
 
 
-def run_loop(config: LoopConfig, cloud: str | None = 'model', scenario_path: Path | str | None = None,
+def run_loop(config: LoopConfig, cloud: str | None = 'model', scenario_path=None,
              duration_s: float | None = None) -> LoopResult:
-    """Run the approach for ``duration_s`` (default: the config's) and score it."""
+    """Run the approach for ``duration_s`` (default: the config's) and score it.
+
+    ``scenario_path``: a file or a loaded ``Scenario`` (default: the config's scenario,
+    resolved next to the package's config/loop.yaml)."""
     if scenario_path is None and cloud is not None:
         from lidar_sim_ros.core.config import resolve
         from lidar_sim_ros.paths import config_path
