@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= demo-output
 
-.PHONY: venv demo demo-offline demo-gnc test bench bench-node bench-gnc bench-compare bench-campaign constraints clean
+.PHONY: venv demo demo-offline demo-gnc demo-loop test bench bench-node bench-gnc bench-compare bench-campaign constraints clean
 
 venv: $(STAMP)
 
@@ -31,6 +31,11 @@ demo-offline: $(STAMP)
 ## Navigation in the loop: player + simulator + two pose trackers over DDS -> gnc.json + figure.
 demo-gnc: $(STAMP)
 	$(BIN)/python -m lidar_sim_ros.gnc.demo --out $(OUT)/gnc
+
+## The closed GNC loop over DDS on Basilisk (extra [loop]), truth cloud and full error model
+## -> loop.json + loop.png (docs/loop.md). About 2.5 min simulated per cloud.
+demo-loop: $(STAMP)
+	$(BIN)/python -m lidar_sim_ros.loop.demo --out $(OUT)/loop
 
 # Two parts: the tests that start nodes or a cluster of their own (marker serial, see
 # test/conftest.py) alone, the rest first on TEST_WORKERS pytest-xdist workers. Both

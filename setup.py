@@ -51,6 +51,9 @@ setup(
             'lidar_sim_node = lidar_sim_ros.ros.lidar_sim_node:main',
             'target_pose_player = lidar_sim_ros.ros.target_pose_player:main',
             'pose_tracker = lidar_sim_ros.gnc.pose_tracker_node:main',
+            'loop_dynamics = lidar_sim_ros.loop.dynamics_node:main',
+            'loop_controller = lidar_sim_ros.loop.controller_node:main',
+            'loop_cloud_gate = lidar_sim_ros.loop.cloud_gate_node:main',
         ],
     },
 )

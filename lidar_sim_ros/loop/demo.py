@@ -1,0 +1,247 @@
+"""``make demo-loop``: the closed GNC loop over DDS, on the truth cloud and on the full error model.
+
+For each cloud, on a private ROS domain, as separate processes: ``loop_dynamics``
+(Basilisk, lock-step, the loop's /clock), ``lidar_sim_node`` (the loop config's
+scenario: every effect), ``loop_cloud_gate`` (the range gate about the last estimate),
+``pose_tracker`` on the gated cloud, and ``loop_controller``. This
+process records the truth (/target/pose, /loop/chaser_pose), the estimates, the
+commands and the guidance reference until the configured duration is simulated, then
+scores both runs with ``metrics.loop_metrics``: ``loop.json`` (per cloud: hold_error_m,
+delta_v_mps, min_range_m, est_trans_rms_m, est_axis_rms_deg, acquired_at_s, losses, ...)
+and ``loop.png``.
+
+    python -m lidar_sim_ros.loop.demo --out demo-output/loop [--duration 150] [--clouds model_cloud]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import random
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from lidar_sim_ros.loop.config import load_loop_config
+from lidar_sim_ros.paths import config_path
+
+EPOCH_S = 100.0
+CLOUD_TOPICS = {'truth_cloud': '/lidar/points_truth', 'model_cloud': '/lidar/points'}
+STARTUP_TIMEOUT_S = 120.0
+
+
+def parse_args(argv):
+    parser = argparse.ArgumentParser(prog='python -m lidar_sim_ros.loop.demo', description=__doc__.splitlines()[0])
+    parser.add_argument('--out', type=Path, default=Path('demo-output/loop'))
+    parser.add_argument('--config', type=Path, default=config_path('loop.yaml'))
+    parser.add_argument('--duration', type=float, default=None, help='simulated seconds (default: the config)')
+    parser.add_argument('--clouds', nargs='+', default=list(CLOUD_TOPICS), choices=list(CLOUD_TOPICS))
+    parser.add_argument('--domain-id', type=int, default=None)
+    return parser.parse_args(argv)
+
+
+def run_config(config_file: Path, duration_s: float | None, out: Path) -> Path:
+    """The config to run: the given one, with --duration applied (written next to the outputs)."""
+    if duration_s is None:
+        return config_file
+    import yaml
+    from lidar_sim_ros.core.config import resolve
+    data = yaml.safe_load(config_file.read_text())
+    data['duration_s'] = float(duration_s)
+    data['scenario'] = str(resolve(data.get('scenario', 'scenario_all_effects.yaml'), config_file.resolve().parent))
+    path = out / 'loop_run.yaml'
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def record(duration_s: float, procs, logs) -> dict:
+    """Spin a recorder until the clock reaches the end (or a node dies): arrays per topic."""
+    import rclpy
+    from geometry_msgs.msg import PointStamped, PoseStamped, WrenchStamped
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+
+    from lidar_sim_ros.demo import spin_until_started
+    from lidar_sim_ros.io.pointcloud import stamp_to_ns
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('loop_demo_recorder', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    got = {k: [] for k in ('truth', 'estimate', 'command', 'reference', 'chaser')}
+    clock = [0]
+
+    def pose_row(m):
+        p, q = m.pose.position, m.pose.orientation
+        return [stamp_to_ns(m.header.stamp), p.x, p.y, p.z, q.x, q.y, q.z, q.w]
+
+    def vec_row(stamp, v):
+        return [stamp_to_ns(stamp), v.x, v.y, v.z]
+
+    reliable = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
+    node.create_subscription(PoseStamped, '/target/pose', lambda m: got['truth'].append(pose_row(m)), reliable)
+    node.create_subscription(PoseStamped, '/target/pose_estimate', lambda m: got['estimate'].append(pose_row(m)),
+                             QoSProfile(depth=100))
+    node.create_subscription(PoseStamped, '/loop/chaser_pose', lambda m: got['chaser'].append(pose_row(m)),
+                             QoSProfile(depth=100))
+    node.create_subscription(WrenchStamped, '/chaser/force_command',
+                             lambda m: got['command'].append(vec_row(m.header.stamp, m.wrench.force)),
+                             QoSProfile(depth=100))
+    node.create_subscription(PointStamped, '/loop/reference',
+                             lambda m: got['reference'].append(vec_row(m.header.stamp, m.point)), QoSProfile(depth=100))
+    node.create_subscription(Clock, '/clock', lambda m: clock.__setitem__(0, stamp_to_ns(m.clock)), QoSProfile(depth=10))
+    end_ns = round((EPOCH_S + duration_s) * 1e9)
+    try:
+        spin_until_started(executor, lambda: clock[0] > 0, procs, logs, STARTUP_TIMEOUT_S,
+                           lambda: f'no /clock within {STARTUP_TIMEOUT_S:g} s; see the logs in {logs}')
+        print('the loop runs ...', flush=True)
+        wall0, last_print = time.monotonic(), 0.0
+        spin_until_started(executor, lambda: clock[0] >= end_ns, procs, logs, 20 * duration_s + 120,
+                           lambda: f'the loop stalled at {clock[0] / 1e9 - EPOCH_S:.1f} s')
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline:   # the last period's estimate and command
+            executor.spin_once(timeout_sec=0.05)
+        print(f'{duration_s:g} s simulated in {time.monotonic() - wall0:.0f} s', flush=True)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    return {k: np.array(v, dtype=float).reshape(len(v), -1) for k, v in got.items()}
+
+
+def score_recording(config, rec: dict) -> tuple[dict, dict]:
+    """(metrics, series) of one DDS run from its recording."""
+    from lidar_sim_ros.gnc.evaluate import tracking_errors
+    from lidar_sim_ros.loop.metrics import loop_metrics
+    period = config.control_period_s
+    chaser, truth, est = rec['chaser'], rec['truth'], rec['estimate']
+    t = chaser[:, 0] / 1e9 - EPOCH_S
+    rho = chaser[:, 1:4]
+    # Per period end: the truth range, the command and the reference given for that period.
+    truth_t = np.round(truth[:, 0] / 1e9 - EPOCH_S, 6)
+    rng = np.interp(t, truth_t, np.linalg.norm(truth[:, 1:4], axis=1))
+    force, ref = np.zeros((len(t), 3)), np.full((len(t), 3), np.nan)
+    for rows, dest in ((rec['command'], force), (rec['reference'], ref)):
+        if len(rows):
+            k = np.round((rows[:, 0] / 1e9 - EPOCH_S + 0.5 * period) / period).astype(int) - 1
+            ok = (k >= 0) & (k < len(t))
+            dest[k[ok]] = rows[ok, 1:4]
+    ref = _fill(ref)
+    errors = tracking_errors(est[:, 0].astype(np.int64), est[:, 1:4], est[:, 4:8],
+                             truth[:, 0].astype(np.int64), truth[:, 1:4], truth[:, 4:8]) if len(est) else None
+    est_t = est[:, 0] / 1e9 - EPOCH_S if len(est) else np.zeros(0)
+    periods = set(np.round(est_t / period - 0.5).astype(int).tolist())
+    losses = sum(1 for k in range(1, len(t)) if (k - 1) in periods and k not in periods and k - 1 >= min(periods, default=0))
+    trans = np.linalg.norm(errors.translation_m, axis=1) if errors is not None else np.zeros(0)
+    axis = errors.axis_deg if errors is not None else np.zeros(0)
+    metrics = loop_metrics(t, rho, ref, rng, force, period, config.chaser.mass_kg, config.guidance.hold_time_s,
+                           est_t, trans, axis, losses)
+    dv = np.cumsum(np.linalg.norm(force, axis=1)) * period / config.chaser.mass_kg
+    series = {'t_s': t, 'rho_true_m': rho, 'ref_m': ref, 'range_m': rng, 'force_lvlh_n': force,
+              'delta_v_mps': dv, 'est_t_s': (errors.t_s + truth_t[0]) if errors is not None else est_t,
+              'est_trans_err_m': trans, 'est_los_err_m': errors.los_m if errors is not None else np.zeros(0)}
+    return metrics, series
+
+
+def _fill(ref: np.ndarray) -> np.ndarray:
+    """Periods without a reference (no estimate yet or that period) keep the previous one."""
+    out = ref.copy()
+    for i in range(len(out)):
+        if np.isnan(out[i]).any():
+            out[i] = out[i - 1] if i else np.nan
+    first = np.flatnonzero(~np.isnan(out[:, 1]))
+    if len(first):
+        out[:first[0]] = out[first[0]]
+    return out
+
+
+def plot(series: dict, config, path: Path) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from lidar_sim_ros.loop.metrics import hold_windows
+    fig, ax = plt.subplots(2, 2, figsize=(13, 8.5))
+    colours = {'truth_cloud': 'tab:blue', 'model_cloud': 'tab:red'}
+    for key, s in series.items():
+        c = colours.get(key, 'k')
+        ax[0, 0].plot(s['rho_true_m'][:, 1], s['rho_true_m'][:, 0], color=c, label=key)
+        ax[0, 1].plot(s['t_s'], s['range_m'], color=c, label=key)
+        dwell = hold_windows(s['t_s'], s['ref_m'][:, 1], config.guidance.hold_time_s)
+        ax[0, 1].fill_between(s['t_s'], 0, 1, where=dwell, color=c, alpha=0.12,
+                              transform=ax[0, 1].get_xaxis_transform())
+        ax[1, 0].plot(s['est_t_s'], 100 * s['est_trans_err_m'], '.', ms=2, color=c, label=f'{key} |error|')
+        ax[1, 0].plot(s['est_t_s'], 100 * s['est_los_err_m'], '-', lw=0.6, color=c, alpha=0.6,
+                      label=f'{key} along the line of sight')
+        ax[1, 1].plot(s['t_s'], np.linalg.norm(s['force_lvlh_n'], axis=1), color=c, lw=0.6, label=f'{key} |F|')
+        twin = getattr(ax[1, 1], '_dv_twin', None) or ax[1, 1].twinx()
+        ax[1, 1]._dv_twin = twin
+        twin.plot(s['t_s'], s['delta_v_mps'], '--', color=c, label=f'{key} delta-v')
+        twin.set_ylabel('cumulative delta-v (m/s), dashed')
+    for r in config.guidance.hold_ranges_m:
+        ax[0, 0].axvline(-r, color='grey', lw=0.5, ls=':')
+    ax[0, 0].set(xlabel='V-bar y (m)', ylabel='R-bar x (m)', title='approach in LVLH (target at origin)')
+    ax[0, 1].set(xlabel='t (s)', ylabel='range lidar -> target centre (m)', title='range; shaded: hold dwells')
+    ax[1, 0].set(xlabel='t (s)', ylabel='estimate - truth (cm)', title='pose estimate translation error')
+    ax[1, 1].set(xlabel='t (s)', ylabel='commanded |force| (N)', title='thrust and delta-v')
+    for a in ax.flat:
+        a.grid(alpha=0.3)
+        a.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    from lidar_sim_ros.demo import run_nodes
+    args = parse_args(argv)
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    cfg_file = run_config(args.config, args.duration, out)
+    config, scenario = load_loop_config(cfg_file)
+    domain = args.domain_id if args.domain_id is not None else random.randint(1, 101)
+    results, series = {}, {}
+    for key in args.clouds:
+        tracker_args = ['-p', 'points_topic:=/loop/points_gated', '-p', 'pose_topic:=/target/pose',
+                        '-p', f'scenario_file:={scenario}', '-p', 'use_sim_time:=true']
+        commands = {
+            'loop_dynamics': ('lidar_sim_ros.loop.dynamics_node', [
+                '-p', f'config_file:={cfg_file}', '-p', f'epoch_s:={EPOCH_S}', '-p', 'clock_delay_s:=0.01',
+                '-p', "wait_for_publishers:=['/chaser/force_command', '/target/pose_estimate', '/lidar/points']"]),
+            'lidar_sim_node': ('lidar_sim_ros.ros.lidar_sim_node', [
+                '-p', f'scenario_file:={scenario}', '-p', 'use_sim_time:=true', '-p', 'publish_truth:=true',
+                '-p', 'qos_reliability:=reliable', '-p', 'pose_qos_reliability:=reliable']),
+            'loop_cloud_gate': ('lidar_sim_ros.loop.cloud_gate_node', [
+                '-p', f'input_topic:={CLOUD_TOPICS[key]}', '-p', f'gate_m:={config.cloud_gate_m}']),
+            'pose_tracker': ('lidar_sim_ros.gnc.pose_tracker_node', tracker_args),
+            'loop_controller': ('lidar_sim_ros.loop.controller_node', [
+                '-p', f'config_file:={cfg_file}', '-p', 'use_sim_time:=true']),
+        }
+        run_out = out / key
+        run_out.mkdir(exist_ok=True)
+        print(f'{key}: ROS_DOMAIN_ID={domain}: starting {", ".join(commands)}', flush=True)
+        try:
+            rec, codes, logs = run_nodes(commands, run_out, run_out / 'bag', config.duration_s, domain,
+                                         lambda bag, seconds, procs, logs: record(seconds, procs, logs))
+        except RuntimeError as exc:
+            print(f'demo-loop: error: {exc}', file=sys.stderr)
+            return 1
+        results[key], series[key] = score_recording(config, rec)
+        print(f'{key}: ' + ', '.join(f'{k} {v:.3g}' if isinstance(v, float) else f'{k} {v}'
+                                     for k, v in results[key].items()), flush=True)
+    meta = {'config': str(cfg_file), 'scenario': str(scenario), 'duration_s': config.duration_s,
+            'timing': 'lockstep', 'capture': 'pose_tracker captures from /target/pose (truth) until '
+            'acquisition from the cloud lands (gnc/acquire.py)',
+            'note': 'hold_error_m: RMS along-track (line of sight) error of the true chaser '
+                    'position from the hold point over the hold dwells; est_*: estimate minus '
+                    'truth at the estimate stamp; see docs/loop.md'}
+    (out / 'loop.json').write_text(json.dumps({**results, 'meta': meta}, indent=2))
+    plot(series, config, out / 'loop.png')
+    print(f'wrote {out / "loop.json"} and {out / "loop.png"}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,267 @@
+"""``loop_dynamics``: Basilisk's chaser and target on DDS, the loop's clock.
+
+Each control period it applies the force command in force, advances Basilisk over the
+period (``step.propagate``, the in-process loop's own stage), and publishes, stamped on
+the simulated clock (``epoch_s`` + loop time):
+
+- ``/target/pose`` (geometry_msgs/PoseStamped, frame ``lidar_frame``): the target body
+  pose in the lidar frame at every dynamics sub-step (``timing.pose_rate_hz``, 100 Hz);
+- ``/sun/direction`` (geometry_msgs/Vector3Stamped, lidar frame), once per period;
+- ``/chaser/attitude`` (geometry_msgs/QuaternionStamped, frame ``lvlh``): the chaser
+  body's attitude in LVLH at every sub-step, what its own attitude determination would
+  give the GNC (no target information);
+- ``/loop/chaser_pose``, ``/loop/target_pose`` (PoseStamped, frame ``lvlh``), once per
+  period: the truth for plots and scoring (no GNC node may read them);
+- ``/tf``: lvlh -> chaser, chaser -> lidar (the mount), lvlh -> target, when tf2_msgs is
+  installed (a Jazzy install has it; the pip wheels do not: then it logs so once);
+- then ``/clock`` (rosgraph_msgs/Clock) at the period's end.
+
+It subscribes to ``/chaser/force_command`` (geometry_msgs/WrenchStamped; frame ``lvlh``
+or ``chaser``: force in the chaser body frame; the torque is ignored: the attitude is
+kinematic), clipped per axis to ``chaser.thrust_limit_n`` with the dead band applied.
+When to advance is ``timing.CommandGate``'s (lock-step or real time, docs/loop.md).
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped, QuaternionStamped, Vector3Stamped, WrenchStamped
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock as ClockMsg
+from scipy.spatial.transform import Rotation
+
+from lidar_sim_ros.core.config import ConfigError
+from lidar_sim_ros.io.pointcloud import ns_to_stamp, stamp_to_ns
+from lidar_sim_ros.loop import frames
+from lidar_sim_ros.loop.config import load_loop_config
+from lidar_sim_ros.loop.control import limit_force
+from lidar_sim_ros.loop.step import TruthSamples, propagate
+from lidar_sim_ros.loop.timing import CommandGate
+from lidar_sim_ros.paths import config_path
+from lidar_sim_ros.ros.spin import run_node
+
+NODE_NAME = 'loop_dynamics'
+NS_PER_S = 1_000_000_000
+POLL_S = 0.001       # how often to look whether the command has come / the period is due (wall)
+STATS_PERIOD_S = 10.0
+PEER_SETTLE_S = 0.5
+START_DELAY_S = 0.2  # between the first /clock (loop time zero) and the first period
+CLOCK_DELAY_S = 0.002  # /clock goes out this long after the period's poses: DDS does not
+                       # order two topics, and a frame computed on part of its poses fails  # after discovery, let the publishers and subscriptions match
+
+
+def _stamp(t_s: float):
+    from builtin_interfaces.msg import Time
+    return ns_to_stamp(round(t_s * NS_PER_S), Time)
+
+
+def _pose_msg(frame_id: str, t_s: float, R: np.ndarray, p: np.ndarray) -> PoseStamped:
+    msg = PoseStamped()
+    msg.header.frame_id, msg.header.stamp = frame_id, _stamp(t_s)
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = map(float, p)
+    q = Rotation.from_matrix(R).as_quat()
+    o = msg.pose.orientation
+    o.x, o.y, o.z, o.w = map(float, q)
+    return msg
+
+
+class LoopDynamicsNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+
+    def setup(self) -> None:
+        p = lambda name, default, text: self.declare_parameter(  # noqa: E731
+            name, default, ParameterDescriptor(description=text, read_only=True)).value
+        config_file = p('config_file', '', "loop YAML; '' = the package's config/loop.yaml")
+        self.epoch_s = p('epoch_s', 100.0, 'clock time (s) of loop time zero (> 0: ROS reads 0 as no clock)')
+        self.lidar_frame = p('lidar_frame', 'lidar', 'frame_id of /target/pose and /sun/direction '
+                                                     '(the simulator node\'s frame_id)')
+        mode = p('timing_mode', '', "'lockstep' | 'realtime'; '' = the config's timing.mode")
+        timeout = p('command_timeout_s', 0.0, "lock-step wait for a command (s); 0 = the config's")
+        command_topic = p('command_topic', '/chaser/force_command', 'geometry_msgs/WrenchStamped in')
+        self.wait_for_peers = p('wait_for_peers', True, 'lock-step: start once /target/pose has a '
+                                                        'subscriber and each of wait_for_publishers a publisher')
+        self.wait_for_publishers = list(p('wait_for_publishers', [command_topic],
+                                          'topics that need a publisher before the lock-step starts'))
+        self.command_topic = command_topic
+        self.clock_delay_s = float(p('clock_delay_s', 0.002, (
+            "/clock goes out this long (wall s) after the period's poses: DDS does not order two "
+            'topics, nor does an executor serve one queue before another, and a frame computed on '
+            'part of its poses can fail')))
+        self.config, _ = load_loop_config(config_file or config_path('loop.yaml'))
+        cfg = self.config
+        mode = mode or cfg.timing.mode
+        if mode not in ('lockstep', 'realtime'):
+            raise ConfigError('<parameter>', 'timing_mode', mode, "must be 'lockstep' or 'realtime'")
+        from lidar_sim_ros.loop.dynamics import Dynamics
+        self.dynamics = Dynamics(cfg)
+        self.R_BL, self.t_B = frames.mount_transform(cfg.chaser.mount)
+        self.gate = CommandGate(mode, cfg.control_period_s, timeout or cfg.timing.command_timeout_s)
+        self.steps = int(round(cfg.duration_s / cfg.control_period_s))
+        self.k = 0
+        self.peers_since: float | None = None
+        self.pending_clock: tuple[float, float, float] | None = None
+        self.start_wall: float | None = None
+        self.force_lvlh = np.zeros(3)
+        self.R_HB = np.eye(3)
+        self.delta_v = 0.0
+        self.wall0 = time.monotonic()
+
+        reliable = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
+        self.clock_pub = self.create_publisher(ClockMsg, '/clock', QoSProfile(depth=10))
+        self.pose_pub = self.create_publisher(PoseStamped, '/target/pose', reliable)
+        self.sun_pub = self.create_publisher(Vector3Stamped, '/sun/direction', QoSProfile(depth=10))
+        self.attitude_pub = self.create_publisher(QuaternionStamped, '/chaser/attitude', reliable)
+        self._setup_tf()
+        self.create_subscription(WrenchStamped, command_topic, self._on_command, QoSProfile(depth=20))
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(POLL_S, self._tick, clock=steady)
+        self.create_timer(STATS_PERIOD_S, self._log_stats, clock=steady)
+        self.get_logger().info(
+            f'{mode}: {self.steps} periods of {cfg.control_period_s:g} s, poses at '
+            f'{cfg.timing.pose_rate_hz:g} Hz on {self.pose_pub.topic_name} (frame {self.lidar_frame!r}), '
+            f'commands on {command_topic}, clock epoch {self.epoch_s:g} s')
+
+    # ------------------------------------------------------------------ tf
+    def _setup_tf(self) -> None:
+        self.chaser_pose_pub = self.create_publisher(PoseStamped, '/loop/chaser_pose', QoSProfile(depth=50))
+        self.target_pose_pub = self.create_publisher(PoseStamped, '/loop/target_pose', QoSProfile(depth=50))
+        try:
+            from geometry_msgs.msg import TransformStamped
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            self.tf_pub = None
+            self.get_logger().info('tf2_msgs is not installed (no pip wheel for Jazzy): no /tf; '
+                                   'the same poses are on /loop/chaser_pose, /loop/target_pose '
+                                   '(PoseStamped, frame lvlh); the mount is config chaser.mount')
+            return
+        self._TransformStamped, self._TFMessage = TransformStamped, TFMessage
+        self.tf_pub = self.create_publisher(TFMessage, '/tf', QoSProfile(depth=100))
+
+    def _transform(self, parent: str, child: str, t_s: float, R: np.ndarray, p: np.ndarray):
+        tf = self._TransformStamped()
+        tf.header.frame_id, tf.header.stamp, tf.child_frame_id = parent, _stamp(t_s), child
+        tf.transform.translation.x, tf.transform.translation.y, tf.transform.translation.z = map(float, p)
+        r = tf.transform.rotation
+        r.x, r.y, r.z, r.w = map(float, Rotation.from_matrix(R).as_quat())
+        return tf
+
+    def _publish_scene(self, t_s: float, truth: TruthSamples) -> None:
+        """LVLH -> chaser, chaser -> lidar, LVLH -> target at the period's end."""
+        R_HB, rho = truth.R_HB[-1], truth.rho_m[-1]
+        R_HT = R_HB @ self.R_BL @ truth.R_LT[-1]
+        self.chaser_pose_pub.publish(_pose_msg('lvlh', t_s, R_HB, rho))
+        self.target_pose_pub.publish(_pose_msg('lvlh', t_s, R_HT, np.zeros(3)))
+        if self.tf_pub is None:
+            return
+        self.tf_pub.publish(self._TFMessage(transforms=[
+            self._transform('lvlh', 'chaser', t_s, R_HB, rho),
+            self._transform('chaser', self.lidar_frame, t_s, self.R_BL, self.t_B),
+            self._transform('lvlh', 'target', t_s, R_HT, np.zeros(3))]))
+
+    # --------------------------------------------------------------- commands
+    def _on_command(self, msg: WrenchStamped) -> None:
+        f = np.array([msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z])
+        if not np.isfinite(f).all() or msg.header.frame_id not in ('lvlh', 'chaser'):
+            self.get_logger().warn(f'dropped force command: frame_id {msg.header.frame_id!r} '
+                                   f'(needs lvlh or chaser), force {f.tolist()}', throttle_duration_sec=5.0)
+            return
+        if msg.header.frame_id == 'chaser':
+            f = self.R_HB @ f
+        t_s = stamp_to_ns(msg.header.stamp) / NS_PER_S - self.epoch_s
+        cfg = self.config.chaser
+        self.gate.on_command(t_s, limit_force(f, cfg.thrust_limit_n, cfg.dead_band_n))
+
+    # ------------------------------------------------------------------ step
+    def _peers_ready(self) -> bool:
+        """Lock-step starts when the loop is there: nothing published before is lost."""
+        if self.peers_since is None:
+            if self.count_subscribers('/target/pose') and all(
+                    self.count_publishers(topic) for topic in self.wait_for_publishers):
+                self.peers_since = time.monotonic()
+                self.get_logger().info('peers found: starting in 0.5 s')
+            return False
+        return time.monotonic() - self.peers_since >= PEER_SETTLE_S
+
+    def _tick(self) -> None:
+        if self.pending_clock is not None:
+            t_end, t0, wall = self.pending_clock
+            if time.monotonic() < wall:
+                return
+            self.clock_pub.publish(ClockMsg(clock=_stamp(t_end)))
+            self.gate.published(t0, time.monotonic())
+            self.pending_clock = None
+            if self.k == self.steps:
+                self._log_stats()
+                self.get_logger().info('done: the configured duration is simulated; the clock stops here')
+            return
+        if self.k >= self.steps:
+            return
+        if self.k == 0 and self.gate.mode == 'lockstep' and self.wait_for_peers and not self._peers_ready():
+            return
+        if self.k == 0 and self.start_wall is None:
+            # The clock at loop time zero first: a use_sim_time node drops poses before any /clock.
+            self.clock_pub.publish(ClockMsg(clock=_stamp(self.epoch_s)))
+            self.start_wall = time.monotonic() + START_DELAY_S
+        if self.k == 0 and time.monotonic() < self.start_wall:
+            return
+        wall = time.monotonic()
+        if not self.gate.due(wall):
+            return
+        force, problem = self.gate.take()
+        if problem == 'timeout':
+            self.get_logger().warn(f'period {self.k}: no command for the period from '
+                                   f'{self.gate.period_start_s:.2f} s within {self.gate.timeout_s:g} s '
+                                   f'(wall): going on with no force')
+        self.force_lvlh = force
+        self._advance()
+
+    def _advance(self) -> None:
+        cfg = self.config
+        t0 = self.dynamics.t_s
+        truth = propagate(cfg, self.dynamics, self.force_lvlh, self.R_BL, self.t_B)
+        self.delta_v += float(np.linalg.norm(self.force_lvlh)) * cfg.control_period_s / cfg.chaser.mass_kg
+        first = 0 if self.k == 0 else 1   # the period's first sample is the last one's end
+        for j in range(first, len(truth.t_s)):
+            t = self.epoch_s + float(truth.t_s[j])
+            self.pose_pub.publish(_pose_msg(self.lidar_frame, t, truth.R_LT[j], truth.t_L_m[j]))
+            att = QuaternionStamped()
+            att.header.frame_id, att.header.stamp = 'lvlh', _stamp(t)
+            q = att.quaternion
+            q.x, q.y, q.z, q.w = map(float, Rotation.from_matrix(truth.R_HB[j]).as_quat())
+            self.attitude_pub.publish(att)
+        sun = Vector3Stamped()
+        sun.header.frame_id, sun.header.stamp = self.lidar_frame, _stamp(self.epoch_s + t0)
+        sun.vector.x, sun.vector.y, sun.vector.z = map(float, truth.sun_lidar[0])
+        self.sun_pub.publish(sun)
+        t_end = self.epoch_s + float(truth.t_s[-1])
+        self._publish_scene(t_end, truth)
+        self.R_HB = truth.R_HB[-1]
+        self.pending_clock = (t_end, t0, time.monotonic() + self.clock_delay_s)
+        self.k += 1
+        self.range_m = float(np.linalg.norm(truth.t_L_m[-1]))
+        self.rho = truth.rho_m[-1]
+
+    def _log_stats(self) -> None:
+        if self.k == 0:
+            return
+        t = self.dynamics.t_s
+        wall = time.monotonic() - self.wall0
+        g = self.gate
+        self.get_logger().info(
+            f't = {t:.1f} s ({t / wall:.2f}x real time), range {self.range_m:.2f} m, LVLH '
+            f'[{self.rho[0]:.2f}, {self.rho[1]:.2f}, {self.rho[2]:.2f}] m, delta-v {self.delta_v:.3f} m/s; '
+            f'commands {g.commands}, timeouts {g.timeouts}, late {g.late}')
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(LoopDynamicsNode, args if args is not None else sys.argv, (ConfigError, ValueError))
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,326 @@
+"""The closed loop, one control period at a time, in one process (no DDS).
+
+``loop_step(ctx, state) -> (state, StepOutput)`` reads as the loop it closes:
+
+    propagate   Basilisk over the period under the last force command, sampling the truth
+                (the target pose in the lidar frame, the sun there, the relative state)
+    sense       the core Simulator's frame over the period: the full error model's cloud
+                (``cloud='model'``) or the noise-free one (``'truth'``)
+    estimate    the pose tracker on the cloud (``PoseTracker``); ``cloud=None`` feeds the
+                true pose instead (tests of guidance and control alone)
+    navigate    the estimate -> the chaser's relative position in LVLH -> alpha-beta filter
+    guide       the V-bar hold-point state machine (estimate only)
+    control     PD + CW cancellation, thrust limit, dead band -> force (LVLH) for the next period
+
+The Basilisk simulation, the simulator and the tracker are handles held by the context
+and state and advanced in place; everything else is passed in and returned. The ROS
+nodes (``loop.dynamics_node``, ``loop.controller_node``) call the same stage functions.
+
+``run_loop(config, cloud)`` runs a whole approach and returns its ``LoopResult``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from lidar_sim_ros.loop import frames
+from lidar_sim_ros.loop.config import LoopConfig
+from lidar_sim_ros.loop.control import control_step
+from lidar_sim_ros.loop.guidance import GuidanceState, NavState, Reference, guidance_step, nav_update
+
+
+# --------------------------------------------------------------- the truth
+@dataclass(frozen=True)
+class TruthSamples:
+    """Truth at K sample times t_s (K,) over one period (both ends included): the target
+    pose in the lidar frame (R_LT (K, 3, 3), t_L (K, 3) m), the sun in the lidar frame
+    (K, 3), the chaser's attitude in LVLH R_HB (K, 3, 3), the relative state rho (K, 3) m,
+    rho_dot (K, 3) m/s, and the LVLH rate n (rad/s)."""
+
+    t_s: np.ndarray
+    R_LT: np.ndarray
+    t_L_m: np.ndarray
+    sun_lidar: np.ndarray
+    R_HB: np.ndarray
+    rho_m: np.ndarray
+    rho_dot_mps: np.ndarray
+    n_rad_s: float
+
+    def pose_track(self, previous: 'TruthSamples | None' = None, extrapolation_s: float = 0.0):
+        """These samples (after ``previous``'s) as a core ``PoseTrack`` for the simulator."""
+        from lidar_sim_ros.core.pose import PoseTrack
+        t, R, p = self.t_s, self.R_LT, self.t_L_m
+        if previous is not None:
+            keep = previous.t_s < t[0]
+            t = np.concatenate([previous.t_s[keep], t])
+            R = np.concatenate([previous.R_LT[keep], R])
+            p = np.concatenate([previous.t_L_m[keep], p])
+        return PoseTrack(t, p, Rotation.from_matrix(R).as_quat(), max_extrapolation_s=extrapolation_s)
+
+
+def chaser_attitude(config: LoopConfig, r_chaser, r_target, R_NH, R_BL, t_B) -> np.ndarray:
+    """R_NB from the configured attitude law (kinematic: an ideal attitude controller)."""
+    if config.chaser.attitude_law == 'hold_lvlh':
+        return frames.attitude_hold_lvlh(R_NH)
+    return frames.attitude_point_at_target(r_chaser, r_target, R_NH, R_BL, t_B)
+
+
+def sample_truth(config: LoopConfig, s, R_BL, t_B) -> dict:
+    """The truth of one dynamics state ``s`` (``DynamicsState``) as a dict of arrays."""
+    R_NH, n = s.lvlh()
+    R_NB = chaser_attitude(config, s.r_chaser_m, s.r_target_m, R_NH, R_BL, t_B)
+    R_LT, t_L = frames.target_in_lidar(s.r_chaser_m, R_NB, R_BL, t_B, s.r_target_m, s.R_NT)
+    rho, rho_dot = s.relative_lvlh()
+    return {'t_s': s.t_s, 'R_LT': R_LT, 't_L_m': t_L,
+            'sun_lidar': frames.sun_in_lidar(np.asarray(config.sun.direction_inertial), R_NB, R_BL),
+            'R_HB': R_NH.T @ R_NB, 'rho_m': rho, 'rho_dot_mps': rho_dot, 'n_rad_s': n,
+            'R_NH': R_NH}
+
+
+def propagate(config: LoopConfig, dynamics, force_lvlh_n: np.ndarray, R_BL, t_B) -> TruthSamples:
+    """Advance the dynamics one control period under ``force_lvlh_n`` (N, LVLH, turned to
+    inertial at the period start and held), sampling the truth at every sub-step."""
+    start = sample_truth(config, dynamics.state(), R_BL, t_B)
+    dynamics.set_force_inertial(start['R_NH'] @ force_lvlh_n)
+    rows = [start]
+    dt = config.control_period_s / config.substeps
+    t0 = dynamics.t_s
+    for j in range(1, config.substeps + 1):
+        rows.append(sample_truth(config, dynamics.advance_to(t0 + j * dt), R_BL, t_B))
+    stack = {k: np.array([r[k] for r in rows]) for k in rows[0] if k not in ('n_rad_s', 'R_NH')}
+    return TruthSamples(n_rad_s=start['n_rad_s'], **stack)
+
+
+# ------------------------------------------------------------ sense, estimate
+def sense(simulator, truth: TruthSamples, previous: TruthSamples | None, frame_index: int,
+          cloud: str) -> np.ndarray:
+    """The cloud (N, 3) m, lidar frame, of the frame over ``truth``'s period."""
+    from lidar_sim_ros.core.sun import SunTrack
+    if simulator.sun is not None:
+        simulator.sun = SunTrack(simulator.sun.config, truth.t_s, truth.sun_lidar)
+    period = truth.t_s[-1] - truth.t_s[0]
+    frame = simulator.simulate_frame(float(truth.t_s[0]), truth.pose_track(previous, period), frame_index)
+    return frame.xyz_m if cloud == 'model' else frame.truth_xyz_m
+
+
+def gate_cloud(xyz_m: np.ndarray, centre_m: np.ndarray | None, radius_m: float) -> np.ndarray:
+    """The points within ``radius_m`` of ``centre_m`` (lidar frame, m); all without a centre or radius."""
+    if centre_m is None or radius_m <= 0:
+        return xyz_m
+    d = xyz_m - centre_m
+    return xyz_m[np.einsum('ij,ij->i', d, d) <= radius_m * radius_m]
+
+
+def track(tracker, t_s: float, xyz_m: np.ndarray, truth_guess: np.ndarray, from_cloud: bool):
+    """One tracker update; returns (Estimate, whether the truth guess was used for capture).
+
+    The adapter between the loop and ``PoseTracker``: with ``from_cloud`` the tracker is
+    given no guess, and acquires from the cloud alone where it can (gnc/acquire.py); where it
+    cannot (a tracker that needs a guess raises ValueError) and when ``from_cloud`` is off,
+    the capture starts from the true pose, as the pose_tracker node does today. Only the
+    capture sees it: once tracking, the tracker ignores the guess.
+    """
+    capturing = not tracker.tracking
+    if from_cloud:
+        try:
+            return tracker.update(t_s, xyz_m), False
+        except ValueError:
+            pass
+    return tracker.update(t_s, xyz_m, guess=truth_guess), capturing
+
+
+# ----------------------------------------------------------- the loop state
+@dataclass(frozen=True)
+class LoopContext:
+    """What does not change over a run: config, mount, and the handles."""
+
+    config: LoopConfig
+    dynamics: object
+    simulator: object | None
+    tracker: object | None
+    cloud: str | None
+    R_BL: np.ndarray
+    t_B: np.ndarray
+
+
+@dataclass(frozen=True)
+class LoopState:
+    """What a step carries to the next: the commanded force (N, LVLH), the filter, the
+    guidance, the previous period's truth samples, the frame index, acquisition state."""
+
+    force_lvlh_n: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    nav: NavState = NavState()
+    guidance: GuidanceState = GuidanceState()
+    previous: TruthSamples | None = None
+    frame_index: int = 0
+    tracking: bool = False
+    last_estimate: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class StepOutput:
+    """One period: its truth, the estimate (4 x 4 pose in the lidar frame at ``est_t_s``, or
+    None), the reference, and the force (N, LVLH) commanded for the next period."""
+
+    truth: TruthSamples
+    est_t_s: float
+    est_pose: np.ndarray | None
+    true_pose: np.ndarray
+    reference: Reference
+    force_lvlh_n: np.ndarray
+    lost: bool
+    truth_capture: bool
+    rho_est_m: np.ndarray | None
+
+
+def _pose_at(truth: TruthSamples, previous: TruthSamples | None, t_s: float) -> np.ndarray:
+    poses = truth.pose_track(previous).at(np.array([t_s]))
+    T = np.eye(4)
+    T[:3, :3] = poses.rotation.as_matrix()[0]
+    T[:3, 3] = poses.position_m[0]
+    return T
+
+
+def estimate_pose(ctx: LoopContext, state: LoopState, truth: TruthSamples, t_mid: float):
+    """(estimate 4 x 4 or None, its truth, whether the truth guess captured): sense + track."""
+    true_pose = _pose_at(truth, state.previous, t_mid)
+    if ctx.cloud is None:
+        return true_pose, true_pose, False
+    if state.previous is None:  # the sensor's first period: the pose before it is unknown
+        return None, true_pose, False
+    xyz = sense(ctx.simulator, truth, state.previous, state.frame_index, ctx.cloud)
+    centre = None if state.last_estimate is None else state.last_estimate[:3, 3]
+    xyz = gate_cloud(xyz, centre, ctx.config.cloud_gate_m)
+    est, used_truth = track(ctx.tracker, t_mid, xyz, true_pose, ctx.config.acquire_from_cloud)
+    return (est.pose if est.acceptable(ctx.tracker.config) else None), true_pose, used_truth
+
+
+def navigate(ctx: LoopContext, nav: NavState, truth: TruthSamples, t_mid: float,
+             est_pose: np.ndarray | None) -> tuple[NavState, np.ndarray | None]:
+    """Fold the estimate into the filter; the chaser's own attitude (R_HB at the estimate's
+    time, from its attitude determination) turns it into LVLH."""
+    if est_pose is None:
+        return nav, None
+    k = int(np.argmin(np.abs(truth.t_s - t_mid)))
+    rho = frames.chaser_from_estimate(est_pose[:3, 3], truth.R_HB[k], ctx.R_BL, ctx.t_B)
+    return nav_update(ctx.config.guidance, nav, t_mid, rho), rho
+
+
+def guide_and_control(config: LoopConfig, nav: NavState, g: GuidanceState, t_s: float, n_rad_s: float):
+    """(guidance state, reference, force (N, LVLH)) at ``t_s`` from the filtered estimate."""
+    if not nav.valid:
+        ref = Reference(np.zeros(3), np.zeros(3), 'wait', g.index, False)
+        return g, ref, np.zeros(3)
+    rho, rho_dot = nav.at(t_s)
+    g, ref = guidance_step(config.guidance, g, t_s, rho, rho_dot)
+    return g, ref, control_step(config.guidance, config.chaser, rho, rho_dot, ref, n_rad_s)
+
+
+def loop_step(ctx: LoopContext, state: LoopState) -> tuple[LoopState, StepOutput]:
+    """One control period: propagate, sense, estimate, navigate, guide, control."""
+    truth = propagate(ctx.config, ctx.dynamics, state.force_lvlh_n, ctx.R_BL, ctx.t_B)
+    t_mid = float(0.5 * (truth.t_s[0] + truth.t_s[-1]))  # a scan's fit sits at its mean time
+    est_pose, true_pose, truth_capture = estimate_pose(ctx, state, truth, t_mid)
+    nav, rho_est = navigate(ctx, state.nav, truth, t_mid, est_pose)
+    g, ref, force = guide_and_control(ctx.config, nav, state.guidance, float(truth.t_s[-1]), truth.n_rad_s)
+    tracking = est_pose is not None
+    new = replace(state, force_lvlh_n=force, nav=nav, guidance=g, previous=truth,
+                  frame_index=state.frame_index + 1, tracking=tracking,
+                  last_estimate=est_pose if tracking else state.last_estimate)
+    return new, StepOutput(truth, t_mid, est_pose, true_pose, ref, force,
+                           state.tracking and not tracking, truth_capture, rho_est)
+
+
+# ----------------------------------------------------------------- a whole run
+@dataclass(frozen=True)
+class LoopResult:
+    """A run's metrics (``metrics``, the keys of loop.json) and its time series (arrays,
+    one row per period unless said): t_s, rho_true_m (N, 3), rho_est_m (N, 3; NaN without
+    an estimate), range_m (lidar to target centre), force_lvlh_n (N, 3), delta_v_mps
+    (cumulative), phase (str), hold_index, est_trans_err_m, est_axis_err_deg (NaN without)."""
+
+    metrics: dict
+    series: dict
+
+
+def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics=None) -> LoopContext:
+    """Load the scenario's simulator and the tracker (not for ``cloud=None``) and start Basilisk.
+
+    ``scenario_path``: a scenario file, or an already loaded (e.g. dispersed) core
+    ``Scenario``, as a campaign case would pass."""
+    from lidar_sim_ros.loop.dynamics import Dynamics
+    if cloud not in (None, 'model', 'truth'):
+        raise ValueError(f"cloud must be 'model', 'truth' or None, not {cloud!r}")
+    simulator = tracker = None
+    if cloud is not None:
+        from lidar_sim_ros.core.config import load_scenario
+        from lidar_sim_ros.core.pipeline import Simulator
+        from lidar_sim_ros.gnc.tracker import PoseTracker, TrackerConfig, build_model
+        scenario = scenario_path if hasattr(scenario_path, 'sensor') else load_scenario(scenario_path)
+        simulator = Simulator.from_scenario(scenario)
+        tcfg = TrackerConfig()
+        tracker = PoseTracker(build_model(simulator.target.vertices_m, simulator.target.faces, tcfg), tcfg)
+    R_BL, t_B = frames.mount_transform(config.chaser.mount)
+    return LoopContext(config, dynamics or Dynamics(config), simulator, tracker, cloud, R_BL, t_B)
+
+
+def _axis_angle_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:
+    """Angle (deg) between the estimated and true body long axes (+Z)."""
+    c = float(np.clip(R_est[:, 2] @ R_true[:, 2], -1.0, 1.0))
+    return math.degrees(math.acos(c))
+
+
+def run_loop(config: LoopConfig, cloud: str | None = 'model', scenario_path=None,
+             duration_s: float | None = None) -> LoopResult:
+    """Run the approach for ``duration_s`` (default: the config's) and score it.
+
+    ``scenario_path``: a file or a loaded ``Scenario`` (default: the config's scenario,
+    resolved next to the package's config/loop.yaml)."""
+    if scenario_path is None and cloud is not None:
+        from lidar_sim_ros.core.config import resolve
+        from lidar_sim_ros.paths import config_path
+        scenario_path = resolve(config.scenario, Path(config_path('loop.yaml')).parent)
+    ctx = build_context(config, scenario_path, cloud)
+    state = LoopState()
+    steps = int(round((duration_s or config.duration_s) / config.control_period_s))
+    outputs = []
+    for _ in range(steps):
+        state, out = loop_step(ctx, state)
+        outputs.append(out)
+    return score(config, outputs)
+
+
+def score(config: LoopConfig, outputs: list[StepOutput]) -> LoopResult:
+    """Metrics (``metrics.loop_metrics``) and series of a run's step outputs."""
+    from lidar_sim_ros.loop.metrics import loop_metrics
+    n = len(outputs)
+    t = np.array([o.truth.t_s[-1] for o in outputs])
+    rho_true = np.array([o.truth.rho_m[-1] for o in outputs]).reshape(-1, 3)
+    rng = np.array([np.linalg.norm(o.truth.t_L_m[-1]) for o in outputs])
+    force = np.array([o.force_lvlh_n for o in outputs]).reshape(-1, 3)
+    ref = np.array([o.reference.rho_m for o in outputs]).reshape(-1, 3)
+    rho_est = np.full((n, 3), np.nan)
+    trans_err, axis_err = np.full(n, np.nan), np.full(n, np.nan)
+    for i, o in enumerate(outputs):
+        if o.est_pose is not None:
+            trans_err[i] = np.linalg.norm(o.est_pose[:3, 3] - o.true_pose[:3, 3])
+            axis_err[i] = _axis_angle_deg(o.est_pose[:3, :3], o.true_pose[:3, :3])
+        if o.rho_est_m is not None:
+            rho_est[i] = o.rho_est_m
+    got = np.flatnonzero(np.isfinite(trans_err))
+    metrics = loop_metrics(t, rho_true, ref, rng, force, config.control_period_s, config.chaser.mass_kg,
+                           config.guidance.hold_time_s, [outputs[i].est_t_s for i in got],
+                           trans_err[got], axis_err[got], sum(o.lost for o in outputs))
+    metrics['truth_captures'] = int(sum(o.truth_capture for o in outputs))
+    metrics['holds_reached'] = int(max((o.reference.index + o.reference.settled for o in outputs), default=0))
+    dv = np.cumsum(np.linalg.norm(force, axis=1)) * config.control_period_s / config.chaser.mass_kg
+    series = {'t_s': t, 'rho_true_m': rho_true, 'rho_est_m': rho_est, 'ref_m': ref, 'range_m': rng,
+              'force_lvlh_n': force, 'delta_v_mps': dv, 'phase': [o.reference.phase for o in outputs],
+              'hold_index': np.array([o.reference.index for o in outputs]),
+              'settled': np.array([o.reference.settled for o in outputs]),
+              'est_trans_err_m': trans_err, 'est_axis_err_deg': axis_err}
+    return LoopResult(metrics, series)
