@@ -129,8 +129,7 @@ def test_lock_step_runs_are_identical(config):
 
 def test_capture_adapter_uses_the_truth_only_to_capture():
     """``step.track``: with acquire_from_cloud off the true pose starts the capture and only
-    the capture; on, the tracker gets no guess (and falls back to the truth only where it
-    cannot acquire alone: a tracker without gnc/acquire.py raises ValueError)."""
+    the capture; on, the tracker gets no guess and acquires from the cloud alone."""
     pytest.importorskip('small_gicp')
     import trimesh
 
@@ -149,5 +148,5 @@ def test_capture_adapter_uses_the_truth_only_to_capture():
     assert not used and np.linalg.norm(est.pose[:3, 3] - T[:3, 3]) < 0.05
 
     fresh = PoseTracker(build_model(box.vertices, box.faces, cfg), cfg)
-    est, used = track(fresh, 0.0, xyz, T, from_cloud=True)
-    assert est.acceptable(cfg) and np.linalg.norm(est.pose[:3, 3] - T[:3, 3]) < 0.05
+    est, used = track(fresh, 0.0, xyz, np.full((4, 4), np.nan), from_cloud=True)
+    assert not used and est.acceptable(cfg) and np.linalg.norm(est.pose[:3, 3] - T[:3, 3]) < 0.05

@@ -143,9 +143,10 @@ class LoopConfig(_Model):
         'its initial_pose and motion are unused: the dynamics drives the pose'))
     duration_s: PositiveFloat = 120.0
     control_period_s: PositiveFloat = Field(0.1, description='one lidar frame: one step (s)')
-    acquire_from_cloud: bool = Field(False, description=(
-        'capture the first pose from the cloud alone (needs the tracker acquisition of '
-        'gnc/acquire.py); false: capture from the true pose, as pose_tracker does today'))
+    acquire_from_cloud: bool = Field(True, description=(
+        'capture the first pose (and again after a loss) from the cloud alone '
+        '(gnc/acquire.py); false: capture from the true pose, a reference for what the '
+        'acquisition costs (the GNC side then reads the truth once per capture)'))
     cloud_gate_m: NonNegFloat = Field(8.0, description=(
         'cloud points farther than this from the last estimated target centre are dropped '
         'before the tracker (m; 0 = none): far background returns cost the nearest-neighbour '

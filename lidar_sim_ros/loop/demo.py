@@ -204,8 +204,12 @@ def main(argv=None) -> int:
     domain = args.domain_id if args.domain_id is not None else random.randint(1, 101)
     results, series = {}, {}
     for key in args.clouds:
-        tracker_args = ['-p', 'points_topic:=/loop/points_gated', '-p', 'pose_topic:=/target/pose',
-                        '-p', f'scenario_file:={scenario}', '-p', 'use_sim_time:=true']
+        # The tracker acquires from the cloud alone (its pose_topic is '' by default); with
+        # acquire_from_cloud off it captures from the truth, as a reference.
+        tracker_args = ['-p', 'points_topic:=/loop/points_gated', '-p', f'scenario_file:={scenario}',
+                        '-p', 'use_sim_time:=true']
+        if not config.acquire_from_cloud:
+            tracker_args += ['-p', 'pose_topic:=/target/pose']
         commands = {
             'loop_dynamics': ('lidar_sim_ros.loop.dynamics_node', [
                 '-p', f'config_file:={cfg_file}', '-p', f'epoch_s:={EPOCH_S}', '-p', 'clock_delay_s:=0.01',
@@ -232,8 +236,10 @@ def main(argv=None) -> int:
         print(f'{key}: ' + ', '.join(f'{k} {v:.3g}' if isinstance(v, float) else f'{k} {v}'
                                      for k, v in results[key].items()), flush=True)
     meta = {'config': str(cfg_file), 'scenario': str(scenario), 'duration_s': config.duration_s,
-            'timing': 'lockstep', 'capture': 'pose_tracker captures from /target/pose (truth) until '
-            'acquisition from the cloud lands (gnc/acquire.py)',
+            'timing': 'lockstep',
+            'capture': ('pose_tracker acquires from the cloud alone (gnc/acquire.py)'
+                        if config.acquire_from_cloud else
+                        'pose_tracker captures from /target/pose (truth): acquire_from_cloud is off'),
             'note': 'hold_error_m: RMS along-track (line of sight) error of the true chaser '
                     'position from the hold point over the hold dwells; est_*: estimate minus '
                     'truth at the estimate stamp; see docs/loop.md'}

@@ -119,17 +119,13 @@ def track(tracker, t_s: float, xyz_m: np.ndarray, truth_guess: np.ndarray, from_
     """One tracker update; returns (Estimate, whether the truth guess was used for capture).
 
     The adapter between the loop and ``PoseTracker``: with ``from_cloud`` the tracker is
-    given no guess, and acquires from the cloud alone where it can (gnc/acquire.py); where it
-    cannot (a tracker that needs a guess raises ValueError) and when ``from_cloud`` is off,
-    the capture starts from the true pose, as the pose_tracker node does today. Only the
-    capture sees it: once tracking, the tracker ignores the guess.
+    given no guess and acquires from the cloud alone (gnc/acquire.py), first and after a
+    loss; nothing of the truth reaches it. With ``from_cloud`` off, a capture starts from
+    the true pose (a reference run); once tracking, the tracker ignores the guess.
     """
-    capturing = not tracker.tracking
     if from_cloud:
-        try:
-            return tracker.update(t_s, xyz_m), False
-        except ValueError:
-            pass
+        return tracker.update(t_s, xyz_m), False
+    capturing = not tracker.tracking
     return tracker.update(t_s, xyz_m, guess=truth_guess), capturing
 
 
