@@ -2,7 +2,7 @@
 import pytest
 
 from lidar_sim_ros.ros.scheduler import (COMPUTE, NS_PER_S, SKIP, WAIT, FrameScheduler,
-                                         readiness)
+                                         pose_window_ns, readiness)
 
 MS = 1_000_000
 
@@ -94,3 +94,22 @@ def test_readiness():
     assert ready(900, 1_040, 1_601).action == SKIP
     gap = ready(900, 1_100, 1_100, gap_ms=501)
     assert gap.action == SKIP and gap.kind == 'pose_gap'
+
+
+def test_a_frame_waits_for_the_poses_its_pose_clock_reads():
+    """With time_offset dt = +30 ms a frame evaluates poses up to its last shot + 30 ms: it
+    waits until the history reaches them (it used to compute and fail on half its poses)."""
+    from lidar_sim_ros.core.effects import make_effect
+    start, last = 10 * NS_PER_S, 99_000_000
+    assert pose_window_ns(start, last, []) == (start, start + last)
+    shift = [make_effect('time_offset', {'dt_s': 0.03})]
+    first, end = pose_window_ns(start, last, shift)
+    assert (first, end) == (start + 30_000_000, start + last + 30_000_000)
+    now = start + 100_000_000
+    # Poses up to the last shot: enough without the offset, not with it.
+    assert readiness(start, start + last, start + 100_000_000, now, start - NS_PER_S,
+                     start + last, 0.0, 0.5).action == COMPUTE
+    assert readiness(first, end, start + 100_000_000, now, start - NS_PER_S,
+                     start + last, 0.0, 0.5).action == WAIT
+    early = pose_window_ns(start, last, [make_effect('time_offset', {'dt_s': -0.03})])
+    assert early == (start - 30_000_000, start + last - 30_000_000)

@@ -50,7 +50,7 @@ from lidar_sim_ros.ros.deadline import DeadlinePublisher
 from lidar_sim_ros.ros.spin import run_node
 from lidar_sim_ros.ros.pose_input import (NS_PER_S, PoseHistory, PoseSample, ReasonThrottle,
                                           check_pose, twist_to_lidar)
-from lidar_sim_ros.ros.scheduler import COMPUTE, WAIT, FrameScheduler, readiness
+from lidar_sim_ros.ros.scheduler import COMPUTE, WAIT, FrameScheduler, pose_window_ns, readiness
 from lidar_sim_ros.ros.sun_input import check_sun_direction, sun_with_direction
 
 NODE_NAME = 'lidar_sim_node'
@@ -383,6 +383,9 @@ class LidarSimNode(Node):
             self._deadline.close()
         return super().destroy_node()
 
+    def _pose_window_ns(self, start_ns: int) -> tuple[int, int]:
+        return pose_window_ns(start_ns, self._last_shot_ns, self.sim.effects)
+
     # --------------------------------------------------------- parameters
     def _effects_value(self) -> list[str]:
         value = self.get_parameter_or('effects').value  # NOT_SET (empty list) -> None
@@ -531,11 +534,12 @@ class LidarSimNode(Node):
         self._waiting = False
         for k in poll.due:
             start_ns, end_ns = self.scheduler.start_ns(k), self.scheduler.end_ns(k)
-            ready = readiness(start_ns, start_ns + self._last_shot_ns, end_ns, now_ns,
+            first_ns, last_ns = self._pose_window_ns(start_ns)
+            ready = readiness(first_ns, last_ns, end_ns, now_ns,
                               self.history.start_ns, self.history.end_ns,
                               self.get_parameter('max_extrapolation_s').value,
                               self.get_parameter('stale_pose_timeout_s').value,
-                              self.history.max_gap_ns(start_ns, end_ns))
+                              self.history.max_gap_ns(first_ns, max(last_ns, first_ns + 1)))
             if ready.action == WAIT:
                 self._waiting = True
                 return
@@ -562,7 +566,7 @@ class LidarSimNode(Node):
         try:
             # Pose times relative to the frame start keep float64 resolution at wall-clock epochs.
             track = self.history.track(start_ns, self.get_parameter('max_extrapolation_s').value,
-                                       from_ns=start_ns)
+                                       from_ns=min(start_ns, self._pose_window_ns(start_ns)[0]))
             frame = self.sim.simulate_frame(0.0, track, frame_index=k)
             t1 = time.perf_counter()
             frame_id = self.get_parameter('frame_id').value

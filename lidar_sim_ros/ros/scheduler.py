@@ -12,6 +12,8 @@ window (``readiness``); frames are handled in order, each exactly once.
 from __future__ import annotations
 
 import math
+
+import numpy as np
 from dataclasses import dataclass
 from fractions import Fraction
 
@@ -100,6 +102,19 @@ class Readiness:
     action: str
     kind: str = ''
     reason: str = ''
+
+
+def pose_window_ns(start_ns: int, last_shot_ns: int, effects) -> tuple[int, int]:
+    """The pose times (ns) a frame starting at ``start_ns`` reads: its first shot (0) and
+    its last (``last_shot_ns`` after the start) through the effects' pose clock
+    (``time_offset`` shifts it by dt_s), so that a frame waits for the poses it will
+    evaluate, not for those of its own window. Times relative to the frame start, as the
+    node computes the frame."""
+    t_s = np.array([0.0, last_shot_ns / NS_PER_S])
+    for eff in effects:
+        t_s = np.asarray(eff.pose_time_s(t_s), float)
+    return (start_ns + int(np.floor(t_s.min() * NS_PER_S)),
+            start_ns + int(np.ceil(t_s.max() * NS_PER_S)))
 
 
 def readiness(start_ns: int, last_shot_ns: int, end_ns: int, now_ns: int,
