@@ -101,3 +101,28 @@ def test_sensor_path_that_is_not_yaml_does_not_print_it(cfg):
     with pytest.raises(ConfigError, match='expected a YAML mapping') as err:
         load_sensor(cfg / SENSOR)
     assert 'printed' not in str(err.value)
+
+
+def test_frame_rate_override_is_validated_like_the_file():
+    # The node's rate_hz parameter: a copy with update= skipped validation.
+    from lidar_sim_ros.core.config import with_frame_rate
+    sensor = load_sensor(CONFIG / SENSOR)
+    assert with_frame_rate(sensor, 20.0, '<parameters>').frame_period_s == pytest.approx(0.05)
+    with pytest.raises(ConfigError, match=r'<parameters>: key "rate_hz" = 1e-09'):
+        with_frame_rate(sensor, 1e-9, '<parameters>')
+
+
+@pytest.mark.parametrize('args', [['--epoch-s', 'nan'], ['--epoch-s', 'inf'], ['--epoch-s', '3e9'],
+                                  ['--start-s', 'nan']])
+def test_simulate_refuses_non_finite_clock_arguments(args, capsys):
+    from lidar_sim_ros.cli import build_parser
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(['simulate', 'x.yaml', '--frames', '1', '--out', 'o', *args])
+    assert 'expected' in capsys.readouterr().err
+
+
+def test_simulate_refuses_stamps_past_int32(tmp_path):
+    from lidar_sim_ros.offline import simulate_to_bag
+    with pytest.raises(ValueError, match=r'stamps must lie in \[0, 2\*\*31\) s'):
+        simulate_to_bag(CONFIG / 'scenario.yaml', tmp_path, frames=10**12, figures=False)
+    assert not (tmp_path / 'bag').exists()

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lidar_sim_ros.cli_types import positive_int
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, POSE_TOPIC, SUN_TOPIC
 
 
@@ -37,7 +38,7 @@ def register(subparsers) -> None:
                         'from false returns on sunlit vs shadowed surfaces')
     p.add_argument('--history', type=Path, default=None, metavar='FILE',
                    help='history file to append to (default DIR/../history.json)')
-    p.add_argument('--max-points', type=int, default=None, metavar='N',
+    p.add_argument('--max-points', type=positive_int, default=None, metavar='N',
                    help='analyse a random subset of at most this many points '
                         '(default 300000)')
     p.add_argument('--candidates', nargs='*', default=None, metavar='EFFECT',

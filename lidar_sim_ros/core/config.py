@@ -210,6 +210,15 @@ class SensorConfig(_Model):
         return 1.0 / self.frame_rate_hz
 
 
+def with_frame_rate(sensor: SensorConfig, rate_hz: float, source: str | Path) -> SensorConfig:
+    """``sensor`` at another frame rate, validated like the file (a copy with ``update``
+    would skip the checks); ConfigError names ``source``, key ``rate_hz`` and the value."""
+    try:
+        return SensorConfig.model_validate({**sensor.model_dump(), 'frame_rate_hz': rate_hz})
+    except ValidationError as exc:
+        raise ConfigError(source, 'rate_hz', rate_hz, exc.errors()[0]['msg']) from None
+
+
 # ------------------------------------------------------------------ materials
 MAX_RANGE_ERROR_M = 100.0
 """Largest per-material range bias or sigma (m): the paper's are millimetres; a bias of
