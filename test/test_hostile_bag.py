@@ -140,3 +140,10 @@ def test_clouds_are_dense_only_when_finite_in_float32():
     # 1e300 m is finite in float64 but inf in the float32 cloud: refused, not published.
     with pytest.raises(ValueError, match='float32 range'):
         make_points(np.array([[1.0, 2.0, 3.0], [1e300, 0.0, 0.0]]), 0.0, 0.0, 0, 0)
+
+
+def test_cloud_size_is_limited(monkeypatch, tmp_path):
+    import lidar_sim_ros.io.pointcloud as pc
+    monkeypatch.setattr(pc, 'MAX_CLOUD_POINTS', N - 1)
+    with pytest.raises(MeasurementError, match=f'exceeds the limit of {N - 1} points per cloud'):
+        load_measurements(write_bag(tmp_path / 'b'))

@@ -60,6 +60,8 @@ POINT_FIELDS: list[FieldSpec] = [
 ]
 
 _NS_PER_S = 1_000_000_000
+MAX_CLOUD_POINTS = 50_000_000
+"""Points in one decoded cloud (a P-60 frame has ~21,000; the decoded copy costs ~40 B each)."""
 
 
 def make_points(
@@ -202,6 +204,9 @@ def from_pointcloud2(msg: Any) -> np.ndarray:
     """
     height, width = int(msg.height), int(msg.width)
     point_step, row_step = int(msg.point_step), int(msg.row_step)
+    if height * width > MAX_CLOUD_POINTS:
+        raise ValueError(f'PointCloud2 of {height} x {width} points exceeds the limit of '
+                         f'{MAX_CLOUD_POINTS} points per cloud')
     order = '>' if msg.is_bigendian else '<'
     wire_dtype, out_dtype = _field_dtypes(msg.fields, order, point_step)
 
