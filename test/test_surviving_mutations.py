@@ -153,3 +153,31 @@ def test_odometry_angular_twist_is_rotated_body_to_lidar():
     quat = Rotation.from_euler('z', 90, degrees=True).as_quat()
     _, w = twist_to_lidar(quat, np.zeros(3), np.array([0.3, 0.0, 0.0]))
     np.testing.assert_allclose(w, [0.0, 0.3, 0.0], atol=1e-15)
+
+
+def test_campaign_coverage_is_evaluated_at_the_mid_frame_pose(tmp_path):
+    """Mutation: campaign coverage evaluated at the frame-start pose (campaign/run.py).
+    A 2 m plate at 10 m lies edge-on at t = 0 (body z = lidar z, normal across the line
+    of sight) and tumbles at -900 deg/s about lidar y: at mid-frame (t = 0.05 s) its
+    normal has turned 45 deg toward the sensor (hand calculation), so its faces are
+    visible there; at the frame start they are not (no face looks toward the sensor)."""
+    from lidar_sim_ros.campaign.run import simulate_case
+    from lidar_sim_ros.campaign.sample import RunCase
+    from lidar_sim_ros.core.config import load_scenario
+    (tmp_path / 'plate.obj').write_text('usemtl PIF\nv -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\n'
+                                        'f 1 2 3\nf 1 3 4\n')
+    sensor = yaml.safe_load((CONFIG / 'cepton_vista_p60.yaml').read_text())
+    sensor['scan'] = {'type': 'rotating', 'elevations_deg': [float(e) for e in np.linspace(-8.0, 8.0, 17)],
+                      'az_min_deg': -8.0, 'az_max_deg': 8.0, 'shots_per_beam': 40}
+    (tmp_path / 'sensor.yaml').write_text(yaml.safe_dump(sensor))
+    (tmp_path / 'materials.yaml').write_text(yaml.safe_dump({'materials': [
+        {'name': 'PIF', 'kd': 0.5, 'ks': 0.0, 'n': 1.0, 'bias_m': 0.0, 'sigma_m': 0.0}]}))
+    (tmp_path / 'scenario.yaml').write_text(yaml.safe_dump({
+        'seed': 1, 'mesh': 'plate.obj', 'sensor': 'sensor.yaml', 'materials': 'materials.yaml',
+        'initial_pose': {'position_m': [10.0, 0.0, 0.0], 'quat_xyzw': [0.0, 0.0, 0.0, 1.0]},
+        'motion': {'tumble_axis': [0.0, 1.0, 0.0], 'tumble_rate_dps': -900.0}}))
+    scenario = load_scenario(tmp_path / 'scenario.yaml')
+    case = RunCase(0, 1, 1, {}, scenario, None, 'stats', 'mcap', 1)
+    stats = simulate_case(case)
+    assert stats['points'] > 0
+    assert stats['coverage_frames'] == 1 and 0.0 < stats['coverage'] <= 1.0
