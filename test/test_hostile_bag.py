@@ -147,3 +147,10 @@ def test_cloud_size_is_limited(monkeypatch, tmp_path):
     monkeypatch.setattr(pc, 'MAX_CLOUD_POINTS', N - 1)
     with pytest.raises(MeasurementError, match=f'exceeds the limit of {N - 1} points per cloud'):
         load_measurements(write_bag(tmp_path / 'b'))
+
+
+def test_dropped_input_is_said_on_the_terminal():
+    from lidar_sim_ros.compare.command import dropped_line
+    assert dropped_line({'non_finite': 5, 'subsampled': 9, 'beyond_range': 0}) is None
+    line = dropped_line({'beyond_range': 40, 'bad_poses': 1})
+    assert line.startswith('dropped as unusable: 40 points beyond 10 km, 1 poses')

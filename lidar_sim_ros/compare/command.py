@@ -58,4 +58,20 @@ def run(args: argparse.Namespace) -> int:
         max_points=args.max_points or DEFAULT_MAX_POINTS,
         candidates=args.candidates, report=not args.no_report))
     print('\n'.join(result.lines))
+    dropped = dropped_line(result.summary.get('dropped') or {})
+    if dropped:
+        print(dropped)
     return 0
+
+
+# Input the loader dropped as unusable (not the "no return" markers or the subsample):
+# said on the terminal, not only in summary.json, so a cleaned-up answer is not mistaken
+# for the bag's own.
+_DROPPED = {'beyond_range': 'points beyond 10 km', 'bad_time': 'points with a non-finite time',
+            'bad_poses': 'poses with a non-finite position or a non-unit quaternion'}
+
+
+def dropped_line(dropped: dict) -> str | None:
+    """'dropped as unusable: 3 poses with ...' or None when nothing was dropped."""
+    parts = [f'{dropped[k]} {what}' for k, what in _DROPPED.items() if dropped.get(k)]
+    return f'dropped as unusable: {", ".join(parts)} (see notes in summary.json)' if parts else None
