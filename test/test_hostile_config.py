@@ -126,3 +126,16 @@ def test_simulate_refuses_stamps_past_int32(tmp_path):
     with pytest.raises(ValueError, match=r'stamps must lie in \[0, 2\*\*31\) s'):
         simulate_to_bag(CONFIG / 'scenario.yaml', tmp_path, frames=10**12, figures=False)
     assert not (tmp_path / 'bag').exists()
+
+
+def test_out_of_memory_is_one_line(monkeypatch, capsys):
+    from lidar_sim_ros import cli
+    def boom(args):
+        raise MemoryError()
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, 'build_parser', lambda: parser)
+    parser.set_defaults(func=boom)
+    for action in parser._subparsers._group_actions[0].choices.values():
+        action.set_defaults(func=boom)
+    assert cli.main(['simulate', 'x.yaml', '--frames', '1', '--out', 'o']) == 2
+    assert 'out of memory' in capsys.readouterr().err
