@@ -154,3 +154,14 @@ def test_dropped_input_is_said_on_the_terminal():
     assert dropped_line({'non_finite': 5, 'subsampled': 9, 'beyond_range': 0}) is None
     line = dropped_line({'beyond_range': 40, 'bad_poses': 1})
     assert line.startswith('dropped as unusable: 40 points beyond 10 km, 1 poses')
+
+
+def test_tracker_node_keeps_only_usable_points():
+    # The pose tracker node's input: NaN, origin and 3e38 points left out; integer x refused.
+    from lidar_sim_ros.gnc.pose_tracker_node import usable_xyz_m
+    pts = make_points(np.array([[10.0, 0, 0], [0, 0, 0], [3e38, 0, 0], [5.0, 1.0, 0]]), 0.0, 0.0, 0, 0)
+    pts['y'][1] = np.nan
+    np.testing.assert_array_equal(usable_xyz_m(pts), [[10.0, 0, 0], [5.0, 1.0, 0]])
+    bad = np.zeros(3, dtype=[('x', 'u1'), ('y', 'f4'), ('z', 'f4')])
+    with pytest.raises(ValueError, match='FLOAT32 or FLOAT64'):
+        usable_xyz_m(bad)
