@@ -422,19 +422,30 @@ def vertex_stars(position, faces, a, b, face, slot, first, second, pair, fold
     fans = np.bincount(np.unique(vertex * n_labels + label) // n_labels, minlength=n_vertices)
     tilt[fans != 1] = np.inf
     # Far edge of each corner: the point-to-segment distance from the corner's vertex.
-    tri = position[faces]
-    v = tri.reshape(-1, 3)
-    p, q = np.roll(tri, -1, axis=1).reshape(-1, 3), np.roll(tri, -2, axis=1).reshape(-1, 3)
-    span = q - p
-    length2 = np.einsum('ij,ij->i', span, span)
-    t = np.clip(np.einsum('ij,ij->i', v - p, span) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
-    dist = np.linalg.norm(p + t[:, None] * span - v, axis=1)
     reach = np.full(n_vertices, np.inf)
-    np.minimum.at(reach, vertex, dist)
-    degenerate = np.repeat(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
-                                          axis=1) == 0, 3)
-    tilt[vertex[degenerate]] = np.inf
+    for part in _face_chunks(n_faces):     # bounded temporaries (~150 MB per array at 2M faces)
+        tri = position[faces[part]]
+        v = tri.reshape(-1, 3)
+        p, q = np.roll(tri, -1, axis=1).reshape(-1, 3), np.roll(tri, -2, axis=1).reshape(-1, 3)
+        span = q - p
+        length2 = np.einsum('ij,ij->i', span, span)
+        t = np.clip(np.einsum('ij,ij->i', v - p, span) / np.where(length2 > 0, length2, 1.0),
+                    0.0, 1.0)
+        dist = np.linalg.norm(p + t[:, None] * span - v, axis=1)
+        corners = faces[part].reshape(-1)
+        np.minimum.at(reach, corners, dist)
+        degenerate = np.repeat(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
+                                              axis=1) == 0, 3)
+        tilt[corners[degenerate]] = np.inf
     return tilt, reach
+
+
+FACE_CHUNK = 131_072
+"""Faces per block where a per-face temporary would otherwise span the whole mesh."""
+
+
+def _face_chunks(n_faces: int):
+    return (slice(lo, min(lo + FACE_CHUNK, n_faces)) for lo in range(0, n_faces, FACE_CHUNK))
 
 
 def flat_regions(position, faces, face_edge, coplanar, neighbour, inward, offset
@@ -468,10 +479,12 @@ def flat_regions(position, faces, face_edge, coplanar, neighbour, inward, offset
     slot = np.arange(len(lab)) - start[lab]
     keep = good[lab]
     lines[lab[keep], slot[keep], :3], lines[lab[keep], slot[keep], 3] = m[keep], c[keep]
-    own = lines[label]                                     # (F, L, 4)
-    corner_margin = np.einsum('flj,fvj->fvl', own[:, :, :3], position[faces]) - own[:, None, :, 3]
     worst = np.full(n_labels, np.inf)
-    np.minimum.at(worst, label, corner_margin.min(axis=(1, 2)))
+    for part in _face_chunks(n_faces):     # (F, L, 4) at once cost ~1 GB per million faces
+        own = lines[label[part]]                           # (n, L, 4)
+        corner_margin = (np.einsum('flj,fvj->fvl', own[:, :, :3], position[faces[part]])
+                         - own[:, None, :, 3])
+        np.minimum.at(worst, label[part], corner_margin.min(axis=(1, 2)))
     good &= worst > -1e-7
     # Whole regions keep their lines; every other face becomes a region of its own.
     kept = np.flatnonzero(good)
