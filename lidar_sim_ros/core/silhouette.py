@@ -374,6 +374,9 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     planes = np.empty((n_faces, 4, 4))
     planes[:, 0, :3], planes[:, 0, 3] = normal, plane_offset
     planes[:, 1:4, :3], planes[:, 1:4, 3] = inward, offset
+    # One copy per face (2 M faces: 256 MB less): the named tables are views of the planes.
+    normal, plane_offset = planes[:, 0, :3], planes[:, 0, 3]
+    inward, offset = planes[:, 1:4, :3], planes[:, 1:4, 3]
     region, lines = flat_regions(position, f, face_edge, coplanar, neighbour, inward, offset)
     fold = np.where(pair, np.arccos(np.clip(np.nan_to_num(cos_fold, nan=-1.0), -1.0, 1.0)), np.pi)
     tilt, reach = vertex_stars(position, f, a, b, face, slot, first, second, pair, fold)
