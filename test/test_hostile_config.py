@@ -139,3 +139,13 @@ def test_out_of_memory_is_one_line(monkeypatch, capsys):
         action.set_defaults(func=boom)
     assert cli.main(['simulate', 'x.yaml', '--frames', '1', '--out', 'o']) == 2
     assert 'out of memory' in capsys.readouterr().err
+
+
+def test_campaign_runs_are_limited(tmp_path):
+    from lidar_sim_ros.campaign.spec import MAX_RUNS, load_campaign
+    path = tmp_path / 'c.yaml'
+    path.write_text(yaml.safe_dump({'scenario': str(CONFIG / 'scenario.yaml'), 'seed': 1,
+                                    'runs': 10 * MAX_RUNS, 'duration_s': 0.1}))
+    with pytest.raises(ConfigError) as err:
+        load_campaign(path)
+    assert err.value.key == 'runs' and str(10 * MAX_RUNS) in str(err.value)

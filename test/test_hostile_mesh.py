@@ -35,3 +35,10 @@ def test_zero_area_faces_are_removed_and_the_rest_kept(tmp_path):
     tri = target.vertices_m[target.faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
     assert area == pytest.approx(1.0)
+
+
+def test_triangle_count_is_limited(tmp_path, monkeypatch):
+    import lidar_sim_ros.core.geometry as geometry
+    monkeypatch.setattr(geometry, 'MAX_TRIANGLES', 1)
+    with pytest.raises(MeshFileError, match='2 faces exceed the limit of 1 triangles'):
+        load_target(obj(tmp_path, SQUARE + 'f 1 2 3\nf 1 3 4\n'), ['PIF'])
