@@ -68,9 +68,12 @@ constraints: $(STAMP)
 	  $(BIN)/pip freeze --exclude-editable | grep -iv '^lidar[-_]sim[-_]ros'; } > constraints.txt
 	touch $(STAMP)
 
-## Campaign engine: frames/s on 1 and 2 Dask workers, speedup, overhead per run.
+## Campaign engine: frames/s on 1 and 2 Dask workers, speedup, overhead per run; then the
+## client's peak RSS at 1,000 and 100,000 one-frame runs (CAMPAIGN_SCALE_RUNS to change).
+CAMPAIGN_SCALE_RUNS ?= 1000 100000
 bench-campaign: $(STAMP)
 	$(BIN)/python bench/bench_campaign.py --out bench_campaign.json
+	$(BIN)/python bench/bench_campaign_scale.py --runs $(CAMPAIGN_SCALE_RUNS) --out bench_campaign_scale.json
 
 clean:
-	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_tracker.json bench_compare.json bench_compare_data bench_campaign.json
+	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_tracker.json bench_compare.json bench_compare_data bench_campaign.json bench_campaign_scale.json

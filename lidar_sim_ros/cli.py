@@ -48,6 +48,13 @@ def main(argv: list[str] | None = None) -> int:
         # Output piped into e.g. `head`: stop quietly like other Unix tools.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
+    except MemoryError:
+        if args.debug:
+            raise
+        # The inputs' sizes are limited where they enter; this is the last line of defence.
+        print(f'lidar-sim {args.command}: error: out of memory: the input is too large for '
+              'this machine (limits: docs/offline.md "Bad configs")', file=sys.stderr)
+        return 2
     except USER_ERRORS as exc:
         if args.debug:
             raise

@@ -25,7 +25,7 @@ from lidar_sim_ros.core.effects import effect_from_spec
 from lidar_sim_ros.core.pipeline import Frame, Simulator
 from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, MATERIAL_NAMES_TOPIC, POSE_TOPIC, SUN_TOPIC, BagWriter
-from lidar_sim_ros.cli_types import positive_int
+from lidar_sim_ros.cli_types import epoch_seconds, finite_seconds, positive_int
 from lidar_sim_ros.io.pointcloud import frame_points
 
 TRUTH_TOPIC = '/lidar/points_truth'
@@ -48,6 +48,15 @@ def to_stamp_ns(t_s: float | np.ndarray, epoch_s: float = DEFAULT_EPOCH_S) -> np
     """Scenario time [s] -> ROS stamp [ns] (int64): epoch plus t, rounded to the nanosecond."""
     return np.int64(round(epoch_s * NS_PER_S)) + np.rint(
         np.asarray(t_s, dtype=float) * NS_PER_S).astype(np.int64)
+
+
+def _check_stamp_range(first_s: float, last_s: float) -> None:
+    """Every stamp must fit builtin_interfaces/Time (int32 seconds, not negative here);
+    a frame rate of 1e-9 Hz ended in a struct.error from the bag writer."""
+    if not (0.0 <= first_s and last_s < 2**31):
+        raise ValueError(f'frames would be stamped from {first_s:.6g} s to {last_s:.6g} s ROS time: '
+                         'stamps must lie in [0, 2**31) s (check --epoch-s, --start-s, --frames and '
+                         'the frame rate)')
 
 
 def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames: int,
@@ -89,6 +98,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     frame_id = layout.frame(scenario.config.frame_id)
     cloud_topic = layout.cloud_topic(CLOUD_TOPIC)
     period = sim.frame_period_s
+    _check_stamp_range(epoch_s + start_s, epoch_s + start_s + frames * period)
     first_index = int(round(start_s / period))
 
     out.mkdir(parents=True, exist_ok=True)
@@ -166,11 +176,11 @@ def register(subparsers) -> None:
     p.add_argument('--frames', type=positive_int, required=True, help='number of frames')
     p.add_argument('--out', type=Path, required=True, metavar='DIR',
                    help='output directory; DIR/bag must not exist yet')
-    p.add_argument('--start-s', type=float, default=0.0, metavar='S',
+    p.add_argument('--start-s', type=finite_seconds, default=0.0, metavar='S',
                    help='scenario time of the first frame start [s] (default 0)')
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='rosbag2 storage plugin (default mcap)')
-    p.add_argument('--epoch-s', type=float, default=DEFAULT_EPOCH_S, metavar='S',
+    p.add_argument('--epoch-s', type=epoch_seconds, default=DEFAULT_EPOCH_S, metavar='S',
                    help='ROS time of scenario time 0 [s] (default %(default).0f)')
     p.add_argument('--no-figures', action='store_true', help='write the bag only')
     p.add_argument('--effect', action='append', default=[], metavar='NAME[=PARAMS]',

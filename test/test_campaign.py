@@ -421,7 +421,8 @@ def test_interrupted_cli_campaign_resumes(cluster, tmp_path):
             break
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
-    proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and 'Traceback' not in err, err[-2000:]
     done_before = read_manifest(out)
     assert 2 <= len(done_before) < 40, 'the campaign should have been interrupted mid-way'
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=300)

@@ -180,6 +180,13 @@ def test_reproducible_from_seed_and_frame_index(default_scenario):
     assert np.array_equal(a.range_m, b.range_m)
     assert a.index == 3 and c.index == 4
     assert not np.array_equal(a.range_m[:100], c.range_m[:100])
+    # Same pose and start time, another frame index: the same truth, other noise (a
+    # generator that ignored the index passed the check above, whose frames differ in pose).
+    static = StaticPose(default_scenario.config.initial_pose.position_m,
+                        default_scenario.config.initial_pose.quat_xyzw)
+    d, e = sim.simulate_frame(0.3, static, 3), sim.simulate_frame(0.3, static, 4)
+    assert np.array_equal(d.truth_xyz_m, e.truth_xyz_m)
+    assert not np.array_equal(d.range_m, e.range_m)
     # all seven materials are seen from the default pose? at least foam, MLI and a metal
     names = default_scenario.materials.names
     seen = {names[m] for m in np.unique(a.material)}

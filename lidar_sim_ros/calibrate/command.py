@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from lidar_sim_ros.cli_types import positive_float, positive_int
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, POSE_TOPIC
 
 
@@ -28,7 +29,7 @@ def register(subparsers) -> None:
     p.add_argument('--fit', choices=('log', 'linear'), default='log',
                    help='which least-squares fit to write (default: log; both are reported)')
     p.add_argument('--figure', metavar='PNG', help='data vs both fits, residual vs theta_out')
-    p.add_argument('--noise-rel', type=float, default=0.05, metavar='FRACTION',
+    p.add_argument('--noise-rel', type=positive_float, default=0.05, metavar='FRACTION',
                    help='relative noise of one reading, for the anisotropy test when the table '
                         'has no repeated readings (default 0.05)')
     p.add_argument('--template', metavar='NAME', help='material whose bias_m/sigma_m a new '
@@ -48,15 +49,15 @@ def register(subparsers) -> None:
                    help='materials YAML to start from (default: the one the scenario names)')
     p.add_argument('--out', required=True, metavar='YAML', help='materials YAML to write')
     p.add_argument('--figure', metavar='PNG', help='bias and sigma per material vs distance')
-    p.add_argument('--gate-m', type=float, default=0.5,
+    p.add_argument('--gate-m', type=positive_float, default=0.5,
                    help='drop points whose error is farther than this from the median (default 0.5)')
-    p.add_argument('--bin-m', type=float, default=1.0, help='frames whose target distances '
+    p.add_argument('--bin-m', type=positive_float, default=1.0, help='frames whose target distances '
                    'differ by less than this share a distance bin (default 1.0)')
-    p.add_argument('--min-points', type=int, default=30,
+    p.add_argument('--min-points', type=positive_int, default=30,
                    help='ignore material/distance bins with fewer points (default 30)')
-    p.add_argument('--tolerance-m', type=float, default=0.01, help='smallest bias change over '
+    p.add_argument('--tolerance-m', type=positive_float, default=0.01, help='smallest bias change over '
                    'the distances that counts as a distance dependence (default 0.01)')
-    p.add_argument('--sigma-tolerance-m', type=float, default=0.005,
+    p.add_argument('--sigma-tolerance-m', type=positive_float, default=0.005,
                    help='the same for sigma (default 0.005)')
     p.add_argument('--cloud-topic', default=CLOUD_TOPIC)
     p.add_argument('--pose-topic', default=POSE_TOPIC)

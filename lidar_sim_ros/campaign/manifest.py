@@ -19,10 +19,15 @@ import hashlib
 import json
 import math
 import os
+from array import array
 from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
 from lidar_sim_ros.campaign.sample import param_names
 from lidar_sim_ros.campaign.spec import Campaign
-from lidar_sim_ros.campaign.statistics import stat_names
+from lidar_sim_ros.campaign.statistics import COUNTS, stat_names
 
 MANIFEST = 'manifest.csv'
 FINGERPRINT = 'campaign.json'
@@ -61,14 +66,23 @@ def fingerprint(campaign: Campaign) -> str:
     return h.hexdigest()
 
 
+_STATUS = {'ok': 1, 'failed': 2}
+_STATUS_NAME = {1: 'ok', 2: 'failed'}
+
+
 class Manifest:
-    """The rows of DIR/manifest.csv by run id; ``append`` writes one through to disk."""
+    """DIR/manifest.csv: ``append`` writes one row through to disk.
+
+    Memory stays flat in the number of runs: only one status byte per run id is kept
+    (the rows live in the file); ``rewrite`` sorts the file by run id through an index
+    of byte offsets, and ``row`` reads one row back."""
 
     def __init__(self, out_dir: str | Path, header: list[str]):
         self.dir = Path(out_dir)
         self.path = self.dir / MANIFEST
         self.header = list(header)
-        self.rows: dict[int, dict[str, str]] = {}
+        self._status = bytearray()          # per run id: 0 = no row, 1 = ok, 2 = failed
+        self._counts = {'ok': 0, 'failed': 0}
 
     @classmethod
     def open(cls, out_dir: str | Path, campaign: Campaign) -> 'Manifest':
@@ -88,36 +102,78 @@ class Manifest:
         else:
             stamp_path.write_text(json.dumps(stamp, indent=2) + '\n')
         manifest = cls(out, columns(campaign))
-        if manifest.path.is_file():
-            manifest._load()
-        manifest.rewrite()  # drops a half-written last line, restores run order
+        manifest.rewrite()  # drops a half-written last line, restores run order, reads statuses
         return manifest
 
-    def _load(self) -> None:
-        with self.path.open(newline='') as fh:
-            reader = csv.DictReader(fh)
-            if reader.fieldnames != self.header:
+    # ------------------------------------------------------------- reading
+    def _scan(self) -> Iterator[tuple[list[str], int, int]]:
+        """Every complete row of the file with its byte span [start, end); the header is
+        checked. A row cut short (a killed campaign's last line) is skipped."""
+        if not self.path.is_file():
+            return
+        with self.path.open('rb') as fh:
+            end, newline = [0], [True]
+
+            def lines():
+                for raw in fh:
+                    end[0] += len(raw)
+                    newline[0] = raw.endswith(b'\n')
+                    yield raw.decode('utf-8', errors='replace')
+            reader = csv.reader(lines())
+            header = next(reader, None)
+            if header is None:
+                return
+            if header != self.header:
                 raise ValueError(f'{self.path}: columns differ from this campaign\'s; '
                                  'choose another --out')
+            start, n, i_status = end[0], len(self.header), self.header.index('status')
             for row in reader:
-                if None in row.values() or None in row or row['status'] not in ('ok', 'failed'):
-                    continue  # the line a killed campaign was writing
-                self.rows[int(row['run_id'])] = row
+                stop = end[0]
+                if len(row) == n and row[i_status] in _STATUS and row[0].isdigit() and newline[0]:
+                    yield row, start, stop
+                start = stop
+
+    def row(self, run_id: int) -> dict[str, str] | None:
+        """The manifest's row of ``run_id`` as text (the last one written), or None."""
+        found = None
+        for row, _, _ in self._scan():
+            if int(row[0]) == run_id:
+                found = dict(zip(self.header, row))
+        return found
+
+    def status(self, run_id: int) -> str | None:
+        return _STATUS_NAME.get(self._status[run_id]) if run_id < len(self._status) else None
+
+    def is_finished(self, run_id: int, retry_failed: bool = False) -> bool:
+        """Skip this run: it is ok, or failed and failures are not retried."""
+        status = self.status(run_id)
+        return status == 'ok' or (status == 'failed' and not retry_failed)
 
     def finished(self, retry_failed: bool = False) -> set[int]:
         """Run ids to skip: ok runs, and failed ones unless ``retry_failed``."""
-        return {i for i, r in self.rows.items() if r['status'] == 'ok' or not retry_failed}
+        return {i for i in range(len(self._status)) if self.is_finished(i, retry_failed)}
 
     def count(self, status: str) -> int:
-        return sum(r['status'] == status for r in self.rows.values())
+        return self._counts[status]
 
+    def _set_status(self, run_id: int, status: str) -> None:
+        if run_id >= len(self._status):
+            self._status.extend(bytes(run_id + 1 - len(self._status)))
+        old = _STATUS_NAME.get(self._status[run_id])
+        if old:
+            self._counts[old] -= 1
+        self._status[run_id] = _STATUS[status]
+        self._counts[status] += 1
+
+    # ------------------------------------------------------------- writing
     def text_row(self, row: dict) -> dict[str, str]:
-        return {k: format_value(row.get(k)) for k in self.header}
+        # One physical line per row (an error message may hold newlines): rewrite and
+        # resume read the file line by line.
+        return {k: ' '.join(format_value(row.get(k)).splitlines()) for k in self.header}
 
     def append(self, row: dict) -> None:
         """Record a finished run: appended and flushed at once (a later rewrite sorts)."""
         text = self.text_row(row)
-        self.rows[int(text['run_id'])] = text
         new = not self.path.is_file()
         with self.path.open('a', newline='') as fh:
             writer = csv.DictWriter(fh, fieldnames=self.header)
@@ -125,23 +181,70 @@ class Manifest:
                 writer.writeheader()
             writer.writerow(text)
             fh.flush()
+        self._set_status(int(text['run_id']), text['status'])
+
+    def replace(self, row: dict) -> None:
+        """Record a run again (``--run``): its new row replaces the old one."""
+        self.append(row)
+        self.rewrite()
 
     def rewrite(self) -> None:
-        """Write every row, sorted by run id, atomically (temporary file + rename)."""
+        """Sort the rows by run id, the last row of a run id winning, atomically
+        (temporary file + rename); reads every status. Holds byte offsets, not rows."""
+        ids, starts, stops = array('q'), array('q'), array('q')
+        for row, start, stop in self._scan():
+            ids.append(int(row[0]))
+            starts.append(start)
+            stops.append(stop)
+        self._status, self._counts = bytearray(), {'ok': 0, 'failed': 0}
+        ids_np = np.frombuffer(ids, np.int64) if len(ids) else np.zeros(0, np.int64)
+        # Stable sort by run id; the last of equal ids is the latest row.
+        order = np.argsort(ids_np, kind='stable')
+        last = np.ones(len(order), bool)
+        last[:-1] = ids_np[order][1:] != ids_np[order][:-1]
+        keep = order[last]
         tmp = self.path.with_suffix('.csv.tmp')
-        with tmp.open('w', newline='') as fh:
-            writer = csv.DictWriter(fh, fieldnames=self.header)
-            writer.writeheader()
-            for run_id in sorted(self.rows):
-                writer.writerow(self.rows[run_id])
+        with tmp.open('w', newline='') as out:
+            csv.writer(out).writerow(self.header)
+        if len(keep):
+            with self.path.open('rb') as src, tmp.open('ab') as out:
+                for k in keep:
+                    src.seek(starts[k])
+                    line = src.read(stops[k] - starts[k])
+                    out.write(line)
         os.replace(tmp, self.path)
+        if len(keep):
+            for row, _, _ in self._scan():
+                self._set_status(int(row[0]), row[self.header.index('status')])
 
     def write_parquet(self) -> Path | None:
-        """A Parquet copy beside the CSV when pyarrow is installed (it is optional)."""
+        """A Parquet copy beside the CSV when pyarrow is installed (it is optional),
+        converted block by block (memory flat in the number of runs)."""
         try:
+            import pyarrow as pa
             from pyarrow import csv as pa_csv, parquet
         except ImportError:
             return None
         path = self.path.with_suffix('.parquet')
-        parquet.write_table(pa_csv.read_csv(self.path), path)
+        try:
+            with pa_csv.open_csv(self.path, convert_options=pa_csv.ConvertOptions(
+                    column_types=self._arrow_types(pa))) as reader:
+                with parquet.ParquetWriter(path, reader.schema) as writer:
+                    for batch in reader:
+                        writer.write_batch(batch)
+        except pa.ArrowInvalid:     # a column that is not what its name says: infer it all
+            parquet.write_table(pa_csv.read_csv(self.path), path)
         return path
+
+    def _arrow_types(self, pa) -> dict:
+        counts = {f'stat.{c}' for c in COUNTS} | {'stat.coverage_frames'}
+        types = {}
+        for name in self.header:
+            if name in ('run_id', 'seed') or name in counts or name.startswith('stat.points.'):
+                types[name] = pa.int64()
+            elif name in ('status', 'error', 'worker'):
+                types[name] = pa.string()
+            else:
+                types[name] = pa.float64()
+        return types
+

@@ -188,8 +188,7 @@ def rerun(campaign: Campaign, out_dir: str | Path, run_id: int) -> tuple[dict, d
     if not 0 <= run_id < campaign.spec.runs:
         raise ValueError(f'--run {run_id}: the campaign has runs 0..{campaign.spec.runs - 1}')
     manifest = Manifest.open(out_dir, campaign)
-    old = manifest.rows.get(run_id)
+    old = manifest.row(run_id)
     row = manifest.text_row(run_one(campaign, run_id, out_dir))
-    manifest.rows[run_id] = row
-    manifest.rewrite()
+    manifest.replace(row)
     return row, old

@@ -19,7 +19,7 @@ from lidar_sim_ros.core.config import (ConfigError, Scenario, check_file_kind, l
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra='forbid', frozen=True)
+    model_config = ConfigDict(extra='forbid', frozen=True, allow_inf_nan=False)
 
 
 # -------------------------------------------------------------- scalar laws
@@ -185,16 +185,23 @@ class Dispersions(_Model):
                                           'the base scenario lacks is added')
 
 
+MAX_RUNS = 10_000_000
+"""Runs in one campaign (the client keeps one byte per run id, and a bounded few in flight)."""
+MAX_DURATION_S = 86_400.0
+"""Simulated time per run (s): a day of frames."""
+
+
 class CampaignSpec(_Model):
     """CAMPAIGN.yaml."""
 
     scenario: str = Field(description='base scenario YAML, relative to the campaign file')
     seed: Annotated[int, Field(ge=0)]
-    runs: Annotated[int, Field(ge=1)]
-    duration_s: Annotated[float, Field(gt=0.0)] = Field(description='simulated time per run (s)')
+    runs: Annotated[int, Field(ge=1, le=MAX_RUNS)]
+    duration_s: Annotated[float, Field(gt=0.0, le=MAX_DURATION_S)] = Field(
+        description='simulated time per run (s)')
     save: Literal['stats', 'bags'] = 'stats'
     storage: Literal['mcap', 'sqlite3'] = 'mcap'
-    coverage_frames: Annotated[int, Field(ge=0)] = Field(
+    coverage_frames: Annotated[int, Field(ge=0, le=1000)] = Field(
         3, description='frames per run on which target coverage is evaluated (evenly spaced)')
     dispersions: Dispersions = Dispersions()
 
@@ -214,7 +221,7 @@ class Campaign:
 def load_campaign(path: str | Path) -> Campaign:
     """Load CAMPAIGN.yaml and its base scenario; check every dispersion against it."""
     path = Path(path)
-    data = read_yaml(path)
+    data = read_yaml(path, mapping=True)
     check_file_kind(data, 'campaign spec', path)
     try:
         spec = parse(CampaignSpec, data, path)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lidar_sim_ros.cli_types import positive_int
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, POSE_TOPIC, SUN_TOPIC
 
 
@@ -37,7 +38,7 @@ def register(subparsers) -> None:
                         'from false returns on sunlit vs shadowed surfaces')
     p.add_argument('--history', type=Path, default=None, metavar='FILE',
                    help='history file to append to (default DIR/../history.json)')
-    p.add_argument('--max-points', type=int, default=None, metavar='N',
+    p.add_argument('--max-points', type=positive_int, default=None, metavar='N',
                    help='analyse a random subset of at most this many points '
                         '(default 300000)')
     p.add_argument('--candidates', nargs='*', default=None, metavar='EFFECT',
@@ -60,6 +61,9 @@ def run(args: argparse.Namespace) -> int:
         intensity_field=args.intensity_field, time_field=args.time_field,
         laser_field=args.laser_field))
     print('\n'.join(field_lines(result.summary) + result.lines))
+    dropped = dropped_line(result.summary.get('dropped') or {})
+    if dropped:
+        print(dropped)
     return 0
 
 
@@ -82,3 +86,16 @@ def field_lines(summary: dict) -> list[str]:
     flags = summary.get('point_flags') or {}
     sat = saturation_line(flags.get('saturation'))
     return lines + ([sat] if sat else [])
+
+
+# Input the loader dropped as unusable (not the "no return" markers or the subsample):
+# said on the terminal, not only in summary.json, so a cleaned-up answer is not mistaken
+# for the bag's own.
+_DROPPED = {'beyond_range': 'points beyond 10 km', 'bad_time': 'points with a non-finite time',
+            'bad_poses': 'poses with a non-finite position or a non-unit quaternion'}
+
+
+def dropped_line(dropped: dict) -> str | None:
+    """'dropped as unusable: 3 poses with ...' or None when nothing was dropped."""
+    parts = [f'{dropped[k]} {what}' for k, what in _DROPPED.items() if dropped.get(k)]
+    return f'dropped as unusable: {", ".join(parts)} (see notes in summary.json)' if parts else None

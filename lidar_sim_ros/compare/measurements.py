@@ -35,7 +35,7 @@ from lidar_sim_ros.compare.fields import (FieldError, flag_counts, flag_lines, p
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, cloud_count,
                                   iter_clouds, read_material_names, read_poses)
-from lidar_sim_ros.core.pose import PoseTrack
+from lidar_sim_ros.core.pose import QUAT_NORM_TOL, PoseTrack, valid_pose_mask
 from lidar_sim_ros.core.scan import Shots
 
 NS_PER_S = 1_000_000_000
@@ -59,6 +59,12 @@ SCAN_MATCH_TOL_RAD = 2e-4
 SCAN_MATCH_MIN_FRACTION = 0.9
 # Prediction may evaluate poses slightly outside the recording (a fitted time offset).
 PREDICTION_POSE_PAD_S = 0.5
+MAX_POINT_RANGE_M = 10_000.0
+"""A point farther than this (m) is no lidar return (x = 3e38 is a float32 marker or
+garbage): dropped and counted as ``beyond_range``."""
+MAX_INVALID_FRACTION = 0.5
+"""More than this share of the finite points beyond MAX_POINT_RANGE_M or with a
+non-finite time: the field layout is misread, and the bag is refused."""
 
 
 class MeasurementError(ValueError):
@@ -149,16 +155,13 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         raise MeasurementError(f'bag {bag}: topic {cloud_topic!r} has no messages')
     if len(poses.stamp_ns) == 0:
         raise MeasurementError(f'bag {bag}: topic {pose_topic!r} has no messages')
+    notes: list[str] = []
+    poses, n_bad_poses = _usable_poses(bag, pose_topic, poses, notes)
     per_cloud = (None if max_points is None
                  else int(np.ceil(max_points / max(n_clouds, 1))))
 
-    notes: list[str] = []
     fields = first.points.dtype.names or ()
-    missing = [f for f in ('x', 'y', 'z') if f not in fields]
-    if missing:
-        raise MeasurementError(
-            f'bag {bag}: clouds on {cloud_topic!r} lack field(s) {missing}; fields present: '
-            f'{list(fields)} (x, y, z in metres, lidar frame, are required)')
+    _check_xyz_fields(first.points.dtype, bag, cloud_topic, 0)
     try:
         fmap = resolve_fields(first.points.dtype, intensity_field, time_field, laser_field,
                               find_time_field)
@@ -182,7 +185,7 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
     time_dtype = ('+'.join(fmap.dtypes[n] for n in fmap.time).lower() if has_t else None)
     cols: dict[str, list] = {k: [] for k in ('xyz', 'i', 't', 'cloud', 'laser', 'sat')}
     stamp_ns = []
-    n_nonfinite = n_zero = n_thinned = n_invalid = n_no_return = 0
+    n_nonfinite = n_zero = n_thinned = n_invalid = n_no_return = n_far = n_bad_time = 0
     t_kinds: list[str] = []
     counts: dict[str, int] = {}
     for k, c in enumerate(itertools.chain([first], clouds)):
@@ -190,6 +193,8 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         stamp_ns.append(c.stamp_ns)
         if len(p) == 0:
             continue
+        if k:
+            _check_xyz_fields(p.dtype, bag, cloud_topic, k)
         xyz = np.column_stack([np.asarray(p[f], dtype=float).reshape(len(p), -1)[:, 0]
                                for f in ('x', 'y', 'z')])
         flags = (np.asarray(p[fmap.flags]).astype(np.int64) if fmap.flags
@@ -203,10 +208,20 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         finite = np.isfinite(xyz).all(axis=1)
         n_nonfinite += int((ok & ~finite).sum())
         ok &= finite
-        rng = np.linalg.norm(np.where(finite[:, None], xyz, 0.0), axis=1)
+        with np.errstate(over='ignore', invalid='ignore'):
+            rng = np.linalg.norm(np.where(finite[:, None], xyz, 0.0), axis=1)
         zero = ok & (rng <= 1e-6)   # drivers report "no return" as (0, 0, 0)
         n_zero += int(zero.sum())
-        ok &= ~zero
+        far = ok & ~(rng <= MAX_POINT_RANGE_M)
+        n_far += int(far.sum())
+        ok &= ~zero & ~far
+        if has_t:
+            t_all = np.full(len(p), np.nan)
+            t_all[ok], kind = field_time_since_stamp_s(p[ok], fmap.time, c.stamp_ns)
+            t_kinds.append(kind)
+            bad_t = ok & ~np.isfinite(t_all)
+            n_bad_time += int(bad_t.sum())
+            ok &= ~bad_t
         if per_cloud is not None and ok.sum() > per_cloud:
             # The cloud's share of max_points, at random (seeded per cloud).
             keep = np.flatnonzero(ok)
@@ -219,19 +234,26 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
                          else np.zeros(ok.sum()))
         cols['sat'].append((flags[ok] & cepton.SATURATED) != 0)
         if has_t:
-            t_rel, kind = field_time_since_stamp_s(p[ok], fmap.time, c.stamp_ns)
-            t_kinds.append(kind)
-            cols['t'].append(t_rel)
+            cols['t'].append(t_all[ok])
         else:
             cols['t'].append(np.zeros(ok.sum()))
         cols['cloud'].append(np.full(ok.sum(), k))
         cols['laser'].append(np.asarray(p[fmap.laser]).astype(np.int64)[ok] if fmap.laser
                              else np.zeros(ok.sum(), np.int64))
     total = sum(len(x) for x in cols['xyz'])
+    invalid = n_far + n_bad_time
+    if invalid > MAX_INVALID_FRACTION * (total + n_thinned + invalid):
+        raise MeasurementError(
+            f'bag {bag}: {invalid} of {total + n_thinned + invalid} finite points on '
+            f'{cloud_topic!r} are unusable ({n_far} beyond {MAX_POINT_RANGE_M:g} m, {n_bad_time} '
+            'with a non-finite time): are the field datatypes and is_bigendian right?')
     if total == 0:
         raise MeasurementError(
             f'bag {bag}: all {len(stamp_ns)} cloud(s) on {cloud_topic!r} are empty '
             f'(no finite, non-zero points; {n_nonfinite} non-finite, {n_zero} at the origin)')
+    if n_far or n_bad_time:
+        notes.append(f'{n_far} point(s) beyond {MAX_POINT_RANGE_M:g} m and {n_bad_time} with a '
+                     f'non-finite time on {cloud_topic!r}: dropped')
     xyz = np.vstack(cols['xyz'])
     t_frame = np.concatenate(cols['t'])
     time_field = None
@@ -255,6 +277,7 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         intensity = None
     rng = np.linalg.norm(xyz, axis=1)
     dropped = {'non_finite': n_nonfinite, 'at_origin': n_zero, 'subsampled': n_thinned,
+               'beyond_range': n_far, 'bad_time': n_bad_time, 'bad_poses': n_bad_poses,
                **({'invalid': n_invalid} if fmap.valid else {}),
                **({'no_return': n_no_return} if fmap.flags else {})}
     saturated = np.concatenate(cols['sat'])
@@ -277,6 +300,42 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         time_source='field' if has_t else 'stamp', time_field=time_field,
         saturated=saturated[keep] if fmap.flags else None, field_lines=lines,
         fields=fmap.as_dict(), flag_counts=counts, known_misses=n_no_return)
+
+
+def _check_xyz_fields(dtype: np.dtype, bag: Path, topic: str, k: int) -> None:
+    """x, y, z must be present and floating point (metres): ``x`` declared uint8 read
+    the bytes of a float as small integers, and compare blamed range_rate."""
+    fields = dtype.names or ()
+    missing = [f for f in ('x', 'y', 'z') if f not in fields]
+    if missing:
+        raise MeasurementError(
+            f'bag {bag}: clouds on {topic!r} lack field(s) {missing}; fields present: '
+            f'{list(fields)} (x, y, z in metres, lidar frame, are required)')
+    not_float = [f'{f} ({dtype[f].base})' for f in ('x', 'y', 'z') if dtype[f].kind != 'f']
+    if not_float:
+        raise MeasurementError(
+            f'bag {bag}: cloud #{k} on {topic!r} declares {", ".join(not_float)}: x, y, z must '
+            'be FLOAT32 or FLOAT64 (metres)')
+
+
+def _usable_poses(bag: Path, topic: str, poses, notes: list[str]):
+    """The pose samples with a finite position and a unit quaternion (within
+    QUAT_NORM_TOL, then normalised); the others are dropped, counted and noted."""
+    ok = valid_pose_mask(poses.position_m, poses.quat_xyzw)
+    n_bad = int((~ok).sum())
+    if n_bad == len(ok):
+        raise MeasurementError(
+            f'bag {bag}: none of the {len(ok)} pose(s) on {topic!r} is usable (finite position, '
+            f'quaternion norm within {QUAT_NORM_TOL:g} of 1); first: position '
+            f'{poses.position_m[0].tolist()}, quat_xyzw {poses.quat_xyzw[0].tolist()}')
+    if n_bad:
+        k = int(np.flatnonzero(~ok)[0])
+        notes.append(f'{n_bad} of {len(ok)} pose(s) on {topic!r} dropped (non-finite, or '
+                     f'quaternion norm not within {QUAT_NORM_TOL:g} of 1), first #{k}: position '
+                     f'{poses.position_m[k].tolist()}, quat_xyzw {poses.quat_xyzw[k].tolist()}')
+    quat = poses.quat_xyzw[ok]
+    return replace(poses, stamp_ns=poses.stamp_ns[ok], position_m=poses.position_m[ok],
+                   quat_xyzw=quat / np.linalg.norm(quat, axis=1, keepdims=True)), n_bad
 
 
 def with_scan_times(meas: Measurements, shots: Shots) -> Measurements:

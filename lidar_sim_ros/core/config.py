@@ -7,6 +7,7 @@ names the file, the key path and the offending value.
 from __future__ import annotations
 
 import difflib
+import reprlib
 import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
@@ -19,12 +20,32 @@ from pydantic import (BaseModel, ConfigDict, Field, ValidationError,
 from lidar_sim_ros.paths import share_dir
 
 
+# Size limits: a config past one of these is refused before anything is allocated.
+MAX_SHOTS_PER_FRAME = 5_000_000
+"""Shots in one frame (the P-60 fires 21,120); each shot costs ~1 kB through the pipeline."""
+MAX_YAML_NODES = 200_000
+"""Values in one YAML document counted with aliases expanded (an alias bomb stops here)."""
+MAX_VALUE_CHARS = 120
+"""Longest rendering of an offending value in an error message."""
+
+_SHORT = reprlib.Repr()
+_SHORT.maxlevel, _SHORT.maxdict, _SHORT.maxlist, _SHORT.maxtuple = 3, 4, 6, 6
+_SHORT.maxstring = _SHORT.maxother = MAX_VALUE_CHARS
+
+
+def short_repr(value: Any) -> str:
+    """``repr(value)`` bounded in work and length: error messages never render a whole
+    mapping (an alias bomb would make that line gigabytes long)."""
+    text = _SHORT.repr(value)
+    return text if len(text) <= MAX_VALUE_CHARS else text[:MAX_VALUE_CHARS - 3] + '...'
+
+
 class ConfigError(ValueError):
-    """A configuration problem, naming file, key and value."""
+    """A configuration problem, naming file, key and value (value truncated)."""
 
     def __init__(self, file: str | Path, key: str, value: Any, reason: str):
         self.file, self.key, self.value, self.reason = str(file), key, value, reason
-        super().__init__(f'{file}: key "{key}" = {_short_repr(value)}: {reason}')
+        super().__init__(f'{file}: key "{key}" = {short_repr(value)}: {reason}')
 
 
 class WrongFileKindError(ConfigError):
@@ -36,17 +57,10 @@ class WrongFileKindError(ConfigError):
         ValueError.__init__(self, f'{file}: {self.reason}')
 
 
-VALUE_REPR_CHARS = 80
-
-
-def _short_repr(value: Any, limit: int = VALUE_REPR_CHARS) -> str:
-    """repr of a config value, cut to ``limit`` characters: a message, not a dump."""
-    text = repr(value)
-    return text if len(text) <= limit else text[:limit - 5] + ' ...' + text[-1]
-
-
 class _Model(BaseModel):
-    model_config = ConfigDict(extra='forbid', frozen=True)
+    # allow_inf_nan=False: every float of every config model must be finite (a NaN
+    # scan phase or an infinite FOV gave 0 points and rc 0).
+    model_config = ConfigDict(extra='forbid', frozen=True, allow_inf_nan=False)
 
 
 PositiveFloat = Annotated[float, Field(gt=0.0)]
@@ -72,8 +86,8 @@ class LissajousArrayScan(_Model):
     """Tiled Lissajous-like scan (Cepton Vista P-60: 8 x 3 tiles, paper Sec. 3)."""
 
     type: Literal['lissajous_array']
-    fov_az_deg: PositiveFloat
-    fov_el_deg: PositiveFloat
+    fov_az_deg: Annotated[float, Field(gt=0.0, le=360.0)]
+    fov_el_deg: Annotated[float, Field(gt=0.0, le=180.0)]
     tiles_az: Annotated[int, Field(ge=1)]
     tiles_el: Annotated[int, Field(ge=1)]
     shots_per_laser: Annotated[int, Field(ge=1)]
@@ -90,14 +104,20 @@ class LissajousArrayScan(_Model):
         if self.lasers is not None and len(self.lasers) != self.tiles_az * self.tiles_el:
             raise ValueError(f'lasers has {len(self.lasers)} entries, expected '
                              f'tiles_az*tiles_el = {self.tiles_az * self.tiles_el}')
+        _check_shots(self.tiles_az * self.tiles_el * self.shots_per_laser)
         return self
+
+
+def _check_shots(n: int) -> None:
+    if n > MAX_SHOTS_PER_FRAME:
+        raise ValueError(f'{n} shots per frame exceed the limit of {MAX_SHOTS_PER_FRAME}')
 
 
 class RotatingScan(_Model):
     """Generic spinning multi-beam LiDAR: beams at fixed elevations, azimuth sweeps."""
 
     type: Literal['rotating']
-    elevations_deg: list[float] = Field(min_length=1)
+    elevations_deg: list[Annotated[float, Field(ge=-90.0, le=90.0)]] = Field(min_length=1)
     az_min_deg: float = -180.0
     az_max_deg: float = 180.0
     shots_per_beam: Annotated[int, Field(ge=1)]
@@ -106,6 +126,9 @@ class RotatingScan(_Model):
     def _az_order(self):
         if self.az_max_deg <= self.az_min_deg:
             raise ValueError('az_max_deg must exceed az_min_deg')
+        if self.az_max_deg - self.az_min_deg > 360.0:
+            raise ValueError('az_max_deg - az_min_deg exceeds 360 deg')
+        _check_shots(len(self.elevations_deg) * self.shots_per_beam)
         return self
 
 
@@ -200,9 +223,14 @@ class ReceiverConfig(_Model):
         1e-4, description='point-source transmittance of the receiver optics 1 deg off axis (-)')
 
 
+MIN_FRAME_RATE_HZ = 1e-3
+"""Slower than one frame in 1000 s is no lidar (1e-9 Hz overflowed the int32 stamps)."""
+MAX_FRAME_RATE_HZ = 1e5
+
+
 class SensorConfig(_Model):
     name: str
-    frame_rate_hz: PositiveFloat
+    frame_rate_hz: Annotated[float, Field(ge=MIN_FRAME_RATE_HZ, le=MAX_FRAME_RATE_HZ)]
     scan: ScanConfig
     optics: OpticsConfig
     detection: DetectionConfig
@@ -213,7 +241,21 @@ class SensorConfig(_Model):
         return 1.0 / self.frame_rate_hz
 
 
+def with_frame_rate(sensor: SensorConfig, rate_hz: float, source: str | Path) -> SensorConfig:
+    """``sensor`` at another frame rate, validated like the file (a copy with ``update``
+    would skip the checks); ConfigError names ``source``, key ``rate_hz`` and the value."""
+    try:
+        return SensorConfig.model_validate({**sensor.model_dump(), 'frame_rate_hz': rate_hz})
+    except ValidationError as exc:
+        raise ConfigError(source, 'rate_hz', rate_hz, exc.errors()[0]['msg']) from None
+
+
 # ------------------------------------------------------------------ materials
+MAX_RANGE_ERROR_M = 100.0
+"""Largest per-material range bias or sigma (m): the paper's are millimetres; a bias of
+1e300 m published infinite points."""
+
+
 class MaterialConfig(_Model):
     """Modified Phong parameters (paper Eq. 5) and range error (paper Table 2)."""
 
@@ -221,8 +263,10 @@ class MaterialConfig(_Model):
     kd: Fraction = Field(description='diffuse reflectivity')
     ks: Fraction = Field(description='specular reflectivity')
     n: NonNegFloat = Field(description='specular exponent')
-    bias_m: float = Field(description='range bias, measured minus true (m)')
-    sigma_m: NonNegFloat = Field(description='range random error, 1 sigma (m)')
+    bias_m: Annotated[float, Field(ge=-MAX_RANGE_ERROR_M, le=MAX_RANGE_ERROR_M)] = Field(
+        description='range bias, measured minus true (m)')
+    sigma_m: Annotated[float, Field(ge=0.0, le=MAX_RANGE_ERROR_M)] = Field(
+        description='range random error, 1 sigma (m)')
 
     @model_validator(mode='after')
     def _energy(self):
@@ -267,9 +311,10 @@ class PoseConfig(_Model):
     @field_validator('quat_xyzw')
     @classmethod
     def _unit(cls, q):
+        from lidar_sim_ros.core.pose import QUAT_NORM_TOL
         norm = float(np.linalg.norm(q))
-        if not 0.9 < norm < 1.1:
-            raise ValueError(f'quaternion norm {norm:g} is far from 1')
+        if not abs(norm - 1.0) <= QUAT_NORM_TOL:
+            raise ValueError(f'quaternion norm {norm:g} is not within {QUAT_NORM_TOL:g} of 1')
         return tuple(float(x) / norm for x in q)
 
 
@@ -283,7 +328,7 @@ class MotionConfig(_Model):
     @field_validator('tumble_axis')
     @classmethod
     def _nonzero(cls, a):
-        if float(np.linalg.norm(a)) == 0.0:
+        if not float(np.linalg.norm(a)) > 1e-9:
             raise ValueError('tumble_axis must be non-zero')
         return a
 
@@ -436,15 +481,49 @@ def parse(model: type[_Model], data: Any, file: str | Path) -> Any:
         raise ConfigError(file, key, value, reason) from None
 
 
-def read_yaml(path: str | Path) -> Any:
+def read_yaml(path: str | Path, mapping: bool = False) -> Any:
+    """One YAML document, its size bounded (``MAX_YAML_NODES`` with aliases expanded);
+    ``mapping``: it must be a mapping (a text file that is not YAML parses as one string,
+    which the error then does not print)."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(path, '<file>', str(path), 'file not found')
     try:
         with path.open() as fh:
-            return yaml.safe_load(fh)
+            data = yaml.safe_load(fh)
     except yaml.YAMLError as exc:
-        raise ConfigError(path, '<yaml>', None, f'not valid YAML: {exc}') from None
+        raise ConfigError(path, '<yaml>', None, f'not valid YAML: {_first_line(exc)}') from None
+    except UnicodeDecodeError:
+        raise ConfigError(path, '<yaml>', None, 'not a text file') from None
+    check_yaml_size(data, path)
+    if mapping and not isinstance(data, dict):
+        raise ConfigError(path, '<root>', type(data).__name__,
+                          'expected a YAML mapping of keys to values: is this the right file?')
+    return data
+
+
+def _first_line(exc: Exception) -> str:
+    text = ' '.join(str(exc).split())
+    return text if len(text) <= 300 else text[:297] + '...'
+
+
+def check_yaml_size(data: Any, source: str | Path, limit: int = MAX_YAML_NODES) -> None:
+    """Refuse a document with more than ``limit`` values once aliases are expanded.
+
+    Validation walks every alias as a copy, so a 1.4 kB alias bomb costs gigabytes;
+    the walk here stops as soon as the count passes the limit."""
+    count, stack = 0, [data]
+    while stack:
+        item = stack.pop()
+        count += 1
+        if count > limit:
+            raise ConfigError(source, '<yaml>', None,
+                              f'more than {limit} values with aliases expanded (an alias bomb?)')
+        if isinstance(item, dict):
+            stack.extend(item.keys())
+            stack.extend(item.values())
+        elif isinstance(item, (list, tuple)):
+            stack.extend(item)
 
 
 # What each kind of YAML file must have at its top, and what takes it: a file of one kind
@@ -482,13 +561,13 @@ def check_file_kind(data: Any, expected: str, file: str | Path) -> None:
 
 
 def load_sensor(path: str | Path) -> SensorConfig:
-    data = read_yaml(path)
+    data = read_yaml(path, mapping=True)
     check_file_kind(data, 'sensor file', path)
     return parse(SensorConfig, data, path)
 
 
 def load_materials(path: str | Path) -> MaterialsConfig:
-    data = read_yaml(path)
+    data = read_yaml(path, mapping=True)
     check_file_kind(data, 'materials file', path)
     return parse(MaterialsConfig, data, path)
 
@@ -520,7 +599,7 @@ class Scenario:
 def load_scenario(path: str | Path) -> Scenario:
     """Load scenario YAML and the sensor/materials/mesh files it references."""
     path = Path(path)
-    data = read_yaml(path)
+    data = read_yaml(path, mapping=True)
     check_file_kind(data, 'scenario', path)
     cfg = parse(ScenarioConfig, data, path)
     base = path.resolve().parent

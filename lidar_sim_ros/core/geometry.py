@@ -36,6 +36,32 @@ class MeshFileError(ValueError):
     """A mesh file that is not an OBJ with usable material names: names the file and the problem."""
 
 
+MAX_TRIANGLES = 10_000_000
+"""Triangles in one target mesh (the rocket body has 48,844; Embree's BVH costs ~100 B each)."""
+
+
+def checked_mesh(vertices_m: np.ndarray, faces: np.ndarray, face_material: np.ndarray,
+                 source: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The mesh with its zero-area faces removed (no ray can hit them), after refusing
+    non-finite vertices, more than MAX_TRIANGLES faces, and a mesh with no area at all
+    (a NaN vertex moved the surface and compare blamed physics; an all-NaN or flat mesh
+    gave 0 points and rc 0)."""
+    if len(faces) > MAX_TRIANGLES:
+        raise MeshFileError(f'{source}: {len(faces)} triangles exceed the limit of {MAX_TRIANGLES}')
+    bad = ~np.isfinite(vertices_m).all(axis=1)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise MeshFileError(f'{source}: {int(bad.sum())} of {len(vertices_m)} vertices are not '
+                            f'finite, first #{k}: {vertices_m[k].tolist()}')
+    tri = vertices_m[faces]
+    area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    scale = float(np.ptp(vertices_m, axis=0).max()) if len(vertices_m) else 0.0
+    keep = area2 > (1e-12 * scale) ** 2
+    if not keep.any():
+        raise MeshFileError(f'{source}: all {len(faces)} triangles have zero area')
+    return vertices_m, faces[keep], face_material[keep]
+
+
 @dataclass(frozen=True)
 class Hits:
     """Per-ray raycast result. Arrays have one row per ray.
@@ -336,7 +362,8 @@ def load_target(obj_path: str | Path, material_names: list[str], threads: int = 
             f'(known: {material_names})')
     if not faces:
         raise MeshMaterialError(f'{obj_path}: no triangles found')
-    return Target(np.vstack(verts), np.vstack(faces), np.concatenate(mats), material_names, threads)
+    mesh = checked_mesh(np.vstack(verts), np.vstack(faces), np.concatenate(mats), obj_path)
+    return Target(*mesh, material_names, threads)
 
 
 @contextmanager
@@ -390,6 +417,8 @@ def check_obj_file(obj_path: Path) -> list[str] | None:
             mtllibs += rest.split()
     if faces == 0:
         raise MeshFileError(f'{obj_path}: no faces (no "f" lines): the file is empty or not an OBJ mesh')
+    if faces > MAX_TRIANGLES:
+        raise MeshFileError(f'{obj_path}: {faces} faces exceed the limit of {MAX_TRIANGLES} triangles')
     if not usemtl:
         raise MeshFileError(f'{obj_path}: no usemtl lines: every face needs a material name '
                             'from the materials config (usemtl NAME)')

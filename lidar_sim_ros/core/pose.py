@@ -16,6 +16,22 @@ from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.core.config import ScenarioConfig
 
+QUAT_NORM_TOL = 0.01
+"""A quaternion whose norm is within this of 1 is normalised; further off it is refused
+(config) or dropped and counted (recorded poses, pose topics): (1, 1, 0, 0) is no rotation
+anyone meant."""
+
+
+def valid_pose_mask(position_m: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
+    """(N,) bool: the pose samples with a finite position and a finite quaternion whose
+    norm is within QUAT_NORM_TOL of 1 (zero and NaN quaternions included in the refused)."""
+    pos = np.asarray(position_m, float).reshape(-1, 3)
+    quat = np.asarray(quat_xyzw, float).reshape(-1, 4)
+    with np.errstate(invalid='ignore', over='ignore'):
+        norm = np.linalg.norm(quat, axis=1)
+        return (np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
+                & (np.abs(norm - 1.0) <= QUAT_NORM_TOL))
+
 
 def quat_multiply(q1_xyzw: np.ndarray, q2_xyzw: np.ndarray) -> np.ndarray:
     """Hamilton product q1 * q2 of (N, 4) or (4,) xyzw quaternions (broadcasts).

@@ -157,8 +157,8 @@ class MeshEdges:
         n_faces = len(corners)
         out = np.zeros((n_faces, 3, 8), np.float32)
         out[:, :, 0:2] = np.inf
-        for k in range(3):
-            face = np.flatnonzero(self.face_neighbour[:, k] >= 0)
+        for part, k in ((part, k) for part in _face_chunks(n_faces) for k in range(3)):
+            face = part.start + np.flatnonzero(self.face_neighbour[part, k] >= 0)
             beyond = self.face_neighbour[face, k]
             edge = self.face_edge[face, k]
             n1, n2 = self.n1[edge], self.n2[edge]
@@ -340,6 +340,7 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     n1 = np.cross(pb - pa, position[c[first]] - pa)
     n2 = np.where(pair[:, None], np.cross(pb - pa, position[c[second]] - pa), 0.0)
     edge_id = np.cumsum(np.r_[True, undirected[1:] != undirected[:-1]]) - 1
+    del undirected, order, c          # large per-edge temporaries (2 M faces: ~50 MB each)
     face_edge = np.full((n_faces, 3), -1, np.int64)
     face_edge[face, slot] = edge_id
     neighbour = np.full((n_faces, 3), -1, np.int64)
@@ -356,6 +357,13 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     inward = np.divide(inward, length, out=np.zeros_like(inward), where=length > 0)
     offset = np.einsum('fkj,fkj->fk', inward, tri)
     offset[(length[..., 0] == 0).any(axis=1)] = np.inf       # degenerate: nothing is inside
+    # Vertex k's distance to edge k + 1 (the opposite one): twice the area over its length.
+    double_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    opposite = np.linalg.norm(np.roll(edge, -1, axis=1), axis=2)
+    altitude = np.divide(double_area[:, None], opposite, out=np.zeros_like(opposite),
+                         where=opposite > 0).astype(np.float32)
+    plane_offset = np.einsum('ij,ij->i', normal, tri[:, 0])
+    del edge, length, double_area, opposite, tri   # freed before the region and star passes
     # Coplanar: the opposite vertices on opposite sides and both on the other face's plane.
     span = np.linalg.norm(pb - pa, axis=1)
     len1, len2 = np.linalg.norm(n1, axis=1), np.linalg.norm(n2, axis=1)
@@ -363,16 +371,13 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
         cos_fold = -np.einsum('ij,ij->i', n1, n2) / (len1 * len2)
     # Within 1e-5 rad: OBJ files round vertices (1e-6 m), which tilts thin flat quads.
     coplanar = pair & (cos_fold > np.cos(COPLANAR_RAD)) & (span > 0)
-    plane_offset = np.einsum('ij,ij->i', normal, tri[:, 0])
     planes = np.empty((n_faces, 4, 4))
     planes[:, 0, :3], planes[:, 0, 3] = normal, plane_offset
     planes[:, 1:4, :3], planes[:, 1:4, 3] = inward, offset
+    # One copy per face (2 M faces: 256 MB less): the named tables are views of the planes.
+    normal, plane_offset = planes[:, 0, :3], planes[:, 0, 3]
+    inward, offset = planes[:, 1:4, :3], planes[:, 1:4, 3]
     region, lines = flat_regions(position, f, face_edge, coplanar, neighbour, inward, offset)
-    # Vertex k's distance to edge k + 1 (the opposite one): twice the area over its length.
-    double_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    opposite = np.linalg.norm(np.roll(edge, -1, axis=1), axis=2)
-    altitude = np.divide(double_area[:, None], opposite, out=np.zeros_like(opposite),
-                         where=opposite > 0).astype(np.float32)
     fold = np.where(pair, np.arccos(np.clip(np.nan_to_num(cos_fold, nan=-1.0), -1.0, 1.0)), np.pi)
     tilt, reach = vertex_stars(position, f, a, b, face, slot, first, second, pair, fold)
     return MeshEdges(a_m=pa, b_m=pb, n1=n1, n2=n2, always=~pair, coplanar=coplanar,
@@ -422,19 +427,30 @@ def vertex_stars(position, faces, a, b, face, slot, first, second, pair, fold
     fans = np.bincount(np.unique(vertex * n_labels + label) // n_labels, minlength=n_vertices)
     tilt[fans != 1] = np.inf
     # Far edge of each corner: the point-to-segment distance from the corner's vertex.
-    tri = position[faces]
-    v = tri.reshape(-1, 3)
-    p, q = np.roll(tri, -1, axis=1).reshape(-1, 3), np.roll(tri, -2, axis=1).reshape(-1, 3)
-    span = q - p
-    length2 = np.einsum('ij,ij->i', span, span)
-    t = np.clip(np.einsum('ij,ij->i', v - p, span) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
-    dist = np.linalg.norm(p + t[:, None] * span - v, axis=1)
     reach = np.full(n_vertices, np.inf)
-    np.minimum.at(reach, vertex, dist)
-    degenerate = np.repeat(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
-                                          axis=1) == 0, 3)
-    tilt[vertex[degenerate]] = np.inf
+    for part in _face_chunks(n_faces):     # bounded temporaries (~150 MB per array at 2M faces)
+        tri = position[faces[part]]
+        v = tri.reshape(-1, 3)
+        p, q = np.roll(tri, -1, axis=1).reshape(-1, 3), np.roll(tri, -2, axis=1).reshape(-1, 3)
+        span = q - p
+        length2 = np.einsum('ij,ij->i', span, span)
+        t = np.clip(np.einsum('ij,ij->i', v - p, span) / np.where(length2 > 0, length2, 1.0),
+                    0.0, 1.0)
+        dist = np.linalg.norm(p + t[:, None] * span - v, axis=1)
+        corners = faces[part].reshape(-1)
+        np.minimum.at(reach, corners, dist)
+        degenerate = np.repeat(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
+                                              axis=1) == 0, 3)
+        tilt[corners[degenerate]] = np.inf
     return tilt, reach
+
+
+FACE_CHUNK = 131_072
+"""Faces per block where a per-face temporary would otherwise span the whole mesh."""
+
+
+def _face_chunks(n_faces: int):
+    return (slice(lo, min(lo + FACE_CHUNK, n_faces)) for lo in range(0, n_faces, FACE_CHUNK))
 
 
 def flat_regions(position, faces, face_edge, coplanar, neighbour, inward, offset
@@ -468,10 +484,12 @@ def flat_regions(position, faces, face_edge, coplanar, neighbour, inward, offset
     slot = np.arange(len(lab)) - start[lab]
     keep = good[lab]
     lines[lab[keep], slot[keep], :3], lines[lab[keep], slot[keep], 3] = m[keep], c[keep]
-    own = lines[label]                                     # (F, L, 4)
-    corner_margin = np.einsum('flj,fvj->fvl', own[:, :, :3], position[faces]) - own[:, None, :, 3]
     worst = np.full(n_labels, np.inf)
-    np.minimum.at(worst, label, corner_margin.min(axis=(1, 2)))
+    for part in _face_chunks(n_faces):     # (F, L, 4) at once cost ~1 GB per million faces
+        own = lines[label[part]]                           # (n, L, 4)
+        corner_margin = (np.einsum('flj,fvj->fvl', own[:, :, :3], position[faces[part]])
+                         - own[:, None, :, 3])
+        np.minimum.at(worst, label[part], corner_margin.min(axis=(1, 2)))
     good &= worst > -1e-7
     # Whole regions keep their lines; every other face becomes a region of its own.
     kept = np.flatnonzero(good)

@@ -103,6 +103,22 @@ def sensor_fov(scan) -> dict[str, float]:
                 'fov_el_deg': min(180.0, 2 * max(abs(e) for e in scan.elevations_deg) + 1.0)}
     return {}
 
+MAX_POINT_RANGE_M = 10_000.0
+"""Farther than this (m) a point is no return (a float marker or garbage): left out."""
+
+
+def usable_xyz_m(points: np.ndarray) -> np.ndarray:
+    """(N, 3) x, y, z (m) of the decoded cloud's points that are finite, not at the
+    origin (a driver's "no return") and within MAX_POINT_RANGE_M; ValueError when x, y, z
+    are missing or not floating point."""
+    names = points.dtype.names or ()
+    if not all(f in names and points.dtype[f].kind == 'f' for f in 'xyz'):
+        raise ValueError(f'x, y, z must be FLOAT32 or FLOAT64 fields, got {list(names)}')
+    xyz = np.column_stack([points['x'], points['y'], points['z']]).astype(float)
+    with np.errstate(over='ignore', invalid='ignore'):
+        rng = np.linalg.norm(xyz, axis=1)
+    return xyz[(rng > 1e-6) & (rng <= MAX_POINT_RANGE_M)]
+
 
 class PoseTrackerNode(Node):
     """Clouds in, PoseStamped out. Call ``setup()`` after construction (it may raise)."""
@@ -200,8 +216,12 @@ class PoseTrackerNode(Node):
         guess = None if self.tracker.tracking else self._guess(t_ns)
         if self._epoch_ns is None:
             self._epoch_ns = t_ns  # seconds since the first scan keep float64 resolution
-        points = from_pointcloud2(msg)
-        xyz = np.column_stack([points['x'], points['y'], points['z']]).astype(float)
+        try:
+            xyz = usable_xyz_m(from_pointcloud2(msg))
+        except ValueError as exc:   # a malformed cloud from any peer must not stop the node
+            self._stats['rejected'] += 1
+            self._warn('bad_cloud', f'cloud dropped: {exc}')
+            return
         t0 = time.perf_counter()
         estimate = self.tracker.update((t_ns - self._epoch_ns) / NS_PER_S, xyz, guess)
         self._stats['ms'].append(1e3 * (time.perf_counter() - t0))

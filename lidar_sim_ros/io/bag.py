@@ -250,10 +250,17 @@ class BagWriter:
 
 def read_clouds(path: str | Path, topic: str = CLOUD_TOPIC) -> list[CloudFrame]:
     """All PointCloud2 messages of a topic, in bag order, decoded with from_pointcloud2."""
-    return [
-        CloudFrame(stamp_to_ns(msg.header.stamp), msg.header.frame_id, from_pointcloud2(msg))
-        for msg in _read_messages(path, topic, POINTCLOUD2)
-    ]
+    return [_cloud_frame(msg, path, topic, k)
+            for k, msg in enumerate(_read_messages(path, topic, POINTCLOUD2))]
+
+
+def _cloud_frame(msg: Any, path: str | Path, topic: str, k: int) -> CloudFrame:
+    """One decoded cloud; a layout the decoder refuses is named with bag, topic and index."""
+    try:
+        points = from_pointcloud2(msg)
+    except ValueError as exc:
+        raise BagContentError(f'bag {path}: cloud #{k} on {topic!r}: {exc}') from None
+    return CloudFrame(stamp_to_ns(msg.header.stamp), msg.header.frame_id, points)
 
 
 def cloud_count(path: str | Path, topic: str = CLOUD_TOPIC) -> int:
@@ -272,13 +279,11 @@ def iter_clouds(path: str | Path, topic: str = CLOUD_TOPIC):
         connections = [c for c in reader.connections if c.topic == topic]
         if not connections:
             _read_messages(path, topic, POINTCLOUD2)      # raises, naming the topics
-        for c, _, raw in reader.messages(connections=connections):
+        for k, (c, _, raw) in enumerate(reader.messages(connections=connections)):
             if c.msgtype != POINTCLOUD2:
                 raise BagContentError(f'topic {topic!r} in bag {path} has type {c.msgtype}, '
                                       f'expected {POINTCLOUD2}')
-            msg = reader.deserialize(raw, c.msgtype)
-            yield CloudFrame(stamp_to_ns(msg.header.stamp), msg.header.frame_id,
-                             from_pointcloud2(msg))
+            yield _cloud_frame(reader.deserialize(raw, c.msgtype), path, topic, k)
 
 
 def read_poses(path: str | Path, topic: str = POSE_TOPIC) -> PoseSeries:

@@ -62,6 +62,8 @@ POINT_FIELDS: list[FieldSpec] = [
 ]
 
 _NS_PER_S = 1_000_000_000
+MAX_CLOUD_POINTS = 50_000_000
+"""Points in one decoded cloud (a P-60 frame has ~21,000; the decoded copy costs ~40 B each)."""
 
 
 def make_points(
@@ -88,13 +90,25 @@ def make_points(
         raise ValueError(f'xyz_m must be finite (is_dense clouds); row {bad} is {xyz[bad]}')
     n = xyz.shape[0]
     points = np.empty(n, dtype=POINT_DTYPE)
-    points['x'], points['y'], points['z'] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    with np.errstate(over='ignore'):
+        points['x'], points['y'], points['z'] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    _check_float32_finite(points, xyz)
     points['intensity'] = _per_point('intensity', intensity, n)
     points['t'] = _per_point('t_s', t_s, n)
     points['ring'] = _per_point('ring', ring, n, np.iinfo(np.uint16).max)
     points['material'] = _per_point('material', material, n, np.iinfo(np.uint8).max)
     points['return'] = _per_point('return_number', return_number, n, np.iinfo(np.uint8).max)
     return points
+
+
+def _check_float32_finite(points: np.ndarray, xyz: np.ndarray) -> None:
+    """Clouds are published is_dense: a coordinate finite in float64 but past the float32
+    range (a 1e300 m bias) would go out as inf."""
+    finite = np.isfinite(points['x']) & np.isfinite(points['y']) & np.isfinite(points['z'])
+    if not finite.all():
+        bad = int(np.flatnonzero(~finite)[0])
+        raise ValueError(f'xyz_m row {bad} is {xyz[bad]}: beyond the float32 range of the '
+                         'cloud (is_dense clouds are finite)')
 
 
 def _per_point(name: str, values: Any, n: int, int_max: int | None = None) -> np.ndarray:
@@ -221,6 +235,9 @@ def from_pointcloud2(msg: Any) -> np.ndarray:
     """
     height, width = int(msg.height), int(msg.width)
     point_step, row_step = int(msg.point_step), int(msg.row_step)
+    if height * width > MAX_CLOUD_POINTS:
+        raise ValueError(f'PointCloud2 of {height} x {width} points exceeds the limit of '
+                         f'{MAX_CLOUD_POINTS} points per cloud')
     order = '>' if msg.is_bigendian else '<'
     wire_dtype, out_dtype = _field_dtypes(msg.fields, order, point_step)
 
@@ -270,10 +287,22 @@ def _field_dtypes(fields: Any, order: str, point_step: int) -> tuple[np.dtype, n
         offsets.append(offset)
         wire_formats.append((np.dtype(order + base), shape))
         out_formats.append((np.dtype('=' + base), shape))
+    _check_no_overlap(names, offsets, [np.dtype(f[0]).itemsize * max(1, int(np.prod(f[1])))
+                                       for f in wire_formats])
     wire = np.dtype({'names': names, 'formats': wire_formats, 'offsets': offsets,
                      'itemsize': point_step})
     out = np.dtype({'names': names, 'formats': out_formats})
     return wire, out
+
+
+def _check_no_overlap(names: list[str], offsets: list[int], sizes: list[int]) -> None:
+    """Fields may not share bytes: FLOAT64 declared over float32 data (x at 0, y at 4)
+    read every coordinate from its neighbour's bytes."""
+    spans = sorted(zip(offsets, sizes, names))
+    for (o1, s1, n1), (o2, _, n2) in zip(spans, spans[1:]):
+        if o1 + s1 > o2:
+            raise ValueError(f'PointCloud2 fields {n1!r} (offset {o1}, {s1} bytes) and {n2!r} '
+                             f'(offset {o2}) overlap: check their datatypes')
 
 
 def _as_uint8(data: Any) -> np.ndarray:

@@ -36,7 +36,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
 from lidar_sim_ros.core.config import (ConfigError, Scenario, load_materials, load_scenario,
-                                       load_sensor)
+                                       load_sensor, with_frame_rate)
 from lidar_sim_ros.core.effects import Effect, is_plugin_spec, make_effect
 from lidar_sim_ros.core.geometry import MeshMaterialError
 from lidar_sim_ros.core.pipeline import Simulator
@@ -183,7 +183,7 @@ class LidarSimNode(Node):
         if rate > 0:
             # The scan pattern is laid over the frame period, so a rate override
             # stretches or compresses it over the new period.
-            self.scenario.sensor = self.scenario.sensor.model_copy(update={'frame_rate_hz': rate})
+            self.scenario.sensor = with_frame_rate(self.scenario.sensor, rate, '<parameters>')
         self.sim = Simulator.from_scenario(self.scenario, effects=[],
                                            threads=self.get_parameter('threads').value)
 

@@ -15,10 +15,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.core.pose import PoseTrack
-
-QUAT_NORM_TOL = 0.01
-"""A quaternion whose norm is within this of 1 is normalised; further off, rejected."""
+from lidar_sim_ros.core.pose import QUAT_NORM_TOL, PoseTrack  # noqa: F401 - one tolerance
 
 NS_PER_S = 1_000_000_000
 

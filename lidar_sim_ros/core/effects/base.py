@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Sequence
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, ValidationError
 
 if TYPE_CHECKING:
     from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
@@ -181,7 +181,7 @@ class Effect:
     def __init__(self, params: BaseModel | dict[str, Any] | None = None):
         if isinstance(params, BaseModel):
             params = params.model_dump()
-        self.params = self.Params.model_validate(params or {})
+        self.params = _finite_params(self.Params.model_validate(params or {}))
 
     def __repr__(self) -> str:
         return f'{type(self).__name__}({self.params.model_dump()})'
@@ -284,6 +284,31 @@ def apply_effects(ctx: ReturnContext, effects: Sequence['Effect'], bias_m: np.nd
                 var = var + np.asarray(extra_sigma, float) ** 2
     n = len(ctx)
     return ctx, np.broadcast_to(bias, (n,)), np.broadcast_to(var, (n,))
+
+
+def _finite_params(params: BaseModel) -> BaseModel:
+    """Every number among an effect's parameters must be finite (``range_walk k_m: .nan``
+    gave 0 points and rc 0): refused as a pydantic error naming the key and value, which
+    the config loaders turn into one line."""
+    bad = [(key, value) for key, value in _numbers(params.model_dump())
+           if not np.isfinite(value)]
+    if bad:
+        key, value = bad[0]
+        raise ValidationError.from_exception_data(type(params).__name__, [
+            {'type': 'finite_number', 'loc': key, 'input': value}])
+    return params
+
+
+def _numbers(value: Any, key: tuple = ()) -> Any:
+    """(key path, number) for every float or int inside nested dicts, lists and tuples."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            yield from _numbers(v, key + (str(k),))
+    elif isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            yield from _numbers(v, key + (i,))
+    elif isinstance(value, float) or (isinstance(value, np.floating)):
+        yield key, float(value)
 
 
 def _round(value: Any) -> Any:

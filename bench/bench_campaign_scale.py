@@ -1,0 +1,95 @@
+#!/usr/bin/env python3
+"""Campaign engine at scale (`make bench-campaign` writes bench_campaign_scale.json).
+
+The client's (main process's) peak resident memory for campaigns of very short runs
+(one frame of a 16-shot sensor on the rocket body, ``save: stats``), each in a fresh
+process on a local cluster of ``--workers`` workers: memory must stay flat in the
+number of runs (runs are submitted as they go, a bounded number in flight, and the
+manifest keeps one status byte per run). Also: seconds to the first manifest row and
+to the end, runs per second. The local cluster's scheduler lives in the main process,
+so its memory is counted too.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+SENSOR = {'type': 'rotating', 'elevations_deg': [0.0], 'az_min_deg': -5.0, 'az_max_deg': 5.0,
+          'shots_per_beam': 16}
+
+
+def write_campaign(tmp: Path, runs: int) -> Path:
+    """A campaign of ``runs`` one-frame runs on a 16-shot sensor."""
+    sensor = yaml.safe_load((ROOT / 'config' / 'cepton_vista_p60.yaml').read_text())
+    sensor['scan'] = SENSOR
+    (tmp / 'sensor.yaml').write_text(yaml.safe_dump(sensor))
+    scenario = yaml.safe_load((ROOT / 'config' / 'scenario.yaml').read_text())
+    scenario.update(sensor=str(tmp / 'sensor.yaml'), materials=str(ROOT / 'config' / 'materials.yaml'),
+                    mesh=str(ROOT / 'meshes' / 'rocket_body.obj'), effects=[])
+    (tmp / 'scenario.yaml').write_text(yaml.safe_dump(scenario))
+    path = tmp / 'campaign.yaml'
+    path.write_text(yaml.safe_dump({
+        'scenario': str(tmp / 'scenario.yaml'), 'seed': 1, 'runs': runs, 'duration_s': 0.1,
+        'save': 'stats', 'coverage_frames': 0,
+        'dispersions': {'initial_distance_m': {'dist': 'uniform', 'low': 8.0, 'high': 25.0}}}))
+    return path
+
+
+def one(runs: int, workers: int) -> None:
+    """In a fresh process: run the campaign, print what it cost as JSON."""
+    sys.path.insert(0, str(ROOT))
+    from lidar_sim_ros.campaign.engine import run_campaign
+    from lidar_sim_ros.campaign.spec import load_campaign
+    tmp = Path(tempfile.mkdtemp(prefix='bench_campaign_scale_'))
+    try:
+        campaign = load_campaign(write_campaign(tmp, runs))
+        t0 = time.perf_counter()
+        report = run_campaign(campaign, tmp / 'out', workers=workers, progress=False)
+        wall = time.perf_counter() - t0
+        print(json.dumps({'runs': runs, 'ok': report.ok, 'failed': report.failed,
+                          'peak_rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                          'startup_s': report.startup_s, 'wall_s': wall,
+                          'runs_per_s': report.ran / report.wall_s if report.wall_s else None}))
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--runs', type=int, nargs='+', default=[1000, 100_000])
+    ap.add_argument('--workers', type=int, default=2)
+    ap.add_argument('--out', type=Path, default=None, help='JSON file to write')
+    ap.add_argument('--one', type=int, default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.one is not None:
+        one(args.one, args.workers)
+        return
+    results = []
+    for runs in args.runs:
+        proc = subprocess.run([sys.executable, __file__, '--one', str(runs), '--workers',
+                               str(args.workers)], capture_output=True, text=True, cwd=ROOT)
+        if proc.returncode:
+            sys.exit(f'{runs} runs failed:\n{proc.stderr[-2000:]}')
+        result = json.loads(proc.stdout.strip().splitlines()[-1])
+        results.append(result)
+        print(f"{runs:>7} runs: client peak RSS {result['peak_rss_mb']:.0f} MB, "
+              f"{result['runs_per_s']:.0f} runs/s, {result['wall_s']:.0f} s "
+              f"(start-up {result['startup_s']:.1f} s)", flush=True)
+    out = {'workers': args.workers, 'results': results,
+           'peak_rss_growth_mb': results[-1]['peak_rss_mb'] - results[0]['peak_rss_mb']}
+    if args.out:
+        args.out.write_text(json.dumps(out, indent=2) + '\n')
+
+
+if __name__ == '__main__':
+    main()

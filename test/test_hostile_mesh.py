@@ -1,0 +1,44 @@
+"""Hostile meshes (issue 22, part 2): non-finite vertices and meshes without area are
+refused naming the file; zero-area faces (no ray can hit them) are removed."""
+import numpy as np
+import pytest
+
+from lidar_sim_ros.core.geometry import MeshFileError, load_target
+
+HEAD = 'usemtl PIF\n'
+SQUARE = 'v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n'
+
+
+def obj(tmp_path, text):
+    path = tmp_path / 'm.obj'
+    path.write_text(HEAD + text)
+    return path
+
+
+def test_non_finite_vertex_is_refused_naming_it(tmp_path):
+    path = obj(tmp_path, 'v 0 0 0\nv 1 0 0\nv 1 nan 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n')
+    with pytest.raises(MeshFileError, match=r'm.obj: 1 of 4 vertices are not finite, first #2'):
+        load_target(path, ['PIF'])
+
+
+def test_zero_area_mesh_is_refused(tmp_path):
+    path = obj(tmp_path, 'v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 2 3 4\n')
+    with pytest.raises(MeshFileError, match='all 2 triangles have zero area'):
+        load_target(path, ['PIF'])
+
+
+def test_zero_area_faces_are_removed_and_the_rest_kept(tmp_path):
+    # Two unit-square halves plus a sliver with a repeated vertex.
+    target = load_target(obj(tmp_path, SQUARE + 'f 1 2 3\nf 1 3 4\nf 1 2 2\n'), ['PIF'])
+    assert target.n_faces == 2
+    # Its area is the square's: 1 m^2 (hand calculation).
+    tri = target.vertices_m[target.faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    assert area == pytest.approx(1.0)
+
+
+def test_triangle_count_is_limited(tmp_path, monkeypatch):
+    import lidar_sim_ros.core.geometry as geometry
+    monkeypatch.setattr(geometry, 'MAX_TRIANGLES', 1)
+    with pytest.raises(MeshFileError, match='2 faces exceed the limit of 1 triangles'):
+        load_target(obj(tmp_path, SQUARE + 'f 1 2 3\nf 1 3 4\n'), ['PIF'])
