@@ -7,7 +7,8 @@
 Right: the loop names exactly the dataset's hidden catalogue effects, one per step,
 and ends with null (no phantom after the last fix); an effect outside the catalogue
 gives null at once (and its feature first, when the dataset says which); the NLL
-falls at every step; with clutter, the unmatched share is the clutter's. Used by
+falls at every step; a reference-pose error is reported when the dataset has one, and
+only then; with clutter, the unmatched share is the clutter's. Used by
 ``bench/hidden_effect_eval.py`` and ``test/test_compare_foreign.py``.
 """
 from __future__ import annotations
@@ -99,6 +100,11 @@ def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
         top = (first.get('features') or [{}])[0].get('name')
         if top != spec.expected_feature:
             why.append(f'top feature {top}, expected {spec.expected_feature}')
+    pose_off = [bool(s.get('reference_pose_off')) for s in steps]
+    if any(spec.pose_error) and not pose_off[0]:
+        why.append('the reference-pose error was not reported')
+    if not any(spec.pose_error) and any(pose_off):
+        why.append(f'a reference-pose error reported on a correct pose (steps {pose_off})')
     if spec.clutter:
         share = truth['clutter_fraction'] + truth['false_return_fraction']
         unm = first.get('unmatched_fraction', 0.0)

@@ -32,6 +32,7 @@ import numpy as np
 
 from lidar_sim_ros.compare import (diagnosis, features, history, likelihood as lk,
                                    materials as mat, neighbours, point_times,
+                                   pose_error,
                                    stamp_place)
 from lidar_sim_ros.compare.intensity import IntensityCalibration, calibrate_intensity
 from lidar_sim_ros.compare.matching import (Matching, Model, edge_distance_rad, match,
@@ -397,6 +398,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     cands: list[diagnosis.Candidate] = []
     decision = diagnosis.Decision(None, [])
     stamp = None
+    pose = None
     if classes:
         with stage('candidates', ', '.join(c.name for c in classes)):
             diag = diagnosis.Diagnosis(model, effects, sample, opts.seed)
@@ -406,6 +408,11 @@ def run_compare(opts: CompareOptions) -> CompareResult:
                 diag.share_veto(c, attribution)
             cands = diagnosis.rank(cands)
             decision = diag.decide(cands)
+            pose = pose_error.test_pose_error(
+                diag.full, meas.cloud[sample.matched], meas.t_s[sample.matched],
+                sample.blocks[sample.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN,
+                opts.seed)
+            decision = diag.judge_pose(pose, cands, decision)
             for c in cands[:FINALIZED]:
                 if c.significant or c is cands[0]:
                     diag.finalize(c)      # what a run with --effect NAME --fit would show
@@ -453,6 +460,8 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         'point_time_field': meas.time_field,
         'point_time_spread_s': time_spread or None,
         'stamp_place': stamp.as_dict() if stamp is not None else None,
+        'reference_pose': pose.as_dict() if pose is not None else None,
+        'reference_pose_off': decision.pose is not None,
         'has_intensity': meas.intensity is not None,
         'dropped': meas.dropped,
         'notes': notes,

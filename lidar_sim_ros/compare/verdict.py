@@ -98,8 +98,14 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'{_join(names)} explain the data equally well within their uncertainty (held-out '
             f'gains {scores} nats/point): they are confounded in this recording, so none is '
             f'named. {advice} If you know which it is, add it with --effect NAME --fit.')
+    elif decision.pose is not None:
+        parts.append(pose_words(decision.pose))
     else:
         parts.append(_nothing_named(summary, attribution, cands))
+    if decision.pose is not None and (missing or decision.confounded_with):
+        parts.append(f'Besides, {decision.pose.words()} (held-out gain of a rigid correction '
+                     f'per cloud {decision.pose.gain:.4f} nats/point, z = {decision.pose.z:.1f}): '
+                     'check the tracking system or the extrinsic calibration.')
     vetoed = [c for c in cands if c.vetoed and c.significant and c.practical
               and c.name != missing and c.name not in decision.confounded_with]
     if vetoed and (missing or decision.confounded_with):
@@ -127,6 +133,14 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     if summary.get('sunlight'):
         parts.append(sunlight_words(summary['sunlight'], hint=missing != 'sunlight'))
     return ' '.join(parts)
+
+
+def pose_words(pose) -> str:
+    """The verdict when a reference-pose error explains the residual (``pose_error``)."""
+    return (f'{pose.words()[0].upper()}{pose.words()[1:]}: not a sensor effect; check the '
+            'tracking system or the extrinsic calibration. A rigid correction of the target '
+            f'pose per cloud gains {pose.gain:.4f} nats/point held out (z = {pose.z:.1f}), and '
+            'with it no catalogue effect passes the rule.')
 
 
 def _sunlight_named(summary: dict, c) -> str:
