@@ -258,8 +258,11 @@ def _gain_words(summary: dict, c) -> tuple[str, str]:
 
 
 def summary_lines(s: dict, files: list[Path]) -> list[str]:
-    lines = [f'points: {s["points"]} ({s["matched_points"]} matched, '
-             f'{s["unmatched_points"]} unmatched = {100 * s["unmatched_fraction"]:.2f} %)',
+    analysed = s.get('points_analysed', s['points'])
+    cut = (f', {analysed} analysed (--max-points): ' if analysed < s['points'] else ' (')
+    lines = [f'points: {s["points"]}{cut}{s["matched_points"]} matched, '
+             f'{s["unmatched_points"]} unmatched = {100 * s["unmatched_fraction"]:.2f} %'
+             + ('' if analysed < s['points'] else ')'),
              f'range RMSE: {s["range_rmse_m"]:.4f} m   NLL: {s["nll_per_point"]:.3f} per point'
              f'   (per-material offsets refit: {s["range_rmse_calibrated_m"]:.4f} m, '
              f'{s["nll_calibrated"]:.3f})']
