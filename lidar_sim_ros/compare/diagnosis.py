@@ -593,23 +593,32 @@ class Diagnosis:
         out._base_nll = [heldout_nll(d, []) for d in out.fold_data]
         return out
 
-    def judge_pose(self, pose, cands: list[Candidate], decision: Decision) -> Decision:
-        """A decisive reference-pose error (``pose_error.test_pose_error``): each
-        admissible candidate is scored again on the model with the pose corrected; those
-        that still pass the rule are decided among as before, and if none does the pose
-        explains the residual and no sensor effect is named."""
-        if pose is None or not pose.significant:
+    def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision) -> Decision:
+        """Whether the reference pose is off (``pose_test(effects)``: the per-cloud rigid
+        correction's test, ``pose_error.fit_reference_pose``, on the model with
+        ``effects``). If it is, each admissible candidate is scored again on the model
+        with the pose corrected; those that still pass the rule are decided among as
+        before, and if none does, the pose explains the residual and no sensor effect is
+        named. A named effect that itself explains the pose's gain (a time offset moves
+        the target rigidly too) leaves no pose error to report."""
+        pose = pose_test([])
+        if not pose.significant:
             return decision
         contenders = [c for c in cands if c.admissible and c.effect is not None]
-        if not contenders:
-            return replace(decision, pose=pose)
-        on_pose = self.pose_corrected(pose.correction_m)
-        again = [on_pose.score(type(c.effect)) for c in contenders]
-        if not any(c.admissible for c in again):
-            return Decision(None, [], pose=pose)
-        if decision.missing and any(c.admissible and c.name == decision.missing for c in again):
-            return replace(decision, pose=pose)
-        return replace(on_pose.decide(again), pose=pose)
+        if contenders:
+            on_pose = self.pose_corrected(pose.correction_m)
+            again = [on_pose.score(type(c.effect)) for c in contenders]
+            if not any(c.admissible for c in again):
+                return Decision(None, [], pose=pose)
+            if not (decision.missing and any(c.admissible and c.name == decision.missing
+                                             for c in again)):
+                decision = on_pose.decide(again)
+        if decision.missing:
+            named = next(c for c in cands if c.name == decision.missing)
+            pose = pose_test([named.effect])
+            if not pose.significant:
+                return decision
+        return replace(decision, pose=pose)
 
     def paired(self, a: Candidate, b: Candidate) -> tuple[float, float]:
         """How much better ``a`` explains the data than ``b``: the paired held-out per-point

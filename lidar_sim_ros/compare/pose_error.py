@@ -111,12 +111,13 @@ def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
     return out
 
 
-def test_pose_error(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
-                    blocks: np.ndarray, z_crit: float, min_gain: float,
-                    seed: int = 0) -> PoseError:
+def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
+                       blocks: np.ndarray, z_crit: float, min_gain: float, seed: int = 0,
+                       effects: list | None = None) -> PoseError:
     """Fit and judge per-cloud rigid pose corrections on ``data``'s matched points
-    (``cloud``, ``t_s``, ``blocks``: per matched point) (module doc)."""
-    model = lk.model_on_rays(data, [])
+    (``cloud``, ``t_s``, ``blocks``: per matched point) under the model with
+    ``effects`` on top of its own (module doc)."""
+    model = lk.model_on_rays(data, list(effects or []))
     ctx = model.ctx
     r = np.asarray(data.measured_range_m, float) - model.expected_range_m
     sigma = np.maximum(model.sigma_m, lk.MIN_SIGMA_M)

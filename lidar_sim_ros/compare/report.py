@@ -140,94 +140,55 @@ def candidates_figure(cands) -> bytes:
 
 
 def history_figure(runs: list[dict]) -> bytes:
-    """RMSE and NLL of every recorded run: the error falling as effects are added."""
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
+    """RMSE and NLL of every recorded run on one basis: each material's offset and sigma
+    scale refit in every run (``history.run_entry``), so a run with materials as
+    configured and a --fit run with materials refit compare. Runs recorded without the
+    calibrated figures show their headline figures as open markers (another basis)."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
     k = np.arange(1, len(runs) + 1)
     labels = [f'{i}\n' + ('+'.join(r.get('effects') or []) or 'baseline').replace('+', '+\n')
               for i, r in zip(k, runs)]
-    series = (('range_rmse_m', 100.0, 'range RMSE (cm)', 'tab:blue'),
-              ('nll_per_point', 1.0, 'NLL per point', 'tab:red'))
-    for ax, (key, scale, label, color) in zip(axes, series):
-        y = np.array([r.get(key) if r.get(key) is not None else np.nan for r in runs], float)
-        ax.plot(k, y * scale, 'o-', color=color)
+    series = (('range_rmse_calibrated_m', 'range_rmse_m', 100.0, 'range RMSE (cm)', 'tab:blue'),
+              ('nll_calibrated', 'nll_per_point', 1.0, 'NLL per point', 'tab:red'))
+
+    def column(key: str) -> np.ndarray:
+        return np.array([r.get(key) if r.get(key) is not None else np.nan for r in runs],
+                        float)
+    for ax, (key, headline, scale, label, color) in zip(axes, series):
+        y, y_head = column(key), column(headline)
+        ax.plot(k, y * scale, 'o-', color=color,
+                label='per-material offsets and sigmas refit (every run)')
+        other = np.isnan(y) & np.isfinite(y_head)
+        if other.any():
+            ax.plot(k[other], y_head[other] * scale, 'o', mfc='none', color=color,
+                    label='headline: materials as each run had them (another basis)')
         ax.set_ylabel(label)
         ax.set_xticks(k, labels, fontsize=7)
         ax.set_xlabel('run')
         ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
     fig.tight_layout()
     return _png(fig)
 
 
-def unmatched_figure(matching, divergence_rad: float) -> bytes:
-    un = ~matching.matched
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
-    r = matching.meas.range_m
-    bins = np.linspace(r.min(), r.max(), 50) if np.ptp(r) > 0 else 10
-    axes[0].hist(r[matching.matched], bins=bins, alpha=0.5, density=True, label='matched')
-    axes[0].hist(r[un], bins=bins, alpha=0.6, density=True, label='unmatched')
-    axes[0].set_xlabel('measured range (m)')
-    axes[0].legend(fontsize=8)
-    d = matching.edge_rad[un] / divergence_rad
-    levels, counts = np.unique(np.round(d, 3), return_counts=True)
-    axes[1].bar([f'{x:g}' for x in levels], counts, color='tab:purple')
-    axes[1].set_xlabel('angular distance to the silhouette (beam divergences; 16 = far)')
-    axes[1].set_ylabel('unmatched points')
-    for ax in axes:
+def pose_figure(pose: dict) -> bytes:
+    """The per-cloud correction of the reference pose (summary.json's
+    ``reference_pose``): translation (cm) and rotation (deg) per axis against time."""
+    clouds = pose['clouds']
+    t = np.array([c['t_s'] for c in clouds])
+    d = np.array([c['translation_m'] for c in clouds]) * 100.0
+    w = np.array([c['rotation_deg'] for c in clouds])
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.4))
+    for ax, v, label in ((axes[0], d, 'translation (cm)'), (axes[1], w, 'rotation (deg)')):
+        for j, axis in enumerate('xyz'):
+            ax.plot(t - t.min(), v[:, j], 'o-', ms=3, label=axis)
+        ax.axhline(0, color='k', lw=0.8)
+        ax.set_xlabel('time since the first cloud (s)')
+        ax.set_ylabel(f'{label}, lidar frame')
         ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
     fig.tight_layout()
     return _png(fig)
-
-
-def scene_figure(matching, divergence_rad: float, isolated: np.ndarray | None) -> bytes:
-    """Azimuth/elevation view of the analysed points: target points grey, unmatched points
-    painted by class (near the silhouette, clutter surface, isolated)."""
-    d = matching.meas.directions
-    az = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
-    el = np.degrees(np.arcsin(np.clip(d[:, 2], -1, 1)))
-    on = matching.matched
-    near = ~on & (matching.edge_rad <= 2.0 * divergence_rad + 1e-12)
-    alone = ~on & ~near & (isolated if isolated is not None else np.zeros(len(on), bool))
-    clutter = ~on & ~near & ~alone
-    fig, ax = plt.subplots(figsize=(10, 4.2))
-    rng = np.random.default_rng(0)
-    show = np.flatnonzero(on)
-    show = show if len(show) <= MAX_SCATTER else rng.choice(show, MAX_SCATTER, False)
-    ax.plot(az[show], el[show], '.', ms=1.5, color='0.7', label='on the target model')
-    for mask, color, label in ((near, 'tab:blue', 'unmatched, near the silhouette'),
-                               (clutter, 'tab:orange', 'unmatched, clutter surface'),
-                               (alone, 'tab:red', 'unmatched, isolated')):
-        if mask.any():
-            ax.plot(az[mask], el[mask], '.', ms=3, color=color,
-                    label=f'{label} ({int(mask.sum())})')
-    ax.invert_xaxis()        # azimuth grows to the left (REP-103): as seen from the sensor
-    ax.set_xlabel('azimuth (deg)')
-    ax.set_ylabel('elevation (deg)')
-    ax.set_aspect('equal')
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc='upper right', markerscale=3)
-    fig.tight_layout()
-    return _png(fig)
-
-
-def _table(rows: list[list], header: list[str]) -> str:
-    head = ''.join(f'<th>{html.escape(str(h))}</th>' for h in header)
-    body = ''.join('<tr>' + ''.join(f'<td>{html.escape(_fmt(c))}</td>' for c in row) + '</tr>'
-                   for row in rows)
-    return f'<table><tr>{head}</tr>{body}</table>'
-
-
-def _fmt(v) -> str:
-    if isinstance(v, float):
-        return 'n/a' if not np.isfinite(v) else f'{v:.5g}'
-    if isinstance(v, dict):
-        return ', '.join(f'{k} = {_fmt(x)}' for k, x in v.items())
-    return '' if v is None else str(v)
-
-
-CSS = """body{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}
-table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 8px;
-font-size:13px;text-align:left}th{background:#eee}.verdict{background:#fff6e0;padding:1em;
-border-left:4px solid #e0a000}img{max-width:100%}code{background:#f3f3f3}"""
 
 
 def write_report(out: Path, summary: dict, matching, configured, residual_m: np.ndarray,
@@ -252,6 +213,10 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
     }
     if any(c.error is None for c in cands):
         figs['candidates'] = candidates_figure(cands)
+    pose = s.get('pose_correction') or (s.get('reference_pose') if s.get('reference_pose_off')
+                                        else None)
+    if pose and pose.get('clouds'):
+        figs['pose'] = pose_figure(pose)
     if s['unmatched_points']:
         figs['unmatched'] = unmatched_figure(matching, model.divergence_rad)
         figs['scene'] = scene_figure(matching, model.divergence_rad, isolated)
@@ -325,8 +290,20 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
                   'edge, pose), on a surface that is not the target (lab clutter: walls, '
                   'jigs, cables) or isolated (random ranges: false returns).</p>',
                   _img(figs['scene'], 'unmatched points in the view, clutter painted')]
+    if 'pose' in figs:
+        what = ('applied by --effect pose_error' if s.get('pose_correction')
+                else 'that would explain the residual')
+        parts += ['<h2>Reference pose: the correction per cloud</h2>',
+                  f'<p>The rigid correction of the target pose {what}: RMS '
+                  f'{pose["translation_rms_cm"]:.2f} cm and {pose["rotation_rms_deg"]:.3f} deg '
+                  f'(held-out gain {pose["gain_per_matched_point"]:.4f} nats/point, '
+                  f'z = {pose["z"]:.1f}). A reference error (tracking system, extrinsic '
+                  'calibration), not a sensor effect.</p>',
+                  _img(figs['pose'], 'reference pose correction per cloud')]
     parts += ['<h2>History: the error across runs</h2>',
-              f'<p>From {html.escape(s.get("history", ""))}.</p>',
+              f'<p>From {html.escape(s.get("history", ""))}. RMSE and NLL with each '
+              'material\'s offset and sigma refit in every run (one basis for runs with and '
+              'without --fit).</p>',
               _img(figs['history'], 'history'),
               _table([[i + 1, r.get('timestamp'), '+'.join(r.get('effects') or []) or 'baseline',
                        r.get('range_rmse_m'), r.get('nll_per_point'),

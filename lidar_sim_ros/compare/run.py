@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import norm
 
 from lidar_sim_ros.compare import (diagnosis, features, history, likelihood as lk,
                                    materials as mat, neighbours, point_times,
@@ -61,6 +62,9 @@ DIAGNOSIS_MAX_MATCHED = 12_000
 # figures): the best few; the others report their fit on half of the points.
 FINALIZED = 3
 SILHOUETTE_NEAR_DIVERGENCES = 2.0
+# --effect pose_error: a per-cloud correction of the reference pose (compare/pose_error.py),
+# not a catalogue effect: the simulator never applies it.
+POSE_ERROR = 'pose_error'
 
 
 @dataclass
@@ -286,6 +290,7 @@ class Inputs:
     scenario_effects: list[Effect]
     user: list[Effect]
     model: Model
+    pose_fit: bool = False        # --effect pose_error: correct the reference pose per cloud
 
 
 @dataclass
@@ -354,8 +359,14 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     effects = inp.scenario_effects + user
     with stage('match', f'{len(inp.meas)} rays'):
         matching, rays = match_rays(inp.model, effects, inp.meas, power, extra_var, opts)
+    pose_fit = None
+    if inp.pose_fit:
+        with stage('reference pose', f'{len(inp.meas.cloud_stamps_s)} clouds'):
+            matching, rays, pose_fit = correct_reference_pose(inp.model, effects, matching,
+                                                              rays, inp.meas, opts.seed)
     with stage('materials'):
-        cal = calibrate_materials(inp.model, effects, matching, rays, opts.fit)
+        cal = calibrate_materials(inp.model, effects, matching, rays, opts.fit,
+                                  None if pose_fit is None else pose_fit.correction_m)
     sunlight = None
     if inp.sun is not None:
         with stage('sunlight', f'{len(inp.sun.t_s)} sun directions'):
@@ -372,7 +383,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     else:
         diag = Diagnosed([], diagnosis.Decision(None, []), None, None, cal.calibrated)
     summary = build_summary(opts, inp, effects, fitted, cal, ana, diag, sunlight, rays,
-                            time_spread, power)
+                            time_spread, power, pose_fit)
     return write_outputs(opts, summary, stage, inp, effects, fitted, cal, ana, diag)
 
 
@@ -384,7 +395,9 @@ def load_inputs(opts: CompareOptions) -> Inputs:
                              opts.seed)
     sun = recording_sun(opts, scenario, meas)
     scenario_effects = [get_effect_class(e.name)(e.params) for e in scenario.config.effects]
-    user = [effect_from_spec(spec) for spec in opts.effects]
+    pose_fit = any(parse_effect_spec(spec)[0] == POSE_ERROR for spec in opts.effects)
+    user = [effect_from_spec(spec) for spec in opts.effects
+            if parse_effect_spec(spec)[0] != POSE_ERROR]
     if sun is None and any(isinstance(e, Sunlight) for e in user):
         raise ValueError(
             f'--effect sunlight needs the sun direction, and bag {opts.bag} has none on '
@@ -397,7 +410,27 @@ def load_inputs(opts: CompareOptions) -> Inputs:
     model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
                   scenario.source.parent if scenario.source else None, sun)
     meas = with_scan_times(meas, model.simulator().shots)
-    return Inputs(scenario, meas, sun, scenario_effects, user, model)
+    return Inputs(scenario, meas, sun, scenario_effects, user, model, pose_fit)
+
+
+def correct_reference_pose(model: Model, effects: list[Effect], matching: Matching,
+                           rays: diagnosis.RaySet, meas: Measurements, seed: int
+                           ) -> tuple[Matching, diagnosis.RaySet, pose_error.PoseError]:
+    """``--effect pose_error``: the per-cloud rigid correction of the reference pose
+    (``pose_error.fit_reference_pose`` on every matched point), applied to the model's
+    expected ranges of the matched points (their range bias). A reference error, not a
+    sensor effect: the simulator never applies it. Rays that miss the target stay as
+    they are (the correction is a few cm: it moves the silhouette by as much)."""
+    data = diagnosis.make_fit_data(model, effects, rays)
+    idx = rays.matched
+    blocks = neighbours.blocks(meas.directions, meas.cloud)[idx]
+    pose = pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks,
+                                         float(norm.isf(diagnosis.FAMILY_ALPHA)),
+                                         diagnosis.MIN_PRACTICAL_GAIN, seed)
+    bias = np.array(matching.pred.bias_m, float, copy=True)
+    bias[idx] += pose.correction_m
+    pred = replace(matching.pred, bias_m=bias)
+    return replace(matching, pred=pred), replace(rays, pred=pred), pose
 
 
 def match_rays(model: Model, effects: list[Effect], meas: Measurements,
@@ -416,9 +449,12 @@ def match_rays(model: Model, effects: list[Effect], meas: Measurements,
 
 
 def calibrate_materials(model: Model, effects: list[Effect], matching: Matching,
-                        rays: diagnosis.RaySet, fit: bool) -> Calibrated:
+                        rays: diagnosis.RaySet, fit: bool,
+                        range_correction_m: np.ndarray | None = None) -> Calibrated:
     """Per-material bias/sigma as measured vs configured; with ``fit`` the model takes
-    the refit materials (as the paper's Table 2 calibration); the headline figures."""
+    the refit materials (as the paper's Table 2 calibration); the headline figures.
+    ``range_correction_m``: a reference-pose correction per matched point, kept in the
+    range bias when the materials' biases are replaced."""
     pred, sel = matching.pred, matching.matched
     residual, sigma = model_residuals(diagnosis.make_fit_data(model, effects, rays), rays)
     stats = mat.material_stats(model.materials, replace(pred, sigma_m=sigma), residual, sel)
@@ -429,6 +465,10 @@ def calibrate_materials(model: Model, effects: list[Effect], matching: Matching,
         # paper's Table 2 calibration, each material's range bias and sigma.
         model = replace(model, materials=refit)
         pred = with_materials(pred, refit)
+        if range_correction_m is not None:
+            bias = np.array(pred.bias_m, float, copy=True)
+            bias[rays.matched] += range_correction_m
+            pred = replace(pred, bias_m=bias)
         matching = replace(matching, pred=pred)
         rays = replace(rays, pred=pred)
     everything = diagnosis.make_fit_data(model, effects, rays)
@@ -522,10 +562,15 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         diag.share_veto(c, ana.attribution)
     cands = diagnosis.rank(cands)
     decision = diag.decide(cands)
-    pose = pose_error.test_pose_error(
-        diag.full, meas.cloud[sample.matched], meas.t_s[sample.matched],
-        sample.blocks[sample.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed)
-    decision = diag.judge_pose(pose, cands, decision)
+
+    def pose_test(on_top: list[Effect]) -> pose_error.PoseError:
+        return pose_error.fit_reference_pose(
+            diag.full, meas.cloud[sample.matched], meas.t_s[sample.matched],
+            sample.blocks[sample.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
+            on_top)
+    decision = diag.judge_pose(pose_test, cands, decision)
+    named = [c.effect for c in cands if c.name == decision.missing]
+    pose = decision.pose if decision.pose is not None else pose_test(named)
     for c in cands[:FINALIZED]:
         if c.significant or c is cands[0]:
             diag.finalize(c)      # what a run with --effect NAME --fit would show
@@ -537,7 +582,8 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
 def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
                   fitted: list[Effect], cal: Calibrated, ana: Analysed, diag: Diagnosed,
                   sunlight: dict | None, rays: diagnosis.RaySet, time_spread: float,
-                  power: PowerFromIntensity) -> dict:
+                  power: PowerFromIntensity,
+                  pose_fit: pose_error.PoseError | None = None) -> dict:
     """summary.json, with the verdict."""
     meas, scenario, matching = inp.meas, inp.scenario, cal.matching
     sel = matching.matched
@@ -584,6 +630,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'stamp_place': diag.stamp.as_dict() if diag.stamp is not None else None,
         'reference_pose': diag.pose.as_dict() if diag.pose is not None else None,
         'reference_pose_off': decision.pose is not None,
+        'pose_correction': pose_fit.as_dict() if pose_fit is not None else None,
         'has_intensity': meas.intensity is not None,
         'dropped': meas.dropped,
         'notes': list(meas.notes) + _material_name_notes(meas, scenario)
@@ -608,8 +655,8 @@ def write_outputs(opts: CompareOptions, summary: dict, stage: Stages, inp: Input
         files.append(_write(opts.out / 'effects.yaml', effects_yaml(fitted)))
     files.append(_write(opts.out / 'materials.yaml', mat.materials_yaml(cal.refit, cal.stats)))
     hist_path = Path(opts.history) if opts.history else opts.out.resolve().parent / 'history.json'
-    runs = history.append_run(hist_path, history.run_entry(
-        summary, [e.name for e in effects], opts.out, opts.bag))
+    names = [e.name for e in effects] + ([POSE_ERROR] if inp.pose_fit else [])
+    runs = history.append_run(hist_path, history.run_entry(summary, names, opts.out, opts.bag))
     summary['history'] = str(hist_path)
     if opts.report:
         with stage('report'):

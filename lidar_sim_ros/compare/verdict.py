@@ -270,6 +270,12 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
         params = ', '.join(f'{k} = {v:.6g}' if isinstance(v, float) else f'{k} = {v}'
                            for k, v in e['params'].items())
         lines.append(f'fitted {e["name"]}: {params}')
+    pc = s.get('pose_correction')
+    if pc:
+        lines.append(f'fitted pose_error: reference pose corrected per cloud by '
+                     f'{pc["translation_rms_cm"]:.2f} cm and {pc["rotation_rms_deg"]:.3f} deg RMS '
+                     f'over {len(pc["clouds"])} clouds (held-out gain '
+                     f'{pc["gain_per_matched_point"]:.4f} nats/point, z = {pc["z"]:.1f})')
     lines.append('features: ' + ', '.join(f'{f["name"]} {f["score"]:.4f}'
                                           for f in s['features'][:4]))
     lines.append('candidates: ' + ', '.join(
