@@ -10,10 +10,15 @@ on the other and vice versa, so extra parameters cannot win on noise. The held-o
 likelihood is outlier tolerant (a small uniform floor), so a handful of odd returns
 cannot dominate. Unmatched points a candidate explains (returns beyond the
 silhouette, false returns off the target) count too, as many as it explains beyond
-those the model's own effects already explain.
+those the model's own effects already explain, and only with the effect's own
+signature (``unmatched_credit``): points beyond the silhouette mark pose and timing
+errors as much as a footprint.
 
 A diagnosis is a claim to a user. A candidate is named (``missing_effect``) only if
 all of these hold, each chosen from a principle, not from a dataset:
+
+One rule, on the quantity the verdict quotes (the score, matched and unmatched, and
+its z, ``total_z``), whatever part of the data the gain is on:
 
 * **decisive**: its held-out gain is Z_CRIT block-robust standard errors above zero,
   Bonferroni-corrected for testing every candidate (one-sided family error rate
@@ -42,7 +47,9 @@ all of these hold, each chosen from a principle, not from a dataset:
   a structure it does not have the shape of is a phantom (the rest of the structure
   is outside the catalogue);
 * **it is decisively the best**: the paired held-out per-point NLL difference to
-  every other admissible candidate is decisive (z above the same bound). Otherwise the
+  every other admissible candidate is decisive (z above the same bound) and, with both
+  fitted as --fit would leave them (all the points, every material's offset and sigma
+  refit), at least MIN_PRACTICAL_GAIN nats per point apart (``fitted_margin``). Otherwise the
   two explain the data equally within their uncertainty (both matter: which of them
   is a statistical question): if fitting one on top of the other still gains (they explain
   different parts, two effects at once) the better is named and the other comes
@@ -571,9 +578,11 @@ class Diagnosis:
         tied, pair_z, also = [], {}, None
         for c in ok[1:]:
             margin, z = self.paired(best, c)
-            pair_z[c.name] = {'margin': _num(margin), 'z': _num(z)}
-            if margin > 0 and z >= self.z_crit:
-                continue          # decisively worse
+            fitted = self.fitted_margin(best, c)
+            pair_z[c.name] = {'margin': _num(margin), 'z': _num(z),
+                              'fitted_margin': _num(fitted)}
+            if margin > 0 and z >= self.z_crit and fitted >= MIN_PRACTICAL_GAIN:
+                continue          # decisively worse, by a margin that matters after --fit
             if self.adds_to(best, c):
                 also = also or c.name   # explains another part: two effects at once
                 continue
@@ -596,14 +605,19 @@ class Diagnosis:
     def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision) -> Decision:
         """Whether the reference pose is off (``pose_test(effects)``: the per-cloud rigid
         correction's test, ``pose_error.fit_reference_pose``, on the model with
-        ``effects``). If it is, each admissible candidate is scored again on the model
-        with the pose corrected; those that still pass the rule are decided among as
-        before, and if none does, the pose explains the residual and no sensor effect is
-        named. A named effect that itself explains the pose's gain (a time offset moves
-        the target rigidly too) leaves no pose error to report."""
+        ``effects``). A named (or confounded) candidate that itself explains the pose's
+        gain leaves no pose error to report: one parameter of a time offset moves the
+        target rigidly as well as six per cloud. Otherwise each admissible candidate is
+        scored again on the model with the pose corrected; those that still pass the
+        rule are decided among as before, and if none does, the pose explains the
+        residual and no sensor effect is named."""
         pose = pose_test([])
         if not pose.significant:
             return decision
+        by_name = {c.name: c for c in cands}
+        for name in [decision.missing, *decision.confounded_with]:
+            if name in by_name and not pose_test([by_name[name].effect]).significant:
+                return decision
         contenders = [c for c in cands if c.admissible and c.effect is not None]
         if contenders:
             on_pose = self.pose_corrected(pose.correction_m)
@@ -613,12 +627,20 @@ class Diagnosis:
             if not (decision.missing and any(c.admissible and c.name == decision.missing
                                              for c in again)):
                 decision = on_pose.decide(again)
-        if decision.missing:
-            named = next(c for c in cands if c.name == decision.missing)
-            pose = pose_test([named.effect])
-            if not pose.significant:
-                return decision
         return replace(decision, pose=pose)
+
+    def fitted_margin(self, a: Candidate, b: Candidate) -> float:
+        """How much better ``a`` explains the data than ``b`` as --fit would leave them:
+        each fitted on all the diagnosed points with every material's offset and sigma
+        scale refit (``finalize``), nats per analysed point (matched NLL plus the
+        unmatched credit). A tie on this footing is a tie: --fit could not tell them
+        apart either."""
+        for c in (a, b):
+            if not np.isfinite(c.nll_after):
+                self.finalize(c)
+        n_m = len(self.rays.matched)
+        return float(((b.nll_after - a.nll_after) * n_m + UNMATCHED_NATS
+                      * (a.unmatched_gain_points - b.unmatched_gain_points)) / self.n_total)
 
     def paired(self, a: Candidate, b: Candidate) -> tuple[float, float]:
         """How much better ``a`` explains the data than ``b``: the paired held-out per-point

@@ -572,7 +572,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     named = [c.effect for c in cands if c.name == decision.missing]
     pose = decision.pose if decision.pose is not None else pose_test(named)
     for c in cands[:FINALIZED]:
-        if c.significant or c is cands[0]:
+        if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
     stamp = _stamp_place(diag, decision, cands, meas, scenario)
     decision = sunlit_decision(decision, sunlight)
@@ -618,6 +618,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'missing_effect': decision.missing,
         'confounded_with': decision.confounded_with,
         'also_explains': decision.also,
+        'against_named': decision.pair_z,
         'unmatched': _unmatched_summary(ana.local, cal.model.divergence_rad, int((~sel).sum()),
                                         float(matching.unmatched_fraction),
                                         ana.isolated[ana.picked]),
