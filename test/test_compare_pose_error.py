@@ -97,3 +97,42 @@ def test_points_put_back_count_only_when_the_matched_points_show_the_effect(matc
         cand.matched_gain, cand.matched_gain / cand.z_matched, 20_000,
         cand.unmatched_gain_points), rel=1e-6)
     assert (cand.unmatched_gain_points > 0) is expect
+
+
+def _edge_rays(power_fraction: float, measured_w: np.ndarray) -> 'lk.FitData':
+    """Four unmatched rays that a footprint puts back on a plate at 10 m with
+    ``power_fraction`` of the full beam's 1e-6 W; their measured power ``measured_w``."""
+    from lidar_sim_ros.compare import likelihood as lk
+    from lidar_sim_ros.core.effects.base import ReturnContext
+    from lidar_sim_ros.core.geometry import Hits
+    from lidar_sim_ros.core.pipeline import Prediction
+    m = len(measured_w)
+    one = np.ones(m)
+    frac = np.full(m, power_fraction)
+    ctx = ReturnContext(range_m=10 * one, incidence_rad=0 * one, material=np.zeros(m, int),
+                        power_w=1e-6 * frac, intensity=frac, t_s=0 * one, az_rad=0 * one,
+                        el_rad=0 * one, laser=np.zeros(m, int), divergence_rad=1e-3,
+                        hit=np.ones(m, bool), threshold_power_w=1e-9)
+    hits = Hits(np.ones(m, bool), 10 * one, np.tile([-1.0, 0, 0], (m, 1)), 0 * one,
+                np.zeros(m, int), np.zeros(m, int), frac, one)
+    pred = Prediction(ctx, hits, np.tile([1.0, 0, 0], (m, 1)), 0 * one, 0.01 * one)
+    return lk.FitData(measured_range_m=np.zeros(0), baseline=None, cast=lambda e: pred,
+                      unmatched_range_m=10 * one, cast_unmatched=lambda e: pred,
+                      range_window_m=(5.0, 15.0), unmatched_power_w=measured_w)
+
+
+def test_footprint_is_credited_only_with_edge_returns_at_its_power_fraction():
+    """Points put back on the target by a footprint count for it only where the measured
+    power is the footprint's fraction (0.2 of the beam), not the full beam (a pose error
+    moved the silhouette), nor unknown."""
+    from lidar_sim_ros.core.effects.beam_divergence import BeamDivergence
+    eff = BeamDivergence({'footprint_scale': 4.0})
+    measured = np.array([2e-7, 1e-6, 2.4e-7, np.nan, 9e-7])
+    data = _edge_rays(0.2, measured)
+    np.testing.assert_array_equal(diagnosis.footprint_signature(data, [eff]),
+                                  [True, False, True, False, False])
+    assert diagnosis.unmatched_credit(data, [eff], eff, 5.0) == 2.0
+    # Without measured power, no edge point is credited to a footprint.
+    from dataclasses import replace
+    assert diagnosis.unmatched_credit(replace(data, unmatched_power_w=None), [eff], eff,
+                                      5.0) == 0.0
