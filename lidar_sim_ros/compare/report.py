@@ -191,6 +191,78 @@ def pose_figure(pose: dict) -> bytes:
     return _png(fig)
 
 
+def unmatched_figure(matching, divergence_rad: float) -> bytes:
+    un = ~matching.matched
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
+    r = matching.meas.range_m
+    bins = np.linspace(r.min(), r.max(), 50) if np.ptp(r) > 0 else 10
+    axes[0].hist(r[matching.matched], bins=bins, alpha=0.5, density=True, label='matched')
+    axes[0].hist(r[un], bins=bins, alpha=0.6, density=True, label='unmatched')
+    axes[0].set_xlabel('measured range (m)')
+    axes[0].legend(fontsize=8)
+    d = matching.edge_rad[un] / divergence_rad
+    levels, counts = np.unique(np.round(d, 3), return_counts=True)
+    axes[1].bar([f'{x:g}' for x in levels], counts, color='tab:purple')
+    axes[1].set_xlabel('angular distance to the silhouette (beam divergences; 16 = far)')
+    axes[1].set_ylabel('unmatched points')
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def scene_figure(matching, divergence_rad: float, isolated: np.ndarray | None) -> bytes:
+    """Azimuth/elevation view of the analysed points: target points grey, unmatched points
+    painted by class (near the silhouette, clutter surface, isolated)."""
+    d = matching.meas.directions
+    az = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    el = np.degrees(np.arcsin(np.clip(d[:, 2], -1, 1)))
+    on = matching.matched
+    near = ~on & (matching.edge_rad <= 2.0 * divergence_rad + 1e-12)
+    alone = ~on & ~near & (isolated if isolated is not None else np.zeros(len(on), bool))
+    clutter = ~on & ~near & ~alone
+    fig, ax = plt.subplots(figsize=(10, 4.2))
+    rng = np.random.default_rng(0)
+    show = np.flatnonzero(on)
+    show = show if len(show) <= MAX_SCATTER else rng.choice(show, MAX_SCATTER, False)
+    ax.plot(az[show], el[show], '.', ms=1.5, color='0.7', label='on the target model')
+    for mask, color, label in ((near, 'tab:blue', 'unmatched, near the silhouette'),
+                               (clutter, 'tab:orange', 'unmatched, clutter surface'),
+                               (alone, 'tab:red', 'unmatched, isolated')):
+        if mask.any():
+            ax.plot(az[mask], el[mask], '.', ms=3, color=color,
+                    label=f'{label} ({int(mask.sum())})')
+    ax.invert_xaxis()        # azimuth grows to the left (REP-103): as seen from the sensor
+    ax.set_xlabel('azimuth (deg)')
+    ax.set_ylabel('elevation (deg)')
+    ax.set_aspect('equal')
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc='upper right', markerscale=3)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _table(rows: list[list], header: list[str]) -> str:
+    head = ''.join(f'<th>{html.escape(str(h))}</th>' for h in header)
+    body = ''.join('<tr>' + ''.join(f'<td>{html.escape(_fmt(c))}</td>' for c in row) + '</tr>'
+                   for row in rows)
+    return f'<table><tr>{head}</tr>{body}</table>'
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return 'n/a' if not np.isfinite(v) else f'{v:.5g}'
+    if isinstance(v, dict):
+        return ', '.join(f'{k} = {_fmt(x)}' for k, x in v.items())
+    return '' if v is None else str(v)
+
+
+CSS = """body{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}
+table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 8px;
+font-size:13px;text-align:left}th{background:#eee}.verdict{background:#fff6e0;padding:1em;
+border-left:4px solid #e0a000}img{max-width:100%}code{background:#f3f3f3}"""
+
+
 def write_report(out: Path, summary: dict, matching, configured, residual_m: np.ndarray,
                  stats, feats, cands, runs: list[dict], model, values: dict,
                  isolated: np.ndarray | None = None, labels: dict | None = None) -> list[Path]:
