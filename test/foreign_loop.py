@@ -90,7 +90,11 @@ def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
     first = steps[0]
     why = []
     core = [n for n in found if n not in either]
-    if sorted(core) != sorted(expected) or len(set(found)) != len(found):
+    tie = (spec.tie_with is not None and not found and len(expected) == 1
+           and {expected[0], spec.tie_with} <= set(first.get('confounded_with') or []))
+    if tie:
+        pass      # confounded in this recording, as the dataset allows
+    elif sorted(core) != sorted(expected) or len(set(found)) != len(found):
         why.append(f'named {found}, expected {expected}'
                    + (f' (either way: {either})' if either else ''))
     if named[-1] is not None:
