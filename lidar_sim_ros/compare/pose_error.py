@@ -119,6 +119,11 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     ``effects`` on top of its own (module doc)."""
     model = lk.model_on_rays(data, list(effects or []))
     ctx = model.ctx
+    clouds = np.unique(cloud)
+    if ctx.normal is None or ctx.direction is None or len(clouds) == 0:
+        return PoseError(clouds, np.zeros(len(clouds)), np.zeros((len(clouds), 3)),
+                         np.zeros((len(clouds), 3)), 0.0, 0.0, False,
+                         np.zeros(len(data.measured_range_m)))
     r = np.asarray(data.measured_range_m, float) - model.expected_range_m
     sigma = np.maximum(model.sigma_m, lk.MIN_SIGMA_M)
     ok = model.placed & np.isfinite(r) & np.isfinite(sigma)
@@ -129,7 +134,6 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     a, usable = design(ctx.direction, ctx.normal, np.where(ok, model.expected_range_m, 0.0),
                        cloud)
     use = ok & usable & (np.abs(r) <= OUTLIER_SIGMAS * s)
-    clouds = np.unique(cloud)
     half = np.random.default_rng([seed, 61]).integers(0, 2, len(r))
     gain = np.zeros(len(r))
     for k in (0, 1):
