@@ -289,6 +289,11 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
                      f'{sun["shadowed_false_returns"]}/{sun["shadowed_points"]} shadowed rays '
                      f'({"sunlight-driven" if sun["supported"] else "not shown to follow the sun"})')
     lines.append(f'missing effect: {s["missing_effect"]}')
+    rp = s.get('reference_pose')
+    if s.get('reference_pose_off') and rp:
+        lines.append(f'reference pose: off by {rp["translation_rms_cm"]:.2f} cm and '
+                     f'{rp["rotation_rms_deg"]:.3f} deg RMS per cloud (z = {rp["z"]:.1f}): '
+                     'run again with --effect pose_error --fit')
     if s.get('confounded_with'):
         lines.append(f'confounded: {", ".join(s["confounded_with"])}')
     lines.append(f'verdict: {s["verdict"]}')
