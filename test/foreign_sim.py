@@ -531,9 +531,6 @@ class ForeignSpec:
     clutter: bool = False                # lab fixtures in view: wall, jig, cable
     expected: str | None = 'same'
     expected_feature: str | None = None  # the feature the residual should be attributed to
-    # A catalogue effect the hidden one may be confounded with in this recording: a tie
-    # of the two (none named, both in confounded_with) is right too.
-    tie_with: str | None = None
     note: str = ''
 
     @property
@@ -1025,10 +1022,10 @@ BATTERY: tuple[ForeignSpec, ...] = (
                 note='speckle: the pulse amplitude fluctuates and drives intensity and walk'),
     ForeignSpec('short_snr_noise', 'snr_noise', {'s0_m': 0.04, 'exponent': 0.5, 'p0_w': 2e-6},
                 seed=33, frames=10, speed_mps=0.0, spin_dps=3.0, precession_dps=1.0,
-                intensity='linear', shots_per_frame=8000, tie_with='incidence_angle',
+                intensity='linear', shots_per_frame=8000,
                 note='power and incidence move together at near-constant range: fitted as '
                      '--fit leaves them, snr_noise and incidence_angle may differ by less '
-                     'than the practical margin (a tie is right)'),
+                     'than the practical margin (a tie is right, foreign_loop.borderline_tie)'),
     ForeignSpec('short_incidence', 'incidence_angle', {'g_m': 0.015, 'h': 0.5}, seed=34,
                 frames=10, speed_mps=0.0, spin_dps=3.0, precession_dps=1.0,
                 intensity='counts8', shots_per_frame=8000),
