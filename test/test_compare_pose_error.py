@@ -136,3 +136,4 @@ def test_footprint_is_credited_only_with_edge_returns_at_its_power_fraction():
     from dataclasses import replace
     assert diagnosis.unmatched_credit(replace(data, unmatched_power_w=None), [eff], eff,
                                       5.0) == 0.0
+
