@@ -635,7 +635,8 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'has_intensity': meas.intensity is not None,
         'dropped': meas.dropped,
         'notes': list(meas.notes) + _material_name_notes(meas, scenario)
-        + (['--fit without --effect: nothing to fit'] if opts.fit and not inp.user else []),
+        + (['--fit without --effect: nothing to fit']
+           if opts.fit and not inp.user and not inp.pose_fit else []),
         **({'sunlight': sunlight} if sunlight is not None else {}),
     }
     # The verdict quotes candidates against the figures of the points they were fitted on.
