@@ -7,6 +7,10 @@ sensor and materials, the given mesh, the scenario's effects plus any ``--effect
 and writes ``summary.json``, ``report.html`` (+ PNGs), ``effects.yaml`` (with
 ``--fit``), ``materials.yaml`` and one line of ``history.json``. Each stage prints a
 progress line on stderr; ``summary.json`` keeps their durations (``stage_seconds``).
+``run_compare`` reads as that loop: one function per stage, each with typed inputs and
+outputs (``Inputs``, ``Calibrated``, ``Analysed``, ``Diagnosed``) that a test can call
+alone. ``--effect pose_error`` is no sensor effect: it corrects the reference pose per
+cloud (``pose_error.py``, ``correct_reference_pose``) and the simulator never applies it.
 
 A recording with the sun direction (``/sun/direction`` or ``--sun-topic``) is predicted
 under its sun, and the receiver factor of the ``sunlight`` effect is fitted from the
