@@ -50,6 +50,12 @@ def run_one(spec: ForeignSpec, root: Path, report: bool) -> dict:
         'effects': [e['name'] for e in s.get('fitted_effects', [])],
         'missing_effect': s.get('missing_effect'),
         'confounded_with': s.get('confounded_with'),
+        'reference_pose_off': s.get('reference_pose_off'),
+        'reference_pose': {k: v for k, v in (s.get('reference_pose') or {}).items()
+                           if k != 'clouds'} or None,
+        'pose_correction': {k: v for k, v in (s.get('pose_correction') or {}).items()
+                            if k != 'clouds'} or None,
+        'against_named': s.get('against_named'),
         'features': (s.get('features') or [])[:4],
         'candidates': [{k: c.get(k) for k in ('name', 'score', 'z', 'significant', 'params',
                                               'vetoed', 'error') if k in c}

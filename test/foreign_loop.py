@@ -4,10 +4,14 @@
     compare --effect A --fit                  -> names B (or null)
     compare --effect A --effect B --fit       -> null
 
-Right: the loop names exactly the dataset's hidden catalogue effects, one per step,
+Right: the loop names exactly the dataset's hidden catalogue effects, one per step (a
+reported reference-pose error is corrected first, with --effect pose_error --fit),
 and ends with null (no phantom after the last fix); an effect outside the catalogue
 gives null at once (and its feature first, when the dataset says which); the NLL
-falls at every step; with clutter, the unmatched share is the clutter's. Used by
+falls at every step; a tie that includes the hidden effect is right when the two
+differ by less than BORDERLINE of the practical margin as --fit leaves them; a
+reference-pose error is reported when the dataset has one, and
+only then; with clutter, the unmatched share is the clutter's. Used by
 ``bench/hidden_effect_eval.py`` and ``test/test_compare_foreign.py``.
 """
 from __future__ import annotations
@@ -66,10 +70,26 @@ def walk_loop(spec: ForeignSpec, ds, root: Path, report: bool) -> list[dict]:
         s = compare_once(ds, root / f'step{k}', root / 'history.json', named, report)
         steps.append(s)
         found = s.get('missing_effect')
+        if s.get('reference_pose_off') and 'pose_error' not in named:
+            named.append('pose_error')     # the verdict says: correct the reference pose
+            continue
         if 'error' in s or found is None or found in named:
             break
         named.append(found)
     return steps
+
+
+def borderline_tie(summary: dict, name: str) -> bool:
+    """Whether ``summary`` ends in a tie that includes ``name`` with every candidate of
+    it within BORDERLINE of the practical margin of the best, as --fit leaves them
+    (``against_named``' ``fitted_margin``): two models that close either way is right,
+    as for an effect worth about the margin."""
+    tied = summary.get('confounded_with') or []
+    if name not in tied:
+        return False
+    pairs = summary.get('against_named') or {}
+    margins = [(pairs.get(n) or {}).get('fitted_margin') for n in tied[1:]]
+    return all(m is not None and m < BORDERLINE[1] * PRACTICAL_NATS for m in margins)
 
 
 def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
@@ -82,16 +102,20 @@ def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
     if any('error' in s for s in steps):
         return {'ok': False, 'why': 'error: ' + steps[-1]['error'][-300:]}
     named = [s.get('missing_effect') for s in steps]
+    pose_steps = [k for k, s in enumerate(steps) if s.get('reference_pose_off')]
     found = [n for n in named if n is not None]
     first = steps[0]
     why = []
     core = [n for n in found if n not in either]
-    if sorted(core) != sorted(expected) or len(set(found)) != len(found):
+    tie = not found and len(expected) == 1 and borderline_tie(first, expected[0])
+    if tie:
+        pass      # confounded in this recording, as the dataset allows
+    elif sorted(core) != sorted(expected) or len(set(found)) != len(found):
         why.append(f'named {found}, expected {expected}'
                    + (f' (either way: {either})' if either else ''))
     if named[-1] is not None:
         why.append(f'loop ended naming {named[-1]}')
-    if len(steps) > len(expected) + len(either) + 1:
+    if len(steps) > len(expected) + len(either) + 1 + (1 if pose_steps else 0):
         why.append('too many steps')
     ties = [s.get('confounded_with') for s in steps if s.get('confounded_with')]
     nll = [s.get('nll_calibrated') for s in steps]
@@ -101,6 +125,13 @@ def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
         top = (first.get('features') or [{}])[0].get('name')
         if top != spec.expected_feature:
             why.append(f'top feature {top}, expected {spec.expected_feature}')
+    pose_off = [bool(s.get('reference_pose_off')) for s in steps]
+    if any(spec.pose_error) and not pose_off[0]:
+        why.append('the reference-pose error was not reported')
+    if pose_off[-1]:
+        why.append('the reference-pose error is still reported after --effect pose_error')
+    if not any(spec.pose_error) and any(pose_off):
+        why.append(f'a reference-pose error reported on a correct pose (steps {pose_off})')
     if spec.clutter:
         share = truth['clutter_fraction'] + truth['false_return_fraction']
         unm = first.get('unmatched_fraction', 0.0)

@@ -52,18 +52,30 @@ WRONG: dict[str, str] = {
 }
 
 
+# Datasets the suite leaves to bench/hidden_effect_eval.py (CPU budget), and why.
+BENCH_ONLY: dict[str, str] = {
+    'pose_error_smooth': 'the same per-cloud pose test as pose_error_rigid, on 10 frames '
+                         '(~60 s CPU for the two steps): run by bench/hidden_effect_eval.py',
+}
+
+
 def _small(spec: ForeignSpec) -> ForeignSpec:
     """Fewer frames for the suite; the short passes keep their second of small frames, and
     a time offset in clouds without point times keeps its frames: on 2 frames the offset
     is not decisive against the smear of the unknown times (z 2.9 < 2.94 at seed 43), on
-    the dataset's 3 it is (z 3.7)."""
-    if spec.frames >= 10 or (spec.effect == 'time_offset' and spec.point_time == 'none'):
+    the dataset's 3 it is (z 3.7). The same holds for a scan-end stamp read as an offset
+    (clean_no_time_end: matched z 1.5 on 2 frames, named before issue 21 on its
+    unmatched credit alone)."""
+    if spec.frames >= 10 or (spec.expected_effect == 'time_offset'
+                             and spec.point_time == 'none'):
         return spec
     return replace(spec, frames=FRAMES)
 
 
 def _params():
     for spec in battery():
+        if spec.name in BENCH_ONLY:
+            continue
         marks = [pytest.mark.xfail(reason=WRONG[spec.name], strict=False)] \
             if spec.name in WRONG else []
         yield pytest.param(spec, id=spec.name, marks=marks)

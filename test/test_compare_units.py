@@ -231,3 +231,29 @@ def test_every_feature_the_attribution_can_rank_is_plottable():
         order = [first] + [f for f in ranked if f is not first]
         png = features_figure(order, values, 0.03 * z, ['PIF', 'MLI', 'PAF', 'PSS', 'NOZZLE'], top=2)
         assert png[:8] == b'\x89PNG\r\n\x1a\n', first.name
+
+
+def test_headline_says_how_many_points_were_analysed():
+    from lidar_sim_ros.compare.verdict import summary_lines
+    s = dict(points=438420, points_analysed=300000, matched_points=300000,
+             unmatched_points=0, unmatched_fraction=0.0, range_rmse_m=0.01, nll_per_point=-1.0,
+             range_rmse_calibrated_m=0.01, nll_calibrated=-1.0, fitted_effects=[],
+             features=[], candidates=[], missing_effect=None, verdict='v')
+    assert summary_lines(s, [])[0].startswith('points: 438420, 300000 analysed (--max-points)')
+    s['points'] = 300000
+    assert summary_lines(s, [])[0] == 'points: 300000 (300000 matched, 0 unmatched = 0.00 %)'
+
+
+def test_history_keeps_one_basis_for_runs_with_and_without_fit():
+    """A run's history entry carries the calibrated figures (materials profiled in every
+    run), and the figure draws runs recorded before that on their headline."""
+    from lidar_sim_ros.compare import history
+    from lidar_sim_ros.compare.report import history_figure
+    summary = dict(points=10, range_rmse_m=0.05, nll_per_point=-1.2,
+                   range_rmse_calibrated_m=0.03, nll_calibrated=-1.8, materials_refit=False,
+                   unmatched_fraction=0.0, missing_effect=None)
+    entry = history.run_entry(summary, [], 'out', 'bag')
+    assert entry['nll_calibrated'] == -1.8 and entry['range_rmse_calibrated_m'] == 0.03
+    old = {k: v for k, v in entry.items() if 'calibrated' not in k}
+    png = history_figure([old, entry, {**entry, 'effects': ['range_walk']}])
+    assert png[:8] == b'\x89PNG\r\n\x1a\n'

@@ -10,10 +10,15 @@ on the other and vice versa, so extra parameters cannot win on noise. The held-o
 likelihood is outlier tolerant (a small uniform floor), so a handful of odd returns
 cannot dominate. Unmatched points a candidate explains (returns beyond the
 silhouette, false returns off the target) count too, as many as it explains beyond
-those the model's own effects already explain.
+those the model's own effects already explain, and only with the effect's own
+signature (``unmatched_credit``): points beyond the silhouette mark pose and timing
+errors as much as a footprint.
 
 A diagnosis is a claim to a user. A candidate is named (``missing_effect``) only if
 all of these hold, each chosen from a principle, not from a dataset:
+
+One rule, on the quantity the verdict quotes (the score, matched and unmatched, and
+its z, ``total_z``), whatever part of the data the gain is on:
 
 * **decisive**: its held-out gain is Z_CRIT block-robust standard errors above zero,
   Bonferroni-corrected for testing every candidate (one-sided family error rate
@@ -42,7 +47,9 @@ all of these hold, each chosen from a principle, not from a dataset:
   a structure it does not have the shape of is a phantom (the rest of the structure
   is outside the catalogue);
 * **it is decisively the best**: the paired held-out per-point NLL difference to
-  every other admissible candidate is decisive (z above the same bound). Otherwise the
+  every other admissible candidate is decisive (z above the same bound) and, with both
+  fitted as --fit would leave them (all the points, every material's offset and sigma
+  refit), at least MIN_PRACTICAL_GAIN nats per point apart (``fitted_margin``). Otherwise the
   two explain the data equally within their uncertainty (both matter: which of them
   is a statistical question): if fitting one on top of the other still gains (they explain
   different parts, two effects at once) the better is named and the other comes
@@ -54,6 +61,7 @@ on, if anything, and that no catalogue effect explains it.
 """
 from __future__ import annotations
 
+import copy
 import itertools
 import time
 from dataclasses import dataclass, field, replace
@@ -212,6 +220,8 @@ def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet,
         cast_un = caster(rays.unmatched, u_sub, base_u)
         baseline = base_m if base_m is not None else cast(base_moving)
     power = None if rays.measured_power_w is None else rays.measured_power_w[rays.matched]
+    power_u = (None if rays.measured_power_w is None
+               else rays.measured_power_w[rays.unmatched])
     extra = 0.0 if rays.extra_var_m2 is None else rays.extra_var_m2[rays.matched]
     isolated = None if rays.isolated is None else rays.isolated[rays.unmatched]
     return lk.FitData(
@@ -220,7 +230,7 @@ def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet,
         range_window_m=range_window_m(meas), base_effects=tuple(base_effects),
         measured_power_w=power, extra_var_m2=extra, unmatched_isolated=isolated,
         placement_uncertain=rays.extra_var_m2 is not None,
-        missed_per_unmatched=rays.missed_per_unmatched)
+        missed_per_unmatched=rays.missed_per_unmatched, unmatched_power_w=power_u)
 
 
 def calibrated_figures(data, effects: list[Effect]) -> tuple[float, float, float]:
@@ -308,7 +318,8 @@ class Candidate:
     range_robust_sigma_after_m: float = float('nan')
     unmatched_explained: float = 0.0
     matched_gain: float = 0.0          # held-out, nats per matched point
-    z: float = 0.0                     # matched_gain in block-robust standard errors
+    z: float = 0.0                     # score in standard errors (``total_z``): the rule's z
+    z_matched: float = 0.0             # matched_gain in block-robust standard errors
     unmatched_gain_points: float = 0.0
     n_params: int = 0
     significant: bool = False          # decisive: z and total gain (module doc)
@@ -335,6 +346,8 @@ class Candidate:
                 'range_robust_sigma_after_m': _num(self.range_robust_sigma_after_m),
                 'unmatched_explained': _num(self.unmatched_explained),
                 'heldout_gain_per_matched_point': _num(self.matched_gain), 'z': _num(self.z),
+                'z_matched': _num(self.z_matched),
+                'unmatched_points_credited': _num(self.unmatched_gain_points),
                 'n_params': self.n_params, 'significant': self.significant,
                 'seconds': round(self.seconds, 2),
                 'practical': self.practical,
@@ -360,6 +373,9 @@ class Decision:
     also: str | None = None
     pair_z: dict = field(default_factory=dict)
     evidence: str | None = None
+    # The reference pose is off (``pose_error.PoseError``, significant); with ``missing``
+    # None, it explains what the candidates would have claimed.
+    pose: object | None = None
 
 
 class Diagnosis:
@@ -437,8 +453,9 @@ class Diagnosis:
     def cross_fit(self, variant: type[Effect], on_top: list[Effect],
                   first: Effect | None = None) -> tuple[np.ndarray, float]:
         """Held-out per-point NLL (test sides concatenated) of the model with ``on_top``
-        plus ``variant`` fitted on the other fold, and the unmatched points it explains.
-        ``first``: the fit on fold 0, if already made."""
+        plus ``variant`` fitted on the other fold, and the unmatched points it explains
+        that carry its own signature (``unmatched_credit``). ``first``: the fit on fold 0,
+        if already made."""
         nll, explained = [], 0.0
         for k, train in enumerate(self.fold_data):
             test = self.fold_data[(k + 1) % N_FOLDS]
@@ -451,7 +468,8 @@ class Diagnosis:
                 before = (lk.unmatched_explained(test, list(on_top)) if on_top
                           else self._base_unmatched[(k + 1) % N_FOLDS])
                 after = lk.unmatched_explained(test, [*on_top, effect_k])
-                explained += max(after - before, 0.0) * len(test.unmatched_range_m)
+                gained = max(after - before, 0.0) * len(test.unmatched_range_m)
+                explained += unmatched_credit(test, [*on_top, effect_k], effect_k, gained)
         return np.concatenate(nll), explained
 
     def base_heldout(self) -> np.ndarray:
@@ -460,19 +478,31 @@ class Diagnosis:
         return np.concatenate([self._base_nll[(k + 1) % N_FOLDS] for k in range(N_FOLDS)])
 
     def _set_gain(self, cand: Candidate, nll: np.ndarray, explained: float) -> None:
+        """The one decision rule (module doc), on the quantity the verdict quotes: the
+        held-out gain per analysed point (matched points plus the unmatched points the
+        candidate explains with its own signature, UNMATCHED_NATS each) and its z."""
         cand.heldout_nll = nll
         d = self.base_heldout() - nll
         ok = np.isfinite(d)
-        cand.unmatched_gain_points = float(explained)
+        se_matched = 0.0
         if ok.sum() > 1:
-            cand.matched_gain, se = block_mean_se(d[ok], self.blocks[ok])
-            cand.z = float(cand.matched_gain / se) if se > 0 and np.isfinite(se) else 0.0
-        counts = explained >= max(MIN_UNMATCHED_EXPLAINED, MIN_UNMATCHED_FRACTION * self.n_total)
-        total = float(np.sum(d[ok])) + (UNMATCHED_NATS * explained if counts else 0.0)
+            cand.matched_gain, se_matched = block_mean_se(d[ok], self.blocks[ok])
+            cand.z_matched = (float(cand.matched_gain / se_matched)
+                              if se_matched > 0 and np.isfinite(se_matched) else 0.0)
+        if (explained > 0 and cand.effect is not None and not is_outlier_effect(type(cand.effect))
+                and cand.effect.cast_reach_rad(self.model.divergence_rad) is None
+                and cand.z_matched < self.z_crit):
+            # A ray-moving effect without a signature of its own off the target (a time
+            # offset): the points it puts back count only when its matched points show it.
+            explained = 0.0
+        if explained < max(MIN_UNMATCHED_EXPLAINED, MIN_UNMATCHED_FRACTION * self.n_total):
+            explained = 0.0
+        cand.unmatched_gain_points = float(explained)
+        n_m = int(ok.sum())
+        total = float(np.sum(d[ok])) + UNMATCHED_NATS * explained
         cand.score = float(total / max(self.n_total, 1))
-        z_unmatched = counts and explained >= MIN_UNMATCHED_EXPLAINED
-        cand.significant = bool(total >= MIN_TOTAL_GAIN
-                                and (cand.z >= self.z_crit or z_unmatched)
+        cand.z = total_z(cand.matched_gain, se_matched, n_m, explained)
+        cand.significant = bool(total >= MIN_TOTAL_GAIN and cand.z >= self.z_crit
                                 and cand.matched_gain > -MIN_PRACTICAL_GAIN)
         cand.practical = cand.score >= MIN_PRACTICAL_GAIN
 
@@ -548,9 +578,11 @@ class Diagnosis:
         tied, pair_z, also = [], {}, None
         for c in ok[1:]:
             margin, z = self.paired(best, c)
-            pair_z[c.name] = {'margin': _num(margin), 'z': _num(z)}
-            if margin > 0 and z >= self.z_crit:
-                continue          # decisively worse
+            fitted = self.fitted_margin(best, c)
+            pair_z[c.name] = {'margin': _num(margin), 'z': _num(z),
+                              'fitted_margin': _num(fitted)}
+            if margin > 0 and z >= self.z_crit and fitted >= MIN_PRACTICAL_GAIN:
+                continue          # decisively worse, by a margin that matters after --fit
             if self.adds_to(best, c):
                 also = also or c.name   # explains another part: two effects at once
                 continue
@@ -559,18 +591,71 @@ class Diagnosis:
             return Decision(None, [best.name, *tied], also, pair_z)
         return Decision(best.name, [], also, pair_z)
 
+    def pose_corrected(self, correction_m: np.ndarray) -> 'Diagnosis':
+        """This diagnosis on the model with a reference-pose correction (m of range per
+        matched point of ``self.full``, ``pose_error.corrected``)."""
+        from lidar_sim_ros.compare.pose_error import corrected
+        out = copy.copy(self)
+        out.full = corrected(self.full, correction_m)
+        out.fold_data = [corrected(d, correction_m[np.searchsorted(self.rays.matched, f.matched)])
+                         for d, f in zip(self.fold_data, self.folds)]
+        out._base_nll = [heldout_nll(d, []) for d in out.fold_data]
+        return out
+
+    def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision) -> Decision:
+        """Whether the reference pose is off (``pose_test(effects)``: the per-cloud rigid
+        correction's test, ``pose_error.fit_reference_pose``, on the model with
+        ``effects``). A named (or confounded) candidate that itself explains the pose's
+        gain leaves no pose error to report: one parameter of a time offset moves the
+        target rigidly as well as six per cloud. Otherwise each admissible candidate is
+        scored again on the model with the pose corrected; those that still pass the
+        rule are decided among as before, and if none does, the pose explains the
+        residual and no sensor effect is named."""
+        pose = pose_test([])
+        if not pose.significant:
+            return decision
+        by_name = {c.name: c for c in cands}
+        for name in [decision.missing, *decision.confounded_with]:
+            if name in by_name and not pose_test([by_name[name].effect]).significant:
+                return decision
+        contenders = [c for c in cands if c.admissible and c.effect is not None]
+        if contenders:
+            on_pose = self.pose_corrected(pose.correction_m)
+            again = [on_pose.score(type(c.effect)) for c in contenders]
+            if not any(c.admissible for c in again):
+                return Decision(None, [], pose=pose)
+            if not (decision.missing and any(c.admissible and c.name == decision.missing
+                                             for c in again)):
+                decision = on_pose.decide(again)
+        return replace(decision, pose=pose)
+
+    def fitted_margin(self, a: Candidate, b: Candidate) -> float:
+        """How much better ``a`` explains the data than ``b`` as --fit would leave them:
+        each fitted on all the diagnosed points with every material's offset and sigma
+        scale refit (``finalize``), nats per analysed point (matched NLL plus the
+        unmatched credit). A tie on this footing is a tie: --fit could not tell them
+        apart either."""
+        for c in (a, b):
+            if not np.isfinite(c.nll_after):
+                self.finalize(c)
+        n_m = len(self.rays.matched)
+        return float(((b.nll_after - a.nll_after) * n_m + UNMATCHED_NATS
+                      * (a.unmatched_gain_points - b.unmatched_gain_points)) / self.n_total)
+
     def paired(self, a: Candidate, b: Candidate) -> tuple[float, float]:
         """How much better ``a`` explains the data than ``b``: the paired held-out per-point
-        NLL difference (plus their unmatched credit), nats per point, and its z."""
+        NLL difference plus their unmatched credit, nats per analysed point, and its z
+        (the same quantity and rule as each candidate's own, ``total_z``)."""
         d = b.heldout_nll - a.heldout_nll
         ok = np.isfinite(d)
         mean, se = block_mean_se(d[ok], self.blocks[ok])
         n_m = max(int(ok.sum()), 1)
-        unmatched = (a.score - a.matched_gain * n_m / self.n_total) \
-            - (b.score - b.matched_gain * n_m / self.n_total)
-        margin = mean * n_m / self.n_total + unmatched
-        z = (mean / se if se > 0 and np.isfinite(se) else 0.0) + (
-            np.inf if unmatched * self.n_total >= MIN_TOTAL_GAIN else 0.0)
+        du = UNMATCHED_NATS * (a.unmatched_gain_points - b.unmatched_gain_points)
+        total = mean * n_m + du
+        margin = total / self.n_total
+        var = (se * n_m) ** 2 + UNMATCHED_NATS ** 2 * (a.unmatched_gain_points
+                                                       + b.unmatched_gain_points)
+        z = total / np.sqrt(var) if var > 0 and np.isfinite(var) else 0.0
         return float(margin), float(z)
 
     def adds_to(self, best: Candidate, other: Candidate) -> bool:
@@ -695,6 +780,61 @@ def far_sides(residual_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.nd
     with np.errstate(invalid='ignore', divide='ignore'):
         p = np.where(front + behind > 0, front / (front + behind), 0.5)
     return int(np.sum(residual_m < 0)), float(p.sum()), float(np.sum(p * (1 - p)))
+
+
+def total_z(matched_gain: float, se_matched: float, n_matched: int,
+            explained: float) -> float:
+    """z of a held-out gain made of ``n_matched`` matched points (mean ``matched_gain``,
+    block-robust standard error ``se_matched``, nats) and ``explained`` unmatched points
+    credited UNMATCHED_NATS each (a count: Poisson variance)."""
+    total = matched_gain * n_matched + UNMATCHED_NATS * explained
+    var = (se_matched * n_matched) ** 2 + UNMATCHED_NATS ** 2 * explained
+    if not (var > 0 and np.isfinite(var)):
+        return 0.0
+    return float(total / np.sqrt(var))
+
+
+def footprint_signature(data, effects: list[Effect]) -> np.ndarray:
+    """(M,) bool: unmatched points the model with ``effects`` puts back on the target
+    with a partial footprint, whose measured power shows that fraction: nearer the
+    predicted partial power than the full beam's (below their geometric mean). A point
+    just beyond the silhouette because the pose is off returns the full beam's power;
+    one on the beam's edge only its fraction. All False without measured power."""
+    m = len(data.unmatched_range_m)
+    if data.unmatched_power_w is None or m == 0:
+        return np.zeros(m, bool)
+    recast = lk.recast_unmatched(data, effects)
+    if recast is None:
+        return np.zeros(m, bool)
+    ctx, expected, sigma = recast
+    pred = data.cast_unmatched(lk.moving([*data.base_effects, *effects]))
+    frac = pred.hits.power_fraction
+    if frac is None:
+        return np.zeros(m, bool)
+    frac = np.asarray(frac, float)
+    sig = np.maximum(np.nan_to_num(sigma, nan=np.inf), lk.MIN_SIGMA_M)
+    measured = np.asarray(data.unmatched_power_w, float)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        placed = (np.asarray(ctx.hit, bool) & (ctx.power_w >= ctx.threshold_power_w)
+                  & (np.abs(np.asarray(data.unmatched_range_m) - expected) <= lk.UNMATCHED_Z * sig))
+        full = ctx.power_w / frac
+        partial = placed & (frac < 1.0) & np.isfinite(measured) & (measured > 0)
+        return partial & (measured < np.sqrt(ctx.power_w * full))
+
+
+def unmatched_credit(data, effects: list[Effect], effect: Effect, gained: float) -> float:
+    """How many of the ``gained`` unmatched points (those ``effect`` explains beyond the
+    model's own effects) count for it: the points that miss the silhouette are the mark
+    of pose and timing errors as much as of any effect, so they count only with the
+    effect's own signature. False returns: isolated points at uniform ranges (already
+    all that ``likelihood.unmatched_explained`` credits them); a footprint: edge returns
+    at its power fraction (``footprint_signature``); any other ray-moving effect: judged
+    by its matched points (``Diagnosis._set_gain``)."""
+    if gained <= 0 or is_outlier_effect(type(effect)):
+        return max(gained, 0.0)
+    if effect.cast_reach_rad(1.0) is not None:     # a footprint: it reaches only so far
+        return float(min(gained, footprint_signature(data, effects).sum()))
+    return gained
 
 
 def rank(candidates: list[Candidate]) -> list[Candidate]:

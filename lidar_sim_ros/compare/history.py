@@ -36,9 +36,15 @@ def append_run(path: Path, entry: dict) -> list[dict]:
 
 
 def run_entry(summary: dict, effects: list[str], out_dir: Path, bag: Path) -> dict:
-    """The history record of one run."""
+    """The history record of one run. Besides the headline figures (materials as
+    configured, or refit with --fit: ``materials_refit``) it keeps the calibrated ones
+    (each material's offset and sigma scale profiled out in every run): one basis on
+    which runs with and without --fit compare."""
     return {'bag': str(bag), 'out': str(out_dir), 'effects': effects,
             'points': summary['points'], 'range_rmse_m': summary['range_rmse_m'],
             'nll_per_point': summary['nll_per_point'],
+            'range_rmse_calibrated_m': summary.get('range_rmse_calibrated_m'),
+            'nll_calibrated': summary.get('nll_calibrated'),
+            'materials_refit': summary.get('materials_refit'),
             'unmatched_fraction': summary['unmatched_fraction'],
             'missing_effect': summary['missing_effect']}

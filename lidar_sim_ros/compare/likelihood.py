@@ -88,6 +88,10 @@ class FitData:
     # moves the rays neither loses the points it no longer places (they keep the
     # model's prediction) nor gains the unmatched ones it now places.
     placement_uncertain: bool = False
+    # (M,) received power (W, model units) of the unmatched points from the measured
+    # intensity (NaN where unknown; None: no intensity): a footprint's edge returns must
+    # show its power fraction to be credited to it (``diagnosis.footprint_signature``).
+    unmatched_power_w: np.ndarray | None = None
 
     @property
     def window_width_m(self) -> float:

@@ -7,6 +7,10 @@ sensor and materials, the given mesh, the scenario's effects plus any ``--effect
 and writes ``summary.json``, ``report.html`` (+ PNGs), ``effects.yaml`` (with
 ``--fit``), ``materials.yaml`` and one line of ``history.json``. Each stage prints a
 progress line on stderr; ``summary.json`` keeps their durations (``stage_seconds``).
+``run_compare`` reads as that loop: one function per stage, each with typed inputs and
+outputs (``Inputs``, ``Calibrated``, ``Analysed``, ``Diagnosed``) that a test can call
+alone. ``--effect pose_error`` is no sensor effect: it corrects the reference pose per
+cloud (``pose_error.py``, ``correct_reference_pose``) and the simulator never applies it.
 
 A recording with the sun direction (``/sun/direction`` or ``--sun-topic``) is predicted
 under its sun, and the receiver factor of the ``sunlight`` effect is fitted from the
@@ -29,9 +33,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import norm
 
 from lidar_sim_ros.compare import (diagnosis, features, fields, history, likelihood as lk,
                                    materials as mat, neighbours, point_times,
+                                   pose_error,
                                    stamp_place)
 from lidar_sim_ros.compare.intensity import IntensityCalibration, calibrate_intensity
 from lidar_sim_ros.compare.matching import (Matching, Model, edge_distance_rad, match,
@@ -60,6 +66,9 @@ DIAGNOSIS_MAX_MATCHED = 12_000
 # figures): the best few; the others report their fit on half of the points.
 FINALIZED = 3
 SILHOUETTE_NEAR_DIVERGENCES = 2.0
+# --effect pose_error: a per-cloud correction of the reference pose (compare/pose_error.py),
+# not a catalogue effect: the simulator never applies it.
+POSE_ERROR = 'pose_error'
 
 
 @dataclass
@@ -278,148 +287,316 @@ def _stamp_place(diag, decision, cands, meas: Measurements, scenario: Scenario):
                                    diagnosis.MIN_PRACTICAL_GAIN)
 
 
+@dataclass
+class Inputs:
+    """What the load stage reads: the scenario, the measurements on the model's scan
+    times, the recording's sun, the scenario's and the user's effects, the model."""
+
+    scenario: Scenario
+    meas: Measurements
+    sun: SunTrack | None
+    scenario_effects: list[Effect]
+    user: list[Effect]
+    model: Model
+    pose_fit: bool = False        # --effect pose_error: correct the reference pose per cloud
+
+
+@dataclass
+class Calibrated:
+    """The match and materials stages: every analysed ray matched under the model (and
+    its residual), the per-material statistics and refit, and the headline figures."""
+
+    model: Model                  # materials refit with --fit
+    matching: Matching            # residual_m: under ``model``
+    configured: Matching          # residual_m: materials as configured
+    rays: diagnosis.RaySet
+    residual_m: np.ndarray
+    sigma_m: np.ndarray
+    stats: list
+    refit: MaterialsConfig
+    nll: float
+    rmse_m: float
+    calibrated: tuple[float, float, float]    # nll, rmse (m), robust sigma (m)
+
+
+@dataclass
+class Analysed:
+    """The diagnosis sample (matched and unmatched points drawn at random, with their
+    neighbourhoods and silhouette distances) and the residual's feature attribution."""
+
+    sample: diagnosis.RaySet
+    picked: np.ndarray            # indices into the measurements: the sample's points
+    isolated: np.ndarray          # (len(meas),) bool
+    local: Matching               # the sample as a Matching of its own (features, report)
+    residual_m: np.ndarray        # matched sample points, per-material offset removed
+    values: dict                  # feature values
+    labels: dict
+    attribution: features.Attribution
+
+
+@dataclass
+class Diagnosed:
+    """The candidates stage: the scored candidates, the decision, the stamp place and
+    reference-pose tests, and the figures of the points the candidates were fitted on."""
+
+    cands: list
+    decision: diagnosis.Decision
+    stamp: object | None
+    pose: object | None
+    before: tuple[float, float, float]
+
+
 def run_compare(opts: CompareOptions) -> CompareResult:
+    """The comparison loop (module doc): each stage a function below."""
     stage = Stages(opts.progress)
     opts.out = Path(opts.out)
     with stage('load'):
-        scenario = load_scenario(opts.config or config_path('scenario.yaml'))
-        target = load_target(opts.mesh, scenario.materials.names)
-        meas = load_measurements(opts.bag, opts.cloud_topic, opts.pose_topic, opts.max_points,
-                                 opts.seed, opts.intensity_field, opts.time_field,
-                                 opts.laser_field)
-        sun = recording_sun(opts, scenario, meas)
-        scenario_effects = [get_effect_class(e.name)(e.params) for e in scenario.config.effects]
-        user = [effect_from_spec(spec) for spec in opts.effects]
-        if sun is None and any(isinstance(e, Sunlight) for e in user):
-            raise ValueError(
-                f'--effect sunlight needs the sun direction, and bag {opts.bag} has none on '
-                f'{opts.sun_topic or SUN_TOPIC!r} (record it as geometry_msgs/msg/Vector3Stamped '
-                'toward the sun in the lidar frame, or name its topic with --sun-topic); '
-                'without one, false returns are modelled by solar_background')
-        if any(isinstance(e, Sunlight) for e in user):
-            # One receiver: the --effect's sunlight replaces the scenario's.
-            scenario_effects = [e for e in scenario_effects if not isinstance(e, Sunlight)]
-        model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
-                      scenario.source.parent if scenario.source else None, sun)
-        meas = with_scan_times(meas, model.simulator().shots)
+        inp = load_inputs(opts)
     power = PowerFromIntensity()
     with stage('point times'):
-        extra_var, time_spread = unknown_time_variance(model, scenario_effects, meas, scenario,
-                                                       opts.seed)
+        extra_var, time_spread = unknown_time_variance(inp.model, inp.scenario_effects,
+                                                       inp.meas, inp.scenario, opts.seed)
     fitted: list[Effect] = []
     sun_fit = None
+    user = inp.user
     if opts.fit and user:
         with stage('fit effects', ', '.join(e.name for e in user)):
-            user, sun_fit = fit_user_effects(model, scenario_effects, user, meas, power,
-                                             extra_var, opts.seed)
+            user, sun_fit = fit_user_effects(inp.model, inp.scenario_effects, user, inp.meas,
+                                             power, extra_var, opts.seed)
             fitted = user
-    effects = scenario_effects + user
-    notes = list(meas.notes) + _material_name_notes(meas, scenario)
-    if opts.fit and not user:
-        notes.append('--fit without --effect: nothing to fit')
-
-    with stage('match', f'{len(meas)} rays'):
-        matching = match(geometry(model, effects), meas, model.divergence_rad, edges=False)
-        rays = replace(rays_of(matching, power(matching), model), extra_var_m2=extra_var)
-        pred, sel = matching.pred, matching.matched
-        if len(rays.matched) < 10:
-            raise ValueError(
-                f'only {len(rays.matched)} of {len(meas)} measured rays hit the target mesh '
-                f'{opts.mesh}: check the mesh, the pose topic {opts.pose_topic!r} (target body '
-                f'pose in the lidar frame) and that the clouds are in the lidar frame')
+    effects = inp.scenario_effects + user
+    with stage('match', f'{len(inp.meas)} rays'):
+        matching, rays = match_rays(inp.model, effects, inp.meas, power, extra_var, opts)
+    pose_fit = None
+    if inp.pose_fit:
+        with stage('reference pose', f'{len(inp.meas.cloud_stamps_s)} clouds'):
+            matching, rays, pose_fit = correct_reference_pose(inp.model, effects, matching,
+                                                              rays, inp.meas, opts.seed)
     with stage('materials'):
-        # Per-material bias/sigma as measured vs configured.
-        residual, sigma = model_residuals(diagnosis.make_fit_data(model, effects, rays), rays)
-        stats = mat.material_stats(model.materials, replace(pred, sigma_m=sigma), residual, sel)
-        refit = mat.refit_materials(model.materials, stats)
-        configured = replace(matching, residual_m=residual)
-        if opts.fit:
-            # --fit estimates the model's free parameters: the effects' and, as in the
-            # paper's Table 2 calibration, each material's range bias and sigma.
-            model = replace(model, materials=refit)
-            pred = with_materials(pred, refit)
-            matching = replace(matching, pred=pred)
-            rays = replace(rays, pred=pred)
-        everything = diagnosis.make_fit_data(model, effects, rays)
-        residual, sigma = model_residuals(everything, rays)
-        matching = replace(matching, residual_m=residual)
-        # Headline: the model (materials as configured, or refit with --fit). Calibrated:
-        # each material's offset and sigma scale profiled out (what --fit delivers).
-        nll, rmse, _ = lk.evaluate(everything, [], profile_materials=False)
-        cal_nll, cal_rmse, cal_robust = diagnosis.calibrated_figures(everything, [])
+        cal = calibrate_materials(inp.model, effects, matching, rays, opts.fit,
+                                  None if pose_fit is None else pose_fit.correction_m)
     sunlight = None
-    if sun is not None:
-        with stage('sunlight', f'{len(sun.t_s)} sun directions'):
-            if sun_fit is None:
-                sun_fit = sunlight_of_recording(matching, residual, sigma)
-            in_model = [e.params.background_scale for e in effects if isinstance(e, Sunlight)]
-            sunlight = summary_section(sun_fit, opts.sun_topic or SUN_TOPIC, len(sun.t_s),
-                                       in_model[-1] if in_model else None)
-
+    if inp.sun is not None:
+        with stage('sunlight', f'{len(inp.sun.t_s)} sun directions'):
+            sunlight = sunlight_stage(cal, effects, inp.sun, sun_fit, opts)
     with stage('neighbours'):
-        sample = rays.sample(DIAGNOSIS_MAX_MATCHED, opts.seed)
-        picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
-        isolated = np.zeros(len(meas), bool)
-        isolated[picked] = neighbours.isolated(meas.directions, meas.range_m, meas.cloud, picked)
-        sample = replace(sample, isolated=isolated,
-                         blocks=neighbours.blocks(meas.directions, meas.cloud))
-        # The analysed sample as a Matching of its own (features, report).
-        sub = meas.subset(picked)
-        sub_pred = diagnosis.take_prediction(pred, picked)
+        sample, picked, isolated = diagnosis_sample(cal.rays, inp.meas, opts.seed)
     with stage('features', f'{len(sample.matched)} matched points'):
-        sim = geometry(model, effects)
-        edge = edge_distance_rad(sim.target, sub, sub_pred, model.divergence_rad)
-        edge_all = np.full(len(meas), np.nan)
-        edge_all[picked] = edge
-        sample = replace(sample, edge_rad=edge_all)
-        rr = range_rate_mps(sim, sub, sub_pred)
-        local = Matching(sub, sub_pred, sel[picked], residual[picked], edge, rr)
-        lsel = local.matched
-        res = residual[picked][lsel]
-        sig = np.maximum(sigma[picked][lsel], 1e-6)
-        offset, scale = lk.material_nuisance(res, sig, np.asarray(sub_pred.ctx.material[lsel], int),
-                                             np.isfinite(res))
-        res = res - offset
-        values = features.feature_values(local)
-        labels = {}
-        if rays.measured_power_w is not None:
-            # The measured power, not the raw intensity: a range-compensated reflectivity
-            # is computed with the measured range and would leak its noise to the
-            # attribution (the calibration divides it out again).
-            mp = rays.measured_power_w[picked][lsel]
-            values['intensity'] = np.log10(np.where(np.isfinite(mp) & (mp > 0), mp,
-                                                    np.nanmin(mp[mp > 0]) if np.any(mp > 0)
-                                                    else 1e-12))
-            labels['intensity'] = features.POWER_LABEL
-        attribution = features.attribute(values, res, res / (sig * scale), opts.seed,
-                                         sample.blocks[picked][lsel])
-        feats = attribution.features
+        ana = attribute(cal, effects, inp.meas, sample, picked, isolated, opts.seed)
+    classes = candidate_classes(opts, effects)
+    if classes:
+        with stage('candidates', ', '.join(c.name for c in classes)):
+            diag = diagnose(cal.model, effects, ana, classes, inp.meas, inp.scenario,
+                            sunlight, opts.seed)
+    else:
+        diag = Diagnosed([], diagnosis.Decision(None, []), None, None, cal.calibrated)
+    summary = build_summary(opts, inp, effects, fitted, cal, ana, diag, sunlight, rays,
+                            time_spread, power, pose_fit)
+    return write_outputs(opts, summary, stage, inp, effects, fitted, cal, ana, diag)
 
+
+def load_inputs(opts: CompareOptions) -> Inputs:
+    """The scenario, mesh, measurements, sun track and effects named by ``opts``."""
+    scenario = load_scenario(opts.config or config_path('scenario.yaml'))
+    target = load_target(opts.mesh, scenario.materials.names)
+    meas = load_measurements(opts.bag, opts.cloud_topic, opts.pose_topic, opts.max_points,
+                             opts.seed, opts.intensity_field, opts.time_field, opts.laser_field)
+    sun = recording_sun(opts, scenario, meas)
+    scenario_effects = [get_effect_class(e.name)(e.params) for e in scenario.config.effects]
+    pose_fit = any(parse_effect_spec(spec)[0] == POSE_ERROR for spec in opts.effects)
+    user = [effect_from_spec(spec) for spec in opts.effects
+            if parse_effect_spec(spec)[0] != POSE_ERROR]
+    if sun is None and any(isinstance(e, Sunlight) for e in user):
+        raise ValueError(
+            f'--effect sunlight needs the sun direction, and bag {opts.bag} has none on '
+            f'{opts.sun_topic or SUN_TOPIC!r} (record it as geometry_msgs/msg/Vector3Stamped '
+            'toward the sun in the lidar frame, or name its topic with --sun-topic); '
+            'without one, false returns are modelled by solar_background')
+    if any(isinstance(e, Sunlight) for e in user):
+        # One receiver: the --effect's sunlight replaces the scenario's.
+        scenario_effects = [e for e in scenario_effects if not isinstance(e, Sunlight)]
+    model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
+                  scenario.source.parent if scenario.source else None, sun)
+    meas = with_scan_times(meas, model.simulator().shots)
+    return Inputs(scenario, meas, sun, scenario_effects, user, model, pose_fit)
+
+
+def correct_reference_pose(model: Model, effects: list[Effect], matching: Matching,
+                           rays: diagnosis.RaySet, meas: Measurements, seed: int
+                           ) -> tuple[Matching, diagnosis.RaySet, pose_error.PoseError]:
+    """``--effect pose_error``: the per-cloud rigid correction of the reference pose
+    (``pose_error.fit_reference_pose`` on every matched point), applied to the model's
+    expected ranges of the matched points (their range bias). A reference error, not a
+    sensor effect: the simulator never applies it. Rays that miss the target stay as
+    they are (the correction is a few cm: it moves the silhouette by as much)."""
+    data = diagnosis.make_fit_data(model, effects, rays)
+    idx = rays.matched
+    blocks = neighbours.blocks(meas.directions, meas.cloud)[idx]
+    pose = pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks,
+                                         float(norm.isf(diagnosis.FAMILY_ALPHA)),
+                                         diagnosis.MIN_PRACTICAL_GAIN, seed)
+    bias = np.array(matching.pred.bias_m, float, copy=True)
+    bias[idx] += pose.correction_m
+    pred = replace(matching.pred, bias_m=bias)
+    return replace(matching, pred=pred), replace(rays, pred=pred), pose
+
+
+def match_rays(model: Model, effects: list[Effect], meas: Measurements,
+               power: PowerFromIntensity, extra_var: np.ndarray | None,
+               opts: CompareOptions) -> tuple[Matching, diagnosis.RaySet]:
+    """Every analysed ray matched to the model's target (raycast with the effects' ray
+    geometry); an error naming the inputs when (almost) none hit."""
+    matching = match(geometry(model, effects), meas, model.divergence_rad, edges=False)
+    rays = replace(rays_of(matching, power(matching), model), extra_var_m2=extra_var)
+    if len(rays.matched) < 10:
+        raise ValueError(
+            f'only {len(rays.matched)} of {len(meas)} measured rays hit the target mesh '
+            f'{opts.mesh}: check the mesh, the pose topic {opts.pose_topic!r} (target body '
+            f'pose in the lidar frame) and that the clouds are in the lidar frame')
+    return matching, rays
+
+
+def calibrate_materials(model: Model, effects: list[Effect], matching: Matching,
+                        rays: diagnosis.RaySet, fit: bool,
+                        range_correction_m: np.ndarray | None = None) -> Calibrated:
+    """Per-material bias/sigma as measured vs configured; with ``fit`` the model takes
+    the refit materials (as the paper's Table 2 calibration); the headline figures.
+    ``range_correction_m``: a reference-pose correction per matched point, kept in the
+    range bias when the materials' biases are replaced."""
+    pred, sel = matching.pred, matching.matched
+    residual, sigma = model_residuals(diagnosis.make_fit_data(model, effects, rays), rays)
+    stats = mat.material_stats(model.materials, replace(pred, sigma_m=sigma), residual, sel)
+    refit = mat.refit_materials(model.materials, stats)
+    configured = replace(matching, residual_m=residual)
+    if fit:
+        # --fit estimates the model's free parameters: the effects' and, as in the
+        # paper's Table 2 calibration, each material's range bias and sigma.
+        model = replace(model, materials=refit)
+        pred = with_materials(pred, refit)
+        if range_correction_m is not None:
+            bias = np.array(pred.bias_m, float, copy=True)
+            bias[rays.matched] += range_correction_m
+            pred = replace(pred, bias_m=bias)
+        matching = replace(matching, pred=pred)
+        rays = replace(rays, pred=pred)
+    everything = diagnosis.make_fit_data(model, effects, rays)
+    residual, sigma = model_residuals(everything, rays)
+    matching = replace(matching, residual_m=residual)
+    # Headline: the model (materials as configured, or refit with --fit). Calibrated:
+    # each material's offset and sigma scale profiled out (what --fit delivers).
+    nll, rmse, _ = lk.evaluate(everything, [], profile_materials=False)
+    return Calibrated(model, matching, configured, rays, residual, sigma, stats, refit, nll,
+                      rmse, diagnosis.calibrated_figures(everything, []))
+
+
+def sunlight_stage(cal: Calibrated, effects: list[Effect], sun: SunTrack,
+                   sun_fit: SunFit | None, opts: CompareOptions) -> dict:
+    """summary.json's ``sunlight``: the receiver factor fitted from the false returns."""
+    if sun_fit is None:
+        sun_fit = sunlight_of_recording(cal.matching, cal.residual_m, cal.sigma_m)
+    in_model = [e.params.background_scale for e in effects if isinstance(e, Sunlight)]
+    return summary_section(sun_fit, opts.sun_topic or SUN_TOPIC, len(sun.t_s),
+                           in_model[-1] if in_model else None)
+
+
+def diagnosis_sample(rays: diagnosis.RaySet, meas: Measurements,
+                     seed: int) -> tuple[diagnosis.RaySet, np.ndarray, np.ndarray]:
+    """At most DIAGNOSIS_MAX_MATCHED matched (and as many unmatched) points with their
+    neighbourhoods: (sample, its point indices, isolated mask over the measurements)."""
+    sample = rays.sample(DIAGNOSIS_MAX_MATCHED, seed)
+    picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
+    isolated = np.zeros(len(meas), bool)
+    isolated[picked] = neighbours.isolated(meas.directions, meas.range_m, meas.cloud, picked)
+    sample = replace(sample, isolated=isolated,
+                     blocks=neighbours.blocks(meas.directions, meas.cloud))
+    return sample, picked, isolated
+
+
+def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
+              sample: diagnosis.RaySet, picked: np.ndarray, isolated: np.ndarray,
+              seed: int) -> Analysed:
+    """Silhouette distances and range rates of the sample, and what the residual depends
+    on (``features.attribute``, each material's offset and sigma scale removed)."""
+    model, pred, sel = cal.model, cal.matching.pred, cal.matching.matched
+    sub = meas.subset(picked)
+    sub_pred = diagnosis.take_prediction(pred, picked)
+    sim = geometry(model, effects)
+    edge = edge_distance_rad(sim.target, sub, sub_pred, model.divergence_rad)
+    edge_all = np.full(len(meas), np.nan)
+    edge_all[picked] = edge
+    sample = replace(sample, edge_rad=edge_all)
+    rr = range_rate_mps(sim, sub, sub_pred)
+    local = Matching(sub, sub_pred, sel[picked], cal.residual_m[picked], edge, rr)
+    lsel = local.matched
+    res = cal.residual_m[picked][lsel]
+    sig = np.maximum(cal.sigma_m[picked][lsel], 1e-6)
+    offset, scale = lk.material_nuisance(res, sig, np.asarray(sub_pred.ctx.material[lsel], int),
+                                         np.isfinite(res))
+    res = res - offset
+    values = features.feature_values(local)
+    labels = {}
+    if cal.rays.measured_power_w is not None:
+        # The measured power, not the raw intensity: a range-compensated reflectivity
+        # is computed with the measured range and would leak its noise to the
+        # attribution (the calibration divides it out again).
+        mp = cal.rays.measured_power_w[picked][lsel]
+        values['intensity'] = np.log10(np.where(np.isfinite(mp) & (mp > 0), mp,
+                                                np.nanmin(mp[mp > 0]) if np.any(mp > 0)
+                                                else 1e-12))
+        labels['intensity'] = features.POWER_LABEL
+    attribution = features.attribute(values, res, res / (sig * scale), seed,
+                                     sample.blocks[picked][lsel])
+    return Analysed(sample, picked, isolated, local, res, values, labels, attribution)
+
+
+def candidate_classes(opts: CompareOptions, effects: list[Effect]) -> list[type[Effect]]:
+    """The effects to diagnose: ``--candidates`` or the catalogue, less those in the model."""
     in_model = {e.name for e in effects}
     classes = ([get_effect_class(parse_effect_spec(s)[0]) for s in opts.candidates]
                if opts.candidates is not None else list(catalogue().values()))
-    classes = [c for c in classes if c.name not in in_model]
-    cands: list[diagnosis.Candidate] = []
-    decision = diagnosis.Decision(None, [])
-    stamp = None
-    if classes:
-        with stage('candidates', ', '.join(c.name for c in classes)):
-            diag = diagnosis.Diagnosis(model, effects, sample, opts.seed)
-            diag.set_family(len(classes))
-            cands = [diag.score(c) for c in classes]
-            for c in cands:
-                diag.share_veto(c, attribution)
-            cands = diagnosis.rank(cands)
-            decision = diag.decide(cands)
-            for c in cands[:FINALIZED]:
-                if c.significant or c is cands[0]:
-                    diag.finalize(c)      # what a run with --effect NAME --fit would show
-            stamp = _stamp_place(diag, decision, cands, meas, scenario)
-            decision = sunlit_decision(decision, sunlight)
-            before = diagnosis.calibrated_figures(diag.full, [])
-    else:
-        before = (cal_nll, cal_rmse, cal_robust)
+    return [c for c in classes if c.name not in in_model]
 
+
+def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[type[Effect]],
+             meas: Measurements, scenario: Scenario, sunlight: dict | None,
+             seed: int) -> Diagnosed:
+    """Score every candidate, decide (``diagnosis``), test the reference pose and the
+    stamp's place, fit the best few on all the sampled points."""
+    sample = ana.sample
+    diag = diagnosis.Diagnosis(model, effects, sample, seed)
+    diag.set_family(len(classes))
+    cands = [diag.score(c) for c in classes]
+    for c in cands:
+        diag.share_veto(c, ana.attribution)
+    cands = diagnosis.rank(cands)
+    decision = diag.decide(cands)
+
+    def pose_test(on_top: list[Effect]) -> pose_error.PoseError:
+        return pose_error.fit_reference_pose(
+            diag.full, meas.cloud[sample.matched], meas.t_s[sample.matched],
+            sample.blocks[sample.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
+            on_top)
+    decision = diag.judge_pose(pose_test, cands, decision)
+    named = [c.effect for c in cands if c.name == decision.missing]
+    pose = decision.pose if decision.pose is not None else pose_test(named)
+    for c in cands[:FINALIZED]:
+        if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
+            diag.finalize(c)      # what a run with --effect NAME --fit would show
+    stamp = _stamp_place(diag, decision, cands, meas, scenario)
+    decision = sunlit_decision(decision, sunlight)
+    return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []))
+
+
+def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
+                  fitted: list[Effect], cal: Calibrated, ana: Analysed, diag: Diagnosed,
+                  sunlight: dict | None, rays: diagnosis.RaySet, time_spread: float,
+                  power: PowerFromIntensity,
+                  pose_fit: pose_error.PoseError | None = None) -> dict:
+    """summary.json, with the verdict."""
+    meas, scenario, matching = inp.meas, inp.scenario, cal.matching
+    sel = matching.matched
+    cal_nll, cal_rmse, cal_robust = cal.calibrated
+    before, decision = diag.before, diag.decision
     summary = {
         'bag': str(opts.bag), 'mesh': str(opts.mesh),
         'config': str(scenario.source) if scenario.source else None,
@@ -429,35 +606,40 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         'matched_points': int(sel.sum()),
         'unmatched_points': int((~sel).sum()),
         'unmatched_fraction': float(matching.unmatched_fraction),
-        'range_rmse_m': float(rmse), 'nll_per_point': float(nll),
+        'range_rmse_m': float(cal.rmse_m), 'nll_per_point': float(cal.nll),
         'range_rmse_calibrated_m': float(cal_rmse), 'nll_calibrated': float(cal_nll),
         'range_robust_sigma_calibrated_m': float(cal_robust),
         'materials_refit': bool(opts.fit),
-        'range_residual_robust_sigma_m': mat.robust_sigma(res),
+        'range_residual_robust_sigma_m': mat.robust_sigma(ana.residual_m),
         'range_span_m': [float(x) for x in np.percentile(meas.range_m[sel], [5, 95])],
         'intensity_gain': (power.calibration.as_dict() if power.calibration is not None
                            else None),
         'power_driven_effects_use': ('measured intensity' if rays.measured_power_w is not None
                                      else 'model power'),
-        'materials': {s.name: s.as_dict() for s in stats},
-        'features': [f.as_dict() for f in feats],
-        'residual_structure': attribution.as_dict(),
-        'candidates': [c.as_dict() for c in cands],
-        'candidates_basis': {'points': int(len(sample.matched)),
+        'materials': {s.name: s.as_dict() for s in cal.stats},
+        'features': [f.as_dict() for f in ana.attribution.features],
+        'residual_structure': ana.attribution.as_dict(),
+        'candidates': [c.as_dict() for c in diag.cands],
+        'candidates_basis': {'points': int(len(ana.sample.matched)),
                              'nll_calibrated': before[0], 'range_rmse_calibrated_m': before[1],
                              'range_robust_sigma_calibrated_m': before[2]},
         'missing_effect': decision.missing,
         'confounded_with': decision.confounded_with,
         'also_explains': decision.also,
-        'unmatched': _unmatched_summary(local, model.divergence_rad, int((~sel).sum()),
-                                        float(matching.unmatched_fraction), isolated[picked]),
+        'against_named': decision.pair_z,
+        'unmatched': _unmatched_summary(ana.local, cal.model.divergence_rad, int((~sel).sum()),
+                                        float(matching.unmatched_fraction),
+                                        ana.isolated[ana.picked]),
         'fitted_effects': [_effect_record(e, fitted_only=True) for e in fitted],
         'clouds': int(len(meas.cloud_stamps_s)),
         'missed_shots_per_unmatched': rays.missed_per_unmatched,
         'point_times': meas.time_source,
         'point_time_field': meas.time_field,
         'point_time_spread_s': time_spread or None,
-        'stamp_place': stamp.as_dict() if stamp is not None else None,
+        'stamp_place': diag.stamp.as_dict() if diag.stamp is not None else None,
+        'reference_pose': diag.pose.as_dict() if diag.pose is not None else None,
+        'reference_pose_off': decision.pose is not None,
+        'pose_correction': pose_fit.as_dict() if pose_fit is not None else None,
         'has_intensity': meas.intensity is not None,
         'point_fields': {**(meas.fields or {}), 'lines': meas.field_lines + [
             fields.intensity_reading(power.calibration.as_dict() if power.calibration else None,
@@ -466,30 +648,41 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         'point_flags': {'counts': meas.flag_counts, 'known_misses': meas.known_misses,
                         'saturation': fields.saturation_evidence(
                             None if meas.saturated is None else meas.saturated[sel],
-                            pred.ctx.power_w[sel], scenario.sensor.detection.saturation_power_w)},
+                            matching.pred.ctx.power_w[sel],
+                            scenario.sensor.detection.saturation_power_w)},
         'dropped': meas.dropped,
-        'notes': notes,
+        'notes': list(meas.notes) + _material_name_notes(meas, scenario)
+        + (['--fit without --effect: nothing to fit']
+           if opts.fit and not inp.user and not inp.pose_fit else []),
         **({'sunlight': sunlight} if sunlight is not None else {}),
     }
     # The verdict quotes candidates against the figures of the points they were fitted on.
     basis = {**summary, 'nll_calibrated': before[0], 'range_rmse_calibrated_m': before[1],
              'range_robust_sigma_calibrated_m': before[2]}
-    summary['verdict'] = verdict(basis, attribution, cands, decision)
+    summary['verdict'] = verdict(basis, ana.attribution, diag.cands, decision)
+    return summary
 
+
+def write_outputs(opts: CompareOptions, summary: dict, stage: Stages, inp: Inputs,
+                  effects: list[Effect], fitted: list[Effect], cal: Calibrated,
+                  ana: Analysed, diag: Diagnosed) -> CompareResult:
+    """effects.yaml (with --fit), materials.yaml, a line of history.json, the report
+    and summary.json."""
     opts.out.mkdir(parents=True, exist_ok=True)
     files = []
     if fitted:
         files.append(_write(opts.out / 'effects.yaml', effects_yaml(fitted)))
-    files.append(_write(opts.out / 'materials.yaml', mat.materials_yaml(refit, stats)))
+    files.append(_write(opts.out / 'materials.yaml', mat.materials_yaml(cal.refit, cal.stats)))
     hist_path = Path(opts.history) if opts.history else opts.out.resolve().parent / 'history.json'
-    runs = history.append_run(hist_path, history.run_entry(
-        summary, [e.name for e in effects], opts.out, opts.bag))
+    names = [e.name for e in effects] + ([POSE_ERROR] if inp.pose_fit else [])
+    runs = history.append_run(hist_path, history.run_entry(summary, names, opts.out, opts.bag))
     summary['history'] = str(hist_path)
     if opts.report:
         with stage('report'):
             from lidar_sim_ros.compare.report import write_report
-            files += write_report(opts.out, summary, local, configured, res, stats, feats,
-                                  cands, runs, model, values, isolated[picked], labels)
+            files += write_report(opts.out, summary, ana.local, cal.configured, ana.residual_m,
+                                  cal.stats, ana.attribution.features, diag.cands, runs,
+                                  cal.model, ana.values, ana.isolated[ana.picked], ana.labels)
     summary['stage_seconds'] = dict(stage.seconds)
     summary['total_seconds'] = round(stage.total, 3)
     files.insert(len(files) - (1 if opts.report else 0),

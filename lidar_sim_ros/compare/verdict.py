@@ -98,8 +98,14 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'{_join(names)} explain the data equally well within their uncertainty (held-out '
             f'gains {scores} nats/point): they are confounded in this recording, so none is '
             f'named. {advice} If you know which it is, add it with --effect NAME --fit.')
+    elif decision.pose is not None:
+        parts.append(pose_words(decision.pose))
     else:
         parts.append(_nothing_named(summary, attribution, cands))
+    if decision.pose is not None and (missing or decision.confounded_with):
+        parts.append(f'Besides, {decision.pose.words()} (held-out gain of a rigid correction '
+                     f'per cloud {decision.pose.gain:.4f} nats/point, z = {decision.pose.z:.1f}): '
+                     'check the tracking system or the extrinsic calibration.')
     vetoed = [c for c in cands if c.vetoed and c.significant and c.practical
               and c.name != missing and c.name not in decision.confounded_with]
     if vetoed and (missing or decision.confounded_with):
@@ -127,6 +133,14 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     if summary.get('sunlight'):
         parts.append(sunlight_words(summary['sunlight'], hint=missing != 'sunlight'))
     return ' '.join(parts)
+
+
+def pose_words(pose) -> str:
+    """The verdict when a reference-pose error explains the residual (``pose_error``)."""
+    return (f'{pose.words()[0].upper()}{pose.words()[1:]}: not a sensor effect; check the '
+            'tracking system or the extrinsic calibration. A rigid correction of the target '
+            f'pose per cloud gains {pose.gain:.4f} nats/point held out (z = {pose.z:.1f}), and '
+            'with it no catalogue effect passes the rule.')
 
 
 def _sunlight_named(summary: dict, c) -> str:
@@ -244,8 +258,11 @@ def _gain_words(summary: dict, c) -> tuple[str, str]:
 
 
 def summary_lines(s: dict, files: list[Path]) -> list[str]:
-    lines = [f'points: {s["points"]} ({s["matched_points"]} matched, '
-             f'{s["unmatched_points"]} unmatched = {100 * s["unmatched_fraction"]:.2f} %)',
+    analysed = s.get('points_analysed', s['points'])
+    cut = (f', {analysed} analysed (--max-points): ' if analysed < s['points'] else ' (')
+    lines = [f'points: {s["points"]}{cut}{s["matched_points"]} matched, '
+             f'{s["unmatched_points"]} unmatched = {100 * s["unmatched_fraction"]:.2f} %'
+             + ('' if analysed < s['points'] else ')'),
              f'range RMSE: {s["range_rmse_m"]:.4f} m   NLL: {s["nll_per_point"]:.3f} per point'
              f'   (per-material offsets refit: {s["range_rmse_calibrated_m"]:.4f} m, '
              f'{s["nll_calibrated"]:.3f})']
@@ -253,6 +270,12 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
         params = ', '.join(f'{k} = {v:.6g}' if isinstance(v, float) else f'{k} = {v}'
                            for k, v in e['params'].items())
         lines.append(f'fitted {e["name"]}: {params}')
+    pc = s.get('pose_correction')
+    if pc:
+        lines.append(f'fitted pose_error: reference pose corrected per cloud by '
+                     f'{pc["translation_rms_cm"]:.2f} cm and {pc["rotation_rms_deg"]:.3f} deg RMS '
+                     f'over {len(pc["clouds"])} clouds (held-out gain '
+                     f'{pc["gain_per_matched_point"]:.4f} nats/point, z = {pc["z"]:.1f})')
     lines.append('features: ' + ', '.join(f'{f["name"]} {f["score"]:.4f}'
                                           for f in s['features'][:4]))
     lines.append('candidates: ' + ', '.join(
@@ -266,6 +289,11 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
                      f'{sun["shadowed_false_returns"]}/{sun["shadowed_points"]} shadowed rays '
                      f'({"sunlight-driven" if sun["supported"] else "not shown to follow the sun"})')
     lines.append(f'missing effect: {s["missing_effect"]}')
+    rp = s.get('reference_pose')
+    if s.get('reference_pose_off') and rp:
+        lines.append(f'reference pose: off by {rp["translation_rms_cm"]:.2f} cm and '
+                     f'{rp["rotation_rms_deg"]:.3f} deg RMS per cloud (z = {rp["z"]:.1f}): '
+                     'run again with --effect pose_error --fit')
     if s.get('confounded_with'):
         lines.append(f'confounded: {", ".join(s["confounded_with"])}')
     lines.append(f'verdict: {s["verdict"]}')
