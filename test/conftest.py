@@ -23,6 +23,28 @@ EMBREE_ULPS = 8
 EMBREE_RTOL = EMBREE_ULPS * float(np.finfo(np.float32).eps)
 
 
+def copy_config(tmp_path: Path, names=('scenario.yaml', 'cepton_vista_p60.yaml',
+                                      'materials.yaml')) -> Path:
+    """The package's config files ``names`` copied into ``tmp_path`` to be edited; the
+    scenario's mesh made absolute (the mesh stays where it is)."""
+    import shutil
+    import yaml
+    for name in names:
+        shutil.copy(CONFIG / name, tmp_path / name)
+    if 'scenario.yaml' in names:
+        edit_yaml(tmp_path / 'scenario.yaml',
+                  lambda d: d.update(mesh=str(CONFIG.parent / 'meshes' / 'rocket_body.obj')))
+    return tmp_path
+
+
+def edit_yaml(path: Path, fn) -> None:
+    """Load the YAML file, let ``fn`` change the data in place, write it back."""
+    import yaml
+    data = yaml.safe_load(path.read_text())
+    fn(data)
+    path.write_text(yaml.safe_dump(data))
+
+
 def private_domain_id(base: int, span: int) -> int:
     """A ROS domain id in [base, base + span) for a test's DDS traffic.
 

@@ -6,7 +6,7 @@ import pytest
 import yaml
 
 from lidar_sim_ros.core.config import ConfigError, load_materials, load_scenario, load_sensor
-from conftest import CONFIG
+from conftest import CONFIG, copy_config, edit_yaml
 
 # Paper Table 2 (bias, 1-sigma random error), rows at 5 m and 15 m.
 TABLE2 = {
@@ -40,19 +40,7 @@ def test_detection_threshold_matches_range_spec():
     assert p == pytest.approx(s.detection.threshold_power_w, rel=1e-6)
 
 
-def _copy_config(tmp_path):
-    for name in ('scenario.yaml', 'cepton_vista_p60.yaml', 'materials.yaml'):
-        shutil.copy(CONFIG / name, tmp_path / name)
-    scen = yaml.safe_load((tmp_path / 'scenario.yaml').read_text())
-    scen['mesh'] = str(CONFIG.parent / 'meshes' / 'rocket_body.obj')
-    (tmp_path / 'scenario.yaml').write_text(yaml.safe_dump(scen))
-    return tmp_path
-
-
-def _edit(path, fn):
-    data = yaml.safe_load(path.read_text())
-    fn(data)
-    path.write_text(yaml.safe_dump(data))
+_copy_config, _edit = copy_config, edit_yaml
 
 
 def test_unknown_key_names_file_and_key(tmp_path):

@@ -1,5 +1,4 @@
 """Config errors that help: the wrong kind of file, a typo's nearest key, no dumps."""
-import shutil
 
 import pytest
 import yaml
@@ -7,16 +6,14 @@ import yaml
 from lidar_sim_ros.cli import main as cli_main
 from lidar_sim_ros.core.config import (ConfigError, WrongFileKindError, file_kind, load_materials,
                                        load_scenario, load_sensor)
-from conftest import CONFIG
+from conftest import CONFIG, edit_yaml
+from conftest import copy_config as copy_files
 
 
 def copy_config(tmp_path, edit_file: str, edit) -> None:
-    for name in ('scenario.yaml', 'cepton_vista_p60.yaml', 'materials.yaml',
-                 'campaign_example.yaml'):
-        shutil.copy(CONFIG / name, tmp_path / name)
-    data = yaml.safe_load((tmp_path / edit_file).read_text())
-    edit(data)
-    (tmp_path / edit_file).write_text(yaml.safe_dump(data))
+    copy_files(tmp_path, ('scenario.yaml', 'cepton_vista_p60.yaml', 'materials.yaml',
+                          'campaign_example.yaml'))
+    edit_yaml(tmp_path / edit_file, edit)
 
 
 @pytest.mark.parametrize('name, kind', [('campaign_example.yaml', 'campaign spec'),

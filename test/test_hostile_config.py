@@ -1,7 +1,6 @@
 """Hostile configs (issue 22, parts 2-3): non-finite or impossible values, sizes past the
 limits, alias bombs and non-YAML files each get one ConfigError naming file, key and a
 truncated value, before anything is simulated."""
-import shutil
 
 import pytest
 import yaml
@@ -9,25 +8,17 @@ import yaml
 from lidar_sim_ros.core.config import (MAX_SHOTS_PER_FRAME, MAX_VALUE_CHARS, ConfigError,
                                        load_materials, load_scenario, load_sensor)
 from lidar_sim_ros.core.effects import make_effect
-from conftest import CONFIG
+from conftest import CONFIG, copy_config, edit_yaml
 
 SENSOR, MATERIALS = 'cepton_vista_p60.yaml', 'materials.yaml'
 
 
 @pytest.fixture
 def cfg(tmp_path):
-    for name in ('scenario.yaml', SENSOR, MATERIALS):
-        shutil.copy(CONFIG / name, tmp_path / name)
-    scen = yaml.safe_load((tmp_path / 'scenario.yaml').read_text())
-    scen['mesh'] = str(CONFIG.parent / 'meshes' / 'rocket_body.obj')
-    (tmp_path / 'scenario.yaml').write_text(yaml.safe_dump(scen))
-    return tmp_path
+    return copy_config(tmp_path, ('scenario.yaml', SENSOR, MATERIALS))
 
 
-def _edit(path, fn):
-    data = yaml.safe_load(path.read_text())
-    fn(data)
-    path.write_text(yaml.safe_dump(data))
+_edit = edit_yaml
 
 
 @pytest.mark.parametrize('edit, key, value', [

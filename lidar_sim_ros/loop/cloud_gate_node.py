@@ -11,15 +11,16 @@ the in-process loop gates the same way (``step.gate_cloud``, ``cloud_gate_m``).
 from __future__ import annotations
 
 import sys
+from functools import partial
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from lidar_sim_ros.io.pointcloud import from_pointcloud2
+from lidar_sim_ros.ros.parameters import declare_startup
 from lidar_sim_ros.ros.spin import run_node
 
 NODE_NAME = 'loop_cloud_gate'
@@ -30,8 +31,7 @@ class CloudGateNode(Node):
         super().__init__(NODE_NAME, **kwargs)
 
     def setup(self) -> None:
-        p = lambda name, default, text: self.declare_parameter(  # noqa: E731
-            name, default, ParameterDescriptor(description=text, read_only=True)).value
+        p = partial(declare_startup, self)
         input_topic = p('input_topic', '/lidar/points', 'PointCloud2 in')
         output_topic = p('output_topic', '/loop/points_gated', 'PointCloud2 out')
         estimate_topic = p('estimate_topic', '/target/pose_estimate', 'PoseStamped: the gate centre')

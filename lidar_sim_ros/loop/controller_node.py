@@ -14,10 +14,10 @@ from __future__ import annotations
 import math
 import sys
 from collections import deque
+from functools import partial
 
 import numpy as np
 from geometry_msgs.msg import PointStamped, PoseStamped, QuaternionStamped, WrenchStamped
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from scipy.spatial.transform import Rotation
@@ -30,6 +30,7 @@ from lidar_sim_ros.loop.dynamics import EARTH_MU_M3_S2, EARTH_RADIUS_M
 from lidar_sim_ros.loop.guidance import GuidanceState, NavState, nav_update
 from lidar_sim_ros.loop.step import guide_and_control
 from lidar_sim_ros.paths import config_path
+from lidar_sim_ros.ros.parameters import declare_startup
 from lidar_sim_ros.ros.spin import run_node
 
 NODE_NAME = 'loop_controller'
@@ -41,8 +42,7 @@ class LoopControllerNode(Node):
         super().__init__(NODE_NAME, **kwargs)
 
     def setup(self) -> None:
-        p = lambda name, default, text: self.declare_parameter(  # noqa: E731
-            name, default, ParameterDescriptor(description=text, read_only=True)).value
+        p = partial(declare_startup, self)
         config_file = p('config_file', '', "loop YAML; '' = the package's config/loop.yaml")
         self.lidar_frame = p('lidar_frame', 'lidar', 'the frame_id estimates must carry')
         estimate_topic = p('estimate_topic', '/target/pose_estimate', 'geometry_msgs/PoseStamped in')

@@ -25,10 +25,10 @@ from __future__ import annotations
 
 import sys
 import time
+from functools import partial
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped, QuaternionStamped, Vector3Stamped, WrenchStamped
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -43,6 +43,7 @@ from lidar_sim_ros.loop.control import limit_force
 from lidar_sim_ros.loop.step import TruthSamples, propagate
 from lidar_sim_ros.loop.timing import CommandGate
 from lidar_sim_ros.paths import config_path
+from lidar_sim_ros.ros.parameters import declare_startup
 from lidar_sim_ros.ros.spin import run_node
 
 NODE_NAME = 'loop_dynamics'
@@ -75,8 +76,7 @@ class LoopDynamicsNode(Node):
         super().__init__(NODE_NAME, **kwargs)
 
     def setup(self) -> None:
-        p = lambda name, default, text: self.declare_parameter(  # noqa: E731
-            name, default, ParameterDescriptor(description=text, read_only=True)).value
+        p = partial(declare_startup, self)
         config_file = p('config_file', '', "loop YAML; '' = the package's config/loop.yaml")
         self.epoch_s = p('epoch_s', 100.0, 'clock time (s) of loop time zero (> 0: ROS reads 0 as no clock)')
         self.lidar_frame = p('lidar_frame', 'lidar', 'frame_id of /target/pose and /sun/direction '
