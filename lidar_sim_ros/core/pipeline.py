@@ -299,15 +299,10 @@ class Simulator:
             return self._multi_return_frame(frame_start_s, frame_index, pred, detected, measured,
                                             extras, rng)
         material, intensity = ctx.material, ctx.intensity
-        for eff in self.effects:
-            spurious = eff.false_returns(ctx, rng)
-            if spurious is None:
-                continue
-            mask, rng_false = spurious
+        for rows, false_m in _false_returns(self.effects, ctx, rng):
             # A few shots each: written by index (measured and detected are this frame's own
             # arrays; material and intensity are the context's, copied before the first write).
-            rows = np.flatnonzero(mask)
-            measured[rows] = rng_false[rows]
+            measured[rows] = false_m
             detected[rows] = True
             if material is ctx.material:
                 material, intensity = material.copy(), intensity.copy()
@@ -352,20 +347,15 @@ class Simulator:
         blinded = np.zeros(n, bool)
         false_shot, false_range = [], []
         last_false = np.full(n, np.nan)            # single-return receiver: the last one stands
-        for eff in self.effects:
-            spurious = eff.false_returns(ctx, rng)
-            if spurious is None:
-                continue
-            mask, rng_false = spurious
-            rows = np.flatnonzero(mask)
+        for rows, false_m in _false_returns(self.effects, ctx, rng):
             if det.returns.single:
                 blinded[rows] = True
-                last_false[rows] = rng_false[rows]
+                last_false[rows] = false_m
                 continue
-            finite = np.isfinite(rng_false[rows])
+            finite = np.isfinite(false_m)
             blinded[rows[~finite]] = True
             false_shot.append(rows[finite])
-            false_range.append(rng_false[rows[finite]])
+            false_range.append(false_m[finite])
         if det.returns.single:
             rows = np.flatnonzero(np.isfinite(last_false))
             false_shot, false_range = [rows], [last_false.take(rows)]
@@ -424,6 +414,17 @@ class Simulator:
             t_s=shots.t_s.take(out), ring=shots.laser.take(out),
             material=_material_ids(cand_mat.take(keep)), stats=stats, truth_source=self._truth(pred, measured),
             face=cand_face.take(keep), true_range_m=cand_true.take(keep), return_number=number)
+
+
+def _false_returns(effects, ctx, rng: np.random.Generator):
+    """Per effect that draws false returns, in order (each draw from ``rng``): the shots
+    it triggers and their false ranges (m; NaN blinds the shot)."""
+    for eff in effects:
+        spurious = eff.false_returns(ctx, rng)
+        if spurious is not None:
+            mask, range_m = spurious
+            rows = np.flatnonzero(mask)
+            yield rows, range_m[rows]
 
 
 def _fired(mask: np.ndarray, cast_position: np.ndarray) -> np.ndarray:
