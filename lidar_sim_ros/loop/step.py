@@ -115,6 +115,14 @@ def gate_cloud(xyz_m: np.ndarray, centre_m: np.ndarray | None, radius_m: float) 
     return xyz_m[np.einsum('ij,ij->i', d, d) <= radius_m * radius_m]
 
 
+def capture_centre(xyz_m: np.ndarray) -> np.ndarray | None:
+    """Where to centre the gate before a capture, from the cloud alone: its per-axis median
+    (m, lidar frame; None for no points). Background triggers and sun returns spread over
+    the whole range gate, the target's returns bunch: the median sits on the target while
+    it gives most of the points."""
+    return np.median(xyz_m, axis=0) if len(xyz_m) else None
+
+
 def track(tracker, t_s: float, xyz_m: np.ndarray, truth_guess: np.ndarray, from_cloud: bool):
     """One tracker update; returns (Estimate, whether the truth guess was used for capture).
 
@@ -189,8 +197,14 @@ def estimate_pose(ctx: LoopContext, state: LoopState, truth: TruthSamples, t_mid
     if state.previous is None:  # the sensor's first period: the pose before it is unknown
         return None, true_pose, False
     xyz = sense(ctx.simulator, truth, state.previous, state.frame_index, ctx.cloud)
-    centre = None if state.last_estimate is None else state.last_estimate[:3, 3]
-    xyz = gate_cloud(xyz, centre, ctx.config.cloud_gate_m)
+    if state.last_estimate is not None and state.tracking:
+        xyz = gate_cloud(xyz, state.last_estimate[:3, 3], ctx.config.cloud_gate_m)
+    elif ctx.config.acquire_from_cloud:
+        # No estimate to gate on: the acquisition's hypotheses span the cloud's extent,
+        # and false returns 250 m out made it try ~2000 and fail (docs/loop.md).
+        xyz = gate_cloud(xyz, capture_centre(xyz), ctx.config.capture_gate_m)
+    elif state.last_estimate is not None:
+        xyz = gate_cloud(xyz, state.last_estimate[:3, 3], ctx.config.cloud_gate_m)
     est, used_truth = track(ctx.tracker, t_mid, xyz, true_pose, ctx.config.acquire_from_cloud)
     return (est.pose if est.acceptable(ctx.tracker.config) else None), true_pose, used_truth
 
