@@ -185,6 +185,16 @@ class Dispersions(_Model):
                                           'the base scenario lacks is added')
 
 
+class LoopCase(_Model):
+    """Closed-loop runs (campaign/loop_case.py): each run is ``loop.step.run_loop`` on the
+    loop config, its lidar the (dispersed) base scenario; see docs/campaign.md."""
+
+    config: str = Field(description='loop YAML (config/loop.yaml), relative to the campaign file')
+    cloud: Literal['model', 'truth'] = Field('model', description='the cloud the tracker gets')
+    config_sha256: str = Field('', description='filled at load (the loop file\'s bytes, so that '
+                                               'resuming checks them); leave out')
+
+
 class CampaignSpec(_Model):
     """CAMPAIGN.yaml."""
 
@@ -197,6 +207,7 @@ class CampaignSpec(_Model):
     coverage_frames: Annotated[int, Field(ge=0)] = Field(
         3, description='frames per run on which target coverage is evaluated (evenly spaced)')
     dispersions: Dispersions = Dispersions()
+    loop: LoopCase | None = Field(None, description='closed-loop runs instead of frame statistics')
 
 
 class Campaign:
@@ -229,6 +240,9 @@ def load_campaign(path: str | Path) -> Campaign:
     _check_supports(spec.dispersions, path)
     _check_materials(spec.dispersions, scenario, path)
     _check_effects(spec.dispersions, path)
+    if spec.loop is not None:
+        from lidar_sim_ros.campaign.loop_case import check_loop_spec
+        spec = check_loop_spec(spec, path)
     return Campaign(spec, scenario, path.resolve())
 
 

@@ -140,7 +140,11 @@ def track(tracker, t_s: float, xyz_m: np.ndarray, truth_guess: np.ndarray, from_
 # ----------------------------------------------------------- the loop state
 @dataclass(frozen=True)
 class LoopContext:
-    """What does not change over a run: config, mount, and the handles."""
+    """What does not change over a run: config, mount, and the handles.
+
+    ``R_BL`` is the mount the GNC knows (the config's); ``R_BL_true`` the one the lidar
+    is really mounted with (None: the same), which the truth (the attitude law's pointing
+    and the frame chain) uses: a misaligned mount the navigation does not know of."""
 
     config: LoopConfig
     dynamics: object
@@ -149,6 +153,11 @@ class LoopContext:
     cloud: str | None
     R_BL: np.ndarray
     t_B: np.ndarray
+    R_BL_true: np.ndarray | None = None
+
+    @property
+    def mount_true(self) -> np.ndarray:
+        return self.R_BL if self.R_BL_true is None else self.R_BL_true
 
 
 @dataclass(frozen=True)
@@ -232,7 +241,7 @@ def guide_and_control(config: LoopConfig, nav: NavState, g: GuidanceState, t_s: 
 
 def loop_step(ctx: LoopContext, state: LoopState) -> tuple[LoopState, StepOutput]:
     """One control period: propagate, sense, estimate, navigate, guide, control."""
-    truth = propagate(ctx.config, ctx.dynamics, state.force_lvlh_n, ctx.R_BL, ctx.t_B)
+    truth = propagate(ctx.config, ctx.dynamics, state.force_lvlh_n, ctx.mount_true, ctx.t_B)
     t_mid = float(0.5 * (truth.t_s[0] + truth.t_s[-1]))  # a scan's fit sits at its mean time
     est_pose, true_pose, truth_capture = estimate_pose(ctx, state, truth, t_mid)
     nav, rho_est = navigate(ctx, state.nav, truth, t_mid, est_pose)
@@ -257,11 +266,15 @@ class LoopResult:
     series: dict
 
 
-def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics=None) -> LoopContext:
+def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics=None, *,
+                  target=None, tracker_model=None, misalignment_xyzw=None) -> LoopContext:
     """Load the scenario's simulator and the tracker (not for ``cloud=None``) and start Basilisk.
 
     ``scenario_path``: a scenario file, or an already loaded (e.g. dispersed) core
-    ``Scenario``, as a campaign case would pass."""
+    ``Scenario``, as a campaign case would pass. ``target`` (the scenario's loaded mesh)
+    and ``tracker_model`` (its ``gnc.tracker.build_model``): built here if not given (a
+    campaign worker reuses them). ``misalignment_xyzw``: rotation M of the real lidar
+    frame from the configured one (p_lidar = M p_lidar_configured), unknown to the GNC."""
     from lidar_sim_ros.loop.dynamics import Dynamics
     if cloud not in (None, 'model', 'truth'):
         raise ValueError(f"cloud must be 'model', 'truth' or None, not {cloud!r}")
@@ -271,11 +284,17 @@ def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics
         from lidar_sim_ros.core.pipeline import Simulator
         from lidar_sim_ros.gnc.tracker import PoseTracker, TrackerConfig, build_model
         scenario = scenario_path if hasattr(scenario_path, 'sensor') else load_scenario(scenario_path)
-        simulator = Simulator.from_scenario(scenario)
+        simulator = Simulator.from_scenario(scenario, target=target)
         tcfg = TrackerConfig()
-        tracker = PoseTracker(build_model(simulator.target.vertices_m, simulator.target.faces, tcfg), tcfg)
+        if tracker_model is None:
+            tracker_model = build_model(simulator.target.vertices_m, simulator.target.faces, tcfg)
+        tracker = PoseTracker(tracker_model, tcfg)
     R_BL, t_B = frames.mount_transform(config.chaser.mount)
-    return LoopContext(config, dynamics or Dynamics(config), simulator, tracker, cloud, R_BL, t_B)
+    R_BL_true = None
+    if misalignment_xyzw is not None:  # p_L' = M p_L = M R_BL^T p_B: R_BL' = R_BL M^T
+        R_BL_true = R_BL @ Rotation.from_quat(misalignment_xyzw).as_matrix().T
+    return LoopContext(config, dynamics or Dynamics(config), simulator, tracker, cloud, R_BL, t_B,
+                       R_BL_true)
 
 
 def _axis_angle_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:
@@ -295,6 +314,12 @@ def run_loop(config: LoopConfig, cloud: str | None = 'model', scenario_path=None
         from lidar_sim_ros.paths import config_path
         scenario_path = resolve(config.scenario, Path(config_path('loop.yaml')).parent)
     ctx = build_context(config, scenario_path, cloud)
+    return run_steps(ctx, duration_s)
+
+
+def run_steps(ctx: LoopContext, duration_s: float | None = None) -> LoopResult:
+    """Step a built context for ``duration_s`` (default: the config's) and score the run."""
+    config = ctx.config
     state = LoopState()
     steps = int(round((duration_s or config.duration_s) / config.control_period_s))
     outputs = []
