@@ -150,3 +150,18 @@ def test_capture_adapter_uses_the_truth_only_to_capture():
     fresh = PoseTracker(build_model(box.vertices, box.faces, cfg), cfg)
     est, used = track(fresh, 0.0, xyz, np.full((4, 4), np.nan), from_cloud=True)
     assert not used and est.acceptable(cfg) and np.linalg.norm(est.pose[:3, 3] - T[:3, 3]) < 0.05
+
+
+def test_capture_gate_keeps_the_target_and_drops_far_false_returns():
+    """Before a capture there is no estimate to gate on: the gate is centred on the cloud's
+    median, which a target giving most of the points pins, whatever the false returns do."""
+    from lidar_sim_ros.loop.step import capture_centre, gate_cloud
+    rng = np.random.default_rng(3)
+    body = np.array([30.0, 1.0, -0.5]) + rng.uniform(-5.0, 5.0, (800, 3)) * [0.2, 1.0, 0.4]
+    far = rng.uniform([40.0, -100.0, -30.0], [250.0, 100.0, 30.0], (300, 3))  # 27 % background
+    near_dust = rng.uniform([1.0, -1.0, -1.0], [6.0, 1.0, 1.0], (20, 3))
+    cloud = np.concatenate([body, far, near_dust])[rng.permutation(1120)]
+    kept = gate_cloud(cloud, capture_centre(cloud), 12.0)
+    assert len(kept) == 800 + np.sum(np.linalg.norm(far - capture_centre(cloud), axis=1) <= 12.0)
+    assert np.all(np.linalg.norm(kept - [30.0, 1.0, -0.5], axis=1) < 15.0)
+    assert capture_centre(np.zeros((0, 3))) is None
