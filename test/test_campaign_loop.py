@@ -88,13 +88,17 @@ def test_misaligned_mount_is_unknown_to_the_navigation():
         m = [0.0, 0.0, math.sin(math.radians(angle_deg) / 2), math.cos(math.radians(angle_deg) / 2)]
         ctx = build_context(config, None, None, misalignment_xyzw=m)
         series = run_steps(ctx, 0.3).series
-        gap = np.linalg.norm(series['rho_est_m'] - series['rho_true_m'], axis=1)
-        gaps[angle_deg] = (gap, series['range_m'])
+        gaps[angle_deg] = (series['rho_est_m'] - series['rho_true_m'], series['range_m'])
     gap0, _ = gaps[0.0]
-    assert gap0.max() < 2e-3          # estimate (mid-period) and truth (period end): ~0.1 mm apart
+    assert np.abs(gap0).max() < 2e-3  # estimate (mid-period) and truth (period end): ~0.1 mm apart
     gap1, range_m = gaps[1.0]
-    # Hand: a rotation by 1 deg moves a point at r by 2 r sin(0.5 deg) = 0.0175 r (0.53 m at 30 m).
-    assert gap1 == pytest.approx(2 * range_m * math.sin(math.radians(0.5)), abs=3e-3)
+    # Hand: pointing puts the target on the real lidar's +x = LVLH +y (V-bar, behind the
+    # target), its z radial (LVLH +x), so its y = LVLH +z. M = 1 deg about z: in the frame
+    # the GNC believes, the target sits at M^T (r, 0, 0) = (r cos, -r sin, 0); taking it at
+    # (r, 0, 0) puts the target r sin(1 deg) too far along +y (LVLH +z), so the chaser
+    # (rho = chaser - target) r sin(1 deg) too far along LVLH -z: 0.52 m at 30 m.
+    assert gap1[:, 2] == pytest.approx(-range_m * math.sin(math.radians(1.0)), abs=5e-3)
+    assert np.abs(gap1[:, :2]).max() < 0.02  # second order: r (1 - cos 1 deg) = 5 mm
 
 
 def test_percentile_row_by_hand():
