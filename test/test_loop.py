@@ -165,3 +165,29 @@ def test_capture_gate_keeps_the_target_and_drops_far_false_returns():
     assert len(kept) == 800 + np.sum(np.linalg.norm(far - capture_centre(cloud), axis=1) <= 12.0)
     assert np.all(np.linalg.norm(kept - [30.0, 1.0, -0.5], axis=1) < 15.0)
     assert capture_centre(np.zeros((0, 3))) is None
+
+
+@pytest.mark.parametrize('law', ['point_at_target', 'hold_lvlh'])
+def test_period_truth_equals_the_per_sample_truth(config, law):
+    """``propagate`` samples a period in one stacked pass: the per-sample ``sample_truth``
+    (a second implementation, one state at a time) gives the same numbers."""
+    from lidar_sim_ros.loop import frames
+    from lidar_sim_ros.loop.step import propagate, sample_truth
+    cfg = with_(config, chaser={'attitude_law': law})
+    dyn = Dynamics(cfg, np.array([1.0, -20.0, 0.5]), np.array([0.01, 0.0, -0.02]))
+    R_BL, t_B = frames.mount_transform(cfg.chaser.mount)
+    R_BL = R_BL @ frames.Rotation.from_rotvec([0.01, -0.02, 0.03]).as_matrix()  # not the identity
+    dyn.advance_to(0.5)
+    states = [dyn.state()]
+    truth = propagate(cfg, dyn, np.zeros(3), R_BL, t_B)
+    # The same period again, one state at a time.
+    dyn2 = Dynamics(cfg, np.array([1.0, -20.0, 0.5]), np.array([0.01, 0.0, -0.02]))
+    dyn2.advance_to(0.5)
+    rows = [sample_truth(cfg, dyn2.state(), R_BL, t_B)]
+    for t in truth.t_s[1:]:
+        rows.append(sample_truth(cfg, dyn2.advance_to(float(t)), R_BL, t_B))
+    assert len(rows) == cfg.substeps + 1 == len(states) + cfg.substeps
+    for key in ('t_s', 'R_LT', 't_L_m', 'sun_lidar', 'R_HB', 'rho_m', 'rho_dot_mps'):
+        np.testing.assert_allclose(getattr(truth, key), np.array([r[key] for r in rows]), rtol=0,
+                                   atol=1e-9, err_msg=key)
+    assert truth.n_rad_s == pytest.approx(rows[0]['n_rad_s'], rel=1e-14)

@@ -84,15 +84,38 @@ def sample_truth(config: LoopConfig, s, R_BL, t_B) -> dict:
 def propagate(config: LoopConfig, dynamics, force_lvlh_n: np.ndarray, R_BL, t_B) -> TruthSamples:
     """Advance the dynamics one control period under ``force_lvlh_n`` (N, LVLH, turned to
     inertial at the period start and held), sampling the truth at every sub-step."""
-    start = sample_truth(config, dynamics.state(), R_BL, t_B)
-    dynamics.set_force_inertial(start['R_NH'] @ force_lvlh_n)
-    rows = [start]
+    first = dynamics.state()
+    R_NH0, _ = first.lvlh()
+    dynamics.set_force_inertial(R_NH0 @ force_lvlh_n)
     dt = config.control_period_s / config.substeps
     t0 = dynamics.t_s
-    for j in range(1, config.substeps + 1):
-        rows.append(sample_truth(config, dynamics.advance_to(t0 + j * dt), R_BL, t_B))
-    stack = {k: np.array([r[k] for r in rows]) for k in rows[0] if k not in ('n_rad_s', 'R_NH')}
-    return TruthSamples(n_rad_s=start['n_rad_s'], **stack)
+    states = [first] + [dynamics.advance_to(t0 + j * dt) for j in range(1, config.substeps + 1)]
+    return truth_of_states(config, states, R_BL, t_B)
+
+
+def truth_of_states(config: LoopConfig, states: list, R_BL, t_B) -> TruthSamples:
+    """``sample_truth`` of K dynamics states at once (the same numbers to ~1e-15)."""
+    def stack(name):
+        return np.array([getattr(s, name) for s in states])
+    r_c, v_c, r_t, v_t = stack('r_chaser_m'), stack('v_chaser_mps'), stack('r_target_m'), stack('v_target_mps')
+    R_NT = stack('R_NT')
+    R_NH, n = frames.lvlh_basis_k(r_t, v_t)
+    if config.chaser.attitude_law == 'hold_lvlh':
+        R_NB = frames.frame_from_axes_k(R_NH[:, :, 1], R_NH[:, :, 0])
+    else:
+        R_NB = frames.attitude_point_at_target_k(r_c, r_t, R_NH, R_BL, t_B)
+    R_NL = R_NB @ R_BL
+    R_LN = np.swapaxes(R_NL, 1, 2)
+    R_HN = np.swapaxes(R_NH, 1, 2)
+    origin = r_c + R_NB @ t_B
+    rho = np.einsum('kij,kj->ki', R_HN, r_c - r_t)
+    w = np.zeros_like(rho)
+    w[:, 2] = n
+    rho_dot = np.einsum('kij,kj->ki', R_HN, v_c - v_t) - np.cross(w, rho)
+    return TruthSamples(
+        t_s=stack('t_s'), R_LT=R_LN @ R_NT, t_L_m=np.einsum('kij,kj->ki', R_LN, r_t - origin),
+        sun_lidar=frames.unit(R_LN @ frames.unit(np.asarray(config.sun.direction_inertial, float))),
+        R_HB=R_HN @ R_NB, rho_m=rho, rho_dot_mps=rho_dot, n_rad_s=float(n[0]))
 
 
 # ------------------------------------------------------------ sense, estimate
