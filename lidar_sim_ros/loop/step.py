@@ -84,21 +84,23 @@ def sample_truth(config: LoopConfig, s, R_BL, t_B) -> dict:
 def propagate(config: LoopConfig, dynamics, force_lvlh_n: np.ndarray, R_BL, t_B) -> TruthSamples:
     """Advance the dynamics one control period under ``force_lvlh_n`` (N, LVLH, turned to
     inertial at the period start and held), sampling the truth at every sub-step."""
-    first = dynamics.state()
-    R_NH0, _ = first.lvlh()
+    R_NH0, _ = dynamics.state().lvlh()
     dynamics.set_force_inertial(R_NH0 @ force_lvlh_n)
-    dt = config.control_period_s / config.substeps
-    t0 = dynamics.t_s
-    states = [first] + [dynamics.advance_to(t0 + j * dt) for j in range(1, config.substeps + 1)]
-    return truth_of_states(config, states, R_BL, t_B)
+    states = dynamics.advance_sampled(dynamics.t_s + config.control_period_s)
+    # The samples: every ``substeps``-th of the period (a finer integration step keeps fewer).
+    since_ns = np.round((states['t_s'] - states['t_s'][0]) * 1e9).astype(np.int64)
+    keep = since_ns % round(config.control_period_s * 1e9 / config.substeps) == 0
+    if keep.sum() != config.substeps + 1:
+        raise ValueError(f'dynamics: integration step {dynamics.step_ns} ns does not divide the '
+                         f'pose sample period ({config.substeps} per {config.control_period_s} s)')
+    return truth_of_states(config, {k: v[keep] for k, v in states.items()}, R_BL, t_B)
 
 
-def truth_of_states(config: LoopConfig, states: list, R_BL, t_B) -> TruthSamples:
-    """``sample_truth`` of K dynamics states at once (the same numbers to ~1e-15)."""
-    def stack(name):
-        return np.array([getattr(s, name) for s in states])
-    r_c, v_c, r_t, v_t = stack('r_chaser_m'), stack('v_chaser_mps'), stack('r_target_m'), stack('v_target_mps')
-    R_NT = stack('R_NT')
+def truth_of_states(config: LoopConfig, states: dict, R_BL, t_B) -> TruthSamples:
+    """``sample_truth`` of K dynamics states (``Dynamics.advance_sampled``) at once (the same
+    numbers to ~1e-15)."""
+    r_c, v_c, r_t, v_t = (states[k] for k in ('r_chaser_m', 'v_chaser_mps', 'r_target_m', 'v_target_mps'))
+    R_NT = states['R_NT']
     R_NH, n = frames.lvlh_basis_k(r_t, v_t)
     if config.chaser.attitude_law == 'hold_lvlh':
         R_NB = frames.frame_from_axes_k(R_NH[:, :, 1], R_NH[:, :, 0])
@@ -113,7 +115,7 @@ def truth_of_states(config: LoopConfig, states: list, R_BL, t_B) -> TruthSamples
     w[:, 2] = n
     rho_dot = np.einsum('kij,kj->ki', R_HN, v_c - v_t) - np.cross(w, rho)
     return TruthSamples(
-        t_s=stack('t_s'), R_LT=R_LN @ R_NT, t_L_m=np.einsum('kij,kj->ki', R_LN, r_t - origin),
+        t_s=states['t_s'], R_LT=R_LN @ R_NT, t_L_m=np.einsum('kij,kj->ki', R_LN, r_t - origin),
         sun_lidar=frames.unit(R_LN @ frames.unit(np.asarray(config.sun.direction_inertial, float))),
         R_HB=R_HN @ R_NB, rho_m=rho, rho_dot_mps=rho_dot, n_rad_s=float(n[0]))
 
