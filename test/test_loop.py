@@ -165,10 +165,21 @@ def test_capture_gate_keeps_the_target_and_drops_far_false_returns():
     assert len(kept) == 800 + np.sum(np.linalg.norm(far - capture_centre(cloud), axis=1) <= 12.0)
     assert np.all(np.linalg.norm(kept - [30.0, 1.0, -0.5], axis=1) < 15.0)
     assert capture_centre(np.zeros((0, 3))) is None
+    # What the loop hands the tracker: before the capture, the cloud about its median ...
+    from lidar_sim_ros.loop.config import load_loop_config
+    from lidar_sim_ros.loop.step import LoopState, tracker_cloud
+    config = load_loop_config(config_path('loop.yaml'))[0]
+    assert config.acquire_from_cloud and config.capture_gate_m == 12.0
+    np.testing.assert_array_equal(tracker_cloud(config, cloud, LoopState()), kept)
+    # ... while tracking, the points within cloud_gate_m (8 m) of the last estimate.
+    est = np.eye(4)
+    est[:3, 3] = [30.0, 6.0, 0.0]
+    near = tracker_cloud(config, cloud, LoopState(tracking=True, last_estimate=est))
+    assert len(near) == np.sum(np.linalg.norm(cloud - est[:3, 3], axis=1) <= 8.0) < 800
 
 
-@pytest.mark.parametrize('law', ['point_at_target', 'hold_lvlh'])
-def test_period_truth_equals_the_per_sample_truth(config, law):
+@pytest.mark.parametrize('law, start_s', [('point_at_target', 0.0), ('hold_lvlh', 0.5)])
+def test_period_truth_equals_the_per_sample_truth(config, law, start_s):
     """``propagate`` samples a period in one stacked pass: the per-sample ``sample_truth``
     (a second implementation, one state at a time) gives the same numbers."""
     from lidar_sim_ros.loop import frames
@@ -177,12 +188,14 @@ def test_period_truth_equals_the_per_sample_truth(config, law):
     dyn = Dynamics(cfg, np.array([1.0, -20.0, 0.5]), np.array([0.01, 0.0, -0.02]))
     R_BL, t_B = frames.mount_transform(cfg.chaser.mount)
     R_BL = R_BL @ frames.Rotation.from_rotvec([0.01, -0.02, 0.03]).as_matrix()  # not the identity
-    dyn.advance_to(0.5)
+    if start_s:
+        dyn.advance_to(start_s)
     states = [dyn.state()]
     truth = propagate(cfg, dyn, np.zeros(3), R_BL, t_B)
     # The same period again, one state at a time.
     dyn2 = Dynamics(cfg, np.array([1.0, -20.0, 0.5]), np.array([0.01, 0.0, -0.02]))
-    dyn2.advance_to(0.5)
+    if start_s:  # from t = 0, Basilisk's recorders also hold the state at 0
+        dyn2.advance_to(start_s)
     rows = [sample_truth(cfg, dyn2.state(), R_BL, t_B)]
     for t in truth.t_s[1:]:
         rows.append(sample_truth(cfg, dyn2.advance_to(float(t)), R_BL, t_B))

@@ -312,8 +312,8 @@ def _figure(path: Path, results: list[dict]) -> Path:
         ax.set_title(f'{name} ({len(ok)} of {len(x)} runs)', fontsize=9)
         ax.set_ylabel('runs')
     ax = axes.flat[-1]
-    rng = np.array([r['metrics'].get('min_range_m') or np.nan for r in results], float)
-    dv = np.array([r['metrics'].get('delta_v_mps') or np.nan for r in results], float)
+    rng, dv = (np.array([np.nan if r['metrics'].get(k) is None else r['metrics'][k] for r in results], float)
+               for k in ('min_range_m', 'delta_v_mps'))
     ax.scatter(rng, dv, s=10)
     ax.set_xlabel('min_range_m')
     ax.set_ylabel('delta_v_mps')

@@ -148,6 +148,21 @@ def capture_centre(xyz_m: np.ndarray) -> np.ndarray | None:
     return np.median(xyz_m, axis=0) if len(xyz_m) else None
 
 
+def tracker_cloud(config: LoopConfig, xyz_m: np.ndarray, state: 'LoopState') -> np.ndarray:
+    """The points the tracker gets: within ``cloud_gate_m`` of the last estimate while
+    tracking; before a capture from the cloud, within ``capture_gate_m`` of the cloud's
+    median (the acquisition's hypotheses span the cloud's extent, and false returns 250 m
+    out made it try ~2000 and fail, docs/loop.md); a capture from the truth keeps the
+    old gate about the last estimate, if any."""
+    if state.last_estimate is not None and state.tracking:
+        return gate_cloud(xyz_m, state.last_estimate[:3, 3], config.cloud_gate_m)
+    if config.acquire_from_cloud:
+        return gate_cloud(xyz_m, capture_centre(xyz_m), config.capture_gate_m)
+    if state.last_estimate is not None:
+        return gate_cloud(xyz_m, state.last_estimate[:3, 3], config.cloud_gate_m)
+    return xyz_m
+
+
 def track(tracker, t_s: float, xyz_m: np.ndarray, truth_guess: np.ndarray, from_cloud: bool):
     """One tracker update; returns (Estimate, whether the truth guess was used for capture).
 
@@ -231,14 +246,7 @@ def estimate_pose(ctx: LoopContext, state: LoopState, truth: TruthSamples, t_mid
     if state.previous is None:  # the sensor's first period: the pose before it is unknown
         return None, true_pose, False
     xyz = sense(ctx.simulator, truth, state.previous, state.frame_index, ctx.cloud)
-    if state.last_estimate is not None and state.tracking:
-        xyz = gate_cloud(xyz, state.last_estimate[:3, 3], ctx.config.cloud_gate_m)
-    elif ctx.config.acquire_from_cloud:
-        # No estimate to gate on: the acquisition's hypotheses span the cloud's extent,
-        # and false returns 250 m out made it try ~2000 and fail (docs/loop.md).
-        xyz = gate_cloud(xyz, capture_centre(xyz), ctx.config.capture_gate_m)
-    elif state.last_estimate is not None:
-        xyz = gate_cloud(xyz, state.last_estimate[:3, 3], ctx.config.cloud_gate_m)
+    xyz = tracker_cloud(ctx.config, xyz, state)
     est, used_truth = track(ctx.tracker, t_mid, xyz, true_pose, ctx.config.acquire_from_cloud)
     return (est.pose if est.acceptable(ctx.tracker.config) else None), true_pose, used_truth
 
