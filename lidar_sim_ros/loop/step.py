@@ -92,7 +92,8 @@ def propagate(config: LoopConfig, dynamics, force_lvlh_n: np.ndarray, R_BL, t_B)
     keep = since_ns % round(config.control_period_s * 1e9 / config.substeps) == 0
     if keep.sum() != config.substeps + 1:
         raise ValueError(f'dynamics: integration step {dynamics.step_ns} ns does not divide the '
-                         f'pose sample period ({config.substeps} per {config.control_period_s} s)')
+                         f'pose sample period ({config.substeps} per {config.control_period_s} s; samples at '
+                         f'{np.round(states["t_s"], 4).tolist()} s)')
     return truth_of_states(config, {k: v[keep] for k, v in states.items()}, R_BL, t_B)
 
 
