@@ -204,3 +204,19 @@ def test_period_truth_equals_the_per_sample_truth(config, law, start_s):
         np.testing.assert_allclose(getattr(truth, key), np.array([r[key] for r in rows]), rtol=0,
                                    atol=1e-9, err_msg=key)
     assert truth.n_rad_s == pytest.approx(rows[0]['n_rad_s'], rel=1e-14)
+
+
+def test_true_pose_at_mid_period_is_the_interpolated_one(config):
+    """The period's true pose at its middle, read off the sample there, equals the
+    simulator's interpolation of the samples (and an off-grid time still interpolates)."""
+    from lidar_sim_ros.loop import frames
+    from lidar_sim_ros.loop.step import _pose_at, propagate
+    dyn = Dynamics(config, np.array([0.0, -20.0, 0.0]), np.zeros(3))
+    R_BL, t_B = frames.mount_transform(config.chaser.mount)
+    first = propagate(config, dyn, np.zeros(3), R_BL, t_B)
+    truth = propagate(config, dyn, np.zeros(3), R_BL, t_B)
+    for t in (0.5 * (truth.t_s[0] + truth.t_s[-1]), truth.t_s[0] + 0.0123):
+        poses = truth.pose_track(first).at(np.array([t]))
+        T = _pose_at(truth, first, float(t))
+        np.testing.assert_allclose(T[:3, :3], poses.rotation.as_matrix()[0], atol=1e-12)
+        np.testing.assert_allclose(T[:3, 3], poses.position_m[0], atol=1e-9)
