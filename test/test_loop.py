@@ -211,7 +211,7 @@ def test_true_pose_at_mid_period_is_the_interpolated_one(config):
     simulator's interpolation of the samples (and an off-grid time still interpolates)."""
     from lidar_sim_ros.loop import frames
     from lidar_sim_ros.loop.step import _pose_at, propagate
-    dyn = Dynamics(config, np.array([0.0, -20.0, 0.0]), np.zeros(3))
+    dyn = Dynamics(config, np.array([0.0, -20.0, 0.0]), np.array([0.01, 0.05, -0.02]))
     R_BL, t_B = frames.mount_transform(config.chaser.mount)
     first = propagate(config, dyn, np.zeros(3), R_BL, t_B)
     truth = propagate(config, dyn, np.zeros(3), R_BL, t_B)
