@@ -176,6 +176,11 @@ def test_capture_gate_keeps_the_target_and_drops_far_false_returns():
     est[:3, 3] = [30.0, 6.0, 0.0]
     near = tracker_cloud(config, cloud, LoopState(tracking=True, last_estimate=est))
     assert len(near) == np.sum(np.linalg.norm(cloud - est[:3, 3], axis=1) <= 8.0) < 800
+    # The DDS loop's gate node keeps the same points.
+    from lidar_sim_ros.loop.cloud_gate_node import gate_mask
+    np.testing.assert_array_equal(cloud[gate_mask(cloud, None, 8.0, 12.0)], kept)
+    np.testing.assert_array_equal(cloud[gate_mask(cloud, est[:3, 3], 8.0, 12.0)], near)
+    assert gate_mask(cloud, None, 8.0, 0.0) is None
 
 
 @pytest.mark.parametrize('law, start_s', [('point_at_target', 0.0), ('hold_lvlh', 0.5)])
