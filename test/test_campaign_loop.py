@@ -148,3 +148,13 @@ def test_runs_write_metrics_summary_and_resume(tmp_path):
     loop.write_text(loop.read_text().replace('thrust_limit_n: 20.0', 'thrust_limit_n: 10.0'))
     with pytest.raises(ValueError, match='different campaign'):
         run_campaign(load_campaign(tmp_path / 'c.yaml'), out, progress=False)
+
+
+def test_frame_campaigns_keep_their_fingerprint():
+    """A spec without ``loop`` dumps as before the key existed (the manifest fingerprints the
+    dump), so campaign directories written before resume; a loop spec's dump holds it."""
+    spec = load_campaign(CONFIG / 'campaign_example.yaml').spec
+    assert '"loop"' not in spec.model_dump_json() and 'loop' not in spec.model_dump()
+    loop = load_campaign(CONFIG / 'campaign_loop.yaml').spec
+    assert f'"config_sha256":"{loop.loop.config_sha256}"' in loop.model_dump_json()
+    assert len(loop.loop.config_sha256) == 64

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_serializer, model_validator
 
 from lidar_sim_ros.core.config import (ConfigError, Scenario, check_file_kind, load_scenario, parse,
                                        read_yaml)
@@ -208,6 +208,15 @@ class CampaignSpec(_Model):
         3, description='frames per run on which target coverage is evaluated (evenly spaced)')
     dispersions: Dispersions = Dispersions()
     loop: LoopCase | None = Field(None, description='closed-loop runs instead of frame statistics')
+
+    @model_serializer(mode='wrap')
+    def _without_no_loop(self, handler):
+        # A frame-statistics spec dumps as before ``loop`` existed: the manifest's
+        # fingerprint of campaigns written then stays the same, and they resume.
+        data = handler(self)
+        if isinstance(data, dict) and data.get('loop') is None:
+            data.pop('loop', None)
+        return data
 
 
 class Campaign:
