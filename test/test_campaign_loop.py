@@ -68,6 +68,7 @@ def test_dispersions_reach_the_loop_config(tmp_path):
     ({'dispersions': {'approach_speed_mps': {'dist': 'uniform', 'low': 0.0, 'high': 0.1}}},
      'dispersions.approach_speed_mps', 'not used by a closed-loop'),
     ({'duration_s': 0.25}, 'duration_s', 'whole number of control periods'),
+    ({'save': 'bags'}, 'save', 'not bags'),
     ({'loop': {'config': 'nowhere.yaml'}}, 'loop.config', 'file not found'),
     ({'loop': {'config': LOOP, 'config_sha256': 'abc'}}, 'loop.config_sha256', 'leave it out'),
 ])

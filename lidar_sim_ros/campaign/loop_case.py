@@ -84,6 +84,9 @@ def check_loop_spec(spec: CampaignSpec, path: Path) -> CampaignSpec:
         if getattr(spec.dispersions, key) is not None:
             raise ConfigError(path, f'dispersions.{key}', getattr(spec.dispersions, key).model_dump(
                 exclude_none=True), f'not used by a closed-loop campaign: {why}')
+    if spec.save != 'stats':
+        raise ConfigError(path, 'save', spec.save, 'a closed-loop campaign writes runs/run_NNNNN/loop.json, '
+                          'not bags: leave save out (or stats)')
     loop_path = loop_config_path(path, spec)
     if not loop_path.is_file():
         raise ConfigError(path, 'loop.config', spec.loop.config, f'file not found at {loop_path}')
