@@ -158,6 +158,16 @@ Direction = Annotated[Union[UniformSphere, Cone], Field(discriminator='dist')]
 
 
 # --------------------------------------------------------------- the spec
+class LoopCase(_Model):
+    """Closed-loop runs (campaign/loop_case.py): each run is ``loop.step.run_loop`` on the
+    loop config, its lidar the (dispersed) base scenario; see docs/campaign.md."""
+
+    config: str = Field(description='loop YAML (config/loop.yaml), relative to the campaign file')
+    cloud: Literal['model', 'truth'] = Field('model', description='the cloud the tracker gets')
+    config_sha256: str = Field('', description='filled at load (the loop file\'s bytes, so that '
+                                               'resuming checks them); leave out')
+
+
 class MaterialDispersion(_Model):
     """Per-material range error (paper Table 2): bias (m) and 1-sigma noise (m)."""
 
@@ -183,16 +193,6 @@ class Dispersions(_Model):
     effects: dict[str, dict[str, Scalar]] = Field(
         default_factory=dict, description='effect name -> parameter -> law; an effect that '
                                           'the base scenario lacks is added')
-
-
-class LoopCase(_Model):
-    """Closed-loop runs (campaign/loop_case.py): each run is ``loop.step.run_loop`` on the
-    loop config, its lidar the (dispersed) base scenario; see docs/campaign.md."""
-
-    config: str = Field(description='loop YAML (config/loop.yaml), relative to the campaign file')
-    cloud: Literal['model', 'truth'] = Field('model', description='the cloud the tracker gets')
-    config_sha256: str = Field('', description='filled at load (the loop file\'s bytes, so that '
-                                               'resuming checks them); leave out')
 
 
 class CampaignSpec(_Model):

@@ -21,7 +21,6 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from lidar_sim_ros.io.pointcloud import from_pointcloud2
-from lidar_sim_ros.loop.step import capture_centre
 from lidar_sim_ros.ros.spin import run_node
 
 NODE_NAME = 'loop_cloud_gate'
@@ -32,6 +31,7 @@ def gate_mask(xyz_m: np.ndarray, centre_m: np.ndarray | None, gate_m: float,
     """Which points (N, 3, m) go on to the tracker: within ``gate_m`` of the estimated
     centre, or without one within ``capture_gate_m`` of the cloud's median; None: all
     (no centre and no capture gate)."""
+    from lidar_sim_ros.loop.step import capture_centre  # here: the node's imports stay light
     if centre_m is None:
         if capture_gate_m <= 0 or not len(xyz_m):
             return None
