@@ -112,7 +112,7 @@ def test_percentile_row_by_hand():
     assert metric_row('y', [None])['p50'] is None
 
 
-def test_runs_write_metrics_summary_and_resume(tmp_path):
+def test_runs_write_metrics_summary_and_resume(tmp_path, capsys):
     from lidar_sim_ros.campaign.engine import run_campaign
     from lidar_sim_ros.campaign.loop_case import LOOP_METRICS, read_result, summarize
     from lidar_sim_ros.campaign.manifest import Manifest
@@ -142,6 +142,10 @@ def test_runs_write_metrics_summary_and_resume(tmp_path):
     assert [float(r['min_range_m']) for r in rows] == pytest.approx(ranges)
     assert float(rows[1]['param.tumble_rate_dps']) == json.loads(
         (out / 'runs' / 'run_00001' / 'loop.json').read_text())['params']['tumble_rate_dps']
+    # --run: one case again here, its metrics compared with its loop.json (identical: rc 0).
+    from lidar_sim_ros.cli import main as cli_main
+    assert cli_main(['campaign', str(tmp_path / 'c.yaml'), '--out', str(out), '--run', '1']) == 0
+    assert 'run 1: metrics identical to the last result' in capsys.readouterr().out
     # Resume: every run is finished, so nothing runs (no cluster starts) ...
     report = run_campaign(campaign, out, progress=False)
     assert (report.skipped, report.ran) == (2, 0)
