@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import time
 from pathlib import Path
@@ -36,7 +37,7 @@ def main() -> int:
         state, _ = step.loop_step(ctx, state)
     times = {'propagate': [], 'sense+estimate': [], 'navigate+guide+control': [], 'period': []}
     n = int(round(args.seconds / config.control_period_s))
-    wall0 = time.perf_counter()
+    wall0, cpu0 = time.perf_counter(), time.process_time()
     for _ in range(n):
         t0 = time.perf_counter()
         truth = step.propagate(config, ctx.dynamics, state.force_lvlh_n, ctx.R_BL, ctx.t_B)
@@ -51,10 +52,13 @@ def main() -> int:
         t3 = time.perf_counter()
         for key, dt in zip(times, (t1 - t0, t2 - t1, t3 - t2, t3 - t0)):
             times[key].append(dt)
-    wall = time.perf_counter() - wall0
-    result = {'simulated_s': n * config.control_period_s, 'wall_s': wall,
-              'real_time_factor': n * config.control_period_s / wall, 'cloud': args.cloud,
-              'median_ms': {k: 1000 * statistics.median(v) for k, v in times.items()}}
+    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+    result = {'simulated_s': n * config.control_period_s, 'wall_s': wall, 'cpu_s': cpu,
+              'real_time_factor': n * config.control_period_s / wall,
+              'cpu_real_time_factor': n * config.control_period_s / cpu, 'cloud': args.cloud,
+              'load_average': os.getloadavg(), 'cores': os.cpu_count(),
+              'median_ms': {k: 1000 * statistics.median(v) for k, v in times.items()},
+              'acquisition_s': getattr(getattr(ctx.tracker, 'last_acquisition', None), 'seconds', None)}
     print(json.dumps(result, indent=2))
     if args.out:
         args.out.write_text(json.dumps(result, indent=2))

@@ -150,3 +150,78 @@ def test_capture_adapter_uses_the_truth_only_to_capture():
     fresh = PoseTracker(build_model(box.vertices, box.faces, cfg), cfg)
     est, used = track(fresh, 0.0, xyz, np.full((4, 4), np.nan), from_cloud=True)
     assert not used and est.acceptable(cfg) and np.linalg.norm(est.pose[:3, 3] - T[:3, 3]) < 0.05
+
+
+def test_capture_gate_keeps_the_target_and_drops_far_false_returns():
+    """Before a capture there is no estimate to gate on: the gate is centred on the cloud's
+    median, which a target giving most of the points pins, whatever the false returns do."""
+    from lidar_sim_ros.loop.step import capture_centre, gate_cloud
+    rng = np.random.default_rng(3)
+    body = np.array([30.0, 1.0, -0.5]) + rng.uniform(-5.0, 5.0, (800, 3)) * [0.2, 1.0, 0.4]
+    far = rng.uniform([40.0, -100.0, -30.0], [250.0, 100.0, 30.0], (300, 3))  # 27 % background
+    near_dust = rng.uniform([1.0, -1.0, -1.0], [6.0, 1.0, 1.0], (20, 3))
+    cloud = np.concatenate([body, far, near_dust])[rng.permutation(1120)]
+    kept = gate_cloud(cloud, capture_centre(cloud), 12.0)
+    assert len(kept) == 800 + np.sum(np.linalg.norm(far - capture_centre(cloud), axis=1) <= 12.0)
+    assert np.all(np.linalg.norm(kept - [30.0, 1.0, -0.5], axis=1) < 15.0)
+    assert capture_centre(np.zeros((0, 3))) is None
+    # What the loop hands the tracker: before the capture, the cloud about its median ...
+    from lidar_sim_ros.loop.config import load_loop_config
+    from lidar_sim_ros.loop.step import LoopState, tracker_cloud
+    config = load_loop_config(config_path('loop.yaml'))[0]
+    assert config.acquire_from_cloud and config.capture_gate_m == 12.0
+    np.testing.assert_array_equal(tracker_cloud(config, cloud, LoopState()), kept)
+    # ... while tracking, the points within cloud_gate_m (8 m) of the last estimate.
+    est = np.eye(4)
+    est[:3, 3] = [30.0, 6.0, 0.0]
+    near = tracker_cloud(config, cloud, LoopState(tracking=True, last_estimate=est))
+    assert len(near) == np.sum(np.linalg.norm(cloud - est[:3, 3], axis=1) <= 8.0) < 800
+    # The DDS loop's gate node keeps the same points.
+    from lidar_sim_ros.loop.cloud_gate_node import gate_mask
+    np.testing.assert_array_equal(cloud[gate_mask(cloud, None, 8.0, 12.0)], kept)
+    np.testing.assert_array_equal(cloud[gate_mask(cloud, est[:3, 3], 8.0, 12.0)], near)
+    assert gate_mask(cloud, None, 8.0, 0.0) is None
+
+
+@pytest.mark.parametrize('law, start_s', [('point_at_target', 0.0), ('hold_lvlh', 0.5)])
+def test_period_truth_equals_the_per_sample_truth(config, law, start_s):
+    """``propagate`` samples a period in one stacked pass: the per-sample ``sample_truth``
+    (a second implementation, one state at a time) gives the same numbers."""
+    from lidar_sim_ros.loop import frames
+    from lidar_sim_ros.loop.step import propagate, sample_truth
+    cfg = with_(config, chaser={'attitude_law': law})
+    dyn = Dynamics(cfg, np.array([1.0, -20.0, 0.5]), np.array([0.01, 0.0, -0.02]))
+    R_BL, t_B = frames.mount_transform(cfg.chaser.mount)
+    R_BL = R_BL @ frames.Rotation.from_rotvec([0.01, -0.02, 0.03]).as_matrix()  # not the identity
+    if start_s:
+        dyn.advance_to(start_s)
+    states = [dyn.state()]
+    truth = propagate(cfg, dyn, np.zeros(3), R_BL, t_B)
+    # The same period again, one state at a time.
+    dyn2 = Dynamics(cfg, np.array([1.0, -20.0, 0.5]), np.array([0.01, 0.0, -0.02]))
+    if start_s:  # from t = 0, Basilisk's recorders also hold the state at 0
+        dyn2.advance_to(start_s)
+    rows = [sample_truth(cfg, dyn2.state(), R_BL, t_B)]
+    for t in truth.t_s[1:]:
+        rows.append(sample_truth(cfg, dyn2.advance_to(float(t)), R_BL, t_B))
+    assert len(rows) == cfg.substeps + 1 == len(states) + cfg.substeps
+    for key in ('t_s', 'R_LT', 't_L_m', 'sun_lidar', 'R_HB', 'rho_m', 'rho_dot_mps'):
+        np.testing.assert_allclose(getattr(truth, key), np.array([r[key] for r in rows]), rtol=0,
+                                   atol=1e-9, err_msg=key)
+    assert truth.n_rad_s == pytest.approx(rows[0]['n_rad_s'], rel=1e-14)
+
+
+def test_true_pose_at_mid_period_is_the_interpolated_one(config):
+    """The period's true pose at its middle, read off the sample there, equals the
+    simulator's interpolation of the samples (and an off-grid time still interpolates)."""
+    from lidar_sim_ros.loop import frames
+    from lidar_sim_ros.loop.step import _pose_at, propagate
+    dyn = Dynamics(config, np.array([0.0, -20.0, 0.0]), np.array([0.01, 0.05, -0.02]))
+    R_BL, t_B = frames.mount_transform(config.chaser.mount)
+    first = propagate(config, dyn, np.zeros(3), R_BL, t_B)
+    truth = propagate(config, dyn, np.zeros(3), R_BL, t_B)
+    for t in (0.5 * (truth.t_s[0] + truth.t_s[-1]), truth.t_s[0] + 0.0123):
+        poses = truth.pose_track(first).at(np.array([t]))
+        T = _pose_at(truth, first, float(t))
+        np.testing.assert_allclose(T[:3, :3], poses.rotation.as_matrix()[0], atol=1e-12)
+        np.testing.assert_allclose(T[:3, 3], poses.position_m[0], atol=1e-9)

@@ -65,11 +65,29 @@ def run(args: argparse.Namespace) -> int:
               f'= {frames / report.wall_s:.1f} frames/s')
     if report.parquet_path:
         print(f'parquet: {report.parquet_path}')
+    if campaign.spec.loop is not None:
+        _loop_summary(args.out)
     return 1 if report.failed else 0
+
+
+def _loop_summary(out_dir: Path) -> None:
+    """A closed-loop campaign's tables and figure, and its percentiles on the terminal."""
+    from lidar_sim_ros.campaign.loop_case import summarize
+    summary = summarize(out_dir)
+    print(f'closed loop: {summary.runs} runs: {summary.runs_table}, {summary.summary_table}'
+          + (f', {summary.figure}' if summary.figure else ''))
+    for row in summary.table:
+        if row['runs']:
+            print(f'  {row["metric"]:18s} p5 {row["p5"]:9.4g}  p50 {row["p50"]:9.4g}  '
+                  f'p95 {row["p95"]:9.4g}  ({row["runs"]} runs, {row["missing"]} without)')
+        else:
+            print(f'  {row["metric"]:18s} no value in {row["missing"]} runs')
 
 
 def _rerun(campaign, out_dir: Path, run_id: int) -> int:
     from lidar_sim_ros.campaign.run import rerun
+    if campaign.spec.loop is not None:
+        return _rerun_loop(campaign, out_dir, run_id)
     row, old = rerun(campaign, out_dir, run_id)
     stats = {k: v for k, v in row.items() if k.startswith('stat.')}
     print(f'run {run_id}: seed {row["seed"]}, status {row["status"]}'
@@ -85,4 +103,26 @@ def _rerun(campaign, out_dir: Path, run_id: int) -> int:
               + (f'; {", ".join(changed)}' if changed else ''))
         return 1
     print(f'run {run_id}: statistics identical to the manifest row')
+    return 0
+
+
+def _rerun_loop(campaign, out_dir: Path, run_id: int) -> int:
+    """``--run`` of a closed-loop campaign: its metrics (loop.json) compared with the last ones."""
+    from lidar_sim_ros.campaign.loop_case import read_result
+    from lidar_sim_ros.campaign.run import rerun
+    old = read_result(out_dir, run_id)
+    row, _ = rerun(campaign, out_dir, run_id)
+    print(f'run {run_id}: seed {row["seed"]}, status {row["status"]}'
+          + (f': {row["error"]}' if row['error'] else ''))
+    new = read_result(out_dir, run_id) if row['status'] == 'ok' else None
+    for key, value in (new or {}).get('metrics', {}).items():
+        print(f'  {key} = {value}')
+    if old is None:
+        print(f'run {run_id} had no loop.json in {out_dir}; it has now')
+        return 0 if row['status'] == 'ok' else 1
+    if new is None or new['metrics'] != old['metrics']:
+        changed = [k for k in old['metrics'] if new is None or new['metrics'].get(k) != old['metrics'][k]]
+        print(f'run {run_id} differs from its last result: {", ".join(changed)}')
+        return 1
+    print(f'run {run_id}: metrics identical to the last result')
     return 0

@@ -90,7 +90,11 @@ def prepare_worker(campaign: Campaign) -> dict[str, str | bool | None]:
     import dask  # a worker has it; the core and `--run` in-process do not need it
 
     try:
-        prepare_scenario(sample_run(campaign, 0).scenario)
+        if campaign.spec.loop is not None:
+            from lidar_sim_ros.campaign.loop_case import prepare_loop_worker
+            prepare_loop_worker(campaign)
+        else:
+            prepare_scenario(sample_run(campaign, 0).scenario)
     except Exception:  # run 0's own failure is recorded when it runs, not here
         prepare_scenario(campaign.scenario)
     return {'MALLOC_TRIM_THRESHOLD_': os.environ.get('MALLOC_TRIM_THRESHOLD_'),
@@ -168,7 +172,11 @@ def run_one(campaign: Campaign, run_id: int, out_dir: str | Path | None = None) 
     """Sample run ``run_id`` of ``campaign`` and simulate it: the engine's task. Never raises.
 
     The run's compute (``compute_s``, ``cpu_s``) counts the sampling: it is the run's own work.
+    A closed-loop campaign's run is ``loop_case.run_one_loop``.
     """
+    if campaign.spec.loop is not None:
+        from lidar_sim_ros.campaign.loop_case import run_one_loop
+        return run_one_loop(campaign, run_id, out_dir)
     start = time.perf_counter(), time.process_time()
     try:
         case = sample_run(campaign, run_id)

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_serializer, model_validator
 
 from lidar_sim_ros.core.config import (ConfigError, Scenario, check_file_kind, load_scenario, parse,
                                        read_yaml)
@@ -158,6 +158,16 @@ Direction = Annotated[Union[UniformSphere, Cone], Field(discriminator='dist')]
 
 
 # --------------------------------------------------------------- the spec
+class LoopCase(_Model):
+    """Closed-loop runs (campaign/loop_case.py): each run is ``loop.step.run_loop`` on the
+    loop config, its lidar the (dispersed) base scenario; see docs/campaign.md."""
+
+    config: str = Field(description='loop YAML (config/loop.yaml), relative to the campaign file')
+    cloud: Literal['model', 'truth'] = Field('model', description='the cloud the tracker gets')
+    config_sha256: str = Field('', description='filled at load (the loop file\'s bytes, so that '
+                                               'resuming checks them); leave out')
+
+
 class MaterialDispersion(_Model):
     """Per-material range error (paper Table 2): bias (m) and 1-sigma noise (m)."""
 
@@ -204,6 +214,16 @@ class CampaignSpec(_Model):
     coverage_frames: Annotated[int, Field(ge=0, le=1000)] = Field(
         3, description='frames per run on which target coverage is evaluated (evenly spaced)')
     dispersions: Dispersions = Dispersions()
+    loop: LoopCase | None = Field(None, description='closed-loop runs instead of frame statistics')
+
+    @model_serializer(mode='wrap')
+    def _without_no_loop(self, handler):
+        # A frame-statistics spec dumps as before ``loop`` existed: the manifest's
+        # fingerprint of campaigns written then stays the same, and they resume.
+        data = handler(self)
+        if isinstance(data, dict) and data.get('loop') is None:
+            data.pop('loop', None)
+        return data
 
 
 class Campaign:
@@ -236,6 +256,9 @@ def load_campaign(path: str | Path) -> Campaign:
     _check_supports(spec.dispersions, path)
     _check_materials(spec.dispersions, scenario, path)
     _check_effects(spec.dispersions, path)
+    if spec.loop is not None:
+        from lidar_sim_ros.campaign.loop_case import check_loop_spec
+        spec = check_loop_spec(spec, path)
     return Campaign(spec, scenario, path.resolve())
 
 

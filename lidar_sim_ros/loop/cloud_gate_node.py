@@ -2,11 +2,12 @@
 
 Republishes each cloud (``input_topic`` -> ``output_topic``, PointCloud2, same stamp and
 frame) without the points farther than ``gate_m`` from the target centre of the last
-pose estimate (``/target/pose_estimate``: the GNC's own output, never the truth); the
-whole cloud until the first estimate. Far returns (solar background: up to the end of
+pose estimate (``/target/pose_estimate``: the GNC's own output, never the truth); until
+the first estimate, without the points farther than ``capture_gate_m`` from the cloud's
+median (``step.capture_centre``: what the acquisition needs, docs/loop.md). Far returns (solar background: up to the end of
 the range gate) cost the tracker's nearest-neighbour search about 15 times what the
 target's points cost (0.74 s against 0.05 s a frame, measured in the loop at 30 m):
-the in-process loop gates the same way (``step.gate_cloud``, ``cloud_gate_m``).
+the in-process loop gates the same way (``step.tracker_cloud``).
 """
 from __future__ import annotations
 
@@ -26,6 +27,20 @@ from lidar_sim_ros.ros.spin import run_node
 NODE_NAME = 'loop_cloud_gate'
 
 
+def gate_mask(xyz_m: np.ndarray, centre_m: np.ndarray | None, gate_m: float,
+              capture_gate_m: float) -> np.ndarray | None:
+    """Which points (N, 3, m) go on to the tracker: within ``gate_m`` of the estimated
+    centre, or without one within ``capture_gate_m`` of the cloud's median; None: all
+    (no centre and no capture gate)."""
+    from lidar_sim_ros.loop.step import capture_centre  # here: the node's imports stay light
+    if centre_m is None:
+        if capture_gate_m <= 0 or not len(xyz_m):
+            return None
+        centre_m, gate_m = capture_centre(xyz_m), capture_gate_m
+    d = xyz_m - centre_m
+    return np.einsum('ij,ij->i', d, d) <= gate_m ** 2
+
+
 class CloudGateNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
@@ -36,6 +51,8 @@ class CloudGateNode(Node):
         output_topic = p('output_topic', '/loop/points_gated', 'PointCloud2 out')
         estimate_topic = p('estimate_topic', '/target/pose_estimate', 'PoseStamped: the gate centre')
         self.gate_m = float(p('gate_m', 8.0, 'keep points within this of the estimated centre (m)'))
+        self.capture_gate_m = float(p('capture_gate_m', 12.0, 'before the first estimate: keep points '
+                                      "within this of the cloud's median (m; 0 = all)"))
         self.centre: np.ndarray | None = None
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(PointCloud2, output_topic, qos)
@@ -49,13 +66,12 @@ class CloudGateNode(Node):
         self.centre = np.array([p.x, p.y, p.z])
 
     def _on_cloud(self, msg: PointCloud2) -> None:
-        if self.centre is None or msg.width * msg.height == 0:
+        if (self.centre is None and self.capture_gate_m <= 0) or msg.width * msg.height == 0:
             self.pub.publish(msg)
             return
         points = from_pointcloud2(msg)
         xyz = np.column_stack([points['x'], points['y'], points['z']]).astype(float)
-        d = xyz - self.centre
-        keep = np.einsum('ij,ij->i', d, d) <= self.gate_m ** 2
+        keep = gate_mask(xyz, self.centre, self.gate_m, self.capture_gate_m)
         # The kept points' bytes as they came: every field, whatever the layout.
         rows = np.frombuffer(memoryview(msg.data), np.uint8).reshape(-1, msg.point_step)[keep]
         out = PointCloud2(header=msg.header, height=1, width=int(keep.sum()), fields=msg.fields,

@@ -151,6 +151,10 @@ class LoopConfig(_Model):
         'cloud points farther than this from the last estimated target centre are dropped '
         'before the tracker (m; 0 = none): far background returns cost the nearest-neighbour '
         'search ~15x the time of the target points (measured, docs/loop.md)'))
+    capture_gate_m: NonNegFloat = Field(12.0, description=(
+        'before a capture from the cloud (no estimate yet, or after a loss) points farther than '
+        'this from the cloud\'s median point are dropped (m; 0 = none); larger than the body '
+        '(10.8 m across its ends) so that no target point is lost while the median is on it'))
     orbit: OrbitConfig = OrbitConfig()
     target: TargetConfig
     chaser: ChaserConfig

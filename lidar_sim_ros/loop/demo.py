@@ -218,7 +218,8 @@ def main(argv=None) -> int:
                 '-p', f'scenario_file:={scenario}', '-p', 'use_sim_time:=true', '-p', 'publish_truth:=true',
                 '-p', 'qos_reliability:=reliable', '-p', 'pose_qos_reliability:=reliable']),
             'loop_cloud_gate': ('lidar_sim_ros.loop.cloud_gate_node', [
-                '-p', f'input_topic:={CLOUD_TOPICS[key]}', '-p', f'gate_m:={config.cloud_gate_m}']),
+                '-p', f'input_topic:={CLOUD_TOPICS[key]}', '-p', f'gate_m:={config.cloud_gate_m}',
+                '-p', f'capture_gate_m:={config.capture_gate_m if config.acquire_from_cloud else 0.0}']),
             'pose_tracker': ('lidar_sim_ros.gnc.pose_tracker_node', tracker_args),
             'loop_controller': ('lidar_sim_ros.loop.controller_node', [
                 '-p', f'config_file:={cfg_file}', '-p', 'use_sim_time:=true']),

@@ -115,6 +115,12 @@ class Dynamics:
         self.sim.AddModelToTask('loop_task', self.force)
         self.sim.AddModelToTask('loop_task', self.chaser)
         self.sim.AddModelToTask('loop_task', self.target)
+        # Recorders after the spacecraft: each step's state once it is integrated, so that a
+        # control period is one ExecuteSimulation (``advance_sampled``), not one per sample.
+        self._rec_chaser = self.chaser.scStateOutMsg.recorder()
+        self._rec_target = self.target.scStateOutMsg.recorder()
+        self.sim.AddModelToTask('loop_task', self._rec_chaser)
+        self.sim.AddModelToTask('loop_task', self._rec_target)
         self.sim.InitializeSimulation()
         self.t_ns = 0
 
@@ -143,10 +149,36 @@ class Dynamics:
         t_ns = round(t_s * NS_PER_S)
         if t_ns <= self.t_ns:
             raise ValueError(f'dynamics: cannot go back from {self.t_s} s to {t_s} s')
+        self._run_to(t_ns)
+        return self.state()
+
+    def _run_to(self, t_ns: int) -> None:
+        self._rec_chaser.clear()
+        self._rec_target.clear()
         self.sim.ConfigureStopTime(t_ns)
         self.sim.ExecuteSimulation()
         self.t_ns = t_ns
-        return self.state()
+
+    def advance_sampled(self, t_s: float) -> dict[str, np.ndarray]:
+        """Integrate to ``t_s`` in one chunk; the states now and after every integration step,
+        stacked (K + 1 rows): t_s, r_chaser_m, v_chaser_mps, r_target_m, v_target_mps, R_NT.
+        The same numbers as ``state()`` after ``advance_to`` each step (bit for bit)."""
+        t_ns = round(t_s * NS_PER_S)
+        if t_ns <= self.t_ns:
+            raise ValueError(f'dynamics: cannot go back from {self.t_s} s to {t_s} s')
+        now = self.state()
+        t0_ns = self.t_ns
+        self._run_to(t_ns)
+        c, t = self._rec_chaser, self._rec_target
+        times = np.asarray(c.times())
+        keep = times > t0_ns  # the very first chunk also records t = 0
+        sigma = np.asarray(t.sigma_BN)[keep]
+        return {'t_s': np.concatenate([[now.t_s], times[keep] / NS_PER_S]),
+                'r_chaser_m': np.vstack([now.r_chaser_m, np.asarray(c.r_BN_N)[keep]]),
+                'v_chaser_mps': np.vstack([now.v_chaser_mps, np.asarray(c.v_BN_N)[keep]]),
+                'r_target_m': np.vstack([now.r_target_m, np.asarray(t.r_BN_N)[keep]]),
+                'v_target_mps': np.vstack([now.v_target_mps, np.asarray(t.v_BN_N)[keep]]),
+                'R_NT': np.concatenate([now.R_NT[None], Rotation.from_mrp(sigma).as_matrix()])}
 
     def state(self) -> DynamicsState:
         c, t = self.chaser.scStateOutMsg.read(), self.target.scStateOutMsg.read()

@@ -125,3 +125,36 @@ def chaser_from_estimate(t_L_m: np.ndarray, R_HB: np.ndarray, R_BL: np.ndarray, 
     the lidar frame ``t_L`` (the estimate's translation) and the chaser's own attitude in
     LVLH ``R_HB``: rho = -(R_HB (R_BL t_L + t_B)). The target's centre is its body origin."""
     return -(R_HB @ (R_BL @ np.asarray(t_L_m, float) + t_B))
+
+
+# ----------------------------------------------- the same, for K samples at once
+# A control period samples the truth at every dynamics sub-step (11 at 100 Hz and 10 Hz):
+# these stack the K samples (leading axis) so that a period costs a few numpy calls, not
+# K x ~60 small ones (the per-sample path was ~40 % of ``propagate``, docs/loop.md).
+def frame_from_axes_k(forward: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``frame_from_axes`` of K pairs (K, 3): rotations (K, 3, 3)."""
+    x = unit(forward)
+    z = up - np.einsum('ki,ki->k', up, x)[:, None] * x
+    bad = np.linalg.norm(z, axis=1) < 1e-9
+    if bad.any():  # up along forward: any perpendicular will do
+        other = np.where(np.abs(x[bad, 2:3]) < 0.9, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
+        z[bad] = np.cross(x[bad], other)
+    z = unit(z)
+    return np.stack([x, np.cross(z, x), z], axis=-1)
+
+
+def lvlh_basis_k(r_m: np.ndarray, v_mps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``lvlh_basis`` of K orbit states (K, 3): (R_NH (K, 3, 3), omega (K,) rad/s)."""
+    h = np.cross(r_m, v_mps)
+    x, z = unit(r_m), unit(h)
+    return (np.stack([x, np.cross(z, x), z], axis=-1),
+            np.linalg.norm(h, axis=1) / np.einsum('ki,ki->k', r_m, r_m))
+
+
+def attitude_point_at_target_k(r_chaser_m, r_target_m, R_NH, R_BL, t_B) -> np.ndarray:
+    """``attitude_point_at_target`` of K states: R_NB (K, 3, 3)."""
+    R_NB = frame_from_axes_k(R_NH[:, :, 1], R_NH[:, :, 0])
+    for _ in range(6):
+        lidar_n = r_chaser_m + R_NB @ t_B
+        R_NB = frame_from_axes_k(r_target_m - lidar_n, R_NH[:, :, 0]) @ R_BL.T
+    return R_NB

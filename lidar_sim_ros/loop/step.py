@@ -84,15 +84,41 @@ def sample_truth(config: LoopConfig, s, R_BL, t_B) -> dict:
 def propagate(config: LoopConfig, dynamics, force_lvlh_n: np.ndarray, R_BL, t_B) -> TruthSamples:
     """Advance the dynamics one control period under ``force_lvlh_n`` (N, LVLH, turned to
     inertial at the period start and held), sampling the truth at every sub-step."""
-    start = sample_truth(config, dynamics.state(), R_BL, t_B)
-    dynamics.set_force_inertial(start['R_NH'] @ force_lvlh_n)
-    rows = [start]
-    dt = config.control_period_s / config.substeps
-    t0 = dynamics.t_s
-    for j in range(1, config.substeps + 1):
-        rows.append(sample_truth(config, dynamics.advance_to(t0 + j * dt), R_BL, t_B))
-    stack = {k: np.array([r[k] for r in rows]) for k in rows[0] if k not in ('n_rad_s', 'R_NH')}
-    return TruthSamples(n_rad_s=start['n_rad_s'], **stack)
+    R_NH0, _ = dynamics.state().lvlh()
+    dynamics.set_force_inertial(R_NH0 @ force_lvlh_n)
+    states = dynamics.advance_sampled(dynamics.t_s + config.control_period_s)
+    # The samples: every ``substeps``-th of the period (a finer integration step keeps fewer).
+    since_ns = np.round((states['t_s'] - states['t_s'][0]) * 1e9).astype(np.int64)
+    keep = since_ns % round(config.control_period_s * 1e9 / config.substeps) == 0
+    if keep.sum() != config.substeps + 1:
+        raise ValueError(f'dynamics: integration step {dynamics.step_ns} ns does not divide the '
+                         f'pose sample period ({config.substeps} per {config.control_period_s} s; samples at '
+                         f'{np.round(states["t_s"], 4).tolist()} s)')
+    return truth_of_states(config, {k: v[keep] for k, v in states.items()}, R_BL, t_B)
+
+
+def truth_of_states(config: LoopConfig, states: dict, R_BL, t_B) -> TruthSamples:
+    """``sample_truth`` of K dynamics states (``Dynamics.advance_sampled``) at once (the same
+    numbers to ~1e-15)."""
+    r_c, v_c, r_t, v_t = (states[k] for k in ('r_chaser_m', 'v_chaser_mps', 'r_target_m', 'v_target_mps'))
+    R_NT = states['R_NT']
+    R_NH, n = frames.lvlh_basis_k(r_t, v_t)
+    if config.chaser.attitude_law == 'hold_lvlh':
+        R_NB = frames.frame_from_axes_k(R_NH[:, :, 1], R_NH[:, :, 0])
+    else:
+        R_NB = frames.attitude_point_at_target_k(r_c, r_t, R_NH, R_BL, t_B)
+    R_NL = R_NB @ R_BL
+    R_LN = np.swapaxes(R_NL, 1, 2)
+    R_HN = np.swapaxes(R_NH, 1, 2)
+    origin = r_c + R_NB @ t_B
+    rho = np.einsum('kij,kj->ki', R_HN, r_c - r_t)
+    w = np.zeros_like(rho)
+    w[:, 2] = n
+    rho_dot = np.einsum('kij,kj->ki', R_HN, v_c - v_t) - np.cross(w, rho)
+    return TruthSamples(
+        t_s=states['t_s'], R_LT=R_LN @ R_NT, t_L_m=np.einsum('kij,kj->ki', R_LN, r_t - origin),
+        sun_lidar=frames.unit(R_LN @ frames.unit(np.asarray(config.sun.direction_inertial, float))),
+        R_HB=R_HN @ R_NB, rho_m=rho, rho_dot_mps=rho_dot, n_rad_s=float(n[0]))
 
 
 # ------------------------------------------------------------ sense, estimate
@@ -115,6 +141,29 @@ def gate_cloud(xyz_m: np.ndarray, centre_m: np.ndarray | None, radius_m: float) 
     return xyz_m[np.einsum('ij,ij->i', d, d) <= radius_m * radius_m]
 
 
+def capture_centre(xyz_m: np.ndarray) -> np.ndarray | None:
+    """Where to centre the gate before a capture, from the cloud alone: its per-axis median
+    (m, lidar frame; None for no points). Background triggers and sun returns spread over
+    the whole range gate, the target's returns bunch: the median sits on the target while
+    it gives most of the points."""
+    return np.median(xyz_m, axis=0) if len(xyz_m) else None
+
+
+def tracker_cloud(config: LoopConfig, xyz_m: np.ndarray, state: 'LoopState') -> np.ndarray:
+    """The points the tracker gets: within ``cloud_gate_m`` of the last estimate while
+    tracking; before a capture from the cloud, within ``capture_gate_m`` of the cloud's
+    median (the acquisition's hypotheses span the cloud's extent, and false returns 250 m
+    out made it try ~2000 and fail, docs/loop.md); a capture from the truth keeps the
+    old gate about the last estimate, if any."""
+    if state.last_estimate is not None and state.tracking:
+        return gate_cloud(xyz_m, state.last_estimate[:3, 3], config.cloud_gate_m)
+    if config.acquire_from_cloud:
+        return gate_cloud(xyz_m, capture_centre(xyz_m), config.capture_gate_m)
+    if state.last_estimate is not None:
+        return gate_cloud(xyz_m, state.last_estimate[:3, 3], config.cloud_gate_m)
+    return xyz_m
+
+
 def track(tracker, t_s: float, xyz_m: np.ndarray, truth_guess: np.ndarray, from_cloud: bool):
     """One tracker update; returns (Estimate, whether the truth guess was used for capture).
 
@@ -132,7 +181,11 @@ def track(tracker, t_s: float, xyz_m: np.ndarray, truth_guess: np.ndarray, from_
 # ----------------------------------------------------------- the loop state
 @dataclass(frozen=True)
 class LoopContext:
-    """What does not change over a run: config, mount, and the handles."""
+    """What does not change over a run: config, mount, and the handles.
+
+    ``R_BL`` is the mount the GNC knows (the config's); ``R_BL_true`` the one the lidar
+    is really mounted with (None: the same), which the truth (the attitude law's pointing
+    and the frame chain) uses: a misaligned mount the navigation does not know of."""
 
     config: LoopConfig
     dynamics: object
@@ -141,6 +194,11 @@ class LoopContext:
     cloud: str | None
     R_BL: np.ndarray
     t_B: np.ndarray
+    R_BL_true: np.ndarray | None = None
+
+    @property
+    def mount_true(self) -> np.ndarray:
+        return self.R_BL if self.R_BL_true is None else self.R_BL_true
 
 
 @dataclass(frozen=True)
@@ -174,8 +232,15 @@ class StepOutput:
 
 
 def _pose_at(truth: TruthSamples, previous: TruthSamples | None, t_s: float) -> np.ndarray:
-    poses = truth.pose_track(previous).at(np.array([t_s]))
+    """The true pose (4 x 4, lidar frame) at ``t_s``: a sample's own when ``t_s`` is one of
+    the sample times (the period's middle with an even number of sub-steps: the default),
+    else interpolated as the simulator does (1.3 ms a period)."""
     T = np.eye(4)
+    k = int(np.argmin(np.abs(truth.t_s - t_s)))
+    if abs(truth.t_s[k] - t_s) < 1e-9:
+        T[:3, :3], T[:3, 3] = truth.R_LT[k], truth.t_L_m[k]
+        return T
+    poses = truth.pose_track(previous).at(np.array([t_s]))
     T[:3, :3] = poses.rotation.as_matrix()[0]
     T[:3, 3] = poses.position_m[0]
     return T
@@ -189,8 +254,7 @@ def estimate_pose(ctx: LoopContext, state: LoopState, truth: TruthSamples, t_mid
     if state.previous is None:  # the sensor's first period: the pose before it is unknown
         return None, true_pose, False
     xyz = sense(ctx.simulator, truth, state.previous, state.frame_index, ctx.cloud)
-    centre = None if state.last_estimate is None else state.last_estimate[:3, 3]
-    xyz = gate_cloud(xyz, centre, ctx.config.cloud_gate_m)
+    xyz = tracker_cloud(ctx.config, xyz, state)
     est, used_truth = track(ctx.tracker, t_mid, xyz, true_pose, ctx.config.acquire_from_cloud)
     return (est.pose if est.acceptable(ctx.tracker.config) else None), true_pose, used_truth
 
@@ -218,7 +282,7 @@ def guide_and_control(config: LoopConfig, nav: NavState, g: GuidanceState, t_s: 
 
 def loop_step(ctx: LoopContext, state: LoopState) -> tuple[LoopState, StepOutput]:
     """One control period: propagate, sense, estimate, navigate, guide, control."""
-    truth = propagate(ctx.config, ctx.dynamics, state.force_lvlh_n, ctx.R_BL, ctx.t_B)
+    truth = propagate(ctx.config, ctx.dynamics, state.force_lvlh_n, ctx.mount_true, ctx.t_B)
     t_mid = float(0.5 * (truth.t_s[0] + truth.t_s[-1]))  # a scan's fit sits at its mean time
     est_pose, true_pose, truth_capture = estimate_pose(ctx, state, truth, t_mid)
     nav, rho_est = navigate(ctx, state.nav, truth, t_mid, est_pose)
@@ -243,11 +307,15 @@ class LoopResult:
     series: dict
 
 
-def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics=None) -> LoopContext:
+def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics=None, *,
+                  target=None, tracker_model=None, misalignment_xyzw=None) -> LoopContext:
     """Load the scenario's simulator and the tracker (not for ``cloud=None``) and start Basilisk.
 
     ``scenario_path``: a scenario file, or an already loaded (e.g. dispersed) core
-    ``Scenario``, as a campaign case would pass."""
+    ``Scenario``, as a campaign case would pass. ``target`` (the scenario's loaded mesh)
+    and ``tracker_model`` (its ``gnc.tracker.build_model``): built here if not given (a
+    campaign worker reuses them). ``misalignment_xyzw``: rotation M of the real lidar
+    frame from the configured one (p_lidar = M p_lidar_configured), unknown to the GNC."""
     from lidar_sim_ros.loop.dynamics import Dynamics
     if cloud not in (None, 'model', 'truth'):
         raise ValueError(f"cloud must be 'model', 'truth' or None, not {cloud!r}")
@@ -257,11 +325,17 @@ def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics
         from lidar_sim_ros.core.pipeline import Simulator
         from lidar_sim_ros.gnc.tracker import PoseTracker, TrackerConfig, build_model
         scenario = scenario_path if hasattr(scenario_path, 'sensor') else load_scenario(scenario_path)
-        simulator = Simulator.from_scenario(scenario)
+        simulator = Simulator.from_scenario(scenario, target=target)
         tcfg = TrackerConfig()
-        tracker = PoseTracker(build_model(simulator.target.vertices_m, simulator.target.faces, tcfg), tcfg)
+        if tracker_model is None:
+            tracker_model = build_model(simulator.target.vertices_m, simulator.target.faces, tcfg)
+        tracker = PoseTracker(tracker_model, tcfg)
     R_BL, t_B = frames.mount_transform(config.chaser.mount)
-    return LoopContext(config, dynamics or Dynamics(config), simulator, tracker, cloud, R_BL, t_B)
+    R_BL_true = None
+    if misalignment_xyzw is not None:  # p_L' = M p_L = M R_BL^T p_B: R_BL' = R_BL M^T
+        R_BL_true = R_BL @ Rotation.from_quat(misalignment_xyzw).as_matrix().T
+    return LoopContext(config, dynamics or Dynamics(config), simulator, tracker, cloud, R_BL, t_B,
+                       R_BL_true)
 
 
 def _axis_angle_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:
@@ -281,6 +355,12 @@ def run_loop(config: LoopConfig, cloud: str | None = 'model', scenario_path=None
         from lidar_sim_ros.paths import config_path
         scenario_path = resolve(config.scenario, Path(config_path('loop.yaml')).parent)
     ctx = build_context(config, scenario_path, cloud)
+    return run_steps(ctx, duration_s)
+
+
+def run_steps(ctx: LoopContext, duration_s: float | None = None) -> LoopResult:
+    """Step a built context for ``duration_s`` (default: the config's) and score the run."""
+    config = ctx.config
     state = LoopState()
     steps = int(round((duration_s or config.duration_s) / config.control_period_s))
     outputs = []
