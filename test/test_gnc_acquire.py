@@ -196,3 +196,22 @@ def test_coverage_places_a_bar_cut_by_the_edge_of_the_field_of_view():
     # Along the bar, the place is known to the coverage's cells (0.75 deg: 0.1 m at 8 m).
     assert acq.success and np.linalg.norm(acq.pose[:3, 3] - truth[:3, 3]) < 0.1
     assert acq.coverage > 0.85 and acq.fit > 0.99
+
+
+def test_far_false_returns_do_not_stop_the_acquisition(rocket):
+    """A fifth of the points are false returns spread over 1-250 m (a solar background or a
+    range gate's triggers): the crop about the cloud's median drops them, and the target is
+    acquired as from its own points (without it: no acceptable fit, and 10-30 s)."""
+    sim, model = rocket
+    rotation = attitude((1.0, 0.5, 0.5), 10.0)
+    position = np.array([20.0, 0.0, 0.0])
+    frame = sim.simulate_frame(0.0, StaticPose(tuple(position), tuple(rotation.as_quat())), 0)
+    rng = np.random.default_rng(7)
+    n = len(frame.truth_xyz_m) // 4
+    az, el = rng.uniform(-0.5, 0.5, n), rng.uniform(-0.19, 0.19, n)
+    dirs = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    cloud = np.vstack([frame.truth_xyz_m, dirs * rng.uniform(1.0, 250.0, n)[:, None]])
+    acq = acquire(model, cloud)
+    assert acq.success
+    assert np.linalg.norm(acq.pose[:3, 3] - position) < 0.05
+    assert axis_error_deg(acq.pose, rotation) < 2.0
