@@ -33,7 +33,12 @@ What differs from our simulator, on purpose:
   surface, returns that way and back, so its range is r + L, L the path from the
   surface to the room (a box around the target, its parts outside the sensor's view
   bright, the rest a black backdrop; with clutter the fixtures too): a few metres,
-  set by the lab, so the returns bunch behind the surface (``multipath_extra_m``);
+  set by the lab, so the returns bunch behind the surface (``multipath_extra_m``); the
+  catalogue's multipath (a second surface of the target itself) has no room to cast at,
+  so these datasets expect no effect named. The catalogue's kind is ``via: target``: the
+  same mirror ray, cast at the satellite (with ``fins``: two diffuse radiator fins
+  standing out of the mirror-like MLI sides, a concave corner), returns with probability
+  p at r + |AB| (``target_multipath_returns``);
 * lasers (``lasers`` > 0): the shots are fired round-robin by that many lasers over the
   whole scan (as multi-laser Risley scanners do), written as a laser id field; the
   hidden ``laser_bias`` gives each laser its own range offset (a seeded draw of sd
@@ -72,13 +77,13 @@ EPOCH_NS = 1_712_000_000 * 1_000_000_000
 NS_PER_S = 1_000_000_000
 
 EFFECTS = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-           'beam_divergence', 'time_offset', 'laser_bias')
+           'beam_divergence', 'time_offset', 'laser_bias', 'multipath')
 CEPTON_TOPIC = '/cepton_pcl2'
 CEPTON_FRAME = 'cepton3'
 CEPTON_SATURATED, CEPTON_NO_RETURN = 1, 32
 SATURATION_POWER_W = 1.0e-3      # this sensor's detector clips above this
 # Hidden effects compare has no candidate for: expected answer null (and the feature).
-OUTSIDE_CATALOGUE = ('azimuth_bias', 'multipath')
+OUTSIDE_CATALOGUE = ('azimuth_bias',)
 
 # ------------------------------------------------------------------ materials
 # Range error per material from the paper's Table 2: mean of the 5 m and 15 m rows
@@ -193,13 +198,20 @@ def directions_lidar(az_rad: np.ndarray, el_rad: np.ndarray) -> np.ndarray:
 
 
 # -------------------------------------------------------------------- target
-def satellite_parts() -> dict[str, trimesh.Trimesh]:
-    """The satellite in its body frame (long axis +z), one mesh per material name."""
+def satellite_parts(fins: bool = False) -> dict[str, trimesh.Trimesh]:
+    """The satellite in its body frame (long axis +z), one mesh per material name; with
+    ``fins``, two diffuse (PIF) radiator fins 0.9 m out of the MLI sides, in the plane
+    y = 0: MLI mirrors them."""
     bus = trimesh.creation.box(extents=(1.6, 1.6, 2.0))
     n = bus.face_normals
     groups = {'MLI': np.abs(n[:, 0]) > 0.5, 'PIF': np.abs(n[:, 1]) > 0.5,
               'BULKHEAD': n[:, 2] > 0.5}
     parts = {name: bus.submesh([np.flatnonzero(sel)], append=True) for name, sel in groups.items()}
+    if fins:
+        plates = [trimesh.creation.box(extents=(0.9, 0.04, 1.6)) for _ in range(2)]
+        for side, plate in zip((1.0, -1.0), plates):
+            plate.apply_translation((side * (0.8 + 0.45), 0.0, 0.0))
+        parts['PIF'] = trimesh.util.concatenate([parts['PIF'], *plates])
     # The bus floor and the detached panel share PSS (support-structure metal).
     floor = bus.submesh([np.flatnonzero(n[:, 2] < -0.5)], append=True)
     panel = trimesh.creation.box(extents=(0.04, 2.4, 1.1))
@@ -558,6 +570,7 @@ class ForeignSpec:
     clutter: bool = False                # lab fixtures in view: wall, jig, cable
     lasers: int = 0                      # lasers firing round-robin; 0 = no laser field
     layout: str = 'generic'              # generic | cepton (the SDK3 driver's fields)
+    fins: bool = False                   # radiator fins beside the MLI sides (satellite_parts)
     expected: str | None = 'same'
     expected_feature: str | None = None  # the feature the residual should be attributed to
     note: str = ''
@@ -692,7 +705,16 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     measured = r_hit + bias + np.sqrt(var) * unit_noise(spec.noise, len(d), rng)
     multipath = np.zeros(len(d), bool)
     mp = spec.params_of('multipath')
-    if mp is not None:
+    if mp is not None and mp.get('via') == 'target':
+        multipath, ghost_r, power_g = target_multipath_returns(
+            target, sensor, origins_b, dirs_b, r_hit, mat, on_target, rng, mp)
+        b_g = np.array([errors[m][0] for m in MATERIALS] + [0.0])
+        s_g = np.array([errors[m][1] for m in MATERIALS] + [CLUTTER_SIGMA_M])
+        mat_g = np.where(multipath, ghost_r[1], len(MATERIALS))
+        measured = np.where(multipath, ghost_r[0] + b_g[mat_g]
+                            + s_g[mat_g] * rng.standard_normal(len(d)), measured)
+        power = np.where(multipath, power_g, power)
+    elif mp is not None:
         normal = rot.apply(target.cast(origins_b, dirs_b, with_normal=True)[4])
         multipath, extra, wall_power = multipath_returns(spec, sensor, d, r_hit, normal, cos_i,
                                                          mat, on_target, rng, mp)
@@ -753,6 +775,37 @@ def multipath_returns(spec: ForeignSpec, sensor: Sensor, dirs: np.ndarray, true_
     power = (received_power_w(sensor, path, cos_wall, np.zeros(n, int))
              * CLUTTER_SURFACE_RATIO * s ** 2)
     return chosen, np.where(chosen, extra, 0.0), np.where(chosen, power, 0.0)
+
+
+def target_multipath_returns(target: Target, sensor: Sensor, origins_b: np.ndarray,
+                            dirs_b: np.ndarray, true_r: np.ndarray, mat: np.ndarray,
+                            on_target: np.ndarray, rng: np.random.Generator, p: dict):
+    """Ghosts off the target itself: a shot on a mirror-like material (specular albedo
+    >= SPECULAR_MIN) whose mirror ray (body frame) meets another part B of the
+    satellite within ``max_path_m`` (3 m) returns via B with probability ``p``, at range
+    r + |AB| along the shot (out and back: (r + |AB| + |AB| + r) / 2). Its power: B's
+    Blinn return over the whole path, times A's specular albedo twice; its range error
+    is B's (the pulse is B's). Returns (chosen, (ghost range m, B's material id), power W)."""
+    n = len(dirs_b)
+    specular = np.array([SURFACES[m].specular for m in MATERIALS] + [0.0])
+    idx = np.flatnonzero(on_target & (specular[np.clip(mat, 0, len(MATERIALS))] >= SPECULAR_MIN))
+    chosen, ghost_r = np.zeros(n, bool), np.zeros(n)
+    mat_b, power = np.full(n, len(MATERIALS)), np.zeros(n)
+    if len(idx) == 0:
+        return chosen, (ghost_r, mat_b), power
+    normal = target.cast(origins_b[idx], dirs_b[idx], with_normal=True)[4]
+    normal = np.where(np.isfinite(normal), normal, 0.0)
+    point = origins_b[idx] + dirs_b[idx] * true_r[idx, None]
+    hit, ab, cos_b, m_b = target.cast(point + 1e-4 * normal, mirror_direction(dirs_b[idx], normal))
+    ok = hit & (ab > 0.02) & (ab < p.get('max_path_m', 3.0))
+    pick = idx[ok][rng.random(int(ok.sum())) < p.get('p', 0.3)]
+    sel = np.isin(idx, pick)
+    chosen[pick] = True
+    ghost_r[pick] = true_r[pick] + ab[sel]
+    mat_b[pick] = m_b[sel]
+    power[pick] = (received_power_w(sensor, ghost_r[pick], cos_b[sel], m_b[sel])
+                   * specular[mat[pick]] ** 2)
+    return chosen, (ghost_r, mat_b), power
 
 
 def effect_gain_nats(frames: list[dict], name: str) -> float:
@@ -958,7 +1011,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
     if spec.organized and spec.scan != 'raster':
         raise ValueError('organized clouds need the raster scan')
     sensor = sensor or Sensor(frame_rate_hz=spec.frame_rate_hz)
-    parts = satellite_parts()
+    parts = satellite_parts(spec.fins)
     mesh = write_obj(parts, out / 'satellite.obj')
     target = Target(parts)
     traj = trajectory_for(spec)
@@ -1111,6 +1164,10 @@ BATTERY: tuple[ForeignSpec, ...] = (
                 shots_per_frame=8000, scan='rosette', expected=None, expected_feature='azimuth'),
     # --- outside the catalogue and no outlier effect: lab multipath (a mirror path via
     # a specular surface to the lab's walls returns a few metres behind the surface)
+    ForeignSpec('multipath_target', 'multipath', {'via': 'target', 'p': 0.3}, seed=53, fins=True,
+                note='ghosts of the diffuse fins in the mirror-like MLI sides, at r + |AB|'),
+    ForeignSpec('clean_fins', None, seed=51, fins=True,
+                note='the finned satellite without ghosts: no false multipath'),
     ForeignSpec('multipath', 'multipath', {'p': 0.05}, seed=46, expected=None,
                 note='mirror path via MLI/PSS to the lab room: returns 1-5 m behind the surface'),
     ForeignSpec('clutter_multipath', 'multipath', {'p': 0.08}, seed=47, clutter=True,

@@ -162,3 +162,23 @@ def test_multipath_returns_lie_behind_mirror_like_surfaces():
                                                      MATERIALS.index('PSS')}
     extra = frame['range_m'][mp] - frame['true_range_m'][mp]
     assert extra.min() > 0.5 and np.median(extra) < 6.0
+
+
+def test_target_multipath_ghosts_are_the_fins_mirrored_in_mli():
+    """via: target on the finned satellite: ghosts only on MLI, |AB| up to max_path_m
+    behind it (range error aside: B's Table 2 bias and sigma), B a fin (PIF), and none
+    on the finless satellite, whose mirror rays off MLI meet nothing."""
+    spec = ForeignSpec('mpt', 'multipath', {'via': 'target', 'p': 0.5}, seed=53, fins=True)
+    errors = material_errors(spec)
+    frame = simulate_frame(spec, Sensor(), Target(satellite_parts(fins=True)),
+                           trajectory_for(spec), 0.0, np.random.default_rng(0), errors)
+    mp = frame['multipath']
+    assert mp.sum() > 100
+    assert set(np.unique(frame['material'][mp])) == {MATERIALS.index('MLI')}
+    bias, sigma = errors['PIF']
+    extra = frame['range_m'][mp] - frame['true_range_m'][mp] - bias
+    assert extra.min() > -5 * sigma and extra.max() < 3.0 + 5 * sigma
+    assert np.median(extra) > 0.2
+    plain = simulate_frame(spec, Sensor(), Target(satellite_parts()), trajectory_for(spec), 0.0,
+                           np.random.default_rng(0), errors)
+    assert plain['multipath'].sum() == 0

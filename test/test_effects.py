@@ -53,15 +53,18 @@ def context(**arrays) -> ReturnContext:
 
 
 # ------------------------------------------------------------------------ neutrality
-def test_catalogue_has_the_seven_effects_and_their_defaults_change_nothing(default_scenario):
+def test_catalogue_has_the_eight_effects_and_their_defaults_change_nothing(default_scenario):
     names = list(catalogue())
     assert names == ['range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-                     'beam_divergence', 'time_offset', 'laser_bias']
+                     'beam_divergence', 'time_offset', 'laser_bias', 'multipath']
     # sunlight loads by name (it needs a sun, so it is no default diagnosis candidate);
-    # without a sun it changes nothing either.
+    # without a sun it changes nothing either. multipath's default is the model's ghosts
+    # (strength 1): at strength 0 it changes nothing.
     names.append('sunlight')
+    neutral = {'multipath': {'strength': 0.0}}
     plain = Simulator.from_scenario(default_scenario, effects=[])
-    with_all = Simulator.from_scenario(default_scenario, effects=[make_effect(n) for n in names])
+    with_all = Simulator.from_scenario(default_scenario, effects=[make_effect(n, neutral.get(n))
+                                                                  for n in names])
     from lidar_sim_ros.core.pose import ScenarioTrajectory
     traj = ScenarioTrajectory.from_config(default_scenario.config)
     a, b = plain.simulate_frame(0.2, traj, 2), with_all.simulate_frame(0.2, traj, 2)

@@ -40,8 +40,10 @@ its z, ``total_z``), whatever part of the data the gain is on:
   law they must not lie mostly behind the surface when the window puts many in front
   (``far_sides``), and must spread within each side as the law says
   (``far_positions``, Kolmogorov-Smirnov at the same Bonferroni level), else they
-  come at a preferred range (multipath, a ghost, a second surface: outside the
-  catalogue); a bias or noise effect must account for at
+  come at a preferred range (multipath, a ghost, a second surface); multipath needs
+  MIN_FAR_POINTS points behind specular surfaces at the range its mirror rays predict
+  (``likelihood.ghost_points``), its gain being the ghost component of the likelihood
+  on exactly those points; a bias or noise effect must account for at
   least MIN_SHARE of the residual's dependence on the features that the attribution's
   joint model finds (``features.Attribution``): a candidate that soaks up a sliver of
   a structure it does not have the shape of is a phantom (the rest of the structure
@@ -519,6 +521,16 @@ class Diagnosis:
         eff = cand.effect
         if eff is None or not len(self.rays.matched):
             return None
+        if lk.is_ghost_effect(eff):
+            # Multipath's signature: points behind specular surfaces at the range the
+            # mirror geometry predicts (``likelihood.ghost_points``).
+            cand.far_points = float(lk.ghost_points(self.full, [eff]))
+            if cand.far_points < MIN_FAR_POINTS:
+                return (f'only {cand.far_points:.0f} points lie behind a specular surface at '
+                        'the range its mirror ray predicts (|SA| + |AB|, within '
+                        f'{lk.UNMATCHED_Z:g} sigma; at least {MIN_FAR_POINTS} needed): '
+                        'no multipath ghosts')
+            return None
         spurious = 0.0
         if type(eff).outlier_fraction is not Effect.outlier_fraction:   # adds false returns
             w = float(np.mean(lk.model_on_rays(self.full, [eff]).outlier_w))
@@ -555,7 +567,8 @@ class Diagnosis:
     def share_veto(self, cand: Candidate, attribution: Attribution | None) -> None:
         """A bias/noise candidate must explain MIN_SHARE of the feature structure."""
         if (attribution is None or not attribution.significant or cand.effect is None
-                or is_outlier_effect(type(cand.effect)) or cand.vetoed):
+                or is_outlier_effect(type(cand.effect)) or lk.is_ghost_effect(cand.effect)
+                or cand.vetoed):
             return
         n_matched = max(len(self.rays.matched), 1)
         matched_total = cand.matched_gain * n_matched

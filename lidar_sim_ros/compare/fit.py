@@ -448,9 +448,41 @@ def make_result_vector(effect: Effect, data: FitData, base_effects: Sequence[Eff
                      nll_robust_before_per_point=before['nll_robust'])
 
 
+MIN_GHOST_SCALE = 1e-4    # least scale on the ghost power a ghost fit searches (log scale)
+
+
+def _fit_ghost_scale(cls: type[Effect], data: FitData,
+                     base_effects: Sequence[Effect] = ()) -> FitResult:
+    """ML scale on the ghost power (``cls.ghost_scale``, e.g. multipath's ``strength``),
+    searched over log10 of it from MIN_GHOST_SCALE to the bound (the ghost's share
+    1 - exp(-scale P / P_threshold) changes over decades of the scale, not steps), then
+    against a scale of 0 (no ghosts). The ghosts are cast once (``likelihood.ghosts_on``)."""
+    key = cls.ghost_scale
+    lo, hi = cls.bounds[key]
+    defaults = _defaults(cls)
+    base_effects = list(base_effects)
+    cache: dict[float, float] = {}
+
+    def total(value: float) -> float:
+        if value not in cache:
+            eff = make_effect_safe(cls, {**defaults, key: value})
+            cache[value] = (math.inf if eff is None
+                            else objective(data, [*base_effects, eff], floor=ROBUST_FLOOR))
+        return cache[value]
+
+    start = max(lo, MIN_GHOST_SCALE)
+    x = search_1d(lambda v: total(10.0 ** v), math.log10(start), math.log10(hi), n_grid=11)
+    value = round(float(10.0 ** x), 6)
+    if lo <= 0 and total(0.0) <= total(value):
+        value = 0.0
+    return make_result(cls({**defaults, key: value}), data, base_effects)
+
+
 def _register_catalogue_fits() -> None:
     from lidar_sim_ros.core.effects.laser_bias import LaserBias
+    from lidar_sim_ros.core.effects.multipath import Multipath
     register_fit(LaserBias)(_fit_laser_bias)
+    register_fit(Multipath)(_fit_ghost_scale)
 
 
 _register_catalogue_fits()

@@ -16,6 +16,17 @@ constant mismatch -- a calibration matter, reported by the comparison under
 effects whose bias has a per-material mean (range walk, incidence angle) be
 identified from the variation within each material, not from the offsets.
 
+An effect that adds ghosts along a shot's own line of sight (``Effect.extra_returns``
+with a ``ghost_scale`` parameter the ghost power is proportional to: multipath) adds a
+third component: p(r) = (1 - w) [(1 - g) N(echo) + g N(r; r_g + b_B, s_g^2)] + w / W,
+r_g the ghost's range behind the specular surface (``|SA| + |AB|``), b_B the bias of the
+surface B the mirror ray meets, s_g = hypot(sigma_B, GHOST_SPREAD |AB|) (the lobe spreads
+the ray over B: one mirror ray stands for the lobe). g, the ghost's share of the points
+its shot reports, is a trigger probability that saturates with the ghost's power over
+the detection threshold: g = 1 - exp(-P_ghost / P_threshold) (Poisson triggers of mean
+P / P_threshold), so a fit of the scale on the ghost power is smooth. The ghosts are
+cast once per prediction at the top of the scale's bounds and scaled (``ghosts_on``).
+
 w never drops below MODEL_FLOOR (1e-6): no real sensor is free of spurious returns,
 and without a floor one point on the wrong side of a depth step (z ~ 100) would
 outweigh thousands of good ones. A matched point whose ray misses the target under
@@ -46,6 +57,8 @@ ROBUST_FLOOR = 1e-3           # outlier weight assumed while fitting non-outlier
 MISS_WEIGHT = 1e-3            # least outlier weight of a point the model cannot place
 UNMATCHED_Z = 5.0             # an unmatched ray that now hits within this many sigma is explained
 CHI2_1_MEDIAN = 0.454936423   # median of z^2 for z ~ N(0, 1)
+GHOST_SPREAD = 0.05           # ghost range sigma per metre of |AB| (the lobe over B, module doc)
+MAX_GHOST_SHARE = 1.0 - 1e-9  # a shot's echo keeps some weight (log of 1 - g finite)
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
@@ -169,6 +182,82 @@ class ModelOnRays:
     sigma_m: np.ndarray
     outlier_w: np.ndarray
     placed: np.ndarray            # the model's ray hits the target
+    # Ghost component (module doc), or None without a ghost effect: per point the
+    # expected ghost range (m, NaN: no ghost), its sigma (m) and share g (0..1).
+    ghost_range_m: np.ndarray | None = None
+    ghost_sigma_m: np.ndarray | None = None
+    ghost_w: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Ghosts:
+    """Ghosts of a ghost effect on the rays of one prediction, cast at ``probe`` (the top
+    of the effect's ``ghost_scale`` bounds): index of the ray, expected range (m: true
+    ghost range plus B's material bias), sigma (m) and power per unit scale (W)."""
+
+    index: np.ndarray
+    range_m: np.ndarray
+    sigma_m: np.ndarray
+    power_per_scale_w: np.ndarray
+    threshold_w: float
+    probe: float
+
+
+_GHOSTS: dict[tuple, tuple[Prediction, Ghosts | None]] = {}
+_GHOSTS_SIZE = 64
+
+
+def is_ghost_effect(effect: Effect) -> bool:
+    """Whether the effect adds ghosts the likelihood scores (``ghost_scale`` declared)."""
+    return bool(getattr(type(effect), 'ghost_scale', None))
+
+
+def ghosts_on(pred: Prediction, effect: Effect) -> Ghosts | None:
+    """The ghosts ``effect`` adds to ``pred``'s rays, cast once per prediction and effect
+    (all parameters but the scale): at the top of the scale's bounds, so every ghost a
+    smaller scale could make is there, its power then proportional to the scale."""
+    scale = type(effect).ghost_scale
+    params = effect.params.model_dump()
+    probe = float(type(effect).bounds[scale][1])
+    key = (id(pred), type(effect).__module__, type(effect).__qualname__,
+           tuple(sorted((k, repr(v)) for k, v in params.items() if k != scale)))
+    hit = _GHOSTS.get(key)
+    if hit is not None and hit[0] is pred:
+        return hit[1]
+    extra = type(effect)({**params, scale: probe}).extra_returns(pred.ctx)
+    ghosts = None
+    if extra is not None and len(extra):
+        mats = pred.ctx.scene.materials
+        bias, sigma = mats.column('bias_m'), mats.column('sigma_m')
+        mat_b = np.asarray(extra.material, int)
+        index = np.asarray(extra.shot, np.int64)
+        path = extra.range_m - pred.ctx.range_m[index]
+        ghosts = Ghosts(index=index, range_m=extra.range_m + bias.take(mat_b),
+                        sigma_m=np.hypot(sigma.take(mat_b), GHOST_SPREAD * path),
+                        power_per_scale_w=np.asarray(extra.power_w, float) / probe,
+                        threshold_w=float(pred.ctx.threshold_power_w), probe=probe)
+    if len(_GHOSTS) >= _GHOSTS_SIZE:
+        _GHOSTS.pop(next(iter(_GHOSTS)))
+    _GHOSTS[key] = (pred, ghosts)
+    return ghosts
+
+
+def ghost_component(pred: Prediction, effects: Sequence[Effect], n: int):
+    """(ghost range m, sigma m, share g) per ray of the ghost effects among ``effects``
+    (the last one wins where two predict a ghost), or (None, None, None)."""
+    found = [e for e in effects if is_ghost_effect(e)]
+    if not found or pred.ctx.scene is None:
+        return None, None, None
+    rng, sig, share = np.full(n, np.nan), np.ones(n), np.zeros(n)
+    for eff in found:
+        value = float(getattr(eff.params, type(eff).ghost_scale))
+        gh = ghosts_on(pred, eff)
+        if gh is None or value <= 0:
+            continue
+        rng[gh.index], sig[gh.index] = gh.range_m, np.maximum(gh.sigma_m, MIN_SIGMA_M)
+        share[gh.index] = np.minimum(-np.expm1(-value * gh.power_per_scale_w
+                                               / max(gh.threshold_w, 1e-300)), MAX_GHOST_SHARE)
+    return rng, sig, share
 
 
 def _outlier_weight(effects: Sequence[Effect], ctx: ReturnContext, n: int) -> np.ndarray:
@@ -229,7 +318,8 @@ def model_on_rays(data: FitData, effects: Sequence[Effect]) -> ModelOnRays:
         sigma = np.where(lost, base_sigma, sigma)
         placed = placed | lost
     w = _outlier_weight(everything, ctx, n)
-    return ModelOnRays(ctx, expected, sigma, w, placed)
+    ghost_range, ghost_sigma, ghost_w = ghost_component(pred, everything, n)
+    return ModelOnRays(ctx, expected, sigma, w, placed, ghost_range, ghost_sigma, ghost_w)
 
 
 def recast_unmatched(data: FitData, effects: Sequence[Effect]):
@@ -294,6 +384,14 @@ def point_nll(data: FitData, model: ModelOnRays, floor: float = 0.0,
     with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
         z = residual / sigma
         log_gauss = -0.5 * z * z - np.log(sigma) - _LOG_SQRT_2PI
+        if model.ghost_w is not None:
+            # The ghost component (module doc): measured range against the ghost's, no
+            # material nuisance (B's bias is in the ghost's expected range).
+            g = np.where(np.isfinite(model.ghost_range_m), model.ghost_w, 0.0)
+            zg = (r - model.ghost_range_m) / model.ghost_sigma_m
+            log_ghost = -0.5 * zg * zg - np.log(model.ghost_sigma_m) - _LOG_SQRT_2PI
+            log_gauss = np.where(g > 0, np.logaddexp(np.log1p(-g) + log_gauss,
+                                                     np.log(g) + log_ghost), log_gauss)
         log_in = np.log1p(-np.minimum(w, 1.0)) + log_gauss
         log_out = np.log(w / width)
         ll = np.logaddexp(log_in, log_out)
@@ -427,6 +525,21 @@ def objective(data: FitData, effects: Sequence[Effect], floor: float = ROBUST_FL
             log_in = math.log1p(-floor) - 0.5 * z * z - np.log(sig) - _LOG_SQRT_2PI
             ll_u = np.where(ok & np.isfinite(z), np.logaddexp(log_in, ll_u), ll_u)
     return total - float(np.sum(ll_u))
+
+
+def ghost_points(data: FitData, effects: Sequence[Effect]) -> int:
+    """Matched points that lie at the range the ghost effects among ``effects`` predict
+    behind their surface: within UNMATCHED_Z ghost sigmas of it and nearer the ghost than
+    the echo (in sigmas of each): the signature of multipath."""
+    model = model_on_rays(data, effects)
+    if model.ghost_w is None:
+        return 0
+    r = np.asarray(data.measured_range_m, float)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        zg = np.abs(r - model.ghost_range_m) / model.ghost_sigma_m
+        ze = np.abs(r - model.expected_range_m) / np.maximum(model.sigma_m, MIN_SIGMA_M)
+        at = (model.ghost_w > 0) & (zg <= UNMATCHED_Z) & (zg < ze)
+    return int(np.sum(at))
 
 
 def is_outlier_effect(effect_cls: type[Effect]) -> bool:

@@ -23,6 +23,8 @@ EFFECT_WORDS = {
     'beam_divergence': 'returns from the beam edge beyond the silhouette and mixed ranges at '
                        'depth steps',
     'time_offset': 'a clock offset between the pose and LiDAR stamps',
+    'multipath': 'ghosts behind specular surfaces (MLI): the mirror image of another surface '
+                 'at |SA| + |AB|',
 }
 # What varies each catalogue effect independently of the others: the recording that
 # separates two confounded candidates varies what drives one at fixed values of what
@@ -39,6 +41,8 @@ DRIVEN_BY = {
                     'offset acts through the motion only)'),
     'solar_background': ('returns at random ranges', 'the target away from the sun or with '
                          'the sun off (false returns change, the target does not)'),
+    'multipath': ('mirror paths off specular surfaces', 'another attitude of the target '
+                  '(the mirror rays of its specular surfaces meet other surfaces or none)'),
 }
 
 

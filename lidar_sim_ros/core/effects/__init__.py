@@ -20,8 +20,8 @@ _FILE_MODULES: dict[Path, object] = {}
 # comparison diagnoses on any recording; those that need more than the recording's points
 # and poses (``sunlight`` needs its sun direction, see compare/sunlight.py) load by name only.
 _CATALOGUE = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-              'beam_divergence', 'time_offset', 'laser_bias')
-_BY_NAME_ONLY = ('sunlight', 'multipath')
+              'beam_divergence', 'time_offset', 'laser_bias', 'multipath')
+_BY_NAME_ONLY = ('sunlight',)
 
 
 def register(cls: type[Effect]) -> type[Effect]:

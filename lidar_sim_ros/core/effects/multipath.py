@@ -124,8 +124,11 @@ class Multipath(Effect):
     """A ghost behind each specular hit whose mirror ray meets another surface."""
 
     name = 'multipath'
-    # No ``bounds`` yet: the comparison's likelihood scores each ray's own echo, which the
-    # ghosts do not change, so a fit of ``strength`` would be flat (issue 24, left to do).
+    # The comparison fits ``strength`` (searched on a log scale, ``compare/fit.py``); its
+    # likelihood reads the ghosts through ``extra_returns`` and ``ghost_scale``, the
+    # parameter the ghost power is proportional to (``compare/likelihood.py``, ghost term).
+    bounds = {'strength': (0.0, 30.0)}
+    ghost_scale = 'strength'
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
