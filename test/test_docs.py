@@ -13,9 +13,20 @@ exit 0 unless its quoted output has an ``error:`` line.
 Slow blocks run where LIDAR_SIM_DOCS_SLOW=1 (.ci/run sets it) and are skipped with
 that reason elsewhere. When a test fails, run the command, paste its output into
 the page and check the prose around it still says what the output shows.
+
+Every other command block is accounted for: NOT_RUN lists, with the reason, the
+blocks a test cannot run (DDS demos of minutes, colcon, pip, clusters, lab data
+that is a placeholder), USAGE the synopses, whose options are checked against
+``--help``. A new command block in none of these fails
+``test_every_command_block_is_run_or_listed``; an entry whose block is gone fails too.
+The option tables of the CLI pages and the node's parameter table are checked
+against the parser and the node's declared parameters.
 """
 from __future__ import annotations
 
+import argparse
+import contextlib
+import io
 import os
 import re
 import subprocess
@@ -148,7 +159,191 @@ def test_documented_commands_print_what_the_page_quotes(page, tmp_path):
 def test_every_page_has_a_checked_block():
     """The pages whose commands are cheap to run keep at least one checked transcript."""
     checked = {p.name for p, blocks in PAGE_BLOCKS.items() if blocks}
-    assert {'offline.md', 'node.md', 'compare.md'} <= checked
+    assert {'offline.md', 'node.md', 'compare.md', 'calibration.md', 'sunlight.md',
+            'real-data.md', 'campaign.md'} <= checked
+
+
+# Command blocks no test runs, keyed by (page, the block's first line), with the reason.
+NOT_RUN = {
+    ('README.md', 'make demo    # pose player + simulator node over real DDS -> rosbag2 + figures in demo-output/'):
+        'make demo is a ~70 s DDS run and make test the whole suite; the demo runs in '
+        'test_demo.py, its transcript is quoted in node.md',
+    ('calibration.md', 'lidar-sim calibrate brdf lab/brdf.csv --out my/materials.yaml --figure my/brdf.png'):
+        'lab/ files are placeholders for the user\'s own data; "Try it without lab data" runs '
+        'range-errors and scan on simulated bags',
+    ('calibration.md', 'lidar-sim simulate my/scenario.yaml --frames 10 --out my/run'):
+        'my/ holds the files the placeholder lab calibration above writes',
+    ('campaign.md', '# on the scheduler machine (port 8786; the dashboard needs bokeh, --no-dashboard otherwise)'):
+        'a Dask cluster over several machines (test_campaign.py starts a scheduler in-process)',
+    ('development.md', 'cd ~/ros2_ws/src && git clone <this repository> lidar_sim_ros'):
+        'rosdep, pip, colcon and ros2 launch in a ROS workspace: outside the venv the tests use',
+    ('gnc.md', 'pip install -e .[gnc]    # small_gicp; make venv installs it (requirements-gnc.txt)'):
+        'pip, a DDS demo and a benchmark of minutes',
+    ('gnc.md', 'ros2 run lidar_sim_ros pose_tracker --ros-args -p points_topic:=/lidar/points_truth'):
+        'ros2 run of a node that runs until stopped (a colcon install)',
+    ('loop.md', 'pip install -e .[loop,gnc]   # Basilisk and small_gicp (make venv installs both)'):
+        'pip, a DDS demo and a benchmark of minutes',
+    ('node.md', '$ make demo'):
+        'a ~70 s DDS run (test_demo.py runs the demo)',
+    ('node.md', 'ros2 launch lidar_sim_ros lidar_sim.launch.py                 # node + pose player'):
+        'ros2 launch of nodes that run until stopped (a colcon install)',
+    ('node.md', '.venv/bin/lidar_sim_node --ros-args --params-file config/params.yaml'):
+        'nodes that run until stopped; test_node.py starts them over DDS',
+    ('real-data.md', '$ lidar-sim compare lab/bag --cloud-topic /cepton_pcl2 --mesh target.obj --config lab.yaml --out cmp'):
+        'lab/bag, target.obj and lab.yaml are placeholders for a real recording',
+    ('real-data.md', 'ros2 run lidar_sim_ros lidar_sim_node --ros-args -p point_layout:=cepton \\'):
+        'ros2 run of a node that runs until stopped (a colcon install)',
+}
+
+# Synopses: (page, first line) -> the lidar-sim subcommand whose --help must know their options.
+USAGE = {
+    ('calibration.md', 'lidar-sim calibrate brdf CSV --out YAML [--material NAME] [--materials YAML]'):
+        ('calibrate', 'brdf'),
+    ('calibration.md', 'lidar-sim calibrate range-errors BAG [BAG ...] --mesh OBJ --out YAML [--config SCENARIO]'):
+        ('calibrate', 'range-errors'),
+    ('calibration.md', 'lidar-sim calibrate scan BAG --out SENSOR_YAML [--sensor YAML] [--figure PNG] [--cloud-topic T]'):
+        ('calibrate', 'scan'),
+    ('compare.md', 'lidar-sim compare BAG --mesh OBJ [--config SCENARIO] [--effect NAME_OR_MODULE:CLASS ...] [--fit] --out DIR'):
+        ('compare',),
+}
+
+SHELL_FENCES = ('```', '```sh', '```bash', '```console')
+COMMAND = re.compile(r'^(\$ )?(lidar-sim|make|ros2|colcon|pip|python|dask|cd|cat|sed|lidar_sim_node'
+                     r'|target_pose_player|pose_tracker|\.venv/bin/\S+)( |$)')
+OUTPUT = re.compile(r'^([\w-]+( [\w-]+)*: )?(error|warning):')
+FLAG = re.compile(r'(?<![\w-])--[a-z][a-z-]*')
+
+
+def fenced_blocks(page: Path) -> list[tuple[int, str, list[str], bool]]:
+    """(line, fence, body, marked) of every fenced block of ``page``."""
+    lines = page.read_text().splitlines()
+    out, i = [], 0
+    while i < len(lines):
+        if not lines[i].startswith('```'):
+            i += 1
+            continue
+        end = next(j for j in range(i + 1, len(lines)) if lines[j].startswith('```'))
+        marked = i > 0 and MARK.match(lines[i - 1]) is not None
+        out.append((i + 1, lines[i].strip(), lines[i + 1:end], marked))
+        i = end + 1
+    return out
+
+
+def command_blocks(page: Path) -> list[tuple[int, str, bool]]:
+    """(line, first line, marked) of the blocks of ``page`` that hold a shell command."""
+    found = []
+    for line, fence, body, marked in fenced_blocks(page):
+        if fence not in SHELL_FENCES:
+            continue
+        if any(COMMAND.match(b.strip()) and not OUTPUT.match(b.strip()) for b in body):
+            found.append((line, body[0], marked))
+    return found
+
+
+def test_command_detection():
+    """What counts as a command block: commands yes, error listings and YAML no."""
+    assert COMMAND.match('$ lidar-sim simulate x') and COMMAND.match('make demo  # x')
+    assert COMMAND.match('.venv/bin/lidar_sim_node --ros-args')
+    assert not COMMAND.match('lidar-simulate') and not COMMAND.match('seed: 1')
+    assert OUTPUT.match('lidar-sim compare: error: bag b: x')
+    assert OUTPUT.match('warning: two.csv: material')
+
+
+def test_every_command_block_is_run_or_listed():
+    """A command block is a doc-test transcript, or NOT_RUN / USAGE say why not; no stale entries."""
+    unlisted, seen = [], set()
+    for page in PAGES:
+        for line, first, marked in command_blocks(page):
+            key = (page.name, first)
+            if key in NOT_RUN or key in USAGE:
+                assert not marked, f'{page.name}:{line}: marked doc-test and listed as not run'
+                seen.add(key)
+            elif not marked:
+                unlisted.append(f'{page.relative_to(ROOT)}:{line}: {first}')
+    assert not unlisted, ('command blocks neither marked <!-- doc-test --> nor listed in '
+                          'NOT_RUN/USAGE with a reason:\n' + '\n'.join(unlisted))
+    stale = (set(NOT_RUN) | set(USAGE)) - seen
+    assert not stale, f'NOT_RUN/USAGE entries whose block is gone (or changed): {sorted(stale)}'
+
+
+@contextlib.contextmanager
+def _no_exit():
+    try:
+        yield
+    except SystemExit:
+        pass
+
+
+def cli_help(*words: str) -> str:
+    """``lidar-sim WORDS --help`` as the parser prints it (in-process)."""
+    from lidar_sim_ros.cli import build_parser
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), _no_exit():
+        build_parser().parse_args([*words, '--help'])
+    return buf.getvalue()
+
+
+def cli_flags(*words: str) -> set[str]:
+    return set(FLAG.findall(cli_help(*words))) - {'--help'}
+
+
+def block_text(page_name: str, first: str) -> str:
+    page = ROOT / ('README.md' if page_name == 'README.md' else f'docs/{page_name}')
+    body = next(b for _, _, b, _ in fenced_blocks(page) if b and b[0] == first)
+    return '\n'.join(body)
+
+
+@pytest.mark.parametrize('key', sorted(USAGE), ids=lambda k: ' '.join(USAGE[k]))
+def test_usage_synopses_name_real_options(key):
+    documented = set(FLAG.findall(block_text(*key)))
+    unknown = documented - cli_flags(*USAGE[key])
+    assert not unknown, f'{key[0]}: the synopsis of lidar-sim {" ".join(USAGE[key])} names ' \
+                        f'options the command does not have: {sorted(unknown)}'
+
+
+def option_table(page: Path) -> set[str]:
+    """The options in the first column of ``page``'s "| option | ..." table."""
+    lines = page.read_text().splitlines()
+    start = next(i for i, t in enumerate(lines) if re.match(r'^\| option \|', t))
+    flags = set()
+    for text in lines[start + 2:]:
+        if not text.startswith('|'):
+            break
+        flags |= set(FLAG.findall(text.split('|')[1]))
+    return flags
+
+
+@pytest.mark.parametrize('page, command', [('offline.md', ('simulate',)), ('compare.md', ('compare',)),
+                                           ('campaign.md', ('campaign',))])
+def test_option_tables_match_the_help(page, command):
+    """Each option of the table exists, and each option of --help is on the page."""
+    path = ROOT / 'docs' / page
+    table, flags = option_table(path), cli_flags(*command)
+    assert table - flags == set(), f'{page}: the option table names unknown options'
+    mentioned = set(FLAG.findall(path.read_text()))
+    assert flags - {'--debug'} - mentioned == set(), \
+        f'{page}: options of lidar-sim {" ".join(command)} --help the page never mentions'
+
+
+def test_node_parameter_table_matches_the_declared_parameters():
+    """docs/node.md's table: the node's parameters, read-only exactly for the start-up ones."""
+    from lidar_sim_ros.ros import lidar_sim_node as node
+    lines = (ROOT / 'docs' / 'node.md').read_text().splitlines()
+    start = lines.index('| parameter | default | read-only | meaning |')
+    table = {}
+    for text in lines[start + 2:]:
+        if not text.startswith('|'):
+            break
+        cells = [c.strip() for c in text.split('|')[1:-1]]
+        for name in re.findall(r'`(\w+)`', cells[0]):
+            table[name] = cells[2]
+    declared_in_init = {'frame_id': 'no', 'effects': 'no', 'sun_direction': 'no',
+                        'material_names': 'yes'}
+    expected = {**{n: 'yes' for n in node.STARTUP_PARAMETERS},
+                **{n: 'no' for n in node.DYNAMIC_PARAMETERS}, **declared_in_init}
+    source = (ROOT / 'lidar_sim_ros' / 'ros' / 'lidar_sim_node.py').read_text()
+    assert set(re.findall(r"declare_parameter\(\s*'(\w+)'", source)) == set(declared_in_init)
+    assert table == expected
 
 
 def test_transcript_parsing_and_matching():
