@@ -358,3 +358,23 @@ def test_transcript_parsing_and_matching():
         'bag: x  (2 frames, ... points)']  # order matters
     assert missing_lines(['bag: x  (3 frames, ... points)'], out) == ['bag: x  (3 frames, ... points)']
     assert line_pattern('a.b (c)').match('a.b (c)') and not line_pattern('a.b').match('axb')
+
+
+def test_effect_lists_match_the_catalogue():
+    """effects.md's table names every registered effect; quoted catalogue lists are current."""
+    from lidar_sim_ros.core.effects import REGISTRY, catalogue
+    catalogue()  # loads the catalogue and the by-name-only effects
+    text = (ROOT / 'docs' / 'effects.md').read_text().splitlines()
+    start = text.index('| name | models | forward model | parameters (default) | fit |')
+    table = set()
+    for row in text[start + 2:]:
+        if not row.startswith('|'):
+            break
+        table.add(re.match(r'\| `(\w+)`', row).group(1))
+    assert table == set(REGISTRY)
+    for page in PAGES:
+        for quoted in re.findall(r'catalogue: \[([^\]]*)\]', page.read_text()):
+            names = re.findall(r"'(\w+)'", quoted)
+            full = sorted(REGISTRY)
+            assert names == (full[:len(names)] if '...' in quoted else full), \
+                f'{page.name}: a quoted catalogue list is not the current one: [{quoted}]'
