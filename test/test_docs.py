@@ -126,9 +126,11 @@ def scratch_folder(tmp: Path) -> Path:
 def run_step(step: Step, cwd: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, 'PYTHONPATH': os.pathsep.join([str(ROOT), os.environ.get('PYTHONPATH', '')]),
            'PATH': os.pathsep.join([str(Path(sys.executable).parent), os.environ.get('PATH', '')]),
-           'ROS_DOMAIN_ID': os.environ.get('ROS_DOMAIN_ID', '0')}
-    return subprocess.run(['bash', '-c', step.command], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=TIMEOUT_S, stdin=subprocess.DEVNULL)
+           'ROS_DOMAIN_ID': os.environ.get('ROS_DOMAIN_ID', '0'), 'PYTHONUNBUFFERED': '1'}
+    # stdout and stderr in one stream, unbuffered: the lines in the order a terminal shows them
+    return subprocess.run(['bash', '-c', step.command], cwd=cwd, env=env, stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, text=True, timeout=TIMEOUT_S,
+                          stdin=subprocess.DEVNULL)
 
 
 PAGE_BLOCKS = {page: marked_blocks(page) for page in PAGES}
@@ -146,7 +148,7 @@ def test_documented_commands_print_what_the_page_quotes(page, tmp_path):
     for block in blocks:
         for step in block.steps:
             proc = run_step(step, cwd)
-            output = proc.stdout + proc.stderr
+            output = proc.stdout
             where = f'{page.relative_to(ROOT)}:{step.line}: $ {step.command}'
             expects_error = any('error:' in line for line in step.expected)
             assert proc.returncode == 0 or expects_error, \
