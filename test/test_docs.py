@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / 'README.md', *sorted((ROOT / 'docs').glob('*.md'))]
@@ -332,13 +333,23 @@ def test_node_parameter_table_matches_the_declared_parameters():
     from lidar_sim_ros.ros import lidar_sim_node as node
     lines = (ROOT / 'docs' / 'node.md').read_text().splitlines()
     start = lines.index('| parameter | default | read-only | meaning |')
-    table = {}
+    table, checked_defaults = {}, []
     for text in lines[start + 2:]:
         if not text.startswith('|'):
             break
         cells = [c.strip() for c in text.split('|')[1:-1]]
-        for name in re.findall(r'`(\w+)`', cells[0]):
+        names = re.findall(r'`(\w+)`', cells[0])
+        for name in names:
             table[name] = cells[2]
+        literal = re.fullmatch(r'`([^`]*)`', cells[1])  # a single default value, e.g. `-1`
+        if len(names) == 1 and literal and names[0] in node.STARTUP_PARAMETERS | node.DYNAMIC_PARAMETERS:
+            declared = {**node.STARTUP_PARAMETERS, **node.DYNAMIC_PARAMETERS}[names[0]][0]
+            if not isinstance(declared, (str, int, float, bool, list)):
+                declared = []  # declared by type only (Parameter.Type.STRING_ARRAY): empty
+            documented = yaml.safe_load(literal.group(1))
+            assert documented == declared or str(documented) == declared, \
+                f'node.md: {names[0]} defaults to {declared!r}, the table says {literal.group(1)}'
+            checked_defaults.append(names[0])
     declared_in_init = {'frame_id': 'no', 'effects': 'no', 'sun_direction': 'no',
                         'material_names': 'yes'}
     expected = {**{n: 'yes' for n in node.STARTUP_PARAMETERS},
@@ -346,6 +357,16 @@ def test_node_parameter_table_matches_the_declared_parameters():
     source = (ROOT / 'lidar_sim_ros' / 'ros' / 'lidar_sim_node.py').read_text()
     assert set(re.findall(r"declare_parameter\(\s*'(\w+)'", source)) == set(declared_in_init)
     assert table == expected
+    assert len(checked_defaults) >= 10  # the rows with one literal default were compared
+
+
+def test_readme_topic_table_names_the_node_topics():
+    """README's topic table holds every topic the node subscribes or publishes by default."""
+    from lidar_sim_ros.ros import lidar_sim_node as node
+    readme = (ROOT / 'README.md').read_text()
+    listed = set(re.findall(r'^\| `(/[\w/]+)`', readme, flags=re.M))
+    defaults = {v for k, (v, _) in node.STARTUP_PARAMETERS.items() if k.endswith('_topic') and v}
+    assert defaults and defaults <= listed, f'README lacks {sorted(defaults - listed)}'
 
 
 def test_transcript_parsing_and_matching():
