@@ -19,6 +19,8 @@ blocks a test cannot run (DDS demos of minutes, colcon, pip, clusters, lab data
 that is a placeholder), USAGE the synopses, whose options are checked against
 ``--help``. A new command block in none of these fails
 ``test_every_command_block_is_run_or_listed``; an entry whose block is gone fails too.
+Quoted error messages without their command are in QUOTED_ONLY, with the test that
+checks them.
 The option tables of the CLI pages and the node's parameter table are checked
 against the parser and the node's declared parameters.
 """
@@ -210,6 +212,14 @@ USAGE = {
         ('compare',),
 }
 
+# Unmarked blocks that quote error messages without the command: (page, first line) -> where
+# a test checks those messages instead.
+QUOTED_ONLY = {
+    ('compare.md', "lidar-sim compare: error: bag b: all 2 cloud(s) on '/lidar/points' are empty (no "
+                   "finite, non-zero points; 0 non-finite, 0 at the origin)"):
+        'bags built by a program: test_compare.py::test_bad_bags_name_the_problem',
+}
+
 SHELL_FENCES = ('```', '```sh', '```bash', '```console')
 COMMAND = re.compile(r'^(\$ )?(lidar-sim|make|ros2|colcon|pip|python|dask|cd|cat|sed|lidar_sim_node'
                      r'|target_pose_player|pose_tracker|\.venv/bin/\S+)( |$)')
@@ -267,6 +277,18 @@ def test_every_command_block_is_run_or_listed():
                           'NOT_RUN/USAGE with a reason:\n' + '\n'.join(unlisted))
     stale = (set(NOT_RUN) | set(USAGE)) - seen
     assert not stale, f'NOT_RUN/USAGE entries whose block is gone (or changed): {sorted(stale)}'
+
+
+def test_quoted_error_messages_are_run_or_listed():
+    """An unmarked block quoting ``error:`` lines is in QUOTED_ONLY (and every entry still exists)."""
+    found = {}
+    for page in PAGES:
+        for line, _, body, marked in fenced_blocks(page):
+            if not marked and any(re.search(r'(^|: )error:', b) for b in body):
+                found[(page.name, body[0])] = line
+    unlisted = sorted(set(found) - set(QUOTED_ONLY))
+    assert not unlisted, f'error messages quoted without a doc-test or a QUOTED_ONLY reason: {unlisted}'
+    assert not set(QUOTED_ONLY) - set(found), 'QUOTED_ONLY entries whose block is gone (or changed)'
 
 
 @contextlib.contextmanager
