@@ -423,3 +423,29 @@ def test_effect_lists_match_the_catalogue():
             full = sorted(REGISTRY)
             assert names == (full[:len(names)] if '...' in quoted else full), \
                 f'{page.name}: a quoted catalogue list is not the current one: [{quoted}]'
+
+
+def test_receiver_table_matches_the_config_defaults():
+    """sunlight.md's receiver table: every ReceiverConfig field, with its default."""
+    from lidar_sim_ros.core.config import ReceiverConfig
+    fields = ReceiverConfig.model_fields
+    lines = (ROOT / 'docs' / 'sunlight.md').read_text().splitlines()
+    start = lines.index('| key | default | why |')
+    named, compared = set(), []
+    for text in lines[start + 2:]:
+        if not text.startswith('|'):
+            break
+        cells = [c.strip() for c in text.split('|')[1:-1]]
+        names = re.findall(r'`([\w.]+)`', cells[0])
+        if any('.' in n for n in names):
+            continue  # sun.* rows: the SunConfig's, not the receiver's
+        named |= set(names)
+        values = [v.strip().strip('`') for v in cells[1].split(',')]
+        if names and len(values) == len(names) and all(n in fields for n in names):
+            for name, value in zip(names, values):
+                default = fields[name].default
+                documented = type(default)(value) if not isinstance(default, str) else value
+                assert documented == default, f'sunlight.md: {name} defaults to {default}, the table says {value}'
+                compared.append(name)
+    assert named == set(fields), f'sunlight.md receiver table vs ReceiverConfig: {sorted(named ^ set(fields))}'
+    assert len(compared) >= 10
