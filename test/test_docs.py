@@ -449,3 +449,34 @@ def test_receiver_table_matches_the_config_defaults():
                 compared.append(name)
     assert named == set(fields), f'sunlight.md receiver table vs ReceiverConfig: {sorted(named ^ set(fields))}'
     assert len(compared) >= 10
+
+
+def _table(page: str, header: str) -> list[list[str]]:
+    lines = (ROOT / 'docs' / page).read_text().splitlines()
+    start = lines.index(header)
+    rows = []
+    for text in lines[start + 2:]:
+        if not text.startswith('|'):
+            break
+        rows.append([c.strip() for c in text.split('|')[1:-1]])
+    return rows
+
+
+def test_campaign_tables_match_the_spec_models():
+    """campaign.md: the dispersible keys are Dispersions' fields, each law's keys its model's."""
+    import typing
+
+    from pydantic import BaseModel
+
+    from lidar_sim_ros.campaign import spec
+    keys = {re.match(r'`(\w+)', row[0]).group(1)
+            for row in _table('campaign.md', '| key | law | effect on the run |')}
+    assert keys == set(spec.Dispersions.model_fields)
+    laws = {}
+    for obj in vars(spec).values():
+        if isinstance(obj, type) and issubclass(obj, BaseModel) and 'dist' in obj.model_fields:
+            (name,) = typing.get_args(obj.model_fields['dist'].annotation)
+            laws[name] = set(obj.model_fields) - {'dist'}
+    documented = {re.fullmatch(r'`(\w+)`', row[0]).group(1): set(re.findall(r'`(\w+)`', row[1]))
+                  for row in _table('campaign.md', '| law | keys | draws |')}
+    assert documented == laws
