@@ -159,6 +159,16 @@ def test_documented_commands_print_what_the_page_quotes(page, tmp_path):
             missing = missing_lines(step.expected, output)
             assert not missing, (f'{where}\nthe page quotes lines the command no longer prints:\n'
                                  + '\n'.join(missing) + f'\n--- it printed:\n{output[-3000:]}')
+    written = [p.name + ('/' if p.is_dir() else '') for p in cwd.iterdir()
+               if p.name not in ('config', 'meshes', 'examples')]
+    assert not unignored(written), (f'{page.name}: its commands, run from the repository root, '
+                                    f'write {unignored(written)}, which .gitignore does not cover')
+
+
+def unignored(paths: list[str]) -> list[str]:
+    """The repository-relative ``paths`` (``dir/`` for a folder) that .gitignore does not cover."""
+    return [p for p in paths if subprocess.run(['git', '-C', str(ROOT), 'check-ignore', '-q',
+                                                '--no-index', p]).returncode != 0]
 
 
 def test_every_page_has_a_checked_block():
@@ -403,6 +413,7 @@ def test_transcript_parsing_and_matching():
         'bag: x  (2 frames, ... points)']  # order matters
     assert missing_lines(['bag: x  (3 frames, ... points)'], out) == ['bag: x  (3 frames, ... points)']
     assert line_pattern('a.b (c)').match('a.b (c)') and not line_pattern('a.b').match('axb')
+    assert unignored(['demo-output/', 'runs/', 'static_5.yaml']) == ['static_5.yaml']
 
 
 def test_effect_lists_match_the_catalogue():
