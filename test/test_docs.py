@@ -180,16 +180,19 @@ def test_every_page_has_a_checked_block():
 
 # Command blocks no test runs, keyed by (page, the block's first line), with the reason.
 NOT_RUN = {
-    ('README.md', 'make demo    # pose player + simulator node over real DDS -> rosbag2 + figures in demo-output/'):
+    ('README.md', 'make demo    # pose player + simulator node over real'
+                  ' DDS -> rosbag2 + figures in demo-output/'):
         'make demo is a ~70 s DDS run and make test the whole suite; the demo runs in '
-        'test_demo.py, its transcript is quoted in node.md',
-    ('calibration.md', 'lidar-sim calibrate brdf lab/brdf.csv --out my/materials.yaml --figure my/brdf.png'):
+        'test_node_demo.py, its transcript is quoted in node.md',
+    ('calibration.md', 'lidar-sim calibrate brdf lab/brdf.csv --out'
+                       ' my/materials.yaml --figure my/brdf.png'):
         'lab/ files are placeholders for the user\'s own data; "Try it without lab data" runs '
         'range-errors and scan on simulated bags',
     ('calibration.md', 'lidar-sim simulate my/scenario.yaml --frames 10 --out my/run'):
         'my/ holds the files the placeholder lab calibration above writes',
-    ('campaign.md', '# on the scheduler machine (port 8786; the dashboard needs bokeh, --no-dashboard otherwise)'):
-        'a Dask cluster over several machines (test_campaign.py starts a scheduler in-process)',
+    ('campaign.md', '# on the scheduler machine (port 8786; the dashboard'
+                    ' needs bokeh, --no-dashboard otherwise)'):
+        'a Dask cluster over several machines (test_campaign.py joins a local one by its address)',
     ('development.md', 'cd ~/ros2_ws/src && git clone <this repository> lidar_sim_ros'):
         'rosdep, pip, colcon and ros2 launch in a ROS workspace: outside the venv the tests use',
     ('gnc.md', 'pip install -e .[gnc]    # small_gicp; make venv installs it (requirements-gnc.txt)'):
@@ -199,12 +202,13 @@ NOT_RUN = {
     ('loop.md', 'pip install -e .[loop,gnc]   # Basilisk and small_gicp (make venv installs both)'):
         'pip, a DDS demo and a benchmark of minutes',
     ('node.md', '$ make demo'):
-        'a ~70 s DDS run (test_demo.py runs the demo)',
+        'a ~70 s DDS run (test_node_demo.py runs the demo)',
     ('node.md', 'ros2 launch lidar_sim_ros lidar_sim.launch.py                 # node + pose player'):
         'ros2 launch of nodes that run until stopped (a colcon install)',
     ('node.md', '.venv/bin/lidar_sim_node --ros-args --params-file config/params.yaml'):
-        'nodes that run until stopped; test_node.py starts them over DDS',
-    ('real-data.md', '$ lidar-sim compare lab/bag --cloud-topic /cepton_pcl2 --mesh target.obj --config lab.yaml --out cmp'):
+        'nodes that run until stopped; test_node_dds.py starts them over DDS',
+    ('real-data.md', '$ lidar-sim compare lab/bag --cloud-topic /cepton_pcl2'
+                     ' --mesh target.obj --config lab.yaml --out cmp'):
         'lab/bag, target.obj and lab.yaml are placeholders for a real recording',
     ('real-data.md', 'ros2 run lidar_sim_ros lidar_sim_node --ros-args -p point_layout:=cepton \\'):
         'ros2 run of a node that runs until stopped (a colcon install)',
@@ -214,11 +218,14 @@ NOT_RUN = {
 USAGE = {
     ('calibration.md', 'lidar-sim calibrate brdf CSV --out YAML [--material NAME] [--materials YAML]'):
         ('calibrate', 'brdf'),
-    ('calibration.md', 'lidar-sim calibrate range-errors BAG [BAG ...] --mesh OBJ --out YAML [--config SCENARIO]'):
+    ('calibration.md', 'lidar-sim calibrate range-errors BAG [BAG ...] --mesh'
+                       ' OBJ --out YAML [--config SCENARIO]'):
         ('calibrate', 'range-errors'),
-    ('calibration.md', 'lidar-sim calibrate scan BAG --out SENSOR_YAML [--sensor YAML] [--figure PNG] [--cloud-topic T]'):
+    ('calibration.md', 'lidar-sim calibrate scan BAG --out SENSOR_YAML [--sensor'
+                       ' YAML] [--figure PNG] [--cloud-topic T]'):
         ('calibrate', 'scan'),
-    ('compare.md', 'lidar-sim compare BAG --mesh OBJ [--config SCENARIO] [--effect NAME_OR_MODULE:CLASS ...] [--fit] --out DIR'):
+    ('compare.md', 'lidar-sim compare BAG --mesh OBJ [--config SCENARIO] [--effect'
+                   ' NAME_OR_MODULE:CLASS ...] [--fit] --out DIR'):
         ('compare',),
 }
 
@@ -456,9 +463,11 @@ def test_receiver_table_matches_the_config_defaults():
             for name, value in zip(names, values):
                 default = fields[name].default
                 documented = type(default)(value) if not isinstance(default, str) else value
-                assert documented == default, f'sunlight.md: {name} defaults to {default}, the table says {value}'
+                assert documented == default, \
+                    f'sunlight.md: {name} defaults to {default}, the table says {value}'
                 compared.append(name)
-    assert named == set(fields), f'sunlight.md receiver table vs ReceiverConfig: {sorted(named ^ set(fields))}'
+    assert named == set(fields), \
+        f'sunlight.md receiver table vs ReceiverConfig: {sorted(named ^ set(fields))}'
     assert len(compared) >= 10
 
 
