@@ -191,7 +191,9 @@ def simulate_loop_case(case: LoopRunCase) -> dict:
     if case.cloud is not None:
         target, _ = worker_target(case.scenario)
         model = tracker_model(case.scenario)
-    ctx = build_context(case.loop, case.scenario, case.cloud, target=target, tracker_model=model,
+    # One loop per worker thread: the tracker's ICP on one thread too.
+    loop = case.loop.model_copy(update={'tracker_threads': 1})
+    ctx = build_context(loop, case.scenario, case.cloud, target=target, tracker_model=model,
                         misalignment_xyzw=case.misalignment_xyzw)
     return run_steps(ctx, case.duration_s).metrics
 

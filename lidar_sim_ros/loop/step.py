@@ -326,7 +326,7 @@ def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics
         from lidar_sim_ros.gnc.tracker import PoseTracker, TrackerConfig, build_model
         scenario = scenario_path if hasattr(scenario_path, 'sensor') else load_scenario(scenario_path)
         simulator = Simulator.from_scenario(scenario, target=target)
-        tcfg = TrackerConfig()
+        tcfg = TrackerConfig(num_threads=config.tracker_threads)
         if tracker_model is None:
             tracker_model = build_model(simulator.target.vertices_m, simulator.target.faces, tcfg)
         tracker = PoseTracker(tracker_model, tcfg)
