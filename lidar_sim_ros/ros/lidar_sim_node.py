@@ -36,7 +36,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
 from lidar_sim_ros.core.config import (ConfigError, Scenario, load_materials, load_scenario,
-                                       load_sensor, with_frame_rate)
+                                       load_sensor, parse, with_frame_rate)
 from lidar_sim_ros.core.effects import Effect, is_plugin_spec, make_effect
 from lidar_sim_ros.core.geometry import MeshMaterialError
 from lidar_sim_ros.core.pipeline import Simulator
@@ -187,12 +187,10 @@ class LidarSimNode(Node):
         self.sim = Simulator.from_scenario(self.scenario, effects=[],
                                            threads=self.get_parameter('threads').value)
 
-        layout = self.get_parameter('point_layout').value
-        if layout not in ('native', 'cepton'):
-            raise ConfigError('<parameters>', 'point_layout', layout, "must be 'native' or 'cepton'")
-        self.layout = OutputLayout(point_layout=layout,
-                                   no_return_points=self.get_parameter('no_return_points').value,
-                                   polar_fields=self.get_parameter('polar_fields').value)
+        # Validated by the layout's own model (ConfigError naming the parameter).
+        self.layout = parse(OutputLayout, {name: self.get_parameter(name).value for name in
+                                           ('point_layout', 'no_return_points', 'polar_fields')},
+                            '<parameters>')
         self.declare_parameter('frame_id', self.layout.frame(self.scenario.config.frame_id),
                                _descriptor(S, "header frame_id of the clouds; poses must carry it "
                                               "(default: cepton3 for the cepton layout, else "
