@@ -37,7 +37,7 @@ from scipy.stats import norm
 
 from lidar_sim_ros.compare import (diagnosis, features, fields, history, likelihood as lk,
                                    materials as mat, neighbours, point_times,
-                                   pose_error,
+                                   plan as sep_plan, pose_error,
                                    stamp_place)
 from lidar_sim_ros.compare.intensity import IntensityCalibration, calibrate_intensity
 from lidar_sim_ros.compare.matching import (Matching, Model, edge_distance_rad, match,
@@ -48,7 +48,7 @@ from lidar_sim_ros.compare.shots import missed_per_unmatched
 from lidar_sim_ros.compare.sunlight import (SunFit, fit_sunlight, read_sun_track, short_points,
                                             summary_section, sunlit_decision)
 from lidar_sim_ros.compare.verdict import summary_lines, verdict
-from lidar_sim_ros.core.config import MaterialsConfig, Scenario, load_scenario
+from lidar_sim_ros.core.config import MaterialsConfig, Scenario, load_scenario, resolve
 from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
                                         parse_effect_spec)
 from lidar_sim_ros.core.geometry import load_target
@@ -88,6 +88,7 @@ class CompareOptions:
     seed: int = 0
     report: bool = True
     progress: bool = True                   # one line per stage on stderr
+    plan: bool = True                       # a tie: which recording separates it (plan.yaml)
     intensity_field: str | None = None      # field names where the driver's are not known
     time_field: str | None = None           # one field or SECONDS,SUBSECONDS
     laser_field: str | None = None
@@ -344,6 +345,18 @@ class Diagnosed:
     stamp: object | None
     pose: object | None
     before: tuple[float, float, float]
+    full: object | None = None          # the diagnosed points' FitData (lk.FitData)
+    z_crit: float = float(norm.isf(diagnosis.FAMILY_ALPHA / 6))
+
+
+@dataclass
+class Plan:
+    """The separation plan of a tie (``plan.py``): every candidate recording's expected
+    separation, best first, and the best as ``plan.yaml``."""
+
+    rows: list[dict]
+    pair: list[str]
+    yaml: str
 
 
 def run_compare(opts: CompareOptions) -> CompareResult:
@@ -390,9 +403,42 @@ def run_compare(opts: CompareOptions) -> CompareResult:
                             sunlight, opts.seed)
     else:
         diag = Diagnosed([], diagnosis.Decision(None, []), None, None, cal.calibrated)
+    plan = None
+    tied = tied_pair(diag)
+    if tied and opts.plan:
+        with stage('plan', ' against '.join(c.name for c in tied)):
+            plan = separation_plan(opts, inp, cal, effects, diag, tied)
     summary = build_summary(opts, inp, effects, fitted, cal, ana, diag, sunlight, rays,
-                            time_spread, power, pose_fit)
-    return write_outputs(opts, summary, stage, inp, effects, fitted, cal, ana, diag)
+                            time_spread, power, pose_fit, plan)
+    return write_outputs(opts, summary, stage, inp, effects, fitted, cal, ana, diag, plan)
+
+
+def tied_pair(diag: Diagnosed) -> list:
+    """The first two confounded candidates with a fitted effect (none without a tie)."""
+    by_name = {c.name: c for c in diag.cands}
+    tied = [by_name[n] for n in diag.decision.confounded_with
+            if n in by_name and by_name[n].effect is not None]
+    return tied[:2] if len(tied) >= 2 and diag.full is not None else []
+
+
+def separation_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated, effects: list[Effect],
+                    diag: Diagnosed, tied: list) -> Plan:
+    """Which recording would separate the tied pair (``plan.py``): both fitted hypotheses
+    (materials refit with each) flown on candidate recordings derived from this one."""
+    model, meas, scenario = cal.model, inp.meas, inp.scenario
+    a, b = sep_plan.hypotheses(model, diag.full, [c.effect for c in tied])
+    period = scenario.sensor.frame_period_s
+    stamps = meas.cloud_stamps_s
+    recorded = sep_plan.recorded_motion(meas.poses, float(stamps.min()),
+                                        float(stamps.max()) + frame_period_s(meas, scenario),
+                                        period, getattr(meas.poses, 't_s', None))
+    rows = sep_plan.separation_plan(model, effects, a, b, recorded, opts.seed, diag.z_crit,
+                                    DIAGNOSIS_MAX_MATCHED)
+    base_dir = scenario.source.parent if scenario.source else config_path('.')
+    text = sep_plan.plan_yaml(rows[0], a, b, scenario.seed, Path(opts.mesh).resolve(),
+                              resolve(scenario.config.sensor, base_dir),
+                              resolve(scenario.config.materials, base_dir), effects, period)
+    return Plan(rows, [a.name, b.name], text)
 
 
 def load_inputs(opts: CompareOptions) -> Inputs:
@@ -584,14 +630,16 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             diag.finalize(c)      # what a run with --effect NAME --fit would show
     stamp = _stamp_place(diag, decision, cands, meas, scenario)
     decision = sunlit_decision(decision, sunlight)
-    return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []))
+    return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
+                     diag.full, diag.z_crit)
 
 
 def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
                   fitted: list[Effect], cal: Calibrated, ana: Analysed, diag: Diagnosed,
                   sunlight: dict | None, rays: diagnosis.RaySet, time_spread: float,
                   power: PowerFromIntensity,
-                  pose_fit: pose_error.PoseError | None = None) -> dict:
+                  pose_fit: pose_error.PoseError | None = None,
+                  plan: Plan | None = None) -> dict:
     """summary.json, with the verdict."""
     meas, scenario, matching = inp.meas, inp.scenario, cal.matching
     sel = matching.matched
@@ -627,6 +675,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'confounded_with': decision.confounded_with,
         'also_explains': decision.also,
         'against_named': decision.pair_z,
+        'separation_plan': plan.rows if plan is not None else None,
         'unmatched': _unmatched_summary(ana.local, cal.model.divergence_rad, int((~sel).sum()),
                                         float(matching.unmatched_fraction),
                                         ana.isolated[ana.picked]),
@@ -665,7 +714,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
 
 def write_outputs(opts: CompareOptions, summary: dict, stage: Stages, inp: Inputs,
                   effects: list[Effect], fitted: list[Effect], cal: Calibrated,
-                  ana: Analysed, diag: Diagnosed) -> CompareResult:
+                  ana: Analysed, diag: Diagnosed, plan: Plan | None = None) -> CompareResult:
     """effects.yaml (with --fit), materials.yaml, a line of history.json, the report
     and summary.json."""
     opts.out.mkdir(parents=True, exist_ok=True)
@@ -673,6 +722,8 @@ def write_outputs(opts: CompareOptions, summary: dict, stage: Stages, inp: Input
     if fitted:
         files.append(_write(opts.out / 'effects.yaml', effects_yaml(fitted)))
     files.append(_write(opts.out / 'materials.yaml', mat.materials_yaml(cal.refit, cal.stats)))
+    if plan is not None:
+        files.append(_write(opts.out / 'plan.yaml', plan.yaml))
     hist_path = Path(opts.history) if opts.history else opts.out.resolve().parent / 'history.json'
     names = [e.name for e in effects] + ([POSE_ERROR] if inp.pose_fit else [])
     runs = history.append_run(hist_path, history.run_entry(summary, names, opts.out, opts.bag))

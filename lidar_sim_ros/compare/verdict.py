@@ -98,6 +98,8 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         scores = ', '.join(f'{n} {next(c.score for c in cands if c.name == n):.4f}'
                            for n in names)
         advice = _separation(names, summary)
+        if summary.get('separation_plan'):
+            advice += ' ' + plan_words(summary['separation_plan'])
         parts.append(
             f'{_join(names)} explain the data equally well within their uncertainty (held-out '
             f'gains {scores} nats/point): they are confounded in this recording, so none is '
@@ -219,6 +221,25 @@ def _separation(names: list[str], summary: dict) -> str:
     return (f'{a} follows the {DRIVEN_BY[a][0]}, {b} the {DRIVEN_BY[b][0]}; here the two vary '
             f'together{narrow}. A recording at {DRIVEN_BY[a][1]}, or at {DRIVEN_BY[b][1]}, '
             'would separate them.')
+
+
+def plan_words(rows: list[dict]) -> str:
+    """One sentence on the separation plan (``compare/plan.py``): the best recording and
+    its expected z, from simulating both fitted hypotheses on each candidate recording."""
+    best = rows[0]
+    ways = best['ways']
+    n = min(w['diagnosed_points'] for w in ways.values())
+    tried = f'{len(rows)} recordings tried'
+    if best['z'] is None:
+        return f'Simulating both as fitted on {tried} gave no usable estimate.'
+    if best['separates']:
+        return (f'Simulating both as fitted on {tried}, the best to separate them is '
+                f'{best["recording"]} ({best["what"]}): expected {best["margin"]:.4f} '
+                f'nats/point between them, z = {best["z"]:.1f} with {n} points (plan.yaml).')
+    return (f'Simulating both as fitted on {tried}, none separates them by the rule; the '
+            f'best, {best["recording"]}, gives {best["margin"]:.4f} nats/point, z = '
+            f'{best["z"]:.1f} with {n} points (plan.yaml): a longer recording or one '
+            'outside these would be needed.')
 
 
 def _join(names: list[str]) -> str:

@@ -1,0 +1,306 @@
+"""Which recording would separate a tie: the separation plan (``plan.yaml``).
+
+When two candidates are confounded in a recording (``Decision.confounded_with``: each
+explains the data, neither by a margin that matters as --fit leaves them), the
+question is which other recording would tell them apart. Each tied candidate is a
+hypothesis: the model with that effect at its fitted parameters and the materials as
+--fit would leave them with it (each material's bias and sigma refit on top of the
+effect, ``materials_under``). For a few candidate recordings derived from the one
+compared (``candidate_recordings``: the target at half and twice the distance, turned
+so that other incidence angles and faces meet the beam, and, where a time offset is
+tied, held still or tumbling twice as fast), both hypotheses are flown through the
+core simulator (``Simulator.simulate_frame``, no second physics) and each simulated
+recording is diagnosed as ``lidar-sim compare`` would diagnose it
+(``diagnosis.Diagnosis``: both candidates cross-fitted on halves, each material's
+offset and sigma scale profiled). The expected separation of a recording is the
+paired held-out margin of the true hypothesis over the other on its own data, nats per
+point (``Diagnosis.paired``), the smaller of the two ways (A's data: A over B; B's
+data: B over A), and its z with the points compare would diagnose in that recording
+(at most ``DIAGNOSIS_MAX_MATCHED``; the z of the bounded sample scaled by the square
+root of the point counts). A recording separates the pair when both ways the margin is
+at least the practical margin and the z at least the decision bound: then compare,
+run on it, would name the true one.
+
+Costs stay bounded: at most SIM_FRAMES frames per recording and hypothesis, at most
+SAMPLE_POINTS points of them diagnosed; power-driven effects read the model's power
+(the simulated intensity is the model's own, so no calibration is needed).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+from lidar_sim_ros.compare import diagnosis, likelihood as lk, materials as mat, neighbours
+from lidar_sim_ros.compare.matching import Model, match
+from lidar_sim_ros.compare.measurements import Measurements
+from lidar_sim_ros.core.config import MaterialsConfig
+from lidar_sim_ros.core.effects import Effect
+from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
+
+SIM_FRAMES = 2            # frames simulated per candidate recording and hypothesis
+SAMPLE_POINTS = 6000      # points of them diagnosed (the z is scaled to the recording's)
+DISTANCE_FACTORS = (0.5, 2.0)
+TURN_DEG = 60.0           # the target turned about the lidar's z and y axes by this much
+TUMBLE_FACTOR = 2.0       # "tumbling faster": this many times the recorded rate
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A candidate recording as a scenario's trajectory: the target's pose at the start
+    (lidar frame; ``position_m`` m, ``quat_xyzw``), closing speed along the initial line
+    of sight (m/s), tumble about a lidar-frame axis (deg/s), and its length (frames of
+    ``period_s`` s)."""
+
+    label: str
+    what: str
+    position_m: tuple[float, float, float]
+    quat_xyzw: tuple[float, float, float, float]
+    approach_speed_mps: float
+    tumble_axis: tuple[float, float, float]
+    tumble_rate_dps: float
+    frames: int
+    period_s: float
+
+    def trajectory(self) -> ScenarioTrajectory:
+        axis = np.asarray(self.tumble_axis, float)
+        return ScenarioTrajectory(np.asarray(self.position_m, float),
+                                  Rotation.from_quat(self.quat_xyzw), self.approach_speed_mps,
+                                  axis / np.linalg.norm(axis), np.radians(self.tumble_rate_dps))
+
+    @property
+    def duration_s(self) -> float:
+        return self.frames * self.period_s
+
+    @property
+    def distance_m(self) -> float:
+        return float(np.linalg.norm(self.position_m))
+
+    def scenario_keys(self) -> dict:
+        """The scenario's ``initial_pose`` and ``motion`` sections."""
+        return {'initial_pose': {'position_m': [round(float(x), 4) for x in self.position_m],
+                                 'quat_xyzw': [round(float(x), 6) for x in self.quat_xyzw]},
+                'motion': {'approach_speed_mps': round(float(self.approach_speed_mps), 5),
+                           'tumble_axis': [round(float(x), 5) for x in self.tumble_axis],
+                           'tumble_rate_dps': round(float(self.tumble_rate_dps), 4)}}
+
+
+def recorded_motion(poses: PoseSource, t_start_s: float, t_end_s: float, period_s: float,
+                    pose_times_s: np.ndarray | None = None) -> Recording:
+    """The recording's own motion as a scenario trajectory: its pose at the start, the
+    mean closing speed (m/s, from the distance at start and end) and the mean angular
+    velocity (the rotation increments between pose samples summed, lidar frame)."""
+    t0, t1 = float(t_start_s), float(max(t_end_s, t_start_s))
+    ts = np.unique(np.concatenate([[t0, t1], [] if pose_times_s is None else
+                                   np.asarray(pose_times_s, float)]))
+    ts = ts[(ts >= t0) & (ts <= t1)]
+    p = poses.at(ts)
+    rot = p.rotation
+    pos = np.asarray(p.position_m, float).reshape(-1, 3)
+    span = t1 - t0
+    if len(ts) > 1 and span > 0:
+        steps = (rot[1:] * rot[:-1].inv()).as_rotvec()
+        w = steps.sum(axis=0) / span
+        speed = (np.linalg.norm(pos[0]) - np.linalg.norm(pos[-1])) / span
+    else:
+        w, speed = np.zeros(3), 0.0
+    rate = float(np.linalg.norm(w))
+    axis = tuple(w / rate) if rate > 1e-12 else (0.0, 0.0, 1.0)
+    frames = max(int(round(span / period_s)), 1)
+    return Recording('this recording', 'the recording compared, flown again', tuple(pos[0]),
+                     tuple(rot[0].as_quat()), float(speed), axis, float(np.degrees(rate)),
+                     frames, period_s)
+
+
+def candidate_recordings(rec: Recording, names: list[str]) -> list[Recording]:
+    """Recordings that vary what drives each tied candidate (``verdict.DRIVEN_BY``): the
+    target at other distances (power at the same incidence; footprint size), turned
+    (other incidence angles and faces at the same distance) and, where a time offset is
+    tied, held still or tumbling faster (the offset acts through the motion only)."""
+    out = [rec]
+    for f in DISTANCE_FACTORS:
+        word = 'closer' if f < 1 else 'farther'
+        out.append(replace(rec, label=f'{f:g}x the distance',
+                           what=f'the target {word}: {f:g} x {rec.distance_m:.1f} m, same '
+                                'attitude and motion',
+                           position_m=tuple(f * np.asarray(rec.position_m)),
+                           approach_speed_mps=f * rec.approach_speed_mps))
+    for axis_name, axis in (('z', (0.0, 0.0, 1.0)), ('y', (0.0, 1.0, 0.0))):
+        turn = Rotation.from_rotvec(np.radians(TURN_DEG) * np.asarray(axis))
+        out.append(replace(rec, label=f'turned {TURN_DEG:g} deg about {axis_name}',
+                           what=f'the target turned {TURN_DEG:g} deg about the lidar {axis_name} '
+                                'axis (about its own centre): other incidence angles and faces '
+                                'at the same distance',
+                           quat_xyzw=tuple((turn * Rotation.from_quat(rec.quat_xyzw)).as_quat())))
+    if 'time_offset' in names:
+        out.append(replace(rec, label='static', what='the target held still (no tumble, no '
+                           'approach)', approach_speed_mps=0.0, tumble_rate_dps=0.0))
+        out.append(replace(rec, label=f'{TUMBLE_FACTOR:g}x the tumble rate',
+                           what=f'the target tumbling {TUMBLE_FACTOR:g} x as fast '
+                                f'({TUMBLE_FACTOR * rec.tumble_rate_dps:.2g} deg/s)',
+                           tumble_rate_dps=TUMBLE_FACTOR * rec.tumble_rate_dps))
+    return out
+
+
+def simulate_measurements(model: Model, materials: MaterialsConfig, effects: list[Effect],
+                          rec: Recording, seed: int, first_frame: int = 0) -> tuple[Measurements, int]:
+    """Fly ``rec`` with the core simulator (``model``'s sensor and target, ``materials``,
+    ``effects``): at most SIM_FRAMES frames spread over the recording, at most
+    SAMPLE_POINTS of their points (seeded draw), as Measurements; and the number of
+    points the whole recording would hold (points per simulated frame x frames)."""
+    sim = replace(model, sun=None).simulator(materials=materials, effects=effects)
+    traj = rec.trajectory()
+    pick = np.unique(np.round(np.linspace(0, rec.frames - 1, min(rec.frames, SIM_FRAMES))))
+    frames = [sim.simulate_frame(float(k) * rec.period_s, traj, first_frame + int(k))
+              for k in pick.astype(int)]
+    n_per_frame = float(np.mean([len(f) for f in frames]))
+    cloud = np.concatenate([np.full(len(f), i) for i, f in enumerate(frames)])
+    xyz = np.concatenate([f.xyz_m for f in frames])
+    t_frame = np.concatenate([f.t_s for f in frames])
+    stamps = np.array([f.stamp_s for f in frames])
+    keep = np.arange(len(xyz))
+    if len(keep) > SAMPLE_POINTS:
+        keep = np.sort(np.random.default_rng(seed).choice(keep, SAMPLE_POINTS, replace=False))
+    rng_m = np.linalg.norm(xyz, axis=1)
+    meas = Measurements(
+        bag=Path(f'plan:{rec.label}'), xyz_m=xyz[keep], range_m=rng_m[keep],
+        directions=xyz[keep] / np.maximum(rng_m[keep], 1e-12)[:, None],
+        intensity=np.concatenate([f.intensity for f in frames])[keep],
+        t_s=(stamps[cloud] + t_frame)[keep], t_frame_s=t_frame[keep], cloud=cloud[keep],
+        laser=np.concatenate([f.ring for f in frames])[keep], has_point_time=True,
+        cloud_stamps_s=stamps, epoch_s=0.0, poses=traj, material_names=None)
+    return meas, int(round(n_per_frame * rec.frames))
+
+
+def materials_under(model: Model, data: lk.FitData, effect: Effect) -> MaterialsConfig:
+    """Each material's bias and sigma refit on top of ``effect`` (and ``data``'s base
+    effects): the materials as ``--effect NAME --fit`` leaves them."""
+    on = lk.model_on_rays(data, [effect])
+    residual = np.asarray(data.measured_range_m, float) - on.expected_range_m
+    pred = replace(data.baseline, sigma_m=on.sigma_m)
+    stats = mat.material_stats(model.materials, pred, residual,
+                               np.isfinite(residual))
+    return mat.refit_materials(model.materials, stats)
+
+
+def one_way(model: Model, base: list[Effect], true: Effect, other: Effect,
+            meas: Measurements, seed: int, z_crit: float) -> tuple[float, float, int]:
+    """The simulated recording of ``true`` diagnosed as compare would (``model`` with
+    ``base``): the paired held-out margin of ``true``'s class over ``other``'s (nats per
+    point, both cross-fitted), its z, and the points diagnosed."""
+    geom = model.simulator(effects=[lk.RaysOnly(e) for e in lk.moving(base)])
+    m = match(geom, meas, model.divergence_rad, edges=False)
+    rays = diagnosis.RaySet(meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
+                            pred=m.pred, blocks=neighbours.blocks(meas.directions, meas.cloud))
+    diag = diagnosis.Diagnosis(model, base, rays, seed)
+    diag._z_crit = z_crit
+    a, b = diag.score(type(true)), diag.score(type(other))
+    if a.error or b.error:
+        return float('nan'), float('nan'), diag.n_total
+    margin, z = diag.paired(a, b)
+    return margin, z, diag.n_total
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """A tied candidate: its fitted effect and the materials --fit leaves with it."""
+
+    effect: Effect
+    materials: MaterialsConfig
+
+    @property
+    def name(self) -> str:
+        return self.effect.name
+
+
+def hypotheses(model: Model, data: lk.FitData, effects: list[Effect]) -> list[Hypothesis]:
+    return [Hypothesis(e, materials_under(model, data, e)) for e in effects]
+
+
+def separation(model: Model, base: list[Effect], a: Hypothesis, b: Hypothesis,
+               rec: Recording, seed: int, z_crit: float, max_diagnosed: int) -> dict:
+    """The expected separation of ``a`` and ``b`` by ``rec`` (module doc): each flown
+    with its own effect and materials, diagnosed against the other."""
+    rows = {}
+    for k, (true, other) in enumerate(((a, b), (b, a))):
+        meas, n_rec = simulate_measurements(model, true.materials, [*base, true.effect], rec,
+                                            seed + k, first_frame=1000 * (k + 1))
+        margin, z, n = one_way(model, base, true.effect, other.effect, meas, seed, z_crit)
+        n_diag = min(n_rec, max_diagnosed)
+        rows[true.name] = {'margin': margin, 'z_sample': z, 'sample_points': n,
+                           'z': z * np.sqrt(n_diag / max(n, 1)) if np.isfinite(z) else z,
+                           'points': n_rec, 'diagnosed_points': n_diag}
+    margins = [r['margin'] for r in rows.values()]
+    zs = [r['z'] for r in rows.values()]
+    ok = all(np.isfinite(margins)) and all(np.isfinite(zs))
+    worst = int(np.argmin(zs)) if ok else 0
+    margin = float(min(margins)) if ok else float('nan')
+    z = float(min(zs)) if ok else float('nan')
+    return {
+        'recording': rec.label, 'what': rec.what,
+        'distance_m': round(rec.distance_m, 3), 'frames': rec.frames,
+        'duration_s': round(rec.duration_s, 3),
+        'points': int(max(r['points'] for r in rows.values())),
+        'margin': _num(margin), 'z': _num(z),
+        'separates': bool(ok and margin >= diagnosis.MIN_PRACTICAL_GAIN and z >= z_crit),
+        'weaker_way': list(rows)[worst],
+        'ways': {n: {k: _num(v) if isinstance(v, float) else v for k, v in r.items()}
+                 for n, r in rows.items()},
+        **rec.scenario_keys(),
+    }
+
+
+def separation_plan(model: Model, base: list[Effect], a: Hypothesis, b: Hypothesis,
+                    recorded: Recording, seed: int, z_crit: float,
+                    max_diagnosed: int) -> list[dict]:
+    """Every candidate recording's expected separation, best first (separating ones
+    first, then by z)."""
+    rows = [separation(model, base, a, b, rec, seed, z_crit, max_diagnosed)
+            for rec in candidate_recordings(recorded, [a.name, b.name])]
+    return sorted(rows, key=lambda r: (not r['separates'],
+                                       -(r['z'] if r['z'] is not None else -np.inf)))
+
+
+def plan_yaml(row: dict, a: Hypothesis, b: Hypothesis, scenario_seed: int, mesh: Path,
+              sensor: Path, materials: Path, base: list[Effect], period_s: float) -> str:
+    """plan.yaml: the best recording as a scenario ``lidar-sim simulate`` flies (and a lab
+    can reproduce), with what it separates and the expected z in its header."""
+    def spec(h: Hypothesis) -> str:
+        params = ', '.join(f'{k}: {v:.6g}' if isinstance(v, float) else f'{k}: {v}'
+                           for k, v in h.effect.params.model_dump().items())
+        return f'{h.name}={{{params}}}'
+    verdict = ('separates them' if row['separates'] else
+               'does not separate them by the rule; it is the best of those tried')
+    head = [
+        '# Separation plan written by lidar-sim compare: the recording that best tells',
+        f'# {a.name} from {b.name} (confounded in {row["recording"]!r} compared).',
+        f'# Recording: {row["what"]}; {row["distance_m"]:.2f} m, {row["frames"]} frames '
+        f'({row["duration_s"]:.2f} s at {1 / period_s:g} Hz).',
+        f'# Expected: {row["margin"]:.4f} nats/point held out between the two (the weaker '
+        f'way, {row["weaker_way"]}\'s data), z = {row["z"]:.1f} with '
+        f'{min(r["diagnosed_points"] for r in row["ways"].values())} points diagnosed: '
+        f'{verdict}.',
+        '# Fly it (or reproduce it in the lab) and compare:',
+        f'#   lidar-sim simulate plan.yaml --frames {row["frames"]} --out DIR',
+        '# The two hypotheses as fitted (to check the plan in simulation):',
+        f'#   --effect "{spec(a)}"',
+        f'#   --effect "{spec(b)}"',
+    ]
+    body = {'seed': int(scenario_seed), 'mesh': str(mesh), 'sensor': str(sensor),
+            'materials': str(materials), 'frame_id': 'lidar',
+            'initial_pose': row['initial_pose'], 'motion': row['motion'],
+            'effects': [{'name': e.name, 'params': _plain(e.params.model_dump())}
+                        for e in base]}
+    return '\n'.join(head) + '\n' + yaml.safe_dump(body, sort_keys=False,
+                                                   default_flow_style=None)
+
+
+def _plain(d: dict) -> dict:
+    return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in d.items()}
+
+
+def _num(x: float) -> float | None:
+    return float(x) if x is not None and np.isfinite(x) else None
