@@ -42,7 +42,7 @@ from lidar_sim_ros.core.effects import Effect
 from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
 
 SIM_FRAMES = 2            # frames simulated per candidate recording and hypothesis
-SAMPLE_POINTS = 6000      # points of them diagnosed (the z is scaled to the recording's)
+SAMPLE_POINTS = 5000      # points of them diagnosed (the z is scaled to the recording's)
 DISTANCE_FACTORS = (0.5, 2.0)
 TURN_DEG = 60.0           # the target turned about the lidar's z and y axes by this much
 TUMBLE_FACTOR = 2.0       # "tumbling faster": this many times the recorded rate
@@ -269,14 +269,14 @@ def plan_yaml(row: dict, a: Hypothesis, b: Hypothesis, scenario_seed: int, mesh:
     """plan.yaml: the best recording as a scenario ``lidar-sim simulate`` flies (and a lab
     can reproduce), with what it separates and the expected z in its header."""
     def spec(h: Hypothesis) -> str:
-        params = ', '.join(f'{k}: {v:.6g}' if isinstance(v, float) else f'{k}: {v}'
-                           for k, v in h.effect.params.model_dump().items())
-        return f'{h.name}={{{params}}}'
+        params = {k: float(f'{v:.6g}') if isinstance(v, float) else v
+                  for k, v in h.effect.params.model_dump().items() if v is not None}
+        return f'{h.name}=' + yaml.safe_dump(params, default_flow_style=True).strip()
     verdict = ('separates them' if row['separates'] else
                'does not separate them by the rule; it is the best of those tried')
     head = [
         '# Separation plan written by lidar-sim compare: the recording that best tells',
-        f'# {a.name} from {b.name} (confounded in {row["recording"]!r} compared).',
+        f'# {a.name} from {b.name} (confounded in the recording compared).',
         f'# Recording: {row["what"]}; {row["distance_m"]:.2f} m, {row["frames"]} frames '
         f'({row["duration_s"]:.2f} s at {1 / period_s:g} Hz).',
         f'# Expected: {row["margin"]:.4f} nats/point held out between the two (the weaker '

@@ -1,0 +1,112 @@
+"""The separation plan of a tie (compare/plan.py): which recording would tell two
+confounded candidates apart, written as plan.yaml, and whether it does.
+
+A tie from the foreign battery (a short pass at near-constant range with a range walk
+and speckle: range_walk and incidence_angle confounded) is compared; its plan.yaml must
+load as a scenario; every hypothesis the plan says its best recording separates is
+flown on that recording (``lidar-sim simulate plan.yaml --effect ...``) and compare,
+run on it, must name exactly that effect.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from foreign_sim import battery, generate
+
+from lidar_sim_ros.compare import diagnosis, plan
+from lidar_sim_ros.compare.run import CompareOptions, run_compare
+from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.pose import PoseTrack
+from lidar_sim_ros.offline import simulate_to_bag
+
+
+@pytest.fixture(scope='module')
+def tie(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp('plan')
+    ds = generate(battery(['short_range_walk_speckle'])[0], tmp / 'ds')
+    res = run_compare(CompareOptions(ds.bag, ds.mesh, tmp / 'runs' / 'tie', ds.scenario,
+                                     report=False, progress=False))
+    return ds, res, tmp
+
+
+def test_a_tie_gets_a_plan_that_loads_as_a_scenario(tie):
+    _, res, _ = tie
+    s = res.summary
+    assert s['missing_effect'] is None and s['confounded_with'][:2] == ['range_walk',
+                                                                      'incidence_angle']
+    rows = s['separation_plan']
+    assert [r['recording'] for r in rows].count('this recording') == 1
+    assert {r['recording'] for r in rows} >= {'0.5x the distance', '2x the distance'}
+    for r in rows:
+        assert set(r['ways']) == {'range_walk', 'incidence_angle'}
+        assert r['margin'] == pytest.approx(min(w['margin'] for w in r['ways'].values()))
+    # The recording compared, flown again under each hypothesis, is the tie it was.
+    this = next(r for r in rows if r['recording'] == 'this recording')
+    assert not this['separates']
+    path = res.out / 'plan.yaml'
+    assert path in res.files
+    scenario = load_scenario(path)           # the project's loader validates it
+    best = rows[0]
+    assert list(scenario.config.initial_pose.position_m) == pytest.approx(
+        best['initial_pose']['position_m'], abs=1e-3)
+    assert f'z = {best["z"]:.1f}' in path.read_text()
+    assert best['recording'] in s['verdict'] and 'plan.yaml' in s['verdict']
+
+
+def test_the_planned_recording_names_the_hypothesis_it_separates(tie):
+    """Each way the plan expects to separate (margin and z above the rule) is flown and
+    compared: compare names that effect. At least one way must be expected to."""
+    _, res, tmp = tie
+    best = res.summary['separation_plan'][0]
+    text = (res.out / 'plan.yaml').read_text()
+    specs = {line.split('"')[1].split('=')[0]: line.split('"')[1]
+             for line in text.splitlines() if line.startswith('#   --effect')}
+    z_crit = diagnosis.Diagnosis.z_crit.fget(object())   # the catalogue's bound
+    ways = [n for n, w in best['ways'].items()
+            if w['margin'] >= diagnosis.MIN_PRACTICAL_GAIN and w['z'] >= z_crit]
+    assert ways, best
+    for name in ways:
+        out = tmp / f'fly_{name}'
+        sim = simulate_to_bag(res.out / 'plan.yaml', out, frames=min(best['frames'], 4),
+                              effects=[specs[name]], figures=False)
+        again = run_compare(CompareOptions(sim.bag_path, load_scenario(res.out / 'plan.yaml')
+                                           .mesh_path, out / 'cmp', res.out / 'plan.yaml',
+                                           report=False, progress=False, plan=False))
+        assert again.summary['missing_effect'] == name, again.summary['verdict'][:300]
+
+
+def test_recorded_motion_is_the_track_s_own():
+    """A track at a constant tumble and closing speed gives them back, from its start."""
+    t = np.linspace(0.0, 2.0, 21)
+    axis = np.array([0.2, 0.0, 1.0]) / np.linalg.norm([0.2, 0.0, 1.0])
+    q0 = Rotation.from_euler('xyz', [10, 20, 30], degrees=True)
+    rot = Rotation.from_rotvec(np.radians(30.0) * t[:, None] * axis) * q0
+    los = np.array([1.0, 0.1, 0.0]) / np.linalg.norm([1.0, 0.1, 0.0])
+    pos = (10.0 - 0.05 * t)[:, None] * los
+    rec = plan.recorded_motion(PoseTrack(t, pos, rot.as_quat()), 0.0, 2.0, 0.1, t)
+    assert rec.tumble_rate_dps == pytest.approx(30.0, rel=1e-6)
+    assert np.asarray(rec.tumble_axis) == pytest.approx(axis, abs=1e-6)
+    assert rec.approach_speed_mps == pytest.approx(0.05, rel=1e-6)
+    assert rec.frames == 20
+    poses = rec.trajectory().at(t)
+    assert poses.position_m == pytest.approx(pos, abs=1e-9)
+    assert (poses.rotation * rot.inv()).magnitude() == pytest.approx(np.zeros(len(t)), abs=1e-6)
+
+
+def test_candidates_vary_what_drives_each_effect():
+    rec = plan.Recording('this recording', '', (10.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), 0.05,
+                         (0.0, 0.0, 1.0), 6.0, 10, 0.1)
+    rows = plan.candidate_recordings(rec, ['range_walk', 'incidence_angle'])
+    assert [r.distance_m for r in rows[:3]] == pytest.approx([10.0, 5.0, 20.0])
+    turned = [r for r in rows if r.label.startswith('turned')]
+    assert len(turned) == 2 and all(r.distance_m == pytest.approx(10.0) for r in turned)
+    assert all(Rotation.from_quat(r.quat_xyzw).magnitude() == pytest.approx(np.radians(60))
+               for r in turned)
+    assert not any(r.tumble_rate_dps != 6.0 for r in rows)
+    timed = plan.candidate_recordings(rec, ['time_offset', 'incidence_angle'])
+    assert sorted(r.tumble_rate_dps for r in timed)[:1] == [0.0]
+    assert max(r.tumble_rate_dps for r in timed) == pytest.approx(12.0)
