@@ -250,6 +250,21 @@ def _table(rows: list[list], header: list[str]) -> str:
     return f'<table><tr>{head}</tr>{body}</table>'
 
 
+def plan_table(rows: list[dict]) -> str:
+    """The separation plan (summary.json's ``separation_plan``) as a table."""
+    def way(w: dict) -> str:
+        return ('n/a' if w['margin'] is None or w['z'] is None
+                else f'{w["margin"]:.4f} (z {w["z"]:.1f})')
+    names = list(rows[0]['ways'])
+    body = [[r['recording'], f'{r["distance_m"]:.1f}', r['frames'], r['points'],
+             *(way(r['ways'][n]) for n in names),
+             'n/a' if r['margin'] is None else f'{r["margin"]:.4f}',
+             'n/a' if r['z'] is None else f'{r["z"]:.1f}', 'yes' if r['separates'] else 'no']
+            for r in rows]
+    return _table(body, ['recording', 'distance (m)', 'frames', 'points',
+                         *(f'{n} data: margin (z)' for n in names), 'margin', 'z', 'separates'])
+
+
 def _fmt(v) -> str:
     if isinstance(v, float):
         return 'n/a' if not np.isfinite(v) else f'{v:.5g}'
@@ -384,6 +399,16 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
                   f'z = {pose["z"]:.1f}). A reference error (tracking system, extrinsic '
                   'calibration), not a sensor effect.</p>',
                   _img(figs['pose'], 'reference pose correction per cloud')]
+    if s.get('separation_plan'):
+        parts += ['<h2>Which recording would separate the tie</h2>',
+                  '<p>Both confounded candidates as fitted (materials refit with each) flown '
+                  'by the simulator on each recording, and each simulated recording diagnosed '
+                  'as compare would: the held-out margin of the true hypothesis over the other '
+                  '(nats per point, the weaker of the two ways) and its z with the points '
+                  'compare would diagnose. It separates them when both ways clear the rule '
+                  '(margin at least 0.005 nats/point and z above the bound). The best is '
+                  'written as plan.yaml.</p>',
+                  plan_table(s['separation_plan'])]
     parts += ['<h2>History: the error across runs</h2>',
               f'<p>From {html.escape(s.get("history", ""))}. RMSE and NLL with each '
               'material\'s offset and sigma refit in every run (one basis for runs with and '

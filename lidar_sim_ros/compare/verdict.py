@@ -238,8 +238,8 @@ def plan_words(rows: list[dict]) -> str:
                 f'nats/point between them, z = {best["z"]:.1f} with {n} points (plan.yaml).')
     return (f'Simulating both as fitted on {tried}, none separates them by the rule; the '
             f'best, {best["recording"]}, gives {best["margin"]:.4f} nats/point, z = '
-            f'{best["z"]:.1f} with {n} points (plan.yaml): a longer recording or one '
-            'outside these would be needed.')
+            f'{best["z"]:.1f} with {n} points (plan.yaml): a recording '
+            'other than these would be needed.')
 
 
 def _join(names: list[str]) -> str:
