@@ -87,6 +87,12 @@ def borderline_tie(summary: dict, name: str) -> bool:
     tied = summary.get('confounded_with') or []
     if name not in tied:
         return False
+    # The tie must be the recording's, not the tool's: the tied pair as fitted, flown
+    # again on this recording (compare/plan.py, separation_plan's 'this recording'),
+    # must not separate by compare's own rule; if it does, compare should have named one.
+    plan = summary.get('separation_plan') or []
+    if any(r.get('recording') == 'this recording' and r.get('separates') for r in plan):
+        return False
     pairs = summary.get('against_named') or {}
     margins = [(pairs.get(n) or {}).get('fitted_margin') for n in tied[1:]]
     return all(m is not None and m < BORDERLINE[1] * PRACTICAL_NATS for m in margins)
