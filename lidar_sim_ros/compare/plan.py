@@ -246,6 +246,7 @@ def separation(model: Model, base: list[Effect], a: Hypothesis, b: Hypothesis,
         'points': int(max(r['points'] for r in rows.values())),
         'margin': _num(margin), 'z': _num(z),
         'separates': bool(ok and margin >= diagnosis.MIN_PRACTICAL_GAIN and z >= z_crit),
+        'z_bound': round(float(z_crit), 3),
         'weaker_way': list(rows)[worst],
         'ways': {n: {k: _num(v) if isinstance(v, float) else v for k, v in r.items()}
                  for n, r in rows.items()},
