@@ -9,7 +9,6 @@ run on it, must name exactly that effect.
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest

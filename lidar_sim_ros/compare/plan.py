@@ -146,7 +146,8 @@ def candidate_recordings(rec: Recording, names: list[str]) -> list[Recording]:
 
 
 def simulate_measurements(model: Model, materials: MaterialsConfig, effects: list[Effect],
-                          rec: Recording, seed: int, first_frame: int = 0) -> tuple[Measurements, int]:
+                          rec: Recording, seed: int,
+                          first_frame: int = 0) -> tuple[Measurements, int]:
     """Fly ``rec`` with the core simulator (``model``'s sensor and target, ``materials``,
     ``effects``): at most SIM_FRAMES frames spread over the recording, at most
     SAMPLE_POINTS of their points (seeded draw), as Measurements; and the number of
