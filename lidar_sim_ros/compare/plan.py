@@ -21,8 +21,9 @@ root of the point counts). A recording separates the pair when both ways the mar
 at least the practical margin and the z at least the decision bound: then compare,
 run on it, would name the true one.
 
-Costs stay bounded: at most SIM_FRAMES frames per recording and hypothesis, at most
-SAMPLE_POINTS points of them diagnosed; power-driven effects read the model's power
+Costs stay bounded: SIM_FRAMES frames per recording and hypothesis (more, up to
+MAX_SIM_FRAMES, when they hold fewer than SAMPLE_POINTS points), at most SAMPLE_POINTS
+points of them diagnosed; power-driven effects read the model's power
 (the simulated intensity is the model's own, so no calibration is needed).
 """
 from __future__ import annotations
@@ -41,7 +42,8 @@ from lidar_sim_ros.core.config import MaterialsConfig
 from lidar_sim_ros.core.effects import Effect
 from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
 
-SIM_FRAMES = 2            # frames simulated per candidate recording and hypothesis
+SIM_FRAMES = 2            # frames simulated per candidate recording and hypothesis, ...
+MAX_SIM_FRAMES = 12       # ... or more, up to this, until they hold SAMPLE_POINTS
 SAMPLE_POINTS = 5000      # points of them diagnosed (the z is scaled to the recording's)
 DISTANCE_FACTORS = (0.5, 2.0)
 TURN_DEG = 60.0           # the target turned about the lidar's z and y axes by this much
@@ -149,14 +151,20 @@ def simulate_measurements(model: Model, materials: MaterialsConfig, effects: lis
                           rec: Recording, seed: int,
                           first_frame: int = 0) -> tuple[Measurements, int]:
     """Fly ``rec`` with the core simulator (``model``'s sensor and target, ``materials``,
-    ``effects``): at most SIM_FRAMES frames spread over the recording, at most
-    SAMPLE_POINTS of their points (seeded draw), as Measurements; and the number of
+    ``effects``): SIM_FRAMES frames spread over the recording (more, up to
+    MAX_SIM_FRAMES, until they hold SAMPLE_POINTS points), at most SAMPLE_POINTS of
+    their points (seeded draw), as Measurements; and the number of
     points the whole recording would hold (points per simulated frame x frames)."""
     sim = replace(model, sun=None).simulator(materials=materials, effects=effects)
     traj = rec.trajectory()
-    pick = np.unique(np.round(np.linspace(0, rec.frames - 1, min(rec.frames, SIM_FRAMES))))
-    frames = [sim.simulate_frame(float(k) * rec.period_s, traj, first_frame + int(k))
-              for k in pick.astype(int)]
+    first = sim.simulate_frame(0.0, traj, first_frame)
+    # Enough frames for the sample (a far target gives few points per frame: a fit on a
+    # few hundred points is not what compare would see), spread over the recording.
+    wanted = max(SIM_FRAMES, int(np.ceil(SAMPLE_POINTS / max(len(first), 1))))
+    pick = np.unique(np.round(np.linspace(0, rec.frames - 1,
+                                          min(rec.frames, wanted, MAX_SIM_FRAMES))))
+    frames = [first] + [sim.simulate_frame(float(k) * rec.period_s, traj, first_frame + int(k))
+                        for k in pick.astype(int) if k > 0]
     n_per_frame = float(np.mean([len(f) for f in frames]))
     cloud = np.concatenate([np.full(len(f), i) for i, f in enumerate(frames)])
     xyz = np.concatenate([f.xyz_m for f in frames])
@@ -188,10 +196,11 @@ def materials_under(model: Model, data: lk.FitData, effect: Effect) -> Materials
 
 
 def one_way(model: Model, base: list[Effect], true: Effect, other: Effect,
-            meas: Measurements, seed: int, z_crit: float) -> tuple[float, float, int]:
+            meas: Measurements, seed: int, z_crit: float) -> dict:
     """The simulated recording of ``true`` diagnosed as compare would (``model`` with
-    ``base``): the paired held-out margin of ``true``'s class over ``other``'s (nats per
-    point, both cross-fitted), its z, and the points diagnosed."""
+    ``base``): the paired held-out ``margin`` of ``true``'s class over ``other``'s (nats
+    per point, both cross-fitted), its ``z``, the points diagnosed (``n``) and each
+    one's held-out gain and fitted parameters."""
     geom = model.simulator(effects=[lk.RaysOnly(e) for e in lk.moving(base)])
     m = match(geom, meas, model.divergence_rad, edges=False)
     rays = diagnosis.RaySet(meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
@@ -199,10 +208,12 @@ def one_way(model: Model, base: list[Effect], true: Effect, other: Effect,
     diag = diagnosis.Diagnosis(model, base, rays, seed)
     diag._z_crit = z_crit
     a, b = diag.score(type(true)), diag.score(type(other))
-    if a.error or b.error:
-        return float('nan'), float('nan'), diag.n_total
-    margin, z = diag.paired(a, b)
-    return margin, z, diag.n_total
+    out = {'n': diag.n_total, 'margin': float('nan'), 'z': float('nan'),
+           'gain_true': a.score, 'gain_other': b.score,
+           'fitted_true': a.params, 'fitted_other': b.params}
+    if not (a.error or b.error):
+        out['margin'], out['z'] = diag.paired(a, b)
+    return out
 
 
 @dataclass(frozen=True)
@@ -229,11 +240,15 @@ def separation(model: Model, base: list[Effect], a: Hypothesis, b: Hypothesis,
     for k, (true, other) in enumerate(((a, b), (b, a))):
         meas, n_rec = simulate_measurements(model, true.materials, [*base, true.effect], rec,
                                             seed + k, first_frame=1000 * (k + 1))
-        margin, z, n = one_way(model, base, true.effect, other.effect, meas, seed, z_crit)
+        got = one_way(model, base, true.effect, other.effect, meas, seed, z_crit)
+        n, z = got['n'], got['z']
         n_diag = min(n_rec, max_diagnosed)
-        rows[true.name] = {'margin': margin, 'z_sample': z, 'sample_points': n,
+        rows[true.name] = {'margin': got['margin'], 'z_sample': z, 'sample_points': n,
                            'z': z * np.sqrt(n_diag / max(n, 1)) if np.isfinite(z) else z,
-                           'points': n_rec, 'diagnosed_points': n_diag}
+                           'points': n_rec, 'diagnosed_points': n_diag,
+                           'gain_true': got['gain_true'], 'gain_other': got['gain_other'],
+                           'fitted_true': got['fitted_true'],
+                           'fitted_other': got['fitted_other']}
     margins = [r['margin'] for r in rows.values()]
     zs = [r['z'] for r in rows.values()]
     ok = all(np.isfinite(margins)) and all(np.isfinite(zs))
