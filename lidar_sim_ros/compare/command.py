@@ -45,6 +45,9 @@ def register(subparsers) -> None:
                    help='effects to diagnose (default: the whole catalogue)')
     add_field_options(p)
     p.add_argument('--no-report', action='store_true', help='skip report.html')
+    p.add_argument('--no-plan', action='store_true',
+                   help='on a tie, skip simulating which recording would separate it '
+                        '(plan.yaml)')
     p.set_defaults(func=run)
 
 
@@ -57,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         fit=args.fit, cloud_topic=args.cloud_topic, pose_topic=args.pose_topic,
         sun_topic=args.sun_topic, history=args.history,
         max_points=args.max_points or DEFAULT_MAX_POINTS,
-        candidates=args.candidates, report=not args.no_report,
+        candidates=args.candidates, report=not args.no_report, plan=not args.no_plan,
         intensity_field=args.intensity_field, time_field=args.time_field,
         laser_field=args.laser_field))
     print('\n'.join(field_lines(result.summary) + result.lines))

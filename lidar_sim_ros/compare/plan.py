@@ -235,9 +235,15 @@ def hypotheses(model: Model, data: lk.FitData, effects: list[Effect]) -> list[Hy
 def separation(model: Model, base: list[Effect], a: Hypothesis, b: Hypothesis,
                rec: Recording, seed: int, z_crit: float, max_diagnosed: int) -> dict:
     """The expected separation of ``a`` and ``b`` by ``rec`` (module doc): each flown
-    with its own effect and materials, diagnosed against the other."""
+    with its own effect and materials, diagnosed against the other. When the first way
+    already fails the rule the recording cannot separate them, and the second is not
+    flown (``skipped``): the row's margin and z are then the first way's, an upper
+    bound of the weaker way's."""
     rows = {}
     for k, (true, other) in enumerate(((a, b), (b, a))):
+        if rows and not _passes(next(iter(rows.values())), z_crit):
+            rows[true.name] = {'skipped': True}
+            continue
         meas, n_rec = simulate_measurements(model, true.materials, [*base, true.effect], rec,
                                             seed + k, first_frame=1000 * (k + 1))
         got = one_way(model, base, true.effect, other.effect, meas, seed, z_crit)
@@ -249,8 +255,9 @@ def separation(model: Model, base: list[Effect], a: Hypothesis, b: Hypothesis,
                            'gain_true': got['gain_true'], 'gain_other': got['gain_other'],
                            'fitted_true': got['fitted_true'],
                            'fitted_other': got['fitted_other']}
-    margins = [r['margin'] for r in rows.values()]
-    zs = [r['z'] for r in rows.values()]
+    done = {n: r for n, r in rows.items() if not r.get('skipped')}
+    margins = [r['margin'] for r in done.values()]
+    zs = [r['z'] for r in done.values()]
     ok = all(np.isfinite(margins)) and all(np.isfinite(zs))
     worst = int(np.argmin(zs)) if ok else 0
     margin = float(min(margins)) if ok else float('nan')
@@ -259,15 +266,21 @@ def separation(model: Model, base: list[Effect], a: Hypothesis, b: Hypothesis,
         'recording': rec.label, 'what': rec.what,
         'distance_m': round(rec.distance_m, 3), 'frames': rec.frames,
         'duration_s': round(rec.duration_s, 3),
-        'points': int(max(r['points'] for r in rows.values())),
+        'points': int(max(r['points'] for r in done.values())),
         'margin': _num(margin), 'z': _num(z),
-        'separates': bool(ok and margin >= diagnosis.MIN_PRACTICAL_GAIN and z >= z_crit),
+        'separates': bool(ok and len(done) == 2 and all(_passes(r, z_crit)
+                                                        for r in done.values())),
         'z_bound': round(float(z_crit), 3),
-        'weaker_way': list(rows)[worst],
+        'weaker_way': list(done)[worst],
         'ways': {n: {k: _num(v) if isinstance(v, float) else v for k, v in r.items()}
                  for n, r in rows.items()},
         **rec.scenario_keys(),
     }
+
+
+def _passes(way: dict, z_crit: float) -> bool:
+    """Whether one way clears compare's rule: margin and z (NaN: no)."""
+    return bool(way['margin'] >= diagnosis.MIN_PRACTICAL_GAIN and way['z'] >= z_crit)
 
 
 def separation_plan(model: Model, base: list[Effect], a: Hypothesis, b: Hypothesis,
@@ -298,7 +311,8 @@ def plan_yaml(row: dict, a: Hypothesis, b: Hypothesis, scenario_seed: int, mesh:
         f'({row["duration_s"]:.2f} s at {1 / period_s:g} Hz).',
         f'# Expected: {row["margin"]:.4f} nats/point held out between the two (the weaker '
         f'way, {row["weaker_way"]}\'s data), z = {row["z"]:.1f} with '
-        f'{min(r["diagnosed_points"] for r in row["ways"].values())} points diagnosed: '
+        f'{min(r["diagnosed_points"] for r in row["ways"].values() if "skipped" not in r)} '
+        'points diagnosed: '
         f'{verdict}.',
         '# Fly it (or reproduce it in the lab) and compare:',
         f'#   lidar-sim simulate plan.yaml --frames {row["frames"]} --out DIR',

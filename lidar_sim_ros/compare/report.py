@@ -253,6 +253,8 @@ def _table(rows: list[list], header: list[str]) -> str:
 def plan_table(rows: list[dict]) -> str:
     """The separation plan (summary.json's ``separation_plan``) as a table."""
     def way(w: dict) -> str:
+        if w.get('skipped'):
+            return 'not flown (the other way fails)'
         return ('n/a' if w['margin'] is None or w['z'] is None
                 else f'{w["margin"]:.4f} (z {w["z"]:.1f})')
     names = list(rows[0]['ways'])

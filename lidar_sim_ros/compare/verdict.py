@@ -228,7 +228,7 @@ def plan_words(rows: list[dict]) -> str:
     its expected z, from simulating both fitted hypotheses on each candidate recording."""
     best = rows[0]
     ways = best['ways']
-    n = min(w['diagnosed_points'] for w in ways.values())
+    n = min(w['diagnosed_points'] for w in ways.values() if 'skipped' not in w)
     tried = f'{len(rows)} recordings tried'
     if best['z'] is None:
         return f'Simulating both as fitted on {tried} gave no usable estimate.'
