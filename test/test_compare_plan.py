@@ -3,9 +3,9 @@ confounded candidates apart, written as plan.yaml, and whether it does.
 
 A tie from the foreign battery (a short pass at near-constant range with a range walk
 and speckle: range_walk and incidence_angle confounded) is compared; its plan.yaml must
-load as a scenario; every hypothesis the plan says its best recording separates is
-flown on that recording (``lidar-sim simulate plan.yaml --effect ...``) and compare,
-run on it, must name exactly that effect.
+load as a scenario; the plan's best recording must separate the pair, and flown with
+either hypothesis (``lidar-sim simulate plan.yaml --effect ...``), compare must name
+that one.
 """
 from __future__ import annotations
 
@@ -39,7 +39,8 @@ def test_a_tie_gets_a_plan_that_loads_as_a_scenario(tie):
                                                                       'incidence_angle']
     rows = s['separation_plan']
     assert [r['recording'] for r in rows].count('this recording') == 1
-    assert {r['recording'] for r in rows} >= {'0.5x the distance', '2x the distance'}
+    assert {r['recording'] for r in rows} >= {'0.5x the distance', '2x the distance',
+                                              'approach 2x to 0.5x'}
     for r in rows:
         assert set(r['ways']) == {'range_walk', 'incidence_angle'}
         flown = [w for w in r['ways'].values() if not w.get('skipped')]
@@ -61,10 +62,12 @@ def test_a_tie_gets_a_plan_that_loads_as_a_scenario(tie):
 
 
 def test_the_planned_recording_names_the_hypothesis_it_separates(tie):
-    """Each way the plan expects to separate (margin and z above the rule) is flown and
-    compared: compare names that effect. At least one way must be expected to."""
+    """The plan's best recording separates the tie both ways (the approach from 2x to
+    0.5x the distance: margins 0.059 and 0.012 nats/point, z 15 and 7.5); flown as
+    plan.yaml says with either hypothesis, compare names that one."""
     _, res, tmp = tie
     best = res.summary['separation_plan'][0]
+    assert best['separates'] and best['recording'].startswith('approach'), best
     text = (res.out / 'plan.yaml').read_text()
     specs = {line.split('"')[1].split('=')[0]: line.split('"')[1]
              for line in text.splitlines() if line.startswith('#   --effect')}
@@ -73,11 +76,12 @@ def test_the_planned_recording_names_the_hypothesis_it_separates(tie):
     assert ways, best
     for name in ways:
         out = tmp / f'fly_{name}'
-        sim = simulate_to_bag(res.out / 'plan.yaml', out, frames=min(best['frames'], 4),
+        sim = simulate_to_bag(res.out / 'plan.yaml', out, frames=best['frames'],
                               effects=[specs[name]], figures=False)
         again = run_compare(CompareOptions(sim.bag_path, load_scenario(res.out / 'plan.yaml')
                                            .mesh_path, out / 'cmp', res.out / 'plan.yaml',
-                                           report=False, progress=False, plan=False))
+                                           report=False, progress=False, plan=False,
+                                           max_points=40_000))
         assert again.summary['missing_effect'] == name, again.summary['verdict'][:300]
 
 

@@ -6,7 +6,8 @@ question is which other recording would tell them apart. Each tied candidate is 
 hypothesis: the model with that effect at its fitted parameters and the materials as
 --fit would leave them with it (each material's bias and sigma refit on top of the
 effect, ``materials_under``). For a few candidate recordings derived from the one
-compared (``candidate_recordings``: the target at half and twice the distance, turned
+compared (``candidate_recordings``: the target at half and twice the distance, approaching
+from twice to half the distance within one recording, turned
 so that other incidence angles and faces meet the beam, and, where a time offset is
 tied, held still or tumbling twice as fast), both hypotheses are flown through the
 core simulator (``Simulator.simulate_frame``, no second physics) and each simulated
@@ -48,6 +49,10 @@ SAMPLE_POINTS = 5000      # points of them diagnosed (the z is scaled to the rec
 DISTANCE_FACTORS = (0.5, 2.0)
 TURN_DEG = 60.0           # the target turned about the lidar's z and y axes by this much
 TUMBLE_FACTOR = 2.0       # "tumbling faster": this many times the recorded rate
+# "Approach": from the farthest to the nearest of DISTANCE_FACTORS within one recording of
+# APPROACH_S s, so the range (and the power) vary within it: a per-material offset cannot
+# take up what changes with the distance, as it does between recordings.
+APPROACH_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -119,7 +124,8 @@ def recorded_motion(poses: PoseSource, t_start_s: float, t_end_s: float, period_
 
 def candidate_recordings(rec: Recording, names: list[str]) -> list[Recording]:
     """Recordings that vary what drives each tied candidate (``verdict.DRIVEN_BY``): the
-    target at other distances (power at the same incidence; footprint size), turned
+    target at other distances (power at the same incidence; footprint size), approaching
+    from the farther to the nearer within one recording (APPROACH_S), turned
     (other incidence angles and faces at the same distance) and, where a time offset is
     tied, held still or tumbling faster (the offset acts through the motion only)."""
     out = [rec]
@@ -130,6 +136,16 @@ def candidate_recordings(rec: Recording, names: list[str]) -> list[Recording]:
                                 'attitude and motion',
                            position_m=tuple(f * np.asarray(rec.position_m)),
                            approach_speed_mps=f * rec.approach_speed_mps))
+    near, far = min(DISTANCE_FACTORS), max(DISTANCE_FACTORS)
+    frames = max(int(round(APPROACH_S / rec.period_s)), 1)
+    speed = (far - near) * rec.distance_m / (frames * rec.period_s)
+    out.append(replace(rec, label=f'approach {far:g}x to {near:g}x',
+                       what=f'the target approaching from {far * rec.distance_m:.1f} m to '
+                            f'{near * rec.distance_m:.1f} m in {frames * rec.period_s:g} s '
+                            f'({speed:.2g} m/s), same attitude and tumble: the range varies '
+                            'within the recording',
+                       position_m=tuple(far * np.asarray(rec.position_m)),
+                       approach_speed_mps=speed, frames=frames))
     for axis_name, axis in (('z', (0.0, 0.0, 1.0)), ('y', (0.0, 1.0, 0.0))):
         turn = Rotation.from_rotvec(np.radians(TURN_DEG) * np.asarray(axis))
         out.append(replace(rec, label=f'turned {TURN_DEG:g} deg about {axis_name}',
