@@ -24,7 +24,9 @@ run on it, would name the true one.
 
 Costs stay bounded: SIM_FRAMES frames per recording and hypothesis (more, up to
 MAX_SIM_FRAMES, when they hold fewer than SAMPLE_POINTS points), at most SAMPLE_POINTS
-points of them diagnosed; power-driven effects read the model's power
+points of them diagnosed (SAMPLE_POINTS_CAST for an effect that casts its own rays),
+the second way not flown when the first fails, and no further recording once one
+separates the pair by ENOUGH_Z times the bound; power-driven effects read the model's power
 (the simulated intensity is the model's own, so no calibration is needed).
 """
 from __future__ import annotations
@@ -46,6 +48,12 @@ from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
 SIM_FRAMES = 2            # frames simulated per candidate recording and hypothesis, ...
 MAX_SIM_FRAMES = 12       # ... or more, up to this, until they hold SAMPLE_POINTS
 SAMPLE_POINTS = 5000      # points of them diagnosed (the z is scaled to the recording's)
+# ... and for a tie with an effect that casts rays of its own (a beam footprint, ghosts:
+# each fit trial re-casts every ray), fewer: its fits cost ~10 times more per point.
+SAMPLE_POINTS_CAST = 1500
+# Once a recording separates the pair with this many times the decision bound in z, the
+# candidates after it are not flown (the table lists those flown).
+ENOUGH_Z = 1.5
 DISTANCE_FACTORS = (0.5, 2.0)
 TURN_DEG = 60.0           # the target turned about the lidar's z and y axes by this much
 TUMBLE_FACTOR = 2.0       # "tumbling faster": this many times the recorded rate
@@ -123,19 +131,20 @@ def recorded_motion(poses: PoseSource, t_start_s: float, t_end_s: float, period_
 
 
 def candidate_recordings(rec: Recording, names: list[str]) -> list[Recording]:
-    """Recordings that vary what drives each tied candidate (``verdict.DRIVEN_BY``): the
-    target at other distances (power at the same incidence; footprint size), approaching
-    from the farther to the nearer within one recording (APPROACH_S), turned
-    (other incidence angles and faces at the same distance) and, where a time offset is
-    tied, held still or tumbling faster (the offset acts through the motion only)."""
+    """Recordings that vary what drives each tied candidate (``verdict.DRIVEN_BY``), in
+    the order they are flown: the recording itself; where a time offset is tied, held
+    still or tumbling faster (the offset acts through the motion only); approaching from
+    the farther to the nearer distance within one recording (APPROACH_S); turned (other
+    incidence angles and faces at the same distance); at other distances (power at the
+    same incidence; footprint size)."""
     out = [rec]
-    for f in DISTANCE_FACTORS:
-        word = 'closer' if f < 1 else 'farther'
-        out.append(replace(rec, label=f'{f:g}x the distance',
-                           what=f'the target {word}: {f:g} x {rec.distance_m:.1f} m, same '
-                                'attitude and motion',
-                           position_m=tuple(f * np.asarray(rec.position_m)),
-                           approach_speed_mps=f * rec.approach_speed_mps))
+    if 'time_offset' in names:
+        out.append(replace(rec, label='static', what='the target held still (no tumble, no '
+                           'approach)', approach_speed_mps=0.0, tumble_rate_dps=0.0))
+        out.append(replace(rec, label=f'{TUMBLE_FACTOR:g}x the tumble rate',
+                           what=f'the target tumbling {TUMBLE_FACTOR:g} x as fast '
+                                f'({TUMBLE_FACTOR * rec.tumble_rate_dps:.2g} deg/s)',
+                           tumble_rate_dps=TUMBLE_FACTOR * rec.tumble_rate_dps))
     near, far = min(DISTANCE_FACTORS), max(DISTANCE_FACTORS)
     frames = max(int(round(APPROACH_S / rec.period_s)), 1)
     speed = (far - near) * rec.distance_m / (frames * rec.period_s)
@@ -153,19 +162,19 @@ def candidate_recordings(rec: Recording, names: list[str]) -> list[Recording]:
                                 'axis (about its own centre): other incidence angles and faces '
                                 'at the same distance',
                            quat_xyzw=tuple((turn * Rotation.from_quat(rec.quat_xyzw)).as_quat())))
-    if 'time_offset' in names:
-        out.append(replace(rec, label='static', what='the target held still (no tumble, no '
-                           'approach)', approach_speed_mps=0.0, tumble_rate_dps=0.0))
-        out.append(replace(rec, label=f'{TUMBLE_FACTOR:g}x the tumble rate',
-                           what=f'the target tumbling {TUMBLE_FACTOR:g} x as fast '
-                                f'({TUMBLE_FACTOR * rec.tumble_rate_dps:.2g} deg/s)',
-                           tumble_rate_dps=TUMBLE_FACTOR * rec.tumble_rate_dps))
+    for f in DISTANCE_FACTORS:
+        word = 'closer' if f < 1 else 'farther'
+        out.append(replace(rec, label=f'{f:g}x the distance',
+                           what=f'the target {word}: {f:g} x {rec.distance_m:.1f} m, same '
+                                'attitude and motion',
+                           position_m=tuple(f * np.asarray(rec.position_m)),
+                           approach_speed_mps=f * rec.approach_speed_mps))
     return out
 
 
 def simulate_measurements(model: Model, materials: MaterialsConfig, effects: list[Effect],
-                          rec: Recording, seed: int,
-                          first_frame: int = 0) -> tuple[Measurements, int]:
+                          rec: Recording, seed: int, first_frame: int = 0,
+                          max_points: int = SAMPLE_POINTS) -> tuple[Measurements, int]:
     """Fly ``rec`` with the core simulator (``model``'s sensor and target, ``materials``,
     ``effects``): SIM_FRAMES frames spread over the recording (more, up to
     MAX_SIM_FRAMES, until they hold SAMPLE_POINTS points), at most SAMPLE_POINTS of
@@ -176,7 +185,7 @@ def simulate_measurements(model: Model, materials: MaterialsConfig, effects: lis
     first = sim.simulate_frame(0.0, traj, first_frame)
     # Enough frames for the sample (a far target gives few points per frame: a fit on a
     # few hundred points is not what compare would see), spread over the recording.
-    wanted = max(SIM_FRAMES, int(np.ceil(SAMPLE_POINTS / max(len(first), 1))))
+    wanted = max(SIM_FRAMES, int(np.ceil(max_points / max(len(first), 1))))
     pick = np.unique(np.round(np.linspace(0, rec.frames - 1,
                                           min(rec.frames, wanted, MAX_SIM_FRAMES))))
     frames = [first] + [sim.simulate_frame(float(k) * rec.period_s, traj, first_frame + int(k))
@@ -187,8 +196,8 @@ def simulate_measurements(model: Model, materials: MaterialsConfig, effects: lis
     t_frame = np.concatenate([f.t_s for f in frames])
     stamps = np.array([f.stamp_s for f in frames])
     keep = np.arange(len(xyz))
-    if len(keep) > SAMPLE_POINTS:
-        keep = np.sort(np.random.default_rng(seed).choice(keep, SAMPLE_POINTS, replace=False))
+    if len(keep) > max_points:
+        keep = np.sort(np.random.default_rng(seed).choice(keep, max_points, replace=False))
     rng_m = np.linalg.norm(xyz, axis=1)
     meas = Measurements(
         bag=Path(f'plan:{rec.label}'), xyz_m=xyz[keep], range_m=rng_m[keep],
@@ -261,7 +270,8 @@ def separation(model: Model, base: list[Effect], a: Hypothesis, b: Hypothesis,
             rows[true.name] = {'skipped': True}
             continue
         meas, n_rec = simulate_measurements(model, true.materials, [*base, true.effect], rec,
-                                            seed + k, first_frame=1000 * (k + 1))
+                                            seed + k, first_frame=1000 * (k + 1),
+                                            max_points=sample_points(a, b))
         got = one_way(model, base, true.effect, other.effect, meas, seed, z_crit)
         n, z = got['n'], got['z']
         n_diag = min(n_rec, max_diagnosed)
@@ -294,6 +304,12 @@ def separation(model: Model, base: list[Effect], a: Hypothesis, b: Hypothesis,
     }
 
 
+def sample_points(a: Hypothesis, b: Hypothesis) -> int:
+    """Points diagnosed per simulated recording: fewer when an effect casts its own rays."""
+    casts = any(type(h.effect).cast is not Effect.cast for h in (a, b))
+    return SAMPLE_POINTS_CAST if casts else SAMPLE_POINTS
+
+
 def _passes(way: dict, z_crit: float) -> bool:
     """Whether one way clears compare's rule: margin and z (NaN: no)."""
     return bool(way['margin'] >= diagnosis.MIN_PRACTICAL_GAIN and way['z'] >= z_crit)
@@ -302,10 +318,14 @@ def _passes(way: dict, z_crit: float) -> bool:
 def separation_plan(model: Model, base: list[Effect], a: Hypothesis, b: Hypothesis,
                     recorded: Recording, seed: int, z_crit: float,
                     max_diagnosed: int) -> list[dict]:
-    """Every candidate recording's expected separation, best first (separating ones
-    first, then by z)."""
-    rows = [separation(model, base, a, b, rec, seed, z_crit, max_diagnosed)
-            for rec in candidate_recordings(recorded, [a.name, b.name])]
+    """The candidate recordings' expected separations, best first (separating ones
+    first, then by z), flown in ``candidate_recordings``' order until one separates the
+    pair with ENOUGH_Z times the bound."""
+    rows = []
+    for rec in candidate_recordings(recorded, [a.name, b.name]):
+        rows.append(separation(model, base, a, b, rec, seed, z_crit, max_diagnosed))
+        if rows[-1]['separates'] and rows[-1]['z'] >= ENOUGH_Z * z_crit:
+            break
     return sorted(rows, key=lambda r: (not r['separates'],
                                        -(r['z'] if r['z'] is not None else -np.inf)))
 

@@ -232,6 +232,11 @@ def plan_words(rows: list[dict]) -> str:
     tried = f'{len(rows)} recordings tried'
     if best['z'] is None:
         return f'Simulating both as fitted on {tried} gave no usable estimate.'
+    if best['separates'] and best['recording'] == 'this recording':
+        return (f'Yet simulating both as fitted on this very recording separates them '
+                f'({best["margin"]:.4f} nats/point, z = {best["z"]:.1f} with {n} points): the '
+                'tie may come from the diagnosis rather than from the recording (plan.yaml '
+                'flies it again).')
     if best['separates']:
         return (f'Simulating both as fitted on {tried}, the best to separate them is '
                 f'{best["recording"]} ({best["what"]}): expected {best["margin"]:.4f} '
