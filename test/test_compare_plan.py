@@ -123,3 +123,11 @@ def test_candidates_vary_what_drives_each_effect():
     timed = plan.candidate_recordings(rec, ['time_offset', 'incidence_angle'])
     assert [(r.tumble_rate_dps, r.approach_speed_mps) for r in timed[1:3]] == [
         (0.0, 0.0), (pytest.approx(12.0), 0.05)]
+
+
+def test_recorded_motion_of_a_single_pose_is_static():
+    """One pose (a static target): no motion, one frame, no error past the sample."""
+    track = PoseTrack([0.0], np.array([[8.0, 0.0, 0.0]]), np.array([[0.0, 0.0, 0.0, 1.0]]))
+    rec = plan.recorded_motion(track, 0.0, 0.1, 0.1, track.t_s)
+    assert (rec.tumble_rate_dps, rec.approach_speed_mps, rec.frames) == (0.0, 0.0, 1)
+    assert rec.distance_m == pytest.approx(8.0)

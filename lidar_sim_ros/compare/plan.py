@@ -109,6 +109,9 @@ def recorded_motion(poses: PoseSource, t_start_s: float, t_end_s: float, period_
     mean closing speed (m/s, from the distance at start and end) and the mean angular
     velocity (the rotation increments between pose samples summed, lidar frame)."""
     t0, t1 = float(t_start_s), float(max(t_end_s, t_start_s))
+    if hasattr(poses, 'start_s'):      # a PoseTrack: stay within what it answers
+        t0 = max(t0, poses.start_s)
+        t1 = max(min(t1, poses.end_s + poses.max_extrapolation_s), t0)
     ts = np.unique(np.concatenate([[t0, t1], [] if pose_times_s is None else
                                    np.asarray(pose_times_s, float)]))
     ts = ts[(ts >= t0) & (ts <= t1)]

@@ -357,6 +357,7 @@ class Plan:
     rows: list[dict]
     pair: list[str]
     yaml: str
+    error: str | None = None      # the plan is advice: a failure is noted, not fatal
 
 
 def run_compare(opts: CompareOptions) -> CompareResult:
@@ -407,7 +408,10 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     tied = tied_pair(diag)
     if tied and opts.plan:
         with stage('plan', ' against '.join(c.name for c in tied)):
-            plan = separation_plan(opts, inp, cal, effects, diag, tied)
+            try:
+                plan = separation_plan(opts, inp, cal, effects, diag, tied)
+            except Exception as exc:  # noqa: BLE001 - advice must not stop the comparison
+                plan = Plan([], [c.name for c in tied], '', f'{type(exc).__name__}: {exc}')
     summary = build_summary(opts, inp, effects, fitted, cal, ana, diag, sunlight, rays,
                             time_spread, power, pose_fit, plan)
     return write_outputs(opts, summary, stage, inp, effects, fitted, cal, ana, diag, plan)
@@ -675,7 +679,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'confounded_with': decision.confounded_with,
         'also_explains': decision.also,
         'against_named': decision.pair_z,
-        'separation_plan': plan.rows if plan is not None else None,
+        'separation_plan': plan.rows if plan is not None and plan.rows else None,
         'unmatched': _unmatched_summary(ana.local, cal.model.divergence_rad, int((~sel).sum()),
                                         float(matching.unmatched_fraction),
                                         ana.isolated[ana.picked]),
@@ -702,7 +706,9 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'dropped': meas.dropped,
         'notes': list(meas.notes) + _material_name_notes(meas, scenario)
         + (['--fit without --effect: nothing to fit']
-           if opts.fit and not inp.user and not inp.pose_fit else []),
+           if opts.fit and not inp.user and not inp.pose_fit else [])
+        + ([f'separation plan of {" and ".join(plan.pair)} failed: {plan.error}']
+           if plan is not None and plan.error else []),
         **({'sunlight': sunlight} if sunlight is not None else {}),
     }
     # The verdict quotes candidates against the figures of the points they were fitted on.
@@ -722,7 +728,7 @@ def write_outputs(opts: CompareOptions, summary: dict, stage: Stages, inp: Input
     if fitted:
         files.append(_write(opts.out / 'effects.yaml', effects_yaml(fitted)))
     files.append(_write(opts.out / 'materials.yaml', mat.materials_yaml(cal.refit, cal.stats)))
-    if plan is not None:
+    if plan is not None and plan.yaml:
         files.append(_write(opts.out / 'plan.yaml', plan.yaml))
     hist_path = Path(opts.history) if opts.history else opts.out.resolve().parent / 'history.json'
     names = [e.name for e in effects] + ([POSE_ERROR] if inp.pose_fit else [])
