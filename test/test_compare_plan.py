@@ -131,3 +131,18 @@ def test_recorded_motion_of_a_single_pose_is_static():
     rec = plan.recorded_motion(track, 0.0, 0.1, 0.1, track.t_s)
     assert (rec.tumble_rate_dps, rec.approach_speed_mps, rec.frames) == (0.0, 0.0, 1)
     assert rec.distance_m == pytest.approx(8.0)
+
+
+def test_report_table_of_the_plan(tie):
+    """The report's table: one row per recording flown, each way's margin and z, a way
+    not flown said so."""
+    from lidar_sim_ros.compare.report import plan_table
+    rows = tie[1].summary['separation_plan']
+    html = plan_table(rows)
+    assert html.count('<tr>') == len(rows) + 1
+    assert 'range_walk data: margin (z)' in html and 'incidence_angle data: margin (z)' in html
+    this = next(r for r in rows if r['recording'] == 'this recording')
+    skipped = [w for w in this['ways'].values() if w.get('skipped')]
+    assert ('not flown' in html) == bool(skipped)
+    best = rows[0]['ways']['range_walk']
+    assert f'{best["margin"]:.4f} (z {best["z"]:.1f})' in html
