@@ -338,9 +338,9 @@ def plan_yaml(row: dict, a: Hypothesis, b: Hypothesis, scenario_seed: int, mesh:
     """plan.yaml: the best recording as a scenario ``lidar-sim simulate`` flies (and a lab
     can reproduce), with what it separates and the expected z in its header."""
     def spec(h: Hypothesis) -> str:
-        params = {k: float(f'{v:.6g}') if isinstance(v, float) else v
-                  for k, v in h.effect.params.model_dump().items() if v is not None}
-        return f'{h.name}=' + yaml.safe_dump(params, default_flow_style=True).strip()
+        entry = _entry(h.effect)
+        return f'{entry["name"]}=' + yaml.safe_dump(entry['params'],
+                                                    default_flow_style=True).strip()
     verdict = ('separates them' if row['separates'] else
                'does not separate them by the rule; it is the best of those tried')
     head = [
@@ -362,14 +362,15 @@ def plan_yaml(row: dict, a: Hypothesis, b: Hypothesis, scenario_seed: int, mesh:
     body = {'seed': int(scenario_seed), 'mesh': str(mesh), 'sensor': str(sensor),
             'materials': str(materials), 'frame_id': 'lidar',
             'initial_pose': row['initial_pose'], 'motion': row['motion'],
-            'effects': [{'name': e.name, 'params': _plain(e.params.model_dump())}
-                        for e in base]}
+            'effects': [_entry(e) for e in base]}
     return '\n'.join(head) + '\n' + yaml.safe_dump(body, sort_keys=False,
                                                    default_flow_style=None)
 
 
-def _plain(d: dict) -> dict:
-    return {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in d.items()}
+def _entry(effect: Effect) -> dict:
+    """The effect's scenario ``effects:`` entry (``Effect.to_yaml_snippet``: a catalogue
+    name or the ``module:Class`` / ``file.py:Class`` that loads a user effect again)."""
+    return yaml.safe_load(effect.to_yaml_snippet())[0]
 
 
 def _num(x: float) -> float | None:
