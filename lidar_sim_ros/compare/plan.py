@@ -47,7 +47,7 @@ from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
 
 SIM_FRAMES = 2            # frames simulated per candidate recording and hypothesis, ...
 MAX_SIM_FRAMES = 12       # ... or more, up to this, until they hold SAMPLE_POINTS
-SAMPLE_POINTS = 5000      # points of them diagnosed (the z is scaled to the recording's)
+SAMPLE_POINTS = 4000      # points of them diagnosed (the z is scaled to the recording's)
 # ... and for a tie with an effect that casts rays of its own (a beam footprint, ghosts:
 # each fit trial re-casts every ray), fewer: its fits cost ~10 times more per point.
 SAMPLE_POINTS_CAST = 1500
