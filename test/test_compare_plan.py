@@ -63,7 +63,7 @@ def test_a_tie_gets_a_plan_that_loads_as_a_scenario(tie):
 
 def test_the_planned_recording_names_the_hypothesis_it_separates(tie):
     """The plan's best recording separates the tie both ways (the approach from 2x to
-    0.5x the distance: margins 0.059 and 0.012 nats/point, z 15 and 7.5); flown as
+    0.5x the distance: margins 0.057 and 0.010 nats/point, z 13.5 and 6.8); flown as
     plan.yaml says with either hypothesis, compare names that one."""
     _, res, tmp = tie
     best = res.summary['separation_plan'][0]
