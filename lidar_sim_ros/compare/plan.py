@@ -6,10 +6,10 @@ question is which other recording would tell them apart. Each tied candidate is 
 hypothesis: the model with that effect at its fitted parameters and the materials as
 --fit would leave them with it (each material's bias and sigma refit on top of the
 effect, ``materials_under``). For a few candidate recordings derived from the one
-compared (``candidate_recordings``: the target at half and twice the distance, approaching
-from twice to half the distance within one recording, turned
-so that other incidence angles and faces meet the beam, and, where a time offset is
-tied, held still or tumbling twice as fast), both hypotheses are flown through the
+compared (``candidate_recordings``: the recording itself; where a time offset is tied,
+the target held still or tumbling twice as fast; approaching from twice to half the
+distance within one recording; turned so that other incidence angles and faces meet
+the beam; at half and twice the distance), both hypotheses are flown through the
 core simulator (``Simulator.simulate_frame``, no second physics) and each simulated
 recording is diagnosed as ``lidar-sim compare`` would diagnose it
 (``diagnosis.Diagnosis``: both candidates cross-fitted on halves, each material's
@@ -234,7 +234,7 @@ def one_way(model: Model, base: list[Effect], true: Effect, other: Effect,
     rays = diagnosis.RaySet(meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
                             pred=m.pred, blocks=neighbours.blocks(meas.directions, meas.cloud))
     diag = diagnosis.Diagnosis(model, base, rays, seed)
-    diag._z_crit = z_crit
+    diag._z_crit = z_crit        # the bound of the comparison that found the tie
     a, b = diag.score(type(true)), diag.score(type(other))
     out = {'n': diag.n_total, 'margin': float('nan'), 'z': float('nan'),
            'gain_true': a.score, 'gain_other': b.score,
@@ -257,6 +257,8 @@ class Hypothesis:
 
 
 def hypotheses(model: Model, data: lk.FitData, effects: list[Effect]) -> list[Hypothesis]:
+    """The tied candidates' fitted ``effects`` as hypotheses, each with the materials
+    refit on top of it (on ``data``, the diagnosed points)."""
     return [Hypothesis(e, materials_under(model, data, e)) for e in effects]
 
 
