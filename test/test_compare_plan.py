@@ -146,3 +146,45 @@ def test_report_table_of_the_plan(tie):
     assert ('not flown' in html) == bool(skipped)
     best = rows[0]['ways']['range_walk']
     assert f'{best["margin"]:.4f} (z {best["z"]:.1f})' in html
+
+
+def test_materials_refit_on_top_of_a_hypothesis_recover_those_flown():
+    """Fly the default rocket with a range walk and materials whose biases are moved by
+    +3 cm and sigmas scaled by 1.5; refit on top of the walk (``materials_under``), the
+    bias and sigma of every well-sampled material come back within their noise; refit
+    without the walk, the biases take up its mean instead."""
+    from dataclasses import replace
+    from lidar_sim_ros.compare.matching import Model, match
+    from lidar_sim_ros.core.config import MaterialConfig, MaterialsConfig
+    from lidar_sim_ros.core.effects import get_effect_class
+    from lidar_sim_ros.core.geometry import load_target
+    from lidar_sim_ros.paths import config_path
+    sc = load_scenario(config_path('scenario.yaml'))
+    model = Model(sc.sensor, sc.materials, load_target(sc.mesh_path, sc.materials.names),
+                  (), sc.seed)
+    flown = MaterialsConfig(materials=[MaterialConfig(**{**m.model_dump(),
+                                                         'bias_m': m.bias_m + 0.03,
+                                                         'sigma_m': 1.5 * m.sigma_m})
+                                       for m in sc.materials.materials])
+    walk = get_effect_class('range_walk')({'k_m': 0.02})
+    rec = plan.Recording('r', '', (10.0, 0.0, 0.0), sc.config.initial_pose.quat_xyzw, 0.0,
+                         (0.0, 0.0, 1.0), 6.0, 1, 0.1)
+    meas, _ = plan.simulate_measurements(model, flown, [walk], rec, 0)
+    m = match(model.simulator(effects=[]), meas, model.divergence_rad, edges=False)
+    rays = diagnosis.RaySet(meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
+                            pred=m.pred)
+    data = diagnosis.make_fit_data(model, [], rays)
+    refit = plan.materials_under(model, data, walk)
+    plain = plan.materials_under(model, data, get_effect_class('range_walk')({'k_m': 0.0}))
+    mat_id = np.asarray(data.baseline.ctx.material)
+    checked = 0
+    for k, (got, want, no_walk) in enumerate(zip(refit.materials, flown.materials,
+                                                 plain.materials)):
+        n = int(np.sum(mat_id == k))
+        if n < 300:
+            continue
+        checked += 1
+        assert got.bias_m == pytest.approx(want.bias_m, abs=4 * want.sigma_m / np.sqrt(n))
+        assert got.sigma_m == pytest.approx(want.sigma_m, rel=0.15)
+        assert no_walk.bias_m < want.bias_m - 0.02     # the walk's mean (-k ln P/P_thr)
+    assert checked >= 2
