@@ -58,10 +58,10 @@ class TrackerConfig(BaseModel):
     max_iterations: Annotated[int, Field(ge=1)] = Field(
         10, description='ICP iterations per gate (more only slide further along a weakly observed roll)')
     converged_translation_m: Annotated[float, Field(gt=0)] = Field(
-        0.002, description='ICP stops once an iteration moves the body centre less than this (m) and '
+        0.001, description='ICP stops once an iteration moves the body centre less than this (m) and '
         'turns the body less than converged_rotation_deg (small_gicp\'s translation_epsilon)')
     converged_rotation_deg: Annotated[float, Field(gt=0)] = Field(
-        0.2, description='ICP stops once an iteration turns the body less than this (deg) and moves '
+        0.1, description='ICP stops once an iteration turns the body less than this (deg) and moves '
         'its centre less than converged_translation_m (small_gicp\'s rotation_epsilon)')
     min_points: Annotated[int, Field(ge=6)] = Field(
         30, description='fewest cloud points (after the voxel grid) for an estimate')
