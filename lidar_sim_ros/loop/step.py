@@ -246,17 +246,25 @@ def _pose_at(truth: TruthSamples, previous: TruthSamples | None, t_s: float) -> 
     return T
 
 
-def estimate_pose(ctx: LoopContext, state: LoopState, truth: TruthSamples, t_mid: float):
-    """(estimate 4 x 4 or None, its truth, whether the truth guess captured): sense + track."""
-    true_pose = _pose_at(truth, state.previous, t_mid)
+def sense_period(ctx: LoopContext, state: LoopState, truth: TruthSamples) -> np.ndarray | None:
+    """The period's cloud (N, 3) m, lidar frame; None without a sensor (``cloud=None``) and
+    in the sensor's first period (the poses before it are unknown)."""
+    if ctx.cloud is None or state.previous is None:
+        return None
+    return sense(ctx.simulator, truth, state.previous, state.frame_index, ctx.cloud)
+
+
+def estimate(ctx: LoopContext, state: LoopState, xyz_m: np.ndarray | None, t_mid: float,
+             true_pose: np.ndarray) -> tuple[np.ndarray | None, bool]:
+    """(estimate 4 x 4 at ``t_mid`` or None, whether the truth guess captured): the tracker on
+    the gated cloud; without a sensor (``cloud=None``) the true pose itself."""
     if ctx.cloud is None:
-        return true_pose, true_pose, False
-    if state.previous is None:  # the sensor's first period: the pose before it is unknown
-        return None, true_pose, False
-    xyz = sense(ctx.simulator, truth, state.previous, state.frame_index, ctx.cloud)
-    xyz = tracker_cloud(ctx.config, xyz, state)
-    est, used_truth = track(ctx.tracker, t_mid, xyz, true_pose, ctx.config.acquire_from_cloud)
-    return (est.pose if est.acceptable(ctx.tracker.config) else None), true_pose, used_truth
+        return true_pose, False
+    if xyz_m is None:
+        return None, False
+    xyz_m = tracker_cloud(ctx.config, xyz_m, state)
+    est, used_truth = track(ctx.tracker, t_mid, xyz_m, true_pose, ctx.config.acquire_from_cloud)
+    return (est.pose if est.acceptable(ctx.tracker.config) else None), used_truth
 
 
 def navigate(ctx: LoopContext, nav: NavState, truth: TruthSamples, t_mid: float,
@@ -280,19 +288,27 @@ def guide_and_control(config: LoopConfig, nav: NavState, g: GuidanceState, t_s: 
     return g, ref, control_step(config.guidance, config.chaser, rho, rho_dot, ref, n_rad_s)
 
 
+def next_state(state: LoopState, truth: TruthSamples, nav: NavState, g: GuidanceState,
+               force_lvlh_n: np.ndarray, est_pose: np.ndarray | None) -> LoopState:
+    """What the period hands on to the next."""
+    tracking = est_pose is not None
+    return replace(state, force_lvlh_n=force_lvlh_n, nav=nav, guidance=g, previous=truth,
+                   frame_index=state.frame_index + 1, tracking=tracking,
+                   last_estimate=est_pose if tracking else state.last_estimate)
+
+
 def loop_step(ctx: LoopContext, state: LoopState) -> tuple[LoopState, StepOutput]:
     """One control period: propagate, sense, estimate, navigate, guide, control."""
     truth = propagate(ctx.config, ctx.dynamics, state.force_lvlh_n, ctx.mount_true, ctx.t_B)
     t_mid = float(0.5 * (truth.t_s[0] + truth.t_s[-1]))  # a scan's fit sits at its mean time
-    est_pose, true_pose, truth_capture = estimate_pose(ctx, state, truth, t_mid)
+    true_pose = _pose_at(truth, state.previous, t_mid)
+    xyz = sense_period(ctx, state, truth)
+    est_pose, truth_capture = estimate(ctx, state, xyz, t_mid, true_pose)
     nav, rho_est = navigate(ctx, state.nav, truth, t_mid, est_pose)
     g, ref, force = guide_and_control(ctx.config, nav, state.guidance, float(truth.t_s[-1]), truth.n_rad_s)
-    tracking = est_pose is not None
-    new = replace(state, force_lvlh_n=force, nav=nav, guidance=g, previous=truth,
-                  frame_index=state.frame_index + 1, tracking=tracking,
-                  last_estimate=est_pose if tracking else state.last_estimate)
+    new = next_state(state, truth, nav, g, force, est_pose)
     return new, StepOutput(truth, t_mid, est_pose, true_pose, ref, force,
-                           state.tracking and not tracking, truth_capture, rho_est)
+                           state.tracking and not new.tracking, truth_capture, rho_est)
 
 
 # ----------------------------------------------------------------- a whole run
