@@ -248,7 +248,9 @@ def test_in_the_earth_shadow_the_frame_is_simulated_without_the_sun(config):
     np.testing.assert_array_equal(dark, no_sun)
     lit = step.sense(ctx.simulator, replace(truth, eclipsed=np.zeros(len(truth.t_s), bool)), state.previous, 1,
                      'model', ctx.sun_config)
-    assert ctx.simulator.sun is not None
+    # Lit, the frame's sun is the period's first direction (as loop_dynamics publishes it).
+    np.testing.assert_allclose(ctx.simulator.sun.direction_at(np.array([0.05]))[0], truth.sun_lidar[0],
+                               atol=1e-12)
 
     def far(xyz):  # returns more than 8 m from the target centre: background, mostly the sun's
         return int((np.linalg.norm(xyz - truth.t_L_m[5], axis=1) > 8.0).sum())
