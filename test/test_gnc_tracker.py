@@ -15,6 +15,7 @@ pytest.importorskip('small_gicp')
 
 from lidar_sim_ros.gnc.tracker import (PoseTracker, TrackerConfig, build_model,  # noqa: E402
                                        pose_matrix, pose_parts, predict_constant_velocity,
+                                       predict_position,
                                        register)
 
 HALF = np.array([0.6, 0.4, 0.25])  # box half extents (m): no two equal, so no symmetry but 180 deg turns
@@ -59,7 +60,9 @@ def nudged(T, dt_m=(0.05, -0.04, 0.03), rotvec_rad=(0.03, -0.02, 0.025)):
     return out
 
 
-CONFIG = TrackerConfig(model_spacing_m=0.02, scan_voxel_m=0.0)
+# Convergence at small_gicp's own defaults (1 mm, 0.1 deg), tighter than the tracker's.
+CONFIG = TrackerConfig(model_spacing_m=0.02, scan_voxel_m=0.0, converged_translation_m=0.001,
+                       converged_rotation_deg=0.1)
 TRUE = pose_matrix([6.0, 0.5, -0.3], Rotation.from_euler('xyz', [20, -35, 50], degrees=True).as_quat())
 
 
@@ -124,6 +127,59 @@ def test_the_gate_keeps_spurious_returns_out(model):
     assert robust.inlier_fraction == pytest.approx(0.7, abs=0.02)
 
 
+def noisy_box_scan(T_lidar_body, sigma_m=0.02, seed=3):
+    """``box_scan`` with Gaussian range noise (m) along each ray."""
+    scan = box_scan(T_lidar_body)
+    rays = scan / np.linalg.norm(scan, axis=1, keepdims=True)
+    return scan + np.random.default_rng(seed).normal(0.0, sigma_m, (len(scan), 1)) * rays
+
+
+def test_registration_is_the_same_wherever_the_target_is():
+    """Cloud and guess moved 24 m and 54 m farther along the line of sight: the same
+    iterations and the same estimate, moved. small_gicp turns its updates about the
+    cloud's origin; registered from the lidar origin, the lever arm of a target 60 m out
+    made its convergence test see millimetres where the target moved micrometres (5, 6
+    and 6 iterations here), and in the loop's noisy clouds ran every frame to the limit."""
+    config = CONFIG.model_copy(update={'model_spacing_m': 0.05, 'max_iterations': 30})
+    model = build_model(*box_mesh(), config)
+    scan, guess = noisy_box_scan(TRUE), nudged(TRUE)
+    results = []
+    for distance_m in (0.0, 24.0, 54.0):
+        shift = distance_m * TRUE[:3, 3] / np.linalg.norm(TRUE[:3, 3])
+        moved = guess.copy()
+        moved[:3, 3] += shift
+        est = register(model, scan + shift, moved, [0.3], config)
+        assert est.converged
+        results.append((est.iterations, est.pose[:3, 3] - shift, est.pose[:3, :3]))
+    (iterations, position, rotation), *others = results
+    for other in others:
+        assert other[0] == iterations
+        assert np.allclose(other[1], position, atol=1e-9) and np.allclose(other[2], rotation, atol=1e-12)
+    assert errors(np.vstack([np.c_[rotation, position], [0, 0, 0, 1]]), TRUE)[0] < 2e-3
+
+
+def test_looser_convergence_settings_stop_sooner():
+    """The convergence settings reach small_gicp: 1 cm / 1 deg stops before 0.1 mm / 0.01 deg."""
+    config = CONFIG.model_copy(update={'model_spacing_m': 0.05, 'max_iterations': 30})
+    model = build_model(*box_mesh(), config)
+    scan, guess = noisy_box_scan(TRUE), nudged(TRUE)
+    loose = register(model, scan, guess, [0.3], config.model_copy(
+        update={'converged_translation_m': 0.01, 'converged_rotation_deg': 1.0}))
+    tight = register(model, scan, guess, [0.3], config.model_copy(
+        update={'converged_translation_m': 1e-4, 'converged_rotation_deg': 0.01}))
+    assert loose.converged and tight.converged
+    assert loose.iterations < tight.iterations
+
+
+def test_position_prediction_is_the_constant_velocity_one():
+    T0, T1 = nudged(TRUE), TRUE
+    assert np.array_equal(predict_position(T0[:3, 3], 0.2, T1[:3, 3], 0.3, 0.45),
+                          predict_constant_velocity(T0, 0.2, T1, 0.3, 0.45)[:3, 3])
+    assert np.allclose(predict_position(T0[:3, 3], 0.2, T1[:3, 3], 0.3, 0.45),
+                       T1[:3, 3] + 1.5 * (T1[:3, 3] - T0[:3, 3]), atol=1e-12)
+    assert np.array_equal(predict_position(T0[:3, 3], 0.3, T1[:3, 3], 0.3, 0.4), T1[:3, 3])
+
+
 def test_constant_velocity_prediction_is_exact_for_a_fixed_axis_tumble():
     axis = np.array([0.2, -0.5, 1.0]) / np.linalg.norm([0.2, -0.5, 1.0])
     rate, v = np.radians(9.0), np.array([-0.05, 0.02, 0.01])
@@ -158,8 +214,10 @@ def test_the_tracker_follows_a_tumbling_box_from_one_guess(model, prediction):
         t = 0.1 * k
         est = tracker.update(t, box_scan(at(t)), guess=nudged(at(0.0)) if k == 0 else None)
         dt, dr = errors(est.pose, at(t))
-        # ICP stops once a step moves less than 1 mm / 0.1 deg (small_gicp's defaults).
-        assert dt < 2e-3 and dr < 0.1, (k, dt, dr)
+        # ICP stops once a step moves the centre less than 1 mm and turns the body less than
+        # 0.1 deg (CONFIG): 1-2 mm short when it slides slowly along a weakly held direction
+        # (frame 6, a face turning edge-on, 2.1 mm with the translation prediction).
+        assert dt < 3e-3 and dr < 0.1, (k, dt, dr)
         assert tracker.tracking
 
 

@@ -225,3 +225,38 @@ def test_true_pose_at_mid_period_is_the_interpolated_one(config):
         T = _pose_at(truth, first, float(t))
         np.testing.assert_allclose(T[:3, :3], poses.rotation.as_matrix()[0], atol=1e-12)
         np.testing.assert_allclose(T[:3, 3], poses.position_m[0], atol=1e-9)
+
+
+def test_in_the_earth_shadow_the_frame_is_simulated_without_the_sun(config):
+    """The sun straight behind the Earth as seen from the orbit's start (the target starts on
+    inertial +x: RAAN 0, argument of latitude 0): every sample of the period is in the shadow,
+    and the frame is the one the simulator computes with no sun at all (no sunlight, no
+    solar background); the same period lit has the solar background's far returns. With
+    ``sun.eclipse`` off the same geometry is lit."""
+    from dataclasses import replace
+
+    from lidar_sim_ros.loop import step
+    cfg = with_(config, sun={'direction_inertial': (-1.0, 0.0, 0.0)})
+    scenario = config_path('scenario_all_effects.yaml')
+    ctx = step.build_context(cfg, scenario, 'model')
+    state, _ = step.loop_step(ctx, step.LoopState())  # the sensor's first period: no frame
+    truth = step.propagate(cfg, ctx.dynamics, np.zeros(3), ctx.R_BL, ctx.t_B)
+    assert truth.eclipsed.all() and truth.dark
+    dark = step.sense(ctx.simulator, truth, state.previous, 1, 'model', ctx.sun_config)
+    assert ctx.simulator.sun is None
+    no_sun = step.sense(ctx.simulator, truth, state.previous, 1, 'model', None)
+    np.testing.assert_array_equal(dark, no_sun)
+    lit = step.sense(ctx.simulator, replace(truth, eclipsed=np.zeros(len(truth.t_s), bool)), state.previous, 1,
+                     'model', ctx.sun_config)
+    # Lit, the frame's sun is the period's first direction (as loop_dynamics publishes it).
+    np.testing.assert_allclose(ctx.simulator.sun.direction_at(np.array([0.05]))[0], truth.sun_lidar[0],
+                               atol=1e-12)
+
+    def far(xyz):  # returns more than 8 m from the target centre: background, mostly the sun's
+        return int((np.linalg.norm(xyz - truth.t_L_m[5], axis=1) > 8.0).sum())
+    assert far(lit) > far(dark) + 20
+
+    off = with_(cfg, sun={'eclipse': False})
+    dyn = Dynamics(off)
+    R_BL, t_B = step.frames.mount_transform(off.chaser.mount)
+    assert not step.propagate(off, dyn, np.zeros(3), R_BL, t_B).eclipsed.any()

@@ -125,3 +125,18 @@ def test_hold_windows_are_the_dwells_before_each_departure_and_at_the_end():
     y[15] = y[14]                                 # a repeated sample mid-transfer: no hold
     mask = hold_windows(t, y, hold_time_s=5.0)
     assert np.flatnonzero(mask).tolist() == [5, 6, 7, 8, 9, 35, 36, 37, 38, 39]
+
+
+def test_earth_shadow_by_hand():
+    """A cylinder of the Earth's radius (6378.1366 km) behind the Earth from the sun (+x)."""
+    sun = np.array([2.0, 0.0, 0.0])  # not a unit vector: normalised
+    km = 1000.0
+    cases = {(-7000 * km, 0.0, 0.0): True,             # on the axis behind the Earth
+             (-7000 * km, 6300 * km, 0.0): True,       # 6300 km off the axis: inside
+             (-7000 * km, 0.0, -6400 * km): False,     # 6400 km off the axis: outside
+             (7000 * km, 0.0, 0.0): False,             # on the sunward side
+             (-1.0, 3000 * km, 4000 * km): True}       # just behind, 5000 km off the axis
+    for r, shadow in cases.items():
+        assert frames.in_earth_shadow(np.array(r), sun) is shadow, r
+    many = frames.in_earth_shadow(np.array(list(cases)), sun)
+    assert many.tolist() == list(cases.values())

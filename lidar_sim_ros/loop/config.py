@@ -122,6 +122,10 @@ class SunDirectionConfig(_Model):
     """An analytic sun: a fixed inertial direction (it moves ~1 deg/day: fixed over a run)."""
 
     direction_inertial: Vector3 = (1.0, 0.0, 0.0)
+    eclipse: bool = Field(True, description=(
+        "the Earth's shadow (a cylinder of the Earth's radius behind it): while the chaser is "
+        'in it, the in-process loop simulates its frames without the sun (no sunlight, no solar '
+        'background)'))
 
     _dir = field_validator('direction_inertial')(_nonzero)
 

@@ -6,7 +6,9 @@ the simulated clock (``epoch_s`` + loop time):
 
 - ``/target/pose`` (geometry_msgs/PoseStamped, frame ``lidar_frame``): the target body
   pose in the lidar frame at every dynamics sub-step (``timing.pose_rate_hz``, 100 Hz);
-- ``/sun/direction`` (geometry_msgs/Vector3Stamped, lidar frame), once per period;
+- ``/sun/direction`` (geometry_msgs/Vector3Stamped, lidar frame), once per period, none
+  while the chaser is in the Earth's shadow (``sun.eclipse``; entering and leaving it are
+  logged);
 - ``/chaser/attitude`` (geometry_msgs/QuaternionStamped, frame ``lvlh``): the chaser
   body's attitude in LVLH at every sub-step, what its own attitude determination would
   give the GNC (no target information);
@@ -104,6 +106,7 @@ class LoopDynamicsNode(Node):
         self.gate = CommandGate(mode, cfg.control_period_s, timeout or cfg.timing.command_timeout_s)
         self.steps = int(round(cfg.duration_s / cfg.control_period_s))
         self.k = 0
+        self.dark = False  # in the Earth's shadow (the last period)
         self.peers_since: float | None = None
         self.pending_clock: tuple[float, float, float] | None = None
         self.start_wall: float | None = None
@@ -235,10 +238,15 @@ class LoopDynamicsNode(Node):
             q = att.quaternion
             q.x, q.y, q.z, q.w = map(float, Rotation.from_matrix(truth.R_HB[j]).as_quat())
             self.attitude_pub.publish(att)
-        sun = Vector3Stamped()
-        sun.header.frame_id, sun.header.stamp = self.lidar_frame, _stamp(self.epoch_s + t0)
-        sun.vector.x, sun.vector.y, sun.vector.z = map(float, truth.sun_lidar[0])
-        self.sun_pub.publish(sun)
+        if truth.dark != self.dark:
+            self.dark = truth.dark
+            self.get_logger().info(f"t = {t0:.1f} s: the chaser {'enters' if self.dark else 'leaves'} "
+                                   "the Earth's shadow (/sun/direction " + ('stops)' if self.dark else 'resumes)'))
+        if not self.dark:
+            sun = Vector3Stamped()
+            sun.header.frame_id, sun.header.stamp = self.lidar_frame, _stamp(self.epoch_s + t0)
+            sun.vector.x, sun.vector.y, sun.vector.z = map(float, truth.sun_lidar[0])
+            self.sun_pub.publish(sun)
         t_end = self.epoch_s + float(truth.t_s[-1])
         self._publish_scene(t_end, truth)
         self.R_HB = truth.R_HB[-1]

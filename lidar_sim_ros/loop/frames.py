@@ -112,12 +112,16 @@ def sun_in_lidar(sun_n: np.ndarray, R_NB, R_BL) -> np.ndarray:
     return unit((R_NB @ R_BL).T @ unit(sun_n))
 
 
-def in_earth_shadow(r_m: np.ndarray, sun_n: np.ndarray, earth_radius_m: float = 6378136.6) -> bool:
-    """Cylindrical umbra: behind the Earth (r . s < 0) and within an Earth radius of the
-    Earth-sun line."""
-    s = unit(sun_n)
-    along = float(np.asarray(r_m, float) @ s)
-    return along < 0 and float(np.linalg.norm(r_m - along * s)) < earth_radius_m
+def in_earth_shadow(r_m: np.ndarray, sun_n: np.ndarray, earth_radius_m: float = 6378136.6) -> np.ndarray | bool:
+    """Cylindrical umbra: behind the Earth (r . s < 0) and within an Earth radius (m) of the
+    Earth-sun line. ``r_m``: inertial position(s) (3,) or (K, 3) m; ``sun_n``: the inertial
+    direction toward the sun. A bool for one position, (K,) bools for K."""
+    s = unit(np.asarray(sun_n, float))
+    r = np.asarray(r_m, float)
+    along = r @ s
+    across = np.linalg.norm(r - along[..., None] * s, axis=-1)
+    shadow = (along < 0) & (across < earth_radius_m)
+    return bool(shadow) if shadow.ndim == 0 else shadow
 
 
 def chaser_from_estimate(t_L_m: np.ndarray, R_HB: np.ndarray, R_BL: np.ndarray, t_B: np.ndarray) -> np.ndarray:

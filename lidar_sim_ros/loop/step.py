@@ -39,7 +39,8 @@ class TruthSamples:
     """Truth at K sample times t_s (K,) over one period (both ends included): the target
     pose in the lidar frame (R_LT (K, 3, 3), t_L (K, 3) m), the sun in the lidar frame
     (K, 3), the chaser's attitude in LVLH R_HB (K, 3, 3), the relative state rho (K, 3) m,
-    rho_dot (K, 3) m/s, and the LVLH rate n (rad/s)."""
+    rho_dot (K, 3) m/s, the LVLH rate n (rad/s), and whether the chaser is in the Earth's
+    shadow (K,) (all False with ``sun.eclipse`` off)."""
 
     t_s: np.ndarray
     R_LT: np.ndarray
@@ -49,6 +50,13 @@ class TruthSamples:
     rho_m: np.ndarray
     rho_dot_mps: np.ndarray
     n_rad_s: float
+    eclipsed: np.ndarray
+
+    @property
+    def dark(self) -> bool:
+        """Whether the period is in the Earth's shadow: at its middle sample (a period is
+        0.1 s, a frame is lit or dark as a whole)."""
+        return bool(self.eclipsed[len(self.eclipsed) // 2])
 
     def pose_track(self, previous: 'TruthSamples | None' = None, extrapolation_s: float = 0.0):
         """These samples (after ``previous``'s) as a core ``PoseTrack`` for the simulator."""
@@ -115,19 +123,27 @@ def truth_of_states(config: LoopConfig, states: dict, R_BL, t_B) -> TruthSamples
     w = np.zeros_like(rho)
     w[:, 2] = n
     rho_dot = np.einsum('kij,kj->ki', R_HN, v_c - v_t) - np.cross(w, rho)
+    sun_n = np.asarray(config.sun.direction_inertial, float)
+    eclipsed = (frames.in_earth_shadow(r_c, sun_n) if config.sun.eclipse
+                else np.zeros(len(r_c), dtype=bool))
     return TruthSamples(
         t_s=states['t_s'], R_LT=R_LN @ R_NT, t_L_m=np.einsum('kij,kj->ki', R_LN, r_t - origin),
         sun_lidar=frames.unit(R_LN @ frames.unit(np.asarray(config.sun.direction_inertial, float))),
-        R_HB=R_HN @ R_NB, rho_m=rho, rho_dot_mps=rho_dot, n_rad_s=float(n[0]))
+        R_HB=R_HN @ R_NB, rho_m=rho, rho_dot_mps=rho_dot, n_rad_s=float(n[0]), eclipsed=eclipsed)
 
 
 # ------------------------------------------------------------ sense, estimate
 def sense(simulator, truth: TruthSamples, previous: TruthSamples | None, frame_index: int,
-          cloud: str) -> np.ndarray:
-    """The cloud (N, 3) m, lidar frame, of the frame over ``truth``'s period."""
-    from lidar_sim_ros.core.sun import SunTrack
-    if simulator.sun is not None:
-        simulator.sun = SunTrack(simulator.sun.config, truth.t_s, truth.sun_lidar)
+          cloud: str, sun_config=None) -> np.ndarray:
+    """The cloud (N, 3) m, lidar frame, of the frame over ``truth``'s period.
+
+    ``sun_config``: the scenario's sun (None: none), held at the period's first direction
+    over the frame, as ``loop_dynamics`` publishes it once a period (the sun turns ~1e-4
+    rad in the lidar frame over a period; interpolating it per shot cost 0.5 ms a frame);
+    none while the chaser is in the Earth's shadow (``truth.dark``)."""
+    from lidar_sim_ros.core.sun import ScenarioSun
+    if sun_config is not None:
+        simulator.sun = None if truth.dark else ScenarioSun(sun_config).with_direction(truth.sun_lidar[0])
     period = truth.t_s[-1] - truth.t_s[0]
     frame = simulator.simulate_frame(float(truth.t_s[0]), truth.pose_track(previous, period), frame_index)
     return frame.xyz_m if cloud == 'model' else frame.truth_xyz_m
@@ -195,6 +211,7 @@ class LoopContext:
     R_BL: np.ndarray
     t_B: np.ndarray
     R_BL_true: np.ndarray | None = None
+    sun_config: object | None = None  # the scenario's core SunConfig (None: no sun)
 
     @property
     def mount_true(self) -> np.ndarray:
@@ -246,17 +263,25 @@ def _pose_at(truth: TruthSamples, previous: TruthSamples | None, t_s: float) -> 
     return T
 
 
-def estimate_pose(ctx: LoopContext, state: LoopState, truth: TruthSamples, t_mid: float):
-    """(estimate 4 x 4 or None, its truth, whether the truth guess captured): sense + track."""
-    true_pose = _pose_at(truth, state.previous, t_mid)
+def sense_period(ctx: LoopContext, state: LoopState, truth: TruthSamples) -> np.ndarray | None:
+    """The period's cloud (N, 3) m, lidar frame; None without a sensor (``cloud=None``) and
+    in the sensor's first period (the poses before it are unknown)."""
+    if ctx.cloud is None or state.previous is None:
+        return None
+    return sense(ctx.simulator, truth, state.previous, state.frame_index, ctx.cloud, ctx.sun_config)
+
+
+def estimate(ctx: LoopContext, state: LoopState, xyz_m: np.ndarray | None, t_mid: float,
+             true_pose: np.ndarray) -> tuple[np.ndarray | None, bool]:
+    """(estimate 4 x 4 at ``t_mid`` or None, whether the truth guess captured): the tracker on
+    the gated cloud; without a sensor (``cloud=None``) the true pose itself."""
     if ctx.cloud is None:
-        return true_pose, true_pose, False
-    if state.previous is None:  # the sensor's first period: the pose before it is unknown
-        return None, true_pose, False
-    xyz = sense(ctx.simulator, truth, state.previous, state.frame_index, ctx.cloud)
-    xyz = tracker_cloud(ctx.config, xyz, state)
-    est, used_truth = track(ctx.tracker, t_mid, xyz, true_pose, ctx.config.acquire_from_cloud)
-    return (est.pose if est.acceptable(ctx.tracker.config) else None), true_pose, used_truth
+        return true_pose, False
+    if xyz_m is None:
+        return None, False
+    xyz_m = tracker_cloud(ctx.config, xyz_m, state)
+    est, used_truth = track(ctx.tracker, t_mid, xyz_m, true_pose, ctx.config.acquire_from_cloud)
+    return (est.pose if est.acceptable(ctx.tracker.config) else None), used_truth
 
 
 def navigate(ctx: LoopContext, nav: NavState, truth: TruthSamples, t_mid: float,
@@ -280,19 +305,27 @@ def guide_and_control(config: LoopConfig, nav: NavState, g: GuidanceState, t_s: 
     return g, ref, control_step(config.guidance, config.chaser, rho, rho_dot, ref, n_rad_s)
 
 
+def next_state(state: LoopState, truth: TruthSamples, nav: NavState, g: GuidanceState,
+               force_lvlh_n: np.ndarray, est_pose: np.ndarray | None) -> LoopState:
+    """What the period hands on to the next."""
+    tracking = est_pose is not None
+    return replace(state, force_lvlh_n=force_lvlh_n, nav=nav, guidance=g, previous=truth,
+                   frame_index=state.frame_index + 1, tracking=tracking,
+                   last_estimate=est_pose if tracking else state.last_estimate)
+
+
 def loop_step(ctx: LoopContext, state: LoopState) -> tuple[LoopState, StepOutput]:
     """One control period: propagate, sense, estimate, navigate, guide, control."""
     truth = propagate(ctx.config, ctx.dynamics, state.force_lvlh_n, ctx.mount_true, ctx.t_B)
     t_mid = float(0.5 * (truth.t_s[0] + truth.t_s[-1]))  # a scan's fit sits at its mean time
-    est_pose, true_pose, truth_capture = estimate_pose(ctx, state, truth, t_mid)
+    true_pose = _pose_at(truth, state.previous, t_mid)
+    xyz = sense_period(ctx, state, truth)
+    est_pose, truth_capture = estimate(ctx, state, xyz, t_mid, true_pose)
     nav, rho_est = navigate(ctx, state.nav, truth, t_mid, est_pose)
     g, ref, force = guide_and_control(ctx.config, nav, state.guidance, float(truth.t_s[-1]), truth.n_rad_s)
-    tracking = est_pose is not None
-    new = replace(state, force_lvlh_n=force, nav=nav, guidance=g, previous=truth,
-                  frame_index=state.frame_index + 1, tracking=tracking,
-                  last_estimate=est_pose if tracking else state.last_estimate)
+    new = next_state(state, truth, nav, g, force, est_pose)
     return new, StepOutput(truth, t_mid, est_pose, true_pose, ref, force,
-                           state.tracking and not tracking, truth_capture, rho_est)
+                           state.tracking and not new.tracking, truth_capture, rho_est)
 
 
 # ----------------------------------------------------------------- a whole run
@@ -334,8 +367,9 @@ def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics
     R_BL_true = None
     if misalignment_xyzw is not None:  # p_L' = M p_L = M R_BL^T p_B: R_BL' = R_BL M^T
         R_BL_true = R_BL @ Rotation.from_quat(misalignment_xyzw).as_matrix().T
+    sun_config = simulator.sun.config if simulator is not None and simulator.sun is not None else None
     return LoopContext(config, dynamics or Dynamics(config), simulator, tracker, cloud, R_BL, t_B,
-                       R_BL_true)
+                       R_BL_true, sun_config)
 
 
 def _axis_angle_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:
