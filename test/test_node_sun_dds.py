@@ -86,7 +86,7 @@ def test_sun_direction_from_the_topic_changes_the_clouds(harness, node):
     assert min(in_view) > 200, in_view
 
     mark = len(harness.rosout)
-    publish_sun((0.0, 0.0, 0.0))
+    publish_sun((1e-12, 0.0, 0.0))
     publish_sun((0.0, 1.0, 0.0), frame_id='map')
     publish_sun((np.nan, 1.0, 0.0))
     harness.step_frames(4, 4)
@@ -104,3 +104,17 @@ def test_sun_direction_from_the_topic_changes_the_clouds(harness, node):
                                  [0.0, 0.34, 0.94]).successful
     harness.step_frames(5, 5)
     assert false_returns(harness, 5, 5)[0] < 40
+
+    # An exact zero on the topic hides the sun (the Earth's shadow, as loop_dynamics says
+    # it): no stray light from a sun in view; the next direction brings it back whole.
+    publish_sun(IN_VIEW)
+    harness.step_frames(6, 6)
+    assert false_returns(harness, 6, 6)[0] > 200
+    mark = len(harness.rosout)
+    publish_sun((0.0, 0.0, 0.0))
+    harness.step_frames(7, 7)
+    assert false_returns(harness, 7, 7)[0] < 40
+    assert 'sun hidden' in '\n'.join(harness.rosout_since(mark, Log.INFO))
+    publish_sun(IN_VIEW)
+    harness.step_frames(8, 8)
+    assert false_returns(harness, 8, 8)[0] > 200

@@ -6,9 +6,9 @@ the simulated clock (``epoch_s`` + loop time):
 
 - ``/target/pose`` (geometry_msgs/PoseStamped, frame ``lidar_frame``): the target body
   pose in the lidar frame at every dynamics sub-step (``timing.pose_rate_hz``, 100 Hz);
-- ``/sun/direction`` (geometry_msgs/Vector3Stamped, lidar frame), once per period, none
-  while the chaser is in the Earth's shadow (``sun.eclipse``; entering and leaving it are
-  logged);
+- ``/sun/direction`` (geometry_msgs/Vector3Stamped, lidar frame), once per period; a zero
+  vector while the chaser is in the Earth's shadow (``sun.eclipse``: lidar_sim_node then
+  simulates without sunlight; entering and leaving it are logged);
 - ``/chaser/attitude`` (geometry_msgs/QuaternionStamped, frame ``lvlh``): the chaser
   body's attitude in LVLH at every sub-step, what its own attitude determination would
   give the GNC (no target information);
@@ -241,12 +241,13 @@ class LoopDynamicsNode(Node):
         if truth.dark != self.dark:
             self.dark = truth.dark
             self.get_logger().info(f"t = {t0:.1f} s: the chaser {'enters' if self.dark else 'leaves'} "
-                                   "the Earth's shadow (/sun/direction " + ('stops)' if self.dark else 'resumes)'))
+                                   "the Earth's shadow (/sun/direction " + ('zero: the sun hidden)' if self.dark
+                                                                          else 'the direction again)'))
+        sun = Vector3Stamped()
+        sun.header.frame_id, sun.header.stamp = self.lidar_frame, _stamp(self.epoch_s + t0)
         if not self.dark:
-            sun = Vector3Stamped()
-            sun.header.frame_id, sun.header.stamp = self.lidar_frame, _stamp(self.epoch_s + t0)
             sun.vector.x, sun.vector.y, sun.vector.z = map(float, truth.sun_lidar[0])
-            self.sun_pub.publish(sun)
+        self.sun_pub.publish(sun)
         t_end = self.epoch_s + float(truth.t_s[-1])
         self._publish_scene(t_end, truth)
         self.R_HB = truth.R_HB[-1]

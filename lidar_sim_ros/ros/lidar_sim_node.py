@@ -216,6 +216,7 @@ class LidarSimNode(Node):
             'sun_direction', list(sun.direction) if sun else Parameter.Type.DOUBLE_ARRAY,
             _descriptor(FA, "direction toward the sun, lidar frame (normalised); [] = no sun; "
                             "default: the scenario's sun.direction; the sun topic overrides it"))
+        self._hidden_sun = None              # the sun model kept while hidden (topic zero)
         self._set_sun(self.get_parameter_or('sun_direction').value)
         # Compiled kernels (and the effects' first calls) before anything is timed: the
         # frame grid, the pose subscriptions and their staleness checks all start after
@@ -467,12 +468,22 @@ class LidarSimNode(Node):
     def _on_sun(self, msg: Vector3Stamped) -> None:
         v = msg.vector
         unit, rejection = check_sun_direction([v.x, v.y, v.z], msg.header.frame_id,
-                                              self.get_parameter('frame_id').value)
+                                              self.get_parameter('frame_id').value,
+                                              zero_is_dark=True)
         if rejection is not None:
             self._warn(rejection.kind, f'dropped sun direction on {self.sun_sub.topic_name}: '
                                        f'{rejection.reason}')
             return
-        self.sim.sun = sun_with_direction(self.sim.sun, unit)
+        if unit is None:                        # a zero vector: the sun is hidden
+            if self.sim.sun is not None:
+                self._hidden_sun = self.sim.sun
+                self.sim.sun = None
+                self.get_logger().info(f'sun hidden (zero vector on {self.sun_sub.topic_name}): '
+                                       'frames without sunlight until a direction comes')
+            return
+        if self.sim.sun is None and self._hidden_sun is not None:
+            self.get_logger().info(f'sun back on {self.sun_sub.topic_name}')
+        self.sim.sun = sun_with_direction(self.sim.sun or self._hidden_sun, unit)
 
     # -------------------------------------------------------------- poses
     def _on_pose(self, msg: PoseStamped) -> None:

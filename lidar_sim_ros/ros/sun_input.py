@@ -3,7 +3,9 @@ the simulator's sun.
 
 The direction is a vector toward the sun in the lidar frame, from the ``sun_direction``
 parameter or a ``geometry_msgs/Vector3Stamped`` on the sun topic (whose ``frame_id`` must
-be the node's). Any non-zero finite vector is accepted and normalised.
+be the node's). Any non-zero finite vector is accepted and normalised. On the topic, a zero
+vector says the sun is hidden (the chaser in the Earth's shadow, as ``loop_dynamics``
+publishes it): the frames then have no sun until a direction comes again.
 """
 from __future__ import annotations
 
@@ -14,9 +16,10 @@ from lidar_sim_ros.core.sun import ScenarioSun
 from lidar_sim_ros.ros.pose_input import Rejection
 
 
-def check_sun_direction(vector, frame_id: str | None = None,
-                        node_frame_id: str | None = None) -> tuple[np.ndarray | None, Rejection | None]:
-    """(unit vector, None) or (None, why not). ``frame_id`` None skips the frame check."""
+def check_sun_direction(vector, frame_id: str | None = None, node_frame_id: str | None = None,
+                        zero_is_dark: bool = False) -> tuple[np.ndarray | None, Rejection | None]:
+    """(unit vector, None), or (None, why not). ``frame_id`` None skips the frame check.
+    With ``zero_is_dark`` an exact zero vector gives (None, None): the sun is hidden."""
     if frame_id is not None and frame_id != node_frame_id:
         return None, Rejection('sun_frame_id', f'frame_id {frame_id!r} is not the node '
                                                f'frame_id {node_frame_id!r}')
@@ -26,6 +29,8 @@ def check_sun_direction(vector, frame_id: str | None = None,
     if not np.isfinite(v).all():
         return None, Rejection('sun_finite', f'direction {v.tolist()} is not finite')
     norm = float(np.linalg.norm(v))
+    if zero_is_dark and norm == 0.0:
+        return None, None
     if norm < 1e-9:
         return None, Rejection('sun_zero', 'direction is zero')
     return v / norm, None
