@@ -8,12 +8,15 @@ simulate, the client only writes manifest rows as results arrive. Why Dask and n
 """
 from __future__ import annotations
 
+import itertools
 import logging
+import math
 import os
 import signal
 import threading
 import time
 import warnings
+from collections import deque
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +26,7 @@ import dask
 from dask.distributed import Client, LocalCluster, as_completed
 
 from lidar_sim_ros.campaign.manifest import Manifest
-from lidar_sim_ros.campaign.run import prepare_worker, run_one
+from lidar_sim_ros.campaign.run import run_batch, worker_facts
 from lidar_sim_ros.campaign.sample import run_seed
 from lidar_sim_ros.campaign.spec import Campaign
 
@@ -47,6 +50,9 @@ class CampaignReport:
     startup_s: float
     wall_s: float
     compute_s: float
+    # startup_s: from the call to the first manifest row (manifest, cluster, the first
+    # worker's preparation, the first run); wall_s: from the first submission to the last
+    # row (the workers prepare on their first task, inside it); compute_s: summed over runs.
 
 
 # What a local worker process is started with (Dask's nanny sets these before it
@@ -72,6 +78,13 @@ WORKER_CONFIG = {'distributed.worker.profile.enabled': False}
 # travels back, few enough that the client holds a bounded number of futures whatever the
 # number of runs (100,000 submitted at once took 45-55 s and 6.3 GB before the first row).
 IN_FLIGHT_PER_WORKER = 4
+
+# Short runs go several to a task (``BatchSizer``): Dask costs ~5-10 ms per task between
+# scheduler, client and worker, more than a one-frame run of a small sensor (~1 ms), and
+# runs/s were capped at ~150 on two workers whatever the runs. A task lasts ~TASK_S once
+# the first runs are timed; MAX_RUNS_PER_TASK bounds what Ctrl-C or a dead worker costs.
+TASK_S = 0.5
+MAX_RUNS_PER_TASK = 500
 
 
 def local_cluster(workers: int) -> LocalCluster:
@@ -141,37 +154,40 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
     A run that fails (or whose worker dies) is recorded as failed and the others go on;
     ``retry_failed`` runs the failed ones again.
     """
-    manifest = Manifest.open(out_dir, campaign)
-    runs = campaign.spec.runs
-    n_pending = sum(not manifest.is_finished(i, retry_failed) for i in range(runs))
-    # Run ids are produced as they are submitted, never listed (memory flat in the runs).
-    pending = (i for i in range(runs) if not manifest.is_finished(i, retry_failed))
     t0 = time.perf_counter()
-    startup_s = wall_s = 0.0
-    n_workers = 0
-    tally = {'ok': 0, 'failed': 0, 'compute_s': 0.0}
-    bar = _progress_bar(runs, runs - n_pending, progress)
+    runs = campaign.spec.runs
+    # The bar first, so that something shows while the manifest is read and workers start.
+    bar = _progress_bar(runs, progress)
     try:
+        manifest = Manifest.open(out_dir, campaign)
+        n_pending = sum(not manifest.is_finished(i, retry_failed) for i in range(runs))
+        # Run ids are produced as they are submitted, never listed (memory flat in the runs).
+        pending = (i for i in range(runs) if not manifest.is_finished(i, retry_failed))
+        tally = {'ok': 0, 'failed': 0, 'compute_s': 0.0, 'first_row_s': 0.0}
+        n_workers, wall_s = 0, 0.0
+        if bar is not None:
+            bar.n = bar.initial = runs - n_pending
+            bar.set_postfix_str('starting workers' if n_pending else _counts(manifest, 0))
         if n_pending:
-            if bar is not None:
-                bar.set_postfix_str('starting workers')
             with connect(workers, address) as client:
-                # Mesh and kernels on every worker now, in parallel, so that runs time only runs.
-                _check_workers(client.run(prepare_worker, campaign))
-                n_workers = sum(client.nthreads().values())
-                startup_s = time.perf_counter() - t0
+                if address:
+                    _check_workers(client.run(worker_facts))
+                n_workers = sum(client.nthreads().values()) or 1
                 t1 = time.perf_counter()
+                # Each worker prepares itself (mesh, BVH, kernels) on its first task, so
+                # the first rows come from the first worker ready, not the last one.
                 _gather(client, campaign, pending, n_pending, out_dir, manifest, bar, tally,
-                        IN_FLIGHT_PER_WORKER * max(n_workers, 1))
+                        IN_FLIGHT_PER_WORKER * n_workers, t0)
                 wall_s = time.perf_counter() - t1
     finally:
         if bar is not None:
             bar.close()
     manifest.rewrite()
     parquet = manifest.write_parquet()
-    return CampaignReport(manifest.path, parquet, runs, runs - n_pending,
-                          tally['ok'] + tally['failed'], tally['ok'], tally['failed'], n_workers,
-                          startup_s, wall_s, tally['compute_s'])
+    ran = tally['ok'] + tally['failed']
+    return CampaignReport(manifest.path, parquet, runs, runs - n_pending, ran, tally['ok'],
+                          tally['failed'], n_workers, tally['first_row_s'], wall_s,
+                          tally['compute_s'])
 
 
 def _check_workers(facts: dict[str, dict]) -> None:
@@ -193,24 +209,62 @@ def _check_workers(facts: dict[str, dict]) -> None:
                       stacklevel=3)
 
 
+class BatchSizer:
+    """How many runs the next task takes (``run.run_batch``).
+
+    One until a run has been timed; then enough runs for a task of about ``task_s``
+    (mean compute of the runs so far), at most ``max_runs``, and never more than an
+    even share of what is left to submit (``remaining // share``), so that the last
+    tasks still spread over every worker. Runs of ``task_s`` or longer go one per task.
+    """
+
+    def __init__(self, task_s: float = TASK_S, max_runs: int = MAX_RUNS_PER_TASK):
+        self.task_s, self.max_runs = task_s, max_runs
+        self._timed, self._sum_s = 0, 0.0
+
+    def observe(self, compute_s: float) -> None:
+        """One finished run's compute time (s)."""
+        if math.isfinite(compute_s):
+            self._timed += 1
+            self._sum_s += max(compute_s, 0.0)
+
+    def size(self, remaining: int, share: int) -> int:
+        if not self._timed:
+            return 1
+        mean = self._sum_s / self._timed
+        wanted = self.max_runs if mean <= 0.0 else int(self.task_s // mean)
+        return max(1, min(wanted, self.max_runs, remaining // max(share, 1)))
+
+
 def _gather(client: Client, campaign: Campaign, pending: Iterator[int], n_pending: int,
-            out_dir: str | Path, manifest: Manifest, bar, tally: dict, in_flight: int) -> None:
-    """Submit the pending runs, at most ``in_flight`` at a time, and record each as it
-    finishes (``tally``: ok, failed, summed compute in s). On Ctrl-C the runs in flight
-    are cancelled: every finished run is already in the manifest, so the same command
-    resumes."""
+            out_dir: str | Path, manifest: Manifest, bar, tally: dict, in_flight: int,
+            t0: float) -> None:
+    """Submit the pending runs in batches (``BatchSizer``), at most ``in_flight`` tasks at
+    a time, and record each run as its batch finishes (``tally``: ok, failed, summed
+    compute in s, ``first_row_s`` after ``t0``). A batch lost with its worker is split
+    into single runs and submitted again, so that only the run that killed the worker
+    is recorded as failed. On Ctrl-C the tasks in flight are cancelled: every finished
+    run is already in the manifest, so the same command resumes."""
     # The campaign travels inside each task (~4 kB pickled): tasks without dependencies
     # are queued on the scheduler and handed to whichever worker frees up first, where a
     # scattered campaign made them data-dependent and let one worker take most of them.
     out = str(Path(out_dir).resolve())  # workers may run elsewhere, in another directory
     futures: dict = {}
     queue = as_completed()
+    sizer = BatchSizer()
+    alone: deque[int] = deque()  # runs of a lost batch, to be run one per task
+    unsubmitted = n_pending
 
     def submit_next() -> None:
-        run_id = next(pending, None)
-        if run_id is not None:
-            future = client.submit(run_one, campaign, run_id, out, pure=False)
-            futures[future] = run_id
+        nonlocal unsubmitted
+        if alone:
+            batch = [alone.popleft()]
+        else:
+            batch = list(itertools.islice(pending, sizer.size(unsubmitted, in_flight)))
+            unsubmitted -= len(batch)
+        if batch:
+            future = client.submit(run_batch, campaign, batch, out, pure=False)
+            futures[future] = batch
             queue.add(future)
 
     for _ in range(in_flight):
@@ -220,21 +274,31 @@ def _gather(client: Client, campaign: Campaign, pending: Iterator[int], n_pendin
         bar.set_postfix_str(_counts(manifest, remaining))
     try:
         for future in queue:
-            run_id = futures.pop(future)
+            batch = futures.pop(future)
             try:
-                row = future.result()
+                rows = future.result()
             except Exception as exc:  # the worker died (KilledWorker) or the task was lost
-                row = {'run_id': run_id, 'seed': run_seed(campaign.spec.seed, run_id),
-                       'status': 'failed', 'error': f'engine: {type(exc).__name__}: {exc}'}
+                if len(batch) > 1:
+                    alone.extend(batch)
+                    rows = []
+                else:
+                    rows = [{'run_id': batch[0], 'seed': run_seed(campaign.spec.seed, batch[0]),
+                             'status': 'failed', 'error': f'engine: {type(exc).__name__}: {exc}'}]
             future.release()
+            for row in rows:
+                compute_s = float(row.get('compute_s') or 0.0)
+                sizer.observe(compute_s)
+                tally['compute_s'] += compute_s
+                tally[row['status']] += 1
+            if rows:
+                manifest.append_rows(rows)
+                if not tally['first_row_s']:
+                    tally['first_row_s'] = time.perf_counter() - t0
             submit_next()
-            tally['compute_s'] += float(row.get('compute_s') or 0.0)
-            tally[row['status']] += 1
-            manifest.append(row)
-            remaining -= 1
-            if bar is not None:
+            remaining -= len(rows)
+            if bar is not None and rows:
                 bar.set_postfix_str(_counts(manifest, remaining), refresh=False)
-                bar.update(1)
+                bar.update(len(rows))
     except KeyboardInterrupt:
         client.cancel(list(futures), force=True)
         raise
@@ -244,9 +308,11 @@ def _counts(manifest: Manifest, remaining: int) -> str:
     return f'done {manifest.count("ok")}, failed {manifest.count("failed")}, remaining {remaining}'
 
 
-def _progress_bar(total: int, skipped: int, enabled: bool):
-    """tqdm over all runs of the campaign, the skipped ones counted in from the start."""
+def _progress_bar(total: int, enabled: bool):
+    """tqdm over all runs of the campaign (the caller counts the skipped ones in)."""
     if not enabled:
         return None
     from tqdm import tqdm
-    return tqdm(total=total, initial=skipped, unit='run', desc='campaign', dynamic_ncols=True)
+    bar = tqdm(total=total, unit='run', desc='campaign', dynamic_ncols=True)
+    bar.set_postfix_str('reading the manifest')
+    return bar
