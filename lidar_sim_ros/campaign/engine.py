@@ -24,6 +24,7 @@ from typing import Iterator
 
 import dask
 from dask.distributed import Client, LocalCluster, as_completed
+from distributed.utils import get_mp_context
 
 from lidar_sim_ros.campaign.manifest import Manifest
 from lidar_sim_ros.campaign.run import run_batch, worker_facts
@@ -74,6 +75,14 @@ _USER_ENVIRON = {key: os.environ.get(key) for key in WORKER_ENVIRON}  # the user
 # worker, measured on an idle machine). Off on the workers we start.
 WORKER_CONFIG = {'distributed.worker.profile.enabled': False}
 
+# Local workers are forked from one server process that has imported Dask and the
+# simulator (multiprocessing's forkserver, preloaded), not each started afresh: a worker
+# then costs ~0.05 s of CPU to start instead of ~1.1 s of imports (measured), which on a
+# busy machine is most of the wait for the first rows. The server starts inside
+# ``_workers_ignore_sigint``, so it and every worker forked from it ignore SIGINT.
+FORKSERVER = {'distributed.worker.multiprocessing-method': 'forkserver'}
+FORKSERVER_PRELOAD = ['distributed', 'lidar_sim_ros.campaign.run']
+
 # Runs submitted ahead per worker thread: enough to keep every worker busy while a result
 # travels back, few enough that the client holds a bounded number of futures whatever the
 # number of runs (100,000 submitted at once took 45-55 s and 6.3 GB before the first row).
@@ -95,7 +104,10 @@ def local_cluster(workers: int) -> LocalCluster:
     for key, value in WORKER_ENVIRON.items():
         if value is None and _USER_ENVIRON[key] is None:
             os.environ.pop(key, None)
-    with dask.config.set({**environ, **WORKER_CONFIG}), _workers_ignore_sigint():
+    with dask.config.set({**environ, **WORKER_CONFIG, **FORKSERVER}), _workers_ignore_sigint():
+        # Dask sets its own preload list on first use: ours replaces it (before the
+        # server starts, i.e. the first local cluster of this process).
+        get_mp_context().set_forkserver_preload(FORKSERVER_PRELOAD)
         # One thread per process: the kernels hold the GIL for part of a frame, and one
         # process per core lets each worker keep its own mesh and compiled kernels.
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -137,6 +149,7 @@ def connect(workers: int | None = None, address: str | None = None) -> Iterator[
         with local_cluster(n) as cluster:
             try:
                 with Client(cluster) as client:
+                    client.run(_quiet_worker_close)
                     yield client
             finally:
                 # A worker whose interpreter takes > 4 s to tear down (numba, Embree, on a
@@ -144,6 +157,14 @@ def connect(workers: int | None = None, address: str | None = None) -> Iterator[
                 nanny_log.setLevel(logging.ERROR)
     finally:
         nanny_log.setLevel(level)
+
+
+def _quiet_worker_close() -> None:
+    """On a local worker: closing it with a task running (Ctrl-C stops the cluster in
+    the middle of a batch) logs a warning per task ("Async instruction ... ended with
+    CancelledError"), expected by Dask ("should exclusively happen in Worker.close()")
+    and of no use to the user."""
+    logging.getLogger('distributed.worker.state_machine').setLevel(logging.ERROR)
 
 
 def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = None,
