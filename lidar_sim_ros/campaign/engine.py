@@ -51,9 +51,11 @@ class CampaignReport:
     startup_s: float
     wall_s: float
     compute_s: float
+    tasks: int = 0
     # startup_s: from the call to the first manifest row (manifest, cluster, the first
     # worker's preparation, the first run); wall_s: from the first submission to the last
-    # row (the workers prepare on their first task, inside it); compute_s: summed over runs.
+    # row (the workers prepare on their first task, inside it); compute_s: summed over
+    # runs; tasks: Dask tasks submitted (short runs go several to a task).
 
 
 # What a local worker process is started with (Dask's nanny sets these before it
@@ -184,7 +186,7 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
         n_pending = sum(not manifest.is_finished(i, retry_failed) for i in range(runs))
         # Run ids are produced as they are submitted, never listed (memory flat in the runs).
         pending = (i for i in range(runs) if not manifest.is_finished(i, retry_failed))
-        tally = {'ok': 0, 'failed': 0, 'compute_s': 0.0, 'first_row_s': 0.0}
+        tally = {'ok': 0, 'failed': 0, 'compute_s': 0.0, 'first_row_s': 0.0, 'tasks': 0}
         n_workers, wall_s = 0, 0.0
         if bar is not None:
             bar.n = bar.initial = runs - n_pending
@@ -208,7 +210,7 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
     ran = tally['ok'] + tally['failed']
     return CampaignReport(manifest.path, parquet, runs, runs - n_pending, ran, tally['ok'],
                           tally['failed'], n_workers, tally['first_row_s'], wall_s,
-                          tally['compute_s'])
+                          tally['compute_s'], tally['tasks'])
 
 
 def _check_workers(facts: dict[str, dict]) -> None:
@@ -262,50 +264,62 @@ def _gather(client: Client, campaign: Campaign, pending: Iterator[int], n_pendin
             t0: float) -> None:
     """Submit the pending runs in batches (``BatchSizer``), at most ``in_flight`` tasks at
     a time, and record each run as its batch finishes (``tally``: ok, failed, summed
-    compute in s, ``first_row_s`` after ``t0``). A batch lost with its worker is split
-    into single runs and submitted again, so that only the run that killed the worker
-    is recorded as failed. On Ctrl-C the tasks in flight are cancelled: every finished
-    run is already in the manifest, so the same command resumes."""
+    compute in s, ``first_row_s`` after ``t0``, ``tasks``).
+
+    A task lost with its worker (``KilledWorker`` after Dask's own retries) may hold
+    runs that did nothing wrong: its batch-mates, or a task that only sat queued on the
+    worker another run killed. Its runs become suspects, run one at a time with nothing
+    else in flight once the tasks in flight have drained: a suspect lost then is the
+    one that kills its worker, and only it is recorded as failed.
+
+    On Ctrl-C the tasks in flight are cancelled: every finished run is already in the
+    manifest, so the same command resumes."""
     # The campaign travels inside each task (~4 kB pickled): tasks without dependencies
     # are queued on the scheduler and handed to whichever worker frees up first, where a
     # scattered campaign made them data-dependent and let one worker take most of them.
     out = str(Path(out_dir).resolve())  # workers may run elsewhere, in another directory
-    futures: dict = {}
+    futures: dict = {}              # future -> (run ids, run alone?)
     queue = as_completed()
     sizer = BatchSizer()
-    alone: deque[int] = deque()  # runs of a lost batch, to be run one per task
+    suspects: deque[int] = deque()  # runs of lost tasks, to be run alone
     unsubmitted = n_pending
 
-    def submit_next() -> None:
-        nonlocal unsubmitted
-        if alone:
-            batch = [alone.popleft()]
-        else:
-            batch = list(itertools.islice(pending, sizer.size(unsubmitted, in_flight)))
-            unsubmitted -= len(batch)
-        if batch:
-            future = client.submit(run_batch, campaign, batch, out, pure=False)
-            futures[future] = batch
-            queue.add(future)
+    def submit(batch: list[int], isolated: bool) -> None:
+        future = client.submit(run_batch, campaign, batch, out, pure=False)
+        futures[future] = batch, isolated
+        queue.add(future)
+        tally['tasks'] += 1
 
-    for _ in range(in_flight):
-        submit_next()
+    def fill() -> None:
+        nonlocal unsubmitted
+        while len(futures) < in_flight:
+            if suspects:
+                if not futures:
+                    submit([suspects.popleft()], isolated=True)
+                return
+            batch = list(itertools.islice(pending, sizer.size(unsubmitted, in_flight)))
+            if not batch:
+                return
+            unsubmitted -= len(batch)
+            submit(batch, isolated=False)
+
+    fill()
     remaining = n_pending
     if bar is not None:
         bar.set_postfix_str(_counts(manifest, remaining))
     try:
         for future in queue:
-            batch = futures.pop(future)
+            batch, isolated = futures.pop(future)
             try:
                 rows = future.result()
             except Exception as exc:  # the worker died (KilledWorker) or the task was lost
-                if len(batch) > 1:
-                    alone.extend(batch)
-                    rows = []
-                else:
-                    rows = [{'run_id': batch[0], 'seed': run_seed(campaign.spec.seed, batch[0]),
-                             'status': 'failed', 'error': f'engine: {type(exc).__name__}: {exc}'}]
+                rows = [] if not isolated else [{
+                    'run_id': batch[0], 'seed': run_seed(campaign.spec.seed, batch[0]),
+                    'status': 'failed', 'error': f'engine: {type(exc).__name__}: {exc}'}]
+                if not isolated:
+                    suspects.extend(batch)
             future.release()
+            fill()
             for row in rows:
                 compute_s = float(row.get('compute_s') or 0.0)
                 sizer.observe(compute_s)
@@ -315,7 +329,6 @@ def _gather(client: Client, campaign: Campaign, pending: Iterator[int], n_pendin
                 manifest.append_rows(rows)
                 if not tally['first_row_s']:
                     tally['first_row_s'] = time.perf_counter() - t0
-            submit_next()
             remaining -= len(rows)
             if bar is not None and rows:
                 bar.set_postfix_str(_counts(manifest, remaining), refresh=False)
