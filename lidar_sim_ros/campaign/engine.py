@@ -3,11 +3,16 @@
 Without ``address`` a ``LocalCluster`` starts one single-threaded worker process per
 core (``workers`` to choose), nothing to set up; with ``address`` the client joins a
 running scheduler (``dask scheduler`` + ``dask worker ADDRESS`` on each node, see
-docs/campaign.md). A task is (campaign, run id), a few kB: workers sample and
+docs/campaign.md). A task is (campaign, run ids), a few kB: workers sample and
 simulate, the client only writes manifest rows as results arrive. Why Dask and not Ray: docs/campaign.md.
+
+Dask, the manifest and the simulator are imported where they are first needed, after
+the progress bar is drawn: together they take ~1 s of CPU to import, and the bar is
+meant to show at once.
 """
 from __future__ import annotations
 
+import importlib.util
 import itertools
 import logging
 import math
@@ -20,16 +25,18 @@ from collections import deque
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
-import dask
-from dask.distributed import Client, LocalCluster, as_completed
-from distributed.utils import get_mp_context
-
-from lidar_sim_ros.campaign.manifest import Manifest
-from lidar_sim_ros.campaign.run import run_batch, worker_facts
-from lidar_sim_ros.campaign.sample import run_seed
 from lidar_sim_ros.campaign.spec import Campaign
+
+if TYPE_CHECKING:
+    from dask.distributed import Client, LocalCluster
+
+    from lidar_sim_ros.campaign.manifest import Manifest
+
+for _module in ('dask', 'distributed'):  # the extra is missing: say so on import
+    if importlib.util.find_spec(_module) is None:
+        raise ImportError(f'No module named {_module!r}', name=_module)
 
 
 class EngineError(RuntimeError):
@@ -100,20 +107,42 @@ MAX_RUNS_PER_TASK = 500
 
 def local_cluster(workers: int) -> LocalCluster:
     """A local Dask cluster of ``workers`` single-threaded worker processes."""
+    import dask
+    from dask.distributed import LocalCluster
     environ = {f'distributed.nanny.pre-spawn-environ.{k}': v for k, v in WORKER_ENVIRON.items()}
-    # The nanny copies its environment into this process's os.environ before spawning,
-    # and a worker inherits os.environ: drop what an earlier cluster left there.
-    for key, value in WORKER_ENVIRON.items():
-        if value is None and _USER_ENVIRON[key] is None:
-            os.environ.pop(key, None)
+    start_forkserver()
     with dask.config.set({**environ, **WORKER_CONFIG, **FORKSERVER}), _workers_ignore_sigint():
-        # Dask sets its own preload list on first use: ours replaces it (before the
-        # server starts, i.e. the first local cluster of this process).
-        get_mp_context().set_forkserver_preload(FORKSERVER_PRELOAD)
         # One thread per process: the kernels hold the GIL for part of a frame, and one
         # process per core lets each worker keep its own mesh and compiled kernels.
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                             dashboard_address=None)
+
+
+def start_forkserver() -> None:
+    """Start the server that local workers are forked from (``FORKSERVER``), if it is not
+    running: it imports Dask and the simulator in the background, while this process
+    reads the manifest and starts the scheduler. Its environment, which every worker
+    inherits, is ``WORKER_ENVIRON`` (a value the user exported wins, as in Dask)."""
+    import multiprocessing.forkserver
+
+    import dask
+    from distributed.utils import get_mp_context
+    with dask.config.set(FORKSERVER), _workers_ignore_sigint():
+        # Dask sets its own preload list on first use: ours replaces it.
+        get_mp_context().set_forkserver_preload(FORKSERVER_PRELOAD)
+        saved = dict(os.environ)
+        try:
+            for key, value in WORKER_ENVIRON.items():
+                if _USER_ENVIRON[key] is not None:
+                    os.environ[key] = _USER_ENVIRON[key]
+                elif value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
+            multiprocessing.forkserver.ensure_running()
+        finally:
+            os.environ.clear()
+            os.environ.update(saved)
 
 
 @contextmanager
@@ -136,6 +165,7 @@ def _workers_ignore_sigint() -> Iterator[None]:
 def connect(workers: int | None = None, address: str | None = None) -> Iterator[Client]:
     """A Dask client: of a new local cluster (``workers`` processes, default all cores)
     or of the running scheduler at ``address``."""
+    from dask.distributed import Client
     if address:
         try:
             client = Client(address, timeout='20s')
@@ -182,6 +212,10 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
     # The bar first, so that something shows while the manifest is read and workers start.
     bar = _progress_bar(runs, progress)
     try:
+        if not address:
+            start_forkserver()
+        from lidar_sim_ros.campaign.manifest import Manifest
+        from lidar_sim_ros.campaign.run import worker_facts
         manifest = Manifest.open(out_dir, campaign)
         n_pending = sum(not manifest.is_finished(i, retry_failed) for i in range(runs))
         # Run ids are produced as they are submitted, never listed (memory flat in the runs).
@@ -277,6 +311,10 @@ def _gather(client: Client, campaign: Campaign, pending: Iterator[int], n_pendin
     # The campaign travels inside each task (~4 kB pickled): tasks without dependencies
     # are queued on the scheduler and handed to whichever worker frees up first, where a
     # scattered campaign made them data-dependent and let one worker take most of them.
+    from dask.distributed import as_completed
+
+    from lidar_sim_ros.campaign.run import run_batch
+    from lidar_sim_ros.campaign.sample import run_seed
     out = str(Path(out_dir).resolve())  # workers may run elsewhere, in another directory
     futures: dict = {}              # future -> (run ids, run alone?)
     queue = as_completed()
