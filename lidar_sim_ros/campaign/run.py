@@ -197,7 +197,8 @@ def run_batch(campaign: Campaign, run_ids: list[int], out_dir: str | Path | None
 
 
 def run_one(campaign: Campaign, run_id: int, out_dir: str | Path | None = None) -> dict:
-    """Sample run ``run_id`` of ``campaign`` and simulate it: the engine's task. Never raises.
+    """Sample run ``run_id`` of ``campaign`` and simulate it (the engine's tasks are
+    batches of these, ``run_batch``). Never raises.
 
     The run's compute (``compute_s``, ``cpu_s``) counts the sampling: it is the run's own work.
     A closed-loop campaign's run is ``loop_case.run_one_loop``.
