@@ -9,6 +9,7 @@ rebuilt, because the dispersed materials and effects differ from run to run.
 from __future__ import annotations
 
 import os
+import pickle
 import shutil
 import socket
 import threading
@@ -178,16 +179,23 @@ def run_case(case: RunCase, out_dir: str | Path | None = None,
     return row
 
 
-def run_batch(campaign: Campaign, run_ids: list[int], out_dir: str | Path | None = None) -> list[dict]:
+def run_batch(campaign: Campaign | bytes, run_ids: list[int],
+              out_dir: str | Path | None = None) -> list[dict]:
     """The engine's task: runs ``run_ids`` one after the other, one manifest row each (in
     order); never raises. Each row is exactly ``run_one``'s: a run's result depends on
     the campaign and its id alone, not on the batch it came in.
+
+    ``campaign`` may come pickled (the engine sends it so): Dask's scheduler unpickles
+    every task it is given and kept ~500 objects (~32 kB) of each task's campaign after
+    the task was released; one bytes object of ~3.5 kB is what it keeps instead.
 
     Short runs come in batches because Dask's own cost per task (~5-10 ms of scheduler,
     client and worker time) would otherwise exceed the run (a one-frame run of a small
     sensor takes ~1 ms). The first task a process gets for a campaign prepares the worker
     (``prepare_worker``), outside every run's compute.
     """
+    if isinstance(campaign, bytes):
+        campaign = pickle.loads(campaign)  # noqa: S301 - the engine's own task, as Dask's are
     if _campaign_key(campaign) not in _PREPARED:
         try:
             prepare_worker(campaign)
