@@ -471,7 +471,7 @@ def write_tiny_campaign(tmp: Path, runs: int, seed: int = 21, effects: list | No
                               'tumble_axis': {'dist': 'uniform_sphere'}})
 
 
-def test_short_runs_go_in_batches_and_give_the_rows_of_single_runs(cluster, tmp_path):
+def test_short_runs_go_in_batches_and_give_the_rows_of_single_runs(cluster, tmp_path, capsys):
     """300 runs of ~1 ms: far fewer tasks than runs, every run exactly once, each row what
     the run gives alone in this process; a resume after losing rows redoes those only."""
     from lidar_sim_ros.campaign.engine import run_campaign
@@ -492,8 +492,11 @@ def test_short_runs_go_in_batches_and_give_the_rows_of_single_runs(cluster, tmp_
     kept = [text[0]] + [line for line in text[1:] if int(line.split(',')[0]) % 3]
     (out / MANIFEST).write_text(''.join(kept[:-1]) + kept[-1][:30])
     lost = {i for i in range(300) if i % 3 == 0} | {int(kept[-1].split(',')[0])}
-    again = run_campaign(campaign, out, address=cluster, progress=False)
+    capsys.readouterr()
+    again = run_campaign(campaign, out, address=cluster, progress=True)
     assert (again.skipped, again.ran) == (300 - len(lost), len(lost))
+    bar = capsys.readouterr().err  # drawn before the manifest is read and the workers start
+    assert bar.index('reading the manifest') < bar.index('starting workers') < bar.index('done ')
     after = read_manifest(out)
     assert sorted(after) == list(range(300))
     assert {i: results(r) for i, r in after.items()} == {i: results(r) for i, r in rows.items()}
