@@ -5,14 +5,16 @@ The client's (main process's) peak resident memory for campaigns of very short r
 (one frame of a 16-shot sensor on the rocket body, ``save: stats``), each in a fresh
 process on a local cluster of ``--workers`` workers: memory must stay flat in the
 number of runs (runs are submitted as they go, a bounded number in flight, and the
-manifest keeps one status byte per run). Also: seconds to the first manifest row and
-to the end, runs per second. The local cluster's scheduler lives in the main process,
-so its memory is counted too.
+manifest keeps one status byte per run). Also: seconds from the call to the first
+manifest row (cluster, workers' preparation, the first run) and to the end, runs per
+second, and how many Dask tasks carried the runs (short runs go several to a task). The
+local cluster's scheduler lives in the main process, so its memory is counted too.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import shutil
 import subprocess
@@ -58,8 +60,9 @@ def one(runs: int, workers: int) -> None:
         wall = time.perf_counter() - t0
         print(json.dumps({'runs': runs, 'ok': report.ok, 'failed': report.failed,
                           'peak_rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-                          'startup_s': report.startup_s, 'wall_s': wall,
-                          'runs_per_s': report.ran / report.wall_s if report.wall_s else None}))
+                          'first_row_s': report.startup_s, 'wall_s': wall, 'tasks': report.tasks,
+                          'runs_per_s': report.ran / report.wall_s if report.wall_s else None,
+                          'load_avg_1min': os.getloadavg()[0]}))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
@@ -84,7 +87,8 @@ def main() -> None:
         results.append(result)
         print(f"{runs:>7} runs: client peak RSS {result['peak_rss_mb']:.0f} MB, "
               f"{result['runs_per_s']:.0f} runs/s, {result['wall_s']:.0f} s "
-              f"(start-up {result['startup_s']:.1f} s)", flush=True)
+              f"(first row after {result['first_row_s']:.1f} s, {result['tasks']} tasks, "
+              f"load {result['load_avg_1min']:.1f})", flush=True)
     out = {'workers': args.workers, 'results': results,
            'peak_rss_growth_mb': results[-1]['peak_rss_mb'] - results[0]['peak_rss_mb']}
     if args.out:

@@ -433,6 +433,106 @@ def test_interrupted_cli_campaign_resumes(cluster, tmp_path):
     assert all(rows[i]['compute_s'] == r['compute_s'] for i, r in done_before.items())
 
 
+# ------------------------------------------------------- batches of short runs
+def test_batch_sizer_by_hand():
+    from lidar_sim_ros.campaign.engine import BatchSizer
+    sizer = BatchSizer(task_s=0.5, max_runs=500)
+    assert sizer.size(remaining=10_000, share=8) == 1           # no run timed yet
+    for compute_s in (0.002, 0.004, 0.003, float('nan')):      # mean 3 ms, the NaN ignored
+        sizer.observe(compute_s)
+    assert sizer.size(remaining=10_000, share=8) == 166         # 0.5 s // 3 ms
+    assert sizer.size(remaining=400, share=8) == 50             # an even share of the rest
+    assert sizer.size(remaining=3, share=8) == 1
+    fast = BatchSizer(task_s=0.5, max_runs=500)
+    fast.observe(0.0)                                           # a failed sampling: no time
+    assert fast.size(remaining=10_000, share=8) == 500
+    slow = BatchSizer(task_s=0.5, max_runs=500)
+    slow.observe(0.7)                                           # longer than a task: alone
+    assert slow.size(remaining=10_000, share=8) == 1
+
+
+TINY_SCAN = {'type': 'rotating', 'elevations_deg': [0.0], 'az_min_deg': -5.0, 'az_max_deg': 5.0,
+             'shots_per_beam': 16}
+
+
+def write_tiny_campaign(tmp: Path, runs: int, seed: int = 21, effects: list | None = None,
+                        dispersions: dict | None = None) -> Path:
+    """Runs of one frame of a 16-shot sensor (~1 ms each): the engine's batches, not physics."""
+    sensor_cfg = yaml.safe_load((CONFIG / 'cepton_vista_p60.yaml').read_text())
+    sensor_cfg['scan'] = TINY_SCAN
+    (tmp / 'sensor.yaml').write_text(yaml.safe_dump(sensor_cfg))
+    scenario = yaml.safe_load((CONFIG / 'scenario.yaml').read_text())
+    scenario.update(sensor=str(tmp / 'sensor.yaml'), materials=str(CONFIG / 'materials.yaml'),
+                    mesh=str((CONFIG / scenario['mesh']).resolve()), effects=effects or [])
+    (tmp / 'scenario.yaml').write_text(yaml.safe_dump(scenario))
+    return write_campaign(tmp / 'tiny.yaml', scenario=str(tmp / 'scenario.yaml'), runs=runs,
+                          seed=seed, coverage_frames=0, dispersions=dispersions or {
+                              'initial_distance_m': {'dist': 'uniform', 'low': 8.0, 'high': 25.0},
+                              'tumble_axis': {'dist': 'uniform_sphere'}})
+
+
+def test_short_runs_go_in_batches_and_give_the_rows_of_single_runs(cluster, tmp_path, capsys):
+    """300 runs of ~1 ms: far fewer tasks than runs, every run exactly once, each row what
+    the run gives alone in this process; a resume after losing rows redoes those only."""
+    from lidar_sim_ros.campaign.engine import run_campaign
+    campaign = load_campaign(write_tiny_campaign(tmp_path, 300))
+    out = tmp_path / 'out'
+    report = run_campaign(campaign, out, address=cluster, progress=False)
+    assert (report.ran, report.ok) == (300, 300)
+    assert report.tasks < 100, report.tasks
+    rows = read_manifest(out)
+    assert sorted(rows) == list(range(300))
+    assert (out / MANIFEST).read_text().count('\n') == 301      # no run twice
+    for run_id in (0, 1, 137, 299):
+        alone, _ = rerun(campaign, out, run_id)
+        assert results(alone) == results(rows[run_id])
+    rows = read_manifest(out)  # those four rows rewritten by rerun, same results
+    # Lose every third row and the end of the last one: exactly those run again.
+    text = (out / MANIFEST).read_text().splitlines(keepends=True)
+    kept = [text[0]] + [line for line in text[1:] if int(line.split(',')[0]) % 3]
+    (out / MANIFEST).write_text(''.join(kept[:-1]) + kept[-1][:30])
+    lost = {i for i in range(300) if i % 3 == 0} | {int(kept[-1].split(',')[0])}
+    capsys.readouterr()
+    again = run_campaign(campaign, out, address=cluster, progress=True)
+    assert (again.skipped, again.ran) == (300 - len(lost), len(lost))
+    bar = capsys.readouterr().err  # drawn before the manifest is read and the workers start
+    assert bar.index('reading the manifest') < bar.index('starting workers') < bar.index('done ')
+    after = read_manifest(out)
+    assert sorted(after) == list(range(300))
+    assert {i: results(r) for i, r in after.items()} == {i: results(r) for i, r in rows.items()}
+    assert all(after[i]['compute_s'] == rows[i]['compute_s'] for i in range(300) if i not in lost)
+
+
+DIE_EFFECT = BOOM_EFFECT.replace(
+    'if self.params.x > THRESHOLD:', 'if LOW < self.params.x < HIGH:').replace(
+    "raise RuntimeError(f'boom at x = {self.params.x}')", "import os; os._exit(3)")
+
+
+def test_a_run_that_kills_its_worker_fails_alone(tmp_path):
+    """The worker dies in the middle of a batch: its runs are run again one at a time, and
+    only the one that kills the worker is recorded as failed (Dask retries none here)."""
+    import dask
+
+    from lidar_sim_ros.campaign.engine import local_cluster, run_campaign
+    die = tmp_path / 'die.py'
+    die.write_text(DIE_EFFECT)
+    disp = {'effects': {f'{die}:Boom': {'x': {'dist': 'uniform', 'low': 0.0, 'high': 1.0}}}}
+    campaign = load_campaign(write_tiny_campaign(tmp_path, 40, dispersions=disp))
+    x = np.array([sample_run(campaign, i).params[f'effect.{die}:Boom.x'] for i in range(40)])
+    guilty = 25  # late enough to be in a batch of several (1 worker, 4 tasks in flight)
+    gap = np.min(np.abs(np.delete(x, guilty) - x[guilty])) / 2
+    die.write_text(DIE_EFFECT.replace('THRESHOLD = 0.5', f'LOW, HIGH = {float(x[guilty] - gap)!r}, '
+                                                         f'{float(x[guilty] + gap)!r}'))
+    with dask.config.set({'distributed.scheduler.allowed-failures': 0}), local_cluster(1) as local:
+        report = run_campaign(campaign, tmp_path / 'out', address=local.scheduler_address,
+                              progress=False)
+    rows = read_manifest(tmp_path / 'out')
+    assert sorted(rows) == list(range(40))
+    assert {i for i, r in rows.items() if r['status'] == 'failed'} == {guilty}
+    assert rows[guilty]['error'].startswith('engine: KilledWorker'), rows[guilty]['error']
+    assert (report.ok, report.failed) == (39, 1) and report.tasks < 40
+
+
 def test_core_does_not_import_the_engine():
     code = ('import sys, lidar_sim_ros.cli, lidar_sim_ros.offline, lidar_sim_ros.campaign.run; '
             'sys.exit(any(m.split(".")[0] in ("dask", "distributed", "tqdm") for m in sys.modules))')

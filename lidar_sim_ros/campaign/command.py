@@ -60,8 +60,8 @@ def run(args: argparse.Namespace) -> int:
     print(f'manifest: {report.manifest_path}  ({report.runs} runs: {report.skipped} already '
           f'finished, {report.ok} ok, {report.failed} failed now)')
     if report.ran:
-        print(f'engine: {report.workers} Dask workers, start-up {report.startup_s:.1f} s, '
-              f'{report.ran} runs ({frames} frames) in {report.wall_s:.1f} s '
+        print(f'engine: {report.workers} Dask workers, first row after {report.startup_s:.1f} s, '
+              f'{report.ran} runs ({frames} frames, {report.tasks} tasks) in {report.wall_s:.1f} s '
               f'= {frames / report.wall_s:.1f} frames/s')
     if report.parquet_path:
         print(f'parquet: {report.parquet_path}')

@@ -3,29 +3,41 @@
 Without ``address`` a ``LocalCluster`` starts one single-threaded worker process per
 core (``workers`` to choose), nothing to set up; with ``address`` the client joins a
 running scheduler (``dask scheduler`` + ``dask worker ADDRESS`` on each node, see
-docs/campaign.md). A task is (campaign, run id), a few kB: workers sample and
+docs/campaign.md). A task is (campaign, run ids), a few kB: workers sample and
 simulate, the client only writes manifest rows as results arrive. Why Dask and not Ray: docs/campaign.md.
+
+Dask, the manifest and the simulator are imported where they are first needed, after
+the progress bar is drawn: together they take ~1 s of CPU to import, and the bar is
+meant to show at once.
 """
 from __future__ import annotations
 
+import importlib.util
+import itertools
 import logging
+import math
 import os
+import pickle
 import signal
 import threading
 import time
 import warnings
+from collections import deque
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
-import dask
-from dask.distributed import Client, LocalCluster, as_completed
-
-from lidar_sim_ros.campaign.manifest import Manifest
-from lidar_sim_ros.campaign.run import prepare_worker, run_one
-from lidar_sim_ros.campaign.sample import run_seed
 from lidar_sim_ros.campaign.spec import Campaign
+
+if TYPE_CHECKING:
+    from dask.distributed import Client, LocalCluster
+
+    from lidar_sim_ros.campaign.manifest import Manifest
+
+for _module in ('dask', 'distributed'):  # the extra is missing: say so on import
+    if importlib.util.find_spec(_module) is None:
+        raise ImportError(f'No module named {_module!r}', name=_module)
 
 
 class EngineError(RuntimeError):
@@ -47,6 +59,11 @@ class CampaignReport:
     startup_s: float
     wall_s: float
     compute_s: float
+    tasks: int = 0
+    # startup_s: from the call to the first manifest row (manifest, cluster, the first
+    # worker's preparation, the first run); wall_s: from the first submission to the last
+    # row (the workers prepare on their first task, inside it); compute_s: summed over
+    # runs; tasks: Dask tasks submitted (short runs go several to a task).
 
 
 # What a local worker process is started with (Dask's nanny sets these before it
@@ -68,25 +85,65 @@ _USER_ENVIRON = {key: os.environ.get(key) for key in WORKER_ENVIRON}  # the user
 # worker, measured on an idle machine). Off on the workers we start.
 WORKER_CONFIG = {'distributed.worker.profile.enabled': False}
 
+# Local workers are forked from one server process that has imported Dask and the
+# simulator (multiprocessing's forkserver, preloaded), not each started afresh: a worker
+# then costs ~0.05 s of CPU to start instead of ~1.1 s of imports (measured), which on a
+# busy machine is most of the wait for the first rows. The server starts inside
+# ``_workers_ignore_sigint``, so it and every worker forked from it ignore SIGINT.
+FORKSERVER = {'distributed.worker.multiprocessing-method': 'forkserver'}
+FORKSERVER_PRELOAD = ['distributed', 'lidar_sim_ros.campaign.run']
+
 # Runs submitted ahead per worker thread: enough to keep every worker busy while a result
 # travels back, few enough that the client holds a bounded number of futures whatever the
 # number of runs (100,000 submitted at once took 45-55 s and 6.3 GB before the first row).
 IN_FLIGHT_PER_WORKER = 4
 
+# Short runs go several to a task (``BatchSizer``): Dask costs ~5-10 ms per task between
+# scheduler, client and worker, more than a one-frame run of a small sensor (~1 ms), and
+# runs/s were capped at ~150 on two workers whatever the runs. A task lasts ~TASK_S once
+# the first runs are timed; MAX_RUNS_PER_TASK bounds what Ctrl-C or a dead worker costs.
+TASK_S = 0.5
+MAX_RUNS_PER_TASK = 500
+
 
 def local_cluster(workers: int) -> LocalCluster:
     """A local Dask cluster of ``workers`` single-threaded worker processes."""
+    import dask
+    from dask.distributed import LocalCluster
     environ = {f'distributed.nanny.pre-spawn-environ.{k}': v for k, v in WORKER_ENVIRON.items()}
-    # The nanny copies its environment into this process's os.environ before spawning,
-    # and a worker inherits os.environ: drop what an earlier cluster left there.
-    for key, value in WORKER_ENVIRON.items():
-        if value is None and _USER_ENVIRON[key] is None:
-            os.environ.pop(key, None)
-    with dask.config.set({**environ, **WORKER_CONFIG}), _workers_ignore_sigint():
+    start_forkserver()
+    with dask.config.set({**environ, **WORKER_CONFIG, **FORKSERVER}), _workers_ignore_sigint():
         # One thread per process: the kernels hold the GIL for part of a frame, and one
         # process per core lets each worker keep its own mesh and compiled kernels.
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                             dashboard_address=None)
+
+
+def start_forkserver() -> None:
+    """Start the server that local workers are forked from (``FORKSERVER``), if it is not
+    running: it imports Dask and the simulator in the background, while this process
+    reads the manifest and starts the scheduler. Its environment, which every worker
+    inherits, is ``WORKER_ENVIRON`` (a value the user exported wins, as in Dask)."""
+    import multiprocessing.forkserver
+
+    import dask
+    from distributed.utils import get_mp_context
+    with dask.config.set(FORKSERVER), _workers_ignore_sigint():
+        # Dask sets its own preload list on first use: ours replaces it.
+        get_mp_context().set_forkserver_preload(FORKSERVER_PRELOAD)
+        saved = dict(os.environ)
+        try:
+            for key, value in WORKER_ENVIRON.items():
+                if _USER_ENVIRON[key] is not None:
+                    os.environ[key] = _USER_ENVIRON[key]
+                elif value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
+            multiprocessing.forkserver.ensure_running()
+        finally:
+            os.environ.clear()
+            os.environ.update(saved)
 
 
 @contextmanager
@@ -109,6 +166,7 @@ def _workers_ignore_sigint() -> Iterator[None]:
 def connect(workers: int | None = None, address: str | None = None) -> Iterator[Client]:
     """A Dask client: of a new local cluster (``workers`` processes, default all cores)
     or of the running scheduler at ``address``."""
+    from dask.distributed import Client
     if address:
         try:
             client = Client(address, timeout='20s')
@@ -124,6 +182,7 @@ def connect(workers: int | None = None, address: str | None = None) -> Iterator[
         with local_cluster(n) as cluster:
             try:
                 with Client(cluster) as client:
+                    client.run(_quiet_worker_close)
                     yield client
             finally:
                 # A worker whose interpreter takes > 4 s to tear down (numba, Embree, on a
@@ -131,6 +190,14 @@ def connect(workers: int | None = None, address: str | None = None) -> Iterator[
                 nanny_log.setLevel(logging.ERROR)
     finally:
         nanny_log.setLevel(level)
+
+
+def _quiet_worker_close() -> None:
+    """On a local worker: closing it with a task running (Ctrl-C stops the cluster in
+    the middle of a batch) logs a warning per task ("Async instruction ... ended with
+    CancelledError"), expected by Dask ("should exclusively happen in Worker.close()")
+    and of no use to the user."""
+    logging.getLogger('distributed.worker.state_machine').setLevel(logging.ERROR)
 
 
 def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = None,
@@ -141,37 +208,44 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
     A run that fails (or whose worker dies) is recorded as failed and the others go on;
     ``retry_failed`` runs the failed ones again.
     """
-    manifest = Manifest.open(out_dir, campaign)
-    runs = campaign.spec.runs
-    n_pending = sum(not manifest.is_finished(i, retry_failed) for i in range(runs))
-    # Run ids are produced as they are submitted, never listed (memory flat in the runs).
-    pending = (i for i in range(runs) if not manifest.is_finished(i, retry_failed))
     t0 = time.perf_counter()
-    startup_s = wall_s = 0.0
-    n_workers = 0
-    tally = {'ok': 0, 'failed': 0, 'compute_s': 0.0}
-    bar = _progress_bar(runs, runs - n_pending, progress)
+    runs = campaign.spec.runs
+    # The bar first, so that something shows while the manifest is read and workers start.
+    bar = _progress_bar(runs, progress)
     try:
+        if not address:
+            start_forkserver()
+        from lidar_sim_ros.campaign.manifest import Manifest
+        from lidar_sim_ros.campaign.run import worker_facts
+        manifest = Manifest.open(out_dir, campaign)
+        n_pending = sum(not manifest.is_finished(i, retry_failed) for i in range(runs))
+        # Run ids are produced as they are submitted, never listed (memory flat in the runs).
+        pending = (i for i in range(runs) if not manifest.is_finished(i, retry_failed))
+        tally = {'ok': 0, 'failed': 0, 'compute_s': 0.0, 'first_row_s': 0.0, 'tasks': 0}
+        n_workers, wall_s = 0, 0.0
+        if bar is not None:
+            bar.n = bar.initial = runs - n_pending
+            bar.set_postfix_str('starting workers' if n_pending else _counts(manifest, 0))
         if n_pending:
-            if bar is not None:
-                bar.set_postfix_str('starting workers')
             with connect(workers, address) as client:
-                # Mesh and kernels on every worker now, in parallel, so that runs time only runs.
-                _check_workers(client.run(prepare_worker, campaign))
-                n_workers = sum(client.nthreads().values())
-                startup_s = time.perf_counter() - t0
+                if address:
+                    _check_workers(client.run(worker_facts))
+                n_workers = sum(client.nthreads().values()) or 1
                 t1 = time.perf_counter()
+                # Each worker prepares itself (mesh, BVH, kernels) on its first task, so
+                # the first rows come from the first worker ready, not the last one.
                 _gather(client, campaign, pending, n_pending, out_dir, manifest, bar, tally,
-                        IN_FLIGHT_PER_WORKER * max(n_workers, 1))
+                        IN_FLIGHT_PER_WORKER * n_workers, t0)
                 wall_s = time.perf_counter() - t1
     finally:
         if bar is not None:
             bar.close()
     manifest.rewrite()
     parquet = manifest.write_parquet()
-    return CampaignReport(manifest.path, parquet, runs, runs - n_pending,
-                          tally['ok'] + tally['failed'], tally['ok'], tally['failed'], n_workers,
-                          startup_s, wall_s, tally['compute_s'])
+    ran = tally['ok'] + tally['failed']
+    return CampaignReport(manifest.path, parquet, runs, runs - n_pending, ran, tally['ok'],
+                          tally['failed'], n_workers, tally['first_row_s'], wall_s,
+                          tally['compute_s'], tally['tasks'])
 
 
 def _check_workers(facts: dict[str, dict]) -> None:
@@ -193,48 +267,112 @@ def _check_workers(facts: dict[str, dict]) -> None:
                       stacklevel=3)
 
 
+class BatchSizer:
+    """How many runs the next task takes (``run.run_batch``).
+
+    One until a run has been timed; then enough runs for a task of about ``task_s``
+    (mean compute of the runs so far), at most ``max_runs``, and never more than an
+    even share of what is left to submit (``remaining // share``), so that the last
+    tasks still spread over every worker. Runs of ``task_s`` or longer go one per task.
+    """
+
+    def __init__(self, task_s: float = TASK_S, max_runs: int = MAX_RUNS_PER_TASK):
+        self.task_s, self.max_runs = task_s, max_runs
+        self._timed, self._sum_s = 0, 0.0
+
+    def observe(self, compute_s: float) -> None:
+        """One finished run's compute time (s)."""
+        if math.isfinite(compute_s):
+            self._timed += 1
+            self._sum_s += max(compute_s, 0.0)
+
+    def size(self, remaining: int, share: int) -> int:
+        if not self._timed:
+            return 1
+        mean = self._sum_s / self._timed
+        wanted = self.max_runs if mean <= 0.0 else int(self.task_s // mean)
+        return max(1, min(wanted, self.max_runs, remaining // max(share, 1)))
+
+
 def _gather(client: Client, campaign: Campaign, pending: Iterator[int], n_pending: int,
-            out_dir: str | Path, manifest: Manifest, bar, tally: dict, in_flight: int) -> None:
-    """Submit the pending runs, at most ``in_flight`` at a time, and record each as it
-    finishes (``tally``: ok, failed, summed compute in s). On Ctrl-C the runs in flight
-    are cancelled: every finished run is already in the manifest, so the same command
-    resumes."""
-    # The campaign travels inside each task (~4 kB pickled): tasks without dependencies
+            out_dir: str | Path, manifest: Manifest, bar, tally: dict, in_flight: int,
+            t0: float) -> None:
+    """Submit the pending runs in batches (``BatchSizer``), at most ``in_flight`` tasks at
+    a time, and record each run as its batch finishes (``tally``: ok, failed, summed
+    compute in s, ``first_row_s`` after ``t0``, ``tasks``).
+
+    A task lost with its worker (``KilledWorker`` after Dask's own retries) may hold
+    runs that did nothing wrong: its batch-mates, or a task that only sat queued on the
+    worker another run killed. Its runs become suspects, run one at a time with nothing
+    else in flight once the tasks in flight have drained: a suspect lost then is the
+    one that kills its worker, and only it is recorded as failed.
+
+    On Ctrl-C the tasks in flight are cancelled: every finished run is already in the
+    manifest, so the same command resumes."""
+    # The campaign travels inside each task (~3.5 kB pickled): tasks without dependencies
     # are queued on the scheduler and handed to whichever worker frees up first, where a
     # scattered campaign made them data-dependent and let one worker take most of them.
+    from dask.distributed import as_completed
+
+    from lidar_sim_ros.campaign.run import run_batch
+    from lidar_sim_ros.campaign.sample import run_seed
     out = str(Path(out_dir).resolve())  # workers may run elsewhere, in another directory
-    futures: dict = {}
+    payload = pickle.dumps(campaign)  # once; the scheduler keeps less of it (run_batch)
+    futures: dict = {}              # future -> (run ids, run alone?)
     queue = as_completed()
+    sizer = BatchSizer()
+    suspects: deque[int] = deque()  # runs of lost tasks, to be run alone
+    unsubmitted = n_pending
 
-    def submit_next() -> None:
-        run_id = next(pending, None)
-        if run_id is not None:
-            future = client.submit(run_one, campaign, run_id, out, pure=False)
-            futures[future] = run_id
-            queue.add(future)
+    def submit(batch: list[int], isolated: bool) -> None:
+        future = client.submit(run_batch, payload, batch, out, pure=False)
+        futures[future] = batch, isolated
+        queue.add(future)
+        tally['tasks'] += 1
 
-    for _ in range(in_flight):
-        submit_next()
+    def fill() -> None:
+        nonlocal unsubmitted
+        while len(futures) < in_flight:
+            if suspects:
+                if not futures:
+                    submit([suspects.popleft()], isolated=True)
+                return
+            batch = list(itertools.islice(pending, sizer.size(unsubmitted, in_flight)))
+            if not batch:
+                return
+            unsubmitted -= len(batch)
+            submit(batch, isolated=False)
+
+    fill()
     remaining = n_pending
     if bar is not None:
         bar.set_postfix_str(_counts(manifest, remaining))
     try:
         for future in queue:
-            run_id = futures.pop(future)
+            batch, isolated = futures.pop(future)
             try:
-                row = future.result()
+                rows = future.result()
             except Exception as exc:  # the worker died (KilledWorker) or the task was lost
-                row = {'run_id': run_id, 'seed': run_seed(campaign.spec.seed, run_id),
-                       'status': 'failed', 'error': f'engine: {type(exc).__name__}: {exc}'}
+                rows = [] if not isolated else [{
+                    'run_id': batch[0], 'seed': run_seed(campaign.spec.seed, batch[0]),
+                    'status': 'failed', 'error': f'engine: {type(exc).__name__}: {exc}'}]
+                if not isolated:
+                    suspects.extend(batch)
             future.release()
-            submit_next()
-            tally['compute_s'] += float(row.get('compute_s') or 0.0)
-            tally[row['status']] += 1
-            manifest.append(row)
-            remaining -= 1
-            if bar is not None:
+            fill()
+            for row in rows:
+                compute_s = float(row.get('compute_s') or 0.0)
+                sizer.observe(compute_s)
+                tally['compute_s'] += compute_s
+                tally[row['status']] += 1
+            if rows:
+                manifest.append_rows(rows)
+                if not tally['first_row_s']:
+                    tally['first_row_s'] = time.perf_counter() - t0
+            remaining -= len(rows)
+            if bar is not None and rows:
                 bar.set_postfix_str(_counts(manifest, remaining), refresh=False)
-                bar.update(1)
+                bar.update(len(rows))
     except KeyboardInterrupt:
         client.cancel(list(futures), force=True)
         raise
@@ -244,9 +382,11 @@ def _counts(manifest: Manifest, remaining: int) -> str:
     return f'done {manifest.count("ok")}, failed {manifest.count("failed")}, remaining {remaining}'
 
 
-def _progress_bar(total: int, skipped: int, enabled: bool):
-    """tqdm over all runs of the campaign, the skipped ones counted in from the start."""
+def _progress_bar(total: int, enabled: bool):
+    """tqdm over all runs of the campaign (the caller counts the skipped ones in)."""
     if not enabled:
         return None
     from tqdm import tqdm
-    return tqdm(total=total, initial=skipped, unit='run', desc='campaign', dynamic_ncols=True)
+    bar = tqdm(total=total, unit='run', desc='campaign', dynamic_ncols=True)
+    bar.set_postfix_str('reading the manifest')
+    return bar

@@ -173,15 +173,20 @@ class Manifest:
 
     def append(self, row: dict) -> None:
         """Record a finished run: appended and flushed at once (a later rewrite sorts)."""
-        text = self.text_row(row)
+        self.append_rows([row])
+
+    def append_rows(self, rows: list[dict]) -> None:
+        """Record finished runs (a batch's): appended in one write and flushed at once."""
+        texts = [self.text_row(row) for row in rows]
         new = not self.path.is_file()
         with self.path.open('a', newline='') as fh:
             writer = csv.DictWriter(fh, fieldnames=self.header)
             if new:
                 writer.writeheader()
-            writer.writerow(text)
+            writer.writerows(texts)
             fh.flush()
-        self._set_status(int(text['run_id']), text['status'])
+        for text in texts:
+            self._set_status(int(text['run_id']), text['status'])
 
     def replace(self, row: dict) -> None:
         """Record a run again (``--run``): its new row replaces the old one."""

@@ -9,6 +9,7 @@ rebuilt, because the dispersed materials and effects differ from run to run.
 from __future__ import annotations
 
 import os
+import pickle
 import shutil
 import socket
 import threading
@@ -50,6 +51,7 @@ class MountedPose:
 _TARGETS: dict[tuple, tuple[Target, FaceGeometry]] = {}
 _WARM: set[tuple[str, ...]] = set()  # effect lists this process has run a frame with
 _LOCK = threading.Lock()  # a multi-threaded worker builds each mesh once
+_PREPARED: set[str] = set()  # campaigns this process has run prepare_worker for
 
 
 def worker_target(scenario: Scenario) -> tuple[Target, FaceGeometry]:
@@ -83,12 +85,9 @@ def prepare_worker(campaign: Campaign) -> dict[str, str | bool | None]:
     mesh and BVH, the kernels of the dispersed effects, and the modules the samplers
     import on first use (scipy.stats alone takes ~0.6 s): run 0 is sampled for that.
 
-    Returns what the engine checks of the worker (docs/campaign.md, "Running on a
-    cluster"): its ``MALLOC_TRIM_THRESHOLD_`` (None: unset, glibc's adaptive default) and
-    whether Dask's stack profiler runs (``profile``).
+    Returns ``worker_facts()``. The engine's first task on each worker calls it
+    (``run_batch``); a benchmark may call it on every worker up front.
     """
-    import dask  # a worker has it; the core and `--run` in-process do not need it
-
     try:
         if campaign.spec.loop is not None:
             from lidar_sim_ros.campaign.loop_case import prepare_loop_worker
@@ -97,6 +96,18 @@ def prepare_worker(campaign: Campaign) -> dict[str, str | bool | None]:
             prepare_scenario(sample_run(campaign, 0).scenario)
     except Exception:  # run 0's own failure is recorded when it runs, not here
         prepare_scenario(campaign.scenario)
+    _PREPARED.add(_campaign_key(campaign))
+    return worker_facts()
+
+
+def _campaign_key(campaign: Campaign) -> str:
+    return f'{campaign.source}:{campaign.spec.model_dump_json()}'
+
+
+def worker_facts() -> dict[str, str | bool | None]:
+    """What the engine checks of a worker it joins: ``MALLOC_TRIM_THRESHOLD_`` (None:
+    unset, glibc's adaptive default) and whether Dask's stack profiler runs."""
+    import dask  # a worker has it; the core and `--run` in-process do not need it
     return {'MALLOC_TRIM_THRESHOLD_': os.environ.get('MALLOC_TRIM_THRESHOLD_'),
             'profile': bool(dask.config.get('distributed.worker.profile.enabled', True))}
 
@@ -168,8 +179,34 @@ def run_case(case: RunCase, out_dir: str | Path | None = None,
     return row
 
 
+def run_batch(campaign: Campaign | bytes, run_ids: list[int],
+              out_dir: str | Path | None = None) -> list[dict]:
+    """The engine's task: runs ``run_ids`` one after the other, one manifest row each (in
+    order); never raises. Each row is exactly ``run_one``'s: a run's result depends on
+    the campaign and its id alone, not on the batch it came in.
+
+    ``campaign`` may come pickled (the engine sends it so): Dask's scheduler unpickles
+    every task it is given and kept ~500 objects (~32 kB) of each task's campaign after
+    the task was released; one bytes object of ~3.5 kB is what it keeps instead.
+
+    Short runs come in batches because Dask's own cost per task (~5-10 ms of scheduler,
+    client and worker time) would otherwise exceed the run (a one-frame run of a small
+    sensor takes ~1 ms). The first task a process gets for a campaign prepares the worker
+    (``prepare_worker``), outside every run's compute.
+    """
+    if isinstance(campaign, bytes):
+        campaign = pickle.loads(campaign)  # noqa: S301 - the engine's own task, as Dask's are
+    if _campaign_key(campaign) not in _PREPARED:
+        try:
+            prepare_worker(campaign)
+        except Exception:  # noqa: BLE001 - e.g. a missing mesh: each run records its own error
+            _PREPARED.add(_campaign_key(campaign))
+    return [run_one(campaign, run_id, out_dir) for run_id in run_ids]
+
+
 def run_one(campaign: Campaign, run_id: int, out_dir: str | Path | None = None) -> dict:
-    """Sample run ``run_id`` of ``campaign`` and simulate it: the engine's task. Never raises.
+    """Sample run ``run_id`` of ``campaign`` and simulate it (the engine's tasks are
+    batches of these, ``run_batch``). Never raises.
 
     The run's compute (``compute_s``, ``cpu_s``) counts the sampling: it is the run's own work.
     A closed-loop campaign's run is ``loop_case.run_one_loop``.
