@@ -586,9 +586,10 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
         near2 = _margin(planes, f0, 3, px, py, pz) < spread
         if near0 or near1 or near2:
             # Still inside the flat region of the facet (a cylinder's column of quads)?
+            # (-1: the facet is a region of its own, bounded by the edges just tested.)
             g = region[f0]
-            inside_region = True
-            for row in range(region_lines.shape[1]):
+            inside_region = g >= 0
+            for row in range(region_lines.shape[1] if inside_region else 0):
                 if (region_lines[g, row, 0] * px + region_lines[g, row, 1] * py
                         + region_lines[g, row, 2] * pz - region_lines[g, row, 3]) < spread:
                     inside_region = False
