@@ -33,6 +33,8 @@ from functools import cached_property
 import numpy as np
 from numba import njit
 
+from lidar_sim_ros.core.memory import release_freed_memory
+
 WELD_M = 1e-6           # vertices closer than this are one vertex (OBJ groups repeat them)
 REGION_LINES = 8        # most edge lines a flat region keeps (more: its faces stand alone)
 COPLANAR_RAD = 1e-5     # faces folded by less than this are one plane (a sub-ray moves < 1 um per 0.1 m)
@@ -299,6 +301,7 @@ def mesh_edges(target) -> MeshEdges:
         edges = build_mesh_edges(target.vertices_m, target.faces)
         edges = replace(edges, **dict(zip(('crossing_a_m', 'crossing_b_m'),
                                           intersection_segments(edges, target.intersect))))
+        release_freed_memory()          # the build's temporaries (2 M faces: ~0.4 GB)
         _EDGES[target] = edges
     return edges
 
@@ -490,8 +493,6 @@ def vertex_stars(position, faces, a, b, face, slot, first, second, pair, fold
     (sorted by undirected edge; ``first``/``second`` the two faces of each pair); fold
     (E,): fold angle of each undirected edge (pi where not a pair).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     n_vertices, n_faces = len(position), len(faces)
     tilt = np.zeros(n_vertices)
     np.add.at(tilt, a[first], fold)
@@ -505,8 +506,8 @@ def vertex_stars(position, faces, a, b, face, slot, first, second, pair, fold
 
     src = np.concatenate([corner(p1, a[p1]), corner(p1, b[p1])])
     dst = np.concatenate([corner(p2, a[p1]), corner(p2, b[p1])])
-    graph = coo_matrix((np.ones(len(src)), (src, dst)), shape=(3 * n_faces, 3 * n_faces))
-    n_labels, label = connected_components(graph, directed=False)
+    n_labels, label = connected_components(3 * n_faces, src, dst)
+    del src, dst
     vertex = faces.reshape(-1).astype(np.int64)
     fans = np.bincount(np.unique(vertex * n_labels + label) // n_labels, minlength=n_vertices)
     tilt[fans != 1] = np.inf
@@ -529,6 +530,45 @@ def vertex_stars(position, faces, a, b, face, slot, first, second, pair, fold
     return tilt, reach
 
 
+def connected_components(n_nodes: int, src: np.ndarray, dst: np.ndarray) -> tuple[int, np.ndarray]:
+    """Connected components of the undirected graph on n_nodes nodes with edges src[i] -
+    dst[i]: their number and each node's label (int32), labels numbered in the order of
+    each component's first node (as ``scipy.sparse.csgraph.connected_components``), by
+    union-find: one int32 per node where a sparse matrix of millions of edges costs
+    hundreds of MB."""
+    return _union_find(int(n_nodes), np.asarray(src, np.int64), np.asarray(dst, np.int64))
+
+
+@njit(cache=True, nogil=True)
+def _union_find(n, src, dst):
+    parent = np.arange(n, dtype=np.int32)
+    for e in range(src.shape[0]):
+        a, b = _root(parent, src[e]), _root(parent, dst[e])
+        if a < b:
+            parent[b] = a
+        elif b < a:
+            parent[a] = b
+    # Every root is its component's first node: number the components in that order.
+    label = np.empty(n, np.int32)
+    count = 0
+    for i in range(n):
+        r = _root(parent, i)
+        if r == i:
+            label[i] = count
+            count += 1
+        else:
+            label[i] = label[r]
+    return count, label
+
+
+@njit(cache=True, nogil=True, inline='always')
+def _root(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]       # path halving
+        i = parent[i]
+    return i
+
+
 FACE_CHUNK = 131_072
 """Faces per block where a per-face temporary would otherwise span the whole mesh."""
 
@@ -546,14 +586,10 @@ def flat_regions(position, faces, face_edge, coplanar, neighbour, inward, offset
     (R, REGION_LINES, 4); region -1: the face is in no such region of several faces, its
     own three edges bound it (``face_planes``: no second copy of them is kept).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     n_faces = len(faces)
     i, k = np.nonzero(coplanar[np.maximum(face_edge, 0)] & (face_edge >= 0) & (neighbour >= 0))
-    graph = coo_matrix((np.ones(len(i)), (i, neighbour[i, k])), shape=(n_faces, n_faces))
+    n_labels, label = connected_components(n_faces, i, neighbour[i, k])
     del i, k
-    n_labels, label = connected_components(graph, directed=False)
-    del graph
     # Regions of several faces only (group: their number), the faces in them (member).
     size = np.bincount(label, minlength=n_labels)
     several = np.flatnonzero(size > 1)
