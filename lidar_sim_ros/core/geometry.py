@@ -219,10 +219,7 @@ class Target:
             hull = self.vertices_m
         normals = side * self.face_normals
         base = np.einsum('ij,ij->i', normals, self.vertices_m[self.faces[:, 0]])
-        out = np.empty(self.n_faces)
-        for lo in range(0, self.n_faces, 1024):   # bounded memory: (hull vertices x 1024) doubles
-            hi = min(lo + 1024, self.n_faces)
-            out[lo:hi] = (hull @ normals[lo:hi].T - base[lo:hi]).max(axis=0)
+        out = kernels.support_over_planes(np.ascontiguousarray(hull), normals, base)
         # Degenerate faces (no normal) get no clearance bound.
         return np.where(np.any(self.face_normals != 0, axis=1), out, np.inf)
 

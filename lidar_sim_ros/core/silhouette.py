@@ -150,13 +150,15 @@ class MeshEdges:
         """End points (M, 3), (M, 3) of the edges in the mask ``candidate`` followed by the
         self-intersection segments: everything a footprint cannot be followed across (views
         of one (M, 6) array: each segment's end points gathered together)."""
-        # Only non-coplanar edges can be candidates.
-        edge = self._sign_edge[np.flatnonzero(candidate[self._sign_edge])]
-        ends = np.empty((len(edge) + len(self.crossing_a_m), 6))
-        ends[:len(edge), :3] = self.vertex_m[self.edge_vertices[edge, 0]]
-        ends[:len(edge), 3:] = self.vertex_m[self.edge_vertices[edge, 1]]
-        ends[len(edge):, :3], ends[len(edge):, 3:] = self.crossing_a_m, self.crossing_b_m
+        # Only non-coplanar edges can be candidates; (M, 2) vertex ids gather (M, 2, 3) points.
+        edge = np.flatnonzero(candidate & ~self.coplanar)
+        ends = np.concatenate([self.vertex_m[self.edge_vertices[edge]].reshape(-1, 6),
+                               self._crossing_ends])
         return ends[:, :3], ends[:, 3:]
+
+    @cached_property
+    def _crossing_ends(self) -> np.ndarray:
+        return np.ascontiguousarray(np.hstack([self.crossing_a_m, self.crossing_b_m]))
 
     def candidate_mask(self, origin_lo_m: np.ndarray, origin_hi_m: np.ndarray) -> np.ndarray:
         """``candidates`` as a mask over the edges."""
