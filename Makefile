@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= demo-output
 
-.PHONY: venv demo demo-offline demo-gnc demo-loop test bench bench-node bench-gnc bench-compare bench-campaign constraints clean
+.PHONY: venv demo demo-offline demo-gnc demo-loop test bench bench-node bench-gnc bench-compare bench-big-mesh bench-campaign constraints clean
 
 venv: $(STAMP)
 
@@ -62,6 +62,11 @@ bench-gnc: $(STAMP)
 bench-compare: $(STAMP)
 	$(BIN)/python bench/bench_compare.py --out bench_compare.json --data bench_compare_data
 
+## lidar-sim compare with a 2-million-triangle mesh (BIG_MESH_SEGMENTS=850): its peak RSS (issue 22).
+BIG_MESH_SEGMENTS ?= 850
+bench-big-mesh: $(STAMP)
+	$(BIN)/python bench/bench_big_mesh.py --segments $(BIG_MESH_SEGMENTS) --out bench_big_mesh.json --data bench_big_mesh_data
+
 ## Rewrite constraints.txt from the venv: the versions just tested (the package itself left out).
 constraints: $(STAMP)
 	{ echo '# Tested versions, used by make venv (pip install -c). Regenerate: make constraints'; \
@@ -76,4 +81,4 @@ bench-campaign: $(STAMP)
 	$(BIN)/python bench/bench_campaign_scale.py --runs $(CAMPAIGN_SCALE_RUNS) --out bench_campaign_scale.json
 
 clean:
-	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_tracker.json bench_compare.json bench_compare_data bench_campaign.json bench_campaign_scale.json
+	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_tracker.json bench_compare.json bench_compare_data bench_big_mesh.json bench_big_mesh_data bench_campaign.json bench_campaign_scale.json

@@ -282,6 +282,26 @@ def test_steep_creases_are_walked_at_the_default_tolerance():
     assert np.abs(loose.range_m - full.range_m)[full.hit].max() > 1e-4
 
 
+def test_a_lone_facet_is_bounded_by_its_own_edges_not_by_a_flat_region():
+    # A tent of two single triangles folded by 40 deg along a vertical crease at 10 m (each
+    # a facet of its own: no flat region), and a flat square of two triangles behind it at
+    # 20 m, the one region of the mesh, whose outline contains the crease seen along x.
+    # Footprints over the crease are walked across it, as full sampling sees them; read
+    # against the square's outline they would take the plane's answer (1-2 mm off).
+    fold = np.radians(40.0)
+    tent = (np.array([[10.0, 0.0, -1.0], [10.0, 0.0, 1.0], [10.0, -2.0, 0.0],
+                      [10.0 + 2.0 * np.sin(fold), 2.0 * np.cos(fold), 0.0]]),
+            np.array([[0, 1, 2], [1, 0, 3]]))
+    target = target_of(tent, wall(20.0, (-1.5, 1.5), 1.5))
+    half = 0.5 * 4.0 * sensor().optics.beam_divergence_rad
+    az = np.linspace(-3, 3, 25) * half
+    full = cast(target, az, 0.0, half, 'all')
+    fast = cast(target, az, 0.0, half, crease_tol_m=0.0)
+    assert_same_footprint(fast, full)
+    plane = 10.0 / np.cos(az)                       # the left facet's plane, x = 10 m
+    assert np.abs(full.range_m - plane).max() > 1e-3
+
+
 @pytest.mark.parametrize('scale', [1.0, 6.0])
 def test_fast_path_equals_full_sampling_on_the_tumbling_rocket(default_scenario, scale):
     sim = Simulator.from_scenario(default_scenario, effects=[])

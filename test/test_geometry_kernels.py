@@ -88,3 +88,19 @@ def test_a_bad_cast_order_is_refused():
     poses = Poses.from_quat(np.tile([0.0, 0, 0, 1], (10, 1)), np.tile([6.0, 0, 0], (10, 1)))
     with pytest.raises(ValueError, match='cast order'):
         cast_at_poses(target, d, poses, order=np.arange(5))
+
+
+@pytest.mark.parametrize('n_planes', [1, 255, 256, 700])
+def test_support_over_planes_matches_the_matrix_product(n_planes):
+    from lidar_sim_ros.core.geometry_kernels import support_over_planes
+    rng = np.random.default_rng(n_planes)
+    points = rng.normal(0.0, 2.0, (300, 3))
+    normals = rng.normal(size=(n_planes, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    base = rng.normal(size=n_planes)
+    expected = (points @ normals.T - base).max(axis=0)
+    np.testing.assert_allclose(support_over_planes(points, normals, base), expected, rtol=0, atol=1e-12)
+    # A unit cube's corners lie at most sqrt(3) / 2 in front of a plane through its centre.
+    corners = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)])
+    diagonal = np.full((1, 3), 1 / np.sqrt(3))
+    assert support_over_planes(corners, diagonal, diagonal @ [0.5, 0.5, 0.5])[0] == pytest.approx(np.sqrt(3) / 2)

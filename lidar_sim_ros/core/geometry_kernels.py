@@ -91,3 +91,30 @@ def hit_geometry(face_cast, tfar_cast, order, face_normals, face_material, quat_
         material[i] = face_material[f]
         face[i] = f
     return hit, range_m, normal, cos_incidence, material, face
+
+
+@njit(cache=True, nogil=True)
+def support_over_planes(points, normals, base):
+    """max over points p of n_f . p - base_f for each plane f (n_f . p = base_f): how far
+    the farthest point lies in front of each plane (m, along its unit normal).
+
+    points (P, 3), normals (F, 3), base (F,). The numpy form, (points @ normals.T).max,
+    writes P x F products to memory (a 2M-face mesh against its ~5k hull vertices: 220 s);
+    here planes are taken in blocks that stay in cache, point by point.
+    """
+    n_planes, n_points = normals.shape[0], points.shape[0]
+    out = np.empty(n_planes)
+    block = 256
+    best = np.empty(block)
+    for lo in range(0, n_planes, block):
+        hi = min(lo + block, n_planes)
+        best[:] = -np.inf
+        for p in range(n_points):
+            px, py, pz = points[p, 0], points[p, 1], points[p, 2]
+            for f in range(lo, hi):
+                v = normals[f, 0] * px + normals[f, 1] * py + normals[f, 2] * pz
+                if v > best[f - lo]:
+                    best[f - lo] = v
+        for f in range(lo, hi):
+            out[f] = best[f - lo] - base[f]
+    return out

@@ -33,6 +33,8 @@ from functools import cached_property
 import numpy as np
 from numba import njit
 
+from lidar_sim_ros.core.memory import release_freed_memory
+
 WELD_M = 1e-6           # vertices closer than this are one vertex (OBJ groups repeat them)
 REGION_LINES = 8        # most edge lines a flat region keeps (more: its faces stand alone)
 COPLANAR_RAD = 1e-5     # faces folded by less than this are one plane (a sub-ray moves < 1 um per 0.1 m)
@@ -45,40 +47,48 @@ FAST_ALGEBRA = {'contract', 'arcp', 'reassoc', 'nsz'}
 class MeshEdges:
     """The undirected edges and face adjacency of a triangle mesh.
 
+    Indices are int32 (a mesh holds at most ``geometry.MAX_TRIANGLES`` faces), and only
+    what the footprint kernels read per shot is stored; the per-edge geometry is computed
+    from the welded vertices when asked (a 2-million-triangle mesh: 3 M edges, 73 MB per
+    (E, 3) float64 array).
+
+    vertex_m (V, 3): the welded vertices (m) that the index tables below point into;
+    edge_vertices (E, 2): the two vertices a, b of each edge, a -> b as its first face
+    winds; edge_opposite (E, 2): the third vertex of that face and of the second one (-1:
+    no second face, or more than two); edge_faces (E, 2): the two faces (the first twice
+    when there is no second); always (E,): boundary or non-manifold edge; coplanar (E,):
+    two faces folded by less than COPLANAR_RAD.
     a_m, b_m (E, 3): endpoints (m); n1, n2 (E, 3): normals of the two faces, both
     oriented along a -> b (``(b - a) x (c_k - a)``, unnormalised; zero for a missing
-    face); always (E,): boundary or non-manifold edge.
-    face_normal (F, 3): unit face normals (the faces' own winding); face_plane_offset
-    (F,): n . p on the face's plane (m); face_neighbour (F, 3): the face across edge k
-    (vertices k, k + 1) of each face,
-    -1 at a boundary or non-manifold edge; face_edge_normal (F, 3, 3): unit vectors in
-    the face's plane, perpendicular to edge k, pointing inside; face_edge_offset (F, 3):
-    a point p of the plane is inside the face when face_edge_normal[f, k] . p >=
-    face_edge_offset[f, k] for every k (the margin is the distance to edge k, m);
-    face_planes (F, 4, 4): the same packed per face for compiled loops, rows (n, offset),
-    (m_0, c_0), (m_1, c_1), (m_2, c_2).
-    vertex_m (V, 3): the welded vertices (m) that face_vertices (F, 3) index;
+    face): properties, computed on each access.
+    face_vertices (F, 3): each face's welded vertices; face_edge (F, 3): the edge k
+    (vertices k, k + 1) of each face; face_neighbour (F, 3): the face across edge k, -1 at
+    a boundary or non-manifold edge.
+    face_planes (F, 4, 4) float64, per face for compiled loops: rows (n, offset), (m_0,
+    c_0), (m_1, c_1), (m_2, c_2), viewed as face_normal (F, 3): unit face normals (the
+    faces' own winding); face_plane_offset (F,): n . p on the face's plane (m);
+    face_edge_normal (F, 3, 3): unit vectors in the face's plane, perpendicular to edge
+    k, pointing inside; face_edge_offset (F, 3): a point p of the plane is inside the face
+    when face_edge_normal[f, k] . p >= face_edge_offset[f, k] for every k (the margin is
+    the distance to edge k, m).
+    face_region (F,): the flat region of several faces a face belongs to (-1: none, the
+    face stands alone), region_lines (R, REGION_LINES, 4) its bounding lines (``flat_regions``).
+    face_altitude (F, 3) float32: each vertex's distance to the opposite edge (m);
     vertex_tilt_rad, vertex_reach_m (V,): how far each vertex's star bends and reaches
-    (``vertex_stars``).
+    (``vertex_stars``); crossing_a_m, crossing_b_m (C, 3): where the mesh passes through
+    itself (``intersection_segments``).
     """
 
-    a_m: np.ndarray
-    b_m: np.ndarray
-    n1: np.ndarray
-    n2: np.ndarray
     always: np.ndarray
     coplanar: np.ndarray
     face_edge: np.ndarray
-    face_normal: np.ndarray
-    face_plane_offset: np.ndarray
     face_neighbour: np.ndarray
-    face_edge_normal: np.ndarray
-    face_edge_offset: np.ndarray
     face_planes: np.ndarray
     face_region: np.ndarray
     region_lines: np.ndarray
     face_altitude: np.ndarray
     edge_vertices: np.ndarray
+    edge_opposite: np.ndarray
     edge_faces: np.ndarray
     face_vertices: np.ndarray
     median_edge_m: float = 0.0
@@ -89,7 +99,45 @@ class MeshEdges:
     crossing_b_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     def __len__(self) -> int:
-        return len(self.a_m)
+        return len(self.edge_vertices)
+
+    # Views of the packed planes (no second copy).
+    @property
+    def face_normal(self) -> np.ndarray:
+        return self.face_planes[:, 0, :3]
+
+    @property
+    def face_plane_offset(self) -> np.ndarray:
+        return self.face_planes[:, 0, 3]
+
+    @property
+    def face_edge_normal(self) -> np.ndarray:
+        return self.face_planes[:, 1:4, :3]
+
+    @property
+    def face_edge_offset(self) -> np.ndarray:
+        return self.face_planes[:, 1:4, 3]
+
+    # Per-edge geometry, from the welded vertices on each access.
+    @property
+    def a_m(self) -> np.ndarray:
+        return self.vertex_m[self.edge_vertices[:, 0]]
+
+    @property
+    def b_m(self) -> np.ndarray:
+        return self.vertex_m[self.edge_vertices[:, 1]]
+
+    @property
+    def n1(self) -> np.ndarray:
+        return self.edge_normals(slice(None))[0]
+
+    @property
+    def n2(self) -> np.ndarray:
+        return self.edge_normals(slice(None))[1]
+
+    def edge_normals(self, rows) -> tuple[np.ndarray, np.ndarray]:
+        """n1, n2 (M, 3) of the edges ``rows`` (index array or slice)."""
+        return _edge_normals(self.vertex_m, self.edge_vertices[rows], self.edge_opposite[rows])
 
     def candidates(self, origin_lo_m: np.ndarray, origin_hi_m: np.ndarray) -> np.ndarray:
         """Indices of the edges that may be a silhouette or a boundary for some viewpoint
@@ -102,15 +150,11 @@ class MeshEdges:
         """End points (M, 3), (M, 3) of the edges in the mask ``candidate`` followed by the
         self-intersection segments: everything a footprint cannot be followed across (views
         of one (M, 6) array: each segment's end points gathered together)."""
-        # Only non-coplanar edges can be candidates: their end points, packed once.
-        rows = np.flatnonzero(candidate[self._sign_edge])
-        ends = np.concatenate([self._sign_ends[rows], self._crossing_ends])
+        # Only non-coplanar edges can be candidates; (M, 2) vertex ids gather (M, 2, 3) points.
+        edge = np.flatnonzero(candidate & ~self.coplanar)
+        ends = np.concatenate([self.vertex_m[self.edge_vertices[edge]].reshape(-1, 6),
+                               self._crossing_ends])
         return ends[:, :3], ends[:, 3:]
-
-    @cached_property
-    def _sign_ends(self) -> np.ndarray:
-        keep = self._sign_edge
-        return np.ascontiguousarray(np.hstack([self.a_m[keep], self.b_m[keep]]))
 
     @cached_property
     def _crossing_ends(self) -> np.ndarray:
@@ -125,7 +169,7 @@ class MeshEdges:
         centre = 0.5 * (lo + hi)
         widen = 1e-5 + 1e-6 * float(np.abs(centre).max() + np.abs(hi - lo).max())
         return _maybe_silhouette(self._sign_planes, self._sign_always, self._sign_edge,
-                                 len(self.a_m), centre.astype(np.float32),
+                                 len(self), centre.astype(np.float32),
                                  (0.5 * (hi - lo) + widen).astype(np.float32))
 
     @cached_property
@@ -134,18 +178,19 @@ class MeshEdges:
         vertices 0-2 over their opposite edges (m), the squared lengths of edges 0-2 (m^2),
         and of the stars of vertices 0-2 the reach (m), tan(tilt) and 1 / cos(tilt) (inf
         from a right angle on)."""
-        corners = self.face_vertices
-        tri = self.vertex_m[corners]
-        edge = np.roll(tri, -1, axis=1) - tri
-        out = np.zeros((len(corners), 16), np.float32)
-        out[:, 0:3] = self.face_altitude
-        out[:, 3:6] = np.einsum('fkj,fkj->fk', edge, edge)
-        out[:, 6:9] = self.vertex_reach_m[corners]
-        tilt = self.vertex_tilt_rad[corners]
-        acute = tilt < 0.5 * np.pi
-        tilt = np.where(acute, tilt, 0.0)
-        out[:, 9:12] = np.where(acute, np.tan(tilt), np.inf)
-        out[:, 12:15] = np.where(acute, 1.0 / np.cos(tilt), np.inf)
+        out = np.zeros((len(self.face_vertices), 16), np.float32)
+        for part in _face_chunks(len(out)):      # bounded temporaries
+            corners = self.face_vertices[part]
+            tri = self.vertex_m[corners]
+            edge = np.roll(tri, -1, axis=1) - tri
+            out[part, 0:3] = self.face_altitude[part]
+            out[part, 3:6] = np.einsum('fkj,fkj->fk', edge, edge)
+            out[part, 6:9] = self.vertex_reach_m[corners]
+            tilt = self.vertex_tilt_rad[corners]
+            acute = tilt < 0.5 * np.pi
+            tilt = np.where(acute, tilt, 0.0)
+            out[part, 9:12] = np.where(acute, np.tan(tilt), np.inf)
+            out[part, 12:15] = np.where(acute, 1.0 / np.cos(tilt), np.inf)
         return out
 
     @cached_property
@@ -160,8 +205,7 @@ class MeshEdges:
         for part, k in ((part, k) for part in _face_chunks(n_faces) for k in range(3)):
             face = part.start + np.flatnonzero(self.face_neighbour[part, k] >= 0)
             beyond = self.face_neighbour[face, k]
-            edge = self.face_edge[face, k]
-            n1, n2 = self.n1[edge], self.n2[edge]
+            n1, n2 = self.edge_normals(self.face_edge[face, k])
             with np.errstate(invalid='ignore', divide='ignore'):
                 cos_fold = -np.einsum('ij,ij->i', n1, n2) / (np.linalg.norm(n1, axis=1)
                                                            * np.linalg.norm(n2, axis=1))
@@ -184,18 +228,36 @@ class MeshEdges:
     def _sign_planes(self) -> np.ndarray:
         """(8, M) float32 rows n1, n1 . a, n2, n2 . a of the non-coplanar edges: s_k(o) =
         n_k . o - n_k . a, one row per component so the classification loop vectorises."""
-        keep = ~self.coplanar
-        a, n1, n2 = self.a_m[keep], self.n1[keep], self.n2[keep]
-        return np.ascontiguousarray(np.vstack([n1.T, np.einsum('ij,ij->i', n1, a),
-                                               n2.T, np.einsum('ij,ij->i', n2, a)]), dtype=np.float32)
+        keep = self._sign_edge
+        out = np.empty((8, len(keep)), np.float32)
+        for lo in range(0, len(keep), FACE_CHUNK):        # bounded temporaries
+            rows = keep[lo:lo + FACE_CHUNK]
+            part = slice(lo, lo + len(rows))
+            a = self.vertex_m[self.edge_vertices[rows, 0]]
+            n1, n2 = self.edge_normals(rows)
+            out[0:3, part], out[3, part] = n1.T, np.einsum('ij,ij->i', n1, a)
+            out[4:7, part], out[7, part] = n2.T, np.einsum('ij,ij->i', n2, a)
+        return out
 
     @cached_property
     def _sign_always(self) -> np.ndarray:
-        return np.ascontiguousarray(self.always[~self.coplanar])
+        return np.ascontiguousarray(self.always[self._sign_edge])
 
     @cached_property
     def _sign_edge(self) -> np.ndarray:
-        return np.flatnonzero(~self.coplanar)
+        return np.flatnonzero(~self.coplanar).astype(np.int32)
+
+
+def _edge_normals(vertex_m: np.ndarray, ends: np.ndarray, opposite: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """n_k = (b - a) x (c_k - a) (M, 3) for edges a -> b (``ends`` (M, 2)) with opposite
+    vertices c_1, c_2 (``opposite`` (M, 2); -1: no face, n = 0)."""
+    pa = vertex_m[ends[:, 0]]
+    span = vertex_m[ends[:, 1]] - pa
+    n1 = np.cross(span, vertex_m[opposite[:, 0]] - pa)
+    second = opposite[:, 1]
+    n2 = np.where((second >= 0)[:, None], np.cross(span, vertex_m[np.maximum(second, 0)] - pa), 0.0)
+    return n1, n2
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
@@ -241,6 +303,7 @@ def mesh_edges(target) -> MeshEdges:
         edges = build_mesh_edges(target.vertices_m, target.faces)
         edges = replace(edges, **dict(zip(('crossing_a_m', 'crossing_b_m'),
                                           intersection_segments(edges, target.intersect))))
+        release_freed_memory()          # the build's temporaries (2 M faces: ~0.4 GB)
         _EDGES[target] = edges
     return edges
 
@@ -255,34 +318,42 @@ def intersection_segments(edges: MeshEdges, intersect, max_hits: int = 16,
     edge is cast as a ray from one end to the other through ``intersect`` (the target's
     Embree query: float32 rays -> face id, distance), continuing past each hit; a hit
     on a face sharing no vertex with the edge is a piercing point; the segments join the
-    points on each face (a lone point: a segment of zero length).
+    points on each face (a lone point: a segment of zero length). Edges are cast in
+    blocks (bounded memory); the points are then taken in the order of a single pass.
     """
-    a, b = edges.a_m, edges.b_m
-    span = b - a
-    length = np.linalg.norm(span, axis=1)
-    ok = length > 10 * step_m
-    direction = np.divide(span, length[:, None], out=np.zeros_like(span), where=ok[:, None])
-    todo = np.flatnonzero(ok)
-    start = np.zeros(len(a))
-    found_edge, found_face, found_point = [], [], []
-    for _ in range(max_hits):
-        if len(todo) == 0:
-            break
-        origin = a[todo] + start[todo, None] * direction[todo]
-        face, t = intersect(origin.astype(np.float32), direction[todo].astype(np.float32))
-        t_at = start[todo] + t
-        hit = (face >= 0) & (t_at < length[todo] - step_m)
-        todo, face, t_at = todo[hit], face[hit], t_at[hit]
-        ends = edges.edge_vertices[todo]
-        corners = edges.face_vertices[face]
-        shares = (corners == ends[:, :1]).any(axis=1) | (corners == ends[:, 1:]).any(axis=1)
-        found_edge.append(todo[~shares])
-        found_face.append(face[~shares])
-        found_point.append(a[todo[~shares]] + t_at[~shares, None] * direction[todo[~shares]])
-        start[todo] = t_at + step_m
+    found_edge, found_face, found_point, found_round = [], [], [], []
+    for lo in range(0, len(edges), FACE_CHUNK):
+        rows = np.arange(lo, min(lo + FACE_CHUNK, len(edges)))
+        a = edges.vertex_m[edges.edge_vertices[rows, 0]]
+        span = edges.vertex_m[edges.edge_vertices[rows, 1]] - a
+        length = np.linalg.norm(span, axis=1)
+        ok = length > 10 * step_m
+        direction = np.divide(span, length[:, None], out=np.zeros_like(span), where=ok[:, None])
+        todo = np.flatnonzero(ok)
+        start = np.zeros(len(a))
+        for hit_round in range(max_hits):
+            if len(todo) == 0:
+                break
+            origin = a[todo] + start[todo, None] * direction[todo]
+            face, t = intersect(origin.astype(np.float32), direction[todo].astype(np.float32))
+            t_at = start[todo] + t
+            hit = (face >= 0) & (t_at < length[todo] - step_m)
+            todo, face, t_at = todo[hit], face[hit], t_at[hit]
+            ends = edges.edge_vertices[rows[todo]]
+            corners = edges.face_vertices[face]
+            shares = (corners == ends[:, :1]).any(axis=1) | (corners == ends[:, 1:]).any(axis=1)
+            found_edge.append(rows[todo[~shares]])
+            found_face.append(face[~shares])
+            found_point.append(a[todo[~shares]] + t_at[~shares, None] * direction[todo[~shares]])
+            found_round.append(np.full(np.count_nonzero(~shares), hit_round))
+            start[todo] = t_at + step_m
     if not found_edge or not sum(len(e) for e in found_edge):
         return np.zeros((0, 3)), np.zeros((0, 3))
-    edge_id, pierced, point = (np.concatenate(x) for x in (found_edge, found_face, found_point))
+    edge_id, pierced, point, hit_round = (np.concatenate(x) for x in
+                                          (found_edge, found_face, found_point, found_round))
+    # Round by round, edges in order: the order one pass over every edge finds them in.
+    order = np.lexsort((edge_id, hit_round))
+    edge_id, pierced, point = edge_id[order], pierced[order], point[order]
     # Every point lies on the pierced face and on both faces of the piercing edge. The
     # curve crosses each face between the points on it (a piercing point on a pierced
     # face's own edge is credited to one side only, so pair faces, not face pairs).
@@ -310,44 +381,87 @@ def intersection_segments(edges: MeshEdges, intersect, max_hits: int = 16,
 
 
 def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
-    """Edge table of a triangle mesh; vertices within WELD_M are merged first."""
+    """Edge table of a triangle mesh; vertices within WELD_M are merged first.
+
+    Per-face and per-edge temporaries are computed in blocks of FACE_CHUNK (a
+    2-million-triangle mesh would otherwise hold several 150 MB arrays at once)."""
     vertices_m = np.asarray(vertices_m, float)
     faces = np.asarray(faces, np.int64)
     key = np.round(vertices_m / WELD_M).astype(np.int64)
     _, weld = np.unique(key, axis=0, return_inverse=True)
-    weld = weld.reshape(-1)
+    del key
+    weld = weld.reshape(-1).astype(np.int32)
     position = np.empty((weld.max() + 1 if len(weld) else 0, 3))
     position[weld] = vertices_m
     f = weld[faces]
+    del weld
     n_faces = len(f)
     # Directed edges (a, b) = face vertices (k, k + 1), with the third vertex c.
     a = f[:, [0, 1, 2]].T.reshape(-1)
     b = f[:, [1, 2, 0]].T.reshape(-1)
     c = f[:, [2, 0, 1]].T.reshape(-1)
-    face = np.tile(np.arange(n_faces), 3)
-    slot = np.repeat(np.arange(3), n_faces)
+    face = np.tile(np.arange(n_faces, dtype=np.int32), 3)
+    slot = np.repeat(np.arange(3, dtype=np.int32), n_faces)
     ok = (a != b) & (b != c) & (c != a)           # degenerate faces have no edges
     a, b, c, face, slot = a[ok], b[ok], c[ok], face[ok], slot[ok]
-    undirected = np.minimum(a, b) * len(position) + np.maximum(a, b)
+    undirected = np.minimum(a, b).astype(np.int64) * len(position) + np.maximum(a, b)
     order = np.argsort(undirected, kind='stable')
     undirected, a, b, c = undirected[order], a[order], b[order], c[order]
     face, slot = face[order], slot[order]
-    first = np.flatnonzero(np.r_[True, undirected[1:] != undirected[:-1]])
-    count = np.diff(np.r_[first, len(undirected)])
+    del order
+    new_edge = np.r_[True, undirected[1:] != undirected[:-1]]
+    del undirected
+    first = np.flatnonzero(new_edge)
+    count = np.diff(np.r_[first, len(a)])
     pair = count == 2
     second = np.where(pair, first + 1, first)
-    pa, pb = position[a[first]], position[b[first]]
-    n1 = np.cross(pb - pa, position[c[first]] - pa)
-    n2 = np.where(pair[:, None], np.cross(pb - pa, position[c[second]] - pa), 0.0)
-    edge_id = np.cumsum(np.r_[True, undirected[1:] != undirected[:-1]]) - 1
-    del undirected, order, c          # large per-edge temporaries (2 M faces: ~50 MB each)
-    face_edge = np.full((n_faces, 3), -1, np.int64)
+    edge_vertices = np.column_stack([a[first], b[first]])
+    edge_opposite = np.column_stack([c[first], np.where(pair, c[second], -1)]).astype(np.int32)
+    edge_faces = np.column_stack([face[first], face[second]])
+    del c
+    edge_id = (np.cumsum(new_edge) - 1).astype(np.int32)
+    del new_edge
+    face_edge = np.full((n_faces, 3), -1, np.int32)
     face_edge[face, slot] = edge_id
-    neighbour = np.full((n_faces, 3), -1, np.int64)
+    del edge_id
+    neighbour = np.full((n_faces, 3), -1, np.int32)
     neighbour[face[first[pair]], slot[first[pair]]] = face[second[pair]]
     neighbour[face[second[pair]], slot[second[pair]]] = face[first[pair]]
-    # In-plane inward edge normals: n x (v_{k+1} - v_k) for the face's own winding.
-    tri = position[f]
+    # Per face, packed for the compiled loops: the plane (n, n . p) and the in-plane inward
+    # edge normals n x (v_{k+1} - v_k) (the face's own winding) with their offsets.
+    planes = np.empty((n_faces, 4, 4))
+    altitude = np.empty((n_faces, 3), np.float32)
+    for part in _face_chunks(n_faces):
+        _face_geometry(position[f[part]], planes[part], altitude[part])
+    # Coplanar: the opposite vertices on opposite sides and both on the other face's plane.
+    span = np.empty(len(first))
+    cos_fold = np.empty(len(first))
+    for lo in range(0, len(first), FACE_CHUNK):
+        part = slice(lo, lo + FACE_CHUNK)
+        ends = edge_vertices[part]
+        span[part] = np.linalg.norm(position[ends[:, 1]] - position[ends[:, 0]], axis=1)
+        n1, n2 = _edge_normals(position, ends, edge_opposite[part])
+        len1, len2 = np.linalg.norm(n1, axis=1), np.linalg.norm(n2, axis=1)
+        with np.errstate(invalid='ignore', divide='ignore'):
+            cos_fold[part] = -np.einsum('ij,ij->i', n1, n2) / (len1 * len2)
+    # Within 1e-5 rad: OBJ files round vertices (1e-6 m), which tilts thin flat quads.
+    coplanar = pair & (cos_fold > np.cos(COPLANAR_RAD)) & (span > 0)
+    region, lines = flat_regions(position, f, face_edge, coplanar, neighbour,
+                                 planes[:, 1:4, :3], planes[:, 1:4, 3])
+    fold = np.where(pair, np.arccos(np.clip(np.nan_to_num(cos_fold, nan=-1.0), -1.0, 1.0)), np.pi)
+    del cos_fold
+    tilt, reach = vertex_stars(position, f, a, b, face, slot, first, second, pair, fold)
+    return MeshEdges(always=~pair, coplanar=coplanar, face_edge=face_edge,
+                     face_neighbour=neighbour, face_planes=planes, face_region=region,
+                     region_lines=lines, face_altitude=altitude, edge_vertices=edge_vertices,
+                     edge_opposite=edge_opposite, edge_faces=edge_faces, face_vertices=f,
+                     median_edge_m=float(np.median(span[~coplanar])) if np.any(~coplanar) else 0.0,
+                     vertex_m=position, vertex_tilt_rad=tilt, vertex_reach_m=reach)
+
+
+def _face_geometry(tri: np.ndarray, planes: np.ndarray, altitude: np.ndarray) -> None:
+    """For triangles tri (N, 3, 3) (m), writes planes (N, 4, 4) (``MeshEdges.face_planes``)
+    and altitude (N, 3) (each vertex's distance to the opposite edge, m)."""
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     length = np.linalg.norm(normal, axis=1, keepdims=True)
     normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
@@ -360,35 +474,10 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     # Vertex k's distance to edge k + 1 (the opposite one): twice the area over its length.
     double_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     opposite = np.linalg.norm(np.roll(edge, -1, axis=1), axis=2)
-    altitude = np.divide(double_area[:, None], opposite, out=np.zeros_like(opposite),
-                         where=opposite > 0).astype(np.float32)
-    plane_offset = np.einsum('ij,ij->i', normal, tri[:, 0])
-    del edge, length, double_area, opposite, tri   # freed before the region and star passes
-    # Coplanar: the opposite vertices on opposite sides and both on the other face's plane.
-    span = np.linalg.norm(pb - pa, axis=1)
-    len1, len2 = np.linalg.norm(n1, axis=1), np.linalg.norm(n2, axis=1)
-    with np.errstate(invalid='ignore', divide='ignore'):
-        cos_fold = -np.einsum('ij,ij->i', n1, n2) / (len1 * len2)
-    # Within 1e-5 rad: OBJ files round vertices (1e-6 m), which tilts thin flat quads.
-    coplanar = pair & (cos_fold > np.cos(COPLANAR_RAD)) & (span > 0)
-    planes = np.empty((n_faces, 4, 4))
-    planes[:, 0, :3], planes[:, 0, 3] = normal, plane_offset
+    altitude[:] = np.divide(double_area[:, None], opposite, out=np.zeros_like(opposite),
+                            where=opposite > 0)
+    planes[:, 0, :3], planes[:, 0, 3] = normal, np.einsum('ij,ij->i', normal, tri[:, 0])
     planes[:, 1:4, :3], planes[:, 1:4, 3] = inward, offset
-    # One copy per face (2 M faces: 256 MB less): the named tables are views of the planes.
-    normal, plane_offset = planes[:, 0, :3], planes[:, 0, 3]
-    inward, offset = planes[:, 1:4, :3], planes[:, 1:4, 3]
-    region, lines = flat_regions(position, f, face_edge, coplanar, neighbour, inward, offset)
-    fold = np.where(pair, np.arccos(np.clip(np.nan_to_num(cos_fold, nan=-1.0), -1.0, 1.0)), np.pi)
-    tilt, reach = vertex_stars(position, f, a, b, face, slot, first, second, pair, fold)
-    return MeshEdges(a_m=pa, b_m=pb, n1=n1, n2=n2, always=~pair, coplanar=coplanar,
-                     face_edge=face_edge, face_normal=normal, face_plane_offset=plane_offset,
-                     face_neighbour=neighbour, face_edge_normal=inward, face_edge_offset=offset,
-                     face_planes=planes, face_region=region, region_lines=lines,
-                     face_altitude=altitude,
-                     edge_vertices=np.column_stack([a[first], b[first]]),
-                     edge_faces=np.column_stack([face[first], face[second]]), face_vertices=f,
-                     median_edge_m=float(np.median(span[~coplanar])) if np.any(~coplanar) else 0.0,
-                     vertex_m=position, vertex_tilt_rad=tilt, vertex_reach_m=reach)
 
 
 def vertex_stars(position, faces, a, b, face, slot, first, second, pair, fold
@@ -406,8 +495,6 @@ def vertex_stars(position, faces, a, b, face, slot, first, second, pair, fold
     (sorted by undirected edge; ``first``/``second`` the two faces of each pair); fold
     (E,): fold angle of each undirected edge (pi where not a pair).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     n_vertices, n_faces = len(position), len(faces)
     tilt = np.zeros(n_vertices)
     np.add.at(tilt, a[first], fold)
@@ -421,9 +508,9 @@ def vertex_stars(position, faces, a, b, face, slot, first, second, pair, fold
 
     src = np.concatenate([corner(p1, a[p1]), corner(p1, b[p1])])
     dst = np.concatenate([corner(p2, a[p1]), corner(p2, b[p1])])
-    graph = coo_matrix((np.ones(len(src)), (src, dst)), shape=(3 * n_faces, 3 * n_faces))
-    n_labels, label = connected_components(graph, directed=False)
-    vertex = faces.reshape(-1)
+    n_labels, label = connected_components(3 * n_faces, src, dst)
+    del src, dst
+    vertex = faces.reshape(-1).astype(np.int64)
     fans = np.bincount(np.unique(vertex * n_labels + label) // n_labels, minlength=n_vertices)
     tilt[fans != 1] = np.inf
     # Far edge of each corner: the point-to-segment distance from the corner's vertex.
@@ -445,6 +532,45 @@ def vertex_stars(position, faces, a, b, face, slot, first, second, pair, fold
     return tilt, reach
 
 
+def connected_components(n_nodes: int, src: np.ndarray, dst: np.ndarray) -> tuple[int, np.ndarray]:
+    """Connected components of the undirected graph on n_nodes nodes with edges src[i] -
+    dst[i]: their number and each node's label (int32), labels numbered in the order of
+    each component's first node (as ``scipy.sparse.csgraph.connected_components``), by
+    union-find: one int32 per node where a sparse matrix of millions of edges costs
+    hundreds of MB."""
+    return _union_find(int(n_nodes), np.asarray(src, np.int64), np.asarray(dst, np.int64))
+
+
+@njit(cache=True, nogil=True)
+def _union_find(n, src, dst):
+    parent = np.arange(n, dtype=np.int32)
+    for e in range(src.shape[0]):
+        a, b = _root(parent, src[e]), _root(parent, dst[e])
+        if a < b:
+            parent[b] = a
+        elif b < a:
+            parent[a] = b
+    # Every root is its component's first node: number the components in that order.
+    label = np.empty(n, np.int32)
+    count = 0
+    for i in range(n):
+        r = _root(parent, i)
+        if r == i:
+            label[i] = count
+            count += 1
+        else:
+            label[i] = label[r]
+    return count, label
+
+
+@njit(cache=True, nogil=True, inline='always')
+def _root(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]       # path halving
+        i = parent[i]
+    return i
+
+
 FACE_CHUNK = 131_072
 """Faces per block where a per-face temporary would otherwise span the whole mesh."""
 
@@ -456,53 +582,56 @@ def _face_chunks(n_faces: int):
 def flat_regions(position, faces, face_edge, coplanar, neighbour, inward, offset
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Group faces into flat regions: faces joined across coplanar edges (the quads of a
-    cylinder's column, a flat disc), kept whole when the region is convex and bounded by
-    at most REGION_LINES lines (collinear edges are one line); any other face is a
-    region of its own (its three edges). A footprint that stays inside its region lies on
-    one plane. Returns face -> region (F,) and the regions' lines (R, REGION_LINES, 4).
+    cylinder's column, a flat disc), kept when the region is convex and bounded by at most
+    REGION_LINES lines (collinear edges are one line). A footprint that stays inside its
+    region lies on one plane. Returns face -> region (F,) int32 and the regions' lines
+    (R, REGION_LINES, 4); region -1: the face is in no such region of several faces, its
+    own three edges bound it (``face_planes``: no second copy of them is kept).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     n_faces = len(faces)
     i, k = np.nonzero(coplanar[np.maximum(face_edge, 0)] & (face_edge >= 0) & (neighbour >= 0))
-    graph = coo_matrix((np.ones(len(i)), (i, neighbour[i, k])), shape=(n_faces, n_faces))
-    n_labels, label = connected_components(graph, directed=False)
+    n_labels, label = connected_components(n_faces, i, neighbour[i, k])
+    del i, k
+    # Regions of several faces only (group: their number), the faces in them (member).
+    size = np.bincount(label, minlength=n_labels)
+    several = np.flatnonzero(size > 1)
+    group = np.full(n_labels, -1, np.int64)
+    group[several] = np.arange(len(several))
+    member = np.flatnonzero(size[label] > 1)
+    face_group = group[label[member]]
     # Boundary edges of each region: face edges whose neighbour is in another region;
     # one line per distinct (region, direction, offset), so collinear edges merge.
-    fi, ki = np.nonzero((neighbour < 0) | (label[np.maximum(neighbour, 0)] != label[:, None]))
-    m, c, lab = inward[fi, ki], offset[fi, ki], label[fi]
+    nb = neighbour[member]
+    fi, ki = np.nonzero((nb < 0) | (label[np.maximum(nb, 0)] != label[member][:, None]))
+    del nb
+    m, c, lab = inward[member[fi], ki], offset[member[fi], ki], face_group[fi]
     key = np.column_stack([lab, np.round(m / 1e-9), np.round(c / 1e-9)])
     _, first = np.unique(key, axis=0, return_index=True)
     first = first[np.argsort(lab[first], kind='stable')]
     m, c, lab = m[first], c[first], lab[first]
-    count = np.bincount(lab, minlength=n_labels)
+    n_groups = len(several)
+    count = np.bincount(lab, minlength=n_groups)
     start = np.r_[0, np.cumsum(count)]
     good = (count >= 3) & (count <= REGION_LINES)
     # Padded per-region lines; convex when every corner of its faces is on the inner side.
-    lines = np.zeros((n_labels, REGION_LINES, 4))
+    lines = np.zeros((n_groups, REGION_LINES, 4))
     lines[:, :, 3] = -np.inf
     slot = np.arange(len(lab)) - start[lab]
     keep = good[lab]
     lines[lab[keep], slot[keep], :3], lines[lab[keep], slot[keep], 3] = m[keep], c[keep]
-    worst = np.full(n_labels, np.inf)
-    for part in _face_chunks(n_faces):     # (F, L, 4) at once cost ~1 GB per million faces
-        own = lines[label[part]]                           # (n, L, 4)
-        corner_margin = (np.einsum('flj,fvj->fvl', own[:, :, :3], position[faces[part]])
+    worst = np.full(n_groups, np.inf)
+    for part in _face_chunks(len(member)):     # (F, L, 4) at once cost ~1 GB per million faces
+        own = lines[face_group[part]]                           # (n, L, 4)
+        corner_margin = (np.einsum('flj,fvj->fvl', own[:, :, :3], position[faces[member[part]]])
                          - own[:, None, :, 3])
-        np.minimum.at(worst, label[part], corner_margin.min(axis=(1, 2)))
+        np.minimum.at(worst, face_group[part], corner_margin.min(axis=(1, 2)))
     good &= worst > -1e-7
-    # Whole regions keep their lines; every other face becomes a region of its own.
     kept = np.flatnonzero(good)
-    renumber = np.full(n_labels, -1)
+    renumber = np.full(n_groups, -1, np.int32)
     renumber[kept] = np.arange(len(kept))
-    region = renumber[label]
-    loose = np.flatnonzero(region < 0)
-    region[loose] = len(kept) + np.arange(len(loose))
-    out = np.zeros((len(kept) + len(loose), REGION_LINES, 4))
-    out[:, :, 3] = -np.inf
-    out[:len(kept)] = lines[kept]
-    out[len(kept):, :3, :3], out[len(kept):, :3, 3] = inward[loose], offset[loose]
-    return region, out
+    region = np.full(n_faces, -1, np.int32)
+    region[member] = renumber[face_group]
+    return region, lines[kept]
 
 
 def origin_box(origins_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -190,7 +190,7 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
             hits = np.concatenate(split_over_threads(
                 len(hits), target.threads, lambda part: _footprints_in_facets(
                     hits[part], axis.range_m, axis.cos_incidence, axis.face, axis.barycentric,
-                    edges.face_star, edges.face_crease, tilt, energy, ring_reach, ring_share,
+                    edges.face_altitude, edges.face_star, edges.face_crease, tilt, energy, ring_reach, ring_share,
                     crease_tol_m, limit)))
         split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
             rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
@@ -377,12 +377,15 @@ def _blocks(origins_m: np.ndarray) -> list:
 
 # Reassociation and FMA only (no finite-math flags: inf marks a missing star or crease).
 @njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
-def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_star,
-                          face_crease, tilt, energy, ring_reach, ring_share, crease_tol, limit):
+def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_altitude,
+                          face_star, face_crease, tilt, energy, ring_reach, ring_share,
+                          crease_tol, limit):
     """The energy-weighted mean range of shots whose footprint lies on the axis facet's
     plane, or within ``crease_tol`` (m) of it, from the axis hit alone (range_m,
-    cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_star``); returns the
-    others (the shots of ``index`` to walk), in order.
+    cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_altitude`` and
+    ``face_star``: most footprints need the altitudes only, 12 bytes per facet where a
+    star's row is a cache line); returns the others (the shots of ``index`` to walk), in
+    order.
 
     The cone meets the facet's plane within spread = r0 sin a / cos(theta + a) of the
     axis point p, which lies w_k h_k from the edge facing vertex k. On the plane, the
@@ -440,7 +443,7 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
         w0 = 1.0 - w1 - w2
         # Distances to edges 1, 2, 0 (vertices k + 1, k + 2: facing vertex k). Rows are
         # indexed in place: a view per shot costs reference counting.
-        m0, m1, m2 = w0 * face_star[f, 0], w1 * face_star[f, 1], w2 * face_star[f, 2]
+        m0, m1, m2 = w0 * face_altitude[f, 0], w1 * face_altitude[f, 1], w2 * face_altitude[f, 2]
         margin = min(m0, m1, m2)
         worst, mean_err = 0.0, 0.0
         if margin < spread:
@@ -586,9 +589,10 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
         near2 = _margin(planes, f0, 3, px, py, pz) < spread
         if near0 or near1 or near2:
             # Still inside the flat region of the facet (a cylinder's column of quads)?
+            # (-1: the facet is a region of its own, bounded by the edges just tested.)
             g = region[f0]
-            inside_region = True
-            for row in range(region_lines.shape[1]):
+            inside_region = g >= 0
+            for row in range(region_lines.shape[1] if inside_region else 0):
                 if (region_lines[g, row, 0] * px + region_lines[g, row, 1] * py
                         + region_lines[g, row, 2] * pz - region_lines[g, row, 3]) < spread:
                     inside_region = False

@@ -1,0 +1,148 @@
+"""The edge table of core/silhouette.py: its compact storage against direct constructions.
+
+(The silhouette test and the footprint kernels that read the table are checked in
+test_beam_divergence.py.)
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+import pytest
+import trimesh
+
+from lidar_sim_ros.core import silhouette
+from lidar_sim_ros.core.silhouette import build_mesh_edges, connected_components, intersection_segments
+
+
+def bfs_labels(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Component labels by breadth-first search, numbered in the order of first nodes."""
+    adjacent = [[] for _ in range(n)]
+    for s, d in zip(src, dst):
+        adjacent[s].append(d)
+        adjacent[d].append(s)
+    label = np.full(n, -1)
+    count = 0
+    for start in range(n):
+        if label[start] >= 0:
+            continue
+        label[start] = count
+        todo = deque([start])
+        while todo:
+            for nxt in adjacent[todo.popleft()]:
+                if label[nxt] < 0:
+                    label[nxt] = count
+                    todo.append(nxt)
+        count += 1
+    return label
+
+
+@pytest.mark.parametrize('n, m', [(1, 0), (12, 5), (300, 200), (300, 600)])
+def test_connected_components_match_a_breadth_first_search(n, m):
+    rng = np.random.default_rng(n + m)
+    src, dst = rng.integers(0, n, m), rng.integers(0, n, m)
+    count, label = connected_components(n, src, dst)
+    expected = bfs_labels(n, src, dst)
+    assert count == expected.max() + 1
+    np.testing.assert_array_equal(label, expected)
+
+
+def _mesh_with_a_flipped_face():
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    faces = mesh.faces.copy()
+    faces[3] = faces[3, ::-1]
+    return np.asarray(mesh.vertices), faces
+
+
+def test_edge_geometry_equals_a_face_by_face_construction():
+    vertices, faces = _mesh_with_a_flipped_face()
+    edges = build_mesh_edges(vertices, faces)
+    # Every undirected edge once, with the faces that hold it: a -> b as the first face
+    # winds, n_k = (b - a) x (c_k - a) for the third vertex c_k of face k; faces taken slot
+    # by slot (edge k of every face, then k + 1). (The table numbers the welded vertices
+    # its own way: edges are keyed by their end points.)
+    found = {}
+    for f, tri in enumerate(faces):
+        for k in range(3):
+            a, b, c = tri[k], tri[(k + 1) % 3], tri[(k + 2) % 3]
+            key = frozenset((tuple(vertices[a]), tuple(vertices[b])))
+            found.setdefault(key, []).append((k, f, a, b, c))
+    assert len(edges) == len(found)
+    for e in range(len(edges)):
+        key = frozenset(tuple(edges.vertex_m[v]) for v in edges.edge_vertices[e])
+        (_, f1, a, b, c1), (_, f2, _, _, c2) = sorted(found[key])
+        np.testing.assert_array_equal(edges.a_m[e], vertices[a])
+        np.testing.assert_array_equal(edges.b_m[e], vertices[b])
+        np.testing.assert_allclose(edges.n1[e], np.cross(vertices[b] - vertices[a], vertices[c1] - vertices[a]),
+                                   rtol=0, atol=1e-15)
+        np.testing.assert_allclose(edges.n2[e], np.cross(vertices[b] - vertices[a], vertices[c2] - vertices[a]),
+                                   rtol=0, atol=1e-15)
+        assert set(edges.edge_faces[e]) == {f1, f2}
+        k1 = list(edges.face_edge[f1]).index(e)
+        assert edges.face_neighbour[f1, k1] == f2
+    assert edges.face_edge.dtype == edges.face_neighbour.dtype == edges.edge_vertices.dtype == np.int32
+
+
+def test_a_boundary_edge_has_no_second_normal():
+    edges = build_mesh_edges(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
+    assert edges.always.all()
+    np.testing.assert_array_equal(edges.n2, 0.0)
+    np.testing.assert_array_equal(np.abs(edges.n1[:, 2]), 1.0)
+
+
+def test_lone_faces_have_no_region_and_flat_regions_keep_their_outline():
+    # A unit square of two triangles (one flat region, four lines) and a triangle folded up
+    # along its far edge (a face of its own: bounded by its own edges, no region).
+    vertices = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 1.5, 0.5]])
+    faces = np.array([[0, 1, 2], [0, 2, 3], [3, 2, 4]])
+    edges = build_mesh_edges(vertices, faces)
+    assert edges.face_region[0] == edges.face_region[1] >= 0
+    assert edges.face_region[2] == -1
+    lines = edges.region_lines[edges.face_region[0]]
+    used = lines[np.isfinite(lines[:, 3])]
+    assert len(used) == 4
+    # The centre is 0.5 m inside each line; a corner lies on two of them.
+    np.testing.assert_allclose(used[:, :3] @ [0.5, 0.5, 0.0] - used[:, 3], 0.5)
+    np.testing.assert_allclose(np.sort(used[:, :3] @ [1.0, 1.0, 0.0] - used[:, 3]), [0, 0, 1, 1],
+                               atol=1e-12)
+
+
+def _interpenetrating_boxes():
+    a = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    b = trimesh.creation.box(extents=(0.6, 0.6, 1.6))
+    b.apply_translation([0.31, 0.17, 0.05])
+    b = b.subdivide()
+    vertices = np.vstack([a.vertices, b.vertices])
+    faces = np.vstack([a.faces, b.faces + len(a.vertices)])
+    return vertices, faces
+
+
+def _tables(edges):
+    return {k: v for k, v in edges.__dict__.items() if isinstance(v, np.ndarray)}
+
+
+def test_tables_built_in_blocks_equal_one_block(monkeypatch):
+    vertices, faces = _interpenetrating_boxes()
+    whole = build_mesh_edges(vertices, faces)
+    one = _tables(whole) | {'face_star': whole.face_star, 'face_crease': whole.face_crease,
+                            'sign_planes': whole._sign_planes}
+    monkeypatch.setattr(silhouette, 'FACE_CHUNK', 7)
+    blocks = build_mesh_edges(vertices, faces)
+    many = _tables(blocks) | {'face_star': blocks.face_star, 'face_crease': blocks.face_crease,
+                              'sign_planes': blocks._sign_planes}
+    assert one.keys() == many.keys()
+    for key in one:
+        np.testing.assert_array_equal(one[key], many[key], err_msg=key)
+
+
+def test_intersection_segments_do_not_depend_on_the_block_size(monkeypatch):
+    from lidar_sim_ros.core.geometry import Target
+    vertices, faces = _interpenetrating_boxes()
+    target = Target(vertices, faces, np.zeros(len(faces), np.int16), ['x'])
+    edges = build_mesh_edges(vertices, faces)
+    whole = intersection_segments(edges, target.intersect)
+    assert len(whole[0]) > 4                  # the two boxes cross along a closed curve
+    monkeypatch.setattr(silhouette, 'FACE_CHUNK', 5)
+    blocks = intersection_segments(edges, target.intersect)
+    for a, b in zip(whole, blocks):
+        np.testing.assert_array_equal(a, b)
