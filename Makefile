@@ -58,9 +58,11 @@ bench-node: $(STAMP)
 bench-gnc: $(STAMP)
 	$(BIN)/python bench/bench_tracker.py --out bench_tracker.json
 
-## lidar-sim compare on a 12-frame and a one-minute recording: seconds per stage, peak RSS.
+## lidar-sim compare on a 12-frame and a one-minute recording: seconds per stage, peak RSS;
+## then what the separation plan of a tie adds (two foreign ties, with and without --no-plan).
 bench-compare: $(STAMP)
 	$(BIN)/python bench/bench_compare.py --out bench_compare.json --data bench_compare_data
+	$(BIN)/python bench/bench_compare_plan.py --out bench_compare_plan.json --data bench_compare_plan_data
 
 ## lidar-sim compare with a 2-million-triangle mesh (BIG_MESH_SEGMENTS=850): its peak RSS (issue 22).
 BIG_MESH_SEGMENTS ?= 850
@@ -81,4 +83,4 @@ bench-campaign: $(STAMP)
 	$(BIN)/python bench/bench_campaign_scale.py --runs $(CAMPAIGN_SCALE_RUNS) --out bench_campaign_scale.json
 
 clean:
-	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_tracker.json bench_compare.json bench_compare_data bench_big_mesh.json bench_big_mesh_data bench_campaign.json bench_campaign_scale.json
+	rm -rf $(VENV) $(OUT) build install log *.egg-info bench.json bench_node.json bench_tracker.json bench_compare.json bench_compare_data bench_compare_plan.json bench_compare_plan_data bench_big_mesh.json bench_big_mesh_data bench_campaign.json bench_campaign_scale.json
