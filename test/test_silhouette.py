@@ -146,3 +146,22 @@ def test_intersection_segments_do_not_depend_on_the_block_size(monkeypatch):
     blocks = intersection_segments(edges, target.intersect)
     for a, b in zip(whole, blocks):
         np.testing.assert_array_equal(a, b)
+
+
+def test_candidate_segments_come_with_the_mask_in_edge_order():
+    # The footprint reads the candidate mask and the segments of the same pass: the edges
+    # kept (non-coplanar, in edge order, end points a then b) and then every crossing.
+    from lidar_sim_ros.core.geometry import Target
+    vertices, faces = _interpenetrating_boxes()
+    target = Target(vertices, faces, np.zeros(len(faces), np.int16), ['x'])
+    edges = silhouette.mesh_edges(target)
+    assert len(edges.crossing_a_m) > 4
+    for lo, hi in (([5.0, 0.3, 0.2], [5.0, 0.3, 0.2]), ([-4.0, 3.0, 1.0], [-3.5, 3.2, 1.1])):
+        mask, a_m, b_m = edges.candidates_with_segments(np.array(lo), np.array(hi))
+        np.testing.assert_array_equal(mask, edges.candidate_mask(np.array(lo), np.array(hi)))
+        kept = [e for e in range(len(edges)) if mask[e] and not edges.coplanar[e]]
+        assert 0 < len(kept) < len(edges)
+        want_a = [edges.vertex_m[edges.edge_vertices[e, 0]] for e in kept] + list(edges.crossing_a_m)
+        want_b = [edges.vertex_m[edges.edge_vertices[e, 1]] for e in kept] + list(edges.crossing_b_m)
+        np.testing.assert_array_equal(a_m, np.array(want_a))
+        np.testing.assert_array_equal(b_m, np.array(want_b))

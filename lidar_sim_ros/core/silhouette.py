@@ -162,15 +162,25 @@ class MeshEdges:
 
     def candidate_mask(self, origin_lo_m: np.ndarray, origin_hi_m: np.ndarray) -> np.ndarray:
         """``candidates`` as a mask over the edges."""
+        return self.candidates_with_segments(origin_lo_m, origin_hi_m)[0]
+
+    def candidates_with_segments(self, origin_lo_m: np.ndarray, origin_hi_m: np.ndarray
+                                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``candidate_mask`` and, from the same pass, ``candidate_segments`` of that mask:
+        (E,) bool, end points (M, 3), (M, 3) (m; views of one (M, 6) array). One compiled
+        loop instead of three passes over the E edges and a gather (a frame's footprint
+        reads both)."""
         lo = np.asarray(origin_lo_m, float)
         hi = np.asarray(origin_hi_m, float)
         # The planes and the sums are float32 (the loop runs twice as wide): s_k is exact to
         # ~3e-7 |n_k| |o| (~3e-6 |n_k| at 10 m); widen the box by more than that.
         centre = 0.5 * (lo + hi)
         widen = 1e-5 + 1e-6 * float(np.abs(centre).max() + np.abs(hi - lo).max())
-        return _maybe_silhouette(self._sign_planes, self._sign_always, self._sign_edge,
-                                 len(self), centre.astype(np.float32),
-                                 (0.5 * (hi - lo) + widen).astype(np.float32))
+        mask, ends = _maybe_silhouette(self._sign_planes, self._sign_always, self._sign_edge,
+                                       len(self), centre.astype(np.float32),
+                                       (0.5 * (hi - lo) + widen).astype(np.float32),
+                                       self.edge_vertices, self.vertex_m, self._crossing_ends)
+        return mask, ends[:, :3], ends[:, 3:]
 
     @cached_property
     def face_star(self) -> np.ndarray:
@@ -261,11 +271,14 @@ def _edge_normals(vertex_m: np.ndarray, ends: np.ndarray, opposite: np.ndarray
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _maybe_silhouette(planes, always, edge, n_edges, centre, half):
+def _maybe_silhouette(planes, always, edge, n_edges, centre, half, edge_vertices, vertex_m,
+                      crossing_ends):
     """Edges not smooth for every viewpoint o in the box centre +- half: s_k(o) =
     n_k . o - n_k . a over the box is [mid - rad, mid + rad] with rad = |n_k| . half.
     planes (8, M), always (M,): the non-coplanar edges ``edge`` (M,)
-    (``MeshEdges._sign_planes``); returns a mask over all n_edges edges."""
+    (``MeshEdges._sign_planes``); returns a mask over all n_edges edges and the end points
+    (K, 6) of the edges kept (``vertex_m`` rows of their ``edge_vertices``), in edge
+    order, followed by ``crossing_ends``."""
     m = planes.shape[1]
     cx, cy, cz = centre[0], centre[1], centre[2]
     hx, hy, hz = half[0], half[1], half[2]
@@ -279,9 +292,21 @@ def _maybe_silhouette(planes, always, edge, n_edges, centre, half):
                   | (((mid1 + rad1) < 0.0) & ((mid2 - rad2) > 0.0)))
         keep[r] = always[r] | ~smooth
     out = np.zeros(n_edges, np.bool_)
+    kept = 0
     for r in range(m):
         out[edge[r]] = keep[r]
-    return out
+        kept += keep[r]
+    segments = np.empty((kept + crossing_ends.shape[0], 6))
+    row = 0
+    for r in range(m):
+        if keep[r]:
+            va, vb = edge_vertices[edge[r], 0], edge_vertices[edge[r], 1]
+            for c in range(3):
+                segments[row, c] = vertex_m[va, c]
+                segments[row, 3 + c] = vertex_m[vb, c]
+            row += 1
+    segments[kept:] = crossing_ends
+    return out, segments
 
 
 def _sin_cos_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -179,7 +179,7 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
     sample = np.zeros(len(rays), bool)
     for block, lo, hi in _blocks(rays.origins_m):
         o, dirs = rays.origins_m[block], rays.directions[block]
-        candidate = edges.candidate_mask(lo, hi)
+        candidate, a_m, b_m = edges.candidates_with_segments(lo, hi)
         hits = np.flatnonzero(axis.hit) if isinstance(block, slice) else block[axis.hit[block]]
         # Ranges of the footprints on one sheet (in place), the shots to cast instead, and
         # how deep an occluder may sit for each (misses: any depth). Most footprints lie
@@ -198,8 +198,8 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
             edges.region_lines, edges.face_neighbour, edges.face_edge, candidate, WALK_STEPS,
             axis.range_m, limit, sample))
         limit = limit[block]
-        # Silhouettes that may be, and curves where parts of the mesh pass through each other.
-        a_m, b_m = edges.candidate_segments(candidate)
+        # Silhouettes that may be (a_m, b_m), and curves where parts of the mesh pass
+        # through each other.
         sample[block] |= np.concatenate(split_over_threads(len(o), target.threads, lambda part: (
             cones_touching_edges(o[part], dirs[part], tan_a, a_m, b_m, limit[part]))))
     return sample
