@@ -355,6 +355,10 @@ def plan_yaml(row: dict, a: Hypothesis, b: Hypothesis, scenario_seed: int, mesh:
         f'{min(r["diagnosed_points"] for r in row["ways"].values() if "skipped" not in r)} '
         'points diagnosed: '
         f'{verdict}.',
+        f'# The z assumes those points on the target: about {row["points"] // max(row["frames"], 1)} '
+        'a frame from this sensor model.',
+        '# A sensor that returns fewer needs more frames (z grows as the square root of',
+        '# the points); with fewer points a null verdict means too little data, not no effect.',
         '# Fly it (or reproduce it in the lab) and compare:',
         f'#   lidar-sim simulate plan.yaml --frames {row["frames"]} --out DIR',
         '# The two hypotheses as fitted (to check the plan in simulation):',
