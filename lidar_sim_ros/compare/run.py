@@ -384,11 +384,11 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     pose_fit = None
     if inp.pose_fit:
         with stage('reference pose', f'{len(inp.meas.cloud_stamps_s)} clouds'):
-            matching, rays, pose_fit = correct_reference_pose(inp.model, effects, matching,
-                                                              rays, inp.meas, opts.seed)
+            matching, rays, moved, pose_fit = correct_reference_pose(
+                inp.model, effects, matching, rays, inp.meas, power, opts)
+            inp = replace(inp, meas=moved)
     with stage('materials'):
-        cal = calibrate_materials(inp.model, effects, matching, rays, opts.fit,
-                                  None if pose_fit is None else pose_fit.correction_m)
+        cal = calibrate_materials(inp.model, effects, matching, rays, opts.fit)
     sunlight = None
     if inp.sun is not None:
         with stage('sunlight', f'{len(inp.sun.t_s)} sun directions'):
@@ -472,23 +472,38 @@ def load_inputs(opts: CompareOptions) -> Inputs:
 
 
 def correct_reference_pose(model: Model, effects: list[Effect], matching: Matching,
-                           rays: diagnosis.RaySet, meas: Measurements, seed: int
-                           ) -> tuple[Matching, diagnosis.RaySet, pose_error.PoseError]:
+                           rays: diagnosis.RaySet, meas: Measurements,
+                           power: PowerFromIntensity, opts: CompareOptions
+                           ) -> tuple[Matching, diagnosis.RaySet, Measurements,
+                                      pose_error.PoseError]:
     """``--effect pose_error``: the per-cloud rigid correction of the reference pose
-    (``pose_error.fit_reference_pose`` on every matched point), applied to the model's
-    expected ranges of the matched points (their range bias). A reference error, not a
-    sensor effect: the simulator never applies it. Rays that miss the target stay as
-    they are (the correction is a few cm: it moves the silhouette by as much)."""
-    data = diagnosis.make_fit_data(model, effects, rays)
-    idx = rays.matched
-    blocks = neighbours.blocks(meas.directions, meas.cloud)[idx]
-    pose = pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks,
-                                         float(norm.isf(diagnosis.FAMILY_ALPHA)),
-                                         diagnosis.MIN_PRACTICAL_GAIN, seed)
-    bias = np.array(matching.pred.bias_m, float, copy=True)
-    bias[idx] += pose.correction_m
-    pred = replace(matching.pred, bias_m=bias)
-    return replace(matching, pred=pred), replace(rays, pred=pred), pose
+    (``pose_error.fit_reference_pose`` on every matched point), applied to the pose
+    itself and the model raycast again (``pose_error.iterate``: refit on the re-matched
+    residual and compose, Gauss-Newton), so that rays near silhouettes and depth steps
+    meet the surface the corrected pose puts there. Returns the re-cast matching, its
+    rays, the measurements with the corrected pose track and the correction (its test
+    is the first fit's). A reference error, not a sensor effect: the simulator never
+    applies it."""
+    extra_var = rays.extra_var_m2
+
+    def fit(r: diagnosis.RaySet) -> pose_error.PoseError:
+        data = diagnosis.make_fit_data(model, effects, r)
+        idx = r.matched
+        blocks = neighbours.blocks(meas.directions, meas.cloud)[idx]
+        return pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks,
+                                             float(norm.isf(diagnosis.FAMILY_ALPHA)),
+                                             diagnosis.MIN_PRACTICAL_GAIN, opts.seed)
+
+    def rematch(corr: pose_error.PoseCorrection):
+        moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
+        m, r = match_rays(model, effects, moved, power, extra_var, opts)
+        return m, r, moved
+
+    first = fit(rays)
+    start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
+    (matching, rays, moved), _, pose = pose_error.iterate(
+        first, start, rematch, lambda state: fit(state[1]))
+    return matching, rays, moved, pose
 
 
 def match_rays(model: Model, effects: list[Effect], meas: Measurements,
