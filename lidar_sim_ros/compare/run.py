@@ -641,7 +641,9 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             diag.full, meas.cloud[sample.matched], meas.t_s[sample.matched],
             sample.blocks[sample.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
             on_top)
-    decision = diag.judge_pose(pose_test, cands, decision)
+    decision = diag.judge_pose(
+        pose_test, cands, decision,
+        lambda pose: recast_diagnosis(model, effects, sample, meas, pose, len(classes), seed))
     named = [c.effect for c in cands if c.name == decision.missing]
     pose = decision.pose if decision.pose is not None else pose_test(named)
     for c in cands[:FINALIZED]:
@@ -651,6 +653,41 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = sunlit_decision(decision, sunlight)
     return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
                      diag.full, diag.z_crit)
+
+
+def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RaySet,
+                     meas: Measurements, pose: pose_error.PoseError, n_candidates: int,
+                     seed: int) -> tuple[diagnosis.Diagnosis, pose_error.PoseError]:
+    """The diagnosis on the model with the reference pose corrected by ``pose`` (a fit on
+    ``sample``'s matched points), raycast again (``pose_error.iterate``: refit on the
+    re-matched sample and compose): every ray matched anew, the sample drawn again with
+    ``seed``, the silhouette distances of its points. Returns it and the correction."""
+    sim = geometry(model, effects)
+
+    def rematch(corr: pose_error.PoseCorrection):
+        moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
+        m = match(sim, moved, model.divergence_rad, edges=False)
+        rays = replace(rays_of(m, sample.measured_power_w, model),
+                       extra_var_m2=sample.extra_var_m2)
+        again, picked, _ = diagnosis_sample(rays, moved, seed)
+        edge = np.full(len(moved), np.nan)
+        edge[picked] = edge_distance_rad(sim.target, moved.subset(picked),
+                                         diagnosis.take_prediction(m.pred, picked),
+                                         model.divergence_rad)
+        diag = diagnosis.Diagnosis(model, effects, replace(again, edge_rad=edge), seed)
+        diag.set_family(n_candidates)
+        return diag, moved
+
+    def refit(state) -> pose_error.PoseError:
+        diag, moved = state
+        idx = diag.rays.matched
+        return pose_error.fit_reference_pose(diag.full, moved.cloud[idx], moved.t_s[idx],
+                                             diag.rays.blocks[idx], diag.z_crit,
+                                             diagnosis.MIN_PRACTICAL_GAIN, seed)
+
+    start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
+    (diag, _), _, report = pose_error.iterate(pose, start, rematch, refit)
+    return diag, report
 
 
 def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
