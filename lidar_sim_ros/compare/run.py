@@ -388,7 +388,9 @@ def run_compare(opts: CompareOptions) -> CompareResult:
                 inp.model, effects, matching, rays, inp.meas, power, opts)
             inp = replace(inp, meas=moved)
     with stage('materials'):
-        cal = calibrate_materials(inp.model, effects, matching, rays, opts.fit)
+        cal = calibrate_materials(inp.model, effects, matching, rays, opts.fit,
+                                  None if pose_fit is None or pose_fit.passes
+                                  else pose_fit.correction_m)
     sunlight = None
     if inp.sun is not None:
         with stage('sunlight', f'{len(inp.sun.t_s)} sun directions'):
@@ -483,7 +485,8 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     meet the surface the corrected pose puts there. Returns the re-cast matching, its
     rays, the measurements with the corrected pose track and the correction (its test
     is the first fit's). A reference error, not a sensor effect: the simulator never
-    applies it."""
+    applies it. A correction that is not significant is applied as the linear range
+    change of the matched points (no re-cast: its effect is within the noise)."""
     extra_var = rays.extra_var_m2
 
     def fit(r: diagnosis.RaySet) -> pose_error.PoseError:
@@ -500,6 +503,12 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
         return m, r, moved
 
     first = fit(rays)
+    if not first.significant:
+        # Nothing to correct beyond noise: the linear range change, no re-cast (runtime).
+        bias = np.array(matching.pred.bias_m, float, copy=True)
+        bias[rays.matched] += first.correction_m
+        pred = replace(matching.pred, bias_m=bias)
+        return replace(matching, pred=pred), replace(rays, pred=pred), meas, first
     start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
     (matching, rays, moved), _, pose = pose_error.iterate(
         first, start, rematch, lambda state: fit(state[1]))
