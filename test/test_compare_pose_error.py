@@ -206,7 +206,7 @@ def test_recast_with_the_corrected_pose_removes_the_silhouette_residual():
 
     hits, corr, report = pose_error.iterate(
         first, pose_error.PoseCorrection.identity(cloud, t_s), cast,
-        lambda h: _step(h, measured, t_s, cloud))
+        lambda h, _corr: _step(h, measured, t_s, cloud))
     assert report.passes >= 2
     assert np.array_equal(hits.hit, meas.hit)
     residual = measured[meas.hit] - hits.range_m[meas.hit]

@@ -112,9 +112,13 @@ def design(direction: np.ndarray, normal: np.ndarray, expected_m: np.ndarray,
 
 
 def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
-               cloud: np.ndarray, use: np.ndarray, clouds: np.ndarray) -> np.ndarray:
-    """(C, 6) weighted least-squares correction per cloud (zeros where too few points)."""
+               cloud: np.ndarray, use: np.ndarray, clouds: np.ndarray,
+               prior: np.ndarray | None = None) -> np.ndarray:
+    """(C, 6) weighted least-squares correction per cloud (zeros where too few points).
+    The ridge pulls the total correction, ``prior`` (C, 6: already applied) plus the
+    step returned, toward zero: a Gauss-Newton pass damps the same motions as the first."""
     out = np.zeros((len(clouds), 6))
+    x0 = np.zeros((len(clouds), 6)) if prior is None else np.asarray(prior, float)
     for k, c in enumerate(clouds):
         sel = use & (cloud == c)
         if sel.sum() < MIN_CLOUD_POINTS:
@@ -122,8 +126,9 @@ def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
         w = 1.0 / sigma_m[sel]
         aw = a[sel] * w[:, None]
         ata = aw.T @ aw
-        ata += RIDGE * np.trace(ata) / 6 * np.eye(6)
-        out[k] = np.linalg.solve(ata, aw.T @ (residual_m[sel] * w))
+        ridge = RIDGE * np.trace(ata) / 6
+        ata += ridge * np.eye(6)
+        out[k] = np.linalg.solve(ata, aw.T @ (residual_m[sel] * w) - ridge * x0[k])
     return out
 
 
@@ -191,6 +196,17 @@ class PoseCorrection:
                 np.degrees(self.rotation.as_rotvec()))
 
 
+    def params(self, clouds: np.ndarray) -> np.ndarray:
+        """(len(clouds), 6) this correction as a fit's parameters (``moved``: translation
+        of the reference point, m; rotation vector, rad); zeros for clouds it lacks."""
+        out = np.zeros((len(clouds), 6))
+        moved, rotvec = self.moved()
+        pos = np.clip(np.searchsorted(self.clouds, clouds), 0, max(len(self.clouds) - 1, 0))
+        have = (self.clouds[pos] == clouds) if len(self.clouds) else np.zeros(len(clouds), bool)
+        out[have] = np.hstack([moved, np.radians(rotvec)])[pos[have]]
+        return out
+
+
 class CorrectedPoses:
     """A pose source (``core.pose.PoseSource``): ``base`` with ``correction`` applied,
     so that the model can be raycast with the corrected reference pose."""
@@ -221,7 +237,8 @@ def iterate(first: PoseError, start: PoseCorrection, rematch: Callable[[PoseCorr
     recorded pose) to the pose, ``rematch`` (raycast again), ``refit`` on the re-matched
     residual, compose, until the step is below RECAST_STEP_M and RECAST_STEP_DEG or
     after RECAST_PASSES re-casts. Returns the last re-match, the composed correction and
-    ``first`` with the composed sizes (its test, gain and z, are the first fit's)."""
+    ``first`` with the composed sizes (its test, gain and z, are the first fit's).
+    ``refit(state, corr)`` fits the step on the model re-cast with ``corr`` applied."""
     corr, step = start.compose(first)
     passes = 0
     while True:
@@ -229,7 +246,7 @@ def iterate(first: PoseError, start: PoseCorrection, rematch: Callable[[PoseCorr
         passes += 1
         if passes >= RECAST_PASSES or (step[0] < RECAST_STEP_M and step[1] < RECAST_STEP_DEG):
             break
-        corr, step = corr.compose(refit(state))
+        corr, step = corr.compose(refit(state, corr))
     moved, rotvec = corr.moved()
     rows = np.searchsorted(corr.clouds, first.clouds)
     report = replace(first, translation_m=moved[rows], rotation_deg=rotvec[rows],
@@ -240,7 +257,8 @@ def iterate(first: PoseError, start: PoseCorrection, rematch: Callable[[PoseCorr
 
 def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                        blocks: np.ndarray, z_crit: float, min_gain: float, seed: int = 0,
-                       effects: list | None = None) -> PoseError:
+                       effects: list | None = None,
+                       applied: 'PoseCorrection | None' = None) -> PoseError:
     """Fit and judge per-cloud rigid pose corrections on ``data``'s matched points
     (``cloud``, ``t_s``, ``blocks``: per matched point) under the model with
     ``effects`` on top of its own (module doc)."""
@@ -261,17 +279,18 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     a, usable = design(ctx.direction, ctx.normal, np.where(ok, model.expected_range_m, 0.0),
                        cloud)
     use = ok & usable & (np.abs(r) <= OUTLIER_SIGMAS * s)
+    prior = None if applied is None else applied.params(clouds)
     half = np.random.default_rng([seed, 61]).integers(0, 2, len(r))
     gain = np.zeros(len(r))
     for k in (0, 1):
-        x = fit_clouds(a, r, s, cloud, use & (half == k), clouds)
+        x = fit_clouds(a, r, s, cloud, use & (half == k), clouds, prior)
         corr = np.einsum('ij,ij->i', a, x[np.searchsorted(clouds, cloud)])
         test = use & (half != k)
         gain[test] = (r[test] ** 2 - (r[test] - corr[test]) ** 2) / (2 * s[test] ** 2)
     mean, se = block_mean_se(gain[use], blocks[use]) if use.sum() > 1 else (0.0, np.inf)
     per_point = float(np.sum(gain[use]) / max(len(r), 1))
     z = float(mean / se) if se > 0 and np.isfinite(se) else 0.0
-    x = fit_clouds(a, r, s, cloud, use, clouds)
+    x = fit_clouds(a, r, s, cloud, use, clouds, prior)
     correction = np.einsum('ij,ij->i', a, x[np.searchsorted(clouds, cloud)])
     t_mean = np.array([float(np.mean(t_s[cloud == c])) for c in clouds])
     p = ctx.direction * np.where(ok, model.expected_range_m, 0.0)[:, None]

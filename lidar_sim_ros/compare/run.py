@@ -489,13 +489,15 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     change of the matched points (no re-cast: its effect is within the noise)."""
     extra_var = rays.extra_var_m2
 
-    def fit(r: diagnosis.RaySet) -> pose_error.PoseError:
+    def fit(r: diagnosis.RaySet, applied: pose_error.PoseCorrection | None = None
+            ) -> pose_error.PoseError:
         data = diagnosis.make_fit_data(model, effects, r)
         idx = r.matched
         blocks = neighbours.blocks(meas.directions, meas.cloud)[idx]
         return pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks,
                                              float(norm.isf(diagnosis.FAMILY_ALPHA)),
-                                             diagnosis.MIN_PRACTICAL_GAIN, opts.seed)
+                                             diagnosis.MIN_PRACTICAL_GAIN, opts.seed,
+                                             applied=applied)
 
     def rematch(corr: pose_error.PoseCorrection):
         moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
@@ -511,7 +513,7 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
         return replace(matching, pred=pred), replace(rays, pred=pred), meas, first
     start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
     (matching, rays, moved), _, pose = pose_error.iterate(
-        first, start, rematch, lambda state: fit(state[1]))
+        first, start, rematch, lambda state, corr: fit(state[1], corr))
     return matching, rays, moved, pose
 
 
@@ -669,16 +671,25 @@ def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RayS
                      seed: int) -> tuple[diagnosis.Diagnosis, pose_error.PoseError]:
     """The diagnosis on the model with the reference pose corrected by ``pose`` (a fit on
     ``sample``'s matched points), raycast again (``pose_error.iterate``: refit on the
-    re-matched sample and compose): every ray matched anew, the sample drawn again with
-    ``seed``, the silhouette distances of its points. Returns it and the correction."""
+    re-matched sample and compose): the sample's points matched anew (a ray may now
+    meet the target or miss it), the silhouette distances of its points. Returns it and
+    the correction."""
     sim = geometry(model, effects)
+    picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
+    isolated = np.zeros(len(meas), bool)
+    isolated[picked] = neighbours.isolated(meas.directions, meas.range_m, meas.cloud, picked)
 
     def rematch(corr: pose_error.PoseCorrection):
         moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
         m = match(sim, moved, model.divergence_rad, edges=False)
         rays = replace(rays_of(m, sample.measured_power_w, model),
                        extra_var_m2=sample.extra_var_m2)
-        again, picked, _ = diagnosis_sample(rays, moved, seed)
+        # The same points as the sample (their matched/unmatched status anew), so that
+        # every pass fits, and the candidates are scored on, the same noise.
+        hit = np.zeros(len(moved), bool)
+        hit[rays.matched] = True
+        again = replace(rays, matched=picked[hit[picked]], unmatched=picked[~hit[picked]],
+                        blocks=sample.blocks, isolated=isolated)
         edge = np.full(len(moved), np.nan)
         edge[picked] = edge_distance_rad(sim.target, moved.subset(picked),
                                          diagnosis.take_prediction(m.pred, picked),
@@ -687,12 +698,13 @@ def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RayS
         diag.set_family(n_candidates)
         return diag, moved
 
-    def refit(state) -> pose_error.PoseError:
+    def refit(state, applied: pose_error.PoseCorrection) -> pose_error.PoseError:
         diag, moved = state
         idx = diag.rays.matched
         return pose_error.fit_reference_pose(diag.full, moved.cloud[idx], moved.t_s[idx],
                                              diag.rays.blocks[idx], diag.z_crit,
-                                             diagnosis.MIN_PRACTICAL_GAIN, seed)
+                                             diagnosis.MIN_PRACTICAL_GAIN, seed,
+                                             applied=applied)
 
     start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
     (diag, _), _, report = pose_error.iterate(pose, start, rematch, refit)
