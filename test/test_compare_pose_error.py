@@ -216,3 +216,19 @@ def test_recast_with_the_corrected_pose_removes_the_silhouette_residual():
     fixed = pose_error.CorrectedPoses(recorded, corr).at(np.array([0.5]))
     assert np.degrees((fixed.rotation * rot.inv()).magnitude()[0]) < 0.03
     np.testing.assert_allclose(fixed.position_m[0, :2], shift[:2], atol=2e-3)
+
+
+def test_gauss_newton_step_damps_the_total_correction_not_the_step():
+    """The ridge acts on the correction already applied plus the step: a step fitted to
+    what is left of a motion, on top of any ``prior``, ends where the one-shot ridge fit
+    of the whole motion does (so re-casting does not walk along the damped motions)."""
+    rng = np.random.default_rng(8)
+    cloud = np.zeros(300, int)
+    a = rng.normal(size=(300, 6)) * [1, 1, 1, 0.05, 0.05, 0.05]   # weak rotations
+    truth = np.array([[0.01, -0.02, 0.005, 0.01, -0.004, 0.006]])
+    prior = np.array([[0.004, 0.003, -0.002, 0.02, 0.01, -0.01]])
+    sigma, use, clouds = np.full(300, 0.003), np.ones(300, bool), np.array([0])
+    once = pose_error.fit_clouds(a, a @ truth[0], sigma, cloud, use, clouds)
+    step = pose_error.fit_clouds(a, a @ (truth - prior)[0], sigma, cloud, use, clouds, prior)
+    np.testing.assert_allclose(prior + step, once, rtol=0, atol=1e-9)
+    assert np.max(np.abs(once - truth)) > 1e-4      # the ridge does damp the weak motions
