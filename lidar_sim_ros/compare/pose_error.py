@@ -216,6 +216,8 @@ class CorrectedPoses:
         self.base, self.correction = base, correction
 
     def __getattr__(self, name):          # coverage, sample times: the base track's
+        if name in ('base', 'correction'):   # not set yet (copy, unpickling)
+            raise AttributeError(name)
         return getattr(self.base, name)
 
     def at(self, t_s: np.ndarray) -> Poses:
