@@ -137,3 +137,98 @@ def test_footprint_is_credited_only_with_edge_returns_at_its_power_fraction():
     assert diagnosis.unmatched_credit(replace(data, unmatched_power_w=None), [eff], eff,
                                       5.0) == 0.0
 
+
+
+def _roof_and_wall():
+    """Body frame: a roof (ridge along z at x = 9.5 m, eaves at x = 10 m, y = +-0.5 m)
+    in front of a wall at x = 11 m: two silhouette edges with a 1 m depth step."""
+    from lidar_sim_ros.core.geometry import Target
+    v = np.array([[9.5, 0, -0.5], [9.5, 0, 0.5], [10, 0.5, -0.5], [10, 0.5, 0.5],
+                  [10, -0.5, -0.5], [10, -0.5, 0.5],
+                  [11, -1, -1], [11, 1, -1], [11, 1, 1], [11, -1, 1]], float)
+    f = np.array([[0, 2, 3], [0, 3, 1], [0, 1, 5], [0, 5, 4], [6, 7, 8], [6, 8, 9]])
+    return Target(v, f, np.zeros(len(f), np.int16), ['ROOF'])
+
+
+def _step(hits, measured_m, t_s, cloud):
+    """One linear fit (design + fit_clouds) on the rays that hit in both, away from the
+    depth steps (|residual| < 5 cm), as a PoseError."""
+    r = measured_m - hits.range_m
+    both = hits.hit & np.isfinite(measured_m) & np.isfinite(r)
+    a, usable = pose_error.design(np.asarray(_step.dirs), hits.normal,
+                                  np.where(both, hits.range_m, 0.0), cloud)
+    use = both & usable & (np.abs(np.where(both, r, 1.0)) < 0.05)
+    clouds = np.unique(cloud)
+    x = pose_error.fit_clouds(a, np.where(use, r, 0.0), np.full(len(r), 1e-3), cloud, use,
+                              clouds)
+    p = _step.dirs * np.where(use, hits.range_m, 0.0)[:, None]
+    g = p[use].mean(axis=0)[None, :]
+    return pose_error.PoseError(clouds, np.array([t_s.mean()]), x[:, :3],
+                                np.degrees(x[:, 3:]), 0.0, 0.0, True, a @ x[0], g)
+
+
+def test_recast_with_the_corrected_pose_removes_the_silhouette_residual():
+    """A target moved 2 cm sideways and 1 cm back, turned 0.3 deg about z, against a
+    recorded pose without that motion. The linear correction fits the faces but leaves
+    the rays that cross the eaves (roof in one pose, wall 1 m behind in the other) with
+    ~1 m residuals; the correction applied to the pose and the rays cast again
+    (CorrectedPoses, iterate) put every ray on the surface it really meets."""
+    from lidar_sim_ros.core.geometry import cast_at_poses
+    from lidar_sim_ros.core.pose import PoseTrack
+    target = _roof_and_wall()
+    yy, zz = np.meshgrid(np.linspace(-0.065, 0.065, 27), np.linspace(-0.035, 0.035, 11))
+    dirs = np.column_stack([np.ones(yy.size), yy.ravel(), zz.ravel()])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    _step.dirs = dirs
+    t_s = np.linspace(0.0, 1.0, len(dirs))
+    cloud = np.zeros(len(dirs), int)
+    recorded = PoseTrack(np.array([0.0, 1.0]), np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)))
+    rot = Rotation.from_rotvec([0, 0, np.radians(0.3)])
+    centre = np.array([10.0, 0.0, 0.0])          # turned about the roof's eaves line
+    shift = centre - rot.apply(centre) + [0.01, 0.02, 0.0]
+    true = PoseTrack(np.array([0.0, 1.0]), np.tile(shift, (2, 1)),
+                     np.tile(rot.as_quat(), (2, 1)))
+    meas = cast_at_poses(target, dirs, true.at(t_s))
+    measured = np.where(meas.hit, meas.range_m, np.nan)
+
+    def cast(corr):
+        return cast_at_poses(target, dirs, pose_error.CorrectedPoses(recorded, corr).at(t_s))
+
+    first_hits = cast(pose_error.PoseCorrection.identity(cloud, t_s))
+    first = _step(first_hits, measured, t_s, cloud)
+    # The linear correction: faces right, silhouette rays not.
+    both = first_hits.hit & meas.hit
+    linear = measured - first_hits.range_m - first.correction_m
+    switched = both & (np.abs(measured - first_hits.range_m) > 0.5)
+    assert switched.sum() >= 5
+    assert np.all(np.abs(linear[switched]) > 0.5)
+    assert np.median(np.abs(linear[both & ~switched])) < 2e-3
+
+    hits, corr, report = pose_error.iterate(
+        first, pose_error.PoseCorrection.identity(cloud, t_s), cast,
+        lambda h, _corr: _step(h, measured, t_s, cloud))
+    assert report.passes >= 2
+    assert np.array_equal(hits.hit, meas.hit)
+    residual = measured[meas.hit] - hits.range_m[meas.hit]
+    assert np.max(np.abs(residual)) < 2e-3
+    assert np.sqrt(np.mean(residual ** 2)) < 5e-4
+    # The composed correction is the true pose (up to z, which the faces cannot see).
+    fixed = pose_error.CorrectedPoses(recorded, corr).at(np.array([0.5]))
+    assert np.degrees((fixed.rotation * rot.inv()).magnitude()[0]) < 0.03
+    np.testing.assert_allclose(fixed.position_m[0, :2], shift[:2], atol=2e-3)
+
+
+def test_gauss_newton_step_damps_the_total_correction_not_the_step():
+    """The ridge acts on the correction already applied plus the step: a step fitted to
+    what is left of a motion, on top of any ``prior``, ends where the one-shot ridge fit
+    of the whole motion does (so re-casting does not walk along the damped motions)."""
+    rng = np.random.default_rng(8)
+    cloud = np.zeros(300, int)
+    a = rng.normal(size=(300, 6)) * [1, 1, 1, 0.05, 0.05, 0.05]   # weak rotations
+    truth = np.array([[0.01, -0.02, 0.005, 0.01, -0.004, 0.006]])
+    prior = np.array([[0.004, 0.003, -0.002, 0.02, 0.01, -0.01]])
+    sigma, use, clouds = np.full(300, 0.003), np.ones(300, bool), np.array([0])
+    once = pose_error.fit_clouds(a, a @ truth[0], sigma, cloud, use, clouds)
+    step = pose_error.fit_clouds(a, a @ (truth - prior)[0], sigma, cloud, use, clouds, prior)
+    np.testing.assert_allclose(prior + step, once, rtol=0, atol=1e-9)
+    assert np.max(np.abs(once - truth)) > 1e-4      # the ridge does damp the weak motions

@@ -615,15 +615,19 @@ class Diagnosis:
         out._base_nll = [heldout_nll(d, []) for d in out.fold_data]
         return out
 
-    def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision) -> Decision:
+    def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision,
+                   recast=None) -> Decision:
         """Whether the reference pose is off (``pose_test(effects)``: the per-cloud rigid
         correction's test, ``pose_error.fit_reference_pose``, on the model with
         ``effects``). A named (or confounded) candidate that itself explains the pose's
         gain leaves no pose error to report: one parameter of a time offset moves the
         target rigidly as well as six per cloud. Otherwise each admissible candidate is
-        scored again on the model with the pose corrected; those that still pass the
-        rule are decided among as before, and if none does, the pose explains the
-        residual and no sensor effect is named."""
+        scored again on the model with the pose corrected: ``recast(pose)`` gives this
+        diagnosis on the model raycast again with the corrected pose and the correction
+        (``run.recast_diagnosis``; without it, the linear range correction,
+        ``pose_corrected``, which leaves the residuals at silhouettes and depth steps).
+        Those that still pass the rule are decided among as before, and if none does,
+        the pose explains the residual and no sensor effect is named."""
         pose = pose_test([])
         if not pose.significant:
             return decision
@@ -633,7 +637,10 @@ class Diagnosis:
                 return decision
         contenders = [c for c in cands if c.admissible and c.effect is not None]
         if contenders:
-            on_pose = self.pose_corrected(pose.correction_m)
+            if recast is not None:
+                on_pose, pose = recast(pose)
+            else:
+                on_pose = self.pose_corrected(pose.correction_m)
             again = [on_pose.score(type(c.effect)) for c in contenders]
             if not any(c.admissible for c in again):
                 return Decision(None, [], pose=pose)

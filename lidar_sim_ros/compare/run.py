@@ -384,11 +384,13 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     pose_fit = None
     if inp.pose_fit:
         with stage('reference pose', f'{len(inp.meas.cloud_stamps_s)} clouds'):
-            matching, rays, pose_fit = correct_reference_pose(inp.model, effects, matching,
-                                                              rays, inp.meas, opts.seed)
+            matching, rays, moved, pose_fit = correct_reference_pose(
+                inp.model, effects, matching, rays, inp.meas, power, opts)
+            inp = replace(inp, meas=moved)
     with stage('materials'):
         cal = calibrate_materials(inp.model, effects, matching, rays, opts.fit,
-                                  None if pose_fit is None else pose_fit.correction_m)
+                                  None if pose_fit is None or pose_fit.passes
+                                  else pose_fit.correction_m)
     sunlight = None
     if inp.sun is not None:
         with stage('sunlight', f'{len(inp.sun.t_s)} sun directions'):
@@ -472,23 +474,47 @@ def load_inputs(opts: CompareOptions) -> Inputs:
 
 
 def correct_reference_pose(model: Model, effects: list[Effect], matching: Matching,
-                           rays: diagnosis.RaySet, meas: Measurements, seed: int
-                           ) -> tuple[Matching, diagnosis.RaySet, pose_error.PoseError]:
+                           rays: diagnosis.RaySet, meas: Measurements,
+                           power: PowerFromIntensity, opts: CompareOptions
+                           ) -> tuple[Matching, diagnosis.RaySet, Measurements,
+                                      pose_error.PoseError]:
     """``--effect pose_error``: the per-cloud rigid correction of the reference pose
-    (``pose_error.fit_reference_pose`` on every matched point), applied to the model's
-    expected ranges of the matched points (their range bias). A reference error, not a
-    sensor effect: the simulator never applies it. Rays that miss the target stay as
-    they are (the correction is a few cm: it moves the silhouette by as much)."""
-    data = diagnosis.make_fit_data(model, effects, rays)
-    idx = rays.matched
-    blocks = neighbours.blocks(meas.directions, meas.cloud)[idx]
-    pose = pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks,
-                                         float(norm.isf(diagnosis.FAMILY_ALPHA)),
-                                         diagnosis.MIN_PRACTICAL_GAIN, seed)
-    bias = np.array(matching.pred.bias_m, float, copy=True)
-    bias[idx] += pose.correction_m
-    pred = replace(matching.pred, bias_m=bias)
-    return replace(matching, pred=pred), replace(rays, pred=pred), pose
+    (``pose_error.fit_reference_pose`` on every matched point), applied to the pose
+    itself and the model raycast again (``pose_error.iterate``: refit on the re-matched
+    residual and compose, Gauss-Newton), so that rays near silhouettes and depth steps
+    meet the surface the corrected pose puts there. Returns the re-cast matching, its
+    rays, the measurements with the corrected pose track and the correction (its test
+    is the first fit's). A reference error, not a sensor effect: the simulator never
+    applies it. A correction that is not significant is applied as the linear range
+    change of the matched points (no re-cast: its effect is within the noise)."""
+    extra_var = rays.extra_var_m2
+
+    def fit(r: diagnosis.RaySet, applied: pose_error.PoseCorrection | None = None
+            ) -> pose_error.PoseError:
+        data = diagnosis.make_fit_data(model, effects, r)
+        idx = r.matched
+        blocks = neighbours.blocks(meas.directions, meas.cloud)[idx]
+        return pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks,
+                                             float(norm.isf(diagnosis.FAMILY_ALPHA)),
+                                             diagnosis.MIN_PRACTICAL_GAIN, opts.seed,
+                                             applied=applied)
+
+    def rematch(corr: pose_error.PoseCorrection):
+        moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
+        m, r = match_rays(model, effects, moved, power, extra_var, opts)
+        return m, r, moved
+
+    first = fit(rays)
+    if not first.significant:
+        # Nothing to correct beyond noise: the linear range change, no re-cast (runtime).
+        bias = np.array(matching.pred.bias_m, float, copy=True)
+        bias[rays.matched] += first.correction_m
+        pred = replace(matching.pred, bias_m=bias)
+        return replace(matching, pred=pred), replace(rays, pred=pred), meas, first
+    start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
+    (matching, rays, moved), _, pose = pose_error.iterate(
+        first, start, rematch, lambda state, corr: fit(state[1], corr))
+    return matching, rays, moved, pose
 
 
 def match_rays(model: Model, effects: list[Effect], meas: Measurements,
@@ -626,7 +652,9 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             diag.full, meas.cloud[sample.matched], meas.t_s[sample.matched],
             sample.blocks[sample.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
             on_top)
-    decision = diag.judge_pose(pose_test, cands, decision)
+    decision = diag.judge_pose(
+        pose_test, cands, decision,
+        lambda pose: recast_diagnosis(model, effects, sample, meas, pose, len(classes), seed))
     named = [c.effect for c in cands if c.name == decision.missing]
     pose = decision.pose if decision.pose is not None else pose_test(named)
     for c in cands[:FINALIZED]:
@@ -636,6 +664,51 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = sunlit_decision(decision, sunlight)
     return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
                      diag.full, diag.z_crit)
+
+
+def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RaySet,
+                     meas: Measurements, pose: pose_error.PoseError, n_candidates: int,
+                     seed: int) -> tuple[diagnosis.Diagnosis, pose_error.PoseError]:
+    """The diagnosis on the model with the reference pose corrected by ``pose`` (a fit on
+    ``sample``'s matched points), raycast again (``pose_error.iterate``: refit on the
+    re-matched sample and compose): the sample's points matched anew (a ray may now
+    meet the target or miss it), the silhouette distances of its points. Returns it and
+    the correction."""
+    sim = geometry(model, effects)
+    picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
+    isolated = np.zeros(len(meas), bool)
+    isolated[picked] = neighbours.isolated(meas.directions, meas.range_m, meas.cloud, picked)
+
+    def rematch(corr: pose_error.PoseCorrection):
+        moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
+        m = match(sim, moved, model.divergence_rad, edges=False)
+        rays = replace(rays_of(m, sample.measured_power_w, model),
+                       extra_var_m2=sample.extra_var_m2)
+        # The same points as the sample (their matched/unmatched status anew), so that
+        # every pass fits, and the candidates are scored on, the same noise.
+        hit = np.zeros(len(moved), bool)
+        hit[rays.matched] = True
+        again = replace(rays, matched=picked[hit[picked]], unmatched=picked[~hit[picked]],
+                        blocks=sample.blocks, isolated=isolated)
+        edge = np.full(len(moved), np.nan)
+        edge[picked] = edge_distance_rad(sim.target, moved.subset(picked),
+                                         diagnosis.take_prediction(m.pred, picked),
+                                         model.divergence_rad)
+        diag = diagnosis.Diagnosis(model, effects, replace(again, edge_rad=edge), seed)
+        diag.set_family(n_candidates)
+        return diag, moved
+
+    def refit(state, applied: pose_error.PoseCorrection) -> pose_error.PoseError:
+        diag, moved = state
+        idx = diag.rays.matched
+        return pose_error.fit_reference_pose(diag.full, moved.cloud[idx], moved.t_s[idx],
+                                             diag.rays.blocks[idx], diag.z_crit,
+                                             diagnosis.MIN_PRACTICAL_GAIN, seed,
+                                             applied=applied)
+
+    start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
+    (diag, _), _, report = pose_error.iterate(pose, start, rematch, refit)
+    return diag, report
 
 
 def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
