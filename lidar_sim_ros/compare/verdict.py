@@ -105,7 +105,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'gains {scores} nats/point): they are confounded in this recording, so none is '
             f'named. {advice} If you know which it is, add it with --effect NAME --fit.')
     elif decision.pose is not None:
-        parts.append(pose_words(decision.pose))
+        parts.append(pose_words(decision.pose) + _clock_caveat(summary, cands))
     else:
         parts.append(_nothing_named(summary, attribution, cands))
     if decision.pose is not None and (missing or decision.confounded_with):
@@ -147,6 +147,24 @@ def pose_words(pose) -> str:
             'tracking system or the extrinsic calibration. A rigid correction of the target '
             f'pose per cloud gains {pose.gain:.4f} nats/point held out (z = {pose.z:.1f}), and '
             'with it no catalogue effect passes the rule.')
+
+
+def _clock_caveat(summary: dict, cands: list) -> str:
+    """When the clouds carry no usable point times and ``time_offset`` passed the rule
+    before the pose was corrected: a clock offset moves each cloud too, as a rigid
+    correction per cloud partly does, so the two cannot be told apart here."""
+    if summary.get('point_times') != 'stamp':
+        return ''
+    c = next((c for c in cands if c.name == 'time_offset' and c.admissible), None)
+    if c is None:
+        return ''
+    return (f' But the clouds carry no per-point time and their directions do not follow '
+            f'the configured scan pattern, and a clock offset between the pose and LiDAR '
+            f'stamps also explains the residual (time_offset: held-out gain {c.score:.4f} '
+            f'nats/point, z = {c.z:.1f}, before the pose correction): the two are '
+            'confounded in this recording. Points with their own times (a time field) '
+            'would separate them; if the tracking system is known to be right, try '
+            '--effect time_offset --fit.')
 
 
 def _sunlight_named(summary: dict, c) -> str:
