@@ -21,6 +21,13 @@ from conftest import private_domain_id
 DOMAIN_ID = private_domain_id(20, 100)
 
 
+def spin_until(executor: SingleThreadedExecutor, done, timeout_s: float = 20.0) -> None:
+    """Spin ``executor`` until ``done()`` or ``timeout_s`` (the caller asserts)."""
+    deadline = time.monotonic() + timeout_s
+    while not done() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+
+
 @pytest.mark.parametrize('msg_class', [PointCloud2, PoseStamped])
 @pytest.mark.parametrize('sec,nanosec', [(0, 0), (1_795_448_987, 440_000_000), (-3, 999_999_999)])
 def test_header_stamp_read_from_rclpy_cdr(msg_class, sec, nanosec):
@@ -57,9 +64,7 @@ def test_armed_recorder_drops_messages_stamped_before_the_window(tmp_path):
             recorder = BagRecorder(node, writer, [spec], armed=False)
             executor = SingleThreadedExecutor(context=context)
             executor.add_node(node)
-            deadline = time.monotonic() + 20
-            while not recorder.subscribed and time.monotonic() < deadline:
-                executor.spin_once(timeout_sec=0.05)
+            spin_until(executor, lambda: recorder.subscribed)
             assert recorder.subscribed
             since = 50 * 1_000_000_000
             recorder.arm(since)
@@ -70,9 +75,7 @@ def test_armed_recorder_drops_messages_stamped_before_the_window(tmp_path):
                 msg.header.frame_id = 'lidar'
                 msg.pose.orientation.w = 1.0
                 pub.publish(msg)
-            deadline = time.monotonic() + 20
-            while recorder.seen['/window/pose'] < 3 and time.monotonic() < deadline:
-                executor.spin_once(timeout_sec=0.05)
+            spin_until(executor, lambda: recorder.seen['/window/pose'] >= 3)
             recorder.close()
             executor.shutdown()
         assert recorder.seen['/window/pose'] == 3 and recorder.counts['/window/pose'] == 2
@@ -99,9 +102,7 @@ def test_recorded_topics_keep_their_publishers_qos(tmp_path):
             recorder = BagRecorder(node, writer, [spec])
             executor = SingleThreadedExecutor(context=context)
             executor.add_node(node)
-            deadline = time.monotonic() + 20
-            while recorder.counts['/qos/names'] < 1 and time.monotonic() < deadline:
-                executor.spin_once(timeout_sec=0.05)
+            spin_until(executor, lambda: recorder.counts['/qos/names'] >= 1)
             recorder.close()
             executor.shutdown()
         assert recorder.counts['/qos/names'] == 1

@@ -512,6 +512,11 @@ class Diagnosis:
     def z_crit(self) -> float:
         return getattr(self, '_z_crit', float(norm.isf(FAMILY_ALPHA / 6)))
 
+    @z_crit.setter
+    def z_crit(self, value: float) -> None:
+        """The bound of another comparison (e.g. the one whose tie a plan separates)."""
+        self._z_crit = float(value)
+
     def set_family(self, n_candidates: int) -> None:
         """Bonferroni: the z a candidate needs when ``n_candidates`` are tested."""
         self._z_crit = float(norm.isf(FAMILY_ALPHA / max(n_candidates, 1)))

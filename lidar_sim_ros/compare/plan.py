@@ -234,7 +234,7 @@ def one_way(model: Model, base: list[Effect], true: Effect, other: Effect,
     rays = diagnosis.RaySet(meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
                             pred=m.pred, blocks=neighbours.blocks(meas.directions, meas.cloud))
     diag = diagnosis.Diagnosis(model, base, rays, seed)
-    diag._z_crit = z_crit        # the bound of the comparison that found the tie
+    diag.z_crit = z_crit         # the bound of the comparison that found the tie
     a, b = diag.score(type(true)), diag.score(type(other))
     out = {'n': diag.n_total, 'margin': float('nan'), 'z': float('nan'),
            'gain_true': a.score, 'gain_other': b.score,

@@ -196,7 +196,6 @@ class PoseCorrection:
         return (self.rotation.apply(g) + self.translation_m - g,
                 np.degrees(self.rotation.as_rotvec()))
 
-
     def params(self, clouds: np.ndarray) -> np.ndarray:
         """(len(clouds), 6) this correction as a fit's parameters (``moved``: translation
         of the reference point, m; rotation vector, rad); zeros for clouds it lacks."""
@@ -235,7 +234,8 @@ RECAST_STEP_DEG = 0.01
 
 
 def iterate(first: PoseError, start: PoseCorrection, rematch: Callable[[PoseCorrection], S],
-            refit: Callable[[S], PoseError]) -> tuple[S, PoseCorrection, PoseError]:
+            refit: Callable[[S, PoseCorrection], PoseError]
+            ) -> tuple[S, PoseCorrection, PoseError]:
     """Gauss-Newton on the re-cast model: apply ``first`` (a fit on the model with the
     recorded pose) to the pose, ``rematch`` (raycast again), ``refit`` on the re-matched
     residual, compose, until the step is below RECAST_STEP_M and RECAST_STEP_DEG or

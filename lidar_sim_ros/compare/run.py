@@ -507,14 +507,21 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     first = fit(rays)
     if not first.significant:
         # Nothing to correct beyond noise: the linear range change, no re-cast (runtime).
-        bias = np.array(matching.pred.bias_m, float, copy=True)
-        bias[rays.matched] += first.correction_m
-        pred = replace(matching.pred, bias_m=bias)
+        pred = with_range_correction(matching.pred, rays.matched, first.correction_m)
         return replace(matching, pred=pred), replace(rays, pred=pred), meas, first
     start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
     (matching, rays, moved), _, pose = pose_error.iterate(
         first, start, rematch, lambda state, corr: fit(state[1], corr))
     return matching, rays, moved, pose
+
+
+def with_range_correction(pred: Prediction, idx: np.ndarray,
+                          correction_m: np.ndarray) -> Prediction:
+    """``pred`` with a reference-pose range correction (m) added to the range bias of the
+    rays ``idx`` (the matched ones): the linear form of a corrected pose."""
+    bias = np.array(pred.bias_m, float, copy=True)
+    bias[idx] += correction_m
+    return replace(pred, bias_m=bias)
 
 
 def match_rays(model: Model, effects: list[Effect], meas: Measurements,
@@ -550,9 +557,7 @@ def calibrate_materials(model: Model, effects: list[Effect], matching: Matching,
         model = replace(model, materials=refit)
         pred = with_materials(pred, refit)
         if range_correction_m is not None:
-            bias = np.array(pred.bias_m, float, copy=True)
-            bias[rays.matched] += range_correction_m
-            pred = replace(pred, bias_m=bias)
+            pred = with_range_correction(pred, rays.matched, range_correction_m)
         matching = replace(matching, pred=pred)
         rays = replace(rays, pred=pred)
     everything = diagnosis.make_fit_data(model, effects, rays)

@@ -128,7 +128,7 @@ def truth_of_states(config: LoopConfig, states: dict, R_BL, t_B) -> TruthSamples
                 else np.zeros(len(r_c), dtype=bool))
     return TruthSamples(
         t_s=states['t_s'], R_LT=R_LN @ R_NT, t_L_m=np.einsum('kij,kj->ki', R_LN, r_t - origin),
-        sun_lidar=frames.unit(R_LN @ frames.unit(np.asarray(config.sun.direction_inertial, float))),
+        sun_lidar=frames.unit(R_LN @ frames.unit(sun_n)),
         R_HB=R_HN @ R_NB, rho_m=rho, rho_dot_mps=rho_dot, n_rad_s=float(n[0]), eclipsed=eclipsed)
 
 
