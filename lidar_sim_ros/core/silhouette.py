@@ -204,6 +204,42 @@ class MeshEdges:
         return out
 
     @cached_property
+    def face_bounds(self) -> np.ndarray:
+        """(F, 10) float32 per face: how far a point of the face lies inside its flat region
+        (or, for a face in none, inside the face). Rows 0-2, 3-5, 6-8: for the three boundary
+        lines nearest to the face (its own edges where it stands alone), the line's signed
+        distance at vertices 0-2 (m), so that the distance of a point with barycentric
+        weights w is w . row; column 9: a lower bound on the distance of any point of the
+        face to the region's other lines (m; inf: none). A face that touches more than three
+        of its region's lines keeps its own edges where they leave more room at its centre
+        (either way, the minimum over the rows and the bound never exceeds the distance)."""
+        n_faces = len(self.face_vertices)
+        out = np.zeros((n_faces, 10), np.float32)
+        out[:, 9] = np.inf
+        # Alone: the edge facing vertex k is at the altitude h_k from it and 0 from the others.
+        for k in range(3):
+            out[:, 4 * k] = self.face_altitude[:, k]
+        for part in _face_chunks(n_faces):          # bounded temporaries
+            face = part.start + np.flatnonzero(self.face_region[part] >= 0)
+            lines = self.region_lines[self.face_region[face]]             # (n, L, 4)
+            corner = self.vertex_m[self.face_vertices[face]]              # (n, 3, 3)
+            with np.errstate(invalid='ignore'):      # padded rows: 0 . v + inf
+                dist = np.einsum('nlj,nvj->nlv', lines[:, :, :3], corner) - lines[:, :, 3:4]
+            order = np.argsort(dist.min(axis=2), axis=1, kind='stable')
+            near = np.take_along_axis(dist, order[:, :3, None], axis=1)   # (n, 3, 3)
+            bound = np.full(len(face), np.inf)
+            if dist.shape[1] > 3:
+                bound = np.take_along_axis(dist.min(axis=2), order[:, 3:4], axis=1)[:, 0]
+            # At the centre: the region's margin against the face's own (a third of the
+            # smallest altitude).
+            centre = np.minimum(near.mean(axis=2).min(axis=1), bound)
+            better = centre > self.face_altitude[face].min(axis=1) / 3.0
+            face = face[better]
+            out[face, :9] = near[better].reshape(len(face), 9)
+            out[face, 9] = bound[better]
+        return out
+
+    @cached_property
     def face_crease(self) -> np.ndarray:
         """(F, 3, 8) float32 per face and edge k (vertices k, k + 1): tan and 1 / cos of the
         fold to the face beyond (inf: none, or a right angle or more), sin and cos of that

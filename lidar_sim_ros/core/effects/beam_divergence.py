@@ -190,8 +190,8 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
             hits = np.concatenate(split_over_threads(
                 len(hits), target.threads, lambda part: _footprints_in_facets(
                     hits[part], axis.range_m, axis.cos_incidence, axis.face, axis.barycentric,
-                    edges.face_altitude, edges.face_star, edges.face_crease, tilt, energy, ring_reach, ring_share,
-                    crease_tol_m, limit)))
+                    edges.face_bounds, edges.face_altitude, edges.face_star, edges.face_crease,
+                    tilt, energy, ring_reach, ring_share, crease_tol_m, limit)))
         split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
             rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
             energy, rings, range_mode == 'first', edges.face_planes, edges.face_region,
@@ -377,18 +377,22 @@ def _blocks(origins_m: np.ndarray) -> list:
 
 # Reassociation and FMA only (no finite-math flags: inf marks a missing star or crease).
 @njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
-def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_altitude,
-                          face_star, face_crease, tilt, energy, ring_reach, ring_share,
-                          crease_tol, limit):
+def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_bounds,
+                          face_altitude, face_star, face_crease, tilt, energy, ring_reach,
+                          ring_share, crease_tol, limit):
     """The energy-weighted mean range of shots whose footprint lies on the axis facet's
     plane, or within ``crease_tol`` (m) of it, from the axis hit alone (range_m,
-    cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_altitude`` and
-    ``face_star``: most footprints need the altitudes only, 12 bytes per facet where a
-    star's row is a cache line); returns the others (the shots of ``index`` to walk), in
-    order.
+    cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_bounds``, and for
+    footprints that reach past the facet's flat region ``face_altitude``, ``face_star``
+    and ``face_crease``); returns the others (the shots of ``index`` to walk), in order.
 
     The cone meets the facet's plane within spread = r0 sin a / cos(theta + a) of the
-    axis point p, which lies w_k h_k from the edge facing vertex k. On the plane, the
+    axis point p. The distance of p to each boundary line of the facet's flat region (the
+    facet's own edges where it stands alone) is the barycentric mix of the line's
+    distances at the facet's vertices (``face_bounds``): a footprint farther than the
+    spread from all of them lies on one plane (on a cylinder's column of quads, most of
+    the footprints that cross a diagonal). Otherwise p lies w_k h_k from the facet's edge
+    facing vertex k. On the plane, the
     sub-rays' ranges average to r0 (1 + sum_j e_j t_j^2 (1 + tan^2 theta) / (2 sum_j e_j))
     to second order in t tan(theta) (off by < (t tan theta)^4 / 2 relative: used below
     SERIES_LIMIT).
@@ -441,12 +445,18 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
         f = face[i]
         w1, w2 = np.float64(barycentric[i, 0]), np.float64(barycentric[i, 1])
         w0 = 1.0 - w1 - w2
-        # Distances to edges 1, 2, 0 (vertices k + 1, k + 2: facing vertex k). Rows are
-        # indexed in place: a view per shot costs reference counting.
-        m0, m1, m2 = w0 * face_altitude[f, 0], w1 * face_altitude[f, 1], w2 * face_altitude[f, 2]
-        margin = min(m0, m1, m2)
+        # Inside the facet's flat region (or the facet) by more than the spread: on one
+        # plane. Rows are indexed in place: a view per shot costs reference counting.
+        inside = min(w0 * face_bounds[f, 0] + w1 * face_bounds[f, 1] + w2 * face_bounds[f, 2],
+                     w0 * face_bounds[f, 3] + w1 * face_bounds[f, 4] + w2 * face_bounds[f, 5],
+                     w0 * face_bounds[f, 6] + w1 * face_bounds[f, 7] + w2 * face_bounds[f, 8],
+                     np.float64(face_bounds[f, 9]))
         worst, mean_err = 0.0, 0.0
-        if margin < spread:
+        if inside < spread:
+            # Distances to edges 1, 2, 0 (vertices k + 1, k + 2: facing vertex k).
+            m0, m1, m2 = (w0 * face_altitude[f, 0], w1 * face_altitude[f, 1],
+                          w2 * face_altitude[f, 2])
+            margin = min(m0, m1, m2)
             worst, mean_err = np.inf, np.inf
             if crease_tol > 0.0:
                 tan_far = (sin_i + cos_i * t_max) * inv_far         # tan(theta')
