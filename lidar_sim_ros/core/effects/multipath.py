@@ -137,19 +137,42 @@ class Multipath(Effect):
             'follow a specular hit only if a ghost could be detected at least this far behind '
             'it (m): closer ghosts merge with the surface echo'))
 
+    def _material_table(self, materials, optics: OpticsConfig, threshold_power_w: float) -> tuple:
+        """Per material id: kd, ks, n, the lobe integral (1/sr), and the farthest |AB| (m) at
+        which any ghost off it can be detected (at normal incidence, a little over, so that
+        float rounding of cos(theta_A) never makes a shot reach farther); and the BRDF of
+        the brightest B (1/sr). Computed once per material table (configs are frozen)."""
+        values = (threshold_power_w, self.params.strength)
+        cached = getattr(self, '_table', None)
+        if not (cached and cached[0] is materials and cached[1] is optics and cached[2] == values):
+            kd, ks, n = (materials.column(k) for k in ('kd', 'ks', 'n'))
+            lobe = lobe_integral_sr(ks, n)
+            # The brightest B there is: any material at normal incidence (alpha = 0).
+            f_b_max = float(np.max(reflection.phong_brdf_cos(1.0, kd, ks, n)))
+            reach_max = 1.001 * max_detectable_path_m(1.0, lobe, f_b_max, threshold_power_w,
+                                                      optics, self.params.strength)
+            self._table = materials, optics, values, (kd, ks, n, lobe, f_b_max, reach_max)
+        return self._table[3]
+
     def extra_returns(self, ctx: ReturnContext, shots: np.ndarray | None = None) -> ExtraReturns | None:
         scene = ctx.scene
         if self.params.strength <= 0 or scene is None or ctx.normal is None or ctx.direction is None:
             return None
         from lidar_sim_ros.core.geometry import cast_at_poses, coherent_order
         from lidar_sim_ros.core.pose import Poses
-        mats, optics = scene.materials, scene.sensor.optics
-        kd, ks, n = (mats.column(k) for k in ('kd', 'ks', 'n'))
-        lobe = lobe_integral_sr(ks, n)
-        # The brightest B there is: any material at normal incidence (alpha = 0).
-        f_b_max = float(np.max(reflection.phong_brdf_cos(1.0, kd, ks, n)))
+        optics = scene.sensor.optics
+        # A multi-return receiver merges a ghost closer than min_separation_m to its echo.
+        receiver = scene.sensor.detection.returns
+        min_path = max(self.params.min_path_m, 0.0 if receiver.single else receiver.min_separation_m)
+        kd, ks, n, lobe, f_b_max, reach_max = self._material_table(scene.materials, optics,
+                                                                   ctx.threshold_power_w)
         on = np.flatnonzero(ctx.hit) if shots is None else shots[ctx.hit.take(shots)]
         mat_on = ctx.material.take(on)
+        # Materials whose ghost fades below the threshold within min_path even at normal
+        # incidence (the ghost power grows with cos(theta_A)) are never followed.
+        if not np.all(reach_max >= max(min_path, 1e-9)):
+            keep = reach_max.take(mat_on) >= max(min_path, 1e-9)
+            on, mat_on = on[keep], mat_on[keep]
         cos_a = np.abs(np.einsum('ij,ij->i', ctx.direction.take(on, axis=0), ctx.normal.take(on, axis=0)))
         reach = max_detectable_path_m(cos_a, lobe.take(mat_on), f_b_max, ctx.threshold_power_w,
                                       optics, self.params.strength)
@@ -169,9 +192,6 @@ class Multipath(Effect):
                                  target.face_clearance_back_m.take(face))
             with np.errstate(divide='ignore', invalid='ignore'):
                 reach = np.minimum(reach, np.where(clearance > CLEARANCE_TOL_M, clearance / cos_a, 0.0))
-        # A multi-return receiver merges a ghost closer than min_separation_m to its echo.
-        receiver = scene.sensor.detection.returns
-        min_path = max(self.params.min_path_m, 0.0 if receiver.single else receiver.min_separation_m)
         follow = reach >= max(min_path, 1e-9)
         shots, cos_a, reach = on[follow], cos_a[follow], reach[follow]
         if len(shots) == 0:
