@@ -739,6 +739,7 @@ def _float64_rows(points: np.ndarray) -> np.ndarray:
 
 
 _Z_MIN_M = 1e-3     # segment parts closer than this in front of the viewpoint are ignored
+COARSE_CELLS = 64   # cells across the rays' image in the cone test's first screen
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
@@ -779,6 +780,43 @@ def _segment_in_cone(ox, oy, oz, dx, dy, dz, ax, ay, az, bx, by, bz, z_hi, tan_a
     # A relative margin for float32 rays: never decides a physical case.
     r = tan_a * (1.0 + 1e-4) + 1e-7
     return cx * cx + cy * cy + cz * cz <= r * r
+
+
+@njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
+def _rays_near_segments(binned_rays, count, track, ray_z, seg, seg_z, binned, gx0, gy0, gx1, gy1,
+                        pad):
+    """Keeps (in place, in order) the binned rays that some segment may reach: one whose
+    projection, grown by the pad, overlaps the ray's track on a coarse grid and that lies
+    no deeper than the ray's cone counts to. Returns how many are kept."""
+    inv = COARSE_CELLS / max(gx1 - gx0, gy1 - gy0, 1e-12)
+    mx = int((gx1 - gx0) * inv) + 1
+    my = int((gy1 - gy0) * inv) + 1
+    nearest = np.full(mx * my, np.inf)      # per coarse cell: the nearest segment's depth
+    for k in range(seg.shape[0]):
+        if not binned[k]:
+            continue
+        x0, x1 = min(seg[k, 0], seg[k, 2]) - pad, max(seg[k, 0], seg[k, 2]) + pad
+        y0, y1 = min(seg[k, 1], seg[k, 3]) - pad, max(seg[k, 1], seg[k, 3]) + pad
+        if x1 < gx0 or x0 > gx1 or y1 < gy0 or y0 > gy1:
+            continue
+        i0, i1 = max(int((x0 - gx0) * inv), 0), min(int((x1 - gx0) * inv), mx - 1)
+        j0, j1 = max(int((y0 - gy0) * inv), 0), min(int((y1 - gy0) * inv), my - 1)
+        for ci in range(i0, i1 + 1):
+            for cj in range(j0, j1 + 1):
+                nearest[ci * my + cj] = min(nearest[ci * my + cj], seg_z[k])
+    kept = 0
+    for q in range(count):
+        i = binned_rays[q]
+        i0, i1 = int((track[i, 0] - gx0) * inv), min(int((track[i, 2] - gx0) * inv), mx - 1)
+        j0, j1 = int((track[i, 1] - gy0) * inv), min(int((track[i, 3] - gy0) * inv), my - 1)
+        near = np.inf
+        for ci in range(i0, i1 + 1):
+            for cj in range(j0, j1 + 1):
+                near = min(near, nearest[ci * my + cj])
+        if near <= ray_z[i] * (1.0 + 1e-6) + 1e-6:
+            binned_rays[kept] = i
+            kept += 1
+    return kept
 
 
 # Reassociation and FMA only (no finite-math flags: inf limits, -inf cell depths).
@@ -881,6 +919,9 @@ def _cones_touching_edges(o, d, tan_a, a, b, z_limit):
     if widest > 0.0:
         pad = 1.25 * tan_a * widest * (1.0 + 2.0 * spread / z_lo)
     pad += 1e-9
+    if count > 0:
+        count = _rays_near_segments(binned_rays, count, track, ray_z, seg, seg_z, binned,
+                                    gx0, gy0, gx1, gy1, pad)
     # Cells a few times a track plus the pad (the 2-D pre-check makes rays cheap; cell
     # visits are what costs).
     if count > 0:
