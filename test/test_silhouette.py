@@ -124,15 +124,14 @@ def _tables(edges):
 def test_tables_built_in_blocks_equal_one_block(monkeypatch):
     vertices, faces = _interpenetrating_boxes()
     whole = build_mesh_edges(vertices, faces)
-    one = _tables(whole) | {'face_star': whole.face_star, 'face_crease': whole.face_crease,
-                            'sign_planes': whole._sign_planes}
+    cached = ('face_star', 'face_crease', 'face_bounds', '_sign_planes', '_sign_edge', '_sign_groups')
+    one = _tables(whole) | {k: getattr(whole, k) for k in cached}
     monkeypatch.setattr(silhouette, 'FACE_CHUNK', 7)
     blocks = build_mesh_edges(vertices, faces)
-    many = _tables(blocks) | {'face_star': blocks.face_star, 'face_crease': blocks.face_crease,
-                              'sign_planes': blocks._sign_planes}
+    many = _tables(blocks) | {k: getattr(blocks, k) for k in cached}
     assert one.keys() == many.keys()
     for key in one:
-        np.testing.assert_array_equal(one[key], many[key], err_msg=key)
+        np.testing.assert_equal(one[key], many[key], err_msg=key)
 
 
 def test_intersection_segments_do_not_depend_on_the_block_size(monkeypatch):
@@ -148,9 +147,10 @@ def test_intersection_segments_do_not_depend_on_the_block_size(monkeypatch):
         np.testing.assert_array_equal(a, b)
 
 
-def test_candidate_segments_come_with_the_mask_in_edge_order():
+def test_candidate_segments_come_with_the_mask():
     # The footprint reads the candidate mask and the segments of the same pass: the edges
-    # kept (non-coplanar, in edge order, end points a then b) and then every crossing.
+    # kept (non-coplanar, end points a then b; grouped as the classification visits them,
+    # which the cone test does not depend on) and then every crossing, in order.
     from lidar_sim_ros.core.geometry import Target
     vertices, faces = _interpenetrating_boxes()
     target = Target(vertices, faces, np.zeros(len(faces), np.int16), ['x'])
@@ -163,5 +163,53 @@ def test_candidate_segments_come_with_the_mask_in_edge_order():
         assert 0 < len(kept) < len(edges)
         want_a = [edges.vertex_m[edges.edge_vertices[e, 0]] for e in kept] + list(edges.crossing_a_m)
         want_b = [edges.vertex_m[edges.edge_vertices[e, 1]] for e in kept] + list(edges.crossing_b_m)
-        np.testing.assert_array_equal(a_m, np.array(want_a))
-        np.testing.assert_array_equal(b_m, np.array(want_b))
+        n = len(kept)
+        got = np.hstack([a_m, b_m])
+        want = np.hstack([np.array(want_a), np.array(want_b)])
+        np.testing.assert_array_equal(got[n:], want[n:])
+        np.testing.assert_array_equal(np.unique(got[:n], axis=0), np.unique(want[:n], axis=0))
+        assert len(got) == len(want)
+
+
+def _exact_candidates(edges, lo, hi):
+    """Non-coplanar edges not smooth for some viewpoint in the box [lo, hi], in float64 from
+    the welded vertices (the classification's definition, without its float32 margin)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    n1, n2 = edges.edge_normals(slice(None))
+    a = edges.vertex_m[edges.edge_vertices[:, 0]]
+    mid1, rad1 = n1 @ centre - np.einsum('ij,ij->i', n1, a), np.abs(n1) @ half
+    mid2, rad2 = n2 @ centre - np.einsum('ij,ij->i', n2, a), np.abs(n2) @ half
+    smooth = (((mid1 - rad1) > 0) & ((mid2 + rad2) < 0)) | (((mid1 + rad1) < 0) & ((mid2 - rad2) > 0))
+    return ~edges.coplanar & (edges.always | ~smooth)
+
+
+@pytest.mark.parametrize('group', [1, 5, 16])
+def test_grouped_classification_keeps_every_possible_silhouette(monkeypatch, group):
+    # Runs of edges whose bounds keep both planes' signs fixed are skipped as a whole: the
+    # mask must still hold every edge that is a silhouette for some viewpoint of the box,
+    # and nothing that is smooth by a clear margin.
+    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.geometry import load_target
+    from conftest import CONFIG
+    monkeypatch.setattr(silhouette, 'SIGN_GROUP', group)
+    scenario = load_scenario(CONFIG / 'scenario.yaml')
+    target = load_target(scenario.mesh_path, scenario.materials.names)
+    edges = build_mesh_edges(target.vertices_m, target.faces)
+    rng = np.random.default_rng(7)
+    skipped = 0
+    for distance, size in ((10.0, 0.0), (10.0, 0.3), (3.0, 0.05), (40.0, 1.0), (6.0, 2.0)):
+        direction = rng.normal(size=3)
+        lo = distance * direction / np.linalg.norm(direction)
+        hi = lo + size * rng.random(3)
+        mask = edges.candidate_mask(lo, hi)
+        exact = _exact_candidates(edges, lo, hi)
+        assert np.all(mask[exact]), 'a possible silhouette was dropped'
+        # Smooth by a margin 100x the classification's float32 widening: never kept.
+        widen = 100 * (1e-5 + 1e-6 * (np.abs(0.5 * (lo + hi)).max() + np.abs(hi - lo).max()))
+        loose = _exact_candidates(edges, lo - widen, hi + widen)
+        assert not np.any(mask & ~loose & ~edges.coplanar)
+        groups, size_used = edges._sign_groups
+        assert size_used == group
+        skipped += int(np.count_nonzero(~exact & ~edges.coplanar))
+    assert skipped > 0

@@ -38,6 +38,7 @@ from lidar_sim_ros.core.memory import release_freed_memory
 WELD_M = 1e-6           # vertices closer than this are one vertex (OBJ groups repeat them)
 REGION_LINES = 8        # most edge lines a flat region keeps (more: its faces stand alone)
 COPLANAR_RAD = 1e-5     # faces folded by less than this are one plane (a sub-ray moves < 1 um per 0.1 m)
+SIGN_GROUP = 16         # edges per bounded group in the silhouette classification (``_sign_groups``)
 # numba fastmath flags for the compiled loops that allow it: reassociation, FMA, reciprocals
 # (~5 % faster); never nnan / ninf, which would let the compiler drop inf and NaN handling.
 FAST_ALGEBRA = {'contract', 'arcp', 'reassoc', 'nsz'}
@@ -176,10 +177,11 @@ class MeshEdges:
         # ~3e-7 |n_k| |o| (~3e-6 |n_k| at 10 m); widen the box by more than that.
         centre = 0.5 * (lo + hi)
         widen = 1e-5 + 1e-6 * float(np.abs(centre).max() + np.abs(hi - lo).max())
-        mask, ends = _maybe_silhouette(self._sign_planes, self._sign_always, self._sign_edge,
-                                       len(self), centre.astype(np.float32),
-                                       (0.5 * (hi - lo) + widen).astype(np.float32),
-                                       self.edge_vertices, self.vertex_m, self._crossing_ends)
+        groups, group_size = self._sign_groups
+        mask, ends = _maybe_silhouette(self._sign_planes, self._sign_always, groups,
+                                       group_size, self._sign_edge, len(self), centre,
+                                       0.5 * (hi - lo) + widen, self.edge_vertices,
+                                       self.vertex_m, self._crossing_ends)
         return mask, ends[:, :3], ends[:, 3:]
 
     @cached_property
@@ -291,7 +293,56 @@ class MeshEdges:
 
     @cached_property
     def _sign_edge(self) -> np.ndarray:
-        return np.flatnonzero(~self.coplanar).astype(np.int32)
+        """The non-coplanar edges (only they can be silhouettes), ordered so that each run of
+        SIGN_GROUP holds edges close together with similar normals: a Morton order of their
+        midpoints within coarse bins of their first face's normal (``_sign_groups``)."""
+        edge = np.flatnonzero(~self.coplanar).astype(np.int32)
+        if len(edge) == 0:
+            return edge
+        origin = self.vertex_m.min(axis=0)
+        cell = max(float(np.ptp(self.vertex_m, axis=0).max()), 1e-9) / 1023.0
+        key = np.empty(len(edge), np.int64)
+        for lo in range(0, len(edge), FACE_CHUNK):        # bounded temporaries
+            rows = edge[lo:lo + FACE_CHUNK]
+            ends = self.vertex_m[self.edge_vertices[rows]]                # (m, 2, 3)
+            grid = np.clip(((ends.mean(axis=1) - origin) / cell).astype(np.int64), 0, 1023)
+            n1 = self.edge_normals(rows)[0]
+            with np.errstate(invalid='ignore', divide='ignore'):
+                unit = n1 / np.linalg.norm(n1, axis=1, keepdims=True)
+            bins = np.clip(np.nan_to_num((unit + 1.0) * 2.0), 0, 3).astype(np.int64)
+            key[lo:lo + len(rows)] = (((bins[:, 0] * 4 + bins[:, 1]) * 4 + bins[:, 2]) << 30
+                                      | _morton3(grid))
+        return edge[np.argsort(key, kind='stable')]
+
+    @cached_property
+    def _sign_groups(self) -> tuple[np.ndarray, int]:
+        """Bounds per run of ``group`` (SIGN_GROUP) rows of ``_sign_planes``, each plane
+        scaled to a unit normal, and ``group``: (G, 17) float64, the least and greatest
+        components of n1 (columns 0-2, 3-5) and of its offset (6, 7), the same for n2 (8-13,
+        14, 15), and 1 in column 16 where the run holds a boundary edge or a plane without a
+        normal (such a run is never classified as a whole)."""
+        group, m = SIGN_GROUP, len(self._sign_edge)
+        out = np.zeros(((m + group - 1) // group, 17))
+        step = -(-FACE_CHUNK // group) * group              # whole runs per block
+        for lo in range(0, m, step):                        # bounded temporaries
+            part = slice(lo, min(lo + step, m))
+            planes = self._sign_planes[:, part].astype(np.float64)
+            bad = self._sign_always[part].copy()
+            rows = slice(lo // group, (part.stop + group - 1) // group)
+            padded = (rows.stop - rows.start) * group
+            for k, col in ((0, 0), (4, 8)):
+                length = np.linalg.norm(planes[k:k + 3], axis=0)
+                bad |= length == 0.0
+                unit = planes[k:k + 4] / np.where(length > 0.0, length, 1.0)
+                # Pad the last run with copies of its last row (no effect on least/greatest).
+                unit = np.concatenate([unit, np.repeat(unit[:, -1:], padded - unit.shape[1], axis=1)],
+                                      axis=1).reshape(4, -1, group)
+                out[rows, col:col + 3] = unit[:3].min(axis=2).T
+                out[rows, col + 3:col + 6] = unit[:3].max(axis=2).T
+                out[rows, col + 6], out[rows, col + 7] = unit[3].min(axis=1), unit[3].max(axis=1)
+            out[rows, 16] = np.concatenate([bad, np.zeros(padded - len(bad), bool)]
+                                           ).reshape(-1, group).any(axis=1)
+        return out, group
 
 
 def _edge_normals(vertex_m: np.ndarray, ends: np.ndarray, opposite: np.ndarray
@@ -306,43 +357,76 @@ def _edge_normals(vertex_m: np.ndarray, ends: np.ndarray, opposite: np.ndarray
     return n1, n2
 
 
+def _morton3(grid: np.ndarray) -> np.ndarray:
+    """Morton (Z-order) codes (int64, 30 bits) of integer points (N, 3) in 0..1023."""
+    out = np.zeros(len(grid), np.int64)
+    for axis in range(3):
+        v = grid[:, axis].astype(np.int64) & 0x3FF
+        v = (v | (v << 16)) & 0x30000FF
+        v = (v | (v << 8)) & 0x300F00F
+        v = (v | (v << 4)) & 0x30C30C3
+        v = (v | (v << 2)) & 0x9249249
+        out |= v << axis
+    return out
+
 @njit(cache=True, nogil=True, error_model='numpy')
-def _maybe_silhouette(planes, always, edge, n_edges, centre, half, edge_vertices, vertex_m,
-                      crossing_ends):
+def _maybe_silhouette(planes, always, groups, group_size, edge, n_edges, centre, half,
+                      edge_vertices, vertex_m, crossing_ends):
     """Edges not smooth for every viewpoint o in the box centre +- half: s_k(o) =
     n_k . o - n_k . a over the box is [mid - rad, mid + rad] with rad = |n_k| . half.
     planes (8, M), always (M,): the non-coplanar edges ``edge`` (M,)
-    (``MeshEdges._sign_planes``); returns a mask over all n_edges edges and the end points
-    (K, 6) of the edges kept (``vertex_m`` rows of their ``edge_vertices``), in edge
+    (``MeshEdges._sign_planes``); a run of ``group_size`` of them whose bounds (``groups``)
+    keep both planes' signs fixed and opposite over the box is smooth as a whole (most of
+    the mesh: no edge of it is tested). Returns a mask over all n_edges edges and the end
+    points (K, 6) of the edges kept (``vertex_m`` rows of their ``edge_vertices``), in row
     order, followed by ``crossing_ends``."""
     m = planes.shape[1]
-    cx, cy, cz = centre[0], centre[1], centre[2]
-    hx, hy, hz = half[0], half[1], half[2]
-    keep = np.empty(m, np.bool_)
-    for r in range(m):
-        mid1 = planes[0, r] * cx + planes[1, r] * cy + planes[2, r] * cz - planes[3, r]
-        rad1 = abs(planes[0, r]) * hx + abs(planes[1, r]) * hy + abs(planes[2, r]) * hz
-        mid2 = planes[4, r] * cx + planes[5, r] * cy + planes[6, r] * cz - planes[7, r]
-        rad2 = abs(planes[4, r]) * hx + abs(planes[5, r]) * hy + abs(planes[6, r]) * hz
-        smooth = ((((mid1 - rad1) > 0.0) & ((mid2 + rad2) < 0.0))
-                  | (((mid1 + rad1) < 0.0) & ((mid2 - rad2) > 0.0)))
-        keep[r] = always[r] | ~smooth
+    # The per-edge loop runs in float32 (twice as wide); the group bounds in float64.
+    cx, cy, cz = np.float32(centre[0]), np.float32(centre[1]), np.float32(centre[2])
+    hx, hy, hz = np.float32(half[0]), np.float32(half[1]), np.float32(half[2])
     out = np.zeros(n_edges, np.bool_)
+    kept_rows = np.empty(m, np.int64)
     kept = 0
-    for r in range(m):
-        out[edge[r]] = keep[r]
-        kept += keep[r]
+    for g in range(groups.shape[0]):
+        if groups[g, 16] == 0.0:
+            lo1, hi1 = _plane_range(groups, g, 0, centre, half)
+            lo2, hi2 = _plane_range(groups, g, 8, centre, half)
+            if (lo1 > 0.0 and hi2 < 0.0) or (hi1 < 0.0 and lo2 > 0.0):
+                continue
+        for r in range(g * group_size, min((g + 1) * group_size, m)):
+            mid1 = planes[0, r] * cx + planes[1, r] * cy + planes[2, r] * cz - planes[3, r]
+            rad1 = abs(planes[0, r]) * hx + abs(planes[1, r]) * hy + abs(planes[2, r]) * hz
+            mid2 = planes[4, r] * cx + planes[5, r] * cy + planes[6, r] * cz - planes[7, r]
+            rad2 = abs(planes[4, r]) * hx + abs(planes[5, r]) * hy + abs(planes[6, r]) * hz
+            smooth = ((((mid1 - rad1) > 0.0) & ((mid2 + rad2) < 0.0))
+                      | (((mid1 + rad1) < 0.0) & ((mid2 - rad2) > 0.0)))
+            if always[r] or not smooth:
+                out[edge[r]] = True
+                kept_rows[kept] = r
+                kept += 1
     segments = np.empty((kept + crossing_ends.shape[0], 6))
-    row = 0
-    for r in range(m):
-        if keep[r]:
-            va, vb = edge_vertices[edge[r], 0], edge_vertices[edge[r], 1]
-            for c in range(3):
-                segments[row, c] = vertex_m[va, c]
-                segments[row, 3 + c] = vertex_m[vb, c]
-            row += 1
+    for row in range(kept):
+        e = edge[kept_rows[row]]
+        va, vb = edge_vertices[e, 0], edge_vertices[e, 1]
+        for c in range(3):
+            segments[row, c] = vertex_m[va, c]
+            segments[row, 3 + c] = vertex_m[vb, c]
     segments[kept:] = crossing_ends
     return out, segments
+
+
+@njit(cache=True, nogil=True, inline='always', error_model='numpy')
+def _plane_range(groups, g, col, centre, half):
+    """Least and greatest n . o - d over unit normals n and offsets d within the bounds of
+    group g (columns col..col + 7 of ``MeshEdges._sign_groups``) and o in centre +- half."""
+    lo, hi = -groups[g, col + 7], -groups[g, col + 6]
+    for c in range(3):
+        n_lo, n_hi = groups[g, col + c], groups[g, col + 3 + c]
+        o_lo, o_hi = centre[c] - half[c], centre[c] + half[c]
+        a, b, p, q = n_lo * o_lo, n_lo * o_hi, n_hi * o_lo, n_hi * o_hi
+        lo += min(min(a, b), min(p, q))
+        hi += max(max(a, b), max(p, q))
+    return lo, hi
 
 
 def _sin_cos_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
