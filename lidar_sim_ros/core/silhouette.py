@@ -74,7 +74,6 @@ class MeshEdges:
     the distance to edge k, m).
     face_region (F,): the flat region of several faces a face belongs to (-1: none, the
     face stands alone), region_lines (R, REGION_LINES, 4) its bounding lines (``flat_regions``).
-    face_altitude (F, 3) float32: each vertex's distance to the opposite edge (m);
     vertex_tilt_rad, vertex_reach_m (V,): how far each vertex's star bends and reaches
     (``vertex_stars``); crossing_a_m, crossing_b_m (C, 3): where the mesh passes through
     itself (``intersection_segments``).
@@ -87,7 +86,6 @@ class MeshEdges:
     face_planes: np.ndarray
     face_region: np.ndarray
     region_lines: np.ndarray
-    face_altitude: np.ndarray
     edge_vertices: np.ndarray
     edge_opposite: np.ndarray
     edge_faces: np.ndarray
@@ -195,7 +193,7 @@ class MeshEdges:
             corners = self.face_vertices[part]
             tri = self.vertex_m[corners]
             edge = np.roll(tri, -1, axis=1) - tri
-            out[part, 0:3] = self.face_altitude[part]
+            out[part, 0:3] = _altitudes(tri)
             out[part, 3:6] = np.einsum('fkj,fkj->fk', edge, edge)
             out[part, 6:9] = self.vertex_reach_m[corners]
             tilt = self.vertex_tilt_rad[corners]
@@ -215,40 +213,19 @@ class MeshEdges:
         face to the region's other lines (m; inf: none). A face that touches more than three
         of its region's lines keeps its own edges where they leave more room at its centre
         (either way, the minimum over the rows and the bound never exceeds the distance)."""
-        n_faces = len(self.face_vertices)
-        out = np.zeros((n_faces, 10), np.float32)
-        out[:, 9] = np.inf
-        # Alone: the edge facing vertex k is at the altitude h_k from it and 0 from the others.
-        for k in range(3):
-            out[:, 4 * k] = self.face_altitude[:, k]
-        for part in _face_chunks(n_faces):          # bounded temporaries
-            face = part.start + np.flatnonzero(self.face_region[part] >= 0)
-            lines = self.region_lines[self.face_region[face]]             # (n, L, 4)
-            corner = self.vertex_m[self.face_vertices[face]]              # (n, 3, 3)
-            with np.errstate(invalid='ignore'):      # padded rows: 0 . v + inf
-                dist = np.einsum('nlj,nvj->nlv', lines[:, :, :3], corner) - lines[:, :, 3:4]
-            order = np.argsort(dist.min(axis=2), axis=1, kind='stable')
-            near = np.take_along_axis(dist, order[:, :3, None], axis=1)   # (n, 3, 3)
-            bound = np.full(len(face), np.inf)
-            if dist.shape[1] > 3:
-                bound = np.take_along_axis(dist.min(axis=2), order[:, 3:4], axis=1)[:, 0]
-            # At the centre: the region's margin against the face's own (a third of the
-            # smallest altitude).
-            centre = np.minimum(near.mean(axis=2).min(axis=1), bound)
-            better = centre > self.face_altitude[face].min(axis=1) / 3.0
-            face = face[better]
-            out[face, :9] = near[better].reshape(len(face), 9)
-            out[face, 9] = bound[better]
+        out = np.empty((len(self.face_vertices), 10), np.float32)
+        _face_bounds(self.face_vertices, self.vertex_m, self.face_region, self.region_lines,
+                     self.face_star, out)
         return out
 
     @cached_property
     def face_crease(self) -> np.ndarray:
-        """(F, 3, 8) float32 per face and edge k (vertices k, k + 1): tan and 1 / cos of the
+        """(F, 3, 7) float32 per face and edge k (vertices k, k + 1): tan and 1 / cos of the
         fold to the face beyond (inf: none, or a right angle or more), sin and cos of that
         face's angles at vertex k and at vertex k + 1, and the edge's length (m)."""
         corners = self.face_vertices
         n_faces = len(corners)
-        out = np.zeros((n_faces, 3, 8), np.float32)
+        out = np.zeros((n_faces, 3, 7), np.float32)
         out[:, :, 0:2] = np.inf
         for part, k in ((part, k) for part in _face_chunks(n_faces) for k in range(3)):
             face = part.start + np.flatnonzero(self.face_neighbour[part, k] >= 0)
@@ -368,6 +345,47 @@ def _morton3(grid: np.ndarray) -> np.ndarray:
         v = (v | (v << 2)) & 0x9249249
         out |= v << axis
     return out
+
+
+@njit(cache=True, nogil=True, error_model='numpy')
+def _face_bounds(face_vertices, vertex_m, face_region, region_lines, face_star, out):
+    """Fills ``MeshEdges.face_bounds`` (out (F, 10) float32), face by face (the altitudes
+    from ``face_star``)."""
+    n_lines = region_lines.shape[1]
+    dist = np.empty((n_lines, 3))
+    reach = np.empty(n_lines)
+    for f in range(face_vertices.shape[0]):
+        # Alone: the edge facing vertex k lies h_k from it and 0 from the other two.
+        for c in range(9):
+            out[f, c] = 0.0
+        for k in range(3):
+            out[f, 4 * k] = face_star[f, k]
+        out[f, 9] = np.inf
+        g = face_region[f]
+        if g < 0:
+            continue
+        for line in range(n_lines):
+            for k in range(3):
+                v = face_vertices[f, k]
+                dist[line, k] = (region_lines[g, line, 0] * vertex_m[v, 0]
+                                 + region_lines[g, line, 1] * vertex_m[v, 1]
+                                 + region_lines[g, line, 2] * vertex_m[v, 2]
+                                 - region_lines[g, line, 3])    # padded rows: inf
+            reach[line] = min(dist[line, 0], dist[line, 1], dist[line, 2])
+        order = np.argsort(reach, kind='mergesort')
+        bound = reach[order[3]] if n_lines > 3 else np.inf
+        # At the centre: the region's margin against the face's own (a third of the
+        # smallest altitude).
+        centre = bound
+        for r in range(min(3, n_lines)):
+            line = order[r]
+            centre = min(centre, (dist[line, 0] + dist[line, 1] + dist[line, 2]) / 3.0)
+        if not centre > min(face_star[f, 0], face_star[f, 1], face_star[f, 2]) / 3.0:
+            continue
+        for r in range(3):
+            for k in range(3):
+                out[f, 3 * r + k] = dist[order[r], k] if r < n_lines else np.inf
+        out[f, 9] = bound
 
 @njit(cache=True, nogil=True, error_model='numpy')
 def _maybe_silhouette(planes, always, groups, group_size, edge, n_edges, centre, half,
@@ -575,9 +593,8 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     # Per face, packed for the compiled loops: the plane (n, n . p) and the in-plane inward
     # edge normals n x (v_{k+1} - v_k) (the face's own winding) with their offsets.
     planes = np.empty((n_faces, 4, 4))
-    altitude = np.empty((n_faces, 3), np.float32)
     for part in _face_chunks(n_faces):
-        _face_geometry(position[f[part]], planes[part], altitude[part])
+        _face_geometry(position[f[part]], planes[part])
     # Coplanar: the opposite vertices on opposite sides and both on the other face's plane.
     span = np.empty(len(first))
     cos_fold = np.empty(len(first))
@@ -598,15 +615,14 @@ def build_mesh_edges(vertices_m: np.ndarray, faces: np.ndarray) -> MeshEdges:
     tilt, reach = vertex_stars(position, f, a, b, face, slot, first, second, pair, fold)
     return MeshEdges(always=~pair, coplanar=coplanar, face_edge=face_edge,
                      face_neighbour=neighbour, face_planes=planes, face_region=region,
-                     region_lines=lines, face_altitude=altitude, edge_vertices=edge_vertices,
+                     region_lines=lines, edge_vertices=edge_vertices,
                      edge_opposite=edge_opposite, edge_faces=edge_faces, face_vertices=f,
                      median_edge_m=float(np.median(span[~coplanar])) if np.any(~coplanar) else 0.0,
                      vertex_m=position, vertex_tilt_rad=tilt, vertex_reach_m=reach)
 
 
-def _face_geometry(tri: np.ndarray, planes: np.ndarray, altitude: np.ndarray) -> None:
-    """For triangles tri (N, 3, 3) (m), writes planes (N, 4, 4) (``MeshEdges.face_planes``)
-    and altitude (N, 3) (each vertex's distance to the opposite edge, m)."""
+def _face_geometry(tri: np.ndarray, planes: np.ndarray) -> None:
+    """For triangles tri (N, 3, 3) (m), writes planes (N, 4, 4) (``MeshEdges.face_planes``)."""
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     length = np.linalg.norm(normal, axis=1, keepdims=True)
     normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
@@ -616,13 +632,18 @@ def _face_geometry(tri: np.ndarray, planes: np.ndarray, altitude: np.ndarray) ->
     inward = np.divide(inward, length, out=np.zeros_like(inward), where=length > 0)
     offset = np.einsum('fkj,fkj->fk', inward, tri)
     offset[(length[..., 0] == 0).any(axis=1)] = np.inf       # degenerate: nothing is inside
-    # Vertex k's distance to edge k + 1 (the opposite one): twice the area over its length.
-    double_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    opposite = np.linalg.norm(np.roll(edge, -1, axis=1), axis=2)
-    altitude[:] = np.divide(double_area[:, None], opposite, out=np.zeros_like(opposite),
-                            where=opposite > 0)
     planes[:, 0, :3], planes[:, 0, 3] = normal, np.einsum('ij,ij->i', normal, tri[:, 0])
     planes[:, 1:4, :3], planes[:, 1:4, 3] = inward, offset
+
+
+def _altitudes(tri: np.ndarray) -> np.ndarray:
+    """Each vertex's distance to the opposite edge (N, 3) float32 (m) of triangles tri
+    (N, 3, 3): twice the area over that edge's length (0 for a degenerate face)."""
+    edge = np.roll(tri, -1, axis=1) - tri
+    double_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    opposite = np.linalg.norm(np.roll(edge, -1, axis=1), axis=2)
+    return np.divide(double_area[:, None], opposite, out=np.zeros_like(opposite),
+                     where=opposite > 0).astype(np.float32)
 
 
 def vertex_stars(position, faces, a, b, face, slot, first, second, pair, fold

@@ -190,7 +190,7 @@ def _footprints_on_sheets(target: Target, rays: BodyRays, axis: Hits, half_angle
             hits = np.concatenate(split_over_threads(
                 len(hits), target.threads, lambda part: _footprints_in_facets(
                     hits[part], axis.range_m, axis.cos_incidence, axis.face, axis.barycentric,
-                    edges.face_bounds, edges.face_altitude, edges.face_star, edges.face_crease,
+                    edges.face_bounds, edges.face_star, edges.face_crease,
                     tilt, energy, ring_reach, ring_share, crease_tol_m, limit)))
         split_over_threads(len(hits), target.threads, lambda part: _sheet_footprint_ranges(
             rays.origins_m, rays.directions, hits[part], axis.face, tilt, np.cos(phi), np.sin(phi),
@@ -378,13 +378,13 @@ def _blocks(origins_m: np.ndarray) -> list:
 # Reassociation and FMA only (no finite-math flags: inf marks a missing star or crease).
 @njit(cache=True, nogil=True, error_model='numpy', fastmath=FAST_ALGEBRA)
 def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face_bounds,
-                          face_altitude, face_star, face_crease, tilt, energy, ring_reach,
-                          ring_share, crease_tol, limit):
+                          face_star, face_crease, tilt, energy, ring_reach, ring_share,
+                          crease_tol, limit):
     """The energy-weighted mean range of shots whose footprint lies on the axis facet's
     plane, or within ``crease_tol`` (m) of it, from the axis hit alone (range_m,
     cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_bounds``, and for
-    footprints that reach past the facet's flat region ``face_altitude``, ``face_star``
-    and ``face_crease``); returns the others (the shots of ``index`` to walk), in order.
+    footprints that reach past the facet's flat region ``face_star`` (the facet's
+    altitudes among them) and ``face_crease``); returns the others (the shots of ``index`` to walk), in order.
 
     The cone meets the facet's plane within spread = r0 sin a / cos(theta + a) of the
     axis point p. The distance of p to each boundary line of the facet's flat region (the
@@ -454,8 +454,7 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
         worst, mean_err = 0.0, 0.0
         if inside < spread:
             # Distances to edges 1, 2, 0 (vertices k + 1, k + 2: facing vertex k).
-            m0, m1, m2 = (w0 * face_altitude[f, 0], w1 * face_altitude[f, 1],
-                          w2 * face_altitude[f, 2])
+            m0, m1, m2 = w0 * face_star[f, 0], w1 * face_star[f, 1], w2 * face_star[f, 2]
             margin = min(m0, m1, m2)
             worst, mean_err = np.inf, np.inf
             if crease_tol > 0.0:
