@@ -107,6 +107,71 @@ def test_lone_faces_have_no_region_and_flat_regions_keep_their_outline():
                                atol=1e-12)
 
 
+def _polygon_fan(sides: int, rings: int = 1):
+    """A flat regular polygon (radius 1 m) split into a fan of triangles about its centre,
+    each spoke cut into ``rings`` segments: one flat region with ``sides`` lines."""
+    angles = 2.0 * np.pi * np.arange(sides) / sides
+    rim = np.column_stack([np.cos(angles), np.sin(angles), np.zeros(sides)])
+    vertices, faces = [np.zeros(3)], []
+    for r in range(1, rings + 1):
+        vertices += list(rim * r / rings)
+    for k in range(sides):
+        k1 = (k + 1) % sides
+        faces.append([0, 1 + k, 1 + k1])
+        for r in range(1, rings):
+            a, b = 1 + (r - 1) * sides + k, 1 + (r - 1) * sides + k1
+            c, d = 1 + r * sides + k, 1 + r * sides + k1
+            faces += [[a, c, d], [a, d, b]]
+    return np.array(vertices), np.array(faces)
+
+
+def _rocket_edges():
+    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.geometry import load_target
+    from conftest import CONFIG
+    scenario = load_scenario(CONFIG / 'scenario.yaml')
+    target = load_target(scenario.mesh_path, scenario.materials.names)
+    return build_mesh_edges(target.vertices_m, target.faces)
+
+
+@pytest.mark.parametrize('mesh', ['square', 'hexagon', 'hexagon_rings', 'octagon_rings',
+                                  'rocket'])
+def test_face_bounds_never_exceed_the_distance_to_the_region_outline(mesh):
+    # The facets' pass takes a footprint as flat when min(w . row, bound) >= its spread:
+    # that must never exceed the distance to the flat region's outline, and never fall
+    # below the distance to the facet's own edges. A square's two triangles touch all
+    # four of its lines; the octagon's inner faces see eight at different distances.
+    if mesh == 'rocket':
+        edges = _rocket_edges()
+    else:
+        vertices, faces = {'square': (np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]),
+                                      np.array([[0, 1, 2], [0, 2, 3]])),
+                           'hexagon': _polygon_fan(6), 'hexagon_rings': _polygon_fan(6, 3),
+                           'octagon_rings': _polygon_fan(8, 4)}[mesh]
+        vertices = vertices @ np.array([[0.6, 0.8, 0.0], [-0.8, 0.6, 0.0], [0.0, 0.0, 1.0]])
+        edges = build_mesh_edges(vertices + [3.0, -1.0, 2.0], faces)
+        assert (edges.face_region >= 0).all()
+    region = np.flatnonzero(edges.face_region >= 0)
+    bounds = edges.face_bounds[region]
+    rng = np.random.default_rng(3)
+    w = rng.dirichlet([1.0, 1.0, 1.0], size=(len(region), 400 if mesh != 'rocket' else 20))
+    corner = edges.vertex_m[edges.face_vertices[region]]                     # (F, 3, 3)
+    point = np.einsum('fsk,fkj->fsj', w, corner)
+    rows = bounds[:, :9].reshape(-1, 3, 3).astype(float)                     # (F, line, vertex)
+    inside = np.minimum(np.einsum('fsk,flk->fsl', w, rows).min(axis=2), bounds[:, None, 9])
+    lines = edges.region_lines[edges.face_region[region]]                    # (F, L, 4)
+    used = np.isfinite(lines[:, :, 3])
+    to_outline = np.where(used[:, None, :], np.einsum('flj,fsj->fsl', lines[:, :, :3], point)
+                          - lines[:, None, :, 3], np.inf).min(axis=2)
+    assert np.all(inside <= to_outline + 1e-6)
+    star = edges.face_star[region, :3].astype(float)
+    own = (w * star[:, None, :]).min(axis=2)
+    assert np.all(inside >= own - 1e-6)
+    # Away from the rim, the region's answer is the larger one.
+    if mesh != 'square':
+        assert np.mean(inside > own + 1e-3) > 0.1
+
+
 def _interpenetrating_boxes():
     a = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
     b = trimesh.creation.box(extents=(0.6, 0.6, 1.6))
