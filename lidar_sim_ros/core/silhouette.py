@@ -387,6 +387,7 @@ def _face_bounds(face_vertices, vertex_m, face_region, region_lines, face_star, 
                 out[f, 3 * r + k] = dist[order[r], k] if r < n_lines else np.inf
         out[f, 9] = bound
 
+
 @njit(cache=True, nogil=True, error_model='numpy')
 def _maybe_silhouette(planes, always, groups, group_size, edge, n_edges, centre, half,
                       edge_vertices, vertex_m, crossing_ends):

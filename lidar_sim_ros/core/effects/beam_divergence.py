@@ -384,7 +384,8 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
     plane, or within ``crease_tol`` (m) of it, from the axis hit alone (range_m,
     cos_incidence, barycentric (u, v) on the facet, ``MeshEdges.face_bounds``, and for
     footprints that reach past the facet's flat region ``face_star`` (the facet's
-    altitudes among them) and ``face_crease``); returns the others (the shots of ``index`` to walk), in order.
+    altitudes among them) and ``face_crease``); returns the others (the shots of
+    ``index`` to walk), in order.
 
     The cone meets the facet's plane within spread = r0 sin a / cos(theta + a) of the
     axis point p. The distance of p to each boundary line of the facet's flat region (the
@@ -392,8 +393,8 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
     distances at the facet's vertices (``face_bounds``): a footprint farther than the
     spread from all of them lies on one plane (on a cylinder's column of quads, most of
     the footprints that cross a diagonal). Otherwise p lies w_k h_k from the facet's edge
-    facing vertex k. On the plane, the
-    sub-rays' ranges average to r0 (1 + sum_j e_j t_j^2 (1 + tan^2 theta) / (2 sum_j e_j))
+    facing vertex k. On the plane, the sub-rays' ranges average to
+    r0 (1 + sum_j e_j t_j^2 (1 + tan^2 theta) / (2 sum_j e_j))
     to second order in t tan(theta) (off by < (t tan theta)^4 / 2 relative: used below
     SERIES_LIMIT).
 
