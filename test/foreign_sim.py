@@ -77,7 +77,7 @@ EPOCH_NS = 1_712_000_000 * 1_000_000_000
 NS_PER_S = 1_000_000_000
 
 EFFECTS = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-           'beam_divergence', 'time_offset', 'laser_bias', 'multipath')
+           'beam_divergence', 'time_offset', 'laser_bias', 'multipath', 'range_scale')
 CEPTON_TOPIC = '/cepton_pcl2'
 CEPTON_FRAME = 'cepton3'
 CEPTON_SATURATED, CEPTON_NO_RETURN = 1, 32
@@ -698,6 +698,10 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
             b = np.where(hit, azimuth_bias_m(az, p), 0.0)
         elif eff == 'laser_bias':
             b = np.where(hit, laser_offsets_of(spec)[laser], 0.0)
+        elif eff == 'range_scale':
+            # This sensor's counter clock runs fast by `ppm`: every time of flight, and so
+            # every range, reads long by that fraction.
+            b = np.where(hit, r_hit * p['ppm'] * 1e-6, 0.0)
         else:
             continue
         bias, var = bias + b, var + v
@@ -1185,6 +1189,12 @@ BATTERY: tuple[ForeignSpec, ...] = (
                                                     'mode': 'weighted'}),),
                 distance_m=16.0, shots_per_frame=40_000, intensity='linear'),
     # --- lab clutter: a wall behind, a support jig, a cable in front
+    ForeignSpec('range_scale_approach', 'range_scale', {'ppm': 2000.0}, seed=62, frames=10,
+                speed_mps=14.0, distance_m=20.0, shots_per_frame=8000,
+                note='the counter clock runs 2000 ppm fast; clouds from 20 m to 6 m'),
+    ForeignSpec('range_scale_static', 'range_scale', {'ppm': 5000.0}, seed=63, frames=10,
+                speed_mps=0.0, spin_dps=3.0, distance_m=12.0, shots_per_frame=8000,
+                note='the counter clock runs 5000 ppm fast, target at 12 m'),
     ForeignSpec('clutter', None, seed=40, clutter=True, note='wall, jig and cable in view'),
     ForeignSpec('clutter_solar', 'solar_background', {'fraction': 0.008, 'mean_range_m': 30.0},
                 seed=41, clutter=True, scan='rosette', intensity='counts16'),

@@ -53,10 +53,10 @@ def context(**arrays) -> ReturnContext:
 
 
 # ------------------------------------------------------------------------ neutrality
-def test_catalogue_has_the_eight_effects_and_their_defaults_change_nothing(default_scenario):
+def test_catalogue_has_the_nine_effects_and_their_defaults_change_nothing(default_scenario):
     names = list(catalogue())
     assert names == ['range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-                     'beam_divergence', 'time_offset', 'laser_bias', 'multipath']
+                     'beam_divergence', 'time_offset', 'laser_bias', 'multipath', 'range_scale']
     # sunlight loads by name (it needs a sun, so it is no default diagnosis candidate);
     # without a sun it changes nothing either. multipath's default is the model's ghosts
     # (strength 1): at strength 0 it changes nothing.
@@ -72,6 +72,24 @@ def test_catalogue_has_the_eight_effects_and_their_defaults_change_nothing(defau
     np.testing.assert_array_equal(a.xyz_m, b.xyz_m)
     np.testing.assert_array_equal(a.intensity, b.intensity)
     np.testing.assert_array_equal(a.material, b.material)
+
+
+# ----------------------------------------------------------------------- range scale
+def test_range_scale_lengthens_every_range_by_the_same_fraction(default_scenario):
+    # Closed form: the bias is scale x true range, so a frame's measured ranges are the
+    # plain frame's times (1 + scale) with the same noise draw.
+    scale = make_effect('range_scale', {'scale': 2.7e-4})
+    ctx = context(range_m=np.array([1.0, 10.0, 100.0, np.nan]), power_w=np.ones(4),
+                  hit=np.array([True, True, True, False]))
+    np.testing.assert_allclose(scale.range_bias_m(ctx)[:3], [2.7e-4, 2.7e-3, 2.7e-2])
+    from lidar_sim_ros.core.pose import ScenarioTrajectory
+    traj = ScenarioTrajectory.from_config(default_scenario.config)
+    plain = Simulator.from_scenario(default_scenario, effects=[])
+    scaled = Simulator.from_scenario(default_scenario, effects=[make_effect('range_scale',
+                                                                             {'scale': 0.01})])
+    a, b = plain.simulate_frame(0.3, traj, 3), scaled.simulate_frame(0.3, traj, 3)
+    np.testing.assert_array_equal(a.true_range_m, b.true_range_m)
+    np.testing.assert_allclose(b.range_m - a.range_m, 0.01 * a.true_range_m, atol=1e-9)
 
 
 # ------------------------------------------------------------------------ range walk

@@ -20,7 +20,7 @@ _FILE_MODULES: dict[Path, object] = {}
 # comparison diagnoses on any recording; those that need more than the recording's points
 # and poses (``sunlight`` needs its sun direction, see compare/sunlight.py) load by name only.
 _CATALOGUE = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-              'beam_divergence', 'time_offset', 'laser_bias', 'multipath')
+              'beam_divergence', 'time_offset', 'laser_bias', 'multipath', 'range_scale')
 _BY_NAME_ONLY = ('sunlight',)
 
 
