@@ -37,5 +37,5 @@ class RangeScale(Effect):
                              description='measured range / true range - 1 (-); 2.7e-4 = air')
 
     def range_bias_m(self, ctx: ReturnContext) -> np.ndarray:
-        # Misses carry a NaN range: their bias is NaN and never used.
-        return self.params.scale * np.asarray(ctx.range_m, float)
+        # Misses carry a NaN range: 0 there, as every other effect's bias.
+        return np.where(ctx.hit, self.params.scale * np.asarray(ctx.range_m, float), 0.0)
