@@ -77,13 +77,13 @@ EPOCH_NS = 1_712_000_000 * 1_000_000_000
 NS_PER_S = 1_000_000_000
 
 EFFECTS = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-           'beam_divergence', 'time_offset', 'laser_bias', 'multipath', 'range_scale')
+           'beam_divergence', 'time_offset', 'laser_bias', 'multipath')
 CEPTON_TOPIC = '/cepton_pcl2'
 CEPTON_FRAME = 'cepton3'
 CEPTON_SATURATED, CEPTON_NO_RETURN = 1, 32
 SATURATION_POWER_W = 1.0e-3      # this sensor's detector clips above this
 # Hidden effects compare has no candidate for: expected answer null (and the feature).
-OUTSIDE_CATALOGUE = ('azimuth_bias',)
+OUTSIDE_CATALOGUE = ('azimuth_bias', 'range_scale')   # range_scale: by name only
 
 # ------------------------------------------------------------------ materials
 # Range error per material from the paper's Table 2: mean of the 5 m and 15 m rows
@@ -1189,12 +1189,14 @@ BATTERY: tuple[ForeignSpec, ...] = (
                                                     'mode': 'weighted'}),),
                 distance_m=16.0, shots_per_frame=40_000, intensity='linear'),
     # --- lab clutter: a wall behind, a support jig, a cable in front
+    # --- a range scale (compare tests it only when asked, --effect range_scale): no
+    # catalogue effect may be named for it, and no reference-pose error reported
     ForeignSpec('range_scale_approach', 'range_scale', {'ppm': 2000.0}, seed=62, frames=10,
-                speed_mps=14.0, distance_m=20.0, shots_per_frame=8000,
+                speed_mps=14.0, distance_m=20.0, shots_per_frame=8000, expected=None,
                 note='the counter clock runs 2000 ppm fast; clouds from 20 m to 6 m'),
     ForeignSpec('range_scale_static', 'range_scale', {'ppm': 5000.0}, seed=63, frames=10,
                 speed_mps=0.0, spin_dps=3.0, distance_m=12.0, shots_per_frame=8000,
-                note='the counter clock runs 5000 ppm fast, target at 12 m'),
+                expected=None, note='the counter clock runs 5000 ppm fast, target at 12 m'),
     ForeignSpec('clutter', None, seed=40, clutter=True, note='wall, jig and cable in view'),
     ForeignSpec('clutter_solar', 'solar_background', {'fraction': 0.008, 'mean_range_m': 30.0},
                 seed=41, clutter=True, scan='rosette', intensity='counts16'),

@@ -53,14 +53,15 @@ def context(**arrays) -> ReturnContext:
 
 
 # ------------------------------------------------------------------------ neutrality
-def test_catalogue_has_the_nine_effects_and_their_defaults_change_nothing(default_scenario):
+def test_catalogue_has_the_eight_effects_and_their_defaults_change_nothing(default_scenario):
     names = list(catalogue())
     assert names == ['range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-                     'beam_divergence', 'time_offset', 'laser_bias', 'multipath', 'range_scale']
-    # sunlight loads by name (it needs a sun, so it is no default diagnosis candidate);
-    # without a sun it changes nothing either. multipath's default is the model's ghosts
-    # (strength 1): at strength 0 it changes nothing.
-    names.append('sunlight')
+                     'beam_divergence', 'time_offset', 'laser_bias', 'multipath']
+    # sunlight and range_scale load by name (sunlight needs a sun; range_scale is a test
+    # the user asks for): no default diagnosis candidates; their defaults change nothing
+    # either. multipath's default is the model's ghosts (strength 1): at strength 0 it
+    # changes nothing.
+    names += ['sunlight', 'range_scale']
     neutral = {'multipath': {'strength': 0.0}}
     plain = Simulator.from_scenario(default_scenario, effects=[])
     with_all = Simulator.from_scenario(default_scenario, effects=[make_effect(n, neutral.get(n))

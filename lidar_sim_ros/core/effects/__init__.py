@@ -20,8 +20,11 @@ _FILE_MODULES: dict[Path, object] = {}
 # comparison diagnoses on any recording; those that need more than the recording's points
 # and poses (``sunlight`` needs its sun direction, see compare/sunlight.py) load by name only.
 _CATALOGUE = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-              'beam_divergence', 'time_offset', 'laser_bias', 'multipath', 'range_scale')
-_BY_NAME_ONLY = ('sunlight',)
+              'beam_divergence', 'time_offset', 'laser_bias', 'multipath')
+# range_scale is a test a user asks for (--effect range_scale): a bias linear in range also
+# fits smooth spatial patterns on a target whose range follows its azimuth or elevation
+# (docs/compare.md, "Range scale"), so it is no default candidate.
+_BY_NAME_ONLY = ('sunlight', 'range_scale')
 
 
 def register(cls: type[Effect]) -> type[Effect]:
