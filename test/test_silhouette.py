@@ -254,13 +254,8 @@ def test_grouped_classification_keeps_every_possible_silhouette(monkeypatch, gro
     # Runs of edges whose bounds keep both planes' signs fixed are skipped as a whole: the
     # mask must still hold every edge that is a silhouette for some viewpoint of the box,
     # and nothing that is smooth by a clear margin.
-    from lidar_sim_ros.core.config import load_scenario
-    from lidar_sim_ros.core.geometry import load_target
-    from conftest import CONFIG
     monkeypatch.setattr(silhouette, 'SIGN_GROUP', group)
-    scenario = load_scenario(CONFIG / 'scenario.yaml')
-    target = load_target(scenario.mesh_path, scenario.materials.names)
-    edges = build_mesh_edges(target.vertices_m, target.faces)
+    edges = _rocket_edges()
     rng = np.random.default_rng(7)
     skipped = 0
     for distance, size in ((10.0, 0.0), (10.0, 0.3), (3.0, 0.05), (40.0, 1.0), (6.0, 2.0)):

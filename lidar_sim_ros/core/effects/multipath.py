@@ -164,14 +164,15 @@ class Multipath(Effect):
         # A multi-return receiver merges a ghost closer than min_separation_m to its echo.
         receiver = scene.sensor.detection.returns
         min_path = max(self.params.min_path_m, 0.0 if receiver.single else receiver.min_separation_m)
+        least_reach = max(min_path, 1e-9)    # |AB| (m) a followed shot must be able to reach
         kd, ks, n, lobe, f_b_max, reach_max = self._material_table(scene.materials, optics,
                                                                    ctx.threshold_power_w)
         on = np.flatnonzero(ctx.hit) if shots is None else shots[ctx.hit.take(shots)]
         mat_on = ctx.material.take(on)
         # Materials whose ghost fades below the threshold within min_path even at normal
         # incidence (the ghost power grows with cos(theta_A)) are never followed.
-        if not np.all(reach_max >= max(min_path, 1e-9)):
-            keep = reach_max.take(mat_on) >= max(min_path, 1e-9)
+        if not np.all(reach_max >= least_reach):
+            keep = reach_max.take(mat_on) >= least_reach
             on, mat_on = on[keep], mat_on[keep]
         cos_a = np.abs(np.einsum('ij,ij->i', ctx.direction.take(on, axis=0), ctx.normal.take(on, axis=0)))
         reach = max_detectable_path_m(cos_a, lobe.take(mat_on), f_b_max, ctx.threshold_power_w,
@@ -192,7 +193,7 @@ class Multipath(Effect):
                                  target.face_clearance_back_m.take(face))
             with np.errstate(divide='ignore', invalid='ignore'):
                 reach = np.minimum(reach, np.where(clearance > CLEARANCE_TOL_M, clearance / cos_a, 0.0))
-        follow = reach >= max(min_path, 1e-9)
+        follow = reach >= least_reach
         shots, cos_a, reach = on[follow], cos_a[follow], reach[follow]
         if len(shots) == 0:
             return None
