@@ -17,6 +17,7 @@ import yaml
 from pydantic import (BaseModel, ConfigDict, Field, ValidationError,
                       field_validator, model_validator)
 
+from lidar_sim_ros.core.vectors import unit_vector
 from lidar_sim_ros.paths import share_dir
 
 
@@ -334,12 +335,13 @@ class MotionConfig(_Model):
 
 
 def _unit_vector(v: tuple[float, float, float]) -> tuple[float, float, float]:
-    """A direction normalised to unit length; zero or non-finite vectors are refused."""
-    arr = np.asarray(v, dtype=float)
-    norm = float(np.linalg.norm(arr))
-    if not np.all(np.isfinite(arr)) or norm < 1e-9:
-        raise ValueError('must be a non-zero finite vector')
-    return tuple(float(x) for x in arr / norm)
+    """A direction normalised to unit length; zero, nearly zero or non-finite vectors are
+    refused (finite vectors of any size are scaled first: core/vectors.py)."""
+    try:
+        unit = unit_vector(v)
+    except ValueError as exc:
+        raise ValueError(f'must be a non-zero finite vector: {exc}') from None
+    return tuple(float(x) for x in unit)
 
 
 class EarthConfig(_Model):

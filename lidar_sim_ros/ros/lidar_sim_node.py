@@ -37,7 +37,8 @@ from std_msgs.msg import String
 
 from lidar_sim_ros.core.config import (ConfigError, Scenario, load_materials, load_scenario,
                                        load_sensor, parse, with_frame_rate)
-from lidar_sim_ros.core.effects import Effect, is_plugin_spec, make_effect
+from lidar_sim_ros.core.effects import (Effect, builtin_classes, get_effect_class, is_plugin_spec,
+                                        make_effect)
 from lidar_sim_ros.core.geometry import MeshMaterialError
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.io.bag import encode_material_names
@@ -166,6 +167,9 @@ class LidarSimNode(Node):
         self.sim: Simulator | None = None
         self._effects_specs: dict[str, dict] = {}
         self._plugins: frozenset[str] = frozenset()  # plugin specs loaded at start-up
+        # Every effect 'effects' may name once running: the package's own and the plugins
+        # loaded at start-up, by the exact string that loaded them (an allow-list).
+        self._effect_classes: dict[str, type[Effect]] = {}
         self._ready = False
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -210,6 +214,8 @@ class LidarSimNode(Node):
                               *self._effects_value()] if is_plugin_spec(name))
         for name in sorted(self._plugins):
             make_effect(name, self._effects_specs.get(name))
+        self._effect_classes = {**builtin_classes(),
+                                **{spec: get_effect_class(spec) for spec in sorted(self._plugins)}}
         self.sim.effects = self._build_effects(self._effects_value())
         sun = self.scenario.config.sun
         self.declare_parameter(
@@ -391,7 +397,17 @@ class LidarSimNode(Node):
         return list(value) if value else []
 
     def _build_effects(self, names: list[str]) -> list[Effect]:
-        return [make_effect(name, self._effects_specs.get(name)) for name in names]
+        """Effect instances by name. Once set up, from the allow-list only: a name outside
+        it raises KeyError and nothing is imported or executed."""
+        if not self._effect_classes:             # start-up: the operator's files name them
+            return [make_effect(name, self._effects_specs.get(name)) for name in names]
+        unknown = [name for name in names if name not in self._effect_classes]
+        if unknown:
+            raise KeyError(f'{unknown[0]!r} is neither an effect of the catalogue nor a plugin '
+                           'loaded at start-up (plugin effects load at start-up only, from '
+                           'plugin_effects in the parameters file); allowed: '
+                           f'{sorted(self._effect_classes)}')
+        return [self._effect_classes[name](self._effects_specs.get(name)) for name in names]
 
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
         for p in params:
@@ -425,12 +441,12 @@ class LidarSimNode(Node):
         elif name == 'effects' and value:
             if len(set(value)) != len(value):
                 return 'an effect is listed twice'
-            new_code = [v for v in value if is_plugin_spec(v) and v not in self._plugins]
+            new_code = [v for v in value if v not in self._effect_classes]
             if self._ready and new_code:
-                return (f'{new_code[0]!r} would load code at run time, which no parameter change '
-                        'may do: plugin effects load at start-up only (plugin_effects in the '
-                        'parameters file); loaded at start-up: '
-                        f'{sorted(self._plugins) or "none"}')
+                return (f'{new_code[0]!r} is not an effect this node can switch on: runtime '
+                        'changes pick from the catalogue and the plugins loaded at start-up '
+                        '(plugin_effects in the parameters file), and never load code; loaded '
+                        f'at start-up: {sorted(self._plugins) or "none"}')
             try:
                 self._build_effects(list(value))
             except Exception as exc:  # noqa: BLE001 - any failure to build is the reason
