@@ -53,6 +53,7 @@ def run_sdk2(source: str, arg: str, seconds: float, frame_ms: int) -> dict:
     else:
         from cepton_sdk2 import c
         c.StartNetworkingOnPort(int(arg))
+        print('READY', flush=True)
         end = time.monotonic() + seconds
 
         def get():
@@ -77,6 +78,7 @@ def run_sdk3(source: str, arg: str, seconds: float, frame_ms: int) -> dict:
                        lambda: bool(sdk.replay_is_finished()))
     else:
         c.StartNetworkingOnPort(int(arg))
+        print('READY', flush=True)
         end = time.monotonic() + seconds
         out = _collect(lambda: sdk.frame_fifo_get_frame(timeout=200),
                        lambda: time.monotonic() > end)
