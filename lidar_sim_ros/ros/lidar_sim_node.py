@@ -146,6 +146,8 @@ STARTUP_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
         'them on and off at run time; no runtime change loads code')),
 }
 
+STARTUP_PARAMETERS.update(cepton_udp.PARAMETERS)   # the Cepton wire output (ros/cepton_udp.py)
+
 # Parameters that may change while running.
 DYNAMIC_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     'publish_truth': (False, _descriptor(B, 'also publish the noise-free cloud on truth_topic')),
@@ -248,8 +250,6 @@ class LidarSimNode(Node):
                                       'frames on the wall clock): frames go out when computed')
             self._latency_ns = 0
         self._deadline = DeadlinePublisher() if self._latency_ns else None
-        for name, (value, desc) in cepton_udp.PARAMETERS.items():
-            self.declare_parameter(name, value, desc)
         self.udp = cepton_udp.sender_from_node(self)   # None unless cepton_udp
 
         self._create_interfaces()
