@@ -106,3 +106,36 @@ def test_live_udp_decoded_by_sdk2(tmp_path):
     res = check_points(sdk, exp, stamps)
     complete = [k for k, n in res['per_frame'].items() if n == len(sim.shots)]
     assert len(complete) >= FRAMES - 1, res['per_frame']
+
+
+def test_paced_on_the_node_clock_under_sim_time():
+    """Under use_sim_time the packets follow /clock: each leaves only when the clock has
+    advanced by its time since the frame's first packet."""
+    from lidar_sim_ros.io.cepton_wire import Packet
+    clock = {'ns': 5_000_000_000}
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(('127.0.0.1', 0))
+    rx.settimeout(0.3)
+    packets = [Packet(1_000_000, b'a'), Packet(1_050_000, b'b'), Packet(1_100_000, b'c')]
+    sender = CeptonUdpSender('127.0.0.1', rx.getsockname()[1], lambda f, s, st: packets,
+                             now_ns=lambda: clock['ns'], sim_time=True)
+
+    def received() -> list[bytes]:
+        got = []
+        try:
+            while True:
+                got.append(rx.recv(100))
+        except socket.timeout:
+            return got
+    try:
+        assert sender.submit(object(), 0)
+        assert received() == [b'a']                      # due at once
+        clock['ns'] += 49_999_000
+        assert received() == []                          # 1 us early
+        clock['ns'] += 1_000
+        assert received() == [b'b']
+        clock['ns'] += 10**9
+        assert received() == [b'c']
+    finally:
+        sender.close()
+        rx.close()
