@@ -3,13 +3,14 @@
 
 A sender thread owns the socket and the stream state; the frame timer only hands it the
 frame (``submit``, never blocking: a bounded queue, a frame dropped and counted when it
-is full). The thread encodes the frame, then sends packet i when the node clock has
-advanced by (packet i's time - the frame's first packet time) since it started the frame:
-spread over the frame period as a sensor sends them, in wall time or under
-``use_sim_time`` (the node clock is then ``/clock``: the packets follow simulated time at
-the clock's resolution). A frame handed over while the previous one is still going out
-starts when that one ends. Packet times are the points' own (the node clock: system time,
-or simulated time), in microseconds.
+is full). The thread encodes the frame, then sends each packet at its own time (its last
+point's, on the node clock) plus a constant lag: spread over the frame period as a
+sensor sends them, in wall time or under ``use_sim_time`` (the node clock is then
+``/clock``: the packets follow simulated time at the clock's resolution). The lag is the
+smallest seen so far from a frame's first packet time to its encoding, set again when a
+frame comes more than ``RESYNC_NS`` later than that (a stall, a clock jump): one slow
+frame then delays the rest by its lateness once instead of piling up. Packet times are
+the points' own (the node clock: system time, or simulated time), in microseconds.
 
 Parameters (read-only, ``PARAMETERS``): ``cepton_udp`` (off by default),
 ``cepton_udp_address`` (an IPv4 literal, no name lookup; a broadcast address such as
@@ -47,6 +48,7 @@ PARAMETERS = {
 }
 NS_PER_US = 1000
 SIM_CLOCK_POLL_S = 0.001
+RESYNC_NS = 200_000_000
 
 
 class UdpConfigError(ValueError):
@@ -87,7 +89,7 @@ class CeptonUdpSender:
         self._lock = threading.Lock()
         self._stats = {'frames': 0, 'packets': 0, 'dropped_frames': 0, 'errors': 0,
                        'last_error': ''}
-        self._free_ns: int | None = None      # node time when the last frame finished
+        self._lag_ns: int | None = None       # node clock minus packet time when sent
         self._thread = threading.Thread(target=self._run, name='cepton_udp', daemon=True)
         self._thread.start()
 
@@ -131,11 +133,11 @@ class CeptonUdpSender:
                 self._stats['frames'] += 1
 
     def _send_frame(self, packets: list) -> None:
-        now = self._now_ns()
-        begin = now if self._free_ns is None else max(now, self._free_ns)
-        first_us = packets[0].t_us
+        lag = self._now_ns() - packets[0].t_us * NS_PER_US
+        if self._lag_ns is None or lag < self._lag_ns or lag > self._lag_ns + RESYNC_NS:
+            self._lag_ns = lag
         for pkt in packets:
-            due = begin + (pkt.t_us - first_us) * NS_PER_US
+            due = pkt.t_us * NS_PER_US + self._lag_ns
             if not self._wait_until(due):
                 return
             try:
@@ -144,7 +146,6 @@ class CeptonUdpSender:
                     self._stats['packets'] += 1
             except OSError as exc:
                 self._count_error(exc)
-        self._free_ns = begin + (packets[-1].t_us - first_us) * NS_PER_US
 
     def _wait_until(self, due_ns: int) -> bool:
         """Sleep until the node clock reaches ``due_ns``; False if stopping."""
