@@ -136,7 +136,7 @@ def _udp_payload(link: int, data: bytes, port: int, stats: PcapStats) -> bytes |
         return None
     sport, dport, ulen = struct.unpack('!HHH', data[u:u + 6])
     if port not in (sport, dport):
-        stats.skip(f'other UDP port')
+        stats.skip('other UDP port')
         return None
     return data[u + 8:u + max(ulen, 8)]
 
