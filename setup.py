@@ -39,6 +39,9 @@ setup(
         'campaign': ['distributed>=2024.1', 'tqdm>=4.60'],
         # The closed GNC loop's dynamics (lidar_sim_ros.loop): Basilisk (requirements-loop.txt).
         'loop': ['bsk>=2.12,<2.13'],
+        # Cepton's decoders, for the wire tests only (requirements-cepton.txt): proprietary,
+        # installed by the user from PyPI, never imported by the package.
+        'cepton': ['cepton-sdk2==2.1.4', 'cepton-sdk3==3.0.17.14.post1'],
     },
     zip_safe=True,
     maintainer='lidar_sim_ros developers',

@@ -65,7 +65,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
                     poses_per_frame: int = POSES_PER_FRAME, simulator: Simulator | None = None,
                     pose_source: PoseSource | None = None,
                     on_frame: Callable[[Frame], None] | None = None,
-                    layout: OutputLayout | None = None) -> OfflineResult:
+                    layout: OutputLayout | None = None,
+                    pcap: str | Path | None = None) -> OfflineResult:
     """Simulate ``frames`` frames from scenario time ``start_s`` into ``out_dir/bag``.
 
     Topics: /lidar/points (detected returns), /lidar/points_truth (every hit, no
@@ -79,6 +80,9 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     worker's mesh and move the sensor mount); ``on_frame`` sees every simulated frame.
     ``layout`` (``core/driver_layout.py``): the Cepton driver's point layout, topic
     (``/cepton_pcl2``) and frame (``cepton3``) instead of ours; the truth stays ours.
+    ``pcap``: also write the frames as a Cepton sensor sends them (STDV packets over
+    UDP to port 8808, ``io/cepton_wire.py``) into this pcap file, capture time = packet
+    time (the bag's clock); it must not exist yet.
     """
     layout = layout or OutputLayout()
     if frames < 1:
@@ -89,6 +93,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     bag_path = out / 'bag'
     if bag_path.exists():
         raise FileExistsError(f'{bag_path} already exists; choose another --out or remove it')
+    if pcap is not None and Path(pcap).exists():
+        raise FileExistsError(f'{pcap} already exists; choose another --pcap or remove it')
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     sim = simulator if simulator is not None else Simulator.from_scenario(
@@ -103,7 +109,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
 
     out.mkdir(parents=True, exist_ok=True)
     stamps, stats, last = [], [], None
-    with BagWriter(bag_path, storage=storage) as bag:
+    wire = _WireOut(pcap)
+    with BagWriter(bag_path, storage=storage) as bag, wire:
         bag.write_material_names(MATERIAL_NAMES_TOPIC, int(to_stamp_ns(start_s, epoch_s)),
                                  scenario.materials.names)
         for i in range(frames):
@@ -122,6 +129,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
                                   sim.sun.at(np.array([frame_start])).sun_direction[0])
             bag.write_cloud(cloud_topic, layout.points(last, sim, stamp), stamp, frame_id)
             bag.write_cloud(TRUTH_TOPIC, frame_points(last, truth=True), stamp, frame_id)
+            wire.write(last, sim, stamp)
             stamps.append(stamp)
             stats.append(last.stats)
 
@@ -137,6 +145,33 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
             label = frame_label(run, len(run.clouds) - 1)
             figure_paths.append(_sunlight_figure(sim, last, trajectory, out / 'figures', label))
     return OfflineResult(bag_path, figure_paths, stamps, stats)
+
+
+class _WireOut:
+    """The optional pcap of ``simulate --pcap``: each frame's STDV packets, in order."""
+
+    def __init__(self, path: str | Path | None):
+        self.writer = None
+        if path is not None:
+            from lidar_sim_ros.io.cepton_wire import WireStream
+            from lidar_sim_ros.io.pcap import PcapWriter
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            self.writer, self.state = PcapWriter(path), WireStream()
+
+    def __enter__(self) -> '_WireOut':
+        if self.writer is not None:
+            self.writer.__enter__()
+        return self
+
+    def write(self, frame: Frame, sim: Simulator, stamp_ns: int) -> None:
+        if self.writer is not None:
+            from lidar_sim_ros.core.driver_layout import wire_packets
+            for pkt in wire_packets(frame, sim, stamp_ns, self.state):
+                self.writer.write(pkt.t_us, pkt.payload)
+
+    def __exit__(self, *exc) -> None:
+        if self.writer is not None:
+            self.writer.__exit__(*exc)
 
 
 def _sunlight_figure(sim: Simulator, frame, trajectory, out_dir: Path, label: str) -> Path:
@@ -198,6 +233,9 @@ def register(subparsers) -> None:
                    help='cepton layout: one NO_RETURN point per shot that returned nothing')
     p.add_argument('--polar-fields', action='store_true',
                    help="cepton layout: the driver's optional azimuth, elevation, range fields")
+    p.add_argument('--pcap', type=Path, default=None, metavar='FILE',
+                   help='also write the frames as a Cepton sensor sends them (STDV packets, '
+                        'UDP port 8808) into this pcap file (docs/real-data.md)')
     p.set_defaults(func=run)
 
 
@@ -208,12 +246,15 @@ def run(args: argparse.Namespace) -> int:
                              layout=OutputLayout(point_layout=args.point_layout,
                                                  topic=args.cloud_topic, frame_id=args.frame_id,
                                                  no_return_points=args.no_return_points,
-                                                 polar_fields=args.polar_fields))
+                                                 polar_fields=args.polar_fields),
+                             pcap=args.pcap)
     points = sum(s.get('detected', 0) for s in result.frame_stats)
     print(f'bag: {result.bag_path}  ({len(result.frame_stamps_ns)} frames, {points} points)')
     summary = multipath_summary(result.frame_stats)
     if summary:
         print(summary)
+    if args.pcap is not None:
+        print(f'pcap: {args.pcap}  (Cepton STDV packets, UDP port 8808)')
     for path in result.figure_paths:
         print(f'figure: {path}')
     return 0

@@ -217,6 +217,12 @@ NOT_RUN = {
         'lab/bag, target.obj and lab.yaml are placeholders for a real recording',
     ('real-data.md', 'ros2 run lidar_sim_ros lidar_sim_node --ros-args -p point_layout:=cepton \\'):
         'ros2 run of a node that runs until stopped (a colcon install)',
+    ('real-data.md', 'ros2 run lidar_sim_ros lidar_sim_node --ros-args -p cepton_udp:=true \\'):
+        'ros2 run of a node that runs until stopped; test_node_cepton_udp.py sends its packets live',
+    ('real-data.md', 'lidar-sim compare lab/cepton.pcap --poses lab/poses.csv --mesh'
+                     ' lab/target.obj --out runs/lab'):
+        'lab/ files are placeholders for a real recording; test_compare_cepton_pcap.py '
+        'compares a simulated pcap with bag and CSV poses',
 }
 
 # Synopses: (page, first line) -> the lidar-sim subcommand whose --help must know their options.

@@ -41,7 +41,12 @@ def register(subparsers) -> None:
                                    'measure bias and sigma per material and distance, test '
                                    'whether they depend on distance, write a materials YAML.')
     p.add_argument('bag', metavar='BAG', nargs='+',
-                   help='rosbag2 with point clouds and /target/pose (several: e.g. one per distance)')
+                   help='rosbag2 with point clouds and /target/pose (several: e.g. one per distance), '
+                        "or a pcap of a Cepton sensor's packets (with --poses)")
+    p.add_argument('--poses', default=None, metavar='BAG_OR_CSV',
+                   help='target poses apart from the recordings (required for a pcap): a bag '
+                        '(--pose-topic) or a CSV t_s,x_m,y_m,z_m,qx,qy,qz,qw; used for every '
+                        'recording given')
     p.add_argument('--mesh', required=True, metavar='OBJ', help='target mesh (usemtl = material)')
     p.add_argument('--config', metavar='SCENARIO',
                    help='scenario YAML naming the materials file (default: config/scenario.yaml)')
@@ -106,7 +111,8 @@ def _range_errors(args: argparse.Namespace) -> int:
                            args.bin_m, args.min_points, args.tolerance_m, args.sigma_tolerance_m,
                            args.cloud_topic, args.pose_topic, args.materials,
                            {'intensity_field': args.intensity_field,
-                            'time_field': args.time_field, 'laser_field': args.laser_field})
+                            'time_field': args.time_field, 'laser_field': args.laser_field},
+                           poses_from=args.poses)
     return _finish(cal.report, cal.warnings, cal.out, args.figure)
 
 

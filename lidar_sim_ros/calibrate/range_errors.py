@@ -28,6 +28,8 @@ from scipy.spatial.transform import Rotation
 from lidar_sim_ros.calibrate.common import (CalibrationInputError, format_table,
                                             load_materials_document, new_figure, save_figure,
                                             sig, update_materials, write_materials)
+from lidar_sim_ros.compare.cepton_pcap import (PcapError, is_pcap, pcap_recording,
+                                                read_pose_source)
 from lidar_sim_ros.compare.fields import FieldError, resolve_fields
 from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field,
                                                  usable_points)
@@ -106,13 +108,22 @@ class _StaticFrame:
 
 def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
                    counts: dict[str, int], fields: dict | None = None,
-                   lines: list[str] | None = None) -> list[_StaticFrame]:
+                   lines: list[str] | None = None,
+                   poses_from: Path | None = None) -> list[_StaticFrame]:
     """The frames of one bag with the target static at a known pose (counts the rest).
-    ``fields``: --intensity-field / --time-field / --laser-field values by name."""
+    ``fields``: --intensity-field / --time-field / --laser-field values by name.
+    ``bag`` may be a pcap of a Cepton sensor's packets, with ``poses_from`` (a bag or a
+    CSV: ``compare/cepton_pcap.py``), which may also replace a bag's own poses."""
     try:
-        clouds = read_clouds(bag, cloud_topic)
-        poses = read_poses(bag, pose_topic)
-    except BagContentError as exc:  # as lidar-sim compare says it
+        if is_pcap(bag):
+            poses, _, _, frames_of = pcap_recording(bag, poses_from, pose_topic)
+            clouds = list(frames_of)
+            cloud_topic = f'UDP {bag.name}'
+        else:
+            clouds = read_clouds(bag, cloud_topic)
+            poses = (read_pose_source(poses_from, pose_topic)[0] if poses_from
+                     else read_poses(bag, pose_topic))
+    except (BagContentError, PcapError) as exc:  # as lidar-sim compare says it
         raise CalibrationInputError(
             f'{exc} (choose the topics with --cloud-topic / --pose-topic)') from None
     if not clouds:
@@ -158,7 +169,8 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
 
 def match_points(bags: str | Path | list, target: Target, gate_m: float = 0.5,
                  bin_m: float = 1.0, cloud_topic: str = CLOUD_TOPIC,
-                 pose_topic: str = POSE_TOPIC, fields: dict | None = None) -> MatchedPoints:
+                 pose_topic: str = POSE_TOPIC, fields: dict | None = None,
+                 poses_from: str | Path | None = None) -> MatchedPoints:
     """Read the bag(s) and ray-match every point against the target at its frame's pose.
 
     A frame takes the last pose stamped at or before its header stamp (in its own
@@ -173,7 +185,8 @@ def match_points(bags: str | Path | list, target: Target, gate_m: float = 0.5,
                   points_missed=0, points_gated=0, points_used=0)
     lines: list[str] = []
     frames = [f for bag in bags
-              for f in _static_frames(bag, cloud_topic, pose_topic, counts, fields, lines)]
+              for f in _static_frames(bag, cloud_topic, pose_topic, counts, fields, lines,
+                                      None if poses_from is None else Path(poses_from))]
     where = ', '.join(str(b) for b in bags)
     if not frames:
         raise CalibrationInputError(
@@ -456,7 +469,8 @@ def run_range_errors(bag: str | Path | list, mesh: str | Path, out: str | Path,
                      tol_bias_m: float = 0.01, tol_sigma_m: float = 0.005,
                      cloud_topic: str = CLOUD_TOPIC, pose_topic: str = POSE_TOPIC,
                      materials: str | Path | None = None,
-                     fields: dict | None = None) -> RangeCalibration:
+                     fields: dict | None = None,
+                     poses_from: str | Path | None = None) -> RangeCalibration:
     """``lidar-sim calibrate range-errors``: match, analyse, write the materials YAML.
 
     ``bag`` is one bag or a list (e.g. one per distance). The materials file (names for the mesh groups, and the base of the update) is
@@ -475,7 +489,8 @@ def run_range_errors(bag: str | Path | list, mesh: str | Path, out: str | Path,
     except MeshMaterialError as exc:
         raise MeshMaterialError(f'{exc}; pass --materials (or --config) with a materials file '
                                 'that lists them') from None
-    matched = match_points(bag, target, gate_m, bin_m, cloud_topic, pose_topic, fields)
+    matched = match_points(bag, target, gate_m, bin_m, cloud_topic, pose_topic, fields,
+                           poses_from)
     cal = analyse(matched, min_points, tol_bias_m, tol_sigma_m)
     doc, warnings = update_materials(document, cal.written, materials_path)
     cal.warnings += warnings

@@ -30,6 +30,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from lidar_sim_ros.compare.cepton_pcap import (PcapError, is_pcap, pcap_recording,
+                                                read_pose_source)
 from lidar_sim_ros.compare.fields import (FieldError, flag_counts, flag_lines, point_time_ns,
                                            resolve_fields)
 from lidar_sim_ros.io import cepton
@@ -129,7 +131,8 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
                       pose_topic: str = POSE_TOPIC, max_points: int | None = None,
                       seed: int = 0, intensity_field: str | None = None,
                       time_field: str | None = None,
-                      laser_field: str | None = None) -> Measurements:
+                      laser_field: str | None = None,
+                      poses_from: str | Path | None = None) -> Measurements:
     """Read clouds and poses from ``bag`` and check that they can be compared.
 
     ``max_points`` keeps a random (seeded) subset when the bag holds more points, so
@@ -138,17 +141,24 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
     the dropped count is in ``dropped``. ``intensity_field``, ``time_field`` (one name
     or ``SECONDS,SUBSECONDS``) and ``laser_field`` name the fields where the driver's
     names are not recognised (``compare/fields.py``).
+    ``bag`` may also be a pcap of a Cepton sensor's packets (``compare/cepton_pcap.py``),
+    read as clouds in the SDK3 driver's layout; ``poses_from`` (a bag or a CSV file)
+    then holds the poses (and material names), as it may for a bag.
     """
     bag = Path(bag)
     if not bag.exists():
         raise FileNotFoundError(f'bag {bag} does not exist')
     try:
-        poses = read_poses(bag, pose_topic)
-        names = read_material_names(bag)
-        n_clouds = cloud_count(bag, cloud_topic)
-        clouds = iter_clouds(bag, cloud_topic)
+        if is_pcap(bag):
+            poses, names, n_clouds, clouds = pcap_recording(bag, poses_from, pose_topic)
+            cloud_topic = f'UDP {bag.name}'
+        else:
+            poses, names = (read_pose_source(poses_from, pose_topic) if poses_from
+                            else (read_poses(bag, pose_topic), read_material_names(bag)))
+            n_clouds = cloud_count(bag, cloud_topic)
+            clouds = iter_clouds(bag, cloud_topic)
         first = next(clouds, None)
-    except BagContentError as exc:
+    except (BagContentError, PcapError) as exc:
         raise MeasurementError(
             f'{exc} (choose the topics with --cloud-topic / --pose-topic)') from None
     if first is None:

@@ -47,6 +47,7 @@ from lidar_sim_ros.ros.mount import check_mount, mount_message, rclpy_lookup
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.pointcloud import frame_points, stamp_to_ns, to_rclpy_msg
 from lidar_sim_ros.paths import config_path
+from lidar_sim_ros.ros import cepton_udp
 from lidar_sim_ros.ros.deadline import DeadlinePublisher
 from lidar_sim_ros.ros.spin import run_node
 from lidar_sim_ros.ros.pose_input import (NS_PER_S, PoseHistory, PoseSample, ReasonThrottle,
@@ -145,6 +146,8 @@ STARTUP_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
         "parameters file: a plugin is code run as the node's user. 'effects' may switch "
         'them on and off at run time; no runtime change loads code')),
 }
+
+STARTUP_PARAMETERS.update(cepton_udp.PARAMETERS)   # the Cepton wire output (ros/cepton_udp.py)
 
 # Parameters that may change while running.
 DYNAMIC_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
@@ -253,6 +256,7 @@ class LidarSimNode(Node):
                                       'frames on the wall clock): frames go out when computed')
             self._latency_ns = 0
         self._deadline = DeadlinePublisher() if self._latency_ns else None
+        self.udp = cepton_udp.sender_from_node(self)   # None unless cepton_udp
 
         self._create_interfaces()
         self.get_logger().info(
@@ -386,6 +390,8 @@ class LidarSimNode(Node):
             self._stop.set()
         if getattr(self, '_deadline', None) is not None:
             self._deadline.close()
+        if getattr(self, 'udp', None) is not None:
+            self.udp.close()
         return super().destroy_node()
 
     def _pose_window_ns(self, start_ns: int) -> tuple[int, int]:
@@ -602,6 +608,8 @@ class LidarSimNode(Node):
                     and self.truth_pub.get_subscription_count() > 0):
                 truth = frame_points(frame, truth=True)
                 out.append((self.truth_pub, to_rclpy_msg(truth, start_ns, frame_id)))
+            if self.udp is not None:
+                self.udp.submit(frame, start_ns)    # its own thread, paced; never blocks
             if self._deadline is None:
                 _publish_all(out)
             else:
@@ -642,6 +650,8 @@ class LidarSimNode(Node):
                 self._warn('publish_error', f'publishing a held frame failed: {errors[0]} '
                                             f'({len(errors)} in the last {STATS_PERIOD_S:g} s)',
                            error=True)
+        if self.udp is not None:
+            timing += cepton_udp.stats_text(self.udp.take_stats())
         self.get_logger().info(f'last {STATS_PERIOD_S:g} s: {s["published"]} frames published, '
                                f'{s["skipped"]} skipped, {s["failed"]} failed{timing}')
         self._stats = {'published': 0, 'skipped': 0, 'failed': 0, 'compute_ms': [], 'publish_ms': []}
