@@ -22,8 +22,8 @@ from scipy.spatial.transform import Rotation
 
 from conftest import CONFIG, materials, plate_target, sensor
 from lidar_sim_ros.campaign.coverage import FaceGeometry, covered_fraction, visible_faces
-from lidar_sim_ros.campaign.manifest import MANIFEST
-from lidar_sim_ros.campaign.run import MountedPose, rerun
+from lidar_sim_ros.campaign.manifest import MANIFEST, rerun
+from lidar_sim_ros.campaign.run import MountedPose
 from lidar_sim_ros.campaign.sample import key_rng, run_seed, sample_run
 from lidar_sim_ros.campaign.spec import Cone, Normal, load_campaign
 from lidar_sim_ros.campaign.statistics import RunStatistics
@@ -324,10 +324,10 @@ def test_four_runs_on_two_workers(finished):
 
 
 def _worker_state(dask_worker) -> dict:
-    from lidar_sim_ros.campaign import run
+    from lidar_sim_ros.campaign import worker
     return {'env': {k: os.environ.get(k) for k in ('MALLOC_TRIM_THRESHOLD_', 'OMP_NUM_THREADS',
                                                   'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')},
-            'warm': sorted(run._WARM),
+            'warm': sorted(worker._WARM),
             'profiler_callbacks': [name for name in dask_worker.periodic_callbacks
                                    if 'profile' in name]}
 
@@ -537,3 +537,32 @@ def test_core_does_not_import_the_engine():
     code = ('import sys, lidar_sim_ros.cli, lidar_sim_ros.offline, lidar_sim_ros.campaign.run; '
             'sys.exit(any(m.split(".")[0] in ("dask", "distributed", "tqdm") for m in sys.modules))')
     assert subprocess.run([sys.executable, '-c', code], env={**os.environ}).returncode == 0
+
+
+# The order of campaign/__init__.py's docstring: a module imports only modules before it.
+CAMPAIGN_LAYERS = ('statistics', 'coverage', 'spec', 'sample', 'worker', 'loop_case', 'run',
+                   'manifest', 'engine', 'command')
+
+
+def test_campaign_imports_flow_one_way():
+    """No circle of imports among campaign's modules, counting imports inside functions:
+    read from the source (ast), not from what happens to be imported at run time."""
+    import ast
+
+    import lidar_sim_ros.campaign as package
+    folder = Path(package.__file__).parent
+    modules = {p.stem for p in folder.glob('*.py')} - {'__init__'}
+    assert modules == set(CAMPAIGN_LAYERS), 'a new module: place it in CAMPAIGN_LAYERS and the docstring'
+    for name in CAMPAIGN_LAYERS:
+        tree = ast.parse((folder / f'{name}.py').read_text())
+        used = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module == 'lidar_sim_ros.campaign':
+                used |= {alias.name for alias in node.names}
+            elif isinstance(node, ast.ImportFrom) and (node.module or '').startswith('lidar_sim_ros.campaign.'):
+                used.add(node.module.split('.')[2])
+            elif isinstance(node, ast.Import):
+                used |= {a.name.split('.')[2] for a in node.names
+                         if a.name.startswith('lidar_sim_ros.campaign.')}
+        below = set(CAMPAIGN_LAYERS[:CAMPAIGN_LAYERS.index(name)])
+        assert used <= below, f'campaign/{name}.py imports {sorted(used - below)}, which come after it'

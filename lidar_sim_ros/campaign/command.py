@@ -85,7 +85,7 @@ def _loop_summary(out_dir: Path) -> None:
 
 
 def _rerun(campaign, out_dir: Path, run_id: int) -> int:
-    from lidar_sim_ros.campaign.run import rerun
+    from lidar_sim_ros.campaign.manifest import rerun
     if campaign.spec.loop is not None:
         return _rerun_loop(campaign, out_dir, run_id)
     row, old = rerun(campaign, out_dir, run_id)
@@ -109,7 +109,7 @@ def _rerun(campaign, out_dir: Path, run_id: int) -> int:
 def _rerun_loop(campaign, out_dir: Path, run_id: int) -> int:
     """``--run`` of a closed-loop campaign: its metrics (loop.json) compared with the last ones."""
     from lidar_sim_ros.campaign.loop_case import read_result
-    from lidar_sim_ros.campaign.run import rerun
+    from lidar_sim_ros.campaign.manifest import rerun
     old = read_result(out_dir, run_id)
     row, _ = rerun(campaign, out_dir, run_id)
     print(f'run {run_id}: seed {row["seed"]}, status {row["status"]}'

@@ -39,8 +39,9 @@ from pathlib import Path
 import numpy as np
 
 from lidar_sim_ros.campaign.sample import key_rng, run_seed, sample_run
-from lidar_sim_ros.campaign.spec import Campaign, CampaignSpec
-from lidar_sim_ros.core.config import ConfigError, Scenario, resolve
+from lidar_sim_ros.campaign.spec import Campaign, loop_config_path
+from lidar_sim_ros.campaign.worker import prepare_scenario, worker_target
+from lidar_sim_ros.core.config import Scenario
 from lidar_sim_ros.core.pose import quat_multiply
 
 LOOP_METRICS = ('hold_error_m', 'delta_v_mps', 'min_range_m', 'est_trans_rms_m', 'est_axis_rms_deg',
@@ -50,8 +51,6 @@ RUNS_TABLE = 'loop_runs.csv'
 SUMMARY_TABLE = 'loop_summary.csv'
 FIGURE = 'loop_summary.png'
 PERCENTILES = (5, 50, 95)
-# Dispersions of the frame-statistics scenario that mean nothing in the loop.
-_NOT_IN_LOOP = {'approach_speed_mps': 'the approach is the guidance\'s (loop config guidance.*)'}
 
 
 @dataclass(frozen=True)
@@ -69,36 +68,6 @@ class LoopRunCase:
 
 
 # ------------------------------------------------------------------ loading
-def loop_config_path(campaign_file: Path, spec: CampaignSpec) -> Path:
-    return resolve(spec.loop.config, Path(campaign_file).resolve().parent)
-
-
-def check_loop_spec(spec: CampaignSpec, path: Path) -> CampaignSpec:
-    """The spec with its loop file checked (ConfigError naming the file, key and value) and
-    its bytes' sha256 filled in, so that the manifest's fingerprint covers the loop."""
-    from lidar_sim_ros.loop.config import load_loop_config
-    if spec.loop.config_sha256:
-        raise ConfigError(path, 'loop.config_sha256', spec.loop.config_sha256,
-                          'is filled when the campaign loads; leave it out')
-    for key, why in _NOT_IN_LOOP.items():
-        if getattr(spec.dispersions, key) is not None:
-            raise ConfigError(path, f'dispersions.{key}', getattr(spec.dispersions, key).model_dump(
-                exclude_none=True), f'not used by a closed-loop campaign: {why}')
-    if spec.save != 'stats':
-        raise ConfigError(path, 'save', spec.save, 'a closed-loop campaign writes runs/run_NNNNN/loop.json, '
-                          'not bags: leave save out (or stats)')
-    loop_path = loop_config_path(path, spec)
-    if not loop_path.is_file():
-        raise ConfigError(path, 'loop.config', spec.loop.config, f'file not found at {loop_path}')
-    config, _ = load_loop_config(loop_path)
-    period = config.control_period_s
-    if abs(spec.duration_s / period - round(spec.duration_s / period)) > 1e-9:
-        raise ConfigError(path, 'duration_s', spec.duration_s,
-                          f'must be a whole number of control periods ({period:g} s, {loop_path.name})')
-    digest = hashlib.sha256(loop_path.read_bytes()).hexdigest()
-    return spec.model_copy(update={'loop': spec.loop.model_copy(update={'config_sha256': digest})})
-
-
 _CONFIGS: dict[tuple[str, str], object] = {}
 
 
@@ -164,7 +133,6 @@ _LOCK = threading.Lock()
 
 def tracker_model(scenario: Scenario):
     """The tracker's model of the scenario's mesh, built once per worker process."""
-    from lidar_sim_ros.campaign.run import worker_target
     from lidar_sim_ros.gnc.tracker import TrackerConfig, build_model
     target, _ = worker_target(scenario)
     key = (str(Path(scenario.mesh_path).resolve()), Path(scenario.mesh_path).stat().st_mtime_ns)
@@ -176,7 +144,6 @@ def tracker_model(scenario: Scenario):
 
 def prepare_loop_worker(campaign: Campaign) -> None:
     """What every run would pay once: Basilisk's import, the mesh, kernels, tracker model."""
-    from lidar_sim_ros.campaign.run import prepare_scenario
     import Basilisk.simulation.spacecraft  # noqa: F401  (~1 s the first time)
     case = sample_loop_case(campaign, 0)
     prepare_scenario(case.scenario)
@@ -185,7 +152,6 @@ def prepare_loop_worker(campaign: Campaign) -> None:
 
 def simulate_loop_case(case: LoopRunCase) -> dict:
     """Run the case's loop; its metrics (``loop.metrics.loop_metrics`` and step's extras)."""
-    from lidar_sim_ros.campaign.run import worker_target
     from lidar_sim_ros.loop.step import build_context, run_steps
     target = model = None
     if case.cloud is not None:

@@ -26,7 +26,7 @@ from typing import Iterator
 
 import numpy as np
 
-from lidar_sim_ros.campaign.sample import param_names
+from lidar_sim_ros.campaign.run import param_names, run_one
 from lidar_sim_ros.campaign.spec import MAX_RUNS, Campaign
 from lidar_sim_ros.campaign.statistics import COUNTS, stat_names
 
@@ -274,3 +274,17 @@ class Manifest:
                 types[name] = pa.float64()
         return types
 
+
+def rerun(campaign: Campaign, out_dir: str | Path, run_id: int) -> tuple[dict, dict | None]:
+    """Run one case again in this process; its manifest row is replaced.
+
+    Returns the new row and the one the manifest held (None if none), both as manifest
+    text, so that equal statistics compare equal character for character.
+    """
+    if not 0 <= run_id < campaign.spec.runs:
+        raise ValueError(f'--run {run_id}: the campaign has runs 0..{campaign.spec.runs - 1}')
+    manifest = Manifest.open(out_dir, campaign)
+    old = manifest.row(run_id)
+    row = manifest.text_row(run_one(campaign, run_id, out_dir))
+    manifest.replace(row)
+    return row, old

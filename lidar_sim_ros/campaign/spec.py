@@ -7,6 +7,7 @@ value (``campaign.yaml: key "dispersions.tumble_rate_dps.sigma" = -1.0: ...``).
 """
 from __future__ import annotations
 
+import hashlib
 import math
 from pathlib import Path
 from typing import Annotated, Literal, Union
@@ -15,7 +16,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_serializer, model_validator
 
 from lidar_sim_ros.core.config import (ConfigError, Scenario, check_file_kind, load_scenario, parse,
-                                       read_yaml)
+                                       read_yaml, resolve)
 
 
 class _Model(BaseModel):
@@ -257,9 +258,43 @@ def load_campaign(path: str | Path) -> Campaign:
     _check_materials(spec.dispersions, scenario, path)
     _check_effects(spec.dispersions, path)
     if spec.loop is not None:
-        from lidar_sim_ros.campaign.loop_case import check_loop_spec
         spec = check_loop_spec(spec, path)
     return Campaign(spec, scenario, path.resolve())
+
+
+# ---------------------------------------------------------- closed loop
+# Dispersions of the frame-statistics scenario that mean nothing in the loop.
+_NOT_IN_LOOP = {'approach_speed_mps': 'the approach is the guidance\'s (loop config guidance.*)'}
+
+
+def loop_config_path(campaign_file: Path, spec: CampaignSpec) -> Path:
+    return resolve(spec.loop.config, Path(campaign_file).resolve().parent)
+
+
+def check_loop_spec(spec: CampaignSpec, path: Path) -> CampaignSpec:
+    """The spec with its loop file checked (ConfigError naming the file, key and value) and
+    its bytes' sha256 filled in, so that the manifest's fingerprint covers the loop."""
+    from lidar_sim_ros.loop.config import load_loop_config
+    if spec.loop.config_sha256:
+        raise ConfigError(path, 'loop.config_sha256', spec.loop.config_sha256,
+                          'is filled when the campaign loads; leave it out')
+    for key, why in _NOT_IN_LOOP.items():
+        if getattr(spec.dispersions, key) is not None:
+            raise ConfigError(path, f'dispersions.{key}', getattr(spec.dispersions, key).model_dump(
+                exclude_none=True), f'not used by a closed-loop campaign: {why}')
+    if spec.save != 'stats':
+        raise ConfigError(path, 'save', spec.save, 'a closed-loop campaign writes runs/run_NNNNN/loop.json, '
+                          'not bags: leave save out (or stats)')
+    loop_path = loop_config_path(path, spec)
+    if not loop_path.is_file():
+        raise ConfigError(path, 'loop.config', spec.loop.config, f'file not found at {loop_path}')
+    config, _ = load_loop_config(loop_path)
+    period = config.control_period_s
+    if abs(spec.duration_s / period - round(spec.duration_s / period)) > 1e-9:
+        raise ConfigError(path, 'duration_s', spec.duration_s,
+                          f'must be a whole number of control periods ({period:g} s, {loop_path.name})')
+    digest = hashlib.sha256(loop_path.read_bytes()).hexdigest()
+    return spec.model_copy(update={'loop': spec.loop.model_copy(update={'config_sha256': digest})})
 
 
 def _check_supports(disp: Dispersions, path: Path) -> None:
