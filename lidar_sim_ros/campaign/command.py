@@ -28,6 +28,13 @@ def register(subparsers) -> None:
                    help='local worker processes (default: all cores); ignored with --address')
     p.add_argument('--address', default=None, metavar='ADDR',
                    help='join a running Dask scheduler, e.g. tcp://10.0.0.5:8786')
+    p.add_argument('--tls-ca-file', type=Path, default=None, metavar='PEM',
+                   help='join --address tls://... over TLS: the CA that signed the cluster\'s '
+                        'certificates (default: the Dask config\'s distributed.comm.tls.ca-file)')
+    p.add_argument('--tls-cert', type=Path, default=None, metavar='PEM',
+                   help='this client\'s certificate, signed by that CA (or distributed.comm.tls.client.cert)')
+    p.add_argument('--tls-key', type=Path, default=None, metavar='PEM',
+                   help='its private key (default: appended to --tls-cert)')
     p.add_argument('--run', type=run_id, default=None, metavar='RUN_ID',
                    help='re-run this one run here (no cluster) and compare with the manifest')
     p.add_argument('--retry-failed', action='store_true',
@@ -48,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         report = run_campaign(campaign, args.out, workers=args.workers, address=args.address,
-                              retry_failed=args.retry_failed, progress=not args.no_progress)
+                              retry_failed=args.retry_failed, progress=not args.no_progress,
+                              security=_security(args))
     except EngineError as exc:
         print(f'lidar-sim campaign: error: {exc}', file=sys.stderr)
         return 2
@@ -68,6 +76,21 @@ def run(args: argparse.Namespace) -> int:
     if campaign.spec.loop is not None:
         _loop_summary(args.out)
     return 1 if report.failed else 0
+
+
+def _security(args: argparse.Namespace):
+    """The TLS ``Security`` of ``--tls-*`` (None without them: Dask's config decides)."""
+    from lidar_sim_ros.campaign.engine import EngineError, tls_security
+    given = {k: getattr(args, k) for k in ('tls_ca_file', 'tls_cert', 'tls_key')}
+    if not any(v is not None for v in given.values()):
+        return None
+    if given['tls_ca_file'] is None or given['tls_cert'] is None:
+        raise EngineError('--tls-ca-file and --tls-cert go together (and --tls-key, unless the key '
+                          'is appended to the certificate)')
+    if not args.address:
+        raise EngineError('--tls-* secure the connection to --address tls://HOST:PORT; '
+                          'the local cluster listens on 127.0.0.1 only')
+    return tls_security(given['tls_ca_file'], given['tls_cert'], given['tls_key'])
 
 
 def _loop_summary(out_dir: Path) -> None:
