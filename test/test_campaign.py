@@ -540,8 +540,8 @@ def test_core_does_not_import_the_engine():
 
 
 # The order of campaign/__init__.py's docstring: a module imports only modules before it.
-CAMPAIGN_LAYERS = ('statistics', 'coverage', 'spec', 'sample', 'worker', 'loop_case', 'run',
-                   'manifest', 'engine', 'command')
+CAMPAIGN_LAYERS = ('statistics', 'coverage', 'criteria', 'spec', 'sample', 'worker', 'series',
+                   'loop_case', 'run', 'manifest', 'summary', 'engine', 'command')
 
 
 def test_campaign_imports_flow_one_way():

@@ -103,7 +103,7 @@ def test_misaligned_mount_is_unknown_to_the_navigation():
 
 
 def test_percentile_row_by_hand():
-    from lidar_sim_ros.campaign.loop_case import metric_row
+    from lidar_sim_ros.campaign.summary import metric_row
     row = metric_row('x', [3.0, None, 1.0, float('nan'), 2.0])
     assert (row['runs'], row['missing']) == (3, 2)
     # numpy's default (linear) percentile of 1, 2, 3: p5 = 1 + 0.05 * 2, p95 = 1 + 0.95 * 2.
@@ -114,7 +114,8 @@ def test_percentile_row_by_hand():
 
 def test_runs_write_metrics_summary_and_resume(tmp_path, capsys):
     from lidar_sim_ros.campaign.engine import run_campaign
-    from lidar_sim_ros.campaign.loop_case import LOOP_METRICS, read_result, summarize
+    from lidar_sim_ros.campaign.loop_case import LOOP_METRICS, read_result
+    from lidar_sim_ros.campaign.summary import summarize
     from lidar_sim_ros.campaign.manifest import Manifest
     from lidar_sim_ros.campaign.run import run_one
     loop = tmp_path / 'loop.yaml'

@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     if report.parquet_path:
         print(f'parquet: {report.parquet_path}')
     if campaign.spec.loop is not None:
-        _loop_summary(args.out)
+        _loop_summary(args.out, campaign)
     return 1 if report.failed else 0
 
 
@@ -93,18 +93,22 @@ def _security(args: argparse.Namespace):
     return tls_security(given['tls_ca_file'], given['tls_cert'], given['tls_key'])
 
 
-def _loop_summary(out_dir: Path) -> None:
-    """A closed-loop campaign's tables and figure, and its percentiles on the terminal."""
-    from lidar_sim_ros.campaign.loop_case import summarize
-    summary = summarize(out_dir)
+def _loop_summary(out_dir: Path, campaign) -> None:
+    """A closed-loop campaign's tables and figures, its percentiles and pass rates on the terminal."""
+    from lidar_sim_ros.campaign.summary import summarize
+    summary = summarize(out_dir, campaign)
     print(f'closed loop: {summary.runs} runs: {summary.runs_table}, {summary.summary_table}'
-          + (f', {summary.figure}' if summary.figure else ''))
+          + (f', {summary.criteria_table}' if summary.criteria_table else '')
+          + (f', {len(summary.figures)} figures ({summary.figure.name}, ...)' if summary.figure else ''))
     for row in summary.table:
         if row['runs']:
             print(f'  {row["metric"]:18s} p5 {row["p5"]:9.4g}  p50 {row["p50"]:9.4g}  '
                   f'p95 {row["p95"]:9.4g}  ({row["runs"]} runs, {row["missing"]} without)')
         else:
             print(f'  {row["metric"]:18s} no value in {row["missing"]} runs')
+    for row in summary.verdicts:
+        print(f'  pass {row["passed"]:>6d} of {row["runs"]:<6d} ({100 * (row["pass_rate"] or 0.0):5.1f} %)  '
+              f'{row["criterion"]}')
 
 
 def _rerun(campaign, out_dir: Path, run_id: int) -> int:

@@ -35,6 +35,7 @@ if TYPE_CHECKING:
     from distributed.security import Security
 
     from lidar_sim_ros.campaign.manifest import Manifest
+    from lidar_sim_ros.campaign.series import SeriesKeeper
 
 for _module in ('dask', 'distributed'):  # the extra is missing: say so on import
     if importlib.util.find_spec(_module) is None:
@@ -256,8 +257,10 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
         if not address:
             start_forkserver()
         from lidar_sim_ros.campaign.manifest import Manifest
-        from lidar_sim_ros.campaign.run import worker_facts
+        from lidar_sim_ros.campaign.run import keeps_series, worker_facts
+        from lidar_sim_ros.campaign.series import SeriesKeeper
         manifest = Manifest.open(out_dir, campaign)
+        keeper = SeriesKeeper.open(out_dir, campaign.spec.series) if keeps_series(campaign) else None
         n_pending = sum(not manifest.is_finished(i, retry_failed) for i in range(runs))
         # Run ids are produced as they are submitted, never listed (memory flat in the runs).
         pending = (i for i in range(runs) if not manifest.is_finished(i, retry_failed))
@@ -275,7 +278,7 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
                 # Each worker prepares itself (mesh, BVH, kernels) on its first task, so
                 # the first rows come from the first worker ready, not the last one.
                 _gather(client, campaign, pending, n_pending, out_dir, manifest, bar, tally,
-                        IN_FLIGHT_PER_WORKER * n_workers, t0)
+                        IN_FLIGHT_PER_WORKER * n_workers, t0, keeper)
                 wall_s = time.perf_counter() - t1
     finally:
         if bar is not None:
@@ -336,10 +339,11 @@ class BatchSizer:
 
 def _gather(client: Client, campaign: Campaign, pending: Iterator[int], n_pending: int,
             out_dir: str | Path, manifest: Manifest, bar, tally: dict, in_flight: int,
-            t0: float) -> None:
+            t0: float, keeper: SeriesKeeper | None = None) -> None:
     """Submit the pending runs in batches (``BatchSizer``), at most ``in_flight`` tasks at
     a time, and record each run as its batch finishes (``tally``: ok, failed, summed
-    compute in s, ``first_row_s`` after ``t0``, ``tasks``).
+    compute in s, ``first_row_s`` after ``t0``, ``tasks``; ``keeper``: the time series
+    a closed-loop campaign keeps).
 
     A task lost with its worker (``KilledWorker`` after Dask's own retries) may hold
     runs that did nothing wrong: its batch-mates, or a task that only sat queued on the
@@ -401,6 +405,8 @@ def _gather(client: Client, campaign: Campaign, pending: Iterator[int], n_pendin
             future.release()
             fill()
             for row in rows:
+                if keeper is not None:
+                    keeper.offer(row)
                 compute_s = float(row.get('compute_s') or 0.0)
                 sizer.observe(compute_s)
                 tally['compute_s'] += compute_s

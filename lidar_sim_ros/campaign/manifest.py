@@ -27,6 +27,7 @@ from typing import Iterator
 import numpy as np
 
 from lidar_sim_ros.campaign.run import param_names, run_one
+from lidar_sim_ros.campaign.series import SeriesKeeper
 from lidar_sim_ros.campaign.spec import MAX_RUNS, Campaign
 from lidar_sim_ros.campaign.statistics import COUNTS, stat_names
 
@@ -57,10 +58,11 @@ def format_value(value) -> str:
 
 
 def fingerprint(campaign: Campaign) -> str:
-    """sha256 over everything that decides a run's result, except the number of runs."""
+    """sha256 over everything that decides a run's result: not the number of runs, nor
+    what is made of the results (``criteria``, which runs keep their ``series``)."""
     h = hashlib.sha256()
     scenario = campaign.scenario
-    h.update(campaign.spec.model_dump_json(exclude={'runs'}).encode())
+    h.update(campaign.spec.model_dump_json(exclude={'runs', 'criteria', 'series'}).encode())
     for model in (scenario.config, scenario.sensor, scenario.materials):
         h.update(model.model_dump_json().encode())
     h.update(Path(scenario.mesh_path).read_bytes())
@@ -276,7 +278,8 @@ class Manifest:
 
 
 def rerun(campaign: Campaign, out_dir: str | Path, run_id: int) -> tuple[dict, dict | None]:
-    """Run one case again in this process; its manifest row is replaced.
+    """Run one case again in this process; its manifest row is replaced (and a closed-loop
+    run's time series kept, as asked for by id).
 
     Returns the new row and the one the manifest held (None if none), both as manifest
     text, so that equal statistics compare equal character for character.
@@ -285,6 +288,9 @@ def rerun(campaign: Campaign, out_dir: str | Path, run_id: int) -> tuple[dict, d
         raise ValueError(f'--run {run_id}: the campaign has runs 0..{campaign.spec.runs - 1}')
     manifest = Manifest.open(out_dir, campaign)
     old = manifest.row(run_id)
-    row = manifest.text_row(run_one(campaign, run_id, out_dir))
+    row = run_one(campaign, run_id, out_dir)
+    if campaign.spec.loop is not None:  # its series: asked for by id (DIR/series/run_NNNNN.npz)
+        SeriesKeeper.open(out_dir, campaign.spec.series).offer(row, asked=True)
+    row = manifest.text_row(row)
     manifest.replace(row)
     return row, old

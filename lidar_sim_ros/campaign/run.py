@@ -167,7 +167,18 @@ def run_batch(campaign: Campaign | bytes, run_ids: list[int],
             prepare_worker(campaign)
         except Exception:  # noqa: BLE001 - e.g. a missing mesh: each run records its own error
             _PREPARED.add(_campaign_key(campaign))
-    return [run_one(campaign, run_id, out_dir) for run_id in run_ids]
+    rows = [run_one(campaign, run_id, out_dir) for run_id in run_ids]
+    if not keeps_series(campaign):
+        for row in rows:  # nothing to send back to the client that it would not keep
+            row.pop('series', None)
+    return rows
+
+
+def keeps_series(campaign: Campaign) -> bool:
+    """Whether the engine's client keeps any run's time series (``series.SeriesKeeper``)."""
+    series = campaign.spec.series
+    return campaign.spec.loop is not None and series is not None and bool(
+        (series.worst and series.by) or series.runs)
 
 
 def run_one(campaign: Campaign, run_id: int, out_dir: str | Path | None = None) -> dict:

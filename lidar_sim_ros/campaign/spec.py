@@ -15,6 +15,7 @@ from typing import Annotated, Literal, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_serializer, model_validator
 
+from lidar_sim_ros.campaign.criteria import MAX_CRITERIA, parse_criterion
 from lidar_sim_ros.core.config import (ConfigError, Scenario, check_file_kind, load_scenario, parse,
                                        read_yaml, resolve)
 
@@ -196,6 +197,28 @@ class Dispersions(_Model):
                                           'the base scenario lacks is added')
 
 
+MAX_SERIES = 1000
+"""Runs whose time series a campaign keeps (``series.worst`` and ``series.runs`` each)."""
+
+# What a closed-loop run measures (runs/run_NNNNN/loop.json "metrics": ``loop.metrics.loop_metrics``
+# and ``loop.step.score``'s additions), the names criteria and ``series.by`` may use;
+# test_campaign_loop checks that a run has each.
+LOOP_METRIC_NAMES = ('hold_error_m', 'delta_v_mps', 'min_range_m', 'est_trans_rms_m',
+                     'est_axis_rms_deg', 'acquired_at_s', 'losses', 'hold_samples', 'final_error_m',
+                     'estimates', 'periods', 'truth_captures', 'holds_reached')
+
+
+class SeriesSpec(_Model):
+    """Which closed-loop runs keep their time series (DIR/series/run_NNNNN.npz): the
+    ``worst`` runs by the metric ``by`` (its highest values, or its lowest with
+    ``worst_is: low``), and the ``runs`` named by id, whatever their metrics."""
+
+    worst: Annotated[int, Field(ge=0, le=MAX_SERIES)] = 0
+    by: str = Field('', description='a metric (LOOP_METRIC_NAMES); required with worst > 0')
+    worst_is: Literal['high', 'low'] = 'high'
+    runs: list[Annotated[int, Field(ge=0)]] = Field(default_factory=list, max_length=MAX_SERIES)
+
+
 MAX_RUNS = 10_000_000
 """Runs in one campaign (the client keeps one byte per run id, and a bounded few in flight)."""
 MAX_DURATION_S = 86_400.0
@@ -216,14 +239,22 @@ class CampaignSpec(_Model):
         3, description='frames per run on which target coverage is evaluated (evenly spaced)')
     dispersions: Dispersions = Dispersions()
     loop: LoopCase | None = Field(None, description='closed-loop runs instead of frame statistics')
+    criteria: list[str] = Field(default_factory=list, max_length=MAX_CRITERIA,
+                                description='pass/fail per run: "METRIC OP THRESHOLD" (criteria.py)')
+    series: SeriesSpec | None = Field(None, description='closed-loop runs whose time series are kept')
 
     @model_serializer(mode='wrap')
-    def _without_no_loop(self, handler):
-        # A frame-statistics spec dumps as before ``loop`` existed: the manifest's
-        # fingerprint of campaigns written then stays the same, and they resume.
+    def _without_unset_additions(self, handler):
+        # A spec that uses none of ``loop``, ``criteria``, ``series`` dumps as before they
+        # existed: the manifest's fingerprint of campaigns written then stays the same,
+        # and they resume.
         data = handler(self)
-        if isinstance(data, dict) and data.get('loop') is None:
-            data.pop('loop', None)
+        if isinstance(data, dict):
+            for key in ('loop', 'series'):
+                if data.get(key) is None:
+                    data.pop(key, None)
+            if data.get('criteria') == []:
+                data.pop('criteria')
         return data
 
 
@@ -259,7 +290,40 @@ def load_campaign(path: str | Path) -> Campaign:
     _check_effects(spec.dispersions, path)
     if spec.loop is not None:
         spec = check_loop_spec(spec, path)
+    _check_outcomes(spec, path)
     return Campaign(spec, scenario, path.resolve())
+
+
+def metric_names(spec: CampaignSpec) -> tuple[str, ...]:
+    """The metrics a run of this campaign has, which criteria and ``series.by`` may name."""
+    return LOOP_METRIC_NAMES if spec.loop is not None else ()
+
+
+def _check_outcomes(spec: CampaignSpec, path: Path) -> None:
+    """Criteria and kept series name real metrics and runs (ConfigError: file, key, value)."""
+    if spec.loop is None:
+        for key in ('criteria', 'series'):
+            if getattr(spec, key):
+                raise ConfigError(path, key, getattr(spec, key) if key == 'criteria' else
+                                  spec.series.model_dump(), 'for closed-loop campaigns (a loop: '
+                                  'section); a frame campaign\'s statistics are in manifest.csv')
+        return
+    names = metric_names(spec)
+    for i, text in enumerate(spec.criteria):
+        try:
+            parse_criterion(text, names)
+        except ValueError as exc:
+            raise ConfigError(path, f'criteria.{i}', text, str(exc)) from None
+    series = spec.series
+    if series is None:
+        return
+    if (series.worst or series.by) and series.by not in names:
+        raise ConfigError(path, 'series.by', series.by, f'worst: {series.worst} ranks runs by a metric: '
+                          f'one of {", ".join(names)}')
+    for i, run in enumerate(series.runs):
+        if run >= spec.runs:
+            raise ConfigError(path, f'series.runs.{i}', run, f'not a run of this campaign '
+                              f'(runs 0..{spec.runs - 1})')
 
 
 # ---------------------------------------------------------- closed loop
