@@ -93,8 +93,9 @@ def _security(args: argparse.Namespace):
     return tls_security(given['tls_ca_file'], given['tls_cert'], given['tls_key'])
 
 
-def _loop_summary(out_dir: Path, campaign) -> None:
-    """A closed-loop campaign's tables and figures, its percentiles and pass rates on the terminal."""
+def _loop_summary(out_dir: Path, campaign):
+    """A closed-loop campaign's tables and figures, its percentiles and pass rates on the
+    terminal; returns the ``summary.LoopSummary``."""
     from lidar_sim_ros.campaign.summary import summarize
     summary = summarize(out_dir, campaign)
     print(f'closed loop: {summary.runs} runs: {summary.runs_table}, {summary.summary_table}'
@@ -109,6 +110,7 @@ def _loop_summary(out_dir: Path, campaign) -> None:
     for row in summary.verdicts:
         print(f'  pass {row["passed"]:>6d} of {row["runs"]:<6d} ({100 * (row["pass_rate"] or 0.0):5.1f} %)  '
               f'{row["criterion"]}')
+    return summary
 
 
 def _rerun(campaign, out_dir: Path, run_id: int) -> int:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -26,14 +26,15 @@ _TEXT = re.compile(r'\s*(?P<metric>[A-Za-z_][A-Za-z0-9_.]*)\s*(?P<op>[<>=!]+)\s*
 
 @dataclass(frozen=True)
 class Criterion:
-    """``metric op threshold``; ``threshold`` is finite."""
+    """``metric op threshold``; ``threshold`` is finite (``number``: as the spec wrote it)."""
 
     metric: str
     op: str
     threshold: float
+    number: str = field(default='', compare=False)
 
     def __str__(self) -> str:
-        return f'{self.metric} {self.op} {self.threshold!r}'
+        return f'{self.metric} {self.op} {self.number or repr(self.threshold)}'
 
     def passes(self, values) -> np.ndarray:
         """Bool per run: the value (NaN = missing) is finite and satisfies the criterion."""
@@ -57,4 +58,4 @@ def parse_criterion(text: str, metrics: Sequence[str]) -> Criterion:
     threshold = float(value)
     if not math.isfinite(threshold):
         raise ValueError(f'threshold {value!r} is not finite')
-    return Criterion(metric, op, threshold)
+    return Criterion(metric, op, threshold, value)

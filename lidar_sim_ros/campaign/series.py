@@ -109,7 +109,9 @@ class SeriesKeeper:
         return keep
 
     def _place(self, run_id: int, metrics: dict, asked: bool, prune: bool = True) -> tuple[bool, list[int]]:
-        """Rank ``run_id`` in; (whether its series is kept, run ids whose files go)."""
+        """Rank ``run_id`` in; (whether its series is kept, run ids whose files go: only
+        runs that had one, so that a run ranked out at once costs no file system call)."""
+        had = run_id in self._ranked or run_id in self._files
         if run_id in self._ranked:  # the same run again (--run, --retry-failed): its new rank
             self._worst = [(r, i) for r, i in self._worst if i != run_id]
             heapq.heapify(self._worst)
@@ -125,7 +127,7 @@ class SeriesKeeper:
             self._ranked.discard(run)
             dropped.append(run)
         kept = run_id in self._files or run_id in self._ranked
-        return kept, [run for run in dropped if run not in self._files]
+        return kept, [run for run in dropped if run not in self._files and (run != run_id or had)]
 
 
 def _json_safe(metrics: dict) -> dict:
