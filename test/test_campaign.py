@@ -503,6 +503,26 @@ def test_short_runs_go_in_batches_and_give_the_rows_of_single_runs(cluster, tmp_
     assert all(after[i]['compute_s'] == rows[i]['compute_s'] for i in range(300) if i not in lost)
 
 
+def test_a_frame_campaign_with_criteria_prints_its_pass_rates(cluster, tmp_path, capsys):
+    from lidar_sim_ros.campaign.summary import FRAME_CRITERIA_TABLE
+    path = write_tiny_campaign(tmp_path, 20)
+    spec = yaml.safe_load(path.read_text())
+    spec['criteria'] = ['points >= 8', 'range_error_mean_m > -0.14']
+    path.write_text(yaml.safe_dump(spec))
+    out = tmp_path / 'out'
+    assert cli_main(['campaign', str(path), '--out', str(out), '--address', cluster, '--no-progress']) == 0
+    printed = capsys.readouterr().out
+    rows = read_manifest(out).values()
+    # By hand, from the manifest: each criterion and both.
+    many = [int(r['stat.points']) >= 8 for r in rows]
+    near = [float(r['stat.range_error_mean_m']) > -0.14 for r in rows]
+    both = sum(a and b for a, b in zip(many, near))
+    with (out / FRAME_CRITERIA_TABLE).open(newline='') as fh:
+        passed = [int(r['passed']) for r in csv.DictReader(fh)]
+    assert passed == [sum(many), sum(near), both]
+    assert f'pass {both:>6d} of 20' in printed and 'all criteria' in printed
+
+
 DIE_EFFECT = BOOM_EFFECT.replace(
     'if self.params.x > THRESHOLD:', 'if LOW < self.params.x < HIGH:').replace(
     "raise RuntimeError(f'boom at x = {self.params.x}')", "import os; os._exit(3)")

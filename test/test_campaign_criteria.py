@@ -92,13 +92,48 @@ def test_bad_criteria_and_series_name_file_key_value(tmp_path, fields, key, valu
         assert err.value == value
 
 
-def test_frame_campaigns_refuse_criteria(tmp_path):
-    path = tmp_path / 'c.yaml'
-    path.write_text(yaml.safe_dump({'scenario': str(CONFIG / 'scenario.yaml'), 'seed': 1, 'runs': 2,
-                                    'duration_s': 0.1, 'criteria': ['points > 10']}))
-    with pytest.raises(ConfigError, match='for closed-loop campaigns') as info:
-        load_campaign(path)
-    assert info.value.key == 'criteria'
+def write_frame_spec(tmp_path, **fields):
+    path = tmp_path / 'f.yaml'
+    path.write_text(yaml.safe_dump({'scenario': str(CONFIG / 'scenario.yaml'), 'seed': 1, 'runs': 6,
+                                    'duration_s': 0.1, **fields}))
+    return path
+
+
+@pytest.mark.parametrize('fields, key, words', [
+    ({'criteria': ['hold_error_m < 0.3']}, 'criteria.0', "unknown metric 'hold_error_m'"),
+    ({'criteria': ['range_error_std_m.FOO < 0.03']}, 'criteria.0', "unknown metric 'range_error_std_m.FOO'"),
+    ({'series': {'worst': 2, 'by': 'points'}}, 'series', 'closed-loop campaigns'),
+])
+def test_frame_campaigns_check_their_criteria_against_the_statistics(tmp_path, fields, key, words):
+    with pytest.raises(ConfigError) as info:
+        load_campaign(write_frame_spec(tmp_path, **fields))
+    assert info.value.key == key and words in str(info.value)
+
+
+def test_frame_verdicts_from_the_manifest_by_hand(tmp_path):
+    """A frame campaign's criteria over manifest.csv's stat.* columns, written by hand."""
+    from lidar_sim_ros.campaign.manifest import Manifest
+    from lidar_sim_ros.campaign.summary import FRAME_VS_FIGURE, summarize_frames
+    campaign = load_campaign(write_frame_spec(tmp_path, criteria=[
+        'range_error_std_m.PIF < 0.03', 'coverage >= 0.5'], dispersions={
+        'initial_distance_m': {'dist': 'uniform', 'low': 8.0, 'high': 25.0}}))
+    manifest = Manifest(tmp_path, ['run_id', 'seed', 'status', 'error', 'param.initial_distance_m',
+                                   'stat.points', 'stat.coverage', 'stat.range_error_mean_m',
+                                   'stat.range_error_std_m', 'stat.range_error_std_m.PIF'])
+    runs = [  # (status, distance, PIF std, coverage)
+        ('ok', 9.0, 0.02, 0.6), ('ok', 12.0, 0.04, 0.7), ('ok', 20.0, None, 0.55),
+        ('ok', 24.0, 0.01, 0.4), ('failed', None, None, None), ('ok', 10.0, 0.025, 0.5)]
+    manifest.append_rows([{'run_id': i, 'seed': i, 'status': st, 'param.initial_distance_m': d,
+                           'stat.points': 100, 'stat.coverage': c, 'stat.range_error_mean_m': -0.1,
+                           'stat.range_error_std_m': 0.03, 'stat.range_error_std_m.PIF': sd}
+                          for i, (st, d, sd, c) in enumerate(runs)])
+    summary = summarize_frames(tmp_path, campaign)
+    # By hand: std < 0.03 in runs 0, 3, 5; coverage >= 0.5 in 0, 1, 2, 5; both in 0 and 5;
+    # 6 runs, the failed one (4) passing nothing; run 2 has no PIF std (missing).
+    assert [(r['criterion'], r['passed'], r['runs'], r['missing']) for r in summary.verdicts] == [
+        ('range_error_std_m.PIF < 0.03', 3, 6, 1), ('coverage >= 0.5', 4, 6, 0), ('all criteria', 2, 6, '')]
+    assert (summary.runs, summary.failed) == (5, 1)
+    assert summary.figure == tmp_path / FRAME_VS_FIGURE and summary.figure.stat().st_size > 5_000
 
 
 def test_criteria_and_series_leave_the_fingerprint_alone(tmp_path):

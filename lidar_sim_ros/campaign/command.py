@@ -75,7 +75,25 @@ def run(args: argparse.Namespace) -> int:
         print(f'parquet: {report.parquet_path}')
     if campaign.spec.loop is not None:
         _loop_summary(args.out, campaign)
+    elif campaign.spec.criteria:
+        _frame_summary(args.out, campaign)
     return 1 if report.failed else 0
+
+
+def _frame_summary(out_dir: Path, campaign):
+    """A frame campaign's verdicts (criteria.csv, vs_dispersions.png) and its pass rates."""
+    from lidar_sim_ros.campaign.summary import summarize_frames
+    summary = summarize_frames(out_dir, campaign)
+    print(f'criteria: {summary.runs} ok runs, {summary.failed} failed: {summary.criteria_table}'
+          + (f', {summary.figure}' if summary.figure else ''))
+    _print_verdicts(summary.verdicts)
+    return summary
+
+
+def _print_verdicts(verdicts) -> None:
+    for row in verdicts:
+        print(f'  pass {row["passed"]:>6d} of {row["runs"]:<6d} ({100 * (row["pass_rate"] or 0.0):5.1f} %)  '
+              f'{row["criterion"]}')
 
 
 def _security(args: argparse.Namespace):
@@ -107,9 +125,7 @@ def _loop_summary(out_dir: Path, campaign):
                   f'p95 {row["p95"]:9.4g}  ({row["runs"]} runs, {row["missing"]} without)')
         else:
             print(f'  {row["metric"]:18s} no value in {row["missing"]} runs')
-    for row in summary.verdicts:
-        print(f'  pass {row["passed"]:>6d} of {row["runs"]:<6d} ({100 * (row["pass_rate"] or 0.0):5.1f} %)  '
-              f'{row["criterion"]}')
+    _print_verdicts(summary.verdicts)
     return summary
 
 

@@ -16,6 +16,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_serializer, model_validator
 
 from lidar_sim_ros.campaign.criteria import MAX_CRITERIA, parse_criterion
+from lidar_sim_ros.campaign.statistics import stat_names
 from lidar_sim_ros.core.config import (ConfigError, Scenario, check_file_kind, load_scenario, parse,
                                        read_yaml, resolve)
 
@@ -290,25 +291,25 @@ def load_campaign(path: str | Path) -> Campaign:
     _check_effects(spec.dispersions, path)
     if spec.loop is not None:
         spec = check_loop_spec(spec, path)
-    _check_outcomes(spec, path)
+    _check_outcomes(spec, scenario, path)
     return Campaign(spec, scenario, path.resolve())
 
 
-def metric_names(spec: CampaignSpec) -> tuple[str, ...]:
-    """The metrics a run of this campaign has, which criteria and ``series.by`` may name."""
-    return LOOP_METRIC_NAMES if spec.loop is not None else ()
+def metric_names(spec: CampaignSpec, scenario: Scenario) -> tuple[str, ...]:
+    """The metrics a run of this campaign has, which criteria and ``series.by`` may name:
+    a closed-loop run's (loop.json), or a frame run's statistics (manifest ``stat.*``)."""
+    if spec.loop is not None:
+        return LOOP_METRIC_NAMES
+    return tuple(stat_names(scenario.materials.names))
 
 
-def _check_outcomes(spec: CampaignSpec, path: Path) -> None:
+def _check_outcomes(spec: CampaignSpec, scenario: Scenario, path: Path) -> None:
     """Criteria and kept series name real metrics and runs (ConfigError: file, key, value)."""
-    if spec.loop is None:
-        for key in ('criteria', 'series'):
-            if getattr(spec, key):
-                raise ConfigError(path, key, getattr(spec, key) if key == 'criteria' else
-                                  spec.series.model_dump(), 'for closed-loop campaigns (a loop: '
-                                  'section); a frame campaign\'s statistics are in manifest.csv')
-        return
-    names = metric_names(spec)
+    if spec.loop is None and spec.series is not None:
+        raise ConfigError(path, 'series', spec.series.model_dump(), 'time series are kept for '
+                          'closed-loop campaigns (a loop: section); a frame campaign keeps its '
+                          'frames with save: bags')
+    names = metric_names(spec, scenario)
     for i, text in enumerate(spec.criteria):
         try:
             parse_criterion(text, names)

@@ -1,4 +1,7 @@
-"""What a closed-loop campaign's runs add up to: tables, pass/fail verdicts and figures.
+"""What a campaign's runs add up to: tables, pass/fail verdicts and figures.
+
+A frame campaign with ``criteria`` gets ``criteria.csv`` and ``vs_dispersions.png`` from
+its manifest (``summarize_frames``); a closed-loop campaign gets the rest below.
 
 ``summarize(out_dir, campaign)`` reads DIR/manifest.csv (which runs are ok, which failed)
 and each ok run's runs/run_NNNNN/loop.json, one at a time, and writes into DIR:
@@ -34,6 +37,7 @@ from lidar_sim_ros.campaign.criteria import Criterion, parse_criterion
 from lidar_sim_ros.campaign.loop_case import LOOP_METRICS, read_result
 from lidar_sim_ros.campaign.series import SERIES_DIR, read_series
 from lidar_sim_ros.campaign.spec import LOOP_METRIC_NAMES, Campaign
+from lidar_sim_ros.campaign.statistics import stat_names
 
 RUNS_TABLE = 'loop_runs.csv'
 SUMMARY_TABLE = 'loop_summary.csv'
@@ -41,6 +45,9 @@ CRITERIA_TABLE = 'loop_criteria.csv'
 FIGURE = 'loop_summary.png'
 SERIES_FIGURE = 'loop_series.png'
 VS_FIGURE = 'loop_vs_dispersions.png'
+FRAME_CRITERIA_TABLE = 'criteria.csv'
+FRAME_VS_FIGURE = 'vs_dispersions.png'
+FRAME_PLOTTED = ('points', 'range_error_mean_m', 'range_error_std_m', 'coverage')
 PERCENTILES = (5, 50, 95)
 ALL = 'all criteria'
 
@@ -114,13 +121,56 @@ def summarize(out_dir: str | Path, campaign: Campaign | None = None, figure: boo
     figures = []
     if figure and n_ok:
         figures.append(_histograms(out / FIGURE, metrics, n_ok))
-        figures.append(_vs_dispersions(out / VS_FIGURE, metrics, dispersions, passes, criteria))
+        figures.append(_vs_dispersions(out / VS_FIGURE, list(LOOP_METRICS), metrics, dispersions, passes,
+                                       criteria))
     kept = sorted((out / SERIES_DIR).glob('run_*.npz')) if figure else []
     kept = [p for p in kept if not p.name.endswith('.tmp.npz')]
     if kept:
         figures.append(_series_figure(out / SERIES_FIGURE, kept))
     return LoopSummary(runs_path, summary_path, figures[0] if figures and n_ok else None, n_ok, table,
                        failed, criteria_path, tuple(verdicts), tuple(figures))
+
+
+@dataclass(frozen=True)
+class FrameSummary:
+    criteria_table: Path
+    figure: Path | None
+    runs: int                       # ok runs
+    failed: int
+    verdicts: tuple                 # criteria.csv's rows (the last: all criteria)
+
+
+def summarize_frames(out_dir: str | Path, campaign: Campaign, figure: bool = True) -> FrameSummary:
+    """A frame campaign's verdicts (its ``criteria`` over the manifest's ``stat.*``):
+    ``criteria.csv`` as ``loop_criteria.csv``, and ``vs_dispersions.png``: the criteria's
+    metrics and ``FRAME_PLOTTED`` against each dispersion. Reads the manifest row by row;
+    holds the plotted columns as float arrays."""
+    out = Path(out_dir)
+    names = stat_names(campaign.scenario.materials.names)
+    criteria = [parse_criterion(text, names) for text in campaign.spec.criteria]
+    plotted = list(dict.fromkeys([c.metric for c in criteria] + list(FRAME_PLOTTED)))
+    metrics, dispersions, failed = _Columns.of(plotted), None, 0
+    with (out / 'manifest.csv').open(newline='') as fh:
+        reader = csv.DictReader(fh)
+        params = [k[len('param.'):] for k in reader.fieldnames or [] if k.startswith('param.')]
+        dispersions = _Columns.of(params)
+        for row in reader:  # one row per run: the engine rewrites the manifest at the end
+            if row['status'] != 'ok':
+                failed += 1
+                continue
+            metrics.add({m: _cell(row.get(f'stat.{m}')) for m in plotted})
+            dispersions.add({p: _cell(row.get(f'param.{p}')) for p in params})
+    n_ok = len(metrics[plotted[0]])
+    verdicts, passes = verdict_rows(criteria, metrics, n_ok, n_ok + failed)
+    criteria_path = out / FRAME_CRITERIA_TABLE
+    _write_csv(criteria_path, verdicts)
+    fig = _vs_dispersions(out / FRAME_VS_FIGURE, plotted, metrics, dispersions, passes, criteria) \
+        if figure and n_ok else None
+    return FrameSummary(criteria_path, fig, n_ok, failed, tuple(verdicts))
+
+
+def _cell(text: str | None) -> float:
+    return math.nan if text in (None, '') else float(text)
 
 
 def _statuses(out: Path) -> tuple[list[int], int]:
@@ -225,19 +275,19 @@ def _histograms(path: Path, metrics: _Columns, n: int) -> Path:
     return path
 
 
-def _vs_dispersions(path: Path, metrics: _Columns, dispersions: _Columns, passes: np.ndarray,
-                    criteria: list[Criterion]) -> Path:
-    """A matrix of panels: row = headline metric, column = dispersed parameter, one point per
-    run (blue: passes every criterion, red: not), each criterion a dashed line in its row.
+def _vs_dispersions(path: Path, plotted: list[str], metrics: _Columns, dispersions: _Columns,
+                    passes: np.ndarray, criteria: list[Criterion]) -> Path:
+    """A matrix of panels: row = metric (``plotted``), column = dispersed parameter, one point
+    per run (blue: passes every criterion, red: not), each criterion a dashed line in its row.
     Axes shared along rows and columns, and no automatic layout: ~0.1 s a panel less."""
     plt = _pyplot()
     names = plotted_dispersions(dispersions.names)
-    rows, cols = len(LOOP_METRICS), max(1, len(names))
+    rows, cols = len(plotted), max(1, len(names))
     fig, axes = plt.subplots(rows, cols, figsize=(1.5 * cols + 1.2, 1.25 * rows + 1.0), squeeze=False,
                              sharex='col', sharey='row')
     fig.subplots_adjust(left=0.9 / (1.5 * cols + 1.2), right=0.99, bottom=0.75 / (1.25 * rows + 1.0),
                         top=1 - 0.55 / (1.25 * rows + 1.0), wspace=0.08, hspace=0.08)
-    for r, metric in enumerate(LOOP_METRICS):
+    for r, metric in enumerate(plotted):
         y = metrics[metric]
         finite = np.isfinite(y)
         for c, name in enumerate(names):
