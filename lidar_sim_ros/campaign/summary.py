@@ -81,7 +81,8 @@ class _Columns:
             self.data[n].append(_float(values.get(n)))
 
     def __getitem__(self, name: str) -> np.ndarray:
-        return np.frombuffer(self.data[name], dtype=float) if len(self.data[name]) else np.zeros(0)
+        # A copy: a view would pin the array's buffer, and the next add() would raise.
+        return np.array(self.data[name], dtype=float)
 
 
 def summarize(out_dir: str | Path, campaign: Campaign | None = None, figure: bool = True) -> LoopSummary:
