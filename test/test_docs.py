@@ -195,6 +195,9 @@ NOT_RUN = {
     ('campaign.md', '# on the scheduler machine (port 8786; the dashboard'
                     ' needs bokeh, --no-dashboard otherwise)'):
         'a Dask cluster over several machines (test_campaign.py joins a local one by its address)',
+    ('campaign.md', '# on the scheduler machine'):
+        'a TLS cluster over several machines (test_campaign.py starts a TLS scheduler and joins it '
+        'with the same options, and makes its certificates with the page\'s openssl commands)',
     ('campaign.md', 'lidar-sim campaign config/campaign_loop.yaml --out loop-campaign --workers 2'):
         'six closed loops of 8 s on Basilisk (~30 s with the cluster start); '
         'test_campaign_loop.py runs the same spec path on shorter cases',

@@ -128,13 +128,5 @@ def sample_run(campaign: Campaign, run_index: int) -> RunCase:
                    spec.save, spec.storage, spec.coverage_frames)
 
 
-def param_names(campaign: Campaign) -> list[str]:
-    """The ``params`` keys every run of this campaign has, in manifest column order."""
-    if campaign.spec.loop is not None:
-        from lidar_sim_ros.campaign.loop_case import sample_loop_case
-        return list(sample_loop_case(campaign, 0).params)
-    return list(sample_run(campaign, 0).params)
-
-
 def _vector(prefix: str, values: np.ndarray, axes: str) -> dict[str, float]:
     return {f'{prefix}_{a}': float(v) for a, v in zip(axes, values)}

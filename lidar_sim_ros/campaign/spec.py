@@ -7,6 +7,7 @@ value (``campaign.yaml: key "dispersions.tumble_rate_dps.sigma" = -1.0: ...``).
 """
 from __future__ import annotations
 
+import hashlib
 import math
 from pathlib import Path
 from typing import Annotated, Literal, Union
@@ -14,8 +15,10 @@ from typing import Annotated, Literal, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_serializer, model_validator
 
+from lidar_sim_ros.campaign.criteria import MAX_CRITERIA, parse_criterion
+from lidar_sim_ros.campaign.statistics import stat_names
 from lidar_sim_ros.core.config import (ConfigError, Scenario, check_file_kind, load_scenario, parse,
-                                       read_yaml)
+                                       read_yaml, resolve)
 
 
 class _Model(BaseModel):
@@ -195,6 +198,28 @@ class Dispersions(_Model):
                                           'the base scenario lacks is added')
 
 
+MAX_SERIES = 1000
+"""Runs whose time series a campaign keeps (``series.worst`` and ``series.runs`` each)."""
+
+# What a closed-loop run measures (runs/run_NNNNN/loop.json "metrics": ``loop.metrics.loop_metrics``
+# and ``loop.step.score``'s additions), the names criteria and ``series.by`` may use;
+# test_campaign_loop checks that a run has each.
+LOOP_METRIC_NAMES = ('hold_error_m', 'delta_v_mps', 'min_range_m', 'est_trans_rms_m',
+                     'est_axis_rms_deg', 'acquired_at_s', 'losses', 'hold_samples', 'final_error_m',
+                     'estimates', 'periods', 'truth_captures', 'holds_reached')
+
+
+class SeriesSpec(_Model):
+    """Which closed-loop runs keep their time series (DIR/series/run_NNNNN.npz): the
+    ``worst`` runs by the metric ``by`` (its highest values, or its lowest with
+    ``worst_is: low``), and the ``runs`` named by id, whatever their metrics."""
+
+    worst: Annotated[int, Field(ge=0, le=MAX_SERIES)] = 0
+    by: str = Field('', description='a metric (LOOP_METRIC_NAMES); required with worst > 0')
+    worst_is: Literal['high', 'low'] = 'high'
+    runs: list[Annotated[int, Field(ge=0)]] = Field(default_factory=list, max_length=MAX_SERIES)
+
+
 MAX_RUNS = 10_000_000
 """Runs in one campaign (the client keeps one byte per run id, and a bounded few in flight)."""
 MAX_DURATION_S = 86_400.0
@@ -215,14 +240,22 @@ class CampaignSpec(_Model):
         3, description='frames per run on which target coverage is evaluated (evenly spaced)')
     dispersions: Dispersions = Dispersions()
     loop: LoopCase | None = Field(None, description='closed-loop runs instead of frame statistics')
+    criteria: list[str] = Field(default_factory=list, max_length=MAX_CRITERIA,
+                                description='pass/fail per run: "METRIC OP THRESHOLD" (criteria.py)')
+    series: SeriesSpec | None = Field(None, description='closed-loop runs whose time series are kept')
 
     @model_serializer(mode='wrap')
-    def _without_no_loop(self, handler):
-        # A frame-statistics spec dumps as before ``loop`` existed: the manifest's
-        # fingerprint of campaigns written then stays the same, and they resume.
+    def _without_unset_additions(self, handler):
+        # A spec that uses none of ``loop``, ``criteria``, ``series`` dumps as before they
+        # existed: the manifest's fingerprint of campaigns written then stays the same,
+        # and they resume.
         data = handler(self)
-        if isinstance(data, dict) and data.get('loop') is None:
-            data.pop('loop', None)
+        if isinstance(data, dict):
+            for key in ('loop', 'series'):
+                if data.get(key) is None:
+                    data.pop(key, None)
+            if data.get('criteria') == []:
+                data.pop('criteria')
         return data
 
 
@@ -257,9 +290,76 @@ def load_campaign(path: str | Path) -> Campaign:
     _check_materials(spec.dispersions, scenario, path)
     _check_effects(spec.dispersions, path)
     if spec.loop is not None:
-        from lidar_sim_ros.campaign.loop_case import check_loop_spec
         spec = check_loop_spec(spec, path)
+    _check_outcomes(spec, scenario, path)
     return Campaign(spec, scenario, path.resolve())
+
+
+def metric_names(spec: CampaignSpec, scenario: Scenario) -> tuple[str, ...]:
+    """The metrics a run of this campaign has, which criteria and ``series.by`` may name:
+    a closed-loop run's (loop.json), or a frame run's statistics (manifest ``stat.*``)."""
+    if spec.loop is not None:
+        return LOOP_METRIC_NAMES
+    return tuple(stat_names(scenario.materials.names))
+
+
+def _check_outcomes(spec: CampaignSpec, scenario: Scenario, path: Path) -> None:
+    """Criteria and kept series name real metrics and runs (ConfigError: file, key, value)."""
+    if spec.loop is None and spec.series is not None:
+        raise ConfigError(path, 'series', spec.series.model_dump(), 'time series are kept for '
+                          'closed-loop campaigns (a loop: section); a frame campaign keeps its '
+                          'frames with save: bags')
+    names = metric_names(spec, scenario)
+    for i, text in enumerate(spec.criteria):
+        try:
+            parse_criterion(text, names)
+        except ValueError as exc:
+            raise ConfigError(path, f'criteria.{i}', text, str(exc)) from None
+    series = spec.series
+    if series is None:
+        return
+    if (series.worst or series.by) and series.by not in names:
+        raise ConfigError(path, 'series.by', series.by, f'worst: {series.worst} ranks runs by a metric: '
+                          f'one of {", ".join(names)}')
+    for i, run in enumerate(series.runs):
+        if run >= spec.runs:
+            raise ConfigError(path, f'series.runs.{i}', run, f'not a run of this campaign '
+                              f'(runs 0..{spec.runs - 1})')
+
+
+# ---------------------------------------------------------- closed loop
+# Dispersions of the frame-statistics scenario that mean nothing in the loop.
+_NOT_IN_LOOP = {'approach_speed_mps': 'the approach is the guidance\'s (loop config guidance.*)'}
+
+
+def loop_config_path(campaign_file: Path, spec: CampaignSpec) -> Path:
+    return resolve(spec.loop.config, Path(campaign_file).resolve().parent)
+
+
+def check_loop_spec(spec: CampaignSpec, path: Path) -> CampaignSpec:
+    """The spec with its loop file checked (ConfigError naming the file, key and value) and
+    its bytes' sha256 filled in, so that the manifest's fingerprint covers the loop."""
+    from lidar_sim_ros.loop.config import load_loop_config
+    if spec.loop.config_sha256:
+        raise ConfigError(path, 'loop.config_sha256', spec.loop.config_sha256,
+                          'is filled when the campaign loads; leave it out')
+    for key, why in _NOT_IN_LOOP.items():
+        if getattr(spec.dispersions, key) is not None:
+            raise ConfigError(path, f'dispersions.{key}', getattr(spec.dispersions, key).model_dump(
+                exclude_none=True), f'not used by a closed-loop campaign: {why}')
+    if spec.save != 'stats':
+        raise ConfigError(path, 'save', spec.save, 'a closed-loop campaign writes runs/run_NNNNN/loop.json, '
+                          'not bags: leave save out (or stats)')
+    loop_path = loop_config_path(path, spec)
+    if not loop_path.is_file():
+        raise ConfigError(path, 'loop.config', spec.loop.config, f'file not found at {loop_path}')
+    config, _ = load_loop_config(loop_path)
+    period = config.control_period_s
+    if abs(spec.duration_s / period - round(spec.duration_s / period)) > 1e-9:
+        raise ConfigError(path, 'duration_s', spec.duration_s,
+                          f'must be a whole number of control periods ({period:g} s, {loop_path.name})')
+    digest = hashlib.sha256(loop_path.read_bytes()).hexdigest()
+    return spec.model_copy(update={'loop': spec.loop.model_copy(update={'config_sha256': digest})})
 
 
 def _check_supports(disp: Dispersions, path: Path) -> None:
