@@ -22,6 +22,10 @@ from lidar_sim_ros.paths import share_dir
 
 # Size limits: a config past one of these is refused before anything is allocated.
 MAX_SHOTS_PER_FRAME = 5_000_000
+MAX_LASERS = 1024
+"""Laser ids run 0 .. MAX_LASERS - 1 (the largest sensors have 128 channels): a scan
+pattern, a recording's laser field or laser_bias offsets beyond it are refused, not
+wrapped into the uint16 laser field (a CSV laser of 70000 read as 4464)."""
 """Shots in one frame (the P-60 fires 21,120); each shot costs ~1 kB through the pipeline."""
 MAX_YAML_NODES = 200_000
 """Values in one YAML document counted with aliases expanded (an alias bomb stops here)."""
@@ -104,6 +108,9 @@ class LissajousArrayScan(_Model):
         if self.lasers is not None and len(self.lasers) != self.tiles_az * self.tiles_el:
             raise ValueError(f'lasers has {len(self.lasers)} entries, expected '
                              f'tiles_az*tiles_el = {self.tiles_az * self.tiles_el}')
+        if self.tiles_az * self.tiles_el > MAX_LASERS:
+            raise ValueError(f'tiles_az*tiles_el = {self.tiles_az * self.tiles_el} lasers exceed '
+                             f'the limit of {MAX_LASERS}')
         _check_shots(self.tiles_az * self.tiles_el * self.shots_per_laser)
         return self
 
@@ -117,7 +124,8 @@ class RotatingScan(_Model):
     """Generic spinning multi-beam LiDAR: beams at fixed elevations, azimuth sweeps."""
 
     type: Literal['rotating']
-    elevations_deg: list[Annotated[float, Field(ge=-90.0, le=90.0)]] = Field(min_length=1)
+    elevations_deg: list[Annotated[float, Field(ge=-90.0, le=90.0)]] = Field(
+        min_length=1, max_length=MAX_LASERS)
     az_min_deg: float = -180.0
     az_max_deg: float = 180.0
     shots_per_beam: Annotated[int, Field(ge=1)]
