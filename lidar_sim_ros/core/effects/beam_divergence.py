@@ -73,6 +73,7 @@ SERIES_LIMIT = 0.01     # tan(a) tan(theta) below which the plane sum's series i
 OCCLUDER_MARGIN_M = 0.002   # occluders this far behind the footprint's farthest sub-ray count
 WIDE_FOOTPRINT = 0.8    # footprint radius / median mesh edge above which every shot is cast
 CREASE_TOL_M = 1e-3     # range error allowed where a footprint crosses only slight creases
+MAX_FOOTPRINT_SCALE = 100.0  # cone / divergence; docs/effects.md, "Parameter bounds"
 
 
 @lru_cache(maxsize=8)
@@ -825,7 +826,7 @@ class BeamDivergence(Effect):
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
         footprint_scale: float = Field(
-            0.0, ge=0.0, description='cone full angle / beam divergence (-); 0 = single ray')
+            0.0, ge=0.0, le=MAX_FOOTPRINT_SCALE, description='cone full angle / beam divergence (-); 0 = single ray')
         rings: int = Field(2, ge=1, le=5, description='sub-ray rings (K = 1 + 3 rings (rings + 1))')
         range_mode: Literal['mean', 'first'] = 'mean'
         sampling: Literal['edges', 'all'] = Field(
