@@ -40,10 +40,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        # Ctrl-C while the commands load (before _main knows the command and --debug).
+        print('lidar-sim: interrupted', file=sys.stderr)
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        # Ctrl-C (SIGINT): one line and the shell's code for it, 128 + 2; files being
+        # written were closed by their context managers on the way out.
+        if args.debug:
+            raise
+        print(f'lidar-sim {args.command}: interrupted (Ctrl-C); output written so far is '
+              'incomplete', file=sys.stderr)
+        return 130
     except BrokenPipeError:
         # Output piped into e.g. `head`: stop quietly like other Unix tools.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

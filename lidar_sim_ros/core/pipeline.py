@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from lidar_sim_ros.core import detection, reflection, returns
-from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig
+from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig, scenario_effect_spec
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
 from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target
@@ -143,15 +143,6 @@ def _material_ids(material: np.ndarray) -> np.ndarray:
     return np.where(material < 0, NO_MATERIAL, material).astype(np.uint8)
 
 
-def _scenario_relative(spec: str, base: Path | None) -> str:
-    """``file.py:Class`` effect specs resolve next to the scenario file when they exist there."""
-    where, _, cls_name = spec.rpartition(':')
-    if base is None or not where.endswith('.py') or Path(where).is_absolute():
-        return spec
-    candidate = base / where
-    return f'{candidate}:{cls_name}' if candidate.is_file() else spec
-
-
 class Simulator:
     """The paper's four modules around one target, one sensor and a material table."""
 
@@ -195,7 +186,7 @@ class Simulator:
             target = load_target(scenario.mesh_path, scenario.materials.names)
         base = scenario.source.parent if scenario.source else None
         if effects is None:
-            effects = [make_effect(_scenario_relative(e.name, base), e.params)
+            effects = [make_effect(scenario_effect_spec(e.name, base), e.params)
                        for e in scenario.config.effects]
         sun = ScenarioSun(scenario.config.sun) if scenario.config.sun is not None else None
         return cls(scenario.sensor, scenario.materials, target, scenario.seed,
