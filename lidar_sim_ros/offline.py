@@ -169,12 +169,16 @@ def output_bound_bytes(sim: Simulator, layout: OutputLayout, frames: int,
                        poses_per_frame: int = POSES_PER_FRAME) -> int:
     """An upper bound (bytes) of the bag ``simulate_to_bag`` writes: every shot a point
     (``max_returns`` of them on the cloud topic in the layout's point size, one on the
-    truth topic), plus the poses, the sun direction and each message's framing."""
+    truth topic), plus the poses, the sun direction and each message's framing. (For a
+    receiver in mode ``all``, 8 returns a shot: an estimate, not a bound.)"""
     point_b = POINT_DTYPE.itemsize
     if layout.point_layout == 'cepton':
         point_b = (cepton.SDK3_POLAR_DTYPE if layout.polar_fields else cepton.SDK3_DTYPE).itemsize
     shots = len(sim.shots)
-    returns = sim.sensor.detection.returns.max_returns
+    receiver = sim.sensor.detection.returns
+    # mode 'all' reports every return a shot makes; 8 a shot (the most max_returns allows)
+    # stands in for them: the bound of that receiver is an estimate.
+    returns = receiver.max_returns if receiver.mode != 'all' else max(receiver.max_returns, 8)
     per_frame = (shots * (returns * point_b + POINT_DTYPE.itemsize)
                  + (poses_per_frame + 4) * _MESSAGE_BYTES)
     return int(frames) * per_frame + _MESSAGE_BYTES
