@@ -254,13 +254,27 @@ def test_ctrl_c_is_one_line_and_rc_130(monkeypatch, capsys):
 
     def interrupted(args):
         raise KeyboardInterrupt
+
+    def wrapped(args):       # numba loading its cache when the signal came
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise SystemError('returned a result with an exception set') from exc
+
+    def unrelated(args):
+        raise SystemError('a real bug')
     parser = cli.build_parser()
     monkeypatch.setattr(cli, 'build_parser', lambda: parser)
+    for func in (interrupted, wrapped):
+        for action in parser._subparsers._group_actions[0].choices.values():
+            action.set_defaults(func=func)
+        assert cli.main(['simulate', 'x.yaml', '--frames', '1', '--out', 'o']) == 130
+        err = capsys.readouterr().err.strip()
+        assert err == 'lidar-sim simulate: interrupted (Ctrl-C); output written so far is incomplete'
     for action in parser._subparsers._group_actions[0].choices.values():
-        action.set_defaults(func=interrupted)
-    assert cli.main(['simulate', 'x.yaml', '--frames', '1', '--out', 'o']) == 130
-    err = capsys.readouterr().err.strip()
-    assert err == 'lidar-sim simulate: interrupted (Ctrl-C); output written so far is incomplete'
+        action.set_defaults(func=unrelated)
+    with pytest.raises(SystemError, match='a real bug'):
+        cli.main(['simulate', 'x.yaml', '--frames', '1', '--out', 'o'])
 
 
 def test_sigint_during_a_run_exits_130_without_a_traceback(tmp_path):
@@ -294,3 +308,22 @@ def test_sigint_during_a_run_exits_130_without_a_traceback(tmp_path):
     # The bag was closed on the way out: it reads, with the frames done.
     from lidar_sim_ros.io.bag import read_clouds
     assert len(read_clouds(tmp_path / 'o' / 'bag')) >= 1
+
+
+def test_ctrl_c_swallowed_by_a_library_during_start_up_still_stops(monkeypatch, capsys):
+    """scipy's import-time docstring parsing catches every exception, a KeyboardInterrupt
+    too: a Ctrl-C then went unnoticed and the run went on. The signal is remembered."""
+    import signal
+    from lidar_sim_ros import cli
+    real = cli.build_parser
+
+    def swallowing_import():
+        try:
+            signal.getsignal(signal.SIGINT)(signal.SIGINT, None)    # the handler main set
+        except KeyboardInterrupt:
+            pass                                                    # as scipy does
+        return real()
+    monkeypatch.setattr(cli, 'build_parser', swallowing_import)
+    assert cli.main(['simulate', 'x.yaml', '--frames', '1', '--out', 'o']) == 130
+    assert capsys.readouterr().err.strip() == 'lidar-sim: interrupted'
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler     # restored
