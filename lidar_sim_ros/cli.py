@@ -57,8 +57,8 @@ class _Sigint:
 def main(argv: list[str] | None = None) -> int:
     own = (threading.current_thread() is threading.main_thread()
            and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+    _Sigint.seen = False
     if own:
-        _Sigint.seen = False
         signal.signal(signal.SIGINT, _Sigint.handler)
     try:
         return _main(argv)
