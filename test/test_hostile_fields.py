@@ -104,3 +104,29 @@ def test_the_last_valid_laser_id_loads(tmp_path):
         rec['channel_id'][0] = MAX_LASERS - 1
     meas = load_measurements(write_cepton_bag(tmp_path / 'b', edit=top))
     assert meas.laser.max() == MAX_LASERS - 1
+
+
+def test_calibration_refuses_the_same_fields(tmp_path):
+    """calibrate range-errors and scan read the clouds with their own loops: the same laser
+    and sub-second checks, naming bag, topic and cloud."""
+    from lidar_sim_ros.calibrate.common import CalibrationInputError
+    from lidar_sim_ros.calibrate.range_errors import _static_frames
+    from lidar_sim_ros.calibrate.scan_pattern import read_scan_samples
+
+    def wild(rec):
+        rec['channel_id'][2] = 60_000
+
+    def late(rec):
+        rec['timestamp_us'][3] = 2_000_000_000
+    bag = write_cepton_bag(tmp_path / 'wild', edit=wild)
+    with pytest.raises(MeasurementError, match="cloud #0: laser field 'channel_id' = 60000"):
+        _static_frames(bag, '/lidar/points', '/target/pose', {k: 0 for k in (
+            'frames', 'frames_no_pose', 'frames_moving', 'points')})
+    with pytest.raises(MeasurementError, match="cloud #0: laser field 'channel_id' = 60000"):
+        read_scan_samples(bag, '/lidar/points')
+    bag = write_cepton_bag(tmp_path / 'late', edit=late)
+    with pytest.raises(CalibrationInputError, match='cloud #0: timestamp_us = 2000000000'):
+        _static_frames(bag, '/lidar/points', '/target/pose', {k: 0 for k in (
+            'frames', 'frames_no_pose', 'frames_moving', 'points')})
+    with pytest.raises(CalibrationInputError, match='cloud #0: timestamp_us = 2000000000'):
+        read_scan_samples(bag, '/lidar/points')
