@@ -13,6 +13,8 @@ seconds since that stamp, pose stamps = the times the poses hold.
 from __future__ import annotations
 
 import argparse
+import shutil
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
@@ -25,13 +27,19 @@ from lidar_sim_ros.core.effects import effect_from_spec
 from lidar_sim_ros.core.pipeline import Frame, Simulator
 from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, MATERIAL_NAMES_TOPIC, POSE_TOPIC, SUN_TOPIC, BagWriter
-from lidar_sim_ros.cli_types import epoch_seconds, finite_seconds, positive_int
-from lidar_sim_ros.io.pointcloud import frame_points
+from lidar_sim_ros.cli_types import epoch_seconds, finite_seconds, float_in, positive_int
+from lidar_sim_ros.io import cepton
+from lidar_sim_ros.io.pointcloud import POINT_DTYPE, frame_points
 
 TRUTH_TOPIC = '/lidar/points_truth'
 DEFAULT_EPOCH_S = 1_700_000_000.0
 POSES_PER_FRAME = 10
 NS_PER_S = 1_000_000_000
+MAX_OUTPUT_GB = 20.0
+"""``lidar-sim simulate`` refuses a run whose bag may exceed this (GB, 1e9 bytes) unless
+``--max-output-gb`` raises it: ``--frames 1000000000`` started writing ~200 TB."""
+ANNOUNCE_BYTES = 1e9       # a run that may write this much says its estimate before it starts
+_MESSAGE_BYTES = 256     # header, field list, CDR and storage framing of one message, at most
 
 
 @dataclass(frozen=True)
@@ -192,6 +200,52 @@ def _sunlight_figure(sim: Simulator, frame, trajectory, out_dir: Path, label: st
                                   out_dir / 'sunlight.png', label)
 
 
+def output_bound_bytes(sim: Simulator, layout: OutputLayout, frames: int,
+                       poses_per_frame: int = POSES_PER_FRAME) -> int:
+    """An upper bound (bytes) of the bag ``simulate_to_bag`` writes: every shot a point
+    (``max_returns`` of them on the cloud topic in the layout's point size, one on the
+    truth topic), plus the poses, the sun direction and each message's framing. (For a
+    receiver in mode ``all``, 8 returns a shot: an estimate, not a bound.)"""
+    point_b = POINT_DTYPE.itemsize
+    if layout.point_layout == 'cepton':
+        point_b = (cepton.SDK3_POLAR_DTYPE if layout.polar_fields else cepton.SDK3_DTYPE).itemsize
+    shots = len(sim.shots)
+    receiver = sim.sensor.detection.returns
+    # mode 'all' reports every return a shot makes; 8 a shot (the most max_returns allows)
+    # stands in for them: the bound of that receiver is an estimate.
+    returns = receiver.max_returns if receiver.mode != 'all' else max(receiver.max_returns, 8)
+    per_frame = (shots * (returns * point_b + POINT_DTYPE.itemsize)
+                 + (poses_per_frame + 4) * _MESSAGE_BYTES)
+    return int(frames) * per_frame + _MESSAGE_BYTES
+
+
+def _size(n_bytes: float) -> str:
+    """'1.35 MB', '205 TB': decimal units."""
+    for unit, scale in (('PB', 1e15), ('TB', 1e12), ('GB', 1e9), ('MB', 1e6), ('kB', 1e3)):
+        if n_bytes >= scale:
+            return f'{n_bytes / scale:.3g} {unit}'
+    return f'{int(n_bytes)} B'
+
+
+def check_output_size(sim: Simulator, layout: OutputLayout, frames: int, out_dir: Path,
+                      max_output_gb: float) -> str:
+    """The terminal's estimate line; ValueError when the bound exceeds ``max_output_gb``
+    (named with the frames, the size a frame and the option that raises the limit)."""
+    bound = output_bound_bytes(sim, layout, frames)
+    per_frame = _size(bound / frames)
+    if bound > max_output_gb * 1e9:
+        raise ValueError(f'--frames {frames}: the bag may reach {_size(bound)} ({per_frame} a '
+                         f'frame, {len(sim.shots)} shots each a point), above --max-output-gb '
+                         f'{max_output_gb:g}; write fewer frames or raise the limit')
+    line = f'estimate: the bag takes at most {_size(bound)} ({per_frame} a frame, every shot a point)'
+    where = next((p for p in (Path(out_dir).resolve(), *Path(out_dir).resolve().parents)
+                  if p.exists()), None)
+    free = shutil.disk_usage(where).free if where is not None else None
+    if free is not None and bound > free:
+        line += f'; only {_size(free)} free on {where}'
+    return line
+
+
 def _write_poses(bag: BagWriter, trajectory: PoseSource, t_s: np.ndarray,
                  frame_id: str, epoch_s: float) -> None:
     poses = trajectory.at(t_s)
@@ -209,6 +263,10 @@ def register(subparsers) -> None:
                     'plus PNG figures of the last frame in DIR/figures.')
     p.add_argument('scenario', type=Path, help='scenario YAML (e.g. config/scenario.yaml)')
     p.add_argument('--frames', type=positive_int, required=True, help='number of frames')
+    p.add_argument('--max-output-gb', type=float_in(0.0, 1e6, 'a size in GB', open_low=True),
+                   default=MAX_OUTPUT_GB, metavar='GB',
+                   help='refuse a run whose bag may exceed this many GB (default %(default)g; '
+                        'the estimate assumes every shot a point)')
     p.add_argument('--out', type=Path, required=True, metavar='DIR',
                    help='output directory; DIR/bag must not exist yet')
     p.add_argument('--start-s', type=finite_seconds, default=0.0, metavar='S',
@@ -240,13 +298,17 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    result = simulate_to_bag(args.scenario, args.out, args.frames, start_s=args.start_s,
-                             storage=args.storage, effects=args.effect,
-                             figures=not args.no_figures, epoch_s=args.epoch_s,
-                             layout=OutputLayout(point_layout=args.point_layout,
-                                                 topic=args.cloud_topic, frame_id=args.frame_id,
-                                                 no_return_points=args.no_return_points,
-                                                 polar_fields=args.polar_fields),
+    layout = OutputLayout(point_layout=args.point_layout, topic=args.cloud_topic,
+                          frame_id=args.frame_id, no_return_points=args.no_return_points,
+                          polar_fields=args.polar_fields)
+    scenario = load_scenario(args.scenario)
+    sim = Simulator.from_scenario(scenario, extra_effects=[effect_from_spec(e) for e in args.effect])
+    estimate = check_output_size(sim, layout, args.frames, args.out, args.max_output_gb)
+    if output_bound_bytes(sim, layout, args.frames) >= ANNOUNCE_BYTES:
+        print(estimate, file=sys.stderr, flush=True)
+    result = simulate_to_bag(scenario, args.out, args.frames, start_s=args.start_s,
+                             storage=args.storage, simulator=sim,
+                             figures=not args.no_figures, epoch_s=args.epoch_s, layout=layout,
                              pcap=args.pcap)
     points = sum(s.get('detected', 0) for s in result.frame_stats)
     print(f'bag: {result.bag_path}  ({len(result.frame_stamps_ns)} frames, {points} points)')

@@ -31,7 +31,7 @@ from lidar_sim_ros.calibrate.common import (CalibrationInputError, format_table,
 from lidar_sim_ros.compare.cepton_pcap import (PcapError, is_pcap, pcap_recording,
                                                 read_pose_source)
 from lidar_sim_ros.compare.fields import FieldError, resolve_fields
-from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field,
+from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field, laser_ids,
                                                  usable_points)
 from lidar_sim_ros.core.config import load_scenario, resolve
 from lidar_sim_ros.core.geometry import MeshMaterialError, Target, cast_at_poses, load_target
@@ -132,7 +132,7 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
         raise CalibrationInputError(f'bag {bag}: topic {pose_topic!r} has no messages')
     counts['frames'] += len(clouds)
     frames = []
-    for cloud in clouds:
+    for index, cloud in enumerate(clouds):
         pts = cloud.points
         names = pts.dtype.names or ()
         if not {'x', 'y', 'z'} <= set(names):
@@ -150,8 +150,12 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
             counts['frames_no_pose'] += 1
             continue
         # A different pose published during the frame means the target moved.
-        t_max = (float(np.nanmax(field_time_since_stamp_s(pts, fmap.time, cloud.stamp_ns)[0]))
-                 if fmap.time and len(pts) else 0.0)
+        try:
+            t_max = (float(np.nanmax(field_time_since_stamp_s(pts, fmap.time, cloud.stamp_ns)[0]))
+                     if fmap.time and len(pts) else 0.0)
+        except FieldError as exc:
+            raise CalibrationInputError(f'bag {bag}, topic {cloud_topic!r}, cloud #{index}: '
+                                        f'{exc}') from None
         k_end = _pose_index(poses.stamp_ns, cloud.stamp_ns + int(t_max * 1e9))
         if any(not _same_pose(poses.position_m[k], poses.quat_xyzw[k], poses.position_m[j],
                               poses.quat_xyzw[j]) for j in range(k + 1, k_end + 1)):
@@ -161,7 +165,8 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
         rng = np.linalg.norm(xyz, axis=1)
         ok = np.isfinite(rng) & (rng > 0)
         counts['points'] += int(ok.sum())
-        laser = np.asarray(pts[fmap.laser]).astype(np.int64)[ok] if fmap.laser else None
+        laser = (laser_ids(pts[fmap.laser][ok], fmap.laser, bag, cloud_topic, index)
+                 if fmap.laser else None)
         frames.append(_StaticFrame(poses.position_m[k], poses.quat_xyzw[k],
                                    xyz[ok] / rng[ok, None], rng[ok], laser))
     return frames

@@ -26,7 +26,7 @@ from lidar_sim_ros.core.scan import (LissajousLaser, angles_from_directions,
                                      directions_from_angles, frame_shots, lissajous_angles,
                                      lissajous_lasers)
 from lidar_sim_ros.compare.fields import FieldError, resolve_fields
-from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field,
+from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field, laser_ids,
                                                  usable_points)
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, BagContentError, read_clouds
 from lidar_sim_ros.paths import config_path
@@ -89,10 +89,13 @@ def read_scan_samples(bag: str | Path, topic: str = CLOUD_TOPIC,
         p = c.points[usable_points(c.points, fmap)]
         for k in ('x', 'y', 'z'):
             cols[k].append(np.asarray(p[k], dtype=float))
-        cols['t'].append(field_time_since_stamp_s(p, fmap.time, c.stamp_ns)[0]
-                         if len(p) else np.zeros(0))
+        try:
+            cols['t'].append(field_time_since_stamp_s(p, fmap.time, c.stamp_ns)[0]
+                             if len(p) else np.zeros(0))
+        except FieldError as exc:
+            raise CalibrationInputError(f'{src}, cloud #{i}: {exc}') from None
         if ring_field:
-            cols['ring'].append(np.asarray(p[ring_field], dtype=int))
+            cols['ring'].append(laser_ids(p[ring_field], ring_field, bag, topic, i))
         cols['frame'].append(np.full(len(p), i))
     a = {k: np.concatenate(v) for k, v in cols.items() if v}
     xyz = np.column_stack([a['x'], a['y'], a['z']])

@@ -80,8 +80,8 @@ def add_field_options(p) -> None:
                    help='the intensity field (default: intensity, else reflectivity)')
     p.add_argument('--time-field', default=None, metavar='NAME[,SUBSECONDS]',
                    help='per-point time: one field, or a seconds + sub-seconds pair of '
-                        'integer fields (default: timestamp_s,timestamp_us of the Cepton '
-                        'driver, else t, time, timestamp, offset_time, ...)')
+                        'integer fields, or none (default: timestamp_s,timestamp_us of the '
+                        'Cepton driver, else t, time, timestamp, offset_time, ...)')
     p.add_argument('--laser-field', default=None, metavar='NAME',
                    help='the laser id field (default: ring, channel_id, channel, laser, ...)')
 

@@ -37,6 +37,7 @@ from lidar_sim_ros.compare.fields import (FieldError, flag_counts, flag_lines, p
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, cloud_count,
                                   iter_clouds, read_material_names, read_poses)
+from lidar_sim_ros.core.config import MAX_LASERS
 from lidar_sim_ros.core.pose import QUAT_NORM_TOL, PoseTrack, valid_pose_mask
 from lidar_sim_ros.core.scan import Shots
 
@@ -227,7 +228,11 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         ok &= ~zero & ~far
         if has_t:
             t_all = np.full(len(p), np.nan)
-            t_all[ok], kind = field_time_since_stamp_s(p[ok], fmap.time, c.stamp_ns)
+            try:
+                t_all[ok], kind = field_time_since_stamp_s(p[ok], fmap.time, c.stamp_ns)
+            except FieldError as exc:
+                raise MeasurementError(f'bag {bag}, topic {cloud_topic!r}, cloud #{k}: '
+                                       f'{exc}') from None
             t_kinds.append(kind)
             bad_t = ok & ~np.isfinite(t_all)
             n_bad_time += int(bad_t.sum())
@@ -248,8 +253,8 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         else:
             cols['t'].append(np.zeros(ok.sum()))
         cols['cloud'].append(np.full(ok.sum(), k))
-        cols['laser'].append(np.asarray(p[fmap.laser]).astype(np.int64)[ok] if fmap.laser
-                             else np.zeros(ok.sum(), np.int64))
+        cols['laser'].append(laser_ids(p[fmap.laser][ok], fmap.laser, bag, cloud_topic, k)
+                             if fmap.laser else np.zeros(ok.sum(), np.int64))
     total = sum(len(x) for x in cols['xyz'])
     invalid = n_far + n_bad_time
     if invalid > MAX_INVALID_FRACTION * (total + n_thinned + invalid):
@@ -267,12 +272,15 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
     xyz = np.vstack(cols['xyz'])
     t_frame = np.concatenate(cols['t'])
     time_field = None
+    time_read: list[str] = []
     if has_t:
         kinds = sorted(set(t_kinds))
         time_field = {'name': t_name, 'dtype': time_dtype, 'read_as': kinds}
         if kinds != ['s since stamp'] or t_name != 't':
             notes.append(f'per-point time from field {t_name!r} '
                          f'({time_dtype}): read as {", ".join(kinds)}')
+            # On the terminal too: "on another clock" changes what the times mean.
+            time_read = [f'  point time read as: {", ".join(kinds)}']
     cloud = np.concatenate(cols['cloud'])
     epoch_ns = int(min(int(poses.stamp_ns[0]), min(stamp_ns)))
     stamps_s = (np.asarray(stamp_ns, np.int64) - epoch_ns) / NS_PER_S
@@ -291,7 +299,7 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
                **({'invalid': n_invalid} if fmap.valid else {}),
                **({'no_return': n_no_return} if fmap.flags else {})}
     saturated = np.concatenate(cols['sat'])
-    lines = fmap.lines() + flag_lines(fmap, counts, n_no_return, n_invalid)
+    lines = fmap.lines() + time_read + flag_lines(fmap, counts, n_no_return, n_invalid)
     if n_thinned:
         notes.append(f'{len(rng) + n_thinned} points in {len(stamp_ns)} clouds: at most '
                      f'{per_cloud} per cloud are analysed, at random')
@@ -310,6 +318,27 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         time_source='field' if has_t else 'stamp', time_field=time_field,
         saturated=saturated[keep] if fmap.flags else None, field_lines=lines,
         fields=fmap.as_dict(), flag_counts=counts, known_misses=n_no_return)
+
+
+def laser_ids(values: np.ndarray, name: str, bag: Path, topic: str, k: int) -> np.ndarray:
+    """One cloud's laser field as int64 ids, each a whole number in [0, MAX_LASERS);
+    MeasurementError naming the bag, topic, cloud, field and value otherwise (a channel_id
+    of 60000 gave laser_bias 60,024 offsets; -1 wrapped to 65535)."""
+    v = np.asarray(values)
+    if v.dtype.kind == 'f':
+        bad = ~np.isfinite(v) | (v != np.round(v))
+        v = np.where(bad, -1, v)
+    else:
+        bad = np.zeros(len(v), bool)
+    ids = v.astype(np.int64)
+    bad |= (ids < 0) | (ids >= MAX_LASERS)
+    if bad.any():
+        first = np.asarray(values)[bad][0]
+        raise MeasurementError(
+            f'bag {bag}, topic {topic!r}, cloud #{k}: laser field {name!r} = {first} '
+            f'({int(bad.sum())} point(s)): laser ids must be whole numbers in [0, {MAX_LASERS}) '
+            '(name another field with --laser-field)')
+    return ids
 
 
 def _check_xyz_fields(dtype: np.dtype, bag: Path, topic: str, k: int) -> None:

@@ -258,6 +258,14 @@ def iterate(first: PoseError, start: PoseCorrection, rematch: Callable[[PoseCorr
     return state, corr, report
 
 
+def heldout_gain(residual_m: np.ndarray, correction_m: np.ndarray,
+                 sigma_m: np.ndarray) -> np.ndarray:
+    """Nats per point the correction gains on held-out points: the Gaussian log density of
+    the corrected residual minus the uncorrected one's, (r^2 - (r - c)^2) / (2 s^2)."""
+    r = np.asarray(residual_m, float)
+    return (r ** 2 - (r - correction_m) ** 2) / (2 * np.asarray(sigma_m, float) ** 2)
+
+
 def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                        blocks: np.ndarray, z_crit: float, min_gain: float, seed: int = 0,
                        effects: list | None = None,
@@ -292,7 +300,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         x = fit_clouds(a, r, s, cloud, use & (half == k), clouds, prior, TEST_RIDGE)
         corr = np.einsum('ij,ij->i', a, x[np.searchsorted(clouds, cloud)])
         test = use & (half != k)
-        gain[test] = (r[test] ** 2 - (r[test] - corr[test]) ** 2) / (2 * s[test] ** 2)
+        gain[test] = heldout_gain(r[test], corr[test], s[test])
     mean, se = block_mean_se(gain[use], blocks[use]) if use.sum() > 1 else (0.0, np.inf)
     per_point = float(np.sum(gain[use]) / max(len(r), 1))
     z = float(mean / se) if se > 0 and np.isfinite(se) else 0.0

@@ -49,7 +49,8 @@ from lidar_sim_ros.compare.shots import missed_per_unmatched
 from lidar_sim_ros.compare.sunlight import (SunFit, fit_sunlight, read_sun_track, short_points,
                                             summary_section, sunlit_decision)
 from lidar_sim_ros.compare.verdict import summary_lines, verdict
-from lidar_sim_ros.core.config import MaterialsConfig, Scenario, load_scenario, resolve
+from lidar_sim_ros.core.config import (MaterialsConfig, Scenario, load_scenario, resolve,
+                                       scenario_effect_spec)
 from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
                                         parse_effect_spec)
 from lidar_sim_ros.core.geometry import load_target
@@ -463,7 +464,9 @@ def load_inputs(opts: CompareOptions) -> Inputs:
                              opts.seed, opts.intensity_field, opts.time_field, opts.laser_field,
                              poses_from=opts.poses)
     sun = recording_sun(opts, scenario, meas)
-    scenario_effects = [get_effect_class(e.name)(e.params) for e in scenario.config.effects]
+    base = scenario.source.resolve().parent if scenario.source else None
+    scenario_effects = [get_effect_class(scenario_effect_spec(e.name, base))(e.params)
+                        for e in scenario.config.effects]
     pose_fit = any(parse_effect_spec(spec)[0] == POSE_ERROR for spec in opts.effects)
     user = [effect_from_spec(spec) for spec in opts.effects
             if parse_effect_spec(spec)[0] != POSE_ERROR]

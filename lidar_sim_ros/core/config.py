@@ -23,6 +23,10 @@ from lidar_sim_ros.paths import share_dir
 
 # Size limits: a config past one of these is refused before anything is allocated.
 MAX_SHOTS_PER_FRAME = 5_000_000
+MAX_LASERS = 1024
+"""Laser ids run 0 .. MAX_LASERS - 1 (the largest sensors have 128 channels): a scan
+pattern, a recording's laser field or laser_bias offsets beyond it are refused, not
+wrapped into the uint16 laser field (a CSV laser of 70000 read as 4464)."""
 """Shots in one frame (the P-60 fires 21,120); each shot costs ~1 kB through the pipeline."""
 MAX_YAML_NODES = 200_000
 """Values in one YAML document counted with aliases expanded (an alias bomb stops here)."""
@@ -105,6 +109,9 @@ class LissajousArrayScan(_Model):
         if self.lasers is not None and len(self.lasers) != self.tiles_az * self.tiles_el:
             raise ValueError(f'lasers has {len(self.lasers)} entries, expected '
                              f'tiles_az*tiles_el = {self.tiles_az * self.tiles_el}')
+        if self.tiles_az * self.tiles_el > MAX_LASERS:
+            raise ValueError(f'tiles_az*tiles_el = {self.tiles_az * self.tiles_el} lasers exceed '
+                             f'the limit of {MAX_LASERS}')
         _check_shots(self.tiles_az * self.tiles_el * self.shots_per_laser)
         return self
 
@@ -118,7 +125,8 @@ class RotatingScan(_Model):
     """Generic spinning multi-beam LiDAR: beams at fixed elevations, azimuth sweeps."""
 
     type: Literal['rotating']
-    elevations_deg: list[Annotated[float, Field(ge=-90.0, le=90.0)]] = Field(min_length=1)
+    elevations_deg: list[Annotated[float, Field(ge=-90.0, le=90.0)]] = Field(
+        min_length=1, max_length=MAX_LASERS)
     az_min_deg: float = -180.0
     az_max_deg: float = 180.0
     shots_per_beam: Annotated[int, Field(ge=1)]
@@ -303,11 +311,28 @@ class MaterialsConfig(_Model):
 
 
 # ------------------------------------------------------------------- scenario
+MAX_POSITION_M = 1.0e5
+"""A target position component beyond 100 km (m) is no rendezvous (a 1e300 m start
+overflowed in the trajectory with a message naming neither file nor key)."""
+MIN_POSITION_M = 1.0e-3
+MAX_APPROACH_SPEED_MPS = 1.0e4
+MAX_TUMBLE_RATE_DPS = 3600.0
+Position = Annotated[float, Field(ge=-MAX_POSITION_M, le=MAX_POSITION_M)]
+
+
 class PoseConfig(_Model):
     """Target body pose in the lidar frame: p_lidar = R(q) p_body + position."""
 
-    position_m: tuple[float, float, float]
+    position_m: tuple[Position, Position, Position]
     quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+
+    @field_validator('position_m')
+    @classmethod
+    def _off_the_sensor(cls, p):
+        if not float(np.linalg.norm(p)) >= MIN_POSITION_M:
+            raise ValueError(f'the target must start at least {MIN_POSITION_M:g} m from the '
+                             'sensor (its line of sight is the approach direction)')
+        return p
 
     @field_validator('quat_xyzw')
     @classmethod
@@ -322,16 +347,21 @@ class PoseConfig(_Model):
 class MotionConfig(_Model):
     """Relative motion: approach along the line of sight plus a constant tumble."""
 
-    approach_speed_mps: float = Field(0.0, description='closing speed toward the sensor (m/s)')
+    approach_speed_mps: float = Field(0.0, ge=-MAX_APPROACH_SPEED_MPS, le=MAX_APPROACH_SPEED_MPS,
+                                      description='closing speed toward the sensor (m/s)')
     tumble_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    tumble_rate_dps: float = Field(0.0, description='tumble rate about tumble_axis, lidar frame (deg/s)')
+    tumble_rate_dps: float = Field(0.0, ge=-MAX_TUMBLE_RATE_DPS, le=MAX_TUMBLE_RATE_DPS,
+                                   description='tumble rate about tumble_axis, lidar frame (deg/s)')
 
     @field_validator('tumble_axis')
     @classmethod
     def _nonzero(cls, a):
-        if not float(np.linalg.norm(a)) > 1e-9:
+        # Scaled by its largest component first: the norm of (1e300, 1e300, 0) overflows.
+        arr = np.asarray(a, float)
+        top = float(np.max(np.abs(arr)))
+        if not (np.isfinite(top) and top > 0.0) or not np.linalg.norm(arr / top) > 1e-9:
             raise ValueError('tumble_axis must be non-zero')
-        return a
+        return tuple(float(x) for x in arr / top)
 
 
 def _unit_vector(v: tuple[float, float, float]) -> tuple[float, float, float]:
@@ -615,15 +645,24 @@ def load_scenario(path: str | Path) -> Scenario:
                     mesh_path, path)
 
 
+def scenario_effect_spec(spec: str, base: Path | None) -> str:
+    """A scenario's ``file.py:Class`` effect resolved against the scenario's folder
+    ``base``, and only there: a plugin missing beside the scenario is not looked for in
+    the current directory (which would run whatever file of that name sits there).
+    Catalogue names, ``module:Class`` and absolute paths are returned as given."""
+    where, _, cls_name = spec.rpartition(':')
+    if base is None or not where.endswith('.py'):
+        return spec
+    file = Path(where).expanduser()
+    return spec if file.is_absolute() else f'{base / file}:{cls_name}'
+
+
 def _check_effects(cfg: ScenarioConfig, path: Path) -> None:
     """Every listed effect must resolve and accept its params: fail at load, not mid-run."""
     from lidar_sim_ros.core.effects import get_effect_class  # effects import the pipeline
     base = path.resolve().parent
     for i, eff in enumerate(cfg.effects):
-        spec = eff.name
-        where, _, cls_name = spec.rpartition(':')
-        if where.endswith('.py') and not Path(where).is_absolute() and (base / where).is_file():
-            spec = f'{base / where}:{cls_name}'
+        spec = scenario_effect_spec(eff.name, base)
         try:
             cls = get_effect_class(spec)
         except (KeyError, ImportError, FileNotFoundError, TypeError, AttributeError) as exc:

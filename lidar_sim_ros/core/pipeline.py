@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from lidar_sim_ros.core import detection, reflection, returns
-from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig
+from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig, scenario_effect_spec
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
 from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target
@@ -143,15 +143,6 @@ def _material_ids(material: np.ndarray) -> np.ndarray:
     return np.where(material < 0, NO_MATERIAL, material).astype(np.uint8)
 
 
-def _scenario_relative(spec: str, base: Path | None) -> str:
-    """``file.py:Class`` effect specs resolve next to the scenario file when they exist there."""
-    where, _, cls_name = spec.rpartition(':')
-    if base is None or not where.endswith('.py') or Path(where).is_absolute():
-        return spec
-    candidate = base / where
-    return f'{candidate}:{cls_name}' if candidate.is_file() else spec
-
-
 class Simulator:
     """The paper's four modules around one target, one sensor and a material table."""
 
@@ -195,7 +186,7 @@ class Simulator:
             target = load_target(scenario.mesh_path, scenario.materials.names)
         base = scenario.source.parent if scenario.source else None
         if effects is None:
-            effects = [make_effect(_scenario_relative(e.name, base), e.params)
+            effects = [make_effect(scenario_effect_spec(e.name, base), e.params)
                        for e in scenario.config.effects]
         sun = ScenarioSun(scenario.config.sun) if scenario.config.sun is not None else None
         return cls(scenario.sensor, scenario.materials, target, scenario.seed,
@@ -308,7 +299,7 @@ class Simulator:
                 material, intensity = material.copy(), intensity.copy()
             material[rows] = -1
             intensity[rows] = det.threshold_power_w / det.saturation_power_w
-        detected &= np.isfinite(measured) & (measured > 0)
+        detected &= detection.in_range_gate(measured, det)
         # Index lists once (take() is ~5x cheaper than repeated boolean masks), in firing order.
         out = _fired(detected, self._cast_position)
         range_out = measured.take(out)
@@ -363,7 +354,7 @@ class Simulator:
         for x in extras:
             if x.replaces_echo:
                 split[x.shot] = True
-        echo = np.flatnonzero(detected & ~blinded & ~split & np.isfinite(measured) & (measured > 0))
+        echo = np.flatnonzero(detected & ~blinded & ~split & detection.in_range_gate(measured, det))
         # Extra returns: the detector's window and the bias and noise of their surface, drawn
         # after every other draw of the frame (the other streams stay as they were).
         x_shot = np.concatenate([x.shot for x in extras]) if extras else np.zeros(0, np.int64)
@@ -375,10 +366,10 @@ class Simulator:
 
         x_meas = detection.measured_range_m(x_range, self._bias.take(x_mat), self._sigma.take(x_mat), rng)
         x_ok = (detection.detected_mask(x_power, x_range, det) & ~blinded.take(x_shot)
-                & (x_meas > 0))
+                & detection.in_range_gate(x_meas, det))
         f_shot = np.concatenate(false_shot) if false_shot else np.zeros(0, np.int64)
         f_range = np.concatenate(false_range) if false_range else np.zeros(0)
-        f_ok = f_range > 0
+        f_ok = detection.in_range_gate(f_range, det)
         # Candidates: echoes (kind 0), extras (1 or 3), false returns (2).
         cand_shot = np.concatenate([echo, x_shot[x_ok], f_shot[f_ok]])
         # kind 1: returns by way of another surface (multipath ghosts), 3: other extra returns.

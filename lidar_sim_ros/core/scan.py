@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.core.config import (ConfigError, FileScan, LissajousArrayScan,
-                                       RotatingScan, SensorConfig)
+from lidar_sim_ros.core.config import (MAX_LASERS, MAX_SHOTS_PER_FRAME, ConfigError, FileScan,
+                                       LissajousArrayScan, RotatingScan, SensorConfig)
 
 
 @dataclass(frozen=True)
@@ -139,23 +139,53 @@ def file_shots(cfg: FileScan, frame_period_s: float, base: Path | None = None) -
     if not path.is_file():
         raise ConfigError(path, 'scan.path', cfg.path, 'scan pattern file not found')
     if path.suffix == '.npy':
-        data = np.load(path)
-        cols = {name: data[name] for name in data.dtype.names} if data.dtype.names else {
-            name: data[:, i] for i, name in enumerate(('t_s', 'az_deg', 'el_deg', 'laser'))}
+        try:   # memory-mapped: the shape is checked before anything is read
+            data = np.load(path, mmap_mode='r', allow_pickle=False)
+        except (ValueError, OSError) as exc:
+            raise ConfigError(path, 'scan.path', cfg.path, f'not a readable .npy file: {exc}') from None
+        if data.ndim and len(data) > MAX_SHOTS_PER_FRAME:
+            raise ConfigError(path, 'shape', list(data.shape),
+                              f'more shots than the limit of {MAX_SHOTS_PER_FRAME}')
+        if data.dtype.names:
+            missing = {'t_s', 'az_deg', 'el_deg', 'laser'} - set(data.dtype.names)
+            if missing or data.ndim != 1:
+                raise ConfigError(path, 'columns', data.dtype.names,
+                                  f'a 1-D record array with t_s, az_deg, el_deg, laser '
+                                  f'(missing {sorted(missing)}, shape {data.shape})')
+            cols = {name: data[name] for name in data.dtype.names}
+        elif data.ndim != 2 or data.shape[1] < 4 or data.dtype.kind not in 'iuf':
+            raise ConfigError(path, 'shape', list(data.shape),
+                              f'a scan .npy holds an (N, 4) number array (t_s, az_deg, el_deg, '
+                              f'laser columns) or a record array; this is {data.ndim}-D '
+                              f'{data.dtype}')
+        else:
+            cols = {name: data[:, i] for i, name in enumerate(('t_s', 'az_deg', 'el_deg', 'laser'))}
     else:
         data = np.genfromtxt(path, delimiter=',', names=True)
         missing = {'t_s', 'az_deg', 'el_deg', 'laser'} - set(data.dtype.names or ())
         if missing:
             raise ConfigError(path, 'columns', data.dtype.names, f'missing columns {sorted(missing)}')
-        cols = {name: data[name] for name in data.dtype.names}
+        cols = {name: np.atleast_1d(data[name]) for name in data.dtype.names}
     t = np.asarray(cols['t_s'], dtype=float)
     if np.any(~np.isfinite(t)) or np.any(t < 0) or np.any(t >= frame_period_s):
         raise ConfigError(path, 't_s', float(np.nanmax(t)),
                           f'shot times must lie in [0, frame period {frame_period_s:g} s)')
+    if len(t) > MAX_SHOTS_PER_FRAME:
+        raise ConfigError(path, 't_s', len(t), f'more shots than the limit of {MAX_SHOTS_PER_FRAME}')
+    az, el = (np.asarray(cols[c], dtype=float) for c in ('az_deg', 'el_deg'))
+    for name, v in (('az_deg', az), ('el_deg', el)):
+        bad = ~np.isfinite(v)
+        if bad.any():
+            raise ConfigError(path, name, float(v[bad][0]), 'angles must be finite (deg)')
+    laser = np.asarray(cols['laser'], dtype=float)
+    bad = ~np.isfinite(laser) | (laser != np.round(laser)) | (laser < 0) | (laser >= MAX_LASERS)
+    if bad.any():
+        raise ConfigError(path, 'laser', float(laser[bad][0]),
+                          f'laser ids must be whole numbers in [0, {MAX_LASERS}) '
+                          f'({int(bad.sum())} row(s))')
     order = np.argsort(t, kind='stable')
-    return Shots(t[order], np.radians(np.asarray(cols['az_deg'], float))[order],
-                 np.radians(np.asarray(cols['el_deg'], float))[order],
-                 np.asarray(cols['laser']).astype(np.uint16)[order])
+    return Shots(t[order], np.radians(az)[order], np.radians(el)[order],
+                 laser.astype(np.uint16)[order])
 
 
 def frame_shots(sensor: SensorConfig, base: Path | None = None) -> Shots:

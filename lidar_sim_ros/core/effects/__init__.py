@@ -74,6 +74,10 @@ def get_effect_class(spec: str) -> type[Effect]:
         path = Path(where).expanduser()
         if not path.is_file():
             raise FileNotFoundError(f'effect file not found: {path}')
+        if path.suffix != '.py':
+            # spec_from_file_location has no loader for other files ('NoneType' object...).
+            raise TypeError(f'{spec}: an effect file is Python source ending in .py, '
+                            f'not {path.name!r}')
         path = path.resolve()
         module = _FILE_MODULES.get(path)
         if module is None:
