@@ -36,7 +36,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
 from lidar_sim_ros.core.config import (ConfigError, Scenario, load_materials, load_scenario,
-                                       load_sensor, parse, with_frame_rate)
+                                       load_sensor, parse, scenario_effect_spec, with_frame_rate)
 from lidar_sim_ros.core.effects import (Effect, builtin_classes, get_effect_class, is_plugin_spec,
                                         make_effect)
 from lidar_sim_ros.core.geometry import MeshMaterialError
@@ -216,9 +216,10 @@ class LidarSimNode(Node):
             name for name in [*self._effects_specs, *(self.get_parameter_or('plugin_effects').value or []),
                               *self._effects_value()] if is_plugin_spec(name))
         for name in sorted(self._plugins):
-            make_effect(name, self._effects_specs.get(name))
+            make_effect(self._load_spec(name), self._effects_specs.get(name))
         self._effect_classes = {**builtin_classes(),
-                                **{spec: get_effect_class(spec) for spec in sorted(self._plugins)}}
+                                **{spec: get_effect_class(self._load_spec(spec))
+                                   for spec in sorted(self._plugins)}}
         self.sim.effects = self._build_effects(self._effects_value())
         sun = self.scenario.config.sun
         self.declare_parameter(
@@ -402,11 +403,19 @@ class LidarSimNode(Node):
         value = self.get_parameter_or('effects').value  # NOT_SET (empty list) -> None
         return list(value) if value else []
 
+    def _load_spec(self, name: str) -> str:
+        """What loads the effect ``name``: a scenario's ``file.py:Class`` beside the scenario
+        file, never in the current directory; any other name as given."""
+        source = self.scenario.source
+        if name in self._effects_specs and source is not None:
+            return scenario_effect_spec(name, Path(source).resolve().parent)
+        return name
+
     def _build_effects(self, names: list[str]) -> list[Effect]:
         """Effect instances by name. Once set up, from the allow-list only: a name outside
         it raises KeyError and nothing is imported or executed."""
         if not self._effect_classes:             # start-up: the operator's files name them
-            return [make_effect(name, self._effects_specs.get(name)) for name in names]
+            return [make_effect(self._load_spec(name), self._effects_specs.get(name)) for name in names]
         unknown = [name for name in names if name not in self._effect_classes]
         if unknown:
             raise KeyError(f'{unknown[0]!r} is neither an effect of the catalogue nor a plugin '
