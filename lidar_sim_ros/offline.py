@@ -132,7 +132,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
         from lidar_sim_ros.viz.run import frame_label, read_run
         run = read_run(bag_path)
         figure_paths = render_run(run, out / 'figures', scenario.materials.names,
-                                  shots=sim.shots, layout=ScanLayout.of_sensor(sim.sensor))
+                                  shots=sim.shots_of_frame(last.index),
+                                  layout=ScanLayout.of_sensor(sim.sensor))
         if sim.sun is not None:
             label = frame_label(run, len(run.clouds) - 1)
             figure_paths.append(_sunlight_figure(sim, last, trajectory, out / 'figures', label))

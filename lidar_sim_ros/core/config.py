@@ -139,8 +139,68 @@ class FileScan(_Model):
     path: str
 
 
-ScanConfig = Annotated[Union[LissajousArrayScan, RotatingScan, FileScan],
+class RisleyScan(_Model):
+    """Two wedge prisms rotating at their own rates (a Risley pair; the Livox Mid-40's
+    rosette, ``core/scan_risley.py``). One laser fires at ``shot_rate_hz``; each shot
+    points where the two prisms' deviations, added to first order, send it."""
+
+    type: Literal['risley']
+    prism_rates_hz: tuple[float, float] = Field(
+        description='rotation rate of each prism (rev/s); the sign is the direction')
+    prism_deviation_deg: tuple[PositiveFloat, PositiveFloat] = Field(
+        description='deviation of each thin wedge alone, (n - 1) x wedge angle (deg)')
+    prism_phase_rad: tuple[float, float] = (0.0, 0.0)
+    shot_rate_hz: PositiveFloat = Field(description='shots per second of the one laser')
+
+    @model_validator(mode='after')
+    def _rates(self):
+        f1, f2 = self.prism_rates_hz
+        if f1 == 0.0 or f2 == 0.0 or f1 == f2:
+            raise ValueError(f'prism_rates_hz {list(self.prism_rates_hz)}: both prisms must '
+                             'turn, at different rates (otherwise the beam draws one circle)')
+        if sum(self.prism_deviation_deg) >= 90.0:
+            raise ValueError('the prisms\' deviations must add to less than 90 deg')
+        return self
+
+
+class FlashScan(_Model):
+    """A flash LiDAR's focal-plane array (``core/scan_flash.py``): rows x cols pixels
+    behind a pinhole lens over fov_az_deg x fov_el_deg, all lit by one pulse per frame.
+    Rows may be read out one after another (``row_readout_s`` apart, row 0 first)."""
+
+    type: Literal['flash']
+    rows: Annotated[int, Field(ge=1, le=65535)]
+    cols: Annotated[int, Field(ge=1)]
+    fov_az_deg: Annotated[float, Field(gt=0.0, lt=180.0)]
+    fov_el_deg: Annotated[float, Field(gt=0.0, lt=180.0)]
+    row_readout_s: NonNegFloat = Field(0.0, description='time between two rows\' exposures (s)')
+
+    @model_validator(mode='after')
+    def _size(self):
+        _check_shots(self.rows * self.cols)
+        return self
+
+
+ScanConfig = Annotated[Union[LissajousArrayScan, RotatingScan, FileScan, RisleyScan, FlashScan],
                        Field(discriminator='type')]
+
+
+class FloodConfig(_Model):
+    """Flood illumination (a flash LiDAR): one pulse spread evenly over a rectangular
+    field of field_az_deg x field_el_deg instead of a narrow beam per shot."""
+
+    field_az_deg: Annotated[float, Field(gt=0.0, lt=180.0)]
+    field_el_deg: Annotated[float, Field(gt=0.0, lt=180.0)]
+
+
+class RangeErrorConfig(_Model):
+    """The sensor's own published range error, the same on every material: replaces the
+    materials' bias_m and sigma_m (the P-60's Table 2) for this sensor."""
+
+    bias_m: Annotated[float, Field(ge=-100.0, le=100.0)] = Field(
+        description='systematic range error, measured minus true (m)')
+    sigma_m: Annotated[float, Field(ge=0.0, le=100.0)] = Field(
+        description='range precision, 1 sigma (m)')
 
 
 class OpticsConfig(_Model):
@@ -151,6 +211,8 @@ class OpticsConfig(_Model):
     receive_efficiency: Annotated[float, Field(gt=0.0, le=1.0)]
     beam_divergence_rad: PositiveFloat
     aperture_diameter_m: PositiveFloat
+    flood: FloodConfig | None = Field(
+        None, description='flood illumination of a flash array (None: one beam per shot)')
 
 
 class ReturnsConfig(_Model):
@@ -235,6 +297,30 @@ class SensorConfig(_Model):
     optics: OpticsConfig
     detection: DetectionConfig
     receiver: ReceiverConfig = ReceiverConfig()
+    range_error: RangeErrorConfig | None = Field(
+        None, description="the sensor's own range error (None: the materials' bias and sigma)")
+
+    @model_validator(mode='after')
+    def _scan_fits_frame(self):
+        scan, period = self.scan, 1.0 / self.frame_rate_hz
+        if isinstance(scan, RisleyScan):
+            n = int(np.floor(scan.shot_rate_hz * period + 1e-9))
+            if n < 1:
+                raise ValueError(f'scan.shot_rate_hz {scan.shot_rate_hz:g} fires no shot in a '
+                                 f'frame of {period:g} s')
+            _check_shots(n)
+        if isinstance(scan, FlashScan):
+            if scan.row_readout_s * (scan.rows - 1) >= period:
+                raise ValueError(f'scan.row_readout_s x (rows - 1) = '
+                                 f'{scan.row_readout_s * (scan.rows - 1):g} s does not fit the '
+                                 f'frame period {period:g} s')
+            if self.optics.flood is None:
+                raise ValueError('a flash scan needs optics.flood (the illuminated field): '
+                                 'its pixels share one pulse')
+        elif self.optics.flood is not None:
+            raise ValueError('optics.flood is for a flash scan (type: flash): a scanning '
+                             'sensor fires a beam per shot')
+        return self
 
     @property
     def frame_period_s(self) -> float:
@@ -400,7 +486,8 @@ class ScenarioConfig(_Model):
 # -------------------------------------------------------------------- loading
 def _format_loc(loc: tuple) -> str:
     return '.'.join(str(p) for p in loc if not (isinstance(p, str) and p in
-                                                 ('lissajous_array', 'rotating', 'file')))
+                                                 ('lissajous_array', 'rotating', 'file',
+                                                                'risley', 'flash')))
 
 
 def _lookup(data: Any, loc: tuple) -> Any:

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.core.config import (ConfigError, FileScan, LissajousArrayScan,
-                                       RotatingScan, SensorConfig)
+from lidar_sim_ros.core.config import (ConfigError, FileScan, FlashScan, LissajousArrayScan,
+                                       RisleyScan, RotatingScan, SensorConfig)
 
 
 @dataclass(frozen=True)
@@ -158,11 +158,24 @@ def file_shots(cfg: FileScan, frame_period_s: float, base: Path | None = None) -
                  np.asarray(cols['laser']).astype(np.uint16)[order])
 
 
-def frame_shots(sensor: SensorConfig, base: Path | None = None) -> Shots:
-    """All shots of one frame for the configured scan pattern."""
+def frame_shots(sensor: SensorConfig, base: Path | None = None, frame_index: int = 0) -> Shots:
+    """All shots of one frame for the configured scan pattern; ``frame_index`` matters only
+    to a pattern that does not repeat every frame (``varies_by_frame``: the Risley rosette)."""
     scan = sensor.scan
     if isinstance(scan, LissajousArrayScan):
         return lissajous_array_shots(scan, sensor.frame_period_s)
     if isinstance(scan, RotatingScan):
         return rotating_shots(scan, sensor.frame_period_s)
+    if isinstance(scan, RisleyScan):
+        from lidar_sim_ros.core.scan_risley import risley_shots
+        return risley_shots(scan, sensor.frame_period_s, frame_index)
+    if isinstance(scan, FlashScan):
+        from lidar_sim_ros.core.scan_flash import flash_shots
+        return flash_shots(scan, sensor.frame_period_s)
     return file_shots(scan, sensor.frame_period_s, base)
+
+
+def varies_by_frame(sensor: SensorConfig) -> bool:
+    """Whether each frame has its own shots (a non-repeating rosette) rather than one
+    pattern every frame."""
+    return isinstance(sensor.scan, RisleyScan)
