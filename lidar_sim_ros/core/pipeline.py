@@ -19,6 +19,7 @@ from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
 from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target
 from lidar_sim_ros.core.pose import PoseSource, PoseTrack, StaticPose
 from lidar_sim_ros.core.scan import Shots, angles_from_directions, frame_shots, varies_by_frame
+from lidar_sim_ros.core.scan_flash import pixel_view_sr
 from lidar_sim_ros.core.sun import ScenarioSun, SunSource
 
 NO_MATERIAL = 255  # material id of a return that is not on the target (e.g. solar background)
@@ -253,8 +254,10 @@ class Simulator:
         range_on = hits.range_m.take(on)
         power = np.zeros(n)
         cos_on = None if hits.cos_incidence is None else hits.cos_incidence.take(on)
+        pixel_sr = pixel_view_sr(self.sensor, directions[on]) if optics.flood is not None else None
         power[on] = reflection.return_power_w(range_on, hits.incidence_rad.take(on), self._kd.take(mat),
-                                              self._ks.take(mat), self._n.take(mat), optics, cos_on)
+                                              self._ks.take(mat), self._n.take(mat), optics, cos_on,
+                                              pixel_sr)
         if hits.power_fraction is not None:
             power = power * hits.power_fraction
         rng_m = np.full(n, np.nan)

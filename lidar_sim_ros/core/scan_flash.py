@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidar_sim_ros.core.config import FlashScan
+from lidar_sim_ros.core.config import FlashScan, SensorConfig
 from lidar_sim_ros.core.scan import Shots, angles_from_directions
 
 
@@ -52,12 +52,6 @@ def rectangle_solid_angle_sr(u0, u1, v0, v1) -> np.ndarray:
     return f(u1, v1) - f(u0, v1) - f(u1, v0) + f(u0, v0)
 
 
-def pyramid_solid_angle_sr(full_az_rad: float, full_el_rad: float) -> float:
-    """Solid angle (sr) of a rectangular field of full angles a x b about +x:
-    4 asin(sin(a/2) sin(b/2))."""
-    return float(4.0 * np.arcsin(np.sin(full_az_rad / 2.0) * np.sin(full_el_rad / 2.0)))
-
-
 def pixel_solid_angle_sr(cfg: FlashScan, directions: np.ndarray) -> np.ndarray:
     """Each direction's pixel field of view (sr): the pixel rectangle centred on it."""
     d = np.asarray(directions, dtype=float).reshape(-1, 3)
@@ -75,3 +69,14 @@ def in_field(full_az_deg: float, full_el_deg: float, directions: np.ndarray) -> 
     with np.errstate(invalid='ignore'):
         return ((np.abs(d[:, 1] / x) <= np.tan(np.radians(full_az_deg) / 2.0) * (1 + 1e-9))
                 & (np.abs(d[:, 2] / x) <= np.tan(np.radians(full_el_deg) / 2.0) * (1 + 1e-9)))
+
+
+def pixel_view_sr(sensor: SensorConfig, directions: np.ndarray) -> np.ndarray | None:
+    """Per direction, the solid angle (sr) of the pixel that sees the flood-lit surface
+    there (0 off the flood's field: no laser light), for ``reflection.return_power_w``;
+    None for a sensor that fires a beam per shot."""
+    if not isinstance(sensor.scan, FlashScan) or sensor.optics.flood is None:
+        return None
+    flood = sensor.optics.flood
+    lit = in_field(flood.field_az_deg, flood.field_el_deg, directions)
+    return np.where(lit, pixel_solid_angle_sr(sensor.scan, directions), 0.0)
