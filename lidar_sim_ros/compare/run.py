@@ -450,7 +450,8 @@ def separation_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated, effects:
 def load_inputs(opts: CompareOptions) -> Inputs:
     """The scenario, mesh, measurements, sun track and effects named by ``opts``."""
     scenario = load_scenario(opts.config or config_path('scenario.yaml'))
-    target = load_target(opts.mesh, scenario.materials.names)
+    target = load_target(opts.mesh, scenario.materials.names,
+                         mesh_materials=scenario.mesh_materials)
     meas = load_measurements(opts.bag, opts.cloud_topic, opts.pose_topic, opts.max_points,
                              opts.seed, opts.intensity_field, opts.time_field, opts.laser_field)
     sun = recording_sun(opts, scenario, meas)

@@ -481,6 +481,10 @@ class ScenarioConfig(_Model):
     motion: MotionConfig = MotionConfig()
     sun: SunConfig | None = None
     effects: list[EffectConfig] = Field(default_factory=list)
+    mesh_materials: str | dict[str, str] | None = Field(
+        None, description="the mesh's material/node names -> config materials, or one config "
+                          "material for the whole mesh (an STL); None: the mesh's names are the "
+                          "config's (core/mesh_files.py)")
 
 
 # -------------------------------------------------------------------- loading
@@ -682,6 +686,11 @@ class Scenario:
     def seed(self) -> int:
         return self.config.seed
 
+    @property
+    def mesh_materials(self) -> str | dict[str, str] | None:
+        """The scenario's map from mesh names to config materials (``load_target``)."""
+        return self.config.mesh_materials
+
 
 def load_scenario(path: str | Path) -> Scenario:
     """Load scenario YAML and the sensor/materials/mesh files it references."""
@@ -696,8 +705,20 @@ def load_scenario(path: str | Path) -> Scenario:
     if not mesh_path.is_file():
         raise ConfigError(path, 'mesh', cfg.mesh, f'mesh file not found at {mesh_path}')
     _check_effects(cfg, path)
-    return Scenario(cfg, load_sensor(sensor_path), load_materials(materials_path),
-                    mesh_path, path)
+    materials = load_materials(materials_path)
+    _check_mesh_materials(cfg, materials, path)
+    return Scenario(cfg, load_sensor(sensor_path), materials, mesh_path, path)
+
+
+def _check_mesh_materials(cfg: ScenarioConfig, materials: MaterialsConfig, path: Path) -> None:
+    """Every material the scenario's mesh_materials names must be in the materials file."""
+    mapping = cfg.mesh_materials
+    items = [('mesh_materials', mapping)] if isinstance(mapping, str) else \
+        [(f'mesh_materials.{k}', v) for k, v in (mapping or {}).items()]
+    for key, value in items:
+        if value not in materials.names:
+            raise ConfigError(path, key, value, f'not a material of {cfg.materials} '
+                                                f'(known: {materials.names})')
 
 
 def _check_effects(cfg: ScenarioConfig, path: Path) -> None:

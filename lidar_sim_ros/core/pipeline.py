@@ -199,7 +199,8 @@ class Simulator:
         ``target``: an already loaded mesh of the scenario (campaign workers reuse its BVH).
         """
         if target is None:
-            target = load_target(scenario.mesh_path, scenario.materials.names)
+            target = load_target(scenario.mesh_path, scenario.materials.names,
+                                 mesh_materials=scenario.mesh_materials)
         base = scenario.source.parent if scenario.source else None
         if effects is None:
             effects = [make_effect(_scenario_relative(e.name, base), e.params)

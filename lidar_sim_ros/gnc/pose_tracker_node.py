@@ -148,7 +148,8 @@ class PoseTrackerNode(Node):
         self.initial_guess = self._initial_guess(initial)
         self.recapture_from_pose = bool(param('recapture_from_pose'))
 
-        target = load_target(mesh, scenario.materials.names)
+        target = load_target(mesh, scenario.materials.names,
+                             mesh_materials=scenario.mesh_materials)
         t0 = time.perf_counter()
         self.tracker = PoseTracker(build_model(target.vertices_m, target.faces, self.config), self.config,
                                    self.acquisition)
