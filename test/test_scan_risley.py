@@ -111,3 +111,15 @@ def test_bad_risley_config_names_key(scan, words):
             'shot_rate_hz': 1000.0, **scan}
     with pytest.raises(ConfigError, match=words):
         sensor(base)
+
+
+def test_mid40_scenario_uses_its_own_range_error_not_table_2():
+    """Loaded with the Mid-40, every material carries 2 cm / no bias; the P-60 scenario
+    keeps Table 2's per-material values."""
+    from lidar_sim_ros.core.config import load_scenario
+    mid = load_scenario(CONFIG / 'scenario_mid40.yaml')
+    assert set(mid.materials.column('sigma_m')) == {0.02}
+    assert set(mid.materials.column('bias_m')) == {0.0}
+    p60 = load_scenario(CONFIG / 'scenario.yaml')
+    assert p60.materials.column('bias_m')[1] == pytest.approx(-0.1349)
+    assert mid.materials.names == p60.materials.names

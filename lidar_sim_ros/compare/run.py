@@ -52,6 +52,7 @@ from lidar_sim_ros.core.config import MaterialsConfig, Scenario, load_scenario, 
 from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
                                         parse_effect_spec)
 from lidar_sim_ros.core.geometry import load_target
+from lidar_sim_ros.core.scan import varies_by_frame
 from lidar_sim_ros.core.effects.sunlight import Sunlight
 from lidar_sim_ros.core.pipeline import Prediction
 from lidar_sim_ros.core.sun import SunTrack
@@ -470,7 +471,12 @@ def load_inputs(opts: CompareOptions) -> Inputs:
         scenario_effects = [e for e in scenario_effects if not isinstance(e, Sunlight)]
     model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
                   scenario.source.parent if scenario.source else None, sun)
-    meas = with_scan_times(meas, model.simulator().shots)
+    sim = model.simulator()
+    # A rosette's frames on the node's clock (ROS time 0) or lidar-sim simulate's (its epoch).
+    from lidar_sim_ros.offline import DEFAULT_EPOCH_S
+    meas = with_scan_times(meas, sim.shots,
+                           sim.shots_of_frame if varies_by_frame(sim.sensor) else None,
+                           sim.frame_period_s, (0.0, DEFAULT_EPOCH_S))
     return Inputs(scenario, meas, sun, scenario_effects, user, model, pose_fit)
 
 

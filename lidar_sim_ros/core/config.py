@@ -195,7 +195,8 @@ class FloodConfig(_Model):
 
 class RangeErrorConfig(_Model):
     """The sensor's own published range error, the same on every material: replaces the
-    materials' bias_m and sigma_m (the P-60's Table 2) for this sensor."""
+    materials' bias_m and sigma_m (the P-60's Table 2) for this sensor when a scenario is
+    loaded (``with_sensor_range_error``)."""
 
     bias_m: Annotated[float, Field(ge=-100.0, le=100.0)] = Field(
         description='systematic range error, measured minus true (m)')
@@ -707,7 +708,20 @@ def load_scenario(path: str | Path) -> Scenario:
     _check_effects(cfg, path)
     materials = load_materials(materials_path)
     _check_mesh_materials(cfg, materials, path)
-    return Scenario(cfg, load_sensor(sensor_path), materials, mesh_path, path)
+    sensor = load_sensor(sensor_path)
+    return Scenario(cfg, sensor, with_sensor_range_error(materials, sensor), mesh_path, path)
+
+
+def with_sensor_range_error(materials: MaterialsConfig, sensor: SensorConfig) -> MaterialsConfig:
+    """The materials with the sensor's own range error (``sensor.range_error``) in place of
+    their bias_m and sigma_m (the P-60's Table 2), or unchanged when it has none. Applied
+    once, where a scenario is loaded: the simulator, the comparison and the calibrations
+    all read the errors from the materials."""
+    err = sensor.range_error
+    if err is None:
+        return materials
+    return MaterialsConfig(materials=[m.model_copy(update={'bias_m': err.bias_m, 'sigma_m': err.sigma_m})
+                                      for m in materials.materials])
 
 
 def _check_mesh_materials(cfg: ScenarioConfig, materials: MaterialsConfig, path: Path) -> None:

@@ -184,10 +184,6 @@ class Simulator:
         self._last_plan: tuple[int, _CastPlan] = (0, self._plan)
         self._kd, self._ks, self._n = (materials.column(k) for k in ('kd', 'ks', 'n'))
         self._bias, self._sigma = materials.column('bias_m'), materials.column('sigma_m')
-        if sensor.range_error is not None:
-            # The sensor's own published range error replaces the materials' (Table 2).
-            self._bias = np.full_like(self._bias, sensor.range_error.bias_m)
-            self._sigma = np.full_like(self._sigma, sensor.range_error.sigma_m)
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, effects: list[Effect] | None = None,
