@@ -13,6 +13,7 @@ seconds since that stamp, pose stamps = the times the poses hold.
 from __future__ import annotations
 
 import argparse
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
@@ -65,7 +66,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
                     poses_per_frame: int = POSES_PER_FRAME, simulator: Simulator | None = None,
                     pose_source: PoseSource | None = None,
                     on_frame: Callable[[Frame], None] | None = None,
-                    layout: OutputLayout | None = None) -> OfflineResult:
+                    layout: OutputLayout | None = None, threads: int = 1) -> OfflineResult:
     """Simulate ``frames`` frames from scenario time ``start_s`` into ``out_dir/bag``.
 
     Topics: /lidar/points (detected returns), /lidar/points_truth (every hit, no
@@ -79,6 +80,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     worker's mesh and move the sensor mount); ``on_frame`` sees every simulated frame.
     ``layout`` (``core/driver_layout.py``): the Cepton driver's point layout, topic
     (``/cepton_pcl2``) and frame (``cepton3``) instead of ours; the truth stays ours.
+    ``threads``: threads each frame's raycast is split over (the frames do not depend on it).
     """
     layout = layout or OutputLayout()
     if frames < 1:
@@ -92,7 +94,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     sim = simulator if simulator is not None else Simulator.from_scenario(
-        scenario, extra_effects=[effect_from_spec(e) for e in effects])
+        scenario, extra_effects=[effect_from_spec(e) for e in effects], threads=threads)
     trajectory = pose_source if pose_source is not None else ScenarioTrajectory.from_config(
         scenario.config)
     frame_id = layout.frame(scenario.config.frame_id)
@@ -199,6 +201,9 @@ def register(subparsers) -> None:
                    help='cepton layout: one NO_RETURN point per shot that returned nothing')
     p.add_argument('--polar-fields', action='store_true',
                    help="cepton layout: the driver's optional azimuth, elevation, range fields")
+    p.add_argument('--threads', type=positive_int, default=None, metavar='N',
+                   help='threads a frame\'s raycast is split over (default: the CPUs this '
+                        'process may use; frames are the same for any N)')
     p.set_defaults(func=run)
 
 
@@ -209,7 +214,8 @@ def run(args: argparse.Namespace) -> int:
                              layout=OutputLayout(point_layout=args.point_layout,
                                                  topic=args.cloud_topic, frame_id=args.frame_id,
                                                  no_return_points=args.no_return_points,
-                                                 polar_fields=args.polar_fields))
+                                                 polar_fields=args.polar_fields),
+                             threads=args.threads or len(os.sched_getaffinity(0)))
     points = sum(s.get('detected', 0) for s in result.frame_stats)
     print(f'bag: {result.bag_path}  ({len(result.frame_stamps_ns)} frames, {points} points)')
     summary = multipath_summary(result.frame_stats)

@@ -154,3 +154,20 @@ def test_flood_on_a_scanning_sensor_refused():
     data['optics']['flood'] = {'field_az_deg': 10.0, 'field_el_deg': 10.0}
     with pytest.raises(ConfigError, match='for a flash scan'):
         parse(SensorConfig, data, '<test>')
+
+
+def test_one_pose_for_a_global_exposure_same_frame_as_a_pose_per_pixel(monkeypatch):
+    """A flash frame's pixels share one exposure time: the pipeline interpolates the pose
+    once and repeats it; the frame is the one a pose per pixel gives."""
+    from lidar_sim_ros.core import pipeline
+    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.pose import ScenarioTrajectory
+    sc = load_scenario(CONFIG / 'scenario_flash.yaml')
+    sim = Simulator.from_scenario(sc)
+    traj = ScenarioTrajectory.from_config(sc.config)
+    once = sim.simulate_frame(0.3, traj, 3)
+    monkeypatch.setattr(pipeline, '_poses_at', lambda source, t: source.at(t))
+    each = sim.simulate_frame(0.3, traj, 3)
+    assert len(once) > 10000
+    np.testing.assert_allclose(once.xyz_m, each.xyz_m, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(once.material, each.material)

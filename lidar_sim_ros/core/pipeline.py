@@ -17,8 +17,9 @@ from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
 from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target
-from lidar_sim_ros.core.pose import PoseSource, PoseTrack, StaticPose
-from lidar_sim_ros.core.scan import Shots, angles_from_directions, frame_shots, varies_by_frame
+from lidar_sim_ros.core.pose import Poses, PoseSource, PoseTrack, StaticPose
+from lidar_sim_ros.core.scan import (Shots, angles_from_directions, frame_shots,
+                                     frame_shots_and_directions, varies_by_frame)
 from lidar_sim_ros.core.scan_flash import pixel_view_sr
 from lidar_sim_ros.core.sun import ScenarioSun, SunSource
 
@@ -236,7 +237,7 @@ class Simulator:
         t_pose = t_abs_s
         for eff in self.effects:
             t_pose = eff.pose_time_s(t_pose)
-        poses = pose_source.at(t_pose)
+        poses = _poses_at(pose_source, t_pose)
         optics = self.sensor.optics
         hits = None
         for eff in self.effects:
@@ -291,8 +292,8 @@ class Simulator:
             return self._plan
         last_index, plan = self._last_plan
         if last_index != frame_index:
-            shots = frame_shots(self.sensor, self._scan_base, frame_index)
-            plan = _CastPlan.of(shots, shots.directions())
+            plan = _CastPlan.of(*frame_shots_and_directions(self.sensor, self._scan_base,
+                                                            frame_index))
             self._last_plan = (frame_index, plan)
         return plan
 
@@ -436,6 +437,17 @@ class Simulator:
             t_s=shots.t_s.take(out), ring=shots.laser.take(out),
             material=_material_ids(cand_mat.take(keep)), stats=stats, truth_source=self._truth(pred, measured, plan),
             face=cand_face.take(keep), true_range_m=cand_true.take(keep), return_number=number)
+
+
+def _poses_at(pose_source: PoseSource, t_s: np.ndarray) -> Poses:
+    """The pose at every time; one pose repeated when all times are the same (a flash
+    array's global exposure: 65,536 equal times, one interpolation)."""
+    n = len(t_s)
+    if n > 1 and t_s[0] == t_s[-1] and bool(np.all(t_s == t_s[0])):
+        one = pose_source.at(t_s[:1])
+        return Poses.from_quat(np.repeat(one.quat_xyzw, n, axis=0),
+                               np.repeat(np.asarray(one.position_m, float).reshape(1, 3), n, axis=0))
+    return pose_source.at(t_s)
 
 
 @dataclass(frozen=True)

@@ -175,6 +175,17 @@ def frame_shots(sensor: SensorConfig, base: Path | None = None, frame_index: int
     return file_shots(scan, sensor.frame_period_s, base)
 
 
+def frame_shots_and_directions(sensor: SensorConfig, base: Path | None = None,
+                               frame_index: int = 0) -> tuple[Shots, np.ndarray]:
+    """``frame_shots`` and their unit directions (N, 3); a rosette computes its directions
+    first, so a frame's shots cost one trigonometric pass, not two."""
+    if isinstance(sensor.scan, RisleyScan):
+        from lidar_sim_ros.core.scan_risley import risley_frame
+        return risley_frame(sensor.scan, sensor.frame_period_s, frame_index)
+    shots = frame_shots(sensor, base, frame_index)
+    return shots, shots.directions()
+
+
 def varies_by_frame(sensor: SensorConfig) -> bool:
     """Whether each frame has its own shots (a non-repeating rosette) rather than one
     pattern every frame."""

@@ -76,11 +76,18 @@ def directions_from_deviation(py_rad: np.ndarray, pz_rad: np.ndarray) -> np.ndar
 def risley_shots(cfg: RisleyScan, frame_period_s: float, frame_index: int = 0) -> Shots:
     """One frame's shots: the laser fires every 1 / shot_rate_hz from the frame start
     (frame_index x frame_period_s on the prisms' clock); laser id 0."""
+    return risley_frame(cfg, frame_period_s, frame_index)[0]
+
+
+def risley_frame(cfg: RisleyScan, frame_period_s: float,
+                 frame_index: int = 0) -> tuple[Shots, np.ndarray]:
+    """``risley_shots`` and the shots' unit directions (N, 3), computed once."""
     n = shots_per_frame(cfg, frame_period_s)
     t = np.arange(n) / cfg.shot_rate_hz
     phi1, phi2 = prism_angles_rad(cfg, int(frame_index) * frame_period_s + t)
-    az, el = angles_from_directions(directions_from_deviation(*deviation_rad(cfg, phi1, phi2)))
-    return Shots(t, az, el, np.zeros(n, np.uint16))
+    directions = directions_from_deviation(*deviation_rad(cfg, phi1, phi2))
+    az, el = angles_from_directions(directions)
+    return Shots(t, az, el, np.zeros(n, np.uint16)), directions
 
 
 def rosette_period_s(rates_hz: tuple[float, float]) -> float:
