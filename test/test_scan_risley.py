@@ -105,12 +105,16 @@ def test_mid40_profile_published_numbers():
     ({'prism_deviation_deg': [float('nan'), 1.0]}, 'finite'),
     ({'shot_rate_hz': 1e300}, 'exceed the limit'),
     ({'shot_rate_hz': 1e-300}, 'fires no shot'),
+    ({'prism_rates_hz': [1e300, 3.0]}, 'less than or equal to 10000'),
+    ({'prism_rates_hz': [3.0]}, 'prism_rates_hz'),
+    ({'prism_phase_rad': [float('inf'), 0.0]}, 'finite'),
 ])
 def test_bad_risley_config_names_key(scan, words):
     base = {'type': 'risley', 'prism_rates_hz': [10.0, -7.0], 'prism_deviation_deg': [5.0, 5.0],
             'shot_rate_hz': 1000.0, **scan}
-    with pytest.raises(ConfigError, match=words):
+    with pytest.raises(ConfigError, match=words) as err:
         sensor(base)
+    assert 'key "scan' in str(err.value)
 
 
 def test_mid40_scenario_uses_its_own_range_error_not_table_2():

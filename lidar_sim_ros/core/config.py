@@ -139,13 +139,19 @@ class FileScan(_Model):
     path: str
 
 
+MAX_PRISM_RATE_HZ = 10_000.0
+"""Fastest prism (rev/s, 600,000 rpm): faster, the prism angle at a wall-clock frame index
+(~1e10) loses its precision in float64."""
+
+
 class RisleyScan(_Model):
     """Two wedge prisms rotating at their own rates (a Risley pair; the Livox Mid-40's
     rosette, ``core/scan_risley.py``). One laser fires at ``shot_rate_hz``; each shot
     points where the two prisms' deviations, added to first order, send it."""
 
     type: Literal['risley']
-    prism_rates_hz: tuple[float, float] = Field(
+    prism_rates_hz: tuple[Annotated[float, Field(ge=-MAX_PRISM_RATE_HZ, le=MAX_PRISM_RATE_HZ)],
+                          Annotated[float, Field(ge=-MAX_PRISM_RATE_HZ, le=MAX_PRISM_RATE_HZ)]] = Field(
         description='rotation rate of each prism (rev/s); the sign is the direction')
     prism_deviation_deg: tuple[PositiveFloat, PositiveFloat] = Field(
         description='deviation of each thin wedge alone, (n - 1) x wedge angle (deg)')
@@ -301,27 +307,37 @@ class SensorConfig(_Model):
     range_error: RangeErrorConfig | None = Field(
         None, description="the sensor's own range error (None: the materials' bias and sigma)")
 
-    @model_validator(mode='after')
-    def _scan_fits_frame(self):
-        scan, period = self.scan, 1.0 / self.frame_rate_hz
+    @field_validator('scan')
+    @classmethod
+    def _scan_fits_frame(cls, scan, info):
+        rate = info.data.get('frame_rate_hz')
+        if rate is None:
+            return scan
+        period = 1.0 / rate
         if isinstance(scan, RisleyScan):
-            n = int(np.floor(scan.shot_rate_hz * period + 1e-9))
+            n = np.floor(scan.shot_rate_hz * period + 1e-9)
             if n < 1:
-                raise ValueError(f'scan.shot_rate_hz {scan.shot_rate_hz:g} fires no shot in a '
-                                 f'frame of {period:g} s')
-            _check_shots(n)
-        if isinstance(scan, FlashScan):
-            if scan.row_readout_s * (scan.rows - 1) >= period:
-                raise ValueError(f'scan.row_readout_s x (rows - 1) = '
-                                 f'{scan.row_readout_s * (scan.rows - 1):g} s does not fit the '
-                                 f'frame period {period:g} s')
-            if self.optics.flood is None:
-                raise ValueError('a flash scan needs optics.flood (the illuminated field): '
-                                 'its pixels share one pulse')
-        elif self.optics.flood is not None:
-            raise ValueError('optics.flood is for a flash scan (type: flash): a scanning '
-                             'sensor fires a beam per shot')
-        return self
+                raise ValueError(f'shot_rate_hz {scan.shot_rate_hz:g} fires no shot in a frame of '
+                                 f'{period:g} s')
+            if n > MAX_SHOTS_PER_FRAME:
+                raise ValueError(f'shot_rate_hz {scan.shot_rate_hz:g} fires {n:g} shots a frame of '
+                                 f'{period:g} s: they exceed the limit of {MAX_SHOTS_PER_FRAME}')
+        if isinstance(scan, FlashScan) and scan.row_readout_s * (scan.rows - 1) >= period:
+            raise ValueError(f'row_readout_s x (rows - 1) = {scan.row_readout_s * (scan.rows - 1):g} s '
+                             f'does not fit the frame period {period:g} s')
+        return scan
+
+    @field_validator('optics')
+    @classmethod
+    def _flood_for_flash(cls, optics, info):
+        scan = info.data.get('scan')
+        if isinstance(scan, FlashScan) and optics.flood is None:
+            raise ValueError('a flash scan needs optics.flood (the illuminated field): its pixels '
+                             'share one pulse')
+        if scan is not None and not isinstance(scan, FlashScan) and optics.flood is not None:
+            raise ValueError('optics.flood is for a flash scan (type: flash): a scanning sensor '
+                             'fires a beam per shot')
+        return optics
 
     @property
     def frame_period_s(self) -> float:
