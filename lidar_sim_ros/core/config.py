@@ -15,7 +15,7 @@ from typing import Annotated, Any, Literal, Union
 import numpy as np
 import yaml
 from pydantic import (BaseModel, ConfigDict, Field, ValidationError,
-                      field_validator, model_validator)
+                      field_validator, model_serializer, model_validator)
 
 from lidar_sim_ros.paths import share_dir
 
@@ -61,6 +61,16 @@ class _Model(BaseModel):
     # allow_inf_nan=False: every float of every config model must be finite (a NaN
     # scan phase or an infinite FOV gave 0 points and rc 0).
     model_config = ConfigDict(extra='forbid', frozen=True, allow_inf_nan=False)
+
+
+def _without_unset_new_keys(data: Any, keys: tuple[str, ...]) -> Any:
+    """``data`` (a model's dump) without the ``keys`` that are None: keys added after files
+    were fingerprinted (campaigns) dump as before when unused, so those files resume."""
+    if isinstance(data, dict):
+        for key in keys:
+            if key in data and data[key] is None:
+                del data[key]
+    return data
 
 
 PositiveFloat = Annotated[float, Field(gt=0.0)]
@@ -221,6 +231,10 @@ class OpticsConfig(_Model):
     flood: FloodConfig | None = Field(
         None, description='flood illumination of a flash array (None: one beam per shot)')
 
+    @model_serializer(mode='wrap')
+    def _dump(self, handler):
+        return _without_unset_new_keys(handler(self), ('flood',))
+
 
 class ReturnsConfig(_Model):
     """Which of a shot's returns the receiver reports (``core/returns.py``).
@@ -306,6 +320,10 @@ class SensorConfig(_Model):
     receiver: ReceiverConfig = ReceiverConfig()
     range_error: RangeErrorConfig | None = Field(
         None, description="the sensor's own range error (None: the materials' bias and sigma)")
+
+    @model_serializer(mode='wrap')
+    def _dump(self, handler):
+        return _without_unset_new_keys(handler(self), ('range_error',))
 
     @field_validator('scan')
     @classmethod
@@ -502,6 +520,10 @@ class ScenarioConfig(_Model):
         None, description="the mesh's material/node names -> config materials, or one config "
                           "material for the whole mesh (an STL); None: the mesh's names are the "
                           "config's (core/mesh_files.py)")
+
+    @model_serializer(mode='wrap')
+    def _dump(self, handler):
+        return _without_unset_new_keys(handler(self), ('mesh_materials',))
 
 
 # -------------------------------------------------------------------- loading
