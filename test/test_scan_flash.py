@@ -171,3 +171,14 @@ def test_one_pose_for_a_global_exposure_same_frame_as_a_pose_per_pixel(monkeypat
     assert len(once) > 10000
     np.testing.assert_allclose(once.xyz_m, each.xyz_m, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(once.material, each.material)
+
+
+def test_flash_256_threshold_sits_at_5_5_sigma_of_its_dark_noise():
+    """As the P-60's receiver: a pixel's dark noise far enough below the threshold that it
+    does not trigger (a receiver's noise at the P-60's level fired every pixel)."""
+    from lidar_sim_ros.core.radiometry import apd_noise_sigma_w
+    f = load_sensor(CONFIG / 'flash_256.yaml')
+    r = f.receiver
+    sigma = apd_noise_sigma_w(0.0, r.responsivity_a_per_w, r.apd_gain, r.excess_noise_factor,
+                              r.bandwidth_hz, r.amplifier_noise_a_per_rthz, r.dark_current_a)
+    assert f.detection.threshold_power_w / sigma == pytest.approx(5.5, abs=0.05)
