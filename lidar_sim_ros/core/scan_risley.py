@@ -15,9 +15,12 @@ Why first order, not an exact Snell trace through both wedges: the Mid-40's wedg
 angles, glass and prism spacing are not published, so an exact trace would rest on
 invented numbers; what is published (the circular field, the point rate) and what the
 pattern's shape depends on (the prism rates: period and petals) the first-order form
-reproduces exactly. At 19 deg off axis the exact trace would move shots by a few
-per cent of the radius within the same circle (Brazeal et al., Sensors 21(14) 4722,
-2021, fit the exact model to Mid-40 data).
+reproduces exactly: the exact trace is periodic in both prism angles too, so the period
+and the petals are the same, and with both wedges in line the beam is on a circle by
+symmetry (whose radius the published 38.4 deg fixes either way). Inside the circle the
+exact trace moves shots by up to several per cent of the radius (one n = 1.5 wedge of
+19.2 deg deviates 10.4 deg at normal incidence where the first order gives 9.6 deg); Brazeal et al. (Sensors 21(14) 4722, 2021) fit the exact model
+to Mid-40 data.
 
 The rosette: |p|^2 = delta_1^2 + delta_2^2 + 2 delta_1 delta_2 cos(phi_1 - phi_2), so
 the beam reaches the rim (a petal's tip) |f_1 - f_2| times a second. With rates in a
