@@ -127,3 +127,17 @@ def test_mid40_scenario_uses_its_own_range_error_not_table_2():
     p60 = load_scenario(CONFIG / 'scenario.yaml')
     assert p60.materials.column('bias_m')[1] == pytest.approx(-0.1349)
     assert mid.materials.names == p60.materials.names
+
+
+def test_coverage_grows_with_integration_time_unless_the_rosette_closes():
+    """The Mid-40's rates have no small ratio: the field fills (0.28 deg cells: ~20 % in
+    100 ms, >90 % in 1 s); rates 10 and -7 rev/s close after 1 s and cover no more after."""
+    from lidar_sim_ros.core.scan_risley import field_coverage
+    mid = load_sensor(CONFIG / 'livox_mid40.yaml').scan
+    cell = np.radians(0.28)
+    cover = [field_coverage(mid, t, cell) for t in (0.1, 0.2, 0.5, 1.0)]
+    assert all(b > a for a, b in zip(cover, cover[1:]))
+    assert 0.1 < cover[0] < 0.35 and cover[-1] > 0.9
+    closed = risley(rates=(10.0, -7.0), dev=(9.6, 9.6), rate_hz=100000.0).scan
+    one, two = field_coverage(closed, 1.0, cell), field_coverage(closed, 2.0, cell)
+    assert two == one < 0.9

@@ -108,3 +108,21 @@ def petals_per_period(rates_hz: tuple[float, float]) -> int:
     f1, f2 = rates_hz
     return int(round(abs(f1 - f2) * rosette_period_s(rates_hz)))
 
+
+
+def field_coverage(cfg: RisleyScan, integration_s: float, cell_rad: float) -> float:
+    """Share (-) of the circular field's cells (square cells of side ``cell_rad`` on the
+    deviation plane, centres inside the circle) that at least one shot falls in during the
+    first ``integration_s`` seconds: how the non-repeating rosette fills its field."""
+    n = int(np.floor(cfg.shot_rate_hz * integration_s + 1e-9))
+    t = np.arange(n) / cfg.shot_rate_hz
+    py, pz = deviation_rad(cfg, *prism_angles_rad(cfg, t))
+    half = field_half_angle_rad(cfg)
+    cells = int(np.ceil(2 * half / cell_rad))
+    i = np.clip(((py + half) / cell_rad).astype(np.int64), 0, cells - 1)
+    j = np.clip(((pz + half) / cell_rad).astype(np.int64), 0, cells - 1)
+    seen = np.zeros((cells, cells), bool)
+    seen[i, j] = True
+    centre = (np.arange(cells) + 0.5) * cell_rad - half
+    inside = np.hypot(*np.meshgrid(centre, centre, indexing='ij')) <= half
+    return float(seen[inside].mean())
