@@ -13,7 +13,8 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
-        ('share/' + PACKAGE + '/meshes', glob('meshes/*.obj') + glob('meshes/*.mtl')),
+        ('share/' + PACKAGE + '/meshes', sorted(glob('meshes/*.obj') + glob('meshes/*.mtl') + glob('meshes/*.glb')
+                                               + glob('meshes/*.gltf') + glob('meshes/*.stl') + glob('meshes/*.ply'))),
         ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
     ],
     # ROS client libraries are deliberately absent: colcon users get them from

@@ -13,6 +13,7 @@ seconds since that stamp, pose stamps = the times the poses hold.
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import sys
 from dataclasses import dataclass, field
@@ -74,7 +75,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
                     pose_source: PoseSource | None = None,
                     on_frame: Callable[[Frame], None] | None = None,
                     layout: OutputLayout | None = None,
-                    pcap: str | Path | None = None) -> OfflineResult:
+                    pcap: str | Path | None = None, threads: int = 1) -> OfflineResult:
     """Simulate ``frames`` frames from scenario time ``start_s`` into ``out_dir/bag``.
 
     Topics: /lidar/points (detected returns), /lidar/points_truth (every hit, no
@@ -91,6 +92,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     ``pcap``: also write the frames as a Cepton sensor sends them (STDV packets over
     UDP to port 8808, ``io/cepton_wire.py``) into this pcap file, capture time = packet
     time (the bag's clock); it must not exist yet.
+    ``threads``: threads each frame's raycast is split over (the frames do not depend on it).
     """
     layout = layout or OutputLayout()
     if frames < 1:
@@ -106,7 +108,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     sim = simulator if simulator is not None else Simulator.from_scenario(
-        scenario, extra_effects=[effect_from_spec(e) for e in effects])
+        scenario, extra_effects=[effect_from_spec(e) for e in effects], threads=threads)
     trajectory = pose_source if pose_source is not None else ScenarioTrajectory.from_config(
         scenario.config)
     frame_id = layout.frame(scenario.config.frame_id)
@@ -148,7 +150,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
         from lidar_sim_ros.viz.run import frame_label, read_run
         run = read_run(bag_path)
         figure_paths = render_run(run, out / 'figures', scenario.materials.names,
-                                  shots=sim.shots, layout=ScanLayout.of_sensor(sim.sensor))
+                                  shots=sim.shots_of_frame(last.index),
+                                  layout=ScanLayout.of_sensor(sim.sensor))
         if sim.sun is not None:
             label = frame_label(run, len(run.clouds) - 1)
             figure_paths.append(_sunlight_figure(sim, last, trajectory, out / 'figures', label))
@@ -294,6 +297,9 @@ def register(subparsers) -> None:
     p.add_argument('--pcap', type=Path, default=None, metavar='FILE',
                    help='also write the frames as a Cepton sensor sends them (STDV packets, '
                         'UDP port 8808) into this pcap file (docs/real-data.md)')
+    p.add_argument('--threads', type=positive_int, default=None, metavar='N',
+                   help='threads a frame\'s raycast is split over (default: the CPUs this '
+                        'process may use; frames are the same for any N)')
     p.set_defaults(func=run)
 
 
@@ -302,7 +308,8 @@ def run(args: argparse.Namespace) -> int:
                           frame_id=args.frame_id, no_return_points=args.no_return_points,
                           polar_fields=args.polar_fields)
     scenario = load_scenario(args.scenario)
-    sim = Simulator.from_scenario(scenario, extra_effects=[effect_from_spec(e) for e in args.effect])
+    sim = Simulator.from_scenario(scenario, extra_effects=[effect_from_spec(e) for e in args.effect],
+                                  threads=args.threads or len(os.sched_getaffinity(0)))
     estimate = check_output_size(sim, layout, args.frames, args.out, args.max_output_gb)
     if output_bound_bytes(sim, layout, args.frames) >= ANNOUNCE_BYTES:
         print(estimate, file=sys.stderr, flush=True)

@@ -678,3 +678,71 @@ def test_tls_misuse_is_one_line(tls_cluster, tmp_path, capsys, case, words):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0] and 'Traceback' not in err[0], err
     assert not (tmp_path / 'out' / MANIFEST).is_file() or not read_manifest(tmp_path / 'out')
+
+
+def test_sensor_and_target_are_dispersable_choices(tmp_path):
+    """Each run draws a sensor and a target (mesh, materials, names map); the drawn ones
+    are what the run simulates; the manifest has every target's material columns."""
+    from lidar_sim_ros.campaign.manifest import columns
+    from lidar_sim_ros.campaign.run import run_one
+    path = write_campaign(
+        tmp_path / 'choices.yaml', runs=12, dispersions={
+            'initial_distance_m': {'dist': 'uniform', 'low': 12.0, 'high': 14.0},
+            'sensor': [str(CONFIG / 'cepton_vista_p60.yaml'), str(CONFIG / 'livox_mid40.yaml')],
+            'target': [{'mesh': str(CONFIG.parent / 'meshes' / 'rocket_body.obj'),
+                        'materials': str(CONFIG / 'materials.yaml')},
+                       {'mesh': str(CONFIG.parent / 'meshes' / 'box_wing_satellite.glb'),
+                        'materials': str(CONFIG / 'materials_box_wing.yaml'),
+                        'mesh_materials': {'bus_mli': 'MLI', 'solar_cells': 'SOLAR_ARRAY',
+                                           'radiator_white_paint': 'WHITE_PAINT',
+                                           'antenna_aluminium': 'ALUMINIUM'}}]})
+    campaign = load_campaign(path)
+    cases = [sample_run(campaign, i) for i in range(12)]
+    drawn = {(c.params['sensor_choice'], c.params['target_choice']) for c in cases}
+    assert drawn == {(0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0)}
+    for c in cases:
+        mid40 = c.params['sensor_choice'] == 1.0
+        assert c.scenario.sensor.name == ('Livox Mid-40' if mid40 else 'Cepton Vista P-60')
+        assert c.scenario.mesh_path.suffix == ('.glb' if c.params['target_choice'] else '.obj')
+        # The Mid-40's own range error on every material; the P-60 keeps Table 2.
+        sigma = set(c.scenario.materials.column('sigma_m'))
+        assert (sigma == {0.02}) if mid40 else (0.02 not in sigma)
+    cols = columns(campaign)
+    assert {'stat.points.PIF', 'stat.points.SOLAR_ARRAY', 'param.sensor_choice',
+            'param.target_choice'} <= set(cols)
+    box_mid40 = next(i for i, c in enumerate(cases)
+                     if (c.params['sensor_choice'], c.params['target_choice']) == (1.0, 1.0))
+    row = run_one(campaign, box_mid40)
+    assert row['status'] == 'ok', row['error']
+    assert row['stat.points.SOLAR_ARRAY'] > 0 and 'stat.points.PIF' not in row
+
+
+def test_bad_choices_name_their_key(tmp_path):
+    with pytest.raises(ConfigError, match=r'dispersions\.sensor\.1.*not found'):
+        load_campaign(write_campaign(tmp_path / 'a.yaml', dispersions={
+            'sensor': [str(CONFIG / 'cepton_vista_p60.yaml'), 'nope.yaml']}))
+    with pytest.raises(ConfigError, match=r'dispersions\.target\.0\.mesh_materials.*GOLD'):
+        load_campaign(write_campaign(tmp_path / 'b.yaml', dispersions={
+            'target': [{'mesh': str(CONFIG.parent / 'meshes' / 'box_wing_satellite.glb'),
+                        'materials': str(CONFIG / 'materials_box_wing.yaml'),
+                        'mesh_materials': {'bus_mli': 'GOLD'}}]}))
+    with pytest.raises(ConfigError, match=r'dispersions\.materials\.PIF.*every target choice'):
+        load_campaign(write_campaign(tmp_path / 'c.yaml', dispersions={
+            'materials': {'PIF': {'bias_m': {'dist': 'uniform', 'low': -0.1, 'high': 0.0}}},
+            'target': [{'mesh': str(CONFIG.parent / 'meshes' / 'box_wing_satellite.glb'),
+                        'materials': str(CONFIG / 'materials_box_wing.yaml'),
+                        'mesh_materials': 'MLI'}]}))
+
+
+def test_specs_and_configs_without_the_new_keys_dump_as_before(tmp_path):
+    """Campaigns are fingerprinted from their dumps: keys added later (the sensor and
+    target choices, a sensor's range_error and flood, a scenario's mesh_materials) are
+    left out when unused, so campaigns written before them resume."""
+    campaign = load_campaign(write_campaign(tmp_path / 'c.yaml'))
+    assert 'sensor' not in campaign.spec.model_dump()['dispersions']
+    assert 'target' not in campaign.spec.model_dump_json()
+    assert 'mesh_materials' not in campaign.scenario.config.model_dump()
+    dumped = campaign.scenario.sensor.model_dump()
+    assert 'range_error' not in dumped and 'flood' not in dumped['optics']
+    from lidar_sim_ros.core.config import load_sensor
+    assert load_sensor(CONFIG / 'livox_mid40.yaml').model_dump()['range_error']['sigma_m'] == 0.02

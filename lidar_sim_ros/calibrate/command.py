@@ -70,10 +70,11 @@ def register(subparsers) -> None:
     add_field_options(p)
     p.set_defaults(func=_range_errors)
 
-    p = sub.add_parser('scan', help='measured point times and angles -> Lissajous scan config',
+    p = sub.add_parser('scan', help='measured point times and angles -> Lissajous or Risley scan config',
                        description='Fit per-laser Lissajous frequencies, phases, amplitudes and '
-                                   'centres to measured points (x, y, z, t and optionally ring) '
-                                   'and write a sensor YAML.')
+                                   'centres (a lissajous_array --sensor) or the two prisms\' rates, '
+                                   'deviations and phases (a risley --sensor) to measured points '
+                                   '(x, y, z, t and optionally ring) and write a sensor YAML.')
     p.add_argument('bag', metavar='BAG', help='rosbag2 with point clouds')
     p.add_argument('--out', required=True, metavar='SENSOR_YAML', help='sensor YAML to write')
     p.add_argument('--sensor', metavar='YAML', help='sensor YAML to start from (default: the '

@@ -21,7 +21,7 @@ from scipy import optimize
 
 from lidar_sim_ros.calibrate.common import (CalibrationInputError, format_table, new_figure,
                                             save_figure, sig, write_sensor)
-from lidar_sim_ros.core.config import LissajousArrayScan, load_sensor, read_yaml
+from lidar_sim_ros.core.config import LissajousArrayScan, RisleyScan, load_sensor, read_yaml
 from lidar_sim_ros.core.scan import (LissajousLaser, angles_from_directions,
                                      directions_from_angles, frame_shots, lissajous_angles,
                                      lissajous_lasers)
@@ -48,6 +48,7 @@ class ScanSamples:
     frame: np.ndarray
     frame_period_s: float | None
     source: str
+    frame_start_s: np.ndarray | None = None   # each cloud's stamp, s since the first one
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -107,8 +108,9 @@ def read_scan_samples(bag: str | Path, topic: str = CLOUD_TOPIC,
     az, el = angles_from_directions(direction)
     stamps = np.array([c.stamp_ns for c in clouds], dtype=float)
     period = float(np.median(np.diff(np.sort(stamps)))) * 1e-9 if len(clouds) > 1 else None
+    starts = np.array([(c.stamp_ns - clouds[0].stamp_ns) * 1e-9 for c in clouds])
     return ScanSamples(a['t'][ok], az, el, direction, a['ring'][ok] if ring_field else None,
-                       a['frame'][ok], period if period and period > 0 else None, src)
+                       a['frame'][ok], period if period and period > 0 else None, src, starts)
 
 
 # ---------------------------------------------------------------- one sine
@@ -421,7 +423,7 @@ def calibrate_scan(samples: ScanSamples, sensor_path: str | Path) -> ScanCalibra
     sensor = load_sensor(sensor_path)
     if not isinstance(sensor.scan, LissajousArrayScan):
         raise CalibrationInputError(f'{sensor_path}: scan.type is {sensor.scan.type!r}; '
-                                    'calibrate scan fits lissajous_array sensors')
+                                    'calibrate scan fits lissajous_array and risley sensors')
     warnings = []
     period = sensor.frame_period_s
     if samples.frame_period_s is not None:
@@ -558,7 +560,9 @@ def run_scan(bag: str | Path, out: str | Path, sensor: str | Path | None = None,
              fields: dict | None = None) -> ScanCalibration:
     """``lidar-sim calibrate scan``: fit, write the sensor YAML, check it reloads, plot."""
     sensor = Path(sensor) if sensor else config_path('cepton_vista_p60.yaml')
-    load_sensor(sensor)  # a wrong --sensor fails before the bag is read
+    if isinstance(load_sensor(sensor).scan, RisleyScan):  # a wrong --sensor fails before the bag
+        from lidar_sim_ros.calibrate.scan_risley import run_risley
+        return run_risley(bag, out, sensor, figure, topic, fields)
     samples = read_scan_samples(bag, topic, fields)
     cal = calibrate_scan(samples, sensor)
     header = [f'Sensor calibrated by `lidar-sim calibrate scan {bag}` from {sensor}:',

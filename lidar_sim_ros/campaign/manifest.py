@@ -40,7 +40,7 @@ TAIL = ['compute_s', 'cpu_s', 'worker']
 def columns(campaign: Campaign) -> list[str]:
     """The manifest's columns for ``campaign``."""
     return (HEAD + [f'param.{p}' for p in param_names(campaign)]
-            + [f'stat.{s}' for s in stat_names(campaign.scenario.materials.names)] + TAIL)
+            + [f'stat.{s}' for s in stat_names(campaign.material_names)] + TAIL)
 
 
 def format_value(value) -> str:
@@ -66,6 +66,11 @@ def fingerprint(campaign: Campaign) -> str:
     for model in (scenario.config, scenario.sensor, scenario.materials):
         h.update(model.model_dump_json().encode())
     h.update(Path(scenario.mesh_path).read_bytes())
+    for sensor in campaign.sensors or []:           # the choices' contents, not only their names
+        h.update(sensor.model_dump_json().encode())
+    for target in campaign.targets or []:
+        h.update(target.materials.model_dump_json().encode())
+        h.update(Path(target.mesh_path).read_bytes())
     return h.hexdigest()
 
 

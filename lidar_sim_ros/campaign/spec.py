@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
@@ -17,8 +18,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_serial
 
 from lidar_sim_ros.campaign.criteria import MAX_CRITERIA, parse_criterion
 from lidar_sim_ros.campaign.statistics import stat_names
-from lidar_sim_ros.core.config import (ConfigError, Scenario, check_file_kind, load_scenario, parse,
-                                       read_yaml, resolve)
+from lidar_sim_ros.core.config import (ConfigError, MaterialsConfig, Scenario, SensorConfig,
+                                       check_file_kind, load_materials, load_scenario, load_sensor,
+                                       parse, read_yaml, resolve)
 
 
 class _Model(BaseModel):
@@ -178,8 +180,24 @@ class MaterialDispersion(_Model):
     sigma_m: Scalar | None = None
 
 
+class TargetChoice(_Model):
+    """A target a run may observe instead of the base scenario's: its mesh, its materials
+    file and the map from the mesh's names to them (paths relative to the campaign file)."""
+
+    mesh: str
+    materials: str
+    mesh_materials: str | dict[str, str] | None = None
+
+
 class Dispersions(_Model):
     """What varies from run to run; omitted keys keep the base scenario's values."""
+
+    sensor: list[str] | None = Field(
+        None, min_length=1, description='sensor YAML files, one drawn per run (equally likely; '
+                                        'the manifest column param.sensor_choice is its index)')
+    target: list[TargetChoice] | None = Field(
+        None, min_length=1, description='targets, one drawn per run (equally likely; '
+                                        'param.target_choice is its index)')
 
     initial_distance_m: Scalar | None = Field(
         None, description='distance to the target at t = 0 along the base line of sight (m)')
@@ -196,6 +214,17 @@ class Dispersions(_Model):
     effects: dict[str, dict[str, Scalar]] = Field(
         default_factory=dict, description='effect name -> parameter -> law; an effect that '
                                           'the base scenario lacks is added')
+
+    @model_serializer(mode='wrap')
+    def _without_no_choice(self, handler):
+        # Without sensor or target choices a spec dumps as before they existed: the
+        # fingerprints of campaigns written then stay the same, and they resume.
+        data = handler(self)
+        if isinstance(data, dict):
+            for key in ('sensor', 'target'):
+                if data.get(key) is None:
+                    data.pop(key, None)
+        return data
 
 
 MAX_SERIES = 1000
@@ -259,16 +288,45 @@ class CampaignSpec(_Model):
         return data
 
 
-class Campaign:
-    """A loaded campaign: its spec, the base scenario and the file it came from."""
+@dataclass(frozen=True)
+class LoadedTarget:
+    """A target choice, loaded: mesh path, its materials (as the file has them, before a
+    sensor's own range error) and the mesh's names map."""
 
-    def __init__(self, spec: CampaignSpec, scenario: Scenario, source: Path):
+    mesh_path: Path
+    materials: MaterialsConfig
+    mesh_materials: str | dict[str, str] | None
+
+
+class Campaign:
+    """A loaded campaign: its spec, the base scenario and the file it came from; with
+    sensor or target choices, the choices loaded (``sensors``, ``targets``)."""
+
+    def __init__(self, spec: CampaignSpec, scenario: Scenario, source: Path,
+                 sensors: list[SensorConfig] | None = None,
+                 targets: list[LoadedTarget] | None = None,
+                 base_materials: MaterialsConfig | None = None):
         self.spec, self.scenario, self.source = spec, scenario, source
+        self.sensors, self.targets = sensors, targets
+        # The base scenario's materials as its file has them (before the sensor's range error).
+        self.base_materials = base_materials or scenario.materials
 
     @property
     def frames_per_run(self) -> int:
         """Frames simulated per run: duration times frame rate, at least one."""
-        return max(1, int(round(self.spec.duration_s * self.scenario.sensor.frame_rate_hz)))
+        return self.frames_for(self.scenario.sensor)
+
+    def frames_for(self, sensor: SensorConfig) -> int:
+        """Frames of one run with ``sensor``: duration times its frame rate, at least one."""
+        return max(1, int(round(self.spec.duration_s * sensor.frame_rate_hz)))
+
+    @property
+    def material_names(self) -> list[str]:
+        """Every material a run may report, the base scenario's first (manifest columns)."""
+        names = list(self.scenario.materials.names)
+        for target in self.targets or []:
+            names += [n for n in target.materials.names if n not in names]
+        return names
 
 
 def load_campaign(path: str | Path) -> Campaign:
@@ -287,12 +345,52 @@ def load_campaign(path: str | Path) -> Campaign:
         raise ConfigError(path, 'scenario', spec.scenario, f'file not found at {scenario_path}')
     scenario = load_scenario(scenario_path)
     _check_supports(spec.dispersions, path)
-    _check_materials(spec.dispersions, scenario, path)
+    sensors, targets = _load_choices(spec.dispersions, path)
+    _check_materials(spec.dispersions, scenario, path, targets)
     _check_effects(spec.dispersions, path)
     if spec.loop is not None:
+        if sensors or targets:
+            raise ConfigError(path, 'dispersions.sensor' if sensors else 'dispersions.target',
+                              None, 'a closed-loop campaign takes its sensor and target from '
+                                    'the loop config; drop the choice')
         spec = check_loop_spec(spec, path)
     _check_outcomes(spec, scenario, path)
-    return Campaign(spec, scenario, path.resolve())
+    base_materials = None
+    if sensors or targets:
+        base_materials = load_materials(resolve(scenario.config.materials, scenario_path.resolve().parent))
+    return Campaign(spec, scenario, path.resolve(), sensors, targets, base_materials)
+
+
+def _load_choices(disp: Dispersions, path: Path) -> tuple[list | None, list | None]:
+    """The sensor and target choices loaded; a missing file or a bad map names its key."""
+    base = path.resolve().parent
+    sensors = None
+    if disp.sensor:
+        sensors = []
+        for i, name in enumerate(disp.sensor):
+            file = resolve(name, base)
+            if not file.is_file():
+                raise ConfigError(path, f'dispersions.sensor.{i}', name, f'file not found at {file}')
+            sensors.append(load_sensor(file))
+    targets = None
+    if disp.target:
+        targets = []
+        for i, choice in enumerate(disp.target):
+            mesh, materials_file = resolve(choice.mesh, base), resolve(choice.materials, base)
+            for key, file, given in (('mesh', mesh, choice.mesh),
+                                     ('materials', materials_file, choice.materials)):
+                if not file.is_file():
+                    raise ConfigError(path, f'dispersions.target.{i}.{key}', given,
+                                      f'file not found at {file}')
+            materials = load_materials(materials_file)
+            mapping = choice.mesh_materials
+            values = [mapping] if isinstance(mapping, str) else list((mapping or {}).values())
+            for value in values:
+                if value not in materials.names:
+                    raise ConfigError(path, f'dispersions.target.{i}.mesh_materials', value,
+                                      f'not a material of {choice.materials} (known: {materials.names})')
+            targets.append(LoadedTarget(mesh, materials, mapping))
+    return sensors, targets
 
 
 def metric_names(spec: CampaignSpec, scenario: Scenario) -> tuple[str, ...]:
@@ -375,12 +473,16 @@ def _check_supports(disp: Dispersions, path: Path) -> None:
                               'can draw a negative sigma; bound it at or above zero')
 
 
-def _check_materials(disp: Dispersions, scenario: Scenario, path: Path) -> None:
-    names = scenario.materials.names
+def _check_materials(disp: Dispersions, scenario: Scenario, path: Path,
+                     targets: list[LoadedTarget] | None = None) -> None:
+    """A dispersed material must be one of the base scenario's, or of every target choice's."""
+    pools = [t.materials.names for t in targets] if targets else [scenario.materials.names]
     for name in disp.materials:
-        if name not in names:
+        missing = [names for names in pools if name not in names]
+        if missing:
+            where = 'the base scenario' if not targets else 'every target choice'
             raise ConfigError(path, f'dispersions.materials.{name}', name,
-                              f'not a material of the base scenario (known: {names})')
+                              f'not a material of {where} (known: {missing[0]})')
 
 
 def _check_effects(disp: Dispersions, path: Path) -> None:

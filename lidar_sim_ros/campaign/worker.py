@@ -23,10 +23,12 @@ def worker_target(scenario: Scenario) -> tuple[Target, FaceGeometry]:
     """The scenario's mesh (BVH built) and face geometry, loaded once per process."""
     path = Path(scenario.mesh_path)
     stat = path.stat()
-    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size, tuple(scenario.materials.names))
+    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size, tuple(scenario.materials.names),
+           repr(scenario.mesh_materials))
     with _LOCK:
         if key not in _TARGETS:
-            target = load_target(path, scenario.materials.names)
+            target = load_target(path, scenario.materials.names,
+                                 mesh_materials=scenario.mesh_materials)
             _TARGETS[key] = (target, FaceGeometry.of(target))
         return _TARGETS[key]
 

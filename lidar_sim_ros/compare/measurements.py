@@ -23,6 +23,7 @@ Every problem raises :class:`MeasurementError` naming the bag, topic and what is
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -377,30 +378,63 @@ def _usable_poses(bag: Path, topic: str, poses, notes: list[str]):
                    quat_xyzw=quat / np.linalg.norm(quat, axis=1, keepdims=True)), n_bad
 
 
-def with_scan_times(meas: Measurements, shots: Shots) -> Measurements:
+def with_scan_times(meas: Measurements, shots: Shots,
+                    shots_of_frame: Callable[[int], Shots] | None = None,
+                    frame_period_s: float | None = None,
+                    clocks_s: tuple[float, ...] = (0.0,)) -> Measurements:
     """Point times from the sensor's scan pattern, for clouds without a time field.
 
     Each measured direction is matched to the nearest shot of the configured frame
     pattern; if nearly all match within SCAN_MATCH_TOL_RAD (the recording comes from
     that pattern, stamped at frame start), the points take their shots' times (and
-    lasers). Otherwise the cloud stamp stays every point's time.
+    lasers). Otherwise the cloud stamp stays every point's time. A pattern that differs
+    from frame to frame (the Risley rosette) gives ``shots_of_frame`` and the frame
+    period: each cloud is matched to the shots of its own frame, round((stamp - clock) /
+    period), on the clock (one of ``clocks_s``, s) whose frames match the first cloud best:
+    the node counts frames from ROS time 0, ``lidar-sim simulate`` from its epoch.
     """
     if meas.time_source != 'stamp' or len(shots) == 0:
         return meas
-    dist, idx = cKDTree(shots.directions()).query(meas.directions)
-    ok = dist < SCAN_MATCH_TOL_RAD
+    if shots_of_frame is None or not frame_period_s:
+        dist, idx = cKDTree(shots.directions()).query(meas.directions)
+        ok = dist < SCAN_MATCH_TOL_RAD
+        t_shot, laser_shot = shots.t_s[idx], shots.laser[idx]
+    else:
+        first = np.flatnonzero(meas.cloud == meas.cloud.min())
+        clock = max(clocks_s, key=lambda c: _match_each_frame(meas, shots_of_frame, frame_period_s,
+                                                              c, first)[0].mean())
+        ok, t_shot, laser_shot = _match_each_frame(meas, shots_of_frame, frame_period_s, clock)
     if ok.mean() < SCAN_MATCH_MIN_FRACTION:
         return replace(meas, notes=meas.notes + [
             f'clouds have no per-point time field and only {100 * ok.mean():.0f} % of the '
             'directions match the configured scan pattern: every point takes its cloud stamp'])
-    t_frame = np.where(ok, shots.t_s[idx], np.median(shots.t_s[idx[ok]]))
-    laser = np.where(ok, shots.laser[idx], meas.laser).astype(np.uint16)
+    t_frame = np.where(ok, t_shot, np.median(t_shot[ok]))
+    laser = np.where(ok, laser_shot, meas.laser).astype(np.uint16)
     notes = [n for n in meas.notes if 'no per-point time field' not in n] + [
         f'clouds have no per-point time field: point times taken from the scan pattern '
         f'({100 * ok.mean():.1f} % of directions match a shot within '
         f'{np.degrees(SCAN_MATCH_TOL_RAD):g} deg)']
     return replace(meas, t_frame_s=t_frame, t_s=meas.cloud_stamps_s[meas.cloud] + t_frame,
                    laser=laser, has_point_time=True, time_source='scan pattern', notes=notes)
+
+
+def _match_each_frame(meas: Measurements, shots_of_frame: Callable[[int], Shots],
+                      frame_period_s: float, clock_s: float,
+                      only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per point (of ``only``, None: all): matched within tolerance, its shot's time (s) and
+    laser, each cloud against the shots of frame round((stamp - clock_s) / period)."""
+    cloud = meas.cloud if only is None else meas.cloud[only]
+    directions = meas.directions if only is None else meas.directions[only]
+    n = len(cloud)
+    ok, t_shot, laser_shot = np.zeros(n, bool), np.zeros(n), np.zeros(n, np.uint16)
+    for c in np.unique(cloud):
+        rows = np.flatnonzero(cloud == c)
+        k = int(round(((meas.epoch_s - clock_s) + float(meas.cloud_stamps_s[c])) / frame_period_s))
+        shots = shots_of_frame(k)
+        dist, idx = cKDTree(shots.directions()).query(directions[rows])
+        ok[rows] = dist < SCAN_MATCH_TOL_RAD
+        t_shot[rows], laser_shot[rows] = shots.t_s[idx], shots.laser[idx]
+    return ok, t_shot, laser_shot
 
 
 def field_time_since_stamp_s(points: np.ndarray, time: tuple[str, ...],

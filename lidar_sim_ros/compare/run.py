@@ -54,6 +54,7 @@ from lidar_sim_ros.core.config import (MaterialsConfig, Scenario, load_scenario,
 from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
                                         parse_effect_spec)
 from lidar_sim_ros.core.geometry import load_target
+from lidar_sim_ros.core.scan import varies_by_frame
 from lidar_sim_ros.core.effects.sunlight import Sunlight
 from lidar_sim_ros.core.pipeline import Prediction
 from lidar_sim_ros.core.sun import SunTrack
@@ -459,7 +460,8 @@ def separation_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated, effects:
 def load_inputs(opts: CompareOptions) -> Inputs:
     """The scenario, mesh, measurements, sun track and effects named by ``opts``."""
     scenario = load_scenario(opts.config or config_path('scenario.yaml'))
-    target = load_target(opts.mesh, scenario.materials.names)
+    target = load_target(opts.mesh, scenario.materials.names,
+                         mesh_materials=scenario.mesh_materials)
     meas = load_measurements(opts.bag, opts.cloud_topic, opts.pose_topic, opts.max_points,
                              opts.seed, opts.intensity_field, opts.time_field, opts.laser_field,
                              poses_from=opts.poses)
@@ -481,7 +483,12 @@ def load_inputs(opts: CompareOptions) -> Inputs:
         scenario_effects = [e for e in scenario_effects if not isinstance(e, Sunlight)]
     model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
                   scenario.source.parent if scenario.source else None, sun)
-    meas = with_scan_times(meas, model.simulator().shots)
+    sim = model.simulator()
+    # A rosette's frames on the node's clock (ROS time 0) or lidar-sim simulate's (its epoch).
+    from lidar_sim_ros.offline import DEFAULT_EPOCH_S
+    meas = with_scan_times(meas, sim.shots,
+                           sim.shots_of_frame if varies_by_frame(sim.sensor) else None,
+                           sim.frame_period_s, (0.0, DEFAULT_EPOCH_S))
     return Inputs(scenario, meas, sun, scenario_effects, user, model, pose_fit)
 
 

@@ -31,8 +31,12 @@ NS_PER_S = 1_000_000_000
 
 
 def lambertian_power_at_1m_w(sensor: SensorConfig) -> float:
-    """Received power (W) from a 100 % Lambertian plate at 1 m, normal incidence."""
-    return float(return_power_w(1.0, 0.0, 1.0, 0.0, 1.0, sensor.optics))
+    """Received power (W) from a 100 % Lambertian plate at 1 m, normal incidence (a flash
+    array: in the pixel on the boresight)."""
+    from lidar_sim_ros.core.scan_flash import pixel_view_sr
+    pixel_sr = pixel_view_sr(sensor, np.array([[1.0, 0.0, 0.0]]))
+    return float(np.ravel(return_power_w(1.0, 0.0, 1.0, 0.0, 1.0, sensor.optics,
+                                         pixel_sr=pixel_sr))[0])
 
 
 def reflectivity_estimate(power_w: np.ndarray, range_m: np.ndarray,

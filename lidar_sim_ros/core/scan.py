@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from lidar_sim_ros.core.config import (MAX_LASERS, MAX_SHOTS_PER_FRAME, ConfigError, FileScan,
-                                       LissajousArrayScan, RotatingScan, SensorConfig)
+                                       FlashScan, LissajousArrayScan, RisleyScan, RotatingScan,
+                                       SensorConfig)
 
 
 @dataclass(frozen=True)
@@ -188,11 +189,35 @@ def file_shots(cfg: FileScan, frame_period_s: float, base: Path | None = None) -
                  laser.astype(np.uint16)[order])
 
 
-def frame_shots(sensor: SensorConfig, base: Path | None = None) -> Shots:
-    """All shots of one frame for the configured scan pattern."""
+def frame_shots(sensor: SensorConfig, base: Path | None = None, frame_index: int = 0) -> Shots:
+    """All shots of one frame for the configured scan pattern; ``frame_index`` matters only
+    to a pattern that does not repeat every frame (``varies_by_frame``: the Risley rosette)."""
     scan = sensor.scan
     if isinstance(scan, LissajousArrayScan):
         return lissajous_array_shots(scan, sensor.frame_period_s)
     if isinstance(scan, RotatingScan):
         return rotating_shots(scan, sensor.frame_period_s)
+    if isinstance(scan, RisleyScan):
+        from lidar_sim_ros.core.scan_risley import risley_shots
+        return risley_shots(scan, sensor.frame_period_s, frame_index)
+    if isinstance(scan, FlashScan):
+        from lidar_sim_ros.core.scan_flash import flash_shots
+        return flash_shots(scan, sensor.frame_period_s)
     return file_shots(scan, sensor.frame_period_s, base)
+
+
+def frame_shots_and_directions(sensor: SensorConfig, base: Path | None = None,
+                               frame_index: int = 0) -> tuple[Shots, np.ndarray]:
+    """``frame_shots`` and their unit directions (N, 3); a rosette computes its directions
+    first, so a frame's shots cost one trigonometric pass, not two."""
+    if isinstance(sensor.scan, RisleyScan):
+        from lidar_sim_ros.core.scan_risley import risley_frame
+        return risley_frame(sensor.scan, sensor.frame_period_s, frame_index)
+    shots = frame_shots(sensor, base, frame_index)
+    return shots, shots.directions()
+
+
+def varies_by_frame(sensor: SensorConfig) -> bool:
+    """Whether each frame has its own shots (a non-repeating rosette) rather than one
+    pattern every frame."""
+    return isinstance(sensor.scan, RisleyScan)

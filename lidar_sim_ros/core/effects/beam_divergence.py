@@ -860,6 +860,7 @@ class BeamDivergence(Effect):
             return None
         from lidar_sim_ros.core import reflection
         from lidar_sim_ros.core.effects.base import ExtraReturns
+        from lidar_sim_ros.core.scan_flash import pixel_view_sr
         scene = ctx.scene
         sep = scene.sensor.detection.returns.min_separation_m
         index = np.flatnonzero(sampled_shots(scene.target, ctx.direction, scene.poses, half,
@@ -872,9 +873,10 @@ class BeamDivergence(Effect):
             return None
         kd, ks, n = (scene.materials.column(c) for c in ('kd', 'ks', 'n'))
         m = g['material']
+        pixel_sr = pixel_view_sr(scene.sensor, ctx.direction[g['shot']])
         power = g['fraction'] * reflection.return_power_w(
             g['range_m'], np.arccos(np.clip(g['cos_incidence'], 0.0, 1.0)), kd.take(m), ks.take(m),
-            n.take(m), scene.sensor.optics, g['cos_incidence'])
+            n.take(m), scene.sensor.optics, g['cos_incidence'], pixel_sr)
         return ExtraReturns(shot=g['shot'], range_m=g['range_m'], power_w=power, material=m,
                             face=g['face'], via_material=np.full(len(m), -1, np.int16),
                             source=self.name, replaces_echo=True)
