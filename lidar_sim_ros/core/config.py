@@ -17,7 +17,7 @@ import yaml
 from pydantic import (BaseModel, ConfigDict, Field, ValidationError,
                       field_validator, model_serializer, model_validator)
 
-from lidar_sim_ros.core.vectors import unit_vector
+from lidar_sim_ros.core.vectors import QUAT_NORM_TOL, unit_vector
 from lidar_sim_ros.paths import share_dir
 
 
@@ -458,7 +458,6 @@ class PoseConfig(_Model):
     @field_validator('quat_xyzw')
     @classmethod
     def _unit(cls, q):
-        from lidar_sim_ros.core.pose import QUAT_NORM_TOL
         norm = float(np.linalg.norm(q))
         if not abs(norm - 1.0) <= QUAT_NORM_TOL:
             raise ValueError(f'quaternion norm {norm:g} is not within {QUAT_NORM_TOL:g} of 1')

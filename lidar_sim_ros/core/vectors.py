@@ -1,4 +1,5 @@
-"""Directions from user input: scaled before they are normalised, so any finite vector works.
+"""Directions and rotations from user input: vectors scaled before they are normalised, so
+any finite vector works; the tolerance a quaternion's norm is held to.
 
 ``np.linalg.norm`` of ``[1e300, 1e300, 0]`` overflows to inf (and that of ``[1e-300, 0, 0]``
 underflows to 0): a direction divided by it is zero or NaN. Dividing by the largest
@@ -11,6 +12,11 @@ import numpy as np
 # A vector whose largest component is below this is refused as "nearly zero": its direction
 # is as likely rounding noise as intent (an exact zero may mean something to the caller).
 MIN_COMPONENT = 1e-9
+
+QUAT_NORM_TOL = 0.01
+"""A quaternion whose norm is within this of 1 is normalised; further off it is refused
+(config) or dropped and counted (recorded poses, pose topics): (1, 1, 0, 0) is no rotation
+anyone meant."""
 
 
 def unit_vector(vector) -> np.ndarray:
