@@ -458,10 +458,11 @@ class LidarSimNode(Node):
                 return 'an effect is listed twice'
             new_code = [v for v in value if v not in self._effect_classes]
             if self._ready and new_code:
-                return (f'{new_code[0]!r} is not an effect this node can switch on: runtime '
-                        'changes pick from the catalogue and the plugins loaded at start-up '
-                        '(plugin_effects in the parameters file), and never load code; loaded '
-                        f'at start-up: {sorted(self._plugins) or "none"}')
+                return (f'unknown effect {new_code[0]!r}: runtime changes pick from the '
+                        'catalogue and the plugins loaded at start-up (plugin_effects in the '
+                        'parameters file), and never load code; catalogue: '
+                        f'{sorted(builtin_classes())}; loaded at start-up: '
+                        f'{sorted(self._plugins) or "none"}')
             try:
                 self._build_effects(list(value))
             except Exception as exc:  # noqa: BLE001 - any failure to build is the reason
