@@ -134,6 +134,10 @@ class TimingConfig(_Model):
     mode: Literal['lockstep', 'realtime'] = 'lockstep'
     command_timeout_s: PositiveFloat = Field(
         2.0, description='lock-step: wall time to wait for a step command before going on (logged)')
+    startup_timeout_s: PositiveFloat = Field(
+        30.0, description=(
+            "lock-step: the wait (wall s) until the run's first command (the first acquisition "
+            'takes 0.5-3 s of compute; logged once per period it expires)'))
     pose_rate_hz: Annotated[float, Field(ge=10, le=1000)] = Field(
         100.0, description='dynamics sub-steps and /target/pose per second')
 

@@ -20,8 +20,11 @@ the simulated clock (``epoch_s`` + loop time):
 
 It subscribes to ``/chaser/force_command`` (geometry_msgs/WrenchStamped; frame ``lvlh``
 or ``chaser``: force in the chaser body frame; the torque is ignored: the attitude is
-kinematic), clipped per axis to ``chaser.thrust_limit_n`` with the dead band applied.
-When to advance is ``timing.CommandGate``'s (lock-step or real time, docs/loop.md).
+kinematic). Which command answers which period, what is refused and clipped, and when
+to advance are ``timing``'s (``admit_force``, ``CommandGate``; docs/loop.md): every
+refusal and clip is counted by cause and logged with the command's stamp (at most one
+line a second per cause, with the count), and the counts, the late and timed-out periods
+go to ``stats_file`` at the end.
 """
 from __future__ import annotations
 
@@ -41,9 +44,8 @@ from lidar_sim_ros.core.config import ConfigError
 from lidar_sim_ros.io.pointcloud import ns_to_stamp, stamp_to_ns
 from lidar_sim_ros.loop import frames
 from lidar_sim_ros.loop.config import load_loop_config
-from lidar_sim_ros.loop.control import limit_force
 from lidar_sim_ros.loop.step import TruthSamples, propagate
-from lidar_sim_ros.loop.timing import CommandGate
+from lidar_sim_ros.loop.timing import CommandGate, admit_force
 from lidar_sim_ros.paths import config_path
 from lidar_sim_ros.ros.parameters import declare_startup
 from lidar_sim_ros.ros.spin import run_node
@@ -52,6 +54,15 @@ NODE_NAME = 'loop_dynamics'
 NS_PER_S = 1_000_000_000
 POLL_S = 0.001       # how often to look whether the command has come / the period is due (wall)
 STATS_PERIOD_S = 10.0
+NOTE_PERIOD_S = 1.0   # per refusal or clip cause: at most one log line a second (with its count)
+REFUSAL_TEXT = {
+    'non_finite': 'a force component is NaN or infinite',
+    'frame': "frame_id must be 'lvlh' or 'chaser'",
+    'stale': "stamped before the pending period (an older period's answer)",
+    'future': 'stamped at or after the end of the pending period (no frame of that time yet)',
+    'duplicate': 'the pending period already has its command (the first one stands)',
+    'sent_early': "sent before the /clock that closed its period (cannot answer that period's frame)",
+}
 PEER_SETTLE_S = 0.5
 START_DELAY_S = 0.2  # between the first /clock (loop time zero) and the first period
 CLOCK_DELAY_S = 0.002  # /clock goes out this long after the period's poses: DDS does not
@@ -85,6 +96,13 @@ class LoopDynamicsNode(Node):
                                                      '(the simulator node\'s frame_id)')
         mode = p('timing_mode', '', "'lockstep' | 'realtime'; '' = the config's timing.mode")
         timeout = p('command_timeout_s', 0.0, "lock-step wait for a command (s); 0 = the config's")
+        startup = p('startup_timeout_s', 0.0, "lock-step wait for the run's first command (s); 0 = the config's")
+        skew = p('max_clock_skew_s', 0.0, (
+            'a command sent (DDS source time) earlier than this before the /clock that closed its '
+            'period is refused as sent_early; > 0 for a controller on another machine whose wall '
+            'clock may run behind (s)'))
+        self.stats_file = p('stats_file', '', "write the counts and per-period records here (JSON) "
+                                              "at the end; '' = none")
         command_topic = p('command_topic', '/chaser/force_command', 'geometry_msgs/WrenchStamped in')
         self.wait_for_peers = p('wait_for_peers', True, 'lock-step: start once /target/pose has a '
                                                         'subscriber and each of wait_for_publishers a publisher')
@@ -103,7 +121,11 @@ class LoopDynamicsNode(Node):
         from lidar_sim_ros.loop.dynamics import Dynamics
         self.dynamics = Dynamics(cfg)
         self.R_BL, self.t_B = frames.mount_transform(cfg.chaser.mount)
-        self.gate = CommandGate(mode, cfg.control_period_s, timeout or cfg.timing.command_timeout_s)
+        self.gate = CommandGate(mode, cfg.control_period_s, timeout or cfg.timing.command_timeout_s,
+                                startup or cfg.timing.startup_timeout_s, skew)
+        self._noted: dict[tuple[str, str], float] = {}
+        self.late_periods: list[int] = []
+        self.timeout_periods: list[int] = []
         self.steps = int(round(cfg.duration_s / cfg.control_period_s))
         self.k = 0
         self.dark = False  # in the Earth's shadow (the last period)
@@ -121,7 +143,8 @@ class LoopDynamicsNode(Node):
         self.sun_pub = self.create_publisher(Vector3Stamped, '/sun/direction', QoSProfile(depth=10))
         self.attitude_pub = self.create_publisher(QuaternionStamped, '/chaser/attitude', reliable)
         self._setup_tf()
-        self.create_subscription(WrenchStamped, command_topic, self._on_command, QoSProfile(depth=20))
+        # depth 100: a burst of other commands must not push the pending period's out of the queue
+        self.create_subscription(WrenchStamped, command_topic, self._on_command, QoSProfile(depth=100))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(POLL_S, self._tick, clock=steady)
         self.create_timer(STATS_PERIOD_S, self._log_stats, clock=steady)
@@ -168,17 +191,41 @@ class LoopDynamicsNode(Node):
             self._transform('lvlh', 'target', t_s, R_HT, np.zeros(3))]))
 
     # --------------------------------------------------------------- commands
-    def _on_command(self, msg: WrenchStamped) -> None:
-        f = np.array([msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z])
-        if not np.isfinite(f).all() or msg.header.frame_id not in ('lvlh', 'chaser'):
-            self.get_logger().warn(f'dropped force command: frame_id {msg.header.frame_id!r} '
-                                   f'(needs lvlh or chaser), force {f.tolist()}', throttle_duration_sec=5.0)
-            return
-        if msg.header.frame_id == 'chaser':
-            f = self.R_HB @ f
-        t_s = stamp_to_ns(msg.header.stamp) / NS_PER_S - self.epoch_s
+    def _on_command(self, msg: WrenchStamped, info: dict) -> None:
+        """Every command is admitted (``timing.admit_force``) and offered to the gate, or
+        refused with a line naming the cause and the stamp (``_note``)."""
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        t_s = stamp_ns / NS_PER_S - self.epoch_s
+        w = msg.wrench.force
         cfg = self.config.chaser
-        self.gate.on_command(t_s, limit_force(f, cfg.thrust_limit_n, cfg.dead_band_n))
+        force, refused, clip = admit_force(msg.header.frame_id, [w.x, w.y, w.z], self.R_HB,
+                                           cfg.thrust_limit_n, cfg.dead_band_n)
+        sent_ns = info.get('source_timestamp') if isinstance(info, dict) else None  # rclpy's message info
+        sent_s = sent_ns / NS_PER_S if sent_ns else None
+        if refused is not None:
+            self.gate.refuse(refused)
+        else:
+            refused = self.gate.offer(t_s, force, sent_s, clip)
+        if refused is not None:
+            window = self.gate.window_s
+            pending = (f'[{window[0]:.3f}, {window[1]:.3f}) s' if window else 'none yet')
+            self._note('refused', refused, f'refused force command stamped {t_s:.6f} s (loop time; '
+                       f'{stamp_ns / NS_PER_S:.6f} s on the clock), frame {msg.header.frame_id!r}, '
+                       f'force {[w.x, w.y, w.z]} N: {REFUSAL_TEXT[refused]}; pending period {pending}',
+                       self.gate.refused[refused])
+        elif clip is not None:
+            self._note('clipped', clip, f'force command stamped {t_s:.6f} s clipped ({clip}): '
+                       f'{[w.x, w.y, w.z]} N in {msg.header.frame_id!r} flies as '
+                       f'{np.round(force, 6).tolist()} N (LVLH)', self.gate.clipped[clip])
+
+    def _note(self, what: str, cause: str, text: str, count: int) -> None:
+        """One warning per cause at most every NOTE_PERIOD_S (wall), with that cause's count:
+        a flood of one cause cannot hide another (each has its own throttle)."""
+        now = time.monotonic()
+        key = (what, cause)
+        if now - self._noted.get(key, -np.inf) >= NOTE_PERIOD_S:
+            self._noted[key] = now
+            self.get_logger().warn(f'{text} [{what} for {cause}: {count} so far]')
 
     # ------------------------------------------------------------------ step
     def _peers_ready(self) -> bool:
@@ -196,11 +243,13 @@ class LoopDynamicsNode(Node):
             t_end, t0, wall = self.pending_clock
             if time.monotonic() < wall:
                 return
+            sent_s = time.time()   # before the /clock: an answer is sent after this
             self.clock_pub.publish(ClockMsg(clock=_stamp(t_end)))
-            self.gate.published(t0, time.monotonic())
+            self.gate.published(t0, time.monotonic(), sent_s)
             self.pending_clock = None
             if self.k == self.steps:
                 self._log_stats()
+                self._write_stats()
                 self.get_logger().info('done: the configured duration is simulated; the clock stops here')
             return
         if self.k >= self.steps:
@@ -216,11 +265,17 @@ class LoopDynamicsNode(Node):
         wall = time.monotonic()
         if not self.gate.due(wall):
             return
+        timeout_s = self.gate.current_timeout_s
         force, problem = self.gate.take()
-        if problem == 'timeout':
-            self.get_logger().warn(f'period {self.k}: no command for the period from '
-                                   f'{self.gate.period_start_s:.2f} s within {self.gate.timeout_s:g} s '
-                                   f'(wall): going on with no force')
+        if problem in ('timeout', 'startup_timeout'):
+            self.timeout_periods.append(self.k - 1)
+            what = ("the run's first command (start-up timeout)" if problem == 'startup_timeout'
+                    else 'a command for the period')
+            self.get_logger().warn(f'period {self.k - 1}: no command for the period from '
+                                   f'{self.gate.pending_start_s:.2f} s within {timeout_s:g} s (wall) '
+                                   f'waiting for {what}: going on with no force')
+        elif problem == 'late':
+            self.late_periods.append(self.k - 1)
         self.force_lvlh = force
         self._advance()
 
@@ -262,10 +317,36 @@ class LoopDynamicsNode(Node):
         t = self.dynamics.t_s
         wall = time.monotonic() - self.wall0
         g = self.gate
+        publishers = self.get_publishers_info_by_topic(self.command_topic)
+        if len(publishers) > 1:
+            # The gate cannot tell two publishers apart: the first command in a period's
+            # window stands, whoever sent it (docs/loop.md: keep others off the topic).
+            self.get_logger().warn(f'{len(publishers)} publishers on {self.command_topic}: '
+                                   + ', '.join(sorted(f'{p.node_namespace.rstrip("/")}/{p.node_name}'
+                                                      for p in publishers)))
         self.get_logger().info(
             f't = {t:.1f} s ({t / wall:.2f}x real time), range {self.range_m:.2f} m, LVLH '
             f'[{self.rho[0]:.2f}, {self.rho[1]:.2f}, {self.rho[2]:.2f}] m, delta-v {self.delta_v:.3f} m/s; '
-            f'commands {g.commands}, timeouts {g.timeouts}, late {g.late}')
+            f'commands {g.commands}, timeouts {g.timeouts} (start-up {g.startup_timeouts}), late {g.late}, '
+            f'refused {_nonzero(g.refused)}, clipped {_nonzero(g.clipped)}')
+
+    def statistics(self) -> dict:
+        """What happened (loop.json): the gate's counts, the periods late or timed out, the
+        timing mode actually run, the wall time since start."""
+        return {**self.gate.statistics(), 'timing_mode': self.gate.mode, 'periods': self.k,
+                'late_period_indices': list(self.late_periods),
+                'timeout_period_indices': list(self.timeout_periods),
+                'wall_s': time.monotonic() - (self.start_wall or self.wall0), 'simulated_s': self.dynamics.t_s}
+
+    def _write_stats(self) -> None:
+        if self.stats_file:
+            import json
+            from pathlib import Path
+            Path(self.stats_file).write_text(json.dumps(self.statistics(), indent=1))
+
+
+def _nonzero(counts: dict) -> dict:
+    return {k: v for k, v in counts.items() if v} or 0
 
 
 def main(args: list[str] | None = None) -> int:
