@@ -255,7 +255,7 @@ class PoseTrackerNode(Node):
         self._stats['acquisitions'] += 1
         text = (f'acquisition at {t_ns / NS_PER_S:.3f} s: {"acquired" if acq.success else "failed"}, score '
                 f'{acq.score:.3f} (fit {acq.fit:.3f}, coverage {acq.coverage:.3f}), {acq.hypotheses} '
-                f'hypotheses in {acq.seconds:.2f} s')
+                f'hypotheses in {acq.seconds:.2f} s' + (f' ({acq.reason})' if acq.reason else ''))
         if acq.success:
             other = ('no other place or end fitted' if np.isnan(acq.runner_up_score)
                      else f'another place or end scored {acq.runner_up_score:.3f}')

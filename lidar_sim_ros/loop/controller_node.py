@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from collections import deque
 from functools import partial
 
@@ -35,6 +36,40 @@ from lidar_sim_ros.ros.spin import run_node
 
 NODE_NAME = 'loop_controller'
 NS_PER_S = 1_000_000_000
+MAX_ESTIMATE_RANGE_M = 10_000.0   # farther than this an estimate is garbage (the sensor's gate is 250 m)
+QUATERNION_TOLERANCE = 0.01       # |q| within 1 +- this is read as a unit quaternion (then normalised)
+DROP_CAUSES = ('attitude', 'frame', 'non_finite', 'range', 'stale', 'future', 'no_attitude', 'command')
+
+
+def unit_quaternion(xyzw) -> np.ndarray | None:
+    """The quaternion normalised, or None when it is not finite or not near unit length
+    (a zero or NaN quaternion cannot be an attitude)."""
+    q = np.asarray(xyzw, float)
+    if not np.isfinite(q).all():
+        return None
+    with np.errstate(over='ignore'):
+        norm = float(np.linalg.norm(q))
+    return q / norm if abs(norm - 1.0) <= QUATERNION_TOLERANCE else None
+
+
+def estimate_problem(frame_id: str, lidar_frame: str, stamp_s: float, position_m, quat_xyzw,
+                     last_stamp_s: float | None, now_s: float, period_s: float) -> str | None:
+    """Why an estimate cannot be flown on (None: it can): its frame, a non-finite or absurd
+    position (farther than MAX_ESTIMATE_RANGE_M), a non-unit quaternion, a stamp not after
+    the last estimate's (stale: a replay or reordering), or one more than a period ahead of
+    the node's clock (future; ``now_s`` 0: no clock yet, not checked)."""
+    if frame_id != lidar_frame:
+        return 'frame'
+    p = np.asarray(position_m, float)
+    if not np.isfinite(p).all() or unit_quaternion(quat_xyzw) is None:
+        return 'non_finite'
+    if np.abs(p).max() > MAX_ESTIMATE_RANGE_M or float(np.linalg.norm(p)) > MAX_ESTIMATE_RANGE_M:
+        return 'range'
+    if last_stamp_s is not None and stamp_s <= last_stamp_s:
+        return 'stale'
+    if now_s > 0 and stamp_s > now_s + period_s:
+        return 'future'
+    return None
 
 
 class LoopControllerNode(Node):
@@ -53,6 +88,9 @@ class LoopControllerNode(Node):
         self.n_rad_s = math.sqrt(EARTH_MU_M3_S2 / a ** 3)   # the nominal orbit's rate (known a priori)
         self.nav, self.guidance = NavState(), GuidanceState()
         self.attitudes: deque[tuple[int, np.ndarray]] = deque(maxlen=400)
+        self.last_stamp_s: float | None = None
+        self.dropped = dict.fromkeys(DROP_CAUSES, 0)
+        self._noted: dict[str, float] = {}
         reliable = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(QuaternionStamped, '/chaser/attitude', self._on_attitude, reliable)
         self.create_subscription(PoseStamped, estimate_topic, self._on_estimate, QoSProfile(depth=20))
@@ -60,27 +98,31 @@ class LoopControllerNode(Node):
         self.ref_pub = self.create_publisher(PointStamped, '/loop/reference', QoSProfile(depth=20))
         self.get_logger().info(f'estimates on {estimate_topic} -> commands on {command_topic} (frame lvlh)')
 
+    def _drop(self, cause: str, text: str) -> None:
+        """Count a dropped input; one warning a second per cause, with its count."""
+        self.dropped[cause] += 1
+        now = time.monotonic()
+        if now - self._noted.get(cause, -np.inf) >= 1.0:
+            self._noted[cause] = now
+            self.get_logger().warn(f'{text} [{cause}: {self.dropped[cause]} dropped so far]')
+
     def _on_attitude(self, msg: QuaternionStamped) -> None:
         q = msg.quaternion
-        self.attitudes.append((stamp_to_ns(msg.header.stamp), Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()))
+        unit = unit_quaternion([q.x, q.y, q.z, q.w])
+        if unit is None:
+            self._drop('attitude', f'dropped /chaser/attitude stamped {stamp_to_ns(msg.header.stamp) / NS_PER_S:.6f} s: '
+                                   f'quaternion {[q.x, q.y, q.z, q.w]} is not a finite unit quaternion')
+            return
+        self.attitudes.append((stamp_to_ns(msg.header.stamp), Rotation.from_quat(unit).as_matrix()))
 
     def _on_estimate(self, msg: PoseStamped) -> None:
-        if msg.header.frame_id != self.lidar_frame:
-            self.get_logger().warn(f'dropped estimate: frame_id {msg.header.frame_id!r} is not '
-                                   f'{self.lidar_frame!r}', throttle_duration_sec=5.0)
-            return
-        if not self.attitudes:
-            self.get_logger().warn('no /chaser/attitude yet: estimate dropped', throttle_duration_sec=5.0)
-            return
         stamp_ns = stamp_to_ns(msg.header.stamp)
-        _, R_HB = min(self.attitudes, key=lambda a: abs(a[0] - stamp_ns))
-        pos = msg.pose.position
-        t_s = stamp_ns / NS_PER_S
-        rho = frames.chaser_from_estimate(np.array([pos.x, pos.y, pos.z]), R_HB, self.R_BL, self.t_B)
-        self.nav = nav_update(self.config.guidance, self.nav, t_s, rho)
-        # The command acts from the end of the frame's period: half a period after the estimate.
-        t_cmd = t_s + 0.5 * self.config.control_period_s
-        self.guidance, ref, force = guide_and_control(self.config, self.nav, self.guidance, t_cmd, self.n_rad_s)
+        pos, o = msg.pose.position, msg.pose.orientation
+        out = self.command_for(msg.header.frame_id, stamp_ns, [pos.x, pos.y, pos.z], [o.x, o.y, o.z, o.w],
+                               self.get_clock().now().nanoseconds / NS_PER_S)
+        if out is None:
+            return
+        force, ref = out
         cmd = WrenchStamped()
         cmd.header.frame_id, cmd.header.stamp = 'lvlh', msg.header.stamp
         cmd.wrench.force.x, cmd.wrench.force.y, cmd.wrench.force.z = map(float, force)
@@ -89,6 +131,34 @@ class LoopControllerNode(Node):
         ref_msg.header = cmd.header
         ref_msg.point.x, ref_msg.point.y, ref_msg.point.z = map(float, ref.rho_m)
         self.ref_pub.publish(ref_msg)
+
+    def command_for(self, frame_id: str, stamp_ns: int, position_m, quat_xyzw, now_s: float):
+        """(force (N, LVLH), reference) for an estimate, or None when it is dropped (counted,
+        logged): the navigation, guidance and control stages of ``step``."""
+        t_s = stamp_ns / NS_PER_S
+        period = self.config.control_period_s
+        problem = estimate_problem(frame_id, self.lidar_frame, t_s, position_m, quat_xyzw,
+                                   self.last_stamp_s, now_s, period)
+        if problem is None and not self.attitudes:
+            problem = 'no_attitude'
+        if problem is not None:
+            self._drop(problem, f'dropped estimate stamped {t_s:.6f} s (frame {frame_id!r}, position '
+                                f'{list(map(float, position_m))} m, quaternion {list(map(float, quat_xyzw))}): '
+                                f'{problem}' + (f' (the last was {self.last_stamp_s:.6f} s)'
+                                                if problem == 'stale' else '')
+                                + (f' (the clock is {now_s:.6f} s)' if problem == 'future' else ''))
+            return None
+        _, R_HB = min(self.attitudes, key=lambda a: abs(a[0] - stamp_ns))
+        rho = frames.chaser_from_estimate(np.asarray(position_m, float), R_HB, self.R_BL, self.t_B)
+        nav = nav_update(self.config.guidance, self.nav, t_s, rho)
+        # The command acts from the end of the frame's period: half a period after the estimate.
+        guidance, ref, force = guide_and_control(self.config, nav, self.guidance, t_s + 0.5 * period, self.n_rad_s)
+        if not np.isfinite(force).all():
+            self._drop('command', f'estimate stamped {t_s:.6f} s gives a non-finite command: dropped, '
+                                  'the filter and guidance keep their state')
+            return None
+        self.nav, self.guidance, self.last_stamp_s = nav, guidance, t_s
+        return force, ref
 
 
 def main(args: list[str] | None = None) -> int:

@@ -161,8 +161,9 @@ def capture_centre(xyz_m: np.ndarray) -> np.ndarray | None:
     """Where to centre the gate before a capture, from the cloud alone: its per-axis median
     (m, lidar frame; None for no points). Background triggers and sun returns spread over
     the whole range gate, the target's returns bunch: the median sits on the target while
-    it gives most of the points."""
-    return np.median(xyz_m, axis=0) if len(xyz_m) else None
+    it gives most of the points. Non-finite points are left out."""
+    finite = xyz_m[np.isfinite(xyz_m).all(axis=1)]
+    return np.median(finite, axis=0) if len(finite) else None
 
 
 def tracker_cloud(config: LoopConfig, xyz_m: np.ndarray, state: 'LoopState') -> np.ndarray:
