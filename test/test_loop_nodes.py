@@ -163,3 +163,26 @@ def test_gate_centres_on_the_estimate_of_the_period_before_not_the_last_to_arriv
     assert book.centre_for(100_200_000_000).tolist() == [29.0, 0, 0]
     assert book.centre_for(100_400_000_000) is None    # the period before had none: re-capture
     assert book.add(100_250_000_000, [1e300, 0, 0]) == 'range'
+
+
+def test_controller_answers_a_lost_period_from_the_coasting_filter(controller):
+    """A period whose cloud gave no estimate (pose_tracker's lost notice) gets a command, from
+    the filter as it stands (step.navigate keeps it in process), stamped as the notice."""
+    from lidar_sim_ros.loop.step import guide_and_control
+    controller._on_attitude(_attitude(100 * NS, [0, 0, 0, 1]))
+    controller._on_attitude(_attitude(100_200_000_000, [0, 0, 0, 1]))
+    controller.command_for('lidar', 100_050_000_000, [30.2, 0.1, 0.0], [0, 0, 0, 1], now_s=100.1)
+    nav, g = controller.nav, controller.guidance
+    force, ref = controller.command_for_loss('lidar', 100_150_000_000, now_s=100.2)
+    _, ref_hand, force_hand = guide_and_control(controller.config, nav, g, 100.2, controller.n_rad_s)
+    assert force.tolist() == force_hand.tolist() and ref.rho_m.tolist() == ref_hand.rho_m.tolist()
+    assert controller.nav is nav and controller.last_stamp_s == 100.15
+    assert controller.command_for_loss('lidar', 100_150_000_000, now_s=100.2) is None   # replayed
+
+
+def test_controller_waits_for_the_attitude_at_the_estimate_time(controller):
+    controller._on_attitude(_attitude(100 * NS, [0, 0, 0, 1]))
+    controller._on_estimate(_estimate(100_050_000_000, [30.0, 0.0, 0.0]))   # its attitude not yet in
+    assert controller.last_stamp_s is None and len(controller.waiting) == 1
+    controller._on_attitude(_attitude(100_050_000_000, [0, 0, 0.6, 0.8]))
+    assert controller.last_stamp_s == 100.05 and not controller.waiting

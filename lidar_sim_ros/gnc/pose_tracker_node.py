@@ -64,6 +64,9 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
         S, "geometry_msgs/PoseStamped giving capture guesses (e.g. the truth, /target/pose); "
            "'' = none: the tracker acquires from the cloud")),
     'estimate_topic': ('/target/pose_estimate', _read_only(S, 'geometry_msgs/PoseStamped output')),
+    'lost_topic': ('/target/pose_lost', _read_only(
+        S, "std_msgs/Header out, stamped as the estimate would have been, for each cloud that gives "
+           "no estimate (so a lock-step loop's controller answers that period too); '' = none")),
     'initial_pose': (Parameter.Type.DOUBLE_ARRAY, _read_only(
         FA, 'first capture guess [x, y, z, qx, qy, qz, qw] (m, unit quaternion); unset = '
             'the pose on pose_topic, or else acquisition from the cloud')),
@@ -168,6 +171,10 @@ class PoseTrackerNode(Node):
             self.create_subscription(PoseStamped, param('pose_topic'), self._on_pose,
                                      QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.pub = self.create_publisher(PoseStamped, param('estimate_topic'), 10)
+        self.lost_pub = None
+        if param('lost_topic'):
+            from std_msgs.msg import Header
+            self.lost_pub = self.create_publisher(Header, param('lost_topic'), 10)
         self.create_timer(STATS_PERIOD_S, self._log_stats, clock=Clock(clock_type=ClockType.STEADY_TIME))
         source = ('initial_pose' if self.initial_guess is not None else param('pose_topic')
                   or 'the cloud alone (acquisition)')
@@ -221,6 +228,7 @@ class PoseTrackerNode(Node):
         except ValueError as exc:   # a malformed cloud from any peer must not stop the node
             self._stats['rejected'] += 1
             self._warn('bad_cloud', f'cloud dropped: {exc}')
+            self._publish_lost(t_ns, msg.header)
             return
         t0 = time.perf_counter()
         estimate = self.tracker.update((t_ns - self._epoch_ns) / NS_PER_S, xyz, guess)
@@ -229,6 +237,7 @@ class PoseTrackerNode(Node):
             self._log_acquisition(t_ns, self.tracker.last_acquisition)
         if not estimate.acceptable(self.config):
             self._stats['rejected'] += 1
+            self._publish_lost(t_ns, msg.header)
             self._warn('lost', f'track lost at {t_ns / NS_PER_S:.3f} s: {estimate.inliers} of '
                                f'{estimate.points} points on the model (need '
                                f'{self.config.min_inlier_fraction:.0%} of at least {self.config.min_points})')
@@ -243,6 +252,12 @@ class PoseTrackerNode(Node):
         o.x, o.y, o.z, o.w = (float(v) for v in quat)
         self.pub.publish(out)
         self._stats['published'] += 1
+
+    def _publish_lost(self, t_ns: int, header) -> None:
+        """Say that the cloud stamped ``header.stamp`` gives no estimate (stamped mid-scan)."""
+        if self.lost_pub is not None:
+            from std_msgs.msg import Header
+            self.lost_pub.publish(Header(stamp=ns_to_stamp(t_ns, type(header.stamp)), frame_id=header.frame_id))
 
     # -------------------------------------------------------------- logging
     def _warn(self, kind: str, text: str) -> None:

@@ -121,8 +121,10 @@ class CloudGateNode(Node):
         self._noted: dict[str, float] = {}
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(PointCloud2, output_topic, qos)
-        self.create_subscription(PointCloud2, input_topic, self._on_cloud, qos)
+        # The estimates' subscription first: an executor serves ready subscriptions in the order
+        # they were made, so an estimate and the next cloud waiting together go estimate first.
         self.create_subscription(PoseStamped, estimate_topic, self._on_estimate, QoSProfile(depth=10))
+        self.create_subscription(PointCloud2, input_topic, self._on_cloud, qos)
         self.get_logger().info(f'{input_topic} -> {output_topic}: points within {self.gate_m:g} m '
                                f'of the last estimate on {estimate_topic}')
 

@@ -81,6 +81,9 @@ class LoopControllerNode(Node):
         config_file = p('config_file', '', "loop YAML; '' = the package's config/loop.yaml")
         self.lidar_frame = p('lidar_frame', 'lidar', 'the frame_id estimates must carry')
         estimate_topic = p('estimate_topic', '/target/pose_estimate', 'geometry_msgs/PoseStamped in')
+        lost_topic = p('lost_topic', '/target/pose_lost', (
+            "std_msgs/Header in: a period whose cloud gave no estimate (pose_tracker's lost_topic); "
+            "answered from the filter coasting, as in process; '' = none"))
         command_topic = p('command_topic', '/chaser/force_command', 'geometry_msgs/WrenchStamped out')
         self.config, _ = load_loop_config(config_file or config_path('loop.yaml'))
         self.R_BL, self.t_B = frames.mount_transform(self.config.chaser.mount)
@@ -94,6 +97,10 @@ class LoopControllerNode(Node):
         reliable = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(QuaternionStamped, '/chaser/attitude', self._on_attitude, reliable)
         self.create_subscription(PoseStamped, estimate_topic, self._on_estimate, QoSProfile(depth=20))
+        if lost_topic:
+            from std_msgs.msg import Header
+            self.create_subscription(Header, lost_topic, self._on_lost, QoSProfile(depth=20))
+        self.waiting: deque = deque(maxlen=20)   # inputs whose attitude sample has not come yet
         self.pub = self.create_publisher(WrenchStamped, command_topic, QoSProfile(depth=20))
         self.ref_pub = self.create_publisher(PointStamped, '/loop/reference', QoSProfile(depth=20))
         self.get_logger().info(f'estimates on {estimate_topic} -> commands on {command_topic} (frame lvlh)')
@@ -114,17 +121,39 @@ class LoopControllerNode(Node):
                                    f'quaternion {[q.x, q.y, q.z, q.w]} is not a finite unit quaternion')
             return
         self.attitudes.append((stamp_to_ns(msg.header.stamp), Rotation.from_quat(unit).as_matrix()))
+        ready = sorted((w for w in self.waiting if w[0] <= self.attitudes[-1][0]), key=lambda w: w[0])
+        for item in ready:
+            self.waiting.remove(item)
+        for item in ready:
+            self._answer(*item[1:])
 
     def _on_estimate(self, msg: PoseStamped) -> None:
-        stamp_ns = stamp_to_ns(msg.header.stamp)
         pos, o = msg.pose.position, msg.pose.orientation
-        out = self.command_for(msg.header.frame_id, stamp_ns, [pos.x, pos.y, pos.z], [o.x, o.y, o.z, o.w],
-                               self.get_clock().now().nanoseconds / NS_PER_S)
+        self._answer(msg.header, msg.header.frame_id, [pos.x, pos.y, pos.z], [o.x, o.y, o.z, o.w])
+
+    def _on_lost(self, msg) -> None:
+        self._answer(msg, msg.frame_id, None, None)
+
+    def _answer(self, header, frame_id: str, position_m, quat_xyzw) -> None:
+        """Command the period of an estimate (or of a lost one: ``position_m`` None) once the
+        chaser's attitude at its stamp is in (DDS does not order the two topics: the
+        attitude nearest an estimate must not depend on which came first)."""
+        stamp_ns = stamp_to_ns(header.stamp)
+        now_s = self.get_clock().now().nanoseconds / NS_PER_S
+        ahead = now_s > 0 and stamp_ns / NS_PER_S > now_s + self.config.control_period_s
+        if not ahead and (not self.attitudes or self.attitudes[-1][0] < stamp_ns):
+            if len(self.waiting) == self.waiting.maxlen:
+                self._drop('stale', f'input stamped {self.waiting[0][0] / NS_PER_S:.6f} s dropped: no attitude '
+                                    f'sample at its time came while {self.waiting.maxlen} inputs waited')
+            self.waiting.append((stamp_ns, header, frame_id, position_m, quat_xyzw))
+            return
+        out = (self.command_for(frame_id, stamp_ns, position_m, quat_xyzw, now_s) if position_m is not None
+               else self.command_for_loss(frame_id, stamp_ns, now_s))
         if out is None:
             return
         force, ref = out
         cmd = WrenchStamped()
-        cmd.header.frame_id, cmd.header.stamp = 'lvlh', msg.header.stamp
+        cmd.header.frame_id, cmd.header.stamp = 'lvlh', header.stamp
         cmd.wrench.force.x, cmd.wrench.force.y, cmd.wrench.force.z = map(float, force)
         self.pub.publish(cmd)
         ref_msg = PointStamped()
@@ -158,6 +187,21 @@ class LoopControllerNode(Node):
                                   'the filter and guidance keep their state')
             return None
         self.nav, self.guidance, self.last_stamp_s = nav, guidance, t_s
+        return force, ref
+
+    def command_for_loss(self, frame_id: str, stamp_ns: int, now_s: float):
+        """(force, reference) for a period whose cloud gave no estimate: the filter coasts, as
+        ``step.navigate`` does in process; None when the notice is dropped."""
+        t_s = stamp_ns / NS_PER_S
+        period = self.config.control_period_s
+        problem = estimate_problem(frame_id, self.lidar_frame, t_s, [0.0, 0.0, 0.0], [0, 0, 0, 1],
+                                   self.last_stamp_s, now_s, period)
+        if problem is not None:
+            self._drop(problem, f'dropped a lost-track notice stamped {t_s:.6f} s (frame {frame_id!r}): {problem}')
+            return None
+        guidance, ref, force = guide_and_control(self.config, self.nav, self.guidance, t_s + 0.5 * period,
+                                                 self.n_rad_s)
+        self.guidance, self.last_stamp_s = guidance, t_s
         return force, ref
 
 
