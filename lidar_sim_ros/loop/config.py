@@ -160,6 +160,27 @@ class TimingConfig(_Model):
         100.0, description='dynamics sub-steps and /target/pose per second')
 
 
+class GncConfig(_Model):
+    """Your own controller and navigation filter (``loop.user_gnc``): entry points
+    ``module:factory`` or ``file.py:factory`` (a file relative to the loop config), loaded
+    when a run starts; None: the built-in PD and alpha-beta filter."""
+
+    controller: str | None = Field(None, description=(
+        "factory(config) -> control(t_s, rho_m, rho_dot_mps, reference, n_rad_s) -> force (N, LVLH)"))
+    navigation: str | None = Field(None, description=(
+        'factory(config) -> an object with update(t_s, rho_measured_m | None) and at(t_s) -> '
+        '(rho_m, rho_dot_mps) | None'))
+
+    @field_validator('controller', 'navigation')
+    @classmethod
+    def _entry_point(cls, v):
+        if v is not None:
+            where, sep, name = v.rpartition(':')
+            if not sep or not where or not name.isidentifier():
+                raise ValueError("must be 'module:function' or 'file.py:function'")
+        return v
+
+
 class LoopConfig(_Model):
     """Everything one closed-loop run needs (config/loop.yaml)."""
 
@@ -193,6 +214,7 @@ class LoopConfig(_Model):
     guidance: GuidanceConfig = GuidanceConfig()
     sun: SunDirectionConfig = SunDirectionConfig()
     timing: TimingConfig = TimingConfig()
+    gnc: GncConfig = GncConfig()
 
     @model_validator(mode='after')
     def _substeps(self):
@@ -211,6 +233,11 @@ def load_loop_config(path: str | Path) -> tuple[LoopConfig, Path]:
     """The loop config and the resolved path of its scenario; ConfigError names file/key/value."""
     path = Path(path)
     cfg = parse(LoopConfig, read_yaml(path), path)
+    if cfg.gnc.controller or cfg.gnc.navigation:   # files beside the config, wherever the run starts
+        from lidar_sim_ros.loop.user_gnc import resolve_spec
+        base = path.resolve().parent
+        cfg = cfg.model_copy(update={'gnc': GncConfig(controller=resolve_spec(cfg.gnc.controller, base),
+                                                      navigation=resolve_spec(cfg.gnc.navigation, base))})
     scenario = resolve(cfg.scenario, path.resolve().parent)
     if not scenario.is_file():
         raise ConfigError(path, 'scenario', cfg.scenario, f'scenario file not found at {scenario}')

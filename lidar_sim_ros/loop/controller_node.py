@@ -30,6 +30,7 @@ from lidar_sim_ros.loop.config import load_loop_config
 from lidar_sim_ros.loop.dynamics import EARTH_MU_M3_S2, EARTH_RADIUS_M
 from lidar_sim_ros.loop.guidance import GuidanceState, NavState, nav_update
 from lidar_sim_ros.loop.step import guide_and_control
+from lidar_sim_ros.loop.user_gnc import load_user_gnc
 from lidar_sim_ros.paths import config_path
 from lidar_sim_ros.ros.parameters import declare_startup
 from lidar_sim_ros.ros.spin import run_node
@@ -90,6 +91,8 @@ class LoopControllerNode(Node):
         a = EARTH_RADIUS_M + self.config.orbit.altitude_m
         self.n_rad_s = math.sqrt(EARTH_MU_M3_S2 / a ** 3)   # the nominal orbit's rate (known a priori)
         self.nav, self.guidance = NavState(), GuidanceState()
+        # The config's own controller / navigation (user_gnc): from the start-up config file only.
+        self.gnc = load_user_gnc(self.config)
         self.attitudes: deque[tuple[int, np.ndarray]] = deque(maxlen=400)
         self.last_stamp_s: float | None = None
         self.dropped = dict.fromkeys(DROP_CAUSES, 0)
@@ -179,9 +182,14 @@ class LoopControllerNode(Node):
             return None
         _, R_HB = min(self.attitudes, key=lambda a: abs(a[0] - stamp_ns))
         rho = frames.chaser_from_estimate(np.asarray(position_m, float), R_HB, self.R_BL, self.t_B)
-        nav = nav_update(self.config.guidance, self.nav, t_s, rho)
+        if self.gnc is not None and self.gnc.navigation is not None:
+            self.gnc.navigation.update(t_s, rho)
+            nav = self.nav
+        else:
+            nav = nav_update(self.config.guidance, self.nav, t_s, rho)
         # The command acts from the end of the frame's period: half a period after the estimate.
-        guidance, ref, force = guide_and_control(self.config, nav, self.guidance, t_s + 0.5 * period, self.n_rad_s)
+        guidance, ref, force = guide_and_control(self.config, nav, self.guidance, t_s + 0.5 * period,
+                                                 self.n_rad_s, self.gnc)
         if not np.isfinite(force).all():
             self._drop('command', f'estimate stamped {t_s:.6f} s gives a non-finite command: dropped, '
                                   'the filter and guidance keep their state')
@@ -199,8 +207,10 @@ class LoopControllerNode(Node):
         if problem is not None:
             self._drop(problem, f'dropped a lost-track notice stamped {t_s:.6f} s (frame {frame_id!r}): {problem}')
             return None
+        if self.gnc is not None and self.gnc.navigation is not None:
+            self.gnc.navigation.update(t_s, None)
         guidance, ref, force = guide_and_control(self.config, self.nav, self.guidance, t_s + 0.5 * period,
-                                                 self.n_rad_s)
+                                                 self.n_rad_s, self.gnc)
         self.guidance, self.last_stamp_s = guidance, t_s
         return force, ref
 

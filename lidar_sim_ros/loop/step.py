@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.loop import frames
 from lidar_sim_ros.loop.config import LoopConfig
-from lidar_sim_ros.loop.control import control_step
+from lidar_sim_ros.loop.control import control_step, limit_force
 from lidar_sim_ros.loop.guidance import GuidanceState, NavState, Reference, guidance_step, nav_update
 
 
@@ -213,6 +213,7 @@ class LoopContext:
     t_B: np.ndarray
     R_BL_true: np.ndarray | None = None
     sun_config: object | None = None  # the scenario's core SunConfig (None: no sun)
+    gnc: object | None = None         # user_gnc.UserGnc: the config's own controller / navigation
 
     @property
     def mount_true(self) -> np.ndarray:
@@ -289,20 +290,35 @@ def navigate(ctx: LoopContext, nav: NavState, truth: TruthSamples, t_mid: float,
              est_pose: np.ndarray | None) -> tuple[NavState, np.ndarray | None]:
     """Fold the estimate into the filter; the chaser's own attitude (R_HB at the estimate's
     time, from its attitude determination) turns it into LVLH."""
+    user_nav = ctx.gnc.navigation if ctx.gnc is not None else None
     if est_pose is None:
+        if user_nav is not None:
+            user_nav.update(t_mid, None)
         return nav, None
     k = int(np.argmin(np.abs(truth.t_s - t_mid)))
     rho = frames.chaser_from_estimate(est_pose[:3, 3], truth.R_HB[k], ctx.R_BL, ctx.t_B)
+    if user_nav is not None:
+        user_nav.update(t_mid, rho.copy())
+        return nav, rho
     return nav_update(ctx.config.guidance, nav, t_mid, rho), rho
 
 
-def guide_and_control(config: LoopConfig, nav: NavState, g: GuidanceState, t_s: float, n_rad_s: float):
-    """(guidance state, reference, force (N, LVLH)) at ``t_s`` from the filtered estimate."""
-    if not nav.valid:
+def guide_and_control(config: LoopConfig, nav: NavState, g: GuidanceState, t_s: float, n_rad_s: float,
+                      gnc=None):
+    """(guidance state, reference, force (N, LVLH)) at ``t_s`` from the filtered estimate;
+    ``gnc`` (``user_gnc.UserGnc``): the config's own navigation and controller instead of
+    the alpha-beta filter and the PD (the thrust limit and dead band apply to both)."""
+    state = (gnc.navigation.at(t_s) if gnc is not None and gnc.navigation is not None
+             else nav.at(t_s) if nav.valid else None)
+    if state is None:
         ref = Reference(np.zeros(3), np.zeros(3), 'wait', g.index, False)
         return g, ref, np.zeros(3)
-    rho, rho_dot = nav.at(t_s)
+    rho, rho_dot = (np.asarray(x, float) for x in state)
     g, ref = guidance_step(config.guidance, g, t_s, rho, rho_dot)
+    if gnc is not None and gnc.controller is not None:
+        force = limit_force(gnc.force(t_s, rho, rho_dot, ref, n_rad_s), config.chaser.thrust_limit_n,
+                            config.chaser.dead_band_n)
+        return g, ref, force
     return g, ref, control_step(config.guidance, config.chaser, rho, rho_dot, ref, n_rad_s)
 
 
@@ -323,7 +339,8 @@ def loop_step(ctx: LoopContext, state: LoopState) -> tuple[LoopState, StepOutput
     xyz = sense_period(ctx, state, truth)
     est_pose, truth_capture = estimate(ctx, state, xyz, t_mid, true_pose)
     nav, rho_est = navigate(ctx, state.nav, truth, t_mid, est_pose)
-    g, ref, force = guide_and_control(ctx.config, nav, state.guidance, float(truth.t_s[-1]), truth.n_rad_s)
+    g, ref, force = guide_and_control(ctx.config, nav, state.guidance, float(truth.t_s[-1]), truth.n_rad_s,
+                                      ctx.gnc)
     new = next_state(state, truth, nav, g, force, est_pose)
     return new, StepOutput(truth, t_mid, est_pose, true_pose, ref, force,
                            state.tracking and not new.tracking, truth_capture, rho_est)
@@ -369,8 +386,9 @@ def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics
     if misalignment_xyzw is not None:  # p_L' = M p_L = M R_BL^T p_B: R_BL' = R_BL M^T
         R_BL_true = R_BL @ Rotation.from_quat(misalignment_xyzw).as_matrix().T
     sun_config = simulator.sun.config if simulator is not None and simulator.sun is not None else None
+    from lidar_sim_ros.loop.user_gnc import load_user_gnc
     return LoopContext(config, dynamics or Dynamics(config), simulator, tracker, cloud, R_BL, t_B,
-                       R_BL_true, sun_config)
+                       R_BL_true, sun_config, load_user_gnc(config))
 
 
 def _axis_angle_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:
