@@ -51,7 +51,7 @@ import small_gicp
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.gnc.tracker import Estimate, TargetModel, TrackerConfig, register
+from lidar_sim_ros.gnc.registration import Estimate, TargetModel, TrackerConfig, register
 
 Vec3 = tuple[float, float, float]
 
