@@ -1,6 +1,7 @@
 """loop/metrics.py, step.score, guidance and the gate, against hand calculations: the four
 loop mutations of issue 29 that no test caught (each test fails with its bug put back)."""
 import numpy as np
+import pytest
 
 from lidar_sim_ros.loop.config import GuidanceConfig, LoopConfig, load_loop_config
 from lidar_sim_ros.loop.guidance import GuidanceState, Reference, guidance_step
@@ -90,3 +91,62 @@ def test_after_a_loss_the_gate_recaptures_about_the_cloud_not_the_stale_estimate
     np.testing.assert_array_equal(tracker_cloud(cfg, xyz, tracking),
                                   xyz[np.linalg.norm(xyz - stale[:3, 3], axis=1) <= cfg.cloud_gate_m])
 
+
+
+def _approach(n: int, seed: int = 0):
+    """A perfect follower of the guidance through three holds, with noise on the truth: per
+    period t, rho, reference, range, force (and estimates on most periods)."""
+    cfg = GuidanceConfig(hold_ranges_m=[30.0, 15.0, 8.0], hold_time_s=5.0)
+    rng = np.random.default_rng(seed)
+    g, ref = GuidanceState(), None
+    rows = []
+    for k in range(n):
+        t = (k + 1) * T
+        target = ref.rho_m if ref is not None else np.array([0, -30.0, 0])
+        g, ref = guidance_step(cfg, g, t, target, ref.rho_dot_mps if ref is not None else np.zeros(3))
+        rho = ref.rho_m + rng.normal(0, 0.05, 3)
+        est = None if k % 7 == 3 else (t - T / 2, abs(rng.normal(0, 0.1)), abs(rng.normal(0, 1.0)))
+        rows.append((t, rho, ref.rho_m.copy(), 10.0 + abs(rho[1]), rng.normal(0, 2.0, 3), est, k % 50 == 10))
+    return rows
+
+
+def test_the_streaming_score_is_the_batch_metrics():
+    """metrics.LoopScore (a buffer of one hold time) against metrics.loop_metrics (the whole
+    series), a second implementation, over an approach with three holds."""
+    from lidar_sim_ros.loop.metrics import LoopScore, loop_metrics
+    rows = _approach(2500)
+    stream = LoopScore(T, 500.0, 5.0)
+    for t, rho, ref, rng, force, est, lost in rows:
+        stream.add(t, rho, ref, rng, force, *(est or (None,)), lost=lost)
+    got = stream.result()
+    est = [r[5] for r in rows if r[5] is not None]
+    batch = loop_metrics([r[0] for r in rows], [r[1] for r in rows], [r[2] for r in rows], [r[3] for r in rows],
+                         [r[4] for r in rows], T, 500.0, 5.0, [e[0] for e in est], [e[1] for e in est],
+                         [e[2] for e in est], sum(r[6] for r in rows))
+    assert got['hold_samples'] == batch['hold_samples'] > 100
+    for key, value in batch.items():
+        assert got[key] == pytest.approx(value, rel=1e-12, abs=1e-15), key
+
+
+def test_a_long_run_keeps_bounded_memory_and_decimated_series():
+    import tracemalloc
+
+    from lidar_sim_ros.loop.step import RunRecord
+    cfg = _config(hold_time_s=5.0)
+    outputs = [_output(t, rho, rho, ref[1], force) for t, rho, ref, _, force, _, _ in _approach(3000, seed=1)]
+    full, small = RunRecord(cfg), RunRecord(cfg, max_rows=100)
+    for o in outputs:
+        full.add(o)
+    tracemalloc.start()
+    for i, o in enumerate(outputs):
+        small.add(o)
+        if i == 999:
+            before = tracemalloc.get_traced_memory()[0]
+    after = tracemalloc.get_traced_memory()[0]
+    tracemalloc.stop()
+    a, b = full.result(), small.result()
+    assert a.metrics == b.metrics                         # every period scored either way
+    assert len(b.series['t_s']) < 100 and b.series['every_periods'] == 32
+    np.testing.assert_array_equal(b.series['t_s'], a.series['t_s'][::32])
+    # 2000 more periods cost no memory that grows with them (was 5.5 kB a period)
+    assert after - before < 40_000, after - before

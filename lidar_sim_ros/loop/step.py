@@ -412,44 +412,83 @@ def run_loop(config: LoopConfig, cloud: str | None = 'model', scenario_path=None
 
 
 def run_steps(ctx: LoopContext, duration_s: float | None = None) -> LoopResult:
-    """Step a built context for ``duration_s`` (default: the config's) and score the run."""
+    """Step a built context for ``duration_s`` (default: the config's) and score the run as
+    it goes (``RunRecord``: memory bounded whatever the duration)."""
     config = ctx.config
     state = LoopState()
     steps = int(round((duration_s or config.duration_s) / config.control_period_s))
-    outputs = []
+    record = RunRecord(config)
     for _ in range(steps):
         state, out = loop_step(ctx, state)
-        outputs.append(out)
-    return score(config, outputs)
+        record.add(out)
+    return record.result()
+
+
+SERIES_MAX_ROWS = 36_000
+"""Rows of a run's series kept at most (an hour at 10 Hz); a longer run keeps every 2nd,
+4th, ... period (the metrics still see every period)."""
+
+
+class RunRecord:
+    """A run's metrics (``metrics.LoopScore``, over every period) and its series (one row a
+    period up to ``max_rows``, then decimated by two each time it fills), in memory bounded
+    by ``max_rows`` and the hold time: a step's truth samples (5.5 kB) are not kept."""
+
+    FIELDS = ('t_s', 'rho_true_m', 'rho_est_m', 'ref_m', 'range_m', 'force_lvlh_n', 'delta_v_mps', 'phase',
+              'hold_index', 'settled', 'est_trans_err_m', 'est_axis_err_deg')
+
+    def __init__(self, config: LoopConfig, max_rows: int = SERIES_MAX_ROWS):
+        from lidar_sim_ros.loop.metrics import LoopScore
+        self.config, self.max_rows = config, max(2, int(max_rows))
+        self.score = LoopScore(config.control_period_s, config.chaser.mass_kg, config.guidance.hold_time_s)
+        self.rows: list[tuple] = []
+        self.stride, self.index = 1, 0
+        self.delta_v_mps = 0.0
+        self.truth_captures = self.holds_reached = 0
+
+    def add(self, o: StepOutput) -> None:
+        cfg = self.config
+        t = float(o.truth.t_s[-1])
+        rho_true, rng = o.truth.rho_m[-1], float(np.linalg.norm(o.truth.t_L_m[-1]))
+        trans = axis = float('nan')
+        if o.est_pose is not None:
+            trans = float(np.linalg.norm(o.est_pose[:3, 3] - o.true_pose[:3, 3]))
+            axis = _axis_angle_deg(o.est_pose[:3, :3], o.true_pose[:3, :3])
+        est_t = o.est_t_s if np.isfinite(trans) else None
+        self.score.add(t, rho_true, o.reference.rho_m, rng, o.force_lvlh_n, est_t, trans, axis, o.lost)
+        self.delta_v_mps += float(np.linalg.norm(o.force_lvlh_n)) * cfg.control_period_s / cfg.chaser.mass_kg
+        self.truth_captures += bool(o.truth_capture)
+        self.holds_reached = max(self.holds_reached, o.reference.index + o.reference.settled)
+        if self.index % self.stride == 0:
+            rho_est = o.rho_est_m if o.rho_est_m is not None else np.full(3, np.nan)
+            self.rows.append((t, rho_true.copy(), np.asarray(rho_est, float), o.reference.rho_m.copy(), rng,
+                              np.asarray(o.force_lvlh_n, float), self.delta_v_mps, o.reference.phase,
+                              o.reference.index, o.reference.settled, trans, axis))
+            if len(self.rows) >= self.max_rows:
+                self.rows, self.stride = self.rows[::2], 2 * self.stride
+        self.index += 1
+
+    def result(self) -> LoopResult:
+        metrics = self.score.result()
+        metrics['truth_captures'] = int(self.truth_captures)
+        metrics['holds_reached'] = int(self.holds_reached)
+        columns = dict(zip(self.FIELDS, zip(*self.rows))) if self.rows else {f: () for f in self.FIELDS}
+        series = {}
+        for name in self.FIELDS:
+            values = columns[name]
+            if name == 'phase':
+                series[name] = list(values)
+            elif name in ('rho_true_m', 'rho_est_m', 'ref_m', 'force_lvlh_n'):
+                series[name] = np.array(values, float).reshape(-1, 3)
+            else:
+                series[name] = np.array(values)
+        series['every_periods'] = self.stride
+        return LoopResult(metrics, series)
 
 
 def score(config: LoopConfig, outputs: list[StepOutput]) -> LoopResult:
-    """Metrics (``metrics.loop_metrics``) and series of a run's step outputs."""
-    from lidar_sim_ros.loop.metrics import loop_metrics
-    n = len(outputs)
-    t = np.array([o.truth.t_s[-1] for o in outputs])
-    rho_true = np.array([o.truth.rho_m[-1] for o in outputs]).reshape(-1, 3)
-    rng = np.array([np.linalg.norm(o.truth.t_L_m[-1]) for o in outputs])
-    force = np.array([o.force_lvlh_n for o in outputs]).reshape(-1, 3)
-    ref = np.array([o.reference.rho_m for o in outputs]).reshape(-1, 3)
-    rho_est = np.full((n, 3), np.nan)
-    trans_err, axis_err = np.full(n, np.nan), np.full(n, np.nan)
-    for i, o in enumerate(outputs):
-        if o.est_pose is not None:
-            trans_err[i] = np.linalg.norm(o.est_pose[:3, 3] - o.true_pose[:3, 3])
-            axis_err[i] = _axis_angle_deg(o.est_pose[:3, :3], o.true_pose[:3, :3])
-        if o.rho_est_m is not None:
-            rho_est[i] = o.rho_est_m
-    got = np.flatnonzero(np.isfinite(trans_err))
-    metrics = loop_metrics(t, rho_true, ref, rng, force, config.control_period_s, config.chaser.mass_kg,
-                           config.guidance.hold_time_s, [outputs[i].est_t_s for i in got],
-                           trans_err[got], axis_err[got], sum(o.lost for o in outputs))
-    metrics['truth_captures'] = int(sum(o.truth_capture for o in outputs))
-    metrics['holds_reached'] = int(max((o.reference.index + o.reference.settled for o in outputs), default=0))
-    dv = np.cumsum(np.linalg.norm(force, axis=1)) * config.control_period_s / config.chaser.mass_kg
-    series = {'t_s': t, 'rho_true_m': rho_true, 'rho_est_m': rho_est, 'ref_m': ref, 'range_m': rng,
-              'force_lvlh_n': force, 'delta_v_mps': dv, 'phase': [o.reference.phase for o in outputs],
-              'hold_index': np.array([o.reference.index for o in outputs]),
-              'settled': np.array([o.reference.settled for o in outputs]),
-              'est_trans_err_m': trans_err, 'est_axis_err_deg': axis_err}
-    return LoopResult(metrics, series)
+    """Metrics and series of a run's step outputs (``RunRecord``)."""
+    record = RunRecord(config)
+    for o in outputs:
+        record.add(o)
+    return record.result()
