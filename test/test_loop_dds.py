@@ -48,7 +48,7 @@ def write_config(path, duration_s: float, mode: str = 'lockstep') -> None:
     text = text.replace('position_sigma_m: 0.5', 'position_sigma_m: 0.0')
     text = text.replace('velocity_sigma_mps: 0.005', 'velocity_sigma_mps: 0.0')
     text = text.replace('command_timeout_s: 2.0', 'command_timeout_s: 0.5')
-    text = text.replace('mode: lockstep', f'mode: {mode}')
+    text = text.replace('mode: lockstep', f'mode: {mode}\n  realtime_waits_for_first_command: false')
     assert 'duration_s: 150.0' not in text and 'position_sigma_m: 0.0' in text
     path.write_text(text)
 

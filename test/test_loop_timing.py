@@ -132,7 +132,7 @@ def test_a_hostile_publisher_cannot_advance_stall_or_change_a_lock_step_run():
 
 
 def test_real_time_paces_on_the_wall_and_counts_late_commands():
-    gate = CommandGate('realtime', period_s=T, timeout_s=2.0)
+    gate = CommandGate('realtime', period_s=T, timeout_s=2.0, realtime_waits_for_first_command=False)
     gate.published(0.0, wall_s=5.0)
     assert not gate.due(5.05) and gate.due(5.1)   # one period of wall time, command or not
     gate.offer(0.05, np.array([1.0, 0.0, 0.0]))
@@ -141,6 +141,27 @@ def test_real_time_paces_on_the_wall_and_counts_late_commands():
     force, problem = gate.take()                  # its command has not come: late,
     assert problem == 'late' and gate.late == 1 and force.tolist() == [1.0, 0.0, 0.0]  # flies on the last
     assert gate.offer(0.05, np.ones(3)) == 'stale'  # the old period's answer, again: refused
-    gate.published(0.4, wall_s=5.4)               # three periods on, the last is too old to fly
+    gate.published(0.2, wall_s=5.2)
+    assert gate.offer(0.15, 2 * np.ones(3)) is None and gate.late_arrivals == 1   # late, but the newest
     force, problem = gate.take()
-    assert problem == 'late' and not force.any() and gate.late == 2
+    assert problem == 'late' and force.tolist() == [2.0, 2.0, 2.0]
+    gate.published(0.5, wall_s=5.5)               # three periods on, the last is too old to fly
+    force, problem = gate.take()
+    assert problem == 'late' and not force.any() and gate.late == 3
+
+
+def test_real_time_paces_from_the_first_command():
+    """The first acquisition (seconds of compute) is waited for, not counted late; then the
+    wall grid starts from the first command's period."""
+    gate = CommandGate('realtime', period_s=T, timeout_s=2.0, startup_timeout_s=30.0)
+    gate.take()
+    gate.published(0.0, wall_s=0.0)
+    assert not gate.due(0.1) and not gate.due(2.9)     # the GNC is still acquiring
+    assert gate.offer(0.05, np.ones(3)) is None and gate.due(2.9)
+    assert gate.take()[1] is None
+    gate.published(0.1, wall_s=3.0)                    # paced from here
+    assert not gate.due(3.05) and gate.due(3.1)
+    assert gate.take()[1] == 'late' and gate.late == 1
+    gate.published(0.2, wall_s=3.1)
+    assert not gate.due(3.15) and gate.due(3.2)        # the grid, not the late tick
+    assert gate.startup_timeouts == 0

@@ -156,6 +156,10 @@ class TimingConfig(_Model):
         30.0, description=(
             "lock-step: the wait (wall s) until the run's first command (the first acquisition "
             'takes 0.5-3 s of compute; logged once per period it expires)'))
+    realtime_waits_for_first_command: bool = Field(True, description=(
+        "real time: pace on the wall clock from the GNC's first command on, the periods before "
+        'it waiting as in lock-step (up to startup_timeout_s each): the first acquisition is not '
+        'counted late; false: pace from the first period'))
     pose_rate_hz: Annotated[float, Field(ge=10, le=1000)] = Field(
         100.0, description='dynamics sub-steps and /target/pose per second')
 

@@ -122,7 +122,8 @@ class LoopDynamicsNode(Node):
         self.dynamics = Dynamics(cfg)
         self.R_BL, self.t_B = frames.mount_transform(cfg.chaser.mount)
         self.gate = CommandGate(mode, cfg.control_period_s, timeout or cfg.timing.command_timeout_s,
-                                startup or cfg.timing.startup_timeout_s, skew)
+                                startup or cfg.timing.startup_timeout_s, skew,
+                                realtime_waits_for_first_command=cfg.timing.realtime_waits_for_first_command)
         self._noted: dict[tuple[str, str], float] = {}
         self.late_periods: list[int] = []
         self.timeout_periods: list[int] = []

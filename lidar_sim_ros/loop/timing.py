@@ -24,7 +24,11 @@ zeroed under the dead band (``dead_band``), each counted (``admit_force``).
   acquisition takes 0.5-3 s of compute), then ``timeout_s``.
 - ``realtime``: one period per ``period_s`` of wall time, whatever has arrived; a period
   whose command had not been accepted when the next one is due is counted late and flies
-  the newest accepted command if it is at most two periods old, else none.
+  the newest command if it is at most two periods old, else none. A command that answers
+  an earlier period arrives late is not the pending period's, but it is the newest one
+  (``late_arrivals``). The wall-clock pacing starts with the run's first command: until
+  the GNC's first answer (the first acquisition, 0.5-3 s of compute) the periods wait as
+  in lock-step (``startup_timeout_s``), so that the start-up is not counted late.
 """
 from __future__ import annotations
 
@@ -84,8 +88,11 @@ class CommandGate:
     timeouts: int = 0
     startup_timeouts: int = 0
     late: int = 0
+    late_arrivals: int = 0
     refused: dict = field(default_factory=lambda: dict.fromkeys(REFUSAL_CAUSES, 0))
     clipped: dict = field(default_factory=lambda: dict.fromkeys(CLIP_CAUSES, 0))
+    realtime_waits_for_first_command: bool = True
+    _paced: bool = False
 
     @property
     def window_s(self) -> tuple[float, float] | None:
@@ -100,6 +107,11 @@ class CommandGate:
         is the pending period's command, else the cause it is refused for (counted).
         ``clip``: the clip cause ``admit_force`` gave, counted when the command is accepted."""
         cause = self._refusal(float(stamp_s), sent_s)
+        if cause == 'stale' and self.mode == 'realtime' and self._newer(float(stamp_s)):
+            # Real time: an earlier period's answer, late but the freshest command there is.
+            self.newest = (float(stamp_s), np.asarray(force_lvlh_n, float).copy())
+            self.late_arrivals += 1
+            return None
         if cause is not None:
             return self.refuse(cause)
         self.accepted = self.newest = (float(stamp_s), np.asarray(force_lvlh_n, float).copy())
@@ -107,6 +119,10 @@ class CommandGate:
         if clip is not None:
             self.clipped[clip] += 1
         return None
+
+    def _newer(self, stamp_s: float) -> bool:
+        return (self.newest is None or stamp_s > self.newest[0] + STAMP_TOLERANCE_S) and \
+            stamp_s >= self.pending_start_s - 2 * self.period_s - STAMP_TOLERANCE_S
 
     def refuse(self, cause: str) -> str:
         self.refused[cause] += 1
@@ -130,8 +146,16 @@ class CommandGate:
         ``sent_s``: the wall clock, epoch s, just before the /clock was published)."""
         self.pending_start_s, self.published_wall_s = float(period_start_s), wall_s
         self.closed_sent_s, self.accepted = sent_s, None
-        # Real time keeps an absolute grid: a late tick does not push the later ones back.
-        self.next_wall_s = wall_s + self.period_s if self.next_wall_s is None else self.next_wall_s + self.period_s
+        # Real time keeps an absolute grid from the first period after the first command: a
+        # late tick does not push the later ones back.
+        started = self.next_wall_s is not None and self._paced
+        self.next_wall_s = self.next_wall_s + self.period_s if started else wall_s + self.period_s
+        self._paced = self.commands > 0 or not self.realtime_waits_for_first_command
+
+    @property
+    def _starting(self) -> bool:
+        """Real time before the first command, when it waits for it."""
+        return self.mode == 'realtime' and self.realtime_waits_for_first_command and not self.commands
 
     @property
     def current_timeout_s(self) -> float:
@@ -142,7 +166,7 @@ class CommandGate:
         """Whether to advance now."""
         if self.published_wall_s is None:
             return True
-        if self.mode == 'lockstep':
+        if self.mode == 'lockstep' or self._starting:   # real time: paced from the first command on
             return self.accepted is not None or wall_s - self.published_wall_s >= self.current_timeout_s
         return wall_s >= self.next_wall_s - 1e-4
 
@@ -153,10 +177,10 @@ class CommandGate:
             return np.zeros(3), None
         if self.accepted is not None:
             return self.accepted[1], None
+        if self.mode == 'lockstep' and not self.commands or self._starting:
+            self.startup_timeouts += 1
+            return np.zeros(3), 'startup_timeout'
         if self.mode == 'lockstep':
-            if not self.commands:
-                self.startup_timeouts += 1
-                return np.zeros(3), 'startup_timeout'
             self.timeouts += 1
             return np.zeros(3), 'timeout'
         self.late += 1
@@ -168,4 +192,5 @@ class CommandGate:
         """The counts, as loop.json and the statistics log line give them."""
         return {'commands': self.commands, 'timeouts': self.timeouts,
                 'startup_timeouts': self.startup_timeouts, 'late_periods': self.late,
+                'late_arrivals': self.late_arrivals,
                 'refused_commands': dict(self.refused), 'clipped_commands': dict(self.clipped)}
