@@ -240,7 +240,8 @@ def _run_twice_leg(tmp_path, name: str, hostile: bool):
     try:
         relay.wait(lambda: relay.node.count_publishers('/chaser/force_command') >= 1 + hostile, 60, 'the controller')
         dynamics = start_ros_process('lidar_sim_ros.loop.dynamics_node',
-                                     ['-p', f'config_file:={cfg}', '-p', f'stats_file:={stats}'],
+                                     ['-p', f'config_file:={cfg}', '-p', f'stats_file:={stats}', '-p',
+                                      "wait_for_subscribers:=['/target/pose', '/chaser/attitude']"],
                                      env, logs['dynamics'])
         relay.wait(lambda: stats.exists(), 90, 'the end of the run')
     finally:

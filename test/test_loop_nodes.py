@@ -186,3 +186,17 @@ def test_controller_waits_for_the_attitude_at_the_estimate_time(controller):
     assert controller.last_stamp_s is None and len(controller.waiting) == 1
     controller._on_attitude(_attitude(100_050_000_000, [0, 0, 0.6, 0.8]))
     assert controller.last_stamp_s == 100.05 and not controller.waiting
+
+
+def test_controller_answers_with_the_nearest_attitude_when_its_sample_never_comes(controller):
+    """The attitude samples of the first period lost to discovery must not deadlock a
+    lock-step start: after ATTITUDE_WAIT_S the nearest sample answers (logged)."""
+    from lidar_sim_ros.loop import controller_node
+    controller._on_attitude(_attitude(100 * NS, [0, 0, 0, 1]))
+    controller._on_estimate(_estimate(100_050_000_000, [30.0, 0.0, 0.0]))
+    controller._flush_waiting()
+    assert controller.last_stamp_s is None                       # not yet overdue
+    stamp, *rest, since = controller.waiting[0]
+    controller.waiting[0] = (stamp, *rest, since - controller_node.ATTITUDE_WAIT_S)
+    controller._flush_waiting()
+    assert controller.last_stamp_s == 100.05 and not controller.waiting

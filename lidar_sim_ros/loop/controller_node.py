@@ -19,6 +19,7 @@ from functools import partial
 
 import numpy as np
 from geometry_msgs.msg import PointStamped, PoseStamped, QuaternionStamped, WrenchStamped
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from scipy.spatial.transform import Rotation
@@ -39,6 +40,7 @@ NODE_NAME = 'loop_controller'
 NS_PER_S = 1_000_000_000
 MAX_ESTIMATE_RANGE_M = 10_000.0   # farther than this an estimate is garbage (the sensor's gate is 250 m)
 QUATERNION_TOLERANCE = 0.01       # |q| within 1 +- this is read as a unit quaternion (then normalised)
+ATTITUDE_WAIT_S = 1.0            # wall s an input waits for the attitude sample at its time
 DROP_CAUSES = ('attitude', 'frame', 'non_finite', 'range', 'stale', 'future', 'no_attitude', 'command')
 
 
@@ -104,6 +106,9 @@ class LoopControllerNode(Node):
             from std_msgs.msg import Header
             self.create_subscription(Header, lost_topic, self._on_lost, QoSProfile(depth=20))
         self.waiting: deque = deque(maxlen=20)   # inputs whose attitude sample has not come yet
+        # An input whose attitude sample never comes (lost to discovery at the start) is
+        # answered with the nearest sample after ATTITUDE_WAIT_S of wall time (logged).
+        self.create_timer(0.05, self._flush_waiting, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.pub = self.create_publisher(WrenchStamped, command_topic, QoSProfile(depth=20))
         self.ref_pub = self.create_publisher(PointStamped, '/loop/reference', QoSProfile(depth=20))
         self.get_logger().info(f'estimates on {estimate_topic} -> commands on {command_topic} (frame lvlh)')
@@ -128,7 +133,19 @@ class LoopControllerNode(Node):
         for item in ready:
             self.waiting.remove(item)
         for item in ready:
-            self._answer(*item[1:])
+            self._answer(*item[1:5])
+
+    def _flush_waiting(self) -> None:
+        """Answer inputs that waited ATTITUDE_WAIT_S for their attitude sample with the nearest one."""
+        now = time.monotonic()
+        overdue = sorted((w for w in self.waiting if now - w[5] >= ATTITUDE_WAIT_S), key=lambda w: w[0])
+        for item in overdue:
+            self.waiting.remove(item)
+        for item in overdue:
+            self.get_logger().warn(f'no /chaser/attitude sample at or after {item[0] / NS_PER_S:.6f} s within '
+                                   f'{ATTITUDE_WAIT_S:g} s: answered with the nearest one (start the dynamics '
+                                   'with /chaser/attitude in wait_for_subscribers)')
+            self._answer(*item[1:5], force_now=True)
 
     def _on_estimate(self, msg: PoseStamped) -> None:
         pos, o = msg.pose.position, msg.pose.orientation
@@ -137,18 +154,19 @@ class LoopControllerNode(Node):
     def _on_lost(self, msg) -> None:
         self._answer(msg, msg.frame_id, None, None)
 
-    def _answer(self, header, frame_id: str, position_m, quat_xyzw) -> None:
+    def _answer(self, header, frame_id: str, position_m, quat_xyzw, force_now: bool = False) -> None:
         """Command the period of an estimate (or of a lost one: ``position_m`` None) once the
         chaser's attitude at its stamp is in (DDS does not order the two topics: the
         attitude nearest an estimate must not depend on which came first)."""
         stamp_ns = stamp_to_ns(header.stamp)
         now_s = self.get_clock().now().nanoseconds / NS_PER_S
         ahead = now_s > 0 and stamp_ns / NS_PER_S > now_s + self.config.control_period_s
-        if not ahead and (not self.attitudes or self.attitudes[-1][0] < stamp_ns):
+        if not ahead and not (force_now and self.attitudes) and (
+                not self.attitudes or self.attitudes[-1][0] < stamp_ns):
             if len(self.waiting) == self.waiting.maxlen:
                 self._drop('stale', f'input stamped {self.waiting[0][0] / NS_PER_S:.6f} s dropped: no attitude '
                                     f'sample at its time came while {self.waiting.maxlen} inputs waited')
-            self.waiting.append((stamp_ns, header, frame_id, position_m, quat_xyzw))
+            self.waiting.append((stamp_ns, header, frame_id, position_m, quat_xyzw, time.monotonic()))
             return
         out = (self.command_for(frame_id, stamp_ns, position_m, quat_xyzw, now_s) if position_m is not None
                else self.command_for_loss(frame_id, stamp_ns, now_s))

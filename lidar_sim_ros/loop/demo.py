@@ -109,8 +109,9 @@ def record(duration_s: float, procs, logs, cloud_every: int = 5) -> dict:
                              QoSProfile(depth=100))
     node.create_subscription(Header, '/target/pose_lost',
                              lambda m: got['lost'].append([stamp_to_ns(m.stamp)]), QoSProfile(depth=100))
-    node.create_subscription(PointCloud2, '/loop/points_gated', on_cloud,
-                             QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE), raw=True)
+    if cloud_every:
+        node.create_subscription(PointCloud2, '/loop/points_gated', on_cloud,
+                                 QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE), raw=True)
     node.create_subscription(WrenchStamped, '/chaser/force_command',
                              lambda m: got['command'].append(vec_row(m.header.stamp, m.wrench.force)),
                              QoSProfile(depth=100))
@@ -302,7 +303,8 @@ def main(argv=None) -> int:
                 '-p', f'config_file:={cfg_file}', '-p', f'epoch_s:={EPOCH_S}', '-p', 'clock_delay_s:=0.01',
                 '-p', f'stats_file:={(out / key / "dynamics_stats.json").resolve()}',
                 '-p', f'timing_mode:={args.timing or config.timing.mode}',
-                '-p', "wait_for_publishers:=['/chaser/force_command', '/target/pose_estimate', '/lidar/points']"]),
+                '-p', "wait_for_publishers:=['/chaser/force_command', '/target/pose_estimate', '/lidar/points']",
+                '-p', "wait_for_subscribers:=['/target/pose', '/chaser/attitude']"]),
             'lidar_sim_node': ('lidar_sim_ros.ros.lidar_sim_node', [
                 '-p', f'scenario_file:={scenario}', '-p', 'use_sim_time:=true', '-p', 'publish_truth:=true',
                 '-p', 'qos_reliability:=reliable', '-p', 'pose_qos_reliability:=reliable']),

@@ -104,10 +104,13 @@ class LoopDynamicsNode(Node):
         self.stats_file = p('stats_file', '', "write the counts and per-period records here (JSON) "
                                               "at the end; '' = none")
         command_topic = p('command_topic', '/chaser/force_command', 'geometry_msgs/WrenchStamped in')
-        self.wait_for_peers = p('wait_for_peers', True, 'lock-step: start once /target/pose has a '
-                                                        'subscriber and each of wait_for_publishers a publisher')
+        self.wait_for_peers = p('wait_for_peers', True, 'lock-step: start once each of wait_for_subscribers '
+                                                        'has a subscriber and each of wait_for_publishers a publisher')
         self.wait_for_publishers = list(p('wait_for_publishers', [command_topic],
                                           'topics that need a publisher before the lock-step starts'))
+        self.wait_for_subscribers = list(p('wait_for_subscribers', ['/target/pose'], (
+            'topics that need a subscriber before the lock-step starts (add /chaser/attitude when '
+            'the GNC reads it: its first samples are not lost to discovery)')))
         self.command_topic = command_topic
         self.clock_delay_s = float(p('clock_delay_s', 0.002, (
             "/clock goes out this long (wall s) after the period's poses: DDS does not order two "
@@ -232,7 +235,7 @@ class LoopDynamicsNode(Node):
     def _peers_ready(self) -> bool:
         """Lock-step starts when the loop is there: nothing published before is lost."""
         if self.peers_since is None:
-            if self.count_subscribers('/target/pose') and all(
+            if all(self.count_subscribers(topic) for topic in self.wait_for_subscribers) and all(
                     self.count_publishers(topic) for topic in self.wait_for_publishers):
                 self.peers_since = time.monotonic()
                 self.get_logger().info('peers found: starting in 0.5 s')
