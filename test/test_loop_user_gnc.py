@@ -94,3 +94,33 @@ def test_bad_entry_points_are_named(tmp_path):
         run_loop(_config(tmp_path, {'controller': f'{tmp_path / "bad.py"}:make'}), cloud=None, duration_s=1.0)
     with pytest.raises(FileNotFoundError):
         run_loop(_config(tmp_path, {'controller': f'{tmp_path / "none.py"}:make'}), cloud=None, duration_s=1.0)
+
+
+def test_a_campaign_flies_the_config_s_controller(tmp_path):
+    """A closed-loop campaign's worker builds its loop from the loop config (build_context),
+    so the docs' PD named there flies every run: the same metrics as the built-in PD."""
+    import yaml
+
+    from lidar_sim_ros.campaign.run import run_one
+    from lidar_sim_ros.campaign.loop_case import read_result
+    from lidar_sim_ros.campaign.spec import load_campaign
+    (tmp_path / 'pd.py').write_text(_docs_example())
+    text = config_path('loop.yaml').read_text().replace(
+        'scenario: scenario_all_effects.yaml', f'scenario: {config_path("scenario_all_effects.yaml")}')
+    metrics = {}
+    for name, extra in (('built_in', ''), ('mine', '\ngnc:\n  controller: pd.py:make_controller\n')):
+        (tmp_path / f'{name}.yaml').write_text(text + extra)
+        spec = {'scenario': str(config_path('scenario.yaml')), 'seed': 5, 'runs': 1, 'duration_s': 0.5,
+                'loop': {'config': str(tmp_path / f'{name}.yaml'), 'cloud': 'truth'},
+                'dispersions': {'initial_distance_m': {'dist': 'uniform', 'low': 20.0, 'high': 25.0}}}
+        (tmp_path / f'{name}_c.yaml').write_text(yaml.safe_dump(spec))
+        campaign = load_campaign(tmp_path / f'{name}_c.yaml')
+        row = run_one(campaign, 0, str(tmp_path / name))
+        assert row['status'] == 'ok', row['error']
+        metrics[name] = read_result(tmp_path / name, 0)['metrics']
+    assert metrics['mine']['delta_v_mps'] > 0
+    for key, value in metrics['built_in'].items():
+        if isinstance(value, float):
+            assert metrics['mine'][key] == pytest.approx(value, rel=1e-9, abs=1e-12, nan_ok=True), key
+        else:
+            assert metrics['mine'][key] == value, key
