@@ -104,7 +104,7 @@ class LoopDynamicsNode(Node):
         self.stats_file = p('stats_file', '', "write the counts and per-period records here (JSON) "
                                               "at the end; '' = none")
         command_topic = p('command_topic', '/chaser/force_command', 'geometry_msgs/WrenchStamped in')
-        self.wait_for_peers = p('wait_for_peers', True, 'lock-step: start once each of wait_for_subscribers '
+        self.wait_for_peers = p('wait_for_peers', True, 'start once each of wait_for_subscribers '
                                                         'has a subscriber and each of wait_for_publishers a publisher')
         self.wait_for_publishers = list(p('wait_for_publishers', [command_topic],
                                           'topics that need a publisher before the lock-step starts'))
@@ -258,7 +258,8 @@ class LoopDynamicsNode(Node):
             return
         if self.k >= self.steps:
             return
-        if self.k == 0 and self.gate.mode == 'lockstep' and self.wait_for_peers and not self._peers_ready():
+        # Both modes start when the loop is there (real time waits for the first command too).
+        if self.k == 0 and self.wait_for_peers and not self._peers_ready():
             return
         if self.k == 0 and self.start_wall is None:
             # The clock at loop time zero first: a use_sim_time node drops poses before any /clock.
