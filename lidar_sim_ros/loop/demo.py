@@ -7,8 +7,11 @@ scenario: every effect), ``loop_cloud_gate`` (the range gate about the last esti
 process records the truth (/target/pose, /loop/chaser_pose), the estimates, the
 commands and the guidance reference until the configured duration is simulated, then
 scores both runs with ``metrics.loop_metrics``: ``loop.json`` (per cloud: hold_error_m,
-delta_v_mps, min_range_m, est_trans_rms_m, est_axis_rms_deg, acquired_at_s, losses, ...)
-and ``loop.png``.
+delta_v_mps, min_range_m, est_trans_rms_m, est_axis_rms_deg, acquired_at_s, losses, ...,
+and what happened: timing_mode, wall_s, timeouts, late_periods, refused_commands,
+clipped_commands, acquisition_compute_s), ``loop.png``, an MCAP rosbag2 of each run
+(``<cloud>/loop_bag``: /tf, poses, commands, clouds; ``loop.bag``) and a Foxglove layout
+(``loop.foxglove.json``).
 
     python -m lidar_sim_ros.loop.demo --out demo-output/loop [--duration 150] [--clouds model_cloud]
 """
