@@ -192,7 +192,7 @@ class LoopControllerNode(Node):
         if problem is None and not self.attitudes:
             problem = 'no_attitude'
         if problem is not None:
-            self._drop(problem, f'dropped estimate stamped {t_s:.6f} s (frame {frame_id!r}, position '
+            self._drop(problem, f'dropped estimate stamped {t_s:.6f} s (frame {frame_id[:64]!r}, position '
                                 f'{list(map(float, position_m))} m, quaternion {list(map(float, quat_xyzw))}): '
                                 f'{problem}' + (f' (the last was {self.last_stamp_s:.6f} s)'
                                                 if problem == 'stale' else '')
@@ -223,7 +223,7 @@ class LoopControllerNode(Node):
         problem = estimate_problem(frame_id, self.lidar_frame, t_s, [0.0, 0.0, 0.0], [0, 0, 0, 1],
                                    self.last_stamp_s, now_s, period)
         if problem is not None:
-            self._drop(problem, f'dropped a lost-track notice stamped {t_s:.6f} s (frame {frame_id!r}): {problem}')
+            self._drop(problem, f'dropped a lost-track notice stamped {t_s:.6f} s (frame {frame_id[:64]!r}): {problem}')
             return None
         if self.gnc is not None and self.gnc.navigation is not None:
             self.gnc.navigation.update(t_s, None)

@@ -214,12 +214,12 @@ class LoopDynamicsNode(Node):
             window = self.gate.window_s
             pending = (f'[{window[0]:.3f}, {window[1]:.3f}) s' if window else 'none yet')
             self._note('refused', refused, f'refused force command stamped {t_s:.6f} s (loop time; '
-                       f'{stamp_ns / NS_PER_S:.6f} s on the clock), frame {msg.header.frame_id!r}, '
+                       f'{stamp_ns / NS_PER_S:.6f} s on the clock), frame {msg.header.frame_id[:64]!r}, '
                        f'force {[w.x, w.y, w.z]} N: {REFUSAL_TEXT[refused]}; pending period {pending}',
                        self.gate.refused[refused])
         elif clip is not None:
             self._note('clipped', clip, f'force command stamped {t_s:.6f} s clipped ({clip}): '
-                       f'{[w.x, w.y, w.z]} N in {msg.header.frame_id!r} flies as '
+                       f'{[w.x, w.y, w.z]} N in {msg.header.frame_id[:64]!r} flies as '
                        f'{np.round(force, 6).tolist()} N (LVLH)', self.gate.clipped[clip])
 
     def _note(self, what: str, cause: str, text: str, count: int) -> None:
