@@ -200,3 +200,24 @@ def test_controller_answers_with_the_nearest_attitude_when_its_sample_never_come
     controller.waiting[0] = (stamp, *rest, since - controller_node.ATTITUDE_WAIT_S)
     controller._flush_waiting()
     assert controller.last_stamp_s == 100.05 and not controller.waiting
+
+
+def test_gate_holds_a_cloud_until_the_period_before_is_answered(gate):
+    """DDS does not order the estimate and the next cloud: a cloud that comes first waits for
+    the estimate (or the lost notice) of the period before, then is gated about it."""
+    from std_msgs.msg import Header
+    node, _, _ = gate
+    got = []
+    node._pass = lambda msg: got.append(node.gated(msg))     # what it would publish
+    xyz = _target_and_far()
+    node._on_cloud(_cloud(xyz, stamp_ns=100 * NS))                       # the first: no period before
+    assert len(got) == 1 and got[0].width == 200                        # captured
+    node._on_cloud(_cloud(xyz, stamp_ns=100 * NS + 100_000_000))         # before its estimate
+    assert len(got) == 1 and len(node.held) == 1
+    node._on_estimate(_estimate(100 * NS + 50_000_000, [30.0, 0.0, 0.0]))
+    inside = np.linalg.norm(xyz.astype(np.float32) - [30.0, 0.0, 0.0], axis=1) <= 8.0
+    assert len(got) == 2 and got[1].width == inside.sum() and not node.held
+    node._on_cloud(_cloud(xyz, stamp_ns=100 * NS + 200_000_000))         # its period was lost
+    assert len(node.held) == 1
+    node._on_lost(Header(stamp=ns_to_stamp(100 * NS + 150_000_000, type(Header().stamp)), frame_id='lidar'))
+    assert len(got) == 3 and got[2].width == 200 and node.counts == {'gated': 1, 'captured': 2, 'unanswered': 0}

@@ -15,10 +15,12 @@ the in-process loop gates the same way (``step.tracker_cloud``).
 from __future__ import annotations
 
 import sys
+import time
 from functools import partial
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
@@ -44,6 +46,7 @@ class EstimateBook:
     def __init__(self, period_ns: int):
         self.period_ns = int(period_ns)
         self.centres: dict[int, np.ndarray] = {}
+        self.lost: set[int] = set()
 
     def add(self, stamp_ns: int, position_m) -> str | None:
         """Keep an estimate's centre (m, lidar frame); the cause it is dropped for, or None."""
@@ -56,6 +59,17 @@ class EstimateBook:
         while len(self.centres) > ESTIMATES_KEPT:
             del self.centres[min(self.centres)]
         return None
+
+    def add_lost(self, stamp_ns: int) -> None:
+        """A period whose cloud gave no estimate (the tracker's lost notice): answered, no centre."""
+        self.lost.add(int(stamp_ns))
+        while len(self.lost) > ESTIMATES_KEPT:
+            self.lost.discard(min(self.lost))
+
+    def answered(self, cloud_stamp_ns: int) -> bool:
+        """Whether the period before the cloud's has its answer: an estimate or a lost notice."""
+        lo = cloud_stamp_ns - self.period_ns
+        return any(lo <= s < cloud_stamp_ns for s in (*self.centres, *self.lost))
 
     def centre_for(self, cloud_stamp_ns: int) -> np.ndarray | None:
         """The centre of the estimate stamped in [cloud - period, cloud), the latest if several."""
@@ -107,6 +121,13 @@ class CloudGateNode(Node):
         input_topic = p('input_topic', '/lidar/points', 'PointCloud2 in')
         output_topic = p('output_topic', '/loop/points_gated', 'PointCloud2 out')
         estimate_topic = p('estimate_topic', '/target/pose_estimate', 'PoseStamped: the gate centre')
+        lost_topic = p('lost_topic', '/target/pose_lost', (
+            "std_msgs/Header: the tracker's notice of a period without an estimate; with it a cloud "
+            "waits (up to answer_wait_s) for the period before's answer, so that the gate never "
+            "depends on which topic came first; '' = none (gate on what has come)"))
+        self.answer_wait_s = float(p('answer_wait_s', 1.0, (
+            "wall s a cloud waits for the period before's estimate or lost notice (then it is "
+            're-captured, logged)')))
         self.gate_m = float(p('gate_m', 8.0, 'keep points within this of the estimated centre (m)'))
         self.capture_gate_m = float(p('capture_gate_m', 12.0, 'before the first estimate: keep points '
                                       "within this of the cloud's median (m; 0 = all)"))
@@ -124,12 +145,21 @@ class CloudGateNode(Node):
         # The estimates' subscription first: an executor serves ready subscriptions in the order
         # they were made, so an estimate and the next cloud waiting together go estimate first.
         self.create_subscription(PoseStamped, estimate_topic, self._on_estimate, QoSProfile(depth=10))
+        self.wait_for_answers = bool(lost_topic)
+        if lost_topic:
+            from std_msgs.msg import Header
+            self.create_subscription(Header, lost_topic, self._on_lost, QoSProfile(depth=10))
         self.create_subscription(PointCloud2, input_topic, self._on_cloud, qos)
+        self.held: list[tuple[PointCloud2, float]] = []   # clouds waiting for the period before's answer
+        self.seen_cloud_ns: int | None = None             # the first cloud's stamp: it has no period before
+        self.counts = {'gated': 0, 'captured': 0, 'unanswered': 0}
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(0.01, self._release, clock=steady)
+        self.create_timer(10.0, self._log_stats, clock=steady)
         self.get_logger().info(f'{input_topic} -> {output_topic}: points within {self.gate_m:g} m '
                                f'of the last estimate on {estimate_topic}')
 
     def _drop(self, cause: str, text: str) -> None:
-        import time
         self.dropped[cause] += 1
         now = time.monotonic()
         if now - self._noted.get(cause, -np.inf) >= 1.0:
@@ -142,8 +172,42 @@ class CloudGateNode(Node):
         if cause is not None:
             self._drop(cause, f'estimate stamped {stamp_to_ns(msg.header.stamp) / 1e9:.6f} s dropped: '
                               f'position {[p.x, p.y, p.z]} m ({cause})')
+        self._release()
+
+    def _log_stats(self) -> None:
+        c = self.counts
+        self.get_logger().info(f"clouds gated about the period before's estimate {c['gated']}, re-captured "
+                               f"{c['captured']} (of them without an answer in time {c['unanswered']}), "
+                               f'dropped {self.dropped}')
+
+    def _on_lost(self, msg) -> None:
+        self.book.add_lost(stamp_to_ns(msg.stamp))
+        self._release()
 
     def _on_cloud(self, msg: PointCloud2) -> None:
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        if self.seen_cloud_ns is None:
+            self.seen_cloud_ns = stamp_ns
+        if self.wait_for_answers and stamp_ns > self.seen_cloud_ns and not self.book.answered(stamp_ns):
+            self.held.append((msg, time.monotonic()))
+            return
+        self._pass(msg)
+
+    def _release(self) -> None:
+        """Pass on the held clouds whose answer came, or that waited answer_wait_s (in order)."""
+        while self.held:
+            msg, since = self.held[0]
+            if not self.book.answered(stamp_to_ns(msg.header.stamp)):
+                if time.monotonic() - since < self.answer_wait_s and len(self.held) < 5:
+                    return
+                self.counts['unanswered'] += 1
+                self.get_logger().warn(f'cloud stamped {stamp_to_ns(msg.header.stamp) / 1e9:.6f} s: no estimate '
+                                       f'or lost notice of the period before within {self.answer_wait_s:g} s: '
+                                       're-captured about its median')
+            self.held.pop(0)
+            self._pass(msg)
+
+    def _pass(self, msg: PointCloud2) -> None:
         out = self.gated(msg)
         if out is not None:
             self.pub.publish(out)
@@ -152,6 +216,7 @@ class CloudGateNode(Node):
         """The cloud to pass on, or None when it is dropped (counted, logged)."""
         stamp_ns = stamp_to_ns(msg.header.stamp)
         centre = self.book.centre_for(stamp_ns)
+        self.counts['gated' if centre is not None else 'captured'] += 1
         try:
             data, n = gated_bytes(msg, centre, self.gate_m, self.capture_gate_m)
         except (ValueError, TypeError) as exc:
