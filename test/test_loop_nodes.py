@@ -1,4 +1,5 @@
-"""The loop's nodes against hostile messages, in process (no second process, no traffic):
+"""The loop's nodes against hostile messages, in process (no second process; marked serial
+as it joins a domain, conftest.SERIAL_MODULES):
 each node is built in its own rclpy context and its callbacks are called with the
 message; what it keeps, publishes or drops is read back. One test per input of issue 29.
 """
@@ -10,6 +11,7 @@ import rclpy
 from geometry_msgs.msg import PoseStamped, QuaternionStamped
 from sensor_msgs.msg import PointCloud2, PointField
 
+from conftest import private_domain_id
 from lidar_sim_ros.io.pointcloud import ns_to_stamp
 from lidar_sim_ros.paths import config_path
 
@@ -19,7 +21,7 @@ NS = 1_000_000_000
 @pytest.fixture
 def context():
     ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=0)
+    rclpy.init(context=ctx, domain_id=private_domain_id(120, 100))   # a node publishes: keep it private
     yield ctx
     rclpy.try_shutdown(context=ctx)
 
