@@ -153,7 +153,7 @@ class CommandGate:
         self._paced = self.commands > 0 or not self.realtime_waits_for_first_command
 
     @property
-    def _starting(self) -> bool:
+    def starting(self) -> bool:
         """Real time before the first command, when it waits for it."""
         return self.mode == 'realtime' and self.realtime_waits_for_first_command and not self.commands
 
@@ -166,7 +166,7 @@ class CommandGate:
         """Whether to advance now."""
         if self.published_wall_s is None:
             return True
-        if self.mode == 'lockstep' or self._starting:   # real time: paced from the first command on
+        if self.mode == 'lockstep' or self.starting:   # real time: paced from the first command on
             return self.accepted is not None or wall_s - self.published_wall_s >= self.current_timeout_s
         return wall_s >= self.next_wall_s - 1e-4
 
@@ -177,7 +177,7 @@ class CommandGate:
             return np.zeros(3), None
         if self.accepted is not None:
             return self.accepted[1], None
-        if self.mode == 'lockstep' and not self.commands or self._starting:
+        if self.mode == 'lockstep' and not self.commands or self.starting:
             self.startup_timeouts += 1
             return np.zeros(3), 'startup_timeout'
         if self.mode == 'lockstep':
