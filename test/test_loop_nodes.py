@@ -223,3 +223,13 @@ def test_gate_holds_a_cloud_until_the_period_before_is_answered(gate):
     assert len(node.held) == 1
     node._on_lost(Header(stamp=ns_to_stamp(100 * NS + 150_000_000, type(Header().stamp)), frame_id='lidar'))
     assert len(got) == 3 and got[2].width == 200 and node.counts == {'gated': 1, 'captured': 2, 'unanswered': 0}
+
+
+@pytest.mark.parametrize('name, value', [('command_timeout_s', -1.0), ('startup_timeout_s', float('nan')),
+                                         ('max_clock_skew_s', 1e300), ('clock_delay_s', 5.0), ('epoch_s', 0.0)])
+def test_dynamics_refuses_absurd_parameters_naming_them(context, name, value):
+    pytest.importorskip('Basilisk')
+    from lidar_sim_ros.core.config import ConfigError
+    from lidar_sim_ros.loop.dynamics_node import LoopDynamicsNode
+    with pytest.raises(ConfigError, match=name):
+        _node(LoopDynamicsNode, context, **{name: value})

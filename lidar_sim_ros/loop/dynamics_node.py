@@ -118,6 +118,11 @@ class LoopDynamicsNode(Node):
             "/clock goes out this long (wall s) after the period's poses: DDS does not order two "
             'topics, nor does an executor serve one queue before another, and a frame computed on '
             'part of its poses can fail')))
+        for name, value, low, high in (('epoch_s', self.epoch_s, 1e-9, 4e9), ('command_timeout_s', timeout, 0, 3600),
+                                       ('startup_timeout_s', startup, 0, 3600), ('max_clock_skew_s', skew, 0, 60),
+                                       ('clock_delay_s', self.clock_delay_s, 0, 1)):
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and low <= value <= high):
+                raise ConfigError('<parameter>', name, value, f'must be a number in [{low:g}, {high:g}]')
         self.config, _ = load_loop_config(config_file or config_path('loop.yaml'))
         cfg = self.config
         mode = mode or cfg.timing.mode
