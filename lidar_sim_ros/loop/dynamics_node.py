@@ -322,15 +322,8 @@ class LoopDynamicsNode(Node):
         t0 = self.dynamics.t_s
         truth = propagate(cfg, self.dynamics, self.force_lvlh, self.R_BL, self.t_B)
         self.delta_v += float(np.linalg.norm(self.force_lvlh)) * cfg.control_period_s / cfg.chaser.mass_kg
-        first = 0 if self.k == 0 else 1   # the period's first sample is the last one's end
-        for j in range(first, len(truth.t_s)):
-            t = self.epoch_s + float(truth.t_s[j])
-            self.pose_pub.publish(_pose_msg(self.lidar_frame, t, truth.R_LT[j], truth.t_L_m[j]))
-            att = QuaternionStamped()
-            att.header.frame_id, att.header.stamp = 'lvlh', _stamp(t)
-            q = att.quaternion
-            q.x, q.y, q.z, q.w = map(float, Rotation.from_matrix(truth.R_HB[j]).as_quat())
-            self.attitude_pub.publish(att)
+        # The sun first: lidar_sim_node simulates a frame with the newest sun it has (not the one
+        # stamped for the frame), so the period's sun gets the longest lead over the /clock.
         if truth.dark != self.dark:
             self.dark = truth.dark
             self.get_logger().info(f"t = {t0:.1f} s: the chaser {'enters' if self.dark else 'leaves'} "
@@ -341,6 +334,15 @@ class LoopDynamicsNode(Node):
         if not self.dark:
             sun.vector.x, sun.vector.y, sun.vector.z = map(float, truth.sun_lidar[0])
         self.sun_pub.publish(sun)
+        first = 0 if self.k == 0 else 1   # the period's first sample is the last one's end
+        for j in range(first, len(truth.t_s)):
+            t = self.epoch_s + float(truth.t_s[j])
+            self.pose_pub.publish(_pose_msg(self.lidar_frame, t, truth.R_LT[j], truth.t_L_m[j]))
+            att = QuaternionStamped()
+            att.header.frame_id, att.header.stamp = 'lvlh', _stamp(t)
+            q = att.quaternion
+            q.x, q.y, q.z, q.w = map(float, Rotation.from_matrix(truth.R_HB[j]).as_quat())
+            self.attitude_pub.publish(att)
         t_end = self.epoch_s + float(truth.t_s[-1])
         self._publish_scene(t_end, truth)
         self.R_HB = truth.R_HB[-1]
