@@ -60,6 +60,9 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     'scenario_file': ('', _read_only(S, "scenario YAML (its mesh and sensor); '' = the package's")),
     'mesh_file': ('', _read_only(S, "target mesh (.obj) instead of the scenario's; '' = the scenario's")),
     'points_topic': ('/lidar/points', _read_only(S, 'sensor_msgs/PointCloud2 input')),
+    'points_reliable': (False, _read_only(
+        B, 'subscribe to the clouds reliably (a lock-step loop: no cloud lost); false: best effort, '
+           'which also matches best-effort publishers')),
     'pose_topic': ('', _read_only(
         S, "geometry_msgs/PoseStamped giving capture guesses (e.g. the truth, /target/pose); "
            "'' = none: the tracker acquires from the cloud")),
@@ -163,9 +166,11 @@ class PoseTrackerNode(Node):
         self._stats = {'clouds': 0, 'published': 0, 'rejected': 0, 'ms': [], 'acquisitions': 0}
 
         # Best effort matches reliable and best-effort publishers; a short queue keeps the
-        # newest clouds when a registration overruns a period.
+        # newest clouds when a registration overruns a period. A lock-step loop asks for
+        # reliable (points_reliable): a lost cloud is a lost period.
         cloud_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2,
-                               reliability=ReliabilityPolicy.BEST_EFFORT)
+                               reliability=ReliabilityPolicy.RELIABLE if param('points_reliable')
+                               else ReliabilityPolicy.BEST_EFFORT)
         self.create_subscription(PointCloud2, param('points_topic'), self._on_cloud, cloud_qos)
         if param('pose_topic'):
             self.create_subscription(PoseStamped, param('pose_topic'), self._on_pose,

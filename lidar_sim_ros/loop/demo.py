@@ -34,6 +34,10 @@ from lidar_sim_ros.paths import config_path
 EPOCH_S = 100.0
 CLOUD_TOPICS = {'truth_cloud': '/lidar/points_truth', 'model_cloud': '/lidar/points'}
 STARTUP_TIMEOUT_S = 120.0
+# The dynamics starts once every link of the loop has its subscriber (the poses, the
+# attitude, the gated cloud, the estimate; the cloud topic is added per run): a first
+# frame lost to discovery cost a 30 s start-up timeout and another run.
+WAIT_FOR_SUBSCRIBERS = ['/target/pose', '/chaser/attitude', '/loop/points_gated', '/target/pose_estimate']
 
 
 def parse_args(argv):
@@ -298,7 +302,7 @@ def main(argv=None) -> int:
         # The tracker acquires from the cloud alone (its pose_topic is '' by default); with
         # acquire_from_cloud off it captures from the truth, as a reference.
         tracker_args = ['-p', 'points_topic:=/loop/points_gated', '-p', f'scenario_file:={scenario}',
-                        '-p', 'use_sim_time:=true']
+                        '-p', 'use_sim_time:=true', '-p', 'points_reliable:=true']
         if not config.acquire_from_cloud:
             tracker_args += ['-p', 'pose_topic:=/target/pose']
         commands = {
@@ -307,7 +311,7 @@ def main(argv=None) -> int:
                 '-p', f'stats_file:={(out / key / "dynamics_stats.json").resolve()}',
                 '-p', f'timing_mode:={args.timing or config.timing.mode}',
                 '-p', "wait_for_publishers:=['/chaser/force_command', '/target/pose_estimate', '/lidar/points']",
-                '-p', "wait_for_subscribers:=['/target/pose', '/chaser/attitude']"]),
+                '-p', f"wait_for_subscribers:={WAIT_FOR_SUBSCRIBERS + [CLOUD_TOPICS[key]]}"]),
             'lidar_sim_node': ('lidar_sim_ros.ros.lidar_sim_node', [
                 '-p', f'scenario_file:={scenario}', '-p', 'use_sim_time:=true', '-p', 'publish_truth:=true',
                 '-p', 'qos_reliability:=reliable', '-p', 'pose_qos_reliability:=reliable']),
