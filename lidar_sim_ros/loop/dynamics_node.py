@@ -66,7 +66,8 @@ REFUSAL_TEXT = {
     'sent_early': "sent before the /clock that closed its period (cannot answer that period's frame)",
 }
 PEER_SETTLE_S = 0.5
-START_DELAY_S = 0.2  # between the first /clock (loop time zero) and the first period
+START_DELAY_S = 0.5  # between the first /clock (loop time zero) and the first period
+ZERO_CLOCK_EVERY_S = 0.05  # the /clock at loop time zero, repeated until the first period
 CLOCK_DELAY_S = 0.002  # /clock goes out this long after the period's poses: DDS does not
                        # order two topics, and a frame computed on part of its poses fails  # after discovery, let the publishers and subscriptions match
 
@@ -295,10 +296,16 @@ class LoopDynamicsNode(Node):
         if self.k == 0 and self.wait_for_peers and not self._peers_ready():
             return
         if self.k == 0 and self.start_wall is None:
-            # The clock at loop time zero first: a use_sim_time node drops poses before any /clock.
-            self.clock_pub.publish(ClockMsg(clock=_stamp(self.epoch_s)))
             self.start_wall = time.monotonic() + START_DELAY_S
+            self._zero_clock_wall = -np.inf
         if self.k == 0 and time.monotonic() < self.start_wall:
+            # The clock at loop time zero first, again every ZERO_CLOCK_EVERY_S until the first
+            # period: a use_sim_time node drops poses before any /clock, and a single zero
+            # /clock was lost once to a subscription not yet matched (lidar_sim_node then
+            # dropped the first period's poses: no frame 0, a 30 s start-up timeout).
+            if time.monotonic() - self._zero_clock_wall >= ZERO_CLOCK_EVERY_S:
+                self.clock_pub.publish(ClockMsg(clock=_stamp(self.epoch_s)))
+                self._zero_clock_wall = time.monotonic()
             return
         wall = time.monotonic()
         if not self.gate.due(wall):
