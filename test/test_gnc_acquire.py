@@ -215,3 +215,16 @@ def test_far_false_returns_do_not_stop_the_acquisition(rocket):
     assert acq.success
     assert np.linalg.norm(acq.pose[:3, 3] - position) < 0.05
     assert axis_error_deg(acq.pose, rotation) < 2.0
+
+
+def test_a_random_cloud_fails_at_a_bound_before_any_icp(rocket):
+    """A 1 MB cloud of random points (62,500, a 40 m box 30 m out) is no target: before the
+    bound it took 136 s of ICP over 346 hypotheses; now it fails at the coarse-point bound."""
+    _, model = rocket
+    xyz = np.random.default_rng(0).uniform(-20, 20, (62_500, 3)) + [30.0, 0.0, 0.0]
+    acq = acquire(model, xyz)
+    assert not acq.success and acq.hypotheses == 0 and 'max_coarse_points' in acq.reason
+    assert acq.seconds < 10.0
+    # The hypothesis bound, alone: the same cloud with the coarse bound lifted.
+    acq = acquire(model, xyz, AcquisitionConfig(max_coarse_points=100_000, max_hypotheses=50))
+    assert not acq.success and 'max_hypotheses' in acq.reason and acq.seconds < 10.0

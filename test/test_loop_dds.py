@@ -10,6 +10,7 @@ it, and goes on.
 from __future__ import annotations
 
 import os
+import re
 import threading
 import time
 
@@ -47,7 +48,7 @@ def write_config(path, duration_s: float, mode: str = 'lockstep') -> None:
     text = text.replace('position_sigma_m: 0.5', 'position_sigma_m: 0.0')
     text = text.replace('velocity_sigma_mps: 0.005', 'velocity_sigma_mps: 0.0')
     text = text.replace('command_timeout_s: 2.0', 'command_timeout_s: 0.5')
-    text = text.replace('mode: lockstep', f'mode: {mode}')
+    text = text.replace('mode: lockstep', f'mode: {mode}\n  realtime_waits_for_first_command: false')
     assert 'duration_s: 150.0' not in text and 'position_sigma_m: 0.0' in text
     path.write_text(text)
 
@@ -143,7 +144,10 @@ def test_lock_step_loop_over_dds(tmp_path):
         print(text)
     assert codes == [0, 0], text
     # /clock in whole periods, never back, from the epoch on.
-    steps = [b - a for a, b in zip(relay.clocks, relay.clocks[1:])]
+    # (Loop time zero is repeated until the first period, so that no node misses it.)
+    clocks = relay.clocks[next(i for i, c in enumerate(relay.clocks) if c != EPOCH_NS) - 1:]
+    assert set(relay.clocks[:len(relay.clocks) - len(clocks) + 1]) == {EPOCH_NS}
+    steps = [b - a for a, b in zip(clocks, clocks[1:])]
     assert set(steps) == {PERIOD_NS}, sorted(set(steps))[:5]
     # Poses at 100 Hz: every 10 ms of the 8 s.
     stamps = sorted(relay.poses)
@@ -174,7 +178,8 @@ def test_real_time_paces_on_the_wall(tmp_path):
     relay = Relay()
     env = {**os.environ, 'ROS_DOMAIN_ID': str(DOMAIN_ID), 'PYTHONUNBUFFERED': '1'}
     log = tmp_path / 'dynamics.log'
-    dynamics = start_ros_process('lidar_sim_ros.loop.dynamics_node', ['-p', f'config_file:={cfg}'], env, log)
+    dynamics = start_ros_process('lidar_sim_ros.loop.dynamics_node',
+                                 ['-p', f'config_file:={cfg}', '-p', 'wait_for_peers:=false'], env, log)
     wall: list[float] = []
     try:
         relay.wait(lambda: relay.clocks, 60, 'the first /clock')
@@ -194,5 +199,79 @@ def test_real_time_paces_on_the_wall(tmp_path):
     rate = (last - first) / NS / (wall[1] - wall[0])
     assert 0.8 < rate < 1.1, rate          # simulated seconds per wall second
     stats = [line for line in text.splitlines() if ', late ' in line][-1]
-    late = int(stats.split('late ')[1].split()[0])
+    late = int(re.search(r', late (\d+)', stats).group(1))
     assert late >= 30, stats               # every period after the relay stopped was late
+
+
+def _run_twice_leg(tmp_path, name: str, hostile: bool):
+    """One short lock-step run (dynamics and controller processes, the relay as the
+    navigation); with ``hostile``, a 1 kHz publisher on the command topic too. Returns the
+    true chaser track (stamp, pose) and the dynamics' statistics."""
+    import json
+    import math
+
+    from geometry_msgs.msg import WrenchStamped as Wrench
+    from lidar_sim_ros.io.pointcloud import ns_to_stamp
+
+    cfg = tmp_path / f'{name}.yaml'
+    write_config(cfg, duration_s=3.0)
+    stats = tmp_path / f'{name}_stats.json'
+    relay = Relay()
+    env = {**os.environ, 'ROS_DOMAIN_ID': str(DOMAIN_ID), 'PYTHONUNBUFFERED': '1'}
+    logs = {k: tmp_path / f'{name}_{k}.log' for k in ('dynamics', 'controller')}
+    sent = [0]
+    if hostile:
+        pub = relay.node.create_publisher(Wrench, '/chaser/force_command', QoSProfile(depth=100))
+        kinds = [('lvlh', [0.0, 20.0, 0.0], 1000.0), ('lvlh', [20.0, 20.0, 20.0], -0.2),
+                 ('lvlh', [math.nan, 0.0, 0.0], -0.05), ('lvlh', [1e9, 0.0, 0.0], -0.15),
+                 ('base_link', [1.0, 0.0, 0.0], -0.05), ('lvlh', [math.inf, 0.0, 0.0], -0.05),
+                 ('lvlh', [1e9, -1e9, 0.0], 0.1)]
+
+        def attack():
+            if not relay.clocks:
+                return
+            frame, force, offset_s = kinds[sent[0] % len(kinds)]
+            msg = Wrench()
+            msg.header.frame_id = frame
+            msg.header.stamp = ns_to_stamp(relay.clocks[-1] + round(offset_s * NS), type(msg.header.stamp))
+            msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = force
+            pub.publish(msg)
+            sent[0] += 1
+        relay.node.create_timer(0.001, attack)
+    controller = start_ros_process('lidar_sim_ros.loop.controller_node',
+                                   ['-p', f'config_file:={cfg}', '-p', 'use_sim_time:=true'], env, logs['controller'])
+    dynamics = None
+    try:
+        relay.wait(lambda: relay.node.count_publishers('/chaser/force_command') >= 1 + hostile, 60, 'the controller')
+        dynamics = start_ros_process('lidar_sim_ros.loop.dynamics_node',
+                                     ['-p', f'config_file:={cfg}', '-p', f'stats_file:={stats}', '-p',
+                                      "wait_for_subscribers:=['/target/pose', '/chaser/attitude']"],
+                                     env, logs['dynamics'])
+        relay.wait(lambda: stats.exists(), 90, 'the end of the run')
+    finally:
+        codes = [stop_ros_process(p) for p in (dynamics, controller) if p is not None]
+        text = {k: p.read_text() for k, p in logs.items() if p.exists()}
+        relay.close()
+        print(name, text)     # shown when the test fails
+    assert codes == [0, 0], text
+    track = [(stamp_to_ns(m.header.stamp), m.pose.position.x, m.pose.position.y, m.pose.position.z,
+              m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z, m.pose.orientation.w)
+             for m in relay.chaser]
+    return track, json.loads(stats.read_text()), sent[0], text
+
+
+def test_two_lock_step_runs_are_identical_over_dds_even_under_attack(tmp_path):
+    """The same seed twice over DDS, bit for bit, the second time with a 1 kHz publisher on
+    /chaser/force_command sending far-future, stale, NaN, infinite, 1e9 N and wrong-frame
+    commands: none is flown, none releases or stalls a period, each is counted by cause."""
+    clean, clean_stats, _, _ = _run_twice_leg(tmp_path, 'clean', hostile=False)
+    attacked, stats, sent, logs = _run_twice_leg(tmp_path, 'attacked', hostile=True)
+    assert len(clean) == 30 and clean == attacked
+    assert clean_stats['commands'] == stats['commands'] == 29       # every period after the first
+    assert stats['timeouts'] == stats['startup_timeouts'] == clean_stats['timeouts'] == 0
+    refused = stats['refused_commands']
+    # (The attacker goes on after the run's statistics are written: it sent more than counted.)
+    assert sent > 300 and sum(refused.values()) > 200, (sent, refused)
+    assert all(refused[c] > 0 for c in ('future', 'stale', 'non_finite', 'frame')), refused
+    assert 'refused force command stamped' in logs['dynamics'] and 'non_finite' in logs['dynamics']
+    assert stats['timing_mode'] == 'lockstep' and stats['wall_s'] > 0

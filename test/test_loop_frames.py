@@ -140,3 +140,25 @@ def test_earth_shadow_by_hand():
         assert frames.in_earth_shadow(np.array(r), sun) is shadow, r
     many = frames.in_earth_shadow(np.array(list(cases)), sun)
     assert many.tolist() == list(cases.values())
+
+
+@pytest.mark.parametrize('old, new, key', [
+    ('tumble_rate_dps: 3.0', 'tumble_rate_dps: 1000000.0', 'target.tumble_rate_dps'),
+    ('position_m: [0.0, -30.0, 0.0]', 'position_m: [1.0e+300, -30.0, 0.0]', 'initial.position_m'),
+    ('velocity_mps: [0.0, 0.0, 0.0]', 'velocity_mps: [0.0, 1.0e+5, 0.0]', 'initial.velocity_mps'),
+    ('quat_xyzw_lvlh: [0.0, 0.0, 0.0, 1.0]', 'quat_xyzw_lvlh: [0.0, 0.0, 0.0, 0.0]', 'target.quat_xyzw_lvlh'),
+    ('tumble_axis_body: [1.0, 0.2, 0.3]', 'tumble_axis_body: [1.0e+300, 1.0e+300, 0.0]',
+     'target.tumble_axis_body'),
+    ('direction_inertial: [0.3, 0.9, 0.3]', 'direction_inertial: [1.0e+300, 1.0e+300, 0.0]',
+     'sun.direction_inertial'),
+])
+def test_absurd_loop_values_are_refused_naming_file_key_value(tmp_path, old, new, key):
+    """1e6 deg/s failed every run with "sun direction is NaN"; 1e300 m overflowed unnamed."""
+    text = config_path('loop.yaml').read_text()
+    assert old in text
+    bad = tmp_path / 'loop.yaml'
+    bad.write_text(text.replace(old, new).replace('scenario: scenario_all_effects.yaml',
+                                                  f'scenario: {config_path("scenario_all_effects.yaml")}'))
+    with pytest.raises(ConfigError) as err:
+        load_loop_config(bad)
+    assert str(bad) in str(err.value) and key in str(err.value)

@@ -51,7 +51,7 @@ import small_gicp
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.gnc.tracker import Estimate, TargetModel, TrackerConfig, register
+from lidar_sim_ros.gnc.registration import Estimate, TargetModel, TrackerConfig, register
 
 Vec3 = tuple[float, float, float]
 
@@ -103,6 +103,13 @@ class AcquisitionConfig(BaseModel):
     ambiguity_margin: Annotated[float, Field(ge=0, le=1)] = Field(
         0.02, description='a hypothesis of another roll within this of the best score makes the roll '
                           'ambiguous')
+    max_coarse_points: Annotated[int, Field(ge=10)] = Field(
+        3000, description='more coarse (voxel_m) points than this about the median and the cloud is '
+        'not a target (the rocket body fills ~450 voxels of 0.3 m at 5 m): the acquisition fails at '
+        'once (a 1 MB random cloud took 136 s of ICP over 346 hypotheses)')
+    max_hypotheses: Annotated[int, Field(ge=1)] = Field(
+        400, description='more hypotheses than this and the acquisition fails at once (76-128 on the '
+        "loop's clouds with every effect); bounds its time whatever the cloud")
 
 
 @dataclass(frozen=True)
@@ -130,6 +137,7 @@ class Acquisition:
     seconds: float
     roll_ambiguous: bool
     runner_up_score: float
+    reason: str = ''   # why it failed before the ICP (a bound), '' otherwise
 
 
 # ------------------------------------------------------------ the model's shape
@@ -308,6 +316,9 @@ def acquire(model: TargetModel, xyz_m: np.ndarray, config: AcquisitionConfig = A
     if coarse is None or coarse.size() < max(tracker.min_points // 4, config.normal_neighbors):
         failed = Estimate(np.eye(4), 0 if coarse is None else coarse.size(), 0, 0, False)
         return Acquisition(np.eye(4), False, 0.0, 0.0, 0.0, failed, 0, time.perf_counter() - t0, False, math.nan)
+    if coarse.size() > config.max_coarse_points:
+        return _refused(t0, coarse.size(), f'{coarse.size()} coarse points > max_coarse_points '
+                                            f'{config.max_coarse_points}: not a target')
     coarse_xyz = coarse.points()[:, :3]
     axis_body = (np.asarray(config.primary_axis_body, dtype=float) if config.primary_axis_body is not None
                  else primary_axis(model.points_m))
@@ -315,6 +326,8 @@ def acquire(model: TargetModel, xyz_m: np.ndarray, config: AcquisitionConfig = A
     directions = candidate_directions(coarse_xyz, coarse.normals()[:, :3], config.direction_merge_deg)
     rough = coarse_model(model, config)
     starts = hypotheses(rough.points_m, axis_body, coarse_xyz, directions, config)
+    if len(starts) > config.max_hypotheses:
+        return _refused(t0, coarse.size(), f'{len(starts)} hypotheses > max_hypotheses {config.max_hypotheses}')
     candidates = coarse_stage(rough, coarse_xyz, xyz, starts, config, tracker)
     results = fine_stage(model, coarse_xyz, xyz, candidates, config, tracker)
     score, fit, cov, best = results[0]
@@ -322,6 +335,13 @@ def acquire(model: TargetModel, xyz_m: np.ndarray, config: AcquisitionConfig = A
     success = bool(best.acceptable(tracker) and fit >= config.min_fit and cov >= config.min_coverage)
     return Acquisition(best.pose, success, score, fit, cov, best, len(starts), time.perf_counter() - t0,
                        roll_ambiguous, runner_up)
+
+
+def _refused(t0: float, points: int, reason: str) -> Acquisition:
+    """A failed acquisition that stopped at a bound before any ICP."""
+    failed = Estimate(np.eye(4), points, 0, 0, False)
+    return Acquisition(np.eye(4), False, 0.0, 0.0, 0.0, failed, 0, time.perf_counter() - t0, False,
+                       math.nan, reason)
 
 
 def coarse_stage(rough: TargetModel, coarse_xyz: np.ndarray, xyz_m: np.ndarray, starts: list[np.ndarray],

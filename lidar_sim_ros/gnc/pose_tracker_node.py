@@ -60,10 +60,16 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     'scenario_file': ('', _read_only(S, "scenario YAML (its mesh and sensor); '' = the package's")),
     'mesh_file': ('', _read_only(S, "target mesh (.obj) instead of the scenario's; '' = the scenario's")),
     'points_topic': ('/lidar/points', _read_only(S, 'sensor_msgs/PointCloud2 input')),
+    'points_reliable': (False, _read_only(
+        B, 'subscribe to the clouds reliably (a lock-step loop: no cloud lost); false: best effort, '
+           'which also matches best-effort publishers')),
     'pose_topic': ('', _read_only(
         S, "geometry_msgs/PoseStamped giving capture guesses (e.g. the truth, /target/pose); "
            "'' = none: the tracker acquires from the cloud")),
     'estimate_topic': ('/target/pose_estimate', _read_only(S, 'geometry_msgs/PoseStamped output')),
+    'lost_topic': ('/target/pose_lost', _read_only(
+        S, "std_msgs/Header out, stamped as the estimate would have been, for each cloud that gives "
+           "no estimate (so a lock-step loop's controller answers that period too); '' = none")),
     'initial_pose': (Parameter.Type.DOUBLE_ARRAY, _read_only(
         FA, 'first capture guess [x, y, z, qx, qy, qz, qw] (m, unit quaternion); unset = '
             'the pose on pose_topic, or else acquisition from the cloud')),
@@ -166,14 +172,20 @@ class PoseTrackerNode(Node):
         self._stats = {'clouds': 0, 'published': 0, 'rejected': 0, 'ms': [], 'acquisitions': 0}
 
         # Best effort matches reliable and best-effort publishers; a short queue keeps the
-        # newest clouds when a registration overruns a period.
+        # newest clouds when a registration overruns a period. A lock-step loop asks for
+        # reliable (points_reliable): a lost cloud is a lost period.
         cloud_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2,
-                               reliability=ReliabilityPolicy.BEST_EFFORT)
+                               reliability=ReliabilityPolicy.RELIABLE if param('points_reliable')
+                               else ReliabilityPolicy.BEST_EFFORT)
         self.create_subscription(PointCloud2, param('points_topic'), self._on_cloud, cloud_qos)
         if param('pose_topic'):
             self.create_subscription(PoseStamped, param('pose_topic'), self._on_pose,
                                      QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.pub = self.create_publisher(PoseStamped, param('estimate_topic'), 10)
+        self.lost_pub = None
+        if param('lost_topic'):
+            from std_msgs.msg import Header
+            self.lost_pub = self.create_publisher(Header, param('lost_topic'), 10)
         self.create_timer(STATS_PERIOD_S, self._log_stats, clock=Clock(clock_type=ClockType.STEADY_TIME))
         source = ('initial_pose' if self.initial_guess is not None else param('pose_topic')
                   or 'the cloud alone (acquisition)')
@@ -227,6 +239,7 @@ class PoseTrackerNode(Node):
         except ValueError as exc:   # a malformed cloud from any peer must not stop the node
             self._stats['rejected'] += 1
             self._warn('bad_cloud', f'cloud dropped: {exc}')
+            self._publish_lost(t_ns, msg.header)
             return
         t0 = time.perf_counter()
         estimate = self.tracker.update((t_ns - self._epoch_ns) / NS_PER_S, xyz, guess)
@@ -235,6 +248,7 @@ class PoseTrackerNode(Node):
             self._log_acquisition(t_ns, self.tracker.last_acquisition)
         if not estimate.acceptable(self.config):
             self._stats['rejected'] += 1
+            self._publish_lost(t_ns, msg.header)
             self._warn('lost', f'track lost at {t_ns / NS_PER_S:.3f} s: {estimate.inliers} of '
                                f'{estimate.points} points on the model (need '
                                f'{self.config.min_inlier_fraction:.0%} of at least {self.config.min_points})')
@@ -250,6 +264,12 @@ class PoseTrackerNode(Node):
         self.pub.publish(out)
         self._stats['published'] += 1
 
+    def _publish_lost(self, t_ns: int, header) -> None:
+        """Say that the cloud stamped ``header.stamp`` gives no estimate (stamped mid-scan)."""
+        if self.lost_pub is not None:
+            from std_msgs.msg import Header
+            self.lost_pub.publish(Header(stamp=ns_to_stamp(t_ns, type(header.stamp)), frame_id=header.frame_id))
+
     # -------------------------------------------------------------- logging
     def _warn(self, kind: str, text: str) -> None:
         now = time.monotonic()
@@ -261,7 +281,7 @@ class PoseTrackerNode(Node):
         self._stats['acquisitions'] += 1
         text = (f'acquisition at {t_ns / NS_PER_S:.3f} s: {"acquired" if acq.success else "failed"}, score '
                 f'{acq.score:.3f} (fit {acq.fit:.3f}, coverage {acq.coverage:.3f}), {acq.hypotheses} '
-                f'hypotheses in {acq.seconds:.2f} s')
+                f'hypotheses in {acq.seconds:.2f} s' + (f' ({acq.reason})' if acq.reason else ''))
         if acq.success:
             other = ('no other place or end fitted' if np.isnan(acq.runner_up_score)
                      else f'another place or end scored {acq.runner_up_score:.3f}')

@@ -17,6 +17,11 @@ from lidar_sim_ros.core.config import ConfigError, _Model, parse, read_yaml, res
 PositiveFloat = Annotated[float, Field(gt=0.0)]
 NonNegFloat = Annotated[float, Field(ge=0.0)]
 Vector3 = tuple[float, float, float]
+# Proximity operations: the chaser starts within 10 km of the target at under 100 m/s (the
+# CW frame, the sensor's 250 m gate); 1e300 m overflowed in the frame chain with no key named.
+PositionM = Annotated[float, Field(ge=-10_000.0, le=10_000.0)]
+VelocityMps = Annotated[float, Field(ge=-100.0, le=100.0)]
+Direction = Annotated[float, Field(ge=-1e6, le=1e6)]   # any scale that a norm cannot overflow
 
 
 def _inertia_ok(v: tuple[Vector3, Vector3, Vector3]):
@@ -32,6 +37,12 @@ def _nonzero(v: Vector3) -> Vector3:
     if float(np.linalg.norm(v)) < 1e-12:
         raise ValueError('must not be the zero vector')
     return v
+
+
+def _unit_quaternion(q: tuple[float, float, float, float]):
+    if abs(float(np.linalg.norm(q)) - 1.0) > 1e-3:
+        raise ValueError(f'must be a unit quaternion (xyzw), its norm is {float(np.linalg.norm(q)):g}')
+    return q
 
 
 class OrbitConfig(_Model):
@@ -57,22 +68,27 @@ class TargetConfig(RigidBodyConfig):
     """The tumbling rocket body. Its body frame is the mesh's (long axis +Z, origin
     mid-length, taken as the centre of mass)."""
 
-    tumble_rate_dps: NonNegFloat = Field(3.0, description='initial angular rate (deg/s)')
-    tumble_axis_body: Vector3 = Field((0.3, 0.0, 1.0), description=(
+    tumble_rate_dps: Annotated[float, Field(ge=0.0, le=180.0)] = Field(3.0, description=(
+        'initial angular rate (deg/s; at most 180: debris tumbles at a few deg/s, and at 1e6 '
+        'deg/s the 100 Hz truth samples alias and the frame chain gave NaN)'))
+    tumble_axis_body: tuple[Direction, Direction, Direction] = Field((0.3, 0.0, 1.0), description=(
         'initial rotation axis in the body frame; off the principal axes, so the body '
         'nutates (torque-free)'))
     quat_xyzw_lvlh: tuple[float, float, float, float] = Field(
         (0.0, 0.0, 0.0, 1.0), description='initial attitude: body -> LVLH rotation (xyzw)')
 
     _axis = field_validator('tumble_axis_body')(_nonzero)
+    _quat = field_validator('quat_xyzw_lvlh')(_unit_quaternion)
 
 
 class MountConfig(_Model):
     """Where the lidar sits on the chaser: p_body = R p_lidar + t (m)."""
 
-    position_m: Vector3 = (1.0, 0.0, 0.0)
+    position_m: tuple[PositionM, PositionM, PositionM] = (1.0, 0.0, 0.0)
     quat_xyzw: tuple[float, float, float, float] = Field(
         (0.0, 0.0, 0.0, 1.0), description='lidar -> chaser body rotation (xyzw)')
+
+    _quat = field_validator('quat_xyzw')(_unit_quaternion)
 
 
 class ChaserConfig(RigidBodyConfig):
@@ -112,16 +128,18 @@ class GuidanceConfig(_Model):
 class InitialStateConfig(_Model):
     """The chaser's start relative to the target, LVLH (m, m/s), and its seeded dispersion."""
 
-    position_m: Vector3 = (0.0, -30.0, 0.0)
-    velocity_mps: Vector3 = (0.0, 0.0, 0.0)
-    position_sigma_m: NonNegFloat = 0.0
-    velocity_sigma_mps: NonNegFloat = 0.0
+    position_m: tuple[PositionM, PositionM, PositionM] = Field(
+        (0.0, -30.0, 0.0), description='per axis within +-10 km (proximity operations)')
+    velocity_mps: tuple[VelocityMps, VelocityMps, VelocityMps] = Field(
+        (0.0, 0.0, 0.0), description='per axis within +-100 m/s')
+    position_sigma_m: Annotated[float, Field(ge=0.0, le=1000.0)] = 0.0
+    velocity_sigma_mps: Annotated[float, Field(ge=0.0, le=10.0)] = 0.0
 
 
 class SunDirectionConfig(_Model):
     """An analytic sun: a fixed inertial direction (it moves ~1 deg/day: fixed over a run)."""
 
-    direction_inertial: Vector3 = (1.0, 0.0, 0.0)
+    direction_inertial: tuple[Direction, Direction, Direction] = (1.0, 0.0, 0.0)
     eclipse: bool = Field(True, description=(
         "the Earth's shadow (a cylinder of the Earth's radius behind it): while the chaser is "
         'in it, the in-process loop simulates its frames without the sun (no sunlight, no solar '
@@ -134,8 +152,37 @@ class TimingConfig(_Model):
     mode: Literal['lockstep', 'realtime'] = 'lockstep'
     command_timeout_s: PositiveFloat = Field(
         2.0, description='lock-step: wall time to wait for a step command before going on (logged)')
+    startup_timeout_s: PositiveFloat = Field(
+        30.0, description=(
+            "lock-step: the wait (wall s) until the run's first command (the first acquisition "
+            'takes 0.5-3 s of compute; logged once per period it expires)'))
+    realtime_waits_for_first_command: bool = Field(True, description=(
+        "real time: pace on the wall clock from the GNC's first command on, the periods before "
+        'it waiting as in lock-step (up to startup_timeout_s each): the first acquisition is not '
+        'counted late; false: pace from the first period'))
     pose_rate_hz: Annotated[float, Field(ge=10, le=1000)] = Field(
         100.0, description='dynamics sub-steps and /target/pose per second')
+
+
+class GncConfig(_Model):
+    """Your own controller and navigation filter (``loop.user_gnc``): entry points
+    ``module:factory`` or ``file.py:factory`` (a file relative to the loop config), loaded
+    when a run starts; None: the built-in PD and alpha-beta filter."""
+
+    controller: str | None = Field(None, description=(
+        "factory(config) -> control(t_s, rho_m, rho_dot_mps, reference, n_rad_s) -> force (N, LVLH)"))
+    navigation: str | None = Field(None, description=(
+        'factory(config) -> an object with update(t_s, rho_measured_m | None) and at(t_s) -> '
+        '(rho_m, rho_dot_mps) | None'))
+
+    @field_validator('controller', 'navigation')
+    @classmethod
+    def _entry_point(cls, v):
+        if v is not None:
+            where, sep, name = v.rpartition(':')
+            if not sep or not where or not name.isidentifier():
+                raise ValueError("must be 'module:function' or 'file.py:function'")
+        return v
 
 
 class LoopConfig(_Model):
@@ -171,6 +218,7 @@ class LoopConfig(_Model):
     guidance: GuidanceConfig = GuidanceConfig()
     sun: SunDirectionConfig = SunDirectionConfig()
     timing: TimingConfig = TimingConfig()
+    gnc: GncConfig = GncConfig()
 
     @model_validator(mode='after')
     def _substeps(self):
@@ -189,6 +237,11 @@ def load_loop_config(path: str | Path) -> tuple[LoopConfig, Path]:
     """The loop config and the resolved path of its scenario; ConfigError names file/key/value."""
     path = Path(path)
     cfg = parse(LoopConfig, read_yaml(path), path)
+    if cfg.gnc.controller or cfg.gnc.navigation:   # files beside the config, wherever the run starts
+        from lidar_sim_ros.loop.user_gnc import resolve_spec
+        base = path.resolve().parent
+        cfg = cfg.model_copy(update={'gnc': GncConfig(controller=resolve_spec(cfg.gnc.controller, base),
+                                                      navigation=resolve_spec(cfg.gnc.navigation, base))})
     scenario = resolve(cfg.scenario, path.resolve().parent)
     if not scenario.is_file():
         raise ConfigError(path, 'scenario', cfg.scenario, f'scenario file not found at {scenario}')

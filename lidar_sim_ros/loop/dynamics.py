@@ -6,8 +6,10 @@ sends an HTTP request for its support data and its Earth helpers may fetch files
 spherical harmonics, no ephemeris, no SPICE). The target starts on a circular orbit and
 tumbles torque-free about a non-principal axis (Basilisk integrates Euler's equations).
 The chaser carries an ``extForceTorque`` effector whose inertial force is written from
-Python between chunks (the effector is added to the task before the spacecraft, so the
-force acts from the very next integration step).
+Python between chunks (``extForce_N``, read by the spacecraft's integrator at each step:
+it acts from the very next integration step whichever order the effector and the
+spacecraft are added to the task in; issue 29 found both orders bit-identical, and
+``test_relative_motion_matches_clohessy_wiltshire`` checks F t^2 / 2m).
 
 The chaser's attitude is kinematic: the attitude law (``frames.attitude_*``) gives it
 each step as an ideal attitude controller would, and it enters only the frame chain and
@@ -111,7 +113,8 @@ class Dynamics:
         self.force = extForceTorque.ExtForceTorque()
         self.force.ModelTag = 'chaser_force'
         self.chaser.addDynamicEffector(self.force)
-        # The effector first, then the spacecraft: otherwise the force lands a step late.
+        # The effector is added first, by habit: with extForce_N written directly (not from
+        # an input message) the order does not change the states (issue 29: bit-identical).
         self.sim.AddModelToTask('loop_task', self.force)
         self.sim.AddModelToTask('loop_task', self.chaser)
         self.sim.AddModelToTask('loop_task', self.target)

@@ -65,3 +65,80 @@ def loop_metrics(t_s, rho_true_m, ref_m, range_m, force_lvlh_n, period_s: float,
         'estimates': int(len(est_t)),
         'periods': int(len(t)),
     }
+
+
+class LoopScore:
+    """``loop_metrics`` computed as the periods come, in memory bounded by the hold time
+    (not the run's length): a day's run (864,000 periods) kept 5.5 kB a period before.
+
+    ``add`` one period at a time (times increasing); ``result()`` gives the keys of
+    ``loop_metrics`` for the periods so far. The hold dwells are ``hold_windows``' (the last
+    ``hold_time_s`` of each still stretch of the reference that it then leaves, and the
+    last ``hold_time_s`` of the run when the reference stands still since at least that
+    long), found with a buffer of the current stretch's last ``hold_time_s``.
+    """
+
+    def __init__(self, period_s: float, mass_kg: float, hold_time_s: float):
+        self.period_s, self.mass_kg, self.hold_time_s = period_s, mass_kg, hold_time_s
+        self.periods = self.estimates = self.losses = self.hold_samples = 0
+        self.force_sum_n = 0.0
+        self.hold_sq_sum = self.trans_sq_sum = self.axis_sq_sum = 0.0
+        self.min_range_m = float('inf')
+        self.acquired_at_s: float | None = None
+        self.last: tuple | None = None           # (t, rho, ref) of the last period
+        self.still_since_s: float | None = None  # when the reference stopped moving
+        self.stretch: list[tuple[float, float]] = []   # (t, along-track error) of the still stretch
+
+    def add(self, t_s: float, rho_true_m, ref_m, range_m: float, force_lvlh_n,
+            est_t_s: float | None = None, est_trans_err_m: float = float('nan'),
+            est_axis_err_deg: float = float('nan'), lost: bool = False) -> None:
+        rho, ref = np.asarray(rho_true_m, float), np.asarray(ref_m, float)
+        if self.last is not None and abs(ref[1] - self.last[2][1]) > 1e-9:
+            self._close_stretch()
+            self.still_since_s, self.stretch = t_s, []
+        if self.still_since_s is None:
+            self.still_since_s = t_s
+        self.stretch.append((t_s, rho[1] - ref[1]))
+        while self.stretch and self.stretch[0][0] <= t_s - self.hold_time_s - 2 * self.period_s:
+            self.stretch.pop(0)    # never in a dwell: the stretch's end is t_s or later
+        self.periods += 1
+        self.force_sum_n += float(np.linalg.norm(force_lvlh_n))
+        self.min_range_m = min(self.min_range_m, float(range_m))
+        if est_t_s is not None:
+            self.estimates += 1
+            self.trans_sq_sum += est_trans_err_m ** 2
+            self.axis_sq_sum += est_axis_err_deg ** 2
+            self.acquired_at_s = est_t_s if self.acquired_at_s is None else min(self.acquired_at_s, est_t_s)
+        self.losses += bool(lost)
+        self.last = (t_s, rho, ref)
+
+    def _dwell(self, end_s: float) -> list[float]:
+        return [e for t, e in self.stretch if end_s - self.hold_time_s < t <= end_s]
+
+    def _close_stretch(self) -> None:
+        """The reference leaves a still stretch: its last hold_time_s is a dwell if it stood that long."""
+        end_s = self.last[0]
+        if end_s - self.still_since_s >= self.hold_time_s - 1e-9:
+            errors = self._dwell(end_s)
+            self.hold_samples += len(errors)
+            self.hold_sq_sum += float(np.sum(np.square(errors)))
+
+    def result(self) -> dict:
+        samples, sq = self.hold_samples, self.hold_sq_sum
+        if self.last is not None and self.last[0] - self.still_since_s >= self.hold_time_s:
+            final = self._dwell(self.last[0])
+            samples, sq = samples + len(final), sq + float(np.sum(np.square(final)))
+        nan = float('nan')
+        return {
+            'hold_error_m': float(np.sqrt(sq / samples)) if samples else nan,
+            'delta_v_mps': float(self.force_sum_n * self.period_s / self.mass_kg),
+            'min_range_m': self.min_range_m if self.periods else nan,
+            'est_trans_rms_m': float(np.sqrt(self.trans_sq_sum / self.estimates)) if self.estimates else nan,
+            'est_axis_rms_deg': float(np.sqrt(self.axis_sq_sum / self.estimates)) if self.estimates else nan,
+            'acquired_at_s': self.acquired_at_s,
+            'losses': int(self.losses),
+            'hold_samples': int(samples),
+            'final_error_m': float(np.linalg.norm(self.last[1] - self.last[2])) if self.last is not None else None,
+            'estimates': int(self.estimates),
+            'periods': int(self.periods),
+        }

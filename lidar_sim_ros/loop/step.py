@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.loop import frames
 from lidar_sim_ros.loop.config import LoopConfig
-from lidar_sim_ros.loop.control import control_step
+from lidar_sim_ros.loop.control import control_step, limit_force
 from lidar_sim_ros.loop.guidance import GuidanceState, NavState, Reference, guidance_step, nav_update
 
 
@@ -161,8 +161,9 @@ def capture_centre(xyz_m: np.ndarray) -> np.ndarray | None:
     """Where to centre the gate before a capture, from the cloud alone: its per-axis median
     (m, lidar frame; None for no points). Background triggers and sun returns spread over
     the whole range gate, the target's returns bunch: the median sits on the target while
-    it gives most of the points."""
-    return np.median(xyz_m, axis=0) if len(xyz_m) else None
+    it gives most of the points. Non-finite points are left out."""
+    finite = xyz_m[np.isfinite(xyz_m).all(axis=1)]
+    return np.median(finite, axis=0) if len(finite) else None
 
 
 def tracker_cloud(config: LoopConfig, xyz_m: np.ndarray, state: 'LoopState') -> np.ndarray:
@@ -212,6 +213,7 @@ class LoopContext:
     t_B: np.ndarray
     R_BL_true: np.ndarray | None = None
     sun_config: object | None = None  # the scenario's core SunConfig (None: no sun)
+    gnc: object | None = None         # user_gnc.UserGnc: the config's own controller / navigation
 
     @property
     def mount_true(self) -> np.ndarray:
@@ -288,20 +290,35 @@ def navigate(ctx: LoopContext, nav: NavState, truth: TruthSamples, t_mid: float,
              est_pose: np.ndarray | None) -> tuple[NavState, np.ndarray | None]:
     """Fold the estimate into the filter; the chaser's own attitude (R_HB at the estimate's
     time, from its attitude determination) turns it into LVLH."""
+    user_nav = ctx.gnc.navigation if ctx.gnc is not None else None
     if est_pose is None:
+        if user_nav is not None:
+            user_nav.update(t_mid, None)
         return nav, None
     k = int(np.argmin(np.abs(truth.t_s - t_mid)))
     rho = frames.chaser_from_estimate(est_pose[:3, 3], truth.R_HB[k], ctx.R_BL, ctx.t_B)
+    if user_nav is not None:
+        user_nav.update(t_mid, rho.copy())
+        return nav, rho
     return nav_update(ctx.config.guidance, nav, t_mid, rho), rho
 
 
-def guide_and_control(config: LoopConfig, nav: NavState, g: GuidanceState, t_s: float, n_rad_s: float):
-    """(guidance state, reference, force (N, LVLH)) at ``t_s`` from the filtered estimate."""
-    if not nav.valid:
+def guide_and_control(config: LoopConfig, nav: NavState, g: GuidanceState, t_s: float, n_rad_s: float,
+                      gnc=None):
+    """(guidance state, reference, force (N, LVLH)) at ``t_s`` from the filtered estimate;
+    ``gnc`` (``user_gnc.UserGnc``): the config's own navigation and controller instead of
+    the alpha-beta filter and the PD (the thrust limit and dead band apply to both)."""
+    state = (gnc.navigation.at(t_s) if gnc is not None and gnc.navigation is not None
+             else nav.at(t_s) if nav.valid else None)
+    if state is None:
         ref = Reference(np.zeros(3), np.zeros(3), 'wait', g.index, False)
         return g, ref, np.zeros(3)
-    rho, rho_dot = nav.at(t_s)
+    rho, rho_dot = (np.asarray(x, float) for x in state)
     g, ref = guidance_step(config.guidance, g, t_s, rho, rho_dot)
+    if gnc is not None and gnc.controller is not None:
+        force = limit_force(gnc.force(t_s, rho, rho_dot, ref, n_rad_s), config.chaser.thrust_limit_n,
+                            config.chaser.dead_band_n)
+        return g, ref, force
     return g, ref, control_step(config.guidance, config.chaser, rho, rho_dot, ref, n_rad_s)
 
 
@@ -322,7 +339,8 @@ def loop_step(ctx: LoopContext, state: LoopState) -> tuple[LoopState, StepOutput
     xyz = sense_period(ctx, state, truth)
     est_pose, truth_capture = estimate(ctx, state, xyz, t_mid, true_pose)
     nav, rho_est = navigate(ctx, state.nav, truth, t_mid, est_pose)
-    g, ref, force = guide_and_control(ctx.config, nav, state.guidance, float(truth.t_s[-1]), truth.n_rad_s)
+    g, ref, force = guide_and_control(ctx.config, nav, state.guidance, float(truth.t_s[-1]), truth.n_rad_s,
+                                      ctx.gnc)
     new = next_state(state, truth, nav, g, force, est_pose)
     return new, StepOutput(truth, t_mid, est_pose, true_pose, ref, force,
                            state.tracking and not new.tracking, truth_capture, rho_est)
@@ -368,8 +386,9 @@ def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics
     if misalignment_xyzw is not None:  # p_L' = M p_L = M R_BL^T p_B: R_BL' = R_BL M^T
         R_BL_true = R_BL @ Rotation.from_quat(misalignment_xyzw).as_matrix().T
     sun_config = simulator.sun.config if simulator is not None and simulator.sun is not None else None
+    from lidar_sim_ros.loop.user_gnc import load_user_gnc
     return LoopContext(config, dynamics or Dynamics(config), simulator, tracker, cloud, R_BL, t_B,
-                       R_BL_true, sun_config)
+                       R_BL_true, sun_config, load_user_gnc(config))
 
 
 def _axis_angle_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:
@@ -393,44 +412,83 @@ def run_loop(config: LoopConfig, cloud: str | None = 'model', scenario_path=None
 
 
 def run_steps(ctx: LoopContext, duration_s: float | None = None) -> LoopResult:
-    """Step a built context for ``duration_s`` (default: the config's) and score the run."""
+    """Step a built context for ``duration_s`` (default: the config's) and score the run as
+    it goes (``RunRecord``: memory bounded whatever the duration)."""
     config = ctx.config
     state = LoopState()
     steps = int(round((duration_s or config.duration_s) / config.control_period_s))
-    outputs = []
+    record = RunRecord(config)
     for _ in range(steps):
         state, out = loop_step(ctx, state)
-        outputs.append(out)
-    return score(config, outputs)
+        record.add(out)
+    return record.result()
+
+
+SERIES_MAX_ROWS = 36_000
+"""Rows of a run's series kept at most (an hour at 10 Hz); a longer run keeps every 2nd,
+4th, ... period (the metrics still see every period)."""
+
+
+class RunRecord:
+    """A run's metrics (``metrics.LoopScore``, over every period) and its series (one row a
+    period up to ``max_rows``, then decimated by two each time it fills), in memory bounded
+    by ``max_rows`` and the hold time: a step's truth samples (5.5 kB) are not kept."""
+
+    FIELDS = ('t_s', 'rho_true_m', 'rho_est_m', 'ref_m', 'range_m', 'force_lvlh_n', 'delta_v_mps', 'phase',
+              'hold_index', 'settled', 'est_trans_err_m', 'est_axis_err_deg')
+
+    def __init__(self, config: LoopConfig, max_rows: int = SERIES_MAX_ROWS):
+        from lidar_sim_ros.loop.metrics import LoopScore
+        self.config, self.max_rows = config, max(2, int(max_rows))
+        self.score = LoopScore(config.control_period_s, config.chaser.mass_kg, config.guidance.hold_time_s)
+        self.rows: list[tuple] = []
+        self.stride, self.index = 1, 0
+        self.delta_v_mps = 0.0
+        self.truth_captures = self.holds_reached = 0
+
+    def add(self, o: StepOutput) -> None:
+        cfg = self.config
+        t = float(o.truth.t_s[-1])
+        rho_true, rng = o.truth.rho_m[-1], float(np.linalg.norm(o.truth.t_L_m[-1]))
+        trans = axis = float('nan')
+        if o.est_pose is not None:
+            trans = float(np.linalg.norm(o.est_pose[:3, 3] - o.true_pose[:3, 3]))
+            axis = _axis_angle_deg(o.est_pose[:3, :3], o.true_pose[:3, :3])
+        est_t = o.est_t_s if np.isfinite(trans) else None
+        self.score.add(t, rho_true, o.reference.rho_m, rng, o.force_lvlh_n, est_t, trans, axis, o.lost)
+        self.delta_v_mps += float(np.linalg.norm(o.force_lvlh_n)) * cfg.control_period_s / cfg.chaser.mass_kg
+        self.truth_captures += bool(o.truth_capture)
+        self.holds_reached = max(self.holds_reached, o.reference.index + o.reference.settled)
+        if self.index % self.stride == 0:
+            rho_est = o.rho_est_m if o.rho_est_m is not None else np.full(3, np.nan)
+            self.rows.append((t, rho_true.copy(), np.asarray(rho_est, float), o.reference.rho_m.copy(), rng,
+                              np.asarray(o.force_lvlh_n, float), self.delta_v_mps, o.reference.phase,
+                              o.reference.index, o.reference.settled, trans, axis))
+            if len(self.rows) >= self.max_rows:
+                self.rows, self.stride = self.rows[::2], 2 * self.stride
+        self.index += 1
+
+    def result(self) -> LoopResult:
+        metrics = self.score.result()
+        metrics['truth_captures'] = int(self.truth_captures)
+        metrics['holds_reached'] = int(self.holds_reached)
+        columns = dict(zip(self.FIELDS, zip(*self.rows))) if self.rows else {f: () for f in self.FIELDS}
+        series = {}
+        for name in self.FIELDS:
+            values = columns[name]
+            if name == 'phase':
+                series[name] = list(values)
+            elif name in ('rho_true_m', 'rho_est_m', 'ref_m', 'force_lvlh_n'):
+                series[name] = np.array(values, float).reshape(-1, 3)
+            else:
+                series[name] = np.array(values)
+        series['every_periods'] = self.stride
+        return LoopResult(metrics, series)
 
 
 def score(config: LoopConfig, outputs: list[StepOutput]) -> LoopResult:
-    """Metrics (``metrics.loop_metrics``) and series of a run's step outputs."""
-    from lidar_sim_ros.loop.metrics import loop_metrics
-    n = len(outputs)
-    t = np.array([o.truth.t_s[-1] for o in outputs])
-    rho_true = np.array([o.truth.rho_m[-1] for o in outputs]).reshape(-1, 3)
-    rng = np.array([np.linalg.norm(o.truth.t_L_m[-1]) for o in outputs])
-    force = np.array([o.force_lvlh_n for o in outputs]).reshape(-1, 3)
-    ref = np.array([o.reference.rho_m for o in outputs]).reshape(-1, 3)
-    rho_est = np.full((n, 3), np.nan)
-    trans_err, axis_err = np.full(n, np.nan), np.full(n, np.nan)
-    for i, o in enumerate(outputs):
-        if o.est_pose is not None:
-            trans_err[i] = np.linalg.norm(o.est_pose[:3, 3] - o.true_pose[:3, 3])
-            axis_err[i] = _axis_angle_deg(o.est_pose[:3, :3], o.true_pose[:3, :3])
-        if o.rho_est_m is not None:
-            rho_est[i] = o.rho_est_m
-    got = np.flatnonzero(np.isfinite(trans_err))
-    metrics = loop_metrics(t, rho_true, ref, rng, force, config.control_period_s, config.chaser.mass_kg,
-                           config.guidance.hold_time_s, [outputs[i].est_t_s for i in got],
-                           trans_err[got], axis_err[got], sum(o.lost for o in outputs))
-    metrics['truth_captures'] = int(sum(o.truth_capture for o in outputs))
-    metrics['holds_reached'] = int(max((o.reference.index + o.reference.settled for o in outputs), default=0))
-    dv = np.cumsum(np.linalg.norm(force, axis=1)) * config.control_period_s / config.chaser.mass_kg
-    series = {'t_s': t, 'rho_true_m': rho_true, 'rho_est_m': rho_est, 'ref_m': ref, 'range_m': rng,
-              'force_lvlh_n': force, 'delta_v_mps': dv, 'phase': [o.reference.phase for o in outputs],
-              'hold_index': np.array([o.reference.index for o in outputs]),
-              'settled': np.array([o.reference.settled for o in outputs]),
-              'est_trans_err_m': trans_err, 'est_axis_err_deg': axis_err}
-    return LoopResult(metrics, series)
+    """Metrics and series of a run's step outputs (``RunRecord``)."""
+    record = RunRecord(config)
+    for o in outputs:
+        record.add(o)
+    return record.result()
