@@ -40,3 +40,31 @@ def test_only_an_exact_zero_hides_the_sun():
     assert check_sun_direction((0.0, -0.0, 0.0), zero_is_dark=True) == (None, None)
     unit, rejection = check_sun_direction((1e-300, 0.0, 0.0), zero_is_dark=True)
     assert unit is None and rejection.kind == 'sun_zero'
+
+
+def test_a_frame_takes_the_newest_sun_at_or_before_its_start_whatever_the_arrival_order():
+    from lidar_sim_ros.ros.sun_input import SunTrack
+    x, y = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    early, late = SunTrack(), SunTrack()
+    for track, order in ((early, [(100, x), (200, None), (300, y)]),
+                         (late, [(300, y), (100, x), (200, None)])):   # arrival order differs
+        for stamp, unit in order:
+            track.add(stamp, unit)
+    for track in (early, late):
+        assert track.at(50) == (False, None)           # every sample newer: keep the sun
+        found, unit = track.at(150)
+        assert found and unit is x
+        assert track.at(250) == (True, None)           # hidden from 200 on
+        found, unit = track.at(300)
+        assert found and unit is y
+        assert len(track) == 1                         # older samples dropped once used
+
+
+def test_the_sun_track_stays_bounded_and_replaces_a_repeated_stamp():
+    from lidar_sim_ros.ros.sun_input import SunTrack
+    track = SunTrack(keep=8)
+    for stamp in range(1000):
+        track.add(stamp, np.array([1.0, 0.0, 0.0]))
+    assert len(track) == 8
+    track.add(999, None)
+    assert len(track) == 8 and track.at(10_000) == (True, None)

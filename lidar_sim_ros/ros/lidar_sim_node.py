@@ -53,7 +53,7 @@ from lidar_sim_ros.ros.spin import run_node
 from lidar_sim_ros.ros.pose_input import (NS_PER_S, PoseHistory, PoseSample, ReasonThrottle,
                                           check_pose, twist_to_lidar)
 from lidar_sim_ros.ros.scheduler import COMPUTE, WAIT, FrameScheduler, pose_window_ns, readiness
-from lidar_sim_ros.ros.sun_input import check_sun_direction, sun_with_direction
+from lidar_sim_ros.ros.sun_input import SunTrack, check_sun_direction, sun_with_direction
 
 NODE_NAME = 'lidar_sim_node'
 QOS_CHOICES = ('best_effort', 'reliable')
@@ -227,6 +227,7 @@ class LidarSimNode(Node):
             _descriptor(FA, "direction toward the sun, lidar frame (normalised); [] = no sun; "
                             "default: the scenario's sun.direction; the sun topic overrides it"))
         self._hidden_sun = None              # the sun model kept while hidden (topic zero)
+        self._sun_track = SunTrack()         # topic samples, applied by stamp per frame
         self._set_sun(self.get_parameter_or('sun_direction').value)
         # Compiled kernels (and the effects' first calls) before anything is timed: the
         # frame grid, the pose subscriptions and their staleness checks all start after
@@ -480,6 +481,7 @@ class LidarSimNode(Node):
                 names = [e.name or type(e).__name__ for e in self.sim.effects]
                 self.get_logger().info(f'effects now {names}')
             if p.name == 'sun_direction':
+                self._sun_track.clear()         # the parameter wins until the topic speaks
                 self._set_sun(p.value)
                 self.get_logger().info(f'sun direction now {self._sun_text()}')
 
@@ -499,23 +501,45 @@ class LidarSimNode(Node):
 
     def _on_sun(self, msg: Vector3Stamped) -> None:
         v = msg.vector
+        topic = self.sun_sub.topic_name
         unit, rejection = check_sun_direction([v.x, v.y, v.z], msg.header.frame_id,
                                               self.get_parameter('frame_id').value,
                                               zero_is_dark=True)
         if rejection is not None:
-            self._warn(rejection.kind, f'dropped sun direction on {self.sun_sub.topic_name}: '
-                                       f'{rejection.reason}')
+            self._warn(rejection.kind, f'dropped sun direction on {topic}: {rejection.reason}')
             return
+        now_ns = self.get_clock().now().nanoseconds
+        stamp_ns = stamp_to_ns(msg.header.stamp) or now_ns   # unstamped: from its arrival
+        lead_ns = round(self.get_parameter('stale_pose_timeout_s').value * NS_PER_S)
+        if now_ns and stamp_ns - now_ns > lead_ns:
+            self._warn('sun_future', f'dropped sun direction on {topic}: stamp '
+                                     f'{stamp_ns / NS_PER_S:.3f} s is more than '
+                                     f'stale_pose_timeout_s ahead of the clock '
+                                     f'({now_ns / NS_PER_S:.3f} s)')
+            return
+        self._sun_track.add(stamp_ns, unit)
+
+    def _apply_sun_at(self, start_ns: int) -> None:
+        """The sun of the frame starting at ``start_ns``: the newest topic sample stamped at
+        or before it (none: the sun stays as it was)."""
+        found, unit = self._sun_track.at(start_ns)
+        if not found:
+            return
+        topic = self.sun_sub.topic_name
         if unit is None:                        # a zero vector: the sun is hidden
             if self.sim.sun is not None:
                 self._hidden_sun = self.sim.sun
                 self.sim.sun = None
-                self.get_logger().info(f'sun hidden (zero vector on {self.sun_sub.topic_name}): '
-                                       'frames without sunlight until a direction comes')
+                self.get_logger().info(f'sun hidden (zero vector on {topic}): frames without '
+                                       'sunlight until a direction comes')
             return
         if self.sim.sun is None and self._hidden_sun is not None:
-            self.get_logger().info(f'sun back on {self.sun_sub.topic_name}')
-        self.sim.sun = sun_with_direction(self.sim.sun or self._hidden_sun, unit)
+            self.get_logger().info(f'sun back on {topic}')
+        current = self.sim.sun or self._hidden_sun
+        if current is not None and np.array_equal(current.config.direction, unit):
+            self.sim.sun = current
+            return
+        self.sim.sun = sun_with_direction(current, unit)
 
     # -------------------------------------------------------------- poses
     def _on_pose(self, msg: PoseStamped) -> None:
@@ -567,6 +591,7 @@ class LidarSimNode(Node):
                 f'clock went back to {now_ns / NS_PER_S:.3f} s: restarting the frame grid and '
                 'forgetting the pose history')
             self.history.clear()
+            self._sun_track.clear()
             self._warned_no_pose = False
         if poll.skipped:
             self._stats['skipped'] += poll.skipped
@@ -608,6 +633,7 @@ class LidarSimNode(Node):
             # Pose times relative to the frame start keep float64 resolution at wall-clock epochs.
             track = self.history.track(start_ns, self.get_parameter('max_extrapolation_s').value,
                                        from_ns=min(start_ns, self._pose_window_ns(start_ns)[0]))
+            self._apply_sun_at(start_ns)
             frame = self.sim.simulate_frame(0.0, track, frame_index=k)
             t1 = time.perf_counter()
             frame_id = self.get_parameter('frame_id').value

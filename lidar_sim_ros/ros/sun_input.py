@@ -6,9 +6,12 @@ parameter or a ``geometry_msgs/Vector3Stamped`` on the sun topic (whose ``frame_
 be the node's). Any finite vector that is not nearly zero is accepted and normalised
 (scaled first, so ``[1e300, 1e300, 0]`` is a direction like any other). On the topic, a zero
 vector says the sun is hidden (the chaser in the Earth's shadow, as ``loop_dynamics``
-publishes it): the frames then have no sun until a direction comes again.
+publishes it): the frames then have no sun until a direction comes again. Topic samples
+apply by their stamps (``SunTrack``): a frame takes the newest at or before its start.
 """
 from __future__ import annotations
+
+import bisect
 
 import numpy as np
 
@@ -42,3 +45,45 @@ def sun_with_direction(current: ScenarioSun | None, direction: np.ndarray) -> Sc
     if current is None:
         return ScenarioSun(SunConfig(direction=tuple(float(x) for x in direction)))
     return current.with_direction(direction)
+
+
+class SunTrack:
+    """Sun directions from the topic by stamp (ns): a frame takes the newest at or before
+    its start, so which sun lights a frame does not depend on when the message arrived
+    (the same run over DDS gives the same clouds). ``None`` = the sun hidden.
+
+    At most ``keep`` samples are held: the oldest go first, and every sample older than
+    the one a frame used is dropped when that frame takes it.
+    """
+
+    def __init__(self, keep: int = 64):
+        self.keep = keep
+        self._stamps: list[int] = []
+        self._units: list[np.ndarray | None] = []
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def add(self, stamp_ns: int, unit: np.ndarray | None) -> None:
+        """A checked direction (or None: hidden); a second sample at one stamp replaces it."""
+        i = bisect.bisect_left(self._stamps, stamp_ns)
+        if i < len(self._stamps) and self._stamps[i] == stamp_ns:
+            self._units[i] = unit
+            return
+        self._stamps.insert(i, stamp_ns)
+        self._units.insert(i, unit)
+        if len(self._stamps) > self.keep:
+            del self._stamps[0], self._units[0]
+
+    def at(self, start_ns: int) -> tuple[bool, np.ndarray | None]:
+        """(found, direction or None) of the newest sample stamped at or before ``start_ns``;
+        (False, None) when every sample is newer (the sun stays as it was)."""
+        i = bisect.bisect_right(self._stamps, start_ns) - 1
+        if i < 0:
+            return False, None
+        del self._stamps[:i], self._units[:i]
+        return True, self._units[0]
+
+    def clear(self) -> None:
+        self._stamps.clear()
+        self._units.clear()
