@@ -67,7 +67,7 @@ import copy
 import itertools
 import time
 from dataclasses import dataclass, field, replace
-from typing import Literal, get_args, get_origin
+from typing import Callable, Literal, get_args, get_origin
 
 import numpy as np
 from pydantic import create_model
@@ -98,6 +98,9 @@ MIN_FAR_SHARE = 0.5         # ... and this share of the spurious matched returns
 MIN_UNMATCHED_EXPLAINED = 20   # unmatched points explained count only from this many ...
 MIN_UNMATCHED_FRACTION = 0.002  # ... and this share of all points (grazing rays aside)
 N_FOLDS = 2
+# The reference pose's per-cloud correction as a member of a tie (``confounded_with``):
+# not a sensor effect (``pose_error.py``), judged by its own held-out test.
+POSE_ERROR = 'pose_error'
 
 
 @dataclass(frozen=True)
@@ -378,6 +381,8 @@ class Decision:
     # The reference pose is off (``pose_error.PoseError``, significant); with ``missing``
     # None, it explains what the candidates would have claimed.
     pose: object | None = None
+    # Names the rule kept from the verdict (``settle``): name -> why.
+    withheld: dict = field(default_factory=dict)
 
 
 class Diagnosis:
@@ -587,9 +592,28 @@ class Diagnosis:
                            f'{attribution.structure_gain:.4f} nats/point): the residual has '
                            'another shape than this effect')
 
+    @property
+    def before_nll(self) -> float:
+        """The calibrated NLL per matched point of the diagnosed points without a
+        candidate: the "before" the verdict quotes (``calibrated_figures``)."""
+        if getattr(self, '_before_nll', None) is None:
+            self._before_nll = calibrated_figures(self.full, [])[0]
+        return self._before_nll
+
+    def naming_fault(self, cand: Candidate) -> str | None:
+        """Why ``cand`` may not be named (``naming_fault``), fitting it on all the
+        diagnosed points first if that was not done (its "after" figures)."""
+        if cand.admissible and not np.isfinite(cand.nll_after):
+            self.finalize(cand)
+        return naming_fault(cand, self.before_nll)
+
+    def nameable(self, cand: Candidate) -> bool:
+        return self.naming_fault(cand) is None
+
     def decide(self, cands: list[Candidate]) -> Decision:
-        """The missing effect, ties and confounding (module doc)."""
-        ok = [c for c in rank(cands) if c.admissible]
+        """The missing effect, ties and confounding (module doc), among the candidates
+        that may be named at all (``naming_fault``)."""
+        ok = [c for c in rank(cands) if self.nameable(c)]
         if not ok:
             return Decision(None, [])
         best = ok[0]
@@ -618,6 +642,7 @@ class Diagnosis:
         out.fold_data = [corrected(d, correction_m[np.searchsorted(self.rays.matched, f.matched)])
                          for d, f in zip(self.fold_data, self.folds)]
         out._base_nll = [heldout_nll(d, []) for d in out.fold_data]
+        out._before_nll = None
         return out
 
     def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision,
@@ -647,12 +672,26 @@ class Diagnosis:
             else:
                 on_pose = self.pose_corrected(pose.correction_m)
             again = [on_pose.score(type(c.effect)) for c in contenders]
-            if not any(c.admissible for c in again):
+            if not any(on_pose.nameable(c) for c in again):
                 return Decision(None, [], pose=pose)
-            if not (decision.missing and any(c.admissible and c.name == decision.missing
+            if not (decision.missing and any(c.name == decision.missing and on_pose.nameable(c)
                                              for c in again)):
                 decision = on_pose.decide(again)
         return replace(decision, pose=pose)
+
+    def clock_tie(self, decision: Decision, cands: list[Candidate],
+                  no_point_times: bool) -> Decision:
+        """Clouds without usable point times, the reference pose reported off and a
+        ``time_offset`` that passed the rule before the pose correction: a clock offset
+        moves each cloud as a rigid correction per cloud partly does, so the two are a
+        tie (``confounded_with``: pose_error and time_offset), not a pose error."""
+        if (not no_point_times or decision.pose is None or decision.missing
+                or decision.confounded_with):
+            return decision
+        c = next((c for c in cands if c.name == 'time_offset'), None)
+        if c is None or not self.nameable(c):
+            return decision
+        return replace(decision, confounded_with=[POSE_ERROR, c.name])
 
     def fitted_margin(self, a: Candidate, b: Candidate) -> float:
         """How much better ``a`` explains the data than ``b`` as --fit would leave them:
@@ -684,23 +723,30 @@ class Diagnosis:
         return float(margin), float(z)
 
     def adds_to(self, best: Candidate, other: Candidate) -> bool:
-        """Whether ``other``, fitted on top of ``best``, still gains decisively and
-        practically on held-out points: they explain different parts of the residual."""
-        if best.effect is None or other.variant is None:
+        """Whether ``other``, fitted on top of ``best``, still passes the rule: its
+        held-out gain over ``best`` (matched and unmatched, ``total_z``) decisive and
+        practical, and, both fitted on all the diagnosed points, the NLL below that of
+        ``best`` alone. Then they explain different parts of the residual."""
+        if best.effect is None or other.variant is None or not self.nameable(best):
             return False
         try:
             nll, explained = self.cross_fit(other.variant, [best.effect])
+            d = best.heldout_nll - nll
+            ok = np.isfinite(d)
+            if ok.sum() < 2:
+                return False
+            gain, se = block_mean_se(d[ok], self.blocks[ok])
+            n_m = int(ok.sum())
+            total = float(np.sum(d[ok])) + UNMATCHED_NATS * explained
+            z = total_z(gain, se, n_m, explained)
+            if not (total >= MIN_TOTAL_GAIN and z >= self.z_crit
+                    and total / max(self.n_total, 1) >= MIN_PRACTICAL_GAIN):
+                return False
+            both = fit_effect(other.variant, self.full, [best.effect]).effect
+            after = calibrated_figures(self.full, [best.effect, both])[0]
         except Exception:  # noqa: BLE001
             return False
-        probe = Candidate(other.name)
-        d = best.heldout_nll - nll
-        ok = np.isfinite(d)
-        if ok.sum() < 2:
-            return False
-        gain, se = block_mean_se(d[ok], self.blocks[ok])
-        z = gain / se if se > 0 and np.isfinite(se) else 0.0
-        probe.score = float(np.sum(d[ok])) / max(self.n_total, 1)
-        return bool(z >= self.z_crit and probe.score >= MIN_PRACTICAL_GAIN)
+        return bool(np.isfinite(after) and after < best.nll_after)
 
 
 def far_from_surface(data, details: bool = False):
@@ -860,6 +906,62 @@ def unmatched_credit(data, effects: list[Effect], effect: Effect, gained: float)
     if effect.cast_reach_rad(1.0) is not None:     # a footprint: it reaches only so far
         return float(min(gained, footprint_signature(data, effects).sum()))
     return gained
+
+
+def naming_fault(cand: Candidate, before_nll: float) -> str | None:
+    """The one rule at the point of naming: why ``cand`` may not be named as a missing
+    effect, a member of a tie or an effect explaining a separate part, or None. Its
+    held-out gain (the score the verdict quotes, and its z) passes the rule (decisive,
+    it matters, its signature: ``admissible``) and, fitted as --fit leaves it, the
+    calibrated NLL per point it gives (``nll_after``, the "after" the verdict quotes) is
+    below the model's without it (``before_nll``)."""
+    if cand.error is not None:
+        return f'its fit failed: {cand.error}'
+    if not cand.significant:
+        return (f'its held-out gain ({cand.score:.4f} nats/point, z = {cand.z:.1f}) is not '
+                'decisive')
+    if not cand.practical:
+        return (f'its held-out gain ({cand.score:.4f} nats/point) is below the '
+                f'{MIN_PRACTICAL_GAIN:g} that would matter')
+    if cand.vetoed:
+        return cand.vetoed
+    if not (np.isfinite(cand.nll_after) and np.isfinite(before_nll)
+            and cand.nll_after < before_nll):
+        return (f'fitted as --fit leaves it, the NLL per point is {cand.nll_after:.4f}, not '
+                f'below the {before_nll:.4f} without it')
+    return None
+
+
+def settle(decision: Decision, cands: list[Candidate],
+           fault: 'Callable[[Candidate], str | None]') -> Decision:
+    """Every name a decision carries (``missing``, ``confounded_with``, ``also``; for
+    ``sunlight``, the candidate that is its ``evidence``) passes ``naming_fault`` on the
+    candidates the verdict quotes (``cands``; ``fault``: ``Diagnosis.naming_fault``, which
+    fits a candidate on all the diagnosed points first, or ``naming_fault`` with the
+    "before" NLL), or is
+    withheld (``Decision.withheld``: name -> why). A tie left with one member is no
+    tie, and its last member is not promoted to missing. ``pose_error`` in a tie is
+    the reference pose, judged by its own test (``judge_pose``)."""
+    by_name = {c.name: c for c in cands}
+    withheld = dict(decision.withheld)
+
+    def why_not(name: str | None) -> str | None:
+        if name is None or name == POSE_ERROR:
+            return None
+        c = by_name.get(decision.evidence if name == decision.missing and decision.evidence
+                        else name)
+        why = 'not among the candidates' if c is None else fault(c)
+        if why is not None:
+            withheld[name] = why
+        return why
+
+    missing = decision.missing if why_not(decision.missing) is None else None
+    also = decision.also if missing is not None and why_not(decision.also) is None else None
+    tied = [n for n in decision.confounded_with if why_not(n) is None]
+    if len(tied) < 2 or (tied == [POSE_ERROR]):
+        tied = []
+    return replace(decision, missing=missing, also=also, confounded_with=tied,
+                   evidence=decision.evidence if missing else None, withheld=withheld)
 
 
 def rank(candidates: list[Candidate]) -> list[Candidate]:

@@ -68,7 +68,7 @@ FINALIZED = 3
 SILHOUETTE_NEAR_DIVERGENCES = 2.0
 # --effect pose_error: a per-cloud correction of the reference pose (compare/pose_error.py),
 # not a catalogue effect: the simulator never applies it.
-POSE_ERROR = 'pose_error'
+POSE_ERROR = diagnosis.POSE_ERROR
 
 
 @dataclass
@@ -665,8 +665,11 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
+    decision = diag.clock_tie(decision, cands, meas.time_source == 'stamp')
     stamp = _stamp_place(diag, decision, cands, meas, scenario)
     decision = sunlit_decision(decision, sunlight)
+    # The one gate every name passes (missing, tie, also): the rule and the NLL.
+    decision = diagnosis.settle(decision, cands, diag.naming_fault)
     return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
                      diag.full, diag.z_crit)
 
@@ -756,6 +759,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'missing_effect': decision.missing,
         'confounded_with': decision.confounded_with,
         'also_explains': decision.also,
+        'withheld': decision.withheld or None,
         'against_named': decision.pair_z,
         'separation_plan': plan.rows if plan is not None and plan.rows else None,
         'unmatched': _unmatched_summary(ana.local, cal.model.divergence_rad, int((~sel).sum()),

@@ -57,10 +57,12 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                      f'features: {f.trend}.')
     elif attribution is not None and attribution.confounded:
         names = attribution.confounded
+        # "Cannot be told" is said of candidates only when none is named (a tie in
+        # confounded_with); of features it says what the features alone show.
         parts.append(f'The range residual depends on {_join(names)} together; in this '
                      'recording they stand in for each other (each explains the residual '
-                     'alone, none given the others), so which of them drives it cannot be '
-                     'told from the features.')
+                     'alone, none given the others), so the features alone do not show '
+                     'which of them drives it.')
     elif attribution is not None and attribution.significant:
         parts.append(f'The range residual depends on the features jointly '
                      f'({attribution.structure_gain:.4f} nats/point held out), no single one '
@@ -93,6 +95,8 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         if decision.also:
             parts.append(f'{decision.also} also explains a separate part of the residual: '
                          'expect it in the next run.')
+    elif diagnosis.POSE_ERROR in decision.confounded_with:
+        parts.append(pose_tie_words(decision, summary, cands))
     elif decision.confounded_with:
         names = decision.confounded_with
         scores = ', '.join(f'{n} {next(c.score for c in cands if c.name == n):.4f}'
@@ -105,10 +109,11 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'gains {scores} nats/point): they are confounded in this recording, so none is '
             f'named. {advice} If you know which it is, add it with --effect NAME --fit.')
     elif decision.pose is not None:
-        parts.append(pose_words(decision.pose) + _clock_caveat(summary, cands))
+        parts.append(pose_words(decision.pose))
     else:
         parts.append(_nothing_named(summary, attribution, cands))
-    if decision.pose is not None and (missing or decision.confounded_with):
+    if decision.pose is not None and (missing or decision.confounded_with) and \
+            diagnosis.POSE_ERROR not in decision.confounded_with:
         parts.append(f'Besides, {decision.pose.words()} (held-out gain of a rigid correction '
                      f'per cloud {decision.pose.gain:.4f} nats/point, z = {decision.pose.z:.1f}): '
                      'check the tracking system or the extrinsic calibration.')
@@ -149,22 +154,29 @@ def pose_words(pose) -> str:
             'with it no catalogue effect passes the rule.')
 
 
-def _clock_caveat(summary: dict, cands: list) -> str:
-    """When the clouds carry no usable point times and ``time_offset`` passed the rule
-    before the pose was corrected: a clock offset moves each cloud too, as a rigid
-    correction per cloud partly does, so the two cannot be told apart here."""
-    if summary.get('point_times') != 'stamp':
-        return ''
-    c = next((c for c in cands if c.name == 'time_offset' and c.admissible), None)
-    if c is None:
-        return ''
-    return (f' But the clouds carry no per-point time and their directions do not follow '
-            f'the configured scan pattern, and a clock offset between the pose and LiDAR '
-            f'stamps also explains the residual (time_offset: held-out gain {c.score:.4f} '
-            f'nats/point, z = {c.z:.1f}, before the pose correction): the two are '
-            'confounded in this recording. Points with their own times (a time field) '
-            'would separate them; if the tracking system is known to be right, try '
-            '--effect time_offset --fit.')
+def pose_tie_words(decision, summary: dict, cands: list) -> str:
+    """The verdict when the reference pose and a candidate explain the data equally
+    (``confounded_with`` holds ``pose_error`` and the candidate)."""
+    pose = decision.pose
+    other = [n for n in decision.confounded_with if n != diagnosis.POSE_ERROR]
+    c = next((c for c in cands if c.name in other), None)
+    held = (f' ({c.name}: held-out gain {c.score:.4f} nats/point, z = {c.z:.1f}, before the '
+            'pose correction)' if c is not None else '')
+    pose_part = (f'a rigid correction of the target pose per cloud gains {pose.gain:.4f} '
+                 f'nats/point held out (z = {pose.z:.1f}; {pose.words()})'
+                 if pose is not None else 'a rigid correction of the target pose per cloud')
+    if other == ['time_offset']:
+        return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
+                f'{pose_part}, and a clock offset explains the residual as well{held}. The '
+                'clouds carry no per-point time and their directions do not follow the '
+                'configured scan pattern, so which of the two it is cannot be told from this '
+                'recording; none is named. Points with their own times (a time field) would '
+                'separate them; if the tracking system is known to be right, try --effect '
+                'time_offset --fit, else --effect pose_error --fit.')
+    return (f'{pose_part[0].upper()}{pose_part[1:]}, and {_join(other)} explains the '
+            f'residual as well{held}: they are confounded in this recording, so none is '
+            'named. Add the one you know with --effect NAME --fit (pose_error corrects the '
+            'reference pose).')
 
 
 def _sunlight_named(summary: dict, c) -> str:
@@ -211,8 +223,12 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     """Why no effect is named: nothing to explain, or nothing in the catalogue explains it."""
     best = next((c for c in diagnosis.rank(cands) if c.error is None and c.significant), None)
     why = ''
+    fault = (diagnosis.naming_fault(best, summary['nll_calibrated'])
+             if best is not None else None)
     if best is not None and best.vetoed:
         why = f' The best candidate, {best.name}, is set aside: {best.vetoed}.'
+    elif best is not None and best.practical and fault:
+        why = f' The best candidate, {best.name}, is not named: {fault}.'
     elif best is not None and not best.practical:
         why = (f' The best candidate, {best.name}, gains {best.score:.4f} nats/point held out '
                f'(z = {best.z:.1f}), less than the {diagnosis.MIN_PRACTICAL_GAIN:g} nats/point '
