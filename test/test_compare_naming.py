@@ -208,3 +208,22 @@ def test_verdict_says_cannot_be_told_only_with_a_tie_and_nothing_named():
     tie = vd.verdict({**_summary(), 'point_times': 'stamp'}, att, [a, b],
                      dg.Decision(None, [dg.POSE_ERROR, 'time_offset'], pose=pose))
     assert 'cannot be told' in tie and 'none is named' in tie
+
+
+@pytest.mark.parametrize('times, share, first', [
+    ('stamp', 0.10, True), ('stamp', 0.95, False), ('field', None, False),
+    ('scan pattern', 0.97, False)])
+def test_scan_pattern_off_is_said_before_any_timing_claim(times, share, first):
+    """Clouds without point times whose directions mostly miss the configured pattern
+    (a Lissajous 0.5 % off: 10 % matched): the verdict opens with it, the share and
+    `lidar-sim calibrate scan`, before the time_offset it names."""
+    c = cand('time_offset', 0.05, -2.1)
+    c.params = {'dt_s': 0.03}
+    c.range_rmse_after_m = 0.03
+    c.effect = None
+    s = {**_summary(), 'point_times': times, 'scan_pattern_match': share}
+    text = vd.verdict(s, None, [c], dg.Decision('time_offset', []))
+    assert text.startswith('The scan pattern is off') == first
+    if first:
+        assert '10 %' in text and 'lidar-sim calibrate scan' in text
+        assert text.index('calibrate scan') < text.index('time offset')

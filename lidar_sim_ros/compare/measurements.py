@@ -105,6 +105,9 @@ class Measurements:
     fields: dict | None = None            # FieldMap.as_dict()
     flag_counts: dict = field(default_factory=dict)   # Cepton flag -> points (before thinning)
     known_misses: int = 0                 # NO_RETURN shots: fired, nothing came back
+    # Clouds without a time field: the share of directions within SCAN_MATCH_TOL_RAD of a
+    # shot of the configured scan pattern (``with_scan_times``); None with a time field.
+    scan_match_fraction: float | None = None
 
     def __len__(self) -> int:
         return len(self.range_m)
@@ -122,7 +125,8 @@ class Measurements:
                             cloud_stamps_s=self.cloud_stamps_s, epoch_s=self.epoch_s,
                             poses=self.poses, material_names=self.material_names,
                             notes=self.notes, dropped=self.dropped,
-                            time_source=self.time_source, time_field=self.time_field, **pick)
+                            time_source=self.time_source, time_field=self.time_field,
+                            scan_match_fraction=self.scan_match_fraction, **pick)
 
 
 def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
@@ -351,7 +355,7 @@ def with_scan_times(meas: Measurements, shots: Shots) -> Measurements:
     dist, idx = cKDTree(shots.directions()).query(meas.directions)
     ok = dist < SCAN_MATCH_TOL_RAD
     if ok.mean() < SCAN_MATCH_MIN_FRACTION:
-        return replace(meas, notes=meas.notes + [
+        return replace(meas, scan_match_fraction=float(ok.mean()), notes=meas.notes + [
             f'clouds have no per-point time field and only {100 * ok.mean():.0f} % of the '
             'directions match the configured scan pattern: every point takes its cloud stamp'])
     t_frame = np.where(ok, shots.t_s[idx], np.median(shots.t_s[idx[ok]]))
@@ -361,7 +365,8 @@ def with_scan_times(meas: Measurements, shots: Shots) -> Measurements:
         f'({100 * ok.mean():.1f} % of directions match a shot within '
         f'{np.degrees(SCAN_MATCH_TOL_RAD):g} deg)']
     return replace(meas, t_frame_s=t_frame, t_s=meas.cloud_stamps_s[meas.cloud] + t_frame,
-                   laser=laser, has_point_time=True, time_source='scan pattern', notes=notes)
+                   laser=laser, has_point_time=True, time_source='scan pattern', notes=notes,
+                   scan_match_fraction=float(ok.mean()))
 
 
 def field_time_since_stamp_s(points: np.ndarray, time: tuple[str, ...],

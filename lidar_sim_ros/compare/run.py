@@ -771,6 +771,8 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'point_times': meas.time_source,
         'point_time_field': meas.time_field,
         'point_time_spread_s': time_spread or None,
+        'scan_pattern_match': (None if meas.scan_match_fraction is None
+                               else round(meas.scan_match_fraction, 4)),
         'stamp_place': diag.stamp.as_dict() if diag.stamp is not None else None,
         'reference_pose': diag.pose.as_dict() if diag.pose is not None else None,
         'reference_pose_off': decision.pose is not None,

@@ -50,7 +50,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     """One plain-language paragraph (module doc)."""
     feats = attribution.features if attribution is not None else []
     by_name = {f.name: f for f in feats}
-    parts = []
+    parts = [scan_pattern_words(summary)] if scan_pattern_off(summary) else []
     if attribution is not None and attribution.driver:
         f = by_name[attribution.driver]
         parts.append(f'The range residual depends most on {f.name}, given the other '
@@ -144,6 +144,31 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     if summary.get('sunlight'):
         parts.append(sunlight_words(summary['sunlight'], hint=missing != 'sunlight'))
     return ' '.join(parts)
+
+
+# Clouds without point times of which fewer than this share of the directions match the
+# configured scan pattern: the verdict says first that the pattern is not the sensor's.
+SCAN_PATTERN_OFF_BELOW = 0.5
+
+
+def scan_pattern_off(summary: dict) -> bool:
+    """Clouds without point times whose directions mostly miss the configured pattern."""
+    share = summary.get('scan_pattern_match')
+    return (summary.get('point_times') == 'stamp' and share is not None
+            and share < SCAN_PATTERN_OFF_BELOW)
+
+
+def scan_pattern_words(summary: dict) -> str:
+    """The verdict's first sentence when the scan pattern is off (``scan_pattern_off``):
+    without point times, a pattern that is not the sensor's leaves every point's time
+    unknown, so a timing claim rests on the cloud stamps only."""
+    return (f'The scan pattern is off: the clouds carry no per-point time and only '
+            f'{100 * summary["scan_pattern_match"]:.0f} % of the measured directions match a '
+            'shot of the configured scan pattern, so the configuration is not this sensor\'s '
+            'pattern (its frequencies, phases or extent differ) and each point\'s time within '
+            'the scan is unknown. Fix the pattern first: lidar-sim calibrate scan (from a '
+            'recording with per-point times) writes the sensor\'s pattern; any timing claim '
+            'below rests on the cloud stamps alone.')
 
 
 def pose_words(pose) -> str:
