@@ -227,3 +227,72 @@ def test_scan_pattern_off_is_said_before_any_timing_claim(times, share, first):
     if first:
         assert '10 %' in text and 'lidar-sim calibrate scan' in text
         assert text.index('calibrate scan') < text.index('time offset')
+
+
+# ------------------------------------------------ range errors against the reference pose
+class Rival:
+    name = 'range_drift'
+
+
+@pytest.mark.parametrize('pose_left, passes_on_pose, missing, tie, pose_kept', [
+    (False, False, None, [dg.POSE_ERROR, 'range_drift'], True),   # each leaves the other nothing
+    (False, True, 'range_drift', [], False),                     # the range term wins
+    (True, True, 'range_drift', [], True),                       # both: named, pose besides
+    (True, False, None, [], True)])                              # the pose wins
+def test_pose_against_a_range_error_of_the_sensor(pose_left, passes_on_pose, missing, tie,
+                                                  pose_kept):
+    """weigh_pose_rivals(): the pose's test on top of the rival and the rival scored on
+    the pose-corrected model decide between a tie, the range term, both, or the pose."""
+    drift = cand('range_drift', 0.05, -2.07, seed=10)
+    again = cand('range_drift', 0.03 if passes_on_pose else 0.0, -2.05, seed=10,
+                 significant=passes_on_pose)
+    pose = SimpleNamespace(significant=True, gain=0.04, z=11.0)
+
+    class WithRival(Hand):
+        def score(self, effect_cls):
+            return drift
+
+    def pose_test(on_top):
+        return SimpleNamespace(significant=pose_left if on_top else True, gain=0.01, z=1.0)
+
+    d, scored = WithRival().weigh_pose_rivals(dg.Decision(None, [], pose=pose), [Rival],
+                                              pose_test, lambda: Hand(again={'range_drift': again}))
+    assert scored == [drift]
+    assert d.missing == missing and d.confounded_with == tie
+    assert (d.pose is pose) == pose_kept
+    # A rival that fails the naming rule (fitted NLL worse) changes nothing.
+    drift.nll_after = -2.0
+    d, _ = WithRival().weigh_pose_rivals(dg.Decision(None, [], pose=pose), [Rival],
+                                         pose_test, lambda: Hand(again={'range_drift': again}))
+    assert d.missing is None and d.confounded_with == [] and d.pose is pose
+
+
+def test_pose_range_tie_verdict_and_plan(tmp_path):
+    """The tie's verdict says "a range offset of the sensor or the reference pose along
+    the line of sight" with nothing named, and plan.yaml is a scenario load_scenario
+    accepts: the target held still on a surveyed pose, near, with the far one in its
+    header."""
+    from lidar_sim_ros.compare import plan
+    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.paths import config_path, mesh_path
+    rec = plan.Recording('this recording', '', (10.0, 0.3, 0.0), (0.0, 0.0, 0.0, 1.0), 0.0,
+                         (0.0, 0.0, 1.0), 1.0, 10, 0.1)
+    rows, text = plan.pose_range_plan(rec, 'range_drift', 5, mesh_path('rocket_body.obj'),
+                                      config_path('cepton_vista_p60.yaml'),
+                                      config_path('materials.yaml'), [], 0.1)
+    d = np.linalg.norm(rec.position_m)
+    assert [r['distance_m'] for r in rows] == pytest.approx([0.5 * d, 2.0 * d], abs=1e-3)
+    assert all(r['motion']['tumble_rate_dps'] == 0 and r['motion']['approach_speed_mps'] == 0
+               for r in rows)
+    (tmp_path / 'plan.yaml').write_text(text)
+    sc = load_scenario(tmp_path / 'plan.yaml')
+    assert np.linalg.norm(sc.config.initial_pose.position_m) == pytest.approx(0.5 * d, rel=1e-3)
+    assert 'surveyed' in text and f'{2 * d:.1f} m' in text
+    drift = cand('range_drift', 0.05, -2.07)
+    pose = SimpleNamespace(gain=0.037, z=11.5, words=lambda: 'the reference pose is off')
+    text = vd.verdict({**_summary(), 'separation_plan': rows}, None, [drift],
+                      dg.Decision(None, [dg.POSE_ERROR, 'range_drift'], pose=pose))
+    assert text.startswith('A range offset of the sensor or the reference pose along the '
+                           'line of sight')
+    assert 'cannot be told' in text and 'none is named' in text and 'plan.yaml' in text
+

@@ -101,6 +101,10 @@ N_FOLDS = 2
 # The reference pose's per-cloud correction as a member of a tie (``confounded_with``):
 # not a sensor effect (``pose_error.py``), judged by its own held-out test.
 POSE_ERROR = 'pose_error'
+# Range errors of the sensor that move a whole cloud along the line of sight, as a
+# reference pose that is off does: weighed against the per-cloud pose correction on the
+# same footing when it passes (``Diagnosis.weigh_pose_rivals``); no default candidates.
+POSE_RIVALS = ('range_drift', 'range_scale')
 
 
 @dataclass(frozen=True)
@@ -338,6 +342,12 @@ class Candidate:
     error: str | None = None
     heldout_nll: np.ndarray | None = None   # per matched point, folds concatenated
     seconds: float = 0.0
+    # A rival of the reference pose (POSE_RIVALS): the pose test on top of it and its
+    # score on the pose-corrected model (``weigh_pose_rivals``).
+    against_pose: dict | None = None
+    # An outlier effect: the false returns its fitted rate predicts against those
+    # recorded, on the diagnosed points (``Diagnosis.false_return_budget``).
+    false_returns: dict | None = None
 
     @property
     def admissible(self) -> bool:
@@ -358,6 +368,8 @@ class Candidate:
                 'practical': self.practical,
                 **({'structure_share': _num(self.share)} if self.share is not None else {}),
                 **({'vetoed': self.vetoed} if self.vetoed else {}),
+                **({'against_pose': self.against_pose} if self.against_pose else {}),
+                **({'false_returns': self.false_returns} if self.false_returns else {}),
                 **({'error': self.error} if self.error else {})}
 
 
@@ -678,6 +690,77 @@ class Diagnosis:
                                              for c in again)):
                 decision = on_pose.decide(again)
         return replace(decision, pose=pose)
+
+    def false_return_budget(self, cand: Candidate) -> dict | None:
+        """For an outlier effect as fitted (``cand.effect``): how many false returns it
+        predicts among the diagnosed points, on the target (before the echo, for a
+        first-return receiver) and on the shots that missed it (the whole window),
+        against those recorded there (far points isolated from their neighbours;
+        isolated unmatched points). The number a simulation with the fitted rate gives,
+        to be compared with what the sensor recorded; None for other effects."""
+        if cand.effect is None or not is_outlier_effect(type(cand.effect)):
+            return None
+        base = lk.model_on_rays(self.full, [])
+        model = lk.model_on_rays(self.full, [cand.effect])
+        everything = [*self.full.base_effects, cand.effect]
+        on_target = float(np.sum(model.outlier_w - base.outlier_w))
+        per_miss = (lk.miss_outlier_weight(model, everything)
+                    - lk.miss_outlier_weight(base, list(self.full.base_effects)))
+        m = len(self.rays.unmatched)
+        missed = (self.rays.missed_per_unmatched * m if self.rays.missed_per_unmatched is not None
+                  else None)
+        isolated = (int(np.sum(self.rays.isolated[self.rays.unmatched]))
+                    if self.rays.isolated is not None else m)
+        off = None if missed is None else float(per_miss * missed)
+        predicted = on_target + (off or 0.0)
+        recorded = self.n_far + isolated
+        return {'predicted_on_target': round(on_target, 1), 'recorded_on_target': self.n_far,
+                'predicted_off_target': None if off is None else round(off, 1),
+                'recorded_off_target': isolated, 'missed_shots': None if missed is None
+                else round(float(missed), 1), 'per_missed_shot': round(per_miss, 8),
+                'predicted': round(predicted, 1), 'recorded': int(recorded),
+                'ratio': round(predicted / recorded, 4) if recorded else None}
+
+    def weigh_pose_rivals(self, decision: Decision, rivals: list[type[Effect]], pose_test,
+                          on_pose) -> tuple[Decision, list[Candidate]]:
+        """A reported pose error against range errors of the sensor (POSE_RIVALS: a
+        range offset drifting over the recording, a range scale), on the same footing:
+        each rival that passes the naming rule is weighed both ways, the pose's test on
+        top of it (``pose_test([rival])``) and the rival scored on the pose-corrected
+        model (``on_pose()``: the re-cast diagnosis). A rival that still passes on the
+        corrected pose explains what the pose cannot: it is named (the pose reported
+        beside it only if its test passes on top of the rival). A rival the pose
+        leaves nothing to, and that leaves the pose nothing, explains the data as well:
+        a tie, ``confounded_with`` [pose_error, rival]. Returns the decision and the
+        rivals scored (for the summary's candidates)."""
+        if decision.pose is None or decision.missing or decision.confounded_with:
+            return decision, []
+        scored, wins, ties = [], [], []
+        for cls in rivals:
+            r = self.score(cls)
+            scored.append(r)
+            if not self.nameable(r):
+                continue
+            pose_on_top = pose_test([r.effect])
+            corrected = on_pose()
+            again = corrected.score(cls)
+            passes_on_pose = corrected.nameable(again)
+            r.against_pose = {'pose_gain_on_top': _num(pose_on_top.gain),
+                              'pose_z_on_top': _num(pose_on_top.z),
+                              'pose_significant_on_top': bool(pose_on_top.significant),
+                              'score_on_pose': _num(again.score), 'z_on_pose': _num(again.z),
+                              'passes_on_pose': bool(passes_on_pose)}
+            if passes_on_pose:
+                wins.append((r, pose_on_top.significant))
+            elif not pose_on_top.significant:
+                ties.append(r)
+        if wins:
+            best, pose_left = max(wins, key=lambda w: w[0].score)
+            return replace(decision, missing=best.name,
+                           pose=decision.pose if pose_left else None), scored
+        if ties:
+            return replace(decision, confounded_with=[POSE_ERROR, *[t.name for t in ties]]), scored
+        return decision, scored
 
     def clock_tie(self, decision: Decision, cands: list[Candidate],
                   no_point_times: bool) -> Decision:

@@ -408,7 +408,10 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         diag = Diagnosed([], diagnosis.Decision(None, []), None, None, cal.calibrated)
     plan = None
     tied = tied_pair(diag)
-    if tied and opts.plan:
+    rival = pose_rival(diag)
+    if rival and opts.plan:
+        plan = pose_range_plan(opts, inp, cal, effects, rival)
+    elif tied and opts.plan:
         with stage('plan', ' against '.join(c.name for c in tied)):
             try:
                 plan = separation_plan(opts, inp, cal, effects, diag, tied)
@@ -425,6 +428,33 @@ def tied_pair(diag: Diagnosed) -> list:
     tied = [by_name[n] for n in diag.decision.confounded_with
             if n in by_name and by_name[n].effect is not None]
     return tied[:2] if len(tied) >= 2 and diag.full is not None else []
+
+
+def pose_rival(diag: Diagnosed) -> str | None:
+    """The range error of the sensor tied with the reference pose, if any."""
+    tie = diag.decision.confounded_with
+    if diagnosis.POSE_ERROR not in tie:
+        return None
+    return next((n for n in tie if n in diagnosis.POSE_RIVALS), None)
+
+
+def pose_range_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated,
+                    effects: list[Effect], rival: str) -> Plan:
+    """The recordings that separate a reference pose from a range error of the sensor
+    (``plan.pose_range_plan``): a static target on a surveyed pose, near and far."""
+    meas, scenario = inp.meas, inp.scenario
+    period = scenario.sensor.frame_period_s
+    stamps = meas.cloud_stamps_s
+    recorded = sep_plan.recorded_motion(meas.poses, float(stamps.min()),
+                                        float(stamps.max()) + frame_period_s(meas, scenario),
+                                        period, getattr(meas.poses, 't_s', None))
+    base_dir = scenario.source.parent if scenario.source else config_path('.')
+    rows, text = sep_plan.pose_range_plan(recorded, rival, scenario.seed,
+                                          Path(opts.mesh).resolve(),
+                                          resolve(scenario.config.sensor, base_dir),
+                                          resolve(scenario.config.materials, base_dir),
+                                          effects, period)
+    return Plan(rows, [diagnosis.POSE_ERROR, rival], text)
 
 
 def separation_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated, effects: list[Effect],
@@ -657,14 +687,28 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             diag.full, meas.cloud[sample.matched], meas.t_s[sample.matched],
             sample.blocks[sample.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
             on_top)
-    decision = diag.judge_pose(
-        pose_test, cands, decision,
-        lambda pose: recast_diagnosis(model, effects, sample, meas, pose, len(classes), seed))
+    recast_cache: dict = {}
+
+    def recast(pose: pose_error.PoseError):
+        """The diagnosis on the pose-corrected model (one re-cast per run: the pose test
+        without effects on top is the same fit wherever it is asked)."""
+        if 'r' not in recast_cache:
+            recast_cache['r'] = recast_diagnosis(model, effects, sample, meas, pose,
+                                                 len(classes), seed)
+        return recast_cache['r']
+    decision = diag.judge_pose(pose_test, cands, decision, recast)
+    in_model = {e.name for e in effects}
+    rivals = [get_effect_class(n) for n in diagnosis.POSE_RIVALS if n not in in_model]
+    decision, scored = diag.weigh_pose_rivals(decision, rivals, pose_test,
+                                              lambda: recast(pose_test([]))[0])
+    cands = diagnosis.rank(cands + scored)
     named = [c.effect for c in cands if c.name == decision.missing]
     pose = decision.pose if decision.pose is not None else pose_test(named)
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
+        if c.significant and np.isfinite(c.nll_after):
+            c.false_returns = diag.false_return_budget(c)
     decision = diag.clock_tie(decision, cands, meas.time_source == 'stamp')
     stamp = _stamp_place(diag, decision, cands, meas, scenario)
     decision = sunlit_decision(decision, sunlight)

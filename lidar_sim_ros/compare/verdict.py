@@ -25,6 +25,12 @@ EFFECT_WORDS = {
     'time_offset': 'a clock offset between the pose and LiDAR stamps',
     'multipath': 'ghosts behind specular surfaces (MLI): the mirror image of another surface '
                  'at |SA| + |AB|',
+    'range_drift': 'a range offset of the sensor drifting over the recording (thermal): the '
+                   'same on every ray of a cloud, changing from cloud to cloud, which a '
+                   'reference pose off along the line of sight cannot give',
+    'range_scale': 'a range scale error of the sensor (its clock, or light through air): a '
+                   'range error growing with the range, which a reference pose error cannot '
+                   'give',
 }
 # What varies each catalogue effect independently of the others: the recording that
 # separates two confounded candidates varies what drives one at fixed values of what
@@ -198,6 +204,19 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
                 'recording; none is named. Points with their own times (a time field) would '
                 'separate them; if the tracking system is known to be right, try --effect '
                 'time_offset --fit, else --effect pose_error --fit.')
+    if any(n in diagnosis.POSE_RIVALS for n in other):
+        plan = summary.get('separation_plan') or []
+        where = (f' A static target on a surveyed pose, at {plan[0]["distance_m"]:.1f} m (seen '
+                 f'across a wide angle) and at {plan[1]["distance_m"]:.1f} m, would separate '
+                 'them (plan.yaml).' if len(plan) >= 2 else
+                 ' A static target on a surveyed pose, seen across a wide angle and at two '
+                 'distances, would separate them.')
+        return (f'A range offset of the sensor or the reference pose along the line of '
+                f'sight: {pose_part}, and {_join(other)} (a range error of the sensor) '
+                f'explains the residual as well{held}; each leaves the other nothing, so which '
+                'of them it is cannot be told from this recording, and none is named.'
+                f'{where} If the tracking system is known to be right, add --effect '
+                f'{other[0]} --fit; if the sensor is, --effect pose_error --fit.')
     return (f'{pose_part[0].upper()}{pose_part[1:]}, and {_join(other)} explains the '
             f'residual as well{held}: they are confounded in this recording, so none is '
             'named. Add the one you know with --effect NAME --fit (pose_error corrects the '

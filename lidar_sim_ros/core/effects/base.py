@@ -88,7 +88,8 @@ class ReturnContext:
     direction (N, 3): unit ray directions and normal (N, 3): surface normals toward the
     sensor (zeros on a miss), both in the lidar frame; face: the target triangle hit (-1 on
     a miss); scene: the target, poses, materials, sensor and light (``Scene``). The last
-    four are None where the caller has no geometry.
+    four are None where the caller has no geometry; time_s: each shot's absolute time
+    (s, the recording's or simulation's clock; None where the caller has no clock).
     """
 
     range_m: np.ndarray
@@ -109,6 +110,7 @@ class ReturnContext:
     normal: np.ndarray | None = None
     face: np.ndarray | None = None
     scene: Scene | None = None
+    time_s: np.ndarray | None = None   # absolute time of each shot (s, the recording's clock)
 
     def __len__(self) -> int:
         return len(self.range_m)
