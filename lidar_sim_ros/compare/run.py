@@ -527,7 +527,7 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
         return pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks,
                                              float(norm.isf(diagnosis.FAMILY_ALPHA)),
                                              diagnosis.MIN_PRACTICAL_GAIN, opts.seed,
-                                             applied=applied)
+                                             applied=applied, rate=has_point_times(meas))
 
     def rematch(corr: pose_error.PoseCorrection):
         moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
@@ -543,6 +543,12 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     (matching, rays, moved), _, pose = pose_error.iterate(
         first, start, rematch, lambda state, corr: fit(state[1], corr))
     return matching, rays, moved, pose
+
+
+def has_point_times(meas: Measurements) -> bool:
+    """Whether each point has its own time (a time field or the scan pattern), so that
+    a reference pose drifting within a cloud can be told from a rigid one."""
+    return meas.time_source in ('field', 'scan pattern')
 
 
 def with_range_correction(pred: Prediction, idx: np.ndarray,
@@ -686,7 +692,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         return pose_error.fit_reference_pose(
             diag.full, meas.cloud[sample.matched], meas.t_s[sample.matched],
             sample.blocks[sample.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
-            on_top)
+            on_top, rate=has_point_times(meas))
     recast_cache: dict = {}
 
     def recast(pose: pose_error.PoseError):
@@ -756,7 +762,7 @@ def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RayS
         return pose_error.fit_reference_pose(diag.full, moved.cloud[idx], moved.t_s[idx],
                                              diag.rays.blocks[idx], diag.z_crit,
                                              diagnosis.MIN_PRACTICAL_GAIN, seed,
-                                             applied=applied)
+                                             applied=applied, rate=has_point_times(meas))
 
     start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
     (diag, _), _, report = pose_error.iterate(pose, start, rematch, refit)

@@ -380,9 +380,13 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
         lines.append(f'fitted {e["name"]}: {params}')
     pc = s.get('pose_correction')
     if pc:
+        rate = pc.get('rate') or {}
+        drift = (f', drifting within each cloud by {rate["drift_per_cloud_rms_cm"]:.2f} cm and '
+                 f'{rate["drift_per_cloud_rms_deg"]:.3f} deg RMS over the scan'
+                 if rate.get('supported') else '')
         lines.append(f'fitted pose_error: reference pose corrected per cloud by '
                      f'{pc["translation_rms_cm"]:.2f} cm and {pc["rotation_rms_deg"]:.3f} deg RMS '
-                     f'over {len(pc["clouds"])} clouds (held-out gain '
+                     f'over {len(pc["clouds"])} clouds{drift} (held-out gain '
                      f'{pc["gain_per_matched_point"]:.4f} nats/point, z = {pc["z"]:.1f})')
     lines.append('features: ' + ', '.join(f'{f["name"]} {f["score"]:.4f}'
                                           for f in s['features'][:4]))
