@@ -395,17 +395,18 @@ def pose_range_recordings(rec: Recording) -> list[Recording]:
     system between it and the truth), near, so that it spans a wide angle (a pose
     error moves each ray's range by n.d / (n.u), which changes across a wide view; a
     range offset is the same on every ray), and far (a range scale grows with the
-    distance; a pose error does not). Both long enough for a slow drift to show."""
+    distance; a pose error does not). Both at least as long as the recording compared
+    (POSE_RANGE_FRAMES at least), for a slow drift to show."""
     out = []
+    frames = max(POSE_RANGE_FRAMES, rec.frames)     # as long as the recording compared
     for f in POSE_RANGE_DISTANCES:
         word = 'near, seen across a wide angle' if f < 1 else 'far'
         out.append(replace(rec, label=f'static, surveyed, {f:g}x the distance',
                            what=f'the target held still on a surveyed pose, {word}: '
                                 f'{f * rec.distance_m:.1f} m ({f:g} x {rec.distance_m:.1f} m), '
-                                f'{POSE_RANGE_FRAMES} frames',
+                                f'{frames} frames',
                            position_m=tuple(f * np.asarray(rec.position_m)),
-                           approach_speed_mps=0.0, tumble_rate_dps=0.0,
-                           frames=POSE_RANGE_FRAMES))
+                           approach_speed_mps=0.0, tumble_rate_dps=0.0, frames=frames))
     return out
 
 
