@@ -296,3 +296,12 @@ def test_pose_range_tie_verdict_and_plan(tmp_path):
                            'line of sight')
     assert 'cannot be told' in text and 'none is named' in text and 'plan.yaml' in text
 
+
+
+def test_report_headline_opens_with_the_scan_pattern():
+    from lidar_sim_ros.compare.opening import headline
+    s = {'missing_effect': None, 'verdict': 'No catalogue effect ... noise.',
+         'point_times': 'stamp', 'scan_pattern_match': 0.1}
+    assert headline(s).startswith('Scan pattern off: only 10 %')
+    assert headline({**s, 'point_times': 'field'}).startswith('No catalogue effect')
+    assert vd.SCAN_PATTERN_OFF_BELOW == 0.5       # the opening's bound is the verdict's
