@@ -452,7 +452,12 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                 float(mean / se) if se > 0 and np.isfinite(se) else 0.0)
     per_point, z = judged(gain)
     rate_gain, rate_z = judged(gain12 - gain) if rate else (0.0, 0.0)
-    supported = bool(rate and rate_z >= z_crit and rate_gain >= min_gain)
+    # A refinement of a pose error that is there: the rigid correction passes first.
+    # Within one cloud a point's time follows its place in the scan (a raster's rows),
+    # so on its own the rate is six more spatial patterns per cloud, which a sensor's
+    # own pattern (a bias periodic in azimuth) would pass for.
+    rigid_passes = z >= z_crit and per_point >= min_gain
+    supported = bool(rate and rigid_passes and rate_z >= z_crit and rate_gain >= min_gain)
     if supported:
         # The drifting correction against none: the test of what is reported.
         per_point, z = judged(gain12)
