@@ -244,7 +244,7 @@ def test_pose_against_a_range_error_of_the_sensor(pose_left, passes_on_pose, mis
     """weigh_pose_rivals(): the pose's test on top of the rival and the rival scored on
     the pose-corrected model decide between a tie, the range term, both, or the pose."""
     drift = cand('range_drift', 0.05, -2.07, seed=10)
-    again = cand('range_drift', 0.03 if passes_on_pose else 0.0, -2.05, seed=10,
+    again = cand('range_drift', 0.03 if passes_on_pose else 0.0, -2.08, seed=10,
                  significant=passes_on_pose)
     pose = SimpleNamespace(significant=True, gain=0.04, z=11.0)
 
@@ -255,11 +255,24 @@ def test_pose_against_a_range_error_of_the_sensor(pose_left, passes_on_pose, mis
     def pose_test(on_top):
         return SimpleNamespace(significant=pose_left if on_top else True, gain=0.01, z=1.0)
 
+    equal = Hand(again={'range_drift': again})
+    equal._before_nll = drift.nll_after           # as --fit leaves them: equal
     d, scored = WithRival().weigh_pose_rivals(dg.Decision(None, [], pose=pose), [Rival],
-                                              pose_test, lambda: Hand(again={'range_drift': again}))
+                                              pose_test, lambda: equal)
     assert scored == [drift]
     assert d.missing == missing and d.confounded_with == tie
     assert (d.pose is pose) == pose_kept
+    if tie:
+        # As --fit leaves them, 0.005 nats/point apart: the better one stands.
+        corrected = Hand(again={'range_drift': again})
+        corrected._before_nll = drift.nll_after + 2 * dg.MIN_PRACTICAL_GAIN   # pose worse
+        d, _ = WithRival().weigh_pose_rivals(dg.Decision(None, [], pose=pose), [Rival],
+                                             pose_test, lambda: corrected)
+        assert d.missing == 'range_drift' and d.confounded_with == [] and d.pose is None
+        corrected._before_nll = drift.nll_after - 2 * dg.MIN_PRACTICAL_GAIN   # pose better
+        d, _ = WithRival().weigh_pose_rivals(dg.Decision(None, [], pose=pose), [Rival],
+                                             pose_test, lambda: corrected)
+        assert d.missing is None and d.confounded_with == [] and d.pose is pose
     # A rival that fails the naming rule (fitted NLL worse) changes nothing.
     drift.nll_after = -2.0
     d, _ = WithRival().weigh_pose_rivals(dg.Decision(None, [], pose=pose), [Rival],

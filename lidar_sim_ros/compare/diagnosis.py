@@ -730,9 +730,12 @@ class Diagnosis:
         model (``on_pose()``: the re-cast diagnosis). A rival that still passes on the
         corrected pose explains what the pose cannot: it is named (the pose reported
         beside it only if its test passes on top of the rival). A rival the pose
-        leaves nothing to, and that leaves the pose nothing, explains the data as well:
-        a tie, ``confounded_with`` [pose_error, rival]. Returns the decision and the
-        rivals scored (for the summary's candidates)."""
+        leaves nothing to, and that leaves the pose nothing, is then weighed as --fit
+        leaves them (``decide``'s second footing): the rival's fitted NLL against the
+        pose-corrected model's; MIN_PRACTICAL_GAIN apart, the better one stands (the
+        rival named, or the pose alone); closer, they explain the data as well: a tie,
+        ``confounded_with`` [pose_error, rival]. Returns the decision and the rivals
+        scored (for the summary's candidates)."""
         if decision.pose is None or decision.missing or decision.confounded_with:
             return decision, []
         scored, wins, ties = [], [], []
@@ -745,15 +748,26 @@ class Diagnosis:
             corrected = on_pose()
             again = corrected.score(cls)
             passes_on_pose = corrected.nameable(again)
+            # As --fit leaves them: the rival fitted, against the pose corrected and the
+            # model raycast again (rays at silhouettes and depth steps meet the surfaces
+            # the corrected pose puts there, which a range offset does not move).
+            fitted = float(corrected.before_nll - r.nll_after)
             r.against_pose = {'pose_gain_on_top': _num(pose_on_top.gain),
                               'pose_z_on_top': _num(pose_on_top.z),
                               'pose_significant_on_top': bool(pose_on_top.significant),
                               'score_on_pose': _num(again.score), 'z_on_pose': _num(again.z),
-                              'passes_on_pose': bool(passes_on_pose)}
+                              'passes_on_pose': bool(passes_on_pose),
+                              'nll_after': _num(r.nll_after),
+                              'pose_corrected_nll': _num(corrected.before_nll),
+                              'fitted_margin': _num(fitted)}
             if passes_on_pose:
                 wins.append((r, pose_on_top.significant))
-            elif not pose_on_top.significant:
-                ties.append(r)
+            elif pose_on_top.significant:
+                continue                       # the pose explains what the rival cannot
+            elif fitted >= MIN_PRACTICAL_GAIN:
+                wins.append((r, False))        # as --fit leaves them, the rival is better
+            elif fitted > -MIN_PRACTICAL_GAIN:
+                ties.append(r)                 # else the corrected pose is better: it stays
         if wins:
             best, pose_left = max(wins, key=lambda w: w[0].score)
             return replace(decision, missing=best.name,

@@ -26,11 +26,9 @@ EFFECT_WORDS = {
     'multipath': 'ghosts behind specular surfaces (MLI): the mirror image of another surface '
                  'at |SA| + |AB|',
     'range_drift': 'a range offset of the sensor drifting over the recording (thermal): the '
-                   'same on every ray of a cloud, changing from cloud to cloud, which a '
-                   'reference pose off along the line of sight cannot give',
+                   'same on every ray of a cloud, changing from cloud to cloud',
     'range_scale': 'a range scale error of the sensor (its clock, or light through air): a '
-                   'range error growing with the range, which a reference pose error cannot '
-                   'give',
+                   'range error growing with the range',
 }
 # What varies each catalogue effect independently of the others: the recording that
 # separates two confounded candidates varies what drives one at fixed values of what
@@ -101,6 +99,8 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         if decision.also:
             parts.append(f'{decision.also} also explains a separate part of the residual: '
                          'expect it in the next run.')
+        if c.against_pose:
+            parts.append(_against_pose_words(c))
     elif diagnosis.POSE_ERROR in decision.confounded_with:
         parts.append(pose_tie_words(decision, summary, cands))
     elif decision.confounded_with:
@@ -183,6 +183,22 @@ def pose_words(pose) -> str:
             'tracking system or the extrinsic calibration. A rigid correction of the target '
             f'pose per cloud gains {pose.gain:.4f} nats/point held out (z = {pose.z:.1f}), and '
             'with it no catalogue effect passes the rule.')
+
+
+def _against_pose_words(c) -> str:
+    """Why a range error of the sensor was named rather than the reference pose
+    (``Diagnosis.weigh_pose_rivals``: ``c.against_pose``)."""
+    ap = c.against_pose
+    if ap.get('passes_on_pose'):
+        return (f'A reference pose off along the line of sight moves clouds too, but with '
+                f'the pose corrected per cloud {c.name} still gains {ap["score_on_pose"]:.4f} '
+                f'nats/point held out (z = {ap["z_on_pose"]:.1f}): it is the sensor.')
+    return (f'A reference pose off along the line of sight moves clouds too, and on held-out '
+            f'points the two leave each other nothing; but with the pose corrected per cloud '
+            f'and the model raycast again (rays at silhouettes and depth steps then meet the '
+            f'surfaces the moved target puts there) the fit is {ap["fitted_margin"]:.4f} '
+            f'nats/point worse than with {c.name}, as --fit leaves them: the rays at the edges '
+            'did not move, the ranges did.')
 
 
 def pose_tie_words(decision, summary: dict, cands: list) -> str:
