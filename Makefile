@@ -50,9 +50,10 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python bench/bench_pipeline.py --out bench.json
 
-## `make bench-node SCENARIO=config/scenario_all_effects.yaml` runs the node with that scenario.
+## `make bench-node SCENARIO=config/scenario_all_effects.yaml` runs the node with that scenario;
+## CEPTON_UDP=1 runs it without and with the Cepton UDP output and reports packets/s and ratios.
 bench-node: $(STAMP)
-	$(BIN)/python bench/bench_node.py --out bench_node.json $(if $(SCENARIO),--scenario $(SCENARIO)) $(if $(PUBLISH_LATENCY),--publish-latency $(PUBLISH_LATENCY))
+	$(BIN)/python bench/bench_node.py --out bench_node.json $(if $(SCENARIO),--scenario $(SCENARIO)) $(if $(PUBLISH_LATENCY),--publish-latency $(PUBLISH_LATENCY)) $(if $(CEPTON_UDP),--cepton-udp)
 
 ## What each LiDAR error costs the pose tracker, and its time per frame (offline).
 bench-gnc: $(STAMP)

@@ -13,7 +13,8 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
-        ('share/' + PACKAGE + '/meshes', glob('meshes/*.obj') + glob('meshes/*.mtl')),
+        ('share/' + PACKAGE + '/meshes', sorted(glob('meshes/*.obj') + glob('meshes/*.mtl') + glob('meshes/*.glb')
+                                               + glob('meshes/*.gltf') + glob('meshes/*.stl') + glob('meshes/*.ply'))),
         ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
     ],
     # ROS client libraries are deliberately absent: colcon users get them from
@@ -39,6 +40,9 @@ setup(
         'campaign': ['distributed>=2024.1', 'tqdm>=4.60'],
         # The closed GNC loop's dynamics (lidar_sim_ros.loop): Basilisk (requirements-loop.txt).
         'loop': ['bsk>=2.12,<2.13'],
+        # Cepton's decoders, for the wire tests only (requirements-cepton.txt): proprietary,
+        # installed by the user from PyPI, never imported by the package.
+        'cepton': ['cepton-sdk2==2.1.4', 'cepton-sdk3==3.0.17.14.post1'],
     },
     zip_safe=True,
     maintainer='lidar_sim_ros developers',

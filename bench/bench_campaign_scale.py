@@ -7,7 +7,9 @@ process on a local cluster of ``--workers`` workers: memory must stay flat in th
 number of runs (runs are submitted as they go, a bounded number in flight, and the
 manifest keeps one status byte per run). Also: seconds from the call to the first
 manifest row (cluster, workers' preparation, the first run) and to the end, runs per
-second, and how many Dask tasks carried the runs (short runs go several to a task). The
+second, and how many Dask tasks carried the runs (short runs go several to a task); then
+the time and memory of judging the runs (``summary.summarize_frames``: two criteria, a
+pass rate, the metric-against-dispersion figure). The
 local cluster's scheduler lives in the main process, so its memory is counted too.
 """
 from __future__ import annotations
@@ -30,6 +32,11 @@ SENSOR = {'type': 'rotating', 'elevations_deg': [0.0], 'az_min_deg': -5.0, 'az_m
           'shots_per_beam': 16}
 
 
+# Judged at the end (summary.summarize_frames: criteria.csv and vs_dispersions.png from the
+# manifest, read row by row): its time and the client's peak memory after it are measured too.
+CRITERIA = ['points >= 8', 'range_error_mean_m > -0.14']
+
+
 def write_campaign(tmp: Path, runs: int) -> Path:
     """A campaign of ``runs`` one-frame runs on a 16-shot sensor."""
     sensor = yaml.safe_load((ROOT / 'config' / 'cepton_vista_p60.yaml').read_text())
@@ -42,7 +49,7 @@ def write_campaign(tmp: Path, runs: int) -> Path:
     path = tmp / 'campaign.yaml'
     path.write_text(yaml.safe_dump({
         'scenario': str(tmp / 'scenario.yaml'), 'seed': 1, 'runs': runs, 'duration_s': 0.1,
-        'save': 'stats', 'coverage_frames': 0,
+        'save': 'stats', 'coverage_frames': 0, 'criteria': CRITERIA,
         'dispersions': {'initial_distance_m': {'dist': 'uniform', 'low': 8.0, 'high': 25.0}}}))
     return path
 
@@ -58,8 +65,14 @@ def one(runs: int, workers: int) -> None:
         t0 = time.perf_counter()
         report = run_campaign(campaign, tmp / 'out', workers=workers, progress=False)
         wall = time.perf_counter() - t0
+        peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        from lidar_sim_ros.campaign.summary import summarize_frames
+        t1 = time.perf_counter()
+        summary = summarize_frames(tmp / 'out', campaign)
         print(json.dumps({'runs': runs, 'ok': report.ok, 'failed': report.failed,
-                          'peak_rss_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                          'peak_rss_mb': peak_mb, 'summary_s': time.perf_counter() - t1,
+                          'peak_rss_after_summary_mb': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                          'pass_rate': summary.verdicts[-1]['pass_rate'],
                           'first_row_s': report.startup_s, 'wall_s': wall, 'tasks': report.tasks,
                           'runs_per_s': report.ran / report.wall_s if report.wall_s else None,
                           'load_avg_1min': os.getloadavg()[0]}))
@@ -85,7 +98,9 @@ def main() -> None:
             sys.exit(f'{runs} runs failed:\n{proc.stderr[-2000:]}')
         result = json.loads(proc.stdout.strip().splitlines()[-1])
         results.append(result)
-        print(f"{runs:>7} runs: client peak RSS {result['peak_rss_mb']:.0f} MB, "
+        print(f"{runs:>7} runs: client peak RSS {result['peak_rss_mb']:.0f} MB "
+              f"({result['peak_rss_after_summary_mb']:.0f} MB after the criteria's summary, "
+              f"{result['summary_s']:.1f} s), "
               f"{result['runs_per_s']:.0f} runs/s, {result['wall_s']:.0f} s "
               f"(first row after {result['first_row_s']:.1f} s, {result['tasks']} tasks, "
               f"load {result['load_avg_1min']:.1f})", flush=True)

@@ -15,6 +15,10 @@ Prints a summary with the targets (no missed frames, p99 latency <= 20 ms, p99 j
 ``--scenario FILE`` runs node and player with ``-p scenario_file:=FILE``, e.g.
 config/scenario_all_effects.yaml (``make bench-node SCENARIO=...``); with effects on,
 the latency target is 50 ms (issue 10: every effect at the sensor rate).
+
+``--cepton-udp`` (``make bench-node CEPTON_UDP=1``) runs the node twice in the same
+invocation, without and then with ``cepton_udp`` (the Cepton STDV packets to a loopback
+port this process counts): packets/s, and each figure's ratio with UDP over without.
 """
 from __future__ import annotations
 
@@ -23,10 +27,12 @@ import json
 import os
 import random
 import signal
+import socket
 import struct
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -93,8 +99,73 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--publish-latency', type=float, default=None, metavar='S',
                         help='hold each frame to S s after its window (-p publish_latency_s:=S); '
                              'the latency target becomes 1000 S + 5 ms')
+    parser.add_argument('--cepton-udp', action='store_true',
+                        help='run without, then with the Cepton UDP output (-p cepton_udp:=true, '
+                             'to a loopback port counted here) and report the ratios')
     args = parser.parse_args(argv)
+    if not args.cepton_udp:
+        result = measure(args, None)
+        if result is None:
+            return 1
+        args.out.write_text(json.dumps(result, indent=2) + '\n')
+        print(f'written {args.out}')
+        return 0
+    runs = {}
+    for name, port in (('without_udp', None), ('with_udp', free_udp_port())):
+        print(f'--- {name}', flush=True)
+        runs[name] = measure(args, port)
+        if runs[name] is None:
+            return 1
+    ratios = {k: round(runs['with_udp'][k] / runs['without_udp'][k], 3)
+              for k in ('node_cpu_percent_of_one_core', 'latency_p50_ms', 'latency_p99_ms',
+                        'jitter_p99_ms', 'peak_rss_mb')
+              if runs['with_udp'][k] and runs['without_udp'][k]}
+    runs['ratio_with_over_without'] = ratios
+    runs['note'] = ('both runs in one invocation on the same machine; a shared machine '
+                    'disturbs the absolute figures more than their ratios')
+    args.out.write_text(json.dumps(runs, indent=2) + '\n')
+    print(f"UDP: {runs['with_udp']['udp_packets_per_s']} packets/s, "
+          f"{runs['with_udp']['udp_mbit_per_s']} Mbit/s; with UDP / without: {ratios}")
+    print(f'written {args.out}')
+    return 0
 
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+class UdpCounter:
+    """Counts the datagrams (and bytes) arriving on a loopback port, from a thread."""
+
+    def __init__(self, port: int):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+        self.sock.bind(('127.0.0.1', port))
+        self.sock.settimeout(0.2)
+        self.packets = self.bytes = 0
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            try:
+                data = self.sock.recv(65535)
+            except socket.timeout:
+                continue
+            self.packets += 1
+            self.bytes += len(data)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(1.0)
+        self.sock.close()
+
+
+def measure(args, udp_port: int | None) -> dict | None:
+    """One run of node + player: the summary dict (printed), or None if no frame came."""
     domain = random.randint(1, 101)
     os.environ['ROS_DOMAIN_ID'] = str(domain)
     env = {**os.environ, 'PYTHONUNBUFFERED': '1'}
@@ -116,6 +187,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.scenario:
         params += ['-p', f'scenario_file:={args.scenario.resolve()}']
     node_params = params + ([] if args.threads is None else ['-p', f'threads:={args.threads}'])
+    counter = None
+    if udp_port is not None:
+        node_params += ['-p', 'cepton_udp:=true', '-p', 'cepton_udp_address:=127.0.0.1',
+                        '-p', f'cepton_udp_port:={udp_port}']
+        counter = UdpCounter(udp_port)
     if args.publish_latency is not None:
         node_params += ['-p', f'publish_latency_s:={args.publish_latency}']
         # Held frames: the latency is the chosen one; what matters is how close to it.
@@ -136,17 +212,19 @@ def main(argv: list[str] | None = None) -> int:
             rclpy.spin_once(sub_node, timeout_sec=0.1)
             if time.monotonic() > deadline or node.poll() is not None:
                 print(f'no frame within 30 s; node log:\n{node_log.read_text()}', file=sys.stderr)
-                return 1
+                return None
         print(f'ROS_DOMAIN_ID={domain}: first frame received; warming up {args.warmup:g} s, '
               f'then measuring {args.seconds:g} s', flush=True)
         spin_until = time.monotonic() + args.warmup
         while time.monotonic() < spin_until:
             rclpy.spin_once(sub_node, timeout_sec=0.05)
         t0_ns, cpu0 = time.time_ns(), proc_cpu_s(node.pid)
+        udp0 = (counter.packets, counter.bytes) if counter else (0, 0)
         spin_until = time.monotonic() + args.seconds
         while time.monotonic() < spin_until:
             rclpy.spin_once(sub_node, timeout_sec=0.05)
         t1_ns, cpu1 = time.time_ns(), proc_cpu_s(node.pid)
+        udp1 = (counter.packets, counter.bytes) if counter else (0, 0)
         # Let the frames whose windows ended just before t1 arrive.
         spin_until = time.monotonic() + 0.5
         while time.monotonic() < spin_until:
@@ -157,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
         rclpy.try_shutdown()
         stop(player)
         stop(node)
+        if counter is not None:
+            counter.close()
 
     stamps = np.array([r[0] for r in received], dtype=np.int64)
     recv = np.array([r[1] for r in received], dtype=np.int64)
@@ -191,6 +271,9 @@ def main(argv: list[str] | None = None) -> int:
         'effects': [e.name for e in scenario.config.effects],
         'threads': args.threads,
         'publish_latency_s': args.publish_latency,
+        'cepton_udp': udp_port is not None,
+        'udp_packets_per_s': round((udp1[0] - udp0[0]) / ((t1_ns - t0_ns) / 1e9), 1),
+        'udp_mbit_per_s': round(8e-6 * (udp1[1] - udp0[1]) / ((t1_ns - t0_ns) / 1e9), 2),
         'targets': targets,
     }
     checks = {
@@ -200,7 +283,6 @@ def main(argv: list[str] | None = None) -> int:
         'peak_rss_mb': result['peak_rss_mb'] <= targets['peak_rss_mb'],
     }
     result['meets_targets'] = checks
-    args.out.write_text(json.dumps(result, indent=2) + '\n')
     print(f"frames: {result['frames_received']} received of {result['frames_expected']} expected "
           f"({result['missed_frames']} missed) over {result['seconds']:g} s "
           f"at {result['frame_rate_hz']:g} Hz")
@@ -214,8 +296,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f'{key:32s} {result[key]} {unit}{verdict}')
     for line in node_stats:
         print(f'node: {line}')
-    print(f'written {args.out}')
-    return 0
+    return result
 
 
 if __name__ == '__main__':

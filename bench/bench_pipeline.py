@@ -23,6 +23,12 @@ Prints a summary and writes JSON with:
 By default the process is pinned to one CPU (``--cpus 1``) so that the "one
 core" target is measured as such, whatever threads Embree or numpy start;
 CPU-time / wall-time ratios are recorded to show any remaining parallelism.
+* sensors (issue 33): one row per sensor profile (the P-60, the Livox Mid-40's rosette,
+  the 256 x 256 flash array, a 32-beam spinning LiDAR) on the rocket body: rays per
+  frame, ms per plain frame (``simulate_frame``) with the raycast on 1 and on 2 threads
+  (2 CPUs), raw Embree on the same body-frame rays (the frame's cast order) on 1 thread
+  and split over 2, and the ratio: raw Embree 1 thread ms / frame ms (above 1: the frame
+  beats one thread of raw Embree), frames interleaved.
 * the cost of sunlight (issue 11): ``Simulator.simulate_frame`` on
   config/scenario_sunlit.yaml with its sun and the ``sunlight`` effect vs the same
   scenario without them, frames interleaved, and the ratio.
@@ -106,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
                     default=ROOT / 'config' / 'scenario_all_effects.yaml',
                     help='the scenario whose effects list is measured, one by one and together')
     ap.add_argument('--no-effects', action='store_true', help='skip the effects and threads figures')
+    ap.add_argument('--no-sensors', action='store_true', help='skip the sensors table')
     ap.add_argument('--sunlit-scenario', type=Path, default=ROOT / 'config' / 'scenario_sunlit.yaml',
                     help="scenario with a sun for the sunlight cost ('' to skip)")
     args = ap.parse_args(argv)
@@ -266,6 +273,8 @@ def main(argv: list[str] | None = None) -> int:
         result['threads'] = thread_scaling(args, load_scenario(args.effects_scenario), traj, pack,
                                            Simulator, np)
         result['peak_rss_mb_effects'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    if not args.no_sensors:
+        result['sensors'] = sensors_table(args, np)
     if not args.no_mesh_scaling:
         result['mesh_scaling'] = mesh_scaling(args, sim, traj, Target, scenario, np,
                                               rtcore_scene, TriangleMesh)
@@ -385,6 +394,78 @@ def thread_scaling(args, fx_scenario, traj, pack, Simulator, np) -> dict:
     out['all_effects_speedup_2_threads'] = (ms['all effects, 1 thread(s)']
                                             / ms['all effects, 2 thread(s)'])
     return out
+
+
+SENSOR_PROFILES = (('Cepton Vista P-60', 'scenario.yaml', None),
+                   ('Livox Mid-40 (rosette)', 'scenario_mid40.yaml', None),
+                   ('flash 256 x 256', 'scenario_flash.yaml', None),
+                   ('spinning 32-beam', 'scenario.yaml', 'spinning_32.yaml'))
+
+
+def sensors_table(args, np) -> dict:
+    """One row per sensor profile (module doc): plain frames of the rocket body with the
+    raycast on 1 and 2 threads, and raw Embree on the same rays, on 2 CPUs."""
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+    from lidar_sim_ros.core.config import Scenario, load_scenario, load_sensor
+    from lidar_sim_ros.core.geometry import body_rays, split_over_threads
+    from lidar_sim_ros.core.pipeline import Simulator
+    from lidar_sim_ros.core.pose import ScenarioTrajectory
+    allowed = sorted(os.sched_getaffinity(0))
+    try:
+        os.sched_setaffinity(0, sorted(set(allowed) | set(range(os.cpu_count() or 1)))[:2])
+    except OSError:
+        pass
+    cpus = sorted(os.sched_getaffinity(0))
+    rows = {}
+    target = None
+    for label, scenario_name, sensor_name in SENSOR_PROFILES:
+        sc = load_scenario(ROOT / 'config' / scenario_name)
+        if sensor_name is not None:
+            sc = Scenario(sc.config, load_sensor(ROOT / 'config' / sensor_name), sc.materials,
+                          sc.mesh_path, sc.source)
+        one = Simulator.from_scenario(sc, effects=[], target=target, threads=1)
+        target = one.target                        # the rocket body, loaded once
+        traj = ScenarioTrajectory.from_config(sc.config)
+        scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene, target.vertices_m[target.faces].astype(np.float32))
+        period = one.frame_period_s
+        for i in range(2):                          # warm-up
+            one.simulate_frame(i * period, traj, i)
+        t1, t2, raw1, raw2 = [], [], [], []
+
+        def frame(start, i):
+            one._last_plan = (-1, one._plan)    # a rosette builds each frame's shots: timed too
+            return one.simulate_frame(start, traj, i)
+        for i in range(args.frames):
+            start = i * period
+            target.threads = 1
+            t1.append(timed(lambda: frame(start, i), args.repeats)[0])
+            target.threads = 2
+            t2.append(timed(lambda: frame(start, i), args.repeats)[0])
+            plan = one._frame_plan(i)
+            rays = body_rays(plan.directions, traj.at(start + plan.cast_shots.t_s))
+            o, d = rays.origins_m, rays.directions
+            raw1.append(timed(lambda: scene.run(o, d, output=1), args.repeats)[0])
+            raw2.append(timed(lambda: split_over_threads(
+                len(o), 2, lambda part: scene.run(o[part], d[part], output=1)), args.repeats)[0])
+        target.threads = 1
+        med = {k: statistics.median(v) * 1e3 for k, v in
+               (('frame_1_thread', t1), ('frame_2_threads', t2), ('raw_1_thread', raw1),
+                ('raw_2_threads', raw2))}
+        rows[label] = {'scenario': scenario_name, 'sensor': sc.sensor.name,
+                       'rays_per_frame': len(one.shots), 'ms_per_frame_1_thread': med['frame_1_thread'],
+                       'ms_per_frame_2_threads': med['frame_2_threads'],
+                       'raw_embree_ms_1_thread': med['raw_1_thread'],
+                       'raw_embree_ms_2_threads': med['raw_2_threads'],
+                       'raw_embree_2_threads_speedup': med['raw_1_thread'] / med['raw_2_threads'],
+                       'ratio_over_raw_embree_1_thread': med['raw_1_thread'] / med['frame_2_threads'],
+                       'ratio_over_raw_embree_1_thread_frame_1_thread':
+                           med['raw_1_thread'] / med['frame_1_thread']}
+    os.sched_setaffinity(0, allowed)
+    return {'cpus': cpus, 'definition': 'plain simulate_frame on the rocket body; ratio = raw '
+                                        'Embree ms on 1 thread / frame ms (2 threads)',
+            'rows': rows}
 
 
 def mesh_scaling(args, sim, traj, Target, scenario, np, rtcore_scene, TriangleMesh) -> dict:
@@ -535,6 +616,16 @@ def report(r: dict) -> None:
         print(f"  2 threads speed-up: plain x{th['plain_speedup_2_threads']:.2f}, all effects "
               f"x{th['all_effects_speedup_2_threads']:.2f}; all effects / plain: 1 thread "
               f"{th['all_effects_over_plain_1_thread']:.2f}, 2 threads {th['all_effects_over_plain_2_thread']:.2f}")
+    if 'sensors' in r:
+        print(f"sensors (plain frames of the rocket body, CPUs {r['sensors']['cpus']}; ratio = "
+              f"raw Embree 1 thread / frame on 2 threads):")
+        print(f"  {'profile':<24} {'rays/frame':>10} {'ms 1 thr':>9} {'ms 2 thr':>9} "
+              f"{'raw 1 thr':>10} {'raw 2 thr':>10} {'ratio':>6}")
+        for name, row in r['sensors']['rows'].items():
+            print(f"  {name:<24} {row['rays_per_frame']:>10} {row['ms_per_frame_1_thread']:>9.2f} "
+                  f"{row['ms_per_frame_2_threads']:>9.2f} {row['raw_embree_ms_1_thread']:>10.2f} "
+                  f"{row['raw_embree_ms_2_threads']:>10.2f} "
+                  f"{row['ratio_over_raw_embree_1_thread']:>6.2f}")
     if 'sunlight' in r:
         sun = r['sunlight']
         print(f"sunlight: {sun['sunlit_cpu_ms_per_frame']:.2f} ms CPU/frame sunlit vs "

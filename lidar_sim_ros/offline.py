@@ -13,6 +13,9 @@ seconds since that stamp, pose stamps = the times the poses hold.
 from __future__ import annotations
 
 import argparse
+import os
+import shutil
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
@@ -25,13 +28,19 @@ from lidar_sim_ros.core.effects import effect_from_spec
 from lidar_sim_ros.core.pipeline import Frame, Simulator
 from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, MATERIAL_NAMES_TOPIC, POSE_TOPIC, SUN_TOPIC, BagWriter
-from lidar_sim_ros.cli_types import epoch_seconds, finite_seconds, positive_int
-from lidar_sim_ros.io.pointcloud import frame_points
+from lidar_sim_ros.cli_types import epoch_seconds, finite_seconds, float_in, positive_int
+from lidar_sim_ros.io import cepton
+from lidar_sim_ros.io.pointcloud import POINT_DTYPE, frame_points
 
 TRUTH_TOPIC = '/lidar/points_truth'
 DEFAULT_EPOCH_S = 1_700_000_000.0
 POSES_PER_FRAME = 10
 NS_PER_S = 1_000_000_000
+MAX_OUTPUT_GB = 20.0
+"""``lidar-sim simulate`` refuses a run whose bag may exceed this (GB, 1e9 bytes) unless
+``--max-output-gb`` raises it: ``--frames 1000000000`` started writing ~200 TB."""
+ANNOUNCE_BYTES = 1e9       # a run that may write this much says its estimate before it starts
+_MESSAGE_BYTES = 256     # header, field list, CDR and storage framing of one message, at most
 
 
 @dataclass(frozen=True)
@@ -65,7 +74,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
                     poses_per_frame: int = POSES_PER_FRAME, simulator: Simulator | None = None,
                     pose_source: PoseSource | None = None,
                     on_frame: Callable[[Frame], None] | None = None,
-                    layout: OutputLayout | None = None) -> OfflineResult:
+                    layout: OutputLayout | None = None,
+                    pcap: str | Path | None = None, threads: int = 1) -> OfflineResult:
     """Simulate ``frames`` frames from scenario time ``start_s`` into ``out_dir/bag``.
 
     Topics: /lidar/points (detected returns), /lidar/points_truth (every hit, no
@@ -79,6 +89,10 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     worker's mesh and move the sensor mount); ``on_frame`` sees every simulated frame.
     ``layout`` (``core/driver_layout.py``): the Cepton driver's point layout, topic
     (``/cepton_pcl2``) and frame (``cepton3``) instead of ours; the truth stays ours.
+    ``pcap``: also write the frames as a Cepton sensor sends them (STDV packets over
+    UDP to port 8808, ``io/cepton_wire.py``) into this pcap file, capture time = packet
+    time (the bag's clock); it must not exist yet.
+    ``threads``: threads each frame's raycast is split over (the frames do not depend on it).
     """
     layout = layout or OutputLayout()
     if frames < 1:
@@ -89,10 +103,12 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     bag_path = out / 'bag'
     if bag_path.exists():
         raise FileExistsError(f'{bag_path} already exists; choose another --out or remove it')
+    if pcap is not None and Path(pcap).exists():
+        raise FileExistsError(f'{pcap} already exists; choose another --pcap or remove it')
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     sim = simulator if simulator is not None else Simulator.from_scenario(
-        scenario, extra_effects=[effect_from_spec(e) for e in effects])
+        scenario, extra_effects=[effect_from_spec(e) for e in effects], threads=threads)
     trajectory = pose_source if pose_source is not None else ScenarioTrajectory.from_config(
         scenario.config)
     frame_id = layout.frame(scenario.config.frame_id)
@@ -103,7 +119,8 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
 
     out.mkdir(parents=True, exist_ok=True)
     stamps, stats, last = [], [], None
-    with BagWriter(bag_path, storage=storage) as bag:
+    wire = _WireOut(pcap)
+    with BagWriter(bag_path, storage=storage) as bag, wire:
         bag.write_material_names(MATERIAL_NAMES_TOPIC, int(to_stamp_ns(start_s, epoch_s)),
                                  scenario.materials.names)
         for i in range(frames):
@@ -122,6 +139,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
                                   sim.sun.at(np.array([frame_start])).sun_direction[0])
             bag.write_cloud(cloud_topic, layout.points(last, sim, stamp), stamp, frame_id)
             bag.write_cloud(TRUTH_TOPIC, frame_points(last, truth=True), stamp, frame_id)
+            wire.write(last, sim, stamp)
             stamps.append(stamp)
             stats.append(last.stats)
 
@@ -132,11 +150,39 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
         from lidar_sim_ros.viz.run import frame_label, read_run
         run = read_run(bag_path)
         figure_paths = render_run(run, out / 'figures', scenario.materials.names,
-                                  shots=sim.shots, layout=ScanLayout.of_sensor(sim.sensor))
+                                  shots=sim.shots_of_frame(last.index),
+                                  layout=ScanLayout.of_sensor(sim.sensor))
         if sim.sun is not None:
             label = frame_label(run, len(run.clouds) - 1)
             figure_paths.append(_sunlight_figure(sim, last, trajectory, out / 'figures', label))
     return OfflineResult(bag_path, figure_paths, stamps, stats)
+
+
+class _WireOut:
+    """The optional pcap of ``simulate --pcap``: each frame's STDV packets, in order."""
+
+    def __init__(self, path: str | Path | None):
+        self.writer = None
+        if path is not None:
+            from lidar_sim_ros.io.cepton_wire import WireStream
+            from lidar_sim_ros.io.pcap import PcapWriter
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            self.writer, self.state = PcapWriter(path), WireStream()
+
+    def __enter__(self) -> '_WireOut':
+        if self.writer is not None:
+            self.writer.__enter__()
+        return self
+
+    def write(self, frame: Frame, sim: Simulator, stamp_ns: int) -> None:
+        if self.writer is not None:
+            from lidar_sim_ros.core.driver_layout import wire_packets
+            for pkt in wire_packets(frame, sim, stamp_ns, self.state):
+                self.writer.write(pkt.t_us, pkt.payload)
+
+    def __exit__(self, *exc) -> None:
+        if self.writer is not None:
+            self.writer.__exit__(*exc)
 
 
 def _sunlight_figure(sim: Simulator, frame, trajectory, out_dir: Path, label: str) -> Path:
@@ -157,6 +203,52 @@ def _sunlight_figure(sim: Simulator, frame, trajectory, out_dir: Path, label: st
                                   out_dir / 'sunlight.png', label)
 
 
+def output_bound_bytes(sim: Simulator, layout: OutputLayout, frames: int,
+                       poses_per_frame: int = POSES_PER_FRAME) -> int:
+    """An upper bound (bytes) of the bag ``simulate_to_bag`` writes: every shot a point
+    (``max_returns`` of them on the cloud topic in the layout's point size, one on the
+    truth topic), plus the poses, the sun direction and each message's framing. (For a
+    receiver in mode ``all``, 8 returns a shot: an estimate, not a bound.)"""
+    point_b = POINT_DTYPE.itemsize
+    if layout.point_layout == 'cepton':
+        point_b = (cepton.SDK3_POLAR_DTYPE if layout.polar_fields else cepton.SDK3_DTYPE).itemsize
+    shots = len(sim.shots)
+    receiver = sim.sensor.detection.returns
+    # mode 'all' reports every return a shot makes; 8 a shot (the most max_returns allows)
+    # stands in for them: the bound of that receiver is an estimate.
+    returns = receiver.max_returns if receiver.mode != 'all' else max(receiver.max_returns, 8)
+    per_frame = (shots * (returns * point_b + POINT_DTYPE.itemsize)
+                 + (poses_per_frame + 4) * _MESSAGE_BYTES)
+    return int(frames) * per_frame + _MESSAGE_BYTES
+
+
+def _size(n_bytes: float) -> str:
+    """'1.35 MB', '205 TB': decimal units."""
+    for unit, scale in (('PB', 1e15), ('TB', 1e12), ('GB', 1e9), ('MB', 1e6), ('kB', 1e3)):
+        if n_bytes >= scale:
+            return f'{n_bytes / scale:.3g} {unit}'
+    return f'{int(n_bytes)} B'
+
+
+def check_output_size(sim: Simulator, layout: OutputLayout, frames: int, out_dir: Path,
+                      max_output_gb: float) -> str:
+    """The terminal's estimate line; ValueError when the bound exceeds ``max_output_gb``
+    (named with the frames, the size a frame and the option that raises the limit)."""
+    bound = output_bound_bytes(sim, layout, frames)
+    per_frame = _size(bound / frames)
+    if bound > max_output_gb * 1e9:
+        raise ValueError(f'--frames {frames}: the bag may reach {_size(bound)} ({per_frame} a '
+                         f'frame, {len(sim.shots)} shots each a point), above --max-output-gb '
+                         f'{max_output_gb:g}; write fewer frames or raise the limit')
+    line = f'estimate: the bag takes at most {_size(bound)} ({per_frame} a frame, every shot a point)'
+    where = next((p for p in (Path(out_dir).resolve(), *Path(out_dir).resolve().parents)
+                  if p.exists()), None)
+    free = shutil.disk_usage(where).free if where is not None else None
+    if free is not None and bound > free:
+        line += f'; only {_size(free)} free on {where}'
+    return line
+
+
 def _write_poses(bag: BagWriter, trajectory: PoseSource, t_s: np.ndarray,
                  frame_id: str, epoch_s: float) -> None:
     poses = trajectory.at(t_s)
@@ -174,6 +266,10 @@ def register(subparsers) -> None:
                     'plus PNG figures of the last frame in DIR/figures.')
     p.add_argument('scenario', type=Path, help='scenario YAML (e.g. config/scenario.yaml)')
     p.add_argument('--frames', type=positive_int, required=True, help='number of frames')
+    p.add_argument('--max-output-gb', type=float_in(0.0, 1e6, 'a size in GB', open_low=True),
+                   default=MAX_OUTPUT_GB, metavar='GB',
+                   help='refuse a run whose bag may exceed this many GB (default %(default)g; '
+                        'the estimate assumes every shot a point)')
     p.add_argument('--out', type=Path, required=True, metavar='DIR',
                    help='output directory; DIR/bag must not exist yet')
     p.add_argument('--start-s', type=finite_seconds, default=0.0, metavar='S',
@@ -198,22 +294,36 @@ def register(subparsers) -> None:
                    help='cepton layout: one NO_RETURN point per shot that returned nothing')
     p.add_argument('--polar-fields', action='store_true',
                    help="cepton layout: the driver's optional azimuth, elevation, range fields")
+    p.add_argument('--pcap', type=Path, default=None, metavar='FILE',
+                   help='also write the frames as a Cepton sensor sends them (STDV packets, '
+                        'UDP port 8808) into this pcap file (docs/real-data.md)')
+    p.add_argument('--threads', type=positive_int, default=None, metavar='N',
+                   help='threads a frame\'s raycast is split over (default: the CPUs this '
+                        'process may use; frames are the same for any N)')
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    result = simulate_to_bag(args.scenario, args.out, args.frames, start_s=args.start_s,
-                             storage=args.storage, effects=args.effect,
-                             figures=not args.no_figures, epoch_s=args.epoch_s,
-                             layout=OutputLayout(point_layout=args.point_layout,
-                                                 topic=args.cloud_topic, frame_id=args.frame_id,
-                                                 no_return_points=args.no_return_points,
-                                                 polar_fields=args.polar_fields))
+    layout = OutputLayout(point_layout=args.point_layout, topic=args.cloud_topic,
+                          frame_id=args.frame_id, no_return_points=args.no_return_points,
+                          polar_fields=args.polar_fields)
+    scenario = load_scenario(args.scenario)
+    sim = Simulator.from_scenario(scenario, extra_effects=[effect_from_spec(e) for e in args.effect],
+                                  threads=args.threads or len(os.sched_getaffinity(0)))
+    estimate = check_output_size(sim, layout, args.frames, args.out, args.max_output_gb)
+    if output_bound_bytes(sim, layout, args.frames) >= ANNOUNCE_BYTES:
+        print(estimate, file=sys.stderr, flush=True)
+    result = simulate_to_bag(scenario, args.out, args.frames, start_s=args.start_s,
+                             storage=args.storage, simulator=sim,
+                             figures=not args.no_figures, epoch_s=args.epoch_s, layout=layout,
+                             pcap=args.pcap)
     points = sum(s.get('detected', 0) for s in result.frame_stats)
     print(f'bag: {result.bag_path}  ({len(result.frame_stamps_ns)} frames, {points} points)')
     summary = multipath_summary(result.frame_stats)
     if summary:
         print(summary)
+    if args.pcap is not None:
+        print(f'pcap: {args.pcap}  (Cepton STDV packets, UDP port 8808)')
     for path in result.figure_paths:
         print(f'figure: {path}')
     return 0

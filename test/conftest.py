@@ -60,9 +60,9 @@ def private_domain_id(base: int, span: int) -> int:
 # Modules that start processes of their own whose timing matters (ROS 2 nodes over DDS,
 # a Dask cluster): `make test` runs them after the rest, alone (marker ``serial``). A new
 # module that starts nodes or joins a DDS domain belongs here.
-SERIAL_MODULES = {'test_node_dds', 'test_node_cepton_dds', 'test_node_sun_dds', 'test_node_demo', 'test_gnc_demo',
+SERIAL_MODULES = {'test_node_dds', 'test_node_plugins', 'test_node_cepton_dds', 'test_node_sun_dds', 'test_node_demo', 'test_gnc_demo',
                   'test_gnc_node', 'test_warm_up', 'test_recorder', 'test_campaign',
-                  'test_node_latency', 'test_loop_dds'}
+                  'test_node_latency', 'test_loop_dds', 'test_node_cepton_udp'}
 # Tests that share no module fixture and each run long: pytest-xdist spreads them one by one.
 SPREAD_TESTS = {'test_compare_foreign.py::test_foreign_loop'}
 

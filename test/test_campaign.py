@@ -22,8 +22,8 @@ from scipy.spatial.transform import Rotation
 
 from conftest import CONFIG, materials, plate_target, sensor
 from lidar_sim_ros.campaign.coverage import FaceGeometry, covered_fraction, visible_faces
-from lidar_sim_ros.campaign.manifest import MANIFEST
-from lidar_sim_ros.campaign.run import MountedPose, rerun
+from lidar_sim_ros.campaign.manifest import MANIFEST, rerun
+from lidar_sim_ros.campaign.run import MountedPose
 from lidar_sim_ros.campaign.sample import key_rng, run_seed, sample_run
 from lidar_sim_ros.campaign.spec import Cone, Normal, load_campaign
 from lidar_sim_ros.campaign.statistics import RunStatistics
@@ -324,10 +324,10 @@ def test_four_runs_on_two_workers(finished):
 
 
 def _worker_state(dask_worker) -> dict:
-    from lidar_sim_ros.campaign import run
+    from lidar_sim_ros.campaign import worker
     return {'env': {k: os.environ.get(k) for k in ('MALLOC_TRIM_THRESHOLD_', 'OMP_NUM_THREADS',
                                                   'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')},
-            'warm': sorted(run._WARM),
+            'warm': sorted(worker._WARM),
             'profiler_callbacks': [name for name in dask_worker.periodic_callbacks
                                    if 'profile' in name]}
 
@@ -503,6 +503,26 @@ def test_short_runs_go_in_batches_and_give_the_rows_of_single_runs(cluster, tmp_
     assert all(after[i]['compute_s'] == rows[i]['compute_s'] for i in range(300) if i not in lost)
 
 
+def test_a_frame_campaign_with_criteria_prints_its_pass_rates(cluster, tmp_path, capsys):
+    from lidar_sim_ros.campaign.summary import FRAME_CRITERIA_TABLE
+    path = write_tiny_campaign(tmp_path, 20)
+    spec = yaml.safe_load(path.read_text())
+    spec['criteria'] = ['points >= 8', 'range_error_mean_m > -0.14']
+    path.write_text(yaml.safe_dump(spec))
+    out = tmp_path / 'out'
+    assert cli_main(['campaign', str(path), '--out', str(out), '--address', cluster, '--no-progress']) == 0
+    printed = capsys.readouterr().out
+    rows = read_manifest(out).values()
+    # By hand, from the manifest: each criterion and both.
+    many = [int(r['stat.points']) >= 8 for r in rows]
+    near = [float(r['stat.range_error_mean_m']) > -0.14 for r in rows]
+    both = sum(a and b for a, b in zip(many, near))
+    with (out / FRAME_CRITERIA_TABLE).open(newline='') as fh:
+        passed = [int(r['passed']) for r in csv.DictReader(fh)]
+    assert passed == [sum(many), sum(near), both]
+    assert f'pass {both:>6d} of 20' in printed and 'all criteria' in printed
+
+
 DIE_EFFECT = BOOM_EFFECT.replace(
     'if self.params.x > THRESHOLD:', 'if LOW < self.params.x < HIGH:').replace(
     "raise RuntimeError(f'boom at x = {self.params.x}')", "import os; os._exit(3)")
@@ -537,3 +557,192 @@ def test_core_does_not_import_the_engine():
     code = ('import sys, lidar_sim_ros.cli, lidar_sim_ros.offline, lidar_sim_ros.campaign.run; '
             'sys.exit(any(m.split(".")[0] in ("dask", "distributed", "tqdm") for m in sys.modules))')
     assert subprocess.run([sys.executable, '-c', code], env={**os.environ}).returncode == 0
+
+
+# The order of campaign/__init__.py's docstring: a module imports only modules before it.
+CAMPAIGN_LAYERS = ('statistics', 'coverage', 'criteria', 'spec', 'sample', 'worker', 'series',
+                   'loop_case', 'run', 'manifest', 'summary', 'engine', 'command')
+
+
+def test_campaign_imports_flow_one_way():
+    """No circle of imports among campaign's modules, counting imports inside functions:
+    read from the source (ast), not from what happens to be imported at run time."""
+    import ast
+
+    import lidar_sim_ros.campaign as package
+    folder = Path(package.__file__).parent
+    modules = {p.stem for p in folder.glob('*.py')} - {'__init__'}
+    assert modules == set(CAMPAIGN_LAYERS), 'a new module: place it in CAMPAIGN_LAYERS and the docstring'
+    for name in CAMPAIGN_LAYERS:
+        tree = ast.parse((folder / f'{name}.py').read_text())
+        used = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module == 'lidar_sim_ros.campaign':
+                used |= {alias.name for alias in node.names}
+            elif isinstance(node, ast.ImportFrom) and (node.module or '').startswith('lidar_sim_ros.campaign.'):
+                used.add(node.module.split('.')[2])
+            elif isinstance(node, ast.Import):
+                used |= {a.name.split('.')[2] for a in node.names
+                         if a.name.startswith('lidar_sim_ros.campaign.')}
+        below = set(CAMPAIGN_LAYERS[:CAMPAIGN_LAYERS.index(name)])
+        assert used <= below, f'campaign/{name}.py imports {sorted(used - below)}, which come after it'
+
+
+# ------------------------------------------------------------- TLS (a shared network)
+def _openssl(*args: str) -> None:
+    subprocess.run(['openssl', *args], check=True, capture_output=True)
+
+
+def _make_ca_and_cert(folder: Path, name: str) -> dict[str, Path]:
+    """A CA and one certificate it signed (EC P-256, 2 days), as docs/campaign.md makes them."""
+    folder.mkdir()
+    f = {k: folder / f'{k}.pem' for k in ('ca', 'ca-key', 'cert', 'key', 'req')}
+    ec = ['-newkey', 'ec', '-pkeyopt', 'ec_paramgen_curve:prime256v1', '-nodes']
+    _openssl('req', '-x509', *ec, '-days', '2', '-subj', f'/CN={name}-ca', '-keyout', str(f['ca-key']),
+             '-out', str(f['ca']))
+    _openssl('req', *ec, '-subj', f'/CN={name}', '-keyout', str(f['key']), '-out', str(f['req']))
+    _openssl('x509', '-req', '-in', str(f['req']), '-CA', str(f['ca']), '-CAkey', str(f['ca-key']),
+             '-CAcreateserial', '-days', '2', '-out', str(f['cert']))
+    return f
+
+
+@pytest.fixture(scope='module')
+def tls_cluster(tmp_path_factory):
+    """A TLS scheduler with one in-process worker thread (quick to start), every endpoint
+    holding a certificate of one CA; and a second CA's certificate, an intruder's."""
+    import shutil
+
+    import dask
+    from distributed.security import Security
+    if shutil.which('openssl') is None:
+        pytest.skip('openssl not installed')
+    tmp = tmp_path_factory.mktemp('tls')
+    ours, theirs = _make_ca_and_cert(tmp / 'ours', 'cluster'), _make_ca_and_cert(tmp / 'theirs', 'intruder')
+    pem = {f'tls_{role}_{kind}': str(ours[kind]) for role in ('scheduler', 'worker', 'client')
+           for kind in ('cert', 'key')}  # client: the cluster object's own connections
+    security = Security(tls_ca_file=str(ours['ca']), require_encryption=True, **pem)
+    with dask.config.set({'distributed.worker.profile.enabled': False}), \
+            dask_distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol='tls',
+                                          security=security, dashboard_address=None) as local:
+        yield local.scheduler_address, ours, theirs
+
+
+def test_a_campaign_joins_a_tls_cluster_with_the_given_certificates(tls_cluster, tmp_path, capsys):
+    address, ours, _ = tls_cluster
+    assert address.startswith('tls://')
+    path = write_tiny_campaign(tmp_path, 6)
+    tls = ['--tls-ca-file', str(ours['ca']), '--tls-cert', str(ours['cert']), '--tls-key', str(ours['key'])]
+    argv = ['campaign', str(path), '--out', str(tmp_path / 'out'), '--address', address, '--no-progress']
+    assert cli_main(argv + tls) == 0, capsys.readouterr().err
+    assert '6 ok' in capsys.readouterr().out and sorted(read_manifest(tmp_path / 'out')) == list(range(6))
+
+
+def test_the_dask_config_certificates_reach_the_client(tls_cluster):
+    import dask
+
+    from lidar_sim_ros.campaign.engine import connect
+    address, ours, _ = tls_cluster
+    with dask.config.set({'distributed.comm.tls.ca-file': str(ours['ca']),
+                          'distributed.comm.tls.client.cert': str(ours['cert']),
+                          'distributed.comm.tls.client.key': str(ours['key'])}):
+        with connect(address=address) as client:
+            assert client.security.tls_client_cert == str(ours['cert'])
+            assert client.submit(math.hypot, 3.0, 4.0).result() == 5.0
+
+
+@pytest.mark.parametrize('case, words', [
+    ('intruder', 'cannot reach a Dask scheduler at tls://'),       # a certificate of another CA
+    ('no certificate', 'needs this client\'s certificate'),
+    ('tcp address', 'the scheduler\'s address is tls://'),
+    ('no address', '--tls-* secure the connection to --address'),
+    ('no CA', '--tls-ca-file and --tls-cert go together'),
+    ('missing file', 'no such file'),
+])
+def test_tls_misuse_is_one_line(tls_cluster, tmp_path, capsys, case, words):
+    address, ours, theirs = tls_cluster
+    path = write_tiny_campaign(tmp_path, 2)
+    tls = ['--tls-ca-file', str(ours['ca']), '--tls-cert', str(ours['cert']), '--tls-key', str(ours['key'])]
+    argv = ['campaign', str(path), '--out', str(tmp_path / 'out'), '--no-progress', '--address', address]
+    argv += {'intruder': ['--tls-ca-file', str(ours['ca']), '--tls-cert', str(theirs['cert']),
+                          '--tls-key', str(theirs['key'])],
+             'no certificate': [],
+             'tcp address': tls,
+             'no address': tls,
+             'no CA': tls[2:],
+             'missing file': tls[:-1] + [str(tmp_path / 'nowhere.pem')]}[case]
+    if case == 'tcp address':
+        argv[argv.index(address)] = address.replace('tls://', 'tcp://')
+    if case == 'no address':
+        del argv[argv.index('--address'):argv.index(address) + 1]
+    assert cli_main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0] and 'Traceback' not in err[0], err
+    assert not (tmp_path / 'out' / MANIFEST).is_file() or not read_manifest(tmp_path / 'out')
+
+
+def test_sensor_and_target_are_dispersable_choices(tmp_path):
+    """Each run draws a sensor and a target (mesh, materials, names map); the drawn ones
+    are what the run simulates; the manifest has every target's material columns."""
+    from lidar_sim_ros.campaign.manifest import columns
+    from lidar_sim_ros.campaign.run import run_one
+    path = write_campaign(
+        tmp_path / 'choices.yaml', runs=12, dispersions={
+            'initial_distance_m': {'dist': 'uniform', 'low': 12.0, 'high': 14.0},
+            'sensor': [str(CONFIG / 'cepton_vista_p60.yaml'), str(CONFIG / 'livox_mid40.yaml')],
+            'target': [{'mesh': str(CONFIG.parent / 'meshes' / 'rocket_body.obj'),
+                        'materials': str(CONFIG / 'materials.yaml')},
+                       {'mesh': str(CONFIG.parent / 'meshes' / 'box_wing_satellite.glb'),
+                        'materials': str(CONFIG / 'materials_box_wing.yaml'),
+                        'mesh_materials': {'bus_mli': 'MLI', 'solar_cells': 'SOLAR_ARRAY',
+                                           'radiator_white_paint': 'WHITE_PAINT',
+                                           'antenna_aluminium': 'ALUMINIUM'}}]})
+    campaign = load_campaign(path)
+    cases = [sample_run(campaign, i) for i in range(12)]
+    drawn = {(c.params['sensor_choice'], c.params['target_choice']) for c in cases}
+    assert drawn == {(0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0)}
+    for c in cases:
+        mid40 = c.params['sensor_choice'] == 1.0
+        assert c.scenario.sensor.name == ('Livox Mid-40' if mid40 else 'Cepton Vista P-60')
+        assert c.scenario.mesh_path.suffix == ('.glb' if c.params['target_choice'] else '.obj')
+        # The Mid-40's own range error on every material; the P-60 keeps Table 2.
+        sigma = set(c.scenario.materials.column('sigma_m'))
+        assert (sigma == {0.02}) if mid40 else (0.02 not in sigma)
+    cols = columns(campaign)
+    assert {'stat.points.PIF', 'stat.points.SOLAR_ARRAY', 'param.sensor_choice',
+            'param.target_choice'} <= set(cols)
+    box_mid40 = next(i for i, c in enumerate(cases)
+                     if (c.params['sensor_choice'], c.params['target_choice']) == (1.0, 1.0))
+    row = run_one(campaign, box_mid40)
+    assert row['status'] == 'ok', row['error']
+    assert row['stat.points.SOLAR_ARRAY'] > 0 and 'stat.points.PIF' not in row
+
+
+def test_bad_choices_name_their_key(tmp_path):
+    with pytest.raises(ConfigError, match=r'dispersions\.sensor\.1.*not found'):
+        load_campaign(write_campaign(tmp_path / 'a.yaml', dispersions={
+            'sensor': [str(CONFIG / 'cepton_vista_p60.yaml'), 'nope.yaml']}))
+    with pytest.raises(ConfigError, match=r'dispersions\.target\.0\.mesh_materials.*GOLD'):
+        load_campaign(write_campaign(tmp_path / 'b.yaml', dispersions={
+            'target': [{'mesh': str(CONFIG.parent / 'meshes' / 'box_wing_satellite.glb'),
+                        'materials': str(CONFIG / 'materials_box_wing.yaml'),
+                        'mesh_materials': {'bus_mli': 'GOLD'}}]}))
+    with pytest.raises(ConfigError, match=r'dispersions\.materials\.PIF.*every target choice'):
+        load_campaign(write_campaign(tmp_path / 'c.yaml', dispersions={
+            'materials': {'PIF': {'bias_m': {'dist': 'uniform', 'low': -0.1, 'high': 0.0}}},
+            'target': [{'mesh': str(CONFIG.parent / 'meshes' / 'box_wing_satellite.glb'),
+                        'materials': str(CONFIG / 'materials_box_wing.yaml'),
+                        'mesh_materials': 'MLI'}]}))
+
+
+def test_specs_and_configs_without_the_new_keys_dump_as_before(tmp_path):
+    """Campaigns are fingerprinted from their dumps: keys added later (the sensor and
+    target choices, a sensor's range_error and flood, a scenario's mesh_materials) are
+    left out when unused, so campaigns written before them resume."""
+    campaign = load_campaign(write_campaign(tmp_path / 'c.yaml'))
+    assert 'sensor' not in campaign.spec.model_dump()['dispersions']
+    assert 'target' not in campaign.spec.model_dump_json()
+    assert 'mesh_materials' not in campaign.scenario.config.model_dump()
+    dumped = campaign.scenario.sensor.model_dump()
+    assert 'range_error' not in dumped and 'flood' not in dumped['optics']
+    from lidar_sim_ros.core.config import load_sensor
+    assert load_sensor(CONFIG / 'livox_mid40.yaml').model_dump()['range_error']['sigma_m'] == 0.02

@@ -103,7 +103,7 @@ def test_misaligned_mount_is_unknown_to_the_navigation():
 
 
 def test_percentile_row_by_hand():
-    from lidar_sim_ros.campaign.loop_case import metric_row
+    from lidar_sim_ros.campaign.summary import metric_row
     row = metric_row('x', [3.0, None, 1.0, float('nan'), 2.0])
     assert (row['runs'], row['missing']) == (3, 2)
     # numpy's default (linear) percentile of 1, 2, 3: p5 = 1 + 0.05 * 2, p95 = 1 + 0.95 * 2.
@@ -112,43 +112,78 @@ def test_percentile_row_by_hand():
     assert metric_row('y', [None])['p50'] is None
 
 
-def test_runs_write_metrics_summary_and_resume(tmp_path, capsys):
+def test_runs_write_metrics_series_verdicts_summary_and_resume(tmp_path, capsys):
+    """Three closed-loop runs through the engine (a local scheduler with one in-process
+    worker thread), then the command's summary: the series kept are the worst by the
+    spec's metric plus the run asked for, as sorting every run's loop.json says; the pass
+    counts are a hand count over the loop.json files; --run reproduces a run and keeps its
+    series; a resume runs nothing; a changed loop file is refused."""
+    import dask
+    from dask.distributed import LocalCluster
+
+    from lidar_sim_ros.campaign.command import _loop_summary
     from lidar_sim_ros.campaign.engine import run_campaign
-    from lidar_sim_ros.campaign.loop_case import LOOP_METRICS, read_result, summarize
-    from lidar_sim_ros.campaign.manifest import Manifest
-    from lidar_sim_ros.campaign.run import run_one
+    from lidar_sim_ros.campaign.loop_case import LOOP_METRICS, read_result
+    from lidar_sim_ros.campaign.series import read_series, series_path
+    from lidar_sim_ros.campaign.spec import LOOP_METRIC_NAMES
+    from lidar_sim_ros.campaign.summary import CRITERIA_TABLE, SERIES_FIGURE, VS_FIGURE
+    from lidar_sim_ros.cli import main as cli_main
     loop = tmp_path / 'loop.yaml'
     loop.write_text(Path(LOOP).read_text().replace('scenario: scenario_all_effects.yaml',
                                                    f'scenario: {CONFIG / "scenario_all_effects.yaml"}'))
-    campaign = load_campaign(write_loop_campaign(tmp_path / 'c.yaml', loop_file=str(loop)))
+    criteria = ['min_range_m > 22.5', 'losses == 0']
+    path = write_loop_campaign(tmp_path / 'c.yaml', loop_file=str(loop), runs=3, criteria=criteria,
+                               series={'worst': 1, 'by': 'min_range_m', 'worst_is': 'low', 'runs': [2]})
+    campaign = load_campaign(path)
     out = tmp_path / 'out'
-    manifest = Manifest.open(out, campaign)
-    for run_id in range(2):                      # what an engine worker does, in this process
-        row = run_one(campaign, run_id, str(out))
-        assert row['status'] == 'ok', row['error']
-        manifest.append(row)
-    first = read_result(out, 0)
-    assert set(LOOP_METRICS) <= set(first['metrics'])
-    assert first['metrics']['periods'] == 3 and first['metrics']['losses'] == 0
-    assert first['metrics']['acquired_at_s'] == pytest.approx(0.15)  # the truth cloud, the 2nd period
-    summary = summarize(out)
-    assert summary.runs == 2 and summary.figure.is_file()
+    with dask.config.set({'distributed.worker.profile.enabled': False}), \
+            LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as local:
+        report = run_campaign(campaign, out, address=local.scheduler_address, progress=False)
+    assert (report.ok, report.failed) == (3, 0)
+    results = {i: read_result(out, i)['metrics'] for i in range(3)}
+    first = results[0]
+    assert set(LOOP_METRICS) <= set(LOOP_METRIC_NAMES) <= set(first)  # every name criteria may use
+    assert first['periods'] == 3 and first['losses'] == 0
+    assert first['acquired_at_s'] == pytest.approx(0.15)  # the truth cloud, the 2nd period
+    # Series: the closest approach (worst_is: low) and run 2, asked for.
+    closest = min(results, key=lambda i: results[i]['min_range_m'])
+    assert sorted(int(p.stem[4:]) for p in (out / 'series').glob('run_*.npz')) == sorted({closest, 2})
+    series, meta = read_series(series_path(out, closest))
+    assert float(series['range_m'].min()) == pytest.approx(results[closest]['min_range_m'])
+    assert meta['metrics']['min_range_m'] == results[closest]['min_range_m']
+    assert len(series['t_s']) == results[closest]['periods'] == 3
+    # The summary's tables, as the command writes and prints them.
+    summary = _loop_summary(out, campaign)
+    printed = capsys.readouterr().out
+    assert summary.runs == 3 and summary.figure.is_file()
     with summary.summary_table.open(newline='') as fh:
         table = {r['metric']: r for r in csv.DictReader(fh)}
-    ranges = [read_result(out, i)['metrics']['min_range_m'] for i in range(2)]
+    ranges = [results[i]['min_range_m'] for i in range(3)]
     assert float(table['min_range_m']['p50']) == pytest.approx(np.median(ranges))
     with summary.runs_table.open(newline='') as fh:
         rows = list(csv.DictReader(fh))
     assert [float(r['min_range_m']) for r in rows] == pytest.approx(ranges)
     assert float(rows[1]['param.tumble_rate_dps']) == json.loads(
         (out / 'runs' / 'run_00001' / 'loop.json').read_text())['params']['tumble_rate_dps']
-    # --run: one case again here, its metrics compared with its loop.json (identical: rc 0).
-    from lidar_sim_ros.cli import main as cli_main
-    assert cli_main(['campaign', str(tmp_path / 'c.yaml'), '--out', str(out), '--run', '1']) == 0
+    # The verdicts: a hand count over the runs' loop.json.
+    near = [results[i]['min_range_m'] > 22.5 for i in range(3)]
+    clean = [results[i]['losses'] == 0 for i in range(3)]
+    both = [a and b for a, b in zip(near, clean)]
+    with (out / CRITERIA_TABLE).open(newline='') as fh:
+        verdicts = {r['criterion']: r for r in csv.DictReader(fh)}
+    assert [int(verdicts[c]['passed']) for c in criteria + ['all criteria']] == [sum(near), sum(clean), sum(both)]
+    assert float(verdicts['all criteria']['pass_rate']) == sum(both) / 3
+    assert f'pass {sum(both):>6d} of 3' in printed and 'all criteria' in printed
+    assert [r['pass'] for r in rows] == [str(int(b)) for b in both]
+    assert (out / VS_FIGURE).stat().st_size > 10_000 and (out / SERIES_FIGURE).is_file()
+    # --run: one case again here, its metrics compared with its loop.json (identical: rc 0),
+    # and its series kept: asked for by id.
+    assert cli_main(['campaign', str(path), '--out', str(out), '--run', '1']) == 0
     assert 'run 1: metrics identical to the last result' in capsys.readouterr().out
+    assert read_series(series_path(out, 1))[1]['asked'] is True
     # Resume: every run is finished, so nothing runs (no cluster starts) ...
     report = run_campaign(campaign, out, progress=False)
-    assert (report.skipped, report.ran) == (2, 0)
+    assert (report.skipped, report.ran) == (3, 0)
     # ... and a changed loop file is another campaign: refused, not mixed.
     loop.write_text(loop.read_text().replace('thrust_limit_n: 20.0', 'thrust_limit_n: 10.0'))
     with pytest.raises(ValueError, match='different campaign'):

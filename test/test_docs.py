@@ -195,6 +195,9 @@ NOT_RUN = {
     ('campaign.md', '# on the scheduler machine (port 8786; the dashboard'
                     ' needs bokeh, --no-dashboard otherwise)'):
         'a Dask cluster over several machines (test_campaign.py joins a local one by its address)',
+    ('campaign.md', '# on the scheduler machine'):
+        'a TLS cluster over several machines (test_campaign.py starts a TLS scheduler and joins it '
+        'with the same options, and makes its certificates with the page\'s openssl commands)',
     ('campaign.md', 'lidar-sim campaign config/campaign_loop.yaml --out loop-campaign --workers 2'):
         'six closed loops of 8 s on Basilisk (~30 s with the cluster start); '
         'test_campaign_loop.py runs the same spec path on shorter cases',
@@ -217,6 +220,12 @@ NOT_RUN = {
         'lab/bag, target.obj and lab.yaml are placeholders for a real recording',
     ('real-data.md', 'ros2 run lidar_sim_ros lidar_sim_node --ros-args -p point_layout:=cepton \\'):
         'ros2 run of a node that runs until stopped (a colcon install)',
+    ('real-data.md', 'ros2 run lidar_sim_ros lidar_sim_node --ros-args -p cepton_udp:=true \\'):
+        'ros2 run of a node that runs until stopped; test_node_cepton_udp.py sends its packets live',
+    ('real-data.md', 'lidar-sim compare lab/cepton.pcap --poses lab/poses.csv --mesh'
+                     ' lab/target.obj --out runs/lab'):
+        'lab/ files are placeholders for a real recording; test_compare_cepton_pcap.py '
+        'compares a simulated pcap with bag and CSV poses',
 }
 
 # Synopses: (page, first line) -> the lidar-sim subcommand whose --help must know their options.

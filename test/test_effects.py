@@ -379,3 +379,14 @@ def test_laser_bias_is_the_offset_of_each_shots_laser():
     np.testing.assert_array_equal(bias.range_bias_m(ctx), [0.01, -0.02, 0.005, -0.02, 0.0])
     with pytest.raises(ValueError, match='within'):
         make_effect('laser_bias', {'offsets_m': [0.0, 2.0]})
+
+
+def test_only_the_package_s_own_names_are_not_plugin_specs():
+    """An allow-list: no spelling of a path or module passes for a catalogue name."""
+    from lidar_sim_ros.core.effects import builtin_classes, builtin_names, is_plugin_spec
+    assert set(builtin_classes()) == set(builtin_names())
+    for name in builtin_names():
+        assert not is_plugin_spec(name)
+    for spec in ('/tmp/a=b/evil.py:Evil', 'a=b:C', 'range_walk=/x/e.py:E', 'os.path:join',
+                 'evil.py', 'range_walk ', 'Range_Walk', 'range_walk={k_m: 1}'):
+        assert is_plugin_spec(spec), spec

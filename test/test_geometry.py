@@ -101,7 +101,8 @@ def test_usemtl_names_are_kept_without_their_mtl_file(tmp_path, text, mtl):
 
 @pytest.mark.parametrize('name, text, mtl, message', [
     ('m.mtl', None, 'newmtl PIF\nKd 1 1 1\n', r'm\.mtl: this is a material library \(\.mtl\), not a mesh'),
-    ('m.stl', 'solid x\nendsolid x\n', None, r'm\.stl: the mesh must be a Wavefront \.obj'),
+    ('m.stl', 'solid x\nendsolid x\n', None, r'm\.stl: no triangles found'),      # a CAD export with no faces
+    ('m.3ds', 'x', None, r'm\.3ds: the mesh must be a Wavefront \.obj'),
     ('m.obj', 'mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n', 'newmtl PIF\n', r'm\.obj: no usemtl lines'),
     ('m.obj', '', None, r'm\.obj: no faces'),
     ('m.obj', 'hello\nthis is not a mesh\n', None, r'm\.obj: no faces'),

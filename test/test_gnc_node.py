@@ -141,3 +141,16 @@ def test_bad_parameters_stop_the_node_with_one_line(args, message):
     assert run.returncode == 2
     fatal = [line for line in (run.stdout + run.stderr).splitlines() if 'FATAL' in line]
     assert len(fatal) == 1 and message in fatal[0], run.stdout + run.stderr
+
+
+def test_acquisition_field_of_view_of_every_scan_type():
+    """The tracker's acquisition searches the sensor's field: a rosette's circle (its
+    bounding square), a flash array's rectangle, the P-60's."""
+    from lidar_sim_ros.core.config import load_sensor
+    from lidar_sim_ros.gnc.pose_tracker_node import sensor_fov
+    config = os.path.join(os.path.dirname(__file__), '..', 'config')
+    fov = {name: sensor_fov(load_sensor(os.path.join(config, name)).scan)
+           for name in ('livox_mid40.yaml', 'flash_256.yaml', 'cepton_vista_p60.yaml')}
+    assert fov['livox_mid40.yaml'] == pytest.approx({'fov_az_deg': 38.4, 'fov_el_deg': 38.4})
+    assert fov['flash_256.yaml'] == {'fov_az_deg': 20.0, 'fov_el_deg': 20.0}
+    assert fov['cepton_vista_p60.yaml'] == {'fov_az_deg': 60.0, 'fov_el_deg': 22.0}

@@ -57,8 +57,12 @@ def test_effect_params_must_be_finite(cfg):
     with pytest.raises(ConfigError) as err:
         load_scenario(cfg / 'scenario.yaml')
     assert err.value.key == 'effects.0.params.k_m' and 'nan' in str(err.value)
+    # Said as "finite", not as the parameter's bound (issue 29).
     with pytest.raises(ValueError, match='finite'):
         make_effect('range_walk', {'k_m': float('inf')})
+    with pytest.raises(ValueError, match='finite'):
+        make_effect('range_walk', {'reference_power_w': None, 'k_m': 0.0,
+                                   'offset_m': float('nan')})
 
 
 def test_quaternion_accepted_only_near_unit_norm(cfg):

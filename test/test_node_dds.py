@@ -565,15 +565,20 @@ class Planted(Effect):
 
 def test_no_runtime_parameter_loads_code(harness, node, faulty_plugin, tmp_path):
     """Any DDS peer can call SetParameters: a plugin not loaded at start-up is refused, unrun."""
-    path = tmp_path / 'planted_effect.py'
-    path.write_text(PLANTED_EFFECT)
+    # A directory holding '=' once passed a pattern-based guard for a catalogue name.
+    (tmp_path / 'a=b').mkdir()
+    planted = [tmp_path / 'planted_effect.py', tmp_path / 'a=b' / 'evil.py']
+    for path in planted:
+        path.write_text(PLANTED_EFFECT)
     SA = Parameter.Type.STRING_ARRAY
-    for value in ([f'{path}:Planted'], ['range_walk', f'{path}:Planted'],
-                  [f'{path}:Planted={{}}'], ['os.path:join']):
+    for value in ([f'{planted[0]}:Planted'], ['range_walk', f'{planted[0]}:Planted'],
+                  [f'{planted[0]}:Planted={{}}'], ['os.path:join'], [f'{planted[1]}:Planted'],
+                  [f'range_walk={planted[1]}:Planted'], [str(planted[1])]):
         result = harness.set_parameter('effects', SA, value)
         assert not result.successful, value
-        assert 'would load code at run time' in result.reason and 'start-up' in result.reason, result.reason
-    assert not path.with_suffix('.ran').exists(), 'the planted file was imported'
+        assert 'never load code' in result.reason and 'start-up' in result.reason, result.reason
+    for path in planted:
+        assert not path.with_suffix('.ran').exists(), f'{path} was imported'
     # What the operator loaded at start-up may still be switched on and off.
     assert harness.set_parameter('effects', SA, ['range_walk']).successful
     assert harness.set_parameter('effects', SA, []).successful

@@ -87,13 +87,16 @@ def test_sun_direction_from_the_topic_changes_the_clouds(harness, node):
 
     mark = len(harness.rosout)
     publish_sun((1e-12, 0.0, 0.0))
+    publish_sun((1e-300, 0.0, 0.0))                    # nearly zero: dropped, not "hidden"
     publish_sun((0.0, 1.0, 0.0), frame_id='map')
     publish_sun((np.nan, 1.0, 0.0))
     harness.step_frames(4, 4)
     assert false_returns(harness, 4, 4)[0] > 200      # the last good direction holds
     warnings = '\n'.join(harness.rosout_since(mark, Log.WARN))
-    for reason in ('direction is zero', "frame_id 'map' is not the node frame_id 'lidar'",
-                   'is not finite'):
+    # (1e-300 once underflowed to "sun hidden": frame 4 would have been dark. Its warning
+    # shares the 1e-12 one's kind and falls in the same throttle second.)
+    for reason in ('[1e-12, 0.0, 0.0] is nearly zero',
+                   "frame_id 'map' is not the node frame_id 'lidar'", 'is not finite'):
         assert 'dropped sun direction on /sun/direction: ' in warnings and reason in warnings, reason
     assert node.poll() is None
 
@@ -118,3 +121,15 @@ def test_sun_direction_from_the_topic_changes_the_clouds(harness, node):
     publish_sun(IN_VIEW)
     harness.step_frames(8, 8)
     assert false_returns(harness, 8, 8)[0] > 200
+
+    # Finite but huge: its norm overflows, yet it is a direction like any other (this once
+    # normalised to zero and killed the node), on the topic and as the parameter.
+    publish_sun((0.0, 1.0, 0.0))
+    harness.step_frames(9, 9)
+    assert false_returns(harness, 9, 9)[0] < 40
+    publish_sun(1e300 * IN_VIEW)
+    harness.step_frames(10, 10)
+    assert false_returns(harness, 10, 10)[0] > 200
+    assert harness.set_parameter('sun_direction', Parameter.Type.DOUBLE_ARRAY,
+                                 [1e300, 1e300, 0.0]).successful
+    assert node.poll() is None

@@ -181,3 +181,151 @@ def test_campaign_coverage_is_evaluated_at_the_mid_frame_pose(tmp_path):
     stats = simulate_case(case)
     assert stats['points'] > 0
     assert stats['coverage_frames'] == 1 and 0.0 < stats['coverage'] <= 1.0
+
+
+# ---------------------------------------------------------------- issue 29's survivors
+def _pose_step(translation_m, rotation_deg, centroid_m):
+    """A one-cloud PoseError holding only what ``PoseCorrection.compose`` reads."""
+    from lidar_sim_ros.compare.pose_error import PoseError
+    return PoseError(np.array([0]), np.array([0.5]), np.atleast_2d(translation_m),
+                     np.atleast_2d(rotation_deg), 0.0, 0.0, True, np.zeros(4),
+                     np.atleast_2d(centroid_m))
+
+
+def test_pose_correction_gain_is_the_gaussian_log_likelihood_difference():
+    """Mutation: the held-out gain without its 1/2 (compare/pose_error.py; only z was tested,
+    and z does not change when the gain is scaled). Reference: scipy's Gaussian log density,
+    log N(r - c; 0, s) - log N(r; 0, s) per point, nats."""
+    from scipy.stats import norm
+    from lidar_sim_ros.compare.pose_error import heldout_gain
+    rng = np.random.default_rng(29)
+    r, c, s = rng.normal(0, 0.01, 50), rng.normal(0, 0.01, 50), rng.uniform(0.002, 0.02, 50)
+    np.testing.assert_allclose(heldout_gain(r, c, s),
+                               norm.logpdf(r - c, scale=s) - norm.logpdf(r, scale=s),
+                               rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize('translation_m, rotation_deg, passes', [
+    ([0.0, 0.0, 0.0], [0.0, 0.0, 0.5], 3),      # translation converged, rotation not
+    ([0.01, 0.0, 0.0], [0.0, 0.0, 0.0], 3),     # rotation converged, translation not
+    ([1e-4, 0.0, 0.0], [0.0, 0.0, 0.001], 1),   # both below RECAST_STEP_M / _DEG
+])
+def test_gauss_newton_stops_only_when_both_steps_are_small(translation_m, rotation_deg, passes):
+    """Mutation: Gauss-Newton stopping when either step is small (compare/pose_error.py).
+    Every fit returns the same step; hand count: it re-casts until RECAST_PASSES (3) unless
+    both the translation (< 0.5 mm) and the rotation (< 0.01 deg) are small."""
+    from lidar_sim_ros.compare import pose_error as pe
+    step = _pose_step(translation_m, rotation_deg, [10.0, 0.0, 0.0])
+    start = pe.PoseCorrection.identity(np.zeros(4, int), np.linspace(0, 1, 4))
+    casts = []
+    _, _, report = pe.iterate(step, start, lambda corr: casts.append(corr) or corr,
+                              lambda state, corr: step)
+    assert pe.RECAST_PASSES == 3
+    assert report.passes == len(casts) == passes
+
+
+def test_pose_correction_applies_the_step_after_the_correction():
+    """Mutation: the step's rotation composed on the wrong side (compare/pose_error.py).
+    Hand composition of the two rigid maps on a point: the first fit moves p to
+    p1 = R1 (p - g1) + g1 + d1, the step, fitted on the re-cast model, moves that to
+    R2 (p1 - g2) + g2 + d2. Rotations of 30 deg about x and 40 deg about z do not commute."""
+    from lidar_sim_ros.compare import pose_error as pe
+    g1, d1, w1 = np.array([10.0, 1.0, 0.0]), np.array([0.1, -0.2, 0.05]), [30.0, 0.0, 0.0]
+    g2, d2, w2 = np.array([9.0, 0.0, 1.0]), np.array([-0.03, 0.02, 0.1]), [0.0, 0.0, 40.0]
+    start = pe.PoseCorrection.identity(np.zeros(4, int), np.linspace(0, 1, 4))
+    corr1, _ = start.compose(_pose_step(d1, w1, g1))
+    corr2, size = corr1.compose(_pose_step(d2, w2, g2))
+    r1, r2 = (Rotation.from_euler('xyz', w, degrees=True) for w in (w1, w2))
+    p = np.array([[11.0, 0.5, -0.3], [9.5, -1.0, 0.7]])
+    p1 = r1.apply(p - g1) + g1 + d1
+    expected = r2.apply(p1 - g2) + g2 + d2
+    got = corr2.rotation[0].apply(p) + corr2.translation_m[0]
+    np.testing.assert_allclose(got, expected, atol=1e-12)
+    assert size == pytest.approx((np.linalg.norm(d2), 40.0))
+
+
+def _plan_stubs(monkeypatch, ways):
+    """compare/plan.py's separation with its two flown stages replaced by fixed numbers per
+    way: ``ways[name] = (points in the recording, points diagnosed, margin, z of them)``."""
+    from lidar_sim_ros.compare import plan
+    from lidar_sim_ros.core.effects import make_effect
+    monkeypatch.setattr(plan, 'simulate_measurements',
+                        lambda model, materials, effects, rec, seed, first_frame, max_points:
+                        (effects[-1].name, ways[effects[-1].name][0]))
+    monkeypatch.setattr(plan, 'one_way', lambda model, base, true, other, meas, seed, z_crit: {
+        'n': ways[true.name][1], 'margin': ways[true.name][2], 'z': ways[true.name][3],
+        'gain_true': 0.0, 'gain_other': 0.0, 'fitted_true': {}, 'fitted_other': {}})
+    a = plan.Hypothesis(make_effect('range_walk', {'k_m': 0.02}), None)
+    b = plan.Hypothesis(make_effect('snr_noise', {'c_m': 0.01}), None)
+    rec = plan.Recording('recorded', 'as recorded', (10.0, 0.0, 0.0), (0, 0, 0, 1.0), 0.0,
+                         (0.0, 0.0, 1.0), 0.0, 4, 0.1)
+    return plan, a, b, rec
+
+
+def test_separation_z_is_the_weaker_way_scaled_by_the_root_of_the_points(monkeypatch):
+    """Mutations: z of the stronger way instead of the weaker; z scaled by n instead of
+    sqrt(n) (compare/plan.py). Hand calculation: range_walk's recording holds 16 000
+    points, 4 000 diagnosed at z 6, so compare (at most 10 000 diagnosed) would see
+    z = 6 sqrt(10 000 / 4 000) = 9.487; snr_noise's 9 000 points, 1 000 diagnosed at z 4:
+    4 sqrt(9) = 12 (its margin 0.02 the smaller). The plan's z is the weaker, 9.487."""
+    plan, a, b, rec = _plan_stubs(monkeypatch, {'range_walk': (16_000, 4_000, 0.03, 6.0),
+                                                'snr_noise': (9_000, 1_000, 0.02, 4.0)})
+    row = plan.separation(None, [], a, b, rec, seed=0, z_crit=3.0, max_diagnosed=10_000)
+    assert row['ways']['range_walk']['z'] == pytest.approx(6 * math.sqrt(2.5))
+    assert row['ways']['snr_noise']['z'] == pytest.approx(12.0)
+    assert row['z'] == pytest.approx(9.486833, abs=1e-6)
+    assert row['weaker_way'] == 'range_walk' and row['margin'] == pytest.approx(0.02)
+    assert row['separates'] and row['points'] == 16_000
+
+
+def test_acquisition_rolls_spread_over_a_whole_turn():
+    """Mutation: roll hypotheses spread over half a turn instead of a whole one
+    (gnc/acquire.py). Hand: 4 hypotheses per direction are rolled 0, 90, 180 and 270 deg
+    about the direction from the alignment of the body axis with it."""
+    from lidar_sim_ros.gnc.acquire import AcquisitionConfig, hypotheses
+    rng = np.random.default_rng(4)
+    model = np.column_stack([rng.uniform(-0.5, 0.5, 400), rng.uniform(-0.5, 0.5, 400),
+                             rng.uniform(-2.0, 2.0, 400)])           # a bar along body z
+    axis = np.array([0.0, 0.0, 1.0])
+    direction = np.array([0.0, 1.0, 0.0])
+    cloud = np.column_stack([rng.uniform(9.8, 10.0, 300), rng.uniform(-2.0, 2.0, 300),
+                             rng.uniform(-0.5, 0.5, 300)])          # the bar seen across y
+    poses = hypotheses(model, axis, cloud, direction[None], AcquisitionConfig(roll_hypotheses=4))
+    align, _ = Rotation.align_vectors([direction], [axis])
+    rolls = set()
+    for T in poses:
+        rotvec = (Rotation.from_matrix(T[:3, :3]) * align.inv()).as_rotvec()
+        assert np.linalg.norm(np.cross(rotvec, direction)) < 1e-9     # about the direction
+        rolls.add(round(float(np.degrees(rotvec @ direction)) % 360.0, 6))
+    assert sorted(rolls) == [0.0, 90.0, 180.0, 270.0]
+
+
+@pytest.mark.parametrize('theta_deg', [0.0, 30.0, 60.0, 80.0, 85.0])
+@pytest.mark.parametrize('half_angle_rad', [1e-3, 5e-3, 0.02])
+def test_footprint_spread_bounds_the_cone_on_the_plane(theta_deg, half_angle_rad):
+    """Mutation: the footprint spread bound with 1/cos(theta) instead of 1/cos(theta + a)
+    (core/effects/beam_divergence.py; hidden in the frames by the 1 mm crease tolerance).
+    Second implementation: 720 rays on the cone's rim intersected with a plane at incidence
+    theta, 10 m along the axis; the farthest lands r0 sin a / cos(theta + a) from the axis
+    point. The bound is that (plus its 1 % and 1 um margin), and the cheaper factor of the
+    series path (reach = r0 tan a x factor) is at least cos a / cos(theta + a) wherever that
+    path is taken."""
+    from lidar_sim_ros.core.effects.beam_divergence import (SERIES_LIMIT, far_secant_bound,
+                                                            footprint_spread_m)
+    r0, theta, a = 10.0, np.radians(theta_deg), half_angle_rad
+    if np.tan(theta) * np.tan(a) >= 1.0:
+        pytest.skip('the cone does not meet the plane on every side')
+    normal = np.array([-np.cos(theta), np.sin(theta), 0.0])           # toward the sensor
+    axis_point = np.array([r0, 0.0, 0.0])
+    phi = np.linspace(0.0, 2 * np.pi, 720, endpoint=False)
+    rim = np.column_stack([np.full(720, np.cos(a)), np.sin(a) * np.cos(phi), np.sin(a) * np.sin(phi)])
+    t = (axis_point @ normal) / (rim @ normal)
+    reach = float(np.max(np.linalg.norm(rim * t[:, None] - axis_point, axis=1)))
+    closed = r0 * np.sin(a) / np.cos(theta + a)
+    assert reach == pytest.approx(closed, rel=1e-5)
+    spread = footprint_spread_m(r0, np.cos(theta), np.sin(theta), np.tan(a))
+    assert spread == pytest.approx(1.01 * closed + 1e-6, rel=1e-9)
+    if np.tan(theta) * np.tan(a) < SERIES_LIMIT:
+        bound = far_secant_bound(1.0 / np.cos(theta), np.tan(theta) * np.tan(a))
+        exact = np.cos(a) / np.cos(theta + a)          # r0 tan a x this = the reach
+        assert exact <= bound <= exact * 1.001

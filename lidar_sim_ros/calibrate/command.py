@@ -41,7 +41,12 @@ def register(subparsers) -> None:
                                    'measure bias and sigma per material and distance, test '
                                    'whether they depend on distance, write a materials YAML.')
     p.add_argument('bag', metavar='BAG', nargs='+',
-                   help='rosbag2 with point clouds and /target/pose (several: e.g. one per distance)')
+                   help='rosbag2 with point clouds and /target/pose (several: e.g. one per distance), '
+                        "or a pcap of a Cepton sensor's packets (with --poses)")
+    p.add_argument('--poses', default=None, metavar='BAG_OR_CSV',
+                   help='target poses apart from the recordings (required for a pcap): a bag '
+                        '(--pose-topic) or a CSV t_s,x_m,y_m,z_m,qx,qy,qz,qw; used for every '
+                        'recording given')
     p.add_argument('--mesh', required=True, metavar='OBJ', help='target mesh (usemtl = material)')
     p.add_argument('--config', metavar='SCENARIO',
                    help='scenario YAML naming the materials file (default: config/scenario.yaml)')
@@ -65,10 +70,11 @@ def register(subparsers) -> None:
     add_field_options(p)
     p.set_defaults(func=_range_errors)
 
-    p = sub.add_parser('scan', help='measured point times and angles -> Lissajous scan config',
+    p = sub.add_parser('scan', help='measured point times and angles -> Lissajous or Risley scan config',
                        description='Fit per-laser Lissajous frequencies, phases, amplitudes and '
-                                   'centres to measured points (x, y, z, t and optionally ring) '
-                                   'and write a sensor YAML.')
+                                   'centres (a lissajous_array --sensor) or the two prisms\' rates, '
+                                   'deviations and phases (a risley --sensor) to measured points '
+                                   '(x, y, z, t and optionally ring) and write a sensor YAML.')
     p.add_argument('bag', metavar='BAG', help='rosbag2 with point clouds')
     p.add_argument('--out', required=True, metavar='SENSOR_YAML', help='sensor YAML to write')
     p.add_argument('--sensor', metavar='YAML', help='sensor YAML to start from (default: the '
@@ -106,7 +112,8 @@ def _range_errors(args: argparse.Namespace) -> int:
                            args.bin_m, args.min_points, args.tolerance_m, args.sigma_tolerance_m,
                            args.cloud_topic, args.pose_topic, args.materials,
                            {'intensity_field': args.intensity_field,
-                            'time_field': args.time_field, 'laser_field': args.laser_field})
+                            'time_field': args.time_field, 'laser_field': args.laser_field},
+                           poses_from=args.poses)
     return _finish(cal.report, cal.warnings, cal.out, args.figure)
 
 

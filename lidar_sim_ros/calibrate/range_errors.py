@@ -28,8 +28,10 @@ from scipy.spatial.transform import Rotation
 from lidar_sim_ros.calibrate.common import (CalibrationInputError, format_table,
                                             load_materials_document, new_figure, save_figure,
                                             sig, update_materials, write_materials)
+from lidar_sim_ros.compare.cepton_pcap import (PcapError, is_pcap, pcap_recording,
+                                                read_pose_source)
 from lidar_sim_ros.compare.fields import FieldError, resolve_fields
-from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field,
+from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field, laser_ids,
                                                  usable_points)
 from lidar_sim_ros.core.config import load_scenario, resolve
 from lidar_sim_ros.core.geometry import MeshMaterialError, Target, cast_at_poses, load_target
@@ -106,13 +108,22 @@ class _StaticFrame:
 
 def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
                    counts: dict[str, int], fields: dict | None = None,
-                   lines: list[str] | None = None) -> list[_StaticFrame]:
+                   lines: list[str] | None = None,
+                   poses_from: Path | None = None) -> list[_StaticFrame]:
     """The frames of one bag with the target static at a known pose (counts the rest).
-    ``fields``: --intensity-field / --time-field / --laser-field values by name."""
+    ``fields``: --intensity-field / --time-field / --laser-field values by name.
+    ``bag`` may be a pcap of a Cepton sensor's packets, with ``poses_from`` (a bag or a
+    CSV: ``compare/cepton_pcap.py``), which may also replace a bag's own poses."""
     try:
-        clouds = read_clouds(bag, cloud_topic)
-        poses = read_poses(bag, pose_topic)
-    except BagContentError as exc:  # as lidar-sim compare says it
+        if is_pcap(bag):
+            poses, _, _, frames_of = pcap_recording(bag, poses_from, pose_topic)
+            clouds = list(frames_of)
+            cloud_topic = f'UDP {bag.name}'
+        else:
+            clouds = read_clouds(bag, cloud_topic)
+            poses = (read_pose_source(poses_from, pose_topic)[0] if poses_from
+                     else read_poses(bag, pose_topic))
+    except (BagContentError, PcapError) as exc:  # as lidar-sim compare says it
         raise CalibrationInputError(
             f'{exc} (choose the topics with --cloud-topic / --pose-topic)') from None
     if not clouds:
@@ -121,7 +132,7 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
         raise CalibrationInputError(f'bag {bag}: topic {pose_topic!r} has no messages')
     counts['frames'] += len(clouds)
     frames = []
-    for cloud in clouds:
+    for index, cloud in enumerate(clouds):
         pts = cloud.points
         names = pts.dtype.names or ()
         if not {'x', 'y', 'z'} <= set(names):
@@ -139,8 +150,12 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
             counts['frames_no_pose'] += 1
             continue
         # A different pose published during the frame means the target moved.
-        t_max = (float(np.nanmax(field_time_since_stamp_s(pts, fmap.time, cloud.stamp_ns)[0]))
-                 if fmap.time and len(pts) else 0.0)
+        try:
+            t_max = (float(np.nanmax(field_time_since_stamp_s(pts, fmap.time, cloud.stamp_ns)[0]))
+                     if fmap.time and len(pts) else 0.0)
+        except FieldError as exc:
+            raise CalibrationInputError(f'bag {bag}, topic {cloud_topic!r}, cloud #{index}: '
+                                        f'{exc}') from None
         k_end = _pose_index(poses.stamp_ns, cloud.stamp_ns + int(t_max * 1e9))
         if any(not _same_pose(poses.position_m[k], poses.quat_xyzw[k], poses.position_m[j],
                               poses.quat_xyzw[j]) for j in range(k + 1, k_end + 1)):
@@ -150,7 +165,8 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
         rng = np.linalg.norm(xyz, axis=1)
         ok = np.isfinite(rng) & (rng > 0)
         counts['points'] += int(ok.sum())
-        laser = np.asarray(pts[fmap.laser]).astype(np.int64)[ok] if fmap.laser else None
+        laser = (laser_ids(pts[fmap.laser][ok], fmap.laser, bag, cloud_topic, index)
+                 if fmap.laser else None)
         frames.append(_StaticFrame(poses.position_m[k], poses.quat_xyzw[k],
                                    xyz[ok] / rng[ok, None], rng[ok], laser))
     return frames
@@ -158,7 +174,8 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
 
 def match_points(bags: str | Path | list, target: Target, gate_m: float = 0.5,
                  bin_m: float = 1.0, cloud_topic: str = CLOUD_TOPIC,
-                 pose_topic: str = POSE_TOPIC, fields: dict | None = None) -> MatchedPoints:
+                 pose_topic: str = POSE_TOPIC, fields: dict | None = None,
+                 poses_from: str | Path | None = None) -> MatchedPoints:
     """Read the bag(s) and ray-match every point against the target at its frame's pose.
 
     A frame takes the last pose stamped at or before its header stamp (in its own
@@ -173,7 +190,8 @@ def match_points(bags: str | Path | list, target: Target, gate_m: float = 0.5,
                   points_missed=0, points_gated=0, points_used=0)
     lines: list[str] = []
     frames = [f for bag in bags
-              for f in _static_frames(bag, cloud_topic, pose_topic, counts, fields, lines)]
+              for f in _static_frames(bag, cloud_topic, pose_topic, counts, fields, lines,
+                                      None if poses_from is None else Path(poses_from))]
     where = ', '.join(str(b) for b in bags)
     if not frames:
         raise CalibrationInputError(
@@ -456,7 +474,8 @@ def run_range_errors(bag: str | Path | list, mesh: str | Path, out: str | Path,
                      tol_bias_m: float = 0.01, tol_sigma_m: float = 0.005,
                      cloud_topic: str = CLOUD_TOPIC, pose_topic: str = POSE_TOPIC,
                      materials: str | Path | None = None,
-                     fields: dict | None = None) -> RangeCalibration:
+                     fields: dict | None = None,
+                     poses_from: str | Path | None = None) -> RangeCalibration:
     """``lidar-sim calibrate range-errors``: match, analyse, write the materials YAML.
 
     ``bag`` is one bag or a list (e.g. one per distance). The materials file (names for the mesh groups, and the base of the update) is
@@ -475,7 +494,8 @@ def run_range_errors(bag: str | Path | list, mesh: str | Path, out: str | Path,
     except MeshMaterialError as exc:
         raise MeshMaterialError(f'{exc}; pass --materials (or --config) with a materials file '
                                 'that lists them') from None
-    matched = match_points(bag, target, gate_m, bin_m, cloud_topic, pose_topic, fields)
+    matched = match_points(bag, target, gate_m, bin_m, cloud_topic, pose_topic, fields,
+                           poses_from)
     cal = analyse(matched, min_points, tol_bias_m, tol_sigma_m)
     doc, warnings = update_materials(document, cal.written, materials_path)
     cal.warnings += warnings

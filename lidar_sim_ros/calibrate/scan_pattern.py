@@ -21,12 +21,12 @@ from scipy import optimize
 
 from lidar_sim_ros.calibrate.common import (CalibrationInputError, format_table, new_figure,
                                             save_figure, sig, write_sensor)
-from lidar_sim_ros.core.config import LissajousArrayScan, load_sensor, read_yaml
+from lidar_sim_ros.core.config import LissajousArrayScan, RisleyScan, load_sensor, read_yaml
 from lidar_sim_ros.core.scan import (LissajousLaser, angles_from_directions,
                                      directions_from_angles, frame_shots, lissajous_angles,
                                      lissajous_lasers)
 from lidar_sim_ros.compare.fields import FieldError, resolve_fields
-from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field,
+from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field, laser_ids,
                                                  usable_points)
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, BagContentError, read_clouds
 from lidar_sim_ros.paths import config_path
@@ -48,6 +48,7 @@ class ScanSamples:
     frame: np.ndarray
     frame_period_s: float | None
     source: str
+    frame_start_s: np.ndarray | None = None   # each cloud's stamp, s since the first one
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -89,10 +90,13 @@ def read_scan_samples(bag: str | Path, topic: str = CLOUD_TOPIC,
         p = c.points[usable_points(c.points, fmap)]
         for k in ('x', 'y', 'z'):
             cols[k].append(np.asarray(p[k], dtype=float))
-        cols['t'].append(field_time_since_stamp_s(p, fmap.time, c.stamp_ns)[0]
-                         if len(p) else np.zeros(0))
+        try:
+            cols['t'].append(field_time_since_stamp_s(p, fmap.time, c.stamp_ns)[0]
+                             if len(p) else np.zeros(0))
+        except FieldError as exc:
+            raise CalibrationInputError(f'{src}, cloud #{i}: {exc}') from None
         if ring_field:
-            cols['ring'].append(np.asarray(p[ring_field], dtype=int))
+            cols['ring'].append(laser_ids(p[ring_field], ring_field, bag, topic, i))
         cols['frame'].append(np.full(len(p), i))
     a = {k: np.concatenate(v) for k, v in cols.items() if v}
     xyz = np.column_stack([a['x'], a['y'], a['z']])
@@ -104,8 +108,9 @@ def read_scan_samples(bag: str | Path, topic: str = CLOUD_TOPIC,
     az, el = angles_from_directions(direction)
     stamps = np.array([c.stamp_ns for c in clouds], dtype=float)
     period = float(np.median(np.diff(np.sort(stamps)))) * 1e-9 if len(clouds) > 1 else None
+    starts = np.array([(c.stamp_ns - clouds[0].stamp_ns) * 1e-9 for c in clouds])
     return ScanSamples(a['t'][ok], az, el, direction, a['ring'][ok] if ring_field else None,
-                       a['frame'][ok], period if period and period > 0 else None, src)
+                       a['frame'][ok], period if period and period > 0 else None, src, starts)
 
 
 # ---------------------------------------------------------------- one sine
@@ -418,7 +423,7 @@ def calibrate_scan(samples: ScanSamples, sensor_path: str | Path) -> ScanCalibra
     sensor = load_sensor(sensor_path)
     if not isinstance(sensor.scan, LissajousArrayScan):
         raise CalibrationInputError(f'{sensor_path}: scan.type is {sensor.scan.type!r}; '
-                                    'calibrate scan fits lissajous_array sensors')
+                                    'calibrate scan fits lissajous_array and risley sensors')
     warnings = []
     period = sensor.frame_period_s
     if samples.frame_period_s is not None:
@@ -555,7 +560,9 @@ def run_scan(bag: str | Path, out: str | Path, sensor: str | Path | None = None,
              fields: dict | None = None) -> ScanCalibration:
     """``lidar-sim calibrate scan``: fit, write the sensor YAML, check it reloads, plot."""
     sensor = Path(sensor) if sensor else config_path('cepton_vista_p60.yaml')
-    load_sensor(sensor)  # a wrong --sensor fails before the bag is read
+    if isinstance(load_sensor(sensor).scan, RisleyScan):  # a wrong --sensor fails before the bag
+        from lidar_sim_ros.calibrate.scan_risley import run_risley
+        return run_risley(bag, out, sensor, figure, topic, fields)
     samples = read_scan_samples(bag, topic, fields)
     cal = calibrate_scan(samples, sensor)
     header = [f'Sensor calibrated by `lidar-sim calibrate scan {bag}` from {sensor}:',

@@ -28,6 +28,13 @@ def register(subparsers) -> None:
                    help='local worker processes (default: all cores); ignored with --address')
     p.add_argument('--address', default=None, metavar='ADDR',
                    help='join a running Dask scheduler, e.g. tcp://10.0.0.5:8786')
+    p.add_argument('--tls-ca-file', type=Path, default=None, metavar='PEM',
+                   help='join --address tls://... over TLS: the CA that signed the cluster\'s '
+                        'certificates (default: the Dask config\'s distributed.comm.tls.ca-file)')
+    p.add_argument('--tls-cert', type=Path, default=None, metavar='PEM',
+                   help='this client\'s certificate, signed by that CA (or distributed.comm.tls.client.cert)')
+    p.add_argument('--tls-key', type=Path, default=None, metavar='PEM',
+                   help='its private key (default: appended to --tls-cert)')
     p.add_argument('--run', type=run_id, default=None, metavar='RUN_ID',
                    help='re-run this one run here (no cluster) and compare with the manifest')
     p.add_argument('--retry-failed', action='store_true',
@@ -48,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         report = run_campaign(campaign, args.out, workers=args.workers, address=args.address,
-                              retry_failed=args.retry_failed, progress=not args.no_progress)
+                              retry_failed=args.retry_failed, progress=not args.no_progress,
+                              security=_security(args))
     except EngineError as exc:
         print(f'lidar-sim campaign: error: {exc}', file=sys.stderr)
         return 2
@@ -66,26 +74,63 @@ def run(args: argparse.Namespace) -> int:
     if report.parquet_path:
         print(f'parquet: {report.parquet_path}')
     if campaign.spec.loop is not None:
-        _loop_summary(args.out)
+        _loop_summary(args.out, campaign)
+    elif campaign.spec.criteria:
+        _frame_summary(args.out, campaign)
     return 1 if report.failed else 0
 
 
-def _loop_summary(out_dir: Path) -> None:
-    """A closed-loop campaign's tables and figure, and its percentiles on the terminal."""
-    from lidar_sim_ros.campaign.loop_case import summarize
-    summary = summarize(out_dir)
-    print(f'closed loop: {summary.runs} runs: {summary.runs_table}, {summary.summary_table}'
+def _frame_summary(out_dir: Path, campaign):
+    """A frame campaign's verdicts (criteria.csv, vs_dispersions.png) and its pass rates."""
+    from lidar_sim_ros.campaign.summary import summarize_frames
+    summary = summarize_frames(out_dir, campaign)
+    print(f'criteria: {summary.runs} ok runs, {summary.failed} failed: {summary.criteria_table}'
           + (f', {summary.figure}' if summary.figure else ''))
+    _print_verdicts(summary.verdicts)
+    return summary
+
+
+def _print_verdicts(verdicts) -> None:
+    for row in verdicts:
+        print(f'  pass {row["passed"]:>6d} of {row["runs"]:<6d} ({100 * (row["pass_rate"] or 0.0):5.1f} %)  '
+              f'{row["criterion"]}')
+
+
+def _security(args: argparse.Namespace):
+    """The TLS ``Security`` of ``--tls-*`` (None without them: Dask's config decides)."""
+    from lidar_sim_ros.campaign.engine import EngineError, tls_security
+    given = {k: getattr(args, k) for k in ('tls_ca_file', 'tls_cert', 'tls_key')}
+    if not any(v is not None for v in given.values()):
+        return None
+    if given['tls_ca_file'] is None or given['tls_cert'] is None:
+        raise EngineError('--tls-ca-file and --tls-cert go together (and --tls-key, unless the key '
+                          'is appended to the certificate)')
+    if not args.address:
+        raise EngineError('--tls-* secure the connection to --address tls://HOST:PORT; '
+                          'the local cluster listens on 127.0.0.1 only')
+    return tls_security(given['tls_ca_file'], given['tls_cert'], given['tls_key'])
+
+
+def _loop_summary(out_dir: Path, campaign):
+    """A closed-loop campaign's tables and figures, its percentiles and pass rates on the
+    terminal; returns the ``summary.LoopSummary``."""
+    from lidar_sim_ros.campaign.summary import summarize
+    summary = summarize(out_dir, campaign)
+    print(f'closed loop: {summary.runs} runs: {summary.runs_table}, {summary.summary_table}'
+          + (f', {summary.criteria_table}' if summary.criteria_table else '')
+          + (f', {len(summary.figures)} figures ({summary.figure.name}, ...)' if summary.figure else ''))
     for row in summary.table:
         if row['runs']:
             print(f'  {row["metric"]:18s} p5 {row["p5"]:9.4g}  p50 {row["p50"]:9.4g}  '
                   f'p95 {row["p95"]:9.4g}  ({row["runs"]} runs, {row["missing"]} without)')
         else:
             print(f'  {row["metric"]:18s} no value in {row["missing"]} runs')
+    _print_verdicts(summary.verdicts)
+    return summary
 
 
 def _rerun(campaign, out_dir: Path, run_id: int) -> int:
-    from lidar_sim_ros.campaign.run import rerun
+    from lidar_sim_ros.campaign.manifest import rerun
     if campaign.spec.loop is not None:
         return _rerun_loop(campaign, out_dir, run_id)
     row, old = rerun(campaign, out_dir, run_id)
@@ -109,7 +154,7 @@ def _rerun(campaign, out_dir: Path, run_id: int) -> int:
 def _rerun_loop(campaign, out_dir: Path, run_id: int) -> int:
     """``--run`` of a closed-loop campaign: its metrics (loop.json) compared with the last ones."""
     from lidar_sim_ros.campaign.loop_case import read_result
-    from lidar_sim_ros.campaign.run import rerun
+    from lidar_sim_ros.campaign.manifest import rerun
     old = read_result(out_dir, run_id)
     row, _ = rerun(campaign, out_dir, run_id)
     print(f'run {run_id}: seed {row["seed"]}, status {row["status"]}'

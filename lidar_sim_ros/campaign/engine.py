@@ -32,8 +32,10 @@ from lidar_sim_ros.campaign.spec import Campaign
 
 if TYPE_CHECKING:
     from dask.distributed import Client, LocalCluster
+    from distributed.security import Security
 
     from lidar_sim_ros.campaign.manifest import Manifest
+    from lidar_sim_ros.campaign.series import SeriesKeeper
 
 for _module in ('dask', 'distributed'):  # the extra is missing: say so on import
     if importlib.util.find_spec(_module) is None:
@@ -162,15 +164,53 @@ def _workers_ignore_sigint() -> Iterator[None]:
         signal.signal(signal.SIGINT, old)
 
 
+def tls_security(ca_file: str | Path, cert: str | Path, key: str | Path | None = None) -> Security:
+    """The client's side of a TLS cluster (docs/campaign.md, "Securing a Dask cluster"): a
+    Dask ``Security`` from PEM files, the CA that signed every endpoint's certificate, this
+    client's certificate and its key (None: the key is appended to ``cert``); encryption
+    required, so that no plain ``tcp://`` connection is made by mistake."""
+    from distributed.security import Security
+    files = {'--tls-ca-file': ca_file, '--tls-cert': cert, '--tls-key': key}
+    for option, path in files.items():
+        if path is not None and not Path(path).is_file():
+            raise EngineError(f'{option} {path}: no such file')
+    extra = {'tls_client_key': str(key)} if key is not None else {}
+    return Security(tls_ca_file=str(ca_file), tls_client_cert=str(cert), require_encryption=True,
+                    **extra)
+
+
+def _client_security(address: str, security: Security | None) -> Security | None:
+    """``security``, or None for Dask's own (``distributed.comm.tls.*`` of the Dask config,
+    read by ``Client``); refuses a pairing that can only fail later, less clearly."""
+    tls = address.startswith('tls://')
+    if security is not None and not tls:
+        raise EngineError(f'--address {address}: with TLS certificates the scheduler\'s address is '
+                          'tls://HOST:PORT (dask scheduler --protocol tls)')
+    if tls and security is None:
+        from distributed.security import Security
+        own = Security()  # what Client would build: the Dask config's distributed.comm.tls.*
+        if own.tls_ca_file is None or own.tls_client_cert is None:
+            raise EngineError(f'--address {address}: a TLS scheduler needs this client\'s certificate: '
+                              '--tls-ca-file, --tls-cert (and --tls-key), or distributed.comm.tls.ca-file '
+                              'and distributed.comm.tls.client.cert in the Dask config (docs/campaign.md)')
+    return security
+
+
 @contextmanager
-def connect(workers: int | None = None, address: str | None = None) -> Iterator[Client]:
+def connect(workers: int | None = None, address: str | None = None,
+            security: Security | None = None) -> Iterator[Client]:
     """A Dask client: of a new local cluster (``workers`` processes, default all cores)
-    or of the running scheduler at ``address``."""
+    or of the running scheduler at ``address``, over TLS with ``security`` (``tls_security``;
+    None: the Dask config's ``distributed.comm.tls.*``, as ``dask`` commands read it)."""
     from dask.distributed import Client
+    if security is not None and not address:
+        raise EngineError('TLS certificates are for joining a scheduler (--address tls://HOST:PORT); '
+                          'the local cluster listens on 127.0.0.1 only')
     if address:
+        security = _client_security(address, security)
         try:
-            client = Client(address, timeout='20s')
-        except (OSError, TimeoutError) as exc:
+            client = Client(address, timeout='20s', security=security)
+        except (OSError, TimeoutError) as exc:  # ssl.SSLError is an OSError
             raise EngineError(f'cannot reach a Dask scheduler at {address}: {exc}') from None
         with client:
             yield client
@@ -202,11 +242,12 @@ def _quiet_worker_close() -> None:
 
 def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = None,
                  address: str | None = None, retry_failed: bool = False,
-                 progress: bool = True) -> CampaignReport:
+                 progress: bool = True, security: Security | None = None) -> CampaignReport:
     """Run every run of ``campaign`` not yet in ``out_dir/manifest.csv``.
 
     A run that fails (or whose worker dies) is recorded as failed and the others go on;
-    ``retry_failed`` runs the failed ones again.
+    ``retry_failed`` runs the failed ones again. ``security``: joining ``address`` over TLS
+    (``tls_security``; None: the Dask config's, see ``connect``).
     """
     t0 = time.perf_counter()
     runs = campaign.spec.runs
@@ -216,8 +257,10 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
         if not address:
             start_forkserver()
         from lidar_sim_ros.campaign.manifest import Manifest
-        from lidar_sim_ros.campaign.run import worker_facts
+        from lidar_sim_ros.campaign.run import keeps_series, worker_facts
+        from lidar_sim_ros.campaign.series import SeriesKeeper
         manifest = Manifest.open(out_dir, campaign)
+        keeper = SeriesKeeper.open(out_dir, campaign.spec.series) if keeps_series(campaign) else None
         n_pending = sum(not manifest.is_finished(i, retry_failed) for i in range(runs))
         # Run ids are produced as they are submitted, never listed (memory flat in the runs).
         pending = (i for i in range(runs) if not manifest.is_finished(i, retry_failed))
@@ -227,7 +270,7 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
             bar.n = bar.initial = runs - n_pending
             bar.set_postfix_str('starting workers' if n_pending else _counts(manifest, 0))
         if n_pending:
-            with connect(workers, address) as client:
+            with connect(workers, address, security) as client:
                 if address:
                     _check_workers(client.run(worker_facts))
                 n_workers = sum(client.nthreads().values()) or 1
@@ -235,7 +278,7 @@ def run_campaign(campaign: Campaign, out_dir: str | Path, workers: int | None = 
                 # Each worker prepares itself (mesh, BVH, kernels) on its first task, so
                 # the first rows come from the first worker ready, not the last one.
                 _gather(client, campaign, pending, n_pending, out_dir, manifest, bar, tally,
-                        IN_FLIGHT_PER_WORKER * n_workers, t0)
+                        IN_FLIGHT_PER_WORKER * n_workers, t0, keeper)
                 wall_s = time.perf_counter() - t1
     finally:
         if bar is not None:
@@ -296,10 +339,11 @@ class BatchSizer:
 
 def _gather(client: Client, campaign: Campaign, pending: Iterator[int], n_pending: int,
             out_dir: str | Path, manifest: Manifest, bar, tally: dict, in_flight: int,
-            t0: float) -> None:
+            t0: float, keeper: SeriesKeeper | None = None) -> None:
     """Submit the pending runs in batches (``BatchSizer``), at most ``in_flight`` tasks at
     a time, and record each run as its batch finishes (``tally``: ok, failed, summed
-    compute in s, ``first_row_s`` after ``t0``, ``tasks``).
+    compute in s, ``first_row_s`` after ``t0``, ``tasks``; ``keeper``: the time series
+    a closed-loop campaign keeps).
 
     A task lost with its worker (``KilledWorker`` after Dask's own retries) may hold
     runs that did nothing wrong: its batch-mates, or a task that only sat queued on the
@@ -361,6 +405,8 @@ def _gather(client: Client, campaign: Campaign, pending: Iterator[int], n_pendin
             future.release()
             fill()
             for row in rows:
+                if keeper is not None:
+                    keeper.offer(row)
                 compute_s = float(row.get('compute_s') or 0.0)
                 sizer.observe(compute_s)
                 tally['compute_s'] += compute_s

@@ -19,12 +19,12 @@ A campaign with a ``loop:`` section (docs/campaign.md, "Closed-loop campaigns") 
 
 Per run the worker writes ``runs/run_NNNNN/loop.json`` (the metrics of loop.json,
 ``LOOP_METRICS`` and the rest of ``loop.metrics.loop_metrics``) and returns the manifest
-row (status, dispersed parameters, compute time). ``summarize`` then writes the table of
-every run, the percentile table and the figure.
+row (status, dispersed parameters, compute time), with its metrics and series besides
+for the client (``series.py`` keeps the worst runs'); ``summary.py`` then writes the
+tables, the criteria's verdicts and the figures.
 """
 from __future__ import annotations
 
-import csv
 import hashlib
 import json
 import math
@@ -39,19 +39,14 @@ from pathlib import Path
 import numpy as np
 
 from lidar_sim_ros.campaign.sample import key_rng, run_seed, sample_run
-from lidar_sim_ros.campaign.spec import Campaign, CampaignSpec
-from lidar_sim_ros.core.config import ConfigError, Scenario, resolve
+from lidar_sim_ros.campaign.spec import Campaign, loop_config_path
+from lidar_sim_ros.campaign.worker import prepare_scenario, worker_target
+from lidar_sim_ros.core.config import Scenario
 from lidar_sim_ros.core.pose import quat_multiply
 
 LOOP_METRICS = ('hold_error_m', 'delta_v_mps', 'min_range_m', 'est_trans_rms_m', 'est_axis_rms_deg',
                 'acquired_at_s', 'losses')
 RESULT = 'loop.json'
-RUNS_TABLE = 'loop_runs.csv'
-SUMMARY_TABLE = 'loop_summary.csv'
-FIGURE = 'loop_summary.png'
-PERCENTILES = (5, 50, 95)
-# Dispersions of the frame-statistics scenario that mean nothing in the loop.
-_NOT_IN_LOOP = {'approach_speed_mps': 'the approach is the guidance\'s (loop config guidance.*)'}
 
 
 @dataclass(frozen=True)
@@ -69,36 +64,6 @@ class LoopRunCase:
 
 
 # ------------------------------------------------------------------ loading
-def loop_config_path(campaign_file: Path, spec: CampaignSpec) -> Path:
-    return resolve(spec.loop.config, Path(campaign_file).resolve().parent)
-
-
-def check_loop_spec(spec: CampaignSpec, path: Path) -> CampaignSpec:
-    """The spec with its loop file checked (ConfigError naming the file, key and value) and
-    its bytes' sha256 filled in, so that the manifest's fingerprint covers the loop."""
-    from lidar_sim_ros.loop.config import load_loop_config
-    if spec.loop.config_sha256:
-        raise ConfigError(path, 'loop.config_sha256', spec.loop.config_sha256,
-                          'is filled when the campaign loads; leave it out')
-    for key, why in _NOT_IN_LOOP.items():
-        if getattr(spec.dispersions, key) is not None:
-            raise ConfigError(path, f'dispersions.{key}', getattr(spec.dispersions, key).model_dump(
-                exclude_none=True), f'not used by a closed-loop campaign: {why}')
-    if spec.save != 'stats':
-        raise ConfigError(path, 'save', spec.save, 'a closed-loop campaign writes runs/run_NNNNN/loop.json, '
-                          'not bags: leave save out (or stats)')
-    loop_path = loop_config_path(path, spec)
-    if not loop_path.is_file():
-        raise ConfigError(path, 'loop.config', spec.loop.config, f'file not found at {loop_path}')
-    config, _ = load_loop_config(loop_path)
-    period = config.control_period_s
-    if abs(spec.duration_s / period - round(spec.duration_s / period)) > 1e-9:
-        raise ConfigError(path, 'duration_s', spec.duration_s,
-                          f'must be a whole number of control periods ({period:g} s, {loop_path.name})')
-    digest = hashlib.sha256(loop_path.read_bytes()).hexdigest()
-    return spec.model_copy(update={'loop': spec.loop.model_copy(update={'config_sha256': digest})})
-
-
 _CONFIGS: dict[tuple[str, str], object] = {}
 
 
@@ -164,7 +129,6 @@ _LOCK = threading.Lock()
 
 def tracker_model(scenario: Scenario):
     """The tracker's model of the scenario's mesh, built once per worker process."""
-    from lidar_sim_ros.campaign.run import worker_target
     from lidar_sim_ros.gnc.tracker import TrackerConfig, build_model
     target, _ = worker_target(scenario)
     key = (str(Path(scenario.mesh_path).resolve()), Path(scenario.mesh_path).stat().st_mtime_ns)
@@ -176,16 +140,15 @@ def tracker_model(scenario: Scenario):
 
 def prepare_loop_worker(campaign: Campaign) -> None:
     """What every run would pay once: Basilisk's import, the mesh, kernels, tracker model."""
-    from lidar_sim_ros.campaign.run import prepare_scenario
     import Basilisk.simulation.spacecraft  # noqa: F401  (~1 s the first time)
     case = sample_loop_case(campaign, 0)
     prepare_scenario(case.scenario)
     tracker_model(case.scenario)
 
 
-def simulate_loop_case(case: LoopRunCase) -> dict:
-    """Run the case's loop; its metrics (``loop.metrics.loop_metrics`` and step's extras)."""
-    from lidar_sim_ros.campaign.run import worker_target
+def simulate_loop_case(case: LoopRunCase):
+    """Run the case's loop: its ``loop.step.LoopResult`` (metrics: ``loop.metrics.loop_metrics``
+    and step's extras; series: arrays, one row per control period)."""
     from lidar_sim_ros.loop.step import build_context, run_steps
     target = model = None
     if case.cloud is not None:
@@ -195,7 +158,7 @@ def simulate_loop_case(case: LoopRunCase) -> dict:
     loop = case.loop.model_copy(update={'tracker_threads': 1})
     ctx = build_context(loop, case.scenario, case.cloud, target=target, tracker_model=model,
                         misalignment_xyzw=case.misalignment_xyzw)
-    return run_steps(ctx, case.duration_s).metrics
+    return run_steps(ctx, case.duration_s)
 
 
 def result_path(out_dir: str | Path, run_id: int) -> Path:
@@ -204,13 +167,16 @@ def result_path(out_dir: str | Path, run_id: int) -> Path:
 
 def run_one_loop(campaign: Campaign, run_id: int, out_dir: str | Path | None = None) -> dict:
     """The engine's task for a closed-loop campaign (``run.run_one`` hands it on): sample and
-    run one case, write its loop.json, return its manifest row. Never raises."""
+    run one case, write its loop.json, return its manifest row, with the run's ``metrics``
+    and ``series`` besides for the client's ``series.SeriesKeeper`` (not manifest columns).
+    Never raises."""
     start = time.perf_counter(), time.process_time()
     row: dict = {'run_id': run_id, 'seed': run_seed(campaign.spec.seed, run_id)}
     try:
         case = sample_loop_case(campaign, run_id)
         row.update({f'param.{k}': v for k, v in case.params.items()})
-        metrics = simulate_loop_case(case)
+        result = simulate_loop_case(case)
+        metrics = result.metrics
         if out_dir is not None:
             path = result_path(out_dir, run_id)
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -223,7 +189,7 @@ def run_one_loop(campaign: Campaign, run_id: int, out_dir: str | Path | None = N
         row.update(status='failed', error=f'{type(exc).__name__}: {exc} '
                                           f'({Path(last.filename).name}:{last.lineno})')
     else:
-        row.update(status='ok', error='')
+        row.update(status='ok', error='', metrics=metrics, series=result.series)
     row['compute_s'] = time.perf_counter() - start[0]
     row['cpu_s'] = time.process_time() - start[1]
     row['worker'] = f'{socket.gethostname()}:{os.getpid()}'
@@ -238,93 +204,3 @@ def _json_safe(metrics: dict) -> dict:
 def read_result(out_dir: str | Path, run_id: int) -> dict | None:
     path = result_path(out_dir, run_id)
     return json.loads(path.read_text()) if path.is_file() else None
-
-
-# ------------------------------------------------------------------ summary
-@dataclass(frozen=True)
-class LoopSummary:
-    runs_table: Path
-    summary_table: Path
-    figure: Path | None
-    runs: int
-    table: list[dict]
-
-
-def summarize(out_dir: str | Path, figure: bool = True) -> LoopSummary:
-    """Read the ok runs of ``out_dir/manifest.csv`` and their loop.json; write
-    ``loop_runs.csv`` (one row per run: id, seed, dispersed parameters, metrics),
-    ``loop_summary.csv`` (per metric: runs with a value, mean, min, percentiles, max) and
-    ``loop_summary.png`` (the distribution of each metric)."""
-    out = Path(out_dir)
-    with (out / 'manifest.csv').open(newline='') as fh:
-        ids = sorted({int(r['run_id']) for r in csv.DictReader(fh) if r.get('status') == 'ok'})
-    results = [r for r in (read_result(out, i) for i in ids) if r is not None]
-    params = list(results[0]['params']) if results else []
-    metric_names = list(LOOP_METRICS) + [k for k in (results[0]['metrics'] if results else {})
-                                         if k not in LOOP_METRICS]
-    runs_path = out / RUNS_TABLE
-    with runs_path.open('w', newline='') as fh:
-        writer = csv.writer(fh)
-        writer.writerow(['run_id', 'seed'] + [f'param.{p}' for p in params] + metric_names)
-        for r in results:
-            writer.writerow([r['run_id'], r['seed']] + [_text(r['params'].get(p)) for p in params]
-                            + [_text(r['metrics'].get(m)) for m in metric_names])
-    table = [metric_row(m, [r['metrics'].get(m) for r in results]) for m in LOOP_METRICS]
-    summary_path = out / SUMMARY_TABLE
-    with summary_path.open('w', newline='') as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(table[0]))
-        writer.writeheader()
-        writer.writerows({k: _text(v) for k, v in row.items()} for row in table)
-    fig = _figure(out / FIGURE, results) if figure and results else None
-    return LoopSummary(runs_path, summary_path, fig, len(results), table)
-
-
-def metric_row(name: str, values: list) -> dict:
-    """One line of the percentile table: a value that is None (never acquired) or NaN (no
-    hold dwell) is left out of the statistics and counted as ``missing``."""
-    x = np.array([np.nan if v is None else float(v) for v in values], float)
-    x = x[np.isfinite(x)]
-    row: dict = {'metric': name, 'runs': int(len(x)), 'missing': int(len(values) - len(x))}
-    if len(x):
-        row.update(mean=float(x.mean()), min=float(x.min()),
-                   **{f'p{p}': float(np.percentile(x, p)) for p in PERCENTILES}, max=float(x.max()))
-    else:
-        row.update(mean=None, min=None, **{f'p{p}': None for p in PERCENTILES}, max=None)
-    return row
-
-
-def _text(value) -> str:
-    if value is None:
-        return ''
-    if isinstance(value, float):
-        return 'nan' if math.isnan(value) else repr(value)
-    return str(value)
-
-
-def _figure(path: Path, results: list[dict]) -> Path:
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(2, 4, figsize=(14, 6.5))
-    for ax, name in zip(axes.flat, LOOP_METRICS):
-        x = np.array([np.nan if r['metrics'].get(name) is None else float(r['metrics'][name])
-                      for r in results], float)
-        ok = x[np.isfinite(x)]
-        if len(ok):
-            ax.hist(ok, bins=min(30, max(5, len(ok) // 3)), color='tab:blue', alpha=0.8)
-            for p, style in zip(PERCENTILES, (':', '-', ':')):
-                ax.axvline(np.percentile(ok, p), color='k', ls=style, lw=1)
-        ax.set_title(f'{name} ({len(ok)} of {len(x)} runs)', fontsize=9)
-        ax.set_ylabel('runs')
-    ax = axes.flat[-1]
-    rng, dv = (np.array([np.nan if r['metrics'].get(k) is None else r['metrics'][k] for r in results], float)
-               for k in ('min_range_m', 'delta_v_mps'))
-    ax.scatter(rng, dv, s=10)
-    ax.set_xlabel('min_range_m')
-    ax.set_ylabel('delta_v_mps')
-    ax.set_title('delta-v against closest approach', fontsize=9)
-    fig.suptitle(f'closed-loop campaign: {len(results)} runs (lines: 5th, 50th, 95th percentile)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path

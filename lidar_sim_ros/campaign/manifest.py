@@ -19,14 +19,16 @@ import hashlib
 import json
 import math
 import os
+import re
 from array import array
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 
-from lidar_sim_ros.campaign.sample import param_names
-from lidar_sim_ros.campaign.spec import Campaign
+from lidar_sim_ros.campaign.run import param_names, run_one
+from lidar_sim_ros.campaign.series import SeriesKeeper
+from lidar_sim_ros.campaign.spec import MAX_RUNS, Campaign
 from lidar_sim_ros.campaign.statistics import COUNTS, stat_names
 
 MANIFEST = 'manifest.csv'
@@ -38,7 +40,7 @@ TAIL = ['compute_s', 'cpu_s', 'worker']
 def columns(campaign: Campaign) -> list[str]:
     """The manifest's columns for ``campaign``."""
     return (HEAD + [f'param.{p}' for p in param_names(campaign)]
-            + [f'stat.{s}' for s in stat_names(campaign.scenario.materials.names)] + TAIL)
+            + [f'stat.{s}' for s in stat_names(campaign.material_names)] + TAIL)
 
 
 def format_value(value) -> str:
@@ -56,18 +58,42 @@ def format_value(value) -> str:
 
 
 def fingerprint(campaign: Campaign) -> str:
-    """sha256 over everything that decides a run's result, except the number of runs."""
+    """sha256 over everything that decides a run's result: not the number of runs, nor
+    what is made of the results (``criteria``, which runs keep their ``series``)."""
     h = hashlib.sha256()
     scenario = campaign.scenario
-    h.update(campaign.spec.model_dump_json(exclude={'runs'}).encode())
+    h.update(campaign.spec.model_dump_json(exclude={'runs', 'criteria', 'series'}).encode())
     for model in (scenario.config, scenario.sensor, scenario.materials):
         h.update(model.model_dump_json().encode())
     h.update(Path(scenario.mesh_path).read_bytes())
+    for sensor in campaign.sensors or []:           # the choices' contents, not only their names
+        h.update(sensor.model_dump_json().encode())
+    for target in campaign.targets or []:
+        h.update(target.materials.model_dump_json().encode())
+        h.update(Path(target.mesh_path).read_bytes())
     return h.hexdigest()
 
 
 _STATUS = {'ok': 1, 'failed': 2}
 _STATUS_NAME = {1: 'ok', 2: 'failed'}
+_RUN_ID = re.compile(r'[0-9]{1,8}')  # ASCII digits: str.isdigit() takes '²', which int() refuses
+
+
+class ManifestError(ValueError):
+    """A manifest line that no campaign writes (an edited or foreign file): named with its
+    file, line and value, rather than read as something else."""
+
+
+def parse_run_id(text: str, path: Path, line: int) -> int:
+    """The run id of a manifest row: ASCII digits below ``spec.MAX_RUNS``.
+
+    The client keeps one status byte per run id up to the largest one, so an id is bounded
+    before it is used (run_id 1e9 took 1.26 GB; 30 digits overflowed the offset index)."""
+    if _RUN_ID.fullmatch(text) is None or int(text) >= MAX_RUNS:
+        raise ManifestError(f'{path}: line {line}: run_id {text[:40]!r} is not a run id '
+                            f'(0..{MAX_RUNS - 1}, ASCII digits); this manifest was not written by '
+                            'lidar-sim campaign as it is: fix or remove that line, or choose another --out')
+    return int(text)
 
 
 class Manifest:
@@ -106,9 +132,10 @@ class Manifest:
         return manifest
 
     # ------------------------------------------------------------- reading
-    def _scan(self) -> Iterator[tuple[list[str], int, int]]:
-        """Every complete row of the file with its byte span [start, end); the header is
-        checked. A row cut short (a killed campaign's last line) is skipped."""
+    def _scan(self) -> Iterator[tuple[int, list[str], int, int]]:
+        """Every complete row of the file with its run id and byte span [start, end); the
+        header is checked. A row cut short (a killed campaign's last line) is skipped; a
+        complete row whose run id is not one raises ``ManifestError`` (file, line, value)."""
         if not self.path.is_file():
             return
         with self.path.open('rb') as fh:
@@ -129,15 +156,15 @@ class Manifest:
             start, n, i_status = end[0], len(self.header), self.header.index('status')
             for row in reader:
                 stop = end[0]
-                if len(row) == n and row[i_status] in _STATUS and row[0].isdigit() and newline[0]:
-                    yield row, start, stop
+                if len(row) == n and row[i_status] in _STATUS and newline[0]:
+                    yield parse_run_id(row[0], self.path, reader.line_num), row, start, stop
                 start = stop
 
     def row(self, run_id: int) -> dict[str, str] | None:
         """The manifest's row of ``run_id`` as text (the last one written), or None."""
         found = None
-        for row, _, _ in self._scan():
-            if int(row[0]) == run_id:
+        for found_id, row, _, _ in self._scan():
+            if found_id == run_id:
                 found = dict(zip(self.header, row))
         return found
 
@@ -197,8 +224,8 @@ class Manifest:
         """Sort the rows by run id, the last row of a run id winning, atomically
         (temporary file + rename); reads every status. Holds byte offsets, not rows."""
         ids, starts, stops = array('q'), array('q'), array('q')
-        for row, start, stop in self._scan():
-            ids.append(int(row[0]))
+        for run_id, _, start, stop in self._scan():
+            ids.append(run_id)
             starts.append(start)
             stops.append(stop)
         self._status, self._counts = bytearray(), {'ok': 0, 'failed': 0}
@@ -219,8 +246,9 @@ class Manifest:
                     out.write(line)
         os.replace(tmp, self.path)
         if len(keep):
-            for row, _, _ in self._scan():
-                self._set_status(int(row[0]), row[self.header.index('status')])
+            i_status = self.header.index('status')
+            for run_id, row, _, _ in self._scan():
+                self._set_status(run_id, row[i_status])
 
     def write_parquet(self) -> Path | None:
         """A Parquet copy beside the CSV when pyarrow is installed (it is optional),
@@ -253,3 +281,21 @@ class Manifest:
                 types[name] = pa.float64()
         return types
 
+
+def rerun(campaign: Campaign, out_dir: str | Path, run_id: int) -> tuple[dict, dict | None]:
+    """Run one case again in this process; its manifest row is replaced (and a closed-loop
+    run's time series kept, as asked for by id).
+
+    Returns the new row and the one the manifest held (None if none), both as manifest
+    text, so that equal statistics compare equal character for character.
+    """
+    if not 0 <= run_id < campaign.spec.runs:
+        raise ValueError(f'--run {run_id}: the campaign has runs 0..{campaign.spec.runs - 1}')
+    manifest = Manifest.open(out_dir, campaign)
+    old = manifest.row(run_id)
+    row = run_one(campaign, run_id, out_dir)
+    if campaign.spec.loop is not None:  # its series: asked for by id (DIR/series/run_NNNNN.npz)
+        SeriesKeeper.open(out_dir, campaign.spec.series).offer(row, asked=True)
+    row = manifest.text_row(row)
+    manifest.replace(row)
+    return row, old

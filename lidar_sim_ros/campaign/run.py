@@ -1,10 +1,9 @@
-"""One campaign run: dispersed scenario -> frames -> statistics (and optionally a rosbag2).
+"""One campaign run: dispersed scenario -> frames -> statistics (and optionally a rosbag2),
+and the engine's task, a batch of runs of either kind (a closed-loop campaign's run is
+``loop_case.run_one_loop``).
 
-Runs execute in engine workers. Each worker process keeps the expensive parts of the
-simulator, the mesh with its Embree BVH and the compiled kernels, in a per-process
-cache keyed by mesh file and material names, and reuses them for every run it gets;
-only the cheap per-run shell (scan directions, material table, effects: a few ms) is
-rebuilt, because the dispersed materials and effects differ from run to run.
+Runs execute in engine workers, on the per-process cache of ``worker.py`` (mesh, BVH,
+kernels built once per process).
 """
 from __future__ import annotations
 
@@ -12,7 +11,6 @@ import os
 import pickle
 import shutil
 import socket
-import threading
 import time
 import traceback
 from dataclasses import dataclass
@@ -20,13 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.campaign.coverage import FaceGeometry, covered_fraction, visible_faces
-from lidar_sim_ros.campaign.manifest import Manifest
+from lidar_sim_ros.campaign.coverage import covered_fraction, visible_faces
+from lidar_sim_ros.campaign.loop_case import prepare_loop_worker, run_one_loop, sample_loop_case
 from lidar_sim_ros.campaign.sample import RunCase, run_seed, sample_run
 from lidar_sim_ros.campaign.spec import Campaign
 from lidar_sim_ros.campaign.statistics import RunStatistics
-from lidar_sim_ros.core.config import Scenario
-from lidar_sim_ros.core.geometry import Target, load_target
+from lidar_sim_ros.campaign.worker import prepare_scenario, worker_target
 from lidar_sim_ros.core.pipeline import NO_MATERIAL, Frame, Simulator
 from lidar_sim_ros.core.pose import (PoseSource, Poses, ScenarioTrajectory, quat_multiply,
                                      quat_to_matrix)
@@ -47,37 +44,7 @@ class MountedPose:
         return Poses.from_quat(quat_multiply(mount, poses.quat_xyzw), position)
 
 
-# ------------------------------------------------------------ worker cache
-_TARGETS: dict[tuple, tuple[Target, FaceGeometry]] = {}
-_WARM: set[tuple[str, ...]] = set()  # effect lists this process has run a frame with
-_LOCK = threading.Lock()  # a multi-threaded worker builds each mesh once
 _PREPARED: set[str] = set()  # campaigns this process has run prepare_worker for
-
-
-def worker_target(scenario: Scenario) -> tuple[Target, FaceGeometry]:
-    """The scenario's mesh (BVH built) and face geometry, loaded once per process."""
-    path = Path(scenario.mesh_path)
-    stat = path.stat()
-    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size, tuple(scenario.materials.names))
-    with _LOCK:
-        if key not in _TARGETS:
-            target = load_target(path, scenario.materials.names)
-            _TARGETS[key] = (target, FaceGeometry.of(target))
-        return _TARGETS[key]
-
-
-def prepare_scenario(scenario: Scenario) -> bool:
-    """Load the mesh and compile the kernels of this scenario's effects now, so that no
-    run pays for them (once per process and list of effects). True if it had work to do."""
-    effects = tuple(e.name for e in scenario.config.effects)
-    if effects in _WARM:
-        return False
-    target, _ = worker_target(scenario)
-    with _LOCK:
-        if effects not in _WARM:
-            Simulator.from_scenario(scenario, target=target).warm_up()
-            _WARM.add(effects)
-    return True
 
 
 def prepare_worker(campaign: Campaign) -> dict[str, str | bool | None]:
@@ -90,7 +57,6 @@ def prepare_worker(campaign: Campaign) -> dict[str, str | bool | None]:
     """
     try:
         if campaign.spec.loop is not None:
-            from lidar_sim_ros.campaign.loop_case import prepare_loop_worker
             prepare_loop_worker(campaign)
         else:
             prepare_scenario(sample_run(campaign, 0).scenario)
@@ -201,7 +167,18 @@ def run_batch(campaign: Campaign | bytes, run_ids: list[int],
             prepare_worker(campaign)
         except Exception:  # noqa: BLE001 - e.g. a missing mesh: each run records its own error
             _PREPARED.add(_campaign_key(campaign))
-    return [run_one(campaign, run_id, out_dir) for run_id in run_ids]
+    rows = [run_one(campaign, run_id, out_dir) for run_id in run_ids]
+    if not keeps_series(campaign):
+        for row in rows:  # nothing to send back to the client that it would not keep
+            row.pop('series', None)
+    return rows
+
+
+def keeps_series(campaign: Campaign) -> bool:
+    """Whether the engine's client keeps any run's time series (``series.SeriesKeeper``)."""
+    series = campaign.spec.series
+    return campaign.spec.loop is not None and series is not None and bool(
+        (series.worst and series.by) or series.runs)
 
 
 def run_one(campaign: Campaign, run_id: int, out_dir: str | Path | None = None) -> dict:
@@ -212,7 +189,6 @@ def run_one(campaign: Campaign, run_id: int, out_dir: str | Path | None = None) 
     A closed-loop campaign's run is ``loop_case.run_one_loop``.
     """
     if campaign.spec.loop is not None:
-        from lidar_sim_ros.campaign.loop_case import run_one_loop
         return run_one_loop(campaign, run_id, out_dir)
     start = time.perf_counter(), time.process_time()
     try:
@@ -224,16 +200,8 @@ def run_one(campaign: Campaign, run_id: int, out_dir: str | Path | None = None) 
     return run_case(case, out_dir, start)
 
 
-def rerun(campaign: Campaign, out_dir: str | Path, run_id: int) -> tuple[dict, dict | None]:
-    """Run one case again in this process; its manifest row is replaced.
-
-    Returns the new row and the one the manifest held (None if none), both as manifest
-    text, so that equal statistics compare equal character for character.
-    """
-    if not 0 <= run_id < campaign.spec.runs:
-        raise ValueError(f'--run {run_id}: the campaign has runs 0..{campaign.spec.runs - 1}')
-    manifest = Manifest.open(out_dir, campaign)
-    old = manifest.row(run_id)
-    row = manifest.text_row(run_one(campaign, run_id, out_dir))
-    manifest.replace(row)
-    return row, old
+def param_names(campaign: Campaign) -> list[str]:
+    """The ``params`` keys every run of this campaign has, in manifest column order."""
+    if campaign.spec.loop is not None:
+        return list(sample_loop_case(campaign, 0).params)
+    return list(sample_run(campaign, 0).params)

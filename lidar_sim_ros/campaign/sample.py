@@ -19,7 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar_sim_ros.campaign.spec import Campaign, Dispersions
-from lidar_sim_ros.core.config import MaterialConfig, MaterialsConfig, Scenario, ScenarioConfig
+from lidar_sim_ros.core.config import (MaterialConfig, MaterialsConfig, Scenario, ScenarioConfig,
+                                       with_sensor_range_error)
 from lidar_sim_ros.core.pose import quat_multiply
 
 
@@ -97,8 +98,22 @@ def sample_run(campaign: Campaign, run_index: int) -> RunCase:
         params.update(_vector('misalignment_quat', m, 'xyzw'))
         params['misalignment_deg'] = float(np.degrees(2.0 * np.arccos(min(1.0, abs(m[3])))))
 
+    sensor, mesh_path, mesh_materials = base.sensor, base.mesh_path, cfg.mesh_materials
+    table = base.materials
+    if campaign.sensors is not None or campaign.targets is not None:
+        # A drawn sensor brings its own range error, a drawn target its mesh and materials.
+        table = campaign.base_materials
+        if campaign.sensors is not None:
+            i = int(rng('sensor').integers(len(campaign.sensors)))
+            sensor, params['sensor_choice'] = campaign.sensors[i], float(i)
+        if campaign.targets is not None:
+            i = int(rng('target').integers(len(campaign.targets)))
+            target = campaign.targets[i]
+            mesh_path, table, mesh_materials = target.mesh_path, target.materials, target.mesh_materials
+            params['target_choice'] = float(i)
+        table = with_sensor_range_error(table, sensor)      # dispersed errors below still win
     materials = []
-    for mat in base.materials.materials:
+    for mat in table.materials:
         values = mat.model_dump()
         laws = disp.materials.get(mat.name)
         for attr in ('bias_m', 'sigma_m'):
@@ -121,19 +136,10 @@ def sample_run(campaign: Campaign, run_index: int) -> RunCase:
     config = ScenarioConfig.model_validate({
         **cfg.model_dump(), 'seed': seed, 'motion': motion,
         'initial_pose': {'position_m': tuple(position), 'quat_xyzw': tuple(quat)},
-        'effects': effects})
-    scenario = Scenario(config, base.sensor, MaterialsConfig(materials=materials),
-                        base.mesh_path, base.source)
-    return RunCase(run_index, seed, campaign.frames_per_run, params, scenario, misalignment,
+        'effects': effects, 'mesh_materials': mesh_materials})
+    scenario = Scenario(config, sensor, MaterialsConfig(materials=materials), mesh_path, base.source)
+    return RunCase(run_index, seed, campaign.frames_for(sensor), params, scenario, misalignment,
                    spec.save, spec.storage, spec.coverage_frames)
-
-
-def param_names(campaign: Campaign) -> list[str]:
-    """The ``params`` keys every run of this campaign has, in manifest column order."""
-    if campaign.spec.loop is not None:
-        from lidar_sim_ros.campaign.loop_case import sample_loop_case
-        return list(sample_loop_case(campaign, 0).params)
-    return list(sample_run(campaign, 0).params)
 
 
 def _vector(prefix: str, values: np.ndarray, axes: str) -> dict[str, float]:

@@ -7,15 +7,20 @@ value (``campaign.yaml: key "dispersions.tumble_rate_dps.sigma" = -1.0: ...``).
 """
 from __future__ import annotations
 
+import hashlib
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_serializer, model_validator
 
-from lidar_sim_ros.core.config import (ConfigError, Scenario, check_file_kind, load_scenario, parse,
-                                       read_yaml)
+from lidar_sim_ros.campaign.criteria import MAX_CRITERIA, parse_criterion
+from lidar_sim_ros.campaign.statistics import stat_names
+from lidar_sim_ros.core.config import (ConfigError, MaterialsConfig, Scenario, SensorConfig,
+                                       check_file_kind, load_materials, load_scenario, load_sensor,
+                                       parse, read_yaml, resolve)
 
 
 class _Model(BaseModel):
@@ -175,8 +180,24 @@ class MaterialDispersion(_Model):
     sigma_m: Scalar | None = None
 
 
+class TargetChoice(_Model):
+    """A target a run may observe instead of the base scenario's: its mesh, its materials
+    file and the map from the mesh's names to them (paths relative to the campaign file)."""
+
+    mesh: str
+    materials: str
+    mesh_materials: str | dict[str, str] | None = None
+
+
 class Dispersions(_Model):
     """What varies from run to run; omitted keys keep the base scenario's values."""
+
+    sensor: list[str] | None = Field(
+        None, min_length=1, description='sensor YAML files, one drawn per run (equally likely; '
+                                        'the manifest column param.sensor_choice is its index)')
+    target: list[TargetChoice] | None = Field(
+        None, min_length=1, description='targets, one drawn per run (equally likely; '
+                                        'param.target_choice is its index)')
 
     initial_distance_m: Scalar | None = Field(
         None, description='distance to the target at t = 0 along the base line of sight (m)')
@@ -193,6 +214,39 @@ class Dispersions(_Model):
     effects: dict[str, dict[str, Scalar]] = Field(
         default_factory=dict, description='effect name -> parameter -> law; an effect that '
                                           'the base scenario lacks is added')
+
+    @model_serializer(mode='wrap')
+    def _without_no_choice(self, handler):
+        # Without sensor or target choices a spec dumps as before they existed: the
+        # fingerprints of campaigns written then stay the same, and they resume.
+        data = handler(self)
+        if isinstance(data, dict):
+            for key in ('sensor', 'target'):
+                if data.get(key) is None:
+                    data.pop(key, None)
+        return data
+
+
+MAX_SERIES = 1000
+"""Runs whose time series a campaign keeps (``series.worst`` and ``series.runs`` each)."""
+
+# What a closed-loop run measures (runs/run_NNNNN/loop.json "metrics": ``loop.metrics.loop_metrics``
+# and ``loop.step.score``'s additions), the names criteria and ``series.by`` may use;
+# test_campaign_loop checks that a run has each.
+LOOP_METRIC_NAMES = ('hold_error_m', 'delta_v_mps', 'min_range_m', 'est_trans_rms_m',
+                     'est_axis_rms_deg', 'acquired_at_s', 'losses', 'hold_samples', 'final_error_m',
+                     'estimates', 'periods', 'truth_captures', 'holds_reached')
+
+
+class SeriesSpec(_Model):
+    """Which closed-loop runs keep their time series (DIR/series/run_NNNNN.npz): the
+    ``worst`` runs by the metric ``by`` (its highest values, or its lowest with
+    ``worst_is: low``), and the ``runs`` named by id, whatever their metrics."""
+
+    worst: Annotated[int, Field(ge=0, le=MAX_SERIES)] = 0
+    by: str = Field('', description='a metric (LOOP_METRIC_NAMES); required with worst > 0')
+    worst_is: Literal['high', 'low'] = 'high'
+    runs: list[Annotated[int, Field(ge=0)]] = Field(default_factory=list, max_length=MAX_SERIES)
 
 
 MAX_RUNS = 10_000_000
@@ -215,27 +269,64 @@ class CampaignSpec(_Model):
         3, description='frames per run on which target coverage is evaluated (evenly spaced)')
     dispersions: Dispersions = Dispersions()
     loop: LoopCase | None = Field(None, description='closed-loop runs instead of frame statistics')
+    criteria: list[str] = Field(default_factory=list, max_length=MAX_CRITERIA,
+                                description='pass/fail per run: "METRIC OP THRESHOLD" (criteria.py)')
+    series: SeriesSpec | None = Field(None, description='closed-loop runs whose time series are kept')
 
     @model_serializer(mode='wrap')
-    def _without_no_loop(self, handler):
-        # A frame-statistics spec dumps as before ``loop`` existed: the manifest's
-        # fingerprint of campaigns written then stays the same, and they resume.
+    def _without_unset_additions(self, handler):
+        # A spec that uses none of ``loop``, ``criteria``, ``series`` dumps as before they
+        # existed: the manifest's fingerprint of campaigns written then stays the same,
+        # and they resume.
         data = handler(self)
-        if isinstance(data, dict) and data.get('loop') is None:
-            data.pop('loop', None)
+        if isinstance(data, dict):
+            for key in ('loop', 'series'):
+                if data.get(key) is None:
+                    data.pop(key, None)
+            if data.get('criteria') == []:
+                data.pop('criteria')
         return data
 
 
-class Campaign:
-    """A loaded campaign: its spec, the base scenario and the file it came from."""
+@dataclass(frozen=True)
+class LoadedTarget:
+    """A target choice, loaded: mesh path, its materials (as the file has them, before a
+    sensor's own range error) and the mesh's names map."""
 
-    def __init__(self, spec: CampaignSpec, scenario: Scenario, source: Path):
+    mesh_path: Path
+    materials: MaterialsConfig
+    mesh_materials: str | dict[str, str] | None
+
+
+class Campaign:
+    """A loaded campaign: its spec, the base scenario and the file it came from; with
+    sensor or target choices, the choices loaded (``sensors``, ``targets``)."""
+
+    def __init__(self, spec: CampaignSpec, scenario: Scenario, source: Path,
+                 sensors: list[SensorConfig] | None = None,
+                 targets: list[LoadedTarget] | None = None,
+                 base_materials: MaterialsConfig | None = None):
         self.spec, self.scenario, self.source = spec, scenario, source
+        self.sensors, self.targets = sensors, targets
+        # The base scenario's materials as its file has them (before the sensor's range error).
+        self.base_materials = base_materials or scenario.materials
 
     @property
     def frames_per_run(self) -> int:
         """Frames simulated per run: duration times frame rate, at least one."""
-        return max(1, int(round(self.spec.duration_s * self.scenario.sensor.frame_rate_hz)))
+        return self.frames_for(self.scenario.sensor)
+
+    def frames_for(self, sensor: SensorConfig) -> int:
+        """Frames of one run with ``sensor``: duration times its frame rate, at least one."""
+        return max(1, int(round(self.spec.duration_s * sensor.frame_rate_hz)))
+
+    @property
+    def material_names(self) -> list[str]:
+        """Every material a run may report, the base scenario's first (manifest columns)."""
+        names = list(self.scenario.materials.names)
+        for target in self.targets or []:
+            names += [n for n in target.materials.names if n not in names]
+        return names
 
 
 def load_campaign(path: str | Path) -> Campaign:
@@ -254,12 +345,119 @@ def load_campaign(path: str | Path) -> Campaign:
         raise ConfigError(path, 'scenario', spec.scenario, f'file not found at {scenario_path}')
     scenario = load_scenario(scenario_path)
     _check_supports(spec.dispersions, path)
-    _check_materials(spec.dispersions, scenario, path)
+    sensors, targets = _load_choices(spec.dispersions, path)
+    _check_materials(spec.dispersions, scenario, path, targets)
     _check_effects(spec.dispersions, path)
     if spec.loop is not None:
-        from lidar_sim_ros.campaign.loop_case import check_loop_spec
+        if sensors or targets:
+            raise ConfigError(path, 'dispersions.sensor' if sensors else 'dispersions.target',
+                              None, 'a closed-loop campaign takes its sensor and target from '
+                                    'the loop config; drop the choice')
         spec = check_loop_spec(spec, path)
-    return Campaign(spec, scenario, path.resolve())
+    _check_outcomes(spec, scenario, path)
+    base_materials = None
+    if sensors or targets:
+        base_materials = load_materials(resolve(scenario.config.materials, scenario_path.resolve().parent))
+    return Campaign(spec, scenario, path.resolve(), sensors, targets, base_materials)
+
+
+def _load_choices(disp: Dispersions, path: Path) -> tuple[list | None, list | None]:
+    """The sensor and target choices loaded; a missing file or a bad map names its key."""
+    base = path.resolve().parent
+    sensors = None
+    if disp.sensor:
+        sensors = []
+        for i, name in enumerate(disp.sensor):
+            file = resolve(name, base)
+            if not file.is_file():
+                raise ConfigError(path, f'dispersions.sensor.{i}', name, f'file not found at {file}')
+            sensors.append(load_sensor(file))
+    targets = None
+    if disp.target:
+        targets = []
+        for i, choice in enumerate(disp.target):
+            mesh, materials_file = resolve(choice.mesh, base), resolve(choice.materials, base)
+            for key, file, given in (('mesh', mesh, choice.mesh),
+                                     ('materials', materials_file, choice.materials)):
+                if not file.is_file():
+                    raise ConfigError(path, f'dispersions.target.{i}.{key}', given,
+                                      f'file not found at {file}')
+            materials = load_materials(materials_file)
+            mapping = choice.mesh_materials
+            values = [mapping] if isinstance(mapping, str) else list((mapping or {}).values())
+            for value in values:
+                if value not in materials.names:
+                    raise ConfigError(path, f'dispersions.target.{i}.mesh_materials', value,
+                                      f'not a material of {choice.materials} (known: {materials.names})')
+            targets.append(LoadedTarget(mesh, materials, mapping))
+    return sensors, targets
+
+
+def metric_names(spec: CampaignSpec, scenario: Scenario) -> tuple[str, ...]:
+    """The metrics a run of this campaign has, which criteria and ``series.by`` may name:
+    a closed-loop run's (loop.json), or a frame run's statistics (manifest ``stat.*``)."""
+    if spec.loop is not None:
+        return LOOP_METRIC_NAMES
+    return tuple(stat_names(scenario.materials.names))
+
+
+def _check_outcomes(spec: CampaignSpec, scenario: Scenario, path: Path) -> None:
+    """Criteria and kept series name real metrics and runs (ConfigError: file, key, value)."""
+    if spec.loop is None and spec.series is not None:
+        raise ConfigError(path, 'series', spec.series.model_dump(), 'time series are kept for '
+                          'closed-loop campaigns (a loop: section); a frame campaign keeps its '
+                          'frames with save: bags')
+    names = metric_names(spec, scenario)
+    for i, text in enumerate(spec.criteria):
+        try:
+            parse_criterion(text, names)
+        except ValueError as exc:
+            raise ConfigError(path, f'criteria.{i}', text, str(exc)) from None
+    series = spec.series
+    if series is None:
+        return
+    if (series.worst or series.by) and series.by not in names:
+        raise ConfigError(path, 'series.by', series.by, f'worst: {series.worst} ranks runs by a metric: '
+                          f'one of {", ".join(names)}')
+    for i, run in enumerate(series.runs):
+        if run >= spec.runs:
+            raise ConfigError(path, f'series.runs.{i}', run, f'not a run of this campaign '
+                              f'(runs 0..{spec.runs - 1})')
+
+
+# ---------------------------------------------------------- closed loop
+# Dispersions of the frame-statistics scenario that mean nothing in the loop.
+_NOT_IN_LOOP = {'approach_speed_mps': 'the approach is the guidance\'s (loop config guidance.*)'}
+
+
+def loop_config_path(campaign_file: Path, spec: CampaignSpec) -> Path:
+    return resolve(spec.loop.config, Path(campaign_file).resolve().parent)
+
+
+def check_loop_spec(spec: CampaignSpec, path: Path) -> CampaignSpec:
+    """The spec with its loop file checked (ConfigError naming the file, key and value) and
+    its bytes' sha256 filled in, so that the manifest's fingerprint covers the loop."""
+    from lidar_sim_ros.loop.config import load_loop_config
+    if spec.loop.config_sha256:
+        raise ConfigError(path, 'loop.config_sha256', spec.loop.config_sha256,
+                          'is filled when the campaign loads; leave it out')
+    for key, why in _NOT_IN_LOOP.items():
+        if getattr(spec.dispersions, key) is not None:
+            raise ConfigError(path, f'dispersions.{key}', getattr(spec.dispersions, key).model_dump(
+                exclude_none=True), f'not used by a closed-loop campaign: {why}')
+    if spec.save != 'stats':
+        raise ConfigError(path, 'save', spec.save, 'a closed-loop campaign writes runs/run_NNNNN/loop.json, '
+                          'not bags: leave save out (or stats)')
+    loop_path = loop_config_path(path, spec)
+    if not loop_path.is_file():
+        raise ConfigError(path, 'loop.config', spec.loop.config, f'file not found at {loop_path}')
+    config, _ = load_loop_config(loop_path)
+    period = config.control_period_s
+    if abs(spec.duration_s / period - round(spec.duration_s / period)) > 1e-9:
+        raise ConfigError(path, 'duration_s', spec.duration_s,
+                          f'must be a whole number of control periods ({period:g} s, {loop_path.name})')
+    digest = hashlib.sha256(loop_path.read_bytes()).hexdigest()
+    return spec.model_copy(update={'loop': spec.loop.model_copy(update={'config_sha256': digest})})
 
 
 def _check_supports(disp: Dispersions, path: Path) -> None:
@@ -275,12 +473,16 @@ def _check_supports(disp: Dispersions, path: Path) -> None:
                               'can draw a negative sigma; bound it at or above zero')
 
 
-def _check_materials(disp: Dispersions, scenario: Scenario, path: Path) -> None:
-    names = scenario.materials.names
+def _check_materials(disp: Dispersions, scenario: Scenario, path: Path,
+                     targets: list[LoadedTarget] | None = None) -> None:
+    """A dispersed material must be one of the base scenario's, or of every target choice's."""
+    pools = [t.materials.names for t in targets] if targets else [scenario.materials.names]
     for name in disp.materials:
-        if name not in names:
+        missing = [names for names in pools if name not in names]
+        if missing:
+            where = 'the base scenario' if not targets else 'every target choice'
             raise ConfigError(path, f'dispersions.materials.{name}', name,
-                              f'not a material of the base scenario (known: {names})')
+                              f'not a material of {where} (known: {missing[0]})')
 
 
 def _check_effects(disp: Dispersions, path: Path) -> None:

@@ -15,7 +15,11 @@ def register(subparsers) -> None:
             'Ray-matched comparison of a measured rosbag2 (PointCloud2 + target PoseStamped) '
             'with the model: writes DIR/summary.json, DIR/report.html, DIR/materials.yaml, '
             'DIR/effects.yaml (with --fit) and appends to DIR/../history.json.'))
-    p.add_argument('bag', type=Path, metavar='BAG', help='recording: a rosbag2 directory (MCAP or sqlite3), a bare .mcap or .db3, or a ROS 1 .bag')
+    p.add_argument('bag', type=Path, metavar='BAG', help='recording: a rosbag2 directory (MCAP or sqlite3), a bare .mcap or .db3, a ROS 1 .bag, or a pcap of a Cepton sensor\'s packets (with --poses)')
+    p.add_argument('--poses', type=Path, default=None, metavar='BAG_OR_CSV',
+                   help='target poses apart from the recording (required for a pcap): a bag '
+                        '(--pose-topic; its material names and sun too) or a CSV '
+                        't_s,x_m,y_m,z_m,qx,qy,qz,qw (docs/real-data.md)')
     p.add_argument('--mesh', type=Path, required=True, metavar='OBJ',
                    help='target OBJ (+MTL) with one usemtl group per material')
     p.add_argument('--config', type=Path, default=None, metavar='SCENARIO',
@@ -62,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         max_points=args.max_points or DEFAULT_MAX_POINTS,
         candidates=args.candidates, report=not args.no_report, plan=not args.no_plan,
         intensity_field=args.intensity_field, time_field=args.time_field,
-        laser_field=args.laser_field))
+        laser_field=args.laser_field, poses=args.poses))
     print('\n'.join(field_lines(result.summary) + result.lines))
     dropped = dropped_line(result.summary.get('dropped') or {})
     if dropped:
@@ -76,8 +80,8 @@ def add_field_options(p) -> None:
                    help='the intensity field (default: intensity, else reflectivity)')
     p.add_argument('--time-field', default=None, metavar='NAME[,SUBSECONDS]',
                    help='per-point time: one field, or a seconds + sub-seconds pair of '
-                        'integer fields (default: timestamp_s,timestamp_us of the Cepton '
-                        'driver, else t, time, timestamp, offset_time, ...)')
+                        'integer fields, or none (default: timestamp_s,timestamp_us of the '
+                        'Cepton driver, else t, time, timestamp, offset_time, ...)')
     p.add_argument('--laser-field', default=None, metavar='NAME',
                    help='the laser id field (default: ring, channel_id, channel, laser, ...)')
 

@@ -5,11 +5,15 @@ the first cloud and decides, once for the recording, which field is
 
 * the intensity: ``--intensity-field``, else ``intensity`` or ``reflectivity`` (the
   Cepton SDK2 driver's name);
-* the point time: ``--time-field`` (one field, or ``SECONDS,SUBSECONDS``), else the
-  Cepton SDK3 pair ``timestamp_s`` + ``timestamp_us``, else one of
+* the point time: ``--time-field`` (one field, or ``SECONDS,SUBSECONDS``, or ``none``),
+  else the Cepton SDK3 pair ``timestamp_s`` + ``timestamp_us``, else one of
   ``measurements.POINT_TIME_FIELDS``. A pair is read as integer nanoseconds,
   seconds x 1e9 + sub-seconds x their unit (``_ms``/``_us``/``_ns`` suffix of the
-  second name, else from its largest value), exactly, whatever the clock;
+  second name, else from its largest value), exactly, whatever the clock. So a pair
+  must be integers (``check_time_pair``): the seconds at least 32 bits (an epoch
+  clock), the sub-seconds wide enough for their unit (999,999 us needs 32 bits);
+  FLOAT32 or UINT8 members are refused, and so is a sub-seconds value outside
+  [0, one second) (``point_time_ns``): the layout is misread;
 * the laser: ``--laser-field``, else ``ring``, ``channel_id``, ``channel``, ``laser``,
   ``laser_id``, ``line``;
 * the Cepton point flags (``io/cepton.py``): ``flags`` in a recording with the Cepton
@@ -30,6 +34,8 @@ INTENSITY_FIELDS = ('intensity', 'reflectivity')
 LASER_FIELDS = ('ring', 'channel_id', 'channel', 'laser', 'laser_id', 'line')
 CEPTON_TIME_PAIR = ('timestamp_s', 'timestamp_us')
 _SUB_UNITS = {'_ms': 1_000_000, '_us': 1_000, '_ns': 1}
+# One second less one tick, in each sub-seconds unit: the largest value a member can hold.
+_SUB_MAX = {'_ms': 999, '_us': 999_999, '_ns': 999_999_999}
 # Fields known to carry nothing the comparison needs (the measured x, y, z decide).
 KNOWN_UNUSED = {'azimuth': 'the direction is taken from x, y, z',
                 'elevation': 'the direction is taken from x, y, z',
@@ -112,16 +118,20 @@ def resolve_fields(dtype: np.dtype, intensity_field: str | None = None,
         inten = named('--intensity-field', intensity_field)
     else:
         inten = next((n for n in INTENSITY_FIELDS if n in names), None)
-    if time_field:
+    if time_field and time_field.strip().lower() == 'none':
+        times = ()
+    elif time_field:
         parts = tuple(p.strip() for p in time_field.split(','))
         if len(parts) > 2 or not all(parts):
-            raise FieldError(f'--time-field {time_field!r}: give one field or SECONDS,SUBSECONDS')
+            raise FieldError(f'--time-field {time_field!r}: give one field, SECONDS,SUBSECONDS '
+                             'or none')
         times = tuple(named('--time-field', p) for p in parts)
-        if len(times) == 2 and not all(dtype[t].kind in 'iu' for t in times):
-            raise FieldError(f'--time-field {time_field!r}: a seconds + sub-seconds pair must be '
-                             f'integers, got {[str(dtype[t]) for t in times]}')
+        if len(times) == 2:
+            check_time_pair(dtype, times, f'--time-field {time_field!r}')
     elif all(n in names for n in CEPTON_TIME_PAIR):
         times = CEPTON_TIME_PAIR
+        check_time_pair(dtype, times, 'the Cepton time pair',
+                        ' (name another time field with --time-field, or --time-field none)')
     else:
         single = find_time(names) if find_time is not None else None
         times = (single,) if single else ()
@@ -146,17 +156,49 @@ def resolve_fields(dtype: np.dtype, intensity_field: str | None = None,
     return FieldMap(inten, times, laser, flags, valid, dtypes, ignored, layout)
 
 
+def check_time_pair(dtype: np.dtype, pair: tuple[str, str], what: str,
+                    hint: str = '') -> None:
+    """A seconds + sub-seconds pair is read as exact integer nanoseconds: both members
+    integers, the seconds at least 32 bits (an epoch clock), the sub-seconds able to hold
+    their unit's largest value (``_SUB_MAX``; no unit suffix: at least 999 ms). FieldError
+    naming the member and its datatype otherwise (FLOAT32 seconds are 128 s steps at
+    epoch 1.7e9; UINT8 microseconds wrap every 256 us)."""
+    s_name, sub_name = pair
+    for name in pair:
+        if dtype[name].kind not in 'iu':
+            raise FieldError(f'{what}: {name} is {_kind(dtype[name])}; a seconds + sub-seconds '
+                             'pair is read as exact integer nanoseconds, so both must be '
+                             f'integers (the Cepton driver: INT32){hint}')
+    if dtype[s_name].itemsize < 4:
+        raise FieldError(f'{what}: {s_name} is {_kind(dtype[s_name])}, too narrow for a clock '
+                         f'in seconds (INT32 or wider){hint}')
+    suffix = _sub_suffix(sub_name) or '_ms'
+    if np.iinfo(dtype[sub_name]).max < _SUB_MAX[suffix]:
+        raise FieldError(f'{what}: {sub_name} is {_kind(dtype[sub_name])}, which cannot hold '
+                         f'{_SUB_MAX[suffix]:,} {suffix[1:]} (INT32 or wider){hint}')
+
+
+def _sub_suffix(name: str) -> str | None:
+    return next((k for k in _SUB_UNITS if name.lower().endswith(k)), None)
+
+
 def point_time_ns(points: np.ndarray, pair: tuple[str, str]) -> tuple[np.ndarray, str]:
     """A seconds + sub-seconds pair as integer nanoseconds (exact), and the sub-seconds'
     unit (``'us'``...): from the second name's suffix, else its largest value (below 1e3
-    ms, below 1e6 us, else ns)."""
+    ms, below 1e6 us, else ns). A sub-seconds value outside [0, one second) raises
+    FieldError naming the field and the value (``timestamp_us`` = 2e9 is no time)."""
     s_name, sub_name = pair
     sec = np.asarray(points[s_name]).astype(np.int64)
     sub = np.asarray(points[sub_name]).astype(np.int64)
-    suffix = next((k for k in _SUB_UNITS if sub_name.lower().endswith(k)), None)
+    suffix = _sub_suffix(sub_name)
     if suffix is None:
         top = int(np.abs(sub).max()) if len(sub) else 0
         suffix = '_ms' if top < 1_000 else '_us' if top < 1_000_000 else '_ns'
+    bad = (sub < 0) | (sub > _SUB_MAX[suffix])
+    if bad.any():
+        raise FieldError(f'{sub_name} = {int(sub[bad][0])} ({int(bad.sum())} point(s)): sub-seconds '
+                         f'in {suffix[1:]} must lie in [0, {_SUB_MAX[suffix]:,}]; is the field '
+                         'layout right?')
     return sec * 1_000_000_000 + sub * _SUB_UNITS[suffix], suffix[1:]
 
 

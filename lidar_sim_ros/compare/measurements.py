@@ -23,6 +23,7 @@ Every problem raises :class:`MeasurementError` naming the bag, topic and what is
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -30,11 +31,14 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from lidar_sim_ros.compare.cepton_pcap import (PcapError, is_pcap, pcap_recording,
+                                                read_pose_source)
 from lidar_sim_ros.compare.fields import (FieldError, flag_counts, flag_lines, point_time_ns,
                                            resolve_fields)
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, cloud_count,
                                   iter_clouds, read_material_names, read_poses)
+from lidar_sim_ros.core.config import MAX_LASERS
 from lidar_sim_ros.core.pose import QUAT_NORM_TOL, PoseTrack, valid_pose_mask
 from lidar_sim_ros.core.scan import Shots
 
@@ -133,7 +137,8 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
                       pose_topic: str = POSE_TOPIC, max_points: int | None = None,
                       seed: int = 0, intensity_field: str | None = None,
                       time_field: str | None = None,
-                      laser_field: str | None = None) -> Measurements:
+                      laser_field: str | None = None,
+                      poses_from: str | Path | None = None) -> Measurements:
     """Read clouds and poses from ``bag`` and check that they can be compared.
 
     ``max_points`` keeps a random (seeded) subset when the bag holds more points, so
@@ -142,17 +147,24 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
     the dropped count is in ``dropped``. ``intensity_field``, ``time_field`` (one name
     or ``SECONDS,SUBSECONDS``) and ``laser_field`` name the fields where the driver's
     names are not recognised (``compare/fields.py``).
+    ``bag`` may also be a pcap of a Cepton sensor's packets (``compare/cepton_pcap.py``),
+    read as clouds in the SDK3 driver's layout; ``poses_from`` (a bag or a CSV file)
+    then holds the poses (and material names), as it may for a bag.
     """
     bag = Path(bag)
     if not bag.exists():
         raise FileNotFoundError(f'bag {bag} does not exist')
     try:
-        poses = read_poses(bag, pose_topic)
-        names = read_material_names(bag)
-        n_clouds = cloud_count(bag, cloud_topic)
-        clouds = iter_clouds(bag, cloud_topic)
+        if is_pcap(bag):
+            poses, names, n_clouds, clouds = pcap_recording(bag, poses_from, pose_topic)
+            cloud_topic = f'UDP {bag.name}'
+        else:
+            poses, names = (read_pose_source(poses_from, pose_topic) if poses_from
+                            else (read_poses(bag, pose_topic), read_material_names(bag)))
+            n_clouds = cloud_count(bag, cloud_topic)
+            clouds = iter_clouds(bag, cloud_topic)
         first = next(clouds, None)
-    except BagContentError as exc:
+    except (BagContentError, PcapError) as exc:
         raise MeasurementError(
             f'{exc} (choose the topics with --cloud-topic / --pose-topic)') from None
     if first is None:
@@ -221,7 +233,11 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         ok &= ~zero & ~far
         if has_t:
             t_all = np.full(len(p), np.nan)
-            t_all[ok], kind = field_time_since_stamp_s(p[ok], fmap.time, c.stamp_ns)
+            try:
+                t_all[ok], kind = field_time_since_stamp_s(p[ok], fmap.time, c.stamp_ns)
+            except FieldError as exc:
+                raise MeasurementError(f'bag {bag}, topic {cloud_topic!r}, cloud #{k}: '
+                                       f'{exc}') from None
             t_kinds.append(kind)
             bad_t = ok & ~np.isfinite(t_all)
             n_bad_time += int(bad_t.sum())
@@ -242,8 +258,8 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         else:
             cols['t'].append(np.zeros(ok.sum()))
         cols['cloud'].append(np.full(ok.sum(), k))
-        cols['laser'].append(np.asarray(p[fmap.laser]).astype(np.int64)[ok] if fmap.laser
-                             else np.zeros(ok.sum(), np.int64))
+        cols['laser'].append(laser_ids(p[fmap.laser][ok], fmap.laser, bag, cloud_topic, k)
+                             if fmap.laser else np.zeros(ok.sum(), np.int64))
     total = sum(len(x) for x in cols['xyz'])
     invalid = n_far + n_bad_time
     if invalid > MAX_INVALID_FRACTION * (total + n_thinned + invalid):
@@ -261,12 +277,15 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
     xyz = np.vstack(cols['xyz'])
     t_frame = np.concatenate(cols['t'])
     time_field = None
+    time_read: list[str] = []
     if has_t:
         kinds = sorted(set(t_kinds))
         time_field = {'name': t_name, 'dtype': time_dtype, 'read_as': kinds}
         if kinds != ['s since stamp'] or t_name != 't':
             notes.append(f'per-point time from field {t_name!r} '
                          f'({time_dtype}): read as {", ".join(kinds)}')
+            # On the terminal too: "on another clock" changes what the times mean.
+            time_read = [f'  point time read as: {", ".join(kinds)}']
     cloud = np.concatenate(cols['cloud'])
     epoch_ns = int(min(int(poses.stamp_ns[0]), min(stamp_ns)))
     stamps_s = (np.asarray(stamp_ns, np.int64) - epoch_ns) / NS_PER_S
@@ -285,7 +304,7 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
                **({'invalid': n_invalid} if fmap.valid else {}),
                **({'no_return': n_no_return} if fmap.flags else {})}
     saturated = np.concatenate(cols['sat'])
-    lines = fmap.lines() + flag_lines(fmap, counts, n_no_return, n_invalid)
+    lines = fmap.lines() + time_read + flag_lines(fmap, counts, n_no_return, n_invalid)
     if n_thinned:
         notes.append(f'{len(rng) + n_thinned} points in {len(stamp_ns)} clouds: at most '
                      f'{per_cloud} per cloud are analysed, at random')
@@ -304,6 +323,27 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         time_source='field' if has_t else 'stamp', time_field=time_field,
         saturated=saturated[keep] if fmap.flags else None, field_lines=lines,
         fields=fmap.as_dict(), flag_counts=counts, known_misses=n_no_return)
+
+
+def laser_ids(values: np.ndarray, name: str, bag: Path, topic: str, k: int) -> np.ndarray:
+    """One cloud's laser field as int64 ids, each a whole number in [0, MAX_LASERS);
+    MeasurementError naming the bag, topic, cloud, field and value otherwise (a channel_id
+    of 60000 gave laser_bias 60,024 offsets; -1 wrapped to 65535)."""
+    v = np.asarray(values)
+    if v.dtype.kind == 'f':
+        bad = ~np.isfinite(v) | (v != np.round(v))
+        v = np.where(bad, -1, v)
+    else:
+        bad = np.zeros(len(v), bool)
+    ids = v.astype(np.int64)
+    bad |= (ids < 0) | (ids >= MAX_LASERS)
+    if bad.any():
+        first = np.asarray(values)[bad][0]
+        raise MeasurementError(
+            f'bag {bag}, topic {topic!r}, cloud #{k}: laser field {name!r} = {first} '
+            f'({int(bad.sum())} point(s)): laser ids must be whole numbers in [0, {MAX_LASERS}) '
+            '(name another field with --laser-field)')
+    return ids
 
 
 def _check_xyz_fields(dtype: np.dtype, bag: Path, topic: str, k: int) -> None:
@@ -342,24 +382,38 @@ def _usable_poses(bag: Path, topic: str, poses, notes: list[str]):
                    quat_xyzw=quat / np.linalg.norm(quat, axis=1, keepdims=True)), n_bad
 
 
-def with_scan_times(meas: Measurements, shots: Shots) -> Measurements:
+def with_scan_times(meas: Measurements, shots: Shots,
+                    shots_of_frame: Callable[[int], Shots] | None = None,
+                    frame_period_s: float | None = None,
+                    clocks_s: tuple[float, ...] = (0.0,)) -> Measurements:
     """Point times from the sensor's scan pattern, for clouds without a time field.
 
     Each measured direction is matched to the nearest shot of the configured frame
     pattern; if nearly all match within SCAN_MATCH_TOL_RAD (the recording comes from
     that pattern, stamped at frame start), the points take their shots' times (and
-    lasers). Otherwise the cloud stamp stays every point's time.
+    lasers). Otherwise the cloud stamp stays every point's time. A pattern that differs
+    from frame to frame (the Risley rosette) gives ``shots_of_frame`` and the frame
+    period: each cloud is matched to the shots of its own frame, round((stamp - clock) /
+    period), on the clock (one of ``clocks_s``, s) whose frames match the first cloud best:
+    the node counts frames from ROS time 0, ``lidar-sim simulate`` from its epoch.
     """
     if meas.time_source != 'stamp' or len(shots) == 0:
         return meas
-    dist, idx = cKDTree(shots.directions()).query(meas.directions)
-    ok = dist < SCAN_MATCH_TOL_RAD
+    if shots_of_frame is None or not frame_period_s:
+        dist, idx = cKDTree(shots.directions()).query(meas.directions)
+        ok = dist < SCAN_MATCH_TOL_RAD
+        t_shot, laser_shot = shots.t_s[idx], shots.laser[idx]
+    else:
+        first = np.flatnonzero(meas.cloud == meas.cloud.min())
+        clock = max(clocks_s, key=lambda c: _match_each_frame(meas, shots_of_frame, frame_period_s,
+                                                              c, first)[0].mean())
+        ok, t_shot, laser_shot = _match_each_frame(meas, shots_of_frame, frame_period_s, clock)
     if ok.mean() < SCAN_MATCH_MIN_FRACTION:
         return replace(meas, scan_match_fraction=float(ok.mean()), notes=meas.notes + [
             f'clouds have no per-point time field and only {100 * ok.mean():.0f} % of the '
             'directions match the configured scan pattern: every point takes its cloud stamp'])
-    t_frame = np.where(ok, shots.t_s[idx], np.median(shots.t_s[idx[ok]]))
-    laser = np.where(ok, shots.laser[idx], meas.laser).astype(np.uint16)
+    t_frame = np.where(ok, t_shot, np.median(t_shot[ok]))
+    laser = np.where(ok, laser_shot, meas.laser).astype(np.uint16)
     notes = [n for n in meas.notes if 'no per-point time field' not in n] + [
         f'clouds have no per-point time field: point times taken from the scan pattern '
         f'({100 * ok.mean():.1f} % of directions match a shot within '
@@ -367,6 +421,25 @@ def with_scan_times(meas: Measurements, shots: Shots) -> Measurements:
     return replace(meas, t_frame_s=t_frame, t_s=meas.cloud_stamps_s[meas.cloud] + t_frame,
                    laser=laser, has_point_time=True, time_source='scan pattern', notes=notes,
                    scan_match_fraction=float(ok.mean()))
+
+
+def _match_each_frame(meas: Measurements, shots_of_frame: Callable[[int], Shots],
+                      frame_period_s: float, clock_s: float,
+                      only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per point (of ``only``, None: all): matched within tolerance, its shot's time (s) and
+    laser, each cloud against the shots of frame round((stamp - clock_s) / period)."""
+    cloud = meas.cloud if only is None else meas.cloud[only]
+    directions = meas.directions if only is None else meas.directions[only]
+    n = len(cloud)
+    ok, t_shot, laser_shot = np.zeros(n, bool), np.zeros(n), np.zeros(n, np.uint16)
+    for c in np.unique(cloud):
+        rows = np.flatnonzero(cloud == c)
+        k = int(round(((meas.epoch_s - clock_s) + float(meas.cloud_stamps_s[c])) / frame_period_s))
+        shots = shots_of_frame(k)
+        dist, idx = cKDTree(shots.directions()).query(directions[rows])
+        ok[rows] = dist < SCAN_MATCH_TOL_RAD
+        t_shot[rows], laser_shot[rows] = shots.t_s[idx], shots.laser[idx]
+    return ok, t_shot, laser_shot
 
 
 def field_time_since_stamp_s(points: np.ndarray, time: tuple[str, ...],

@@ -398,6 +398,14 @@ def iterate(first: PoseError, start: PoseCorrection, rematch: Callable[[PoseCorr
     return state, corr, report
 
 
+def heldout_gain(residual_m: np.ndarray, correction_m: np.ndarray,
+                 sigma_m: np.ndarray) -> np.ndarray:
+    """Nats per point the correction gains on held-out points: the Gaussian log density of
+    the corrected residual minus the uncorrected one's, (r^2 - (r - c)^2) / (2 s^2)."""
+    r = np.asarray(residual_m, float)
+    return (r ** 2 - (r - correction_m) ** 2) / (2 * np.asarray(sigma_m, float) ** 2)
+
+
 def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                        blocks: np.ndarray, z_crit: float, min_gain: float, seed: int = 0,
                        effects: list | None = None,
@@ -440,11 +448,11 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         test = use & (half != k)
         x = fit_clouds(a, r, s, cloud, use & (half == k), clouds, prior, TEST_RIDGE)
         corr = np.einsum('ij,ij->i', a, x[row])
-        gain[test] = (r[test] ** 2 - (r[test] - corr[test]) ** 2) / (2 * s[test] ** 2)
+        gain[test] = heldout_gain(r[test], corr[test], s[test])
         if rate:
             x12 = fit_clouds(a12, r, s, cloud, use & (half == k), clouds, prior12, TEST_RIDGE)
             corr12 = np.einsum('ij,ij->i', a12, x12[row])
-            gain12[test] = (r[test] ** 2 - (r[test] - corr12[test]) ** 2) / (2 * s[test] ** 2)
+            gain12[test] = heldout_gain(r[test], corr12[test], s[test])
 
     def judged(g: np.ndarray) -> tuple[float, float]:
         mean, se = block_mean_se(g[use], blocks[use]) if use.sum() > 1 else (0.0, np.inf)

@@ -39,6 +39,7 @@ from lidar_sim_ros.compare import (diagnosis, features, fields, history, likelih
                                    materials as mat, neighbours, point_times,
                                    plan as sep_plan, pose_error,
                                    stamp_place)
+from lidar_sim_ros.compare.cepton_pcap import side_bag
 from lidar_sim_ros.compare.intensity import IntensityCalibration, calibrate_intensity
 from lidar_sim_ros.compare.matching import (Matching, Model, edge_distance_rad, match,
                                             range_rate_mps)
@@ -48,10 +49,12 @@ from lidar_sim_ros.compare.shots import missed_per_unmatched
 from lidar_sim_ros.compare.sunlight import (SunFit, fit_sunlight, read_sun_track, short_points,
                                             summary_section, sunlit_decision)
 from lidar_sim_ros.compare.verdict import summary_lines, verdict
-from lidar_sim_ros.core.config import MaterialsConfig, Scenario, load_scenario, resolve
+from lidar_sim_ros.core.config import (MaterialsConfig, Scenario, load_scenario, resolve,
+                                       scenario_effect_spec)
 from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
                                         parse_effect_spec)
 from lidar_sim_ros.core.geometry import load_target
+from lidar_sim_ros.core.scan import varies_by_frame
 from lidar_sim_ros.core.effects.sunlight import Sunlight
 from lidar_sim_ros.core.pipeline import Prediction
 from lidar_sim_ros.core.sun import SunTrack
@@ -92,6 +95,7 @@ class CompareOptions:
     intensity_field: str | None = None      # field names where the driver's are not known
     time_field: str | None = None           # one field or SECONDS,SUBSECONDS
     laser_field: str | None = None
+    poses: Path | None = None               # poses (bag or CSV) apart from the recording
 
 
 @dataclass
@@ -173,16 +177,22 @@ def recording_sun(opts: CompareOptions, scenario: Scenario,
     on the measurements' clock; None without. The scenario's ``sun:`` section, if any,
     supplies the irradiance and the Earth; the recording the direction."""
     topic = opts.sun_topic or SUN_TOPIC
+    bag = side_bag(opts.bag, opts.poses)       # a pcap's sun comes from its poses bag
+    if bag is None:
+        if opts.sun_topic is not None:
+            raise MeasurementError(f'--sun-topic: {opts.bag} with poses {opts.poses} holds no '
+                                   'bag to read the sun directions from (give --poses BAG)')
+        return None
     try:
-        track = read_sun_track(opts.bag, scenario.config.sun, topic, meas.epoch_s)
+        track = read_sun_track(bag, scenario.config.sun, topic, meas.epoch_s)
     except BagContentError as exc:
         raise MeasurementError(f'{exc} (choose the topic with --sun-topic)') from None
     if track is None and opts.sun_topic is not None:
-        with open_bag(opts.bag) as reader:
+        with open_bag(bag) as reader:
             topics = ', '.join(f'{name} ({info.msgtype})'
                                for name, info in sorted(reader.topics.items()))
         raise MeasurementError(
-            f'bag {opts.bag} has no sun directions on {opts.sun_topic!r} (--sun-topic: '
+            f'bag {bag} has no sun directions on {opts.sun_topic!r} (--sun-topic: '
             f'geometry_msgs/msg/Vector3Stamped toward the sun, lidar frame); topics in the '
             f'bag: {topics}')
     return track
@@ -480,11 +490,15 @@ def separation_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated, effects:
 def load_inputs(opts: CompareOptions) -> Inputs:
     """The scenario, mesh, measurements, sun track and effects named by ``opts``."""
     scenario = load_scenario(opts.config or config_path('scenario.yaml'))
-    target = load_target(opts.mesh, scenario.materials.names)
+    target = load_target(opts.mesh, scenario.materials.names,
+                         mesh_materials=scenario.mesh_materials)
     meas = load_measurements(opts.bag, opts.cloud_topic, opts.pose_topic, opts.max_points,
-                             opts.seed, opts.intensity_field, opts.time_field, opts.laser_field)
+                             opts.seed, opts.intensity_field, opts.time_field, opts.laser_field,
+                             poses_from=opts.poses)
     sun = recording_sun(opts, scenario, meas)
-    scenario_effects = [get_effect_class(e.name)(e.params) for e in scenario.config.effects]
+    base = scenario.source.resolve().parent if scenario.source else None
+    scenario_effects = [get_effect_class(scenario_effect_spec(e.name, base))(e.params)
+                        for e in scenario.config.effects]
     pose_fit = any(parse_effect_spec(spec)[0] == POSE_ERROR for spec in opts.effects)
     user = [effect_from_spec(spec) for spec in opts.effects
             if parse_effect_spec(spec)[0] != POSE_ERROR]
@@ -499,7 +513,12 @@ def load_inputs(opts: CompareOptions) -> Inputs:
         scenario_effects = [e for e in scenario_effects if not isinstance(e, Sunlight)]
     model = Model(scenario.sensor, scenario.materials, target, (), scenario.seed,
                   scenario.source.parent if scenario.source else None, sun)
-    meas = with_scan_times(meas, model.simulator().shots)
+    sim = model.simulator()
+    # A rosette's frames on the node's clock (ROS time 0) or lidar-sim simulate's (its epoch).
+    from lidar_sim_ros.offline import DEFAULT_EPOCH_S
+    meas = with_scan_times(meas, sim.shots,
+                           sim.shots_of_frame if varies_by_frame(sim.sensor) else None,
+                           sim.frame_period_s, (0.0, DEFAULT_EPOCH_S))
     return Inputs(scenario, meas, sun, scenario_effects, user, model, pose_fit)
 
 

@@ -15,13 +15,18 @@ from typing import Annotated, Any, Literal, Union
 import numpy as np
 import yaml
 from pydantic import (BaseModel, ConfigDict, Field, ValidationError,
-                      field_validator, model_validator)
+                      field_validator, model_serializer, model_validator)
 
+from lidar_sim_ros.core.vectors import QUAT_NORM_TOL, unit_vector
 from lidar_sim_ros.paths import share_dir
 
 
 # Size limits: a config past one of these is refused before anything is allocated.
 MAX_SHOTS_PER_FRAME = 5_000_000
+MAX_LASERS = 1024
+"""Laser ids run 0 .. MAX_LASERS - 1 (the largest sensors have 128 channels): a scan
+pattern, a recording's laser field or laser_bias offsets beyond it are refused, not
+wrapped into the uint16 laser field (a CSV laser of 70000 read as 4464)."""
 """Shots in one frame (the P-60 fires 21,120); each shot costs ~1 kB through the pipeline."""
 MAX_YAML_NODES = 200_000
 """Values in one YAML document counted with aliases expanded (an alias bomb stops here)."""
@@ -61,6 +66,16 @@ class _Model(BaseModel):
     # allow_inf_nan=False: every float of every config model must be finite (a NaN
     # scan phase or an infinite FOV gave 0 points and rc 0).
     model_config = ConfigDict(extra='forbid', frozen=True, allow_inf_nan=False)
+
+
+def _without_unset_new_keys(data: Any, keys: tuple[str, ...]) -> Any:
+    """``data`` (a model's dump) without the ``keys`` that are None: keys added after files
+    were fingerprinted (campaigns) dump as before when unused, so those files resume."""
+    if isinstance(data, dict):
+        for key in keys:
+            if key in data and data[key] is None:
+                del data[key]
+    return data
 
 
 PositiveFloat = Annotated[float, Field(gt=0.0)]
@@ -104,6 +119,9 @@ class LissajousArrayScan(_Model):
         if self.lasers is not None and len(self.lasers) != self.tiles_az * self.tiles_el:
             raise ValueError(f'lasers has {len(self.lasers)} entries, expected '
                              f'tiles_az*tiles_el = {self.tiles_az * self.tiles_el}')
+        if self.tiles_az * self.tiles_el > MAX_LASERS:
+            raise ValueError(f'tiles_az*tiles_el = {self.tiles_az * self.tiles_el} lasers exceed '
+                             f'the limit of {MAX_LASERS}')
         _check_shots(self.tiles_az * self.tiles_el * self.shots_per_laser)
         return self
 
@@ -117,7 +135,8 @@ class RotatingScan(_Model):
     """Generic spinning multi-beam LiDAR: beams at fixed elevations, azimuth sweeps."""
 
     type: Literal['rotating']
-    elevations_deg: list[Annotated[float, Field(ge=-90.0, le=90.0)]] = Field(min_length=1)
+    elevations_deg: list[Annotated[float, Field(ge=-90.0, le=90.0)]] = Field(
+        min_length=1, max_length=MAX_LASERS)
     az_min_deg: float = -180.0
     az_max_deg: float = 180.0
     shots_per_beam: Annotated[int, Field(ge=1)]
@@ -139,8 +158,75 @@ class FileScan(_Model):
     path: str
 
 
-ScanConfig = Annotated[Union[LissajousArrayScan, RotatingScan, FileScan],
+MAX_PRISM_RATE_HZ = 10_000.0
+"""Fastest prism (rev/s, 600,000 rpm): faster, the prism angle at a wall-clock frame index
+(~1e10) loses its precision in float64."""
+
+
+class RisleyScan(_Model):
+    """Two wedge prisms rotating at their own rates (a Risley pair; the Livox Mid-40's
+    rosette, ``core/scan_risley.py``). One laser fires at ``shot_rate_hz``; each shot
+    points where the two prisms' deviations, added to first order, send it."""
+
+    type: Literal['risley']
+    prism_rates_hz: tuple[Annotated[float, Field(ge=-MAX_PRISM_RATE_HZ, le=MAX_PRISM_RATE_HZ)],
+                          Annotated[float, Field(ge=-MAX_PRISM_RATE_HZ, le=MAX_PRISM_RATE_HZ)]] = Field(
+        description='rotation rate of each prism (rev/s); the sign is the direction')
+    prism_deviation_deg: tuple[PositiveFloat, PositiveFloat] = Field(
+        description='deviation of each thin wedge alone, (n - 1) x wedge angle (deg)')
+    prism_phase_rad: tuple[float, float] = (0.0, 0.0)
+    shot_rate_hz: PositiveFloat = Field(description='shots per second of the one laser')
+
+    @model_validator(mode='after')
+    def _rates(self):
+        f1, f2 = self.prism_rates_hz
+        if f1 == 0.0 or f2 == 0.0 or f1 == f2:
+            raise ValueError(f'prism_rates_hz {list(self.prism_rates_hz)}: both prisms must '
+                             'turn, at different rates (otherwise the beam draws one circle)')
+        if sum(self.prism_deviation_deg) >= 90.0:
+            raise ValueError('the prisms\' deviations must add to less than 90 deg')
+        return self
+
+
+class FlashScan(_Model):
+    """A flash LiDAR's focal-plane array (``core/scan_flash.py``): rows x cols pixels
+    behind a pinhole lens over fov_az_deg x fov_el_deg, all lit by one pulse per frame.
+    Rows may be read out one after another (``row_readout_s`` apart, row 0 first)."""
+
+    type: Literal['flash']
+    rows: Annotated[int, Field(ge=1, le=65535)]
+    cols: Annotated[int, Field(ge=1)]
+    fov_az_deg: Annotated[float, Field(gt=0.0, lt=180.0)]
+    fov_el_deg: Annotated[float, Field(gt=0.0, lt=180.0)]
+    row_readout_s: NonNegFloat = Field(0.0, description='time between two rows\' exposures (s)')
+
+    @model_validator(mode='after')
+    def _size(self):
+        _check_shots(self.rows * self.cols)
+        return self
+
+
+ScanConfig = Annotated[Union[LissajousArrayScan, RotatingScan, FileScan, RisleyScan, FlashScan],
                        Field(discriminator='type')]
+
+
+class FloodConfig(_Model):
+    """Flood illumination (a flash LiDAR): one pulse spread evenly over a rectangular
+    field of field_az_deg x field_el_deg instead of a narrow beam per shot."""
+
+    field_az_deg: Annotated[float, Field(gt=0.0, lt=180.0)]
+    field_el_deg: Annotated[float, Field(gt=0.0, lt=180.0)]
+
+
+class RangeErrorConfig(_Model):
+    """The sensor's own published range error, the same on every material: replaces the
+    materials' bias_m and sigma_m (the P-60's Table 2) for this sensor when a scenario is
+    loaded (``with_sensor_range_error``)."""
+
+    bias_m: Annotated[float, Field(ge=-100.0, le=100.0)] = Field(
+        description='systematic range error, measured minus true (m)')
+    sigma_m: Annotated[float, Field(ge=0.0, le=100.0)] = Field(
+        description='range precision, 1 sigma (m)')
 
 
 class OpticsConfig(_Model):
@@ -151,6 +237,12 @@ class OpticsConfig(_Model):
     receive_efficiency: Annotated[float, Field(gt=0.0, le=1.0)]
     beam_divergence_rad: PositiveFloat
     aperture_diameter_m: PositiveFloat
+    flood: FloodConfig | None = Field(
+        None, description='flood illumination of a flash array (None: one beam per shot)')
+
+    @model_serializer(mode='wrap')
+    def _dump(self, handler):
+        return _without_unset_new_keys(handler(self), ('flood',))
 
 
 class ReturnsConfig(_Model):
@@ -235,6 +327,44 @@ class SensorConfig(_Model):
     optics: OpticsConfig
     detection: DetectionConfig
     receiver: ReceiverConfig = ReceiverConfig()
+    range_error: RangeErrorConfig | None = Field(
+        None, description="the sensor's own range error (None: the materials' bias and sigma)")
+
+    @model_serializer(mode='wrap')
+    def _dump(self, handler):
+        return _without_unset_new_keys(handler(self), ('range_error',))
+
+    @field_validator('scan')
+    @classmethod
+    def _scan_fits_frame(cls, scan, info):
+        rate = info.data.get('frame_rate_hz')
+        if rate is None:
+            return scan
+        period = 1.0 / rate
+        if isinstance(scan, RisleyScan):
+            n = np.floor(scan.shot_rate_hz * period + 1e-9)
+            if n < 1:
+                raise ValueError(f'shot_rate_hz {scan.shot_rate_hz:g} fires no shot in a frame of '
+                                 f'{period:g} s')
+            if n > MAX_SHOTS_PER_FRAME:
+                raise ValueError(f'shot_rate_hz {scan.shot_rate_hz:g} fires {n:g} shots a frame of '
+                                 f'{period:g} s: they exceed the limit of {MAX_SHOTS_PER_FRAME}')
+        if isinstance(scan, FlashScan) and scan.row_readout_s * (scan.rows - 1) >= period:
+            raise ValueError(f'row_readout_s x (rows - 1) = {scan.row_readout_s * (scan.rows - 1):g} s '
+                             f'does not fit the frame period {period:g} s')
+        return scan
+
+    @field_validator('optics')
+    @classmethod
+    def _flood_for_flash(cls, optics, info):
+        scan = info.data.get('scan')
+        if isinstance(scan, FlashScan) and optics.flood is None:
+            raise ValueError('a flash scan needs optics.flood (the illuminated field): its pixels '
+                             'share one pulse')
+        if scan is not None and not isinstance(scan, FlashScan) and optics.flood is not None:
+            raise ValueError('optics.flood is for a flash scan (type: flash): a scanning sensor '
+                             'fires a beam per shot')
+        return optics
 
     @property
     def frame_period_s(self) -> float:
@@ -302,16 +432,32 @@ class MaterialsConfig(_Model):
 
 
 # ------------------------------------------------------------------- scenario
+MAX_POSITION_M = 1.0e5
+"""A target position component beyond 100 km (m) is no rendezvous (a 1e300 m start
+overflowed in the trajectory with a message naming neither file nor key)."""
+MIN_POSITION_M = 1.0e-3
+MAX_APPROACH_SPEED_MPS = 1.0e4
+MAX_TUMBLE_RATE_DPS = 3600.0
+Position = Annotated[float, Field(ge=-MAX_POSITION_M, le=MAX_POSITION_M)]
+
+
 class PoseConfig(_Model):
     """Target body pose in the lidar frame: p_lidar = R(q) p_body + position."""
 
-    position_m: tuple[float, float, float]
+    position_m: tuple[Position, Position, Position]
     quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+
+    @field_validator('position_m')
+    @classmethod
+    def _off_the_sensor(cls, p):
+        if not float(np.linalg.norm(p)) >= MIN_POSITION_M:
+            raise ValueError(f'the target must start at least {MIN_POSITION_M:g} m from the '
+                             'sensor (its line of sight is the approach direction)')
+        return p
 
     @field_validator('quat_xyzw')
     @classmethod
     def _unit(cls, q):
-        from lidar_sim_ros.core.pose import QUAT_NORM_TOL
         norm = float(np.linalg.norm(q))
         if not abs(norm - 1.0) <= QUAT_NORM_TOL:
             raise ValueError(f'quaternion norm {norm:g} is not within {QUAT_NORM_TOL:g} of 1')
@@ -321,25 +467,31 @@ class PoseConfig(_Model):
 class MotionConfig(_Model):
     """Relative motion: approach along the line of sight plus a constant tumble."""
 
-    approach_speed_mps: float = Field(0.0, description='closing speed toward the sensor (m/s)')
+    approach_speed_mps: float = Field(0.0, ge=-MAX_APPROACH_SPEED_MPS, le=MAX_APPROACH_SPEED_MPS,
+                                      description='closing speed toward the sensor (m/s)')
     tumble_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    tumble_rate_dps: float = Field(0.0, description='tumble rate about tumble_axis, lidar frame (deg/s)')
+    tumble_rate_dps: float = Field(0.0, ge=-MAX_TUMBLE_RATE_DPS, le=MAX_TUMBLE_RATE_DPS,
+                                   description='tumble rate about tumble_axis, lidar frame (deg/s)')
 
     @field_validator('tumble_axis')
     @classmethod
     def _nonzero(cls, a):
-        if not float(np.linalg.norm(a)) > 1e-9:
+        # Scaled by its largest component first: the norm of (1e300, 1e300, 0) overflows.
+        arr = np.asarray(a, float)
+        top = float(np.max(np.abs(arr)))
+        if not (np.isfinite(top) and top > 0.0) or not np.linalg.norm(arr / top) > 1e-9:
             raise ValueError('tumble_axis must be non-zero')
-        return a
+        return tuple(float(x) for x in arr / top)
 
 
 def _unit_vector(v: tuple[float, float, float]) -> tuple[float, float, float]:
-    """A direction normalised to unit length; zero or non-finite vectors are refused."""
-    arr = np.asarray(v, dtype=float)
-    norm = float(np.linalg.norm(arr))
-    if not np.all(np.isfinite(arr)) or norm < 1e-9:
-        raise ValueError('must be a non-zero finite vector')
-    return tuple(float(x) for x in arr / norm)
+    """A direction normalised to unit length; zero, nearly zero or non-finite vectors are
+    refused (finite vectors of any size are scaled first: core/vectors.py)."""
+    try:
+        unit = unit_vector(v)
+    except ValueError as exc:
+        raise ValueError(f'must be a non-zero finite vector: {exc}') from None
+    return tuple(float(x) for x in unit)
 
 
 class EarthConfig(_Model):
@@ -395,12 +547,21 @@ class ScenarioConfig(_Model):
     motion: MotionConfig = MotionConfig()
     sun: SunConfig | None = None
     effects: list[EffectConfig] = Field(default_factory=list)
+    mesh_materials: str | dict[str, str] | None = Field(
+        None, description="the mesh's material/node names -> config materials, or one config "
+                          "material for the whole mesh (an STL); None: the mesh's names are the "
+                          "config's (core/mesh_files.py)")
+
+    @model_serializer(mode='wrap')
+    def _dump(self, handler):
+        return _without_unset_new_keys(handler(self), ('mesh_materials',))
 
 
 # -------------------------------------------------------------------- loading
 def _format_loc(loc: tuple) -> str:
     return '.'.join(str(p) for p in loc if not (isinstance(p, str) and p in
-                                                 ('lissajous_array', 'rotating', 'file')))
+                                                 ('lissajous_array', 'rotating', 'file',
+                                                                'risley', 'flash')))
 
 
 def _lookup(data: Any, loc: tuple) -> Any:
@@ -595,6 +756,11 @@ class Scenario:
     def seed(self) -> int:
         return self.config.seed
 
+    @property
+    def mesh_materials(self) -> str | dict[str, str] | None:
+        """The scenario's map from mesh names to config materials (``load_target``)."""
+        return self.config.mesh_materials
+
 
 def load_scenario(path: str | Path) -> Scenario:
     """Load scenario YAML and the sensor/materials/mesh files it references."""
@@ -609,8 +775,45 @@ def load_scenario(path: str | Path) -> Scenario:
     if not mesh_path.is_file():
         raise ConfigError(path, 'mesh', cfg.mesh, f'mesh file not found at {mesh_path}')
     _check_effects(cfg, path)
-    return Scenario(cfg, load_sensor(sensor_path), load_materials(materials_path),
-                    mesh_path, path)
+    materials = load_materials(materials_path)
+    _check_mesh_materials(cfg, materials, path)
+    sensor = load_sensor(sensor_path)
+    return Scenario(cfg, sensor, with_sensor_range_error(materials, sensor), mesh_path, path)
+
+
+def with_sensor_range_error(materials: MaterialsConfig, sensor: SensorConfig) -> MaterialsConfig:
+    """The materials with the sensor's own range error (``sensor.range_error``) in place of
+    their bias_m and sigma_m (the P-60's Table 2), or unchanged when it has none. Applied
+    once, where a scenario is loaded: the simulator, the comparison and the calibrations
+    all read the errors from the materials."""
+    err = sensor.range_error
+    if err is None:
+        return materials
+    return MaterialsConfig(materials=[m.model_copy(update={'bias_m': err.bias_m, 'sigma_m': err.sigma_m})
+                                      for m in materials.materials])
+
+
+def _check_mesh_materials(cfg: ScenarioConfig, materials: MaterialsConfig, path: Path) -> None:
+    """Every material the scenario's mesh_materials names must be in the materials file."""
+    mapping = cfg.mesh_materials
+    items = [('mesh_materials', mapping)] if isinstance(mapping, str) else \
+        [(f'mesh_materials.{k}', v) for k, v in (mapping or {}).items()]
+    for key, value in items:
+        if value not in materials.names:
+            raise ConfigError(path, key, value, f'not a material of {cfg.materials} '
+                                                f'(known: {materials.names})')
+
+
+def scenario_effect_spec(spec: str, base: Path | None) -> str:
+    """A scenario's ``file.py:Class`` effect resolved against the scenario's folder
+    ``base``, and only there: a plugin missing beside the scenario is not looked for in
+    the current directory (which would run whatever file of that name sits there).
+    Catalogue names, ``module:Class`` and absolute paths are returned as given."""
+    where, _, cls_name = spec.rpartition(':')
+    if base is None or not where.endswith('.py'):
+        return spec
+    file = Path(where).expanduser()
+    return spec if file.is_absolute() else f'{base / file}:{cls_name}'
 
 
 def _check_effects(cfg: ScenarioConfig, path: Path) -> None:
@@ -618,10 +821,7 @@ def _check_effects(cfg: ScenarioConfig, path: Path) -> None:
     from lidar_sim_ros.core.effects import get_effect_class  # effects import the pipeline
     base = path.resolve().parent
     for i, eff in enumerate(cfg.effects):
-        spec = eff.name
-        where, _, cls_name = spec.rpartition(':')
-        if where.endswith('.py') and not Path(where).is_absolute() and (base / where).is_file():
-            spec = f'{base / where}:{cls_name}'
+        spec = scenario_effect_spec(eff.name, base)
         try:
             cls = get_effect_class(spec)
         except (KeyError, ImportError, FileNotFoundError, TypeError, AttributeError) as exc:

@@ -19,6 +19,16 @@ def detected_mask(power_w: np.ndarray, range_m: np.ndarray, det: DetectionConfig
             & (range_m >= det.min_range_m) & (range_m <= det.max_range_m))
 
 
+def in_range_gate(measured_range_m: np.ndarray, det: DetectionConfig) -> np.ndarray:
+    """Which measured ranges (m) the sensor can report: finite, positive and inside the
+    range gate [min_range_m, max_range_m]. Applied after bias, noise and every effect
+    (``detected_mask`` gates the true range): no effect parameter publishes a point
+    beyond the gate (a range walk of k_m = -1e6 put points 12 km to 6,680 km away)."""
+    r = np.asarray(measured_range_m, float)
+    with np.errstate(invalid='ignore'):
+        return np.isfinite(r) & (r > 0) & (r >= det.min_range_m) & (r <= det.max_range_m)
+
+
 def measured_range_m(true_range_m: np.ndarray, bias_m: np.ndarray, sigma_m: np.ndarray,
                      rng: np.random.Generator) -> np.ndarray:
     """True range plus bias plus zero-mean Gaussian noise of std sigma (all metres)."""

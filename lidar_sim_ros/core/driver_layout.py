@@ -31,8 +31,12 @@ NS_PER_S = 1_000_000_000
 
 
 def lambertian_power_at_1m_w(sensor: SensorConfig) -> float:
-    """Received power (W) from a 100 % Lambertian plate at 1 m, normal incidence."""
-    return float(return_power_w(1.0, 0.0, 1.0, 0.0, 1.0, sensor.optics))
+    """Received power (W) from a 100 % Lambertian plate at 1 m, normal incidence (a flash
+    array: in the pixel on the boresight)."""
+    from lidar_sim_ros.core.scan_flash import pixel_view_sr
+    pixel_sr = pixel_view_sr(sensor, np.array([[1.0, 0.0, 0.0]]))
+    return float(np.ravel(return_power_w(1.0, 0.0, 1.0, 0.0, 1.0, sensor.optics,
+                                         pixel_sr=pixel_sr))[0])
 
 
 def reflectivity_estimate(power_w: np.ndarray, range_m: np.ndarray,
@@ -43,11 +47,12 @@ def reflectivity_estimate(power_w: np.ndarray, range_m: np.ndarray,
 
 
 def cepton_frame_points(frame, sensor: SensorConfig, stamp_ns: int, no_return: bool = False,
-                        polar: bool = False) -> np.ndarray:
+                        polar: bool = False, noise: bool = False) -> np.ndarray:
     """The SDK3 driver's points (``io.cepton.SDK3_DTYPE``) of a simulated ``Frame``
     stamped ``stamp_ns`` (= its start): detected returns, saturated returns flagged,
     and with ``no_return`` a NO_RETURN point per silent shot; in firing order. ``polar``:
-    with the driver's optional azimuth, elevation and range fields."""
+    with the driver's optional azimuth, elevation and range fields. ``noise``: false
+    returns (no material: sunlight, background) flagged NOISE, as the wire carries them."""
     det = sensor.detection
     sat_w = det.saturation_power_w
     xyz = [np.asarray(frame.xyz_m, float)]
@@ -56,6 +61,10 @@ def cepton_frame_points(frame, sensor: SensorConfig, stamp_ns: int, no_return: b
     laser = [np.asarray(frame.ring)]
     # The driver flags every return after a shot's first one SECOND_RETURN.
     flags = [np.where(np.asarray(frame.return_number if frame.return_number is not None else 1) > 1, cepton.SECOND_RETURN, 0).astype(np.uint16)]
+    if noise:
+        from lidar_sim_ros.core.pipeline import NO_MATERIAL
+        flags[0] = flags[0] | np.where(np.asarray(frame.material) == NO_MATERIAL,
+                                       cepton.NOISE, 0).astype(np.uint16)
     shots = frame.truth_source
     if shots is not None:
         power = np.asarray(shots.intensity, float) * sat_w
@@ -122,3 +131,12 @@ class OutputLayout(BaseModel):
                                        self.polar_fields)
         from lidar_sim_ros.io.pointcloud import frame_points
         return frame_points(frame)
+
+
+def wire_packets(frame, sim, stamp_ns: int, state, no_return: bool = True) -> list:
+    """A simulated frame as a Cepton sensor sends it (``io.cepton_wire``): its points in
+    firing order, saturated, second-return, noise and (with ``no_return``) NO_RETURN
+    points flagged, cut into STDV packets; ``state`` is the stream's ``WireStream``."""
+    from lidar_sim_ros.io import cepton_wire
+    points = cepton_frame_points(frame, sim.sensor, stamp_ns, no_return, noise=True)
+    return cepton_wire.frame_packets(points, state)

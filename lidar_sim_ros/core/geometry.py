@@ -23,18 +23,14 @@ from scipy.spatial import ConvexHull, QhullError
 
 from lidar_sim_ros.core import geometry_kernels as kernels
 from lidar_sim_ros.core.memory import release_freed_memory
+from lidar_sim_ros.core.mesh_files import (CAD_SUFFIXES, MeshFileError, MeshMaterialError,
+                                           read_cad)
 from lidar_sim_ros.core.pose import Poses
 
 
 T = TypeVar('T')
 
 
-class MeshMaterialError(ValueError):
-    """A mesh group/material name that the materials config does not know."""
-
-
-class MeshFileError(ValueError):
-    """A mesh file that is not an OBJ with usable material names: names the file and the problem."""
 
 
 MAX_TRIANGLES = 10_000_000
@@ -324,15 +320,25 @@ def occluded_at_poses(target: Target, origins_lidar_m: np.ndarray, directions_li
     return target.occluded(o32, d32)
 
 
-def load_target(obj_path: str | Path, material_names: list[str], threads: int = 1) -> Target:
-    """Load an OBJ+MTL whose ``usemtl`` names are material names from the config.
+def load_target(obj_path: str | Path, material_names: list[str], threads: int = 1,
+                mesh_materials: str | dict[str, str] | None = None) -> Target:
+    """Load an OBJ+MTL whose ``usemtl`` names are material names from the config, or a
+    CAD export (glTF, STL, PLY: ``core/mesh_files.py``).
 
-    Raises MeshFileError for a file that is not such an OBJ (see ``check_obj_file``)
-    and MeshMaterialError naming every group it cannot map.
+    ``mesh_materials``: the scenario's map from the file's material/node/group names to
+    config materials, or one material for the whole file (None: the names are the
+    config's). Raises MeshFileError for a file that cannot be read (see
+    ``check_obj_file``) and MeshMaterialError naming every group it cannot map.
     """
     obj_path = Path(obj_path)
     if not obj_path.is_file():
         raise FileNotFoundError(f'mesh file not found: {obj_path}')
+    if obj_path.suffix.lower() in CAD_SUFFIXES:
+        mesh = checked_mesh(*read_cad(obj_path, list(material_names), mesh_materials, MAX_TRIANGLES),
+                            obj_path)
+        target = Target(*mesh, material_names, threads)
+        release_freed_memory(collect=True)
+        return target
     names_only = check_obj_file(obj_path)
     try:
         with _with_names_mtl(obj_path, names_only) as loadable:
@@ -347,6 +353,10 @@ def load_target(obj_path: str | Path, material_names: list[str], threads: int = 
             continue
         material = getattr(getattr(geom, 'visual', None), 'material', None)
         name = getattr(material, 'name', None) or key
+        if isinstance(mesh_materials, str):
+            name = mesh_materials
+        elif mesh_materials is not None:
+            name = mesh_materials.get(name, name)
         if name not in material_names:
             unknown.append(name)
             continue
@@ -399,7 +409,8 @@ def check_obj_file(obj_path: Path) -> list[str] | None:
                             f'.obj file that names it (mtllib {obj_path.name})')
     if suffix != '.obj':
         raise MeshFileError(f'{obj_path}: the mesh must be a Wavefront .obj whose usemtl names are '
-                            f'materials of the config, not {suffix or "a file without extension"}')
+                            f'materials of the config, or a CAD export ({", ".join(CAD_SUFFIXES)}), '
+                            f'not {suffix or "a file without extension"}')
     data = obj_path.read_bytes()
     try:
         text = data.decode('utf-8')

@@ -13,12 +13,14 @@ from pathlib import Path
 import numpy as np
 
 from lidar_sim_ros.core import detection, reflection, returns
-from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig
+from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig, scenario_effect_spec
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
 from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target
-from lidar_sim_ros.core.pose import PoseSource, PoseTrack, StaticPose
-from lidar_sim_ros.core.scan import Shots, angles_from_directions, frame_shots
+from lidar_sim_ros.core.pose import Poses, PoseSource, PoseTrack, StaticPose
+from lidar_sim_ros.core.scan import (Shots, angles_from_directions, frame_shots,
+                                     frame_shots_and_directions, varies_by_frame)
+from lidar_sim_ros.core.scan_flash import pixel_view_sr
 from lidar_sim_ros.core.sun import ScenarioSun, SunSource
 
 NO_MATERIAL = 255  # material id of a return that is not on the target (e.g. solar background)
@@ -143,15 +145,6 @@ def _material_ids(material: np.ndarray) -> np.ndarray:
     return np.where(material < 0, NO_MATERIAL, material).astype(np.uint8)
 
 
-def _scenario_relative(spec: str, base: Path | None) -> str:
-    """``file.py:Class`` effect specs resolve next to the scenario file when they exist there."""
-    where, _, cls_name = spec.rpartition(':')
-    if base is None or not where.endswith('.py') or Path(where).is_absolute():
-        return spec
-    candidate = base / where
-    return f'{candidate}:{cls_name}' if candidate.is_file() else spec
-
-
 class Simulator:
     """The paper's four modules around one target, one sensor and a material table."""
 
@@ -169,16 +162,18 @@ class Simulator:
         self.effects: list[Effect] = list(effects or [])
         # The light around the target (None: no sun); effects read it from ctx.scene.
         self.sun: SunSource | None = sun
+        self._scan_base = scan_base
         self.shots: Shots = frame_shots(sensor, scan_base)
         self.directions = self.shots.directions()
         # Frames are simulated with the shots in a coherent order (neighbouring directions
         # together): Embree traverses its BVH faster and every per-shot pass reads memory
         # in sequence. Published points go back to firing order (``_cast_position``).
-        self._cast_order = coherent_order(self.shots.az_rad, self.shots.el_rad)
-        self._cast_shots = self.shots.subset(self._cast_order)
-        self._cast_directions = np.ascontiguousarray(self.directions[self._cast_order])
-        self._cast_position = np.empty_like(self._cast_order)
-        self._cast_position[self._cast_order] = np.arange(len(self._cast_order))
+        self._plan = _CastPlan.of(self.shots, self.directions)
+        self._cast_order, self._cast_shots = self._plan.order, self._plan.cast_shots
+        self._cast_directions, self._cast_position = self._plan.directions, self._plan.position
+        # A pattern that does not repeat (the Risley rosette) has each frame's own shots.
+        self._by_frame = varies_by_frame(sensor)
+        self._last_plan: tuple[int, _CastPlan] = (0, self._plan)
         self._kd, self._ks, self._n = (materials.column(k) for k in ('kd', 'ks', 'n'))
         self._bias, self._sigma = materials.column('bias_m'), materials.column('sigma_m')
 
@@ -192,10 +187,11 @@ class Simulator:
         ``target``: an already loaded mesh of the scenario (campaign workers reuse its BVH).
         """
         if target is None:
-            target = load_target(scenario.mesh_path, scenario.materials.names)
+            target = load_target(scenario.mesh_path, scenario.materials.names,
+                                 mesh_materials=scenario.mesh_materials)
         base = scenario.source.parent if scenario.source else None
         if effects is None:
-            effects = [make_effect(_scenario_relative(e.name, base), e.params)
+            effects = [make_effect(scenario_effect_spec(e.name, base), e.params)
                        for e in scenario.config.effects]
         sun = ScenarioSun(scenario.config.sun) if scenario.config.sun is not None else None
         return cls(scenario.sensor, scenario.materials, target, scenario.seed,
@@ -232,7 +228,7 @@ class Simulator:
         t_pose = t_abs_s
         for eff in self.effects:
             t_pose = eff.pose_time_s(t_pose)
-        poses = pose_source.at(t_pose)
+        poses = _poses_at(pose_source, t_pose)
         optics = self.sensor.optics
         hits = None
         for eff in self.effects:
@@ -247,8 +243,10 @@ class Simulator:
         range_on = hits.range_m.take(on)
         power = np.zeros(n)
         cos_on = None if hits.cos_incidence is None else hits.cos_incidence.take(on)
+        pixel_sr = pixel_view_sr(self.sensor, directions[on]) if optics.flood is not None else None
         power[on] = reflection.return_power_w(range_on, hits.incidence_rad.take(on), self._kd.take(mat),
-                                              self._ks.take(mat), self._n.take(mat), optics, cos_on)
+                                              self._ks.take(mat), self._n.take(mat), optics, cos_on,
+                                              pixel_sr)
         if hits.power_fraction is not None:
             power = power * hits.power_fraction
         rng_m = np.full(n, np.nan)
@@ -276,6 +274,21 @@ class Simulator:
             bias = np.where(hits.hit, bias, 0.0)
         return Prediction(ctx, hits, directions, bias, np.sqrt(var))
 
+    def shots_of_frame(self, frame_index: int) -> Shots:
+        """Frame ``frame_index``'s shots in firing order (``self.shots`` for every frame of a
+        repeating pattern)."""
+        return self._frame_plan(frame_index).shots
+
+    def _frame_plan(self, frame_index: int) -> '_CastPlan':
+        if not self._by_frame:
+            return self._plan
+        last_index, plan = self._last_plan
+        if last_index != frame_index:
+            plan = _CastPlan.of(*frame_shots_and_directions(self.sensor, self._scan_base,
+                                                            frame_index))
+            self._last_plan = (frame_index, plan)
+        return plan
+
     # -------------------------------------------------------------- the frame
     def simulate_frame(self, frame_start_s: float, pose_source: PoseSource,
                        frame_index: int | None = None) -> Frame:
@@ -283,8 +296,9 @@ class Simulator:
         if frame_index is None:
             frame_index = int(round(frame_start_s / self.frame_period_s))
         rng = self.frame_rng(frame_index)
-        shots = self._cast_shots
-        pred = self.predict(frame_start_s + shots.t_s, self._cast_directions, pose_source, shots.t_s,
+        plan = self._frame_plan(frame_index)
+        shots = plan.cast_shots
+        pred = self.predict(frame_start_s + shots.t_s, plan.directions, pose_source, shots.t_s,
                             shots.az_rad, shots.el_rad, shots.laser)
         ctx, hit = pred.ctx, pred.ctx.hit
         det = self.sensor.detection
@@ -298,7 +312,7 @@ class Simulator:
                   if x is not None and len(x)]
         if extras or not det.returns.single:
             return self._multi_return_frame(frame_start_s, frame_index, pred, detected, measured,
-                                            extras, rng)
+                                            extras, rng, plan)
         material, intensity = ctx.material, ctx.intensity
         for rows, false_m in _false_returns(self.effects, ctx, rng):
             # A few shots each: written by index (measured and detected are this frame's own
@@ -309,17 +323,17 @@ class Simulator:
                 material, intensity = material.copy(), intensity.copy()
             material[rows] = -1
             intensity[rows] = det.threshold_power_w / det.saturation_power_w
-        detected &= np.isfinite(measured) & (measured > 0)
+        detected &= detection.in_range_gate(measured, det)
         # Index lists once (take() is ~5x cheaper than repeated boolean masks), in firing order.
-        out = _fired(detected, self._cast_position)
+        out = _fired(detected, plan.position)
         range_out = measured.take(out)
         return Frame(
             stamp_s=float(frame_start_s), index=int(frame_index),
-            xyz_m=_along(self._cast_directions, out, range_out), range_m=range_out,
-            intensity=intensity.take(out), t_s=self._cast_shots.t_s.take(out),
-            ring=self._cast_shots.laser.take(out),
+            xyz_m=_along(plan.directions, out, range_out), range_m=range_out,
+            intensity=intensity.take(out), t_s=shots.t_s.take(out),
+            ring=shots.laser.take(out),
             material=_material_ids(material.take(out)), stats=self._frame_stats(pred, len(out)),
-            truth_source=self._truth(pred, measured), face=pred.hits.face.take(out),
+            truth_source=self._truth(pred, measured, plan), face=pred.hits.face.take(out),
             true_range_m=ctx.range_m.take(out), return_number=np.ones(len(out), np.uint8))
 
     def _frame_stats(self, pred: Prediction, detected: int) -> dict:
@@ -328,22 +342,22 @@ class Simulator:
                 'below_threshold': int(np.count_nonzero(hit & (ctx.power_w < det.threshold_power_w))),
                 'saturated': int(np.count_nonzero(hit & (ctx.power_w >= det.saturation_power_w)))}
 
-    def _truth(self, pred: Prediction, measured: np.ndarray) -> '_FrameShots':
-        ctx, shots = pred.ctx, self._cast_shots
-        return _FrameShots(ctx.hit, self._cast_position, self._cast_directions, ctx.range_m,
+    def _truth(self, pred: Prediction, measured: np.ndarray, plan: '_CastPlan') -> '_FrameShots':
+        ctx, shots = pred.ctx, plan.cast_shots
+        return _FrameShots(ctx.hit, plan.position, plan.directions, ctx.range_m,
                            ctx.intensity, shots.t_s, shots.laser, ctx.material, pred.hits.face,
                            measured)
 
     def _multi_return_frame(self, frame_start_s: float, frame_index: int, pred: Prediction,
                             detected: np.ndarray, measured: np.ndarray, extras: list[ExtraReturns],
-                            rng: np.random.Generator) -> Frame:
+                            rng: np.random.Generator, plan: '_CastPlan') -> Frame:
         """A frame whose shots may report several returns (``core/returns.py``): each shot's
         echo, the effects' extra returns (multipath ghosts) and false returns are candidates,
         and the receiver keeps those the sensor's ``detection.returns`` asks for. A false
         return replaces its shot's other returns for the single-return receiver (as in the
         default frame: the trigger comes first) and stands beside them for a multi-return
         one; a NaN false return blinds the shot either way."""
-        ctx, det, shots = pred.ctx, self.sensor.detection, self._cast_shots
+        ctx, det, shots = pred.ctx, self.sensor.detection, plan.cast_shots
         n = len(ctx)
         blinded = np.zeros(n, bool)
         false_shot, false_range = [], []
@@ -364,7 +378,7 @@ class Simulator:
         for x in extras:
             if x.replaces_echo:
                 split[x.shot] = True
-        echo = np.flatnonzero(detected & ~blinded & ~split & np.isfinite(measured) & (measured > 0))
+        echo = np.flatnonzero(detected & ~blinded & ~split & detection.in_range_gate(measured, det))
         # Extra returns: the detector's window and the bias and noise of their surface, drawn
         # after every other draw of the frame (the other streams stay as they were).
         x_shot = np.concatenate([x.shot for x in extras]) if extras else np.zeros(0, np.int64)
@@ -376,10 +390,10 @@ class Simulator:
 
         x_meas = detection.measured_range_m(x_range, self._bias.take(x_mat), self._sigma.take(x_mat), rng)
         x_ok = (detection.detected_mask(x_power, x_range, det) & ~blinded.take(x_shot)
-                & (x_meas > 0))
+                & detection.in_range_gate(x_meas, det))
         f_shot = np.concatenate(false_shot) if false_shot else np.zeros(0, np.int64)
         f_range = np.concatenate(false_range) if false_range else np.zeros(0)
-        f_ok = f_range > 0
+        f_ok = detection.in_range_gate(f_range, det)
         # Candidates: echoes (kind 0), extras (1 or 3), false returns (2).
         cand_shot = np.concatenate([echo, x_shot[x_ok], f_shot[f_ok]])
         # kind 1: returns by way of another surface (multipath ghosts), 3: other extra returns.
@@ -394,7 +408,7 @@ class Simulator:
         cand_mat = np.concatenate([ctx.material.take(echo), x_mat[x_ok], np.full(np.count_nonzero(f_ok), -1)])
         cand_face = np.concatenate([pred.hits.face.take(echo), x_face[x_ok], pred.hits.face.take(f_shot[f_ok])])
         cand_true = np.concatenate([ctx.range_m.take(echo), x_range[x_ok], ctx.range_m.take(f_shot[f_ok])])
-        keep, number = returns.select_returns(self._cast_order.take(cand_shot), cand_range,
+        keep, number = returns.select_returns(plan.order.take(cand_shot), cand_range,
                                               cand_power, det.returns)
         out = cand_shot.take(keep)
         range_out = cand_range.take(keep)
@@ -410,11 +424,42 @@ class Simulator:
             stats['multipath_path_m'] = (cand_true.take(ghost) - ctx.range_m.take(out[kind.take(keep) == 1])).tolist()
         return Frame(
             stamp_s=float(frame_start_s), index=int(frame_index),
-            xyz_m=_along(self._cast_directions, out, range_out), range_m=range_out,
+            xyz_m=_along(plan.directions, out, range_out), range_m=range_out,
             intensity=cand_intensity.take(keep),
             t_s=shots.t_s.take(out), ring=shots.laser.take(out),
-            material=_material_ids(cand_mat.take(keep)), stats=stats, truth_source=self._truth(pred, measured),
+            material=_material_ids(cand_mat.take(keep)), stats=stats, truth_source=self._truth(pred, measured, plan),
             face=cand_face.take(keep), true_range_m=cand_true.take(keep), return_number=number)
+
+
+def _poses_at(pose_source: PoseSource, t_s: np.ndarray) -> Poses:
+    """The pose at every time; one pose repeated when all times are the same (a flash
+    array's global exposure: 65,536 equal times, one interpolation)."""
+    n = len(t_s)
+    if n > 1 and t_s[0] == t_s[-1] and bool(np.all(t_s == t_s[0])):
+        one = pose_source.at(t_s[:1])
+        return Poses.from_quat(np.repeat(one.quat_xyzw, n, axis=0),
+                               np.repeat(np.asarray(one.position_m, float).reshape(1, 3), n, axis=0))
+    return pose_source.at(t_s)
+
+
+@dataclass(frozen=True)
+class _CastPlan:
+    """One frame's shots in firing order and in cast order (coherent: neighbouring
+    directions together); ``position[i]``: where firing-order shot i sits in cast order."""
+
+    shots: Shots
+    order: np.ndarray
+    cast_shots: Shots
+    directions: np.ndarray
+    position: np.ndarray
+
+    @classmethod
+    def of(cls, shots: Shots, directions: np.ndarray) -> '_CastPlan':
+        order = coherent_order(shots.az_rad, shots.el_rad)
+        position = np.empty_like(order)
+        position[order] = np.arange(len(order))
+        return cls(shots, order, shots.subset(order), np.ascontiguousarray(directions[order]),
+                   position)
 
 
 def _false_returns(effects, ctx, rng: np.random.Generator):

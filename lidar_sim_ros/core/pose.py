@@ -15,11 +15,7 @@ from numba import njit
 from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.core.config import ScenarioConfig
-
-QUAT_NORM_TOL = 0.01
-"""A quaternion whose norm is within this of 1 is normalised; further off it is refused
-(config) or dropped and counted (recorded poses, pose topics): (1, 1, 0, 0) is no rotation
-anyone meant."""
+from lidar_sim_ros.core.vectors import QUAT_NORM_TOL
 
 
 def valid_pose_mask(position_m: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:

@@ -61,6 +61,18 @@ def laser_irradiance_w_m2(range_m, peak_power_w, tau_t, divergence_rad):
     return peak_power_w * tau_t / (np.pi * (np.asarray(range_m) * divergence_rad / 2.0) ** 2)
 
 
+def flood_solid_angle_sr(field_az_rad: float, field_el_rad: float) -> float:
+    """Omega_illum (sr) of a flood lighting a rectangular field of full angles a x b:
+    4 asin(sin(a/2) sin(b/2))."""
+    return float(4.0 * np.arcsin(np.sin(field_az_rad / 2.0) * np.sin(field_el_rad / 2.0)))
+
+
+def flood_irradiance_w_m2(range_m, peak_power_w, tau_t, illuminated_sr):
+    """E = P_o tau_t / (Omega_illum r^2) (W/m^2): Eq. 2 for one pulse spread evenly over the
+    illuminated solid angle (a flash LiDAR); Eq. 2 itself is this with Omega = pi (dtheta/2)^2."""
+    return peak_power_w * tau_t / (illuminated_sr * np.asarray(range_m) ** 2)
+
+
 def laser_radiance(f_brdf, irradiance_w_m2, cos_theta):
     """L_laser = f_BRDF E_laser cos(theta_o), paper Eq. 1 (W/(sr m^2))."""
     return f_brdf * irradiance_w_m2 * cos_theta
@@ -71,23 +83,44 @@ def footprint_area_m2(range_m, divergence_rad, cos_theta):
     return np.pi * (np.asarray(range_m) * divergence_rad / 2.0) ** 2 / np.maximum(cos_theta, _MIN_COS)
 
 
+def pixel_footprint_area_m2(range_m, pixel_sr, cos_theta):
+    """A(r) of a flood-lit surface seen by one pixel: its field of view Omega_pix r^2
+    stretched by 1/cos(theta) on the surface (m^2); the beam's spot is wider than it."""
+    return np.asarray(pixel_sr) * np.asarray(range_m) ** 2 / np.maximum(cos_theta, _MIN_COS)
+
+
 def received_power_w(radiance, tau_r, area_m2, cos_theta, aperture_diameter_m, range_m):
     """P_r = L tau_r A(r) cos(theta_o) 4 pi [pi (D/2)^2 / (4 pi r^2)], paper Eq. 3 (W)."""
     aperture_fraction = np.pi * (aperture_diameter_m / 2.0) ** 2 / (4.0 * np.pi * np.asarray(range_m) ** 2)
     return radiance * tau_r * area_m2 * cos_theta * 4.0 * np.pi * aperture_fraction
 
 
-def return_power_w(range_m, incidence_rad, kd, ks, n, optics: OpticsConfig, cos_incidence=None):
+def return_power_w(range_m, incidence_rad, kd, ks, n, optics: OpticsConfig, cos_incidence=None,
+                   pixel_sr=None):
     """Received power (W) of a monostatic shot hitting a surface: Eqs. 1-3 with Eq. 5.
 
     ``kd, ks, n`` are per-shot arrays (or scalars) of the material hit;
     ``cos_incidence``: cos(incidence_rad) if the caller has it (saves two cosines).
+    A flood-lit sensor (``optics.flood``, a flash array) needs ``pixel_sr``: each shot's
+    pixel field of view (sr; 0 where the flood does not light it, ``scan_flash.pixel_view_sr``).
+    The irradiance is then the pulse spread over the flood's solid angle and the surface
+    seen is the pixel's footprint, not the beam's: the same Eqs. 1, 3 and 5, so that
+    P_r = P_o tau_t tau_r f cos(theta) pi (D/2)^2 / r^2 x Omega_pix / Omega_illum.
     """
     cos_t = np.cos(incidence_rad) if cos_incidence is None else np.asarray(cos_incidence)
     f = phong_brdf_cos(monostatic_cos_alpha(cos_t), kd, ks, n)
-    e = laser_irradiance_w_m2(range_m, optics.peak_power_w, optics.transmit_efficiency,
-                              optics.beam_divergence_rad)
+    if optics.flood is None:
+        e = laser_irradiance_w_m2(range_m, optics.peak_power_w, optics.transmit_efficiency,
+                                  optics.beam_divergence_rad)
+        area = footprint_area_m2(range_m, optics.beam_divergence_rad, cos_t)
+    else:
+        if pixel_sr is None:
+            raise ValueError('a flood-lit sensor needs each shot\'s pixel solid angle (pixel_sr)')
+        illuminated = flood_solid_angle_sr(np.radians(optics.flood.field_az_deg),
+                                           np.radians(optics.flood.field_el_deg))
+        e = flood_irradiance_w_m2(range_m, optics.peak_power_w, optics.transmit_efficiency,
+                                  illuminated)
+        area = pixel_footprint_area_m2(range_m, pixel_sr, cos_t)
     radiance = laser_radiance(f, e, cos_t)
-    area = footprint_area_m2(range_m, optics.beam_divergence_rad, cos_t)
     return received_power_w(radiance, optics.receive_efficiency, area, cos_t,
                             optics.aperture_diameter_m, range_m)

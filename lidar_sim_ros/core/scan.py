@@ -10,8 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.core.config import (ConfigError, FileScan, LissajousArrayScan,
-                                       RotatingScan, SensorConfig)
+from lidar_sim_ros.core.config import (MAX_LASERS, MAX_SHOTS_PER_FRAME, ConfigError, FileScan,
+                                       FlashScan, LissajousArrayScan, RisleyScan, RotatingScan,
+                                       SensorConfig)
 
 
 @dataclass(frozen=True)
@@ -139,30 +140,84 @@ def file_shots(cfg: FileScan, frame_period_s: float, base: Path | None = None) -
     if not path.is_file():
         raise ConfigError(path, 'scan.path', cfg.path, 'scan pattern file not found')
     if path.suffix == '.npy':
-        data = np.load(path)
-        cols = {name: data[name] for name in data.dtype.names} if data.dtype.names else {
-            name: data[:, i] for i, name in enumerate(('t_s', 'az_deg', 'el_deg', 'laser'))}
+        try:   # memory-mapped: the shape is checked before anything is read
+            data = np.load(path, mmap_mode='r', allow_pickle=False)
+        except (ValueError, OSError) as exc:
+            raise ConfigError(path, 'scan.path', cfg.path, f'not a readable .npy file: {exc}') from None
+        if data.ndim and len(data) > MAX_SHOTS_PER_FRAME:
+            raise ConfigError(path, 'shape', list(data.shape),
+                              f'more shots than the limit of {MAX_SHOTS_PER_FRAME}')
+        if data.dtype.names:
+            missing = {'t_s', 'az_deg', 'el_deg', 'laser'} - set(data.dtype.names)
+            if missing or data.ndim != 1:
+                raise ConfigError(path, 'columns', data.dtype.names,
+                                  f'a 1-D record array with t_s, az_deg, el_deg, laser '
+                                  f'(missing {sorted(missing)}, shape {data.shape})')
+            cols = {name: data[name] for name in data.dtype.names}
+        elif data.ndim != 2 or data.shape[1] < 4 or data.dtype.kind not in 'iuf':
+            raise ConfigError(path, 'shape', list(data.shape),
+                              f'a scan .npy holds an (N, 4) number array (t_s, az_deg, el_deg, '
+                              f'laser columns) or a record array; this is {data.ndim}-D '
+                              f'{data.dtype}')
+        else:
+            cols = {name: data[:, i] for i, name in enumerate(('t_s', 'az_deg', 'el_deg', 'laser'))}
     else:
         data = np.genfromtxt(path, delimiter=',', names=True)
         missing = {'t_s', 'az_deg', 'el_deg', 'laser'} - set(data.dtype.names or ())
         if missing:
             raise ConfigError(path, 'columns', data.dtype.names, f'missing columns {sorted(missing)}')
-        cols = {name: data[name] for name in data.dtype.names}
+        cols = {name: np.atleast_1d(data[name]) for name in data.dtype.names}
     t = np.asarray(cols['t_s'], dtype=float)
     if np.any(~np.isfinite(t)) or np.any(t < 0) or np.any(t >= frame_period_s):
         raise ConfigError(path, 't_s', float(np.nanmax(t)),
                           f'shot times must lie in [0, frame period {frame_period_s:g} s)')
+    if len(t) > MAX_SHOTS_PER_FRAME:
+        raise ConfigError(path, 't_s', len(t), f'more shots than the limit of {MAX_SHOTS_PER_FRAME}')
+    az, el = (np.asarray(cols[c], dtype=float) for c in ('az_deg', 'el_deg'))
+    for name, v in (('az_deg', az), ('el_deg', el)):
+        bad = ~np.isfinite(v)
+        if bad.any():
+            raise ConfigError(path, name, float(v[bad][0]), 'angles must be finite (deg)')
+    laser = np.asarray(cols['laser'], dtype=float)
+    bad = ~np.isfinite(laser) | (laser != np.round(laser)) | (laser < 0) | (laser >= MAX_LASERS)
+    if bad.any():
+        raise ConfigError(path, 'laser', float(laser[bad][0]),
+                          f'laser ids must be whole numbers in [0, {MAX_LASERS}) '
+                          f'({int(bad.sum())} row(s))')
     order = np.argsort(t, kind='stable')
-    return Shots(t[order], np.radians(np.asarray(cols['az_deg'], float))[order],
-                 np.radians(np.asarray(cols['el_deg'], float))[order],
-                 np.asarray(cols['laser']).astype(np.uint16)[order])
+    return Shots(t[order], np.radians(az)[order], np.radians(el)[order],
+                 laser.astype(np.uint16)[order])
 
 
-def frame_shots(sensor: SensorConfig, base: Path | None = None) -> Shots:
-    """All shots of one frame for the configured scan pattern."""
+def frame_shots(sensor: SensorConfig, base: Path | None = None, frame_index: int = 0) -> Shots:
+    """All shots of one frame for the configured scan pattern; ``frame_index`` matters only
+    to a pattern that does not repeat every frame (``varies_by_frame``: the Risley rosette)."""
     scan = sensor.scan
     if isinstance(scan, LissajousArrayScan):
         return lissajous_array_shots(scan, sensor.frame_period_s)
     if isinstance(scan, RotatingScan):
         return rotating_shots(scan, sensor.frame_period_s)
+    if isinstance(scan, RisleyScan):
+        from lidar_sim_ros.core.scan_risley import risley_shots
+        return risley_shots(scan, sensor.frame_period_s, frame_index)
+    if isinstance(scan, FlashScan):
+        from lidar_sim_ros.core.scan_flash import flash_shots
+        return flash_shots(scan, sensor.frame_period_s)
     return file_shots(scan, sensor.frame_period_s, base)
+
+
+def frame_shots_and_directions(sensor: SensorConfig, base: Path | None = None,
+                               frame_index: int = 0) -> tuple[Shots, np.ndarray]:
+    """``frame_shots`` and their unit directions (N, 3); a rosette computes its directions
+    first, so a frame's shots cost one trigonometric pass, not two."""
+    if isinstance(sensor.scan, RisleyScan):
+        from lidar_sim_ros.core.scan_risley import risley_frame
+        return risley_frame(sensor.scan, sensor.frame_period_s, frame_index)
+    shots = frame_shots(sensor, base, frame_index)
+    return shots, shots.directions()
+
+
+def varies_by_frame(sensor: SensorConfig) -> bool:
+    """Whether each frame has its own shots (a non-repeating rosette) rather than one
+    pattern every frame."""
+    return isinstance(sensor.scan, RisleyScan)

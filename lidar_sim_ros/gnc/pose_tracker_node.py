@@ -101,6 +101,11 @@ def sensor_fov(scan) -> dict[str, float]:
     if scan.type == 'rotating':
         return {'fov_az_deg': min(360.0, 2 * max(abs(scan.az_min_deg), abs(scan.az_max_deg))),
                 'fov_el_deg': min(180.0, 2 * max(abs(e) for e in scan.elevations_deg) + 1.0)}
+    if scan.type == 'risley':      # the circle's bounding square
+        full = 2.0 * float(sum(scan.prism_deviation_deg))
+        return {'fov_az_deg': full, 'fov_el_deg': full}
+    if scan.type == 'flash':
+        return {'fov_az_deg': float(scan.fov_az_deg), 'fov_el_deg': float(scan.fov_el_deg)}
     return {}
 
 MAX_POINT_RANGE_M = 10_000.0
@@ -148,7 +153,8 @@ class PoseTrackerNode(Node):
         self.initial_guess = self._initial_guess(initial)
         self.recapture_from_pose = bool(param('recapture_from_pose'))
 
-        target = load_target(mesh, scenario.materials.names)
+        target = load_target(mesh, scenario.materials.names,
+                             mesh_materials=scenario.mesh_materials)
         t0 = time.perf_counter()
         self.tracker = PoseTracker(build_model(target.vertices_m, target.faces, self.config), self.config,
                                    self.acquisition)

@@ -36,8 +36,9 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
 from lidar_sim_ros.core.config import (ConfigError, Scenario, load_materials, load_scenario,
-                                       load_sensor, parse, with_frame_rate)
-from lidar_sim_ros.core.effects import Effect, is_plugin_spec, make_effect
+                                       load_sensor, parse, scenario_effect_spec, with_frame_rate)
+from lidar_sim_ros.core.effects import (Effect, builtin_classes, get_effect_class, is_plugin_spec,
+                                        make_effect)
 from lidar_sim_ros.core.geometry import MeshMaterialError
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.io.bag import encode_material_names
@@ -46,6 +47,7 @@ from lidar_sim_ros.ros.mount import check_mount, mount_message, rclpy_lookup
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.pointcloud import frame_points, stamp_to_ns, to_rclpy_msg
 from lidar_sim_ros.paths import config_path
+from lidar_sim_ros.ros import cepton_udp
 from lidar_sim_ros.ros.deadline import DeadlinePublisher
 from lidar_sim_ros.ros.spin import run_node
 from lidar_sim_ros.ros.pose_input import (NS_PER_S, PoseHistory, PoseSample, ReasonThrottle,
@@ -145,6 +147,8 @@ STARTUP_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
         'them on and off at run time; no runtime change loads code')),
 }
 
+STARTUP_PARAMETERS.update(cepton_udp.PARAMETERS)   # the Cepton wire output (ros/cepton_udp.py)
+
 # Parameters that may change while running.
 DYNAMIC_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     'publish_truth': (False, _descriptor(B, 'also publish the noise-free cloud on truth_topic')),
@@ -166,6 +170,9 @@ class LidarSimNode(Node):
         self.sim: Simulator | None = None
         self._effects_specs: dict[str, dict] = {}
         self._plugins: frozenset[str] = frozenset()  # plugin specs loaded at start-up
+        # Every effect 'effects' may name once running: the package's own and the plugins
+        # loaded at start-up, by the exact string that loaded them (an allow-list).
+        self._effect_classes: dict[str, type[Effect]] = {}
         self._ready = False
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -209,7 +216,10 @@ class LidarSimNode(Node):
             name for name in [*self._effects_specs, *(self.get_parameter_or('plugin_effects').value or []),
                               *self._effects_value()] if is_plugin_spec(name))
         for name in sorted(self._plugins):
-            make_effect(name, self._effects_specs.get(name))
+            make_effect(self._load_spec(name), self._effects_specs.get(name))
+        self._effect_classes = {**builtin_classes(),
+                                **{spec: get_effect_class(self._load_spec(spec))
+                                   for spec in sorted(self._plugins)}}
         self.sim.effects = self._build_effects(self._effects_value())
         sun = self.scenario.config.sun
         self.declare_parameter(
@@ -247,6 +257,7 @@ class LidarSimNode(Node):
                                       'frames on the wall clock): frames go out when computed')
             self._latency_ns = 0
         self._deadline = DeadlinePublisher() if self._latency_ns else None
+        self.udp = cepton_udp.sender_from_node(self)   # None unless cepton_udp
 
         self._create_interfaces()
         self.get_logger().info(
@@ -380,6 +391,8 @@ class LidarSimNode(Node):
             self._stop.set()
         if getattr(self, '_deadline', None) is not None:
             self._deadline.close()
+        if getattr(self, 'udp', None) is not None:
+            self.udp.close()
         return super().destroy_node()
 
     def _pose_window_ns(self, start_ns: int) -> tuple[int, int]:
@@ -390,8 +403,26 @@ class LidarSimNode(Node):
         value = self.get_parameter_or('effects').value  # NOT_SET (empty list) -> None
         return list(value) if value else []
 
+    def _load_spec(self, name: str) -> str:
+        """What loads the effect ``name``: a scenario's ``file.py:Class`` beside the scenario
+        file, never in the current directory; any other name as given."""
+        source = self.scenario.source
+        if name in self._effects_specs and source is not None:
+            return scenario_effect_spec(name, Path(source).resolve().parent)
+        return name
+
     def _build_effects(self, names: list[str]) -> list[Effect]:
-        return [make_effect(name, self._effects_specs.get(name)) for name in names]
+        """Effect instances by name. Once set up, from the allow-list only: a name outside
+        it raises KeyError and nothing is imported or executed."""
+        if not self._effect_classes:             # start-up: the operator's files name them
+            return [make_effect(self._load_spec(name), self._effects_specs.get(name)) for name in names]
+        unknown = [name for name in names if name not in self._effect_classes]
+        if unknown:
+            raise KeyError(f'{unknown[0]!r} is neither an effect of the catalogue nor a plugin '
+                           'loaded at start-up (plugin effects load at start-up only, from '
+                           'plugin_effects in the parameters file); allowed: '
+                           f'{sorted(self._effect_classes)}')
+        return [self._effect_classes[name](self._effects_specs.get(name)) for name in names]
 
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
         for p in params:
@@ -425,12 +456,12 @@ class LidarSimNode(Node):
         elif name == 'effects' and value:
             if len(set(value)) != len(value):
                 return 'an effect is listed twice'
-            new_code = [v for v in value if is_plugin_spec(v) and v not in self._plugins]
+            new_code = [v for v in value if v not in self._effect_classes]
             if self._ready and new_code:
-                return (f'{new_code[0]!r} would load code at run time, which no parameter change '
-                        'may do: plugin effects load at start-up only (plugin_effects in the '
-                        'parameters file); loaded at start-up: '
-                        f'{sorted(self._plugins) or "none"}')
+                return (f'{new_code[0]!r} is not an effect this node can switch on: runtime '
+                        'changes pick from the catalogue and the plugins loaded at start-up '
+                        '(plugin_effects in the parameters file), and never load code; loaded '
+                        f'at start-up: {sorted(self._plugins) or "none"}')
             try:
                 self._build_effects(list(value))
             except Exception as exc:  # noqa: BLE001 - any failure to build is the reason
@@ -586,6 +617,8 @@ class LidarSimNode(Node):
                     and self.truth_pub.get_subscription_count() > 0):
                 truth = frame_points(frame, truth=True)
                 out.append((self.truth_pub, to_rclpy_msg(truth, start_ns, frame_id)))
+            if self.udp is not None:
+                self.udp.submit(frame, start_ns)    # its own thread, paced; never blocks
             if self._deadline is None:
                 _publish_all(out)
             else:
@@ -626,6 +659,8 @@ class LidarSimNode(Node):
                 self._warn('publish_error', f'publishing a held frame failed: {errors[0]} '
                                             f'({len(errors)} in the last {STATS_PERIOD_S:g} s)',
                            error=True)
+        if self.udp is not None:
+            timing += cepton_udp.stats_text(self.udp.take_stats())
         self.get_logger().info(f'last {STATS_PERIOD_S:g} s: {s["published"]} frames published, '
                                f'{s["skipped"]} skipped, {s["failed"]} failed{timing}')
         self._stats = {'published': 0, 'skipped': 0, 'failed': 0, 'compute_ms': [], 'publish_ms': []}

@@ -3,7 +3,8 @@ the simulator's sun.
 
 The direction is a vector toward the sun in the lidar frame, from the ``sun_direction``
 parameter or a ``geometry_msgs/Vector3Stamped`` on the sun topic (whose ``frame_id`` must
-be the node's). Any non-zero finite vector is accepted and normalised. On the topic, a zero
+be the node's). Any finite vector that is not nearly zero is accepted and normalised
+(scaled first, so ``[1e300, 1e300, 0]`` is a direction like any other). On the topic, a zero
 vector says the sun is hidden (the chaser in the Earth's shadow, as ``loop_dynamics``
 publishes it): the frames then have no sun until a direction comes again.
 """
@@ -13,6 +14,7 @@ import numpy as np
 
 from lidar_sim_ros.core.config import SunConfig
 from lidar_sim_ros.core.sun import ScenarioSun
+from lidar_sim_ros.core.vectors import unit_vector
 from lidar_sim_ros.ros.pose_input import Rejection
 
 
@@ -24,16 +26,14 @@ def check_sun_direction(vector, frame_id: str | None = None, node_frame_id: str 
         return None, Rejection('sun_frame_id', f'frame_id {frame_id!r} is not the node '
                                                f'frame_id {node_frame_id!r}')
     v = np.asarray(vector, dtype=float)
-    if v.shape != (3,):
-        return None, Rejection('sun_shape', f'needs 3 components, got {v.size}')
-    if not np.isfinite(v).all():
-        return None, Rejection('sun_finite', f'direction {v.tolist()} is not finite')
-    norm = float(np.linalg.norm(v))
-    if zero_is_dark and norm == 0.0:
+    if zero_is_dark and v.shape == (3,) and not v.any():
         return None, None
-    if norm < 1e-9:
-        return None, Rejection('sun_zero', 'direction is zero')
-    return v / norm, None
+    try:
+        return unit_vector(v), None
+    except ValueError as exc:
+        kind = ('sun_shape' if v.shape != (3,) else 'sun_finite' if not np.isfinite(v).all()
+                else 'sun_zero')
+        return None, Rejection(kind, f'direction {exc}')
 
 
 def sun_with_direction(current: ScenarioSun | None, direction: np.ndarray) -> ScenarioSun:

@@ -47,10 +47,22 @@ def _load_catalogue() -> None:
                 raise
 
 
-def is_plugin_spec(spec: str) -> bool:
-    """True for ``module:Class`` or ``file.py:Class``: a spec whose loading runs user code."""
-    return ':' in spec.partition('=')[0]
+def builtin_names() -> tuple[str, ...]:
+    """The names of the effects this package ships: the catalogue and those by name only."""
+    return _CATALOGUE + _BY_NAME_ONLY
 
+
+def builtin_classes() -> dict[str, type[Effect]]:
+    """The package's own effects by name (nothing outside ``builtin_names`` is resolved)."""
+    _load_catalogue()
+    return {name: REGISTRY[name] for name in builtin_names() if name in REGISTRY}
+
+
+def is_plugin_spec(spec: str) -> bool:
+    """True for anything but the name of an effect this package ships: resolving it may run
+    user code (``module:Class``, ``path/a=b/file.py:Class``, any unknown string). An
+    allow-list, not a pattern: no spelling of a path passes for a catalogue name."""
+    return spec not in builtin_names()
 
 def get_effect_class(spec: str) -> type[Effect]:
     """Resolve a catalogue name, ``module:Class`` or ``file.py:Class`` to an Effect class."""
@@ -65,6 +77,10 @@ def get_effect_class(spec: str) -> type[Effect]:
         path = Path(where).expanduser()
         if not path.is_file():
             raise FileNotFoundError(f'effect file not found: {path}')
+        if path.suffix != '.py':
+            # spec_from_file_location has no loader for other files ('NoneType' object...).
+            raise TypeError(f'{spec}: an effect file is Python source ending in .py, '
+                            f'not {path.name!r}')
         path = path.resolve()
         module = _FILE_MODULES.get(path)
         if module is None:
@@ -133,4 +149,5 @@ def catalogue() -> dict[str, type[Effect]]:
 
 
 __all__ = ['Effect', 'ExtraReturns', 'NoParams', 'ReturnContext', 'REGISTRY', 'register', 'get_effect_class',
+           'builtin_classes', 'builtin_names', 'is_plugin_spec',
            'make_effect', 'parse_effect_spec', 'effect_from_spec', 'catalogue']

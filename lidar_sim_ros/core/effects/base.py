@@ -183,6 +183,8 @@ class Effect:
     def __init__(self, params: BaseModel | dict[str, Any] | None = None):
         if isinstance(params, BaseModel):
             params = params.model_dump()
+        # Finite first: a NaN then says "finite", not "less than or equal to" a bound.
+        _check_finite(params or {}, self.Params.__name__)
         self.params = _finite_params(self.Params.model_validate(params or {}))
 
     def __repr__(self) -> str:
@@ -294,13 +296,18 @@ def _finite_params(params: BaseModel) -> BaseModel:
     """Every number among an effect's parameters must be finite (``range_walk k_m: .nan``
     gave 0 points and rc 0): refused as a pydantic error naming the key and value, which
     the config loaders turn into one line."""
-    bad = [(key, value) for key, value in _numbers(params.model_dump())
-           if not np.isfinite(value)]
+    _check_finite(params.model_dump(), type(params).__name__)
+    return params
+
+
+def _check_finite(values: Any, title: str) -> None:
+    """The ValidationError of ``_finite_params`` for the first non-finite number in
+    ``values`` (nested dicts and lists), if any."""
+    bad = [(key, value) for key, value in _numbers(values) if not np.isfinite(value)]
     if bad:
         key, value = bad[0]
-        raise ValidationError.from_exception_data(type(params).__name__, [
+        raise ValidationError.from_exception_data(title, [
             {'type': 'finite_number', 'loc': key, 'input': value}])
-    return params
 
 
 def _numbers(value: Any, key: tuple = ()) -> Any:

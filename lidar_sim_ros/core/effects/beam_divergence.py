@@ -73,6 +73,7 @@ SERIES_LIMIT = 0.01     # tan(a) tan(theta) below which the plane sum's series i
 OCCLUDER_MARGIN_M = 0.002   # occluders this far behind the footprint's farthest sub-ray count
 WIDE_FOOTPRINT = 0.8    # footprint radius / median mesh edge above which every shot is cast
 CREASE_TOL_M = 1e-3     # range error allowed where a footprint crosses only slight creases
+MAX_FOOTPRINT_SCALE = 100.0  # cone / divergence; docs/effects.md, "Parameter bounds"
 
 
 @lru_cache(maxsize=8)
@@ -438,9 +439,8 @@ def _footprints_in_facets(index, range_m, cos_incidence, face, barycentric, face
             count += 1
             continue
         inv_cos = 1.0 / cos_i
-        a_max = sin_i * t_max * inv_cos
-        # 1 / (1 - a) <= 1 + a + 2 a^2 for a <= 0.5: bounds from above, one division less.
-        above = 1.0 + a_max + 2.0 * a_max * a_max
+        # cos a / cos(theta + a) <= inv_cos x above: bounds from above, one division less.
+        above = far_secant_bound(1.0, sin_i * t_max * inv_cos)
         inv_far = inv_cos * above                 # >= 1 / (cos_i - sin_i t_max)
         spread = 1.01 * r0 * t_max * inv_far + 1e-6
         f = face[i]
@@ -592,7 +592,7 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
         a_max = grad * t_max
         # Footprint wholly inside the axis facet? The cone meets the plane within
         # r0 sin a / cos(theta + a) of the axis point; compare with its distance to the edges.
-        spread = 1.01 * r0 * t_max / (cos_i - sin_i * t_max) + 1e-6
+        spread = footprint_spread_m(r0, cos_i, sin_i, t_max)
         px, py, pz = ox + r0 * dx, oy + r0 * dy, oz + r0 * dz
         near0 = _margin(planes, f0, 1, px, py, pz) < spread
         near1 = _margin(planes, f0, 2, px, py, pz) < spread
@@ -689,6 +689,24 @@ def _sheet_footprint_ranges(origins, directions, index, face, tilt, cos_phi, sin
             limit[i] = _occluder_limit(max(plane_reach, high), r0)
         else:
             sample[i], limit[i] = True, -1.0
+
+
+@njit(cache=True, nogil=True, inline='always', error_model='numpy')
+def footprint_spread_m(r0, cos_i, sin_i, t_max):
+    """How far (m) from the axis point a footprint spreads on a plane, at most: the
+    cone of half-angle a (tan a = t_max) at range r0 meets a plane at incidence theta
+    (cos_i, sin_i) within r0 sin a / cos(theta + a) of the axis point (law of sines in
+    the triangle sensor, axis point, farthest rim point) = r0 t_max / (cos_i - sin_i
+    t_max); 1 % and 1 um of margin for rounding."""
+    return 1.01 * r0 * t_max / (cos_i - sin_i * t_max) + 1e-6
+
+
+@njit(cache=True, nogil=True, inline='always', error_model='numpy')
+def far_secant_bound(inv_cos, a):
+    """An upper bound of cos a' / cos(theta + a') = 1 / (cos theta - sin theta tan a')
+    without a division, for a = tan(theta) tan(a') <= 0.5 (``inv_cos`` = 1 / cos theta):
+    it is inv_cos / (1 - a), and 1 / (1 - a) <= 1 + a + 2 a^2."""
+    return inv_cos * (1.0 + a + 2.0 * a * a)
 
 
 @njit(cache=True, nogil=True, inline='always', error_model='numpy')
@@ -825,7 +843,7 @@ class BeamDivergence(Effect):
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
         footprint_scale: float = Field(
-            0.0, ge=0.0, description='cone full angle / beam divergence (-); 0 = single ray')
+            0.0, ge=0.0, le=MAX_FOOTPRINT_SCALE, description='cone full angle / beam divergence (-); 0 = single ray')
         rings: int = Field(2, ge=1, le=5, description='sub-ray rings (K = 1 + 3 rings (rings + 1))')
         range_mode: Literal['mean', 'first'] = 'mean'
         sampling: Literal['edges', 'all'] = Field(
@@ -842,6 +860,7 @@ class BeamDivergence(Effect):
             return None
         from lidar_sim_ros.core import reflection
         from lidar_sim_ros.core.effects.base import ExtraReturns
+        from lidar_sim_ros.core.scan_flash import pixel_view_sr
         scene = ctx.scene
         sep = scene.sensor.detection.returns.min_separation_m
         index = np.flatnonzero(sampled_shots(scene.target, ctx.direction, scene.poses, half,
@@ -854,9 +873,10 @@ class BeamDivergence(Effect):
             return None
         kd, ks, n = (scene.materials.column(c) for c in ('kd', 'ks', 'n'))
         m = g['material']
+        pixel_sr = pixel_view_sr(scene.sensor, ctx.direction[g['shot']])
         power = g['fraction'] * reflection.return_power_w(
             g['range_m'], np.arccos(np.clip(g['cos_incidence'], 0.0, 1.0)), kd.take(m), ks.take(m),
-            n.take(m), scene.sensor.optics, g['cos_incidence'])
+            n.take(m), scene.sensor.optics, g['cos_incidence'], pixel_sr)
         return ExtraReturns(shot=g['shot'], range_m=g['range_m'], power_w=power, material=m,
                             face=g['face'], via_material=np.full(len(m), -1, np.int16),
                             source=self.name, replaces_echo=True)

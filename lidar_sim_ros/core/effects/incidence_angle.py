@@ -21,6 +21,9 @@ from pydantic import BaseModel, ConfigDict, Field
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect, ReturnContext
 
+# Physical limit of the gains (docs/effects.md, "Parameter bounds"): ten times the fit's box.
+MAX_GAIN = 100.0
+
 
 def footprint_depth_m(ctx: ReturnContext, max_incidence_deg: float = 85.0) -> np.ndarray:
     """L = r dtheta tan(theta) (m): range extent of the footprint; 0 on a miss."""
@@ -60,8 +63,9 @@ class IncidenceAngle(Effect):
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
-        bias_gain: float = Field(0.0, description='bias per metre of footprint depth (-)')
-        sigma_gain: float = Field(0.0, ge=0.0,
+        bias_gain: float = Field(0.0, ge=-MAX_GAIN, le=MAX_GAIN,
+                                 description='bias per metre of footprint depth (-)')
+        sigma_gain: float = Field(0.0, ge=0.0, le=MAX_GAIN,
                                   description='extra sigma per metre of footprint depth (-)')
         max_incidence_deg: float = Field(85.0, gt=0.0, lt=90.0,
                                          description='tan(theta) is clipped here (grazing)')

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from lidar_sim_ros.core.config import MAX_LASERS
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect, ReturnContext
 
@@ -35,7 +36,7 @@ class LaserBias(Effect):
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
-        offsets_m: list[float] = Field(default_factory=list,
+        offsets_m: list[float] = Field(default_factory=list, max_length=MAX_LASERS,
                                        description='range offset (m) of laser i, i = list index')
 
         @field_validator('offsets_m')

@@ -74,6 +74,8 @@ SELF_HIT_OFFSET_PER_M = 2e-5
 SELF_HIT_OFFSET_M = 1e-4
 # Clearance (m) below which a face counts as on the convex hull (float rounding).
 CLEARANCE_TOL_M = 1e-6
+MAX_STRENGTH = 1000.0   # ghost power scale; docs/effects.md, "Parameter bounds"
+MAX_MIN_PATH_M = 1000.0
 
 
 def mirror_directions(directions: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -132,8 +134,8 @@ class Multipath(Effect):
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
-        strength: float = Field(1.0, ge=0.0, description='scale on the ghost power (-); 1 = Eqs. 1-3')
-        min_path_m: float = Field(0.05, ge=0.0, description=(
+        strength: float = Field(1.0, ge=0.0, le=MAX_STRENGTH, description='scale on the ghost power (-); 1 = Eqs. 1-3')
+        min_path_m: float = Field(0.05, ge=0.0, le=MAX_MIN_PATH_M, description=(
             'follow a specular hit only if a ghost could be detected at least this far behind '
             'it (m): closer ghosts merge with the surface echo'))
 

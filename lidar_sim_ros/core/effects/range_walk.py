@@ -21,6 +21,12 @@ from pydantic import BaseModel, ConfigDict, Field
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect, ReturnContext
 
+# Physical limits of the parameters (docs/effects.md, "Parameter bounds"): a walk of 2 m
+# per e-fold is ten times any discriminator's; the offset is a range error (MAX_RANGE_ERROR_M).
+MAX_K_M = 2.0
+MAX_OFFSET_M = 100.0
+MAX_REFERENCE_POWER_W = 1e3
+
 
 def log_power_ratio(ctx: ReturnContext, reference_power_w: float | None = None) -> np.ndarray:
     """ln(P / P_ref) per shot (-); 0 where the shot has no power (a miss)."""
@@ -44,10 +50,13 @@ class RangeWalk(Effect):
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
-        k_m: float = Field(0.0, description='range advance per e-fold of received power (m)')
-        offset_m: float = Field(0.0, description='constant offset (m); not fitted, see module doc')
+        k_m: float = Field(0.0, ge=-MAX_K_M, le=MAX_K_M,
+                           description='range advance per e-fold of received power (m)')
+        offset_m: float = Field(0.0, ge=-MAX_OFFSET_M, le=MAX_OFFSET_M,
+                                description='constant offset (m); not fitted, see module doc')
         reference_power_w: float | None = Field(
-            None, gt=0.0, description='P_ref (W); None = detection threshold')
+            None, gt=0.0, le=MAX_REFERENCE_POWER_W,
+            description='P_ref (W); None = detection threshold')
 
     def range_bias_m(self, ctx: ReturnContext) -> np.ndarray:
         p = self.params

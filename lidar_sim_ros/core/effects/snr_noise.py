@@ -18,6 +18,11 @@ from pydantic import BaseModel, ConfigDict, Field
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect, ReturnContext
 
+# Physical limits (docs/effects.md, "Parameter bounds"): 10 m of noise at the threshold
+# is no ranging at all; exponents beyond 4 are no detector's.
+MAX_C_M = 10.0
+MAX_EXPONENT = 4.0
+
 
 def threshold_power_ratio(ctx: ReturnContext) -> np.ndarray:
     """P_threshold / P per shot (-); 0 on a miss."""
@@ -37,8 +42,9 @@ class SnrNoise(Effect):
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
-        c_m: float = Field(0.0, ge=0.0, description='extra range noise at the threshold power (m)')
-        exponent: float = Field(0.5, gt=0.0,
+        c_m: float = Field(0.0, ge=0.0, le=MAX_C_M,
+                           description='extra range noise at the threshold power (m)')
+        exponent: float = Field(0.5, gt=0.0, le=MAX_EXPONENT,
                                 description='power-law exponent (-); 0.5 = shot-noise limited')
 
     def range_sigma_m(self, ctx: ReturnContext) -> np.ndarray:

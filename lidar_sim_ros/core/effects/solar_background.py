@@ -31,6 +31,10 @@ from pydantic import BaseModel, ConfigDict, Field
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect, ReturnContext
 
+# The window lies within any lidar's reach (docs/effects.md, "Parameter bounds"); the
+# pipeline gates the published ranges to the sensor's range gate in any case.
+MAX_WINDOW_M = 100_000.0
+
 
 @register
 class SolarBackground(Effect):
@@ -43,9 +47,9 @@ class SolarBackground(Effect):
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
         probability: float = Field(0.0, ge=0.0, le=1.0, description='false returns per shot (-)')
-        min_range_m: float | None = Field(None, ge=0.0,
+        min_range_m: float | None = Field(None, ge=0.0, le=MAX_WINDOW_M,
                                           description='window start (m); None = range gate')
-        max_range_m: float | None = Field(None, gt=0.0,
+        max_range_m: float | None = Field(None, gt=0.0, le=MAX_WINDOW_M,
                                           description='window end (m); None = range gate')
         first_return: bool = Field(True, description='a crossing is recorded only before '
                                    'the echo (first-return receiver)')

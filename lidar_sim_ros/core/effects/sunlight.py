@@ -55,6 +55,7 @@ SHADOW_RAY_OFFSET_M = 2e-3
 NEGLIGIBLE_NOISE_SHARE = 0.01
 # A blinded shot's likelihood of a matched point is not zero (the model may be wrong).
 MAX_OUTLIER_FRACTION = 0.999
+MAX_BACKGROUND_SCALE = 1e4   # receiver factor; docs/effects.md, "Parameter bounds"
 
 
 @dataclass(frozen=True)
@@ -361,7 +362,7 @@ class Sunlight(Effect):
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
         background_scale: float = Field(
-            1.0, ge=0.0, description='receiver factor multiplying every background power (-); '
+            1.0, ge=0.0, le=MAX_BACKGROUND_SCALE, description='receiver factor multiplying every background power (-); '
                                      'band-pass x field of view x transmission relative to the '
                                      "sensor's receiver section")
 

@@ -19,6 +19,10 @@ from pydantic import BaseModel, ConfigDict, Field
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect
 
+# A minute between the pose clock and the LiDAR clock is a setup fault, not an offset to model
+# (docs/effects.md, "Parameter bounds").
+MAX_DT_S = 60.0
+
 
 @register
 class TimeOffset(Effect):
@@ -32,7 +36,8 @@ class TimeOffset(Effect):
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
-        dt_s: float = Field(0.0, description='pose time minus LiDAR time (s)')
+        dt_s: float = Field(0.0, ge=-MAX_DT_S, le=MAX_DT_S,
+                            description='pose time minus LiDAR time (s)')
 
     def pose_time_s(self, t_s: np.ndarray) -> np.ndarray:
         return np.asarray(t_s, float) + self.params.dt_s

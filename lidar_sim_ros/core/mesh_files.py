@@ -1,0 +1,93 @@
+"""Targets from CAD exports: glTF 2.0 (.gltf, .glb), STL and PLY, read with trimesh.
+
+A CAD export names its parts, not our materials: the scenario's ``mesh_materials`` maps
+them. For every mesh placed in the file's scene graph (with its node's transform; glTF
+is in metres, STL and PLY are read as metres) the candidate names are, in order, the
+mesh's material name, its node's name and the mesh's own name; the first that the map
+holds (or, without a map, the first that is itself a config material) gives its
+material. A string instead of a map gives one material to the whole file (an STL or
+PLY has no material names at all). Parts that no name maps stop the load with one line
+naming them.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+CAD_SUFFIXES = ('.gltf', '.glb', '.stl', '.ply')
+MAX_MESH_FILE_BYTES = 2_000_000_000
+"""Largest CAD file read (a binary STL of MAX_TRIANGLES is 500 MB)."""
+
+
+class MeshMaterialError(ValueError):
+    """A mesh group/material name that the materials config does not know."""
+
+
+class MeshFileError(ValueError):
+    """A mesh file that cannot be read as a target: names the file and the problem."""
+
+
+def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[str, str] | None,
+             max_triangles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices (m, V x 3), faces (F x 3) and each face's material id of a CAD file."""
+    size = path.stat().st_size
+    if size > MAX_MESH_FILE_BYTES:
+        raise MeshFileError(f'{path}: {size} bytes exceed the limit of {MAX_MESH_FILE_BYTES}')
+    try:
+        scene = trimesh.load(str(path), force='scene', process=False)
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds on malformed files
+        raise MeshFileError(f'{path}: trimesh cannot read it as a {path.suffix} mesh '
+                           f'({type(exc).__name__}: {_first_line(exc)})') from None
+    verts, faces, mats, unmapped = [], [], [], []
+    offset = n_faces = 0
+    for node in scene.graph.nodes_geometry:
+        matrix, geom_name = scene.graph[node]
+        geom = scene.geometry.get(geom_name)
+        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+            continue
+        n_faces += len(geom.faces)
+        if n_faces > max_triangles:
+            raise MeshFileError(f'{path}: more than {max_triangles} triangles')
+        material = getattr(getattr(getattr(geom, 'visual', None), 'material', None), 'name', None)
+        candidates = [n for n in (material, node, geom_name) if n]
+        chosen = _material_of(candidates, material_names, mesh_materials)
+        if chosen is not None and chosen not in material_names:
+            raise MeshMaterialError(f'{path}: part {candidates[0]!r} is mapped to {chosen!r}, '
+                                    f'which is not in the materials config ({material_names})')
+        if chosen is None:
+            unmapped.append(material or node)
+            continue
+        v = np.asarray(geom.vertices, dtype=float)
+        verts.append(v @ np.asarray(matrix)[:3, :3].T + np.asarray(matrix)[:3, 3])
+        faces.append(np.asarray(geom.faces, dtype=np.int64) + offset)
+        mats.append(np.full(len(geom.faces), material_names.index(chosen)))
+        offset += len(v)
+    if unmapped:
+        raise MeshMaterialError(
+            f'{path}: mesh material/node name(s) {sorted(set(map(str, unmapped)))} not mapped to a '
+            f'config material (give the scenario a mesh_materials entry for each; known '
+            f'materials: {material_names})')
+    if not faces:
+        raise MeshFileError(f'{path}: no triangles found')
+    return np.vstack(verts), np.vstack(faces), np.concatenate(mats)
+
+
+def _material_of(candidates: list[str], material_names: list[str],
+                 mesh_materials: str | dict[str, str] | None) -> str | None:
+    """The config material of a part with these candidate names (module doc), or None."""
+    if isinstance(mesh_materials, str):
+        return mesh_materials
+    for name in candidates:
+        if mesh_materials is not None:
+            if name in mesh_materials:
+                return mesh_materials[name]
+        elif name in material_names:
+            return name
+    return None
+
+
+def _first_line(exc: Exception) -> str:
+    text = ' '.join(str(exc).split())
+    return text if len(text) <= 200 else text[:197] + '...'

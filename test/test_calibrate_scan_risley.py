@@ -1,0 +1,42 @@
+"""calibrate scan on a Risley sensor (calibrate/scan_risley.py): the prism rates of a
+recording, found among the periodogram's aliases, written as a sensor that reloads."""
+import numpy as np
+import pytest
+
+from lidar_sim_ros.calibrate.scan_pattern import run_scan
+from lidar_sim_ros.calibrate.scan_risley import fit_prisms
+from lidar_sim_ros.core.config import load_scenario, load_sensor
+from lidar_sim_ros.offline import simulate_to_bag
+from conftest import CONFIG
+
+
+def test_fit_prisms_closed_form_with_gaps():
+    """z(t) = a1 e^{2 pi i f1 t} + a2 e^{2 pi i f2 t} seen only where it crosses a band
+    (the target's gaps): the rates and amplitudes come back, not an alias."""
+    f, a = np.array([37.25, -23.5]), np.array([0.1 * np.exp(0.4j), 0.08 * np.exp(-2.0j)])
+    t = np.arange(0, 0.6, 2e-5)
+    z = np.exp(2j * np.pi * np.outer(t, f)) @ a
+    seen = (z.real > -0.02) & (z.real < 0.09) & (z.imag > -0.05)       # a patch of the field
+    rates, amp = fit_prisms(t[seen], z[seen])
+    order = np.argsort(-np.abs(amp))
+    np.testing.assert_allclose(rates[order], f, atol=1e-7)
+    np.testing.assert_allclose(amp[order], a, atol=1e-9)
+
+
+def test_mid40_recording_gives_back_its_prism_rates(tmp_path):
+    sc = load_scenario(CONFIG / 'scenario_mid40.yaml')
+    run = simulate_to_bag(sc, tmp_path / 'run', frames=3, start_s=0.3, figures=False)
+    # Start from wrong rates: the fit does not need them.
+    start = tmp_path / 'start.yaml'
+    start.write_text((CONFIG / 'livox_mid40.yaml').read_text()
+                     .replace('prism_rates_hz: [121.56666666666666, -77.73333333333333]',
+                              'prism_rates_hz: [100.0, -50.0]'))
+    cal = run_scan(run.bag_path, tmp_path / 'fitted.yaml', start, tmp_path / 'fit.png')
+    truth = load_sensor(CONFIG / 'livox_mid40.yaml').scan
+    fitted = load_sensor(cal.out).scan
+    assert sorted(fitted.prism_rates_hz) == pytest.approx(sorted(truth.prism_rates_hz), abs=1e-4)
+    assert fitted.prism_deviation_deg == pytest.approx((9.6, 9.6), abs=1e-4)
+    assert fitted.shot_rate_hz == pytest.approx(100000.0, rel=1e-5)
+    assert cal.rms_deg < 1e-3 and cal.prior_error_deg.mean() > 1.0
+    assert (tmp_path / 'fit.png').stat().st_size > 0
+    assert '7294.00 rpm' in cal.report and '-4664.00 rpm' in cal.report

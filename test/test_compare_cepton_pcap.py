@@ -1,0 +1,181 @@
+"""A Cepton sensor's pcap as a recording (compare/cepton_pcap.py): the decoder against
+hand-packed packets (struct, from the specification's section 3), its refusals, and
+``lidar-sim compare`` / ``calibrate range-errors`` on ``simulate --pcap`` output with
+poses from the bag or a CSV: the same verdict as the bag of the same frames."""
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+
+from lidar_sim_ros import cli
+from lidar_sim_ros.compare.cepton_pcap import (PcapError, PcapStats, frame_count, is_pcap,
+                                               iter_frames, read_pose_csv)
+from lidar_sim_ros.compare.run import CompareOptions, run_compare
+from lidar_sim_ros.core.driver_layout import OutputLayout
+from lidar_sim_ros.io.bag import read_poses
+from lidar_sim_ros.io.pcap import PcapWriter, udp_frame
+from lidar_sim_ros.offline import simulate_to_bag
+
+from datasets import REPO
+
+T0_US = 1_700_000_000_000_000
+CANDIDATES = ['range_walk', 'incidence_angle', 'laser_bias']
+
+
+def stdv(t_us: int, points: list[tuple], version: int = 2) -> bytes:
+    """Header V1 (20 bytes) or V2 (24), point V0: packed by hand."""
+    head = struct.pack('<4sBBHQBBH', b'STDV', version, 20 if version == 1 else 24, 0, t_us,
+                       0, 10, len(points))
+    if version == 2:
+        head += struct.pack('<I', 0)
+    return head + b''.join(struct.pack('<hHhBBBB', *p) for p in points)
+
+
+def write_pcap(path, payloads, port=8808):
+    with PcapWriter(path, dst_port=port) as w:
+        for t, p in payloads:
+            w.write(t, p)
+    return path
+
+
+def test_decoder_reads_hand_packed_packets(tmp_path):
+    # Cepton x right 100 (0.5 m), y forward 2000 (10 m), z up -50: ours x 10, y -0.5, z -0.25.
+    a = [(100, 2000, -50, 30, 0, 7, 0), (0, 0, 0, 0, 200, 3, 32)]
+    b = [(-20, 1000, 10, 200, 5, 1, 4 | 16), (-20, 1000, 10, 128, 0, 1, 4 | 16 | 8)]
+    path = write_pcap(tmp_path / 'a.pcap', [(T0_US, stdv(T0_US, a)),
+                                             (T0_US + 300, stdv(T0_US + 200, b, version=1)),
+                                             (T0_US + 400, b'INFZ' + bytes(100))])
+    assert is_pcap(path)
+    stats = PcapStats()
+    frames = list(iter_frames(path, stats=stats))
+    assert len(frames) == 2 and stats.frames == 2 and stats.stdv_packets == 2
+    assert stats.skipped == {'not STDV (INFO or other)': 1}
+    f0, f1 = (f.points for f in frames)
+    np.testing.assert_allclose(np.column_stack([f0['x'], f0['y'], f0['z']])[0], [10, -0.5, -0.25])
+    assert list(f0['timestamp_us'] + (f0['timestamp_s'] - T0_US // 10**6) * 10**6) == [0, 200]
+    assert list(f0['channel_id']) == [7, 3] and list(f0['flags']) == [0, 32]
+    np.testing.assert_allclose(f0['intensity'], [0.30, 0.0], atol=1e-6)
+    # Second packet: header V1, relative times 5 and 0 from 200 us; parity 1: a new frame.
+    t1 = (f1['timestamp_s'].astype(np.int64) * 10**6 + f1['timestamp_us']) - T0_US
+    assert list(t1) == [205, 205]
+    np.testing.assert_allclose(f1['intensity'], [10.317, 1.307], atol=1e-3)
+    assert list(f1['flags']) == [20, 20]              # FRAME_BOUNDARY is the SDK's: cleared
+    assert frames[1].stamp_ns == (T0_US + 205) * 1000
+
+
+def test_other_traffic_and_bad_files(tmp_path):
+    good = stdv(T0_US, [(0, 100, 0, 1, 0, 0, 0)])
+    path = write_pcap(tmp_path / 'other.pcap', [(T0_US, good)], port=2368)
+    assert frame_count(path) == 0 and frame_count(path, port=2368) == 1
+    # An 802.1Q-tagged frame and an IPv4 fragment, written as raw records.
+    frame = udp_frame(good, '10.0.0.2', '10.0.0.1', 8808, 8808)
+    tagged = frame[:12] + b'\x81\x00\x00\x05' + frame[12:]
+    frag = bytearray(frame)
+    frag[14 + 6] |= 0x20                                # more fragments
+    raw = tmp_path / 'raw.pcap'
+    with open(raw, 'wb') as f:
+        f.write(struct.pack('<IHHiIII', 0xA1B2C3D4, 2, 4, 0, 0, 65535, 1))
+        for rec in (tagged, bytes(frag)):
+            f.write(struct.pack('<IIII', 1, 0, len(rec), len(rec)) + rec)
+    stats = PcapStats()
+    assert len(list(iter_frames(raw, stats=stats))) == 1
+    assert stats.skipped == {'IPv4 fragment': 1}
+    ng = tmp_path / 'x.pcapng'
+    ng.write_bytes(b'\x0a\x0d\x0d\x0a' + bytes(60))
+    with pytest.raises(PcapError, match='pcapng'):
+        list(iter_frames(ng))
+    bad = tmp_path / 'bad.pcap'
+    bad.write_bytes(struct.pack('<IHHiIII', 0xA1B2C3D4, 2, 4, 0, 0, 65535, 1)
+                    + struct.pack('<IIII', 0, 0, 10**9, 10**9))
+    with pytest.raises(PcapError, match='corrupt'):
+        list(iter_frames(bad))
+
+
+def test_pose_csv_errors_name_file_and_row(tmp_path):
+    p = tmp_path / 'p.csv'
+    p.write_text('t,x,y,z\n1,2,3,4\n')
+    with pytest.raises(PcapError, match='header must be t_s,x_m'):
+        read_pose_csv(p)
+    p.write_text('t_s,x_m,y_m,z_m,qx,qy,qz,qw\n1,2,3,4,0,0,0,1\n2,nan,3,4,0,0,0,1\n')
+    with pytest.raises(PcapError, match='row 3'):
+        read_pose_csv(p)
+    p.write_text('t_s,x_m,y_m,z_m,qx,qy,qz,qw\n2,1,0,0,0,0,0,1\n1,5,0,0,0,0,0,1\n')
+    s = read_pose_csv(p)
+    assert list(s.stamp_ns) == [10**9, 2 * 10**9] and s.position_m[0, 0] == 5
+
+
+@pytest.fixture(scope='module')
+def recording(tmp_path_factory):
+    root = tmp_path_factory.mktemp('pcap_compare')
+    res = simulate_to_bag(REPO / 'config' / 'scenario.yaml', root / 'sim', 2, figures=False,
+                          effects=['range_walk={k_m: 0.02}'], pcap=root / 'cepton.pcap',
+                          layout=OutputLayout(point_layout='cepton'))
+    poses = read_poses(res.bag_path)
+    csv = root / 'poses.csv'
+    rows = np.column_stack([poses.stamp_ns / 1e9, poses.position_m, poses.quat_xyzw])
+    np.savetxt(csv, rows, delimiter=',', fmt='%.9f', header='t_s,x_m,y_m,z_m,qx,qy,qz,qw',
+               comments='')
+    from lidar_sim_ros.core.config import load_scenario
+    return {'root': root, 'bag': res.bag_path, 'pcap': root / 'cepton.pcap', 'csv': csv,
+            'mesh': load_scenario(REPO / 'config' / 'scenario.yaml').mesh_path}
+
+
+def _compare(rec, name, **kw):
+    return run_compare(CompareOptions(mesh=rec['mesh'], out=rec['root'] / name, max_points=6000,
+                                      report=False, progress=False, candidates=CANDIDATES,
+                                      **kw)).summary
+
+
+def test_pcap_gives_the_bags_verdict(recording):
+    bag = _compare(recording, 'bag', bag=recording['bag'], cloud_topic='/cepton_pcl2')
+    pcap = _compare(recording, 'pcap', bag=recording['pcap'], poses=recording['bag'])
+    csv = _compare(recording, 'csv', bag=recording['pcap'], poses=recording['csv'])
+    assert bag['missing_effect'] == pcap['missing_effect'] == csv['missing_effect'] == 'range_walk'
+    k = {n: next(c for c in s['candidates'] if c['name'] == 'range_walk')['params']['k_m']
+         for n, s in (('bag', bag), ('pcap', pcap), ('csv', csv))}
+    # The wire's 5 mm positions against the driver's float32: the same slope to a few %.
+    assert k['pcap'] == pytest.approx(k['bag'], rel=0.06) and k['csv'] == pytest.approx(k['pcap'], rel=1e-6)
+
+
+def test_cli_compare_pcap_needs_poses(recording, capsys):
+    rc = cli.main(['compare', str(recording['pcap']), '--mesh', str(recording['mesh']),
+                   '--out', str(recording['root'] / 'cli')])
+    assert rc == 2
+    assert '--poses BAG_OR_CSV' in capsys.readouterr().err
+
+
+def test_calibrate_range_errors_from_a_pcap(tmp_path):
+    """The static plate lab of test_calibrate_range.py sent as a Cepton sensor would, with
+    its poses in a CSV: the same per-material biases as from its bag."""
+    from lidar_sim_ros.calibrate.range_errors import run_range_errors
+    from lidar_sim_ros.io.cepton import cepton_points
+    from lidar_sim_ros.io.cepton_wire import WireStream, frame_packets
+    from test_calibrate_range import (TRUTH, materials_yaml, simulate_frames, write_bag,
+                                      write_plate)
+    mesh = write_plate(tmp_path)
+    frames = simulate_frames(mesh)
+    state, rows = WireStream(), {}
+    with PcapWriter(tmp_path / 'lab.pcap') as w:
+        for stamp, (pose_ns, pos, q), pts in frames:
+            rows[pose_ns] = [pose_ns / 1e9, *pos, *q]
+            order = np.argsort(pts['t'], kind='stable')
+            p = pts[order]
+            xyz = np.column_stack([p['x'], p['y'], p['z']]).astype(float)
+            t_ns = stamp + np.round(p['t'] * 1e9).astype(np.int64)
+            driver = cepton_points(xyz, np.full(len(p), 0.3), t_ns, np.zeros(len(p)), p['ring'])
+            for pkt in frame_packets(driver, state):
+                w.write(pkt.t_us, pkt.payload)
+    csv = tmp_path / 'poses.csv'
+    np.savetxt(csv, np.array(list(rows.values())), delimiter=',', fmt='%.9f',
+               header='t_s,x_m,y_m,z_m,qx,qy,qz,qw', comments='')
+    mats = materials_yaml(tmp_path)
+    from_pcap = run_range_errors(tmp_path / 'lab.pcap', mesh, tmp_path / 'a.yaml',
+                                 materials=mats, poses_from=csv)
+    from_bag = run_range_errors(write_bag(tmp_path / 'bag', frames), mesh, tmp_path / 'b.yaml',
+                                materials=mats)
+    for name, truth in TRUTH.items():
+        a = from_pcap.written[name]['bias_m']
+        b = from_bag.written[name]['bias_m']
+        assert a == pytest.approx(b, abs=0.002) and a == pytest.approx(truth['bias_m'], abs=0.006)

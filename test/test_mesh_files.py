@@ -1,0 +1,101 @@
+"""CAD targets (core/mesh_files.py): glTF/GLB, STL and PLY through the scenario's materials map."""
+import numpy as np
+import pytest
+import trimesh
+from trimesh.visual.material import PBRMaterial
+from trimesh.visual.texture import TextureVisuals
+
+from lidar_sim_ros.core.config import ConfigError, load_scenario
+from lidar_sim_ros.core.geometry import MeshFileError, MeshMaterialError, load_target
+from lidar_sim_ros.core.pipeline import Simulator
+from conftest import CONFIG
+
+MESH_DIR = CONFIG.parent / 'meshes'
+NAMES = ['MLI', 'SOLAR_ARRAY', 'WHITE_PAINT', 'ALUMINIUM']
+
+
+def two_part_glb(path, offset=(0.0, 0.0, 5.0)):
+    """Two unit boxes: node 'panel' (material 'blue_cells'), node 'body' (material 'foil')
+    placed by a node transform ``offset`` away."""
+    scene = trimesh.Scene()
+    a = trimesh.creation.box(extents=[1, 1, 1])
+    a.visual = TextureVisuals(material=PBRMaterial(name='blue_cells'))
+    b = trimesh.creation.box(extents=[1, 1, 1])
+    b.visual = TextureVisuals(material=PBRMaterial(name='foil'))
+    scene.add_geometry(a, node_name='panel', geom_name='panel_mesh')
+    scene.add_geometry(b, node_name='body', geom_name='body_mesh',
+                       transform=trimesh.transformations.translation_matrix(offset))
+    path.write_bytes(scene.export(file_type='glb'))
+    return path
+
+
+def test_glb_parts_by_material_name_and_node_transform(tmp_path):
+    glb = two_part_glb(tmp_path / 'two.glb')
+    t = load_target(glb, NAMES, mesh_materials={'blue_cells': 'SOLAR_ARRAY', 'foil': 'MLI'})
+    assert t.n_faces == 24
+    mli = t.face_material == NAMES.index('MLI')
+    # The node's translation is applied: the foil box is centred at z = 5, the panel at 0.
+    assert t.vertices_m[t.faces[mli]].reshape(-1, 3).mean(axis=0) == pytest.approx([0, 0, 5])
+    assert t.vertices_m[t.faces[~mli]].reshape(-1, 3).mean(axis=0) == pytest.approx([0, 0, 0])
+    assert set(t.face_material[~mli]) == {NAMES.index('SOLAR_ARRAY')}
+    # A node name maps too (the material name is tried first, then the node's).
+    t2 = load_target(glb, NAMES, mesh_materials={'panel': 'ALUMINIUM', 'body': 'WHITE_PAINT'})
+    assert sorted(np.bincount(t2.face_material, minlength=4).tolist()) == [0, 0, 12, 12]
+
+
+def test_unmapped_names_stop_with_one_line_naming_them(tmp_path):
+    glb = two_part_glb(tmp_path / 'two.glb')
+    with pytest.raises(MeshMaterialError) as err:
+        load_target(glb, NAMES, mesh_materials={'blue_cells': 'SOLAR_ARRAY'})
+    msg = str(err.value)
+    assert "['foil']" in msg and 'two.glb' in msg and '\n' not in msg
+    with pytest.raises(MeshMaterialError, match="'nope'.*not in the materials config"):
+        load_target(glb, NAMES, mesh_materials={'blue_cells': 'nope', 'foil': 'MLI'})
+    with pytest.raises(MeshMaterialError, match='blue_cells'):  # no map: names must be config's
+        load_target(glb, NAMES)
+
+
+def test_stl_and_ply_one_material_for_the_whole_file(tmp_path):
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=2.0)
+    for suffix in ('stl', 'ply'):
+        path = tmp_path / f'ball.{suffix}'
+        mesh.export(path)
+        t = load_target(path, NAMES, mesh_materials='ALUMINIUM')
+        assert t.n_faces == len(mesh.faces)
+        assert set(t.face_material) == {NAMES.index('ALUMINIUM')}
+        assert np.linalg.norm(t.vertices_m, axis=1) == pytest.approx(2.0, rel=1e-6)
+        with pytest.raises(MeshMaterialError, match='not mapped'):
+            load_target(path, NAMES)
+
+
+@pytest.mark.parametrize('suffix, data', [('glb', b'glTF\x02\x00\x00\x00garbage'),
+                                          ('stl', b''), ('gltf', b'{"asset": 3}'),
+                                          ('ply', b'ply\nformat ascii 1.0\nend_header\n')])
+def test_broken_cad_files_one_line(tmp_path, suffix, data):
+    path = tmp_path / f'bad.{suffix}'
+    path.write_bytes(data)
+    with pytest.raises((MeshFileError, MeshMaterialError)) as err:
+        load_target(path, NAMES, mesh_materials='MLI')
+    assert 'bad.' + suffix in str(err.value) and '\n' not in str(err.value)
+
+
+def test_box_wing_scenario_from_its_gltf():
+    sc = load_scenario(CONFIG / 'scenario_box_wing.yaml')
+    assert sc.mesh_path.suffix == '.glb'
+    sim = Simulator.from_scenario(sc)
+    counts = np.bincount(sim.target.face_material, minlength=4)
+    assert counts.tolist() == [12, 24, 12, 1104 + 96 + 2 * 64]   # bus, 2 wings, radiator, Al parts
+    from lidar_sim_ros.core.pose import StaticPose
+    frame = sim.simulate_frame(0.0, StaticPose(sc.config.initial_pose.position_m,
+                                               sc.config.initial_pose.quat_xyzw), 0)
+    assert set(np.unique(frame.material)) == {0, 1, 2, 3}      # every material seen
+
+
+def test_mesh_materials_naming_an_unknown_material_is_a_config_error(tmp_path):
+    text = (CONFIG / 'scenario_box_wing.yaml').read_text().replace('antenna_aluminium: ALUMINIUM',
+                                                                  'antenna_aluminium: ALUMINUM')
+    bad = tmp_path / 'scenario.yaml'
+    bad.write_text(text.replace('../meshes/', str(MESH_DIR) + '/').replace(
+        'materials: materials_box_wing.yaml', f'materials: {CONFIG / "materials_box_wing.yaml"}'))
+    with pytest.raises(ConfigError, match='mesh_materials.antenna_aluminium.*ALUMINUM'):
+        load_scenario(bad)

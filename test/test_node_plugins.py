@@ -1,0 +1,72 @@
+"""lidar_sim_node's effect plugins, in process: a scenario's plugin loads from beside the
+scenario only, and once running no parameter value outside the allow-list loads anything."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+import rclpy
+from rclpy.parameter import Parameter
+
+from lidar_sim_ros.paths import config_path
+from lidar_sim_ros.ros.lidar_sim_node import LidarSimNode
+from conftest import private_domain_id
+
+PLUGIN = '''
+from pathlib import Path
+Path(__file__).with_suffix('.ran').write_text('imported')  # proof that this file ran
+from lidar_sim_ros.core.effects import Effect
+
+class Mine(Effect):
+    name = 'mine'
+    where = {where!r}
+'''
+
+
+@pytest.fixture
+def context():
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=private_domain_id(160, 20))
+    yield ctx
+    rclpy.shutdown(context=ctx)
+
+
+def test_scenario_plugin_beside_the_scenario_and_an_allow_list_at_run_time(tmp_path, context,
+                                                                          monkeypatch):
+    scenario_dir, elsewhere = tmp_path / 'scenario', tmp_path / 'cwd'
+    scenario_dir.mkdir(), elsewhere.mkdir()
+    (scenario_dir / 'my_effect.py').write_text(PLUGIN.format(where='beside'))
+    (elsewhere / 'my_effect.py').write_text(PLUGIN.format(where='cwd'))   # must never run
+    text = Path(config_path('scenario.yaml')).read_text()
+    base = Path(config_path('scenario.yaml')).parent
+    for key in ('sensor', 'materials', 'mesh'):              # the shipped files, absolute
+        text = text.replace(f'{key}: ', f'{key}: {base}/', 1)
+    text = text.replace('effects: []', 'effects: [{name: "my_effect.py:Mine"}]')
+    (scenario_dir / 'scenario.yaml').write_text(text)
+    monkeypatch.chdir(elsewhere)
+
+    node = LidarSimNode(context=context, parameter_overrides=[
+        Parameter('scenario_file', Parameter.Type.STRING, str(scenario_dir / 'scenario.yaml'))])
+    try:
+        node.setup()
+        assert [type(e).where for e in node.sim.effects] == ['beside']
+        assert not (elsewhere / 'my_effect.ran').exists(), 'a file in the current directory ran'
+
+        (tmp_path / 'a=b').mkdir()
+        planted = tmp_path / 'a=b' / 'evil.py'
+        planted.write_text(PLUGIN.format(where='network'))
+        for value in ([f'{planted}:Mine'], [str(planted)], ['my_effect.py:Mine', f'{planted}:Mine'],
+                      [f'{elsewhere}/my_effect.py:Mine'], ['os.path:join']):
+            result = node.set_parameters([Parameter('effects', Parameter.Type.STRING_ARRAY, value)])[0]
+            assert not result.successful and 'never load code' in result.reason, (value, result)
+        assert not planted.with_suffix('.ran').exists()
+        assert not (elsewhere / 'my_effect.ran').exists()
+        # The catalogue and the plugin loaded at start-up switch on and off.
+        for value in (['range_walk'], [], ['my_effect.py:Mine', 'range_walk']):
+            result = node.set_parameters([Parameter('effects', Parameter.Type.STRING_ARRAY, value)])[0]
+            assert result.successful, (value, result.reason)
+        assert [type(e).__name__ for e in node.sim.effects] == ['Mine', 'RangeWalk']
+        assert type(node.sim.effects[0]).where == 'beside'
+    finally:
+        node.destroy_node()
