@@ -89,7 +89,7 @@ def borderline_tie(summary: dict, name: str) -> bool:
     if name not in tied:
         return False
     # The tie must be the recording's, not the tool's: the tied pair as fitted, flown
-    # again on this recording (compare/plan.py, separation_plan's 'this recording'),
+    # again on this recording (compare/diagnose/plan.py, separation_plan's 'this recording'),
     # must not separate by compare's own rule; if it does, compare should have named one.
     plan = summary.get('separation_plan') or []
     if any(r.get('recording') == 'this recording' and r.get('separates') for r in plan):

@@ -19,13 +19,13 @@ import yaml
 from matplotlib.image import imread
 
 from lidar_sim_ros.cli import main
-from lidar_sim_ros.compare import diagnosis
-from lidar_sim_ros.compare.features import FEATURE_NAMES
-from lidar_sim_ros.compare.matching import Model, match
-from lidar_sim_ros.compare.measurements import load_measurements
+from lidar_sim_ros.compare.diagnose import diagnosis
+from lidar_sim_ros.compare.diagnose.features import FEATURE_NAMES
+from lidar_sim_ros.compare.model.matching import Model, match
+from lidar_sim_ros.compare.recording.measurements import load_measurements
 from lidar_sim_ros.compare.run import CompareOptions, run_compare
 from lidar_sim_ros.core.config import EffectConfig, load_scenario
-from lidar_sim_ros.compare.likelihood import evaluate
+from lidar_sim_ros.compare.model.likelihood import evaluate
 from lidar_sim_ros.core.effects import get_effect_class, make_effect
 from lidar_sim_ros.core.geometry import load_target
 

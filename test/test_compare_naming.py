@@ -1,4 +1,4 @@
-"""The one rule at the point of naming (compare/diagnosis.py ``naming_fault``, ``settle``):
+"""The one rule at the point of naming (compare/diagnose/diagnosis.py ``naming_fault``, ``settle``):
 every path that can put an effect's name in ``missing_effect``, ``confounded_with``,
 ``also_explains`` or the verdict names it only if its held-out gain passes the rule
 (decisive, it matters, its signature) and, fitted as --fit leaves it, its NLL is below
@@ -11,8 +11,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from lidar_sim_ros.compare import diagnosis as dg
-from lidar_sim_ros.compare import verdict as vd
+from lidar_sim_ros.compare.diagnose import diagnosis as dg
+from lidar_sim_ros.compare.report import verdict as vd
 
 N = 4000
 BEFORE_NLL = -2.022
@@ -285,7 +285,7 @@ def test_pose_range_tie_verdict_and_plan(tmp_path):
     the line of sight" with nothing named, and plan.yaml is a scenario load_scenario
     accepts: the target held still on a surveyed pose, near, with the far one in its
     header."""
-    from lidar_sim_ros.compare import plan
+    from lidar_sim_ros.compare.diagnose import plan
     from lidar_sim_ros.core.config import load_scenario
     from lidar_sim_ros.paths import config_path, mesh_path
     rec = plan.Recording('this recording', '', (10.0, 0.3, 0.0), (0.0, 0.0, 0.0, 1.0), 0.0,
@@ -312,7 +312,7 @@ def test_pose_range_tie_verdict_and_plan(tmp_path):
 
 
 def test_report_headline_opens_with_the_scan_pattern():
-    from lidar_sim_ros.compare.opening import headline
+    from lidar_sim_ros.compare.report.opening import headline
     s = {'missing_effect': None, 'verdict': 'No catalogue effect ... noise.',
          'point_times': 'stamp', 'scan_pattern_match': 0.1}
     assert headline(s).startswith('Scan pattern off: only 10 %')

@@ -1,12 +1,12 @@
-"""Reference-pose errors (compare/pose_error.py) and the one decision rule
-(compare/diagnosis.py: ``total_z``, ``Diagnosis._set_gain``): closed forms, no raycast."""
+"""Reference-pose errors (compare/diagnose/pose_error.py) and the one decision rule
+(compare/diagnose/diagnosis.py: ``total_z``, ``Diagnosis._set_gain``): closed forms, no raycast."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.compare import diagnosis, pose_error
+from lidar_sim_ros.compare.diagnose import diagnosis, pose_error
 
 
 def _plane_range(origin, normal, u):
@@ -102,7 +102,7 @@ def test_points_put_back_count_only_when_the_matched_points_show_the_effect(matc
 def _edge_rays(power_fraction: float, measured_w: np.ndarray) -> 'lk.FitData':
     """Four unmatched rays that a footprint puts back on a plate at 10 m with
     ``power_fraction`` of the full beam's 1e-6 W; their measured power ``measured_w``."""
-    from lidar_sim_ros.compare import likelihood as lk
+    from lidar_sim_ros.compare.model import likelihood as lk
     from lidar_sim_ros.core.effects.base import ReturnContext
     from lidar_sim_ros.core.geometry import Hits
     from lidar_sim_ros.core.pipeline import Prediction

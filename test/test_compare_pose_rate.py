@@ -1,4 +1,4 @@
-"""A reference pose that drifts within a cloud (compare/pose_error.py: ``time_scale``,
+"""A reference pose that drifts within a cloud (compare/diagnose/pose_error.py: ``time_scale``,
 ``rate_columns``, ``fit_reference_pose(rate=True)``, ``PoseCorrection`` with a rate):
 closed forms on a plane, no raycast."""
 from __future__ import annotations
@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.compare import likelihood as lk, pose_error
+from lidar_sim_ros.compare.model import likelihood as lk
+from lidar_sim_ros.compare.diagnose import pose_error
 from lidar_sim_ros.core.effects.base import ReturnContext
 from lidar_sim_ros.core.geometry import Hits
 from lidar_sim_ros.core.pipeline import Prediction

@@ -18,9 +18,9 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.core.config import (EffectConfig, MaterialsConfig, SensorConfig, parse)
-from lidar_sim_ros.compare.fit import fit_data_from_rays, fit_effect
-from lidar_sim_ros.compare.likelihood import (MISS_WEIGHT, MODEL_FLOOR, FitData, evaluate,
-                                              model_on_rays, point_nll)
+from lidar_sim_ros.compare.model.fit import fit_data_from_rays, fit_effect
+from lidar_sim_ros.compare.model.likelihood import (MISS_WEIGHT, MODEL_FLOOR, FitData, evaluate,
+                                                    model_on_rays, point_nll)
 from lidar_sim_ros.core.effects import catalogue, get_effect_class, make_effect
 from lidar_sim_ros.core.geometry import Hits, Target
 from lidar_sim_ros.core.pipeline import Prediction, Simulator

@@ -14,7 +14,7 @@ cloud (``pose_error.py``, ``correct_reference_pose``) and the simulator never ap
 
 A recording with the sun direction (``/sun/direction`` or ``--sun-topic``) is predicted
 under its sun, and the receiver factor of the ``sunlight`` effect is fitted from the
-false returns on sunlit versus shadowed rays (``compare/sunlight.py``; summary.json's
+false returns on sunlit versus shadowed rays (``compare/diagnose/sunlight.py``; summary.json's
 ``sunlight``). Without one nothing changes: the phenomenological ``solar_background``
 is the candidate for false returns.
 
@@ -35,20 +35,22 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import norm
 
-from lidar_sim_ros.compare import (diagnosis, features, fields, history, likelihood as lk,
-                                   materials as mat, neighbours, point_times,
-                                   plan as sep_plan, pose_error,
-                                   stamp_place)
-from lidar_sim_ros.compare.cepton_pcap import side_bag
-from lidar_sim_ros.compare.intensity import IntensityCalibration, calibrate_intensity
-from lidar_sim_ros.compare.matching import (Matching, Model, edge_distance_rad, match,
-                                            range_rate_mps)
-from lidar_sim_ros.compare.measurements import (Measurements, MeasurementError,
-                                                 load_measurements, with_scan_times)
-from lidar_sim_ros.compare.shots import missed_per_unmatched
-from lidar_sim_ros.compare.sunlight import (SunFit, fit_sunlight, read_sun_track, short_points,
-                                            summary_section, sunlit_decision)
-from lidar_sim_ros.compare.verdict import summary_lines, verdict
+from lidar_sim_ros.compare.diagnose import (diagnosis, features, plan as sep_plan, pose_error,
+                                            stamp_place)
+from lidar_sim_ros.compare.recording import fields
+from lidar_sim_ros.compare.report import history
+from lidar_sim_ros.compare.model import likelihood as lk, materials as mat, neighbours, point_times
+from lidar_sim_ros.compare.recording.cepton_pcap import side_bag
+from lidar_sim_ros.compare.recording.intensity import IntensityCalibration, calibrate_intensity
+from lidar_sim_ros.compare.model.matching import (Matching, Model, edge_distance_rad, match,
+                                                  range_rate_mps)
+from lidar_sim_ros.compare.recording.measurements import (Measurements, MeasurementError,
+                                                          load_measurements, with_scan_times)
+from lidar_sim_ros.compare.recording.shots import missed_per_unmatched
+from lidar_sim_ros.compare.diagnose.sunlight import (SunFit, fit_sunlight, read_sun_track,
+                                                     short_points, summary_section,
+                                                     sunlit_decision)
+from lidar_sim_ros.compare.report.verdict import summary_lines, verdict
 from lidar_sim_ros.core.config import (MaterialsConfig, Scenario, load_scenario, resolve,
                                        scenario_effect_spec)
 from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
@@ -69,7 +71,7 @@ DIAGNOSIS_MAX_MATCHED = 12_000
 # figures): the best few; the others report their fit on half of the points.
 FINALIZED = 3
 SILHOUETTE_NEAR_DIVERGENCES = 2.0
-# --effect pose_error: a per-cloud correction of the reference pose (compare/pose_error.py),
+# --effect pose_error: a per-cloud correction of the reference pose (compare/diagnose/pose_error.py),
 # not a catalogue effect: the simulator never applies it.
 POSE_ERROR = diagnosis.POSE_ERROR
 
@@ -226,7 +228,7 @@ def with_materials(pred: Prediction, materials: MaterialsConfig) -> Prediction:
 
 
 class PowerFromIntensity:
-    """Received power from the measured intensity (``compare/intensity.py``), calibrated
+    """Received power from the measured intensity (``compare/recording/intensity.py``), calibrated
     once against the model's power; None for recordings without (usable) intensity."""
 
     def __init__(self) -> None:
@@ -889,7 +891,7 @@ def write_outputs(opts: CompareOptions, summary: dict, stage: Stages, inp: Input
     summary['history'] = str(hist_path)
     if opts.report:
         with stage('report'):
-            from lidar_sim_ros.compare.report import write_report
+            from lidar_sim_ros.compare.report.page import write_report
             files += write_report(opts.out, summary, ana.local, cal.configured, ana.residual_m,
                                   cal.stats, ana.attribution.features, diag.cands, runs,
                                   cal.model, ana.values, ana.isolated[ana.picked], ana.labels)

@@ -3,7 +3,7 @@
 An effect changes what the paper's baseline model predicts through a small set of
 hooks, each a pure function over per-shot arrays. The simulator calls the forward
 hooks; ``lidar-sim compare`` uses the same hooks to predict, and estimates the
-parameters by maximum likelihood from the measured ranges (``compare/fit.py``). An
+parameters by maximum likelihood from the measured ranges (``compare/model/fit.py``). An
 effect never imports that machinery: it declares what a fit needs (``bounds``,
 ``initial``, ``linear_bias``, ``fit_options``, ``power_driven``) and the fit reads it.
 
@@ -155,7 +155,7 @@ class NoParams(BaseModel):
 class Effect:
     """Base class of all effects. Subclasses set ``name`` and a pydantic ``Params``.
 
-    What a fit needs, declared (``lidar_sim_ros.compare.fit`` reads it; nothing here
+    What a fit needs, declared (``lidar_sim_ros.compare.model.fit`` reads it; nothing here
     imports it): ``bounds`` maps each free parameter to its (low, high) search box and
     ``initial`` gives the starting value (default: the Params default); parameters
     not in ``bounds`` stay at their Params values. ``linear_bias`` names free

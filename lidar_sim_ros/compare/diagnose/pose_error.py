@@ -45,8 +45,8 @@ from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.core.pose import Poses
 
-from lidar_sim_ros.compare import likelihood as lk
-from lidar_sim_ros.compare.features import block_mean_se
+from lidar_sim_ros.compare.model import likelihood as lk
+from lidar_sim_ros.compare.diagnose.features import block_mean_se
 
 OUTLIER_SIGMAS = 5.0      # residuals beyond this many sigma are not fitted (edges, outliers)
 MIN_COS = 0.2             # |n.u| below this: grazing rays, range too sensitive to the pose

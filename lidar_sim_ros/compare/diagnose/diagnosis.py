@@ -74,13 +74,13 @@ from pydantic import create_model
 from scipy.optimize import minimize_scalar
 from scipy.stats import kstest, norm
 
-from lidar_sim_ros.compare import likelihood as lk
-from lidar_sim_ros.compare.features import Attribution, block_mean_se
-from lidar_sim_ros.compare.fit import fit_effect
-from lidar_sim_ros.compare.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
-from lidar_sim_ros.compare.matching import Model, predict_rays
-from lidar_sim_ros.compare.materials import robust_sigma
-from lidar_sim_ros.compare.measurements import Measurements
+from lidar_sim_ros.compare.model import likelihood as lk
+from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se
+from lidar_sim_ros.compare.model.fit import fit_effect
+from lidar_sim_ros.compare.model.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
+from lidar_sim_ros.compare.model.matching import Model, predict_rays
+from lidar_sim_ros.compare.model.materials import robust_sigma
+from lidar_sim_ros.compare.recording.measurements import Measurements
 from lidar_sim_ros.core.effects import Effect
 from lidar_sim_ros.core.geometry import Hits
 from lidar_sim_ros.core.pipeline import Prediction
@@ -648,7 +648,7 @@ class Diagnosis:
     def pose_corrected(self, correction_m: np.ndarray) -> 'Diagnosis':
         """This diagnosis on the model with a reference-pose correction (m of range per
         matched point of ``self.full``, ``pose_error.corrected``)."""
-        from lidar_sim_ros.compare.pose_error import corrected
+        from lidar_sim_ros.compare.diagnose.pose_error import corrected
         out = copy.copy(self)
         out.full = corrected(self.full, correction_m)
         out.fold_data = [corrected(d, correction_m[np.searchsorted(self.rays.matched, f.matched)])

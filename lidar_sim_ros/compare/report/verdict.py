@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare import diagnosis
+from lidar_sim_ros.compare.diagnose import diagnosis
 
 EFFECT_WORDS = {
     'range_walk': 'range walk (intensity-dependent timing bias)',
@@ -241,7 +241,7 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
 
 def _sunlight_named(summary: dict, c) -> str:
     """``sunlight`` named on the gain of ``c`` (``solar_background``) and the sun test
-    (``compare/sunlight.py``, ``sunlit_decision``)."""
+    (``compare/diagnose/sunlight.py``, ``sunlit_decision``)."""
     gain, caveat = _gain_words(summary, c)
     return (f'This is false returns from sunlight. Adding background false returns at random ranges '
             f'({c.name} with its fitted probability) {gain} (held-out gain {c.score:.4f} '
@@ -252,7 +252,7 @@ def _sunlight_named(summary: dict, c) -> str:
 
 def sunlight_words(sun: dict, hint: bool = True) -> str:
     """What the false returns say about sunlight, for a recording with the sun direction
-    (summary.json's ``sunlight``, ``compare/sunlight.py``); ``hint``: say which run models
+    (summary.json's ``sunlight``, ``compare/diagnose/sunlight.py``); ``hint``: say which run models
     them (not when the verdict already named sunlight)."""
     counts = (f'{sun["sunlit_false_returns"]} of {sun["sunlit_points"]} sunlit rays against '
               f'{sun["shadowed_false_returns"]} of {sun["shadowed_points"]} shadowed ones, '
@@ -318,7 +318,7 @@ def _separation(names: list[str], summary: dict) -> str:
 
 
 def plan_words(rows: list[dict]) -> str:
-    """One sentence on the separation plan (``compare/plan.py``): the best recording and
+    """One sentence on the separation plan (``compare/diagnose/plan.py``): the best recording and
     its expected z, from simulating both fitted hypotheses on each candidate recording."""
     best = rows[0]
     ways = best['ways']

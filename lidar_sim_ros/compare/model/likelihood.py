@@ -35,7 +35,7 @@ of weight max(w, MISS_WEIGHT).
 
 This module sits above the pipeline (it re-runs ``Simulator.predict`` through the
 callables of :class:`FitData`); effect classes never import it. The fits that
-maximise it are in ``compare/fit.py``.
+maximise it are in ``compare/model/fit.py``.
 """
 from __future__ import annotations
 

@@ -38,9 +38,10 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.compare import diagnosis, likelihood as lk, materials as mat, neighbours
-from lidar_sim_ros.compare.matching import Model, match
-from lidar_sim_ros.compare.measurements import Measurements
+from lidar_sim_ros.compare.diagnose import diagnosis
+from lidar_sim_ros.compare.model import likelihood as lk, materials as mat, neighbours
+from lidar_sim_ros.compare.model.matching import Model, match
+from lidar_sim_ros.compare.recording.measurements import Measurements
 from lidar_sim_ros.core.config import MaterialsConfig
 from lidar_sim_ros.core.effects import Effect
 from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory

@@ -19,9 +19,9 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from lidar_sim_ros.compare import opening  # noqa: E402
-from lidar_sim_ros.compare.features import CATEGORICAL, LABELS  # noqa: E402
-from lidar_sim_ros.compare.materials import robust_sigma  # noqa: E402
+from lidar_sim_ros.compare.report import opening
+from lidar_sim_ros.compare.diagnose.features import CATEGORICAL, LABELS  # noqa: E402
+from lidar_sim_ros.compare.model.materials import robust_sigma  # noqa: E402
 
 MAX_SCATTER = 4000
 MAX_TARGET_POINTS = 8000

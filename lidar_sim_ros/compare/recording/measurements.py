@@ -13,7 +13,7 @@ to the stamp or absolute: :func:`point_time_since_stamp_s` decides from the fiel
 name, type and magnitude against the header stamp, and the choice is recorded.
 Which field is the intensity, the time (one field or a seconds + sub-seconds pair such
 as the Cepton driver's ``timestamp_s`` + ``timestamp_us``), the laser and the Cepton
-point flags is decided by ``compare/fields.py`` (or named with ``--intensity-field``,
+point flags is decided by ``compare/recording/fields.py`` (or named with ``--intensity-field``,
 ``--time-field``, ``--laser-field``); ``Measurements.field_lines`` says it for the
 terminal. Flagged Cepton points: NO_RETURN shots are not points but known misses
 (counted), SATURATED returns are kept and marked (``saturated``), NOISE and BLOCKED are
@@ -31,10 +31,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.compare.cepton_pcap import (PcapError, is_pcap, pcap_recording,
-                                                read_pose_source)
-from lidar_sim_ros.compare.fields import (FieldError, flag_counts, flag_lines, point_time_ns,
-                                           resolve_fields)
+from lidar_sim_ros.compare.recording.cepton_pcap import (PcapError, is_pcap, pcap_recording,
+                                                         read_pose_source)
+from lidar_sim_ros.compare.recording.fields import (FieldError, flag_counts, flag_lines,
+                                                    point_time_ns, resolve_fields)
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, cloud_count,
                                   iter_clouds, read_material_names, read_poses)
@@ -146,8 +146,8 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
     at most its share (max_points / clouds), so the subset spans the whole recording;
     the dropped count is in ``dropped``. ``intensity_field``, ``time_field`` (one name
     or ``SECONDS,SUBSECONDS``) and ``laser_field`` name the fields where the driver's
-    names are not recognised (``compare/fields.py``).
-    ``bag`` may also be a pcap of a Cepton sensor's packets (``compare/cepton_pcap.py``),
+    names are not recognised (``compare/recording/fields.py``).
+    ``bag`` may also be a pcap of a Cepton sensor's packets (``compare/recording/cepton_pcap.py``),
     read as clouds in the SDK3 driver's layout; ``poses_from`` (a bag or a CSV file)
     then holds the poses (and material names), as it may for a bag.
     """
