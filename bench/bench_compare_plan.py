@@ -1,4 +1,4 @@
-"""What the separation plan of a tie (``compare/plan.py``) adds to `lidar-sim compare`.
+"""What the separation plan of a tie (``compare/diagnose/plan.py``) adds to `lidar-sim compare`.
 
 The two ties of the foreign battery (``test/foreign_sim.py``: ``short_range_walk_speckle``,
 ``short_snr_noise``; seed 0) are generated once under ``--data``; each is compared in a

@@ -17,6 +17,7 @@ the NLL must fall at every step. One row per dataset and seed; all of it as JSON
     python bench/hidden_effect_eval.py --out hidden_effect_eval.json
     python bench/hidden_effect_eval.py --only clean range_walk_poly --keep /tmp/foreign
     python bench/hidden_effect_eval.py --seeds 3      # each dataset with 3 seeds
+    python bench/hidden_effect_eval.py --v4 --seeds 3 # issue 30's situations (ties, drifts)
 """
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / 'test'))
 
 from foreign_loop import judge, walk_loop  # noqa: E402
-from foreign_sim import ForeignSpec, battery, describe, generate  # noqa: E402
+from foreign_sim import V4, ForeignSpec, battery, describe, generate  # noqa: E402
 
 def run_one(spec: ForeignSpec, root: Path, report: bool) -> dict:
     """Generate one dataset, walk the loop, distil it into a result row."""
@@ -112,9 +113,16 @@ def main_cli(argv: list[str] | None = None) -> int:
                     help='run every dataset with N seeds (noise, pose, jitter; default 1)')
     ap.add_argument('--first-seed', type=int, default=0, metavar='K',
                     help='start at seed K (default 0)')
+    ap.add_argument('--v4', action='store_true',
+                    help="issue 30's situations (foreign_sim.V4, range_scale_approach and the "
+                         'two ties, short_snr_noise and pose_error_rigid) instead of the battery')
     args = ap.parse_args(argv)
+    names = args.only
+    if args.v4:
+        names = [s.name for s in V4] + ['range_scale_approach', 'short_snr_noise',
+                                        'pose_error_rigid'] + list(names or [])
     specs = [with_seed(s, k) for k in range(args.first_seed, args.first_seed + args.seeds)
-             for s in battery(args.only)]
+             for s in battery(names)]
     rows = []
     with tempfile.TemporaryDirectory(prefix='foreign_') as tmp:
         root = args.keep or Path(tmp)

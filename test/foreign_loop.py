@@ -22,7 +22,7 @@ import json
 import time
 from pathlib import Path
 
-from foreign_sim import CEPTON_TOPIC, ForeignSpec
+from foreign_sim import CEPTON_TOPIC, V4, ForeignSpec
 
 from lidar_sim_ros.cli import main
 
@@ -34,6 +34,7 @@ MAX_STEPS = 4
 # of a gain can miss by on a few frames) either answer is right.
 PRACTICAL_NATS = 0.005
 BORDERLINE = (0.7, 1.5)
+V4_NAMES = {s.name for s in V4} | {'range_scale_approach'}
 
 
 def compare_once(ds, out: Path, history: Path, effects: list[str], report: bool) -> dict:
@@ -88,7 +89,7 @@ def borderline_tie(summary: dict, name: str) -> bool:
     if name not in tied:
         return False
     # The tie must be the recording's, not the tool's: the tied pair as fitted, flown
-    # again on this recording (compare/plan.py, separation_plan's 'this recording'),
+    # again on this recording (compare/diagnose/plan.py, separation_plan's 'this recording'),
     # must not separate by compare's own rule; if it does, compare should have named one.
     plan = summary.get('separation_plan') or []
     if any(r.get('recording') == 'this recording' and r.get('separates') for r in plan):
@@ -100,6 +101,8 @@ def borderline_tie(summary: dict, name: str) -> bool:
 
 def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
     """Right or wrong, and why, from the loop's summaries."""
+    if spec.name.split('@')[0] in V4_NAMES:
+        return judge_v4(spec, steps, truth)
     worth = truth.get('effect_gain_nats', {})
     expected = [n for n in spec.expected_effects
                 if worth.get(n, 1.0) >= BORDERLINE[1] * PRACTICAL_NATS]
@@ -144,3 +147,68 @@ def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
         if abs(unm - share) > 0.25 * share + 0.01:
             why.append(f'unmatched share {unm:.3f}, clutter and false returns {share:.3f}')
     return {'ok': not why, 'why': '; '.join(why), 'named': named, 'ties': ties, 'nll': nll}
+
+
+# ------------------------------------------------- issue 30: where explanations tie
+# Per V4 situation (foreign_sim.V4), what a right loop looks like: the first step's
+# answer (named effect, or a tie holding the right pair), no sensor effect named that
+# is not hidden (no phantom), and the loop ending with nothing named or reported.
+SENSOR_RIVALS = ('range_drift', 'range_scale')
+
+
+def _first_answer(first: dict) -> str:
+    tie = first.get('confounded_with') or []
+    if tie:
+        return 'tie:' + '+'.join(sorted(tie))
+    return str(first.get('missing_effect'))
+
+
+def judge_v4(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
+    """Right or wrong for a V4 situation (module note above), and why."""
+    if any('error' in s for s in steps):
+        return {'ok': False, 'why': 'error: ' + steps[-1]['error'][-300:]}
+    base = spec.name.split('@')[0]
+    first, last = steps[0], steps[-1]
+    named = [s.get('missing_effect') for s in steps]
+    answer = _first_answer(first)
+    why = []
+    hidden = {n for n, _ in spec.hidden}
+    phantom = [n for n in named if n is not None and n not in hidden
+               and not (base.startswith('pattern_off') and n == 'time_offset')]
+    if phantom:
+        why.append(f'named {phantom}, not hidden')
+    if last.get('missing_effect') is not None or last.get('reference_pose_off') \
+            or last.get('confounded_with'):
+        why.append(f'loop ended with {_first_answer(last)} '
+                   f'(pose reported: {bool(last.get("reference_pose_off"))})')
+    rival = next((n for n in SENSOR_RIVALS if n in hidden), None)
+    if rival:
+        if answer not in (f'tie:pose_error+{rival}', rival, 'None'):
+            why.append(f'first answer {answer}: expected {rival} or the tie with pose_error')
+        if answer == 'None' and first.get('reference_pose_off'):
+            why.append('a range error of the sensor reported as the reference pose alone')
+    elif base.startswith('pose_drift'):
+        if base != 'pose_drift_within_small' and not first.get('reference_pose_off'):
+            why.append('the drifting reference pose was not reported')
+        rate = ((first.get('reference_pose') or {}).get('rate') or {})
+        if base == 'pose_drift_within_large' and not rate.get('supported'):
+            why.append('the within-cloud rate was not found')
+    elif base.startswith('pattern_off'):
+        if not first.get('verdict', '').startswith('The scan pattern is off'):
+            why.append('the verdict does not open with the scan pattern')
+    elif base.startswith('pattern_exact'):
+        if first.get('point_times') != 'scan pattern' or answer != 'None':
+            why.append(f'point times {first.get("point_times")}, answer {answer}')
+    elif base.startswith('solar_first_return'):
+        if answer != 'solar_background':
+            why.append(f'first answer {answer}, expected solar_background')
+        cand = next((c for c in first.get('candidates', [])
+                     if c['name'] == 'solar_background'), {})
+        budget = cand.get('false_returns') or {}
+        if base.endswith('p60'):
+            ratio = budget.get('ratio')
+            if ratio is None or not 0.7 <= ratio <= 1.3:
+                why.append(f'false returns predicted / recorded = {ratio}')
+    return {'ok': not why, 'why': '; '.join(why), 'named': named, 'first': answer,
+            'ties': [s.get('confounded_with') for s in steps if s.get('confounded_with')],
+            'nll': [s.get('nll_calibrated') for s in steps]}

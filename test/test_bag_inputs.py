@@ -17,7 +17,7 @@ import pytest
 from rosbags.rosbag1 import Writer as Rosbag1Writer
 from rosbags.typesys import Stores, get_typestore
 
-from lidar_sim_ros.compare.measurements import load_measurements
+from lidar_sim_ros.compare.recording.measurements import load_measurements
 from lidar_sim_ros.io.bag import (BagFormatError, BagWriter, bag_kind, read_clouds, read_material_names,
                                   read_poses)
 from lidar_sim_ros.io.pointcloud import make_points, to_rosbags_msg

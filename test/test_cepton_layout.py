@@ -1,5 +1,5 @@
 """The Cepton driver's layouts: our clouds in it (io/cepton.py, core/driver_layout.py) and
-recordings in it read by compare (compare/fields.py, compare/measurements.py).
+recordings in it read by compare (compare/recording/fields.py, compare/recording/measurements.py).
 
 The decoder below is written here from the driver's published field list, by field name
 and PointField datatype (as sensor_msgs_py.point_cloud2.read_points decodes), not with
@@ -13,8 +13,8 @@ import struct
 import numpy as np
 import pytest
 
-from lidar_sim_ros.compare.fields import FieldError, point_time_ns, resolve_fields
-from lidar_sim_ros.compare.measurements import find_time_field, load_measurements
+from lidar_sim_ros.compare.recording.fields import FieldError, point_time_ns, resolve_fields
+from lidar_sim_ros.compare.recording.measurements import find_time_field, load_measurements
 from lidar_sim_ros.compare.run import CompareOptions, run_compare
 from lidar_sim_ros.core.config import load_scenario
 from lidar_sim_ros.core.driver_layout import reflectivity_estimate
@@ -154,7 +154,7 @@ def test_compare_reads_the_cepton_bag_like_the_native_one(bags, capsys):
 
 
 def test_saturated_returns_below_the_configured_level_say_so():
-    from lidar_sim_ros.compare.fields import saturation_evidence, saturation_line
+    from lidar_sim_ros.compare.recording.fields import saturation_evidence, saturation_line
     power = np.array([1e-5, 2e-5, 5e-5, 1e-6, 2e-6])
     ev = saturation_evidence(np.array([True, True, True, False, False]), power, 3e-4)
     assert ev['saturated_below_configured'] == 1.0
@@ -249,7 +249,7 @@ def test_sdk2_layout_loads_with_its_names(bags, tmp_path):
     """The SDK2 driver's point (reflectivity, relative_timestamp, flags, channel_id, valid;
     UINT8 each): reflectivity is the intensity, channel_id the laser, valid = 0 dropped,
     relative_timestamp ignored (times from the scan pattern, the directions match it)."""
-    from lidar_sim_ros.compare.measurements import with_scan_times
+    from lidar_sim_ros.compare.recording.measurements import with_scan_times
     from lidar_sim_ros.core.pipeline import Simulator
     from lidar_sim_ros.io.bag import BagWriter, read_poses
     sdk2 = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('reflectivity', '<f4'),

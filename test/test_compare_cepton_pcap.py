@@ -1,4 +1,4 @@
-"""A Cepton sensor's pcap as a recording (compare/cepton_pcap.py): the decoder against
+"""A Cepton sensor's pcap as a recording (compare/recording/cepton_pcap.py): the decoder against
 hand-packed packets (struct, from the specification's section 3), its refusals, and
 ``lidar-sim compare`` / ``calibrate range-errors`` on ``simulate --pcap`` output with
 poses from the bag or a CSV: the same verdict as the bag of the same frames."""
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from lidar_sim_ros import cli
-from lidar_sim_ros.compare.cepton_pcap import (PcapError, PcapStats, frame_count, is_pcap,
-                                               iter_frames, read_pose_csv)
+from lidar_sim_ros.compare.recording.cepton_pcap import (PcapError, PcapStats, frame_count,
+                                                         is_pcap, iter_frames, read_pose_csv)
 from lidar_sim_ros.compare.run import CompareOptions, run_compare
 from lidar_sim_ros.core.driver_layout import OutputLayout
 from lidar_sim_ros.io.bag import read_poses

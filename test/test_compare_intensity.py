@@ -1,13 +1,13 @@
-"""Measured intensity as received power (compare/intensity.py), and power-driven effects
-fitted against it (compare/likelihood.py: Effect.power_driven)."""
+"""Measured intensity as received power (compare/recording/intensity.py), and power-driven effects
+fitted against it (compare/model/likelihood.py: Effect.power_driven)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lidar_sim_ros.compare.fit import fit_effect
-from lidar_sim_ros.compare.intensity import calibrate_intensity
-from lidar_sim_ros.compare.likelihood import FitData
+from lidar_sim_ros.compare.model.fit import fit_effect
+from lidar_sim_ros.compare.recording.intensity import calibrate_intensity
+from lidar_sim_ros.compare.model.likelihood import FitData
 from lidar_sim_ros.core.effects import ReturnContext, get_effect_class
 from lidar_sim_ros.core.geometry import Hits
 from lidar_sim_ros.core.pipeline import Prediction

@@ -16,7 +16,7 @@ import pytest
 
 from foreign_sim import CEPTON_TOPIC, battery, generate
 from lidar_sim_ros.cli import main
-from lidar_sim_ros.compare.fit import laser_offsets_m
+from lidar_sim_ros.compare.model.fit import laser_offsets_m
 
 FRAMES = 2
 

@@ -1,5 +1,5 @@
-"""Multipath in the comparison: the ghost component of the likelihood (compare/likelihood.py),
-the fit of its strength (compare/fit.py) and its signature (``likelihood.ghost_points``).
+"""Multipath in the comparison: the ghost component of the likelihood (compare/model/likelihood.py),
+the fit of its strength (compare/model/fit.py) and its signature (``likelihood.ghost_points``).
 
 Closed forms on test_multipath's scene (a Phong mirror plate at 45 deg in front of a
 diffuse wall y = 1 m): the ghosts the likelihood expects lie on the wall's mirror
@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidar_sim_ros.compare import likelihood as lk
-from lidar_sim_ros.compare.fit import fit_effect
+from lidar_sim_ros.compare.model import likelihood as lk
+from lidar_sim_ros.compare.model.fit import fit_effect
 from lidar_sim_ros.core.effects import make_effect
 from lidar_sim_ros.core.effects.multipath import Multipath
 from lidar_sim_ros.core.pipeline import Simulator

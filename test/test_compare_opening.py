@@ -1,7 +1,7 @@
-"""Tests for lidar_sim_ros/compare/opening.py: the report's first lines from summary.json."""
+"""Tests for lidar_sim_ros/compare/report/opening.py: the report's first lines from summary.json."""
 import shlex
 
-from lidar_sim_ros.compare import opening
+from lidar_sim_ros.compare.report import opening
 from lidar_sim_ros.paths import config_path
 
 

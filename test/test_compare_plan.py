@@ -1,4 +1,4 @@
-"""The separation plan of a tie (compare/plan.py): which recording would tell two
+"""The separation plan of a tie (compare/diagnose/plan.py): which recording would tell two
 confounded candidates apart, written as plan.yaml, and whether it does.
 
 A tie from the foreign battery (a short pass at near-constant range with a range walk
@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from foreign_sim import battery, generate
 
-from lidar_sim_ros.compare import diagnosis, plan
+from lidar_sim_ros.compare.diagnose import diagnosis, plan
 from lidar_sim_ros.compare.run import CompareOptions, run_compare
 from lidar_sim_ros.core.config import load_scenario
 from lidar_sim_ros.core.pose import PoseTrack
@@ -136,7 +136,7 @@ def test_recorded_motion_of_a_single_pose_is_static():
 def test_report_table_of_the_plan(tie):
     """The report's table: one row per recording flown, each way's margin and z, a way
     not flown said so."""
-    from lidar_sim_ros.compare.report import plan_table
+    from lidar_sim_ros.compare.report.page import plan_table
     rows = tie[1].summary['separation_plan']
     html = plan_table(rows)
     assert html.count('<tr>') == len(rows) + 1
@@ -154,7 +154,7 @@ def test_materials_refit_on_top_of_a_hypothesis_recover_those_flown():
     bias and sigma of every well-sampled material come back within their noise; refit
     without the walk, the biases take up its mean instead."""
     from dataclasses import replace
-    from lidar_sim_ros.compare.matching import Model, match
+    from lidar_sim_ros.compare.model.matching import Model, match
     from lidar_sim_ros.core.config import MaterialConfig, MaterialsConfig
     from lidar_sim_ros.core.effects import get_effect_class
     from lidar_sim_ros.core.geometry import load_target

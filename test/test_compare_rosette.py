@@ -3,7 +3,7 @@ cloud has none: the Risley rosette (each frame its own shots) and the flash arra
 import numpy as np
 import pytest
 
-from lidar_sim_ros.compare.measurements import load_measurements, with_scan_times
+from lidar_sim_ros.compare.recording.measurements import load_measurements, with_scan_times
 from lidar_sim_ros.core.config import load_scenario
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.scan import varies_by_frame

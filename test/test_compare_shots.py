@@ -1,11 +1,11 @@
-"""Shots behind the unmatched points (compare/shots.py): hand counts."""
+"""Shots behind the unmatched points (compare/recording/shots.py): hand counts."""
 from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
 
-from lidar_sim_ros.compare.matching import Model
-from lidar_sim_ros.compare.shots import missed_per_unmatched
+from lidar_sim_ros.compare.model.matching import Model
+from lidar_sim_ros.compare.recording.shots import missed_per_unmatched
 from lidar_sim_ros.core.config import load_scenario
 from lidar_sim_ros.core.geometry import load_target
 from lidar_sim_ros.paths import config_path

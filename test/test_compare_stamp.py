@@ -1,7 +1,7 @@
 """Clouds without per-point time: which stamp convention a fitted time offset equals."""
 import pytest
 
-from lidar_sim_ros.compare.stamp_place import stamp_place
+from lidar_sim_ros.compare.diagnose.stamp_place import stamp_place
 
 PERIOD = 0.1
 

@@ -1,4 +1,4 @@
-"""compare/sunlight.py: the receiver factor fitted back from false returns on sunlit and
+"""compare/diagnose/sunlight.py: the receiver factor fitted back from false returns on sunlit and
 shadowed surfaces, the sun track read from a bag, and ``lidar-sim compare`` on recordings
 with and without the sun."""
 from __future__ import annotations
@@ -10,8 +10,9 @@ import pytest
 
 from lidar_sim_ros.cli import main
 from lidar_sim_ros.compare.run import CompareOptions, run_compare
-from lidar_sim_ros.compare.sunlight import (FalseReturnLikelihood, false_return_mask,
-                                            fit_background_scale, read_sun_track, short_points)
+from lidar_sim_ros.compare.diagnose.sunlight import (FalseReturnLikelihood, false_return_mask,
+                                                     fit_background_scale, read_sun_track,
+                                                     short_points)
 from lidar_sim_ros.core.config import load_scenario
 from lidar_sim_ros.core.effects import make_effect
 from lidar_sim_ros.core.geometry import load_target

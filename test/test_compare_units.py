@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.compare.features import FEATURE_NAMES, attribute, score_features
-from lidar_sim_ros.compare.history import append_run, load_history
-from lidar_sim_ros.compare.matching import EDGE_FAR, edge_distance_rad, predict_rays
-from lidar_sim_ros.compare.measurements import (Measurements, load_measurements,
-                                                padded_pose_track)
+from lidar_sim_ros.compare.diagnose.features import FEATURE_NAMES, attribute, score_features
+from lidar_sim_ros.compare.report.history import append_run, load_history
+from lidar_sim_ros.compare.model.matching import EDGE_FAR, edge_distance_rad, predict_rays
+from lidar_sim_ros.compare.recording.measurements import (Measurements, load_measurements,
+                                                          padded_pose_track)
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.scan import directions_from_angles
 
@@ -219,8 +219,8 @@ def test_cloud_without_a_time_field_keeps_the_stamp_and_says_so(tmp_path):
 
 def test_every_feature_the_attribution_can_rank_is_plottable():
     """The report plots the top features: each one ranked first draws (range_rate crashed it)."""
-    from lidar_sim_ros.compare.features import LABELS
-    from lidar_sim_ros.compare.report import features_figure
+    from lidar_sim_ros.compare.diagnose.features import LABELS
+    from lidar_sim_ros.compare.report.page import features_figure
     assert set(LABELS) == set(FEATURE_NAMES)
     rng = np.random.default_rng(5)
     values = _feature_values(rng, 3000)
@@ -234,7 +234,7 @@ def test_every_feature_the_attribution_can_rank_is_plottable():
 
 
 def test_headline_says_how_many_points_were_analysed():
-    from lidar_sim_ros.compare.verdict import summary_lines
+    from lidar_sim_ros.compare.report.verdict import summary_lines
     s = dict(points=438420, points_analysed=300000, matched_points=300000,
              unmatched_points=0, unmatched_fraction=0.0, range_rmse_m=0.01, nll_per_point=-1.0,
              range_rmse_calibrated_m=0.01, nll_calibrated=-1.0, fitted_effects=[],
@@ -247,8 +247,8 @@ def test_headline_says_how_many_points_were_analysed():
 def test_history_keeps_one_basis_for_runs_with_and_without_fit():
     """A run's history entry carries the calibrated figures (materials profiled in every
     run), and the figure draws runs recorded before that on their headline."""
-    from lidar_sim_ros.compare import history
-    from lidar_sim_ros.compare.report import history_figure
+    from lidar_sim_ros.compare.report import history
+    from lidar_sim_ros.compare.report.page import history_figure
     summary = dict(points=10, range_rmse_m=0.05, nll_per_point=-1.2,
                    range_rmse_calibrated_m=0.03, nll_calibrated=-1.8, materials_refit=False,
                    unmatched_fraction=0.0, missing_effect=None)

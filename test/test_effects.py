@@ -180,7 +180,8 @@ def test_snr_noise_sigma_closed_form_and_simulated_spread():
 def test_solar_background_rate_and_uniform_ranges():
     s = line_sensor(az_deg=20.0, shots=20000)
     p, lo, hi = 0.03, 2.0, 150.0
-    eff = make_effect('solar_background', {'probability': p, 'min_range_m': lo, 'max_range_m': hi})
+    eff = make_effect('solar_background', {'probability': p, 'min_range_m': lo, 'max_range_m': hi,
+                                            'first_return': False})
     sim = Simulator(s, materials(), plate_target(4.0), seed=4, effects=[eff])
     frame = sim.simulate_frame(0.0, facing_plate(10.0), 0)
     false = frame.material == NO_MATERIAL
@@ -196,8 +197,36 @@ def test_solar_background_rate_and_uniform_ranges():
     assert eff.outlier_fraction(None) == p
 
 
+def test_solar_background_first_return_is_gated_by_the_echo():
+    """A first-return receiver (the default) records a background crossing only before
+    the echo: on a shot hitting the plate at range r (10 m / cos az) with probability
+    1 - (1 - p)^((r - lo) / (hi - lo)), its range uniform over [lo, r]; a shot that
+    misses listens over the whole gate, probability p, uniform over [lo, hi]."""
+    s = line_sensor(az_deg=20.0, shots=20000)
+    p, lo, hi = 0.3, 2.0, 150.0
+    eff = make_effect('solar_background', {'probability': p, 'min_range_m': lo,
+                                            'max_range_m': hi})
+    sim = Simulator(s, materials(), plate_target(4.0), seed=5, effects=[eff])
+    frame = sim.simulate_frame(0.0, facing_plate(10.0), 0)
+    az_shot = sim.shots.az_rad
+    on = np.abs(az_shot) < np.arctan(0.2) - 1e-3
+    off = np.abs(az_shot) > np.arctan(0.2) + 1e-3
+    r_on = 10.0 / np.cos(az_shot[on])
+    p_on = 1.0 - (1.0 - p) ** ((r_on - lo) / (hi - lo))
+    false = frame.material == NO_MATERIAL
+    az = np.arctan2(frame.xyz_m[:, 1], frame.xyz_m[:, 0])
+    f_on = false & (np.abs(az) < np.arctan(0.2) - 1e-3)
+    f_off = false & (np.abs(az) > np.arctan(0.2) + 1e-3)
+    assert abs(f_on.sum() - p_on.sum()) < 4.0 * np.sqrt(np.sum(p_on * (1 - p_on)))
+    n_off = int(off.sum())
+    assert abs(f_off.sum() - p * n_off) < 4.0 * np.sqrt(n_off * p * (1 - p))
+    u = (frame.range_m[f_on] - lo) / (10.0 / np.cos(az[f_on]) - lo)
+    assert u.max() < 1.0 and stats.kstest(u, 'uniform').pvalue > 1e-3
+    assert stats.kstest(frame.range_m[f_off], 'uniform', args=(lo, hi - lo)).pvalue > 1e-3
+
+
 def test_solar_background_window_defaults_to_range_gate():
-    eff = make_effect('solar_background', {'probability': 1.0})
+    eff = make_effect('solar_background', {'probability': 1.0, 'first_return': False})
     ctx = context(power_w=np.ones(5000), max_range_m=80.0, min_range_m=1.0)
     mask, ranges = eff.false_returns(ctx, np.random.default_rng(0))
     assert mask.all() and ranges.min() >= 1.0 and ranges.max() <= 80.0

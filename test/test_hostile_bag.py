@@ -10,8 +10,8 @@ from dataclasses import replace as dc_replace
 import numpy as np
 import pytest
 
-from lidar_sim_ros.compare.measurements import (MAX_POINT_RANGE_M, MeasurementError,
-                                                load_measurements)
+from lidar_sim_ros.compare.recording.measurements import (MAX_POINT_RANGE_M, MeasurementError,
+                                                          load_measurements)
 from lidar_sim_ros.io.bag import BagWriter
 from lidar_sim_ros.io.pointcloud import FLOAT64, UINT8, make_points, to_rosbags_msg
 

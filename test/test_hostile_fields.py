@@ -1,6 +1,6 @@
 """Hostile recordings, second round (issue 29): Cepton time and laser fields that cannot
 mean what their names say are refused naming the bag, the field and the value, never read
-into a plausible-looking answer (compare/fields.py, compare/measurements.py).
+into a plausible-looking answer (compare/recording/fields.py, compare/recording/measurements.py).
 
 The bags hold the SDK3 driver's point, built here from the driver's published field list
 (docs/real-data.md), with one field's datatype or value broken.
@@ -8,9 +8,9 @@ The bags hold the SDK3 driver's point, built here from the driver's published fi
 import numpy as np
 import pytest
 
-from lidar_sim_ros.compare.fields import FieldError, point_time_ns, resolve_fields
-from lidar_sim_ros.compare.measurements import (MeasurementError, find_time_field,
-                                                load_measurements)
+from lidar_sim_ros.compare.recording.fields import FieldError, point_time_ns, resolve_fields
+from lidar_sim_ros.compare.recording.measurements import (MeasurementError, find_time_field,
+                                                          load_measurements)
 from lidar_sim_ros.core.config import MAX_LASERS
 from lidar_sim_ros.io.bag import BagWriter
 

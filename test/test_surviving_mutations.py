@@ -44,7 +44,7 @@ def test_time_spread_variance_is_range_rate_times_spread_squared():
     """Mutation: the time-spread variance rr*s^2 instead of (rr*s)^2 (point_times.py).
     Hand calculation: rr = 2 m/s, s = 0.3 s -> (0.6 m)^2 = 0.36 m^2; and the ML spread of
     residuals drawn as rr * N(0, s0) comes back as s0."""
-    from lidar_sim_ros.compare.point_times import extra_variance_m2, time_spread_s
+    from lidar_sim_ros.compare.model.point_times import extra_variance_m2, time_spread_s
     np.testing.assert_allclose(extra_variance_m2(np.array([2.0, -4.0]), 0.3), [0.36, 1.44])
     rng = np.random.default_rng(5)
     n, s0, period = 4000, 0.02, 0.1
@@ -186,18 +186,18 @@ def test_campaign_coverage_is_evaluated_at_the_mid_frame_pose(tmp_path):
 # ---------------------------------------------------------------- issue 29's survivors
 def _pose_step(translation_m, rotation_deg, centroid_m):
     """A one-cloud PoseError holding only what ``PoseCorrection.compose`` reads."""
-    from lidar_sim_ros.compare.pose_error import PoseError
+    from lidar_sim_ros.compare.diagnose.pose_error import PoseError
     return PoseError(np.array([0]), np.array([0.5]), np.atleast_2d(translation_m),
                      np.atleast_2d(rotation_deg), 0.0, 0.0, True, np.zeros(4),
                      np.atleast_2d(centroid_m))
 
 
 def test_pose_correction_gain_is_the_gaussian_log_likelihood_difference():
-    """Mutation: the held-out gain without its 1/2 (compare/pose_error.py; only z was tested,
+    """Mutation: the held-out gain without its 1/2 (compare/diagnose/pose_error.py; only z was tested,
     and z does not change when the gain is scaled). Reference: scipy's Gaussian log density,
     log N(r - c; 0, s) - log N(r; 0, s) per point, nats."""
     from scipy.stats import norm
-    from lidar_sim_ros.compare.pose_error import heldout_gain
+    from lidar_sim_ros.compare.diagnose.pose_error import heldout_gain
     rng = np.random.default_rng(29)
     r, c, s = rng.normal(0, 0.01, 50), rng.normal(0, 0.01, 50), rng.uniform(0.002, 0.02, 50)
     np.testing.assert_allclose(heldout_gain(r, c, s),
@@ -211,10 +211,10 @@ def test_pose_correction_gain_is_the_gaussian_log_likelihood_difference():
     ([1e-4, 0.0, 0.0], [0.0, 0.0, 0.001], 1),   # both below RECAST_STEP_M / _DEG
 ])
 def test_gauss_newton_stops_only_when_both_steps_are_small(translation_m, rotation_deg, passes):
-    """Mutation: Gauss-Newton stopping when either step is small (compare/pose_error.py).
+    """Mutation: Gauss-Newton stopping when either step is small (compare/diagnose/pose_error.py).
     Every fit returns the same step; hand count: it re-casts until RECAST_PASSES (3) unless
     both the translation (< 0.5 mm) and the rotation (< 0.01 deg) are small."""
-    from lidar_sim_ros.compare import pose_error as pe
+    from lidar_sim_ros.compare.diagnose import pose_error as pe
     step = _pose_step(translation_m, rotation_deg, [10.0, 0.0, 0.0])
     start = pe.PoseCorrection.identity(np.zeros(4, int), np.linspace(0, 1, 4))
     casts = []
@@ -225,11 +225,11 @@ def test_gauss_newton_stops_only_when_both_steps_are_small(translation_m, rotati
 
 
 def test_pose_correction_applies_the_step_after_the_correction():
-    """Mutation: the step's rotation composed on the wrong side (compare/pose_error.py).
+    """Mutation: the step's rotation composed on the wrong side (compare/diagnose/pose_error.py).
     Hand composition of the two rigid maps on a point: the first fit moves p to
     p1 = R1 (p - g1) + g1 + d1, the step, fitted on the re-cast model, moves that to
     R2 (p1 - g2) + g2 + d2. Rotations of 30 deg about x and 40 deg about z do not commute."""
-    from lidar_sim_ros.compare import pose_error as pe
+    from lidar_sim_ros.compare.diagnose import pose_error as pe
     g1, d1, w1 = np.array([10.0, 1.0, 0.0]), np.array([0.1, -0.2, 0.05]), [30.0, 0.0, 0.0]
     g2, d2, w2 = np.array([9.0, 0.0, 1.0]), np.array([-0.03, 0.02, 0.1]), [0.0, 0.0, 40.0]
     start = pe.PoseCorrection.identity(np.zeros(4, int), np.linspace(0, 1, 4))
@@ -245,9 +245,9 @@ def test_pose_correction_applies_the_step_after_the_correction():
 
 
 def _plan_stubs(monkeypatch, ways):
-    """compare/plan.py's separation with its two flown stages replaced by fixed numbers per
+    """compare/diagnose/plan.py's separation with its two flown stages replaced by fixed numbers per
     way: ``ways[name] = (points in the recording, points diagnosed, margin, z of them)``."""
-    from lidar_sim_ros.compare import plan
+    from lidar_sim_ros.compare.diagnose import plan
     from lidar_sim_ros.core.effects import make_effect
     monkeypatch.setattr(plan, 'simulate_measurements',
                         lambda model, materials, effects, rec, seed, first_frame, max_points:
@@ -264,7 +264,7 @@ def _plan_stubs(monkeypatch, ways):
 
 def test_separation_z_is_the_weaker_way_scaled_by_the_root_of_the_points(monkeypatch):
     """Mutations: z of the stronger way instead of the weaker; z scaled by n instead of
-    sqrt(n) (compare/plan.py). Hand calculation: range_walk's recording holds 16 000
+    sqrt(n) (compare/diagnose/plan.py). Hand calculation: range_walk's recording holds 16 000
     points, 4 000 diagnosed at z 6, so compare (at most 10 000 diagnosed) would see
     z = 6 sqrt(10 000 / 4 000) = 9.487; snr_noise's 9 000 points, 1 000 diagnosed at z 4:
     4 sqrt(9) = 12 (its margin 0.02 the smaller). The plan's z is the weaker, 9.487."""

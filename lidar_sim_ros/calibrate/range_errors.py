@@ -13,7 +13,7 @@ Multi-laser sensors: the laser of each point (``ring``, the Cepton driver's
 per-material biases: the median of each laser's errors after its material's median
 bias, with a 95 % interval; they are printed with the scenario line of the
 ``laser_bias`` effect that carries them (materials.yaml has no place for them).
-Fields are read as ``lidar-sim compare`` reads them (``compare/fields.py``): the
+Fields are read as ``lidar-sim compare`` reads them (``compare/recording/fields.py``): the
 Cepton layouts, NO_RETURN and ``valid`` = 0 points dropped, named fields.
 """
 from __future__ import annotations
@@ -28,11 +28,12 @@ from scipy.spatial.transform import Rotation
 from lidar_sim_ros.calibrate.common import (CalibrationInputError, format_table,
                                             load_materials_document, new_figure, save_figure,
                                             sig, update_materials, write_materials)
-from lidar_sim_ros.compare.cepton_pcap import (PcapError, is_pcap, pcap_recording,
-                                                read_pose_source)
-from lidar_sim_ros.compare.fields import FieldError, resolve_fields
-from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field, laser_ids,
-                                                 usable_points)
+from lidar_sim_ros.compare.recording.cepton_pcap import (PcapError, is_pcap, pcap_recording,
+                                                         read_pose_source)
+from lidar_sim_ros.compare.recording.fields import FieldError, resolve_fields
+from lidar_sim_ros.compare.recording.measurements import (field_time_since_stamp_s,
+                                                          find_time_field, laser_ids,
+                                                          usable_points)
 from lidar_sim_ros.core.config import load_scenario, resolve
 from lidar_sim_ros.core.geometry import MeshMaterialError, Target, cast_at_poses, load_target
 from lidar_sim_ros.core.pose import Poses
@@ -113,7 +114,7 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
     """The frames of one bag with the target static at a known pose (counts the rest).
     ``fields``: --intensity-field / --time-field / --laser-field values by name.
     ``bag`` may be a pcap of a Cepton sensor's packets, with ``poses_from`` (a bag or a
-    CSV: ``compare/cepton_pcap.py``), which may also replace a bag's own poses."""
+    CSV: ``compare/recording/cepton_pcap.py``), which may also replace a bag's own poses."""
     try:
         if is_pcap(bag):
             poses, _, _, frames_of = pcap_recording(bag, poses_from, pose_topic)

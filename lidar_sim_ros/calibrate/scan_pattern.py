@@ -25,9 +25,10 @@ from lidar_sim_ros.core.config import LissajousArrayScan, RisleyScan, load_senso
 from lidar_sim_ros.core.scan import (LissajousLaser, angles_from_directions,
                                      directions_from_angles, frame_shots, lissajous_angles,
                                      lissajous_lasers)
-from lidar_sim_ros.compare.fields import FieldError, resolve_fields
-from lidar_sim_ros.compare.measurements import (field_time_since_stamp_s, find_time_field, laser_ids,
-                                                 usable_points)
+from lidar_sim_ros.compare.recording.fields import FieldError, resolve_fields
+from lidar_sim_ros.compare.recording.measurements import (field_time_since_stamp_s,
+                                                          find_time_field, laser_ids,
+                                                          usable_points)
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, BagContentError, read_clouds
 from lidar_sim_ros.paths import config_path
 
@@ -58,7 +59,7 @@ def read_scan_samples(bag: str | Path, topic: str = CLOUD_TOPIC,
                       fields: dict | None = None) -> ScanSamples:
     """Points of every cloud with their time since the frame stamp (and laser id, if present).
 
-    Fields are read as ``lidar-sim compare`` reads them (``compare/fields.py``): ``t`` or
+    Fields are read as ``lidar-sim compare`` reads them (``compare/recording/fields.py``): ``t`` or
     another driver's time field, the Cepton pair ``timestamp_s`` + ``timestamp_us``;
     ``ring``, ``channel_id`` or an alias; NO_RETURN and ``valid`` = 0 points dropped;
     ``fields`` names them (--time-field, --laser-field). Raises CalibrationInputError

@@ -88,7 +88,7 @@ def add_field_options(p) -> None:
 
 def field_lines(summary: dict) -> list[str]:
     """What every field of the recording was read as, and what the flags said."""
-    from lidar_sim_ros.compare.fields import saturation_line
+    from lidar_sim_ros.compare.recording.fields import saturation_line
     lines = list(summary.get('point_fields', {}).get('lines', []))
     flags = summary.get('point_flags') or {}
     sat = saturation_line(flags.get('saturation'))

@@ -14,7 +14,7 @@ cloud (``pose_error.py``, ``correct_reference_pose``) and the simulator never ap
 
 A recording with the sun direction (``/sun/direction`` or ``--sun-topic``) is predicted
 under its sun, and the receiver factor of the ``sunlight`` effect is fitted from the
-false returns on sunlit versus shadowed rays (``compare/sunlight.py``; summary.json's
+false returns on sunlit versus shadowed rays (``compare/diagnose/sunlight.py``; summary.json's
 ``sunlight``). Without one nothing changes: the phenomenological ``solar_background``
 is the candidate for false returns.
 
@@ -35,20 +35,22 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import norm
 
-from lidar_sim_ros.compare import (diagnosis, features, fields, history, likelihood as lk,
-                                   materials as mat, neighbours, point_times,
-                                   plan as sep_plan, pose_error,
-                                   stamp_place)
-from lidar_sim_ros.compare.cepton_pcap import side_bag
-from lidar_sim_ros.compare.intensity import IntensityCalibration, calibrate_intensity
-from lidar_sim_ros.compare.matching import (Matching, Model, edge_distance_rad, match,
-                                            range_rate_mps)
-from lidar_sim_ros.compare.measurements import (Measurements, MeasurementError,
-                                                 load_measurements, with_scan_times)
-from lidar_sim_ros.compare.shots import missed_per_unmatched
-from lidar_sim_ros.compare.sunlight import (SunFit, fit_sunlight, read_sun_track, short_points,
-                                            summary_section, sunlit_decision)
-from lidar_sim_ros.compare.verdict import summary_lines, verdict
+from lidar_sim_ros.compare.diagnose import (diagnosis, features, plan as sep_plan, pose_error,
+                                            stamp_place)
+from lidar_sim_ros.compare.recording import fields
+from lidar_sim_ros.compare.report import history
+from lidar_sim_ros.compare.model import likelihood as lk, materials as mat, neighbours, point_times
+from lidar_sim_ros.compare.recording.cepton_pcap import side_bag
+from lidar_sim_ros.compare.recording.intensity import IntensityCalibration, calibrate_intensity
+from lidar_sim_ros.compare.model.matching import (Matching, Model, edge_distance_rad, match,
+                                                  range_rate_mps)
+from lidar_sim_ros.compare.recording.measurements import (Measurements, MeasurementError,
+                                                          load_measurements, with_scan_times)
+from lidar_sim_ros.compare.recording.shots import missed_per_unmatched
+from lidar_sim_ros.compare.diagnose.sunlight import (SunFit, fit_sunlight, read_sun_track,
+                                                     short_points, summary_section,
+                                                     sunlit_decision)
+from lidar_sim_ros.compare.report.verdict import summary_lines, verdict
 from lidar_sim_ros.core.config import (MaterialsConfig, Scenario, load_scenario, resolve,
                                        scenario_effect_spec)
 from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
@@ -69,9 +71,9 @@ DIAGNOSIS_MAX_MATCHED = 12_000
 # figures): the best few; the others report their fit on half of the points.
 FINALIZED = 3
 SILHOUETTE_NEAR_DIVERGENCES = 2.0
-# --effect pose_error: a per-cloud correction of the reference pose (compare/pose_error.py),
+# --effect pose_error: a per-cloud correction of the reference pose (compare/diagnose/pose_error.py),
 # not a catalogue effect: the simulator never applies it.
-POSE_ERROR = 'pose_error'
+POSE_ERROR = diagnosis.POSE_ERROR
 
 
 @dataclass
@@ -226,7 +228,7 @@ def with_materials(pred: Prediction, materials: MaterialsConfig) -> Prediction:
 
 
 class PowerFromIntensity:
-    """Received power from the measured intensity (``compare/intensity.py``), calibrated
+    """Received power from the measured intensity (``compare/recording/intensity.py``), calibrated
     once against the model's power; None for recordings without (usable) intensity."""
 
     def __init__(self) -> None:
@@ -418,7 +420,10 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         diag = Diagnosed([], diagnosis.Decision(None, []), None, None, cal.calibrated)
     plan = None
     tied = tied_pair(diag)
-    if tied and opts.plan:
+    rival = pose_rival(diag)
+    if rival and opts.plan:
+        plan = pose_range_plan(opts, inp, cal, effects, rival)
+    elif tied and opts.plan:
         with stage('plan', ' against '.join(c.name for c in tied)):
             try:
                 plan = separation_plan(opts, inp, cal, effects, diag, tied)
@@ -435,6 +440,33 @@ def tied_pair(diag: Diagnosed) -> list:
     tied = [by_name[n] for n in diag.decision.confounded_with
             if n in by_name and by_name[n].effect is not None]
     return tied[:2] if len(tied) >= 2 and diag.full is not None else []
+
+
+def pose_rival(diag: Diagnosed) -> str | None:
+    """The range error of the sensor tied with the reference pose, if any."""
+    tie = diag.decision.confounded_with
+    if diagnosis.POSE_ERROR not in tie:
+        return None
+    return next((n for n in tie if n in diagnosis.POSE_RIVALS), None)
+
+
+def pose_range_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated,
+                    effects: list[Effect], rival: str) -> Plan:
+    """The recordings that separate a reference pose from a range error of the sensor
+    (``plan.pose_range_plan``): a static target on a surveyed pose, near and far."""
+    meas, scenario = inp.meas, inp.scenario
+    period = scenario.sensor.frame_period_s
+    stamps = meas.cloud_stamps_s
+    recorded = sep_plan.recorded_motion(meas.poses, float(stamps.min()),
+                                        float(stamps.max()) + frame_period_s(meas, scenario),
+                                        period, getattr(meas.poses, 't_s', None))
+    base_dir = scenario.source.parent if scenario.source else config_path('.')
+    rows, text = sep_plan.pose_range_plan(recorded, rival, scenario.seed,
+                                          Path(opts.mesh).resolve(),
+                                          resolve(scenario.config.sensor, base_dir),
+                                          resolve(scenario.config.materials, base_dir),
+                                          effects, period)
+    return Plan(rows, [diagnosis.POSE_ERROR, rival], text)
 
 
 def separation_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated, effects: list[Effect],
@@ -516,7 +548,7 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
         return pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks,
                                              float(norm.isf(diagnosis.FAMILY_ALPHA)),
                                              diagnosis.MIN_PRACTICAL_GAIN, opts.seed,
-                                             applied=applied)
+                                             applied=applied, rate=has_point_times(meas))
 
     def rematch(corr: pose_error.PoseCorrection):
         moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
@@ -532,6 +564,12 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     (matching, rays, moved), _, pose = pose_error.iterate(
         first, start, rematch, lambda state, corr: fit(state[1], corr))
     return matching, rays, moved, pose
+
+
+def has_point_times(meas: Measurements) -> bool:
+    """Whether each point has its own time (a time field or the scan pattern), so that
+    a reference pose drifting within a cloud can be told from a rigid one."""
+    return meas.time_source in ('field', 'scan pattern')
 
 
 def with_range_correction(pred: Prediction, idx: np.ndarray,
@@ -675,17 +713,34 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         return pose_error.fit_reference_pose(
             diag.full, meas.cloud[sample.matched], meas.t_s[sample.matched],
             sample.blocks[sample.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
-            on_top)
-    decision = diag.judge_pose(
-        pose_test, cands, decision,
-        lambda pose: recast_diagnosis(model, effects, sample, meas, pose, len(classes), seed))
+            on_top, rate=has_point_times(meas))
+    recast_cache: dict = {}
+
+    def recast(pose: pose_error.PoseError):
+        """The diagnosis on the pose-corrected model (one re-cast per run: the pose test
+        without effects on top is the same fit wherever it is asked)."""
+        if 'r' not in recast_cache:
+            recast_cache['r'] = recast_diagnosis(model, effects, sample, meas, pose,
+                                                 len(classes), seed)
+        return recast_cache['r']
+    decision = diag.judge_pose(pose_test, cands, decision, recast)
+    in_model = {e.name for e in effects}
+    rivals = [get_effect_class(n) for n in diagnosis.POSE_RIVALS if n not in in_model]
+    decision, scored = diag.weigh_pose_rivals(decision, rivals, pose_test,
+                                              lambda: recast(pose_test([]))[0])
+    cands = diagnosis.rank(cands + scored)
     named = [c.effect for c in cands if c.name == decision.missing]
     pose = decision.pose if decision.pose is not None else pose_test(named)
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
+        if c.significant and np.isfinite(c.nll_after):
+            c.false_returns = diag.false_return_budget(c)
+    decision = diag.clock_tie(decision, cands, meas.time_source == 'stamp')
     stamp = _stamp_place(diag, decision, cands, meas, scenario)
     decision = sunlit_decision(decision, sunlight)
+    # The one gate every name passes (missing, tie, also): the rule and the NLL.
+    decision = diagnosis.settle(decision, cands, diag.naming_fault)
     return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
                      diag.full, diag.z_crit)
 
@@ -728,7 +783,7 @@ def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RayS
         return pose_error.fit_reference_pose(diag.full, moved.cloud[idx], moved.t_s[idx],
                                              diag.rays.blocks[idx], diag.z_crit,
                                              diagnosis.MIN_PRACTICAL_GAIN, seed,
-                                             applied=applied)
+                                             applied=applied, rate=has_point_times(meas))
 
     start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
     (diag, _), _, report = pose_error.iterate(pose, start, rematch, refit)
@@ -775,6 +830,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'missing_effect': decision.missing,
         'confounded_with': decision.confounded_with,
         'also_explains': decision.also,
+        'withheld': decision.withheld or None,
         'against_named': decision.pair_z,
         'separation_plan': plan.rows if plan is not None and plan.rows else None,
         'unmatched': _unmatched_summary(ana.local, cal.model.divergence_rad, int((~sel).sum()),
@@ -786,6 +842,8 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'point_times': meas.time_source,
         'point_time_field': meas.time_field,
         'point_time_spread_s': time_spread or None,
+        'scan_pattern_match': (None if meas.scan_match_fraction is None
+                               else round(meas.scan_match_fraction, 4)),
         'stamp_place': diag.stamp.as_dict() if diag.stamp is not None else None,
         'reference_pose': diag.pose.as_dict() if diag.pose is not None else None,
         'reference_pose_off': decision.pose is not None,
@@ -833,7 +891,7 @@ def write_outputs(opts: CompareOptions, summary: dict, stage: Stages, inp: Input
     summary['history'] = str(hist_path)
     if opts.report:
         with stage('report'):
-            from lidar_sim_ros.compare.report import write_report
+            from lidar_sim_ros.compare.report.page import write_report
             files += write_report(opts.out, summary, ana.local, cal.configured, ana.residual_m,
                                   cal.stats, ana.attribution.features, diag.cands, runs,
                                   cal.model, ana.values, ana.isolated[ana.picked], ana.labels)

@@ -267,7 +267,8 @@ class Simulator:
             threshold_power_w=det.threshold_power_w, min_range_m=det.min_range_m,
             max_range_m=det.max_range_m, direction=directions, normal=hits.normal, face=hits.face,
             scene=Scene(self.target, poses, self.materials, self.sensor,
-                        None if self.sun is None else self.sun.at(t_abs_s)))
+                        None if self.sun is None else self.sun.at(t_abs_s)),
+            time_s=t_abs_s)
         if self.effects:
             ctx, bias, var = apply_effects(ctx, self.effects, bias, var)
             bias = np.where(hits.hit, bias, 0.0)

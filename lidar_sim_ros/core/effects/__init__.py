@@ -2,7 +2,7 @@
 
 ``get_effect_class('range_walk')`` finds a catalogue effect; ``'pkg.module:Class'``
 or ``'path/to/file.py:Class'`` loads a user-defined one. Fitting effects to
-measurements lives above the pipeline, in ``lidar_sim_ros.compare.fit``.
+measurements lives above the pipeline, in ``lidar_sim_ros.compare.model.fit``.
 """
 from __future__ import annotations
 
@@ -18,13 +18,16 @@ _FILE_MODULES: dict[Path, object] = {}
 
 # Catalogue modules register themselves on import. ``catalogue()`` lists the effects the
 # comparison diagnoses on any recording; those that need more than the recording's points
-# and poses (``sunlight`` needs its sun direction, see compare/sunlight.py) load by name only.
+# and poses (``sunlight`` needs its sun direction, see compare/diagnose/sunlight.py) load by name only.
 _CATALOGUE = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
               'beam_divergence', 'time_offset', 'laser_bias', 'multipath')
 # range_scale is a test a user asks for (--effect range_scale): a bias linear in range also
 # fits smooth spatial patterns on a target whose range follows its azimuth or elevation
-# (docs/compare.md, "Range scale"), so it is no default candidate.
-_BY_NAME_ONLY = ('sunlight', 'range_scale')
+# (docs/compare.md, "Range scale"), so it is no default candidate. range_scale and
+# range_drift are weighed against the reference pose when its per-cloud correction passes
+# (compare: Diagnosis.weigh_pose_rivals): a range error of the sensor moves clouds along
+# the line of sight as a pose error does.
+_BY_NAME_ONLY = ('sunlight', 'range_scale', 'range_drift')
 
 
 def register(cls: type[Effect]) -> type[Effect]:

@@ -3,7 +3,7 @@
 An effect changes what the paper's baseline model predicts through a small set of
 hooks, each a pure function over per-shot arrays. The simulator calls the forward
 hooks; ``lidar-sim compare`` uses the same hooks to predict, and estimates the
-parameters by maximum likelihood from the measured ranges (``compare/fit.py``). An
+parameters by maximum likelihood from the measured ranges (``compare/model/fit.py``). An
 effect never imports that machinery: it declares what a fit needs (``bounds``,
 ``initial``, ``linear_bias``, ``fit_options``, ``power_driven``) and the fit reads it.
 
@@ -88,7 +88,8 @@ class ReturnContext:
     direction (N, 3): unit ray directions and normal (N, 3): surface normals toward the
     sensor (zeros on a miss), both in the lidar frame; face: the target triangle hit (-1 on
     a miss); scene: the target, poses, materials, sensor and light (``Scene``). The last
-    four are None where the caller has no geometry.
+    four are None where the caller has no geometry; time_s: each shot's absolute time
+    (s, the recording's or simulation's clock; None where the caller has no clock).
     """
 
     range_m: np.ndarray
@@ -109,6 +110,7 @@ class ReturnContext:
     normal: np.ndarray | None = None
     face: np.ndarray | None = None
     scene: Scene | None = None
+    time_s: np.ndarray | None = None   # absolute time of each shot (s, the recording's clock)
 
     def __len__(self) -> int:
         return len(self.range_m)
@@ -153,7 +155,7 @@ class NoParams(BaseModel):
 class Effect:
     """Base class of all effects. Subclasses set ``name`` and a pydantic ``Params``.
 
-    What a fit needs, declared (``lidar_sim_ros.compare.fit`` reads it; nothing here
+    What a fit needs, declared (``lidar_sim_ros.compare.model.fit`` reads it; nothing here
     imports it): ``bounds`` maps each free parameter to its (low, high) search box and
     ``initial`` gives the starting value (default: the Params default); parameters
     not in ``bounds`` stay at their Params values. ``linear_bias`` names free

@@ -7,7 +7,7 @@ factory calibration leaves of their differences is a constant range offset per l
     bias = offsets_m[laser]          (0 for a laser beyond the list)
 
 The offsets are one free parameter per laser, so the generic per-parameter fit does not
-apply: ``compare/fit.py`` estimates them in closed form (robust weighted means of the
+apply: ``compare/model/fit.py`` estimates them in closed form (robust weighted means of the
 residual per laser, with one intercept per material). A common offset of all lasers is
 the same thing as a per-material range bias, so the fitted offsets average to zero over
 the points and the material biases carry their mean.
@@ -30,7 +30,7 @@ class LaserBias(Effect):
 
     name = 'laser_bias'
     # One bound for every element of the vector: the generic fit never runs for this
-    # class (compare/fit.py registers its own), but the comparison reads ``bounds`` to
+    # class (compare/model/fit.py registers its own), but the comparison reads ``bounds`` to
     # know which parameters are fitted.
     bounds = {'offsets_m': (-MAX_OFFSET_M, MAX_OFFSET_M)}
 

@@ -126,9 +126,9 @@ class Multipath(Effect):
     """A ghost behind each specular hit whose mirror ray meets another surface."""
 
     name = 'multipath'
-    # The comparison fits ``strength`` (searched on a log scale, ``compare/fit.py``); its
+    # The comparison fits ``strength`` (searched on a log scale, ``compare/model/fit.py``); its
     # likelihood reads the ghosts through ``extra_returns`` and ``ghost_scale``, the
-    # parameter the ghost power is proportional to (``compare/likelihood.py``, ghost term).
+    # parameter the ghost power is proportional to (``compare/model/likelihood.py``, ghost term).
     bounds = {'strength': (0.0, 30.0)}
     ghost_scale = 'strength'
 

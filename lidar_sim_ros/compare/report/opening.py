@@ -27,7 +27,17 @@ def title(summary: dict) -> str:
 
 
 def headline(summary: dict) -> str:
-    """The verdict in one line."""
+    """The verdict in one line; a scan pattern that is off first (clouds without point
+    times whose directions mostly miss the configured pattern: verdict.scan_pattern_off)."""
+    share = summary.get('scan_pattern_match')
+    if summary.get('point_times') == 'stamp' and share is not None and share < 0.5:
+        return (f'Scan pattern off: only {100 * share:.0f} % of the directions match the '
+                'configured pattern (fix it with lidar-sim calibrate scan). '
+                + _headline(summary))
+    return _headline(summary)
+
+
+def _headline(summary: dict) -> str:
     missing = summary.get('missing_effect')
     cand = _candidate(summary, missing)
     if missing and cand is not None:

@@ -219,7 +219,7 @@ def range_exponents(field_map: dict | None) -> tuple[float, ...]:
     """The intensity readings ``intensity.calibrate_intensity`` may choose from: the
     Cepton drivers publish a range-compensated reflectivity (-2 only); any other layout
     lets the data decide (0 or -2)."""
-    from lidar_sim_ros.compare.intensity import RANGE_EXPONENTS
+    from lidar_sim_ros.compare.recording.intensity import RANGE_EXPONENTS
     layout = (field_map or {}).get('layout', '')
     return (-2.0,) if layout.startswith('cepton') else RANGE_EXPONENTS
 

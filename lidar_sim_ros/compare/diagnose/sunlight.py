@@ -38,9 +38,9 @@ import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 from scipy.stats import binomtest
 
-from lidar_sim_ros.compare import neighbours
-from lidar_sim_ros.compare.diagnosis import Decision
-from lidar_sim_ros.compare.likelihood import material_nuisance
+from lidar_sim_ros.compare.model import neighbours
+from lidar_sim_ros.compare.diagnose.diagnosis import Decision
+from lidar_sim_ros.compare.model.likelihood import material_nuisance
 from lidar_sim_ros.core import detection
 from lidar_sim_ros.core.config import SunConfig
 from lidar_sim_ros.core.effects.base import ReturnContext

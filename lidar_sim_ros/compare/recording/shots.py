@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidar_sim_ros.compare.measurements import Measurements
+from lidar_sim_ros.compare.recording.measurements import Measurements
 
 
 def missed_per_unmatched(meas: Measurements, matched: np.ndarray, per_frame: int) -> float | None:

@@ -67,20 +67,20 @@ import copy
 import itertools
 import time
 from dataclasses import dataclass, field, replace
-from typing import Literal, get_args, get_origin
+from typing import Callable, Literal, get_args, get_origin
 
 import numpy as np
 from pydantic import create_model
 from scipy.optimize import minimize_scalar
 from scipy.stats import kstest, norm
 
-from lidar_sim_ros.compare import likelihood as lk
-from lidar_sim_ros.compare.features import Attribution, block_mean_se
-from lidar_sim_ros.compare.fit import fit_effect
-from lidar_sim_ros.compare.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
-from lidar_sim_ros.compare.matching import Model, predict_rays
-from lidar_sim_ros.compare.materials import robust_sigma
-from lidar_sim_ros.compare.measurements import Measurements
+from lidar_sim_ros.compare.model import likelihood as lk
+from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se
+from lidar_sim_ros.compare.model.fit import fit_effect
+from lidar_sim_ros.compare.model.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
+from lidar_sim_ros.compare.model.matching import Model, predict_rays
+from lidar_sim_ros.compare.model.materials import robust_sigma
+from lidar_sim_ros.compare.recording.measurements import Measurements
 from lidar_sim_ros.core.effects import Effect
 from lidar_sim_ros.core.geometry import Hits
 from lidar_sim_ros.core.pipeline import Prediction
@@ -98,6 +98,13 @@ MIN_FAR_SHARE = 0.5         # ... and this share of the spurious matched returns
 MIN_UNMATCHED_EXPLAINED = 20   # unmatched points explained count only from this many ...
 MIN_UNMATCHED_FRACTION = 0.002  # ... and this share of all points (grazing rays aside)
 N_FOLDS = 2
+# The reference pose's per-cloud correction as a member of a tie (``confounded_with``):
+# not a sensor effect (``pose_error.py``), judged by its own held-out test.
+POSE_ERROR = 'pose_error'
+# Range errors of the sensor that move a whole cloud along the line of sight, as a
+# reference pose that is off does: weighed against the per-cloud pose correction on the
+# same footing when it passes (``Diagnosis.weigh_pose_rivals``); no default candidates.
+POSE_RIVALS = ('range_drift', 'range_scale')
 
 
 @dataclass(frozen=True)
@@ -335,6 +342,12 @@ class Candidate:
     error: str | None = None
     heldout_nll: np.ndarray | None = None   # per matched point, folds concatenated
     seconds: float = 0.0
+    # A rival of the reference pose (POSE_RIVALS): the pose test on top of it and its
+    # score on the pose-corrected model (``weigh_pose_rivals``).
+    against_pose: dict | None = None
+    # An outlier effect: the false returns its fitted rate predicts against those
+    # recorded, on the diagnosed points (``Diagnosis.false_return_budget``).
+    false_returns: dict | None = None
 
     @property
     def admissible(self) -> bool:
@@ -355,6 +368,8 @@ class Candidate:
                 'practical': self.practical,
                 **({'structure_share': _num(self.share)} if self.share is not None else {}),
                 **({'vetoed': self.vetoed} if self.vetoed else {}),
+                **({'against_pose': self.against_pose} if self.against_pose else {}),
+                **({'false_returns': self.false_returns} if self.false_returns else {}),
                 **({'error': self.error} if self.error else {})}
 
 
@@ -378,6 +393,8 @@ class Decision:
     # The reference pose is off (``pose_error.PoseError``, significant); with ``missing``
     # None, it explains what the candidates would have claimed.
     pose: object | None = None
+    # Names the rule kept from the verdict (``settle``): name -> why.
+    withheld: dict = field(default_factory=dict)
 
 
 class Diagnosis:
@@ -587,9 +604,28 @@ class Diagnosis:
                            f'{attribution.structure_gain:.4f} nats/point): the residual has '
                            'another shape than this effect')
 
+    @property
+    def before_nll(self) -> float:
+        """The calibrated NLL per matched point of the diagnosed points without a
+        candidate: the "before" the verdict quotes (``calibrated_figures``)."""
+        if getattr(self, '_before_nll', None) is None:
+            self._before_nll = calibrated_figures(self.full, [])[0]
+        return self._before_nll
+
+    def naming_fault(self, cand: Candidate) -> str | None:
+        """Why ``cand`` may not be named (``naming_fault``), fitting it on all the
+        diagnosed points first if that was not done (its "after" figures)."""
+        if cand.admissible and not np.isfinite(cand.nll_after):
+            self.finalize(cand)
+        return naming_fault(cand, self.before_nll)
+
+    def nameable(self, cand: Candidate) -> bool:
+        return self.naming_fault(cand) is None
+
     def decide(self, cands: list[Candidate]) -> Decision:
-        """The missing effect, ties and confounding (module doc)."""
-        ok = [c for c in rank(cands) if c.admissible]
+        """The missing effect, ties and confounding (module doc), among the candidates
+        that may be named at all (``naming_fault``)."""
+        ok = [c for c in rank(cands) if self.nameable(c)]
         if not ok:
             return Decision(None, [])
         best = ok[0]
@@ -612,12 +648,13 @@ class Diagnosis:
     def pose_corrected(self, correction_m: np.ndarray) -> 'Diagnosis':
         """This diagnosis on the model with a reference-pose correction (m of range per
         matched point of ``self.full``, ``pose_error.corrected``)."""
-        from lidar_sim_ros.compare.pose_error import corrected
+        from lidar_sim_ros.compare.diagnose.pose_error import corrected
         out = copy.copy(self)
         out.full = corrected(self.full, correction_m)
         out.fold_data = [corrected(d, correction_m[np.searchsorted(self.rays.matched, f.matched)])
                          for d, f in zip(self.fold_data, self.folds)]
         out._base_nll = [heldout_nll(d, []) for d in out.fold_data]
+        out._before_nll = None
         return out
 
     def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision,
@@ -647,12 +684,111 @@ class Diagnosis:
             else:
                 on_pose = self.pose_corrected(pose.correction_m)
             again = [on_pose.score(type(c.effect)) for c in contenders]
-            if not any(c.admissible for c in again):
+            if not any(on_pose.nameable(c) for c in again):
                 return Decision(None, [], pose=pose)
-            if not (decision.missing and any(c.admissible and c.name == decision.missing
+            if not (decision.missing and any(c.name == decision.missing and on_pose.nameable(c)
                                              for c in again)):
                 decision = on_pose.decide(again)
         return replace(decision, pose=pose)
+
+    def false_return_budget(self, cand: Candidate) -> dict | None:
+        """For an outlier effect as fitted (``cand.effect``): how many false returns it
+        predicts among the diagnosed points, on the target (before the echo, for a
+        first-return receiver) and on the shots that missed it (the whole window),
+        against those recorded there (far points isolated from their neighbours;
+        isolated unmatched points). The number a simulation with the fitted rate gives,
+        to be compared with what the sensor recorded; None for other effects."""
+        if cand.effect is None or not is_outlier_effect(type(cand.effect)):
+            return None
+        base = lk.model_on_rays(self.full, [])
+        model = lk.model_on_rays(self.full, [cand.effect])
+        everything = [*self.full.base_effects, cand.effect]
+        on_target = float(np.sum(model.outlier_w - base.outlier_w))
+        per_miss = (lk.miss_outlier_weight(model, everything)
+                    - lk.miss_outlier_weight(base, list(self.full.base_effects)))
+        m = len(self.rays.unmatched)
+        missed = (self.rays.missed_per_unmatched * m if self.rays.missed_per_unmatched is not None
+                  else None)
+        isolated = (int(np.sum(self.rays.isolated[self.rays.unmatched]))
+                    if self.rays.isolated is not None else m)
+        off = None if missed is None else float(per_miss * missed)
+        predicted = on_target + (off or 0.0)
+        recorded = self.n_far + isolated
+        return {'predicted_on_target': round(on_target, 1), 'recorded_on_target': self.n_far,
+                'predicted_off_target': None if off is None else round(off, 1),
+                'recorded_off_target': isolated, 'missed_shots': None if missed is None
+                else round(float(missed), 1), 'per_missed_shot': round(per_miss, 8),
+                'predicted': round(predicted, 1), 'recorded': int(recorded),
+                'ratio': round(predicted / recorded, 4) if recorded else None}
+
+    def weigh_pose_rivals(self, decision: Decision, rivals: list[type[Effect]], pose_test,
+                          on_pose) -> tuple[Decision, list[Candidate]]:
+        """A reported pose error against range errors of the sensor (POSE_RIVALS: a
+        range offset drifting over the recording, a range scale), on the same footing:
+        each rival that passes the naming rule is weighed both ways, the pose's test on
+        top of it (``pose_test([rival])``) and the rival scored on the pose-corrected
+        model (``on_pose()``: the re-cast diagnosis). A rival that still passes on the
+        corrected pose explains what the pose cannot: it is named (the pose reported
+        beside it only if its test passes on top of the rival). A rival the pose
+        leaves nothing to, and that leaves the pose nothing, is then weighed as --fit
+        leaves them (``decide``'s second footing): the rival's fitted NLL against the
+        pose-corrected model's; MIN_PRACTICAL_GAIN apart, the better one stands (the
+        rival named, or the pose alone); closer, they explain the data as well: a tie,
+        ``confounded_with`` [pose_error, rival]. Returns the decision and the rivals
+        scored (for the summary's candidates)."""
+        if decision.pose is None or decision.missing or decision.confounded_with:
+            return decision, []
+        scored, wins, ties = [], [], []
+        for cls in rivals:
+            r = self.score(cls)
+            scored.append(r)
+            if not self.nameable(r):
+                continue
+            pose_on_top = pose_test([r.effect])
+            corrected = on_pose()
+            again = corrected.score(cls)
+            passes_on_pose = corrected.nameable(again)
+            # As --fit leaves them: the rival fitted, against the pose corrected and the
+            # model raycast again (rays at silhouettes and depth steps meet the surfaces
+            # the corrected pose puts there, which a range offset does not move).
+            fitted = float(corrected.before_nll - r.nll_after)
+            r.against_pose = {'pose_gain_on_top': _num(pose_on_top.gain),
+                              'pose_z_on_top': _num(pose_on_top.z),
+                              'pose_significant_on_top': bool(pose_on_top.significant),
+                              'score_on_pose': _num(again.score), 'z_on_pose': _num(again.z),
+                              'passes_on_pose': bool(passes_on_pose),
+                              'nll_after': _num(r.nll_after),
+                              'pose_corrected_nll': _num(corrected.before_nll),
+                              'fitted_margin': _num(fitted)}
+            if passes_on_pose:
+                wins.append((r, pose_on_top.significant))
+            elif pose_on_top.significant:
+                continue                       # the pose explains what the rival cannot
+            elif fitted >= MIN_PRACTICAL_GAIN:
+                wins.append((r, False))        # as --fit leaves them, the rival is better
+            elif fitted > -MIN_PRACTICAL_GAIN:
+                ties.append(r)                 # else the corrected pose is better: it stays
+        if wins:
+            best, pose_left = max(wins, key=lambda w: w[0].score)
+            return replace(decision, missing=best.name,
+                           pose=decision.pose if pose_left else None), scored
+        if ties:
+            return replace(decision, confounded_with=[POSE_ERROR, *[t.name for t in ties]]), scored
+        return decision, scored
+
+    def clock_tie(self, decision: Decision, cands: list[Candidate],
+                  no_point_times: bool) -> Decision:
+        """Clouds without usable point times, the reference pose reported off and a
+        ``time_offset`` that passed the rule before the pose correction: a clock offset
+        moves each cloud as a rigid correction per cloud partly does, so the two are a
+        tie (``confounded_with``: pose_error and time_offset), not a pose error."""
+        if (not no_point_times or decision.pose is None or decision.missing
+                or decision.confounded_with):
+            return decision
+        c = next((c for c in cands if c.name == 'time_offset'), None)
+        if c is None or not self.nameable(c):
+            return decision
+        return replace(decision, confounded_with=[POSE_ERROR, c.name])
 
     def fitted_margin(self, a: Candidate, b: Candidate) -> float:
         """How much better ``a`` explains the data than ``b`` as --fit would leave them:
@@ -684,23 +820,30 @@ class Diagnosis:
         return float(margin), float(z)
 
     def adds_to(self, best: Candidate, other: Candidate) -> bool:
-        """Whether ``other``, fitted on top of ``best``, still gains decisively and
-        practically on held-out points: they explain different parts of the residual."""
-        if best.effect is None or other.variant is None:
+        """Whether ``other``, fitted on top of ``best``, still passes the rule: its
+        held-out gain over ``best`` (matched and unmatched, ``total_z``) decisive and
+        practical, and, both fitted on all the diagnosed points, the NLL below that of
+        ``best`` alone. Then they explain different parts of the residual."""
+        if best.effect is None or other.variant is None or not self.nameable(best):
             return False
         try:
             nll, explained = self.cross_fit(other.variant, [best.effect])
+            d = best.heldout_nll - nll
+            ok = np.isfinite(d)
+            if ok.sum() < 2:
+                return False
+            gain, se = block_mean_se(d[ok], self.blocks[ok])
+            n_m = int(ok.sum())
+            total = float(np.sum(d[ok])) + UNMATCHED_NATS * explained
+            z = total_z(gain, se, n_m, explained)
+            if not (total >= MIN_TOTAL_GAIN and z >= self.z_crit
+                    and total / max(self.n_total, 1) >= MIN_PRACTICAL_GAIN):
+                return False
+            both = fit_effect(other.variant, self.full, [best.effect]).effect
+            after = calibrated_figures(self.full, [best.effect, both])[0]
         except Exception:  # noqa: BLE001
             return False
-        probe = Candidate(other.name)
-        d = best.heldout_nll - nll
-        ok = np.isfinite(d)
-        if ok.sum() < 2:
-            return False
-        gain, se = block_mean_se(d[ok], self.blocks[ok])
-        z = gain / se if se > 0 and np.isfinite(se) else 0.0
-        probe.score = float(np.sum(d[ok])) / max(self.n_total, 1)
-        return bool(z >= self.z_crit and probe.score >= MIN_PRACTICAL_GAIN)
+        return bool(np.isfinite(after) and after < best.nll_after)
 
 
 def far_from_surface(data, details: bool = False):
@@ -860,6 +1003,62 @@ def unmatched_credit(data, effects: list[Effect], effect: Effect, gained: float)
     if effect.cast_reach_rad(1.0) is not None:     # a footprint: it reaches only so far
         return float(min(gained, footprint_signature(data, effects).sum()))
     return gained
+
+
+def naming_fault(cand: Candidate, before_nll: float) -> str | None:
+    """The one rule at the point of naming: why ``cand`` may not be named as a missing
+    effect, a member of a tie or an effect explaining a separate part, or None. Its
+    held-out gain (the score the verdict quotes, and its z) passes the rule (decisive,
+    it matters, its signature: ``admissible``) and, fitted as --fit leaves it, the
+    calibrated NLL per point it gives (``nll_after``, the "after" the verdict quotes) is
+    below the model's without it (``before_nll``)."""
+    if cand.error is not None:
+        return f'its fit failed: {cand.error}'
+    if not cand.significant:
+        return (f'its held-out gain ({cand.score:.4f} nats/point, z = {cand.z:.1f}) is not '
+                'decisive')
+    if not cand.practical:
+        return (f'its held-out gain ({cand.score:.4f} nats/point) is below the '
+                f'{MIN_PRACTICAL_GAIN:g} that would matter')
+    if cand.vetoed:
+        return cand.vetoed
+    if not (np.isfinite(cand.nll_after) and np.isfinite(before_nll)
+            and cand.nll_after < before_nll):
+        return (f'fitted as --fit leaves it, the NLL per point is {cand.nll_after:.4f}, not '
+                f'below the {before_nll:.4f} without it')
+    return None
+
+
+def settle(decision: Decision, cands: list[Candidate],
+           fault: 'Callable[[Candidate], str | None]') -> Decision:
+    """Every name a decision carries (``missing``, ``confounded_with``, ``also``; for
+    ``sunlight``, the candidate that is its ``evidence``) passes ``naming_fault`` on the
+    candidates the verdict quotes (``cands``; ``fault``: ``Diagnosis.naming_fault``, which
+    fits a candidate on all the diagnosed points first, or ``naming_fault`` with the
+    "before" NLL), or is
+    withheld (``Decision.withheld``: name -> why). A tie left with one member is no
+    tie, and its last member is not promoted to missing. ``pose_error`` in a tie is
+    the reference pose, judged by its own test (``judge_pose``)."""
+    by_name = {c.name: c for c in cands}
+    withheld = dict(decision.withheld)
+
+    def why_not(name: str | None) -> str | None:
+        if name is None or name == POSE_ERROR:
+            return None
+        c = by_name.get(decision.evidence if name == decision.missing and decision.evidence
+                        else name)
+        why = 'not among the candidates' if c is None else fault(c)
+        if why is not None:
+            withheld[name] = why
+        return why
+
+    missing = decision.missing if why_not(decision.missing) is None else None
+    also = decision.also if missing is not None and why_not(decision.also) is None else None
+    tied = [n for n in decision.confounded_with if why_not(n) is None]
+    if len(tied) < 2 or (tied == [POSE_ERROR]):
+        tied = []
+    return replace(decision, missing=missing, also=also, confounded_with=tied,
+                   evidence=decision.evidence if missing else None, withheld=withheld)
 
 
 def rank(candidates: list[Candidate]) -> list[Candidate]:

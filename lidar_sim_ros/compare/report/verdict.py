@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare import diagnosis
+from lidar_sim_ros.compare.diagnose import diagnosis
 
 EFFECT_WORDS = {
     'range_walk': 'range walk (intensity-dependent timing bias)',
@@ -25,6 +25,10 @@ EFFECT_WORDS = {
     'time_offset': 'a clock offset between the pose and LiDAR stamps',
     'multipath': 'ghosts behind specular surfaces (MLI): the mirror image of another surface '
                  'at |SA| + |AB|',
+    'range_drift': 'a range offset of the sensor drifting over the recording (thermal): the '
+                   'same on every ray of a cloud, changing from cloud to cloud',
+    'range_scale': 'a range scale error of the sensor (its clock, or light through air): a '
+                   'range error growing with the range',
 }
 # What varies each catalogue effect independently of the others: the recording that
 # separates two confounded candidates varies what drives one at fixed values of what
@@ -50,17 +54,19 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     """One plain-language paragraph (module doc)."""
     feats = attribution.features if attribution is not None else []
     by_name = {f.name: f for f in feats}
-    parts = []
+    parts = [scan_pattern_words(summary)] if scan_pattern_off(summary) else []
     if attribution is not None and attribution.driver:
         f = by_name[attribution.driver]
         parts.append(f'The range residual depends most on {f.name}, given the other '
                      f'features: {f.trend}.')
     elif attribution is not None and attribution.confounded:
         names = attribution.confounded
+        # "Cannot be told" is said of candidates only when none is named (a tie in
+        # confounded_with); of features it says what the features alone show.
         parts.append(f'The range residual depends on {_join(names)} together; in this '
                      'recording they stand in for each other (each explains the residual '
-                     'alone, none given the others), so which of them drives it cannot be '
-                     'told from the features.')
+                     'alone, none given the others), so the features alone do not show '
+                     'which of them drives it.')
     elif attribution is not None and attribution.significant:
         parts.append(f'The range residual depends on the features jointly '
                      f'({attribution.structure_gain:.4f} nats/point held out), no single one '
@@ -93,6 +99,10 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         if decision.also:
             parts.append(f'{decision.also} also explains a separate part of the residual: '
                          'expect it in the next run.')
+        if c.against_pose:
+            parts.append(_against_pose_words(c))
+    elif diagnosis.POSE_ERROR in decision.confounded_with:
+        parts.append(pose_tie_words(decision, summary, cands))
     elif decision.confounded_with:
         names = decision.confounded_with
         scores = ', '.join(f'{n} {next(c.score for c in cands if c.name == n):.4f}'
@@ -105,10 +115,11 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'gains {scores} nats/point): they are confounded in this recording, so none is '
             f'named. {advice} If you know which it is, add it with --effect NAME --fit.')
     elif decision.pose is not None:
-        parts.append(pose_words(decision.pose) + _clock_caveat(summary, cands))
+        parts.append(pose_words(decision.pose))
     else:
         parts.append(_nothing_named(summary, attribution, cands))
-    if decision.pose is not None and (missing or decision.confounded_with):
+    if decision.pose is not None and (missing or decision.confounded_with) and \
+            diagnosis.POSE_ERROR not in decision.confounded_with:
         parts.append(f'Besides, {decision.pose.words()} (held-out gain of a rigid correction '
                      f'per cloud {decision.pose.gain:.4f} nats/point, z = {decision.pose.z:.1f}): '
                      'check the tracking system or the extrinsic calibration.')
@@ -141,6 +152,31 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     return ' '.join(parts)
 
 
+# Clouds without point times of which fewer than this share of the directions match the
+# configured scan pattern: the verdict says first that the pattern is not the sensor's.
+SCAN_PATTERN_OFF_BELOW = 0.5
+
+
+def scan_pattern_off(summary: dict) -> bool:
+    """Clouds without point times whose directions mostly miss the configured pattern."""
+    share = summary.get('scan_pattern_match')
+    return (summary.get('point_times') == 'stamp' and share is not None
+            and share < SCAN_PATTERN_OFF_BELOW)
+
+
+def scan_pattern_words(summary: dict) -> str:
+    """The verdict's first sentence when the scan pattern is off (``scan_pattern_off``):
+    without point times, a pattern that is not the sensor's leaves every point's time
+    unknown, so a timing claim rests on the cloud stamps only."""
+    return (f'The scan pattern is off: the clouds carry no per-point time and only '
+            f'{100 * summary["scan_pattern_match"]:.0f} % of the measured directions match a '
+            'shot of the configured scan pattern, so the configuration is not this sensor\'s '
+            'pattern (its frequencies, phases or extent differ) and each point\'s time within '
+            'the scan is unknown. Fix the pattern first: lidar-sim calibrate scan (from a '
+            'recording with per-point times) writes the sensor\'s pattern; any timing claim '
+            'below rests on the cloud stamps alone.')
+
+
 def pose_words(pose) -> str:
     """The verdict when a reference-pose error explains the residual (``pose_error``)."""
     return (f'{pose.words()[0].upper()}{pose.words()[1:]}: not a sensor effect; check the '
@@ -149,27 +185,63 @@ def pose_words(pose) -> str:
             'with it no catalogue effect passes the rule.')
 
 
-def _clock_caveat(summary: dict, cands: list) -> str:
-    """When the clouds carry no usable point times and ``time_offset`` passed the rule
-    before the pose was corrected: a clock offset moves each cloud too, as a rigid
-    correction per cloud partly does, so the two cannot be told apart here."""
-    if summary.get('point_times') != 'stamp':
-        return ''
-    c = next((c for c in cands if c.name == 'time_offset' and c.admissible), None)
-    if c is None:
-        return ''
-    return (f' But the clouds carry no per-point time and their directions do not follow '
-            f'the configured scan pattern, and a clock offset between the pose and LiDAR '
-            f'stamps also explains the residual (time_offset: held-out gain {c.score:.4f} '
-            f'nats/point, z = {c.z:.1f}, before the pose correction): the two are '
-            'confounded in this recording. Points with their own times (a time field) '
-            'would separate them; if the tracking system is known to be right, try '
-            '--effect time_offset --fit.')
+def _against_pose_words(c) -> str:
+    """Why a range error of the sensor was named rather than the reference pose
+    (``Diagnosis.weigh_pose_rivals``: ``c.against_pose``)."""
+    ap = c.against_pose
+    if ap.get('passes_on_pose'):
+        return (f'A reference pose off along the line of sight moves clouds too, but with '
+                f'the pose corrected per cloud {c.name} still gains {ap["score_on_pose"]:.4f} '
+                f'nats/point held out (z = {ap["z_on_pose"]:.1f}): it is the sensor.')
+    return (f'A reference pose off along the line of sight moves clouds too, and on held-out '
+            f'points the two leave each other nothing; but with the pose corrected per cloud '
+            f'and the model raycast again (rays at silhouettes and depth steps then meet the '
+            f'surfaces the moved target puts there) the fit is {ap["fitted_margin"]:.4f} '
+            f'nats/point worse than with {c.name}, as --fit leaves them: the rays at the edges '
+            'did not move, the ranges did.')
+
+
+def pose_tie_words(decision, summary: dict, cands: list) -> str:
+    """The verdict when the reference pose and a candidate explain the data equally
+    (``confounded_with`` holds ``pose_error`` and the candidate)."""
+    pose = decision.pose
+    other = [n for n in decision.confounded_with if n != diagnosis.POSE_ERROR]
+    c = next((c for c in cands if c.name in other), None)
+    held = (f' ({c.name}: held-out gain {c.score:.4f} nats/point, z = {c.z:.1f}, before the '
+            'pose correction)' if c is not None else '')
+    pose_part = (f'a rigid correction of the target pose per cloud gains {pose.gain:.4f} '
+                 f'nats/point held out (z = {pose.z:.1f}; {pose.words()})'
+                 if pose is not None else 'a rigid correction of the target pose per cloud')
+    if other == ['time_offset']:
+        return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
+                f'{pose_part}, and a clock offset explains the residual as well{held}. The '
+                'clouds carry no per-point time and their directions do not follow the '
+                'configured scan pattern, so which of the two it is cannot be told from this '
+                'recording; none is named. Points with their own times (a time field) would '
+                'separate them; if the tracking system is known to be right, try --effect '
+                'time_offset --fit, else --effect pose_error --fit.')
+    if any(n in diagnosis.POSE_RIVALS for n in other):
+        plan = summary.get('separation_plan') or []
+        where = (f' A static target on a surveyed pose, at {plan[0]["distance_m"]:.1f} m (seen '
+                 f'across a wide angle) and at {plan[1]["distance_m"]:.1f} m, would separate '
+                 'them (plan.yaml).' if len(plan) >= 2 else
+                 ' A static target on a surveyed pose, seen across a wide angle and at two '
+                 'distances, would separate them.')
+        return (f'A range offset of the sensor or the reference pose along the line of '
+                f'sight: {pose_part}, and {_join(other)} (a range error of the sensor) '
+                f'explains the residual as well{held}; each leaves the other nothing, so which '
+                'of them it is cannot be told from this recording, and none is named.'
+                f'{where} If the tracking system is known to be right, add --effect '
+                f'{other[0]} --fit; if the sensor is, --effect pose_error --fit.')
+    return (f'{pose_part[0].upper()}{pose_part[1:]}, and {_join(other)} explains the '
+            f'residual as well{held}: they are confounded in this recording, so none is '
+            'named. Add the one you know with --effect NAME --fit (pose_error corrects the '
+            'reference pose).')
 
 
 def _sunlight_named(summary: dict, c) -> str:
     """``sunlight`` named on the gain of ``c`` (``solar_background``) and the sun test
-    (``compare/sunlight.py``, ``sunlit_decision``)."""
+    (``compare/diagnose/sunlight.py``, ``sunlit_decision``)."""
     gain, caveat = _gain_words(summary, c)
     return (f'This is false returns from sunlight. Adding background false returns at random ranges '
             f'({c.name} with its fitted probability) {gain} (held-out gain {c.score:.4f} '
@@ -180,7 +252,7 @@ def _sunlight_named(summary: dict, c) -> str:
 
 def sunlight_words(sun: dict, hint: bool = True) -> str:
     """What the false returns say about sunlight, for a recording with the sun direction
-    (summary.json's ``sunlight``, ``compare/sunlight.py``); ``hint``: say which run models
+    (summary.json's ``sunlight``, ``compare/diagnose/sunlight.py``); ``hint``: say which run models
     them (not when the verdict already named sunlight)."""
     counts = (f'{sun["sunlit_false_returns"]} of {sun["sunlit_points"]} sunlit rays against '
               f'{sun["shadowed_false_returns"]} of {sun["shadowed_points"]} shadowed ones, '
@@ -211,8 +283,12 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     """Why no effect is named: nothing to explain, or nothing in the catalogue explains it."""
     best = next((c for c in diagnosis.rank(cands) if c.error is None and c.significant), None)
     why = ''
+    fault = (diagnosis.naming_fault(best, summary['nll_calibrated'])
+             if best is not None else None)
     if best is not None and best.vetoed:
         why = f' The best candidate, {best.name}, is set aside: {best.vetoed}.'
+    elif best is not None and best.practical and fault:
+        why = f' The best candidate, {best.name}, is not named: {fault}.'
     elif best is not None and not best.practical:
         why = (f' The best candidate, {best.name}, gains {best.score:.4f} nats/point held out '
                f'(z = {best.z:.1f}), less than the {diagnosis.MIN_PRACTICAL_GAIN:g} nats/point '
@@ -242,7 +318,7 @@ def _separation(names: list[str], summary: dict) -> str:
 
 
 def plan_words(rows: list[dict]) -> str:
-    """One sentence on the separation plan (``compare/plan.py``): the best recording and
+    """One sentence on the separation plan (``compare/diagnose/plan.py``): the best recording and
     its expected z, from simulating both fitted hypotheses on each candidate recording."""
     best = rows[0]
     ways = best['ways']
@@ -320,9 +396,13 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
         lines.append(f'fitted {e["name"]}: {params}')
     pc = s.get('pose_correction')
     if pc:
+        rate = pc.get('rate') or {}
+        drift = (f', drifting within each cloud by {rate["drift_per_cloud_rms_cm"]:.2f} cm and '
+                 f'{rate["drift_per_cloud_rms_deg"]:.3f} deg RMS over the scan'
+                 if rate.get('supported') else '')
         lines.append(f'fitted pose_error: reference pose corrected per cloud by '
                      f'{pc["translation_rms_cm"]:.2f} cm and {pc["rotation_rms_deg"]:.3f} deg RMS '
-                     f'over {len(pc["clouds"])} clouds (held-out gain '
+                     f'over {len(pc["clouds"])} clouds{drift} (held-out gain '
                      f'{pc["gain_per_matched_point"]:.4f} nats/point, z = {pc["z"]:.1f})')
     lines.append('features: ' + ', '.join(f'{f["name"]} {f["score"]:.4f}'
                                           for f in s['features'][:4]))

@@ -40,7 +40,7 @@ from scipy.stats import norm
 from sklearn.ensemble import HistGradientBoostingRegressor
 from threadpoolctl import threadpool_limits
 
-from lidar_sim_ros.compare.materials import MAD_TO_SIGMA
+from lidar_sim_ros.compare.model.materials import MAD_TO_SIGMA
 
 FEATURE_NAMES = ('range', 'incidence', 'intensity', 'azimuth', 'elevation', 'time',
                  'material', 'edge', 'range_rate', 'laser')

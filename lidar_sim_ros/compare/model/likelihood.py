@@ -35,7 +35,7 @@ of weight max(w, MISS_WEIGHT).
 
 This module sits above the pipeline (it re-runs ``Simulator.predict`` through the
 callables of :class:`FitData`); effect classes never import it. The fits that
-maximise it are in ``compare/fit.py``.
+maximise it are in ``compare/model/fit.py``.
 """
 from __future__ import annotations
 
@@ -431,6 +431,23 @@ def uniform_share(ranges_m: np.ndarray, window: tuple[float, float],
     return share * keep.mean()
 
 
+def miss_outlier_weight(model: ModelOnRays, effects: Sequence[Effect]) -> float:
+    """P(a false return) on a shot that misses the target, under ``effects``: a
+    first-return receiver listens over the whole window there, not only up to an echo
+    (``solar_background``, ``sunlight``), so it is not the matched points' mean weight.
+    The matched rays' context with no echo stands in for a miss."""
+    if not len(model.outlier_w):
+        return 0.0
+    ctx = model.ctx
+    miss = replace(ctx, hit=np.zeros(len(ctx), bool), range_m=np.full(len(ctx), np.nan),
+                   power_w=np.zeros(len(ctx)))
+    try:
+        w = _outlier_weight(list(effects), miss, len(ctx))
+    except Exception:  # noqa: BLE001 - an effect that cannot take a miss: the hit mean
+        return float(np.mean(model.outlier_w))
+    return float(np.mean(w))
+
+
 def unmatched_explained(data: FitData, effects: Sequence[Effect],
                         model: ModelOnRays | None = None) -> float:
     """Fraction (0..1) of unmatched points the effects account for.
@@ -459,7 +476,7 @@ def unmatched_explained(data: FitData, effects: Sequence[Effect],
                            else np.asarray(data.unmatched_isolated, bool))]
     if model is None:
         model = model_on_rays(data, effects)
-    w_mean = float(np.mean(model.outlier_w)) if len(model.outlier_w) else 0.0
+    w_mean = miss_outlier_weight(model, [*data.base_effects, *effects])
     spurious = 0.0
     if w_mean > 0 and len(rest):
         n = len(data.measured_range_m)
@@ -510,6 +527,7 @@ def objective(data: FitData, effects: Sequence[Effect], floor: float = ROBUST_FL
     m = len(data.unmatched_range_m)
     if m == 0:
         return total
+    total += missed_shots_nll(data, model, effects)
     width = data.window_width_m
     ll_u = np.full(m, math.log(max(floor, MISS_WEIGHT) / width))
     try:
@@ -525,6 +543,34 @@ def objective(data: FitData, effects: Sequence[Effect], floor: float = ROBUST_FL
             log_in = math.log1p(-floor) - 0.5 * z * z - np.log(sig) - _LOG_SQRT_2PI
             ll_u = np.where(ok & np.isfinite(z), np.logaddexp(log_in, ll_u), ll_u)
     return total - float(np.sum(ll_u))
+
+
+def false_returns_off_target(data: FitData) -> float:
+    """How many of the unmatched points are false returns: the isolated ones at uniform
+    ranges over the window (``uniform_share``)."""
+    r_u = np.asarray(data.unmatched_range_m, float)
+    iso = (np.ones(len(r_u), bool) if data.unmatched_isolated is None
+           else np.asarray(data.unmatched_isolated, bool))
+    rest = r_u[iso]
+    if not len(rest):
+        return 0.0
+    return uniform_share(rest, data.range_window_m, np.asarray(data.measured_range_m)) * len(rest)
+
+
+def missed_shots_nll(data: FitData, model: ModelOnRays, effects: Sequence[Effect]) -> float:
+    """NLL (nats) of the false returns counted among the shots that missed the target
+    (binomial: k of the N missed shots, each with the effects' probability of a false
+    return on a miss, ``miss_outlier_weight``, at least MODEL_FLOOR); 0 when the shots
+    fired are unknown. The misses hold most of a background's false returns: a shot
+    that misses listens over the whole window, a first-return receiver's hit only up
+    to its echo, so a rate fitted on the target's points alone rests on a handful."""
+    if data.missed_per_unmatched is None or not len(data.unmatched_range_m):
+        return 0.0
+    n = float(data.missed_per_unmatched) * len(data.unmatched_range_m)
+    k = min(false_returns_off_target(data), n)
+    w = min(max(miss_outlier_weight(model, [*data.base_effects, *effects]), MODEL_FLOOR),
+            1.0 - 1e-12)
+    return -float(k * math.log(w) + (n - k) * math.log1p(-w))
 
 
 def ghost_points(data: FitData, effects: Sequence[Effect]) -> int:

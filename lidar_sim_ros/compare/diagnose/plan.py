@@ -38,9 +38,10 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.compare import diagnosis, likelihood as lk, materials as mat, neighbours
-from lidar_sim_ros.compare.matching import Model, match
-from lidar_sim_ros.compare.measurements import Measurements
+from lidar_sim_ros.compare.diagnose import diagnosis
+from lidar_sim_ros.compare.model import likelihood as lk, materials as mat, neighbours
+from lidar_sim_ros.compare.model.matching import Model, match
+from lidar_sim_ros.compare.recording.measurements import Measurements
 from lidar_sim_ros.core.config import MaterialsConfig
 from lidar_sim_ros.core.effects import Effect
 from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
@@ -381,3 +382,67 @@ def _entry(effect: Effect) -> dict:
 
 def _num(x: float) -> float | None:
     return float(x) if x is not None and np.isfinite(x) else None
+
+
+# A reference pose off along the line of sight against a range error of the sensor
+# (``Diagnosis.weigh_pose_rivals``): the distances of the two recordings that separate them.
+POSE_RANGE_DISTANCES = (0.5, 2.0)
+POSE_RANGE_FRAMES = 100
+
+
+def pose_range_recordings(rec: Recording) -> list[Recording]:
+    """The recordings that tell a reference pose off along the line of sight from a
+    range error of the sensor: the target held still on a surveyed pose (no tracking
+    system between it and the truth), near, so that it spans a wide angle (a pose
+    error moves each ray's range by n.d / (n.u), which changes across a wide view; a
+    range offset is the same on every ray), and far (a range scale grows with the
+    distance; a pose error does not). Both at least as long as the recording compared
+    (POSE_RANGE_FRAMES at least), for a slow drift to show."""
+    out = []
+    frames = max(POSE_RANGE_FRAMES, rec.frames)     # as long as the recording compared
+    for f in POSE_RANGE_DISTANCES:
+        word = 'near, seen across a wide angle' if f < 1 else 'far'
+        out.append(replace(rec, label=f'static, surveyed, {f:g}x the distance',
+                           what=f'the target held still on a surveyed pose, {word}: '
+                                f'{f * rec.distance_m:.1f} m ({f:g} x {rec.distance_m:.1f} m), '
+                                f'{frames} frames',
+                           position_m=tuple(f * np.asarray(rec.position_m)),
+                           approach_speed_mps=0.0, tumble_rate_dps=0.0, frames=frames))
+    return out
+
+
+def pose_range_plan(rec: Recording, rival: str, scenario_seed: int, mesh: Path, sensor: Path,
+                    materials: Path, base: list[Effect], period_s: float
+                    ) -> tuple[list[dict], str]:
+    """The separation plan of a reference pose tied with a range error of the sensor
+    (``rival``): summary rows (not simulated: a reference pose error is no sensor effect
+    the simulator flies, and the separation is geometric) and plan.yaml, the near
+    recording as a scenario with the far one in its header."""
+    recs = pose_range_recordings(rec)
+    rows = [{'recording': r.label, 'what': r.what, 'distance_m': round(r.distance_m, 3),
+             'frames': r.frames, 'duration_s': round(r.duration_s, 3), 'points': 0,
+             'margin': None, 'z': None, 'separates': None, 'simulated': False,
+             'ways': {diagnosis.POSE_ERROR: {'margin': None, 'z': None},
+                      rival: {'margin': None, 'z': None}},
+             **r.scenario_keys()} for r in recs]
+    near, far = recs
+    far_keys = far.scenario_keys()
+    head = [
+        '# Separation plan written by lidar-sim compare: the recordings that tell a',
+        f'# reference pose off along the line of sight from {rival} (a range error of the',
+        '# sensor); they explained the recording compared equally well.',
+        '# Hold the target still on a surveyed pose (no tracking system between it and the',
+        '# truth) and record it twice, each long enough for a slow drift to show:',
+        f'#   1. {near.what} (this scenario): a pose error moves each ray\'s range by',
+        '#      n.d / (n.u), which changes across the wide view; a range offset does not.',
+        f'#   2. {far.what}: initial_pose position_m {far_keys["initial_pose"]["position_m"]}',
+        '#      (same attitude): a range scale grows with the distance, a pose error does not.',
+        '# Then compare each with --effect pose_error --fit and with --effect '
+        f'{rival} --fit.',
+        f'#   lidar-sim simulate plan.yaml --frames {near.frames} --out DIR',
+    ]
+    body = {'seed': int(scenario_seed), 'mesh': str(mesh), 'sensor': str(sensor),
+            'materials': str(materials), 'frame_id': 'lidar',
+            **near.scenario_keys(), 'effects': [_entry(e) for e in base]}
+    return rows, '\n'.join(head) + '\n' + yaml.safe_dump(body, sort_keys=False,
+                                                         default_flow_style=None)

@@ -32,10 +32,10 @@ import numpy as np
 from pydantic import ValidationError
 from scipy.optimize import minimize_scalar
 
-from lidar_sim_ros.compare.likelihood import (MIN_SIGMA_M, ROBUST_FLOOR, FitData, ModelOnRays,
-                                              PredictionCache, RaysOnly, _groups,
-                                              is_outlier_effect, material_nuisance,
-                                              model_on_rays, moving, objective, scores)
+from lidar_sim_ros.compare.model.likelihood import (MIN_SIGMA_M, ROBUST_FLOOR, FitData,
+                                                    ModelOnRays, PredictionCache, RaysOnly,
+                                                    _groups, is_outlier_effect, material_nuisance,
+                                                    model_on_rays, moving, objective, scores)
 from lidar_sim_ros.core.effects.base import Effect
 from lidar_sim_ros.core.pipeline import Simulator
 

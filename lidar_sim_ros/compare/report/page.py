@@ -19,9 +19,9 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from lidar_sim_ros.compare import opening  # noqa: E402
-from lidar_sim_ros.compare.features import CATEGORICAL, LABELS  # noqa: E402
-from lidar_sim_ros.compare.materials import robust_sigma  # noqa: E402
+from lidar_sim_ros.compare.report import opening
+from lidar_sim_ros.compare.diagnose.features import CATEGORICAL, LABELS  # noqa: E402
+from lidar_sim_ros.compare.model.materials import robust_sigma  # noqa: E402
 
 MAX_SCATTER = 4000
 MAX_TARGET_POINTS = 8000
@@ -261,7 +261,9 @@ def plan_table(rows: list[dict]) -> str:
     body = [[r['recording'], f'{r["distance_m"]:.1f}', r['frames'], r['points'],
              *(way(r['ways'][n]) for n in names),
              'n/a' if r['margin'] is None else f'{r["margin"]:.4f}',
-             'n/a' if r['z'] is None else f'{r["z"]:.1f}', 'yes' if r['separates'] else 'no']
+             'n/a' if r['z'] is None else f'{r["z"]:.1f}',
+             'not simulated' if r.get('simulated') is False
+             else ('yes' if r['separates'] else 'no')]
             for r in rows]
     return _table(body, ['recording', 'distance (m)', 'frames', 'points',
                          *(f'{n} data: margin (z)' for n in names), 'margin', 'z', 'separates'])
@@ -401,7 +403,16 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
                   f'z = {pose["z"]:.1f}). A reference error (tracking system, extrinsic '
                   'calibration), not a sensor effect.</p>',
                   _img(figs['pose'], 'reference pose correction per cloud')]
-    if s.get('separation_plan'):
+    if s.get('separation_plan') and s['separation_plan'][0].get('simulated') is False:
+        parts += ['<h2>Which recording would separate the tie</h2>',
+                  '<p>The reference pose against a range error of the sensor: not simulated (a '
+                  'reference pose error is no sensor effect the simulator flies). The target '
+                  'held still on a surveyed pose, near (seen across a wide angle: a pose error '
+                  'changes the range differently across the view, a range offset does not) '
+                  'and far (a range scale grows with the distance, a pose error does not). '
+                  'The near one is written as plan.yaml.</p>',
+                  plan_table(s['separation_plan'])]
+    elif s.get('separation_plan'):
         parts += ['<h2>Which recording would separate the tie</h2>',
                   '<p>Both confounded candidates as fitted (materials refit with each) flown '
                   'by the simulator on each recording, and each simulated recording diagnosed '

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare.measurements import Measurements
+from lidar_sim_ros.compare.recording.measurements import Measurements
 from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
 from lidar_sim_ros.core.effects import Effect
 from lidar_sim_ros.core.geometry import Target, cast_at_poses

@@ -13,7 +13,7 @@ to the stamp or absolute: :func:`point_time_since_stamp_s` decides from the fiel
 name, type and magnitude against the header stamp, and the choice is recorded.
 Which field is the intensity, the time (one field or a seconds + sub-seconds pair such
 as the Cepton driver's ``timestamp_s`` + ``timestamp_us``), the laser and the Cepton
-point flags is decided by ``compare/fields.py`` (or named with ``--intensity-field``,
+point flags is decided by ``compare/recording/fields.py`` (or named with ``--intensity-field``,
 ``--time-field``, ``--laser-field``); ``Measurements.field_lines`` says it for the
 terminal. Flagged Cepton points: NO_RETURN shots are not points but known misses
 (counted), SATURATED returns are kept and marked (``saturated``), NOISE and BLOCKED are
@@ -31,10 +31,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.compare.cepton_pcap import (PcapError, is_pcap, pcap_recording,
-                                                read_pose_source)
-from lidar_sim_ros.compare.fields import (FieldError, flag_counts, flag_lines, point_time_ns,
-                                           resolve_fields)
+from lidar_sim_ros.compare.recording.cepton_pcap import (PcapError, is_pcap, pcap_recording,
+                                                         read_pose_source)
+from lidar_sim_ros.compare.recording.fields import (FieldError, flag_counts, flag_lines,
+                                                    point_time_ns, resolve_fields)
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, cloud_count,
                                   iter_clouds, read_material_names, read_poses)
@@ -109,6 +109,9 @@ class Measurements:
     fields: dict | None = None            # FieldMap.as_dict()
     flag_counts: dict = field(default_factory=dict)   # Cepton flag -> points (before thinning)
     known_misses: int = 0                 # NO_RETURN shots: fired, nothing came back
+    # Clouds without a time field: the share of directions within SCAN_MATCH_TOL_RAD of a
+    # shot of the configured scan pattern (``with_scan_times``); None with a time field.
+    scan_match_fraction: float | None = None
 
     def __len__(self) -> int:
         return len(self.range_m)
@@ -126,7 +129,8 @@ class Measurements:
                             cloud_stamps_s=self.cloud_stamps_s, epoch_s=self.epoch_s,
                             poses=self.poses, material_names=self.material_names,
                             notes=self.notes, dropped=self.dropped,
-                            time_source=self.time_source, time_field=self.time_field, **pick)
+                            time_source=self.time_source, time_field=self.time_field,
+                            scan_match_fraction=self.scan_match_fraction, **pick)
 
 
 def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
@@ -142,8 +146,8 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
     at most its share (max_points / clouds), so the subset spans the whole recording;
     the dropped count is in ``dropped``. ``intensity_field``, ``time_field`` (one name
     or ``SECONDS,SUBSECONDS``) and ``laser_field`` name the fields where the driver's
-    names are not recognised (``compare/fields.py``).
-    ``bag`` may also be a pcap of a Cepton sensor's packets (``compare/cepton_pcap.py``),
+    names are not recognised (``compare/recording/fields.py``).
+    ``bag`` may also be a pcap of a Cepton sensor's packets (``compare/recording/cepton_pcap.py``),
     read as clouds in the SDK3 driver's layout; ``poses_from`` (a bag or a CSV file)
     then holds the poses (and material names), as it may for a bag.
     """
@@ -405,7 +409,7 @@ def with_scan_times(meas: Measurements, shots: Shots,
                                                               c, first)[0].mean())
         ok, t_shot, laser_shot = _match_each_frame(meas, shots_of_frame, frame_period_s, clock)
     if ok.mean() < SCAN_MATCH_MIN_FRACTION:
-        return replace(meas, notes=meas.notes + [
+        return replace(meas, scan_match_fraction=float(ok.mean()), notes=meas.notes + [
             f'clouds have no per-point time field and only {100 * ok.mean():.0f} % of the '
             'directions match the configured scan pattern: every point takes its cloud stamp'])
     t_frame = np.where(ok, t_shot, np.median(t_shot[ok]))
@@ -415,7 +419,8 @@ def with_scan_times(meas: Measurements, shots: Shots,
         f'({100 * ok.mean():.1f} % of directions match a shot within '
         f'{np.degrees(SCAN_MATCH_TOL_RAD):g} deg)']
     return replace(meas, t_frame_s=t_frame, t_s=meas.cloud_stamps_s[meas.cloud] + t_frame,
-                   laser=laser, has_point_time=True, time_source='scan pattern', notes=notes)
+                   laser=laser, has_point_time=True, time_source='scan pattern', notes=notes,
+                   scan_match_fraction=float(ok.mean()))
 
 
 def _match_each_frame(meas: Measurements, shots_of_frame: Callable[[int], Shots],

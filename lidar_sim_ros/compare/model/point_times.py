@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from lidar_sim_ros.compare.likelihood import CHI2_1_MEDIAN
+from lidar_sim_ros.compare.model.likelihood import CHI2_1_MEDIAN
 
 GRID = 25
 MIN_POINTS = 100

@@ -1,0 +1,320 @@
+"""The one rule at the point of naming (compare/diagnose/diagnosis.py ``naming_fault``, ``settle``):
+every path that can put an effect's name in ``missing_effect``, ``confounded_with``,
+``also_explains`` or the verdict names it only if its held-out gain passes the rule
+(decisive, it matters, its signature) and, fitted as --fit leaves it, its NLL is below
+the model's without it. One test per path, on hand-made candidates whose held-out
+per-point NLLs are given (the decision's arithmetic, not a dataset)."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from lidar_sim_ros.compare.diagnose import diagnosis as dg
+from lidar_sim_ros.compare.report import verdict as vd
+
+N = 4000
+BEFORE_NLL = -2.022
+
+
+class Hand(dg.Diagnosis):
+    """A diagnosis of N matched points whose candidates come fitted (``heldout_nll``,
+    ``nll_after``); ``on_top[(best, other)]``: whether ``other`` adds to ``best``."""
+
+    def __init__(self, on_top=None, again=None):
+        self.rays = SimpleNamespace(matched=np.arange(N), unmatched=np.arange(0))
+        self.n_total = N
+        self.blocks = np.arange(N) // 20
+        self._z_crit = 2.94
+        self._before_nll = BEFORE_NLL
+        self.on_top = on_top or {}
+        self.again = again or {}
+
+    def adds_to(self, best, other):
+        return self.on_top.get((best.name, other.name), False)
+
+    def finalize(self, cand):                # the hand-made candidates come fitted
+        raise AssertionError('no fit here')
+
+    def score(self, effect_cls):             # the re-cast candidates (judge_pose)
+        return self.again[effect_cls.name]
+
+
+def cand(name, gain, nll_after, seed=0, significant=True, vetoed=None):
+    """A candidate gaining ``gain`` nats per point held out (block noise 0.02)."""
+    rng = np.random.default_rng(seed)
+    base = rng.normal(0.0, 1.0, N)
+    c = dg.Candidate(name, score=gain, matched_gain=gain, z=30.0 if significant else 1.0,
+                     significant=significant, practical=gain >= dg.MIN_PRACTICAL_GAIN,
+                     nll_after=nll_after, vetoed=vetoed)
+    c.heldout_nll = base - gain + rng.normal(0.0, 0.02, N)
+    c.effect = type(name, (), {'name': name})()   # stands for the fitted effect
+    return c
+
+
+def fault(c):
+    return dg.naming_fault(c, BEFORE_NLL)
+
+
+def test_naming_fault_closed_form():
+    assert fault(cand('a', 0.03, -2.05)) is None
+    assert 'not below' in fault(cand('a', 0.03, -2.021))        # the issue's phantom
+    assert 'not below' in fault(cand('a', 0.03, BEFORE_NLL))
+    assert 'not below' in fault(cand('a', 0.03, float('nan')))
+    assert 'not decisive' in fault(cand('a', 0.03, -2.05, significant=False))
+    assert 'would matter' in fault(cand('a', 0.001, -2.05))
+    assert fault(cand('a', 0.03, -2.05, vetoed='no signature')) == 'no signature'
+
+
+def test_missing_path_never_names_a_worse_nll_or_a_rule_failure():
+    """decide(): the best score whose fitted NLL is worse than before (beam_divergence on
+    25 silhouette points, -2.022 -> -2.021) and a better-scoring one that fails the rule
+    are passed over; the next that passes is named."""
+    phantom = cand('beam_divergence', 0.05, -2.021, seed=1)
+    loud = cand('snr_noise', 0.06, -2.10, seed=2, significant=False)
+    real = cand('range_walk', 0.02, -2.04, seed=3)
+    d = Hand().decide(dg.rank([phantom, loud, real]))
+    assert d.missing == 'range_walk' and d.confounded_with == []
+    assert Hand().decide([phantom, loud]).missing is None
+
+
+def test_tie_path_keeps_only_names_that_pass():
+    """decide(): two candidates equally good form a tie; a third equally good one with a
+    worse fitted NLL is not in it."""
+    a = cand('snr_noise', 0.020, -2.04, seed=4)
+    b = cand('incidence_angle', 0.020, -2.039, seed=4)
+    worse = cand('range_walk', 0.020, -2.0, seed=4)
+    d = Hand().decide(dg.rank([a, b, worse]))
+    assert d.missing is None
+    assert sorted(d.confounded_with) == ['incidence_angle', 'snr_noise']
+    # With its partner failing, the tie is no tie: the one that passes is best.
+    d = Hand().decide(dg.rank([a, worse]))
+    assert d.missing == 'snr_noise' and d.confounded_with == []
+
+
+def test_also_path_only_with_a_candidate_that_passes():
+    """decide() asks adds_to only of candidates that pass: a second effect with a worse
+    fitted NLL is never 'also'; settle withholds an 'also' that fails on the quoted
+    candidates."""
+    best = cand('range_walk', 0.05, -2.10, seed=5)
+    other = cand('solar_background', 0.049, -2.0, seed=5)
+    hand = Hand(on_top={('range_walk', 'solar_background'): True})
+    d = hand.decide(dg.rank([best, other]))
+    assert d.missing == 'range_walk' and d.also is None
+    forced = dg.Decision('range_walk', [], also='solar_background')
+    s = dg.settle(forced, [best, other], fault)
+    assert s.missing == 'range_walk' and s.also is None
+    assert 'not below' in s.withheld['solar_background']
+
+
+def test_adds_to_needs_the_rule_and_a_lower_nll_on_top(monkeypatch):
+    """adds_to() itself: the gain on top of the best must pass z and margin, and the pair
+    fitted together must give an NLL below the best's alone."""
+    best = cand('range_walk', 0.05, -2.10, seed=6)
+    other = cand('time_offset', 0.03, -2.06, seed=6)
+    other.variant = object
+    on_top = best.heldout_nll - 0.02          # 0.02 nats/point more, on top of the best
+
+    class Real(Hand):
+        adds_to = dg.Diagnosis.adds_to
+
+        def cross_fit(self, variant, on_top_effects, first=None):
+            return self.on_top_nll, 0.0
+
+    monkeypatch.setattr(dg, 'fit_effect', lambda *a, **k: SimpleNamespace(effect=None))
+    r = Real()
+    r.full = None
+    r.on_top_nll = on_top
+    monkeypatch.setattr(dg, 'calibrated_figures', lambda data, effects: (-2.12, 0.0, 0.0))
+    assert r.adds_to(best, other)
+    monkeypatch.setattr(dg, 'calibrated_figures', lambda data, effects: (-2.09, 0.0, 0.0))
+    assert not r.adds_to(best, other)                 # worse NLL than the best alone
+    monkeypatch.setattr(dg, 'calibrated_figures', lambda data, effects: (-2.12, 0.0, 0.0))
+    r.on_top_nll = best.heldout_nll - 0.001           # below the practical margin
+    assert not r.adds_to(best, other)
+
+
+def test_recast_path_names_only_what_passes_on_the_pose_corrected_model():
+    """judge_pose(): the pose is off; on the re-cast model a candidate still scores but
+    its fitted NLL there is not below that model's: nothing is named, the pose stands."""
+    before = cand('incidence_angle', 0.03, -2.05, seed=7)
+    again = cand('incidence_angle', 0.02, -2.02, seed=7)     # on_pose before: -2.022
+    on_pose = Hand(again={'incidence_angle': again})
+    pose = SimpleNamespace(significant=True)
+
+    def pose_test(on_top):
+        return pose                        # incidence does not explain the pose's gain
+
+    d = Hand().judge_pose(pose_test, [before], dg.Decision('incidence_angle', []),
+                          recast=lambda p: (on_pose, p))
+    assert d.missing is None and d.pose is pose
+    ok = cand('incidence_angle', 0.02, -2.04, seed=7)
+    d = Hand().judge_pose(pose_test, [before], dg.Decision('incidence_angle', []),
+                          recast=lambda p: (Hand(again={'incidence_angle': ok}), p))
+    assert d.missing == 'incidence_angle'
+
+
+def test_sunlight_path_withheld_when_its_evidence_fails():
+    """sunlit_decision() renames solar_background to sunlight; settle judges the
+    candidate the name rests on (``evidence``)."""
+    solar = cand('solar_background', 0.03, -2.0, seed=8)
+    d = dg.settle(dg.Decision('sunlight', [], evidence='solar_background'), [solar], fault)
+    assert d.missing is None and 'sunlight' in d.withheld
+    solar.nll_after = -2.1
+    d = dg.settle(dg.Decision('sunlight', [], evidence='solar_background'), [solar], fault)
+    assert d.missing == 'sunlight'
+
+
+def test_settle_does_not_promote_the_last_member_of_a_broken_tie():
+    a = cand('snr_noise', 0.02, -2.04)
+    b = cand('incidence_angle', 0.02, -2.0)
+    d = dg.settle(dg.Decision(None, ['snr_noise', 'incidence_angle']), [a, b], fault)
+    assert d.missing is None and d.confounded_with == []
+    d = dg.settle(dg.Decision(None, [dg.POSE_ERROR, 'incidence_angle']), [a, b], fault)
+    assert d.confounded_with == []
+
+
+@pytest.mark.parametrize('stamp, passes, tie', [
+    (True, True, True), (False, True, False), (True, False, False)])
+def test_clock_tie_path(stamp, passes, tie):
+    """clock_tie(): without point times, a pose reported off and a time_offset that
+    passes the rule are a tie (pose_error and time_offset), never a pose error with the
+    clock named in words only; a time_offset with a worse NLL makes no tie."""
+    c = cand('time_offset', 0.02, -2.05 if passes else -2.0, seed=9)
+    pose = SimpleNamespace(significant=True)
+    d = Hand().clock_tie(dg.Decision(None, [], pose=pose), [c], stamp)
+    assert (d.confounded_with == [dg.POSE_ERROR, 'time_offset']) == tie
+    assert d.missing is None
+
+
+def _summary():
+    return {'nll_calibrated': BEFORE_NLL, 'range_rmse_calibrated_m': 0.03,
+            'materials': {}, 'unmatched': {'points': 0}, 'point_times': 'field'}
+
+
+def test_verdict_says_cannot_be_told_only_with_a_tie_and_nothing_named():
+    """The verdict's words: features that stand in for each other no longer read as
+    'cannot be told' when an effect is named; a candidate tie does, with missing null."""
+    att = SimpleNamespace(features=[], driver=None, confounded=['incidence', 'intensity'],
+                          significant=True, structure_gain=0.05)
+    a = cand('incidence_angle', 0.03, -2.05)
+    a.range_rmse_after_m = 0.029
+    a.effect = None                       # the verdict quotes the RMSE and NLL
+    b = cand('snr_noise', 0.03, -2.05, seed=1)
+    named = vd.verdict(_summary(), att, [a, b], dg.Decision('incidence_angle', []))
+    assert 'cannot be told' not in named
+    pose = SimpleNamespace(gain=0.07, z=10.0, words=lambda: 'the reference pose is off')
+    tie = vd.verdict({**_summary(), 'point_times': 'stamp'}, att, [a, b],
+                     dg.Decision(None, [dg.POSE_ERROR, 'time_offset'], pose=pose))
+    assert 'cannot be told' in tie and 'none is named' in tie
+
+
+@pytest.mark.parametrize('times, share, first', [
+    ('stamp', 0.10, True), ('stamp', 0.95, False), ('field', None, False),
+    ('scan pattern', 0.97, False)])
+def test_scan_pattern_off_is_said_before_any_timing_claim(times, share, first):
+    """Clouds without point times whose directions mostly miss the configured pattern
+    (a Lissajous 0.5 % off: 10 % matched): the verdict opens with it, the share and
+    `lidar-sim calibrate scan`, before the time_offset it names."""
+    c = cand('time_offset', 0.05, -2.1)
+    c.params = {'dt_s': 0.03}
+    c.range_rmse_after_m = 0.03
+    c.effect = None
+    s = {**_summary(), 'point_times': times, 'scan_pattern_match': share}
+    text = vd.verdict(s, None, [c], dg.Decision('time_offset', []))
+    assert text.startswith('The scan pattern is off') == first
+    if first:
+        assert '10 %' in text and 'lidar-sim calibrate scan' in text
+        assert text.index('calibrate scan') < text.index('time offset')
+
+
+# ------------------------------------------------ range errors against the reference pose
+class Rival:
+    name = 'range_drift'
+
+
+@pytest.mark.parametrize('pose_left, passes_on_pose, missing, tie, pose_kept', [
+    (False, False, None, [dg.POSE_ERROR, 'range_drift'], True),   # each leaves the other nothing
+    (False, True, 'range_drift', [], False),                     # the range term wins
+    (True, True, 'range_drift', [], True),                       # both: named, pose besides
+    (True, False, None, [], True)])                              # the pose wins
+def test_pose_against_a_range_error_of_the_sensor(pose_left, passes_on_pose, missing, tie,
+                                                  pose_kept):
+    """weigh_pose_rivals(): the pose's test on top of the rival and the rival scored on
+    the pose-corrected model decide between a tie, the range term, both, or the pose."""
+    drift = cand('range_drift', 0.05, -2.07, seed=10)
+    again = cand('range_drift', 0.03 if passes_on_pose else 0.0, -2.08, seed=10,
+                 significant=passes_on_pose)
+    pose = SimpleNamespace(significant=True, gain=0.04, z=11.0)
+
+    class WithRival(Hand):
+        def score(self, effect_cls):
+            return drift
+
+    def pose_test(on_top):
+        return SimpleNamespace(significant=pose_left if on_top else True, gain=0.01, z=1.0)
+
+    equal = Hand(again={'range_drift': again})
+    equal._before_nll = drift.nll_after           # as --fit leaves them: equal
+    d, scored = WithRival().weigh_pose_rivals(dg.Decision(None, [], pose=pose), [Rival],
+                                              pose_test, lambda: equal)
+    assert scored == [drift]
+    assert d.missing == missing and d.confounded_with == tie
+    assert (d.pose is pose) == pose_kept
+    if tie:
+        # As --fit leaves them, 0.005 nats/point apart: the better one stands.
+        corrected = Hand(again={'range_drift': again})
+        corrected._before_nll = drift.nll_after + 2 * dg.MIN_PRACTICAL_GAIN   # pose worse
+        d, _ = WithRival().weigh_pose_rivals(dg.Decision(None, [], pose=pose), [Rival],
+                                             pose_test, lambda: corrected)
+        assert d.missing == 'range_drift' and d.confounded_with == [] and d.pose is None
+        corrected._before_nll = drift.nll_after - 2 * dg.MIN_PRACTICAL_GAIN   # pose better
+        d, _ = WithRival().weigh_pose_rivals(dg.Decision(None, [], pose=pose), [Rival],
+                                             pose_test, lambda: corrected)
+        assert d.missing is None and d.confounded_with == [] and d.pose is pose
+    # A rival that fails the naming rule (fitted NLL worse) changes nothing.
+    drift.nll_after = -2.0
+    d, _ = WithRival().weigh_pose_rivals(dg.Decision(None, [], pose=pose), [Rival],
+                                         pose_test, lambda: Hand(again={'range_drift': again}))
+    assert d.missing is None and d.confounded_with == [] and d.pose is pose
+
+
+def test_pose_range_tie_verdict_and_plan(tmp_path):
+    """The tie's verdict says "a range offset of the sensor or the reference pose along
+    the line of sight" with nothing named, and plan.yaml is a scenario load_scenario
+    accepts: the target held still on a surveyed pose, near, with the far one in its
+    header."""
+    from lidar_sim_ros.compare.diagnose import plan
+    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.paths import config_path, mesh_path
+    rec = plan.Recording('this recording', '', (10.0, 0.3, 0.0), (0.0, 0.0, 0.0, 1.0), 0.0,
+                         (0.0, 0.0, 1.0), 1.0, 10, 0.1)
+    rows, text = plan.pose_range_plan(rec, 'range_drift', 5, mesh_path('rocket_body.obj'),
+                                      config_path('cepton_vista_p60.yaml'),
+                                      config_path('materials.yaml'), [], 0.1)
+    d = np.linalg.norm(rec.position_m)
+    assert [r['distance_m'] for r in rows] == pytest.approx([0.5 * d, 2.0 * d], abs=1e-3)
+    assert all(r['motion']['tumble_rate_dps'] == 0 and r['motion']['approach_speed_mps'] == 0
+               for r in rows)
+    (tmp_path / 'plan.yaml').write_text(text)
+    sc = load_scenario(tmp_path / 'plan.yaml')
+    assert np.linalg.norm(sc.config.initial_pose.position_m) == pytest.approx(0.5 * d, rel=1e-3)
+    assert 'surveyed' in text and f'{2 * d:.1f} m' in text
+    drift = cand('range_drift', 0.05, -2.07)
+    pose = SimpleNamespace(gain=0.037, z=11.5, words=lambda: 'the reference pose is off')
+    text = vd.verdict({**_summary(), 'separation_plan': rows}, None, [drift],
+                      dg.Decision(None, [dg.POSE_ERROR, 'range_drift'], pose=pose))
+    assert text.startswith('A range offset of the sensor or the reference pose along the '
+                           'line of sight')
+    assert 'cannot be told' in text and 'none is named' in text and 'plan.yaml' in text
+
+
+
+def test_report_headline_opens_with_the_scan_pattern():
+    from lidar_sim_ros.compare.report.opening import headline
+    s = {'missing_effect': None, 'verdict': 'No catalogue effect ... noise.',
+         'point_times': 'stamp', 'scan_pattern_match': 0.1}
+    assert headline(s).startswith('Scan pattern off: only 10 %')
+    assert headline({**s, 'point_times': 'field'}).startswith('No catalogue effect')
+    assert vd.SCAN_PATTERN_OFF_BELOW == 0.5       # the opening's bound is the verdict's

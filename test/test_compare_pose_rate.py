@@ -1,0 +1,111 @@
+"""A reference pose that drifts within a cloud (compare/diagnose/pose_error.py: ``time_scale``,
+``rate_columns``, ``fit_reference_pose(rate=True)``, ``PoseCorrection`` with a rate):
+closed forms on a plane, no raycast."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from lidar_sim_ros.compare.model import likelihood as lk
+from lidar_sim_ros.compare.diagnose import pose_error
+from lidar_sim_ros.core.effects.base import ReturnContext
+from lidar_sim_ros.core.geometry import Hits
+from lidar_sim_ros.core.pipeline import Prediction
+from lidar_sim_ros.core.pose import PoseTrack
+
+SIGMA_M = 0.01
+
+
+def _planes(n: int, seed: int):
+    """Rays over 12 x 8 deg on three planes at ~10 m (normals tilted differently by
+    azimuth), and each ray's time within one of four 0.1 s clouds (the scan sweeps
+    elevation with time, as a raster does)."""
+    rng = np.random.default_rng(seed)
+    az = rng.uniform(-0.1, 0.1, n)
+    el = rng.uniform(-0.07, 0.07, n)
+    cloud = rng.integers(0, 4, n)
+    t = cloud * 0.1 + (el + 0.07) / 0.14 * 0.09
+    u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    part = np.digitize(az, [-0.033, 0.033])
+    normals = np.array([[-0.8, -0.5, 0.33], [-0.9, 0.1, -0.42], [-0.75, 0.6, 0.28]])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return u, normals[part], np.array([10.0, 0.0, 0.0]), cloud, t, rng
+
+
+def _range(origin, normal, u):
+    return np.einsum('ij,ij->i', normal, origin) / np.einsum('ij,ij->i', u, normal)
+
+
+def _data(u, normal, measured_m, expected_m, t):
+    """FitData of matched rays whose model range is ``expected_m`` (one material)."""
+    n = len(u)
+    one = np.ones(n)
+    ctx = ReturnContext(range_m=expected_m, incidence_rad=0 * one, material=np.zeros(n, int),
+                        power_w=1e-6 * one, intensity=one, t_s=t, az_rad=0 * one,
+                        el_rad=0 * one, laser=np.zeros(n, int), divergence_rad=1e-3,
+                        hit=np.ones(n, bool), threshold_power_w=1e-9, direction=u,
+                        normal=-normal)
+    hits = Hits(np.ones(n, bool), expected_m, -normal, 0 * one, np.zeros(n, int),
+                np.zeros(n, int), None, one)
+    pred = Prediction(ctx, hits, u, 0 * one, SIGMA_M * one)
+    return lk.FitData(measured_range_m=measured_m, baseline=pred, cast=lambda e: pred,
+                      unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
+                      range_window_m=(5.0, 15.0))
+
+
+def _drifting(rate_deg_s: float, rigid_deg: float, seed: int = 0):
+    """Measured ranges of planes turned about the z axis through (10, 0, 0) by
+    ``rigid_deg`` per cloud plus ``rate_deg_s`` times the time from the cloud's centre."""
+    u, normal, centre, cloud, t, rng = _planes(12_000, seed)
+    tau_s = t - (cloud * 0.1 + 0.045)
+    angle = np.radians(rigid_deg * (cloud - 1.5) + rate_deg_s * tau_s)
+    rot = Rotation.from_rotvec(np.outer(angle, [0.0, 0.0, 1.0]))
+    origin = np.tile(centre, (len(u), 1))
+    moved_n = rot.apply(normal)
+    measured = _range(origin, moved_n, u) + SIGMA_M * rng.standard_normal(len(u))
+    expected = _range(origin, normal, u)
+    return _data(u, normal, measured, expected, t), cloud, t
+
+
+def test_a_drift_within_each_cloud_is_found_and_measured():
+    """20 deg/s about z (0.9 deg over a 0.045 s half-scan) on top of a rigid turn per
+    cloud: the rate passes the rule on top of the rigid correction and is recovered."""
+    data, cloud, t = _drifting(20.0, 0.5)
+    blocks = np.arange(len(t)) // 30
+    pe = pose_error.fit_reference_pose(data, cloud, t, blocks, 3.0, 0.005, rate=True)
+    assert pe.rate_tested and pe.rate_supported and pe.rate_z > 3.0
+    assert pe.significant
+    np.testing.assert_allclose(pe.rate_rotation_deg_s[:, 2], 20.0, rtol=0.15)
+    assert np.all(np.abs(pe.rate_rotation_deg_s[:, :2]) < 3.0)
+    rigid = pose_error.fit_reference_pose(data, cloud, t, blocks, 3.0, 0.005, rate=False)
+    assert not rigid.rate_tested and rigid.gain < pe.gain
+    assert 'drifts within each cloud' in pe.words()
+    assert pe.as_dict()['rate']['supported'] is True
+
+
+def test_a_rigid_error_per_cloud_gives_no_rate():
+    data, cloud, t = _drifting(0.0, 0.5, seed=1)
+    pe = pose_error.fit_reference_pose(data, cloud, t, np.arange(len(t)) // 30, 3.0, 0.005,
+                                       rate=True)
+    assert pe.significant and pe.rate_tested and not pe.rate_supported
+    assert pe.rate_translation_mps is None and 'drifts' not in pe.words()
+
+
+def test_corrected_poses_apply_the_rate_within_the_cloud():
+    """A correction with a rate turns the target by rate x (t - t_c) about the cloud's
+    centroid on top of its rigid part: a body point's position follows in closed form."""
+    track = PoseTrack(np.array([0.0, 1.0]), np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)))
+    g = np.array([[10.0, 0.0, 0.0]])
+    w = np.radians([[0.0, 0.0, 0.9]])            # per unit tau
+    corr = pose_error.PoseCorrection(np.array([0]), np.array([0.0]), np.array([0.09]),
+                                     Rotation.identity(1), np.zeros((1, 3)), g,
+                                     rate_m=np.array([[0.0, 0.002, 0.0]]), rate_rotvec_rad=w,
+                                     t_centre_s=np.array([0.045]), half_span_s=np.array([0.045]))
+    poses = pose_error.CorrectedPoses(track, corr).at(np.array([0.0, 0.045, 0.09]))
+    point = np.array([11.0, 0.5, 0.0])           # body = lidar frame under the track
+    got = poses.rotation.apply(np.tile(point, (3, 1))) + poses.position_m
+    for tau, p in zip((-1.0, 0.0, 1.0), got):
+        rot = Rotation.from_rotvec(w[0] * tau)
+        want = rot.apply(point - g[0]) + g[0] + tau * np.array([0.0, 0.002, 0.0])
+        np.testing.assert_allclose(p, want, atol=1e-12)
