@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from lidar_sim_ros.core import silhouette
-from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.effects import beam_divergence
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.pose import ScenarioTrajectory

@@ -173,7 +173,7 @@ def measure(args, udp_port: int | None) -> dict | None:
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import PointCloud2
 
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.paths import config_path
 
     scenario = load_scenario(args.scenario or config_path('scenario.yaml'))

@@ -124,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     from embreex.mesh_construction import TriangleMesh
 
     from lidar_sim_ros.core import detection, reflection
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.core.geometry import Target, cast_at_poses
     from lidar_sim_ros.core.pipeline import Simulator
     from lidar_sim_ros.core.pose import ScenarioTrajectory
@@ -322,7 +322,7 @@ def interleaved_ms(variants: dict, traj, period: float, pack, frames: int, repea
 
 def effects_costs(args, scenario, traj, pack, Simulator, np) -> dict:
     """Each effect of the effects scenario alone and all together vs none, in one run."""
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.core.effects import make_effect
     fx_scenario = load_scenario(args.effects_scenario)
     specs = [(e.name, dict(e.params)) for e in fx_scenario.config.effects]
@@ -407,7 +407,8 @@ def sensors_table(args, np) -> dict:
     raycast on 1 and 2 threads, and raw Embree on the same rays, on 2 CPUs."""
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
-    from lidar_sim_ros.core.config import Scenario, load_scenario, load_sensor
+    from lidar_sim_ros.core.config import load_sensor
+    from lidar_sim_ros.core.scenario import Scenario, load_scenario
     from lidar_sim_ros.core.geometry import body_rays, split_over_threads
     from lidar_sim_ros.core.pipeline import Simulator
     from lidar_sim_ros.core.pose import ScenarioTrajectory

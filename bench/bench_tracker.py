@@ -42,7 +42,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.core.config import MaterialsConfig, load_scenario
+from lidar_sim_ros.core.config import MaterialsConfig
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.pose import ScenarioTrajectory, StaticPose
 from lidar_sim_ros.gnc.acquire import AcquisitionConfig, acquire, coverage, fit_score

@@ -154,7 +154,8 @@ def sensor_scan(params: Path):
     """The node's sensor shots and field of view, for the scan-pattern figure: from the
     ``sensor_file`` / ``scenario_file`` parameters in ``params`` ('' = package defaults).
     (None, None) if they cannot be loaded: the figure then shows the returns alone."""
-    from lidar_sim_ros.core.config import ConfigError, load_scenario, load_sensor, read_yaml
+    from lidar_sim_ros.core.config import ConfigError, load_sensor, read_yaml
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.core.scan import frame_shots
     from lidar_sim_ros.viz.figures import ScanLayout
     try:

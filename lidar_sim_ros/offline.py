@@ -22,7 +22,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from lidar_sim_ros.core.config import Scenario, load_scenario
+from lidar_sim_ros.core.scenario import Scenario, load_scenario
 from lidar_sim_ros.core.driver_layout import OutputLayout
 from lidar_sim_ros.core.effects import effect_from_spec
 from lidar_sim_ros.core.pipeline import Frame, Simulator

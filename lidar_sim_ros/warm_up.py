@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 import lidar_sim_ros
-from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.pose import ScenarioTrajectory
 from lidar_sim_ros.paths import config_path

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from lidar_sim_ros.core.config import (MaterialConfig, MaterialsConfig,
-                                       SensorConfig, load_scenario, parse)
+from lidar_sim_ros.core.config import MaterialConfig, MaterialsConfig, SensorConfig, parse
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.geometry import Target
 
 REPO = Path(__file__).resolve().parents[1]

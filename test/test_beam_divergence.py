@@ -17,7 +17,7 @@ import pytest
 import trimesh
 from scipy import integrate, special
 
-from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.effects import make_effect
 from lidar_sim_ros.core.effects.beam_divergence import (CREASE_TOL_M, footprint_cast,
                                                         sample_footprint)

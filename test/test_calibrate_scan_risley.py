@@ -5,7 +5,8 @@ import pytest
 
 from lidar_sim_ros.calibrate.scan_pattern import run_scan
 from lidar_sim_ros.calibrate.scan_risley import fit_prisms
-from lidar_sim_ros.core.config import load_scenario, load_sensor
+from lidar_sim_ros.core.config import load_sensor
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.offline import simulate_to_bag
 from conftest import CONFIG
 

@@ -16,7 +16,7 @@ import pytest
 from lidar_sim_ros.compare.recording.fields import FieldError, point_time_ns, resolve_fields
 from lidar_sim_ros.compare.recording.measurements import find_time_field, load_measurements
 from lidar_sim_ros.compare.run import CompareOptions, run_compare
-from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.driver_layout import reflectivity_estimate
 from lidar_sim_ros.io.bag import read_clouds
 from lidar_sim_ros.offline import simulate_to_bag
@@ -289,7 +289,7 @@ def test_second_returns_carry_the_return_field_and_the_second_return_flag():
     """A two-return receiver with multipath: points after a shot's first return carry
     return >= 2 in our layout and SECOND_RETURN in the driver's; first returns neither."""
     from lidar_sim_ros.core import pipeline
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.core.driver_layout import cepton_frame_points
     from lidar_sim_ros.core.effects import make_effect
     from lidar_sim_ros.core.pose import ScenarioTrajectory

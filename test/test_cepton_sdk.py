@@ -57,7 +57,7 @@ def run(tmp_path_factory):
     frames = []
     result = simulate_to_bag(REPO / 'config' / 'scenario.yaml', root / 'sim', FRAMES,
                              figures=False, pcap=root / 'cepton.pcap', on_frame=frames.append)
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.core.pipeline import Simulator
     scenario = load_scenario(REPO / 'config' / 'scenario.yaml')
     sim = Simulator.from_scenario(scenario)

@@ -49,7 +49,7 @@ def test_point_flags_are_cepton_published_values():
 def test_second_return_points_carry_the_published_bit():
     """A frame whose shots return twice: the driver layout flags the later return with
     16 (SECOND_RETURN), never 8 (FRAME_BOUNDARY, the SDK's own)."""
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.core.driver_layout import cepton_frame_points
     from lidar_sim_ros.core.pipeline import Frame
     sensor = load_scenario(REPO_SCENARIO).sensor
@@ -66,7 +66,7 @@ def test_channel_ids_follow_their_points_when_sorted_by_time(tmp_path):
     """Issue 29 survivor: channel_id not reordered with the points (20,278 of 21,120
     mislabelled). Independent reference: the scan pattern's laser of the shot fired at
     each point's time."""
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.core.driver_layout import cepton_frame_points
     from lidar_sim_ros.core.pipeline import Simulator
     from lidar_sim_ros.core.pose import ScenarioTrajectory

@@ -24,7 +24,8 @@ from lidar_sim_ros.compare.diagnose.features import FEATURE_NAMES
 from lidar_sim_ros.compare.model.matching import Model, match
 from lidar_sim_ros.compare.recording.measurements import load_measurements
 from lidar_sim_ros.compare.run import CompareOptions, run_compare
-from lidar_sim_ros.core.config import EffectConfig, load_scenario
+from lidar_sim_ros.core.config import EffectConfig
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.compare.model.likelihood import evaluate
 from lidar_sim_ros.core.effects import get_effect_class, make_effect
 from lidar_sim_ros.core.geometry import load_target

@@ -117,7 +117,7 @@ def recording(tmp_path_factory):
     rows = np.column_stack([poses.stamp_ns / 1e9, poses.position_m, poses.quat_xyzw])
     np.savetxt(csv, rows, delimiter=',', fmt='%.9f', header='t_s,x_m,y_m,z_m,qx,qy,qz,qw',
                comments='')
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     return {'root': root, 'bag': res.bag_path, 'pcap': root / 'cepton.pcap', 'csv': csv,
             'mesh': load_scenario(REPO / 'config' / 'scenario.yaml').mesh_path}
 

@@ -286,7 +286,7 @@ def test_pose_range_tie_verdict_and_plan(tmp_path):
     accepts: the target held still on a surveyed pose, near, with the far one in its
     header."""
     from lidar_sim_ros.compare.diagnose import plan
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.paths import config_path, mesh_path
     rec = plan.Recording('this recording', '', (10.0, 0.3, 0.0), (0.0, 0.0, 0.0, 1.0), 0.0,
                          (0.0, 0.0, 1.0), 1.0, 10, 0.1)

@@ -18,7 +18,7 @@ from foreign_sim import battery, generate
 
 from lidar_sim_ros.compare.diagnose import diagnosis, plan
 from lidar_sim_ros.compare.run import CompareOptions, run_compare
-from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.pose import PoseTrack
 from lidar_sim_ros.offline import simulate_to_bag
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lidar_sim_ros.compare.recording.measurements import load_measurements, with_scan_times
-from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.scan import varies_by_frame
 from lidar_sim_ros.io.bag import BagWriter, read_clouds, read_poses

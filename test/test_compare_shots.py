@@ -6,7 +6,7 @@ import pytest
 
 from lidar_sim_ros.compare.model.matching import Model
 from lidar_sim_ros.compare.recording.shots import missed_per_unmatched
-from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.geometry import load_target
 from lidar_sim_ros.paths import config_path
 

@@ -13,7 +13,7 @@ from lidar_sim_ros.compare.run import CompareOptions, run_compare
 from lidar_sim_ros.compare.diagnose.sunlight import (FalseReturnLikelihood, false_return_mask,
                                                      fit_background_scale, read_sun_track,
                                                      short_points)
-from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.effects import make_effect
 from lidar_sim_ros.core.geometry import load_target
 from lidar_sim_ros.core.pipeline import NO_MATERIAL, Simulator

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 import yaml
 
-from lidar_sim_ros.core.config import ConfigError, load_materials, load_scenario, load_sensor
+from lidar_sim_ros.core.config import ConfigError, load_materials, load_sensor
+from lidar_sim_ros.core.scenario import load_scenario
 from conftest import CONFIG, copy_config, edit_yaml
 
 # Paper Table 2 (bias, 1-sigma random error), rows at 5 m and 15 m.

@@ -5,7 +5,8 @@ import yaml
 
 from lidar_sim_ros.cli import main as cli_main
 from lidar_sim_ros.core.config import (ConfigError, WrongFileKindError, file_kind, load_materials,
-                                       load_scenario, load_sensor)
+                                       load_sensor)
+from lidar_sim_ros.core.scenario import load_scenario
 from conftest import CONFIG, edit_yaml
 from conftest import copy_config as copy_files
 

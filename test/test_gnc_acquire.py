@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 pytest.importorskip('small_gicp')
 
-from lidar_sim_ros.core.config import load_scenario  # noqa: E402
+from lidar_sim_ros.core.scenario import load_scenario  # noqa: E402
 from lidar_sim_ros.core.pipeline import Simulator  # noqa: E402
 from lidar_sim_ros.core.pose import StaticPose  # noqa: E402
 from lidar_sim_ros.gnc.acquire import (AcquisitionConfig, acquire, candidate_directions,  # noqa: E402

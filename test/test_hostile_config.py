@@ -6,7 +6,8 @@ import pytest
 import yaml
 
 from lidar_sim_ros.core.config import (MAX_SHOTS_PER_FRAME, MAX_VALUE_CHARS, ConfigError,
-                                       load_materials, load_scenario, load_sensor)
+                                       load_materials, load_sensor)
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.effects import make_effect
 from conftest import CONFIG, copy_config, edit_yaml
 

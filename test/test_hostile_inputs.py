@@ -123,7 +123,8 @@ def test_absurd_start_and_motion_are_refused_naming_file_key_value(cfg, key, edi
     """Issue 29: a 1e300 m start gave an overflow warning and a message naming neither file
     nor key."""
     from conftest import edit_yaml
-    from lidar_sim_ros.core.config import ConfigError, load_scenario
+    from lidar_sim_ros.core.config import ConfigError
+    from lidar_sim_ros.core.scenario import load_scenario
     edit_yaml(cfg / 'scenario.yaml', edit)
     with pytest.raises(ConfigError) as err:
         load_scenario(cfg / 'scenario.yaml')
@@ -132,7 +133,7 @@ def test_absurd_start_and_motion_are_refused_naming_file_key_value(cfg, key, edi
 
 def test_a_huge_tumble_axis_is_a_direction(cfg):
     from conftest import edit_yaml
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.core.pose import ScenarioTrajectory
     edit_yaml(cfg / 'scenario.yaml', lambda s: s['motion'].update(tumble_axis=[1e300, 1e300, 0]))
     traj = ScenarioTrajectory.from_config(load_scenario(cfg / 'scenario.yaml').config)
@@ -200,7 +201,8 @@ def test_a_scenario_plugin_resolves_beside_the_scenario_only(cfg, tmp_path, monk
     """Issue 29: a plugin missing beside the scenario was taken from the current directory.
     Now only the scenario's folder is looked in, by load_scenario, the simulator and compare."""
     from conftest import edit_yaml
-    from lidar_sim_ros.core.config import ConfigError, load_scenario
+    from lidar_sim_ros.core.config import ConfigError
+    from lidar_sim_ros.core.scenario import load_scenario
     edit_yaml(cfg / 'scenario.yaml', lambda s: s.update(effects=[{'name': 'shift.py:Shift'}]))
     elsewhere = tmp_path / 'cwd'
     elsewhere.mkdir()
@@ -220,7 +222,7 @@ def test_simulate_bounds_the_output_before_writing(tmp_path, capsys):
     """Issue 29: --frames 1000000000 started writing ~200 TB without an estimate. The bound
     (every shot a point) is checked against --max-output-gb before anything is written."""
     from lidar_sim_ros.cli import main
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.io.pointcloud import POINT_DTYPE
     from lidar_sim_ros.offline import check_output_size, output_bound_bytes
     from lidar_sim_ros.core.driver_layout import OutputLayout

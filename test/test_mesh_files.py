@@ -5,7 +5,8 @@ import trimesh
 from trimesh.visual.material import PBRMaterial
 from trimesh.visual.texture import TextureVisuals
 
-from lidar_sim_ros.core.config import ConfigError, load_scenario
+from lidar_sim_ros.core.config import ConfigError
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.geometry import MeshFileError, MeshMaterialError, load_target
 from lidar_sim_ros.core.pipeline import Simulator
 from conftest import CONFIG

@@ -18,7 +18,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import PointCloud2
 
-from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.pose import ScenarioTrajectory
 from lidar_sim_ros.demo import start as start_ros_process, stop as stop_ros_process
 from lidar_sim_ros.io.pointcloud import stamp_to_ns

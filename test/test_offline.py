@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.cli import main
-from lidar_sim_ros.core.config import load_scenario
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.pose import PoseTrack
 from lidar_sim_ros.io.bag import read_clouds, read_material_names, read_poses
 from lidar_sim_ros.io.pointcloud import POINT_DTYPE

@@ -160,7 +160,7 @@ def test_one_pose_for_a_global_exposure_same_frame_as_a_pose_per_pixel(monkeypat
     """A flash frame's pixels share one exposure time: the pipeline interpolates the pose
     once and repeats it; the frame is the one a pose per pixel gives."""
     from lidar_sim_ros.core import pipeline
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.core.pose import ScenarioTrajectory
     sc = load_scenario(CONFIG / 'scenario_flash.yaml')
     sim = Simulator.from_scenario(sc)

@@ -120,7 +120,7 @@ def test_bad_risley_config_names_key(scan, words):
 def test_mid40_scenario_uses_its_own_range_error_not_table_2():
     """Loaded with the Mid-40, every material carries 2 cm / no bias; the P-60 scenario
     keeps Table 2's per-material values."""
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     mid = load_scenario(CONFIG / 'scenario_mid40.yaml')
     assert set(mid.materials.column('sigma_m')) == {0.02}
     assert set(mid.materials.column('bias_m')) == {0.0}

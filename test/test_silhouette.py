@@ -126,7 +126,7 @@ def _polygon_fan(sides: int, rings: int = 1):
 
 
 def _rocket_edges():
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from lidar_sim_ros.core.geometry import load_target
     from conftest import CONFIG
     scenario = load_scenario(CONFIG / 'scenario.yaml')

@@ -252,7 +252,7 @@ def test_range_noise_grows_as_the_signal_falls():
 
 
 def test_false_returns_are_reproducible_from_the_seed():
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     from conftest import CONFIG
     scenario = load_scenario(CONFIG / 'scenario_sunlit.yaml')
     traj = ScenarioTrajectory.from_config(scenario.config)

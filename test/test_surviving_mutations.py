@@ -163,7 +163,7 @@ def test_campaign_coverage_is_evaluated_at_the_mid_frame_pose(tmp_path):
     visible there; at the frame start they are not (no face looks toward the sensor)."""
     from lidar_sim_ros.campaign.run import simulate_case
     from lidar_sim_ros.campaign.sample import RunCase
-    from lidar_sim_ros.core.config import load_scenario
+    from lidar_sim_ros.core.scenario import load_scenario
     (tmp_path / 'plate.obj').write_text('usemtl PIF\nv -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\n'
                                         'f 1 2 3\nf 1 3 4\n')
     sensor = yaml.safe_load((CONFIG / 'cepton_vista_p60.yaml').read_text())

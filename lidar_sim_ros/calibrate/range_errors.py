@@ -34,7 +34,8 @@ from lidar_sim_ros.compare.recording.fields import FieldError, resolve_fields
 from lidar_sim_ros.compare.recording.measurements import (field_time_since_stamp_s,
                                                           find_time_field, laser_ids,
                                                           usable_points)
-from lidar_sim_ros.core.config import load_scenario, resolve
+from lidar_sim_ros.core.config import resolve
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.geometry import MeshMaterialError, Target, cast_at_poses, load_target
 from lidar_sim_ros.core.pose import Poses
 from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, read_clouds,

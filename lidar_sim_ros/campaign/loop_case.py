@@ -41,7 +41,7 @@ import numpy as np
 from lidar_sim_ros.campaign.sample import key_rng, run_seed, sample_run
 from lidar_sim_ros.campaign.spec import Campaign, loop_config_path
 from lidar_sim_ros.campaign.worker import prepare_scenario, worker_target
-from lidar_sim_ros.core.config import Scenario
+from lidar_sim_ros.core.scenario import Scenario
 from lidar_sim_ros.core.pose import quat_multiply
 
 LOOP_METRICS = ('hold_error_m', 'delta_v_mps', 'min_range_m', 'est_trans_rms_m', 'est_axis_rms_deg',

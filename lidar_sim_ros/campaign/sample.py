@@ -19,8 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar_sim_ros.campaign.spec import Campaign, Dispersions
-from lidar_sim_ros.core.config import (MaterialConfig, MaterialsConfig, Scenario, ScenarioConfig,
+from lidar_sim_ros.core.config import (MaterialConfig, MaterialsConfig, ScenarioConfig,
                                        with_sensor_range_error)
+from lidar_sim_ros.core.scenario import Scenario
 from lidar_sim_ros.core.pose import quat_multiply
 
 

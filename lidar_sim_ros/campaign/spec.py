@@ -18,9 +18,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_serial
 
 from lidar_sim_ros.campaign.criteria import MAX_CRITERIA, parse_criterion
 from lidar_sim_ros.campaign.statistics import stat_names
-from lidar_sim_ros.core.config import (ConfigError, MaterialsConfig, Scenario, SensorConfig,
-                                       check_file_kind, load_materials, load_scenario, load_sensor,
-                                       parse, read_yaml, resolve)
+from lidar_sim_ros.core.config import (ConfigError, MaterialsConfig, SensorConfig, check_file_kind,
+                                       load_materials, load_sensor, parse, read_yaml, resolve)
+from lidar_sim_ros.core.scenario import Scenario, load_scenario
 
 
 class _Model(BaseModel):

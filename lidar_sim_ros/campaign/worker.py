@@ -10,7 +10,7 @@ import threading
 from pathlib import Path
 
 from lidar_sim_ros.campaign.coverage import FaceGeometry
-from lidar_sim_ros.core.config import Scenario
+from lidar_sim_ros.core.scenario import Scenario
 from lidar_sim_ros.core.geometry import Target, load_target
 from lidar_sim_ros.core.pipeline import Simulator
 

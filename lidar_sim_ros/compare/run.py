@@ -51,8 +51,8 @@ from lidar_sim_ros.compare.diagnose.sunlight import (SunFit, fit_sunlight, read_
                                                      short_points, summary_section,
                                                      sunlit_decision)
 from lidar_sim_ros.compare.report.verdict import summary_lines, verdict
-from lidar_sim_ros.core.config import (MaterialsConfig, Scenario, load_scenario, resolve,
-                                       scenario_effect_spec)
+from lidar_sim_ros.core.config import MaterialsConfig, resolve
+from lidar_sim_ros.core.scenario import Scenario, load_scenario, scenario_effect_spec
 from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
                                         parse_effect_spec)
 from lidar_sim_ros.core.geometry import load_target

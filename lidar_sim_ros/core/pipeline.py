@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from lidar_sim_ros.core import detection, reflection, returns
-from lidar_sim_ros.core.config import MaterialsConfig, Scenario, SensorConfig, scenario_effect_spec
+from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
+from lidar_sim_ros.core.scenario import Scenario, scenario_effect_spec
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
 from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target

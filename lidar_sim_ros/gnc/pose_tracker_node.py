@@ -32,7 +32,8 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
-from lidar_sim_ros.core.config import ConfigError, load_scenario
+from lidar_sim_ros.core.config import ConfigError
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.geometry import MeshMaterialError, load_target
 from lidar_sim_ros.gnc.acquire import AcquisitionConfig
 from lidar_sim_ros.gnc.tracker import PoseTracker, TrackerConfig, build_model, pose_matrix, pose_parts

@@ -372,7 +372,7 @@ def build_context(config: LoopConfig, scenario_path, cloud: str | None, dynamics
         raise ValueError(f"cloud must be 'model', 'truth' or None, not {cloud!r}")
     simulator = tracker = None
     if cloud is not None:
-        from lidar_sim_ros.core.config import load_scenario
+        from lidar_sim_ros.core.scenario import load_scenario
         from lidar_sim_ros.core.pipeline import Simulator
         from lidar_sim_ros.gnc.tracker import PoseTracker, TrackerConfig, build_model
         scenario = scenario_path if hasattr(scenario_path, 'sensor') else load_scenario(scenario_path)

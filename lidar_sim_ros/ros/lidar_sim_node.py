@@ -35,8 +35,9 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
-from lidar_sim_ros.core.config import (ConfigError, Scenario, load_materials, load_scenario,
-                                       load_sensor, parse, scenario_effect_spec, with_frame_rate)
+from lidar_sim_ros.core.config import (ConfigError, load_materials, load_sensor, parse,
+                                       with_frame_rate)
+from lidar_sim_ros.core.scenario import Scenario, load_scenario, scenario_effect_spec
 from lidar_sim_ros.core.effects import (Effect, builtin_classes, get_effect_class, is_plugin_spec,
                                         make_effect)
 from lidar_sim_ros.core.geometry import MeshMaterialError

@@ -17,7 +17,8 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-from lidar_sim_ros.core.config import ConfigError, load_scenario
+from lidar_sim_ros.core.config import ConfigError
+from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.pose import ScenarioTrajectory
 from lidar_sim_ros.io.pointcloud import ns_to_stamp
 from lidar_sim_ros.paths import config_path
