@@ -23,7 +23,7 @@ from scipy import optimize
 
 from lidar_sim_ros.calibrate.common import (CalibrationInputError, new_figure, save_figure, sig,
                                             write_sensor)
-from lidar_sim_ros.calibrate.scan_pattern import ScanSamples, read_scan_samples
+from lidar_sim_ros.calibrate.scan_samples import ScanSamples, read_scan_samples
 from lidar_sim_ros.core.config import RisleyScan, load_sensor, read_yaml
 from lidar_sim_ros.core.scan import frame_shots
 from lidar_sim_ros.core.scan_risley import (directions_from_deviation, petals_per_period,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidar_sim_ros.core.config import FlashScan, SensorConfig
-from lidar_sim_ros.core.scan import Shots, angles_from_directions
+from lidar_sim_ros.core.shots import Shots, angles_from_directions
 
 
 def pixel_pitch(cfg: FlashScan) -> tuple[float, float]:

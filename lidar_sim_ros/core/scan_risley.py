@@ -37,7 +37,7 @@ from fractions import Fraction
 import numpy as np
 
 from lidar_sim_ros.core.config import RisleyScan
-from lidar_sim_ros.core.scan import Shots, angles_from_directions
+from lidar_sim_ros.core.shots import Shots, angles_from_directions
 
 # Prism rates are rounded to this many decimals for the closed-form period (rev/s).
 _RATE_DECIMALS = 6

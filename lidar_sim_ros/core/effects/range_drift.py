@@ -37,7 +37,9 @@ class RangeDrift(Effect):
         model_config = ConfigDict(extra='forbid')
         rate_m_per_s: float = Field(0.0, ge=-1.0, le=1.0,
                                     description='range offset change per second (m/s)')
-        t0_s: float = Field(0.0, description='time at which the offset is zero (s)')
+        t0_s: float = Field(0.0, ge=-1e5, le=1e5,
+                            description='time at which the offset is zero (s, on the run\'s '
+                                        'clock: a comparison counts from its first stamp)')
 
     def range_bias_m(self, ctx: ReturnContext) -> np.ndarray:
         # Without a clock (a caller with no shot times) there is nothing to drift over.
