@@ -93,6 +93,19 @@ def test_other_traffic_and_bad_files(tmp_path):
         list(iter_frames(bad))
 
 
+def test_header_times_beyond_2_31_s_are_skipped_and_counted(tmp_path):
+    """A header timestamp of 2^64 - 1 us overflowed int64 (a traceback); 2^62 us wrapped the
+    driver layout's int32 seconds to a negative time (rc 0, a wrong stamp)."""
+    pt = [(0, 100, 0, 1, 0, 0, 0)]
+    path = write_pcap(tmp_path / 'far.pcap', [(T0_US, stdv(2**64 - 1, pt)), (T0_US, stdv(2**62, pt)),
+                                               (T0_US, stdv(2**31 * 10**6 - 1, pt)),
+                                               (T0_US, stdv(T0_US, pt))])
+    stats = PcapStats()
+    frames = list(iter_frames(path, stats=stats))
+    assert stats.skipped == {'STDV timestamp beyond 2^31 s': 3} and stats.stdv_packets == 1
+    assert [f.stamp_ns for f in frames] == [T0_US * 1000]
+
+
 def test_pose_csv_errors_name_file_and_row(tmp_path):
     p = tmp_path / 'p.csv'
     p.write_text('t,x,y,z\n1,2,3,4\n')

@@ -17,7 +17,8 @@ z up); the reflectivity code to a fraction (0-127: 1 % steps; 128-255: log steps
 The pcap: classic libpcap (either byte order, micro- or nanosecond timestamps), link
 types Ethernet (with 802.1Q tags) or raw IPv4; UDP datagrams to or from ``port`` (8808)
 whose payload starts with ``STDV``; everything else is skipped and counted (INFO
-packets, other traffic, IPv4 fragments, other point versions). pcapng is refused with a
+packets, other traffic, IPv4 fragments, other point versions, header times at or beyond
+2^31 s). pcapng is refused with a
 message. Memory: frames are decoded one at a time.
 
 Poses CSV: a header line ``t_s,x_m,y_m,z_m,qx,qy,qz,qw`` then one row per pose: the time
@@ -47,6 +48,9 @@ UNIT_M = 0.005
 MAX_RECORD_BYTES = 262_144
 MAX_FRAME_POINTS = 5_000_000
 """A frame (between parity toggles) longer than this is cut: memory stays bounded."""
+MAX_TIME_US = 2**31 * 1_000_000
+"""A point time at or beyond 2^31 s (year 2038) is no Cepton clock: the driver layout's
+int32 seconds would wrap (the header's uint64 beyond 2^63 us overflowed int64)."""
 POSE_COLUMNS = ('t_s', 'x_m', 'y_m', 'z_m', 'qx', 'qy', 'qz', 'qw')
 
 
@@ -154,6 +158,9 @@ def _stdv_points(payload: bytes, stats: PcapStats) -> tuple[np.ndarray, np.ndarr
         stats.skip('STDV shorter than its point count')
         return None
     pts = np.frombuffer(payload, POINT_V0, count, hsize)
+    if ts_us + 255 * count >= MAX_TIME_US:
+        stats.skip('STDV timestamp beyond 2^31 s')
+        return None
     t_us = np.int64(ts_us) + np.cumsum(pts['dt_us'], dtype=np.int64)
     stats.stdv_packets += 1
     return pts, t_us
