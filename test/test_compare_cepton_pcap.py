@@ -119,6 +119,37 @@ def test_pose_csv_errors_name_file_and_row(tmp_path):
     assert list(s.stamp_ns) == [10**9, 2 * 10**9] and s.position_m[0, 0] == 5
 
 
+@pytest.mark.parametrize('row, match', [
+    ('5,1e300,0,0,0,0,0,1', r'row 3 has a position component beyond 100000 m'),
+    ('5,10,0,0,0,0,0,0', r'row 3 has a quaternion whose norm is not within 0.01 of 1'),
+    ('5,10,0,0,0,0,0,5', r'row 3 has a quaternion whose norm'),
+    ('1.0,11,0,0,0,0,0,1', r'rows 2 and 3 have the same time 1.0 s'),
+    ('1e300,10,0,0,0,0,0,1', r'row 3 has a time beyond 2\^31 s'),
+    ('\u0661,10,0,0,0,0,0,1', r'could not convert'),
+])
+def test_pose_csv_absurd_rows_are_refused_naming_the_row(tmp_path, row, match):
+    """Before: a 1e300 m position and a zero or non-unit quaternion were read at rc 0 (compare
+    then blamed the pcap's '/target/pose' topic, or matched no ray), two poses at one time
+    were both kept (the interpolation picked one)."""
+    p = tmp_path / 'p.csv'
+    p.write_text(f't_s,x_m,y_m,z_m,qx,qy,qz,qw\n1,10,0,0,0,0,0,1\n{row}\n', encoding='utf-8')
+    with pytest.raises(PcapError, match=match) as err:
+        read_pose_csv(p)
+    assert str(p) in str(err.value)
+
+
+def test_pose_csv_rows_are_bounded_and_quaternions_normalised(tmp_path, monkeypatch):
+    from lidar_sim_ros.compare import cepton_pcap
+    p = tmp_path / 'p.csv'
+    p.write_text('t_s,x_m,y_m,z_m,qx,qy,qz,qw\n' + ''.join(
+        f'{t},10,0,0,0,0,0.6,0.805\n' for t in range(4)))
+    s = read_pose_csv(p)                                # |q| = 1.0040: within 0.01, normalised
+    np.testing.assert_allclose(s.quat_xyzw[0], [0, 0, 0.6 / 1.00401, 0.805 / 1.00401], rtol=1e-5)
+    monkeypatch.setattr(cepton_pcap, 'MAX_POSE_ROWS', 3)
+    with pytest.raises(PcapError, match='more than 3 rows'):
+        read_pose_csv(p)
+
+
 @pytest.fixture(scope='module')
 def recording(tmp_path_factory):
     root = tmp_path_factory.mktemp('pcap_compare')

@@ -34,6 +34,8 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
+from lidar_sim_ros.core.config import MAX_POSITION_M
+from lidar_sim_ros.core.vectors import QUAT_NORM_TOL
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.bag import CloudFrame, PoseSeries
 
@@ -52,6 +54,8 @@ MAX_TIME_US = 2**31 * 1_000_000
 """A point time at or beyond 2^31 s (year 2038) is no Cepton clock: the driver layout's
 int32 seconds would wrap (the header's uint64 beyond 2^63 us overflowed int64)."""
 POSE_COLUMNS = ('t_s', 'x_m', 'y_m', 'z_m', 'qx', 'qy', 'qz', 'qw')
+MAX_POSE_ROWS = 1_000_000
+"""Most poses read from a CSV (2.8 h at 100 Hz; ~70 MB): 1e7 rows took 1.35 GB to read."""
 
 
 class PcapError(ValueError):
@@ -234,7 +238,12 @@ def frame_count(path: str | Path, port: int = 8808) -> int:
 
 
 def read_pose_csv(path: str | Path) -> PoseSeries:
-    """Poses from a CSV (``POSE_COLUMNS``; see the module docstring), sorted by time."""
+    """Poses from a CSV (``POSE_COLUMNS``; see the module docstring), sorted by time.
+
+    Refused naming the file, the row (its line in the file) and its values: a non-finite
+    value, a time beyond 2^31 s, a position component beyond ``MAX_POSITION_M``, a
+    quaternion whose norm is not within ``QUAT_NORM_TOL`` of 1 (it is then normalised),
+    two rows at the same time, more than ``MAX_POSE_ROWS`` rows."""
     path = Path(path)
     with open(path, encoding='utf-8') as f:
         header = [h.strip() for h in f.readline().split(',')]
@@ -242,21 +251,37 @@ def read_pose_csv(path: str | Path) -> PoseSeries:
             raise PcapError(f'poses CSV {path}: header must be {",".join(POSE_COLUMNS)}, '
                             f'got {",".join(header)!r}')
         try:
-            rows = np.loadtxt(f, delimiter=',', ndmin=2, dtype=float)
+            rows = np.loadtxt(f, delimiter=',', ndmin=2, dtype=float, max_rows=MAX_POSE_ROWS + 1)
         except ValueError as exc:
-            raise PcapError(f'poses CSV {path}: {exc}') from None
+            raise PcapError(f'poses CSV {path}: {exc} (rows counted from 0 after the header)') from None
     if rows.size == 0:
         raise PcapError(f'poses CSV {path}: no rows')
+    if len(rows) > MAX_POSE_ROWS:
+        raise PcapError(f'poses CSV {path}: more than {MAX_POSE_ROWS} rows')
     if rows.shape[1] != len(POSE_COLUMNS):
         raise PcapError(f'poses CSV {path}: {rows.shape[1]} columns, expected {len(POSE_COLUMNS)}')
-    bad = ~np.isfinite(rows).all(axis=1) | (np.abs(rows[:, 0]) >= 2**31)
-    if bad.any():
-        k = int(np.flatnonzero(bad)[0])
-        raise PcapError(f'poses CSV {path}: row {k + 2} has a non-finite value or a time '
-                        f'beyond 2^31 s: {rows[k].tolist()}')
-    rows = rows[np.argsort(rows[:, 0], kind='stable')]
-    return PoseSeries(np.rint(rows[:, 0] * 1e9).astype(np.int64), cepton.FRAME_ID,
-                      rows[:, 1:4], rows[:, 4:8])
+    with np.errstate(invalid='ignore', over='ignore'):
+        checks = ((~np.isfinite(rows).all(axis=1),
+                   'has a non-finite value'),
+                  (np.abs(rows[:, 0]) >= 2**31, 'has a time beyond 2^31 s'),
+                  ((np.abs(rows[:, 1:4]) > MAX_POSITION_M).any(axis=1),
+                   f'has a position component beyond {MAX_POSITION_M:g} m'),
+                  (np.abs(np.linalg.norm(rows[:, 4:8], axis=1) - 1.0) > QUAT_NORM_TOL,
+                   f'has a quaternion whose norm is not within {QUAT_NORM_TOL:g} of 1'))
+    for bad, what in checks:
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise PcapError(f'poses CSV {path}: row {k + 2} {what}: {rows[k].tolist()}')
+    order = np.argsort(rows[:, 0], kind='stable')
+    stamp_ns = np.rint(rows[order, 0] * 1e9).astype(np.int64)
+    same = np.flatnonzero(np.diff(stamp_ns) == 0)
+    if same.size:
+        a, b = sorted(int(order[i]) + 2 for i in (same[0], same[0] + 1))
+        raise PcapError(f'poses CSV {path}: rows {a} and {b} have the same time '
+                        f'{float(rows[a - 2, 0])!r} s (one pose per time)')
+    rows = rows[order]
+    quat = rows[:, 4:8] / np.linalg.norm(rows[:, 4:8], axis=1, keepdims=True)
+    return PoseSeries(stamp_ns, cepton.FRAME_ID, rows[:, 1:4], quat)
 
 
 def read_pose_source(path: str | Path, topic: str) -> tuple[PoseSeries, list[str] | None]:
