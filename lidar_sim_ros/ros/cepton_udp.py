@@ -88,7 +88,7 @@ class CeptonUdpSender:
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._stats = {'frames': 0, 'packets': 0, 'dropped_frames': 0, 'errors': 0,
-                       'last_error': ''}
+                       'last_error': '', 'restarts': 0}
         self._lag_ns: int | None = None       # node clock minus packet time when sent
         self._thread = threading.Thread(target=self._run, name='cepton_udp', daemon=True)
         self._thread.start()
@@ -107,7 +107,8 @@ class CeptonUdpSender:
         """Frames and packets sent, frames dropped, send errors since the last call."""
         with self._lock:
             out = dict(self._stats)
-            self._stats.update(frames=0, packets=0, dropped_frames=0, errors=0, last_error='')
+            self._stats.update(frames=0, packets=0, dropped_frames=0, errors=0, last_error='',
+                               restarts=0)
         return out
 
     def close(self, timeout_s: float = 2.0) -> None:
@@ -122,11 +123,15 @@ class CeptonUdpSender:
                 frame, start_ns = self._queue.get(timeout=0.1)
             except queue.Empty:
                 continue
+            restarts = self._state.restarts
             try:
                 packets = self._encode(frame, start_ns, self._state)
             except Exception as exc:  # noqa: BLE001 - a bad frame must not end the sender
                 self._count_error(exc)
                 continue
+            if self._state.restarts != restarts:   # the clock jumped (io/cepton_wire.py)
+                with self._lock:
+                    self._stats['restarts'] += self._state.restarts - restarts
             if packets:
                 self._send_frame(packets)
             with self._lock:
@@ -183,6 +188,8 @@ def stats_text(stats: dict) -> str:
     """The sender's share of the node's periodic log line."""
     text = (f'; UDP {stats["frames"]} frames, {stats["packets"]} packets, '
             f'{stats["dropped_frames"]} frames dropped (queue full)')
+    if stats.get('restarts'):
+        text += f', stream begun afresh {stats["restarts"]} times (clock jumps over 1 s)'
     if stats['errors']:
         text += f', {stats["errors"]} send errors ({stats["last_error"]})'
     return text
