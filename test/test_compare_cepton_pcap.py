@@ -106,6 +106,27 @@ def test_header_times_beyond_2_31_s_are_skipped_and_counted(tmp_path):
     assert [f.stamp_ns for f in frames] == [T0_US * 1000]
 
 
+@pytest.mark.parametrize('cut', [7, 16 + 30])
+def test_a_capture_cut_short_keeps_its_whole_records_and_counts_the_cut(tmp_path, cut):
+    """A record header or body cut by the end of the file (a capture stopped mid-write)
+    ends the pcap; before, silently (no count said the file was cut)."""
+    pt = [(0, 100, 0, 1, 0, 0, 0)]
+    path = write_pcap(tmp_path / 'cut.pcap', [(T0_US, stdv(T0_US, pt)),
+                                               (T0_US + 10, stdv(T0_US + 10, pt))])
+    data = path.read_bytes()
+    last = 16 + len(udp_frame_of(stdv(T0_US + 10, pt)))
+    path.write_bytes(data[:len(data) - last + cut])
+    stats = PcapStats()
+    frames = list(iter_frames(path, stats=stats))
+    assert stats.skipped == {'truncated record at the end': 1} and stats.stdv_packets == 1
+    assert [len(f.points) for f in frames] == [1]
+
+
+def udp_frame_of(payload: bytes) -> bytes:
+    from lidar_sim_ros.io.pcap import udp_frame
+    return udp_frame(payload, '192.168.1.201', '255.255.255.255', 8808, 8808)
+
+
 def test_pose_csv_errors_name_file_and_row(tmp_path):
     p = tmp_path / 'p.csv'
     p.write_text('t,x,y,z\n1,2,3,4\n')

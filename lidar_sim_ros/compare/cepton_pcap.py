@@ -92,8 +92,10 @@ def reflectivity_of_code(code: np.ndarray) -> np.ndarray:
     return np.where(c <= 127, c / 100.0, 1.27 * (50.0 / 1.27) ** ((c - 127.0) / 128.0))
 
 
-def _records(f: BinaryIO, path: Path) -> Iterator[tuple[int, int, bytes]]:
-    """(link type, capture time ns, record bytes) of a classic pcap."""
+def _records(f: BinaryIO, path: Path,
+             stats: PcapStats | None = None) -> Iterator[tuple[int, int, bytes]]:
+    """(link type, capture time ns, record bytes) of a classic pcap; a record cut short by
+    the end of the file (a capture stopped mid-write) ends it, counted in ``stats``."""
     head = f.read(24)
     if head[:4] == PCAPNG_MAGIC:
         raise PcapError(f'{path} is pcapng: save it as classic pcap (Wireshark: File > Save As '
@@ -107,13 +109,17 @@ def _records(f: BinaryIO, path: Path) -> Iterator[tuple[int, int, bytes]]:
     while True:
         rec = f.read(16)
         if len(rec) < 16:
+            if rec and stats is not None:
+                stats.skip('truncated record at the end')
             return
         sec, frac, incl, _ = struct.unpack(order + 'IIII', rec)
         if incl > MAX_RECORD_BYTES:
             raise PcapError(f'{path}: a record of {incl} bytes (corrupt file?)')
         data = f.read(incl)
         if len(data) < incl:
-            return                                  # truncated last record
+            if stats is not None:
+                stats.skip('truncated record at the end')
+            return
         yield link, sec * 1_000_000_000 + frac * ns_per_tick, data
 
 
@@ -204,7 +210,7 @@ def iter_frames(path: str | Path, port: int = 8808,
         return None
 
     with open(path, 'rb') as f:
-        for link, _, data in _records(f, path):
+        for link, _, data in _records(f, path, stats):
             payload = _udp_payload(link, data, port, stats)
             if payload is None:
                 continue
