@@ -149,3 +149,24 @@ def test_gltf_external_files_only_from_its_own_directory(tmp_path, monkeypatch, 
                                             "out of)") as err:
         load_target(bad, NAMES, mesh_materials='MLI')
     assert uri.replace('SECRET', str(secret))[:40] in str(err.value)
+
+
+@pytest.mark.parametrize('suffix', ['.gltf', '.glb'])
+def test_gltf_json_beyond_its_limit_is_refused_before_parsing(tmp_path, monkeypatch, suffix):
+    """Parsed glTF JSON takes up to ~6x its size (100 MB of numbers peaked at 574 MB):
+    below the 2 GB file limit a .gltf or a .glb's JSON chunk could take ~11 GB."""
+    from lidar_sim_ros.core import mesh_files
+    monkeypatch.setattr(mesh_files, 'MAX_GLTF_JSON_BYTES', 1000)
+    text = ('{"asset": {"version": "2.0"}, "extras": [' + '0,' * 600 + '0]}').encode()
+    if suffix == '.gltf':
+        data = text
+    else:
+        text += b' ' * (-len(text) % 4)
+        data = (b'glTF' + (2).to_bytes(4, 'little') + (20 + len(text)).to_bytes(4, 'little')
+                + len(text).to_bytes(4, 'little') + b'JSON' + text)
+    path = tmp_path / f'big{suffix}'
+    path.write_bytes(data)
+    with pytest.raises(MeshFileError, match=f'big{suffix}: {len(text)} bytes of glTF JSON exceed'):
+        load_target(path, NAMES, mesh_materials='MLI')
+    # The shipped box-wing satellite's JSON is far below the real limit.
+    assert mesh_files._gltf_json_bytes(MESH_DIR / 'box_wing_satellite.glb', 0) < 100_000

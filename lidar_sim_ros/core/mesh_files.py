@@ -30,6 +30,10 @@ import trimesh.resolvers
 CAD_SUFFIXES = ('.gltf', '.glb', '.stl', '.ply')
 MAX_MESH_FILE_BYTES = 2_000_000_000
 """Largest CAD file read (a binary STL of MAX_TRIANGLES is 500 MB)."""
+MAX_GLTF_JSON_BYTES = 256_000_000
+"""Largest glTF JSON read (a .gltf, or a .glb's JSON chunk): parsed JSON takes up to ~6x its
+size (100 MB of small numbers peaked at 574 MB: a 2 GB one ~11 GB); a .gltf embedding
+MAX_TRIANGLES in base64 is ~240 MB."""
 
 
 class MeshMaterialError(ValueError):
@@ -75,6 +79,10 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
     size = path.stat().st_size
     if size > MAX_MESH_FILE_BYTES:
         raise MeshFileError(f'{path}: {size} bytes exceed the limit of {MAX_MESH_FILE_BYTES}')
+    json_bytes = _gltf_json_bytes(path, size)
+    if json_bytes > MAX_GLTF_JSON_BYTES:
+        raise MeshFileError(f'{path}: {json_bytes} bytes of glTF JSON exceed the limit of '
+                            f'{MAX_GLTF_JSON_BYTES} (keep buffers in a .bin or a .glb)')
     try:
         scene = trimesh.load(str(path), force='scene', process=False,
                              resolver=DirectoryResolver(path))
@@ -115,6 +123,21 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
     if not faces:
         raise MeshFileError(f'{path}: no triangles found')
     return np.vstack(verts), np.vstack(faces), np.concatenate(mats)
+
+
+def _gltf_json_bytes(path: Path, size: int) -> int:
+    """Bytes of JSON trimesh would parse: a .gltf's size, a .glb's first (JSON) chunk's
+    length from its header (glTF 2.0 binary: magic, version, length, then chunk length and
+    type); 0 for other files."""
+    suffix = path.suffix.lower()
+    if suffix == '.gltf':
+        return size
+    if suffix == '.glb':
+        with open(path, 'rb') as f:
+            head = f.read(20)
+        if len(head) == 20 and head[:4] == b'glTF' and head[16:20] == b'JSON':
+            return int.from_bytes(head[12:16], 'little')
+    return 0
 
 
 def _material_of(candidates: list[str], material_names: list[str],
