@@ -159,6 +159,22 @@ def test_pose_csv_absurd_rows_are_refused_naming_the_row(tmp_path, row, match):
     assert str(p) in str(err.value)
 
 
+def test_pose_csv_text_a_spreadsheet_writes(tmp_path):
+    """A byte-order mark (Excel's 'CSV UTF-8') was read as part of the header and refused;
+    a Latin-1 byte gave "'utf-8' codec can't decode byte 0xe9" naming no file; a file
+    without a newline was read whole as its header line."""
+    p = tmp_path / 'p.csv'
+    p.write_bytes('\ufefft_s,x_m,y_m,z_m,qx,qy,qz,qw\r\n1,10,0,0,0,0,0,1\r\n'.encode())
+    assert list(read_pose_csv(p).stamp_ns) == [10**9]
+    p.write_bytes(b't_s,x_m,y_m,z_m,qx,qy,qz,qw\n1,10,0,0,0,0,0,1\n# caf\xe9\n')
+    with pytest.raises(PcapError, match=f"{p}: not UTF-8 text"):
+        read_pose_csv(p)
+    p.write_bytes(b'x' * 1_000_000)
+    with pytest.raises(PcapError, match='header must be') as err:
+        read_pose_csv(p)
+    assert len(str(err.value)) < 500
+
+
 def test_pose_csv_rows_are_bounded_and_quaternions_normalised(tmp_path, monkeypatch):
     from lidar_sim_ros.compare import cepton_pcap
     p = tmp_path / 'p.csv'

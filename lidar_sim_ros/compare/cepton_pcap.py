@@ -54,6 +54,9 @@ MAX_TIME_US = 2**31 * 1_000_000
 """A point time at or beyond 2^31 s (year 2038) is no Cepton clock: the driver layout's
 int32 seconds would wrap (the header's uint64 beyond 2^63 us overflowed int64)."""
 POSE_COLUMNS = ('t_s', 'x_m', 'y_m', 'z_m', 'qx', 'qy', 'qz', 'qw')
+MAX_HEADER_CHARS = 200
+"""The poses CSV header line is read up to this many characters (a file without a newline
+was read whole)."""
 MAX_POSE_ROWS = 1_000_000
 """Most poses read from a CSV (2.8 h at 100 Hz; ~70 MB): 1e7 rows took 1.35 GB to read."""
 
@@ -251,13 +254,19 @@ def read_pose_csv(path: str | Path) -> PoseSeries:
     quaternion whose norm is not within ``QUAT_NORM_TOL`` of 1 (it is then normalised),
     two rows at the same time, more than ``MAX_POSE_ROWS`` rows."""
     path = Path(path)
-    with open(path, encoding='utf-8') as f:
-        header = [h.strip() for h in f.readline().split(',')]
-        if header != list(POSE_COLUMNS):
-            raise PcapError(f'poses CSV {path}: header must be {",".join(POSE_COLUMNS)}, '
-                            f'got {",".join(header)!r}')
+    # utf-8-sig: a spreadsheet's byte-order mark is no part of the header.
+    with open(path, encoding='utf-8-sig') as f:
         try:
+            header = [h.strip() for h in f.readline(MAX_HEADER_CHARS).split(',')]
+            if header != list(POSE_COLUMNS):
+                raise PcapError(f'poses CSV {path}: header must be {",".join(POSE_COLUMNS)}, '
+                                f'got {",".join(header)[:MAX_HEADER_CHARS]!r}')
             rows = np.loadtxt(f, delimiter=',', ndmin=2, dtype=float, max_rows=MAX_POSE_ROWS + 1)
+        except UnicodeDecodeError as exc:
+            raise PcapError(f'poses CSV {path}: not UTF-8 text (a byte '
+                            f'{exc.object[exc.start:exc.start + 1]!r})') from None
+        except PcapError:
+            raise
         except ValueError as exc:
             raise PcapError(f'poses CSV {path}: {exc} (rows counted from 0 after the header)') from None
     if rows.size == 0:
