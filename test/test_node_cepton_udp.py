@@ -37,6 +37,7 @@ def free_port() -> int:
 
 @pytest.mark.parametrize('address, port, frames, match', [
     ('example.com', 8808, 4, 'cepton_udp_address'), ('1.2.3', 8808, 4, 'cepton_udp_address'),
+    ('0.0.0.0', 8808, 4, 'cepton_udp_address.*where a driver listens'),
     ('127.0.0.1', 0, 4, 'cepton_udp_port'), ('127.0.0.1', 70000, 4, 'cepton_udp_port'),
     ('127.0.0.1', 8808, 0, 'cepton_udp_queue_frames')])
 def test_bad_parameters_are_named(address, port, frames, match):

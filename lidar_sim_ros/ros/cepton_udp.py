@@ -58,10 +58,14 @@ class UdpConfigError(ValueError):
 def check_parameters(address: str, port: int, queue_frames: int) -> None:
     """Raise UdpConfigError naming the parameter and value that cannot be used."""
     try:
-        ipaddress.IPv4Address(address)
+        ip = ipaddress.IPv4Address(address)
     except (ipaddress.AddressValueError, ValueError):
         raise UdpConfigError(f'parameter cepton_udp_address: {address!r} is not an IPv4 '
                              'address (a literal such as 127.0.0.1; no name is looked up)') from None
+    if ip.is_unspecified:
+        raise UdpConfigError(f'parameter cepton_udp_address: {address!r} is where a driver '
+                             'listens, not a destination (127.0.0.1: this machine; '
+                             '255.255.255.255: broadcast; or the receiver\'s address)')
     if not 1 <= int(port) <= 65535:
         raise UdpConfigError(f'parameter cepton_udp_port: {port} is not a UDP port (1-65535)')
     if not 1 <= int(queue_frames) <= 100:
