@@ -172,3 +172,29 @@ def test_a_clock_jumping_back_keeps_the_stream_going_and_is_counted():
     finally:
         sender.close()
         rx.close()
+
+
+def test_the_udp_parameters_cannot_change_at_run_time():
+    """Where the packets go is the operator's start-up choice: set_parameters (what a
+    remote `ros2 param set` calls) cannot switch the output on or point it elsewhere."""
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from lidar_sim_ros.ros.lidar_sim_node import LidarSimNode
+    from conftest import private_domain_id
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=private_domain_id(160, 20))
+    node = LidarSimNode(context=ctx)
+    try:
+        node.setup()
+        assert node.udp is None
+        for name, kind, value in (('cepton_udp', Parameter.Type.BOOL, True),
+                                  ('cepton_udp_address', Parameter.Type.STRING, '255.255.255.255'),
+                                  ('cepton_udp_port', Parameter.Type.INTEGER, 9),
+                                  ('cepton_udp_queue_frames', Parameter.Type.INTEGER, 100)):
+            result = node.set_parameters([Parameter(name, kind, value)])[0]
+            assert not result.successful and 'read-only' in result.reason, (name, result.reason)
+        assert node.udp is None and node.get_parameter('cepton_udp_address').value == '127.0.0.1'
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
