@@ -105,6 +105,9 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
         raise FileExistsError(f'{bag_path} already exists; choose another --out or remove it')
     if pcap is not None and Path(pcap).exists():
         raise FileExistsError(f'{pcap} already exists; choose another --pcap or remove it')
+    if pcap is not None and bag_path.resolve() in (Path(pcap).resolve(), *Path(pcap).resolve().parents):
+        raise ValueError(f'--pcap {pcap} is the bag folder {bag_path} or inside it; write it '
+                         'beside the bag (e.g. DIR/cepton.pcap)')
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     sim = simulator if simulator is not None else Simulator.from_scenario(
