@@ -105,6 +105,9 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
         raise FileExistsError(f'{bag_path} already exists; choose another --out or remove it')
     if pcap is not None and Path(pcap).exists():
         raise FileExistsError(f'{pcap} already exists; choose another --pcap or remove it')
+    if pcap is not None and bag_path.resolve() in (Path(pcap).resolve(), *Path(pcap).resolve().parents):
+        raise ValueError(f'--pcap {pcap} is the bag folder {bag_path} or inside it; write it '
+                         'beside the bag (e.g. DIR/cepton.pcap)')
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     sim = simulator if simulator is not None else Simulator.from_scenario(
@@ -119,8 +122,9 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
 
     out.mkdir(parents=True, exist_ok=True)
     stamps, stats, last = [], [], None
-    wire = _WireOut(pcap)
-    with BagWriter(bag_path, storage=storage) as bag, wire:
+    # The pcap first: a path that cannot be written stops before the bag exists (which
+    # would refuse the corrected command as 'already exists').
+    with _WireOut(pcap) as wire, BagWriter(bag_path, storage=storage) as bag:
         bag.write_material_names(MATERIAL_NAMES_TOPIC, int(to_stamp_ns(start_s, epoch_s)),
                                  scenario.materials.names)
         for i in range(frames):
@@ -162,16 +166,22 @@ class _WireOut:
     """The optional pcap of ``simulate --pcap``: each frame's STDV packets, in order."""
 
     def __init__(self, path: str | Path | None):
-        self.writer = None
+        self.writer, self.path = None, path
         if path is not None:
             from lidar_sim_ros.io.cepton_wire import WireStream
             from lidar_sim_ros.io.pcap import PcapWriter
-            Path(path).parent.mkdir(parents=True, exist_ok=True)
             self.writer, self.state = PcapWriter(path), WireStream()
 
     def __enter__(self) -> '_WireOut':
+        """Opens the pcap (and its folder); ValueError naming it when that fails (a
+        PermissionError was a traceback)."""
         if self.writer is not None:
-            self.writer.__enter__()
+            try:
+                Path(self.path).parent.mkdir(parents=True, exist_ok=True)
+                self.writer.__enter__()
+            except OSError as exc:
+                raise ValueError(f'--pcap {self.path}: cannot write it '
+                                 f'({exc.strerror or exc}: {exc.filename or self.path})') from None
         return self
 
     def write(self, frame: Frame, sim: Simulator, stamp_ns: int) -> None:

@@ -94,6 +94,32 @@ def test_resume_and_rerun(tmp_path):
     assert on_disk(tmp_path) == [1, 18, 19]  # run 1 asked: kept, outside the 2 worst
 
 
+@pytest.mark.parametrize('damage', ['empty', 'no meta', 'meta not JSON', 'pickled meta',
+                                    'run id a string', 'metrics a list'])
+def test_resume_refuses_a_damaged_series_file_naming_it(tmp_path, damage):
+    """Before: an EOFError or AttributeError traceback, or a line naming no file (KeyError
+    'meta is not a file in the archive', a JSON message, int('1e9'))."""
+    import json
+    SeriesKeeper(tmp_path, SeriesSpec(worst=2, by='hold_error_m')).offer(row(0, 0.5))
+    path = series_path(tmp_path, 3)
+    meta = {'run_id': 3, 'metrics': {'hold_error_m': 1.0}, 'asked': False}
+    with open(path, 'wb') as f:
+        if damage == 'no meta':
+            np.savez(f, t_s=np.zeros(3))
+        elif damage == 'meta not JSON':
+            np.savez(f, meta=np.array('{'))
+        elif damage == 'pickled meta':
+            np.savez(f, meta=np.array([meta], dtype=object))
+        elif damage == 'run id a string':
+            np.savez(f, meta=np.array(json.dumps({**meta, 'run_id': '1e9'})))
+        elif damage == 'metrics a list':
+            np.savez(f, meta=np.array(json.dumps({**meta, 'metrics': [1.0]})))
+    with pytest.raises(ValueError, match=f'{path}: .*remove it to resume'):
+        SeriesKeeper.open(tmp_path, SeriesSpec(worst=2, by='hold_error_m'))
+    path.unlink()
+    assert SeriesKeeper.open(tmp_path, SeriesSpec(worst=2, by='hold_error_m')).kept == [0]
+
+
 def test_memory_and_files_stay_bounded_over_100000_runs(tmp_path):
     """100,000 runs through one keeper: K files, K ranks, and the Python heap of the keeper
     no larger than after 1,000 runs (tracemalloc)."""

@@ -159,6 +159,39 @@ def test_fillers_before_a_frame_keep_the_previous_frames_parity():
     assert list(pts['flags']) == [32, 32, 32, 4]
 
 
+def driver_frame(t0_us: int, n: int = 300) -> np.ndarray:
+    """n points 10 us apart from t0_us, 12 m ahead, in the SDK3 driver's layout."""
+    p = np.zeros(n, cepton.SDK3_DTYPE)
+    t = t0_us + np.arange(n) * 10
+    p['timestamp_s'], p['timestamp_us'] = t // 10**6, t % 10**6
+    p['x'], p['intensity'] = 12.0, 0.3
+    return p
+
+
+@pytest.mark.parametrize('jump_us, restarts', [(999_000, 0), (1_000 * 10**6, 1),
+                                               (-500 * 10**6, 1)])
+def test_a_clock_jump_begins_the_stream_afresh(jump_us, restarts):
+    """The node's clock jumping 1000 s ahead made 3.9 million fillers (27,238 packets,
+    240 MB); one jumping back made every later frame raise 'before the previous point' until
+    the clock passed the old time (no UDP output). A gap up to 1 s is still bridged."""
+    state = cepton_wire.WireStream()
+    cepton_wire.frame_packets(driver_frame(T0_US), state)
+    t1 = T0_US + 2990 + jump_us
+    pk = cepton_wire.frame_packets(driver_frame(t1), state)
+    times, flags = [], []
+    for p in pk:
+        h, ps = decode(p.payload)
+        times += absolute_times(h, ps)
+        flags += [q[6] for q in ps]
+    real = [t for t, f in zip(times, flags) if not f & SPEC_FLAGS['NO_RETURN']]
+    assert real == list(t1 + np.arange(300) * 10)
+    fillers = len(times) - 300
+    assert fillers == (0 if restarts else (jump_us - 1) // 255)
+    assert state.restarts == restarts
+    assert set(f & SPEC_FLAGS['FRAME_PARITY'] for f, t in zip(flags, times) if t >= t1) == \
+        {SPEC_FLAGS['FRAME_PARITY']}                   # the second frame: parity toggled
+
+
 def test_unencodable_positions_go_as_no_return_and_bad_times_are_refused():
     t = T0_US + np.arange(4)
     xyz = np.array([[-1.0, 0, 0], [400.0, 0, 0], [5.0, 200.0, 0], [np.nan, 0, 0]])

@@ -93,6 +93,40 @@ def test_other_traffic_and_bad_files(tmp_path):
         list(iter_frames(bad))
 
 
+def test_header_times_beyond_2_31_s_are_skipped_and_counted(tmp_path):
+    """A header timestamp of 2^64 - 1 us overflowed int64 (a traceback); 2^62 us wrapped the
+    driver layout's int32 seconds to a negative time (rc 0, a wrong stamp)."""
+    pt = [(0, 100, 0, 1, 0, 0, 0)]
+    path = write_pcap(tmp_path / 'far.pcap', [(T0_US, stdv(2**64 - 1, pt)), (T0_US, stdv(2**62, pt)),
+                                               (T0_US, stdv(2**31 * 10**6 - 1, pt)),
+                                               (T0_US, stdv(T0_US, pt))])
+    stats = PcapStats()
+    frames = list(iter_frames(path, stats=stats))
+    assert stats.skipped == {'STDV timestamp beyond 2^31 s': 3} and stats.stdv_packets == 1
+    assert [f.stamp_ns for f in frames] == [T0_US * 1000]
+
+
+@pytest.mark.parametrize('cut', [7, 16 + 30])
+def test_a_capture_cut_short_keeps_its_whole_records_and_counts_the_cut(tmp_path, cut):
+    """A record header or body cut by the end of the file (a capture stopped mid-write)
+    ends the pcap; before, silently (no count said the file was cut)."""
+    pt = [(0, 100, 0, 1, 0, 0, 0)]
+    path = write_pcap(tmp_path / 'cut.pcap', [(T0_US, stdv(T0_US, pt)),
+                                               (T0_US + 10, stdv(T0_US + 10, pt))])
+    data = path.read_bytes()
+    last = 16 + len(udp_frame_of(stdv(T0_US + 10, pt)))
+    path.write_bytes(data[:len(data) - last + cut])
+    stats = PcapStats()
+    frames = list(iter_frames(path, stats=stats))
+    assert stats.skipped == {'truncated record at the end': 1} and stats.stdv_packets == 1
+    assert [len(f.points) for f in frames] == [1]
+
+
+def udp_frame_of(payload: bytes) -> bytes:
+    from lidar_sim_ros.io.pcap import udp_frame
+    return udp_frame(payload, '192.168.1.201', '255.255.255.255', 8808, 8808)
+
+
 def test_pose_csv_errors_name_file_and_row(tmp_path):
     p = tmp_path / 'p.csv'
     p.write_text('t,x,y,z\n1,2,3,4\n')
@@ -104,6 +138,53 @@ def test_pose_csv_errors_name_file_and_row(tmp_path):
     p.write_text('t_s,x_m,y_m,z_m,qx,qy,qz,qw\n2,1,0,0,0,0,0,1\n1,5,0,0,0,0,0,1\n')
     s = read_pose_csv(p)
     assert list(s.stamp_ns) == [10**9, 2 * 10**9] and s.position_m[0, 0] == 5
+
+
+@pytest.mark.parametrize('row, match', [
+    ('5,1e300,0,0,0,0,0,1', r'row 3 has a position component beyond 100000 m'),
+    ('5,10,0,0,0,0,0,0', r'row 3 has a quaternion whose norm is not within 0.01 of 1'),
+    ('5,10,0,0,0,0,0,5', r'row 3 has a quaternion whose norm'),
+    ('1.0,11,0,0,0,0,0,1', r'rows 2 and 3 have the same time 1.0 s'),
+    ('1e300,10,0,0,0,0,0,1', r'row 3 has a time beyond 2\^31 s'),
+    ('\u0661,10,0,0,0,0,0,1', r'could not convert'),
+])
+def test_pose_csv_absurd_rows_are_refused_naming_the_row(tmp_path, row, match):
+    """Before: a 1e300 m position and a zero or non-unit quaternion were read at rc 0 (compare
+    then blamed the pcap's '/target/pose' topic, or matched no ray), two poses at one time
+    were both kept (the interpolation picked one)."""
+    p = tmp_path / 'p.csv'
+    p.write_text(f't_s,x_m,y_m,z_m,qx,qy,qz,qw\n1,10,0,0,0,0,0,1\n{row}\n', encoding='utf-8')
+    with pytest.raises(PcapError, match=match) as err:
+        read_pose_csv(p)
+    assert str(p) in str(err.value)
+
+
+def test_pose_csv_text_a_spreadsheet_writes(tmp_path):
+    """A byte-order mark (Excel's 'CSV UTF-8') was read as part of the header and refused;
+    a Latin-1 byte gave "'utf-8' codec can't decode byte 0xe9" naming no file; a file
+    without a newline was read whole as its header line."""
+    p = tmp_path / 'p.csv'
+    p.write_bytes('\ufefft_s,x_m,y_m,z_m,qx,qy,qz,qw\r\n1,10,0,0,0,0,0,1\r\n'.encode())
+    assert list(read_pose_csv(p).stamp_ns) == [10**9]
+    p.write_bytes(b't_s,x_m,y_m,z_m,qx,qy,qz,qw\n1,10,0,0,0,0,0,1\n# caf\xe9\n')
+    with pytest.raises(PcapError, match=f"{p}: not UTF-8 text"):
+        read_pose_csv(p)
+    p.write_bytes(b'x' * 1_000_000)
+    with pytest.raises(PcapError, match='header must be') as err:
+        read_pose_csv(p)
+    assert len(str(err.value)) < 500
+
+
+def test_pose_csv_rows_are_bounded_and_quaternions_normalised(tmp_path, monkeypatch):
+    from lidar_sim_ros.compare import cepton_pcap
+    p = tmp_path / 'p.csv'
+    p.write_text('t_s,x_m,y_m,z_m,qx,qy,qz,qw\n' + ''.join(
+        f'{t},10,0,0,0,0,0.6,0.805\n' for t in range(4)))
+    s = read_pose_csv(p)                                # |q| = 1.0040: within 0.01, normalised
+    np.testing.assert_allclose(s.quat_xyzw[0], [0, 0, 0.6 / 1.00401, 0.805 / 1.00401], rtol=1e-5)
+    monkeypatch.setattr(cepton_pcap, 'MAX_POSE_ROWS', 3)
+    with pytest.raises(PcapError, match='more than 3 rows'):
+        read_pose_csv(p)
 
 
 @pytest.fixture(scope='module')

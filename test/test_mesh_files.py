@@ -100,3 +100,74 @@ def test_mesh_materials_naming_an_unknown_material_is_a_config_error(tmp_path):
         'materials: materials_box_wing.yaml', f'materials: {CONFIG / "materials_box_wing.yaml"}'))
     with pytest.raises(ConfigError, match='mesh_materials.antenna_aluminium.*ALUMINUM'):
         load_scenario(bad)
+
+
+def gltf_with_buffer(path, uri):
+    """A one-triangle glTF (material 'foil') whose buffer is the file ``uri`` names."""
+    import json
+    doc = {'asset': {'version': '2.0'}, 'scene': 0, 'scenes': [{'nodes': [0]}],
+           'nodes': [{'mesh': 0, 'name': 'part'}], 'materials': [{'name': 'foil'}],
+           'meshes': [{'primitives': [{'attributes': {'POSITION': 0}, 'indices': 1,
+                                       'material': 0}]}],
+           'buffers': [{'uri': uri, 'byteLength': 44}],
+           'bufferViews': [{'buffer': 0, 'byteOffset': 0, 'byteLength': 36},
+                           {'buffer': 0, 'byteOffset': 36, 'byteLength': 6}],
+           'accessors': [{'bufferView': 0, 'componentType': 5126, 'count': 3, 'type': 'VEC3',
+                          'min': [0, 0, 0], 'max': [1, 1, 0]},
+                         {'bufferView': 1, 'componentType': 5123, 'count': 3, 'type': 'SCALAR'}]}
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def triangle_bytes(scale=1.0):
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32) * scale
+    return tri.tobytes() + np.array([0, 1, 2], np.uint16).tobytes() + b'\0\0'
+
+
+@pytest.mark.parametrize('uri', ['SECRET', '../secret.bin', 'file://SECRET',
+                                 'http://127.0.0.1:9/secret.bin', 'link.bin', '%2e%2e/secret.bin'])
+def test_gltf_external_files_only_from_its_own_directory(tmp_path, monkeypatch, uri):
+    """A glTF's buffer naming a file outside its directory is refused, naming the URI, and
+    never read, whatever trimesh's own resolver would do: trimesh 4.0 (allowed by
+    requirements.txt) joined any name to the directory and opened it, so the 'secret'
+    file's bytes became target vertices. Its resolver is put back here to show it."""
+    import os
+    secret = tmp_path / 'secret.bin'
+    secret.write_bytes(triangle_bytes(scale=7.0))
+    sub = tmp_path / 'cad'
+    sub.mkdir()
+    os.symlink(secret, sub / 'link.bin')
+    (sub / 'ok.bin').write_bytes(triangle_bytes())
+
+    def trimesh_4_0_get(self, name):               # trimesh 4.0.0 FilePathResolver.get
+        with open(os.path.join(self.parent, name.strip()), 'rb') as f:
+            return f.read()
+    monkeypatch.setattr(trimesh.resolvers.FilePathResolver, 'get', trimesh_4_0_get)
+    ok = load_target(gltf_with_buffer(sub / 'ok.gltf', 'ok.bin'), NAMES, mesh_materials='MLI')
+    assert ok.vertices_m.max() == pytest.approx(1.0)  # a file beside it is read
+    bad = gltf_with_buffer(sub / 'bad.gltf', uri.replace('SECRET', str(secret)))
+    with pytest.raises(MeshFileError, match="bad.gltf: external file .*(not a path relative|leads "
+                                            "out of)") as err:
+        load_target(bad, NAMES, mesh_materials='MLI')
+    assert uri.replace('SECRET', str(secret))[:40] in str(err.value)
+
+
+@pytest.mark.parametrize('suffix', ['.gltf', '.glb'])
+def test_gltf_json_beyond_its_limit_is_refused_before_parsing(tmp_path, monkeypatch, suffix):
+    """Parsed glTF JSON takes up to ~6x its size (100 MB of numbers peaked at 574 MB):
+    below the 2 GB file limit a .gltf or a .glb's JSON chunk could take ~11 GB."""
+    from lidar_sim_ros.core import mesh_files
+    monkeypatch.setattr(mesh_files, 'MAX_GLTF_JSON_BYTES', 1000)
+    text = ('{"asset": {"version": "2.0"}, "extras": [' + '0,' * 600 + '0]}').encode()
+    if suffix == '.gltf':
+        data = text
+    else:
+        text += b' ' * (-len(text) % 4)
+        data = (b'glTF' + (2).to_bytes(4, 'little') + (20 + len(text)).to_bytes(4, 'little')
+                + len(text).to_bytes(4, 'little') + b'JSON' + text)
+    path = tmp_path / f'big{suffix}'
+    path.write_bytes(data)
+    with pytest.raises(MeshFileError, match=f'big{suffix}: {len(text)} bytes of glTF JSON exceed'):
+        load_target(path, NAMES, mesh_materials='MLI')
+    # The shipped box-wing satellite's JSON is far below the real limit.
+    assert mesh_files._gltf_json_bytes(MESH_DIR / 'box_wing_satellite.glb', 0) < 100_000

@@ -16,6 +16,7 @@ import pytest
 
 from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.driver_layout import wire_packets
+from lidar_sim_ros.ros import cepton_udp
 from lidar_sim_ros.core.pipeline import Simulator
 from lidar_sim_ros.core.pose import ScenarioTrajectory
 from lidar_sim_ros.ros.cepton_udp import CeptonUdpSender, UdpConfigError, check_parameters
@@ -36,6 +37,7 @@ def free_port() -> int:
 
 @pytest.mark.parametrize('address, port, frames, match', [
     ('example.com', 8808, 4, 'cepton_udp_address'), ('1.2.3', 8808, 4, 'cepton_udp_address'),
+    ('0.0.0.0', 8808, 4, 'cepton_udp_address.*where a driver listens'),
     ('127.0.0.1', 0, 4, 'cepton_udp_port'), ('127.0.0.1', 70000, 4, 'cepton_udp_port'),
     ('127.0.0.1', 8808, 0, 'cepton_udp_queue_frames')])
 def test_bad_parameters_are_named(address, port, frames, match):
@@ -141,3 +143,58 @@ def test_paced_on_the_node_clock_under_sim_time():
     finally:
         sender.close()
         rx.close()
+
+
+def test_a_clock_jumping_back_keeps_the_stream_going_and_is_counted():
+    """Before: after the node clock jumped back 500 s (a sim restarting its /clock, a wall
+    clock stepped), every frame raised 'before the previous point': no packet went out
+    until the clock passed the old time, only 'send errors' said so."""
+    from lidar_sim_ros.io.cepton_wire import frame_packets
+    from test_cepton_wire import T0_US, decode, driver_frame
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(('127.0.0.1', 0))
+    rx.settimeout(0.5)
+    sender = CeptonUdpSender('127.0.0.1', rx.getsockname()[1],
+                             lambda frame, start_ns, state: frame_packets(frame, state),
+                             now_ns=lambda: 2**62, sim_time=True)
+    try:
+        back = T0_US - 500 * 10**6
+        # (first point, header time): a new stream's header carries its first point's
+        # time; a continuing one's the previous point's (10 us before).
+        for t0, header_us in ((T0_US, T0_US), (back, back), (back + 1440, back + 1430)):
+            assert sender.submit(driver_frame(t0, n=144), 0)
+            header, _ = decode(rx.recv(2000))
+            assert header['timestamp_us'] == header_us and header['count'] == 144
+        time.sleep(0.1)
+        stats = sender.take_stats()
+        assert stats['errors'] == 0 and stats['restarts'] == 1 and stats['packets'] == 3
+        assert 'stream begun afresh 1 times' in cepton_udp.stats_text(stats)
+    finally:
+        sender.close()
+        rx.close()
+
+
+def test_the_udp_parameters_cannot_change_at_run_time():
+    """Where the packets go is the operator's start-up choice: set_parameters (what a
+    remote `ros2 param set` calls) cannot switch the output on or point it elsewhere."""
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from lidar_sim_ros.ros.lidar_sim_node import LidarSimNode
+    from conftest import private_domain_id
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=private_domain_id(160, 20))
+    node = LidarSimNode(context=ctx)
+    try:
+        node.setup()
+        assert node.udp is None
+        for name, kind, value in (('cepton_udp', Parameter.Type.BOOL, True),
+                                  ('cepton_udp_address', Parameter.Type.STRING, '255.255.255.255'),
+                                  ('cepton_udp_port', Parameter.Type.INTEGER, 9),
+                                  ('cepton_udp_queue_frames', Parameter.Type.INTEGER, 100)):
+            result = node.set_parameters([Parameter(name, kind, value)])[0]
+            assert not result.successful and 'read-only' in result.reason, (name, result.reason)
+        assert node.udp is None and node.get_parameter('cepton_udp_address').value == '127.0.0.1'
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)

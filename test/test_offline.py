@@ -357,3 +357,28 @@ def test_sunlit_run_draws_the_sunlight_figure(sunlit_run):
     path = sunlit_run / 'figures' / 'sunlight.png'
     img = imread(path)
     assert img.shape[0] > 800 and img.shape[1] > 800
+
+
+@pytest.mark.parametrize('where', ['under a file', 'sysfs', 'the bag', 'in the bag'])
+def test_pcap_that_cannot_be_written_stops_before_the_bag(tmp_path, capsys, where):
+    """Before: a --pcap in a read-only place (sysfs refuses even root) was a PermissionError
+    traceback (rc 1), and either failure left DIR/bag behind, so the corrected command
+    was refused with 'bag already exists'."""
+    if where == 'sysfs':
+        if not Path('/sys/kernel').is_dir():
+            pytest.skip('no sysfs')
+        pcap = Path('/sys/kernel/lidar_sim_test.pcap')
+    elif where == 'under a file':
+        (tmp_path / 'afile').write_text('x')
+        pcap = tmp_path / 'afile' / 'out.pcap'
+    else:
+        pcap = tmp_path / 'out' / 'bag' / ('x.pcap' if where == 'in the bag' else '')
+    out = tmp_path / 'out'
+    cmd = ['simulate', str(config_path('scenario.yaml')), '--frames', '1', '--out', str(out),
+           '--no-figures']
+    assert main(cmd + ['--pcap', str(pcap)]) == 2
+    err = capsys.readouterr().err
+    assert f'--pcap {pcap}' in err and 'Traceback' not in err
+    assert not (out / 'bag').exists()
+    assert main(cmd + ['--pcap', str(tmp_path / 'ok.pcap')]) == 0
+    assert (tmp_path / 'ok.pcap').stat().st_size > 24

@@ -182,3 +182,20 @@ def test_flash_256_threshold_sits_at_5_5_sigma_of_its_dark_noise():
     sigma = apd_noise_sigma_w(0.0, r.responsivity_a_per_w, r.apd_gain, r.excess_noise_factor,
                               r.bandwidth_hz, r.amplifier_noise_a_per_rthz, r.dark_current_a)
     assert f.detection.threshold_power_w / sigma == pytest.approx(5.5, abs=0.05)
+
+
+@pytest.mark.parametrize('fov, flood, key', [((30.0, 20.0), (1e-300, 20.0), 'field_az_deg'),
+                                             ((30.0, 1e-300), (30.0, 20.0), 'fov_el_deg')])
+def test_fields_narrower_than_a_milli_degree_are_refused(fov, flood, key):
+    """A 1e-300 deg flood's solid angle underflowed to 0: every pixel's power was NaN
+    (divide by zero) and the frame silently empty; a 1e-300 deg array saw nothing."""
+    with pytest.raises(ConfigError, match=f'{key}.*1e-300|1e-300.*{key}') as err:
+        flash_sensor(fov=fov, flood=flood)
+    assert 'greater than or equal to 0.001' in str(err.value)
+
+
+def test_the_narrowest_field_still_has_finite_power():
+    s = flash_sensor(fov=(1e-3, 1e-3), flood=(1e-3, 1e-3))
+    sim = Simulator(s, materials(kd=0.4, ks=0.0), plate_target(20.0, 0.0), seed=1)
+    pred = sim.predict(np.zeros(len(sim.shots)), sim.shots.directions(), StaticPose((0.0, 0.0, 0.0)))
+    assert pred.ctx.hit.all() and np.all(np.isfinite(pred.ctx.power_w)) and np.all(pred.ctx.power_w > 0)

@@ -43,11 +43,26 @@ def write_series(path: Path, series: dict, meta: dict) -> None:
     os.replace(tmp, path)
 
 
-def read_series(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
-    """(series, meta) of one file; no pickled objects are loaded."""
-    with np.load(path, allow_pickle=False) as data:
-        series = {k: data[k] for k in data.files if k != 'meta'}
-        meta = json.loads(str(data['meta']))
+class SeriesFileError(ValueError):
+    """A file in DIR/series that is not a series this campaign wrote: names it."""
+
+
+def read_series(path: str | Path, arrays: bool = True) -> tuple[dict[str, np.ndarray], dict]:
+    """(series, meta) of one file (series empty unless ``arrays``: resuming reads the meta
+    only); no pickled objects are loaded. SeriesFileError naming the file when it cannot
+    be read, or its meta is not a run id and metrics."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            series = {k: data[k] for k in data.files if k != 'meta'} if arrays else {}
+            meta = json.loads(str(data['meta']))
+    except Exception as exc:  # noqa: BLE001 - numpy, zipfile and json raise many kinds
+        raise SeriesFileError(f'{path}: not a series file ({type(exc).__name__}: '
+                              f'{str(exc)[:120]}); remove it to resume') from None
+    run_id = meta.get('run_id') if isinstance(meta, dict) else None
+    if (not isinstance(run_id, int) or isinstance(run_id, bool) or run_id < 0
+            or not isinstance(meta.get('metrics'), dict)):
+        raise SeriesFileError(f'{path}: its meta is not a run id and metrics: '
+                              f'{str(meta)[:120]!r}; remove it to resume')
     return series, meta
 
 
@@ -72,7 +87,7 @@ class SeriesKeeper:
                 if path.name.endswith('.tmp.npz'):
                     path.unlink()  # left by a client killed while writing
                     continue
-                _, meta = read_series(path)
+                _, meta = read_series(path, arrays=False)
                 run_id = int(meta['run_id'])
                 # Ranked, not pruned: a lower ``worst`` deletes the surplus as runs come.
                 keeper._place(run_id, meta['metrics'], bool(meta['asked']) or run_id in keeper.asked,

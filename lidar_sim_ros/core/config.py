@@ -188,6 +188,11 @@ class RisleyScan(_Model):
         return self
 
 
+MIN_FIELD_DEG = 1e-3
+"""Narrowest flash array or flood field (deg, 3.6 arcsec): a flood of 1e-300 deg has a solid
+angle that underflows to 0, and every pixel's power was NaN (divide by zero)."""
+
+
 class FlashScan(_Model):
     """A flash LiDAR's focal-plane array (``core/scan_flash.py``): rows x cols pixels
     behind a pinhole lens over fov_az_deg x fov_el_deg, all lit by one pulse per frame.
@@ -196,8 +201,8 @@ class FlashScan(_Model):
     type: Literal['flash']
     rows: Annotated[int, Field(ge=1, le=65535)]
     cols: Annotated[int, Field(ge=1)]
-    fov_az_deg: Annotated[float, Field(gt=0.0, lt=180.0)]
-    fov_el_deg: Annotated[float, Field(gt=0.0, lt=180.0)]
+    fov_az_deg: Annotated[float, Field(ge=MIN_FIELD_DEG, lt=180.0)]
+    fov_el_deg: Annotated[float, Field(ge=MIN_FIELD_DEG, lt=180.0)]
     row_readout_s: NonNegFloat = Field(0.0, description='time between two rows\' exposures (s)')
 
     @model_validator(mode='after')
@@ -214,8 +219,8 @@ class FloodConfig(_Model):
     """Flood illumination (a flash LiDAR): one pulse spread evenly over a rectangular
     field of field_az_deg x field_el_deg instead of a narrow beam per shot."""
 
-    field_az_deg: Annotated[float, Field(gt=0.0, lt=180.0)]
-    field_el_deg: Annotated[float, Field(gt=0.0, lt=180.0)]
+    field_az_deg: Annotated[float, Field(ge=MIN_FIELD_DEG, lt=180.0)]
+    field_el_deg: Annotated[float, Field(ge=MIN_FIELD_DEG, lt=180.0)]
 
 
 class RangeErrorConfig(_Model):

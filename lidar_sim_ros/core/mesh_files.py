@@ -8,17 +8,32 @@ holds (or, without a map, the first that is itself a config material) gives its
 material. A string instead of a map gives one material to the whole file (an STL or
 PLY has no material names at all). Parts that no name maps stop the load with one line
 naming them.
+
+A glTF's external files (``buffers[].uri``, ``images[].uri``) are read only from the
+file's own directory, by ``DirectoryResolver``: an absolute path, ``..`` out of it, a
+symbolic link leading out, a URI with a scheme (``file:``, ``http:``) or anything but a
+regular file is never read or fetched; for a buffer this stops the load naming the URI
+(trimesh drops a texture it cannot read: the simulator uses none). (trimesh before 5.x
+joined any such path to the directory and read it: a CAD file from elsewhere could turn
+``/etc/passwd``'s bytes into target vertices.) Embedded ``data:`` URIs are trimesh's.
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
+from urllib.parse import unquote
 
 import numpy as np
 import trimesh
+import trimesh.resolvers
 
 CAD_SUFFIXES = ('.gltf', '.glb', '.stl', '.ply')
 MAX_MESH_FILE_BYTES = 2_000_000_000
 """Largest CAD file read (a binary STL of MAX_TRIANGLES is 500 MB)."""
+MAX_GLTF_JSON_BYTES = 256_000_000
+"""Largest glTF JSON read (a .gltf, or a .glb's JSON chunk): parsed JSON takes up to ~6x its
+size (100 MB of small numbers peaked at 574 MB: a 2 GB one ~11 GB); a .gltf embedding
+MAX_TRIANGLES in base64 is ~240 MB."""
 
 
 class MeshMaterialError(ValueError):
@@ -29,14 +44,50 @@ class MeshFileError(ValueError):
     """A mesh file that cannot be read as a target: names the file and the problem."""
 
 
+_URI_SCHEME = re.compile(r'^[A-Za-z][A-Za-z0-9+.-]*:')
+
+
+class DirectoryResolver(trimesh.resolvers.FilePathResolver):
+    """trimesh's resolver for a CAD file's external files, confined to its directory
+    (module docstring); refusals are MeshFileError naming the CAD file and the URI."""
+
+    def __init__(self, cad_path: Path):
+        super().__init__(str(cad_path))
+        self.cad_path = Path(cad_path)
+        self.root = self.cad_path.resolve().parent
+
+    def get(self, name) -> bytes:
+        uri = str(name)
+        where = f'{self.cad_path}: external file {uri[:120]!r}'
+        if _URI_SCHEME.match(uri) or uri.startswith(('/', '\\')):
+            raise MeshFileError(f'{where} is not a path relative to the file\'s directory '
+                                '(absolute paths and URLs are not read; embed it or copy it beside)')
+        path = (self.root / unquote(uri)).resolve()
+        if not path.is_relative_to(self.root):
+            raise MeshFileError(f'{where} leads out of {self.root}: not read')
+        if not path.is_file():
+            raise MeshFileError(f'{where} is not a regular file in {self.root}')
+        size = path.stat().st_size
+        if size > MAX_MESH_FILE_BYTES:
+            raise MeshFileError(f'{where}: {size} bytes exceed the limit of {MAX_MESH_FILE_BYTES}')
+        return path.read_bytes()
+
+
 def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[str, str] | None,
              max_triangles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Vertices (m, V x 3), faces (F x 3) and each face's material id of a CAD file."""
     size = path.stat().st_size
     if size > MAX_MESH_FILE_BYTES:
         raise MeshFileError(f'{path}: {size} bytes exceed the limit of {MAX_MESH_FILE_BYTES}')
+    json_bytes = _gltf_json_bytes(path, size)
+    if json_bytes > MAX_GLTF_JSON_BYTES:
+        raise MeshFileError(f'{path}: {json_bytes} bytes of glTF JSON exceed the limit of '
+                            f'{MAX_GLTF_JSON_BYTES} (keep buffers in a .bin or a .glb)')
     try:
-        scene = trimesh.load(str(path), force='scene', process=False)
+        scene = trimesh.load(str(path), force='scene', process=False,
+                             resolver=DirectoryResolver(path))
+    except MeshFileError:
+        raise
     except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds on malformed files
         raise MeshFileError(f'{path}: trimesh cannot read it as a {path.suffix} mesh '
                            f'({type(exc).__name__}: {_first_line(exc)})') from None
@@ -72,6 +123,21 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
     if not faces:
         raise MeshFileError(f'{path}: no triangles found')
     return np.vstack(verts), np.vstack(faces), np.concatenate(mats)
+
+
+def _gltf_json_bytes(path: Path, size: int) -> int:
+    """Bytes of JSON trimesh would parse: a .gltf's size, a .glb's first (JSON) chunk's
+    length from its header (glTF 2.0 binary: magic, version, length, then chunk length and
+    type); 0 for other files."""
+    suffix = path.suffix.lower()
+    if suffix == '.gltf':
+        return size
+    if suffix == '.glb':
+        with open(path, 'rb') as f:
+            head = f.read(20)
+        if len(head) == 20 and head[:4] == b'glTF' and head[16:20] == b'JSON':
+            return int.from_bytes(head[12:16], 'little')
+    return 0
 
 
 def _material_of(candidates: list[str], material_names: list[str],

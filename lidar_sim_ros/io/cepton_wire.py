@@ -52,6 +52,12 @@ UNIT_M = 0.005
 """Section 3, point V0: position unit, 0.5 cm."""
 MAX_RELATIVE_US = 255
 """Section 3, point V0: the relative timestamp is one byte."""
+MAX_BRIDGED_GAP_US = 1_000_000
+"""Longest gap from one frame's last point to the next frame's first that NO_RETURN
+fillers bridge (1 s: 3,922 fillers). A longer one (a clock jumped forward: 1000 s took
+240 MB of fillers and 27,000 packets, a day would take ~20 GB), or a frame that starts before the last point (a clock jumped back:
+every frame was refused until the clock passed the old time), begins the stream afresh,
+as at the first frame: the next packet's header carries the new time (``frame_packets``)."""
 LINEAR_MAX_CODE = 127
 LINEAR_MAX = 1.27
 """Reflectivity codes 0-127: 0-127 % in 1 % steps."""
@@ -122,6 +128,8 @@ class WireStream:
     last_t_us: int | None = None
     sequence_id: int = 0
     frames: int = 0
+    restarts: int = 0
+    """Frames that began the point stream afresh (``MAX_BRIDGED_GAP_US``)."""
 
 
 @dataclass(frozen=True)
@@ -226,8 +234,12 @@ def frame_packets(driver_points: np.ndarray, state: WireStream) -> list[Packet]:
     p = driver_points
     t_us = np.asarray(p['timestamp_s'], np.int64) * 1_000_000 + np.asarray(p['timestamp_us'], np.int64)
     xyz = np.column_stack([p['x'], p['y'], p['z']]).astype(float)
+    last = state.last_t_us
+    if last is not None and len(t_us) and not 0 <= int(t_us[0]) - last <= MAX_BRIDGED_GAP_US:
+        last = None                    # a clock jump: the stream begins again (counted)
+        state.restarts += 1
     pts, t_abs = stream_points(t_us, xyz, p['intensity'], p['channel_id'], p['flags'],
-                               bool(state.frames % 2), state.last_t_us)
+                               bool(state.frames % 2), last)
     state.frames += 1
     if len(t_abs):
         state.last_t_us = int(t_abs[-1])

@@ -58,10 +58,14 @@ class UdpConfigError(ValueError):
 def check_parameters(address: str, port: int, queue_frames: int) -> None:
     """Raise UdpConfigError naming the parameter and value that cannot be used."""
     try:
-        ipaddress.IPv4Address(address)
+        ip = ipaddress.IPv4Address(address)
     except (ipaddress.AddressValueError, ValueError):
         raise UdpConfigError(f'parameter cepton_udp_address: {address!r} is not an IPv4 '
                              'address (a literal such as 127.0.0.1; no name is looked up)') from None
+    if ip.is_unspecified:
+        raise UdpConfigError(f'parameter cepton_udp_address: {address!r} is where a driver '
+                             'listens, not a destination (127.0.0.1: this machine; '
+                             '255.255.255.255: broadcast; or the receiver\'s address)')
     if not 1 <= int(port) <= 65535:
         raise UdpConfigError(f'parameter cepton_udp_port: {port} is not a UDP port (1-65535)')
     if not 1 <= int(queue_frames) <= 100:
@@ -88,7 +92,7 @@ class CeptonUdpSender:
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._stats = {'frames': 0, 'packets': 0, 'dropped_frames': 0, 'errors': 0,
-                       'last_error': ''}
+                       'last_error': '', 'restarts': 0}
         self._lag_ns: int | None = None       # node clock minus packet time when sent
         self._thread = threading.Thread(target=self._run, name='cepton_udp', daemon=True)
         self._thread.start()
@@ -107,7 +111,8 @@ class CeptonUdpSender:
         """Frames and packets sent, frames dropped, send errors since the last call."""
         with self._lock:
             out = dict(self._stats)
-            self._stats.update(frames=0, packets=0, dropped_frames=0, errors=0, last_error='')
+            self._stats.update(frames=0, packets=0, dropped_frames=0, errors=0, last_error='',
+                               restarts=0)
         return out
 
     def close(self, timeout_s: float = 2.0) -> None:
@@ -122,11 +127,15 @@ class CeptonUdpSender:
                 frame, start_ns = self._queue.get(timeout=0.1)
             except queue.Empty:
                 continue
+            restarts = self._state.restarts
             try:
                 packets = self._encode(frame, start_ns, self._state)
             except Exception as exc:  # noqa: BLE001 - a bad frame must not end the sender
                 self._count_error(exc)
                 continue
+            if self._state.restarts != restarts:   # the clock jumped (io/cepton_wire.py)
+                with self._lock:
+                    self._stats['restarts'] += self._state.restarts - restarts
             if packets:
                 self._send_frame(packets)
             with self._lock:
@@ -183,6 +192,8 @@ def stats_text(stats: dict) -> str:
     """The sender's share of the node's periodic log line."""
     text = (f'; UDP {stats["frames"]} frames, {stats["packets"]} packets, '
             f'{stats["dropped_frames"]} frames dropped (queue full)')
+    if stats.get('restarts'):
+        text += f', stream begun afresh {stats["restarts"]} times (clock jumps over 1 s)'
     if stats['errors']:
         text += f', {stats["errors"]} send errors ({stats["last_error"]})'
     return text

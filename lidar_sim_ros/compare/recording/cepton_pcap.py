@@ -17,7 +17,8 @@ z up); the reflectivity code to a fraction (0-127: 1 % steps; 128-255: log steps
 The pcap: classic libpcap (either byte order, micro- or nanosecond timestamps), link
 types Ethernet (with 802.1Q tags) or raw IPv4; UDP datagrams to or from ``port`` (8808)
 whose payload starts with ``STDV``; everything else is skipped and counted (INFO
-packets, other traffic, IPv4 fragments, other point versions). pcapng is refused with a
+packets, other traffic, IPv4 fragments, other point versions, header times at or beyond
+2^31 s). pcapng is refused with a
 message. Memory: frames are decoded one at a time.
 
 Poses CSV: a header line ``t_s,x_m,y_m,z_m,qx,qy,qz,qw`` then one row per pose: the time
@@ -33,6 +34,8 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
+from lidar_sim_ros.core.config import MAX_POSITION_M
+from lidar_sim_ros.core.vectors import QUAT_NORM_TOL
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.bag import CloudFrame, PoseSeries
 
@@ -47,7 +50,15 @@ UNIT_M = 0.005
 MAX_RECORD_BYTES = 262_144
 MAX_FRAME_POINTS = 5_000_000
 """A frame (between parity toggles) longer than this is cut: memory stays bounded."""
+MAX_TIME_US = 2**31 * 1_000_000
+"""A point time at or beyond 2^31 s (year 2038) is no Cepton clock: the driver layout's
+int32 seconds would wrap (the header's uint64 beyond 2^63 us overflowed int64)."""
 POSE_COLUMNS = ('t_s', 'x_m', 'y_m', 'z_m', 'qx', 'qy', 'qz', 'qw')
+MAX_HEADER_CHARS = 200
+"""The poses CSV header line is read up to this many characters (a file without a newline
+was read whole)."""
+MAX_POSE_ROWS = 1_000_000
+"""Most poses read from a CSV (2.8 h at 100 Hz; ~70 MB): 1e7 rows took 1.35 GB to read."""
 
 
 class PcapError(ValueError):
@@ -84,8 +95,10 @@ def reflectivity_of_code(code: np.ndarray) -> np.ndarray:
     return np.where(c <= 127, c / 100.0, 1.27 * (50.0 / 1.27) ** ((c - 127.0) / 128.0))
 
 
-def _records(f: BinaryIO, path: Path) -> Iterator[tuple[int, int, bytes]]:
-    """(link type, capture time ns, record bytes) of a classic pcap."""
+def _records(f: BinaryIO, path: Path,
+             stats: PcapStats | None = None) -> Iterator[tuple[int, int, bytes]]:
+    """(link type, capture time ns, record bytes) of a classic pcap; a record cut short by
+    the end of the file (a capture stopped mid-write) ends it, counted in ``stats``."""
     head = f.read(24)
     if head[:4] == PCAPNG_MAGIC:
         raise PcapError(f'{path} is pcapng: save it as classic pcap (Wireshark: File > Save As '
@@ -99,13 +112,17 @@ def _records(f: BinaryIO, path: Path) -> Iterator[tuple[int, int, bytes]]:
     while True:
         rec = f.read(16)
         if len(rec) < 16:
+            if rec and stats is not None:
+                stats.skip('truncated record at the end')
             return
         sec, frac, incl, _ = struct.unpack(order + 'IIII', rec)
         if incl > MAX_RECORD_BYTES:
             raise PcapError(f'{path}: a record of {incl} bytes (corrupt file?)')
         data = f.read(incl)
         if len(data) < incl:
-            return                                  # truncated last record
+            if stats is not None:
+                stats.skip('truncated record at the end')
+            return
         yield link, sec * 1_000_000_000 + frac * ns_per_tick, data
 
 
@@ -154,6 +171,9 @@ def _stdv_points(payload: bytes, stats: PcapStats) -> tuple[np.ndarray, np.ndarr
         stats.skip('STDV shorter than its point count')
         return None
     pts = np.frombuffer(payload, POINT_V0, count, hsize)
+    if ts_us + 255 * count >= MAX_TIME_US:
+        stats.skip('STDV timestamp beyond 2^31 s')
+        return None
     t_us = np.int64(ts_us) + np.cumsum(pts['dt_us'], dtype=np.int64)
     stats.stdv_packets += 1
     return pts, t_us
@@ -193,7 +213,7 @@ def iter_frames(path: str | Path, port: int = 8808,
         return None
 
     with open(path, 'rb') as f:
-        for link, _, data in _records(f, path):
+        for link, _, data in _records(f, path, stats):
             payload = _udp_payload(link, data, port, stats)
             if payload is None:
                 continue
@@ -227,29 +247,56 @@ def frame_count(path: str | Path, port: int = 8808) -> int:
 
 
 def read_pose_csv(path: str | Path) -> PoseSeries:
-    """Poses from a CSV (``POSE_COLUMNS``; see the module docstring), sorted by time."""
+    """Poses from a CSV (``POSE_COLUMNS``; see the module docstring), sorted by time.
+
+    Refused naming the file, the row (its line in the file) and its values: a non-finite
+    value, a time beyond 2^31 s, a position component beyond ``MAX_POSITION_M``, a
+    quaternion whose norm is not within ``QUAT_NORM_TOL`` of 1 (it is then normalised),
+    two rows at the same time, more than ``MAX_POSE_ROWS`` rows."""
     path = Path(path)
-    with open(path, encoding='utf-8') as f:
-        header = [h.strip() for h in f.readline().split(',')]
-        if header != list(POSE_COLUMNS):
-            raise PcapError(f'poses CSV {path}: header must be {",".join(POSE_COLUMNS)}, '
-                            f'got {",".join(header)!r}')
+    # utf-8-sig: a spreadsheet's byte-order mark is no part of the header.
+    with open(path, encoding='utf-8-sig') as f:
         try:
-            rows = np.loadtxt(f, delimiter=',', ndmin=2, dtype=float)
+            header = [h.strip() for h in f.readline(MAX_HEADER_CHARS).split(',')]
+            if header != list(POSE_COLUMNS):
+                raise PcapError(f'poses CSV {path}: header must be {",".join(POSE_COLUMNS)}, '
+                                f'got {",".join(header)[:MAX_HEADER_CHARS]!r}')
+            rows = np.loadtxt(f, delimiter=',', ndmin=2, dtype=float, max_rows=MAX_POSE_ROWS + 1)
+        except UnicodeDecodeError as exc:
+            raise PcapError(f'poses CSV {path}: not UTF-8 text (a byte '
+                            f'{exc.object[exc.start:exc.start + 1]!r})') from None
+        except PcapError:
+            raise
         except ValueError as exc:
-            raise PcapError(f'poses CSV {path}: {exc}') from None
+            raise PcapError(f'poses CSV {path}: {exc} (rows counted from 0 after the header)') from None
     if rows.size == 0:
         raise PcapError(f'poses CSV {path}: no rows')
+    if len(rows) > MAX_POSE_ROWS:
+        raise PcapError(f'poses CSV {path}: more than {MAX_POSE_ROWS} rows')
     if rows.shape[1] != len(POSE_COLUMNS):
         raise PcapError(f'poses CSV {path}: {rows.shape[1]} columns, expected {len(POSE_COLUMNS)}')
-    bad = ~np.isfinite(rows).all(axis=1) | (np.abs(rows[:, 0]) >= 2**31)
-    if bad.any():
-        k = int(np.flatnonzero(bad)[0])
-        raise PcapError(f'poses CSV {path}: row {k + 2} has a non-finite value or a time '
-                        f'beyond 2^31 s: {rows[k].tolist()}')
-    rows = rows[np.argsort(rows[:, 0], kind='stable')]
-    return PoseSeries(np.rint(rows[:, 0] * 1e9).astype(np.int64), cepton.FRAME_ID,
-                      rows[:, 1:4], rows[:, 4:8])
+    with np.errstate(invalid='ignore', over='ignore'):
+        checks = ((~np.isfinite(rows).all(axis=1),
+                   'has a non-finite value'),
+                  (np.abs(rows[:, 0]) >= 2**31, 'has a time beyond 2^31 s'),
+                  ((np.abs(rows[:, 1:4]) > MAX_POSITION_M).any(axis=1),
+                   f'has a position component beyond {MAX_POSITION_M:g} m'),
+                  (np.abs(np.linalg.norm(rows[:, 4:8], axis=1) - 1.0) > QUAT_NORM_TOL,
+                   f'has a quaternion whose norm is not within {QUAT_NORM_TOL:g} of 1'))
+    for bad, what in checks:
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise PcapError(f'poses CSV {path}: row {k + 2} {what}: {rows[k].tolist()}')
+    order = np.argsort(rows[:, 0], kind='stable')
+    stamp_ns = np.rint(rows[order, 0] * 1e9).astype(np.int64)
+    same = np.flatnonzero(np.diff(stamp_ns) == 0)
+    if same.size:
+        a, b = sorted(int(order[i]) + 2 for i in (same[0], same[0] + 1))
+        raise PcapError(f'poses CSV {path}: rows {a} and {b} have the same time '
+                        f'{float(rows[a - 2, 0])!r} s (one pose per time)')
+    rows = rows[order]
+    quat = rows[:, 4:8] / np.linalg.norm(rows[:, 4:8], axis=1, keepdims=True)
+    return PoseSeries(stamp_ns, cepton.FRAME_ID, rows[:, 1:4], quat)
 
 
 def read_pose_source(path: str | Path, topic: str) -> tuple[PoseSeries, list[str] | None]:
