@@ -176,7 +176,7 @@ def test_pose_csv_text_a_spreadsheet_writes(tmp_path):
 
 
 def test_pose_csv_rows_are_bounded_and_quaternions_normalised(tmp_path, monkeypatch):
-    from lidar_sim_ros.compare import cepton_pcap
+    from lidar_sim_ros.compare.recording import cepton_pcap
     p = tmp_path / 'p.csv'
     p.write_text('t_s,x_m,y_m,z_m,qx,qy,qz,qw\n' + ''.join(
         f'{t},10,0,0,0,0,0.6,0.805\n' for t in range(4)))

@@ -1,4 +1,4 @@
-"""Point times from a sensor's own timing (compare.measurements.with_scan_times) when a
+"""Point times from a sensor's own timing (compare.recording.measurements.with_scan_times) when a
 cloud has none: the Risley rosette (each frame its own shots) and the flash array."""
 import numpy as np
 import pytest

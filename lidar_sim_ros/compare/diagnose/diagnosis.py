@@ -1,6 +1,6 @@
 """Which effect is missing: fit the catalogue, score each on held-out points, decide.
 
-Every candidate is fitted by maximum likelihood (``compare.fit.fit_effect``; for effects
+Every candidate is fitted by maximum likelihood (``compare.model.fit.fit_effect``; for effects
 with discrete options, e.g. a footprint's range mode, each option is fitted and the
 best kept). The likelihood profiles each material's range offset and sigma scale
 (nuisance parameters), so a per-material calibration mismatch cannot pose as an
