@@ -6,6 +6,7 @@ import datetime
 from pathlib import Path
 from typing import Any, Iterable
 
+import numpy as np
 import yaml
 
 from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig, parse, read_yaml
@@ -13,6 +14,20 @@ from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig, parse, read
 
 class CalibrationInputError(ValueError):
     """Lab data that cannot be calibrated from: names the file and what is wrong where."""
+
+
+class AngularErrorSummary:
+    """A scan fit's per-shot angular error (``error_deg``, deg) summed up: RMS and p95."""
+
+    error_deg: np.ndarray
+
+    @property
+    def rms_deg(self) -> float:
+        return float(np.sqrt(np.mean(self.error_deg ** 2)))
+
+    @property
+    def p95_deg(self) -> float:
+        return float(np.percentile(self.error_deg, 95))
 
 
 class _Flow(dict):

@@ -19,8 +19,9 @@ from pathlib import Path
 import numpy as np
 from scipy import optimize
 
-from lidar_sim_ros.calibrate.common import (CalibrationInputError, format_table, new_figure,
-                                            save_figure, sig, write_sensor)
+from lidar_sim_ros.calibrate.common import (AngularErrorSummary, CalibrationInputError,
+                                            format_table, new_figure, save_figure, sig,
+                                            write_sensor)
 from lidar_sim_ros.calibrate.scan_samples import ScanSamples, read_scan_samples
 from lidar_sim_ros.core.config import LissajousArrayScan, RisleyScan, load_sensor, read_yaml
 from lidar_sim_ros.core.scan import (LissajousLaser, directions_from_angles, frame_shots,
@@ -273,7 +274,7 @@ def infer_tiling(lasers: LissajousLaser) -> tuple[int, int] | None:
 
 # ------------------------------------------------------------------ output
 @dataclass
-class ScanCalibration:
+class ScanCalibration(AngularErrorSummary):
     """The fitted pattern, its error per shot, and the sensor YAML written."""
 
     samples: ScanSamples
@@ -290,14 +291,6 @@ class ScanCalibration:
     warnings: list[str] = field(default_factory=list)
     out: Path | None = None
     report: str = ''
-
-    @property
-    def rms_deg(self) -> float:
-        return float(np.sqrt(np.mean(self.error_deg ** 2)))
-
-    @property
-    def p95_deg(self) -> float:
-        return float(np.percentile(self.error_deg, 95))
 
 
 def _shots_per_laser(samples: ScanSamples, period_s: float, n_lasers: int) -> int | None:

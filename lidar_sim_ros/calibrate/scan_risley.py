@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 from scipy import optimize
 
-from lidar_sim_ros.calibrate.common import (CalibrationInputError, new_figure, save_figure, sig,
-                                            write_sensor)
+from lidar_sim_ros.calibrate.common import (AngularErrorSummary, CalibrationInputError, new_figure,
+                                            save_figure, sig, write_sensor)
 from lidar_sim_ros.calibrate.scan_samples import ScanSamples, read_scan_samples
 from lidar_sim_ros.core.config import RisleyScan, load_sensor, read_yaml
 from lidar_sim_ros.core.scan import frame_shots
@@ -38,7 +38,7 @@ CANDIDATE_PEAKS = 4             # periodogram peaks tried for each rate
 
 
 @dataclass
-class RisleyCalibration:
+class RisleyCalibration(AngularErrorSummary):
     """The fitted prisms, the error per point, and the sensor YAML written."""
 
     samples: ScanSamples
@@ -53,14 +53,6 @@ class RisleyCalibration:
     warnings: list[str] = field(default_factory=list)
     out: Path | None = None
     report: str = ''
-
-    @property
-    def rms_deg(self) -> float:
-        return float(np.sqrt(np.mean(self.error_deg ** 2)))
-
-    @property
-    def p95_deg(self) -> float:
-        return float(np.percentile(self.error_deg, 95))
 
 
 def deviation_of(direction: np.ndarray) -> np.ndarray:

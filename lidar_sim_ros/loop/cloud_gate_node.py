@@ -27,6 +27,7 @@ from sensor_msgs.msg import PointCloud2
 
 from lidar_sim_ros.io.pointcloud import from_pointcloud2, stamp_to_ns
 from lidar_sim_ros.ros.parameters import declare_startup
+from lidar_sim_ros.ros.pose_input import DropCounter
 from lidar_sim_ros.ros.spin import run_node
 
 NODE_NAME = 'loop_cloud_gate'
@@ -138,8 +139,8 @@ class CloudGateNode(Node):
             raise ValueError(f'gate_m {self.gate_m}, capture_gate_m {self.capture_gate_m} must be >= 0 and '
                              f'period_s {period_s} > 0')
         self.book = EstimateBook(round(period_s * 1e9))
-        self.dropped = {'cloud': 0, 'non_finite': 0, 'range': 0}
-        self._noted: dict[str, float] = {}
+        self._drops = DropCounter(('cloud', 'non_finite', 'range'))
+        self.dropped = self._drops.counts
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.pub = self.create_publisher(PointCloud2, output_topic, qos)
         # The estimates' subscription first: an executor serves ready subscriptions in the order
@@ -160,11 +161,7 @@ class CloudGateNode(Node):
                                f'of the last estimate on {estimate_topic}')
 
     def _drop(self, cause: str, text: str) -> None:
-        self.dropped[cause] += 1
-        now = time.monotonic()
-        if now - self._noted.get(cause, -np.inf) >= 1.0:
-            self._noted[cause] = now
-            self.get_logger().warn(f'{text} [{cause}: {self.dropped[cause]} dropped so far]')
+        self._drops.drop(cause, text, self.get_logger().warn)
 
     def _on_estimate(self, msg: PoseStamped) -> None:
         p = msg.pose.position

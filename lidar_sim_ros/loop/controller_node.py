@@ -33,6 +33,7 @@ from lidar_sim_ros.loop.guidance import GuidanceState, NavState, nav_update
 from lidar_sim_ros.loop.step import guide_and_control
 from lidar_sim_ros.loop.user_gnc import load_user_gnc
 from lidar_sim_ros.paths import config_path
+from lidar_sim_ros.ros.pose_input import DropCounter
 from lidar_sim_ros.ros.parameters import declare_startup
 from lidar_sim_ros.ros.spin import run_node
 
@@ -97,8 +98,8 @@ class LoopControllerNode(Node):
         self.gnc = load_user_gnc(self.config)
         self.attitudes: deque[tuple[int, np.ndarray]] = deque(maxlen=400)
         self.last_stamp_s: float | None = None
-        self.dropped = dict.fromkeys(DROP_CAUSES, 0)
-        self._noted: dict[str, float] = {}
+        self._drops = DropCounter(DROP_CAUSES)
+        self.dropped = self._drops.counts
         reliable = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(QuaternionStamped, '/chaser/attitude', self._on_attitude, reliable)
         self.create_subscription(PoseStamped, estimate_topic, self._on_estimate, QoSProfile(depth=20))
@@ -114,12 +115,7 @@ class LoopControllerNode(Node):
         self.get_logger().info(f'estimates on {estimate_topic} -> commands on {command_topic} (frame lvlh)')
 
     def _drop(self, cause: str, text: str) -> None:
-        """Count a dropped input; one warning a second per cause, with its count."""
-        self.dropped[cause] += 1
-        now = time.monotonic()
-        if now - self._noted.get(cause, -np.inf) >= 1.0:
-            self._noted[cause] = now
-            self.get_logger().warn(f'{text} [{cause}: {self.dropped[cause]} dropped so far]')
+        self._drops.drop(cause, text, self.get_logger().warn)
 
     def _on_attitude(self, msg: QuaternionStamped) -> None:
         q = msg.quaternion

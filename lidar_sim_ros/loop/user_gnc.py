@@ -26,14 +26,13 @@ identical to the bit with them too.
 from __future__ import annotations
 
 import importlib
-import importlib.util
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-_FILE_MODULES: dict[Path, Any] = {}
+from lidar_sim_ros.user_code import load_source_file
 
 
 def resolve_spec(spec: str | None, base_dir: Path) -> str | None:
@@ -57,12 +56,7 @@ def load_entry_point(spec: str) -> Callable:
         path = Path(where).expanduser().resolve()
         if not path.is_file():
             raise FileNotFoundError(f'entry point {spec!r}: no file {path}')
-        module = _FILE_MODULES.get(path)
-        if module is None:
-            loader_spec = importlib.util.spec_from_file_location(f'user_gnc_{path.stem}', path)
-            module = importlib.util.module_from_spec(loader_spec)
-            loader_spec.loader.exec_module(module)
-            _FILE_MODULES[path] = module
+        module = load_source_file(path, 'user_gnc_')
     else:
         module = importlib.import_module(where)
     factory = getattr(module, name, None)

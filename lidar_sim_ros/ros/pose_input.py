@@ -8,6 +8,8 @@ every shot of a frame is posed with.
 """
 from __future__ import annotations
 
+import time
+
 from collections import deque
 from dataclasses import dataclass, replace
 from typing import NamedTuple
@@ -188,3 +190,18 @@ class ReasonThrottle:
             return False, 0
         self._last[kind] = now_s
         return True, self._suppressed.pop(kind, 0)
+
+
+class DropCounter:
+    """Inputs dropped, counted by cause (``counts``); one warning a second per cause, with
+    the count so far, so a flood of one cause never hides another."""
+
+    def __init__(self, causes, period_s: float = 1.0):
+        self.counts: dict[str, int] = dict.fromkeys(causes, 0)
+        self._throttle = ReasonThrottle(period_s)
+
+    def drop(self, cause: str, text: str, warn) -> None:
+        """Count one input dropped for ``cause``; ``warn(line)`` when this cause may speak."""
+        self.counts[cause] = self.counts.get(cause, 0) + 1
+        if self._throttle.allow(cause, time.monotonic())[0]:
+            warn(f'{text} [{cause}: {self.counts[cause]} dropped so far]')

@@ -7,14 +7,12 @@ measurements lives above the pipeline, in ``lidar_sim_ros.compare.model.fit``.
 from __future__ import annotations
 
 import importlib
-import importlib.util
 from pathlib import Path
 
 from lidar_sim_ros.core.effects.base import Effect, ExtraReturns, NoParams, ReturnContext
+from lidar_sim_ros.user_code import load_source_file
 
 REGISTRY: dict[str, type[Effect]] = {}
-# User effect files already executed, by resolved path: loading twice gives the same class.
-_FILE_MODULES: dict[Path, object] = {}
 
 # Catalogue modules register themselves on import. ``catalogue()`` lists the effects the
 # comparison diagnoses on any recording; those that need more than the recording's points
@@ -64,6 +62,7 @@ def is_plugin_spec(spec: str) -> bool:
     allow-list, not a pattern: no spelling of a path passes for a catalogue name."""
     return spec not in builtin_names()
 
+
 def get_effect_class(spec: str) -> type[Effect]:
     """Resolve a catalogue name, ``module:Class`` or ``file.py:Class`` to an Effect class."""
     _load_catalogue()
@@ -82,12 +81,7 @@ def get_effect_class(spec: str) -> type[Effect]:
             raise TypeError(f'{spec}: an effect file is Python source ending in .py, '
                             f'not {path.name!r}')
         path = path.resolve()
-        module = _FILE_MODULES.get(path)
-        if module is None:
-            mod_spec = importlib.util.spec_from_file_location(f'user_effect_{path.stem}', path)
-            module = importlib.util.module_from_spec(mod_spec)
-            mod_spec.loader.exec_module(module)
-            _FILE_MODULES[path] = module
+        module = load_source_file(path, 'user_effect_')
         load_spec = f'{path}:{cls_name}'
     else:
         module = importlib.import_module(where)
