@@ -79,6 +79,7 @@ def test_mostly_garbage_points_refuse_the_bag(tmp_path):
     ([np.nan, 0.0, 0.0], None),          # NaN position: "up to noise", 8x slower
     (None, [0.0, 0.0, 0.0, 0.0]),        # zero quaternion: scipy's message, no bag named
     (None, [np.nan, 0.0, 0.0, 1.0]),
+    ([1e300, 0.0, 0.0], None),           # finite but absurd: "0 of N rays hit", the pose blamed
 ])
 def test_one_bad_pose_is_dropped_counted_and_noted(tmp_path, pose):
     def edit(pos, quat):

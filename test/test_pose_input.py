@@ -44,6 +44,11 @@ def test_near_unit_quaternion_is_normalised():
     ({'quat': Q_UNIT * (1 + 2 * QUAT_NORM_TOL)}, 'quaternion_norm', 'far from 1'),
     ({'frame_id': 'map'}, 'frame_id', "'map' is not the node frame_id 'lidar'"),
     ({'velocity_mps': np.array([0, np.nan, 0])}, 'twist', 'velocity_mps'),
+    # Finite but absurd: a frame from 1e300 m sees nothing and blames nobody.
+    ({'position': (1e300, 0, 0)}, 'position', 'beyond 100000 m'),
+    ({'position': (0, 0, -1.5e5)}, 'position', 'beyond 100000 m'),
+    ({'velocity_mps': np.array([0, 1e300, 0])}, 'twist', 'beyond 10000'),
+    ({'angular_velocity_rad_s': np.array([0, 0, 100.0])}, 'twist', 'beyond 62.83'),
 ])
 def test_bad_content_is_rejected_with_reason(kw, kind, words):
     good, rejection = check(sample(**kw))

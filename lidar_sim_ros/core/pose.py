@@ -14,19 +14,20 @@ import numpy as np
 from numba import njit
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.core.config import ScenarioConfig
+from lidar_sim_ros.core.config import MAX_POSITION_M, ScenarioConfig
 from lidar_sim_ros.core.vectors import QUAT_NORM_TOL
 
 
 def valid_pose_mask(position_m: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
-    """(N,) bool: the pose samples with a finite position and a finite quaternion whose
-    norm is within QUAT_NORM_TOL of 1 (zero and NaN quaternions included in the refused)."""
+    """(N,) bool: the pose samples with a finite position within MAX_POSITION_M (100 km) on
+    every axis and a finite quaternion whose norm is within QUAT_NORM_TOL of 1 (zero and
+    NaN quaternions included in the refused)."""
     pos = np.asarray(position_m, float).reshape(-1, 3)
     quat = np.asarray(quat_xyzw, float).reshape(-1, 4)
     with np.errstate(invalid='ignore', over='ignore'):
         norm = np.linalg.norm(quat, axis=1)
-        return (np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
-                & (np.abs(norm - 1.0) <= QUAT_NORM_TOL))
+        return (np.isfinite(pos).all(axis=1) & (np.abs(pos) <= MAX_POSITION_M).all(axis=1)
+                & np.isfinite(quat).all(axis=1) & (np.abs(norm - 1.0) <= QUAT_NORM_TOL))
 
 
 def quat_multiply(q1_xyzw: np.ndarray, q2_xyzw: np.ndarray) -> np.ndarray:

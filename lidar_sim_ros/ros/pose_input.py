@@ -17,6 +17,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from lidar_sim_ros.core.config import MAX_APPROACH_SPEED_MPS, MAX_POSITION_M, MAX_TUMBLE_RATE_DPS
 from lidar_sim_ros.core.pose import QUAT_NORM_TOL, PoseTrack  # noqa: F401 - one tolerance
 
 NS_PER_S = 1_000_000_000
@@ -53,7 +54,8 @@ def check_pose(sample: PoseSample, frame_id: str, last_stamp_ns: int | None, now
                stale_timeout_s: float) -> tuple[PoseSample | None, Rejection | None]:
     """Validate a sample; return (sample with unit quaternion, None) or (None, rejection).
 
-    Rejected: wrong frame_id; non-finite position, quaternion or twist; a quaternion
+    Rejected: wrong frame_id; non-finite position, quaternion or twist; a position beyond
+    MAX_POSITION_M (100 km), a twist beyond 10 km/s or 3600 deg/s per axis; a quaternion
     whose norm is off 1 by more than QUAT_NORM_TOL (zero included); a stamp not after
     ``last_stamp_ns`` (the newest accepted one); a stamp more than ``stale_timeout_s``
     behind ``now_ns`` (stale) or ahead of it (from the future).
@@ -64,6 +66,9 @@ def check_pose(sample: PoseSample, frame_id: str, last_stamp_ns: int | None, now
     pos = np.asarray(sample.position_m, dtype=float)
     if pos.shape != (3,) or not np.isfinite(pos).all():
         return None, Rejection('position', f'position {pos.tolist()} is not finite')
+    if np.abs(pos).max() > MAX_POSITION_M:
+        return None, Rejection('position', f'position {pos.tolist()} is beyond '
+                                           f'{MAX_POSITION_M:g} m')
     quat = np.asarray(sample.quat_xyzw, dtype=float)
     if quat.shape != (4,) or not np.isfinite(quat).all():
         return None, Rejection('quaternion', f'quaternion {quat.tolist()} is not finite')
@@ -73,10 +78,17 @@ def check_pose(sample: PoseSample, frame_id: str, last_stamp_ns: int | None, now
     if abs(norm - 1.0) > QUAT_NORM_TOL:
         return None, Rejection('quaternion_norm', f'quaternion norm {norm:.6g} is far from 1 '
                                                   f'(tolerance {QUAT_NORM_TOL:g})')
-    for name in ('velocity_mps', 'angular_velocity_rad_s'):
+    for name, limit in (('velocity_mps', MAX_APPROACH_SPEED_MPS),
+                        ('angular_velocity_rad_s', np.radians(MAX_TUMBLE_RATE_DPS))):
         rate = getattr(sample, name)
-        if rate is not None and not np.isfinite(np.asarray(rate, dtype=float)).all():
-            return None, Rejection('twist', f'{name} {np.asarray(rate).tolist()} is not finite')
+        if rate is None:
+            continue
+        rate = np.asarray(rate, dtype=float)
+        if not np.isfinite(rate).all():
+            return None, Rejection('twist', f'{name} {rate.tolist()} is not finite')
+        if np.abs(rate).max() > limit:
+            return None, Rejection('twist', f'{name} {rate.tolist()} is beyond {limit:.6g} '
+                                            'per axis')
     if last_stamp_ns is not None and sample.stamp_ns <= last_stamp_ns:
         return None, Rejection('stamp_order', f'stamp {_fmt_ns(sample.stamp_ns)} s is not after '
                                               f'the last accepted stamp {_fmt_ns(last_stamp_ns)} s')

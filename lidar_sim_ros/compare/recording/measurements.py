@@ -38,7 +38,7 @@ from lidar_sim_ros.compare.recording.fields import (FieldError, flag_counts, fla
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, cloud_count,
                                   iter_clouds, read_material_names, read_poses)
-from lidar_sim_ros.core.config import MAX_LASERS
+from lidar_sim_ros.core.config import MAX_LASERS, MAX_POSITION_M
 from lidar_sim_ros.core.pose import QUAT_NORM_TOL, PoseTrack, valid_pose_mask
 from lidar_sim_ros.core.scan import Shots
 
@@ -363,19 +363,21 @@ def _check_xyz_fields(dtype: np.dtype, bag: Path, topic: str, k: int) -> None:
 
 
 def _usable_poses(bag: Path, topic: str, poses, notes: list[str]):
-    """The pose samples with a finite position and a unit quaternion (within
+    """The pose samples with a finite position within 100 km and a unit quaternion (within
     QUAT_NORM_TOL, then normalised); the others are dropped, counted and noted."""
     ok = valid_pose_mask(poses.position_m, poses.quat_xyzw)
     n_bad = int((~ok).sum())
     if n_bad == len(ok):
         raise MeasurementError(
-            f'bag {bag}: none of the {len(ok)} pose(s) on {topic!r} is usable (finite position, '
-            f'quaternion norm within {QUAT_NORM_TOL:g} of 1); first: position '
+            f'bag {bag}: none of the {len(ok)} pose(s) on {topic!r} is usable (finite position '
+            f'within {MAX_POSITION_M:g} m, quaternion norm within {QUAT_NORM_TOL:g} of 1); '
+            f'first: position '
             f'{poses.position_m[0].tolist()}, quat_xyzw {poses.quat_xyzw[0].tolist()}')
     if n_bad:
         k = int(np.flatnonzero(~ok)[0])
-        notes.append(f'{n_bad} of {len(ok)} pose(s) on {topic!r} dropped (non-finite, or '
-                     f'quaternion norm not within {QUAT_NORM_TOL:g} of 1), first #{k}: position '
+        notes.append(f'{n_bad} of {len(ok)} pose(s) on {topic!r} dropped (non-finite, a '
+                     f'position beyond {MAX_POSITION_M:g} m, or quaternion norm not within '
+                     f'{QUAT_NORM_TOL:g} of 1), first #{k}: position '
                      f'{poses.position_m[k].tolist()}, quat_xyzw {poses.quat_xyzw[k].tolist()}')
     quat = poses.quat_xyzw[ok]
     return replace(poses, stamp_ns=poses.stamp_ns[ok], position_m=poses.position_m[ok],
