@@ -42,3 +42,17 @@ def test_triangle_count_is_limited(tmp_path, monkeypatch):
     monkeypatch.setattr(geometry, 'MAX_TRIANGLES', 1)
     with pytest.raises(MeshFileError, match='2 faces exceed the limit of 1 triangles'):
         load_target(obj(tmp_path, SQUARE + 'f 1 2 3\nf 1 3 4\n'), ['PIF'])
+
+
+@pytest.mark.parametrize('mtllib', ['../outside.mtl', '{outside}'])
+def test_an_obj_material_library_out_of_its_folder_is_not_read(tmp_path, mtllib):
+    """An OBJ's mtllib is read from the mesh's own folder only (as a glTF's buffers are):
+    '../x.mtl' or an absolute path once had its file read to decide the material names."""
+    outside = tmp_path / 'outside.mtl'
+    outside.write_text('newmtl PIF\n')
+    (tmp_path / 'inner').mkdir()
+    obj = tmp_path / 'inner' / 'm.obj'
+    obj.write_text(f'mtllib {mtllib.format(outside=outside)}\nv 0 0 0\nv 1 0 0\nv 0 1 0\n'
+                   'usemtl PIF\nf 1 2 3\n')
+    with pytest.raises(MeshFileError, match='is not beside the mesh'):
+        load_target(obj, ['PIF', 'MLI'])

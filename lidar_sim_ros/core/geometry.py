@@ -23,8 +23,8 @@ from scipy.spatial import ConvexHull, QhullError
 
 from lidar_sim_ros.core import geometry_kernels as kernels
 from lidar_sim_ros.core.memory import release_freed_memory
-from lidar_sim_ros.core.mesh_files import (CAD_SUFFIXES, MeshFileError, MeshMaterialError,
-                                           read_cad)
+from lidar_sim_ros.core.mesh_files import (CAD_SUFFIXES, DirectoryResolver, MeshFileError,
+                                           MeshMaterialError, read_cad)
 from lidar_sim_ros.core.pose import Poses
 
 
@@ -342,7 +342,12 @@ def load_target(obj_path: str | Path, material_names: list[str], threads: int = 
     names_only = check_obj_file(obj_path)
     try:
         with _with_names_mtl(obj_path, names_only) as loadable:
-            scene = trimesh.load(loadable, force='scene', process=False)
+            # The material library and its images from the OBJ's own folder only, whatever
+            # trimesh's version does with absolute paths or '..' (mesh_files.DirectoryResolver).
+            scene = trimesh.load(loadable, force='scene', process=False,
+                                 resolver=DirectoryResolver(loadable))
+    except MeshFileError:
+        raise
     except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds on malformed files
         raise MeshFileError(f'{obj_path}: trimesh cannot read it as an OBJ mesh '
                             f'({type(exc).__name__}: {exc})') from None
@@ -434,7 +439,12 @@ def check_obj_file(obj_path: Path) -> list[str] | None:
     if not usemtl:
         raise MeshFileError(f'{obj_path}: no usemtl lines: every face needs a material name '
                             'from the materials config (usemtl NAME)')
-    libraries = [obj_path.parent / name for name in mtllibs]
+    root = obj_path.resolve().parent
+    libraries = [(root / name).resolve() for name in mtllibs]
+    for name, lib in zip(mtllibs, libraries):
+        if Path(name).is_absolute() or not lib.is_relative_to(root):
+            raise MeshFileError(f'{obj_path}: mtllib {name!r} is not beside the mesh (absolute '
+                                f'paths and paths out of {root} are not read; copy it beside)')
     if libraries and all(lib.is_file() for lib in libraries):
         defined = {line.split(None, 1)[1].strip() for lib in libraries
                    for line in lib.read_text(encoding='utf-8', errors='replace').splitlines()
