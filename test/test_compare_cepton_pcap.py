@@ -260,3 +260,21 @@ def test_calibrate_range_errors_from_a_pcap(tmp_path):
         a = from_pcap.written[name]['bias_m']
         b = from_bag.written[name]['bias_m']
         assert a == pytest.approx(b, abs=0.002) and a == pytest.approx(truth['bias_m'], abs=0.006)
+
+
+def test_what_the_reader_skipped_is_in_the_notes(tmp_path):
+    """Packets skipped while reading a pcap (INFO, a fragment, a cut...) reach the
+    comparison's notes (terminal and summary.json), not only the reader's counters."""
+    from lidar_sim_ros.compare.recording.measurements import load_measurements
+    a = [(100, 2000, -50, 30, 0, 7, 0)] * 40
+    b = [(100, 2000, -50, 30, 0, 7, 4)] * 40                 # parity 1: the second frame
+    pcap = write_pcap(tmp_path / 'a.pcap', [(T0_US, stdv(T0_US, a)),
+                                            (T0_US + 50_000, b'INFZ' + bytes(100)),
+                                            (T0_US + 100_000, stdv(T0_US + 100_000, b))])
+    csv = tmp_path / 'poses.csv'
+    t0 = T0_US / 1e6
+    csv.write_text('t_s,x_m,y_m,z_m,qx,qy,qz,qw\n'
+                   f'{t0 - 1:.6f},10,0,0,0,0,0,1\n{t0 + 1:.6f},10,0,0,0,0,0,1\n')
+    meas = load_measurements(pcap, poses_from=csv)
+    assert ('pcap: 2 STDV packet(s) read into 2 frame(s); skipped: 1 not STDV (INFO or other)'
+            in meas.notes), meas.notes

@@ -118,7 +118,7 @@ def _static_frames(bag: Path, cloud_topic: str, pose_topic: str,
     CSV: ``compare/recording/cepton_pcap.py``), which may also replace a bag's own poses."""
     try:
         if is_pcap(bag):
-            poses, _, _, frames_of = pcap_recording(bag, poses_from, pose_topic)
+            poses, _, _, frames_of, _ = pcap_recording(bag, poses_from, pose_topic)
             clouds = list(frames_of)
             cloud_topic = f'UDP {bag.name}'
         else:

@@ -322,7 +322,8 @@ def side_bag(recording: str | Path, poses: str | Path | None) -> Path | None:
 
 def pcap_recording(path: str | Path, poses: str | Path | None, pose_topic: str,
                    port: int = 8808):
-    """(poses, material names, frame count, frame iterator) of a pcap recording."""
+    """(poses, material names, frame count, frame iterator, PcapStats) of a pcap recording;
+    the stats fill as the frames are read (packets skipped by reason)."""
     if poses is None:
         raise PcapError(f'{path} is a pcap (the sensor\'s packets): give the target poses '
                         'with --poses BAG_OR_CSV')
@@ -330,4 +331,14 @@ def pcap_recording(path: str | Path, poses: str | Path | None, pose_topic: str,
     n = frame_count(path, port)
     if n == 0:
         raise PcapError(f'{path}: no Cepton STDV point packets on UDP port {port}')
-    return series, names, n, iter_frames(path, port)
+    stats = PcapStats()
+    return series, names, n, iter_frames(path, port, stats), stats
+
+
+def skipped_line(stats: PcapStats) -> str | None:
+    """One line on the packets a pass skipped (None when it skipped nothing)."""
+    if not stats.skipped:
+        return None
+    reasons = ', '.join(f'{n} {why}' for why, n in sorted(stats.skipped.items()))
+    return (f'pcap: {stats.stdv_packets} STDV packet(s) read into {stats.frames} frame(s); '
+            f'skipped: {reasons}')

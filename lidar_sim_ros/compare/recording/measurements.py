@@ -32,7 +32,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.compare.recording.cepton_pcap import (PcapError, is_pcap, pcap_recording,
-                                                         read_pose_source)
+                                                         read_pose_source, skipped_line)
 from lidar_sim_ros.compare.recording.fields import (FieldError, flag_counts, flag_lines,
                                                     point_time_ns, resolve_fields)
 from lidar_sim_ros.io import cepton
@@ -156,9 +156,11 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         raise FileNotFoundError(f'bag {bag} does not exist')
     try:
         if is_pcap(bag):
-            poses, names, n_clouds, clouds = pcap_recording(bag, poses_from, pose_topic)
+            poses, names, n_clouds, clouds, pcap_stats = pcap_recording(bag, poses_from,
+                                                                        pose_topic)
             cloud_topic = f'UDP {bag.name}'
         else:
+            pcap_stats = None
             poses, names = (read_pose_source(poses_from, pose_topic) if poses_from
                             else (read_poses(bag, pose_topic), read_material_names(bag)))
             n_clouds = cloud_count(bag, cloud_topic)
@@ -260,6 +262,8 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         cols['cloud'].append(np.full(ok.sum(), k))
         cols['laser'].append(laser_ids(p[fmap.laser][ok], fmap.laser, bag, cloud_topic, k)
                              if fmap.laser else np.zeros(ok.sum(), np.int64))
+    if pcap_stats is not None and skipped_line(pcap_stats):
+        notes.append(skipped_line(pcap_stats))
     total = sum(len(x) for x in cols['xyz'])
     invalid = n_far + n_bad_time
     if invalid > MAX_INVALID_FRACTION * (total + n_thinned + invalid):
