@@ -16,6 +16,11 @@ class CalibrationInputError(ValueError):
     """Lab data that cannot be calibrated from: names the file and what is wrong where."""
 
 
+def rms_p95_deg(error_deg: np.ndarray) -> tuple[float, float]:
+    """RMS and 95th percentile of per-shot angular errors (deg)."""
+    return float(np.sqrt(np.mean(error_deg ** 2))), float(np.percentile(error_deg, 95))
+
+
 class AngularErrorSummary:
     """A scan fit's per-shot angular error (``error_deg``, deg) summed up: RMS and p95."""
 
@@ -23,11 +28,11 @@ class AngularErrorSummary:
 
     @property
     def rms_deg(self) -> float:
-        return float(np.sqrt(np.mean(self.error_deg ** 2)))
+        return rms_p95_deg(self.error_deg)[0]
 
     @property
     def p95_deg(self) -> float:
-        return float(np.percentile(self.error_deg, 95))
+        return rms_p95_deg(self.error_deg)[1]
 
 
 class _Flow(dict):

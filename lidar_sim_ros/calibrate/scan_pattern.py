@@ -20,8 +20,8 @@ import numpy as np
 from scipy import optimize
 
 from lidar_sim_ros.calibrate.common import (AngularErrorSummary, CalibrationInputError,
-                                            format_table, new_figure, save_figure, sig,
-                                            write_sensor)
+                                            format_table, new_figure, rms_p95_deg, save_figure,
+                                            sig, write_sensor)
 from lidar_sim_ros.calibrate.scan_samples import ScanSamples, read_scan_samples
 from lidar_sim_ros.core.config import LissajousArrayScan, RisleyScan, load_sensor, read_yaml
 from lidar_sim_ros.core.scan import (LissajousLaser, directions_from_angles, frame_shots,
@@ -418,9 +418,9 @@ def format_report(cal: ScanCalibration) -> str:
              f'angular error per shot (fitted pattern): RMS {cal.rms_deg:.3g} deg, '
              f'p95 {cal.p95_deg:.3g} deg, max {cal.error_deg.max():.3g} deg']
     if cal.prior_error_deg is not None:
-        e = cal.prior_error_deg
+        rms, p95 = rms_p95_deg(cal.prior_error_deg)
         lines.append(f'angular error per shot with the input sensor config: RMS '
-                     f'{np.sqrt(np.mean(e ** 2)):.3g} deg, p95 {np.percentile(e, 95):.3g} deg')
+                     f'{rms:.3g} deg, p95 {p95:.3g} deg')
     return '\n'.join(lines)
 
 

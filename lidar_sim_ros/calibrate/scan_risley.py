@@ -22,7 +22,7 @@ import numpy as np
 from scipy import optimize
 
 from lidar_sim_ros.calibrate.common import (AngularErrorSummary, CalibrationInputError, new_figure,
-                                            save_figure, sig, write_sensor)
+                                            rms_p95_deg, save_figure, sig, write_sensor)
 from lidar_sim_ros.calibrate.scan_samples import ScanSamples, read_scan_samples
 from lidar_sim_ros.core.config import RisleyScan, load_sensor, read_yaml
 from lidar_sim_ros.core.scan import frame_shots
@@ -250,10 +250,9 @@ def format_report(cal: RisleyCalibration) -> str:
     if period < 100.0:
         lines.append(f'the rosette closes after {period:.6g} s ({petals_per_period(cal.rates_hz)} petals)')
     if cal.prior_error_deg is not None:
-        e = cal.prior_error_deg
+        rms, p95 = rms_p95_deg(cal.prior_error_deg)
         lines.append(f'angular error per point with the input sensor config (its phases taken at '
-                     f'the first cloud): RMS {np.sqrt(np.mean(e ** 2)):.3g} deg, '
-                     f'p95 {np.percentile(e, 95):.3g} deg')
+                     f'the first cloud): RMS {rms:.3g} deg, p95 {p95:.3g} deg')
     return '\n'.join(lines)
 
 

@@ -23,8 +23,8 @@ from scipy.spatial import ConvexHull, QhullError
 
 from lidar_sim_ros.core import geometry_kernels as kernels
 from lidar_sim_ros.core.memory import release_freed_memory
-from lidar_sim_ros.core.mesh_files import (CAD_SUFFIXES, DirectoryResolver, MeshFileError,
-                                           MeshMaterialError, read_cad)
+from lidar_sim_ros.core.mesh_files import (CAD_SUFFIXES, MeshFileError, MeshMaterialError,
+                                           load_scene, read_cad)
 from lidar_sim_ros.core.pose import Poses
 
 
@@ -340,17 +340,10 @@ def load_target(obj_path: str | Path, material_names: list[str], threads: int = 
         release_freed_memory(collect=True)
         return target
     names_only = check_obj_file(obj_path)
-    try:
-        with _with_names_mtl(obj_path, names_only) as loadable:
-            # The material library and its images from the OBJ's own folder only, whatever
-            # trimesh's version does with absolute paths or '..' (mesh_files.DirectoryResolver).
-            scene = trimesh.load(loadable, force='scene', process=False,
-                                 resolver=DirectoryResolver(loadable))
-    except MeshFileError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds on malformed files
-        raise MeshFileError(f'{obj_path}: trimesh cannot read it as an OBJ mesh '
-                            f'({type(exc).__name__}: {exc})') from None
+    with _with_names_mtl(obj_path, names_only) as loadable:
+        # The material library and its images from the OBJ's own folder only, whatever
+        # trimesh's version does with absolute paths or '..'.
+        scene = load_scene(obj_path, loadable, 'an OBJ')
     verts, faces, mats, unknown = [], [], [], []
     offset = 0
     for key, geom in scene.geometry.items():

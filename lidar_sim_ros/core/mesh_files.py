@@ -73,6 +73,20 @@ class DirectoryResolver(trimesh.resolvers.FilePathResolver):
         return path.read_bytes()
 
 
+def load_scene(path: Path, loadable: Path, kind: str) -> trimesh.Scene:
+    """trimesh's scene of ``loadable`` (the mesh file ``path`` or a stand-in for it), its
+    external files read from its own folder only (``DirectoryResolver``); anything trimesh
+    cannot read is a MeshFileError naming ``path`` (``kind``: 'an OBJ', 'a .glb')."""
+    try:
+        return trimesh.load(str(loadable), force='scene', process=False,
+                            resolver=DirectoryResolver(loadable))
+    except MeshFileError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds on malformed files
+        raise MeshFileError(f'{path}: trimesh cannot read it as {kind} mesh '
+                            f'({type(exc).__name__}: {_first_line(exc)})') from None
+
+
 def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[str, str] | None,
              max_triangles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Vertices (m, V x 3), faces (F x 3) and each face's material id of a CAD file."""
@@ -83,14 +97,7 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
     if json_bytes > MAX_GLTF_JSON_BYTES:
         raise MeshFileError(f'{path}: {json_bytes} bytes of glTF JSON exceed the limit of '
                             f'{MAX_GLTF_JSON_BYTES} (keep buffers in a .bin or a .glb)')
-    try:
-        scene = trimesh.load(str(path), force='scene', process=False,
-                             resolver=DirectoryResolver(path))
-    except MeshFileError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds on malformed files
-        raise MeshFileError(f'{path}: trimesh cannot read it as a {path.suffix} mesh '
-                           f'({type(exc).__name__}: {_first_line(exc)})') from None
+    scene = load_scene(path, path, f'a {path.suffix}')
     verts, faces, mats, unmapped = [], [], [], []
     offset = n_faces = 0
     for node in scene.graph.nodes_geometry:
