@@ -367,14 +367,19 @@ def beam_footprint(args, fx_scenario, traj, np) -> dict:
             'full_over_fast': statistics.median(full) / statistics.median(fast)}
 
 
-def thread_scaling(args, fx_scenario, traj, pack, Simulator, np) -> dict:
-    """Plain and all-effects frames with the raycast on 1 and 2 threads, on 2 CPUs."""
+def pin_two_cpus() -> tuple[list[int], list[int]]:
+    """Run on two CPUs where the machine has them: (the CPUs allowed before, those now)."""
     allowed = sorted(os.sched_getaffinity(0))
     try:
         os.sched_setaffinity(0, sorted(set(allowed) | set(range(os.cpu_count() or 1)))[:2])
     except OSError:
         pass
-    cpus = sorted(os.sched_getaffinity(0))
+    return allowed, sorted(os.sched_getaffinity(0))
+
+
+def thread_scaling(args, fx_scenario, traj, pack, Simulator, np) -> dict:
+    """Plain and all-effects frames with the raycast on 1 and 2 threads, on 2 CPUs."""
+    allowed, cpus = pin_two_cpus()
     variants = {}
     for threads in (1, 2):
         plain = Simulator.from_scenario(fx_scenario, effects=[])
@@ -412,12 +417,7 @@ def sensors_table(args, np) -> dict:
     from lidar_sim_ros.core.geometry import body_rays, split_over_threads
     from lidar_sim_ros.core.pipeline import Simulator
     from lidar_sim_ros.core.pose import ScenarioTrajectory
-    allowed = sorted(os.sched_getaffinity(0))
-    try:
-        os.sched_setaffinity(0, sorted(set(allowed) | set(range(os.cpu_count() or 1)))[:2])
-    except OSError:
-        pass
-    cpus = sorted(os.sched_getaffinity(0))
+    allowed, cpus = pin_two_cpus()
     rows = {}
     target = None
     for label, scenario_name, sensor_name in SENSOR_PROFILES:
