@@ -415,15 +415,17 @@ class LidarSimNode(Node):
 
     def _build_effects(self, names: list[str]) -> list[Effect]:
         """Effect instances by name. Once set up, from the allow-list only: a name outside
-        it raises KeyError and nothing is imported or executed."""
+        it raises ValueError (the reason a runtime change is refused) and nothing is
+        imported or executed."""
         if not self._effect_classes:             # start-up: the operator's files name them
             return [make_effect(self._load_spec(name), self._effects_specs.get(name)) for name in names]
         unknown = [name for name in names if name not in self._effect_classes]
         if unknown:
-            raise KeyError(f'{unknown[0]!r} is neither an effect of the catalogue nor a plugin '
-                           'loaded at start-up (plugin effects load at start-up only, from '
-                           'plugin_effects in the parameters file); allowed: '
-                           f'{sorted(self._effect_classes)}')
+            raise ValueError(f'unknown effect {unknown[0]!r}: runtime changes pick from the '
+                             'catalogue and the plugins loaded at start-up (plugin_effects in '
+                             'the parameters file), and never load code; catalogue: '
+                             f'{sorted(builtin_classes())}; loaded at start-up: '
+                             f'{sorted(self._plugins) or "none"}')
         return [self._effect_classes[name](self._effects_specs.get(name)) for name in names]
 
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
@@ -458,13 +460,6 @@ class LidarSimNode(Node):
         elif name == 'effects' and value:
             if len(set(value)) != len(value):
                 return 'an effect is listed twice'
-            new_code = [v for v in value if v not in self._effect_classes]
-            if self._ready and new_code:
-                return (f'unknown effect {new_code[0]!r}: runtime changes pick from the '
-                        'catalogue and the plugins loaded at start-up (plugin_effects in the '
-                        'parameters file), and never load code; catalogue: '
-                        f'{sorted(builtin_classes())}; loaded at start-up: '
-                        f'{sorted(self._plugins) or "none"}')
             try:
                 self._build_effects(list(value))
             except Exception as exc:  # noqa: BLE001 - any failure to build is the reason
