@@ -27,6 +27,7 @@ from lidar_sim_ros.core.driver_layout import OutputLayout
 from lidar_sim_ros.core.effects import effect_from_spec
 from lidar_sim_ros.core.pipeline import Frame, Simulator
 from lidar_sim_ros.core.pose import PoseSource, ScenarioTrajectory
+from lidar_sim_ros.core.scan import varies_by_frame
 from lidar_sim_ros.io.bag import CLOUD_TOPIC, MATERIAL_NAMES_TOPIC, POSE_TOPIC, SUN_TOPIC, BagWriter
 from lidar_sim_ros.cli_types import epoch_seconds, finite_seconds, float_in, positive_int
 from lidar_sim_ros.io import cepton
@@ -66,6 +67,19 @@ def _check_stamp_range(first_s: float, last_s: float) -> None:
         raise ValueError(f'frames would be stamped from {first_s:.6g} s to {last_s:.6g} s ROS time: '
                          'stamps must lie in [0, 2**31) s (check --epoch-s, --start-s, --frames and '
                          'the frame rate)')
+
+
+def _first_frame_index(start_s: float, period_s: float, own_shots_per_frame: bool) -> int:
+    """The index k of the frame starting at ``start_s``: round(start_s / period). A scan
+    whose frames each have their own shots (a rosette) draws frame k's from the prisms at
+    k x period + t, so its run must start on that grid: a start off it (0.05 s at 10 Hz)
+    would have put every shot a fixed prism rotation away from the rosette at its own time."""
+    k = int(round(start_s / period_s))
+    if own_shots_per_frame and abs(start_s - k * period_s) > 1e-9 + 4 * np.spacing(abs(start_s)):
+        raise ValueError(f'--start-s {start_s:g}: not a whole number of frame periods ({period_s:g} s): '
+                         "this sensor's shots turn with its prisms on the frame clock (frame k "
+                         f'from k x the period); start on it, e.g. --start-s {k * period_s:g}')
+    return k
 
 
 def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames: int,
@@ -118,7 +132,7 @@ def simulate_to_bag(scenario: Scenario | str | Path, out_dir: str | Path, frames
     cloud_topic = layout.cloud_topic(CLOUD_TOPIC)
     period = sim.frame_period_s
     _check_stamp_range(epoch_s + start_s, epoch_s + start_s + frames * period)
-    first_index = int(round(start_s / period))
+    first_index = _first_frame_index(start_s, period, varies_by_frame(sim.sensor))
 
     out.mkdir(parents=True, exist_ok=True)
     stamps, stats, last = [], [], None
