@@ -176,3 +176,21 @@ def test_bag_without_clouds(tmp_path):
         bag.write_material_names('/lidar/material_names', T0_NS, NAMES)
     with pytest.raises(BagContentError, match='/lidar/points'):
         render_bag_figures(path, tmp_path / 'fig')
+
+
+def test_scan_pattern_of_a_flash_array_counts_its_silent_rows():
+    """256 lasers (a flash array's rows): no 256 labels, no 255 'tile' edges and no list
+    of ~200 silent rows running off the title (what a user saw of scenario_flash.yaml)."""
+    sensor = load_sensor(config_path('flash_256.yaml'))
+    shots = frame_shots(sensor)
+    pts = plate_points()
+    pts['ring'] = np.arange(len(pts)) % 50 + 100           # returns from rows 100-149
+    az, el = figures.angles_from_directions(np.column_stack([pts['x'], pts['y'], pts['z']]))
+    fig = figures._scan_pattern(shots, np.degrees(az), np.degrees(el), pts, '',
+                                figures.ScanLayout(20.0, 20.0, None, None))
+    ax = fig.axes[0]
+    assert ax.get_title().startswith('Scan pattern of one frame (cf. paper Fig. 6): 65536 shots, '
+                                     '256 lasers; returns in 50 rings, none from 206 of 256')
+    assert len(ax.lines) == 0
+    assert [t.get_text() for t in ax.texts] == ['field of view 20 x 20 deg']
+    assert ax.get_xlabel().endswith('colour = laser id; faint: every shot, full colour: returns')

@@ -33,6 +33,9 @@ from lidar_sim_ros.viz.style import (AZ_LABEL as _AZ_LABEL, DPI, EL_LABEL as _EL
                                      NO_MATERIAL, material_label, new_figure as _new_figure,
                                      palette)
 
+# Scan patterns of more lasers (a flash array's 256 rows) get no per-laser labels, tile
+# grid or list of silent lasers: 256 labels and 255 tile edges hid the frame.
+MAX_LABELLED_LASERS = 32
 FIGURE_NAMES = ('scan_pattern', 'points_3d_range', 'range_image', 'points_material',
                 'points_intensity')
 
@@ -212,6 +215,7 @@ def _scan_pattern(shots: Shots | None, az_deg: np.ndarray, el_deg: np.ndarray,
         s_az, s_el, laser = az_deg, el_deg, rings
         lasers = np.unique(laser)
         title = f'Scan pattern seen in the returns: {len(s_az)} points'
+    labelled = len(lasers) <= MAX_LABELLED_LASERS
     n_colours = int(lasers.max()) + 1 if len(lasers) else 1
     if rings is not None:
         n_colours = max(n_colours, int(rings.max()) + 1 if len(rings) else 0)
@@ -219,8 +223,11 @@ def _scan_pattern(shots: Shots | None, az_deg: np.ndarray, el_deg: np.ndarray,
         title += f'; returns in {len(present)} rings'
         if shots is not None:
             absent = np.setdiff1d(lasers, present)
-            title += (', none from ' + ('ring ' if len(absent) == 1 else 'rings ')
-                      + ', '.join(str(int(a)) for a in absent) if len(absent) else ', every laser')
+            if not labelled and len(absent):    # a flash array's 256 rows: a count, not a list
+                title += f', none from {len(absent)} of {len(lasers)}'
+            else:
+                title += (', none from ' + ('ring ' if len(absent) == 1 else 'rings ')
+                          + ', '.join(str(int(a)) for a in absent) if len(absent) else ', every laser')
     ax = _angular_axes(fig, title + suffix)
     if shots is not None and len(s_az):
         ax.scatter(s_az, s_el, c=_laser_colours(laser, n_colours), s=0.6, linewidths=0,
@@ -229,7 +236,7 @@ def _scan_pattern(shots: Shots | None, az_deg: np.ndarray, el_deg: np.ndarray,
         ax.scatter(az_deg, el_deg, c=_laser_colours(rings, n_colours), s=1.2, linewidths=0,
                    rasterized=True)
     grid = layout.tile_edges_deg() if layout is not None else None
-    if grid is None and shots is not None:
+    if grid is None and shots is not None and labelled:    # a flash array's rows are no tiles
         grid = _tile_grid(s_az, s_el, laser)
     if grid is not None:
         az_edges, el_edges = grid
@@ -245,7 +252,7 @@ def _scan_pattern(shots: Shots | None, az_deg: np.ndarray, el_deg: np.ndarray,
         ax.add_patch(Rectangle((grid[0][0], grid[1][0]), grid[0][-1] - grid[0][0],
                                grid[1][-1] - grid[1][0], fill=False, edgecolor='k',
                                linewidth=1.6))
-    for lid in lasers:
+    for lid in (lasers if labelled else ()):
         sel = laser == lid
         # labels at the laser's own centre: tile centre for shots, median of its returns otherwise
         ca = 0.5 * (s_az[sel].min() + s_az[sel].max()) if shots is not None else np.median(s_az[sel])
@@ -260,8 +267,9 @@ def _scan_pattern(shots: Shots | None, az_deg: np.ndarray, el_deg: np.ndarray,
                 ha='left', va='bottom', fontsize=8)
     else:
         _finish_angular(ax, s_az, s_el)
-    what = ('colour and label = laser id; faint: every shot, full colour: returns'
-            if shots is not None else 'colour and label = ring')
+    key = 'colour and label' if labelled else 'colour'
+    what = (f'{key} = laser id; faint: every shot, full colour: returns'
+            if shots is not None else f'{key} = ring')
     ax.set_xlabel(_AZ_LABEL + '; ' + what)
     return fig
 
