@@ -23,11 +23,14 @@ Moller-Trumbore raycast).
 import contextlib
 import io
 import json
+import subprocess
+import sys
 import types
 from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 import yaml
 from scipy.spatial.transform import Rotation
 
@@ -122,6 +125,15 @@ def plate_scenario(tmp: Path, sensor: str, distance_m: float) -> Path:
 
 
 # ----------------------------------------------------------------------------- every scenario
+
+def test_the_judge_imports_nothing_of_the_project():
+    code = ('import sys, independent_raycast; '
+            'print(sorted(m for m in sys.modules if m.startswith("lidar_sim_ros")))')
+    out = subprocess.run([sys.executable, '-c', code], cwd=Path(__file__).parent,
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == '[]'
+
+
 
 def test_bag_poses_are_the_scenario_yaml_motion(shipped):
     """/target/pose, which a reader interpolates, is the YAML's closed form."""
@@ -358,3 +370,50 @@ def test_mid40_run_off_the_frame_grid_is_refused_on_it_follows_the_prisms(tmp_pa
         time_s = (cloud.stamp_ns - EPOCH_NS) * 1e-9 + p['t'].astype(float)
         assert abs((cloud.stamp_ns - EPOCH_NS) * 1e-9 - 0.3) < 1e-9
         assert angle_rad(xyz, rosette_direction(sensor['scan'], time_s)).max() < 1e-6
+
+
+def test_flash_row_readout_each_row_at_its_own_time(tmp_path):
+    """The flash profile with a 0.2 ms row readout (row 255 read 51 ms after row 0) on a
+    target closing at 5 m/s and tumbling at 90 deg/s: a row at the wrong time would sit
+    centimetres off the mesh. Every point: t = row x 0.2 ms, on the mesh at that time."""
+    sensor = yaml.safe_load((CONFIG / 'flash_256.yaml').read_text())
+    sensor['scan']['row_readout_s'] = 2e-4
+    (tmp_path / 'flash_rows.yaml').write_text(yaml.safe_dump(sensor))
+    scenario = yaml.safe_load((CONFIG / 'scenario_flash.yaml').read_text())
+    scenario.update(mesh=str((CONFIG / scenario['mesh']).resolve()), sensor='flash_rows.yaml',
+                    materials=str(CONFIG / scenario['materials']))
+    scenario['motion'].update(approach_speed_mps=5.0, tumble_rate_dps=90.0)
+    (tmp_path / 'scenario.yaml').write_text(yaml.safe_dump(scenario))
+    out = Judged(tmp_path / 'scenario.yaml', tmp_path / 'out')
+    for topic in ('/lidar/points', '/lidar/points_truth'):
+        for c in out.cast[topic]:
+            row, _ = flash_pixel(out.sensor['scan'], c.xyz)
+            assert np.abs(c.points['t'] - np.round(row) * 2e-4).max() < 1e-8
+            assert np.ptp(c.points["t"]) > 0.015      # the body spans ~100 rows: 20 ms
+    for c in out.cast['/lidar/points_truth']:
+        assert np.isfinite(c.hit_m).all() and np.abs(c.range_m - c.hit_m).max() < TRUTH_TOL_M
+
+
+def test_the_judges_raycast_on_a_box_and_against_brute_force():
+    """The grid visits every cell a ray crosses: its first hits are those of a single cell
+    holding every triangle (brute force), on the rocket body; on a box, the closed form."""
+    box = trimesh.creation.box(extents=(2.0, 4.0, 6.0))
+    caster = GridRaycaster(box.triangles, cells_on_longest_axis=7)
+    rng = np.random.default_rng(3)
+    target = rng.uniform(-1, 1, (500, 2)) * [2.0, 3.0]           # on the x = -1 face
+    origin = np.array([-10.0, 0.0, 0.0])
+    d = np.column_stack([np.full(500, 9.0), target - origin[1:]])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    hit_m, _ = caster.first_hit(np.tile(origin, (500, 1)), d)
+    np.testing.assert_allclose(hit_m, 9.0 / d[:, 0], rtol=1e-12)
+
+    tris = load_triangles(Path(__file__).resolve().parents[1] / 'meshes' / 'rocket_body.obj')
+    grid, brute = GridRaycaster(tris.corners_m), GridRaycaster(tris.corners_m, cells_on_longest_axis=1)
+    origins = rng.normal(size=(300, 3)) * 20
+    d = rng.uniform(-2.5, 2.5, (300, 3)) * [1, 1, 2.4] - origins    # toward the body (4 x 4 x 10 m)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    a, fa = grid.first_hit(origins, d)
+    b, fb = brute.first_hit(origins, d, chunk=8)
+    assert np.isfinite(a).sum() > 150
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(fa, fb)
