@@ -9,6 +9,7 @@ exactly; no Embree). test/test_sensor_outputs_independent.py judges the simulato
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -113,6 +114,69 @@ def load_triangles(path: Path) -> Triangles:
         corners.append(verts[np.asarray(geom.faces)])
         part.append(np.full(len(geom.faces), len(names)))
         names.append((material, node, geom_name))
+    return Triangles(np.concatenate(corners), np.concatenate(part), names)
+
+
+# glTF 2.0 accessor component types and element sizes (the specification's tables)
+_GLTF_COMPONENT = {5121: 'u1', 5123: 'u2', 5125: 'u4', 5126: 'f4'}
+_GLTF_TYPE_SIZE = {'SCALAR': 1, 'VEC3': 3}
+
+
+def read_glb(path: Path) -> Triangles:
+    """A .glb read from its bytes by the glTF 2.0 specification, not by trimesh: the JSON
+    and BIN chunks, every node of the default scene placed by its global transform (the
+    parents' times its own; a node's own: ``matrix``, column-major, or T R S from
+    ``translation``, ``rotation`` xyzw, ``scale``), triangle primitives (mode 4) from
+    their POSITION and (optional) indices accessors."""
+    data = Path(path).read_bytes()
+    magic, _, _ = np.frombuffer(data[:12], '<u4')
+    assert magic == 0x46546C67, 'not a glb'
+    json_len = int(np.frombuffer(data[12:16], '<u4')[0])
+    gltf = json.loads(data[20:20 + json_len])
+    bin_start = 20 + json_len + 8
+    binary = data[bin_start:]
+
+    def accessor(i):
+        acc = gltf['accessors'][i]
+        view = gltf['bufferViews'][acc['bufferView']]
+        width = _GLTF_TYPE_SIZE[acc['type']]
+        dtype = np.dtype('<' + _GLTF_COMPONENT[acc['componentType']])
+        start = view.get('byteOffset', 0) + acc.get('byteOffset', 0)
+        stride = view.get('byteStride', width * dtype.itemsize)
+        rows = [np.frombuffer(binary, dtype, width, start + k * stride) for k in range(acc['count'])] \
+            if stride != width * dtype.itemsize else \
+            [np.frombuffer(binary, dtype, width * acc['count'], start).reshape(-1, width)]
+        return np.concatenate(rows).reshape(acc['count'], width)
+
+    def local(node):
+        if 'matrix' in node:
+            return np.asarray(node['matrix'], float).reshape(4, 4).T
+        m = np.eye(4)
+        m[:3, :3] = Rotation.from_quat(node.get('rotation', [0, 0, 0, 1])).as_matrix() \
+            * np.asarray(node.get('scale', [1, 1, 1]), float)
+        m[:3, 3] = node.get('translation', [0, 0, 0])
+        return m
+
+    corners, part, names = [], [], []
+    stack = [(i, np.eye(4)) for i in gltf['scenes'][gltf.get('scene', 0)]['nodes']]
+    while stack:
+        i, parent = stack.pop()
+        node = gltf['nodes'][i]
+        world = parent @ local(node)
+        stack += [(c, world) for c in node.get('children', [])]
+        if 'mesh' not in node:
+            continue
+        mesh = gltf['meshes'][node['mesh']]
+        for prim in mesh['primitives']:
+            assert prim.get('mode', 4) == 4
+            v = accessor(prim['attributes']['POSITION']).astype(float)
+            v = v @ world[:3, :3].T + world[:3, 3]
+            idx = (accessor(prim['indices']).reshape(-1, 3) if 'indices' in prim
+                   else np.arange(len(v)).reshape(-1, 3))
+            material = gltf['materials'][prim['material']].get('name') if 'material' in prim else None
+            corners.append(v[idx])
+            part.append(np.full(len(idx), len(names)))
+            names.append((material, node.get('name'), mesh.get('name')))
     return Triangles(np.concatenate(corners), np.concatenate(part), names)
 
 
