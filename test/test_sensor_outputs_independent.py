@@ -223,6 +223,29 @@ def test_mid40_shots_on_the_100khz_clock_inside_the_circle_along_the_rosette(mid
             assert along.max() < 1e-6, f'{topic} frame {k}: {along.max():.2e} rad off the rosette'
 
 
+NO_RETURN = 1 << 5          # Cepton SDK3 point flag: a shot that came back empty
+
+
+def test_mid40_every_shot_at_100khz_as_the_cepton_layout_shows_them(mid40, tmp_path):
+    """The shipped scenario as it is, in the layout that publishes every shot
+    (`--point-layout cepton --no-return-points`): 10,000 points a frame, one each 10 us
+    (timestamp_s, timestamp_us: absolute), the returns those of the native cloud."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(['simulate', str(CONFIG / 'scenario_mid40.yaml'), '--frames', str(FRAMES),
+                     '--out', str(tmp_path), '--no-figures', '--point-layout', 'cepton',
+                     '--no-return-points']) == 0
+    clouds = read_bag(tmp_path / 'bag')['/cepton_pcl2']
+    for k, (cloud, native) in enumerate(zip(clouds, mid40.bag['/lidar/points'])):
+        p = cloud.points
+        time_ns = p['timestamp_s'].astype(np.int64) * 10**9 + p['timestamp_us'].astype(np.int64) * 1000
+        assert cloud.stamp_ns == native.stamp_ns == EPOCH_NS + k * 100_000_000
+        np.testing.assert_array_equal(time_ns - cloud.stamp_ns, np.arange(10_000) * 10_000)
+        returned = (p['flags'] & NO_RETURN) == 0
+        assert returned.sum() == len(native.points)
+        xyz = np.stack([p['x'], p['y'], p['z']], axis=1)[returned].astype(float)
+        assert angle_rad(xyz, np.array([[1.0, 0.0, 0.0]])).max() <= np.radians(19.2) + 1e-7
+
+
 def test_mid40_frame_is_10000_shots_in_100ms(tmp_path):
     """A plate filling the field: every shot hits, so the truth cloud holds the frame's
     every shot: 10,000 at i / 100,000 s, i = 0..9999, reaching the 19.2 deg rim."""
