@@ -194,3 +194,15 @@ def test_scan_pattern_of_a_flash_array_counts_its_silent_rows():
     assert len(ax.lines) == 0
     assert [t.get_text() for t in ax.texts] == ['field of view 20 x 20 deg']
     assert ax.get_xlabel().endswith('colour = laser id; faint: every shot, full colour: returns')
+
+
+def test_box_wing_materials_named_in_full():
+    """points_material.png of the box-wing (config/materials_box_wing.yaml): each part's
+    material says what it is, as the rocket body's do."""
+    names = ['MLI', 'SOLAR_ARRAY', 'WHITE_PAINT', 'ALUMINIUM']
+    material = np.repeat(np.arange(4), 50)
+    az = np.linspace(-10, 10, len(material))
+    fig = figures._materials(az, np.zeros_like(az), material, names, '')
+    texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert texts == ['MLI: multi-layer insulation (50)', 'SOLAR_ARRAY: solar cells under cover glass (50)',
+                     'WHITE_PAINT: white radiator paint (50)', 'ALUMINIUM: bare aluminium (antenna, booms) (50)']

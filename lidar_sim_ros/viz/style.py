@@ -12,7 +12,8 @@ NO_MATERIAL = 255  # same code as core.pipeline.NO_MATERIAL: a return not on the
 AZ_LABEL = 'azimuth [deg] (+ = left, REP-103)'
 EL_LABEL = 'elevation [deg]'
 
-# The rocket body's surfaces (paper Secs. 5-6); a material not listed keeps its own name.
+# The rocket body's surfaces (paper Secs. 5-6) and the box-wing satellite's
+# (config/materials_box_wing.yaml); a material not listed keeps its own name.
 MATERIAL_GLOSSARY = {
     'PIF': 'poly-isocyanate foam (insulation)',
     'MLI': 'multi-layer insulation',
@@ -21,6 +22,9 @@ MATERIAL_GLOSSARY = {
     'NOZZLE': 'engine nozzle',
     'BULKHEAD': 'bulkhead',
     'ADAPTER': 'adapter',
+    'SOLAR_ARRAY': 'solar cells under cover glass',
+    'WHITE_PAINT': 'white radiator paint',
+    'ALUMINIUM': 'bare aluminium (antenna, booms)',
 }
 
 
