@@ -206,3 +206,23 @@ def test_box_wing_materials_named_in_full():
     texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     assert texts == ['MLI: multi-layer insulation (50)', 'SOLAR_ARRAY: solar cells under cover glass (50)',
                      'WHITE_PAINT: white radiator paint (50)', 'ALUMINIUM: bare aluminium (antenna, booms) (50)']
+
+
+def test_scan_pattern_of_a_rosette_outlines_its_circular_field():
+    """The Mid-40: the 38.4 deg circle drawn (every rim point 19.2 deg off +x), its
+    10,000 shots inside it."""
+    sensor = load_sensor(config_path('livox_mid40.yaml'))
+    layout = figures.ScanLayout.of_sensor(sensor)
+    assert layout.field_half_angle_deg == pytest.approx(19.2)
+    shots = frame_shots(sensor)
+    pts = plate_points()
+    pts['ring'] = 0
+    az, el = figures.angles_from_directions(np.column_stack([pts['x'], pts['y'], pts['z']]))
+    fig = figures._scan_pattern(shots, np.degrees(az), np.degrees(el), pts, '', layout)
+    ax = fig.axes[0]
+    (rim,) = ax.lines
+    r_az, r_el = np.radians(rim.get_xdata()), np.radians(rim.get_ydata())
+    np.testing.assert_allclose(np.degrees(np.arccos(np.cos(r_el) * np.cos(r_az))), 19.2, atol=1e-9)
+    off = np.degrees(np.arccos(np.cos(shots.el_rad) * np.cos(shots.az_rad)))
+    assert len(off) == 10_000 and off.max() <= 19.2 + 1e-9
+    assert 'field of view 38.4 deg circle' in [t.get_text() for t in ax.texts]

@@ -48,13 +48,26 @@ class ScanLayout:
     fov_el_deg: float | None = None
     tiles_az: int | None = None
     tiles_el: int | None = None
+    field_half_angle_deg: float | None = None   # a circular field (a Risley rosette)
 
     @classmethod
     def of_sensor(cls, sensor) -> 'ScanLayout':
-        """From a SensorConfig: the fields its scan has (a spinning scan has no tiles)."""
+        """From a SensorConfig: the fields its scan has (a spinning scan has no tiles; a
+        rosette's field is the circle of its two prisms' summed deviation)."""
         scan = sensor.scan
+        deviation = getattr(scan, 'prism_deviation_deg', None)
         return cls(getattr(scan, 'fov_az_deg', None), getattr(scan, 'fov_el_deg', None),
-                   getattr(scan, 'tiles_az', None), getattr(scan, 'tiles_el', None))
+                   getattr(scan, 'tiles_az', None), getattr(scan, 'tiles_el', None),
+                   float(sum(deviation)) if deviation is not None else None)
+
+    def field_circle_deg(self, n: int = 361) -> tuple[np.ndarray, np.ndarray] | None:
+        """(az, el) [deg] of the circular field's rim: the cone of half-angle
+        field_half_angle_deg about +x (not a circle in az/el far off axis)."""
+        if self.field_half_angle_deg is None:
+            return None
+        rho, phi = np.radians(self.field_half_angle_deg), np.linspace(0, 2 * np.pi, n)
+        y, z = np.sin(rho) * np.cos(phi), np.sin(rho) * np.sin(phi)
+        return np.degrees(np.arctan2(y, np.cos(rho))), np.degrees(np.arcsin(z))
 
     def tile_edges_deg(self) -> tuple[np.ndarray, np.ndarray] | None:
         if None in (self.fov_az_deg, self.fov_el_deg, self.tiles_az, self.tiles_el):
@@ -265,6 +278,12 @@ def _scan_pattern(shots: Shots | None, az_deg: np.ndarray, el_deg: np.ndarray,
         _finish_angular(ax, ax_az, ax_el)
         ax.text(fov[0] / 2, fov[1] / 2, f'field of view {fov[0]:g} x {fov[1]:g} deg',
                 ha='left', va='bottom', fontsize=8)
+    elif layout is not None and layout.field_circle_deg() is not None:
+        c_az, c_el = layout.field_circle_deg()
+        ax.plot(c_az, c_el, color='k', linewidth=1.6)
+        _finish_angular(ax, np.concatenate([s_az, c_az]), np.concatenate([s_el, c_el]))
+        ax.text(0.0, c_el.max(), f'field of view {2 * layout.field_half_angle_deg:g} deg circle',
+                ha='center', va='bottom', fontsize=8)
     else:
         _finish_angular(ax, s_az, s_el)
     key = 'colour and label' if labelled else 'colour'
