@@ -1,8 +1,10 @@
 """Issue 33's judge, built before an outsider does: `lidar-sim simulate` of the Mid-40, the
 flash array and the box-wing satellite read back and checked with none of the project's
 raycast, scan, pose or point-cloud code (test/independent_raycast.py: rosbags + a decoder
-of its own, the scenario's motion from its YAML, trimesh's loader, a float64
-Moller-Trumbore raycast).
+of its own, the scenario's motion from its YAML, trimesh's loader and a .glb reader of
+the glTF specification, a float64 Moller-Trumbore raycast behind a grid checked against
+brute force). Each scenario is run once as shipped (2 frames); plates filling the field,
+a row readout and a glTF node tree are run beside them.
 
 - every noise-free point on the mesh along its own ray at its own time (1e-4 m), on the
   part whose material the cloud names;
@@ -12,13 +14,14 @@ Moller-Trumbore raycast).
   P-60's Table 2 (bias -0.11 to -0.14 m, sigma 2.8-4.5 cm), which the box-wing's P-60 keeps;
 - the Mid-40: shots on the 100,000/s clock, inside the 38.4 deg circle, along the
   first-order two-prism rosette of its profile (docs/model.md), and 10,000 shots in a
-  frame (a plate filling the field: every shot is a hit);
+  frame (a plate filling the field: every shot is a hit; the Cepton layout's no-return
+  points: every shot of the shipped scenario); a run off the frame grid is refused;
 - the flash: every point on its pixel's direction of the 256 x 256 grid (ring = row, one
-  exposure at t = 0), 65,536 pixels on the plate, and each pixel's power by the flood-lit
-  form of Eqs. 1-3, 5 written out again;
-- the box-wing (from its .glb, node transforms applied): returns from each of the MLI bus,
-  the solar arrays, the radiator and the aluminium antenna, each at its own material's
-  Phong reflectance (conftest.paper_power_w).
+  exposure at t = 0, or row r at r x row_readout_s), 65,536 pixels on the plate, and each
+  pixel's power by the flood-lit form of Eqs. 1-3, 5 written out again;
+- the box-wing (from its .glb, node transforms applied; the .glb read by the spec too):
+  returns from each of the MLI bus, the solar arrays, the radiator and the aluminium
+  antenna, each at its own material's Phong reflectance (conftest.paper_power_w).
 """
 import contextlib
 import io
