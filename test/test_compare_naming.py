@@ -318,3 +318,89 @@ def test_report_headline_opens_with_the_scan_pattern():
     assert headline(s).startswith('Scan pattern off: only 10 %')
     assert headline({**s, 'point_times': 'field'}).startswith('No catalogue effect')
     assert vd.SCAN_PATTERN_OFF_BELOW == 0.5       # the opening's bound is the verdict's
+
+
+# ------------------------------------------------ rivals of a named range term (issue 30)
+class RangeScale:
+    name = 'range_scale'
+
+
+@pytest.mark.parametrize('rival_gain, rival_nll, missing, tie', [
+    (0.030, -2.06, 'range_scale', []),                        # decisively better: it is named
+    (0.020, -2.04, None, ['range_walk', 'range_scale']),      # as good: a tie
+    (0.005, -2.03, 'range_walk', []),                         # decisively worse: no change
+    (0.030, -2.0, 'range_walk', [])])                         # fails the rule (worse NLL)
+def test_a_named_effect_is_weighed_against_the_range_rivals(rival_gain, rival_nll, missing,
+                                                            tie):
+    """weigh_rivals(): range_walk named on an approach (its ln P follows the range);
+    range_scale, no default candidate, is weighed against it by decide's rule before the
+    walk is reported. Seed 1 of range_scale_approach: range_walk (z 8.3) was named,
+    range_scale never weighed; scored, it is 0.0056 nats/point better (z 5.0)."""
+    walk = cand('range_walk', 0.020, -2.04, seed=11)
+    scale = cand('range_scale', rival_gain, rival_nll, seed=11)
+    d, scored = Hand(again={'range_scale': scale}).weigh_rivals(
+        dg.Decision('range_walk', []), [walk], [RangeScale])
+    assert scored == [scale]
+    assert d.missing == missing and d.confounded_with == tie
+
+
+def test_a_rival_never_names_itself_on_an_empty_decision():
+    """Nothing named (azimuth_bias_short: a range scale would fit any smooth pattern
+    across the target): the rivals are not even scored."""
+    scale = cand('range_scale', 0.03, -2.06, seed=12)
+    d, scored = Hand(again={'range_scale': scale}).weigh_rivals(
+        dg.Decision(None, []), [], [RangeScale])
+    assert d.missing is None and d.confounded_with == [] and scored == []
+
+
+# ------------------------------------------------ a clock offset holds across clouds
+class Clock:
+    """An effect acting through the target's pose, as time_offset does."""
+    name = 'time_offset'
+
+    def pose_time_s(self, t_s):
+        return t_s
+
+
+class Bias:
+    name = 'range_walk'
+
+
+class ByClouds(Hand):
+    """A diagnosis whose cloud-split view scores the candidate ``across`` nats per point
+    held out (block noise 0.02)."""
+
+    def __init__(self, across):
+        super().__init__()
+        self.across = across
+
+    def by_clouds(self):
+        view = Hand()
+        rng = np.random.default_rng(13)
+        base = rng.normal(0.0, 1.0, N)
+        view.base_heldout = lambda: base
+        view.cross_fit = lambda variant, on_top, first=None: (
+            base - self.across + rng.normal(0.0, 0.02, N), 0.0)
+        view.model = SimpleNamespace(divergence_rad=1e-3)
+        return view
+
+
+@pytest.mark.parametrize('across, vetoed', [(0.02, False), (0.0, True), (0.003, True)])
+def test_clock_offset_must_hold_held_out_by_whole_clouds(across, vetoed):
+    """clock_veto(): a time offset gaining within the clouds (pose_drift_within_small,
+    seed 0: 0.0113 nats/point, z 3.2; per-cloud dt -5, -6, -12, +31, -6 ms) is set aside
+    when, fitted on alternate clouds and scored on the others, its gain fails the rule
+    (there 0.0101, z 2.6); a real clock offset, one dt for every cloud, keeps it."""
+    c = cand('time_offset', 0.02, -2.05, seed=13)
+    c.effect, c.variant = Clock(), Clock
+    why = ByClouds(across).clock_veto(c)
+    assert (why is not None) == vetoed
+    assert c.across_clouds['passes'] == (not vetoed)
+    if vetoed:
+        assert 'cloud to cloud' in why
+
+
+def test_clock_veto_asks_only_effects_acting_through_the_pose():
+    c = cand('range_walk', 0.02, -2.05, seed=13)
+    c.effect, c.variant = Bias(), Bias
+    assert ByClouds(0.0).clock_veto(c) is None and c.across_clouds is None

@@ -348,6 +348,9 @@ class Candidate:
     # An outlier effect: the false returns its fitted rate predicts against those
     # recorded, on the diagnosed points (``Diagnosis.false_return_budget``).
     false_returns: dict | None = None
+    # An effect acting through the pose (a clock offset): its gain held out by whole
+    # clouds (``Diagnosis.clock_veto``).
+    across_clouds: dict | None = None
 
     @property
     def admissible(self) -> bool:
@@ -370,6 +373,7 @@ class Candidate:
                 **({'vetoed': self.vetoed} if self.vetoed else {}),
                 **({'against_pose': self.against_pose} if self.against_pose else {}),
                 **({'false_returns': self.false_returns} if self.false_returns else {}),
+                **({'across_clouds': self.across_clouds} if self.across_clouds else {}),
                 **({'error': self.error} if self.error else {})}
 
 
@@ -442,6 +446,8 @@ class Diagnosis:
             nll, explained = self.cross_fit(variant, [], first=first.effect)
             self._set_gain(cand, nll, explained)
             cand.vetoed = self._veto(cand, explained)
+            if cand.vetoed is None and cand.significant and cand.practical:
+                cand.vetoed = self.clock_veto(cand)
         except Exception as exc:  # noqa: BLE001 - one failing candidate must not stop the rest
             cand.error = f'{type(exc).__name__}: {exc}'
             cand.score = float('-inf')
@@ -586,6 +592,62 @@ class Diagnosis:
                             'specular surface, a ghost, a second surface), not background light')
         return None
 
+    def by_clouds(self) -> 'Diagnosis | None':
+        """This diagnosis with its two folds made of whole clouds (alternate clouds in
+        the order of their index, i.e. of time) instead of random halves of every cloud;
+        None with fewer than two clouds among the matched points."""
+        meas, rays = self.rays.meas, self.rays
+        ids = np.unique(meas.cloud[rays.matched])
+        if len(ids) < 2:
+            return None
+        every = np.unique(np.concatenate([ids, meas.cloud[rays.unmatched]]))
+        side = {int(c): k % N_FOLDS for k, c in enumerate(ids)}
+        side_of = np.array([side.get(int(c), 0) for c in every])
+        gm = side_of[np.searchsorted(every, meas.cloud[rays.matched])]
+        gu = side_of[np.searchsorted(every, meas.cloud[rays.unmatched])]
+        view = copy.copy(self)
+        view.folds = [rays._with(rays.matched[gm == k], rays.unmatched[gu == k])
+                      for k in range(N_FOLDS)]
+        view.fold_data = [make_fit_data(self.model, self.base, f, (self.full, rays))
+                          for f in view.folds]
+        view._base_nll = [heldout_nll(d, []) for d in view.fold_data]
+        view._base_unmatched = [lk.unmatched_explained(d, []) if len(d.unmatched_range_m)
+                                else 0.0 for d in view.fold_data]
+        blocks = rays.blocks if rays.blocks is not None else np.arange(len(meas))
+        view.blocks = np.concatenate([blocks[view.folds[(k + 1) % N_FOLDS].matched]
+                                      for k in range(N_FOLDS)])
+        return view
+
+    def clock_veto(self, cand: Candidate) -> str | None:
+        """An effect that acts through the target's pose (a clock offset: the pose at
+        another time) moves each cloud rigidly, as a reference pose that is off per cloud
+        does; what makes it a clock is that one parameter holds for the whole recording.
+        So its gain must also pass the rule held out by whole clouds (fitted on alternate
+        clouds, scored on the others, both ways: ``by_clouds``); a pose that drifts or
+        jumps from cloud to cloud gives each cloud its own dt, which the others do not
+        share. The test and its figures go to ``cand.across_clouds``; None (no veto)
+        when the effect does not act through the pose or the recording has one cloud."""
+        eff = cand.effect
+        if (eff is None or cand.variant is None
+                or getattr(type(eff), 'pose_time_s', Effect.pose_time_s) is Effect.pose_time_s):
+            return None
+        view = self.by_clouds()
+        if view is None:
+            return None
+        nll, explained = view.cross_fit(cand.variant, [])
+        held = Candidate(cand.name, effect=cand.effect)
+        view._set_gain(held, nll, explained)
+        ok = held.significant and held.practical
+        cand.across_clouds = {'score': _num(held.score), 'z': _num(held.z),
+                              'passes': bool(ok)}
+        if ok:
+            return None
+        return (f'one {cand.name} for the whole recording does not hold from cloud to cloud: '
+                f'fitted on alternate clouds and scored on the others its gain is '
+                f'{held.score:.4f} nats/point (z = {held.z:.1f}), not decisive by the rule '
+                f'(held out within the clouds: {cand.score:.4f}, z = {cand.z:.1f}); each '
+                'cloud moves on its own, as a reference pose that is off per cloud does')
+
     def share_veto(self, cand: Candidate, attribution: Attribution | None) -> None:
         """A bias/noise candidate must explain MIN_SHARE of the feature structure."""
         if (attribution is None or not attribution.significant or cand.effect is None
@@ -721,8 +783,36 @@ class Diagnosis:
                 'predicted': round(predicted, 1), 'recorded': int(recorded),
                 'ratio': round(predicted / recorded, 4) if recorded else None}
 
+    def weigh_rivals(self, decision: Decision, cands: list[Candidate],
+                     rivals: list[type[Effect]],
+                     attribution: Attribution | None = None) -> tuple[Decision, list[Candidate]]:
+        """A named sensor effect (or a tie) against the range errors kept out of the
+        default candidates (POSE_RIVALS: a range offset drifting over the recording, a
+        range scale). They are no default candidates because, on their own, they fit
+        smooth patterns of other causes (a bias linear in range stands for any pattern
+        across a target whose range follows its azimuth); but once the data call for
+        a range term, the one named must be weighed against them on the same footing:
+        on an approach a walk in ln P follows the range as a scale does. They are
+        scored here, with the same vetoes, and ``decide`` is run again among all: a
+        rival decisively better by its rule is named instead, one within its margins
+        makes a tie, one decisively worse leaves the decision. Nothing is named that
+        was not before when nothing was (a rival never names itself on an empty
+        decision). Returns the decision and the rivals scored."""
+        if not (decision.missing or decision.confounded_with) or not rivals:
+            return decision, []
+        scored = []
+        for cls in rivals:
+            r = self.score(cls)
+            self.share_veto(r, attribution)
+            scored.append(r)
+        if not any(self.nameable(r) for r in scored):
+            return decision, scored
+        again = self.decide(rank([*cands, *scored]))
+        return replace(decision, missing=again.missing, confounded_with=again.confounded_with,
+                       also=again.also, pair_z=again.pair_z), scored
+
     def weigh_pose_rivals(self, decision: Decision, rivals: list[type[Effect]], pose_test,
-                          on_pose) -> tuple[Decision, list[Candidate]]:
+                          on_pose, scored: dict | None = None) -> tuple[Decision, list[Candidate]]:
         """A reported pose error against range errors of the sensor (POSE_RIVALS: a
         range offset drifting over the recording, a range scale), on the same footing:
         each rival that passes the naming rule is weighed both ways, the pose's test on
@@ -738,9 +828,10 @@ class Diagnosis:
         scored (for the summary's candidates)."""
         if decision.pose is None or decision.missing or decision.confounded_with:
             return decision, []
+        done = dict(scored or {})
         scored, wins, ties = [], [], []
         for cls in rivals:
-            r = self.score(cls)
+            r = done.get(cls.name) or self.score(cls)
             scored.append(r)
             if not self.nameable(r):
                 continue
