@@ -348,9 +348,6 @@ class Candidate:
     # An outlier effect: the false returns its fitted rate predicts against those
     # recorded, on the diagnosed points (``Diagnosis.false_return_budget``).
     false_returns: dict | None = None
-    # An effect acting through the pose (a clock offset): its gain held out by whole
-    # clouds (``Diagnosis.clock_veto``).
-    across_clouds: dict | None = None
 
     @property
     def admissible(self) -> bool:
@@ -373,7 +370,6 @@ class Candidate:
                 **({'vetoed': self.vetoed} if self.vetoed else {}),
                 **({'against_pose': self.against_pose} if self.against_pose else {}),
                 **({'false_returns': self.false_returns} if self.false_returns else {}),
-                **({'across_clouds': self.across_clouds} if self.across_clouds else {}),
                 **({'error': self.error} if self.error else {})}
 
 
@@ -446,8 +442,6 @@ class Diagnosis:
             nll, explained = self.cross_fit(variant, [], first=first.effect)
             self._set_gain(cand, nll, explained)
             cand.vetoed = self._veto(cand, explained)
-            if cand.vetoed is None and cand.significant and cand.practical:
-                cand.vetoed = self.clock_veto(cand)
         except Exception as exc:  # noqa: BLE001 - one failing candidate must not stop the rest
             cand.error = f'{type(exc).__name__}: {exc}'
             cand.score = float('-inf')
@@ -591,62 +585,6 @@ class Diagnosis:
                             f'p = {ks.pvalue:.1e}): returns at a preferred range (multipath via a '
                             'specular surface, a ghost, a second surface), not background light')
         return None
-
-    def by_clouds(self) -> 'Diagnosis | None':
-        """This diagnosis with its two folds made of whole clouds (alternate clouds in
-        the order of their index, i.e. of time) instead of random halves of every cloud;
-        None with fewer than two clouds among the matched points."""
-        meas, rays = self.rays.meas, self.rays
-        ids = np.unique(meas.cloud[rays.matched])
-        if len(ids) < 2:
-            return None
-        every = np.unique(np.concatenate([ids, meas.cloud[rays.unmatched]]))
-        side = {int(c): k % N_FOLDS for k, c in enumerate(ids)}
-        side_of = np.array([side.get(int(c), 0) for c in every])
-        gm = side_of[np.searchsorted(every, meas.cloud[rays.matched])]
-        gu = side_of[np.searchsorted(every, meas.cloud[rays.unmatched])]
-        view = copy.copy(self)
-        view.folds = [rays._with(rays.matched[gm == k], rays.unmatched[gu == k])
-                      for k in range(N_FOLDS)]
-        view.fold_data = [make_fit_data(self.model, self.base, f, (self.full, rays))
-                          for f in view.folds]
-        view._base_nll = [heldout_nll(d, []) for d in view.fold_data]
-        view._base_unmatched = [lk.unmatched_explained(d, []) if len(d.unmatched_range_m)
-                                else 0.0 for d in view.fold_data]
-        blocks = rays.blocks if rays.blocks is not None else np.arange(len(meas))
-        view.blocks = np.concatenate([blocks[view.folds[(k + 1) % N_FOLDS].matched]
-                                      for k in range(N_FOLDS)])
-        return view
-
-    def clock_veto(self, cand: Candidate) -> str | None:
-        """An effect that acts through the target's pose (a clock offset: the pose at
-        another time) moves each cloud rigidly, as a reference pose that is off per cloud
-        does; what makes it a clock is that one parameter holds for the whole recording.
-        So its gain must also pass the rule held out by whole clouds (fitted on alternate
-        clouds, scored on the others, both ways: ``by_clouds``); a pose that drifts or
-        jumps from cloud to cloud gives each cloud its own dt, which the others do not
-        share. The test and its figures go to ``cand.across_clouds``; None (no veto)
-        when the effect does not act through the pose or the recording has one cloud."""
-        eff = cand.effect
-        if (eff is None or cand.variant is None
-                or getattr(type(eff), 'pose_time_s', Effect.pose_time_s) is Effect.pose_time_s):
-            return None
-        view = self.by_clouds()
-        if view is None:
-            return None
-        nll, explained = view.cross_fit(cand.variant, [])
-        held = Candidate(cand.name, effect=cand.effect)
-        view._set_gain(held, nll, explained)
-        ok = held.significant and held.practical
-        cand.across_clouds = {'score': _num(held.score), 'z': _num(held.z),
-                              'passes': bool(ok)}
-        if ok:
-            return None
-        return (f'one {cand.name} for the whole recording does not hold from cloud to cloud: '
-                f'fitted on alternate clouds and scored on the others its gain is '
-                f'{held.score:.4f} nats/point (z = {held.z:.1f}), not decisive by the rule '
-                f'(held out within the clouds: {cand.score:.4f}, z = {cand.z:.1f}); each '
-                'cloud moves on its own, as a reference pose that is off per cloud does')
 
     def share_veto(self, cand: Candidate, attribution: Attribution | None) -> None:
         """A bias/noise candidate must explain MIN_SHARE of the feature structure."""
