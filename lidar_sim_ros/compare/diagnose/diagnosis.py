@@ -60,6 +60,11 @@ its z, ``total_z``), whatever part of the data the gain is on:
 
 Otherwise ``missing_effect`` is null, and the verdict says what the residual depends
 on, if anything, and that no catalogue effect explains it.
+
+The range errors kept out of the default candidates (POSE_RIVALS) never name themselves
+on a recording where nothing else is named; they are weighed against a named effect
+(``weigh_rivals``: ``decide`` again among all) and against a reported reference pose
+(``weigh_pose_rivals``).
 """
 from __future__ import annotations
 
