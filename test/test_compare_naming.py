@@ -351,3 +351,24 @@ def test_a_rival_never_names_itself_on_an_empty_decision():
     d, scored = Hand(again={'range_scale': scale}).weigh_rivals(
         dg.Decision(None, []), [], [RangeScale])
     assert d.missing is None and d.confounded_with == [] and scored == []
+
+
+def test_v4_judge_takes_an_honest_tie_of_the_range_term():
+    """foreign_loop.judge_v4: on range_scale_approach a tie of range_scale with the walk
+    that stands for it, within the battery's borderline (as --fit leaves them), is right
+    and ends the loop; a tie 0.01 nats/point apart, or range_walk named, is not."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).parent))
+    from foreign_loop import judge_v4
+    from foreign_sim import BATTERY
+    spec = next(s for s in BATTERY if s.name == 'range_scale_approach')
+
+    def first(margin, tie=True):
+        return {'missing_effect': None if tie else 'range_walk',
+                'confounded_with': ['range_scale', 'range_walk'] if tie else [],
+                'against_named': {'range_walk': {'fitted_margin': margin}},
+                'reference_pose_off': False}
+    assert judge_v4(spec, [first(0.004)], {})['ok']
+    assert not judge_v4(spec, [first(0.01)], {})['ok']
+    assert not judge_v4(spec, [first(0.004, tie=False), {'missing_effect': None}], {})['ok']
