@@ -177,13 +177,18 @@ def judge_v4(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
                and not (base.startswith('pattern_off') and n == 'time_offset')]
     if phantom:
         why.append(f'named {phantom}, not hidden')
-    if last.get('missing_effect') is not None or last.get('reference_pose_off') \
-            or last.get('confounded_with'):
+    rival = next((n for n in SENSOR_RIVALS if n in hidden), None)
+    # A tie of the hidden range term with the sensor effect that stands for it (a walk in
+    # ln P on an approach), as close as the battery's rule allows (``borderline_tie``),
+    # is what the data allow: the loop ends there, as a user's would.
+    honest_tie = bool(rival) and not first.get('reference_pose_off') \
+        and borderline_tie(first, rival)
+    if (last.get('missing_effect') is not None or last.get('reference_pose_off')
+            or last.get('confounded_with')) and not (honest_tie and last is first):
         why.append(f'loop ended with {_first_answer(last)} '
                    f'(pose reported: {bool(last.get("reference_pose_off"))})')
-    rival = next((n for n in SENSOR_RIVALS if n in hidden), None)
     if rival:
-        if answer not in (f'tie:pose_error+{rival}', rival, 'None'):
+        if answer not in (f'tie:pose_error+{rival}', rival, 'None') and not honest_tie:
             why.append(f'first answer {answer}: expected {rival} or the tie with pose_error')
         if answer == 'None' and first.get('reference_pose_off'):
             why.append('a range error of the sensor reported as the reference pose alone')

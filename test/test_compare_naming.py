@@ -318,3 +318,57 @@ def test_report_headline_opens_with_the_scan_pattern():
     assert headline(s).startswith('Scan pattern off: only 10 %')
     assert headline({**s, 'point_times': 'field'}).startswith('No catalogue effect')
     assert vd.SCAN_PATTERN_OFF_BELOW == 0.5       # the opening's bound is the verdict's
+
+
+# ------------------------------------------------ rivals of a named range term (issue 30)
+class RangeScale:
+    name = 'range_scale'
+
+
+@pytest.mark.parametrize('rival_gain, rival_nll, missing, tie', [
+    (0.030, -2.06, 'range_scale', []),                        # decisively better: it is named
+    (0.020, -2.04, None, ['range_walk', 'range_scale']),      # as good: a tie
+    (0.005, -2.03, 'range_walk', []),                         # decisively worse: no change
+    (0.030, -2.0, 'range_walk', [])])                         # fails the rule (worse NLL)
+def test_a_named_effect_is_weighed_against_the_range_rivals(rival_gain, rival_nll, missing,
+                                                            tie):
+    """weigh_rivals(): range_walk named on an approach (its ln P follows the range);
+    range_scale, no default candidate, is weighed against it by decide's rule before the
+    walk is reported. Seed 1 of range_scale_approach: range_walk (z 8.3) was named,
+    range_scale never weighed; scored, it is 0.0056 nats/point better (z 5.0)."""
+    walk = cand('range_walk', 0.020, -2.04, seed=11)
+    scale = cand('range_scale', rival_gain, rival_nll, seed=11)
+    d, scored = Hand(again={'range_scale': scale}).weigh_rivals(
+        dg.Decision('range_walk', []), [walk], [RangeScale])
+    assert scored == [scale]
+    assert d.missing == missing and d.confounded_with == tie
+
+
+def test_a_rival_never_names_itself_on_an_empty_decision():
+    """Nothing named (azimuth_bias_short: a range scale would fit any smooth pattern
+    across the target): the rivals are not even scored."""
+    scale = cand('range_scale', 0.03, -2.06, seed=12)
+    d, scored = Hand(again={'range_scale': scale}).weigh_rivals(
+        dg.Decision(None, []), [], [RangeScale])
+    assert d.missing is None and d.confounded_with == [] and scored == []
+
+
+def test_v4_judge_takes_an_honest_tie_of_the_range_term():
+    """foreign_loop.judge_v4: on range_scale_approach a tie of range_scale with the walk
+    that stands for it, within the battery's borderline (as --fit leaves them), is right
+    and ends the loop; a tie 0.01 nats/point apart, or range_walk named, is not."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).parent))
+    from foreign_loop import judge_v4
+    from foreign_sim import BATTERY
+    spec = next(s for s in BATTERY if s.name == 'range_scale_approach')
+
+    def first(margin, tie=True):
+        return {'missing_effect': None if tie else 'range_walk',
+                'confounded_with': ['range_scale', 'range_walk'] if tie else [],
+                'against_named': {'range_walk': {'fitted_margin': margin}},
+                'reference_pose_off': False}
+    assert judge_v4(spec, [first(0.004)], {})['ok']
+    assert not judge_v4(spec, [first(0.01)], {})['ok']
+    assert not judge_v4(spec, [first(0.004, tie=False), {'missing_effect': None}], {})['ok']

@@ -708,6 +708,10 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         diag.share_veto(c, ana.attribution)
     cands = diagnosis.rank(cands)
     decision = diag.decide(cands)
+    in_model = {e.name for e in effects}
+    rivals = [get_effect_class(n) for n in diagnosis.POSE_RIVALS if n not in in_model]
+    decision, weighed = diag.weigh_rivals(decision, cands, rivals, ana.attribution)
+    cands = diagnosis.rank(cands + weighed)
 
     def pose_test(on_top: list[Effect]) -> pose_error.PoseError:
         return pose_error.fit_reference_pose(
@@ -724,11 +728,10 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
                                                  len(classes), seed)
         return recast_cache['r']
     decision = diag.judge_pose(pose_test, cands, decision, recast)
-    in_model = {e.name for e in effects}
-    rivals = [get_effect_class(n) for n in diagnosis.POSE_RIVALS if n not in in_model]
     decision, scored = diag.weigh_pose_rivals(decision, rivals, pose_test,
-                                              lambda: recast(pose_test([]))[0])
-    cands = diagnosis.rank(cands + scored)
+                                              lambda: recast(pose_test([]))[0],
+                                              {c.name: c for c in weighed})
+    cands = diagnosis.rank(cands + [c for c in scored if all(c is not w for w in weighed)])
     named = [c.effect for c in cands if c.name == decision.missing]
     pose = decision.pose if decision.pose is not None else pose_test(named)
     for c in cands[:FINALIZED]:

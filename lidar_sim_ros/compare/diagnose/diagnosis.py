@@ -60,6 +60,11 @@ its z, ``total_z``), whatever part of the data the gain is on:
 
 Otherwise ``missing_effect`` is null, and the verdict says what the residual depends
 on, if anything, and that no catalogue effect explains it.
+
+The range errors kept out of the default candidates (POSE_RIVALS) never name themselves
+on a recording where nothing else is named; they are weighed against a named effect
+(``weigh_rivals``: ``decide`` again among all) and against a reported reference pose
+(``weigh_pose_rivals``).
 """
 from __future__ import annotations
 
@@ -721,8 +726,36 @@ class Diagnosis:
                 'predicted': round(predicted, 1), 'recorded': int(recorded),
                 'ratio': round(predicted / recorded, 4) if recorded else None}
 
+    def weigh_rivals(self, decision: Decision, cands: list[Candidate],
+                     rivals: list[type[Effect]],
+                     attribution: Attribution | None = None) -> tuple[Decision, list[Candidate]]:
+        """A named sensor effect (or a tie) against the range errors kept out of the
+        default candidates (POSE_RIVALS: a range offset drifting over the recording, a
+        range scale). They are no default candidates because, on their own, they fit
+        smooth patterns of other causes (a bias linear in range stands for any pattern
+        across a target whose range follows its azimuth); but once the data call for
+        a range term, the one named must be weighed against them on the same footing:
+        on an approach a walk in ln P follows the range as a scale does. They are
+        scored here, with the same vetoes, and ``decide`` is run again among all: a
+        rival decisively better by its rule is named instead, one within its margins
+        makes a tie, one decisively worse leaves the decision. Nothing is named that
+        was not before when nothing was (a rival never names itself on an empty
+        decision). Returns the decision and the rivals scored."""
+        if not (decision.missing or decision.confounded_with) or not rivals:
+            return decision, []
+        scored = []
+        for cls in rivals:
+            r = self.score(cls)
+            self.share_veto(r, attribution)
+            scored.append(r)
+        if not any(self.nameable(r) for r in scored):
+            return decision, scored
+        again = self.decide(rank([*cands, *scored]))
+        return replace(decision, missing=again.missing, confounded_with=again.confounded_with,
+                       also=again.also, pair_z=again.pair_z), scored
+
     def weigh_pose_rivals(self, decision: Decision, rivals: list[type[Effect]], pose_test,
-                          on_pose) -> tuple[Decision, list[Candidate]]:
+                          on_pose, scored: dict | None = None) -> tuple[Decision, list[Candidate]]:
         """A reported pose error against range errors of the sensor (POSE_RIVALS: a
         range offset drifting over the recording, a range scale), on the same footing:
         each rival that passes the naming rule is weighed both ways, the pose's test on
@@ -738,9 +771,10 @@ class Diagnosis:
         scored (for the summary's candidates)."""
         if decision.pose is None or decision.missing or decision.confounded_with:
             return decision, []
+        done = dict(scored or {})
         scored, wins, ties = [], [], []
         for cls in rivals:
-            r = self.score(cls)
+            r = done.get(cls.name) or self.score(cls)
             scored.append(r)
             if not self.nameable(r):
                 continue

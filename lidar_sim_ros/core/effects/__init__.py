@@ -22,9 +22,10 @@ _CATALOGUE = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
 # range_scale is a test a user asks for (--effect range_scale): a bias linear in range also
 # fits smooth spatial patterns on a target whose range follows its azimuth or elevation
 # (docs/compare.md, "Range scale"), so it is no default candidate. range_scale and
-# range_drift are weighed against the reference pose when its per-cloud correction passes
-# (compare: Diagnosis.weigh_pose_rivals): a range error of the sensor moves clouds along
-# the line of sight as a pose error does.
+# range_drift are weighed against a named effect (compare: Diagnosis.weigh_rivals: on an
+# approach a walk in ln P follows the range as a scale does) and against the reference
+# pose when its per-cloud correction passes (Diagnosis.weigh_pose_rivals): a range error
+# of the sensor moves clouds along the line of sight as a pose error does.
 _BY_NAME_ONLY = ('sunlight', 'range_scale', 'range_drift')
 
 
