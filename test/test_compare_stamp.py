@@ -35,3 +35,21 @@ def test_a_remainder_that_does_not_matter_is_the_convention():
     # point, below the 0.005 margin: a scan that does not fill the frame.
     st = stamp_place(quadratic_nll(0.048, 1e7), 0.048, PERIOD, 8.6, 10_000, 0.005)
     assert st is not None and st.place == 'start' and st.likelihood_ratio == pytest.approx(40.0)
+
+
+@pytest.mark.parametrize('fitted, place, dt', [(-0.1012, 'end', -PERIOD),
+                                               (-0.0495, 'middle', -0.5 * PERIOD)])
+def test_times_from_the_scan_pattern_are_read_from_a_start_stamp(fitted, place, dt):
+    # Points timed from the matched scan pattern assume a stamp at the scan start: a stamp
+    # at the end is a whole frame (-T), one in the middle half a frame (-T/2). With the
+    # stamp-only conventions (+-T/2) the -T of an end stamp would be read as a clock offset.
+    from lidar_sim_ros.compare.diagnose.stamp_place import SCAN_PLACES
+    st = stamp_place(quadratic_nll(fitted, 1e6), fitted, PERIOD, 8.6, 10_000, 0.005,
+                     places=SCAN_PLACES)
+    assert st is not None and st.place == place and st.dt_s == pytest.approx(dt)
+    if place == 'end':
+        assert stamp_place(quadratic_nll(fitted, 1e6), fitted, PERIOD, 8.6, 10_000,
+                           0.005) is None
+    # A start stamp is what the scan pattern assumes: a positive offset is a clock offset.
+    assert stamp_place(quadratic_nll(0.05, 1e6), 0.05, PERIOD, 8.6, 10_000, 0.005,
+                       places=SCAN_PLACES) is None

@@ -283,9 +283,9 @@ def unknown_time_variance(model: Model, effects: list[Effect], meas: Measurement
 
 
 def _stamp_place(diag, decision, cands, meas: Measurements, scenario: Scenario):
-    """Clouds without per-point time whose named time offset is the stamp's place in the
-    scan (``stamp_place.py``), or None."""
-    if decision.missing != 'time_offset' or meas.time_source != 'stamp':
+    """Clouds without a per-point time field whose named time offset is the stamp's place
+    in the scan (``stamp_place.py``), or None."""
+    if decision.missing != 'time_offset' or meas.time_source not in ('stamp', 'scan pattern'):
         return None
     cand = next(c for c in cands if c.name == 'time_offset')
     if cand.effect is None:
@@ -297,7 +297,9 @@ def _stamp_place(diag, decision, cands, meas: Measurements, scenario: Scenario):
         return float(np.sum(nll))
     return stamp_place.stamp_place(total_nll, float(cand.effect.params.dt_s), period,
                                    diag.z_crit ** 2, len(diag.rays.matched),
-                                   diagnosis.MIN_PRACTICAL_GAIN)
+                                   diagnosis.MIN_PRACTICAL_GAIN,
+                                   stamp_place.PLACES if meas.time_source == 'stamp'
+                                   else stamp_place.SCAN_PLACES)
 
 
 @dataclass

@@ -20,6 +20,10 @@ practical margin (nats per point) over the convention's (a scan that does not fi
 frame puts the mean point time a little short of T/2: such a remainder does not
 matter). Otherwise the offset is a clock offset (or a stamp convention plus one), and
 ``time_offset`` stays the verdict.
+
+Clouds whose point times come from the scan pattern (no time field, the directions
+matched to the configured shots) are timed from a stamp at the scan's start: a stamp in
+the middle then gives ``dt_s = -T/2`` and one at the end ``dt_s = -T`` (``SCAN_PLACES``).
 """
 from __future__ import annotations
 
@@ -30,14 +34,15 @@ import numpy as np
 from lidar_sim_ros.core.effects import make_effect
 
 PLACES = (('start', 0.5), ('end', -0.5))   # place of the stamp, dt_s in frame periods
+SCAN_PLACES = (('middle', -0.5), ('end', -1.0))   # the same, times from the scan pattern
 
 
 @dataclass(frozen=True)
 class StampPlace:
     """The stamp's place in the scan that explains a fitted time offset."""
 
-    place: str                 # 'start' or 'end'
-    dt_s: float                # the convention's offset (s): +-T/2
+    place: str                 # 'start', 'middle' or 'end'
+    dt_s: float                # the convention's offset (s): +-T/2 or -T
     fitted_dt_s: float         # the fitted offset (s)
     period_s: float            # frame period (s), from the cloud stamps
     likelihood_ratio: float    # 2 (NLL(convention) - NLL(fitted)), total nats
@@ -49,18 +54,19 @@ class StampPlace:
 
 
 def stamp_place(total_nll, fitted_dt_s: float, period_s: float, bound: float,
-                n_points: int, margin: float) -> StampPlace | None:
+                n_points: int, margin: float, places=PLACES) -> StampPlace | None:
     """The convention (module doc) that explains ``fitted_dt_s``, or None.
 
     ``total_nll(effect)``: total NLL (nats) of the ``n_points`` analysed points with
     ``effect`` added; ``bound``: the likelihood ratio below which the two explain the data
-    alike; ``margin``: the gain per point (nats) that matters.
+    alike; ``margin``: the gain per point (nats) that matters; ``places``: (place, dt in
+    frame periods) of the conventions, ``PLACES`` or ``SCAN_PLACES``.
     """
     if not (np.isfinite(fitted_dt_s) and period_s > 0):
         return None
     fitted = total_nll(make_effect('time_offset', {'dt_s': float(fitted_dt_s)}))
     best = None
-    for place, share in PLACES:
+    for place, share in places:
         dt = share * period_s
         if np.sign(dt) != np.sign(fitted_dt_s):
             continue

@@ -81,14 +81,19 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                            for k, v in c.params.items())
         gain, caveat = _gain_words(summary, c)
         words = EFFECT_WORDS.get(missing, missing)
-        if missing == 'time_offset' and summary.get('point_times') == 'stamp':
+        if missing == 'time_offset' and summary.get('point_times') in ('stamp', 'scan pattern'):
+            how = ('these clouds carry no per-point time' if summary['point_times'] == 'stamp'
+                   else 'these clouds carry no per-point time field (their times come from '
+                   'the scan pattern, read as stamped at the scan start)')
             words = ('a time offset between the poses and the points: a clock offset, or, '
-                     'as these clouds carry no per-point time, the place of the cloud stamp in '
-                     'the scan (start, middle or end), which gives the same data')
+                     f'as {how}, the place of the cloud stamp in the scan (start, middle or '
+                     'end), which gives the same data')
             st = summary.get('stamp_place')
             if st:
+                share = abs(st['dt_s'] / st['period_s'])
+                part = 'half the' if abs(share - 0.5) < 1e-6 else 'one'
                 words += (f' (here it is what stamps at the {st["place"]} of the scan give: '
-                          f'{1e3 * st["dt_s"]:+.0f} ms, half the {1e3 * st["period_s"]:.0f} ms '
+                          f'{1e3 * st["dt_s"]:+.0f} ms, {part} {1e3 * st["period_s"]:.0f} ms '
                           f'frame, against {1e3 * st["fitted_dt_s"]:+.1f} ms fitted; if your '
                           'driver stamps there, no clock is off, but the model needs the '
                           'offset all the same)')
