@@ -209,6 +209,21 @@ def test_point_times_under_other_field_names_and_units(tmp_path, name, dtype, va
     assert meas.t_s[4:] == pytest.approx(0.1 + np.array([0.0, 0.025, 0.05, 0.075]), abs=1e-6)
 
 
+@pytest.mark.parametrize('name, dtype, step', [('timestamp', '<f4', '128 s'),
+                                                ('time_ms', '<f4', '131.072 s')])
+def test_absolute_times_in_a_type_too_coarse_are_refused(tmp_path, name, dtype, step):
+    # FLOAT32 epoch seconds step by 128 s at 1.7e9: read as times they were extrapolated
+    # 30 s past the poses and crashed the pose re-cast (a holdout), rc 1.
+    from lidar_sim_ros.compare.recording.measurements import MeasurementError
+    scale = 1e3 if name.endswith('_ms') else 1.0
+    bag = _bag(tmp_path, 4, lambda stamp: scale * (EPOCH_NS / 1e9 + stamp
+                                                   + np.array([0, 0.025, 0.05, 0.075])),
+               [0.0, 0.1, 0.3], [0.0, 0.1], t_dtype=dtype, t_name=name)
+    with pytest.raises(MeasurementError, match=f"cloud #0: {name} holds absolute clock "
+                       rf"readings .* in float32, whose steps there are {step}"):
+        load_measurements(bag)
+
+
 def test_cloud_without_a_time_field_keeps_the_stamp_and_says_so(tmp_path):
     bag = _bag(tmp_path, 4, [0.0, 1.0, 2.0, 3.0], [0.0, 0.2], [0.0], t_name='intensity')
     meas = load_measurements(bag)

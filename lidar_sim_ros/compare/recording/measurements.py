@@ -57,6 +57,10 @@ _UNIT_SUFFIX = {'_ns': 1e-9, '_us': 1e-6, '_ms': 1e-3, '_s': 1.0}
 # stamp's clock.
 _ABSOLUTE_MIN_S = 1.0e5
 ABSOLUTE_MATCH_S = 60.0
+# An absolute clock reading must resolve time within a frame: a float type whose step
+# at the clock's value is coarser than this (s) is refused (FLOAT32 epoch seconds step
+# by 128 s; FLOAT64 by 2.4e-7 s).
+_MAX_CLOCK_STEP_S = 1e-3
 # Clouds without ``t``: directions matching the configured scan pattern this closely
 # (rad) give each point its shot's time, if this share of the points match.
 SCAN_MATCH_TOL_RAD = 2e-4
@@ -490,7 +494,9 @@ def point_time_since_stamp_s(raw: np.ndarray, name: str,
     float = s. Absolute or relative by magnitude: a value above a day's worth of
     seconds is a clock reading; on the stamp's clock (within ABSOLUTE_MATCH_S) the
     stamp is subtracted, on another clock the cloud's earliest point is taken as the
-    stamp. Relative values too large for one frame are read in a finer unit.
+    stamp. Relative values too large for one frame are read in a finer unit. An absolute
+    reading in a float type too coarse at its value (``_MAX_CLOCK_STEP_S``) is a
+    FieldError.
     """
     raw = np.asarray(raw)
     if len(raw) == 0:
@@ -503,6 +509,12 @@ def point_time_since_stamp_s(raw: np.ndarray, name: str,
     finite = np.isfinite(raw.astype(float))
     typical_s = float(np.median(np.abs(raw[finite].astype(float)))) * scale if finite.any() else 0.0
     if typical_s > _ABSOLUTE_MIN_S:
+        step_s = 0.0 if integer else float(np.spacing(raw.dtype.type(typical_s / scale))) * scale
+        if step_s > _MAX_CLOCK_STEP_S:
+            raise FieldError(f'{name} holds absolute clock readings (about {typical_s:.6g} s) in '
+                             f'{raw.dtype.name}, whose steps there are {step_s:g} s: the points\' '
+                             'times cannot be read (write them as FLOAT64, integer ns, or '
+                             'time since the cloud stamp)')
         if integer and scale == 1e-9:     # exact integer arithmetic: ns clocks exceed float64
             since = (raw.astype(np.int64) - np.int64(stamp_ns)).astype(float) * 1e-9
         else:
