@@ -224,6 +224,14 @@ def test_absolute_times_in_a_type_too_coarse_are_refused(tmp_path, name, dtype, 
         load_measurements(bag)
 
 
+def test_absolute_times_spread_beyond_one_frame_are_refused(tmp_path):
+    from lidar_sim_ros.compare.recording.measurements import MeasurementError
+    bag = _bag(tmp_path, 4, lambda stamp: EPOCH_NS / 1e9 + stamp + np.array([0, 0.025, 0.05, 30.0]),
+               [0.0, 0.1, 0.3], [0.0, 0.1], t_dtype='<f8', t_name='timestamp')
+    with pytest.raises(MeasurementError, match='spread over 30 s in one cloud'):
+        load_measurements(bag)
+
+
 def test_cloud_without_a_time_field_keeps_the_stamp_and_says_so(tmp_path):
     bag = _bag(tmp_path, 4, [0.0, 1.0, 2.0, 3.0], [0.0, 0.2], [0.0], t_name='intensity')
     meas = load_measurements(bag)

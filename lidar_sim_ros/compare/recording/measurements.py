@@ -519,6 +519,10 @@ def point_time_since_stamp_s(raw: np.ndarray, name: str,
             since = (raw.astype(np.int64) - np.int64(stamp_ns)).astype(float) * 1e-9
         else:
             since = raw.astype(float) * scale - stamp_ns / NS_PER_S
+        span_s = float(np.nanmax(since) - np.nanmin(since)) if finite.any() else 0.0
+        if span_s > _MAX_FRAME_TIME_S:
+            raise FieldError(f'{name} holds absolute clock readings spread over {span_s:.6g} s '
+                             f'in one cloud: one frame lasts at most {_MAX_FRAME_TIME_S:g} s')
         if np.nanmedian(np.abs(since)) <= ABSOLUTE_MATCH_S:
             return since, f'absolute {unit}'
         first = np.nanmin(raw[finite].astype(float)) if finite.any() else 0.0
