@@ -27,7 +27,7 @@ def _rotate(qx, qy, qz, qw, vx, vy, vz):
             vz + qw * tz + (qx * ty - qy * tx))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def rays_to_body(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order):
     """Ray origins and directions in the body frame (float32, Embree's input), in cast order.
 
@@ -53,31 +53,92 @@ def rays_to_body(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order):
     return o_body, d_body
 
 
-@njit(cache=True)
-def hit_geometry(face_cast, tfar_cast, order, face_normals, face_material, quat_xyzw, dir_out):
-    """Embree's answers (cast order) back in ray order, with per-hit geometry.
+@njit(cache=True, inline='always')
+def _slab(o, d, lo, hi, t_near, t_far):
+    """(t_near, t_far) of the ray o + t d (one coordinate) narrowed to lo <= o + t d <= hi;
+    t_far < t_near: no t."""
+    if d == 0.0:
+        if o < lo or o > hi:
+            return 1.0, -1.0
+        return t_near, t_far
+    inv = 1.0 / d
+    t1, t2 = (lo - o) * inv, (hi - o) * inv
+    return max(t_near, min(t1, t2)), min(t_far, max(t1, t2))
 
-    face_cast (N,) primID (-1 = miss), tfar_cast (N,) distance along the ray (m);
+
+@njit(cache=True, nogil=True)
+def rays_to_body_in_box(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order, box_lo, box_hi):
+    """``rays_to_body`` for the rays whose line can meet the box [box_lo, box_hi] (body
+    frame, m; the mesh's bounds): the others cannot hit the mesh and are left out.
+
+    Returns o_body, d_body (float32, the kept rays in cast order) and slot (N,) int64:
+    the row of ray ``order[k]`` in o_body, or -1 where it was left out. The box is
+    widened by 1e-3 of its size plus 1e-5 of the ray's distance to it, far more than
+    Embree's float32 rounding, so no ray that Embree would hit is left out.
+    """
+    n = order.shape[0]
+    o_body = np.empty((n, 3), np.float32)
+    d_body = np.empty((n, 3), np.float32)
+    slot = np.empty(n, np.int64)
+    size = max(box_hi[0] - box_lo[0], box_hi[1] - box_lo[1], box_hi[2] - box_lo[2])
+    cx, cy, cz = ((box_lo[0] + box_hi[0]) / 2.0, (box_lo[1] + box_hi[1]) / 2.0,
+                  (box_lo[2] + box_hi[2]) / 2.0)
+    one_q, one_p, one_o = quat_xyzw.shape[0] == 1, position_m.shape[0] == 1, origin_lidar_m.shape[0] == 1
+    kept = 0
+    for k in range(n):
+        i = order[k]
+        iq, ip, io = (0 if one_q else i), (0 if one_p else i), (0 if one_o else i)
+        qx, qy, qz, qw = -quat_xyzw[iq, 0], -quat_xyzw[iq, 1], -quat_xyzw[iq, 2], quat_xyzw[iq, 3]
+        ox, oy, oz = _rotate(qx, qy, qz, qw,
+                             origin_lidar_m[io, 0] - position_m[ip, 0],
+                             origin_lidar_m[io, 1] - position_m[ip, 1],
+                             origin_lidar_m[io, 2] - position_m[ip, 2])
+        dx, dy, dz = _rotate(qx, qy, qz, qw, dir_lidar[i, 0], dir_lidar[i, 1], dir_lidar[i, 2])
+        # The slab test on the float32 ray Embree gets (in float64).
+        ox, oy, oz = np.float64(np.float32(ox)), np.float64(np.float32(oy)), np.float64(np.float32(oz))
+        dx, dy, dz = np.float64(np.float32(dx)), np.float64(np.float32(dy)), np.float64(np.float32(dz))
+        pad = 1e-3 * size + 1e-5 * (abs(ox - cx) + abs(oy - cy) + abs(oz - cz))
+        t_near, t_far = _slab(ox, dx, box_lo[0] - pad, box_hi[0] + pad, 0.0, np.inf)
+        t_near, t_far = _slab(oy, dy, box_lo[1] - pad, box_hi[1] + pad, t_near, t_far)
+        t_near, t_far = _slab(oz, dz, box_lo[2] - pad, box_hi[2] + pad, t_near, t_far)
+        if t_far < t_near:
+            slot[k] = -1
+            continue
+        slot[k] = kept
+        o_body[kept, 0], o_body[kept, 1], o_body[kept, 2] = ox, oy, oz
+        d_body[kept, 0], d_body[kept, 1], d_body[kept, 2] = dx, dy, dz
+        kept += 1
+    return o_body[:kept], d_body[:kept], slot
+
+
+@njit(cache=True, nogil=True)
+def hit_geometry_into(face_cast, tfar_cast, slot, order, face_normals, face_material, quat_xyzw,
+                      dir_out, hit, range_m, normal, cos_incidence, material, face):
+    """Embree's answers back in ray order, with per-hit geometry, written into the
+    output arrays (rows ``order``, which chunks of one frame share without overlapping).
+
+    face_cast (M,) primID (-1 = miss), tfar_cast (M,) distance along the ray (m), for
+    the rays cast; slot (K,): the row in them of ray ``order[k]`` (-1: not cast, a miss);
     face_normals (F, 3) unit body-frame normals; face_material (F,) ids;
     quat_xyzw (N|1, 4) rotates the normals into the frame of dir_out (N, 3), the
     rays' unit directions in that frame (identity quaternion: stay in body frame).
-    Returns hit, range_m (inf on a miss), normal (toward the sensor; 0 on a miss),
+    Writes hit, range_m (inf on a miss), normal (toward the sensor; 0 on a miss),
     cos_incidence (NaN on a miss), material (-1 on a miss), face (-1 on a miss).
     (The arccos is left to numpy: its SIMD loop is ~10x faster than libm's per call.)
     """
-    n = face_cast.shape[0]
-    hit = np.zeros(n, np.bool_)
-    range_m = np.full(n, np.inf)
-    normal = np.zeros((n, 3))
-    cos_incidence = np.full(n, np.nan)
-    material = np.full(n, -1, np.int16)
-    face = np.full(n, -1, np.int64)
     one_q = quat_xyzw.shape[0] == 1
-    for k in range(n):
-        f = face_cast[k]
-        if f < 0:
-            continue
+    for k in range(order.shape[0]):
         i = order[k]
+        j = slot[k]
+        f = face_cast[j] if j >= 0 else -1
+        if f < 0:
+            hit[i] = False
+            range_m[i] = np.inf
+            normal[i, 0], normal[i, 1], normal[i, 2] = 0.0, 0.0, 0.0
+            cos_incidence[i] = np.nan
+            material[i] = -1
+            face[i] = -1
+            continue
         iq = 0 if one_q else i
         nx, ny, nz = _rotate(quat_xyzw[iq, 0], quat_xyzw[iq, 1], quat_xyzw[iq, 2], quat_xyzw[iq, 3],
                              face_normals[f, 0], face_normals[f, 1], face_normals[f, 2])
@@ -85,12 +146,11 @@ def hit_geometry(face_cast, tfar_cast, order, face_normals, face_material, quat_
         if cos_i < 0.0:  # two-sided surfaces: the normal faces the sensor
             nx, ny, nz, cos_i = -nx, -ny, -nz, -cos_i
         hit[i] = True
-        range_m[i] = tfar_cast[k]
+        range_m[i] = tfar_cast[j]
         normal[i, 0], normal[i, 1], normal[i, 2] = nx, ny, nz
         cos_incidence[i] = min(cos_i, 1.0)
         material[i] = face_material[f]
         face[i] = f
-    return hit, range_m, normal, cos_incidence, material, face
 
 
 @njit(cache=True, nogil=True)

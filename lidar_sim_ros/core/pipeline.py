@@ -169,7 +169,7 @@ class Simulator:
         # Frames are simulated with the shots in a coherent order (neighbouring directions
         # together): Embree traverses its BVH faster and every per-shot pass reads memory
         # in sequence. Published points go back to firing order (``_cast_position``).
-        self._plan = _CastPlan.of(self.shots, self.directions)
+        self._plan = _CastPlan.of(self.shots, self.directions, sensor)
         self._cast_order, self._cast_shots = self._plan.order, self._plan.cast_shots
         self._cast_directions, self._cast_position = self._plan.directions, self._plan.position
         # A pattern that does not repeat (the Risley rosette) has each frame's own shots.
@@ -218,10 +218,13 @@ class Simulator:
     # ------------------------------------------------------------------ stages
     def predict(self, t_abs_s: np.ndarray, directions: np.ndarray, pose_source: PoseSource,
                 t_frame_s: np.ndarray | None = None, az_rad=None, el_rad=None,
-                laser: np.ndarray | None = None, cast_order: np.ndarray | None = None) -> Prediction:
+                laser: np.ndarray | None = None, cast_order: np.ndarray | None = None,
+                pixel_sr: np.ndarray | None = None) -> Prediction:
         """Raycast + reflection + error model for rays at absolute times (no random draws).
 
         ``cast_order``: optional coherent ray order for Embree (results keep input order).
+        ``pixel_sr``: a flash array's pixel field of view per ray (sr, ``scan_flash.
+        pixel_view_sr``) when the caller has it (a frame's plan keeps it); else computed.
         """
         t_abs_s = np.asarray(t_abs_s, dtype=float)
         directions = np.asarray(directions, dtype=float)
@@ -244,7 +247,9 @@ class Simulator:
         range_on = hits.range_m.take(on)
         power = np.zeros(n)
         cos_on = None if hits.cos_incidence is None else hits.cos_incidence.take(on)
-        pixel_sr = pixel_view_sr(self.sensor, directions[on]) if optics.flood is not None else None
+        if optics.flood is not None:
+            pixel_sr = (pixel_view_sr(self.sensor, directions[on]) if pixel_sr is None
+                        else pixel_sr.take(on))
         power[on] = reflection.return_power_w(range_on, hits.incidence_rad.take(on), self._kd.take(mat),
                                               self._ks.take(mat), self._n.take(mat), optics, cos_on,
                                               pixel_sr)
@@ -286,7 +291,7 @@ class Simulator:
         last_index, plan = self._last_plan
         if last_index != frame_index:
             plan = _CastPlan.of(*frame_shots_and_directions(self.sensor, self._scan_base,
-                                                            frame_index))
+                                                            frame_index), self.sensor)
             self._last_plan = (frame_index, plan)
         return plan
 
@@ -300,7 +305,7 @@ class Simulator:
         plan = self._frame_plan(frame_index)
         shots = plan.cast_shots
         pred = self.predict(frame_start_s + shots.t_s, plan.directions, pose_source, shots.t_s,
-                            shots.az_rad, shots.el_rad, shots.laser)
+                            shots.az_rad, shots.el_rad, shots.laser, pixel_sr=plan.pixel_sr)
         ctx, hit = pred.ctx, pred.ctx.hit
         det = self.sensor.detection
         # Misses carry NaN range and zero power: never detected, NaN measured range.
@@ -433,34 +438,39 @@ class Simulator:
 
 
 def _poses_at(pose_source: PoseSource, t_s: np.ndarray) -> Poses:
-    """The pose at every time; one pose repeated when all times are the same (a flash
-    array's global exposure: 65,536 equal times, one interpolation)."""
+    """The pose at every time, or one pose (one row, which the raycast and the effects
+    apply to every shot) when all times are the same (a flash array's global exposure:
+    65,536 equal times, one interpolation, one origin in the body frame)."""
     n = len(t_s)
     if n > 1 and t_s[0] == t_s[-1] and bool(np.all(t_s == t_s[0])):
         one = pose_source.at(t_s[:1])
-        return Poses.from_quat(np.repeat(one.quat_xyzw, n, axis=0),
-                               np.repeat(np.asarray(one.position_m, float).reshape(1, 3), n, axis=0))
+        return Poses.from_quat(np.asarray(one.quat_xyzw, float).reshape(1, 4),
+                               np.asarray(one.position_m, float).reshape(1, 3))
     return pose_source.at(t_s)
 
 
 @dataclass(frozen=True)
 class _CastPlan:
     """One frame's shots in firing order and in cast order (coherent: neighbouring
-    directions together); ``position[i]``: where firing-order shot i sits in cast order."""
+    directions together); ``position[i]``: where firing-order shot i sits in cast order;
+    ``pixel_sr``: a flash array's pixel field of view per shot in cast order (sr; None for
+    a sensor that fires a beam per shot), computed once with the plan."""
 
     shots: Shots
     order: np.ndarray
     cast_shots: Shots
     directions: np.ndarray
     position: np.ndarray
+    pixel_sr: np.ndarray | None
 
     @classmethod
-    def of(cls, shots: Shots, directions: np.ndarray) -> '_CastPlan':
+    def of(cls, shots: Shots, directions: np.ndarray, sensor: SensorConfig) -> '_CastPlan':
         order = coherent_order(shots.az_rad, shots.el_rad)
         position = np.empty_like(order)
         position[order] = np.arange(len(order))
-        return cls(shots, order, shots.subset(order), np.ascontiguousarray(directions[order]),
-                   position)
+        cast_directions = np.ascontiguousarray(directions[order])
+        return cls(shots, order, shots.subset(order), cast_directions, position,
+                   pixel_view_sr(sensor, cast_directions))
 
 
 def _false_returns(effects, ctx, rng: np.random.Generator):
