@@ -124,10 +124,25 @@ def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
         return [work(slice(0, n))]
     bounds = np.linspace(0, n, threads + 1).astype(int)
     parts = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    futures = [_pool(threads).submit(work, part) for part in parts[1:]]
+    return [work(parts[0])] + [f.result() for f in futures]
+
+
+def start_beside(threads: int, work: Callable[[], T]) -> Callable[[], T]:
+    """Start ``work`` on a pool thread (``threads`` > 1; else now, on this one) beside what
+    the caller does next; the returned callable waits for its result. For GIL-free work
+    (a numpy draw); parts that ``split_over_threads`` sends to the pool queue behind it."""
+    if int(threads) <= 1:
+        result = work()
+        return lambda: result
+    return _pool(int(threads)).submit(work).result
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    """The pool of threads - 1 workers beside the calling thread."""
     if threads - 1 not in _POOLS:
         _POOLS[threads - 1] = ThreadPoolExecutor(threads - 1, thread_name_prefix='raycast')
-    futures = [_POOLS[threads - 1].submit(work, part) for part in parts[1:]]
-    return [work(parts[0])] + [f.result() for f in futures]
+    return _POOLS[threads - 1]
 
 
 class Target:

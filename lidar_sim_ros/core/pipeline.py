@@ -17,7 +17,8 @@ from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
 from lidar_sim_ros.core.scenario import Scenario, scenario_effect_spec
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
-from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target
+from lidar_sim_ros.core.geometry import (Hits, Target, cast_at_poses, coherent_order, load_target,
+                                        split_over_threads, start_beside)
 from lidar_sim_ros.core.pose import Poses, PoseSource, PoseTrack, StaticPose
 from lidar_sim_ros.core.scan import (Shots, angles_from_directions, frame_shots,
                                      frame_shots_and_directions, varies_by_frame)
@@ -241,25 +242,26 @@ class Simulator:
                 break
         if hits is None:
             hits = cast_at_poses(self.target, directions, poses, order=cast_order)
-        # Reflection and error model on the shots that hit (index lists: one gather each).
-        on = np.flatnonzero(hits.hit)
-        mat = hits.material.take(on)
-        range_on = hits.range_m.take(on)
-        power = np.zeros(n)
-        cos_on = None if hits.cos_incidence is None else hits.cos_incidence.take(on)
-        if optics.flood is not None:
-            pixel_sr = (pixel_view_sr(self.sensor, directions[on]) if pixel_sr is None
-                        else pixel_sr.take(on))
-        power[on] = reflection.return_power_w(range_on, hits.incidence_rad.take(on), self._kd.take(mat),
-                                              self._ks.take(mat), self._n.take(mat), optics, cos_on,
-                                              pixel_sr)
-        if hits.power_fraction is not None:
-            power = power * hits.power_fraction
-        rng_m = np.full(n, np.nan)
-        rng_m[on] = range_on
-        bias, var = np.zeros(n), np.zeros(n)
-        bias[on] = self._bias.take(mat)
-        var[on] = self._sigma.take(mat) ** 2
+        # Reflection and error model on the shots that hit (index lists: one gather each), in
+        # parts of the rays, one per thread (numpy releases the GIL in each pass).
+        power, rng_m, bias, var = np.zeros(n), np.full(n, np.nan), np.zeros(n), np.zeros(n)
+
+        def reflect(part: slice) -> None:
+            on = np.flatnonzero(hits.hit[part]) + part.start
+            mat = hits.material.take(on)
+            range_on = hits.range_m.take(on)
+            cos_on = None if hits.cos_incidence is None else hits.cos_incidence.take(on)
+            sr = None
+            if optics.flood is not None:
+                sr = pixel_view_sr(self.sensor, directions[on]) if pixel_sr is None else pixel_sr.take(on)
+            power[on] = reflection.return_power_w(range_on, hits.incidence_rad.take(on), self._kd.take(mat),
+                                                  self._ks.take(mat), self._n.take(mat), optics, cos_on, sr)
+            if hits.power_fraction is not None:
+                power[part] *= hits.power_fraction[part]
+            rng_m[on] = range_on
+            bias[on] = self._bias.take(mat)
+            var[on] = self._sigma.take(mat) ** 2
+        split_over_threads(n, self.target.threads, reflect)
         if az_rad is None or el_rad is None:
             az_rad, el_rad = angles_from_directions(directions)
         det = self.sensor.detection
@@ -304,13 +306,16 @@ class Simulator:
         rng = self.frame_rng(frame_index)
         plan = self._frame_plan(frame_index)
         shots = plan.cast_shots
+        # The range noise of every shot, the frame's first draw: drawn on a pool thread beside
+        # the raycast (numpy releases the GIL while it draws), the same numbers on any thread.
+        noise = start_beside(self.target.threads, lambda: rng.standard_normal(len(shots)))
         pred = self.predict(frame_start_s + shots.t_s, plan.directions, pose_source, shots.t_s,
                             shots.az_rad, shots.el_rad, shots.laser, pixel_sr=plan.pixel_sr)
         ctx, hit = pred.ctx, pred.ctx.hit
         det = self.sensor.detection
         # Misses carry NaN range and zero power: never detected, NaN measured range.
         detected = hit & detection.detected_mask(ctx.power_w, ctx.range_m, det)
-        measured = detection.measured_range_m(ctx.range_m, pred.bias_m, pred.sigma_m, rng)
+        measured = self._measured_range_m(pred, noise())
         # Extra returns lie behind their echo: a first-return receiver can report them only
         # where the echo went undetected (no ray needs following elsewhere).
         open_shots = np.flatnonzero(hit & ~detected) if det.returns.single else None
@@ -341,6 +346,17 @@ class Simulator:
             material=_material_ids(material.take(out)), stats=self._frame_stats(pred, len(out)),
             truth_source=self._truth(pred, measured, plan), face=pred.hits.face.take(out),
             true_range_m=ctx.range_m.take(out), return_number=np.ones(len(out), np.uint8))
+
+    def _measured_range_m(self, pred: Prediction, noise: np.ndarray) -> np.ndarray:
+        """Every shot's measured range (m; NaN on a miss) from its standard normal draw, in
+        parts of the shots, one per thread."""
+        out = np.empty(len(noise))
+
+        def measure(part: slice) -> None:
+            out[part] = detection.measured_range_m(pred.ctx.range_m[part], pred.bias_m[part],
+                                                   pred.sigma_m[part], noise[part])
+        split_over_threads(len(out), self.target.threads, measure)
+        return out
 
     def _frame_stats(self, pred: Prediction, detected: int) -> dict:
         ctx, hit, det = pred.ctx, pred.ctx.hit, self.sensor.detection
