@@ -53,36 +53,27 @@ def rays_to_body(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order):
     return o_body, d_body
 
 
-@njit(cache=True, inline='always')
-def _slab(o, d, lo, hi, t_near, t_far):
-    """(t_near, t_far) of the ray o + t d (one coordinate) narrowed to lo <= o + t d <= hi;
-    t_far < t_near: no t."""
-    if d == 0.0:
-        if o < lo or o > hi:
-            return 1.0, -1.0
-        return t_near, t_far
-    inv = 1.0 / d
-    t1, t2 = (lo - o) * inv, (hi - o) * inv
-    return max(t_near, min(t1, t2)), min(t_far, max(t1, t2))
-
-
 @njit(cache=True, nogil=True)
 def rays_to_body_in_box(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order, box_lo, box_hi):
     """``rays_to_body`` for the rays whose line can meet the box [box_lo, box_hi] (body
     frame, m; the mesh's bounds): the others cannot hit the mesh and are left out.
 
     Returns o_body, d_body (float32, the kept rays in cast order) and slot (N,) int64:
-    the row of ray ``order[k]`` in o_body, or -1 where it was left out. The box is
-    widened by 1e-3 of its size plus 1e-5 of the ray's distance to it, far more than
-    Embree's float32 rounding, so no ray that Embree would hit is left out.
+    the row of ray ``order[k]`` in o_body, or -1 where it was left out. The test is the
+    line's (no division): with w the origin less the box's centre and h its half-size,
+    |(w x d)_a| <= h_b |d_c| + h_c |d_b| on each axis a (b, c the other two); a ray
+    pointing away from the box is kept (Embree finds it misses). The box is widened by
+    1e-3 of its size plus 1e-5 of the ray's distance to it, far more than Embree's
+    float32 rounding, so no ray that Embree would hit is left out.
     """
     n = order.shape[0]
     o_body = np.empty((n, 3), np.float32)
     d_body = np.empty((n, 3), np.float32)
     slot = np.empty(n, np.int64)
-    size = max(box_hi[0] - box_lo[0], box_hi[1] - box_lo[1], box_hi[2] - box_lo[2])
-    cx, cy, cz = ((box_lo[0] + box_hi[0]) / 2.0, (box_lo[1] + box_hi[1]) / 2.0,
-                  (box_lo[2] + box_hi[2]) / 2.0)
+    hx, hy, hz = ((box_hi[0] - box_lo[0]) / 2.0, (box_hi[1] - box_lo[1]) / 2.0,
+                  (box_hi[2] - box_lo[2]) / 2.0)
+    cx, cy, cz = box_lo[0] + hx, box_lo[1] + hy, box_lo[2] + hz
+    grow = 2e-3 * max(hx, hy, hz)
     one_q, one_p, one_o = quat_xyzw.shape[0] == 1, position_m.shape[0] == 1, origin_lidar_m.shape[0] == 1
     kept = 0
     for k in range(n):
@@ -94,14 +85,15 @@ def rays_to_body_in_box(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order,
                              origin_lidar_m[io, 1] - position_m[ip, 1],
                              origin_lidar_m[io, 2] - position_m[ip, 2])
         dx, dy, dz = _rotate(qx, qy, qz, qw, dir_lidar[i, 0], dir_lidar[i, 1], dir_lidar[i, 2])
-        # The slab test on the float32 ray Embree gets (in float64).
+        # The test on the float32 ray Embree gets (in float64).
         ox, oy, oz = np.float64(np.float32(ox)), np.float64(np.float32(oy)), np.float64(np.float32(oz))
         dx, dy, dz = np.float64(np.float32(dx)), np.float64(np.float32(dy)), np.float64(np.float32(dz))
-        pad = 1e-3 * size + 1e-5 * (abs(ox - cx) + abs(oy - cy) + abs(oz - cz))
-        t_near, t_far = _slab(ox, dx, box_lo[0] - pad, box_hi[0] + pad, 0.0, np.inf)
-        t_near, t_far = _slab(oy, dy, box_lo[1] - pad, box_hi[1] + pad, t_near, t_far)
-        t_near, t_far = _slab(oz, dz, box_lo[2] - pad, box_hi[2] + pad, t_near, t_far)
-        if t_far < t_near:
+        wx, wy, wz = ox - cx, oy - cy, oz - cz
+        pad = grow + 1e-5 * (abs(wx) + abs(wy) + abs(wz))
+        ax, ay, az = abs(dx), abs(dy), abs(dz)
+        if ((abs(wy * dz - wz * dy) > (hy + pad) * az + (hz + pad) * ay)
+                | (abs(wz * dx - wx * dz) > (hx + pad) * az + (hz + pad) * ax)
+                | (abs(wx * dy - wy * dx) > (hx + pad) * ay + (hy + pad) * ax)):
             slot[k] = -1
             continue
         slot[k] = kept
