@@ -106,10 +106,12 @@ def test_support_over_planes_matches_the_matrix_product(n_planes):
     assert support_over_planes(corners, diagonal, diagonal @ [0.5, 0.5, 0.5])[0] == pytest.approx(np.sqrt(3) / 2)
 
 
-def test_rays_left_out_by_the_bounding_box_are_misses_for_embree_too():
+def test_rays_left_out_by_the_bounding_box_are_misses_for_embree_too(monkeypatch):
     """``cast_at_poses`` casts only the rays whose line meets the mesh's box: aim rays at
     the box's faces, edges and corners, just inside and just outside, parallel to its
     axes, and from inside it; every answer must be Embree's own on every ray."""
+    from lidar_sim_ros.core import geometry
+    monkeypatch.setattr(geometry, 'CULL_WORTH', 0.0)         # always test the box
     target = sphere_target(1.0, subdivisions=3)
     lo, hi = target.box_lo_m, target.box_hi_m
     rng = np.random.default_rng(11)
@@ -134,7 +136,12 @@ def test_rays_left_out_by_the_bounding_box_are_misses_for_embree_too():
 
 
 @pytest.mark.parametrize('one_pose', [True, False])
-def test_answers_do_not_depend_on_the_thread_count(one_pose):
+@pytest.mark.parametrize('cull', [0.0, 2.0])
+def test_answers_do_not_depend_on_the_thread_count(one_pose, cull, monkeypatch):
+    """Parts of the rays on 1, 2 and 3 threads, with the bounding-box test (CULL_WORTH 0)
+    and without it (2: never worth it): the same answers."""
+    from lidar_sim_ros.core import geometry
+    monkeypatch.setattr(geometry, 'CULL_WORTH', cull)
     target = sphere_target(1.0, subdivisions=4)
     d = rays(20000, 12)
     n = 1 if one_pose else len(d)

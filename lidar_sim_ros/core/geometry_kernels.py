@@ -32,9 +32,10 @@ def rays_to_body(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order):
     """Ray origins and directions in the body frame (float32, Embree's input), in cast order.
 
     quat_xyzw (N|1, 4), position_m (N|1, 3): pose per ray; origin_lidar_m (N|1, 3) (m);
-    dir_lidar (N, 3) unit vectors; order (N,) int64: ray ``order[k]`` goes to row k.
+    dir_lidar (N, 3) unit vectors; order (K,) int64: ray ``order[k]`` goes to row k (all
+    N rays, or one thread's part of them).
     """
-    n = dir_lidar.shape[0]
+    n = order.shape[0]
     o_body = np.empty((n, 3), np.float32)
     d_body = np.empty((n, 3), np.float32)
     one_q, one_p, one_o = quat_xyzw.shape[0] == 1, position_m.shape[0] == 1, origin_lidar_m.shape[0] == 1
@@ -110,7 +111,8 @@ def hit_geometry_into(face_cast, tfar_cast, slot, order, face_normals, face_mate
     output arrays (rows ``order``, which chunks of one frame share without overlapping).
 
     face_cast (M,) primID (-1 = miss), tfar_cast (M,) distance along the ray (m), for
-    the rays cast; slot (K,): the row in them of ray ``order[k]`` (-1: not cast, a miss);
+    the rays cast; slot (K,): the row in them of ray ``order[k]`` (-1: not cast, a miss),
+    or empty when every ray was cast (row k);
     face_normals (F, 3) unit body-frame normals; face_material (F,) ids;
     quat_xyzw (N|1, 4) rotates the normals into the frame of dir_out (N, 3), the
     rays' unit directions in that frame (identity quaternion: stay in body frame).
@@ -119,9 +121,10 @@ def hit_geometry_into(face_cast, tfar_cast, slot, order, face_normals, face_mate
     (The arccos is left to numpy: its SIMD loop is ~10x faster than libm's per call.)
     """
     one_q = quat_xyzw.shape[0] == 1
+    every = slot.shape[0] == 0
     for k in range(order.shape[0]):
         i = order[k]
-        j = slot[k]
+        j = k if every else slot[k]
         f = face_cast[j] if j >= 0 else -1
         if f < 0:
             hit[i] = False

@@ -247,7 +247,9 @@ class Simulator:
         power, rng_m, bias, var = np.zeros(n), np.full(n, np.nan), np.zeros(n), np.zeros(n)
 
         def reflect(part: slice) -> None:
-            on = np.flatnonzero(hits.hit[part]) + part.start
+            on = np.flatnonzero(hits.hit[part])
+            if part.start:
+                on += part.start
             mat = hits.material.take(on)
             range_on = hits.range_m.take(on)
             cos_on = None if hits.cos_incidence is None else hits.cos_incidence.take(on)
@@ -350,13 +352,10 @@ class Simulator:
     def _measured_range_m(self, pred: Prediction, noise: np.ndarray) -> np.ndarray:
         """Every shot's measured range (m; NaN on a miss) from its standard normal draw, in
         parts of the shots, one per thread."""
-        out = np.empty(len(noise))
-
-        def measure(part: slice) -> None:
-            out[part] = detection.measured_range_m(pred.ctx.range_m[part], pred.bias_m[part],
-                                                   pred.sigma_m[part], noise[part])
-        split_over_threads(len(out), self.target.threads, measure)
-        return out
+        parts = split_over_threads(len(noise), self.target.threads, lambda part: (
+            detection.measured_range_m(pred.ctx.range_m[part], pred.bias_m[part],
+                                       pred.sigma_m[part], noise[part])))
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
     def _frame_stats(self, pred: Prediction, detected: int) -> dict:
         ctx, hit, det = pred.ctx, pred.ctx.hit, self.sensor.detection
