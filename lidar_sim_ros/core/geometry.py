@@ -259,19 +259,26 @@ class Target:
                        length_m: np.ndarray | None = None) -> Hits:
         """First hit of each body-frame ray; normals in the frame of ``rays.directions_out``;
         with ``barycentric`` the hits' (u, v) too; ``length_m`` (m per ray, input order;
-        None = unbounded) bounds each ray (Embree skips what lies beyond)."""
+        None = unbounded) bounds each ray (Embree skips what lies beyond).
+
+        In parts of the cast order, one per thread, each end to end (as ``cast_at_poses``),
+        rays whose line misses the mesh's bounding box left out where that pays."""
         if length_m is not None:
             length_m = np.ascontiguousarray(np.asarray(length_m, np.float32).take(rays.order))
-        face, tfar, *uv = self.intersect(rays.origins_m, rays.directions, barycentric, length_m)
         out = _HitRows.empty(len(rays))
-        kernels.hit_geometry_into(face, tfar, _EVERY_RAY, rays.order, self.face_normals,
-                                  self.face_material, rays.quat_xyzw, rays.directions_out, *out.arrays)
-        bary = None
-        if barycentric:
-            bary = np.empty((len(rays), 2), np.float32)
-            # Rays cast in input order (no cast order) need no scatter: plain copies.
-            rows = slice(None) if _in_order(rays.order) else rays.order
-            bary[rows, 0], bary[rows, 1] = uv
+        bary = np.zeros((len(rays), 2), np.float32) if barycentric else None
+        step = slice(None, None, CULL_SAMPLE)
+        cull = _worth_culling(self, kernels.body_rays_in_box(
+            rays.origins_m[step], rays.directions[step], self.box_lo_m, self.box_hi_m)[2])
+
+        def work(part: slice) -> None:
+            o32, d32, slot = rays.origins_m[part], rays.directions[part], _EVERY_RAY
+            if cull:
+                o32, d32, slot = kernels.body_rays_in_box(o32, d32, self.box_lo_m, self.box_hi_m)
+            _cast_part(self, o32, d32, slot, rays.order[part],
+                       None if length_m is None else length_m[part], rays.quat_xyzw,
+                       rays.directions_out, out, bary)
+        split_over_threads(len(rays), self.threads, work)
         return out.hits(barycentric=bary)
 
 
@@ -303,12 +310,6 @@ class _HitRows:
 
 _IDENTITY = np.array([[0.0, 0.0, 0.0, 1.0]])
 _ZERO = np.zeros((1, 3))
-
-
-def _in_order(order: np.ndarray) -> bool:
-    """Whether a cast order is 0, 1, ..., n - 1."""
-    n = len(order)
-    return n == 0 or (order[0] == 0 and order[-1] == n - 1 and bool(np.all(np.diff(order) == 1)))
 
 
 def _cast_order(order: np.ndarray | None, n: int) -> np.ndarray:
@@ -353,43 +354,56 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
     if length_m is not None:
         length_m = np.asarray(length_m, np.float32)
     out = _HitRows.empty(len(d))
-    cull = _worth_culling(target, quat, position, origin, d, order)
+    cull = _worth_culling(target, kernels.rays_to_body_in_box(
+        quat, position, origin, d, order[::CULL_SAMPLE], target.box_lo_m, target.box_hi_m)[2])
+    lengths = None if length_m is None else length_m.take(order)
 
     def work(part: slice) -> None:
         rows = order[part]
         if cull:
             o32, d32, slot = kernels.rays_to_body_in_box(quat, position, origin, d, rows,
                                                          target.box_lo_m, target.box_hi_m)
-            cast = rows[slot >= 0]
         else:
-            (o32, d32), slot, cast = kernels.rays_to_body(quat, position, origin, d, rows), _EVERY_RAY, rows
-        face, tfar = _NO_RAYS
-        if len(o32):
-            found = target._run(o32, d32, None if length_m is None else length_m.take(cast))
-            face, tfar = found['primID'], found['tfar']
-        kernels.hit_geometry_into(face, tfar, slot, rows, target.face_normals, target.face_material,
-                                  quat, d, *out.arrays)
+            (o32, d32), slot = kernels.rays_to_body(quat, position, origin, d, rows), _EVERY_RAY
+        _cast_part(target, o32, d32, slot, rows, None if lengths is None else lengths[part],
+                   quat, d, out)
     split_over_threads(len(d), target.threads, work)
     return out.hits()
 
 
-_NO_RAYS = (np.zeros(0, np.int32), np.zeros(0, np.float32))
 _EVERY_RAY = np.zeros(0, np.int64)     # hit_geometry_into's slot when every ray was cast
 CULL_SAMPLE = 64        # every 64th ray tells whether the bounding-box test pays
 CULL_WORTH = 0.25       # the share of rays it must leave out (a cast miss costs ~5x the test)
 
 
-def _worth_culling(target: Target, quat: np.ndarray, position: np.ndarray, origin: np.ndarray,
-                   d: np.ndarray, order: np.ndarray) -> bool:
+def _worth_culling(target: Target, sample_slot: np.ndarray) -> bool:
     """Whether enough rays miss the mesh's bounding box for the test to pay (a flash array
     around the target: 60 % of its pixels; a P-60 frame filled by it: few), judged on a
-    sample. Either way every ray gets the same answer."""
-    sample = order[::CULL_SAMPLE]
-    if len(sample) < 16:
-        return False
-    slot = kernels.rays_to_body_in_box(quat, position, origin, d, sample, target.box_lo_m,
-                                       target.box_hi_m)[2]
-    return np.count_nonzero(slot < 0) >= CULL_WORTH * len(sample)
+    sample's slots (-1: outside). Either way every ray gets the same answer."""
+    return (len(sample_slot) >= 16
+            and np.count_nonzero(sample_slot < 0) >= CULL_WORTH * len(sample_slot))
+
+
+def _cast_part(target: Target, o32: np.ndarray, d32: np.ndarray, slot: np.ndarray,
+               rows: np.ndarray, length_m: np.ndarray | None, quat: np.ndarray,
+               dir_out: np.ndarray, out: _HitRows, bary: np.ndarray | None = None) -> None:
+    """One thread's part of a cast: Embree on the body-frame rays kept (o32, d32; ``slot``
+    as ``kernels.hit_geometry_into`` takes it), their answers into rows ``rows`` of ``out``
+    (and of ``bary``, the hits' (u, v)); ``length_m``: the part's ray lengths in cast order."""
+    face, tfar, u, v = _NO_RAYS
+    if len(o32):
+        kept = slot >= 0 if len(slot) else slice(None)
+        found = target._run(o32, d32, None if length_m is None else length_m[kept])
+        face, tfar, u, v = found['primID'], found['tfar'], found['u'], found['v']
+        if bary is not None:
+            cast = rows[kept]
+            bary[cast, 0], bary[cast, 1] = u, v
+    kernels.hit_geometry_into(face, tfar, slot, rows, target.face_normals, target.face_material,
+                              quat, dir_out, *out.arrays)
+
+
+_NO_RAYS = (np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros(0, np.float32),
+            np.zeros(0, np.float32))
 
 
 def body_rays(directions_lidar: np.ndarray, poses: Poses, origin_lidar_m: np.ndarray | None = None,

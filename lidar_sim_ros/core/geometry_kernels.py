@@ -54,6 +54,44 @@ def rays_to_body(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order):
     return o_body, d_body
 
 
+@njit(cache=True, inline='always')
+def _misses_box(ox, oy, oz, dx, dy, dz, cx, cy, cz, hx, hy, hz, grow):
+    """Whether the line o + t d misses the box of centre c and half-size h widened by
+    ``grow`` plus 1e-5 of the distance (``rays_to_body_in_box``); no division."""
+    wx, wy, wz = ox - cx, oy - cy, oz - cz
+    pad = grow + 1e-5 * (abs(wx) + abs(wy) + abs(wz))
+    ax, ay, az = abs(dx), abs(dy), abs(dz)
+    return ((abs(wy * dz - wz * dy) > (hy + pad) * az + (hz + pad) * ay)
+            | (abs(wz * dx - wx * dz) > (hx + pad) * az + (hz + pad) * ax)
+            | (abs(wx * dy - wy * dx) > (hx + pad) * ay + (hy + pad) * ax))
+
+
+@njit(cache=True, nogil=True)
+def body_rays_in_box(o_body, d_body, box_lo, box_hi):
+    """``rays_to_body_in_box`` for rays already in the body frame (float32 (K, 3)): the
+    rows that can meet the box, copied (o, d, float32), and slot (K,) int64 (-1: left out)."""
+    n = o_body.shape[0]
+    o_kept = np.empty((n, 3), np.float32)
+    d_kept = np.empty((n, 3), np.float32)
+    slot = np.empty(n, np.int64)
+    hx, hy, hz = ((box_hi[0] - box_lo[0]) / 2.0, (box_hi[1] - box_lo[1]) / 2.0,
+                  (box_hi[2] - box_lo[2]) / 2.0)
+    cx, cy, cz = box_lo[0] + hx, box_lo[1] + hy, box_lo[2] + hz
+    grow = 2e-3 * max(hx, hy, hz)
+    kept = 0
+    for k in range(n):
+        ox, oy, oz = np.float64(o_body[k, 0]), np.float64(o_body[k, 1]), np.float64(o_body[k, 2])
+        dx, dy, dz = np.float64(d_body[k, 0]), np.float64(d_body[k, 1]), np.float64(d_body[k, 2])
+        if _misses_box(ox, oy, oz, dx, dy, dz, cx, cy, cz, hx, hy, hz, grow):
+            slot[k] = -1
+            continue
+        slot[k] = kept
+        o_kept[kept, 0], o_kept[kept, 1], o_kept[kept, 2] = o_body[k, 0], o_body[k, 1], o_body[k, 2]
+        d_kept[kept, 0], d_kept[kept, 1], d_kept[kept, 2] = d_body[k, 0], d_body[k, 1], d_body[k, 2]
+        kept += 1
+    return o_kept[:kept], d_kept[:kept], slot
+
+
 @njit(cache=True, nogil=True)
 def rays_to_body_in_box(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order, box_lo, box_hi):
     """``rays_to_body`` for the rays whose line can meet the box [box_lo, box_hi] (body
@@ -89,12 +127,7 @@ def rays_to_body_in_box(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order,
         # The test on the float32 ray Embree gets (in float64).
         ox, oy, oz = np.float64(np.float32(ox)), np.float64(np.float32(oy)), np.float64(np.float32(oz))
         dx, dy, dz = np.float64(np.float32(dx)), np.float64(np.float32(dy)), np.float64(np.float32(dz))
-        wx, wy, wz = ox - cx, oy - cy, oz - cz
-        pad = grow + 1e-5 * (abs(wx) + abs(wy) + abs(wz))
-        ax, ay, az = abs(dx), abs(dy), abs(dz)
-        if ((abs(wy * dz - wz * dy) > (hy + pad) * az + (hz + pad) * ay)
-                | (abs(wz * dx - wx * dz) > (hx + pad) * az + (hz + pad) * ax)
-                | (abs(wx * dy - wy * dx) > (hx + pad) * ay + (hy + pad) * ax)):
+        if _misses_box(ox, oy, oz, dx, dy, dz, cx, cy, cz, hx, hy, hz, grow):
             slot[k] = -1
             continue
         slot[k] = kept
