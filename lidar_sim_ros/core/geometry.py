@@ -252,8 +252,13 @@ class Target:
     def occluded(self, origins_m: np.ndarray, directions: np.ndarray,
                  length_m: np.ndarray | None = None) -> np.ndarray:
         """Whether each ray (body frame, float32 as Embree takes them) meets the mesh within
-        ``length_m`` (float32 per ray; None = unbounded): Embree's occlusion query (shadow rays)."""
-        return self._scene.run(origins_m, directions, dists=length_m, query='OCCLUDED') >= 0
+        ``length_m`` (float32 per ray; None = unbounded): Embree's occlusion query (shadow rays),
+        split over ``self.threads`` threads when there are enough rays."""
+        def work(part: slice) -> np.ndarray:
+            return self._scene.run(origins_m[part], directions[part], query='OCCLUDED',
+                                   dists=None if length_m is None else np.array(length_m[part], np.float32))
+        parts = split_over_threads(len(origins_m), self.threads, work)
+        return (parts[0] if len(parts) == 1 else np.concatenate(parts)) >= 0
 
     def cast_body_rays(self, rays: BodyRays, barycentric: bool = False,
                        length_m: np.ndarray | None = None) -> Hits:
