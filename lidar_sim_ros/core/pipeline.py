@@ -242,8 +242,34 @@ class Simulator:
                 break
         if hits is None:
             hits = cast_at_poses(self.target, directions, poses, order=cast_order)
-        # Reflection and error model on the shots that hit (index lists: one gather each), in
-        # parts of the rays, one per thread (numpy releases the GIL in each pass).
+        power, rng_m, bias, var = self._reflect(hits, directions, pixel_sr)
+        if az_rad is None or el_rad is None:
+            az_rad, el_rad = angles_from_directions(directions)
+        det = self.sensor.detection
+        ctx = ReturnContext(
+            range_m=rng_m, incidence_rad=hits.incidence_rad, material=hits.material,
+            power_w=power, intensity=detection.intensity_from_power(power, det),
+            t_s=np.zeros(n) if t_frame_s is None else np.asarray(t_frame_s, dtype=float),
+            az_rad=np.asarray(az_rad), el_rad=np.asarray(el_rad),
+            laser=np.zeros(n, np.uint16) if laser is None else np.asarray(laser),
+            divergence_rad=optics.beam_divergence_rad, hit=hits.hit,
+            threshold_power_w=det.threshold_power_w, min_range_m=det.min_range_m,
+            max_range_m=det.max_range_m, direction=directions, normal=hits.normal, face=hits.face,
+            scene=Scene(self.target, poses, self.materials, self.sensor,
+                        None if self.sun is None else self.sun.at(t_abs_s)),
+            time_s=t_abs_s)
+        if self.effects:
+            ctx, bias, var = apply_effects(ctx, self.effects, bias, var)
+            bias = np.where(hits.hit, bias, 0.0)
+        return Prediction(ctx, hits, directions, bias, np.sqrt(var))
+
+    def _reflect(self, hits: Hits, directions: np.ndarray, pixel_sr: np.ndarray | None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Reflection and the error model of the shots that hit (index lists: one gather
+        each), in parts of the rays, one per thread (numpy releases the GIL in each pass):
+        received power (W; 0 on a miss), range (m; NaN on a miss), range bias (m) and
+        variance (m^2) of the material hit (0 on a miss)."""
+        n, optics = len(hits), self.sensor.optics
         power, rng_m, bias, var = np.zeros(n), np.full(n, np.nan), np.zeros(n), np.zeros(n)
 
         def reflect(part: slice) -> None:
@@ -264,25 +290,7 @@ class Simulator:
             bias[on] = self._bias.take(mat)
             var[on] = self._sigma.take(mat) ** 2
         split_over_threads(n, self.target.threads, reflect)
-        if az_rad is None or el_rad is None:
-            az_rad, el_rad = angles_from_directions(directions)
-        det = self.sensor.detection
-        ctx = ReturnContext(
-            range_m=rng_m, incidence_rad=hits.incidence_rad, material=hits.material,
-            power_w=power, intensity=detection.intensity_from_power(power, det),
-            t_s=np.zeros(n) if t_frame_s is None else np.asarray(t_frame_s, dtype=float),
-            az_rad=np.asarray(az_rad), el_rad=np.asarray(el_rad),
-            laser=np.zeros(n, np.uint16) if laser is None else np.asarray(laser),
-            divergence_rad=optics.beam_divergence_rad, hit=hits.hit,
-            threshold_power_w=det.threshold_power_w, min_range_m=det.min_range_m,
-            max_range_m=det.max_range_m, direction=directions, normal=hits.normal, face=hits.face,
-            scene=Scene(self.target, poses, self.materials, self.sensor,
-                        None if self.sun is None else self.sun.at(t_abs_s)),
-            time_s=t_abs_s)
-        if self.effects:
-            ctx, bias, var = apply_effects(ctx, self.effects, bias, var)
-            bias = np.where(hits.hit, bias, 0.0)
-        return Prediction(ctx, hits, directions, bias, np.sqrt(var))
+        return power, rng_m, bias, var
 
     def shots_of_frame(self, frame_index: int) -> Shots:
         """Frame ``frame_index``'s shots in firing order (``self.shots`` for every frame of a
