@@ -7,6 +7,7 @@ handled by transforming each ray with the pose of its own shot time.
 """
 from __future__ import annotations
 
+import itertools
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -112,30 +113,53 @@ MIN_RAYS_PER_THREAD = 2048
 _POOLS: dict[int, ThreadPoolExecutor] = {}
 
 
+PARTS_PER_THREAD = 4     # parts a split makes per thread, which every thread takes in turn
+
+
 def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
                        min_per_thread: int = MIN_RAYS_PER_THREAD) -> list[T]:
-    """``work`` on contiguous parts of range(n), one per thread, results in order.
+    """``work`` on contiguous parts of range(n) over ``threads`` threads, results in order.
 
-    For GIL-free work (Embree casts, ``nogil`` kernels); the calling thread does the
-    first part. Fewer threads when parts would hold less than ``min_per_thread``.
+    For GIL-free work (Embree casts, ``nogil`` kernels). The parts (PARTS_PER_THREAD per
+    thread, none under ``min_per_thread``) are taken in turn by the calling thread and by
+    pool threads as each comes free, so a pool thread still busy with earlier work (a
+    frame's noise draw, ``Beside``) takes fewer. Fewer threads when parts would hold less
+    than ``min_per_thread``.
     """
     threads = max(1, min(int(threads), n // max(min_per_thread, 1)))
     if threads == 1:
         return [work(slice(0, n))]
-    bounds = np.linspace(0, n, threads + 1).astype(int)
+    k = max(threads, min(threads * PARTS_PER_THREAD, n // max(min_per_thread, 1)))
+    bounds = np.linspace(0, n, k + 1).astype(int)
     parts = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
-    futures = [_pool(threads).submit(work, part) for part in parts[1:]]
-    return [work(parts[0])] + [f.result() for f in futures]
+    results: list = [None] * k
+    taken = itertools.count()      # next() on it is atomic under the GIL
+
+    def drain() -> None:
+        while (i := next(taken)) < k:
+            results[i] = work(parts[i])
+    futures = [_pool(threads).submit(drain) for _ in range(threads - 1)]
+    drain()
+    for f in futures:
+        f.result()
+    return results
 
 
-def start_beside(threads: int, work: Callable[[], T]) -> Callable[[], T]:
-    """Start ``work`` on a pool thread (``threads`` > 1; else now, on this one) beside what
-    the caller does next; the returned callable waits for its result. For GIL-free work
-    (a numpy draw); parts that ``split_over_threads`` sends to the pool queue behind it."""
-    if int(threads) <= 1:
-        result = work()
-        return lambda: result
-    return _pool(int(threads)).submit(work).result
+class Beside:
+    """``work`` on a pool thread (``threads`` > 1) beside what the caller does between
+    ``start`` and ``result``; on the caller's thread, in ``result``, when there is no pool
+    thread or nothing started it. For GIL-free work (a numpy draw): parts that
+    ``split_over_threads`` sends to the pool after ``start`` queue behind it."""
+
+    def __init__(self, threads: int, work: Callable[[], T]):
+        self._threads, self._work, self._future = int(threads), work, None
+
+    def start(self) -> None:
+        if self._future is None and self._threads > 1:
+            self._future = _pool(self._threads).submit(self._work)
+
+    def result(self) -> T:
+        return self._work() if self._future is None else self._future.result()
 
 
 def _pool(threads: int) -> ThreadPoolExecutor:
@@ -282,7 +306,7 @@ class Target:
                 o32, d32, slot = kernels.body_rays_in_box(o32, d32, self.box_lo_m, self.box_hi_m)
             _cast_part(self, o32, d32, slot, rays.order[part],
                        None if length_m is None else length_m[part], rays.quat_xyzw,
-                       rays.directions_out, out, bary)
+                       rays.directions_out, out, bary=bary)
         split_over_threads(len(rays), self.threads, work)
         return out.hits(barycentric=bary)
 
@@ -297,20 +321,22 @@ class _HitRows:
     cos_incidence: np.ndarray
     material: np.ndarray
     face: np.ndarray
+    incidence_rad: np.ndarray
 
     @classmethod
     def empty(cls, n: int) -> '_HitRows':
         return cls(np.empty(n, bool), np.empty(n), np.empty((n, 3)), np.empty(n),
-                   np.empty(n, np.int16), np.empty(n, np.int64))
+                   np.empty(n, np.int16), np.empty(n, np.int64), np.empty(n))
 
     @property
     def arrays(self) -> tuple[np.ndarray, ...]:
+        """The arrays ``kernels.hit_geometry_into`` fills."""
         return self.hit, self.range_m, self.normal, self.cos_incidence, self.material, self.face
 
     def hits(self, barycentric: np.ndarray | None = None) -> Hits:
-        return Hits(self.hit, self.range_m, self.normal, np.arccos(self.cos_incidence),
-                    self.material, self.face, cos_incidence=self.cos_incidence,
-                    barycentric=barycentric)
+        """The Hits these arrays are (filled by then, or to be filled part by part)."""
+        return Hits(self.hit, self.range_m, self.normal, self.incidence_rad, self.material,
+                    self.face, cos_incidence=self.cos_incidence, barycentric=barycentric)
 
 
 _IDENTITY = np.array([[0.0, 0.0, 0.0, 1.0]])
@@ -339,7 +365,8 @@ def coherent_order(az_rad: np.ndarray, el_rad: np.ndarray, cell_rad: float = np.
 
 def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
                   origin_lidar_m: np.ndarray | None = None, order: np.ndarray | None = None,
-                  length_m: np.ndarray | None = None) -> Hits:
+                  length_m: np.ndarray | None = None,
+                  then: Callable[[Hits, slice | np.ndarray], None] | None = None) -> Hits:
     """Cast lidar-frame rays, each against the target at its own pose.
 
     Rays go into the body frame with their pose, are cast there, and the normals
@@ -350,15 +377,19 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
     (``target.threads``), each part end to end: into the body frame, Embree, and back
     (compiled loops that release the GIL, as Embree does). Rays whose line misses the
     mesh's bounding box are not cast (a flash array's pixels around the target: 60 % of
-    them). Each ray's answer is the same whatever the parts.
+    them). Each ray's answer is the same whatever the parts. ``then(hits, rows)``: the
+    work that follows on each part's own thread, once the part's rows (a slice, or indices
+    when a cast order is given) of the returned ``hits`` are filled.
     """
     d = np.ascontiguousarray(directions_lidar, dtype=np.float64).reshape(-1, 3)
     origin = np.zeros((1, 3)) if origin_lidar_m is None else np.asarray(origin_lidar_m, float).reshape(-1, 3)
     quat, position = poses.quat_xyzw, poses.position_m.reshape(-1, 3)
+    in_order = order is None
     order = _cast_order(order, len(d))
     if length_m is not None:
         length_m = np.asarray(length_m, np.float32)
     out = _HitRows.empty(len(d))
+    hits = out.hits()
     cull = _worth_culling(target, kernels.rays_to_body_in_box(
         quat, position, origin, d, order[::CULL_SAMPLE], target.box_lo_m, target.box_hi_m)[2])
     lengths = None if length_m is None else length_m.take(order)
@@ -370,10 +401,13 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
                                                          target.box_lo_m, target.box_hi_m)
         else:
             (o32, d32), slot = kernels.rays_to_body(quat, position, origin, d, rows), _EVERY_RAY
+        view = part if in_order else rows
         _cast_part(target, o32, d32, slot, rows, None if lengths is None else lengths[part],
-                   quat, d, out)
+                   quat, d, out, view)
+        if then is not None:
+            then(hits, view)
     split_over_threads(len(d), target.threads, work)
-    return out.hits()
+    return hits
 
 
 _EVERY_RAY = np.zeros(0, np.int64)     # hit_geometry_into's slot when every ray was cast
@@ -391,10 +425,12 @@ def _worth_culling(target: Target, sample_slot: np.ndarray) -> bool:
 
 def _cast_part(target: Target, o32: np.ndarray, d32: np.ndarray, slot: np.ndarray,
                rows: np.ndarray, length_m: np.ndarray | None, quat: np.ndarray,
-               dir_out: np.ndarray, out: _HitRows, bary: np.ndarray | None = None) -> None:
+               dir_out: np.ndarray, out: _HitRows, view: slice | np.ndarray | None = None,
+               bary: np.ndarray | None = None) -> None:
     """One thread's part of a cast: Embree on the body-frame rays kept (o32, d32; ``slot``
     as ``kernels.hit_geometry_into`` takes it), their answers into rows ``rows`` of ``out``
-    (and of ``bary``, the hits' (u, v)); ``length_m``: the part's ray lengths in cast order."""
+    (``view``: the same rows as a slice where they are one; and of ``bary``, the hits'
+    (u, v)); ``length_m``: the part's ray lengths in cast order."""
     face, tfar, u, v = _NO_RAYS
     if len(o32):
         kept = slot >= 0 if len(slot) else slice(None)
@@ -405,6 +441,8 @@ def _cast_part(target: Target, o32: np.ndarray, d32: np.ndarray, slot: np.ndarra
             bary[cast, 0], bary[cast, 1] = u, v
     kernels.hit_geometry_into(face, tfar, slot, rows, target.face_normals, target.face_material,
                               quat, dir_out, *out.arrays)
+    view = rows if view is None else view
+    out.incidence_rad[view] = np.arccos(out.cos_incidence[view])
 
 
 _NO_RAYS = (np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros(0, np.float32),

@@ -17,8 +17,8 @@ from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
 from lidar_sim_ros.core.scenario import Scenario, scenario_effect_spec
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
-from lidar_sim_ros.core.geometry import (Hits, Target, cast_at_poses, coherent_order, load_target,
-                                        split_over_threads, start_beside)
+from lidar_sim_ros.core.geometry import (Beside, Hits, Target, cast_at_poses, coherent_order,
+                                        load_target)
 from lidar_sim_ros.core.pose import Poses, PoseSource, PoseTrack, StaticPose
 from lidar_sim_ros.core.scan import (Shots, angles_from_directions, frame_shots,
                                      frame_shots_and_directions, varies_by_frame)
@@ -240,9 +240,17 @@ class Simulator:
             hits = eff.cast(self.target, directions, poses, optics.beam_divergence_rad)
             if hits is not None:
                 break
+        # Reflection and the error model, into these (0, NaN, 0, 0 on a miss): on each part
+        # of the raycast's own thread, or after an effect's cast.
+        power, rng_m, bias, var = reflected = np.zeros(n), np.full(n, np.nan), np.zeros(n), np.zeros(n)
         if hits is None:
-            hits = cast_at_poses(self.target, directions, poses, order=cast_order)
-        power, rng_m, bias, var = self._reflect(hits, directions, pixel_sr)
+            hits = cast_at_poses(self.target, directions, poses, order=cast_order,
+                                 then=lambda part_hits, rows: self._reflect(
+                                     part_hits, rows, directions, pixel_sr, reflected))
+        else:
+            self._reflect(hits, slice(0, n), directions, pixel_sr, reflected)
+            if hits.power_fraction is not None:
+                power *= hits.power_fraction
         if az_rad is None or el_rad is None:
             az_rad, el_rad = angles_from_directions(directions)
         det = self.sensor.detection
@@ -263,34 +271,29 @@ class Simulator:
             bias = np.where(hits.hit, bias, 0.0)
         return Prediction(ctx, hits, directions, bias, np.sqrt(var))
 
-    def _reflect(self, hits: Hits, directions: np.ndarray, pixel_sr: np.ndarray | None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Reflection and the error model of the shots that hit (index lists: one gather
-        each), in parts of the rays, one per thread (numpy releases the GIL in each pass):
-        received power (W; 0 on a miss), range (m; NaN on a miss), range bias (m) and
-        variance (m^2) of the material hit (0 on a miss)."""
-        n, optics = len(hits), self.sensor.optics
-        power, rng_m, bias, var = np.zeros(n), np.full(n, np.nan), np.zeros(n), np.zeros(n)
-
-        def reflect(part: slice) -> None:
-            on = np.flatnonzero(hits.hit[part])
-            if part.start:
-                on += part.start
-            mat = hits.material.take(on)
-            range_on = hits.range_m.take(on)
-            cos_on = None if hits.cos_incidence is None else hits.cos_incidence.take(on)
-            sr = None
-            if optics.flood is not None:
-                sr = pixel_view_sr(self.sensor, directions[on]) if pixel_sr is None else pixel_sr.take(on)
-            power[on] = reflection.return_power_w(range_on, hits.incidence_rad.take(on), self._kd.take(mat),
-                                                  self._ks.take(mat), self._n.take(mat), optics, cos_on, sr)
-            if hits.power_fraction is not None:
-                power[part] *= hits.power_fraction[part]
-            rng_m[on] = range_on
-            bias[on] = self._bias.take(mat)
-            var[on] = self._sigma.take(mat) ** 2
-        split_over_threads(n, self.target.threads, reflect)
-        return power, rng_m, bias, var
+    def _reflect(self, hits: Hits, rows: slice | np.ndarray, directions: np.ndarray,
+                 pixel_sr: np.ndarray | None, out: tuple[np.ndarray, ...]) -> None:
+        """Reflection and the error model of the shots ``rows`` (a slice or indices) that
+        hit, gathered once by index, written into ``out``: received power (W), range (m),
+        range bias (m) and variance (m^2) of the material hit."""
+        power, rng_m, bias, var = out
+        optics = self.sensor.optics
+        on = np.flatnonzero(hits.hit[rows])
+        if not isinstance(rows, slice):
+            on = rows.take(on)
+        elif rows.start:
+            on += rows.start
+        mat = hits.material.take(on)
+        range_on = hits.range_m.take(on)
+        cos_on = None if hits.cos_incidence is None else hits.cos_incidence.take(on)
+        sr = None
+        if optics.flood is not None:
+            sr = pixel_view_sr(self.sensor, directions[on]) if pixel_sr is None else pixel_sr.take(on)
+        power[on] = reflection.return_power_w(range_on, hits.incidence_rad.take(on), self._kd.take(mat),
+                                              self._ks.take(mat), self._n.take(mat), optics, cos_on, sr)
+        rng_m[on] = range_on
+        bias[on] = self._bias.take(mat)
+        var[on] = self._sigma.take(mat) ** 2
 
     def shots_of_frame(self, frame_index: int) -> Shots:
         """Frame ``frame_index``'s shots in firing order (``self.shots`` for every frame of a
@@ -313,19 +316,21 @@ class Simulator:
         """Simulate one frame starting at ``frame_start_s`` (absolute s)."""
         if frame_index is None:
             frame_index = int(round(frame_start_s / self.frame_period_s))
-        rng = self.frame_rng(frame_index)
         plan = self._frame_plan(frame_index)
         shots = plan.cast_shots
-        # The range noise of every shot, the frame's first draw: drawn on a pool thread beside
-        # the raycast (numpy releases the GIL while it draws), the same numbers on any thread.
-        noise = start_beside(self.target.threads, lambda: rng.standard_normal(len(shots)))
+        # The frame's generator and its first draw, the range noise of every shot: on a pool
+        # thread beside the raycast (numpy releases the GIL while it draws; the raycast's
+        # parts go to whichever thread is free), the same numbers whatever the thread.
+        drawn = Beside(self.target.threads, lambda: _first_draw(self.frame_rng(frame_index), len(shots)))
+        drawn.start()
         pred = self.predict(frame_start_s + shots.t_s, plan.directions, pose_source, shots.t_s,
                             shots.az_rad, shots.el_rad, shots.laser, pixel_sr=plan.pixel_sr)
         ctx, hit = pred.ctx, pred.ctx.hit
         det = self.sensor.detection
         # Misses carry NaN range and zero power: never detected, NaN measured range.
         detected = hit & detection.detected_mask(ctx.power_w, ctx.range_m, det)
-        measured = self._measured_range_m(pred, noise())
+        rng, noise = drawn.result()
+        measured = detection.measured_range_m(ctx.range_m, pred.bias_m, pred.sigma_m, noise)
         # Extra returns lie behind their echo: a first-return receiver can report them only
         # where the echo went undetected (no ray needs following elsewhere).
         open_shots = np.flatnonzero(hit & ~detected) if det.returns.single else None
@@ -356,14 +361,6 @@ class Simulator:
             material=_material_ids(material.take(out)), stats=self._frame_stats(pred, len(out)),
             truth_source=self._truth(pred, measured, plan), face=pred.hits.face.take(out),
             true_range_m=ctx.range_m.take(out), return_number=np.ones(len(out), np.uint8))
-
-    def _measured_range_m(self, pred: Prediction, noise: np.ndarray) -> np.ndarray:
-        """Every shot's measured range (m; NaN on a miss) from its standard normal draw, in
-        parts of the shots, one per thread."""
-        parts = split_over_threads(len(noise), self.target.threads, lambda part: (
-            detection.measured_range_m(pred.ctx.range_m[part], pred.bias_m[part],
-                                       pred.sigma_m[part], noise[part])))
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
     def _frame_stats(self, pred: Prediction, detected: int) -> dict:
         ctx, hit, det = pred.ctx, pred.ctx.hit, self.sensor.detection
@@ -494,6 +491,11 @@ class _CastPlan:
         cast_directions = np.ascontiguousarray(directions[order])
         return cls(shots, order, shots.subset(order), cast_directions, position,
                    pixel_view_sr(sensor, cast_directions))
+
+
+def _first_draw(rng: np.random.Generator, n: int) -> tuple[np.random.Generator, np.ndarray]:
+    """A frame's generator and its first draw: n standard normal numbers (the range noise)."""
+    return rng, rng.standard_normal(n)
 
 
 def _false_returns(effects, ctx, rng: np.random.Generator):
