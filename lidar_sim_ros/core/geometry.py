@@ -300,13 +300,15 @@ class Target:
         cull = _worth_culling(self, kernels.body_rays_in_box(
             rays.origins_m[step], rays.directions[step], self.box_lo_m, self.box_hi_m)[2])
 
+        in_order = _in_order(rays.order)
+
         def work(part: slice) -> None:
             o32, d32, slot = rays.origins_m[part], rays.directions[part], _EVERY_RAY
             if cull:
                 o32, d32, slot = kernels.body_rays_in_box(o32, d32, self.box_lo_m, self.box_hi_m)
             _cast_part(self, o32, d32, slot, rays.order[part],
                        None if length_m is None else length_m[part], rays.quat_xyzw,
-                       rays.directions_out, out, bary=bary)
+                       rays.directions_out, out, part if in_order else None, bary)
         split_over_threads(len(rays), self.threads, work)
         return out.hits(barycentric=bary)
 
@@ -341,6 +343,12 @@ class _HitRows:
 
 _IDENTITY = np.array([[0.0, 0.0, 0.0, 1.0]])
 _ZERO = np.zeros((1, 3))
+
+
+def _in_order(order: np.ndarray) -> bool:
+    """Whether a cast order is 0, 1, ..., n - 1."""
+    n = len(order)
+    return n == 0 or (order[0] == 0 and order[-1] == n - 1 and bool(np.all(np.diff(order) == 1)))
 
 
 def _cast_order(order: np.ndarray | None, n: int) -> np.ndarray:
@@ -437,7 +445,8 @@ def _cast_part(target: Target, o32: np.ndarray, d32: np.ndarray, slot: np.ndarra
         found = target._run(o32, d32, None if length_m is None else length_m[kept])
         face, tfar, u, v = found['primID'], found['tfar'], found['u'], found['v']
         if bary is not None:
-            cast = rows[kept]
+            # Every ray of an in-order part cast: plain copies, no scatter.
+            cast = view if view is not None and len(slot) == 0 else rows[kept]
             bary[cast, 0], bary[cast, 1] = u, v
     kernels.hit_geometry_into(face, tfar, slot, rows, target.face_normals, target.face_material,
                               quat, dir_out, *out.arrays)
