@@ -104,3 +104,57 @@ def test_support_over_planes_matches_the_matrix_product(n_planes):
     corners = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)])
     diagonal = np.full((1, 3), 1 / np.sqrt(3))
     assert support_over_planes(corners, diagonal, diagonal @ [0.5, 0.5, 0.5])[0] == pytest.approx(np.sqrt(3) / 2)
+
+
+def test_rays_left_out_by_the_bounding_box_are_misses_for_embree_too(monkeypatch):
+    """``cast_at_poses`` casts only the rays whose line meets the mesh's box: aim rays at
+    the box's faces, edges and corners, just inside and just outside, parallel to its
+    axes, and from inside it; every answer must be Embree's own on every ray."""
+    from lidar_sim_ros.core import geometry
+    monkeypatch.setattr(geometry, 'CULL_WORTH', 0.0)         # always test the box
+    target = sphere_target(1.0, subdivisions=3)
+    lo, hi = target.box_lo_m, target.box_hi_m
+    rng = np.random.default_rng(11)
+    n = 6000
+    # Points on and near the box's surface (corners and edges included), seen from 5 m.
+    corner = np.where(rng.random((n, 3)) < 0.5, lo, hi)
+    point = np.where(rng.random((n, 3)) < 0.4, corner, rng.uniform(lo, hi, (n, 3)))
+    point += rng.normal(0.0, 1e-4, (n, 3)) * rng.choice([0.0, 1.0, 100.0], (n, 1))
+    origin = rng.normal(0.0, 1.0, (n, 3))
+    origin = 5.0 * origin / np.linalg.norm(origin, axis=1, keepdims=True)
+    origin[:500] = rng.uniform(0.5 * lo, 0.5 * hi, (500, 3))          # inside the box
+    d = point - origin
+    d[500:1000, 1:] = 0.0                                               # along the x axis
+    origin[500:1000, 1:] = point[500:1000, 1:]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    poses = Poses.from_quat(np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros((1, 3)))
+    hits = cast_at_poses(target, d, poses, origin_lidar_m=origin)
+    face, tfar = target.intersect(origin.astype(np.float32), d.astype(np.float32))
+    assert 0 < np.count_nonzero(face >= 0) < n
+    np.testing.assert_array_equal(hits.face, face)
+    np.testing.assert_array_equal(hits.range_m[face >= 0], tfar[face >= 0])
+
+
+@pytest.mark.parametrize('one_pose', [True, False])
+@pytest.mark.parametrize('cull', [0.0, 2.0])
+def test_answers_do_not_depend_on_the_thread_count(one_pose, cull, monkeypatch):
+    """Parts of the rays on 1, 2 and 3 threads, with the bounding-box test (CULL_WORTH 0)
+    and without it (2: never worth it): the same answers."""
+    from lidar_sim_ros.core import geometry
+    monkeypatch.setattr(geometry, 'CULL_WORTH', cull)
+    target = sphere_target(1.0, subdivisions=4)
+    d = rays(20000, 12)
+    n = 1 if one_pose else len(d)
+    poses = Poses.from_quat(Rotation.random(n, random_state=13).as_quat(), np.tile([6.0, 0.1, 0.0], (n, 1)))
+    az, el = angles_from_directions(d)
+    order = coherent_order(az, el, np.radians(0.5))
+    length = np.random.default_rng(14).uniform(5.0, 8.0, len(d))
+    answers = []
+    for threads in (1, 2, 3):
+        target.threads = threads
+        answers.append(cast_at_poses(target, d, poses, order=order, length_m=length))
+    target.threads = 1
+    assert answers[0].hit.any() and (~answers[0].hit).any()
+    for other in answers[1:]:
+        for field in ('hit', 'range_m', 'normal', 'incidence_rad', 'cos_incidence', 'material', 'face'):
+            np.testing.assert_array_equal(getattr(other, field), getattr(answers[0], field))

@@ -30,10 +30,15 @@ def in_range_gate(measured_range_m: np.ndarray, det: DetectionConfig) -> np.ndar
 
 
 def measured_range_m(true_range_m: np.ndarray, bias_m: np.ndarray, sigma_m: np.ndarray,
-                     rng: np.random.Generator) -> np.ndarray:
-    """True range plus bias plus zero-mean Gaussian noise of std sigma (all metres)."""
+                     rng: np.random.Generator | np.ndarray) -> np.ndarray:
+    """True range plus bias plus zero-mean Gaussian noise of std sigma (all metres).
+
+    ``rng``: the generator to draw the noise from, or the standard normal draws themselves
+    (one per range: a frame draws them once, then measures its shots in parts).
+    """
     true_range_m = np.asarray(true_range_m, dtype=float)
-    return true_range_m + bias_m + sigma_m * rng.standard_normal(true_range_m.shape)
+    noise = rng.standard_normal(true_range_m.shape) if isinstance(rng, np.random.Generator) else rng
+    return true_range_m + bias_m + sigma_m * noise
 
 
 def intensity_from_power(power_w: np.ndarray, det: DetectionConfig) -> np.ndarray:

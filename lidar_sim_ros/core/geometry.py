@@ -7,6 +7,7 @@ handled by transforming each ray with the pose of its own shot time.
 """
 from __future__ import annotations
 
+import itertools
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -112,22 +113,60 @@ MIN_RAYS_PER_THREAD = 2048
 _POOLS: dict[int, ThreadPoolExecutor] = {}
 
 
+PARTS_PER_THREAD = 4     # parts a split makes per thread, which every thread takes in turn
+
+
 def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
                        min_per_thread: int = MIN_RAYS_PER_THREAD) -> list[T]:
-    """``work`` on contiguous parts of range(n), one per thread, results in order.
+    """``work`` on contiguous parts of range(n) over ``threads`` threads, results in order.
 
-    For GIL-free work (Embree casts, ``nogil`` kernels); the calling thread does the
-    first part. Fewer threads when parts would hold less than ``min_per_thread``.
+    For GIL-free work (Embree casts, ``nogil`` kernels). The parts (PARTS_PER_THREAD per
+    thread, none under ``min_per_thread``) are taken in turn by the calling thread and by
+    pool threads as each comes free, so a pool thread still busy with earlier work (a
+    frame's noise draw, ``Beside``) takes fewer. Fewer threads when parts would hold less
+    than ``min_per_thread``.
     """
     threads = max(1, min(int(threads), n // max(min_per_thread, 1)))
     if threads == 1:
         return [work(slice(0, n))]
-    bounds = np.linspace(0, n, threads + 1).astype(int)
+    k = max(threads, min(threads * PARTS_PER_THREAD, n // max(min_per_thread, 1)))
+    bounds = np.linspace(0, n, k + 1).astype(int)
     parts = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    results: list = [None] * k
+    taken = itertools.count()      # next() on it is atomic under the GIL
+
+    def drain() -> None:
+        while (i := next(taken)) < k:
+            results[i] = work(parts[i])
+    futures = [_pool(threads).submit(drain) for _ in range(threads - 1)]
+    drain()
+    for f in futures:
+        f.result()
+    return results
+
+
+class Beside:
+    """``work`` on a pool thread (``threads`` > 1) beside what the caller does between
+    ``start`` and ``result``; on the caller's thread, in ``result``, when there is no pool
+    thread or nothing started it. For GIL-free work (a numpy draw): parts that
+    ``split_over_threads`` sends to the pool after ``start`` queue behind it."""
+
+    def __init__(self, threads: int, work: Callable[[], T]):
+        self._threads, self._work, self._future = int(threads), work, None
+
+    def start(self) -> None:
+        if self._future is None and self._threads > 1:
+            self._future = _pool(self._threads).submit(self._work)
+
+    def result(self) -> T:
+        return self._work() if self._future is None else self._future.result()
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    """The pool of threads - 1 workers beside the calling thread."""
     if threads - 1 not in _POOLS:
         _POOLS[threads - 1] = ThreadPoolExecutor(threads - 1, thread_name_prefix='raycast')
-    futures = [_POOLS[threads - 1].submit(work, part) for part in parts[1:]]
-    return [work(parts[0])] + [f.result() for f in futures]
+    return _POOLS[threads - 1]
 
 
 class Target:
@@ -150,7 +189,12 @@ class Target:
         self.face_normals = np.divide(cross, norm, out=np.zeros_like(cross), where=norm > 0)
         self._scene = rtcore_scene.EmbreeScene()
         # Embree keeps its own float32 copy; the scene is static for the target's life.
-        TriangleMesh(self._scene, tri.astype(np.float32))
+        tri32 = tri.astype(np.float32)
+        TriangleMesh(self._scene, tri32)
+        # The bounds of what Embree sees (m, body frame): rays whose line misses them are
+        # not cast (``cast_at_poses``).
+        self.box_lo_m = tri32.reshape(-1, 3).min(axis=0).astype(np.float64)
+        self.box_hi_m = tri32.reshape(-1, 3).max(axis=0).astype(np.float64)
         # The first query builds the BVH: do it now, so that threads never race to it.
         self._scene.run(np.zeros((1, 3), np.float32), np.array([[1.0, 0.0, 0.0]], np.float32))
         self.threads = int(threads)
@@ -168,17 +212,21 @@ class Target:
         Split over ``self.threads`` threads when there are enough rays.
         """
         keys = ('primID', 'tfar', 'u', 'v') if barycentric else ('primID', 'tfar')
-        if length_m is None:
-            def work(part):
-                return self._scene.run(origins_m[part], directions[part], output=1)
-        else:
-            def work(part):
-                return self._scene.run(origins_m[part], directions[part], dists=length_m[part].copy(),
-                                       output=1)
+
+        def work(part):
+            return self._run(origins_m[part], directions[part],
+                             None if length_m is None else length_m[part])
         parts = split_over_threads(len(origins_m), self.threads, work)
         if len(parts) == 1:
             return tuple(parts[0][k] for k in keys)
         return tuple(np.concatenate([p[k] for p in parts]) for k in keys)
+
+    def _run(self, origins_m: np.ndarray, directions: np.ndarray,
+             length_m: np.ndarray | None) -> dict:
+        """One Embree call on float32 rays (GIL released while it casts): its output dict."""
+        if length_m is None:
+            return self._scene.run(origins_m, directions, output=1)
+        return self._scene.run(origins_m, directions, dists=np.array(length_m, np.float32), output=1)
 
     def cast(self, origins_m: np.ndarray, directions: np.ndarray,
              order: np.ndarray | None = None) -> Hits:
@@ -228,28 +276,69 @@ class Target:
     def occluded(self, origins_m: np.ndarray, directions: np.ndarray,
                  length_m: np.ndarray | None = None) -> np.ndarray:
         """Whether each ray (body frame, float32 as Embree takes them) meets the mesh within
-        ``length_m`` (float32 per ray; None = unbounded): Embree's occlusion query (shadow rays)."""
-        return self._scene.run(origins_m, directions, dists=length_m, query='OCCLUDED') >= 0
+        ``length_m`` (float32 per ray; None = unbounded): Embree's occlusion query (shadow rays),
+        split over ``self.threads`` threads when there are enough rays."""
+        def work(part: slice) -> np.ndarray:
+            return self._scene.run(origins_m[part], directions[part], query='OCCLUDED',
+                                   dists=None if length_m is None else np.array(length_m[part], np.float32))
+        parts = split_over_threads(len(origins_m), self.threads, work)
+        return (parts[0] if len(parts) == 1 else np.concatenate(parts)) >= 0
 
     def cast_body_rays(self, rays: BodyRays, barycentric: bool = False,
                        length_m: np.ndarray | None = None) -> Hits:
         """First hit of each body-frame ray; normals in the frame of ``rays.directions_out``;
         with ``barycentric`` the hits' (u, v) too; ``length_m`` (m per ray, input order;
-        None = unbounded) bounds each ray (Embree skips what lies beyond)."""
+        None = unbounded) bounds each ray (Embree skips what lies beyond).
+
+        In parts of the cast order, one per thread, each end to end (as ``cast_at_poses``),
+        rays whose line misses the mesh's bounding box left out where that pays."""
         if length_m is not None:
             length_m = np.ascontiguousarray(np.asarray(length_m, np.float32).take(rays.order))
-        face, tfar, *uv = self.intersect(rays.origins_m, rays.directions, barycentric, length_m)
-        hit, range_m, normal, cos_i, material, face = kernels.hit_geometry(
-            face, tfar, rays.order, self.face_normals, self.face_material, rays.quat_xyzw,
-            rays.directions_out)
-        bary = None
-        if barycentric:
-            bary = np.empty((len(rays), 2), np.float32)
-            # Rays cast in input order (no cast order) need no scatter: plain copies.
-            rows = slice(None) if _in_order(rays.order) else rays.order
-            bary[rows, 0], bary[rows, 1] = uv
-        return Hits(hit, range_m, normal, np.arccos(cos_i), material, face, cos_incidence=cos_i,
-                    barycentric=bary)
+        out = _HitRows.empty(len(rays))
+        bary = np.zeros((len(rays), 2), np.float32) if barycentric else None
+        step = slice(None, None, CULL_SAMPLE)
+        cull = _worth_culling(self, kernels.body_rays_in_box(
+            rays.origins_m[step], rays.directions[step], self.box_lo_m, self.box_hi_m)[2])
+
+        in_order = _in_order(rays.order)
+
+        def work(part: slice) -> None:
+            o32, d32, slot = rays.origins_m[part], rays.directions[part], _EVERY_RAY
+            if cull:
+                o32, d32, slot = kernels.body_rays_in_box(o32, d32, self.box_lo_m, self.box_hi_m)
+            _cast_part(self, o32, d32, slot, rays.order[part],
+                       None if length_m is None else length_m[part], rays.quat_xyzw,
+                       rays.directions_out, out, part if in_order else None, bary)
+        split_over_threads(len(rays), self.threads, work)
+        return out.hits(barycentric=bary)
+
+
+@dataclass(frozen=True)
+class _HitRows:
+    """The per-ray arrays of a cast, filled by ``kernels.hit_geometry_into`` (in parts)."""
+
+    hit: np.ndarray
+    range_m: np.ndarray
+    normal: np.ndarray
+    cos_incidence: np.ndarray
+    material: np.ndarray
+    face: np.ndarray
+    incidence_rad: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int) -> '_HitRows':
+        return cls(np.empty(n, bool), np.empty(n), np.empty((n, 3)), np.empty(n),
+                   np.empty(n, np.int16), np.empty(n, np.int64), np.empty(n))
+
+    @property
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """The arrays ``kernels.hit_geometry_into`` fills."""
+        return self.hit, self.range_m, self.normal, self.cos_incidence, self.material, self.face
+
+    def hits(self, barycentric: np.ndarray | None = None) -> Hits:
+        """The Hits these arrays are (filled by then, or to be filled part by part)."""
+        return Hits(self.hit, self.range_m, self.normal, self.incidence_rad, self.material,
+                    self.face, cos_incidence=self.cos_incidence, barycentric=barycentric)
 
 
 _IDENTITY = np.array([[0.0, 0.0, 0.0, 1.0]])
@@ -284,15 +373,89 @@ def coherent_order(az_rad: np.ndarray, el_rad: np.ndarray, cell_rad: float = np.
 
 def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
                   origin_lidar_m: np.ndarray | None = None, order: np.ndarray | None = None,
-                  length_m: np.ndarray | None = None) -> Hits:
+                  length_m: np.ndarray | None = None,
+                  then: Callable[[Hits, slice | np.ndarray], None] | None = None) -> Hits:
     """Cast lidar-frame rays, each against the target at its own pose.
 
     Rays go into the body frame with their pose, are cast there, and the normals
     come back to the lidar frame. Ranges are frame-independent. ``length_m``: each
     ray's length (m; None = unbounded), hits beyond it are misses.
+
+    The rays are cast in contiguous parts of the cast order, one per thread
+    (``target.threads``), each part end to end: into the body frame, Embree, and back
+    (compiled loops that release the GIL, as Embree does). Rays whose line misses the
+    mesh's bounding box are not cast (a flash array's pixels around the target: 60 % of
+    them). Each ray's answer is the same whatever the parts. ``then(hits, rows)``: the
+    work that follows on each part's own thread, once the part's rows (a slice, or indices
+    when a cast order is given) of the returned ``hits`` are filled.
     """
-    return target.cast_body_rays(body_rays(directions_lidar, poses, origin_lidar_m, order),
-                                 length_m=length_m)
+    d = np.ascontiguousarray(directions_lidar, dtype=np.float64).reshape(-1, 3)
+    origin = np.zeros((1, 3)) if origin_lidar_m is None else np.asarray(origin_lidar_m, float).reshape(-1, 3)
+    quat, position = poses.quat_xyzw, poses.position_m.reshape(-1, 3)
+    in_order = order is None
+    order = _cast_order(order, len(d))
+    if length_m is not None:
+        length_m = np.asarray(length_m, np.float32)
+    out = _HitRows.empty(len(d))
+    hits = out.hits()
+    cull = _worth_culling(target, kernels.rays_to_body_in_box(
+        quat, position, origin, d, order[::CULL_SAMPLE], target.box_lo_m, target.box_hi_m)[2])
+    lengths = None if length_m is None else length_m.take(order)
+
+    def work(part: slice) -> None:
+        rows = order[part]
+        if cull:
+            o32, d32, slot = kernels.rays_to_body_in_box(quat, position, origin, d, rows,
+                                                         target.box_lo_m, target.box_hi_m)
+        else:
+            (o32, d32), slot = kernels.rays_to_body(quat, position, origin, d, rows), _EVERY_RAY
+        view = part if in_order else rows
+        _cast_part(target, o32, d32, slot, rows, None if lengths is None else lengths[part],
+                   quat, d, out, view)
+        if then is not None:
+            then(hits, view)
+    split_over_threads(len(d), target.threads, work)
+    return hits
+
+
+_EVERY_RAY = np.zeros(0, np.int64)     # hit_geometry_into's slot when every ray was cast
+CULL_SAMPLE = 64        # every 64th ray tells whether the bounding-box test pays
+CULL_WORTH = 0.25       # the share of rays it must leave out (a cast miss costs ~5x the test)
+
+
+def _worth_culling(target: Target, sample_slot: np.ndarray) -> bool:
+    """Whether enough rays miss the mesh's bounding box for the test to pay (a flash array
+    around the target: 60 % of its pixels; a P-60 frame filled by it: few), judged on a
+    sample's slots (-1: outside). Either way every ray gets the same answer."""
+    return (len(sample_slot) >= 16
+            and np.count_nonzero(sample_slot < 0) >= CULL_WORTH * len(sample_slot))
+
+
+def _cast_part(target: Target, o32: np.ndarray, d32: np.ndarray, slot: np.ndarray,
+               rows: np.ndarray, length_m: np.ndarray | None, quat: np.ndarray,
+               dir_out: np.ndarray, out: _HitRows, view: slice | np.ndarray | None = None,
+               bary: np.ndarray | None = None) -> None:
+    """One thread's part of a cast: Embree on the body-frame rays kept (o32, d32; ``slot``
+    as ``kernels.hit_geometry_into`` takes it), their answers into rows ``rows`` of ``out``
+    (``view``: the same rows as a slice where they are one; and of ``bary``, the hits'
+    (u, v)); ``length_m``: the part's ray lengths in cast order."""
+    face, tfar, u, v = _NO_RAYS
+    if len(o32):
+        kept = slot >= 0 if len(slot) else slice(None)
+        found = target._run(o32, d32, None if length_m is None else length_m[kept])
+        face, tfar, u, v = found['primID'], found['tfar'], found['u'], found['v']
+        if bary is not None:
+            # Every ray of an in-order part cast: plain copies, no scatter.
+            cast = view if view is not None and len(slot) == 0 else rows[kept]
+            bary[cast, 0], bary[cast, 1] = u, v
+    kernels.hit_geometry_into(face, tfar, slot, rows, target.face_normals, target.face_material,
+                              quat, dir_out, *out.arrays)
+    view = rows if view is None else view
+    out.incidence_rad[view] = np.arccos(out.cos_incidence[view])
+
+
+_NO_RAYS = (np.zeros(0, np.int32), np.zeros(0, np.float32), np.zeros(0, np.float32),
+            np.zeros(0, np.float32))
 
 
 def body_rays(directions_lidar: np.ndarray, poses: Poses, origin_lidar_m: np.ndarray | None = None,

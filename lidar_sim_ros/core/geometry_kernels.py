@@ -27,14 +27,15 @@ def _rotate(qx, qy, qz, qw, vx, vy, vz):
             vz + qw * tz + (qx * ty - qy * tx))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def rays_to_body(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order):
     """Ray origins and directions in the body frame (float32, Embree's input), in cast order.
 
     quat_xyzw (N|1, 4), position_m (N|1, 3): pose per ray; origin_lidar_m (N|1, 3) (m);
-    dir_lidar (N, 3) unit vectors; order (N,) int64: ray ``order[k]`` goes to row k.
+    dir_lidar (N, 3) unit vectors; order (K,) int64: ray ``order[k]`` goes to row k (all
+    N rays, or one thread's part of them).
     """
-    n = dir_lidar.shape[0]
+    n = order.shape[0]
     o_body = np.empty((n, 3), np.float32)
     d_body = np.empty((n, 3), np.float32)
     one_q, one_p, one_o = quat_xyzw.shape[0] == 1, position_m.shape[0] == 1, origin_lidar_m.shape[0] == 1
@@ -53,31 +54,119 @@ def rays_to_body(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order):
     return o_body, d_body
 
 
-@njit(cache=True)
-def hit_geometry(face_cast, tfar_cast, order, face_normals, face_material, quat_xyzw, dir_out):
-    """Embree's answers (cast order) back in ray order, with per-hit geometry.
+@njit(cache=True, inline='always')
+def _misses_box(ox, oy, oz, dx, dy, dz, cx, cy, cz, hx, hy, hz, grow):
+    """Whether the line o + t d misses the box of centre c and half-size h widened by
+    ``grow`` plus 1e-5 of the distance (``rays_to_body_in_box``); no division."""
+    wx, wy, wz = ox - cx, oy - cy, oz - cz
+    pad = grow + 1e-5 * (abs(wx) + abs(wy) + abs(wz))
+    ax, ay, az = abs(dx), abs(dy), abs(dz)
+    return ((abs(wy * dz - wz * dy) > (hy + pad) * az + (hz + pad) * ay)
+            | (abs(wz * dx - wx * dz) > (hx + pad) * az + (hz + pad) * ax)
+            | (abs(wx * dy - wy * dx) > (hx + pad) * ay + (hy + pad) * ax))
 
-    face_cast (N,) primID (-1 = miss), tfar_cast (N,) distance along the ray (m);
+
+@njit(cache=True, nogil=True)
+def body_rays_in_box(o_body, d_body, box_lo, box_hi):
+    """``rays_to_body_in_box`` for rays already in the body frame (float32 (K, 3)): the
+    rows that can meet the box, copied (o, d, float32), and slot (K,) int64 (-1: left out)."""
+    n = o_body.shape[0]
+    o_kept = np.empty((n, 3), np.float32)
+    d_kept = np.empty((n, 3), np.float32)
+    slot = np.empty(n, np.int64)
+    hx, hy, hz = ((box_hi[0] - box_lo[0]) / 2.0, (box_hi[1] - box_lo[1]) / 2.0,
+                  (box_hi[2] - box_lo[2]) / 2.0)
+    cx, cy, cz = box_lo[0] + hx, box_lo[1] + hy, box_lo[2] + hz
+    grow = 2e-3 * max(hx, hy, hz)
+    kept = 0
+    for k in range(n):
+        ox, oy, oz = np.float64(o_body[k, 0]), np.float64(o_body[k, 1]), np.float64(o_body[k, 2])
+        dx, dy, dz = np.float64(d_body[k, 0]), np.float64(d_body[k, 1]), np.float64(d_body[k, 2])
+        if _misses_box(ox, oy, oz, dx, dy, dz, cx, cy, cz, hx, hy, hz, grow):
+            slot[k] = -1
+            continue
+        slot[k] = kept
+        o_kept[kept, 0], o_kept[kept, 1], o_kept[kept, 2] = o_body[k, 0], o_body[k, 1], o_body[k, 2]
+        d_kept[kept, 0], d_kept[kept, 1], d_kept[kept, 2] = d_body[k, 0], d_body[k, 1], d_body[k, 2]
+        kept += 1
+    return o_kept[:kept], d_kept[:kept], slot
+
+
+@njit(cache=True, nogil=True)
+def rays_to_body_in_box(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order, box_lo, box_hi):
+    """``rays_to_body`` for the rays whose line can meet the box [box_lo, box_hi] (body
+    frame, m; the mesh's bounds): the others cannot hit the mesh and are left out.
+
+    Returns o_body, d_body (float32, the kept rays in cast order) and slot (N,) int64:
+    the row of ray ``order[k]`` in o_body, or -1 where it was left out. The test is the
+    line's (no division): with w the origin less the box's centre and h its half-size,
+    |(w x d)_a| <= h_b |d_c| + h_c |d_b| on each axis a (b, c the other two); a ray
+    pointing away from the box is kept (Embree finds it misses). The box is widened by
+    1e-3 of its size plus 1e-5 of the ray's distance to it, far more than Embree's
+    float32 rounding, so no ray that Embree would hit is left out.
+    """
+    n = order.shape[0]
+    o_body = np.empty((n, 3), np.float32)
+    d_body = np.empty((n, 3), np.float32)
+    slot = np.empty(n, np.int64)
+    hx, hy, hz = ((box_hi[0] - box_lo[0]) / 2.0, (box_hi[1] - box_lo[1]) / 2.0,
+                  (box_hi[2] - box_lo[2]) / 2.0)
+    cx, cy, cz = box_lo[0] + hx, box_lo[1] + hy, box_lo[2] + hz
+    grow = 2e-3 * max(hx, hy, hz)
+    one_q, one_p, one_o = quat_xyzw.shape[0] == 1, position_m.shape[0] == 1, origin_lidar_m.shape[0] == 1
+    kept = 0
+    for k in range(n):
+        i = order[k]
+        iq, ip, io = (0 if one_q else i), (0 if one_p else i), (0 if one_o else i)
+        qx, qy, qz, qw = -quat_xyzw[iq, 0], -quat_xyzw[iq, 1], -quat_xyzw[iq, 2], quat_xyzw[iq, 3]
+        ox, oy, oz = _rotate(qx, qy, qz, qw,
+                             origin_lidar_m[io, 0] - position_m[ip, 0],
+                             origin_lidar_m[io, 1] - position_m[ip, 1],
+                             origin_lidar_m[io, 2] - position_m[ip, 2])
+        dx, dy, dz = _rotate(qx, qy, qz, qw, dir_lidar[i, 0], dir_lidar[i, 1], dir_lidar[i, 2])
+        # The test on the float32 ray Embree gets (in float64).
+        ox, oy, oz = np.float64(np.float32(ox)), np.float64(np.float32(oy)), np.float64(np.float32(oz))
+        dx, dy, dz = np.float64(np.float32(dx)), np.float64(np.float32(dy)), np.float64(np.float32(dz))
+        if _misses_box(ox, oy, oz, dx, dy, dz, cx, cy, cz, hx, hy, hz, grow):
+            slot[k] = -1
+            continue
+        slot[k] = kept
+        o_body[kept, 0], o_body[kept, 1], o_body[kept, 2] = ox, oy, oz
+        d_body[kept, 0], d_body[kept, 1], d_body[kept, 2] = dx, dy, dz
+        kept += 1
+    return o_body[:kept], d_body[:kept], slot
+
+
+@njit(cache=True, nogil=True)
+def hit_geometry_into(face_cast, tfar_cast, slot, order, face_normals, face_material, quat_xyzw,
+                      dir_out, hit, range_m, normal, cos_incidence, material, face):
+    """Embree's answers back in ray order, with per-hit geometry, written into the
+    output arrays (rows ``order``, which chunks of one frame share without overlapping).
+
+    face_cast (M,) primID (-1 = miss), tfar_cast (M,) distance along the ray (m), for
+    the rays cast; slot (K,): the row in them of ray ``order[k]`` (-1: not cast, a miss),
+    or empty when every ray was cast (row k);
     face_normals (F, 3) unit body-frame normals; face_material (F,) ids;
     quat_xyzw (N|1, 4) rotates the normals into the frame of dir_out (N, 3), the
     rays' unit directions in that frame (identity quaternion: stay in body frame).
-    Returns hit, range_m (inf on a miss), normal (toward the sensor; 0 on a miss),
+    Writes hit, range_m (inf on a miss), normal (toward the sensor; 0 on a miss),
     cos_incidence (NaN on a miss), material (-1 on a miss), face (-1 on a miss).
     (The arccos is left to numpy: its SIMD loop is ~10x faster than libm's per call.)
     """
-    n = face_cast.shape[0]
-    hit = np.zeros(n, np.bool_)
-    range_m = np.full(n, np.inf)
-    normal = np.zeros((n, 3))
-    cos_incidence = np.full(n, np.nan)
-    material = np.full(n, -1, np.int16)
-    face = np.full(n, -1, np.int64)
     one_q = quat_xyzw.shape[0] == 1
-    for k in range(n):
-        f = face_cast[k]
-        if f < 0:
-            continue
+    every = slot.shape[0] == 0
+    for k in range(order.shape[0]):
         i = order[k]
+        j = k if every else slot[k]
+        f = face_cast[j] if j >= 0 else -1
+        if f < 0:
+            hit[i] = False
+            range_m[i] = np.inf
+            normal[i, 0], normal[i, 1], normal[i, 2] = 0.0, 0.0, 0.0
+            cos_incidence[i] = np.nan
+            material[i] = -1
+            face[i] = -1
+            continue
         iq = 0 if one_q else i
         nx, ny, nz = _rotate(quat_xyzw[iq, 0], quat_xyzw[iq, 1], quat_xyzw[iq, 2], quat_xyzw[iq, 3],
                              face_normals[f, 0], face_normals[f, 1], face_normals[f, 2])
@@ -85,12 +174,11 @@ def hit_geometry(face_cast, tfar_cast, order, face_normals, face_material, quat_
         if cos_i < 0.0:  # two-sided surfaces: the normal faces the sensor
             nx, ny, nz, cos_i = -nx, -ny, -nz, -cos_i
         hit[i] = True
-        range_m[i] = tfar_cast[k]
+        range_m[i] = tfar_cast[j]
         normal[i, 0], normal[i, 1], normal[i, 2] = nx, ny, nz
         cos_incidence[i] = min(cos_i, 1.0)
         material[i] = face_material[f]
         face[i] = f
-    return hit, range_m, normal, cos_incidence, material, face
 
 
 @njit(cache=True, nogil=True)

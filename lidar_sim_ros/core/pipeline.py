@@ -17,7 +17,8 @@ from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
 from lidar_sim_ros.core.scenario import Scenario, scenario_effect_spec
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
-from lidar_sim_ros.core.geometry import Hits, Target, cast_at_poses, coherent_order, load_target
+from lidar_sim_ros.core.geometry import (Beside, Hits, Target, cast_at_poses, coherent_order,
+                                        load_target)
 from lidar_sim_ros.core.pose import Poses, PoseSource, PoseTrack, StaticPose
 from lidar_sim_ros.core.scan import (Shots, angles_from_directions, frame_shots,
                                      frame_shots_and_directions, varies_by_frame)
@@ -169,7 +170,7 @@ class Simulator:
         # Frames are simulated with the shots in a coherent order (neighbouring directions
         # together): Embree traverses its BVH faster and every per-shot pass reads memory
         # in sequence. Published points go back to firing order (``_cast_position``).
-        self._plan = _CastPlan.of(self.shots, self.directions)
+        self._plan = _CastPlan.of(self.shots, self.directions, sensor)
         self._cast_order, self._cast_shots = self._plan.order, self._plan.cast_shots
         self._cast_directions, self._cast_position = self._plan.directions, self._plan.position
         # A pattern that does not repeat (the Risley rosette) has each frame's own shots.
@@ -218,10 +219,13 @@ class Simulator:
     # ------------------------------------------------------------------ stages
     def predict(self, t_abs_s: np.ndarray, directions: np.ndarray, pose_source: PoseSource,
                 t_frame_s: np.ndarray | None = None, az_rad=None, el_rad=None,
-                laser: np.ndarray | None = None, cast_order: np.ndarray | None = None) -> Prediction:
+                laser: np.ndarray | None = None, cast_order: np.ndarray | None = None,
+                pixel_sr: np.ndarray | None = None) -> Prediction:
         """Raycast + reflection + error model for rays at absolute times (no random draws).
 
         ``cast_order``: optional coherent ray order for Embree (results keep input order).
+        ``pixel_sr``: a flash array's pixel field of view per ray (sr, ``scan_flash.
+        pixel_view_sr``) when the caller has it (a frame's plan keeps it); else computed.
         """
         t_abs_s = np.asarray(t_abs_s, dtype=float)
         directions = np.asarray(directions, dtype=float)
@@ -236,25 +240,17 @@ class Simulator:
             hits = eff.cast(self.target, directions, poses, optics.beam_divergence_rad)
             if hits is not None:
                 break
+        # Reflection and the error model, into these (0, NaN, 0, 0 on a miss): on each part
+        # of the raycast's own thread, or after an effect's cast.
+        power, rng_m, bias, var = reflected = np.zeros(n), np.full(n, np.nan), np.zeros(n), np.zeros(n)
         if hits is None:
-            hits = cast_at_poses(self.target, directions, poses, order=cast_order)
-        # Reflection and error model on the shots that hit (index lists: one gather each).
-        on = np.flatnonzero(hits.hit)
-        mat = hits.material.take(on)
-        range_on = hits.range_m.take(on)
-        power = np.zeros(n)
-        cos_on = None if hits.cos_incidence is None else hits.cos_incidence.take(on)
-        pixel_sr = pixel_view_sr(self.sensor, directions[on]) if optics.flood is not None else None
-        power[on] = reflection.return_power_w(range_on, hits.incidence_rad.take(on), self._kd.take(mat),
-                                              self._ks.take(mat), self._n.take(mat), optics, cos_on,
-                                              pixel_sr)
-        if hits.power_fraction is not None:
-            power = power * hits.power_fraction
-        rng_m = np.full(n, np.nan)
-        rng_m[on] = range_on
-        bias, var = np.zeros(n), np.zeros(n)
-        bias[on] = self._bias.take(mat)
-        var[on] = self._sigma.take(mat) ** 2
+            hits = cast_at_poses(self.target, directions, poses, order=cast_order,
+                                 then=lambda part_hits, rows: self._reflect(
+                                     part_hits, rows, directions, pixel_sr, reflected))
+        else:
+            self._reflect(hits, slice(0, n), directions, pixel_sr, reflected)
+            if hits.power_fraction is not None:
+                power *= hits.power_fraction
         if az_rad is None or el_rad is None:
             az_rad, el_rad = angles_from_directions(directions)
         det = self.sensor.detection
@@ -275,6 +271,30 @@ class Simulator:
             bias = np.where(hits.hit, bias, 0.0)
         return Prediction(ctx, hits, directions, bias, np.sqrt(var))
 
+    def _reflect(self, hits: Hits, rows: slice | np.ndarray, directions: np.ndarray,
+                 pixel_sr: np.ndarray | None, out: tuple[np.ndarray, ...]) -> None:
+        """Reflection and the error model of the shots ``rows`` (a slice or indices) that
+        hit, gathered once by index, written into ``out``: received power (W), range (m),
+        range bias (m) and variance (m^2) of the material hit."""
+        power, rng_m, bias, var = out
+        optics = self.sensor.optics
+        on = np.flatnonzero(hits.hit[rows])
+        if not isinstance(rows, slice):
+            on = rows.take(on)
+        elif rows.start:
+            on += rows.start
+        mat = hits.material.take(on)
+        range_on = hits.range_m.take(on)
+        cos_on = None if hits.cos_incidence is None else hits.cos_incidence.take(on)
+        sr = None
+        if optics.flood is not None:
+            sr = pixel_view_sr(self.sensor, directions[on]) if pixel_sr is None else pixel_sr.take(on)
+        power[on] = reflection.return_power_w(range_on, hits.incidence_rad.take(on), self._kd.take(mat),
+                                              self._ks.take(mat), self._n.take(mat), optics, cos_on, sr)
+        rng_m[on] = range_on
+        bias[on] = self._bias.take(mat)
+        var[on] = self._sigma.take(mat) ** 2
+
     def shots_of_frame(self, frame_index: int) -> Shots:
         """Frame ``frame_index``'s shots in firing order (``self.shots`` for every frame of a
         repeating pattern)."""
@@ -286,7 +306,7 @@ class Simulator:
         last_index, plan = self._last_plan
         if last_index != frame_index:
             plan = _CastPlan.of(*frame_shots_and_directions(self.sensor, self._scan_base,
-                                                            frame_index))
+                                                            frame_index), self.sensor)
             self._last_plan = (frame_index, plan)
         return plan
 
@@ -296,16 +316,21 @@ class Simulator:
         """Simulate one frame starting at ``frame_start_s`` (absolute s)."""
         if frame_index is None:
             frame_index = int(round(frame_start_s / self.frame_period_s))
-        rng = self.frame_rng(frame_index)
         plan = self._frame_plan(frame_index)
         shots = plan.cast_shots
+        # The frame's generator and its first draw, the range noise of every shot: on a pool
+        # thread beside the raycast (numpy releases the GIL while it draws; the raycast's
+        # parts go to whichever thread is free), the same numbers whatever the thread.
+        drawn = Beside(self.target.threads, lambda: _first_draw(self.frame_rng(frame_index), len(shots)))
+        drawn.start()
         pred = self.predict(frame_start_s + shots.t_s, plan.directions, pose_source, shots.t_s,
-                            shots.az_rad, shots.el_rad, shots.laser)
+                            shots.az_rad, shots.el_rad, shots.laser, pixel_sr=plan.pixel_sr)
         ctx, hit = pred.ctx, pred.ctx.hit
         det = self.sensor.detection
         # Misses carry NaN range and zero power: never detected, NaN measured range.
         detected = hit & detection.detected_mask(ctx.power_w, ctx.range_m, det)
-        measured = detection.measured_range_m(ctx.range_m, pred.bias_m, pred.sigma_m, rng)
+        rng, noise = drawn.result()
+        measured = detection.measured_range_m(ctx.range_m, pred.bias_m, pred.sigma_m, noise)
         # Extra returns lie behind their echo: a first-return receiver can report them only
         # where the echo went undetected (no ray needs following elsewhere).
         open_shots = np.flatnonzero(hit & ~detected) if det.returns.single else None
@@ -433,34 +458,44 @@ class Simulator:
 
 
 def _poses_at(pose_source: PoseSource, t_s: np.ndarray) -> Poses:
-    """The pose at every time; one pose repeated when all times are the same (a flash
-    array's global exposure: 65,536 equal times, one interpolation)."""
+    """The pose at every time, or one pose (one row, which the raycast and the effects
+    apply to every shot) when all times are the same (a flash array's global exposure:
+    65,536 equal times, one interpolation, one origin in the body frame)."""
     n = len(t_s)
     if n > 1 and t_s[0] == t_s[-1] and bool(np.all(t_s == t_s[0])):
         one = pose_source.at(t_s[:1])
-        return Poses.from_quat(np.repeat(one.quat_xyzw, n, axis=0),
-                               np.repeat(np.asarray(one.position_m, float).reshape(1, 3), n, axis=0))
+        return Poses.from_quat(np.asarray(one.quat_xyzw, float).reshape(1, 4),
+                               np.asarray(one.position_m, float).reshape(1, 3))
     return pose_source.at(t_s)
 
 
 @dataclass(frozen=True)
 class _CastPlan:
     """One frame's shots in firing order and in cast order (coherent: neighbouring
-    directions together); ``position[i]``: where firing-order shot i sits in cast order."""
+    directions together); ``position[i]``: where firing-order shot i sits in cast order;
+    ``pixel_sr``: a flash array's pixel field of view per shot in cast order (sr; None for
+    a sensor that fires a beam per shot), computed once with the plan."""
 
     shots: Shots
     order: np.ndarray
     cast_shots: Shots
     directions: np.ndarray
     position: np.ndarray
+    pixel_sr: np.ndarray | None
 
     @classmethod
-    def of(cls, shots: Shots, directions: np.ndarray) -> '_CastPlan':
+    def of(cls, shots: Shots, directions: np.ndarray, sensor: SensorConfig) -> '_CastPlan':
         order = coherent_order(shots.az_rad, shots.el_rad)
         position = np.empty_like(order)
         position[order] = np.arange(len(order))
-        return cls(shots, order, shots.subset(order), np.ascontiguousarray(directions[order]),
-                   position)
+        cast_directions = np.ascontiguousarray(directions[order])
+        return cls(shots, order, shots.subset(order), cast_directions, position,
+                   pixel_view_sr(sensor, cast_directions))
+
+
+def _first_draw(rng: np.random.Generator, n: int) -> tuple[np.random.Generator, np.ndarray]:
+    """A frame's generator and its first draw: n standard normal numbers (the range noise)."""
+    return rng, rng.standard_normal(n)
 
 
 def _false_returns(effects, ctx, rng: np.random.Generator):
