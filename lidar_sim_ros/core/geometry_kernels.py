@@ -27,6 +27,31 @@ def _rotate(qx, qy, qz, qw, vx, vy, vz):
             vz + qw * tz + (qx * ty - qy * tx))
 
 
+@njit(cache=True, inline='always')
+def _ray_to_body(quat_xyzw, position_m, origin_lidar_m, dir_lidar, i):
+    """Ray ``i``'s origin and direction in the body frame (float64 each; arrays as
+    ``rays_to_body``: one row is every ray's)."""
+    iq = 0 if quat_xyzw.shape[0] == 1 else i
+    ip = 0 if position_m.shape[0] == 1 else i
+    io = 0 if origin_lidar_m.shape[0] == 1 else i
+    # The inverse rotation: conjugate quaternion.
+    qx, qy, qz, qw = -quat_xyzw[iq, 0], -quat_xyzw[iq, 1], -quat_xyzw[iq, 2], quat_xyzw[iq, 3]
+    ox, oy, oz = _rotate(qx, qy, qz, qw,
+                         origin_lidar_m[io, 0] - position_m[ip, 0],
+                         origin_lidar_m[io, 1] - position_m[ip, 1],
+                         origin_lidar_m[io, 2] - position_m[ip, 2])
+    dx, dy, dz = _rotate(qx, qy, qz, qw, dir_lidar[i, 0], dir_lidar[i, 1], dir_lidar[i, 2])
+    return ox, oy, oz, dx, dy, dz
+
+
+@njit(cache=True, inline='always')
+def _box_of(box_lo, box_hi):
+    """Centre, half-size and the widening (``rays_to_body_in_box``) of a box."""
+    hx, hy, hz = ((box_hi[0] - box_lo[0]) / 2.0, (box_hi[1] - box_lo[1]) / 2.0,
+                  (box_hi[2] - box_lo[2]) / 2.0)
+    return box_lo[0] + hx, box_lo[1] + hy, box_lo[2] + hz, hx, hy, hz, 2e-3 * max(hx, hy, hz)
+
+
 @njit(cache=True, nogil=True)
 def rays_to_body(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order):
     """Ray origins and directions in the body frame (float32, Embree's input), in cast order.
@@ -38,17 +63,9 @@ def rays_to_body(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order):
     n = order.shape[0]
     o_body = np.empty((n, 3), np.float32)
     d_body = np.empty((n, 3), np.float32)
-    one_q, one_p, one_o = quat_xyzw.shape[0] == 1, position_m.shape[0] == 1, origin_lidar_m.shape[0] == 1
     for k in range(n):
-        i = order[k]
-        iq, ip, io = (0 if one_q else i), (0 if one_p else i), (0 if one_o else i)
-        # The inverse rotation: conjugate quaternion.
-        qx, qy, qz, qw = -quat_xyzw[iq, 0], -quat_xyzw[iq, 1], -quat_xyzw[iq, 2], quat_xyzw[iq, 3]
-        ox, oy, oz = _rotate(qx, qy, qz, qw,
-                             origin_lidar_m[io, 0] - position_m[ip, 0],
-                             origin_lidar_m[io, 1] - position_m[ip, 1],
-                             origin_lidar_m[io, 2] - position_m[ip, 2])
-        dx, dy, dz = _rotate(qx, qy, qz, qw, dir_lidar[i, 0], dir_lidar[i, 1], dir_lidar[i, 2])
+        ox, oy, oz, dx, dy, dz = _ray_to_body(quat_xyzw, position_m, origin_lidar_m, dir_lidar,
+                                              order[k])
         o_body[k, 0], o_body[k, 1], o_body[k, 2] = ox, oy, oz
         d_body[k, 0], d_body[k, 1], d_body[k, 2] = dx, dy, dz
     return o_body, d_body
@@ -74,10 +91,7 @@ def body_rays_in_box(o_body, d_body, box_lo, box_hi):
     o_kept = np.empty((n, 3), np.float32)
     d_kept = np.empty((n, 3), np.float32)
     slot = np.empty(n, np.int64)
-    hx, hy, hz = ((box_hi[0] - box_lo[0]) / 2.0, (box_hi[1] - box_lo[1]) / 2.0,
-                  (box_hi[2] - box_lo[2]) / 2.0)
-    cx, cy, cz = box_lo[0] + hx, box_lo[1] + hy, box_lo[2] + hz
-    grow = 2e-3 * max(hx, hy, hz)
+    cx, cy, cz, hx, hy, hz, grow = _box_of(box_lo, box_hi)
     kept = 0
     for k in range(n):
         ox, oy, oz = np.float64(o_body[k, 0]), np.float64(o_body[k, 1]), np.float64(o_body[k, 2])
@@ -109,21 +123,11 @@ def rays_to_body_in_box(quat_xyzw, position_m, origin_lidar_m, dir_lidar, order,
     o_body = np.empty((n, 3), np.float32)
     d_body = np.empty((n, 3), np.float32)
     slot = np.empty(n, np.int64)
-    hx, hy, hz = ((box_hi[0] - box_lo[0]) / 2.0, (box_hi[1] - box_lo[1]) / 2.0,
-                  (box_hi[2] - box_lo[2]) / 2.0)
-    cx, cy, cz = box_lo[0] + hx, box_lo[1] + hy, box_lo[2] + hz
-    grow = 2e-3 * max(hx, hy, hz)
-    one_q, one_p, one_o = quat_xyzw.shape[0] == 1, position_m.shape[0] == 1, origin_lidar_m.shape[0] == 1
+    cx, cy, cz, hx, hy, hz, grow = _box_of(box_lo, box_hi)
     kept = 0
     for k in range(n):
-        i = order[k]
-        iq, ip, io = (0 if one_q else i), (0 if one_p else i), (0 if one_o else i)
-        qx, qy, qz, qw = -quat_xyzw[iq, 0], -quat_xyzw[iq, 1], -quat_xyzw[iq, 2], quat_xyzw[iq, 3]
-        ox, oy, oz = _rotate(qx, qy, qz, qw,
-                             origin_lidar_m[io, 0] - position_m[ip, 0],
-                             origin_lidar_m[io, 1] - position_m[ip, 1],
-                             origin_lidar_m[io, 2] - position_m[ip, 2])
-        dx, dy, dz = _rotate(qx, qy, qz, qw, dir_lidar[i, 0], dir_lidar[i, 1], dir_lidar[i, 2])
+        ox, oy, oz, dx, dy, dz = _ray_to_body(quat_xyzw, position_m, origin_lidar_m, dir_lidar,
+                                              order[k])
         # The test on the float32 ray Embree gets (in float64).
         ox, oy, oz = np.float64(np.float32(ox)), np.float64(np.float32(oy)), np.float64(np.float32(oz))
         dx, dy, dz = np.float64(np.float32(dx)), np.float64(np.float32(dy)), np.float64(np.float32(dz))
