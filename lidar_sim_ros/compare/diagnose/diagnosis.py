@@ -663,37 +663,72 @@ class Diagnosis:
         return out
 
     def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision,
-                   recast=None) -> Decision:
-        """Whether the reference pose is off (``pose_test(effects)``: the per-cloud rigid
-        correction's test, ``pose_error.fit_reference_pose``, on the model with
-        ``effects``). A named (or confounded) candidate that itself explains the pose's
-        gain leaves no pose error to report: one parameter of a time offset moves the
-        target rigidly as well as six per cloud. Otherwise each admissible candidate is
-        scored again on the model with the pose corrected: ``recast(pose)`` gives this
-        diagnosis on the model raycast again with the corrected pose and the correction
-        (``run.recast_diagnosis``; without it, the linear range correction,
+                   recast=None, constant_test=None) -> Decision:
+        """Whether the reference pose is off, and what it leaves the candidates.
+        ``pose_test(effects)``: the per-cloud rigid correction's test
+        (``pose_error.fit_reference_pose``) on the model with ``effects``;
+        ``constant_test(effects)``: one rigid correction for all the clouds (an extrinsic
+        error: six parameters, asked when the per-cloud test fails). Each named (or
+        confounded) candidate is weighed against the pose both ways on the same held-out
+        footing, as ``weigh_pose_rivals`` weighs the range terms: the pose's test on top
+        of it, and the candidate scored again on the model with the pose corrected
+        (``recast(pose)``: this diagnosis raycast again with the corrected pose,
+        ``run.recast_diagnosis``; without it, the linear range correction,
         ``pose_corrected``, which leaves the residuals at silhouettes and depth steps).
-        Those that still pass the rule are decided among as before, and if none does,
-        the pose explains the residual and no sensor effect is named."""
-        pose = pose_test([])
-        if not pose.significant:
+        - The candidate passes the rule on the corrected pose: it explains what the pose
+          cannot; it is named (the pose reported beside it if its test passes on top).
+        - It does not, and the pose passes on top of it: the pose explains the
+          residual; no sensor effect is named (unless another candidate passes on the
+          corrected pose: decided among those as before).
+        - Neither adds to the other: as --fit leaves them (the candidate's fitted NLL
+          against the pose-corrected model's), MIN_PRACTICAL_GAIN apart the better one
+          stands; closer, a tie (``confounded_with``: pose_error and the candidate)."""
+        tests = [pose_test] + ([constant_test] if constant_test is not None else [])
+        for test in tests:
+            pose = test([])
+            if pose.significant:
+                break
+        else:
             return decision
         by_name = {c.name: c for c in cands}
-        for name in [decision.missing, *decision.confounded_with]:
-            if name in by_name and not pose_test([by_name[name].effect]).significant:
-                return decision
+        named = [by_name[n] for n in [decision.missing, *decision.confounded_with]
+                 if n in by_name and by_name[n].effect is not None]
+        # Named candidates that leave the pose nothing (its test fails on top of them).
+        explain = [c for c in named if not test([c.effect]).significant]
         contenders = [c for c in cands if c.admissible and c.effect is not None]
-        if contenders:
-            if recast is not None:
-                on_pose, pose = recast(pose)
-            else:
-                on_pose = self.pose_corrected(pose.correction_m)
-            again = [on_pose.score(type(c.effect)) for c in contenders]
-            if not any(on_pose.nameable(c) for c in again):
-                return Decision(None, [], pose=pose)
-            if not (decision.missing and any(c.name == decision.missing and on_pose.nameable(c)
-                                             for c in again)):
-                decision = on_pose.decide(again)
+        if not contenders:
+            return replace(decision, pose=pose)
+        if recast is not None:
+            on_pose, pose = recast(pose)
+        else:
+            on_pose = self.pose_corrected(pose.correction_m)
+        again = [on_pose.score(type(c.effect)) for c in contenders]
+        passes = {a.name: on_pose.nameable(a) for a in again}
+        for c, a in zip(contenders, again):
+            c.against_pose = {**(c.against_pose or {}), 'pose_constant': bool(getattr(pose, 'constant', False)),
+                              'score_on_pose': _num(a.score), 'z_on_pose': _num(a.z),
+                              'passes_on_pose': bool(passes[a.name]),
+                              'pose_corrected_nll': _num(on_pose.before_nll)}
+        if explain:
+            if any(passes.get(c.name) for c in explain):
+                return decision            # it explains what the pose cannot: it stands
+            # Neither adds to the other: as --fit leaves them.
+            fitted = {c.name: float(on_pose.before_nll - c.nll_after) for c in explain
+                      if self.nameable(c)}
+            for c in explain:
+                if c.name in fitted:
+                    c.against_pose['fitted_margin'] = _num(fitted[c.name])
+            if any(f >= MIN_PRACTICAL_GAIN for f in fitted.values()):
+                return decision            # the candidate fits better than the pose
+            tied = [n for n, f in fitted.items() if f > -MIN_PRACTICAL_GAIN]
+            if tied:
+                return Decision(None, [POSE_ERROR, *tied], pose=pose,
+                                withheld=dict(decision.withheld))
+            return Decision(None, [], pose=pose, withheld=dict(decision.withheld))
+        if not any(passes.values()):
+            return Decision(None, [], pose=pose)
+        if not (decision.missing and passes.get(decision.missing)):
+            decision = on_pose.decide(again)
         return replace(decision, pose=pose)
 
     def false_return_budget(self, cand: Candidate) -> dict | None:
