@@ -109,3 +109,46 @@ def test_corrected_poses_apply_the_rate_within_the_cloud():
         rot = Rotation.from_rotvec(w[0] * tau)
         want = rot.apply(point - g[0]) + g[0] + tau * np.array([0.0, 0.002, 0.0])
         np.testing.assert_allclose(p, want, atol=1e-12)
+
+
+def test_keep_rate_applies_a_rate_its_test_does_not_report():
+    """``keep_rate``: the correction a sensor effect is weighed against includes the
+    within-cloud drift even when the rate's own test does not pass (here a bound no test
+    passes); the test, the gain and the report stay those without it."""
+    data, cloud, t = _drifting(20.0, 0.5)
+    blocks = np.arange(len(t)) // 30
+    plain = pose_error.fit_reference_pose(data, cloud, t, blocks, 1e9, 0.005, rate=True)
+    kept = pose_error.fit_reference_pose(data, cloud, t, blocks, 1e9, 0.005, rate=True,
+                                         keep_rate=True)
+    assert not plain.rate_supported and not kept.rate_supported
+    assert plain.rate_rotation_deg_s is None and not plain.rate_applied
+    assert kept.rate_applied
+    np.testing.assert_allclose(kept.rate_rotation_deg_s[:, 2], 20.0, rtol=0.15)
+    assert (kept.gain, kept.z) == (plain.gain, plain.z)
+    assert kept.as_dict()['rate'] == plain.as_dict()['rate'] and 'drifts' not in kept.words()
+    # The drift is in the correction: the residual left is the noise.
+    r = data.measured_range_m - data.baseline.hits.range_m
+    assert np.std(r - kept.correction_m) < 1.03 * SIGMA_M < np.std(r - plain.correction_m)
+    # And a re-cast correction composed from it carries the rate.
+    start = pose_error.PoseCorrection.identity(cloud, t)
+    assert start.compose(kept)[0].rate_m is not None
+    assert start.compose(plain)[0].rate_m is None
+
+
+def test_a_constant_pose_error_is_one_correction_for_all_clouds():
+    """``constant``: planes turned by the same 0.3 deg about z in every cloud (an
+    extrinsic error): one rigid correction, rotation about the centroid of all the
+    points, recovers it; the report says it is the same in every cloud."""
+    u, normal, centre, cloud, t, rng = _planes(12_000, 3)
+    rot = Rotation.from_rotvec([0.0, 0.0, np.radians(0.3)])
+    origin = np.tile(centre, (len(u), 1))
+    measured = _range(origin, rot.apply(normal), u) + SIGMA_M * rng.standard_normal(len(u))
+    data = _data(u, normal, measured, _range(origin, normal, u), t)
+    blocks = np.arange(len(t)) // 30
+    pe = pose_error.fit_reference_pose(data, cloud, t, blocks, 3.0, 0.005, rate=True,
+                                       constant=True)
+    assert pe.constant and pe.significant and len(pe.clouds) == 1 and not pe.rate_tested
+    np.testing.assert_allclose(pe.rotation_deg[0, 2], 0.3, rtol=0.1)
+    assert 'the same in every cloud' in pe.words() and pe.as_dict()['constant'] is True
+    per_cloud = pose_error.fit_reference_pose(data, cloud, t, blocks, 3.0, 0.005)
+    assert not per_cloud.constant and len(per_cloud.clouds) == 4
