@@ -433,3 +433,20 @@ def test_a_constant_pose_error_is_tested_when_the_per_cloud_one_fails():
     d = Hand().judge_pose(lambda on_top: per_cloud, [named], dg.Decision('laser_bias', []),
                           recast=recast)
     assert d.missing == 'laser_bias' and d.pose is None
+
+
+def test_pose_verdict_says_a_constant_correction_and_what_still_passes_on_it():
+    """The verdict of a pose alone: a constant correction is said as one for the whole
+    recording, and a candidate that still passes on the corrected pose but was not the
+    one weighed against it is said with its figures, not claimed absent."""
+    pose = SimpleNamespace(constant=True, gain=0.0232, z=8.1,
+                           words=lambda: 'the reference pose is off by about 0.6 cm')
+    inc = cand('incidence_angle', 0.01, -2.03, seed=13)
+    inc.against_pose = {'passes_on_pose': True, 'score_on_pose': 0.0072, 'z_on_pose': 4.6}
+    text = vd.pose_words(pose, [inc])
+    assert 'One rigid correction of the target pose for the whole recording' in text
+    assert 'no catalogue effect passes' not in text
+    assert 'incidence_angle still gains 0.0072' in text and 'z = 4.6' in text
+    plain = vd.pose_words(SimpleNamespace(constant=False, gain=0.02, z=6.0,
+                                          words=lambda: 'the reference pose is off'), [])
+    assert 'per cloud' in plain and 'no catalogue effect passes the rule' in plain
