@@ -111,30 +111,6 @@ def test_corrected_poses_apply_the_rate_within_the_cloud():
         np.testing.assert_allclose(p, want, atol=1e-12)
 
 
-def test_keep_rate_applies_a_rate_its_test_does_not_report():
-    """``keep_rate``: the correction a sensor effect is weighed against includes the
-    within-cloud drift even when the rate's own test does not pass (here a bound no test
-    passes); the test, the gain and the report stay those without it."""
-    data, cloud, t = _drifting(20.0, 0.5)
-    blocks = np.arange(len(t)) // 30
-    plain = pose_error.fit_reference_pose(data, cloud, t, blocks, 1e9, 0.005, rate=True)
-    kept = pose_error.fit_reference_pose(data, cloud, t, blocks, 1e9, 0.005, rate=True,
-                                         keep_rate=True)
-    assert not plain.rate_supported and not kept.rate_supported
-    assert plain.rate_rotation_deg_s is None and not plain.rate_applied
-    assert kept.rate_applied
-    np.testing.assert_allclose(kept.rate_rotation_deg_s[:, 2], 20.0, rtol=0.15)
-    assert (kept.gain, kept.z) == (plain.gain, plain.z)
-    assert kept.as_dict()['rate'] == plain.as_dict()['rate'] and 'drifts' not in kept.words()
-    # The drift is in the correction: the residual left is the noise.
-    r = data.measured_range_m - data.baseline.hits.range_m
-    assert np.std(r - kept.correction_m) < 1.03 * SIGMA_M < np.std(r - plain.correction_m)
-    # And a re-cast correction composed from it carries the rate.
-    start = pose_error.PoseCorrection.identity(cloud, t)
-    assert start.compose(kept)[0].rate_m is not None
-    assert start.compose(plain)[0].rate_m is None
-
-
 def test_a_constant_pose_error_is_one_correction_for_all_clouds():
     """``constant``: planes turned by the same 0.3 deg about z in every cloud (an
     extrinsic error): one rigid correction, rotation about the centroid of all the

@@ -713,25 +713,20 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision, weighed = diag.weigh_rivals(decision, cands, rivals, ana.attribution)
     cands = diagnosis.rank(cands + weighed)
 
-    def pose_test(on_top: list[Effect], constant: bool = False,
-                  keep_rate: bool = False) -> pose_error.PoseError:
+    def pose_test(on_top: list[Effect], constant: bool = False) -> pose_error.PoseError:
         return pose_error.fit_reference_pose(
             diag.full, meas.cloud[sample.matched], meas.t_s[sample.matched],
             sample.blocks[sample.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
-            on_top, rate=has_point_times(meas), constant=constant, keep_rate=keep_rate)
+            on_top, rate=has_point_times(meas), constant=constant)
     recast_cache: dict = {}
 
     def recast(pose: pose_error.PoseError):
-        """The diagnosis on the pose-corrected model, the correction a sensor effect is
-        weighed against: rigid and, where the points carry their own times, its drift
-        within each cloud (``keep_rate``: as the full pose explanation, whether or not
-        its rate is reported). One re-cast per kind of correction and run: the pose test
-        without effects on top is the same fit wherever it is asked."""
+        """The diagnosis on the pose-corrected model (one re-cast per kind of correction,
+        per cloud or constant, and run: the pose test without effects on top is the same
+        fit wherever it is asked)."""
         if pose.constant not in recast_cache:
-            first = pose_test([], constant=pose.constant, keep_rate=True)
-            recast_cache[pose.constant] = recast_diagnosis(model, effects, sample, meas, first,
-                                                           len(classes), seed, pose.constant,
-                                                           keep_rate=True)
+            recast_cache[pose.constant] = recast_diagnosis(model, effects, sample, meas, pose,
+                                                           len(classes), seed, pose.constant)
         return recast_cache[pose.constant]
     decision = diag.judge_pose(pose_test, cands, decision, recast,
                                lambda on_top: pose_test(on_top, constant=True))
@@ -758,14 +753,13 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
 
 def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RaySet,
                      meas: Measurements, pose: pose_error.PoseError, n_candidates: int,
-                     seed: int, constant: bool = False, keep_rate: bool = False
+                     seed: int, constant: bool = False
                      ) -> tuple[diagnosis.Diagnosis, pose_error.PoseError]:
     """The diagnosis on the model with the reference pose corrected by ``pose`` (a fit on
     ``sample``'s matched points), raycast again (``pose_error.iterate``: refit on the
     re-matched sample and compose): the sample's points matched anew (a ray may now
     meet the target or miss it), the silhouette distances of its points. Returns it and
-    the correction. ``constant``: one correction for all the clouds; ``keep_rate``: the
-    correction includes its drift within each cloud (``pose_error.fit_reference_pose``)."""
+    the correction. ``constant``: one correction for all the clouds."""
     sim = geometry(model, effects)
     picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
     isolated = np.zeros(len(meas), bool)
@@ -797,7 +791,7 @@ def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RayS
                                              diag.rays.blocks[idx], diag.z_crit,
                                              diagnosis.MIN_PRACTICAL_GAIN, seed,
                                              applied=applied, rate=has_point_times(meas),
-                                             constant=constant, keep_rate=keep_rate)
+                                             constant=constant)
 
     # ``constant``: one correction for the whole recording (one group of all the clouds).
     start = pose_error.PoseCorrection.identity(

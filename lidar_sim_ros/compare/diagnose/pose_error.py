@@ -82,9 +82,6 @@ class PoseError:
     # One rigid correction for all the clouds (``fit_reference_pose(constant=True)``):
     # an extrinsic calibration or tracking-frame error, the same in every cloud.
     constant: bool = False
-    # The correction includes the rate even where its test did not support it
-    # (``fit_reference_pose(keep_rate=True)``: the pose as a candidate is weighed against).
-    rate_applied: bool = False
 
     @property
     def size_cm(self) -> float:
@@ -279,7 +276,7 @@ class PoseCorrection:
                       translation_m=rw.apply(self.translation_m) + move, centroid_m=g)
         size = (float(np.max(np.linalg.norm(step.translation_m, axis=1), initial=0.0)),
                 float(np.max(np.linalg.norm(step.rotation_deg, axis=1), initial=0.0)))
-        if (step.rate_supported or step.rate_applied) and step.rate_translation_mps is not None:
+        if step.rate_supported and step.rate_translation_mps is not None:
             out = out._with_rate(step, pos, ok, g)
         return out, size
 
@@ -421,8 +418,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                        blocks: np.ndarray, z_crit: float, min_gain: float, seed: int = 0,
                        effects: list | None = None,
                        applied: 'PoseCorrection | None' = None,
-                       rate: bool = False, constant: bool = False,
-                       keep_rate: bool = False) -> PoseError:
+                       rate: bool = False, constant: bool = False) -> PoseError:
     """Fit and judge per-cloud rigid pose corrections on ``data``'s matched points
     (``cloud``, ``t_s``, ``blocks``: per matched point) under the model with
     ``effects`` on top of its own (module doc). ``rate``: the points carry their own
@@ -430,10 +426,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     correction) and kept if it passes the rule. ``constant``: one rigid correction for
     all the clouds (six parameters, rotation about the centroid of all the points; no
     rate): an extrinsic error of the reference pose, the same in every cloud, which six
-    parameters per cloud test with far less power. ``keep_rate``: the correction returned
-    includes the rate (where the points carry times) even when its test does not support
-    it, as the full pose explanation a sensor effect is weighed against; the test, the
-    gain and what is reported are unchanged."""
+    parameters per cloud test with far less power."""
     if constant:
         cloud = np.zeros(len(np.asarray(cloud)), dtype=np.asarray(cloud).dtype)
         rate = False
@@ -490,9 +483,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     if supported:
         # The drifting correction against none: the test of what is reported.
         per_point, z = judged(gain12)
-    applied_rate = bool(supported or (keep_rate and rate))
-    cols = a12 if applied_rate else a
-    x = fit_clouds(cols, r, s, cloud, use, clouds, prior12 if applied_rate else prior)
+    cols = a12 if supported else a
+    x = fit_clouds(cols, r, s, cloud, use, clouds, prior12 if supported else prior)
     correction = np.einsum('ij,ij->i', cols, x[row])
     t_mean = np.array([float(np.mean(t_s[cloud == c])) for c in clouds])
     p = ctx.direction * np.where(ok, model.expected_range_m, 0.0)[:, None]
@@ -504,10 +496,9 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      bool(z >= z_crit and per_point >= min_gain), correction, centroid,
                      rate_tested=rate, rate_supported=supported, rate_gain=rate_gain,
                      rate_z=rate_z,
-                     rate_translation_mps=x[:, 6:9] * per_s if applied_rate else None,
-                     rate_rotation_deg_s=np.degrees(x[:, 9:12]) * per_s if applied_rate else None,
-                     t_centre_s=t_c, half_span_s=h_c, constant=constant,
-                     rate_applied=applied_rate)
+                     rate_translation_mps=x[:, 6:9] * per_s if supported else None,
+                     rate_rotation_deg_s=np.degrees(x[:, 9:12]) * per_s if supported else None,
+                     t_centre_s=t_c, half_span_s=h_c, constant=constant)
 
 
 def corrected(data: lk.FitData, correction_m: np.ndarray) -> lk.FitData:
