@@ -415,7 +415,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     if classes:
         with stage('candidates', ', '.join(c.name for c in classes)):
             diag = diagnose(cal.model, effects, ana, classes, inp.meas, inp.scenario,
-                            sunlight, opts.seed)
+                            sunlight, opts.seed, cal.rays)
     else:
         diag = Diagnosed([], diagnosis.Decision(None, []), None, None, cal.calibrated)
     plan = None
@@ -697,7 +697,7 @@ def candidate_classes(opts: CompareOptions, effects: list[Effect]) -> list[type[
 
 def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[type[Effect]],
              meas: Measurements, scenario: Scenario, sunlight: dict | None,
-             seed: int) -> Diagnosed:
+             seed: int, rays: diagnosis.RaySet | None = None) -> Diagnosed:
     """Score every candidate, decide (``diagnosis``), test the reference pose and the
     stamp's place, fit the best few on all the sampled points."""
     sample = ana.sample
@@ -723,11 +723,25 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     def recast(pose: pose_error.PoseError):
         """The diagnosis on the pose-corrected model (one re-cast per kind of correction,
         per cloud or constant, and run: the pose test without effects on top is the same
-        fit wherever it is asked)."""
+        fit wherever it is asked). The correction a candidate is weighed against is fitted
+        on every matched point (``rays``), as --effect pose_error --fit fits it: six (or,
+        with a rate, twelve) parameters per cloud held out on the diagnosis sample's few
+        hundred points a cloud lose to their own noise what a drift within the cloud
+        gains. Whether the pose is off stays the sample's test (``pose``)."""
         if pose.constant not in recast_cache:
-            recast_cache[pose.constant] = recast_diagnosis(model, effects, sample, meas, pose,
-                                                           len(classes), seed, pose.constant)
+            first = pose if rays is None else all_points_pose(pose.constant)
+            diag_p, report = recast_diagnosis(model, effects, sample, meas, first,
+                                              len(classes), seed, pose.constant)
+            recast_cache[pose.constant] = (diag_p, replace(
+                report, gain=pose.gain, z=pose.z, significant=pose.significant))
         return recast_cache[pose.constant]
+
+    def all_points_pose(constant: bool) -> pose_error.PoseError:
+        idx = rays.matched
+        return pose_error.fit_reference_pose(
+            diagnosis.make_fit_data(model, effects, rays), meas.cloud[idx], meas.t_s[idx],
+            sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
+            rate=has_point_times(meas), constant=constant)
     decision = diag.judge_pose(pose_test, cands, decision, recast,
                                lambda on_top: pose_test(on_top, constant=True))
     constant = decision.pose is not None and decision.pose.constant
