@@ -821,7 +821,8 @@ class Diagnosis:
             # model raycast again (rays at silhouettes and depth steps meet the surfaces
             # the corrected pose puts there, which a range offset does not move).
             fitted = float(corrected.before_nll - r.nll_after)
-            r.against_pose = {'pose_gain_on_top': _num(pose_on_top.gain),
+            r.against_pose = {'pose_constant': bool(getattr(decision.pose, 'constant', False)),
+                              'pose_gain_on_top': _num(pose_on_top.gain),
                               'pose_z_on_top': _num(pose_on_top.z),
                               'pose_significant_on_top': bool(pose_on_top.significant),
                               'score_on_pose': _num(again.score), 'z_on_pose': _num(again.z),

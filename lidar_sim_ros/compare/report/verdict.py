@@ -208,12 +208,13 @@ def _against_pose_words(c) -> str:
     """Why a range error of the sensor was named rather than the reference pose
     (``Diagnosis.weigh_pose_rivals``: ``c.against_pose``)."""
     ap = c.against_pose
+    how = 'for the whole recording' if ap.get('pose_constant') else 'per cloud'
     if ap.get('passes_on_pose'):
         return (f'A reference pose off along the line of sight moves clouds too, but with '
-                f'the pose corrected per cloud {c.name} still gains {ap["score_on_pose"]:.4f} '
+                f'the pose corrected {how} {c.name} still gains {ap["score_on_pose"]:.4f} '
                 f'nats/point held out (z = {ap["z_on_pose"]:.1f}): it is the sensor.')
     return (f'A reference pose off along the line of sight moves clouds too, and on held-out '
-            f'points the two leave each other nothing; but with the pose corrected per cloud '
+            f'points the two leave each other nothing; but with the pose corrected {how} '
             f'and the model raycast again (rays at silhouettes and depth steps then meet the '
             f'surfaces the moved target puts there) the fit is {ap.get("fitted_margin") or 0:.4f} '
             f'nats/point worse than with {c.name}, as --fit leaves them: the rays at the edges '
