@@ -705,7 +705,8 @@ class Diagnosis:
         again = [on_pose.score(type(c.effect)) for c in contenders]
         passes = {a.name: on_pose.nameable(a) for a in again}
         for c, a in zip(contenders, again):
-            c.against_pose = {**(c.against_pose or {}), 'pose_constant': bool(getattr(pose, 'constant', False)),
+            c.against_pose = {**(c.against_pose or {}),
+                              'pose_constant': bool(getattr(pose, 'constant', False)),
                               'score_on_pose': _num(a.score), 'z_on_pose': _num(a.z),
                               'passes_on_pose': bool(passes[a.name]),
                               'pose_corrected_nll': _num(on_pose.before_nll)}
