@@ -680,9 +680,13 @@ class Diagnosis:
         - It does not, and the pose passes on top of it: the pose explains the
           residual; no sensor effect is named (unless another candidate passes on the
           corrected pose: decided among those as before).
-        - Neither adds to the other: as --fit leaves them (the candidate's fitted NLL
-          against the pose-corrected model's), MIN_PRACTICAL_GAIN apart the better one
-          stands; closer, a tie (``confounded_with``: pose_error and the candidate)."""
+        - Neither adds to the other: held out (the candidate's gain against the pose's)
+          and, where those are closer than MIN_PRACTICAL_GAIN, as --fit leaves them (the
+          candidate's fitted NLL against the pose-corrected model's, the footing
+          ``weigh_pose_rivals`` uses), MIN_PRACTICAL_GAIN apart the better one stands;
+          closer, a tie (``confounded_with``: pose_error and the candidate). The held-out
+          footing comes first: in-sample, six parameters per cloud always fit better
+          than one of a clock offset."""
         tests = [pose_test] + ([constant_test] if constant_test is not None else [])
         for test in tests:
             pose = test([])
@@ -713,15 +717,22 @@ class Diagnosis:
         if explain:
             if any(passes.get(c.name) for c in explain):
                 return decision            # it explains what the pose cannot: it stands
-            # Neither adds to the other: as --fit leaves them.
-            fitted = {c.name: float(on_pose.before_nll - c.nll_after) for c in explain
-                      if self.nameable(c)}
+            # Neither adds to the other: held out (the candidate's gain against the
+            # pose's), then as --fit leaves them (its fitted NLL against the
+            # pose-corrected model's); MIN_PRACTICAL_GAIN apart the better one stands.
+            better = {}
             for c in explain:
-                if c.name in fitted:
-                    c.against_pose['fitted_margin'] = _num(fitted[c.name])
-            if any(f >= MIN_PRACTICAL_GAIN for f in fitted.values()):
-                return decision            # the candidate fits better than the pose
-            tied = [n for n, f in fitted.items() if f > -MIN_PRACTICAL_GAIN]
+                if not self.nameable(c):
+                    continue
+                held = float(c.score - pose.gain)
+                fitted = float(on_pose.before_nll - c.nll_after)
+                c.against_pose.update(heldout_margin=_num(held), fitted_margin=_num(fitted))
+                margin = held if abs(held) >= MIN_PRACTICAL_GAIN else fitted
+                better[c.name] = (0 if abs(margin) < MIN_PRACTICAL_GAIN
+                                  else 1 if margin > 0 else -1)
+            if any(b > 0 for b in better.values()):
+                return decision            # the candidate explains more than the pose
+            tied = [n for n, b in better.items() if b == 0]
             if tied:
                 return Decision(None, [POSE_ERROR, *tied], pose=pose,
                                 withheld=dict(decision.withheld))
