@@ -417,7 +417,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     if classes:
         with stage('candidates', ', '.join(c.name for c in classes)):
             diag = diagnose(cal.model, effects, ana, classes, inp.meas, inp.scenario,
-                            sunlight, opts.seed)
+                            sunlight, opts.seed, cal.rays)
     else:
         diag = Diagnosed([], diagnosis.Decision(None, []), None, None, cal.calibrated)
     plan = None
@@ -699,7 +699,7 @@ def candidate_classes(opts: CompareOptions, effects: list[Effect]) -> list[type[
 
 def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[type[Effect]],
              meas: Measurements, scenario: Scenario, sunlight: dict | None,
-             seed: int) -> Diagnosed:
+             seed: int, rays: diagnosis.RaySet | None = None) -> Diagnosed:
     """Score every candidate, decide (``diagnosis``), test the reference pose and the
     stamp's place, fit the best few on all the sampled points."""
     sample = ana.sample
@@ -715,24 +715,41 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision, weighed = diag.weigh_rivals(decision, cands, rivals, ana.attribution)
     cands = diagnosis.rank(cands + weighed)
 
-    def pose_test(on_top: list[Effect]) -> pose_error.PoseError:
+    def pose_test(on_top: list[Effect], constant: bool = False) -> pose_error.PoseError:
         return pose_error.fit_reference_pose(
             diag.full, meas.cloud[sample.matched], meas.t_s[sample.matched],
             sample.blocks[sample.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
-            on_top, rate=has_point_times(meas))
+            on_top, rate=has_point_times(meas), constant=constant)
     recast_cache: dict = {}
 
     def recast(pose: pose_error.PoseError):
-        """The diagnosis on the pose-corrected model (one re-cast per run: the pose test
-        without effects on top is the same fit wherever it is asked)."""
-        if 'r' not in recast_cache:
-            recast_cache['r'] = recast_diagnosis(model, effects, sample, meas, pose,
-                                                 len(classes), seed)
-        return recast_cache['r']
-    decision = diag.judge_pose(pose_test, cands, decision, recast)
-    decision, scored = diag.weigh_pose_rivals(decision, rivals, pose_test,
-                                              lambda: recast(pose_test([]))[0],
-                                              {c.name: c for c in weighed})
+        """The diagnosis on the pose-corrected model (one re-cast per kind of correction,
+        per cloud or constant, and run: the pose test without effects on top is the same
+        fit wherever it is asked). The correction a candidate is weighed against is fitted
+        on every matched point (``rays``), as --effect pose_error --fit fits it: six (or,
+        with a rate, twelve) parameters per cloud held out on the diagnosis sample's few
+        hundred points a cloud lose to their own noise what a drift within the cloud
+        gains. Whether the pose is off stays the sample's test (``pose``)."""
+        if pose.constant not in recast_cache:
+            first = pose if rays is None else all_points_pose(pose.constant)
+            diag_p, report = recast_diagnosis(model, effects, sample, meas, first,
+                                              len(classes), seed, pose.constant)
+            recast_cache[pose.constant] = (diag_p, replace(
+                report, gain=pose.gain, z=pose.z, significant=pose.significant))
+        return recast_cache[pose.constant]
+
+    def all_points_pose(constant: bool) -> pose_error.PoseError:
+        idx = rays.matched
+        return pose_error.fit_reference_pose(
+            diagnosis.make_fit_data(model, effects, rays), meas.cloud[idx], meas.t_s[idx],
+            sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
+            rate=has_point_times(meas), constant=constant)
+    decision = diag.judge_pose(pose_test, cands, decision, recast,
+                               lambda on_top: pose_test(on_top, constant=True))
+    constant = decision.pose is not None and decision.pose.constant
+    decision, scored = diag.weigh_pose_rivals(
+        decision, rivals, lambda on_top: pose_test(on_top, constant=constant),
+        lambda: recast(pose_test([], constant=constant))[0], {c.name: c for c in weighed})
     cands = diagnosis.rank(cands + [c for c in scored if all(c is not w for w in weighed)])
     named = [c.effect for c in cands if c.name == decision.missing]
     pose = decision.pose if decision.pose is not None else pose_test(named)
@@ -752,12 +769,13 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
 
 def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RaySet,
                      meas: Measurements, pose: pose_error.PoseError, n_candidates: int,
-                     seed: int) -> tuple[diagnosis.Diagnosis, pose_error.PoseError]:
+                     seed: int, constant: bool = False
+                     ) -> tuple[diagnosis.Diagnosis, pose_error.PoseError]:
     """The diagnosis on the model with the reference pose corrected by ``pose`` (a fit on
     ``sample``'s matched points), raycast again (``pose_error.iterate``: refit on the
     re-matched sample and compose): the sample's points matched anew (a ray may now
     meet the target or miss it), the silhouette distances of its points. Returns it and
-    the correction."""
+    the correction. ``constant``: one correction for all the clouds."""
     sim = geometry(model, effects)
     picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
     isolated = np.zeros(len(meas), bool)
@@ -788,9 +806,12 @@ def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RayS
         return pose_error.fit_reference_pose(diag.full, moved.cloud[idx], moved.t_s[idx],
                                              diag.rays.blocks[idx], diag.z_crit,
                                              diagnosis.MIN_PRACTICAL_GAIN, seed,
-                                             applied=applied, rate=has_point_times(meas))
+                                             applied=applied, rate=has_point_times(meas),
+                                             constant=constant)
 
-    start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
+    # ``constant``: one correction for the whole recording (one group of all the clouds).
+    start = pose_error.PoseCorrection.identity(
+        np.zeros_like(meas.cloud) if constant else meas.cloud, meas.t_s)
     (diag, _), _, report = pose_error.iterate(pose, start, rematch, refit)
     return diag, report
 

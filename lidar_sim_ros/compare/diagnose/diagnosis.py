@@ -663,37 +663,84 @@ class Diagnosis:
         return out
 
     def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision,
-                   recast=None) -> Decision:
-        """Whether the reference pose is off (``pose_test(effects)``: the per-cloud rigid
-        correction's test, ``pose_error.fit_reference_pose``, on the model with
-        ``effects``). A named (or confounded) candidate that itself explains the pose's
-        gain leaves no pose error to report: one parameter of a time offset moves the
-        target rigidly as well as six per cloud. Otherwise each admissible candidate is
-        scored again on the model with the pose corrected: ``recast(pose)`` gives this
-        diagnosis on the model raycast again with the corrected pose and the correction
-        (``run.recast_diagnosis``; without it, the linear range correction,
+                   recast=None, constant_test=None) -> Decision:
+        """Whether the reference pose is off, and what it leaves the candidates.
+        ``pose_test(effects)``: the per-cloud rigid correction's test
+        (``pose_error.fit_reference_pose``) on the model with ``effects``;
+        ``constant_test(effects)``: one rigid correction for all the clouds (an extrinsic
+        error: six parameters, asked when the per-cloud test fails). Each named (or
+        confounded) candidate is weighed against the pose both ways on the same held-out
+        footing, as ``weigh_pose_rivals`` weighs the range terms: the pose's test on top
+        of it, and the candidate scored again on the model with the pose corrected
+        (``recast(pose)``: this diagnosis raycast again with the corrected pose,
+        ``run.recast_diagnosis``; without it, the linear range correction,
         ``pose_corrected``, which leaves the residuals at silhouettes and depth steps).
-        Those that still pass the rule are decided among as before, and if none does,
-        the pose explains the residual and no sensor effect is named."""
-        pose = pose_test([])
-        if not pose.significant:
+        - The candidate passes the rule on the corrected pose: it explains what the pose
+          cannot; it is named (the pose reported beside it if its test passes on top).
+        - It does not, and the pose passes on top of it: the pose explains the
+          residual; no sensor effect is named (unless another candidate passes on the
+          corrected pose: decided among those as before).
+        - Neither adds to the other: held out (the candidate's gain against the pose's)
+          and, where those are closer than MIN_PRACTICAL_GAIN, as --fit leaves them (the
+          candidate's fitted NLL against the pose-corrected model's, the footing
+          ``weigh_pose_rivals`` uses), MIN_PRACTICAL_GAIN apart the better one stands;
+          closer, a tie (``confounded_with``: pose_error and the candidate). The held-out
+          footing comes first: in-sample, six parameters per cloud always fit better
+          than one of a clock offset."""
+        tests = [pose_test] + ([constant_test] if constant_test is not None else [])
+        for test in tests:
+            pose = test([])
+            if pose.significant:
+                break
+        else:
             return decision
         by_name = {c.name: c for c in cands}
-        for name in [decision.missing, *decision.confounded_with]:
-            if name in by_name and not pose_test([by_name[name].effect]).significant:
-                return decision
+        named = [by_name[n] for n in [decision.missing, *decision.confounded_with]
+                 if n in by_name and by_name[n].effect is not None]
+        # Named candidates that leave the pose nothing (its test fails on top of them).
+        explain = [c for c in named if not test([c.effect]).significant]
         contenders = [c for c in cands if c.admissible and c.effect is not None]
-        if contenders:
-            if recast is not None:
-                on_pose, pose = recast(pose)
-            else:
-                on_pose = self.pose_corrected(pose.correction_m)
-            again = [on_pose.score(type(c.effect)) for c in contenders]
-            if not any(on_pose.nameable(c) for c in again):
-                return Decision(None, [], pose=pose)
-            if not (decision.missing and any(c.name == decision.missing and on_pose.nameable(c)
-                                             for c in again)):
-                decision = on_pose.decide(again)
+        if not contenders:
+            return replace(decision, pose=pose)
+        if recast is not None:
+            on_pose, pose = recast(pose)
+        else:
+            on_pose = self.pose_corrected(pose.correction_m)
+        again = [on_pose.score(type(c.effect)) for c in contenders]
+        passes = {a.name: on_pose.nameable(a) for a in again}
+        for c, a in zip(contenders, again):
+            c.against_pose = {**(c.against_pose or {}),
+                              'pose_constant': bool(getattr(pose, 'constant', False)),
+                              'score_on_pose': _num(a.score), 'z_on_pose': _num(a.z),
+                              'passes_on_pose': bool(passes[a.name]),
+                              'pose_corrected_nll': _num(on_pose.before_nll)}
+        if explain:
+            if any(passes.get(c.name) for c in explain):
+                return decision            # it explains what the pose cannot: it stands
+            # Neither adds to the other: held out (the candidate's gain against the
+            # pose's), then as --fit leaves them (its fitted NLL against the
+            # pose-corrected model's); MIN_PRACTICAL_GAIN apart the better one stands.
+            better = {}
+            for c in explain:
+                if not self.nameable(c):
+                    continue
+                held = float(c.score - pose.gain)
+                fitted = float(on_pose.before_nll - c.nll_after)
+                c.against_pose.update(heldout_margin=_num(held), fitted_margin=_num(fitted))
+                margin = held if abs(held) >= MIN_PRACTICAL_GAIN else fitted
+                better[c.name] = (0 if abs(margin) < MIN_PRACTICAL_GAIN
+                                  else 1 if margin > 0 else -1)
+            if any(b > 0 for b in better.values()):
+                return decision            # the candidate explains more than the pose
+            tied = [n for n, b in better.items() if b == 0]
+            if tied:
+                return Decision(None, [POSE_ERROR, *tied], pose=pose,
+                                withheld=dict(decision.withheld))
+            return Decision(None, [], pose=pose, withheld=dict(decision.withheld))
+        if not any(passes.values()):
+            return Decision(None, [], pose=pose)
+        if not (decision.missing and passes.get(decision.missing)):
+            decision = on_pose.decide(again)
         return replace(decision, pose=pose)
 
     def false_return_budget(self, cand: Candidate) -> dict | None:
@@ -786,7 +833,8 @@ class Diagnosis:
             # model raycast again (rays at silhouettes and depth steps meet the surfaces
             # the corrected pose puts there, which a range offset does not move).
             fitted = float(corrected.before_nll - r.nll_after)
-            r.against_pose = {'pose_gain_on_top': _num(pose_on_top.gain),
+            r.against_pose = {'pose_constant': bool(getattr(decision.pose, 'constant', False)),
+                              'pose_gain_on_top': _num(pose_on_top.gain),
                               'pose_z_on_top': _num(pose_on_top.z),
                               'pose_significant_on_top': bool(pose_on_top.significant),
                               'score_on_pose': _num(again.score), 'z_on_pose': _num(again.z),

@@ -79,6 +79,9 @@ class PoseError:
     rate_rotation_deg_s: np.ndarray | None = None    # (C, 3) deg/s, rotation vector rate
     t_centre_s: np.ndarray | None = None             # (C,) tau = 0 (s)
     half_span_s: np.ndarray | None = None            # (C,) tau = +-1 (s)
+    # One rigid correction for all the clouds (``fit_reference_pose(constant=True)``):
+    # an extrinsic calibration or tracking-frame error, the same in every cloud.
+    constant: bool = False
 
     @property
     def size_cm(self) -> float:
@@ -120,6 +123,7 @@ class PoseError:
                             'rotation_deg': [round(float(x), 5) for x in w]}
                            for c, t, d, w in zip(self.clouds, self.t_s, self.translation_m,
                                                  self.rotation_deg)],
+                'constant': self.constant,
                 'recast_passes': self.passes,
                 'last_step_m_deg': [round(float(x), 6) for x in self.last_step],
                 'rate': self.rate_dict()}
@@ -141,6 +145,10 @@ class PoseError:
         return out
 
     def words(self) -> str:
+        if self.constant:
+            return (f'the reference pose is off by about {self.size_cm:.1f} cm and '
+                    f'{self.size_deg:.2f} deg, the same in every cloud (one rigid correction '
+                    'for the whole recording: an extrinsic calibration or tracking-frame error)')
         text = (f'the reference pose is off by about {self.size_cm:.1f} cm and '
                 f'{self.size_deg:.2f} deg, varying over {self.span_s:.1f} s')
         if self.rate_supported:
@@ -410,12 +418,18 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                        blocks: np.ndarray, z_crit: float, min_gain: float, seed: int = 0,
                        effects: list | None = None,
                        applied: 'PoseCorrection | None' = None,
-                       rate: bool = False) -> PoseError:
+                       rate: bool = False, constant: bool = False) -> PoseError:
     """Fit and judge per-cloud rigid pose corrections on ``data``'s matched points
     (``cloud``, ``t_s``, ``blocks``: per matched point) under the model with
     ``effects`` on top of its own (module doc). ``rate``: the points carry their own
     times, so a drift within each cloud is tested too (nested, on top of the rigid
-    correction) and kept if it passes the rule."""
+    correction) and kept if it passes the rule. ``constant``: one rigid correction for
+    all the clouds (six parameters, rotation about the centroid of all the points; no
+    rate): an extrinsic error of the reference pose, the same in every cloud, which six
+    parameters per cloud test with far less power."""
+    if constant:
+        cloud = np.zeros(len(np.asarray(cloud)), dtype=np.asarray(cloud).dtype)
+        rate = False
     model = lk.model_on_rays(data, list(effects or []))
     ctx = model.ctx
     clouds = np.unique(cloud)
@@ -484,7 +498,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      rate_z=rate_z,
                      rate_translation_mps=x[:, 6:9] * per_s if supported else None,
                      rate_rotation_deg_s=np.degrees(x[:, 9:12]) * per_s if supported else None,
-                     t_centre_s=t_c, half_span_s=h_c)
+                     t_centre_s=t_c, half_span_s=h_c, constant=constant)
 
 
 def corrected(data: lk.FitData, correction_m: np.ndarray) -> lk.FitData:

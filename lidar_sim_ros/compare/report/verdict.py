@@ -120,14 +120,16 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'gains {scores} nats/point): they are confounded in this recording, so none is '
             f'named. {advice} If you know which it is, add it with --effect NAME --fit.')
     elif decision.pose is not None:
-        parts.append(pose_words(decision.pose))
+        parts.append(pose_words(decision.pose, cands))
     else:
         parts.append(_nothing_named(summary, attribution, cands))
     if decision.pose is not None and (missing or decision.confounded_with) and \
             diagnosis.POSE_ERROR not in decision.confounded_with:
-        parts.append(f'Besides, {decision.pose.words()} (held-out gain of a rigid correction '
-                     f'per cloud {decision.pose.gain:.4f} nats/point, z = {decision.pose.z:.1f}): '
-                     'check the tracking system or the extrinsic calibration.')
+        kind = _correction(decision.pose)
+        parts.append(f'Besides, {decision.pose.words()} (held-out gain of '
+                     f'{kind[0].lower()}{kind[1:]} {decision.pose.gain:.4f} nats/point, '
+                     f'z = {decision.pose.z:.1f}): check the tracking system or the extrinsic '
+                     'calibration.')
     vetoed = [c for c in cands if c.vetoed and c.significant and c.practical
               and c.name != missing and c.name not in decision.confounded_with]
     if vetoed and (missing or decision.confounded_with):
@@ -182,26 +184,44 @@ def scan_pattern_words(summary: dict) -> str:
             'below rests on the cloud stamps alone.')
 
 
-def pose_words(pose) -> str:
-    """The verdict when a reference-pose error explains the residual (``pose_error``)."""
+def pose_words(pose, cands: list = ()) -> str:
+    """The verdict when a reference-pose error explains the residual (``pose_error``).
+    ``cands``: candidates that still pass the rule on the corrected pose but were not
+    the effect weighed against it (``Diagnosis.judge_pose``) are said, not named."""
+    still = [c for c in cands if (c.against_pose or {}).get('passes_on_pose')]
+    tail = ('with it no catalogue effect passes the rule.' if not still else
+            'with it the effect the residual pointed to adds nothing held out; '
+            + ', '.join(f'{c.name} still gains {c.against_pose["score_on_pose"]:.4f} '
+                        f'nats/point on the corrected pose (z = {c.against_pose["z_on_pose"]:.1f})'
+                        for c in still)
+            + ', not named: it ranked below the effect the pose explains, and a pose error '
+            'left in part by the correction grows with the incidence angle as a sensor '
+            'effect can.')
     return (f'{pose.words()[0].upper()}{pose.words()[1:]}: not a sensor effect; check the '
-            'tracking system or the extrinsic calibration. A rigid correction of the target '
-            f'pose per cloud gains {pose.gain:.4f} nats/point held out (z = {pose.z:.1f}), and '
-            'with it no catalogue effect passes the rule.')
+            f'tracking system or the extrinsic calibration. {_correction(pose)} gains '
+            f'{pose.gain:.4f} nats/point held out (z = {pose.z:.1f}), and {tail}')
+
+
+def _correction(pose) -> str:
+    """The pose correction as tested: one for all the clouds, or one per cloud."""
+    return ('One rigid correction of the target pose for the whole recording'
+            if getattr(pose, 'constant', False) else
+            'A rigid correction of the target pose per cloud')
 
 
 def _against_pose_words(c) -> str:
     """Why a range error of the sensor was named rather than the reference pose
     (``Diagnosis.weigh_pose_rivals``: ``c.against_pose``)."""
     ap = c.against_pose
+    how = 'for the whole recording' if ap.get('pose_constant') else 'per cloud'
     if ap.get('passes_on_pose'):
         return (f'A reference pose off along the line of sight moves clouds too, but with '
-                f'the pose corrected per cloud {c.name} still gains {ap["score_on_pose"]:.4f} '
+                f'the pose corrected {how} {c.name} still gains {ap["score_on_pose"]:.4f} '
                 f'nats/point held out (z = {ap["z_on_pose"]:.1f}): it is the sensor.')
     return (f'A reference pose off along the line of sight moves clouds too, and on held-out '
-            f'points the two leave each other nothing; but with the pose corrected per cloud '
+            f'points the two leave each other nothing; but with the pose corrected {how} '
             f'and the model raycast again (rays at silhouettes and depth steps then meet the '
-            f'surfaces the moved target puts there) the fit is {ap["fitted_margin"]:.4f} '
+            f'surfaces the moved target puts there) the fit is {ap.get("fitted_margin") or 0:.4f} '
             f'nats/point worse than with {c.name}, as --fit leaves them: the rays at the edges '
             'did not move, the ranges did.')
 
@@ -214,7 +234,7 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
     c = next((c for c in cands if c.name in other), None)
     held = (f' ({c.name}: held-out gain {c.score:.4f} nats/point, z = {c.z:.1f}, before the '
             'pose correction)' if c is not None else '')
-    pose_part = (f'a rigid correction of the target pose per cloud gains {pose.gain:.4f} '
+    pose_part = (f'{_correction(pose)[0].lower()}{_correction(pose)[1:]} gains {pose.gain:.4f} '
                  f'nats/point held out (z = {pose.z:.1f}; {pose.words()})'
                  if pose is not None else 'a rigid correction of the target pose per cloud')
     if other == ['time_offset']:
