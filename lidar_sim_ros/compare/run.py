@@ -813,7 +813,8 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
     start = pose_error.PoseCorrection.identity(
         np.zeros_like(meas.cloud) if constant else meas.cloud, meas.t_s)
     (m, moved_rays, moved), _, report = pose_error.iterate(pose, start, rematch, refit)
-    fresh, picked, _ = diagnosis_sample(moved_rays, moved, seed)
+    fresh = recast_sample(moved_rays, moved, seed)
+    picked = np.sort(np.concatenate([fresh.matched, fresh.unmatched]))
     edge = np.full(len(moved), np.nan)
     edge[picked] = edge_distance_rad(sim.target, moved.subset(picked),
                                      diagnosis.take_prediction(m.pred, picked),
@@ -821,6 +822,15 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
     diag = diagnosis.Diagnosis(model, effects, replace(fresh, edge_rad=edge), seed)
     diag.set_family(n_candidates)
     return diag, report
+
+
+def recast_sample(rays: diagnosis.RaySet, meas: Measurements, seed: int) -> diagnosis.RaySet:
+    """The points the candidates are scored on against a corrected pose: a diagnosis
+    sample drawn anew from the re-cast matching ``rays`` (``diagnosis_sample``), as a
+    --fit run draws it; not the recorded pose's sample matched anew, whose unmatched
+    points (all of them kept) would join the matched ones far above their share
+    (``recast_all_points``)."""
+    return diagnosis_sample(rays, meas, seed)[0]
 
 
 def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RaySet,
