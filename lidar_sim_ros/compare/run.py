@@ -729,11 +729,17 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         on every matched point (``rays``), as --effect pose_error --fit fits it: six (or,
         with a rate, twelve) parameters per cloud held out on the diagnosis sample's few
         hundred points a cloud lose to their own noise what a drift within the cloud
-        gains. Whether the pose is off stays the sample's test (``pose``)."""
+        gains; and the candidates are scored on a sample drawn anew from the re-cast
+        matching (``recast_all_points``), as a --fit run draws it. Whether the pose is
+        off stays the sample's test (``pose``)."""
         if pose.constant not in recast_cache:
-            first = pose if rays is None else all_points_pose(pose.constant)
-            diag_p, report = recast_diagnosis(model, effects, sample, meas, first,
-                                              len(classes), seed, pose.constant)
+            if rays is None:
+                diag_p, report = recast_diagnosis(model, effects, sample, meas, pose,
+                                                  len(classes), seed, pose.constant)
+            else:
+                diag_p, report = recast_all_points(model, effects, rays, sample, meas,
+                                                   all_points_pose(pose.constant),
+                                                   len(classes), seed, pose.constant)
             recast_cache[pose.constant] = (diag_p, replace(
                 report, gain=pose.gain, z=pose.z, significant=pose.significant))
         return recast_cache[pose.constant]
@@ -765,6 +771,66 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = diagnosis.settle(decision, cands, diag.naming_fault)
     return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
                      diag.full, diag.z_crit)
+
+
+def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySet,
+                      sample: diagnosis.RaySet, meas: Measurements,
+                      pose: pose_error.PoseError, n_candidates: int, seed: int,
+                      constant: bool = False
+                      ) -> tuple[diagnosis.Diagnosis, pose_error.PoseError]:
+    """The diagnosis on the pose-corrected model as a ``--effect pose_error --fit`` run
+    builds it: ``pose`` (a fit on every matched point of ``rays``) applied and every
+    ray raycast again (``pose_error.iterate``, each step refit on every re-matched
+    point), then a diagnosis sample drawn anew from the re-cast matching
+    (``RaySet.sample``, the same seed). Not the old sample re-cast: it holds every
+    unmatched point of the recorded pose (the rays just beyond a silhouette), and those
+    the corrected pose puts on the target would enter its matched points at about ten
+    times their share of the recording (all of them against one matched point in
+    ``len(rays.matched) / DIAGNOSIS_MAX_MATCHED``): grazing rays at the silhouette, where
+    what is left of a pose error grows with the tangent of the incidence angle, weigh
+    in for an incidence-shaped residual a --fit run does not see (docs/compare.md, "A
+    sensor effect against the reference pose"). ``sample`` gives the neighbourhood
+    blocks. Returns the diagnosis and the correction (its test ``pose``'s)."""
+    sim = geometry(model, effects)
+
+    def rematch(corr: pose_error.PoseCorrection):
+        moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
+        m = match(sim, moved, model.divergence_rad, edges=False)
+        return m, replace(rays_of(m, rays.measured_power_w, model),
+                          extra_var_m2=rays.extra_var_m2), moved
+
+    def refit(state, applied: pose_error.PoseCorrection) -> pose_error.PoseError:
+        _, r, moved = state
+        idx = r.matched
+        return pose_error.fit_reference_pose(diagnosis.make_fit_data(model, effects, r),
+                                             moved.cloud[idx], moved.t_s[idx],
+                                             sample.blocks[idx], float(norm.isf(
+                                                 diagnosis.FAMILY_ALPHA)),
+                                             diagnosis.MIN_PRACTICAL_GAIN, seed,
+                                             applied=applied, rate=has_point_times(meas),
+                                             constant=constant)
+
+    start = pose_error.PoseCorrection.identity(
+        np.zeros_like(meas.cloud) if constant else meas.cloud, meas.t_s)
+    (m, moved_rays, moved), _, report = pose_error.iterate(pose, start, rematch, refit)
+    fresh = recast_sample(moved_rays, moved, seed)
+    picked = np.sort(np.concatenate([fresh.matched, fresh.unmatched]))
+    edge = np.full(len(moved), np.nan)
+    edge[picked] = edge_distance_rad(sim.target, moved.subset(picked),
+                                     diagnosis.take_prediction(m.pred, picked),
+                                     model.divergence_rad)
+    diag = diagnosis.Diagnosis(model, effects, replace(fresh, edge_rad=edge), seed)
+    diag.set_family(n_candidates)
+    return diag, report
+
+
+def recast_sample(rays: diagnosis.RaySet, meas: Measurements, seed: int) -> diagnosis.RaySet:
+    """The points the candidates are scored on against a corrected pose: a diagnosis
+    sample drawn anew from the re-cast matching ``rays`` (``diagnosis_sample``), as a
+    --fit run draws it; not the recorded pose's sample matched anew, whose unmatched
+    points (all of them kept) would join the matched ones far above their share
+    (``recast_all_points``)."""
+    return diagnosis_sample(rays, meas, seed)[0]
 
 
 def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RaySet,

@@ -672,8 +672,9 @@ class Diagnosis:
         confounded) candidate is weighed against the pose both ways on the same held-out
         footing, as ``weigh_pose_rivals`` weighs the range terms: the pose's test on top
         of it, and the candidate scored again on the model with the pose corrected
-        (``recast(pose)``: this diagnosis raycast again with the corrected pose,
-        ``run.recast_diagnosis``; without it, the linear range correction,
+        (``recast(pose)``: the diagnosis raycast again with the corrected pose, on a
+        sample drawn anew as a --fit run draws it, ``run.recast_all_points``; without
+        it, the linear range correction,
         ``pose_corrected``, which leaves the residuals at silhouettes and depth steps).
         - The candidate passes the rule on the corrected pose: it explains what the pose
           cannot; it is named (the pose reported beside it if its test passes on top).
