@@ -699,7 +699,7 @@ def candidate_classes(opts: CompareOptions, effects: list[Effect]) -> list[type[
 
 def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[type[Effect]],
              meas: Measurements, scenario: Scenario, sunlight: dict | None,
-             seed: int, rays: diagnosis.RaySet | None = None) -> Diagnosed:
+             seed: int, rays: diagnosis.RaySet) -> Diagnosed:
     """Score every candidate, decide (``diagnosis``), test the reference pose and the
     stamp's place, fit the best few on all the sampled points."""
     sample = ana.sample
@@ -733,13 +733,9 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         matching (``recast_all_points``), as a --fit run draws it. Whether the pose is
         off stays the sample's test (``pose``)."""
         if pose.constant not in recast_cache:
-            if rays is None:
-                diag_p, report = recast_diagnosis(model, effects, sample, meas, pose,
-                                                  len(classes), seed, pose.constant)
-            else:
-                diag_p, report = recast_all_points(model, effects, rays, sample, meas,
-                                                   all_points_pose(pose.constant),
-                                                   len(classes), seed, pose.constant)
+            diag_p, report = recast_all_points(model, effects, rays, sample, meas,
+                                               all_points_pose(pose.constant),
+                                               len(classes), seed, pose.constant)
             recast_cache[pose.constant] = (diag_p, replace(
                 report, gain=pose.gain, z=pose.z, significant=pose.significant))
         return recast_cache[pose.constant]
@@ -831,55 +827,6 @@ def recast_sample(rays: diagnosis.RaySet, meas: Measurements, seed: int) -> diag
     points (all of them kept) would join the matched ones far above their share
     (``recast_all_points``)."""
     return diagnosis_sample(rays, meas, seed)[0]
-
-
-def recast_diagnosis(model: Model, effects: list[Effect], sample: diagnosis.RaySet,
-                     meas: Measurements, pose: pose_error.PoseError, n_candidates: int,
-                     seed: int, constant: bool = False
-                     ) -> tuple[diagnosis.Diagnosis, pose_error.PoseError]:
-    """The diagnosis on the model with the reference pose corrected by ``pose`` (a fit on
-    ``sample``'s matched points), raycast again (``pose_error.iterate``: refit on the
-    re-matched sample and compose): the sample's points matched anew (a ray may now
-    meet the target or miss it), the silhouette distances of its points. Returns it and
-    the correction. ``constant``: one correction for all the clouds."""
-    sim = geometry(model, effects)
-    picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
-    isolated = np.zeros(len(meas), bool)
-    isolated[picked] = neighbours.isolated(meas.directions, meas.range_m, meas.cloud, picked)
-
-    def rematch(corr: pose_error.PoseCorrection):
-        moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
-        m = match(sim, moved, model.divergence_rad, edges=False)
-        rays = replace(rays_of(m, sample.measured_power_w, model),
-                       extra_var_m2=sample.extra_var_m2)
-        # The same points as the sample (their matched/unmatched status anew), so that
-        # every pass fits, and the candidates are scored on, the same noise.
-        hit = np.zeros(len(moved), bool)
-        hit[rays.matched] = True
-        again = replace(rays, matched=picked[hit[picked]], unmatched=picked[~hit[picked]],
-                        blocks=sample.blocks, isolated=isolated)
-        edge = np.full(len(moved), np.nan)
-        edge[picked] = edge_distance_rad(sim.target, moved.subset(picked),
-                                         diagnosis.take_prediction(m.pred, picked),
-                                         model.divergence_rad)
-        diag = diagnosis.Diagnosis(model, effects, replace(again, edge_rad=edge), seed)
-        diag.set_family(n_candidates)
-        return diag, moved
-
-    def refit(state, applied: pose_error.PoseCorrection) -> pose_error.PoseError:
-        diag, moved = state
-        idx = diag.rays.matched
-        return pose_error.fit_reference_pose(diag.full, moved.cloud[idx], moved.t_s[idx],
-                                             diag.rays.blocks[idx], diag.z_crit,
-                                             diagnosis.MIN_PRACTICAL_GAIN, seed,
-                                             applied=applied, rate=has_point_times(meas),
-                                             constant=constant)
-
-    # ``constant``: one correction for the whole recording (one group of all the clouds).
-    start = pose_error.PoseCorrection.identity(
-        np.zeros_like(meas.cloud) if constant else meas.cloud, meas.t_s)
-    (diag, _), _, report = pose_error.iterate(pose, start, rematch, refit)
-    return diag, report
 
 
 def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
