@@ -22,9 +22,11 @@ def rms_p95_deg(error_deg: np.ndarray) -> tuple[float, float]:
 
 
 class AngularErrorSummary:
-    """A scan fit's per-shot angular error (``error_deg``, deg) summed up: RMS and p95."""
+    """A scan fit's per-shot angular error (``error_deg``, deg) summed up: RMS and p95;
+    ``prior_error_deg`` (deg or None): the same with the input sensor config."""
 
     error_deg: np.ndarray
+    prior_error_deg: np.ndarray | None
 
     @property
     def rms_deg(self) -> float:
@@ -33,6 +35,17 @@ class AngularErrorSummary:
     @property
     def p95_deg(self) -> float:
         return rms_p95_deg(self.error_deg)[1]
+
+    def error_lines(self, per: str, fitted: str, prior: str) -> list[str]:
+        """The summary's lines on the error per ``per`` (shot, point): the fitted one
+        (``fitted`` in brackets) and, with a prior, the input config's (``prior`` after it)."""
+        lines = [f'angular error per {per} ({fitted}): RMS {self.rms_deg:.3g} deg, '
+                 f'p95 {self.p95_deg:.3g} deg, max {self.error_deg.max():.3g} deg']
+        if self.prior_error_deg is not None:
+            rms, p95 = rms_p95_deg(self.prior_error_deg)
+            lines.append(f'angular error per {per} with the input sensor config{prior}: RMS '
+                         f'{rms:.3g} deg, p95 {p95:.3g} deg')
+        return lines
 
 
 class _Flow(dict):

@@ -20,7 +20,7 @@ import numpy as np
 from scipy import optimize
 
 from lidar_sim_ros.calibrate.common import (AngularErrorSummary, CalibrationInputError,
-                                            format_table, new_figure, rms_p95_deg, save_figure,
+                                            format_table, new_figure, save_figure,
                                             sig, write_sensor)
 from lidar_sim_ros.calibrate.scan_samples import ScanSamples, read_scan_samples
 from lidar_sim_ros.core.config import LissajousArrayScan, RisleyScan, load_sensor, read_yaml
@@ -414,14 +414,8 @@ def format_report(cal: ScanCalibration) -> str:
              + ('from the ring field' if cal.samples.laser is not None else
                 'assigned by clustering (no ring field)'),
              format_table(['laser', 'points', 'c_az', 'c_el', 'A_az', 'A_el', 'f_az [Hz]',
-                           'f_el [Hz]', 'ph_az', 'ph_el', 'RMS [deg]'], rows),
-             f'angular error per shot (fitted pattern): RMS {cal.rms_deg:.3g} deg, '
-             f'p95 {cal.p95_deg:.3g} deg, max {cal.error_deg.max():.3g} deg']
-    if cal.prior_error_deg is not None:
-        rms, p95 = rms_p95_deg(cal.prior_error_deg)
-        lines.append(f'angular error per shot with the input sensor config: RMS '
-                     f'{rms:.3g} deg, p95 {p95:.3g} deg')
-    return '\n'.join(lines)
+                           'f_el [Hz]', 'ph_az', 'ph_el', 'RMS [deg]'], rows)]
+    return '\n'.join(lines + cal.error_lines('shot', 'fitted pattern', ''))
 
 
 def plot_scan(cal: ScanCalibration, sensor_out: Path, path: str | Path) -> Path:

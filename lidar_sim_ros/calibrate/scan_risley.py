@@ -22,7 +22,7 @@ import numpy as np
 from scipy import optimize
 
 from lidar_sim_ros.calibrate.common import (AngularErrorSummary, CalibrationInputError, new_figure,
-                                            rms_p95_deg, save_figure, sig, write_sensor)
+                                            save_figure, sig, write_sensor)
 from lidar_sim_ros.calibrate.scan_samples import ScanSamples, read_scan_samples
 from lidar_sim_ros.core.config import RisleyScan, load_sensor, read_yaml
 from lidar_sim_ros.core.scan import frame_shots
@@ -243,17 +243,14 @@ def format_report(cal: RisleyCalibration) -> str:
              f'phase {cal.phase_rad[0]:+.4f} rad',
              f'prism 2: {f2:+.6f} rev/s ({60 * f2:+.2f} rpm), deviation {cal.deviation_deg[1]:.4f} deg, '
              f'phase {cal.phase_rad[1]:+.4f} rad',
-             f'field half-angle {sum(cal.deviation_deg):.4f} deg; {abs(f1 - f2):.4f} petal tips a second',
-             f'angular error per point (fitted): RMS {cal.rms_deg:.3g} deg, p95 {cal.p95_deg:.3g} deg, '
-             f'max {cal.error_deg.max():.3g} deg']
+             f'field half-angle {sum(cal.deviation_deg):.4f} deg; {abs(f1 - f2):.4f} petal tips a second']
+    fitted, *prior = cal.error_lines('point', 'fitted',
+                                     ' (its phases taken at the first cloud)')
+    lines.append(fitted)
     period = rosette_period_s(cal.rates_hz)
     if period < 100.0:
         lines.append(f'the rosette closes after {period:.6g} s ({petals_per_period(cal.rates_hz)} petals)')
-    if cal.prior_error_deg is not None:
-        rms, p95 = rms_p95_deg(cal.prior_error_deg)
-        lines.append(f'angular error per point with the input sensor config (its phases taken at '
-                     f'the first cloud): RMS {rms:.3g} deg, p95 {p95:.3g} deg')
-    return '\n'.join(lines)
+    return '\n'.join(lines + prior)
 
 
 def plot_risley(cal: RisleyCalibration, sensor_out: Path, path: str | Path) -> Path:
