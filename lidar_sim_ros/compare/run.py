@@ -541,13 +541,13 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     applies it. A correction that is not significant is applied as the linear range
     change of the matched points (no re-cast: its effect is within the noise)."""
     extra_var = rays.extra_var_m2
+    blocks = neighbours.blocks(meas.directions, meas.cloud)   # the same for every re-cast
 
     def fit(r: diagnosis.RaySet, applied: pose_error.PoseCorrection | None = None
             ) -> pose_error.PoseError:
         data = diagnosis.make_fit_data(model, effects, r)
         idx = r.matched
-        blocks = neighbours.blocks(meas.directions, meas.cloud)[idx]
-        return pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks,
+        return pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks[idx],
                                              float(norm.isf(diagnosis.FAMILY_ALPHA)),
                                              diagnosis.MIN_PRACTICAL_GAIN, opts.seed,
                                              applied=applied, rate=has_point_times(meas))
