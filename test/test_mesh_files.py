@@ -171,3 +171,24 @@ def test_gltf_json_beyond_its_limit_is_refused_before_parsing(tmp_path, monkeypa
         load_target(path, NAMES, mesh_materials='MLI')
     # The shipped box-wing satellite's JSON is far below the real limit.
     assert mesh_files._gltf_json_bytes(MESH_DIR / 'box_wing_satellite.glb', 0) < 100_000
+
+
+def ply_with_face(path, face):
+    """An ASCII PLY of three vertices and one face ``face`` (vertex indices as written)."""
+    path.write_text('ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n'
+                    'property float z\nelement face 1\nproperty list uchar int vertex_indices\n'
+                    f'end_header\n0 0 0\n1 0 0\n0 1 0\n3 {" ".join(map(str, face))}\n')
+    return path
+
+
+@pytest.mark.parametrize('face, bad', [((0, 1, 9), 9), ((0, -1, -2), -1)])
+def test_faces_naming_vertices_the_file_lacks_are_refused(tmp_path, face, bad):
+    """A face index past the vertex list raised IndexError out of the loader (a traceback
+    from lidar-sim simulate); a negative one silently took a vertex from the end (Python
+    indexing): a triangle the file does not describe."""
+    path = ply_with_face(tmp_path / 'tri.ply', face)
+    with pytest.raises(MeshFileError, match=rf'tri.ply: .*vertex index {bad}, but only 3 vertices') as err:
+        load_target(path, NAMES, mesh_materials='MLI')
+    assert '\n' not in str(err.value)
+    assert load_target(ply_with_face(tmp_path / 'ok.ply', (0, 1, 2)), NAMES,
+                       mesh_materials='MLI').n_faces == 1

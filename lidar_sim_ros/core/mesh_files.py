@@ -118,8 +118,9 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
             unmapped.append(material or node)
             continue
         v = np.asarray(geom.vertices, dtype=float)
+        f = _checked_faces(np.asarray(geom.faces, dtype=np.int64), len(v), path, candidates[0])
         verts.append(v @ np.asarray(matrix)[:3, :3].T + np.asarray(matrix)[:3, 3])
-        faces.append(np.asarray(geom.faces, dtype=np.int64) + offset)
+        faces.append(f + offset)
         mats.append(np.full(len(geom.faces), material_names.index(chosen)))
         offset += len(v)
     if unmapped:
@@ -130,6 +131,17 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
     if not faces:
         raise MeshFileError(f'{path}: no triangles found')
     return np.vstack(verts), np.vstack(faces), np.concatenate(mats)
+
+
+def _checked_faces(faces: np.ndarray, n_vertices: int, path: Path, part: str) -> np.ndarray:
+    """``faces`` if every index names one of the part's ``n_vertices`` vertices: an index
+    past the end raised IndexError later, a negative one took a vertex from the end."""
+    bad = (faces < 0) | (faces >= n_vertices)
+    if bad.any():
+        raise MeshFileError(f'{path}: part {part!r} has a face with vertex index '
+                            f'{int(faces[bad][0])}, but only {n_vertices} vertices '
+                            f'(indices 0..{n_vertices - 1})')
+    return faces
 
 
 def _gltf_json_bytes(path: Path, size: int) -> int:
