@@ -1,5 +1,7 @@
 """Hostile meshes (issue 22, part 2): non-finite vertices and meshes without area are
 refused naming the file; zero-area faces (no ray can hit them) are removed."""
+import re
+
 import numpy as np
 import pytest
 
@@ -56,3 +58,18 @@ def test_an_obj_material_library_out_of_its_folder_is_not_read(tmp_path, mtllib)
                    'usemtl PIF\nf 1 2 3\n')
     with pytest.raises(MeshFileError, match='is not beside the mesh'):
         load_target(obj, ['PIF', 'MLI'])
+
+
+@pytest.mark.parametrize('x', ['1e300', '-2e5'])
+def test_vertex_beyond_the_size_limit_is_refused_naming_it(tmp_path, x):
+    """1e300 m is finite in float64 but overflowed the zero-area test (OverflowError, a
+    traceback from lidar-sim simulate) and is inf in Embree's float32; any vertex past
+    MAX_VERTEX_M (100 km, far beyond any target; a millimetre CAD export of a 10 m
+    satellite reaches 1e4) is refused naming it."""
+    import lidar_sim_ros.core.geometry as geometry
+    path = obj(tmp_path, f'v 0 0 0\nv {x} 0 0\nv 0 1 0\nf 1 2 3\n')
+    with pytest.raises(MeshFileError, match=rf'm.obj: vertex #1 .*{re.escape(repr(float(x)))}.* beyond the limit of '
+                                            rf'{geometry.MAX_VERTEX_M:g} m') as err:
+        load_target(path, ['PIF'])
+    assert '\n' not in str(err.value)
+    assert load_target(obj(tmp_path, 'v 0 0 0\nv 1e4 0 0\nv 0 1 0\nf 1 2 3\n'), ['PIF']).n_faces == 1

@@ -36,12 +36,17 @@ T = TypeVar('T')
 
 MAX_TRIANGLES = 10_000_000
 """Triangles in one target mesh (the rocket body has 48,844; Embree's BVH costs ~100 B each)."""
+MAX_VERTEX_M = 1.0e5
+"""Farthest vertex from the mesh origin (m, per axis): no target is 100 km across (a
+millimetre CAD export of a 10 m satellite reaches 1e4); 1e300 overflowed the zero-area
+test and is inf in Embree's float32."""
 
 
 def checked_mesh(vertices_m: np.ndarray, faces: np.ndarray, face_material: np.ndarray,
                  source: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The mesh with its zero-area faces removed (no ray can hit them), after refusing
-    non-finite vertices, more than MAX_TRIANGLES faces, and a mesh with no area at all
+    non-finite vertices, vertices beyond MAX_VERTEX_M, more than MAX_TRIANGLES faces, and a
+    mesh with no area at all
     (a NaN vertex moved the surface and compare blamed physics; an all-NaN or flat mesh
     gave 0 points and rc 0)."""
     if len(faces) > MAX_TRIANGLES:
@@ -51,6 +56,12 @@ def checked_mesh(vertices_m: np.ndarray, faces: np.ndarray, face_material: np.nd
         k = int(np.flatnonzero(bad)[0])
         raise MeshFileError(f'{source}: {int(bad.sum())} of {len(vertices_m)} vertices are not '
                             f'finite, first #{k}: {vertices_m[k].tolist()}')
+    far = np.abs(vertices_m).max(axis=1) > MAX_VERTEX_M if len(vertices_m) else np.zeros(0, bool)
+    if far.any():
+        k = int(np.flatnonzero(far)[0])
+        raise MeshFileError(f'{source}: vertex #{k} {vertices_m[k].tolist()} (m) is beyond the '
+                            f'limit of {MAX_VERTEX_M:g} m ({int(far.sum())} of {len(vertices_m)} '
+                            'vertices are; is the file in metres?)')
     tri = vertices_m[faces]
     area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     scale = float(np.ptp(vertices_m, axis=0).max()) if len(vertices_m) else 0.0
