@@ -124,7 +124,7 @@ def triangle_bytes(scale=1.0):
     return tri.tobytes() + np.array([0, 1, 2], np.uint16).tobytes() + b'\0\0'
 
 
-def gltf_document(data, vertex_count=3, index_count=3, nodes=None, primitive=None):
+def one_buffer_gltf(data, vertex_count=3, index_count=3, nodes=None, primitive=None):
     """A glTF 2.0 document over one buffer ``data``: POSITION (float VEC3, ``vertex_count``)
     at byte 0, uint16 indices (``index_count``) right after; material 'foil'."""
     return {'asset': {'version': '2.0'}, 'scene': 0,
@@ -233,7 +233,7 @@ def test_a_part_placed_many_times_brings_only_the_vertices_its_faces_use(tmp_pat
     verts = np.zeros((n, 3), np.float32)
     verts[[7, 500, n - 1]] = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
     data = verts.tobytes() + np.array([7, 500, n - 1], np.uint16).tobytes() + b'\0\0'
-    doc = gltf_document(data, vertex_count=n, nodes=[
+    doc = one_buffer_gltf(data, vertex_count=n, nodes=[
         {'mesh': 0, 'name': f'copy{i}', 'translation': [0, 0, 2.0 * i]} for i in range(3)])
     t = load_target(write_glb(tmp_path / 'many.glb', doc, data), NAMES, mesh_materials='MLI')
     assert t.n_faces == 3 and len(t.vertices_m) == 9

@@ -27,6 +27,8 @@ import numpy as np
 import trimesh
 import trimesh.resolvers
 
+from lidar_sim_ros.core.gltf_check import GltfError, check_gltf, gltf_document
+
 CAD_SUFFIXES = ('.gltf', '.glb', '.stl', '.ply')
 MAX_MESH_FILE_BYTES = 2_000_000_000
 """Largest CAD file read (a binary STL of MAX_TRIANGLES is 500 MB)."""
@@ -97,6 +99,7 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
     if json_bytes > MAX_GLTF_JSON_BYTES:
         raise MeshFileError(f'{path}: {json_bytes} bytes of glTF JSON exceed the limit of '
                             f'{MAX_GLTF_JSON_BYTES} (keep buffers in a .bin or a .glb)')
+    _check_gltf_document(path, json_bytes)
     scene = load_scene(path, path, f'a {path.suffix}')
     verts, faces, mats, unmapped = [], [], [], []
     offset = n_faces = 0
@@ -131,6 +134,17 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
     if not faces:
         raise MeshFileError(f'{path}: no triangles found')
     return np.vstack(verts), np.vstack(faces), np.concatenate(mats)
+
+
+def _check_gltf_document(path: Path, json_bytes: int) -> None:
+    """A glTF's document against the specification (``gltf_check``), before trimesh reads
+    what it understands of it; MeshFileError names the file and the JSON key."""
+    try:
+        doc = gltf_document(path, json_bytes)
+        if doc is not None:
+            check_gltf(doc)
+    except GltfError as exc:
+        raise MeshFileError(f'{path}: {exc}') from None
 
 
 def _checked_faces(faces: np.ndarray, n_vertices: int, path: Path, part: str) -> np.ndarray:

@@ -1,0 +1,101 @@
+"""A glTF 2.0 document checked against the specification before trimesh reads it.
+
+trimesh reads what it understands and passes over the rest: a node graph with a cycle
+stopped it with "Iteration limit exceeded!" (no file named). Each rule here comes from
+the glTF 2.0 specification (Khronos, sections cited) or from a bound on what the
+simulator may spend; a violation is a ``GltfError`` naming the JSON key and the value,
+which ``mesh_files.read_cad`` prefixes with the file.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+
+class GltfError(ValueError):
+    """A glTF document the simulator does not read: names the JSON key and the problem."""
+
+
+def gltf_document(path: Path, json_bytes: int) -> dict | None:
+    """The parsed JSON of a .gltf, or of a .glb's JSON chunk (``json_bytes`` long, after
+    the 20-byte header: glTF 2.0 section 4.4); None for other files and for what is not a
+    JSON object (trimesh then says what it cannot read)."""
+    suffix = path.suffix.lower()
+    if suffix not in ('.gltf', '.glb') or json_bytes == 0:
+        return None
+    with open(path, 'rb') as f:
+        if suffix == '.glb':
+            f.seek(20)
+        raw = f.read(json_bytes)
+    try:
+        doc = json.loads(raw)
+    except RecursionError:
+        raise GltfError('its JSON is nested too deeply to read') from None
+    except ValueError:
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+def check_gltf(doc: dict) -> None:
+    """Raise GltfError for the first rule ``doc`` breaks (module docstring)."""
+    check_node_trees(doc)
+
+
+def _list(doc: dict, key: str) -> list[dict]:
+    value = doc.get(key, [])
+    if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+        raise GltfError(f'"{key}" must be a list of objects')
+    return value
+
+
+def _index(value: Any, count: int, key: str, of: str) -> int:
+    """``value`` if it is an index into ``count`` items (``of``: what they are)."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < count:
+        raise GltfError(f'{key} = {str(value)[:40]} is not an index of the {count} {of}')
+    return value
+
+
+def check_node_trees(doc: dict) -> None:
+    """Nodes form disjoint strict trees (glTF 2.0 section 3.5.3: no node has two parents,
+    none is its own ancestor), the scene's roots are roots, and every index names an
+    existing node or mesh (a node naming a missing mesh was dropped without a word)."""
+    nodes, meshes, scenes = _list(doc, 'nodes'), _list(doc, 'meshes'), _list(doc, 'scenes')
+    parent = [-1] * len(nodes)
+    for i, node in enumerate(nodes):
+        if 'mesh' in node:
+            _index(node['mesh'], len(meshes), f'nodes[{i}].mesh', 'meshes')
+        children = node.get('children', [])
+        if not isinstance(children, list):
+            raise GltfError(f'nodes[{i}].children must be a list of node indices')
+        for child in children:
+            _index(child, len(nodes), f'nodes[{i}].children', 'nodes')
+            if child == i or parent[child] != -1:
+                raise GltfError(f'nodes[{i}].children: node {child} is already a child of node '
+                                f'{i if child == i else parent[child]} (glTF node trees are '
+                                'disjoint strict trees: one parent per node, no cycle)')
+            parent[child] = i
+    reached = _descendants([i for i, p in enumerate(parent) if p == -1], nodes)
+    if len(reached) < len(nodes):
+        first = min(set(range(len(nodes))) - reached)
+        raise GltfError(f'nodes[{first}] is its own ancestor (the node graph has a cycle)')
+    if scenes:
+        chosen = _index(doc.get('scene', 0), len(scenes), 'scene', 'scenes')
+        roots = scenes[chosen].get('nodes', [])
+        if not isinstance(roots, list):
+            raise GltfError(f'scenes[{chosen}].nodes must be a list of node indices')
+        for root in roots:
+            if parent[_index(root, len(nodes), f'scenes[{chosen}].nodes', 'nodes')] != -1:
+                raise GltfError(f'scenes[{chosen}].nodes: node {root} is a child of node '
+                                f'{parent[root]}, not a root (glTF 2.0 section 3.5.2)')
+
+
+def _descendants(roots: list[int], nodes: list[dict]) -> set[int]:
+    """Every node below ``roots`` and the roots themselves (iteratively: no recursion limit)."""
+    seen, stack = set(roots), list(roots)
+    while stack:
+        for child in nodes[stack.pop()].get('children', []):
+            if child not in seen:
+                seen.add(child)
+                stack.append(child)
+    return seen

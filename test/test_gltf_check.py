@@ -1,0 +1,64 @@
+"""A glTF document against the specification before trimesh reads it (core/gltf_check.py):
+each rule with a document that breaks it, the error naming the file, the key and the value."""
+import copy
+
+import numpy as np
+import pytest
+
+from lidar_sim_ros.core.geometry import MeshFileError, load_target
+from lidar_sim_ros.core.gltf_check import GltfError, check_gltf
+from test_mesh_files import NAMES, one_buffer_gltf, triangle_bytes, write_glb
+
+DATA = triangle_bytes()
+DOC = one_buffer_gltf(DATA)
+
+
+def changed(**nodes_and_scene):
+    doc = copy.deepcopy(DOC)
+    doc.update(nodes_and_scene)
+    return doc
+
+
+def test_the_reference_document_passes_and_loads(tmp_path):
+    check_gltf(DOC)
+    assert load_target(write_glb(tmp_path / 'ok.glb', DOC, DATA), NAMES, mesh_materials='MLI').n_faces == 1
+
+
+@pytest.mark.parametrize('nodes, words', [
+    ([{'mesh': 0, 'name': 'a', 'children': [1]}, {'name': 'b', 'children': [0]}],
+     'nodes\\[1\\].children: node 0 is already a child of node 0|is its own ancestor'),
+    ([{'mesh': 0, 'name': 'a', 'children': [0]}], 'node 0 is already a child of node 0'),
+    ([{'mesh': 0, 'name': 'a', 'children': [2]}, {'name': 'b', 'children': [2]}, {'mesh': 0}],
+     'nodes\\[1\\].children: node 2 is already a child of node 0'),
+    ([{'mesh': 0, 'name': 'a', 'children': [9]}], 'nodes\\[0\\].children = 9 is not an index of the 1 nodes'),
+    ([{'mesh': 5, 'name': 'a'}], 'nodes\\[0\\].mesh = 5 is not an index of the 1 meshes'),
+    ([{'mesh': 0, 'name': 'a', 'children': [True]}], 'children = True is not an index'),
+])
+def test_node_graphs_that_are_not_disjoint_trees_are_refused(tmp_path, nodes, words):
+    """A cycle stopped trimesh with "ValueError: Iteration limit exceeded!" (no file named)
+    or was read once round; a node with two parents, or naming a missing mesh, was read
+    as trimesh guessed (the part dropped without a word). glTF 2.0 section 3.5.3."""
+    doc = changed(nodes=nodes)
+    with pytest.raises(GltfError, match=words):
+        check_gltf(doc)
+    with pytest.raises(MeshFileError, match=r'graph.glb: nodes\[') as err:
+        load_target(write_glb(tmp_path / 'graph.glb', doc, DATA), NAMES, mesh_materials='MLI')
+    assert '\n' not in str(err.value)
+
+
+def test_a_two_node_cycle_below_a_root_is_found():
+    nodes = [{'mesh': 0, 'children': [1]}, {'children': [2]}, {'children': [1]}]
+    with pytest.raises(GltfError, match='node 1 is already a child of node 0'):
+        check_gltf(changed(nodes=nodes))
+    # Unreachable from any root: a cycle on its own.
+    nodes = [{'mesh': 0}, {'children': [2]}, {'children': [1]}]
+    with pytest.raises(GltfError, match=r'nodes\[1\] is its own ancestor'):
+        check_gltf(changed(nodes=nodes))
+
+
+def test_scene_roots_must_be_roots_and_exist():
+    nodes = [{'children': [1]}, {'mesh': 0}]
+    with pytest.raises(GltfError, match=r'scenes\[0\].nodes: node 1 is a child of node 0'):
+        check_gltf(changed(nodes=nodes, scenes=[{'nodes': [0, 1]}]))
+    with pytest.raises(GltfError, match='scene = 3 is not an index of the 1 scenes'):
+        check_gltf(changed(scene=3))
