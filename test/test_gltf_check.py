@@ -62,3 +62,33 @@ def test_scene_roots_must_be_roots_and_exist():
         check_gltf(changed(nodes=nodes, scenes=[{'nodes': [0, 1]}]))
     with pytest.raises(GltfError, match='scene = 3 is not an index of the 1 scenes'):
         check_gltf(changed(scene=3))
+
+
+def chain(n):
+    """n nodes, each the only child of the one before, a mesh on each."""
+    return [{'mesh': 0, 'name': f'n{i}', **({'children': [i + 1]} if i + 1 < n else {})}
+            for i in range(n)]
+
+
+def test_nesting_deeper_than_the_limit_is_refused(tmp_path):
+    """trimesh's cost grows as parts x depth: a chain of 10,000 nodes with a mesh on each
+    (a 1 MB file) ran more than 200 s; 10^6 nodes deep, days."""
+    from lidar_sim_ros.core.gltf_check import MAX_GLTF_DEPTH
+    doc = changed(nodes=chain(MAX_GLTF_DEPTH))
+    check_gltf(doc)
+    t = load_target(write_glb(tmp_path / 'deep.glb', doc, DATA), NAMES, mesh_materials='MLI')
+    assert t.n_faces == MAX_GLTF_DEPTH
+    with pytest.raises(GltfError, match=rf'nodes\[{MAX_GLTF_DEPTH}\] is nested {MAX_GLTF_DEPTH + 1} '
+                                        rf'deep, beyond the limit of {MAX_GLTF_DEPTH}'):
+        check_gltf(changed(nodes=chain(MAX_GLTF_DEPTH + 1)))
+    with pytest.raises(MeshFileError, match='deeper.glb: nodes.* deep'):
+        load_target(write_glb(tmp_path / 'deeper.glb', changed(nodes=chain(10_000)), DATA),
+                    NAMES, mesh_materials='MLI')
+
+
+def test_more_nodes_than_the_limit_are_refused(monkeypatch):
+    from lidar_sim_ros.core import gltf_check
+    monkeypatch.setattr(gltf_check, 'MAX_GLTF_NODES', 3)
+    check_gltf(changed(nodes=[{'mesh': 0}] * 3, scenes=[{'nodes': [0, 1, 2]}]))
+    with pytest.raises(GltfError, match='4 nodes exceed the limit of 3'):
+        check_gltf(changed(nodes=[{'mesh': 0}] * 4, scenes=[{'nodes': [0, 1, 2, 3]}]))

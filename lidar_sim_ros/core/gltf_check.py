@@ -13,6 +13,14 @@ from pathlib import Path
 from typing import Any
 
 
+MAX_GLTF_NODES = 100_000
+"""Most nodes in a glTF (a CAD assembly of 10,000 parts has ~10,000)."""
+MAX_GLTF_DEPTH = 32
+"""Deepest node, counting the root as 1 (CAD assemblies nest ~5-15 deep): trimesh's
+cost grows as parts x depth (a chain of 1,000 nodes with a mesh each took 2.7 s; of
+10,000, more than 200 s)."""
+
+
 class GltfError(ValueError):
     """A glTF document the simulator does not read: names the JSON key and the problem."""
 
@@ -61,6 +69,8 @@ def check_node_trees(doc: dict) -> None:
     none is its own ancestor), the scene's roots are roots, and every index names an
     existing node or mesh (a node naming a missing mesh was dropped without a word)."""
     nodes, meshes, scenes = _list(doc, 'nodes'), _list(doc, 'meshes'), _list(doc, 'scenes')
+    if len(nodes) > MAX_GLTF_NODES:
+        raise GltfError(f'{len(nodes)} nodes exceed the limit of {MAX_GLTF_NODES}')
     parent = [-1] * len(nodes)
     for i, node in enumerate(nodes):
         if 'mesh' in node:
@@ -75,10 +85,14 @@ def check_node_trees(doc: dict) -> None:
                                 f'{i if child == i else parent[child]} (glTF node trees are '
                                 'disjoint strict trees: one parent per node, no cycle)')
             parent[child] = i
-    reached = _descendants([i for i, p in enumerate(parent) if p == -1], nodes)
-    if len(reached) < len(nodes):
-        first = min(set(range(len(nodes))) - reached)
+    depth = _depths([i for i, p in enumerate(parent) if p == -1], nodes)
+    if len(depth) < len(nodes):
+        first = min(set(range(len(nodes))) - set(depth))
         raise GltfError(f'nodes[{first}] is its own ancestor (the node graph has a cycle)')
+    deepest = max(depth, key=depth.get, default=None)
+    if deepest is not None and depth[deepest] > MAX_GLTF_DEPTH:
+        raise GltfError(f'nodes[{deepest}] is nested {depth[deepest]} deep, beyond the limit of '
+                        f'{MAX_GLTF_DEPTH} (flatten the assembly)')
     if scenes:
         chosen = _index(doc.get('scene', 0), len(scenes), 'scene', 'scenes')
         roots = scenes[chosen].get('nodes', [])
@@ -90,12 +104,13 @@ def check_node_trees(doc: dict) -> None:
                                 f'{parent[root]}, not a root (glTF 2.0 section 3.5.2)')
 
 
-def _descendants(roots: list[int], nodes: list[dict]) -> set[int]:
-    """Every node below ``roots`` and the roots themselves (iteratively: no recursion limit)."""
-    seen, stack = set(roots), list(roots)
+def _depths(roots: list[int], nodes: list[dict]) -> dict[int, int]:
+    """Depth (root: 1) of every node below ``roots`` (iteratively: no recursion limit)."""
+    depth, stack = dict.fromkeys(roots, 1), list(roots)
     while stack:
-        for child in nodes[stack.pop()].get('children', []):
-            if child not in seen:
-                seen.add(child)
+        node = stack.pop()
+        for child in nodes[node].get('children', []):
+            if child not in depth:
+                depth[child] = depth[node] + 1
                 stack.append(child)
-    return seen
+    return depth
