@@ -92,3 +92,18 @@ def test_more_nodes_than_the_limit_are_refused(monkeypatch):
     check_gltf(changed(nodes=[{'mesh': 0}] * 3, scenes=[{'nodes': [0, 1, 2]}]))
     with pytest.raises(GltfError, match='4 nodes exceed the limit of 3'):
         check_gltf(changed(nodes=[{'mesh': 0}] * 4, scenes=[{'nodes': [0, 1, 2, 3]}]))
+
+
+def test_sparse_accessors_are_refused(tmp_path):
+    """A sparse accessor moving vertex 1 from (1, 0, 0) to (5, 0, 0) (glTF 2.0 section
+    3.6.2.3) loaded with the vertex at (1, 0, 0): trimesh reads the base values and drops
+    the substitutions, so the part had the wrong shape and rc 0."""
+    data = DATA + np.array([1], np.uint16).tobytes() + b'\0\0' + np.array([5, 0, 0], np.float32).tobytes()
+    doc = one_buffer_gltf(data)
+    doc['bufferViews'] += [{'buffer': 0, 'byteOffset': 44, 'byteLength': 2},
+                           {'buffer': 0, 'byteOffset': 48, 'byteLength': 12}]
+    doc['accessors'][0]['sparse'] = {'count': 1, 'indices': {'bufferView': 2, 'componentType': 5123},
+                                     'values': {'bufferView': 3}}
+    with pytest.raises(MeshFileError, match=r'sparse.glb: accessors\[0\].sparse: sparse accessors '
+                                            'are not read'):
+        load_target(write_glb(tmp_path / 'sparse.glb', doc, data), NAMES, mesh_materials='MLI')

@@ -48,6 +48,16 @@ def gltf_document(path: Path, json_bytes: int) -> dict | None:
 def check_gltf(doc: dict) -> None:
     """Raise GltfError for the first rule ``doc`` breaks (module docstring)."""
     check_node_trees(doc)
+    check_accessors(doc)
+
+
+def check_accessors(doc: dict) -> None:
+    """Accessors trimesh reads as written: none sparse (glTF 2.0 section 3.6.2.3; trimesh
+    reads the base values and drops the substitutions: the part in the wrong shape)."""
+    for i, accessor in enumerate(_list(doc, 'accessors')):
+        if 'sparse' in accessor:
+            raise GltfError(f'accessors[{i}].sparse: sparse accessors are not read (their '
+                            'substituted values would be lost); export without them')
 
 
 def _list(doc: dict, key: str) -> list[dict]:
