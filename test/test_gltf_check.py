@@ -107,3 +107,36 @@ def test_sparse_accessors_are_refused(tmp_path):
     with pytest.raises(MeshFileError, match=r'sparse.glb: accessors\[0\].sparse: sparse accessors '
                                             'are not read'):
         load_target(write_glb(tmp_path / 'sparse.glb', doc, data), NAMES, mesh_materials='MLI')
+
+
+def test_triangle_fans_and_unknown_modes_are_refused(tmp_path):
+    """Two parts, the second a TRIANGLE_FAN (mode 6, glTF 2.0 section 3.7.2.1): it loaded
+    as one triangle, the fan dropped without a word (rc 0, half the target missing)."""
+    doc = copy.deepcopy(DOC)
+    doc['meshes'].append({'primitives': [{'attributes': {'POSITION': 0}, 'indices': 1,
+                                          'material': 0, 'mode': 6}]})
+    doc['nodes'].append({'mesh': 1, 'name': 'fan', 'translation': [0, 0, 5]})
+    doc['scenes'][0]['nodes'].append(1)
+    with pytest.raises(MeshFileError, match=r'fan.glb: meshes\[1\].primitives\[0\].mode = 6 '
+                                            r'\(TRIANGLE_FAN\) is not read'):
+        load_target(write_glb(tmp_path / 'fan.glb', doc, DATA), NAMES, mesh_materials='MLI')
+    for mode, words in ((7, 'mode = 7 is not a glTF primitive mode'), ('4', "mode = 4 is not"),
+                        (True, 'mode = True is not')):
+        doc['meshes'][1]['primitives'][0]['mode'] = mode
+        with pytest.raises(GltfError, match=words):
+            check_gltf(doc)
+    doc['meshes'][1]['primitives'][0]['mode'] = 5      # a strip is read (trimesh: strip -> triangles)
+    check_gltf(doc)
+
+
+@pytest.mark.parametrize('primitive, words', [
+    ({'attributes': {}}, 'attributes has no POSITION'),
+    ({'attributes': {'POSITION': 7}}, r'attributes.POSITION = 7 is not an index of the 2 accessors'),
+    ({'attributes': {'POSITION': 0}, 'indices': -1}, r'indices = -1 is not an index'),
+    ({'attributes': {'POSITION': 0}, 'material': 3}, r'material = 3 is not an index of the 1 materials'),
+])
+def test_primitives_naming_missing_accessors_or_materials_are_refused(primitive, words):
+    doc = copy.deepcopy(DOC)
+    doc['meshes'][0]['primitives'] = [primitive]
+    with pytest.raises(GltfError, match=r'meshes\[0\].primitives\[0\].' + words):
+        check_gltf(doc)

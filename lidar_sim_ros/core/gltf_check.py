@@ -49,6 +49,7 @@ def check_gltf(doc: dict) -> None:
     """Raise GltfError for the first rule ``doc`` breaks (module docstring)."""
     check_node_trees(doc)
     check_accessors(doc)
+    check_primitives(doc)
 
 
 def check_accessors(doc: dict) -> None:
@@ -58,6 +59,39 @@ def check_accessors(doc: dict) -> None:
         if 'sparse' in accessor:
             raise GltfError(f'accessors[{i}].sparse: sparse accessors are not read (their '
                             'substituted values would be lost); export without them')
+
+
+TRIANGLE_MODES = {4: 'TRIANGLES', 5: 'TRIANGLE_STRIP'}
+"""Primitive modes read as surfaces (glTF 2.0 section 3.7.2.1); points and lines (0-3) have
+no area and are passed over; TRIANGLE_FAN (6) trimesh drops, so it is refused."""
+
+
+def check_primitives(doc: dict) -> None:
+    """Every primitive's mode is one of the spec's, and not a fan (trimesh dropped fans
+    without a word: a part missing from the target); its POSITION, indices and material
+    name existing accessors and materials."""
+    n_accessors, n_materials = len(_list(doc, 'accessors')), len(_list(doc, 'materials'))
+    for m, mesh in enumerate(_list(doc, 'meshes')):
+        primitives = mesh.get('primitives')
+        if not isinstance(primitives, list) or not primitives \
+                or not all(isinstance(p, dict) for p in primitives):
+            raise GltfError(f'meshes[{m}].primitives must be a non-empty list of objects')
+        for k, prim in enumerate(primitives):
+            key = f'meshes[{m}].primitives[{k}]'
+            mode = prim.get('mode', 4)
+            if isinstance(mode, bool) or mode not in range(7):
+                raise GltfError(f'{key}.mode = {str(mode)[:40]} is not a glTF primitive mode (0-6)')
+            if mode == 6:
+                raise GltfError(f'{key}.mode = 6 (TRIANGLE_FAN) is not read; export triangles '
+                                '(mode 4)')
+            attributes = prim.get('attributes')
+            if not isinstance(attributes, dict) or 'POSITION' not in attributes:
+                raise GltfError(f'{key}.attributes has no POSITION')
+            _index(attributes['POSITION'], n_accessors, f'{key}.attributes.POSITION', 'accessors')
+            if 'indices' in prim:
+                _index(prim['indices'], n_accessors, f'{key}.indices', 'accessors')
+            if 'material' in prim:
+                _index(prim['material'], n_materials, f'{key}.material', 'materials')
 
 
 def _list(doc: dict, key: str) -> list[dict]:
