@@ -140,3 +140,29 @@ def test_primitives_naming_missing_accessors_or_materials_are_refused(primitive,
     doc['meshes'][0]['primitives'] = [primitive]
     with pytest.raises(GltfError, match=r'meshes\[0\].primitives\[0\].' + words):
         check_gltf(doc)
+
+
+def test_accessors_without_a_buffer_view_are_refused(tmp_path):
+    """An accessor without a bufferView holds zeros (or a compression extension's values):
+    a second part so stored loaded as the first alone (its zero-area triangles dropped,
+    rc 0), and a 2^31 count in a 1 kB file made trimesh allocate 24 GiB of zeros."""
+    doc = copy.deepcopy(DOC)
+    doc['accessors'].append({'componentType': 5126, 'count': 3, 'type': 'VEC3'})
+    doc['meshes'].append({'primitives': [{'attributes': {'POSITION': 2}, 'material': 0}]})
+    doc['nodes'].append({'mesh': 1, 'name': 'packed'})
+    doc['scenes'][0]['nodes'].append(1)
+    with pytest.raises(MeshFileError, match=r'zeros.glb: accessors\[2\] has no bufferView'):
+        load_target(write_glb(tmp_path / 'zeros.glb', doc, DATA), NAMES, mesh_materials='MLI')
+    doc['accessors'][2]['count'] = 2 ** 31
+    with pytest.raises(GltfError, match=r'accessors\[2\] has no bufferView'):
+        check_gltf(doc)
+
+
+@pytest.mark.parametrize('name', ['KHR_draco_mesh_compression', 'EXT_meshopt_compression',
+                                  'KHR_mesh_quantization', 'EXT_mesh_gpu_instancing', 7])
+def test_required_extensions_that_change_the_geometry_are_refused(name):
+    """A loader must refuse a file requiring an extension it does not implement (glTF 2.0
+    section 3.12); materials and textures do not change the geometry."""
+    with pytest.raises(GltfError, match=f'extensionsRequired: {name} is not read'):
+        check_gltf(changed(extensionsRequired=[name]))
+    check_gltf(changed(extensionsRequired=['KHR_materials_emissive_strength', 'KHR_texture_transform']))

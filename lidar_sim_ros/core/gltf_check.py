@@ -47,18 +47,43 @@ def gltf_document(path: Path, json_bytes: int) -> dict | None:
 
 def check_gltf(doc: dict) -> None:
     """Raise GltfError for the first rule ``doc`` breaks (module docstring)."""
+    check_extensions(doc)
     check_node_trees(doc)
     check_accessors(doc)
     check_primitives(doc)
 
 
+READ_EXTENSIONS = ('KHR_materials_', 'KHR_texture_', 'EXT_texture_', 'KHR_lights_punctual')
+"""Required extensions (prefixes) that leave the geometry alone: a loader must refuse a
+file requiring any other it does not implement (glTF 2.0 section 3.12). Compression
+(KHR_draco_mesh_compression, EXT_meshopt_compression), quantization and GPU instancing
+change what the accessors and nodes mean."""
+
+
+def check_extensions(doc: dict) -> None:
+    """No required extension that changes the geometry (``READ_EXTENSIONS``)."""
+    required = doc.get('extensionsRequired', [])
+    if not isinstance(required, list):
+        raise GltfError('"extensionsRequired" must be a list of names')
+    for name in required:
+        if not isinstance(name, str) or not name.startswith(READ_EXTENSIONS):
+            raise GltfError(f'extensionsRequired: {str(name)[:60]} is not read (it changes the '
+                            'geometry: export without compression or instancing)')
+
+
 def check_accessors(doc: dict) -> None:
-    """Accessors trimesh reads as written: none sparse (glTF 2.0 section 3.6.2.3; trimesh
-    reads the base values and drops the substitutions: the part in the wrong shape)."""
+    """Accessors trimesh reads as written: each in a bufferView (without one its values
+    are zeros, or a compression extension's: trimesh allocated count x size bytes of
+    zeros, 24 GiB for a 2^31 count in a 1 kB file, and a compressed part became zeros
+    that the zero-area test then dropped without a word), none sparse (section
+    3.6.2.3; trimesh reads the base values and drops the substitutions)."""
     for i, accessor in enumerate(_list(doc, 'accessors')):
         if 'sparse' in accessor:
             raise GltfError(f'accessors[{i}].sparse: sparse accessors are not read (their '
                             'substituted values would be lost); export without them')
+        if 'bufferView' not in accessor:
+            raise GltfError(f'accessors[{i}] has no bufferView (its values would be zeros, or '
+                            'a compression extension\'s, which is not read)')
 
 
 TRIANGLE_MODES = {4: 'TRIANGLES', 5: 'TRIANGLE_STRIP'}
