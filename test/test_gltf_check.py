@@ -166,3 +166,59 @@ def test_required_extensions_that_change_the_geometry_are_refused(name):
     with pytest.raises(GltfError, match=f'extensionsRequired: {name} is not read'):
         check_gltf(changed(extensionsRequired=[name]))
     check_gltf(changed(extensionsRequired=['KHR_materials_emissive_strength', 'KHR_texture_transform']))
+
+
+def test_a_negative_buffer_view_offset_is_refused(tmp_path):
+    """byteOffset -44 of a 44-byte buffer: trimesh sliced from the buffer's end (Python
+    indexing) and loaded whatever lay there, rc 0."""
+    doc = copy.deepcopy(DOC)
+    doc['bufferViews'][0]['byteOffset'] = -44
+    with pytest.raises(MeshFileError, match=r'negative.glb: bufferViews\[0\].byteOffset = -44 is '
+                                            'not a whole number >= 0'):
+        load_target(write_glb(tmp_path / 'negative.glb', doc, DATA), NAMES, mesh_materials='MLI')
+
+
+def test_a_stride_shorter_than_a_vertex_is_refused(tmp_path):
+    """byteStride 4 over 12-byte vertices: trimesh read 7 overlapping 'vertices' out of 36
+    bytes, a triangle of garbage, rc 0 (glTF 2.0 section 3.6.2.4)."""
+    doc = copy.deepcopy(DOC)
+    doc['bufferViews'][0]['byteStride'] = 4
+    doc['accessors'][0]['count'] = 7
+    with pytest.raises(MeshFileError, match=r'stride.glb: bufferViews\[0\].byteStride = 4 is '
+                                            r'shorter than an element of accessors\[0\] \(12 bytes\)'):
+        load_target(write_glb(tmp_path / 'stride.glb', doc, DATA), NAMES, mesh_materials='MLI')
+
+
+def test_a_projective_node_matrix_is_refused(tmp_path):
+    """A matrix whose last row is not 0 0 0 1 loaded with that row dropped, rc 0."""
+    doc = changed(nodes=[{'mesh': 0, 'name': 'p',
+                          'matrix': [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0.5, 0, 0, 0, 1]}])
+    with pytest.raises(MeshFileError, match=r'proj.glb: nodes\[0\].matrix: its last row '
+                                            r'\[0, 0, 0.5, 1\] is not 0 0 0 1'):
+        load_target(write_glb(tmp_path / 'proj.glb', doc, DATA), NAMES, mesh_materials='MLI')
+
+
+@pytest.mark.parametrize('change, words', [
+    (lambda d: d['accessors'][0].update(count=2 ** 31), r'accessors\[0\]: 2147483648 elements of 12 '
+                                                          r'bytes .* past bufferView 0 \(36 bytes\)'),
+    (lambda d: d['accessors'][0].update(byteOffset=4), r'accessors\[0\]: 3 elements .* end at 40, past'),
+    (lambda d: d['bufferViews'][1].update(byteLength=100), r'bufferViews\[1\]: bytes 36..136 lie '
+                                                             r'outside buffer 0 \(44 bytes\)'),
+    (lambda d: d['bufferViews'][0].update(byteStride=14), r'byteStride = 14 is not a multiple of 4'),
+    (lambda d: d['bufferViews'][0].update(byteStride=256), r'byteStride = 256 is not a multiple of 4'),
+    (lambda d: d['accessors'][0].update(componentType=5122), r'POSITION: accessor 0 is VEC3 of '
+                                                               r'componentType 5122, not float VEC3'),
+    (lambda d: d['accessors'][1].update(componentType=5126, count=1), r'indices: accessor 1 is SCALAR of '
+                                                               r'componentType 5126, not unsigned'),
+    (lambda d: d['accessors'][0].update(componentType=9999), r'componentType 9999 / type VEC3 is not'),
+    (lambda d: d['accessors'][0].update(count=0), r'accessors\[0\].count = 0 is not a whole number >= 1'),
+    (lambda d: d['accessors'][0].update(count=3.0), r'accessors\[0\].count = 3.0 is not a whole number'),
+    (lambda d: d['buffers'][0].update(byteLength='44'), r'buffers\[0\].byteLength = 44 is not'),
+    (lambda d: d['nodes'][0].update(scale=[1, 1]), r'nodes\[0\].scale must be a list of 3 numbers'),
+    (lambda d: d['nodes'][0].update(rotation=[0, 0, 0, None]), r'rotation must be a list of 4 numbers'),
+])
+def test_layouts_outside_the_specification_are_refused(change, words):
+    doc = copy.deepcopy(DOC)
+    change(doc)
+    with pytest.raises(GltfError, match=words):
+        check_gltf(doc)

@@ -51,6 +51,7 @@ def check_gltf(doc: dict) -> None:
     check_node_trees(doc)
     check_accessors(doc)
     check_primitives(doc)
+    check_layout(doc)
 
 
 READ_EXTENSIONS = ('KHR_materials_', 'KHR_texture_', 'EXT_texture_', 'KHR_lights_punctual')
@@ -117,6 +118,94 @@ def check_primitives(doc: dict) -> None:
                 _index(prim['indices'], n_accessors, f'{key}.indices', 'accessors')
             if 'material' in prim:
                 _index(prim['material'], n_materials, f'{key}.material', 'materials')
+
+
+COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+"""Bytes of each accessor componentType (glTF 2.0 section 3.6.2.2)."""
+TYPE_COMPONENTS = {'SCALAR': 1, 'VEC2': 2, 'VEC3': 3, 'VEC4': 4, 'MAT2': 4, 'MAT3': 9, 'MAT4': 16}
+
+
+def check_layout(doc: dict) -> None:
+    """Where the bytes are (glTF 2.0 sections 3.6.2.4 and 3.6.1): every bufferView inside
+    its buffer, every accessor inside its bufferView, strides of 4-252 bytes (a multiple
+    of 4) no shorter than an element, offsets and lengths whole non-negative numbers (a
+    negative byteOffset made trimesh read from the buffer's end; a 4-byte stride over
+    12-byte vertices read overlapping garbage: both rc 0); POSITION float VEC3 and
+    indices unsigned SCALAR (section 3.7.2.1: an int16 POSITION was read unscaled); node
+    matrices affine (section 3.5.3: a projective last row was dropped)."""
+    buffers, views = _list(doc, 'buffers'), _list(doc, 'bufferViews')
+    accessors = _list(doc, 'accessors')
+    for i, buffer in enumerate(buffers):
+        _count(buffer.get('byteLength'), f'buffers[{i}].byteLength', 1)
+    for i, view in enumerate(views):
+        key = f'bufferViews[{i}]'
+        b = _index(view.get('buffer'), len(buffers), f'{key}.buffer', 'buffers')
+        start = _count(view.get('byteOffset', 0), f'{key}.byteOffset', 0)
+        length = _count(view.get('byteLength'), f'{key}.byteLength', 1)
+        if start + length > buffers[b]['byteLength']:
+            raise GltfError(f'{key}: bytes {start}..{start + length} lie outside buffer {b} '
+                            f'({buffers[b]["byteLength"]} bytes)')
+        if 'byteStride' in view:
+            stride = _count(view['byteStride'], f'{key}.byteStride', 4)
+            if stride > 252 or stride % 4:
+                raise GltfError(f'{key}.byteStride = {stride} is not a multiple of 4 in 4..252')
+    for i, accessor in enumerate(accessors):
+        key = f'accessors[{i}]'
+        size = COMPONENT_BYTES.get(accessor.get('componentType'))
+        parts = TYPE_COMPONENTS.get(accessor.get('type'))
+        if size is None or parts is None:
+            raise GltfError(f'{key}: componentType {str(accessor.get("componentType"))[:20]} / '
+                            f'type {str(accessor.get("type"))[:20]} is not a glTF 2.0 accessor layout')
+        count = _count(accessor.get('count'), f'{key}.count', 1)
+        v = _index(accessor['bufferView'], len(views), f'{key}.bufferView', 'bufferViews')
+        offset = _count(accessor.get('byteOffset', 0), f'{key}.byteOffset', 0)
+        element = size * parts
+        stride = views[v].get('byteStride', element)
+        if stride < element:
+            raise GltfError(f'bufferViews[{v}].byteStride = {stride} is shorter than an element '
+                            f'of {key} ({element} bytes)')
+        end = offset + stride * (count - 1) + element
+        if end > views[v]['byteLength']:
+            raise GltfError(f'{key}: {count} elements of {element} bytes (stride {stride}) from '
+                            f'byte {offset} end at {end}, past bufferView {v} '
+                            f'({views[v]["byteLength"]} bytes)')
+    for m, mesh in enumerate(_list(doc, 'meshes')):
+        for k, prim in enumerate(mesh['primitives']):
+            a = accessors[prim['attributes']['POSITION']]
+            if (a['componentType'], a['type']) != (5126, 'VEC3'):
+                raise GltfError(f'meshes[{m}].primitives[{k}].attributes.POSITION: accessor '
+                                f'{prim["attributes"]["POSITION"]} is {a["type"]} of componentType '
+                                f'{a["componentType"]}, not float VEC3 (5126)')
+            if 'indices' in prim:
+                a = accessors[prim['indices']]
+                if a['type'] != 'SCALAR' or a['componentType'] not in (5121, 5123, 5125):
+                    raise GltfError(f'meshes[{m}].primitives[{k}].indices: accessor '
+                                    f'{prim["indices"]} is {a["type"]} of componentType '
+                                    f'{a["componentType"]}, not unsigned SCALAR')
+    for i, node in enumerate(_list(doc, 'nodes')):
+        _check_transform(node, f'nodes[{i}]')
+
+
+def _count(value: Any, key: str, least: int) -> int:
+    """``value`` if it is a whole number of at least ``least``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < least:
+        raise GltfError(f'{key} = {str(value)[:40]} is not a whole number >= {least}')
+    return value
+
+
+def _check_transform(node: dict, key: str) -> None:
+    """A node's matrix (16 numbers, column-major, last row 0 0 0 1) or TRS (3, 4, 3 numbers)."""
+    for name, length in (('matrix', 16), ('translation', 3), ('rotation', 4), ('scale', 3)):
+        if name not in node:
+            continue
+        value = node[name]
+        if not isinstance(value, list) or len(value) != length or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
+            raise GltfError(f'{key}.{name} must be a list of {length} numbers, not {str(value)[:60]}')
+    matrix = node.get('matrix')
+    if matrix is not None and [matrix[3], matrix[7], matrix[11], matrix[15]] != [0, 0, 0, 1]:
+        raise GltfError(f'{key}.matrix: its last row {[matrix[3], matrix[7], matrix[11], matrix[15]]} '
+                        'is not 0 0 0 1 (a glTF node matrix is affine: translation, rotation, scale)')
 
 
 def _list(doc: dict, key: str) -> list[dict]:
