@@ -240,3 +240,23 @@ def test_a_part_placed_many_times_brings_only_the_vertices_its_faces_use(tmp_pat
     tri = t.vertices_m[t.faces]
     np.testing.assert_allclose(np.sort(tri[:, :, 2].mean(axis=1)), [0.0, 2.0, 4.0])
     np.testing.assert_allclose(tri[:, :, :2], [[[0, 0], [1, 0], [0, 1]]] * 3)
+
+
+def test_external_files_are_read_once_and_bounded_together(tmp_path, monkeypatch):
+    """60 buffers naming the same 20 MB .bin took 1.3 GB (each read again; one 2 GB file
+    named 100 times, 200 GB). Each file is now read once, and all of them together stay
+    within MAX_EXTERNAL_BYTES."""
+    import json
+    from lidar_sim_ros.core import mesh_files
+    monkeypatch.setattr(mesh_files, 'MAX_EXTERNAL_BYTES', 100)
+    for name in ('a.bin', 'b.bin', 'c.bin'):
+        (tmp_path / name).write_bytes(triangle_bytes())            # 44 bytes each
+    doc = json.loads(gltf_with_buffer(tmp_path / 'same.gltf', 'a.bin').read_text())
+    doc['buffers'] = [{'uri': 'a.bin', 'byteLength': 44}] * 50
+    (tmp_path / 'same.gltf').write_text(json.dumps(doc))
+    assert load_target(tmp_path / 'same.gltf', NAMES, mesh_materials='MLI').n_faces == 1
+    doc['buffers'] = [{'uri': name, 'byteLength': 44} for name in ('a.bin', 'b.bin', 'c.bin')]
+    (tmp_path / 'three.gltf').write_text(json.dumps(doc))
+    with pytest.raises(MeshFileError, match=r"three.gltf: external file 'c.bin': the external "
+                                            r'files come to 132 bytes, beyond the limit of 100'):
+        load_target(tmp_path / 'three.gltf', NAMES, mesh_materials='MLI')

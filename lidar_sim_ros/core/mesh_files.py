@@ -32,6 +32,8 @@ from lidar_sim_ros.core.gltf_check import GltfError, check_gltf, gltf_document
 CAD_SUFFIXES = ('.gltf', '.glb', '.stl', '.ply')
 MAX_MESH_FILE_BYTES = 2_000_000_000
 """Largest CAD file read (a binary STL of MAX_TRIANGLES is 500 MB)."""
+MAX_EXTERNAL_BYTES = MAX_MESH_FILE_BYTES
+"""Largest sum of a glTF's external files (its .bin buffers and images), each read once."""
 MAX_GLTF_JSON_BYTES = 256_000_000
 """Largest glTF JSON read (a .gltf, or a .glb's JSON chunk): parsed JSON takes up to ~6x its
 size (100 MB of small numbers peaked at 574 MB: a 2 GB one ~11 GB); a .gltf embedding
@@ -57,6 +59,7 @@ class DirectoryResolver(trimesh.resolvers.FilePathResolver):
         super().__init__(str(cad_path))
         self.cad_path = Path(cad_path)
         self.root = self.cad_path.resolve().parent
+        self._read: dict[Path, bytes] = {}
 
     def get(self, name) -> bytes:
         uri = str(name)
@@ -69,10 +72,15 @@ class DirectoryResolver(trimesh.resolvers.FilePathResolver):
             raise MeshFileError(f'{where} leads out of {self.root}: not read')
         if not path.is_file():
             raise MeshFileError(f'{where} is not a regular file in {self.root}')
-        size = path.stat().st_size
-        if size > MAX_MESH_FILE_BYTES:
-            raise MeshFileError(f'{where}: {size} bytes exceed the limit of {MAX_MESH_FILE_BYTES}')
-        return path.read_bytes()
+        if path not in self._read:
+            # Each file once, and all of them together within the limit: 60 buffers naming
+            # the same 20 MB file took 1.3 GB (a 2 GB file named 100 times, 200 GB).
+            total = path.stat().st_size + sum(map(len, self._read.values()))
+            if total > MAX_EXTERNAL_BYTES:
+                raise MeshFileError(f'{where}: the external files come to {total} bytes, beyond '
+                                    f'the limit of {MAX_EXTERNAL_BYTES}')
+            self._read[path] = path.read_bytes()
+        return self._read[path]
 
 
 def load_scene(path: Path, loadable: Path, kind: str) -> trimesh.Scene:
