@@ -1,5 +1,6 @@
-"""lidar_sim_node's effect plugins, in process: a scenario's plugin loads from beside the
-scenario only, and once running no parameter value outside the allow-list loads anything."""
+"""lidar_sim_node in process: its effect plugins (a scenario's plugin loads from beside the
+scenario only, and once running no parameter value outside the allow-list loads anything)
+and its file parameters."""
 from __future__ import annotations
 
 import os
@@ -68,5 +69,19 @@ def test_scenario_plugin_beside_the_scenario_and_an_allow_list_at_run_time(tmp_p
             assert result.successful, (value, result.reason)
         assert [type(e).__name__ for e in node.sim.effects] == ['Mine', 'RangeWalk']
         assert type(node.sim.effects[0]).where == 'beside'
+    finally:
+        node.destroy_node()
+
+
+def test_a_sensor_file_parameter_brings_the_sensors_own_range_error(context):
+    """sensor_file swapped the sensor after the scenario was loaded: the P-60 scenario with
+    the Mid-40's sensor file published Mid-40 clouds with the P-60's Table 2 range errors."""
+    node = LidarSimNode(context=context, parameter_overrides=[
+        Parameter('sensor_file', Parameter.Type.STRING, str(config_path('livox_mid40.yaml')))])
+    try:
+        node.setup()
+        assert node.scenario.sensor.scan.type == 'risley'
+        assert set(node.sim.materials.column('sigma_m')) == {0.02}
+        assert set(node.sim.materials.column('bias_m')) == {0.0}
     finally:
         node.destroy_node()

@@ -34,18 +34,29 @@ class Scenario:
         return self.config.mesh_materials
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Load scenario YAML and the sensor/materials/mesh files it references."""
+def load_scenario(path: str | Path, sensor_file: str | Path | None = None,
+                  materials_file: str | Path | None = None,
+                  mesh_file: str | Path | None = None) -> Scenario:
+    """Load scenario YAML and the sensor/materials/mesh files it references, or the files
+    given instead (the node's sensor_file, materials_file and mesh_file parameters, a
+    missing one named as key '<parameters>' mesh_file). The materials get the sensor's own
+    range error once both are known: swapping the sensor after the load (as the node did)
+    simulated a Mid-40 with the P-60's Table 2 errors, or the P-60 with the Mid-40's."""
     path = Path(path)
     data = read_yaml(path, mapping=True)
     check_file_kind(data, 'scenario', path)
     cfg = parse(ScenarioConfig, data, path)
     base = path.resolve().parent
-    sensor_path = resolve(cfg.sensor, base)
-    materials_path = resolve(cfg.materials, base)
-    mesh_path = resolve(cfg.mesh, base)
-    if not mesh_path.is_file():
-        raise ConfigError(path, 'mesh', cfg.mesh, f'mesh file not found at {mesh_path}')
+    sensor_path = Path(sensor_file).expanduser() if sensor_file else resolve(cfg.sensor, base)
+    materials_path = Path(materials_file).expanduser() if materials_file else resolve(cfg.materials, base)
+    if mesh_file:
+        mesh_path = Path(mesh_file).expanduser()
+        if not mesh_path.is_file():
+            raise ConfigError('<parameters>', 'mesh_file', str(mesh_file), 'mesh file not found')
+    else:
+        mesh_path = resolve(cfg.mesh, base)
+        if not mesh_path.is_file():
+            raise ConfigError(path, 'mesh', cfg.mesh, f'mesh file not found at {mesh_path}')
     _check_effects(cfg, path)
     materials = load_materials(materials_path)
     _check_mesh_materials(cfg, materials, path)

@@ -35,8 +35,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 
-from lidar_sim_ros.core.config import (ConfigError, load_materials, load_sensor, parse,
-                                       with_frame_rate)
+from lidar_sim_ros.core.config import ConfigError, parse, with_frame_rate
 from lidar_sim_ros.core.scenario import Scenario, load_scenario, scenario_effect_spec
 from lidar_sim_ros.core.effects import (Effect, builtin_classes, get_effect_class, is_plugin_spec,
                                         make_effect)
@@ -91,7 +90,9 @@ STARTUP_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     'scenario_file': ('', _startup(S, "scenario YAML; '' = the package's config/scenario.yaml")),
     'sensor_file': ('', _startup(S, "sensor YAML instead of the scenario's; '' = the scenario's")),
     'materials_file': ('', _startup(S, "materials YAML instead of the scenario's; '' = the scenario's")),
-    'mesh_file': ('', _startup(S, "target mesh (.obj) instead of the scenario's; '' = the scenario's")),
+    'mesh_file': ('', _startup(S, "target mesh (.obj, or .gltf/.glb/.stl/.ply mapped by the "
+                                  "scenario's mesh_materials) instead of the scenario's; '' = "
+                                  "the scenario's")),
     'pose_topic': ('/target/pose', _startup(
         S, 'geometry_msgs/PoseStamped input: target body pose in the lidar frame')),
     'odom_topic': ('', _startup(
@@ -274,17 +275,9 @@ class LidarSimNode(Node):
     def _load_scenario(self) -> Scenario:
         p = {name: self.get_parameter(name).value for name in
              ('scenario_file', 'sensor_file', 'materials_file', 'mesh_file')}
-        scenario = load_scenario(p['scenario_file'] or config_path('scenario.yaml'))
-        if p['sensor_file']:
-            scenario.sensor = load_sensor(p['sensor_file'])
-        if p['materials_file']:
-            scenario.materials = load_materials(p['materials_file'])
-        if p['mesh_file']:
-            mesh = Path(p['mesh_file']).expanduser()
-            if not mesh.is_file():
-                raise ConfigError('<parameters>', 'mesh_file', p['mesh_file'], 'mesh file not found')
-            scenario.mesh_path = mesh
-        return scenario
+        return load_scenario(p['scenario_file'] or config_path('scenario.yaml'),
+                             sensor_file=p['sensor_file'], materials_file=p['materials_file'],
+                             mesh_file=p['mesh_file'])
 
     def _create_interfaces(self) -> None:
         param = lambda name: self.get_parameter(name).value  # noqa: E731
