@@ -193,6 +193,12 @@ def _count(value: Any, key: str, least: int) -> int:
     return value
 
 
+MAX_TRANSFORM_VALUE = 1.0e5
+"""Largest number in a node's matrix, translation, rotation or scale (a vertex beyond 1e5 m
+is refused anyway: geometry.MAX_VERTEX_M); a 1e300 scale made trimesh print numpy's
+overflow warnings over the one-line error."""
+
+
 def _check_transform(node: dict, key: str) -> None:
     """A node's matrix (16 numbers, column-major, last row 0 0 0 1) or TRS (3, 4, 3 numbers)."""
     for name, length in (('matrix', 16), ('translation', 3), ('rotation', 4), ('scale', 3)):
@@ -202,6 +208,9 @@ def _check_transform(node: dict, key: str) -> None:
         if not isinstance(value, list) or len(value) != length or not all(
                 isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
             raise GltfError(f'{key}.{name} must be a list of {length} numbers, not {str(value)[:60]}')
+        if not all(abs(x) <= MAX_TRANSFORM_VALUE for x in value):   # NaN fails too
+            raise GltfError(f'{key}.{name} = {str(value)[:80]}: every number must be finite and '
+                            f'within +-{MAX_TRANSFORM_VALUE:g}')
     matrix = node.get('matrix')
     if matrix is not None and [matrix[3], matrix[7], matrix[11], matrix[15]] != [0, 0, 0, 1]:
         raise GltfError(f'{key}.matrix: its last row {[matrix[3], matrix[7], matrix[11], matrix[15]]} '
