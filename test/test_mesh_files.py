@@ -260,3 +260,18 @@ def test_external_files_are_read_once_and_bounded_together(tmp_path, monkeypatch
     with pytest.raises(MeshFileError, match=r"three.gltf: external file 'c.bin': the external "
                                             r'files come to 132 bytes, beyond the limit of 100'):
         load_target(tmp_path / 'three.gltf', NAMES, mesh_materials='MLI')
+
+
+@pytest.mark.parametrize('count, records', [(1000, 1), (1, 3), (2 ** 32 - 1, 1)])
+def test_a_binary_stl_whose_count_disagrees_with_its_length_says_so(tmp_path, count, records):
+    """trimesh read such a file as ASCII and the load said 'no triangles found'."""
+    import struct
+    record = struct.pack('<12fH', 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0)
+    path = tmp_path / 'part.stl'
+    path.write_bytes(b'\0' * 80 + struct.pack('<I', count) + record * records)
+    with pytest.raises(MeshFileError, match=rf'part.stl: binary STL header says {count} triangles '
+                                            rf'\({84 + 50 * count} bytes\), but the file has '
+                                            rf'{84 + 50 * records} bytes'):
+        load_target(path, NAMES, mesh_materials='MLI')
+    path.write_bytes(b'\0' * 80 + struct.pack('<I', records) + record * records)
+    assert load_target(path, NAMES, mesh_materials='MLI').n_faces == records

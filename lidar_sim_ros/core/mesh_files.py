@@ -108,6 +108,7 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
         raise MeshFileError(f'{path}: {json_bytes} bytes of glTF JSON exceed the limit of '
                             f'{MAX_GLTF_JSON_BYTES} (keep buffers in a .bin or a .glb)')
     _check_gltf_document(path, json_bytes)
+    _check_binary_stl_length(path, size)
     scene = load_scene(path, path, f'a {path.suffix}')
     verts, faces, mats, unmapped = [], [], [], []
     offset = n_faces = 0
@@ -153,6 +154,22 @@ def _check_gltf_document(path: Path, json_bytes: int) -> None:
             check_gltf(doc)
     except GltfError as exc:
         raise MeshFileError(f'{path}: {exc}') from None
+
+
+def _check_binary_stl_length(path: Path, size: int) -> None:
+    """A binary STL (80-byte header, uint32 triangle count, 50 bytes a triangle) whose
+    count disagrees with its length: trimesh then tried it as ASCII and reported "no
+    triangles found". A file starting with 'solid' whose length does not fit the count is
+    ASCII (some binary exporters also start their header with 'solid')."""
+    if path.suffix.lower() != '.stl' or size < 84:
+        return
+    with open(path, 'rb') as f:
+        head = f.read(84)
+    count = int.from_bytes(head[80:84], 'little')
+    if size == 84 + 50 * count or head[:5].lower() == b'solid':
+        return
+    raise MeshFileError(f'{path}: binary STL header says {count} triangles ({84 + 50 * count} '
+                        f'bytes), but the file has {size} bytes (truncated or not an STL?)')
 
 
 def _checked_faces(faces: np.ndarray, n_vertices: int, path: Path, part: str) -> np.ndarray:
