@@ -5,7 +5,7 @@ import yaml
 
 from lidar_sim_ros.cli import main as cli_main
 from lidar_sim_ros.core.config import (ConfigError, WrongFileKindError, file_kind, load_materials,
-                                       load_sensor)
+                                       load_sensor, read_yaml)
 from lidar_sim_ros.core.scenario import load_scenario
 from conftest import CONFIG, edit_yaml
 from conftest import copy_config as copy_files
@@ -84,3 +84,22 @@ def test_a_mapping_value_is_cut_not_dumped(tmp_path):
         load_scenario(tmp_path / 'scenario.yaml')
     message = str(err.value)
     assert len(message) < 300 and "...: unknown key; did you mean \"motion\"?" in message
+
+
+def test_a_key_written_twice_is_refused_naming_it_and_its_line(tmp_path):
+    """PyYAML keeps the last of two equal keys: a mesh_materials map naming a part twice
+    (bus_mli: MLI, then bus_mli: ALUMINIUM) silently made the bus aluminium."""
+    text = (CONFIG / 'scenario_box_wing.yaml').read_text()
+    for key in ('sensor', 'materials', 'mesh'):                  # the shipped files, absolute
+        text = text.replace(f'{key}: ', f'{key}: {CONFIG}/', 1)
+    text = text.replace('  bus_mli: MLI\n', '  bus_mli: MLI\n  bus_mli: ALUMINIUM\n')
+    path = tmp_path / 'twice.yaml'
+    path.write_text(text)
+    line = text.splitlines().index('  bus_mli: ALUMINIUM') + 1
+    with pytest.raises(ConfigError, match=rf"twice.yaml.*found the key 'bus_mli' twice.*line {line}") as err:
+        load_scenario(path)
+    assert '\n' not in str(err.value)
+    # A merge's keys may still be overridden, as YAML says.
+    merged = tmp_path / 'merged.yaml'
+    merged.write_text('a: &base {x: 1, y: 2}\nb:\n  <<: *base\n  x: 3\n')
+    assert read_yaml(merged)['b'] == {'x': 3, 'y': 2}

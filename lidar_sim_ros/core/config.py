@@ -647,6 +647,29 @@ def parse(model: type[_Model], data: Any, file: str | Path) -> Any:
         raise ConfigError(file, key, value, reason) from None
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's SafeLoader, refusing a key written twice in one mapping (PyYAML keeps the
+    last: a mesh_materials map naming a part twice silently took the second material).
+    Keys a merge (``<<``) brings in may still be overridden, as YAML says."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = set()
+            for key_node, _ in node.value:
+                if key_node.tag == 'tag:yaml.org,2002:merge':
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    if key in seen:
+                        raise yaml.constructor.ConstructorError(
+                            'while constructing a mapping', node.start_mark,
+                            f'found the key {key!r} twice', key_node.start_mark)
+                    seen.add(key)
+                except TypeError:      # an unhashable key: the base class says so
+                    pass
+        return super().construct_mapping(node, deep)
+
+
 def read_yaml(path: str | Path, mapping: bool = False) -> Any:
     """One YAML document, its size bounded (``MAX_YAML_NODES`` with aliases expanded);
     ``mapping``: it must be a mapping (a text file that is not YAML parses as one string,
@@ -656,7 +679,7 @@ def read_yaml(path: str | Path, mapping: bool = False) -> Any:
         raise ConfigError(path, '<file>', str(path), 'file not found')
     try:
         with path.open() as fh:
-            data = yaml.safe_load(fh)
+            data = yaml.load(fh, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader
     except yaml.YAMLError as exc:
         raise ConfigError(path, '<yaml>', None, f'not valid YAML: {_first_line(exc)}') from None
     except UnicodeDecodeError:
