@@ -103,3 +103,17 @@ def test_a_key_written_twice_is_refused_naming_it_and_its_line(tmp_path):
     merged = tmp_path / 'merged.yaml'
     merged.write_text('a: &base {x: 1, y: 2}\nb:\n  <<: *base\n  x: 3\n')
     assert read_yaml(merged)['b'] == {'x': 3, 'y': 2}
+
+
+@pytest.mark.parametrize('value, words', [
+    ({'bus_mli': 3}, "entry 'bus_mli': 3: both the mesh's name and the config material must be strings"),
+    ({1: 'MLI'}, "entry 1: 'MLI': both"),
+    (['MLI'], 'must be one config material name .* \\(list given\\)'),
+])
+def test_a_mesh_materials_value_of_the_wrong_shape_names_the_entry(value, words):
+    """pydantic's union error said key "mesh_materials.str": "Input should be a valid
+    string" for a map whose value was 3 (the map's branch and the entry unnamed)."""
+    from lidar_sim_ros.core.config import ScenarioConfig, parse
+    data = {**yaml.safe_load((CONFIG / 'scenario_box_wing.yaml').read_text()), 'mesh_materials': value}
+    with pytest.raises(ConfigError, match=r'x.yaml: key "mesh_materials" = .*' + words):
+        parse(ScenarioConfig, data, 'x.yaml')

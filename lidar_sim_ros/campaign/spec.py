@@ -18,8 +18,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_serial
 
 from lidar_sim_ros.campaign.criteria import MAX_CRITERIA, parse_criterion
 from lidar_sim_ros.campaign.statistics import stat_names
-from lidar_sim_ros.core.config import (ConfigError, MaterialsConfig, SensorConfig, check_file_kind,
-                                       load_materials, load_sensor, parse, read_yaml, resolve)
+from lidar_sim_ros.core.config import (ConfigError, MaterialsConfig, MeshMaterials, SensorConfig,
+                                       check_file_kind, load_materials, load_sensor, parse,
+                                       read_yaml, resolve)
 from lidar_sim_ros.core.scenario import Scenario, load_scenario
 
 
@@ -186,7 +187,7 @@ class TargetChoice(_Model):
 
     mesh: str
     materials: str
-    mesh_materials: str | dict[str, str] | None = None
+    mesh_materials: MeshMaterials = None
 
 
 class Dispersions(_Model):

@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal, Union
 
 import numpy as np
 import yaml
-from pydantic import (BaseModel, ConfigDict, Field, ValidationError,
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationError,
                       field_validator, model_serializer, model_validator)
 
 from lidar_sim_ros.core.vectors import QUAT_NORM_TOL, unit_vector
@@ -542,6 +542,26 @@ class EffectConfig(_Model):
     params: dict[str, Any] = Field(default_factory=dict)
 
 
+def _mesh_materials_shape(value: Any) -> Any:
+    """A mesh_materials value is a name, or a map of names to names: said so with the
+    offending entry (pydantic's union error named "mesh_materials.str" and asked for a
+    string when a map's value was 3)."""
+    if value is None or isinstance(value, str):
+        return value
+    if not isinstance(value, dict):
+        raise ValueError('must be one config material name (a whole STL) or a map of the mesh\'s '
+                         f'names to config material names ({type(value).__name__} given)')
+    for key, name in value.items():
+        if not isinstance(key, str) or not isinstance(name, str):
+            raise ValueError(f'entry {key!r}: {name!r}: both the mesh\'s name and the config '
+                             'material must be strings (quote a name YAML reads as a number)')
+    return value
+
+
+MeshMaterials = Annotated[str | dict[str, str] | None, BeforeValidator(_mesh_materials_shape)]
+"""A mesh's names -> config materials, or one material for the whole mesh (core/mesh_files.py)."""
+
+
 class ScenarioConfig(_Model):
     seed: int
     mesh: str
@@ -552,7 +572,7 @@ class ScenarioConfig(_Model):
     motion: MotionConfig = MotionConfig()
     sun: SunConfig | None = None
     effects: list[EffectConfig] = Field(default_factory=list)
-    mesh_materials: str | dict[str, str] | None = Field(
+    mesh_materials: MeshMaterials = Field(
         None, description="the mesh's material/node names -> config materials, or one config "
                           "material for the whole mesh (an STL); None: the mesh's names are the "
                           "config's (core/mesh_files.py)")
