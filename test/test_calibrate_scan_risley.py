@@ -41,3 +41,26 @@ def test_mid40_recording_gives_back_its_prism_rates(tmp_path):
     assert cal.rms_deg < 1e-3 and cal.prior_error_deg.mean() > 1.0
     assert (tmp_path / 'fit.png').stat().st_size > 0
     assert '7294.00 rpm' in cal.report and '-4664.00 rpm' in cal.report
+
+
+def test_a_recording_spanning_hours_is_fitted_on_its_first_stretch(monkeypatch):
+    """The periodogram's grid grows with the time the clouds span, not with the points:
+    two 2,000-point clouds 10^4 s apart asked for 32 GiB (100 s apart took 949 MB, 14 s).
+    The fit now reads the first MAX_FIT_SPAN_S of the recording and says so."""
+    from lidar_sim_ros.calibrate import scan_risley
+    from lidar_sim_ros.calibrate.scan_samples import ScanSamples
+    from lidar_sim_ros.core.scan_risley import risley_frame
+    sensor = load_sensor(CONFIG / 'livox_mid40.yaml')
+    monkeypatch.setattr(scan_risley, 'MAX_FIT_SPAN_S', 0.35)
+    t, d, frame = [], [], []
+    for k in range(4):                     # frames 0-2 at their own times, frame 3 10^4 s later
+        shots, directions = risley_frame(sensor.scan, sensor.frame_period_s, k)
+        t.append(shots.t_s[:3000]), d.append(directions[:3000]), frame.append(np.full(3000, k))
+    t, d = np.concatenate(t), np.concatenate(d)
+    samples = ScanSamples(t, np.zeros_like(t), np.zeros_like(t), d, None, np.concatenate(frame),
+                          None, 'hours.bag', np.array([0.0, 0.1, 0.2, 1e4]))
+    cal = scan_risley.calibrate_risley(samples, CONFIG / 'livox_mid40.yaml')
+    assert any('the clouds span 10000 s; the prisms are fitted on the first 0.35 s (9000 of 12000 '
+               'points)' in w for w in cal.warnings), cal.warnings
+    assert len(cal.samples) == 9000
+    assert sorted(cal.rates_hz) == pytest.approx(sorted(sensor.scan.prism_rates_hz), abs=1e-6)

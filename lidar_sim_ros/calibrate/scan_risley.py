@@ -15,6 +15,7 @@ rates). The phases are written for frame 0 = the recording's first cloud.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,6 +36,10 @@ PERIODOGRAM_POINTS = 4000       # points the periodogram sums over (a random, se
 MAX_RATE_HZ = 1000.0            # largest prism rate searched (rev/s)
 _GRID_OVERSAMPLE = 8            # frequency steps per 1 / (time span)
 CANDIDATE_PEAKS = 4             # periodogram peaks tried for each rate
+MAX_FIT_SPAN_S = 30.0
+"""Longest stretch of recording fitted (s, from the first cloud): the periodogram's grid has
+16 MAX_RATE_HZ x 8 steps a second (two clouds 10^4 s apart asked for 32 GiB; 100 s apart
+took 949 MB). 30 s of a Mid-40 is 3 million points, more than the rates need."""
 
 
 @dataclass
@@ -193,9 +198,6 @@ def calibrate_risley(samples: ScanSamples, sensor_path: str | Path) -> RisleyCal
     """Fit the prisms of ``samples``; the sensor config gives the frame rate and the rest."""
     sensor_path = Path(sensor_path)
     sensor = load_sensor(sensor_path)
-    if len(samples) < MIN_POINTS:
-        raise CalibrationInputError(f'{samples.source}: {len(samples)} points; the prism fit needs '
-                                    f'at least {MIN_POINTS} (record more frames)')
     warnings = []
     period = sensor.frame_period_s
     if samples.frame_period_s is not None and abs(samples.frame_period_s - period) > 0.01 * period:
@@ -204,6 +206,17 @@ def calibrate_risley(samples: ScanSamples, sensor_path: str | Path) -> RisleyCal
         period = samples.frame_period_s
     starts = samples.frame_start_s if samples.frame_start_s is not None else np.zeros(1)
     t_abs = starts[samples.frame] + samples.t_s
+    early = t_abs - t_abs.min() <= MAX_FIT_SPAN_S
+    if not early.all():
+        warnings.append(f'the clouds span {np.ptp(t_abs):.6g} s; the prisms are fitted on the '
+                        f'first {MAX_FIT_SPAN_S:g} s ({int(early.sum())} of {len(t_abs)} points)')
+        samples = dataclasses.replace(samples, **{k: getattr(samples, k)[early] for k in (
+            't_s', 'az_rad', 'el_rad', 'direction', 'frame')}, laser=None if samples.laser is None
+            else samples.laser[early])
+        t_abs = t_abs[early]
+    if len(samples) < MIN_POINTS:
+        raise CalibrationInputError(f'{samples.source}: {len(samples)} points; the prism fit needs '
+                                    f'at least {MIN_POINTS} (record more frames)')
     if np.ptp(t_abs) <= 0:
         raise CalibrationInputError(f'{samples.source}: every point has the same time; the prism '
                                     'fit needs per-point times')
@@ -293,6 +306,14 @@ def run_risley(bag: str | Path, out: str | Path, sensor: Path, figure: str | Pat
     written = load_sensor(cal.out).scan
     starts = samples.frame_start_s if samples.frame_start_s is not None else np.zeros(1)
     t_abs = starts[samples.frame] + samples.t_s
+    early = t_abs - t_abs.min() <= MAX_FIT_SPAN_S
+    if not early.all():
+        warnings.append(f'the clouds span {np.ptp(t_abs):.6g} s; the prisms are fitted on the '
+                        f'first {MAX_FIT_SPAN_S:g} s ({int(early.sum())} of {len(t_abs)} points)')
+        samples = dataclasses.replace(samples, **{k: getattr(samples, k)[early] for k in (
+            't_s', 'az_rad', 'el_rad', 'direction', 'frame')}, laser=None if samples.laser is None
+            else samples.laser[early])
+        t_abs = t_abs[early]
     a = np.radians(written.prism_deviation_deg) * np.exp(1j * np.asarray(written.prism_phase_rad))
     cal.error_deg = angular_error_deg(samples.direction, t_abs, written.prism_rates_hz, a)
     if figure:
