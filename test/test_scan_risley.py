@@ -108,6 +108,7 @@ def test_mid40_profile_published_numbers():
     ({'prism_rates_hz': [1e300, 3.0]}, 'less than or equal to 10000'),
     ({'prism_rates_hz': [3.0]}, 'prism_rates_hz'),
     ({'prism_phase_rad': [float('inf'), 0.0]}, 'finite'),
+    ({'prism_phase_rad': [0.0, 1e300]}, 'less than or equal to 10000'),  # arbitrary angle, once rc 0
 ])
 def test_bad_risley_config_names_key(scan, words):
     base = {'type': 'risley', 'prism_rates_hz': [10.0, -7.0], 'prism_deviation_deg': [5.0, 5.0],

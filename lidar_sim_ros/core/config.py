@@ -163,6 +163,12 @@ MAX_PRISM_RATE_HZ = 10_000.0
 (~1e10) loses its precision in float64."""
 
 
+MAX_PRISM_PHASE_RAD = 1.0e4
+"""Largest prism phase (rad; calibrate scan writes them in -pi..pi): a phase of 1e300 is finite
+but its float64 spacing is ~1e284 rad, so the prism angle it gives is arbitrary."""
+PrismPhase = Annotated[float, Field(ge=-MAX_PRISM_PHASE_RAD, le=MAX_PRISM_PHASE_RAD)]
+
+
 class RisleyScan(_Model):
     """Two wedge prisms rotating at their own rates (a Risley pair; the Livox Mid-40's
     rosette, ``core/scan_risley.py``). One laser fires at ``shot_rate_hz``; each shot
@@ -174,7 +180,7 @@ class RisleyScan(_Model):
         description='rotation rate of each prism (rev/s); the sign is the direction')
     prism_deviation_deg: tuple[PositiveFloat, PositiveFloat] = Field(
         description='deviation of each thin wedge alone, (n - 1) x wedge angle (deg)')
-    prism_phase_rad: tuple[float, float] = (0.0, 0.0)
+    prism_phase_rad: tuple[PrismPhase, PrismPhase] = (0.0, 0.0)
     shot_rate_hz: PositiveFloat = Field(description='shots per second of the one laser')
 
     @model_validator(mode='after')
