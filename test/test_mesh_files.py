@@ -275,3 +275,30 @@ def test_a_binary_stl_whose_count_disagrees_with_its_length_says_so(tmp_path, co
         load_target(path, NAMES, mesh_materials='MLI')
     path.write_bytes(b'\0' * 80 + struct.pack('<I', records) + record * records)
     assert load_target(path, NAMES, mesh_materials='MLI').n_faces == records
+
+
+def test_text_meshes_beyond_their_limit_are_refused_before_parsing(tmp_path, monkeypatch):
+    """trimesh's parse of text takes ~5-12x its size (ASCII PLY 12x, ASCII STL 7x, OBJ
+    4.5-10x, measured on 40-100 MB files): within the 2 GB file limit an ASCII PLY needed
+    ~24 GB. Text meshes stop at MAX_TEXT_MESH_BYTES; binary STL and PLY go on to 2 GB."""
+    from lidar_sim_ros.core import mesh_files
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    paths = {'stl': tmp_path / 'a.stl', 'ply': tmp_path / 'a.ply', 'obj': tmp_path / 'a.obj'}
+    paths['stl'].write_bytes(trimesh.exchange.stl.export_stl_ascii(mesh).encode())
+    paths['ply'].write_bytes(trimesh.exchange.ply.export_ply(mesh, encoding='ascii'))
+    paths['obj'].write_text('usemtl MLI\n' + ''.join(f'v {x} {y} {z}\n' for x, y, z in mesh.vertices)
+                            + ''.join(f'f {a + 1} {b + 1} {c + 1}\n' for a, b, c in mesh.faces))
+    for path in paths.values():
+        assert load_target(path, NAMES, mesh_materials='MLI').n_faces == len(mesh.faces)
+    limit = min(p.stat().st_size for p in paths.values()) - 1
+    monkeypatch.setattr(mesh_files, 'MAX_TEXT_MESH_BYTES', limit)
+    for path in paths.values():
+        with pytest.raises(MeshFileError, match=rf'a.{path.suffix[1:]}: \d+ bytes of text mesh exceed '
+                                                rf'the limit of {limit} \(export it as binary'):
+            load_target(path, NAMES, mesh_materials='MLI')
+    big = trimesh.creation.icosphere(subdivisions=3)
+    for suffix in ('stl', 'ply'):                       # binary: not text, read as before
+        path = tmp_path / f'b.{suffix}'
+        big.export(path)
+        assert path.stat().st_size > limit
+        assert load_target(path, NAMES, mesh_materials='MLI').n_faces == len(big.faces)

@@ -23,6 +23,7 @@ from embreex.mesh_construction import TriangleMesh
 from scipy.spatial import ConvexHull, QhullError
 
 from lidar_sim_ros.core import geometry_kernels as kernels
+from lidar_sim_ros.core import mesh_files
 from lidar_sim_ros.core.memory import release_freed_memory
 from lidar_sim_ros.core.mesh_files import (CAD_SUFFIXES, MeshFileError, MeshMaterialError,
                                            load_scene, read_cad)
@@ -583,6 +584,11 @@ def check_obj_file(obj_path: Path) -> list[str] | None:
         raise MeshFileError(f'{obj_path}: the mesh must be a Wavefront .obj whose usemtl names are '
                             f'materials of the config, or a CAD export ({", ".join(CAD_SUFFIXES)}), '
                             f'not {suffix or "a file without extension"}')
+    size = obj_path.stat().st_size
+    if size > mesh_files.MAX_TEXT_MESH_BYTES:
+        raise MeshFileError(f'{obj_path}: {size} bytes of text mesh exceed the limit of '
+                            f'{mesh_files.MAX_TEXT_MESH_BYTES} (export it as binary STL or PLY, '
+                            'or glTF)')
     data = obj_path.read_bytes()
     try:
         text = data.decode('utf-8')

@@ -32,6 +32,11 @@ from lidar_sim_ros.core.gltf_check import GltfError, check_gltf, gltf_document
 CAD_SUFFIXES = ('.gltf', '.glb', '.stl', '.ply')
 MAX_MESH_FILE_BYTES = 2_000_000_000
 """Largest CAD file read (a binary STL of MAX_TRIANGLES is 500 MB)."""
+MAX_TEXT_MESH_BYTES = 256_000_000
+"""Largest text mesh read (OBJ, ASCII STL, ASCII PLY): trimesh's parse takes ~5-12x the
+text (measured: ASCII PLY 12x, ASCII STL 7x, OBJ 4.5-10x), so a 2 GB one needed up to
+~24 GB. 256 MB holds ~1.3 M triangles of ASCII STL, ~1.7 M of PLY, ~7 M of OBJ; binary
+STL and PLY, and glTF, are read up to MAX_MESH_FILE_BYTES."""
 MAX_EXTERNAL_BYTES = MAX_MESH_FILE_BYTES
 """Largest sum of a glTF's external files (its .bin buffers and images), each read once."""
 MAX_GLTF_JSON_BYTES = 256_000_000
@@ -109,6 +114,9 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
                             f'{MAX_GLTF_JSON_BYTES} (keep buffers in a .bin or a .glb)')
     _check_gltf_document(path, json_bytes)
     _check_binary_stl_length(path, size)
+    if size > MAX_TEXT_MESH_BYTES and _is_text_mesh(path, size):
+        raise MeshFileError(f'{path}: {size} bytes of text mesh exceed the limit of '
+                            f'{MAX_TEXT_MESH_BYTES} (export it as binary STL or PLY, or glTF)')
     scene = load_scene(path, path, f'a {path.suffix}')
     verts, faces, mats, unmapped = [], [], [], []
     offset = n_faces = 0
@@ -170,6 +178,20 @@ def _check_binary_stl_length(path: Path, size: int) -> None:
         return
     raise MeshFileError(f'{path}: binary STL header says {count} triangles ({84 + 50 * count} '
                         f'bytes), but the file has {size} bytes (truncated or not an STL?)')
+
+
+def _is_text_mesh(path: Path, size: int) -> bool:
+    """An ASCII STL (starts with 'solid' and its length does not fit a binary header's
+    count) or an ASCII PLY ('format ascii' in its header)."""
+    with open(path, 'rb') as f:
+        head = f.read(4096)
+    suffix = path.suffix.lower()
+    if suffix == '.stl':
+        count = int.from_bytes(head[80:84], 'little') if len(head) >= 84 else -1
+        return head[:5].lower() == b'solid' and size != 84 + 50 * count
+    if suffix == '.ply':
+        return b'format ascii' in head.split(b'end_header', 1)[0]
+    return False
 
 
 def _checked_faces(faces: np.ndarray, n_vertices: int, path: Path, part: str) -> np.ndarray:
