@@ -302,3 +302,28 @@ def test_text_meshes_beyond_their_limit_are_refused_before_parsing(tmp_path, mon
         big.export(path)
         assert path.stat().st_size > limit
         assert load_target(path, NAMES, mesh_materials='MLI').n_faces == len(big.faces)
+
+
+def test_triangle_counts_in_stl_and_ply_headers_are_held_to_the_limit_before_reading(tmp_path,
+                                                                                      monkeypatch):
+    """The triangle limit was checked after trimesh had read the whole file: a 100 MB
+    binary STL of 2 M triangles took 1.1 GB and 14 s to get there (a 2 GB one, ~22 GB).
+    A binary STL's count and a PLY's face and vertex counts are read from the header."""
+    import lidar_sim_ros.core.geometry as geometry
+    mesh = trimesh.creation.icosphere(subdivisions=1)           # 80 faces, 42 vertices
+    stl, ply = tmp_path / 'a.stl', tmp_path / 'a.ply'
+    mesh.export(stl), mesh.export(ply)
+    monkeypatch.setattr(geometry, 'MAX_TRIANGLES', 79)
+    monkeypatch.setattr(trimesh, 'load', lambda *a, **k: pytest.fail('trimesh read the file'))
+    with pytest.raises(MeshFileError, match='a.stl: binary STL header says 80 triangles, more '
+                                            'than the limit of 79'):
+        load_target(stl, NAMES, mesh_materials='MLI')
+    with pytest.raises(MeshFileError, match='a.ply: PLY header says 80 face elements, more than '
+                                            'the limit of 79'):
+        load_target(ply, NAMES, mesh_materials='MLI')
+    one_face = tmp_path / 'v.ply'                              # 42 vertices, 1 face
+    trimesh.Trimesh(mesh.vertices, mesh.faces[:1], process=False).export(one_face)
+    monkeypatch.setattr(geometry, 'MAX_TRIANGLES', 13)
+    with pytest.raises(MeshFileError, match='v.ply: PLY header says 42 vertex elements, more '
+                                            'than the limit of 39'):
+        load_target(one_face, NAMES, mesh_materials='MLI')
