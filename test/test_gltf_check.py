@@ -234,3 +234,22 @@ def test_node_transforms_beyond_the_limit_are_refused_naming_the_node(tmp_path, 
                                             'finite and within'):
         load_target(write_glb(tmp_path / 'huge.glb', doc, DATA), NAMES, mesh_materials='MLI')
     assert 'Warning' not in capfd.readouterr().err
+
+
+def test_triangles_beyond_the_limit_are_refused_before_trimesh_reads_them(tmp_path, monkeypatch):
+    """The triangle limit was checked once trimesh had read every accessor (a .glb near 2 GB
+    could hold 160 M triangles); the accessors' counts say it first."""
+    import trimesh
+    import lidar_sim_ros.core.geometry as geometry
+    doc = copy.deepcopy(DOC)
+    doc['meshes'].append({'primitives': [{'attributes': {'POSITION': 0}, 'mode': 5}]})  # a strip: 1
+    doc['nodes'].append({'mesh': 1})
+    doc['scenes'][0]['nodes'].append(1)
+    path = write_glb(tmp_path / 'two.glb', doc, DATA)
+    assert load_target(path, NAMES, mesh_materials='MLI').n_faces == 2
+    monkeypatch.setattr(geometry, 'MAX_TRIANGLES', 1)
+    monkeypatch.setattr(trimesh, 'load', lambda *a, **k: pytest.fail('trimesh read the file'))
+    with pytest.raises(MeshFileError, match='two.glb: its primitives hold 2 triangles, more than '
+                                            'the limit of 1'):
+        load_target(path, NAMES, mesh_materials='MLI')
+    check_gltf(doc)                                     # no limit given: no count

@@ -45,13 +45,16 @@ def gltf_document(path: Path, json_bytes: int) -> dict | None:
     return doc if isinstance(doc, dict) else None
 
 
-def check_gltf(doc: dict) -> None:
-    """Raise GltfError for the first rule ``doc`` breaks (module docstring)."""
+def check_gltf(doc: dict, max_triangles: int | None = None) -> None:
+    """Raise GltfError for the first rule ``doc`` breaks (module docstring); with
+    ``max_triangles``, also when its primitives hold more triangles than that."""
     check_extensions(doc)
     check_node_trees(doc)
     check_accessors(doc)
     check_primitives(doc)
     check_layout(doc)
+    if max_triangles is not None:
+        check_triangle_count(doc, max_triangles)
 
 
 READ_EXTENSIONS = ('KHR_materials_', 'KHR_texture_', 'EXT_texture_', 'KHR_lights_punctual')
@@ -184,6 +187,23 @@ def check_layout(doc: dict) -> None:
                                     f'{a["componentType"]}, not unsigned SCALAR')
     for i, node in enumerate(_list(doc, 'nodes')):
         _check_transform(node, f'nodes[{i}]')
+
+
+def check_triangle_count(doc: dict, max_triangles: int) -> None:
+    """The triangles the meshes' primitives hold (each placed once; placements are counted
+    as they are read), from the accessors' counts, within ``max_triangles`` before trimesh
+    reads them: a .glb near 2 GB could hold 160 M triangles, read whole before the count."""
+    accessors, total = doc.get('accessors', []), 0
+    for mesh in doc.get('meshes', []):
+        for prim in mesh['primitives']:
+            mode = prim.get('mode', 4)
+            if mode not in TRIANGLE_MODES:
+                continue
+            counted = prim['indices'] if 'indices' in prim else prim['attributes']['POSITION']
+            n = accessors[counted]['count']
+            total += n // 3 if mode == 4 else max(n - 2, 0)
+    if total > max_triangles:
+        raise GltfError(f'its primitives hold {total} triangles, more than the limit of {max_triangles}')
 
 
 def _count(value: Any, key: str, least: int) -> int:

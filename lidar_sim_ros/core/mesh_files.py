@@ -112,7 +112,7 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
     if json_bytes > MAX_GLTF_JSON_BYTES:
         raise MeshFileError(f'{path}: {json_bytes} bytes of glTF JSON exceed the limit of '
                             f'{MAX_GLTF_JSON_BYTES} (keep buffers in a .bin or a .glb)')
-    _check_gltf_document(path, json_bytes)
+    _check_gltf_document(path, json_bytes, max_triangles)
     _check_binary_stl_length(path, size)
     _check_header_counts(path, size, max_triangles)
     if size > MAX_TEXT_MESH_BYTES and _is_text_mesh(path, size):
@@ -154,13 +154,13 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
     return np.vstack(verts), np.vstack(faces), np.concatenate(mats)
 
 
-def _check_gltf_document(path: Path, json_bytes: int) -> None:
+def _check_gltf_document(path: Path, json_bytes: int, max_triangles: int) -> None:
     """A glTF's document against the specification (``gltf_check``), before trimesh reads
     what it understands of it; MeshFileError names the file and the JSON key."""
     try:
         doc = gltf_document(path, json_bytes)
         if doc is not None:
-            check_gltf(doc)
+            check_gltf(doc, max_triangles)
     except GltfError as exc:
         raise MeshFileError(f'{path}: {exc}') from None
 
