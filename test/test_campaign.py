@@ -746,3 +746,18 @@ def test_specs_and_configs_without_the_new_keys_dump_as_before(tmp_path):
     assert 'range_error' not in dumped and 'flood' not in dumped['optics']
     from lidar_sim_ros.core.config import load_sensor
     assert load_sensor(CONFIG / 'livox_mid40.yaml').model_dump()['range_error']['sigma_m'] == 0.02
+
+
+def test_a_target_choice_whose_mesh_cannot_be_read_stops_at_load(tmp_path):
+    """A target choice's mesh was first read by the runs that drew it: an STL without a
+    material, or a glTF with a cycle, failed those runs one by one (rc 1 after the
+    campaign) instead of stopping at load with the key."""
+    import trimesh
+    stl = tmp_path / 'part.stl'
+    trimesh.creation.box().export(stl)
+    target = {'mesh': str(stl), 'materials': str(CONFIG / 'materials_box_wing.yaml')}
+    with pytest.raises(ConfigError, match=r'dispersions\.target\.1\.mesh.*part.stl.*not mapped'):
+        load_campaign(write_campaign(tmp_path / 'a.yaml', dispersions={
+            'target': [{**target, 'mesh_materials': 'MLI'}, target]}))
+    assert load_campaign(write_campaign(tmp_path / 'b.yaml', dispersions={
+        'target': [{**target, 'mesh_materials': 'MLI'}]})).targets[0].mesh_path == stl

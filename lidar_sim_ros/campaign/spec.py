@@ -21,6 +21,7 @@ from lidar_sim_ros.campaign.statistics import stat_names
 from lidar_sim_ros.core.config import (ConfigError, MaterialsConfig, MeshMaterials, SensorConfig,
                                        check_file_kind, load_materials, load_sensor, parse,
                                        read_yaml, resolve)
+from lidar_sim_ros.core.geometry import MeshFileError, MeshMaterialError, read_target_mesh
 from lidar_sim_ros.core.scenario import Scenario, load_scenario
 
 
@@ -390,6 +391,10 @@ def _load_choices(disp: Dispersions, path: Path) -> tuple[list | None, list | No
                 if value not in materials.names:
                     raise ConfigError(path, f'dispersions.target.{i}.mesh_materials', value,
                                       f'not a material of {choice.materials} (known: {materials.names})')
+            try:    # read now: a bad mesh failed every run that drew it, hours in
+                read_target_mesh(mesh, materials.names, mapping)
+            except (MeshFileError, MeshMaterialError) as exc:
+                raise ConfigError(path, f'dispersions.target.{i}.mesh', choice.mesh, str(exc)) from None
             targets.append(LoadedTarget(mesh, materials, mapping))
     return sensors, targets
 

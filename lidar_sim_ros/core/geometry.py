@@ -498,7 +498,20 @@ def occluded_at_poses(target: Target, origins_lidar_m: np.ndarray, directions_li
 def load_target(obj_path: str | Path, material_names: list[str], threads: int = 1,
                 mesh_materials: str | dict[str, str] | None = None) -> Target:
     """Load an OBJ+MTL whose ``usemtl`` names are material names from the config, or a
-    CAD export (glTF, STL, PLY: ``core/mesh_files.py``).
+    CAD export (glTF, STL, PLY: ``core/mesh_files.py``): ``read_target_mesh``, then the
+    raycast's BVH over it."""
+    target = Target(*read_target_mesh(obj_path, material_names, mesh_materials),
+                    material_names, threads)
+    release_freed_memory(collect=True)      # trimesh's parse: ~180 MB for 2 M triangles
+    return target
+
+
+def read_target_mesh(obj_path: str | Path, material_names: list[str],
+                     mesh_materials: str | dict[str, str] | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices (m), faces and face material ids of a target mesh file, checked
+    (``checked_mesh``), without building the BVH: what a campaign checks of each target
+    choice at load.
 
     ``mesh_materials``: the scenario's map from the file's material/node/group names to
     config materials, or one material for the whole file (None: the names are the
@@ -509,11 +522,8 @@ def load_target(obj_path: str | Path, material_names: list[str], threads: int = 
     if not obj_path.is_file():
         raise FileNotFoundError(f'mesh file not found: {obj_path}')
     if obj_path.suffix.lower() in CAD_SUFFIXES:
-        mesh = checked_mesh(*read_cad(obj_path, list(material_names), mesh_materials, MAX_TRIANGLES),
+        return checked_mesh(*read_cad(obj_path, list(material_names), mesh_materials, MAX_TRIANGLES),
                             obj_path)
-        target = Target(*mesh, material_names, threads)
-        release_freed_memory(collect=True)
-        return target
     names_only = check_obj_file(obj_path)
     with _with_names_mtl(obj_path, names_only) as loadable:
         # The material library and its images from the OBJ's own folder only, whatever
@@ -543,11 +553,8 @@ def load_target(obj_path: str | Path, material_names: list[str], threads: int = 
             f'(known: {material_names})')
     if not faces:
         raise MeshMaterialError(f'{obj_path}: no triangles found')
-    mesh = checked_mesh(np.vstack(verts), np.vstack(faces), np.concatenate(mats), obj_path)
-    del scene, geom, verts, faces, mats
-    target = Target(*mesh, material_names, threads)
-    release_freed_memory(collect=True)      # trimesh's parse: ~180 MB for 2 M triangles
-    return target
+    del scene
+    return checked_mesh(np.vstack(verts), np.vstack(faces), np.concatenate(mats), obj_path)
 
 
 @contextmanager
