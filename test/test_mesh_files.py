@@ -327,3 +327,26 @@ def test_triangle_counts_in_stl_and_ply_headers_are_held_to_the_limit_before_rea
     with pytest.raises(MeshFileError, match='v.ply: PLY header says 42 vertex elements, more '
                                             'than the limit of 39'):
         load_target(one_face, NAMES, mesh_materials='MLI')
+
+
+def test_parts_map_by_the_names_the_file_gives_them(tmp_path):
+    """Two nodes named 'wing' (a CAD export's two solar wings) each placing the mesh
+    'panel' of two primitives (materials 'cells' and 'frame'). trimesh renames them
+    ('wing_1', a primitive's child frame 'wing_8846ae', the second primitive 'panel_1'),
+    so mesh_materials {wing: ...} or {panel: ...}, the file's own names, stopped the load
+    with "['frame'] not mapped" or "['wing_1'] not mapped" (a name not in the file)."""
+    data = triangle_bytes()
+    prim = {'attributes': {'POSITION': 0}, 'indices': 1}
+    doc = one_buffer_gltf(data, nodes=[{'mesh': 0, 'name': 'wing'},
+                                       {'mesh': 0, 'name': 'wing', 'translation': [0, 0, 4]}])
+    doc['meshes'] = [{'name': 'panel', 'primitives': [{**prim, 'material': 0}, {**prim, 'material': 1}]}]
+    doc['materials'] = [{'name': 'cells'}, {'name': 'frame'}]
+    path = write_glb(tmp_path / 'wings.glb', doc, data)
+    for mapping, name in (({'wing': 'SOLAR_ARRAY'}, 'SOLAR_ARRAY'), ({'panel': 'MLI'}, 'MLI')):
+        t = load_target(path, NAMES, mesh_materials=mapping)
+        assert t.n_faces == 4 and set(t.face_material) == {NAMES.index(name)}
+    # The material name still comes first; an unmapped part is named by the file's names.
+    t = load_target(path, NAMES, mesh_materials={'cells': 'SOLAR_ARRAY', 'wing': 'ALUMINIUM'})
+    assert sorted(np.bincount(t.face_material, minlength=4)) == [0, 0, 2, 2]
+    with pytest.raises(MeshMaterialError, match=r"\['frame'\] not mapped"):
+        load_target(path, NAMES, mesh_materials={'cells': 'SOLAR_ARRAY'})

@@ -112,7 +112,7 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
     if json_bytes > MAX_GLTF_JSON_BYTES:
         raise MeshFileError(f'{path}: {json_bytes} bytes of glTF JSON exceed the limit of '
                             f'{MAX_GLTF_JSON_BYTES} (keep buffers in a .bin or a .glb)')
-    _check_gltf_document(path, json_bytes, max_triangles)
+    file_names = _check_gltf_document(path, json_bytes, max_triangles)
     _check_binary_stl_length(path, size)
     _check_header_counts(path, size, max_triangles)
     if size > MAX_TEXT_MESH_BYTES and _is_text_mesh(path, size):
@@ -130,13 +130,13 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
         if n_faces > max_triangles:
             raise MeshFileError(f'{path}: more than {max_triangles} triangles')
         material = getattr(getattr(getattr(geom, 'visual', None), 'material', None), 'name', None)
-        candidates = [n for n in (material, node, geom_name) if n]
+        candidates = [n for n in (material, *_file_names(scene, node, geom_name, file_names)) if n]
         chosen = _material_of(candidates, material_names, mesh_materials)
         if chosen is not None and chosen not in material_names:
             raise MeshMaterialError(f'{path}: part {candidates[0]!r} is mapped to {chosen!r}, '
                                     f'which is not in the materials config ({material_names})')
         if chosen is None:
-            unmapped.append(material or node)
+            unmapped.append(candidates[0])
             continue
         v, f = _used_vertices(np.asarray(geom.vertices), _checked_faces(
             np.asarray(geom.faces, dtype=np.int64), len(geom.vertices), path, candidates[0]))
@@ -154,15 +154,35 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
     return np.vstack(verts), np.vstack(faces), np.concatenate(mats)
 
 
-def _check_gltf_document(path: Path, json_bytes: int, max_triangles: int) -> None:
+def _check_gltf_document(path: Path, json_bytes: int, max_triangles: int) -> set[str]:
     """A glTF's document against the specification (``gltf_check``), before trimesh reads
-    what it understands of it; MeshFileError names the file and the JSON key."""
+    what it understands of it; MeshFileError names the file and the JSON key. Returns the
+    names its nodes and meshes have (empty for other files)."""
     try:
         doc = gltf_document(path, json_bytes)
-        if doc is not None:
-            check_gltf(doc, max_triangles)
+        if doc is None:
+            return set()
+        check_gltf(doc, max_triangles)
     except GltfError as exc:
         raise MeshFileError(f'{path}: {exc}') from None
+    return {item['name'] for key in ('nodes', 'meshes') for item in doc.get(key, [])
+            if isinstance(item.get('name'), str)}
+
+
+_UNIQUE_SUFFIX = re.compile(r'_\d+$')
+
+
+def _file_names(scene: trimesh.Scene, node: str, geom_name: str,
+                file_names: set[str]) -> tuple[str, str]:
+    """The glTF node's and mesh's names as the file gives them, for trimesh's names of a
+    placed part: trimesh makes names unique ('wing' twice: 'wing', 'wing_1'; a mesh's
+    second primitive 'panel_1') and puts each primitive of a mesh of several under a
+    child frame of its node ('wing_8846ae'), names no user can map."""
+    if scene.geometry[geom_name].metadata.get('from_gltf_primitive'):
+        node = scene.graph.transforms.parents.get(node, node)
+    return tuple(_UNIQUE_SUFFIX.sub('', name) if name not in file_names
+                 and _UNIQUE_SUFFIX.sub('', name) in file_names else name
+                 for name in (node, geom_name))
 
 
 def _check_binary_stl_length(path: Path, size: int) -> None:
