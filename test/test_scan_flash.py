@@ -138,7 +138,10 @@ def test_flash_256_profile_threshold_and_frame():
     ({'scan': {'row_readout_s': 0.05}}, 'does not fit the frame period'),
     ({'scan': {'rows': 0}}, 'greater than or equal to 1'),
     ({'scan': {'fov_az_deg': float('inf')}}, 'finite'),
-    ({'scan': {'rows': 5000, 'cols': 5000}}, 'exceed the limit'),
+    ({'scan': {'rows': 1024, 'cols': 5000}}, 'exceed the limit'),
+    # A row is the laser id: 2000 rows wrote rings that compare and calibrate refuse on
+    # reading the simulator's own bag ("laser ids must be whole numbers in [0, 1024)").
+    ({'scan': {'rows': 1025}}, 'less than or equal to 1024'),
 ])
 def test_bad_flash_config_names_key(change, words):
     data = flash_sensor().model_dump()

@@ -205,7 +205,8 @@ class FlashScan(_Model):
     Rows may be read out one after another (``row_readout_s`` apart, row 0 first)."""
 
     type: Literal['flash']
-    rows: Annotated[int, Field(ge=1, le=65535)]
+    rows: Annotated[int, Field(ge=1, le=MAX_LASERS)] = Field(
+        description='pixel rows; a row is a laser id (ring), which every reader bounds by MAX_LASERS')
     cols: Annotated[int, Field(ge=1)]
     fov_az_deg: Annotated[float, Field(ge=MIN_FIELD_DEG, lt=180.0)]
     fov_el_deg: Annotated[float, Field(ge=MIN_FIELD_DEG, lt=180.0)]
