@@ -43,24 +43,44 @@ def test_mid40_recording_gives_back_its_prism_rates(tmp_path):
     assert '7294.00 rpm' in cal.report and '-4664.00 rpm' in cal.report
 
 
+def hours_samples():
+    """3,000 Mid-40 shots of each of frames 0-2 at their own times, and of frame 3 10^4 s
+    after the first."""
+    from lidar_sim_ros.calibrate.scan_samples import ScanSamples
+    from lidar_sim_ros.core.scan_risley import risley_frame
+    sensor = load_sensor(CONFIG / 'livox_mid40.yaml')
+    t, d, frame = [], [], []
+    for k in range(4):
+        shots, directions = risley_frame(sensor.scan, sensor.frame_period_s, k)
+        t.append(shots.t_s[:3000]), d.append(directions[:3000]), frame.append(np.full(3000, k))
+    t, d = np.concatenate(t), np.concatenate(d)
+    return ScanSamples(t, np.zeros_like(t), np.zeros_like(t), d, None, np.concatenate(frame),
+                       None, 'hours.bag', np.array([0.0, 0.1, 0.2, 1e4]))
+
+
 def test_a_recording_spanning_hours_is_fitted_on_its_first_stretch(monkeypatch):
     """The periodogram's grid grows with the time the clouds span, not with the points:
     two 2,000-point clouds 10^4 s apart asked for 32 GiB (100 s apart took 949 MB, 14 s).
     The fit now reads the first MAX_FIT_SPAN_S of the recording and says so."""
     from lidar_sim_ros.calibrate import scan_risley
-    from lidar_sim_ros.calibrate.scan_samples import ScanSamples
-    from lidar_sim_ros.core.scan_risley import risley_frame
     sensor = load_sensor(CONFIG / 'livox_mid40.yaml')
     monkeypatch.setattr(scan_risley, 'MAX_FIT_SPAN_S', 0.35)
-    t, d, frame = [], [], []
-    for k in range(4):                     # frames 0-2 at their own times, frame 3 10^4 s later
-        shots, directions = risley_frame(sensor.scan, sensor.frame_period_s, k)
-        t.append(shots.t_s[:3000]), d.append(directions[:3000]), frame.append(np.full(3000, k))
-    t, d = np.concatenate(t), np.concatenate(d)
-    samples = ScanSamples(t, np.zeros_like(t), np.zeros_like(t), d, None, np.concatenate(frame),
-                          None, 'hours.bag', np.array([0.0, 0.1, 0.2, 1e4]))
-    cal = scan_risley.calibrate_risley(samples, CONFIG / 'livox_mid40.yaml')
+    cal = scan_risley.calibrate_risley(hours_samples(), CONFIG / 'livox_mid40.yaml')
     assert any('the clouds span 10000 s; the prisms are fitted on the first 0.35 s (9000 of 12000 '
                'points)' in w for w in cal.warnings), cal.warnings
     assert len(cal.samples) == 9000
     assert sorted(cal.rates_hz) == pytest.approx(sorted(sensor.scan.prism_rates_hz), abs=1e-6)
+
+
+def test_run_scan_on_a_recording_spanning_hours_writes_the_fit_of_its_first_stretch(
+        tmp_path, monkeypatch):
+    """Through lidar-sim calibrate scan's own function: the error of the written file is
+    computed on the points fitted (the trimming first went into run_risley as well, where
+    it raised NameError)."""
+    from lidar_sim_ros.calibrate import scan_risley
+    monkeypatch.setattr(scan_risley, 'MAX_FIT_SPAN_S', 0.35)
+    samples = hours_samples()
+    monkeypatch.setattr(scan_risley, 'read_scan_samples', lambda *a, **k: samples)
+    cal = run_scan(tmp_path / 'hours.bag', tmp_path / 'fitted.yaml', CONFIG / 'livox_mid40.yaml')
+    assert len(cal.samples) == len(cal.error_deg) == 9000 and cal.rms_deg < 1e-3
+    assert any('the clouds span 10000 s' in w for w in cal.warnings)   # printed by the CLI

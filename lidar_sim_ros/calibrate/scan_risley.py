@@ -304,16 +304,9 @@ def run_risley(bag: str | Path, out: str | Path, sensor: Path, figure: str | Pat
               f'p95 {cal.p95_deg:.3g} deg.']
     cal.out = write_sensor(out, cal.sensor_doc, header)
     written = load_sensor(cal.out).scan
+    samples = cal.samples                   # the points fitted (the first MAX_FIT_SPAN_S)
     starts = samples.frame_start_s if samples.frame_start_s is not None else np.zeros(1)
     t_abs = starts[samples.frame] + samples.t_s
-    early = t_abs - t_abs.min() <= MAX_FIT_SPAN_S
-    if not early.all():
-        warnings.append(f'the clouds span {np.ptp(t_abs):.6g} s; the prisms are fitted on the '
-                        f'first {MAX_FIT_SPAN_S:g} s ({int(early.sum())} of {len(t_abs)} points)')
-        samples = dataclasses.replace(samples, **{k: getattr(samples, k)[early] for k in (
-            't_s', 'az_rad', 'el_rad', 'direction', 'frame')}, laser=None if samples.laser is None
-            else samples.laser[early])
-        t_abs = t_abs[early]
     a = np.radians(written.prism_deviation_deg) * np.exp(1j * np.asarray(written.prism_phase_rad))
     cal.error_deg = angular_error_deg(samples.direction, t_abs, written.prism_rates_hz, a)
     if figure:
