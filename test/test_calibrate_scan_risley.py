@@ -84,3 +84,28 @@ def test_run_scan_on_a_recording_spanning_hours_writes_the_fit_of_its_first_stre
     cal = run_scan(tmp_path / 'hours.bag', tmp_path / 'fitted.yaml', CONFIG / 'livox_mid40.yaml')
     assert len(cal.samples) == len(cal.error_deg) == 9000 and cal.rms_deg < 1e-3
     assert any('the clouds span 10000 s' in w for w in cal.warnings)   # printed by the CLI
+
+
+def test_prisms_the_search_cannot_reach_stop_instead_of_writing_an_alias():
+    """Prisms at 1500 and -900 rev/s (the sensor config allows 10,000; the periodogram
+    searches +-1000): the fit returned -900 and 294.7 rev/s, RMS 9.6 deg, no warning, and
+    calibrate scan wrote that sensor (rc 0). A fit that leaves more than MAX_FIT_RMS_DEG
+    now stops naming the rates, the error and the search range."""
+    from lidar_sim_ros.calibrate.common import CalibrationInputError
+    from lidar_sim_ros.calibrate.scan_risley import calibrate_risley
+    from lidar_sim_ros.calibrate.scan_samples import ScanSamples
+    from lidar_sim_ros.core.scan_risley import risley_frame
+    sensor = load_sensor(CONFIG / 'livox_mid40.yaml')
+    fast = sensor.scan.model_copy(update={'prism_rates_hz': (1500.0, -900.0)})
+    rng = np.random.default_rng(0)
+    t, d, frame = [], [], []
+    for k in range(3):
+        shots, directions = risley_frame(fast, sensor.frame_period_s, k)
+        keep = np.sort(rng.choice(len(shots), 4000, replace=False))
+        t.append(shots.t_s[keep]), d.append(directions[keep]), frame.append(np.full(4000, k))
+    t, d = np.concatenate(t), np.concatenate(d)
+    samples = ScanSamples(t, np.zeros_like(t), np.zeros_like(t), d, None, np.concatenate(frame),
+                          None, 'fast.bag', np.array([0.0, 0.1, 0.2]))
+    with pytest.raises(CalibrationInputError, match=r'fast.bag: the best prism pair found .* RMS '
+                                                    r'[\d.]+ deg, more than 2 deg.*1000 rev/s'):
+        calibrate_risley(samples, CONFIG / 'livox_mid40.yaml')
