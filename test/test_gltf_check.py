@@ -253,3 +253,13 @@ def test_triangles_beyond_the_limit_are_refused_before_trimesh_reads_them(tmp_pa
                                             'the limit of 1'):
         load_target(path, NAMES, mesh_materials='MLI')
     check_gltf(doc)                                     # no limit given: no count
+
+
+def test_json_nested_too_deeply_is_refused_in_one_line(tmp_path):
+    """10^5 nested arrays in a .gltf's extras: Python's JSON parser's RecursionError."""
+    import json
+    text = json.dumps(DOC)[:-1] + ', "extras": ' + '[' * 100_000 + ']' * 100_000 + '}'
+    path = tmp_path / 'deep.gltf'
+    path.write_text(text)
+    with pytest.raises(MeshFileError, match='deep.gltf: its JSON is nested too deeply to read'):
+        load_target(path, NAMES, mesh_materials='MLI')
