@@ -350,3 +350,17 @@ def test_parts_map_by_the_names_the_file_gives_them(tmp_path):
     assert sorted(np.bincount(t.face_material, minlength=4)) == [0, 0, 2, 2]
     with pytest.raises(MeshMaterialError, match=r"\['frame'\] not mapped"):
         load_target(path, NAMES, mesh_materials={'cells': 'SOLAR_ARRAY'})
+
+
+def test_many_unmapped_parts_are_named_in_a_short_line(tmp_path):
+    """5,000 parts of their own names and no map: the error listed every name, a line of
+    ~60 kB (100,000 parts: over 1 MB) in the terminal and the node's log."""
+    data = triangle_bytes()
+    nodes = [{'mesh': 0, 'name': f'bracket_{i:05d}'} for i in range(5000)]
+    doc = one_buffer_gltf(data, nodes=nodes)
+    del doc['materials'][0]['name']
+    with pytest.raises(MeshMaterialError) as err:
+        load_target(write_glb(tmp_path / 'many.glb', doc, data), NAMES)
+    msg = str(err.value)
+    assert "['bracket_00000', 'bracket_00001'" in msg and 'and 4990 more' in msg
+    assert len(msg) < 600 and '\n' not in msg

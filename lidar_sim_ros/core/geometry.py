@@ -25,7 +25,7 @@ from scipy.spatial import ConvexHull, QhullError
 from lidar_sim_ros.core import geometry_kernels as kernels
 from lidar_sim_ros.core import mesh_files
 from lidar_sim_ros.core.memory import release_freed_memory
-from lidar_sim_ros.core.mesh_files import (CAD_SUFFIXES, MeshFileError, MeshMaterialError,
+from lidar_sim_ros.core.mesh_files import (CAD_SUFFIXES, MeshFileError, MeshMaterialError, few,
                                            load_scene, read_cad)
 from lidar_sim_ros.core.pose import Poses
 
@@ -549,7 +549,7 @@ def read_target_mesh(obj_path: str | Path, material_names: list[str],
         offset += len(geom.vertices)
     if unknown:
         raise MeshMaterialError(
-            f'{obj_path}: material group(s) {sorted(set(unknown))} not in the materials config '
+            f'{obj_path}: material group(s) {few(sorted(set(unknown)))} not in the materials config '
             f'(known: {material_names})')
     if not faces:
         raise MeshMaterialError(f'{obj_path}: no triangles found')

@@ -146,7 +146,7 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
         offset += len(v)
     if unmapped:
         raise MeshMaterialError(
-            f'{path}: mesh material/node name(s) {sorted(set(map(str, unmapped)))} not mapped to a '
+            f'{path}: mesh material/node name(s) {few(sorted(set(map(str, unmapped))))} not mapped to a '
             f'config material (give the scenario a mesh_materials entry for each; known '
             f'materials: {material_names})')
     if not faces:
@@ -286,6 +286,13 @@ def _material_of(candidates: list[str], material_names: list[str],
         elif name in material_names:
             return name
     return None
+
+
+def few(names: list[str], shown: int = 10) -> str:
+    """The first ``shown`` of ``names`` and how many more: an error stays a short line
+    (5,000 unmapped parts listed every name, ~60 kB)."""
+    more = f' and {len(names) - shown} more' if len(names) > shown else ''
+    return f'{[n[:60] for n in names[:shown]]}{more}'
 
 
 def _first_line(exc: Exception) -> str:
