@@ -105,19 +105,7 @@ def load_scene(path: Path, loadable: Path, kind: str) -> trimesh.Scene:
 def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[str, str] | None,
              max_triangles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Vertices (m, V x 3), faces (F x 3) and each face's material id of a CAD file."""
-    size = path.stat().st_size
-    if size > MAX_MESH_FILE_BYTES:
-        raise MeshFileError(f'{path}: {size} bytes exceed the limit of {MAX_MESH_FILE_BYTES}')
-    json_bytes = _gltf_json_bytes(path, size)
-    if json_bytes > MAX_GLTF_JSON_BYTES:
-        raise MeshFileError(f'{path}: {json_bytes} bytes of glTF JSON exceed the limit of '
-                            f'{MAX_GLTF_JSON_BYTES} (keep buffers in a .bin or a .glb)')
-    file_names = _check_gltf_document(path, json_bytes, max_triangles)
-    _check_binary_stl_length(path, size)
-    _check_header_counts(path, size, max_triangles)
-    if size > MAX_TEXT_MESH_BYTES and _is_text_mesh(path, size):
-        raise MeshFileError(f'{path}: {size} bytes of text mesh exceed the limit of '
-                            f'{MAX_TEXT_MESH_BYTES} (export it as binary STL or PLY, or glTF)')
+    file_names = check_before_reading(path, max_triangles)
     scene = load_scene(path, path, f'a {path.suffix}')
     verts, faces, mats, unmapped = [], [], [], []
     offset = n_faces = 0
@@ -146,12 +134,31 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
         offset += len(v)
     if unmapped:
         raise MeshMaterialError(
-            f'{path}: mesh material/node name(s) {few(sorted(set(map(str, unmapped))))} not mapped to a '
-            f'config material (give the scenario a mesh_materials entry for each; known '
-            f'materials: {material_names})')
+            f'{path}: mesh material/node name(s) {few(sorted(set(map(str, unmapped))))} not '
+            f'mapped to a config material (give the scenario a mesh_materials entry for each; '
+            f'known materials: {material_names})')
     if not faces:
         raise MeshFileError(f'{path}: no triangles found')
     return np.vstack(verts), np.vstack(faces), np.concatenate(mats)
+
+
+def check_before_reading(path: Path, max_triangles: int) -> set[str]:
+    """What a CAD file's size, headers and glTF document say, checked before trimesh reads
+    it (what trimesh would spend or pass over); returns the glTF's node and mesh names."""
+    size = path.stat().st_size
+    if size > MAX_MESH_FILE_BYTES:
+        raise MeshFileError(f'{path}: {size} bytes exceed the limit of {MAX_MESH_FILE_BYTES}')
+    json_bytes = _gltf_json_bytes(path, size)
+    if json_bytes > MAX_GLTF_JSON_BYTES:
+        raise MeshFileError(f'{path}: {json_bytes} bytes of glTF JSON exceed the limit of '
+                            f'{MAX_GLTF_JSON_BYTES} (keep buffers in a .bin or a .glb)')
+    file_names = _check_gltf_document(path, json_bytes, max_triangles)
+    _check_binary_stl_length(path, size)
+    _check_header_counts(path, size, max_triangles)
+    if size > MAX_TEXT_MESH_BYTES and _is_text_mesh(path, size):
+        raise MeshFileError(f'{path}: {size} bytes of text mesh exceed the limit of '
+                            f'{MAX_TEXT_MESH_BYTES} (export it as binary STL or PLY, or glTF)')
+    return file_names
 
 
 def _check_gltf_document(path: Path, json_bytes: int, max_triangles: int) -> set[str]:
