@@ -364,3 +364,15 @@ def test_many_unmapped_parts_are_named_in_a_short_line(tmp_path):
     msg = str(err.value)
     assert "['bracket_00000', 'bracket_00001'" in msg and 'and 4990 more' in msg
     assert len(msg) < 600 and '\n' not in msg
+
+
+def test_a_non_finite_stl_vertex_is_refused_without_numpy_warnings(tmp_path, recwarn):
+    """'vertex 1 inf 0' in an ASCII STL: numpy's RuntimeWarnings (invalid value in multiply,
+    subtract: six lines from trimesh's normals and the node transform) came before the
+    one-line error."""
+    path = tmp_path / 'inf.stl'
+    path.write_text('solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 inf 0\n'
+                    'vertex 0 1 0\nendloop\nendfacet\nendsolid x\n')
+    with pytest.raises(MeshFileError, match='inf.stl: 1 of 3 vertices are not finite'):
+        load_target(path, NAMES, mesh_materials='MLI')
+    assert not [str(w.message) for w in recwarn if issubclass(w.category, RuntimeWarning)]

@@ -93,8 +93,11 @@ def load_scene(path: Path, loadable: Path, kind: str) -> trimesh.Scene:
     external files read from its own folder only (``DirectoryResolver``); anything trimesh
     cannot read is a MeshFileError naming ``path`` (``kind``: 'an OBJ', 'a .glb')."""
     try:
-        return trimesh.load(str(loadable), force='scene', process=False,
-                            resolver=DirectoryResolver(loadable))
+        # Non-finite values are refused afterwards (geometry.checked_mesh), in one line:
+        # numpy's warnings on them from inside trimesh would come first.
+        with np.errstate(all='ignore'):
+            return trimesh.load(str(loadable), force='scene', process=False,
+                                resolver=DirectoryResolver(loadable))
     except MeshFileError:
         raise
     except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds on malformed files
@@ -128,7 +131,8 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
             continue
         v, f = _used_vertices(np.asarray(geom.vertices), _checked_faces(
             np.asarray(geom.faces, dtype=np.int64), len(geom.vertices), path, candidates[0]))
-        verts.append(v @ np.asarray(matrix)[:3, :3].T + np.asarray(matrix)[:3, 3])
+        with np.errstate(all='ignore'):      # non-finite: refused by checked_mesh
+            verts.append(v @ np.asarray(matrix)[:3, :3].T + np.asarray(matrix)[:3, 3])
         faces.append(f + offset)
         mats.append(np.full(len(geom.faces), material_names.index(chosen)))
         offset += len(v)
