@@ -158,3 +158,51 @@ def test_answers_do_not_depend_on_the_thread_count(one_pose, cull, monkeypatch):
     for other in answers[1:]:
         for field in ('hit', 'range_m', 'normal', 'incidence_rad', 'cos_incidence', 'material', 'face'):
             np.testing.assert_array_equal(getattr(other, field), getattr(answers[0], field))
+
+
+def test_one_pose_and_origin_leave_out_the_same_rays_as_a_pose_per_ray(monkeypatch):
+    """A global exposure (one pose, one origin) moves one origin into the body frame and
+    rotates only the directions: the rays kept by the box and every answer are those of the
+    same pose given once per ray, and Embree's own on every ray."""
+    from lidar_sim_ros.core import geometry, geometry_kernels as kernels
+    monkeypatch.setattr(geometry, 'CULL_WORTH', 0.0)
+    target = sphere_target(1.0, subdivisions=3)
+    d = rays(8000, 21)
+    quat = Rotation.random(1, random_state=22).as_quat()
+    position, origin = np.array([[5.5, 0.2, -0.1]]), np.array([[0.01, -0.02, 0.03]])
+    order = np.random.default_rng(23).permutation(len(d))
+    one = kernels.rays_to_body_in_box(quat, position, origin, d, order, target.box_lo_m, target.box_hi_m)
+    each = kernels.rays_to_body_in_box(np.repeat(quat, len(d), 0), np.repeat(position, len(d), 0),
+                                       np.repeat(origin, len(d), 0), d, order, target.box_lo_m,
+                                       target.box_hi_m)
+    assert 0 < np.count_nonzero(one[2] >= 0) < len(d)
+    for a, b in zip(one, each):
+        np.testing.assert_array_equal(a, b)
+    assert len(kernels.rays_to_body_in_box(quat, position, origin, d[:0], order[:0],
+                                           target.box_lo_m, target.box_hi_m)[2]) == 0
+    poses = Poses.from_quat(quat, position)
+    hits = cast_at_poses(target, d, poses, origin_lidar_m=origin)
+    o32, d32 = kernels.rays_to_body(quat, position, origin, d, np.arange(len(d)))
+    face, tfar = target.intersect(o32, d32)
+    np.testing.assert_array_equal(hits.face, face)
+    np.testing.assert_array_equal(hits.range_m[face >= 0], tfar[face >= 0])
+
+
+@pytest.mark.parametrize('n, threads', [(100_000, 2), (65_536, 3), (4_099, 2)])
+def test_parts_of_equal_cost_cover_every_item_once(n, threads):
+    """``split_over_threads`` with a cost per block: contiguous parts, in order, covering
+    range(n) once, none empty; with the cost all in the middle (a flash frame's hits) the
+    parts hold near-equal cost, not equal counts."""
+    from lidar_sim_ros.core.geometry import CULL_SAMPLE, split_over_threads
+    blocks = -(-n // CULL_SAMPLE)
+    cost = np.ones(blocks)
+    cost[blocks // 3: blocks // 2] = 40.0
+    parts = split_over_threads(n, threads, lambda part: part, min_per_thread=1024, cost=cost)
+    assert parts[0].start == 0 and parts[-1].stop == n
+    assert all(a.stop == b.start for a, b in zip(parts[:-1], parts[1:]))
+    assert all(p.stop > p.start for p in parts)
+    per_item = np.repeat(cost, CULL_SAMPLE)[:n]
+    share = np.array([per_item[p].sum() for p in parts]) / per_item.sum()
+    if len(parts) > 1:
+        assert share.max() < 2.0 / len(parts)
+        assert max(p.stop - p.start for p in parts) > 3 * min(p.stop - p.start for p in parts)

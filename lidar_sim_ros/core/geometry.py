@@ -129,21 +129,24 @@ PARTS_PER_THREAD = 4     # parts a split makes per thread, which every thread ta
 
 
 def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
-                       min_per_thread: int = MIN_RAYS_PER_THREAD) -> list[T]:
+                       min_per_thread: int = MIN_RAYS_PER_THREAD,
+                       cost: np.ndarray | None = None) -> list[T]:
     """``work`` on contiguous parts of range(n) over ``threads`` threads, results in order.
 
     For GIL-free work (Embree casts, ``nogil`` kernels). The parts (PARTS_PER_THREAD per
     thread, none under ``min_per_thread``) are taken in turn by the calling thread and by
     pool threads as each comes free, so a pool thread still busy with earlier work (a
     frame's noise draw, ``Beside``) takes fewer. Fewer threads when parts would hold less
-    than ``min_per_thread``.
+    than ``min_per_thread``. ``cost`` (None: every item alike): the relative cost of the
+    blocks of ``ceil(n / len(cost))`` items in turn; the parts then hold equal cost, not
+    equal counts (a flash frame's hits are in the middle of its cast order).
     """
     threads = max(1, min(int(threads), n // max(min_per_thread, 1)))
     if threads == 1:
         return [work(slice(0, n))]
     k = max(threads, min(threads * PARTS_PER_THREAD, n // max(min_per_thread, 1)))
-    bounds = np.linspace(0, n, k + 1).astype(int)
-    parts = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    parts = [slice(int(a), int(b)) for a, b in zip(*_part_bounds(n, k, cost))]
+    k = len(parts)
     results: list = [None] * k
     taken = itertools.count()      # next() on it is atomic under the GIL
 
@@ -155,6 +158,19 @@ def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
     for f in futures:
         f.result()
     return results
+
+
+def _part_bounds(n: int, k: int, cost: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Starts and ends of k contiguous parts of range(n): equal counts, or (``cost``, one
+    value per block of ceil(n / len(cost)) items) near-equal cost, none empty."""
+    if cost is None or len(cost) == 0:
+        bounds = np.linspace(0, n, k + 1).astype(np.int64)
+    else:
+        step = -(-n // len(cost))
+        cum = np.cumsum(np.asarray(cost, float))
+        cut = np.searchsorted(cum, cum[-1] * np.arange(1, k) / k, side='right')
+        bounds = np.unique(np.concatenate([[0], np.minimum(cut * step, n), [n]]))
+    return bounds[:-1], bounds[1:]
 
 
 class Beside:
@@ -309,7 +325,7 @@ class Target:
         out = _HitRows.empty(len(rays))
         bary = np.zeros((len(rays), 2), np.float32) if barycentric else None
         step = slice(None, None, CULL_SAMPLE)
-        cull = _worth_culling(self, kernels.body_rays_in_box(
+        cull, cost = _culling(kernels.body_rays_in_box(
             rays.origins_m[step], rays.directions[step], self.box_lo_m, self.box_hi_m)[2])
 
         in_order = _in_order(rays.order)
@@ -321,7 +337,7 @@ class Target:
             _cast_part(self, o32, d32, slot, rays.order[part],
                        None if length_m is None else length_m[part], rays.quat_xyzw,
                        rays.directions_out, out, part if in_order else None, bary)
-        split_over_threads(len(rays), self.threads, work)
+        split_over_threads(len(rays), self.threads, work, cost=cost)
         return out.hits(barycentric=bary)
 
 
@@ -410,7 +426,7 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
         length_m = np.asarray(length_m, np.float32)
     out = _HitRows.empty(len(d))
     hits = out.hits()
-    cull = _worth_culling(target, kernels.rays_to_body_in_box(
+    cull, cost = _culling(kernels.rays_to_body_in_box(
         quat, position, origin, d, order[::CULL_SAMPLE], target.box_lo_m, target.box_hi_m)[2])
     lengths = None if length_m is None else length_m.take(order)
 
@@ -426,7 +442,7 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
                    quat, d, out, view)
         if then is not None:
             then(hits, view)
-    split_over_threads(len(d), target.threads, work)
+    split_over_threads(len(d), target.threads, work, cost=cost)
     return hits
 
 
@@ -435,12 +451,18 @@ CULL_SAMPLE = 64        # every 64th ray tells whether the bounding-box test pay
 CULL_WORTH = 0.25       # the share of rays it must leave out (a cast miss costs ~5x the test)
 
 
-def _worth_culling(target: Target, sample_slot: np.ndarray) -> bool:
+CULL_KEPT_COST = 6.0    # a ray cast costs ~6x one left out (Embree ~100 ns against ~16 ns)
+
+
+def _culling(sample_slot: np.ndarray) -> tuple[bool, np.ndarray | None]:
     """Whether enough rays miss the mesh's bounding box for the test to pay (a flash array
     around the target: 60 % of its pixels; a P-60 frame filled by it: few), judged on a
-    sample's slots (-1: outside). Either way every ray gets the same answer."""
-    return (len(sample_slot) >= 16
+    sample's slots (-1: outside, one per CULL_SAMPLE rays), and then each sampled block's
+    relative cost, for ``split_over_threads`` to balance the parts (the rays cast are
+    together in the middle of a flash frame). Either way every ray gets the same answer."""
+    cull = (len(sample_slot) >= 16
             and np.count_nonzero(sample_slot < 0) >= CULL_WORTH * len(sample_slot))
+    return cull, (1.0 + CULL_KEPT_COST * (sample_slot >= 0)) if cull else None
 
 
 def _cast_part(target: Target, o32: np.ndarray, d32: np.ndarray, slot: np.ndarray,
