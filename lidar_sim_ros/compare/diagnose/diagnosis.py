@@ -382,6 +382,27 @@ def _num(x: float) -> float | None:
     return None if x is None or not np.isfinite(x) else round(float(x), 6)
 
 
+def _better_of(held: float, fitted: float, charged: float) -> int:
+    """A named candidate against the reference pose that explains the same residual:
+    1 the candidate, -1 the pose, 0 a tie. ``held``: the candidate's held-out gain less
+    the pose's (nats/point); ``fitted``: the pose-corrected model's NLL less the
+    candidate's, as --fit leaves them; ``charged``: the same with each parameter charged
+    one nat (AIC), so the pose's six per cloud gain nothing by their number alone.
+    MIN_PRACTICAL_GAIN apart held out, the better one stands, unless the charged fitted
+    footing says the opposite by as much: the pose's held-out test is linear in the
+    correction (points a pose error moves across a depth step leave it as outliers)
+    while the candidate and the fitted pose are raycast again, so the two footings
+    disagreeing by a margin is a tie, not a winner. Held out closer than the margin,
+    the fitted footing decides; closer there too, a tie."""
+    if abs(held) >= MIN_PRACTICAL_GAIN:
+        if abs(charged) >= MIN_PRACTICAL_GAIN and (held > 0) != (charged > 0):
+            return 0
+        return 1 if held > 0 else -1
+    if abs(fitted) >= MIN_PRACTICAL_GAIN:
+        return 1 if fitted > 0 else -1
+    return 0
+
+
 @dataclass
 class Decision:
     """What the diagnosis concludes: the missing effect (or None), the candidates that
@@ -727,10 +748,13 @@ class Diagnosis:
                     continue
                 held = float(c.score - pose.gain)
                 fitted = float(on_pose.before_nll - c.nll_after)
-                c.against_pose.update(heldout_margin=_num(held), fitted_margin=_num(fitted))
-                margin = held if abs(held) >= MIN_PRACTICAL_GAIN else fitted
-                better[c.name] = (0 if abs(margin) < MIN_PRACTICAL_GAIN
-                                  else 1 if margin > 0 else -1)
+                # In-sample the pose's parameters fit better by their number alone:
+                # charged at one nat each (AIC) on the points the pose was fitted on.
+                charged = fitted + ((getattr(pose, 'n_params', 0) - (c.n_params or 1))
+                                    / max(len(on_pose.rays.matched), 1))
+                c.against_pose.update(heldout_margin=_num(held), fitted_margin=_num(fitted),
+                                      fitted_margin_charged=_num(charged))
+                better[c.name] = _better_of(held, fitted, charged)
             if any(b > 0 for b in better.values()):
                 return decision            # the candidate explains more than the pose
             tied = [n for n, b in better.items() if b == 0]
