@@ -514,6 +514,13 @@ def test_held_out_and_fitted_footings_disagreeing_is_a_tie(pose_nll, tie):
         assert d.missing == 'time_offset' and d.confounded_with == []
     assert clock.against_pose['fitted_margin_charged'] == pytest.approx(
         pose_nll + 2.05 + 29 / N, abs=1e-6)
+    # The two NLLs on the same points (``same_points``) replace the two samples' own:
+    # equal there, no disagreement, whatever the pose-corrected sample's NLL.
+    d = Hand().judge_pose(pose_test, [clock], dg.Decision('time_offset', []),
+                          recast=lambda p: (on_pose, p),
+                          same_points=lambda p, effect: (-2.05, -2.05))
+    assert d.missing == 'time_offset' and d.confounded_with == []
+    assert clock.against_pose['fitted_margin'] == 0.0
 
 
 def test_better_of_closed_form():

@@ -451,6 +451,10 @@ class Diagnosis:
         self.far_rate = background_rate(*far_args)
         self.far_sides = far_sides(*far_args, self.far_rate)
         self.far_u = far_positions(*far_args, self.far_rate)
+        off = (np.asarray(self.full.unmatched_range_m, float)[rays.isolated[rays.unmatched]]
+               if rays.isolated is not None and len(rays.unmatched) else np.zeros(0))
+        self.off_ranges_m = off[np.isfinite(off)]
+        self.off_u = off_target_positions(self.off_ranges_m, self.full.range_window_m)
         self._base_outlier_w = float(np.mean(lk.model_on_rays(
             self.full, []).outlier_w)) if len(self.rays.matched) else 0.0
 
@@ -610,6 +614,17 @@ class Diagnosis:
                             f'they bunch (Kolmogorov-Smirnov D = {ks.statistic:.2f}, '
                             f'p = {ks.pvalue:.1e}): returns at a preferred range (multipath via a '
                             'specular surface, a ghost, a second surface), not background light')
+            if len(self.off_u) >= MIN_FAR_POINTS and unmatched_explained >= self.n_far:
+                ks = kstest(self.off_u, 'uniform')
+                if ks.pvalue < norm.sf(self.z_crit):
+                    a, b = np.percentile(self.off_ranges_m, [25, 75])
+                    return (f'its false returns on the shots that miss the target would spread '
+                            'over the range window as background arrivals do (evenly, or '
+                            f'falling off with range), but the {len(self.off_u)} isolated points '
+                            f'off the target bunch (Kolmogorov-Smirnov D = {ks.statistic:.2f}, '
+                            f'p = {ks.pvalue:.1e}; half of them between {a:.1f} and {b:.1f} m): '
+                            'a surface that is not the target (lab clutter: its edges have no '
+                            'neighbour at their range), not background light')
         return None
 
     def share_veto(self, cand: Candidate, attribution: Attribution | None) -> None:
@@ -684,7 +699,7 @@ class Diagnosis:
         return out
 
     def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision,
-                   recast=None, constant_test=None) -> Decision:
+                   recast=None, constant_test=None, same_points=None) -> Decision:
         """Whether the reference pose is off, and what it leaves the candidates.
         ``pose_test(effects)``: the per-cloud rigid correction's test
         (``pose_error.fit_reference_pose``) on the model with ``effects``;
@@ -705,8 +720,10 @@ class Diagnosis:
         - Neither adds to the other: held out (the candidate's gain against the pose's)
           and, where those are closer than MIN_PRACTICAL_GAIN, as --fit leaves them (the
           candidate's fitted NLL against the pose-corrected model's, the footing
-          ``weigh_pose_rivals`` uses), MIN_PRACTICAL_GAIN apart the better one stands;
-          closer, a tie (``confounded_with``: pose_error and the candidate). The held-out
+          ``weigh_pose_rivals`` uses; ``same_points(pose, effect)``: the two NLLs on the
+          same points), MIN_PRACTICAL_GAIN apart the better one stands; closer, a tie
+          (``confounded_with``: pose_error and the candidate). Held out and fitted
+          disagreeing by the margin is a tie too (``_better_of``). The held-out
           footing comes first: in-sample, six parameters per cloud always fit better
           than one of a clock offset."""
         tests = [pose_test] + ([constant_test] if constant_test is not None else [])
@@ -747,7 +764,11 @@ class Diagnosis:
                 if not self.nameable(c):
                     continue
                 held = float(c.score - pose.gain)
-                fitted = float(on_pose.before_nll - c.nll_after)
+                if same_points is not None:     # the two NLLs on the same points
+                    pose_nll, c_nll = same_points(pose, c.effect)
+                    fitted = float(pose_nll - c_nll)
+                else:
+                    fitted = float(on_pose.before_nll - c.nll_after)
                 # In-sample the pose's parameters fit better by their number alone:
                 # charged at one nat each (AIC) on the points the pose was fitted on.
                 charged = fitted + ((getattr(pose, 'n_params', 0) - (c.n_params or 1))
@@ -983,6 +1004,29 @@ def arrival_cdf(x: np.ndarray, rate: float) -> np.ndarray:
     if rate < 1e-9:
         return x
     return np.expm1(-rate * x) / np.expm1(-rate)
+
+
+def off_target_positions(range_m: np.ndarray, window_m: tuple[float, float]) -> np.ndarray:
+    """Where isolated points off the target lie in the first-arrival law, 0..1: uniform
+    if they are background arrivals on shots that miss the target (each listens over
+    the whole window). The window runs from its start to the farthest of them (a
+    recording's gate may end before the configured one); the law's rate is fitted to
+    them (``arrival_cdf``: evenly, or crowding the start for a strong background)."""
+    r = np.asarray(range_m, float)
+    lo = float(window_m[0])
+    if len(r) < 2 or not np.max(r) > lo:
+        return np.zeros(0)
+    x = np.clip((r - lo) / (float(np.max(r)) - lo), 0.0, 1.0)
+
+    def nll(rate: float) -> float:
+        if rate < 1e-9:
+            return 0.0
+        return float(-np.sum(np.log(rate / -np.expm1(-rate)) - rate * x))
+
+    res = minimize_scalar(nll, bounds=(0.0, MAX_ARRIVAL_RATE), method='bounded',
+                          options={'xatol': 1e-3})
+    rate = float(res.x) if res.fun < 0.0 else 0.0
+    return arrival_cdf(x, rate)
 
 
 def _far_segments(expected_m: np.ndarray, threshold_m: np.ndarray,
