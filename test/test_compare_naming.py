@@ -532,3 +532,32 @@ def test_better_of_closed_form():
     assert dg._better_of(-2 * m, -2 * m, -2 * m) == -1
     assert dg._better_of(0.5 * m, 2 * m, -2 * m) == 1      # held out close: fitted decides
     assert dg._better_of(0.5 * m, 0.5 * m, 0.0) == 0
+
+
+def test_pose_off_beside_the_named_effect_decides_again_on_the_corrected_pose():
+    """judge_pose(): the pose is off beside the named effect (its test passes on top of
+    it) and the named effect passes on the corrected pose, but there another candidate
+    explains more: the decision is taken on the pose-corrected model (the fifth
+    holdout: a range walk with a drifting pose named incidence_angle, or range_walk
+    with incidence_angle said to explain a part of its own)."""
+    inc = cand('incidence_angle', 0.06, -2.06, seed=21)
+    walk = cand('range_walk', 0.04, -2.05, seed=22)
+    inc_p = cand('incidence_angle', 0.01, -2.03, seed=23)    # the same draws: paired
+    walk_p = cand('range_walk', 0.05, -2.07, seed=23)
+    on_pose = Hand(again={'incidence_angle': inc_p, 'range_walk': walk_p})
+    pose = SimpleNamespace(significant=True, constant=False, gain=0.06, z=9.0)
+    d = Hand().judge_pose(lambda on_top: pose, [inc, walk],
+                          dg.Decision('incidence_angle', [], also='range_walk'),
+                          recast=lambda p: (on_pose, p))
+    assert d.missing == 'range_walk' and d.also is None and d.pose is pose
+    assert inc.against_pose['passes_on_pose'] is True
+    # Where the pose-corrected model keeps both apart, both stay: a named effect and
+    # a second part of the residual.
+    both = Hand(again={'incidence_angle': inc_p, 'range_walk': walk_p},
+                on_top={('range_walk', 'incidence_angle'): True})
+    both_fitted = cand('incidence_angle', 0.045, -2.069, seed=23)
+    both.again['incidence_angle'] = both_fitted
+    d = Hand().judge_pose(lambda on_top: pose, [inc, walk],
+                          dg.Decision('incidence_angle', [], also='range_walk'),
+                          recast=lambda p: (both, p))
+    assert d.missing == 'range_walk' and d.also == 'incidence_angle'

@@ -785,9 +785,12 @@ class Diagnosis:
             return Decision(None, [], pose=pose, withheld=dict(decision.withheld))
         if not any(passes.values()):
             return Decision(None, [], pose=pose)
-        if not (decision.missing and passes.get(decision.missing)):
-            decision = on_pose.decide(again)
-        return replace(decision, pose=pose)
+        # The pose is off beside what was named (its test passes on top of it): the
+        # candidates are decided again on the pose-corrected model, which is named, a
+        # tie, and what also explains another part. On the recorded pose a drifting
+        # pose's residual at silhouettes reads as incidence: beside a range walk it
+        # was named, or said to explain a part of its own ("also").
+        return replace(on_pose.decide(again), pose=pose, withheld=dict(decision.withheld))
 
     def false_return_budget(self, cand: Candidate) -> dict | None:
         """For an outlier effect as fitted (``cand.effect``): how many false returns it
