@@ -623,8 +623,9 @@ class Diagnosis:
                             f'falling off with range), but the {len(self.off_u)} isolated points '
                             f'off the target bunch (Kolmogorov-Smirnov D = {ks.statistic:.2f}, '
                             f'p = {ks.pvalue:.1e}; half of them between {a:.1f} and {b:.1f} m): '
-                            'a surface that is not the target (lab clutter: its edges have no '
-                            'neighbour at their range), not background light')
+                            'a surface that is not the target is among them (lab clutter: its '
+                            'edges have no neighbour at their range), so they do not show '
+                            'background light')
         return None
 
     def share_veto(self, cand: Candidate, attribution: Attribution | None) -> None:
