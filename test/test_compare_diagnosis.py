@@ -202,6 +202,29 @@ def test_arrival_cdf_closed_form():
     assert arrival_cdf(np.array([0.25]), 1e-7)[0] == pytest.approx(0.25, abs=1e-6)
 
 
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_off_target_positions_spread_for_background_and_bunch_for_a_surface(seed):
+    """Isolated points off the target (``off_target_positions``): background arrivals
+    over a gate shorter than the configured one (0.5-150 m of 0.5-250 m) and a strong
+    background crowding the window's start pass Kolmogorov-Smirnov at the family bound;
+    the edges of a wall 16 m away (the fifth holdout's lab clutter, which named
+    solar_background with p = 0.043) do not."""
+    from scipy.stats import kstest, norm
+
+    from lidar_sim_ros.compare.diagnose.diagnosis import off_target_positions
+    rng = np.random.default_rng(seed)
+    window = (0.5, 250.0)
+    alpha = norm.sf(3.09)
+    uniform = rng.uniform(0.5, 150.0, 400)
+    assert kstest(off_target_positions(uniform, window), 'uniform').pvalue > alpha
+    strong = 0.5 + rng.exponential(20.0, 400)
+    assert kstest(off_target_positions(strong, window), 'uniform').pvalue > alpha
+    wall = rng.normal(16.1, 0.3, 400)
+    ks = kstest(off_target_positions(wall, window), 'uniform')
+    assert ks.pvalue < alpha and ks.statistic > 0.5
+    assert len(off_target_positions(np.array([3.0]), window)) == 0
+
+
 @pytest.mark.parametrize('seed', [0, 1])
 def test_strong_background_first_arrivals_pass_with_the_fitted_rate(seed):
     """Ranges exponential with a 10 m mean over a 40 m window (rate 4 per window): the

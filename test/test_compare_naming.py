@@ -208,6 +208,16 @@ def test_verdict_says_cannot_be_told_only_with_a_tie_and_nothing_named():
     tie = vd.verdict({**_summary(), 'point_times': 'stamp'}, att, [a, b],
                      dg.Decision(None, [dg.POSE_ERROR, 'time_offset'], pose=pose))
     assert 'cannot be told' in tie and 'none is named' in tie
+    # With point times the tie comes from footings that disagree, and says so (not
+    # "the clouds carry no per-point time").
+    clock = cand('time_offset', 0.04, -2.05, seed=16)
+    clock.against_pose = {'heldout_margin': 0.0054, 'fitted_margin': -0.0217,
+                          'fitted_margin_charged': -0.0193}
+    tie = vd.verdict({**_summary(), 'point_times': 'field'}, att, [clock],
+                     dg.Decision(None, [dg.POSE_ERROR, 'time_offset'], pose=pose))
+    assert 'cannot be told' in tie and 'none is named' in tie
+    assert 'no per-point time' not in tie
+    assert 'better by 0.0054' in tie and 'better by 0.0217 (0.0193' in tie
 
 
 @pytest.mark.parametrize('times, share, first', [
@@ -461,7 +471,8 @@ def test_neither_adds_to_the_other_held_out_gains_apart_decide_first():
     nothing = cand('time_offset', 0.0, -2.022, seed=14, significant=False)
     on_pose = Hand(again={'time_offset': nothing})
     on_pose._before_nll = -2.06                       # the pose fits better in-sample
-    pose = SimpleNamespace(significant=True, constant=False, gain=0.01, z=4.8)
+    # ... by 0.01 nats/point, 30 parameters over N points: 0.0075 of it their number alone
+    pose = SimpleNamespace(significant=True, constant=False, gain=0.01, z=4.8, n_params=30)
 
     def pose_test(on_top):
         return SimpleNamespace(significant=False) if on_top else pose
@@ -474,3 +485,103 @@ def test_neither_adds_to_the_other_held_out_gains_apart_decide_first():
     d = Hand().judge_pose(pose_test, [clock], dg.Decision('time_offset', []),
                           recast=lambda p: (on_pose, p))
     assert d.missing is None and d.confounded_with == [] and d.pose is pose
+
+
+@pytest.mark.parametrize('pose_nll, tie', [
+    (-2.06, False),        # in-sample better by 0.01, 0.0025 once its parameters are charged
+    (-2.08, True)])        # better by 0.03 (0.0225 charged): the footings disagree
+def test_held_out_and_fitted_footings_disagreeing_is_a_tie(pose_nll, tie):
+    """judge_pose(): a time offset gains 0.03 nats/point more held out than the per-cloud
+    pose (whose held-out test is linear), but with the pose raycast again and fitted it
+    is the pose that explains more, beyond what its 30 parameters buy in-sample: a tie
+    (pose_error, time_offset), not the clock offset (a reference pose drifting within
+    each cloud was named ``time_offset``)."""
+    clock = cand('time_offset', 0.04, -2.05, seed=15)
+    nothing = cand('time_offset', 0.0, -2.022, seed=15, significant=False)
+    on_pose = Hand(again={'time_offset': nothing})
+    on_pose._before_nll = pose_nll
+    pose = SimpleNamespace(significant=True, constant=False, gain=0.01, z=4.8, n_params=30)
+
+    def pose_test(on_top):
+        return SimpleNamespace(significant=False) if on_top else pose
+
+    d = Hand().judge_pose(pose_test, [clock], dg.Decision('time_offset', []),
+                          recast=lambda p: (on_pose, p))
+    if tie:
+        assert d.missing is None and d.confounded_with == [dg.POSE_ERROR, 'time_offset']
+        assert d.pose is pose
+    else:
+        assert d.missing == 'time_offset' and d.confounded_with == []
+    assert clock.against_pose['fitted_margin_charged'] == pytest.approx(
+        pose_nll + 2.05 + 29 / N, abs=1e-6)
+    # The two NLLs on the same points (``same_points``) replace the two samples' own:
+    # equal there, no disagreement, whatever the pose-corrected sample's NLL.
+    d = Hand().judge_pose(pose_test, [clock], dg.Decision('time_offset', []),
+                          recast=lambda p: (on_pose, p),
+                          same_points=lambda p, effect: (-2.05, -2.05))
+    assert d.missing == 'time_offset' and d.confounded_with == []
+    assert clock.against_pose['fitted_margin'] == 0.0
+
+
+def test_better_of_closed_form():
+    """The three footings of a candidate against the pose (``_better_of``)."""
+    m = dg.MIN_PRACTICAL_GAIN
+    assert dg._better_of(2 * m, -2 * m, 0.0) == 1          # charged: no disagreement
+    assert dg._better_of(2 * m, -3 * m, -2 * m) == 0       # disagree by a margin: a tie
+    assert dg._better_of(-2 * m, 3 * m, 2 * m) == 0
+    assert dg._better_of(-2 * m, -2 * m, -2 * m) == -1
+    assert dg._better_of(0.5 * m, 2 * m, -2 * m) == 1      # held out close: fitted decides
+    assert dg._better_of(0.5 * m, 0.5 * m, 0.0) == 0
+
+
+def test_pose_off_beside_the_named_effect_decides_again_on_the_corrected_pose():
+    """judge_pose(): the pose is off beside the named effect (its test passes on top of
+    it) and the named effect passes on the corrected pose, but there another candidate
+    explains more: the decision is taken on the pose-corrected model (the fifth
+    holdout: a range walk with a drifting pose named incidence_angle, or range_walk
+    with incidence_angle said to explain a part of its own)."""
+    inc = cand('incidence_angle', 0.06, -2.06, seed=21)
+    walk = cand('range_walk', 0.04, -2.05, seed=22)
+    inc_p = cand('incidence_angle', 0.01, -2.03, seed=23)    # the same draws: paired
+    walk_p = cand('range_walk', 0.05, -2.07, seed=23)
+    on_pose = Hand(again={'incidence_angle': inc_p, 'range_walk': walk_p})
+    pose = SimpleNamespace(significant=True, constant=False, gain=0.06, z=9.0)
+    d = Hand().judge_pose(lambda on_top: pose, [inc, walk],
+                          dg.Decision('incidence_angle', [], also='range_walk'),
+                          recast=lambda p: (on_pose, p))
+    assert d.missing == 'range_walk' and d.also is None and d.pose is pose
+    assert inc.against_pose['passes_on_pose'] is True
+    # Where the pose-corrected model keeps both apart, both stay: a named effect and
+    # a second part of the residual.
+    both = Hand(again={'incidence_angle': inc_p, 'range_walk': walk_p},
+                on_top={('range_walk', 'incidence_angle'): True})
+    both_fitted = cand('incidence_angle', 0.045, -2.069, seed=23)
+    both.again['incidence_angle'] = both_fitted
+    d = Hand().judge_pose(lambda on_top: pose, [inc, walk],
+                          dg.Decision('incidence_angle', [], also='range_walk'),
+                          recast=lambda p: (both, p))
+    assert d.missing == 'range_walk' and d.also == 'incidence_angle'
+
+
+def test_a_second_effect_that_explains_the_pose_part_stands_beside_the_named_one():
+    """judge_pose(): on the recorded pose a range walk is named and a clock offset also
+    explains a part; the corrected pose absorbs the clock offset (it is a pose error of
+    a kind), so on it nothing is left for the second effect. If the pose, tested on top
+    of both, is not off, the clock offset stands beside the walk (the holdout's range
+    walk + 40 ms clock offset); if it is still off, the pose is reported instead."""
+    walk = cand('range_walk', 0.05, -2.07, seed=31)
+    clock = cand('time_offset', 0.03, -2.05, seed=32)
+    walk_p = cand('range_walk', 0.05, -2.07, seed=33)
+    clock_p = cand('time_offset', 0.0, -2.022, seed=33, significant=False)
+    on_pose = Hand(again={'range_walk': walk_p, 'time_offset': clock_p})
+    pose = SimpleNamespace(significant=True, constant=False, gain=0.03, z=6.0)
+    decision = dg.Decision('range_walk', [], also='time_offset')
+
+    def pose_test(on_top):                 # off beside the walk alone, not beside both
+        return SimpleNamespace(significant=False) if len(on_top) >= 2 else pose
+
+    d = Hand().judge_pose(pose_test, [walk, clock], decision, recast=lambda p: (on_pose, p))
+    assert d.missing == 'range_walk' and d.also == 'time_offset' and d.pose is None
+    d = Hand().judge_pose(lambda on_top: pose, [walk, clock], decision,
+                          recast=lambda p: (on_pose, p))
+    assert d.missing == 'range_walk' and d.also is None and d.pose is pose

@@ -733,12 +733,29 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         matching (``recast_all_points``), as a --fit run draws it. Whether the pose is
         off stays the sample's test (``pose``)."""
         if pose.constant not in recast_cache:
-            diag_p, report = recast_all_points(model, effects, rays, sample, meas,
-                                               all_points_pose(pose.constant),
-                                               len(classes), seed, pose.constant)
+            diag_p, report, moved = recast_all_points(model, effects, rays, sample, meas,
+                                                      all_points_pose(pose.constant),
+                                                      len(classes), seed, pose.constant)
             recast_cache[pose.constant] = (diag_p, replace(
-                report, gain=pose.gain, z=pose.z, significant=pose.significant))
-        return recast_cache[pose.constant]
+                report, gain=pose.gain, z=pose.z, significant=pose.significant), moved)
+        return recast_cache[pose.constant][:2]
+
+    def same_points(pose: pose_error.PoseError, effect: Effect) -> tuple[float, float]:
+        """As --fit leaves them, on the same points: NLL per point of the
+        pose-corrected model (raycast again, ``recast``) and of the model with ``effect``
+        (as fitted), on the diagnosis sample's matched points that the corrected pose
+        still matches (each sample's own NLL would differ by the draw alone)."""
+        recast(pose)
+        moved = recast_cache[pose.constant][2]
+        common = np.intersect1d(sample.matched, moved.matched)
+        none = np.zeros(0, dtype=common.dtype)
+        on_pose = diagnosis.calibrated_figures(
+            diagnosis.make_fit_data(model, effects, replace(moved, matched=common,
+                                                            unmatched=none)), [])[0]
+        with_effect = diagnosis.calibrated_figures(
+            diagnosis.make_fit_data(model, effects, replace(sample, matched=common,
+                                                            unmatched=none)), [effect])[0]
+        return on_pose, with_effect
 
     def all_points_pose(constant: bool) -> pose_error.PoseError:
         idx = rays.matched
@@ -747,7 +764,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
             rate=has_point_times(meas), constant=constant)
     decision = diag.judge_pose(pose_test, cands, decision, recast,
-                               lambda on_top: pose_test(on_top, constant=True))
+                               lambda on_top: pose_test(on_top, constant=True), same_points)
     constant = decision.pose is not None and decision.pose.constant
     decision, scored = diag.weigh_pose_rivals(
         decision, rivals, lambda on_top: pose_test(on_top, constant=constant),
@@ -773,7 +790,7 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
                       sample: diagnosis.RaySet, meas: Measurements,
                       pose: pose_error.PoseError, n_candidates: int, seed: int,
                       constant: bool = False
-                      ) -> tuple[diagnosis.Diagnosis, pose_error.PoseError]:
+                      ) -> tuple[diagnosis.Diagnosis, pose_error.PoseError, diagnosis.RaySet]:
     """The diagnosis on the pose-corrected model as a ``--effect pose_error --fit`` run
     builds it: ``pose`` (a fit on every matched point of ``rays``) applied and every
     ray raycast again (``pose_error.iterate``, each step refit on every re-matched
@@ -786,7 +803,8 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
     what is left of a pose error grows with the tangent of the incidence angle, weigh
     in for an incidence-shaped residual a --fit run does not see (docs/compare.md, "A
     sensor effect against the reference pose"). ``sample`` gives the neighbourhood
-    blocks. Returns the diagnosis and the correction (its test ``pose``'s)."""
+    blocks. Returns the diagnosis, the correction (its test ``pose``'s) and the re-cast
+    matching's rays (every point)."""
     sim = geometry(model, effects)
 
     def rematch(corr: pose_error.PoseCorrection):
@@ -817,7 +835,7 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
                                      model.divergence_rad)
     diag = diagnosis.Diagnosis(model, effects, replace(fresh, edge_rad=edge), seed)
     diag.set_family(n_candidates)
-    return diag, report
+    return diag, report, moved_rays
 
 
 def recast_sample(rays: diagnosis.RaySet, meas: Measurements, seed: int) -> diagnosis.RaySet:

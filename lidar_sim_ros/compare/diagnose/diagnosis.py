@@ -382,6 +382,27 @@ def _num(x: float) -> float | None:
     return None if x is None or not np.isfinite(x) else round(float(x), 6)
 
 
+def _better_of(held: float, fitted: float, charged: float) -> int:
+    """A named candidate against the reference pose that explains the same residual:
+    1 the candidate, -1 the pose, 0 a tie. ``held``: the candidate's held-out gain less
+    the pose's (nats/point); ``fitted``: the pose-corrected model's NLL less the
+    candidate's, as --fit leaves them; ``charged``: the same with each parameter charged
+    one nat (AIC), so the pose's six per cloud gain nothing by their number alone.
+    MIN_PRACTICAL_GAIN apart held out, the better one stands, unless the charged fitted
+    footing says the opposite by as much: the pose's held-out test is linear in the
+    correction (points a pose error moves across a depth step leave it as outliers)
+    while the candidate and the fitted pose are raycast again, so the two footings
+    disagreeing by a margin is a tie, not a winner. Held out closer than the margin,
+    the fitted footing decides; closer there too, a tie."""
+    if abs(held) >= MIN_PRACTICAL_GAIN:
+        if abs(charged) >= MIN_PRACTICAL_GAIN and (held > 0) != (charged > 0):
+            return 0
+        return 1 if held > 0 else -1
+    if abs(fitted) >= MIN_PRACTICAL_GAIN:
+        return 1 if fitted > 0 else -1
+    return 0
+
+
 @dataclass
 class Decision:
     """What the diagnosis concludes: the missing effect (or None), the candidates that
@@ -430,6 +451,10 @@ class Diagnosis:
         self.far_rate = background_rate(*far_args)
         self.far_sides = far_sides(*far_args, self.far_rate)
         self.far_u = far_positions(*far_args, self.far_rate)
+        off = (np.asarray(self.full.unmatched_range_m, float)[rays.isolated[rays.unmatched]]
+               if rays.isolated is not None and len(rays.unmatched) else np.zeros(0))
+        self.off_ranges_m = off[np.isfinite(off)]
+        self.off_u = off_target_positions(self.off_ranges_m, self.full.range_window_m)
         self._base_outlier_w = float(np.mean(lk.model_on_rays(
             self.full, []).outlier_w)) if len(self.rays.matched) else 0.0
 
@@ -589,6 +614,18 @@ class Diagnosis:
                             f'they bunch (Kolmogorov-Smirnov D = {ks.statistic:.2f}, '
                             f'p = {ks.pvalue:.1e}): returns at a preferred range (multipath via a '
                             'specular surface, a ghost, a second surface), not background light')
+            if len(self.off_u) >= MIN_FAR_POINTS and unmatched_explained >= self.n_far:
+                ks = kstest(self.off_u, 'uniform')
+                if ks.pvalue < norm.sf(self.z_crit):
+                    a, b = np.percentile(self.off_ranges_m, [25, 75])
+                    return (f'its false returns on the shots that miss the target would spread '
+                            'over the range window as background arrivals do (evenly, or '
+                            f'falling off with range), but the {len(self.off_u)} isolated points '
+                            f'off the target bunch (Kolmogorov-Smirnov D = {ks.statistic:.2f}, '
+                            f'p = {ks.pvalue:.1e}; half of them between {a:.1f} and {b:.1f} m): '
+                            'a surface that is not the target is among them (lab clutter: its '
+                            'edges have no neighbour at their range), so they do not show '
+                            'background light')
         return None
 
     def share_veto(self, cand: Candidate, attribution: Attribution | None) -> None:
@@ -663,7 +700,7 @@ class Diagnosis:
         return out
 
     def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision,
-                   recast=None, constant_test=None) -> Decision:
+                   recast=None, constant_test=None, same_points=None) -> Decision:
         """Whether the reference pose is off, and what it leaves the candidates.
         ``pose_test(effects)``: the per-cloud rigid correction's test
         (``pose_error.fit_reference_pose``) on the model with ``effects``;
@@ -684,8 +721,10 @@ class Diagnosis:
         - Neither adds to the other: held out (the candidate's gain against the pose's)
           and, where those are closer than MIN_PRACTICAL_GAIN, as --fit leaves them (the
           candidate's fitted NLL against the pose-corrected model's, the footing
-          ``weigh_pose_rivals`` uses), MIN_PRACTICAL_GAIN apart the better one stands;
-          closer, a tie (``confounded_with``: pose_error and the candidate). The held-out
+          ``weigh_pose_rivals`` uses; ``same_points(pose, effect)``: the two NLLs on the
+          same points), MIN_PRACTICAL_GAIN apart the better one stands; closer, a tie
+          (``confounded_with``: pose_error and the candidate). Held out and fitted
+          disagreeing by the margin is a tie too (``_better_of``). The held-out
           footing comes first: in-sample, six parameters per cloud always fit better
           than one of a clock offset."""
         tests = [pose_test] + ([constant_test] if constant_test is not None else [])
@@ -726,11 +765,18 @@ class Diagnosis:
                 if not self.nameable(c):
                     continue
                 held = float(c.score - pose.gain)
-                fitted = float(on_pose.before_nll - c.nll_after)
-                c.against_pose.update(heldout_margin=_num(held), fitted_margin=_num(fitted))
-                margin = held if abs(held) >= MIN_PRACTICAL_GAIN else fitted
-                better[c.name] = (0 if abs(margin) < MIN_PRACTICAL_GAIN
-                                  else 1 if margin > 0 else -1)
+                if same_points is not None:     # the two NLLs on the same points
+                    pose_nll, c_nll = same_points(pose, c.effect)
+                    fitted = float(pose_nll - c_nll)
+                else:
+                    fitted = float(on_pose.before_nll - c.nll_after)
+                # In-sample the pose's parameters fit better by their number alone:
+                # charged at one nat each (AIC) on the points the pose was fitted on.
+                charged = fitted + ((getattr(pose, 'n_params', 0) - (c.n_params or 1))
+                                    / max(len(on_pose.rays.matched), 1))
+                c.against_pose.update(heldout_margin=_num(held), fitted_margin=_num(fitted),
+                                      fitted_margin_charged=_num(charged))
+                better[c.name] = _better_of(held, fitted, charged)
             if any(b > 0 for b in better.values()):
                 return decision            # the candidate explains more than the pose
             tied = [n for n, b in better.items() if b == 0]
@@ -740,9 +786,24 @@ class Diagnosis:
             return Decision(None, [], pose=pose, withheld=dict(decision.withheld))
         if not any(passes.values()):
             return Decision(None, [], pose=pose)
-        if not (decision.missing and passes.get(decision.missing)):
-            decision = on_pose.decide(again)
-        return replace(decision, pose=pose)
+        # The pose is off beside what was named (its test passes on top of it): the
+        # candidates are decided again on the pose-corrected model, which is named, a
+        # tie, and what also explains another part. On the recorded pose a drifting
+        # pose's residual at silhouettes reads as incidence: beside a range walk it
+        # was named, or said to explain a part of its own ("also").
+        # A second effect the recorded pose's decision had beside the same named one
+        # ("also") that the corrected pose leaves nothing (a clock offset beside a range
+        # walk) stands if the pose, tested on top of both, is not off (it explained
+        # the pose's part, as a named effect does above).
+        on = on_pose.decide(again)
+        also = by_name.get(decision.also) if decision.also else None
+        first = by_name.get(decision.missing) if decision.missing else None
+        if (also is not None and first is not None and on.missing == first.name
+                and on.also != also.name and also.effect is not None
+                and first.effect is not None
+                and not test([first.effect, also.effect]).significant):
+            return decision
+        return replace(on, pose=pose, withheld=dict(decision.withheld))
 
     def false_return_budget(self, cand: Candidate) -> dict | None:
         """For an outlier effect as fitted (``cand.effect``): how many false returns it
@@ -959,6 +1020,29 @@ def arrival_cdf(x: np.ndarray, rate: float) -> np.ndarray:
     if rate < 1e-9:
         return x
     return np.expm1(-rate * x) / np.expm1(-rate)
+
+
+def off_target_positions(range_m: np.ndarray, window_m: tuple[float, float]) -> np.ndarray:
+    """Where isolated points off the target lie in the first-arrival law, 0..1: uniform
+    if they are background arrivals on shots that miss the target (each listens over
+    the whole window). The window runs from its start to the farthest of them (a
+    recording's gate may end before the configured one); the law's rate is fitted to
+    them (``arrival_cdf``: evenly, or crowding the start for a strong background)."""
+    r = np.asarray(range_m, float)
+    lo = float(window_m[0])
+    if len(r) < 2 or not np.max(r) > lo:
+        return np.zeros(0)
+    x = np.clip((r - lo) / (float(np.max(r)) - lo), 0.0, 1.0)
+
+    def nll(rate: float) -> float:
+        if rate < 1e-9:
+            return 0.0
+        return float(-np.sum(np.log(rate / -np.expm1(-rate)) - rate * x))
+
+    res = minimize_scalar(nll, bounds=(0.0, MAX_ARRIVAL_RATE), method='bounded',
+                          options={'xatol': 1e-3})
+    rate = float(res.x) if res.fun < 0.0 else 0.0
+    return arrival_cdf(x, rate)
 
 
 def _far_segments(expected_m: np.ndarray, threshold_m: np.ndarray,

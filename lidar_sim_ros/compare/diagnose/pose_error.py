@@ -94,6 +94,14 @@ class PoseError:
         return float(np.sqrt(np.mean(np.sum(self.rotation_deg ** 2, axis=1))))
 
     @property
+    def n_params(self) -> int:
+        """Parameters of the correction: six for all the clouds (``constant``), else six
+        per cloud, twelve with a supported rate."""
+        if self.constant:
+            return 6
+        return 6 * len(self.clouds) * (2 if self.rate_supported else 1)
+
+    @property
     def span_s(self) -> float:
         return float(np.ptp(self.t_s)) if len(self.t_s) else 0.0
 

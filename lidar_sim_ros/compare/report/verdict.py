@@ -237,6 +237,24 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
     pose_part = (f'{_correction(pose)[0].lower()}{_correction(pose)[1:]} gains {pose.gain:.4f} '
                  f'nats/point held out (z = {pose.z:.1f}; {pose.words()})'
                  if pose is not None else 'a rigid correction of the target pose per cloud')
+    footings = (c.against_pose or {}) if c is not None else {}
+    how = ('for the whole recording' if getattr(pose, 'constant', False) is True
+           else 'per cloud')
+    if other == ['time_offset'] and footings.get('fitted_margin') is not None \
+            and summary.get('point_times') not in ('stamp', 'scan pattern'):
+        return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
+                f'{pose_part}, and a clock offset explains the residual as well{held}. Held '
+                f'out the clock offset fits better by {footings["heldout_margin"]:.4f} '
+                f'nats/point; with the pose corrected {how} and the model raycast again, '
+                f'as --fit leaves them, the pose fits better by '
+                f'{-footings["fitted_margin"]:.4f} ('
+                f'{-(footings.get("fitted_margin_charged") or footings["fitted_margin"]):.4f} '
+                'with each parameter charged one nat). The two footings disagree, so which of '
+                'the two it is cannot be told from this recording; none is named. A '
+                'recording in which the target turns at another rate (a clock offset moves '
+                'the target by its motion over the offset, a pose error does not follow the '
+                'motion) would separate them; if the tracking system is known to be right, '
+                'try --effect time_offset --fit, else --effect pose_error --fit.')
     if other == ['time_offset']:
         return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
                 f'{pose_part}, and a clock offset explains the residual as well{held}. The '
