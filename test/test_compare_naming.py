@@ -561,27 +561,3 @@ def test_pose_off_beside_the_named_effect_decides_again_on_the_corrected_pose():
                           dg.Decision('incidence_angle', [], also='range_walk'),
                           recast=lambda p: (both, p))
     assert d.missing == 'range_walk' and d.also == 'incidence_angle'
-
-
-def test_a_second_effect_that_explains_the_pose_part_stands_beside_the_named_one():
-    """judge_pose(): on the recorded pose a range walk is named and a clock offset also
-    explains a part; the corrected pose absorbs the clock offset (it is a pose error of
-    a kind), so on it nothing is left for the second effect. If the pose, tested on top
-    of both, is not off, the clock offset stands beside the walk (the holdout's range
-    walk + 40 ms clock offset); if it is still off, the pose is reported instead."""
-    walk = cand('range_walk', 0.05, -2.07, seed=31)
-    clock = cand('time_offset', 0.03, -2.05, seed=32)
-    walk_p = cand('range_walk', 0.05, -2.07, seed=33)
-    clock_p = cand('time_offset', 0.0, -2.022, seed=33, significant=False)
-    on_pose = Hand(again={'range_walk': walk_p, 'time_offset': clock_p})
-    pose = SimpleNamespace(significant=True, constant=False, gain=0.03, z=6.0)
-    decision = dg.Decision('range_walk', [], also='time_offset')
-
-    def pose_test(on_top):                 # off beside the walk alone, not beside both
-        return SimpleNamespace(significant=False) if len(on_top) >= 2 else pose
-
-    d = Hand().judge_pose(pose_test, [walk, clock], decision, recast=lambda p: (on_pose, p))
-    assert d.missing == 'range_walk' and d.also == 'time_offset' and d.pose is None
-    d = Hand().judge_pose(lambda on_top: pose, [walk, clock], decision,
-                          recast=lambda p: (on_pose, p))
-    assert d.missing == 'range_walk' and d.also is None and d.pose is pose

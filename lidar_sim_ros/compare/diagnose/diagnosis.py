@@ -791,19 +791,7 @@ class Diagnosis:
         # tie, and what also explains another part. On the recorded pose a drifting
         # pose's residual at silhouettes reads as incidence: beside a range walk it
         # was named, or said to explain a part of its own ("also").
-        # A second effect the recorded pose's decision had beside the same named one
-        # ("also") that the corrected pose leaves nothing (a clock offset beside a range
-        # walk) stands if the pose, tested on top of both, is not off (it explained
-        # the pose's part, as a named effect does above).
-        on = on_pose.decide(again)
-        also = by_name.get(decision.also) if decision.also else None
-        first = by_name.get(decision.missing) if decision.missing else None
-        if (also is not None and first is not None and on.missing == first.name
-                and on.also != also.name and also.effect is not None
-                and first.effect is not None
-                and not test([first.effect, also.effect]).significant):
-            return decision
-        return replace(on, pose=pose, withheld=dict(decision.withheld))
+        return replace(on_pose.decide(again), pose=pose, withheld=dict(decision.withheld))
 
     def false_return_budget(self, cand: Candidate) -> dict | None:
         """For an outlier effect as fitted (``cand.effect``): how many false returns it
