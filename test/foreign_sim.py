@@ -1314,6 +1314,17 @@ V4: tuple[ForeignSpec, ...] = (
     ForeignSpec('pattern_exact_no_time', None, seed=75, scan='lissajous', point_time='none',
                 stamp='start', spin_dps=12.0, expected=None,
                 note='the P-60 Lissajous as configured, no time field'),
+    # The fifth holdout's two causes (docs/compare.md): a range walk beside a reference
+    # pose drifting within each cloud (incidence_angle was named, or "also"), and a
+    # clock offset with lab clutter (the wall's isolated returns named solar_background).
+    ForeignSpec('walk_with_drift', 'range_walk', {'form': 'poly_log', 'a_m': 0.03,
+                                                  'b_m': 0.006},
+                seed=79, frames=5, pose_error_ramp=(0.0, 0.9), pose_rate_hz=1000.0,
+                scan='lissajous', expected=None,
+                note='range walk and the reference pose drifting within each scan, ~5 cm'),
+    ForeignSpec('clock_with_clutter', 'time_offset', {'dt_s': 0.04}, seed=80, clutter=True,
+                scan='lissajous', spin_dps=20.0, speed_mps=0.25, expected=None,
+                note='40 ms clock offset with a wall, a jig and a cable in view'),
     # Solar false returns in a first-return receiver: 0.5 % a shot over the whole gate.
     ForeignSpec('solar_first_return', 'solar_background',
                 {'fraction': 0.005, 'first_return': True}, seed=76, distance_m=20.0,

@@ -387,6 +387,17 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     fitted: list[Effect] = []
     sun_fit = None
     user = inp.user
+    if opts.fit and user and inp.pose_fit:
+        # The reference pose first: fitted on an uncorrected pose, an effect takes what
+        # the pose error leaves at silhouettes (incidence from a drifting pose), and the
+        # correction after it leaves the effect wrong (the fifth holdout). Corrected
+        # again below on top of the fitted effects.
+        with stage('reference pose', 'before the effects'):
+            m0, r0 = match_rays(inp.model, inp.scenario_effects, inp.meas, power, extra_var,
+                                opts)
+            *_, moved, _ = correct_reference_pose(inp.model, inp.scenario_effects, m0, r0,
+                                                  inp.meas, power, opts)
+            inp = replace(inp, meas=moved)
     if opts.fit and user:
         with stage('fit effects', ', '.join(e.name for e in user)):
             user, sun_fit = fit_user_effects(inp.model, inp.scenario_effects, user, inp.meas,
