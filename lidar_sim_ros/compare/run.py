@@ -387,6 +387,8 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     fitted: list[Effect] = []
     sun_fit = None
     user = inp.user
+    # Neighbourhoods of the points: directions and clouds, whatever the pose.
+    blocks = neighbours.blocks(inp.meas.directions, inp.meas.cloud) if inp.pose_fit else None
     if opts.fit and user and inp.pose_fit:
         # The reference pose first: fitted on an uncorrected pose, an effect takes what
         # the pose error leaves at silhouettes (incidence from a drifting pose), and the
@@ -396,7 +398,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
             m0, r0 = match_rays(inp.model, inp.scenario_effects, inp.meas, power, extra_var,
                                 opts)
             *_, moved, _ = correct_reference_pose(inp.model, inp.scenario_effects, m0, r0,
-                                                  inp.meas, power, opts)
+                                                  inp.meas, power, opts, blocks)
             inp = replace(inp, meas=moved)
     if opts.fit and user:
         with stage('fit effects', ', '.join(e.name for e in user)):
@@ -410,7 +412,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     if inp.pose_fit:
         with stage('reference pose', f'{len(inp.meas.cloud_stamps_s)} clouds'):
             matching, rays, moved, pose_fit = correct_reference_pose(
-                inp.model, effects, matching, rays, inp.meas, power, opts)
+                inp.model, effects, matching, rays, inp.meas, power, opts, blocks)
             inp = replace(inp, meas=moved)
     with stage('materials'):
         cal = calibrate_materials(inp.model, effects, matching, rays, opts.fit,
@@ -539,7 +541,8 @@ def load_inputs(opts: CompareOptions) -> Inputs:
 
 def correct_reference_pose(model: Model, effects: list[Effect], matching: Matching,
                            rays: diagnosis.RaySet, meas: Measurements,
-                           power: PowerFromIntensity, opts: CompareOptions
+                           power: PowerFromIntensity, opts: CompareOptions,
+                           blocks: np.ndarray
                            ) -> tuple[Matching, diagnosis.RaySet, Measurements,
                                       pose_error.PoseError]:
     """``--effect pose_error``: the per-cloud rigid correction of the reference pose
@@ -550,9 +553,10 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     rays, the measurements with the corrected pose track and the correction (its test
     is the first fit's). A reference error, not a sensor effect: the simulator never
     applies it. A correction that is not significant is applied as the linear range
-    change of the matched points (no re-cast: its effect is within the noise)."""
+    change of the matched points (no re-cast: its effect is within the noise).
+    ``blocks``: the points' neighbourhoods (``neighbours.blocks``), the same for every
+    re-cast and pose."""
     extra_var = rays.extra_var_m2
-    blocks = neighbours.blocks(meas.directions, meas.cloud)   # the same for every re-cast
 
     def fit(r: diagnosis.RaySet, applied: pose_error.PoseCorrection | None = None
             ) -> pose_error.PoseError:
@@ -743,21 +747,24 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         gains; and the candidates are scored on a sample drawn anew from the re-cast
         matching (``recast_all_points``), as a --fit run draws it. Whether the pose is
         off stays the sample's test (``pose``)."""
+        return recast_with_rays(pose)[:2]
+
+    def recast_with_rays(pose: pose_error.PoseError):
+        """``recast``'s diagnosis and correction, and the re-cast matching's rays."""
         if pose.constant not in recast_cache:
             diag_p, report, moved = recast_all_points(model, effects, rays, sample, meas,
                                                       all_points_pose(pose.constant),
                                                       len(classes), seed, pose.constant)
             recast_cache[pose.constant] = (diag_p, replace(
                 report, gain=pose.gain, z=pose.z, significant=pose.significant), moved)
-        return recast_cache[pose.constant][:2]
+        return recast_cache[pose.constant]
 
     def same_points(pose: pose_error.PoseError, effect: Effect) -> tuple[float, float]:
         """As --fit leaves them, on the same points: NLL per point of the
         pose-corrected model (raycast again, ``recast``) and of the model with ``effect``
         (as fitted), on the diagnosis sample's matched points that the corrected pose
         still matches (each sample's own NLL would differ by the draw alone)."""
-        recast(pose)
-        moved = recast_cache[pose.constant][2]
+        moved = recast_with_rays(pose)[2]
         common = np.intersect1d(sample.matched, moved.matched)
         none = np.zeros(0, dtype=common.dtype)
         on_pose = diagnosis.calibrated_figures(

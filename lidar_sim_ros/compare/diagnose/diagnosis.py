@@ -1010,6 +1010,12 @@ def arrival_cdf(x: np.ndarray, rate: float) -> np.ndarray:
     return np.expm1(-rate * x) / np.expm1(-rate)
 
 
+def arrival_logpdf(x: np.ndarray, rate: float) -> np.ndarray:
+    """Log density of ``arrival_cdf`` at x (share of the window, 0..1), rate > 0:
+    log(rate / (1 - e^(-rate))) - rate x."""
+    return np.log(rate / -np.expm1(-rate)) - rate * np.asarray(x, float)
+
+
 def off_target_positions(range_m: np.ndarray, window_m: tuple[float, float]) -> np.ndarray:
     """Where isolated points off the target lie in the first-arrival law, 0..1: uniform
     if they are background arrivals on shots that miss the target (each listens over
@@ -1025,7 +1031,7 @@ def off_target_positions(range_m: np.ndarray, window_m: tuple[float, float]) -> 
     def nll(rate: float) -> float:
         if rate < 1e-9:
             return 0.0
-        return float(-np.sum(np.log(rate / -np.expm1(-rate)) - rate * x))
+        return float(-np.sum(arrival_logpdf(x, rate)))
 
     res = minimize_scalar(nll, bounds=(0.0, MAX_ARRIVAL_RATE), method='bounded',
                           options={'xatol': 1e-3})
@@ -1066,8 +1072,7 @@ def background_rate(residual_m: np.ndarray, expected_m: np.ndarray, threshold_m:
         mass = np.maximum(np.where(in_front, front, behind), 1e-300)
         if rate < 1e-9:
             return float(np.sum(np.log(mass)))
-        log_density = np.log(rate / -np.expm1(-rate)) - rate * x
-        return float(-np.sum(log_density - np.log(mass)))
+        return float(-np.sum(arrival_logpdf(x, rate) - np.log(mass)))
 
     res = minimize_scalar(nll, bounds=(0.0, MAX_ARRIVAL_RATE), method='bounded',
                           options={'xatol': 1e-3})

@@ -209,11 +209,16 @@ def _correction(pose) -> str:
             'A rigid correction of the target pose per cloud')
 
 
+def _corrected_how(constant: bool) -> str:
+    """How the pose was corrected, as in "with the pose corrected ..."."""
+    return 'for the whole recording' if constant else 'per cloud'
+
+
 def _against_pose_words(c) -> str:
     """Why a range error of the sensor was named rather than the reference pose
     (``Diagnosis.weigh_pose_rivals``: ``c.against_pose``)."""
     ap = c.against_pose
-    how = 'for the whole recording' if ap.get('pose_constant') else 'per cloud'
+    how = _corrected_how(bool(ap.get('pose_constant')))
     if ap.get('passes_on_pose'):
         return (f'A reference pose off along the line of sight moves clouds too, but with '
                 f'the pose corrected {how} {c.name} still gains {ap["score_on_pose"]:.4f} '
@@ -238,8 +243,10 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
                  f'nats/point held out (z = {pose.z:.1f}; {pose.words()})'
                  if pose is not None else 'a rigid correction of the target pose per cloud')
     footings = (c.against_pose or {}) if c is not None else {}
-    how = ('for the whole recording' if getattr(pose, 'constant', False) is True
-           else 'per cloud')
+    how = _corrected_how(getattr(pose, 'constant', False) is True)
+    charged = footings.get('fitted_margin_charged')
+    if charged is None:
+        charged = footings.get('fitted_margin')
     if other == ['time_offset'] and footings.get('fitted_margin') is not None \
             and summary.get('point_times') not in ('stamp', 'scan pattern'):
         return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
@@ -248,7 +255,7 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
                 f'nats/point; with the pose corrected {how} and the model raycast again, '
                 f'as --fit leaves them, the pose fits better by '
                 f'{-footings["fitted_margin"]:.4f} ('
-                f'{-(footings.get("fitted_margin_charged") or footings["fitted_margin"]):.4f} '
+                f'{-charged:.4f} '
                 'with each parameter charged one nat). The two footings disagree, so which of '
                 'the two it is cannot be told from this recording; none is named. A '
                 'recording in which the target turns at another rate (a clock offset moves '
