@@ -9,7 +9,7 @@ from lidar_sim_ros.core.config import ConfigError
 from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.geometry import MeshFileError, MeshMaterialError, load_target
 from lidar_sim_ros.core.pipeline import Simulator
-from conftest import CONFIG
+from conftest import CONFIG, REPO
 
 MESH_DIR = CONFIG.parent / 'meshes'
 NAMES = ['MLI', 'SOLAR_ARRAY', 'WHITE_PAINT', 'ALUMINIUM']
@@ -376,3 +376,42 @@ def test_a_non_finite_stl_vertex_is_refused_without_numpy_warnings(tmp_path, rec
     with pytest.raises(MeshFileError, match='inf.stl: 1 of 3 vertices are not finite'):
         load_target(path, NAMES, mesh_materials='MLI')
     assert not [str(w.message) for w in recwarn if issubclass(w.category, RuntimeWarning)]
+
+
+def _short_buffers(tmp_path):
+    """One triangle (44 bytes) in three glTFs whose buffer declares 400 bytes: in a .glb's
+    BIN chunk, in an external .bin and in a base64 data: URI."""
+    import base64
+    import json
+    data = triangle_bytes()
+    doc = one_buffer_gltf(data)
+    doc['buffers'][0]['byteLength'] = 400
+    glb = write_glb(tmp_path / 'short.glb', doc, data)
+    (tmp_path / 'short.bin').write_bytes(data)
+    external = tmp_path / 'external.gltf'
+    external.write_text(json.dumps({**doc, 'buffers': [{'uri': 'short.bin', 'byteLength': 400}]}))
+    embedded = tmp_path / 'embedded.gltf'
+    uri = 'data:application/octet-stream;base64,' + base64.b64encode(data).decode()
+    embedded.write_text(json.dumps({**doc, 'buffers': [{'uri': uri, 'byteLength': 400}]}))
+    return {"the .glb's BIN chunk": glb, "file 'short.bin'": external, 'its data: URI': embedded}
+
+
+def test_a_buffer_shorter_than_its_byte_length_is_refused_naming_it(tmp_path):
+    """trimesh refused a buffer shorter than its byteLength only by an assert, which
+    ``python -O`` removes: there the .glb below loaded its one triangle, rc 0 (and with an
+    accessor past the bytes, "cannot reshape array"). Each of the three kinds of buffer is
+    now measured before trimesh reads it, here and in a child under -O."""
+    import subprocess
+    import sys
+    for source, path in _short_buffers(tmp_path).items():
+        with pytest.raises(MeshFileError, match=rf'{path.name}: buffers\[0\].byteLength = 400, but '
+                                                rf'{source} holds 44 bytes'):
+            load_target(path, NAMES, mesh_materials='MLI')
+    code = ('import sys\nfrom lidar_sim_ros.core.geometry import load_target, MeshFileError\n'
+            'try:\n    load_target(sys.argv[1], ["MLI"], mesh_materials="MLI")\n'
+            'except MeshFileError as e:\n    print(e)\nelse:\n    print("loaded")')
+    import os
+    env = {**os.environ, 'PYTHONPATH': os.pathsep.join([str(REPO), os.environ.get('PYTHONPATH', '')])}
+    child = subprocess.run([sys.executable, '-O', '-c', code, str(tmp_path / 'short.glb')],
+                           capture_output=True, text=True, timeout=120, env=env)
+    assert 'byteLength = 400, but the .glb' in child.stdout, child.stdout + child.stderr

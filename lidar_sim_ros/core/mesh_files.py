@@ -63,20 +63,12 @@ class DirectoryResolver(trimesh.resolvers.FilePathResolver):
     def __init__(self, cad_path: Path):
         super().__init__(str(cad_path))
         self.cad_path = Path(cad_path)
-        self.root = self.cad_path.resolve().parent
         self._read: dict[Path, bytes] = {}
 
     def get(self, name) -> bytes:
         uri = str(name)
+        path = external_path(self.cad_path, uri)
         where = f'{self.cad_path}: external file {uri[:120]!r}'
-        if _URI_SCHEME.match(uri) or uri.startswith(('/', '\\')):
-            raise MeshFileError(f'{where} is not a path relative to the file\'s directory '
-                                '(absolute paths and URLs are not read; embed it or copy it beside)')
-        path = (self.root / unquote(uri)).resolve()
-        if not path.is_relative_to(self.root):
-            raise MeshFileError(f'{where} leads out of {self.root}: not read')
-        if not path.is_file():
-            raise MeshFileError(f'{where} is not a regular file in {self.root}')
         if path not in self._read:
             # Each file once, and all of them together within the limit: 60 buffers naming
             # the same 20 MB file took 1.3 GB (a 2 GB file named 100 times, 200 GB).
@@ -86,6 +78,22 @@ class DirectoryResolver(trimesh.resolvers.FilePathResolver):
                                     f'the limit of {MAX_EXTERNAL_BYTES}')
             self._read[path] = path.read_bytes()
         return self._read[path]
+
+
+def external_path(cad_path: Path, uri: str) -> Path:
+    """The file a glTF's external ``uri`` names in ``cad_path``'s own directory (module
+    docstring), or MeshFileError naming the CAD file and the URI."""
+    where = f'{cad_path}: external file {uri[:120]!r}'
+    if _URI_SCHEME.match(uri) or uri.startswith(('/', '\\')):
+        raise MeshFileError(f'{where} is not a path relative to the file\'s directory '
+                            '(absolute paths and URLs are not read; embed it or copy it beside)')
+    root = Path(cad_path).resolve().parent
+    path = (root / unquote(uri)).resolve()
+    if not path.is_relative_to(root):
+        raise MeshFileError(f'{where} leads out of {root}: not read')
+    if not path.is_file():
+        raise MeshFileError(f'{where} is not a regular file in {root}')
+    return path
 
 
 def load_scene(path: Path, loadable: Path, kind: str) -> trimesh.Scene:
@@ -176,8 +184,45 @@ def _check_gltf_document(path: Path, json_bytes: int, max_triangles: int) -> set
         check_gltf(doc, max_triangles)
     except GltfError as exc:
         raise MeshFileError(f'{path}: {exc}') from None
+    _check_buffer_bytes(path, doc, json_bytes)
     return {item['name'] for key in ('nodes', 'meshes') for item in doc.get(key, [])
             if isinstance(item.get('name'), str)}
+
+
+def _check_buffer_bytes(path: Path, doc: dict, json_bytes: int) -> None:
+    """Every glTF buffer holds at least the ``byteLength`` it declares (the .glb's BIN
+    chunk, a base64 ``data:`` URI, or an external file beside it). A shorter one was refused
+    only by trimesh's ``assert len(view) == byteLength``: under ``python -O`` it loaded
+    what bytes there were (and with a count past them, "cannot reshape array")."""
+    for i, buffer in enumerate(doc.get('buffers', [])):
+        declared, uri = buffer['byteLength'], buffer.get('uri')
+        if uri is None:
+            held, source = _glb_bin_bytes(path, json_bytes), 'the .glb\'s BIN chunk'
+        elif not isinstance(uri, str):
+            raise MeshFileError(f'{path}: buffers[{i}].uri = {str(uri)[:40]} is not a string')
+        elif uri.startswith('data:'):
+            if ';base64,' not in uri[:200]:
+                continue        # trimesh reads only base64 data URIs, and says so
+            text = uri.split(',', 1)[1].rstrip()
+            held, source = 3 * len(text) // 4 - len(text) + len(text.rstrip('=')), 'its data: URI'
+        else:
+            held, source = external_path(path, uri).stat().st_size, f'file {uri[:120]!r}'
+        if held < declared:
+            raise MeshFileError(f'{path}: buffers[{i}].byteLength = {declared}, but {source} '
+                                f'holds {held} bytes (truncated?)')
+
+
+def _glb_bin_bytes(path: Path, json_bytes: int) -> int:
+    """Length of a .glb's BIN chunk (the chunk after the JSON one: glTF 2.0 section 4.4),
+    0 when there is none (a .gltf has none)."""
+    if path.suffix.lower() != '.glb':
+        return 0
+    with open(path, 'rb') as f:
+        f.seek(20 + json_bytes)
+        head = f.read(8)
+    if len(head) < 8 or head[4:8] != b'BIN\0':
+        return 0
+    return min(int.from_bytes(head[:4], 'little'), path.stat().st_size - 28 - json_bytes)
 
 
 _UNIQUE_SUFFIX = re.compile(r'_\d+$')
