@@ -415,3 +415,34 @@ def test_a_buffer_shorter_than_its_byte_length_is_refused_naming_it(tmp_path):
     child = subprocess.run([sys.executable, '-O', '-c', code, str(tmp_path / 'short.glb')],
                            capture_output=True, text=True, timeout=120, env=env)
     assert 'byteLength = 400, but the .glb' in child.stdout, child.stdout + child.stderr
+
+
+def ply_with_comments(path, comments, faces=1, end=True):
+    """A binary PLY of one triangle whose header holds ``comments`` 100-byte comment lines
+    before its elements; its face element claims ``faces``; ``end``: its end_header line."""
+    head = 'ply\nformat binary_little_endian 1.0\n' + f'comment {"x" * 91}\n' * comments
+    head += ('element vertex 3\nproperty float x\nproperty float y\nproperty float z\n'
+             f'element face {faces}\nproperty list uchar int vertex_indices\n')
+    body = triangle_bytes()[:36] + b'\x03' + np.array([0, 1, 2], '<i4').tobytes()
+    path.write_bytes((head + ('end_header\n' if end else '')).encode() + body)
+    return path
+
+
+def test_a_ply_header_is_bounded_and_its_counts_are_read_whole(tmp_path, monkeypatch):
+    """The header's counts were read from its first 64 kB: behind 1,000 comment lines
+    (100 kB) a face count past the limit went unseen until trimesh had read the file,
+    and a header that never ends got trimesh's "UnicodeDecodeError ... position 14". A
+    header longer than MAX_PLY_HEADER_BYTES, or without end_header, is refused naming the
+    file; within it, the counts are checked wherever they stand."""
+    from lidar_sim_ros.core import geometry, mesh_files
+    assert load_target(ply_with_comments(tmp_path / 'ok.ply', 600), NAMES,
+                       mesh_materials='MLI').n_faces == 1       # 60 kB of comments
+    for comments, end in ((1000, True), (10_000, True), (3, False)):
+        with pytest.raises(MeshFileError, match=r'long.ply: no end_header line in its first '
+                                                rf'{mesh_files.MAX_PLY_HEADER_BYTES} bytes'):
+            load_target(ply_with_comments(tmp_path / 'long.ply', comments, end=end), NAMES,
+                        mesh_materials='MLI')
+    monkeypatch.setattr(geometry, 'MAX_TRIANGLES', 1)
+    with pytest.raises(MeshFileError, match='many.ply: PLY header says 2 face elements'):
+        load_target(ply_with_comments(tmp_path / 'many.ply', 600, faces=2), NAMES,
+                    mesh_materials='MLI')

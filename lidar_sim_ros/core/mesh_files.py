@@ -37,6 +37,9 @@ MAX_TEXT_MESH_BYTES = 256_000_000
 text (measured: ASCII PLY 12x, ASCII STL 7x, OBJ 4.5-10x), so a 2 GB one needed up to
 ~24 GB. 256 MB holds ~1.3 M triangles of ASCII STL, ~1.7 M of PLY, ~7 M of OBJ; binary
 STL and PLY, and glTF, are read up to MAX_MESH_FILE_BYTES."""
+MAX_PLY_HEADER_BYTES = 65_536
+"""Longest PLY header read (to its end_header line): exporters write a few hundred bytes,
+a few kB with comments."""
 MAX_EXTERNAL_BYTES = MAX_MESH_FILE_BYTES
 """Largest sum of a glTF's external files (its .bin buffers and images), each read once."""
 MAX_GLTF_JSON_BYTES = 256_000_000
@@ -270,8 +273,7 @@ def _check_header_counts(path: Path, size: int, max_triangles: int) -> None:
             raise MeshFileError(f'{path}: binary STL header says {count} triangles, more than '
                                 f'the limit of {max_triangles}')
     elif suffix == '.ply':
-        with open(path, 'rb') as f:
-            header = f.read(65536).split(b'end_header', 1)[0].decode('latin-1')
+        header = ply_header(path)
         counts = dict(re.findall(r'^element\s+(vertex|face)\s+(\d+)\s*$', header, re.M))
         for element, limit in (('face', max_triangles), ('vertex', 3 * max_triangles)):
             if int(counts.get(element, 0)) > limit:
@@ -289,8 +291,23 @@ def _is_text_mesh(path: Path, size: int) -> bool:
         count = int.from_bytes(head[80:84], 'little') if len(head) >= 84 else -1
         return head[:5].lower() == b'solid' and size != 84 + 50 * count
     if suffix == '.ply':
-        return b'format ascii' in head.split(b'end_header', 1)[0]
+        return re.search(r'^format\s+ascii\b', ply_header(path), re.M) is not None
     return False
+
+
+def ply_header(path: Path) -> str:
+    """A PLY's header (up to its ``end_header`` line), at most MAX_PLY_HEADER_BYTES: the
+    counts were read from the first 64 kB only, so a header of 1,000 comment lines
+    (100 kB) put its element counts past them and past the triangle limit's check, and
+    one that never ends was read by trimesh to the end of the file."""
+    with open(path, 'rb') as f:
+        head = f.read(MAX_PLY_HEADER_BYTES + len(b'end_header'))
+    end = re.search(rb'(^|[\r\n])end_header', head)
+    if end is None or end.start() > MAX_PLY_HEADER_BYTES:
+        raise MeshFileError(f'{path}: no end_header line in its first {MAX_PLY_HEADER_BYTES} '
+                            'bytes (a PLY header is at most that long: this one is longer, or '
+                            'not a PLY header)')
+    return head[:end.start()].decode('latin-1')
 
 
 def _checked_faces(faces: np.ndarray, n_vertices: int, path: Path, part: str) -> np.ndarray:
