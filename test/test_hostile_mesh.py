@@ -73,3 +73,42 @@ def test_vertex_beyond_the_size_limit_is_refused_naming_it(tmp_path, x):
         load_target(path, ['PIF'])
     assert '\n' not in str(err.value)
     assert load_target(obj(tmp_path, 'v 0 0 0\nv 1e4 0 0\nv 0 1 0\nf 1 2 3\n'), ['PIF']).n_faces == 1
+
+
+def test_links_in_the_mesh_folder(tmp_path):
+    """What a link in the mesh's folder can reach (model.md): an OBJ's mtllib or a glTF's
+    buffer that is a symbolic link (or sits below a linked folder) resolving out of the
+    mesh's real folder is refused naming it; a texture so linked is dropped unread (the
+    simulator uses none). A hard link is a name of the folder like any other file (no
+    system call tells the 'original' name): it is read, so whoever may write into the
+    mesh's folder decides what the mesh reads."""
+    import json
+    import os
+    from test_mesh_files import gltf_with_buffer, triangle_bytes
+    out, cad = tmp_path / 'outside', tmp_path / 'cad'
+    out.mkdir()
+    cad.mkdir()
+    (out / 'lib.mtl').write_text('newmtl PIF\n')
+    (out / 'far.bin').write_bytes(triangle_bytes(scale=7.0))
+    os.symlink(out / 'lib.mtl', cad / 'lib.mtl')
+    os.symlink(out, cad / 'sub')
+    (cad / 'm.obj').write_text('mtllib lib.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl PIF\nf 1 2 3\n')
+    with pytest.raises(MeshFileError, match=r"m.obj: mtllib 'lib.mtl' is not beside the mesh"):
+        load_target(cad / 'm.obj', ['PIF'])
+    (cad / 'm2.obj').write_text('mtllib sub/lib.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl PIF\nf 1 2 3\n')
+    with pytest.raises(MeshFileError, match=r"m2.obj: mtllib 'sub/lib.mtl' is not beside the mesh"):
+        load_target(cad / 'm2.obj', ['PIF'])
+    with pytest.raises(MeshFileError, match=r"b.gltf: external file 'sub/far.bin' leads out of"):
+        load_target(gltf_with_buffer(cad / 'b.gltf', 'sub/far.bin'), ['PIF'], mesh_materials='PIF')
+    # A texture linked out of the folder: never read, and the mesh loads without it.
+    (cad / 'near.bin').write_bytes(triangle_bytes())
+    os.symlink(out / 'lib.mtl', cad / 'tex.png')
+    doc = json.loads(gltf_with_buffer(cad / 't.gltf', 'near.bin').read_text())
+    doc.update(images=[{'uri': 'tex.png'}], textures=[{'source': 0}])
+    doc['materials'][0]['pbrMetallicRoughness'] = {'baseColorTexture': {'index': 0}}
+    (cad / 't.gltf').write_text(json.dumps(doc))
+    assert load_target(cad / 't.gltf', ['PIF'], mesh_materials='PIF').vertices_m.max() == 1.0
+    # A hard link is read: the folder's own file as far as any check can tell.
+    os.link(out / 'far.bin', cad / 'hard.bin')
+    hard = load_target(gltf_with_buffer(cad / 'h.gltf', 'hard.bin'), ['PIF'], mesh_materials='PIF')
+    assert hard.vertices_m.max() == pytest.approx(7.0)

@@ -16,6 +16,9 @@ regular file is never read or fetched; for a buffer this stops the load naming t
 (trimesh drops a texture it cannot read: the simulator uses none). (trimesh before 5.x
 joined any such path to the directory and read it: a CAD file from elsewhere could turn
 ``/etc/passwd``'s bytes into target vertices.) Embedded ``data:`` URIs are trimesh's.
+The directory is the one the CAD file resolves to (a linked .gltf reads the .bin beside
+its target). A hard link is a regular file of the directory like any other (nothing tells
+it apart): it is read.
 """
 from __future__ import annotations
 
