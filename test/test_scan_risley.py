@@ -142,3 +142,34 @@ def test_coverage_grows_with_integration_time_unless_the_rosette_closes():
     closed = risley(rates=(10.0, -7.0), dev=(9.6, 9.6), rate_hz=100000.0).scan
     one, two = field_coverage(closed, 1.0, cell), field_coverage(closed, 2.0, cell)
     assert two == one < 0.9
+
+
+def _angle_between_rad(a, b):
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum('ij,ij->i', a, b))
+
+
+def test_frames_at_wall_clock_indices_keep_their_precision():
+    """The node numbers its frames on the wall clock (k ~ 1.8e10 at 10 Hz, t ~ 1.8e9 s):
+    2 pi f (k T + t) at 1e12 rad holds ~1e-4 rad in float64, and k T + t holds 2.4e-7 s.
+    Closed form: prisms at 100 and -72.25 rev/s with T = 0.125 s have both turned whole
+    revolutions at k = 1.8e10 (t = 2.25e9 s), so that frame's shots are frame 0's, to
+    1e-6 rad. And on the Mid-40's own rates, frame k against each shot's turns in 40-digit
+    decimal arithmetic."""
+    from decimal import Decimal, getcontext
+    from lidar_sim_ros.core.scan_risley import (deviation_rad, directions_from_deviation,
+                                               risley_frame)
+    cfg = risley(rates=(100.0, -72.25), rate_hz=20000.0, frame_rate_hz=8.0)
+    k = 18_000_000_000
+    (_, d0), (_, dk) = risley_frame(cfg.scan, 0.125, 0), risley_frame(cfg.scan, 0.125, k)
+    assert _angle_between_rad(d0, dk).max() < 1e-6
+    mid40 = load_sensor(CONFIG / 'livox_mid40.yaml')
+    scan, period = mid40.scan, mid40.frame_period_s
+    k = int(1.8e9 / period)
+    shots, dk = risley_frame(scan, period, k)
+    getcontext().prec = 40
+    pick = np.arange(0, len(shots), 997)
+    turns = [[float((Decimal(f) * (k * Decimal(period) + Decimal(float(t)))) % 1)
+              for t in shots.t_s[pick]] for f in scan.prism_rates_hz]
+    phi = [p + 2 * np.pi * np.array(u) for p, u in zip(scan.prism_phase_rad, turns)]
+    exact = directions_from_deviation(*deviation_rad(scan, *phi))
+    assert _angle_between_rad(exact, dk[pick]).max() < 1e-6

@@ -27,7 +27,9 @@ the beam reaches the rim (a petal's tip) |f_1 - f_2| times a second. With rates 
 ratio of whole numbers the pattern closes after T = 1 / gcd(f_1, f_2) with
 |f_1 - f_2| T petals; the Mid-40's rates have no such small ratio, so the pattern does
 not repeat and the field fills as the integration time grows. Each frame therefore
-has its own shots: frame k starts at k x frame period on the prisms' clock.
+has its own shots: frame k starts at k x frame period on the prisms' clock (its start's
+turns taken in exact arithmetic, so frame k's shots are as precise at a wall-clock k as
+at k = 0).
 """
 from __future__ import annotations
 
@@ -53,11 +55,23 @@ def field_half_angle_rad(cfg: RisleyScan) -> float:
     return float(np.radians(sum(cfg.prism_deviation_deg)))
 
 
-def prism_angles_rad(cfg: RisleyScan, t_abs_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each prism's rotation angle (rad) at time ``t_abs_s`` (s on the prisms' clock)."""
-    t = np.asarray(t_abs_s, dtype=float)
-    (f1, f2), (p1, p2) = cfg.prism_rates_hz, cfg.prism_phase_rad
-    return p1 + 2.0 * np.pi * f1 * t, p2 + 2.0 * np.pi * f2 * t
+def prism_angles_rad(cfg: RisleyScan, t_s: np.ndarray,
+                     start_turns: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Each prism's rotation angle (rad) at ``t_s`` (s) after a start where the prisms
+    had turned ``start_turns`` (revolutions, ``frame_start_turns``) on the prisms' clock."""
+    t = np.asarray(t_s, dtype=float)
+    (f1, f2), (p1, p2), (s1, s2) = cfg.prism_rates_hz, cfg.prism_phase_rad, start_turns
+    return p1 + 2.0 * np.pi * (s1 + f1 * t), p2 + 2.0 * np.pi * (s2 + f2 * t)
+
+
+def frame_start_turns(cfg: RisleyScan, frame_index: int,
+                      frame_period_s: float) -> tuple[float, float]:
+    """Each prism's turns at frame ``frame_index``'s start (k x period on the prisms'
+    clock), modulo whole turns, in exact arithmetic: the node's frames are numbered on the
+    wall clock (k ~ 1.8e10 at 10 Hz), where 2 pi f k T in float64 (1e12 rad) is only good to
+    ~1e-4 rad and k T + t to 2.4e-7 s: every shot's direction was off by up to ~1e-4 rad."""
+    k = Fraction(int(frame_index)) * Fraction(frame_period_s)
+    return tuple(float((Fraction(f) * k) % 1) for f in cfg.prism_rates_hz)
 
 
 def deviation_rad(cfg: RisleyScan, phi1_rad: np.ndarray,
@@ -87,7 +101,7 @@ def risley_frame(cfg: RisleyScan, frame_period_s: float,
     """``risley_shots`` and the shots' unit directions (N, 3), computed once."""
     n = shots_per_frame(cfg, frame_period_s)
     t = np.arange(n) / cfg.shot_rate_hz
-    phi1, phi2 = prism_angles_rad(cfg, int(frame_index) * frame_period_s + t)
+    phi1, phi2 = prism_angles_rad(cfg, t, frame_start_turns(cfg, frame_index, frame_period_s))
     directions = directions_from_deviation(*deviation_rad(cfg, phi1, phi2))
     az, el = angles_from_directions(directions)
     return Shots(t, az, el, np.zeros(n, np.uint16)), directions
