@@ -266,3 +266,25 @@ def test_cepton_layout_bag_recovers_every_laser(lab, tmp_path):
     cal = run_scan(path, out, topic='/cepton_pcl2')
     assert_lasers_recovered(out, lab['doc'])
     assert_noise_level(cal)
+
+
+def test_a_pattern_the_fit_cannot_match_stops_without_writing(lab, tmp_path, capsys):
+    """Each frame's directions shuffled among its points (times and ring ids kept): the
+    fit left RMS 18.5 deg and calibrate scan wrote the sensor file, rc 0. It now stops at
+    MAX_FIT_RMS_DEG (the risley fit's limit, one constant) naming the error, rc 2."""
+    import re
+    from lidar_sim_ros.calibrate.common import MAX_FIT_RMS_DEG
+    rng = np.random.default_rng(1)
+    shuffled = []
+    for stamp, pts in lab['frames']:
+        p, perm = pts.copy(), rng.permutation(len(pts))
+        for k in 'xyz':
+            p[k] = pts[k][perm]
+        shuffled.append((stamp, p))
+    bag = write_bag(tmp_path / 'shuffled', shuffled)
+    assert cli.main(['calibrate', 'scan', str(bag), '--out', str(tmp_path / 'fit.yaml')]) == 2
+    err = capsys.readouterr().err
+    rms = re.search(r'shuffled.*the best Lissajous curves found \(24 lasers\) leaves an angular '
+                    rf'error of RMS ([\d.]+) deg, more than {MAX_FIT_RMS_DEG:g} deg', err)
+    assert rms and float(rms.group(1)) > 10, err
+    assert not (tmp_path / 'fit.yaml').exists()

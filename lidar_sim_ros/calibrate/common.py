@@ -21,6 +21,24 @@ def rms_p95_deg(error_deg: np.ndarray) -> tuple[float, float]:
     return float(np.sqrt(np.mean(error_deg ** 2))), float(np.percentile(error_deg, 95))
 
 
+MAX_FIT_RMS_DEG = 2.0
+"""Largest RMS angular error (deg) of a scan fit that is written, for every scan type: a
+fit of the right pattern leaves the sensor's noise and the model's own error (the risley
+first-order model's on a real Mid-40 below ~1 deg; a Lissajous fit of a P-60 recording
+~0.01 deg); prisms beyond the risley search fitted aliases at 9.6 deg, and a Lissajous
+recording whose points are not the pattern (shuffled directions) 18.5 deg."""
+
+
+def check_fit_rms(error_deg: np.ndarray, source: str, fitted: str, hint: str) -> None:
+    """Stop (CalibrationInputError naming ``source``, what was ``fitted`` and the error)
+    when a scan fit leaves more than MAX_FIT_RMS_DEG RMS: its sensor file is not written."""
+    rms = rms_p95_deg(error_deg)[0]
+    if not rms <= MAX_FIT_RMS_DEG:
+        raise CalibrationInputError(
+            f'{source}: {fitted} leaves an angular error of RMS {rms:.3g} deg, more than '
+            f'{MAX_FIT_RMS_DEG:g} deg: {hint}; no sensor file written')
+
+
 class AngularErrorSummary:
     """A scan fit's per-shot angular error (``error_deg``, deg) summed up: RMS and p95;
     ``prior_error_deg`` (deg or None): the same with the input sensor config."""

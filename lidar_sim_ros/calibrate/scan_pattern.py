@@ -20,7 +20,7 @@ import numpy as np
 from scipy import optimize
 
 from lidar_sim_ros.calibrate.common import (AngularErrorSummary, CalibrationInputError,
-                                            format_table, new_figure, save_figure,
+                                            check_fit_rms, format_table, new_figure, save_figure,
                                             sig, write_sensor)
 from lidar_sim_ros.calibrate.scan_samples import ScanSamples, read_scan_samples
 from lidar_sim_ros.core.config import LissajousArrayScan, RisleyScan, load_sensor, read_yaml
@@ -386,6 +386,10 @@ def calibrate_scan(samples: ScanSamples, sensor_path: str | Path) -> ScanCalibra
         shots = sensor.scan.shots_per_laser
         warnings.append('too few shots detected per frame to measure the shot spacing; '
                         f'shots_per_laser {shots} kept from {sensor_path}')
+    error = angular_error_deg(samples, laser, lasers)
+    check_fit_rms(error, samples.source, f'the best Lissajous curves found ({n_lasers} lasers)',
+                  'the points are not that pattern (is the recording from this sensor, its ring '
+                  'field the laser ids, and the tiling right?)')
     prior = None
     if int(laser.max()) < n_cfg:
         prior = angular_error_deg(samples, laser, prior_lasers)
@@ -393,7 +397,7 @@ def calibrate_scan(samples: ScanSamples, sensor_path: str | Path) -> ScanCalibra
     doc['frame_rate_hz'] = sig(1.0 / period, 9)
     doc['scan'] = _scan_doc(doc['scan'], lasers, tiles, shots)
     return ScanCalibration(samples, laser, lasers, fits_az, fits_el, tiles, period, shots,
-                           angular_error_deg(samples, laser, lasers), prior, doc, warnings)
+                           error, prior, doc, warnings)
 
 
 def format_report(cal: ScanCalibration) -> str:

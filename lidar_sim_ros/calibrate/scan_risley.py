@@ -22,8 +22,9 @@ from pathlib import Path
 import numpy as np
 from scipy import optimize
 
-from lidar_sim_ros.calibrate.common import (AngularErrorSummary, CalibrationInputError, new_figure,
-                                            save_figure, sig, write_sensor)
+from lidar_sim_ros.calibrate.common import (AngularErrorSummary, CalibrationInputError,
+                                            check_fit_rms, new_figure, save_figure, sig,
+                                            write_sensor)
 from lidar_sim_ros.calibrate.scan_samples import ScanSamples, read_scan_samples
 from lidar_sim_ros.core.config import RisleyScan, load_sensor, read_yaml
 from lidar_sim_ros.core.scan import frame_shots
@@ -36,10 +37,6 @@ PERIODOGRAM_POINTS = 4000       # points the periodogram sums over (a random, se
 MAX_RATE_HZ = 1000.0            # largest prism rate searched (rev/s)
 _GRID_OVERSAMPLE = 8            # frequency steps per 1 / (time span)
 CANDIDATE_PEAKS = 4             # periodogram peaks tried for each rate
-MAX_FIT_RMS_DEG = 2.0
-"""Largest RMS angular error (deg) of a fit that is written: the first-order model's own
-error on a real Mid-40 is below ~1 deg (several per cent of the 19.2 deg radius, the worst
-case); prisms at 1500 and -900 rev/s (beyond MAX_RATE_HZ) fitted aliases at 9.6 deg."""
 MAX_FIT_SPAN_S = 30.0
 """Longest stretch of recording fitted (s, from the first cloud): the periodogram's grid has
 16 MAX_RATE_HZ x 8 steps a second (two clouds 10^4 s apart asked for 32 GiB; 100 s apart
@@ -229,13 +226,9 @@ def calibrate_risley(samples: ScanSamples, sensor_path: str | Path) -> RisleyCal
     order = np.argsort(-np.abs(a))          # the stronger prism first
     rates, a = rates[order], a[order]
     error = angular_error_deg(samples.direction, t_abs, rates, a)
-    rms = float(np.sqrt(np.mean(error ** 2)))
-    if rms > MAX_FIT_RMS_DEG:
-        raise CalibrationInputError(
-            f'{samples.source}: the best prism pair found ({rates[0]:.6g} and {rates[1]:.6g} '
-            f'rev/s) leaves an angular error of RMS {rms:.3g} deg, more than {MAX_FIT_RMS_DEG:g} '
-            f'deg: the points are not that rosette (rates beyond +-{MAX_RATE_HZ:g} rev/s are not '
-            'searched; is the recording from a Risley sensor?); no sensor file written')
+    check_fit_rms(error, samples.source, f'the best prism pair found ({rates[0]:.6g} and '
+                  f'{rates[1]:.6g} rev/s)', f'the points are not that rosette (rates beyond '
+                  f'+-{MAX_RATE_HZ:g} rev/s are not searched; is the recording from a Risley sensor?)')
     prior = None
     scan = sensor.scan
     if isinstance(scan, RisleyScan):
