@@ -85,3 +85,30 @@ def test_a_sensor_file_parameter_brings_the_sensors_own_range_error(context):
         assert set(node.sim.materials.column('bias_m')) == {0.0}
     finally:
         node.destroy_node()
+
+
+def test_a_mesh_file_parameter_takes_its_own_mesh_materials(context):
+    """mesh_file = the box-wing .glb under the rocket body's scenario: no parameter could map
+    its names. mesh_materials (YAML text) maps them; without it start-up stops in one line
+    naming the names and the parameter."""
+    from lidar_sim_ros.core.geometry import MeshMaterialError
+    glb = str(Path(config_path('scenario.yaml')).parent.parent / 'meshes' / 'box_wing_satellite.glb')
+    mesh = Parameter('mesh_file', Parameter.Type.STRING, glb)
+    node = LidarSimNode(context=context, parameter_overrides=[mesh])
+    try:
+        with pytest.raises(MeshMaterialError, match=r"\['antenna_aluminium', 'bus_mli', "
+                                                    r"'radiator_white_paint', 'solar_cells'\] not "
+                                                    r"mapped.*mesh_materials parameter") as err:
+            node.setup()
+        assert '\n' not in str(err.value)
+    finally:
+        node.destroy_node()
+    node = LidarSimNode(context=context, parameter_overrides=[mesh, Parameter(
+        'mesh_materials', Parameter.Type.STRING, '{bus_mli: MLI, solar_cells: PIF, '
+        'radiator_white_paint: PSS, antenna_aluminium: PAF}')])
+    try:
+        node.setup()
+        names = node.sim.materials.names
+        assert {names[m] for m in node.sim.target.face_material} == {'MLI', 'PIF', 'PSS', 'PAF'}
+    finally:
+        node.destroy_node()

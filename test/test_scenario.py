@@ -42,3 +42,31 @@ def test_a_missing_mesh_given_instead_names_the_parameter(tmp_path):
         load_scenario(CONFIG / 'scenario.yaml', mesh_file=tmp_path / 'nope.glb')
     sc = load_scenario(CONFIG / 'scenario.yaml', mesh_file=CONFIG.parent / 'meshes' / 'box_wing_satellite.glb')
     assert sc.mesh_path.name == 'box_wing_satellite.glb'
+
+
+def test_a_mesh_given_instead_takes_a_mesh_materials_map_checked_as_the_scenarios():
+    """The node's mesh_file swapped the mesh but kept the scenario's map: the box-wing .glb
+    under the rocket body's scenario could not be mapped at all (no parameter for it). The
+    node's mesh_materials (YAML text) now maps it, checked as a scenario's map."""
+    from lidar_sim_ros.core.geometry import MeshMaterialError
+    from lidar_sim_ros.core.pipeline import Simulator
+    from lidar_sim_ros.core.scenario import load_scenario
+    glb = CONFIG.parent / 'meshes' / 'box_wing_satellite.glb'
+    plain = load_scenario(CONFIG / 'scenario.yaml', mesh_file=glb)
+    with pytest.raises(MeshMaterialError, match=r"box_wing_satellite.glb: .*\['antenna_aluminium', "
+                                                r"'bus_mli', .*node's mesh_materials parameter"):
+        Simulator.from_scenario(plain)
+    mapping = '{bus_mli: MLI, solar_cells: PIF, radiator_white_paint: PSS, antenna_aluminium: PAF}'
+    sc = load_scenario(CONFIG / 'scenario.yaml', mesh_file=glb, mesh_materials=mapping)
+    sim = Simulator.from_scenario(sc)
+    used = {sc.materials.names[m] for m in np.unique(sim.target.face_material)}
+    assert used == {'MLI', 'PIF', 'PSS', 'PAF'}
+    whole = load_scenario(CONFIG / 'scenario.yaml', mesh_file=glb, mesh_materials='MLI')
+    assert {whole.materials.names[m] for m in Simulator.from_scenario(whole).target.face_material} == {'MLI'}
+    for text, key, words in (('{bus_mli: GOLD}', 'mesh_materials.bus_mli', 'not a material of materials.yaml'),
+                             ('{bus_mli: 3}', 'mesh_materials', 'both the mesh'),
+                             ('[MLI]', 'mesh_materials', 'one config material name'),
+                             ('{a: MLI, a: PIF}', 'mesh_materials', 'twice'),
+                             ('{bus_mli: MLI', 'mesh_materials', 'not valid YAML')):
+        with pytest.raises(ConfigError, match=rf'<parameters>: key "{key}".*{words}'):
+            load_scenario(CONFIG / 'scenario.yaml', mesh_file=glb, mesh_materials=text)

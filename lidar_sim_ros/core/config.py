@@ -569,6 +569,25 @@ MeshMaterials = Annotated[str | dict[str, str] | None, BeforeValidator(_mesh_mat
 """A mesh's names -> config materials, or one material for the whole mesh (core/mesh_files.py)."""
 
 
+class _MeshMaterialsOnly(_Model):
+    mesh_materials: MeshMaterials
+
+
+def mesh_materials_from_text(text: str, source: str | Path) -> str | dict[str, str]:
+    """A mesh_materials value written as YAML text (the node's ``mesh_materials``
+    parameter: ``ALUMINIUM`` or ``{bus_mli: MLI, solar_cells: SOLAR_ARRAY}``), checked as
+    a scenario's is; ConfigError naming ``source`` and the key."""
+    try:
+        value = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader
+    except yaml.YAMLError as exc:
+        raise ConfigError(source, 'mesh_materials', text, f'not valid YAML: {_first_line(exc)}') from None
+    check_yaml_size(value, source)
+    if value is None:
+        raise ConfigError(source, 'mesh_materials', text, 'empty: give one config material or a '
+                                                          'map {mesh name: material, ...}')
+    return parse(_MeshMaterialsOnly, {'mesh_materials': value}, source).mesh_materials
+
+
 class ScenarioConfig(_Model):
     seed: int
     mesh: str

@@ -572,7 +572,8 @@ def read_target_mesh(obj_path: str | Path, material_names: list[str],
     if unknown:
         raise MeshMaterialError(
             f'{obj_path}: material group(s) {few(sorted(set(unknown)))} not in the materials config '
-            f'(known: {material_names})')
+            f'(known: {material_names}; map them in mesh_materials: the scenario\'s, or the '
+            f'node\'s mesh_materials parameter)')
     if not faces:
         raise MeshMaterialError(f'{obj_path}: no triangles found')
     del scene

@@ -153,8 +153,9 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
     if unmapped:
         raise MeshMaterialError(
             f'{path}: mesh material/node name(s) {few(sorted(set(map(str, unmapped))))} not '
-            f'mapped to a config material (give the scenario a mesh_materials entry for each; '
-            f'known materials: {material_names})')
+            f'mapped to a config material (give each an entry in mesh_materials: the '
+            f'scenario\'s, or the node\'s mesh_materials parameter; known materials: '
+            f'{material_names})')
     if not faces:
         raise MeshFileError(f'{path}: no triangles found')
     return np.vstack(verts), np.vstack(faces), np.concatenate(mats)

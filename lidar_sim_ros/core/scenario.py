@@ -11,8 +11,9 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from lidar_sim_ros.core.config import (ConfigError, MaterialsConfig, ScenarioConfig, SensorConfig,
-                                       check_file_kind, load_materials, load_sensor, parse,
-                                       read_yaml, resolve, with_sensor_range_error)
+                                       check_file_kind, load_materials, load_sensor,
+                                       mesh_materials_from_text, parse, read_yaml, resolve,
+                                       with_sensor_range_error)
 from lidar_sim_ros.core.effects import get_effect_class
 
 
@@ -36,12 +37,15 @@ class Scenario:
 
 def load_scenario(path: str | Path, sensor_file: str | Path | None = None,
                   materials_file: str | Path | None = None,
-                  mesh_file: str | Path | None = None) -> Scenario:
+                  mesh_file: str | Path | None = None,
+                  mesh_materials: str | None = None) -> Scenario:
     """Load scenario YAML and the sensor/materials/mesh files it references, or the files
     given instead (the node's sensor_file, materials_file and mesh_file parameters, a
-    missing one named as key '<parameters>' mesh_file). The materials get the sensor's own
-    range error once both are known: swapping the sensor after the load (as the node did)
-    simulated a Mid-40 with the P-60's Table 2 errors, or the P-60 with the Mid-40's."""
+    missing one named as key '<parameters>' mesh_file), and the node's mesh_materials
+    parameter (YAML text) instead of the scenario's map: a mesh_file of another target
+    needs its own. The materials get the sensor's own range error once both are known:
+    swapping the sensor after the load (as the node did) simulated a Mid-40 with the P-60's
+    Table 2 errors, or the P-60 with the Mid-40's."""
     path = Path(path)
     data = read_yaml(path, mapping=True)
     check_file_kind(data, 'scenario', path)
@@ -58,21 +62,28 @@ def load_scenario(path: str | Path, sensor_file: str | Path | None = None,
         if not mesh_path.is_file():
             raise ConfigError(path, 'mesh', cfg.mesh, f'mesh file not found at {mesh_path}')
     _check_effects(cfg, path)
+    mapped_in = path
+    if mesh_materials:
+        mapped_in = '<parameters>'
+        cfg = cfg.model_copy(update={'mesh_materials': mesh_materials_from_text(mesh_materials,
+                                                                                mapped_in)})
     materials = load_materials(materials_path)
-    _check_mesh_materials(cfg, materials, path)
+    _check_mesh_materials(cfg, materials, mapped_in, materials_path)
     sensor = load_sensor(sensor_path)
     return Scenario(cfg, sensor, with_sensor_range_error(materials, sensor), mesh_path, path)
 
 
-def _check_mesh_materials(cfg: ScenarioConfig, materials: MaterialsConfig, path: Path) -> None:
-    """Every material the scenario's mesh_materials names must be in the materials file."""
+def _check_mesh_materials(cfg: ScenarioConfig, materials: MaterialsConfig, source: str | Path,
+                          materials_path: Path) -> None:
+    """Every material the mesh_materials map (of the scenario file or the node's parameter:
+    ``source``) names must be in the materials file."""
     mapping = cfg.mesh_materials
     items = [('mesh_materials', mapping)] if isinstance(mapping, str) else \
         [(f'mesh_materials.{k}', v) for k, v in (mapping or {}).items()]
     for key, value in items:
         if value not in materials.names:
-            raise ConfigError(path, key, value, f'not a material of {cfg.materials} '
-                                                f'(known: {materials.names})')
+            raise ConfigError(source, key, value, f'not a material of {materials_path.name} '
+                                                  f'(known: {materials.names})')
 
 
 def scenario_effect_spec(spec: str, base: Path | None) -> str:

@@ -93,6 +93,10 @@ STARTUP_PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     'mesh_file': ('', _startup(S, "target mesh (.obj, or .gltf/.glb/.stl/.ply mapped by the "
                                   "scenario's mesh_materials) instead of the scenario's; '' = "
                                   "the scenario's")),
+    'mesh_materials': ('', _startup(S, "the mesh's material/node names -> config materials, as "
+                                       "YAML: one material for the whole mesh ('ALUMINIUM') or a "
+                                       "map ('{bus_mli: MLI, solar_cells: SOLAR_ARRAY}'), checked "
+                                       "as a scenario's; '' = the scenario's")),
     'pose_topic': ('/target/pose', _startup(
         S, 'geometry_msgs/PoseStamped input: target body pose in the lidar frame')),
     'odom_topic': ('', _startup(
@@ -274,10 +278,10 @@ class LidarSimNode(Node):
 
     def _load_scenario(self) -> Scenario:
         p = {name: self.get_parameter(name).value for name in
-             ('scenario_file', 'sensor_file', 'materials_file', 'mesh_file')}
+             ('scenario_file', 'sensor_file', 'materials_file', 'mesh_file', 'mesh_materials')}
         return load_scenario(p['scenario_file'] or config_path('scenario.yaml'),
                              sensor_file=p['sensor_file'], materials_file=p['materials_file'],
-                             mesh_file=p['mesh_file'])
+                             mesh_file=p['mesh_file'], mesh_materials=p['mesh_materials'])
 
     def _create_interfaces(self) -> None:
         param = lambda name: self.get_parameter(name).value  # noqa: E731
