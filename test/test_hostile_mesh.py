@@ -17,10 +17,16 @@ def obj(tmp_path, text):
     return path
 
 
-def test_non_finite_vertex_is_refused_naming_it(tmp_path):
-    path = obj(tmp_path, 'v 0 0 0\nv 1 0 0\nv 1 nan 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n')
-    with pytest.raises(MeshFileError, match=r'm.obj: 1 of 4 vertices are not finite, first #2'):
+@pytest.mark.parametrize('v', ['1 nan 0', '1 0 -INF', '1e400 0 0'])
+def test_non_finite_vertex_is_refused_naming_it(tmp_path, v):
+    """Named as the file writes it: its number as 'f' lines count (from 1), its line and
+    text. The error named the vertex trimesh had regrouped per material ('first #2', a
+    0-based index of another list) and its parsed value."""
+    path = obj(tmp_path, f'v 0 0 0\nv 1 0 0\nv {v}\nv 0 1 0\nf 1 2 3\nf 1 3 4\n')
+    with pytest.raises(MeshFileError, match=rf'm.obj: vertex 3 \(line 4: "v {v}"\) is not finite'):
         load_target(path, ['PIF'])
+    ok = load_target(obj(tmp_path, 'v 0 0 0\nv 1E+002 0 0\nv 0 1 0\nf 1 2 3\n'), ['PIF'])
+    assert ok.vertices_m.max() == 100.0        # a finite exponent passes
 
 
 def test_zero_area_mesh_is_refused(tmp_path):

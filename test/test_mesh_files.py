@@ -373,9 +373,36 @@ def test_a_non_finite_stl_vertex_is_refused_without_numpy_warnings(tmp_path, rec
     path = tmp_path / 'inf.stl'
     path.write_text('solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 inf 0\n'
                     'vertex 0 1 0\nendloop\nendfacet\nendsolid x\n')
-    with pytest.raises(MeshFileError, match='inf.stl: 1 of 3 vertices are not finite'):
+    with pytest.raises(MeshFileError, match=r"inf.stl: part 'x' vertex #1 = \[1.0, inf, 0.0\] is "
+                                            r"not finite \(1 of its 3 vertices are not\)"):
         load_target(path, NAMES, mesh_materials='MLI')
     assert not [str(w.message) for w in recwarn if issubclass(w.category, RuntimeWarning)]
+
+
+def test_a_non_finite_vertex_is_named_as_the_file_writes_it(tmp_path, monkeypatch):
+    """The error named the vertex after its node's transform and counted placements: the
+    file's vertex (1.0, nan, 0.0), placed twice, was '2 of 6 vertices are not finite,
+    first #1: [nan, nan, nan]' (the transform spreads the NaN). It now names the part, the file's index and value; a vertex
+    that a node's transform makes non-finite names the node (here with the transform limit
+    raised: within +-1e5 a float32 vertex stays finite)."""
+    from lidar_sim_ros.core import gltf_check
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5]], np.float32)
+    verts[1, 1] = np.nan
+    data = verts.tobytes() + np.array([0, 1, 2], np.uint16).tobytes() + b'\0\0'
+    doc = one_buffer_gltf(data, vertex_count=4, nodes=[
+        {'mesh': 0, 'name': 'a', 'translation': [0, 0, 3.0]}, {'mesh': 0, 'name': 'b'}])
+    with pytest.raises(MeshFileError, match=r"nan.glb: part 'foil' vertex #1 = \[1.0, nan, 0.0\] "
+                                            r"is not finite \(1 of its 4 vertices are not\)"):
+        load_target(write_glb(tmp_path / 'nan.glb', doc, data), NAMES, mesh_materials='MLI')
+    verts[1, 1] = 1e30
+    data = verts.tobytes() + np.array([0, 1, 2], np.uint16).tobytes() + b'\0\0'
+    doc = one_buffer_gltf(data, vertex_count=4, nodes=[
+        {'mesh': 0, 'name': 'stretched', 'scale': [1.0, 1e300, 1.0]}])
+    monkeypatch.setattr(gltf_check, 'MAX_TRANSFORM_VALUE', 1e300)
+    with pytest.raises(MeshFileError, match=r"big.glb: node 'stretched' places part 'foil' vertex "
+                                            r"#1 = \[1.0, 1.00000001504\d*e\+30, 0.0\] at \[1.0, inf, "
+                                            r"0.0\], not finite"), np.errstate(over='ignore'):
+        load_target(write_glb(tmp_path / 'big.glb', doc, data), NAMES, mesh_materials='MLI')
 
 
 def _short_buffers(tmp_path):

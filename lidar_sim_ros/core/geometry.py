@@ -8,6 +8,8 @@ handled by transforming each ray with the pose of its own shot time.
 from __future__ import annotations
 
 import itertools
+import math
+import re
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -598,6 +600,23 @@ def _with_names_mtl(obj_path: Path, names: list[str] | None) -> Iterator[Path]:
         yield copy
 
 
+_MAYBE_NOT_FINITE = re.compile(r'[nNiI]|[eE]\+?0*\d{3}')
+"""A 'v' line that may hold a non-finite number (nan, inf, or an exponent past 1e308)."""
+
+
+def _check_obj_vertex(rest: str, vertex: int, line: int, obj_path: Path) -> None:
+    """An OBJ vertex as written, refused when a coordinate is not finite: named by its
+    number (as the 'f' lines count, from 1), its line and its text; trimesh's vertices
+    are regrouped per material, so their index is not the file's."""
+    try:
+        xyz = [float(x) for x in rest.split()[:3]]
+    except ValueError:
+        return                          # not numbers: trimesh's parse says so
+    if not all(math.isfinite(x) for x in xyz):
+        raise MeshFileError(f'{obj_path}: vertex {vertex} (line {line}: "v {rest.strip()[:80]}") '
+                            'is not finite')
+
+
 def check_obj_file(obj_path: Path) -> list[str] | None:
     """Reject, with one line naming the file, what trimesh would report obscurely or not at all.
 
@@ -626,11 +645,15 @@ def check_obj_file(obj_path: Path) -> list[str] | None:
         raise MeshFileError(f'{obj_path}: not a text OBJ file (byte {exc.start} is not UTF-8)') from None
     if '\x00' in text:
         raise MeshFileError(f'{obj_path}: not a text OBJ file (it holds NUL bytes)')
-    mtllibs, usemtl, faces = [], [], 0
-    for line in text.splitlines():
+    mtllibs, usemtl, faces, vertices = [], [], 0, 0
+    for number, line in enumerate(text.splitlines(), 1):
         keyword, _, rest = line.strip().partition(' ')
         if keyword == 'f':
             faces += 1
+        elif keyword == 'v':
+            vertices += 1
+            if _MAYBE_NOT_FINITE.search(rest):
+                _check_obj_vertex(rest, vertices, number, obj_path)
         elif keyword == 'usemtl' and rest.strip() and rest.strip() not in usemtl:
             usemtl.append(rest.strip())
         elif keyword == 'mtllib':

@@ -135,7 +135,8 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
         if n_faces > max_triangles:
             raise MeshFileError(f'{path}: more than {max_triangles} triangles')
         material = getattr(getattr(getattr(geom, 'visual', None), 'material', None), 'name', None)
-        candidates = [n for n in (material, *_file_names(scene, node, geom_name, file_names)) if n]
+        names = _file_names(scene, node, geom_name, file_names)
+        candidates = [n for n in (material, *names) if n]
         chosen = _material_of(candidates, material_names, mesh_materials)
         if chosen is not None and chosen not in material_names:
             raise MeshMaterialError(f'{path}: part {candidates[0]!r} is mapped to {chosen!r}, '
@@ -143,13 +144,14 @@ def read_cad(path: Path, material_names: list[str], mesh_materials: str | dict[s
         if chosen is None:
             unmapped.append(candidates[0])
             continue
-        v, f = _used_vertices(np.asarray(geom.vertices), _checked_faces(
+        raw = np.asarray(geom.vertices)
+        _check_finite_vertices(raw, path, candidates[0])
+        used, f = _used_vertices(raw, _checked_faces(
             np.asarray(geom.faces, dtype=np.int64), len(geom.vertices), path, candidates[0]))
-        with np.errstate(all='ignore'):      # non-finite: refused by checked_mesh
-            verts.append(v @ np.asarray(matrix)[:3, :3].T + np.asarray(matrix)[:3, 3])
+        verts.append(_placed(raw, used, np.asarray(matrix), path, candidates[0], names[0]))
         faces.append(f + offset)
         mats.append(np.full(len(geom.faces), material_names.index(chosen)))
-        offset += len(v)
+        offset += len(used)
     if unmapped:
         raise MeshMaterialError(
             f'{path}: mesh material/node name(s) {few(sorted(set(map(str, unmapped))))} not '
@@ -326,14 +328,41 @@ def _checked_faces(faces: np.ndarray, n_vertices: int, path: Path, part: str) ->
 
 
 def _used_vertices(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The part's vertices (float64) and faces, keeping only the vertices the faces name
-    when there are more than 3 per face: every placement of a part is copied, and a
-    one-triangle part over a 1e6-vertex accessor placed by 40 nodes took 2 GB (the file,
-    12 MB). Vertices then stay below 3 x MAX_TRIANGLES whatever the file claims."""
+    """Indices of the part's vertices kept and its faces over them: only the vertices the
+    faces name when there are more than 3 per face (every placement of a part is copied,
+    and a one-triangle part over a 1e6-vertex accessor placed by 40 nodes took 2 GB, the
+    file 12 MB), so vertices stay below 3 x MAX_TRIANGLES whatever the file claims."""
     if len(vertices) <= 3 * len(faces):
-        return np.asarray(vertices, dtype=float), faces
+        return np.arange(len(vertices)), faces
     used, inverse = np.unique(faces, return_inverse=True)
-    return np.asarray(vertices[used], dtype=float), inverse.reshape(faces.shape)
+    return used, inverse.reshape(faces.shape)
+
+
+def _check_finite_vertices(vertices: np.ndarray, path: Path, part: str) -> None:
+    """Every vertex of a part finite as the file writes it: the error names the part, the
+    vertex's index in it (the file's order: a glTF accessor's, a PLY's vertex element, an
+    STL's three per facet) and its value as written, not where a node put it."""
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise MeshFileError(f'{path}: part {part!r} vertex #{k} = {vertices[k].tolist()} is not '
+                            f'finite ({int(bad.sum())} of its {len(vertices)} vertices are not)')
+
+
+def _placed(vertices: np.ndarray, used: np.ndarray, matrix: np.ndarray, path: Path, part: str,
+            node: str) -> np.ndarray:
+    """The ``used`` vertices (float64, m) placed by their node's ``matrix``; a vertex the
+    transform makes non-finite (a finite 1e304 scaled by 1e5) is refused naming the node,
+    the part's vertex index and its value as written."""
+    with np.errstate(all='ignore'):
+        placed = np.asarray(vertices[used], dtype=float) @ matrix[:3, :3].T + matrix[:3, 3]
+    bad = ~np.isfinite(placed).all(axis=1)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise MeshFileError(f'{path}: node {node!r} places part {part!r} vertex '
+                            f'#{int(used[k])} = {vertices[used[k]].tolist()} at '
+                            f'{placed[k].tolist()}, not finite')
+    return placed
 
 
 def _gltf_json_bytes(path: Path, size: int) -> int:
