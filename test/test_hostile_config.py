@@ -145,3 +145,52 @@ def test_campaign_runs_are_limited(tmp_path):
     with pytest.raises(ConfigError) as err:
         load_campaign(path)
     assert err.value.key == 'runs' and str(10 * MAX_RUNS) in str(err.value)
+
+
+def _set(section, key, index, value):
+    def edit(doc):
+        where = doc[section] if section else doc
+        if index is None:
+            where[key] = value
+        else:
+            where[key][index] = value
+    return edit
+
+
+@pytest.mark.parametrize('file, edit, key, value', [
+    # A wedge of 1e-300 deg: its prism adds nothing (both: every shot on the boresight).
+    ('livox_mid40.yaml', _set('scan', 'prism_deviation_deg', 0, 1e-300), 'scan.prism_deviation_deg.0', '1e-300'),
+    # A prism turning at 1e-300 rev/s stands still; two rates 1e-9 apart draw one circle.
+    ('livox_mid40.yaml', _set('scan', 'prism_rates_hz', 1, 1e-300), 'scan', '1e-300'),
+    ('livox_mid40.yaml', _set('scan', 'prism_rates_hz', 1, 121.56666666666666 + 1e-9), 'scan', '121.56666'),
+    # A footprint of 1e-300 rad underflowed to 0 (infinite irradiance, warnings, no point);
+    # a beam wider than a hemisphere is none.
+    ('livox_mid40.yaml', _set('optics', 'beam_divergence_rad', None, 1e-300), 'optics.beam_divergence_rad', '1e-300'),
+    ('flash_256.yaml', _set('optics', 'beam_divergence_rad', None, 1e300), 'optics.beam_divergence_rad', '1e+300'),
+    # An aperture of 1e300 m: OverflowError out of the frame.
+    ('flash_256.yaml', _set('optics', 'aperture_diameter_m', None, 1e300), 'optics.aperture_diameter_m', '1e+300'),
+    # A Lissajous field or frequency of 1e-300: every laser fires in one direction.
+    ('cepton_vista_p60.yaml', _set('scan', 'fov_el_deg', None, 1e-300), 'scan.fov_el_deg', '1e-300'),
+    ('cepton_vista_p60.yaml', _set('scan', 'freq_az_hz', None, 1e-300), 'scan.freq_az_hz', '1e-300'),
+    # A spinning sensor's sweep of 1e-300 deg.
+    ('spinning_32.yaml', _set('scan', 'az_max_deg', None, -180.0 + 1e-12), 'scan', '-180'),
+])
+def test_tiny_positive_values_that_collapse_the_scan_are_refused(tmp_path, file, edit, key, value):
+    """Positive but degenerate: each was accepted and gave a scan of no size or no motion,
+    a frame of warnings and no point, or an OverflowError from the frame (the hostile
+    sweep of this round over livox_mid40.yaml and flash_256.yaml); now one ConfigError
+    naming the file, key and value at load."""
+    copy_config(tmp_path, (file,))
+    _edit(tmp_path / file, edit)
+    with pytest.raises(ConfigError) as err:
+        load_sensor(tmp_path / file)
+    assert err.value.key == key and file in str(err.value) and value in str(err.value)
+
+
+def test_a_negative_seed_is_refused_at_load(cfg):
+    """seed: -1 loaded and every frame then failed in numpy ('expected non-negative
+    integer'), after the mesh was read."""
+    _edit(cfg / 'scenario.yaml', lambda s: s.update(seed=-1))
+    with pytest.raises(ConfigError) as err:
+        load_scenario(cfg / 'scenario.yaml')
+    assert err.value.key == 'seed' and '-1' in str(err.value)

@@ -78,8 +78,25 @@ def _without_unset_new_keys(data: Any, keys: tuple[str, ...]) -> Any:
     return data
 
 
+MIN_FIELD_DEG = 1e-3
+"""Narrowest flash array or flood field (deg, 3.6 arcsec): a flood of 1e-300 deg has a solid
+angle that underflows to 0, and every pixel's power was NaN (divide by zero)."""
+MIN_SCAN_RATE_HZ = 1e-3
+"""Slowest scan motion (Hz, a Lissajous frequency or a prism's rate in rev/s, and the
+difference of two prism rates): once in 1000 s, like MIN_FRAME_RATE_HZ. A rate of 1e-300 is
+positive but leaves every shot of a frame in one direction."""
+MIN_BEAM_DIVERGENCE_RAD = 1e-6
+"""Narrowest beam (rad, full angle): a 905 nm beam through a 1 m aperture diffracts to ~1e-6
+rad. At 1e-300 the footprint's area underflowed to 0: infinite irradiance, numpy warnings
+and no point (every return above saturation)."""
+MAX_APERTURE_M = 10.0
+"""Widest receiver aperture (m; the largest telescopes' mirrors): 1e300 m overflowed the
+aperture area (OverflowError out of the frame)."""
+
+
 PositiveFloat = Annotated[float, Field(gt=0.0)]
 NonNegFloat = Annotated[float, Field(ge=0.0)]
+ScanRate = Annotated[float, Field(ge=MIN_SCAN_RATE_HZ)]
 Fraction = Annotated[float, Field(ge=0.0, le=1.0)]
 
 
@@ -89,10 +106,10 @@ class LaserOverride(_Model):
 
     center_az_deg: float | None = None
     center_el_deg: float | None = None
-    amp_az_deg: PositiveFloat | None = None
-    amp_el_deg: PositiveFloat | None = None
-    freq_az_hz: PositiveFloat | None = None
-    freq_el_hz: PositiveFloat | None = None
+    amp_az_deg: Annotated[float, Field(ge=MIN_FIELD_DEG / 2)] | None = None
+    amp_el_deg: Annotated[float, Field(ge=MIN_FIELD_DEG / 2)] | None = None
+    freq_az_hz: ScanRate | None = None
+    freq_el_hz: ScanRate | None = None
     phase_az_rad: float | None = None
     phase_el_rad: float | None = None
 
@@ -101,14 +118,14 @@ class LissajousArrayScan(_Model):
     """Tiled Lissajous-like scan (Cepton Vista P-60: 8 x 3 tiles, paper Sec. 3)."""
 
     type: Literal['lissajous_array']
-    fov_az_deg: Annotated[float, Field(gt=0.0, le=360.0)]
-    fov_el_deg: Annotated[float, Field(gt=0.0, le=180.0)]
+    fov_az_deg: Annotated[float, Field(ge=MIN_FIELD_DEG, le=360.0)]
+    fov_el_deg: Annotated[float, Field(ge=MIN_FIELD_DEG, le=180.0)]
     tiles_az: Annotated[int, Field(ge=1)]
     tiles_el: Annotated[int, Field(ge=1)]
     shots_per_laser: Annotated[int, Field(ge=1)]
     overlap: NonNegFloat = Field(description='fraction of a tile half-width the curve overruns')
-    freq_az_hz: PositiveFloat
-    freq_el_hz: PositiveFloat
+    freq_az_hz: ScanRate
+    freq_el_hz: ScanRate
     phase_az_rad: float = 0.0
     phase_el_rad: float = 0.0
     phase_step_rad: float = Field(0.0, description='extra phase per laser index, decorrelates tiles')
@@ -143,8 +160,10 @@ class RotatingScan(_Model):
 
     @model_validator(mode='after')
     def _az_order(self):
-        if self.az_max_deg <= self.az_min_deg:
-            raise ValueError('az_max_deg must exceed az_min_deg')
+        if self.az_max_deg - self.az_min_deg < MIN_FIELD_DEG:
+            raise ValueError(f'az_max_deg must exceed az_min_deg by at least {MIN_FIELD_DEG:g} deg '
+                             f'({self.az_min_deg:g} .. {self.az_max_deg:g}: every beam would fire '
+                             'in one direction)')
         if self.az_max_deg - self.az_min_deg > 360.0:
             raise ValueError('az_max_deg - az_min_deg exceeds 360 deg')
         _check_shots(len(self.elevations_deg) * self.shots_per_beam)
@@ -178,7 +197,8 @@ class RisleyScan(_Model):
     prism_rates_hz: tuple[Annotated[float, Field(ge=-MAX_PRISM_RATE_HZ, le=MAX_PRISM_RATE_HZ)],
                           Annotated[float, Field(ge=-MAX_PRISM_RATE_HZ, le=MAX_PRISM_RATE_HZ)]] = Field(
         description='rotation rate of each prism (rev/s); the sign is the direction')
-    prism_deviation_deg: tuple[PositiveFloat, PositiveFloat] = Field(
+    prism_deviation_deg: tuple[Annotated[float, Field(ge=MIN_FIELD_DEG)],
+                               Annotated[float, Field(ge=MIN_FIELD_DEG)]] = Field(
         description='deviation of each thin wedge alone, (n - 1) x wedge angle (deg)')
     prism_phase_rad: tuple[PrismPhase, PrismPhase] = (0.0, 0.0)
     shot_rate_hz: PositiveFloat = Field(description='shots per second of the one laser')
@@ -186,17 +206,14 @@ class RisleyScan(_Model):
     @model_validator(mode='after')
     def _rates(self):
         f1, f2 = self.prism_rates_hz
-        if f1 == 0.0 or f2 == 0.0 or f1 == f2:
+        if min(abs(f1), abs(f2), abs(f1 - f2)) < MIN_SCAN_RATE_HZ:
             raise ValueError(f'prism_rates_hz {list(self.prism_rates_hz)}: both prisms must '
-                             'turn, at different rates (otherwise the beam draws one circle)')
+                             f'turn, at different rates (each rate and their difference at least '
+                             f'{MIN_SCAN_RATE_HZ:g} rev/s: otherwise the beam stands still or draws '
+                             'one circle)')
         if sum(self.prism_deviation_deg) >= 90.0:
             raise ValueError('the prisms\' deviations must add to less than 90 deg')
         return self
-
-
-MIN_FIELD_DEG = 1e-3
-"""Narrowest flash array or flood field (deg, 3.6 arcsec): a flood of 1e-300 deg has a solid
-angle that underflows to 0, and every pixel's power was NaN (divide by zero)."""
 
 
 class FlashScan(_Model):
@@ -247,8 +264,9 @@ class OpticsConfig(_Model):
     peak_power_w: PositiveFloat
     transmit_efficiency: Annotated[float, Field(gt=0.0, le=1.0)]
     receive_efficiency: Annotated[float, Field(gt=0.0, le=1.0)]
-    beam_divergence_rad: PositiveFloat
-    aperture_diameter_m: PositiveFloat
+    beam_divergence_rad: Annotated[float, Field(ge=MIN_BEAM_DIVERGENCE_RAD, lt=np.pi)] = Field(
+        description='full angle of the beam (rad)')
+    aperture_diameter_m: Annotated[float, Field(gt=0.0, le=MAX_APERTURE_M)]
     flood: FloodConfig | None = Field(
         None, description='flood illumination of a flash array (None: one beam per shot)')
 
@@ -589,7 +607,8 @@ def mesh_materials_from_text(text: str, source: str | Path) -> str | dict[str, s
 
 
 class ScenarioConfig(_Model):
-    seed: int
+    seed: Annotated[int, Field(ge=0, lt=2 ** 63)] = Field(
+        description='seed of every random draw (numpy takes none below 0)')
     mesh: str
     sensor: str
     materials: str
