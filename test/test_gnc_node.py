@@ -154,3 +154,29 @@ def test_acquisition_field_of_view_of_every_scan_type():
     assert fov['livox_mid40.yaml'] == pytest.approx({'fov_az_deg': 38.4, 'fov_el_deg': 38.4})
     assert fov['flash_256.yaml'] == {'fov_az_deg': 20.0, 'fov_el_deg': 20.0}
     assert fov['cepton_vista_p60.yaml'] == {'fov_az_deg': 60.0, 'fov_el_deg': 22.0}
+
+
+def test_a_cad_mesh_file_needs_no_material_map():
+    """mesh_file = the box-wing .glb under the rocket body's scenario stopped the tracker
+    at start-up ("['antenna_aluminium', 'bus_mli', ...] not mapped") though it reads the
+    shape alone; every part is now one material to it. In process (no DDS traffic)."""
+    from rclpy.parameter import Parameter
+    from lidar_sim_ros.core.geometry import read_target_mesh
+    from lidar_sim_ros.gnc.pose_tracker_node import PoseTrackerNode
+    glb = os.path.join(os.path.dirname(__file__), '..', 'meshes', 'box_wing_satellite.glb')
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    node = PoseTrackerNode(context=context, parameter_overrides=[
+        Parameter('mesh_file', Parameter.Type.STRING, glb)])
+    try:
+        node.setup()
+        # The model is sampled on the satellite's surface: its box is the mesh's (the
+        # 10.6 m wing span), to the sampling's spacing.
+        vertices_m, _, _ = read_target_mesh(glb, ['X'], mesh_materials='X')
+        points = node.tracker.model.points_m
+        spacing = node.config.model_spacing_m
+        np.testing.assert_allclose(points.min(axis=0), vertices_m.min(axis=0), atol=4 * spacing)
+        np.testing.assert_allclose(points.max(axis=0), vertices_m.max(axis=0), atol=4 * spacing)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)

@@ -34,7 +34,7 @@ from sensor_msgs.msg import PointCloud2
 
 from lidar_sim_ros.core.config import ConfigError
 from lidar_sim_ros.core.scenario import load_scenario
-from lidar_sim_ros.core.geometry import MeshMaterialError, load_target
+from lidar_sim_ros.core.geometry import MeshMaterialError, read_target_mesh
 from lidar_sim_ros.gnc.acquire import AcquisitionConfig
 from lidar_sim_ros.gnc.tracker import PoseTracker, TrackerConfig, build_model, pose_matrix, pose_parts
 from lidar_sim_ros.io.pointcloud import from_pointcloud2, ns_to_stamp, stamp_to_ns
@@ -59,7 +59,9 @@ def _read_only(ptype: int, text: str) -> ParameterDescriptor:
 
 PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     'scenario_file': ('', _read_only(S, "scenario YAML (its mesh and sensor); '' = the package's")),
-    'mesh_file': ('', _read_only(S, "target mesh (.obj) instead of the scenario's; '' = the scenario's")),
+    'mesh_file': ('', _read_only(S, "target mesh (.obj, .gltf/.glb/.stl/.ply: its shape, whatever "
+                                    "its material names) instead of the scenario's; '' = the "
+                                    "scenario's")),
     'points_topic': ('/lidar/points', _read_only(S, 'sensor_msgs/PointCloud2 input')),
     'points_reliable': (False, _read_only(
         B, 'subscribe to the clouds reliably (a lock-step loop: no cloud lost); false: best effort, '
@@ -160,10 +162,12 @@ class PoseTrackerNode(Node):
         self.initial_guess = self._initial_guess(initial)
         self.recapture_from_pose = bool(param('recapture_from_pose'))
 
-        target = load_target(mesh, scenario.materials.names,
-                             mesh_materials=scenario.mesh_materials)
+        # The tracker needs the shape alone: every part as one material, so a mesh_file of
+        # another target (a CAD export whose names the scenario's map does not cover) loads.
+        vertices_m, faces, _ = read_target_mesh(mesh, scenario.materials.names,
+                                                mesh_materials=scenario.materials.names[0])
         t0 = time.perf_counter()
-        self.tracker = PoseTracker(build_model(target.vertices_m, target.faces, self.config), self.config,
+        self.tracker = PoseTracker(build_model(vertices_m, faces, self.config), self.config,
                                    self.acquisition)
         model_s = time.perf_counter() - t0
         self.poses: deque[tuple[int, np.ndarray]] = deque(maxlen=POSES_KEPT)
