@@ -194,3 +194,42 @@ def test_a_negative_seed_is_refused_at_load(cfg):
     with pytest.raises(ConfigError) as err:
         load_scenario(cfg / 'scenario.yaml')
     assert err.value.key == 'seed' and '-1' in str(err.value)
+
+
+@pytest.mark.parametrize('key, value, words', [
+    # Each of these crashed the sunlit flash frame (ZeroDivisionError, OverflowError x 2).
+    ('bandwidth_hz', 1e-300, 'greater than or equal to 1000'),
+    ('responsivity_a_per_w', 1e-300, 'greater than or equal to 0.001'),
+    ('amplifier_noise_a_per_rthz', 1e300, 'less than or equal to 0.000001'),
+    # Physical limits: one electron a photon (1572 nm: 1.268 A/W), F <= M, a hemisphere,
+    # a filter narrower than the wavelength, a point-source transmittance of at most 1.
+    ('responsivity_a_per_w', 1.5, 'quantum limit at 1572 nm'),
+    ('excess_noise_factor', 25.0, 'exceeds apd_gain 20'),
+    ('ifov_sr', 1e300, 'less than 6.28'),
+    ('bandpass_nm', 1e300, 'wider than the wavelength'),
+    ('stray_light_pst_at_1deg', 1e300, 'less than or equal to 1'),
+    ('wavelength_nm', 1e-300, 'greater than or equal to 200'),
+    # Beyond any receiver: every pixel a sunlit false return.
+    ('apd_gain', 1e300, 'less than or equal to 10000'),
+    ('dark_current_a', 1e300, 'less than or equal to 0.001'),
+    ('dark_count_rate_hz', 1e300, 'less than or equal to 10000000000'),
+])
+def test_receiver_values_that_break_the_noise_model_are_refused(tmp_path, key, value, words):
+    """The sweep of this round over flash_256.yaml in a sunlit scenario: each was loaded,
+    and the frame crashed or every one of the 65,536 pixels fired on noise (or, for a
+    field wider than a hemisphere or a 1e300 nm filter, the background had no meaning)."""
+    copy_config(tmp_path, ('flash_256.yaml',))
+    _edit(tmp_path / 'flash_256.yaml', lambda s: s['receiver'].update({key: value}))
+    with pytest.raises(ConfigError, match=words) as err:
+        load_sensor(tmp_path / 'flash_256.yaml')
+    assert err.value.key.startswith('receiver') and 'flash_256.yaml' in str(err.value)
+
+
+def test_a_range_gate_of_1e300_m_is_refused(tmp_path):
+    """Sunlit false returns are drawn over the gate: at 1e300 m every pixel had one, near
+    1e300 m."""
+    copy_config(tmp_path, ('flash_256.yaml',))
+    _edit(tmp_path / 'flash_256.yaml', lambda s: s['detection'].update(max_range_m=1e300))
+    with pytest.raises(ConfigError, match='less than or equal to 1000000') as err:
+        load_sensor(tmp_path / 'flash_256.yaml')
+    assert err.value.key == 'detection.max_range_m'

@@ -294,13 +294,18 @@ class ReturnsConfig(_Model):
         return self.max_returns == 1 and self.mode == 'first'
 
 
+MAX_RANGE_M = 1.0e6
+"""Longest range gate (m): a target starts within 100 km on every axis; a gate of 1e300 m
+put every pixel's sunlit false return (ranges drawn over the gate) near 1e300 m."""
+
+
 class DetectionConfig(_Model):
     """Detector limits: returns outside [threshold, saturation) are omitted (paper Sec. 7)."""
 
     threshold_power_w: PositiveFloat
     saturation_power_w: PositiveFloat
     min_range_m: NonNegFloat = 0.0
-    max_range_m: PositiveFloat = 300.0
+    max_range_m: Annotated[float, Field(gt=0.0, le=MAX_RANGE_M)] = 300.0
     returns: ReturnsConfig = ReturnsConfig()
 
     @model_validator(mode='after')
@@ -312,37 +317,63 @@ class DetectionConfig(_Model):
         return self
 
 
+HC_NM_A_PER_W = 1239.84198
+"""h c / q in nm A/W: a detector of quantum efficiency 1 at wavelength lambda (nm) gives
+lambda / 1239.84 A/W, its largest possible responsivity."""
+
+
 class ReceiverConfig(_Model):
     """Receiver radiometry and noise: what sunlight does to the detector (docs/sunlight.md).
 
     Not in the paper and not public for the P-60: the defaults are plausible 905 nm
     values (Si APD, uncooled diode laser), chosen so that the sensor's detection
     threshold sits at 5.5 sigma of the dark noise, the usual design rule for a low
-    false-alarm rate.
+    false-alarm rate. Bounds are physical where physics gives one (a responsivity within
+    the quantum limit, an excess noise factor within the gain, a field of view within a
+    hemisphere, a filter narrower than the wavelength) and otherwise far beyond any real
+    receiver, where the noise arithmetic stays finite (a bandwidth of 1e-300 Hz divided by
+    zero, a responsivity of 1e-300 A/W or an amplifier noise of 1e300 overflowed).
     """
 
-    wavelength_nm: PositiveFloat = 905.0
+    wavelength_nm: Annotated[float, Field(ge=200.0, le=20_000.0)] = 905.0
     bandpass_nm: PositiveFloat = Field(40.0, description='optical band-pass filter width (nm)')
-    ifov_sr: PositiveFloat = Field(1.9e-5, description='receiver field of view per shot (sr)')
+    ifov_sr: Annotated[float, Field(gt=0.0, lt=2 * np.pi)] = Field(
+        1.9e-5, description='receiver field of view per shot (sr)')
     detector: Literal['linear', 'photon_counting'] = 'linear'
     # linear-mode APD (Rice threshold-crossing rate)
-    responsivity_a_per_w: PositiveFloat = Field(0.5, description='unity-gain responsivity (A/W)')
-    apd_gain: Annotated[float, Field(ge=1.0)] = 100.0
+    responsivity_a_per_w: Annotated[float, Field(ge=1e-3)] = Field(
+        0.5, description='unity-gain responsivity (A/W)')
+    apd_gain: Annotated[float, Field(ge=1.0, le=1e4)] = 100.0
     excess_noise_factor: Annotated[float, Field(ge=1.0)] = 5.0
-    bandwidth_hz: PositiveFloat = 2.5e8
-    amplifier_noise_a_per_rthz: NonNegFloat = Field(
+    bandwidth_hz: Annotated[float, Field(ge=1e3, le=1e12)] = 2.5e8
+    amplifier_noise_a_per_rthz: Annotated[float, Field(ge=0.0, le=1e-6)] = Field(
         2.18e-11, description='amplifier input current noise density (A/sqrt(Hz))')
-    dark_current_a: NonNegFloat = Field(1e-10, description='bulk (multiplied) dark current, primary (A)')
+    dark_current_a: Annotated[float, Field(ge=0.0, le=1e-3)] = Field(
+        1e-10, description='bulk (multiplied) dark current, primary (A)')
     # photon counting (Poisson)
     photon_detection_efficiency: Annotated[float, Field(gt=0.0, le=1.0)] = 0.1
-    dark_count_rate_hz: NonNegFloat = 1000.0
+    dark_count_rate_hz: Annotated[float, Field(ge=0.0, le=1e10)] = 1000.0
     coincidence_photons: Annotated[int, Field(ge=1)] = 1
     coincidence_window_s: PositiveFloat = 1e-9
     # saturation and stray light
     blinding_power_w: PositiveFloat = Field(
         5e-7, description='background power (W) that saturates the front end: no return')
-    stray_light_pst_at_1deg: NonNegFloat = Field(
+    stray_light_pst_at_1deg: Annotated[float, Field(ge=0.0, le=1.0)] = Field(
         1e-4, description='point-source transmittance of the receiver optics 1 deg off axis (-)')
+
+    @model_validator(mode='after')
+    def _physical(self):
+        limit = self.wavelength_nm / HC_NM_A_PER_W
+        if self.responsivity_a_per_w > limit:
+            raise ValueError(f'responsivity_a_per_w {self.responsivity_a_per_w:g} exceeds the quantum '
+                             f'limit at {self.wavelength_nm:g} nm ({limit:.4g} A/W: one electron a photon)')
+        if self.excess_noise_factor > self.apd_gain:
+            raise ValueError(f'excess_noise_factor {self.excess_noise_factor:g} exceeds apd_gain '
+                             f'{self.apd_gain:g} (McIntyre: F <= M for any ionisation ratio)')
+        if self.bandpass_nm > self.wavelength_nm:
+            raise ValueError(f'bandpass_nm {self.bandpass_nm:g} is wider than the wavelength '
+                             f'{self.wavelength_nm:g} nm (the background is spectral irradiance x band)')
+        return self
 
 
 MIN_FRAME_RATE_HZ = 1e-3
