@@ -226,8 +226,8 @@ def test_receiver_values_that_break_the_noise_model_are_refused(tmp_path, key, v
 
 
 def test_a_range_gate_of_1e300_m_is_refused(tmp_path):
-    """Sunlit false returns are drawn over the gate: at 1e300 m every pixel had one, near
-    1e300 m."""
+    """Sunlit false returns fall anywhere in the gate: at 1e300 m every pixel of the sunlit
+    flash frame had one, out to 1e8 m (median 25 km)."""
     copy_config(tmp_path, ('flash_256.yaml',))
     _edit(tmp_path / 'flash_256.yaml', lambda s: s['detection'].update(max_range_m=1e300))
     with pytest.raises(ConfigError, match='less than or equal to 1000000') as err:
