@@ -233,3 +233,21 @@ def test_a_range_gate_of_1e300_m_is_refused(tmp_path):
     with pytest.raises(ConfigError, match='less than or equal to 1000000') as err:
         load_sensor(tmp_path / 'flash_256.yaml')
     assert err.value.key == 'detection.max_range_m'
+
+
+@pytest.mark.parametrize('key, value, words', [
+    ('spectral_irradiance_w_m2_nm', 1e300, 'less than or equal to 100000'),
+    ('deep_space_radiance_w_m2_sr_nm', 1e300, 'less than or equal to 100000'),
+    ('orbit_rate_dps', 1e300, 'less than or equal to 3600'),
+])
+def test_sunlight_beyond_the_sun_is_refused(tmp_path, key, value, words):
+    """A spectral irradiance of 1e300 (the photosphere gives ~4e4 at 905 nm) blinded the
+    sunlit flash frame (446 of 20,349 points); an orbit rate of 1e300 deg/s makes the
+    sun's direction arbitrary after any time at all."""
+    copy_config(tmp_path, ('scenario_sunlit.yaml', SENSOR, MATERIALS))
+    _edit(tmp_path / 'scenario_sunlit.yaml', lambda s: s['sun'].update({key: value}))
+    _edit(tmp_path / 'scenario_sunlit.yaml',
+          lambda s: s.update(mesh=str(CONFIG.parent / 'meshes' / 'rocket_body.obj')))
+    with pytest.raises(ConfigError, match=words) as err:
+        load_scenario(tmp_path / 'scenario_sunlit.yaml')
+    assert err.value.key == f'sun.{key}' and 'scenario_sunlit.yaml' in str(err.value)

@@ -571,19 +571,29 @@ class EarthConfig(_Model):
         return _unit_vector(v)
 
 
+MAX_SPECTRAL_IRRADIANCE_W_M2_NM = 1.0e5
+"""Brightest sunlight (W m^-2 nm^-1): on the photosphere itself, 0.92 x 215^2 ~ 4e4 at 905 nm
+(1 AU is 215 solar radii); a sky radiance is bounded by the sun's own, 0.92 / 6.8e-5 sr
+~ 1.4e4 W m^-2 sr^-1 nm^-1. 1e300 was accepted and blinded the receiver."""
+
+
 class SunConfig(_Model):
     """The scenario's sunlight (docs/sunlight.md). ``direction``: toward the sun, lidar frame."""
 
     direction: tuple[float, float, float] = Field(
         description='unit vector toward the sun, lidar frame (normalised)')
-    spectral_irradiance_w_m2_nm: PositiveFloat = Field(
+    spectral_irradiance_w_m2_nm: Annotated[float, Field(
+        gt=0.0, le=MAX_SPECTRAL_IRRADIANCE_W_M2_NM)] = Field(
         0.92, description='solar spectral irradiance at the laser wavelength (W m^-2 nm^-1); '
                           '0.92 = ASTM E490 AM0 at 905 nm, 1 AU')
-    orbit_rate_dps: float = Field(0.0, description='the sun turns about orbit_axis at this rate '
-                                                   '(deg/s; offline runs; 0.065 = a 92 min orbit)')
+    orbit_rate_dps: float = Field(0.0, ge=-MAX_TUMBLE_RATE_DPS, le=MAX_TUMBLE_RATE_DPS,
+                                  description='the sun turns about orbit_axis at this rate '
+                                              '(deg/s; offline runs; 0.065 = a 92 min orbit); at '
+                                              '1e300 its direction was arbitrary after 0.1 s')
     orbit_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
     earth: EarthConfig | None = None
-    deep_space_radiance_w_m2_sr_nm: NonNegFloat = Field(
+    deep_space_radiance_w_m2_sr_nm: Annotated[float, Field(
+        ge=0.0, le=MAX_SPECTRAL_IRRADIANCE_W_M2_NM)] = Field(
         0.0, description='spectral radiance of empty sky (W m^-2 sr^-1 nm^-1)')
 
     @field_validator('direction', 'orbit_axis')
