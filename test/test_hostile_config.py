@@ -251,3 +251,26 @@ def test_sunlight_beyond_the_sun_is_refused(tmp_path, key, value, words):
     with pytest.raises(ConfigError, match=words) as err:
         load_scenario(tmp_path / 'scenario_sunlit.yaml')
     assert err.value.key == f'sun.{key}' and 'scenario_sunlit.yaml' in str(err.value)
+
+
+def _laser0(**override):
+    return lambda doc: doc['scan'].update(lasers=[override] + [{}] * 23)
+
+
+@pytest.mark.parametrize('edit, key, value', [
+    # Each was accepted and sent shots to arbitrary directions (1e300 deg, or a phase whose
+    # float64 spacing is ~1e284 rad), rc 0.
+    (_set('scan', 'overlap', None, 1e300), 'scan.overlap', '1e+300'),
+    (_set('scan', 'freq_az_hz', None, 1e300), 'scan.freq_az_hz', '1e+300'),
+    (_set('scan', 'phase_az_rad', None, 1e300), 'scan.phase_az_rad', '1e+300'),
+    (_set('scan', 'phase_step_rad', None, -1e300), 'scan.phase_step_rad', '-1e+300'),
+    (_laser0(center_az_deg=1e300), 'scan.lasers.0.center_az_deg', '1e+300'),
+    (_laser0(amp_el_deg=1e300), 'scan.lasers.0.amp_el_deg', '1e+300'),
+    (_laser0(phase_el_rad=1e300), 'scan.lasers.0.phase_el_rad', '1e+300'),
+    (_laser0(freq_el_hz=1e300), 'scan.lasers.0.freq_el_hz', '1e+300'),
+])
+def test_lissajous_values_that_scatter_the_shots_are_refused(cfg, edit, key, value):
+    _edit(cfg / SENSOR, edit)
+    with pytest.raises(ConfigError) as err:
+        load_sensor(cfg / SENSOR)
+    assert err.value.key == key and SENSOR in str(err.value) and value in str(err.value)

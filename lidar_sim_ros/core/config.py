@@ -94,9 +94,19 @@ MAX_APERTURE_M = 10.0
 aperture area (OverflowError out of the frame)."""
 
 
+MAX_PHASE_RAD = 1.0e4
+"""Largest scan phase (rad: a prism's, a Lissajous axis's or its per-laser step; calibrate
+scan writes them in -pi..pi): a phase of 1e300 is finite but its float64 spacing is
+~1e284 rad, so the angle it gives is arbitrary."""
+Phase = Annotated[float, Field(ge=-MAX_PHASE_RAD, le=MAX_PHASE_RAD)]
+MAX_SCAN_FREQ_HZ = 1.0e6
+"""Fastest Lissajous axis (Hz; MEMS mirrors resonate up to tens of kHz): at 1e300 Hz the
+phase 2 pi f t of every shot is arbitrary."""
+
+
 PositiveFloat = Annotated[float, Field(gt=0.0)]
 NonNegFloat = Annotated[float, Field(ge=0.0)]
-ScanRate = Annotated[float, Field(ge=MIN_SCAN_RATE_HZ)]
+ScanRate = Annotated[float, Field(ge=MIN_SCAN_RATE_HZ, le=MAX_SCAN_FREQ_HZ)]
 Fraction = Annotated[float, Field(ge=0.0, le=1.0)]
 
 
@@ -104,14 +114,14 @@ Fraction = Annotated[float, Field(ge=0.0, le=1.0)]
 class LaserOverride(_Model):
     """Per-laser Lissajous parameters (degrees, hertz, radians); unset = tile default."""
 
-    center_az_deg: float | None = None
-    center_el_deg: float | None = None
-    amp_az_deg: Annotated[float, Field(ge=MIN_FIELD_DEG / 2)] | None = None
-    amp_el_deg: Annotated[float, Field(ge=MIN_FIELD_DEG / 2)] | None = None
+    center_az_deg: Annotated[float, Field(ge=-180.0, le=180.0)] | None = None
+    center_el_deg: Annotated[float, Field(ge=-90.0, le=90.0)] | None = None
+    amp_az_deg: Annotated[float, Field(ge=MIN_FIELD_DEG / 2, le=180.0)] | None = None
+    amp_el_deg: Annotated[float, Field(ge=MIN_FIELD_DEG / 2, le=90.0)] | None = None
     freq_az_hz: ScanRate | None = None
     freq_el_hz: ScanRate | None = None
-    phase_az_rad: float | None = None
-    phase_el_rad: float | None = None
+    phase_az_rad: Phase | None = None
+    phase_el_rad: Phase | None = None
 
 
 class LissajousArrayScan(_Model):
@@ -123,12 +133,14 @@ class LissajousArrayScan(_Model):
     tiles_az: Annotated[int, Field(ge=1)]
     tiles_el: Annotated[int, Field(ge=1)]
     shots_per_laser: Annotated[int, Field(ge=1)]
-    overlap: NonNegFloat = Field(description='fraction of a tile half-width the curve overruns')
+    overlap: Annotated[float, Field(ge=0.0, le=1.0)] = Field(
+        description='fraction of a tile half-width the curve overruns (at most into the '
+                    "neighbours' centres: 1e300 sent shots to 1e300 deg)")
     freq_az_hz: ScanRate
     freq_el_hz: ScanRate
-    phase_az_rad: float = 0.0
-    phase_el_rad: float = 0.0
-    phase_step_rad: float = Field(0.0, description='extra phase per laser index, decorrelates tiles')
+    phase_az_rad: Phase = 0.0
+    phase_el_rad: Phase = 0.0
+    phase_step_rad: Phase = Field(0.0, description='extra phase per laser index, decorrelates tiles')
     lasers: list[LaserOverride] | None = None
 
     @model_validator(mode='after')
@@ -182,10 +194,6 @@ MAX_PRISM_RATE_HZ = 10_000.0
 (~1e10) loses its precision in float64."""
 
 
-MAX_PRISM_PHASE_RAD = 1.0e4
-"""Largest prism phase (rad; calibrate scan writes them in -pi..pi): a phase of 1e300 is finite
-but its float64 spacing is ~1e284 rad, so the prism angle it gives is arbitrary."""
-PrismPhase = Annotated[float, Field(ge=-MAX_PRISM_PHASE_RAD, le=MAX_PRISM_PHASE_RAD)]
 
 
 class RisleyScan(_Model):
@@ -200,7 +208,7 @@ class RisleyScan(_Model):
     prism_deviation_deg: tuple[Annotated[float, Field(ge=MIN_FIELD_DEG)],
                                Annotated[float, Field(ge=MIN_FIELD_DEG)]] = Field(
         description='deviation of each thin wedge alone, (n - 1) x wedge angle (deg)')
-    prism_phase_rad: tuple[PrismPhase, PrismPhase] = (0.0, 0.0)
+    prism_phase_rad: tuple[Phase, Phase] = (0.0, 0.0)
     shot_rate_hz: PositiveFloat = Field(description='shots per second of the one laser')
 
     @model_validator(mode='after')
