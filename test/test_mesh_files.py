@@ -473,3 +473,17 @@ def test_a_ply_header_is_bounded_and_its_counts_are_read_whole(tmp_path, monkeyp
     with pytest.raises(MeshFileError, match='many.ply: PLY header says 2 face elements'):
         load_target(ply_with_comments(tmp_path / 'many.ply', 600, faces=2), NAMES,
                     mesh_materials='MLI')
+
+
+def test_a_buffer_without_uri_outside_a_glb_first_buffer_is_refused(tmp_path):
+    """Only a .glb's first buffer may omit its uri (its BIN chunk, glTF 2.0 section
+    3.6.1.1): a .gltf's got trimesh's "KeyError: 'uri'", a .glb's second was passed over."""
+    import json
+    data = triangle_bytes()
+    gltf = tmp_path / 'nouri.gltf'
+    gltf.write_text(json.dumps(one_buffer_gltf(data)))
+    doc = one_buffer_gltf(data)
+    doc['buffers'].append({'byteLength': 4})
+    for path, i in ((gltf, 0), (write_glb(tmp_path / 'two.glb', doc, data), 1)):
+        with pytest.raises(MeshFileError, match=rf'{path.name}: buffers\[{i}\] has no uri'):
+            load_target(path, NAMES, mesh_materials='MLI')

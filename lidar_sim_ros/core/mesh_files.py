@@ -205,6 +205,9 @@ def _check_buffer_bytes(path: Path, doc: dict, json_bytes: int) -> None:
     what bytes there were (and with a count past them, "cannot reshape array")."""
     for i, buffer in enumerate(doc.get('buffers', [])):
         declared, uri = buffer['byteLength'], buffer.get('uri')
+        if uri is None and (i > 0 or path.suffix.lower() != '.glb'):
+            raise MeshFileError(f'{path}: buffers[{i}] has no uri (only a .glb\'s first buffer, '
+                                'its BIN chunk, may omit it: glTF 2.0 section 3.6.1.1)')
         if uri is None:
             held, source = _glb_bin_bytes(path, json_bytes), 'the .glb\'s BIN chunk'
         elif not isinstance(uri, str):
