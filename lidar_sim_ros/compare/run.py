@@ -699,8 +699,13 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
                                                 np.nanmin(mp[mp > 0]) if np.any(mp > 0)
                                                 else 1e-12))
         labels['intensity'] = features.POWER_LABEL
-    attribution = features.attribute(values, res, res / (sig * scale), seed,
-                                     sample.blocks[picked][lsel])
+    # Points far beyond the noise (a surface in front of the target, a false return on
+    # it) are an outlier's business, not a shape of the residual: left out, they would
+    # make the structure a bias or noise effect must explain (``share_veto``) theirs.
+    near = np.abs(res) <= np.maximum(diagnosis.FAR_MIN_M, diagnosis.FAR_SIGMAS * sig * scale)
+    attribution = features.attribute({k: v[near] for k, v in values.items()}, res[near],
+                                     (res / (sig * scale))[near], seed,
+                                     sample.blocks[picked][lsel][near])
     return Analysed(sample, picked, isolated, local, res, values, labels, attribution)
 
 
