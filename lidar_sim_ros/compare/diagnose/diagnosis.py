@@ -170,6 +170,14 @@ def range_window_m(meas: Measurements) -> tuple[float, float]:
     return lo, hi
 
 
+def miss_window_m(meas: Measurements, model) -> tuple[float, float]:
+    """Support of a false return on a shot that misses the target: the sensor's range
+    gate (what a miss listens over), widened to the measured ranges."""
+    lo, hi = range_window_m(meas)
+    det = model.sensor.detection
+    return min(lo, float(det.min_range_m)), max(hi, float(det.max_range_m))
+
+
 def put_prediction(pred: Prediction, index: np.ndarray, part: Prediction) -> Prediction:
     """``pred`` with the rays ``index`` replaced by ``part`` (a prediction of those rays)."""
     def put(full, sub):
@@ -242,7 +250,7 @@ def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet,
         measured_range_m=m_sub.range_m, baseline=baseline, cast=cast,
         unmatched_range_m=u_sub.range_m, cast_unmatched=cast_un,
         range_window_m=range_window_m(meas), base_effects=tuple(base_effects),
-        measured_power_w=power, extra_var_m2=extra, unmatched_isolated=isolated,
+        miss_window_m=miss_window_m(meas, model), measured_power_w=power, extra_var_m2=extra, unmatched_isolated=isolated,
         placement_uncertain=rays.extra_var_m2 is not None,
         missed_per_unmatched=rays.missed_per_unmatched, unmatched_power_w=power_u)
 
