@@ -561,3 +561,26 @@ def test_pose_off_beside_the_named_effect_decides_again_on_the_corrected_pose():
                           dg.Decision('incidence_angle', [], also='range_walk'),
                           recast=lambda p: (both, p))
     assert d.missing == 'range_walk' and d.also == 'incidence_angle'
+
+
+def test_value_fitted_on_the_corrected_pose_is_recorded_and_quoted_when_it_moves():
+    """judge_pose() keeps each contender's figures fitted on the pose-corrected model
+    (``params_on_pose``), and the verdict quotes them beside those on the recorded pose
+    when the two differ by more than VALUE_SHIFT (the fifth holdout: an SNR noise of
+    c 0.15 m beside a jittering pose fitted 0.222 on the recorded pose, 0.149 on the
+    corrected one)."""
+    snr = cand('snr_noise', 0.07, -2.08, seed=31)
+    snr.params = {'c_m': 0.222, 'exponent': 0.51}
+    snr_p = cand('snr_noise', 0.05, -2.09, seed=32)
+    snr_p.params = {'c_m': 0.149, 'exponent': 0.50}
+    on_pose = Hand(again={'snr_noise': snr_p})
+    pose = SimpleNamespace(significant=True, constant=False, gain=0.01, z=4.5)
+    d = Hand().judge_pose(lambda on_top: pose, [snr], dg.Decision('snr_noise', []),
+                          recast=lambda p: (on_pose, p))
+    assert d.missing == 'snr_noise'
+    assert snr.against_pose['params_on_pose'] == {'c_m': 0.149, 'exponent': 0.50}
+    text = vd._against_pose_words(snr)
+    assert 'c_m = 0.149 (recorded pose: 0.222)' in text
+    assert 'exponent' not in text                       # 2 % apart: not quoted
+    snr.against_pose['params_on_pose'] = {'c_m': 0.21, 'exponent': 0.5}
+    assert 'depends on the pose' not in vd._against_pose_words(snr)

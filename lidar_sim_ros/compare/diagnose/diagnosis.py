@@ -761,7 +761,8 @@ class Diagnosis:
                               'pose_constant': bool(getattr(pose, 'constant', False)),
                               'score_on_pose': _num(a.score), 'z_on_pose': _num(a.z),
                               'passes_on_pose': bool(passes[a.name]),
-                              'pose_corrected_nll': _num(on_pose.before_nll)}
+                              'pose_corrected_nll': _num(on_pose.before_nll),
+                              **({'params_on_pose': a.params} if a.params else {})}
         if explain:
             if any(passes.get(c.name) for c in explain):
                 return decision            # it explains what the pose cannot: it stands

@@ -162,6 +162,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
 # Clouds without point times of which fewer than this share of the directions match the
 # configured scan pattern: the verdict says first that the pattern is not the sensor's.
 SCAN_PATTERN_OFF_BELOW = 0.5
+# A named effect's value fitted with the pose corrected is quoted beside the one on the
+# recorded pose when they differ by more than this share of the larger.
+VALUE_SHIFT = 0.2
 
 
 def scan_pattern_off(summary: dict) -> bool:
@@ -222,13 +225,32 @@ def _against_pose_words(c) -> str:
     if ap.get('passes_on_pose'):
         return (f'A reference pose off along the line of sight moves clouds too, but with '
                 f'the pose corrected {how} {c.name} still gains {ap["score_on_pose"]:.4f} '
-                f'nats/point held out (z = {ap["z_on_pose"]:.1f}): it is the sensor.')
+                f'nats/point held out (z = {ap["z_on_pose"]:.1f}): it is the sensor.'
+                + _value_on_pose(c))
     return (f'A reference pose off along the line of sight moves clouds too, and on held-out '
             f'points the two leave each other nothing; but with the pose corrected {how} '
             f'and the model raycast again (rays at silhouettes and depth steps then meet the '
             f'surfaces the moved target puts there) the fit is {ap.get("fitted_margin") or 0:.4f} '
             f'nats/point worse than with {c.name}, as --fit leaves them: the rays at the edges '
             'did not move, the ranges did.')
+
+
+def _value_on_pose(c) -> str:
+    """Its fitted figures with the pose corrected, where they differ from those on the
+    recorded pose by more than VALUE_SHIFT (``against_pose['params_on_pose']``): the
+    pose error takes part of what the effect's value rests on, one way or the other."""
+    on_pose = (c.against_pose or {}).get('params_on_pose') or {}
+    moved = {k: v for k, v in on_pose.items()
+             if isinstance(v, float) and isinstance(c.params.get(k), float)
+             and abs(v - c.params[k]) > VALUE_SHIFT * max(abs(c.params[k]), abs(v), 1e-12)}
+    if not moved:
+        return ''
+    both = ', '.join(f'{k} = {v:.4g} (recorded pose: {c.params[k]:.4g})'
+                     for k, v in moved.items())
+    return (f' Its fitted value depends on the pose: with the pose corrected, {both}. '
+            'The pose error and the effect share part of the residual, so the value is '
+            'known only between the two; --effect pose_error --fit fits it on the '
+            'corrected pose.')
 
 
 def pose_tie_words(decision, summary: dict, cands: list) -> str:
