@@ -584,3 +584,42 @@ def test_value_fitted_on_the_corrected_pose_is_recorded_and_quoted_when_it_moves
     assert 'exponent' not in text                       # 2 % apart: not quoted
     snr.against_pose['params_on_pose'] = {'c_m': 0.21, 'exponent': 0.5}
     assert 'depends on the pose' not in vd._against_pose_words(snr)
+
+
+@pytest.mark.parametrize('walk_on_pose, kept', [(0.05, True), (0.0, False)])
+def test_pose_clock_tie_keeps_what_also_explains_when_it_passes_on_the_corrected_pose(
+        walk_on_pose, kept):
+    """judge_pose(): a clock offset tied with the pose (footings that disagree) keeps
+    the range walk that explained a separate part, when the walk passes the rule on the
+    corrected pose too; settle() lets it through beside the pose's tie, and the verdict
+    says it (the fifth holdout's walk beside a pose held at 10 Hz: the walk was dropped
+    with the tie and came only in the next run). A walk the corrected pose leaves
+    nothing is dropped."""
+    clock = cand('time_offset', 0.04, -2.05, seed=15)
+    walk = cand('range_walk', 0.03, -2.04, seed=17)
+    nothing = cand('time_offset', 0.0, -2.022, seed=15, significant=False)
+    walk_p = cand('range_walk', walk_on_pose, -2.09, seed=18,
+                  significant=walk_on_pose > 0)
+    on_pose = Hand(again={'time_offset': nothing, 'range_walk': walk_p})
+    on_pose._before_nll = -2.08
+    pose = SimpleNamespace(significant=True, constant=False, gain=0.01, z=4.8, n_params=30,
+                           words=lambda: 'the reference pose is off')
+
+    def pose_test(on_top):
+        return SimpleNamespace(significant=False) if on_top else pose
+
+    d = Hand().judge_pose(pose_test, [clock, walk],
+                          dg.Decision('time_offset', [], also='range_walk'),
+                          recast=lambda p: (on_pose, p))
+    assert d.missing is None and d.confounded_with == [dg.POSE_ERROR, 'time_offset']
+    assert d.also == ('range_walk' if kept else None)
+    settled = dg.settle(d, [clock, walk], fault)
+    assert settled.also == d.also and settled.confounded_with == d.confounded_with
+    clock.against_pose.update(heldout_margin=0.03, fitted_margin=-0.03,
+                              fitted_margin_charged=-0.0225)
+    att = SimpleNamespace(features=[], driver=None, confounded=[], significant=False,
+                          structure_gain=0.0)
+    text = vd.verdict({**_summary(), 'point_times': 'field'}, att, [clock, walk], settled)
+    assert ('range_walk explains a separate part' in text) == kept
+    # No tie, nothing named: "also" does not stand alone.
+    assert dg.settle(dg.Decision(None, [], also='range_walk'), [walk], fault).also is None

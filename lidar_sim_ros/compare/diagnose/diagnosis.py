@@ -790,7 +790,12 @@ class Diagnosis:
                 return decision            # the candidate explains more than the pose
             tied = [n for n, b in better.items() if b == 0]
             if tied:
-                return Decision(None, [POSE_ERROR, *tied], pose=pose,
+                # What explained a separate part stays when it passes the rule on the
+                # corrected pose too (the pose does not take it): a range walk beside
+                # a pose held at 10 Hz, tied with a clock offset.
+                also = (decision.also if decision.also and passes.get(decision.also)
+                        else None)
+                return Decision(None, [POSE_ERROR, *tied], pose=pose, also=also,
                                 withheld=dict(decision.withheld))
             return Decision(None, [], pose=pose, withheld=dict(decision.withheld))
         if not any(passes.values()):
@@ -1222,10 +1227,13 @@ def settle(decision: Decision, cands: list[Candidate],
         return why
 
     missing = decision.missing if why_not(decision.missing) is None else None
-    also = decision.also if missing is not None and why_not(decision.also) is None else None
     tied = [n for n in decision.confounded_with if why_not(n) is None]
     if len(tied) < 2 or (tied == [POSE_ERROR]):
         tied = []
+    # "Also" beside a named effect, or beside the tie of the pose with a candidate
+    # (``judge_pose``: it passed on the corrected pose too).
+    also = (decision.also if (missing is not None or POSE_ERROR in tied)
+            and why_not(decision.also) is None else None)
     return replace(decision, missing=missing, also=also, confounded_with=tied,
                    evidence=decision.evidence if missing else None, withheld=withheld)
 

@@ -108,6 +108,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             parts.append(_against_pose_words(c))
     elif diagnosis.POSE_ERROR in decision.confounded_with:
         parts.append(pose_tie_words(decision, summary, cands))
+        if decision.also:
+            parts.append(f'{decision.also} explains a separate part of the residual, '
+                         'with the pose corrected too: expect it in the next run.')
     elif decision.confounded_with:
         names = decision.confounded_with
         scores = ', '.join(f'{n} {next(c.score for c in cands if c.name == n):.4f}'
