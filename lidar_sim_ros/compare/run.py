@@ -699,14 +699,36 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
                                                 np.nanmin(mp[mp > 0]) if np.any(mp > 0)
                                                 else 1e-12))
         labels['intensity'] = features.POWER_LABEL
-    # Points far beyond the noise (a surface in front of the target, a false return on
-    # it) are an outlier's business, not a shape of the residual: left out, they would
-    # make the structure a bias or noise effect must explain (``share_veto``) theirs.
-    near = np.abs(res) <= np.maximum(diagnosis.FAR_MIN_M, diagnosis.FAR_SIGMAS * sig * scale)
+    near = ~beyond_the_target(np.asarray(sub.range_m, float)[lsel], res,
+                              cal.residual_m[picked][lsel],
+                              np.maximum(diagnosis.FAR_MIN_M, diagnosis.FAR_SIGMAS * sig * scale),
+                              np.asarray(sub.cloud)[lsel])
     attribution = features.attribute({k: v[near] for k, v in values.items()}, res[near],
                                      (res / (sig * scale))[near], seed,
                                      sample.blocks[picked][lsel][near])
     return Analysed(sample, picked, isolated, local, res, values, labels, attribution)
+
+
+def beyond_the_target(range_m: np.ndarray, residual_m: np.ndarray, raw_residual_m: np.ndarray,
+                      threshold_m: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+    """Matched points far beyond the noise (|residual| > ``threshold_m``) whose measured
+    range lies outside the span of ranges the target model has in their cloud (nearer
+    than its nearest surface or farther than its farthest, by the threshold): a surface
+    that is not the target (a cable or a fixture in front), or a false return. They are
+    an outlier's business, not a shape of the residual: left in, the structure a bias or
+    noise effect must explain (``share_veto``) would be theirs. Points far off within
+    the target's span (a depth step the footprint straddles) stay."""
+    expected = range_m - raw_residual_m
+    far = np.abs(residual_m) > threshold_m
+    out = np.zeros(len(range_m), bool)
+    for c in np.unique(cloud):
+        sel = cloud == c
+        e = expected[sel][np.isfinite(expected[sel])]
+        if not len(e):
+            continue
+        r, t = range_m[sel], threshold_m[sel]
+        out[sel] = far[sel] & ((r < e.min() - t) | (r > e.max() + t))
+    return out
 
 
 def candidate_classes(opts: CompareOptions, effects: list[Effect]) -> list[type[Effect]]:
@@ -732,7 +754,9 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = diag.decide(cands)
     in_model = {e.name for e in effects}
     rivals = [get_effect_class(n) for n in diagnosis.POSE_RIVALS if n not in in_model]
-    decision, weighed = diag.weigh_rivals(decision, cands, rivals, ana.attribution)
+    geometry = [get_effect_class(n) for n in diagnosis.GEOMETRY_RIVALS if n not in in_model]
+    decision, weighed = diag.weigh_rivals(decision, cands, rivals + geometry,
+                                          ana.attribution)
     cands = diagnosis.rank(cands + weighed)
 
     def pose_test(on_top: list[Effect], constant: bool = False) -> pose_error.PoseError:

@@ -61,8 +61,9 @@ its z, ``total_z``), whatever part of the data the gain is on:
 Otherwise ``missing_effect`` is null, and the verdict says what the residual depends
 on, if anything, and that no catalogue effect explains it.
 
-The range errors kept out of the default candidates (POSE_RIVALS) never name themselves
-on a recording where nothing else is named; they are weighed against a named effect
+The range errors kept out of the default candidates (POSE_RIVALS), and the target's
+surfaces off its mesh (GEOMETRY_RIVALS), never name themselves on a recording where
+nothing else is named; they are weighed against a named effect
 (``weigh_rivals``: ``decide`` again among all) and against a reported reference pose
 (``weigh_pose_rivals``).
 """
@@ -110,6 +111,11 @@ POSE_ERROR = 'pose_error'
 # reference pose that is off does: weighed against the per-cloud pose correction on the
 # same footing when it passes (``Diagnosis.weigh_pose_rivals``); no default candidates.
 POSE_RIVALS = ('range_drift', 'range_scale')
+# The target's surfaces off its mesh (as-built vs CAD): no sensor effect, and no default
+# candidate; weighed against a named effect as the range errors are (``weigh_rivals``):
+# a surface moved along its normal shifts ranges as 1 / cos(incidence), as a footprint
+# effect does.
+GEOMETRY_RIVALS = ('surface_offset',)
 
 
 @dataclass(frozen=True)

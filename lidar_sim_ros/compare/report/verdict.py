@@ -29,6 +29,10 @@ EFFECT_WORDS = {
                    'same on every ray of a cloud, changing from cloud to cloud',
     'range_scale': 'a range scale error of the sensor (its clock, or light through air): a '
                    'range error growing with the range',
+    'surface_offset': 'the target\'s surfaces lying off its mesh (as-built vs CAD: the '
+                      'mesh scaled off the real target, or blankets standing proud of the '
+                      'structure it shows), not a sensor effect: check the mesh against the '
+                      'target',
 }
 # What varies each catalogue effect independently of the others: the recording that
 # separates two confounded candidates varies what drives one at fixed values of what
@@ -47,6 +51,9 @@ DRIVEN_BY = {
                          'the sun off (false returns change, the target does not)'),
     'multipath': ('mirror paths off specular surfaces', 'another attitude of the target '
                   '(the mirror rays of its specular surfaces meet other surfaces or none)'),
+    'surface_offset': ('place of each surface on the body and 1 / cos(incidence)',
+                       'another distance (a footprint grows with range, a surface offset '
+                       'does not), or with the target measured on a surveyed fixture'),
 }
 
 
