@@ -67,6 +67,19 @@ DEFAULT_MAX_POINTS = 300_000
 # Candidate fits re-run the raycast many times: a random subset of this many matched
 # points (and as many unmatched) keeps them fast with ample statistical power.
 DIAGNOSIS_MAX_MATCHED = 12_000
+# ... but at least this many a cloud (up to MAX_DIAGNOSIS_SAMPLE): the reference pose's
+# per-cloud test fits six parameters a cloud on each of two folds, and a cloud needs
+# pose_error.MIN_CLOUD_POINTS usable points there (on 300 clouds, 12,000 points left
+# 40 a cloud: the test was not run and a jittering pose read as incidence).
+SAMPLE_PER_CLOUD = 200
+MAX_DIAGNOSIS_SAMPLE = 60_000
+
+
+def sample_size(meas: Measurements) -> int:
+    """Matched points the diagnosis samples: DIAGNOSIS_MAX_MATCHED, or SAMPLE_PER_CLOUD
+    a cloud on a long recording, at most MAX_DIAGNOSIS_SAMPLE."""
+    n_clouds = len(np.unique(meas.cloud)) if len(meas.cloud) else 0
+    return int(min(MAX_DIAGNOSIS_SAMPLE, max(DIAGNOSIS_MAX_MATCHED, SAMPLE_PER_CLOUD * n_clouds)))
 # Candidates fitted on all the diagnosed points (reported parameters and "after"
 # figures): the best few; the others report their fit on half of the points.
 FINALIZED = 3
@@ -158,7 +171,7 @@ def fit_user_effects(model: Model, base: list[Effect], user: list[Effect], meas:
             done.append(Sunlight({'background_scale': sun_fit.background_scale}))
             continue
         data = diagnosis.make_fit_data(model, base + done,
-                                       rays.sample(DIAGNOSIS_MAX_MATCHED, seed))
+                                       rays.sample(sample_size(meas), seed))
         fit, _ = diagnosis.fit_best_variant(cls, data, fixed)
         done.append(diagnosis.plain(cls, fit.effect))
     return done, sun_fit
@@ -656,9 +669,9 @@ def sunlight_stage(cal: Calibrated, effects: list[Effect], sun: SunTrack,
 
 def diagnosis_sample(rays: diagnosis.RaySet, meas: Measurements,
                      seed: int) -> tuple[diagnosis.RaySet, np.ndarray, np.ndarray]:
-    """At most DIAGNOSIS_MAX_MATCHED matched (and as many unmatched) points with their
+    """At most ``sample_size`` matched (and as many unmatched) points with their
     neighbourhoods: (sample, its point indices, isolated mask over the measurements)."""
-    sample = rays.sample(DIAGNOSIS_MAX_MATCHED, seed)
+    sample = rays.sample(sample_size(meas), seed)
     picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
     isolated = np.zeros(len(meas), bool)
     isolated[picked] = neighbours.isolated(meas.directions, meas.range_m, meas.cloud, picked)
