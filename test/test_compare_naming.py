@@ -6,6 +6,7 @@ the model's without it. One test per path, on hand-made candidates whose held-ou
 per-point NLLs are given (the decision's arithmetic, not a dataset)."""
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -623,3 +624,21 @@ def test_pose_clock_tie_keeps_what_also_explains_when_it_passes_on_the_corrected
     assert ('range_walk explains a separate part' in text) == kept
     # No tie, nothing named: "also" does not stand alone.
     assert dg.settle(dg.Decision(None, [], also='range_walk'), [walk], fault).also is None
+
+
+def test_pose_correction_along_the_line_of_sight_is_said_as_pose_or_sensor_range():
+    """PoseError.line_of_sight_share: the share of the per-cloud translations along each
+    cloud's line of sight; at 75 % or more the verdict does not say 'not a sensor effect'
+    (a range offset of the sensor jumping from frame to frame moves the clouds the same
+    way: the sixth holdout's frame_offset_jitter was reported as the tracking system)."""
+    from lidar_sim_ros.compare.diagnose.pose_error import PoseError
+    centres = np.array([[10.0, 0.0, 0.0], [0.0, 8.0, 0.0]])
+    along = PoseError(np.arange(2), np.zeros(2), np.array([[0.02, 0.0, 0.0], [0.0, -0.01, 0.0]]),
+                      np.zeros((2, 3)), 0.05, 9.0, True, np.zeros(4), centroid_m=centres)
+    across = replace(along, translation_m=np.array([[0.0, 0.02, 0.0], [0.01, 0.0, 0.01]]))
+    assert along.line_of_sight_share == pytest.approx(1.0)
+    assert across.line_of_sight_share == pytest.approx(0.0)
+    assert replace(along, centroid_m=None).line_of_sight_share is None
+    text = vd.pose_words(along, [])
+    assert 'not a sensor effect' not in text and '100 % of the correction' in text
+    assert 'not a sensor effect' in vd.pose_words(across, [])

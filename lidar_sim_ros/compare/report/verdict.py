@@ -175,6 +175,9 @@ SCAN_PATTERN_OFF_BELOW = 0.5
 # A named effect's value fitted with the pose corrected is quoted beside the one on the
 # recorded pose when they differ by more than this share of the larger.
 VALUE_SHIFT = 0.2
+# A per-cloud pose correction this much along the line of sight (share of its mean
+# square) moves the clouds as a range offset of the sensor would: said, not decided.
+LINE_OF_SIGHT_SHARE = 0.75
 
 
 def scan_pattern_off(summary: dict) -> bool:
@@ -210,8 +213,18 @@ def pose_words(pose, cands: list = ()) -> str:
             + ', not named: it ranked below the effect the pose explains, and a pose error '
             'left in part by the correction grows with the incidence angle as a sensor '
             'effect can.')
-    return (f'{pose.words()[0].upper()}{pose.words()[1:]}: not a sensor effect; check the '
-            f'tracking system or the extrinsic calibration. {_correction(pose)} gains '
+    share = getattr(pose, 'line_of_sight_share', None)
+    if (share is not None and share >= LINE_OF_SIGHT_SHARE
+            and not getattr(pose, 'constant', False)):
+        what = (f': {100 * share:.0f} % of the correction moves the clouds along the line '
+                'of sight, as a range offset of the sensor that changes from cloud to cloud '
+                'would (a frame-sync or counter error): the reference pose, or the sensor\'s '
+                'range, cannot be told apart here; check the tracking system first, then '
+                'range a static target on a surveyed pose')
+    else:
+        what = (': not a sensor effect; check the tracking system or the extrinsic '
+                'calibration')
+    return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. {_correction(pose)} gains '
             f'{pose.gain:.4f} nats/point held out (z = {pose.z:.1f}), and {tail}')
 
 
