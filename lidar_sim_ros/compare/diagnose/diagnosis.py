@@ -601,6 +601,13 @@ class Diagnosis:
         if type(eff).outlier_fraction is not Effect.outlier_fraction:   # adds false returns
             w = float(np.mean(lk.model_on_rays(self.full, [eff]).outlier_w))
             spurious = max(w - self._base_outlier_w, 0.0) * len(self.rays.matched)
+        if spurious < 1.0 and is_outlier_effect(type(eff)):
+            # Fewer than one false return claimed on the target: its gain must then rest
+            # on false returns somewhere (far points or off-target points credited to it).
+            cand.far_points = float(self.n_far + unmatched_explained)
+            why = no_false_returns(self.n_far, unmatched_explained)
+            if why:
+                return why
         if spurious >= 1.0:
             cand.far_points = float(self.n_far + unmatched_explained)
             need = max(MIN_FAR_POINTS, MIN_FAR_SHARE * spurious)
@@ -1168,6 +1175,19 @@ def footprint_signature(data, effects: list[Effect]) -> np.ndarray:
         full = ctx.power_w / frac
         partial = placed & (frac < 1.0) & np.isfinite(measured) & (measured > 0)
         return partial & (measured < np.sqrt(ctx.power_w * full))
+
+
+def no_false_returns(n_far: int, credited: float) -> str | None:
+    """Why an outlier effect that claims less than one false return on the target has
+    no signature of its own: fewer than MIN_FAR_POINTS matched points far beyond the
+    noise and off-target points credited to it together (its gain then comes from mild
+    noise tails); None when it has them."""
+    if n_far + credited >= MIN_FAR_POINTS:
+        return None
+    return (f'its gain rests on no false return: {n_far} matched points lie far beyond the '
+            f'noise (|residual| > max({FAR_MIN_M:g} m, {FAR_SIGMAS:g} sigma)) and '
+            f'{credited:.0f} off the target are credited to it (at least {MIN_FAR_POINTS} '
+            'needed): mild noise tails, not false returns')
 
 
 def unmatched_credit(data, effects: list[Effect], effect: Effect, gained: float) -> float:
