@@ -280,3 +280,38 @@ def test_fitted_rate_is_small_for_even_ranges_and_bunches_stay_flagged():
     rate = background_rate(residual, expected, threshold, WINDOW_M)
     front, mu, var = far_sides(residual, expected, threshold, WINDOW_M, rate)
     assert front == 0 and mu > 4 * np.sqrt(var)
+
+
+def test_far_points_beyond_the_target_leave_the_residual_structure():
+    """run.beyond_the_target: a far point nearer than the target's nearest surface in its
+    cloud (a rod in front) is left out of the feature structure; one far off within the
+    target's span (a depth step the footprint straddles) and any near point stay."""
+    from lidar_sim_ros.compare.run import beyond_the_target
+    expected = np.array([8.0, 10.0, 12.0, 10.0, 9.0, 30.0, 31.0])
+    measured = np.array([8.01, 6.0, 12.0, 11.2, 9.0, 26.0, 31.0])
+    raw = measured - expected
+    cloud = np.array([0, 0, 0, 0, 0, 1, 1])
+    out = beyond_the_target(measured, raw, raw, np.full(7, 0.5), cloud)
+    assert out.tolist() == [False, True, False, False, False, True, False]
+
+
+def test_diagnosis_sample_grows_with_the_clouds():
+    """run.sample_size: 12,000 matched points, or 200 a cloud, at most 60,000."""
+    from types import SimpleNamespace
+    from lidar_sim_ros.compare.run import sample_size
+    sizes = [sample_size(SimpleNamespace(cloud=np.repeat(np.arange(n), 5))) for n in (10, 100, 300)]
+    assert sizes == [12_000, 20_000, 60_000]
+
+
+def test_isolated_points_at_the_targets_ranges_are_no_background_over_the_gate():
+    """likelihood.uniform_share over the sensor's range gate (FitData.miss_window): 42
+    isolated points all at the target's ranges look uniform over a window that is the
+    target's own span (a recording with no return beyond it), not over 0.5-250 m."""
+    from lidar_sim_ros.compare.model.likelihood import uniform_share
+    rng = np.random.default_rng(3)
+    target = rng.uniform(7.3, 12.4, 5000)
+    pts = rng.uniform(9.0, 12.0, 42)
+    assert uniform_share(pts, (7.26, 12.46), target) > 0.9
+    assert uniform_share(pts, (0.5, 250.0), target) < 0.05
+    spread = rng.uniform(0.5, 250.0, 42)              # real background arrivals
+    assert uniform_share(spread, (0.5, 250.0), target) > 0.9

@@ -93,6 +93,41 @@ def test_range_scale_lengthens_every_range_by_the_same_fraction(default_scenario
     np.testing.assert_allclose(b.range_m - a.range_m, 0.01 * a.true_range_m, atol=1e-9)
 
 
+# ------------------------------------------------------------------------ surface offset
+@pytest.mark.parametrize('yaw_deg', [0.0, 35.0, 60.0])
+def test_surface_offset_is_the_raycast_of_the_scaled_or_standing_off_surface(yaw_deg):
+    """A plate whose plane lies 1.5 m from the body origin, turned by yaw: the bias of
+    surface_offset is the range change a raycast of the real surface gives, the mesh
+    scaled by 1 + scale about the body origin (the plane moves out by scale x 1.5 m) or
+    standing off by standoff_m, both over cos(incidence), to Embree's float32."""
+    s = line_sensor()
+    h, d0, scale, standoff = 4.0, 1.5, 0.004, 0.02
+    verts = np.array([[-h, -h, d0], [h, -h, d0], [h, h, d0], [-h, h, d0]], float)
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    mesh = Target(verts, faces, np.zeros(2, int), ['PIF'])
+    pose = facing_plate(12.0, yaw_deg)
+    ranges = {}
+    for name, target, effects in [
+            ('model', mesh, []),
+            ('scaled', Target(verts * (1 + scale), faces, np.zeros(2, int), ['PIF']), []),
+            ('standing', Target(verts + [0.0, 0.0, standoff], faces, np.zeros(2, int),
+                                ['PIF']), []),
+            ('by_scale', mesh, [make_effect('surface_offset', {'scale': scale})]),
+            ('by_standoff', mesh, [make_effect('surface_offset', {'standoff_m': standoff})])]:
+        sim = Simulator(s, materials(), target, effects=effects)
+        ranges[name] = predict_on_axis(sim, pose).expected_range_m[0]
+    tol = float(12.0 * 8 * np.finfo(np.float32).eps)
+    cos_t = np.cos(np.radians(yaw_deg))
+    assert ranges['scaled'] - ranges['model'] == pytest.approx(-scale * d0 / cos_t, abs=tol)
+    assert ranges['by_scale'] == pytest.approx(ranges['scaled'], abs=tol)
+    assert ranges['standing'] - ranges['model'] == pytest.approx(-standoff / cos_t, abs=tol)
+    assert ranges['by_standoff'] == pytest.approx(ranges['standing'], abs=tol)
+    # A miss carries no bias; a zero offset changes nothing.
+    ctx = context(power_w=np.ones(2), hit=np.array([False, True]))
+    assert make_effect('surface_offset', {}).range_bias_m(ctx).tolist() == [0.0, 0.0]
+    assert make_effect('surface_offset', {'standoff_m': 0.01}).range_bias_m(ctx)[0] == 0.0
+
+
 # ------------------------------------------------------------------------ range walk
 def test_range_walk_bias_is_minus_k_per_efold_of_power():
     walk = make_effect('range_walk', {'k_m': 0.03})

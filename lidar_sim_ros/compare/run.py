@@ -67,6 +67,19 @@ DEFAULT_MAX_POINTS = 300_000
 # Candidate fits re-run the raycast many times: a random subset of this many matched
 # points (and as many unmatched) keeps them fast with ample statistical power.
 DIAGNOSIS_MAX_MATCHED = 12_000
+# ... but at least this many a cloud (up to MAX_DIAGNOSIS_SAMPLE): the reference pose's
+# per-cloud test fits six parameters a cloud on each of two folds, and a cloud needs
+# pose_error.MIN_CLOUD_POINTS usable points there (on 300 clouds, 12,000 points left
+# 40 a cloud: the test was not run and a jittering pose read as incidence).
+SAMPLE_PER_CLOUD = 200
+MAX_DIAGNOSIS_SAMPLE = 60_000
+
+
+def sample_size(meas: Measurements) -> int:
+    """Matched points the diagnosis samples: DIAGNOSIS_MAX_MATCHED, or SAMPLE_PER_CLOUD
+    a cloud on a long recording, at most MAX_DIAGNOSIS_SAMPLE."""
+    n_clouds = len(np.unique(meas.cloud)) if len(meas.cloud) else 0
+    return int(min(MAX_DIAGNOSIS_SAMPLE, max(DIAGNOSIS_MAX_MATCHED, SAMPLE_PER_CLOUD * n_clouds)))
 # Candidates fitted on all the diagnosed points (reported parameters and "after"
 # figures): the best few; the others report their fit on half of the points.
 FINALIZED = 3
@@ -158,7 +171,7 @@ def fit_user_effects(model: Model, base: list[Effect], user: list[Effect], meas:
             done.append(Sunlight({'background_scale': sun_fit.background_scale}))
             continue
         data = diagnosis.make_fit_data(model, base + done,
-                                       rays.sample(DIAGNOSIS_MAX_MATCHED, seed))
+                                       rays.sample(sample_size(meas), seed))
         fit, _ = diagnosis.fit_best_variant(cls, data, fixed)
         done.append(diagnosis.plain(cls, fit.effect))
     return done, sun_fit
@@ -656,9 +669,9 @@ def sunlight_stage(cal: Calibrated, effects: list[Effect], sun: SunTrack,
 
 def diagnosis_sample(rays: diagnosis.RaySet, meas: Measurements,
                      seed: int) -> tuple[diagnosis.RaySet, np.ndarray, np.ndarray]:
-    """At most DIAGNOSIS_MAX_MATCHED matched (and as many unmatched) points with their
+    """At most ``sample_size`` matched (and as many unmatched) points with their
     neighbourhoods: (sample, its point indices, isolated mask over the measurements)."""
-    sample = rays.sample(DIAGNOSIS_MAX_MATCHED, seed)
+    sample = rays.sample(sample_size(meas), seed)
     picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
     isolated = np.zeros(len(meas), bool)
     isolated[picked] = neighbours.isolated(meas.directions, meas.range_m, meas.cloud, picked)
@@ -699,9 +712,36 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
                                                 np.nanmin(mp[mp > 0]) if np.any(mp > 0)
                                                 else 1e-12))
         labels['intensity'] = features.POWER_LABEL
-    attribution = features.attribute(values, res, res / (sig * scale), seed,
-                                     sample.blocks[picked][lsel])
+    near = ~beyond_the_target(np.asarray(sub.range_m, float)[lsel], res,
+                              cal.residual_m[picked][lsel],
+                              np.maximum(diagnosis.FAR_MIN_M, diagnosis.FAR_SIGMAS * sig * scale),
+                              np.asarray(sub.cloud)[lsel])
+    attribution = features.attribute({k: v[near] for k, v in values.items()}, res[near],
+                                     (res / (sig * scale))[near], seed,
+                                     sample.blocks[picked][lsel][near])
     return Analysed(sample, picked, isolated, local, res, values, labels, attribution)
+
+
+def beyond_the_target(range_m: np.ndarray, residual_m: np.ndarray, raw_residual_m: np.ndarray,
+                      threshold_m: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+    """Matched points far beyond the noise (|residual| > ``threshold_m``) whose measured
+    range lies outside the span of ranges the target model has in their cloud (nearer
+    than its nearest surface or farther than its farthest, by the threshold): a surface
+    that is not the target (a cable or a fixture in front), or a false return. They are
+    an outlier's business, not a shape of the residual: left in, the structure a bias or
+    noise effect must explain (``share_veto``) would be theirs. Points far off within
+    the target's span (a depth step the footprint straddles) stay."""
+    expected = range_m - raw_residual_m
+    far = np.abs(residual_m) > threshold_m
+    out = np.zeros(len(range_m), bool)
+    for c in np.unique(cloud):
+        sel = cloud == c
+        e = expected[sel][np.isfinite(expected[sel])]
+        if not len(e):
+            continue
+        r, t = range_m[sel], threshold_m[sel]
+        out[sel] = far[sel] & ((r < e.min() - t) | (r > e.max() + t))
+    return out
 
 
 def candidate_classes(opts: CompareOptions, effects: list[Effect]) -> list[type[Effect]]:
@@ -727,7 +767,9 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = diag.decide(cands)
     in_model = {e.name for e in effects}
     rivals = [get_effect_class(n) for n in diagnosis.POSE_RIVALS if n not in in_model]
-    decision, weighed = diag.weigh_rivals(decision, cands, rivals, ana.attribution)
+    geometry = [get_effect_class(n) for n in diagnosis.GEOMETRY_RIVALS if n not in in_model]
+    decision, weighed = diag.weigh_rivals(decision, cands, rivals + geometry,
+                                          ana.attribution)
     cands = diagnosis.rank(cands + weighed)
 
     def pose_test(on_top: list[Effect], constant: bool = False) -> pose_error.PoseError:

@@ -61,8 +61,9 @@ its z, ``total_z``), whatever part of the data the gain is on:
 Otherwise ``missing_effect`` is null, and the verdict says what the residual depends
 on, if anything, and that no catalogue effect explains it.
 
-The range errors kept out of the default candidates (POSE_RIVALS) never name themselves
-on a recording where nothing else is named; they are weighed against a named effect
+The range errors kept out of the default candidates (POSE_RIVALS), and the target's
+surfaces off its mesh (GEOMETRY_RIVALS), never name themselves on a recording where
+nothing else is named; they are weighed against a named effect
 (``weigh_rivals``: ``decide`` again among all) and against a reported reference pose
 (``weigh_pose_rivals``).
 """
@@ -110,6 +111,11 @@ POSE_ERROR = 'pose_error'
 # reference pose that is off does: weighed against the per-cloud pose correction on the
 # same footing when it passes (``Diagnosis.weigh_pose_rivals``); no default candidates.
 POSE_RIVALS = ('range_drift', 'range_scale')
+# The target's surfaces off its mesh (as-built vs CAD): no sensor effect, and no default
+# candidate; weighed against a named effect as the range errors are (``weigh_rivals``):
+# a surface moved along its normal shifts ranges as 1 / cos(incidence), as a footprint
+# effect does.
+GEOMETRY_RIVALS = ('surface_offset',)
 
 
 @dataclass(frozen=True)
@@ -168,6 +174,14 @@ def range_window_m(meas: Measurements) -> tuple[float, float]:
     if hi - lo < 1.0:
         lo, hi = max(0.0, lo - 0.5), hi + 0.5
     return lo, hi
+
+
+def miss_window_m(meas: Measurements, model) -> tuple[float, float]:
+    """Support of a false return on a shot that misses the target: the sensor's range
+    gate (what a miss listens over), widened to the measured ranges."""
+    lo, hi = range_window_m(meas)
+    det = model.sensor.detection
+    return min(lo, float(det.min_range_m)), max(hi, float(det.max_range_m))
 
 
 def put_prediction(pred: Prediction, index: np.ndarray, part: Prediction) -> Prediction:
@@ -242,7 +256,7 @@ def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet,
         measured_range_m=m_sub.range_m, baseline=baseline, cast=cast,
         unmatched_range_m=u_sub.range_m, cast_unmatched=cast_un,
         range_window_m=range_window_m(meas), base_effects=tuple(base_effects),
-        measured_power_w=power, extra_var_m2=extra, unmatched_isolated=isolated,
+        miss_window_m=miss_window_m(meas, model), measured_power_w=power, extra_var_m2=extra, unmatched_isolated=isolated,
         placement_uncertain=rays.extra_var_m2 is not None,
         missed_per_unmatched=rays.missed_per_unmatched, unmatched_power_w=power_u)
 
@@ -587,6 +601,13 @@ class Diagnosis:
         if type(eff).outlier_fraction is not Effect.outlier_fraction:   # adds false returns
             w = float(np.mean(lk.model_on_rays(self.full, [eff]).outlier_w))
             spurious = max(w - self._base_outlier_w, 0.0) * len(self.rays.matched)
+        if spurious < 1.0 and is_outlier_effect(type(eff)):
+            # Fewer than one false return claimed on the target: its gain must then rest
+            # on false returns somewhere (far points or off-target points credited to it).
+            cand.far_points = float(self.n_far + unmatched_explained)
+            why = no_false_returns(self.n_far, unmatched_explained)
+            if why:
+                return why
         if spurious >= 1.0:
             cand.far_points = float(self.n_far + unmatched_explained)
             need = max(MIN_FAR_POINTS, MIN_FAR_SHARE * spurious)
@@ -753,7 +774,8 @@ class Diagnosis:
                               'pose_constant': bool(getattr(pose, 'constant', False)),
                               'score_on_pose': _num(a.score), 'z_on_pose': _num(a.z),
                               'passes_on_pose': bool(passes[a.name]),
-                              'pose_corrected_nll': _num(on_pose.before_nll)}
+                              'pose_corrected_nll': _num(on_pose.before_nll),
+                              **({'params_on_pose': a.params} if a.params else {})}
         if explain:
             if any(passes.get(c.name) for c in explain):
                 return decision            # it explains what the pose cannot: it stands
@@ -781,7 +803,12 @@ class Diagnosis:
                 return decision            # the candidate explains more than the pose
             tied = [n for n, b in better.items() if b == 0]
             if tied:
-                return Decision(None, [POSE_ERROR, *tied], pose=pose,
+                # What explained a separate part stays when it passes the rule on the
+                # corrected pose too (the pose does not take it): a range walk beside
+                # a pose held at 10 Hz, tied with a clock offset.
+                also = (decision.also if decision.also and passes.get(decision.also)
+                        else None)
+                return Decision(None, [POSE_ERROR, *tied], pose=pose, also=also,
                                 withheld=dict(decision.withheld))
             return Decision(None, [], pose=pose, withheld=dict(decision.withheld))
         if not any(passes.values()):
@@ -1150,6 +1177,19 @@ def footprint_signature(data, effects: list[Effect]) -> np.ndarray:
         return partial & (measured < np.sqrt(ctx.power_w * full))
 
 
+def no_false_returns(n_far: int, credited: float) -> str | None:
+    """Why an outlier effect that claims less than one false return on the target has
+    no signature of its own: fewer than MIN_FAR_POINTS matched points far beyond the
+    noise and off-target points credited to it together (its gain then comes from mild
+    noise tails); None when it has them."""
+    if n_far + credited >= MIN_FAR_POINTS:
+        return None
+    return (f'its gain rests on no false return: {n_far} matched points lie far beyond the '
+            f'noise (|residual| > max({FAR_MIN_M:g} m, {FAR_SIGMAS:g} sigma)) and '
+            f'{credited:.0f} off the target are credited to it (at least {MIN_FAR_POINTS} '
+            'needed): mild noise tails, not false returns')
+
+
 def unmatched_credit(data, effects: list[Effect], effect: Effect, gained: float) -> float:
     """How many of the ``gained`` unmatched points (those ``effect`` explains beyond the
     model's own effects) count for it: the points that miss the silhouette are the mark
@@ -1213,10 +1253,13 @@ def settle(decision: Decision, cands: list[Candidate],
         return why
 
     missing = decision.missing if why_not(decision.missing) is None else None
-    also = decision.also if missing is not None and why_not(decision.also) is None else None
     tied = [n for n in decision.confounded_with if why_not(n) is None]
     if len(tied) < 2 or (tied == [POSE_ERROR]):
         tied = []
+    # "Also" beside a named effect, or beside the tie of the pose with a candidate
+    # (``judge_pose``: it passed on the corrected pose too).
+    also = (decision.also if (missing is not None or POSE_ERROR in tied)
+            and why_not(decision.also) is None else None)
     return replace(decision, missing=missing, also=also, confounded_with=tied,
                    evidence=decision.evidence if missing else None, withheld=withheld)
 

@@ -94,6 +94,23 @@ class PoseError:
         return float(np.sqrt(np.mean(np.sum(self.rotation_deg ** 2, axis=1))))
 
     @property
+    def line_of_sight_share(self) -> float | None:
+        """Share (0..1) of the per-cloud translations' mean square along each cloud's
+        line of sight (the direction of its rotation centre); None without centres or a
+        translation. Near 1 the correction moves the clouds toward or away from the
+        sensor only, as a range offset of the sensor changing from cloud to cloud does."""
+        if self.centroid_m is None or not len(self.translation_m):
+            return None
+        c = np.asarray(self.centroid_m, float).reshape(-1, 3)
+        t = np.asarray(self.translation_m, float).reshape(-1, 3)
+        norm = np.linalg.norm(c, axis=1, keepdims=True)
+        total = float(np.sum(t ** 2))
+        if total <= 0 or len(c) != len(t) or not np.all(norm > 0):
+            return None
+        along = np.einsum('ij,ij->i', t, c / norm)
+        return float(np.sum(along ** 2) / total)
+
+    @property
     def n_params(self) -> int:
         """Parameters of the correction: six for all the clouds (``constant``), else six
         per cloud, twelve with a supported rate."""

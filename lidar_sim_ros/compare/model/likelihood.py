@@ -105,6 +105,15 @@ class FitData:
     # intensity (NaN where unknown; None: no intensity): a footprint's edge returns must
     # show its power fraction to be credited to it (``diagnosis.footprint_signature``).
     unmatched_power_w: np.ndarray | None = None
+    # Where a false return on a shot that misses the target can lie (m): the sensor's
+    # range gate, which a miss listens over whole (None: ``range_window_m``). The
+    # unmatched points' uniform share is judged over it: isolated points that all sit
+    # at the target's ranges are no background when the gate reaches far beyond them.
+    miss_window_m: tuple[float, float] | None = None
+
+    @property
+    def miss_window(self) -> tuple[float, float]:
+        return self.miss_window_m if self.miss_window_m is not None else self.range_window_m
 
     @property
     def window_width_m(self) -> float:
@@ -481,7 +490,7 @@ def unmatched_explained(data: FitData, effects: Sequence[Effect],
     if w_mean > 0 and len(rest):
         n = len(data.measured_range_m)
         missed = data.missed_per_unmatched * m if data.missed_per_unmatched is not None else n
-        share = uniform_share(rest, data.range_window_m, np.asarray(data.measured_range_m))
+        share = uniform_share(rest, data.miss_window, np.asarray(data.measured_range_m))
         spurious = min(share * len(rest), w_mean * missed)
     return float(min(1.0, (hit_now.sum() + spurious) / m))
 
@@ -554,7 +563,7 @@ def false_returns_off_target(data: FitData) -> float:
     rest = r_u[iso]
     if not len(rest):
         return 0.0
-    return uniform_share(rest, data.range_window_m, np.asarray(data.measured_range_m)) * len(rest)
+    return uniform_share(rest, data.miss_window, np.asarray(data.measured_range_m)) * len(rest)
 
 
 def missed_shots_nll(data: FitData, model: ModelOnRays, effects: Sequence[Effect]) -> float:

@@ -29,6 +29,10 @@ EFFECT_WORDS = {
                    'same on every ray of a cloud, changing from cloud to cloud',
     'range_scale': 'a range scale error of the sensor (its clock, or light through air): a '
                    'range error growing with the range',
+    'surface_offset': 'the target\'s surfaces lying off its mesh (as-built vs CAD: the '
+                      'mesh scaled off the real target, or blankets standing proud of the '
+                      'structure it shows), not a sensor effect: check the mesh against the '
+                      'target',
 }
 # What varies each catalogue effect independently of the others: the recording that
 # separates two confounded candidates varies what drives one at fixed values of what
@@ -47,6 +51,9 @@ DRIVEN_BY = {
                          'the sun off (false returns change, the target does not)'),
     'multipath': ('mirror paths off specular surfaces', 'another attitude of the target '
                   '(the mirror rays of its specular surfaces meet other surfaces or none)'),
+    'surface_offset': ('place of each surface on the body and 1 / cos(incidence)',
+                       'another distance (a footprint grows with range, a surface offset '
+                       'does not), or with the target measured on a surveyed fixture'),
 }
 
 
@@ -108,6 +115,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             parts.append(_against_pose_words(c))
     elif diagnosis.POSE_ERROR in decision.confounded_with:
         parts.append(pose_tie_words(decision, summary, cands))
+        if decision.also:
+            parts.append(f'{decision.also} explains a separate part of the residual, '
+                         'with the pose corrected too: expect it in the next run.')
     elif decision.confounded_with:
         names = decision.confounded_with
         scores = ', '.join(f'{n} {next(c.score for c in cands if c.name == n):.4f}'
@@ -162,6 +172,12 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
 # Clouds without point times of which fewer than this share of the directions match the
 # configured scan pattern: the verdict says first that the pattern is not the sensor's.
 SCAN_PATTERN_OFF_BELOW = 0.5
+# A named effect's value fitted with the pose corrected is quoted beside the one on the
+# recorded pose when they differ by more than this share of the larger.
+VALUE_SHIFT = 0.2
+# A per-cloud pose correction this much along the line of sight (share of its mean
+# square) moves the clouds as a range offset of the sensor would: said, not decided.
+LINE_OF_SIGHT_SHARE = 0.75
 
 
 def scan_pattern_off(summary: dict) -> bool:
@@ -197,8 +213,18 @@ def pose_words(pose, cands: list = ()) -> str:
             + ', not named: it ranked below the effect the pose explains, and a pose error '
             'left in part by the correction grows with the incidence angle as a sensor '
             'effect can.')
-    return (f'{pose.words()[0].upper()}{pose.words()[1:]}: not a sensor effect; check the '
-            f'tracking system or the extrinsic calibration. {_correction(pose)} gains '
+    share = getattr(pose, 'line_of_sight_share', None)
+    if (share is not None and share >= LINE_OF_SIGHT_SHARE
+            and not getattr(pose, 'constant', False)):
+        what = (f': {100 * share:.0f} % of the correction moves the clouds along the line '
+                'of sight, as a range offset of the sensor that changes from cloud to cloud '
+                'would (a frame-sync or counter error): the reference pose, or the sensor\'s '
+                'range, cannot be told apart here; check the tracking system first, then '
+                'range a static target on a surveyed pose')
+    else:
+        what = (': not a sensor effect; check the tracking system or the extrinsic '
+                'calibration')
+    return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. {_correction(pose)} gains '
             f'{pose.gain:.4f} nats/point held out (z = {pose.z:.1f}), and {tail}')
 
 
@@ -222,13 +248,32 @@ def _against_pose_words(c) -> str:
     if ap.get('passes_on_pose'):
         return (f'A reference pose off along the line of sight moves clouds too, but with '
                 f'the pose corrected {how} {c.name} still gains {ap["score_on_pose"]:.4f} '
-                f'nats/point held out (z = {ap["z_on_pose"]:.1f}): it is the sensor.')
+                f'nats/point held out (z = {ap["z_on_pose"]:.1f}): it is the sensor.'
+                + _value_on_pose(c))
     return (f'A reference pose off along the line of sight moves clouds too, and on held-out '
             f'points the two leave each other nothing; but with the pose corrected {how} '
             f'and the model raycast again (rays at silhouettes and depth steps then meet the '
             f'surfaces the moved target puts there) the fit is {ap.get("fitted_margin") or 0:.4f} '
             f'nats/point worse than with {c.name}, as --fit leaves them: the rays at the edges '
             'did not move, the ranges did.')
+
+
+def _value_on_pose(c) -> str:
+    """Its fitted figures with the pose corrected, where they differ from those on the
+    recorded pose by more than VALUE_SHIFT (``against_pose['params_on_pose']``): the
+    pose error takes part of what the effect's value rests on, one way or the other."""
+    on_pose = (c.against_pose or {}).get('params_on_pose') or {}
+    moved = {k: v for k, v in on_pose.items()
+             if isinstance(v, float) and isinstance(c.params.get(k), float)
+             and abs(v - c.params[k]) > VALUE_SHIFT * max(abs(c.params[k]), abs(v), 1e-12)}
+    if not moved:
+        return ''
+    both = ', '.join(f'{k} = {v:.4g} (recorded pose: {c.params[k]:.4g})'
+                     for k, v in moved.items())
+    return (f' Its fitted value depends on the pose: with the pose corrected, {both}. '
+            'The pose error and the effect share part of the residual, so the value is '
+            'known only between the two; --effect pose_error --fit fits it on the '
+            'corrected pose.')
 
 
 def pose_tie_words(decision, summary: dict, cands: list) -> str:

@@ -26,7 +26,10 @@ _CATALOGUE = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
 # approach a walk in ln P follows the range as a scale does) and against the reference
 # pose when its per-cloud correction passes (Diagnosis.weigh_pose_rivals): a range error
 # of the sensor moves clouds along the line of sight as a pose error does.
-_BY_NAME_ONLY = ('sunlight', 'range_scale', 'range_drift')
+# surface_offset (the target's surfaces off its mesh: a scale slip, blankets standing
+# proud) is no sensor effect; it is weighed against a named effect the same way
+# (Diagnosis.weigh_rivals): a surface moved along its normal reads as incidence.
+_BY_NAME_ONLY = ('sunlight', 'range_scale', 'range_drift', 'surface_offset')
 
 
 def register(cls: type[Effect]) -> type[Effect]:
