@@ -227,7 +227,7 @@ def test_points_come_out_in_firing_order_and_truth_matches(default_scenario):
                                            'scenario_flash_all_effects.yaml'])
 def test_frames_are_the_same_for_any_thread_count(scenario_name):
     """The raycast, the reflection and the measurement run in parts of the frame, one per
-    thread, and the range noise is drawn beside the raycast: every array of the frame,
+    thread, and the range noise is drawn as the parts end: every array of the frame,
     its truth and its statistics are the same to the bit on 1, 2 and 3 threads."""
     from lidar_sim_ros.core.scenario import load_scenario
     scenario = load_scenario(CONFIG / scenario_name)
@@ -244,3 +244,26 @@ def test_frames_are_the_same_for_any_thread_count(scenario_name):
         np.testing.assert_array_equal(frame.truth_source.measured_range_m,
                                       frames[0].truth_source.measured_range_m)
         assert frame.stats == frames[0].stats
+
+
+def test_range_noise_is_one_draw_per_hit_in_cast_order_whatever_order_the_parts_end():
+    """The frame's first draw is one standard normal per hit, in cast order; the parts of
+    a raycast end in any order on any thread, and each part's noise is drawn once the
+    parts before it have theirs: the numbers are those of one draw after the cast."""
+    from lidar_sim_ros.core.pipeline import _NoiseInOrder
+    n = 10_000
+    rng = np.random.default_rng(5)
+    hit = rng.random(n) < 0.3
+    bounds = np.unique(np.concatenate([[0], rng.integers(0, n, 9), [n]]))
+    parts = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    expected = np.zeros(n)
+    expected[hit] = np.random.default_rng([7, 3]).standard_normal(np.count_nonzero(hit))
+    for ending in (range(len(parts)), reversed(range(len(parts))), rng.permutation(len(parts))):
+        noise = _NoiseInOrder(np.random.default_rng([7, 3]), n)
+        for k in ending:
+            noise.part_done(parts[k], parts[k].start + np.flatnonzero(hit[parts[k]]))
+        np.testing.assert_array_equal(noise.drawn(), expected)
+    unfinished = _NoiseInOrder(np.random.default_rng(1), n)
+    unfinished.part_done(parts[-1], np.zeros(0, np.int64))
+    with pytest.raises(RuntimeError, match='drawn for 0 of 10000'):
+        unfinished.drawn()

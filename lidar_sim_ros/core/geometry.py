@@ -135,9 +135,9 @@ def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
 
     For GIL-free work (Embree casts, ``nogil`` kernels). The parts (PARTS_PER_THREAD per
     thread, none under ``min_per_thread``) are taken in turn by the calling thread and by
-    pool threads as each comes free, so a pool thread still busy with earlier work (a
-    frame's noise draw, ``Beside``) takes fewer. Fewer threads when parts would hold less
-    than ``min_per_thread``. ``cost`` (None: every item alike): the relative cost of the
+    pool threads as each comes free, so a thread held up (by the OS, by the GIL) takes
+    fewer; ``work`` must never wait on the pool (it may run on it). Fewer threads when parts
+    would hold less than ``min_per_thread``. ``cost`` (None: every item alike): the relative cost of the
     blocks of ``ceil(n / len(cost))`` items in turn; the parts then hold equal cost, not
     equal counts (a flash frame's hits are in the middle of its cast order).
     """
@@ -171,23 +171,6 @@ def _part_bounds(n: int, k: int, cost: np.ndarray | None) -> tuple[np.ndarray, n
         cut = np.searchsorted(cum, cum[-1] * np.arange(1, k) / k, side='right')
         bounds = np.unique(np.concatenate([[0], np.minimum(cut * step, n), [n]]))
     return bounds[:-1], bounds[1:]
-
-
-class Beside:
-    """``work`` on a pool thread (``threads`` > 1) beside what the caller does between
-    ``start`` and ``result``; on the caller's thread, in ``result``, when there is no pool
-    thread or nothing started it. For GIL-free work (a numpy draw): parts that
-    ``split_over_threads`` sends to the pool after ``start`` queue behind it."""
-
-    def __init__(self, threads: int, work: Callable[[], T]):
-        self._threads, self._work, self._future = int(threads), work, None
-
-    def start(self) -> None:
-        if self._future is None and self._threads > 1:
-            self._future = _pool(self._threads).submit(self._work)
-
-    def result(self) -> T:
-        return self._work() if self._future is None else self._future.result()
 
 
 def _pool(threads: int) -> ThreadPoolExecutor:

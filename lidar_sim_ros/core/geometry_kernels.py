@@ -197,6 +197,18 @@ def hit_geometry_into(face_cast, tfar_cast, slot, order, face_normals, face_mate
 
 
 @njit(cache=True, nogil=True)
+def points_along(directions, index, range_m):
+    """Points (K, 3) (m) at range_m (K,) along the unit directions (N, 3) rows ``index`` (K,):
+    one pass (numpy's gather then broadcast product took ~4 ns a point)."""
+    n = index.shape[0]
+    out = np.empty((n, 3))
+    for k in range(n):
+        i, r = index[k], range_m[k]
+        out[k, 0], out[k, 1], out[k, 2] = directions[i, 0] * r, directions[i, 1] * r, directions[i, 2] * r
+    return out
+
+
+@njit(cache=True, nogil=True)
 def support_over_planes(points, normals, base):
     """max over points p of n_f . p - base_f for each plane f (n_f . p = base_f): how far
     the farthest point lies in front of each plane (m, along its unit normal).

@@ -6,9 +6,11 @@ for given rays (measured directions at measured times) without the random draws.
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -17,8 +19,9 @@ from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
 from lidar_sim_ros.core.scenario import Scenario, scenario_effect_spec
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
-from lidar_sim_ros.core.geometry import (Beside, Hits, Target, cast_at_poses, coherent_order,
+from lidar_sim_ros.core.geometry import (Hits, Target, cast_at_poses, coherent_order,
                                         load_target)
+from lidar_sim_ros.core.geometry_kernels import points_along
 from lidar_sim_ros.core.pose import Poses, PoseSource, PoseTrack, StaticPose
 from lidar_sim_ros.core.scan import (Shots, angles_from_directions, frame_shots,
                                      frame_shots_and_directions, varies_by_frame)
@@ -137,9 +140,8 @@ class _FrameShots:
 
 def _along(directions: np.ndarray, index: np.ndarray, range_m: np.ndarray) -> np.ndarray:
     """Points (N, 3) (m) at range_m along the unit directions picked by index."""
-    xyz = directions.take(index, axis=0)
-    xyz *= range_m[:, None]
-    return xyz
+    return points_along(np.ascontiguousarray(directions, dtype=float), np.asarray(index, np.int64),
+                        np.asarray(range_m, float))
 
 
 def _material_ids(material: np.ndarray) -> np.ndarray:
@@ -178,6 +180,7 @@ class Simulator:
         self._last_plan: tuple[int, _CastPlan] = (0, self._plan)
         self._kd, self._ks, self._n = (materials.column(k) for k in ('kd', 'ks', 'n'))
         self._bias, self._sigma = materials.column('bias_m'), materials.column('sigma_m')
+        self._variance = self._sigma ** 2
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, effects: list[Effect] | None = None,
@@ -220,12 +223,17 @@ class Simulator:
     def predict(self, t_abs_s: np.ndarray, directions: np.ndarray, pose_source: PoseSource,
                 t_frame_s: np.ndarray | None = None, az_rad=None, el_rad=None,
                 laser: np.ndarray | None = None, cast_order: np.ndarray | None = None,
-                pixel_sr: np.ndarray | None = None) -> Prediction:
+                pixel_sr: np.ndarray | None = None,
+                each_part: Callable[[slice | np.ndarray, np.ndarray], None] | None = None
+                ) -> Prediction:
         """Raycast + reflection + error model for rays at absolute times (no random draws).
 
         ``cast_order``: optional coherent ray order for Embree (results keep input order).
         ``pixel_sr``: a flash array's pixel field of view per ray (sr, ``scan_flash.
         pixel_view_sr``) when the caller has it (a frame's plan keeps it); else computed.
+        ``each_part(rows, hit_rows)``: called on the thread of each part of the raycast once
+        its rows (a slice, or indices with ``cast_order``) are reflected, with the rows of
+        its hits (indices, increasing within a slice).
         """
         t_abs_s = np.asarray(t_abs_s, dtype=float)
         directions = np.asarray(directions, dtype=float)
@@ -243,12 +251,14 @@ class Simulator:
         # Reflection and the error model, into these (0, NaN, 0, 0 on a miss): on each part
         # of the raycast's own thread, or after an effect's cast.
         power, rng_m, bias, var = reflected = np.zeros(n), np.full(n, np.nan), np.zeros(n), np.zeros(n)
+        def then(part_hits: Hits, rows: slice | np.ndarray) -> None:
+            hit_rows = self._reflect(part_hits, rows, directions, pixel_sr, reflected)
+            if each_part is not None:
+                each_part(rows, hit_rows)
         if hits is None:
-            hits = cast_at_poses(self.target, directions, poses, order=cast_order,
-                                 then=lambda part_hits, rows: self._reflect(
-                                     part_hits, rows, directions, pixel_sr, reflected))
+            hits = cast_at_poses(self.target, directions, poses, order=cast_order, then=then)
         else:
-            self._reflect(hits, slice(0, n), directions, pixel_sr, reflected)
+            then(hits, slice(0, n))
             if hits.power_fraction is not None:
                 power *= hits.power_fraction
         if az_rad is None or el_rad is None:
@@ -272,10 +282,10 @@ class Simulator:
         return Prediction(ctx, hits, directions, bias, np.sqrt(var))
 
     def _reflect(self, hits: Hits, rows: slice | np.ndarray, directions: np.ndarray,
-                 pixel_sr: np.ndarray | None, out: tuple[np.ndarray, ...]) -> None:
+                 pixel_sr: np.ndarray | None, out: tuple[np.ndarray, ...]) -> np.ndarray:
         """Reflection and the error model of the shots ``rows`` (a slice or indices) that
         hit, gathered once by index, written into ``out``: received power (W), range (m),
-        range bias (m) and variance (m^2) of the material hit."""
+        range bias (m) and variance (m^2) of the material hit. Returns those shots' rows."""
         power, rng_m, bias, var = out
         optics = self.sensor.optics
         on = np.flatnonzero(hits.hit[rows])
@@ -289,11 +299,13 @@ class Simulator:
         sr = None
         if optics.flood is not None:
             sr = pixel_view_sr(self.sensor, directions[on]) if pixel_sr is None else pixel_sr.take(on)
-        power[on] = reflection.return_power_w(range_on, hits.incidence_rad.take(on), self._kd.take(mat),
+        incidence_on = hits.incidence_rad.take(on) if cos_on is None else None
+        power[on] = reflection.return_power_w(range_on, incidence_on, self._kd.take(mat),
                                               self._ks.take(mat), self._n.take(mat), optics, cos_on, sr)
         rng_m[on] = range_on
         bias[on] = self._bias.take(mat)
-        var[on] = self._sigma.take(mat) ** 2
+        var[on] = self._variance.take(mat)
+        return on
 
     def shots_of_frame(self, frame_index: int) -> Shots:
         """Frame ``frame_index``'s shots in firing order (``self.shots`` for every frame of a
@@ -318,22 +330,21 @@ class Simulator:
             frame_index = int(round(frame_start_s / self.frame_period_s))
         plan = self._frame_plan(frame_index)
         shots = plan.cast_shots
-        # The frame's generator and its first draw, the range noise of every shot: on a pool
-        # thread beside the raycast (numpy releases the GIL while it draws; the raycast's
-        # parts go to whichever thread is free), the same numbers whatever the thread.
-        drawn = Beside(self.target.threads, lambda: _first_draw(self.frame_rng(frame_index), len(shots)))
-        drawn.start()
+        # The frame's generator; its first draw is the range noise, drawn as the raycast's
+        # parts end (``_NoiseInOrder``).
+        rng = self.frame_rng(frame_index)
+        noise = _NoiseInOrder(rng, len(shots))
         pred = self.predict(frame_start_s + shots.t_s, plan.directions, pose_source, shots.t_s,
-                            shots.az_rad, shots.el_rad, shots.laser, pixel_sr=plan.pixel_sr)
+                            shots.az_rad, shots.el_rad, shots.laser, pixel_sr=plan.pixel_sr,
+                            each_part=noise.part_done)
         ctx, hit = pred.ctx, pred.ctx.hit
         det = self.sensor.detection
         # Misses carry NaN range and zero power: never detected, NaN measured range.
         detected = hit & detection.detected_mask(ctx.power_w, ctx.range_m, det)
-        rng, noise = drawn.result()
-        measured = detection.measured_range_m(ctx.range_m, pred.bias_m, pred.sigma_m, noise)
+        measured = detection.measured_range_m(ctx.range_m, pred.bias_m, pred.sigma_m, noise.drawn())
         # Extra returns lie behind their echo: a first-return receiver can report them only
         # where the echo went undetected (no ray needs following elsewhere).
-        open_shots = np.flatnonzero(hit & ~detected) if det.returns.single else None
+        open_shots = np.flatnonzero(hit & ~detected) if det.returns.single and self.effects else None
         extras = [x for x in (eff.extra_returns(ctx, open_shots) for eff in self.effects)
                   if x is not None and len(x)]
         if extras or not det.returns.single:
@@ -493,9 +504,37 @@ class _CastPlan:
                    pixel_view_sr(sensor, cast_directions))
 
 
-def _first_draw(rng: np.random.Generator, n: int) -> tuple[np.random.Generator, np.ndarray]:
-    """A frame's generator and its first draw: n standard normal numbers (the range noise)."""
-    return rng, rng.standard_normal(n)
+class _NoiseInOrder:
+    """A frame's first draw from its generator: one standard normal per hit (a shot with a
+    range) in cast order, the range noise (a flash frame's ~19,000 returns, not its 65,536
+    pixels; misses get 0, their range is NaN). Drawn while the raycast runs: whichever thread
+    ends the next part in cast order draws for it and for the ended parts behind it (numpy
+    releases the GIL while it draws), so only the last part's draw waits for the cast, and
+    the numbers are those of one draw after the cast, for any split (a draw of a then b
+    numbers is the draw of a + b)."""
+
+    def __init__(self, rng: np.random.Generator, n: int):
+        self._rng, self._noise, self._n = rng, np.zeros(n), n
+        self._ended: dict[int, tuple[int, np.ndarray]] = {}    # part start -> (stop, hit rows)
+        self._next = 0                                          # rows before it are drawn
+        self._lock = threading.Lock()
+
+    def part_done(self, rows: slice | np.ndarray, hit_rows: np.ndarray) -> None:
+        """``Simulator.predict``'s ``each_part``: a part (a slice of cast order) has its hits."""
+        if not isinstance(rows, slice):
+            raise ValueError('the range noise is drawn part by part over slices of cast order')
+        with self._lock:
+            self._ended[rows.start or 0] = (self._n if rows.stop is None else rows.stop, hit_rows)
+            while self._next in self._ended:
+                stop, hits = self._ended.pop(self._next)
+                self._noise[hits] = self._rng.standard_normal(len(hits))
+                self._next = stop
+
+    def drawn(self) -> np.ndarray:
+        """Every shot's standard normal draw (0 for a miss), once every part has ended."""
+        if self._next != self._n:
+            raise RuntimeError(f'range noise drawn for {self._next} of {self._n} shots')
+        return self._noise
 
 
 def _false_returns(effects, ctx, rng: np.random.Generator):
