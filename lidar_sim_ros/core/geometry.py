@@ -125,7 +125,7 @@ MIN_RAYS_PER_THREAD = 2048
 _POOLS: dict[int, ThreadPoolExecutor] = {}
 
 
-PARTS_PER_THREAD = 4     # parts a split makes per thread, which every thread takes in turn
+PARTS_PER_THREAD = 2     # parts a split makes per thread, which every thread takes in turn
 
 
 def split_over_threads(n: int, threads: int, work: Callable[[slice], T],

@@ -21,7 +21,7 @@ from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
 from lidar_sim_ros.core.geometry import (Hits, Target, cast_at_poses, coherent_order,
                                         load_target)
-from lidar_sim_ros.core.geometry_kernels import points_along
+from lidar_sim_ros.core.geometry_kernels import picked_in_order, points_along
 from lidar_sim_ros.core.pose import Poses, PoseSource, PoseTrack, StaticPose
 from lidar_sim_ros.core.scan import (Shots, angles_from_directions, frame_shots,
                                      frame_shots_and_directions, varies_by_frame)
@@ -550,4 +550,4 @@ def _false_returns(effects, ctx, rng: np.random.Generator):
 
 def _fired(mask: np.ndarray, cast_position: np.ndarray) -> np.ndarray:
     """Indices (into cast-ordered arrays) of the shots in ``mask``, in firing order."""
-    return cast_position.take(np.flatnonzero(mask.take(cast_position)))
+    return picked_in_order(np.asarray(mask, bool), np.asarray(cast_position, np.int64))
