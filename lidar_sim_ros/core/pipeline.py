@@ -339,9 +339,15 @@ class Simulator:
                             each_part=noise.part_done)
         ctx, hit = pred.ctx, pred.ctx.hit
         det = self.sensor.detection
-        # Misses carry NaN range and zero power: never detected, NaN measured range.
-        detected = hit & detection.detected_mask(ctx.power_w, ctx.range_m, det)
-        measured = detection.measured_range_m(ctx.range_m, pred.bias_m, pred.sigma_m, noise.drawn())
+        # Misses carry NaN range and zero power: never detected, NaN measured range. The
+        # detector and the measurement on the hits' rows alone (a flash frame's 19,000 of
+        # 65,536 shots), then spread over the frame's shots.
+        on, draws = noise.drawn()
+        detected_on = detection.detected_mask(ctx.power_w.take(on), ctx.range_m.take(on), det)
+        measured_on = detection.measured_range_m(ctx.range_m.take(on), pred.bias_m.take(on),
+                                                 pred.sigma_m.take(on), draws)
+        detected, measured = np.zeros(len(hit), bool), np.full(len(hit), np.nan)
+        detected[on], measured[on] = detected_on, measured_on
         # Extra returns lie behind their echo: a first-return receiver can report them only
         # where the echo went undetected (no ray needs following elsewhere).
         open_shots = np.flatnonzero(hit & ~detected) if det.returns.single and self.effects else None
@@ -351,16 +357,18 @@ class Simulator:
             return self._multi_return_frame(frame_start_s, frame_index, pred, detected, measured,
                                             extras, rng, plan)
         material, intensity = ctx.material, ctx.intensity
+        # The range gate on the measured ranges (NaN off the hits: never in it), the hits' here
+        # and each false return's as it replaces its shot's.
+        detected[on] &= detection.in_range_gate(measured_on, det)
         for rows, false_m in _false_returns(self.effects, ctx, rng):
             # A few shots each: written by index (measured and detected are this frame's own
             # arrays; material and intensity are the context's, copied before the first write).
             measured[rows] = false_m
-            detected[rows] = True
+            detected[rows] = detection.in_range_gate(false_m, det)
             if material is ctx.material:
                 material, intensity = material.copy(), intensity.copy()
             material[rows] = -1
             intensity[rows] = det.threshold_power_w / det.saturation_power_w
-        detected &= detection.in_range_gate(measured, det)
         # Index lists once (take() is ~5x cheaper than repeated boolean masks), in firing order.
         out = _fired(detected, plan.position)
         range_out = measured.take(out)
@@ -507,16 +515,17 @@ class _CastPlan:
 class _NoiseInOrder:
     """A frame's first draw from its generator: one standard normal per hit (a shot with a
     range) in cast order, the range noise (a flash frame's ~19,000 returns, not its 65,536
-    pixels; misses get 0, their range is NaN). Drawn while the raycast runs: whichever thread
-    ends the next part in cast order draws for it and for the ended parts behind it (numpy
-    releases the GIL while it draws), so only the last part's draw waits for the cast, and
-    the numbers are those of one draw after the cast, for any split (a draw of a then b
-    numbers is the draw of a + b)."""
+    pixels). Drawn while the raycast runs: whichever thread ends the next part in cast
+    order draws for it and for the ended parts behind it (numpy releases the GIL while it
+    draws), so only the last part's draw waits for the cast, and the numbers are those of
+    one draw after the cast, for any split (a draw of a then b numbers is the draw of a + b)."""
 
     def __init__(self, rng: np.random.Generator, n: int):
-        self._rng, self._noise, self._n = rng, np.zeros(n), n
+        self._rng, self._n = rng, n
         self._ended: dict[int, tuple[int, np.ndarray]] = {}    # part start -> (stop, hit rows)
         self._next = 0                                          # rows before it are drawn
+        self._rows: list[np.ndarray] = []                       # the parts' hit rows, in order
+        self._draws: list[np.ndarray] = []                      # and their draws
         self._lock = threading.Lock()
 
     def part_done(self, rows: slice | np.ndarray, hit_rows: np.ndarray) -> None:
@@ -527,14 +536,19 @@ class _NoiseInOrder:
             self._ended[rows.start or 0] = (self._n if rows.stop is None else rows.stop, hit_rows)
             while self._next in self._ended:
                 stop, hits = self._ended.pop(self._next)
-                self._noise[hits] = self._rng.standard_normal(len(hits))
+                self._rows.append(hits)
+                self._draws.append(self._rng.standard_normal(len(hits)))
                 self._next = stop
 
-    def drawn(self) -> np.ndarray:
-        """Every shot's standard normal draw (0 for a miss), once every part has ended."""
+    def drawn(self) -> tuple[np.ndarray, np.ndarray]:
+        """The hits' rows (increasing) and their standard normal draws, once every part has
+        ended."""
         if self._next != self._n:
             raise RuntimeError(f'range noise drawn for {self._next} of {self._n} shots')
-        return self._noise
+        if len(self._rows) == 1:
+            return self._rows[0], self._draws[0]
+        return (np.concatenate(self._rows) if self._rows else np.zeros(0, np.int64),
+                np.concatenate(self._draws) if self._draws else np.zeros(0))
 
 
 def _false_returns(effects, ctx, rng: np.random.Generator):
