@@ -137,9 +137,9 @@ def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
     thread, none under ``min_per_thread``) are taken in turn by the calling thread and by
     pool threads as each comes free, so a thread held up (by the OS, by the GIL) takes
     fewer; ``work`` must never wait on the pool (it may run on it). Fewer threads when parts
-    would hold less than ``min_per_thread``. ``cost`` (None: every item alike): the relative cost of the
-    blocks of ``ceil(n / len(cost))`` items in turn; the parts then hold equal cost, not
-    equal counts (a flash frame's hits are in the middle of its cast order).
+    would hold less than ``min_per_thread``. ``cost`` (None: every item alike): the relative
+    cost of the blocks of ``ceil(n / len(cost))`` items in turn; the parts then hold equal
+    cost, not equal counts (a flash frame's hits are in the middle of its cast order).
     """
     threads = max(1, min(int(threads), n // max(min_per_thread, 1)))
     if threads == 1:

@@ -204,7 +204,9 @@ def points_along(directions, index, range_m):
     out = np.empty((n, 3))
     for k in range(n):
         i, r = index[k], range_m[k]
-        out[k, 0], out[k, 1], out[k, 2] = directions[i, 0] * r, directions[i, 1] * r, directions[i, 2] * r
+        out[k, 0] = directions[i, 0] * r
+        out[k, 1] = directions[i, 1] * r
+        out[k, 2] = directions[i, 2] * r
     return out
 
 

@@ -350,7 +350,8 @@ class Simulator:
         detected[on], measured[on] = detected_on, measured_on
         # Extra returns lie behind their echo: a first-return receiver can report them only
         # where the echo went undetected (no ray needs following elsewhere).
-        open_shots = np.flatnonzero(hit & ~detected) if det.returns.single and self.effects else None
+        open_shots = (np.flatnonzero(hit & ~detected) if det.returns.single and self.effects
+                      else None)
         extras = [x for x in (eff.extra_returns(ctx, open_shots) for eff in self.effects)
                   if x is not None and len(x)]
         if extras or not det.returns.single:
