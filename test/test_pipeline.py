@@ -246,6 +246,43 @@ def test_frames_are_the_same_for_any_thread_count(scenario_name):
         assert frame.stats == frames[0].stats
 
 
+@pytest.mark.parametrize('scenario_name', ['scenario.yaml', 'scenario_flash.yaml',
+                                           'scenario_mid40.yaml'])
+@pytest.mark.parametrize('threads', [1, 2])
+def test_a_plain_frame_on_its_hits_alone_is_the_frame_of_every_shot(scenario_name, threads):
+    """A frame with no effect runs on its hits' rows alone (``Simulator._plain_frame``);
+    with an effect that changes nothing the frame goes through every shot's row
+    (``predict``, ``ReturnContext``): the two frames, their truth, every shot's measured
+    range and the statistics are the same to the bit."""
+    from lidar_sim_ros.core.effects import Effect
+    from lidar_sim_ros.core.scenario import load_scenario
+
+    class Nothing(Effect):
+        name = 'nothing'
+    scenario = load_scenario(CONFIG / scenario_name)
+    traj = ScenarioTrajectory.from_config(scenario.config)
+    target = load_target(scenario.mesh_path, scenario.materials.names)
+    plain = Simulator.from_scenario(scenario, effects=[], threads=threads, target=target)
+    every = Simulator.from_scenario(scenario, effects=[Nothing()], threads=threads, target=target)
+    for index in (0, 4):
+        start = index * plain.frame_period_s
+        a, b = plain.simulate_frame(start, traj, index), every.simulate_frame(start, traj, index)
+        assert type(a.truth_source).__name__ == '_FrameHits'
+        assert type(b.truth_source).__name__ == '_FrameShots'
+        assert len(a) > 1000 and a.stats == b.stats
+        for key in ('xyz_m', 'range_m', 'intensity', 'material', 't_s', 'ring', 'face',
+                    'true_range_m', 'return_number', 'truth_range_m', 'truth_xyz_m',
+                    'truth_intensity', 'truth_t_s', 'truth_ring', 'truth_material', 'truth_face'):
+            x, y = getattr(a, key), getattr(b, key)
+            assert x.dtype == y.dtype, key
+            np.testing.assert_array_equal(x, y, err_msg=key)
+        for key in ('hit', 'range_m', 'intensity', 'material', 'face', 'measured_range_m',
+                    'hit_index'):
+            x, y = getattr(a.truth_source, key), getattr(b.truth_source, key)
+            assert x.dtype == y.dtype, key
+            np.testing.assert_array_equal(x, y, err_msg=key)
+
+
 def test_range_noise_is_one_draw_per_hit_in_cast_order_whatever_order_the_parts_end():
     """The frame's first draw is one standard normal per hit, in cast order; the parts of
     a raycast end in any order on any thread, and each part's noise is drawn once the

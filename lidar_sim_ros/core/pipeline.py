@@ -19,9 +19,9 @@ from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
 from lidar_sim_ros.core.scenario import Scenario, scenario_effect_spec
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
-from lidar_sim_ros.core.geometry import (Hits, Target, cast_at_poses, coherent_order,
-                                        load_target)
-from lidar_sim_ros.core.geometry_kernels import picked_in_order, points_along
+from lidar_sim_ros.core.geometry import (Hits, HitRows, Target, cast_at_poses, cast_hits_at_poses,
+                                        coherent_order, load_target)
+from lidar_sim_ros.core.geometry_kernels import picked_in_order, picked_rows_in_order, points_along
 from lidar_sim_ros.core.pose import Poses, PoseSource, PoseTrack, StaticPose
 from lidar_sim_ros.core.scan import (Shots, angles_from_directions, frame_shots,
                                      frame_shots_and_directions, varies_by_frame)
@@ -136,6 +136,56 @@ class _FrameShots:
     def hit_index(self) -> np.ndarray:
         """The hits, in firing order."""
         return _fired(self.hit, self.cast_position)
+
+
+class _FrameHits:
+    """``_FrameShots`` of a frame simulated on its hits' rows alone (a plain frame): the
+    same arrays, every shot's row spread from the hits' on first use (most frames never
+    publish their truth): range NaN, intensity 0, material and face -1 and measured range
+    NaN on a miss."""
+
+    def __init__(self, n: int, hits: HitRows, intensity: np.ndarray, measured_range_m: np.ndarray,
+                 cast_position: np.ndarray, directions: np.ndarray, t_s: np.ndarray,
+                 ring: np.ndarray):
+        self._n, self._hits = n, hits
+        self._intensity, self._measured = intensity, measured_range_m
+        self.cast_position, self.directions, self.t_s, self.ring = (cast_position, directions,
+                                                                    t_s, ring)
+
+    def _spread(self, values: np.ndarray, miss) -> np.ndarray:
+        out = np.full(self._n, miss, dtype=values.dtype)
+        out[self._hits.rows] = values
+        return out
+
+    @cached_property
+    def hit(self) -> np.ndarray:
+        return self._spread(np.ones(len(self._hits), bool), False)
+
+    @cached_property
+    def range_m(self) -> np.ndarray:
+        return self._spread(self._hits.range_m, np.nan)
+
+    @cached_property
+    def intensity(self) -> np.ndarray:
+        return self._spread(self._intensity, 0.0)
+
+    @cached_property
+    def material(self) -> np.ndarray:
+        return self._spread(self._hits.material, -1)
+
+    @cached_property
+    def face(self) -> np.ndarray:
+        return self._spread(self._hits.face, -1)
+
+    @cached_property
+    def measured_range_m(self) -> np.ndarray:
+        return self._spread(self._measured, np.nan)
+
+    @cached_property
+    def hit_index(self) -> np.ndarray:
+        """The hits, in firing order."""
+        return self._hits.rows.take(picked_rows_in_order(self._hits.rows, self._n,
+                                                          self.cast_position))
 
 
 def _along(directions: np.ndarray, index: np.ndarray, range_m: np.ndarray) -> np.ndarray:
@@ -334,6 +384,8 @@ class Simulator:
         # parts end (``_NoiseInOrder``).
         rng = self.frame_rng(frame_index)
         noise = _NoiseInOrder(rng, len(shots))
+        if not self.effects and self.sensor.detection.returns.single:
+            return self._plain_frame(frame_start_s, frame_index, pose_source, plan, noise)
         pred = self.predict(frame_start_s + shots.t_s, plan.directions, pose_source, shots.t_s,
                             shots.az_rad, shots.el_rad, shots.laser, pixel_sr=plan.pixel_sr,
                             each_part=noise.part_done)
@@ -381,6 +433,56 @@ class Simulator:
             material=_material_ids(material.take(out)), stats=self._frame_stats(pred, len(out)),
             truth_source=self._truth(pred, measured, plan), face=pred.hits.face.take(out),
             true_range_m=ctx.range_m.take(out), return_number=np.ones(len(out), np.uint8))
+
+    def _plain_frame(self, frame_start_s: float, frame_index: int, pose_source: PoseSource,
+                     plan: '_CastPlan', noise: '_NoiseInOrder') -> Frame:
+        """A frame with no effect and the paper's single-return receiver, on the hits' rows
+        alone (``cast_hits_at_poses``: a flash frame's ~19,000 of 65,536 shots): reflection
+        and the material's range error on each part's thread, then the detector, the
+        measurement and the range gate. The same frame ``simulate_frame`` makes of every
+        shot's row (``predict``), number for number."""
+        shots, det, optics = plan.cast_shots, self.sensor.detection, self.sensor.optics
+        n = len(shots)
+        poses = _poses_at(pose_source, frame_start_s + shots.t_s)
+        kd, ks, n_phong, bias_m, var_m2 = self._kd, self._ks, self._n, self._bias, self._variance
+        pixel_sr = plan.pixel_sr if optics.flood is not None else None
+
+        def then(part: slice, hits: HitRows) -> tuple:
+            mat = hits.material
+            sr = None if pixel_sr is None else pixel_sr.take(hits.rows)
+            power = reflection.return_power_w(hits.range_m, None, kd.take(mat), ks.take(mat),
+                                              n_phong.take(mat), optics, hits.cos_incidence, sr)
+            noise.part_done(part, hits.rows)
+            return hits, power, bias_m.take(mat), np.sqrt(var_m2.take(mat))
+        parts = cast_hits_at_poses(self.target, plan.directions, poses, then)
+        if len(parts) == 1:
+            hits, power, bias, sigma = parts[0]
+        else:
+            hits = HitRows(*(np.concatenate(a) for a in zip(*(
+                (p[0].rows, p[0].range_m, p[0].cos_incidence, p[0].material, p[0].face)
+                for p in parts))))
+            power, bias, sigma = (np.concatenate([p[k] for p in parts]) for k in (1, 2, 3))
+        rows, draws = noise.drawn()
+        detected = detection.detected_mask(power, hits.range_m, det)
+        measured = detection.measured_range_m(hits.range_m, bias, sigma, draws)
+        detected &= detection.in_range_gate(measured, det)
+        # The detected hits, in firing order.
+        on = np.flatnonzero(detected)
+        out = on.take(picked_rows_in_order(rows.take(on), n, plan.position))
+        cast_rows, range_out = rows.take(out), measured.take(out)
+        intensity = detection.intensity_from_power(power, det)
+        return Frame(
+            stamp_s=float(frame_start_s), index=int(frame_index),
+            xyz_m=_along(plan.directions, cast_rows, range_out), range_m=range_out,
+            intensity=intensity.take(out), t_s=shots.t_s.take(cast_rows),
+            ring=shots.laser.take(cast_rows), material=_material_ids(hits.material.take(out)),
+            stats={'shots': n, 'hits': len(rows), 'detected': len(out),
+                   'below_threshold': int(np.count_nonzero(power < det.threshold_power_w)),
+                   'saturated': int(np.count_nonzero(power >= det.saturation_power_w))},
+            truth_source=_FrameHits(n, hits, intensity, measured, plan.position,
+                                    plan.directions, shots.t_s, shots.laser),
+            face=hits.face.take(out), true_range_m=hits.range_m.take(out),
+            return_number=np.ones(len(out), np.uint8))
 
     def _frame_stats(self, pred: Prediction, detected: int) -> dict:
         ctx, hit, det = pred.ctx, pred.ctx.hit, self.sensor.detection
