@@ -443,7 +443,7 @@ class Simulator:
         shot's row (``predict``), number for number."""
         shots, det, optics = plan.cast_shots, self.sensor.detection, self.sensor.optics
         n = len(shots)
-        poses = _poses_at(pose_source, frame_start_s + shots.t_s)
+        poses = plan.poses(frame_start_s, pose_source)
         kd, ks, n_phong, bias_m, var_m2 = self._kd, self._ks, self._n, self._bias, self._variance
         pixel_sr = plan.pixel_sr if optics.flood is not None else None
 
@@ -453,17 +453,18 @@ class Simulator:
             power = reflection.return_power_w(hits.range_m, None, kd.take(mat), ks.take(mat),
                                               n_phong.take(mat), optics, hits.cos_incidence, sr)
             noise.part_done(part, hits.rows)
-            return hits, power, bias_m.take(mat), np.sqrt(var_m2.take(mat))
+            return (hits, power, bias_m.take(mat), np.sqrt(var_m2.take(mat)),
+                    detection.detected_mask(power, hits.range_m, det))
         parts = cast_hits_at_poses(self.target, plan.directions, poses, then)
         if len(parts) == 1:
-            hits, power, bias, sigma = parts[0]
+            hits, power, bias, sigma, detected = parts[0]
         else:
             hits = HitRows(*(np.concatenate(a) for a in zip(*(
                 (p[0].rows, p[0].range_m, p[0].cos_incidence, p[0].material, p[0].face)
                 for p in parts))))
-            power, bias, sigma = (np.concatenate([p[k] for p in parts]) for k in (1, 2, 3))
+            power, bias, sigma, detected = (np.concatenate([p[k] for p in parts])
+                                            for k in (1, 2, 3, 4))
         rows, draws = noise.drawn()
-        detected = detection.detected_mask(power, hits.range_m, det)
         measured = detection.measured_range_m(hits.range_m, bias, sigma, draws)
         detected &= detection.in_range_gate(measured, det)
         # The detected hits, in firing order.
@@ -604,6 +605,7 @@ class _CastPlan:
     directions: np.ndarray
     position: np.ndarray
     pixel_sr: np.ndarray | None
+    one_time: bool = False
 
     @classmethod
     def of(cls, shots: Shots, directions: np.ndarray, sensor: SensorConfig) -> '_CastPlan':
@@ -611,8 +613,17 @@ class _CastPlan:
         position = np.empty_like(order)
         position[order] = np.arange(len(order))
         cast_directions = np.ascontiguousarray(directions[order])
+        t_s = shots.t_s
         return cls(shots, order, shots.subset(order), cast_directions, position,
-                   pixel_view_sr(sensor, cast_directions))
+                   pixel_view_sr(sensor, cast_directions),
+                   bool(len(t_s) > 1 and np.all(t_s == t_s[0])))
+
+    def poses(self, frame_start_s: float, pose_source: PoseSource) -> Poses:
+        """The shots' poses (``_poses_at``): one row for a global exposure, found once
+        with the plan (every shot at one time)."""
+        if self.one_time:
+            return _poses_at(pose_source, frame_start_s + self.cast_shots.t_s[:1])
+        return _poses_at(pose_source, frame_start_s + self.cast_shots.t_s)
 
 
 class _NoiseInOrder:
