@@ -75,7 +75,7 @@ class Frame:
     ring: np.ndarray
     material: np.ndarray
     stats: dict = field(default_factory=dict)
-    truth_source: '_FrameShots | None' = field(default=None, repr=False)
+    truth_source: '_FrameShots | _FrameHits | None' = field(default=None, repr=False)
     face: np.ndarray | None = field(default=None, repr=False)
     true_range_m: np.ndarray | None = field(default=None, repr=False)
     return_number: np.ndarray | None = field(default=None, repr=False)
