@@ -169,12 +169,23 @@ def test_fit_data_splits_matched_and_unmatched_rays():
 
 
 # ---------------------------------------------------------------- no false alarms
+def noise_gain_per_point(k: int, n_points: int) -> float:
+    """What a fit of k free parameters can gain on pure noise (nats a point): twice the
+    NLL gain is chi-square with k degrees of freedom, so mean k / 2 plus 4 sd (sqrt(2k) / 2)
+    over the points; at least 0.002. laser_bias frees 24 per-laser offsets: on clean data
+    it gains 0.0003-0.0025 a point by seed (seeds 5-7, 4,375 points), its chi-square mean
+    being 0.0027 (the 0.002 that held for seed 5 was that seed's luck: seed 7 broke it)."""
+    return max(0.002, (k + 4.0 * np.sqrt(2.0 * k)) / (2.0 * n_points))
+
+
 @pytest.mark.parametrize('case', ['clean', 'materials'])
 def test_no_effect_gains_on_clean_data_or_a_material_mismatch(case):
     results = fits(case)
+    n_points = len(dataset(case)[0].measured_range_m)
     for name, r in results.items():
-        assert r.robust_gain_per_point < 0.002, name
-        assert r.nll_gain_per_point < 0.002, name
+        allowed = noise_gain_per_point(len(r.params), n_points)
+        assert r.robust_gain_per_point < allowed, name
+        assert r.nll_gain_per_point < allowed, name
         assert r.range_rmse_m > r.range_rmse_before_m - 2e-4, name
         assert r.unmatched_explained == 0.0, name
     p = {name: r.params for name, r in results.items()}
@@ -257,7 +268,9 @@ def test_fit_on_top_of_another_effect():
     dirs = fr.xyz_m / np.linalg.norm(fr.xyz_m, axis=1, keepdims=True)
     data = fit_data_from_rays(model_sim(), fr.stamp_s + fr.t_s, dirs, fr.range_m, traj, fr.t_s)
     offset = fit_effect(get_effect_class('time_offset'), data)
-    assert offset.params['dt_s'] == pytest.approx(0.05, abs=0.006)
+    # The offset fitted first, the walk not yet modelled, comes out low: 0.041-0.046 s over
+    # seeds 8-11 with either draw of the range noise (0.0438 here).
+    assert offset.params['dt_s'] == pytest.approx(0.05, abs=0.01)
     walk = fit_effect(get_effect_class('range_walk'), data, [offset.effect])
     assert walk.params['k_m'] == pytest.approx(-0.02, abs=0.003)
     nll_true, _, _ = evaluate(data, hidden)

@@ -206,3 +206,35 @@ def test_parts_of_equal_cost_cover_every_item_once(n, threads):
     if len(parts) > 1:
         assert share.max() < 2.0 / len(parts)
         assert max(p.stop - p.start for p in parts) > 3 * min(p.stop - p.start for p in parts)
+
+
+@pytest.mark.parametrize('one_pose', [True, False])
+@pytest.mark.parametrize('cull', [0.0, 2.0])
+def test_the_hits_alone_are_the_hit_rows_of_the_full_cast(one_pose, cull, monkeypatch):
+    """``cast_hits_at_poses`` (the hits as compact rows, a plain frame's cast) gives, on 1,
+    2 and 3 threads, with and without the bounding-box test, exactly the rows of
+    ``cast_at_poses`` that hit and their range, cosine, material and face."""
+    from lidar_sim_ros.core import geometry
+    from lidar_sim_ros.core.geometry import cast_hits_at_poses
+    monkeypatch.setattr(geometry, 'CULL_WORTH', cull)
+    target = sphere_target(1.0, subdivisions=4)
+    d = rays(20000, 15)
+    n = 1 if one_pose else len(d)
+    poses = Poses.from_quat(Rotation.random(n, random_state=16).as_quat(), np.tile([6.0, 0.1, 0.0], (n, 1)))
+    full = cast_at_poses(target, d, poses)
+    hit = np.flatnonzero(full.hit)
+    assert 0 < len(hit) < len(d)
+    for threads in (1, 2, 3):
+        target.threads = threads
+        seen = []
+        parts = cast_hits_at_poses(target, d, poses, lambda part, hits: (part, hits))
+        for part, hits in parts:
+            assert np.all((hits.rows >= part.start) & (hits.rows < part.stop))
+            seen.append(hits)
+        rows = np.concatenate([h.rows for h in seen])
+        np.testing.assert_array_equal(rows, hit)
+        for field in ('range_m', 'cos_incidence', 'material', 'face'):
+            got = np.concatenate([getattr(h, field) for h in seen])
+            assert got.dtype == getattr(full, field).dtype
+            np.testing.assert_array_equal(got, getattr(full, field)[hit], err_msg=field)
+    target.threads = 1

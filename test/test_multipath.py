@@ -164,7 +164,12 @@ def test_default_receiver_keeps_the_single_return_frame(default_scenario):
                        shots.el_rad, shots.laser)
     det = sim.sensor.detection
     rng = sim.frame_rng(0)
-    measured = detection.measured_range_m(pred.ctx.range_m, pred.bias_m, pred.sigma_m, rng)
+    # The frame's first draw: one standard normal per shot with a range, in cast order.
+    with_range = np.isfinite(pred.ctx.range_m)
+    measured = np.full(len(with_range), np.nan)
+    measured[with_range] = detection.measured_range_m(pred.ctx.range_m[with_range],
+                                                      pred.bias_m[with_range],
+                                                      pred.sigma_m[with_range], rng)
     ok = pred.ctx.hit & detection.detected_mask(pred.ctx.power_w, pred.ctx.range_m, det)
     mask, false_m = sim.effects[0].false_returns(pred.ctx, rng)
     measured = np.where(mask, false_m, measured)

@@ -227,7 +227,7 @@ def test_points_come_out_in_firing_order_and_truth_matches(default_scenario):
                                            'scenario_flash_all_effects.yaml'])
 def test_frames_are_the_same_for_any_thread_count(scenario_name):
     """The raycast, the reflection and the measurement run in parts of the frame, one per
-    thread, and the range noise is drawn beside the raycast: every array of the frame,
+    thread, and the range noise is drawn as the parts end: every array of the frame,
     its truth and its statistics are the same to the bit on 1, 2 and 3 threads."""
     from lidar_sim_ros.core.scenario import load_scenario
     scenario = load_scenario(CONFIG / scenario_name)
@@ -244,3 +244,64 @@ def test_frames_are_the_same_for_any_thread_count(scenario_name):
         np.testing.assert_array_equal(frame.truth_source.measured_range_m,
                                       frames[0].truth_source.measured_range_m)
         assert frame.stats == frames[0].stats
+
+
+@pytest.mark.parametrize('scenario_name', ['scenario.yaml', 'scenario_flash.yaml',
+                                           'scenario_mid40.yaml'])
+@pytest.mark.parametrize('threads', [1, 2])
+def test_a_plain_frame_on_its_hits_alone_is_the_frame_of_every_shot(scenario_name, threads):
+    """A frame with no effect runs on its hits' rows alone (``Simulator._plain_frame``);
+    with an effect that changes nothing the frame goes through every shot's row
+    (``predict``, ``ReturnContext``): the two frames, their truth, every shot's measured
+    range and the statistics are the same to the bit."""
+    from lidar_sim_ros.core.effects import Effect
+    from lidar_sim_ros.core.scenario import load_scenario
+
+    class Nothing(Effect):
+        name = 'nothing'
+    scenario = load_scenario(CONFIG / scenario_name)
+    traj = ScenarioTrajectory.from_config(scenario.config)
+    target = load_target(scenario.mesh_path, scenario.materials.names)
+    plain = Simulator.from_scenario(scenario, effects=[], threads=threads, target=target)
+    every = Simulator.from_scenario(scenario, effects=[Nothing()], threads=threads, target=target)
+    for index in (0, 4):
+        start = index * plain.frame_period_s
+        a, b = plain.simulate_frame(start, traj, index), every.simulate_frame(start, traj, index)
+        assert type(a.truth_source).__name__ == '_FrameHits'
+        assert type(b.truth_source).__name__ == '_FrameShots'
+        assert len(a) > 1000 and a.stats == b.stats
+        for key in ('xyz_m', 'range_m', 'intensity', 'material', 't_s', 'ring', 'face',
+                    'true_range_m', 'return_number', 'truth_range_m', 'truth_xyz_m',
+                    'truth_intensity', 'truth_t_s', 'truth_ring', 'truth_material', 'truth_face'):
+            x, y = getattr(a, key), getattr(b, key)
+            assert x.dtype == y.dtype, key
+            np.testing.assert_array_equal(x, y, err_msg=key)
+        for key in ('hit', 'range_m', 'intensity', 'material', 'face', 'measured_range_m',
+                    'hit_index'):
+            x, y = getattr(a.truth_source, key), getattr(b.truth_source, key)
+            assert x.dtype == y.dtype, key
+            np.testing.assert_array_equal(x, y, err_msg=key)
+
+
+def test_range_noise_is_one_draw_per_hit_in_cast_order_whatever_order_the_parts_end():
+    """The frame's first draw is one standard normal per hit, in cast order; the parts of
+    a raycast end in any order on any thread, and each part's noise is drawn once the
+    parts before it have theirs: the numbers are those of one draw after the cast."""
+    from lidar_sim_ros.core.pipeline import _NoiseInOrder
+    n = 10_000
+    rng = np.random.default_rng(5)
+    hit = rng.random(n) < 0.3
+    bounds = np.unique(np.concatenate([[0], rng.integers(0, n, 9), [n]]))
+    parts = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    expected = np.random.default_rng([7, 3]).standard_normal(np.count_nonzero(hit))
+    for ending in (range(len(parts)), reversed(range(len(parts))), rng.permutation(len(parts))):
+        noise = _NoiseInOrder(np.random.default_rng([7, 3]), n)
+        for k in ending:
+            noise.part_done(parts[k], parts[k].start + np.flatnonzero(hit[parts[k]]))
+        rows, draws = noise.drawn()
+        np.testing.assert_array_equal(rows, np.flatnonzero(hit))
+        np.testing.assert_array_equal(draws, expected)
+    unfinished = _NoiseInOrder(np.random.default_rng(1), n)
+    unfinished.part_done(parts[-1], np.zeros(0, np.int64))
+    with pytest.raises(RuntimeError, match='drawn for 0 of 10000'):
+        unfinished.drawn()

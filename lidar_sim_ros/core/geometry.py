@@ -127,7 +127,7 @@ MIN_RAYS_PER_THREAD = 2048
 _POOLS: dict[int, ThreadPoolExecutor] = {}
 
 
-PARTS_PER_THREAD = 4     # parts a split makes per thread, which every thread takes in turn
+PARTS_PER_THREAD = 2     # parts a split makes per thread, which every thread takes in turn
 
 
 def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
@@ -137,11 +137,11 @@ def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
 
     For GIL-free work (Embree casts, ``nogil`` kernels). The parts (PARTS_PER_THREAD per
     thread, none under ``min_per_thread``) are taken in turn by the calling thread and by
-    pool threads as each comes free, so a pool thread still busy with earlier work (a
-    frame's noise draw, ``Beside``) takes fewer. Fewer threads when parts would hold less
-    than ``min_per_thread``. ``cost`` (None: every item alike): the relative cost of the
-    blocks of ``ceil(n / len(cost))`` items in turn; the parts then hold equal cost, not
-    equal counts (a flash frame's hits are in the middle of its cast order).
+    pool threads as each comes free, so a thread held up (by the OS, by the GIL) takes
+    fewer; ``work`` must never wait on the pool (it may run on it). Fewer threads when parts
+    would hold less than ``min_per_thread``. ``cost`` (None: every item alike): the relative
+    cost of the blocks of ``ceil(n / len(cost))`` items in turn; the parts then hold equal
+    cost, not equal counts (a flash frame's hits are in the middle of its cast order).
     """
     threads = max(1, min(int(threads), n // max(min_per_thread, 1)))
     if threads == 1:
@@ -173,23 +173,6 @@ def _part_bounds(n: int, k: int, cost: np.ndarray | None) -> tuple[np.ndarray, n
         cut = np.searchsorted(cum, cum[-1] * np.arange(1, k) / k, side='right')
         bounds = np.unique(np.concatenate([[0], np.minimum(cut * step, n), [n]]))
     return bounds[:-1], bounds[1:]
-
-
-class Beside:
-    """``work`` on a pool thread (``threads`` > 1) beside what the caller does between
-    ``start`` and ``result``; on the caller's thread, in ``result``, when there is no pool
-    thread or nothing started it. For GIL-free work (a numpy draw): parts that
-    ``split_over_threads`` sends to the pool after ``start`` queue behind it."""
-
-    def __init__(self, threads: int, work: Callable[[], T]):
-        self._threads, self._work, self._future = int(threads), work, None
-
-    def start(self) -> None:
-        if self._future is None and self._threads > 1:
-            self._future = _pool(self._threads).submit(self._work)
-
-    def result(self) -> T:
-        return self._work() if self._future is None else self._future.result()
 
 
 def _pool(threads: int) -> ThreadPoolExecutor:
@@ -446,6 +429,53 @@ def cast_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
             then(hits, view)
     split_over_threads(len(d), target.threads, work, cost=cost)
     return hits
+
+
+@dataclass(frozen=True)
+class HitRows:
+    """The hits of a cast alone (no row per miss): ``rows`` (increasing) are the rays that
+    hit, with their range (m), cosine of incidence (normal toward the sensor), material id
+    and face: ``Hits`` without the misses' rows, normals or incidence angles."""
+
+    rows: np.ndarray
+    range_m: np.ndarray
+    cos_incidence: np.ndarray
+    material: np.ndarray
+    face: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+
+def cast_hits_at_poses(target: Target, directions_lidar: np.ndarray, poses: Poses,
+                       then: Callable[[slice, HitRows], T]) -> list[T]:
+    """``cast_at_poses`` from the sensor's origin, rays in their own order, for a caller
+    that needs the hits alone: each part of the cast (on its own thread) gives
+    ``then(part, hit_rows)`` its rays' hits as compact rows (a flash frame's ~19,000 of
+    65,536 rays), and the answers of ``then`` come back in part order. Every hit's numbers
+    are those ``cast_at_poses`` gives its row."""
+    d = np.ascontiguousarray(directions_lidar, dtype=np.float64).reshape(-1, 3)
+    origin = np.zeros((1, 3))
+    quat, position = poses.quat_xyzw, poses.position_m.reshape(-1, 3)
+    cull, cost = _culling(kernels.rays_to_body_in_box(
+        quat, position, origin, d, np.arange(0, len(d), CULL_SAMPLE), target.box_lo_m,
+        target.box_hi_m)[2])
+
+    def work(part: slice) -> T:
+        rows = np.arange(part.start, part.stop, dtype=np.int64)
+        if cull:
+            o32, d32, slot = kernels.rays_to_body_in_box(quat, position, origin, d, rows,
+                                                         target.box_lo_m, target.box_hi_m)
+        else:
+            (o32, d32), slot = kernels.rays_to_body(quat, position, origin, d, rows), _EVERY_RAY
+        face, tfar = _NO_RAYS[:2]
+        if len(o32):
+            found = target._run(o32, d32, None)
+            face, tfar = found['primID'], found['tfar']
+        hits = HitRows(*kernels.hit_rows_of(face, tfar, slot, part.start, len(rows),
+                                            target.face_normals, target.face_material, quat, d))
+        return then(part, hits)
+    return split_over_threads(len(d), target.threads, work, cost=cost)
 
 
 _EVERY_RAY = np.zeros(0, np.int64)     # hit_geometry_into's slot when every ray was cast

@@ -197,6 +197,100 @@ def hit_geometry_into(face_cast, tfar_cast, slot, order, face_normals, face_mate
 
 
 @njit(cache=True, nogil=True)
+def hit_rows_of(face_cast, tfar_cast, slot, start, count, face_normals, face_material, quat_xyzw,
+                dir_out):
+    """``hit_geometry_into`` for the hits alone: the rays ``start .. start + count - 1`` (in
+    order) whose answer is a hit, as compact arrays (no row per miss).
+
+    face_cast, tfar_cast, slot as ``hit_geometry_into`` takes them (slot[k] for ray
+    start + k; empty when every ray was cast); quat_xyzw (N|1, 4), dir_out (N, 3) indexed by
+    ray. Returns rows (H,) int64 (increasing), range_m (H,), cos_incidence (H,) (the normal
+    turned toward the sensor), material (H,) int16 and face (H,) int64: the same numbers
+    ``hit_geometry_into`` writes into those rows.
+    """
+    every = slot.shape[0] == 0
+    one_q = quat_xyzw.shape[0] == 1
+    n_hit = 0
+    for k in range(count):
+        j = k if every else slot[k]
+        if j >= 0 and face_cast[j] >= 0:
+            n_hit += 1
+    rows = np.empty(n_hit, np.int64)
+    range_m = np.empty(n_hit)
+    cos_incidence = np.empty(n_hit)
+    material = np.empty(n_hit, np.int16)
+    face = np.empty(n_hit, np.int64)
+    h = 0
+    for k in range(count):
+        j = k if every else slot[k]
+        if j < 0:
+            continue
+        f = face_cast[j]
+        if f < 0:
+            continue
+        i = start + k
+        iq = 0 if one_q else i
+        nx, ny, nz = _rotate(quat_xyzw[iq, 0], quat_xyzw[iq, 1], quat_xyzw[iq, 2], quat_xyzw[iq, 3],
+                             face_normals[f, 0], face_normals[f, 1], face_normals[f, 2])
+        cos_i = -(nx * dir_out[i, 0] + ny * dir_out[i, 1] + nz * dir_out[i, 2])
+        if cos_i < 0.0:  # two-sided surfaces: the normal faces the sensor
+            cos_i = -cos_i
+        rows[h] = i
+        range_m[h] = tfar_cast[j]
+        cos_incidence[h] = min(cos_i, 1.0)
+        material[h] = face_material[f]
+        face[h] = f
+        h += 1
+    return rows, range_m, cos_incidence, material, face
+
+
+@njit(cache=True, nogil=True)
+def picked_rows_in_order(rows, n, position):
+    """The indices k of ``rows`` (distinct rows of an n-row array) in the order
+    ``position`` visits them: k for each i in order where ``position[i] == rows[k]``
+    (``picked_in_order`` for a few rows given by index)."""
+    where = np.full(n, -1, np.int64)
+    for k in range(rows.shape[0]):
+        where[rows[k]] = k
+    out = np.empty(rows.shape[0], np.int64)
+    m = 0
+    for i in range(position.shape[0]):
+        k = where[position[i]]
+        if k >= 0:
+            out[m] = k
+            m += 1
+    return out[:m]
+
+
+@njit(cache=True, nogil=True)
+def points_along(directions, index, range_m):
+    """Points (K, 3) (m) at range_m (K,) along the unit directions (N, 3) rows ``index`` (K,):
+    one pass (numpy's gather then broadcast product took ~4 ns a point)."""
+    n = index.shape[0]
+    out = np.empty((n, 3))
+    for k in range(n):
+        i, r = index[k], range_m[k]
+        out[k, 0] = directions[i, 0] * r
+        out[k, 1] = directions[i, 1] * r
+        out[k, 2] = directions[i, 2] * r
+    return out
+
+
+@njit(cache=True, nogil=True)
+def picked_in_order(mask, position):
+    """``position[i]`` for each i in order where ``mask[position[i]]`` (one pass; numpy's
+    gather, flatnonzero and gather again took ~50 us for a flash frame)."""
+    out = np.empty(position.shape[0], np.int64)
+    n = 0
+    for i in range(position.shape[0]):
+        j = position[i]
+        if mask[j]:
+            out[n] = j
+            n += 1
+    return out[:n]
+
+
+@njit(cache=True, nogil=True)
 def support_over_planes(points, normals, base):
     """max over points p of n_f . p - base_f for each plane f (n_f . p = base_f): how far
     the farthest point lies in front of each plane (m, along its unit normal).

@@ -6,9 +6,11 @@ for given rays (measured directions at measured times) without the random draws.
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -17,8 +19,9 @@ from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
 from lidar_sim_ros.core.scenario import Scenario, scenario_effect_spec
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
 from lidar_sim_ros.core.effects.base import ExtraReturns, Scene, apply_effects
-from lidar_sim_ros.core.geometry import (Beside, Hits, Target, cast_at_poses, coherent_order,
-                                        load_target)
+from lidar_sim_ros.core.geometry import (Hits, HitRows, Target, cast_at_poses, cast_hits_at_poses,
+                                        coherent_order, load_target)
+from lidar_sim_ros.core.geometry_kernels import picked_in_order, picked_rows_in_order, points_along
 from lidar_sim_ros.core.pose import Poses, PoseSource, PoseTrack, StaticPose
 from lidar_sim_ros.core.scan import (Shots, angles_from_directions, frame_shots,
                                      frame_shots_and_directions, varies_by_frame)
@@ -72,7 +75,7 @@ class Frame:
     ring: np.ndarray
     material: np.ndarray
     stats: dict = field(default_factory=dict)
-    truth_source: '_FrameShots | None' = field(default=None, repr=False)
+    truth_source: '_FrameShots | _FrameHits | None' = field(default=None, repr=False)
     face: np.ndarray | None = field(default=None, repr=False)
     true_range_m: np.ndarray | None = field(default=None, repr=False)
     return_number: np.ndarray | None = field(default=None, repr=False)
@@ -135,11 +138,60 @@ class _FrameShots:
         return _fired(self.hit, self.cast_position)
 
 
+class _FrameHits:
+    """``_FrameShots`` of a frame simulated on its hits' rows alone (a plain frame): the
+    same arrays, every shot's row spread from the hits' on first use (most frames never
+    publish their truth): range NaN, intensity 0, material and face -1 and measured range
+    NaN on a miss."""
+
+    def __init__(self, n: int, hits: HitRows, intensity: np.ndarray, measured_range_m: np.ndarray,
+                 cast_position: np.ndarray, directions: np.ndarray, t_s: np.ndarray,
+                 ring: np.ndarray):
+        self._n, self._hits = n, hits
+        self._intensity, self._measured = intensity, measured_range_m
+        self.cast_position, self.directions, self.t_s, self.ring = (cast_position, directions,
+                                                                    t_s, ring)
+
+    def _spread(self, values: np.ndarray, miss) -> np.ndarray:
+        out = np.full(self._n, miss, dtype=values.dtype)
+        out[self._hits.rows] = values
+        return out
+
+    @cached_property
+    def hit(self) -> np.ndarray:
+        return self._spread(np.ones(len(self._hits), bool), False)
+
+    @cached_property
+    def range_m(self) -> np.ndarray:
+        return self._spread(self._hits.range_m, np.nan)
+
+    @cached_property
+    def intensity(self) -> np.ndarray:
+        return self._spread(self._intensity, 0.0)
+
+    @cached_property
+    def material(self) -> np.ndarray:
+        return self._spread(self._hits.material, -1)
+
+    @cached_property
+    def face(self) -> np.ndarray:
+        return self._spread(self._hits.face, -1)
+
+    @cached_property
+    def measured_range_m(self) -> np.ndarray:
+        return self._spread(self._measured, np.nan)
+
+    @cached_property
+    def hit_index(self) -> np.ndarray:
+        """The hits, in firing order."""
+        return self._hits.rows.take(picked_rows_in_order(self._hits.rows, self._n,
+                                                          self.cast_position))
+
+
 def _along(directions: np.ndarray, index: np.ndarray, range_m: np.ndarray) -> np.ndarray:
     """Points (N, 3) (m) at range_m along the unit directions picked by index."""
-    xyz = directions.take(index, axis=0)
-    xyz *= range_m[:, None]
-    return xyz
+    return points_along(np.ascontiguousarray(directions, dtype=float), np.asarray(index, np.int64),
+                        np.asarray(range_m, float))
 
 
 def _material_ids(material: np.ndarray) -> np.ndarray:
@@ -178,6 +230,7 @@ class Simulator:
         self._last_plan: tuple[int, _CastPlan] = (0, self._plan)
         self._kd, self._ks, self._n = (materials.column(k) for k in ('kd', 'ks', 'n'))
         self._bias, self._sigma = materials.column('bias_m'), materials.column('sigma_m')
+        self._variance = self._sigma ** 2
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, effects: list[Effect] | None = None,
@@ -220,12 +273,17 @@ class Simulator:
     def predict(self, t_abs_s: np.ndarray, directions: np.ndarray, pose_source: PoseSource,
                 t_frame_s: np.ndarray | None = None, az_rad=None, el_rad=None,
                 laser: np.ndarray | None = None, cast_order: np.ndarray | None = None,
-                pixel_sr: np.ndarray | None = None) -> Prediction:
+                pixel_sr: np.ndarray | None = None,
+                each_part: Callable[[slice | np.ndarray, np.ndarray], None] | None = None
+                ) -> Prediction:
         """Raycast + reflection + error model for rays at absolute times (no random draws).
 
         ``cast_order``: optional coherent ray order for Embree (results keep input order).
         ``pixel_sr``: a flash array's pixel field of view per ray (sr, ``scan_flash.
         pixel_view_sr``) when the caller has it (a frame's plan keeps it); else computed.
+        ``each_part(rows, hit_rows)``: called on the thread of each part of the raycast once
+        its rows (a slice, or indices with ``cast_order``) are reflected, with the rows of
+        its hits (indices, increasing within a slice).
         """
         t_abs_s = np.asarray(t_abs_s, dtype=float)
         directions = np.asarray(directions, dtype=float)
@@ -243,12 +301,14 @@ class Simulator:
         # Reflection and the error model, into these (0, NaN, 0, 0 on a miss): on each part
         # of the raycast's own thread, or after an effect's cast.
         power, rng_m, bias, var = reflected = np.zeros(n), np.full(n, np.nan), np.zeros(n), np.zeros(n)
+        def then(part_hits: Hits, rows: slice | np.ndarray) -> None:
+            hit_rows = self._reflect(part_hits, rows, directions, pixel_sr, reflected)
+            if each_part is not None:
+                each_part(rows, hit_rows)
         if hits is None:
-            hits = cast_at_poses(self.target, directions, poses, order=cast_order,
-                                 then=lambda part_hits, rows: self._reflect(
-                                     part_hits, rows, directions, pixel_sr, reflected))
+            hits = cast_at_poses(self.target, directions, poses, order=cast_order, then=then)
         else:
-            self._reflect(hits, slice(0, n), directions, pixel_sr, reflected)
+            then(hits, slice(0, n))
             if hits.power_fraction is not None:
                 power *= hits.power_fraction
         if az_rad is None or el_rad is None:
@@ -272,10 +332,10 @@ class Simulator:
         return Prediction(ctx, hits, directions, bias, np.sqrt(var))
 
     def _reflect(self, hits: Hits, rows: slice | np.ndarray, directions: np.ndarray,
-                 pixel_sr: np.ndarray | None, out: tuple[np.ndarray, ...]) -> None:
+                 pixel_sr: np.ndarray | None, out: tuple[np.ndarray, ...]) -> np.ndarray:
         """Reflection and the error model of the shots ``rows`` (a slice or indices) that
         hit, gathered once by index, written into ``out``: received power (W), range (m),
-        range bias (m) and variance (m^2) of the material hit."""
+        range bias (m) and variance (m^2) of the material hit. Returns those shots' rows."""
         power, rng_m, bias, var = out
         optics = self.sensor.optics
         on = np.flatnonzero(hits.hit[rows])
@@ -289,11 +349,13 @@ class Simulator:
         sr = None
         if optics.flood is not None:
             sr = pixel_view_sr(self.sensor, directions[on]) if pixel_sr is None else pixel_sr.take(on)
-        power[on] = reflection.return_power_w(range_on, hits.incidence_rad.take(on), self._kd.take(mat),
+        incidence_on = hits.incidence_rad.take(on) if cos_on is None else None
+        power[on] = reflection.return_power_w(range_on, incidence_on, self._kd.take(mat),
                                               self._ks.take(mat), self._n.take(mat), optics, cos_on, sr)
         rng_m[on] = range_on
         bias[on] = self._bias.take(mat)
-        var[on] = self._sigma.take(mat) ** 2
+        var[on] = self._variance.take(mat)
+        return on
 
     def shots_of_frame(self, frame_index: int) -> Shots:
         """Frame ``frame_index``'s shots in firing order (``self.shots`` for every frame of a
@@ -318,38 +380,48 @@ class Simulator:
             frame_index = int(round(frame_start_s / self.frame_period_s))
         plan = self._frame_plan(frame_index)
         shots = plan.cast_shots
-        # The frame's generator and its first draw, the range noise of every shot: on a pool
-        # thread beside the raycast (numpy releases the GIL while it draws; the raycast's
-        # parts go to whichever thread is free), the same numbers whatever the thread.
-        drawn = Beside(self.target.threads, lambda: _first_draw(self.frame_rng(frame_index), len(shots)))
-        drawn.start()
+        # The frame's generator; its first draw is the range noise, drawn as the raycast's
+        # parts end (``_NoiseInOrder``).
+        rng = self.frame_rng(frame_index)
+        noise = _NoiseInOrder(rng, len(shots))
+        if not self.effects and self.sensor.detection.returns.single:
+            return self._plain_frame(frame_start_s, frame_index, pose_source, plan, noise)
         pred = self.predict(frame_start_s + shots.t_s, plan.directions, pose_source, shots.t_s,
-                            shots.az_rad, shots.el_rad, shots.laser, pixel_sr=plan.pixel_sr)
+                            shots.az_rad, shots.el_rad, shots.laser, pixel_sr=plan.pixel_sr,
+                            each_part=noise.part_done)
         ctx, hit = pred.ctx, pred.ctx.hit
         det = self.sensor.detection
-        # Misses carry NaN range and zero power: never detected, NaN measured range.
-        detected = hit & detection.detected_mask(ctx.power_w, ctx.range_m, det)
-        rng, noise = drawn.result()
-        measured = detection.measured_range_m(ctx.range_m, pred.bias_m, pred.sigma_m, noise)
+        # Misses carry NaN range and zero power: never detected, NaN measured range. The
+        # detector and the measurement on the hits' rows alone (a flash frame's 19,000 of
+        # 65,536 shots), then spread over the frame's shots.
+        on, draws = noise.drawn()
+        detected_on = detection.detected_mask(ctx.power_w.take(on), ctx.range_m.take(on), det)
+        measured_on = detection.measured_range_m(ctx.range_m.take(on), pred.bias_m.take(on),
+                                                 pred.sigma_m.take(on), draws)
+        detected, measured = np.zeros(len(hit), bool), np.full(len(hit), np.nan)
+        detected[on], measured[on] = detected_on, measured_on
         # Extra returns lie behind their echo: a first-return receiver can report them only
         # where the echo went undetected (no ray needs following elsewhere).
-        open_shots = np.flatnonzero(hit & ~detected) if det.returns.single else None
+        open_shots = (np.flatnonzero(hit & ~detected) if det.returns.single and self.effects
+                      else None)
         extras = [x for x in (eff.extra_returns(ctx, open_shots) for eff in self.effects)
                   if x is not None and len(x)]
         if extras or not det.returns.single:
             return self._multi_return_frame(frame_start_s, frame_index, pred, detected, measured,
                                             extras, rng, plan)
         material, intensity = ctx.material, ctx.intensity
+        # The range gate on the measured ranges (NaN off the hits: never in it), the hits' here
+        # and each false return's as it replaces its shot's.
+        detected[on] &= detection.in_range_gate(measured_on, det)
         for rows, false_m in _false_returns(self.effects, ctx, rng):
             # A few shots each: written by index (measured and detected are this frame's own
             # arrays; material and intensity are the context's, copied before the first write).
             measured[rows] = false_m
-            detected[rows] = True
+            detected[rows] = detection.in_range_gate(false_m, det)
             if material is ctx.material:
                 material, intensity = material.copy(), intensity.copy()
             material[rows] = -1
             intensity[rows] = det.threshold_power_w / det.saturation_power_w
-        detected &= detection.in_range_gate(measured, det)
         # Index lists once (take() is ~5x cheaper than repeated boolean masks), in firing order.
         out = _fired(detected, plan.position)
         range_out = measured.take(out)
@@ -361,6 +433,57 @@ class Simulator:
             material=_material_ids(material.take(out)), stats=self._frame_stats(pred, len(out)),
             truth_source=self._truth(pred, measured, plan), face=pred.hits.face.take(out),
             true_range_m=ctx.range_m.take(out), return_number=np.ones(len(out), np.uint8))
+
+    def _plain_frame(self, frame_start_s: float, frame_index: int, pose_source: PoseSource,
+                     plan: '_CastPlan', noise: '_NoiseInOrder') -> Frame:
+        """A frame with no effect and the paper's single-return receiver, on the hits' rows
+        alone (``cast_hits_at_poses``: a flash frame's ~19,000 of 65,536 shots): reflection
+        and the material's range error on each part's thread, then the detector, the
+        measurement and the range gate. The same frame ``simulate_frame`` makes of every
+        shot's row (``predict``), number for number."""
+        shots, det, optics = plan.cast_shots, self.sensor.detection, self.sensor.optics
+        n = len(shots)
+        poses = plan.poses(frame_start_s, pose_source)
+        kd, ks, n_phong, bias_m, var_m2 = self._kd, self._ks, self._n, self._bias, self._variance
+        pixel_sr = plan.pixel_sr if optics.flood is not None else None
+
+        def then(part: slice, hits: HitRows) -> tuple:
+            mat = hits.material
+            sr = None if pixel_sr is None else pixel_sr.take(hits.rows)
+            power = reflection.return_power_w(hits.range_m, None, kd.take(mat), ks.take(mat),
+                                              n_phong.take(mat), optics, hits.cos_incidence, sr)
+            noise.part_done(part, hits.rows)
+            return (hits, power, bias_m.take(mat), np.sqrt(var_m2.take(mat)),
+                    detection.detected_mask(power, hits.range_m, det))
+        parts = cast_hits_at_poses(self.target, plan.directions, poses, then)
+        if len(parts) == 1:
+            hits, power, bias, sigma, detected = parts[0]
+        else:
+            hits = HitRows(*(np.concatenate(a) for a in zip(*(
+                (p[0].rows, p[0].range_m, p[0].cos_incidence, p[0].material, p[0].face)
+                for p in parts))))
+            power, bias, sigma, detected = (np.concatenate([p[k] for p in parts])
+                                            for k in (1, 2, 3, 4))
+        rows, draws = noise.drawn()
+        measured = detection.measured_range_m(hits.range_m, bias, sigma, draws)
+        detected &= detection.in_range_gate(measured, det)
+        # The detected hits, in firing order.
+        on = np.flatnonzero(detected)
+        out = on.take(picked_rows_in_order(rows.take(on), n, plan.position))
+        cast_rows, range_out = rows.take(out), measured.take(out)
+        intensity = detection.intensity_from_power(power, det)
+        return Frame(
+            stamp_s=float(frame_start_s), index=int(frame_index),
+            xyz_m=_along(plan.directions, cast_rows, range_out), range_m=range_out,
+            intensity=intensity.take(out), t_s=shots.t_s.take(cast_rows),
+            ring=shots.laser.take(cast_rows), material=_material_ids(hits.material.take(out)),
+            stats={'shots': n, 'hits': len(rows), 'detected': len(out),
+                   'below_threshold': int(np.count_nonzero(power < det.threshold_power_w)),
+                   'saturated': int(np.count_nonzero(power >= det.saturation_power_w))},
+            truth_source=_FrameHits(n, hits, intensity, measured, plan.position,
+                                    plan.directions, shots.t_s, shots.laser),
+            face=hits.face.take(out), true_range_m=hits.range_m.take(out),
+            return_number=np.ones(len(out), np.uint8))
 
     def _frame_stats(self, pred: Prediction, detected: int) -> dict:
         ctx, hit, det = pred.ctx, pred.ctx.hit, self.sensor.detection
@@ -482,6 +605,7 @@ class _CastPlan:
     directions: np.ndarray
     position: np.ndarray
     pixel_sr: np.ndarray | None
+    one_time: bool = False
 
     @classmethod
     def of(cls, shots: Shots, directions: np.ndarray, sensor: SensorConfig) -> '_CastPlan':
@@ -489,13 +613,56 @@ class _CastPlan:
         position = np.empty_like(order)
         position[order] = np.arange(len(order))
         cast_directions = np.ascontiguousarray(directions[order])
+        t_s = shots.t_s
         return cls(shots, order, shots.subset(order), cast_directions, position,
-                   pixel_view_sr(sensor, cast_directions))
+                   pixel_view_sr(sensor, cast_directions),
+                   bool(len(t_s) > 1 and np.all(t_s == t_s[0])))
+
+    def poses(self, frame_start_s: float, pose_source: PoseSource) -> Poses:
+        """The shots' poses (``_poses_at``): one row for a global exposure, found once
+        with the plan (every shot at one time)."""
+        if self.one_time:
+            return _poses_at(pose_source, frame_start_s + self.cast_shots.t_s[:1])
+        return _poses_at(pose_source, frame_start_s + self.cast_shots.t_s)
 
 
-def _first_draw(rng: np.random.Generator, n: int) -> tuple[np.random.Generator, np.ndarray]:
-    """A frame's generator and its first draw: n standard normal numbers (the range noise)."""
-    return rng, rng.standard_normal(n)
+class _NoiseInOrder:
+    """A frame's first draw from its generator: one standard normal per hit (a shot with a
+    range) in cast order, the range noise (a flash frame's ~19,000 returns, not its 65,536
+    pixels). Drawn while the raycast runs: whichever thread ends the next part in cast
+    order draws for it and for the ended parts behind it (numpy releases the GIL while it
+    draws), so only the last part's draw waits for the cast, and the numbers are those of
+    one draw after the cast, for any split (a draw of a then b numbers is the draw of a + b)."""
+
+    def __init__(self, rng: np.random.Generator, n: int):
+        self._rng, self._n = rng, n
+        self._ended: dict[int, tuple[int, np.ndarray]] = {}    # part start -> (stop, hit rows)
+        self._next = 0                                          # rows before it are drawn
+        self._rows: list[np.ndarray] = []                       # the parts' hit rows, in order
+        self._draws: list[np.ndarray] = []                      # and their draws
+        self._lock = threading.Lock()
+
+    def part_done(self, rows: slice | np.ndarray, hit_rows: np.ndarray) -> None:
+        """``Simulator.predict``'s ``each_part``: a part (a slice of cast order) has its hits."""
+        if not isinstance(rows, slice):
+            raise ValueError('the range noise is drawn part by part over slices of cast order')
+        with self._lock:
+            self._ended[rows.start or 0] = (self._n if rows.stop is None else rows.stop, hit_rows)
+            while self._next in self._ended:
+                stop, hits = self._ended.pop(self._next)
+                self._rows.append(hits)
+                self._draws.append(self._rng.standard_normal(len(hits)))
+                self._next = stop
+
+    def drawn(self) -> tuple[np.ndarray, np.ndarray]:
+        """The hits' rows (increasing) and their standard normal draws, once every part has
+        ended."""
+        if self._next != self._n:
+            raise RuntimeError(f'range noise drawn for {self._next} of {self._n} shots')
+        if len(self._rows) == 1:
+            return self._rows[0], self._draws[0]
+        return (np.concatenate(self._rows) if self._rows else np.zeros(0, np.int64),
+                np.concatenate(self._draws) if self._draws else np.zeros(0))
 
 
 def _false_returns(effects, ctx, rng: np.random.Generator):
@@ -511,4 +678,4 @@ def _false_returns(effects, ctx, rng: np.random.Generator):
 
 def _fired(mask: np.ndarray, cast_position: np.ndarray) -> np.ndarray:
     """Indices (into cast-ordered arrays) of the shots in ``mask``, in firing order."""
-    return cast_position.take(np.flatnonzero(mask.take(cast_position)))
+    return picked_in_order(np.asarray(mask, bool), np.asarray(cast_position, np.int64))

@@ -10,6 +10,8 @@ Symbols and units (paper notation in brackets):
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from lidar_sim_ros.core.config import OpticsConfig
@@ -61,6 +63,7 @@ def laser_irradiance_w_m2(range_m, peak_power_w, tau_t, divergence_rad):
     return peak_power_w * tau_t / (np.pi * (np.asarray(range_m) * divergence_rad / 2.0) ** 2)
 
 
+@functools.lru_cache(maxsize=64)
 def flood_solid_angle_sr(field_az_rad: float, field_el_rad: float) -> float:
     """Omega_illum (sr) of a flood lighting a rectangular field of full angles a x b:
     4 asin(sin(a/2) sin(b/2))."""
