@@ -350,12 +350,21 @@ class Simulator:
         if optics.flood is not None:
             sr = pixel_view_sr(self.sensor, directions[on]) if pixel_sr is None else pixel_sr.take(on)
         incidence_on = hits.incidence_rad.take(on) if cos_on is None else None
-        power[on] = reflection.return_power_w(range_on, incidence_on, self._kd.take(mat),
-                                              self._ks.take(mat), self._n.take(mat), optics, cos_on, sr)
+        power[on], bias[on], var[on] = self._material_return(range_on, incidence_on, cos_on, mat,
+                                                             sr)
         rng_m[on] = range_on
-        bias[on] = self._bias.take(mat)
-        var[on] = self._variance.take(mat)
         return on
+
+    def _material_return(self, range_m: np.ndarray, incidence_rad: np.ndarray | None,
+                         cos_incidence: np.ndarray | None, material: np.ndarray,
+                         pixel_sr: np.ndarray | None) -> tuple[np.ndarray, ...]:
+        """Of hits at ``range_m`` on ``material`` (ids): received power (W, the
+        reflection model with the material's Phong parameters; the incidence as an angle
+        or its cosine), and the material's range bias (m) and variance (m^2)."""
+        power = reflection.return_power_w(range_m, incidence_rad, self._kd.take(material),
+                                          self._ks.take(material), self._n.take(material),
+                                          self.sensor.optics, cos_incidence, pixel_sr)
+        return power, self._bias.take(material), self._variance.take(material)
 
     def shots_of_frame(self, frame_index: int) -> Shots:
         """Frame ``frame_index``'s shots in firing order (``self.shots`` for every frame of a
@@ -444,16 +453,14 @@ class Simulator:
         shots, det, optics = plan.cast_shots, self.sensor.detection, self.sensor.optics
         n = len(shots)
         poses = plan.poses(frame_start_s, pose_source)
-        kd, ks, n_phong, bias_m, var_m2 = self._kd, self._ks, self._n, self._bias, self._variance
         pixel_sr = plan.pixel_sr if optics.flood is not None else None
 
         def then(part: slice, hits: HitRows) -> tuple:
-            mat = hits.material
             sr = None if pixel_sr is None else pixel_sr.take(hits.rows)
-            power = reflection.return_power_w(hits.range_m, None, kd.take(mat), ks.take(mat),
-                                              n_phong.take(mat), optics, hits.cos_incidence, sr)
+            power, bias, var = self._material_return(hits.range_m, None, hits.cos_incidence,
+                                                     hits.material, sr)
             noise.part_done(part, hits.rows)
-            return (hits, power, bias_m.take(mat), np.sqrt(var_m2.take(mat)),
+            return (hits, power, bias, np.sqrt(var),
                     detection.detected_mask(power, hits.range_m, det))
         parts = cast_hits_at_poses(self.target, plan.directions, poses, then)
         if len(parts) == 1:
@@ -477,19 +484,23 @@ class Simulator:
             xyz_m=_along(plan.directions, cast_rows, range_out), range_m=range_out,
             intensity=intensity.take(out), t_s=shots.t_s.take(cast_rows),
             ring=shots.laser.take(cast_rows), material=_material_ids(hits.material.take(out)),
-            stats={'shots': n, 'hits': len(rows), 'detected': len(out),
-                   'below_threshold': int(np.count_nonzero(power < det.threshold_power_w)),
-                   'saturated': int(np.count_nonzero(power >= det.saturation_power_w))},
+            stats=self._stats(n, power, len(out)),
             truth_source=_FrameHits(n, hits, intensity, measured, plan.position,
                                     plan.directions, shots.t_s, shots.laser),
             face=hits.face.take(out), true_range_m=hits.range_m.take(out),
             return_number=np.ones(len(out), np.uint8))
 
     def _frame_stats(self, pred: Prediction, detected: int) -> dict:
-        ctx, hit, det = pred.ctx, pred.ctx.hit, self.sensor.detection
-        return {'shots': len(hit), 'hits': int(np.count_nonzero(hit)), 'detected': detected,
-                'below_threshold': int(np.count_nonzero(hit & (ctx.power_w < det.threshold_power_w))),
-                'saturated': int(np.count_nonzero(hit & (ctx.power_w >= det.saturation_power_w)))}
+        ctx = pred.ctx
+        return self._stats(len(ctx.hit), ctx.power_w[ctx.hit], detected)
+
+    def _stats(self, shots: int, hit_power_w: np.ndarray, detected: int) -> dict:
+        """A frame's counts: shots, hits (``hit_power_w``: their received power, W),
+        detected returns, hits below the threshold and saturated."""
+        det = self.sensor.detection
+        return {'shots': shots, 'hits': len(hit_power_w), 'detected': detected,
+                'below_threshold': int(np.count_nonzero(hit_power_w < det.threshold_power_w)),
+                'saturated': int(np.count_nonzero(hit_power_w >= det.saturation_power_w))}
 
     def _truth(self, pred: Prediction, measured: np.ndarray, plan: '_CastPlan') -> '_FrameShots':
         ctx, shots = pred.ctx, plan.cast_shots
