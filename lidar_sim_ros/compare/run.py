@@ -714,7 +714,7 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
         labels['intensity'] = features.POWER_LABEL
     near = ~beyond_the_target(np.asarray(sub.range_m, float)[lsel], res,
                               cal.residual_m[picked][lsel],
-                              np.maximum(diagnosis.FAR_MIN_M, diagnosis.FAR_SIGMAS * sig * scale),
+                              diagnosis.far_threshold_m(sig, scale),
                               np.asarray(sub.cloud)[lsel])
     attribution = features.attribute({k: v[near] for k, v in values.items()}, res[near],
                                      (res / (sig * scale))[near], seed,

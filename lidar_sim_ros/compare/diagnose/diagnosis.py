@@ -255,8 +255,9 @@ def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet,
     return lk.FitData(
         measured_range_m=m_sub.range_m, baseline=baseline, cast=cast,
         unmatched_range_m=u_sub.range_m, cast_unmatched=cast_un,
-        range_window_m=range_window_m(meas), base_effects=tuple(base_effects),
-        miss_window_m=miss_window_m(meas, model), measured_power_w=power, extra_var_m2=extra, unmatched_isolated=isolated,
+        range_window_m=range_window_m(meas), miss_window_m=miss_window_m(meas, model),
+        base_effects=tuple(base_effects), measured_power_w=power, extra_var_m2=extra,
+        unmatched_isolated=isolated,
         placement_uncertain=rays.extra_var_m2 is not None,
         missed_per_unmatched=rays.missed_per_unmatched, unmatched_power_w=power_u)
 
@@ -601,15 +602,13 @@ class Diagnosis:
         if type(eff).outlier_fraction is not Effect.outlier_fraction:   # adds false returns
             w = float(np.mean(lk.model_on_rays(self.full, [eff]).outlier_w))
             spurious = max(w - self._base_outlier_w, 0.0) * len(self.rays.matched)
-        if spurious < 1.0 and is_outlier_effect(type(eff)):
-            # Fewer than one false return claimed on the target: its gain must then rest
-            # on false returns somewhere (far points or off-target points credited to it).
+        if is_outlier_effect(type(eff)):
             cand.far_points = float(self.n_far + unmatched_explained)
-            why = no_false_returns(self.n_far, unmatched_explained)
-            if why:
-                return why
+            if spurious < 1.0:
+                # Fewer than one false return claimed on the target: its gain must then
+                # rest on false returns somewhere (far points or credited off-target ones).
+                return no_false_returns(self.n_far, unmatched_explained)
         if spurious >= 1.0:
-            cand.far_points = float(self.n_far + unmatched_explained)
             need = max(MIN_FAR_POINTS, MIN_FAR_SHARE * spurious)
             if cand.far_points < need:
                 return (f'it claims {spurious:.0f} spurious returns among the matched points but only '
@@ -1005,6 +1004,13 @@ class Diagnosis:
         return bool(np.isfinite(after) and after < best.nll_after)
 
 
+def far_threshold_m(sigma_m: np.ndarray, scale: np.ndarray | float = 1.0) -> np.ndarray:
+    """|residual| (m) beyond which a matched point is far beyond the noise:
+    max(FAR_MIN_M, FAR_SIGMAS sigma), sigma the point's predicted sigma (m) times its
+    material's sigma scale."""
+    return np.maximum(FAR_MIN_M, FAR_SIGMAS * sigma_m * scale)
+
+
 def far_from_surface(data, details: bool = False):
     """Matched points far beyond the noise: |residual| > max(FAR_MIN_M, FAR_SIGMAS sigma),
     residual and sigma after the per-material nuisance (offset, sigma scale). With
@@ -1015,7 +1021,7 @@ def far_from_surface(data, details: bool = False):
     use = model.placed & np.isfinite(r)
     offset, scale = lk.material_nuisance(
         r, sigma, np.asarray(data.baseline.ctx.material, int), use)
-    threshold = np.maximum(FAR_MIN_M, FAR_SIGMAS * sigma * scale)
+    threshold = far_threshold_m(sigma, scale)
     with np.errstate(invalid='ignore'):
         far = use & (np.abs(r - offset) > threshold)
     if not details:
