@@ -524,6 +524,52 @@ def test_held_out_and_fitted_footings_disagreeing_is_a_tie(pose_nll, tie):
     assert clock.against_pose['fitted_margin'] == 0.0
 
 
+def test_a_constant_pose_is_weighed_on_its_raycast_footing():
+    """judge_pose(): a constant pose (six parameters for the recording) whose linear
+    held-out gain trails a candidate's by 0.03 nats/point, but which, raycast again,
+    fits 0.03 better than the candidate: the pose stands and nothing is named (a
+    constant error along the line of sight was a tie [pose_error, incidence_angle]:
+    the held-out test cannot see the rays the moved target puts across its silhouette,
+    where incidence's wider sigma gains). A per-cloud pose on the same figures stays a
+    tie (``test_held_out_and_fitted_footings_disagreeing_is_a_tie``)."""
+    inc = cand('incidence_angle', 0.04, -2.05, seed=16)
+    nothing = cand('incidence_angle', 0.0, -2.08, seed=16, significant=False)
+    on_pose = Hand(again={'incidence_angle': nothing})
+    on_pose._before_nll = -2.08
+    for constant, tie in ((True, False), (False, True)):
+        pose = SimpleNamespace(significant=True, constant=constant, gain=0.01, z=8.0,
+                               n_params=6 if constant else 30)
+
+        def pose_test(on_top, pose=pose):
+            return SimpleNamespace(significant=False) if on_top else pose
+
+        d = Hand().judge_pose(pose_test, [inc], dg.Decision('incidence_angle', []),
+                              recast=lambda p: (on_pose, p))
+        assert d.missing is None and d.pose is pose
+        assert d.confounded_with == ([dg.POSE_ERROR, 'incidence_angle'] if tie else [])
+
+
+def test_the_pose_test_with_the_larger_held_out_gain_is_the_one_weighed():
+    """judge_pose(): both the per-cloud and the constant corrections pass; the one with
+    the larger held-out gain is reported (a constant error on 8 clouds: the constant one;
+    a pose changing from cloud to cloud: the per-cloud one)."""
+    named = cand('laser_bias', 0.03, -2.05, seed=12)
+    nothing = cand('laser_bias', 0.0, -2.022, seed=12, significant=False)
+    for g_cloud, g_const, want in ((0.02, 0.03, True), (0.04, 0.03, False)):
+        on_pose = Hand(again={'laser_bias': nothing})
+        on_pose._before_nll = -2.06
+        per_cloud = SimpleNamespace(significant=True, constant=False, gain=g_cloud, z=9.0,
+                                    n_params=48)
+        const = SimpleNamespace(significant=True, constant=True, gain=g_const, z=9.0,
+                                n_params=6)
+        d = Hand().judge_pose(
+            lambda on_top: SimpleNamespace(significant=False) if on_top else per_cloud,
+            [named], dg.Decision('laser_bias', []), recast=lambda p: (on_pose, p),
+            constant_test=lambda on_top: (SimpleNamespace(significant=False) if on_top
+                                          else const))
+        assert d.pose is (const if want else per_cloud) and d.missing is None
+
+
 def test_better_of_closed_form():
     """The three footings of a candidate against the pose (``_better_of``)."""
     m = dg.MIN_PRACTICAL_GAIN
@@ -642,6 +688,17 @@ def test_pose_correction_along_the_line_of_sight_is_said_as_pose_or_sensor_range
     text = vd.pose_words(along, [])
     assert 'not a sensor effect' not in text and '100 % of the correction' in text
     assert 'not a sensor effect' in vd.pose_words(across, [])
+    # One correction for the recording along the line of sight: fitted on top of the
+    # per-material offsets, its pattern across the target is what a range offset of the
+    # sensor lacks: the pose, said with why every material reads short.
+    const = replace(along, constant=True, clouds=np.arange(1), t_s=np.zeros(1),
+                    translation_m=np.array([[-0.05, 0.0, 0.0]]),
+                    rotation_deg=np.zeros((1, 3)), centroid_m=centres[:1])
+    text = vd.pose_words(const, [])
+    assert 'not a sensor effect' in text and '100 % of it is along the line of sight' in text
+    assert 'every material' in text
+    assert 'along the line of sight' not in vd.pose_words(replace(
+        const, translation_m=np.array([[0.0, 0.05, 0.0]])), [])
 
 
 def test_an_outlier_effect_without_false_returns_is_set_aside():
@@ -654,3 +711,20 @@ def test_an_outlier_effect_without_false_returns_is_set_aside():
     assert dg.no_false_returns(5, dg.MIN_FAR_POINTS - 6.0) is not None
     assert dg.no_false_returns(5, dg.MIN_FAR_POINTS - 5.0) is None
     assert dg.no_false_returns(dg.MIN_FAR_POINTS, 0.0) is None
+
+
+def test_material_offsets_beside_a_reported_pose_are_said_as_measured_on_it():
+    """The verdict's materials sentence: beside a reported pose error the per-material
+    offsets were measured on the recorded pose, which moves them (a constant 5 cm along
+    the line of sight reads as every material 5-7 cm short): correct the pose first.
+    Without a pose the sentence is as before."""
+    mats = {'PIF': {'bias_mismatch': True, 'sigma_mismatch': False, 'measured_bias_m': -0.05,
+                    'model_bias_m': 0.0, 'measured_sigma_m': 0.01, 'model_sigma_m': 0.01}}
+    s = {**_summary(), 'materials': mats}
+    pose = SimpleNamespace(constant=True, gain=0.03, z=9.0, line_of_sight_share=1.0,
+                           words=lambda: 'the reference pose is off by about 5.0 cm')
+    text = vd.verdict(s, None, [], dg.Decision(None, [], pose=pose))
+    assert 'PIF (bias -5.0 cm' in text and 'measured on the recorded pose' in text
+    assert '--effect pose_error --fit' in text
+    text = vd.verdict(s, None, [], dg.Decision(None, []))
+    assert 'PIF (bias -5.0 cm' in text and 'recorded pose' not in text

@@ -748,12 +748,12 @@ class Diagnosis:
           footing comes first: in-sample, six parameters per cloud always fit better
           than one of a clock offset."""
         tests = [pose_test] + ([constant_test] if constant_test is not None else [])
-        for test in tests:
-            pose = test([])
-            if pose.significant:
-                break
-        else:
+        passed = [(t, p) for t, p in ((t, t([])) for t in tests) if p.significant]
+        if not passed:
             return decision
+        # Per cloud or one for the whole recording: the larger held-out gain (the
+        # per-cloud correction's extra parameters are paid for on the held-out half).
+        test, pose = max(passed, key=lambda tp: getattr(tp[1], 'gain', 0.0))
         by_name = {c.name: c for c in cands}
         named = [by_name[n] for n in [decision.missing, *decision.confounded_with]
                  if n in by_name and by_name[n].effect is not None]
@@ -797,7 +797,15 @@ class Diagnosis:
                                     / max(len(on_pose.rays.matched), 1))
                 c.against_pose.update(heldout_margin=_num(held), fitted_margin=_num(fitted),
                                       fitted_margin_charged=_num(charged))
-                better[c.name] = _better_of(held, fitted, charged)
+                if getattr(pose, 'constant', False):
+                    # One correction for the recording: six parameters on every point,
+                    # so its raycast footing, charged, is as good as held out, and the
+                    # held-out test is linear (it cannot see the rays a moved target
+                    # puts across a silhouette or a depth step, where a candidate's
+                    # wider sigma gains).
+                    better[c.name] = _better_of(charged, fitted, charged)
+                else:
+                    better[c.name] = _better_of(held, fitted, charged)
             if any(b > 0 for b in better.values()):
                 return decision            # the candidate explains more than the pose
             tied = [n for n, b in better.items() if b == 0]

@@ -51,7 +51,7 @@ from lidar_sim_ros.compare.diagnose.features import block_mean_se
 OUTLIER_SIGMAS = 5.0      # residuals beyond this many sigma are not fitted (edges, outliers)
 MIN_COS = 0.2             # |n.u| below this: grazing rays, range too sensitive to the pose
 MIN_CLOUD_POINTS = 60     # a cloud needs this many usable points for its six parameters
-RIDGE = 1e-2              # relative ridge of the correction applied: damps motions the data barely see (about a cylinder's long axis)
+RIDGE = 1e-4              # relative ridge of the correction applied: damps motions the data barely see (about a cylinder's long axis)
 TEST_RIDGE = 1e-6         # relative ridge of the held-out test (the rule's footing, as before the re-cast)
 
 
@@ -205,13 +205,23 @@ def design(direction: np.ndarray, normal: np.ndarray, expected_m: np.ndarray,
 
 def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
                cloud: np.ndarray, use: np.ndarray, clouds: np.ndarray,
-               prior: np.ndarray | None = None, ridge: float = RIDGE) -> np.ndarray:
+               prior: np.ndarray | None = None, ridge: float = RIDGE,
+               group: np.ndarray | None = None) -> np.ndarray:
     """(C, 6) weighted least-squares correction per cloud (zeros where too few points).
     The ridge pulls the total correction, ``prior`` (C, 6: already applied) plus the
-    step returned, toward zero: a Gauss-Newton pass damps the same motions as the first."""
+    step returned, toward zero: a Gauss-Newton pass damps the same motions as the first.
+
+    ``group`` (N,) ints, each point's material: the corrections are fitted jointly with
+    one range offset per material shared by all the clouds (the likelihood's nuisance,
+    ``likelihood.material_nuisance``), so a motion is fitted from what the offsets
+    cannot take. Subtracting each material's offset first and fitting the rest would
+    shrink every motion that moves a material's ranges by a common amount: a
+    translation along the line of sight (every material alike) or along a target's
+    axis seen on its end faces (one material each)."""
     n_par = a.shape[1]
     out = np.zeros((len(clouds), n_par))
     x0 = np.zeros((len(clouds), n_par)) if prior is None else np.asarray(prior, float)
+    systems = []
     for k, c in enumerate(clouds):
         sel = use & (cloud == c)
         if sel.sum() < MIN_CLOUD_POINTS * n_par // 6:
@@ -223,7 +233,39 @@ def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
         lam = np.concatenate([np.full(6, ridge * np.trace(ata[j:j + 6, j:j + 6]) / 6)
                               for j in range(0, n_par, 6)])
         ata += np.diag(lam)
-        out[k] = np.linalg.solve(ata, aw.T @ (residual_m[sel] * w) - lam * x0[k])
+        rhs = aw.T @ (residual_m[sel] * w) - lam * x0[k]
+        systems.append((k, sel, w, aw, ata, rhs))
+    if group is None or not systems:
+        for k, _, _, _, ata, rhs in systems:
+            out[k] = np.linalg.solve(ata, rhs)
+        return out
+    # Joint: eliminate each cloud's motion (Schur complement) and solve for the
+    # offsets of the materials with enough points; the others keep theirs.
+    g = np.asarray(group)
+    mats = [m for m in np.unique(g[use]) if np.sum(use & (g == m)) >= lk.MIN_MATERIAL_POINTS]
+    col = {m: j for j, m in enumerate(mats)}
+    n_m = len(mats)
+    lhs, rhs_m = np.zeros((n_m, n_m)), np.zeros(n_m)
+    coupling = []
+    for k, sel, w, aw, ata, rhs in systems:
+        gm = g[sel]
+        j = np.array([col.get(m, -1) for m in gm])
+        keep = j >= 0
+        b = np.zeros((n_par, n_m))
+        np.add.at(b.T, j[keep], aw[keep] * w[keep, None])
+        d = np.bincount(j[keep], weights=w[keep] ** 2, minlength=n_m)
+        e = np.bincount(j[keep], weights=residual_m[sel][keep] * w[keep] ** 2, minlength=n_m)
+        inv_b = np.linalg.solve(ata, b)
+        inv_r = np.linalg.solve(ata, rhs)
+        lhs += np.diag(d) - b.T @ inv_b
+        rhs_m += e - b.T @ inv_r
+        coupling.append((k, inv_b, inv_r))
+    try:
+        offset = np.linalg.solve(lhs + 1e-12 * np.trace(lhs) * np.eye(n_m), rhs_m)
+    except np.linalg.LinAlgError:
+        offset = np.zeros(n_m)
+    for k, inv_b, inv_r in coupling:
+        out[k] = inv_r - inv_b @ offset
     return out
 
 
@@ -465,8 +507,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     r = np.asarray(data.measured_range_m, float) - model.expected_range_m
     sigma = np.maximum(model.sigma_m, lk.MIN_SIGMA_M)
     ok = model.placed & np.isfinite(r) & np.isfinite(sigma)
-    offset, scale = lk.material_nuisance(r, sigma, np.asarray(data.baseline.ctx.material, int),
-                                         ok)
+    group = np.asarray(data.baseline.ctx.material, int)
+    offset, scale = lk.material_nuisance(r, sigma, group, ok)
     r = np.where(ok, r - offset, 0.0)
     s = np.where(ok, sigma * scale, 1.0)
     a, usable = design(ctx.direction, ctx.normal, np.where(ok, model.expected_range_m, 0.0),
@@ -484,13 +526,13 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     row = np.searchsorted(clouds, cloud)
     gain, gain12 = np.zeros(len(r)), np.zeros(len(r))
     for k in (0, 1):
-        test = use & (half != k)
-        x = fit_clouds(a, r, s, cloud, use & (half == k), clouds, prior, TEST_RIDGE)
-        corr = np.einsum('ij,ij->i', a, x[row])
+        test, train = use & (half != k), use & (half == k)
+        x = fit_clouds(a, r, s, cloud, train, clouds, prior, TEST_RIDGE, group)
+        corr = with_offsets(np.einsum('ij,ij->i', a, x[row]), r, group, train)
         gain[test] = heldout_gain(r[test], corr[test], s[test])
         if rate:
-            x12 = fit_clouds(a12, r, s, cloud, use & (half == k), clouds, prior12, TEST_RIDGE)
-            corr12 = np.einsum('ij,ij->i', a12, x12[row])
+            x12 = fit_clouds(a12, r, s, cloud, train, clouds, prior12, TEST_RIDGE, group)
+            corr12 = with_offsets(np.einsum('ij,ij->i', a12, x12[row]), r, group, train)
             gain12[test] = heldout_gain(r[test], corr12[test], s[test])
 
     def judged(g: np.ndarray) -> tuple[float, float]:
@@ -509,7 +551,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         # The drifting correction against none: the test of what is reported.
         per_point, z = judged(gain12)
     cols = a12 if supported else a
-    x = fit_clouds(cols, r, s, cloud, use, clouds, prior12 if supported else prior)
+    x = fit_clouds(cols, r, s, cloud, use, clouds, prior12 if supported else prior, RIDGE,
+                   group)
     correction = np.einsum('ij,ij->i', cols, x[row])
     t_mean = np.array([float(np.mean(t_s[cloud == c])) for c in clouds])
     p = ctx.direction * np.where(ok, model.expected_range_m, 0.0)[:, None]
@@ -524,6 +567,17 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      rate_translation_mps=x[:, 6:9] * per_s if supported else None,
                      rate_rotation_deg_s=np.degrees(x[:, 9:12]) * per_s if supported else None,
                      t_centre_s=t_c, half_span_s=h_c, constant=constant)
+
+
+def with_offsets(correction_m: np.ndarray, residual_m: np.ndarray, group: np.ndarray,
+                 train: np.ndarray) -> np.ndarray:
+    """A fitted range correction (m, per point) plus its materials' offsets: each
+    material's median of the corrected residual over the ``train`` points, as the
+    likelihood profiles it (``likelihood.material_nuisance``) on the residual left by
+    the correction (the motion fitted jointly with the offsets, ``fit_clouds``)."""
+    left = residual_m - correction_m
+    offset, _ = lk.material_nuisance(left, np.ones(len(left)), group, train)
+    return correction_m + offset
 
 
 def corrected(data: lk.FitData, correction_m: np.ndarray) -> lk.FitData:

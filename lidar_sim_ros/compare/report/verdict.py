@@ -153,8 +153,12 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             return (f'{n} (bias {100 * (m["measured_bias_m"] - m["model_bias_m"]):+.1f} cm, '
                     f'sigma x {m["measured_sigma_m"] / max(m["model_sigma_m"], 1e-9):.2f})')
         rows = ', '.join(row(n) for n in bad)
+        pose_note = ('' if decision.pose is None else
+                     ' They are measured on the recorded pose, which moves them with the '
+                     'pose error reported above: correct the pose first (--effect '
+                     'pose_error --fit measures them on the corrected pose).')
         parts.append(f'Per-material range bias/sigma differ from the configuration for {rows}: '
-                     'see materials.yaml (--fit refits them).')
+                     f'see materials.yaml (--fit refits them).{pose_note}')
     un = summary['unmatched']
     if un['points']:
         parts.append(f'{un["points"]} points ({100 * un["fraction"]:.2f} %) miss the target '
@@ -224,6 +228,12 @@ def pose_words(pose, cands: list = ()) -> str:
     else:
         what = (': not a sensor effect; check the tracking system or the extrinsic '
                 'calibration')
+        if share is not None and share >= LINE_OF_SIGHT_SHARE:
+            what += (f'. {100 * share:.0f} % of it is along the line of sight, so every '
+                     'material\'s range offset moves with it; a range offset of the sensor '
+                     'would move them alike, but not the ranges across the target as the '
+                     'moved pose does (n.d / n.u: the correction is fitted on top of the '
+                     'per-material offsets)')
     return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. {_correction(pose)} gains '
             f'{pose.gain:.4f} nats/point held out (z = {pose.z:.1f}), and {tail}')
 
