@@ -80,11 +80,43 @@ def test_a_translation_along_the_line_of_sight_is_fitted_jointly_with_the_materi
     joint = pose_error.fit_clouds(a, r, sigma, cloud, use, clouds, None,
                                   pose_error.TEST_RIDGE, group)
     np.testing.assert_allclose(joint[0, :3], truth[:3], atol=1e-3)
-    damped = pose_error.fit_clouds(a, r, sigma, cloud, use, clouds, group=group)
-    assert -0.06 < damped[0, 0] < -0.04               # the applied correction's ridge
+    damped = pose_error.fit_clouds(a, r, sigma, cloud, use, clouds, None,
+                                   pose_error.CONSTANT_RIDGE, group)
+    assert -0.06 < damped[0, 0] < -0.04               # the constant correction's ridge
     medians = np.array([np.median(r[group == g]) for g in range(3)])
     apart = pose_error.fit_clouds(a, r - medians[group], sigma, cloud, use, clouds)
     assert abs(apart[0, 0]) < 0.5 * abs(truth[0])
+
+
+def test_a_joint_fit_that_leaves_the_materials_a_common_offset_is_not_taken():
+    """explains_common_offset(): the joint fit may take the materials' common offset
+    into a translation along the line of sight, never leave them one they did not
+    show. A residual that is only a pattern at grazing rays (as a footprint's first
+    returns at the edges; no common offset): the joint fit's translation would leave
+    every material offset by it, so it is refused; a common offset of 5 cm that the
+    translation explains is kept."""
+    rng = np.random.default_rng(22)
+    n_pts = 3000
+    u = np.column_stack([np.ones(n_pts), rng.uniform(-0.2, 0.2, (n_pts, 2))])
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    facet = 3 * np.digitize(u[:, 1] / u[:, 0], [-0.07, 0.07]) + np.digitize(
+        u[:, 2] / u[:, 0], [-0.07, 0.07])
+    group = facet % 3
+    tilt = rng.normal(0, 0.5, (9, 3)) + [-1.0, 0.0, 0.0]
+    tilt /= np.linalg.norm(tilt, axis=1, keepdims=True)
+    at = np.column_stack([10 + rng.uniform(-0.5, 0.5, 9), np.zeros((9, 2))])
+    normal = tilt[facet]
+    e = np.einsum('ij,ij->i', at[facet], normal) / np.einsum('ij,ij->i', u, normal)
+    cloud, clouds = np.zeros(n_pts, int), np.array([0])
+    a, use = pose_error.design(u, normal, e, cloud)
+    sigma = np.full(n_pts, 1e-3)
+    los = a @ np.array([-0.05, 0, 0, 0, 0, 0])
+    for raw, kept in ((los - np.median(los), False), (los, True)):
+        # raw - its materials' medians, as fit_reference_pose hands it over
+        med = np.array([np.median(raw[group == g]) for g in range(3)])[group]
+        assert pose_error.explains_common_offset(
+            a, raw - med, sigma, cloud, use, clouds, None, group, med,
+            pose_error.CONSTANT_RIDGE) is kept
 
 
 def test_total_z_closed_form():

@@ -51,7 +51,8 @@ from lidar_sim_ros.compare.diagnose.features import block_mean_se
 OUTLIER_SIGMAS = 5.0      # residuals beyond this many sigma are not fitted (edges, outliers)
 MIN_COS = 0.2             # |n.u| below this: grazing rays, range too sensitive to the pose
 MIN_CLOUD_POINTS = 60     # a cloud needs this many usable points for its six parameters
-RIDGE = 1e-4              # relative ridge of the correction applied: damps motions the data barely see (about a cylinder's long axis)
+RIDGE = 1e-2              # relative ridge of the correction applied: damps motions the data barely see (about a cylinder's long axis)
+CONSTANT_RIDGE = 1e-4     # the same for one correction for all the clouds (fitted on every cloud's points)
 TEST_RIDGE = 1e-6         # relative ridge of the held-out test (the rule's footing, as before the re-cast)
 
 
@@ -519,6 +520,13 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     a12 = rate_columns(a, tau) if rate else None
     prior = None if applied is None else applied.params(clouds)
     prior12 = None if applied is None else applied.params(clouds, rate=True)
+    # Jointly with the material offsets for one correction for the recording only: a
+    # common offset of the materials is the same in every cloud, and per cloud the
+    # joint fit would move each cloud along the line of sight on the pattern alone.
+    ridge = CONSTANT_RIDGE if constant else RIDGE
+    if not constant or not explains_common_offset(a, r, s, cloud, use, clouds, prior, group,
+                                                  offset, ridge):
+        group = None
     # The test (held-out halves) keeps the light ridge it was validated with: a damped
     # fit generalises better, so the stronger ridge would make the test more eager,
     # e.g. on top of a fitted time offset; the correction applied is the damped one.
@@ -551,7 +559,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         # The drifting correction against none: the test of what is reported.
         per_point, z = judged(gain12)
     cols = a12 if supported else a
-    x = fit_clouds(cols, r, s, cloud, use, clouds, prior12 if supported else prior, RIDGE,
+    x = fit_clouds(cols, r, s, cloud, use, clouds, prior12 if supported else prior, ridge,
                    group)
     correction = np.einsum('ij,ij->i', cols, x[row])
     t_mean = np.array([float(np.mean(t_s[cloud == c])) for c in clouds])
@@ -569,12 +577,48 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      t_centre_s=t_c, half_span_s=h_c, constant=constant)
 
 
-def with_offsets(correction_m: np.ndarray, residual_m: np.ndarray, group: np.ndarray,
-                 train: np.ndarray) -> np.ndarray:
+COMMON_OFFSET_SLACK_M = 0.005   # how much a joint fit may move the materials' common offset
+
+
+def common_offset_m(offset_m: np.ndarray, group: np.ndarray, use: np.ndarray) -> float:
+    """The materials' common range offset (m): the median over the materials with
+    enough usable points of each one's offset (``offset_m`` per point)."""
+    values = [float(np.median(offset_m[use & (group == g)])) for g in np.unique(group[use])
+              if np.sum(use & (group == g)) >= lk.MIN_MATERIAL_POINTS]
+    return float(np.median(values)) if values else 0.0
+
+
+def explains_common_offset(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
+                           cloud: np.ndarray, use: np.ndarray, clouds: np.ndarray,
+                           prior: np.ndarray | None, group: np.ndarray,
+                           offset_m: np.ndarray, ridge: float = RIDGE) -> bool:
+    """Whether the correction fitted jointly with the material offsets (``fit_clouds``
+    with ``group``) may stand: it must not leave the materials a larger common offset
+    than they show (``offset_m``, the per-material offsets of the residual before it,
+    per point) by more than COMMON_OFFSET_SLACK_M. A pose off along the line of sight
+    moves every material alike, and the joint fit takes that common offset into the
+    translation; but the translation's only other trace, its n.d / n.u pattern, grows at
+    grazing rays as a footprint's first returns at the edges do, and on a correct pose
+    with a beam-divergence effect the joint fit moved the target 16 cm along the line
+    of sight and left every material 16 cm off: a common offset the data did not show.
+    Then the offsets are subtracted first and the correction fitted on the rest."""
+    x = fit_clouds(a, residual_m, sigma_m, cloud, use, clouds, prior, ridge, group)
+    row = np.searchsorted(clouds, cloud)
+    left = residual_m - np.einsum('ij,ij->i', a, x[row])
+    after, _ = lk.material_nuisance(left, np.ones(len(left)), group, use)
+    before = common_offset_m(offset_m, group, use)
+    return abs(common_offset_m(offset_m + after, group, use)) <= (abs(before)
+                                                                  + COMMON_OFFSET_SLACK_M)
+
+
+def with_offsets(correction_m: np.ndarray, residual_m: np.ndarray,
+                 group: np.ndarray | None, train: np.ndarray) -> np.ndarray:
     """A fitted range correction (m, per point) plus its materials' offsets: each
     material's median of the corrected residual over the ``train`` points, as the
     likelihood profiles it (``likelihood.material_nuisance``) on the residual left by
     the correction (the motion fitted jointly with the offsets, ``fit_clouds``)."""
+    if group is None:
+        return correction_m
     left = residual_m - correction_m
     offset, _ = lk.material_nuisance(left, np.ones(len(left)), group, train)
     return correction_m + offset
