@@ -728,3 +728,29 @@ def test_material_offsets_beside_a_reported_pose_are_said_as_measured_on_it():
     assert '--effect pose_error --fit' in text
     text = vd.verdict(s, None, [], dg.Decision(None, []))
     assert 'PIF (bias -5.0 cm' in text and 'recorded pose' not in text
+
+
+def test_a_pose_that_passes_only_beside_the_named_effect_is_weighed_against_it():
+    """judge_pose(): the pose test fails alone but passes with the named effect in the
+    model (40 clouds of jitter: incidence's wider sigma takes the edges, the per-cloud
+    correction the rest). Before, the significant pose was dropped and incidence named;
+    now the effect is scored on the corrected pose: it no longer passes, so the pose
+    stands alone; where it still passes it is named with the pose beside it."""
+    inc = cand('incidence_angle', 0.04, -2.05, seed=17)
+    pose = SimpleNamespace(significant=True, constant=False, gain=0.05, z=4.4, n_params=240)
+
+    def pose_test(on_top):
+        return pose if on_top else SimpleNamespace(significant=False)
+
+    nothing = cand('incidence_angle', 0.0, -2.08, seed=17, significant=False)
+    d = Hand().judge_pose(pose_test, [inc], dg.Decision('incidence_angle', []),
+                          recast=lambda p: (Hand(again={'incidence_angle': nothing}), p))
+    assert d.missing is None and d.confounded_with == [] and d.pose is pose
+    still = cand('incidence_angle', 0.02, -2.04, seed=17)
+    d = Hand().judge_pose(pose_test, [inc], dg.Decision('incidence_angle', []),
+                          recast=lambda p: (Hand(again={'incidence_angle': still}), p))
+    assert d.missing == 'incidence_angle' and d.pose is pose
+    # Nothing named, nothing to put beside: as before.
+    d = Hand().judge_pose(pose_test, [inc], dg.Decision(None, []),
+                          recast=lambda p: (Hand(again={'incidence_angle': nothing}), p))
+    assert d.pose is None

@@ -92,9 +92,9 @@ def test_a_joint_fit_that_leaves_the_materials_a_common_offset_is_not_taken():
     """explains_common_offset(): the joint fit may take the materials' common offset
     into a translation along the line of sight, never leave them one they did not
     show. A residual that is only a pattern at grazing rays (as a footprint's first
-    returns at the edges; no common offset): the joint fit's translation would leave
-    every material offset by it, so it is refused; a common offset of 5 cm that the
-    translation explains is kept."""
+    returns at the edges; no common offset): refused; a common offset of 5 cm that the
+    translation explains is kept; a common offset of 5 cm beside which the translation
+    pattern is weak (a sensor's offset, a third of the pattern) is refused."""
     rng = np.random.default_rng(22)
     n_pts = 3000
     u = np.column_stack([np.ones(n_pts), rng.uniform(-0.2, 0.2, (n_pts, 2))])
@@ -111,7 +111,8 @@ def test_a_joint_fit_that_leaves_the_materials_a_common_offset_is_not_taken():
     a, use = pose_error.design(u, normal, e, cloud)
     sigma = np.full(n_pts, 1e-3)
     los = a @ np.array([-0.05, 0, 0, 0, 0, 0])
-    for raw, kept in ((los - np.median(los), False), (los, True)):
+    for raw, kept in ((los - np.median(los), False), (los, True),
+                      (0.3 * (los - np.median(los)) - 0.05, False)):
         # raw - its materials' medians, as fit_reference_pose hands it over
         med = np.array([np.median(raw[group == g]) for g in range(3)])[group]
         assert pose_error.explains_common_offset(

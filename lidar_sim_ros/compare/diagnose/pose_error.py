@@ -577,7 +577,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      t_centre_s=t_c, half_span_s=h_c, constant=constant)
 
 
-COMMON_OFFSET_SLACK_M = 0.005   # how much a joint fit may move the materials' common offset
+COMMON_OFFSET_MIN_M = 0.005     # a common offset of the materials below this: no joint fit
+COMMON_OFFSET_SHARE = 0.5       # the joint fit must explain at least this share of it
 
 
 def common_offset_m(offset_m: np.ndarray, group: np.ndarray, use: np.ndarray) -> float:
@@ -593,22 +594,25 @@ def explains_common_offset(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.nd
                            prior: np.ndarray | None, group: np.ndarray,
                            offset_m: np.ndarray, ridge: float = RIDGE) -> bool:
     """Whether the correction fitted jointly with the material offsets (``fit_clouds``
-    with ``group``) may stand: it must not leave the materials a larger common offset
-    than they show (``offset_m``, the per-material offsets of the residual before it,
-    per point) by more than COMMON_OFFSET_SLACK_M. A pose off along the line of sight
-    moves every material alike, and the joint fit takes that common offset into the
-    translation; but the translation's only other trace, its n.d / n.u pattern, grows at
-    grazing rays as a footprint's first returns at the edges do, and on a correct pose
-    with a beam-divergence effect the joint fit moved the target 16 cm along the line
-    of sight and left every material 16 cm off: a common offset the data did not show.
-    Then the offsets are subtracted first and the correction fitted on the rest."""
+    with ``group``) may stand: the materials show a common offset (``offset_m``, the
+    per-material offsets of the residual before it, per point; their median at least
+    COMMON_OFFSET_MIN_M) and the joint fit explains at least COMMON_OFFSET_SHARE of it.
+    A pose off along the line of sight moves every material alike, and the joint fit
+    takes that common offset into the translation; but the translation's only other
+    trace, its n.d / n.u pattern, grows at grazing rays as a footprint's first returns
+    at the edges do: on a correct pose with a beam-divergence effect the joint fit moved
+    the target 16 cm along the line of sight and left every material 16 cm off, and,
+    where the effect's own bias had put every material 11 cm short, it moved the target
+    1 cm and left the offsets as they were (the pose then reported beside the effect).
+    Otherwise the offsets are subtracted first and the correction fitted on the rest."""
     x = fit_clouds(a, residual_m, sigma_m, cloud, use, clouds, prior, ridge, group)
     row = np.searchsorted(clouds, cloud)
     left = residual_m - np.einsum('ij,ij->i', a, x[row])
     after, _ = lk.material_nuisance(left, np.ones(len(left)), group, use)
     before = common_offset_m(offset_m, group, use)
-    return abs(common_offset_m(offset_m + after, group, use)) <= (abs(before)
-                                                                  + COMMON_OFFSET_SLACK_M)
+    left_over = common_offset_m(offset_m + after, group, use)
+    return bool(abs(before) >= COMMON_OFFSET_MIN_M
+                and abs(left_over) <= (1 - COMMON_OFFSET_SHARE) * abs(before))
 
 
 def with_offsets(correction_m: np.ndarray, residual_m: np.ndarray,
