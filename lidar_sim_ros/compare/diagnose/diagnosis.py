@@ -753,7 +753,7 @@ class Diagnosis:
         if (cand.effect is None or cand.heldout_nll is None
                 or not is_noise_effect(type(cand.effect))):
             return None
-        core = core_points(self.full)[self.fold_order]
+        core = self.core_mask()[self.fold_order]
         d = self.base_heldout() - cand.heldout_nll
         ok = np.isfinite(d) & core
         if ok.sum() < 2:
@@ -768,6 +768,13 @@ class Diagnosis:
                 f'points within {CORE_SIGMAS:g} sigma its held-out gain is {per_point:.4f} '
                 f'nats/point (z = {z:.1f}): its gain rests on the {n_out} points beyond, '
                 'at far offsets (a second surface, dual returns), not on a wider spread')
+
+    def core_mask(self) -> np.ndarray:
+        """Per point of ``rays.matched``: in the core of the residual distribution
+        (``core_points`` of the model without a candidate)."""
+        if getattr(self, '_core', None) is None or len(self._core) != len(self.rays.matched):
+            self._core = core_points(self.full)
+        return self._core
 
     def driver_veto(self, cand: Candidate, attribution: Attribution | None) -> str | None:
         """A noise effect driven by the measured power (its sigma a function of the
@@ -871,6 +878,7 @@ class Diagnosis:
                          for d, f in zip(self.fold_data, self.folds)]
         out._base_nll = [heldout_nll(d, []) for d in out.fold_data]
         out._before_nll = None
+        out._core = None
         return out
 
     def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision,
