@@ -748,8 +748,11 @@ class Diagnosis:
         """A noise effect (``is_noise_effect``: it widens the sigma, nothing else) must
         widen the core of the residual distribution, not explain a few points at far
         offsets with a wide sigma (a second surface, dual returns): its held-out gain on
-        the points within CORE_SIGMAS of the model without it must pass the rule (z
-        above the bound, at least MIN_PRACTICAL_GAIN nats per analysed point)."""
+        the points within CORE_SIGMAS of the model without it must be decisive there (z
+        above the bound; the margin that matters is the whole score's: a real widening
+        moves some of the weakest points beyond CORE_SIGMAS too, so a weak real SNR noise
+        keeps only part of its gain in the core: 0.0036 of 0.0064 nats/point, z 3.3, on
+        the battery's short_snr_noise)."""
         if (cand.effect is None or cand.heldout_nll is None
                 or not is_noise_effect(type(cand.effect))):
             return None
@@ -761,13 +764,14 @@ class Diagnosis:
         mean, se = block_mean_se(d[ok], self.blocks[ok])
         per_point = float(np.sum(d[ok]) / max(self.n_total, 1))
         z = float(mean / se) if se > 0 and np.isfinite(se) else 0.0
-        if per_point >= MIN_PRACTICAL_GAIN and z >= self.z_crit:
+        if z >= self.z_crit:
             return None
         n_out = int(np.sum(np.isfinite(d) & ~core))
         return (f'a noise effect widens the core of the residual distribution, but on the '
                 f'points within {CORE_SIGMAS:g} sigma its held-out gain is {per_point:.4f} '
-                f'nats/point (z = {z:.1f}): its gain rests on the {n_out} points beyond, '
-                'at far offsets (a second surface, dual returns), not on a wider spread')
+                f'nats/point (z = {z:.1f}, not decisive): its gain rests on the {n_out} points '
+                'beyond, at far offsets (a second surface, dual returns), not on a wider '
+                'spread')
 
     def core_mask(self) -> np.ndarray:
         """Per point of ``rays.matched``: in the core of the residual distribution
