@@ -47,7 +47,10 @@ its z, ``total_z``), whatever part of the data the gain is on:
   least MIN_SHARE of the residual's dependence on the features that the attribution's
   joint model finds (``features.Attribution``): a candidate that soaks up a sliver of
   a structure it does not have the shape of is a phantom (the rest of the structure
-  is outside the catalogue);
+  is outside the catalogue); a candidate with a parameter per laser must show offsets
+  that hold across each laser's tile (``tile_veto``, ``laser_tiles``); a noise effect
+  must widen the core of the residual distribution (``core_veto``) and, driven by the
+  measured power, cannot stand for a driver that is another feature (``driver_veto``);
 * **it is decisively the best**: the paired held-out per-point NLL difference to
   every other admissible candidate is decisive (z above the same bound) and, with both
   fitted as --fit would leave them (all the points, every material's offset and sigma
@@ -57,6 +60,8 @@ its z, ``total_z``), whatever part of the data the gain is on:
   different parts, two effects at once) the better is named and the other comes
   next; if not, they are confounded in this recording (``confounded_with``), none is
   named, and the verdict says which recording would separate them.
+  A candidate with a parameter per laser passes on top of a simpler one that it does not
+  beat decisively, not instead of it (``simpler_instead``).
 
 Otherwise ``missing_effect`` is null, and the verdict says what the residual depends
 on, if anything, and that no catalogue effect explains it.
@@ -106,7 +111,7 @@ MIN_UNMATCHED_EXPLAINED = 20   # unmatched points explained count only from this
 MIN_UNMATCHED_FRACTION = 0.002  # ... and this share of all points (grazing rays aside)
 # The core of the residual distribution: within this many sigmas of the model without a
 # candidate (a Gaussian leaves 6e-5 of its points beyond 4 sigma, under one in the
-# 12 000 diagnosed). A noise effect's gain must pass the rule there (``core_veto``).
+# 12 000 diagnosed). A noise effect's gain must be decisive there (``core_veto``).
 CORE_SIGMAS = 4.0
 N_FOLDS = 2
 # The reference pose's per-cloud correction as a member of a tie (``confounded_with``):
