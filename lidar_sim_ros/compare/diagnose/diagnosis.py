@@ -47,7 +47,10 @@ its z, ``total_z``), whatever part of the data the gain is on:
   least MIN_SHARE of the residual's dependence on the features that the attribution's
   joint model finds (``features.Attribution``): a candidate that soaks up a sliver of
   a structure it does not have the shape of is a phantom (the rest of the structure
-  is outside the catalogue);
+  is outside the catalogue); a candidate with a parameter per laser must show offsets
+  that hold across each laser's tile (``tile_veto``, ``laser_tiles``); a noise effect
+  must widen the core of the residual distribution (``core_veto``) and, driven by the
+  measured power, cannot stand for a driver that is another feature (``driver_veto``);
 * **it is decisively the best**: the paired held-out per-point NLL difference to
   every other admissible candidate is decisive (z above the same bound) and, with both
   fitted as --fit would leave them (all the points, every material's offset and sigma
@@ -57,6 +60,8 @@ its z, ``total_z``), whatever part of the data the gain is on:
   different parts, two effects at once) the better is named and the other comes
   next; if not, they are confounded in this recording (``confounded_with``), none is
   named, and the verdict says which recording would separate them.
+  A candidate with a parameter per laser passes on top of a simpler one that it does not
+  beat decisively, not instead of it (``simpler_instead``).
 
 Otherwise ``missing_effect`` is null, and the verdict says what the residual depends
 on, if anything, and that no catalogue effect explains it.
@@ -81,6 +86,7 @@ from scipy.optimize import minimize_scalar
 from scipy.stats import kstest, norm
 
 from lidar_sim_ros.compare.model import likelihood as lk
+from lidar_sim_ros.compare.diagnose import laser_tiles
 from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se
 from lidar_sim_ros.compare.model.fit import fit_effect
 from lidar_sim_ros.compare.model.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
@@ -103,6 +109,10 @@ MIN_FAR_POINTS = 20         # an outlier effect needs this many far or unmatched
 MIN_FAR_SHARE = 0.5         # ... and this share of the spurious matched returns it claims
 MIN_UNMATCHED_EXPLAINED = 20   # unmatched points explained count only from this many ...
 MIN_UNMATCHED_FRACTION = 0.002  # ... and this share of all points (grazing rays aside)
+# The core of the residual distribution: within this many sigmas of the model without a
+# candidate (a Gaussian leaves 6e-5 of its points beyond 4 sigma, under one in the
+# 12 000 diagnosed). A noise effect's gain must be decisive there (``core_veto``).
+CORE_SIGMAS = 4.0
 N_FOLDS = 2
 # The reference pose's per-cloud correction as a member of a tie (``confounded_with``):
 # not a sensor effect (``pose_error.py``), judged by its own held-out test.
@@ -458,6 +468,11 @@ class Diagnosis:
         blocks = rays.blocks if rays.blocks is not None else np.arange(len(rays.meas))
         self.blocks = np.concatenate([blocks[self.folds[(k + 1) % N_FOLDS].matched]
                                       for k in range(N_FOLDS)])
+        # Per matched point of the folds' test sides (``cross_fit`` order): its place in
+        # ``rays.matched``; and the neighbourhoods in that order.
+        self.fold_order = np.searchsorted(rays.matched, np.concatenate(
+            [self.folds[(k + 1) % N_FOLDS].matched for k in range(N_FOLDS)]))
+        self.matched_blocks = blocks[rays.matched]
         far, residual, expected, threshold = far_from_surface(self.full, details=True)
         if rays.isolated is not None:
             far &= rays.isolated[rays.matched]
@@ -487,6 +502,8 @@ class Diagnosis:
             nll, explained = self.cross_fit(variant, [], first=first.effect)
             self._set_gain(cand, nll, explained)
             cand.vetoed = self._veto(cand, explained)
+            if cand.vetoed is None and cand.significant and cand.practical:
+                cand.vetoed = self.tile_veto(cand) or self.core_veto(cand)
         except Exception as exc:  # noqa: BLE001 - one failing candidate must not stop the rest
             cand.error = f'{type(exc).__name__}: {exc}'
             cand.score = float('-inf')
@@ -649,7 +666,10 @@ class Diagnosis:
         return None
 
     def share_veto(self, cand: Candidate, attribution: Attribution | None) -> None:
-        """A bias/noise candidate must explain MIN_SHARE of the feature structure."""
+        """A bias/noise candidate must explain MIN_SHARE of the feature structure; a noise
+        effect driven by the power, the driver's part too (``driver_veto``)."""
+        if cand.vetoed is None:
+            cand.vetoed = self.driver_veto(cand, attribution)
         if (attribution is None or not attribution.significant or cand.effect is None
                 or is_outlier_effect(type(cand.effect)) or lk.is_ghost_effect(cand.effect)
                 or cand.vetoed):
@@ -665,6 +685,125 @@ class Diagnosis:
                            f'dependence on {what} ({cand.matched_gain:.4f} of '
                            f'{attribution.structure_gain:.4f} nats/point): the residual has '
                            'another shape than this effect')
+
+    def in_matched_order(self, per_point: np.ndarray) -> np.ndarray:
+        """A per-point array in ``cross_fit`` order (test folds concatenated) put in the
+        order of ``rays.matched``."""
+        out = np.full(len(self.rays.matched), np.nan)
+        out[self.fold_order] = per_point
+        return out
+
+    def transfer_nll(self, variant: type[Effect], halves: list['RaySet']) -> np.ndarray:
+        """Held-out per-point NLL (order of ``rays.matched``) of ``variant`` fitted on one
+        of two ``halves`` of the matched points and scored on the other, both ways."""
+        data = [make_fit_data(self.model, self.base, h, (self.full, self.rays))
+                for h in halves]
+        out = np.full(len(self.rays.matched), np.nan)
+        for k, h in enumerate(halves):
+            train = data[1 - k]
+            effect = fit_effect(variant, train).effect
+            out[np.searchsorted(self.rays.matched, h.matched)] = heldout_nll(data[k], [effect])
+        return out
+
+    def tile_veto(self, cand: Candidate) -> str | None:
+        """A candidate with a parameter per laser (``laser_tiles.per_laser``): its offsets
+        must be the lasers', the same wherever a laser's tile falls on the target. Fitted
+        on one half of every laser's points and scored on the other (halves of each tile
+        in azimuth and in elevation, early and late: ``laser_tiles.tile_halves``), they
+        must do as well as fitted on a random half (its score): a loss against it that
+        passes the rule (z above the bound, at least MIN_PRACTICAL_GAIN nats per analysed
+        point) shows a pattern on the target, not the lasers (module doc)."""
+        if (cand.effect is None or cand.variant is None or cand.heldout_nll is None
+                or not laser_tiles.per_laser(cand.effect)):
+            return None
+        idx, meas = self.rays.matched, self.rays.meas
+        if len(np.unique(meas.laser[idx])) < 2:
+            return None
+        at_random = self.in_matched_order(cand.heldout_nll)
+        none = self.rays.unmatched[:0]
+        worst = None
+        for split, upper in laser_tiles.tile_halves(meas.laser[idx], meas.directions[idx],
+                                                    meas.t_s[idx]).items():
+            if upper.all() or not upper.any():
+                continue
+            halves = [self.rays._with(idx[upper], none), self.rays._with(idx[~upper], none)]
+            loss = self.transfer_nll(cand.variant, halves) - at_random
+            ok = np.isfinite(loss)
+            if ok.sum() < 2:
+                continue
+            mean, se = block_mean_se(loss[ok], self.matched_blocks[ok])
+            per_point = float(np.sum(loss[ok]) / max(self.n_total, 1))
+            z = float(mean / se) if se > 0 and np.isfinite(se) else 0.0
+            if (per_point >= MIN_PRACTICAL_GAIN and z >= self.z_crit
+                    and (worst is None or per_point > worst[1])):
+                worst = (split, per_point, z)
+        if worst is None:
+            return None
+        split, loss, z = worst
+        halves = {'azimuth': 'the two halves of each laser\'s tile in azimuth',
+                  'elevation': 'the two halves of each laser\'s tile in elevation',
+                  'time': 'each laser\'s early and late points'}[split]
+        return (f'a laser\'s offset is the same wherever its tile falls on the target, but '
+                f'fitted on one of {halves} and scored on the other its offsets explain '
+                f'{loss:.4f} nats/point less than fitted at random (z = {z:.1f}): the '
+                'residual follows a pattern on the target that the tiles cut up (the '
+                'target off its CAD, or another effect\'s pattern), not the lasers')
+
+    def core_veto(self, cand: Candidate) -> str | None:
+        """A noise effect (``is_noise_effect``: it widens the sigma, nothing else) must
+        widen the core of the residual distribution, not explain a few points at far
+        offsets with a wide sigma (a second surface, dual returns): its held-out gain on
+        the points within CORE_SIGMAS of the model without it must be decisive there (z
+        above the bound; the margin that matters is the whole score's: a real widening
+        moves some of the weakest points beyond CORE_SIGMAS too, so a weak real SNR noise
+        keeps only part of its gain in the core: 0.0036 of 0.0064 nats/point, z 3.3, on
+        the battery's short_snr_noise)."""
+        if (cand.effect is None or cand.heldout_nll is None
+                or not is_noise_effect(type(cand.effect))):
+            return None
+        core = self.core_mask()[self.fold_order]
+        d = self.base_heldout() - cand.heldout_nll
+        ok = np.isfinite(d) & core
+        if ok.sum() < 2:
+            return None
+        mean, se = block_mean_se(d[ok], self.blocks[ok])
+        per_point = float(np.sum(d[ok]) / max(self.n_total, 1))
+        z = float(mean / se) if se > 0 and np.isfinite(se) else 0.0
+        if z >= self.z_crit:
+            return None
+        n_out = int(np.sum(np.isfinite(d) & ~core))
+        return (f'a noise effect widens the core of the residual distribution, but on the '
+                f'points within {CORE_SIGMAS:g} sigma its held-out gain is {per_point:.4f} '
+                f'nats/point (z = {z:.1f}, not decisive): its gain rests on the {n_out} points '
+                'beyond, at far offsets (a second surface, dual returns), not on a wider '
+                'spread')
+
+    def core_mask(self) -> np.ndarray:
+        """Per point of ``rays.matched``: in the core of the residual distribution
+        (``core_points`` of the model without a candidate)."""
+        if getattr(self, '_core', None) is None or len(self._core) != len(self.rays.matched):
+            self._core = core_points(self.full)
+        return self._core
+
+    def driver_veto(self, cand: Candidate, attribution: Attribution | None) -> str | None:
+        """A noise effect driven by the measured power (its sigma a function of the
+        power alone) cannot explain a residual whose driver, given every other feature
+        and the measured power among them, is another feature (noise growing with the
+        range, not the power): the driver's part is beyond it (``attribution.driver``)."""
+        if (attribution is None or not attribution.significant or cand.effect is None
+                or not is_noise_effect(type(cand.effect))
+                or not getattr(type(cand.effect), 'power_driven', False)
+                or self.rays.measured_power_w is None):
+            return None
+        driver = attribution.driver
+        names = {f.name for f in attribution.features}
+        if driver is None or driver == 'intensity' or 'intensity' not in names:
+            return None
+        f = next(f for f in attribution.features if f.name == driver)
+        return (f'the residual depends most on {driver} given the other features, the '
+                f'measured power among them ({f.score:.4f} nats/point, z = {f.score_z:.1f}), '
+                f'and {cand.name} follows the measured power alone: it cannot explain '
+                f'{driver}\'s part')
 
     @property
     def before_nll(self) -> float:
@@ -692,7 +831,12 @@ class Diagnosis:
             return Decision(None, [])
         best = ok[0]
         tied, pair_z, also = [], {}, None
-        for c in ok[1:]:
+        simpler = self.simpler_instead(best, ok[1:], pair_z)
+        if simpler is not None:
+            best, also = simpler, best.name    # the rich one passes on top: next
+        for c in ok:
+            if c is best or c.name == also:
+                continue
             margin, z = self.paired(best, c)
             fitted = self.fitted_margin(best, c)
             pair_z[c.name] = {'margin': _num(margin), 'z': _num(z),
@@ -707,6 +851,32 @@ class Diagnosis:
             return Decision(None, [best.name, *tied], also, pair_z)
         return Decision(best.name, [], also, pair_z)
 
+    def simpler_instead(self, best: Candidate, others: list[Candidate],
+                        pair_z: dict) -> Candidate | None:
+        """A candidate with a parameter per laser (``laser_tiles.per_laser``) fits any
+        pattern the tiles lay over the target with its dozens of parameters; named first
+        it takes the pattern of a one-parameter cause into its offsets. So when a
+        candidate with fewer parameters is not decisively worse (paired held-out z below
+        the bound, or less than MIN_PRACTICAL_GAIN apart as --fit leaves them), the
+        per-laser one must still pass on top of it (``adds_to``): then the simpler one is
+        named and the per-laser one "also" (expected next, fitted on top). Returns it, or
+        None (the ordinary decision: a tie if they explain the same residual)."""
+        if best.effect is None or not laser_tiles.per_laser(best.effect):
+            return None
+        for c in others:
+            if c.n_params >= best.n_params:
+                continue
+            margin, z = self.paired(best, c)
+            fitted = self.fitted_margin(best, c)
+            if margin > 0 and z >= self.z_crit and fitted >= MIN_PRACTICAL_GAIN:
+                continue      # decisively better than this one
+            if self.adds_to(c, best):
+                pair_z[best.name] = {'margin': _num(-margin), 'z': _num(-z),
+                                     'fitted_margin': _num(-fitted)}
+                return c
+            return None
+        return None
+
     def pose_corrected(self, correction_m: np.ndarray) -> 'Diagnosis':
         """This diagnosis on the model with a reference-pose correction (m of range per
         matched point of ``self.full``, ``pose_error.corrected``)."""
@@ -717,6 +887,7 @@ class Diagnosis:
                          for d, f in zip(self.fold_data, self.folds)]
         out._base_nll = [heldout_nll(d, []) for d in out.fold_data]
         out._before_nll = None
+        out._core = None
         return out
 
     def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision,
@@ -1042,6 +1213,31 @@ def far_from_surface(data, details: bool = False):
     if not details:
         return far
     return far, r - offset, model.expected_range_m + offset, threshold
+
+
+def core_points(data) -> np.ndarray:
+    """Matched points within CORE_SIGMAS of the model without a candidate, residual and
+    sigma after the per-material nuisance (offset, sigma scale): the core of the
+    residual distribution."""
+    model = lk.model_on_rays(data, [])
+    r = np.asarray(data.measured_range_m, float) - model.expected_range_m
+    sigma = np.maximum(model.sigma_m, lk.MIN_SIGMA_M)
+    use = model.placed & np.isfinite(r)
+    offset, scale = lk.material_nuisance(
+        r, sigma, np.asarray(data.baseline.ctx.material, int), use)
+    with np.errstate(invalid='ignore'):
+        return use & (np.abs(r - offset) <= CORE_SIGMAS * sigma * scale)
+
+
+def is_noise_effect(effect_cls: type[Effect]) -> bool:
+    """An effect that only widens the range sigma (no bias, no false returns, no ghosts,
+    rays not moved): e.g. ``snr_noise``."""
+    return (effect_cls.range_sigma_m is not Effect.range_sigma_m
+            and effect_cls.range_bias_m is Effect.range_bias_m
+            and effect_cls.cast is Effect.cast
+            and effect_cls.pose_time_s is Effect.pose_time_s
+            and not is_outlier_effect(effect_cls)
+            and not getattr(effect_cls, 'ghost_scale', None))
 
 
 MAX_ARRIVAL_RATE = 50.0    # background arrivals per window length fitted at most

@@ -1,0 +1,55 @@
+"""Whether per-laser range offsets are a property of the lasers.
+
+Each laser of a multi-laser sensor scans its own tile of the field (the P-60's 24
+Lissajous tiles), so an offset per laser can also fit any pattern that the tiles lay
+over the target: solar wings a little off their CAD (a range error that grows along the
+wing's span), or the range-rate pattern of a clock offset. A laser's own offset is the
+same wherever its tile falls on the target. The test: the offsets fitted on one half of
+every laser's points, scored on the other half, held out both ways, against the same
+offsets fitted on a random half (the candidate's own score). Halves of each tile in
+azimuth and in elevation (about the laser's median direction), and early against late
+in the recording (the target turns under the tile). For a laser's own offset the three
+transfers lose nothing against the random split; for a pattern on the target they lose
+what the pattern varies across the tile (``Diagnosis.tile_veto`` applies the naming
+rule's z and margin to that loss).
+
+Pure functions over numpy arrays: which half each point is in.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+SPLITS = ('azimuth', 'elevation', 'time')
+
+
+def above_laser_median(laser: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """Per point: whether ``value`` lies above the median of its laser's points (the
+    two halves of each laser's tile along ``value``)."""
+    laser = np.asarray(laser)
+    value = np.asarray(value, float)
+    out = np.zeros(len(value), bool)
+    for one in np.unique(laser):
+        sel = laser == one
+        out[sel] = value[sel] > np.median(value[sel])
+    return out
+
+
+def tile_halves(laser: np.ndarray, directions: np.ndarray, t_s: np.ndarray
+                ) -> dict[str, np.ndarray]:
+    """The halves of every laser's points (SPLITS -> bool per point): its tile's halves
+    in azimuth and elevation (``directions``: unit vectors in the lidar frame) and its
+    early and late points (``t_s``, s)."""
+    d = np.asarray(directions, float)
+    azimuth = np.arctan2(d[:, 1], d[:, 0])
+    elevation = np.arcsin(np.clip(d[:, 2], -1.0, 1.0))
+    values = {'azimuth': azimuth, 'elevation': elevation, 'time': np.asarray(t_s, float)}
+    return {name: above_laser_median(laser, values[name]) for name in SPLITS}
+
+
+def per_laser(effect) -> bool:
+    """Whether ``effect`` carries a parameter per laser (a list among its params, e.g.
+    ``laser_bias``'s ``offsets_m``): it can fit any pattern the lasers' tiles lay over
+    the target."""
+    params = getattr(effect, 'params', None)
+    dump = getattr(params, 'model_dump', None)
+    return dump is not None and any(isinstance(v, list) for v in dump().values())
