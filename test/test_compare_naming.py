@@ -754,3 +754,29 @@ def test_a_pose_that_passes_only_beside_the_named_effect_is_weighed_against_it()
     d = Hand().judge_pose(pose_test, [inc], dg.Decision(None, []),
                           recast=lambda p: (Hand(again={'incidence_angle': nothing}), p))
     assert d.pose is None
+
+
+def test_a_candidate_set_aside_on_the_recorded_pose_is_tried_on_the_corrected_one():
+    """judge_pose(): laser_bias passed the rule but a signature test set it aside on the
+    recorded pose (its offsets did not hold across the tiles: the pose's jitter moved
+    them); the pose explains the named effect's part. On the corrected pose laser_bias
+    is scored again and passes: it is named beside the pose (the fifth holdout's
+    laser_jitter seed 1 lost it). A candidate that never passed the rule is not."""
+    clock = cand('time_offset', 0.02, -2.04, seed=18)
+    laser = cand('laser_bias', 0.03, -2.05, seed=19, vetoed='offsets do not hold')
+    pose = SimpleNamespace(significant=True, constant=False, gain=0.05, z=9.0, n_params=96)
+
+    def pose_test(on_top):
+        return pose if not on_top else pose      # the pose passes beside the clock
+
+    laser_on_pose = cand('laser_bias', 0.02, -2.07, seed=19)
+    clock_on_pose = cand('time_offset', 0.0, -2.06, seed=18, significant=False)
+    on_pose = Hand(again={'laser_bias': laser_on_pose, 'time_offset': clock_on_pose})
+    on_pose._before_nll = -2.06
+    d = Hand().judge_pose(pose_test, [clock, laser], dg.Decision('time_offset', []),
+                          recast=lambda p: (on_pose, p))
+    assert d.missing == 'laser_bias' and d.pose is pose
+    weak = cand('laser_bias', 0.03, -2.05, seed=19, significant=False, vetoed='no')
+    d = Hand().judge_pose(pose_test, [clock, weak], dg.Decision('time_offset', []),
+                          recast=lambda p: (on_pose, p))
+    assert d.missing is None and d.pose is pose

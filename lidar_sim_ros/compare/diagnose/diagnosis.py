@@ -937,9 +937,14 @@ class Diagnosis:
         test, pose = max(passed, key=lambda tp: getattr(tp[1], 'gain', 0.0))
         # Named candidates that leave the pose nothing (its test fails on top of them).
         explain = [c for c in named if not test([c.effect]).significant]
-        contenders = [c for c in cands if c.admissible and c.effect is not None]
-        if not contenders:
+        if not any(c.admissible and c.effect is not None for c in cands):
             return replace(decision, pose=pose)
+        # Scored again on the corrected pose: every candidate that passed the rule on the
+        # recorded pose, also those a signature test set aside there (the test is asked
+        # again on the corrected pose): a pose error can hide a laser's offsets across
+        # its tile as it hides anything else (the fifth holdout's laser_jitter seed 1).
+        contenders = [c for c in cands if c.effect is not None and c.error is None
+                      and c.significant and c.practical]
         if recast is not None:
             on_pose, pose = recast(pose)
         else:
