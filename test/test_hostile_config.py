@@ -169,6 +169,10 @@ def _set(section, key, index, value):
     ('flash_256.yaml', _set('optics', 'beam_divergence_rad', None, 1e300), 'optics.beam_divergence_rad', '1e+300'),
     # An aperture of 1e300 m: OverflowError out of the frame.
     ('flash_256.yaml', _set('optics', 'aperture_diameter_m', None, 1e300), 'optics.aperture_diameter_m', '1e+300'),
+    # A peak power of 1e300 W (or any beyond MAX_PEAK_POWER_W, a 5 J pulse of 5 ns):
+    # every pixel saturated, no point, rc 0.
+    ('flash_256.yaml', _set('optics', 'peak_power_w', None, 1e300), 'optics.peak_power_w', '1e+300'),
+    ('cepton_vista_p60.yaml', _set('optics', 'peak_power_w', None, 1.5e9), 'optics.peak_power_w', '1500000000.0'),
     # A Lissajous field or frequency of 1e-300: every laser fires in one direction.
     ('cepton_vista_p60.yaml', _set('scan', 'fov_el_deg', None, 1e-300), 'scan.fov_el_deg', '1e-300'),
     ('cepton_vista_p60.yaml', _set('scan', 'freq_az_hz', None, 1e-300), 'scan.freq_az_hz', '1e-300'),
@@ -185,6 +189,25 @@ def test_tiny_positive_values_that_collapse_the_scan_are_refused(tmp_path, file,
     with pytest.raises(ConfigError) as err:
         load_sensor(tmp_path / file)
     assert err.value.key == key and file in str(err.value) and value in str(err.value)
+
+
+def test_the_peak_power_bound_is_physical():
+    """MAX_PEAK_POWER_W (1e9 W) takes every shipped laser and a GLAS-class pulse (75 mJ in
+    6 ns, 1.25e7 W), and says why it stops in the message: file, key, value, bound."""
+    from lidar_sim_ros.core.config import MAX_PEAK_POWER_W
+    for name in ('cepton_vista_p60.yaml', 'livox_mid40.yaml', 'flash_256.yaml', 'spinning_32.yaml'):
+        assert load_sensor(CONFIG / name).optics.peak_power_w <= MAX_PEAK_POWER_W / 1000
+    assert 0.075 / 6e-9 < MAX_PEAK_POWER_W <= 5.0 / 5e-9
+
+
+def test_a_peak_power_at_the_bound_loads_and_one_beyond_names_file_key_value(tmp_path):
+    copy_config(tmp_path, ('flash_256.yaml',))
+    _edit(tmp_path / 'flash_256.yaml', _set('optics', 'peak_power_w', None, 1.0e9))
+    assert load_sensor(tmp_path / 'flash_256.yaml').optics.peak_power_w == 1.0e9
+    _edit(tmp_path / 'flash_256.yaml', _set('optics', 'peak_power_w', None, 1.0000001e9))
+    with pytest.raises(ConfigError, match=r'flash_256.yaml: key "optics.peak_power_w" = '
+                                          r'1000000100.0: .*less than or equal to 1000000000'):
+        load_sensor(tmp_path / 'flash_256.yaml')
 
 
 def test_a_negative_seed_is_refused_at_load(cfg):

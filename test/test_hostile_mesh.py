@@ -66,19 +66,50 @@ def test_an_obj_material_library_out_of_its_folder_is_not_read(tmp_path, mtllib)
         load_target(obj, ['PIF', 'MLI'])
 
 
-@pytest.mark.parametrize('x', ['1e300', '-2e5'])
+@pytest.mark.parametrize('x', ['1e300', '-2e5', '123456.5', '1E+06', '-1.0000001e+5'])
 def test_vertex_beyond_the_size_limit_is_refused_naming_it(tmp_path, x):
     """1e300 m is finite in float64 but overflowed the zero-area test (OverflowError, a
     traceback from lidar-sim simulate) and is inf in Embree's float32; any vertex past
     MAX_VERTEX_M (100 km, far beyond any target; a millimetre CAD export of a 10 m
-    satellite reaches 1e4) is refused naming it."""
+    satellite reaches 1e4) is refused naming it as the file writes it (its number as 'f'
+    lines count, its line and text, as a non-finite one), not as trimesh regrouped it
+    ('vertex #1 [1e+300, 0.0, 0.0]'). 1e5 itself, and digits after the point, pass."""
     import lidar_sim_ros.core.geometry as geometry
-    path = obj(tmp_path, f'v 0 0 0\nv {x} 0 0\nv 0 1 0\nf 1 2 3\n')
-    with pytest.raises(MeshFileError, match=rf'm.obj: vertex #1 .*{re.escape(repr(float(x)))}.* beyond the limit of '
-                                            rf'{geometry.MAX_VERTEX_M:g} m') as err:
+    path = obj(tmp_path, f'v 0 0 0\nv 0 0 1\nv 0 1 0\nv {x} 0 0\nf 1 2 3\nf 1 4 3\n')
+    beyond = (rf'm.obj: vertex 4 \(line 5: "v {re.escape(x)} 0 0"\) is beyond the limit of '
+              rf'{geometry.MAX_VERTEX_M:g} m on an axis \(is the file in metres\?\)$')
+    if float(x) == -1e5:
+        assert load_target(path, ['PIF']).n_faces == 2
+        return
+    with pytest.raises(MeshFileError, match=beyond) as err:
         load_target(path, ['PIF'])
     assert '\n' not in str(err.value)
-    assert load_target(obj(tmp_path, 'v 0 0 0\nv 1e4 0 0\nv 0 1 0\nf 1 2 3\n'), ['PIF']).n_faces == 1
+    for fine in ('1e4', '1E+005', '-100000', '0.1234567', '99999.999999'):
+        ok = load_target(obj(tmp_path, f'v 0 0 0\nv {fine} 0 0\nv 0 1 0\nf 1 2 3\n'), ['PIF'])
+        assert ok.vertices_m[:, 0].min() == min(0.0, float(fine))
+
+
+def test_a_cad_vertex_beyond_the_size_limit_is_named_as_the_file_writes_it(tmp_path):
+    """A glTF part's vertex that its node places beyond MAX_VERTEX_M: the error named the
+    placed value alone ('vertex #1 [2000000.0, 0.0, 3.0]', the index of the target's
+    vertices, not the file's); it now names the node, the part, the file's index and value
+    and where the node puts it. A vertex beyond the limit as written is named the same way."""
+    from test_mesh_files import one_buffer_gltf, write_glb
+    verts = np.array([[0, 0, 0], [2e4, 0, 0], [0, 1, 0]], np.float32)
+    data = verts.tobytes() + np.array([0, 1, 2], np.uint16).tobytes() + b'\0\0'
+    doc = one_buffer_gltf(data, nodes=[{'mesh': 0, 'name': 'mm', 'scale': [100.0, 1.0, 1.0],
+                                        'translation': [0.0, 0.0, 3.0]}])
+    with pytest.raises(MeshFileError, match=r"far.glb: node 'mm' places part 'foil' vertex #1 = "
+                                            r"\[20000.0, 0.0, 0.0\] at \[2000000.0, 0.0, 3.0\] "
+                                            r"\(m\), beyond the limit of 100000 m \(1 of its 3 "
+                                            r"vertices are; is the file in metres\?\)$"):
+        load_target(write_glb(tmp_path / 'far.glb', doc, data), ['foil'])
+    verts[2, 1] = -3e5
+    data = verts.tobytes() + np.array([0, 1, 2], np.uint16).tobytes() + b'\0\0'
+    doc = one_buffer_gltf(data, nodes=[{'mesh': 0, 'name': 'plain'}])
+    with pytest.raises(MeshFileError, match=r"far2.glb: node 'plain' places part 'foil' vertex #2 "
+                                            r"= \[0.0, -300000.0, 0.0\] at \[0.0, -300000.0, 0.0\]"):
+        load_target(write_glb(tmp_path / 'far2.glb', doc, data), ['foil'])
 
 
 def test_links_in_the_mesh_folder(tmp_path):

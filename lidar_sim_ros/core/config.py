@@ -93,6 +93,12 @@ MAX_APERTURE_M = 10.0
 """Widest receiver aperture (m; the largest telescopes' mirrors): 1e300 m overflowed the
 aperture area (OverflowError out of the frame)."""
 
+MAX_PEAK_POWER_W = 1.0e9
+"""Strongest laser pulse (W, peak): a 5 J pulse of 5 ns. The strongest flown on a
+spacecraft lidar reach ~1e7 W (ICESat's GLAS: 75 mJ in ~6 ns), a flash rendezvous lidar
+~1e5-1e6 (flash_256.yaml: 2e5); 1e300 W was accepted and saturated every pixel (no
+point, rc 0)."""
+
 
 MAX_PHASE_RAD = 1.0e4
 """Largest scan phase (rad: a prism's, a Lissajous axis's or its per-laser step; calibrate
@@ -269,7 +275,7 @@ class RangeErrorConfig(_Model):
 class OpticsConfig(_Model):
     """Transmitter/receiver parameters of paper Eqs. 1-3."""
 
-    peak_power_w: PositiveFloat
+    peak_power_w: Annotated[float, Field(gt=0.0, le=MAX_PEAK_POWER_W)]
     transmit_efficiency: Annotated[float, Field(gt=0.0, le=1.0)]
     receive_efficiency: Annotated[float, Field(gt=0.0, le=1.0)]
     beam_divergence_rad: Annotated[float, Field(ge=MIN_BEAM_DIVERGENCE_RAD, lt=np.pi)] = Field(

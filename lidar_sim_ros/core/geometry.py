@@ -27,8 +27,8 @@ from scipy.spatial import ConvexHull, QhullError
 from lidar_sim_ros.core import geometry_kernels as kernels
 from lidar_sim_ros.core import mesh_files
 from lidar_sim_ros.core.memory import release_freed_memory
-from lidar_sim_ros.core.mesh_files import (CAD_SUFFIXES, MeshFileError, MeshMaterialError, few,
-                                           load_scene, read_cad)
+from lidar_sim_ros.core.mesh_files import (CAD_SUFFIXES, MAX_VERTEX_M, MeshFileError,
+                                           MeshMaterialError, few, load_scene, read_cad)
 from lidar_sim_ros.core.pose import Poses
 
 
@@ -39,10 +39,6 @@ T = TypeVar('T')
 
 MAX_TRIANGLES = 10_000_000
 """Triangles in one target mesh (the rocket body has 48,844; Embree's BVH costs ~100 B each)."""
-MAX_VERTEX_M = 1.0e5
-"""Farthest vertex from the mesh origin (m, per axis): no target is 100 km across (a
-millimetre CAD export of a 10 m satellite reaches 1e4); 1e300 overflowed the zero-area
-test and is inf in Embree's float32."""
 
 
 def checked_mesh(vertices_m: np.ndarray, faces: np.ndarray, face_material: np.ndarray,
@@ -630,21 +626,25 @@ def _with_names_mtl(obj_path: Path, names: list[str] | None) -> Iterator[Path]:
         yield copy
 
 
-_MAYBE_NOT_FINITE = re.compile(r'[nNiI]|[eE]\+?0*\d{3}')
-"""A 'v' line that may hold a non-finite number (nan, inf, or an exponent past 1e308)."""
+_MAYBE_NOT_FINITE = re.compile(r'[nNiI]|[eE]\+?0*\d{2}|[eE]\+?0*[5-9]|(?<![\d.])\d{6}')
+"""A 'v' line that may hold a non-finite number (nan, inf, or an exponent past 1e308) or
+one beyond MAX_VERTEX_M (1e5: an exponent of 5 or more, or six digits before the point)."""
 
 
 def _check_obj_vertex(rest: str, vertex: int, line: int, obj_path: Path) -> None:
-    """An OBJ vertex as written, refused when a coordinate is not finite: named by its
-    number (as the 'f' lines count, from 1), its line and its text; trimesh's vertices
-    are regrouped per material, so their index is not the file's."""
+    """An OBJ vertex as written, refused when a coordinate is not finite or beyond
+    MAX_VERTEX_M: named by its number (as the 'f' lines count, from 1), its line and its
+    text; trimesh's vertices are regrouped per material, so their index is not the file's."""
     try:
         xyz = [float(x) for x in rest.split()[:3]]
     except ValueError:
         return                          # not numbers: trimesh's parse says so
+    where = f'{obj_path}: vertex {vertex} (line {line}: "v {rest.strip()[:80]}")'
     if not all(math.isfinite(x) for x in xyz):
-        raise MeshFileError(f'{obj_path}: vertex {vertex} (line {line}: "v {rest.strip()[:80]}") '
-                            'is not finite')
+        raise MeshFileError(f'{where} is not finite')
+    if max(map(abs, xyz), default=0.0) > MAX_VERTEX_M:
+        raise MeshFileError(f'{where} is beyond the limit of {MAX_VERTEX_M:g} m on an axis '
+                            '(is the file in metres?)')
 
 
 def check_obj_file(obj_path: Path) -> list[str] | None:

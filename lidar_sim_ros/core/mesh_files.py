@@ -45,6 +45,10 @@ MAX_PLY_HEADER_BYTES = 65_536
 a few kB with comments."""
 MAX_EXTERNAL_BYTES = MAX_MESH_FILE_BYTES
 """Largest sum of a glTF's external files (its .bin buffers and images), each read once."""
+MAX_VERTEX_M = 1.0e5
+"""Farthest vertex from the mesh origin (m, per axis): no target is 100 km across (a
+millimetre CAD export of a 10 m satellite reaches 1e4); 1e300 overflowed the zero-area
+test and is inf in Embree's float32."""
 MAX_GLTF_JSON_BYTES = 256_000_000
 """Largest glTF JSON read (a .gltf, or a .glb's JSON chunk): parsed JSON takes up to ~6x its
 size (100 MB of small numbers peaked at 574 MB: a 2 GB one ~11 GB); a .gltf embedding
@@ -355,8 +359,9 @@ def _check_finite_vertices(vertices: np.ndarray, path: Path, part: str) -> None:
 def _placed(vertices: np.ndarray, used: np.ndarray, matrix: np.ndarray, path: Path, part: str,
             node: str) -> np.ndarray:
     """The ``used`` vertices (float64, m) placed by their node's ``matrix``; a vertex the
-    transform makes non-finite (a finite 1e304 scaled by 1e5) is refused naming the node,
-    the part's vertex index and its value as written."""
+    transform makes non-finite (a finite 1e304 scaled by 1e5) or puts beyond MAX_VERTEX_M
+    on an axis is refused naming the node, the part's vertex index, its value as written
+    and where the node puts it."""
     with np.errstate(all='ignore'):
         placed = np.asarray(vertices[used], dtype=float) @ matrix[:3, :3].T + matrix[:3, 3]
     bad = ~np.isfinite(placed).all(axis=1)
@@ -365,6 +370,14 @@ def _placed(vertices: np.ndarray, used: np.ndarray, matrix: np.ndarray, path: Pa
         raise MeshFileError(f'{path}: node {node!r} places part {part!r} vertex '
                             f'#{int(used[k])} = {vertices[used[k]].tolist()} at '
                             f'{placed[k].tolist()}, not finite')
+    far = np.abs(placed).max(axis=1, initial=0.0) > MAX_VERTEX_M
+    if far.any():
+        k = int(np.flatnonzero(far)[0])
+        raise MeshFileError(f'{path}: node {node!r} places part {part!r} vertex '
+                            f'#{int(used[k])} = {vertices[used[k]].tolist()} at '
+                            f'{placed[k].tolist()} (m), beyond the limit of {MAX_VERTEX_M:g} m '
+                            f'({int(far.sum())} of its {len(used)} vertices are; is the file '
+                            'in metres?)')
     return placed
 
 
