@@ -208,6 +208,27 @@ def test_parts_of_equal_cost_cover_every_item_once(n, threads):
         assert max(p.stop - p.start for p in parts) > 3 * min(p.stop - p.start for p in parts)
 
 
+def test_a_pool_thread_not_yet_started_is_not_waited_for():
+    """``split_over_threads``: when the OS has not run a pool thread by the time the
+    calling thread has taken every part (a busy machine), the call returns without it
+    (it waited for the thread to start and find nothing left)."""
+    import threading
+    from lidar_sim_ros.core.geometry import _pool, split_over_threads
+    busy, done = threading.Event(), []
+    blocker = _pool(2).submit(busy.wait, 30.0)        # the pool's one thread, held
+    caller = threading.Thread(target=lambda: done.append(
+        split_over_threads(8192, 2, lambda part: part, min_per_thread=1024)))
+    caller.start()
+    caller.join(10.0)
+    finished = not caller.is_alive()
+    busy.set()
+    blocker.result()
+    caller.join()
+    assert finished
+    assert [(p.start, p.stop) for p in done[0]] == [(0, 2048), (2048, 4096), (4096, 6144),
+                                                    (6144, 8192)]
+
+
 @pytest.mark.parametrize('one_pose', [True, False])
 @pytest.mark.parametrize('cull', [0.0, 2.0])
 def test_the_hits_alone_are_the_hit_rows_of_the_full_cast(one_pose, cull, monkeypatch):

@@ -134,7 +134,8 @@ def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
     For GIL-free work (Embree casts, ``nogil`` kernels). The parts (PARTS_PER_THREAD per
     thread, none under ``min_per_thread``) are taken in turn by the calling thread and by
     pool threads as each comes free, so a thread held up (by the OS, by the GIL) takes
-    fewer; ``work`` must never wait on the pool (it may run on it). Fewer threads when parts
+    fewer, and one not yet started when the parts are all taken is not waited for; ``work``
+    must never wait on the pool (it may run on it). Fewer threads when parts
     would hold less than ``min_per_thread``. ``cost`` (None: every item alike): the relative
     cost of the blocks of ``ceil(n / len(cost))`` items in turn; the parts then hold equal
     cost, not equal counts (a flash frame's hits are in the middle of its cast order).
@@ -154,7 +155,10 @@ def split_over_threads(n: int, threads: int, work: Callable[[slice], T],
     futures = [_pool(threads).submit(drain) for _ in range(threads - 1)]
     drain()
     for f in futures:
-        f.result()
+        # A pool thread the OS has not run yet (a busy machine) has nothing left to take:
+        # not waited for. One that has started ends its part.
+        if not f.cancel():
+            f.result()
     return results
 
 
