@@ -156,15 +156,24 @@ def test_hidden_effect_is_named_and_fitting_it_reaches_the_noise_floor(name, dat
     params, _, kind = HIDDEN[name]
     ds = datasets(name)
     before = compare(ds, root / name / 'out')
-    assert before['missing_effect'] == name, before['candidates']
+    # A clock offset on this uniform tumble is one rigid correction of the pose for the
+    # recording (docs/compare.md, "Constant reference-pose errors"): named, or the tie
+    # with the pose, the two within the margin that matters as --fit leaves them.
+    tie = name == 'time_offset' and before['confounded_with'] == ['pose_error', name]
+    assert before['missing_effect'] == name or tie, before['candidates']
     assert before['candidates'][0]['name'] == name
     # The quoted "after" figures are on the same basis as "before" (per-material offsets
     # and sigmas refit): the true effect never makes them worse, and the verdict says so.
     quoted = before['candidates'][0]
     assert quoted['range_rmse_after_m'] <= before['range_rmse_calibrated_m'] + 1e-6
     assert quoted['nll_after'] < before['nll_calibrated']
-    assert 'raises the' not in before['verdict'] and 'widens' not in before['verdict']
-    assert f'{before["nll_calibrated"]:.3f} to {quoted["nll_after"]:.3f}' in before['verdict']
+    if tie:
+        margin = quoted['against_pose']['fitted_margin_charged']
+        assert abs(margin) < 0.005 and 'or the reference pose' in before['verdict']
+    else:
+        assert 'raises the' not in before['verdict'] and 'widens' not in before['verdict']
+        assert (f'{before["nll_calibrated"]:.3f} to {quoted["nll_after"]:.3f}'
+                in before['verdict'])
 
     after = compare(ds, root / name / 'out_fit', effects=[name], fit=True, candidates=[])
     # ... and they are what the run with --effect NAME --fit then shows.
