@@ -939,12 +939,12 @@ class Diagnosis:
         explain = [c for c in named if not test([c.effect]).significant]
         if not any(c.admissible and c.effect is not None for c in cands):
             return replace(decision, pose=pose)
-        # Scored again on the corrected pose: every candidate that passed the rule on the
-        # recorded pose, also those a signature test set aside there (the test is asked
-        # again on the corrected pose): a pose error can hide a laser's offsets across
-        # its tile as it hides anything else (the fifth holdout's laser_jitter seed 1).
-        contenders = [c for c in cands if c.effect is not None and c.error is None
-                      and c.significant and c.practical]
+        # Scored again on the corrected pose: every candidate, as the next run with the
+        # pose corrected would score it, also those a signature test set aside on the
+        # recorded pose (asked again there) and those that did not pass the rule: a
+        # pose error hides a range walk beside it (z 1.0 on the recorded pose) as it
+        # hides a laser's offsets across its tile (the fifth holdout's laser_jitter).
+        contenders = [c for c in cands if c.effect is not None and c.error is None]
         if recast is not None:
             on_pose, pose = recast(pose)
         else:
