@@ -214,6 +214,16 @@ def judge_v4(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
         rate = ((first.get('reference_pose') or {}).get('rate') or {})
         if base == 'pose_drift_within_large' and not rate.get('supported'):
             why.append('the within-cloud rate was not found')
+    elif base.startswith('extrinsic'):
+        # One correction for the recording, about the size of the error, nothing named.
+        truth_cm = 100 * sum(x * x for x in spec.pose_offset_m) ** 0.5
+        pose = first.get('reference_pose') or {}
+        size = pose.get('translation_rms_cm') or 0.0
+        if not first.get('reference_pose_off') or answer != 'None':
+            why.append(f'first answer {answer}, pose reported: '
+                       f'{bool(first.get("reference_pose_off"))}; expected the pose alone')
+        elif not 0.5 * truth_cm <= size <= 1.5 * truth_cm:
+            why.append(f'the pose correction is {size:.1f} cm for a {truth_cm:.1f} cm error')
     elif base.startswith('pattern_off'):
         if not first.get('verdict', '').startswith('The scan pattern is off'):
             why.append('the verdict does not open with the scan pattern')

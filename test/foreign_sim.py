@@ -591,6 +591,10 @@ class ForeignSpec:
     # offset growing linearly from 0 at the scan start to a per-cloud draw of this RMS
     # (metres per axis, degrees per axis) at its end.
     pose_error_ramp: tuple[float, float] = (0.0, 0.0)
+    # A constant reference-pose error (an extrinsic calibration off): the recorded target
+    # this far from the true one in the lidar frame (m; +x is the boresight, the line of
+    # sight), the same in every pose.
+    pose_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     frame_gap_s: float = 0.0             # time between cloud starts; 0: back to back
     scan_freq_scale: float = 1.0         # 'lissajous' scan: its frequencies x this
     max_range_m: float = 150.0           # the end of the range gate (m)
@@ -1005,6 +1009,7 @@ def reference_pose_error(spec: ForeignSpec, t_s: np.ndarray, period_s: float,
     origin RMS ``pose_error[1]`` deg per axis), constant over each cloud's frame period
     (``pose_error_period_s`` 0) or a smooth sum of two sinusoids per axis of that period
     and a third of it. The lidar measured the true target: only the poses are off."""
+    pos = pos + np.asarray(spec.pose_offset_m, float)
     ramp_m, ramp_deg = spec.pose_error_ramp
     if ramp_m > 0 or ramp_deg > 0:
         # Within each cloud: 0 at its scan's start, the cloud's draw at its end (a lag
@@ -1325,6 +1330,13 @@ V4: tuple[ForeignSpec, ...] = (
     ForeignSpec('clock_with_clutter', 'time_offset', {'dt_s': 0.04}, seed=80, clutter=True,
                 scan='lissajous', spin_dps=20.0, speed_mps=0.25, expected=None,
                 note='40 ms clock offset with a wall, a jig and a cable in view'),
+    # A constant reference-pose error (an extrinsic calibration off by centimetres): along
+    # the line of sight (every material's ranges move alike, as a sensor range offset
+    # would) and mixed; the sixth and seventh holdouts' largest family.
+    ForeignSpec('extrinsic_los', None, seed=81, pose_offset_m=(0.05, 0.0, 0.0),
+                expected=None, note='the recorded target 5 cm farther along the line of sight'),
+    ForeignSpec('extrinsic_mixed', None, seed=82, pose_offset_m=(0.03, 0.02, -0.03),
+                expected=None, note='the recorded target off by (3, 2, -3) cm, lidar frame'),
     # Solar false returns in a first-return receiver: 0.5 % a shot over the whole gate.
     ForeignSpec('solar_first_return', 'solar_background',
                 {'fraction': 0.005, 'first_return': True}, seed=76, distance_m=20.0,
