@@ -51,28 +51,32 @@ def test_fit_clouds_recovers_each_clouds_correction():
     np.testing.assert_allclose(x, truth, atol=6 * 0.002 / np.sqrt(n_pts))
 
 
+def _facets(seed: int, n_pts: int = 3000):
+    """Rays 0.4 rad across at 10 m on nine facets (three of each material), each the
+    plane through a point of the target, a facet per band of azimuth and elevation:
+    (the generator, the design matrix, its usable rays, each ray's material)."""
+    rng = np.random.default_rng(seed)
+    u = np.column_stack([np.ones(n_pts), rng.uniform(-0.2, 0.2, (n_pts, 2))])
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    facet = 3 * np.digitize(u[:, 1] / u[:, 0], [-0.07, 0.07]) + np.digitize(
+        u[:, 2] / u[:, 0], [-0.07, 0.07])
+    tilt = rng.normal(0, 0.5, (9, 3)) + [-1.0, 0.0, 0.0]
+    tilt /= np.linalg.norm(tilt, axis=1, keepdims=True)
+    at = np.column_stack([10 + rng.uniform(-0.5, 0.5, 9), np.zeros((9, 2))])
+    normal = tilt[facet]
+    e = np.einsum('ij,ij->i', at[facet], normal) / np.einsum('ij,ij->i', u, normal)
+    a, use = pose_error.design(u, normal, e, np.zeros(n_pts, int))
+    return rng, a, use, facet % 3
+
+
 def test_a_translation_along_the_line_of_sight_is_fitted_jointly_with_the_material_offsets():
     """Three materials on planes of different tilts, 4 m across at 10 m, moved 5 cm along
     the line of sight: every material's ranges move by about 5 cm, which a per-material
     offset takes, and by n.d / n.u, which it does not. Fitted jointly with one offset per
     material (``group``), the translation is the truth (to the ridge); with the offsets
     subtracted first, as before, most of it is lost in them."""
-    rng = np.random.default_rng(21)
-    n_pts = 3000
-    u = np.column_stack([np.ones(n_pts), rng.uniform(-0.2, 0.2, (n_pts, 2))])
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    # Nine facets (three of each material), each the plane through a point of the
-    # target: a facet per band of azimuth and elevation.
-    facet = 3 * np.digitize(u[:, 1] / u[:, 0], [-0.07, 0.07]) + np.digitize(
-        u[:, 2] / u[:, 0], [-0.07, 0.07])
-    group = facet % 3
-    tilt = rng.normal(0, 0.5, (9, 3)) + [-1.0, 0.0, 0.0]
-    tilt /= np.linalg.norm(tilt, axis=1, keepdims=True)
-    at = np.column_stack([10 + rng.uniform(-0.5, 0.5, 9), np.zeros((9, 2))])
-    normal = tilt[facet]
-    e = np.einsum('ij,ij->i', at[facet], normal) / np.einsum('ij,ij->i', u, normal)
-    cloud = np.zeros(n_pts, int)
-    a, use = pose_error.design(u, normal, e, cloud)
+    rng, a, use, group = _facets(21)
+    n_pts, cloud = len(group), np.zeros(len(group), int)
     truth = np.array([-0.05, 0.0, 0.0, 0.0, 0.0, 0.0])
     offsets = np.array([0.004, -0.003, 0.001])        # a calibration mismatch per material
     r = a @ truth + offsets[group] + rng.normal(0, 1e-3, n_pts)
@@ -95,20 +99,9 @@ def test_a_joint_fit_that_leaves_the_materials_a_common_offset_is_not_taken():
     returns at the edges; no common offset): refused; a common offset of 5 cm that the
     translation explains is kept; a common offset of 5 cm beside which the translation
     pattern is weak (a sensor's offset, a third of the pattern) is refused."""
-    rng = np.random.default_rng(22)
-    n_pts = 3000
-    u = np.column_stack([np.ones(n_pts), rng.uniform(-0.2, 0.2, (n_pts, 2))])
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    facet = 3 * np.digitize(u[:, 1] / u[:, 0], [-0.07, 0.07]) + np.digitize(
-        u[:, 2] / u[:, 0], [-0.07, 0.07])
-    group = facet % 3
-    tilt = rng.normal(0, 0.5, (9, 3)) + [-1.0, 0.0, 0.0]
-    tilt /= np.linalg.norm(tilt, axis=1, keepdims=True)
-    at = np.column_stack([10 + rng.uniform(-0.5, 0.5, 9), np.zeros((9, 2))])
-    normal = tilt[facet]
-    e = np.einsum('ij,ij->i', at[facet], normal) / np.einsum('ij,ij->i', u, normal)
+    _, a, use, group = _facets(22)
+    n_pts = len(group)
     cloud, clouds = np.zeros(n_pts, int), np.array([0])
-    a, use = pose_error.design(u, normal, e, cloud)
     sigma = np.full(n_pts, 1e-3)
     los = a @ np.array([-0.05, 0, 0, 0, 0, 0])
     for raw, kept in ((los - np.median(los), False), (los, True),

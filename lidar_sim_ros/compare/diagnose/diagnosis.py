@@ -1202,16 +1202,24 @@ def far_threshold_m(sigma_m: np.ndarray, scale: np.ndarray | float = 1.0) -> np.
     return np.maximum(FAR_MIN_M, FAR_SIGMAS * sigma_m * scale)
 
 
-def far_from_surface(data, details: bool = False):
-    """Matched points far beyond the noise: |residual| > max(FAR_MIN_M, FAR_SIGMAS sigma),
-    residual and sigma after the per-material nuisance (offset, sigma scale). With
-    ``details`` also the residual (m), the expected range (m) and the threshold (m)."""
+def _profiled_residual(data):
+    """The model without a candidate on the matched points: (model, residual m, sigma
+    m, usable points, per-material offset m, sigma scale), the nuisance as the
+    likelihood profiles it (``likelihood.material_nuisance``)."""
     model = lk.model_on_rays(data, [])
     r = np.asarray(data.measured_range_m, float) - model.expected_range_m
     sigma = np.maximum(model.sigma_m, lk.MIN_SIGMA_M)
     use = model.placed & np.isfinite(r)
     offset, scale = lk.material_nuisance(
         r, sigma, np.asarray(data.baseline.ctx.material, int), use)
+    return model, r, sigma, use, offset, scale
+
+
+def far_from_surface(data, details: bool = False):
+    """Matched points far beyond the noise: |residual| > max(FAR_MIN_M, FAR_SIGMAS sigma),
+    residual and sigma after the per-material nuisance (offset, sigma scale). With
+    ``details`` also the residual (m), the expected range (m) and the threshold (m)."""
+    model, r, sigma, use, offset, scale = _profiled_residual(data)
     threshold = far_threshold_m(sigma, scale)
     with np.errstate(invalid='ignore'):
         far = use & (np.abs(r - offset) > threshold)
@@ -1224,12 +1232,7 @@ def core_points(data) -> np.ndarray:
     """Matched points within CORE_SIGMAS of the model without a candidate, residual and
     sigma after the per-material nuisance (offset, sigma scale): the core of the
     residual distribution."""
-    model = lk.model_on_rays(data, [])
-    r = np.asarray(data.measured_range_m, float) - model.expected_range_m
-    sigma = np.maximum(model.sigma_m, lk.MIN_SIGMA_M)
-    use = model.placed & np.isfinite(r)
-    offset, scale = lk.material_nuisance(
-        r, sigma, np.asarray(data.baseline.ctx.material, int), use)
+    _, r, sigma, use, offset, scale = _profiled_residual(data)
     with np.errstate(invalid='ignore'):
         return use & (np.abs(r - offset) <= CORE_SIGMAS * sigma * scale)
 
