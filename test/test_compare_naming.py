@@ -783,3 +783,28 @@ def test_a_candidate_set_aside_on_the_recorded_pose_is_tried_on_the_corrected_on
                           recast=lambda p: (on_pose, p))
     assert d.missing == 'laser_bias' and d.pose is pose
     assert weak.against_pose['passes_on_pose']
+
+
+def test_every_material_off_alike_is_said_as_the_sensor_or_the_pose_along_the_line_of_sight():
+    """The verdict: every material's range 3 cm long and no pose reported (a sensor range
+    offset common to all materials, or the target recorded 3 cm nearer on a target too
+    narrow for the pose test): said as the one or the other; one material off, or
+    offsets of both signs, or a reported pose: not said."""
+    def mats(offsets):
+        return {f'M{k}': {'bias_mismatch': True, 'sigma_mismatch': False,
+                          'measured_bias_m': d, 'model_bias_m': 0.0,
+                          'measured_sigma_m': 0.01, 'model_sigma_m': 0.01}
+                for k, d in enumerate(offsets)}
+    text = vd.verdict({**_summary(), 'materials': mats([0.029, 0.031, 0.03])}, None, [],
+                      dg.Decision(None, []))
+    assert 'long by about 3.0 cm alike' in text and 'recorded nearer' in text
+    assert 'range offset of the sensor, or the reference pose' in text
+    for offsets in ([0.03, 0.0, 0.0], [0.03, -0.03, 0.03], [0.03, 0.01, 0.03],
+                    [0.005, 0.006, 0.005]):
+        assert 'by about' not in vd.verdict({**_summary(), 'materials': mats(offsets)}, None,
+                                            [], dg.Decision(None, []))
+    pose = SimpleNamespace(constant=True, gain=0.03, z=9.0, line_of_sight_share=1.0,
+                           words=lambda: 'the reference pose is off by about 3.0 cm')
+    assert 'long by about' not in vd.verdict(
+        {**_summary(), 'materials': mats([0.03, 0.03, 0.03])}, None, [],
+        dg.Decision(None, [], pose=pose))

@@ -159,6 +159,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                      'pose_error --fit measures them on the corrected pose).')
         parts.append(f'Per-material range bias/sigma differ from the configuration for {rows}: '
                      f'see materials.yaml (--fit refits them).{pose_note}')
+        common = common_offset_words(mats) if decision.pose is None else ''
+        if common:
+            parts.append(common)
     un = summary['unmatched']
     if un['points']:
         parts.append(f'{un["points"]} points ({100 * un["fraction"]:.2f} %) miss the target '
@@ -182,6 +185,33 @@ VALUE_SHIFT = 0.2
 # A per-cloud pose correction this much along the line of sight (share of its mean
 # square) moves the clouds as a range offset of the sensor would: said, not decided.
 LINE_OF_SIGHT_SHARE = 0.75
+
+
+# Every material's range offset alike (at least this many materials, each within this
+# share of the largest, the same sign, their mean at least this many metres): said as a
+# range offset of the sensor or the reference pose along the line of sight.
+COMMON_OFFSET_MATERIALS = 3
+COMMON_OFFSET_SPREAD = 0.5
+COMMON_OFFSET_MIN_M = 0.01
+
+
+def common_offset_words(mats: dict) -> str:
+    """The verdict's sentence when every material's range is off by about the same
+    amount and no pose error is reported: a range offset of the sensor and a target
+    recorded nearer or farther along the line of sight move every material alike, and
+    on a narrow target the one cannot be told from the other; '' otherwise."""
+    d = np.array([m['measured_bias_m'] - m['model_bias_m'] for m in mats.values()
+                  if m.get('measured_bias_m') is not None and m.get('model_bias_m') is not None])
+    if (len(d) < COMMON_OFFSET_MATERIALS or not (np.all(d > 0) or np.all(d < 0))
+            or np.min(np.abs(d)) < COMMON_OFFSET_SPREAD * np.max(np.abs(d))
+            or abs(float(np.mean(d))) < COMMON_OFFSET_MIN_M):
+        return ''
+    return (f'Every material\'s range is {"long" if d[0] > 0 else "short"} by about '
+            f'{100 * abs(float(np.mean(d))):.1f} cm alike: a range offset of the sensor, or the '
+            'reference pose along the line of sight (the target recorded '
+            f'{"nearer" if d[0] > 0 else "farther"} than it was), which this recording cannot '
+            'tell apart; a target on a surveyed pose, or one seen across a wide angle, '
+            'separates them.')
 
 
 def scan_pattern_off(summary: dict) -> bool:
