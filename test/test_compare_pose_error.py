@@ -108,9 +108,10 @@ def test_a_joint_fit_that_leaves_the_materials_a_common_offset_is_not_taken():
                       (0.3 * (los - np.median(los)) - 0.05, False)):
         # raw - its materials' medians, as fit_reference_pose hands it over
         med = np.array([np.median(raw[group == g]) for g in range(3)])[group]
-        assert pose_error.explains_common_offset(
-            a, raw - med, sigma, cloud, use, clouds, None, group, med,
-            pose_error.CONSTANT_RIDGE) is kept
+        joint = pose_error.fit_clouds(a, raw - med, sigma, cloud, use, clouds, None,
+                                      pose_error.CONSTANT_RIDGE, group)
+        assert pose_error.explains_common_offset(a @ joint[0], raw - med, group, use,
+                                                 med) is kept
 
 
 def test_total_z_closed_form():

@@ -87,7 +87,7 @@ from scipy.stats import kstest, norm
 
 from lidar_sim_ros.compare.model import likelihood as lk
 from lidar_sim_ros.compare.diagnose import laser_tiles
-from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se
+from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se, block_mean_z
 from lidar_sim_ros.compare.model.fit import fit_effect
 from lidar_sim_ros.compare.model.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
 from lidar_sim_ros.compare.model.matching import Model, predict_rays
@@ -731,9 +731,8 @@ class Diagnosis:
             ok = np.isfinite(loss)
             if ok.sum() < 2:
                 continue
-            mean, se = block_mean_se(loss[ok], self.matched_blocks[ok])
+            _, z = block_mean_z(loss[ok], self.matched_blocks[ok])
             per_point = float(np.sum(loss[ok]) / max(self.n_total, 1))
-            z = float(mean / se) if se > 0 and np.isfinite(se) else 0.0
             if (per_point >= MIN_PRACTICAL_GAIN and z >= self.z_crit
                     and (worst is None or per_point > worst[1])):
                 worst = (split, per_point, z)
@@ -766,9 +765,8 @@ class Diagnosis:
         ok = np.isfinite(d) & core
         if ok.sum() < 2:
             return None
-        mean, se = block_mean_se(d[ok], self.blocks[ok])
+        _, z = block_mean_z(d[ok], self.blocks[ok])
         per_point = float(np.sum(d[ok]) / max(self.n_total, 1))
-        z = float(mean / se) if se > 0 and np.isfinite(se) else 0.0
         if z >= self.z_crit:
             return None
         n_out = int(np.sum(np.isfinite(d) & ~core))

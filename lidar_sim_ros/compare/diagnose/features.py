@@ -353,17 +353,19 @@ def conditional_scores(values: dict[str, np.ndarray], names: list[str], z: np.nd
         full = _joint_nll(X, names, cat, train_idx, test_idx, z_tr, z_te, None, seed)
         gain_pp = base - full
         out['per_point'] = gain_pp
-        out['structure'] = _mean_z(gain_pp, blocks[test_idx])
+        out['structure'] = block_mean_z(gain_pp, blocks[test_idx])
         for name in to_drop:
             drop = _joint_nll(X, names, cat, train_idx, test_idx, z_tr, z_te,
                               names.index(name), seed)
-            out['unique'][name] = _mean_z(drop - full, blocks[test_idx])
+            out['unique'][name] = block_mean_z(drop - full, blocks[test_idx])
     return out
 
 
-def _mean_z(d: np.ndarray, blocks: np.ndarray) -> tuple[float, float]:
+def block_mean_z(d: np.ndarray, blocks: np.ndarray) -> tuple[float, float]:
+    """The mean of ``d`` and its z over neighbourhood blocks (``block_mean_se``; z 0
+    where the standard error is zero or unknown)."""
     mean, se = block_mean_se(d, blocks)
-    return mean, (mean / se if se > 0 and np.isfinite(se) else 0.0)
+    return mean, (float(mean / se) if se > 0 and np.isfinite(se) else 0.0)
 
 
 def _gauss_nll(z: np.ndarray, mean: np.ndarray, var: np.ndarray) -> np.ndarray:

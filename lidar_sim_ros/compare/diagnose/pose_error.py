@@ -46,7 +46,7 @@ from scipy.spatial.transform import Rotation
 from lidar_sim_ros.core.pose import Poses
 
 from lidar_sim_ros.compare.model import likelihood as lk
-from lidar_sim_ros.compare.diagnose.features import block_mean_se
+from lidar_sim_ros.compare.diagnose.features import block_mean_z
 
 OUTLIER_SIGMAS = 5.0      # residuals beyond this many sigma are not fitted (edges, outliers)
 MIN_COS = 0.2             # |n.u| below this: grazing rays, range too sensitive to the pose
@@ -244,13 +244,13 @@ def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
     # offsets of the materials with enough points; the others keep theirs.
     g = np.asarray(group)
     mats = [m for m in np.unique(g[use]) if np.sum(use & (g == m)) >= lk.MIN_MATERIAL_POINTS]
-    col = {m: j for j, m in enumerate(mats)}
+    col = np.full(int(g.max()) + 1, -1)          # each material's column, -1: none
+    col[mats] = np.arange(len(mats))
     n_m = len(mats)
     lhs, rhs_m = np.zeros((n_m, n_m)), np.zeros(n_m)
     coupling = []
     for k, sel, w, aw, ata, rhs in systems:
-        gm = g[sel]
-        j = np.array([col.get(m, -1) for m in gm])
+        j = col[g[sel]]
         keep = j >= 0
         b = np.zeros((n_par, n_m))
         np.add.at(b.T, j[keep], aw[keep] * w[keep, None])
@@ -524,14 +524,15 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # common offset of the materials is the same in every cloud, and per cloud the
     # joint fit would move each cloud along the line of sight on the pattern alone.
     ridge = CONSTANT_RIDGE if constant else RIDGE
-    if not constant or not explains_common_offset(a, r, s, cloud, use, clouds, prior, group,
-                                                  offset, ridge):
-        group = None
+    row = np.searchsorted(clouds, cloud)
+    joint = fit_clouds(a, r, s, cloud, use, clouds, prior, ridge, group) if constant else None
+    if joint is None or not explains_common_offset(np.einsum('ij,ij->i', a, joint[row]), r,
+                                                   group, use, offset):
+        group, joint = None, None
     # The test (held-out halves) keeps the light ridge it was validated with: a damped
     # fit generalises better, so the stronger ridge would make the test more eager,
     # e.g. on top of a fitted time offset; the correction applied is the damped one.
     half = np.random.default_rng([seed, 61]).integers(0, 2, len(r))
-    row = np.searchsorted(clouds, cloud)
     gain, gain12 = np.zeros(len(r)), np.zeros(len(r))
     for k in (0, 1):
         test, train = use & (half != k), use & (half == k)
@@ -544,9 +545,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
             gain12[test] = heldout_gain(r[test], corr12[test], s[test])
 
     def judged(g: np.ndarray) -> tuple[float, float]:
-        mean, se = block_mean_se(g[use], blocks[use]) if use.sum() > 1 else (0.0, np.inf)
-        return (float(np.sum(g[use]) / max(len(r), 1)),
-                float(mean / se) if se > 0 and np.isfinite(se) else 0.0)
+        z = block_mean_z(g[use], blocks[use])[1] if use.sum() > 1 else 0.0
+        return float(np.sum(g[use]) / max(len(r), 1)), z
     per_point, z = judged(gain)
     rate_gain, rate_z = judged(gain12 - gain) if rate else (0.0, 0.0)
     # A refinement of a pose error that is there: the rigid correction passes first.
@@ -559,8 +559,9 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         # The drifting correction against none: the test of what is reported.
         per_point, z = judged(gain12)
     cols = a12 if supported else a
-    x = fit_clouds(cols, r, s, cloud, use, clouds, prior12 if supported else prior, ridge,
-                   group)
+    # One correction for the recording has no rate: the joint fit is the correction.
+    x = joint if joint is not None else fit_clouds(
+        cols, r, s, cloud, use, clouds, prior12 if supported else prior, ridge)
     correction = np.einsum('ij,ij->i', cols, x[row])
     t_mean = np.array([float(np.mean(t_s[cloud == c])) for c in clouds])
     p = ctx.direction * np.where(ok, model.expected_range_m, 0.0)[:, None]
@@ -589,12 +590,11 @@ def common_offset_m(offset_m: np.ndarray, group: np.ndarray, use: np.ndarray) ->
     return float(np.median(values)) if values else 0.0
 
 
-def explains_common_offset(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
-                           cloud: np.ndarray, use: np.ndarray, clouds: np.ndarray,
-                           prior: np.ndarray | None, group: np.ndarray,
-                           offset_m: np.ndarray, ridge: float = RIDGE) -> bool:
-    """Whether the correction fitted jointly with the material offsets (``fit_clouds``
-    with ``group``) may stand: the materials show a common offset (``offset_m``, the
+def explains_common_offset(correction_m: np.ndarray, residual_m: np.ndarray,
+                           group: np.ndarray, use: np.ndarray, offset_m: np.ndarray) -> bool:
+    """Whether ``correction_m`` (m per point), fitted jointly with the material offsets
+    (``fit_clouds`` with ``group``) on ``residual_m`` (m, the offsets ``offset_m`` per
+    point subtracted), may stand: the materials show a common offset (``offset_m``, the
     per-material offsets of the residual before it, per point; their median at least
     COMMON_OFFSET_MIN_M) and the joint fit explains at least COMMON_OFFSET_SHARE of it.
     A pose off along the line of sight moves every material alike, and the joint fit
@@ -605,9 +605,7 @@ def explains_common_offset(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.nd
     where the effect's own bias had put every material 11 cm short, it moved the target
     1 cm and left the offsets as they were (the pose then reported beside the effect).
     Otherwise the offsets are subtracted first and the correction fitted on the rest."""
-    x = fit_clouds(a, residual_m, sigma_m, cloud, use, clouds, prior, ridge, group)
-    row = np.searchsorted(clouds, cloud)
-    left = residual_m - np.einsum('ij,ij->i', a, x[row])
+    left = residual_m - correction_m
     after, _ = lk.material_nuisance(left, np.ones(len(left)), group, use)
     before = common_offset_m(offset_m, group, use)
     left_over = common_offset_m(offset_m + after, group, use)
