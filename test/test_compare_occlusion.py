@@ -132,3 +132,17 @@ def test_compare_leaves_the_pillar_out_of_a_foreign_recording(tmp_path: Path):
                'points': before, 'points_analysed': len(left.meas)}
     text = verdict(summary, None, [], run.diagnosis.Decision(None, []))
     assert f'{occ.points} returns' in text and 'in front of the target' in text
+
+
+def test_summary_line_counts_the_occluded_apart_from_max_points():
+    """The headline says the occluded returns were left out, not that --max-points cut."""
+    from lidar_sim_ros.compare.report.verdict import summary_lines
+
+    s = dict(points=1000, points_analysed=1000, matched_points=700, unmatched_points=100,
+             unmatched_fraction=0.125, range_rmse_m=0.02, nll_per_point=-2.0,
+             range_rmse_calibrated_m=0.02, nll_calibrated=-2.0, fitted_effects=[],
+             features=[], candidates=[], missing_effect=None, verdict='v',
+             occlusion={'points': 200})
+    lines = summary_lines(s, [])
+    assert '--max-points' not in lines[0]
+    assert any(line.startswith('occluded: 200 returns') for line in lines)

@@ -947,7 +947,8 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'effects': [_effect_record(e) for e in effects],
         'points': int(len(meas) + meas.dropped.get('subsampled', 0)
                       + meas.dropped.get('occluded', 0)),
-        'points_analysed': int(len(meas)),
+        # Analysed: after --max-points; the occluded among them are left out (occlusion).
+        'points_analysed': int(len(meas) + meas.dropped.get('occluded', 0)),
         'occlusion': inp.occlusion.as_dict() if inp.occlusion is not None else None,
         'matched_points': int(sel.sum()),
         'unmatched_points': int((~sel).sum()),
