@@ -49,12 +49,13 @@ def occluded(range_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarra
     threshold = np.asarray(threshold_m, float)
     cloud = np.asarray(cloud)
     on_target = np.isfinite(expected) & np.isfinite(range_m)
-    front = np.zeros(len(range_m), bool)
-    for c in np.unique(cloud[on_target]):
-        sel = on_target & (cloud == c)
-        nearest = float(np.min(expected[sel]))
-        with np.errstate(invalid='ignore'):
-            front[sel] = range_m[sel] < nearest - np.nan_to_num(threshold[sel], nan=np.inf)
+    # The target's nearest modelled surface per cloud (one pass, whatever the clouds).
+    clouds, which = np.unique(cloud, return_inverse=True)
+    nearest = np.full(len(clouds), np.inf)
+    np.minimum.at(nearest, which[on_target], expected[on_target])
+    margin = np.nan_to_num(threshold, nan=np.inf)
+    with np.errstate(invalid='ignore'):
+        front = on_target & (range_m < nearest[which] - margin)
     found = np.flatnonzero(front)
     if len(found) == 0:
         return front
