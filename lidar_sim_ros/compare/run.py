@@ -1,5 +1,5 @@
-"""The comparison loop, top to bottom: load, match, calibrate materials, attribute,
-diagnose, report.
+"""The comparison loop, top to bottom: load, leave out occlusion, match, calibrate
+materials, attribute, diagnose, report.
 
 ``run_compare`` is what ``lidar-sim compare`` calls. It reads a bag of measured
 points and target poses, predicts every measured ray with the model (the scenario's
