@@ -162,7 +162,16 @@ def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
         unm = first.get('unmatched_fraction', 0.0)
         if abs(unm - share) > 0.25 * share + 0.01:
             why.append(f'unmatched share {unm:.3f}, clutter and false returns {share:.3f}')
+    if spec.occluder:
+        # The returns the pillar puts on the target's rays are counted as occlusion.
+        hidden = truth['occluded_fraction']
+        said = (first.get('occlusion') or {}).get('fraction', 0.0)
+        if abs(said - hidden) > OCCLUDED_TOLERANCE * hidden + 0.005:
+            why.append(f'occluded share {said:.3f}, hidden by the pillar {hidden:.3f}')
     return {'ok': not why, 'why': '; '.join(why), 'named': named, 'ties': ties, 'nll': nll}
+
+
+OCCLUDED_TOLERANCE = 0.2     # the occluded share said, relative to the share hidden
 
 
 # ------------------------------------------------- issue 30: where explanations tie

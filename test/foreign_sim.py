@@ -547,6 +547,26 @@ class Clutter:
         return hit, rng, np.clip(cos_i, 1e-6, 1.0)
 
 
+class Occluder(Clutter):
+    """A lab pillar between the sensor and the target (lidar frame, static): a box
+    OCCLUDER_WIDTH_M wide and 4 m tall at OCCLUDER_AT of the target's distance, set off
+    the line of sight to the target's centre by OCCLUDER_OFFSET_M so that it hides a
+    strip of the target and its own returns lie partly off the target's silhouette."""
+
+    def __init__(self, target_m: tuple[float, float, float]):
+        toward = _unit(target_m)
+        at = OCCLUDER_AT * float(np.linalg.norm(target_m)) * toward
+        side = _unit(np.cross(toward, (0.0, 0.0, 1.0)))
+        pillar = trimesh.creation.box(extents=(0.15, OCCLUDER_WIDTH_M, 4.0))
+        pillar.apply_translation(at + OCCLUDER_OFFSET_M * side)
+        self.mesh = pillar
+        self._rays = RayMeshIntersector(self.mesh)
+
+
+OCCLUDER_AT = 0.6            # the pillar's distance, share of the target's
+OCCLUDER_WIDTH_M = 0.4
+OCCLUDER_OFFSET_M = 0.35     # off the line of sight to the target's centre, sideways
+
 _CLUTTER: dict[float, Clutter] = {}
 
 
@@ -603,6 +623,7 @@ class ForeignSpec:
     also: tuple = ()                     # further hidden effects: ((name, params), ...)
     amplitude_cv: float = 0.0            # shot-to-shot power fluctuation (speckle), rel. sd
     clutter: bool = False                # lab fixtures in view: wall, jig, cable
+    occluder: bool = False               # a lab pillar between the sensor and the target
     lasers: int = 0                      # lasers firing round-robin; 0 = no laser field
     layout: str = 'generic'              # generic | cepton (the SDK3 driver's fields)
     fins: bool = False                   # radiator fins beside the MLI sides (satellite_parts)
@@ -704,10 +725,15 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     for k, name in enumerate(MATERIALS):
         sel = mat == k
         bias[sel], var[sel] = errors[name][0], errors[name][1] ** 2
-    if spec.clutter:
+    fixtures = ([lab_clutter(spec.distance_m)] if spec.clutter else []) + \
+        ([Occluder(traj.position_m)] if spec.occluder else [])
+    on_mesh = hit.copy()
+    hidden = np.zeros(len(d), bool)      # the target's echo hidden by a fixture in front
+    for fixture in fixtures:
         # Lab fixtures are static in the lidar frame; a nearer fixture hides the target.
-        c_hit, c_r, c_cos = lab_clutter(spec.distance_m).cast(np.zeros((len(d), 3)), d)
+        c_hit, c_r, c_cos = fixture.cast(np.zeros((len(d), 3)), d)
         front = c_hit & (~hit | (c_r < true_r))
+        hidden = (hidden | front) & on_mesh
         hit, true_r, cos_i = hit | front, np.where(front, c_r, true_r), np.where(front, c_cos, cos_i)
         mat = np.where(front, CLUTTER, mat)
         power = np.where(front, received_power_w(sensor, c_r, c_cos, np.zeros(len(d), int))
@@ -786,6 +812,7 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
         power = np.where(false, sensor.threshold_power_w * rng.uniform(1.0, 3.0, len(d)), power)
         r_hit = np.where(false, np.nan, r_hit)
         mat = np.where(false, -1, mat)
+        hidden &= ~false
         detected |= false
     detected &= (measured > sensor.min_range_m) & (measured < sensor.max_range_m)
     i = np.flatnonzero(detected)
@@ -794,7 +821,7 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
             'laser': laser[i], 'silent_t_s': t[silent], 'silent_laser': laser[silent],
             'range_m': measured[i], 'true_range_m': r_hit[i], 'material': mat[i],
             'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid,
-            'base_sigma_m': base_sigma[i], 'multipath': multipath[i],
+            'base_sigma_m': base_sigma[i], 'multipath': multipath[i], 'hidden': hidden[i],
             'effects': {k: (b[i], v[i]) for k, (b, v) in contrib.items()}}
 
 
@@ -1088,7 +1115,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
     # Pose clock minus lidar clock: the pose stamped s shows the target at lidar time s - dt.
     offset = spec.params_of('time_offset')
     dt_s = float(offset.get('dt_s', 0.05)) if offset is not None else 0.0
-    n_points = n_clutter = n_false = n_multipath = 0
+    n_points = n_clutter = n_false = n_multipath = n_hidden = 0
     kept: list[dict] = []
     bag = out / 'bag'
     gap = spec.frame_gap_s or period
@@ -1122,6 +1149,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
             n_clutter += int(np.sum(frame['material'] == CLUTTER))
             n_false += int(np.sum(frame['material'] < 0))
             n_multipath += int(np.sum(frame['multipath']))
+            n_hidden += int(np.sum(frame['hidden']))
     truth = {'hidden': [[n, p] for n, p in spec.hidden], 'time_offset_s': dt_s,
              **({'laser_offsets_m': laser_offsets_of(spec).tolist()}
                 if spec.params_of('laser_bias') is not None else {}),
@@ -1131,7 +1159,8 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
                                   for n in kept[0]['effects']} if kept else {},
              'clutter_fraction': n_clutter / max(n_points, 1),
              'false_return_fraction': n_false / max(n_points, 1), 'false_returns': n_false,
-             'multipath_fraction': n_multipath / max(n_points, 1)}
+             'multipath_fraction': n_multipath / max(n_points, 1),
+             'occluded_fraction': n_hidden / max(n_points, 1)}
     scen = write_compare_scenario(out / 'scenario.yaml', mesh, traj)
     return ForeignDataset(spec, bag, mesh, scen, n_points, truth)
 
@@ -1262,6 +1291,13 @@ BATTERY: tuple[ForeignSpec, ...] = (
                 speed_mps=0.0, spin_dps=3.0, distance_m=12.0, shots_per_frame=8000,
                 expected=None, note='the counter clock runs 5000 ppm fast, target at 12 m'),
     ForeignSpec('clutter', None, seed=40, clutter=True, note='wall, jig and cable in view'),
+    # --- an object between the sensor and the target (a lab pillar): its returns on the
+    # rays it cuts lie metres short of the target; no pose error, no material refit
+    ForeignSpec('occluder', None, seed=90, occluder=True,
+                note='a pillar 0.4 m wide at 60 % of the distance hides a strip of the target'),
+    ForeignSpec('occluder_walk', 'range_walk', {'form': 'poly_log', 'a_m': 0.03, 'b_m': 0.006},
+                seed=91, occluder=True, distance_m=9.0, intensity='counts16',
+                note='the pillar, and a range walk to be named through it'),
     ForeignSpec('clutter_solar', 'solar_background', {'fraction': 0.008, 'mean_range_m': 30.0},
                 seed=41, clutter=True, scan='rosette', intensity='counts16'),
     # --- clouds without per-point time, stamped at the start, middle or end of the scan

@@ -1,5 +1,5 @@
-"""The comparison loop, top to bottom: load, match, calibrate materials, attribute,
-diagnose, report.
+"""The comparison loop, top to bottom: load, leave out occlusion, match, calibrate
+materials, attribute, diagnose, report.
 
 ``run_compare`` is what ``lidar-sim compare`` calls. It reads a bag of measured
 points and target poses, predicts every measured ray with the model (the scenario's
@@ -39,7 +39,8 @@ from lidar_sim_ros.compare.diagnose import (diagnosis, features, plan as sep_pla
                                             stamp_place)
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
-from lidar_sim_ros.compare.model import likelihood as lk, materials as mat, neighbours, point_times
+from lidar_sim_ros.compare.model import (likelihood as lk, materials as mat, neighbours,
+                                         occlusion as occ, point_times)
 from lidar_sim_ros.compare.recording.cepton_pcap import side_bag
 from lidar_sim_ros.compare.recording.intensity import IntensityCalibration, calibrate_intensity
 from lidar_sim_ros.compare.model.matching import (Matching, Model, edge_distance_rad, match,
@@ -327,6 +328,8 @@ class Inputs:
     user: list[Effect]
     model: Model
     pose_fit: bool = False        # --effect pose_error: correct the reference pose per cloud
+    # Returns from something in front of the target, left out of meas (``occlusion.py``).
+    occlusion: occ.Occlusion | None = None
 
 
 @dataclass
@@ -393,6 +396,8 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     opts.out = Path(opts.out)
     with stage('load'):
         inp = load_inputs(opts)
+    with stage('occlusion'):
+        inp = leave_out_occluded(inp)
     power = PowerFromIntensity()
     with stage('point times'):
         extra_var, time_spread = unknown_time_variance(inp.model, inp.scenario_effects,
@@ -550,6 +555,24 @@ def load_inputs(opts: CompareOptions) -> Inputs:
                            sim.shots_of_frame if varies_by_frame(sim.sensor) else None,
                            sim.frame_period_s, (0.0, DEFAULT_EPOCH_S))
     return Inputs(scenario, meas, sun, scenario_effects, user, model, pose_fit)
+
+
+def leave_out_occluded(inp: Inputs) -> Inputs:
+    """The inputs without the returns of an object between the sensor and the target
+    (``occlusion.occluded`` on the model's rays, scenario effects in its geometry; the
+    count in ``meas.dropped['occluded']`` and ``Inputs.occlusion``). Before anything is
+    fitted: a hidden material's refit, the pose test and the diagnosis never see them."""
+    meas, model = inp.meas, inp.model
+    m = match(geometry(model, inp.scenario_effects), meas, model.divergence_rad, edges=False)
+    expected = np.where(m.matched, m.pred.expected_range_m, np.nan)
+    sigma = np.nan_to_num(np.asarray(m.pred.sigma_m, float), nan=0.0)
+    mask = occ.occluded(meas.range_m, expected, diagnosis.far_threshold_m(sigma),
+                        meas.directions, meas.cloud)
+    found = occ.summarise(mask, meas.range_m, expected, meas.cloud, len(meas.cloud_stamps_s))
+    if found.points == 0:
+        return replace(inp, occlusion=found)
+    kept = replace(meas.subset(~mask), dropped={**meas.dropped, 'occluded': found.points})
+    return replace(inp, meas=kept, occlusion=found)
 
 
 def correct_reference_pose(model: Model, effects: list[Effect], matching: Matching,
@@ -922,8 +945,11 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'bag': str(opts.bag), 'mesh': str(opts.mesh),
         'config': str(scenario.source) if scenario.source else None,
         'effects': [_effect_record(e) for e in effects],
-        'points': int(len(meas) + meas.dropped.get('subsampled', 0)),
-        'points_analysed': int(len(meas)),
+        'points': int(len(meas) + meas.dropped.get('subsampled', 0)
+                      + meas.dropped.get('occluded', 0)),
+        # Analysed: after --max-points; the occluded among them are left out (occlusion).
+        'points_analysed': int(len(meas) + meas.dropped.get('occluded', 0)),
+        'occlusion': inp.occlusion.as_dict() if inp.occlusion is not None else None,
         'matched_points': int(sel.sum()),
         'unmatched_points': int((~sel).sum()),
         'unmatched_fraction': float(matching.unmatched_fraction),

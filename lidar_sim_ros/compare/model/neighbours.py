@@ -22,13 +22,17 @@ _CLOUD_GAP = 10.0              # separates clouds in the search space (unit vect
 
 def isolated(directions: np.ndarray, range_m: np.ndarray, cloud: np.ndarray,
              query: np.ndarray, same_surface_m: np.ndarray | None = None, slope: float = 0.0,
-             min_agreeing: int = 1) -> np.ndarray:
+             min_agreeing: int = 1, local_reach: bool = False) -> np.ndarray:
     """For the points ``query`` (indices): True where fewer than ``min_agreeing`` of the
     NEIGHBOURS nearest rays of the same cloud, within SPACING_REACH typical spacings,
     measured a range within max(SAME_SURFACE_M, SAME_SURFACE_FRACTION r) of the point's
     (the comparison's rule), or, if given, within ``same_surface_m`` (per query point, m)
     plus ``slope`` r theta (theta: the neighbour's angular distance, rad; ``slope`` is the
-    tangent of the steepest incidence a surface may be seen at)."""
+    tangent of the steepest incidence a surface may be seen at). ``local_reach``: the
+    reach is SPACING_REACH times each point's own nearest-neighbour distance, not the
+    query's median (a pattern whose density varies across the view: a Lissajous's rays
+    crowd at its edges, and a median spacing of the crowded part leaves the sparse part's
+    neighbours out of reach)."""
     query = np.asarray(query, int)
     if len(query) == 0:
         return np.zeros(0, bool)
@@ -41,6 +45,8 @@ def isolated(directions: np.ndarray, range_m: np.ndarray, cloud: np.ndarray,
         return np.ones(len(query), bool)
     spacing = float(np.median(dist[:, 0])) if np.isfinite(dist[:, 0]).any() else 0.0
     reach = SPACING_REACH * max(spacing, 1e-6)
+    if local_reach:
+        reach = SPACING_REACH * np.maximum(np.nan_to_num(dist[:, :1], posinf=0.0), 1e-6)
     r = np.asarray(range_m, float)
     if same_surface_m is None:
         tol = np.maximum(SAME_SURFACE_M, SAME_SURFACE_FRACTION * r[query])[:, None]

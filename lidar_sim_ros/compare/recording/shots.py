@@ -27,7 +27,9 @@ def missed_per_unmatched(meas: Measurements, matched: np.ndarray, per_frame: int
     if n_unmatched == 0:
         return None
     dropped = meas.dropped
-    finite = len(meas) + dropped.get('subsampled', 0)
+    # Occluded returns (``occlusion.py``, left out of ``meas``) came from shots too: the
+    # analysed share of the shots is scaled down by them.
+    finite = len(meas) + dropped.get('subsampled', 0) + dropped.get('occluded', 0)
     empty = dropped.get('non_finite', 0) + dropped.get('at_origin', 0)
     shots = finite + empty if empty else per_frame * len(meas.cloud_stamps_s)
     if shots <= finite:

@@ -162,6 +162,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         common = common_offset_words(mats) if decision.pose is None else ''
         if common:
             parts.append(common)
+    occluded = (summary.get('occlusion') or {}).get('interpretation')
+    if occluded:
+        parts.append(f'{occluded}.')
     un = summary['unmatched']
     if un['points']:
         parts.append(f'{un["points"]} points ({100 * un["fraction"]:.2f} %) miss the target '
@@ -525,6 +528,10 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
              f'range RMSE: {s["range_rmse_m"]:.4f} m   NLL: {s["nll_per_point"]:.3f} per point'
              f'   (per-material offsets refit: {s["range_rmse_calibrated_m"]:.4f} m, '
              f'{s["nll_calibrated"]:.3f})']
+    occluded = (s.get('occlusion') or {}).get('points')
+    if occluded:
+        lines.append(f'occluded: {occluded} returns from something in front of the target '
+                     'left out (summary.json: occlusion)')
     for e in s['fitted_effects']:
         params = ', '.join(f'{k} = {v:.6g}' if isinstance(v, float) else f'{k} = {v}'
                            for k, v in e['params'].items())

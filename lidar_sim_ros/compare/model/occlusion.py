@@ -1,0 +1,112 @@
+"""Rays the lab hides: an object between the sensor and the target (an occluder).
+
+A pillar, a jig or a cable between the sensor and the target returns its own range on
+the rays it cuts: the model's ray meets the target, the measured point lies metres in
+front of it. Kept among the matched points, such returns are read as whatever the
+fits can bend toward them: a material's range bias (a material mostly hidden refits to
+the occluder's range), a reference-pose error, a tie of sensor effects. They are found
+here once, on the model's rays before anything is fitted, and left out of the
+material refit, the pose test and the diagnosis (``run.leave_out_occluded``); the
+verdict and ``summary.json`` (``occlusion``) count them.
+
+A measured point is taken as occlusion when
+
+* its ray hits the target under the model and its measured range lies in front of the
+  target's nearest modelled surface in its cloud by more than the far threshold
+  (``diagnosis.far_threshold_m``: max(FAR_MIN_M, FAR_SIGMAS sigma)): no range effect,
+  pose error or beam footprint of the target puts a return there, while a return
+  within the target's own depth span (a depth step, a silhouette under a pose error)
+  is the target's business and stays;
+* and it lies on a surface: at least MIN_AGREEING of its neighbouring rays in the same
+  cloud measured the same range (``neighbours.isolated``, within a reach of its own
+  ray spacing; the occluder's own returns off the mesh count). A single stray point short of the target is a false return
+  (``solar_background``, ``sunlight``: catalogue effects) and stays.
+
+Points far *behind* the target (multipath ghosts, a wall) are never occlusion.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidar_sim_ros.compare.model import neighbours
+
+MIN_AGREEING = 1       # neighbouring rays at the same range that make a surface (the rule of
+                       # ``neighbours.isolated``: two false returns side by side are rare)
+
+
+def occluded(range_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
+             directions: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+    """Bool per measured point: a return from something in front of the target (module doc).
+
+    range_m (N,): measured ranges (m); expected_m (N,): the model's expected range on
+    each ray (m, NaN where the ray misses the target); threshold_m (N,): how far in
+    front of the target's nearest modelled surface a return must lie (m);
+    directions (N, 3) unit, cloud (N,): for the neighbour test."""
+    range_m = np.asarray(range_m, float)
+    expected = np.asarray(expected_m, float)
+    threshold = np.asarray(threshold_m, float)
+    cloud = np.asarray(cloud)
+    on_target = np.isfinite(expected) & np.isfinite(range_m)
+    # The target's nearest modelled surface per cloud (one pass, whatever the clouds).
+    clouds, which = np.unique(cloud, return_inverse=True)
+    nearest = np.full(len(clouds), np.inf)
+    np.minimum.at(nearest, which[on_target], expected[on_target])
+    margin = np.nan_to_num(threshold, nan=np.inf)
+    with np.errstate(invalid='ignore'):
+        front = on_target & (range_m < nearest[which] - margin)
+    found = np.flatnonzero(front)
+    if len(found) == 0:
+        return front
+    out = np.zeros(len(range_m), bool)
+    out[found] = ~neighbours.isolated(directions, range_m, cloud, found,
+                                      min_agreeing=MIN_AGREEING, local_reach=True)
+    return out
+
+
+@dataclass(frozen=True)
+class Occlusion:
+    """What was left out as occlusion: counts over the analysed points."""
+
+    points: int                  # occluded returns left out
+    analysed: int                # points analysed before they were left out
+    clouds: int                  # clouds with at least one
+    clouds_total: int
+    range_median_m: float | None     # the occluder's measured range
+    shortfall_median_m: float | None   # how far in front of the modelled surface
+
+    @property
+    def fraction(self) -> float:
+        return self.points / max(self.analysed, 1)
+
+    def as_dict(self) -> dict:
+        return {'points': self.points, 'fraction': round(self.fraction, 5),
+                'clouds': self.clouds, 'clouds_total': self.clouds_total,
+                'range_median_m': self.range_median_m,
+                'in_front_of_target_median_m': self.shortfall_median_m,
+                'interpretation': words(self)}
+
+
+def summarise(mask: np.ndarray, range_m: np.ndarray, expected_m: np.ndarray,
+              cloud: np.ndarray, n_clouds: int) -> Occlusion:
+    """The ``Occlusion`` of the points ``mask`` (from ``occluded``)."""
+    mask = np.asarray(mask, bool)
+    n = int(mask.sum())
+    r = np.asarray(range_m, float)[mask]
+    short = (np.asarray(expected_m, float) - np.asarray(range_m, float))[mask]
+    return Occlusion(n, int(len(mask)), int(len(np.unique(np.asarray(cloud)[mask]))),
+                     int(n_clouds),
+                     round(float(np.median(r)), 3) if n else None,
+                     round(float(np.median(short)), 3) if n else None)
+
+
+def words(occ: Occlusion) -> str | None:
+    """The verdict's sentence on occlusion, or None without any."""
+    if occ.points == 0:
+        return None
+    return (f'{occ.points} returns ({100 * occ.fraction:.1f} % of the points analysed, in '
+            f'{occ.clouds} of {occ.clouds_total} clouds) come from something in front of the '
+            f'target: an occluding object at about {occ.range_median_m:.1f} m, '
+            f'{occ.shortfall_median_m:.1f} m short of the modelled surface on the same rays '
+            '(lab clutter); left out of the material refit, the pose test and the diagnosis')

@@ -1,0 +1,148 @@
+"""compare/model/occlusion.py: returns of an object between the sensor and the target.
+
+On a hand-made scene (a target of two depth levels, a pillar in front of part of it, a
+stray false return, ghosts behind, a depth-step strip): exactly the pillar's returns on
+the target's rays are occlusion. Then on a foreign recording with a pillar
+(test/foreign_sim.py, ``occluder``): the comparison leaves out about the share the
+pillar hid, and the verdict says so.
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lidar_sim_ros.compare.model import occlusion
+
+TEST_DIR = Path(__file__).resolve().parent
+sys.path.insert(0, str(TEST_DIR))
+
+THRESHOLD_M = 0.5
+
+
+def _scene(clouds: int = 2, n: int = 40):
+    """Rays on an n x n grid (0.2 deg apart) per cloud; the target plane at 10 m with a
+    near box at 9 m on columns 25..34 (its own depth span 9..10 m), rays past row 35 off
+    the target. Returns directions, cloud, expected range (NaN off the target) and the
+    measured range without anything in front."""
+    a = np.radians(0.2) * (np.arange(n) - n / 2)
+    az, el = np.meshgrid(a, a, indexing='ij')             # [column, row]
+    d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1)
+    depth = np.full((n, n), 10.0)
+    depth[25:35, :] = 9.0
+    expected = depth / d[..., 0]
+    expected[:, 35:] = np.nan                             # rows off the target
+    measured = np.where(np.isfinite(expected), expected, 15.0)   # a wall behind
+    rng = np.random.default_rng(0)
+    out = []
+    for c in range(clouds):
+        noise = 0.01 * rng.standard_normal((n, n))
+        out.append((d.reshape(-1, 3), np.full(n * n, c), expected.ravel().copy(),
+                    (measured + noise).ravel()))
+    return [np.concatenate(x) for x in zip(*out)], n
+
+
+def test_a_pillar_in_front_is_occlusion_and_nothing_else():
+    (d, cloud, expected, measured), n = _scene()
+    idx = np.arange(len(d)).reshape(-1, n, n)             # [cloud, column, row]
+    pillar = idx[:, 5:11, :].ravel()                      # six columns at 6 m, all rows
+    measured[pillar] = 6.0 / d[pillar, 0] + 0.01 * np.random.default_rng(1).standard_normal(len(pillar))
+    stray = idx[0, 20, 10]                                # one false return at 4 m
+    measured[stray] = 4.0
+    ghosts = idx[1, 15:18, 5:8].ravel()                   # a patch 2 m behind (multipath)
+    measured[ghosts] += 2.0
+    step = idx[:, 35, :20].ravel()                        # next to the box: at 9 m, not 10
+    measured[step] = 9.0 / d[step, 0]                     # (a pose error, a mixed pixel)
+    found = occlusion.occluded(measured, expected, np.full(len(d), THRESHOLD_M), d, cloud)
+    want = np.zeros(len(d), bool)
+    want[pillar] = np.isfinite(expected[pillar])          # off the target: unmatched, not occlusion
+    assert want.sum() == 2 * 6 * 35
+    np.testing.assert_array_equal(found, want)
+    occ = occlusion.summarise(found, measured, expected, cloud, 2)
+    assert occ.points == 2 * 6 * 35 and occ.clouds == 2
+    assert occ.range_median_m == pytest.approx(6.0, abs=0.05)
+    assert occ.shortfall_median_m == pytest.approx(4.0, abs=0.05)
+    assert 'occluding object at about 6.0 m' in occlusion.words(occ)
+
+
+def test_a_pillar_in_one_cloud_only():
+    (d, cloud, expected, measured), n = _scene(clouds=3)
+    idx = np.arange(len(d)).reshape(-1, n, n)
+    patch = idx[2, 0:4, 0:4].ravel()
+    measured[patch] = 3.0
+    found = occlusion.occluded(measured, expected, np.full(len(d), THRESHOLD_M), d, cloud)
+    assert set(np.flatnonzero(found)) == set(patch)
+
+
+def test_scattered_false_returns_in_front_are_kept():
+    """Solar background: 1 % of the points at random ranges short of the target are no
+    surface (two side by side at the same range are rare): almost none is occlusion."""
+    (d, cloud, expected, measured), n = _scene(clouds=4)
+    rng = np.random.default_rng(3)
+    false = np.flatnonzero(rng.random(len(d)) < 0.01)
+    measured[false] = rng.uniform(0.5, 8.5, len(false))
+    found = occlusion.occluded(measured, expected, np.full(len(d), THRESHOLD_M), d, cloud)
+    assert found.sum() <= 0.02 * len(false)
+
+
+def test_no_target_no_range_or_no_points():
+    d = np.tile([[1.0, 0.0, 0.0]], (5, 1))
+    nan = np.full(5, np.nan)
+    assert not occlusion.occluded(np.full(5, 3.0), nan, np.full(5, 0.5), d, np.zeros(5)).any()
+    assert not occlusion.occluded(nan, np.full(5, 10.0), np.full(5, 0.5), d, np.zeros(5)).any()
+    assert not occlusion.occluded(np.full(5, 3.0), np.full(5, 10.0), nan, d, np.zeros(5)).any()
+    empty = occlusion.occluded(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 3)),
+                               np.zeros(0))
+    assert empty.shape == (0,)
+    occ = occlusion.summarise(np.zeros(5, bool), np.full(5, 3.0), nan, np.zeros(5), 1)
+    assert occ.points == 0 and occlusion.words(occ) is None and occ.fraction == 0.0
+
+
+def test_compare_leaves_the_pillar_out_of_a_foreign_recording(tmp_path: Path):
+    """The foreign ``occluder`` recording (one small frame): the occluded share left out
+    is the share the pillar hid (within 20 %), the shots count them, and the verdict
+    and summary line say it."""
+    from foreign_sim import battery, generate
+
+    from lidar_sim_ros.compare import run
+    from lidar_sim_ros.compare.report.verdict import verdict
+
+    spec = replace(battery(['occluder'])[0], frames=1, shots_per_frame=8000)
+    ds = generate(spec, tmp_path / 'occ')
+    opts = run.CompareOptions(bag=ds.bag, mesh=ds.mesh, out=tmp_path / 'out',
+                              config=ds.scenario, progress=False)
+    inp = run.load_inputs(opts)
+    before = len(inp.meas)
+    left = run.leave_out_occluded(inp)
+    occ = left.occlusion
+    hidden = ds.truth['occluded_fraction']
+    assert hidden > 0.1
+    assert occ.fraction == pytest.approx(hidden, rel=0.2)
+    assert len(left.meas) == before - occ.points
+    assert left.meas.dropped['occluded'] == occ.points
+    # What is left lies on the target or off it, never metres in front on its rays.
+    m = run.match(run.geometry(left.model, left.scenario_effects), left.meas,
+                  left.model.divergence_rad, edges=False)
+    short = m.residual_m[m.matched] < -1.0
+    assert short.mean() < 0.01
+    summary = {'occlusion': occ.as_dict(), 'unmatched': {'points': 0}, 'materials': {},
+               'points': before, 'points_analysed': len(left.meas)}
+    text = verdict(summary, None, [], run.diagnosis.Decision(None, []))
+    assert f'{occ.points} returns' in text and 'in front of the target' in text
+
+
+def test_summary_line_counts_the_occluded_apart_from_max_points():
+    """The headline says the occluded returns were left out, not that --max-points cut."""
+    from lidar_sim_ros.compare.report.verdict import summary_lines
+
+    s = dict(points=1000, points_analysed=1000, matched_points=700, unmatched_points=100,
+             unmatched_fraction=0.125, range_rmse_m=0.02, nll_per_point=-2.0,
+             range_rmse_calibrated_m=0.02, nll_calibrated=-2.0, fitted_effects=[],
+             features=[], candidates=[], missing_effect=None, verdict='v',
+             occlusion={'points': 200})
+    lines = summary_lines(s, [])
+    assert '--max-points' not in lines[0]
+    assert any(line.startswith('occluded: 200 returns') for line in lines)
