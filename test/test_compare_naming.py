@@ -14,6 +14,7 @@ import pytest
 
 from lidar_sim_ros.compare.diagnose import diagnosis as dg
 from lidar_sim_ros.compare.report import verdict as vd
+from lidar_sim_ros.core.effects import make_effect
 
 N = 4000
 BEFORE_NLL = -2.022
@@ -808,3 +809,21 @@ def test_every_material_off_alike_is_said_as_the_sensor_or_the_pose_along_the_li
     assert 'long by about' not in vd.verdict(
         {**_summary(), 'materials': mats([0.03, 0.03, 0.03])}, None, [],
         dg.Decision(None, [], pose=pose))
+
+
+def test_material_offsets_beside_a_named_effect_are_said_as_measured_without_it():
+    """A named range walk moves every range by its mean over the target's intensities
+    (-k ln(P / Pth): every material about 5 cm short for k 0.01, the eighth holdout's
+    walk + laser_bias + snr_noise): the materials' common offset is then not said as a
+    sensor offset or the pose, and the offsets are said to be measured without the walk."""
+    mats = {f'M{k}': {'bias_mismatch': True, 'sigma_mismatch': False,
+                      'measured_bias_m': d, 'model_bias_m': 0.0,
+                      'measured_sigma_m': 0.01, 'model_sigma_m': 0.01}
+            for k, d in enumerate([-0.05, -0.052, -0.048])}
+    walk = cand('range_walk', 0.036, -2.007, seed=20)
+    walk.params, walk.range_rmse_after_m = {'k_m': 0.0116}, 0.033
+    walk.effect = make_effect('range_walk', {'k_m': 0.0116})
+    text = vd.verdict({**_summary(), 'materials': mats}, None, [walk],
+                      dg.Decision('range_walk', []))
+    assert 'by about 5.0 cm alike' not in text and 'range offset of the sensor' not in text
+    assert 'measured without range_walk' in text and '--effect range_walk --fit' in text

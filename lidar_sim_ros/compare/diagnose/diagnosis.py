@@ -365,6 +365,8 @@ class Candidate:
     practical: bool = False            # matters: score >= MIN_PRACTICAL_GAIN
     share: float | None = None         # of the attribution's feature structure
     vetoed: str | None = None          # why it cannot be the missing effect despite its gain
+    tile_vetoed: bool = False          # ``vetoed`` by the tile test (``tile_veto``)
+    beside: str | None = None          # passed the tile test on top of this one (``lasers_beside``)
     far_points: float = 0.0            # outlier effects: far or unmatched points it explains
     effect: Effect | None = None
     variant: type | None = None
@@ -398,6 +400,7 @@ class Candidate:
                 'practical': self.practical,
                 **({'structure_share': _num(self.share)} if self.share is not None else {}),
                 **({'vetoed': self.vetoed} if self.vetoed else {}),
+                **({'passes_beside': self.beside} if self.beside else {}),
                 **({'against_pose': self.against_pose} if self.against_pose else {}),
                 **({'false_returns': self.false_returns} if self.false_returns else {}),
                 **({'error': self.error} if self.error else {})}
@@ -503,7 +506,9 @@ class Diagnosis:
             self._set_gain(cand, nll, explained)
             cand.vetoed = self._veto(cand, explained)
             if cand.vetoed is None and cand.significant and cand.practical:
-                cand.vetoed = self.tile_veto(cand) or self.core_veto(cand)
+                cand.vetoed = self.tile_veto(cand)
+                cand.tile_vetoed = cand.vetoed is not None
+                cand.vetoed = cand.vetoed or self.core_veto(cand)
         except Exception as exc:  # noqa: BLE001 - one failing candidate must not stop the rest
             cand.error = f'{type(exc).__name__}: {exc}'
             cand.score = float('-inf')
@@ -693,33 +698,39 @@ class Diagnosis:
         out[self.fold_order] = per_point
         return out
 
-    def transfer_nll(self, variant: type[Effect], halves: list['RaySet']) -> np.ndarray:
+    def transfer_nll(self, variant: type[Effect], halves: list['RaySet'],
+                     on_top: list[Effect] = ()) -> np.ndarray:
         """Held-out per-point NLL (order of ``rays.matched``) of ``variant`` fitted on one
-        of two ``halves`` of the matched points and scored on the other, both ways."""
+        of two ``halves`` of the matched points and scored on the other, both ways, with
+        ``on_top`` (fitted effects) in the model."""
         data = [make_fit_data(self.model, self.base, h, (self.full, self.rays))
                 for h in halves]
         out = np.full(len(self.rays.matched), np.nan)
         for k, h in enumerate(halves):
             train = data[1 - k]
-            effect = fit_effect(variant, train).effect
-            out[np.searchsorted(self.rays.matched, h.matched)] = heldout_nll(data[k], [effect])
+            effect = fit_effect(variant, train, list(on_top)).effect
+            out[np.searchsorted(self.rays.matched, h.matched)] = heldout_nll(
+                data[k], [*on_top, effect])
         return out
 
-    def tile_veto(self, cand: Candidate) -> str | None:
+    def tile_veto(self, cand: Candidate, on_top: list[Effect] = ()) -> str | None:
         """A candidate with a parameter per laser (``laser_tiles.per_laser``): its offsets
         must be the lasers', the same wherever a laser's tile falls on the target. Fitted
         on one half of every laser's points and scored on the other (halves of each tile
         in azimuth and in elevation, early and late: ``laser_tiles.tile_halves``), they
         must do as well as fitted on a random half (its score): a loss against it that
         passes the rule (z above the bound, at least MIN_PRACTICAL_GAIN nats per analysed
-        point) shows a pattern on the target, not the lasers (module doc)."""
+        point) shows a pattern on the target, not the lasers (module doc). ``on_top``:
+        fitted effects in the model, under the test and its random split alike (the
+        lasers beside a named effect, ``lasers_beside``)."""
         if (cand.effect is None or cand.variant is None or cand.heldout_nll is None
                 or not laser_tiles.per_laser(cand.effect)):
             return None
         idx, meas = self.rays.matched, self.rays.meas
         if len(np.unique(meas.laser[idx])) < 2:
             return None
-        at_random = self.in_matched_order(cand.heldout_nll)
+        at_random = self.in_matched_order(
+            self.cross_fit(cand.variant, list(on_top))[0] if on_top else cand.heldout_nll)
         none = self.rays.unmatched[:0]
         worst = None
         for split, upper in laser_tiles.tile_halves(meas.laser[idx], meas.directions[idx],
@@ -727,7 +738,7 @@ class Diagnosis:
             if upper.all() or not upper.any():
                 continue
             halves = [self.rays._with(idx[upper], none), self.rays._with(idx[~upper], none)]
-            loss = self.transfer_nll(cand.variant, halves) - at_random
+            loss = self.transfer_nll(cand.variant, halves, on_top) - at_random
             ok = np.isfinite(loss)
             if ok.sum() < 2:
                 continue
@@ -847,7 +858,29 @@ class Diagnosis:
             tied.append(c.name)
         if tied:
             return Decision(None, [best.name, *tied], also, pair_z)
-        return Decision(best.name, [], also, pair_z)
+        return Decision(best.name, [], also or self.lasers_beside(best, cands), pair_z)
+
+    def lasers_beside(self, best: Candidate, cands: list[Candidate]) -> str | None:
+        """A per-laser candidate set aside by the tile test (``tile_veto``: its offsets
+        followed a pattern on the target) is tried again with the named effect ``best``
+        in the model: the named effect's own pattern (a walk's, over the target's
+        intensities) is what the tiles cut up, beside the lasers' real offsets. If its
+        offsets then hold across the tiles and it adds to ``best`` (``adds_to``), it
+        explains another part: its veto is lifted and it is 'also'. Returns its name or
+        None."""
+        if best.effect is None or laser_tiles.per_laser(best.effect):
+            return None
+        for c in rank(cands):
+            if c is best or c.error is not None:
+                continue
+            if c.beside == best.name:
+                return c.name       # tried already (``decide`` runs again on rivals)
+            if not c.tile_vetoed:
+                continue
+            if self.tile_veto(c, [best.effect]) is None and self.adds_to(best, c):
+                c.vetoed, c.tile_vetoed, c.beside = None, False, best.name
+                return c.name
+        return None
 
     def simpler_instead(self, best: Candidate, others: list[Candidate],
                         pair_z: dict) -> Candidate | None:
