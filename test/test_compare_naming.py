@@ -827,3 +827,44 @@ def test_material_offsets_beside_a_named_effect_are_said_as_measured_without_it(
                       dg.Decision('range_walk', []))
     assert 'by about 5.0 cm alike' not in text and 'range offset of the sensor' not in text
     assert 'measured without range_walk' in text and '--effect range_walk --fit' in text
+
+
+def test_a_candidate_decisively_worse_alone_is_also_when_it_adds_on_top():
+    """decide(): incidence_angle decisively worse than range_walk alone, but passing the
+    rule on top of it (a walk and an incidence elongation at once, the eighth holdout):
+    'also'. One that does not add is not; a per-laser one is left to the tile test
+    (``lasers_beside``); only MAX_ALSO_TRIES are tried."""
+    walk = cand('range_walk', 0.157, -2.10, seed=21)
+    inc = cand('incidence_angle', 0.05, -2.05, seed=22)
+    d = Hand(on_top={('range_walk', 'incidence_angle'): True}).decide(dg.rank([walk, inc]))
+    assert d.missing == 'range_walk' and d.also == 'incidence_angle'
+    assert Hand().decide(dg.rank([walk, inc])).also is None
+    laser = _laser_like(cand('laser_bias', 0.05, -2.05, seed=23))
+    d = Hand(on_top={('range_walk', 'laser_bias'): True}).decide(dg.rank([walk, laser]))
+    assert d.missing == 'range_walk' and d.also is None
+    far = [cand(f'e{k}', 0.05 - 0.01 * k, -2.05, seed=30 + k) for k in range(3)]
+    d = Hand(on_top={('range_walk', 'e2'): True}).decide(dg.rank([walk, *far]))
+    assert dg.MAX_ALSO_TRIES == 2 and d.also is None
+
+
+def _laser_like(c):
+    c.n_params = 24
+    c.effect = SimpleNamespace(name=c.name, params=SimpleNamespace(
+        model_dump=lambda: {'offsets_m': [0.0] * 24}))
+    return c
+
+
+def test_the_named_value_fitted_together_with_the_also_effect_is_said_where_it_moves():
+    """The verdict quotes the named effect's value refitted with the 'also' one in the
+    model (``fit_together``) where it differs from the value alone by VALUE_SHIFT, and
+    says --fit fits in turn; not where it barely moves."""
+    walk = cand('range_walk', 0.157, -2.10, seed=21)
+    walk.params, walk.range_rmse_after_m = {'k_m': 0.0257}, 0.033
+    walk.effect = make_effect('range_walk', {'k_m': 0.0257})
+    walk.together = {'with': 'incidence_angle', 'params': {'k_m': 0.0188}}
+    text = vd.verdict(_summary(), None, [walk], dg.Decision('range_walk', [], 'incidence_angle'))
+    assert 'Fitted together with incidence_angle' in text
+    assert 'k_m = 0.0188 (alone: 0.0257)' in text and 'in turn' in text
+    walk.together = {'with': 'incidence_angle', 'params': {'k_m': 0.0250}}
+    text = vd.verdict(_summary(), None, [walk], dg.Decision('range_walk', [], 'incidence_angle'))
+    assert 'Fitted together' not in text

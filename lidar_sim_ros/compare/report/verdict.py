@@ -110,7 +110,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'z = {c.z:.1f}).{caveat} Run again with --effect {missing} --fit to add it.')
         if decision.also:
             parts.append(f'{decision.also} also explains a separate part of the residual: '
-                         'expect it in the next run.')
+                         f'expect it in the next run.{_together_words(c)}')
         if c.against_pose:
             parts.append(_against_pose_words(c))
     elif diagnosis.POSE_ERROR in decision.confounded_with:
@@ -306,6 +306,23 @@ def _against_pose_words(c) -> str:
             f'surfaces the moved target puts there) the fit is {ap.get("fitted_margin") or 0:.4f} '
             f'nats/point worse than with {c.name}, as --fit leaves them: the rays at the edges '
             'did not move, the ranges did.')
+
+
+def _together_words(c) -> str:
+    """Its fitted figures refitted with the effect that also explains a part in the
+    model (``together``, ``Diagnosis.fit_together``), where they differ from those
+    alone by more than VALUE_SHIFT."""
+    tog = getattr(c, 'together', None) or {}
+    moved = {k: v for k, v in (tog.get('params') or {}).items()
+             if isinstance(c.params.get(k), float)
+             and abs(v - c.params[k]) > VALUE_SHIFT * max(abs(c.params[k]), abs(v), 1e-12)}
+    if not moved:
+        return ''
+    both = ', '.join(f'{k} = {v:.4g} (alone: {c.params[k]:.4g})' for k, v in moved.items())
+    return (f' Fitted together with {tog["with"]} (each refitted with the other in the '
+            f'model until they settle), {both}: alone it takes part of the other\'s shape. '
+            '--fit fits the effects it is given in turn, each on top of those before it, '
+            'so its value for the first is the value alone.')
 
 
 def _value_on_pose(c) -> str:
