@@ -857,14 +857,14 @@ def _laser_like(c):
 def test_the_named_value_fitted_together_with_the_also_effect_is_said_where_it_moves():
     """The verdict quotes the named effect's value refitted with the 'also' one in the
     model (``fit_together``) where it differs from the value alone by VALUE_SHIFT, and
-    says --fit fits in turn; not where it barely moves."""
+    says to add both; not where it barely moves."""
     walk = cand('range_walk', 0.157, -2.10, seed=21)
     walk.params, walk.range_rmse_after_m = {'k_m': 0.0257}, 0.033
     walk.effect = make_effect('range_walk', {'k_m': 0.0257})
     walk.together = {'with': 'incidence_angle', 'params': {'k_m': 0.0188}}
     text = vd.verdict(_summary(), None, [walk], dg.Decision('range_walk', [], 'incidence_angle'))
     assert 'Fitted together with incidence_angle' in text
-    assert 'k_m = 0.0188 (alone: 0.0257)' in text and 'in turn' in text
+    assert 'k_m = 0.0188 (alone: 0.0257)' in text and 'fits them together' in text
     walk.together = {'with': 'incidence_angle', 'params': {'k_m': 0.0250}}
     text = vd.verdict(_summary(), None, [walk], dg.Decision('range_walk', [], 'incidence_angle'))
     assert 'Fitted together' not in text

@@ -329,11 +329,13 @@ def variants(effect_cls: type[Effect], fixed: dict | None = None,
     return [with_defaults(effect_cls, {**fixed, **c}) for c in combos[:max_variants]]
 
 
-def fit_best_variant(effect_cls: type[Effect], data, fixed: dict | None = None):
-    """ML fit over the free parameters and the discrete options: (FitResult, variant class)."""
+def fit_best_variant(effect_cls: type[Effect], data, fixed: dict | None = None,
+                     on_top: list[Effect] = ()):
+    """ML fit over the free parameters and the discrete options, with ``on_top`` (fitted
+    effects) in the model: (FitResult, variant class)."""
     best = None
     for v in variants(effect_cls, fixed):
-        fit = fit_effect(v, data)
+        fit = fit_effect(v, data, list(on_top))
         if best is None or fit.nll_per_point < best[0].nll_per_point - 1e-9:
             best = (fit, v)
     return best

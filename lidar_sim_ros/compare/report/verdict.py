@@ -320,9 +320,8 @@ def _together_words(c) -> str:
         return ''
     both = ', '.join(f'{k} = {v:.4g} (alone: {c.params[k]:.4g})' for k, v in moved.items())
     return (f' Fitted together with {tog["with"]} (each refitted with the other in the '
-            f'model until they settle), {both}: alone it takes part of the other\'s shape. '
-            '--fit fits the effects it is given in turn, each on top of those before it, '
-            'so its value for the first is the value alone.')
+            f'model until they settle), {both}: alone it takes part of the other\'s shape, '
+            f'so add both (--effect {c.name} --effect {tog["with"]} --fit fits them together).')
 
 
 def _value_on_pose(c) -> str:
