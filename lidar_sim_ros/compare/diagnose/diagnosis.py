@@ -917,7 +917,8 @@ class Diagnosis:
           footing comes first: in-sample, six parameters per cloud always fit better
           than one of a clock offset."""
         tests = [pose_test] + ([constant_test] if constant_test is not None else [])
-        passed = [(t, p) for t, p in ((t, t([])) for t in tests) if p.significant]
+        alone = [(t, t([])) for t in tests]
+        passed = [(t, p) for t, p in alone if p.significant]
         by_name = {c.name: c for c in cands}
         named = [by_name[n] for n in [decision.missing, *decision.confounded_with]
                  if n in by_name and by_name[n].effect is not None]
@@ -929,7 +930,9 @@ class Diagnosis:
             on_top = [c.effect for c in named]
             passed = [(t, p) for t, p in ((t, t(on_top)) for t in tests) if p.significant]
         if not passed:
-            return decision
+            along = [p for _, p in alone[1:] if getattr(p, 'joint', False)]
+            return self.weigh_line_of_sight(along[0], named, decision, recast,
+                                            same_points) if along and named else decision
         # Per cloud or one for the whole recording: the larger held-out gain (the
         # per-cloud correction's extra parameters are paid for on the held-out half).
         test, pose = max(passed, key=lambda tp: getattr(tp[1], 'gain', 0.0))
@@ -1007,6 +1010,58 @@ class Diagnosis:
         # pose's residual at silhouettes reads as incidence: beside a range walk it
         # was named, or said to explain a part of its own ("also").
         return replace(on_pose.decide(again), pose=pose, withheld=dict(decision.withheld))
+
+    def weigh_line_of_sight(self, pose, named: list[Candidate], decision: Decision,
+                            recast=None, same_points=None) -> Decision:
+        """A constant correction along the line of sight whose own test fails, against
+        the named (or tied) candidates. ``pose``: one rigid correction for the recording
+        fitted jointly with the material offsets, which took their common offset
+        (``PoseError.joint``: the target recorded nearer or farther). Its held-out test
+        is linear and leaves grazing rays out, so beyond the offsets (which a range
+        offset of the sensor gives alike) it sees little; but a target moved along the
+        line of sight changes the ranges near its limbs as 1 / cos(incidence), which
+        ``surface_offset`` and ``incidence_angle`` (with a negative bias) take. So each
+        named candidate is scored again on the pose-corrected model (``recast``, as
+        ``judge_pose`` weighs a pose that passes): if one still passes the rule there,
+        or fits decisively better than the corrected pose as --fit leaves them
+        (``same_points``, each parameter charged a nat, ``_better_of``), the decision
+        stands; otherwise what they gained is what the pose leaves, and nothing is
+        named (the verdict says the materials' common offset is a range offset of the
+        sensor or the reference pose along the line of sight, which this recording
+        cannot tell apart). The pose is not reported: its test did not pass."""
+        if recast is not None:
+            on_pose, pose = recast(pose)
+        else:
+            on_pose = self.pose_corrected(pose.correction_m)
+        better = []
+        for c in named:
+            a = on_pose.score(type(c.effect))
+            passes = on_pose.nameable(a)
+            c.against_pose = {**(c.against_pose or {}), 'pose_constant': True,
+                              'pose_line_of_sight': True, 'pose_significant': False,
+                              'pose_translation_cm': _num(getattr(pose, 'size_cm', None)),
+                              'score_on_pose': _num(a.score), 'z_on_pose': _num(a.z),
+                              'passes_on_pose': bool(passes),
+                              'pose_corrected_nll': _num(on_pose.before_nll),
+                              **({'params_on_pose': a.params} if a.params else {})}
+            if passes or not self.nameable(c):
+                better.append(1 if passes else 0)
+                continue
+            if same_points is not None:
+                pose_nll, c_nll = same_points(pose, c.effect)
+                fitted = float(pose_nll - c_nll)
+            else:
+                fitted = float(on_pose.before_nll - c.nll_after)
+            charged = fitted + ((getattr(pose, 'n_params', 6) - (c.n_params or 1))
+                                / max(len(on_pose.rays.matched), 1))
+            c.against_pose.update(fitted_margin=_num(fitted), fitted_margin_charged=_num(charged))
+            better.append(_better_of(charged, fitted, charged))
+        if any(b > 0 for b in better):
+            return decision
+        why = ('explained as well by one rigid correction of the reference pose along the '
+               'line of sight (it does not pass on the corrected pose)')
+        return Decision(None, [], withheld={**decision.withheld,
+                                            **{c.name: why for c in named}})
 
     def false_return_budget(self, cand: Candidate) -> dict | None:
         """For an outlier effect as fitted (``cand.effect``): how many false returns it
