@@ -810,23 +810,23 @@ def test_every_material_off_alike_is_said_as_the_sensor_or_the_pose_along_the_li
         dg.Decision(None, [], pose=pose))
 
 
-@pytest.mark.parametrize('joint, on_pose_gain, c_nll, named', [
-    (True, 0.0, -2.05, False),        # the pose takes it: nothing named, no pose reported
-    (True, 0.0, -2.08, False),        # as --fit leaves them, a tie: nothing named
-    (True, 0.03, -2.05, True),        # it still passes on the corrected pose: it stands
-    (True, 0.0, -2.11, True),         # it fits decisively better than the corrected pose
-    (False, 0.0, -2.05, True),        # the correction did not take the common offset
+@pytest.mark.parametrize('joint, on_pose_gain, c_nll, outcome', [
+    (True, 0.0, -2.05, 'pose'),       # the corrected pose fits 0.03 better: reported alone
+    (True, 0.0, -2.08, 'null'),       # as --fit leaves them, a tie: nothing named or reported
+    (True, 0.03, -2.05, 'tie'),       # it still passes on the corrected pose: it stands
+    (True, 0.0, -2.11, 'tie'),        # it fits decisively better than the corrected pose
+    (False, 0.0, -2.05, 'tie'),       # the correction did not take the common offset
 ])
 def test_a_constant_pose_along_the_line_of_sight_is_weighed_though_its_test_fails(
-        joint, on_pose_gain, c_nll, named):
+        joint, on_pose_gain, c_nll, outcome):
     """judge_pose() / weigh_line_of_sight(): neither pose test passes (a 1 cm error along
     the line of sight on the rocket: the constant correction, fitted jointly with the
     material offsets, took their common 1.2 cm, but its linear held-out test gains
     0.0006 nats/point, z 0.8, grazing rays left out), and surface_offset and
     incidence_angle tie at 0.006 on what the moved target leaves near its limbs. On the
-    corrected pose neither gains (-0.0001, 0.00002) and the corrected pose fits 0.022
-    better as --fit leaves them: nothing is named and the pose is not reported. Before,
-    the tie [surface_offset, incidence_angle] stood."""
+    corrected pose neither gains, and the corrected pose fits 0.022 better as --fit
+    leaves them: nothing is named, the pose is reported (closer than the margin, not
+    reported either). Before, the tie [surface_offset, incidence_angle] stood."""
     surf = cand('surface_offset', 0.04, -2.05, seed=31)
     inc = cand('incidence_angle', 0.04, -2.05, seed=32)
     again = {n: cand(n, on_pose_gain, -2.08 - on_pose_gain, seed=33,
@@ -836,20 +836,29 @@ def test_a_constant_pose_along_the_line_of_sight_is_weighed_though_its_test_fail
     on_pose._before_nll = -2.08
     failed = SimpleNamespace(significant=False, constant=False, gain=-0.005, z=-3.0)
     const = SimpleNamespace(significant=False, constant=True, joint=joint, gain=0.0006,
-                            z=0.8, n_params=6, size_cm=1.0)
+                            z=0.8, n_params=6, size_cm=1.0, line_of_sight_share=0.96,
+                            words=lambda: 'the reference pose is off by about 1.0 cm')
     tie = dg.Decision(None, ['surface_offset', 'incidence_angle'])
     d = Hand().judge_pose(lambda on_top: failed, [surf, inc], tie,
                           recast=lambda p: (on_pose, p),
                           constant_test=lambda on_top: const,
                           same_points=lambda p, effect: (-2.08, c_nll))
-    assert d.pose is None
-    if named:
-        assert d.confounded_with == ['surface_offset', 'incidence_angle']
+    if outcome == 'tie':
+        assert d.confounded_with == ['surface_offset', 'incidence_angle'] and d.pose is None
         return
     assert d.missing is None and d.confounded_with == [] and d.also is None
     assert 'line of sight' in d.withheld['surface_offset']
     assert surf.against_pose['passes_on_pose'] is False
     assert surf.against_pose['fitted_margin'] == pytest.approx(-2.08 - c_nll)
     text = vd.verdict(_summary(), None, [surf, inc], d)
-    assert text.startswith('No sensor effect is named')
-    assert '1.0 cm, along the line of sight' in text and 'not reported' in text
+    if outcome == 'null':
+        assert d.pose is None
+        assert text.startswith('No sensor effect is named')
+        assert '1.0 cm, along the line of sight' in text and 'not reported' in text
+        return
+    assert d.pose is not const and d.pose.raycast['explains'] == ['surface_offset',
+                                                                  'incidence_angle']
+    assert d.pose.raycast['fitted_margin_charged'] == pytest.approx(0.03 - 5 / N, abs=1e-6)
+    assert text.startswith('The reference pose is off by about 1.0 cm')
+    assert 'raycast again with it, surface_offset and incidence_angle gain nothing' in text
+    assert 'No sensor effect is named' in text

@@ -77,7 +77,7 @@ from __future__ import annotations
 import copy
 import itertools
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, is_dataclass, replace
 from typing import Callable, Literal, get_args, get_origin
 
 import numpy as np
@@ -1025,15 +1025,20 @@ class Diagnosis:
         ``judge_pose`` weighs a pose that passes): if one still passes the rule there,
         or fits decisively better than the corrected pose as --fit leaves them
         (``same_points``, each parameter charged a nat, ``_better_of``), the decision
-        stands; otherwise what they gained is what the pose leaves, and nothing is
-        named (the verdict says the materials' common offset is a range offset of the
-        sensor or the reference pose along the line of sight, which this recording
-        cannot tell apart). The pose is not reported: its test did not pass."""
+        stands. Otherwise what they gained is what the pose leaves, and nothing is
+        named. If the corrected pose fits decisively better than every one of them
+        (MIN_PRACTICAL_GAIN, charged), it is reported (``PoseError.raycast``): each
+        passed the rule against the model without it, whose per-material offsets are
+        what a range offset of the sensor gives, so the pose explains the data better
+        than the sensor's offset too. Closer, a tie: the pose is not reported (its own
+        test did not pass) and the verdict says the materials' common offset is a range
+        offset of the sensor or the reference pose along the line of sight, which this
+        recording cannot tell apart."""
         if recast is not None:
             on_pose, pose = recast(pose)
         else:
             on_pose = self.pose_corrected(pose.correction_m)
-        better = []
+        better, margins = [], []
         for c in named:
             a = on_pose.score(type(c.effect))
             passes = on_pose.nameable(a)
@@ -1056,12 +1061,21 @@ class Diagnosis:
                                 / max(len(on_pose.rays.matched), 1))
             c.against_pose.update(fitted_margin=_num(fitted), fitted_margin_charged=_num(charged))
             better.append(_better_of(charged, fitted, charged))
+            margins.append(charged)
         if any(b > 0 for b in better):
             return decision
         why = ('explained as well by one rigid correction of the reference pose along the '
                'line of sight (it does not pass on the corrected pose)')
-        return Decision(None, [], withheld={**decision.withheld,
-                                            **{c.name: why for c in named}})
+        withheld = {**decision.withheld, **{c.name: why for c in named}}
+        if better and all(b < 0 for b in better):
+            raycast = {'explains': [c.name for c in named],
+                       'fitted_margin_charged': _num(-max(margins))}
+            reported = (replace(pose, raycast=raycast) if is_dataclass(pose)
+                        else copy.copy(pose))
+            if not is_dataclass(pose):
+                reported.raycast = raycast
+            return Decision(None, [], pose=reported, withheld=withheld)
+        return Decision(None, [], withheld=withheld)
 
     def false_return_budget(self, cand: Candidate) -> dict | None:
         """For an outlier effect as fitted (``cand.effect``): how many false returns it

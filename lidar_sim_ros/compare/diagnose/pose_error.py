@@ -87,6 +87,10 @@ class PoseError:
     # their common offset (``explains_common_offset``): a translation along the line of
     # sight, which every material's range follows as a range offset of the sensor's would.
     joint: bool = False
+    # Reported on the raycast footing though its own test fails
+    # (``diagnosis.Diagnosis.weigh_line_of_sight``): the candidates it explains and the
+    # closest of its fitted margins over them (nats/point, each parameter charged a nat).
+    raycast: dict | None = None
 
     @property
     def size_cm(self) -> float:
@@ -155,6 +159,7 @@ class PoseError:
                                                  self.rotation_deg)],
                 'constant': self.constant,
                 **({'joint_with_material_offsets': True} if self.joint else {}),
+                **({'raycast': self.raycast} if self.raycast else {}),
                 'recast_passes': self.passes,
                 'last_step_m_deg': [round(float(x), 6) for x in self.last_step],
                 'rate': self.rate_dict()}

@@ -264,6 +264,17 @@ def pose_words(pose, cands: list = ()) -> str:
                      'would move them alike, but not the ranges across the target as the '
                      'moved pose does (n.d / n.u: the correction is fitted on top of the '
                      'per-material offsets)')
+    raycast = getattr(pose, 'raycast', None)
+    if raycast:
+        return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. Its own held-out test is '
+                'linear and leaves grazing rays out, and there it gains no more than a range '
+                f'offset of the sensor would ({pose.gain:.4f} nats/point, z = {pose.z:.1f}); '
+                f'but raycast again with it, {_join(raycast["explains"])} gain nothing, and it '
+                f'fits {raycast["fitted_margin_charged"]:.4f} nats/point better than '
+                f'{"each" if len(raycast["explains"]) > 1 else "it"} as --fit leaves them, '
+                'its six parameters charged: a target recorded nearer or farther changes the '
+                'ranges near its limbs as 1 / cos(incidence), which they took. No sensor '
+                'effect is named.')
     return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. {_correction(pose)} gains '
             f'{pose.gain:.4f} nats/point held out (z = {pose.z:.1f}), and {tail}')
 
