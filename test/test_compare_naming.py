@@ -862,3 +862,41 @@ def test_a_constant_pose_along_the_line_of_sight_is_weighed_though_its_test_fail
     assert text.startswith('The reference pose is off by about 1.0 cm')
     assert 'raycast again with it, surface_offset and incidence_angle gain nothing' in text
     assert 'No sensor effect is named' in text
+
+
+@pytest.mark.parametrize('joint, base_nll, reported', [
+    (True, -2.05, True),             # raycast, the pose fits 0.03 better than without it
+    (True, -2.078, False),           # 0.002 better: under the margin, nothing reported
+    (False, -2.05, False),           # the correction did not take the common offset
+])
+def test_a_pose_along_the_line_of_sight_with_nothing_named_is_weighed_raycast(
+        joint, base_nll, reported):
+    """judge_pose() / line_of_sight_alone(): nothing named and neither pose test passes
+    (the foreign simulator's small satellite recorded 5 cm farther: the joint constant
+    fit finds 4.3 cm, 99 % along the line of sight, its linear held-out test 0.0027
+    nats/point, z 3.1), but raycast again the corrected pose fits 0.034 better than the
+    model without it, per-material offsets (a sensor range offset) refit in both: the
+    pose is reported. Before, nothing was reported."""
+    on_pose = Hand()
+    const = SimpleNamespace(significant=False, constant=True, joint=joint, gain=0.0027,
+                            z=3.1, n_params=6, size_cm=4.3, line_of_sight_share=0.99,
+                            words=lambda: 'the reference pose is off by about 4.3 cm')
+    failed = SimpleNamespace(significant=False, constant=False, gain=0.0009, z=1.5)
+    asked = []
+
+    def same_points(pose, effect):
+        asked.append(effect)
+        return -2.08, base_nll
+    d = Hand().judge_pose(lambda on_top: failed, [], dg.Decision(None, []),
+                          recast=lambda p: (on_pose, p),
+                          constant_test=lambda on_top: const, same_points=same_points)
+    assert d.missing is None and d.confounded_with == []
+    assert asked == ([None] if joint else [])
+    if not reported:
+        assert d.pose is None
+        return
+    assert d.pose.raycast == {'explains': [],
+                              'fitted_margin_charged': pytest.approx(0.03 - 6 / N, abs=1e-6)}
+    text = vd.verdict(_summary(), None, [], d)
+    assert text.startswith('The reference pose is off by about 4.3 cm')
+    assert 'better than without it' in text and 'No catalogue effect passes' in text

@@ -407,6 +407,16 @@ def _num(x: float) -> float | None:
     return None if x is None or not np.isfinite(x) else round(float(x), 6)
 
 
+def _with_raycast(pose, raycast: dict):
+    """``pose`` (a ``pose_error.PoseError``, or a stand-in) reported on the raycast
+    footing: a copy carrying ``raycast``."""
+    if is_dataclass(pose):
+        return replace(pose, raycast=raycast)
+    out = copy.copy(pose)
+    out.raycast = raycast
+    return out
+
+
 def _better_of(held: float, fitted: float, charged: float) -> int:
     """A named candidate against the reference pose that explains the same residual:
     1 the candidate, -1 the pose, 0 a tie. ``held``: the candidate's held-out gain less
@@ -931,8 +941,11 @@ class Diagnosis:
             passed = [(t, p) for t, p in ((t, t(on_top)) for t in tests) if p.significant]
         if not passed:
             along = [p for _, p in alone[1:] if getattr(p, 'joint', False)]
-            return self.weigh_line_of_sight(along[0], named, decision, recast,
-                                            same_points) if along and named else decision
+            if not along:
+                return decision
+            if named:
+                return self.weigh_line_of_sight(along[0], named, decision, recast, same_points)
+            return self.line_of_sight_alone(along[0], decision, recast, same_points)
         # Per cloud or one for the whole recording: the larger held-out gain (the
         # per-cloud correction's extra parameters are paid for on the held-out half).
         test, pose = max(passed, key=lambda tp: getattr(tp[1], 'gain', 0.0))
@@ -1070,12 +1083,30 @@ class Diagnosis:
         if better and all(b < 0 for b in better):
             raycast = {'explains': [c.name for c in named],
                        'fitted_margin_charged': _num(-max(margins))}
-            reported = (replace(pose, raycast=raycast) if is_dataclass(pose)
-                        else copy.copy(pose))
-            if not is_dataclass(pose):
-                reported.raycast = raycast
-            return Decision(None, [], pose=reported, withheld=withheld)
+            return Decision(None, [], pose=_with_raycast(pose, raycast), withheld=withheld)
         return Decision(None, [], withheld=withheld)
+
+    def line_of_sight_alone(self, pose, decision: Decision, recast=None,
+                            same_points=None) -> Decision:
+        """Nothing named, and a constant correction along the line of sight whose own
+        test fails (``weigh_line_of_sight``'s ``pose``): raycast again with it, against
+        the model without it on the same points (``same_points(pose, None)``), as --fit
+        leaves them. The model without it holds the per-material offsets, which is what
+        a range offset of the sensor gives; the moved target changes the ranges near
+        its limbs and across depth steps besides, which the offsets cannot. Fitting
+        MIN_PRACTICAL_GAIN better, its six parameters charged a nat each, it is
+        reported (``PoseError.raycast``); closer, the decision stands (the verdict's
+        sentence on a common offset of the materials: the sensor or the pose)."""
+        if recast is None or same_points is None:
+            return decision
+        on_pose, pose = recast(pose)
+        pose_nll, base_nll = same_points(pose, None)
+        margin = float(base_nll - pose_nll) - (getattr(pose, 'n_params', 6)
+                                               / max(len(on_pose.rays.matched), 1))
+        if not margin >= MIN_PRACTICAL_GAIN:
+            return decision
+        return replace(decision, pose=_with_raycast(pose, {
+            'explains': [], 'fitted_margin_charged': _num(margin)}))
 
     def false_return_budget(self, cand: Candidate) -> dict | None:
         """For an outlier effect as fitted (``cand.effect``): how many false returns it

@@ -265,6 +265,16 @@ def pose_words(pose, cands: list = ()) -> str:
                      'moved pose does (n.d / n.u: the correction is fitted on top of the '
                      'per-material offsets)')
     raycast = getattr(pose, 'raycast', None)
+    if raycast and not raycast['explains']:
+        return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. Its own held-out test is '
+                'linear and leaves grazing rays out, and there it gains no more than a range '
+                f'offset of the sensor would ({pose.gain:.4f} nats/point, z = {pose.z:.1f}); '
+                'but raycast again with it, the model fits '
+                f'{raycast["fitted_margin_charged"]:.4f} nats/point better than without it as '
+                '--fit leaves them, its six parameters charged, where the per-material offsets '
+                '(a range offset of the sensor) are refit in both: a target recorded nearer or '
+                'farther changes the ranges near its limbs and across its depth steps too. No '
+                'catalogue effect passes the rule.')
     if raycast:
         return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. Its own held-out test is '
                 'linear and leaves grazing rays out, and there it gains no more than a range '
