@@ -867,11 +867,12 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
                 report, gain=pose.gain, z=pose.z, significant=pose.significant), moved)
         return recast_cache[pose.constant]
 
-    def same_points(pose: pose_error.PoseError, effect: Effect) -> tuple[float, float]:
+    def same_points(pose: pose_error.PoseError, effect: Effect | None) -> tuple[float, float]:
         """As --fit leaves them, on the same points: NLL per point of the
         pose-corrected model (raycast again, ``recast``) and of the model with ``effect``
-        (as fitted), on the diagnosis sample's matched points that the corrected pose
-        still matches (each sample's own NLL would differ by the draw alone)."""
+        (as fitted; None: the model without it), on the diagnosis sample's matched
+        points that the corrected pose still matches (each sample's own NLL would differ
+        by the draw alone)."""
         moved = recast_with_rays(pose)[2]
         common = np.intersect1d(sample.matched, moved.matched)
         none = np.zeros(0, dtype=common.dtype)
@@ -880,7 +881,8 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
                                                             unmatched=none)), [])[0]
         with_effect = diagnosis.calibrated_figures(
             diagnosis.make_fit_data(model, effects, replace(sample, matched=common,
-                                                            unmatched=none)), [effect])[0]
+                                                            unmatched=none)),
+            [effect] if effect is not None else [])[0]
         return on_pose, with_effect
 
     def all_points_pose(constant: bool) -> pose_error.PoseError:

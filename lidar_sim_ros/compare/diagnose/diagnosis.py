@@ -77,7 +77,7 @@ from __future__ import annotations
 import copy
 import itertools
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, is_dataclass, replace
 from typing import Callable, Literal, get_args, get_origin
 
 import numpy as np
@@ -414,6 +414,16 @@ class Candidate:
 
 def _num(x: float) -> float | None:
     return None if x is None or not np.isfinite(x) else round(float(x), 6)
+
+
+def _with_raycast(pose, raycast: dict):
+    """``pose`` (a ``pose_error.PoseError``, or a stand-in) reported on the raycast
+    footing: a copy carrying ``raycast``."""
+    if is_dataclass(pose):
+        return replace(pose, raycast=raycast)
+    out = copy.copy(pose)
+    out.raycast = raycast
+    return out
 
 
 def _better_of(held: float, fitted: float, charged: float) -> int:
@@ -1001,7 +1011,8 @@ class Diagnosis:
           footing comes first: in-sample, six parameters per cloud always fit better
           than one of a clock offset."""
         tests = [pose_test] + ([constant_test] if constant_test is not None else [])
-        passed = [(t, p) for t, p in ((t, t([])) for t in tests) if p.significant]
+        alone = [(t, t([])) for t in tests]
+        passed = [(t, p) for t, p in alone if p.significant]
         by_name = {c.name: c for c in cands}
         named = [by_name[n] for n in [decision.missing, *decision.confounded_with]
                  if n in by_name and by_name[n].effect is not None]
@@ -1013,7 +1024,12 @@ class Diagnosis:
             on_top = [c.effect for c in named]
             passed = [(t, p) for t, p in ((t, t(on_top)) for t in tests) if p.significant]
         if not passed:
-            return decision
+            along = [p for _, p in alone[1:] if getattr(p, 'joint', False)]
+            if not along:
+                return decision
+            if named:
+                return self.weigh_line_of_sight(along[0], named, decision, recast, same_points)
+            return self.line_of_sight_alone(along[0], decision, recast, same_points)
         # Per cloud or one for the whole recording: the larger held-out gain (the
         # per-cloud correction's extra parameters are paid for on the held-out half).
         test, pose = max(passed, key=lambda tp: getattr(tp[1], 'gain', 0.0))
@@ -1091,6 +1107,90 @@ class Diagnosis:
         # pose's residual at silhouettes reads as incidence: beside a range walk it
         # was named, or said to explain a part of its own ("also").
         return replace(on_pose.decide(again), pose=pose, withheld=dict(decision.withheld))
+
+    def weigh_line_of_sight(self, pose, named: list[Candidate], decision: Decision,
+                            recast=None, same_points=None) -> Decision:
+        """A constant correction along the line of sight whose own test fails, against
+        the named (or tied) candidates. ``pose``: one rigid correction for the recording
+        fitted jointly with the material offsets, which took their common offset
+        (``PoseError.joint``: the target recorded nearer or farther). Its held-out test
+        is linear and leaves grazing rays out, so beyond the offsets (which a range
+        offset of the sensor gives alike) it sees little; but a target moved along the
+        line of sight changes the ranges near its limbs as 1 / cos(incidence), which
+        ``surface_offset`` and ``incidence_angle`` (with a negative bias) take. So each
+        named candidate is scored again on the pose-corrected model (``recast``, as
+        ``judge_pose`` weighs a pose that passes): if one still passes the rule there,
+        or fits decisively better than the corrected pose as --fit leaves them
+        (``same_points``, each parameter charged a nat, ``_better_of``), the decision
+        stands. Otherwise what they gained is what the pose leaves, and nothing is
+        named. If the corrected pose fits decisively better than every one of them
+        (MIN_PRACTICAL_GAIN, charged), it is reported (``PoseError.raycast``): each
+        passed the rule against the model without it, whose per-material offsets are
+        what a range offset of the sensor gives, so the pose explains the data better
+        than the sensor's offset too. Closer, a tie: the pose is not reported (its own
+        test did not pass) and the verdict says the materials' common offset is a range
+        offset of the sensor or the reference pose along the line of sight, which this
+        recording cannot tell apart."""
+        if recast is not None:
+            on_pose, pose = recast(pose)
+        else:
+            on_pose = self.pose_corrected(pose.correction_m)
+        better, margins = [], []
+        for c in named:
+            a = on_pose.score(type(c.effect))
+            passes = on_pose.nameable(a)
+            c.against_pose = {**(c.against_pose or {}), 'pose_constant': True,
+                              'pose_line_of_sight': True, 'pose_significant': False,
+                              'pose_translation_cm': _num(getattr(pose, 'size_cm', None)),
+                              'score_on_pose': _num(a.score), 'z_on_pose': _num(a.z),
+                              'passes_on_pose': bool(passes),
+                              'pose_corrected_nll': _num(on_pose.before_nll),
+                              **({'params_on_pose': a.params} if a.params else {})}
+            if passes or not self.nameable(c):
+                better.append(1 if passes else 0)
+                continue
+            if same_points is not None:
+                pose_nll, c_nll = same_points(pose, c.effect)
+                fitted = float(pose_nll - c_nll)
+            else:
+                fitted = float(on_pose.before_nll - c.nll_after)
+            charged = fitted + ((getattr(pose, 'n_params', 6) - (c.n_params or 1))
+                                / max(len(on_pose.rays.matched), 1))
+            c.against_pose.update(fitted_margin=_num(fitted), fitted_margin_charged=_num(charged))
+            better.append(_better_of(charged, fitted, charged))
+            margins.append(charged)
+        if any(b > 0 for b in better):
+            return decision
+        why = ('explained as well by one rigid correction of the reference pose along the '
+               'line of sight (it does not pass on the corrected pose)')
+        withheld = {**decision.withheld, **{c.name: why for c in named}}
+        if better and all(b < 0 for b in better):
+            raycast = {'explains': [c.name for c in named],
+                       'fitted_margin_charged': _num(-max(margins))}
+            return Decision(None, [], pose=_with_raycast(pose, raycast), withheld=withheld)
+        return Decision(None, [], withheld=withheld)
+
+    def line_of_sight_alone(self, pose, decision: Decision, recast=None,
+                            same_points=None) -> Decision:
+        """Nothing named, and a constant correction along the line of sight whose own
+        test fails (``weigh_line_of_sight``'s ``pose``): raycast again with it, against
+        the model without it on the same points (``same_points(pose, None)``), as --fit
+        leaves them. The model without it holds the per-material offsets, which is what
+        a range offset of the sensor gives; the moved target changes the ranges near
+        its limbs and across depth steps besides, which the offsets cannot. Fitting
+        MIN_PRACTICAL_GAIN better, its six parameters charged a nat each, it is
+        reported (``PoseError.raycast``); closer, the decision stands (the verdict's
+        sentence on a common offset of the materials: the sensor or the pose)."""
+        if recast is None or same_points is None:
+            return decision
+        on_pose, pose = recast(pose)
+        pose_nll, base_nll = same_points(pose, None)
+        margin = float(base_nll - pose_nll) - (getattr(pose, 'n_params', 6)
+                                               / max(len(on_pose.rays.matched), 1))
+        if not margin >= MIN_PRACTICAL_GAIN:
+            return decision
+        return replace(decision, pose=_with_raycast(pose, {
+            'explains': [], 'fitted_margin_charged': _num(margin)}))
 
     def false_return_budget(self, cand: Candidate) -> dict | None:
         """For an outlier effect as fitted (``cand.effect``): how many false returns it

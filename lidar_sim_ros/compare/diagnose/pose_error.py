@@ -83,6 +83,14 @@ class PoseError:
     # One rigid correction for all the clouds (``fit_reference_pose(constant=True)``):
     # an extrinsic calibration or tracking-frame error, the same in every cloud.
     constant: bool = False
+    # The constant correction was fitted jointly with the material offsets and took
+    # their common offset (``explains_common_offset``): a translation along the line of
+    # sight, which every material's range follows as a range offset of the sensor's would.
+    joint: bool = False
+    # Reported on the raycast footing though its own test fails
+    # (``diagnosis.Diagnosis.weigh_line_of_sight``): the candidates it explains and the
+    # closest of its fitted margins over them (nats/point, each parameter charged a nat).
+    raycast: dict | None = None
 
     @property
     def size_cm(self) -> float:
@@ -150,6 +158,8 @@ class PoseError:
                            for c, t, d, w in zip(self.clouds, self.t_s, self.translation_m,
                                                  self.rotation_deg)],
                 'constant': self.constant,
+                **({'joint_with_material_offsets': True} if self.joint else {}),
+                **({'raycast': self.raycast} if self.raycast else {}),
                 'recast_passes': self.passes,
                 'last_step_m_deg': [round(float(x), 6) for x in self.last_step],
                 'rate': self.rate_dict()}
@@ -575,7 +585,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      rate_z=rate_z,
                      rate_translation_mps=x[:, 6:9] * per_s if supported else None,
                      rate_rotation_deg_s=np.degrees(x[:, 9:12]) * per_s if supported else None,
-                     t_centre_s=t_c, half_span_s=h_c, constant=constant)
+                     t_centre_s=t_c, half_span_s=h_c, constant=constant,
+                     joint=joint is not None)
 
 
 COMMON_OFFSET_MIN_M = 0.005     # a common offset of the materials below this: no joint fit

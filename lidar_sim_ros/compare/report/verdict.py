@@ -274,6 +274,27 @@ def pose_words(pose, cands: list = ()) -> str:
                      'would move them alike, but not the ranges across the target as the '
                      'moved pose does (n.d / n.u: the correction is fitted on top of the '
                      'per-material offsets)')
+    raycast = getattr(pose, 'raycast', None)
+    if raycast and not raycast['explains']:
+        return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. Its own held-out test is '
+                'linear and leaves grazing rays out, and there it gains no more than a range '
+                f'offset of the sensor would ({pose.gain:.4f} nats/point, z = {pose.z:.1f}); '
+                'but raycast again with it, the model fits '
+                f'{raycast["fitted_margin_charged"]:.4f} nats/point better than without it as '
+                '--fit leaves them, its six parameters charged, where the per-material offsets '
+                '(a range offset of the sensor) are refit in both: a target recorded nearer or '
+                'farther changes the ranges near its limbs and across its depth steps too. No '
+                'catalogue effect passes the rule.')
+    if raycast:
+        return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. Its own held-out test is '
+                'linear and leaves grazing rays out, and there it gains no more than a range '
+                f'offset of the sensor would ({pose.gain:.4f} nats/point, z = {pose.z:.1f}); '
+                f'but raycast again with it, {_join(raycast["explains"])} gain nothing, and it '
+                f'fits {raycast["fitted_margin_charged"]:.4f} nats/point better than '
+                f'{"each" if len(raycast["explains"]) > 1 else "it"} as --fit leaves them, '
+                'its six parameters charged: a target recorded nearer or farther changes the '
+                'ranges near its limbs as 1 / cos(incidence), which they took. No sensor '
+                'effect is named.')
     return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. {_correction(pose)} gains '
             f'{pose.gain:.4f} nats/point held out (z = {pose.z:.1f}), and {tail}')
 
@@ -446,8 +467,11 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     why = ''
     fault = (diagnosis.naming_fault(best, summary['nll_calibrated'])
              if best is not None else None)
+    along = (best.against_pose or {}) if best is not None else {}
     if best is not None and best.vetoed:
         why = f' The best candidate, {best.name}, is set aside: {best.vetoed}.'
+    elif along.get('pose_line_of_sight') and not along.get('passes_on_pose'):
+        return line_of_sight_words(best)
     elif best is not None and best.practical and fault:
         why = f' The best candidate, {best.name}, is not named: {fault}.'
     elif best is not None and not best.practical:
@@ -461,6 +485,22 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
                 'depends on, and add it with --effect file.py:Class --fit.')
     return ('No catalogue effect improves the held-out likelihood by a margin that matters: '
             'the model matches the measurements up to noise.' + why)
+
+
+def line_of_sight_words(best) -> str:
+    """The verdict when what the candidates gained is what one rigid correction of the
+    reference pose along the line of sight leaves (``Diagnosis.weigh_line_of_sight``):
+    nothing named, and the pose not reported (its own test does not pass)."""
+    ap = best.against_pose
+    size = ap.get('pose_translation_cm')
+    return (f'No sensor effect is named. The best candidate, {best.name}, gains '
+            f'{best.score:.4f} nats/point held out (z = {best.z:.1f}), but with one rigid '
+            'correction of the target pose for the whole recording'
+            + (f' ({size:.1f} cm, along the line of sight)' if size is not None else '')
+            + f' it gains {ap["score_on_pose"]:.4f} (z = {ap["z_on_pose"]:.1f}): what it took '
+            'is what a target recorded nearer or farther leaves near its limbs, where ranges '
+            'change as 1 / cos(incidence). The correction\'s own held-out test does not tell '
+            'it from a range offset of the sensor, so it is not reported either.')
 
 
 def _separation(names: list[str], summary: dict) -> str:
