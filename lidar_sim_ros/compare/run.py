@@ -76,9 +76,8 @@ MAX_DIAGNOSIS_SAMPLE = 60_000
 
 
 # The per-cloud pose test fits six parameters a cloud on one half of its points and
-# scores them on the other half: fitting them costs its held-out gain about
-# POSE_PARAMS / n nats per point on a cloud of n points (6 / (n / 2) on half of them).
-# Where the diagnosis sample leaves that cost above MIN_PRACTICAL_GAIN (fewer than
+# scores them on the other half: p parameters fitted on m points cost a held-out point
+# about p / (2 m) nats, so POSE_PARAMS / n on a cloud of n points. Where the diagnosis sample leaves that cost above MIN_PRACTICAL_GAIN (fewer than
 # 1,200 sample points a cloud: 80 clouds in 16,000 points leave 200), the test cannot
 # show a pose error that matters, and features that grow where a cloud's rigid shift
 # moves ranges most (incidence, power) took its residual: the pose tests run on every
@@ -785,22 +784,15 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
 
     # The pose tests' points: the sample, or every matched point where the sample holds
     # too few a cloud for six parameters each (``pose_points``).
+    # One FitData for them all: the tests on top of the same effects share their casts.
     tested = pose_points(rays, sample, meas)
-    fit_data: dict = {}
-
-    def data_of(points: diagnosis.RaySet) -> lk.FitData:
-        """The fit data of ``points`` (the sample's own, or built once: every pose test
-        on top of the same effects shares their casts)."""
-        if points is sample:
-            return diag.full
-        if 'all' not in fit_data:
-            fit_data['all'] = diagnosis.make_fit_data(model, effects, points)
-        return fit_data['all']
+    tested_data = (diag.full if tested is sample
+                   else diagnosis.make_fit_data(model, effects, tested))
 
     def pose_test(on_top: list[Effect], constant: bool = False) -> pose_error.PoseError:
         idx = tested.matched
         return pose_error.fit_reference_pose(
-            data_of(tested), meas.cloud[idx], meas.t_s[idx],
+            tested_data, meas.cloud[idx], meas.t_s[idx],
             sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
             on_top, rate=has_point_times(meas), constant=constant)
     recast_cache: dict = {}
