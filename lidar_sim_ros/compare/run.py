@@ -77,11 +77,12 @@ MAX_DIAGNOSIS_SAMPLE = 60_000
 
 # The per-cloud pose test fits six parameters a cloud on one half of its points and
 # scores them on the other half: p parameters fitted on m points cost a held-out point
-# about p / (2 m) nats, so POSE_PARAMS / n on a cloud of n points. Where the diagnosis sample leaves that cost above MIN_PRACTICAL_GAIN (fewer than
-# 1,200 sample points a cloud: 80 clouds in 16,000 points leave 200), the test cannot
-# show a pose error that matters, and features that grow where a cloud's rigid shift
-# moves ranges most (incidence, power) took its residual: the pose tests run on every
-# matched point instead (``pose_points``).
+# about p / (2 m) nats, so POSE_PARAMS / n on a cloud of n points. Where the diagnosis
+# sample leaves that cost above MIN_PRACTICAL_GAIN (fewer than 1,200 sample points a
+# cloud: 80 clouds in 16,000 points leave 200), the test cannot show a pose error that
+# matters, and features that grow where a cloud's rigid shift moves ranges most
+# (incidence, power) took its residual: the pose tests run on every matched point
+# instead (``pose_points``).
 POSE_PARAMS = 6
 
 
