@@ -370,3 +370,84 @@ def test_fit_corrects_the_reference_pose_before_it_fits_the_effects(tmp_path, ca
     fit = next(i for i, ln in enumerate(lines) if 'fit effects' in ln)
     assert first_pose < fit, order
     assert sum('reference pose' in ln for ln in lines) == 2, order
+
+
+def _jittered_planes(n_clouds: int, per_cloud: int, sigma_m: float, seed: int = 0):
+    """Three tilted planes 12 x 8 deg across at 10 m, seen in ``n_clouds`` clouds whose
+    recorded pose is off by an independent rigid motion each (1 cm and 0.2 deg per axis,
+    about the target's centre), range noise ``sigma_m``: (recording, FitData of the rays
+    ``idx``, as a function)."""
+    rng = np.random.default_rng(seed)
+    n = n_clouds * per_cloud
+    az, el = rng.uniform(-0.1, 0.1, n), rng.uniform(-0.07, 0.07, n)
+    cloud = np.repeat(np.arange(n_clouds), per_cloud)
+    t = cloud * 0.1 + rng.uniform(0.0, 0.09, n)
+    u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    normals = np.array([[-0.8, -0.5, 0.33], [-0.9, 0.1, -0.42], [-0.75, 0.6, 0.28]])
+    normal = (normals / np.linalg.norm(normals, axis=1, keepdims=True))[
+        np.digitize(az, [-0.033, 0.033])]
+    centre = np.array([10.0, 0.0, 0.0])
+    rot = Rotation.from_rotvec(np.radians(rng.normal(0, 0.2, (n_clouds, 3))))[cloud]
+    move = rng.normal(0, 0.01, (n_clouds, 3))[cloud]
+    measured = _plane_range_each(rot.apply(np.zeros((n, 3))) + centre + move, rot.apply(normal),
+                                 u) + sigma_m * rng.standard_normal(n)
+    expected = _plane_range_each(np.tile(centre, (n, 1)), normal, u)
+
+    def data(idx: np.ndarray) -> 'lk.FitData':
+        from lidar_sim_ros.compare.model import likelihood as lk
+        from lidar_sim_ros.core.effects.base import ReturnContext
+        from lidar_sim_ros.core.geometry import Hits
+        from lidar_sim_ros.core.pipeline import Prediction
+        m = len(idx)
+        one, zero = np.ones(m), np.zeros(m, int)
+        ctx = ReturnContext(range_m=expected[idx], incidence_rad=0 * one, material=zero,
+                            power_w=1e-6 * one, intensity=one, t_s=t[idx], az_rad=0 * one,
+                            el_rad=0 * one, laser=zero, divergence_rad=1e-3,
+                            hit=np.ones(m, bool), threshold_power_w=1e-9, direction=u[idx],
+                            normal=-normal[idx])
+        hits = Hits(np.ones(m, bool), expected[idx], -normal[idx], 0 * one, zero, zero, None,
+                    one)
+        pred = Prediction(ctx, hits, u[idx], 0 * one, sigma_m * one)
+        return lk.FitData(measured_range_m=measured[idx], baseline=pred, cast=lambda e: pred,
+                          unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
+                          range_window_m=(5.0, 15.0))
+    return _Recording(u, measured, cloud), data, t
+
+
+def _plane_range_each(origin, normal, u):
+    """Range along each unit ray of u (N, 3) to its own plane (origin, normal: N, 3)."""
+    return np.einsum('ij,ij->i', normal, origin) / np.einsum('ij,ij->i', u, normal)
+
+
+def test_a_pose_jittering_over_many_clouds_is_tested_on_enough_points_a_cloud():
+    """80 clouds, each recorded 1 cm / 0.2 deg off (per axis), range noise 5 cm (the
+    seventh holdout's h7-n80-jitB: 80 clouds in a 16,000-point sample). On the sample's
+    150 points a cloud, fitting six parameters costs the held-out test about 6 / 150 =
+    0.04 nats per point, more than the jitter gains: the test failed (z below 0) and the
+    features took the residual (incidence_angle named). ``pose_points`` gives the test
+    every matched point (1,000 a cloud): it passes, decisively. With 1,200 or more
+    sample points a cloud (5 clouds) the sample stays the test's footing."""
+    from lidar_sim_ros.compare import run
+    rec, data, t = _jittered_planes(80, 1000, 0.05)
+    n = len(rec)
+    blocks = np.arange(n) // 30
+    rays = diagnosis.RaySet(rec, np.arange(n), np.zeros(0, int), blocks=blocks)
+    sample = rays.sample(12_000, 0)
+
+    def test(points):
+        idx = points.matched
+        return pose_error.fit_reference_pose(data(idx), rec.cloud[idx], t[idx], blocks[idx],
+                                             3.0, diagnosis.MIN_PRACTICAL_GAIN)
+    on_sample = test(sample)
+    assert not on_sample.significant and on_sample.z < 1.0
+    tested = run.pose_points(rays, sample, rec)
+    assert len(tested.matched) == n and len(tested.unmatched) == 0
+    on_all = test(tested)
+    assert on_all.significant and on_all.z > 10 and on_all.gain > 0.01
+    # the translation recovered: 1 cm per axis is 1.73 cm RMS (the rotation, over
+    # planes 2 m across, is known far less well)
+    assert 1.4 < on_all.size_cm < 2.2
+    few, _, _ = _jittered_planes(5, 3000, 0.05)
+    rays5 = diagnosis.RaySet(few, np.arange(len(few)), np.zeros(0, int))
+    sample5 = rays5.sample(12_000, 0)
+    assert run.pose_points(rays5, sample5, few) is sample5

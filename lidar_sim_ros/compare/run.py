@@ -76,6 +76,17 @@ SAMPLE_PER_CLOUD = 200
 MAX_DIAGNOSIS_SAMPLE = 60_000
 
 
+# The per-cloud pose test fits six parameters a cloud on one half of its points and
+# scores them on the other half: p parameters fitted on m points cost a held-out point
+# about p / (2 m) nats, so POSE_PARAMS / n on a cloud of n points. Where the diagnosis
+# sample leaves that cost above MIN_PRACTICAL_GAIN (fewer than 1,200 sample points a
+# cloud: 80 clouds in 16,000 points leave 200), the test cannot show a pose error that
+# matters, and features that grow where a cloud's rigid shift moves ranges most
+# (incidence, power) took its residual: the pose tests run on every matched point
+# instead (``pose_points``).
+POSE_PARAMS = 6
+
+
 def sample_size(meas: Measurements) -> int:
     """Matched points the diagnosis samples: DIAGNOSIS_MAX_MATCHED, or SAMPLE_PER_CLOUD
     a cloud on a long recording, at most MAX_DIAGNOSIS_SAMPLE."""
@@ -838,10 +849,18 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
                                           ana.attribution)
     cands = diagnosis.rank(cands + weighed)
 
+    # The pose tests' points: the sample, or every matched point where the sample holds
+    # too few a cloud for six parameters each (``pose_points``).
+    # One FitData for them all: the tests on top of the same effects share their casts.
+    tested = pose_points(rays, sample, meas)
+    tested_data = (diag.full if tested is sample
+                   else diagnosis.make_fit_data(model, effects, tested))
+
     def pose_test(on_top: list[Effect], constant: bool = False) -> pose_error.PoseError:
+        idx = tested.matched
         return pose_error.fit_reference_pose(
-            diag.full, meas.cloud[sample.matched], meas.t_s[sample.matched],
-            sample.blocks[sample.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
+            tested_data, meas.cloud[idx], meas.t_s[idx],
+            sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
             on_top, rate=has_point_times(meas), constant=constant)
     recast_cache: dict = {}
 
@@ -886,6 +905,8 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         return on_pose, with_effect
 
     def all_points_pose(constant: bool) -> pose_error.PoseError:
+        if tested is not sample:
+            return pose_test([], constant)        # the same fit: every matched point
         idx = rays.matched
         return pose_error.fit_reference_pose(
             diagnosis.make_fit_data(model, effects, rays), meas.cloud[idx], meas.t_s[idx],
@@ -913,6 +934,21 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     diag.fit_together(decision, cands)
     return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
                      diag.full, diag.z_crit)
+
+
+def pose_points(rays: diagnosis.RaySet, sample: diagnosis.RaySet,
+                meas: Measurements) -> diagnosis.RaySet:
+    """The matched points the reference pose is tested on: the diagnosis sample where its
+    points a cloud pay for the per-cloud correction's parameters (the held-out cost,
+    POSE_PARAMS clouds / points, at most MIN_PRACTICAL_GAIN nats per point), else every
+    matched point of ``rays`` (the sample's neighbourhood blocks, no unmatched points:
+    the test uses none)."""
+    n_clouds = len(np.unique(meas.cloud[sample.matched]))
+    cost = POSE_PARAMS * n_clouds / max(len(sample.matched), 1)
+    if cost <= diagnosis.MIN_PRACTICAL_GAIN or len(rays.matched) <= len(sample.matched):
+        return sample
+    return replace(rays, unmatched=np.zeros(0, dtype=rays.matched.dtype),
+                   blocks=sample.blocks, edge_rad=None, isolated=None)
 
 
 def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySet,
