@@ -773,7 +773,9 @@ class Diagnosis:
                 f'fitted on one of {halves} and scored on the other its offsets explain '
                 f'{loss:.4f} nats/point less than fitted at random (z = {z:.1f}): the '
                 'residual follows a pattern on the target that the tiles cut up (the '
-                'target off its CAD, or another effect\'s pattern), not the lasers')
+                'target off its CAD, or another effect\'s pattern), not the lasers alone; '
+                'offsets of the lasers\' own beside that pattern show only once it is '
+                'modelled')
 
     def core_veto(self, cand: Candidate) -> str | None:
         """A noise effect (``is_noise_effect``: it widens the sigma, nothing else) must
