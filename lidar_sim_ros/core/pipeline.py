@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from lidar_sim_ros.core import detection, reflection, returns
+from lidar_sim_ros.core import detection, reflection, reflection_kernels, returns
 from lidar_sim_ros.core.config import MaterialsConfig, SensorConfig
 from lidar_sim_ros.core.scenario import Scenario, scenario_effect_spec
 from lidar_sim_ros.core.effects import Effect, ReturnContext, make_effect
@@ -231,6 +231,10 @@ class Simulator:
         self._kd, self._ks, self._n = (materials.column(k) for k in ('kd', 'ks', 'n'))
         self._bias, self._sigma = materials.column('bias_m'), materials.column('sigma_m')
         self._variance = self._sigma ** 2
+        # A plain frame's per-material numbers (``_plain_returns``), bit for bit as each hit
+        # gets them: the BRDF's two terms and sigma.
+        self._brdf_terms = reflection_kernels.brdf_terms_of(self._kd, self._ks, self._n)
+        self._sigma_of = np.sqrt(self._variance)
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, effects: list[Effect] | None = None,
@@ -456,12 +460,9 @@ class Simulator:
         pixel_sr = plan.pixel_sr if optics.flood is not None else None
 
         def then(part: slice, hits: HitRows) -> tuple:
-            sr = None if pixel_sr is None else pixel_sr.take(hits.rows)
-            power, bias, var = self._material_return(hits.range_m, None, hits.cos_incidence,
-                                                     hits.material, sr)
+            returns_of = self._plain_returns(hits, pixel_sr)
             noise.part_done(part, hits.rows)
-            return (hits, power, bias, np.sqrt(var),
-                    detection.detected_mask(power, hits.range_m, det))
+            return (hits, *returns_of)
         parts = cast_hits_at_poses(self.target, plan.directions, poses, then)
         if len(parts) == 1:
             hits, power, bias, sigma, detected = parts[0]
@@ -489,6 +490,26 @@ class Simulator:
                                     plan.directions, shots.t_s, shots.laser),
             face=hits.face.take(out), true_range_m=hits.range_m.take(out),
             return_number=np.ones(len(out), np.uint8))
+
+    def _plain_returns(self, hits: HitRows, pixel_sr: np.ndarray | None) -> tuple[np.ndarray, ...]:
+        """Of a plain frame's hits: received power (W), the material's range bias and sigma
+        (m) and the detector's mask (``_material_return``, ``np.sqrt`` of its variance and
+        ``detection.detected_mask``, number for number), in two compiled passes around
+        numpy's power (``reflection_kernels``). ``pixel_sr``: a flood-lit sensor's pixel
+        field of view per ray (sr; None for a beam per shot)."""
+        optics, det = self.sensor.optics, self.sensor.detection
+        flood = optics.flood is not None
+        illuminated = (reflection.flood_solid_angle_sr(np.radians(optics.flood.field_az_deg),
+                                                       np.radians(optics.flood.field_el_deg))
+                       if flood else 1.0)
+        lobe = reflection_kernels.lobe_of(hits.cos_incidence, hits.material, self._n)
+        return reflection_kernels.plain_returns_of(
+            hits.range_m, hits.cos_incidence, hits.material, lobe, hits.rows,
+            pixel_sr if flood else _NO_SR, *self._brdf_terms, self._bias,
+            self._sigma_of, flood, optics.peak_power_w * optics.transmit_efficiency,
+            illuminated, optics.beam_divergence_rad, optics.receive_efficiency,
+            np.pi * (optics.aperture_diameter_m / 2.0) ** 2, det.threshold_power_w,
+            det.saturation_power_w, det.min_range_m, det.max_range_m)
 
     def _frame_stats(self, pred: Prediction, detected: int) -> dict:
         ctx = pred.ctx
@@ -589,6 +610,9 @@ class Simulator:
             t_s=shots.t_s.take(out), ring=shots.laser.take(out),
             material=_material_ids(cand_mat.take(keep)), stats=stats, truth_source=self._truth(pred, measured, plan),
             face=cand_face.take(keep), true_range_m=cand_true.take(keep), return_number=number)
+
+
+_NO_SR = np.zeros(0)
 
 
 def _poses_at(pose_source: PoseSource, t_s: np.ndarray) -> Poses:
