@@ -1069,15 +1069,7 @@ class Diagnosis:
                 if not self.nameable(c):
                     continue
                 held = float(c.score - pose.gain)
-                if same_points is not None:     # the two NLLs on the same points
-                    pose_nll, c_nll = same_points(pose, c.effect)
-                    fitted = float(pose_nll - c_nll)
-                else:
-                    fitted = float(on_pose.before_nll - c.nll_after)
-                # In-sample the pose's parameters fit better by their number alone:
-                # charged at one nat each (AIC) on the points the pose was fitted on.
-                charged = fitted + ((getattr(pose, 'n_params', 0) - (c.n_params or 1))
-                                    / max(len(on_pose.rays.matched), 1))
+                fitted, charged = _fitted_against_pose(pose, c, on_pose, same_points, 0)
                 c.against_pose.update(heldout_margin=_num(held), fitted_margin=_num(fitted),
                                       fitted_margin_charged=_num(charged))
                 if getattr(pose, 'constant', False):
@@ -1151,13 +1143,7 @@ class Diagnosis:
             if passes or not self.nameable(c):
                 better.append(1 if passes else 0)
                 continue
-            if same_points is not None:
-                pose_nll, c_nll = same_points(pose, c.effect)
-                fitted = float(pose_nll - c_nll)
-            else:
-                fitted = float(on_pose.before_nll - c.nll_after)
-            charged = fitted + ((getattr(pose, 'n_params', 6) - (c.n_params or 1))
-                                / max(len(on_pose.rays.matched), 1))
+            fitted, charged = _fitted_against_pose(pose, c, on_pose, same_points, 6)
             c.against_pose.update(fitted_margin=_num(fitted), fitted_margin_charged=_num(charged))
             better.append(_better_of(charged, fitted, charged))
             margins.append(charged)
@@ -1377,6 +1363,23 @@ class Diagnosis:
         except Exception:  # noqa: BLE001
             return False
         return bool(np.isfinite(after) and after < best.nll_after)
+
+
+def _fitted_against_pose(pose, c: Candidate, on_pose: 'Diagnosis', same_points,
+                         default_params: int) -> tuple[float, float]:
+    """How much better the candidate ``c`` fits than the pose-corrected model
+    (``on_pose``), as --fit leaves them (nats per point; the two NLLs on the same points
+    where ``same_points`` is given), and that margin charged: in-sample the pose's
+    parameters (``default_params`` if it does not say) fit better by their number
+    alone, so each is charged one nat (AIC) on the points the pose was fitted on."""
+    if same_points is not None:
+        pose_nll, c_nll = same_points(pose, c.effect)
+        fitted = float(pose_nll - c_nll)
+    else:
+        fitted = float(on_pose.before_nll - c.nll_after)
+    charged = fitted + ((getattr(pose, 'n_params', default_params) - (c.n_params or 1))
+                        / max(len(on_pose.rays.matched), 1))
+    return fitted, charged
 
 
 def far_threshold_m(sigma_m: np.ndarray, scale: np.ndarray | float = 1.0) -> np.ndarray:
