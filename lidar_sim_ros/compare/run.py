@@ -96,8 +96,6 @@ def sample_size(meas: Measurements) -> int:
 # figures): the best few; the others report their fit on half of the points.
 FINALIZED = 3
 SILHOUETTE_NEAR_DIVERGENCES = 2.0
-# --fit with several effects: passes refitting each with the others in the model at most.
-JOINT_ROUNDS = 8
 # --effect pose_error: a per-cloud correction of the reference pose (compare/diagnose/pose_error.py),
 # not a catalogue effect: the simulator never applies it.
 POSE_ERROR = diagnosis.POSE_ERROR
@@ -193,43 +191,9 @@ def fit_user_effects(model: Model, base: list[Effect], user: list[Effect], meas:
     if len(done) > 1 and sun_fit is None and not lk.moving(done):
         m = match(geometry(model, base), meas, model.divergence_rad, edges=False)
         rays = replace(rays_of(m, power(m), model), extra_var_m2=extra_var)
-        done = refit_in_turn(diagnosis.make_fit_data(model, base,
-                                                     rays.sample(sample_size(meas), seed)),
-                             done, fixed_of)
+        data = diagnosis.make_fit_data(model, base, rays.sample(sample_size(meas), seed))
+        done = diagnosis.refit_in_turn(data, done, fixed_of)
     return done, sun_fit
-
-
-def refit_in_turn(data: lk.FitData, effects: list[Effect], fixed_of: list[dict],
-                  rounds: int = JOINT_ROUNDS) -> list[Effect]:
-    """``effects`` (fitted each on top of those before it) refitted each with all the
-    others in the model, in turn, until their parameters settle (within 1 %) or
-    ``rounds`` passes: the joint maximum of the likelihood, not the first effect's
-    value alone. Two effects that share part of the residual (a range walk and an
-    incidence elongation: grazing returns are weak and long) otherwise leave the first
-    with the other's share (the eighth holdout: walk k 0.0236 alone, 0.0156 together,
-    for a true 0.015). ``fixed_of``: per effect, the parameters the user fixed."""
-    done = list(effects)
-    for _ in range(rounds):
-        before = [e.params.model_dump() for e in done]
-        for i, eff in enumerate(done):
-            cls = type(eff)
-            fit, _ = diagnosis.fit_best_variant(cls, data, fixed_of[i],
-                                                on_top=done[:i] + done[i + 1:])
-            done[i] = diagnosis.plain(cls, fit.effect)
-        if all(_settled(a, b.params.model_dump()) for a, b in zip(before, done)):
-            break
-    return done
-
-
-def _settled(before: dict, after: dict) -> bool:
-    """Every numeric parameter within 1 % of its value (or 1e-9) before."""
-    for k, v in after.items():
-        was = before.get(k)
-        for a, b in zip(np.ravel(was if was is not None else v), np.ravel(v)):
-            if isinstance(b, (int, float, np.floating)) and not isinstance(b, bool) and \
-                    abs(float(b) - float(a)) > max(0.01 * abs(float(b)), 1e-9):
-                return False
-    return True
 
 
 def sunlight_of_recording(m: Matching, residual_m: np.ndarray, sigma_m: np.ndarray) -> SunFit:
