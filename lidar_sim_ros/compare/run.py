@@ -160,7 +160,9 @@ def fit_user_effects(model: Model, base: list[Effect], user: list[Effect], meas:
                      power: 'PowerFromIntensity', extra_var: np.ndarray | None,
                      seed: int) -> tuple[list[Effect], SunFit | None]:
     """ML-fit each user effect in turn on top of the base and the previously fitted ones
-    (on the diagnosis sample of points); also the sunlight fit, if one was made.
+    (on the diagnosis sample of points), then, several that move no rays, each again
+    with all the others in the model until they settle (``diagnosis.refit_in_turn``);
+    also the sunlight fit, if one was made.
 
     The likelihood profiles each material's offset and sigma scale, so a constant
     per-material mismatch does not leak into the effect's parameters. ``sunlight`` is
@@ -189,8 +191,8 @@ def fit_user_effects(model: Model, base: list[Effect], user: list[Effect], meas:
         fit, _ = diagnosis.fit_best_variant(cls, data, fixed)
         done.append(diagnosis.plain(cls, fit.effect))
     if len(done) > 1 and sun_fit is None and not lk.moving(done):
-        m = match(geometry(model, base), meas, model.divergence_rad, edges=False)
-        rays = replace(rays_of(m, power(m), model), extra_var_m2=extra_var)
+        # None moves the rays: the last match above (``geometry`` of the base and the
+        # effects before the last) is the base's; the model without them on its sample.
         data = diagnosis.make_fit_data(model, base, rays.sample(sample_size(meas), seed))
         done = diagnosis.refit_in_turn(data, done, fixed_of)
     return done, sun_fit

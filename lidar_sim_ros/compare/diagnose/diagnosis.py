@@ -936,8 +936,7 @@ class Diagnosis:
         the other's shape, so its value alone is off by what they share."""
         by_name = {c.name: c for c in cands}
         best, other = by_name.get(decision.missing), by_name.get(decision.also)
-        if (best is None or other is None or best.variant is None or other.variant is None
-                or best.effect is None):
+        if best is None or other is None or best.effect is None or other.effect is None:
             return
         # The discrete options (a footprint's range mode) stay as each was chosen.
         fixed = [{k: getattr(c.effect.params, k) for k in literal_choices(type(c.effect))}

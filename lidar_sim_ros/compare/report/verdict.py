@@ -154,16 +154,18 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                     f'sigma x {m["measured_sigma_m"] / max(m["model_sigma_m"], 1e-9):.2f})')
         rows = ', '.join(row(n) for n in bad)
         named = [n for n in (missing, decision.also) if n]
-        pose_note = ('' if decision.pose is None else
-                     ' They are measured on the recorded pose, which moves them with the '
-                     'pose error reported above: correct the pose first (--effect '
-                     'pose_error --fit measures them on the corrected pose).')
-        if named and not pose_note:
-            pose_note = (f' They are measured without {_join(named)}, which can move every '
-                         f'range too (a walk\'s mean over the target\'s intensities, say): '
-                         f'--effect {named[0]} --fit measures them with it.')
+        if decision.pose is not None:
+            note = (' They are measured on the recorded pose, which moves them with the '
+                    'pose error reported above: correct the pose first (--effect '
+                    'pose_error --fit measures them on the corrected pose).')
+        elif named:
+            note = (f' They are measured without {_join(named)}, which can move every '
+                    f'range too (a walk\'s mean over the target\'s intensities, say): '
+                    f'--effect {named[0]} --fit measures them with it.')
+        else:
+            note = ''
         parts.append(f'Per-material range bias/sigma differ from the configuration for {rows}: '
-                     f'see materials.yaml (--fit refits them).{pose_note}')
+                     f'see materials.yaml (--fit refits them).{note}')
         # Every material off alike is a sensor offset or the pose only when no named
         # effect could carry it.
         common = common_offset_words(mats) if decision.pose is None and not named else ''
