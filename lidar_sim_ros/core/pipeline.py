@@ -235,6 +235,17 @@ class Simulator:
         # gets them: the BRDF's two terms and sigma.
         self._brdf_terms = reflection_kernels.brdf_terms_of(self._kd, self._ks, self._n)
         self._sigma_of = np.sqrt(self._variance)
+        # ... and the sensor's (``plain_returns_of``'s optics and detector arguments).
+        optics, det = sensor.optics, sensor.detection
+        flood = optics.flood is not None
+        self._plain_optics = (
+            flood, optics.peak_power_w * optics.transmit_efficiency,
+            reflection.flood_solid_angle_sr(np.radians(optics.flood.field_az_deg),
+                                            np.radians(optics.flood.field_el_deg))
+            if flood else 1.0,
+            optics.beam_divergence_rad, optics.receive_efficiency,
+            np.pi * (optics.aperture_diameter_m / 2.0) ** 2, det.threshold_power_w,
+            det.saturation_power_w, det.min_range_m, det.max_range_m)
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, effects: list[Effect] | None = None,
@@ -491,25 +502,19 @@ class Simulator:
             face=hits.face.take(out), true_range_m=hits.range_m.take(out),
             return_number=np.ones(len(out), np.uint8))
 
-    def _plain_returns(self, hits: HitRows, pixel_sr: np.ndarray | None) -> tuple[np.ndarray, ...]:
+    def _plain_returns(self, hits: HitRows,
+                       pixel_sr: np.ndarray | None) -> tuple[np.ndarray, ...]:
         """Of a plain frame's hits: received power (W), the material's range bias and sigma
         (m) and the detector's mask (``_material_return``, ``np.sqrt`` of its variance and
         ``detection.detected_mask``, number for number), in two compiled passes around
         numpy's power (``reflection_kernels``). ``pixel_sr``: a flood-lit sensor's pixel
         field of view per ray (sr; None for a beam per shot)."""
-        optics, det = self.sensor.optics, self.sensor.detection
-        flood = optics.flood is not None
-        illuminated = (reflection.flood_solid_angle_sr(np.radians(optics.flood.field_az_deg),
-                                                       np.radians(optics.flood.field_el_deg))
-                       if flood else 1.0)
+        flood = self._plain_optics[0]
         lobe = reflection_kernels.lobe_of(hits.cos_incidence, hits.material, self._n)
         return reflection_kernels.plain_returns_of(
             hits.range_m, hits.cos_incidence, hits.material, lobe, hits.rows,
             pixel_sr if flood else _NO_SR, *self._brdf_terms, self._bias,
-            self._sigma_of, flood, optics.peak_power_w * optics.transmit_efficiency,
-            illuminated, optics.beam_divergence_rad, optics.receive_efficiency,
-            np.pi * (optics.aperture_diameter_m / 2.0) ** 2, det.threshold_power_w,
-            det.saturation_power_w, det.min_range_m, det.max_range_m)
+            self._sigma_of, *self._plain_optics)
 
     def _frame_stats(self, pred: Prediction, detected: int) -> dict:
         ctx = pred.ctx

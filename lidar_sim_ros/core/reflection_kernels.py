@@ -55,8 +55,9 @@ def brdf_terms_of(kd: np.ndarray, ks: np.ndarray, n: np.ndarray) -> tuple[np.nda
 
 @njit(cache=True, nogil=True)
 def plain_returns_of(range_m, cos_incidence, material, lobe, rows, pixel_sr, diffuse_of,
-                     specular_of, bias_of, sigma_of, flood, irradiance_num, illuminated_sr, divergence_rad,
-                     tau_r, aperture_m2, threshold_w, saturation_w, min_range_m, max_range_m):
+                     specular_of, bias_of, sigma_of, flood, irradiance_num, illuminated_sr,
+                     divergence_rad, tau_r, aperture_m2, threshold_w, saturation_w,
+                     min_range_m, max_range_m):
     """Received power (W), the material's range bias and sigma (m) and the detector's mask
     of each hit: ``reflection.return_power_w`` and ``detection.detected_mask``, number for
     number.
@@ -64,11 +65,11 @@ def plain_returns_of(range_m, cos_incidence, material, lobe, rows, pixel_sr, dif
     range_m, cos_incidence, material (H,): the hits (``HitRows``); lobe (H,):
     ``lobe_of``; rows (H,): each hit's row of ``pixel_sr`` (sr per ray, a flood-lit
     sensor's pixel field of view; read only with ``flood``); per material:
-    ``brdf_terms_of``'s two terms, the range bias and sigma. irradiance_num = P_o tau_t (W); ``flood``: E = irradiance_num
-    / (illuminated_sr r^2) over the pixel's footprint, else Eq. 2's beam of full
-    divergence ``divergence_rad`` over its footprint; tau_r (-); aperture_m2 = pi (D/2)^2;
-    the detector's window: threshold_w <= power < saturation_w, min_range_m <= r <=
-    max_range_m.
+    ``brdf_terms_of``'s two terms, the range bias and sigma. irradiance_num = P_o tau_t
+    (W); ``flood``: E = irradiance_num / (illuminated_sr r^2) over the pixel's footprint,
+    else Eq. 2's beam of full divergence ``divergence_rad`` over its footprint; tau_r
+    (-); aperture_m2 = pi (D/2)^2; the detector's window: threshold_w <= power <
+    saturation_w, min_range_m <= r <= max_range_m.
     """
     h = range_m.shape[0]
     power = np.empty(h)
