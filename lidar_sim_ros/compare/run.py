@@ -39,8 +39,9 @@ from lidar_sim_ros.compare.diagnose import (diagnosis, features, plan as sep_pla
                                             stamp_place)
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
-from lidar_sim_ros.compare.model import (likelihood as lk, materials as mat, neighbours,
-                                         occlusion as occ, point_times)
+from lidar_sim_ros.compare.model import (crosstalk as xtalk, likelihood as lk,
+                                         materials as mat, neighbours, occlusion as occ,
+                                         point_times)
 from lidar_sim_ros.compare.recording.cepton_pcap import side_bag
 from lidar_sim_ros.compare.recording.intensity import IntensityCalibration, calibrate_intensity
 from lidar_sim_ros.compare.model.matching import (Matching, Model, edge_distance_rad, match,
@@ -350,6 +351,8 @@ class Inputs:
     pose_fit: bool = False        # --effect pose_error: correct the reference pose per cloud
     # Returns from something in front of the target, left out of meas (``occlusion.py``).
     occlusion: occ.Occlusion | None = None
+    # Ghost returns of the adjacent laser, left out of meas (``crosstalk.py``).
+    crosstalk: xtalk.Crosstalk | None = None
 
 
 @dataclass
@@ -416,7 +419,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     opts.out = Path(opts.out)
     with stage('load'):
         inp = load_inputs(opts)
-    with stage('occlusion'):
+    with stage('occlusion, crosstalk'):
         inp = leave_out_occluded(inp)
     power = PowerFromIntensity()
     with stage('point times'):
@@ -580,7 +583,9 @@ def load_inputs(opts: CompareOptions) -> Inputs:
 def leave_out_occluded(inp: Inputs) -> Inputs:
     """The inputs without the returns of an object between the sensor and the target
     (``occlusion.occluded`` on the model's rays, scenario effects in its geometry; the
-    count in ``meas.dropped['occluded']`` and ``Inputs.occlusion``). Before anything is
+    count in ``meas.dropped['occluded']`` and ``Inputs.occlusion``), and without the
+    ghost returns of the adjacent laser (``crosstalk.crosstalk_ghosts`` on the same
+    rays; ``meas.dropped['crosstalk']`` and ``Inputs.crosstalk``). Before anything is
     fitted: a hidden material's refit, the pose test and the diagnosis never see them."""
     meas, model = inp.meas, inp.model
     m = match(geometry(model, inp.scenario_effects), meas, model.divergence_rad, edges=False)
@@ -589,10 +594,17 @@ def leave_out_occluded(inp: Inputs) -> Inputs:
     mask = occ.occluded(meas.range_m, expected, diagnosis.far_threshold_m(sigma),
                         meas.directions, meas.cloud)
     found = occ.summarise(mask, meas.range_m, expected, meas.cloud, len(meas.cloud_stamps_s))
-    if found.points == 0:
-        return replace(inp, occlusion=found)
-    kept = replace(meas.subset(~mask), dropped={**meas.dropped, 'occluded': found.points})
-    return replace(inp, meas=kept, occlusion=found)
+    ghost, xt = xtalk.crosstalk_ghosts(meas.range_m, expected, sigma, meas.t_s, meas.cloud,
+                                       meas.laser, meas.has_point_time, meas.intensity)
+    ghost &= ~mask
+    if ghost.sum() != xt.points:
+        xt = replace(xt, points=int(ghost.sum()))
+    inp = replace(inp, occlusion=found, crosstalk=xt)
+    if found.points == 0 and xt.points == 0:
+        return inp
+    dropped = {**meas.dropped, 'occluded': found.points, 'crosstalk': xt.points}
+    kept = replace(meas.subset(~(mask | ghost)), dropped=dropped)
+    return replace(inp, meas=kept)
 
 
 def correct_reference_pose(model: Model, effects: list[Effect], matching: Matching,
@@ -994,10 +1006,13 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'config': str(scenario.source) if scenario.source else None,
         'effects': [_effect_record(e) for e in effects],
         'points': int(len(meas) + meas.dropped.get('subsampled', 0)
-                      + meas.dropped.get('occluded', 0)),
-        # Analysed: after --max-points; the occluded among them are left out (occlusion).
-        'points_analysed': int(len(meas) + meas.dropped.get('occluded', 0)),
+                      + meas.dropped.get('occluded', 0) + meas.dropped.get('crosstalk', 0)),
+        # Analysed: after --max-points; the occluded and the crosstalk ghosts among them
+        # are left out (occlusion, crosstalk).
+        'points_analysed': int(len(meas) + meas.dropped.get('occluded', 0)
+                               + meas.dropped.get('crosstalk', 0)),
         'occlusion': inp.occlusion.as_dict() if inp.occlusion is not None else None,
+        'crosstalk': inp.crosstalk.as_dict() if inp.crosstalk is not None else None,
         'matched_points': int(sel.sum()),
         'unmatched_points': int((~sel).sum()),
         'unmatched_fraction': float(matching.unmatched_fraction),

@@ -174,6 +174,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     occluded = (summary.get('occlusion') or {}).get('interpretation')
     if occluded:
         parts.append(f'{occluded}.')
+    ghosts = (summary.get('crosstalk') or {}).get('interpretation')
+    if ghosts:
+        parts.append(f'{ghosts}.')
     un = summary['unmatched']
     if un['points']:
         parts.append(f'{un["points"]} points ({100 * un["fraction"]:.2f} %) miss the target '
@@ -597,6 +600,10 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
     if occluded:
         lines.append(f'occluded: {occluded} returns from something in front of the target '
                      'left out (summary.json: occlusion)')
+    ghosts = s.get('crosstalk') or {}
+    if ghosts.get('points'):
+        lines.append(f'crosstalk: {ghosts["points"]} ghost returns {ghosts["offset_m"]:.2f} m '
+                     'behind a return of the adjacent laser left out (summary.json: crosstalk)')
     for e in s['fitted_effects']:
         params = ', '.join(f'{k} = {v:.6g}' if isinstance(v, float) else f'{k} = {v}'
                            for k, v in e['params'].items())
