@@ -168,6 +168,14 @@ def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
         said = (first.get('occlusion') or {}).get('fraction', 0.0)
         if abs(said - hidden) > OCCLUDED_TOLERANCE * hidden + 0.005:
             why.append(f'occluded share {said:.3f}, hidden by the pillar {hidden:.3f}')
+    if spec.params_of('crosstalk') is not None:
+        # The ghosts of the next channel are counted, left out and said to be crosstalk.
+        ghosts = truth['crosstalk_fraction']
+        said = (first.get('crosstalk') or {}).get('fraction', 0.0)
+        if abs(said - ghosts) > OCCLUDED_TOLERANCE * ghosts + 0.005:
+            why.append(f'crosstalk share {said:.3f}, ghosts made {ghosts:.3f}')
+        if 'crosstalk' not in (first.get('verdict') or ''):
+            why.append('the verdict does not say crosstalk')
     return {'ok': not why, 'why': '; '.join(why), 'named': named, 'ties': ties, 'nll': nll}
 
 

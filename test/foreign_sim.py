@@ -83,7 +83,7 @@ CEPTON_FRAME = 'cepton3'
 CEPTON_SATURATED, CEPTON_NO_RETURN = 1, 32
 SATURATION_POWER_W = 1.0e-3      # this sensor's detector clips above this
 # Hidden effects compare has no candidate for: expected answer null (and the feature).
-OUTSIDE_CATALOGUE = ('azimuth_bias', 'range_scale')   # range_scale: by name only
+OUTSIDE_CATALOGUE = ('azimuth_bias', 'range_scale', 'crosstalk')   # range_scale: by name only
 # Range errors of the sensor that compare weighs against the reference pose (issue 30).
 POSE_RIVALS = ('range_drift',)
 
@@ -817,12 +817,64 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     detected &= (measured > sensor.min_range_m) & (measured < sensor.max_range_m)
     i = np.flatnonzero(detected)
     silent = np.flatnonzero(~detected)
-    return {'xyz_m': d[i] * measured[i, None], 'power_w': power[i], 't_s': t[i],
-            'laser': laser[i], 'silent_t_s': t[silent], 'silent_laser': laser[silent],
-            'range_m': measured[i], 'true_range_m': r_hit[i], 'material': mat[i],
-            'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid,
-            'base_sigma_m': base_sigma[i], 'multipath': multipath[i], 'hidden': hidden[i],
-            'effects': {k: (b[i], v[i]) for k, (b, v) in contrib.items()}}
+    frame = {'xyz_m': d[i] * measured[i, None], 'power_w': power[i], 't_s': t[i],
+             'laser': laser[i], 'silent_t_s': t[silent], 'silent_laser': laser[silent],
+             'range_m': measured[i], 'true_range_m': r_hit[i], 'material': mat[i],
+             'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid,
+             'base_sigma_m': base_sigma[i], 'multipath': multipath[i], 'hidden': hidden[i],
+             'effects': {k: (b[i], v[i]) for k, (b, v) in contrib.items()}}
+    xt = spec.params_of('crosstalk')
+    if xt is not None:
+        real = detected & (mat >= 0)
+        at, ghost_r, ghost_p = crosstalk_returns(measured, power, real, laser, sensor, rng, xt)
+        frame = with_ghosts(frame, d, t, laser, at, ghost_r, ghost_p)
+    return frame
+
+
+CROSSTALK = -2     # material id of a crosstalk ghost (not the target, not a false return)
+
+
+def crosstalk_returns(measured_m: np.ndarray, power_w: np.ndarray, real: np.ndarray,
+                      laser: np.ndarray, sensor: Sensor, rng: np.random.Generator,
+                      p: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Crosstalk between channels, this sensor's own form: the echo of a return of power
+    P on shot k leaks into the receiver of the channel that fires next (shot k+1, another
+    laser), with a chance that grows with how far P stands above the strong level
+    S = ``strong`` x threshold: ``p`` (1 - S / P) for P > S, nothing below. The leaked
+    echo is timed by the next channel's electronics: its range is shot k's measured range
+    plus ``offset_m`` (a fixed delay) plus 1 cm of its own timing noise, its power
+    ``ratio`` x P, along shot k+1's direction (a second return there if that shot has
+    its own). Returns (shot index of each ghost, its range m, its power W)."""
+    strong = p.get('strong', 20.0) * sensor.threshold_power_w
+    with np.errstate(divide='ignore', invalid='ignore'):
+        chance = np.where(real & (power_w > strong), p.get('p', 0.5) * (1.0 - strong / power_w),
+                          0.0)
+    src = np.flatnonzero(rng.random(len(power_w)) < chance)
+    src = src[src + 1 < len(power_w)]
+    src = src[laser[src + 1] != laser[src]]
+    ghost_r = measured_m[src] + p.get('offset_m', 0.3) + 0.01 * rng.standard_normal(len(src))
+    ghost_p = p.get('ratio', 0.15) * power_w[src]
+    keep = (ghost_p >= sensor.threshold_power_w) & (ghost_r < sensor.max_range_m)
+    return src[keep] + 1, ghost_r[keep], ghost_p[keep]
+
+
+def with_ghosts(frame: dict, d: np.ndarray, t: np.ndarray, laser: np.ndarray, at: np.ndarray,
+                range_m: np.ndarray, power_w: np.ndarray) -> dict:
+    """``frame`` with the ghost returns (shot ``at``, ``range_m``, ``power_w``) merged in
+    shot order (material CROSSTALK, no effect bias)."""
+    n = len(at)
+    add = {'xyz_m': d[at] * range_m[:, None], 'power_w': power_w, 't_s': t[at],
+           'laser': laser[at], 'range_m': range_m, 'true_range_m': np.full(n, np.nan),
+           'material': np.full(n, CROSSTALK), 'shot': at, 'base_sigma_m': np.full(n, 0.01),
+           'multipath': np.zeros(n, bool), 'hidden': np.zeros(n, bool)}
+    order = np.argsort(np.concatenate([frame['shot'], at]), kind='stable')
+    out = dict(frame)
+    for k, v in add.items():
+        out[k] = np.concatenate([frame[k], v])[order]
+    out['effects'] = {k: (np.concatenate([b, np.zeros(n)])[order],
+                          np.concatenate([v, np.zeros(n)])[order])
+                      for k, (b, v) in frame['effects'].items()}
+    return out
 
 
 SPECULAR_MIN = 0.5     # specular albedo of a mirror-like material (MLI, PSS)
@@ -1104,6 +1156,9 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
                              f'or None, got {name!r}')
     if spec.organized and spec.scan != 'raster':
         raise ValueError('organized clouds need the raster scan')
+    if spec.params_of('crosstalk') is not None and (spec.organized or not spec.lasers):
+        raise ValueError('crosstalk needs lasers (a channel to leak into) and an unorganized '
+                         'cloud (a shot may return twice)')
     sensor = sensor or Sensor(frame_rate_hz=spec.frame_rate_hz, max_range_m=spec.max_range_m)
     parts = satellite_parts(spec.fins)
     mesh = write_obj(parts, out / 'satellite.obj')
@@ -1115,7 +1170,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
     # Pose clock minus lidar clock: the pose stamped s shows the target at lidar time s - dt.
     offset = spec.params_of('time_offset')
     dt_s = float(offset.get('dt_s', 0.05)) if offset is not None else 0.0
-    n_points = n_clutter = n_false = n_multipath = n_hidden = 0
+    n_points = n_clutter = n_false = n_multipath = n_hidden = n_ghost = 0
     kept: list[dict] = []
     bag = out / 'bag'
     gap = spec.frame_gap_s or period
@@ -1147,7 +1202,8 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
             n_points += len(frame['range_m'])
             kept.append({k: frame[k] for k in ('material', 'base_sigma_m', 'effects')})
             n_clutter += int(np.sum(frame['material'] == CLUTTER))
-            n_false += int(np.sum(frame['material'] < 0))
+            n_false += int(np.sum(frame['material'] == -1))
+            n_ghost += int(np.sum(frame['material'] == CROSSTALK))
             n_multipath += int(np.sum(frame['multipath']))
             n_hidden += int(np.sum(frame['hidden']))
     truth = {'hidden': [[n, p] for n, p in spec.hidden], 'time_offset_s': dt_s,
@@ -1160,7 +1216,8 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
              'clutter_fraction': n_clutter / max(n_points, 1),
              'false_return_fraction': n_false / max(n_points, 1), 'false_returns': n_false,
              'multipath_fraction': n_multipath / max(n_points, 1),
-             'occluded_fraction': n_hidden / max(n_points, 1)}
+             'occluded_fraction': n_hidden / max(n_points, 1),
+             'crosstalk_fraction': n_ghost / max(n_points, 1)}
     scen = write_compare_scenario(out / 'scenario.yaml', mesh, traj)
     return ForeignDataset(spec, bag, mesh, scen, n_points, truth)
 
@@ -1305,6 +1362,25 @@ BATTERY: tuple[ForeignSpec, ...] = (
     ForeignSpec('occluder_walk', 'range_walk', {'form': 'poly_log', 'a_m': 0.03, 'b_m': 0.006},
                 seed=91, occluder=True, distance_m=9.0, intensity='counts16',
                 note='the pillar, and a range walk to be named through it'),
+    # --- crosstalk between channels (outside the catalogue): a strong return leaks into
+    # the next shot's channel a fixed delay later (``crosstalk_returns``), 6 lasers
+    # round-robin; the ghosts must be counted and left out, and nothing named for them.
+    ForeignSpec('crosstalk', None, seed=91, lasers=6, also=(('crosstalk', {'p': 0.5}),),
+                note='about a third of the strong returns leak 0.3 m behind into the next shot'),
+    ForeignSpec('crosstalk_small_near', None, seed=92, lasers=6, scan='rosette',
+                also=(('crosstalk', {'p': 0.05, 'offset_m': 0.1}),),
+                note='a few % ghosts only 0.1 m behind, rosette'),
+    ForeignSpec('crosstalk_far', None, seed=93, lasers=4, intensity='counts16',
+                also=(('crosstalk', {'p': 0.15, 'offset_m': 1.0}),),
+                note='about 10 % ghosts 1 m behind'),
+    ForeignSpec('crosstalk_walk', 'range_walk', {'form': 'poly_log', 'a_m': 0.015, 'b_m': 0.003},
+                seed=94, lasers=6, also=(('crosstalk', {'p': 0.05, 'offset_m': 0.3}),),
+                note='a walk beside a few % ghosts: the walk must be named'),
+    ForeignSpec('crosstalk_walk_large', 'range_walk', {'form': 'poly_log', 'a_m': 0.015,
+                                                       'b_m': 0.003},
+                seed=95, lasers=6, scan='rosette',
+                also=(('crosstalk', {'p': 0.5, 'offset_m': 0.2}),),
+                note='a walk beside a third of ghosts 0.2 m behind'),
     ForeignSpec('clutter_solar', 'solar_background', {'fraction': 0.008, 'mean_range_m': 30.0},
                 seed=41, clutter=True, scan='rosette', intensity='counts16'),
     # --- clouds without per-point time, stamped at the start, middle or end of the scan

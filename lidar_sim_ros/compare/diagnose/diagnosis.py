@@ -535,7 +535,10 @@ class Diagnosis:
         off = (np.asarray(self.full.unmatched_range_m, float)[rays.isolated[rays.unmatched]]
                if rays.isolated is not None and len(rays.unmatched) else np.zeros(0))
         self.off_ranges_m = off[np.isfinite(off)]
-        self.off_u = off_target_positions(self.off_ranges_m, self.full.range_window_m)
+        # A shot that misses listens from the start of the sensor's gate (``miss_window``),
+        # not from the target's nearest return: background light knows nothing of where
+        # the target is.
+        self.off_u = off_target_positions(self.off_ranges_m, self.full.miss_window)
         self._base_outlier_w = float(np.mean(lk.model_on_rays(
             self.full, []).outlier_w)) if len(self.rays.matched) else 0.0
 
@@ -708,14 +711,16 @@ class Diagnosis:
                 ks = kstest(self.off_u, 'uniform')
                 if ks.pvalue < norm.sf(self.z_crit):
                     a, b = np.percentile(self.off_ranges_m, [25, 75])
+                    lo = float(self.full.miss_window[0])
                     return (f'its false returns on the shots that miss the target would spread '
-                            'over the range window as background arrivals do (evenly, or '
-                            f'falling off with range), but the {len(self.off_u)} isolated points '
-                            f'off the target bunch (Kolmogorov-Smirnov D = {ks.statistic:.2f}, '
-                            f'p = {ks.pvalue:.1e}; half of them between {a:.1f} and {b:.1f} m): '
-                            'a surface that is not the target is among them (lab clutter: its '
-                            'edges have no neighbour at their range), so they do not show '
-                            'background light')
+                            f'over the receiver\'s gate (from {lo:.1f} m) as background arrivals '
+                            f'do (evenly, or falling off with range), but the {len(self.off_u)} '
+                            'isolated points off the target bunch (Kolmogorov-Smirnov D = '
+                            f'{ks.statistic:.2f}, p = {ks.pvalue:.1e}; half of them between '
+                            f'{a:.1f} and {b:.1f} m): returns at the target\'s ranges or at a '
+                            'surface that is not the target (lab clutter: its edges have no '
+                            'neighbour at their range; ghosts of another channel), so they do '
+                            'not show background light')
         return None
 
     def share_veto(self, cand: Candidate, attribution: Attribution | None) -> None:
@@ -1487,9 +1492,13 @@ def arrival_logpdf(x: np.ndarray, rate: float) -> np.ndarray:
 def off_target_positions(range_m: np.ndarray, window_m: tuple[float, float]) -> np.ndarray:
     """Where isolated points off the target lie in the first-arrival law, 0..1: uniform
     if they are background arrivals on shots that miss the target (each listens over
-    the whole window). The window runs from its start to the farthest of them (a
-    recording's gate may end before the configured one); the law's rate is fitted to
-    them (``arrival_cdf``: evenly, or crowding the start for a strong background)."""
+    the whole gate). The window runs from the start of the receiver's gate
+    (``window_m[0]``: the sensor's minimum range, not the target's nearest return; a
+    background trigger is uniform in time over the gate, whatever the target's range)
+    to the farthest of them (a recording's gate may end before the configured one);
+    the law's rate is fitted to them (``arrival_cdf``: evenly, or crowding the start
+    for a strong background). Returns bunched within the target's range window (the
+    ghosts of a neighbouring channel, lab clutter) are then not uniform."""
     r = np.asarray(range_m, float)
     lo = float(window_m[0])
     if len(r) < 2 or not np.max(r) > lo:

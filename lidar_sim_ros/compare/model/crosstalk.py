@@ -11,17 +11,21 @@ strong returns' neighbours carry them), a reference-pose error.
 
 Their signature needs only what a recording carries: per point its laser/channel id
 and its time (a time field, or the scan pattern's time for each direction). A point is
-a ghost candidate when the model does not produce it (its ray misses the target, or
-its range lies more than NOISE_SIGMAS predicted sigmas off the model's), and its
+a ghost candidate when the model does not produce it (its ray misses the target, its
+range lies more than NOISE_SIGMAS predicted sigmas off the model's, or it is the one
+farther from the model of two returns of one shot: the model gives a shot one), and its
 partner is a return of *another* laser on the shot just before it (its time one shot
 period earlier, within half a period; the period is the recording's own most common
 step between point times). Over all candidate pairs, the range behind the partner
 (r - r_partner, 0 .. MAX_OFFSET_M) is spread by the scene's geometry; crosstalk
 stacks its ghosts at one delay. A peak is crosstalk when its count stands above the
-counts beside it (the sidebands, HALF_WIDTH_SIGMAS..3 x on either side) by a z beyond
+counts beside it (the sidebands, 1..3 half widths on either side) and above the count
+at the mirrored delay in front of the partner (two returns of one surface on successive
+shots lie in front of each other as often as behind; a ghost only behind) by a z beyond
 the Bonferroni bound over the delays scanned (``FAMILY_ALPHA``), with at least
-MIN_GHOSTS ghosts above the sidebands. The ghosts are then the candidates whose partner
-lies at that delay (within the peak's half width): left out of everything after this
+MIN_GHOSTS ghosts above them. The ghosts are then the candidates whose partner lies at
+that delay (within the peak's half width, and nearer it than zero): left out of
+everything after this
 stage (``run.leave_out_crosstalk``), counted in ``summary.json`` (``crosstalk``) and
 named in the verdict as outside the catalogue.
 
@@ -120,13 +124,33 @@ def previous_shot_pairs(t_s: np.ndarray, cloud: np.ndarray, laser: np.ndarray,
     return np.concatenate(ps), np.concatenate(qs)
 
 
+def second_returns(miss_m: np.ndarray, t_s: np.ndarray, cloud: np.ndarray, laser: np.ndarray,
+                   period_s: float) -> np.ndarray:
+    """Bool per point: the farther from the model (``miss_m``: |measured - expected|, m,
+    inf off the target) of two returns of one shot (the same cloud and laser, times
+    within half a shot period): the model gives a shot one return."""
+    t = np.asarray(t_s, float) - float(np.min(t_s))
+    order = np.lexsort((t, laser, cloud))
+    a, b = order[:-1], order[1:]
+    pair = ((np.asarray(cloud)[a] == np.asarray(cloud)[b])
+            & (np.asarray(laser)[a] == np.asarray(laser)[b])
+            & (np.abs(t[b] - t[a]) < 0.5 * period_s))
+    out = np.zeros(len(t), bool)
+    miss = np.asarray(miss_m, float)
+    a, b = a[pair], b[pair]
+    worse = np.where(miss[a] > miss[b], a, b)
+    out[worse] = True
+    return out
+
+
 def delay_peak(delay_m: np.ndarray, half_width_m: float) -> tuple[float, float, float, int]:
     """The delay (m) whose window (+-half_width_m) stands highest above its sidebands
     (module doc): (centre, z, z_crit, excess count). Centres step by half a half width
-    over (0, MAX_OFFSET_M]."""
+    over [half_width_m, MAX_OFFSET_M]; ``delay_m`` holds every pair's delay, those in
+    front of the partner too (the sidebands of a short delay reach below zero)."""
     d = np.sort(np.asarray(delay_m, float))
     h = float(half_width_m)
-    centres = np.arange(3 * h, MAX_OFFSET_M - 3 * h + 1e-12, h / 2)
+    centres = np.arange(h, MAX_OFFSET_M + 1e-12, h / 2)
     z_crit = float(norm.isf(FAMILY_ALPHA / max(len(centres), 1)))
     if len(centres) == 0 or len(d) == 0:
         return float('nan'), 0.0, z_crit, 0
@@ -136,7 +160,10 @@ def delay_peak(delay_m: np.ndarray, half_width_m: float) -> tuple[float, float, 
 
     n = count(centres - h, centres + h)
     side = count(centres - 3 * h, centres + 3 * h) - n
-    b = side / 2.0                                   # expected count in the window
+    # Two returns of one surface on successive shots lie as often in front of each other
+    # as behind; a ghost only behind: the mirror window is a second chance level.
+    mirror = count(-centres - h, -centres + h)
+    b = np.maximum(side / 2.0, mirror)               # expected count in the window
     z = (n - b) / np.sqrt(1.5 * b + 1.0)             # var(n - b) = b + b / 2 (Poisson)
     best = int(np.argmax(z))
     # The scene's delays are not exactly linear over a sideband: the scan's own centres
@@ -183,14 +210,16 @@ def crosstalk_ghosts(range_m: np.ndarray, expected_m: np.ndarray, sigma_m: np.nd
     sigma = np.nan_to_num(np.asarray(sigma_m, float), nan=0.0)
     off = ~np.isfinite(expected)
     with np.errstate(invalid='ignore'):
-        far = np.abs(r - expected) > NOISE_SIGMAS * np.maximum(sigma, 1e-6)
-    cand = np.flatnonzero((off | far) & np.isfinite(r))
+        miss = np.abs(r - expected)
+        far = miss > NOISE_SIGMAS * np.maximum(sigma, 1e-6)
+    second = second_returns(np.where(off, np.inf, miss), t_s, cloud, laser, period)
+    cand = np.flatnonzero((off | far | second) & np.isfinite(r))
     p, q = previous_shot_pairs(t_s, cloud, laser, cand, period)
     delay = r[p] - r[q]
     s = float(np.median(sigma[np.isfinite(expected)])) if np.any(~off) else 0.0
     h = max(HALF_WIDTH_SIGMAS * np.sqrt(2.0) * s, MIN_HALF_WIDTH_M)
-    sel = (delay > 0) & (delay <= MAX_OFFSET_M)
-    centre, z, z_crit, excess = delay_peak(delay[sel], h)
+    sel = (delay > 0) & (delay <= MAX_OFFSET_M + h)
+    centre, z, z_crit, excess = delay_peak(delay, h)
     found = bool(z > z_crit and excess >= MIN_GHOSTS)
     kw = dict(half_width_m=round(h, 4), z=round(z, 2), z_crit=round(z_crit, 2),
               candidates=int(len(cand)))
@@ -198,7 +227,8 @@ def crosstalk_ghosts(range_m: np.ndarray, expected_m: np.ndarray, sigma_m: np.nd
         return none, Crosstalk(0, n, 0, n_clouds, **kw)
     near = sel & (np.abs(delay - centre) <= h)
     offset = float(np.median(delay[near]))
-    hit = sel & (np.abs(delay - offset) <= h)
+    # A pair nearer zero delay than the ghosts' is one surface seen by the next shot.
+    hit = sel & (np.abs(delay - offset) <= h) & (delay > 0.5 * offset)
     mask = np.zeros(n, bool)
     mask[p[hit]] = True
     ratio = None
