@@ -11,9 +11,11 @@ strong returns' neighbours carry them), a reference-pose error.
 
 Their signature needs only what a recording carries: per point its laser/channel id
 and its time (a time field, or the scan pattern's time for each direction). A point is
-a ghost candidate when the model does not produce it (its ray misses the target, its
-range lies more than NOISE_SIGMAS predicted sigmas off the model's, or it is the one
-farther from the model of two returns of one shot: the model gives a shot one), and its
+a ghost candidate when the model does not produce it: an extra return, where its ray
+misses the target (the model gives no return) or the one farther from the model of two
+returns of one shot (the model gives one). A single return on a ray that meets the
+target, however far off the model's range, is that return's own range error (a walk,
+a laser's offset, a material's bias: each moves a return, none adds one), and its
 partner is a return of *another* laser on the shot just before it (its time one shot
 period earlier, within half a period; the period is the recording's own most common
 step between point times). Over all candidate pairs, the range behind the partner
@@ -40,8 +42,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
-NOISE_SIGMAS = 5.0         # a return this many predicted sigmas off the model's range is
-                           # not what the model produces on its ray
 MAX_OFFSET_M = 3.0         # delays looked at behind the partner (m)
 HALF_WIDTH_SIGMAS = 3.0    # the peak's half width: this many sigmas of a pair's range
                            # difference (two returns' noise)
@@ -211,9 +211,8 @@ def crosstalk_ghosts(range_m: np.ndarray, expected_m: np.ndarray, sigma_m: np.nd
     off = ~np.isfinite(expected)
     with np.errstate(invalid='ignore'):
         miss = np.abs(r - expected)
-        far = miss > NOISE_SIGMAS * np.maximum(sigma, 1e-6)
     second = second_returns(np.where(off, np.inf, miss), t_s, cloud, laser, period)
-    cand = np.flatnonzero((off | far | second) & np.isfinite(r))
+    cand = np.flatnonzero((off | second) & np.isfinite(r))
     p, q = previous_shot_pairs(t_s, cloud, laser, cand, period)
     delay = r[p] - r[q]
     s = float(np.median(sigma[np.isfinite(expected)])) if np.any(~off) else 0.0
