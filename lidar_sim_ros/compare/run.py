@@ -602,7 +602,8 @@ def leave_out_occluded(inp: Inputs) -> Inputs:
     inp = replace(inp, occlusion=found, crosstalk=xt)
     if found.points == 0 and xt.points == 0:
         return inp
-    dropped = {**meas.dropped, 'occluded': found.points, 'crosstalk': xt.points}
+    left = {'occluded': found.points, 'crosstalk': xt.points}
+    dropped = {**meas.dropped, **{k: n for k, n in left.items() if n}}
     kept = replace(meas.subset(~(mask | ghost)), dropped=dropped)
     return replace(inp, meas=kept)
 

@@ -124,23 +124,18 @@ def previous_shot_pairs(t_s: np.ndarray, cloud: np.ndarray, laser: np.ndarray,
     return np.concatenate(ps), np.concatenate(qs)
 
 
-def second_returns(miss_m: np.ndarray, t_s: np.ndarray, cloud: np.ndarray, laser: np.ndarray,
-                   period_s: float) -> np.ndarray:
-    """Bool per point: the farther from the model (``miss_m``: |measured - expected|, m,
-    inf off the target) of two returns of one shot (the same cloud and laser, times
-    within half a shot period): the model gives a shot one return."""
+def two_return_shots(t_s: np.ndarray, cloud: np.ndarray, laser: np.ndarray,
+                     period_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (a, b): two returns of one shot (the same cloud and laser, times within
+    half a shot period). The model gives a shot one return."""
     t = np.asarray(t_s, float) - float(np.min(t_s))
+    cloud = np.asarray(cloud)
+    laser = np.asarray(laser)
     order = np.lexsort((t, laser, cloud))
     a, b = order[:-1], order[1:]
-    pair = ((np.asarray(cloud)[a] == np.asarray(cloud)[b])
-            & (np.asarray(laser)[a] == np.asarray(laser)[b])
+    pair = ((cloud[a] == cloud[b]) & (laser[a] == laser[b])
             & (np.abs(t[b] - t[a]) < 0.5 * period_s))
-    out = np.zeros(len(t), bool)
-    miss = np.asarray(miss_m, float)
-    a, b = a[pair], b[pair]
-    worse = np.where(miss[a] > miss[b], a, b)
-    out[worse] = True
-    return out
+    return a[pair], b[pair]
 
 
 def delay_peak(delay_m: np.ndarray, half_width_m: float) -> tuple[float, float, float, int]:
@@ -211,7 +206,11 @@ def crosstalk_ghosts(range_m: np.ndarray, expected_m: np.ndarray, sigma_m: np.nd
     off = ~np.isfinite(expected)
     with np.errstate(invalid='ignore'):
         miss = np.abs(r - expected)
-    second = second_returns(np.where(off, np.inf, miss), t_s, cloud, laser, period)
+    a, b = two_return_shots(t_s, cloud, laser, period)
+    # Of two returns of a shot, the one farther from the model is the extra one.
+    miss = np.where(off, np.inf, miss)
+    second = np.zeros(n, bool)
+    second[np.where(miss[a] > miss[b], a, b)] = True
     cand = np.flatnonzero((off | second) & np.isfinite(r))
     p, q = previous_shot_pairs(t_s, cloud, laser, cand, period)
     delay = r[p] - r[q]
@@ -226,16 +225,27 @@ def crosstalk_ghosts(range_m: np.ndarray, expected_m: np.ndarray, sigma_m: np.nd
         return none, Crosstalk(0, n, 0, n_clouds, **kw)
     near = sel & (np.abs(delay - centre) <= h)
     offset = float(np.median(delay[near]))
+    # Now that the delay is known, the ghost of a two-return shot is the one at it (an
+    # echo with a walk can lie farther from the model than its ghost): both are paired.
+    both = np.zeros(n, bool)
+    both[a] = both[b] = True
+    p, q = previous_shot_pairs(t_s, cloud, laser,
+                               np.flatnonzero((off | both) & np.isfinite(r)), period)
+    delay = r[p] - r[q]
     # A pair nearer zero delay than the ghosts' is one surface seen by the next shot.
-    hit = sel & (np.abs(delay - offset) <= h) & (delay > 0.5 * offset)
-    mask = np.zeros(n, bool)
-    mask[p[hit]] = True
+    hit = (np.abs(delay - offset) <= h) & (delay > 0.5 * offset)
+    closeness = np.full(n, np.inf)
+    np.minimum.at(closeness, p[hit], np.abs(delay[hit] - offset))
+    mask = np.isfinite(closeness)
+    # Both returns of a shot at the delay: the ghost is the nearer to it.
+    twice = mask[a] & mask[b]
+    mask[np.where(closeness[a] > closeness[b], a, b)[twice]] = False
     ratio = None
     if intensity is not None and len(intensity) == n:
         inten = np.asarray(intensity, float)
         base = float(np.nanmedian(inten))
         if base > 0:
-            ratio = round(float(np.nanmedian(inten[q[hit]])) / base, 3)
+            ratio = round(float(np.nanmedian(inten[q[hit & mask[p]]])) / base, 3)
     return mask, Crosstalk(int(mask.sum()), n, int(len(np.unique(cloud[mask]))), n_clouds,
                            offset_m=round(offset, 4), partner_power_ratio=ratio, **kw)
 
