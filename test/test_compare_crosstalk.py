@@ -137,3 +137,39 @@ def test_compare_leaves_crosstalk_out_and_names_the_walk(tmp_path: Path):
     assert 'crosstalk, outside the catalogue' in s['verdict']
     assert s['missing_effect'] == 'range_walk', s['verdict'][:400]
     assert s['points'] == ds.points
+
+
+def test_background_light_is_judged_over_the_receivers_gate(tmp_path: Path, monkeypatch):
+    """Off-target returns are background light only if they spread from the start of
+    the receiver's gate (the sensor's minimum range), not from the target's nearest
+    return: ghosts bunched at the target's ranges (here crosstalk, not left out) are
+    not uniform there, while arrivals over the gate are."""
+    from scipy.stats import kstest
+
+    from foreign_sim import battery, generate
+
+    from lidar_sim_ros.compare import run
+    from lidar_sim_ros.compare.diagnose import diagnosis
+
+    rng = np.random.default_rng(4)
+    ghosts = rng.uniform(10.0, 16.0, 200)              # at the target's ranges
+    gate = (0.5, 150.0)
+    assert kstest(diagnosis.off_target_positions(ghosts, gate), 'uniform').pvalue < 1e-6
+    arrivals = 0.5 + rng.exponential(40.0, 400)        # a background over the gate
+    arrivals = arrivals[arrivals < 150.0]
+    assert kstest(diagnosis.off_target_positions(arrivals, gate), 'uniform').pvalue > 0.01
+    # The comparison hands the diagnosis the gate, not the recording's range window.
+    windows = []
+    real = diagnosis.off_target_positions
+
+    def spy(range_m, window_m):
+        windows.append(tuple(window_m))
+        return real(range_m, window_m)
+
+    monkeypatch.setattr(diagnosis, 'off_target_positions', spy)
+    spec = replace(battery(['crosstalk'])[0], frames=1, shots_per_frame=8000)
+    ds = generate(spec, tmp_path / 'xt')
+    run.run_compare(run.CompareOptions(bag=ds.bag, mesh=ds.mesh, out=tmp_path / 'out',
+                                       config=ds.scenario, progress=False, report=False,
+                                       plan=False, candidates=['solar_background']))
+    assert windows and all(w[0] <= 0.5 for w in windows), windows
