@@ -58,6 +58,10 @@ BENCH_ONLY: dict[str, str] = {
                          '(~60 s CPU for the two steps): run by bench/hidden_effect_eval.py',
     'pose_jitter_many': 'the per-cloud pose test on 60 clouds (its points beyond the '
                         "diagnosis sample's): run by bench/hidden_effect_eval.py",
+    **{name: 'crosstalk: test_compare_crosstalk.py runs crosstalk_walk through compare; '
+             'the five loops are run by bench/hidden_effect_eval.py'
+       for name in ('crosstalk', 'crosstalk_small_near', 'crosstalk_far', 'crosstalk_walk',
+                    'crosstalk_walk_large')},
 }
 
 
@@ -201,3 +205,26 @@ def test_target_multipath_ghosts_are_the_fins_mirrored_in_mli():
     plain = simulate_frame(spec, Sensor(), Target(satellite_parts()), trajectory_for(spec), 0.0,
                            np.random.default_rng(0), errors)
     assert plain['multipath'].sum() == 0
+
+
+def test_crosstalk_ghosts_sit_behind_the_shot_before_on_another_laser():
+    """Each ghost is an extra return of shot k+1 at shot k's measured range + the offset
+    (within its 1 cm timing noise), on another laser, with `ratio` x shot k's power, and
+    only strong returns (above 20 x threshold) leak."""
+    p = {'p': 0.5, 'offset_m': 0.3, 'ratio': 0.15}
+    spec = ForeignSpec('xt', None, seed=5, lasers=6, shots_per_frame=8000,
+                       also=(('crosstalk', p),))
+    sensor = Sensor()
+    frame = simulate_frame(spec, sensor, Target(satellite_parts()), trajectory_for(spec), 0.0,
+                           np.random.default_rng(1), material_errors(spec))
+    ghost = frame['material'] == foreign_sim.CROSSTALK
+    assert 0.05 < ghost.mean() < 0.5
+    real = np.flatnonzero(~ghost & (frame['material'] >= 0))
+    by_shot = dict(zip(frame['shot'][real], real))
+    src = np.array([by_shot[s - 1] for s in frame['shot'][ghost]])
+    delay = frame['range_m'][ghost] - frame['range_m'][src]
+    assert np.all(np.abs(delay - 0.3) < 0.05) and abs(np.median(delay) - 0.3) < 0.003
+    assert np.all(frame['laser'][ghost] != frame['laser'][src])
+    np.testing.assert_allclose(frame['power_w'][ghost], 0.15 * frame['power_w'][src])
+    assert frame['power_w'][src].min() > 20 * sensor.threshold_power_w
+    assert np.all(np.diff(frame['shot']) >= 0)                 # in shot order
