@@ -15,21 +15,21 @@ a ghost candidate when the model does not produce it: an extra return, where its
 misses the target (the model gives no return) or the one farther from the model of two
 returns of one shot (the model gives one). A single return on a ray that meets the
 target, however far off the model's range, is that return's own range error (a walk,
-a laser's offset, a material's bias: each moves a return, none adds one), and its
-partner is a return of *another* laser on the shot just before it (its time one shot
-period earlier, within half a period; the period is the recording's own most common
-step between point times). Over all candidate pairs, the range behind the partner
-(r - r_partner, 0 .. MAX_OFFSET_M) is spread by the scene's geometry; crosstalk
-stacks its ghosts at one delay. A peak is crosstalk when its count stands above the
-counts beside it (the sidebands, 1..3 half widths on either side) and above the count
-at the mirrored delay in front of the partner (two returns of one surface on successive
-shots lie in front of each other as often as behind; a ghost only behind) by a z beyond
-the Bonferroni bound over the delays scanned (``FAMILY_ALPHA``), with at least
-MIN_GHOSTS ghosts above them. The ghosts are then the candidates whose partner lies at
-that delay (within the peak's half width, and nearer it than zero): left out of
-everything after this
-stage (``run.leave_out_crosstalk``), counted in ``summary.json`` (``crosstalk``) and
-named in the verdict as outside the catalogue.
+a laser's offset, a material's bias: each moves a return, none adds one). A
+candidate's partner is a return of *another* laser on the shot just before it (its
+time one shot period earlier, within half a period; the period is the recording's own
+smallest common step between point times). Over all candidate pairs, the range behind
+the partner (r - r_partner, up to MAX_OFFSET_M) is spread by the scene's geometry;
+crosstalk stacks its ghosts at one delay. A peak is crosstalk when its count stands
+above the counts beside it (the sidebands, 1..3 half widths on either side) and above
+the count at the mirrored delay in front of the partner (two returns of one surface on
+successive shots lie in front of each other as often as behind; a ghost only behind)
+by a z beyond the Bonferroni bound over the delays scanned (``FAMILY_ALPHA``), with at
+least MIN_GHOSTS ghosts above them. The ghosts are then the extra returns whose
+partner lies at that delay (within the peak's half width, and nearer it than zero; of
+the two returns of a shot, the one at the delay): left out of everything after this
+stage (``run.leave_out_occluded``, beside occlusion), counted in ``summary.json``
+(``crosstalk``) and named in the verdict as outside the catalogue.
 
 Without laser ids (a single channel) or point times (neither a time field nor a
 matched scan pattern), no pair can be formed and nothing is looked for: the summary
@@ -196,7 +196,8 @@ def crosstalk_ghosts(range_m: np.ndarray, expected_m: np.ndarray, sigma_m: np.nd
     if n == 0:
         return nothing('no points')
     if len(np.unique(laser)) < 2:
-        return nothing('the recording carries one laser/channel id: no adjacent laser to pair with')
+        return nothing('the recording carries one laser/channel id: no adjacent laser to '
+                       'pair with')
     period = shot_period_s(t_s, cloud) if has_point_time else None
     if period is None or not period > 0:
         return nothing('the recording carries no per-point time (nor a matched scan '
@@ -254,8 +255,9 @@ def words(xt: Crosstalk) -> str | None:
     """The verdict's sentence on crosstalk, or None without any."""
     if xt.points == 0:
         return None
-    strong = (f'; their partners are strong returns (median intensity {xt.partner_power_ratio:.1f}x '
-              "the recording's)" if xt.partner_power_ratio and xt.partner_power_ratio > 1 else '')
+    ratio = xt.partner_power_ratio
+    strong = (f'; their partners are strong returns (median intensity {ratio:.1f}x the '
+              "recording's)" if ratio and ratio > 1 else '')
     return (f'{xt.points} returns ({100 * xt.fraction:.1f} % of the points analysed, in '
             f'{xt.clouds} of {xt.clouds_total} clouds) are ghost returns behind strong returns '
             f'on the adjacent laser: each lies {xt.offset_m:.2f} m behind a return of another '
