@@ -173,3 +173,12 @@ def test_background_light_is_judged_over_the_receivers_gate(tmp_path: Path, monk
                                        config=ds.scenario, progress=False, report=False,
                                        plan=False, candidates=['solar_background']))
     assert windows and all(w[0] <= 0.5 for w in windows), windows
+
+
+def test_a_null_verdict_says_the_ghosts_were_left_out():
+    from lidar_sim_ros.compare.report import verdict
+
+    said = verdict._nothing_named({'nll_calibrated': -2.0, 'crosstalk': {'points': 5}}, None, [])
+    assert 'up to noise once the crosstalk ghosts below are left out' in said
+    said = verdict._nothing_named({'nll_calibrated': -2.0, 'crosstalk': {'points': 0}}, None, [])
+    assert said.endswith('up to noise.')

@@ -47,6 +47,7 @@ HALF_WIDTH_SIGMAS = 3.0    # the peak's half width: this many sigmas of a pair's
                            # difference (two returns' noise)
 MIN_HALF_WIDTH_M = 0.01    # ... and at least this (a noiseless recording)
 MIN_GHOSTS = 20            # ghosts above the sidebands needed to call it crosstalk
+STRONG_RATIO = 1.5         # the verdict calls the partners strong at this intensity ratio
 FAMILY_ALPHA = 0.01        # the false-alarm rate over all the delays scanned
 PERIOD_QUANTILE = 5.0      # the shot period: this percentile of the steps between the
                            # distinct point times of a cloud (the smallest common step)
@@ -257,7 +258,7 @@ def words(xt: Crosstalk) -> str | None:
         return None
     ratio = xt.partner_power_ratio
     strong = (f'; their partners are strong returns (median intensity {ratio:.1f}x the '
-              "recording's)" if ratio and ratio > 1 else '')
+              "recording's)" if ratio and ratio >= STRONG_RATIO else '')
     return (f'{xt.points} returns ({100 * xt.fraction:.1f} % of the points analysed, in '
             f'{xt.clouds} of {xt.clouds_total} clouds) are ghost returns behind strong returns '
             f'on the adjacent laser: each lies {xt.offset_m:.2f} m behind a return of another '

@@ -488,8 +488,12 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
                 + ' The missing physics is outside the catalogue: write an effect '
                 '(docs/effects.md, "Write your own effect") that depends on what the residual '
                 'depends on, and add it with --effect file.py:Class --fit.')
+    left_out = [what for what, key in (('occluded returns', 'occlusion'),
+                                       ('crosstalk ghosts', 'crosstalk'))
+                if (summary.get(key) or {}).get('points')]
+    beside = f' once the {" and ".join(left_out)} below are left out' if left_out else ''
     return ('No catalogue effect improves the held-out likelihood by a margin that matters: '
-            'the model matches the measurements up to noise.' + why)
+            f'the model matches the measurements up to noise{beside}.' + why)
 
 
 def line_of_sight_words(best) -> str:
