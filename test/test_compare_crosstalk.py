@@ -182,3 +182,28 @@ def test_a_null_verdict_says_the_ghosts_were_left_out():
     assert 'up to noise once the crosstalk ghosts below are left out' in said
     said = verdict._nothing_named({'nll_calibrated': -2.0, 'crosstalk': {'points': 0}}, None, [])
     assert said.endswith('up to noise.')
+
+
+def test_returns_off_the_target_at_a_fixed_delay_are_no_crosstalk_alone():
+    """Returns off the target (a silhouette under a pose error, a flat panel's edge)
+    whose partners on the next tile lie a nearly fixed 0.4 m nearer: no shot returned
+    twice, so nothing is shown; with ghosts among the second returns at that delay, the
+    off-target ones at it are ghosts too."""
+    r, exp, sig, t, cloud, laser, _ = _recording(0.0, 0.3)
+    rng = np.random.default_rng(5)
+    edge = np.flatnonzero(rng.random(len(r)) < 0.02)
+    edge = edge[edge % 6000 > 0]                        # each with a shot before it
+    exp = exp.copy()
+    exp[edge] = np.nan                                  # the model misses these rays
+    r = r.copy()
+    r[edge] = r[edge - 1] + 0.4 + 0.01 * rng.standard_normal(len(edge))
+    found, xt = crosstalk.crosstalk_ghosts(r, exp, sig, t, cloud, laser, True)
+    assert xt.candidates == 0 and not found.any()
+    r2, exp2, sig2, t2, cloud2, laser2, truth = _recording(0.05, 0.4, seed=6)
+    found, xt = crosstalk.crosstalk_ghosts(*(np.concatenate(x) for x in (
+        (r, r2), (exp, exp2), (sig, sig2), (t, t2 + 10.0), (cloud, cloud2 + 3),
+        (laser, laser2))), True)
+    n = len(r)
+    # (an edge point whose shot before is an edge point too lies elsewhere)
+    assert found[:n][edge].mean() > 0.95 and found[:n].sum() <= len(edge)
+    assert np.sum(found[n:] & truth) >= 0.97 * truth.sum()

@@ -25,9 +25,14 @@ above the counts beside it (the sidebands, 1..3 half widths on either side) and 
 the count at the mirrored delay in front of the partner (two returns of one surface on
 successive shots lie in front of each other as often as behind; a ghost only behind)
 by a z beyond the Bonferroni bound over the delays scanned (``FAMILY_ALPHA``), with at
-least MIN_GHOSTS ghosts above them. The ghosts are then the extra returns whose
+least MIN_GHOSTS ghosts above them; the peak is looked for among the second returns
+alone (a return off the target is also what a reference-pose error or a footprint
+puts beyond a silhouette, and its delay to the next tile's return can be nearly fixed
+on a flat panel: the box-wing under a 3 cm pose error; no pose error makes a shot
+return twice). The ghosts are then the extra returns whose
 partner lies at that delay (within the peak's half width, and nearer it than zero; of
-the two returns of a shot, the one at the delay): left out of everything after this
+the two returns of a shot, the one at the delay; off the target too, once the second
+returns have shown the delay): left out of everything after this
 stage (``run.leave_out_occluded``, beside occlusion), counted in ``summary.json``
 (``crosstalk``) and named in the verdict as outside the catalogue.
 
@@ -66,6 +71,7 @@ class Crosstalk:
     z: float | None = None              # the peak over its sidebands
     z_crit: float | None = None
     candidates: int = 0                 # returns the model does not produce
+    spread_m: float | None = None       # the peak's robust spread of delays (m)
     partner_power_ratio: float | None = None   # partners' median intensity / all points'
     looked: bool = True                 # False: no laser ids or point times
     why_not: str | None = None
@@ -79,6 +85,7 @@ class Crosstalk:
                 'clouds': self.clouds, 'clouds_total': self.clouds_total,
                 'offset_m': self.offset_m, 'half_width_m': self.half_width_m,
                 'z': self.z, 'z_crit': self.z_crit, 'candidates': self.candidates,
+                'spread_m': self.spread_m,
                 'partner_intensity_ratio': self.partner_power_ratio,
                 'looked': self.looked, 'why_not': self.why_not,
                 'interpretation': words(self)}
@@ -213,16 +220,22 @@ def crosstalk_ghosts(range_m: np.ndarray, expected_m: np.ndarray, sigma_m: np.nd
     miss = np.where(off, np.inf, miss)
     second = np.zeros(n, bool)
     second[np.where(miss[a] > miss[b], a, b)] = True
-    cand = np.flatnonzero((off | second) & np.isfinite(r))
+    # Shown on the second returns alone: a return off the target is also what a pose
+    # error or a footprint puts beyond a silhouette (whose delay to the next tile's
+    # return can be nearly fixed on a flat panel); a shot's second return is not.
+    cand = np.flatnonzero(second & np.isfinite(r))
     p, q = previous_shot_pairs(t_s, cloud, laser, cand, period)
     delay = r[p] - r[q]
     s = float(np.median(sigma[np.isfinite(expected)])) if np.any(~off) else 0.0
     h = max(HALF_WIDTH_SIGMAS * np.sqrt(2.0) * s, MIN_HALF_WIDTH_M)
     sel = (delay > 0) & (delay <= MAX_OFFSET_M + h)
     centre, z, z_crit, excess = delay_peak(delay, h)
+    win = delay[np.abs(delay - centre) <= h]       # reported: a fixed delay's spread
+    spread = (1.4826 * float(np.median(np.abs(win - np.median(win)))) if len(win)
+              else float('nan'))
     found = bool(z > z_crit and excess >= MIN_GHOSTS)
     kw = dict(half_width_m=round(h, 4), z=round(z, 2), z_crit=round(z_crit, 2),
-              candidates=int(len(cand)))
+              candidates=int(len(cand)), spread_m=round(spread, 4))
     if not found:
         return none, Crosstalk(0, n, 0, n_clouds, **kw)
     near = sel & (np.abs(delay - centre) <= h)
