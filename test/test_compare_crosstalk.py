@@ -110,6 +110,12 @@ def test_bad_values_do_not_break_it():
     sig[:20] = np.nan
     found, xt = crosstalk.crosstalk_ghosts(r, exp, sig, t, cloud, laser, True)
     assert not found[:60].any() and xt.points > 0
+    t = t.copy()
+    t[100:130] = np.nan                                # a few points without a time
+    r[200:210], r[210:220] = 1e300, 1e-300
+    found, xt = crosstalk.crosstalk_ghosts(r, exp, sig, t, cloud, laser, True)
+    assert not found[100:130].any() and xt.points > 0.9 * found.size * 0.09
+    assert xt.analysed == len(r)
 
 
 def test_the_shot_period_is_the_smallest_common_step():

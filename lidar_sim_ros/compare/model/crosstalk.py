@@ -42,7 +42,7 @@ says so.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.stats import norm
@@ -203,6 +203,18 @@ def crosstalk_ghosts(range_m: np.ndarray, expected_m: np.ndarray, sigma_m: np.nd
 
     if n == 0:
         return nothing('no points')
+    timed = np.isfinite(np.asarray(t_s, float))
+    if 0 < timed.sum() < n:
+        # Points without a finite time pair with nothing: looked for among the rest.
+        keep = np.flatnonzero(timed)
+        part = (None if intensity is None or len(intensity) != n
+                else np.asarray(intensity)[keep])
+        sub, xt = crosstalk_ghosts(r[keep], np.asarray(expected_m)[keep],
+                                   np.asarray(sigma_m)[keep], np.asarray(t_s)[keep],
+                                   cloud[keep], laser[keep], has_point_time, part)
+        mask = np.zeros(n, bool)
+        mask[keep] = sub
+        return mask, replace(xt, analysed=n, clouds_total=n_clouds)
     if len(np.unique(laser)) < 2:
         return nothing('the recording carries one laser/channel id: no adjacent laser to '
                        'pair with')
