@@ -885,8 +885,10 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         decision, rivals, lambda on_top: pose_test(on_top, constant=constant),
         lambda: recast(pose_test([], constant=constant))[0], {c.name: c for c in weighed})
     cands = diagnosis.rank(cands + [c for c in scored if all(c is not w for w in weighed)])
+    decision = diag.range_offset_beside(decision, cands, pose_test)
     named = [c.effect for c in cands if c.name == decision.missing]
-    pose = decision.pose if decision.pose is not None else pose_test(named)
+    pose = (decision.pose if decision.pose is not None else decision.beside_pose
+            if decision.beside_pose is not None else pose_test(named))
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
@@ -1021,6 +1023,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'missing_effect': decision.missing,
         'confounded_with': decision.confounded_with,
         'also_explains': decision.also,
+        'also_confounded_with': list(decision.beside_tie),
         'withheld': decision.withheld or None,
         'against_named': decision.pair_z,
         'separation_plan': plan.rows if plan is not None and plan.rows else None,

@@ -91,6 +91,14 @@ class PoseError:
     # (``diagnosis.Diagnosis.weigh_line_of_sight``): the candidates it explains and the
     # closest of its fitted margins over them (nats/point, each parameter charged a nat).
     raycast: dict | None = None
+    # Per cloud: one range offset per cloud (a sensor's range offset changing between
+    # clouds, ``per_cloud_offset_columns``), its held-out gain and z, and the rigid
+    # correction's gain over it (nested, on the same halves). A correction that gains
+    # nothing beyond it moves the clouds only as a range offset of the sensor would.
+    offset_gain: float = 0.0
+    offset_z: float = 0.0
+    beyond_offset_gain: float = 0.0
+    beyond_offset_z: float = 0.0
 
     @property
     def size_cm(self) -> float:
@@ -158,6 +166,11 @@ class PoseError:
                            for c, t, d, w in zip(self.clouds, self.t_s, self.translation_m,
                                                  self.rotation_deg)],
                 'constant': self.constant,
+                **({} if self.constant else {'per_cloud_range_offset': {
+                    'gain_per_matched_point': round(self.offset_gain, 6),
+                    'z': round(self.offset_z, 3),
+                    'pose_gain_beyond': round(self.beyond_offset_gain, 6),
+                    'pose_z_beyond': round(self.beyond_offset_z, 3)}}),
                 **({'joint_with_material_offsets': True} if self.joint else {}),
                 **({'raycast': self.raycast} if self.raycast else {}),
                 'recast_passes': self.passes,
@@ -543,12 +556,15 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # fit generalises better, so the stronger ridge would make the test more eager,
     # e.g. on top of a fitted time offset; the correction applied is the damped one.
     half = np.random.default_rng([seed, 61]).integers(0, 2, len(r))
-    gain, gain12 = np.zeros(len(r)), np.zeros(len(r))
+    gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     for k in (0, 1):
         test, train = use & (half != k), use & (half == k)
         x = fit_clouds(a, r, s, cloud, train, clouds, prior, TEST_RIDGE, group)
         corr = with_offsets(np.einsum('ij,ij->i', a, x[row]), r, group, train)
         gain[test] = heldout_gain(r[test], corr[test], s[test])
+        if not constant:
+            off = per_cloud_offset(r, s, row, train, len(clouds))
+            gain1[test] = heldout_gain(r[test], off[test], s[test])
         if rate:
             x12 = fit_clouds(a12, r, s, cloud, train, clouds, prior12, TEST_RIDGE, group)
             corr12 = with_offsets(np.einsum('ij,ij->i', a12, x12[row]), r, group, train)
@@ -559,6 +575,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         return float(np.sum(g[use]) / max(len(r), 1)), z
     per_point, z = judged(gain)
     rate_gain, rate_z = judged(gain12 - gain) if rate else (0.0, 0.0)
+    offset_gain, offset_z = judged(gain1) if not constant else (0.0, 0.0)
+    beyond_gain, beyond_z = judged(gain - gain1) if not constant else (0.0, 0.0)
     # A refinement of a pose error that is there: the rigid correction passes first.
     # Within one cloud a point's time follows its place in the scan (a raster's rows),
     # so on its own the rate is six more spatial patterns per cloud, which a sensor's
@@ -586,7 +604,22 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      rate_translation_mps=x[:, 6:9] * per_s if supported else None,
                      rate_rotation_deg_s=np.degrees(x[:, 9:12]) * per_s if supported else None,
                      t_centre_s=t_c, half_span_s=h_c, constant=constant,
-                     joint=joint is not None)
+                     joint=joint is not None, offset_gain=offset_gain, offset_z=offset_z,
+                     beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z)
+
+
+def per_cloud_offset(residual_m: np.ndarray, sigma_m: np.ndarray, row: np.ndarray,
+                     train: np.ndarray, n_clouds: int) -> np.ndarray:
+    """(N,) one range offset per cloud (m), the weighted mean of the ``train`` points'
+    residual of each cloud (``row``: each point's cloud row), at every point: a range
+    offset of the sensor that changes between clouds and not within one, the same on
+    every ray whatever its surface or direction."""
+    w = np.where(train, 1.0 / np.asarray(sigma_m, float) ** 2, 0.0)
+    num = np.bincount(row, weights=w * residual_m, minlength=n_clouds)
+    den = np.bincount(row, weights=w, minlength=n_clouds)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        per = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+    return per[row]
 
 
 COMMON_OFFSET_MIN_M = 0.005     # a common offset of the materials below this: no joint fit
