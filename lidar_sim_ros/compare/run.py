@@ -614,28 +614,35 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     re-cast and pose."""
     extra_var = rays.extra_var_m2
 
-    def fit(r: diagnosis.RaySet, applied: pose_error.PoseCorrection | None = None
-            ) -> pose_error.PoseError:
+    def fit(r: diagnosis.RaySet, applied: pose_error.PoseCorrection | None = None,
+            constant: bool = False) -> pose_error.PoseError:
         data = diagnosis.make_fit_data(model, effects, r)
         idx = r.matched
         return pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks[idx],
                                              float(norm.isf(diagnosis.FAMILY_ALPHA)),
                                              diagnosis.MIN_PRACTICAL_GAIN, opts.seed,
-                                             applied=applied, rate=has_point_times(meas))
+                                             applied=applied, rate=has_point_times(meas),
+                                             constant=constant)
 
     def rematch(corr: pose_error.PoseCorrection):
         moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
         m, r = match_rays(model, effects, moved, power, extra_var, opts)
         return m, r, moved
 
-    first = fit(rays)
+    # Per cloud or one for the whole recording: the larger held-out gain, as the
+    # diagnosis decides it (``Diagnosis.judge_pose``); an extrinsic error fitted per
+    # cloud without the materials' configured ranges (``pose_error.explains_material_
+    # offsets``) leaves most of it in the materials' offsets.
+    first = max((fit(rays), fit(rays, constant=True)),
+                key=lambda p: (p.significant, p.gain))
     if not first.significant:
         # Nothing to correct beyond noise: the linear range change, no re-cast (runtime).
         pred = with_range_correction(matching.pred, rays.matched, first.correction_m)
         return replace(matching, pred=pred), replace(rays, pred=pred), meas, first
-    start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
+    start = pose_error.PoseCorrection.identity(
+        np.zeros_like(meas.cloud) if first.constant else meas.cloud, meas.t_s)
     (matching, rays, moved), _, pose = pose_error.iterate(
-        first, start, rematch, lambda state, corr: fit(state[1], corr))
+        first, start, rematch, lambda state, corr: fit(state[1], corr, first.constant))
     return matching, rays, moved, pose
 
 

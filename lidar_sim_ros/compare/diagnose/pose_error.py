@@ -91,6 +91,10 @@ class PoseError:
     # (``diagnosis.Diagnosis.weigh_line_of_sight``): the candidates it explains and the
     # closest of its fitted margins over them (nats/point, each parameter charged a nat).
     raycast: dict | None = None
+    # The constant correction was fitted with the materials at their configured ranges
+    # and took the materials' differing offsets (``explains_material_offsets``): a
+    # target whose faces are each one material, moved across the line of sight.
+    through_materials: bool = False
     # Per cloud: one range offset per cloud (a sensor's range offset changing between
     # clouds, ``per_cloud_offset_columns``), its held-out gain and z, and the rigid
     # correction's gain over it (nested, on the same halves). A correction that gains
@@ -172,6 +176,7 @@ class PoseError:
                     'pose_gain_beyond': round(self.beyond_offset_gain, 6),
                     'pose_z_beyond': round(self.beyond_offset_z, 3)}}),
                 **({'joint_with_material_offsets': True} if self.joint else {}),
+                **({'through_material_offsets': True} if self.through_materials else {}),
                 **({'raycast': self.raycast} if self.raycast else {}),
                 'recast_passes': self.passes,
                 'last_step_m_deg': [round(float(x), 6) for x in self.last_step],
@@ -552,16 +557,34 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     if joint is None or not explains_common_offset(np.einsum('ij,ij->i', a, joint[row]), r,
                                                    group, use, offset):
         group, joint = None, None
+    # Else, for one correction for the recording: fitted with the materials at their
+    # configured ranges (``explains_material_offsets``), where the materials' offsets
+    # differ and the motion takes them; kept below if held out it loses no margin
+    # that matters to the correction fitted on top of free offsets.
+    materials = np.asarray(data.baseline.ctx.material, int)
+    through = None
+    if constant and joint is None:
+        x_t = fit_clouds(a, r + offset, s, cloud, use, clouds, prior, ridge)
+        if explains_material_offsets(np.einsum('ij,ij->i', a, x_t[row]), r + offset,
+                                     materials, use, offset):
+            through = x_t
     # The test (held-out halves) keeps the light ridge it was validated with: a damped
     # fit generalises better, so the stronger ridge would make the test more eager,
     # e.g. on top of a fitted time offset; the correction applied is the damped one.
     half = np.random.default_rng([seed, 61]).integers(0, 2, len(r))
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
+    gain_t = np.zeros(len(r))
     for k in (0, 1):
         test, train = use & (half != k), use & (half == k)
         x = fit_clouds(a, r, s, cloud, train, clouds, prior, TEST_RIDGE, group)
         corr = with_offsets(np.einsum('ij,ij->i', a, x[row]), r, group, train)
         gain[test] = heldout_gain(r[test], corr[test], s[test])
+        if through is not None:
+            # Fitted through the offsets, then each material's offset profiled on what
+            # it leaves, as the likelihood does: the same footing as ``gain``.
+            x = fit_clouds(a, r + offset, s, cloud, train, clouds, prior, TEST_RIDGE)
+            corr = with_offsets(np.einsum('ij,ij->i', a, x[row]), r, materials, train)
+            gain_t[test] = heldout_gain(r[test], corr[test], s[test])
         if not constant:
             off = per_cloud_offset(r, s, row, train, len(clouds))
             gain1[test] = heldout_gain(r[test], off[test], s[test])
@@ -574,6 +597,12 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         z = block_mean_z(g[use], blocks[use])[1] if use.sum() > 1 else 0.0
         return float(np.sum(g[use]) / max(len(r), 1)), z
     per_point, z = judged(gain)
+    if through is not None:
+        per_point_t, z_t = judged(gain_t)
+        if per_point_t > per_point - min_gain:
+            per_point, z = per_point_t, z_t
+        else:
+            through = None
     rate_gain, rate_z = judged(gain12 - gain) if rate else (0.0, 0.0)
     offset_gain, offset_z = judged(gain1) if not constant else (0.0, 0.0)
     beyond_gain, beyond_z = judged(gain - gain1) if not constant else (0.0, 0.0)
@@ -588,7 +617,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         per_point, z = judged(gain12)
     cols = a12 if supported else a
     # One correction for the recording has no rate: the joint fit is the correction.
-    x = joint if joint is not None else fit_clouds(
+    x = joint if joint is not None else through if through is not None else fit_clouds(
         cols, r, s, cloud, use, clouds, prior12 if supported else prior, ridge)
     correction = np.einsum('ij,ij->i', cols, x[row])
     t_mean = np.array([float(np.mean(t_s[cloud == c])) for c in clouds])
@@ -604,7 +633,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      rate_translation_mps=x[:, 6:9] * per_s if supported else None,
                      rate_rotation_deg_s=np.degrees(x[:, 9:12]) * per_s if supported else None,
                      t_centre_s=t_c, half_span_s=h_c, constant=constant,
-                     joint=joint is not None, offset_gain=offset_gain, offset_z=offset_z,
+                     joint=joint is not None, through_materials=through is not None,
+                     offset_gain=offset_gain, offset_z=offset_z,
                      beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z)
 
 
@@ -624,6 +654,7 @@ def per_cloud_offset(residual_m: np.ndarray, sigma_m: np.ndarray, row: np.ndarra
 
 COMMON_OFFSET_MIN_M = 0.005     # a common offset of the materials below this: no joint fit
 COMMON_OFFSET_SHARE = 0.5       # the joint fit must explain at least this share of it
+COMMON_OFFSET_MATERIALS = 3     # materials' offsets that differ: at least this many materials
 
 
 def common_offset_m(offset_m: np.ndarray, group: np.ndarray, use: np.ndarray) -> float:
@@ -655,6 +686,33 @@ def explains_common_offset(correction_m: np.ndarray, residual_m: np.ndarray,
     left_over = common_offset_m(offset_m + after, group, use)
     return bool(abs(before) >= COMMON_OFFSET_MIN_M
                 and abs(left_over) <= (1 - COMMON_OFFSET_SHARE) * abs(before))
+
+
+def explains_material_offsets(correction_m: np.ndarray, residual_m: np.ndarray,
+                              group: np.ndarray, use: np.ndarray,
+                              offset_m: np.ndarray) -> bool:
+    """Whether ``correction_m`` (m per point), one rigid correction fitted to
+    ``residual_m`` with every material at its configured range (its offset ``offset_m``
+    per point not subtracted), takes the materials' offsets: at least
+    COMMON_OFFSET_MATERIALS materials with enough points, whose offsets differ (their
+    spread about their mean at least COMMON_OFFSET_MIN_M: a common offset alone is a
+    range offset of the sensor as much as the pose, ``explains_common_offset``), and
+    at least COMMON_OFFSET_SHARE of their RMS explained. On a target whose faces are
+    each one material (a box satellite: MLI on one side, a bulkhead on another), a
+    motion across the line of sight lengthens one face's ranges and shortens the
+    opposite face's, which free per-material offsets take whole: fitted on top of
+    them, a (3, 2, -3) cm error came out as 0.5 cm."""
+    members = [m for m in np.unique(group[use])
+               if np.sum(use & (group == m)) >= lk.MIN_MATERIAL_POINTS]
+    if len(members) < COMMON_OFFSET_MATERIALS:
+        return False
+    before = np.array([float(np.median(offset_m[use & (group == m)])) for m in members])
+    left = residual_m - correction_m
+    after = np.array([float(np.median(left[use & (group == m)])) for m in members])
+    rms_before = float(np.sqrt(np.mean(before ** 2)))
+    return bool(float(np.std(before)) >= COMMON_OFFSET_MIN_M
+                and float(np.sqrt(np.mean(after ** 2)))
+                <= (1 - COMMON_OFFSET_SHARE) * rms_before)
 
 
 def with_offsets(correction_m: np.ndarray, residual_m: np.ndarray,
