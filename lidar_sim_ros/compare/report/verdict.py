@@ -141,7 +141,8 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                      f'z = {decision.pose.z:.1f}): check the tracking system or the extrinsic '
                      'calibration.')
     if getattr(decision, 'beside_tie', None) and decision.beside_pose is not None:
-        parts.append(range_offset_beside_words(decision.beside_pose))
+        parts.append(range_offset_beside_words(decision.beside_pose,
+                                               [n for n in (missing, decision.also) if n]))
     vetoed = [c for c in cands if c.vetoed and c.significant and c.practical
               and c.name != missing and c.name not in decision.confounded_with]
     if vetoed and (missing or decision.confounded_with):
@@ -367,14 +368,14 @@ def _value_on_pose(c) -> str:
             'corrected pose.')
 
 
-def range_offset_beside_words(pose) -> str:
-    """The verdict's sentence when, beside the named effect, the clouds move as a
-    range offset of the sensor changing between clouds would (``beside_tie``:
+def range_offset_beside_words(pose, named: list[str]) -> str:
+    """The verdict's sentence when, beside the named effects ``named``, the clouds move
+    as a range offset of the sensor changing between clouds would (``beside_tie``:
     ``Diagnosis.range_offset_beside``): a per-cloud pose correction that gains nothing
     beyond one range offset per cloud."""
-    return (f'Besides, the clouds\' ranges move from cloud to cloud: one range offset per '
-            f'cloud gains {pose.offset_gain:.4f} nats/point held out (z = {pose.offset_z:.1f}) '
-            f'with it in the model, and a rigid correction of the target pose per cloud '
+    return (f'Besides, the clouds\' ranges move from cloud to cloud: with {_join(named)} in '
+            f'the model, one range offset per cloud gains {pose.offset_gain:.4f} nats/point '
+            f'held out (z = {pose.offset_z:.1f}), and a rigid correction of the target pose per cloud '
             f'gains no more beyond those offsets ({pose.beyond_offset_gain:.4f} nats/point, '
             f'z = {pose.beyond_offset_z:.1f}): a range offset of the sensor or the reference '
             'pose along the line of sight, changing between clouds (a temperature step of the '
