@@ -642,7 +642,8 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     start = pose_error.PoseCorrection.identity(
         np.zeros_like(meas.cloud) if first.constant else meas.cloud, meas.t_s)
     (matching, rays, moved), _, pose = pose_error.iterate(
-        first, start, rematch, lambda state, corr: fit(state[1], corr, first.constant))
+        first, start, rematch, lambda state, corr: fit(state[1], corr, first.constant),
+        pose_error.CONSTANT_RECAST_PASSES if first.constant else pose_error.RECAST_PASSES)
     return matching, rays, moved, pose
 
 
@@ -966,7 +967,9 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
 
     start = pose_error.PoseCorrection.identity(
         np.zeros_like(meas.cloud) if constant else meas.cloud, meas.t_s)
-    (m, moved_rays, moved), _, report = pose_error.iterate(pose, start, rematch, refit)
+    (m, moved_rays, moved), _, report = pose_error.iterate(
+        pose, start, rematch, refit,
+        pose_error.CONSTANT_RECAST_PASSES if constant else pose_error.RECAST_PASSES)
     fresh = recast_sample(moved_rays, moved, seed)
     picked = np.sort(np.concatenate([fresh.matched, fresh.unmatched]))
     edge = np.full(len(moved), np.nan)
