@@ -635,8 +635,12 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     # offsets``) leaves most of it in the materials' offsets.
     first = max((fit(rays), fit(rays, constant=True)),
                 key=lambda p: (p.significant, p.gain))
-    if not first.significant:
+    if not (first.significant or first.joint):
         # Nothing to correct beyond noise: the linear range change, no re-cast (runtime).
+        # One correction that took the materials' common offset (``PoseError.joint``: a
+        # target recorded nearer or farther) is re-cast even so: its own test is linear
+        # and the diagnosis weighs it raycast (``Diagnosis.weigh_line_of_sight``), and
+        # applied linearly it leaves the limbs' 1 / cos(incidence) to incidence_angle.
         pred = with_range_correction(matching.pred, rays.matched, first.correction_m)
         return replace(matching, pred=pred), replace(rays, pred=pred), meas, first
     start = pose_error.PoseCorrection.identity(
