@@ -323,6 +323,33 @@ def test_pose_range_tie_verdict_and_plan(tmp_path):
 
 
 
+def test_a_range_step_beside_a_named_walk_is_not_put_on_the_tracking_system():
+    """A per-cloud pose beside a named walk that gains nothing beyond one range offset
+    per cloud (``Diagnosis.range_offset_beside``: ``beside_tie``): the verdict names
+    the walk and says "a range offset of the sensor or the reference pose along the line
+    of sight" with the offsets' figures, never "check the tracking system"; the same
+    pose kept as the pose (no tie) says it as before."""
+    walk = cand('range_walk', 0.05, -2.07)
+    walk.range_rmse_after_m = 0.033
+    walk.effect = None
+    walk.params = {'k_m': 0.015}
+    steps = SimpleNamespace(offset_gain=0.045, offset_z=76.2, beyond_offset_gain=-0.0012,
+                            beyond_offset_z=-11.6)
+    d = dg.Decision('range_walk', [], beside_tie=[dg.POSE_ERROR, 'range_drift'],
+                    beside_pose=steps)
+    text = vd.verdict(_summary(), None, [walk], d)
+    assert 'This is range walk' in text
+    assert ('a range offset of the sensor or the reference pose along the line of sight'
+            in text)
+    assert 'with range_walk in the model' in text and 'z = -11.6' in text
+    assert 'check the tracking system' not in text
+    pose = SimpleNamespace(gain=0.046, z=25.8, constant=False,
+                           words=lambda: 'the reference pose is off by about 1.0 cm')
+    kept = vd.verdict(_summary(), None, [walk], dg.Decision('range_walk', [], pose=pose))
+    assert 'Besides, the reference pose is off' in kept
+    assert 'check the tracking system' in kept
+
+
 def test_report_headline_opens_with_the_scan_pattern():
     from lidar_sim_ros.compare.report.opening import headline
     s = {'missing_effect': None, 'verdict': 'No catalogue effect ... noise.',

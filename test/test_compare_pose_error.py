@@ -51,10 +51,11 @@ def test_fit_clouds_recovers_each_clouds_correction():
     np.testing.assert_allclose(x, truth, atol=6 * 0.002 / np.sqrt(n_pts))
 
 
-def _facets(seed: int, n_pts: int = 3000):
-    """Rays 0.4 rad across at 10 m on nine facets (three of each material), each the
-    plane through a point of the target, a facet per band of azimuth and elevation:
-    (the generator, the design matrix, its usable rays, each ray's material)."""
+def _facets(seed: int, n_pts: int = 3000, own: bool = False):
+    """Rays 0.4 rad across at 10 m on nine facets (three of each material; ``own``: each
+    its own material), each the plane through a point of the target, a facet per band of
+    azimuth and elevation: (the generator, the design matrix, its usable rays, each
+    ray's material)."""
     rng = np.random.default_rng(seed)
     u = np.column_stack([np.ones(n_pts), rng.uniform(-0.2, 0.2, (n_pts, 2))])
     u /= np.linalg.norm(u, axis=1, keepdims=True)
@@ -66,7 +67,7 @@ def _facets(seed: int, n_pts: int = 3000):
     normal = tilt[facet]
     e = np.einsum('ij,ij->i', at[facet], normal) / np.einsum('ij,ij->i', u, normal)
     a, use = pose_error.design(u, normal, e, np.zeros(n_pts, int))
-    return rng, a, use, facet % 3
+    return rng, a, use, facet if own else facet % 3
 
 
 def test_a_translation_along_the_line_of_sight_is_fitted_jointly_with_the_material_offsets():
@@ -372,11 +373,13 @@ def test_fit_corrects_the_reference_pose_before_it_fits_the_effects(tmp_path, ca
     assert sum('reference pose' in ln for ln in lines) == 2, order
 
 
-def _jittered_planes(n_clouds: int, per_cloud: int, sigma_m: float, seed: int = 0):
+def _jittered_planes(n_clouds: int, per_cloud: int, sigma_m: float, seed: int = 0,
+                     jitter: float = 1.0, step_m: float = 0.0):
     """Three tilted planes 12 x 8 deg across at 10 m, seen in ``n_clouds`` clouds whose
-    recorded pose is off by an independent rigid motion each (1 cm and 0.2 deg per axis,
-    about the target's centre), range noise ``sigma_m``: (recording, FitData of the rays
-    ``idx``, as a function)."""
+    recorded pose is off by an independent rigid motion each (``jitter`` x 1 cm and 0.2
+    deg per axis, about the target's centre), range noise ``sigma_m``, and every range
+    ``step_m`` longer from the middle cloud on (a sensor's range step): (recording,
+    FitData of the rays ``idx``, as a function)."""
     rng = np.random.default_rng(seed)
     n = n_clouds * per_cloud
     az, el = rng.uniform(-0.1, 0.1, n), rng.uniform(-0.07, 0.07, n)
@@ -387,10 +390,11 @@ def _jittered_planes(n_clouds: int, per_cloud: int, sigma_m: float, seed: int = 
     normal = (normals / np.linalg.norm(normals, axis=1, keepdims=True))[
         np.digitize(az, [-0.033, 0.033])]
     centre = np.array([10.0, 0.0, 0.0])
-    rot = Rotation.from_rotvec(np.radians(rng.normal(0, 0.2, (n_clouds, 3))))[cloud]
-    move = rng.normal(0, 0.01, (n_clouds, 3))[cloud]
+    rot = Rotation.from_rotvec(np.radians(rng.normal(0, 0.2 * jitter, (n_clouds, 3))))[cloud]
+    move = rng.normal(0, 0.01 * jitter, (n_clouds, 3))[cloud]
     measured = _plane_range_each(rot.apply(np.zeros((n, 3))) + centre + move, rot.apply(normal),
                                  u) + sigma_m * rng.standard_normal(n)
+    measured = measured + np.where(cloud >= n_clouds // 2, step_m, 0.0)
     expected = _plane_range_each(np.tile(centre, (n, 1)), normal, u)
 
     def data(idx: np.ndarray) -> 'lk.FitData':
@@ -451,3 +455,148 @@ def test_a_pose_jittering_over_many_clouds_is_tested_on_enough_points_a_cloud():
     rays5 = diagnosis.RaySet(few, np.arange(len(few)), np.zeros(0, int))
     sample5 = rays5.sample(12_000, 0)
     assert run.pose_points(rays5, sample5, few) is sample5
+
+
+def test_a_range_step_of_the_sensor_is_no_more_than_one_range_offset_per_cloud():
+    """Every range 2 cm longer from the middle of 20 clouds on, the pose exact (the
+    eighth holdout's h8-tstep): a rigid correction per cloud takes the step (the clouds
+    moved along the line of sight) and passes its test, but one range offset per cloud,
+    on the same held-out halves, gains as much with a sixth of the parameters, and the
+    correction gains nothing beyond it. A pose jittering by 1 cm and 0.2 deg per axis
+    gains beyond the offsets (rotations, motions across the line of sight): it stays."""
+    def test(jitter, step_m):
+        rec, data, t = _jittered_planes(20, 1500, 0.01, seed=3, jitter=jitter, step_m=step_m)
+        idx = np.arange(len(rec))
+        return pose_error.fit_reference_pose(data(idx), rec.cloud, t, idx // 30, 3.0,
+                                             diagnosis.MIN_PRACTICAL_GAIN)
+    step = test(0.0, 0.02)
+    assert step.significant and step.z > 10
+    assert step.offset_z > 10 and step.offset_gain >= step.gain
+    assert step.beyond_offset_z < 3.0 and step.beyond_offset_gain < diagnosis.MIN_PRACTICAL_GAIN
+    rp = step.as_dict()['per_cloud_range_offset']
+    assert rp['pose_z_beyond'] == pytest.approx(step.beyond_offset_z, abs=1e-3)
+    jit = test(1.0, 0.0)
+    assert jit.significant and jit.beyond_offset_z > 10
+    assert jit.beyond_offset_gain > diagnosis.MIN_PRACTICAL_GAIN
+
+
+def test_a_pose_that_only_moves_clouds_as_a_range_offset_is_a_tie_with_range_drift():
+    """``Diagnosis.range_offset_beside``: a per-cloud pose reported beside a named
+    effect (the eighth holdout's range step beside a walk: 'check the tracking system')
+    whose test on top of the named effect gains nothing beyond one range offset per
+    cloud is the tie [pose_error, range_drift] beside it, the pose no longer reported
+    alone; with nothing named, the tie itself (range_drift passing the rule). A pose
+    that gains beyond the offsets, or one correction for the recording, stays."""
+    rec, data, t = _jittered_planes(20, 1500, 0.01, seed=3, jitter=0.0, step_m=0.02)
+    idx = np.arange(len(rec))
+    step = pose_error.fit_reference_pose(data(idx), rec.cloud, t, idx // 30, 3.0,
+                                         diagnosis.MIN_PRACTICAL_GAIN)
+    rec_j, data_j, t_j = _jittered_planes(20, 1500, 0.01, seed=3)
+    jit = pose_error.fit_reference_pose(data_j(idx), rec_j.cloud, t_j, idx // 30, 3.0,
+                                        diagnosis.MIN_PRACTICAL_GAIN)
+
+    class Judge:                      # the two attributes the weighing reads
+        z_crit = 3.0
+
+        @staticmethod
+        def nameable(c):
+            return c.significant and c.practical
+
+    walk = diagnosis.Candidate('range_walk', score=0.05, z=11.0, significant=True,
+                               practical=True, effect=object())
+    drift = diagnosis.Candidate('range_drift', score=0.03, z=16.0, significant=True,
+                                practical=True, effect=object())
+    asked = []
+
+    def pose_test(pose):
+        def run(on_top):
+            asked.append(list(on_top))
+            return pose
+        return run
+    named = diagnosis.Decision('range_walk', [], pose=step)
+    out = diagnosis.Diagnosis.range_offset_beside(Judge(), named, [walk, drift],
+                                                  pose_test(step))
+    assert out.missing == 'range_walk' and out.pose is None
+    assert out.beside_tie == ['pose_error', 'range_drift'] and out.beside_pose is step
+    assert asked == [[walk.effect]]          # the pose tested with the named effect in
+    alone = diagnosis.Diagnosis.range_offset_beside(
+        Judge(), diagnosis.Decision(None, [], pose=step), [walk, drift], pose_test(step))
+    assert alone.confounded_with == ['pose_error', 'range_drift'] and alone.pose is step
+    # the pose gains beyond the offsets, or a constant correction: unchanged
+    kept = diagnosis.Decision('range_walk', [], pose=jit)
+    assert diagnosis.Diagnosis.range_offset_beside(Judge(), kept, [walk, drift],
+                                                   pose_test(jit)) is kept
+    const = diagnosis.Decision(None, [], pose=replace(step, constant=True))
+    assert diagnosis.Diagnosis.range_offset_beside(Judge(), const, [walk, drift],
+                                                   pose_test(step)) is const
+    # nothing named and range_drift not passing the rule: nothing to tie it with
+    weak = replace(drift, significant=False)
+    none = diagnosis.Decision(None, [], pose=step)
+    assert diagnosis.Diagnosis.range_offset_beside(Judge(), none, [weak],
+                                                   pose_test(step)) is none
+
+
+def test_a_motion_across_the_line_of_sight_on_faces_of_one_material_each_is_fitted_through_them():
+    """Nine facets, each its own material (a box satellite's sides), the target moved
+    (3, 2, -3) cm: every facet's ranges move by about n.d / n.u, which free per-material
+    offsets take almost whole, so the correction fitted on top of them is a fraction of
+    the motion (here 0.2 cm for 4.7; the foreign extrinsic_mixed: 0.5 cm). Fitted with
+    the materials
+    at their configured ranges it is the motion, and it explains the materials'
+    offsets (``explains_material_offsets``). Refused: a common offset alone (a range
+    offset of the sensor, as much as the pose), and offsets of the materials' own that
+    no rigid motion gives (each facet off by its own 4 cm)."""
+    rng, a, use, facet = _facets(23, 6000, own=True)
+    n_pts, cloud, clouds = len(facet), np.zeros(len(facet), int), np.array([0])
+    sigma = np.full(n_pts, 2e-3)
+    truth = np.array([-0.03, -0.02, 0.03, 0.0, 0.0, 0.0])
+
+    def through(raw):
+        med = np.array([np.median(raw[use & (facet == g)]) for g in range(9)])[facet]
+        x = pose_error.fit_clouds(a, raw, sigma, cloud, use, clouds, None,
+                                  pose_error.CONSTANT_RIDGE)
+        kept = pose_error.explains_material_offsets(a @ x[0], raw, facet, use, med)
+        apart = pose_error.fit_clouds(a, raw - med, sigma, cloud, use, clouds, None,
+                                      pose_error.CONSTANT_RIDGE)
+        return x[0], kept, apart[0]
+    moved = a @ truth + rng.normal(0, 2e-3, n_pts)
+    x, kept, apart = through(moved)
+    assert kept
+    np.testing.assert_allclose(x[:3], truth[:3], atol=3e-3)
+    assert np.linalg.norm(apart[:3]) < 0.2 * np.linalg.norm(truth[:3])
+    _, kept, _ = through(np.full(n_pts, 0.03) + rng.normal(0, 2e-3, n_pts))
+    assert not kept
+    own = rng.choice([-0.04, 0.04], 9)
+    _, kept, _ = through(own[facet] + rng.normal(0, 2e-3, n_pts))
+    assert not kept
+
+
+def test_one_correction_for_the_recording_is_re_cast_until_its_steps_are_small():
+    """``iterate`` with CONSTANT_RECAST_PASSES: each re-cast sees a fraction (0.6) of
+    what is left (the seventh holdout's h7-mount1: a mount tilted 1 deg moved the
+    target 14 cm at its points' centroid, seen mostly where it ends; three passes gave
+    7.8 cm and 3.0 deg). Hand sum: a first step of 0.4 x 10 cm and steps 0.4 x 0.6^k x
+    10 cm after it; three passes stop at 7.8 cm, the constant correction's passes run
+    until the step is under RECAST_STEP_M, within a millimetre of the 10 cm."""
+    def step(size_m):
+        return pose_error.PoseError(np.array([0]), np.array([0.5]),
+                                    np.array([[0.0, 0.0, -size_m]]), np.zeros((1, 3)), 0.0,
+                                    0.0, True, np.zeros(4), np.array([[8.0, 0.0, 0.0]]))
+    truth, share = 0.10, 0.4
+
+    def run(passes_max):
+        start = pose_error.PoseCorrection.identity(np.zeros(4, int), np.linspace(0, 1, 4))
+        left = [truth * (1 - share)]
+
+        def refit(state, corr):
+            s = share * left[0]
+            left[0] -= s
+            return step(s)
+        _, corr, report = pose_error.iterate(step(truth * share), start, lambda c: c, refit,
+                                             passes_max)
+        return -float(report.translation_m[0, 2]), report.passes
+    short, passes = run(pose_error.RECAST_PASSES)
+    assert passes == 3 and short == pytest.approx(truth * (1 - 0.6 ** 3), abs=1e-9)
+    full, passes = run(pose_error.CONSTANT_RECAST_PASSES)
+    assert 3 < passes <= pose_error.CONSTANT_RECAST_PASSES
+    assert full == pytest.approx(truth, abs=1e-3)

@@ -627,28 +627,40 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     re-cast and pose."""
     extra_var = rays.extra_var_m2
 
-    def fit(r: diagnosis.RaySet, applied: pose_error.PoseCorrection | None = None
-            ) -> pose_error.PoseError:
+    def fit(r: diagnosis.RaySet, applied: pose_error.PoseCorrection | None = None,
+            constant: bool = False) -> pose_error.PoseError:
         data = diagnosis.make_fit_data(model, effects, r)
         idx = r.matched
         return pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks[idx],
                                              float(norm.isf(diagnosis.FAMILY_ALPHA)),
                                              diagnosis.MIN_PRACTICAL_GAIN, opts.seed,
-                                             applied=applied, rate=has_point_times(meas))
+                                             applied=applied, rate=has_point_times(meas),
+                                             constant=constant)
 
     def rematch(corr: pose_error.PoseCorrection):
         moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
         m, r = match_rays(model, effects, moved, power, extra_var, opts)
         return m, r, moved
 
-    first = fit(rays)
-    if not first.significant:
+    # Per cloud or one for the whole recording: the larger held-out gain, as the
+    # diagnosis decides it (``Diagnosis.judge_pose``); an extrinsic error fitted per
+    # cloud without the materials' configured ranges (``pose_error.explains_material_
+    # offsets``) leaves most of it in the materials' offsets.
+    first = max((fit(rays), fit(rays, constant=True)),
+                key=lambda p: (p.significant, p.gain))
+    if not (first.significant or first.joint):
         # Nothing to correct beyond noise: the linear range change, no re-cast (runtime).
+        # One correction that took the materials' common offset (``PoseError.joint``: a
+        # target recorded nearer or farther) is re-cast even so: its own test is linear
+        # and the diagnosis weighs it raycast (``Diagnosis.weigh_line_of_sight``), and
+        # applied linearly it leaves the limbs' 1 / cos(incidence) to incidence_angle.
         pred = with_range_correction(matching.pred, rays.matched, first.correction_m)
         return replace(matching, pred=pred), replace(rays, pred=pred), meas, first
-    start = pose_error.PoseCorrection.identity(meas.cloud, meas.t_s)
+    start = pose_error.PoseCorrection.identity(
+        np.zeros_like(meas.cloud) if first.constant else meas.cloud, meas.t_s)
     (matching, rays, moved), _, pose = pose_error.iterate(
-        first, start, rematch, lambda state, corr: fit(state[1], corr))
+        first, start, rematch, lambda state, corr: fit(state[1], corr, first.constant),
+        pose_error.CONSTANT_RECAST_PASSES if first.constant else pose_error.RECAST_PASSES)
     return matching, rays, moved, pose
 
 
@@ -898,8 +910,10 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         decision, rivals, lambda on_top: pose_test(on_top, constant=constant),
         lambda: recast(pose_test([], constant=constant))[0], {c.name: c for c in weighed})
     cands = diagnosis.rank(cands + [c for c in scored if all(c is not w for w in weighed)])
+    decision = diag.range_offset_beside(decision, cands, pose_test)
     named = [c.effect for c in cands if c.name == decision.missing]
-    pose = decision.pose if decision.pose is not None else pose_test(named)
+    pose = (decision.pose if decision.pose is not None else decision.beside_pose
+            if decision.beside_pose is not None else pose_test(named))
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
@@ -970,7 +984,9 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
 
     start = pose_error.PoseCorrection.identity(
         np.zeros_like(meas.cloud) if constant else meas.cloud, meas.t_s)
-    (m, moved_rays, moved), _, report = pose_error.iterate(pose, start, rematch, refit)
+    (m, moved_rays, moved), _, report = pose_error.iterate(
+        pose, start, rematch, refit,
+        pose_error.CONSTANT_RECAST_PASSES if constant else pose_error.RECAST_PASSES)
     fresh = recast_sample(moved_rays, moved, seed)
     picked = np.sort(np.concatenate([fresh.matched, fresh.unmatched]))
     edge = np.full(len(moved), np.nan)
@@ -1037,6 +1053,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'missing_effect': decision.missing,
         'confounded_with': decision.confounded_with,
         'also_explains': decision.also,
+        'also_confounded_with': list(decision.beside_tie),
         'withheld': decision.withheld or None,
         'against_named': decision.pair_z,
         'separation_plan': plan.rows if plan is not None and plan.rows else None,

@@ -123,6 +123,7 @@ POSE_ERROR = 'pose_error'
 # reference pose that is off does: weighed against the per-cloud pose correction on the
 # same footing when it passes (``Diagnosis.weigh_pose_rivals``); no default candidates.
 POSE_RIVALS = ('range_drift', 'range_scale')
+RANGE_DRIFT = POSE_RIVALS[0]     # a range offset of the sensor changing over the recording
 # The target's surfaces off its mesh (as-built vs CAD): no sensor effect, and no default
 # candidate; weighed against a named effect as the range errors are (``weigh_rivals``):
 # a surface moved along its normal shifts ranges as 1 / cos(incidence), as a footprint
@@ -497,6 +498,11 @@ class Decision:
     pose: object | None = None
     # Names the rule kept from the verdict (``settle``): name -> why.
     withheld: dict = field(default_factory=dict)
+    # Beside the named effect, two explanations of one more part that the recording
+    # cannot tell apart (``Diagnosis.range_offset_beside``: [pose_error, range_drift]),
+    # and the pose test that found it (``pose_error.PoseError``, on top of the named).
+    beside_tie: list[str] = field(default_factory=list)
+    beside_pose: object | None = None
 
 
 class Diagnosis:
@@ -1072,6 +1078,12 @@ class Diagnosis:
         # Named candidates that leave the pose nothing (its test fails on top of them).
         explain = [c for c in named if not test([c.effect]).significant]
         if not any(c.admissible and c.effect is not None for c in cands):
+            # Reported as --effect pose_error --fit would correct it: fitted on every
+            # matched point and raycast again until the step is small (the sample's
+            # linear fit, on the rays the recorded pose matched, falls short of a large
+            # error: 3.5 cm for (3, 2, -3) cm); its test stays the sample's.
+            if recast is not None:
+                pose = recast(pose)[1]
             return replace(decision, pose=pose)
         # Scored again on the corrected pose: every candidate, as the next run with the
         # pose corrected would score it, also those a signature test set aside on the
@@ -1328,6 +1340,46 @@ class Diagnosis:
         if ties:
             return replace(decision, confounded_with=[POSE_ERROR, *[t.name for t in ties]]), scored
         return decision, scored
+
+    def range_offset_beside(self, decision: Decision, cands: list[Candidate],
+                            pose_test) -> Decision:
+        """A per-cloud pose correction reported (alone, or beside a named effect) against
+        a range offset of the sensor that changes between clouds (a temperature step, a
+        counter reset), on the same held-out footing: the pose's test on the model with
+        the named effect and its 'also' (``pose_test(effects)``) fits one range offset
+        per cloud on the same halves (``PoseError.offset_gain``) and the rigid
+        correction beyond it, nested (``beyond_offset_*``). ``range_drift``, the
+        catalogue's drifting range offset, is linear in time and a step is not, so
+        weighed as a candidate (``weigh_pose_rivals``) it loses to six parameters a
+        cloud; one offset a cloud is the sensor's side of the same footing. A
+        correction that gains nothing beyond the offsets, where they pass the rule,
+        moves the clouds only as the sensor's range offset would: beside a named effect
+        the two are a tie of their own (``beside_tie``); alone, the tie
+        ``confounded_with`` [pose_error, range_drift] (``range_drift`` passing the rule
+        on the recorded pose, as ``settle`` asks). Where the pose gains beyond them (a
+        rotation, a motion across the line of sight) or drifts within the clouds, it
+        stays."""
+        pose = decision.pose
+        if (pose is None or getattr(pose, 'constant', False)
+                or getattr(pose, 'rate_supported', False) or decision.confounded_with):
+            return decision
+        by_name = {c.name: c for c in cands}
+        if not decision.missing and not (RANGE_DRIFT in by_name
+                                         and self.nameable(by_name[RANGE_DRIFT])):
+            return decision
+        on_top = [by_name[n].effect for n in (decision.missing, decision.also)
+                  if n in by_name and by_name[n].effect is not None]
+        test = pose_test(on_top)
+        offsets = test.offset_z >= self.z_crit and test.offset_gain >= MIN_PRACTICAL_GAIN
+        beyond = (test.beyond_offset_z >= self.z_crit
+                  and test.beyond_offset_gain >= MIN_PRACTICAL_GAIN)
+        if beyond or not offsets:
+            return decision
+        if decision.missing:
+            return replace(decision, pose=None, beside_tie=[POSE_ERROR, RANGE_DRIFT],
+                           beside_pose=test)
+        return replace(decision, confounded_with=[POSE_ERROR, RANGE_DRIFT],
+                       beside_pose=test)
 
     def clock_tie(self, decision: Decision, cands: list[Candidate],
                   no_point_times: bool) -> Decision:

@@ -140,6 +140,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                      f'{kind[0].lower()}{kind[1:]} {decision.pose.gain:.4f} nats/point, '
                      f'z = {decision.pose.z:.1f}): check the tracking system or the extrinsic '
                      'calibration.')
+    if getattr(decision, 'beside_tie', None) and decision.beside_pose is not None:
+        parts.append(range_offset_beside_words(decision.beside_pose,
+                                               [n for n in (missing, decision.also) if n]))
     vetoed = [c for c in cands if c.vetoed and c.significant and c.practical
               and c.name != missing and c.name not in decision.confounded_with]
     if vetoed and (missing or decision.confounded_with):
@@ -368,6 +371,22 @@ def _value_on_pose(c) -> str:
             'corrected pose.')
 
 
+def range_offset_beside_words(pose, named: list[str]) -> str:
+    """The verdict's sentence when, beside the named effects ``named``, the clouds move
+    as a range offset of the sensor changing between clouds would (``beside_tie``:
+    ``Diagnosis.range_offset_beside``): a per-cloud pose correction that gains nothing
+    beyond one range offset per cloud."""
+    return (f'Besides, the clouds\' ranges move from cloud to cloud: with {_join(named)} in '
+            f'the model, one range offset per cloud gains {pose.offset_gain:.4f} nats/point '
+            f'held out (z = {pose.offset_z:.1f}), and a rigid correction of the target pose per cloud '
+            f'gains no more beyond those offsets ({pose.beyond_offset_gain:.4f} nats/point, '
+            f'z = {pose.beyond_offset_z:.1f}): a range offset of the sensor or the reference '
+            'pose along the line of sight, changing between clouds (a temperature step of the '
+            'sensor, or the tracking system), which this recording cannot tell apart; none is '
+            'named. A static target on a surveyed pose, or one seen across a wide angle, '
+            'separates them.')
+
+
 def pose_tie_words(decision, summary: dict, cands: list) -> str:
     """The verdict when the reference pose and a candidate explain the data equally
     (``confounded_with`` holds ``pose_error`` and the candidate)."""
@@ -414,6 +433,13 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
                  'them (plan.yaml).' if len(plan) >= 2 else
                  ' A static target on a surveyed pose, seen across a wide angle and at two '
                  'distances, would separate them.')
+        steps = getattr(decision, 'beside_pose', None)
+        if steps is not None:
+            held += (f'; one range offset per cloud gains {steps.offset_gain:.4f} nats/point '
+                     f'held out (z = {steps.offset_z:.1f}), and the pose correction gains '
+                     f'no more beyond those offsets ({steps.beyond_offset_gain:.4f}, z = '
+                     f'{steps.beyond_offset_z:.1f}): the clouds move only as the sensor\'s '
+                     'range offset, changing between clouds, would move them')
         return (f'A range offset of the sensor or the reference pose along the line of '
                 f'sight: {pose_part}, and {_join(other)} (a range error of the sensor) '
                 f'explains the residual as well{held}; each leaves the other nothing, so which '
