@@ -971,8 +971,10 @@ class Diagnosis:
 
     def _fitted_together(self, effects: list[Effect]) -> list[Effect]:
         """``effects`` refitted together on all the diagnosed points (``refit_in_turn``),
-        remembered by their names and parameters."""
-        if len(effects) < 2:
+        remembered by their names and parameters; with one that moves the rays (a clock
+        offset) as they are, each as fitted, as --fit keeps such effects out of the joint
+        refit (each step would raycast the points again)."""
+        if len(effects) < 2 or lk.moving(effects):
             return list(effects)
         memo = self.__dict__.setdefault('_together', {})
         key = tuple((e.name, repr(e.params.model_dump())) for e in effects)
