@@ -941,10 +941,12 @@ class Diagnosis:
     def set_aside_beside(self, best: Candidate, cands: list[Candidate],
                          but: tuple[str, ...] = ()) -> list[Candidate]:
         """The effects the residual holds beside ``best`` that the rule set aside for
-        their shape: candidates whose own gain is decisive and matters (``significant``,
-        ``practical``) but that a test of their shape on the residual with ``best``
-        still in it vetoed (a laser's tile test, the share of the structure, the
-        driver of a noise effect), and that add to ``best`` (``adds_to``); a per-laser
+        their shape: candidates whose own gain is decisive (``significant``) but that a
+        test of their shape on the residual with ``best`` still in it vetoed (a laser's
+        tile test, the share of the structure, the driver of a noise effect), and that
+        add to ``best`` (``adds_to``: there their gain must also matter, as alone it is
+        shared with ``best`` and the lasers: an SNR noise of 0.0041 nats/point alone
+        beside the lasers of h8-d20-walk-laser-snr10_s51); a per-laser
         one only where its offsets hold across the tiles beside ``best``
         (``tile_veto`` on top, as ``lasers_beside``: else its offsets follow a pattern
         on the target, which may be the very part judged). They are never named here:
@@ -956,8 +958,7 @@ class Diagnosis:
         out = []
         for c in cands:
             if (c is best or c.name in but or c.name == POSE_ERROR or c.error is not None
-                    or c.vetoed is None
-                    or not (c.significant and c.practical)):
+                    or c.vetoed is None or not c.significant):
                 continue
             key = (best.name, c.name)
             if key not in memo:
