@@ -342,20 +342,22 @@ def fit_best_variant(effect_cls: type[Effect], data, fixed: dict | None = None,
 
 
 def refit_in_turn(data, effects: list[Effect], fixed_of: list[dict],
-                  rounds: int = JOINT_ROUNDS) -> list[Effect]:
+                  rounds: int = JOINT_ROUNDS, on_top: list[Effect] = ()) -> list[Effect]:
     """``effects`` (fitted each on top of those before it) refitted each with all the
     others in the model, in turn, until their parameters settle (within 1 %) or
     ``rounds`` passes: the joint maximum of the likelihood, not the first effect's
     value alone. Two effects that share part of the residual (a range walk and an
     incidence elongation: grazing returns are weak and long) otherwise leave the first
     with the other's share (the eighth holdout: walk k 0.0236 alone, 0.0156 together,
-    for a true 0.015). ``fixed_of``: per effect, the parameters the user fixed."""
+    for a true 0.015). ``fixed_of``: per effect, the parameters the user fixed; ``on_top``:
+    fitted effects kept as they are in the model."""
     done = list(effects)
     for _ in range(rounds):
         before = [e.params.model_dump() for e in done]
         for i, eff in enumerate(done):
             cls = type(eff)
-            fit, _ = fit_best_variant(cls, data, fixed_of[i], on_top=done[:i] + done[i + 1:])
+            fit, _ = fit_best_variant(cls, data, fixed_of[i],
+                                      on_top=[*on_top, *done[:i], *done[i + 1:]])
             done[i] = plain(cls, fit.effect)
         if all(_settled(a, b.params.model_dump()) for a, b in zip(before, done)):
             break
@@ -972,15 +974,18 @@ class Diagnosis:
 
     def _fitted_together(self, effects: list[Effect]) -> list[Effect]:
         """``effects`` refitted together on all the diagnosed points (``refit_in_turn``),
-        remembered by their names and parameters; with one that moves the rays (a clock
-        offset) as they are, each as fitted, as --fit keeps such effects out of the joint
-        refit (each step would raycast the points again)."""
-        if len(effects) < 2 or lk.moving(effects):
+        remembered by their names and parameters. Those that move the rays (a clock
+        offset) stay as fitted, in the model under the others' refit, as --fit keeps such
+        effects out of the joint refit (each step would raycast the points again)."""
+        moving = lk.moving(effects)
+        still = [e for e in effects if all(e is not m for m in moving)]
+        if len(still) < 2 and not (still and moving):
             return list(effects)
         memo = self.__dict__.setdefault('_together', {})
         key = tuple((e.name, repr(e.params.model_dump())) for e in effects)
         if key not in memo:
-            memo[key] = refit_in_turn(self.full, list(effects), [{}] * len(effects))
+            memo[key] = [*moving, *refit_in_turn(self.full, still, [{}] * len(still),
+                                                 on_top=moving)]
         return memo[key]
 
     def _together_nll(self, effects: list[Effect]) -> float:
