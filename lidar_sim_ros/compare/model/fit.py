@@ -24,6 +24,7 @@ classmethod taking ``(data, base_effects)``).
 from __future__ import annotations
 
 import copy
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
@@ -284,30 +285,44 @@ def fit_effect(effect_cls: type[Effect], data: FitData,
 
 def linear_bias_coefficient(data: FitData, model: ModelOnRays, feature: np.ndarray,
                             bounds: tuple[float, float], iterations: int = 6) -> float:
-    """ML coefficient a of an extra bias a * feature (m per feature unit), closed form.
+    """ML coefficient a of an extra bias a * feature (m per feature unit), closed form
+    (``linear_bias_coefficients`` with one feature)."""
+    x = np.asarray(feature, float).reshape(-1, 1)
+    return float(linear_bias_coefficients(data, model, x, [bounds], iterations)[0])
 
-    Weighted least squares of the residual on the feature with one intercept per
+
+def linear_bias_coefficients(data: FitData, model: ModelOnRays, features: np.ndarray,
+                             bounds: Sequence[tuple[float, float]],
+                             iterations: int = 6) -> np.ndarray:
+    """ML coefficients a_j of an extra bias sum_j a_j * features[:, j], closed form.
+
+    Weighted least squares of the residual on the features with one intercept per
     material (the nuisance offsets), iterated with robust inlier weights (Gaussian vs
     a ROBUST_FLOOR uniform) and per-material noise scales: spurious points get no say.
-    """
+    Features the centred data cannot tell apart get the least-squares minimum-norm
+    split; each coefficient is clipped to its bounds."""
+    x = np.asarray(features, float)
+    k = x.shape[1]
     y = np.asarray(data.measured_range_m, float) - model.expected_range_m
-    x = np.asarray(feature, float)
     sigma = np.maximum(model.sigma_m, MIN_SIGMA_M)
-    use = model.placed & np.isfinite(x) & np.isfinite(y)
+    use = model.placed & np.all(np.isfinite(x), axis=1) & np.isfinite(y)
+    a = np.zeros(k)
     if use.sum() < 3:
-        return 0.0
+        return a
     y, x, sigma, group = y[use], x[use], sigma[use], _groups(data)[use]
+    lo, hi = np.array([b[0] for b in bounds], float), np.array([b[1] for b in bounds], float)
     width = data.window_width_m
     q = np.ones(len(y))
-    a = 0.0
     for _ in range(iterations):
         wt = q / sigma ** 2
-        xc, yc = _centre(x, group, wt), _centre(y, group, wt)
-        den = float(np.sum(wt * xc * xc))
-        if den <= 0:
-            return 0.0
-        a = float(np.clip(np.sum(wt * xc * yc) / den, *bounds))
-        e = yc - a * xc
+        xc = np.column_stack([_centre(x[:, j], group, wt) for j in range(k)])
+        yc = _centre(y, group, wt)
+        normal = (xc * wt[:, None]).T @ xc
+        if not np.all(np.diag(normal) > 0):
+            return np.zeros(k)
+        rhs = (xc * wt[:, None]).T @ yc
+        a = np.clip(np.linalg.lstsq(normal, rhs, rcond=None)[0], lo, hi)
+        e = yc - xc @ a
         _, scale = material_nuisance(e, sigma, group, np.ones(len(e), bool))
         s = sigma * scale
         g = (1 - ROBUST_FLOOR) * np.exp(-0.5 * (e / s) ** 2) / (s * math.sqrt(2 * math.pi))
@@ -478,10 +493,50 @@ def _fit_ghost_scale(cls: type[Effect], data: FitData,
     return make_result(cls({**defaults, key: value}), data, base_effects)
 
 
+def _fit_linear_subsets(cls: type[Effect], data: FitData,
+                        base_effects: Sequence[Effect] = ()) -> FitResult:
+    """Closed-form fit of an effect whose range bias is linear in all its free
+    parameters (``cls.linear_bias`` = ``cls.bounds``; ``surface_offset``: a standoff
+    on 1 / cos(theta) and a scale on d / cos(theta)), jointly (``linear_bias_coefficients``,
+    material intercepts as nuisance), and every subset of them with the rest at 0. The
+    subset kept is the one with the least total NLL plus half ln(N) per parameter
+    (Bayes information criterion, N matched points): on a body whose surfaces of one
+    material lie at one distance from its origin (a cylinder's side) the two features
+    are nearly the same column, and the joint split would be noise; a parameter stays
+    only where the data pay for it."""
+    base_effects = list(base_effects)
+    names = free_params(cls)
+    defaults = _defaults(cls)
+    zero = {**defaults, **{k: 0.0 for k in names}}
+    model = model_on_rays(data, [*base_effects, cls(zero)])
+    columns = []
+    for k in names:
+        unit = min(1.0, cls.bounds[k][1])          # within the Params' limits
+        moved = model_on_rays(data, [*base_effects, cls({**zero, k: unit})])
+        columns.append((moved.expected_range_m - model.expected_range_m) / unit)
+    x = np.column_stack(columns)
+    penalty = 0.5 * math.log(max(len(data.measured_range_m), 2))
+    best, best_cost = cls(zero), objective(data, [*base_effects, cls(zero)])
+    for size in range(1, len(names) + 1):
+        for subset in itertools.combinations(range(len(names)), size):
+            a = linear_bias_coefficients(data, model, x[:, subset],
+                                         [cls.bounds[names[j]] for j in subset])
+            params = {**zero, **{names[j]: round(float(v), 9) for j, v in zip(subset, a)}}
+            eff = make_effect_safe(cls, params)
+            if eff is None:
+                continue
+            cost = objective(data, [*base_effects, eff]) + penalty * size
+            if cost < best_cost:
+                best, best_cost = eff, cost
+    return make_result(best, data, base_effects)
+
+
 def _register_catalogue_fits() -> None:
     from lidar_sim_ros.core.effects.laser_bias import LaserBias
     from lidar_sim_ros.core.effects.multipath import Multipath
+    from lidar_sim_ros.core.effects.surface_offset import SurfaceOffset
     register_fit(LaserBias)(_fit_laser_bias)
+    register_fit(SurfaceOffset)(_fit_linear_subsets)
     register_fit(Multipath)(_fit_ghost_scale)
 
 

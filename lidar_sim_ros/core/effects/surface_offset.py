@@ -58,9 +58,9 @@ class SurfaceOffset(Effect):
     """Range bias -(standoff_m + scale d) / cos(theta): the target's surfaces off its mesh."""
 
     name = 'surface_offset'
-    bounds = {'scale': (-0.02, 0.02)}
-    initial = {'scale': 0.0}
-    linear_bias = ('scale',)    # closed form
+    bounds = {'scale': (-0.02, 0.02), 'standoff_m': (-0.2, 0.2)}
+    initial = {'scale': 0.0, 'standoff_m': 0.0}
+    linear_bias = ('scale', 'standoff_m')   # closed form, jointly (compare/model/fit.py)
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
