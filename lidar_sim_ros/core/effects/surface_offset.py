@@ -20,7 +20,11 @@ and o the body origin, all in the lidar frame (``d = -r cos(theta) - n . o``). A
 sphere of radius R seen head-on: ``d = R``, bias ``-scale R``. Its constant part per
 material is a per-material range bias; what tells it apart is how it follows
 ``1 / cos(theta)`` and, for the scale, where on the body a surface lies. A sensor's
-footprint effects (``incidence_angle``) grow with range; this does not.
+footprint effects (``incidence_angle``) grow with range; this does not. Both free
+parameters are fitted (jointly, in closed form: compare/model/fit.py); after the
+material intercepts a standoff leaves ``standoff (1 / cos(theta) - 1)``, growing as
+theta^2 / 2 from normal incidence where a footprint's ``r div tan(theta)`` grows as
+theta.
 """
 from __future__ import annotations
 
