@@ -340,3 +340,26 @@ def test_surface_offset_fit_recovers_a_box_standing_proud():
     assert r.params['standoff_m'] == pytest.approx(0.03, rel=0.15)
     assert r.params['scale'] == 0.0
     assert r.nll_per_point < r.nll_before_per_point - 0.005
+
+
+def test_surface_offset_fit_recovers_one_material_standing_proud():
+    """The same box with only its PANEL faces (the z pair) 3 cm proud,
+    blankets over one material: a standoff of PANEL's own (1 / cos(theta) over its
+    surfaces), none on the others, no common standoff. A common standoff alone would be
+    the 3 cm diluted by the FOIL face's 0. (A face seen at one angle cannot show its
+    standoff: after the material's intercept only the spread of 1 / cos(theta) over it
+    does: on frame 3, FOIL at 28-35 deg, the common 3.4 cm fits as well and is kept,
+    being first.)"""
+    sensor, _, traj = scene()
+    extents = np.array([3.0, 2.0, 1.2])
+    truth_sim = Simulator(sensor, MATERIALS, box_target(extents + [0.0, 0.0, 0.06]), seed=9,
+                          effects=[])
+    fr = truth_sim.simulate_frame(1.2, traj, 12)   # both faces at 42-57 deg, spread 7-9 deg
+    dirs = fr.xyz_m / np.linalg.norm(fr.xyz_m, axis=1, keepdims=True)
+    model = Simulator(sensor, MATERIALS, box_target(extents), seed=9, effects=[])
+    data = fit_data_from_rays(model, fr.stamp_s + fr.t_s, dirs, fr.range_m, traj, fr.t_s)
+    r = fit_effect(get_effect_class('surface_offset'), data)
+    assert r.params['standoff_PANEL_m'] == pytest.approx(0.03, rel=0.15)
+    assert r.params['standoff_m'] == 0.0 and r.params['scale'] == 0.0
+    assert 'standoff_FOIL_m' not in r.params
+    assert r.effect.params.material_standoff_m == {'PANEL': r.params['standoff_PANEL_m']}

@@ -24,7 +24,6 @@ classmethod taking ``(data, base_effects)``).
 from __future__ import annotations
 
 import copy
-import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
@@ -493,42 +492,63 @@ def _fit_ghost_scale(cls: type[Effect], data: FitData,
     return make_result(cls({**defaults, key: value}), data, base_effects)
 
 
-def _fit_linear_subsets(cls: type[Effect], data: FitData,
+MIN_MATERIAL_STANDOFF_POINTS = 20   # fewer matched points on a material: no standoff of its own
+
+
+def _fit_surface_offset(cls: type[Effect], data: FitData,
                         base_effects: Sequence[Effect] = ()) -> FitResult:
-    """Closed-form fit of an effect whose range bias is linear in all its free
-    parameters (``cls.linear_bias`` = ``cls.bounds``; ``surface_offset``: a standoff
-    on 1 / cos(theta) and a scale on d / cos(theta)), jointly (``linear_bias_coefficients``,
-    material intercepts as nuisance), and every subset of them with the rest at 0. The
-    subset kept is the one with the least total NLL plus half ln(N) per parameter
-    (Bayes information criterion, N matched points): on a body whose surfaces of one
-    material lie at one distance from its origin (a cylinder's side) the two features
-    are nearly the same column, and the joint split would be noise; a parameter stays
-    only where the data pay for it."""
+    """Closed-form fit of ``surface_offset``: a standoff on 1 / cos(theta), a scale on
+    d / cos(theta), and a standoff of a material's own on 1 / cos(theta) over its
+    surfaces (blankets over some materials only), jointly (``linear_bias_coefficients``,
+    material intercepts as nuisance). Which of them are free is chosen by the Bayes
+    information criterion (total NLL plus half ln(N) per parameter, N matched points),
+    by forward selection: from none, the parameter that lowers it most is freed, while
+    one does (the common standoff, the scale and each material's own compete alike). A parameter stays only where the data pay for
+    it: on a body whose surfaces of one material lie at one distance from its origin (a
+    cylinder's side) the scale's and the standoff's columns are nearly one, and the
+    joint split would be noise."""
     base_effects = list(base_effects)
-    names = free_params(cls)
-    defaults = _defaults(cls)
-    zero = {**defaults, **{k: 0.0 for k in names}}
+    zero = {**_defaults(cls), 'scale': 0.0, 'standoff_m': 0.0, 'material_standoff_m': {}}
     model = model_on_rays(data, [*base_effects, cls(zero)])
-    columns = []
-    for k in names:
-        unit = min(1.0, cls.bounds[k][1])          # within the Params' limits
-        moved = model_on_rays(data, [*base_effects, cls({**zero, k: unit})])
-        columns.append((moved.expected_range_m - model.expected_range_m) / unit)
-    x = np.column_stack(columns)
+
+    def column(params: dict, unit: float) -> np.ndarray:
+        moved = model_on_rays(data, [*base_effects, cls({**zero, **params})])
+        return (moved.expected_range_m - model.expected_range_m) / unit
+
+    uniform = {'scale': column({'scale': 0.01}, 0.01), 'standoff_m': column({'standoff_m': 1.0}, 1.0)}
+    group = _groups(data)
+    names = list(getattr(getattr(data.baseline.ctx.scene, 'target', None), 'material_names', []))
+    counts = np.bincount(group[group >= 0], minlength=len(names)) if len(names) else []
+    own = {names[m]: np.where(group == m, uniform['standoff_m'], 0.0)
+           for m in range(len(names)) if counts[m] >= MIN_MATERIAL_STANDOFF_POINTS}
     penalty = 0.5 * math.log(max(len(data.measured_range_m), 2))
-    best, best_cost = cls(zero), objective(data, [*base_effects, cls(zero)])
-    for size in range(1, len(names) + 1):
-        for subset in itertools.combinations(range(len(names)), size):
-            a = linear_bias_coefficients(data, model, x[:, subset],
-                                         [cls.bounds[names[j]] for j in subset])
-            params = {**zero, **{names[j]: round(float(v), 9) for j, v in zip(subset, a)}}
-            eff = make_effect_safe(cls, params)
-            if eff is None:
-                continue
-            cost = objective(data, [*base_effects, eff]) + penalty * size
-            if cost < best_cost:
-                best, best_cost = eff, cost
-    return make_result(best, data, base_effects)
+    bounds = {**cls.bounds, **{m: cls.bounds['standoff_m'] for m in own}}
+
+    def fitted(free: tuple[str, ...]) -> tuple[Effect | None, float]:
+        x = np.column_stack([uniform[k] if k in uniform else own[k] for k in free])
+        a = linear_bias_coefficients(data, model, x, [bounds[k] for k in free])
+        values = {k: round(float(v), 9) for k, v in zip(free, a)}
+        params = {**zero, **{k: v for k, v in values.items() if k in uniform},
+                  'material_standoff_m': {k: v for k, v in values.items() if k in own}}
+        eff = make_effect_safe(cls, params)
+        cost = (math.inf if eff is None
+                else objective(data, [*base_effects, eff]) + penalty * len(free))
+        return eff, cost
+
+    best, best_cost, best_free = cls(zero), objective(data, [*base_effects, cls(zero)]), ()
+    pool = [*uniform, *own]
+    while True:
+        tries = [(*fitted((*best_free, k)), (*best_free, k)) for k in pool if k not in best_free]
+        if not tries:
+            break
+        eff, cost, free = min(tries, key=lambda t: t[1])
+        if not cost < best_cost:
+            break
+        best, best_cost, best_free = eff, cost, free
+    p = best.params
+    params = {'scale': float(p.scale), 'standoff_m': float(p.standoff_m),
+              **{f'standoff_{m}_m': float(v) for m, v in p.material_standoff_m.items()}}
+    return make_result_vector(best, data, base_effects, params)
 
 
 def _register_catalogue_fits() -> None:
@@ -536,7 +556,7 @@ def _register_catalogue_fits() -> None:
     from lidar_sim_ros.core.effects.multipath import Multipath
     from lidar_sim_ros.core.effects.surface_offset import SurfaceOffset
     register_fit(LaserBias)(_fit_laser_bias)
-    register_fit(SurfaceOffset)(_fit_linear_subsets)
+    register_fit(SurfaceOffset)(_fit_surface_offset)
     register_fit(Multipath)(_fit_ghost_scale)
 
 
