@@ -113,7 +113,11 @@ def test_surface_offset_is_the_raycast_of_the_scaled_or_standing_off_surface(yaw
             ('standing', Target(verts + [0.0, 0.0, standoff], faces, np.zeros(2, int),
                                 ['PIF']), []),
             ('by_scale', mesh, [make_effect('surface_offset', {'scale': scale})]),
-            ('by_standoff', mesh, [make_effect('surface_offset', {'standoff_m': standoff})])]:
+            ('by_standoff', mesh, [make_effect('surface_offset', {'standoff_m': standoff})]),
+            ('by_material', mesh, [make_effect('surface_offset',
+                                               {'material_standoff_m': {'PIF': standoff}})]),
+            ('other_material', mesh, [make_effect('surface_offset',
+                                                  {'material_standoff_m': {'MLI': standoff}})])]:
         sim = Simulator(s, materials(), target, effects=effects)
         ranges[name] = predict_on_axis(sim, pose).expected_range_m[0]
     tol = float(12.0 * 8 * np.finfo(np.float32).eps)
@@ -122,6 +126,12 @@ def test_surface_offset_is_the_raycast_of_the_scaled_or_standing_off_surface(yaw
     assert ranges['by_scale'] == pytest.approx(ranges['scaled'], abs=tol)
     assert ranges['standing'] - ranges['model'] == pytest.approx(-standoff / cos_t, abs=tol)
     assert ranges['by_standoff'] == pytest.approx(ranges['standing'], abs=tol)
+    # A standoff of the plate's own material is the same; another material's moves nothing.
+    assert ranges['by_material'] == pytest.approx(ranges['standing'], abs=tol)
+    assert ranges['other_material'] == ranges['model']
+    for bad in (float('nan'), float('inf'), 1e300):
+        with pytest.raises(ValueError, match='material_standoff_m'):
+            make_effect('surface_offset', {'material_standoff_m': {'PIF': bad}})
     # A miss carries no bias; a zero offset changes nothing.
     ctx = context(power_w=np.ones(2), hit=np.array([False, True]))
     assert make_effect('surface_offset', {}).range_bias_m(ctx).tolist() == [0.0, 0.0]

@@ -19,7 +19,7 @@ def _numeric_fields(cls):
     out = []
     for name, info in cls.Params.model_fields.items():
         ann = str(info.annotation)
-        if not any(t in ann for t in ('float', 'int')) or 'list' in ann:
+        if not any(t in ann for t in ('float', 'int')) or 'list' in ann or 'dict' in ann:
             continue
         lo = hi = None
         for m in info.metadata:
@@ -51,6 +51,11 @@ def test_every_effect_parameter_is_bounded(name, cls):
         for bad in (1e6, -1e6):
             with pytest.raises(ValidationError):
                 cls({field: bad})
+    for field, info in cls.Params.model_fields.items():     # a table of numbers by name
+        if 'dict' in str(info.annotation):
+            for bad in (1e6, -1e6, float('nan')):
+                with pytest.raises(ValidationError):
+                    cls({field: {'PIF': bad}})
     for field, (lo, hi) in cls.bounds.items():
         if field == 'offsets_m':
             cls({field: [lo, hi]})

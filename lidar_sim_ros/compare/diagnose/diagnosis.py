@@ -567,7 +567,7 @@ class Diagnosis:
             if cand.vetoed is None and cand.significant and cand.practical:
                 cand.vetoed = self.tile_veto(cand)
                 cand.tile_vetoed = cand.vetoed is not None
-                cand.vetoed = cand.vetoed or self.core_veto(cand)
+                cand.vetoed = cand.vetoed or self.core_veto(cand) or self.material_veto(cand)
         except Exception as exc:  # noqa: BLE001 - one failing candidate must not stop the rest
             cand.error = f'{type(exc).__name__}: {exc}'
             cand.score = float('-inf')
@@ -821,6 +821,53 @@ class Diagnosis:
                 'target off its CAD, or another effect\'s pattern), not the lasers alone; '
                 'offsets of the lasers\' own beside that pattern show only once it is '
                 'modelled')
+
+    def material_veto(self, cand: Candidate) -> str | None:
+        """A range error of the sensor kept out of the default candidates (POSE_RIVALS: a
+        range scale, a range offset drifting over the recording) is the same on every
+        surface the sensor sees: fitted on one material's points and scored on the
+        others' (and the other way), it must do as well as fitted on a random half (its
+        score). A loss against it that passes the rule (z above the bound, at least
+        MIN_PRACTICAL_GAIN nats per analysed point) shows a part of the target reading
+        off the rest (a material the configuration does not list, a part off its CAD),
+        which a range term fits only where the part's ranges differ from the others'.
+        Each material with MIN_MATERIAL_POINTS matched points (and the rest as many) is
+        tried; the worst loss is reported."""
+        if (cand.name not in POSE_RIVALS or cand.effect is None or cand.variant is None
+                or cand.heldout_nll is None):
+            return None
+        idx = self.rays.matched
+        group = np.asarray(self.full.baseline.ctx.material, int)
+        if len(group) != len(idx):
+            return None
+        at_random = self.in_matched_order(cand.heldout_nll)
+        none = self.rays.unmatched[:0]
+        worst = None
+        for m in np.unique(group[group >= 0]):
+            on = group == m
+            if min(on.sum(), (~on).sum()) < lk.MIN_MATERIAL_POINTS:
+                continue
+            halves = [self.rays._with(idx[on], none), self.rays._with(idx[~on], none)]
+            loss = self.transfer_nll(cand.variant, halves) - at_random
+            ok = np.isfinite(loss)
+            if ok.sum() < 2:
+                continue
+            _, z = block_mean_z(loss[ok], self.matched_blocks[ok])
+            per_point = float(np.sum(loss[ok]) / max(self.n_total, 1))
+            if (per_point >= MIN_PRACTICAL_GAIN and z >= self.z_crit
+                    and (worst is None or per_point > worst[1])):
+                worst = (int(m), per_point, z)
+        if worst is None:
+            return None
+        m, loss, z = worst
+        names = list(getattr(self.full.baseline.ctx.scene.target, 'material_names', []))
+        name = names[m] if m < len(names) else f'material {m}'
+        return (f'a range error of the sensor is the same on every surface, but fitted on '
+                f'the {name} points and scored on the others (and the other way) it '
+                f'explains {loss:.4f} nats/point less than fitted at random (z = {z:.1f}): '
+                f'part of the target reads off the rest (outside the catalogue: a material '
+                f'the configuration does not list, or a part off its CAD), which a range '
+                f'term fits only where that part\'s ranges differ from the others\'')
 
     def core_veto(self, cand: Candidate) -> str | None:
         """A noise effect (``is_noise_effect``: it widens the sigma, nothing else) must

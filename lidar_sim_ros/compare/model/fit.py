@@ -284,30 +284,44 @@ def fit_effect(effect_cls: type[Effect], data: FitData,
 
 def linear_bias_coefficient(data: FitData, model: ModelOnRays, feature: np.ndarray,
                             bounds: tuple[float, float], iterations: int = 6) -> float:
-    """ML coefficient a of an extra bias a * feature (m per feature unit), closed form.
+    """ML coefficient a of an extra bias a * feature (m per feature unit), closed form
+    (``linear_bias_coefficients`` with one feature)."""
+    x = np.asarray(feature, float).reshape(-1, 1)
+    return float(linear_bias_coefficients(data, model, x, [bounds], iterations)[0])
 
-    Weighted least squares of the residual on the feature with one intercept per
+
+def linear_bias_coefficients(data: FitData, model: ModelOnRays, features: np.ndarray,
+                             bounds: Sequence[tuple[float, float]],
+                             iterations: int = 6) -> np.ndarray:
+    """ML coefficients a_j of an extra bias sum_j a_j * features[:, j], closed form.
+
+    Weighted least squares of the residual on the features with one intercept per
     material (the nuisance offsets), iterated with robust inlier weights (Gaussian vs
     a ROBUST_FLOOR uniform) and per-material noise scales: spurious points get no say.
-    """
+    Features the centred data cannot tell apart get the least-squares minimum-norm
+    split; each coefficient is clipped to its bounds."""
+    x = np.asarray(features, float)
+    k = x.shape[1]
     y = np.asarray(data.measured_range_m, float) - model.expected_range_m
-    x = np.asarray(feature, float)
     sigma = np.maximum(model.sigma_m, MIN_SIGMA_M)
-    use = model.placed & np.isfinite(x) & np.isfinite(y)
+    use = model.placed & np.all(np.isfinite(x), axis=1) & np.isfinite(y)
+    a = np.zeros(k)
     if use.sum() < 3:
-        return 0.0
+        return a
     y, x, sigma, group = y[use], x[use], sigma[use], _groups(data)[use]
+    lo, hi = np.array([b[0] for b in bounds], float), np.array([b[1] for b in bounds], float)
     width = data.window_width_m
     q = np.ones(len(y))
-    a = 0.0
     for _ in range(iterations):
         wt = q / sigma ** 2
-        xc, yc = _centre(x, group, wt), _centre(y, group, wt)
-        den = float(np.sum(wt * xc * xc))
-        if den <= 0:
-            return 0.0
-        a = float(np.clip(np.sum(wt * xc * yc) / den, *bounds))
-        e = yc - a * xc
+        xc = np.column_stack([_centre(x[:, j], group, wt) for j in range(k)])
+        yc = _centre(y, group, wt)
+        normal = (xc * wt[:, None]).T @ xc
+        if not np.all(np.diag(normal) > 0):
+            return np.zeros(k)
+        rhs = (xc * wt[:, None]).T @ yc
+        a = np.clip(np.linalg.lstsq(normal, rhs, rcond=None)[0], lo, hi)
+        e = yc - xc @ a
         _, scale = material_nuisance(e, sigma, group, np.ones(len(e), bool))
         s = sigma * scale
         g = (1 - ROBUST_FLOOR) * np.exp(-0.5 * (e / s) ** 2) / (s * math.sqrt(2 * math.pi))
@@ -478,10 +492,71 @@ def _fit_ghost_scale(cls: type[Effect], data: FitData,
     return make_result(cls({**defaults, key: value}), data, base_effects)
 
 
+MIN_MATERIAL_STANDOFF_POINTS = 20   # fewer matched points on a material: no standoff of its own
+
+
+def _fit_surface_offset(cls: type[Effect], data: FitData,
+                        base_effects: Sequence[Effect] = ()) -> FitResult:
+    """Closed-form fit of ``surface_offset``: a standoff on 1 / cos(theta), a scale on
+    d / cos(theta), and a standoff of a material's own on 1 / cos(theta) over its
+    surfaces (blankets over some materials only), jointly (``linear_bias_coefficients``,
+    material intercepts as nuisance). Which of them are free is chosen by the Bayes
+    information criterion (total NLL plus half ln(N) per parameter, N matched points),
+    by forward selection: from none, the parameter that lowers it most is freed, while
+    one does (the common standoff, the scale and each material's own compete alike). A parameter stays only where the data pay for
+    it: on a body whose surfaces of one material lie at one distance from its origin (a
+    cylinder's side) the scale's and the standoff's columns are nearly one, and the
+    joint split would be noise."""
+    base_effects = list(base_effects)
+    zero = {**_defaults(cls), 'scale': 0.0, 'standoff_m': 0.0, 'material_standoff_m': {}}
+    model = model_on_rays(data, [*base_effects, cls(zero)])
+
+    def column(params: dict, unit: float) -> np.ndarray:
+        moved = model_on_rays(data, [*base_effects, cls({**zero, **params})])
+        return (moved.expected_range_m - model.expected_range_m) / unit
+
+    uniform = {'scale': column({'scale': 0.01}, 0.01), 'standoff_m': column({'standoff_m': 1.0}, 1.0)}
+    group = _groups(data)
+    names = list(getattr(getattr(data.baseline.ctx.scene, 'target', None), 'material_names', []))
+    counts = np.bincount(group[group >= 0], minlength=len(names)) if len(names) else []
+    own = {names[m]: np.where(group == m, uniform['standoff_m'], 0.0)
+           for m in range(len(names)) if counts[m] >= MIN_MATERIAL_STANDOFF_POINTS}
+    penalty = 0.5 * math.log(max(len(data.measured_range_m), 2))
+    bounds = {**cls.bounds, **{m: cls.bounds['standoff_m'] for m in own}}
+
+    def fitted(free: tuple[str, ...]) -> tuple[Effect | None, float]:
+        x = np.column_stack([uniform[k] if k in uniform else own[k] for k in free])
+        a = linear_bias_coefficients(data, model, x, [bounds[k] for k in free])
+        values = {k: round(float(v), 9) for k, v in zip(free, a)}
+        params = {**zero, **{k: v for k, v in values.items() if k in uniform},
+                  'material_standoff_m': {k: v for k, v in values.items() if k in own}}
+        eff = make_effect_safe(cls, params)
+        cost = (math.inf if eff is None
+                else objective(data, [*base_effects, eff]) + penalty * len(free))
+        return eff, cost
+
+    best, best_cost, best_free = cls(zero), objective(data, [*base_effects, cls(zero)]), ()
+    pool = [*uniform, *own]
+    while True:
+        tries = [(*fitted((*best_free, k)), (*best_free, k)) for k in pool if k not in best_free]
+        if not tries:
+            break
+        eff, cost, free = min(tries, key=lambda t: t[1])
+        if not cost < best_cost:
+            break
+        best, best_cost, best_free = eff, cost, free
+    p = best.params
+    params = {'scale': float(p.scale), 'standoff_m': float(p.standoff_m),
+              **{f'standoff_{m}_m': float(v) for m, v in p.material_standoff_m.items()}}
+    return make_result_vector(best, data, base_effects, params)
+
+
 def _register_catalogue_fits() -> None:
     from lidar_sim_ros.core.effects.laser_bias import LaserBias
     from lidar_sim_ros.core.effects.multipath import Multipath
+    from lidar_sim_ros.core.effects.surface_offset import SurfaceOffset
     register_fit(LaserBias)(_fit_laser_bias)
+    register_fit(SurfaceOffset)(_fit_surface_offset)
     register_fit(Multipath)(_fit_ghost_scale)
 
 

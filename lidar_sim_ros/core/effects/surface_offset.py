@@ -20,18 +20,23 @@ and o the body origin, all in the lidar frame (``d = -r cos(theta) - n . o``). A
 sphere of radius R seen head-on: ``d = R``, bias ``-scale R``. Its constant part per
 material is a per-material range bias; what tells it apart is how it follows
 ``1 / cos(theta)`` and, for the scale, where on the body a surface lies. A sensor's
-footprint effects (``incidence_angle``) grow with range; this does not.
+footprint effects (``incidence_angle``) grow with range; this does not. Both free
+parameters are fitted (jointly, in closed form: compare/model/fit.py); after the
+material intercepts a standoff leaves ``standoff (1 / cos(theta) - 1)``, growing as
+theta^2 / 2 from normal incidence where a footprint's ``r div tan(theta)`` grows as
+theta.
 """
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from lidar_sim_ros.core.effects import register
 from lidar_sim_ros.core.effects.base import Effect, ReturnContext
 
 MAX_SCALE = 0.1          # a target 10 % off its mesh is another target
 MAX_STANDOFF_M = 1.0
+MAX_MATERIALS = 256      # entries of material_standoff_m
 
 
 def plane_offset_m(ctx: ReturnContext) -> np.ndarray:
@@ -53,14 +58,27 @@ def plane_offset_m(ctx: ReturnContext) -> np.ndarray:
     return out
 
 
+def material_standoff(ctx: ReturnContext, by_name: dict[str, float]) -> np.ndarray:
+    """Per shot, the standoff (m) ``by_name`` gives the material it hit (0 for a miss,
+    a material not named, or without the target's material names)."""
+    out = np.zeros(len(ctx.range_m))
+    names = getattr(getattr(ctx.scene, 'target', None), 'material_names', None)
+    if not by_name or not names:
+        return out
+    table = np.array([by_name.get(n, 0.0) for n in names] + [0.0])   # id -1: a miss
+    mat = np.asarray(ctx.material, np.int64)
+    inside = (mat >= 0) & (mat < len(names))
+    return np.where(inside, table[np.where(inside, mat, -1)], 0.0)
+
+
 @register
 class SurfaceOffset(Effect):
     """Range bias -(standoff_m + scale d) / cos(theta): the target's surfaces off its mesh."""
 
     name = 'surface_offset'
-    bounds = {'scale': (-0.02, 0.02)}
-    initial = {'scale': 0.0}
-    linear_bias = ('scale',)    # closed form
+    bounds = {'scale': (-0.02, 0.02), 'standoff_m': (-0.2, 0.2)}
+    initial = {'scale': 0.0, 'standoff_m': 0.0}
+    linear_bias = ('scale', 'standoff_m')   # closed form, jointly (compare/model/fit.py)
 
     class Params(BaseModel):
         model_config = ConfigDict(extra='forbid')
@@ -68,16 +86,31 @@ class SurfaceOffset(Effect):
                              description='real size / mesh size - 1 about the body origin (-)')
         standoff_m: float = Field(0.0, ge=-MAX_STANDOFF_M, le=MAX_STANDOFF_M,
                                   description='every surface this far proud of the mesh (m)')
+        material_standoff_m: dict[str, float] = Field(
+            default_factory=dict, max_length=MAX_MATERIALS,
+            description='material name -> its surfaces this much further proud (m): '
+                        'blankets over some materials only; a name the target lacks moves '
+                        'nothing')
         max_incidence_deg: float = Field(85.0, gt=0.0, lt=90.0,
                                          description='1 / cos(theta) is clipped here (grazing)')
 
+        @field_validator('material_standoff_m')
+        @classmethod
+        def _finite_and_bounded(cls, v: dict[str, float]) -> dict[str, float]:
+            bad = {k: x for k, x in v.items() if not np.isfinite(x) or abs(x) > MAX_STANDOFF_M}
+            if bad:
+                raise ValueError(f'material standoffs must be finite and within '
+                                 f'+-{MAX_STANDOFF_M} m, got {dict(list(bad.items())[:3])}')
+            return v
+
     def range_bias_m(self, ctx: ReturnContext) -> np.ndarray:
         p = self.params
-        if p.scale == 0.0 and p.standoff_m == 0.0:
+        extra = material_standoff(ctx, p.material_standoff_m)
+        if p.scale == 0.0 and p.standoff_m == 0.0 and not np.any(extra):
             return np.zeros(len(ctx.range_m))
         theta = np.fmax(np.asarray(ctx.incidence_rad, float), 0.0)
         cos_t = np.cos(np.minimum(theta, np.radians(p.max_incidence_deg)))
-        delta = p.standoff_m + (p.scale * plane_offset_m(ctx) if p.scale else 0.0)
+        delta = p.standoff_m + extra + (p.scale * plane_offset_m(ctx) if p.scale else 0.0)
         hit = np.asarray(ctx.hit, bool) & np.isfinite(np.asarray(ctx.range_m, float))
         with np.errstate(invalid='ignore', divide='ignore'):
             return np.where(hit, -delta / cos_t, 0.0)
