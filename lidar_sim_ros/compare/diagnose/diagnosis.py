@@ -1179,7 +1179,10 @@ class Diagnosis:
                                 withheld=dict(decision.withheld))
             return Decision(None, [], pose=pose, withheld=dict(decision.withheld))
         if not any(passes.values()):
-            return Decision(None, [], pose=pose)
+            # What did not hold across the halves says why (summary ``withheld``).
+            split_off = {a.name: a.vetoed for a in again
+                         if a.name in halves and not halves[a.name]['holds_across_halves']}
+            return Decision(None, [], pose=pose, withheld=split_off)
         # The pose is off beside what was named (its test passes on top of it): the
         # candidates are decided again on the pose-corrected model, which is named, a
         # tie, and what also explains another part. On the recorded pose a drifting
