@@ -578,9 +578,13 @@ class Diagnosis:
         """This diagnosis with its two held-out halves the clouds of each half of the
         recording in time (the earlier clouds against the later ones) instead of points
         drawn at random from every cloud: a candidate is fitted on one half's clouds and
-        scored on the other's, both ways. None with fewer than two clouds a half
-        (``Diagnosis.judge_pose`` asks it beside a per-cloud pose correction)."""
-        cloud = np.asarray(self.rays.meas.cloud)
+        scored on the other's, both ways. None with fewer than two clouds a half, or
+        without the recording's clouds (``Diagnosis.judge_pose`` asks it beside a
+        per-cloud pose correction)."""
+        meas = getattr(self.rays, 'meas', None)
+        if meas is None:
+            return None
+        cloud = np.asarray(meas.cloud)
         order = np.unique(cloud[self.rays.matched])
         if len(order) < 4:
             return None
