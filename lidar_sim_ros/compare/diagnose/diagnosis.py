@@ -506,9 +506,23 @@ class Diagnosis:
     def __init__(self, model: Model, base_effects: list[Effect], rays: RaySet, seed: int = 0):
         self.model, self.base, self.rays = model, list(base_effects), rays
         self.full = make_fit_data(model, self.base, rays)
+        self.folds = rays.split(N_FOLDS, seed)
+        self.fold_data = [make_fit_data(model, self.base, f, (self.full, rays))
+                          for f in self.folds]
         self.n_total = len(rays.matched) + len(rays.unmatched)
-        self._set_folds(rays.split(N_FOLDS, seed))
+        self._base_nll = [heldout_nll(d, []) for d in self.fold_data]
+        # Unmatched points the model's own effects explain, per fold (every candidate's
+        # unmatched credit is counted beyond these).
+        self._base_unmatched = [lk.unmatched_explained(d, []) if len(d.unmatched_range_m)
+                                else 0.0 for d in self.fold_data]
+        # Per matched point of the folds' test sides (in fold order): neighbourhoods.
         blocks = rays.blocks if rays.blocks is not None else np.arange(len(rays.meas))
+        self.blocks = np.concatenate([blocks[self.folds[(k + 1) % N_FOLDS].matched]
+                                      for k in range(N_FOLDS)])
+        # Per matched point of the folds' test sides (``cross_fit`` order): its place in
+        # ``rays.matched``; and the neighbourhoods in that order.
+        self.fold_order = np.searchsorted(rays.matched, np.concatenate(
+            [self.folds[(k + 1) % N_FOLDS].matched for k in range(N_FOLDS)]))
         self.matched_blocks = blocks[rays.matched]
         far, residual, expected, threshold = far_from_surface(self.full, details=True)
         if rays.isolated is not None:
@@ -524,77 +538,6 @@ class Diagnosis:
         self.off_u = off_target_positions(self.off_ranges_m, self.full.range_window_m)
         self._base_outlier_w = float(np.mean(lk.model_on_rays(
             self.full, []).outlier_w)) if len(self.rays.matched) else 0.0
-
-    def _set_folds(self, folds: list[RaySet]) -> None:
-        """The held-out halves every candidate is fitted on and scored on (``cross_fit``)."""
-        rays = self.rays
-        self.folds = folds
-        self.fold_data = [make_fit_data(self.model, self.base, f, (self.full, rays))
-                          for f in self.folds]
-        self._base_nll = [heldout_nll(d, []) for d in self.fold_data]
-        # Unmatched points the model's own effects explain, per fold (every candidate's
-        # unmatched credit is counted beyond these).
-        self._base_unmatched = [lk.unmatched_explained(d, []) if len(d.unmatched_range_m)
-                                else 0.0 for d in self.fold_data]
-        # Per matched point of the folds' test sides (in fold order): neighbourhoods.
-        blocks = rays.blocks if rays.blocks is not None else np.arange(len(rays.meas))
-        self.blocks = np.concatenate([blocks[self.folds[(k + 1) % N_FOLDS].matched]
-                                      for k in range(N_FOLDS)])
-        # Per matched point of the folds' test sides (``cross_fit`` order): its place in
-        # ``rays.matched``.
-        self.fold_order = np.searchsorted(rays.matched, np.concatenate(
-            [self.folds[(k + 1) % N_FOLDS].matched for k in range(N_FOLDS)]))
-
-    def each_half(self, cand: Candidate) -> list[dict]:
-        """``cand``'s held-out gain on each test half separately (``cross_fit`` order:
-        fitted on fold 0, scored on fold 1; then the other way): nats per matched point
-        of that half and its block z."""
-        if cand.heldout_nll is None:
-            return []
-        return self._per_half(self.base_heldout() - cand.heldout_nll)
-
-    def each_half_on_top(self, named: Effect, other: type[Effect]) -> list[dict]:
-        """As ``each_half``, for ``other`` fitted on top of ``named`` (as fitted) against
-        ``named`` alone: what ``adds_to`` weighs, half by half."""
-        nll, _ = self.cross_fit(other, [named])
-        base = np.concatenate([heldout_nll(self.fold_data[(k + 1) % N_FOLDS], [named])
-                               for k in range(N_FOLDS)])
-        return self._per_half(base - nll)
-
-    def _per_half(self, d: np.ndarray) -> list[dict]:
-        """Per-point held-out gains ``d`` (``cross_fit`` order) as each test half's mean
-        (nats per matched point) and block z."""
-        out, start = [], 0
-        for k in range(N_FOLDS):
-            n = len(self.folds[(k + 1) % N_FOLDS].matched)
-            part, blk = d[start:start + n], self.blocks[start:start + n]
-            start += n
-            ok = np.isfinite(part)
-            mean, se = block_mean_se(part[ok], blk[ok]) if ok.sum() > 1 else (0.0, 0.0)
-            out.append({'gain': _num(mean), 'z': _num(mean / se if se > 0 else 0.0)})
-        return out
-
-    def by_cloud_halves(self) -> 'Diagnosis | None':
-        """This diagnosis with its two held-out halves the clouds of each half of the
-        recording in time (the earlier clouds against the later ones) instead of points
-        drawn at random from every cloud: a candidate is fitted on one half's clouds and
-        scored on the other's, both ways. None with fewer than two clouds a half, or
-        without the recording's clouds (``Diagnosis.judge_pose`` asks it beside a
-        per-cloud pose correction)."""
-        meas = getattr(self.rays, 'meas', None)
-        if meas is None:
-            return None
-        cloud = np.asarray(meas.cloud)
-        order = np.unique(cloud[self.rays.matched])
-        if len(order) < 4:
-            return None
-        later = order[len(order) // 2:]
-        out = copy.copy(self)
-        m, u = self.rays.matched, self.rays.unmatched
-        first_m, first_u = ~np.isin(cloud[m], later), ~np.isin(cloud[u], later)
-        out._set_folds([self.rays._with(m[first_m], u[first_u]),
-                        self.rays._with(m[~first_m], u[~first_u])])
-        return out
 
     def score(self, effect_cls: type[Effect]) -> Candidate:
         """Cross-fitted on halves (the score): fitted on one half, scored on the other,
@@ -1137,16 +1080,13 @@ class Diagnosis:
             on_pose = self.pose_corrected(pose.correction_m)
         again = [on_pose.score(type(c.effect)) for c in contenders]
         passes = {a.name: on_pose.nameable(a) for a in again}
-        halves = {} if getattr(pose, 'constant', False) else on_pose.across_halves(again,
-                                                                                passes)
         for c, a in zip(contenders, again):
             c.against_pose = {**(c.against_pose or {}),
                               'pose_constant': bool(getattr(pose, 'constant', False)),
                               'score_on_pose': _num(a.score), 'z_on_pose': _num(a.z),
                               'passes_on_pose': bool(passes[a.name]),
                               'pose_corrected_nll': _num(on_pose.before_nll),
-                              **({'params_on_pose': a.params} if a.params else {}),
-                              **halves.get(a.name, {})}
+                              **({'params_on_pose': a.params} if a.params else {})}
         if explain:
             if any(passes.get(c.name) for c in explain):
                 return decision            # it explains what the pose cannot: it stands
@@ -1183,85 +1123,13 @@ class Diagnosis:
                                 withheld=dict(decision.withheld))
             return Decision(None, [], pose=pose, withheld=dict(decision.withheld))
         if not any(passes.values()):
-            # What did not hold across the halves says why (summary ``withheld``).
-            split_off = {a.name: a.vetoed for a in again
-                         if a.name in halves and not halves[a.name]['holds_across_halves']}
-            return Decision(None, [], pose=pose, withheld=split_off)
+            return Decision(None, [], pose=pose)
         # The pose is off beside what was named (its test passes on top of it): the
         # candidates are decided again on the pose-corrected model, which is named, a
         # tie, and what also explains another part. On the recorded pose a drifting
         # pose's residual at silhouettes reads as incidence: beside a range walk it
         # was named, or said to explain a part of its own ("also").
-        decided = on_pose.decide(again)
-        if decided.also and not getattr(pose, 'constant', False):
-            decided = on_pose.also_across_halves(decided, again)
-        return replace(decided, pose=pose, withheld={**decision.withheld, **decided.withheld})
-
-    def across_halves(self, again: list[Candidate], passes: dict[str, bool]) -> dict:
-        """Beside a per-cloud correction of the reference pose (this diagnosis: on the
-        corrected pose): whether each candidate that passes the rule here (``passes``,
-        by name; set False where it does not hold) holds across the halves of the
-        recording, fitted on the earlier clouds and scored on the later ones and the
-        other way round (``by_cloud_halves``), by the same rule. A sensor effect is the
-        same in every cloud. What the correction leaves is not: six parameters fitted
-        to a cloud's points fix its pose only as well as the cloud's geometry allows,
-        and what is left of the pose error changes a ray's range as a / (n.u), most at
-        grazing incidence, in the clouds whose aspect fixes the pose least (a tumbling
-        target's clouds where the body shows its grazing limb); held out on points of
-        the same clouds it reads as an incidence effect or a noise growing with the
-        footprint (``docs/compare.md``, the jitter on 120-300 clouds). Returns per name
-        the figures for ``against_pose``; a candidate that does not hold is vetoed on
-        this diagnosis with the reason (``Candidate.vetoed``). Holding means passing the
-        rule on the whole of both halves and, on each half by itself, the rule's z."""
-        if not any(passes.values()):
-            return {}
-        split = self.by_cloud_halves()
-        if split is None:
-            return {}
-        out = {}
-        for a in again:
-            if not passes.get(a.name):
-                continue
-            h = split.score(type(a.effect))
-            each = split.each_half(h)
-            # Shown on each half by itself: fitted on the other half's clouds, it passes
-            # the rule's z on this one (each half holds about half the points).
-            holds = bool(h.error is None and h.significant and h.practical and each
-                         and all(e['z'] is not None and e['z'] >= self.z_crit for e in each))
-            out[a.name] = {'score_across_halves': _num(h.score), 'z_across_halves': _num(h.z),
-                           'each_half': each, 'holds_across_halves': holds}
-            if not holds:
-                passes[a.name] = False
-                a.vetoed = (f'with the pose corrected per cloud it gains {a.score:.4f} '
-                            f'nats/point held out (z = {a.z:.1f}), but fitted on one half of '
-                            'the clouds in time and scored on the other it does not pass on '
-                            'both (z = ' + ' and '.join(
-                                f"{e['z']:.1f}" for e in each) + '): not the same in every '
-                            'cloud, as a sensor effect is, but what the per-cloud correction '
-                            'leaves where a cloud fixes its pose least')
-        return out
-
-    def also_across_halves(self, decision: Decision, cands: list[Candidate]) -> Decision:
-        """Beside a per-cloud pose correction (this diagnosis: on the corrected pose),
-        what ``decision`` says also explains a part of its own must hold across the
-        halves of the recording as the named effect must (``across_halves``): fitted on
-        top of the named effect on one half's clouds, it passes the rule's z on the
-        other's, both ways. A per-cloud correction's leftover at grazing rays adds to a
-        range walk as it would to nothing."""
-        by_name = {c.name: c for c in cands}
-        named, also = by_name.get(decision.missing), by_name.get(decision.also)
-        split = self.by_cloud_halves()
-        if named is None or also is None or split is None or also.variant is None:
-            return decision
-        each = split.each_half_on_top(named.effect, also.variant)
-        also.against_pose = {**(also.against_pose or {}), 'each_half_on_top': each}
-        if all(e['z'] is not None and e['z'] >= self.z_crit for e in each):
-            return decision
-        why = (f'on top of {named.name} with the pose corrected per cloud, fitted on one half '
-               'of the clouds in time and scored on the other it does not pass on both (z = '
-               + ' and '.join(f"{e['z']:.1f}" for e in each) + '): what the per-cloud '
-               'correction leaves, not a part of its own')
-        return replace(decision, also=None, withheld={**decision.withheld, also.name: why})
+        return replace(on_pose.decide(again), pose=pose, withheld=dict(decision.withheld))
 
     def weigh_line_of_sight(self, pose, named: list[Candidate], decision: Decision,
                             recast=None, same_points=None) -> Decision:
