@@ -600,3 +600,35 @@ def test_one_correction_for_the_recording_is_re_cast_until_its_steps_are_small()
     full, passes = run(pose_error.CONSTANT_RECAST_PASSES)
     assert 3 < passes <= pose_error.CONSTANT_RECAST_PASSES
     assert full == pytest.approx(truth, abs=1e-3)
+
+
+def test_beside_a_per_cloud_pose_the_candidates_are_scored_on_the_rays_it_is_fitted_on():
+    """What a per-cloud correction leaves (here 1 mm across the line of sight) moves a
+    ray's range as n.d / (n.u) (``pose_error.design``): d tan(incidence) cos(azimuth of
+    the normal), closed form; at most 1 mm x tan(acos MIN_COS) = 4.9 mm on the rays the
+    correction is fitted on, up to 11 cm at 89.5 deg on the grazing rays it leaves out,
+    where on the eighth holdout's 120 clouds of jitter the residual was 1.7 sigmas RMS
+    and incidence_angle's whole gain on the corrected pose. ``run.fitted_rays_only``
+    keeps exactly the rays the fit uses."""
+    from types import SimpleNamespace
+    from lidar_sim_ros.compare import run
+    rng = np.random.default_rng(3)
+    n = 4000
+    inc = np.radians(rng.uniform(0.0, 89.5, n))
+    phi = rng.uniform(0, 2 * np.pi, n)
+    u = np.tile([1.0, 0.0, 0.0], (n, 1))
+    normal = -np.column_stack([np.cos(inc), np.sin(inc) * np.cos(phi),
+                               np.sin(inc) * np.sin(phi)])
+    a, use = pose_error.design(u, normal, np.full(n, 10.0), np.zeros(n, int))
+    leftover = a[:, :3] @ np.array([0.0, 0.001, 0.0])
+    assert np.allclose(leftover[use], (0.001 * np.tan(inc) * np.cos(phi))[use])
+    assert np.array_equal(use, np.cos(inc) >= pose_error.MIN_COS)
+    tan_max = np.sqrt(1 - pose_error.MIN_COS ** 2) / pose_error.MIN_COS
+    assert np.max(np.abs(leftover[use])) <= 0.001 * tan_max
+    grazing = np.abs(0.001 * np.tan(inc) * np.cos(phi))[~use]
+    assert np.max(grazing) > 0.05 > 0.001 * tan_max
+    rec = _Recording(u, np.full(n, 10.0), np.zeros(n, int))
+    sample = diagnosis.RaySet(rec, np.arange(n), np.zeros(0, int))
+    kept = run.fitted_rays_only(sample, SimpleNamespace(hits=SimpleNamespace(
+        incidence_rad=inc)))
+    assert np.array_equal(np.isin(np.arange(n), kept.matched), use)

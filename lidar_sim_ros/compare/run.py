@@ -988,6 +988,8 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
         pose, start, rematch, refit,
         pose_error.CONSTANT_RECAST_PASSES if constant else pose_error.RECAST_PASSES)
     fresh = recast_sample(moved_rays, moved, seed)
+    if not constant:
+        fresh = fitted_rays_only(fresh, m.pred)
     picked = np.sort(np.concatenate([fresh.matched, fresh.unmatched]))
     edge = np.full(len(moved), np.nan)
     edge[picked] = edge_distance_rad(sim.target, moved.subset(picked),
@@ -996,6 +998,20 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
     diag = diagnosis.Diagnosis(model, effects, replace(fresh, edge_rad=edge), seed)
     diag.set_family(n_candidates)
     return diag, report, moved_rays
+
+
+def fitted_rays_only(sample: diagnosis.RaySet, pred: Prediction) -> diagnosis.RaySet:
+    """``sample`` without the matched rays a per-cloud pose correction is not fitted on:
+    grazing rays (|cos incidence| below ``pose_error.MIN_COS``, ``pred`` per ray). Their
+    range moves with the pose as 1 / cos(incidence), so what the correction leaves
+    (a millimetre is a centimetre at cos 0.1) sits there, in the clouds whose other
+    rays fix the pose least, and reads as an incidence effect or a noise growing with
+    the footprint (docs/compare.md, "What a per-cloud correction leaves at grazing
+    rays"). The candidates are scored on the rays the correction was fitted on."""
+    inc = np.asarray(pred.hits.incidence_rad, float)[sample.matched]
+    with np.errstate(invalid='ignore'):
+        keep = np.abs(np.cos(inc)) >= pose_error.MIN_COS
+    return replace(sample, matched=sample.matched[keep])
 
 
 def recast_sample(rays: diagnosis.RaySet, meas: Measurements, seed: int) -> diagnosis.RaySet:
