@@ -63,10 +63,11 @@ def _nll(residual, laser, train, test):
     return 0.5 * (r / SIGMA) ** 2 + np.log(SIGMA * np.sqrt(2 * np.pi))
 
 
-class Tiles(Hand):
-    """A diagnosis of one recording's per-laser residuals, fitted in closed form."""
+class Splits(Hand):
+    """A diagnosis of ``residual`` (every point matched) whose split tests (``Diagnosis.
+    worst_transfer``) the subclass scores in closed form (``transfer_nll``)."""
 
-    def __init__(self, meas, residual, seed=0):
+    def __init__(self, residual, seed=0, meas=None):
         super().__init__()
         n = len(residual)
         self.rays = SimpleNamespace(matched=np.arange(n), unmatched=np.arange(0), meas=meas,
@@ -78,6 +79,13 @@ class Tiles(Hand):
         self.fold_order = np.concatenate([np.flatnonzero(order == 1), np.flatnonzero(order == 0)])
         self.matched_blocks = np.arange(n) // 20
         self._z_crit = 3.0
+
+
+class Tiles(Splits):
+    """A diagnosis of one recording's per-laser residuals, fitted in closed form."""
+
+    def __init__(self, meas, residual, seed=0):
+        super().__init__(residual, seed, meas)
 
     def transfer_nll(self, variant, halves, on_top=()):
         out = np.full(self.n_total, np.nan)

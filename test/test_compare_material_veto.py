@@ -12,7 +12,7 @@ import pytest
 
 from lidar_sim_ros.compare.diagnose import diagnosis as dg
 
-from test_compare_naming import Hand
+from test_compare_laser_tiles import Splits
 
 SIGMA = 0.02
 NAMES = ['PIF', 'MLI']
@@ -54,24 +54,15 @@ def _nll(residual, material, r, train, test):
     return 0.5 * (e[test] / SIGMA) ** 2 + np.log(SIGMA * np.sqrt(2 * np.pi))
 
 
-class Materials(Hand):
+class Materials(Splits):
     """A diagnosis of one recording's residuals, fitted in closed form."""
 
     def __init__(self, material, r, residual, seed=0):
-        super().__init__()
-        n = len(residual)
-        self.rays = SimpleNamespace(matched=np.arange(n), unmatched=np.arange(0),
-                                    _with=lambda m, u: SimpleNamespace(matched=m))
+        super().__init__(residual, seed)
         self.full = SimpleNamespace(baseline=SimpleNamespace(ctx=SimpleNamespace(
             material=material, scene=SimpleNamespace(target=SimpleNamespace(
                 material_names=NAMES)))))
-        self.n_total = n
-        self.material, self.r, self.residual = material, r, residual
-        order = np.random.default_rng(seed).permutation(n) % 2
-        self.random_fold = order
-        self.fold_order = np.concatenate([np.flatnonzero(order == 1), np.flatnonzero(order == 0)])
-        self.matched_blocks = np.arange(n) // 20
-        self._z_crit = 3.0
+        self.material, self.r = material, r
 
     def transfer_nll(self, variant, halves, on_top=()):
         out = np.full(self.n_total, np.nan)

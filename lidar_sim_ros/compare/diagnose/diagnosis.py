@@ -774,6 +774,30 @@ class Diagnosis:
                 data[k], [*on_top, effect])
         return out
 
+    def worst_transfer(self, cand: Candidate, splits: dict, at_random: np.ndarray,
+                       on_top: list[Effect] = ()) -> tuple | None:
+        """The split of the matched points (``splits``: key -> bool mask in matched order)
+        on which ``cand`` fitted on one side and scored on the other (both ways) loses
+        most against ``at_random`` (its held-out NLL on a random half, matched order), as
+        (key, nats per analysed point, z); None when no split's loss passes the rule (z
+        above the bound and at least MIN_PRACTICAL_GAIN). The tile and material vetoes."""
+        idx, none = self.rays.matched, self.rays.unmatched[:0]
+        worst = None
+        for key, on in splits.items():
+            if on.all() or not on.any():
+                continue
+            halves = [self.rays._with(idx[on], none), self.rays._with(idx[~on], none)]
+            loss = self.transfer_nll(cand.variant, halves, on_top) - at_random
+            ok = np.isfinite(loss)
+            if ok.sum() < 2:
+                continue
+            _, z = block_mean_z(loss[ok], self.matched_blocks[ok])
+            per_point = float(np.sum(loss[ok]) / max(self.n_total, 1))
+            if (per_point >= MIN_PRACTICAL_GAIN and z >= self.z_crit
+                    and (worst is None or per_point > worst[1])):
+                worst = (key, per_point, z)
+        return worst
+
     def tile_veto(self, cand: Candidate, on_top: list[Effect] = ()) -> str | None:
         """A candidate with a parameter per laser (``laser_tiles.per_laser``): its offsets
         must be the lasers', the same wherever a laser's tile falls on the target. Fitted
@@ -792,22 +816,8 @@ class Diagnosis:
             return None
         at_random = self.in_matched_order(
             self.cross_fit(cand.variant, list(on_top))[0] if on_top else cand.heldout_nll)
-        none = self.rays.unmatched[:0]
-        worst = None
-        for split, upper in laser_tiles.tile_halves(meas.laser[idx], meas.directions[idx],
-                                                    meas.t_s[idx]).items():
-            if upper.all() or not upper.any():
-                continue
-            halves = [self.rays._with(idx[upper], none), self.rays._with(idx[~upper], none)]
-            loss = self.transfer_nll(cand.variant, halves, on_top) - at_random
-            ok = np.isfinite(loss)
-            if ok.sum() < 2:
-                continue
-            _, z = block_mean_z(loss[ok], self.matched_blocks[ok])
-            per_point = float(np.sum(loss[ok]) / max(self.n_total, 1))
-            if (per_point >= MIN_PRACTICAL_GAIN and z >= self.z_crit
-                    and (worst is None or per_point > worst[1])):
-                worst = (split, per_point, z)
+        worst = self.worst_transfer(cand, laser_tiles.tile_halves(
+            meas.laser[idx], meas.directions[idx], meas.t_s[idx]), at_random, on_top)
         if worst is None:
             return None
         split, loss, z = worst
@@ -841,22 +851,9 @@ class Diagnosis:
         if len(group) != len(idx):
             return None
         at_random = self.in_matched_order(cand.heldout_nll)
-        none = self.rays.unmatched[:0]
-        worst = None
-        for m in np.unique(group[group >= 0]):
-            on = group == m
-            if min(on.sum(), (~on).sum()) < lk.MIN_MATERIAL_POINTS:
-                continue
-            halves = [self.rays._with(idx[on], none), self.rays._with(idx[~on], none)]
-            loss = self.transfer_nll(cand.variant, halves) - at_random
-            ok = np.isfinite(loss)
-            if ok.sum() < 2:
-                continue
-            _, z = block_mean_z(loss[ok], self.matched_blocks[ok])
-            per_point = float(np.sum(loss[ok]) / max(self.n_total, 1))
-            if (per_point >= MIN_PRACTICAL_GAIN and z >= self.z_crit
-                    and (worst is None or per_point > worst[1])):
-                worst = (int(m), per_point, z)
+        splits = {int(m): group == m for m in np.unique(group[group >= 0])
+                  if min((group == m).sum(), (group != m).sum()) >= lk.MIN_MATERIAL_POINTS}
+        worst = self.worst_transfer(cand, splits, at_random)
         if worst is None:
             return None
         m, loss, z = worst

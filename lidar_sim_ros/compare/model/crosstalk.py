@@ -47,6 +47,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import norm
 
+from lidar_sim_ros.compare.model.left_out import LeftOut
+
 MAX_OFFSET_M = 3.0         # delays looked at behind the partner (m)
 HALF_WIDTH_SIGMAS = 3.0    # the peak's half width: this many sigmas of a pair's range
                            # difference (two returns' noise)
@@ -59,13 +61,10 @@ PERIOD_QUANTILE = 5.0      # the shot period: this percentile of the steps betwe
 
 
 @dataclass(frozen=True)
-class Crosstalk:
-    """What was found and left out as crosstalk ghosts: counts over the analysed points."""
+class Crosstalk(LeftOut):
+    """What was found and left out as crosstalk ghosts (``points``): counts over the
+    analysed points."""
 
-    points: int                         # ghosts left out
-    analysed: int                       # points analysed before they were left out
-    clouds: int                         # clouds with at least one
-    clouds_total: int
     offset_m: float | None = None       # the ghosts' range behind their partner (median)
     half_width_m: float | None = None   # the peak's half width
     z: float | None = None              # the peak over its sidebands
@@ -76,14 +75,8 @@ class Crosstalk:
     looked: bool = True                 # False: no laser ids or point times
     why_not: str | None = None
 
-    @property
-    def fraction(self) -> float:
-        return self.points / max(self.analysed, 1)
-
     def as_dict(self) -> dict:
-        return {'points': self.points, 'fraction': round(self.fraction, 5),
-                'clouds': self.clouds, 'clouds_total': self.clouds_total,
-                'offset_m': self.offset_m, 'half_width_m': self.half_width_m,
+        return {**self.counts(), 'offset_m': self.offset_m, 'half_width_m': self.half_width_m,
                 'z': self.z, 'z_crit': self.z_crit, 'candidates': self.candidates,
                 'spread_m': self.spread_m,
                 'partner_intensity_ratio': self.partner_power_ratio,

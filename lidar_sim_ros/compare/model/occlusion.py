@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar_sim_ros.compare.model import neighbours
+from lidar_sim_ros.compare.model.left_out import LeftOut
 
 MIN_AGREEING = 1       # neighbouring rays at the same range that make a surface (the rule of
                        # ``neighbours.isolated``: two false returns side by side are rare)
@@ -66,24 +67,15 @@ def occluded(range_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarra
 
 
 @dataclass(frozen=True)
-class Occlusion:
-    """What was left out as occlusion: counts over the analysed points."""
+class Occlusion(LeftOut):
+    """What was left out as occlusion (``points``: occluded returns): counts over the
+    analysed points."""
 
-    points: int                  # occluded returns left out
-    analysed: int                # points analysed before they were left out
-    clouds: int                  # clouds with at least one
-    clouds_total: int
     range_median_m: float | None     # the occluder's measured range
     shortfall_median_m: float | None   # how far in front of the modelled surface
 
-    @property
-    def fraction(self) -> float:
-        return self.points / max(self.analysed, 1)
-
     def as_dict(self) -> dict:
-        return {'points': self.points, 'fraction': round(self.fraction, 5),
-                'clouds': self.clouds, 'clouds_total': self.clouds_total,
-                'range_median_m': self.range_median_m,
+        return {**self.counts(), 'range_median_m': self.range_median_m,
                 'in_front_of_target_median_m': self.shortfall_median_m,
                 'interpretation': words(self)}
 
