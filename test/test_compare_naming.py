@@ -69,6 +69,38 @@ def test_naming_fault_closed_form():
     assert fault(cand('a', 0.03, -2.05, vetoed='no signature')) == 'no signature'
 
 
+def test_a_false_return_effect_is_footed_on_its_missed_shots_too():
+    """Issue 30, holdout 9 F7 (bg_small_100: "-2.0195 not below -2.0195"): a background's
+    false returns sit mostly on the shots that missed the target, so the fitted footing of
+    a false-return candidate is its NLL on the likelihood it is fitted and held out on,
+    the matched points plus the missed shots' binomial count (``missed_gain_after``). A
+    matched NLL a hair above the baseline with a gain on the misses is named; the same with
+    no gain (or a loss) on the misses, both footings no better than the baseline, is not."""
+    real = cand('solar_background', 0.03, BEFORE_NLL + 1e-5, seed=11)
+    real.missed_gain_after = 0.004       # 16 nats over the N matched points' misses
+    assert fault(real) is None
+    assert Hand().decide([real]).missing == 'solar_background'
+    for missed in (0.0, -0.001):
+        phantom = replace(real, missed_gain_after=missed)
+        assert 'not below' in fault(phantom)
+        assert Hand().decide([phantom]).missing is None
+    # The misses' gain must outweigh a loss on the matched points, not merely exist.
+    worse = replace(real, nll_after=BEFORE_NLL + 0.005)
+    assert 'gained on the missed shots' in fault(worse)
+    assert Hand().decide([worse]).missing is None
+    # The verdict quotes that footing, and the matched points' NLL beside it.
+    real.effect = make_effect('solar_background', {'probability': 0.002})
+    real.range_robust_sigma_after_m = 0.032
+    text, _ = vd._gain_words({'nll_calibrated': BEFORE_NLL, 'range_rmse_calibrated_m': 0.033,
+                              'range_robust_sigma_calibrated_m': 0.032}, real)
+    assert text.startswith('lowers the NLL from -2.022 to -2.026 per point, counting the '
+                           'false returns among the shots that missed the target '
+                           '(-2.022 on the matched points alone)')
+    # The footing is said on the candidate (summary.json) only where it counts.
+    assert real.as_dict()['missed_shots_gain_after'] == 0.004
+    assert 'missed_shots_gain_after' not in replace(real, missed_gain_after=0.0).as_dict()
+
+
 def test_missing_path_never_names_a_worse_nll_or_a_rule_failure():
     """decide(): the best score whose fitted NLL is worse than before (beam_divergence on
     25 silhouette points, -2.022 -> -2.021) and a better-scoring one that fails the rule

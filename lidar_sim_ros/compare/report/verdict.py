@@ -596,8 +596,14 @@ def _gain_words(summary: dict, c) -> tuple[str, str]:
     An outlier effect is judged by the NLL and the robust (MAD) spread: a plain RMSE is
     dominated by the far outliers, which stay in the data whether or not the model
     expects them."""
-    nll = _change('the NLL', summary['nll_calibrated'], c.nll_after, '', '.3f',
+    missed = getattr(c, 'missed_gain_after', 0.0) or 0.0
+    nll = _change('the NLL', summary['nll_calibrated'], c.nll_after - missed, '', '.3f',
                   'lowers') + ' per point'
+    if missed:
+        # A false-return effect's footing (``diagnosis.naming_fault``): its evidence
+        # sits mostly on the shots that missed the target.
+        nll += (', counting the false returns among the shots that missed the target '
+                f'({c.nll_after:.3f} on the matched points alone)')
     if c.effect is None or not diagnosis.is_outlier_effect(type(c.effect)):
         rmse = _change('the range RMSE', summary['range_rmse_calibrated_m'],
                        c.range_rmse_after_m, ' m', '.4f', 'cuts')
