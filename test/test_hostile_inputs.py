@@ -299,10 +299,15 @@ def test_sigint_during_a_run_exits_130_without_a_traceback(tmp_path):
         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
+        # Interrupted once a frame is in the bag (its file has grown past the header: a
+        # loaded machine may take seconds for the first frame after the bag appears).
+        bag = tmp_path / 'o' / 'bag'
+
+        def written() -> int:
+            return sum(f.stat().st_size for f in bag.glob('*')) if bag.exists() else 0
         deadline = time.monotonic() + 120
-        while not (tmp_path / 'o' / 'bag').exists() and time.monotonic() < deadline:
+        while written() < 50_000 and time.monotonic() < deadline:
             time.sleep(0.1)
-        time.sleep(0.5)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
     finally:
