@@ -1381,7 +1381,20 @@ class Diagnosis:
             for c in [best, *beside]:
                 if not np.isfinite(c.nll_after):
                     self.finalize(c)
-            on_all = test(self._fitted_together([best.effect, *[c.effect for c in beside]]))
+            together = self._fitted_together([best.effect, *[c.effect for c in beside]])
+            # Lasers the tile test set aside, asked again with all of these in the model
+            # (as ``lasers_beside`` asks beside the named one alone): the pattern the
+            # tiles cut up may be theirs together (a walk beside false returns).
+            lasers = [c for c in cands if c.tile_vetoed and c.significant and c.error is None
+                      and c.effect is not None and all(c is not b for b in beside)
+                      and self.tile_veto(c, together) is None]
+            if lasers:
+                beside += lasers[:1]
+                if not np.isfinite(lasers[0].nll_after):
+                    self.finalize(lasers[0])
+                together = self._fitted_together([best.effect,
+                                                  *[c.effect for c in beside]])
+            on_all = test(together)
         except Exception:  # noqa: BLE001 - the pose judged as before
             return []
         best.pose_beside = {'with': [c.name for c in beside],
