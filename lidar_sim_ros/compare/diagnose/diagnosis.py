@@ -1357,7 +1357,9 @@ class Diagnosis:
         """The named candidates, when the pose's test fails on top of everything the
         decision holds beside the named effect, fitted together (``_fitted_together``,
         as --fit fits them): the effect that also explains another part (``also``) and
-        the decisive effects set aside beside it (``set_aside_beside``). A pose that
+        the decisive effects set aside beside it (``set_aside_beside``), and a per-laser
+        candidate the tile test set aside whose offsets hold across the tiles with all of
+        these in the model (``tile_veto`` on top, as ``lasers_beside`` asks). A pose that
         passes on top of each alone may only take what another of them explains: per-laser
         range offsets are a fixed pattern over the target in every cloud (each laser's
         tile), which one rigid correction for the recording partly fits (the ninth
