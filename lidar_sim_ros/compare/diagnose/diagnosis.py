@@ -437,6 +437,9 @@ class Candidate:
     # A rival of the reference pose (POSE_RIVALS): the pose test on top of it and its
     # score on the pose-corrected model (``weigh_pose_rivals``).
     against_pose: dict | None = None
+    # The named one: the pose test on top of it and what the decision holds beside it,
+    # fitted together (``Diagnosis.pose_beside_named``).
+    pose_beside: dict | None = None
     # An outlier effect: the false returns its fitted rate predicts against those
     # recorded, on the diagnosed points (``Diagnosis.false_return_budget``).
     false_returns: dict | None = None
@@ -465,6 +468,7 @@ class Candidate:
                 **({'passes_beside': self.beside} if self.beside else {}),
                 **({'fitted_together': self.together} if self.together else {}),
                 **({'against_pose': self.against_pose} if self.against_pose else {}),
+                **({'pose_beside': self.pose_beside} if self.pose_beside else {}),
                 **({'false_returns': self.false_returns} if self.false_returns else {}),
                 **({'error': self.error} if self.error else {})}
 
@@ -1298,6 +1302,8 @@ class Diagnosis:
         test, pose = max(passed, key=lambda tp: getattr(tp[1], 'gain', 0.0))
         # Named candidates that leave the pose nothing (its test fails on top of them).
         explain = [c for c in named if not test([c.effect]).significant]
+        if not explain:
+            explain = self.pose_beside_named(test, pose, decision, cands)
         if not any(c.admissible and c.effect is not None for c in cands):
             # Reported as --effect pose_error --fit would correct it: fitted on every
             # matched point and raycast again until the step is small (the sample's
@@ -1368,6 +1374,59 @@ class Diagnosis:
         # pose's residual at silhouettes reads as incidence: beside a range walk it
         # was named, or said to explain a part of its own ("also").
         return replace(on_pose.decide(again), pose=pose, withheld=dict(decision.withheld))
+
+    def pose_beside_named(self, test, pose, decision: Decision,
+                          cands: list[Candidate]) -> list[Candidate]:
+        """The named candidates, when the pose's test fails on top of everything the
+        decision holds beside the named effect, fitted together (``_fitted_together``,
+        as --fit fits them): the effect that also explains another part (``also``) and
+        the decisive effects set aside beside it (``set_aside_beside``), and a per-laser
+        candidate the tile test set aside whose offsets hold across the tiles with all of
+        these in the model (``tile_veto`` on top, as ``lasers_beside`` asks). A pose that
+        passes on top of each alone may only take what another of them explains: per-laser
+        range offsets are a fixed pattern over the target in every cloud (each laser's
+        tile), which one rigid correction for the recording partly fits (the ninth
+        holdout's walk+laser: a walk named, the lasers 'also', and the pose 'off' by
+        1-3 cm with exact poses). Returned as ``judge_pose``'s ``explain``: the pose is
+        then weighed against them as against a named effect that leaves it nothing.
+        Records the test on ``pose_beside`` of the named candidate. Empty (the pose
+        judged as before) with nothing beside the named effect, or where the pose still
+        passes on top of them all."""
+        by_name = {c.name: c for c in cands}
+        best = by_name.get(decision.missing)
+        if best is None or best.effect is None:
+            return []
+        beside = [by_name[decision.also]] if decision.also in by_name else []
+        beside += [c for c in self.set_aside_beside(best, cands)
+                   if all(c is not b for b in beside)]
+        beside = [c for c in beside if c.effect is not None and c.error is None]
+        if not beside:
+            return []
+        try:
+            for c in [best, *beside]:
+                if not np.isfinite(c.nll_after):
+                    self.finalize(c)
+            together = self._fitted_together([best.effect, *[c.effect for c in beside]])
+            # Lasers the tile test set aside, asked again with all of these in the model
+            # (as ``lasers_beside`` asks beside the named one alone): the pattern the
+            # tiles cut up may be theirs together (a walk beside false returns).
+            lasers = [c for c in cands if c.tile_vetoed and c.significant and c.error is None
+                      and c.effect is not None and all(c is not b for b in beside)
+                      and self.tile_veto(c, together) is None]
+            if lasers:
+                beside += lasers[:1]
+                if not np.isfinite(lasers[0].nll_after):
+                    self.finalize(lasers[0])
+                together = self._fitted_together([best.effect,
+                                                  *[c.effect for c in beside]])
+            on_all = test(together)
+        except Exception:  # noqa: BLE001 - the pose judged as before
+            return []
+        best.pose_beside = {'with': [c.name for c in beside],
+                            'pose_constant': bool(getattr(pose, 'constant', False)),
+                            'gain': _num(on_all.gain), 'z': _num(on_all.z),
+                            'significant': bool(on_all.significant)}
+        return [] if on_all.significant else [best]
 
     def weigh_line_of_sight(self, pose, named: list[Candidate], decision: Decision,
                             recast=None, same_points=None) -> Decision:
