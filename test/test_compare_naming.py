@@ -1103,3 +1103,9 @@ def test_a_named_effect_that_only_stands_in_for_a_third_beside_the_other_is_not_
                            (walk_inc, 'snr_noise'): _on(base, 0.0003, 2, z=0.5)})
     d = mutual.decide(dg.rank([inc, walk, snr]))
     assert d.missing == 'incidence_angle' and d.also == 'range_walk'
+    # The noise's gain on top of the walk and incidence decisive but too small to name
+    # (0.0049 nats/point, z 4.7: walk+snr_103) still shows incidence standing in for it.
+    small = Beside(adds, {(walk_snr, 'incidence_angle'): _on(base, -0.0002, 1, z=-1.3),
+                          (walk_inc, 'snr_noise'): _on(base, 0.0049, 2, z=4.7)})
+    d = small.decide(dg.rank([inc, walk, snr]))
+    assert d.missing == 'range_walk' and d.also != 'incidence_angle'

@@ -1110,13 +1110,15 @@ class Diagnosis:
         except Exception:  # noqa: BLE001 - not shown to be separate
             return False
 
-    def _passes_on_top(self, on_top: list[Effect], other: Candidate) -> bool:
+    def _passes_on_top(self, on_top: list[Effect], other: Candidate,
+                       practical: bool = True) -> bool:
         """Whether ``other`` cross-fitted on top of the fixed ``on_top`` passes the rule
-        (``_on_top``: held-out gain practical, z decisive, total above MIN_TOTAL_GAIN)."""
+        (``_on_top``: z decisive, total above MIN_TOTAL_GAIN, and with ``practical`` the
+        gain per point at least MIN_PRACTICAL_GAIN: one that matters enough to name)."""
         gain, z, _ = self._on_top(on_top, other)
         self.__dict__.setdefault('on_top_figures', {})[
             (other.name, *sorted(e.name for e in on_top))] = (_num(gain), _num(z))
-        return bool(gain >= MIN_PRACTICAL_GAIN and z >= self.z_crit
+        return bool((gain >= MIN_PRACTICAL_GAIN or not practical) and z >= self.z_crit
                     and gain * self.n_total >= MIN_TOTAL_GAIN)
 
     def stands_in_beside(self, best: Candidate, other: Candidate,
@@ -1126,8 +1128,11 @@ class Diagnosis:
         not vetoed, ``nameable``) is the effect the part ``other`` gains on top of
         ``best`` belongs to when, with each pair fitted together (``_fitted_together``),
         ``other`` no longer passes the rule on top of ``best`` and ``c`` while ``c``
-        still passes it on top of ``best`` and ``other``: ``c`` explains what ``other``
-        explains there and more, not the reverse. An incidence elongation's sigma,
+        still gains decisively on top of ``best`` and ``other`` (z and total evidence
+        as the rule; a gain too small to name is enough, as ``c`` is not named by this):
+        ``c`` explains what ``other`` explains there and more, not the reverse (ninth
+        holdout walk+snr_103: incidence -0.0002 nats/point on top of the walk and the
+        noise, the noise 0.0049, z 4.7, on top of the walk and incidence). An incidence elongation's sigma,
         growing at grazing (weak) returns, stands in for a noise growing at weak returns
         beside a range walk (ninth holdout ``walk+snr``: fitted together with the walk
         its bias gain is -0.012). Where each passes on top of the other (two effects)
@@ -1150,7 +1155,8 @@ class Diagnosis:
                         self.finalize(x)
                 if self._passes_on_top(self._fitted_together([best.effect, c.effect]), other):
                     continue
-                if self._passes_on_top(self._fitted_together([best.effect, other.effect]), c):
+                if self._passes_on_top(self._fitted_together([best.effect, other.effect]), c,
+                                       practical=False):
                     memo[key] = c.name
                     return c.name
             except Exception:  # noqa: BLE001 - not shown to stand in
