@@ -1095,6 +1095,10 @@ def test_a_named_effect_that_only_stands_in_for_a_third_beside_the_other_is_not_
     assert d.missing == 'range_walk' and d.confounded_with == []
     assert d.also == 'snr_noise'
     assert d.pair_z['incidence_angle']['stands_in_for'] == 'snr_noise'
+    words = ' '.join(vd.stands_in_words(d))
+    assert 'beside range_walk it only stands in for snr_noise' in words
+    assert '0.0002 nats/point on top of range_walk and snr_noise' in words
+    assert 'snr_noise gains 0.0150' in words
     both_real = Beside(adds, {(walk_snr, 'incidence_angle'): _on(base, 0.0120, 1, z=6.0),
                               (walk_inc, 'snr_noise'): _on(base, 0.0150, 2, z=6.0)})
     d = both_real.decide(dg.rank([inc, walk, snr]))
