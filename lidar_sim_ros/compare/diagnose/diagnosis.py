@@ -977,22 +977,41 @@ class Diagnosis:
         simpler = self.simpler_instead(best, ok[1:], pair_z)
         if simpler is not None:
             best, also = simpler, best.name    # the rich one passes on top: next
-        for c in ok:
-            if c is best or c.name == also:
-                continue
-            margin, z = self.paired(best, c)
-            fitted = self.fitted_margin(best, c)
-            pair_z[c.name] = {'margin': _num(margin), 'z': _num(z),
-                              'fitted_margin': _num(fitted)}
-            if margin > 0 and z >= self.z_crit and fitted >= MIN_PRACTICAL_GAIN:
-                continue          # decisively worse, by a margin that matters after --fit
-            if self.adds_to(best, c):
-                # Explains another part: two effects at once, unless that part is one
-                # the rule set aside for its shape (``beside_set_aside``).
-                if also is None and self.beside_set_aside(best, c, cands):
-                    also = c.name
-                continue
-            tied.append(c.name)
+        stood_in = set()
+        again = True
+        while again:
+            again = False
+            tied = []
+            for c in ok:
+                if c is best or c.name == also or c.name in stood_in:
+                    continue
+                margin, z = self.paired(best, c)
+                fitted = self.fitted_margin(best, c)
+                pair_z[c.name] = {**pair_z.get(c.name, {}), 'margin': _num(margin),
+                                  'z': _num(z), 'fitted_margin': _num(fitted)}
+                if margin > 0 and z >= self.z_crit and fitted >= MIN_PRACTICAL_GAIN:
+                    continue      # decisively worse, by a margin that matters after --fit
+                if self.adds_to(best, c):
+                    # Explains another part: two effects at once, unless that part is
+                    # one the rule set aside for its shape (``beside_set_aside``).
+                    if also is None and self.beside_set_aside(best, c, cands):
+                        # Not decisively apart: the one ranked first may gain on top
+                        # of the other only by standing in for a third effect
+                        # (``stands_in_beside``); then the other is named.
+                        instead = self.stands_in_beside(c, best, cands)
+                        if instead is not None:
+                            figs = self.__dict__.get('on_top_figures', {})
+                            pair_z[best.name] = {
+                                'stands_in_for': instead, 'beside': c.name,
+                                'gain_z_on_top_of_both': {
+                                    best.name: figs.get((best.name, *sorted((c.name, instead)))),
+                                    instead: figs.get((instead, *sorted((c.name, best.name))))}}
+                            stood_in.add(best.name)
+                            best, also, again = c, None, True
+                            break
+                        also = c.name
+                    continue
+                tied.append(c.name)
         if tied:
             lead, tied = self.tie_beside_set_aside(best, tied, cands, pair_z)
             if lead is not best:
@@ -1103,6 +1122,9 @@ class Diagnosis:
         ``adds_to`` alone decides."""
         if best.effect is None:
             return False
+        if (not laser_tiles.per_laser(other.effect)
+                and self.stands_in_beside(best, other, cands) is not None):
+            return False
         rest = self.set_aside_beside(best, cands, but=(other.name,))
         if not rest:
             return True
@@ -1111,11 +1133,62 @@ class Diagnosis:
                 if not np.isfinite(c.nll_after):
                     self.finalize(c)
             together = self._fitted_together([best.effect, *[c.effect for c in rest]])
-            gain, z, _ = self._on_top(together, other)
+            return self._passes_on_top(together, other)
         except Exception:  # noqa: BLE001 - not shown to be separate
             return False
-        return bool(gain >= MIN_PRACTICAL_GAIN and z >= self.z_crit
+
+    def _passes_on_top(self, on_top: list[Effect], other: Candidate,
+                       practical: bool = True) -> bool:
+        """Whether ``other`` cross-fitted on top of the fixed ``on_top`` passes the rule
+        (``_on_top``: z decisive, total above MIN_TOTAL_GAIN, and with ``practical`` the
+        gain per point at least MIN_PRACTICAL_GAIN: one that matters enough to name)."""
+        gain, z, _ = self._on_top(on_top, other)
+        self.__dict__.setdefault('on_top_figures', {})[
+            (other.name, *sorted(e.name for e in on_top))] = (_num(gain), _num(z))
+        return bool((gain >= MIN_PRACTICAL_GAIN or not practical) and z >= self.z_crit
                     and gain * self.n_total >= MIN_TOTAL_GAIN)
+
+    def stands_in_beside(self, best: Candidate, other: Candidate,
+                         cands: list[Candidate]) -> str | None:
+        """The candidate ``other`` only stands in for beside ``best``, or None. A third
+        candidate ``c`` with a decisive gain of its own that nothing set aside (scalar,
+        not vetoed, ``nameable``) is the effect the part ``other`` gains on top of
+        ``best`` belongs to when, with each pair fitted together (``_fitted_together``),
+        ``other`` no longer passes the rule on top of ``best`` and ``c`` while ``c``
+        still gains decisively on top of ``best`` and ``other`` (z and total evidence
+        as the rule; a gain too small to name is enough, as ``c`` is not named by this):
+        ``c`` explains what ``other`` explains there and more, not the reverse (ninth
+        holdout walk+snr_103: incidence -0.0002 nats/point on top of the walk and the
+        noise, the noise 0.0049, z 4.7, on top of the walk and incidence). An incidence elongation's sigma,
+        growing at grazing (weak) returns, stands in for a noise growing at weak returns
+        beside a range walk (ninth holdout ``walk+snr``: fitted together with the walk
+        its bias gain is -0.012). Where each passes on top of the other (two effects)
+        or neither does (the data cannot tell which), nothing changes."""
+        if best.effect is None or other.effect is None:
+            return None
+        memo = self.__dict__.setdefault('_stands_in', {})
+        key = (best.name, other.name)
+        if key in memo:
+            return memo[key]
+        memo[key] = None
+        for c in rank(cands):
+            if (c is best or c is other or c.name == POSE_ERROR or c.error is not None
+                    or c.effect is None or c.vetoed is not None or not c.significant
+                    or laser_tiles.per_laser(c.effect) or not self.nameable(c)):
+                continue
+            try:
+                for x in (best, other, c):
+                    if not np.isfinite(x.nll_after):
+                        self.finalize(x)
+                if self._passes_on_top(self._fitted_together([best.effect, c.effect]), other):
+                    continue
+                if self._passes_on_top(self._fitted_together([best.effect, other.effect]), c,
+                                       practical=False):
+                    memo[key] = c.name
+                    return c.name
+            except Exception:  # noqa: BLE001 - not shown to stand in
+                continue
+        return None
 
     def tie_beside_set_aside(self, best: Candidate, tied: list[str],
                              cands: list[Candidate],

@@ -111,6 +111,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         if decision.also:
             parts.append(f'{decision.also} also explains a separate part of the residual: '
                          f'expect it in the next run.{_together_words(c)}')
+        parts.extend(stands_in_words(decision))
         if c.against_pose:
             parts.append(_against_pose_words(c))
     elif diagnosis.POSE_ERROR in decision.confounded_with:
@@ -211,6 +212,26 @@ LINE_OF_SIGHT_SHARE = 0.75
 COMMON_OFFSET_MATERIALS = 3
 COMMON_OFFSET_SPREAD = 0.5
 COMMON_OFFSET_MIN_M = 0.01
+
+
+def stands_in_words(decision) -> list[str]:
+    """Why a candidate ranked above the named one is not named: beside it, it only stood
+    in for a third (``Diagnosis.stands_in_beside``; ``against_named[NAME]``)."""
+    out = []
+    for name, w in (decision.pair_z or {}).items():
+        if not isinstance(w, dict) or 'stands_in_for' not in w:
+            continue
+        third, beside = w['stands_in_for'], w['beside']
+        figs = w.get('gain_z_on_top_of_both') or {}
+        mine, theirs = figs.get(name), figs.get(third)
+        nums = ''
+        if mine and theirs and None not in (*mine, *theirs):
+            nums = (f' ({round(mine[0], 4) + 0.0:.4f} nats/point on top of {beside} and {third} '
+                    f'fitted together, while {third} gains {theirs[0]:.4f}, z = {theirs[1]:.1f}, '
+                    f'on top of {beside} and {name})')
+        out.append(f'{name} explains about as much alone, but beside {beside} it only '
+                   f'stands in for {third}{nums}, so it is not named.')
+    return out
 
 
 def common_offset_words(mats: dict) -> str:
