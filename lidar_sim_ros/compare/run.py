@@ -1034,16 +1034,16 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
     sel = matching.matched
     cal_nll, cal_rmse, cal_robust = cal.calibrated
     before, decision = diag.before, diag.decision
+    # Left out before anything was fitted (``leave_out_occluded``).
+    left_out = meas.dropped.get('occluded', 0) + meas.dropped.get('crosstalk', 0)
     summary = {
         'bag': str(opts.bag), 'mesh': str(opts.mesh),
         'config': str(scenario.source) if scenario.source else None,
         'effects': [_effect_record(e) for e in effects],
-        'points': int(len(meas) + meas.dropped.get('subsampled', 0)
-                      + meas.dropped.get('occluded', 0) + meas.dropped.get('crosstalk', 0)),
+        'points': int(len(meas) + meas.dropped.get('subsampled', 0) + left_out),
         # Analysed: after --max-points; the occluded and the crosstalk ghosts among them
         # are left out (occlusion, crosstalk).
-        'points_analysed': int(len(meas) + meas.dropped.get('occluded', 0)
-                               + meas.dropped.get('crosstalk', 0)),
+        'points_analysed': int(len(meas) + left_out),
         'occlusion': inp.occlusion.as_dict() if inp.occlusion is not None else None,
         'crosstalk': inp.crosstalk.as_dict() if inp.crosstalk is not None else None,
         'matched_points': int(sel.sum()),

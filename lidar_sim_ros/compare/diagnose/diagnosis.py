@@ -614,6 +614,12 @@ class Diagnosis:
         cand.missed_gain_after = missed_shots_gain(self.full, cand.effect)
         cand.seconds += time.perf_counter() - t0
 
+    def finalized(self, *cands: Candidate) -> None:
+        """``finalize`` each of ``cands`` not finalized yet (its ``nll_after`` still NaN)."""
+        for c in cands:
+            if not np.isfinite(c.nll_after):
+                self.finalize(c)
+
     def _describe(self, cand: Candidate, effect_cls: type[Effect], fit) -> None:
         options = {k: getattr(fit.effect.params, k) for k in literal_choices(effect_cls)}
         cand.params = {**{k: float(v) for k, v in fit.params.items()}, **options}
@@ -1129,9 +1135,7 @@ class Diagnosis:
         if not rest:
             return True
         try:
-            for c in [best, *rest]:
-                if not np.isfinite(c.nll_after):
-                    self.finalize(c)
+            self.finalized(best, *rest)
             together = self._fitted_together([best.effect, *[c.effect for c in rest]])
             return self._passes_on_top(together, other)
         except Exception:  # noqa: BLE001 - not shown to be separate
@@ -1159,8 +1163,9 @@ class Diagnosis:
         as the rule; a gain too small to name is enough, as ``c`` is not named by this):
         ``c`` explains what ``other`` explains there and more, not the reverse (ninth
         holdout walk+snr_103: incidence -0.0002 nats/point on top of the walk and the
-        noise, the noise 0.0049, z 4.7, on top of the walk and incidence). An incidence elongation's sigma,
-        growing at grazing (weak) returns, stands in for a noise growing at weak returns
+        noise, the noise 0.0049, z 4.7, on top of the walk and incidence). An incidence
+        elongation's sigma, growing at grazing (weak) returns, stands in for a noise
+        growing at weak returns
         beside a range walk (ninth holdout ``walk+snr``: fitted together with the walk
         its bias gain is -0.012). Where each passes on top of the other (two effects)
         or neither does (the data cannot tell which), nothing changes."""
@@ -1177,9 +1182,7 @@ class Diagnosis:
                     or laser_tiles.per_laser(c.effect) or not self.nameable(c)):
                 continue
             try:
-                for x in (best, other, c):
-                    if not np.isfinite(x.nll_after):
-                        self.finalize(x)
+                self.finalized(best, other, c)
                 if self._passes_on_top(self._fitted_together([best.effect, c.effect]), other):
                     continue
                 if self._passes_on_top(self._fitted_together([best.effect, other.effect]), c,
@@ -1209,9 +1212,7 @@ class Diagnosis:
         if not rest or len(members) != len(tied) + 1:
             return best, tied
         try:
-            for c in [*members, *rest]:
-                if not np.isfinite(c.nll_after):
-                    self.finalize(c)
+            self.finalized(*members, *rest)
             base = self._fitted_together([c.effect for c in rest])
             on_rest = {c.name: self._on_top(base, c) for c in members}
             lead = max(members, key=lambda c: on_rest[c.name][0])
@@ -1476,9 +1477,7 @@ class Diagnosis:
         if not beside:
             return []
         try:
-            for c in [best, *beside]:
-                if not np.isfinite(c.nll_after):
-                    self.finalize(c)
+            self.finalized(best, *beside)
             together = self._fitted_together([best.effect, *[c.effect for c in beside]])
             # Lasers the tile test set aside, asked again with all of these in the model
             # (as ``lasers_beside`` asks beside the named one alone): the pattern the
@@ -1488,8 +1487,7 @@ class Diagnosis:
                       and self.tile_veto(c, together) is None]
             if lasers:
                 beside += lasers[:1]
-                if not np.isfinite(lasers[0].nll_after):
-                    self.finalize(lasers[0])
+                self.finalized(lasers[0])
                 together = self._fitted_together([best.effect,
                                                   *[c.effect for c in beside]])
             on_all = test(together)
@@ -1754,9 +1752,7 @@ class Diagnosis:
         scale refit (``finalize``), nats per analysed point (matched NLL plus the
         unmatched credit). A tie on this footing is a tie: --fit could not tell them
         apart either."""
-        for c in (a, b):
-            if not np.isfinite(c.nll_after):
-                self.finalize(c)
+        self.finalized(a, b)
         n_m = len(self.rays.matched)
         return float(((b.nll_after - a.nll_after) * n_m + UNMATCHED_NATS
                       * (a.unmatched_gain_points - b.unmatched_gain_points)) / self.n_total)

@@ -52,8 +52,9 @@ OUTLIER_SIGMAS = 5.0      # residuals beyond this many sigma are not fitted (edg
 MIN_COS = 0.2             # |n.u| below this: grazing rays, range too sensitive to the pose
 MIN_CLOUD_POINTS = 60     # a cloud needs this many usable points for its six parameters
 RIDGE = 1e-2              # relative ridge of the correction applied: damps motions the data barely see (about a cylinder's long axis)
-CONSTANT_RIDGE = 1e-6     # the same for one correction for all the clouds, fitted on every cloud's points: the
-                          # test's (1e-4 held a 1 deg mount tilt at 1.5 deg and 12.4 cm for 1.0 and 14.05)
+CONSTANT_RIDGE = 1e-6     # the same for one correction for all the clouds, fitted on every
+                          # cloud's points: the test's (1e-4 held a 1 deg mount tilt at
+                          # 1.5 deg and 12.4 cm for 1.0 and 14.05)
 TEST_RIDGE = 1e-6         # relative ridge of the held-out test (the rule's footing, as before the re-cast)
 
 
@@ -489,8 +490,9 @@ def iterate(first: PoseError, start: PoseCorrection, rematch: Callable[[PoseCorr
     residual, compose, until the step is below RECAST_STEP_M and RECAST_STEP_DEG or
     after ``passes_max`` re-casts (RECAST_PASSES; one correction for the recording,
     CONSTANT_RECAST_PASSES: a sensor mount tilted 1 deg moved the target 14 cm, seen
-    mostly where it ends, and the passes took a fraction of it each, 8 cm after three). Returns the last re-match, the composed correction and
-    ``first`` with the composed sizes (its test, gain and z, are the first fit's).
+    mostly where it ends, and the passes took a fraction of it each, 8 cm after three).
+    Returns the last re-match, the composed correction and ``first`` with the composed
+    sizes (its test, gain and z, are the first fit's).
     ``refit(state, corr)`` fits the step on the model re-cast with ``corr`` applied."""
     corr, step = start.compose(first)
     passes = 0

@@ -503,10 +503,10 @@ def _fit_surface_offset(cls: type[Effect], data: FitData,
     material intercepts as nuisance). Which of them are free is chosen by the Bayes
     information criterion (total NLL plus half ln(N) per parameter, N matched points),
     by forward selection: from none, the parameter that lowers it most is freed, while
-    one does (the common standoff, the scale and each material's own compete alike). A parameter stays only where the data pay for
-    it: on a body whose surfaces of one material lie at one distance from its origin (a
-    cylinder's side) the scale's and the standoff's columns are nearly one, and the
-    joint split would be noise."""
+    one does (the common standoff, the scale and each material's own compete alike). A
+    parameter stays only where the data pay for it: on a body whose surfaces of one
+    material lie at one distance from its origin (a cylinder's side) the scale's and the
+    standoff's columns are nearly one, and the joint split would be noise."""
     base_effects = list(base_effects)
     zero = {**_defaults(cls), 'scale': 0.0, 'standoff_m': 0.0, 'material_standoff_m': {}}
     model = model_on_rays(data, [*base_effects, cls(zero)])
@@ -515,7 +515,8 @@ def _fit_surface_offset(cls: type[Effect], data: FitData,
         moved = model_on_rays(data, [*base_effects, cls({**zero, **params})])
         return (moved.expected_range_m - model.expected_range_m) / unit
 
-    uniform = {'scale': column({'scale': 0.01}, 0.01), 'standoff_m': column({'standoff_m': 1.0}, 1.0)}
+    uniform = {'scale': column({'scale': 0.01}, 0.01),
+               'standoff_m': column({'standoff_m': 1.0}, 1.0)}
     group = _groups(data)
     names = list(getattr(getattr(data.baseline.ctx.scene, 'target', None), 'material_names', []))
     counts = np.bincount(group[group >= 0], minlength=len(names)) if len(names) else []

@@ -303,29 +303,29 @@ def pose_words(pose, cands: list = ()) -> str:
                      'would move them alike, but not the ranges across the target as the '
                      'moved pose does (n.d / n.u: the correction is fitted on top of the '
                      'per-material offsets)')
+    said = f'{pose.words()[0].upper()}{pose.words()[1:]}{what}'
     raycast = getattr(pose, 'raycast', None)
-    if raycast and not raycast['explains']:
-        return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. Its own held-out test is '
-                'linear and leaves grazing rays out, and there it gains no more than a range '
-                f'offset of the sensor would ({pose.gain:.4f} nats/point, z = {pose.z:.1f}); '
-                'but raycast again with it, the model fits '
-                f'{raycast["fitted_margin_charged"]:.4f} nats/point better than without it as '
-                '--fit leaves them, its six parameters charged, where the per-material offsets '
-                '(a range offset of the sensor) are refit in both: a target recorded nearer or '
-                'farther changes the ranges near its limbs and across its depth steps too. No '
-                'catalogue effect passes the rule.')
     if raycast:
-        return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. Its own held-out test is '
-                'linear and leaves grazing rays out, and there it gains no more than a range '
-                f'offset of the sensor would ({pose.gain:.4f} nats/point, z = {pose.z:.1f}); '
-                f'but raycast again with it, {_join(raycast["explains"])} gain nothing, and it '
-                f'fits {raycast["fitted_margin_charged"]:.4f} nats/point better than '
+        # Reported on the raycast footing (``Diagnosis.weigh_line_of_sight``,
+        # ``line_of_sight_alone``): its own test did not pass.
+        said += ('. Its own held-out test is linear and leaves grazing rays out, and there it '
+                 'gains no more than a range offset of the sensor would '
+                 f'({pose.gain:.4f} nats/point, z = {pose.z:.1f}); but raycast again with it, ')
+    if raycast and not raycast['explains']:
+        return (f'{said}the model fits {raycast["fitted_margin_charged"]:.4f} nats/point '
+                'better than without it as --fit leaves them, its six parameters charged, '
+                'where the per-material offsets (a range offset of the sensor) are refit in '
+                'both: a target recorded nearer or farther changes the ranges near its limbs '
+                'and across its depth steps too. No catalogue effect passes the rule.')
+    if raycast:
+        return (f'{said}{_join(raycast["explains"])} gain nothing, and it fits '
+                f'{raycast["fitted_margin_charged"]:.4f} nats/point better than '
                 f'{"each" if len(raycast["explains"]) > 1 else "it"} as --fit leaves them, '
                 'its six parameters charged: a target recorded nearer or farther changes the '
                 'ranges near its limbs as 1 / cos(incidence), which they took. No sensor '
                 'effect is named.')
-    return (f'{pose.words()[0].upper()}{pose.words()[1:]}{what}. {_correction(pose)} gains '
-            f'{pose.gain:.4f} nats/point held out (z = {pose.z:.1f}), and {tail}')
+    return (f'{said}. {_correction(pose)} gains {pose.gain:.4f} nats/point held out '
+            f'(z = {pose.z:.1f}), and {tail}')
 
 
 def _correction(pose) -> str:
@@ -399,13 +399,13 @@ def range_offset_beside_words(pose, named: list[str]) -> str:
     beyond one range offset per cloud."""
     return (f'Besides, the clouds\' ranges move from cloud to cloud: with {_join(named)} in '
             f'the model, one range offset per cloud gains {pose.offset_gain:.4f} nats/point '
-            f'held out (z = {pose.offset_z:.1f}), and a rigid correction of the target pose per cloud '
-            f'gains no more beyond those offsets ({pose.beyond_offset_gain:.4f} nats/point, '
-            f'z = {pose.beyond_offset_z:.1f}): a range offset of the sensor or the reference '
-            'pose along the line of sight, changing between clouds (a temperature step of the '
-            'sensor, or the tracking system), which this recording cannot tell apart; none is '
-            'named. A static target on a surveyed pose, or one seen across a wide angle, '
-            'separates them.')
+            f'held out (z = {pose.offset_z:.1f}), and a rigid correction of the target pose '
+            f'per cloud gains no more beyond those offsets ({pose.beyond_offset_gain:.4f} '
+            f'nats/point, z = {pose.beyond_offset_z:.1f}): a range offset of the sensor or '
+            'the reference pose along the line of sight, changing between clouds (a '
+            'temperature step of the sensor, or the tracking system), which this recording '
+            'cannot tell apart; none is named. A static target on a surveyed pose, or one '
+            'seen across a wide angle, separates them.')
 
 
 def pose_tie_words(decision, summary: dict, cands: list) -> str:
