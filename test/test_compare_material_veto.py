@@ -1,6 +1,6 @@
 """A range error of the sensor is the same on every material (``Diagnosis.material_veto``):
-a range scale fitted on one material's points and scored on the others' must do as well as
-fitted on a random half. The fits here are an independent closed form (least squares of
+one material given its own range scale and the rest theirs must not do better, held out,
+than one scale for all. The fits here are an independent closed form (least squares of
 the residual on the range, one intercept per material; a Gaussian held-out NLL), not the
 comparison's likelihood."""
 from __future__ import annotations
@@ -21,11 +21,16 @@ NAMES = ['PIF', 'MLI']
 def _recording(case: str, seed: int):
     """Two materials, 3000 points each at 7-10 m, noise 2 cm. ``scale``: every range 1 %
     long (a clock). ``part``: the PIF points nearer than 8.5 m (a part of the target of a
-    material the configuration does not list) read 4.8 cm long, the rest true."""
+    material the configuration does not list) read 4.8 cm long, the rest true. ``narrow``:
+    ``scale`` with the MLI seen as 300 points over 0.3 m of range only (a small part seen
+    face on), where a scale fitted on its own points is poor."""
     rng = np.random.default_rng(seed)
     material = np.repeat([0, 1], 3000)
     r = rng.uniform(7.0, 10.0, len(material))
-    if case == 'scale':
+    if case == 'narrow':
+        material = np.repeat([0, 1], [3000, 300])
+        r = np.concatenate([rng.uniform(7.0, 10.0, 3000), rng.uniform(9.0, 9.3, 300)])
+    if case in ('scale', 'narrow'):
         truth = 0.01 * r
     else:
         truth = np.where((material == 0) & (r < 8.5), 0.048, 0.0)
@@ -64,12 +69,15 @@ class Materials(Splits):
                 material_names=NAMES)))))
         self.material, self.r = material, r
 
-    def transfer_nll(self, variant, halves, on_top=()):
+    def split_nll(self, variant, group, on_top=()):
+        """One scale for the points of ``group`` and another for the rest, each fitted on
+        one random fold and scored on the other."""
         out = np.full(self.n_total, np.nan)
-        for h in halves:
-            test = np.zeros(self.n_total, bool)
-            test[h.matched] = True
-            out[test] = _nll(self.residual, self.material, self.r, ~test, test)
+        for fold in (0, 1):
+            for side in (True, False):
+                train = (self.random_fold == fold) & (group == side)
+                test = (self.random_fold != fold) & (group == side)
+                out[test] = _nll(self.residual, self.material, self.r, train, test)
         return out
 
     def scale_candidate(self, name='range_scale'):
@@ -89,11 +97,21 @@ def test_a_range_scale_holds_on_every_material(seed):
 
 
 @pytest.mark.parametrize('seed', [0, 1, 2])
+def test_a_material_seen_over_a_short_stretch_of_range_keeps_the_scale(seed):
+    """Holdout 10's range drift: the PAF seen in 9 of 16 clouds over a few seconds fits a
+    drift of its own poorly (9.1e-4 m/s for 6.7e-4, within its error), and that fit carried
+    to the other materials lost against a random half: the drift was set aside as 'part of
+    the target reads off'. An imprecise fit costs the split only on its own points."""
+    d = Materials(*_recording('narrow', seed), seed)
+    assert d.material_veto(d.scale_candidate()) is None
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
 def test_a_part_of_one_material_reading_off_is_no_range_scale(seed):
     """Holdout 9's newmat: half the PIF faces of a material the configuration lacks,
     4.8 cm long; they lie nearer, so a range scale fits them (-0.9 %) and was named.
-    Fitted on the PIF points and scored on the MLI ones (and the other way) it loses
-    against a random split: a part of the target, outside the catalogue."""
+    Given a scale of their own, the PIF points and the MLI ones do better held out than
+    with one scale: a part of the target, outside the catalogue."""
     d = Materials(*_recording('part', seed), seed)
     why = d.material_veto(d.scale_candidate())
     assert why is not None and 'outside the catalogue' in why
