@@ -85,3 +85,51 @@ def test_range_walk_is_fitted_against_the_measured_power():
     # (errors-in-variables: var ln P / (var ln P + var error) = 1.66^2 / (1.66^2 + 0.69^2)).
     assert modelled.params['k_m'] == pytest.approx(0.02 * 0.85, abs=0.001)
     assert measured.nll_per_point < modelled.nll_per_point - 0.05
+
+
+def test_a_clipped_scale_is_found_and_its_points_take_the_models_power():
+    """An intensity clipped at the top of its scale (holdout 10's 8-bit reflectivity, most
+    points at 255) says only that the power reached the clip: the map is fitted below it
+    and the clipped points take the larger of the model's power and the clip's level."""
+    p, r = _powers(8000, 5)
+    cap = np.quantile(3.0e6 * p, 0.6)
+    counts = np.minimum(3.0e6 * p, cap)
+    cal = calibrate_intensity(counts, r, p)
+    assert cal.clip_log_i == pytest.approx(np.log(cap))
+    assert cal.clipped_share == pytest.approx(0.4, abs=0.01)
+    back = cal.power_w(counts, r, p)
+    assert back == pytest.approx(p, rel=0.05)
+    # Without the model's power the clipped points sit at the clip's level (the old
+    # reading: every clipped point alike).
+    flat = cal.power_w(counts, r)
+    assert np.ptp(np.log(flat[counts >= cap])) < 0.05
+
+
+@pytest.mark.parametrize('seed', [2, 6])
+def test_a_scale_that_is_not_clipped_has_no_clip(seed):
+    """Counts that reach the top of the scale as often as any value near it (a log scale
+    over the whole range of powers), and float intensities: no clip."""
+    p, r = _powers(20000, seed)
+    u = np.log(p / p.min()) / np.log(p.max() / p.min())
+    counts = np.clip(np.round(1 + 254 * u), 1, 255)
+    assert calibrate_intensity(counts, r, p).clip_log_i is None
+    assert calibrate_intensity(3.0e6 * p, r, p).clip_log_i is None
+
+
+def test_range_walk_read_through_a_clipped_scale_keeps_its_slope():
+    """The walk fitted on the power read from a clipped intensity: the clipped points at
+    the model's power keep the slope (diluted as the model's power dilutes it: 0.016 here,
+    as in the test above); all at the clip's level steepen it to fit the unclipped half
+    alone (0.026)."""
+    from dataclasses import replace
+    data, p_true = _walk_data(0.02)
+    counts = np.minimum(1e7 * p_true, np.quantile(1e7 * p_true, 0.5))
+    p_model = data.baseline.ctx.power_w
+    cal = calibrate_intensity(counts, data.baseline.ctx.range_m, p_model)
+    walk = get_effect_class('range_walk')
+    kept = fit_effect(walk, replace(data, measured_power_w=cal.power_w(
+        counts, data.baseline.ctx.range_m, p_model)))
+    flat = fit_effect(walk, replace(data, measured_power_w=cal.power_w(
+        counts, data.baseline.ctx.range_m)))
+    assert abs(kept.params['k_m'] - 0.02) < abs(flat.params['k_m'] - 0.02)
+    assert kept.nll_per_point < flat.nll_per_point

@@ -282,7 +282,7 @@ class PowerFromIntensity:
             self.done = True
         if self.calibration is None or not self.calibration.usable:
             return None
-        return self.calibration.power_w(m.meas.intensity, m.meas.range_m)
+        return self.calibration.power_w(m.meas.intensity, m.meas.range_m, m.pred.ctx.power_w)
 
 
 def frame_period_s(meas: Measurements, scenario: Scenario) -> float:

@@ -19,6 +19,12 @@ power differs from the true one only through its reflectance numbers, which shif
 ln P per material and incidence and average out in f; the shot-to-shot variation
 the sensor saw (speckle, reflectance the mesh does not carry) stays in.
 
+An intensity clipped at the top of its scale (an 8-bit reflectivity, a saturated
+amplifier: many points at exactly the largest value) says only that the power was at
+least the clip's: those points are left out of the map and given the larger of the
+model's power and the clip level's (``IntensityCalibration.power_w``), so a walk read
+from the intensity does not go flat where the scale ends.
+
 The simulator keeps using its own predicted power; see docs/compare.md.
 """
 from __future__ import annotations
@@ -45,6 +51,12 @@ RANGE_TERM_GAIN = 0.2
 # measure the received power (or not of these returns): power-driven effects keep the
 # model's power.
 MIN_EXPLAINED = 0.25
+# A clipped scale: the largest value held by at least this share of the points and
+# CLIP_SPIKE times as many as the most frequent of the other values at the top of the
+# scale (the top CLIP_TOP_SHARE of distinct values): a pile-up, not a value like the others.
+CLIP_MIN_SHARE = 0.01
+CLIP_SPIKE = 5.0
+CLIP_TOP_SHARE = 0.1
 
 
 @dataclass(frozen=True)
@@ -60,26 +72,47 @@ class IntensityCalibration:
     log_residual_robust_sigma: float
     log_correlation: float
     points: int
+    clip_log_i: float | None = None   # ln of the clipped top value (None: not clipped)
+    clipped_share: float = 0.0        # share of the points at it
 
     @property
     def usable(self) -> bool:
         return self.explained >= MIN_EXPLAINED
 
-    def power_w(self, intensity: np.ndarray, range_m: np.ndarray) -> np.ndarray:
+    def power_w(self, intensity: np.ndarray, range_m: np.ndarray,
+                model_power_w: np.ndarray | None = None) -> np.ndarray:
         """Received power (W, model units) per point; NaN where the intensity is not
-        positive and finite."""
+        positive and finite. On a clipped scale the points at the clip get the larger of
+        ``model_power_w`` (the model's power on the same points) and the clip's level."""
         i = np.asarray(intensity, float)
         ok = np.isfinite(i) & (i > 0) & np.isfinite(range_m) & (range_m > 0)
         log_p = np.full(len(i), np.nan)
-        log_p[ok] = (np.interp(np.log(i[ok]), self.knots_log_i, self.knots_log_p)
+        log_i = np.log(np.where(ok, i, 1.0))
+        log_p[ok] = (np.interp(log_i[ok], self.knots_log_i, self.knots_log_p,
+                               right=self._clip_log_p())
                      + self.range_exponent * (np.log(range_m[ok]) - self.mean_log_range))
+        if self.clip_log_i is not None and model_power_w is not None:
+            at_clip = ok & (log_i >= self.clip_log_i)
+            model = np.log(np.maximum(np.asarray(model_power_w, float)[at_clip], 1e-300))
+            log_p[at_clip] = np.maximum(log_p[at_clip], np.nan_to_num(model, nan=-np.inf))
         return np.exp(log_p)
+
+    def _clip_log_p(self) -> float | None:
+        """ln P at the clipped value: the map's end slope continued to it (None: no clip)."""
+        if self.clip_log_i is None:
+            return None
+        x, y = self.knots_log_i, self.knots_log_p
+        slope = (y[-1] - y[-2]) / max(x[-1] - x[-2], 1e-12)
+        return float(y[-1] + max(slope, 0.0) * max(self.clip_log_i - x[-1], 0.0))
 
     def as_dict(self) -> dict:
         return {'gain': self.gain, 'log_residual_robust_sigma': self.log_residual_robust_sigma,
                 'log_correlation': self.log_correlation,
                 'power_explained': round(self.explained, 4),
                 'range_exponent': round(self.range_exponent, 4), 'points': self.points,
+                'clipped_share': round(self.clipped_share, 4),
+                'clipped_value': (None if self.clip_log_i is None
+                                  else float(np.exp(self.clip_log_i))),
                 'used_for_power_driven_effects': self.usable}
 
 
@@ -98,6 +131,15 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
     ok = np.isfinite(i) & (i > 0) & np.isfinite(p) & (p > 0) & np.isfinite(r) & (r > 0)
     if ok.sum() < MIN_POINTS:
         return None
+    clip = clipped_value(i[ok])
+    n_ok = int(ok.sum())
+    clipped_share = 0.0
+    if clip is not None:
+        at_clip = i[ok] >= clip
+        clipped_share = float(np.mean(at_clip))
+        if n_ok - at_clip.sum() < MIN_POINTS:
+            return None
+        ok[np.flatnonzero(ok)[at_clip]] = False    # the map is fitted below the clip
     x, y, lr = np.log(i[ok]), np.log(p[ok]), np.log(r[ok])
     mean_lr = float(np.mean(lr))
     lr = lr - mean_lr
@@ -119,7 +161,24 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
         explained=float(max(explained, 0.0)),
         log_residual_robust_sigma=float(1.4826 * np.median(np.abs(d - np.median(d)))),
         log_correlation=float(np.corrcoef(x, y)[0, 1]) if np.ptp(x) > 0 else 0.0,
-        points=int(ok.sum()))
+        points=int(ok.sum()),
+        clip_log_i=None if clip is None else float(np.log(clip)),
+        clipped_share=clipped_share)
+
+
+def clipped_value(intensity: np.ndarray) -> float | None:
+    """The value at which the intensity scale is clipped (module doc), or None: the
+    largest value, when it holds CLIP_MIN_SHARE of the points (MIN_BIN_POINTS at least)
+    and CLIP_SPIKE times as many as any other value among the top CLIP_TOP_SHARE of
+    distinct values."""
+    values, counts = np.unique(np.asarray(intensity, float), return_counts=True)
+    if len(values) < 2:
+        return None
+    top = counts[-1]
+    if top < max(MIN_BIN_POINTS, CLIP_MIN_SHARE * counts.sum()):
+        return None
+    others = counts[max(len(values) - 1 - max(int(CLIP_TOP_SHARE * len(values)), 1), 0):-1]
+    return float(values[-1]) if top >= CLIP_SPIKE * others.max() else None
 
 
 def _monotone_map(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
