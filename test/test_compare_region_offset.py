@@ -221,3 +221,38 @@ def test_the_pose_is_reported_only_where_it_gains_beyond_the_split(kw, outcome, 
     pose = SimpleNamespace(significant=True, constant=True)
     out = region_offset.judge(diagnosis.Decision(None, [], pose=pose), region)
     assert out.region is region and (out.pose is pose) == pose_kept
+
+
+def test_the_verdict_says_a_part_reads_off_or_the_tie_and_never_the_tracking_system():
+    from lidar_sim_ros.compare.report.verdict import region_words
+    said = region_words(_region())
+    assert 'outside the catalogue' in said and '+4.8 cm' in said and 'BAND' in said
+    assert 'no reference-pose error is reported' in said and 'tracking system' not in said
+    tie = region_words(_region(passes_beyond_pose=False))
+    assert 'cannot tell a reference-pose error from a part of the target' in tie
+    assert 'the pose is not asserted' in tie and 'tracking system' not in tie
+
+
+def test_points_off_the_mesh_and_too_few_points_give_no_split():
+    """A point on no face (-1) has no body position and is left out of the split; a
+    face index beyond the mesh gives no positions at all; a material with fewer than
+    twice MIN_MATERIAL_POINTS usable points is not split (the test then gains 0)."""
+    vertices, faces = _mesh()
+    target = SimpleNamespace(vertices_m=vertices, faces=faces, material_names=['BAND'])
+    ctx = SimpleNamespace(face=np.array([0, -1, 5]), scene=SimpleNamespace(target=target))
+    body = region_offset.body_points_m(ctx)
+    assert np.all(np.isfinite(body[[0, 2]])) and np.all(np.isnan(body[1]))
+    beyond = SimpleNamespace(face=np.array([0, len(faces)]), scene=SimpleNamespace(target=target))
+    assert region_offset.body_points_m(beyond) is None
+    n = 2 * lk.MIN_MATERIAL_POINTS - 1
+    rng = np.random.default_rng(0)
+    body = rng.normal(size=(n, 3))
+    r = np.where(body[:, 1] > 0, 0.05, 0.0)
+    test = region_offset.heldout_split(r, np.full(n, 0.01), np.zeros(n, int), body,
+                                       np.ones(n, bool), np.arange(n) // 10)
+    assert test.split is None and test.gain == 0.0 and not np.any(test.correction_m)
+    r_nan = np.full(2 * n, np.nan)
+    none = region_offset.heldout_split(r_nan, np.full(2 * n, 0.01), np.zeros(2 * n, int),
+                                       rng.normal(size=(2 * n, 3)), np.zeros(2 * n, bool),
+                                       np.arange(2 * n) // 10)
+    assert none.split is None and none.gain == 0.0
