@@ -36,7 +36,7 @@ import numpy as np
 from scipy.stats import norm
 
 from lidar_sim_ros.compare.diagnose import (diagnosis, features, plan as sep_plan, pose_error,
-                                            stamp_place)
+                                            region_offset, stamp_place)
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
 from lidar_sim_ros.compare.model import (crosstalk as xtalk, likelihood as lk,
@@ -847,10 +847,11 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     tested_data = (diag.full if tested is sample
                    else diagnosis.make_fit_data(model, effects, tested))
 
-    def pose_test(on_top: list[Effect], constant: bool = False) -> pose_error.PoseError:
+    def pose_test(on_top: list[Effect], constant: bool = False,
+                  data: lk.FitData | None = None) -> pose_error.PoseError:
         idx = tested.matched
         return pose_error.fit_reference_pose(
-            tested_data, meas.cloud[idx], meas.t_s[idx],
+            tested_data if data is None else data, meas.cloud[idx], meas.t_s[idx],
             sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
             on_top, rate=has_point_times(meas), constant=constant)
     recast_cache: dict = {}
@@ -911,6 +912,10 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         lambda: recast(pose_test([], constant=constant))[0], {c.name: c for c in weighed})
     cands = diagnosis.rank(cands + [c for c in scored if all(c is not w for w in weighed)])
     decision = diag.range_offset_beside(decision, cands, pose_test)
+    # A part of one material reading off the rest, against the pose (region_offset).
+    decision = region_offset.weigh_pose(decision, cands, tested_data,
+                                        sample.blocks[tested.matched], pose_test, diag.z_crit,
+                                        diagnosis.MIN_PRACTICAL_GAIN, seed)
     named = [c.effect for c in cands if c.name == decision.missing]
     pose = (decision.pose if decision.pose is not None else decision.beside_pose
             if decision.beside_pose is not None else pose_test(named))
@@ -1087,6 +1092,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'stamp_place': diag.stamp.as_dict() if diag.stamp is not None else None,
         'reference_pose': diag.pose.as_dict() if diag.pose is not None else None,
         'reference_pose_off': decision.pose is not None,
+        'region_offset': decision.region.as_dict() if decision.region is not None else None,
         'pose_correction': pose_fit.as_dict() if pose_fit is not None else None,
         'has_intensity': meas.intensity is not None,
         'point_fields': {**(meas.fields or {}), 'lines': meas.field_lines + [

@@ -531,6 +531,10 @@ class Decision:
     # and the pose test that found it (``pose_error.PoseError``, on top of the named).
     beside_tie: list[str] = field(default_factory=list)
     beside_pose: object | None = None
+    # One part of a material against the reference pose (``region_offset.judge``:
+    # ``region_offset.RegionOffset``); where the pose does not gain beyond it, the pose
+    # is not reported (part of the target reads off the rest, or the two not told apart).
+    region: object | None = None
 
 
 class Diagnosis:

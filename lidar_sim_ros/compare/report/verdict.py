@@ -141,6 +141,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                      f'{kind[0].lower()}{kind[1:]} {decision.pose.gain:.4f} nats/point, '
                      f'z = {decision.pose.z:.1f}): check the tracking system or the extrinsic '
                      'calibration.')
+    region = getattr(decision, 'region', None)
+    if region is not None and decision.pose is None and region.outcome != 'pose':
+        parts.append(region_words(region))
     if getattr(decision, 'beside_tie', None) and decision.beside_pose is not None:
         parts.append(range_offset_beside_words(decision.beside_pose,
                                                [n for n in (missing, decision.also) if n]))
@@ -390,6 +393,36 @@ def _value_on_pose(c) -> str:
             'The pose error and the effect share part of the residual, so the value is '
             'known only between the two; --effect pose_error --fit fits it on the '
             'corrected pose.')
+
+
+def region_words(region) -> str:
+    """A reference pose weighed against one part of a material reading off the rest
+    (``region_offset.judge``), where the pose is not reported."""
+    where = (f'the {region.material} faces beyond a plane of the body frame (normal '
+             f'{region.axis}, at {region.threshold_m:+.2f} m; {region.points[1]} points '
+             f'beyond it, {region.points[0]} before) read {100 * region.step_m:+.1f} cm '
+             f'from those before it')
+    split = (f'two offsets for {region.material}, one each side, gain {region.gain:.4f} '
+             f'nats/point held out (z = {region.z:.1f})')
+    kind = ('one rigid correction of the reference pose for the recording'
+            if region.pose_constant else 'a rigid correction of the reference pose per cloud')
+    pose = (f'{kind} gains {region.pose_gain_beyond:.4f} nats/point beyond them '
+            f'(z = {region.pose_z_beyond:.1f})')
+    if region.outcome == 'region':
+        return (f'Part of the target reads off the rest of its material: {where}; '
+                f'{split}, and {region.gain_beyond_pose:.4f} (z = {region.z_beyond_pose:.1f}) '
+                f'on what the pose\'s correction leaves, while {pose}. So no reference-pose '
+                'error is reported: this is outside the catalogue, a material the configuration '
+                'does not list (or a part off its CAD) on one part of those faces; give '
+                'them their own material in the mesh and materials.yaml.')
+    return (f'A rigid correction of the reference pose and one part of the target reading '
+            f'off the rest of its material explain the residual alike: {where}; {split}, '
+            f'{region.gain_beyond_pose:.4f} (z = {region.z_beyond_pose:.1f}) on what the '
+            f'pose\'s correction leaves, and {pose}. Neither adds to the other, so this '
+            'recording cannot tell a reference-pose error from a part of the target '
+            'reading off (a material the configuration does not list, or a part off its '
+            'CAD); the pose is not asserted. A surveyed pose, or the target seen from '
+            'another side, would tell them apart.')
 
 
 def range_offset_beside_words(pose, named: list[str]) -> str:
@@ -693,6 +726,14 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
         lines.append(f'reference pose: off by {rp["translation_rms_cm"]:.2f} cm and '
                      f'{rp["rotation_rms_deg"]:.3f} deg RMS per cloud (z = {rp["z"]:.1f}): '
                      'run again with --effect pose_error --fit')
+    region = s.get('region_offset') or {}
+    if region.get('outcome') in ('region', 'tie') and not s.get('reference_pose_off'):
+        said = ('part of the target reads off the rest' if region['outcome'] == 'region'
+                else 'the pose and part of the target reading off not told apart')
+        lines.append(f'{said}: {region["material"]} split by a body plane (normal '
+                     f'{region["plane_normal_body"]}), {100 * region["step_m"]:+.1f} cm '
+                     f'(z = {region["z"]:.1f}); the pose beyond it z = '
+                     f'{region["pose_beyond"]["z"]:.1f} (summary.json: region_offset)')
     if s.get('confounded_with'):
         lines.append(f'confounded: {", ".join(s["confounded_with"])}')
     lines.append(f'verdict: {s["verdict"]}')
