@@ -67,6 +67,11 @@ SCAN_MATCH_TOL_RAD = 2e-4
 SCAN_MATCH_MIN_FRACTION = 0.9
 # Prediction may evaluate poses slightly outside the recording (a fitted time offset).
 PREDICTION_POSE_PAD_S = 0.5
+# The pose stream a recording needs (docs/real-data.md): 5 or more samples per sensor
+# frame. Around a cloud, an interval between samples longer than the frame's duration over
+# MIN_POSES_PER_FRAME, by POSE_INTERVAL_SLACK (stamp jitter), is said in the notes.
+MIN_POSES_PER_FRAME = 5
+POSE_INTERVAL_SLACK = 1.5
 MAX_POINT_RANGE_M = 10_000.0
 """A point farther than this (m) is no lidar return (x = 3e38 is a float32 marker or
 garbage): dropped and counted as ``beyond_range``."""
@@ -574,7 +579,42 @@ def _checked_pose_track(bag: Path, pose_topic: str, cloud_topic: str, pose_t: np
     over = float(max(0.0, t_abs.max() - end))
     if over > 0:
         notes.append(f'last cloud runs {over * 1e3:.1f} ms past the last pose: extrapolated')
+    sparse = sparse_pose_note(pose_t, t_lo, t_hi, pose_topic)
+    if sparse:
+        notes.append(sparse)
     return padded_pose_track(pose_t, position_m, quat_xyzw, PREDICTION_POSE_PAD_S + over)
+
+
+def sparse_pose_note(pose_t: np.ndarray, t_lo: np.ndarray, t_hi: np.ndarray,
+                     pose_topic: str) -> str | None:
+    """A note when the pose samples around some cloud are sparser than MIN_POSES_PER_FRAME
+    per frame (an interval between consecutive samples overlapping the cloud's points longer
+    than the median cloud duration over MIN_POSES_PER_FRAME, by POSE_INTERVAL_SLACK): the
+    pose there is interpolated, and a pose error the comparison finds may be the
+    interpolation's. None when every cloud is covered densely enough, or with one pose."""
+    seen = np.isfinite(t_lo) & np.isfinite(t_hi)
+    if len(pose_t) < 2 or not seen.any():
+        return None
+    frame_s = float(np.median(t_hi[seen] - t_lo[seen]))
+    if frame_s <= 0:
+        return None
+    limit = POSE_INTERVAL_SLACK * frame_s / MIN_POSES_PER_FRAME
+    step = np.diff(pose_t)
+    # Interval k runs from pose_t[k] to pose_t[k + 1]; the cloud's points lie in the
+    # intervals first .. last (clipped to the samples: extrapolation is noted apart).
+    first = np.clip(np.searchsorted(pose_t, t_lo[seen], 'right') - 1, 0, len(step) - 1)
+    last = np.clip(np.searchsorted(pose_t, t_hi[seen], 'left') - 1, 0, len(step) - 1)
+    longest = np.array([step[a:b + 1].max() for a, b in zip(first, np.maximum(first, last))])
+    sparse = longest > limit
+    if not sparse.any():
+        return None
+    clouds = np.flatnonzero(seen)
+    k = int(np.argmax(longest))
+    return (f'poses on {pose_topic!r} are sparser than {MIN_POSES_PER_FRAME} per frame around '
+            f'{int(sparse.sum())} of {len(clouds)} cloud(s) (the longest interval between '
+            f'samples {longest[k] * 1e3:.0f} ms, around cloud #{int(clouds[k])}; frames last '
+            f'{frame_s * 1e3:.0f} ms): the pose is interpolated there, and a pose error found '
+            'may be the interpolation\'s, not the tracking system\'s')
 
 
 def padded_pose_track(t_s: np.ndarray, position_m: np.ndarray, quat_xyzw: np.ndarray,
