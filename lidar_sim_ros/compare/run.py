@@ -39,6 +39,7 @@ from lidar_sim_ros.compare.diagnose import (diagnosis, features, plan as sep_pla
                                             stamp_place)
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
+from lidar_sim_ros.compare.report.pose_status import pose_status
 from lidar_sim_ros.compare.model import (crosstalk as xtalk, likelihood as lk,
                                          materials as mat, neighbours, occlusion as occ,
                                          point_times)
@@ -400,6 +401,7 @@ class Diagnosed:
     before: tuple[float, float, float]
     full: object | None = None          # the diagnosed points' FitData (lk.FitData)
     z_crit: float = float(norm.isf(diagnosis.FAMILY_ALPHA / 6))
+    pose_on_top: list = field(default_factory=list)   # what the pose test had in the model
 
 
 @dataclass
@@ -911,9 +913,14 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         lambda: recast(pose_test([], constant=constant))[0], {c.name: c for c in weighed})
     cands = diagnosis.rank(cands + [c for c in scored if all(c is not w for w in weighed)])
     decision = diag.range_offset_beside(decision, cands, pose_test)
-    named = [c.effect for c in cands if c.name == decision.missing]
+    named = [c for c in cands if c.name == decision.missing and c.effect is not None]
+    if decision.pose is not None or decision.beside_pose is not None:
+        # The pose the decision reports: tested on top of the named effect and its also.
+        on_top = [n for n in (decision.missing, decision.also) if n]
+    else:
+        on_top = [c.name for c in named]
     pose = (decision.pose if decision.pose is not None else decision.beside_pose
-            if decision.beside_pose is not None else pose_test(named))
+            if decision.beside_pose is not None else pose_test([c.effect for c in named]))
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
@@ -926,7 +933,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = diagnosis.settle(decision, cands, diag.naming_fault)
     diag.fit_together(decision, cands)
     return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
-                     diag.full, diag.z_crit)
+                     diag.full, diag.z_crit, on_top)
 
 
 def pose_points(rays: diagnosis.RaySet, sample: diagnosis.RaySet,
@@ -1085,7 +1092,9 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'scan_pattern_match': (None if meas.scan_match_fraction is None
                                else round(meas.scan_match_fraction, 4)),
         'stamp_place': diag.stamp.as_dict() if diag.stamp is not None else None,
-        'reference_pose': diag.pose.as_dict() if diag.pose is not None else None,
+        'reference_pose': (None if diag.pose is None else {
+            **diag.pose.as_dict(),
+            **pose_status(diag.pose.as_dict(), decision, diag.cands, diag.pose_on_top)}),
         'reference_pose_off': decision.pose is not None,
         'pose_correction': pose_fit.as_dict() if pose_fit is not None else None,
         'has_intensity': meas.intensity is not None,

@@ -440,6 +440,9 @@ class Candidate:
     # The named one: the pose test on top of it and what the decision holds beside it,
     # fitted together (``Diagnosis.pose_beside_named``).
     pose_beside: dict | None = None
+    # A named (or tied) one: the pose test ``judge_pose`` weighed on top of it alone
+    # (per cloud or constant, the larger held-out gain).
+    pose_on_top: dict | None = None
     # An outlier effect: the false returns its fitted rate predicts against those
     # recorded, on the diagnosed points (``Diagnosis.false_return_budget``).
     false_returns: dict | None = None
@@ -469,6 +472,7 @@ class Candidate:
                 **({'fitted_together': self.together} if self.together else {}),
                 **({'against_pose': self.against_pose} if self.against_pose else {}),
                 **({'pose_beside': self.pose_beside} if self.pose_beside else {}),
+                **({'pose_on_top': self.pose_on_top} if self.pose_on_top else {}),
                 **({'false_returns': self.false_returns} if self.false_returns else {}),
                 **({'error': self.error} if self.error else {})}
 
@@ -1375,7 +1379,14 @@ class Diagnosis:
         # per-cloud correction's extra parameters are paid for on the held-out half).
         test, pose = max(passed, key=lambda tp: getattr(tp[1], 'gain', 0.0))
         # Named candidates that leave the pose nothing (its test fails on top of them).
-        explain = [c for c in named if not test([c.effect]).significant]
+        explain = []
+        for c in named:
+            on_top = test([c.effect])
+            c.pose_on_top = {'pose_constant': bool(getattr(on_top, 'constant', False)),
+                             'gain': _num(on_top.gain), 'z': _num(on_top.z),
+                             'significant': bool(on_top.significant)}
+            if not on_top.significant:
+                explain.append(c)
         if not explain:
             explain = self.pose_beside_named(test, pose, decision, cands)
         if not any(c.admissible and c.effect is not None for c in cands):
