@@ -387,6 +387,7 @@ class Analysed:
     values: dict                  # feature values
     labels: dict
     attribution: features.Attribution
+    grazing_left_out: int = 0     # matched rays below pose_error.MIN_COS left out (--fit pose)
 
 
 @dataclass
@@ -467,8 +468,11 @@ def run_compare(opts: CompareOptions) -> CompareResult:
             sunlight = sunlight_stage(cal, effects, inp.sun, sun_fit, opts)
     with stage('neighbours'):
         sample, picked, isolated = diagnosis_sample(cal.rays, inp.meas, opts.seed)
+        sample, grazing = on_corrected_pose(sample, cal.matching.pred, pose_fit)
+        picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
     with stage('features', f'{len(sample.matched)} matched points'):
-        ana = attribute(cal, effects, inp.meas, sample, picked, isolated, opts.seed)
+        ana = replace(attribute(cal, effects, inp.meas, sample, picked, isolated, opts.seed),
+                      grazing_left_out=grazing)
     classes = candidate_classes(opts, effects)
     if classes:
         with stage('candidates', ', '.join(c.name for c in classes)):
@@ -1007,6 +1011,21 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
     return diag, report, moved_rays
 
 
+def on_corrected_pose(sample: diagnosis.RaySet, pred: Prediction,
+                      pose_fit: pose_error.PoseError | None) -> tuple[diagnosis.RaySet, int]:
+    """The diagnosis sample of a ``--effect pose_error --fit`` run and how many of its
+    matched rays were left out: where the correction is per cloud and was raycast again
+    (``correct_reference_pose``), the rays it is fitted on (``fitted_rays_only``), as
+    the diagnosis scores candidates beside a per-cloud pose (``recast_all_points``);
+    what the correction leaves at grazing rays grows as 1 / cos(incidence) and reads as
+    a sensor effect there. A constant correction, or one applied linearly (not
+    significant), leaves the sample as it is."""
+    if pose_fit is None or not pose_fit.passes or pose_fit.constant:
+        return sample, 0
+    kept = fitted_rays_only(sample, pred)
+    return kept, len(sample.matched) - len(kept.matched)
+
+
 def fitted_rays_only(sample: diagnosis.RaySet, pred: Prediction) -> diagnosis.RaySet:
     """``sample`` without the matched rays a per-cloud pose correction is not fitted on:
     grazing rays (|cos incidence| below ``pose_error.MIN_COS``, ``pred`` per ray). Their
@@ -1109,6 +1128,10 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
                             scenario.sensor.detection.saturation_power_w)},
         'dropped': meas.dropped,
         'notes': list(meas.notes) + _material_name_notes(meas, scenario)
+        + ([f'the reference pose corrected per cloud: the candidates are scored on the '
+            f'rays its correction is fitted on, {ana.grazing_left_out} grazing rays of the '
+            f'sample (|cos incidence| < {pose_error.MIN_COS:g}) left out']
+           if ana.grazing_left_out else [])
         + (['--fit without --effect: nothing to fit']
            if opts.fit and not inp.user and not inp.pose_fit else [])
         + ([f'separation plan of {" and ".join(plan.pair)} failed: {plan.error}']
