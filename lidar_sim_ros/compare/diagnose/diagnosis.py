@@ -1383,7 +1383,8 @@ class Diagnosis:
         for c in named:
             on_top = test([c.effect])
             c.pose_on_top = {'pose_constant': bool(getattr(on_top, 'constant', False)),
-                             'gain': _num(on_top.gain), 'z': _num(on_top.z),
+                             'gain': _num(getattr(on_top, 'gain', None)),
+                             'z': _num(getattr(on_top, 'z', None)),
                              'significant': bool(on_top.significant)}
             if not on_top.significant:
                 explain.append(c)
