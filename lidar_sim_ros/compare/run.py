@@ -35,8 +35,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import norm
 
-from lidar_sim_ros.compare.diagnose import (diagnosis, features, plan as sep_plan, pose_error,
-                                            stamp_place)
+from lidar_sim_ros.compare.diagnose import (diagnosis, features, laser_gains,
+                                            plan as sep_plan, pose_error, stamp_place)
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
 from lidar_sim_ros.compare.report.pose_status import pose_status
@@ -101,6 +101,7 @@ SILHOUETTE_NEAR_DIVERGENCES = 2.0
 # --effect pose_error: a per-cloud correction of the reference pose (compare/diagnose/pose_error.py),
 # not a catalogue effect: the simulator never applies it.
 POSE_ERROR = diagnosis.POSE_ERROR
+LASER_BIAS, RANGE_WALK = 'laser_bias', 'range_walk'
 
 
 @dataclass
@@ -1115,6 +1116,8 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
             **diag.pose.as_dict(),
             **pose_status(diag.pose.as_dict(), decision, diag.cands, diag.pose_on_top)}),
         'reference_pose_off': decision.pose is not None,
+        'laser_intensity': laser_intensity(decision, diag.cands, effects, cal.rays,
+                                           cal.matching.pred, diag.z_crit),
         'pose_correction': pose_fit.as_dict() if pose_fit is not None else None,
         'has_intensity': meas.intensity is not None,
         'point_fields': {**(meas.fields or {}), 'lines': meas.field_lines + [
@@ -1143,6 +1146,43 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
              'range_robust_sigma_calibrated_m': before[2]}
     summary['verdict'] = verdict(basis, ana.attribution, diag.cands, decision)
     return summary
+
+
+def laser_intensity(decision: diagnosis.Decision, cands: list, effects: list[Effect],
+                    rays: diagnosis.RaySet, pred: Prediction, z_crit: float) -> dict | None:
+    """summary.json's ``laser_intensity``: where laser_bias is named (or 'also') beside a
+    range walk read from the measured intensity (in the model, named or 'also'), how
+    closely its offsets follow k times each laser's mean ln(measured / model power) on
+    the matched points (``laser_gains.intensity_tie``): per-laser intensity gains read
+    through the walk give the same offsets. None otherwise."""
+    said = (decision.missing, decision.also)
+    if LASER_BIAS not in said or rays.measured_power_w is None:
+        return None
+    by_name = {c.name: c for c in cands}
+    lasers = by_name.get(LASER_BIAS)
+    walk = next((e for e in effects if e.name == RANGE_WALK), None)
+    named = by_name.get(decision.missing)
+    # The walk and the lasers fitted together where the decision names both
+    # (``Diagnosis.fit_together``); the walk in the model: the lasers fitted on top of it.
+    tog = (named.together or {}) if named is not None else {}
+    both = {decision.missing, tog.get('with')} == {RANGE_WALK, LASER_BIAS}
+    if walk is not None:
+        k = float(walk.params.k_m)
+    elif both:
+        k = (tog.get('params') if decision.missing == RANGE_WALK
+             else tog.get('with_params') or {}).get('k_m')
+    else:
+        return None
+    if lasers is None or k is None:
+        return None
+    offsets = (tog.get('offsets_m') or {}).get(LASER_BIAS) if both else None
+    if offsets is None:
+        offsets = [float(lasers.params.get(f'laser_{i}_m', np.nan))
+                   for i in range(sum(1 for key in lasers.params if key.startswith('laser_')))]
+    idx = rays.matched
+    ratio = laser_gains.per_laser_log_ratio(rays.meas.laser[idx], rays.measured_power_w[idx],
+                                            np.asarray(pred.ctx.power_w, float)[idx])
+    return laser_gains.intensity_tie(offsets, ratio, float(k), z_crit)
 
 
 def write_outputs(opts: CompareOptions, summary: dict, stage: Stages, inp: Inputs,

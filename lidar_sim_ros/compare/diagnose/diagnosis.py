@@ -1264,6 +1264,12 @@ class Diagnosis:
                                     if isinstance(v, float) and isinstance(mine.get(k), float)},
                          'with_params': {k: float(v) for k, v in theirs.items()
                                          if isinstance(v, float)}}
+        # Per-laser offsets (a list parameter), fitted together: ``run.laser_intensity``.
+        lists = {c.name: [float(x) for x in d['offsets_m']]
+                 for c, d in ((best, mine), (other, theirs))
+                 if isinstance(d.get('offsets_m'), (list, tuple))}
+        if lists:
+            best.together['offsets_m'] = lists
 
     def lasers_beside(self, best: Candidate, cands: list[Candidate]) -> str | None:
         """A per-laser candidate set aside by the tile test (``tile_veto``: its offsets

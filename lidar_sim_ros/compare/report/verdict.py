@@ -112,6 +112,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             parts.append(f'{decision.also} also explains a separate part of the residual: '
                          f'expect it in the next run.{_together_words(c)}')
         parts.extend(stands_in_words(decision))
+        lasers = laser_intensity_words(summary.get('laser_intensity'))
+        if lasers:
+            parts.append(lasers)
         if c.against_pose:
             parts.append(_against_pose_words(c))
     elif diagnosis.POSE_ERROR in decision.confounded_with:
@@ -222,6 +225,22 @@ COMMON_OFFSET_MIN_M = 0.01
 # mechanism ranked above the effect named (or tied) for it, or passed the rule, and is
 # not named, the verdict says what it scored and why not (``mechanism_words``).
 MECHANISM_OF = {'incidence_angle': ('beam_divergence',)}
+
+
+def laser_intensity_words(tie: dict | None) -> str:
+    """laser_bias named (or 'also') beside a range walk read from the measured intensity,
+    its offsets following k times each laser's mean log intensity ratio (summary.json's
+    ``laser_intensity``, ``laser_gains.intensity_tie``): a tie of causes, said."""
+    if not tie or not tie.get('ties'):
+        return ''
+    return (f'laser_bias\'s offsets follow k times each laser\'s mean log ratio of measured '
+            f'to model intensity (k = {tie["k_m"]:.4g} m, the walk\'s; correlation '
+            f'{tie["correlation"]:.2f} over {tie["lasers"]} lasers, and k times the ratio '
+            f'gives {100 * tie["explained_share"]:.0f} % of their spread with nothing fitted): '
+            'they may be a per-channel intensity calibration read through the range walk '
+            '(the walk, read from intensity, moves a laser\'s ranges by k ln of its intensity '
+            'gain) rather than range offsets of the lasers; this recording cannot tell the two '
+            'causes apart (calibrating each laser\'s intensity would).')
 
 
 def mechanism_words(decision, cands: list) -> dict[str, str]:
