@@ -1181,3 +1181,18 @@ def test_a_mechanism_of_the_named_effect_that_ranked_above_it_is_said_with_why_n
     text = verdict.mechanism_words(dg.Decision('incidence_angle', []),
                                    [vetoed, inc])['beam_divergence']
     assert text.endswith('but its gain rests on the edges only.')
+
+
+def test_a_mechanism_that_passed_the_rule_but_ranked_decisively_below_is_said_so():
+    """The ninth holdout's inc_100: beam_divergence passes the rule (0.0374, z 3.5) but
+    is 0.1164 nats/point (z 12.3) below incidence_angle, the first of the tie: said with
+    those figures (``against_named``), not as 'not decisively apart'."""
+    inc = dg.Candidate('incidence_angle', score=0.1539, z=11.5, significant=True,
+                       practical=True)
+    beam = dg.Candidate('beam_divergence', score=0.0374, z=3.5, significant=True,
+                        practical=True, params={'footprint_scale': 2.0})
+    tie = dg.Decision(None, ['incidence_angle', 'surface_offset'],
+                      pair_z={'beam_divergence': {'margin': 0.11645, 'z': 12.27}})
+    text = vd.mechanism_words(tie, [inc, beam])['beam_divergence']
+    assert text.endswith('but 0.1164 nats/point less than incidence_angle on the same '
+                         'points (z = 12.3).')

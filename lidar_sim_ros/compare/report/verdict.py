@@ -290,9 +290,11 @@ def _not_named_why(c, decision, of: str) -> str:
         return f'{fitted}, which does not pass the rule (not decisive)'
     against = (decision.pair_z or {}).get(c.name)
     if isinstance(against, dict) and 'margin' in against:
-        return (f'{fitted}, {against["margin"]:.4f} nats/point (z = '
-                f'{against.get("z", float("nan")):.1f}) from the named one, not decisively '
-                'apart')
+        # Passing the rule, neither tied nor named: the one it was weighed against (the
+        # named one, or the first of the tie) is decisively better (``decide``).
+        best = decision.missing or (decision.confounded_with or [of])[0]
+        return (f'{fitted}, but {against["margin"]:.4f} nats/point less than {best} on the '
+                f'same points (z = {against.get("z", float("nan")):.1f})')
     return ''
 
 
