@@ -37,6 +37,8 @@ def test_offsets_that_are_k_ln_of_the_intensity_gains_tie_with_them_and_others_d
     flat = laser_gains.per_laser_log_ratio(*_lasers(rng, np.ones(24)))
     assert not laser_gains.intensity_tie(list(own), flat, k, 3.0)['ties']
     assert laser_gains.intensity_tie([0.01, -0.01], {0: 0.1, 1: -0.1}, k, 3.0) is None
+    same = laser_gains.per_laser_log_ratio(laser, model * 2.0, model)   # no gains at all
+    assert laser_gains.intensity_tie(list(own), same, k, 3.0) is None
     text = verdict.laser_intensity_words(tie)
     assert 'per-channel intensity calibration' in text and 'cannot tell the two' in text
     assert verdict.laser_intensity_words({**tie, 'ties': False}) == ''

@@ -24,6 +24,9 @@ import numpy as np
 # (no parameter fitted: k is the walk's): more of the pattern than it leaves.
 MIN_EXPLAINED_SHARE = 0.5
 MIN_LASERS = 4            # a correlation over fewer lasers says nothing
+# Lasers whose mean log intensity ratios spread less than this (RMS) have no gains to
+# speak of (k times it is microns): the correlation would be of rounding.
+MIN_LOG_RATIO_SPREAD = 1e-4
 
 
 def per_laser_log_ratio(laser: np.ndarray, measured_w: np.ndarray,
@@ -48,8 +51,8 @@ def intensity_tie(offsets_m: list[float], log_ratio: dict[int, float], k_m: floa
     ``explained_share`` (1 - sum (o - k r)^2 / sum o^2, centred, no parameter fitted),
     ``slope_over_k`` (the least-squares slope of the offsets on the log ratio, over k)
     and ``ties`` (the correlation decisive by ``z_crit`` and the share at least
-    MIN_EXPLAINED_SHARE). None with fewer than MIN_LASERS lasers, no spread, or k not
-    finite."""
+    MIN_EXPLAINED_SHARE). None with fewer than MIN_LASERS lasers, offsets alike, log
+    ratios within MIN_LOG_RATIO_SPREAD, or k not finite."""
     lasers = [l for l in sorted(log_ratio) if 0 <= l < len(offsets_m)]
     if len(lasers) < MIN_LASERS or not np.isfinite(k_m) or k_m == 0:
         return None
@@ -59,7 +62,7 @@ def intensity_tie(offsets_m: list[float], log_ratio: dict[int, float], k_m: floa
         return None
     o, r = o - o.mean(), r - r.mean()
     so, sr = float(np.sum(o * o)), float(np.sum(r * r))
-    if so <= 0 or sr <= 0:
+    if so <= 0 or np.sqrt(sr / len(r)) < MIN_LOG_RATIO_SPREAD:
         return None
     corr = float(np.sum(o * r) / np.sqrt(so * sr))
     n = len(lasers)
