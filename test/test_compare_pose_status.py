@@ -115,3 +115,18 @@ def test_a_reported_pose_a_tie_and_a_failed_test_keep_consistent_fields():
                         diagnosis.Decision('range_walk', []), [walk], ['range_walk'])
     assert alone['reported'] is False and alone['decided_by']['test'] == 'constant'
     assert alone['decided_by']['z'] == -0.5
+
+
+def test_a_pose_that_passes_only_beside_the_named_effect_is_shown_on_top_of_it():
+    """``judge_pose`` asks the pose on top of the named effect where its own test fails
+    (``pose_on_top``): the reported pose's ``decided_by.on_top_of`` names it; a pose that
+    passes alone is shown on top of nothing."""
+    walk, _ = _cands()
+    judge = _Judge()
+    decision = judge.judge_pose(lambda on_top: _pose(bool(on_top)), [walk],
+                                diagnosis.Decision('range_walk', []))
+    assert decision.pose is not None and judge.pose_on_top == ['range_walk']
+    out = pose_status(decision.pose.as_dict(), decision, [walk], judge.pose_on_top)
+    assert out['reported'] and out['decided_by']['on_top_of'] == ['range_walk']
+    judge.judge_pose(lambda on_top: _pose(True), [walk], diagnosis.Decision('range_walk', []))
+    assert judge.pose_on_top == []

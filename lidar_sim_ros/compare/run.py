@@ -919,8 +919,10 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     cands = diagnosis.rank(cands + [c for c in scored if all(c is not w for w in weighed)])
     decision = diag.range_offset_beside(decision, cands, pose_test)
     named = [c for c in cands if c.name == decision.missing and c.effect is not None]
-    if decision.pose is not None or decision.beside_pose is not None:
-        # The pose the decision reports: tested on top of the named effect and its also.
+    if decision.pose is not None:
+        on_top = list(getattr(diag, 'pose_on_top', []))     # as judge_pose tested it
+    elif decision.beside_pose is not None:
+        # Tested on top of the named effect and its also (``range_offset_beside``).
         on_top = [n for n in (decision.missing, decision.also) if n]
     else:
         on_top = [c.name for c in named]

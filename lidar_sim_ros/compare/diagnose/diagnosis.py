@@ -1367,7 +1367,9 @@ class Diagnosis:
         by_name = {c.name: c for c in cands}
         named = [by_name[n] for n in [decision.missing, *decision.confounded_with]
                  if n in by_name and by_name[n].effect is not None]
+        self.pose_on_top = []          # what the pose weighed had in the model (summary)
         if not passed and named:
+            self.pose_on_top = [c.name for c in named]
             # The pose off beside the named effect: its test passes with the effect in
             # the model (an effect's wider sigma at the edges takes what a weak per-cloud
             # test, 40 clouds of jitter, leaves in its noise), so it is weighed all the
