@@ -98,6 +98,14 @@ def test_a_reported_pose_a_tie_and_a_failed_test_keep_consistent_fields():
     beside = pose_status(pose.as_dict(), diagnosis.Decision('range_walk', [], pose=pose),
                          [walk], ['range_walk'])
     assert (beside['reported'], beside['reported_as']) == (True, 'beside')
+    walk.pose_beside = {'with': ['laser_bias'], 'pose_constant': True, 'gain': 0.015,
+                        'z': 7.9, 'significant': True}
+    beside = pose_status(pose.as_dict(), diagnosis.Decision('range_walk', [], pose=pose),
+                         [walk], [])
+    assert beside['reported_because'] == (
+        'its test passes on its own, and on top of range_walk and laser_bias fitted together '
+        '(0.0150 nats/point, z = 7.9): reported beside range_walk')
+    walk.pose_beside = None
     tie = pose_status(pose.as_dict(), diagnosis.Decision(
         None, [diagnosis.POSE_ERROR, 'range_drift'], pose=pose), [], [])
     assert (tie['reported'], tie['reported_as']) == (True, 'tie')

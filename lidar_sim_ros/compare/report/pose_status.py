@@ -35,8 +35,14 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                         'with it the model fits better than with the named candidates as '
                         '--fit leaves them (raycast)', {**shown, 'raycast': pose['raycast']})
         if named:
-            return _out(True, 'beside', f'its test passes beside {_join(named)} and the '
-                        'corrected pose leaves it standing', shown)
+            lead = next((c for c in cands if c.name == named[0]), None)
+            pb = getattr(lead, 'pose_beside', None) or {}
+            also = (f', and on top of {_join([lead.name, *pb["with"]])} fitted together '
+                    f'({_f(pb.get("gain"))} nats/point, z = {_f(pb.get("z"), 1)})'
+                    if pb.get('significant') else '')
+            where = f'on top of {_join(on_top)}' if on_top else 'on its own'
+            return _out(True, 'beside', f'its test passes {where}{also}: reported beside '
+                        f'{_join(named)}', shown)
         return _out(True, 'off', 'its test passes and no sensor effect is named beside it',
                     shown)
     if decision.beside_tie and decision.beside_pose is not None:
