@@ -1,5 +1,7 @@
 """summary.json's ``reference_pose``: whether the verdict reports it, which test decided
 and why (``compare/report/pose_status.py``), on the decisions ``judge_pose`` makes."""
+from dataclasses import replace
+
 import numpy as np
 
 from lidar_sim_ros.compare.diagnose import diagnosis, pose_error
@@ -115,6 +117,13 @@ def test_a_reported_pose_a_tie_and_a_failed_test_keep_consistent_fields():
     assert null['reported'] is False
     assert null['reported_because'] == 'its held-out test does not pass'
     assert null['decided_by']['gain_per_matched_point'] == 0.0004
+    # Decisive in z but below the practical margin (the ninth holdout's walk+pose_jit_100
+    # after --effect pose_error --fit: 0.0041 nats/point, z 12.3): said why.
+    small = replace(_pose(False, constant=False, gain=0.0041), z=12.3)
+    out = pose_status(small.as_dict(), diagnosis.Decision('range_walk', []), [], ['range_walk'])
+    assert out['reported_because'] == (
+        'its held-out test does not pass on top of range_walk (its held-out gain, 0.0041 '
+        'nats/point, is below the 0.005 that matters, whatever its z)')
     # A named effect the pose test weighed on top of alone and failed (the larger gain
     # being the constant test's), the per-cloud one shown passing: that test decided.
     walk.pose_on_top = {'pose_constant': True, 'gain': -0.001, 'z': -0.5,

@@ -12,7 +12,7 @@ decision and the candidates recorded; it decides nothing.
 """
 from __future__ import annotations
 
-from lidar_sim_ros.compare.diagnose.diagnosis import POSE_ERROR
+from lidar_sim_ros.compare.diagnose.diagnosis import MIN_PRACTICAL_GAIN, POSE_ERROR
 
 
 def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> dict:
@@ -51,7 +51,12 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                     'alike (also_confounded_with): neither is named', shown)
     if not pose.get('significant'):
         where = f' on top of {_join(on_top)}' if on_top else ''
-        return _out(False, None, f'its held-out test does not pass{where}', shown)
+        gain = pose.get('gain_per_matched_point')
+        small = (f' (its held-out gain, {_f(gain)} nats/point, is below the '
+                 f'{MIN_PRACTICAL_GAIN:g} that matters, whatever its z)'
+                 if gain is not None and gain < MIN_PRACTICAL_GAIN and (pose.get('z') or 0) > 0
+                 else '')
+        return _out(False, None, f'its held-out test does not pass{where}{small}', shown)
     by_name = {c.name: c for c in cands}
     if decision.evidence in by_name:      # sunlight, named on solar_background's gain
         by_name[decision.missing] = by_name[decision.evidence]
