@@ -752,3 +752,34 @@ def test_lasers_set_aside_by_the_tile_test_are_put_in_when_their_tiles_hold_besi
     assert not bg.pose_beside['significant']
     assert Judge(False).pose_beside_named(test, pose, decision, [lasers, bg, walk]) == []
     assert bg.pose_beside['with'] == ['range_walk'] and bg.pose_beside['significant']
+
+
+def test_a_fit_of_the_pose_per_cloud_scores_the_candidates_on_the_rays_it_is_fitted_on():
+    """``--effect pose_error --fit`` (``run.on_corrected_pose``): after a per-cloud
+    correction raycast again, the diagnosis run on the corrected pose scores the rays
+    the correction is fitted on, as beside a per-cloud pose the diagnosis does
+    (``fitted_rays_only``): what it leaves at a grazing ray grows as 1 / cos(incidence)
+    (the eighth holdout's h8-n120-jitB_s10 with --effect pose_error --fit named
+    incidence_angle on it). A constant correction, or one applied linearly (not
+    significant: no re-cast), leaves the sample whole."""
+    from types import SimpleNamespace
+    from lidar_sim_ros.compare import run
+    n = 1000
+    inc = np.radians(np.linspace(0.0, 89.0, n))
+    rec = _Recording(np.tile([1.0, 0.0, 0.0], (n, 1)), np.full(n, 10.0), np.zeros(n, int))
+    sample = diagnosis.RaySet(rec, np.arange(n), np.array([5000]))
+    pred = SimpleNamespace(hits=SimpleNamespace(incidence_rad=inc))
+
+    def fit(constant, passes):
+        return replace(pose_error.PoseError(
+            clouds=np.zeros(1, int), t_s=np.zeros(1), translation_m=np.zeros((1, 3)),
+            rotation_deg=np.zeros((1, 3)), gain=0.1, z=40.0, significant=passes > 0,
+            correction_m=np.zeros(n), constant=constant), passes=passes)
+    kept, left = run.on_corrected_pose(sample, pred, fit(False, 3))
+    grazing = np.cos(inc) < pose_error.MIN_COS
+    assert left == grazing.sum() > 0
+    assert np.array_equal(kept.matched, np.flatnonzero(~grazing))
+    assert np.array_equal(kept.unmatched, sample.unmatched)
+    for whole in (fit(True, 4), fit(False, 0), None):
+        same, none = run.on_corrected_pose(sample, pred, whole)
+        assert none == 0 and np.array_equal(same.matched, sample.matched)

@@ -35,10 +35,12 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import norm
 
-from lidar_sim_ros.compare.diagnose import (diagnosis, features, plan as sep_plan, pose_error,
-                                            region_offset, stamp_place)
+from lidar_sim_ros.compare.diagnose import (diagnosis, features, laser_gains,
+                                            plan as sep_plan, pose_error, region_offset,
+                                            stamp_place)
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
+from lidar_sim_ros.compare.report.pose_status import pose_status
 from lidar_sim_ros.compare.model import (crosstalk as xtalk, likelihood as lk,
                                          materials as mat, neighbours, occlusion as occ,
                                          point_times)
@@ -100,6 +102,7 @@ SILHOUETTE_NEAR_DIVERGENCES = 2.0
 # --effect pose_error: a per-cloud correction of the reference pose (compare/diagnose/pose_error.py),
 # not a catalogue effect: the simulator never applies it.
 POSE_ERROR = diagnosis.POSE_ERROR
+LASER_BIAS, RANGE_WALK = 'laser_bias', 'range_walk'
 
 
 @dataclass
@@ -386,6 +389,7 @@ class Analysed:
     values: dict                  # feature values
     labels: dict
     attribution: features.Attribution
+    grazing_left_out: int = 0     # matched rays below pose_error.MIN_COS left out (--fit pose)
 
 
 @dataclass
@@ -400,6 +404,7 @@ class Diagnosed:
     before: tuple[float, float, float]
     full: object | None = None          # the diagnosed points' FitData (lk.FitData)
     z_crit: float = float(norm.isf(diagnosis.FAMILY_ALPHA / 6))
+    pose_on_top: list = field(default_factory=list)   # what the pose test had in the model
 
 
 @dataclass
@@ -465,8 +470,11 @@ def run_compare(opts: CompareOptions) -> CompareResult:
             sunlight = sunlight_stage(cal, effects, inp.sun, sun_fit, opts)
     with stage('neighbours'):
         sample, picked, isolated = diagnosis_sample(cal.rays, inp.meas, opts.seed)
+        sample, grazing = on_corrected_pose(sample, cal.matching.pred, pose_fit)
+        picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
     with stage('features', f'{len(sample.matched)} matched points'):
-        ana = attribute(cal, effects, inp.meas, sample, picked, isolated, opts.seed)
+        ana = replace(attribute(cal, effects, inp.meas, sample, picked, isolated, opts.seed),
+                      grazing_left_out=grazing)
     classes = candidate_classes(opts, effects)
     if classes:
         with stage('candidates', ', '.join(c.name for c in classes)):
@@ -916,9 +924,16 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = region_offset.weigh_pose(decision, cands, tested_data,
                                         sample.blocks[tested.matched], pose_test, diag.z_crit,
                                         diagnosis.MIN_PRACTICAL_GAIN, seed)
-    named = [c.effect for c in cands if c.name == decision.missing]
+    named = [c for c in cands if c.name == decision.missing and c.effect is not None]
+    if decision.pose is not None:
+        on_top = list(getattr(diag, 'pose_on_top', []))     # as judge_pose tested it
+    elif decision.beside_pose is not None:
+        # Tested on top of the named effect and its also (``range_offset_beside``).
+        on_top = [n for n in (decision.missing, decision.also) if n]
+    else:
+        on_top = [c.name for c in named]
     pose = (decision.pose if decision.pose is not None else decision.beside_pose
-            if decision.beside_pose is not None else pose_test(named))
+            if decision.beside_pose is not None else pose_test([c.effect for c in named]))
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
@@ -931,7 +946,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = diagnosis.settle(decision, cands, diag.naming_fault)
     diag.fit_together(decision, cands)
     return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
-                     diag.full, diag.z_crit)
+                     diag.full, diag.z_crit, on_top)
 
 
 def pose_points(rays: diagnosis.RaySet, sample: diagnosis.RaySet,
@@ -1003,6 +1018,21 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
     diag = diagnosis.Diagnosis(model, effects, replace(fresh, edge_rad=edge), seed)
     diag.set_family(n_candidates)
     return diag, report, moved_rays
+
+
+def on_corrected_pose(sample: diagnosis.RaySet, pred: Prediction,
+                      pose_fit: pose_error.PoseError | None) -> tuple[diagnosis.RaySet, int]:
+    """The diagnosis sample of a ``--effect pose_error --fit`` run and how many of its
+    matched rays were left out: where the correction is per cloud and was raycast again
+    (``correct_reference_pose``), the rays it is fitted on (``fitted_rays_only``), as
+    the diagnosis scores candidates beside a per-cloud pose (``recast_all_points``);
+    what the correction leaves at grazing rays grows as 1 / cos(incidence) and reads as
+    a sensor effect there. A constant correction, or one applied linearly (not
+    significant), leaves the sample as it is."""
+    if pose_fit is None or not pose_fit.passes or pose_fit.constant:
+        return sample, 0
+    kept = fitted_rays_only(sample, pred)
+    return kept, len(sample.matched) - len(kept.matched)
 
 
 def fitted_rays_only(sample: diagnosis.RaySet, pred: Prediction) -> diagnosis.RaySet:
@@ -1090,9 +1120,13 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'scan_pattern_match': (None if meas.scan_match_fraction is None
                                else round(meas.scan_match_fraction, 4)),
         'stamp_place': diag.stamp.as_dict() if diag.stamp is not None else None,
-        'reference_pose': diag.pose.as_dict() if diag.pose is not None else None,
+        'reference_pose': (None if diag.pose is None else {
+            **diag.pose.as_dict(),
+            **pose_status(diag.pose.as_dict(), decision, diag.cands, diag.pose_on_top)}),
         'reference_pose_off': decision.pose is not None,
         'region_offset': decision.region.as_dict() if decision.region is not None else None,
+        'laser_intensity': laser_intensity(decision, diag.cands, effects, cal.rays,
+                                           cal.matching.pred, diag.z_crit),
         'pose_correction': pose_fit.as_dict() if pose_fit is not None else None,
         'has_intensity': meas.intensity is not None,
         'point_fields': {**(meas.fields or {}), 'lines': meas.field_lines + [
@@ -1106,6 +1140,10 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
                             scenario.sensor.detection.saturation_power_w)},
         'dropped': meas.dropped,
         'notes': list(meas.notes) + _material_name_notes(meas, scenario)
+        + ([f'the reference pose corrected per cloud: the candidates are scored on the '
+            f'rays its correction is fitted on, {ana.grazing_left_out} grazing rays of the '
+            f'sample (|cos incidence| < {pose_error.MIN_COS:g}) left out']
+           if ana.grazing_left_out else [])
         + (['--fit without --effect: nothing to fit']
            if opts.fit and not inp.user and not inp.pose_fit else [])
         + ([f'separation plan of {" and ".join(plan.pair)} failed: {plan.error}']
@@ -1117,6 +1155,43 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
              'range_robust_sigma_calibrated_m': before[2]}
     summary['verdict'] = verdict(basis, ana.attribution, diag.cands, decision)
     return summary
+
+
+def laser_intensity(decision: diagnosis.Decision, cands: list, effects: list[Effect],
+                    rays: diagnosis.RaySet, pred: Prediction, z_crit: float) -> dict | None:
+    """summary.json's ``laser_intensity``: where laser_bias is named (or 'also') beside a
+    range walk read from the measured intensity (in the model, named or 'also'), how
+    closely its offsets follow k times each laser's mean ln(measured / model power) on
+    the matched points (``laser_gains.intensity_tie``): per-laser intensity gains read
+    through the walk give the same offsets. None otherwise."""
+    said = (decision.missing, decision.also)
+    if LASER_BIAS not in said or rays.measured_power_w is None:
+        return None
+    by_name = {c.name: c for c in cands}
+    lasers = by_name.get(LASER_BIAS)
+    walk = next((e for e in effects if e.name == RANGE_WALK), None)
+    named = by_name.get(decision.missing)
+    # The walk and the lasers fitted together where the decision names both
+    # (``Diagnosis.fit_together``); the walk in the model: the lasers fitted on top of it.
+    tog = (named.together or {}) if named is not None else {}
+    both = {decision.missing, tog.get('with')} == {RANGE_WALK, LASER_BIAS}
+    if walk is not None:
+        k = float(walk.params.k_m)
+    elif both:
+        k = (tog.get('params') if decision.missing == RANGE_WALK
+             else tog.get('with_params') or {}).get('k_m')
+    else:
+        return None
+    if lasers is None or k is None:
+        return None
+    offsets = (tog.get('offsets_m') or {}).get(LASER_BIAS) if both else None
+    if offsets is None:
+        offsets = [float(lasers.params.get(f'laser_{i}_m', np.nan))
+                   for i in range(sum(1 for key in lasers.params if key.startswith('laser_')))]
+    idx = rays.matched
+    ratio = laser_gains.per_laser_log_ratio(rays.meas.laser[idx], rays.measured_power_w[idx],
+                                            np.asarray(pred.ctx.power_w, float)[idx])
+    return laser_gains.intensity_tie(offsets, ratio, float(k), z_crit)
 
 
 def write_outputs(opts: CompareOptions, summary: dict, stage: Stages, inp: Inputs,

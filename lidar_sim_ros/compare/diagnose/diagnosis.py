@@ -440,6 +440,9 @@ class Candidate:
     # The named one: the pose test on top of it and what the decision holds beside it,
     # fitted together (``Diagnosis.pose_beside_named``).
     pose_beside: dict | None = None
+    # A named (or tied) one: the pose test ``judge_pose`` weighed on top of it alone
+    # (per cloud or constant, the larger held-out gain).
+    pose_on_top: dict | None = None
     # An outlier effect: the false returns its fitted rate predicts against those
     # recorded, on the diagnosed points (``Diagnosis.false_return_budget``).
     false_returns: dict | None = None
@@ -469,6 +472,7 @@ class Candidate:
                 **({'fitted_together': self.together} if self.together else {}),
                 **({'against_pose': self.against_pose} if self.against_pose else {}),
                 **({'pose_beside': self.pose_beside} if self.pose_beside else {}),
+                **({'pose_on_top': self.pose_on_top} if self.pose_on_top else {}),
                 **({'false_returns': self.false_returns} if self.false_returns else {}),
                 **({'error': self.error} if self.error else {})}
 
@@ -1300,6 +1304,12 @@ class Diagnosis:
                                     if isinstance(v, float) and isinstance(mine.get(k), float)},
                          'with_params': {k: float(v) for k, v in theirs.items()
                                          if isinstance(v, float)}}
+        # Per-laser offsets (a list parameter), fitted together: ``run.laser_intensity``.
+        lists = {c.name: [float(x) for x in d['offsets_m']]
+                 for c, d in ((best, mine), (other, theirs))
+                 if isinstance(d.get('offsets_m'), (list, tuple))}
+        if lists:
+            best.together['offsets_m'] = lists
 
     def lasers_beside(self, best: Candidate, cands: list[Candidate]) -> str | None:
         """A per-laser candidate set aside by the tile test (``tile_veto``: its offsets
@@ -1397,7 +1407,9 @@ class Diagnosis:
         by_name = {c.name: c for c in cands}
         named = [by_name[n] for n in [decision.missing, *decision.confounded_with]
                  if n in by_name and by_name[n].effect is not None]
+        self.pose_on_top = []          # what the pose weighed had in the model (summary)
         if not passed and named:
+            self.pose_on_top = [c.name for c in named]
             # The pose off beside the named effect: its test passes with the effect in
             # the model (an effect's wider sigma at the edges takes what a weak per-cloud
             # test, 40 clouds of jitter, leaves in its noise), so it is weighed all the
@@ -1415,7 +1427,15 @@ class Diagnosis:
         # per-cloud correction's extra parameters are paid for on the held-out half).
         test, pose = max(passed, key=lambda tp: getattr(tp[1], 'gain', 0.0))
         # Named candidates that leave the pose nothing (its test fails on top of them).
-        explain = [c for c in named if not test([c.effect]).significant]
+        explain = []
+        for c in named:
+            on_top = test([c.effect])
+            c.pose_on_top = {'pose_constant': bool(getattr(on_top, 'constant', False)),
+                             'gain': _num(getattr(on_top, 'gain', None)),
+                             'z': _num(getattr(on_top, 'z', None)),
+                             'significant': bool(on_top.significant)}
+            if not on_top.significant:
+                explain.append(c)
         if not explain:
             explain = self.pose_beside_named(test, pose, decision, cands)
         if not any(c.admissible and c.effect is not None for c in cands):

@@ -112,6 +112,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             parts.append(f'{decision.also} also explains a separate part of the residual: '
                          f'expect it in the next run.{_together_words(c)}')
         parts.extend(stands_in_words(decision))
+        lasers = laser_intensity_words(summary.get('laser_intensity'))
+        if lasers:
+            parts.append(lasers)
         if c.against_pose:
             parts.append(_against_pose_words(c))
     elif diagnosis.POSE_ERROR in decision.confounded_with:
@@ -149,9 +152,12 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                                                [n for n in (missing, decision.also) if n]))
     vetoed = [c for c in cands if c.vetoed and c.significant and c.practical
               and c.name != missing and c.name not in decision.confounded_with]
-    if vetoed and (missing or decision.confounded_with):
+    mechanism = mechanism_words(decision, cands)
+    if vetoed and (missing or decision.confounded_with) and not (
+            mechanism and vetoed[0].name in mechanism):
         parts.append(f'{vetoed[0].name} would raise the likelihood but is not the missing '
                      f'effect: {vetoed[0].vetoed}.')
+    parts.extend(mechanism.values())
     mats = summary['materials']
     bad = [n for n, m in mats.items() if m['bias_mismatch'] or m['sigma_mismatch']]
     if bad:
@@ -215,6 +221,84 @@ LINE_OF_SIGHT_SHARE = 0.75
 COMMON_OFFSET_MATERIALS = 3
 COMMON_OFFSET_SPREAD = 0.5
 COMMON_OFFSET_MIN_M = 0.01
+
+
+# A catalogue effect that is a physical mechanism of another: a beam footprint at oblique
+# incidence is what makes a range bias growing with the incidence angle. Where the
+# mechanism ranked above the effect named (or tied) for it, or passed the rule, and is
+# not named, the verdict says what it scored and why not (``mechanism_words``).
+MECHANISM_OF = {'incidence_angle': ('beam_divergence',)}
+
+
+def laser_intensity_words(tie: dict | None) -> str:
+    """laser_bias named (or 'also') beside a range walk read from the measured intensity,
+    its offsets following k times each laser's mean log intensity ratio (summary.json's
+    ``laser_intensity``, ``laser_gains.intensity_tie``): a tie of causes, said."""
+    if not tie or not tie.get('ties'):
+        return ''
+    return (f'laser_bias\'s offsets follow k times each laser\'s mean log ratio of measured '
+            f'to model intensity (k = {tie["k_m"]:.4g} m, the walk\'s; correlation '
+            f'{tie["correlation"]:.2f} over {tie["lasers"]} lasers, and k times the ratio '
+            f'gives {100 * tie["explained_share"]:.0f} % of their spread with nothing fitted): '
+            'they may be a per-channel intensity calibration read through the range walk '
+            '(the walk, read from intensity, moves a laser\'s ranges by k ln of its intensity '
+            'gain) rather than range offsets of the lasers; this recording cannot tell the two '
+            'causes apart (calibrating each laser\'s intensity would).')
+
+
+def mechanism_words(decision, cands: list) -> dict[str, str]:
+    """One sentence per candidate that is the mechanism (MECHANISM_OF) of a named,
+    tied or 'also' effect but not named itself, where it passed the rule or its held-out
+    gain is at least that effect's (a reader of the ranking would ask why not): what it
+    scored and which part of the rule it fails, from the fit's own figures. Name ->
+    sentence."""
+    by_name = {c.name: c for c in cands}
+    said = [n for n in (decision.missing, decision.also, *decision.confounded_with) if n]
+    out = {}
+    for name in said:
+        shown = by_name.get(name)
+        for mech in MECHANISM_OF.get(name, ()):
+            c = by_name.get(mech)
+            if (c is None or mech in said or mech in out or c.error is not None
+                    or shown is None or not c.practical
+                    or not (c.significant or c.score >= shown.score)):
+                continue
+            why = _not_named_why(c, decision, name)
+            if why:
+                out[mech] = (f'{mech}, a mechanism of {name}, is not named: {why}.')
+    return out
+
+
+def _not_named_why(c, decision, of: str) -> str:
+    """Which part of the rule a candidate fails, in the fit's figures ('' if none is
+    known: then it is not said)."""
+    params = ', '.join(f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
+                       for k, v in (c.params or {}).items())
+    fitted = (f'fitted with {params}, it gains {c.score:.4f} nats/point held out '
+              f'(z = {c.z:.1f})')
+    if c.vetoed:
+        return f'{fitted}, but {c.vetoed}'
+    withheld = (decision.withheld or {}).get(c.name)
+    if withheld:
+        return f'{fitted}, but {withheld}'
+    if not c.significant and c.matched_gain <= -diagnosis.MIN_PRACTICAL_GAIN:
+        share = 100 * c.unmatched_explained
+        rests = (f'all of it on the points that miss the target model, {share:.0f} % of '
+                 'which it explains'
+                 if c.unmatched_explained > 0 else 'none of it on the matched points')
+        return (f'{fitted}, {rests}; on the matched ranges it loses '
+                f'{-c.matched_gain:.4f} nats/point (z = {c.z_matched:.1f}), so it does not '
+                f'pass the rule: the range residual {of} explains is not shown to be its')
+    if not c.significant:
+        return f'{fitted}, which does not pass the rule (not decisive)'
+    against = (decision.pair_z or {}).get(c.name)
+    if isinstance(against, dict) and 'margin' in against:
+        # Passing the rule, neither tied nor named: the one it was weighed against (the
+        # named one, or the first of the tie) is decisively better (``decide``).
+        best = decision.missing or (decision.confounded_with or [of])[0]
+        return (f'{fitted}, but {against["margin"]:.4f} nats/point less than {best} on the '
+                f'same points (z = {against.get("z", float("nan")):.1f})')
+    return ''
 
 
 def stands_in_words(decision) -> list[str]:
