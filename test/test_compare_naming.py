@@ -1196,3 +1196,19 @@ def test_a_mechanism_that_passed_the_rule_but_ranked_decisively_below_is_said_so
     text = vd.mechanism_words(tie, [inc, beam])['beam_divergence']
     assert text.endswith('but 0.1164 nats/point less than incidence_angle on the same '
                          'points (z = 12.3).')
+
+
+def test_a_target_effect_that_stays_on_the_corrected_pose_is_not_called_the_sensor():
+    """Holdout 10's walk_inc_2dist: surface_offset named ("not a sensor effect: check the
+    mesh") and, in the same verdict, "with the pose corrected per cloud surface_offset
+    still gains ...: it is the sensor". A target effect that survives the pose is the
+    target's surfaces; a sensor effect that does is the sensor."""
+    for name, said in (('surface_offset', "it is the target's surfaces, not the pose."),
+                       ('snr_noise', 'it is the sensor.')):
+        c = cand(name, 0.07, -2.08, seed=33)
+        c.params = {}
+        c.against_pose = {'passes_on_pose': True, 'score_on_pose': 0.05, 'z_on_pose': 9.7,
+                          'pose_constant': False}
+        text = vd._against_pose_words(c)
+        assert said in text
+        assert name != 'surface_offset' or 'it is the sensor' not in text

@@ -34,6 +34,9 @@ EFFECT_WORDS = {
                       'structure it shows), not a sensor effect: check the mesh against the '
                       'target',
 }
+# Catalogue effects of the target, not the sensor: a verdict weighing them against the pose
+# does not call them the sensor's.
+NOT_THE_SENSOR = ('surface_offset',)
 # What varies each catalogue effect independently of the others: the recording that
 # separates two confounded candidates varies what drives one at fixed values of what
 # drives the other.
@@ -435,7 +438,9 @@ def _against_pose_words(c) -> str:
     if ap.get('passes_on_pose'):
         return (f'A reference pose off along the line of sight moves clouds too, but with '
                 f'the pose corrected {how} {c.name} still gains {ap["score_on_pose"]:.4f} '
-                f'nats/point held out (z = {ap["z_on_pose"]:.1f}): it is the sensor.'
+                f'nats/point held out (z = {ap["z_on_pose"]:.1f}): '
+                + ('it is the target\'s surfaces, not the pose.' if c.name in NOT_THE_SENSOR
+                   else 'it is the sensor.')
                 + _value_on_pose(c))
     return (f'A reference pose off along the line of sight moves clouds too, and on held-out '
             f'points the two leave each other nothing; but with the pose corrected {how} '
