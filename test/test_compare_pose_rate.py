@@ -146,11 +146,17 @@ def test_a_rate_held_out_on_few_points_a_cloud_loses_its_gain_to_the_fit_noise()
     np.testing.assert_allclose(np.mean(got[1].rate_rotation_deg_s[:, 2]), 10.0, rtol=0.15)
 
 
-def _held(rate_mps: float, offset_m: float, seed: int, n: int = 12_000, along=(0.0, 1.0, 0.0)):
+def _held(rate_mps: float, offset_m: float, seed: int, n: int = 12_000, along=(0.0, 1.0, 0.0),
+          raster: bool = False):
     """Planes moved by ``offset_m + rate_mps x (time since the cloud's start)`` along
     ``along`` in every cloud: a tracking pose sampled at each cloud's start and held
-    over its scan (a sample-and-hold pose of a target moving at ``rate_mps``)."""
+    over its scan (a sample-and-hold pose of a target moving at ``rate_mps``). Each
+    ray's time within the scan is drawn at random over 0.09 s (a pattern that meets
+    each direction at several times, as a Lissajous does), or with ``raster`` follows
+    its elevation (``_planes``: the time fixed by the direction)."""
     u, normal, centre, cloud, t, rng = _planes(n, seed)
+    if not raster:
+        t = cloud * 0.1 + rng.uniform(0.0, 0.09, len(t))
     since = t - cloud * 0.1
     shift = np.outer(offset_m + rate_mps * since, along)
     origin = np.tile(centre, (len(u), 1))
@@ -184,6 +190,28 @@ def test_a_constant_pose_error_gives_no_rate():
     assert pe.constant and pe.significant and pe.rate_tested and not pe.rate_supported
     assert pe.n_params == 6 and 'drifts' not in pe.words()
     assert pe.as_dict()['rate']['supported'] is False
+
+
+def test_a_raster_cannot_tell_one_rate_from_a_pattern_over_the_directions():
+    """A raster's time within the scan follows its rows: one rate for the recording is
+    then a fixed pattern over the field of view, which a sensor's own pattern passes for.
+    A range bias of the sensor that follows the elevation (the rows) is not read as a
+    drift of the pose; the same bias with a time that the direction does not fix is."""
+    u, normal, centre, cloud, t, rng = _planes(12_000, 8)
+    el = np.degrees(np.arcsin(u[:, 2]))
+    origin = np.tile(centre, (len(u), 1))
+    expected = _range(origin, normal, u)
+    measured = expected + 0.01 * el + SIGMA_M * rng.standard_normal(len(u))
+    data = _data(u, normal, measured, expected, t)
+    pe = pose_error.fit_reference_pose(data, cloud, t, np.arange(len(t)) // 30, 3.0, 0.005,
+                                       rate=True, constant=True)
+    assert pe.rate_tested and not pe.rate_supported
+    # A pose drifting with the same raster timing is not claimed either: the data cannot
+    # tell it from a pattern over the directions.
+    data_d, cloud_d, t_d = _held(0.4, 0.0, seed=9, raster=True)
+    pe_d = pose_error.fit_reference_pose(data_d, cloud_d, t_d, np.arange(len(t_d)) // 30,
+                                         3.0, 0.005, rate=True, constant=True)
+    assert pe_d.rate_tested and not pe_d.rate_supported
 
 
 def test_no_pose_error_gives_no_rate():

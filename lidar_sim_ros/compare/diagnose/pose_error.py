@@ -707,6 +707,10 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         tau, t_c, h_c = tau_scan, np.array([scan.centre_s]), np.array([scan.half_s])
     rate = bool(rate and np.any(h_c > 1e-9))
     a12 = rate_columns(a, tau) if rate else None
+    # One rate for the recording is tested on the part of tau that the direction does
+    # not fix (``beyond_direction``); estimated on tau whole.
+    a12t = (rate_columns(a, beyond_direction(tau, ctx.direction, use))
+            if rate and constant else a12)
     prior = None if applied is None else applied.params(clouds)
     prior12 = None if applied is None else applied.params(clouds, rate=True)
     # Jointly with the material offsets for one correction for the recording only: a
@@ -750,14 +754,14 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
             off = per_cloud_offset(r, s, row, train, len(clouds))
             gain1[test] = heldout_gain(r[test], off[test], s[test])
         if rate:
-            x12 = fit_clouds(a12, r, s, cloud, train, clouds, prior12, TEST_RIDGE, group)
-            corr12 = with_offsets(np.einsum('ij,ij->i', a12, x12[row]), r, group, train)
+            x12 = fit_clouds(a12t, r, s, cloud, train, clouds, prior12, TEST_RIDGE, group)
+            corr12 = with_offsets(np.einsum('ij,ij->i', a12t, x12[row]), r, group, train)
             gain12[test] = heldout_gain(r[test], corr12[test], s[test])
             if through is not None:
                 # The drifting correction on the footing of ``gain_t``.
-                x12 = fit_clouds(a12, r + offset, s, cloud, train, clouds, prior12,
+                x12 = fit_clouds(a12t, r + offset, s, cloud, train, clouds, prior12,
                                  TEST_RIDGE)
-                corr12 = with_offsets(np.einsum('ij,ij->i', a12, x12[row]), r, materials,
+                corr12 = with_offsets(np.einsum('ij,ij->i', a12t, x12[row]), r, materials,
                                       train)
                 gain12_t[test] = heldout_gain(r[test], corr12[test], s[test])
 
@@ -816,6 +820,34 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      scan=scan if constant and rate else None,
                      offset_gain=offset_gain, offset_z=offset_z,
                      beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z)
+
+
+DIRECTION_CELL_DEG = 0.25   # a sensor's pattern over its field of view is smooth over this
+
+
+def beyond_direction(tau: np.ndarray, direction: np.ndarray, use: np.ndarray) -> np.ndarray:
+    """(N,) ``tau`` less its mean over the ``use`` points of each direction cell
+    (DIRECTION_CELL_DEG in azimuth and elevation, lidar frame; zero where a cell holds
+    one point): the time within the scan that the direction does not fix. A scan that
+    repeats every cloud ties each shot's time to its direction, so one rate for the
+    recording, ``a tau``, is a fixed pattern over the field of view as well, which a
+    sensor's own pattern passes for: on a raster, whose time follows its rows, a range
+    bias periodic in azimuth (an encoder error, the battery's ``azimuth_bias``) passed
+    as a drift of 2.6 cm and 3.4 deg per 0.1 s (z 6.8). A drift of the pose shows where
+    the scan meets one direction at different times (a Lissajous's or a rosette's
+    crossing passes), which no pattern over the directions can take."""
+    u = np.asarray(direction, float)
+    az = np.degrees(np.arctan2(u[:, 1], u[:, 0]))
+    el = np.degrees(np.arcsin(np.clip(u[:, 2], -1.0, 1.0)))
+    ok = use & np.isfinite(az) & np.isfinite(el)
+    key = np.stack([np.floor(np.where(ok, az, 0.0) / DIRECTION_CELL_DEG),
+                    np.floor(np.where(ok, el, 0.0) / DIRECTION_CELL_DEG)], axis=1)
+    _, cell = np.unique(key.astype(np.int64), axis=0, return_inverse=True)
+    cell = cell.ravel()
+    t = np.where(ok, np.asarray(tau, float), 0.0)
+    n = np.bincount(cell, weights=ok.astype(float))
+    mean = np.bincount(cell, weights=t) / np.maximum(n, 1.0)
+    return np.where(ok & (n[cell] > 1), t - mean[cell], 0.0)
 
 
 def constant_rate_supported(rate: tuple[float, float], drifting: tuple[float, float],
