@@ -36,12 +36,13 @@ test, the correction and the re-cast use the rigid part and its rate
 (``PoseCorrection.rate_*``).
 
 A reference pose that drifts the same way in every cloud (a tracking pose sampled at
-each cloud's start and held over the scan, a lag of the filter behind a steady motion)
-is one rigid correction for the recording and one rate (``fit_reference_pose`` with
-``constant=True``, ``rate=True``): the rate's columns are scaled by each point's time
-since its cloud's stamp, on one time base for the recording (``ScanClock``), and the
-rate is kept if it passes the rule on top of the rigid correction held out, and the
-drifting correction against none (``constant_rate_supported``).
+each cloud's start and held over the scan while the target moves) is one rigid
+correction for the recording and one rate (``fit_reference_pose`` with
+``constant=True``, ``rate=True``): the rate's columns are scaled by the time since the
+cloud's stamp, on one time base for the recording, read at the pose's samples
+(``ScanClock``); the rate is tested on the part of that time the direction does not fix
+(``beyond_direction``) and kept if it passes the rule on top of the rigid correction
+held out, and the drifting correction against none (``constant_rate_supported``).
 """
 from __future__ import annotations
 
