@@ -74,7 +74,7 @@ def test_the_place_of_the_stamp_is_not_told_from_a_clock_offset():
     words = stamp_place_words(d)
     assert 'cannot be told' in words and 'per-point time field' in words
     for place in ('start', 'middle', 'end'):
-        assert f'a stamp at the {place}' in words
+        assert f'at the {place} with' in words
     assert '50 ms late' in words and '50 ms early' in words
     assert 'here it is what stamps at' not in words
 

@@ -277,13 +277,13 @@ def stamp_place_words(st: dict) -> str:
     def reading(r: dict) -> str:
         c = 1e3 * r['clock_offset_s']
         if abs(c) < 0.5:
-            return f'a stamp at the {r["place"]} of the scan with the clocks in step'
-        return (f'a stamp at the {r["place"]} with the poses stamped {abs(c):.0f} ms '
+            return f'at the {r["place"]} with the clocks in step'
+        return (f'at the {r["place"]} with the poses stamped {abs(c):.0f} ms '
                 f'{"late" if c > 0 else "early"}')
-    readings = sorted(st.get('readings') or [], key=lambda r: abs(r['clock_offset_s']))
-    said = ', or '.join(reading(r) for r in readings)
-    return (f' (the {1e3 * st["fitted_dt_s"]:+.1f} ms fitted is {part} '
-            f'{1e3 * st["period_s"]:.0f} ms frame, {1e3 * st["dt_s"]:+.0f} ms: {said}; '
+    parts = [reading(r) for r in st.get('readings') or []]
+    said = ', or '.join([', '.join(parts[:-1]), parts[-1]] if len(parts) > 1 else parts)
+    return (f' (the {1e3 * st["fitted_dt_s"]:+.1f} ms fitted, {part} '
+            f'{1e3 * st["period_s"]:.0f} ms frame, is what a stamp of the scan gives {said}; '
             'without per-point times the place of the stamp and a clock offset give the same '
             'data, so which one it is cannot be told here, and a recording with the driver\'s '
             'per-point time field, or the driver\'s documented stamp place, separates them; '
