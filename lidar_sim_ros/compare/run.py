@@ -885,8 +885,11 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             diag_p, report, moved = recast_all_points(model, effects, rays, sample, meas,
                                                       all_points_pose(pose.constant),
                                                       len(classes), seed, pose.constant)
+            # The test stays the sample's; its gain is the rigid one's where the rate
+            # showed on every matched point only (``PoseError.rate_in_test``).
             recast_cache[pose.constant] = (diag_p, replace(
-                report, gain=pose.gain, z=pose.z, significant=pose.significant), moved)
+                report, gain=pose.gain, z=pose.z, significant=pose.significant,
+                rate_in_test=bool(pose.rate_supported or not report.rate_supported)), moved)
         return recast_cache[pose.constant]
 
     def same_points(pose: pose_error.PoseError, effect: Effect | None) -> tuple[float, float]:

@@ -110,6 +110,10 @@ class PoseError:
     # this time base within each cloud's scan; t_centre_s and half_span_s its centre and
     # half-span (one row, s after the stamp).
     scan: ScanClock | None = None
+    # Whether ``gain`` and ``z`` are the drifting correction's: False where the rate was
+    # supported on every matched point (the correction reported) but not on the test's
+    # sample, whose gain is then the rigid correction's.
+    rate_in_test: bool = True
     # Per cloud: one range offset per cloud (a sensor's range offset changing between
     # clouds, ``per_cloud_offset_columns``), its held-out gain and z, and the rigid
     # correction's gain over it (nested, on the same halves). A correction that gains

@@ -347,7 +347,8 @@ def pose_words(pose, cands: list = ()) -> str:
 
 def _correction(pose) -> str:
     """The pose correction as tested: one for all the clouds, or one per cloud."""
-    if getattr(pose, 'constant', False) and getattr(pose, 'rate_supported', False):
+    if (getattr(pose, 'constant', False) and getattr(pose, 'rate_supported', False)
+            and getattr(pose, 'rate_in_test', True)):
         return ('One correction of the target pose for the whole recording and its rate '
                 'over the scan')
     return ('One rigid correction of the target pose for the whole recording'
