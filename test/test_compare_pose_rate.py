@@ -293,3 +293,21 @@ def test_corrected_poses_apply_one_rate_on_the_scan_clock():
     np.testing.assert_allclose(got[:, 1], 0.02 * tau, atol=1e-12)
     np.testing.assert_allclose(got[:, 0], 0.01, atol=1e-12)
     np.testing.assert_allclose(got[[0, 2], 1], -0.02, atol=1e-3)   # each scan starts anew
+
+
+def test_the_scan_clock_takes_bad_times():
+    """No finite time, no span within the clouds, no clouds: no time base (no rate is
+    tested); pose samples at NaN, inf or 1e300 are left out or read at the recording's
+    edge, and a stamp that is NaN drops its cloud."""
+    cloud = np.zeros(5, int)
+    t = np.linspace(0.0, 0.09, 5)
+    assert pose_error.ScanClock.of(cloud, np.full(5, np.nan)) is None
+    assert pose_error.ScanClock.of(cloud, np.zeros(5)) is None
+    assert pose_error.ScanClock.of(np.zeros(0, int), np.zeros(0)) is None
+    clock = pose_error.ScanClock.of(cloud, t, np.array([0.0]),
+                                    np.array([np.nan, np.inf, 0.0, 0.05, 1e300, -1e300]))
+    tau = clock.tau(np.array([0.0, 0.05, 1e9, -1e9]))
+    assert np.all(np.isfinite(tau)) and np.all(np.abs(tau) <= 1.1)
+    two = pose_error.ScanClock.of(np.array([0, 0, 1, 1]), np.array([0.0, 0.05, np.nan, 1e300]),
+                                  np.array([0.0, np.nan]))
+    assert len(two.stamps_s) == 1

@@ -446,11 +446,13 @@ class ScanClock:
 
     def tau_at(self, t_s: np.ndarray, edge_s: float = 0.0) -> np.ndarray:
         """(N,) tau of each time itself within its frame's scan; ``edge_s``: a time this
-        much before a frame counts in it."""
+        much before a frame counts in it. A time before the first frame or after the
+        last (a pose sample outside the recording) is read at that frame's edge."""
         t = np.asarray(t_s, float)
         start = self.stamps_s + self.centre_s - 0.5 * self.period_s - edge_s
         k = np.clip(np.searchsorted(start, t, side='right') - 1, 0, len(start) - 1)
-        return (t - self.stamps_s[k] - self.centre_s) / self.half_s
+        edge = (0.5 * self.period_s + edge_s) / self.half_s
+        return np.clip((t - self.stamps_s[k] - self.centre_s) / self.half_s, -edge, edge)
 
     def tau(self, t_s: np.ndarray) -> np.ndarray:
         """(N,) tau of the reference pose at each time: interpolated from its samples'
