@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.compare.model import likelihood as lk
-from lidar_sim_ros.compare.diagnose import pose_error
+from lidar_sim_ros.compare.diagnose import pose_error, scan_clock
 from lidar_sim_ros.core.effects.base import ReturnContext
 from lidar_sim_ros.core.geometry import Hits
 from lidar_sim_ros.core.pipeline import Prediction
@@ -230,7 +230,7 @@ def test_the_scan_clock_reads_tau_at_the_pose_samples():
     cloud = np.repeat([0, 1, 2], 100)
     t = stamps[cloud] + np.tile(np.linspace(0.0, 0.1, 100, endpoint=False), 3)
     samples = np.round(np.arange(0.0, 0.3001, 0.01), 6) - 1e-9 * (np.arange(31) % 2)
-    clock = pose_error.ScanClock.of(cloud, t, stamps, samples)
+    clock = scan_clock.ScanClock.of(cloud, t, stamps, samples)
     assert clock.period_s == pytest.approx(0.1) and clock.centre_s == pytest.approx(0.0495, abs=2e-4)
     h = clock.half_s
     np.testing.assert_allclose(clock.tau(np.array([0.1, 0.19])),
@@ -240,7 +240,7 @@ def test_the_scan_clock_reads_tau_at_the_pose_samples():
     np.testing.assert_allclose(mid, 0.5 * ((0.09 - clock.centre_s) + (0 - clock.centre_s)) / h,
                                atol=1e-6)
     # Without samples: tau at the time itself.
-    plain = pose_error.ScanClock.of(cloud, t, stamps)
+    plain = scan_clock.ScanClock.of(cloud, t, stamps)
     np.testing.assert_allclose(plain.tau(np.array([0.195])), (0.095 - plain.centre_s) / h,
                                atol=1e-6)
 
@@ -268,8 +268,8 @@ def test_a_drift_of_the_pose_samples_is_measured_whole():
                                            constant=True, scan=clock)
         assert pe.rate_supported
         return pe.as_dict()['rate']['drift_per_0_1_s_cm']
-    assert fitted(pose_error.ScanClock.of(cloud, t, stamps, samples)) == pytest.approx(4.0, rel=0.08)
-    assert fitted(pose_error.ScanClock.of(cloud, t, stamps)) == pytest.approx(2.9, rel=0.1)
+    assert fitted(scan_clock.ScanClock.of(cloud, t, stamps, samples)) == pytest.approx(4.0, rel=0.08)
+    assert fitted(scan_clock.ScanClock.of(cloud, t, stamps)) == pytest.approx(2.9, rel=0.1)
 
 
 def test_corrected_poses_apply_one_rate_on_the_scan_clock():
@@ -279,7 +279,7 @@ def test_corrected_poses_apply_one_rate_on_the_scan_clock():
     stamps = np.array([0.0, 0.1, 0.2])
     cloud = np.repeat([0, 1, 2], 50)
     t = stamps[cloud] + np.tile(np.linspace(0.0, 0.099, 50), 3)
-    clock = pose_error.ScanClock.of(cloud, t, stamps)
+    clock = scan_clock.ScanClock.of(cloud, t, stamps)
     rate = np.array([[0.0, 0.02, 0.0]])                 # m per unit tau
     corr = pose_error.PoseCorrection(np.array([0]), np.array([0.0]), np.array([0.3]),
                                      Rotation.identity(1), np.array([[0.01, 0.0, 0.0]]),
@@ -301,13 +301,13 @@ def test_the_scan_clock_takes_bad_times():
     edge, and a stamp that is NaN drops its cloud."""
     cloud = np.zeros(5, int)
     t = np.linspace(0.0, 0.09, 5)
-    assert pose_error.ScanClock.of(cloud, np.full(5, np.nan)) is None
-    assert pose_error.ScanClock.of(cloud, np.zeros(5)) is None
-    assert pose_error.ScanClock.of(np.zeros(0, int), np.zeros(0)) is None
-    clock = pose_error.ScanClock.of(cloud, t, np.array([0.0]),
+    assert scan_clock.ScanClock.of(cloud, np.full(5, np.nan)) is None
+    assert scan_clock.ScanClock.of(cloud, np.zeros(5)) is None
+    assert scan_clock.ScanClock.of(np.zeros(0, int), np.zeros(0)) is None
+    clock = scan_clock.ScanClock.of(cloud, t, np.array([0.0]),
                                     np.array([np.nan, np.inf, 0.0, 0.05, 1e300, -1e300]))
     tau = clock.tau(np.array([0.0, 0.05, 1e9, -1e9]))
     assert np.all(np.isfinite(tau)) and np.all(np.abs(tau) <= 1.1)
-    two = pose_error.ScanClock.of(np.array([0, 0, 1, 1]), np.array([0.0, 0.05, np.nan, 1e300]),
+    two = scan_clock.ScanClock.of(np.array([0, 0, 1, 1]), np.array([0.0, 0.05, np.nan, 1e300]),
                                   np.array([0.0, np.nan]))
     assert len(two.stamps_s) == 1

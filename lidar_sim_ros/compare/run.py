@@ -37,6 +37,7 @@ from scipy.stats import norm
 
 from lidar_sim_ros.compare.diagnose import (diagnosis, features, plan as sep_plan, pose_error,
                                             stamp_place)
+from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
 from lidar_sim_ros.compare.model import (crosstalk as xtalk, likelihood as lk,
@@ -665,14 +666,14 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     return matching, rays, moved, pose
 
 
-def scan_clock(meas: Measurements) -> pose_error.ScanClock | None:
-    """The recording's time base within each cloud's scan (``pose_error.ScanClock``), for
+def scan_clock(meas: Measurements) -> ScanClock | None:
+    """The recording's time base within each cloud's scan (``scan_clock.ScanClock``), for
     one rate of the reference pose for the recording, on the pose track's sample times;
     None without point times."""
     if not has_point_times(meas):
         return None
-    return pose_error.ScanClock.of(meas.cloud, meas.t_s, meas.cloud_stamps_s,
-                                   getattr(meas.poses, 't_s', None))
+    return ScanClock.of(meas.cloud, meas.t_s, meas.cloud_stamps_s,
+                        getattr(meas.poses, 't_s', None))
 
 
 def has_point_times(meas: Measurements) -> bool:
