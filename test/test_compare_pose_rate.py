@@ -311,3 +311,27 @@ def test_the_scan_clock_takes_bad_times():
     two = scan_clock.ScanClock.of(np.array([0, 0, 1, 1]), np.array([0.0, 0.05, np.nan, 1e300]),
                                   np.array([0.0, np.nan]))
     assert len(two.stamps_s) == 1
+
+
+def test_one_rate_for_the_recording_composes_into_the_correction():
+    """``--effect pose_error --fit``'s first pass: the fitted correction and its rate,
+    composed on no correction, move the target by the fitted rate times tau on the
+    recording's scan clock, reset in each cloud (the rate per second as reported)."""
+    data, cloud, t = _held(0.4, 0.0, seed=10)
+    pe = pose_error.fit_reference_pose(data, cloud, t, np.arange(len(t)) // 30, 3.0, 0.005,
+                                       rate=True, constant=True)
+    assert pe.rate_supported and pe.scan is not None
+    corr, _ = pose_error.PoseCorrection.identity(np.zeros_like(cloud), t).compose(pe)
+    assert corr.scan is pe.scan
+    track = PoseTrack(np.array([-1.0, 1.0]), np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)))
+    moved = pose_error.CorrectedPoses(track, corr)
+    g = corr.centroid_m[0]
+    at = np.array([0.01, 0.08, 0.11, 0.18])      # early and late in two clouds
+    p = moved.at(at)
+    shift = p.rotation.apply(np.tile(g, (4, 1))) + p.position_m - g
+    # Late minus early in each cloud: 0.07 s of the fitted rate (about 0.4 m/s across).
+    for a, b in ((0, 1), (2, 3)):
+        np.testing.assert_allclose(shift[b] - shift[a], 0.07 * pe.rate_translation_mps[0],
+                                   atol=2e-4)
+    np.testing.assert_allclose(shift[2], shift[0], atol=2e-4)    # reset at the next cloud
+    np.testing.assert_allclose((shift[1] - shift[0])[1], 0.028, atol=0.004)
