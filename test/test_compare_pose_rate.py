@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.compare.model import likelihood as lk
-from lidar_sim_ros.compare.diagnose import pose_error
+from lidar_sim_ros.compare.diagnose import pose_error, scan_clock
 from lidar_sim_ros.core.effects.base import ReturnContext
 from lidar_sim_ros.core.geometry import Hits
 from lidar_sim_ros.core.pipeline import Prediction
@@ -123,7 +123,8 @@ def test_a_constant_pose_error_is_one_correction_for_all_clouds():
     blocks = np.arange(len(t)) // 30
     pe = pose_error.fit_reference_pose(data, cloud, t, blocks, 3.0, 0.005, rate=True,
                                        constant=True)
-    assert pe.constant and pe.significant and len(pe.clouds) == 1 and not pe.rate_tested
+    assert pe.constant and pe.significant and len(pe.clouds) == 1
+    assert pe.rate_tested and not pe.rate_supported    # one rate for the recording: none
     np.testing.assert_allclose(pe.rotation_deg[0, 2], 0.3, rtol=0.1)
     assert 'the same in every cloud' in pe.words() and pe.as_dict()['constant'] is True
     per_cloud = pose_error.fit_reference_pose(data, cloud, t, blocks, 3.0, 0.005)
@@ -143,3 +144,194 @@ def test_a_rate_held_out_on_few_points_a_cloud_loses_its_gain_to_the_fit_noise()
     assert got[0].significant and not got[0].rate_supported and got[0].rate_gain < 0.005
     assert got[1].rate_supported and got[1].rate_gain > 2 * got[0].rate_gain
     np.testing.assert_allclose(np.mean(got[1].rate_rotation_deg_s[:, 2]), 10.0, rtol=0.15)
+
+
+def _held(rate_mps: float, offset_m: float, seed: int, n: int = 12_000, along=(0.0, 1.0, 0.0),
+          raster: bool = False):
+    """Planes moved by ``offset_m + rate_mps x (time since the cloud's start)`` along
+    ``along`` in every cloud: a tracking pose sampled at each cloud's start and held
+    over its scan (a sample-and-hold pose of a target moving at ``rate_mps``). Each
+    ray's time within the scan is drawn at random over 0.09 s (a pattern that meets
+    each direction at several times, as a Lissajous does), or with ``raster`` follows
+    its elevation (``_planes``: the time fixed by the direction)."""
+    u, normal, centre, cloud, t, rng = _planes(n, seed)
+    if not raster:
+        t = cloud * 0.1 + rng.uniform(0.0, 0.09, len(t))
+    since = t - cloud * 0.1
+    shift = np.outer(offset_m + rate_mps * since, along)
+    origin = np.tile(centre, (len(u), 1))
+    measured = _range(origin + shift, normal, u) + SIGMA_M * rng.standard_normal(len(u))
+    return _data(u, normal, measured, _range(origin, normal, u), t), cloud, t
+
+
+def test_the_same_drift_in_every_cloud_is_one_rate_for_the_recording():
+    """0.4 m/s across the line of sight, reset at each cloud's start (0 -> 3.6 cm over the
+    0.09 s scan): one correction for the recording with one rate over the scan finds it
+    (on a time base from each cloud's start), and reports its size per 0.1 s."""
+    data, cloud, t = _held(0.4, 0.0, seed=4)
+    blocks = np.arange(len(t)) // 30
+    pe = pose_error.fit_reference_pose(data, cloud, t, blocks, 3.0, 0.005, rate=True,
+                                       constant=True)
+    assert pe.constant and pe.rate_tested and pe.rate_supported and pe.significant
+    assert pe.rate_z > 3.0 and pe.rate_gain >= 0.005 and pe.n_params == 12
+    np.testing.assert_allclose(pe.rate_translation_mps[0], [0.0, 0.4, 0.0], atol=0.05)
+    rate = pe.as_dict()['rate']
+    assert rate['supported'] and rate['same_in_every_cloud']
+    np.testing.assert_allclose(rate['drift_per_0_1_s_cm'], 4.0, rtol=0.12)
+    assert 'drifts within each cloud' in pe.words() and 'per 0.1 s' in pe.words()
+    # The mean over the scan is the rigid part: about half the drift.
+    np.testing.assert_allclose(pe.translation_m[0, 1], 0.4 * 0.045, atol=0.006)
+
+
+def test_a_constant_pose_error_gives_no_rate():
+    data, cloud, t = _held(0.0, 0.03, seed=5)
+    pe = pose_error.fit_reference_pose(data, cloud, t, np.arange(len(t)) // 30, 3.0, 0.005,
+                                       rate=True, constant=True)
+    assert pe.constant and pe.significant and pe.rate_tested and not pe.rate_supported
+    assert pe.n_params == 6 and 'drifts' not in pe.words()
+    assert pe.as_dict()['rate']['supported'] is False
+
+
+def test_a_raster_cannot_tell_one_rate_from_a_pattern_over_the_directions():
+    """A raster's time within the scan follows its rows: one rate for the recording is
+    then a fixed pattern over the field of view, which a sensor's own pattern passes for.
+    A range bias of the sensor that follows the elevation (the rows) is not read as a
+    drift of the pose; the same bias with a time that the direction does not fix is."""
+    u, normal, centre, cloud, t, rng = _planes(12_000, 8)
+    el = np.degrees(np.arcsin(u[:, 2]))
+    origin = np.tile(centre, (len(u), 1))
+    expected = _range(origin, normal, u)
+    measured = expected + 0.01 * el + SIGMA_M * rng.standard_normal(len(u))
+    data = _data(u, normal, measured, expected, t)
+    pe = pose_error.fit_reference_pose(data, cloud, t, np.arange(len(t)) // 30, 3.0, 0.005,
+                                       rate=True, constant=True)
+    assert pe.rate_tested and not pe.rate_supported
+    # A pose drifting with the same raster timing is not claimed either: the data cannot
+    # tell it from a pattern over the directions.
+    data_d, cloud_d, t_d = _held(0.4, 0.0, seed=9, raster=True)
+    pe_d = pose_error.fit_reference_pose(data_d, cloud_d, t_d, np.arange(len(t_d)) // 30,
+                                         3.0, 0.005, rate=True, constant=True)
+    assert pe_d.rate_tested and not pe_d.rate_supported
+
+
+def test_no_pose_error_gives_no_rate():
+    data, cloud, t = _held(0.0, 0.0, seed=6)
+    pe = pose_error.fit_reference_pose(data, cloud, t, np.arange(len(t)) // 30, 3.0, 0.005,
+                                       rate=True, constant=True)
+    assert not pe.significant and not pe.rate_supported
+
+
+def test_the_scan_clock_reads_tau_at_the_pose_samples():
+    """Stamps at each scan's start (0.1 s frames), pose samples at 100 Hz: a sample at a
+    stamp is its scan's first (tau -1, also a hair before it), and between a scan's last
+    sample (0.09 s in, tau 0.8) and the next scan's first the pose's tau runs back, as
+    the interpolated pose does."""
+    stamps = np.array([0.0, 0.1, 0.2])
+    cloud = np.repeat([0, 1, 2], 100)
+    t = stamps[cloud] + np.tile(np.linspace(0.0, 0.1, 100, endpoint=False), 3)
+    samples = np.round(np.arange(0.0, 0.3001, 0.01), 6) - 1e-9 * (np.arange(31) % 2)
+    clock = scan_clock.ScanClock.of(cloud, t, stamps, samples)
+    assert clock.period_s == pytest.approx(0.1) and clock.centre_s == pytest.approx(0.0495, abs=2e-4)
+    h = clock.half_s
+    np.testing.assert_allclose(clock.tau(np.array([0.1, 0.19])),
+                               [(0 - clock.centre_s) / h, (0.09 - clock.centre_s) / h], atol=1e-6)
+    # Half-way between 0.19 s (tau ~0.82) and 0.2 s (tau ~-0.99): their mean.
+    mid = clock.tau(np.array([0.195]))[0]
+    np.testing.assert_allclose(mid, 0.5 * ((0.09 - clock.centre_s) + (0 - clock.centre_s)) / h,
+                               atol=1e-6)
+    # Without samples: tau at the time itself.
+    plain = scan_clock.ScanClock.of(cloud, t, stamps)
+    np.testing.assert_allclose(plain.tau(np.array([0.195])), (0.095 - plain.centre_s) / h,
+                               atol=1e-6)
+
+
+def test_a_drift_of_the_pose_samples_is_measured_whole():
+    """A pose drifting 0.4 m/s across the line of sight from each scan's start, sampled
+    at 100 Hz and interpolated between the samples as the model reads it (running back
+    to zero between a scan's last sample and the next scan's first): fitted on tau at
+    the samples, 4 cm per 0.1 s; on tau at the point times, about 2.9 cm."""
+    u, normal, centre, cloud, _, rng = _planes(12_000, 7)
+    since = rng.uniform(0.0, 0.0999, len(u))
+    t = cloud * 0.1 + since
+    samples = np.arange(0.0, 0.4001, 0.01)
+    held = 0.4 * 0.01 * (np.round(samples * 100).astype(int) % 10)   # 0.4 m/s x time in scan
+    error = np.interp(t, samples, held)
+    origin = np.tile(centre, (len(u), 1))
+    measured = _range(origin + np.outer(error, [0.0, 1.0, 0.0]), normal, u) \
+        + SIGMA_M * rng.standard_normal(len(u))
+    data = _data(u, normal, measured, _range(origin, normal, u), t)
+    blocks = np.arange(len(t)) // 30
+    stamps = np.array([0.0, 0.1, 0.2, 0.3])
+
+    def fitted(clock):
+        pe = pose_error.fit_reference_pose(data, cloud, t, blocks, 3.0, 0.005, rate=True,
+                                           constant=True, scan=clock)
+        assert pe.rate_supported
+        return pe.as_dict()['rate']['drift_per_0_1_s_cm']
+    assert fitted(scan_clock.ScanClock.of(cloud, t, stamps, samples)) == pytest.approx(4.0, rel=0.08)
+    assert fitted(scan_clock.ScanClock.of(cloud, t, stamps)) == pytest.approx(2.9, rel=0.1)
+
+
+def test_corrected_poses_apply_one_rate_on_the_scan_clock():
+    """One correction for the recording with a rate: at time t the target is moved by
+    tau(t) x the rate, tau on each cloud's own scan (the rate resets at each stamp)."""
+    track = PoseTrack(np.array([0.0, 1.0]), np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)))
+    stamps = np.array([0.0, 0.1, 0.2])
+    cloud = np.repeat([0, 1, 2], 50)
+    t = stamps[cloud] + np.tile(np.linspace(0.0, 0.099, 50), 3)
+    clock = scan_clock.ScanClock.of(cloud, t, stamps)
+    rate = np.array([[0.0, 0.02, 0.0]])                 # m per unit tau
+    corr = pose_error.PoseCorrection(np.array([0]), np.array([0.0]), np.array([0.3]),
+                                     Rotation.identity(1), np.array([[0.01, 0.0, 0.0]]),
+                                     np.array([[10.0, 0.0, 0.0]]), rate_m=rate,
+                                     rate_rotvec_rad=np.zeros((1, 3)),
+                                     t_centre_s=np.array([clock.centre_s]),
+                                     half_span_s=np.array([clock.half_s]), scan=clock)
+    at = np.array([0.0, 0.099, 0.1, 0.15, 0.299])
+    got = pose_error.CorrectedPoses(track, corr).at(at).position_m
+    tau = (at - np.floor(at * 10 + 1e-9) / 10 - clock.centre_s) / clock.half_s
+    np.testing.assert_allclose(got[:, 1], 0.02 * tau, atol=1e-12)
+    np.testing.assert_allclose(got[:, 0], 0.01, atol=1e-12)
+    np.testing.assert_allclose(got[[0, 2], 1], -0.02, atol=1e-3)   # each scan starts anew
+
+
+def test_the_scan_clock_takes_bad_times():
+    """No finite time, no span within the clouds, no clouds: no time base (no rate is
+    tested); pose samples at NaN, inf or 1e300 are left out or read at the recording's
+    edge, and a stamp that is NaN drops its cloud."""
+    cloud = np.zeros(5, int)
+    t = np.linspace(0.0, 0.09, 5)
+    assert scan_clock.ScanClock.of(cloud, np.full(5, np.nan)) is None
+    assert scan_clock.ScanClock.of(cloud, np.zeros(5)) is None
+    assert scan_clock.ScanClock.of(np.zeros(0, int), np.zeros(0)) is None
+    clock = scan_clock.ScanClock.of(cloud, t, np.array([0.0]),
+                                    np.array([np.nan, np.inf, 0.0, 0.05, 1e300, -1e300]))
+    tau = clock.tau(np.array([0.0, 0.05, 1e9, -1e9]))
+    assert np.all(np.isfinite(tau)) and np.all(np.abs(tau) <= 1.1)
+    two = scan_clock.ScanClock.of(np.array([0, 0, 1, 1]), np.array([0.0, 0.05, np.nan, 1e300]),
+                                  np.array([0.0, np.nan]))
+    assert len(two.stamps_s) == 1
+
+
+def test_one_rate_for_the_recording_composes_into_the_correction():
+    """``--effect pose_error --fit``'s first pass: the fitted correction and its rate,
+    composed on no correction, move the target by the fitted rate times tau on the
+    recording's scan clock, reset in each cloud (the rate per second as reported)."""
+    data, cloud, t = _held(0.4, 0.0, seed=10)
+    pe = pose_error.fit_reference_pose(data, cloud, t, np.arange(len(t)) // 30, 3.0, 0.005,
+                                       rate=True, constant=True)
+    assert pe.rate_supported and pe.scan is not None
+    corr, _ = pose_error.PoseCorrection.identity(np.zeros_like(cloud), t).compose(pe)
+    assert corr.scan is pe.scan
+    track = PoseTrack(np.array([-1.0, 1.0]), np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)))
+    moved = pose_error.CorrectedPoses(track, corr)
+    g = corr.centroid_m[0]
+    at = np.array([0.01, 0.08, 0.11, 0.18])      # early and late in two clouds
+    p = moved.at(at)
+    shift = p.rotation.apply(np.tile(g, (4, 1))) + p.position_m - g
+    # Late minus early in each cloud: 0.07 s of the fitted rate (about 0.4 m/s across).
+    for a, b in ((0, 1), (2, 3)):
+        np.testing.assert_allclose(shift[b] - shift[a], 0.07 * pe.rate_translation_mps[0],
+                                   atol=2e-4)
+    np.testing.assert_allclose(shift[2], shift[0], atol=2e-4)    # reset at the next cloud
+    np.testing.assert_allclose((shift[1] - shift[0])[1], 0.028, atol=0.004)

@@ -53,3 +53,36 @@ def test_times_from_the_scan_pattern_are_read_from_a_start_stamp(fitted, place, 
     # A start stamp is what the scan pattern assumes: a positive offset is a clock offset.
     assert stamp_place(quadratic_nll(0.05, 1e6), 0.05, PERIOD, 8.6, 10_000, 0.005,
                        places=SCAN_PLACES) is None
+
+
+def test_the_place_of_the_stamp_is_not_told_from_a_clock_offset():
+    """Scan-pattern times (read as stamped at the scan start), stamps at the scan END and
+    the poses stamped 50 ms late: the net -50 ms fitted is what a stamp in the middle
+    gives with the clocks in step, and as well the end with the poses 50 ms late or the
+    start with them 50 ms early. Without point times these give the same data: the
+    summary names no place and lists every reading; the verdict says the two cannot be
+    told apart and what separates them."""
+    from lidar_sim_ros.compare.diagnose.stamp_place import SCAN_PLACES
+    from lidar_sim_ros.compare.report.verdict import stamp_place_words
+    st = stamp_place(quadratic_nll(-0.05, 1e6), -0.05, PERIOD, 8.6, 10_000, 0.005,
+                     places=SCAN_PLACES)
+    d = st.as_dict()
+    assert d['place'] is None and d['separable_from_clock_offset'] is False
+    got = {r['place']: r['clock_offset_s'] for r in d['readings']}
+    # dt = stamp place's offset + clock offset: -0.1 (end) + 0.05 (poses late) = -0.05.
+    assert got == pytest.approx({'start': -0.05, 'middle': 0.0, 'end': 0.05})
+    words = stamp_place_words(d)
+    assert 'cannot be told' in words and 'per-point time field' in words
+    for place in ('start', 'middle', 'end'):
+        assert f'at the {place} with' in words
+    assert '50 ms late' in words and '50 ms early' in words
+    assert 'here it is what stamps at' not in words
+
+
+def test_a_stamp_only_offset_reads_against_a_middle_stamp():
+    # Clouds timed by their stamps: the model assumes the middle, so +T/2 is a stamp at
+    # the start with the clocks in step, the middle with the poses 50 ms late, or the end
+    # with them 100 ms late.
+    d = stamp_place(quadratic_nll(0.0502, 1e6), 0.0502, PERIOD, 8.6, 10_000, 0.005).as_dict()
+    got = {r['place']: r['clock_offset_s'] for r in d['readings']}
+    assert got == pytest.approx({'start': 0.0, 'middle': 0.05, 'end': 0.1})

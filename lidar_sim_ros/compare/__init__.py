@@ -10,7 +10,8 @@ Sub-packages along the data's way, imports flowing one way down this list:
   ``materials``; ``neighbours``; ``point_times``: the spread of unknown times);
 * ``diagnose``: the diagnosis (``features``: where the residual depends;
   ``diagnosis``: the candidates and the one naming rule; ``pose_error``: the reference
-  pose; ``plan``: the recording that separates a tie; ``stamp_place``; ``sunlight``);
+  pose; ``scan_clock``: the time within the scan for one rate of the pose; ``plan``: the
+  recording that separates a tie; ``stamp_place``; ``sunlight``);
 * ``report``: the verdict and the report (``verdict``, ``page``: report.html,
   ``opening``, ``history``).
 

@@ -38,6 +38,7 @@ from scipy.stats import norm
 from lidar_sim_ros.compare.diagnose import (diagnosis, features, laser_gains,
                                             plan as sep_plan, pose_error, region_offset,
                                             stamp_place)
+from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
 from lidar_sim_ros.compare.report.pose_status import pose_status
@@ -634,6 +635,7 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     ``blocks``: the points' neighbourhoods (``neighbours.blocks``), the same for every
     re-cast and pose."""
     extra_var = rays.extra_var_m2
+    scan = scan_clock(meas)
 
     def fit(r: diagnosis.RaySet, applied: pose_error.PoseCorrection | None = None,
             constant: bool = False) -> pose_error.PoseError:
@@ -643,7 +645,7 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
                                              float(norm.isf(diagnosis.FAMILY_ALPHA)),
                                              diagnosis.MIN_PRACTICAL_GAIN, opts.seed,
                                              applied=applied, rate=has_point_times(meas),
-                                             constant=constant)
+                                             constant=constant, scan=scan)
 
     def rematch(corr: pose_error.PoseCorrection):
         moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
@@ -670,6 +672,16 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
         first, start, rematch, lambda state, corr: fit(state[1], corr, first.constant),
         pose_error.CONSTANT_RECAST_PASSES if first.constant else pose_error.RECAST_PASSES)
     return matching, rays, moved, pose
+
+
+def scan_clock(meas: Measurements) -> ScanClock | None:
+    """The recording's time base within each cloud's scan (``scan_clock.ScanClock``), for
+    one rate of the reference pose for the recording, on the pose track's sample times;
+    None without point times."""
+    if not has_point_times(meas):
+        return None
+    return ScanClock.of(meas.cloud, meas.t_s, meas.cloud_stamps_s,
+                        getattr(meas.poses, 't_s', None))
 
 
 def has_point_times(meas: Measurements) -> bool:
@@ -854,6 +866,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     tested = pose_points(rays, sample, meas)
     tested_data = (diag.full if tested is sample
                    else diagnosis.make_fit_data(model, effects, tested))
+    scan = scan_clock(meas)
 
     def pose_test(on_top: list[Effect], constant: bool = False,
                   data: lk.FitData | None = None) -> pose_error.PoseError:
@@ -861,7 +874,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         return pose_error.fit_reference_pose(
             tested_data if data is None else data, meas.cloud[idx], meas.t_s[idx],
             sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
-            on_top, rate=has_point_times(meas), constant=constant)
+            on_top, rate=has_point_times(meas), constant=constant, scan=scan)
     recast_cache: dict = {}
 
     def recast(pose: pose_error.PoseError):
@@ -882,8 +895,11 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             diag_p, report, moved = recast_all_points(model, effects, rays, sample, meas,
                                                       all_points_pose(pose.constant),
                                                       len(classes), seed, pose.constant)
+            # The test stays the sample's; its gain is the rigid one's where the rate
+            # showed on every matched point only (``PoseError.rate_in_test``).
             recast_cache[pose.constant] = (diag_p, replace(
-                report, gain=pose.gain, z=pose.z, significant=pose.significant), moved)
+                report, gain=pose.gain, z=pose.z, significant=pose.significant,
+                rate_in_test=bool(pose.rate_supported or not report.rate_supported)), moved)
         return recast_cache[pose.constant]
 
     def same_points(pose: pose_error.PoseError, effect: Effect | None) -> tuple[float, float]:
@@ -911,7 +927,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         return pose_error.fit_reference_pose(
             diagnosis.make_fit_data(model, effects, rays), meas.cloud[idx], meas.t_s[idx],
             sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
-            rate=has_point_times(meas), constant=constant)
+            rate=has_point_times(meas), constant=constant, scan=scan)
     decision = diag.judge_pose(pose_test, cands, decision, recast,
                                lambda on_top: pose_test(on_top, constant=True), same_points)
     constant = decision.pose is not None and decision.pose.constant
@@ -984,6 +1000,7 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
     blocks. Returns the diagnosis, the correction (its test ``pose``'s) and the re-cast
     matching's rays (every point)."""
     sim = geometry(model, effects)
+    scan = scan_clock(meas)
 
     def rematch(corr: pose_error.PoseCorrection):
         moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
@@ -1000,7 +1017,7 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
                                                  diagnosis.FAMILY_ALPHA)),
                                              diagnosis.MIN_PRACTICAL_GAIN, seed,
                                              applied=applied, rate=has_point_times(meas),
-                                             constant=constant)
+                                             constant=constant, scan=scan)
 
     start = pose_error.PoseCorrection.identity(
         np.zeros_like(meas.cloud) if constant else meas.cloud, meas.t_s)

@@ -34,6 +34,15 @@ carry their own times (``rate=True``), the rate is kept only if it passes the sa
 rule on top of the rigid correction (held-out, nested: ``rate_supported``); then the
 test, the correction and the re-cast use the rigid part and its rate
 (``PoseCorrection.rate_*``).
+
+A reference pose that drifts the same way in every cloud (a tracking pose sampled at
+each cloud's start and held over the scan while the target moves) is one rigid
+correction for the recording and one rate (``fit_reference_pose`` with
+``constant=True``, ``rate=True``): the rate's columns are scaled by the time since the
+cloud's stamp, on one time base for the recording, read at the pose's samples
+(``ScanClock``); the rate is tested on the part of that time the direction does not fix
+(``beyond_direction``) and kept if it passes the rule on top of the rigid correction
+held out, and the drifting correction against none (``constant_rate_supported``).
 """
 from __future__ import annotations
 
@@ -47,6 +56,7 @@ from lidar_sim_ros.core.pose import Poses
 
 from lidar_sim_ros.compare.model import likelihood as lk
 from lidar_sim_ros.compare.diagnose.features import block_mean_z
+from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock, beyond_direction
 
 OUTLIER_SIGMAS = 5.0      # residuals beyond this many sigma are not fitted (edges, outliers)
 MIN_COS = 0.2             # |n.u| below this: grazing rays, range too sensitive to the pose
@@ -97,6 +107,14 @@ class PoseError:
     # and took the materials' differing offsets (``explains_material_offsets``): a
     # target whose faces are each one material, moved across the line of sight.
     through_materials: bool = False
+    # One correction for the recording with a rate (``constant_rate_supported``): tau on
+    # this time base within each cloud's scan; t_centre_s and half_span_s its centre and
+    # half-span (one row, s after the stamp).
+    scan: ScanClock | None = None
+    # Whether ``gain`` and ``z`` are the drifting correction's: False where the rate was
+    # supported on every matched point (the correction reported) but not on the test's
+    # sample, whose gain is then the rigid correction's.
+    rate_in_test: bool = True
     # Per cloud: one range offset per cloud (a sensor's range offset changing between
     # clouds, ``per_cloud_offset_columns``), its held-out gain and z, and the rigid
     # correction's gain over it (nested, on the same halves). A correction that gains
@@ -136,9 +154,9 @@ class PoseError:
     @property
     def n_params(self) -> int:
         """Parameters of the correction: six for all the clouds (``constant``), else six
-        per cloud, twelve with a supported rate."""
+        per cloud; twelve with a supported rate."""
         if self.constant:
-            return 6
+            return 12 if self.rate_supported else 6
         return 6 * len(self.clouds) * (2 if self.rate_supported else 1)
 
     @property
@@ -190,7 +208,18 @@ class PoseError:
             return None
         out = {'supported': self.rate_supported, 'gain_over_rigid': round(self.rate_gain, 6),
                'z': round(self.rate_z, 3)}
-        if self.rate_supported and self.rate_translation_mps is not None:
+        if self.rate_supported and self.rate_translation_mps is not None and self.constant:
+            v = np.asarray(self.rate_translation_mps, float)[0]
+            w = np.asarray(self.rate_rotation_deg_s, float)[0]
+            out.update({'same_in_every_cloud': True,
+                        **({'scan_time_base': self.scan.as_dict()} if self.scan else {}),
+                        'drift_per_cloud_rms_cm': round(self.drift_cm, 3),
+                        'drift_per_cloud_rms_deg': round(self.drift_deg, 4),
+                        'drift_per_0_1_s_cm': round(10 * float(np.linalg.norm(v)), 3),
+                        'drift_per_0_1_s_deg': round(0.1 * float(np.linalg.norm(w)), 4),
+                        'translation_mps': [round(float(x), 5) for x in v],
+                        'rotation_deg_s': [round(float(x), 4) for x in w]})
+        elif self.rate_supported and self.rate_translation_mps is not None:
             out.update({'drift_per_cloud_rms_cm': round(self.drift_cm, 3),
                         'drift_per_cloud_rms_deg': round(self.drift_deg, 4),
                         'clouds': [{'cloud': int(c),
@@ -199,6 +228,14 @@ class PoseError:
                                    for c, v, w in zip(self.clouds, self.rate_translation_mps,
                                                       self.rate_rotation_deg_s)]})
         return out
+
+    def drift_words(self) -> str:
+        """The drift of one rate for the recording: over the scan and per 0.1 s."""
+        scan = 2 * float(self.half_span_s[0])
+        per = 0.1 / scan if scan > 0 else 0.0
+        return (f'by about {self.drift_cm:.1f} cm and {self.drift_deg:.2f} deg over its '
+                f'{scan:.3f} s scan ({per * self.drift_cm:.1f} cm and '
+                f'{per * self.drift_deg:.2f} deg per 0.1 s)')
 
     def words(self) -> str:
         if self.constant:
@@ -210,6 +247,15 @@ class PoseError:
             where = (f' at the centroid of the points seen, {np.linalg.norm(c[0]):.1f} m from '
                      'the sensor, the rotation about it' if len(c) and np.all(np.isfinite(c[0]))
                      and np.linalg.norm(c[0]) > 0 else '')
+            if self.rate_supported:
+                return (f'the reference pose is off by about {self.size_cm:.1f} cm and '
+                        f'{self.size_deg:.2f} deg on average over the scan{where}, and it '
+                        f'drifts within each cloud {self.drift_words()}, the same in every '
+                        'cloud (one correction for the whole recording and one rate over '
+                        'the scan, from the point times: a tracking pose sampled once a '
+                        'cloud and held while the target moves; held-out gain over '
+                        f'the rigid correction {self.rate_gain:.4f} nats/point, '
+                        f'z = {self.rate_z:.1f})')
             return (f'the reference pose is off by about {self.size_cm:.1f} cm and '
                     f'{self.size_deg:.2f} deg{where}, the same in every cloud (one rigid '
                     'correction for the whole recording: an extrinsic calibration or '
@@ -348,6 +394,9 @@ class PoseCorrection:
     rate_rotvec_rad: np.ndarray | None = None
     t_centre_s: np.ndarray | None = None
     half_span_s: np.ndarray | None = None
+    # One correction for the recording (one row) with a rate: tau on the recording's
+    # time base within each cloud's scan (``ScanClock``), not the row's span.
+    scan: ScanClock | None = None
 
     @classmethod
     def identity(cls, cloud: np.ndarray, t_s: np.ndarray) -> 'PoseCorrection':
@@ -406,7 +455,7 @@ class PoseCorrection:
         rate_m[rows] += d + np.cross(w, g[rows] - g_step)
         t_c[rows], h_c[rows] = step.t_centre_s[ok], h_step
         return replace(self, rate_m=rate_m, rate_rotvec_rad=rate_w, t_centre_s=t_c,
-                       half_span_s=h_c)
+                       half_span_s=h_c, scan=step.scan if step.scan is not None else self.scan)
 
     def drift_at(self, k: np.ndarray, t_s: np.ndarray) -> tuple[Rotation, np.ndarray] | None:
         """The within-cloud part at times ``t_s`` of clouds (rows) ``k``: a rotation about
@@ -415,8 +464,9 @@ class PoseCorrection:
         if self.rate_m is None:
             return None
         h = self.half_span_s[k]
-        tau = np.where(h > 1e-9, (np.asarray(t_s, float) - self.t_centre_s[k]) / np.where(
-            h > 1e-9, h, 1.0), 0.0)
+        tau = (self.scan.tau(t_s) if self.scan is not None else
+               np.where(h > 1e-9, (np.asarray(t_s, float) - self.t_centre_s[k]) / np.where(
+                   h > 1e-9, h, 1.0), 0.0))
         rot = Rotation.from_rotvec(self.rate_rotvec_rad[k] * tau[:, None])
         g = np.nan_to_num(np.asarray(self.centroid_m, float))[k]
         return rot, g - rot.apply(g) + self.rate_m[k] * tau[:, None]
@@ -529,7 +579,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                        blocks: np.ndarray, z_crit: float, min_gain: float, seed: int = 0,
                        effects: list | None = None,
                        applied: 'PoseCorrection | None' = None,
-                       rate: bool = False, constant: bool = False) -> PoseError:
+                       rate: bool = False, constant: bool = False,
+                       scan: ScanClock | None = None) -> PoseError:
     """Fit and judge per-cloud rigid pose corrections on ``data``'s matched points
     (``cloud``, ``t_s``, ``blocks``: per matched point) under the model with
     ``effects`` on top of its own (module doc). ``rate``: the points carry their own
@@ -537,10 +588,16 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     correction) and kept if it passes the rule. ``constant``: one rigid correction for
     all the clouds (six parameters, rotation about the centroid of all the points; no
     rate): an extrinsic error of the reference pose, the same in every cloud, which six
-    parameters per cloud test with far less power."""
+    parameters per cloud test with far less power. With ``rate`` too, one rate for the
+    recording on top of it, tau on ``scan`` (``ScanClock``; None: each cloud's first
+    point time is its stamp): the same drift within every cloud's scan."""
+    tau_scan = None
     if constant:
+        scan = (scan if scan is not None else ScanClock.of(cloud, t_s)) if rate else None
+        tau_scan = scan.tau(pose_time_s(t_s, [*data.base_effects, *(effects or [])])) \
+            if scan is not None else None
+        rate = tau_scan is not None
         cloud = np.zeros(len(np.asarray(cloud)), dtype=np.asarray(cloud).dtype)
-        rate = False
     model = lk.model_on_rays(data, list(effects or []))
     ctx = model.ctx
     clouds = np.unique(cloud)
@@ -559,8 +616,14 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                        cloud)
     use = ok & usable & (np.abs(r) <= OUTLIER_SIGMAS * s)
     tau, t_c, h_c = time_scale(t_s, cloud, clouds)
+    if tau_scan is not None:
+        tau, t_c, h_c = tau_scan, np.array([scan.centre_s]), np.array([scan.half_s])
     rate = bool(rate and np.any(h_c > 1e-9))
     a12 = rate_columns(a, tau) if rate else None
+    # One rate for the recording is tested on the part of tau that the direction does
+    # not fix (``beyond_direction``); estimated on tau whole.
+    a12t = (rate_columns(a, beyond_direction(tau, ctx.direction, use))
+            if rate and constant else a12)
     prior = None if applied is None else applied.params(clouds)
     prior12 = None if applied is None else applied.params(clouds, rate=True)
     # Jointly with the material offsets for one correction for the recording only: a
@@ -588,7 +651,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # e.g. on top of a fitted time offset; the correction applied is the damped one.
     half = np.random.default_rng([seed, 61]).integers(0, 2, len(r))
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
-    gain_t = np.zeros(len(r))
+    gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
     for k in (0, 1):
         test, train = use & (half != k), use & (half == k)
         x = fit_clouds(a, r, s, cloud, train, clouds, prior, TEST_RIDGE, group)
@@ -604,9 +667,16 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
             off = per_cloud_offset(r, s, row, train, len(clouds))
             gain1[test] = heldout_gain(r[test], off[test], s[test])
         if rate:
-            x12 = fit_clouds(a12, r, s, cloud, train, clouds, prior12, TEST_RIDGE, group)
-            corr12 = with_offsets(np.einsum('ij,ij->i', a12, x12[row]), r, group, train)
+            x12 = fit_clouds(a12t, r, s, cloud, train, clouds, prior12, TEST_RIDGE, group)
+            corr12 = with_offsets(np.einsum('ij,ij->i', a12t, x12[row]), r, group, train)
             gain12[test] = heldout_gain(r[test], corr12[test], s[test])
+            if through is not None:
+                # The drifting correction on the footing of ``gain_t``.
+                x12 = fit_clouds(a12t, r + offset, s, cloud, train, clouds, prior12,
+                                 TEST_RIDGE)
+                corr12 = with_offsets(np.einsum('ij,ij->i', a12t, x12[row]), r, materials,
+                                      train)
+                gain12_t[test] = heldout_gain(r[test], corr12[test], s[test])
 
     def judged(g: np.ndarray) -> tuple[float, float]:
         z = block_mean_z(g[use], blocks[use])[1] if use.sum() > 1 else 0.0
@@ -616,6 +686,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         per_point_t, z_t = judged(gain_t)
         if per_point_t > per_point - min_gain:
             per_point, z = per_point_t, z_t
+            gain, gain12 = gain_t, gain12_t
         else:
             through = None
     rate_gain, rate_z = judged(gain12 - gain) if rate else (0.0, 0.0)
@@ -626,14 +697,24 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # so on its own the rate is six more spatial patterns per cloud, which a sensor's
     # own pattern (a bias periodic in azimuth) would pass for.
     rigid_passes = z >= z_crit and per_point >= min_gain
-    supported = bool(rate and rigid_passes and rate_z >= z_crit and rate_gain >= min_gain)
+    if constant:
+        supported = bool(rate and constant_rate_supported(
+            (rate_gain, rate_z), judged(gain12), z_crit, min_gain))
+    else:
+        supported = bool(rate and rigid_passes and rate_z >= z_crit
+                         and rate_gain >= min_gain)
     if supported:
         # The drifting correction against none: the test of what is reported.
         per_point, z = judged(gain12)
     cols = a12 if supported else a
-    # One correction for the recording has no rate: the joint fit is the correction.
-    x = joint if joint is not None else through if through is not None else fit_clouds(
-        cols, r, s, cloud, use, clouds, prior12 if supported else prior, ridge)
+    if constant and supported:
+        # One correction for the recording and its rate, on the rigid one's footing.
+        x = fit_clouds(a12, r + offset if through is not None else r, s, cloud, use,
+                       clouds, prior12, ridge, group)
+    else:
+        # One correction for the recording without a rate: the joint fit is the correction.
+        x = joint if joint is not None else through if through is not None else fit_clouds(
+            cols, r, s, cloud, use, clouds, prior12 if supported else prior, ridge)
     correction = np.einsum('ij,ij->i', cols, x[row])
     t_mean = np.array([float(np.mean(t_s[cloud == c])) for c in clouds])
     p = ctx.direction * np.where(ok, model.expected_range_m, 0.0)[:, None]
@@ -649,8 +730,32 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      rate_rotation_deg_s=np.degrees(x[:, 9:12]) * per_s if supported else None,
                      t_centre_s=t_c, half_span_s=h_c, constant=constant,
                      joint=joint is not None, through_materials=through is not None,
+                     scan=scan if constant and rate else None,
                      offset_gain=offset_gain, offset_z=offset_z,
                      beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z)
+
+
+def constant_rate_supported(rate: tuple[float, float], drifting: tuple[float, float],
+                            z_crit: float, min_gain: float) -> bool:
+    """Whether one rate for the recording (``fit_reference_pose(constant=True,
+    rate=True)``) stands: its held-out gain over the rigid correction (``rate``: nats
+    per matched point, z) and the drifting correction's against none (``drifting``)
+    both pass the rule. Unlike a rate per cloud, the rigid part need not pass alone:
+    twelve parameters for the recording, held out on every cloud's points, cannot fit
+    a pattern per cloud, and a drift of the pose along the line of sight has a mean
+    (a sample-and-hold pose is off by half its drift on average) that every material's
+    offset takes, so that the rigid test sees little of it alone."""
+    return bool(rate[1] >= z_crit and rate[0] >= min_gain
+                and drifting[1] >= z_crit and drifting[0] >= min_gain)
+
+
+def pose_time_s(t_s: np.ndarray, effects: list) -> np.ndarray:
+    """(N,) the times (s) the model reads the reference pose at for points at ``t_s``:
+    through each effect's ``pose_time_s`` (a clock offset), as the pipeline does."""
+    t = np.asarray(t_s, float)
+    for e in effects:
+        t = np.asarray(e.pose_time_s(t), float)
+    return t
 
 
 def per_cloud_offset(residual_m: np.ndarray, sigma_m: np.ndarray, row: np.ndarray,

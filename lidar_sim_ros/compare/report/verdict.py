@@ -100,13 +100,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                      'end), which gives the same data')
             st = summary.get('stamp_place')
             if st:
-                share = abs(st['dt_s'] / st['period_s'])
-                part = 'half the' if abs(share - 0.5) < 1e-6 else 'one'
-                words += (f' (here it is what stamps at the {st["place"]} of the scan give: '
-                          f'{1e3 * st["dt_s"]:+.0f} ms, {part} {1e3 * st["period_s"]:.0f} ms '
-                          f'frame, against {1e3 * st["fitted_dt_s"]:+.1f} ms fitted; if your '
-                          'driver stamps there, no clock is off, but the model needs the '
-                          'offset all the same)')
+                words += stamp_place_words(st)
         parts.append(
             f'This is {words}. With per-material offsets and sigmas refit (as --fit does), '
             f'adding {missing} with {params} {gain} (held-out gain {c.score:.4f} nats/point, '
@@ -363,6 +357,29 @@ def scan_pattern_words(summary: dict) -> str:
             'below rests on the cloud stamps alone.')
 
 
+def stamp_place_words(st: dict) -> str:
+    """A fitted time offset that a stamp convention gives with the clocks in step
+    (``summary.json`` ``stamp_place``): every place of the stamp with the clock offset it
+    needs, none named (``compare/diagnose/stamp_place.py``)."""
+    share = abs(st['dt_s'] / st['period_s'])
+    part = 'half the' if abs(share - 0.5) < 1e-6 else 'one'
+
+    def reading(r: dict) -> str:
+        c = 1e3 * r['clock_offset_s']
+        if abs(c) < 0.5:
+            return f'at the {r["place"]} with the clocks in step'
+        return (f'at the {r["place"]} with the poses stamped {abs(c):.0f} ms '
+                f'{"late" if c > 0 else "early"}')
+    parts = [reading(r) for r in st.get('readings') or []]
+    said = ', or '.join([', '.join(parts[:-1]), parts[-1]] if len(parts) > 1 else parts)
+    return (f' (the {1e3 * st["fitted_dt_s"]:+.1f} ms fitted, {part} '
+            f'{1e3 * st["period_s"]:.0f} ms frame, is what a stamp of the scan gives {said}; '
+            'without per-point times the place of the stamp and a clock offset give the same '
+            'data, so which one it is cannot be told here, and a recording with the driver\'s '
+            'per-point time field, or the driver\'s documented stamp place, separates them; '
+            'the model needs the offset all the same)')
+
+
 def pose_words(pose, cands: list = ()) -> str:
     """The verdict when a reference-pose error explains the residual (``pose_error``).
     ``cands``: candidates that still pass the rule on the corrected pose but were not
@@ -420,6 +437,10 @@ def pose_words(pose, cands: list = ()) -> str:
 
 def _correction(pose) -> str:
     """The pose correction as tested: one for all the clouds, or one per cloud."""
+    if (getattr(pose, 'constant', False) and getattr(pose, 'rate_supported', False)
+            and getattr(pose, 'rate_in_test', True)):
+        return ('One correction of the target pose for the whole recording and its rate '
+                'over the scan')
     return ('One rigid correction of the target pose for the whole recording'
             if getattr(pose, 'constant', False) else
             'A rigid correction of the target pose per cloud')
