@@ -573,6 +573,9 @@ def test_a_range_drift_beside_a_constant_pose_along_the_line_of_sight_is_named_w
         def nameable(c):
             return c.significant and c.practical and c.vetoed is None
 
+        def naming_fault(self, c):
+            return None if self.nameable(c) else 'not nameable'
+
     class Judge:
         @staticmethod
         def nameable(c):

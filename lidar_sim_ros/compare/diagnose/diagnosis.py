@@ -1777,7 +1777,9 @@ class Diagnosis:
                       'pose_gain_on_top': _num(test.gain), 'pose_z_on_top': _num(test.z),
                       'pose_translation_cm': _num(pose.size_cm),
                       'score_on_pose': _num(again.score), 'z_on_pose': _num(again.z),
-                      'passes_on_pose': bool(on_pose.nameable(again)),
+                      'passes_on_pose': on_pose.naming_fault(again) is None,
+                      **({'fault_on_pose': on_pose.naming_fault(again)}
+                         if on_pose.naming_fault(again) else {}),
                       **({'params_on_pose': again.params} if again.params else {}),
                       **({'veto_on_recorded_pose': r.vetoed} if r.vetoed else {})}
             r.against_pose = {**(r.against_pose or {}), **record}
