@@ -603,7 +603,8 @@ def test_a_range_drift_beside_a_constant_pose_along_the_line_of_sight_is_named_w
         def on_constant_pose(effect):
             return (OnPose({'range_drift': drift_on_pose, 'surface_offset': surface_on_pose}),
                     constant, per_cloud)
-        decision = diagnosis.Decision(named, [])
+        decision = (diagnosis.Decision(None, named) if isinstance(named, list)
+                    else diagnosis.Decision(named, []))
         out = diagnosis.Diagnosis.range_term_beside_constant_pose(
             Judge(), decision, [surface, drift], constant_test, on_constant_pose)
         return out, decision, drift, asked
@@ -625,9 +626,11 @@ def test_a_range_drift_beside_a_constant_pose_along_the_line_of_sight_is_named_w
         kept, before, drift, _ = judge(**kw)
         assert kept is before, kw
         assert drift.vetoed == veto, kw
-    # range_drift already named: not asked
+    # range_drift already named: not asked; one of a tie with surface_offset: asked
     kept, before, _, asked = judge(named='range_drift')
     assert kept is before and asked == []
+    tied, _, _, asked = judge(named=['surface_offset', 'range_drift'])
+    assert tied.missing == 'range_drift' and not tied.confounded_with and asked == [['Drift']]
 
 
 def test_a_motion_across_the_line_of_sight_on_faces_of_one_material_each_is_fitted_through_them():

@@ -1771,9 +1771,10 @@ class Diagnosis:
     def range_term_beside_constant_pose(self, decision: Decision, cands: list[Candidate],
                                         constant_test, on_constant_pose) -> Decision:
         """A range error of the sensor (POSE_RIVALS) that passes the held-out rule but is
-        not named, beside a reference pose off by one constant motion along the line of
-        sight (the ninth holdout's drift+pose_los: the range drifting 4 cm/min and the
-        pose 3 cm off along the line of sight). The two hide each other. The pose's
+        not named (set aside, ranked below, or one of a tie), beside a reference pose off
+        by one constant motion along the line of sight (the ninth holdout's
+        drift+pose_los: the range drifting 4 cm/min and the pose 3 cm off along the line
+        of sight). The two hide each other. The pose's
         constant part goes to the materials' offsets (a translation along the line of
         sight moves every range alike), and what it leaves is its pattern at the limbs,
         n.d / n.u less its mean: a range change growing toward grazing, which
@@ -1800,7 +1801,7 @@ class Diagnosis:
         [pose_error, the range term], the constant pose reported beside). Otherwise the
         decision stands. Each figure is recorded on the range term's ``against_pose``."""
         names = {decision.missing, decision.also, *decision.confounded_with}
-        rivals = [c for c in cands if c.name in POSE_RIVALS and c.name not in names
+        rivals = [c for c in cands if c.name in POSE_RIVALS and c.name != decision.missing
                   and c.effect is not None and c.error is None and c.significant
                   and c.practical]
         for r in sorted(rivals, key=lambda c: -c.score):
@@ -1821,7 +1822,7 @@ class Diagnosis:
             r.against_pose = {**(r.against_pose or {}), **record}
             if not record['passes_on_pose']:
                 continue
-            named = [c for c in cands if c.name in names and c.name != POSE_ERROR
+            named = [c for c in cands if c.name in names and c.name not in (POSE_ERROR, r.name)
                      and c.effect is not None and c.error is None]
             displaced = {}
             for c in named:
