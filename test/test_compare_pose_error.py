@@ -620,6 +620,7 @@ def test_a_range_drift_beside_a_constant_pose_along_the_line_of_sight_is_named_w
     # held out within the margin of the per-cloud correction alone: the tie
     tie, _, _, _ = judge(per_cloud_alone=0.06)
     assert tie.missing is None and tie.confounded_with == ['pose_error', 'range_drift']
+    assert tie.pose is not constant and tie.pose.gain == 0.06    # the per-cloud one
     # each condition failing: the decision stands
     for kw in ({'joint': False}, {'surface_on_pose': (0.0056, 5.4)},
                {'drift_on_pose': (0.0010, 1.0)}, {'per_cloud_on_top': True}):

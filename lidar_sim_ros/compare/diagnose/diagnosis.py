@@ -1798,7 +1798,7 @@ class Diagnosis:
         of the range term (the pose is off by one motion, not cloud by cloud); and held
         out, the range term gains MIN_PRACTICAL_GAIN more than the per-cloud correction
         alone (``judge_pose``'s first footing; closer, the two are the tie
-        [pose_error, the range term], the constant pose reported beside). Otherwise the
+        [pose_error, the range term], the pose quoted the per-cloud one). Otherwise the
         decision stands. Each figure is recorded on the range term's ``against_pose``."""
         names = {decision.missing, decision.also, *decision.confounded_with}
         rivals = [c for c in cands if c.name in POSE_RIVALS and c.name != decision.missing
@@ -1849,7 +1849,9 @@ class Diagnosis:
             r.vetoed = None
             if held >= MIN_PRACTICAL_GAIN:
                 return Decision(r.name, [], pose=pose, withheld=withheld)
-            return Decision(None, [POSE_ERROR, r.name], pose=pose, withheld=withheld)
+            # The tie is the per-cloud correction's (on top of the constant one, which it
+            # could take too) with the range term: the pose quoted is that correction.
+            return Decision(None, [POSE_ERROR, r.name], pose=alone, withheld=withheld)
         return decision
 
     def clock_tie(self, decision: Decision, cands: list[Candidate],
