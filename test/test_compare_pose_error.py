@@ -617,6 +617,10 @@ def test_a_range_drift_beside_a_constant_pose_along_the_line_of_sight_is_named_w
     assert ap['veto_on_recorded_pose'] == veto and ap['passes_on_pose']
     assert ap['displaced'] == {'surface_offset': [-0.0004, -0.5]}
     assert ap['heldout_margin'] == pytest.approx(0.0618 - 0.045)
+    from lidar_sim_ros.compare.report.verdict import constant_pose_beside_words
+    said = ' '.join(constant_pose_beside_words(drift))
+    assert 'moves the target 2.9 cm' in said and 'surface_offset gains -0.0004' in said
+    assert 'set aside (' + veto in said
     # held out within the margin of the per-cloud correction alone: the tie
     tie, _, _, _ = judge(per_cloud_alone=0.06)
     assert tie.missing is None and tie.confounded_with == ['pose_error', 'range_drift']

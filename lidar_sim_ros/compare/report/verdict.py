@@ -361,22 +361,24 @@ def _against_pose_words(c) -> str:
 
 def constant_pose_beside_words(c) -> list[str]:
     """Beside a range term named with a constant pose along the line of sight
-    (``Diagnosis.range_term_beside_constant_pose``: ``against_pose['displaced']``): what
-    the candidates ranked above it gain on that corrected pose, and the veto it passed
-    there. Empty for every other naming."""
+    (``Diagnosis.range_term_beside_constant_pose``: its ``against_pose``): the constant
+    correction, what the candidates the decision had named gain on the corrected pose
+    (``displaced``), the per-cloud correction on top, and the veto it passed there.
+    Empty for every other naming."""
     ap = c.against_pose or {}
-    displaced = ap.get('displaced')
-    if not displaced:
+    if 'per_cloud_gain_on_top' not in ap:
         return []
+    displaced = ap.get('displaced') or {}
     gains = ', '.join(f'{n} gains {g:.4f} nats/point (z = {z:.1f})' for n, (g, z)
                       in displaced.items() if g is not None and z is not None)
     out = [f'Fitted on top of {c.name}, one correction of the reference pose for the whole '
            f'recording moves the target {ap.get("pose_translation_cm") or 0:.1f} cm and '
            'takes the materials\' common offset (a motion along the line of sight); with it '
-           f'applied and the model raycast again, {gains or "nothing else gains"}, not '
-           'decisive: on the recorded pose it took what that constant pose leaves at the '
-           'limbs (a range change growing toward grazing incidence); and a correction per '
-           'cloud on top of '
+           'applied and the model raycast again, '
+           + (f'{gains}, not decisive: on the recorded pose it took what that constant '
+              'pose leaves at the limbs (a range change growing toward grazing '
+              'incidence); and ' if gains else '')
+           + 'a correction per cloud on top of '
            f'{c.name} gains {ap.get("per_cloud_gain_on_top") or 0:.4f} nats/point '
            f'(z = {ap.get("per_cloud_z_on_top") or 0:.1f}).']
     if ap.get('veto_on_recorded_pose'):
