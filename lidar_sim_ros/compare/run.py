@@ -930,6 +930,30 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             rate=has_point_times(meas), constant=constant, scan=scan)
     decision = diag.judge_pose(pose_test, cands, decision, recast,
                                lambda on_top: pose_test(on_top, constant=True), same_points)
+
+    def on_constant_pose(effect: Effect):
+        """The diagnosis re-cast with one correction for the recording fitted on every
+        matched point on top of ``effect`` (each pass too), its report (the sample's
+        test on top of ``effect``) and the per-cloud test on the re-cast matching."""
+        idx = rays.matched
+        fitted = pose_error.fit_reference_pose(
+            diagnosis.make_fit_data(model, effects, rays), meas.cloud[idx], meas.t_s[idx],
+            sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed, [effect],
+            rate=has_point_times(meas), constant=True)
+        diag_c, report, moved = recast_all_points(model, effects, rays, sample, meas, fitted,
+                                                  len(classes), seed, True, (effect,))
+        test = pose_test([effect], constant=True)
+        data_c = diagnosis.make_fit_data(model, effects, moved)
+
+        def per_cloud(on_top: list[Effect]) -> pose_error.PoseError:
+            at = moved.matched
+            return pose_error.fit_reference_pose(
+                data_c, meas.cloud[at], meas.t_s[at], sample.blocks[at], diag.z_crit,
+                diagnosis.MIN_PRACTICAL_GAIN, seed, on_top, rate=has_point_times(meas))
+        return diag_c, replace(report, gain=test.gain, z=test.z,
+                               significant=test.significant), per_cloud
+    decision = diag.range_term_beside_constant_pose(
+        decision, cands, lambda on_top: pose_test(on_top, constant=True), on_constant_pose)
     constant = decision.pose is not None and decision.pose.constant
     decision, scored = diag.weigh_pose_rivals(
         decision, rivals, lambda on_top: pose_test(on_top, constant=constant),
@@ -983,7 +1007,7 @@ def pose_points(rays: diagnosis.RaySet, sample: diagnosis.RaySet,
 def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySet,
                       sample: diagnosis.RaySet, meas: Measurements,
                       pose: pose_error.PoseError, n_candidates: int, seed: int,
-                      constant: bool = False
+                      constant: bool = False, on_top: tuple[Effect, ...] = ()
                       ) -> tuple[diagnosis.Diagnosis, pose_error.PoseError, diagnosis.RaySet]:
     """The diagnosis on the pose-corrected model as a ``--effect pose_error --fit`` run
     builds it: ``pose`` (a fit on every matched point of ``rays``) applied and every
@@ -997,8 +1021,10 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
     what is left of a pose error grows with the tangent of the incidence angle, weigh
     in for an incidence-shaped residual a --fit run does not see (docs/compare.md, "A
     sensor effect against the reference pose"). ``sample`` gives the neighbourhood
-    blocks. Returns the diagnosis, the correction (its test ``pose``'s) and the re-cast
-    matching's rays (every point)."""
+    blocks. ``on_top``: effects the correction is fitted on top of at every pass (as
+    ``pose`` was; they stay out of the re-cast diagnosis's model). Returns the
+    diagnosis, the correction (its test ``pose``'s) and the re-cast matching's rays
+    (every point)."""
     sim = geometry(model, effects)
     scan = scan_clock(meas)
 
@@ -1016,8 +1042,9 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
                                              sample.blocks[idx], float(norm.isf(
                                                  diagnosis.FAMILY_ALPHA)),
                                              diagnosis.MIN_PRACTICAL_GAIN, seed,
-                                             applied=applied, rate=has_point_times(meas),
-                                             constant=constant, scan=scan)
+                                             list(on_top), applied=applied,
+                                             rate=has_point_times(meas), constant=constant,
+                                             scan=scan)
 
     start = pose_error.PoseCorrection.identity(
         np.zeros_like(meas.cloud) if constant else meas.cloud, meas.t_s)

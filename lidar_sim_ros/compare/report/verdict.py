@@ -114,6 +114,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             parts.append(lasers)
         if c.against_pose:
             parts.append(_against_pose_words(c))
+            parts.extend(constant_pose_beside_words(c))
     elif diagnosis.POSE_ERROR in decision.confounded_with:
         parts.append(pose_tie_words(decision, summary, cands))
         if decision.also:
@@ -469,6 +470,34 @@ def _against_pose_words(c) -> str:
             f'surfaces the moved target puts there) the fit is {ap.get("fitted_margin") or 0:.4f} '
             f'nats/point worse than with {c.name}, as --fit leaves them: the rays at the edges '
             'did not move, the ranges did.')
+
+
+def constant_pose_beside_words(c) -> list[str]:
+    """Beside a range term named with a constant pose along the line of sight
+    (``Diagnosis.range_term_beside_constant_pose``: its ``against_pose``): the constant
+    correction, what the candidates the decision had named gain on the corrected pose
+    (``displaced``), the per-cloud correction on top, and the veto it passed there.
+    Empty for every other naming."""
+    ap = c.against_pose or {}
+    if 'per_cloud_gain_on_top' not in ap:
+        return []
+    displaced = ap.get('displaced') or {}
+    gains = ', '.join(f'{n} gains {g:.4f} nats/point (z = {z:.1f})' for n, (g, z)
+                      in displaced.items() if g is not None and z is not None)
+    out = [f'Fitted on top of {c.name}, one correction of the reference pose for the whole '
+           f'recording moves the target {ap.get("pose_translation_cm") or 0:.1f} cm and '
+           'takes the materials\' common offset (a motion along the line of sight); with it '
+           'applied and the model raycast again, '
+           + (f'{gains}, not decisive: on the recorded pose it took what that constant '
+              'pose leaves at the limbs (a range change growing toward grazing '
+              'incidence); and ' if gains else '')
+           + 'a correction per cloud on top of '
+           f'{c.name} gains {ap.get("per_cloud_gain_on_top") or 0:.4f} nats/point '
+           f'(z = {ap.get("per_cloud_z_on_top") or 0:.1f}).']
+    if ap.get('veto_on_recorded_pose'):
+        out.append('On the recorded pose it was set aside (' + ap['veto_on_recorded_pose']
+                   + '); with the pose corrected it holds across the materials.')
+    return out
 
 
 def _together_words(c) -> str:
