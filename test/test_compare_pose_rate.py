@@ -335,3 +335,34 @@ def test_one_rate_for_the_recording_composes_into_the_correction():
                                    atol=2e-4)
     np.testing.assert_allclose(shift[2], shift[0], atol=2e-4)    # reset at the next cloud
     np.testing.assert_allclose((shift[1] - shift[0])[1], 0.028, atol=0.004)
+
+
+def _over_scan(range_rate_mps: float, seed: int, n: int = 12_000):
+    """Planes whose measured range grows by ``range_rate_mps x (time since the cloud's
+    start)`` on every ray, the same in every cloud: the sensor's range changing over its
+    scan (docs/compare.md's walkthrough recording), not the pose."""
+    u, normal, centre, cloud, t, rng = _planes(n, seed)
+    t = cloud * 0.1 + rng.uniform(0.0, 0.09, len(t))
+    origin = np.tile(centre, (len(u), 1))
+    expected = _range(origin, normal, u)
+    measured = expected + range_rate_mps * (t - cloud * 0.1) \
+        + SIGMA_M * rng.standard_normal(len(u))
+    return _data(u, normal, measured, expected, t), cloud, t
+
+
+@pytest.mark.parametrize('seed', [10, 11])
+def test_a_range_growing_over_the_scan_is_no_rate_of_the_pose(seed):
+    """A range offset of the sensor growing over each scan, the same in every cloud, is
+    what one rate of the pose along the line of sight does: the rate passes its own test
+    but not beyond that offset, so it is not claimed, and the tie is recorded; a drift
+    across the line of sight is claimed (the test above)."""
+    data, cloud, t = _over_scan(0.4, seed)
+    pe = pose_error.fit_reference_pose(data, cloud, t, np.arange(len(t)) // 30, 3.0, 0.005,
+                                       rate=True, constant=True)
+    assert pe.rate_tested and not pe.rate_supported
+    tie = pe.as_dict()['rate']['tied_with_range_over_scan']
+    assert tie['rate_gain'] >= 0.005 and tie['z'] < 3.0
+    data_c, cloud_c, t_c = _held(0.4, 0.0, seed=seed)
+    pe_c = pose_error.fit_reference_pose(data_c, cloud_c, t_c, np.arange(len(t_c)) // 30,
+                                         3.0, 0.005, rate=True, constant=True)
+    assert pe_c.rate_supported and 'tied_with_range_over_scan' not in pe_c.as_dict()['rate']

@@ -115,6 +115,10 @@ class PoseError:
     # supported on every matched point (the correction reported) but not on the test's
     # sample, whose gain is then the rigid correction's.
     rate_in_test: bool = True
+    # One rate for the recording that passed its own test but not beyond a range offset of
+    # the sensor growing over each scan (``range_over_scan``): the two cannot be told
+    # apart (its figures; None where not asked or told apart).
+    scan_tie: dict | None = None
     # Per cloud: one range offset per cloud (a sensor's range offset changing between
     # clouds, ``per_cloud_offset_columns``), its held-out gain and z, and the rigid
     # correction's gain over it (nested, on the same halves). A correction that gains
@@ -208,6 +212,8 @@ class PoseError:
             return None
         out = {'supported': self.rate_supported, 'gain_over_rigid': round(self.rate_gain, 6),
                'z': round(self.rate_z, 3)}
+        if self.scan_tie is not None:
+            out['tied_with_range_over_scan'] = self.scan_tie
         if self.rate_supported and self.rate_translation_mps is not None and self.constant:
             v = np.asarray(self.rate_translation_mps, float)[0]
             w = np.asarray(self.rate_rotation_deg_s, float)[0]
@@ -289,6 +295,33 @@ def design(direction: np.ndarray, normal: np.ndarray, expected_m: np.ndarray,
     return np.where(use[:, None], a, 0.0), use
 
 
+def _solve(ata: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``ata x = rhs``; least squares where ``ata`` is singular (a block of columns that
+    carries nothing: one rate for the recording on a single cloud, whose times the
+    directions fix, ``scan_clock.beyond_direction``)."""
+    try:
+        return np.linalg.solve(ata, rhs)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(np.nan_to_num(ata), np.nan_to_num(rhs), rcond=None)[0]
+
+
+def range_over_scan(tau: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
+                    group: np.ndarray | None, train: np.ndarray) -> np.ndarray:
+    """(N,) a range offset of the sensor growing linearly over the scan, the same in
+    every cloud (m per unit ``tau``, fitted on the ``train`` points with one offset per
+    material), at every point: what one rate of the pose for the recording is along the
+    line of sight, which the sensor's range changing over each scan does alike."""
+    t = np.asarray(tau, float)
+    g = np.zeros(len(t), int) if group is None else np.asarray(group, int)
+    labels, col = np.unique(g, return_inverse=True)
+    w = np.where(train, 1.0 / np.asarray(sigma_m, float), 0.0)
+    a = np.zeros((len(t), 1 + len(labels)))
+    a[:, 0] = t
+    a[np.arange(len(t)), 1 + col] = 1.0
+    x = np.linalg.lstsq(a * w[:, None], residual_m * w, rcond=None)[0]
+    return a @ x
+
+
 def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
                cloud: np.ndarray, use: np.ndarray, clouds: np.ndarray,
                prior: np.ndarray | None = None, ridge: float = RIDGE,
@@ -323,7 +356,7 @@ def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
         systems.append((k, sel, w, aw, ata, rhs))
     if group is None or not systems:
         for k, _, _, _, ata, rhs in systems:
-            out[k] = np.linalg.solve(ata, rhs)
+            out[k] = _solve(ata, rhs)
         return out
     # Joint: eliminate each cloud's motion (Schur complement) and solve for the
     # offsets of the materials with enough points; the others keep theirs.
@@ -341,8 +374,8 @@ def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
         np.add.at(b.T, j[keep], aw[keep] * w[keep, None])
         d = np.bincount(j[keep], weights=w[keep] ** 2, minlength=n_m)
         e = np.bincount(j[keep], weights=residual_m[sel][keep] * w[keep] ** 2, minlength=n_m)
-        inv_b = np.linalg.solve(ata, b)
-        inv_r = np.linalg.solve(ata, rhs)
+        inv_b = _solve(ata, b)
+        inv_r = _solve(ata, rhs)
         lhs += np.diag(d) - b.T @ inv_b
         rhs_m += e - b.T @ inv_r
         coupling.append((k, inv_b, inv_r))
@@ -622,8 +655,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     a12 = rate_columns(a, tau) if rate else None
     # One rate for the recording is tested on the part of tau that the direction does
     # not fix (``beyond_direction``); estimated on tau whole.
-    a12t = (rate_columns(a, beyond_direction(tau, ctx.direction, use))
-            if rate and constant else a12)
+    tau_beyond = beyond_direction(tau, ctx.direction, use) if rate and constant else None
+    a12t = rate_columns(a, tau_beyond) if rate and constant else a12
     prior = None if applied is None else applied.params(clouds)
     prior12 = None if applied is None else applied.params(clouds, rate=True)
     # Jointly with the material offsets for one correction for the recording only: a
@@ -652,6 +685,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     half = np.random.default_rng([seed, 61]).integers(0, 2, len(r))
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
+    gain_scan = np.zeros(len(r))      # a range offset over the scan instead (constant, rate)
     for k in (0, 1):
         test, train = use & (half != k), use & (half == k)
         x = fit_clouds(a, r, s, cloud, train, clouds, prior, TEST_RIDGE, group)
@@ -666,6 +700,9 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         if not constant:
             off = per_cloud_offset(r, s, row, train, len(clouds))
             gain1[test] = heldout_gain(r[test], off[test], s[test])
+        if rate and constant:
+            over_scan = range_over_scan(tau_beyond, r, s, group, train)
+            gain_scan[test] = heldout_gain(r[test], over_scan[test], s[test])
         if rate:
             x12 = fit_clouds(a12t, r, s, cloud, train, clouds, prior12, TEST_RIDGE, group)
             corr12 = with_offsets(np.einsum('ij,ij->i', a12t, x12[row]), r, group, train)
@@ -697,9 +734,20 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # so on its own the rate is six more spatial patterns per cloud, which a sensor's
     # own pattern (a bias periodic in azimuth) would pass for.
     rigid_passes = z >= z_crit and per_point >= min_gain
+    scan_tie = None
     if constant:
         supported = bool(rate and constant_rate_supported(
             (rate_gain, rate_z), judged(gain12), z_crit, min_gain))
+        if supported:
+            # Along the line of sight one rate of the pose is a range offset of the sensor
+            # growing over each scan: claimed only if it gains beyond that, by the rule.
+            beyond = judged(gain12 - gain_scan)
+            if not (beyond[1] >= z_crit and beyond[0] >= min_gain):
+                supported = False
+                scan_tie = {'rate_gain': round(judged(gain12)[0], 6),
+                            'range_over_scan_gain': round(judged(gain_scan)[0], 6),
+                            'rate_beyond_range_over_scan': round(beyond[0], 6),
+                            'z': round(beyond[1], 2)}
     else:
         supported = bool(rate and rigid_passes and rate_z >= z_crit
                          and rate_gain >= min_gain)
@@ -730,7 +778,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      rate_rotation_deg_s=np.degrees(x[:, 9:12]) * per_s if supported else None,
                      t_centre_s=t_c, half_span_s=h_c, constant=constant,
                      joint=joint is not None, through_materials=through is not None,
-                     scan=scan if constant and rate else None,
+                     scan=scan if constant and rate else None, scan_tie=scan_tie,
                      offset_gain=offset_gain, offset_z=offset_z,
                      beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z)
 

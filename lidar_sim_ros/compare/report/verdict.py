@@ -199,7 +199,24 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                      f'spread {1e3 * spread:.0f} ms), which is not a physical effect.')
     if summary.get('sunlight'):
         parts.append(sunlight_words(summary['sunlight'], hint=missing != 'sunlight'))
+    tie = ((summary.get('reference_pose') or {}).get('rate') or {}).get('tied_with_range_over_scan')
+    if tie:
+        parts.append(scan_tie_words(tie))
     return ' '.join(parts)
+
+
+def scan_tie_words(tie: dict) -> str:
+    """One rate of the reference pose for the recording that did not gain beyond a range
+    offset of the sensor growing over each scan (``pose_error.range_over_scan``)."""
+    return (f'The residual also changes over each scan the same way in every cloud: one '
+            f'rate of the reference pose over the scan gains {tie["rate_gain"]:.4f} '
+            f'nats/point held out, a range offset of the sensor growing over the scan '
+            f'{tie["range_over_scan_gain"]:.4f}, and the rate beyond it '
+            f'{tie["rate_beyond_range_over_scan"]:.4f} (z = {tie["z"]:.1f}): a pose drifting '
+            'along the line of sight within each scan (a tracking pose sampled once a cloud '
+            'and held) and the sensor\'s range changing over the scan cannot be told apart '
+            'here, and neither is named; a target seen across a wide angle, or a static '
+            'target on a surveyed pose, separates them.')
 
 
 # Clouds without point times of which fewer than this share of the directions match the
