@@ -11,6 +11,8 @@ from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.compare.diagnose import diagnosis, pose_error
 
+from test_compare_pose_status import _Judge
+
 
 def _plane_range(origin, normal, u):
     """Range along unit rays u (N, 3) from the sensor to the plane (point, normal)."""
@@ -765,49 +767,13 @@ def test_a_pose_that_gains_nothing_beyond_the_named_effect_and_its_also_is_not_c
             return pose(not (together and not beside_both))
         return run
 
-    class _Together:
-        def __init__(self, effect):
-            self.together = effect
-
-    class _OnPose:                 # the candidates scored again on the corrected pose
-        @staticmethod
-        def score(cls):
-            return diagnosis.Candidate('range_walk', score=0.086, z=12.2,
-                                       significant=True, practical=True)
-
-        @staticmethod
-        def nameable(c):
-            return True
-
-        before_nll = -1.70
-
-        @staticmethod
-        def decide(again):
-            return diagnosis.Decision('range_walk', [])
-
-    class Judge(diagnosis.Diagnosis):
-        def __init__(self):
-            self.z_crit = 3.0
-
-        def nameable(self, c):
-            return c.significant and c.practical
-
-        def set_aside_beside(self, best, cands, but=()):
-            return []
-
-        def _fitted_together(self, effects):
-            return [_Together(e) for e in effects]
-
-        def pose_corrected(self, correction_m):
-            return _OnPose()
-
     decision = diagnosis.Decision('range_walk', [], also='laser_bias')
-    out = Judge().judge_pose(constant_test(False), [walk, lasers], decision)
+    out = _Judge().judge_pose(constant_test(False), [walk, lasers], decision)
     assert out.pose is None and out.missing == 'range_walk' and out.also == 'laser_bias'
     assert [walk.effect, lasers.effect] in asked       # tested on top of both together
     assert walk.pose_beside == {'with': ['laser_bias'], 'pose_constant': True,
                                 'gain': 0.0004, 'z': 0.3, 'significant': False}
-    kept = Judge().judge_pose(constant_test(True), [walk, lasers], decision)
+    kept = _Judge().judge_pose(constant_test(True), [walk, lasers], decision)
     assert kept.pose is not None and kept.pose.significant and kept.missing == 'range_walk'
 
 

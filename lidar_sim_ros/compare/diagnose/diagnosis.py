@@ -828,15 +828,22 @@ class Diagnosis:
             if on.all() or not on.any():
                 continue
             halves = [self.rays._with(idx[on], none), self.rays._with(idx[~on], none)]
-            loss = self.transfer_nll(cand.variant, halves, on_top) - at_random
-            ok = np.isfinite(loss)
-            if ok.sum() < 2:
-                continue
-            _, z = block_mean_z(loss[ok], self.matched_blocks[ok])
-            per_point = float(np.sum(loss[ok]) / max(self.n_total, 1))
-            if (per_point >= MIN_PRACTICAL_GAIN and z >= self.z_crit
-                    and (worst is None or per_point > worst[1])):
-                worst = (key, per_point, z)
+            worst = self.larger(worst, key,
+                                self.transfer_nll(cand.variant, halves, on_top) - at_random)
+        return worst
+
+    def larger(self, worst: tuple | None, key, gain: np.ndarray) -> tuple | None:
+        """``(key, nats per analysed point, z)`` of ``gain`` (per matched point, matched
+        order; NaN: not scored) where it passes the rule (z above the bound, at least
+        MIN_PRACTICAL_GAIN) and exceeds ``worst``'s; else ``worst``. The split vetoes."""
+        ok = np.isfinite(gain)
+        if ok.sum() < 2:
+            return worst
+        _, z = block_mean_z(gain[ok], self.matched_blocks[ok])
+        per_point = float(np.sum(gain[ok]) / max(self.n_total, 1))
+        if (per_point >= MIN_PRACTICAL_GAIN and z >= self.z_crit
+                and (worst is None or per_point > worst[1])):
+            return (key, per_point, z)
         return worst
 
     def tile_veto(self, cand: Candidate, on_top: list[Effect] = ()) -> str | None:
@@ -922,15 +929,7 @@ class Diagnosis:
             on = group == m
             if min(on.sum(), (~on).sum()) < lk.MIN_MATERIAL_POINTS:
                 continue
-            gain = common - self.split_nll(cand.variant, on)
-            ok = np.isfinite(gain)
-            if ok.sum() < 2:
-                continue
-            _, z = block_mean_z(gain[ok], self.matched_blocks[ok])
-            per_point = float(np.sum(gain[ok]) / max(self.n_total, 1))
-            if (per_point >= MIN_PRACTICAL_GAIN and z >= self.z_crit
-                    and (worst is None or per_point > worst[1])):
-                worst = (int(m), per_point, z)
+            worst = self.larger(worst, int(m), common - self.split_nll(cand.variant, on))
         if worst is None:
             return None
         m, gain, z = worst

@@ -600,6 +600,19 @@ def iterate(first: PoseError, start: PoseCorrection, rematch: Callable[[PoseCorr
     return state, corr, report
 
 
+def footing(data: lk.FitData, model) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                               np.ndarray]:
+    """The pose test's footing on ``data`` under ``model`` (``likelihood.model_on_rays``):
+    the range residual (m) with each material's offset taken out, its sigma (m) with the
+    material's scale, the placed finite points, and the offsets taken out (per point)."""
+    r = np.asarray(data.measured_range_m, float) - model.expected_range_m
+    sigma = np.maximum(model.sigma_m, lk.MIN_SIGMA_M)
+    ok = model.placed & np.isfinite(r) & np.isfinite(sigma)
+    group = np.asarray(data.baseline.ctx.material, int)
+    offset, scale = lk.material_nuisance(r, sigma, group, ok)
+    return np.where(ok, r - offset, 0.0), np.where(ok, sigma * scale, 1.0), ok, offset
+
+
 def heldout_gain(residual_m: np.ndarray, correction_m: np.ndarray,
                  sigma_m: np.ndarray) -> np.ndarray:
     """Nats per point the correction gains on held-out points: the Gaussian log density of
@@ -638,13 +651,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         return PoseError(clouds, np.zeros(len(clouds)), np.zeros((len(clouds), 3)),
                          np.zeros((len(clouds), 3)), 0.0, 0.0, False,
                          np.zeros(len(data.measured_range_m)))
-    r = np.asarray(data.measured_range_m, float) - model.expected_range_m
-    sigma = np.maximum(model.sigma_m, lk.MIN_SIGMA_M)
-    ok = model.placed & np.isfinite(r) & np.isfinite(sigma)
+    r, s, ok, offset = footing(data, model)
     group = np.asarray(data.baseline.ctx.material, int)
-    offset, scale = lk.material_nuisance(r, sigma, group, ok)
-    r = np.where(ok, r - offset, 0.0)
-    s = np.where(ok, sigma * scale, 1.0)
     a, usable = design(ctx.direction, ctx.normal, np.where(ok, model.expected_range_m, 0.0),
                        cloud)
     use = ok & usable & (np.abs(r) <= OUTLIER_SIGMAS * s)

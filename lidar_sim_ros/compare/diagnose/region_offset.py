@@ -191,14 +191,7 @@ def footing(data: lk.FitData, effects: list) -> tuple[np.ndarray, np.ndarray, np
     fit_reference_pose``): the residual with each material's offset taken out, its
     sigma with the material's scale, and the usable points (placed, finite, within
     OUTLIER_SIGMAS)."""
-    model = lk.model_on_rays(data, list(effects))
-    r = np.asarray(data.measured_range_m, float) - model.expected_range_m
-    sigma = np.maximum(model.sigma_m, lk.MIN_SIGMA_M)
-    ok = model.placed & np.isfinite(r) & np.isfinite(sigma)
-    group = np.asarray(data.baseline.ctx.material, int)
-    offset, scale = lk.material_nuisance(r, sigma, group, ok)
-    r = np.where(ok, r - offset, 0.0)
-    s = np.where(ok, sigma * scale, 1.0)
+    r, s, ok, _ = pose_error.footing(data, lk.model_on_rays(data, list(effects)))
     return r, s, ok & (np.abs(r) <= pose_error.OUTLIER_SIGMAS * s)
 
 
