@@ -147,3 +147,18 @@ def test_a_pose_that_passes_only_beside_the_named_effect_is_shown_on_top_of_it()
     assert out['reported'] and out['decided_by']['on_top_of'] == ['range_walk']
     judge.judge_pose(lambda on_top: _pose(True), [walk], diagnosis.Decision('range_walk', []))
     assert judge.pose_on_top == []
+
+
+def test_a_per_cloud_pose_along_the_line_of_sight_is_reported_as_off_or_the_sensors_range():
+    """Holdout 10's tempscale: a per-cloud correction 95 % along the line of sight, which
+    the verdict says cannot be told from a range offset of the sensor changing from cloud
+    to cloud; summary.json said 'off'. One correction for the recording keeps 'off'."""
+    pose = replace(_pose(True, constant=False), translation_m=np.array([[0.0, 0.0, 0.01]]),
+                   centroid_m=np.array([[0.0, 0.0, 10.0]]))
+    out = pose_status(pose.as_dict(), diagnosis.Decision(None, [], pose=pose), [], [])
+    assert pose.as_dict()['line_of_sight_share'] == 1.0
+    assert (out['reported'], out['reported_as']) == (True, 'off_or_sensor_range')
+    assert 'cannot be told apart' in out['reported_because']
+    const = replace(pose, constant=True)
+    assert pose_status(const.as_dict(), diagnosis.Decision(None, [], pose=const), [],
+                       [])['reported_as'] == 'off'

@@ -185,8 +185,10 @@ class PoseError:
         return float(np.sqrt(np.mean(np.sum((self.rate_rotation_deg_s * span) ** 2, 1))))
 
     def as_dict(self) -> dict:
+        share = self.line_of_sight_share
         return {'gain_per_matched_point': round(self.gain, 6), 'z': round(self.z, 3),
                 'significant': self.significant, 'translation_rms_cm': round(self.size_cm, 3),
+                'line_of_sight_share': None if share is None else round(float(share), 4),
                 'rotation_rms_deg': round(self.size_deg, 4), 'span_s': round(self.span_s, 3),
                 'clouds': [{'cloud': int(c), 't_s': round(float(t), 4),
                             'translation_m': [round(float(x), 5) for x in d],

@@ -13,11 +13,14 @@ decision and the candidates recorded; it decides nothing.
 from __future__ import annotations
 
 from lidar_sim_ros.compare.diagnose.diagnosis import MIN_PRACTICAL_GAIN, POSE_ERROR
+from lidar_sim_ros.compare.report.verdict import LINE_OF_SIGHT_SHARE
 
 
 def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> dict:
     """``reported`` (bool: the verdict says the pose is off, alone, beside a named effect
-    or in a tie), ``reported_as`` ('off', 'beside', 'tie', 'beside_tie' or None),
+    or in a tie), ``reported_as`` ('off', 'off_or_sensor_range': off, per cloud along the
+    line of sight, which the verdict says a sensor's range offset does alike; 'beside',
+    'tie', 'beside_tie' or None),
     ``reported_because`` (one sentence) and ``decided_by`` (the deciding test's figures:
     gain per matched point, z, significant, per cloud or constant, on top of what).
     ``pose``: summary.json's ``reference_pose`` (``PoseError.as_dict``); ``on_top``: the
@@ -43,6 +46,13 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
             where = f'on top of {_join(on_top)}' if on_top else 'on its own'
             return _out(True, 'beside', f'its test passes {where}{also}: reported beside '
                         f'{_join(named)}', shown)
+        share = pose.get('line_of_sight_share')
+        if share is not None and share >= LINE_OF_SIGHT_SHARE and not pose.get('constant'):
+            return _out(True, 'off_or_sensor_range', 'its test passes and no sensor effect is '
+                        f'named beside it; {100 * share:.0f} % of its correction moves the '
+                        'clouds along the line of sight, as a range offset of the sensor '
+                        'changing from cloud to cloud would: the verdict says the two cannot '
+                        'be told apart', shown)
         return _out(True, 'off', 'its test passes and no sensor effect is named beside it',
                     shown)
     if decision.beside_tie and decision.beside_pose is not None:
