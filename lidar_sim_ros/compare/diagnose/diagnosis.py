@@ -1049,7 +1049,7 @@ class Diagnosis:
                         # (``stands_in_beside``); then the other is named.
                         instead = self.stands_in_beside(c, best, cands)
                         if instead is not None:
-                            figs = self.__dict__.get('on_top_figures', {})
+                            figs = self.memo('on_top_figures')
                             pair_z[best.name] = {
                                 'stands_in_for': instead, 'beside': c.name,
                                 'gain_z_on_top_of_both': {
@@ -1106,7 +1106,7 @@ class Diagnosis:
         (``beside_set_aside``, ``tie_beside_set_aside``). ``but``: names left out."""
         if best.effect is None or not self.nameable(best):
             return []
-        memo = self.__dict__.setdefault('_set_aside', {})
+        memo = self.memo('set_aside')
         out = []
         for c in cands:
             if (c is best or c.name in but or c.name == POSE_ERROR or c.error is not None
@@ -1131,7 +1131,7 @@ class Diagnosis:
         still = [e for e in effects if all(e is not m for m in moving)]
         if len(still) < 2 and not (still and moving):
             return list(effects)
-        memo = self.__dict__.setdefault('_together', {})
+        memo = self.memo('together')
         key = tuple((e.name, repr(e.params.model_dump())) for e in effects)
         if key not in memo:
             memo[key] = [*moving, *refit_in_turn(self.full, still, [{}] * len(still),
@@ -1190,7 +1190,7 @@ class Diagnosis:
         (``_on_top``: z decisive, total above MIN_TOTAL_GAIN, and with ``practical`` the
         gain per point at least MIN_PRACTICAL_GAIN: one that matters enough to name)."""
         gain, z, _ = self._on_top(on_top, other)
-        self.__dict__.setdefault('on_top_figures', {})[
+        self.memo('on_top_figures')[
             (other.name, *sorted(e.name for e in on_top))] = (_num(gain), _num(z))
         return bool((gain >= MIN_PRACTICAL_GAIN or not practical) and z >= self.z_crit
                     and gain * self.n_total >= MIN_TOTAL_GAIN)
@@ -1214,7 +1214,7 @@ class Diagnosis:
         or neither does (the data cannot tell which), nothing changes."""
         if best.effect is None or other.effect is None:
             return None
-        memo = self.__dict__.setdefault('_stands_in', {})
+        memo = self.memo('stands_in')
         key = (best.name, other.name)
         if key in memo:
             return memo[key]
@@ -1359,6 +1359,13 @@ class Diagnosis:
             return None
         return None
 
+    def memo(self, name: str) -> dict:
+        """This diagnosis's cache ``name`` (results that depend on its model: effects
+        fitted together, what adds beside a named one, the figures on top), made on first
+        use (test stand-ins are built without ``__init__``). A diagnosis on another model
+        (``pose_corrected``) starts with none."""
+        return self.__dict__.setdefault('_memos', {}).setdefault(name, {})
+
     def pose_corrected(self, correction_m: np.ndarray) -> 'Diagnosis':
         """This diagnosis on the model with a reference-pose correction (m of range per
         matched point of ``self.full``, ``pose_error.corrected``)."""
@@ -1370,6 +1377,7 @@ class Diagnosis:
         out._base_nll = [heldout_nll(d, []) for d in out.fold_data]
         out._before_nll = None
         out._core = None
+        out._memos = {}        # the copy shares them with this model otherwise
         return out
 
     def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision,
