@@ -87,8 +87,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                                                    if c.name == decision.evidence)))
     elif missing:
         c = next(c for c in cands if c.name == missing)
-        params = ', '.join(f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
-                           for k, v in c.params.items())
+        params = _params_words(c.params)
         gain, caveat = _gain_words(summary, c)
         words = EFFECT_WORDS.get(missing, missing)
         if missing == 'time_offset' and summary.get('point_times') in ('stamp', 'scan pattern'):
@@ -287,8 +286,7 @@ def mechanism_words(decision, cands: list) -> dict[str, str]:
 def _not_named_why(c, decision, of: str) -> str:
     """Which part of the rule a candidate fails, in the fit's figures ('' if none is
     known: then it is not said)."""
-    params = ', '.join(f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
-                       for k, v in (c.params or {}).items())
+    params = _params_words(c.params)
     fitted = (f'fitted with {params}, it gains {c.score:.4f} nats/point held out '
               f'(z = {c.z:.1f})')
     if c.vetoed:
@@ -785,6 +783,13 @@ def plan_words(rows: list[dict]) -> str:
             f'best, {best["recording"]}, gives {best["margin"]:.4f} nats/point, z = '
             f'{best["z"]:.1f} with {n} points (plan.yaml): a recording '
             'other than these would be needed.')
+
+
+def _params_words(params: dict | None) -> str:
+    """A candidate's fitted parameters as the verdict quotes them: 'k = v, ...', floats
+    to four significant figures."""
+    return ', '.join(f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
+                     for k, v in (params or {}).items())
 
 
 def _join(names: list[str]) -> str:
