@@ -83,7 +83,8 @@ CEPTON_FRAME = 'cepton3'
 CEPTON_SATURATED, CEPTON_NO_RETURN = 1, 32
 SATURATION_POWER_W = 1.0e-3      # this sensor's detector clips above this
 # Hidden effects compare has no candidate for: expected answer null (and the feature).
-OUTSIDE_CATALOGUE = ('azimuth_bias', 'range_scale', 'crosstalk')   # range_scale: by name only
+OUTSIDE_CATALOGUE = ('azimuth_bias', 'range_scale', 'crosstalk',   # range_scale: by name only
+                     'dual_return')
 # Range errors of the sensor that compare weighs against the reference pose (issue 30).
 POSE_RIVALS = ('range_drift',)
 
@@ -823,12 +824,62 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
              'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid,
              'base_sigma_m': base_sigma[i], 'multipath': multipath[i], 'hidden': hidden[i],
              'effects': {k: (b[i], v[i]) for k, (b, v) in contrib.items()}}
+    frame['return_index'] = np.zeros(len(i), np.int64)
     xt = spec.params_of('crosstalk')
     if xt is not None:
         real = detected & (mat >= 0)
         at, ghost_r, ghost_p = crosstalk_returns(measured, power, real, laser, sensor, rng, xt)
         frame = with_ghosts(frame, d, t, laser, at, ghost_r, ghost_p)
+    dual = spec.params_of('dual_return')
+    if dual is not None:
+        first = detected & on_target & (mat >= 0)
+        at, r2, p2, m2 = second_returns(target, origins_b, dirs_b, r_hit, first, sensor, rng,
+                                        dual)
+        sig = np.array([errors[m][1] for m in MATERIALS])
+        b2 = np.array([errors[m][0] for m in MATERIALS])
+        meas2 = r2 + b2[m2] + sig[m2] * rng.standard_normal(len(at))
+        ok = meas2 < sensor.max_range_m
+        frame = with_ghosts(frame, d, t, laser, at[ok], meas2[ok], p2[ok], material=m2[ok],
+                            index=1, true_range_m=r2[ok])
     return frame
+
+
+def second_returns(target: Target, origins_b: np.ndarray, dirs_b: np.ndarray,
+                   first_r: np.ndarray, first: np.ndarray, sensor: Sensor,
+                   rng: np.random.Generator, p: dict) -> tuple[np.ndarray, ...]:
+    """A dual-return receiver, this sensor's own form: the footprint's edge as
+    ``subrays`` (8) rays on a ring at ``scale`` (6) x half the nominal divergence, at a
+    random phase per shot. A shot whose echo was detected on the target, and some of whose
+    ring rays meet a surface more than ``separation_m`` (0.5 m: the receiver's pulse
+    separation) beyond the echo, reports a second return at the farthest such range,
+    with that surface's power times the share of the ring on it; kept above the
+    threshold. Returns (shot index, true range m, power W, material id)."""
+    k = int(p.get('subrays', 8))
+    idx = np.flatnonzero(first)
+    n = len(idx)
+    if n == 0:
+        return (np.zeros(0, int),) + (np.zeros(0),) * 2 + (np.zeros(0, int),)
+    half = 0.5 * p.get('scale', 6.0) * sensor.divergence_rad
+    phi = 2 * np.pi * (rng.random((n, 1)) + np.arange(k)[None, :] / k)
+    dirs = dirs_b[idx]
+    helper = np.where(np.abs(dirs[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    u = np.cross(dirs, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(dirs, u)
+    sub = dirs[:, None, :] + np.tan(half) * (np.cos(phi)[..., None] * u[:, None]
+                                             + np.sin(phi)[..., None] * v[:, None])
+    sub /= np.linalg.norm(sub, axis=2, keepdims=True)
+    hit, r, cos_i, mat = target.cast(np.repeat(origins_b[idx], k, axis=0), sub.reshape(-1, 3))
+    hit, r = hit.reshape(n, k), r.reshape(n, k)
+    far = hit & (r > first_r[idx, None] + p.get('separation_m', 0.5))
+    top = np.argmax(np.where(far, r, -np.inf), axis=1)
+    has = far.any(axis=1)
+    pick = np.arange(n) * k + top
+    r2 = r.reshape(-1)[pick]
+    share = far.sum(axis=1) / k
+    power = received_power_w(sensor, r2, cos_i[pick], np.clip(mat[pick], 0, None)) * share
+    ok = has & (power >= sensor.threshold_power_w) & (mat[pick] >= 0)
+    return idx[ok], r2[ok], power[ok], mat[pick][ok]
 
 
 CROSSTALK = -2     # material id of a crosstalk ghost (not the target, not a false return)
@@ -859,14 +910,20 @@ def crosstalk_returns(measured_m: np.ndarray, power_w: np.ndarray, real: np.ndar
 
 
 def with_ghosts(frame: dict, d: np.ndarray, t: np.ndarray, laser: np.ndarray, at: np.ndarray,
-                range_m: np.ndarray, power_w: np.ndarray) -> dict:
-    """``frame`` with the ghost returns (shot ``at``, ``range_m``, ``power_w``) merged in
-    shot order (material CROSSTALK, no effect bias)."""
+                range_m: np.ndarray, power_w: np.ndarray, material: np.ndarray | None = None,
+                index: int = 0, true_range_m: np.ndarray | None = None) -> dict:
+    """``frame`` with the extra returns (shot ``at``, ``range_m``, ``power_w``) merged in
+    shot order, after their shot's own (material CROSSTALK unless given, no effect bias,
+    return index ``index``)."""
     n = len(at)
     add = {'xyz_m': d[at] * range_m[:, None], 'power_w': power_w, 't_s': t[at],
-           'laser': laser[at], 'range_m': range_m, 'true_range_m': np.full(n, np.nan),
-           'material': np.full(n, CROSSTALK), 'shot': at, 'base_sigma_m': np.full(n, 0.01),
-           'multipath': np.zeros(n, bool), 'hidden': np.zeros(n, bool)}
+           'laser': laser[at], 'range_m': range_m,
+           'true_range_m': np.full(n, np.nan) if true_range_m is None else true_range_m,
+           'material': np.full(n, CROSSTALK) if material is None else material, 'shot': at,
+           'base_sigma_m': np.full(n, 0.01), 'return_index': np.full(n, index, np.int64),
+           'multipath': np.zeros(n, bool), 'hidden': np.zeros(n, bool),
+           'second': np.ones(n, bool)}
+    frame = {**frame, 'second': frame.get('second', np.zeros(len(frame['shot']), bool))}
     order = np.argsort(np.concatenate([frame['shot'], at]), kind='stable')
     out = dict(frame)
     for k, v in add.items():
@@ -1020,6 +1077,12 @@ def cloud_fields(spec: ForeignSpec, frame: dict, intensity: np.ndarray | None,
         full = np.zeros(n_out, np.uint16)
         full[at] = frame['laser']
         names.append('ring'), formats.append('<u2'), values.append(full)
+    dual = spec.params_of('dual_return')
+    if dual is not None and dual.get('field', 'return'):
+        # The receiver's return index: from ``base`` (0 or 1) for the first return.
+        full = np.zeros(n_out, np.uint8)
+        full[at] = frame['return_index'] + int(dual.get('base', 0))
+        names.append(dual.get('field', 'return')), formats.append('u1'), values.append(full)
     offsets, off = [], 0
     for f in formats:
         size = np.dtype(f).itemsize
@@ -1156,9 +1219,10 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
                              f'or None, got {name!r}')
     if spec.organized and spec.scan != 'raster':
         raise ValueError('organized clouds need the raster scan')
-    if spec.params_of('crosstalk') is not None and (spec.organized or not spec.lasers):
-        raise ValueError('crosstalk needs lasers (a channel to leak into) and an unorganized '
-                         'cloud (a shot may return twice)')
+    if (spec.params_of('crosstalk') is not None or spec.params_of('dual_return') is not None) \
+            and (spec.organized or not spec.lasers):
+        raise ValueError('crosstalk and dual_return need lasers (a channel to leak into, a '
+                         'shot to share) and an unorganized cloud (a shot may return twice)')
     sensor = sensor or Sensor(frame_rate_hz=spec.frame_rate_hz, max_range_m=spec.max_range_m)
     parts = satellite_parts(spec.fins)
     mesh = write_obj(parts, out / 'satellite.obj')
@@ -1170,7 +1234,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
     # Pose clock minus lidar clock: the pose stamped s shows the target at lidar time s - dt.
     offset = spec.params_of('time_offset')
     dt_s = float(offset.get('dt_s', 0.05)) if offset is not None else 0.0
-    n_points = n_clutter = n_false = n_multipath = n_hidden = n_ghost = 0
+    n_points = n_clutter = n_false = n_multipath = n_hidden = n_ghost = n_second = 0
     kept: list[dict] = []
     bag = out / 'bag'
     gap = spec.frame_gap_s or period
@@ -1204,6 +1268,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
             n_clutter += int(np.sum(frame['material'] == CLUTTER))
             n_false += int(np.sum(frame['material'] == -1))
             n_ghost += int(np.sum(frame['material'] == CROSSTALK))
+            n_second += int(np.sum(frame['return_index'] > 0))
             n_multipath += int(np.sum(frame['multipath']))
             n_hidden += int(np.sum(frame['hidden']))
     truth = {'hidden': [[n, p] for n, p in spec.hidden], 'time_offset_s': dt_s,
@@ -1217,7 +1282,8 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
              'false_return_fraction': n_false / max(n_points, 1), 'false_returns': n_false,
              'multipath_fraction': n_multipath / max(n_points, 1),
              'occluded_fraction': n_hidden / max(n_points, 1),
-             'crosstalk_fraction': n_ghost / max(n_points, 1)}
+             'crosstalk_fraction': n_ghost / max(n_points, 1),
+             'second_returns': n_second}
     scen = write_compare_scenario(out / 'scenario.yaml', mesh, traj)
     return ForeignDataset(spec, bag, mesh, scen, n_points, truth)
 
@@ -1381,6 +1447,16 @@ BATTERY: tuple[ForeignSpec, ...] = (
                 seed=95, lasers=6, scan='rosette',
                 also=(('crosstalk', {'p': 0.5, 'offset_m': 0.2}),),
                 note='a walk beside a third of ghosts 0.2 m behind'),
+    # --- a dual-return receiver (outside the catalogue): a shot whose footprint edge meets
+    # a surface behind its echo reports it too (``second_returns``), with a return index
+    # field or without one (the two returns share the shot's time, laser and direction);
+    # they must be counted and left out as later returns of the shot, not crosstalk.
+    ForeignSpec('dual_return', None, seed=96, lasers=6,
+                also=(('dual_return', {'scale': 8.0, 'field': 'return'}),),
+                note='second returns at depth steps, field return (0 first)'),
+    ForeignSpec('dual_return_nofield', None, seed=97, lasers=6, scan='rosette',
+                also=(('dual_return', {'scale': 8.0, 'field': None}),),
+                note='second returns at depth steps, no return field: shared shot times'),
     ForeignSpec('clutter_solar', 'solar_background', {'fraction': 0.008, 'mean_range_m': 30.0},
                 seed=41, clutter=True, scan='rosette', intensity='counts16'),
     # --- clouds without per-point time, stamped at the start, middle or end of the scan

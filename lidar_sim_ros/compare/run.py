@@ -42,6 +42,7 @@ from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
 from lidar_sim_ros.compare.report.pose_status import pose_status
+from lidar_sim_ros.compare.model import multiple_returns as mret
 from lidar_sim_ros.compare.model import (crosstalk as xtalk, likelihood as lk,
                                          materials as mat, neighbours, occlusion as occ,
                                          point_times)
@@ -357,6 +358,8 @@ class Inputs:
     occlusion: occ.Occlusion | None = None
     # Ghost returns of the adjacent laser, left out of meas (``crosstalk.py``).
     crosstalk: xtalk.Crosstalk | None = None
+    # Later returns of a shot (a multi-return receiver), left out of meas (``multiple_returns.py``).
+    multiple_returns: mret.MultipleReturns | None = None
 
 
 @dataclass
@@ -425,7 +428,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     opts.out = Path(opts.out)
     with stage('load'):
         inp = load_inputs(opts)
-    with stage('occlusion, crosstalk'):
+    with stage('occlusion, crosstalk, later returns'):
         inp = leave_out_occluded(inp)
     power = PowerFromIntensity()
     with stage('point times'):
@@ -594,8 +597,12 @@ def leave_out_occluded(inp: Inputs) -> Inputs:
     (``occlusion.occluded`` on the model's rays, scenario effects in its geometry; the
     count in ``meas.dropped['occluded']`` and ``Inputs.occlusion``), and without the
     ghost returns of the adjacent laser (``crosstalk.crosstalk_ghosts`` on the same
-    rays; ``meas.dropped['crosstalk']`` and ``Inputs.crosstalk``). Before anything is
-    fitted: a hidden material's refit, the pose test and the diagnosis never see them."""
+    rays; ``meas.dropped['crosstalk']`` and ``Inputs.crosstalk``), and without the
+    later returns of a shot of a multi-return receiver (``multiple_returns.later_returns``:
+    the model reports one return per shot; ``meas.dropped['later_returns']`` and
+    ``Inputs.multiple_returns``; crosstalk is looked for among them first, and the
+    ghosts it finds are counted there). Before anything is fitted: a hidden material's
+    refit, the pose test and the diagnosis never see them."""
     meas, model = inp.meas, inp.model
     m = match(geometry(model, inp.scenario_effects), meas, model.divergence_rad, edges=False)
     expected = np.where(m.matched, m.pred.expected_range_m, np.nan)
@@ -608,12 +615,21 @@ def leave_out_occluded(inp: Inputs) -> Inputs:
     ghost &= ~mask
     if ghost.sum() != xt.points:
         xt = replace(xt, points=int(ghost.sum()))
-    inp = replace(inp, occlusion=found, crosstalk=xt)
-    if found.points == 0 and xt.points == 0:
+    fmap = meas.fields or {}
+    source = (f'the field {fmap["returns"]!r}' if fmap.get('returns')
+              else 'the SECOND_RETURN flag' if meas.return_index is not None else None)
+    later, multi = mret.later_returns(meas.range_m, meas.t_frame_s, meas.cloud, meas.laser,
+                                      meas.directions, meas.return_index, meas.has_point_time,
+                                      meas.time_quantum_s, source, exclude=ghost)
+    later &= ~mask
+    if later.sum() != multi.points:
+        multi = replace(multi, points=int(later.sum()))
+    inp = replace(inp, occlusion=found, crosstalk=xt, multiple_returns=multi)
+    if found.points == 0 and xt.points == 0 and multi.points == 0:
         return inp
-    left = {'occluded': found.points, 'crosstalk': xt.points}
+    left = {'occluded': found.points, 'crosstalk': xt.points, 'later_returns': multi.points}
     dropped = {**meas.dropped, **{k: n for k, n in left.items() if n}}
-    kept = replace(meas.subset(~(mask | ghost)), dropped=dropped)
+    kept = replace(meas.subset(~(mask | ghost | later)), dropped=dropped)
     return replace(inp, meas=kept)
 
 
@@ -1114,17 +1130,20 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
     cal_nll, cal_rmse, cal_robust = cal.calibrated
     before, decision = diag.before, diag.decision
     # Left out before anything was fitted (``leave_out_occluded``).
-    left_out = meas.dropped.get('occluded', 0) + meas.dropped.get('crosstalk', 0)
+    left_out = (meas.dropped.get('occluded', 0) + meas.dropped.get('crosstalk', 0)
+                + meas.dropped.get('later_returns', 0))
     summary = {
         'bag': str(opts.bag), 'mesh': str(opts.mesh),
         'config': str(scenario.source) if scenario.source else None,
         'effects': [_effect_record(e) for e in effects],
         'points': int(len(meas) + meas.dropped.get('subsampled', 0) + left_out),
-        # Analysed: after --max-points; the occluded and the crosstalk ghosts among them
-        # are left out (occlusion, crosstalk).
+        # Analysed: after --max-points; the occluded, the crosstalk ghosts and the later
+        # returns of a shot among them are left out (occlusion, crosstalk, multiple_returns).
         'points_analysed': int(len(meas) + left_out),
         'occlusion': inp.occlusion.as_dict() if inp.occlusion is not None else None,
         'crosstalk': inp.crosstalk.as_dict() if inp.crosstalk is not None else None,
+        'multiple_returns': (inp.multiple_returns.as_dict() if inp.multiple_returns is not None
+                             else None),
         'matched_points': int(sel.sum()),
         'unmatched_points': int((~sel).sum()),
         'unmatched_fraction': float(matching.unmatched_fraction),

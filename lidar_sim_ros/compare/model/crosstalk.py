@@ -25,7 +25,13 @@ above the counts beside it (the sidebands, 1..3 half widths on either side) and 
 the count at the mirrored delay in front of the partner (two returns of one surface on
 successive shots lie in front of each other as often as behind; a ghost only behind)
 by a z beyond the Bonferroni bound over the delays scanned (``FAMILY_ALPHA``), with at
-least MIN_GHOSTS ghosts above them; the peak is looked for among the second returns
+least MIN_GHOSTS ghosts above them, and when its delays are *fixed*: their robust spread
+at most FIXED_SPREAD x the half width. A ghost is timed off its partner's pulse, so its
+delay spreads by the two returns' noise at most (sigma sqrt 2, a third of the half
+width); delays that merely fill the window (a density smooth over it: spread 0.74 half
+widths) are the scene's geometry, e.g. a dual-return receiver's later returns at depth
+steps (holdout 10 ``dual``: z 4.2 over the sidebands, spread 0.71 half widths, with
+every later return behind its shot's first, so behind most partners too); the peak is looked for among the second returns
 alone (a return off the target is also what a reference-pose error or a footprint
 puts beyond a silhouette, and its delay to the next tile's return can be nearly fixed
 on a flat panel: the box-wing under a 3 cm pose error; no pose error makes a shot
@@ -56,6 +62,9 @@ MIN_HALF_WIDTH_M = 0.01    # ... and at least this (a noiseless recording)
 MIN_GHOSTS = 20            # ghosts above the sidebands needed to call it crosstalk
 STRONG_RATIO = 1.5         # the verdict calls the partners strong at this intensity ratio
 FAMILY_ALPHA = 0.01        # the false-alarm rate over all the delays scanned
+FIXED_SPREAD = 0.5         # a fixed delay's robust spread, at most this x the half width
+                           # (between the two returns' noise, 1/3, and a window filled
+                           # evenly, 0.74: module doc)
 PERIOD_QUANTILE = 5.0      # the shot period: this percentile of the steps between the
                            # distinct point times of a cloud (the smallest common step)
 
@@ -238,7 +247,7 @@ def crosstalk_ghosts(range_m: np.ndarray, expected_m: np.ndarray, sigma_m: np.nd
     win = delay[np.abs(delay - centre) <= h]       # reported: a fixed delay's spread
     spread = (1.4826 * float(np.median(np.abs(win - np.median(win)))) if len(win)
               else float('nan'))
-    found = bool(z > z_crit and excess >= MIN_GHOSTS)
+    found = bool(z > z_crit and excess >= MIN_GHOSTS and spread <= FIXED_SPREAD * h)
     kw = dict(half_width_m=round(h, 4), z=round(z, 2), z_crit=round(z_crit, 2),
               candidates=int(len(cand)), spread_m=round(spread, 4))
     if not found:

@@ -17,7 +17,12 @@ the first cloud and decides, once for the recording, which field is
 * the laser: ``--laser-field``, else ``ring``, ``channel_id``, ``channel``, ``laser``,
   ``laser_id``, ``line``;
 * the Cepton point flags (``io/cepton.py``): ``flags`` in a recording with the Cepton
-  layout (``channel_id`` present); the SDK2 driver's ``valid`` (0: not a return).
+  layout (``channel_id`` present; its SECOND_RETURN bit marks a later return of a
+  shot); the SDK2 driver's ``valid`` (0: not a return);
+* the return index of a multi-return receiver: one of ``RETURN_FIELDS`` (ours and
+  LAS-style ``return_number`` count from 1, others from 0: the recording's smallest
+  index is its first return, ``multiple_returns.py``). Nebula's ``return_type`` is an
+  echo *type* (first, last, strongest ... as an enum), not an index: listed as ignored.
 
 Everything else is listed as ignored. ``FieldMap.lines()`` is what the terminal
 prints: every field recognised, converted or ignored, with its datatype.
@@ -32,6 +37,11 @@ from lidar_sim_ros.io import cepton
 
 INTENSITY_FIELDS = ('intensity', 'reflectivity')
 LASER_FIELDS = ('ring', 'channel_id', 'channel', 'laser', 'laser_id', 'line')
+# The return (echo) index of a multi-return receiver, matched case-insensitively in this
+# order: ours (1 = the first) and holdout labs' ``return``, LAS/laspy ``return_number``
+# (1-based), and the index spellings of other drivers.
+RETURN_FIELDS = ('return', 'return_number', 'return_index', 'return_idx', 'return_id',
+                 'return_num', 'returnnum', 'echo', 'echo_index', 'echo_id', 'echo_num')
 CEPTON_TIME_PAIR = ('timestamp_s', 'timestamp_us')
 _SUB_UNITS = {'_ms': 1_000_000, '_us': 1_000, '_ns': 1}
 # One second less one tick, in each sub-seconds unit: the largest value a member can hold.
@@ -40,7 +50,10 @@ _SUB_MAX = {'_ms': 999, '_us': 999_999, '_ns': 999_999_999}
 KNOWN_UNUSED = {'azimuth': 'the direction is taken from x, y, z',
                 'elevation': 'the direction is taken from x, y, z',
                 'range': 'the range is taken from |x, y, z|',
-                'relative_timestamp': 'a narrow counter, not a time since the stamp'}
+                'relative_timestamp': 'a narrow counter, not a time since the stamp',
+                'return_type': 'an echo type (an enum: first, last, strongest...), not a '
+                               'return index; shots\' later returns are found by shared '
+                               'point times'}
 
 
 class FieldError(ValueError):
@@ -59,6 +72,7 @@ class FieldMap:
     dtypes: dict[str, str]
     ignored: dict[str, str] = field(default_factory=dict)
     layout: str = 'generic'              # 'native', 'cepton sdk3', 'cepton sdk2' or 'generic'
+    returns: str | None = None           # the return index of a multi-return receiver
 
     @property
     def time_name(self) -> str | None:
@@ -88,6 +102,9 @@ class FieldMap:
                        'known misses, not points)')
         if self.valid:
             out.append(f'  {self.valid} ({self.dtypes[self.valid]}): points with 0 dropped')
+        if self.returns:
+            out.append(f'  {self.returns} ({self.dtypes[self.returns]}): return index of a '
+                       'multi-return receiver (a shot\'s later returns are left out of the fit)')
         for name, why in self.ignored.items():
             out.append(f'  {name} ({self.dtypes.get(name, "?")}): ignored ({why})')
         return out
@@ -95,6 +112,7 @@ class FieldMap:
     def as_dict(self) -> dict:
         return {'layout': self.layout, 'intensity': self.intensity, 'time': list(self.time),
                 'laser': self.laser, 'flags': self.flags, 'valid': self.valid,
+                'returns': self.returns,
                 'ignored': dict(self.ignored), 'dtypes': dict(self.dtypes)}
 
 
@@ -140,7 +158,10 @@ def resolve_fields(dtype: np.dtype, intensity_field: str | None = None,
     is_cepton = 'channel_id' in names
     flags = 'flags' if is_cepton and 'flags' in names and dtype['flags'].kind in 'iu' else None
     valid = 'valid' if 'valid' in names and dtype['valid'].kind in 'iu' else None
-    used = {'x', 'y', 'z', inten, laser, flags, valid, *times}
+    by_lower = {n.lower(): n for n in names}
+    returns = next((by_lower[n] for n in RETURN_FIELDS if n in by_lower
+                    and dtype[by_lower[n]].kind in 'iuf'), None)
+    used = {'x', 'y', 'z', inten, laser, flags, valid, returns, *times}
     ignored = {n: KNOWN_UNUSED.get(n, 'not used by the comparison') for n in names
                if n not in used}
     if names[:3] == ['x', 'y', 'z'] and {'t', 'ring', 'material'} <= set(names):
@@ -153,7 +174,7 @@ def resolve_fields(dtype: np.dtype, intensity_field: str | None = None,
         layout = 'generic'
     if 'material' in ignored:
         ignored['material'] = 'the model casts the mesh itself'
-    return FieldMap(inten, times, laser, flags, valid, dtypes, ignored, layout)
+    return FieldMap(inten, times, laser, flags, valid, dtypes, ignored, layout, returns)
 
 
 def check_time_pair(dtype: np.dtype, pair: tuple[str, str], what: str,
@@ -176,6 +197,31 @@ def check_time_pair(dtype: np.dtype, pair: tuple[str, str], what: str,
     if np.iinfo(dtype[sub_name]).max < _SUB_MAX[suffix]:
         raise FieldError(f'{what}: {sub_name} is {_kind(dtype[sub_name])}, which cannot hold '
                          f'{_SUB_MAX[suffix]:,} {suffix[1:]} (INT32 or wider){hint}')
+
+
+MAX_RETURN_INDEX = 15
+"""The largest return index read as one: LAS 1.4 gives a pulse at most 15 returns
+(4 bits); a larger index is a misread field, refused."""
+
+
+def return_indices(values: np.ndarray, name: str) -> np.ndarray:
+    """One cloud's return-index field as int64, each a whole number in [0,
+    MAX_RETURN_INDEX]; FieldError naming the field and the first bad value otherwise
+    (negative, fractional, NaN or larger: the field is not a return index)."""
+    v = np.asarray(values)
+    if v.dtype.kind == 'f':
+        with np.errstate(invalid='ignore'):
+            bad = ~np.isfinite(v) | (v != np.round(v))
+        ids = np.where(bad, -1, v).astype(np.int64)
+    else:
+        bad = np.zeros(len(v), bool)
+        ids = v.astype(np.int64)
+    bad |= (ids < 0) | (ids > MAX_RETURN_INDEX)
+    if bad.any():
+        raise FieldError(f'return field {name!r} = {v[bad][0]} ({int(bad.sum())} point(s)): a '
+                         f'return index is a whole number in [0, {MAX_RETURN_INDEX}] (the '
+                         'first return 0 or 1); is the field layout right?')
+    return ids
 
 
 def _sub_suffix(name: str) -> str | None:

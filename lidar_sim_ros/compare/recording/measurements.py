@@ -34,7 +34,8 @@ from scipy.spatial.transform import Rotation
 from lidar_sim_ros.compare.recording.cepton_pcap import (PcapError, is_pcap, pcap_recording,
                                                          read_pose_source, skipped_line)
 from lidar_sim_ros.compare.recording.fields import (FieldError, flag_counts, flag_lines,
-                                                    point_time_ns, resolve_fields)
+                                                    point_time_ns, resolve_fields,
+                                                    return_indices)
 from lidar_sim_ros.io import cepton
 from lidar_sim_ros.io.bag import (CLOUD_TOPIC, POSE_TOPIC, BagContentError, cloud_count,
                                   iter_clouds, read_material_names, read_poses)
@@ -121,6 +122,10 @@ class Measurements:
     # Clouds without a time field: the share of directions within SCAN_MATCH_TOL_RAD of a
     # shot of the configured scan pattern (``with_scan_times``); None with a time field.
     scan_match_fraction: float | None = None
+    # (N,) int: the return index the recording gives each point (a return field, or the
+    # Cepton SECOND_RETURN flag: 0 first, 1 later); None without either.
+    return_index: np.ndarray | None = None
+    time_quantum_s: float = 0.0     # the time field's resolution (s; 0 exact or unknown)
 
     def __len__(self) -> int:
         return len(self.range_m)
@@ -131,7 +136,9 @@ class Measurements:
                 ('xyz_m', 'range_m', 'directions', 't_s', 't_frame_s', 'cloud', 'laser')}
         inten = None if self.intensity is None else self.intensity[index]
         sat = None if self.saturated is None else self.saturated[index]
-        return Measurements(self.bag, intensity=inten, saturated=sat,
+        ret = None if self.return_index is None else self.return_index[index]
+        return Measurements(self.bag, intensity=inten, saturated=sat, return_index=ret,
+                            time_quantum_s=self.time_quantum_s,
                             field_lines=self.field_lines, fields=self.fields,
                             flag_counts=self.flag_counts, known_misses=self.known_misses,
                             has_point_time=self.has_point_time,
@@ -210,7 +217,7 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         notes.append(f'laser id read from field {fmap.laser!r}')
 
     time_dtype = ('+'.join(fmap.dtypes[n] for n in fmap.time).lower() if has_t else None)
-    cols: dict[str, list] = {k: [] for k in ('xyz', 'i', 't', 'cloud', 'laser', 'sat')}
+    cols: dict[str, list] = {k: [] for k in ('xyz', 'i', 't', 'cloud', 'laser', 'sat', 'ret')}
     stamp_ns = []
     n_nonfinite = n_zero = n_thinned = n_invalid = n_no_return = n_far = n_bad_time = 0
     t_kinds: list[str] = []
@@ -264,6 +271,14 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         cols['i'].append(np.asarray(p[fmap.intensity], dtype=float)[ok] if has_i
                          else np.zeros(ok.sum()))
         cols['sat'].append((flags[ok] & cepton.SATURATED) != 0)
+        if fmap.returns:
+            try:
+                cols['ret'].append(return_indices(p[fmap.returns][ok], fmap.returns))
+            except FieldError as exc:
+                raise MeasurementError(f'bag {bag}, topic {cloud_topic!r}, cloud #{k}: '
+                                       f'{exc}') from None
+        else:
+            cols['ret'].append(((flags[ok] & cepton.SECOND_RETURN) != 0).astype(np.int64))
         if has_t:
             cols['t'].append(t_all[ok])
         else:
@@ -317,6 +332,7 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
                **({'invalid': n_invalid} if fmap.valid else {}),
                **({'no_return': n_no_return} if fmap.flags else {})}
     saturated = np.concatenate(cols['sat'])
+    return_index = (np.concatenate(cols['ret']) if fmap.returns or fmap.flags else None)
     lines = fmap.lines() + time_read + flag_lines(fmap, counts, n_no_return, n_invalid)
     if n_thinned:
         notes.append(f'{len(rng) + n_thinned} points in {len(stamp_ns)} clouds: at most '
@@ -335,7 +351,29 @@ def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
         material_names=names, notes=notes, dropped=dropped,
         time_source='field' if has_t else 'stamp', time_field=time_field,
         saturated=saturated[keep] if fmap.flags else None, field_lines=lines,
-        fields=fmap.as_dict(), flag_counts=counts, known_misses=n_no_return)
+        fields=fmap.as_dict(), flag_counts=counts, known_misses=n_no_return,
+        return_index=None if return_index is None else return_index[keep],
+        time_quantum_s=time_quantum_s(first.points, fmap.time) if has_t else 0.0)
+
+
+def time_quantum_s(points: np.ndarray, time: tuple[str, ...]) -> float:
+    """The resolution (s) of the point-time field(s) in ``points`` (the first cloud): a
+    pair's sub-seconds unit; an integer field's unit (its name's suffix, else ns); a
+    float field's spacing at its largest value (FLOAT32 seconds near 0.1 s: 7.5 ns).
+    Two returns of one shot carry one time, up to this."""
+    if len(time) == 2:
+        sub = time[1].lower()
+        return next((1.0 / u for k, u in (('_ms', 1e3), ('_us', 1e6), ('_ns', 1e9))
+                     if sub.endswith(k)), 1e-3)
+    raw = np.asarray(points[time[0]])
+    suffix = next((sfx for sfx in _UNIT_SUFFIX if time[0].lower().endswith(sfx)
+                   and time[0].lower() != sfx.lstrip('_')), None)
+    if raw.dtype.kind in 'iu':
+        return _UNIT_SUFFIX[suffix] if suffix else 1e-9
+    scale = _UNIT_SUFFIX[suffix] if suffix else 1.0
+    finite = raw[np.isfinite(raw)]
+    top = float(np.max(np.abs(finite))) if len(finite) else 0.0
+    return float(np.spacing(raw.dtype.type(top))) * scale
 
 
 def laser_ids(values: np.ndarray, name: str, bag: Path, topic: str, k: int) -> np.ndarray:

@@ -187,6 +187,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     ghosts = (summary.get('crosstalk') or {}).get('interpretation')
     if ghosts:
         parts.append(f'{ghosts}.')
+    later = (summary.get('multiple_returns') or {}).get('interpretation')
+    if later:
+        parts.append(f'{later}.')
     un = summary['unmatched']
     if un['points']:
         parts.append(f'{un["points"]} points ({100 * un["fraction"]:.2f} %) miss the target '
@@ -723,7 +726,8 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
                 '(docs/effects.md, "Write your own effect") that depends on what the residual '
                 'depends on, and add it with --effect file.py:Class --fit.')
     left_out = [what for what, key in (('occluded returns', 'occlusion'),
-                                       ('crosstalk ghosts', 'crosstalk'))
+                                       ('crosstalk ghosts', 'crosstalk'),
+                                       ('later returns of a shot', 'multiple_returns'))
                 if (summary.get(key) or {}).get('points')]
     beside = f' once the {" and ".join(left_out)} below are left out' if left_out else ''
     return ('No catalogue effect improves the held-out likelihood by a margin that matters: '
@@ -855,6 +859,10 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
     if ghosts.get('points'):
         lines.append(f'crosstalk: {ghosts["points"]} ghost returns {ghosts["offset_m"]:.2f} m '
                      'behind a return of the adjacent laser left out (summary.json: crosstalk)')
+    later = s.get('multiple_returns') or {}
+    if later.get('points'):
+        lines.append(f'later returns: {later["points"]} later returns of the same shot (a '
+                     'multi-return receiver) left out of the fit (summary.json: multiple_returns)')
     for e in s['fitted_effects']:
         params = ', '.join(f'{k} = {v:.6g}' if isinstance(v, float) else f'{k} = {v}'
                            for k, v in e['params'].items())
