@@ -64,6 +64,8 @@ def run_one(spec: ForeignSpec, root: Path, report: bool) -> dict:
         'range_rmse_m': s.get('range_rmse_m'), 'nll_per_point': s.get('nll_per_point'),
         'nll_calibrated': s.get('nll_calibrated'),
         'unmatched_fraction': s.get('unmatched_fraction'),
+        'crosstalk_points': (s.get('crosstalk') or {}).get('points'),
+        'later_returns': (s.get('multiple_returns') or {}).get('points'),
         'point_times': s.get('point_times'), 'verdict': s.get('verdict'),
         'error': s.get('error')} for s in steps]
     return row

@@ -618,9 +618,12 @@ def leave_out_occluded(inp: Inputs) -> Inputs:
     fmap = meas.fields or {}
     source = (f'the field {fmap["returns"]!r}' if fmap.get('returns')
               else 'the SECOND_RETURN flag' if meas.return_index is not None else None)
+    # Shared times tell one shot only when the recording gives them: times taken from the
+    # configured scan pattern give two nearby shots the same nearest shot's time.
     later, multi = mret.later_returns(meas.range_m, meas.t_frame_s, meas.cloud, meas.laser,
-                                      meas.directions, meas.return_index, meas.has_point_time,
-                                      meas.time_quantum_s, source, exclude=ghost)
+                                      meas.directions, meas.return_index,
+                                      meas.time_source == 'field', meas.time_quantum_s, source,
+                                      exclude=ghost)
     later &= ~mask
     if later.sum() != multi.points:
         multi = replace(multi, points=int(later.sum()))

@@ -31,6 +31,7 @@ def missed_per_unmatched(meas: Measurements, matched: np.ndarray, per_frame: int
     # analysed share of the shots is scaled down by them. Crosstalk ghosts
     # (``crosstalk.py``) are second returns of shots already counted, or returns of shots
     # that missed the target: left out of the points, their shots stay among the shots.
+    # A shot's later returns (``multiple_returns.py``) are of shots already counted too.
     finite = len(meas) + dropped.get('subsampled', 0) + dropped.get('occluded', 0)
     empty = dropped.get('non_finite', 0) + dropped.get('at_origin', 0)
     shots = finite + empty if empty else per_frame * len(meas.cloud_stamps_s)
