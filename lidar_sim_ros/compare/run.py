@@ -63,6 +63,7 @@ from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get
                                         parse_effect_spec)
 from lidar_sim_ros.core.geometry import load_target
 from lidar_sim_ros.core.scan import varies_by_frame
+from lidar_sim_ros.core.effects.multipath import Multipath
 from lidar_sim_ros.core.effects.sunlight import Sunlight
 from lidar_sim_ros.core.pipeline import Prediction
 from lidar_sim_ros.core.sun import SunTrack
@@ -625,6 +626,15 @@ def leave_out_occluded(inp: Inputs) -> Inputs:
                                       meas.time_source == 'field', meas.time_quantum_s, source,
                                       exclude=ghost)
     later &= ~mask
+    if later.any():
+        # Later returns where the model's own multipath puts a ghost stay (the candidate
+        # scores them).
+        gh = lk.ghosts_on(m.pred, Multipath()) if m.pred.ctx.scene is not None else None
+        if gh is not None:
+            at = later & mret.at_ghost_range(meas.range_m, gh.index, gh.range_m, gh.sigma_m,
+                                             lk.UNMATCHED_Z)
+            later &= ~at
+            multi = replace(multi, at_model_ghost=int(at.sum()))
     if later.sum() != multi.points:
         multi = replace(multi, points=int(later.sum()))
     inp = replace(inp, occlusion=found, crosstalk=xt, multiple_returns=multi)

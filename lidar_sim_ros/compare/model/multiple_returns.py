@@ -24,6 +24,14 @@ Which returns are later:
   and the others are later;
 * without either, nothing can be told: the summary says so.
 
+The model has later returns of its own: the catalogue's multipath adds a ghost on a
+shot's line of sight behind a specular surface (``likelihood.ghosts_on``). A later
+return within ``likelihood.UNMATCHED_Z`` ghost sigmas of the ghost the model casts on
+its ray (``at_ghost_range``) is one the model can make: it stays among the points, for
+the multipath candidate to score (counted as ``at_model_ghost``). Our simulator's
+dual-return box-wing recording with multipath put all 947 of its later returns there;
+holdout 10's depth steps (``dual_1``) none of 1994.
+
 For the later returns whose shot's first return is among the points, the range behind
 it is reported (percentiles): depth steps within the footprint give a spread of a few
 decimetres to metres, crosstalk a fixed delay (``crosstalk.py`` looks for that among
@@ -51,6 +59,7 @@ class MultipleReturns(LeftOut):
     behind_first_m: list | None = None   # range behind the first return, p5/p50/p95 (m)
     lasers: int = 0                      # lasers with a later return
     crosstalk: int = 0                   # later returns named crosstalk ghosts instead
+    at_model_ghost: int = 0              # later returns kept: at the model's multipath ghost
     looked: bool = True
     why_not: str | None = None
 
@@ -59,6 +68,7 @@ class MultipleReturns(LeftOut):
                 'with_first_return': self.with_first,
                 'range_behind_first_p5_p50_p95_m': self.behind_first_m,
                 'lasers': self.lasers, 'crosstalk_among_them': self.crosstalk,
+                'kept_at_model_ghost': self.at_model_ghost,
                 'looked': self.looked, 'why_not': self.why_not, 'interpretation': words(self)}
 
 
@@ -151,10 +161,29 @@ def later_returns(range_m: np.ndarray, t_frame_s: np.ndarray, cloud: np.ndarray,
         lasers=int(len(np.unique(np.asarray(laser)[later]))), crosstalk=int(xt.sum()))
 
 
+def at_ghost_range(range_m: np.ndarray, ghost_index: np.ndarray, ghost_range_m: np.ndarray,
+                   ghost_sigma_m: np.ndarray, z_max: float) -> np.ndarray:
+    """Bool per point: its range within ``z_max`` sigmas of the ghost the model casts on
+    its ray. ghost_index (K,): the rays (indices into ``range_m``) with a ghost; its range
+    (m, material bias included) and sigma (m)."""
+    r = np.asarray(range_m, float)
+    out = np.zeros(len(r), bool)
+    idx = np.asarray(ghost_index, np.int64)
+    if len(idx) == 0:
+        return out
+    with np.errstate(invalid='ignore', divide='ignore'):
+        z = np.abs(r[idx] - np.asarray(ghost_range_m, float)) / np.asarray(ghost_sigma_m, float)
+    np.logical_or.at(out, idx, z <= z_max)
+    return out
+
+
 def words(mr: MultipleReturns) -> str | None:
     """The notes' sentence on later returns, or None without any."""
+    kept = (f' {mr.at_model_ghost} later returns lie where the catalogue\'s multipath puts a '
+            'ghost of their shot (a mirror path off a specular surface of the target): kept for '
+            'the diagnosis.' if mr.at_model_ghost else '')
     if mr.points == 0:
-        return None
+        return kept.strip().rstrip('.') or None
     where = ''
     if mr.behind_first_m is not None:
         p5, p50, p95 = mr.behind_first_m
@@ -166,4 +195,4 @@ def words(mr: MultipleReturns) -> str | None:
             f'{mr.source}; {100 * mr.fraction:.1f} % of the points analysed, {mr.shots} shots, '
             f'{mr.lasers} lasers, {mr.clouds} of {mr.clouds_total} clouds){where}{xt}: the '
             'model reports one return per shot, so they are left out of the fit (not '
-            'crosstalk: the same shot of the same laser)')
+            'crosstalk: the same shot of the same laser)' + ('.' + kept[:-1] if kept else ''))
