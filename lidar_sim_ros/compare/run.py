@@ -627,13 +627,12 @@ def leave_out_occluded(inp: Inputs) -> Inputs:
                                       exclude=ghost)
     later &= ~mask
     if later.any():
-        # Later returns where the model's own multipath puts a ghost stay (the candidate
-        # scores them).
+        # How many lie where the model's own multipath would put a ghost (said, not kept:
+        # ``multiple_returns`` module doc).
         gh = lk.ghosts_on(m.pred, Multipath()) if m.pred.ctx.scene is not None else None
         if gh is not None:
             at = later & mret.at_ghost_range(meas.range_m, gh.index, gh.range_m, gh.sigma_m,
                                              lk.UNMATCHED_Z)
-            later &= ~at
             multi = replace(multi, at_model_ghost=int(at.sum()))
     if later.sum() != multi.points:
         multi = replace(multi, points=int(later.sum()))

@@ -25,12 +25,16 @@ Which returns are later:
 * without either, nothing can be told: the summary says so.
 
 The model has later returns of its own: the catalogue's multipath adds a ghost on a
-shot's line of sight behind a specular surface (``likelihood.ghosts_on``). A later
-return within ``likelihood.UNMATCHED_Z`` ghost sigmas of the ghost the model casts on
-its ray (``at_ghost_range``) is one the model can make: it stays among the points, for
-the multipath candidate to score (counted as ``at_model_ghost``). Our simulator's
-dual-return box-wing recording with multipath put all 947 of its later returns there;
-holdout 10's depth steps (``dual_1``) none of 1994.
+shot's line of sight behind a specular surface (``likelihood.ghosts_on``). The later
+returns within ``likelihood.UNMATCHED_Z`` ghost sigmas of the ghost the model casts on
+their ray (``at_ghost_range``) are counted (``at_model_ghost``) and said, but left out
+like the rest: a depth step just past a grazing edge gives the same range (the mirror
+ray of a grazing hit runs on nearly straight to the surface behind), and the
+likelihood scores one return per ray, so it cannot tell them apart. Kept, they named a
+phantom multipath on the battery's ``dual_return`` seed 1 (196 of its 329 depth-step
+returns at the model's ghost), as main did keeping every later return; left out, our
+simulator's dual-return box-wing with multipath (all 947 later returns at the ghost)
+is an honest miss whose notes point at multipath.
 
 For the later returns whose shot's first return is among the points, the range behind
 it is reported (percentiles): depth steps within the footprint give a spread of a few
@@ -59,7 +63,7 @@ class MultipleReturns(LeftOut):
     behind_first_m: list | None = None   # range behind the first return, p5/p50/p95 (m)
     lasers: int = 0                      # lasers with a later return
     crosstalk: int = 0                   # later returns named crosstalk ghosts instead
-    at_model_ghost: int = 0              # later returns kept: at the model's multipath ghost
+    at_model_ghost: int = 0              # of them, at the model's multipath ghost range
     looked: bool = True
     why_not: str | None = None
 
@@ -68,7 +72,7 @@ class MultipleReturns(LeftOut):
                 'with_first_return': self.with_first,
                 'range_behind_first_p5_p50_p95_m': self.behind_first_m,
                 'lasers': self.lasers, 'crosstalk_among_them': self.crosstalk,
-                'kept_at_model_ghost': self.at_model_ghost,
+                'at_model_multipath_ghost': self.at_model_ghost,
                 'looked': self.looked, 'why_not': self.why_not, 'interpretation': words(self)}
 
 
@@ -179,11 +183,8 @@ def at_ghost_range(range_m: np.ndarray, ghost_index: np.ndarray, ghost_range_m: 
 
 def words(mr: MultipleReturns) -> str | None:
     """The notes' sentence on later returns, or None without any."""
-    kept = (f' {mr.at_model_ghost} later returns lie where the catalogue\'s multipath puts a '
-            'ghost of their shot (a mirror path off a specular surface of the target): kept for '
-            'the diagnosis.' if mr.at_model_ghost else '')
     if mr.points == 0:
-        return kept.strip().rstrip('.') or None
+        return None
     where = ''
     if mr.behind_first_m is not None:
         p5, p50, p95 = mr.behind_first_m
@@ -195,4 +196,8 @@ def words(mr: MultipleReturns) -> str | None:
             f'{mr.source}; {100 * mr.fraction:.1f} % of the points analysed, {mr.shots} shots, '
             f'{mr.lasers} lasers, {mr.clouds} of {mr.clouds_total} clouds){where}{xt}: the '
             'model reports one return per shot, so they are left out of the fit (not '
-            'crosstalk: the same shot of the same laser)' + ('.' + kept[:-1] if kept else ''))
+            'crosstalk: the same shot of the same laser)' + (
+                f'. {mr.at_model_ghost} of them lie where the catalogue\'s multipath would put '
+                'a ghost of their shot (a mirror path off a specular surface); a depth step '
+                'just past a grazing edge gives the same range, and a fit of one return per '
+                'shot cannot tell the two apart' if mr.at_model_ghost else ''))
