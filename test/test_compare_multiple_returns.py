@@ -151,6 +151,7 @@ def test_crosstalk_ghosts_are_counted_as_crosstalk_not_as_later_returns():
 
 
 @pytest.mark.parametrize('value, dtype', [(-1, '<i2'), (2.5, '<f4'), (np.nan, '<f4'),
+                                          (np.inf, '<f4'), (1e300, '<f8'),
                                           (MAX_RETURN_INDEX + 1, 'u1'), (60000, '<u2')])
 def test_a_return_index_that_cannot_be_one_is_refused(tmp_path, value, dtype):
     v = np.zeros(10, dtype)

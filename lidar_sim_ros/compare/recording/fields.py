@@ -211,7 +211,7 @@ def return_indices(values: np.ndarray, name: str) -> np.ndarray:
     v = np.asarray(values)
     if v.dtype.kind == 'f':
         with np.errstate(invalid='ignore'):
-            bad = ~np.isfinite(v) | (v != np.round(v))
+            bad = ~np.isfinite(v) | (v != np.round(v)) | (np.abs(v) > MAX_RETURN_INDEX)
         ids = np.where(bad, -1, v).astype(np.int64)
     else:
         bad = np.zeros(len(v), bool)
