@@ -47,6 +47,7 @@ from lidar_sim_ros.compare.model import (crosstalk as xtalk, likelihood as lk,
                                          point_times)
 from lidar_sim_ros.compare.recording.cepton_pcap import side_bag
 from lidar_sim_ros.compare.recording.intensity import IntensityCalibration, calibrate_intensity
+from lidar_sim_ros.compare.model.fit import at_bounds
 from lidar_sim_ros.compare.model.matching import (Matching, Model, edge_distance_rad, match,
                                                   range_rate_mps)
 from lidar_sim_ros.compare.recording.measurements import (Measurements, MeasurementError,
@@ -1290,11 +1291,24 @@ def _effect_record(e: Effect, fitted_only: bool = False) -> dict:
     """name and params; ``fitted_only`` keeps the fitted ones and discrete options."""
     params = e.params.model_dump() if hasattr(e.params, 'model_dump') else {}
     if fitted_only:
+        # The free parameters, the discrete options, and whatever the fit set away from
+        # its default (per-material standoffs, per-laser angles: not in ``bounds`` by name).
         keep = set(type(e).bounds) | set(diagnosis.literal_choices(type(e)))
-        params = {k: v for k, v in params.items() if k in keep}
+        defaults = _defaults(type(e))
+        params = {k: v for k, v in params.items() if k in keep or v != defaults.get(k, v)}
+    bound = at_bounds(e) if fitted_only else []
     return {'name': e.name or type(e).__name__,
             'params': {k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
-                           else v) for k, v in params.items()}}
+                           else v) for k, v in params.items()},
+            **({'at_bound': bound} if bound else {})}
+
+
+def _defaults(effect_cls: type[Effect]) -> dict:
+    """The effect's parameters at their defaults ({} where it has none without a value)."""
+    try:
+        return effect_cls.Params().model_dump()
+    except Exception:       # a parameter without a default (a user effect)
+        return {}
 
 
 def _write(path: Path, text: str) -> Path:
