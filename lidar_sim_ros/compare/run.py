@@ -975,6 +975,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         on_top = [c.name for c in named]
     pose = (decision.pose if decision.pose is not None else decision.beside_pose
             if decision.beside_pose is not None else pose_test([c.effect for c in named]))
+    decision, pose = pose_that_matters(decision, pose, tested_data, meas.cloud[tested.matched])
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
@@ -988,6 +989,27 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     diag.fit_together(decision, cands)
     return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
                      diag.full, diag.z_crit, on_top)
+
+
+def pose_that_matters(decision: diagnosis.Decision, pose: pose_error.PoseError,
+                      data: lk.FitData, cloud: np.ndarray
+                      ) -> tuple[diagnosis.Decision, pose_error.PoseError]:
+    """The decision and its pose, unless the pose it reports (alone or beside a named
+    effect; not in a tie, not drifting within the scan) converges to a correction that,
+    applied exactly, would gain less than MIN_PRACTICAL_GAIN on ``data``
+    (``pose_error.applied_gain``): then the pose is not reported, and carries the
+    figures (``too_small``) with its test marked failed."""
+    if (decision.pose is None or pose is not decision.pose or pose.rate_supported
+            or diagnosis.POSE_ERROR in decision.confounded_with):
+        return decision, pose
+    gain = pose_error.applied_gain(pose, data, cloud)
+    if gain >= diagnosis.MIN_PRACTICAL_GAIN:
+        return decision, pose
+    small = replace(pose, significant=False, too_small={
+        'applied_gain_per_matched_point': round(gain, 6),
+        'test_gain_per_matched_point': round(pose.gain, 6), 'test_z': round(pose.z, 2),
+        'translation_rms_cm': round(pose.size_cm, 3), 'rotation_rms_deg': round(pose.size_deg, 4)})
+    return replace(decision, pose=None), small
 
 
 def pose_points(rays: diagnosis.RaySet, sample: diagnosis.RaySet,
