@@ -724,7 +724,8 @@ def calibrate_materials(model: Model, effects: list[Effect], matching: Matching,
     range bias when the materials' biases are replaced."""
     pred, sel = matching.pred, matching.matched
     residual, sigma = model_residuals(diagnosis.make_fit_data(model, effects, rays), rays)
-    stats = mat.material_stats(model.materials, replace(pred, sigma_m=sigma), residual, sel)
+    stats = mat.material_stats(model.materials, replace(pred, sigma_m=sigma), residual, sel,
+                               diagnosis.far_threshold_m(sigma))
     refit = mat.refit_materials(model.materials, stats)
     configured = replace(matching, residual_m=residual)
     if fit:
