@@ -1756,8 +1756,25 @@ class Diagnosis:
                 ties.append(r)                 # else the corrected pose is better: it stays
         if wins:
             best, pose_left = max(wins, key=lambda w: w[0].score)
-            return replace(decision, missing=best.name,
-                           pose=decision.pose if pose_left else None), scored
+            # Two range terms that each beat the pose are weighed against each other by
+            # ``decide``'s rule: on an approach, where the range falls with time, a
+            # drift and a scale can fit alike (a tie, the plan separating them).
+            pair_z = dict(decision.pair_z)
+            tied = []
+            for r, _ in wins:
+                if r is best:
+                    continue
+                margin, z = self.paired(best, r)
+                fitted = self.fitted_margin(best, r)
+                pair_z[r.name] = {'margin': _num(margin), 'z': _num(z),
+                                  'fitted_margin': _num(fitted)}
+                if not (margin > 0 and z >= self.z_crit and fitted >= MIN_PRACTICAL_GAIN):
+                    tied.append(r.name)
+            pose = decision.pose if pose_left else None
+            if tied:
+                return replace(decision, missing=None, confounded_with=[best.name, *tied],
+                               pose=pose, pair_z=pair_z), scored
+            return replace(decision, missing=best.name, pose=pose, pair_z=pair_z), scored
         if ties:
             return replace(decision, confounded_with=[POSE_ERROR, *[t.name for t in ties]]), scored
         return decision, scored
