@@ -214,8 +214,11 @@ def judge_v4(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
     # A tie of the hidden range term with the sensor effect that stands for it (a walk in
     # ln P on an approach), as close as the battery's rule allows (``borderline_tie``),
     # is what the data allow: the loop ends there, as a user's would.
+    # So is the tie of the two range terms on an approach, where the range falls with
+    # the time (as the tenth holdout judges its rscale_app), unless the pose is reported.
     honest_tie = bool(rival) and not first.get('reference_pose_off') \
-        and borderline_tie(first, rival)
+        and (borderline_tie(first, rival)
+             or answer == 'tie:' + '+'.join(sorted(SENSOR_RIVALS)))
     if (last.get('missing_effect') is not None or last.get('reference_pose_off')
             or last.get('confounded_with')) and not (honest_tie and last is first):
         why.append(f'loop ended with {_first_answer(last)} '

@@ -324,6 +324,40 @@ def test_pose_against_a_range_error_of_the_sensor(pose_left, passes_on_pose, mis
     assert d.missing is None and d.confounded_with == [] and d.pose is pose
 
 
+class Scale:
+    name = 'range_scale'
+
+
+@pytest.mark.parametrize('scale_gain, scale_nll, missing, tie', [
+    (0.0086, -2.0805, None, ['range_drift', 'range_scale']),      # alike: a tie
+    (0.0400, -2.1200, 'range_scale', [])])                        # apart: the better one
+def test_two_range_terms_that_each_beat_the_pose_are_weighed_against_each_other(
+        scale_gain, scale_nll, missing, tie):
+    """weigh_pose_rivals() named the first range term that beat the pose: with range_drift's
+    box widened, foreign range_scale_approach (2000 ppm on an approach, where the range
+    falls with the time) named range_drift (0.0096 nats/point) over range_scale (0.0086).
+    Winners are weighed by decide's rule: not decisively apart, a tie, none named."""
+    drift = cand('range_drift', 0.0096, -2.08, seed=10)
+    scale = cand('range_scale', scale_gain, scale_nll, seed=10)
+    rivals = {'range_drift': drift, 'range_scale': scale}
+
+    class WithRivals(Hand):
+        def score(self, effect_cls):
+            return rivals[effect_cls.name]
+
+    pose = SimpleNamespace(significant=True, gain=0.04, z=11.0)
+    corrected = Hand(again={'range_drift': cand('range_drift', 0.03, -2.08, seed=10),
+                            'range_scale': cand('range_scale', 0.03, -2.08, seed=10)})
+    d, scored = WithRivals().weigh_pose_rivals(
+        dg.Decision(None, [], pose=pose), [Rival, Scale],
+        lambda on_top: SimpleNamespace(significant=not on_top, gain=0.0, z=0.0),
+        lambda: corrected)
+    assert d.missing == missing and sorted(d.confounded_with) == tie
+    assert d.pose is None
+    loser = 'range_drift' if missing == 'range_scale' else 'range_scale'
+    assert loser in d.pair_z and d.pair_z[loser]['margin'] is not None
+
+
 def test_pose_range_tie_verdict_and_plan(tmp_path):
     """The tie's verdict says "a range offset of the sensor or the reference pose along
     the line of sight" with nothing named, and plan.yaml is a scenario load_scenario

@@ -48,6 +48,7 @@ from lidar_sim_ros.compare.model import (crosstalk as xtalk, likelihood as lk,
                                          point_times)
 from lidar_sim_ros.compare.recording.cepton_pcap import side_bag
 from lidar_sim_ros.compare.recording.intensity import IntensityCalibration, calibrate_intensity
+from lidar_sim_ros.compare.model.fit import at_bounds
 from lidar_sim_ros.compare.model.matching import (Matching, Model, edge_distance_rad, match,
                                                   range_rate_mps)
 from lidar_sim_ros.compare.recording.measurements import (Measurements, MeasurementError,
@@ -751,7 +752,8 @@ def calibrate_materials(model: Model, effects: list[Effect], matching: Matching,
     range bias when the materials' biases are replaced."""
     pred, sel = matching.pred, matching.matched
     residual, sigma = model_residuals(diagnosis.make_fit_data(model, effects, rays), rays)
-    stats = mat.material_stats(model.materials, replace(pred, sigma_m=sigma), residual, sel)
+    stats = mat.material_stats(model.materials, replace(pred, sigma_m=sigma), residual, sel,
+                               diagnosis.far_threshold_m(sigma))
     refit = mat.refit_materials(model.materials, stats)
     configured = replace(matching, residual_m=residual)
     if fit:
@@ -1002,6 +1004,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         on_top = [c.name for c in named]
     pose = (decision.pose if decision.pose is not None else decision.beside_pose
             if decision.beside_pose is not None else pose_test([c.effect for c in named]))
+    decision, pose = pose_that_matters(decision, pose, tested_data, meas.cloud[tested.matched])
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
@@ -1015,6 +1018,27 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     diag.fit_together(decision, cands)
     return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
                      diag.full, diag.z_crit, on_top)
+
+
+def pose_that_matters(decision: diagnosis.Decision, pose: pose_error.PoseError,
+                      data: lk.FitData, cloud: np.ndarray
+                      ) -> tuple[diagnosis.Decision, pose_error.PoseError]:
+    """The decision and its pose, unless the pose it reports (alone or beside a named
+    effect; not in a tie, not drifting within the scan) converges to a correction that,
+    applied exactly, would gain less than MIN_PRACTICAL_GAIN on ``data``
+    (``pose_error.applied_gain``): then the pose is not reported, and carries the
+    figures (``too_small``) with its test marked failed."""
+    if (decision.pose is None or pose is not decision.pose or pose.rate_supported
+            or diagnosis.POSE_ERROR in decision.confounded_with):
+        return decision, pose
+    gain = pose_error.applied_gain(pose, data, cloud)
+    if gain >= diagnosis.MIN_PRACTICAL_GAIN:
+        return decision, pose
+    small = replace(pose, significant=False, too_small={
+        'applied_gain_per_matched_point': round(gain, 6),
+        'test_gain_per_matched_point': round(pose.gain, 6), 'test_z': round(pose.z, 2),
+        'translation_rms_cm': round(pose.size_cm, 3), 'rotation_rms_deg': round(pose.size_deg, 4)})
+    return replace(decision, pose=None), small
 
 
 def pose_points(rays: diagnosis.RaySet, sample: diagnosis.RaySet,
@@ -1321,11 +1345,24 @@ def _effect_record(e: Effect, fitted_only: bool = False) -> dict:
     """name and params; ``fitted_only`` keeps the fitted ones and discrete options."""
     params = e.params.model_dump() if hasattr(e.params, 'model_dump') else {}
     if fitted_only:
+        # The free parameters, the discrete options, and whatever the fit set away from
+        # its default (per-material standoffs, per-laser angles: not in ``bounds`` by name).
         keep = set(type(e).bounds) | set(diagnosis.literal_choices(type(e)))
-        params = {k: v for k, v in params.items() if k in keep}
+        defaults = _defaults(type(e))
+        params = {k: v for k, v in params.items() if k in keep or v != defaults.get(k, v)}
+    bound = at_bounds(e) if fitted_only else []
     return {'name': e.name or type(e).__name__,
             'params': {k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
-                           else v) for k, v in params.items()}}
+                           else v) for k, v in params.items()},
+            **({'at_bound': bound} if bound else {})}
+
+
+def _defaults(effect_cls: type[Effect]) -> dict:
+    """The effect's parameters at their defaults ({} where it has none without a value)."""
+    try:
+        return effect_cls.Params().model_dump()
+    except Exception:       # a parameter without a default (a user effect)
+        return {}
 
 
 def _write(path: Path, text: str) -> Path:

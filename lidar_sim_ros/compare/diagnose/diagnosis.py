@@ -88,7 +88,7 @@ from scipy.stats import kstest, norm
 from lidar_sim_ros.compare.model import likelihood as lk
 from lidar_sim_ros.compare.diagnose import laser_tiles
 from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se, block_mean_z
-from lidar_sim_ros.compare.model.fit import fit_effect
+from lidar_sim_ros.compare.model.fit import at_bounds, fit_effect
 from lidar_sim_ros.compare.model.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
 from lidar_sim_ros.compare.model.matching import Model, predict_rays
 from lidar_sim_ros.compare.model.materials import robust_sigma
@@ -403,6 +403,7 @@ class Candidate:
     name: str
     score: float = 0.0                 # held-out gain, nats per measured point
     params: dict = field(default_factory=dict)
+    at_bound: list = field(default_factory=list)   # params fitted at their search bound (``fit.at_bounds``)
     # What the model with this effect would show on the calibrated basis (each
     # material's offset and sigma scale profiled out, as a --fit run): comparable with
     # the summary's range_rmse_calibrated_m / nll_calibrated / robust sigma.
@@ -454,6 +455,7 @@ class Candidate:
 
     def as_dict(self) -> dict:
         return {'name': self.name, 'score': _num(self.score), 'params': self.params,
+                **({'at_bound': list(self.at_bound)} if self.at_bound else {}),
                 'range_rmse_after_m': _num(self.range_rmse_after_m),
                 'nll_after': _num(self.nll_after),
                 **({'missed_shots_gain_after': _num(self.missed_gain_after)}
@@ -631,6 +633,7 @@ class Diagnosis:
     def _describe(self, cand: Candidate, effect_cls: type[Effect], fit) -> None:
         options = {k: getattr(fit.effect.params, k) for k in literal_choices(effect_cls)}
         cand.params = {**{k: float(v) for k, v in fit.params.items()}, **options}
+        cand.at_bound = at_bounds(fit.effect)
         cand.unmatched_explained = fit.unmatched_explained
         cand.n_params = fit.n_params
         cand.effect = plain(effect_cls, fit.effect)
@@ -1753,8 +1756,25 @@ class Diagnosis:
                 ties.append(r)                 # else the corrected pose is better: it stays
         if wins:
             best, pose_left = max(wins, key=lambda w: w[0].score)
-            return replace(decision, missing=best.name,
-                           pose=decision.pose if pose_left else None), scored
+            # Two range terms that each beat the pose are weighed against each other by
+            # ``decide``'s rule: on an approach, where the range falls with time, a
+            # drift and a scale can fit alike (a tie, the plan separating them).
+            pair_z = dict(decision.pair_z)
+            tied = []
+            for r, _ in wins:
+                if r is best:
+                    continue
+                margin, z = self.paired(best, r)
+                fitted = self.fitted_margin(best, r)
+                pair_z[r.name] = {'margin': _num(margin), 'z': _num(z),
+                                  'fitted_margin': _num(fitted)}
+                if not (margin > 0 and z >= self.z_crit and fitted >= MIN_PRACTICAL_GAIN):
+                    tied.append(r.name)
+            pose = decision.pose if pose_left else None
+            if tied:
+                return replace(decision, missing=None, confounded_with=[best.name, *tied],
+                               pose=pose, pair_z=pair_z), scored
+            return replace(decision, missing=best.name, pose=pose, pair_z=pair_z), scored
         if ties:
             return replace(decision, confounded_with=[POSE_ERROR, *[t.name for t in ties]]), scored
         return decision, scored

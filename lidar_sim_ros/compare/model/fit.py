@@ -173,6 +173,28 @@ def free_params(cls: type[Effect]) -> list[str]:
     return list(cls.bounds)
 
 
+BOUND_TOLERANCE = 1e-6       # of the search box's width: a value this close to a bound is at it
+
+
+def at_bounds(effect: Effect) -> list[str]:
+    """The free parameters (``bounds``) of a fitted ``effect`` that ended at their search
+    box's edge (within BOUND_TOLERANCE of its width; a list parameter if any element
+    did): the data asked for at least that much, so the value is a bound of the size,
+    not a measurement of it."""
+    out = []
+    for name, (lo, hi) in type(effect).bounds.items():
+        v = getattr(effect.params, name, None)
+        if v is None:
+            continue
+        vals = np.asarray(v, float).ravel()
+        tol = BOUND_TOLERANCE * (hi - lo)
+        if vals.size and np.any(np.isfinite(vals) & ((vals <= lo + tol) | (vals >= hi - tol))):
+            # A lower bound at zero (a probability, a scale of a footprint) is 'none'.
+            if not (lo == 0.0 and np.all(vals <= lo + tol)):
+                out.append(name)
+    return out
+
+
 def make_effect_safe(cls: type[Effect], params: dict) -> Effect | None:
     try:
         return cls(params)

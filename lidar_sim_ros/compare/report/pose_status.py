@@ -59,6 +59,15 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
         return _out(True, 'beside_tie', 'beside the named effect, a per-cloud pose and a '
                     'range offset of the sensor changing between clouds explain one more part '
                     'alike (also_confounded_with): neither is named', shown)
+    small = pose.get('too_small')
+    if small:
+        return _out(False, None, f'its test passes ({_f(small["test_gain_per_matched_point"])} '
+                    f'nats/point, z = {_f(small["test_z"], 1)}), but the correction it comes to '
+                    f'({small["translation_rms_cm"]:.2f} cm and {small["rotation_rms_deg"]:.3f} '
+                    'deg RMS), applied exactly, would gain '
+                    f'{_f(small["applied_gain_per_matched_point"])} nats/point, below the '
+                    f'{MIN_PRACTICAL_GAIN:g} that matters: the test\'s gain is not the pose\'s',
+                    shown)
     if not pose.get('significant'):
         where = f' on top of {_join(on_top)}' if on_top else ''
         gain = pose.get('gain_per_matched_point')

@@ -87,7 +87,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                                                    if c.name == decision.evidence)))
     elif missing:
         c = next(c for c in cands if c.name == missing)
-        params = _params_words(c.params)
+        params = _params_words(c.params) + bound_words(c.at_bound)
         gain, caveat = _gain_words(summary, c)
         words = EFFECT_WORDS.get(missing, missing)
         if missing == 'time_offset' and summary.get('point_times') in ('stamp', 'scan pattern'):
@@ -789,6 +789,18 @@ def plan_words(rows: list[dict]) -> str:
             'other than these would be needed.')
 
 
+def bound_words(names: list[str] | None) -> str:
+    """' (NAME at its search bound: ...)' for parameters a fit left at the edge of its
+    search box (``fit.at_bounds``), '' for none."""
+    if not names:
+        return ''
+    which = _join(list(names))
+    return (f' ({which} at {"its" if len(names) == 1 else "their"} search bound: the data '
+            'ask for at least this much, so the value bounds the size and does not measure '
+            'it; an effect outside the catalogue, or this one larger than the catalogue '
+            'allows)')
+
+
 def _params_words(params: dict | None) -> str:
     """A candidate's fitted parameters as the verdict quotes them: 'k = v, ...', floats
     to four significant figures."""
@@ -866,7 +878,7 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
     for e in s['fitted_effects']:
         params = ', '.join(f'{k} = {v:.6g}' if isinstance(v, float) else f'{k} = {v}'
                            for k, v in e['params'].items())
-        lines.append(f'fitted {e["name"]}: {params}')
+        lines.append(f'fitted {e["name"]}: {params}{bound_words(e.get("at_bound"))}')
     pc = s.get('pose_correction')
     if pc:
         rate = pc.get('rate') or {}

@@ -29,7 +29,10 @@ class RangeDrift(Effect):
     """Range bias rate * (t - t0): a range offset drifting linearly in time."""
 
     name = 'range_drift'
-    bounds = {'rate_m_per_s': (-0.01, 0.01)}
+    # 10 cm/s: 1 cm within one 0.1 s cloud, beyond which the offset is no longer constant
+    # over a scan (a lab's thermal drift is about 1e-3 m/s; a short recording's steep
+    # warm-up is steeper: 8 cm in 2 s was clipped at the old 1 cm/s).
+    bounds = {'rate_m_per_s': (-0.1, 0.1)}
     initial = {'rate_m_per_s': 0.0}
     linear_bias = ('rate_m_per_s',)    # closed form: robust weighted least squares on t
 
