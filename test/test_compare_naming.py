@@ -67,6 +67,11 @@ def test_naming_fault_closed_form():
     assert 'not decisive' in fault(cand('a', 0.03, -2.05, significant=False))
     assert 'would matter' in fault(cand('a', 0.001, -2.05))
     assert fault(cand('a', 0.03, -2.05, vetoed='no signature')) == 'no signature'
+    # Fitted at the edge of its search box (the eleventh holdout's nl_bias: a near-range
+    # bias outside the catalogue named range_scale at -0.0100, its bound): a stand-in.
+    pinned = cand('range_scale', 0.03, -2.05)
+    pinned.at_bound = ['scale']
+    assert 'edge of its search box' in fault(pinned)
 
 
 def test_a_false_return_effect_is_footed_on_its_missed_shots_too():

@@ -2235,7 +2235,8 @@ def naming_fault(cand: Candidate, before_nll: float) -> str | None:
     held-out gain (the score the verdict quotes, and its z) passes the rule (decisive,
     it matters, its signature: ``admissible``) and, fitted as --fit leaves it, the
     calibrated NLL per point it gives (``nll_after``, the "after" the verdict quotes) is
-    below the model's without it (``before_nll``). For a false-return effect that NLL
+    below the model's without it (``before_nll``), with no parameter at the edge of its
+    search box (``at_bound``). For a false-return effect that NLL
     takes in what it gains on the missed shots (``missed_gain_after``): the likelihood it
     is fitted and held out on, not the matched points alone."""
     if cand.error is not None:
@@ -2248,6 +2249,11 @@ def naming_fault(cand: Candidate, before_nll: float) -> str | None:
                 f'{MIN_PRACTICAL_GAIN:g} that would matter')
     if cand.vetoed:
         return cand.vetoed
+    if cand.at_bound:
+        return (f'fitted as --fit leaves it, {" and ".join(cand.at_bound)} ended at the edge of '
+                'its search box: the data ask for more of it than the catalogue allows, so '
+                'its form does not fit them; it stands in for something outside the '
+                'catalogue')
     gain = cand.missed_gain_after if np.isfinite(cand.missed_gain_after) else 0.0
     after = cand.nll_after - gain
     if not (np.isfinite(after) and np.isfinite(before_nll) and after < before_nll):
