@@ -46,6 +46,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.sparse import csr_matrix, identity
+from scipy.sparse.linalg import spsolve
 from sklearn.isotonic import IsotonicRegression
 
 MAX_BINS = 48
@@ -268,8 +270,6 @@ def _least_squares_gains(x: np.ndarray, y: np.ndarray, inverse: np.ndarray,
     """Per cloud the ln gain g of y + g = f(x), f piecewise linear between MAX_BINS + 1
     quantiles of x, fitted together by least squares on the points of the fitted clouds
     (sparse: two map weights and one gain per point); recentred as _median_per_cloud."""
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.linalg import spsolve
     use = fitted[inverse]
     xs, ys, cl = x[use], y[use], inverse[use]
     knots = np.unique(np.quantile(xs, np.linspace(0.0, 1.0, MAX_BINS + 1)))
@@ -288,16 +288,11 @@ def _least_squares_gains(x: np.ndarray, y: np.ndarray, inverse: np.ndarray,
     vals = np.concatenate([1.0 - w, w, -np.ones(int((~first).sum()))])
     a = csr_matrix((vals, (rows, cols)), shape=(n, k + int(fitted.sum()) - 1))
     normal = (a.T @ a).tocsc()
-    normal = normal + 1e-9 * normal.diagonal().max() * _identity(normal.shape[0])
+    normal = normal + 1e-9 * normal.diagonal().max() * identity(normal.shape[0], format='csc')
     sol = spsolve(normal, a.T @ ys)
     g[np.flatnonzero(fitted)[1:]] = sol[k:]
     g[fitted] -= np.median(g[fitted])
     return g
-
-
-def _identity(n: int):
-    from scipy.sparse import identity
-    return identity(n, format='csc')
 
 
 def _median_per_cloud(v: np.ndarray, inverse: np.ndarray, fitted: np.ndarray) -> np.ndarray:
