@@ -285,11 +285,13 @@ class PowerFromIntensity:
             self.calibration = calibrate_intensity(m.meas.intensity[sel], m.meas.range_m[sel],
                                                    m.pred.ctx.power_w[sel],
                                                    m.pred.ctx.intensity[sel],
-                                                   fields.range_exponents(m.meas.fields))
+                                                   fields.range_exponents(m.meas.fields),
+                                                   cloud=m.meas.cloud[sel])
             self.done = True
         if self.calibration is None or not self.calibration.usable:
             return None
-        return self.calibration.power_w(m.meas.intensity, m.meas.range_m, m.pred.ctx.power_w)
+        return self.calibration.power_w(m.meas.intensity, m.meas.range_m, m.pred.ctx.power_w,
+                                        cloud=m.meas.cloud)
 
 
 def frame_period_s(meas: Measurements, scenario: Scenario) -> float:

@@ -304,6 +304,10 @@ def intensity_reading(calibration: dict | None, field_name: str | None,
     kind += ' (as the layout says)' if known else ' (detected from the data)'
     use = ('used for power-driven effects' if calibration.get('used_for_power_driven_effects')
            else 'not used: it explains too little of the model\'s power')
+    gain = calibration.get('cloud_gain') or {}
+    if gain.get('used'):
+        use += (f'; scaled per cloud (a gain control: sd {gain["log_gain_sd"]:.2f} in ln over '
+                f'{gain["clouds"]} clouds, taken out)')
     return (f'intensity ({field_name}): read as {kind}; explains '
             f'{100 * calibration.get("power_explained", 0.0):.0f} % of the model\'s ln power, {use}')
 
