@@ -203,6 +203,16 @@ def test_surface_offset_mitre_moves_every_face_of_a_box_by_its_own_standoff():
     for corner in range(3):
         shifted = np.einsum('ij,ij->i', moved.face_normals, moved.vertices_m[moved.faces[:, corner]])
         np.testing.assert_allclose(shifted - plane, offsets, atol=1e-12)
+    # The same box exported face by face (every vertex repeated per face, as parts split
+    # by material repeat their seams'): the copies of a corner stay together (no slit a ray
+    # could pass through into the body), and the faces move as before.
+    apart = box.copy()
+    apart.unmerge_vertices()
+    split = Target(np.asarray(apart.vertices, float), np.asarray(apart.faces), material,
+                   ['PIF', 'MLI', 'PAF'])
+    moved_apart = offset_target(split, 0.0, offsets)
+    np.testing.assert_allclose(moved_apart.vertices_m[moved_apart.faces],
+                               moved.vertices_m[moved.faces], atol=1e-12)
 
 
 # ------------------------------------------------------------------------ range walk

@@ -56,6 +56,7 @@ MAX_MATERIALS = 256      # entries of material_standoff_m
 # finely faceted curved surface moves along its mean normal, and faces of different
 # standoffs meeting on it (a blanket's edge) do not throw the vertex far along the crease.
 MITRE_RCOND = 0.01
+WELD_TOL_M = 1e-6        # vertices of separate parts this close are one (a seam)
 
 
 def plane_offset_m(ctx: ReturnContext) -> np.ndarray:
@@ -114,6 +115,16 @@ def mitred_offset_m(vertices_m: np.ndarray, faces: np.ndarray, face_normals: np.
     return np.einsum('vij,vj->vi', q, proj)
 
 
+def weld_vertices(vertices_m: np.ndarray, tol_m: float = WELD_TOL_M
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(unique vertices, index of each vertex among them): vertices within ``tol_m`` of
+    each other on a grid of that pitch are one."""
+    v = np.asarray(vertices_m, float)
+    _, first, index = np.unique(np.round(v / tol_m).astype(np.int64), axis=0,
+                                return_index=True, return_inverse=True)
+    return v[first], index.reshape(-1)
+
+
 def offset_target(target: 'Target', scale: float, face_offset_m: np.ndarray) -> 'Target':
     """The real surface: ``target`` scaled by ``1 + scale`` about the body origin, each
     face then ``face_offset_m`` (m) proud along its outward normal (``mitred_offset_m``);
@@ -121,7 +132,13 @@ def offset_target(target: 'Target', scale: float, face_offset_m: np.ndarray) -> 
     from lidar_sim_ros.core.geometry import Target
     v = np.asarray(target.vertices_m, float) * (1.0 + scale)
     if np.any(face_offset_m):
-        v = v + mitred_offset_m(v, target.faces, target.face_normals, face_offset_m)
+        # Parts exported apart (one object per material) repeat the vertices of their
+        # seams: each copy would follow its own part's faces and the seam open a slit
+        # that rays pass through into the body. Welded, a seam's vertex takes the mitre
+        # of the faces on both sides.
+        welded, index = weld_vertices(v)
+        v = v + mitred_offset_m(welded, index[target.faces], target.face_normals,
+                                face_offset_m)[index]
     return Target(v, target.faces, target.face_material, target.material_names,
                   target.threads)
 
