@@ -5,6 +5,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import trimesh
 import pytest
 import yaml
 from scipy import stats
@@ -132,10 +133,86 @@ def test_surface_offset_is_the_raycast_of_the_scaled_or_standing_off_surface(yaw
     for bad in (float('nan'), float('inf'), 1e300):
         with pytest.raises(ValueError, match='material_standoff_m'):
             make_effect('surface_offset', {'material_standoff_m': {'PIF': bad}})
-    # A miss carries no bias; a zero offset changes nothing.
+    # A zero offset sees the mesh itself; the effect adds no bias of its own (the geometry
+    # carries it).
+    assert make_effect('surface_offset', {}).seen_target(mesh) is None
     ctx = context(power_w=np.ones(2), hit=np.array([False, True]))
-    assert make_effect('surface_offset', {}).range_bias_m(ctx).tolist() == [0.0, 0.0]
-    assert make_effect('surface_offset', {'standoff_m': 0.01}).range_bias_m(ctx)[0] == 0.0
+    assert make_effect('surface_offset', {'standoff_m': 0.01}).range_bias_m(ctx) == 0.0
+
+
+def cylinder_target(radius_m: float, sections: int, height_m: float = 4.0) -> Target:
+    """A closed faceted cylinder about the body z axis (trimesh), one material."""
+    cyl = trimesh.creation.cylinder(radius=radius_m, height=height_m, sections=sections)
+    return Target(np.asarray(cyl.vertices, float), np.asarray(cyl.faces),
+                  np.zeros(len(cyl.faces), int), ['PIF'])
+
+
+@pytest.mark.parametrize('standoff_m', [0.03, -0.02])
+def test_surface_offset_of_a_cylinder_is_its_closed_form_to_the_limb_and_beyond(standoff_m):
+    """A cylinder of radius R (1 m, 512 facets, axis across the scan plane) 10 m away,
+    rays in the plane at impact parameter b from its axis: the range to the surface
+    standing s proud (or s < 0 inside) changes by sqrt(R^2 - b^2) - sqrt((R + s)^2 - b^2) exactly (the
+    first-order -s / cos(theta) overstates it toward the limb: 0.151 against 0.118 m at
+    b = 0.98 R, s = 3 cm), and rays with R < b < R + s, which miss the mesh, hit the
+    proud surface at D cos(az) - sqrt((R + s)^2 - b^2) (with s < 0, rays beyond R + s now
+    miss). Tolerance: the facets' sagitta
+    R (1 - cos(pi / 512)) = 19 um, magnified by R / sqrt(R^2 - b^2) toward the limb."""
+    radius, dist, sections = 1.0, 10.0, 512
+    mesh = cylinder_target(radius, sections)
+    pose = StaticPose((dist, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    b = radius * np.array([0.0, 0.3, 0.6, 0.8, 0.9, 0.95, 0.98, 0.99])
+    if standoff_m > 0:
+        b = np.append(b, [radius + 0.3 * standoff_m, radius + 0.7 * standoff_m])
+    az = np.arcsin(b / dist)
+    plain = predict_on_axis(Simulator(line_sensor(), materials(), mesh), pose, az)
+    proud = predict_on_axis(Simulator(line_sensor(), materials(), mesh, effects=[
+        make_effect('surface_offset', {'standoff_m': standoff_m})]), pose, az)
+    seen, inside = b < radius + standoff_m, b < radius
+    outer = np.sqrt(np.clip((radius + standoff_m) ** 2 - b ** 2, 0, None))
+    expected = np.sqrt(np.clip(radius ** 2 - b ** 2, 0, None)) - outer
+    sagitta = radius * (1 - np.cos(np.pi / sections))
+    tol = 4 * sagitta * (radius + abs(standoff_m)) / np.fmax(outer, 1e-3) + 2e-5 * dist
+    assert proud.ctx.hit.tolist() == seen.tolist() and plain.ctx.hit.tolist() == inside.tolist()
+    both = seen & inside
+    np.testing.assert_array_less(np.abs(proud.expected_range_m[both] - plain.expected_range_m[both]
+                                        - expected[both]), tol[both])
+    # Beyond the mesh's silhouette, rays that now hit: the range to the proud surface.
+    new = seen & ~inside
+    np.testing.assert_array_less(np.abs(proud.expected_range_m[new]
+                                        - (dist * np.cos(az[new]) - outer[new])), tol[new])
+    assert new.sum() == (2 if standoff_m > 0 else 0)
+    # The first-order change overstates the grazing rays by centimetres.
+    cos_t = np.sqrt(1 - (b[both] / radius) ** 2)
+    assert np.max(np.abs(-standoff_m / cos_t - expected[both])) > 0.2 * abs(standoff_m)
+
+
+def test_surface_offset_mitre_moves_every_face_of_a_box_by_its_own_standoff():
+    """A box's corners: each face's plane moves by its own standoff (one material 3 cm,
+    the others 0 or 1 cm), the faces' normals unchanged: the mitre is exact where three
+    planes meet; a face of zero standoff stays on its plane."""
+    from lidar_sim_ros.core.effects.surface_offset import face_offsets_m, offset_target
+    box = trimesh.creation.box(extents=[3.0, 2.0, 1.2])
+    material = np.argmax(np.abs(box.face_normals), axis=1)
+    mesh = Target(np.asarray(box.vertices, float), np.asarray(box.faces), material,
+                  ['PIF', 'MLI', 'PAF'])
+    offsets = face_offsets_m(mesh, 0.01, {'MLI': 0.02, 'PAF': -0.01, 'NOPE': 0.5})
+    np.testing.assert_allclose(offsets, np.choose(material, [0.01, 0.03, 0.0]))
+    moved = offset_target(mesh, 0.0, offsets)
+    np.testing.assert_allclose(moved.face_normals, mesh.face_normals, atol=1e-12)
+    plane = np.einsum('ij,ij->i', mesh.face_normals, mesh.vertices_m[mesh.faces[:, 0]])
+    for corner in range(3):
+        shifted = np.einsum('ij,ij->i', moved.face_normals, moved.vertices_m[moved.faces[:, corner]])
+        np.testing.assert_allclose(shifted - plane, offsets, atol=1e-12)
+    # The same box exported face by face (every vertex repeated per face, as parts split
+    # by material repeat their seams'): the copies of a corner stay together (no slit a ray
+    # could pass through into the body), and the faces move as before.
+    apart = box.copy()
+    apart.unmerge_vertices()
+    split = Target(np.asarray(apart.vertices, float), np.asarray(apart.faces), material,
+                   ['PIF', 'MLI', 'PAF'])
+    moved_apart = offset_target(split, 0.0, offsets)
+    np.testing.assert_allclose(moved_apart.vertices_m[moved_apart.faces],
+                               moved.vertices_m[moved.faces], atol=1e-12)
 
 
 # ------------------------------------------------------------------------ range walk

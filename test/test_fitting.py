@@ -363,3 +363,33 @@ def test_surface_offset_fit_recovers_one_material_standing_proud():
     assert r.params['standoff_m'] == 0.0 and r.params['scale'] == 0.0
     assert 'standoff_FOIL_m' not in r.params
     assert r.effect.params.material_standoff_m == {'PANEL': r.params['standoff_PANEL_m']}
+
+
+def cylinder_only(radius_m: float, height_m: float, sections: int = 256) -> Target:
+    """A closed faceted cylinder about the body z axis, PAINT side, FOIL caps."""
+    cyl = trimesh.creation.cylinder(radius=radius_m, height=height_m, sections=sections)
+    caps = np.abs(cyl.face_normals[:, 2]) > 0.9
+    return Target(np.asarray(cyl.vertices, float), np.asarray(cyl.faces),
+                  np.where(caps, 1, 0), MATERIALS.names)
+
+
+@pytest.mark.parametrize('seed', [9])
+def test_surface_offset_fit_recovers_a_cylinder_standing_proud(seed):
+    """The recording is a raycast of a real cylinder 4 cm proud of the mesh (radius and
+    length: trimesh's cylinder of radius 1.04 m, 4.08 m long, an offset built apart from
+    the effect's), the model the bare cylinder. The first-order columns alone (the fit
+    before its refinement on the exact surface) gave 2.54 cm on every ray (docs/compare.md,
+    "Why surface_offset's fitted standoffs run low"): the grazing rays' change is bounded by
+    sqrt(2 R s) where -s / cos(theta) grows without bound. Refined on the exact surface
+    the standoff is the truth within 5 %."""
+    sensor, _, traj = scene()
+    truth_sim = Simulator(sensor, MATERIALS, cylinder_only(1.04, 4.08), seed=seed, effects=[])
+    fr = truth_sim.simulate_frame(0.3, traj, 3)
+    dirs = fr.xyz_m / np.linalg.norm(fr.xyz_m, axis=1, keepdims=True)
+    model = Simulator(sensor, MATERIALS, cylinder_only(1.0, 4.0), seed=seed, effects=[])
+    data = fit_data_from_rays(model, fr.stamp_s + fr.t_s, dirs, fr.range_m, traj, fr.t_s)
+    assert len(data.measured_range_m) > 2000
+    r = fit_effect(get_effect_class('surface_offset'), data)
+    standoff = r.params['standoff_m'] + r.params.get('standoff_PAINT_m', 0.0)
+    assert standoff == pytest.approx(0.04, rel=0.05)
+    assert r.nll_per_point < r.nll_before_per_point - 0.005

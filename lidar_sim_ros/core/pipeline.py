@@ -308,9 +308,10 @@ class Simulator:
             t_pose = eff.pose_time_s(t_pose)
         poses = _poses_at(pose_source, t_pose)
         optics = self.sensor.optics
+        target = self.seen_target()
         hits = None
         for eff in self.effects:
-            hits = eff.cast(self.target, directions, poses, optics.beam_divergence_rad)
+            hits = eff.cast(target, directions, poses, optics.beam_divergence_rad)
             if hits is not None:
                 break
         # Reflection and the error model, into these (0, NaN, 0, 0 on a miss): on each part
@@ -321,7 +322,7 @@ class Simulator:
             if each_part is not None:
                 each_part(rows, hit_rows)
         if hits is None:
-            hits = cast_at_poses(self.target, directions, poses, order=cast_order, then=then)
+            hits = cast_at_poses(target, directions, poses, order=cast_order, then=then)
         else:
             then(hits, slice(0, n))
             if hits.power_fraction is not None:
@@ -338,13 +339,22 @@ class Simulator:
             divergence_rad=optics.beam_divergence_rad, hit=hits.hit,
             threshold_power_w=det.threshold_power_w, min_range_m=det.min_range_m,
             max_range_m=det.max_range_m, direction=directions, normal=hits.normal, face=hits.face,
-            scene=Scene(self.target, poses, self.materials, self.sensor,
+            scene=Scene(target, poses, self.materials, self.sensor,
                         None if self.sun is None else self.sun.at(t_abs_s)),
             time_s=t_abs_s)
         if self.effects:
             ctx, bias, var = apply_effects(ctx, self.effects, bias, var)
             bias = np.where(hits.hit, bias, 0.0)
         return Prediction(ctx, hits, directions, bias, np.sqrt(var))
+
+    def seen_target(self) -> Target:
+        """The surface the sensor sees: the mesh, or the first effect's stand-in for it
+        (``Effect.seen_target``: the mesh's faces standing proud)."""
+        for eff in self.effects:
+            seen = eff.seen_target(self.target)
+            if seen is not None:
+                return seen
+        return self.target
 
     def _reflect(self, hits: Hits, rows: slice | np.ndarray, directions: np.ndarray,
                  pixel_sr: np.ndarray | None, out: tuple[np.ndarray, ...]) -> np.ndarray:

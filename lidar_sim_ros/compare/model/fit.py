@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -35,7 +35,8 @@ from scipy.optimize import minimize_scalar
 from lidar_sim_ros.compare.model.likelihood import (MIN_SIGMA_M, ROBUST_FLOOR, FitData,
                                                     ModelOnRays, PredictionCache, RaysOnly,
                                                     _groups, is_outlier_effect, material_nuisance,
-                                                    model_on_rays, moving, objective, scores)
+                                                    model_on_rays, moving, objective, point_nll,
+                                                    scores)
 from lidar_sim_ros.core.effects.base import Effect
 from lidar_sim_ros.core.pipeline import Simulator
 
@@ -515,63 +516,90 @@ def _fit_ghost_scale(cls: type[Effect], data: FitData,
 
 
 MIN_MATERIAL_STANDOFF_POINTS = 20   # fewer matched points on a material: no standoff of its own
+SURFACE_OFFSET_STEPS = 4            # Gauss-Newton steps on the exact surface, at most
+SURFACE_OFFSET_TOL_M = 1e-4         # ... until no standoff moves by more (m; scale x 10 m)
 
 
 def _fit_surface_offset(cls: type[Effect], data: FitData,
                         base_effects: Sequence[Effect] = ()) -> FitResult:
-    """Closed-form fit of ``surface_offset``: a standoff on 1 / cos(theta), a scale on
-    d / cos(theta), and a standoff of a material's own on 1 / cos(theta) over its
-    surfaces (blankets over some materials only), jointly (``linear_bias_coefficients``,
-    material intercepts as nuisance). Which of them are free is chosen by the Bayes
-    information criterion (total NLL plus half ln(N) per parameter, N matched points),
-    by forward selection: from none, the parameter that lowers it most is freed, while
-    one does (the common standoff, the scale and each material's own compete alike). A
+    """Fit of ``surface_offset``: which parameters are free is chosen on the first-order
+    columns at the mesh (``surface_offset.first_order_columns``: a standoff on
+    -1 / cos(theta), a scale on -d / cos(theta), a standoff of a material's own on
+    -1 / cos(theta) over its surfaces, estimated jointly in closed form with the material
+    intercepts as nuisance), by the Bayes information criterion (total NLL of the
+    linearised model plus half ln(N) per parameter, N matched points) in forward
+    selection: from none, the parameter that lowers it most is freed, while one does. A
     parameter stays only where the data pay for it: on a body whose surfaces of one
     material lie at one distance from its origin (a cylinder's side) the scale's and the
-    standoff's columns are nearly one, and the joint split would be noise."""
+    standoff's columns are nearly one, and the joint split would be noise.
+
+    The chosen parameters are then refined on the exact surface (the effect's own forward
+    model, the rays re-cast against the mesh standing proud): Gauss-Newton, each step the
+    same closed form on the columns at the surface the rays now meet, until no standoff
+    moves by more than SURFACE_OFFSET_TOL_M. On a curved body the first-order columns
+    overstate the grazing rays' change (a cylinder's exact change is bounded by
+    sqrt(2 R s) at its limb), so the linearised estimate alone runs low (0.70-0.83 of the
+    truth for 4-2 cm on R = 2 m); the refined one does not."""
+    from lidar_sim_ros.core.effects.surface_offset import first_order_columns
     base_effects = list(base_effects)
     zero = {**_defaults(cls), 'scale': 0.0, 'standoff_m': 0.0, 'material_standoff_m': {}}
-    model = model_on_rays(data, [*base_effects, cls(zero)])
-
-    def column(params: dict, unit: float) -> np.ndarray:
-        moved = model_on_rays(data, [*base_effects, cls({**zero, **params})])
-        return (moved.expected_range_m - model.expected_range_m) / unit
-
-    uniform = {'scale': column({'scale': 0.01}, 0.01),
-               'standoff_m': column({'standoff_m': 1.0}, 1.0)}
+    clip = float(cls(zero).params.max_incidence_deg)
     group = _groups(data)
     names = list(getattr(getattr(data.baseline.ctx.scene, 'target', None), 'material_names', []))
     counts = np.bincount(group[group >= 0], minlength=len(names)) if len(names) else []
-    own = {names[m]: np.where(group == m, uniform['standoff_m'], 0.0)
-           for m in range(len(names)) if counts[m] >= MIN_MATERIAL_STANDOFF_POINTS}
-    penalty = 0.5 * math.log(max(len(data.measured_range_m), 2))
+    own = [names[m] for m in range(len(names)) if counts[m] >= MIN_MATERIAL_STANDOFF_POINTS]
     bounds = {**cls.bounds, **{m: cls.bounds['standoff_m'] for m in own}}
 
-    def fitted(free: tuple[str, ...]) -> tuple[Effect | None, float]:
-        x = np.column_stack([uniform[k] if k in uniform else own[k] for k in free])
-        a = linear_bias_coefficients(data, model, x, [bounds[k] for k in free])
-        values = {k: round(float(v), 9) for k, v in zip(free, a)}
-        params = {**zero, **{k: v for k, v in values.items() if k in uniform},
-                  'material_standoff_m': {k: v for k, v in values.items() if k in own}}
-        eff = make_effect_safe(cls, params)
-        cost = (math.inf if eff is None
-                else objective(data, [*base_effects, eff]) + penalty * len(free))
-        return eff, cost
+    def columns(model: ModelOnRays, free: Sequence[str]) -> np.ndarray:
+        at = first_order_columns(model.ctx, clip)
+        return np.column_stack([
+            at[k] if k in at else np.where(group == names.index(k), at['standoff_m'], 0.0)
+            for k in free])
 
-    best, best_cost, best_free = cls(zero), objective(data, [*base_effects, cls(zero)]), ()
-    pool = [*uniform, *own]
+    def effect_of(values: dict) -> Effect | None:
+        return make_effect_safe(cls, {
+            **zero, **{k: v for k, v in values.items() if k in ('scale', 'standoff_m')},
+            'material_standoff_m': {k: v for k, v in values.items() if k in own}})
+
+    model = model_on_rays(data, base_effects)
+    penalty = 0.5 * math.log(max(len(data.measured_range_m), 2))
+
+    def linearised(free: tuple[str, ...]) -> tuple[dict, float]:
+        x = columns(model, free)
+        a = linear_bias_coefficients(data, model, x, [bounds[k] for k in free])
+        moved = replace(model, expected_range_m=model.expected_range_m + x @ a)
+        cost = float(np.sum(point_nll(data, moved, ROBUST_FLOOR)[0])) + penalty * len(free)
+        return {k: float(v) for k, v in zip(free, a)}, cost
+
+    best, best_cost = {}, float(np.sum(point_nll(data, model, ROBUST_FLOOR)[0]))
+    pool = ['scale', 'standoff_m', *own]
     while True:
-        tries = [(*fitted((*best_free, k)), (*best_free, k)) for k in pool if k not in best_free]
+        tries = [(*linearised((*best, k)), k) for k in pool if k not in best]
         if not tries:
             break
-        eff, cost, free = min(tries, key=lambda t: t[1])
+        values, cost, _ = min(tries, key=lambda t: t[1])
         if not cost < best_cost:
             break
-        best, best_cost, best_free = eff, cost, free
-    p = best.params
+        best, best_cost = values, cost
+    effect = effect_of(best) if best else cls(zero)
+    free = tuple(best)
+    for _ in range(SURFACE_OFFSET_STEPS if free else 0):
+        at = model_on_rays(data, [*base_effects, effect])
+        shift = {k: (bounds[k][0] - best[k], bounds[k][1] - best[k]) for k in free}
+        step = linear_bias_coefficients(data, at, columns(at, free), [shift[k] for k in free])
+        stepped = {k: best[k] + float(d) for k, d in zip(free, step)}
+        moved = effect_of(stepped)
+        if moved is None:
+            break
+        done = all(abs(float(d)) * (10.0 if k == 'scale' else 1.0) <= SURFACE_OFFSET_TOL_M
+                   for k, d in zip(free, step))
+        best, effect = stepped, moved
+        if done:
+            break
+    p = effect.params
     params = {'scale': float(p.scale), 'standoff_m': float(p.standoff_m),
               **{f'standoff_{m}_m': float(v) for m, v in p.material_standoff_m.items()}}
-    return make_result_vector(best, data, base_effects, params)
+    return make_result_vector(effect, data, base_effects, params)
 
 
 def _register_catalogue_fits() -> None:
