@@ -162,7 +162,7 @@ class Effect:
     parameters the range bias is linear in (estimated in closed form).
     ``fit_options`` tunes the generic 1-D searches (``n_grid``, ``prefer_low``,
     ``smooth``). ``needs_repredict`` marks effects that change the pose time or the
-    raycast, which the fit must re-run the prediction for. ``power_driven`` marks
+    raycast (``pose_time_s``, ``beam_directions``, ``cast``), which the fit must re-run the prediction for. ``power_driven`` marks
     effects whose hooks read the received power (``ctx.power_w``): the comparison
     fits them against the power measured by the sensor (its intensity, calibrated)
     when the recording has intensity; the simulator uses its own power.
@@ -194,6 +194,13 @@ class Effect:
     def pose_time_s(self, t_s: np.ndarray) -> np.ndarray:
         """Times (s, absolute) at which the target pose is evaluated for each shot."""
         return t_s
+
+    def beam_directions(self, directions_lidar: np.ndarray, laser: np.ndarray) -> np.ndarray | None:
+        """The unit directions (N, 3, lidar frame) the beams really leave along, for shots
+        configured along ``directions_lidar`` by lasers ``laser`` (a laser's pointing
+        error); the raycast follows them, the points stay on the configured directions.
+        None = as configured."""
+        return None
 
     def cast(self, target, directions_lidar: np.ndarray, poses, divergence_rad: float):
         """Replace the single-ray raycast (e.g. sample the beam footprint). None = default."""
