@@ -88,6 +88,7 @@ from scipy.stats import kstest, norm
 from lidar_sim_ros.compare.model import likelihood as lk
 from lidar_sim_ros.compare.diagnose import laser_tiles
 from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se, block_mean_z
+from lidar_sim_ros.compare.model import pointing
 from lidar_sim_ros.compare.model.fit import fit_effect
 from lidar_sim_ros.compare.model.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
 from lidar_sim_ros.compare.model.matching import Model, predict_rays
@@ -425,6 +426,9 @@ class Candidate:
     share: float | None = None         # of the attribution's feature structure
     vetoed: str | None = None          # why it cannot be the missing effect despite its gain
     tile_vetoed: bool = False          # ``vetoed`` by the tile test (``tile_veto``)
+    # Lasers' pointing: the score of each laser's own offsets, their common turn projected
+    # out (``own_part_veto``).
+    own_part: dict | None = None
     beside: str | None = None          # passed the tile test on top of this one (``lasers_beside``)
     together: dict | None = None       # refitted with the 'also' effect (``fit_together``)
     far_points: float = 0.0            # outlier effects: far or unmatched points it explains
@@ -469,6 +473,7 @@ class Candidate:
                 **({'structure_share': _num(self.share)} if self.share is not None else {}),
                 **({'vetoed': self.vetoed} if self.vetoed else {}),
                 **({'passes_beside': self.beside} if self.beside else {}),
+                **({'own_offsets': self.own_part} if self.own_part else {}),
                 **({'fitted_together': self.together} if self.together else {}),
                 **({'against_pose': self.against_pose} if self.against_pose else {}),
                 **({'pose_beside': self.pose_beside} if self.pose_beside else {}),
@@ -601,7 +606,8 @@ class Diagnosis:
             if cand.vetoed is None and cand.significant and cand.practical:
                 cand.vetoed = self.tile_veto(cand)
                 cand.tile_vetoed = cand.vetoed is not None
-                cand.vetoed = cand.vetoed or self.core_veto(cand) or self.material_veto(cand)
+                cand.vetoed = (cand.vetoed or self.core_veto(cand) or self.material_veto(cand)
+                               or self.own_part_veto(cand))
         except Exception as exc:  # noqa: BLE001 - one failing candidate must not stop the rest
             cand.error = f'{type(exc).__name__}: {exc}'
             cand.score = float('-inf')
@@ -808,11 +814,18 @@ class Diagnosis:
         data = [make_fit_data(self.model, self.base, h, (self.full, self.rays))
                 for h in halves]
         out = np.full(len(self.rays.matched), np.nan)
+        fits = [fit_effect(variant, data[1 - k], list(on_top)) for k in range(len(halves))]
+        info = [f.extras.get('laser_information') for f in fits]
         for k, h in enumerate(halves):
-            train = data[1 - k]
-            effect = fit_effect(variant, train, list(on_top)).effect
-            out[np.searchsorted(self.rays.matched, h.matched)] = heldout_nll(
-                data[k], [*on_top, effect])
+            nll = heldout_nll(data[k], [*on_top, fits[k].effect])
+            # A laser whose offsets the other half does not determine (two per laser, seen
+            # through the surface's slope there) is not scored (``laser_tiles.undetermined``).
+            unknown = laser_tiles.undetermined(info[k], info[1 - k])
+            if unknown is not None:
+                laser = np.asarray(self.rays.meas.laser[h.matched], np.int64)
+                nll = np.where(unknown[np.clip(laser, 0, len(unknown) - 1)]
+                               & (laser < len(unknown)), np.nan, nll)
+            out[np.searchsorted(self.rays.matched, h.matched)] = nll
         return out
 
     def worst_transfer(self, cand: Candidate, splits: dict, at_random: np.ndarray,
@@ -879,6 +892,31 @@ class Diagnosis:
                 'target off its CAD, or another effect\'s pattern), not the lasers alone; '
                 'offsets of the lasers\' own beside that pattern show only once it is '
                 'modelled')
+
+    def own_part_veto(self, cand: Candidate) -> str | None:
+        """Lasers' pointing offsets (``laser_pointing``) are fitted with their common turn
+        (the lasers' mean pointing), but a common turn of every beam is a turn of the
+        whole sensor: its mount, an extrinsic, or the reference pose turned about the
+        sensor (the pose test's finding: a mount tilted with every laser right is no
+        laser's). So the offsets each laser has of its own, the turn projected out
+        (``pointing.OwnPointing``), must pass the rule alone (z above the bound, total
+        and per-point gain, cross-fitted as the score)."""
+        own = pointing.own_part_of(cand.variant)
+        if own is None or cand.effect is None:
+            return None
+        part = Candidate(cand.name)
+        part.effect = cand.effect
+        nll, explained = self.cross_fit(own, [])
+        self._set_gain(part, nll, explained)
+        cand.own_part = {'score': _num(part.score), 'z': _num(part.z),
+                         'passes': bool(part.significant and part.practical)}
+        if part.significant and part.practical:
+            return None
+        return (f'its offsets are mostly a common turn of every beam, which is a turn of '
+                f'the whole sensor (its mount, or the reference pose turned about the '
+                f'sensor), not the lasers\' own: each laser\'s own part, that turn '
+                f'projected out, gains {part.score:.4f} nats/point held out (z = '
+                f'{part.z:.1f}), which does not pass the rule')
 
     def split_nll(self, variant: type[Effect], group: np.ndarray,
                   on_top: list[Effect] = ()) -> np.ndarray:

@@ -1,0 +1,188 @@
+"""Per-laser pointing offsets fitted through the range gradient across the surface.
+
+A laser whose beam leaves off its configured direction by (a, e) (azimuth, elevation,
+rad) measures the range of a neighbouring spot of the surface (``core/effects/
+laser_pointing.py``). On a surface with unit normal n (toward the sensor) hit at range
+r along the unit direction u, a ray turned by du meets the surface's plane at
+
+    r' = r (n . u) / (n . (u + du)),   so   dr = -r (n . du) / (n . u)   (first order),
+
+with du = a du/daz + e du/del: r tan(theta) along the surface's slope direction. The
+residual of a shot of laser l is then g . delta_l, with g = (dr/daz, dr/del) from the
+raycast's normal and range, linear in the laser's two offsets: a weighted least-squares
+fit per laser (2 x 2), one intercept per material as nuisance, robust inlier weights
+(Gaussian vs a uniform floor) as ``fit.laser_offsets_m``.
+
+A common turn of every beam is a turn of the whole sensor (its mount: an extrinsic, the
+same as the reference pose turned about the sensor), not a laser's own offset. The fit
+keeps it (the lasers' mean pointing is part of their calibration, and left out it would
+read as a reference pose off on exact poses); ``remove_turn`` projects the three
+rotations of the sensor out of the fitted offsets: what is each laser's own, which must
+pass the rule alone for the lasers to be named (``Diagnosis.own_part_veto``: a mount
+tilted with every laser right is the pose's finding). Pure functions over numpy arrays.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from lidar_sim_ros.compare.model.likelihood import MIN_SIGMA_M, ROBUST_FLOOR, material_nuisance
+from lidar_sim_ros.core.effects.laser_pointing import LaserPointing
+
+MAX_TAN_INCIDENCE = math.tan(math.radians(85.0))   # the gradient's r tan(theta) clipped here
+MIN_POINTS_PER_LASER = 20                          # fewer: the laser's offsets stay 0
+# A laser's 2 x 2 normal matrix whose smaller eigenvalue is below this share of the larger
+# sees its offsets along one direction only (a surface sloping one way): the other stays 0.
+MIN_EIGEN_SHARE = 1e-3
+
+
+def direction_basis(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """du/daz and du/del (N, 3) of unit directions (lidar frame, ``core/shots.py``'s
+    azimuth and elevation): (-cos el sin az, cos el cos az, 0) and
+    (-sin el cos az, -sin el sin az, cos el)."""
+    d = np.asarray(directions, float)
+    az = np.arctan2(d[:, 1], d[:, 0])
+    el = np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1]))
+    ca, sa, ce, se = np.cos(az), np.sin(az), np.cos(el), np.sin(el)
+    d_az = np.stack([-ce * sa, ce * ca, np.zeros_like(az)], axis=1)
+    d_el = np.stack([-se * ca, -se * sa, ce], axis=1)
+    return d_az, d_el
+
+
+def range_gradient_m_per_rad(range_m: np.ndarray, directions: np.ndarray,
+                             normals: np.ndarray) -> np.ndarray:
+    """(N, 2): dr/daz and dr/del (m per rad) of rays hitting a surface of unit normal
+    ``normals`` (toward the sensor) at ``range_m`` along ``directions`` (module doc),
+    the incidence's tan clipped at MAX_TAN_INCIDENCE; 0 where a ray misses."""
+    r = np.asarray(range_m, float)
+    u = np.asarray(directions, float)
+    n = np.asarray(normals, float)
+    d_az, d_el = direction_basis(u)
+    cos_t = -np.einsum('ij,ij->i', n, u)
+    ok = np.isfinite(r) & (cos_t > 0)
+    cos_c = np.where(ok, np.maximum(cos_t, 1.0 / math.sqrt(1.0 + MAX_TAN_INCIDENCE ** 2)), 1.0)
+    g = np.stack([np.einsum('ij,ij->i', n, d_az), np.einsum('ij,ij->i', n, d_el)], axis=1)
+    out = np.where(ok[:, None], np.where(ok, r, 0.0)[:, None] * g / cos_c[:, None], 0.0)
+    # |g| / cos is tan(theta) at most (g is n's part across u): keep the clip exact.
+    size = np.hypot(out[:, 0], out[:, 1])
+    limit = np.where(ok, r, 0.0) * MAX_TAN_INCIDENCE
+    over = size > limit
+    out[over] *= (limit[over] / size[over])[:, None]
+    return out
+
+
+def rotation_columns(mean_directions: np.ndarray) -> np.ndarray:
+    """(2 L, 3): the (az, el) offsets (rad) a small turn w (rad, about the lidar axes) of
+    the whole sensor gives each laser of mean direction ``mean_directions[l]``: du = w x u,
+    read on du/daz (over its length squared) and du/del."""
+    u = np.asarray(mean_directions, float)
+    d_az, d_el = direction_basis(u)
+    cols = []
+    for axis in np.eye(3):
+        du = np.cross(axis, u)
+        a = np.einsum('ij,ij->i', du, d_az) / np.maximum(np.einsum('ij,ij->i', d_az, d_az), 1e-12)
+        e = np.einsum('ij,ij->i', du, d_el)
+        cols.append(np.column_stack([a, e]).ravel())
+    return np.column_stack(cols)
+
+
+def without_sensor_turn(offsets_rad: np.ndarray, mean_directions: np.ndarray,
+                        fitted: np.ndarray) -> np.ndarray:
+    """``offsets_rad`` (L, 2) less the turn of the whole sensor that fits them best (least
+    squares over the ``fitted`` lasers, az offsets weighted by cos el as the angles they
+    are): what is each laser's own."""
+    if fitted.sum() < 4:
+        return offsets_rad
+    cos_el = np.hypot(mean_directions[:, 0], mean_directions[:, 1])
+    metric = np.column_stack([cos_el, np.ones(len(cos_el))])[fitted].ravel()
+    cols = rotation_columns(mean_directions)
+    pick = np.repeat(fitted, 2)
+    a = cols[pick] * metric[:, None]
+    b = offsets_rad[fitted].ravel() * metric
+    w, *_ = np.linalg.lstsq(a, b, rcond=None)
+    out = offsets_rad.copy()
+    out[fitted] -= (cols[pick] @ w).reshape(-1, 2)
+    return out
+
+
+def _centre_by(v: np.ndarray, group: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Per point, the weighted mean of ``v`` over its group."""
+    g = np.unique(group, return_inverse=True)[1]
+    wsum = np.bincount(g, weights=weight)
+    mean = np.bincount(g, weights=weight * v) / np.maximum(wsum, 1e-300)
+    return mean[g]
+
+
+def laser_pointing_rad(residual_m: np.ndarray, gradient_m_per_rad: np.ndarray,
+                       sigma_m: np.ndarray, material: np.ndarray, laser: np.ndarray,
+                       directions: np.ndarray, window_width_m: float,
+                       remove_turn: bool = False,
+                       iterations: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """ML pointing offsets (L, 2: az, el in rad) of each laser id 0..max(laser): the
+    residual on ``gradient_m_per_rad`` . offset of the point's laser, one intercept per
+    material, alternating robust weighted least squares (module doc); with
+    ``remove_turn`` the turn of the whole sensor projected out (``without_sensor_turn``);
+    lasers with fewer than
+    MIN_POINTS_PER_LASER points get 0. Also each laser's information on its offsets
+    (L, 2, 2: the normal matrix, rad^-2, with the last robust weights): how well the
+    points determine them, and in which direction."""
+    y = np.asarray(residual_m, float)
+    g = np.asarray(gradient_m_per_rad, float)
+    sigma = np.maximum(np.asarray(sigma_m, float), MIN_SIGMA_M)
+    group = np.asarray(material, int)
+    lz = np.asarray(laser, np.int64)
+    n_lasers = int(lz.max()) + 1 if len(lz) else 0
+    off = np.zeros((n_lasers, 2))
+    a = np.zeros((n_lasers, 2, 2))
+    if len(y) < MIN_POINTS_PER_LASER:
+        return off, a
+    enough = np.bincount(lz, minlength=n_lasers) >= MIN_POINTS_PER_LASER
+    mean_dir = np.zeros((n_lasers, 3))
+    for k in range(3):
+        mean_dir[:, k] = np.bincount(lz, weights=directions[:, k], minlength=n_lasers)
+    mean_dir /= np.maximum(np.linalg.norm(mean_dir, axis=1, keepdims=True), 1e-12)
+    q = np.ones(len(y))
+    for _ in range(iterations):
+        wt = q / sigma ** 2
+        pred = np.einsum('ij,ij->i', g, off[lz])
+        c = _centre_by(y - pred, group, wt)
+        r = y - c
+        a = np.zeros((n_lasers, 2, 2))
+        b = np.zeros((n_lasers, 2))
+        for i in range(2):
+            b[:, i] = np.bincount(lz, weights=wt * g[:, i] * r, minlength=n_lasers)
+            for j in range(2):
+                a[:, i, j] = np.bincount(lz, weights=wt * g[:, i] * g[:, j], minlength=n_lasers)
+        new = np.zeros_like(off)
+        for l in np.flatnonzero(enough):
+            vals, vecs = np.linalg.eigh(a[l])
+            if vals[-1] <= 0:
+                continue
+            keep = vals > MIN_EIGEN_SHARE * vals[-1]
+            new[l] = vecs[:, keep] @ ((vecs[:, keep].T @ b[l]) / vals[keep])
+        off = (without_sensor_turn(new, mean_dir, enough & (a[:, 0, 0] + a[:, 1, 1] > 0))
+               if remove_turn else new)
+        e = y - c - np.einsum('ij,ij->i', g, off[lz])
+        _, scale = material_nuisance(e, sigma, group, np.ones(len(e), bool))
+        s = sigma * scale
+        dens = (1 - ROBUST_FLOOR) * np.exp(-0.5 * (e / s) ** 2) / (s * math.sqrt(2 * math.pi))
+        q = dens / (dens + ROBUST_FLOOR / window_width_m)
+    return np.where(enough[:, None], off, 0.0), np.where(enough[:, None, None], a, 0.0)
+
+
+class OwnPointing(LaserPointing):
+    """``laser_pointing`` fitted without the turn of the whole sensor (each laser's own
+    offsets, ``remove_turn``): the part the lasers are named on. Not registered: the
+    comparison's variant, written out as ``laser_pointing``."""
+
+    own_offsets_only = True
+
+
+def own_part_of(effect_cls) -> type | None:
+    """The variant of a ``laser_pointing`` class fitted on each laser's own offsets
+    (``OwnPointing``), or None for any other effect (or one that is that variant)."""
+    if (isinstance(effect_cls, type) and issubclass(effect_cls, LaserPointing)
+            and not getattr(effect_cls, 'own_offsets_only', False)):
+        return OwnPointing
+    return None
