@@ -96,3 +96,19 @@ def test_a_half_that_sees_one_slope_does_not_determine_two_offsets():
     out = laser_tiles.undetermined(half, full - half)
     assert out.tolist() == [False, True, False]
     assert laser_tiles.undetermined(None, full) is None
+
+
+def test_an_offset_a_material_intercept_takes_is_not_determined():
+    """Laser 0 sees material 0 only, always at the same slope (g = (10, 5) m/rad): its
+    offsets along that slope are what the material's intercept is, so it knows nothing
+    of them there; laser 1 sees two materials at varied slopes."""
+    rng = np.random.default_rng(6)
+    n = 2000
+    laser = np.repeat([0, 1], n)
+    material = np.concatenate([np.zeros(n, int), rng.integers(0, 2, n)])
+    g = np.concatenate([np.tile([10.0, 5.0], (n, 1)), rng.normal(0, 10.0, (n, 2))])
+    info = pointing.marginal_information(g, np.ones(2 * n), material, laser, 2)
+    along = np.array([10.0, 5.0]) / np.hypot(10.0, 5.0)
+    assert along @ info[0] @ along < 1e-6 * np.trace(info[1])
+    # Without the intercept (each laser its own material at varied slopes) it would know.
+    assert np.linalg.eigvalsh(info[1])[0] > 0.5 * n * 100 * 0.5

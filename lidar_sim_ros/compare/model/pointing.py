@@ -125,8 +125,8 @@ def laser_pointing_rad(residual_m: np.ndarray, gradient_m_per_rad: np.ndarray,
     ``remove_turn`` the turn of the whole sensor projected out (``without_sensor_turn``);
     lasers with fewer than
     MIN_POINTS_PER_LASER points get 0. Also each laser's information on its offsets
-    (L, 2, 2: the normal matrix, rad^-2, with the last robust weights): how well the
-    points determine them, and in which direction."""
+    (L, 2, 2, rad^-2, with the last robust weights; ``marginal_information``): how well
+    the points determine them, and in which direction."""
     y = np.asarray(residual_m, float)
     g = np.asarray(gradient_m_per_rad, float)
     sigma = np.maximum(np.asarray(sigma_m, float), MIN_SIGMA_M)
@@ -168,7 +168,40 @@ def laser_pointing_rad(residual_m: np.ndarray, gradient_m_per_rad: np.ndarray,
         s = sigma * scale
         dens = (1 - ROBUST_FLOOR) * np.exp(-0.5 * (e / s) ** 2) / (s * math.sqrt(2 * math.pi))
         q = dens / (dens + ROBUST_FLOOR / window_width_m)
-    return np.where(enough[:, None], off, 0.0), np.where(enough[:, None, None], a, 0.0)
+    info = marginal_information(g, q / sigma ** 2, group, lz, n_lasers)
+    return np.where(enough[:, None], off, 0.0), np.where(enough[:, None, None], info, 0.0)
+
+
+def marginal_information(gradient_m_per_rad: np.ndarray, weight: np.ndarray,
+                         material: np.ndarray, laser: np.ndarray, n_lasers: int) -> np.ndarray:
+    """(L, 2, 2): each laser's information on its two offsets (rad^-2) in the joint linear
+    model, the material intercepts and the other lasers' offsets profiled out: the
+    inverse of its block of the joint covariance. A laser that sees each material at one
+    slope only has its offsets along that slope taken by the material's intercept, however
+    large its gradient: its information there is small."""
+    g = np.asarray(gradient_m_per_rad, float)
+    w = np.asarray(weight, float)
+    mats, m_idx = np.unique(np.asarray(material), return_inverse=True)
+    n_m, n_p = len(mats), 2 * n_lasers
+    size = n_m + n_p
+    normal = np.zeros((size, size))
+    normal[np.arange(n_m), np.arange(n_m)] = np.bincount(m_idx, weights=w, minlength=n_m)
+    cell = m_idx * n_lasers + laser
+    for i in range(2):
+        cross = np.bincount(cell, weights=w * g[:, i], minlength=n_m * n_lasers).reshape(n_m, n_lasers)
+        normal[:n_m, n_m + i:size:2] = cross
+        normal[n_m + i:size:2, :n_m] = cross.T
+        for j in range(2):
+            normal[n_m + np.arange(n_lasers) * 2 + i, n_m + np.arange(n_lasers) * 2 + j] = \
+                np.bincount(laser, weights=w * g[:, i] * g[:, j], minlength=n_lasers)
+    cov = np.linalg.pinv(normal, rcond=1e-12, hermitian=True)
+    out = np.zeros((n_lasers, 2, 2))
+    for l in range(n_lasers):
+        k = n_m + 2 * l
+        block = cov[k:k + 2, k:k + 2]
+        if np.all(np.isfinite(block)) and np.linalg.det(block) > 0:
+            out[l] = np.linalg.inv(block)
+    return out
 
 
 class OwnPointing(LaserPointing):
