@@ -1443,6 +1443,10 @@ VENDOR: tuple[ForeignSpec, ...] = (
                 shots_per_frame=12_000, expected_feature='laser',
                 note='6 lasers round-robin, each beam turned off its reported direction '
                      '(sd 0.15 deg in azimuth and elevation)'),
+    ForeignSpec('incidence_lasers', 'incidence_angle', {'g_m': 0.03, 'h': 0.8}, seed=64,
+                lasers=6, intensity='counts16', distance_m=12.0, shots_per_frame=12_000,
+                note='incidence_angle (own form) on a 6-laser sensor whose beams point right: '
+                     'a bias growing with incidence is no laser\'s pointing'),
     ForeignSpec('clean_cepton', None, seed=62, layout='cepton', lasers=6, scan='rosette',
                 shots_per_frame=12_000,
                 note="the Cepton SDK3 driver's fields: timestamp_s + timestamp_us, flags "
