@@ -1117,10 +1117,44 @@ class Diagnosis:
                 best, also = lead, None     # 'also' was judged beside the other
         if tied:
             return Decision(None, [best.name, *tied], also, pair_z)
+        taken = self.pointing_takes(best, cands)
+        if taken is not None:
+            return Decision(None, [], None, pair_z, withheld={best.name: taken})
         # A candidate with fewer parameters first: the lasers' two dozen offsets fit
         # part of any pattern the tiles cut up, an incidence elongation's too.
         return Decision(best.name, [], also or self.next_beside(best, ok, cands)
                         or self.lasers_beside(best, cands), pair_z)
+
+    def pointing_takes(self, best: Candidate, cands: list[Candidate]) -> str | None:
+        """Why ``best`` may not be named beside lasers' pointing offsets set aside because
+        their own part does not pass alone (``own_part_veto``), or None. Fitted with their
+        common turn (the sensor's mount or the pose turned about it) those offsets still
+        explain the residual decisively; a candidate that does not pass the rule on top of
+        them explains nothing they leave, so the recording does not show it: naming it
+        would name the beams' pointing (a laser's offset reads as a range error of
+        r tan(incidence)) by another name. Nothing is named then."""
+        if best.effect is None:
+            return None
+        for c in cands:
+            if (c is best or c.effect is None or c.error is not None or not c.own_part
+                    or c.own_part.get('passes') or not c.significant or not c.practical):
+                continue
+            try:
+                self.finalized(c)
+                gain, z, _ = self._on_top([c.effect], best)
+            except Exception:  # noqa: BLE001 - not shown to take it
+                continue
+            if (gain >= MIN_PRACTICAL_GAIN and z >= self.z_crit
+                    and gain * self.n_total >= MIN_TOTAL_GAIN):
+                continue
+            return (f'on top of {c.name} fitted with the beams\' common turn it gains '
+                    f'{gain:.4f} nats/point held out (z = {z:.1f}), which does not pass the '
+                    f'rule: what it explains, the lasers\' pointing explains (a beam off its '
+                    f'direction reads as a range error of r tan(incidence)), and this '
+                    f'recording shows the lasers\' own offsets too weakly to name them '
+                    f'({c.own_part.get("score") or 0:.4f} nats/point, z = '
+                    f'{c.own_part.get("z") or 0:.1f})')
+        return None
 
     def next_beside(self, best: Candidate, ok: list[Candidate],
                     cands: list[Candidate] = ()) -> str | None:
