@@ -167,3 +167,10 @@ def test_an_incidence_effect_on_lasers_pointing_right_is_no_pointing(tmp_path):
     # The foreign form, -g (1 / cos - 1), is also a surface standing proud: named, or
     # tied with surface_offset (the battery's seeds 1 and 2 are).
     assert 'incidence_angle' in named, s['verdict']
+
+
+def test_one_laser_has_no_offset_of_its_own():
+    u = directions_from_angles(np.array([0.1]), np.array([0.05]))
+    off = np.radians([[0.2, -0.1], [0.0, 0.0]])
+    out = pointing.without_sensor_turn(off, np.vstack([u, u]), np.array([True, False]))
+    np.testing.assert_array_equal(out, 0.0)

@@ -1135,6 +1135,8 @@ class Diagnosis:
         r tan(incidence)) by another name. Nothing is named then."""
         if best.effect is None:
             return None
+        if len(np.unique(self.rays.meas.laser[self.rays.matched])) < 2:
+            return None       # one laser: its "pointing" is a turn of the sensor, the pose's
         for c in cands:
             if (c is best or c.effect is None or c.error is not None or not c.own_part
                     or c.own_part.get('passes') or not c.significant or not c.practical):

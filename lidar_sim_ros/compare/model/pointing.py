@@ -91,9 +91,10 @@ def without_sensor_turn(offsets_rad: np.ndarray, mean_directions: np.ndarray,
                         fitted: np.ndarray) -> np.ndarray:
     """``offsets_rad`` (L, 2) less the turn of the whole sensor that fits them best (least
     squares over the ``fitted`` lasers, az offsets weighted by cos el as the angles they
-    are): what is each laser's own."""
-    if fitted.sum() < 4:
-        return offsets_rad
+    are): what is each laser's own. With fewer than two lasers fitted nothing is: one
+    laser's offset is a turn of the sensor."""
+    if fitted.sum() < 2:
+        return np.zeros_like(offsets_rad)
     cos_el = np.hypot(mean_directions[:, 0], mean_directions[:, 1])
     metric = np.column_stack([cos_el, np.ones(len(cos_el))])[fitted].ravel()
     cols = rotation_columns(mean_directions)
