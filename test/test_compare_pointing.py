@@ -142,6 +142,7 @@ def test_lasers_pointing_off_are_named_and_fitted(tmp_path):
     assert first['missing_effect'] == 'laser_pointing', first['verdict']
     assert not first['reference_pose_off']
     assert 'calibrate each laser\'s pointing' in first['verdict']
+    assert 'deg RMS' in first['verdict']
     cand = next(c for c in first['candidates'] if c['name'] == 'laser_pointing')
     truth = np.asarray(ds.truth['laser_turns_deg'])
     true_rms = np.sqrt(np.mean(np.sum(truth ** 2, axis=1)))

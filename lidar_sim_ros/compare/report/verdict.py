@@ -101,6 +101,10 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         params = _params_words(c.params)
         gain, caveat = _gain_words(summary, c)
         words = EFFECT_WORDS.get(missing, missing)
+        if missing == 'laser_pointing' and isinstance(c.params.get('rms_offset_deg'), float):
+            words = words.replace('configured direction (',
+                                  f'configured direction by about '
+                                  f'{c.params["rms_offset_deg"]:.2g} deg RMS (', 1)
         if missing == 'time_offset' and summary.get('point_times') in ('stamp', 'scan pattern'):
             how = ('these clouds carry no per-point time' if summary['point_times'] == 'stamp'
                    else 'these clouds carry no per-point time field (their times come from '
