@@ -48,7 +48,9 @@ its z, ``total_z``), whatever part of the data the gain is on:
   joint model finds (``features.Attribution``): a candidate that soaks up a sliver of
   a structure it does not have the shape of is a phantom (the rest of the structure
   is outside the catalogue); a candidate with a parameter per laser must show offsets
-  that hold across each laser's tile (``tile_veto``, ``laser_tiles``); a noise effect
+  that hold across each laser's tile (``tile_veto``, ``laser_tiles``), and lasers'
+  pointing offsets a part of each laser's own beyond a turn of the whole sensor, which
+  is the mount's or the pose's (``own_part_veto``); a noise effect
   must widen the core of the residual distribution (``core_veto``) and, driven by the
   measured power, cannot stand for a driver that is another feature (``driver_veto``);
 * **it is decisively the best**: the paired held-out per-point NLL difference to
