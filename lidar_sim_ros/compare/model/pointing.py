@@ -35,6 +35,7 @@ MIN_POINTS_PER_LASER = 20                          # fewer: the laser's offsets 
 # A laser's 2 x 2 normal matrix whose smaller eigenvalue is below this share of the larger
 # sees its offsets along one direction only (a surface sloping one way): the other stays 0.
 MIN_EIGEN_SHARE = 1e-3
+MAX_FIT_RAD = math.radians(LaserPointing.bounds['az_offsets_deg'][1])   # the fit's box
 
 
 def direction_basis(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -88,22 +89,26 @@ def rotation_columns(mean_directions: np.ndarray) -> np.ndarray:
 
 
 def without_sensor_turn(offsets_rad: np.ndarray, mean_directions: np.ndarray,
-                        fitted: np.ndarray) -> np.ndarray:
-    """``offsets_rad`` (L, 2) less the turn of the whole sensor that fits them best (least
-    squares over the ``fitted`` lasers, az offsets weighted by cos el as the angles they
-    are): what is each laser's own. With fewer than two lasers fitted nothing is: one
+                        fitted: np.ndarray, information: np.ndarray | None = None) -> np.ndarray:
+    """``offsets_rad`` (L, 2) less the turn of the whole sensor that fits them best over
+    the ``fitted`` lasers: weighted by each laser's ``information`` on its offsets (L, 2,
+    2; a laser that barely sees the surface's slope, its offsets poorly known, has little
+    say), else by least squares with az offsets weighted by cos el as the angles they
+    are: what is each laser's own. With fewer than two lasers fitted nothing is: one
     laser's offset is a turn of the sensor."""
     if fitted.sum() < 2:
         return np.zeros_like(offsets_rad)
-    cos_el = np.hypot(mean_directions[:, 0], mean_directions[:, 1])
-    metric = np.column_stack([cos_el, np.ones(len(cos_el))])[fitted].ravel()
-    cols = rotation_columns(mean_directions)
-    pick = np.repeat(fitted, 2)
-    a = cols[pick] * metric[:, None]
-    b = offsets_rad[fitted].ravel() * metric
-    w, *_ = np.linalg.lstsq(a, b, rcond=None)
+    cols = rotation_columns(mean_directions).reshape(len(offsets_rad), 2, 3)
+    if information is None:
+        cos_el = np.hypot(mean_directions[:, 0], mean_directions[:, 1])
+        information = np.zeros((len(offsets_rad), 2, 2))
+        information[:, 0, 0], information[:, 1, 1] = cos_el ** 2, 1.0
+    r, a, d = cols[fitted], np.asarray(information, float)[fitted], offsets_rad[fitted]
+    normal = np.einsum('lji,ljk,lkm->im', r, a, r)
+    rhs = np.einsum('lji,ljk,lk->i', r, a, d)
+    w = np.linalg.pinv(normal, rcond=1e-10, hermitian=True) @ rhs
     out = offsets_rad.copy()
-    out[fitted] -= (cols[pick] @ w).reshape(-1, 2)
+    out[fitted] -= np.einsum('lij,j->li', r, w)
     return out
 
 
@@ -162,7 +167,10 @@ def laser_pointing_rad(residual_m: np.ndarray, gradient_m_per_rad: np.ndarray,
                 continue
             keep = vals > MIN_EIGEN_SHARE * vals[-1]
             new[l] = vecs[:, keep] @ ((vecs[:, keep].T @ b[l]) / vals[keep])
-        off = (without_sensor_turn(new, mean_dir, enough & (a[:, 0, 0] + a[:, 1, 1] > 0))
+        # A laser's free solve along a direction it barely sees can run off: kept to the
+        # fit's box (in rad) before the sensor's turn is taken out of all of them.
+        new = np.clip(new, -MAX_FIT_RAD, MAX_FIT_RAD)
+        off = (without_sensor_turn(new, mean_dir, enough & (a[:, 0, 0] + a[:, 1, 1] > 0), a)
                if remove_turn else new)
         e = y - c - np.einsum('ij,ij->i', g, off[lz])
         _, scale = material_nuisance(e, sigma, group, np.ones(len(e), bool))
