@@ -1137,12 +1137,12 @@ class Diagnosis:
         r tan(incidence)) by another name. Nothing is named then."""
         if best.effect is None:
             return None
-        if len(np.unique(self.rays.meas.laser[self.rays.matched])) < 2:
+        aside = [c for c in cands
+                 if not (c is best or c.effect is None or c.error is not None or not c.own_part
+                         or c.own_part.get('passes') or not c.significant or not c.practical)]
+        if not aside or len(np.unique(self.rays.meas.laser[self.rays.matched])) < 2:
             return None       # one laser: its "pointing" is a turn of the sensor, the pose's
-        for c in cands:
-            if (c is best or c.effect is None or c.error is not None or not c.own_part
-                    or c.own_part.get('passes') or not c.significant or not c.practical):
-                continue
+        for c in aside:
             try:
                 self.finalized(c)
                 gain, z, _ = self._on_top([c.effect], best)
