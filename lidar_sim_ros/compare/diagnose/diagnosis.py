@@ -1200,6 +1200,10 @@ class Diagnosis:
             if (c is best or c.name in but or c.name == POSE_ERROR or c.error is not None
                     or c.vetoed is None or not c.significant):
                 continue
+            if c.own_part and not c.own_part.get('passes'):
+                # Lasers' pointing set aside as mostly a turn of the whole sensor: that
+                # turn is the pose's (or the mount's) to explain, not a model to judge in.
+                continue
             key = (best.name, c.name)
             if key not in memo:
                 adds = self.adds_to(best, c)
