@@ -42,7 +42,10 @@ What differs from our simulator, on purpose:
 * lasers (``lasers`` > 0): the shots are fired round-robin by that many lasers over the
   whole scan (as multi-laser Risley scanners do), written as a laser id field; the
   hidden ``laser_bias`` gives each laser its own range offset (a seeded draw of sd
-  ``sd_m`` about zero, or the given ``offsets_m``);
+  ``sd_m`` about zero, or the given ``offsets_m``); the hidden ``laser_pointing`` turns
+  each laser's beam off the direction it reports its points along: a turn of ``a`` about
+  the lidar z axis, then of ``e`` about the axis d x z (a seeded draw of sd ``sd_deg``
+  per laser for each; ``laser_turns_of``), the shot cast along the turned beam;
 * layout: ours-like generic fields, or the Cepton SDK3 driver's (``layout='cepton'``:
   x, y, z, intensity = a reflectivity in 1 % steps of this sensor's own scale,
   timestamp_s + timestamp_us INT32, flags UINT16 with SATURATED/NO_RETURN, channel_id
@@ -77,7 +80,7 @@ EPOCH_NS = 1_712_000_000 * 1_000_000_000
 NS_PER_S = 1_000_000_000
 
 EFFECTS = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-           'beam_divergence', 'time_offset', 'laser_bias', 'multipath')
+           'beam_divergence', 'time_offset', 'laser_bias', 'multipath', 'laser_pointing')
 CEPTON_TOPIC = '/cepton_pcl2'
 CEPTON_FRAME = 'cepton3'
 CEPTON_SATURATED, CEPTON_NO_RETURN = 1, 32
@@ -406,6 +409,33 @@ def laser_offsets_of(spec: ForeignSpec) -> np.ndarray:
     return np.random.default_rng([spec.seed, 53]).normal(0.0, p.get('sd_m', 0.02), spec.lasers)
 
 
+def laser_turns_of(spec: ForeignSpec) -> np.ndarray:
+    """The hidden pointing errors (lasers, 2): per laser a turn ``a`` (deg) about the lidar
+    z axis and ``e`` (deg) about d x z; ``turns_deg`` as given, else a seeded draw of sd
+    ``sd_deg`` (default 0.1 deg) for each."""
+    p = spec.params_of('laser_pointing') or {}
+    if not spec.lasers:
+        raise ValueError('laser_pointing needs lasers > 0')
+    if 'turns_deg' in p:
+        out = np.asarray(p['turns_deg'], float).reshape(-1, 2)
+        if len(out) != spec.lasers:
+            raise ValueError(f'laser_pointing turns_deg has {len(out)} pairs for {spec.lasers} lasers')
+        return out
+    return np.random.default_rng([spec.seed, 59]).normal(0.0, p.get('sd_deg', 0.1),
+                                                         (spec.lasers, 2))
+
+
+def turned_beams(d: np.ndarray, laser: np.ndarray, turns_deg: np.ndarray) -> np.ndarray:
+    """Unit beams (N, 3): each direction d turned by its laser's ``a`` about z, then by
+    its ``e`` about the horizontal axis d' x z (lifting it toward +z), as rotation vectors."""
+    a = np.radians(turns_deg[laser, 0])
+    e = np.radians(turns_deg[laser, 1])
+    first = Rotation.from_rotvec(np.outer(a, [0.0, 0.0, 1.0])).apply(d)
+    axis = np.cross(first, [0.0, 0.0, 1.0])
+    axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
+    return Rotation.from_rotvec(axis * e[:, None]).apply(first)
+
+
 def azimuth_bias_m(az_rad: np.ndarray, p: dict) -> np.ndarray:
     """Outside the compare catalogue: a range bias periodic in the scan azimuth,
     A sin(2 pi az / period + phase) (a scanner encoder or mirror-facet error)."""
@@ -713,7 +743,11 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     laser = np.arange(len(d)) % spec.lasers if spec.lasers else np.zeros(len(d), int)
     rot, pos = traj.at(t0_s + t)
     origins_b = rot.inv().apply(-pos)
-    dirs_b = rot.inv().apply(d)
+    # The beam the shot really leaves along (a laser's pointing error); the point is
+    # reported along d at the range measured along it.
+    beam_d = (turned_beams(d, laser, laser_turns_of(spec))
+              if spec.params_of('laser_pointing') is not None else d)
+    dirs_b = rot.inv().apply(beam_d)
     beam = spec.params_of('beam_divergence')
     if beam is not None:
         hit, true_r, power, cos_i, mat = footprint_returns(target, origins_b, dirs_b, sensor,
@@ -732,7 +766,7 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     hidden = np.zeros(len(d), bool)      # the target's echo hidden by a fixture in front
     for fixture in fixtures:
         # Lab fixtures are static in the lidar frame; a nearer fixture hides the target.
-        c_hit, c_r, c_cos = fixture.cast(np.zeros((len(d), 3)), d)
+        c_hit, c_r, c_cos = fixture.cast(np.zeros((len(d), 3)), beam_d)
         front = c_hit & (~hit | (c_r < true_r))
         hidden = (hidden | front) & on_mesh
         hit, true_r, cos_i = hit | front, np.where(front, c_r, true_r), np.where(front, c_cos, cos_i)
@@ -1274,6 +1308,8 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
     truth = {'hidden': [[n, p] for n, p in spec.hidden], 'time_offset_s': dt_s,
              **({'laser_offsets_m': laser_offsets_of(spec).tolist()}
                 if spec.params_of('laser_bias') is not None else {}),
+             **({'laser_turns_deg': laser_turns_of(spec).tolist()}
+                if spec.params_of('laser_pointing') is not None else {}),
              'material_errors_m': {k: [round(b, 5), round(s, 5)] for k, (b, s) in errors.items()},
              'distance_m': spec.distance_m,
              'effect_gain_nats': {n: round(effect_gain_nats(kept, n), 5)
@@ -1479,6 +1515,14 @@ VENDOR: tuple[ForeignSpec, ...] = (
     ForeignSpec('laser_bias', 'laser_bias', {'sd_m': 0.03}, seed=61, lasers=6,
                 shots_per_frame=12_000, expected_feature='laser',
                 note='6 lasers round-robin, each its own range offset (sd 3 cm)'),
+    ForeignSpec('laser_pointing', 'laser_pointing', {'sd_deg': 0.15}, seed=63, lasers=6,
+                shots_per_frame=12_000, expected_feature='laser',
+                note='6 lasers round-robin, each beam turned off its reported direction '
+                     '(sd 0.15 deg in azimuth and elevation)'),
+    ForeignSpec('incidence_lasers', 'incidence_angle', {'g_m': 0.03, 'h': 0.8}, seed=64,
+                lasers=6, intensity='counts16', distance_m=12.0, shots_per_frame=12_000,
+                note='incidence_angle (own form) on a 6-laser sensor whose beams point right: '
+                     'a bias growing with incidence is no laser\'s pointing'),
     ForeignSpec('clean_cepton', None, seed=62, layout='cepton', lasers=6, scan='rosette',
                 shots_per_frame=12_000,
                 note="the Cepton SDK3 driver's fields: timestamp_s + timestamp_us, flags "

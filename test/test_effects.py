@@ -54,10 +54,11 @@ def context(**arrays) -> ReturnContext:
 
 
 # ------------------------------------------------------------------------ neutrality
-def test_catalogue_has_the_eight_effects_and_their_defaults_change_nothing(default_scenario):
+def test_catalogue_has_the_nine_effects_and_their_defaults_change_nothing(default_scenario):
     names = list(catalogue())
     assert names == ['range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-                     'beam_divergence', 'time_offset', 'laser_bias', 'multipath']
+                     'beam_divergence', 'time_offset', 'laser_bias', 'multipath',
+                     'laser_pointing']
     # sunlight and range_scale load by name (sunlight needs a sun; range_scale is a test
     # the user asks for): no default diagnosis candidates; their defaults change nothing
     # either. multipath's default is the model's ghosts (strength 1): at strength 0 it

@@ -44,7 +44,7 @@ def test_every_effect_parameter_is_bounded(name, cls):
     catalogue effect has a lower and an upper bound, refuses +-1e6, and the fit's search
     box lies inside them (a fit never proposes a value the Params refuse)."""
     fields = _numeric_fields(cls)
-    assert fields or name == 'laser_bias'
+    assert fields or name in ('laser_bias', 'laser_pointing')   # lists per laser
     for field, lo, hi in fields:
         assert lo is not None and hi is not None, (name, field)
         assert hi < 1e6 and lo > -1e6, (name, field, lo, hi)
@@ -57,18 +57,23 @@ def test_every_effect_parameter_is_bounded(name, cls):
                 with pytest.raises(ValidationError):
                     cls({field: {'PIF': bad}})
     for field, (lo, hi) in cls.bounds.items():
-        if field == 'offsets_m':
+        if field in ('offsets_m', 'az_offsets_deg', 'el_offsets_deg'):
             cls({field: [lo, hi]})
+            with pytest.raises(ValidationError):
+                cls({field: [0.0, 1e6]})
         else:
             cls({field: lo}), cls({field: hi})
 
 
-def test_laser_bias_offsets_are_limited_in_number():
+@pytest.mark.parametrize('name, field', [('laser_bias', 'offsets_m'),
+                                         ('laser_pointing', 'az_offsets_deg'),
+                                         ('laser_pointing', 'el_offsets_deg')])
+def test_per_laser_offsets_are_limited_in_number(name, field):
     from lidar_sim_ros.core.config import MAX_LASERS
-    cls = get_effect_class('laser_bias')
-    cls({'offsets_m': [0.0] * MAX_LASERS})
+    cls = get_effect_class(name)
+    cls({field: [0.0] * MAX_LASERS})
     with pytest.raises(ValidationError, match='at most 1024'):
-        cls({'offsets_m': [0.0] * (MAX_LASERS + 1)})
+        cls({field: [0.0] * (MAX_LASERS + 1)})
 
 
 def test_range_walk_bound_is_named_on_the_command_line():

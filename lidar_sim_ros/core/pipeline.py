@@ -309,6 +309,14 @@ class Simulator:
         poses = _poses_at(pose_source, t_pose)
         optics = self.sensor.optics
         target = self.seen_target()
+        laser = np.zeros(n, np.uint16) if laser is None else np.asarray(laser)
+        # The beams' own directions (a laser's pointing error): the raycast follows them;
+        # the caller's ``directions`` stay those the points are reported along.
+        nominal = directions
+        for eff in self.effects:
+            moved = eff.beam_directions(directions, laser)
+            if moved is not None:
+                directions = np.asarray(moved, dtype=float)
         hits = None
         for eff in self.effects:
             hits = eff.cast(target, directions, poses, optics.beam_divergence_rad)
@@ -328,14 +336,14 @@ class Simulator:
             if hits.power_fraction is not None:
                 power *= hits.power_fraction
         if az_rad is None or el_rad is None:
-            az_rad, el_rad = angles_from_directions(directions)
+            az_rad, el_rad = angles_from_directions(nominal)
         det = self.sensor.detection
         ctx = ReturnContext(
             range_m=rng_m, incidence_rad=hits.incidence_rad, material=hits.material,
             power_w=power, intensity=detection.intensity_from_power(power, det),
             t_s=np.zeros(n) if t_frame_s is None else np.asarray(t_frame_s, dtype=float),
             az_rad=np.asarray(az_rad), el_rad=np.asarray(el_rad),
-            laser=np.zeros(n, np.uint16) if laser is None else np.asarray(laser),
+            laser=laser,
             divergence_rad=optics.beam_divergence_rad, hit=hits.hit,
             threshold_power_w=det.threshold_power_w, min_range_m=det.min_range_m,
             max_range_m=det.max_range_m, direction=directions, normal=hits.normal, face=hits.face,
@@ -345,7 +353,7 @@ class Simulator:
         if self.effects:
             ctx, bias, var = apply_effects(ctx, self.effects, bias, var)
             bias = np.where(hits.hit, bias, 0.0)
-        return Prediction(ctx, hits, directions, bias, np.sqrt(var))
+        return Prediction(ctx, hits, nominal, bias, np.sqrt(var))
 
     def seen_target(self) -> Target:
         """The surface the sensor sees: the mesh, or the first effect's stand-in for it

@@ -46,6 +46,34 @@ def tile_halves(laser: np.ndarray, directions: np.ndarray, t_s: np.ndarray
     return {name: above_laser_median(laser, values[name]) for name in SPLITS}
 
 
+# A half of a laser's points determines its offsets as a random half would when the
+# variance of its least known direction is at most twice a random half's: the smaller
+# eigenvalue of its information at least half of the mean of the two halves'.
+MIN_INFORMATION_SHARE = 0.5
+
+
+def undetermined(train_information: np.ndarray | None,
+                 other_information: np.ndarray | None) -> np.ndarray | None:
+    """Per laser (bool): a fit on one half of each laser's points (``train_information``,
+    (L, k, k): the information on its k offsets, e.g. ``laser_pointing``'s 2 x 2) does
+    not determine its offsets as a random half would (the mean of both halves'
+    information, ``other_information`` the other half's), by the smaller eigenvalue
+    (MIN_INFORMATION_SHARE). None without information (one offset per laser, known from
+    any half)."""
+    if train_information is None or other_information is None:
+        return None
+    a = np.asarray(train_information, float)
+    b = np.asarray(other_information, float)
+    n = min(len(a), len(b))
+    if n == 0 or a.ndim != 3:
+        return None
+    own = np.linalg.eigvalsh(a[:n])[:, 0]
+    random_half = np.linalg.eigvalsh(0.5 * (a[:n] + b[:n]))[:, 0]
+    out = np.zeros(len(a), bool)
+    out[:n] = own < MIN_INFORMATION_SHARE * random_half
+    return out
+
+
 def per_laser(effect) -> bool:
     """Whether ``effect`` carries a parameter per laser (a list among its params, e.g.
     ``laser_bias``'s ``offsets_m``): it can fit any pattern the lasers' tiles lay over

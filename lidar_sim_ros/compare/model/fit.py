@@ -32,6 +32,7 @@ import numpy as np
 from pydantic import ValidationError
 from scipy.optimize import minimize_scalar
 
+from lidar_sim_ros.compare.model import pointing
 from lidar_sim_ros.compare.model.likelihood import (MIN_SIGMA_M, ROBUST_FLOOR, FitData,
                                                     ModelOnRays, PredictionCache, RaysOnly,
                                                     _groups, is_outlier_effect, material_nuisance,
@@ -470,6 +471,57 @@ def _fit_laser_bias(cls: type[Effect], data: FitData,
                               {f'laser_{i}_m': float(v) for i, v in enumerate(off)})
 
 
+def _fit_laser_pointing(cls: type[Effect], data: FitData,
+                        base_effects: Sequence[Effect] = ()) -> FitResult:
+    """Fit of ``laser_pointing`` through the range gradient (``compare/model/pointing.py``):
+    per laser, its two offsets by weighted least squares of the residual on the gradient
+    (the raycast's normal and range), linear, then once more from the rays the first
+    estimate casts (the gradient and residual where the beams now hit: the second-order
+    part of a curved surface). Scored by casting the rays again with the fitted offsets
+    (``make_result_vector``): the held-out figures are of the exact geometry. A class
+    with ``own_offsets_only`` (``pointing.OwnPointing``) keeps each laser's own part, the
+    turn of the whole sensor projected out."""
+    base_effects = list(base_effects)
+    laser = np.asarray(data.baseline.ctx.laser, np.int64)
+    n_lasers = int(laser.max()) + 1 if len(laser) else 0
+    total = np.zeros((n_lasers, 2))
+    information = np.zeros((n_lasers, 2, 2))
+    lo, hi = cls.bounds['az_offsets_deg']
+
+    def effect_of(off_rad: np.ndarray) -> Effect:
+        deg = np.clip(np.degrees(off_rad), lo, hi)
+        return cls({'az_offsets_deg': [round(float(v), 6) for v in deg[:, 0]],
+                    'el_offsets_deg': [round(float(v), 6) for v in deg[:, 1]]})
+
+    for step in range(2):
+        on_top = [*base_effects, effect_of(total)] if step else base_effects
+        model = model_on_rays(data, on_top)
+        ctx = model.ctx
+        if ctx.normal is None or ctx.direction is None or len(laser) < MIN_LASER_POINTS:
+            break
+        use = model.placed & np.isfinite(model.expected_range_m)
+        y = np.asarray(data.measured_range_m, float) - model.expected_range_m
+        grad = pointing.range_gradient_m_per_rad(ctx.range_m, ctx.direction, ctx.normal)
+        if use.sum() < MIN_LASER_POINTS:
+            break
+        fitted, info = pointing.laser_pointing_rad(y[use], grad[use], model.sigma_m[use],
+                                             _groups(data)[use], laser[use],
+                                             np.asarray(data.baseline.directions)[use],
+                                             data.window_width_m,
+                                             remove_turn=getattr(cls, 'own_offsets_only', False))
+        total[:len(fitted)] += fitted
+        information[:len(info)] = info
+    effect = effect_of(total)
+    params = {'rms_offset_deg': effect.rms_offset_deg(),
+              **{f'laser_{i}_{axis}_deg': float(v)
+                 for i in range(n_lasers)
+                 for axis, v in (('az', effect.params.az_offsets_deg[i]),
+                                 ('el', effect.params.el_offsets_deg[i]))}}
+    result = make_result_vector(effect, data, base_effects, params)
+    # How well the points determine each laser's offsets (``laser_tiles.undetermined``).
+    return replace(result, n_params=2 * n_lasers, extras={'laser_information': information})
+
+
 def make_result_vector(effect: Effect, data: FitData, base_effects: Sequence[Effect],
                        params: dict) -> FitResult:
     """``make_result`` for an effect whose free parameter is a vector: ``params`` names
@@ -604,9 +656,11 @@ def _fit_surface_offset(cls: type[Effect], data: FitData,
 
 def _register_catalogue_fits() -> None:
     from lidar_sim_ros.core.effects.laser_bias import LaserBias
+    from lidar_sim_ros.core.effects.laser_pointing import LaserPointing
     from lidar_sim_ros.core.effects.multipath import Multipath
     from lidar_sim_ros.core.effects.surface_offset import SurfaceOffset
     register_fit(LaserBias)(_fit_laser_bias)
+    register_fit(LaserPointing)(_fit_laser_pointing)
     register_fit(SurfaceOffset)(_fit_surface_offset)
     register_fit(Multipath)(_fit_ghost_scale)
 

@@ -135,7 +135,7 @@ def group_members(group: np.ndarray) -> list[tuple[int, np.ndarray]]:
 
 
 class RaysOnly(Effect):
-    """An effect's ray geometry only (``pose_time_s``, ``seen_target``, ``cast``) for ``Simulator.predict``:
+    """An effect's ray geometry only (``pose_time_s``, ``seen_target``, ``beam_directions``, ``cast``) for ``Simulator.predict``:
     its bias, noise, power and outlier hooks are applied by the likelihood instead."""
 
     name = 'rays_only'
@@ -150,6 +150,9 @@ class RaysOnly(Effect):
 
     def seen_target(self, target):
         return self.inner.seen_target(target)
+
+    def beam_directions(self, directions_lidar, laser):
+        return self.inner.beam_directions(directions_lidar, laser)
 
     def cast(self, target, directions_lidar, poses, divergence_rad):
         return self.inner.cast(target, directions_lidar, poses, divergence_rad)

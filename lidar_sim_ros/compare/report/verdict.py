@@ -9,6 +9,7 @@ appear only when that effect is named.
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,12 @@ EFFECT_WORDS = {
                    'same on every ray of a cloud, changing from cloud to cloud',
     'range_scale': 'a range scale error of the sensor (its clock, or light through air): a '
                    'range error growing with the range',
+    'laser_pointing': 'each laser\'s beam off its configured direction (a pointing error per '
+                      'laser): the sensor reports a point along the configured direction at '
+                      'the range measured along the true beam, a range error of r tan(incidence) '
+                      'times the offset along the surface\'s slope. The fix: calibrate each '
+                      'laser\'s pointing, with a recording of a flat target at a known pose '
+                      '(tilted, so that its range changes across every laser\'s tile)',
     'surface_offset': 'the target\'s surfaces lying off its mesh (as-built vs CAD: the '
                       'mesh scaled off the real target, or blankets standing proud of the '
                       'structure it shows), not a sensor effect: check the mesh against the '
@@ -54,6 +61,10 @@ DRIVEN_BY = {
                          'the sun off (false returns change, the target does not)'),
     'multipath': ('mirror paths off specular surfaces', 'another attitude of the target '
                   '(the mirror rays of its specular surfaces meet other surfaces or none)'),
+    'laser_pointing': ('laser, through the slope of the surface its tile falls on',
+                       'a flat target at a known pose, tilted (every laser sees the same '
+                       'known slope), or another attitude of the target (other slopes under '
+                       'each tile at the same incidence)'),
     'surface_offset': ('place of each surface on the body and 1 / cos(incidence)',
                        'another distance (a footprint grows with range, a surface offset '
                        'does not), or with the target measured on a surveyed fixture'),
@@ -90,6 +101,10 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         params = _params_words(c.params) + bound_words(c.at_bound)
         gain, caveat = _gain_words(summary, c)
         words = EFFECT_WORDS.get(missing, missing)
+        if missing == 'laser_pointing' and isinstance(c.params.get('rms_offset_deg'), float):
+            words = words.replace('configured direction (',
+                                  f'configured direction by about '
+                                  f'{c.params["rms_offset_deg"]:.2g} deg RMS (', 1)
         if missing == 'time_offset' and summary.get('point_times') in ('stamp', 'scan pattern'):
             how = ('these clouds carry no per-point time' if summary['point_times'] == 'stamp'
                    else 'these clouds carry no per-point time field (their times come from '
@@ -538,7 +553,7 @@ def _value_on_pose(c) -> str:
     """Its fitted figures with the pose corrected, where they differ from those on the
     recorded pose by more than VALUE_SHIFT (``against_pose['params_on_pose']``): the
     pose error takes part of what the effect's value rests on, one way or the other."""
-    on_pose = (c.against_pose or {}).get('params_on_pose') or {}
+    on_pose = _summary_params((c.against_pose or {}).get('params_on_pose'))[0]
     moved = {k: v for k, v in on_pose.items()
              if isinstance(v, float) and isinstance(c.params.get(k), float)
              and abs(v - c.params[k]) > VALUE_SHIFT * max(abs(c.params[k]), abs(v), 1e-12)}
@@ -801,11 +816,28 @@ def bound_words(names: list[str] | None) -> str:
             'allows)')
 
 
+_PER_LASER_ANGLE = re.compile(r'^laser_\d+_(az|el)_deg$')
+
+
+def _summary_params(params: dict | None) -> tuple[dict, int]:
+    """A candidate's parameters less its per-laser angles (``laser_pointing``'s two per
+    laser, summary.json carries them), and how many lasers those were."""
+    params = params or {}
+    kept = {k: v for k, v in params.items() if not _PER_LASER_ANGLE.match(k)}
+    return kept, (len(params) - len(kept)) // 2
+
+
 def _params_words(params: dict | None) -> str:
     """A candidate's fitted parameters as the verdict quotes them: 'k = v, ...', floats
-    to four significant figures."""
-    return ', '.join(f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
-                     for k, v in (params or {}).items())
+    to four significant figures; per-laser pointing angles by their RMS (and where the
+    rest are)."""
+    kept, lasers = _summary_params(params)
+    words = ', '.join(f'{k} = {v:.4g}' if isinstance(v, float) else f'{k} = {v}'
+                      for k, v in kept.items())
+    if lasers:
+        words += (f' (an azimuth and an elevation offset for each of {lasers} lasers: '
+                  'summary.json)')
+    return words
 
 
 def _join(names: list[str]) -> str:

@@ -18,7 +18,7 @@ REGISTRY: dict[str, type[Effect]] = {}
 # comparison diagnoses on any recording; those that need more than the recording's points
 # and poses (``sunlight`` needs its sun direction, see compare/diagnose/sunlight.py) load by name only.
 _CATALOGUE = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-              'beam_divergence', 'time_offset', 'laser_bias', 'multipath')
+              'beam_divergence', 'time_offset', 'laser_bias', 'multipath', 'laser_pointing')
 # range_scale is a test a user asks for (--effect range_scale): a bias linear in range also
 # fits smooth spatial patterns on a target whose range follows its azimuth or elevation
 # (docs/compare.md, "Range scale"), so it is no default candidate. range_scale and

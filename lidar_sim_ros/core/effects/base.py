@@ -162,7 +162,7 @@ class Effect:
     parameters the range bias is linear in (estimated in closed form).
     ``fit_options`` tunes the generic 1-D searches (``n_grid``, ``prefer_low``,
     ``smooth``). ``needs_repredict`` marks effects that change the pose time or the
-    raycast (``pose_time_s``, ``seen_target``, ``cast``), which the fit must re-run the prediction for. ``power_driven`` marks
+    raycast (``pose_time_s``, ``seen_target``, ``beam_directions``, ``cast``), which the fit must re-run the prediction for. ``power_driven`` marks
     effects whose hooks read the received power (``ctx.power_w``): the comparison
     fits them against the power measured by the sensor (its intensity, calibrated)
     when the recording has intensity; the simulator uses its own power.
@@ -199,6 +199,13 @@ class Effect:
         """The surface the sensor sees in place of ``target`` (the mesh), e.g. the mesh
         with its faces standing proud; None = the mesh. Every raycast (and ``cast``)
         meets it."""
+        return None
+
+    def beam_directions(self, directions_lidar: np.ndarray, laser: np.ndarray) -> np.ndarray | None:
+        """The unit directions (N, 3, lidar frame) the beams really leave along, for shots
+        configured along ``directions_lidar`` by lasers ``laser`` (a laser's pointing
+        error); the raycast follows them, the points stay on the configured directions.
+        None = as configured."""
         return None
 
     def cast(self, target, directions_lidar: np.ndarray, poses, divergence_rad: float):
