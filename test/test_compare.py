@@ -127,7 +127,8 @@ def test_clean_data_gives_no_missing_effect(datasets, root):
     assert scores == sorted(scores, reverse=True)
     cands = [c['score'] for c in s['candidates']]
     assert cands == sorted(cands, reverse=True)
-    assert {c['name'] for c in s['candidates']} == set(HIDDEN) | {'laser_bias', 'multipath'}
+    assert {c['name'] for c in s['candidates']} == set(HIDDEN) | {'laser_bias', 'multipath',
+                                                                  'laser_pointing'}
     assert s['unmatched_fraction'] < 0.002
     assert not any(m['bias_mismatch'] or m['sigma_mismatch'] for m in s['materials'].values())
     # Intensities were written in units 4096 x the model's: the fitted gain finds them.
