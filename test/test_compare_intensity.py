@@ -50,6 +50,24 @@ def test_unrelated_intensity_is_not_used():
     assert not calibrate_intensity(noise, r, p).usable
 
 
+def _fit_data(material: np.ndarray, p_model: np.ndarray, measured: np.ndarray,
+              sigma: float) -> FitData:
+    """Matched points at 10 m along +x with the model's power ``p_model`` (W) and the
+    measured ranges ``measured`` (m), range noise ``sigma`` (m)."""
+    n = len(material)
+    rng_m = np.full(n, 10.0)
+    ctx = ReturnContext(range_m=rng_m, incidence_rad=np.zeros(n), material=material,
+                        power_w=p_model, intensity=p_model, t_s=np.zeros(n),
+                        az_rad=np.zeros(n), el_rad=np.zeros(n), laser=np.zeros(n, int),
+                        divergence_rad=0.002, hit=np.ones(n, bool), threshold_power_w=P_TH)
+    hits = Hits(np.ones(n, bool), rng_m, np.zeros((n, 3)), np.zeros(n), material,
+                np.zeros(n, int))
+    pred = Prediction(ctx, hits, np.tile([1.0, 0, 0], (n, 1)), np.zeros(n), np.full(n, sigma))
+    return FitData(measured_range_m=measured, baseline=pred, cast=lambda e: pred,
+                   unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
+                   range_window_m=(0.0, 100.0))
+
+
 def _walk_data(k_m: float, seed: int = 4) -> tuple[FitData, np.ndarray]:
     """Points whose bias is -k ln(P_true / P_th); the model's power is off by a factor
     per material (wrong reflectance numbers), the sensor measured the true power."""
@@ -61,17 +79,7 @@ def _walk_data(k_m: float, seed: int = 4) -> tuple[FitData, np.ndarray]:
     sigma = 0.02
     rng_m = np.full(n, 10.0)
     measured = rng_m - k_m * np.log(p_true / P_TH) + sigma * rng.standard_normal(n)
-    ctx = ReturnContext(range_m=rng_m, incidence_rad=np.zeros(n), material=material,
-                        power_w=p_model, intensity=p_model, t_s=np.zeros(n),
-                        az_rad=np.zeros(n), el_rad=np.zeros(n), laser=np.zeros(n, int),
-                        divergence_rad=0.002, hit=np.ones(n, bool), threshold_power_w=P_TH)
-    hits = Hits(np.ones(n, bool), rng_m, np.zeros((n, 3)), np.zeros(n), material,
-                np.zeros(n, int))
-    pred = Prediction(ctx, hits, np.tile([1.0, 0, 0], (n, 1)), np.zeros(n), np.full(n, sigma))
-    data = FitData(measured_range_m=measured, baseline=pred, cast=lambda e: pred,
-                   unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
-                   range_window_m=(0.0, 100.0))
-    return data, p_true
+    return _fit_data(material, p_model, measured, sigma), p_true
 
 
 def test_range_walk_is_fitted_against_the_measured_power():
@@ -190,17 +198,7 @@ def _banded_walk_data(k_m: float, seed: int = 4) -> tuple[FitData, np.ndarray]:
     rng_m = np.full(n, 10.0)
     measured = (rng_m - k_m * np.log(p_true / P_TH) + np.where(material == 0, 0.01, -0.02)
                 + sigma * rng.standard_normal(n))
-    ctx = ReturnContext(range_m=rng_m, incidence_rad=np.zeros(n), material=material,
-                        power_w=p_model, intensity=p_model, t_s=np.zeros(n),
-                        az_rad=np.zeros(n), el_rad=np.zeros(n), laser=np.zeros(n, int),
-                        divergence_rad=0.002, hit=np.ones(n, bool), threshold_power_w=P_TH)
-    hits = Hits(np.ones(n, bool), rng_m, np.zeros((n, 3)), np.zeros(n), material,
-                np.zeros(n, int))
-    pred = Prediction(ctx, hits, np.tile([1.0, 0, 0], (n, 1)), np.zeros(n), np.full(n, sigma))
-    data = FitData(measured_range_m=measured, baseline=pred, cast=lambda e: pred,
-                   unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
-                   range_window_m=(0.0, 100.0))
-    return data, p_true
+    return _fit_data(material, p_model, measured, sigma), p_true
 
 
 def test_range_walk_read_through_a_gain_per_cloud_keeps_its_slope():
