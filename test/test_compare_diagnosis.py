@@ -315,3 +315,24 @@ def test_isolated_points_at_the_targets_ranges_are_no_background_over_the_gate()
     assert uniform_share(pts, (0.5, 250.0), target) < 0.05
     spread = rng.uniform(0.5, 250.0, 42)              # real background arrivals
     assert uniform_share(spread, (0.5, 250.0), target) > 0.9
+
+
+def test_off_target_points_that_bunch_show_no_background_even_with_none_claimed_on_target():
+    """``Diagnosis.off_target_bunch``, now asked also where the false-return effect claims
+    less than one false return on the target (its gain then all off the target): the
+    eleventh holdout's clutter_strut named solar_background (p 0.0013) on 44 isolated
+    edge points of a strut at 1.25-1.39 m; background arrivals over the gate pass."""
+    from types import SimpleNamespace
+
+    from lidar_sim_ros.compare.diagnose.diagnosis import Diagnosis, off_target_positions
+    rng = np.random.default_rng(3)
+    window = (0.5, 250.0)
+
+    def stand_in(ranges):
+        return SimpleNamespace(off_u=off_target_positions(ranges, window), off_ranges_m=ranges,
+                               n_far=0, z_crit=3.09, full=SimpleNamespace(miss_window=window))
+    strut = rng.uniform(1.25, 1.39, 44)
+    why = Diagnosis.off_target_bunch(stand_in(strut), credited=44.0)
+    assert why is not None and 'bunch' in why and '44 isolated' in why
+    assert Diagnosis.off_target_bunch(stand_in(rng.uniform(0.5, 250.0, 44)), 44.0) is None
+    assert Diagnosis.off_target_bunch(stand_in(strut[:10]), 10.0) is None   # too few to tell
