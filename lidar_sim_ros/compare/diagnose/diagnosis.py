@@ -1105,7 +1105,7 @@ class Diagnosis:
                 fitted = self.fitted_margin(best, c)
                 pair_z[c.name] = {**pair_z.get(c.name, {}), 'margin': _num(margin),
                                   'z': _num(z), 'fitted_margin': _num(fitted)}
-                if margin > 0 and z >= self.z_crit and fitted >= MIN_PRACTICAL_GAIN:
+                if self.apart(margin, z, fitted):
                     continue      # decisively worse, by a margin that matters after --fit
                 if self.adds_to(best, c):
                     # Explains another part: two effects at once, unless that part is
@@ -1382,7 +1382,7 @@ class Diagnosis:
                 pair_z.setdefault(c.name, {})['beside_set_aside'] = {
                     'with': [r.name for r in rest], 'against': lead.name,
                     'margin': _num(margin), 'z': _num(z), 'fitted_margin': _num(fitted)}
-                if not (margin > 0 and z >= self.z_crit and fitted >= MIN_PRACTICAL_GAIN):
+                if not self.apart(margin, z, fitted):
                     left.append(c.name)
         except Exception:  # noqa: BLE001 - the tie stands
             return best, tied
@@ -1457,7 +1457,7 @@ class Diagnosis:
                 continue
             margin, z = self.paired(best, c)
             fitted = self.fitted_margin(best, c)
-            if margin > 0 and z >= self.z_crit and fitted >= MIN_PRACTICAL_GAIN:
+            if self.apart(margin, z, fitted):
                 continue      # decisively better than this one
             if self.adds_to(c, best):
                 pair_z[best.name] = {'margin': _num(-margin), 'z': _num(-z),
@@ -1872,7 +1872,7 @@ class Diagnosis:
                 fitted = self.fitted_margin(best, r)
                 pair_z[r.name] = {'margin': _num(margin), 'z': _num(z),
                                   'fitted_margin': _num(fitted)}
-                if not (margin > 0 and z >= self.z_crit and fitted >= MIN_PRACTICAL_GAIN):
+                if not self.apart(margin, z, fitted):
                     tied.append(r.name)
             pose = decision.pose if pose_left else None
             if tied:
@@ -2033,6 +2033,13 @@ class Diagnosis:
         n_m = len(self.rays.matched)
         return float(((b.nll_after - a.nll_after) * n_m + UNMATCHED_NATS
                       * (a.unmatched_gain_points - b.unmatched_gain_points)) / self.n_total)
+
+    def apart(self, margin: float, z: float, fitted: float) -> bool:
+        """decide's rule for two candidates: the first decisively better than the second,
+        its paired held-out margin (``paired``: nats per analysed point, and z) positive
+        at z above the bound, and at least MIN_PRACTICAL_GAIN better as --fit leaves them
+        (``fitted_margin``)."""
+        return bool(margin > 0 and z >= self.z_crit and fitted >= MIN_PRACTICAL_GAIN)
 
     def paired(self, a: Candidate, b: Candidate) -> tuple[float, float]:
         """How much better ``a`` explains the data than ``b``: the paired held-out per-point

@@ -98,7 +98,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                                                    if c.name == decision.evidence)))
     elif missing:
         c = next(c for c in cands if c.name == missing)
-        params = _params_words(c.params) + bound_words(c.at_bound)
+        params = _params_words(c.params)
         gain, caveat = _gain_words(summary, c)
         words = EFFECT_WORDS.get(missing, missing)
         if missing == 'laser_pointing' and isinstance(c.params.get('rms_offset_deg'), float):
