@@ -70,3 +70,21 @@ def test_the_fitted_record_keeps_per_material_standoffs():
     assert rec['params']['material_standoff_m'] == {'MLI': 0.049}
     assert 'max_incidence_deg' not in rec['params']      # a default, not fitted
     assert 'at_bound' not in rec
+
+
+def test_a_per_material_standoff_at_its_search_bound_is_flagged():
+    """``at_bounds`` read only the parameters named in ``bounds``: a material's own
+    standoff, which the surface-offset fit searches in the common standoff's box
+    (``entry_bounds``), ended at +-0.2 m without a word."""
+    cls = get_effect_class('surface_offset')
+    lo, hi = cls.entry_bounds['material_standoff_m']
+    assert (lo, hi) == cls.bounds['standoff_m']
+    for edge in (lo, hi):
+        clipped = cls({'material_standoff_m': {'MLI': 0.03, 'PAF': edge}})
+        assert at_bounds(clipped) == ['material_standoff_m']
+        assert run._effect_record(clipped, fitted_only=True)['at_bound'] == [
+            'material_standoff_m']
+    inside = cls({'material_standoff_m': {'MLI': 0.03, 'PAF': 0.9 * hi}})
+    assert at_bounds(inside) == []
+    assert at_bounds(cls({'standoff_m': hi, 'material_standoff_m': {'MLI': 0.03}})) == [
+        'standoff_m']

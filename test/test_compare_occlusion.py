@@ -123,6 +123,8 @@ def test_compare_leaves_the_pillar_out_of_a_foreign_recording(tmp_path: Path):
     assert occ.fraction == pytest.approx(hidden, rel=0.2)
     assert len(left.meas) == before - occ.points
     assert left.meas.dropped['occluded'] == occ.points
+    # points_analysed adds back what was left out, by the same kinds as were left out.
+    assert run.left_out_points(left.meas) == before - len(left.meas)
     # What is left lies on the target or off it, never metres in front on its rays.
     m = run.match(run.geometry(left.model, left.scenario_effects), left.meas,
                   left.model.divergence_rad, edges=False)

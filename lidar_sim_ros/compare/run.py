@@ -596,6 +596,15 @@ def load_inputs(opts: CompareOptions) -> Inputs:
     return Inputs(scenario, meas, sun, scenario_effects, user, model, pose_fit)
 
 
+# The kinds of return ``leave_out_occluded`` leaves out, as ``meas.dropped`` counts them.
+LEFT_OUT_KINDS = ('occluded', 'crosstalk', 'later_returns')
+
+
+def left_out_points(meas: Measurements) -> int:
+    """How many returns ``leave_out_occluded`` left out of ``meas`` (every kind)."""
+    return int(sum(meas.dropped.get(k, 0) for k in LEFT_OUT_KINDS))
+
+
 def leave_out_occluded(inp: Inputs) -> Inputs:
     """The inputs without the returns of an object between the sensor and the target
     (``occlusion.occluded`` on the model's rays, scenario effects in its geometry; the
@@ -640,9 +649,9 @@ def leave_out_occluded(inp: Inputs) -> Inputs:
     if later.sum() != multi.points:
         multi = replace(multi, points=int(later.sum()))
     inp = replace(inp, occlusion=found, crosstalk=xt, multiple_returns=multi)
-    if found.points == 0 and xt.points == 0 and multi.points == 0:
+    left = dict(zip(LEFT_OUT_KINDS, (found.points, xt.points, multi.points)))
+    if not any(left.values()):
         return inp
-    left = {'occluded': found.points, 'crosstalk': xt.points, 'later_returns': multi.points}
     dropped = {**meas.dropped, **{k: n for k, n in left.items() if n}}
     kept = replace(meas.subset(~(mask | ghost | later)), dropped=dropped)
     return replace(inp, meas=kept)
@@ -1168,8 +1177,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
     cal_nll, cal_rmse, cal_robust = cal.calibrated
     before, decision = diag.before, diag.decision
     # Left out before anything was fitted (``leave_out_occluded``).
-    left_out = (meas.dropped.get('occluded', 0) + meas.dropped.get('crosstalk', 0)
-                + meas.dropped.get('later_returns', 0))
+    left_out = left_out_points(meas)
     summary = {
         'bag': str(opts.bag), 'mesh': str(opts.mesh),
         'config': str(scenario.source) if scenario.source else None,

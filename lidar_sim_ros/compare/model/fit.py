@@ -181,14 +181,16 @@ BOUND_TOLERANCE = 1e-6       # of the search box's width: a value this close to 
 def at_bounds(effect: Effect) -> list[str]:
     """The free parameters (``bounds``) of a fitted ``effect`` that ended at their search
     box's edge (within BOUND_TOLERANCE of its width; a list parameter if any element
-    did): the data asked for at least that much, so the value is a bound of the size,
-    not a measurement of it."""
+    did), and those searched entry by entry (``entry_bounds``: a per-material standoff)
+    if any entry did: the data asked for at least that much, so the value is a bound of
+    the size, not a measurement of it."""
     out = []
-    for name, (lo, hi) in type(effect).bounds.items():
+    cls = type(effect)
+    for name, (lo, hi) in {**cls.bounds, **cls.entry_bounds}.items():
         v = getattr(effect.params, name, None)
         if v is None:
             continue
-        vals = np.asarray(v, float).ravel()
+        vals = np.asarray(list(v.values()) if isinstance(v, dict) else v, float).ravel()
         tol = BOUND_TOLERANCE * (hi - lo)
         if vals.size and np.any(np.isfinite(vals) & ((vals <= lo + tol) | (vals >= hi - tol))):
             # A lower bound at zero (a probability, a scale of a footprint) is 'none'.
@@ -600,7 +602,7 @@ def _fit_surface_offset(cls: type[Effect], data: FitData,
     names = list(getattr(getattr(data.baseline.ctx.scene, 'target', None), 'material_names', []))
     counts = np.bincount(group[group >= 0], minlength=len(names)) if len(names) else []
     own = [names[m] for m in range(len(names)) if counts[m] >= MIN_MATERIAL_STANDOFF_POINTS]
-    bounds = {**cls.bounds, **{m: cls.bounds['standoff_m'] for m in own}}
+    bounds = {**cls.bounds, **{m: cls.entry_bounds['material_standoff_m'] for m in own}}
 
     def columns(model: ModelOnRays, free: Sequence[str]) -> np.ndarray:
         at = first_order_columns(model.ctx, clip)

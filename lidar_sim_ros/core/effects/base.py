@@ -158,7 +158,10 @@ class Effect:
     What a fit needs, declared (``lidar_sim_ros.compare.model.fit`` reads it; nothing here
     imports it): ``bounds`` maps each free parameter to its (low, high) search box and
     ``initial`` gives the starting value (default: the Params default); parameters
-    not in ``bounds`` stay at their Params values. ``linear_bias`` names free
+    not in ``bounds`` stay at their Params values. ``entry_bounds`` maps a parameter
+    that holds several values (a dict by name) to the box an effect's own fit searches
+    each entry in (the generic fit does not free it; ``fit.at_bounds`` reads it to say
+    an entry ended at the box's edge). ``linear_bias`` names free
     parameters the range bias is linear in (estimated in closed form).
     ``fit_options`` tunes the generic 1-D searches (``n_grid``, ``prefer_low``,
     ``smooth``). ``needs_repredict`` marks effects that change the pose time or the
@@ -171,6 +174,7 @@ class Effect:
     name: ClassVar[str] = ''
     Params: ClassVar[type[BaseModel]] = NoParams
     bounds: ClassVar[dict[str, tuple[float, float]]] = {}
+    entry_bounds: ClassVar[dict[str, tuple[float, float]]] = {}
     initial: ClassVar[dict[str, float]] = {}
     linear_bias: ClassVar[tuple[str, ...]] = ()
     fit_options: ClassVar[dict[str, Any]] = {}

@@ -162,6 +162,8 @@ class SurfaceOffset(Effect):
 
     name = 'surface_offset'
     bounds = {'scale': (-0.02, 0.02), 'standoff_m': (-0.2, 0.2)}
+    # A material's own standoff is searched in the common standoff's box.
+    entry_bounds = {'material_standoff_m': bounds['standoff_m']}
     initial = {'scale': 0.0, 'standoff_m': 0.0}
     needs_repredict = True                   # the rays meet another surface: re-cast
 
