@@ -488,6 +488,8 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         with stage('candidates', ', '.join(c.name for c in classes)):
             diag = diagnose(cal.model, effects, ana, classes, inp.meas, inp.scenario,
                             sunlight, opts.seed, cal.rays)
+        decision, pose = pose_beyond_a_bound(diag.decision, diag.pose, fitted)
+        diag = replace(diag, decision=decision, pose=pose)
     else:
         diag = Diagnosed([], diagnosis.Decision(None, []), None, None, cal.calibrated)
     plan = None
@@ -1050,6 +1052,27 @@ def pose_that_matters(decision: diagnosis.Decision, pose: pose_error.PoseError,
         'test_gain_per_matched_point': round(pose.gain, 6), 'test_z': round(pose.z, 2),
         'translation_rms_cm': round(pose.size_cm, 3), 'rotation_rms_deg': round(pose.size_deg, 4)})
     return replace(decision, pose=None), small
+
+
+def pose_beyond_a_bound(decision: diagnosis.Decision, pose: pose_error.PoseError | None,
+                        fitted: list[Effect]
+                        ) -> tuple[diagnosis.Decision, pose_error.PoseError | None]:
+    """The decision and its pose, unless an effect ``fitted`` by --fit ended at its
+    search bound (``fit.at_bounds``) and the decision reports the pose alone or beside a
+    named effect (not in a tie): what the fit left is then at least partly the rest of
+    that effect (or of one outside the catalogue that it stood in for), which a per-cloud
+    pose takes as readily as a tracking error (a range scale leaves a range offset per
+    cloud of an approach). The pose is then not reported; it carries the effects at their
+    bound and its test's figures (``left_by_bound``), its test marked failed."""
+    bound = {e.name: at_bounds(e) for e in fitted if at_bounds(e)}
+    if (not bound or decision.pose is None or pose is not decision.pose
+            or diagnosis.POSE_ERROR in decision.confounded_with):
+        return decision, pose
+    left = replace(pose, significant=False, left_by_bound={
+        'effects': bound, 'test_gain_per_matched_point': round(pose.gain, 6),
+        'test_z': round(pose.z, 2), 'translation_rms_cm': round(pose.size_cm, 3),
+        'rotation_rms_deg': round(pose.size_deg, 4)})
+    return replace(decision, pose=None), left
 
 
 def pose_points(rays: diagnosis.RaySet, sample: diagnosis.RaySet,

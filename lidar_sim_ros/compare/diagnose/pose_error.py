@@ -130,6 +130,10 @@ class PoseError:
     # Its test passed, but the correction it converges to, applied exactly, would gain
     # less than the practical margin (``applied_gain``): not reported (its figures).
     too_small: dict | None = None
+    # Its test passed on top of an effect --fit left at its search bound: the residual it
+    # takes may be the rest of that effect (``run.pose_beyond_a_bound``): not reported
+    # (which effects, and its test's figures).
+    left_by_bound: dict | None = None
 
     @property
     def size_cm(self) -> float:
@@ -208,6 +212,7 @@ class PoseError:
                 **({'through_material_offsets': True} if self.through_materials else {}),
                 **({'raycast': self.raycast} if self.raycast else {}),
                 **({'too_small': self.too_small} if self.too_small else {}),
+                **({'left_by_bound': self.left_by_bound} if self.left_by_bound else {}),
                 'recast_passes': self.passes,
                 'last_step_m_deg': [round(float(x), 6) for x in self.last_step],
                 'rate': self.rate_dict()}

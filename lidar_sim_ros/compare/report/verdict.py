@@ -93,6 +93,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                      f'({attribution.structure_gain:.4f} nats/point held out), no single one '
                      'dominating.')
     missing = decision.missing
+    beyond_bound = (summary.get('reference_pose') or {}).get('left_by_bound')
     if missing == 'sunlight':
         parts.append(_sunlight_named(summary, next(c for c in cands
                                                    if c.name == decision.evidence)))
@@ -147,8 +148,10 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'named. {advice} If you know which it is, add it with --effect NAME --fit.')
     elif decision.pose is not None:
         parts.append(pose_words(decision.pose, cands))
-    else:
+    elif not beyond_bound:
         parts.append(_nothing_named(summary, attribution, cands))
+    if beyond_bound:
+        parts.append(bound_remainder_words(beyond_bound))
     if decision.pose is not None and (missing or decision.confounded_with) and \
             diagnosis.POSE_ERROR not in decision.confounded_with:
         kind = _correction(decision.pose)
@@ -814,6 +817,21 @@ def bound_words(names: list[str] | None) -> str:
             'ask for at least this much, so the value bounds the size and does not measure '
             'it; an effect outside the catalogue, or this one larger than the catalogue '
             'allows)')
+
+
+def bound_remainder_words(left: dict) -> str:
+    """Why a pose that would take what a fit at its search bound left is not claimed
+    (``run.pose_beyond_a_bound``; ``left``: the pose's ``left_by_bound``)."""
+    effects = left['effects']
+    which = _join([f'{n}\'s {_join(list(p))}' for n, p in effects.items()])
+    names = _join(list(effects))
+    return (f'The fit ended at its search bound ({which}): what it leaves is the rest of '
+            f'{names} beyond the box, or of an effect outside the catalogue that {names} '
+            'stands in for, as much as a reference pose error. A per-cloud pose correction '
+            f'would take it ({left["translation_rms_cm"]:.2f} cm and '
+            f'{left["rotation_rms_deg"]:.3f} deg RMS, held-out gain '
+            f'{left["test_gain_per_matched_point"]:.4f} nats/point, z = {left["test_z"]:.1f}), '
+            'but the data do not tell the two apart: no pose error is claimed.')
 
 
 _PER_LASER_ANGLE = re.compile(r'^laser_\d+_(az|el)_deg$')
