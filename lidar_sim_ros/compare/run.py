@@ -36,8 +36,8 @@ import numpy as np
 from scipy.stats import norm
 
 from lidar_sim_ros.compare.diagnose import (diagnosis, features, laser_gains,
-                                            plan as sep_plan, pose_error, region_offset,
-                                            stamp_place)
+                                            plan as sep_plan, pose_error, range_alone,
+                                            region_offset, stamp_place)
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
@@ -413,6 +413,8 @@ class Diagnosed:
     full: object | None = None          # the diagnosed points' FitData (lk.FitData)
     z_crit: float = float(norm.isf(diagnosis.FAMILY_ALPHA / 6))
     pose_on_top: list = field(default_factory=list)   # what the pose test had in the model
+    # Whether the named range term stands in for a bias of range alone (``range_alone``).
+    range_alone: object | None = None
 
 
 @dataclass
@@ -1029,8 +1031,32 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     # The one gate every name passes (missing, tie, also): the rule and the NLL.
     decision = diagnosis.settle(decision, cands, diag.naming_fault)
     diag.fit_together(decision, cands)
+    named_effect = next((c.effect for c in cands if c.name == decision.missing), None)
+    alone = named_range_alone(decision.missing, named_effect, diag.full,
+                              sample.blocks[sample.matched], diag.z_crit, seed)
     return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
-                     diag.full, diag.z_crit, on_top)
+                     diag.full, diag.z_crit, on_top, alone)
+
+
+def named_range_alone(named: str | None, effect: Effect | None, data: lk.FitData,
+                      blocks: np.ndarray, z_crit: float, seed: int
+                      ) -> 'range_alone.RangeAlone | None':
+    """``range_alone.test_range_alone`` for the named effect (``effect``: as fitted) on
+    the diagnosed points ``data`` (the model without it; the power a power-driven term is
+    fitted on: the measured where known, else the model's), or None where it is no range
+    term."""
+    if named not in range_alone.DRIVER or effect is None:
+        return None
+    model = lk.model_on_rays(data, [])
+    bias = lk.model_on_rays(data, [effect]).expected_range_m - model.expected_range_m
+    power = np.asarray(model.ctx.power_w, float)
+    if data.measured_power_w is not None:
+        measured = np.asarray(data.measured_power_w, float)
+        power = np.where(np.isfinite(measured) & (measured > 0), measured, power)
+    return range_alone.test_range_alone(
+        named, data.measured_range_m - model.expected_range_m, model.sigma_m,
+        np.asarray(model.ctx.range_m, float), power, np.asarray(model.ctx.material),
+        blocks, z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed, bias)
 
 
 def pose_that_matters(decision: diagnosis.Decision, pose: pose_error.PoseError,
@@ -1234,6 +1260,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
                              'nll_calibrated': before[0], 'range_rmse_calibrated_m': before[1],
                              'range_robust_sigma_calibrated_m': before[2]},
         'missing_effect': decision.missing,
+        'range_alone': diag.range_alone.as_dict() if diag.range_alone is not None else None,
         'confounded_with': decision.confounded_with,
         'also_explains': decision.also,
         'also_confounded_with': list(decision.beside_tie),

@@ -19,6 +19,12 @@ CHI2_1_MEDIAN = 0.454936423   # median of z^2 for z ~ N(0, 1)
 MIN_POINTS = 20          # fewer points leave a material's bias/sigma as configured
 MISMATCH_Z = 5.0         # significance of a bias or sigma mismatch (standard errors)
 MISMATCH_MIN_FRACTION = 0.1   # ... and at least this fraction of the modelled sigma
+# Every material's range offset alike (at least this many materials, each within this
+# share of the largest, the same sign, their mean at least this many metres): a range
+# offset of the sensor or the reference pose along the line of sight, not the materials.
+COMMON_OFFSET_MATERIALS = 3
+COMMON_OFFSET_SPREAD = 0.5
+COMMON_OFFSET_MIN_M = 0.01
 
 
 def robust_sigma(x: np.ndarray) -> float:
@@ -138,3 +144,15 @@ def materials_yaml(materials: MaterialsConfig, stats: list[MaterialStats]) -> st
         lines.append(f'  - {{name: {m.name}, kd: {m.kd:g}, ks: {m.ks:g}, n: {m.n:g}, '
                      f'bias_m: {m.bias_m:.5f}, sigma_m: {m.sigma_m:.5f}}}{mark}')
     return '\n'.join(lines) + '\n'
+
+
+def common_offset_m(offsets_m) -> float | None:
+    """The mean of the materials' range offsets from their configuration (m) when every
+    material is off alike (COMMON_OFFSET_*), else None."""
+    d = np.asarray(list(offsets_m), float)
+    d = d[np.isfinite(d)]
+    if (len(d) < COMMON_OFFSET_MATERIALS or not (np.all(d > 0) or np.all(d < 0))
+            or np.min(np.abs(d)) < COMMON_OFFSET_SPREAD * np.max(np.abs(d))
+            or abs(float(np.mean(d))) < COMMON_OFFSET_MIN_M):
+        return None
+    return float(np.mean(d))

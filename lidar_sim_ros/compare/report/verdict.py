@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from lidar_sim_ros.compare.diagnose import diagnosis
+from lidar_sim_ros.compare.model.materials import common_offset_m
 
 EFFECT_WORDS = {
     'range_walk': 'range walk (intensity-dependent timing bias)',
@@ -116,10 +117,20 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             st = summary.get('stamp_place')
             if st:
                 words += stamp_place_words(st)
+        alone = summary.get('range_alone') or {}
+        stand_in = (alone.get('named') == missing
+                    and alone.get('stands_in_for_a_range_bias_outside_the_catalogue'))
+        if stand_in:
+            parts.append(range_alone_words(alone))
         parts.append(
-            f'This is {words}. With per-material offsets and sigmas refit (as --fit does), '
-            f'adding {missing} with {params} {gain} (held-out gain {c.score:.4f} nats/point, '
-            f'z = {c.z:.1f}).{caveat} Run again with --effect {missing} --fit to add it.')
+            (f'As a stand-in, with per-material offsets and sigmas refit (as --fit does), '
+             if stand_in else
+             f'This is {words}. With per-material offsets and sigmas refit (as --fit does), ')
+            + f'adding {missing} with {params} {gain} (held-out gain {c.score:.4f} nats/point, '
+            f'z = {c.z:.1f}).{caveat} '
+            + (f'--effect {missing} --fit adds it as a stand-in; an effect of your own that '
+               'follows range (docs/effects.md, "Write your own effect") would fit it better.'
+               if stand_in else f'Run again with --effect {missing} --fit to add it.'))
         if decision.also:
             parts.append(f'{decision.also} also explains a separate part of the residual: '
                          f'expect it in the next run.{_together_words(c)}')
@@ -250,14 +261,6 @@ VALUE_SHIFT = 0.2
 LINE_OF_SIGHT_SHARE = 0.75
 
 
-# Every material's range offset alike (at least this many materials, each within this
-# share of the largest, the same sign, their mean at least this many metres): said as a
-# range offset of the sensor or the reference pose along the line of sight.
-COMMON_OFFSET_MATERIALS = 3
-COMMON_OFFSET_SPREAD = 0.5
-COMMON_OFFSET_MIN_M = 0.01
-
-
 # A catalogue effect that is a physical mechanism of another: a beam footprint at oblique
 # incidence is what makes a range bias growing with the incidence angle. Where the
 # mechanism ranked above the effect named (or tied) for it, or passed the rule, and is
@@ -360,16 +363,15 @@ def common_offset_words(mats: dict) -> str:
     amount and no pose error is reported: a range offset of the sensor and a target
     recorded nearer or farther along the line of sight move every material alike, and
     on a narrow target the one cannot be told from the other; '' otherwise."""
-    d = np.array([m['measured_bias_m'] - m['model_bias_m'] for m in mats.values()
-                  if m.get('measured_bias_m') is not None and m.get('model_bias_m') is not None])
-    if (len(d) < COMMON_OFFSET_MATERIALS or not (np.all(d > 0) or np.all(d < 0))
-            or np.min(np.abs(d)) < COMMON_OFFSET_SPREAD * np.max(np.abs(d))
-            or abs(float(np.mean(d))) < COMMON_OFFSET_MIN_M):
+    common = common_offset_m([m['measured_bias_m'] - m['model_bias_m'] for m in mats.values()
+                              if m.get('measured_bias_m') is not None
+                              and m.get('model_bias_m') is not None])
+    if common is None:
         return ''
-    return (f'Every material\'s range is {"long" if d[0] > 0 else "short"} by about '
-            f'{100 * abs(float(np.mean(d))):.1f} cm alike: a range offset of the sensor, or the '
+    return (f'Every material\'s range is {"long" if common > 0 else "short"} by about '
+            f'{100 * abs(common):.1f} cm alike: a range offset of the sensor, or the '
             'reference pose along the line of sight (the target recorded '
-            f'{"nearer" if d[0] > 0 else "farther"} than it was), which this recording cannot '
+            f'{"nearer" if common > 0 else "farther"} than it was), which this recording cannot '
             'tell apart; a target on a surveyed pose, or one seen across a wide angle, '
             'separates them.')
 
@@ -817,6 +819,24 @@ def bound_words(names: list[str] | None) -> str:
             'ask for at least this much, so the value bounds the size and does not measure '
             'it; an effect outside the catalogue, or this one larger than the catalogue '
             'allows)')
+
+
+def range_alone_words(alone: dict) -> str:
+    """The verdict's sentence when the named range term stands in for a bias of range
+    alone (``range_alone.RangeAlone.as_dict``)."""
+    name, offset = alone['named'], alone.get('common_offset_left_m')
+    if offset is not None:
+        return (f'{name} stands in here for a range error outside the catalogue: fitted, it '
+                f'leaves every material\'s range {"long" if offset > 0 else "short"} by '
+                f'about {100 * abs(offset):.1f} cm alike, while a range scale is zero at zero '
+                'range: the residual asks for a range bias that is not a scale, whose local '
+                f'slope {name} takes (or a scale and a range offset of the sensor together), '
+                f'so {name} is not its cause.')
+    return (f'{name} stands in here for a range error outside the catalogue: '
+            'the residual it explains follows range alone, not '
+            f'{alone["range_alone_against"]} (a function of range explains it better held '
+            f'out by {alone["gain_per_matched_point"]:.4f} nats/point, '
+            f'z = {alone["z"]:.1f}), so {name} is not its cause.')
 
 
 def bound_remainder_words(left: dict) -> str:

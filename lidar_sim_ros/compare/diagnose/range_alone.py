@@ -1,0 +1,180 @@
+"""Whether a named range term stands in for a bias that follows range alone.
+
+A range walk follows the received power: at one range the power still varies with the
+incidence angle and the material, and so does a walk's bias. A range scale follows range
+linearly (a clock). A range error outside the catalogue (a near-range bias of the
+receiver's recovery, say 6 cm (8 / r)^2) follows range alone, in its own shape. On an
+approach the power falls as 1 / r^2, so a walk or a scale fitted to such a bias gains
+enough to be named, though neither is the cause.
+
+The test asks the residual (measured minus the model without the named term, per-material
+offsets as nuisance) which it follows, held out: a smooth function of range alone
+(``range_columns``) against the same smooth function of the named term's own variable
+(``DRIVER``: the walk's log power) or, for a term that is already a function of range,
+against its own form (the scale's linear range). Each is linear least squares in z units
+(the residual over the predicted sigma; points beyond Z_CLIP robust sigmas of the first
+fit left out of the second), fitted on one half of the neighbourhood blocks
+and scored on the other (two-fold), both with one intercept per material. When range
+alone is decisively better, by the same rule a candidate is named by (its paired
+held-out gain per point at least ``MIN_PRACTICAL_GAIN``, at z above the diagnosis's
+bound), the named term stands in for a range-dependent bias outside the catalogue, and
+the verdict says so. A real walk (power varying at one range), or a real scale (linear
+in range), is not beaten by range alone: where the data cannot tell them apart nothing
+is said.
+
+A range scale has one more mark: its bias is zero at zero range. Over the narrow span of
+ranges of a short approach a bias of range alone is close to linear, and range alone
+does not beat the scale's own form; but the scale fitted to it is its local slope, and
+the offset of the bias at the recording's ranges is left to the materials: with the
+scale, every material's range is then off its configuration alike (``materials.
+common_offset_m``, the rule by which the verdict says a sensor's range offset). A scale
+and a common range offset together are two effects where a bias of range alone is one:
+the scale then stands in too (``offset_m``, the common offset it leaves).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidar_sim_ros.compare.diagnose.features import Z_CLIP, block_mean_z
+from lidar_sim_ros.compare.model.materials import MAD_TO_SIGMA, MIN_POINTS as MATERIAL_POINTS
+from lidar_sim_ros.compare.model.materials import common_offset_m
+
+# The named term -> what its bias follows: 'log_power' (a smooth function of the log of
+# the power it is fitted on) or 'range_linear' (its own form, linear in range).
+DRIVER = {'range_walk': 'log_power', 'range_scale': 'range_linear'}
+# Terms whose bias is zero at zero range: with them, no common offset of the materials.
+ZERO_AT_NO_RANGE = ('range_scale',)
+KNOT_QUANTILES = (0.25, 0.5, 0.75)    # a piecewise-linear function of the variable
+MIN_POINTS = 200                      # fewer matched points: not asked
+
+
+@dataclass(frozen=True)
+class RangeAlone:
+    """The test's outcome: ``gain`` (nats per matched point, held out) of a function of
+    range alone over the named term's ``against``, its block-robust ``z``, and whether
+    it passes the rule (``stands_in``)."""
+
+    name: str
+    against: str
+    gain: float
+    z: float
+    stands_in: bool
+    # The materials' common range offset (m) the named term, zero at zero range, leaves
+    # (``ZERO_AT_NO_RANGE``; None: none, or not asked).
+    offset_m: float | None = None
+
+    @property
+    def range_alone_passes(self) -> bool:
+        return self.stands_in and self.offset_m is None
+
+    def as_dict(self) -> dict:
+        return {'named': self.name, 'range_alone_against': self.against,
+                'gain_per_matched_point': round(self.gain, 6), 'z': round(self.z, 2),
+                'common_offset_left_m': (None if self.offset_m is None
+                                         else round(self.offset_m, 4)),
+                'stands_in_for_a_range_bias_outside_the_catalogue': self.stands_in}
+
+
+def hinge_columns(x: np.ndarray) -> np.ndarray:
+    """A piecewise-linear function's columns in ``x``: x and (x - k)+ at the knots
+    (``KNOT_QUANTILES`` of x itself, never of the residual)."""
+    x = np.asarray(x, float)
+    knots = np.quantile(x, KNOT_QUANTILES)
+    return np.column_stack([x, *[np.maximum(x - k, 0.0) for k in knots]])
+
+
+def range_columns(range_m: np.ndarray) -> np.ndarray:
+    """Range alone, as smooth as the walk's alternative: ``hinge_columns`` of r (m)."""
+    return hinge_columns(range_m)
+
+
+def driver_columns(driver: str, range_m: np.ndarray, power_w: np.ndarray) -> np.ndarray:
+    """What the named term's bias follows (``DRIVER``), as columns."""
+    if driver == 'log_power':
+        return hinge_columns(np.log(power_w))
+    if driver == 'range_linear':
+        return np.asarray(range_m, float)[:, None]
+    raise ValueError(f'unknown driver {driver!r}')
+
+
+def heldout_nll(cols: np.ndarray, material: np.ndarray, z: np.ndarray, w: np.ndarray,
+                test: np.ndarray) -> np.ndarray:
+    """Per test point Gaussian NLL (nats) of z under least squares on ``cols`` (each
+    column divided by the point's sigma: ``w`` = 1 / sigma) and one intercept per
+    material, fitted on the points not in ``test``: once, then again without the points
+    beyond Z_CLIP robust sigmas (false returns, a heavy tail); a test point's residual
+    counts up to Z_CLIP of the fit's sigma (an outlier costs both sides alike)."""
+    mats = np.unique(material)
+    inter = (material[:, None] == mats[None, :]).astype(float)
+    x = np.column_stack([inter, cols]) * w[:, None]
+    x = x / np.maximum(np.sqrt(np.mean(x ** 2, axis=0)), 1e-12)
+    train = np.flatnonzero(~test)
+    coef, *_ = np.linalg.lstsq(x[train], z[train], rcond=None)
+    res = z[train] - x[train] @ coef
+    spread = MAD_TO_SIGMA * float(np.median(np.abs(res - np.median(res))))
+    kept = train[np.abs(res) <= Z_CLIP * max(spread, 1e-6)]
+    if len(kept) > x.shape[1]:
+        coef, *_ = np.linalg.lstsq(x[kept], z[kept], rcond=None)
+        train = kept
+    var = max(float(np.mean((z[train] - x[train] @ coef) ** 2)), 1e-6)
+    r = np.clip(z[test] - x[test] @ coef, -Z_CLIP * np.sqrt(var), Z_CLIP * np.sqrt(var))
+    return 0.5 * (np.log(2 * np.pi * var) + r ** 2 / var)
+
+
+def common_offset_left_m(residual_m: np.ndarray, named_bias_m: np.ndarray,
+                         material: np.ndarray) -> float | None:
+    """The materials' common range offset from their configuration (m) once the named
+    term's bias is taken off (each material's median, those with MATERIAL_POINTS points
+    at least; ``materials.common_offset_m``), or None."""
+    left = residual_m - named_bias_m
+    ids, counts = np.unique(material, return_counts=True)
+    return common_offset_m([float(np.median(left[material == m]))
+                            for m, k in zip(ids, counts) if m >= 0 and k >= MATERIAL_POINTS])
+
+
+def test_range_alone(name: str, residual_m: np.ndarray, sigma_m: np.ndarray,
+                     range_m: np.ndarray, power_w: np.ndarray, material: np.ndarray,
+                     blocks: np.ndarray, z_crit: float, min_gain: float,
+                     seed: int = 0, named_bias_m: np.ndarray | None = None
+                     ) -> RangeAlone | None:
+    """Whether the named term ``name`` stands in for a bias that follows range alone
+    (module doc); None where it is not a range term of ``DRIVER`` or too few points
+    have finite figures. Inputs per matched point: the residual without the named term
+    (m) against the configured materials, its predicted sigma (m), the model's range (m),
+    the power the term is fitted on (W), the material id, the neighbourhood block, and
+    (for a term zero at zero range) the named term's bias as fitted (m)."""
+    driver = DRIVER.get(name)
+    if driver is None:
+        return None
+    asked = name in ZERO_AT_NO_RANGE and named_bias_m is not None
+    if named_bias_m is None:
+        named_bias_m = np.zeros(len(residual_m))
+    residual_m, sigma_m, range_m, power_w, material, blocks, named_bias_m = (
+        np.asarray(a) for a in (residual_m, sigma_m, range_m, power_w, material, blocks,
+                                named_bias_m))
+    ok = (np.isfinite(residual_m) & np.isfinite(sigma_m) & (sigma_m > 0)
+          & np.isfinite(range_m) & (range_m > 0) & np.isfinite(power_w) & (power_w > 0))
+    if ok.sum() < MIN_POINTS:
+        return None
+    w = 1.0 / sigma_m[ok]
+    z = residual_m[ok] * w
+    r, p, mat, blk = range_m[ok], power_w[ok], material[ok], blocks[ok]
+    # Whole blocks on either side: a test point's neighbours did not fit it.
+    _, b = np.unique(blk, return_inverse=True)
+    half = np.random.default_rng([seed, 59]).random(int(b.max()) + 1) < 0.5
+    side = half[b]
+    if side.all() or not side.any():
+        return None
+    alone, other = range_columns(r), driver_columns(driver, r, p)
+    d = np.empty(len(z))
+    for test in (side, ~side):
+        d[test] = (heldout_nll(other, mat, z, w, test) - heldout_nll(alone, mat, z, w, test))
+    gain, zz = block_mean_z(d, blk)
+    against = ('a function of the received power' if driver == 'log_power'
+               else 'its own form, linear in range')
+    offset = (common_offset_left_m(residual_m[ok], named_bias_m[ok], mat)
+              if asked else None)
+    return RangeAlone(name, against, float(gain), float(zz),
+                      bool((gain >= min_gain and zz >= z_crit) or offset is not None), offset)
