@@ -90,3 +90,16 @@ def test_a_scale_that_leaves_every_material_off_alike_stands_in():
     real = _short_approach(lambda r: 0.015 * r)
     scale = range_alone('range_scale', *real, Z_CRIT, MIN_GAIN, named_bias_m=0.015 * real[2])
     assert not scale.stands_in and scale.offset_m is None
+
+
+def test_the_verdict_says_the_stand_in_and_why():
+    from lidar_sim_ros.compare.report.verdict import range_alone_words
+    near = _approach(lambda r, lnp: 0.06 * (8.0 / r) ** 2)
+    walk = range_alone_words(_test('range_walk', near).as_dict())
+    assert walk.startswith('range_walk stands in here for a range error outside the catalogue')
+    assert 'not a function of the received power' in walk
+    short = _short_approach(lambda r: 0.06 * (8.0 / r) ** 2)
+    slope = np.polyfit(short[2], short[0], 1)[0]
+    scale = range_alone('range_scale', *short, Z_CRIT, MIN_GAIN, named_bias_m=slope * short[2])
+    words = range_alone_words(scale.as_dict())
+    assert 'stands in' in words and 'zero at zero range' in words and 'long by about' in words
