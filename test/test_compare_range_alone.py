@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidar_sim_ros.compare.diagnose.range_alone import test_range_alone as range_alone
+from lidar_sim_ros.compare.diagnose.range_alone import weigh_range_alone as range_alone
 
 Z_CRIT, MIN_GAIN = 3.0, 0.005
 

@@ -1041,7 +1041,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
 def named_range_alone(named: str | None, effect: Effect | None, data: lk.FitData,
                       blocks: np.ndarray, z_crit: float, seed: int
                       ) -> 'range_alone.RangeAlone | None':
-    """``range_alone.test_range_alone`` for the named effect (``effect``: as fitted) on
+    """``range_alone.weigh_range_alone`` for the named effect (``effect``: as fitted) on
     the diagnosed points ``data`` (the model without it; the power a power-driven term is
     fitted on: the measured where known, else the model's), or None where it is no range
     term."""
@@ -1053,7 +1053,7 @@ def named_range_alone(named: str | None, effect: Effect | None, data: lk.FitData
     if data.measured_power_w is not None:
         measured = np.asarray(data.measured_power_w, float)
         power = np.where(np.isfinite(measured) & (measured > 0), measured, power)
-    return range_alone.test_range_alone(
+    return range_alone.weigh_range_alone(
         named, data.measured_range_m - model.expected_range_m, model.sigma_m,
         np.asarray(model.ctx.range_m, float), power, np.asarray(model.ctx.material),
         blocks, z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed, bias)

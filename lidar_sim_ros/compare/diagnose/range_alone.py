@@ -38,8 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar_sim_ros.compare.diagnose.features import Z_CLIP, block_mean_z
-from lidar_sim_ros.compare.model.materials import MAD_TO_SIGMA, MIN_POINTS as MATERIAL_POINTS
-from lidar_sim_ros.compare.model.materials import common_offset_m
+from lidar_sim_ros.compare.model.materials import MAD_TO_SIGMA, common_offset_m
+from lidar_sim_ros.compare.model.materials import MIN_POINTS as MATERIAL_POINTS
 
 # The named term -> what its bias follows: 'log_power' (a smooth function of the log of
 # the power it is fitted on) or 'range_linear' (its own form, linear in range).
@@ -134,7 +134,7 @@ def common_offset_left_m(residual_m: np.ndarray, named_bias_m: np.ndarray,
                             for m, k in zip(ids, counts) if m >= 0 and k >= MATERIAL_POINTS])
 
 
-def test_range_alone(name: str, residual_m: np.ndarray, sigma_m: np.ndarray,
+def weigh_range_alone(name: str, residual_m: np.ndarray, sigma_m: np.ndarray,
                      range_m: np.ndarray, power_w: np.ndarray, material: np.ndarray,
                      blocks: np.ndarray, z_crit: float, min_gain: float,
                      seed: int = 0, named_bias_m: np.ndarray | None = None
