@@ -491,6 +491,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
             diag = diagnose(cal.model, effects, ana, classes, inp.meas, inp.scenario,
                             sunlight, opts.seed, cal.rays)
         decision, pose = pose_beyond_a_bound(diag.decision, diag.pose, fitted)
+        decision, pose = pose_beside_a_stand_in(decision, pose, diag.range_alone)
         diag = replace(diag, decision=decision, pose=pose)
     else:
         diag = Diagnosed([], diagnosis.Decision(None, []), None, None, cal.calibrated)
@@ -1096,6 +1097,27 @@ def pose_beyond_a_bound(decision: diagnosis.Decision, pose: pose_error.PoseError
         return decision, pose
     left = replace(pose, significant=False, left_by_bound={
         'effects': bound, 'test_gain_per_matched_point': round(pose.gain, 6),
+        'test_z': round(pose.z, 2), 'translation_rms_cm': round(pose.size_cm, 3),
+        'rotation_rms_deg': round(pose.size_deg, 4)})
+    return replace(decision, pose=None), left
+
+
+def pose_beside_a_stand_in(decision: diagnosis.Decision, pose: pose_error.PoseError | None,
+                           alone: 'range_alone.RangeAlone | None'
+                           ) -> tuple[diagnosis.Decision, pose_error.PoseError | None]:
+    """The decision and its pose, unless the named range term stands in for a bias of
+    range alone (``alone.stands_in``) and the pose is reported beside it (not in a tie):
+    the stand-in's form does not follow that bias, so what it leaves is the rest of it, a
+    range offset that changes as the range does (from cloud to cloud of an approach),
+    which a per-cloud pose takes as readily as a tracking error (the same reason as
+    ``pose_beyond_a_bound``). The pose is then not reported; it carries the stand-in's
+    name and its test's figures (``left_by_stand_in``), its test marked failed."""
+    if (alone is None or not alone.stands_in or decision.missing != alone.name
+            or decision.pose is None or pose is not decision.pose
+            or diagnosis.POSE_ERROR in decision.confounded_with):
+        return decision, pose
+    left = replace(pose, significant=False, left_by_stand_in={
+        'named': alone.name, 'test_gain_per_matched_point': round(pose.gain, 6),
         'test_z': round(pose.z, 2), 'translation_rms_cm': round(pose.size_cm, 3),
         'rotation_rms_deg': round(pose.size_deg, 4)})
     return replace(decision, pose=None), left

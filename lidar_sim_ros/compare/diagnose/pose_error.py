@@ -134,6 +134,10 @@ class PoseError:
     # takes may be the rest of that effect (``run.pose_beyond_a_bound``): not reported
     # (which effects, and its test's figures).
     left_by_bound: dict | None = None
+    # Its test passed beside a named range term that stands in for a bias of range alone
+    # (``run.pose_beside_a_stand_in``): what the stand-in leaves is the rest of that bias,
+    # which a per-cloud pose takes too: not reported (the stand-in, its test's figures).
+    left_by_stand_in: dict | None = None
 
     @property
     def size_cm(self) -> float:
@@ -213,6 +217,8 @@ class PoseError:
                 **({'raycast': self.raycast} if self.raycast else {}),
                 **({'too_small': self.too_small} if self.too_small else {}),
                 **({'left_by_bound': self.left_by_bound} if self.left_by_bound else {}),
+                **({'left_by_stand_in': self.left_by_stand_in}
+                   if self.left_by_stand_in else {}),
                 'recast_passes': self.passes,
                 'last_step_m_deg': [round(float(x), 6) for x in self.last_step],
                 'rate': self.rate_dict()}

@@ -75,6 +75,12 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                     f'{_join(list(left["effects"]))}, which --fit left at its search bound: '
                     'what the fit left may be the rest of that effect, so the pose is not '
                     'claimed', shown)
+    left = pose.get('left_by_stand_in')
+    if left:
+        return _out(False, None, f'its test passes ({_f(left["test_gain_per_matched_point"])} '
+                    f'nats/point, z = {_f(left["test_z"], 1)}) beside {left["named"]}, which '
+                    'stands in for a bias of range alone: what the stand-in leaves may be the '
+                    'rest of that bias, so the pose is not claimed', shown)
     if not pose.get('significant'):
         where = f' on top of {_join(on_top)}' if on_top else ''
         gain = pose.get('gain_per_matched_point')

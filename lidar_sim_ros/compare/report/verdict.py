@@ -95,6 +95,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                      'dominating.')
     missing = decision.missing
     beyond_bound = (summary.get('reference_pose') or {}).get('left_by_bound')
+    beside_stand_in = (summary.get('reference_pose') or {}).get('left_by_stand_in')
     if missing == 'sunlight':
         parts.append(_sunlight_named(summary, next(c for c in cands
                                                    if c.name == decision.evidence)))
@@ -163,6 +164,8 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         parts.append(_nothing_named(summary, attribution, cands))
     if beyond_bound:
         parts.append(bound_remainder_words(beyond_bound))
+    if beside_stand_in:
+        parts.append(stand_in_remainder_words(beside_stand_in))
     if decision.pose is not None and (missing or decision.confounded_with) and \
             diagnosis.POSE_ERROR not in decision.confounded_with:
         kind = _correction(decision.pose)
@@ -852,6 +855,19 @@ def bound_remainder_words(left: dict) -> str:
             f'{left["rotation_rms_deg"]:.3f} deg RMS, held-out gain '
             f'{left["test_gain_per_matched_point"]:.4f} nats/point, z = {left["test_z"]:.1f}), '
             'but the data do not tell the two apart: no pose error is claimed.')
+
+
+def stand_in_remainder_words(left: dict) -> str:
+    """Why a pose beside a stand-in for a bias of range alone is not claimed
+    (``run.pose_beside_a_stand_in``; ``left``: the pose's ``left_by_stand_in``)."""
+    name = left['named']
+    return (f'What {name} leaves is the rest of the bias of range alone it stands in for, '
+            'a range offset that changes as the range does, as much as a reference pose '
+            'error. A per-cloud pose correction would take it '
+            f'({left["translation_rms_cm"]:.2f} cm and {left["rotation_rms_deg"]:.3f} deg RMS, '
+            f'held-out gain {left["test_gain_per_matched_point"]:.4f} nats/point, '
+            f'z = {left["test_z"]:.1f}), but the data do not tell the two apart: no pose '
+            'error is claimed.')
 
 
 _PER_LASER_ANGLE = re.compile(r'^laser_\d+_(az|el)_deg$')
