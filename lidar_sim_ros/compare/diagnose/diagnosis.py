@@ -88,7 +88,7 @@ from scipy.optimize import minimize_scalar
 from scipy.stats import kstest, norm
 
 from lidar_sim_ros.compare.model import likelihood as lk
-from lidar_sim_ros.compare.diagnose import laser_tiles
+from lidar_sim_ros.compare.diagnose import beside, laser_tiles
 from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se, block_mean_z
 from lidar_sim_ros.compare.model import pointing
 from lidar_sim_ros.compare.model.fit import at_bounds, fit_effect
@@ -1488,7 +1488,8 @@ class Diagnosis:
         return out
 
     def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision,
-                   recast=None, constant_test=None, same_points=None) -> Decision:
+                   recast=None, constant_test=None, same_points=None,
+                   row_test=None) -> Decision:
         """Whether the reference pose is off, and what it leaves the candidates.
         ``pose_test(effects)``: the per-cloud rigid correction's test
         (``pose_error.fit_reference_pose``) on the model with ``effects``;
@@ -1514,7 +1515,13 @@ class Diagnosis:
           (``confounded_with``: pose_error and the candidate). Held out and fitted
           disagreeing by the margin is a tie too (``_better_of``). The held-out
           footing comes first: in-sample, six parameters per cloud always fit better
-          than one of a clock offset."""
+          than one of a clock offset.
+        - The pose takes a named clock offset (it passes on top of it, the clock not on
+          the corrected pose), but the residual grows with the row beyond one rigid
+          correction (``row_test()``: ``row_clock.row_time_test``, asked where the points
+          carry no time within a cloud): a time within the exposure the points do not
+          carry, which neither explains; the two stand in for its mean, a tie
+          (``rows_under_clock``)."""
         tests = [pose_test] + ([constant_test] if constant_test is not None else [])
         alone = [(t, t([])) for t in tests]
         passed = [(t, p) for t, p in alone if p.significant]
@@ -1550,6 +1557,7 @@ class Diagnosis:
                              'significant': bool(on_top.significant)}
             if not on_top.significant:
                 explain.append(c)
+        from_beside = not explain
         if not explain:
             explain = self.pose_beside_named(test, pose, decision, cands)
         if not any(c.admissible and c.effect is not None for c in cands):
@@ -1581,7 +1589,17 @@ class Diagnosis:
                               **({'params_on_pose': a.params} if a.params else {})}
         if explain:
             if any(passes.get(c.name) for c in explain):
-                return decision            # it explains what the pose cannot: it stands
+                # It explains what the pose cannot: it stands. What the decision holds
+                # beside it took the pose's part: asked the other way too, with the
+                # clock (``beside.weigh_beside``).
+                if from_beside:
+                    lead = by_name[decision.missing]
+                    held = [by_name[n] for n in lead.pose_beside['with'] if n in by_name]
+                    weighed = beside.weigh_beside(self, decision, lead, cands, held, test,
+                                                  pose, on_pose, again)
+                    if weighed is not None:
+                        return weighed
+                return decision
             # Neither adds to the other: held out (the candidate's gain against the
             # pose's), then as --fit leaves them (its fitted NLL against the
             # pose-corrected model's); MIN_PRACTICAL_GAIN apart the better one stands.
@@ -1615,13 +1633,37 @@ class Diagnosis:
                                 withheld=dict(decision.withheld))
             return Decision(None, [], pose=pose, withheld=dict(decision.withheld))
         if not any(passes.values()):
+            if self.rows_under_clock(named, row_test):
+                return Decision(None, [POSE_ERROR, beside.CLOCK], pose=pose,
+                                withheld=dict(decision.withheld))
             return Decision(None, [], pose=pose)
         # The pose is off beside what was named (its test passes on top of it): the
         # candidates are decided again on the pose-corrected model, which is named, a
         # tie, and what also explains another part. On the recorded pose a drifting
         # pose's residual at silhouettes reads as incidence: beside a range walk it
         # was named, or said to explain a part of its own ("also").
-        return replace(on_pose.decide(again), pose=pose, withheld=dict(decision.withheld))
+        final = replace(on_pose.decide(again), pose=pose, withheld=dict(decision.withheld))
+        lead = by_name.get(final.missing)
+        if lead is not None and final.missing == decision.missing and lead.effect is not None:
+            # The pose beside the named effect, against the clock (``beside.weigh_beside``).
+            held = [by_name[final.also]] if final.also in by_name else []
+            weighed = beside.weigh_beside(self, final, lead, cands, held, test, pose,
+                                          on_pose, again)
+            if weighed is not None:
+                return weighed
+        return final
+
+    def rows_under_clock(self, named: list[Candidate], row_test) -> bool:
+        """Whether a named clock offset (``time_offset``, nameable) that the pose took
+        stands, with the pose, for a time that grows with the row (``row_test(effect)``,
+        the clock's effect: a ``row_clock.RowTime``; None: not asked). The test's figures are recorded on the
+        clock's ``against_pose['row_time']``."""
+        clock = next((c for c in named if c.name == beside.CLOCK), None)
+        if clock is None or row_test is None or not self.nameable(clock):
+            return False
+        rows = row_test(clock.effect)
+        clock.against_pose = {**(clock.against_pose or {}), 'row_time': rows.as_dict()}
+        return bool(rows.significant)
 
     def pose_beside_named(self, test, pose, decision: Decision,
                           cands: list[Candidate]) -> list[Candidate]:
