@@ -2430,12 +2430,13 @@ def settle(decision: Decision, cands: list[Candidate],
     by_name = {c.name: c for c in cands}
     withheld = dict(decision.withheld)
 
-    def why_not(name: str | None) -> str | None:
+    def why_not(name: str | None, beside_named: str | None = None) -> str | None:
         if name is None or name == POSE_ERROR:
             return None
         c = by_name.get(decision.evidence if name == decision.missing and decision.evidence
                         else name)
-        why = 'not among the candidates' if c is None else fault(c)
+        why = ('not among the candidates' if c is None else
+               None if passed_on_top_of(c, beside_named) else fault(c))
         if why is not None:
             withheld[name] = why
         return why
@@ -2447,9 +2448,19 @@ def settle(decision: Decision, cands: list[Candidate],
     # "Also" beside a named effect, or beside the tie of the pose with a candidate
     # (``judge_pose``: it passed on the corrected pose too).
     also = (decision.also if (missing is not None or POSE_ERROR in tied)
-            and why_not(decision.also) is None else None)
+            and why_not(decision.also, missing) is None else None)
     return replace(decision, missing=missing, also=also, confounded_with=tied,
                    evidence=decision.evidence if missing else None, withheld=withheld)
+
+
+def passed_on_top_of(cand: Candidate, named: str | None) -> bool:
+    """Whether ``cand`` passed the rule on top of the named effect ``named``, held out
+    and fitted (``beside.clock_on_top``: a clock offset, whose gain alone an effect ten
+    times its size swamps): its 'also' is judged on that gain, the one the verdict
+    quotes for it."""
+    on_top = (cand.against_pose or {}).get('beside') or {}
+    return bool(named is not None and on_top.get('on_top_of') == named
+                and on_top.get('gain') is not None)
 
 
 def rank(candidates: list[Candidate]) -> list[Candidate]:

@@ -120,7 +120,8 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'adding {missing} with {params} {gain} (held-out gain {c.score:.4f} nats/point, '
             f'z = {c.z:.1f}).{caveat} Run again with --effect {missing} --fit to add it.')
         if decision.also:
-            parts.append(f'{decision.also} also explains a separate part of the residual: '
+            parts.append(f'{decision.also} also explains a separate part of the residual'
+                         f'{_on_top_words(cands, decision.also, missing)}: '
                          f'expect it in the next run.{_together_words(c)}')
         parts.extend(stands_in_words(decision))
         lasers = laser_intensity_words(summary.get('laser_intensity'))
@@ -651,6 +652,19 @@ def pose_beside_tie_words(pose, named: list[str], others: list) -> str:
             f'{"; ".join(parts)}: {what}; none is named. If the tracking system is known to '
             f'be right, add --effect {names[0]} --fit; if the sensor is, --effect '
             'pose_error --fit.')
+
+
+def _on_top_words(cands: list, name: str, named: str) -> str:
+    """' (held out on top of NAMED it gains ...)' for an 'also' judged on its gain on top
+    of the named effect (``diagnosis.passed_on_top_of``), else ''."""
+    c = next((c for c in cands if c.name == name), None)
+    if c is None or not diagnosis.passed_on_top_of(c, named):
+        return ''
+    b = c.against_pose['beside']
+    value = f', dt = {b["dt_s"]:+.3f} s' if b.get('dt_s') is not None else ''
+    return (f' (held out on top of {named} it gains {b["gain"]:.4f} nats/point, z = '
+            f'{b["z"]:.1f}{value}; alone, beside the larger residual of {named}, '
+            f'{c.score:.4f}, z = {c.z:.1f})')
 
 
 def rolling_rows_words(rows: dict, pose_part: str, held: str, clock) -> str:
