@@ -70,10 +70,12 @@ def weigh_beside(diag, decision, best, cands: list, beside: list, test, pose, on
     the pose test ``judge_pose`` chose (per cloud or one for the recording), called
     with the effects on top; ``pose``: its correction; ``on_pose``: the diagnosis on
     the corrected pose; ``again``: the candidates scored there. Records each answer on
-    the candidates (``against_pose['beside']``). Returns the decision, or None where
-    the pose takes every contender (it passes on top of each and none passes on the
-    corrected pose): the pose is then reported beside ``best``, as ``judge_pose`` does
-    without this."""
+    the candidates (``against_pose``: ``beside``, ``beside_clock``, ``beside_pose``).
+    Returns the decision, or None where no pair could be asked (nothing scored on the
+    corrected pose) or the pose takes every contender (it passes on top of each, none
+    passes on the corrected pose): ``judge_pose``'s decision then stands as without
+    this (the pose reported beside ``best`` where its test passed on top of it and what
+    the decision holds beside it, else not)."""
     from lidar_sim_ros.compare.diagnose.diagnosis import POSE_ERROR, _num
     by_name = {c.name: c for c in cands}
     clock = by_name.get(CLOCK)
