@@ -111,3 +111,82 @@ def test_a_late_clock_a_pose_error_a_range_bias_per_row_and_noise_are_not_rows()
             assert not rows.significant, (kind, seed, rows)
     pose, _ = _test('pose', 3)
     assert pose.pose_z > 10
+
+
+def _judged(rows_significant: bool | None):
+    """``judge_pose`` on the eleventh holdout's flash_rolling figures: time_offset named
+    (0.343, z 22), one correction for the recording passing alone and on top of the
+    clock (0.016, z 7.3), the clock not passing on the corrected pose; ``row_test``
+    answering ``rows_significant`` (None: not asked, the points carry times)."""
+    from lidar_sim_ros.compare.diagnose import pose_error
+    clock = diagnosis.Candidate('time_offset', score=0.343, z=22.5, significant=True,
+                                practical=True, effect=object(), nll_after=-1.5,
+                                params={'dt_s': 0.060})
+
+    def pose(on_top):
+        return pose_error.PoseError(
+            clouds=np.zeros(1, int), t_s=np.zeros(1), translation_m=np.zeros((1, 3)),
+            rotation_deg=np.zeros((1, 3)), gain=0.19 if not on_top else 0.016,
+            z=20.8 if not on_top else 7.3, significant=True, correction_m=np.zeros(4),
+            constant=True)
+
+    class OnPose:
+        before_nll = -1.5
+
+        @staticmethod
+        def score(cls):
+            return diagnosis.Candidate('time_offset', score=-0.057, z=-11.2)
+
+        @staticmethod
+        def nameable(c):
+            return False
+
+    class Judge(diagnosis.Diagnosis):
+        def __init__(self):
+            self.z_crit = 3.0
+
+        def nameable(self, c):
+            return c.significant and c.practical
+
+        def set_aside_beside(self, best, cands, but=()):
+            return []
+
+        def pose_corrected(self, correction_m):
+            return OnPose()
+    asked = []
+
+    def row_test(effect):
+        asked.append(effect)
+        return row_clock.RowTime(0.0105, 9.6, 0.0105, 9.7, -0.0002, -0.8,
+                                 bool(rows_significant), 0.0044, 6.1, False)
+    out = Judge().judge_pose(pose, [clock], diagnosis.Decision('time_offset', []),
+                             row_test=None if rows_significant is None else row_test)
+    return out, clock, asked
+
+
+def test_a_pose_that_takes_a_named_clock_is_tied_with_it_where_the_rows_grow():
+    """flash_rolling: the pose passes on top of the named clock and the clock not on the
+    corrected pose, so the pose alone was reported off on exact poses. Where the rows
+    grow (``row_test`` passes, asked with the clock's effect) the two are the tie
+    [pose_error, time_offset], the figures on the clock; where they do not, or the test
+    is not asked, the pose stands alone as before."""
+    out, clock, asked = _judged(True)
+    assert out.missing is None and out.confounded_with == ['pose_error', 'time_offset']
+    assert out.pose is not None and asked == [clock.effect]
+    assert clock.against_pose['row_time']['significant']
+    for rows in (False, None):
+        alone, _, _ = _judged(rows)
+        assert alone.confounded_with == [] and alone.pose is not None
+
+
+def test_the_verdict_says_the_rows_time_the_clock_and_pose_stand_in_for():
+    """pose_tie_words on the tie the rows made: a time within the exposure the points do
+    not carry, outside the catalogue, the clock's dt as the rows' mean delay, none named;
+    with the rows' growth short of the rule on top of the clock and the pose, the turn
+    of the pose about the line of sight is said as the other reading."""
+    from lidar_sim_ros.compare.report.verdict import pose_tie_words
+    out, clock, _ = _judged(True)
+    words = pose_tie_words(out, {'point_times': 'field'}, [clock])
+    assert 'time within the exposure that the points do not carry' in words
+    assert 'outside the catalogue' in words and 'none is named' in words
+    assert 'dt = +0.060 s' in words and 'turn of the pose about the line of sight' in words
