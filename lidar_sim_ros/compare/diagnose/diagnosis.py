@@ -1517,11 +1517,15 @@ class Diagnosis:
           footing comes first: in-sample, six parameters per cloud always fit better
           than one of a clock offset.
         - The pose takes a named clock offset (it passes on top of it, the clock not on
-          the corrected pose), but the residual grows with the row beyond one rigid
-          correction (``row_test()``: ``row_clock.row_time_test``, asked where the points
+          the corrected pose), but what it gains beyond the clock grows with the row
+          (``row_test(effect)``: ``row_clock.row_time_test``, asked where the points
           carry no time within a cloud): a time within the exposure the points do not
           carry, which neither explains; the two stand in for its mean, a tie
-          (``rows_under_clock``)."""
+          (``rows_under_clock``).
+        - Beside a named effect that stands, the pose, the clock and what the decision
+          holds beside it are asked on top of each other both ways
+          (``beside.weigh_beside``): the one that passes on top of the other keeps its
+          place; neither, a tie beside the named effect (``beside_tie``)."""
         tests = [pose_test] + ([constant_test] if constant_test is not None else [])
         alone = [(t, t([])) for t in tests]
         passed = [(t, p) for t, p in alone if p.significant]
@@ -1656,8 +1660,8 @@ class Diagnosis:
     def rows_under_clock(self, named: list[Candidate], row_test) -> bool:
         """Whether a named clock offset (``time_offset``, nameable) that the pose took
         stands, with the pose, for a time that grows with the row (``row_test(effect)``,
-        the clock's effect: a ``row_clock.RowTime``; None: not asked). The test's figures are recorded on the
-        clock's ``against_pose['row_time']``."""
+        called with the clock's effect: a ``row_clock.RowTime``; None: not asked). The
+        test's figures are recorded on the clock's ``against_pose['row_time']``."""
         clock = next((c for c in named if c.name == beside.CLOCK), None)
         if clock is None or row_test is None or not self.nameable(clock):
             return False
