@@ -37,7 +37,7 @@ from scipy.stats import norm
 
 from lidar_sim_ros.compare.diagnose import (diagnosis, features, laser_gains,
                                             plan as sep_plan, pose_error, range_alone,
-                                            region_offset, stamp_place)
+                                            region_offset, row_clock, stamp_place)
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
@@ -974,8 +974,14 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             diagnosis.make_fit_data(model, effects, rays), meas.cloud[idx], meas.t_s[idx],
             sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
             rate=has_point_times(meas), constant=constant, scan=scan)
+    # Points without a time within their cloud: a residual growing with the row is a
+    # time within the exposure they do not carry (``row_clock``).
+    row_test = (None if scan is not None else lambda clock: row_clock.row_time_test(
+        tested_data, sample.blocks[tested.matched], diag.z_crit,
+        diagnosis.MIN_PRACTICAL_GAIN, row_clock.clock_column_m(tested_data, clock), seed))
     decision = diag.judge_pose(pose_test, cands, decision, recast,
-                               lambda on_top: pose_test(on_top, constant=True), same_points)
+                               lambda on_top: pose_test(on_top, constant=True), same_points,
+                               row_test)
 
     def on_constant_pose(effect: Effect):
         """The diagnosis re-cast with one correction for the recording fitted on every

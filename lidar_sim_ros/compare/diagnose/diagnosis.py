@@ -88,7 +88,7 @@ from scipy.optimize import minimize_scalar
 from scipy.stats import kstest, norm
 
 from lidar_sim_ros.compare.model import likelihood as lk
-from lidar_sim_ros.compare.diagnose import laser_tiles
+from lidar_sim_ros.compare.diagnose import beside, laser_tiles
 from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se, block_mean_z
 from lidar_sim_ros.compare.model import pointing
 from lidar_sim_ros.compare.model.fit import at_bounds, fit_effect
@@ -1488,7 +1488,8 @@ class Diagnosis:
         return out
 
     def judge_pose(self, pose_test, cands: list[Candidate], decision: Decision,
-                   recast=None, constant_test=None, same_points=None) -> Decision:
+                   recast=None, constant_test=None, same_points=None,
+                   row_test=None) -> Decision:
         """Whether the reference pose is off, and what it leaves the candidates.
         ``pose_test(effects)``: the per-cloud rigid correction's test
         (``pose_error.fit_reference_pose``) on the model with ``effects``;
@@ -1514,7 +1515,17 @@ class Diagnosis:
           (``confounded_with``: pose_error and the candidate). Held out and fitted
           disagreeing by the margin is a tie too (``_better_of``). The held-out
           footing comes first: in-sample, six parameters per cloud always fit better
-          than one of a clock offset."""
+          than one of a clock offset.
+        - The pose takes a named clock offset (it passes on top of it, the clock not on
+          the corrected pose), but what it gains beyond the clock grows with the row
+          (``row_test(effect)``: ``row_clock.row_time_test``, asked where the points
+          carry no time within a cloud): a time within the exposure the points do not
+          carry, which neither explains; the two stand in for its mean, a tie
+          (``rows_under_clock``).
+        - Beside a named effect that stands, the pose, the clock and what the decision
+          holds beside it are asked on top of each other both ways
+          (``beside.weigh_beside``): the one that passes on top of the other keeps its
+          place; neither, a tie beside the named effect (``beside_tie``)."""
         tests = [pose_test] + ([constant_test] if constant_test is not None else [])
         alone = [(t, t([])) for t in tests]
         passed = [(t, p) for t, p in alone if p.significant]
@@ -1550,6 +1561,7 @@ class Diagnosis:
                              'significant': bool(on_top.significant)}
             if not on_top.significant:
                 explain.append(c)
+        from_beside = not explain
         if not explain:
             explain = self.pose_beside_named(test, pose, decision, cands)
         if not any(c.admissible and c.effect is not None for c in cands):
@@ -1581,7 +1593,17 @@ class Diagnosis:
                               **({'params_on_pose': a.params} if a.params else {})}
         if explain:
             if any(passes.get(c.name) for c in explain):
-                return decision            # it explains what the pose cannot: it stands
+                # It explains what the pose cannot: it stands. What the decision holds
+                # beside it took the pose's part: asked the other way too, with the
+                # clock (``beside.weigh_beside``).
+                if from_beside:
+                    lead = by_name[decision.missing]
+                    held = [by_name[n] for n in lead.pose_beside['with'] if n in by_name]
+                    weighed = beside.weigh_beside(self, decision, lead, cands, held, test,
+                                                  pose, on_pose, again)
+                    if weighed is not None:
+                        return weighed
+                return decision
             # Neither adds to the other: held out (the candidate's gain against the
             # pose's), then as --fit leaves them (its fitted NLL against the
             # pose-corrected model's); MIN_PRACTICAL_GAIN apart the better one stands.
@@ -1615,13 +1637,37 @@ class Diagnosis:
                                 withheld=dict(decision.withheld))
             return Decision(None, [], pose=pose, withheld=dict(decision.withheld))
         if not any(passes.values()):
+            if self.rows_under_clock(named, row_test):
+                return Decision(None, [POSE_ERROR, beside.CLOCK], pose=pose,
+                                withheld=dict(decision.withheld))
             return Decision(None, [], pose=pose)
         # The pose is off beside what was named (its test passes on top of it): the
         # candidates are decided again on the pose-corrected model, which is named, a
         # tie, and what also explains another part. On the recorded pose a drifting
         # pose's residual at silhouettes reads as incidence: beside a range walk it
         # was named, or said to explain a part of its own ("also").
-        return replace(on_pose.decide(again), pose=pose, withheld=dict(decision.withheld))
+        final = replace(on_pose.decide(again), pose=pose, withheld=dict(decision.withheld))
+        lead = by_name.get(final.missing)
+        if lead is not None and final.missing == decision.missing and lead.effect is not None:
+            # The pose beside the named effect, against the clock (``beside.weigh_beside``).
+            held = [by_name[final.also]] if final.also in by_name else []
+            weighed = beside.weigh_beside(self, final, lead, cands, held, test, pose,
+                                          on_pose, again)
+            if weighed is not None:
+                return weighed
+        return final
+
+    def rows_under_clock(self, named: list[Candidate], row_test) -> bool:
+        """Whether a named clock offset (``time_offset``, nameable) that the pose took
+        stands, with the pose, for a time that grows with the row (``row_test(effect)``,
+        called with the clock's effect: a ``row_clock.RowTime``; None: not asked). The
+        test's figures are recorded on the clock's ``against_pose['row_time']``."""
+        clock = next((c for c in named if c.name == beside.CLOCK), None)
+        if clock is None or row_test is None or not self.nameable(clock):
+            return False
+        rows = row_test(clock.effect)
+        clock.against_pose = {**(clock.against_pose or {}), 'row_time': rows.as_dict()}
+        return bool(rows.significant)
 
     def pose_beside_named(self, test, pose, decision: Decision,
                           cands: list[Candidate]) -> list[Candidate]:
@@ -2388,12 +2434,13 @@ def settle(decision: Decision, cands: list[Candidate],
     by_name = {c.name: c for c in cands}
     withheld = dict(decision.withheld)
 
-    def why_not(name: str | None) -> str | None:
+    def why_not(name: str | None, beside_named: str | None = None) -> str | None:
         if name is None or name == POSE_ERROR:
             return None
         c = by_name.get(decision.evidence if name == decision.missing and decision.evidence
                         else name)
-        why = 'not among the candidates' if c is None else fault(c)
+        why = ('not among the candidates' if c is None else
+               None if passed_on_top_of(c, beside_named) else fault(c))
         if why is not None:
             withheld[name] = why
         return why
@@ -2405,9 +2452,19 @@ def settle(decision: Decision, cands: list[Candidate],
     # "Also" beside a named effect, or beside the tie of the pose with a candidate
     # (``judge_pose``: it passed on the corrected pose too).
     also = (decision.also if (missing is not None or POSE_ERROR in tied)
-            and why_not(decision.also) is None else None)
+            and why_not(decision.also, missing) is None else None)
     return replace(decision, missing=missing, also=also, confounded_with=tied,
                    evidence=decision.evidence if missing else None, withheld=withheld)
+
+
+def passed_on_top_of(cand: Candidate, named: str | None) -> bool:
+    """Whether ``cand`` passed the rule on top of the named effect ``named``, held out
+    and fitted (``beside.clock_on_top``: a clock offset, whose gain alone an effect ten
+    times its size swamps): its 'also' is judged on that gain, the one the verdict
+    quotes for it."""
+    on_top = (cand.against_pose or {}).get('beside') or {}
+    return bool(named is not None and on_top.get('on_top_of') == named
+                and on_top.get('gain') is not None)
 
 
 def rank(candidates: list[Candidate]) -> list[Candidate]:

@@ -56,9 +56,12 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
         return _out(True, 'off', 'its test passes and no sensor effect is named beside it',
                     shown)
     if decision.beside_tie and decision.beside_pose is not None:
-        return _out(True, 'beside_tie', 'beside the named effect, a per-cloud pose and a '
-                    'range offset of the sensor changing between clouds explain one more part '
-                    'alike (also_confounded_with): neither is named', shown)
+        other = [n for n in decision.beside_tie if n != POSE_ERROR]
+        what = ('a range offset of the sensor changing between clouds' if other == [
+            'range_drift'] else _join(other))
+        return _out(True, 'beside_tie', f'beside the named effect, the pose and {what} '
+                    'explain one more part alike (also_confounded_with): neither is named',
+                    shown)
     small = pose.get('too_small')
     if small:
         return _out(False, None, f'its test passes ({_f(small["test_gain_per_matched_point"])} '

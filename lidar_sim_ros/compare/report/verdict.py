@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare.diagnose import diagnosis
+from lidar_sim_ros.compare.diagnose import beside, diagnosis
 from lidar_sim_ros.compare.model.materials import common_offset_m
 
 EFFECT_WORDS = {
@@ -133,7 +133,8 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                'follows range (docs/effects.md, "Write your own effect") would fit it better.'
                if stand_in else f'Run again with --effect {missing} --fit to add it.'))
         if decision.also:
-            parts.append(f'{decision.also} also explains a separate part of the residual: '
+            parts.append(f'{decision.also} also explains a separate part of the residual'
+                         f'{_on_top_words(cands, decision.also, missing)}: '
                          f'expect it in the next run.{_together_words(c)}')
         parts.extend(stands_in_words(decision))
         lasers = laser_intensity_words(summary.get('laser_intensity'))
@@ -177,8 +178,11 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     if region is not None and decision.pose is None and region.outcome != 'pose':
         parts.append(region_words(region))
     if getattr(decision, 'beside_tie', None) and decision.beside_pose is not None:
-        parts.append(range_offset_beside_words(decision.beside_pose,
-                                               [n for n in (missing, decision.also) if n]))
+        named = [n for n in (missing, decision.also) if n]
+        parts.append(range_offset_beside_words(decision.beside_pose, named)
+                     if diagnosis.RANGE_DRIFT in decision.beside_tie else
+                     pose_beside_tie_words(decision.beside_pose, named, [
+                         c for c in cands if c.name in decision.beside_tie]))
     vetoed = [c for c in cands if c.vetoed and c.significant and c.practical
               and c.name != missing and c.name not in decision.confounded_with]
     mechanism = mechanism_words(decision, cands)
@@ -621,6 +625,92 @@ def range_offset_beside_words(pose, named: list[str]) -> str:
             'seen across a wide angle, separates them.')
 
 
+def pose_beside_tie_words(pose, named: list[str], others: list) -> str:
+    """The verdict's sentence when, beside the named effects ``named``, the reference
+    pose and another explanation ``others`` (candidates: a clock offset, say) each leave
+    the other nothing (``beside_tie``: ``beside.weigh_beside``): neither passes the rule
+    on top of the named effects and the other."""
+    kind = _correction(pose)
+    pose_part = (f'{kind[0].lower()}{kind[1:]} gains {pose.gain:.4f} nats/point held out '
+                 f'(z = {pose.z:.1f})')
+    parts = []
+    for c in others:
+        b = (c.against_pose or {}).get('beside') or {}
+        bp = (c.against_pose or {}).get('beside_pose') or {}
+        value = (f', dt = {b["dt_s"]:+.3f} s' if b.get('dt_s') is not None else '')
+        on_top = (f'{c.name} gains {b["gain"]:.4f} nats/point held out on top of '
+                  f'{b["on_top_of"]} (z = {b["z"]:.1f}{value})' if b.get('gain') is not None
+                  else f'{c.name} explains it too')
+        if bp:
+            on_top += (f'; the pose gains {bp["pose_gain_on_top"]:.4f} (z = '
+                       f'{bp["pose_z_on_top"]:.1f}) on top of both, {c.name} does not pass '
+                       'on top of the corrected pose')
+        parts.append(on_top)
+    names = [c.name for c in others]
+    if names == [beside.CLOCK]:
+        what = ('a clock offset between the pose and LiDAR stamps or the reference pose: '
+                'on a target turning at a constant rate a clock offset moves it as one '
+                'rigid correction does. A recording in which the target turns at another '
+                'rate separates them (a clock offset follows the motion, a pose error does '
+                'not)')
+    else:
+        what = (f'the reference pose or {_join(names)}, which this recording cannot tell '
+                'apart')
+    return (f'Besides, with {_join(named)} in the model, {pose_part}, and '
+            f'{"; ".join(parts)}: {what}; none is named. If the tracking system is known to '
+            f'be right, add --effect {names[0]} --fit; if the sensor is, --effect '
+            'pose_error --fit.')
+
+
+def _on_top_words(cands: list, name: str, named: str) -> str:
+    """' (held out on top of NAMED it gains ...)' for an 'also' judged on its gain on top
+    of the named effect (``diagnosis.passed_on_top_of``), else ''."""
+    c = next((c for c in cands if c.name == name), None)
+    if c is None or not diagnosis.passed_on_top_of(c, named):
+        return ''
+    b = c.against_pose['beside']
+    value = f', dt = {b["dt_s"]:+.3f} s' if b.get('dt_s') is not None else ''
+    return (f' (held out on top of {named} it gains {b["gain"]:.4f} nats/point, z = '
+            f'{b["z"]:.1f}{value}; alone, beside the larger residual of {named}, '
+            f'{c.score:.4f}, z = {c.z:.1f})')
+
+
+def rolling_rows_words(rows: dict, pose_part: str, held: str, clock) -> str:
+    """The verdict when the pose took a clock offset but the residual grows with the row
+    (``time_offset``'s ``against_pose['row_time']``, ``row_clock.RowTime``): a time
+    within the exposure the points do not carry, outside the catalogue; the clock and
+    the pose stand in for its mean."""
+    dt = clock.params.get('dt_s') if clock is not None else None
+    mean = f' (dt = {dt:+.3f} s, the rows\' mean delay)' if dt is not None else ''
+    figures = (f'the clock offset growing linearly over the rows gains '
+               f'{rows["rate_gain_over_clock"]:.4f} nats/point held out on top of the clock '
+               f'(z = {rows["z"]:.1f}; {rows["beyond_range_over_row_gain"]:.4f}, z = '
+               f'{rows["beyond_range_over_row_z"]:.1f}, beyond a range offset growing with '
+               'the row too), and on top of it one rigid correction of the pose no longer '
+               f'passes ({rows["pose_gain_on_top"]:.4f}, z = {rows["pose_z_on_top"]:.1f})')
+    over = (f'{rows["over_clock_and_pose_gain"]:.4f}, z = '
+            f'{rows["over_clock_and_pose_z"]:.1f}')
+    if rows.get('passes_over_clock_and_pose'):
+        cause = (f'; on top of the clock and the pose the rows\' growth still gains {over}. '
+                 'The rows were exposed at different times while the target moved (a rolling '
+                 'shutter recorded as a global exposure, or a row delay the point times leave '
+                 'out): outside the catalogue')
+    else:
+        cause = (f' (on top of the clock and the pose the rows\' growth gains {over}: a '
+                 'turn of the pose about the line of sight shears the rows alike). Either '
+                 'the rows were exposed at different times while the target moved (a rolling '
+                 'shutter recorded as a global exposure, or a row delay the point times leave '
+                 'out: outside the catalogue), or the pose is off by that turn beside the '
+                 'clock; this recording cannot tell which')
+    return (f'A time within the exposure that the points do not carry: {pose_part}, and a '
+            f'clock offset explains the residual as well{held}, but what the pose gains '
+            f'beyond the clock grows with the row: {figures}{cause}. The clock offset{mean} '
+            'and the pose correction each stand in for the rows\' mean delay; none is '
+            'named. Points stamped with their row\'s time, or the target turning at another '
+            'rate, would show it; if the tracking system is known to be right, --effect '
+            'time_offset --fit models the mean delay.')
+
+
 def pose_tie_words(decision, summary: dict, cands: list) -> str:
     """The verdict when the reference pose and a candidate explain the data equally
     (``confounded_with`` holds ``pose_error`` and the candidate)."""
@@ -637,6 +727,9 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
     charged = footings.get('fitted_margin_charged')
     if charged is None:
         charged = footings.get('fitted_margin')
+    rows = footings.get('row_time') or {}
+    if other == ['time_offset'] and rows.get('significant'):
+        return rolling_rows_words(rows, pose_part, held, c)
     if other == ['time_offset'] and footings.get('fitted_margin') is not None \
             and summary.get('point_times') not in ('stamp', 'scan pattern'):
         return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
