@@ -208,6 +208,33 @@ def test_footprint_is_credited_only_with_edge_returns_at_its_power_fraction():
 
 
 
+def test_a_rigid_effect_is_credited_only_with_points_that_return_a_whole_beam():
+    """A surface standing proud places the whole beam on the target, so the points it
+    puts back beyond the silhouette return the full power it predicts, as the matched
+    points do (their measured / predicted ratio: ln spread 0.1 here); a footprint's edge
+    returns carry a fifth of it and are not credited to the standoff. Unknown power
+    keeps its credit; without measured power nothing changes."""
+    from dataclasses import replace
+    from lidar_sim_ros.core.effects.surface_offset import SurfaceOffset
+    eff = SurfaceOffset({'standoff_m': 0.03})
+    # The rays are placed with the whole beam (fraction 1, 1e-6 W predicted).
+    measured = np.array([2e-7, 1e-6, 2.4e-7, np.nan, 9e-7])
+    data = _edge_rays(1.0, measured)
+    rng = np.random.default_rng(3)
+    base_w = np.full(400, 1e-6)
+    baseline = type('B', (), {'ctx': type('C', (), {'power_w': base_w})()})()
+    data = replace(data, baseline=baseline,
+                   measured_power_w=base_w * np.exp(rng.normal(0.0, 0.1, 400)))
+    np.testing.assert_array_equal(diagnosis.full_power_placed(data, [eff]),
+                                  [False, True, False, True, True])
+    assert diagnosis.unmatched_credit(data, [eff], eff, 5.0) == 3.0
+    # Weak everywhere (the matched points too, an intensity scale): a whole beam still.
+    data_dim = replace(data, measured_power_w=0.2 * data.measured_power_w)
+    assert diagnosis.unmatched_credit(data_dim, [eff], eff, 5.0) == 5.0
+    assert diagnosis.unmatched_credit(replace(data, unmatched_power_w=None), [eff], eff,
+                                      5.0) == 5.0
+
+
 def _roof_and_wall():
     """Body frame: a roof (ridge along z at x = 9.5 m, eaves at x = 10 m, y = +-0.5 m)
     in front of a wall at x = 11 m: two silhouette edges with a 1 m depth step."""

@@ -2312,6 +2312,39 @@ def footprint_signature(data, effects: list[Effect]) -> np.ndarray:
         return partial & (measured < np.sqrt(ctx.power_w * full))
 
 
+def full_power_placed(data, effects: list[Effect]) -> np.ndarray | None:
+    """(M,) bool: unmatched points the model with ``effects`` puts back on the target
+    whose measured power is a whole beam's, as the model predicts: not below it by more
+    than UNMATCHED_Z of the spread that the matched points' own measured-to-predicted
+    power ratio shows (ln, median and robust sigma). A surface standing proud, a turned
+    beam or a clock offset moves the whole beam onto the target, so what it places
+    returns as strongly as any point; a footprint's edge returns carry only the share
+    of the beam that hit (weaker, near the threshold), and a rigid effect that places
+    them takes a footprint's points (the battery's ``beam_divergence_first``, eleventh
+    holdout ``beam_solar_incid``). None without measured power (nothing to judge by)."""
+    m = len(data.unmatched_range_m)
+    if data.unmatched_power_w is None or data.measured_power_w is None or m == 0:
+        return None
+    recast = lk.recast_unmatched(data, effects)
+    if recast is None:
+        return np.zeros(m, bool)
+    ctx, expected, sigma = recast
+    with np.errstate(invalid='ignore', divide='ignore'):
+        ref = np.log(np.asarray(data.measured_power_w, float)
+                     / np.asarray(data.baseline.ctx.power_w, float))
+        ref = ref[np.isfinite(ref)]
+        if len(ref) < lk.MIN_MATERIAL_POINTS:
+            return None
+        floor = float(np.median(ref)) - lk.UNMATCHED_Z * max(robust_sigma(ref), 1e-6)
+        measured = np.asarray(data.unmatched_power_w, float)
+        sig = np.maximum(np.nan_to_num(sigma, nan=np.inf), lk.MIN_SIGMA_M)
+        placed = (np.asarray(ctx.hit, bool) & (ctx.power_w >= ctx.threshold_power_w)
+                  & (np.abs(np.asarray(data.unmatched_range_m) - expected) <= lk.UNMATCHED_Z * sig))
+        whole = np.log(measured / ctx.power_w) >= floor
+        # A point without a measured power cannot show a fraction: it keeps its credit.
+        return placed & (whole | ~(np.isfinite(measured) & (measured > 0)))
+
+
 def no_false_returns(n_far: int, credited: float) -> str | None:
     """Why an outlier effect that claims less than one false return on the target has
     no signature of its own: fewer than MIN_FAR_POINTS matched points far beyond the
@@ -2332,12 +2365,14 @@ def unmatched_credit(data, effects: list[Effect], effect: Effect, gained: float)
     effect's own signature. False returns: isolated points at uniform ranges (already
     all that ``likelihood.unmatched_explained`` credits them); a footprint: edge returns
     at its power fraction (``footprint_signature``); any other ray-moving effect: judged
-    by its matched points (``Diagnosis._set_gain``)."""
+    by its matched points (``Diagnosis._set_gain``), and off the target only where the
+    points it places return a whole beam's power (``full_power_placed``)."""
     if gained <= 0 or is_outlier_effect(type(effect)):
         return max(gained, 0.0)
     if effect.cast_reach_rad(1.0) is not None:     # a footprint: it reaches only so far
         return float(min(gained, footprint_signature(data, effects).sum()))
-    return gained
+    whole = full_power_placed(data, effects)
+    return gained if whole is None else float(min(gained, whole.sum()))
 
 
 def naming_fault(cand: Candidate, before_nll: float) -> str | None:
