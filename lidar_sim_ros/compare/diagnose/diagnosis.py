@@ -12,7 +12,8 @@ cannot dominate. Unmatched points a candidate explains (returns beyond the
 silhouette, false returns off the target) count too, as many as it explains beyond
 those the model's own effects already explain, and only with the effect's own
 signature (``unmatched_credit``): points beyond the silhouette mark pose and timing
-errors as much as a footprint.
+errors as much as a footprint; a footprint's show the share of the beam that hit, a
+rigid effect's (a standoff, a turned beam, a clock offset) a whole beam's power.
 
 A diagnosis is a claim to a user. A candidate is named (``missing_effect``) only if
 all of these hold, each chosen from a principle, not from a dataset:
