@@ -235,6 +235,55 @@ def test_a_rigid_effect_is_credited_only_with_points_that_return_a_whole_beam():
                                       5.0) == 5.0
 
 
+class _RangeSplit(diagnosis.Diagnosis):
+    """A diagnosis whose candidates, fitted on the nearer half of 4000 matched points
+    (ranges 6-9 m) and scored on the farther and back, leave the per-point held-out
+    NLLs ``transfer`` gives (the rule alone; no data)."""
+
+    def __init__(self, transfer: dict):
+        n = 4000
+        meas = type('Meas', (), {'range_m': np.linspace(6.0, 9.0, n)})()
+        self.rays = diagnosis.RaySet.__new__(diagnosis.RaySet)
+        object.__setattr__(self.rays, 'meas', meas)
+        object.__setattr__(self.rays, 'matched', np.arange(n))
+        object.__setattr__(self.rays, 'unmatched', np.zeros(0, int))
+        self.n_total = n
+        self.matched_blocks = np.arange(n) // 10
+        self._z_crit = 2.94
+        self._transfer = transfer
+
+    def transfer_nll(self, variant, halves, on_top=()):
+        return self._transfer[variant]
+
+
+def test_a_footprint_and_a_standoff_are_told_apart_by_the_one_that_carries_over_in_range():
+    """A footprint's dilation grows with range, a standoff's does not: of the two, not
+    set apart on random halves, the one that fitted near still fits far is kept; equal
+    transfers leave them untold; a pair that is not a footprint and a standoff is not
+    weighed this way."""
+    from lidar_sim_ros.core.effects.beam_divergence import BeamDivergence
+    from lidar_sim_ros.core.effects.incidence_angle import IncidenceAngle
+    from lidar_sim_ros.core.effects.surface_offset import SurfaceOffset
+    rng = np.random.default_rng(5)
+    noise = rng.normal(0.0, 0.5, 4000)
+    beam = diagnosis.Candidate('beam_divergence', effect=BeamDivergence({'footprint_scale': 4.0}),
+                               variant=BeamDivergence)
+    proud = diagnosis.Candidate('surface_offset', effect=SurfaceOffset({'standoff_m': 0.03}),
+                                variant=SurfaceOffset)
+    incid = diagnosis.Candidate('incidence_angle', effect=IncidenceAngle({'bias_gain': 1.0}),
+                                variant=IncidenceAngle)
+    # The standoff fitted near loses 0.1 nats/point on the far points (and back).
+    diag = _RangeSplit({BeamDivergence: -1.0 + noise, SurfaceOffset: -0.9 + noise,
+                        IncidenceAngle: -0.9 + noise})
+    pair_z = {}
+    assert diag.range_decides(proud, beam, pair_z) is beam
+    assert diag.range_decides(beam, proud, {}) is beam
+    assert pair_z['beam_divergence']['range_split_margin'] == pytest.approx(-0.1)
+    assert diag.range_decides(beam, incid, {}) is None
+    same = _RangeSplit({BeamDivergence: -1.0 + noise, SurfaceOffset: -1.0 + noise + 1e-4})
+    assert same.range_decides(proud, beam, {}) is None
+
+
 def _roof_and_wall():
     """Body frame: a roof (ridge along z at x = 9.5 m, eaves at x = 10 m, y = +-0.5 m)
     in front of a wall at x = 11 m: two silhouette edges with a 1 m depth step."""

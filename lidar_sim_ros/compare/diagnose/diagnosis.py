@@ -1108,6 +1108,13 @@ class Diagnosis:
                                   'z': _num(z), 'fitted_margin': _num(fitted)}
                 if self.apart(margin, z, fitted):
                     continue      # decisively worse, by a margin that matters after --fit
+                lead = self.range_decides(best, c, pair_z)
+                if lead is c:
+                    stood_in.add(best.name)
+                    best, also, again = c, None, True
+                    break
+                if lead is best:
+                    continue      # the footprint or the standoff, told apart by range
                 if self.adds_to(best, c):
                     # Explains another part: two effects at once, unless that part is
                     # one the rule set aside for its shape (``beside_set_aside``).
@@ -2057,6 +2064,54 @@ class Diagnosis:
                                                        + b.unmatched_gain_points)
         z = total / np.sqrt(var) if var > 0 and np.isfinite(var) else 0.0
         return float(margin), float(z)
+
+    def range_decides(self, a: Candidate, b: Candidate, pair_z: dict) -> Candidate | None:
+        """Of a beam footprint and a surface standing proud that the held-out points do
+        not set apart, the one the ranges tell (or None: not such a pair, or untold). A
+        footprint's dilation and its edge bias grow with range (divergence x range), a
+        standoff moves the surface by the same distance at any range: each fitted on the
+        nearer half of the matched points (by measured range) and scored on the farther,
+        and the other way round (``transfer_nll``), the right one carries over. Decided
+        by the rule of any two candidates (``apart``: z above the bound, at least
+        MIN_PRACTICAL_GAIN nats per point, the transfer's margin standing for both)."""
+        if {self.footprint_or_standoff(a), self.footprint_or_standoff(b)} != {'footprint',
+                                                                              'standoff'}:
+            return None
+        try:
+            order = self.rays.matched
+            r = np.asarray(self.rays.meas.range_m[order], float)
+            near = r <= np.median(r)
+            none = self.rays.unmatched[:0]
+            halves = [self.rays._with(order[near], none), self.rays._with(order[~near], none)]
+            d = self.transfer_nll(b.variant, halves) - self.transfer_nll(a.variant, halves)
+        except Exception:  # noqa: BLE001 - not shown to be told apart
+            return None
+        ok = np.isfinite(d)
+        if ok.sum() < 2:
+            return None
+        mean, se = block_mean_se(d[ok], self.matched_blocks[ok])
+        margin = float(mean * ok.sum() / max(self.n_total, 1))
+        z = float(mean / se) if se > 0 and np.isfinite(se) else 0.0
+        pair_z[b.name] = {**pair_z.get(b.name, {}), 'range_split_margin': _num(margin),
+                          'range_split_z': _num(z)}
+        if self.apart(margin, z, margin):
+            return a
+        if self.apart(-margin, -z, -margin):
+            return b
+        return None
+
+    @staticmethod
+    def footprint_or_standoff(c: Candidate) -> str | None:
+        """'footprint' for an effect that reaches beyond the ray (a beam's cone),
+        'standoff' for one that moves the target's surfaces (``Effect.seen_target``)."""
+        eff = c.effect
+        if eff is None or c.variant is None:
+            return None
+        if eff.cast_reach_rad(1.0) is not None:
+            return 'footprint'
+        if type(eff).seen_target is not Effect.seen_target:
+            return 'standoff'
+        return None
 
     def adds_to(self, best: Candidate, other: Candidate) -> bool:
         """Whether ``other``, fitted on top of ``best``, still passes the rule: its
