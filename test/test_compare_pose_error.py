@@ -233,6 +233,8 @@ def test_a_rigid_effect_is_credited_only_with_points_that_return_a_whole_beam():
     assert diagnosis.unmatched_credit(data_dim, [eff], eff, 5.0) == 5.0
     assert diagnosis.unmatched_credit(replace(data, unmatched_power_w=None), [eff], eff,
                                       5.0) == 5.0
+    # Point times unknown: nothing is re-cast, so nothing is judged.
+    assert diagnosis.full_power_placed(replace(data, placement_uncertain=True), [eff]) is None
 
 
 class _RangeSplit(diagnosis.Diagnosis):

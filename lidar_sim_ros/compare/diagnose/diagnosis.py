@@ -2377,13 +2377,14 @@ def full_power_placed(data, effects: list[Effect]) -> np.ndarray | None:
     returns as strongly as any point; a footprint's edge returns carry only the share
     of the beam that hit (weaker, near the threshold), and a rigid effect that places
     them takes a footprint's points (the battery's ``beam_divergence_first``, eleventh
-    holdout ``beam_solar_incid``). None without measured power (nothing to judge by)."""
+    holdout ``beam_solar_incid``). None without measured power or where nothing is
+    re-cast (point times unknown): nothing to judge by."""
     m = len(data.unmatched_range_m)
     if data.unmatched_power_w is None or data.measured_power_w is None or m == 0:
         return None
     recast = lk.recast_unmatched(data, effects)
-    if recast is None:
-        return np.zeros(m, bool)
+    if recast is None:      # nothing placed by a re-cast (e.g. point times unknown)
+        return None
     ctx, expected, sigma = recast
     with np.errstate(invalid='ignore', divide='ignore'):
         ref = np.log(np.asarray(data.measured_power_w, float)
