@@ -280,10 +280,19 @@ def test_a_footprint_and_a_standoff_are_told_apart_by_the_one_that_carries_over_
     pair_z = {}
     assert diag.range_decides(proud, beam, pair_z) is beam
     assert diag.range_decides(beam, proud, {}) is beam
-    assert pair_z['beam_divergence']['range_split_margin'] == pytest.approx(-0.1)
+    assert pair_z['surface_offset']['range_split_by'] == 'beam_divergence'
+    assert pair_z['surface_offset']['range_split_margin'] == pytest.approx(0.1)
+    # The verdict says why the standoff is not named, with the split's figures.
+    from types import SimpleNamespace
+    from lidar_sim_ros.compare.report.verdict import range_split_words
+    words = range_split_words(SimpleNamespace(pair_z=pair_z))
+    assert len(words) == 1 and words[0].startswith('surface_offset explains about as much')
+    assert '0.1000 nats/point worse than beam_divergence' in words[0]
     assert diag.range_decides(beam, incid, {}) is None
     same = _RangeSplit({BeamDivergence: -1.0 + noise, SurfaceOffset: -1.0 + noise + 1e-4})
-    assert same.range_decides(proud, beam, {}) is None
+    untold = {}
+    assert same.range_decides(proud, beam, untold) is None
+    assert 'range_split_by' not in untold['beam_divergence']
 
 
 def _roof_and_wall():

@@ -2092,13 +2092,17 @@ class Diagnosis:
         mean, se = block_mean_se(d[ok], self.matched_blocks[ok])
         margin = float(mean * ok.sum() / max(self.n_total, 1))
         z = float(mean / se) if se > 0 and np.isfinite(se) else 0.0
-        pair_z[b.name] = {**pair_z.get(b.name, {}), 'range_split_margin': _num(margin),
-                          'range_split_z': _num(z)}
-        if self.apart(margin, z, margin):
-            return a
-        if self.apart(-margin, -z, -margin):
-            return b
-        return None
+        lead = a if self.apart(margin, z, margin) else b if self.apart(-margin, -z, -margin) \
+            else None
+        if lead is None:           # untold: ``a``'s margin over ``b`` on the split, kept
+            pair_z[b.name] = {**pair_z.get(b.name, {}), 'range_split_margin': _num(margin),
+                              'range_split_z': _num(z)}
+            return None
+        lost = b if lead is a else a   # the verdict says why it is not named
+        pair_z[lost.name] = {**pair_z.get(lost.name, {}), 'range_split_by': lead.name,
+                             'range_split_margin': _num(abs(margin)),
+                             'range_split_z': _num(abs(z))}
+        return lead
 
     @staticmethod
     def footprint_or_standoff(c: Candidate) -> str | None:
