@@ -1110,6 +1110,12 @@ class Diagnosis:
                     continue      # decisively worse, by a margin that matters after --fit
                 lead = self.range_decides(best, c, pair_z)
                 if lead is c:
+                    # Its held-out figures against the one it replaces, from its side.
+                    held = pair_z.pop(c.name, {})
+                    pair_z[best.name] = {**{k: _num(-held[k]) for k in
+                                            ('margin', 'z', 'fitted_margin')
+                                            if held.get(k) is not None},
+                                         **pair_z.get(best.name, {})}
                     stood_in.add(best.name)
                     best, also, again = c, None, True
                     break
