@@ -208,6 +208,93 @@ def test_footprint_is_credited_only_with_edge_returns_at_its_power_fraction():
 
 
 
+def test_a_rigid_effect_is_credited_only_with_points_that_return_a_whole_beam():
+    """A surface standing proud places the whole beam on the target, so the points it
+    puts back beyond the silhouette return the full power it predicts, as the matched
+    points do (their measured / predicted ratio: ln spread 0.1 here); a footprint's edge
+    returns carry a fifth of it and are not credited to the standoff. Unknown power
+    keeps its credit; without measured power nothing changes."""
+    from dataclasses import replace
+    from lidar_sim_ros.core.effects.surface_offset import SurfaceOffset
+    eff = SurfaceOffset({'standoff_m': 0.03})
+    # The rays are placed with the whole beam (fraction 1, 1e-6 W predicted).
+    measured = np.array([2e-7, 1e-6, 2.4e-7, np.nan, 9e-7])
+    data = _edge_rays(1.0, measured)
+    rng = np.random.default_rng(3)
+    base_w = np.full(400, 1e-6)
+    baseline = type('B', (), {'ctx': type('C', (), {'power_w': base_w})()})()
+    data = replace(data, baseline=baseline,
+                   measured_power_w=base_w * np.exp(rng.normal(0.0, 0.1, 400)))
+    np.testing.assert_array_equal(diagnosis.full_power_placed(data, [eff]),
+                                  [False, True, False, True, True])
+    assert diagnosis.unmatched_credit(data, [eff], eff, 5.0) == 3.0
+    # Weak everywhere (the matched points too, an intensity scale): a whole beam still.
+    data_dim = replace(data, measured_power_w=0.2 * data.measured_power_w)
+    assert diagnosis.unmatched_credit(data_dim, [eff], eff, 5.0) == 5.0
+    assert diagnosis.unmatched_credit(replace(data, unmatched_power_w=None), [eff], eff,
+                                      5.0) == 5.0
+    # Point times unknown: nothing is re-cast, so nothing is judged.
+    assert diagnosis.full_power_placed(replace(data, placement_uncertain=True), [eff]) is None
+
+
+class _RangeSplit(diagnosis.Diagnosis):
+    """A diagnosis whose candidates, fitted on the nearer half of 4000 matched points
+    (ranges 6-9 m) and scored on the farther and back, leave the per-point held-out
+    NLLs ``transfer`` gives (the rule alone; no data)."""
+
+    def __init__(self, transfer: dict):
+        n = 4000
+        meas = type('Meas', (), {'range_m': np.linspace(6.0, 9.0, n)})()
+        self.rays = diagnosis.RaySet.__new__(diagnosis.RaySet)
+        object.__setattr__(self.rays, 'meas', meas)
+        object.__setattr__(self.rays, 'matched', np.arange(n))
+        object.__setattr__(self.rays, 'unmatched', np.zeros(0, int))
+        self.n_total = n
+        self.matched_blocks = np.arange(n) // 10
+        self._z_crit = 2.94
+        self._transfer = transfer
+
+    def transfer_nll(self, variant, halves, on_top=()):
+        return self._transfer[variant]
+
+
+def test_a_footprint_and_a_standoff_are_told_apart_by_the_one_that_carries_over_in_range():
+    """A footprint's dilation grows with range, a standoff's does not: of the two, not
+    set apart on random halves, the one that fitted near still fits far is kept; equal
+    transfers leave them untold; a pair that is not a footprint and a standoff is not
+    weighed this way."""
+    from lidar_sim_ros.core.effects.beam_divergence import BeamDivergence
+    from lidar_sim_ros.core.effects.incidence_angle import IncidenceAngle
+    from lidar_sim_ros.core.effects.surface_offset import SurfaceOffset
+    rng = np.random.default_rng(5)
+    noise = rng.normal(0.0, 0.5, 4000)
+    beam = diagnosis.Candidate('beam_divergence', effect=BeamDivergence({'footprint_scale': 4.0}),
+                               variant=BeamDivergence)
+    proud = diagnosis.Candidate('surface_offset', effect=SurfaceOffset({'standoff_m': 0.03}),
+                                variant=SurfaceOffset)
+    incid = diagnosis.Candidate('incidence_angle', effect=IncidenceAngle({'bias_gain': 1.0}),
+                                variant=IncidenceAngle)
+    # The standoff fitted near loses 0.1 nats/point on the far points (and back).
+    diag = _RangeSplit({BeamDivergence: -1.0 + noise, SurfaceOffset: -0.9 + noise,
+                        IncidenceAngle: -0.9 + noise})
+    pair_z = {}
+    assert diag.range_decides(proud, beam, pair_z) is beam
+    assert diag.range_decides(beam, proud, {}) is beam
+    assert pair_z['surface_offset']['range_split_by'] == 'beam_divergence'
+    assert pair_z['surface_offset']['range_split_margin'] == pytest.approx(0.1)
+    # The verdict says why the standoff is not named, with the split's figures.
+    from types import SimpleNamespace
+    from lidar_sim_ros.compare.report.verdict import range_split_words
+    words = range_split_words(SimpleNamespace(pair_z=pair_z))
+    assert len(words) == 1 and words[0].startswith('surface_offset explains about as much')
+    assert '0.1000 nats/point worse than beam_divergence' in words[0]
+    assert diag.range_decides(beam, incid, {}) is None
+    same = _RangeSplit({BeamDivergence: -1.0 + noise, SurfaceOffset: -1.0 + noise + 1e-4})
+    untold = {}
+    assert same.range_decides(proud, beam, untold) is None
+    assert 'range_split_by' not in untold['beam_divergence']
+
+
 def _roof_and_wall():
     """Body frame: a roof (ridge along z at x = 9.5 m, eaves at x = 10 m, y = +-0.5 m)
     in front of a wall at x = 11 m: two silhouette edges with a 1 m depth step."""

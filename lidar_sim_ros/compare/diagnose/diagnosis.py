@@ -12,7 +12,8 @@ cannot dominate. Unmatched points a candidate explains (returns beyond the
 silhouette, false returns off the target) count too, as many as it explains beyond
 those the model's own effects already explain, and only with the effect's own
 signature (``unmatched_credit``): points beyond the silhouette mark pose and timing
-errors as much as a footprint.
+errors as much as a footprint; a footprint's show the share of the beam that hit, a
+rigid effect's (a standoff, a turned beam, a clock offset) a whole beam's power.
 
 A diagnosis is a claim to a user. A candidate is named (``missing_effect``) only if
 all of these hold, each chosen from a principle, not from a dataset:
@@ -1107,6 +1108,19 @@ class Diagnosis:
                                   'z': _num(z), 'fitted_margin': _num(fitted)}
                 if self.apart(margin, z, fitted):
                     continue      # decisively worse, by a margin that matters after --fit
+                lead = self.range_decides(best, c, pair_z)
+                if lead is c:
+                    # Its held-out figures against the one it replaces, from its side.
+                    held = pair_z.pop(c.name, {})
+                    pair_z[best.name] = {**{k: _num(-held[k]) for k in
+                                            ('margin', 'z', 'fitted_margin')
+                                            if held.get(k) is not None},
+                                         **pair_z.get(best.name, {})}
+                    stood_in.add(best.name)
+                    best, also, again = c, None, True
+                    break
+                if lead is best:
+                    continue      # the footprint or the standoff, told apart by range
                 if self.adds_to(best, c):
                     # Explains another part: two effects at once, unless that part is
                     # one the rule set aside for its shape (``beside_set_aside``).
@@ -2103,6 +2117,58 @@ class Diagnosis:
         z = total / np.sqrt(var) if var > 0 and np.isfinite(var) else 0.0
         return float(margin), float(z)
 
+    def range_decides(self, a: Candidate, b: Candidate, pair_z: dict) -> Candidate | None:
+        """Of a beam footprint and a surface standing proud that the held-out points do
+        not set apart, the one the ranges tell (or None: not such a pair, or untold). A
+        footprint's dilation and its edge bias grow with range (divergence x range), a
+        standoff moves the surface by the same distance at any range: each fitted on the
+        nearer half of the matched points (by measured range) and scored on the farther,
+        and the other way round (``transfer_nll``), the right one carries over. Decided
+        by the rule of any two candidates (``apart``: z above the bound, at least
+        MIN_PRACTICAL_GAIN nats per point, the transfer's margin standing for both)."""
+        if {self.footprint_or_standoff(a), self.footprint_or_standoff(b)} != {'footprint',
+                                                                              'standoff'}:
+            return None
+        try:
+            order = self.rays.matched
+            r = np.asarray(self.rays.meas.range_m[order], float)
+            near = r <= np.median(r)
+            none = self.rays.unmatched[:0]
+            halves = [self.rays._with(order[near], none), self.rays._with(order[~near], none)]
+            d = self.transfer_nll(b.variant, halves) - self.transfer_nll(a.variant, halves)
+        except Exception:  # noqa: BLE001 - not shown to be told apart
+            return None
+        ok = np.isfinite(d)
+        if ok.sum() < 2:
+            return None
+        mean, se = block_mean_se(d[ok], self.matched_blocks[ok])
+        margin = float(mean * ok.sum() / max(self.n_total, 1))
+        z = float(mean / se) if se > 0 and np.isfinite(se) else 0.0
+        lead = a if self.apart(margin, z, margin) else b if self.apart(-margin, -z, -margin) \
+            else None
+        if lead is None:           # untold: ``a``'s margin over ``b`` on the split, kept
+            pair_z[b.name] = {**pair_z.get(b.name, {}), 'range_split_margin': _num(margin),
+                              'range_split_z': _num(z)}
+            return None
+        lost = b if lead is a else a   # the verdict says why it is not named
+        pair_z[lost.name] = {**pair_z.get(lost.name, {}), 'range_split_by': lead.name,
+                             'range_split_margin': _num(abs(margin)),
+                             'range_split_z': _num(abs(z))}
+        return lead
+
+    @staticmethod
+    def footprint_or_standoff(c: Candidate) -> str | None:
+        """'footprint' for an effect that reaches beyond the ray (a beam's cone),
+        'standoff' for one that moves the target's surfaces (``Effect.seen_target``)."""
+        eff = c.effect
+        if eff is None or c.variant is None:
+            return None
+        if eff.cast_reach_rad(1.0) is not None:
+            return 'footprint'
+        if type(eff).seen_target is not Effect.seen_target:
+            return 'standoff'
+        return None
+
     def adds_to(self, best: Candidate, other: Candidate) -> bool:
         """Whether ``other``, fitted on top of ``best``, still passes the rule: its
         held-out gain over ``best`` (matched and unmatched, ``total_z``) decisive and
@@ -2358,6 +2424,40 @@ def footprint_signature(data, effects: list[Effect]) -> np.ndarray:
         return partial & (measured < np.sqrt(ctx.power_w * full))
 
 
+def full_power_placed(data, effects: list[Effect]) -> np.ndarray | None:
+    """(M,) bool: unmatched points the model with ``effects`` puts back on the target
+    whose measured power is a whole beam's, as the model predicts: not below it by more
+    than UNMATCHED_Z of the spread that the matched points' own measured-to-predicted
+    power ratio shows (ln, median and robust sigma). A surface standing proud, a turned
+    beam or a clock offset moves the whole beam onto the target, so what it places
+    returns as strongly as any point; a footprint's edge returns carry only the share
+    of the beam that hit (weaker, near the threshold), and a rigid effect that places
+    them takes a footprint's points (the battery's ``beam_divergence_first``, eleventh
+    holdout ``beam_solar_incid``). None without measured power or where nothing is
+    re-cast (point times unknown): nothing to judge by."""
+    m = len(data.unmatched_range_m)
+    if data.unmatched_power_w is None or data.measured_power_w is None or m == 0:
+        return None
+    recast = lk.recast_unmatched(data, effects)
+    if recast is None:      # nothing placed by a re-cast (e.g. point times unknown)
+        return None
+    ctx, expected, sigma = recast
+    with np.errstate(invalid='ignore', divide='ignore'):
+        ref = np.log(np.asarray(data.measured_power_w, float)
+                     / np.asarray(data.baseline.ctx.power_w, float))
+        ref = ref[np.isfinite(ref)]
+        if len(ref) < lk.MIN_MATERIAL_POINTS:
+            return None
+        floor = float(np.median(ref)) - lk.UNMATCHED_Z * max(robust_sigma(ref), 1e-6)
+        measured = np.asarray(data.unmatched_power_w, float)
+        sig = np.maximum(np.nan_to_num(sigma, nan=np.inf), lk.MIN_SIGMA_M)
+        placed = (np.asarray(ctx.hit, bool) & (ctx.power_w >= ctx.threshold_power_w)
+                  & (np.abs(np.asarray(data.unmatched_range_m) - expected) <= lk.UNMATCHED_Z * sig))
+        whole = np.log(measured / ctx.power_w) >= floor
+        # A point without a measured power cannot show a fraction: it keeps its credit.
+        return placed & (whole | ~(np.isfinite(measured) & (measured > 0)))
+
+
 def no_false_returns(n_far: int, credited: float) -> str | None:
     """Why an outlier effect that claims less than one false return on the target has
     no signature of its own: fewer than MIN_FAR_POINTS matched points far beyond the
@@ -2378,12 +2478,14 @@ def unmatched_credit(data, effects: list[Effect], effect: Effect, gained: float)
     effect's own signature. False returns: isolated points at uniform ranges (already
     all that ``likelihood.unmatched_explained`` credits them); a footprint: edge returns
     at its power fraction (``footprint_signature``); any other ray-moving effect: judged
-    by its matched points (``Diagnosis._set_gain``)."""
+    by its matched points (``Diagnosis._set_gain``), and off the target only where the
+    points it places return a whole beam's power (``full_power_placed``)."""
     if gained <= 0 or is_outlier_effect(type(effect)):
         return max(gained, 0.0)
     if effect.cast_reach_rad(1.0) is not None:     # a footprint: it reaches only so far
         return float(min(gained, footprint_signature(data, effects).sum()))
-    return gained
+    whole = full_power_placed(data, effects)
+    return gained if whole is None else float(min(gained, whole.sum()))
 
 
 def naming_fault(cand: Candidate, before_nll: float) -> str | None:

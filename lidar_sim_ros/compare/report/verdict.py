@@ -137,6 +137,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                          f'{_on_top_words(cands, decision.also, missing)}: '
                          f'expect it in the next run.{_together_words(c)}')
         parts.extend(stands_in_words(decision))
+        parts.extend(range_split_words(decision))
         lasers = laser_intensity_words(summary.get('laser_intensity'))
         if lasers:
             parts.append(lasers)
@@ -362,6 +363,22 @@ def stands_in_words(decision) -> list[str]:
                     f'on top of {beside} and {name})')
         out.append(f'{name} explains about as much alone, but beside {beside} it only '
                    f'stands in for {third}{nums}, so it is not named.')
+    return out
+
+
+def range_split_words(decision) -> list[str]:
+    """Why a standoff or a footprint level with the other on held-out points is not
+    named: fitted on the nearer half of the ranges and scored on the farther (and back)
+    it did worse (``Diagnosis.range_decides``; ``against_named[NAME]``)."""
+    out = []
+    for name, w in (decision.pair_z or {}).items():
+        if not isinstance(w, dict) or 'range_split_by' not in w:
+            continue
+        out.append(f'{name} explains about as much on held-out points, but fitted on the '
+                   f'nearer half of the ranges and scored on the farther (and back) it does '
+                   f'{w["range_split_margin"]:.4f} nats/point worse than {w["range_split_by"]} '
+                   f'(z = {w["range_split_z"]:.1f}): a footprint grows with range, a surface '
+                   'standing proud does not, so it is not named.')
     return out
 
 
