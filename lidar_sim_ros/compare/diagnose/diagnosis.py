@@ -91,7 +91,7 @@ from lidar_sim_ros.compare.model import likelihood as lk
 from lidar_sim_ros.compare.diagnose import laser_tiles
 from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se, block_mean_z
 from lidar_sim_ros.compare.model import pointing
-from lidar_sim_ros.compare.model.fit import at_bounds, fit_effect
+from lidar_sim_ros.compare.model.fit import at_bounds, fit_effect, shift_offsets_along
 from lidar_sim_ros.compare.model.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
 from lidar_sim_ros.compare.model.matching import Model, predict_rays
 from lidar_sim_ros.compare.model.materials import robust_sigma
@@ -312,6 +312,37 @@ def heldout_nll(data, effects: list[Effect]) -> np.ndarray:
     the fitting likelihood (per-material nuisance profiled) with an outlier floor."""
     model = lk.model_on_rays(data, effects)
     return lk.point_nll(data, model, OUTLIER_FLOOR)[0]
+
+
+def transfer_both_ways(variant: type[Effect], data: list, on_top: list[Effect] = ()
+                       ) -> list[np.ndarray]:
+    """Per-point held-out NLL of each of two halves (``data``: two FitData) under
+    ``variant`` fitted on the other half, with ``on_top`` (fitted effects) in the model:
+    the tile test's transfer (``Diagnosis.transfer_nll``). NaN on the points of a laser
+    whose offsets the training half does not determine (``laser_tiles.undetermined``)."""
+    fits = [fit_effect(variant, data[1 - k], list(on_top)) for k in range(len(data))]
+    info = [f.extras.get('laser_information') for f in fits]
+    cells = [f.extras.get('offset_cells') for f in fits]
+    out = []
+    for k, part in enumerate(data):
+        effect = fits[k].effect
+        # The lasers' offsets that the other half leaves as loose as a few shared points
+        # do (groups of lasers linked through a material's intercept only there) are no
+        # evidence of a pattern: their level is taken on this half
+        # (``laser_tiles.poorly_linked``).
+        free = laser_tiles.poorly_linked(cells[k], cells[1 - k])
+        if free is not None and free.shape[1]:
+            effect = shift_offsets_along(effect, part, list(on_top), free)
+        nll = heldout_nll(part, [*on_top, effect])
+        # A laser whose offsets the other half does not determine (two per laser, seen
+        # through the surface's slope there) is not scored (``laser_tiles.undetermined``).
+        unknown = laser_tiles.undetermined(info[k], info[1 - k])
+        if unknown is not None:
+            laser = np.asarray(part.baseline.ctx.laser, np.int64)
+            nll = np.where(unknown[np.clip(laser, 0, len(unknown) - 1)]
+                           & (laser < len(unknown)), np.nan, nll)
+        out.append(nll)
+    return out
 
 
 def literal_choices(effect_cls: type[Effect]) -> dict[str, tuple]:
@@ -831,17 +862,7 @@ class Diagnosis:
         data = [make_fit_data(self.model, self.base, h, (self.full, self.rays))
                 for h in halves]
         out = np.full(len(self.rays.matched), np.nan)
-        fits = [fit_effect(variant, data[1 - k], list(on_top)) for k in range(len(halves))]
-        info = [f.extras.get('laser_information') for f in fits]
-        for k, h in enumerate(halves):
-            nll = heldout_nll(data[k], [*on_top, fits[k].effect])
-            # A laser whose offsets the other half does not determine (two per laser, seen
-            # through the surface's slope there) is not scored (``laser_tiles.undetermined``).
-            unknown = laser_tiles.undetermined(info[k], info[1 - k])
-            if unknown is not None:
-                laser = np.asarray(self.rays.meas.laser[h.matched], np.int64)
-                nll = np.where(unknown[np.clip(laser, 0, len(unknown) - 1)]
-                               & (laser < len(unknown)), np.nan, nll)
+        for h, nll in zip(halves, transfer_both_ways(variant, data, on_top)):
             out[np.searchsorted(self.rays.matched, h.matched)] = nll
         return out
 
