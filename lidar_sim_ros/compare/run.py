@@ -1018,6 +1018,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     # The one gate every name passes (missing, tie, also): the rule and the NLL.
     decision = diagnosis.settle(decision, cands, diag.naming_fault)
     diag.fit_together(decision, cands)
+    diag.lasers_beside_named(decision, cands)
     return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
                      diag.full, diag.z_crit, on_top)
 

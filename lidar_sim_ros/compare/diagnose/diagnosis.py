@@ -464,6 +464,7 @@ class Candidate:
     # out (``own_part_veto``).
     own_part: dict | None = None
     beside: str | None = None          # passed the tile test on top of this one (``lasers_beside``)
+    beside_gain: dict | None = None    # its gain on top of the named and 'also' (``lasers_beside_named``)
     together: dict | None = None       # refitted with the 'also' effect (``fit_together``)
     far_points: float = 0.0            # outlier effects: far or unmatched points it explains
     effect: Effect | None = None
@@ -508,6 +509,7 @@ class Candidate:
                 **({'structure_share': _num(self.share)} if self.share is not None else {}),
                 **({'vetoed': self.vetoed} if self.vetoed else {}),
                 **({'passes_beside': self.beside} if self.beside else {}),
+                **({'gain_beside': self.beside_gain} if self.beside_gain else {}),
                 **({'own_offsets': self.own_part} if self.own_part else {}),
                 **({'fitted_together': self.together} if self.together else {}),
                 **({'against_pose': self.against_pose} if self.against_pose else {}),
@@ -1460,6 +1462,36 @@ class Diagnosis:
                 c.vetoed, c.tile_vetoed, c.beside = None, False, best.name
                 return c.name
         return None
+
+    def lasers_beside_named(self, decision: 'Decision', cands: list[Candidate]) -> None:
+        """A per-laser candidate the tile test set aside, tried with the named effect and
+        its 'also' both in the model (fitted together, as --fit with both leaves them):
+        the pattern the tiles cut up may be theirs together (a walk beside false returns,
+        the walk 'also', so the lasers cannot be 'also' beside the named one). If its
+        offsets then hold across the tiles and it still passes the rule on top of both,
+        it is recorded as passing beside them (``beside``: 'A and B'; never named here):
+        the verdict says to expect it once those are fitted."""
+        by_name = {c.name: c for c in cands}
+        best, also = by_name.get(decision.missing), by_name.get(decision.also)
+        if (best is None or also is None or best.effect is None or also.effect is None
+                or laser_tiles.per_laser(best.effect) or laser_tiles.per_laser(also.effect)):
+            return
+        lasers = [c for c in rank(cands) if c.tile_vetoed and c.significant and c.practical
+                  and c.error is None and c.effect is not None and c.variant is not None]
+        if not lasers:
+            return
+        c = lasers[0]
+        try:
+            together = self._fitted_together([best.effect, also.effect])
+            if self.tile_veto(c, together) is not None:
+                return
+            gain, z, _ = self._on_top(together, c)
+        except Exception:  # noqa: BLE001 - not shown to hold beside them
+            return
+        if (gain >= MIN_PRACTICAL_GAIN and z >= self.z_crit
+                and gain * self.n_total >= MIN_TOTAL_GAIN):
+            c.beside = f'{best.name} and {also.name}'
+            c.beside_gain = {'gain': _num(gain), 'z': _num(z)}
 
     def simpler_instead(self, best: Candidate, others: list[Candidate],
                         pair_z: dict) -> Candidate | None:
