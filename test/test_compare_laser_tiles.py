@@ -289,6 +289,17 @@ def test_a_half_whose_laser_groups_share_a_material_through_few_points_leaves_th
     assert laser_tiles.poorly_linked(None, linked) is None
 
 
+def test_poorly_linked_ignores_lasers_without_points_and_empty_halves():
+    weak, linked = _weak_half_cells(5.0)
+    gap = [np.insert(c, 3, 0.0, axis=0) for c in (weak, linked)]   # laser 3: no point
+    free = laser_tiles.poorly_linked(*gap)
+    assert free.shape == (7, 1) and free[3, 0] == 0.0
+    assert np.allclose(np.delete(free, 3, axis=0), laser_tiles.poorly_linked(weak, linked))
+    assert laser_tiles.poorly_linked(np.zeros((0, 0)), np.zeros((0, 0))).shape == (0, 0)
+    # A half with no points determines no contrast of the six lasers' offsets.
+    assert laser_tiles.poorly_linked(np.zeros((0, 0)), linked).shape == (6, 5)
+
+
 N_HALF = 6 * 2 * 250
 
 

@@ -107,8 +107,10 @@ def poorly_linked(train_cells: np.ndarray | None,
     n_lasers = max(a.shape[0], b.shape[0])
     n_materials = max(a.shape[1], b.shape[1])
     pad = [np.pad(c, ((0, n_lasers - c.shape[0]), (0, n_materials - c.shape[1]))) for c in (a, b)]
-    own = offset_information(pad[0])
-    random_half = offset_information(0.5 * (pad[0] + pad[1]))
+    # Only the lasers with points (a sensor of up to MAX_LASERS ids): L x L stays small.
+    seen = np.flatnonzero((pad[0] + pad[1]).sum(axis=1) > 0)
+    own = offset_information(pad[0][seen])
+    random_half = offset_information(0.5 * (pad[0][seen] + pad[1][seen]))
     # The random half's information on the contrasts it determines (the lasers' mean and
     # a laser with no point on either half are no one's: the materials carry the mean).
     values, vectors = np.linalg.eigh(random_half)
@@ -117,9 +119,11 @@ def poorly_linked(train_cells: np.ndarray | None,
         return np.zeros((n_lasers, 0))
     whiten = vectors[:, keep] / np.sqrt(values[keep])
     ratio, turn = np.linalg.eigh(whiten.T @ own @ whiten)
-    free = whiten @ turn[:, ratio < MIN_INFORMATION_SHARE]
-    scale = np.abs(free).max(axis=0, initial=0.0)
-    return free / np.where(scale > 0, scale, 1.0)
+    free_seen = whiten @ turn[:, ratio < MIN_INFORMATION_SHARE]
+    scale = np.abs(free_seen).max(axis=0, initial=0.0)
+    free = np.zeros((n_lasers, free_seen.shape[1]))
+    free[seen] = free_seen / np.where(scale > 0, scale, 1.0)
+    return free
 
 
 def per_laser(effect) -> bool:

@@ -484,6 +484,7 @@ def laser_material_weights(laser: np.ndarray, material: np.ndarray,
         return np.zeros((0, 0))
     n_l, n_m = int(lz.max()) + 1, int(mat.max()) + 1
     w = 1.0 / np.maximum(np.asarray(sigma_m, float), MIN_SIGMA_M) ** 2
+    w = np.where(np.isfinite(w), w, 0.0)
     return np.bincount(lz * n_m + mat, weights=w, minlength=n_l * n_m).reshape(n_l, n_m)
 
 
