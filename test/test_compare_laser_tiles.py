@@ -234,3 +234,209 @@ def test_a_scalar_best_is_not_replaced_by_a_simpler_one():
     walk = _one('range_walk', 0.030, -2.058, seed=12)
     d = Hand(on_top={('range_walk', 'incidence_angle'): True}).decide(dg.rank([inc, walk]))
     assert d.missing is None and sorted(d.confounded_with) == ['incidence_angle', 'range_walk']
+
+
+# ------------------------------------------------ a half whose lasers are poorly linked
+def test_offset_information_is_the_least_squares_precision():
+    """The lasers' information with the materials' intercepts profiled out
+    (``laser_tiles.offset_information``) gives each contrast of the offsets the variance
+    of a plain least-squares fit of ``offset[laser] + intercept[material]`` (an
+    independent calculation: the full design's pseudo-inverse)."""
+    rng = np.random.default_rng(3)
+    cells = rng.uniform(0.0, 50.0, (5, 3)) * (rng.uniform(size=(5, 3)) > 0.3)
+    cells[:, 0] += 1.0                                 # every laser sees material 0
+    n_l, n_m = cells.shape
+    x, w = [], []
+    for la in range(n_l):
+        for m in range(n_m):
+            row = np.zeros(n_l + n_m)
+            row[la], row[n_l + m] = 1.0, 1.0
+            x.append(row)
+            w.append(cells[la, m])
+    x, w = np.array(x), np.array(w)
+    full_cov = np.linalg.pinv((x * w[:, None]).T @ x)[:n_l, :n_l]
+    cov = np.linalg.pinv(laser_tiles.offset_information(cells))
+    for _ in range(5):
+        c = rng.normal(size=n_l)
+        c -= c.mean()
+        assert c @ cov @ c == pytest.approx(c @ full_cov @ c, rel=1e-9)
+
+
+def _weak_half_cells(link: float) -> tuple[np.ndarray, np.ndarray]:
+    """Six lasers on two materials (weights per cell): in one half lasers 0-2 see only
+    material 0 and lasers 3-5 only material 1, but for ``link`` of laser 2 on material 1;
+    in the other half every laser sees both."""
+    weak = np.zeros((6, 2))
+    weak[:3, 0] = weak[3:, 1] = 500.0
+    weak[2, 1] = link
+    return weak, np.full((6, 2), 250.0)
+
+
+def test_a_half_whose_laser_groups_share_a_material_through_few_points_leaves_their_level():
+    weak, linked = _weak_half_cells(5.0)
+    free = laser_tiles.poorly_linked(weak, linked)
+    assert free.shape == (6, 1)
+    level = free[:, 0]
+    # The groups' relative level: the same within each group (but laser 2, which holds
+    # the link), opposite across.
+    assert np.ptp(level[3:]) < 1e-6 and abs(level[0] - level[1]) < 1e-6
+    assert np.sign(level[0]) == -np.sign(level[3]) and np.sign(level[2]) == np.sign(level[0])
+    # The well-linked half determines everything, as does a random half, and a half with
+    # fewer points on the same links (60 % of a random half's) is not poor.
+    assert laser_tiles.poorly_linked(linked, weak).shape[1] == 0
+    assert laser_tiles.poorly_linked(1.1 * linked, 0.9 * linked).shape[1] == 0
+    assert laser_tiles.poorly_linked(0.6 * linked, 1.4 * linked).shape[1] == 0
+    assert laser_tiles.poorly_linked(None, linked) is None
+
+
+def test_poorly_linked_ignores_lasers_without_points_and_empty_halves():
+    weak, linked = _weak_half_cells(5.0)
+    gap = [np.insert(c, 3, 0.0, axis=0) for c in (weak, linked)]   # laser 3: no point
+    free = laser_tiles.poorly_linked(*gap)
+    assert free.shape == (7, 1) and free[3, 0] == 0.0
+    assert np.allclose(np.delete(free, 3, axis=0), laser_tiles.poorly_linked(weak, linked))
+    assert laser_tiles.poorly_linked(np.zeros((0, 0)), np.zeros((0, 0))).shape == (0, 0)
+    # A half with no points determines no contrast of the six lasers' offsets.
+    assert laser_tiles.poorly_linked(np.zeros((0, 0)), linked).shape == (6, 5)
+
+
+N_HALF = 6 * 2 * 250
+
+
+def _half(residual_m, laser, material, sigma_m=SIGMA):
+    """FitData of matched points at 10 m with a known residual, laser and material."""
+    from lidar_sim_ros.compare.model import likelihood as lk
+    from lidar_sim_ros.core.effects import ReturnContext
+    from lidar_sim_ros.core.geometry import Hits
+    from lidar_sim_ros.core.pipeline import Prediction
+    n = len(residual_m)
+    rng_m, one = np.full(n, 10.0), np.ones(n)
+    ctx = ReturnContext(range_m=rng_m, incidence_rad=0 * one, material=material,
+                        power_w=one, intensity=one, t_s=0 * one, az_rad=0 * one,
+                        el_rad=0 * one, laser=laser, divergence_rad=1e-3,
+                        hit=np.ones(n, bool), threshold_power_w=0.1)
+    hits = Hits(np.ones(n, bool), rng_m, np.zeros((n, 3)), 0 * one, material,
+                np.zeros(n, int))
+    pred = Prediction(ctx, hits, np.tile([1.0, 0, 0], (n, 1)), 0 * one, sigma_m * one)
+    return lk.FitData(measured_range_m=rng_m + residual_m, baseline=pred,
+                      cast=lambda e: pred, unmatched_range_m=np.zeros(0),
+                      cast_unmatched=lambda e: pred, range_window_m=(5.0, 15.0))
+
+
+def _two_halves(seed: int, link: int, pattern_m: float = 0.0):
+    """Points of six lasers (true offsets sd 3 cm, each material its own intercept) in
+    two halves of each tile: in the first, lasers 0-2 see material 0 and 3-5 material 1,
+    linked through ``link`` points of laser 2 on material 1; in the second every laser
+    sees both. ``pattern_m``: a range error of the target that differs between the
+    halves of lasers 0 and 3 (a pattern the tiles cut up). Returns the halves'
+    (residual, laser, material) and the same points split at random."""
+    rng = np.random.default_rng(seed)
+    offsets = rng.normal(0.0, 0.03, 6)
+    intercept = np.array([0.01, -0.02])
+    weak_l = np.repeat(np.arange(6), 500)
+    weak_m = (weak_l >= 3).astype(int)
+    weak_l = np.concatenate([weak_l, np.full(link, 2)])
+    weak_m = np.concatenate([weak_m, np.ones(link, int)])
+    linked_l = np.repeat(np.arange(6), 500)
+    linked_m = np.tile(np.repeat([0, 1], 250), 6)
+    parts = []
+    for k, (la, m) in enumerate(((weak_l, weak_m), (linked_l, linked_m))):
+        r = offsets[la] + intercept[m] + rng.normal(0.0, SIGMA, len(la))
+        r += np.where(np.isin(la, (0, 3)), pattern_m * (1 if k else -1), 0.0)
+        parts.append((r, la, m))
+    together = [np.concatenate(v) for v in zip(*parts)]
+    pick = rng.permutation(len(together[0])) % 2 == 0
+    at_random = [tuple(v[side] for v in together) for side in (pick, ~pick)]
+    return parts, at_random
+
+
+def _loss(parts, at_random, free_level: bool = True) -> float:
+    """What the lasers' offsets fitted on one half and scored on the other lose against
+    fitted on a random half and scored on the other (nats per point, both ways);
+    ``free_level`` False: scored as fitted (the old transfer)."""
+    from lidar_sim_ros.compare.model.fit import fit_effect
+    from lidar_sim_ros.core.effects.laser_bias import LaserBias
+
+    def both_ways(halves):
+        data = [_half(*h) for h in halves]
+        if free_level:
+            return np.concatenate(dg.transfer_both_ways(LaserBias, data))
+        return np.concatenate([dg.heldout_nll(data[k], [fit_effect(LaserBias, data[1 - k]).effect])
+                               for k in range(2)])
+    n = sum(len(p[0]) for p in parts)
+    return float((both_ways(parts).sum() - both_ways(at_random).sum()) / n)
+
+
+@pytest.mark.parametrize('seed', [1, 2, 3])
+def test_a_groups_level_a_half_leaves_loose_is_not_held_against_the_lasers(seed):
+    """Pure offsets per laser, but one half links its two groups of lasers through two
+    points (the materials' intercepts take the groups' level there, as the azimuth halves
+    of the ninth holdout's walk+laser+bg_101 and the eleventh's laser_1 do): scored as
+    fitted the transfer loses the groups' level guessed from two points (past the
+    rule's margin on these seeds); with that level taken on the scored half it loses
+    nothing against a random half (the halves' own scoring differs by up to 0.001
+    nats/point with the true offsets)."""
+    parts, at_random = _two_halves(seed, link=2)
+    assert _loss(parts, at_random, free_level=False) > dg.MIN_PRACTICAL_GAIN
+    assert _loss(parts, at_random) < 0.2 * dg.MIN_PRACTICAL_GAIN
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_a_pattern_the_tiles_cut_up_still_loses_beside_a_loose_level(seed):
+    """The same halves with a range error 1.2 cm apart between the halves of two lasers of
+    different groups (a pattern on the target): the level left free does not take it,
+    the transfer still loses past the margin."""
+    parts, at_random = _two_halves(seed, link=2, pattern_m=0.006)
+    assert _loss(parts, at_random) > dg.MIN_PRACTICAL_GAIN
+
+
+# ------------------------------------- the lasers beside the named effect and its 'also'
+class BesideTwo(Beside):
+    """``Beside`` where the pattern is the named effect's and its 'also''s together:
+    their joint fit is the effects themselves, and the lasers' gain on top of them the
+    closed-form held-out gain of per-laser means on the residual they leave."""
+
+    def _fitted_together(self, effects):
+        return list(effects)
+
+    def _on_top(self, on_top, other):
+        res, laser = self._residual(on_top), self.rays.meas.laser
+        one = self.random_fold == 1
+        fitted = np.concatenate([_nll(res, laser, ~one, one), _nll(res, laser, one, ~one)])
+        r = np.concatenate([res[one], res[~one]])
+        d = 0.5 * (r / SIGMA) ** 2 + np.log(SIGMA * np.sqrt(2 * np.pi)) - fitted
+        gain, se = dg.block_mean_se(d, self.matched_blocks)
+        return gain, gain / se, fitted
+
+
+def _named(name):
+    c = _one(name, 0.4, -3.2, seed=5)
+    c.effect = SimpleNamespace(name=name, params=SimpleNamespace(model_dump=lambda: {'p': 0.0}))
+    return c
+
+
+@pytest.mark.parametrize('size_m, passes', [(0.02, True), (0.004, False)])
+def test_lasers_set_aside_hold_beside_the_named_effect_and_its_also(size_m, passes):
+    """The eleventh holdout's walk_solar_laser: false returns named, the walk 'also', and
+    the lasers' real offsets set aside by the tile test for the walk's pattern. With
+    both in the model the offsets hold across the tiles and still gain: recorded as
+    passing beside them, for the verdict's 'expect it once they are fitted' (never
+    named); where the named effects take a fifth of the pattern only, nothing is."""
+    from lidar_sim_ros.compare.report.verdict import set_aside_words
+    meas, residual = _recording(0.02, 0)
+    d = BesideTwo(meas, residual, _pattern(meas, size_m), 0)
+    laser = d.laser_candidate()
+    laser.vetoed = d.tile_veto(laser)
+    laser.tile_vetoed, laser.significant, laser.practical = True, True, True
+    assert laser.vetoed is not None
+    cands = [_named('solar_background'), _named('range_walk'), laser]
+    d.lasers_beside_named(dg.Decision('solar_background', [], 'range_walk'), cands)
+    words = set_aside_words(laser)
+    assert laser.vetoed is not None                      # never named here
+    if passes:
+        assert laser.beside == 'solar_background and range_walk'
+        assert laser.beside_gain['z'] > d.z_crit
+        assert 'expect it once they are fitted' in words
+        assert '--effect solar_background --effect range_walk --fit' in words
+    else:
+        assert laser.beside is None and 'is not the missing effect' in words

@@ -1038,6 +1038,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     # The one gate every name passes (missing, tie, also): the rule and the NLL.
     decision = diagnosis.settle(decision, cands, diag.naming_fault)
     diag.fit_together(decision, cands)
+    diag.lasers_beside_named(decision, cands)
     named_effect = next((c.effect for c in cands if c.name == decision.missing), None)
     alone = named_range_alone(decision.missing, named_effect, diag.full,
                               sample.blocks[sample.matched], diag.z_crit, seed)

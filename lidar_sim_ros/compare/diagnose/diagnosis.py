@@ -92,7 +92,7 @@ from lidar_sim_ros.compare.model import likelihood as lk
 from lidar_sim_ros.compare.diagnose import beside, laser_tiles
 from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se, block_mean_z
 from lidar_sim_ros.compare.model import pointing
-from lidar_sim_ros.compare.model.fit import at_bounds, fit_effect
+from lidar_sim_ros.compare.model.fit import at_bounds, fit_effect, shift_offsets_along
 from lidar_sim_ros.compare.model.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
 from lidar_sim_ros.compare.model.matching import Model, predict_rays
 from lidar_sim_ros.compare.model.materials import robust_sigma
@@ -315,6 +315,37 @@ def heldout_nll(data, effects: list[Effect]) -> np.ndarray:
     return lk.point_nll(data, model, OUTLIER_FLOOR)[0]
 
 
+def transfer_both_ways(variant: type[Effect], data: list, on_top: list[Effect] = ()
+                       ) -> list[np.ndarray]:
+    """Per-point held-out NLL of each of two halves (``data``: two FitData) under
+    ``variant`` fitted on the other half, with ``on_top`` (fitted effects) in the model:
+    the tile test's transfer (``Diagnosis.transfer_nll``). NaN on the points of a laser
+    whose offsets the training half does not determine (``laser_tiles.undetermined``)."""
+    fits = [fit_effect(variant, data[1 - k], list(on_top)) for k in range(len(data))]
+    info = [f.extras.get('laser_information') for f in fits]
+    cells = [f.extras.get('offset_cells') for f in fits]
+    out = []
+    for k, part in enumerate(data):
+        effect = fits[k].effect
+        # The lasers' offsets that the other half leaves as loose as a few shared points
+        # do (groups of lasers linked through a material's intercept only there) are no
+        # evidence of a pattern: their level is taken on this half
+        # (``laser_tiles.poorly_linked``).
+        free = laser_tiles.poorly_linked(cells[k], cells[1 - k])
+        if free is not None and free.shape[1]:
+            effect = shift_offsets_along(effect, part, list(on_top), free)
+        nll = heldout_nll(part, [*on_top, effect])
+        # A laser whose offsets the other half does not determine (two per laser, seen
+        # through the surface's slope there) is not scored (``laser_tiles.undetermined``).
+        unknown = laser_tiles.undetermined(info[k], info[1 - k])
+        if unknown is not None:
+            laser = np.asarray(part.baseline.ctx.laser, np.int64)
+            nll = np.where(unknown[np.clip(laser, 0, len(unknown) - 1)]
+                           & (laser < len(unknown)), np.nan, nll)
+        out.append(nll)
+    return out
+
+
 def literal_choices(effect_cls: type[Effect]) -> dict[str, tuple]:
     """The effect's discrete options (``Literal`` params that are not fitted), e.g. a
     beam footprint's range mode: the fit is run for each and the best kept."""
@@ -434,6 +465,7 @@ class Candidate:
     # out (``own_part_veto``).
     own_part: dict | None = None
     beside: str | None = None          # passed the tile test on top of this one (``lasers_beside``)
+    beside_gain: dict | None = None    # its gain on top of the named and 'also' (``lasers_beside_named``)
     together: dict | None = None       # refitted with the 'also' effect (``fit_together``)
     far_points: float = 0.0            # outlier effects: far or unmatched points it explains
     effect: Effect | None = None
@@ -478,6 +510,7 @@ class Candidate:
                 **({'structure_share': _num(self.share)} if self.share is not None else {}),
                 **({'vetoed': self.vetoed} if self.vetoed else {}),
                 **({'passes_beside': self.beside} if self.beside else {}),
+                **({'gain_beside': self.beside_gain} if self.beside_gain else {}),
                 **({'own_offsets': self.own_part} if self.own_part else {}),
                 **({'fitted_together': self.together} if self.together else {}),
                 **({'against_pose': self.against_pose} if self.against_pose else {}),
@@ -832,17 +865,7 @@ class Diagnosis:
         data = [make_fit_data(self.model, self.base, h, (self.full, self.rays))
                 for h in halves]
         out = np.full(len(self.rays.matched), np.nan)
-        fits = [fit_effect(variant, data[1 - k], list(on_top)) for k in range(len(halves))]
-        info = [f.extras.get('laser_information') for f in fits]
-        for k, h in enumerate(halves):
-            nll = heldout_nll(data[k], [*on_top, fits[k].effect])
-            # A laser whose offsets the other half does not determine (two per laser, seen
-            # through the surface's slope there) is not scored (``laser_tiles.undetermined``).
-            unknown = laser_tiles.undetermined(info[k], info[1 - k])
-            if unknown is not None:
-                laser = np.asarray(self.rays.meas.laser[h.matched], np.int64)
-                nll = np.where(unknown[np.clip(laser, 0, len(unknown) - 1)]
-                               & (laser < len(unknown)), np.nan, nll)
+        for h, nll in zip(halves, transfer_both_ways(variant, data, on_top)):
             out[np.searchsorted(self.rays.matched, h.matched)] = nll
         return out
 
@@ -1453,6 +1476,36 @@ class Diagnosis:
                 c.vetoed, c.tile_vetoed, c.beside = None, False, best.name
                 return c.name
         return None
+
+    def lasers_beside_named(self, decision: 'Decision', cands: list[Candidate]) -> None:
+        """A per-laser candidate the tile test set aside, tried with the named effect and
+        its 'also' both in the model (fitted together, as --fit with both leaves them):
+        the pattern the tiles cut up may be theirs together (a walk beside false returns,
+        the walk 'also', so the lasers cannot be 'also' beside the named one). If its
+        offsets then hold across the tiles and it still passes the rule on top of both,
+        it is recorded as passing beside them (``beside``: 'A and B'; never named here):
+        the verdict says to expect it once those are fitted."""
+        by_name = {c.name: c for c in cands}
+        best, also = by_name.get(decision.missing), by_name.get(decision.also)
+        if (best is None or also is None or best.effect is None or also.effect is None
+                or laser_tiles.per_laser(best.effect) or laser_tiles.per_laser(also.effect)):
+            return
+        lasers = [c for c in rank(cands) if c.tile_vetoed and c.significant and c.practical
+                  and c.error is None and c.effect is not None and c.variant is not None]
+        if not lasers:
+            return
+        c = lasers[0]
+        try:
+            together = self._fitted_together([best.effect, also.effect])
+            if self.tile_veto(c, together) is not None:
+                return
+            gain, z, _ = self._on_top(together, c)
+        except Exception:  # noqa: BLE001 - not shown to hold beside them
+            return
+        if (gain >= MIN_PRACTICAL_GAIN and z >= self.z_crit
+                and gain * self.n_total >= MIN_TOTAL_GAIN):
+            c.beside = f'{best.name} and {also.name}'
+            c.beside_gain = {'gain': _num(gain), 'z': _num(z)}
 
     def simpler_instead(self, best: Candidate, others: list[Candidate],
                         pair_z: dict) -> Candidate | None:

@@ -74,6 +74,58 @@ def undetermined(train_information: np.ndarray | None,
     return out
 
 
+def offset_information(cells: np.ndarray) -> np.ndarray:
+    """(L, L) information on the lasers' additive range offsets (1/m^2) with one
+    intercept per material profiled out, from ``cells`` (L, M): the summed weights
+    1/sigma^2 of each laser's points on each material. The Schur complement
+    ``D_L - B D_M^-1 B^T``: a weighted Laplacian of the lasers, linked through the
+    materials they share (a material's intercept takes any common shift of the lasers
+    that alone see it)."""
+    b = np.asarray(cells, float)
+    on_material = b.sum(axis=0)
+    seen = on_material > 0
+    b_seen = b[:, seen]
+    return np.diag(b.sum(axis=1)) - (b_seen / on_material[seen]) @ b_seen.T
+
+
+def poorly_linked(train_cells: np.ndarray | None,
+                  other_cells: np.ndarray | None) -> np.ndarray | None:
+    """(L, k) directions in the lasers' offsets (columns, largest element 1) that a fit
+    on one half of each laser's points (``train_cells``, (L, M) as
+    ``offset_information`` takes them) determines less well than a random half would:
+    the generalized eigenvectors of its information against a random half's (the two
+    halves' mean cells, ``other_cells`` the other half's) whose ratio is below
+    MIN_INFORMATION_SHARE, i.e. whose variance is over twice a random half's. A half
+    whose lasers fall into groups that share a material through a few points only
+    leaves the groups' relative level so (the materials' intercepts take it). Such a
+    level is no evidence against the lasers: the transfer scores it refitted (``Diagnosis.
+    transfer_nll``). None without cells (an effect that keeps none)."""
+    if train_cells is None or other_cells is None:
+        return None
+    a = np.asarray(train_cells, float)
+    b = np.asarray(other_cells, float)
+    n_lasers = max(a.shape[0], b.shape[0])
+    n_materials = max(a.shape[1], b.shape[1])
+    pad = [np.pad(c, ((0, n_lasers - c.shape[0]), (0, n_materials - c.shape[1]))) for c in (a, b)]
+    # Only the lasers with points (a sensor of up to MAX_LASERS ids): L x L stays small.
+    seen = np.flatnonzero((pad[0] + pad[1]).sum(axis=1) > 0)
+    own = offset_information(pad[0][seen])
+    random_half = offset_information(0.5 * (pad[0][seen] + pad[1][seen]))
+    # The random half's information on the contrasts it determines (the lasers' mean and
+    # a laser with no point on either half are no one's: the materials carry the mean).
+    values, vectors = np.linalg.eigh(random_half)
+    keep = values > 1e-9 * max(float(values.max(initial=0.0)), 1e-300)
+    if not keep.any():
+        return np.zeros((n_lasers, 0))
+    whiten = vectors[:, keep] / np.sqrt(values[keep])
+    ratio, turn = np.linalg.eigh(whiten.T @ own @ whiten)
+    free_seen = whiten @ turn[:, ratio < MIN_INFORMATION_SHARE]
+    scale = np.abs(free_seen).max(axis=0, initial=0.0)
+    free = np.zeros((n_lasers, free_seen.shape[1]))
+    free[seen] = free_seen / np.where(scale > 0, scale, 1.0)
+    return free
+
+
 def per_laser(effect) -> bool:
     """Whether ``effect`` carries a parameter per laser (a list among its params, e.g.
     ``laser_bias``'s ``offsets_m``): it can fit any pattern the lasers' tiles lay over

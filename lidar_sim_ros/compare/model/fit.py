@@ -469,8 +469,47 @@ def _fit_laser_bias(cls: type[Effect], data: FitData,
         off[:len(fitted)] = fitted
     lo, hi = cls.bounds['offsets_m']
     effect = cls({'offsets_m': [round(float(v), 6) for v in np.clip(off, lo, hi)]})
-    return make_result_vector(effect, data, base_effects,
-                              {f'laser_{i}_m': float(v) for i, v in enumerate(off)})
+    result = make_result_vector(effect, data, base_effects,
+                                {f'laser_{i}_m': float(v) for i, v in enumerate(off)})
+    # How the points link the lasers through the materials (``laser_tiles.poorly_linked``).
+    cells = laser_material_weights(laser[use], _groups(data)[use], model.sigma_m[use])
+    return replace(result, extras={'offset_cells': cells})
+
+
+def laser_material_weights(laser: np.ndarray, material: np.ndarray,
+                           sigma_m: np.ndarray) -> np.ndarray:
+    """(L, M) summed weights 1/sigma^2 (1/m^2) of each laser's points on each material:
+    what determines the lasers' offsets beside one intercept per material."""
+    lz = np.asarray(laser, np.int64)
+    mat = np.asarray(material, np.int64)
+    if not len(lz):
+        return np.zeros((0, 0))
+    n_l, n_m = int(lz.max()) + 1, int(mat.max()) + 1
+    w = 1.0 / np.maximum(np.asarray(sigma_m, float), MIN_SIGMA_M) ** 2
+    w = np.where(np.isfinite(w), w, 0.0)
+    return np.bincount(lz * n_m + mat, weights=w, minlength=n_l * n_m).reshape(n_l, n_m)
+
+
+def shift_offsets_along(effect: Effect, data: FitData, base_effects: Sequence[Effect],
+                        directions: np.ndarray) -> Effect:
+    """``effect`` (``laser_bias``) with its offsets moved along ``directions`` ((L, k)
+    columns in the lasers' offsets) by the ML shift on ``data`` (``linear_bias_coefficients``:
+    one intercept per material, robust weights) on top of ``base_effects`` and itself:
+    the part of the offsets that the points ``effect`` was fitted on did not determine,
+    taken from these points."""
+    d = np.asarray(directions, float)
+    off = np.asarray(effect.params.offsets_m, float)
+    if d.ndim != 2 or d.shape[1] == 0 or not len(off):
+        return effect
+    n = max(len(off), d.shape[0])
+    off, d = np.pad(off, (0, n - len(off))), np.pad(d, ((0, n - d.shape[0]), (0, 0)))
+    laser = np.asarray(data.baseline.ctx.laser, np.int64)
+    features = d[np.clip(laser, 0, n - 1)] * (laser < n)[:, None]
+    lo, hi = type(effect).bounds['offsets_m']
+    model = model_on_rays(data, [*base_effects, effect])
+    shift = linear_bias_coefficients(data, model, features, [(2 * lo, 2 * hi)] * d.shape[1])
+    moved = np.clip(off + d @ shift, lo, hi)
+    return type(effect)({'offsets_m': [round(float(v), 6) for v in moved]})
 
 
 def _fit_laser_pointing(cls: type[Effect], data: FitData,

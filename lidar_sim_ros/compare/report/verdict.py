@@ -189,8 +189,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     mechanism = mechanism_words(decision, cands)
     if vetoed and (missing or decision.confounded_with) and not (
             mechanism and vetoed[0].name in mechanism):
-        parts.append(f'{vetoed[0].name} would raise the likelihood but is not the missing '
-                     f'effect: {vetoed[0].vetoed}.')
+        parts.append(set_aside_words(vetoed[0]))
     parts.extend(mechanism.values())
     mats = summary['materials']
     bad = [n for n, m in mats.items() if m['bias_mismatch'] or m['sigma_mismatch']]
@@ -532,6 +531,21 @@ def _against_pose_words(c) -> str:
             f'surfaces the moved target puts there) the fit is {ap.get("fitted_margin") or 0:.4f} '
             f'nats/point worse than with {c.name}, as --fit leaves them: the rays at the edges '
             'did not move, the ranges did.')
+
+
+def set_aside_words(c) -> str:
+    """Why the first candidate set aside for its shape is not named; for lasers whose
+    offsets hold across the tiles only with the named effect and its 'also' in the model
+    (``Diagnosis.lasers_beside_named``), that they come next."""
+    if c.beside and c.beside_gain:
+        named = c.beside.split(' and ')
+        flags = ' '.join(f'--effect {n}' for n in named)
+        return (f'{c.name} is the next effect: alone it is set aside ({c.vetoed}), but with '
+                f'{c.beside} fitted together in the model its offsets hold across the tiles '
+                f'and it still gains {c.beside_gain["gain"]:.4f} nats/point held out '
+                f'(z = {c.beside_gain["z"]:.1f}): expect it once they are fitted '
+                f'(run again with {flags} --fit).')
+    return f'{c.name} would raise the likelihood but is not the missing effect: {c.vetoed}.'
 
 
 def constant_pose_beside_words(c) -> list[str]:
