@@ -945,6 +945,31 @@ def test_a_candidate_decisively_worse_alone_is_also_when_it_adds_on_top():
     assert dg.MAX_ALSO_TRIES == 2 and d.also is None
 
 
+def test_an_effect_on_the_shots_off_the_target_is_tried_on_top_whatever_its_rank():
+    """next_beside(): false returns (twelfth holdout incid_solar_1: solar_background
+    z 28 alone, 1005 unmatched points credited) ranked behind two candidates of the
+    named incidence elongation's own shape were never tried on top of it (only the
+    first MAX_ALSO_TRIES are). A candidate credited with unmatched points that the named
+    one does not touch explains another part by construction: it is tried and is
+    'also' where it adds on top. Not where the named one is credited with such points
+    too, nor beyond the first MAX_ALSO_TRIES without such points (the test above)."""
+    inc = cand('incidence_angle', 0.466, -2.20, seed=40)
+    twins = [cand(n, 0.37 - 0.001 * k, -2.10, seed=41 + k)
+             for k, n in enumerate(('surface_offset', 'laser_pointing'))]
+    solar = cand('solar_background', 0.27, -2.05, seed=44)
+    solar.unmatched_gain_points = 1005.0
+    on_top = {('incidence_angle', 'solar_background'): True}
+    d = Hand(on_top=on_top).decide(dg.rank([inc, *twins, solar]))
+    assert d.missing == 'incidence_angle' and d.also == 'solar_background'
+    assert Hand().decide(dg.rank([inc, *twins, solar])).also is None   # does not add
+    assert dg.on_other_shots(inc, solar)
+    inc.unmatched_gain_points = 600.0      # the named one explains such shots too
+    assert not dg.on_other_shots(inc, solar)
+    inc.unmatched_gain_points = 0.0
+    solar.unmatched_gain_points = dg.MIN_UNMATCHED_EXPLAINED - 1   # too few to be a part
+    assert Hand(on_top=on_top).decide(dg.rank([inc, *twins, solar])).also is None
+
+
 def _laser_like(c):
     c.n_params = 24
     c.effect = SimpleNamespace(name=c.name, params=SimpleNamespace(

@@ -1221,10 +1221,20 @@ class Diagnosis:
         candidates that may be named (``ok``, ranked) are tried on top of ``best``
         (``adds_to``: the rule on top, and the NLL of both below that of ``best``),
         and beside the effects set aside that add to ``best`` (``beside_set_aside``).
-        Returns the first that adds, or None."""
+        Returns the first that adds, or None.
+
+        Beyond those, a candidate whose evidence lies on the shots that missed the
+        target model where ``best`` explains none of them (``on_other_shots``) is tried
+        too: that part is another by construction, so its rank behind effects of
+        ``best``'s own shape says nothing about it (twelfth holdout incid_solar: false
+        returns, z 28 alone, ranked fourth behind two stand-ins of the incidence
+        elongation and never tried)."""
         if best.effect is None:
             return None
-        for c in [c for c in ok if c is not best][:MAX_ALSO_TRIES]:
+        others = [c for c in ok if c is not best]
+        tries = others[:MAX_ALSO_TRIES] + [c for c in others[MAX_ALSO_TRIES:]
+                                            if on_other_shots(best, c)]
+        for c in tries:
             if (c.name != POSE_ERROR and not laser_tiles.per_laser(c.effect)
                     and self.adds_to(best, c) and self.beside_set_aside(best, c, cands)):
                 return c.name
@@ -2247,6 +2257,15 @@ class Diagnosis:
         except Exception:  # noqa: BLE001
             return False
         return bool(np.isfinite(after) and after < best.nll_after)
+
+
+def on_other_shots(best: Candidate, other: Candidate) -> bool:
+    """Whether ``other``'s evidence lies on shots ``best`` does not touch: it is credited
+    with at least MIN_UNMATCHED_EXPLAINED unmatched points (returns off the target model,
+    ``unmatched_credit``: false returns at random ranges, say) while ``best`` is credited
+    with fewer than that (a range bias moves matched points only)."""
+    return bool(other.unmatched_gain_points >= MIN_UNMATCHED_EXPLAINED
+                and best.unmatched_gain_points < MIN_UNMATCHED_EXPLAINED)
 
 
 def _fitted_against_pose(pose, c: Candidate, on_pose: 'Diagnosis', same_points,
