@@ -461,6 +461,7 @@ class Candidate:
     share: float | None = None         # of the attribution's feature structure
     vetoed: str | None = None          # why it cannot be the missing effect despite its gain
     tile_vetoed: bool = False          # ``vetoed`` by the tile test (``tile_veto``)
+    material_vetoed: bool = False      # ``vetoed`` by the cross-material test (``material_veto``)
     # Lasers' pointing: the score of each laser's own offsets, their common turn projected
     # out (``own_part_veto``).
     own_part: dict | None = None
@@ -644,8 +645,11 @@ class Diagnosis:
             if cand.vetoed is None and cand.significant and cand.practical:
                 cand.vetoed = self.tile_veto(cand)
                 cand.tile_vetoed = cand.vetoed is not None
-                cand.vetoed = (cand.vetoed or self.core_veto(cand) or self.material_veto(cand)
-                               or self.own_part_veto(cand))
+                cand.vetoed = cand.vetoed or self.core_veto(cand)
+                if cand.vetoed is None:
+                    cand.vetoed = self.material_veto(cand)
+                    cand.material_vetoed = cand.vetoed is not None
+                cand.vetoed = cand.vetoed or self.own_part_veto(cand)
         except Exception as exc:  # noqa: BLE001 - one failing candidate must not stop the rest
             cand.error = f'{type(exc).__name__}: {exc}'
             cand.score = float('-inf')
@@ -992,7 +996,7 @@ class Diagnosis:
                 out[np.searchsorted(idx, te)] = heldout_nll(score_on, [*on_top, effect])
         return out
 
-    def material_veto(self, cand: Candidate) -> str | None:
+    def material_veto(self, cand: Candidate, on_top: list[Effect] = ()) -> str | None:
         """A range error of the sensor kept out of the default candidates (POSE_RIVALS: a
         range scale, a range offset drifting over the recording) is the same on every
         surface the sensor sees: one material's points given their own value of it and the
@@ -1006,7 +1010,8 @@ class Diagnosis:
         an imprecise fit is no evidence (transferring such a fit to the other materials
         was: holdout 10's range drift with the PAF seen in 9 of 16 clouds). Each material
         with MIN_MATERIAL_POINTS matched points (and the rest as many) is tried; the
-        largest gain is reported."""
+        largest gain is reported. ``on_top``: fixed effects in the model of both sides
+        (the named one, ``material_beside``)."""
         if (cand.name not in POSE_RIVALS or cand.effect is None or cand.variant is None
                 or cand.heldout_nll is None):
             return None
@@ -1014,13 +1019,15 @@ class Diagnosis:
         group = np.asarray(self.full.baseline.ctx.material, int)
         if len(group) != len(idx):
             return None
-        common = self.in_matched_order(cand.heldout_nll)
+        common = self.in_matched_order(cand.heldout_nll if not on_top else
+                                       self.cross_fit(cand.variant, list(on_top))[0])
         worst = None
         for m in np.unique(group[group >= 0]):
             on = group == m
             if min(on.sum(), (~on).sum()) < lk.MIN_MATERIAL_POINTS:
                 continue
-            worst = self.larger(worst, int(m), common - self.split_nll(cand.variant, on))
+            worst = self.larger(worst, int(m),
+                                common - self.split_nll(cand.variant, on, list(on_top)))
         if worst is None:
             return None
         m, gain, z = worst
@@ -1177,7 +1184,8 @@ class Diagnosis:
         # A candidate with fewer parameters first: the lasers' two dozen offsets fit
         # part of any pattern the tiles cut up, an incidence elongation's too.
         return Decision(best.name, [], also or self.next_beside(best, ok, cands)
-                        or self.lasers_beside(best, cands), pair_z)
+                        or self.lasers_beside(best, cands)
+                        or self.material_beside(best, cands), pair_z)
 
     def pointing_takes(self, best: Candidate, cands: list[Candidate]) -> str | None:
         """Why ``best`` may not be named beside lasers' pointing offsets set aside because
@@ -1485,6 +1493,31 @@ class Diagnosis:
                     and self.beside_set_aside(best, c, cands)):
                 c.vetoed, c.tile_vetoed, c.beside = None, False, best.name
                 return c.name
+        return None
+
+    def material_beside(self, best: Candidate, cands: list[Candidate]) -> str | None:
+        """A range term set aside by the cross-material test (``material_veto``: one
+        material's points read off the rest) is tried again with the named effect
+        ``best`` in the model: an unmodelled effect that differs by material (a range
+        walk, over the materials' intensities) makes the materials read apart under any
+        range term fitted alone (twelfth holdout drift_walk_1: range_drift z 13.6 alone,
+        vetoed on the PSS points with the walk left out). If with ``best`` fitted no
+        material reads off the rest and the term adds to ``best`` (``adds_to``,
+        ``beside_set_aside``), it explains another part: its veto is lifted and it is
+        'also'. Returns its name or None."""
+        if best.effect is None or best.name in POSE_RIVALS:
+            return None
+        for c in rank(cands):
+            if (c is best or c.error is not None or not c.material_vetoed
+                    or not (c.significant and c.practical)):
+                continue
+            try:
+                if (self.material_veto(c, [best.effect]) is None and self.adds_to(best, c)
+                        and self.beside_set_aside(best, c, cands)):
+                    c.vetoed, c.material_vetoed, c.beside = None, False, best.name
+                    return c.name
+            except Exception:  # noqa: BLE001 - not shown to read alike beside it
+                continue
         return None
 
     def lasers_beside_named(self, decision: 'Decision', cands: list[Candidate]) -> None:
