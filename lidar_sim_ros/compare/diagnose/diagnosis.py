@@ -1960,6 +1960,13 @@ class Diagnosis:
             self.share_veto(r, attribution)
             scored.append(r)
         if not any(self.nameable(r) for r in scored):
+            # None may be named instead; one set aside by the material split may still
+            # be 'also', with the named effect in the model (``material_beside``).
+            best = next((c for c in cands if c.name == decision.missing), None)
+            if best is not None and decision.also is None:
+                lifted = self.material_beside(best, scored)
+                if lifted is not None:
+                    return replace(decision, also=lifted), scored
             return decision, scored
         again = self.decide(rank([*cands, *scored]))
         return replace(decision, missing=again.missing, confounded_with=again.confounded_with,
