@@ -1520,6 +1520,36 @@ class Diagnosis:
                 continue
         return None
 
+    def geometry_beside(self, best: Candidate, scored: list[Candidate],
+                        cands: list[Candidate]) -> str | None:
+        """A surface offset (GEOMETRY_RIVALS) that does not pass the rule alone, tried on
+        top of the named effect ``best``: a standoff of one material's faces moves its
+        ranges by d / cos(incidence), whose mean the per-material offsets take; what is
+        left, beside an unmodelled effect that differs by material and range (a walk,
+        over the materials' intensities), is swamped by that effect's residual (twelfth
+        holdout walk_standoff_1: surface_offset -0.005 nats/point alone beside a walk,
+        0.229 alone on the same 4 cm standoff without it). If it adds to ``best``
+        (``adds_to``) and in its own right (``beside_set_aside``: not standing in for a
+        third, an incidence elongation), its figures on top of ``best`` are recorded
+        (``against_pose['beside']``, what ``settle`` and the verdict quote for it) and
+        it is 'also'. Returns its name or None."""
+        if best.effect is None or best.name in GEOMETRY_RIVALS:
+            return None
+        for c in rank(scored):
+            if (c.name not in GEOMETRY_RIVALS or c.error is not None or c.variant is None
+                    or self.nameable(c)):
+                continue
+            try:
+                if not (self.adds_to(best, c) and self.beside_set_aside(best, c, cands)):
+                    continue
+                gain, z, _ = self._on_top([best.effect], c)
+            except Exception:  # noqa: BLE001 - not shown to add beside it
+                continue
+            c.against_pose = {**(c.against_pose or {}), 'beside': {
+                'on_top_of': best.name, 'gain': _num(gain), 'z': _num(z)}}
+            return c.name
+        return None
+
     def lasers_beside_named(self, decision: 'Decision', cands: list[Candidate]) -> None:
         """A per-laser candidate the tile test set aside, tried with the named effect and
         its 'also' both in the model (fitted together, as --fit with both leaves them):
@@ -1964,7 +1994,8 @@ class Diagnosis:
             # be 'also', with the named effect in the model (``material_beside``).
             best = next((c for c in cands if c.name == decision.missing), None)
             if best is not None and decision.also is None:
-                lifted = self.material_beside(best, scored)
+                lifted = (self.material_beside(best, scored)
+                          or self.geometry_beside(best, scored, cands))
                 if lifted is not None:
                     return replace(decision, also=lifted), scored
             return decision, scored
