@@ -1006,6 +1006,39 @@ def test_a_range_term_the_material_split_set_aside_is_also_when_beside_the_named
     assert SplitHand(False).decide(dg.rank([walk, drift])).also is None
 
 
+class RivalHand(Hand):
+    """A diagnosis whose rivals come scored (``again``) and whose gain on top of the
+    named effect is given (``on_top_figures``: (nats/point, z))."""
+
+    def _on_top(self, on_top, other):
+        return 0.2001, 9.4, None
+
+
+def test_a_surface_offset_failing_alone_beside_a_walk_is_also_when_it_adds_on_top():
+    """geometry_beside(): twelfth holdout walk_standoff_1, a range walk and MLI faces
+    4 cm proud: surface_offset gains -0.005 nats/point alone (the walk's residual swamps
+    what the materials' offsets leave of d / cos(incidence)) and was never tried on top
+    of the named walk; there it gains 0.200 (z 9.4). It is 'also', its figures on top
+    recorded for the verdict and ``settle`` (``passed_on_top_of``). Not where it does
+    not add on top."""
+    def run(on_top):
+        walk = cand('range_walk', 0.109, -2.10, seed=60)
+        walk.effect = make_effect('range_walk', {'k_m': 0.0273})
+        surf = cand('surface_offset', -0.005, -2.01, seed=61, significant=False)
+        surf.variant = type(surf.effect)
+        hand = RivalHand(on_top=on_top, again={'surface_offset': surf})
+        rivals = [SimpleNamespace(name='surface_offset')]
+        d, scored = hand.weigh_rivals(dg.Decision('range_walk', []), [walk], rivals)
+        return d, surf, walk
+    d, surf, walk = run({('range_walk', 'surface_offset'): True})
+    assert d.missing == 'range_walk' and d.also == 'surface_offset'
+    assert surf.against_pose['beside'] == {'on_top_of': 'range_walk', 'gain': 0.2001, 'z': 9.4}
+    settled = dg.settle(d, [walk, surf], lambda c: dg.naming_fault(c, BEFORE_NLL))
+    assert settled.also == 'surface_offset'
+    d, surf, walk = run({})
+    assert d.also is None and not (surf.against_pose or {}).get('beside')
+
+
 def _laser_like(c):
     c.n_params = 24
     c.effect = SimpleNamespace(name=c.name, params=SimpleNamespace(
