@@ -486,3 +486,29 @@ def test_the_lasers_are_tested_beside_the_named_effect_fitted_with_them(seed, jo
     why = d.tile_veto(laser, [alone])
     assert d.refits[0][0] is alone and d.refits[0][1] is laser.effect   # refitted together
     assert (why is None) == held
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_the_lasers_are_tried_beside_a_range_term_named_on_the_poses_footing(seed):
+    """The twelfth holdout's rscale_laser_1: a range scale named after ``decide`` ran
+    (weighed against the pose, ``weigh_pose_rivals``), the lasers' real offsets set aside
+    for its pattern within the tiles. They are tried beside it as beside any named
+    effect: 'also'. A name ``decide`` gave already had its try (not asked again), and an
+    'also' given stays."""
+    meas, residual = _recording(0.02, seed)
+    d = Beside(meas, residual, _pattern(meas, 0.02), seed)
+    d.on_top[('range_scale', 'laser_bias')] = True
+    laser = d.laser_candidate()
+    laser.vetoed = d.tile_veto(laser)
+    laser.tile_vetoed = laser.vetoed is not None
+    assert laser.tile_vetoed
+    scale = _one('range_scale', 0.16, -1.745, seed=seed)
+    named = dg.Decision('range_scale', [], None, {})
+    kept = d.lasers_beside_rival(named, named, [scale, laser])
+    assert kept.also is None and laser.tile_vetoed          # decide's own name: tried there
+    other = dg.Decision('range_scale', [], 'range_drift', {})
+    assert d.lasers_beside_rival(dg.Decision(None, [], None, {}), other,
+                                 [scale, laser]).also == 'range_drift'
+    after = d.lasers_beside_rival(dg.Decision(None, [], None, {}), named, [scale, laser])
+    assert after.missing == 'range_scale' and after.also == 'laser_bias'
+    assert laser.vetoed is None and laser.beside == 'range_scale'

@@ -1494,6 +1494,26 @@ class Diagnosis:
                 return c.name
         return None
 
+    def lasers_beside_rival(self, decided: 'Decision', decision: 'Decision',
+                            cands: list[Candidate]) -> 'Decision':
+        """``lasers_beside`` for a range term named on the pose's footing
+        (``weigh_pose_rivals``: ``decided`` before it, ``decision`` after). ``decide``
+        tried the lasers set aside by the tile test beside the effect it named, but a
+        range term is weighed against the pose after ``decide`` ran, so the lasers were
+        never tried beside it (the twelfth holdout's ``rscale_laser_1``: a range scale
+        across an approach named, the lasers' real offsets set aside for its pattern
+        within the tiles in elevation, 0.0148 nats/point, z 7.0, and named there by the
+        second pass with the scale fitted). They are tried beside it as beside any
+        named effect; an 'also' already given stays."""
+        if (decision.missing is None or decision.missing == decided.missing
+                or decision.also is not None):
+            return decision
+        best = next((c for c in cands if c.name == decision.missing), None)
+        if best is None:
+            return decision
+        also = self.lasers_beside(best, cands)
+        return replace(decision, also=also) if also else decision
+
     def lasers_beside_named(self, decision: 'Decision', cands: list[Candidate]) -> None:
         """A per-laser candidate the tile test set aside, tried with the named effect and
         its 'also' both in the model (fitted together, as --fit with both leaves them):
