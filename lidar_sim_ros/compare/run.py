@@ -1013,6 +1013,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         lambda: recast(pose_test([], constant=constant))[0], {c.name: c for c in weighed})
     cands = diagnosis.rank(cands + [c for c in scored if all(c is not w for w in weighed)])
     decision = diag.lasers_beside_rival(decided, decision, cands)
+    decision = diag.offsets_beside_also(decision, cands)
     decision = diag.range_offset_beside(decision, cands, pose_test)
     # A part of one material reading off the rest, against the pose (region_offset).
     decision = region_offset.weigh_pose(decision, cands, tested_data,
