@@ -136,6 +136,9 @@ class Beside(Tiles):
     def _residual(self, on_top):
         return self.residual - self.removed if on_top else self.residual
 
+    def _fitted_together(self, effects):
+        return list(effects)       # the named effect's fit is already its joint one
+
     def transfer_nll(self, variant, halves, on_top=()):
         out = np.full(self.n_total, np.nan)
         for h in halves:
@@ -440,3 +443,132 @@ def test_lasers_set_aside_hold_beside_the_named_effect_and_its_also(size_m, pass
         assert '--effect solar_background --effect range_walk --fit' in words
     else:
         assert laser.beside is None and 'is not the missing effect' in words
+
+
+# ------------------------------- the lasers beside a named effect fitted with them
+class AloneOrJoint(Beside):
+    """The lasers beside a named walk whose fit alone took part of the lasers' offsets
+    (where the lasers' ranges follow the intensity): in the model the walk removes
+    ``takes`` of its pattern from the residual, ``alone`` as fitted without the lasers
+    and ``joint`` refitted together with them (``_fitted_together``)."""
+
+    def __init__(self, meas, residual, pattern, joint, seed=0):
+        super().__init__(meas, residual, pattern, seed)
+        self.joint = joint
+        self.refits = []
+
+    def _residual(self, on_top):
+        return self.residual - sum(getattr(e, 'takes', 0.0) for e in on_top) * self.removed
+
+    def _fitted_together(self, effects):
+        self.refits.append(list(effects))
+        return [SimpleNamespace(name=e.name, takes=self.joint) for e in effects[:-1]] + \
+            [effects[-1]]
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+@pytest.mark.parametrize('joint, held', [(1.0, True), (1.5, False)])
+def test_the_lasers_are_tested_beside_the_named_effect_fitted_with_them(seed, joint, held):
+    """The twelfth holdout's walk_laser: a walk fitted with the lasers unmodelled comes
+    out high (k 0.0379 for 0.0331) and leaves its own error's pattern over the target,
+    which the tiles cut up, so beside it the lasers were still set aside. Beside the
+    walk refitted together with them the pattern is gone and their offsets hold; where
+    the joint fit leaves the same pattern (a pattern the walk does not explain), the
+    veto stands."""
+    meas, residual = _recording(0.0, seed)
+    pattern = _pattern(meas, 0.02)
+    d = AloneOrJoint(meas, residual + pattern, pattern, joint, seed)
+    laser = d.laser_candidate()
+    alone = SimpleNamespace(name='range_walk', takes=1.5)
+    # As fitted alone the walk leaves half its pattern with the other sign: set aside.
+    d_alone = AloneOrJoint(meas, residual + pattern, pattern, 1.5, seed)
+    assert d_alone.tile_veto(d_alone.laser_candidate(), [alone]) is not None
+    why = d.tile_veto(laser, [alone])
+    assert d.refits[0][0] is alone and d.refits[0][1] is laser.effect   # refitted together
+    assert (why is None) == held
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_the_lasers_are_tried_beside_a_range_term_named_on_the_poses_footing(seed):
+    """The twelfth holdout's rscale_laser_1: a range scale named after ``decide`` ran
+    (weighed against the pose, ``weigh_pose_rivals``), the lasers' real offsets set aside
+    for its pattern within the tiles. They are tried beside it as beside any named
+    effect: 'also'. A name ``decide`` gave already had its try (not asked again), and an
+    'also' given stays."""
+    meas, residual = _recording(0.02, seed)
+    d = Beside(meas, residual, _pattern(meas, 0.02), seed)
+    d.on_top[('range_scale', 'laser_bias')] = True
+    laser = d.laser_candidate()
+    laser.vetoed = d.tile_veto(laser)
+    laser.tile_vetoed = laser.vetoed is not None
+    assert laser.tile_vetoed
+    scale = _one('range_scale', 0.16, -1.745, seed=seed)
+    named = dg.Decision('range_scale', [], None, {})
+    kept = d.lasers_beside_rival(named, named, [scale, laser])
+    assert kept.also is None and laser.tile_vetoed          # decide's own name: tried there
+    other = dg.Decision('range_scale', [], 'range_drift', {})
+    assert d.lasers_beside_rival(dg.Decision(None, [], None, {}), other,
+                                 [scale, laser]).also == 'range_drift'
+    after = d.lasers_beside_rival(dg.Decision(None, [], None, {}), named, [scale, laser])
+    assert after.missing == 'range_scale' and after.also == 'laser_bias'
+    assert laser.vetoed is None and laser.beside == 'range_scale'
+
+
+# --------------------------- lasers' pointing against an 'also' and the lasers' offsets
+class PointingOrOffsets(Hand):
+    """Lasers' pointing named, an incidence bias 'also', and the lasers' range offsets
+    set aside by the tile test: ``held`` whether the offsets hold across the tiles
+    beside the incidence bias, ``pointing_on_top`` the pointing's (gain, z) on top of
+    the two fitted together."""
+
+    def __init__(self, held, pointing_on_top):
+        super().__init__(on_top={('incidence_angle', 'laser_bias'): True})
+        self.held, self.pointing_on_top = held, pointing_on_top
+        self.asked = []
+
+    def tile_veto(self, cand, on_top=()):
+        self.asked.append((cand.name, [e.name for e in on_top]))
+        return None if self.held else 'a pattern on the target'
+
+    def _fitted_together(self, effects):
+        return list(effects)
+
+    def _on_top(self, on_top, other):
+        gain, z = self.pointing_on_top
+        return gain, z, None
+
+
+def _pointing_case(held, pointing_on_top):
+    from lidar_sim_ros.compare.model import pointing
+    d = PointingOrOffsets(held, pointing_on_top)
+    point = _one('laser_pointing', 0.438, -1.780, seed=1)
+    point.variant, point.n_params = pointing.LaserPointing, 48
+    incid = _one('incidence_angle', 0.385, -1.70, seed=2)
+    laser = _laser(0.155, -1.60, seed=3)
+    laser.variant = object
+    laser.vetoed, laser.tile_vetoed = 'a pattern on the target', True
+    decision = dg.Decision('laser_pointing', [], 'incidence_angle', {})
+    return d, point, laser, d.offsets_beside_also(decision, [point, incid, laser])
+
+
+def test_pointing_that_adds_nothing_beside_the_also_and_the_offsets_is_set_aside():
+    """The twelfth holdout's laser_incid_1: lasers' pointing (48 parameters) named for an
+    incidence bias and per-laser range offsets; beside the incidence bias the offsets
+    hold across the tiles, and on top of the two fitted together the pointing gains
+    -0.020 nats/point (z -4.8): the incidence bias is named, the offsets its 'also'."""
+    d, point, laser, out = _pointing_case(True, (-0.020, -4.8))
+    assert out.missing == 'incidence_angle' and out.also == 'laser_bias'
+    assert ('laser_bias', ['incidence_angle']) in d.asked
+    assert laser.vetoed is None and laser.beside == 'incidence_angle'
+    assert 'stand for incidence_angle and laser_bias' in point.vetoed
+    assert out.pair_z['laser_pointing']['on_top_of'] == ['incidence_angle', 'laser_bias']
+
+
+@pytest.mark.parametrize('held, on_top', [(True, (0.05, 10.0)), (False, (-0.02, -4.8))])
+def test_pointing_stays_named_where_it_passes_on_top_or_the_offsets_do_not_hold(held, on_top):
+    """Pointing that still passes the rule on top of the 'also' and the offsets (the
+    tenth holdout's real pointing), or offsets that do not hold across the tiles beside
+    the 'also' (a pattern on the target): the decision stands."""
+    d, point, laser, out = _pointing_case(held, on_top)
+    assert out.missing == 'laser_pointing' and out.also == 'incidence_angle'
+    assert point.vetoed is None and laser.tile_vetoed

@@ -1007,10 +1007,13 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = diag.range_term_beside_constant_pose(
         decision, cands, lambda on_top: pose_test(on_top, constant=True), on_constant_pose)
     constant = decision.pose is not None and decision.pose.constant
+    decided = decision
     decision, scored = diag.weigh_pose_rivals(
         decision, rivals, lambda on_top: pose_test(on_top, constant=constant),
         lambda: recast(pose_test([], constant=constant))[0], {c.name: c for c in weighed})
     cands = diagnosis.rank(cands + [c for c in scored if all(c is not w for w in weighed)])
+    decision = diag.lasers_beside_rival(decided, decision, cands)
+    decision = diag.offsets_beside_also(decision, cands)
     decision = diag.range_offset_beside(decision, cands, pose_test)
     # A part of one material reading off the rest, against the pose (region_offset).
     decision = region_offset.weigh_pose(decision, cands, tested_data,
