@@ -8,6 +8,7 @@ from lidar_sim_ros.compare.diagnose import diagnosis, row_clock
 
 SIGMA_M = 0.02
 RATE_DPS = 30.0
+from test_compare_pose_status import _Judge as PoseStatusJudge
 
 
 def _flash(kind: str, seed: int = 0, n: int = 12_000):
@@ -141,16 +142,7 @@ def _judged(rows_significant: bool | None):
         def nameable(c):
             return False
 
-    class Judge(diagnosis.Diagnosis):
-        def __init__(self):
-            self.z_crit = 3.0
-
-        def nameable(self, c):
-            return c.significant and c.practical
-
-        def set_aside_beside(self, best, cands, but=()):
-            return []
-
+    class Judge(PoseStatusJudge):   # the pose_status tests' judge, on this OnPose
         def pose_corrected(self, correction_m):
             return OnPose()
     asked = []

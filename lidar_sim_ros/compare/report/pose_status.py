@@ -71,19 +71,16 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                     f'{_f(small["applied_gain_per_matched_point"])} nats/point, below the '
                     f'{MIN_PRACTICAL_GAIN:g} that matters: the test\'s gain is not the pose\'s',
                     shown)
-    left = pose.get('left_by_bound')
+    left = pose.get('left_by_bound') or pose.get('left_by_stand_in')
     if left:
+        what = (f'on top of {_join(list(left["effects"]))}, which --fit left at its search '
+                'bound: what the fit left may be the rest of that effect'
+                if 'effects' in left else
+                f'beside {left["named"]}, which stands in for a bias of range alone: what the '
+                'stand-in leaves may be the rest of that bias')
         return _out(False, None, f'its test passes ({_f(left["test_gain_per_matched_point"])} '
-                    f'nats/point, z = {_f(left["test_z"], 1)}) on top of '
-                    f'{_join(list(left["effects"]))}, which --fit left at its search bound: '
-                    'what the fit left may be the rest of that effect, so the pose is not '
+                    f'nats/point, z = {_f(left["test_z"], 1)}) {what}, so the pose is not '
                     'claimed', shown)
-    left = pose.get('left_by_stand_in')
-    if left:
-        return _out(False, None, f'its test passes ({_f(left["test_gain_per_matched_point"])} '
-                    f'nats/point, z = {_f(left["test_z"], 1)}) beside {left["named"]}, which '
-                    'stands in for a bias of range alone: what the stand-in leaves may be the '
-                    'rest of that bias, so the pose is not claimed', shown)
     if not pose.get('significant'):
         where = f' on top of {_join(on_top)}' if on_top else ''
         gain = pose.get('gain_per_matched_point')
