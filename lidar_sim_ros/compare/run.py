@@ -1078,17 +1078,32 @@ def pose_that_matters(decision: diagnosis.Decision, pose: pose_error.PoseError,
     applied exactly, would gain less than MIN_PRACTICAL_GAIN on ``data``
     (``pose_error.applied_gain``): then the pose is not reported, and carries the
     figures (``too_small``) with its test marked failed."""
-    if (decision.pose is None or pose is not decision.pose or pose.rate_supported
-            or diagnosis.POSE_ERROR in decision.confounded_with):
+    if not pose_reported(decision, pose) or pose.rate_supported:
         return decision, pose
     gain = pose_error.applied_gain(pose, data, cloud)
     if gain >= diagnosis.MIN_PRACTICAL_GAIN:
         return decision, pose
-    small = replace(pose, significant=False, too_small={
-        'applied_gain_per_matched_point': round(gain, 6),
-        'test_gain_per_matched_point': round(pose.gain, 6), 'test_z': round(pose.z, 2),
-        'translation_rms_cm': round(pose.size_cm, 3), 'rotation_rms_deg': round(pose.size_deg, 4)})
-    return replace(decision, pose=None), small
+    return withhold_pose(decision, pose, 'too_small',
+                         {'applied_gain_per_matched_point': round(gain, 6)})
+
+
+def pose_reported(decision: diagnosis.Decision, pose: pose_error.PoseError | None) -> bool:
+    """Whether ``decision`` reports ``pose`` alone or beside a named effect (not in a
+    tie): the pose the checks below may withhold."""
+    return (decision.pose is not None and pose is decision.pose
+            and diagnosis.POSE_ERROR not in decision.confounded_with)
+
+
+def withhold_pose(decision: diagnosis.Decision, pose: pose_error.PoseError, why: str,
+                  figures: dict) -> tuple[diagnosis.Decision, pose_error.PoseError]:
+    """``decision`` without its pose, and the pose with its test marked failed, carrying
+    under ``why`` (a PoseError field: ``too_small``, ``left_by_bound``,
+    ``left_by_stand_in``) ``figures`` and its test's own."""
+    left = replace(pose, significant=False, **{why: {
+        **figures, 'test_gain_per_matched_point': round(pose.gain, 6),
+        'test_z': round(pose.z, 2), 'translation_rms_cm': round(pose.size_cm, 3),
+        'rotation_rms_deg': round(pose.size_deg, 4)}})
+    return replace(decision, pose=None), left
 
 
 def pose_beyond_a_bound(decision: diagnosis.Decision, pose: pose_error.PoseError | None,
@@ -1102,14 +1117,9 @@ def pose_beyond_a_bound(decision: diagnosis.Decision, pose: pose_error.PoseError
     cloud of an approach). The pose is then not reported; it carries the effects at their
     bound and its test's figures (``left_by_bound``), its test marked failed."""
     bound = {e.name: at_bounds(e) for e in fitted if at_bounds(e)}
-    if (not bound or decision.pose is None or pose is not decision.pose
-            or diagnosis.POSE_ERROR in decision.confounded_with):
+    if not bound or not pose_reported(decision, pose):
         return decision, pose
-    left = replace(pose, significant=False, left_by_bound={
-        'effects': bound, 'test_gain_per_matched_point': round(pose.gain, 6),
-        'test_z': round(pose.z, 2), 'translation_rms_cm': round(pose.size_cm, 3),
-        'rotation_rms_deg': round(pose.size_deg, 4)})
-    return replace(decision, pose=None), left
+    return withhold_pose(decision, pose, 'left_by_bound', {'effects': bound})
 
 
 def pose_beside_a_stand_in(decision: diagnosis.Decision, pose: pose_error.PoseError | None,
@@ -1123,14 +1133,9 @@ def pose_beside_a_stand_in(decision: diagnosis.Decision, pose: pose_error.PoseEr
     ``pose_beyond_a_bound``). The pose is then not reported; it carries the stand-in's
     name and its test's figures (``left_by_stand_in``), its test marked failed."""
     if (alone is None or not alone.stands_in or decision.missing != alone.name
-            or decision.pose is None or pose is not decision.pose
-            or diagnosis.POSE_ERROR in decision.confounded_with):
+            or not pose_reported(decision, pose)):
         return decision, pose
-    left = replace(pose, significant=False, left_by_stand_in={
-        'named': alone.name, 'test_gain_per_matched_point': round(pose.gain, 6),
-        'test_z': round(pose.z, 2), 'translation_rms_cm': round(pose.size_cm, 3),
-        'rotation_rms_deg': round(pose.size_deg, 4)})
-    return replace(decision, pose=None), left
+    return withhold_pose(decision, pose, 'left_by_stand_in', {'named': alone.name})
 
 
 def pose_points(rays: diagnosis.RaySet, sample: diagnosis.RaySet,
