@@ -1225,8 +1225,7 @@ class Diagnosis:
                 gain, z, _ = self._on_top([c.effect], best)
             except Exception:  # noqa: BLE001 - not shown to take it
                 continue
-            if (gain >= MIN_PRACTICAL_GAIN and z >= self.z_crit
-                    and gain * self.n_total >= MIN_TOTAL_GAIN):
+            if self.passes_rule(gain, z):
                 continue
             return (f'on top of {c.name} fitted with the beams\' common turn it gains '
                     f'{gain:.4f} nats/point held out (z = {z:.1f}), which does not pass the '
@@ -1371,6 +1370,12 @@ class Diagnosis:
         gain, z, _ = self._on_top(on_top, other)
         self.memo('on_top_figures')[
             (other.name, *sorted(e.name for e in on_top))] = (_num(gain), _num(z))
+        return self.passes_rule(gain, z, practical)
+
+    def passes_rule(self, gain: float, z: float, practical: bool = True) -> bool:
+        """The naming rule on held-out figures (``gain`` nats per point, block-robust
+        ``z``): z decisive, the total above MIN_TOTAL_GAIN, and with ``practical`` the gain
+        per point at least MIN_PRACTICAL_GAIN."""
         return bool((gain >= MIN_PRACTICAL_GAIN or not practical) and z >= self.z_crit
                     and gain * self.n_total >= MIN_TOTAL_GAIN)
 
@@ -1618,8 +1623,7 @@ class Diagnosis:
                 gain, z, _ = self._on_top(together, best)
             except Exception:  # noqa: BLE001 - not shown to stand in for them
                 continue
-            if (gain >= MIN_PRACTICAL_GAIN and z >= self.z_crit
-                    and gain * self.n_total >= MIN_TOTAL_GAIN):
+            if self.passes_rule(gain, z):
                 return decision
             best.vetoed = (f'its offsets stand for {also.name} and {c.name} together: with '
                            f'both fitted in the model it gains {gain:.4f} nats/point held '
@@ -1656,8 +1660,7 @@ class Diagnosis:
             gain, z, _ = self._on_top(together, c)
         except Exception:  # noqa: BLE001 - not shown to hold beside them
             return
-        if (gain >= MIN_PRACTICAL_GAIN and z >= self.z_crit
-                and gain * self.n_total >= MIN_TOTAL_GAIN):
+        if self.passes_rule(gain, z):
             c.beside = f'{best.name} and {also.name}'
             c.beside_gain = {'gain': _num(gain), 'z': _num(z)}
 
