@@ -108,6 +108,11 @@ FAMILY_ALPHA = 0.01         # family-wise error rate of the candidate tests (one
 MIN_PRACTICAL_GAIN = 0.005  # nats per point: 0.5 (0.1 sigma)^2 (module doc)
 MIN_SHARE = 0.25            # least share of the feature structure a bias/noise effect explains
 MAX_ALSO_TRIES = 2         # candidates decisively worse than the named one tried on top of it
+# An effect that shares the named one's dilation at grazing incidence: a wide footprint
+# lengthens (or, read at its nearest sub-ray, shortens) ranges where the beam meets the
+# surface obliquely, as an incidence bias does, so fitted alone it takes the bias's part
+# and the bias, ranked behind effects of other shapes, was never tried beside it.
+SHARES_DILATION = {'beam_divergence': 'incidence_angle'}
 JOINT_ROUNDS = 8           # passes refitting several effects each with the others (refit_in_turn)
 FAR_MIN_M = 0.5             # a point "far beyond the noise": |residual| above this and ...
 FAR_SIGMAS = 10.0           # ... this many predicted sigmas
@@ -583,6 +588,9 @@ class Decision:
     # ``region_offset.RegionOffset``); where the pose does not gain beyond it, the pose
     # is not reported (part of the target reads off the rest, or the two not told apart).
     region: object | None = None
+    # Further effects that also explain a separate part, beside ``also`` (in the order
+    # found); each passed the rule on top of the named effect as ``also`` did.
+    also_more: list[str] = field(default_factory=list)
 
 
 class Diagnosis:
@@ -1200,9 +1208,32 @@ class Diagnosis:
             return Decision(None, [], None, pair_z, withheld={best.name: taken})
         # A candidate with fewer parameters first: the lasers' two dozen offsets fit
         # part of any pattern the tiles cut up, an incidence elongation's too.
-        return Decision(best.name, [], also or self.next_beside(best, ok, cands)
-                        or self.lasers_beside(best, cands)
-                        or self.material_beside(best, cands), pair_z)
+        also = (also or self.next_beside(best, ok, cands) or self.lasers_beside(best, cands)
+                or self.material_beside(best, cands))
+        partner = self.dilation_beside(best, ok, cands, also)
+        if partner is None:
+            return Decision(best.name, [], also, pair_z)
+        # The one sharing the named effect's dilation first: it is fitted together with
+        # it (``fit_together``), the value of the named effect alone being off by it.
+        return Decision(best.name, [], partner, pair_z, also_more=[also] if also else [])
+
+    def dilation_beside(self, best: Candidate, ok: list[Candidate],
+                        cands: list[Candidate], also: str | None) -> str | None:
+        """The effect that shares ``best``'s dilation at grazing incidence
+        (``SHARES_DILATION``: an incidence bias beside a footprint) where it adds on top
+        of ``best`` (``adds_to``: the rule on top, and the NLL of both below that of
+        ``best``) and is not one the rule set aside beside it (``beside_set_aside``),
+        whatever its rank; None if it is ``also`` already, or does not add. The
+        eleventh holdout's beam_solar_incid: a footprint, false returns of sunlight and
+        an incidence bias; the false returns (another part by construction) took the
+        one 'also' and the bias, ranked fourth, was never tried."""
+        name = SHARES_DILATION.get(best.name)
+        c = next((c for c in ok if c.name == name), None)
+        if c is None or c.name == also or best.effect is None:
+            return None
+        if self.adds_to(best, c) and self.beside_set_aside(best, c, cands):
+            return c.name
+        return None
 
     def pointing_takes(self, best: Candidate, cands: list[Candidate]) -> str | None:
         """Why ``best`` may not be named beside lasers' pointing offsets set aside because
@@ -2782,8 +2813,10 @@ def settle(decision: Decision, cands: list[Candidate],
     # (``judge_pose``: it passed on the corrected pose too).
     also = (decision.also if (missing is not None or POSE_ERROR in tied)
             and why_not(decision.also, missing) is None else None)
+    more = [n for n in decision.also_more if also is not None and why_not(n, missing) is None]
     return replace(decision, missing=missing, also=also, confounded_with=tied,
-                   evidence=decision.evidence if missing else None, withheld=withheld)
+                   evidence=decision.evidence if missing else None, withheld=withheld,
+                   also_more=more)
 
 
 def passed_on_top_of(cand: Candidate, named: str | None) -> bool:

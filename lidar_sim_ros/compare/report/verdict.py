@@ -136,6 +136,10 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             parts.append(f'{decision.also} also explains a separate part of the residual'
                          f'{_on_top_words(cands, decision.also, missing)}: '
                          f'expect it in the next run.{_together_words(c)}')
+        for more in decision.also_more:
+            parts.append(f'{more} also explains a separate part of the residual'
+                         f'{_on_top_words(cands, more, missing)}: add it after '
+                         f'{decision.also}.')
         parts.extend(stands_in_words(decision))
         parts.extend(range_split_words(decision))
         lasers = laser_intensity_words(summary.get('laser_intensity'))
