@@ -1345,3 +1345,50 @@ def test_a_target_effect_that_stays_on_the_corrected_pose_is_not_called_the_sens
         text = vd._against_pose_words(c)
         assert said in text
         assert name != 'surface_offset' or 'it is the sensor' not in text
+
+
+def test_an_incidence_bias_beside_a_footprint_is_tried_whatever_its_rank():
+    """decide(): the eleventh holdout's beam_solar_incid (a wide footprint, false returns
+    of sunlight, an incidence bias). The false returns, on other shots, took the one
+    'also' and the incidence bias, ranked fourth behind a standoff, was never tried on
+    top of the footprint. It shares the footprint's dilation at grazing incidence
+    (``SHARES_DILATION``): tried whatever its rank, it is the 'also' (fitted together
+    with the footprint) and the false returns stay beside it (``also_more``). Not where
+    it does not add on top."""
+    beam = cand('beam_divergence', 0.146, -2.20, seed=50)
+    standoff = cand('surface_offset', 0.069, -2.08, seed=50)
+    solar = cand('solar_background', 0.054, -2.06, seed=50)
+    solar.unmatched_gain_points = 25.0         # false returns off the target
+    inc = cand('incidence_angle', 0.051, -2.06, seed=50)
+    ranked = dg.rank([beam, standoff, solar, inc])      # one noise: decisively apart
+    both = {('beam_divergence', 'solar_background'): True,
+            ('beam_divergence', 'incidence_angle'): True}
+    d = Hand(on_top=both).decide(ranked)
+    assert d.missing == 'beam_divergence'
+    assert d.also == 'incidence_angle' and d.also_more == ['solar_background']
+    d = Hand(on_top={('beam_divergence', 'solar_background'): True}).decide(ranked)
+    assert d.also == 'solar_background' and d.also_more == []
+    d = Hand(on_top={('beam_divergence', 'incidence_angle'): True}).decide(ranked)
+    assert d.also == 'incidence_angle' and d.also_more == []
+    # Only beside a footprint: beside a walk it waits its turn (MAX_ALSO_TRIES).
+    walk = cand('range_walk', 0.146, -2.20, seed=50)
+    d = Hand(on_top={('range_walk', 'incidence_angle'): True}).decide(
+        dg.rank([walk, standoff, solar, inc]))
+    assert d.missing == 'range_walk' and d.also is None
+
+
+def test_settle_keeps_a_further_also_only_where_it_passes_and_the_also_stands():
+    """settle(): each name in ``also_more`` passes ``naming_fault`` as ``also`` does, and
+    none is left where ``also`` itself was withheld."""
+    beam = cand('beam_divergence', 0.146, -2.20, seed=60)
+    inc = cand('incidence_angle', 0.051, -2.06, seed=61)
+    solar = cand('solar_background', 0.054, -2.06, seed=62)
+    bad = cand('range_walk', 0.054, -2.00, seed=63)          # NLL worse than before
+    d = dg.Decision('beam_divergence', [], 'incidence_angle',
+                    also_more=['solar_background', 'range_walk'])
+    s = dg.settle(d, [beam, inc, solar, bad], fault)
+    assert s.also == 'incidence_angle' and s.also_more == ['solar_background']
+    assert 'range_walk' in s.withheld
+    worse_inc = cand('incidence_angle', 0.051, -1.90, seed=61)
+    s = dg.settle(d, [beam, worse_inc, solar, bad], fault)
+    assert s.also is None and s.also_more == []
