@@ -1226,12 +1226,15 @@ class Diagnosis:
         whatever its rank; None if it is ``also`` already, or does not add. The
         eleventh holdout's beam_solar_incid: a footprint, false returns of sunlight and
         an incidence bias; the false returns (another part by construction) took the
-        one 'also' and the bias, ranked fourth, was never tried."""
+        one 'also' and the bias, ranked fourth, was never tried. A walk set aside for its
+        shape that gains nothing on top of the footprint and the bias (it stood in for
+        the bias: weak returns are grazing ones) is no model to judge the bias in
+        (``beside_set_aside``, ``but_taken``)."""
         name = SHARES_DILATION.get(best.name)
         c = next((c for c in ok if c.name == name), None)
         if c is None or c.name == also or best.effect is None:
             return None
-        if self.adds_to(best, c) and self.beside_set_aside(best, c, cands):
+        if self.adds_to(best, c) and self.beside_set_aside(best, c, cands, but_taken=True):
             return c.name
         return None
 
@@ -1369,7 +1372,7 @@ class Diagnosis:
         return total / max(self.n_total, 1), z, nll
 
     def beside_set_aside(self, best: Candidate, other: Candidate,
-                         cands: list[Candidate]) -> bool:
+                         cands: list[Candidate], but_taken: bool = False) -> bool:
         """Whether ``other``, which adds to ``best``, is 'also' in its own right: it must
         still pass the rule on top of ``best`` and the effects set aside beside it
         (``set_aside_beside``), all fitted together. A part of the residual that one of
@@ -1377,13 +1380,18 @@ class Diagnosis:
         ``best`` only by standing in for it (an incidence elongation's sigma for a
         noise growing at weak returns, eighth holdout ``h8-d20-walk-laser-snr10_s11``)
         would be named where the effect the data hold cannot be. With none set aside,
-        ``adds_to`` alone decides."""
+        ``adds_to`` alone decides. ``but_taken``: an effect set aside that gains nothing
+        decisive on top of ``best`` and ``other`` fitted together (``other`` explains
+        all it explains there, and more) is no model to judge ``other`` in: it stood
+        in for ``other`` (``taken_by``)."""
         if best.effect is None:
             return False
         if (not laser_tiles.per_laser(other.effect)
                 and self.stands_in_beside(best, other, cands) is not None):
             return False
         rest = self.set_aside_beside(best, cands, but=(other.name,))
+        if but_taken:
+            rest = [c for c in rest if not self.taken_by(best, other, c)]
         if not rest:
             return True
         try:
@@ -1391,6 +1399,18 @@ class Diagnosis:
             together = self._fitted_together([best.effect, *[c.effect for c in rest]])
             return self._passes_on_top(together, other)
         except Exception:  # noqa: BLE001 - not shown to be separate
+            return False
+
+    def taken_by(self, best: Candidate, other: Candidate, aside: Candidate) -> bool:
+        """Whether ``aside`` (an effect set aside beside ``best``) gains nothing decisive
+        on top of ``best`` and ``other`` fitted together (``_passes_on_top`` without the
+        practical margin: z and total evidence only). Then ``other`` explains all that
+        ``aside`` explains beside ``best``: ``aside`` stood in for it."""
+        try:
+            self.finalized(best, other, aside)
+            both = self._fitted_together([best.effect, other.effect])
+            return not self._passes_on_top(both, aside, practical=False)
+        except Exception:  # noqa: BLE001 - not shown to be taken
             return False
 
     def _passes_on_top(self, on_top: list[Effect], other: Candidate,
