@@ -1443,6 +1443,16 @@ BATTERY: tuple[ForeignSpec, ...] = (
     ForeignSpec('incidence_and_solar', 'incidence_angle', {'g_m': 0.015, 'h': 0.5}, seed=38,
                 also=(('solar_background', {'fraction': 0.01, 'mean_range_m': 30.0}),),
                 scan='rosette', storage='sqlite3'),
+    # Three at once (the eleventh holdout's beam_solar_incid): a footprint read at its
+    # nearest sub-ray, an incidence bias and false returns of sunlight (docs/compare.md,
+    # "A footprint beside an incidence bias and false returns"; there seeds 1-6 are this
+    # spec's seed).
+    ForeignSpec('beam_solar_incid', 'beam_divergence', {'scale': 5.0, 'subrays': 24,
+                                                        'mode': 'first'}, seed=1,
+                also=(('incidence_angle', {'g_m': 0.015, 'h': 0.5}),
+                      ('solar_background', {'fraction': 0.01, 'mean_range_m': 30.0})),
+                note='footprint 5 x 1.2 mrad (nearest of 24 sub-rays), incidence bias, '
+                     'solar false returns 1 %'),
     ForeignSpec('snr_and_beam', 'snr_noise', {'s0_m': 0.05, 'exponent': 0.4, 'p0_w': 1e-6},
                 seed=39, also=(('beam_divergence', {'scale': 7.0, 'subrays': 12,
                                                     'mode': 'weighted'}),),
