@@ -1361,15 +1361,22 @@ def test_an_incidence_bias_beside_a_footprint_is_tried_whatever_its_rank():
     solar.unmatched_gain_points = 25.0         # false returns off the target
     inc = cand('incidence_angle', 0.051, -2.06, seed=50)
     ranked = dg.rank([beam, standoff, solar, inc])      # one noise: decisively apart
+    fair = {('incidence_angle', ('beam_divergence',)): True,
+            ('incidence_angle', ('beam_divergence', 'solar_background')): True,
+            ('solar_background', ('beam_divergence', 'incidence_angle')): True}
     both = {('beam_divergence', 'solar_background'): True,
             ('beam_divergence', 'incidence_angle'): True}
-    d = Hand(on_top=both).decide(ranked)
+    d = AsideHand(both, fair).decide(ranked)
     assert d.missing == 'beam_divergence'
     assert d.also == 'incidence_angle' and d.also_more == ['solar_background']
-    d = Hand(on_top={('beam_divergence', 'solar_background'): True}).decide(ranked)
+    d = AsideHand({('beam_divergence', 'solar_background'): True}, fair).decide(ranked)
     assert d.also == 'solar_background' and d.also_more == []
-    d = Hand(on_top={('beam_divergence', 'incidence_angle'): True}).decide(ranked)
+    d = AsideHand({('beam_divergence', 'incidence_angle'): True}, fair).decide(ranked)
     assert d.also == 'incidence_angle' and d.also_more == []
+    # Not where it passes only against the footprint's fold fits (``adds_to``), not
+    # against the footprint as fitted on all the points (the loop's next step).
+    d = AsideHand(both, {**fair, ('incidence_angle', ('beam_divergence',)): False}).decide(ranked)
+    assert d.also == 'solar_background' and d.also_more == []
     # Only beside a footprint: beside a walk it waits its turn (MAX_ALSO_TRIES).
     walk = cand('range_walk', 0.146, -2.20, seed=50)
     d = Hand(on_top={('range_walk', 'incidence_angle'): True}).decide(
@@ -1427,7 +1434,8 @@ def test_a_walk_set_aside_that_the_incidence_bias_takes_is_no_model_to_judge_it_
     ranked = dg.rank([beam, solar, inc, walk])
     adds = {('beam_divergence', n): True
             for n in ('solar_background', 'incidence_angle', 'range_walk')}
-    passes = {('incidence_angle', ('beam_divergence', 'solar_background')): True,
+    passes = {('incidence_angle', ('beam_divergence',)): True,
+              ('incidence_angle', ('beam_divergence', 'solar_background')): True,
               ('solar_background', ('beam_divergence', 'incidence_angle')): True,
               ('solar_background', ('beam_divergence', 'range_walk')): True,
               ('incidence_angle', ('beam_divergence', 'range_walk')): False,

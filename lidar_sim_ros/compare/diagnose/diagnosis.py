@@ -1234,7 +1234,16 @@ class Diagnosis:
         c = next((c for c in ok if c.name == name), None)
         if c is None or c.name == also or best.effect is None:
             return None
-        if self.adds_to(best, c) and self.beside_set_aside(best, c, cands, but_taken=True):
+        try:
+            # Held out against ``best`` as fitted on all the points, in the model on both
+            # sides (``_passes_on_top``): against ``best`` refitted on each fold
+            # (``adds_to``'s footing) the partner is also credited with what the
+            # footprint fitted on all the points gains over its fold fits.
+            fair = self._passes_on_top([best.effect], c)
+        except Exception:  # noqa: BLE001 - not shown to add
+            fair = False
+        if (fair and self.adds_to(best, c)
+                and self.beside_set_aside(best, c, cands, but_taken=True)):
             return c.name
         return None
 
