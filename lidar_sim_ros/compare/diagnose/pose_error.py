@@ -56,6 +56,7 @@ from lidar_sim_ros.core.pose import Poses
 
 from lidar_sim_ros.compare.model import likelihood as lk
 from lidar_sim_ros.compare.diagnose.features import block_mean_z
+from lidar_sim_ros.compare.diagnose import range_alone
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock, beyond_direction
 
 OUTLIER_SIGMAS = 5.0      # residuals beyond this many sigma are not fitted (edges, outliers)
@@ -138,6 +139,13 @@ class PoseError:
     # (``run.pose_beside_a_stand_in``): what the stand-in leaves is the rest of that bias,
     # which a per-cloud pose takes too: not reported (the stand-in, its test's figures).
     left_by_stand_in: dict | None = None
+    # Per cloud: a function of range alone with as many parameters, on the same halves
+    # (``range_alone.PoseAgainstRange``): a range error of the sensor that follows range
+    # moves the clouds of an approach as a per-cloud pose does.
+    against_range: 'range_alone.PoseAgainstRange | None' = None
+    # Its test passed, but not beyond a function of range alone
+    # (``run.pose_against_range_alone``): not reported (the outcome, its test's figures).
+    left_to_range: dict | None = None
 
     @property
     def size_cm(self) -> float:
@@ -219,6 +227,9 @@ class PoseError:
                 **({'left_by_bound': self.left_by_bound} if self.left_by_bound else {}),
                 **({'left_by_stand_in': self.left_by_stand_in}
                    if self.left_by_stand_in else {}),
+                **({'against_range_alone': self.against_range.as_dict()}
+                   if self.against_range is not None else {}),
+                **({'left_to_range': self.left_to_range} if self.left_to_range else {}),
                 'recast_passes': self.passes,
                 'last_step_m_deg': [round(float(x), 6) for x in self.last_step],
                 'rate': self.rate_dict()}
@@ -711,6 +722,10 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
     gain_scan = np.zeros(len(r))      # a range offset over the scan instead (constant, rate)
+    gain_rng = np.zeros(len(r))       # a function of range alone instead (per cloud)
+    knots = range_alone.range_knots(len(clouds), int(use.sum()))
+    range_cols = (None if constant else range_alone.range_grid_columns(
+        np.where(ok, model.expected_range_m, 0.0), use, knots))
     for k in (0, 1):
         test, train = use & (half != k), use & (half == k)
         x = fit_clouds(a, r, s, cloud, train, clouds, prior, TEST_RIDGE, group)
@@ -725,6 +740,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         if not constant:
             off = per_cloud_offset(r, s, row, train, len(clouds))
             gain1[test] = heldout_gain(r[test], off[test], s[test])
+            rng_corr = range_alone.fit_range_function(range_cols, r, s, train)
+            gain_rng[test] = heldout_gain(r[test], rng_corr[test], s[test])
         if rate and constant:
             over_scan = range_over_scan(tau_beyond, r, s, group, train)
             gain_scan[test] = heldout_gain(r[test], over_scan[test], s[test])
@@ -754,6 +771,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     rate_gain, rate_z = judged(gain12 - gain) if rate else (0.0, 0.0)
     offset_gain, offset_z = judged(gain1) if not constant else (0.0, 0.0)
     beyond_gain, beyond_z = judged(gain - gain1) if not constant else (0.0, 0.0)
+    against_range = None if constant else range_alone.PoseAgainstRange(
+        range_cols.shape[1], *judged(gain_rng), *judged(gain - gain_rng))
     # A refinement of a pose error that is there: the rigid correction passes first.
     # Within one cloud a point's time follows its place in the scan (a raster's rows),
     # so on its own the rate is six more spatial patterns per cloud, which a sensor's
@@ -805,7 +824,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      joint=joint is not None, through_materials=through is not None,
                      scan=scan if constant and rate else None, scan_tie=scan_tie,
                      offset_gain=offset_gain, offset_z=offset_z,
-                     beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z)
+                     beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z,
+                     against_range=against_range)
 
 
 def applied_gain(pose: PoseError, data: lk.FitData, cloud: np.ndarray) -> float:
