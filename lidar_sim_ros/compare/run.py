@@ -1143,9 +1143,10 @@ def pose_beside_a_stand_in(decision: diagnosis.Decision, pose: pose_error.PoseEr
 def pose_against_range_alone(decision: diagnosis.Decision,
                              pose: pose_error.PoseError | None, z_crit: float
                              ) -> tuple[diagnosis.Decision, pose_error.PoseError | None]:
-    """The decision and its per-cloud pose (reported alone or beside a named effect, not
-    in a tie, no rate within the clouds), weighed against a function of range alone with
-    as many parameters on the pose test's own halves (``PoseError.against_range``,
+    """The decision and its pose (reported alone or beside a named effect, not in a tie;
+    per cloud or one for the recording, with its rate within the clouds where it has
+    one), weighed against a function of range alone with as many parameters as a rigid
+    correction, on the pose test's own halves (``PoseError.against_range``,
     ``range_alone.PoseAgainstRange``): a range error of the sensor that follows range
     moves the clouds of an approach, each at its own range, as a per-cloud pose does
     (the twelfth holdout's out_cyclic, 5 cm cos(2 pi r / 3 m), read as the tracking
@@ -1155,7 +1156,7 @@ def pose_against_range_alone(decision: diagnosis.Decision,
     follows range). Otherwise the data cannot tell the two: with nothing named, the tie
     ``confounded_with`` [pose_error, RANGE_OF_RANGE]; beside a named effect, the pose is
     not claimed (outcome 'tie')."""
-    if not pose_reported(decision, pose) or pose.constant or pose.rate_supported:
+    if not pose_reported(decision, pose):
         return decision, pose
     against = pose.against_range
     if against is None:
@@ -1167,7 +1168,8 @@ def pose_against_range_alone(decision: diagnosis.Decision,
         return replace(decision, confounded_with=[diagnosis.POSE_ERROR,
                                                   diagnosis.RANGE_OF_RANGE]), pose
     return withhold_pose(decision, pose, 'left_to_range',
-                         {'outcome': outcome, **against.as_dict()})
+                         {'outcome': outcome, 'constant': bool(pose.constant),
+                          **against.as_dict()})
 
 
 def pose_points(rays: diagnosis.RaySet, sample: diagnosis.RaySet,

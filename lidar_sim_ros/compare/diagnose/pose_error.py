@@ -722,10 +722,11 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
     gain_scan = np.zeros(len(r))      # a range offset over the scan instead (constant, rate)
-    gain_rng = np.zeros(len(r))       # a function of range alone instead (per cloud)
-    knots = range_alone.range_knots(len(clouds), int(use.sum()))
-    range_cols = (None if constant else range_alone.range_grid_columns(
-        np.where(ok, model.expected_range_m, 0.0), use, knots))
+    # A function of range alone instead, with as many parameters (``range_alone``).
+    gain_rng = np.zeros(len(r))
+    range_cols = range_alone.range_grid_columns(
+        np.where(ok, model.expected_range_m, 0.0), use,
+        range_alone.range_knots(len(clouds), int(use.sum())))
     for k in (0, 1):
         test, train = use & (half != k), use & (half == k)
         x = fit_clouds(a, r, s, cloud, train, clouds, prior, TEST_RIDGE, group)
@@ -740,8 +741,9 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         if not constant:
             off = per_cloud_offset(r, s, row, train, len(clouds))
             gain1[test] = heldout_gain(r[test], off[test], s[test])
-            rng_corr = range_alone.fit_range_function(range_cols, r, s, train)
-            gain_rng[test] = heldout_gain(r[test], rng_corr[test], s[test])
+        rng_corr = with_offsets(range_alone.fit_range_function(range_cols, r, s, train), r,
+                                group, train)
+        gain_rng[test] = heldout_gain(r[test], rng_corr[test], s[test])
         if rate and constant:
             over_scan = range_over_scan(tau_beyond, r, s, group, train)
             gain_scan[test] = heldout_gain(r[test], over_scan[test], s[test])
@@ -771,8 +773,6 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     rate_gain, rate_z = judged(gain12 - gain) if rate else (0.0, 0.0)
     offset_gain, offset_z = judged(gain1) if not constant else (0.0, 0.0)
     beyond_gain, beyond_z = judged(gain - gain1) if not constant else (0.0, 0.0)
-    against_range = None if constant else range_alone.PoseAgainstRange(
-        range_cols.shape[1], *judged(gain_rng), *judged(gain - gain_rng))
     # A refinement of a pose error that is there: the rigid correction passes first.
     # Within one cloud a point's time follows its place in the scan (a raster's rows),
     # so on its own the rate is six more spatial patterns per cloud, which a sensor's
@@ -798,6 +798,10 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     if supported:
         # The drifting correction against none: the test of what is reported.
         per_point, z = judged(gain12)
+    # The correction as reported against range alone, paired on the same points.
+    against_range = range_alone.PoseAgainstRange(
+        range_cols.shape[1], *judged(gain_rng),
+        *judged((gain12 if supported else gain) - gain_rng))
     cols = a12 if supported else a
     if constant and supported:
         # One correction for the recording and its rate, on the rigid one's footing.

@@ -1002,7 +1002,9 @@ def stand_in_remainder_words(left: dict) -> str:
 def range_of_range_words(left: dict) -> str:
     """Why a per-cloud pose that a function of range alone explains as well is not
     claimed (``run.pose_against_range_alone``; ``left``: the pose's ``left_to_range``)."""
-    pose = (f'A per-cloud pose correction would take it ({left["translation_rms_cm"]:.2f} cm '
+    kind = ('One rigid correction of the pose for the recording' if left.get('constant')
+            else 'A per-cloud pose correction')
+    pose = (f'{kind} would take it ({left["translation_rms_cm"]:.2f} cm '
             f'and {left["rotation_rms_deg"]:.3f} deg RMS, held-out gain '
             f'{left["test_gain_per_matched_point"]:.4f} nats/point, z = {left["test_z"]:.1f}), '
             f'but a function of range alone with as many parameters ({left["knots"]} knots), '
@@ -1013,8 +1015,8 @@ def range_of_range_words(left: dict) -> str:
     if left['outcome'] == 'range':
         return (f'A range error of the sensor outside the catalogue that follows range: '
                 f'the residual changes with range as no catalogue term does. {pose}'
-                f'{beyond}, no more: the clouds, each at its own range, move as such a range '
-                'error moves them; no pose error is claimed. An effect of your own that '
+                f'{beyond}, no more: the ranges move as such a range error moves them; no '
+                'pose error is claimed. An effect of your own that '
                 'follows range (docs/effects.md, "Write your own effect") would fit it; a '
                 'static target on a surveyed pose at several distances would show its shape.')
     return (f'What is left may be a range error of the sensor that follows range as much '
