@@ -67,6 +67,7 @@ CONSTANT_RIDGE = 1e-6     # the same for one correction for all the clouds, fitt
                           # cloud's points: the test's (1e-4 held a 1 deg mount tilt at
                           # 1.5 deg and 12.4 cm for 1.0 and 14.05)
 TEST_RIDGE = 1e-6         # relative ridge of the held-out test (the rule's footing, as before the re-cast)
+RANGE_RIDGE = 1e-6        # the same for a function of range alone weighed against the pose
 
 
 @dataclass(frozen=True)
@@ -416,6 +417,43 @@ def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
     return out
 
 
+def fit_clouds_with(a: np.ndarray, shared: np.ndarray, residual_m: np.ndarray,
+                    sigma_m: np.ndarray, cloud: np.ndarray, use: np.ndarray,
+                    clouds: np.ndarray, ridge: float = TEST_RIDGE) -> np.ndarray:
+    """(N,) the range correction (m) of a per-cloud correction (columns ``a``) fitted
+    by weighted least squares on the ``use`` points jointly with columns ``shared`` by
+    every cloud (a function of range alone, ``range_alone.range_grid_columns``), at every
+    point: each cloud's motion eliminated (Schur complement), the shared coefficients
+    solved, then each cloud's. Light relative ridges on both blocks."""
+    n_par, n_sh = a.shape[1], shared.shape[1]
+    w_all = 1.0 / np.asarray(sigma_m, float)
+    lhs, rhs_s = np.zeros((n_sh, n_sh)), np.zeros(n_sh)
+    per = []
+    for c in clouds:
+        sel = use & (cloud == c)
+        w = w_all[sel]
+        aw, bw, rw = a[sel] * w[:, None], shared[sel] * w[:, None], residual_m[sel] * w
+        bb, br = bw.T @ bw, bw.T @ rw
+        if sel.sum() < MIN_CLOUD_POINTS * n_par // 6:
+            lhs += bb
+            rhs_s += br
+            continue
+        ata = aw.T @ aw
+        ata += np.diag(np.full(n_par, ridge * np.trace(ata) / n_par))
+        ab, ar = aw.T @ bw, aw.T @ rw
+        inv_ab, inv_ar = _solve(ata, ab), _solve(ata, ar)
+        lhs += bb - ab.T @ inv_ab
+        rhs_s += br - ab.T @ inv_ar
+        per.append((c, inv_ab, inv_ar))
+    lhs += np.diag(np.full(n_sh, RANGE_RIDGE * max(np.trace(lhs), 1e-12) / n_sh))
+    beta = np.linalg.lstsq(lhs, rhs_s, rcond=None)[0]
+    out = shared @ beta
+    for c, inv_ab, inv_ar in per:
+        sel = cloud == c
+        out[sel] += a[sel] @ (inv_ar - inv_ab @ beta)
+    return out
+
+
 def time_scale(t_s: np.ndarray, cloud: np.ndarray,
                clouds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N,) tau = (t - t_c) / h_c of each point, and per cloud t_c (its points' mean
@@ -722,8 +760,10 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
     gain_scan = np.zeros(len(r))      # a range offset over the scan instead (constant, rate)
-    # A function of range alone instead, with as many parameters (``range_alone``).
-    gain_rng = np.zeros(len(r))
+    # A function of range alone instead, with as many parameters (``range_alone``), and
+    # the correction on top of it (nested: the pose beyond range alone), rigid and with
+    # the rate.
+    gain_rng, gain_wr, gain12_wr = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     range_cols = range_alone.range_grid_columns(
         np.where(ok, model.expected_range_m, 0.0), use,
         range_alone.range_knots(len(clouds), int(use.sum())))
@@ -744,6 +784,13 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         rng_corr = with_offsets(range_alone.fit_range_function(range_cols, r, s, train), r,
                                 group, train)
         gain_rng[test] = heldout_gain(r[test], rng_corr[test], s[test])
+        both = with_offsets(fit_clouds_with(a, range_cols, r, s, cloud, train, clouds), r,
+                           group, train)
+        gain_wr[test] = heldout_gain(r[test], both[test], s[test])
+        if rate:
+            both = with_offsets(fit_clouds_with(a12t, range_cols, r, s, cloud, train, clouds),
+                               r, group, train)
+            gain12_wr[test] = heldout_gain(r[test], both[test], s[test])
         if rate and constant:
             over_scan = range_over_scan(tau_beyond, r, s, group, train)
             gain_scan[test] = heldout_gain(r[test], over_scan[test], s[test])
@@ -798,10 +845,12 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     if supported:
         # The drifting correction against none: the test of what is reported.
         per_point, z = judged(gain12)
-    # The correction as reported against range alone, paired on the same points.
+    # The correction as reported against range alone, and on top of it, on the same
+    # points (``range_alone.PoseAgainstRange``).
     against_range = range_alone.PoseAgainstRange(
         range_cols.shape[1], *judged(gain_rng),
-        *judged((gain12 if supported else gain) - gain_rng))
+        *judged((gain12_wr if supported else gain_wr) - gain_rng),
+        judged((gain12 if supported else gain) - gain_rng)[0])
     cols = a12 if supported else a
     if constant and supported:
         # One correction for the recording and its rate, on the rigid one's footing.

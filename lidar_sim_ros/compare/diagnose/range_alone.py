@@ -239,15 +239,18 @@ def fit_range_function(cols: np.ndarray, residual_m: np.ndarray, sigma_m: np.nda
 
 @dataclass(frozen=True)
 class PoseAgainstRange:
-    """A per-cloud pose correction against a function of range alone, held out on the
-    pose test's halves: range alone's gain over nothing (nats per matched point, z), and
-    the pose's gain beyond it (paired per point, z)."""
+    """A pose correction against a function of range alone, held out on the pose
+    test's halves: range alone's gain over nothing (nats per matched point, z); the
+    pose's gain beyond it, nested (the pose fitted on top of range alone, jointly, over
+    range alone; paired per point, z); and the pose's gain over range alone's as
+    alternatives (``pose_margin``: negative where range alone explains more)."""
 
     knots: int
     range_gain: float
     range_z: float
     pose_beyond_gain: float
     pose_beyond_z: float
+    pose_margin: float = 0.0
 
     def range_passes(self, z_crit: float, min_gain: float) -> bool:
         return self.range_z >= z_crit and self.range_gain >= min_gain
@@ -257,12 +260,13 @@ class PoseAgainstRange:
         return self.pose_beyond_z >= z_crit and self.pose_beyond_gain >= min_gain
 
     def outcome(self, z_crit: float, min_gain: float) -> str:
-        """'pose': the pose beats range alone by the rule; 'range': range alone passes
-        the rule and explains the residual at least as well as the pose (a range error
-        of the sensor that follows range); 'tie': the data cannot tell the two."""
+        """'pose': the pose gains beyond range alone by the rule (a range error of the
+        sensor may be there too; the pose is); 'range': range alone passes the rule and
+        explains the residual at least as well as the pose (a range error of the sensor
+        that follows range); 'tie': the data cannot tell the two."""
         if self.pose_passes(z_crit, min_gain):
             return 'pose'
-        if self.range_passes(z_crit, min_gain) and self.pose_beyond_gain <= 0.0:
+        if self.range_passes(z_crit, min_gain) and self.pose_margin <= 0.0:
             return 'range'
         return 'tie'
 
@@ -270,4 +274,5 @@ class PoseAgainstRange:
         return {'knots': self.knots, 'gain_per_matched_point': round(self.range_gain, 6),
                 'z': round(self.range_z, 3),
                 'pose_gain_beyond': round(self.pose_beyond_gain, 6),
-                'pose_z_beyond': round(self.pose_beyond_z, 3)}
+                'pose_z_beyond': round(self.pose_beyond_z, 3),
+                'pose_margin_over_range': round(self.pose_margin, 6)}

@@ -83,8 +83,8 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
         return _out(False, None, f'its test passes ({_f(to_range["test_gain_per_matched_point"])} '
                     f'nats/point, z = {_f(to_range["test_z"], 1)}), but a function of range '
                     f'alone with as many parameters {how} '
-                    f'({_f(to_range["gain_per_matched_point"])} nats/point; the pose '
-                    f'{_f(to_range["pose_gain_beyond"])} beyond it, z = '
+                    f'({_f(to_range["gain_per_matched_point"])} nats/point; the pose on top '
+                    f'of it {_f(to_range["pose_gain_beyond"])} more, z = '
                     f'{_f(to_range["pose_z_beyond"], 1)}): a range error of the sensor that '
                     'follows range moves the clouds alike, so the pose is not claimed', shown)
     left = pose.get('left_by_bound') or pose.get('left_by_stand_in')

@@ -1009,8 +1009,8 @@ def range_of_range_words(left: dict) -> str:
             f'{left["test_gain_per_matched_point"]:.4f} nats/point, z = {left["test_z"]:.1f}), '
             f'but a function of range alone with as many parameters ({left["knots"]} knots), '
             f'on the same held-out points, gains {left["gain_per_matched_point"]:.4f} '
-            f'nats/point (z = {left["z"]:.1f}) and the pose ')
-    beyond = (f'{left["pose_gain_beyond"]:.4f} nats/point beyond it '
+            f'nats/point (z = {left["z"]:.1f}), and the pose fitted on top of it ')
+    beyond = (f'{left["pose_gain_beyond"]:.4f} nats/point more '
               f'(z = {left["pose_z_beyond"]:.1f})')
     if left['outcome'] == 'range':
         return (f'A range error of the sensor outside the catalogue that follows range: '
@@ -1039,9 +1039,10 @@ def range_tie_words(pose, summary: dict) -> str:
             f'nats/point held out (z = {pose.z:.1f}; {pose.words()}), and a function of '
             f'range alone with as many parameters ({a.knots} knots), a range error of the '
             f'sensor outside the catalogue that follows range, gains {a.range_gain:.4f} '
-            f'(z = {a.range_z:.1f}) on the same held-out points; the pose gains '
-            f'{a.pose_beyond_gain:.4f} nats/point beyond it (z = {a.pose_beyond_z:.1f}), '
-            'short of the rule, so which of them it is cannot be told from this recording, '
+            f'(z = {a.range_z:.1f}) on the same held-out points; fitted on top of it the '
+            f'pose gains {a.pose_beyond_gain:.4f} nats/point more (z = '
+            f'{a.pose_beyond_z:.1f}), short of the rule, so which of them it is cannot be '
+            'told from this recording, '
             f'and none is named.{where} If the sensor is known to be right, --effect '
             'pose_error --fit; if the tracking system is, an effect of your own that follows '
             'range (docs/effects.md, "Write your own effect").')
