@@ -1619,6 +1619,16 @@ RANGE_OUTSIDE: tuple[ForeignSpec, ...] = (
                 seed=124, frames=10, speed_mps=0.0, spin_dps=3.0, precession_dps=1.0,
                 distance_m=11.0, shots_per_frame=8000, expected=None,
                 note='the target held at 11 m: the error is one shape over its depth'),
+    # Controls: a real per-cloud pose error on the same approach must still be reported,
+    # alone and beside the cyclic error.
+    ForeignSpec('pose_error_approach', None, seed=125, pose_error=(0.015, 0.25), frames=10,
+                speed_mps=14.0, distance_m=20.0, shots_per_frame=8000,
+                note='reference pose off by a rigid 1.5 cm / 0.25 deg per axis, per cloud, '
+                     'on the approach 20 m to 6 m'),
+    ForeignSpec('range_cyclic_pose', 'range_cyclic', {'a_m': 0.05, 'period_m': 3.0},
+                seed=126, pose_error=(0.015, 0.25), frames=10, speed_mps=14.0,
+                distance_m=20.0, shots_per_frame=8000, expected=None,
+                note='the cyclic range error and the reference pose off per cloud together'),
 )
 
 

@@ -1145,12 +1145,13 @@ def pose_against_range_alone(decision: diagnosis.Decision,
                              ) -> tuple[diagnosis.Decision, pose_error.PoseError | None]:
     """The decision and its pose (reported alone or beside a named effect, not in a tie;
     per cloud or one for the recording, with its rate within the clouds where it has
-    one), weighed against a function of range alone with as many parameters as a rigid
-    correction, on the pose test's own halves (``PoseError.against_range``,
+    one), weighed against a smooth function of range alone on the pose test's own
+    halves (``PoseError.against_range``,
     ``range_alone.PoseAgainstRange``): a range error of the sensor that follows range
     moves the clouds of an approach, each at its own range, as a per-cloud pose does
     (the twelfth holdout's out_cyclic, 5 cm cos(2 pi r / 3 m), read as the tracking
-    system's). The pose stays where it beats range alone by the rule. Where range alone
+    system's). The pose stays where, fitted on top of range alone, it gains beyond it by
+    the rule (nested: a pose error beside such a range error stays). Where range alone
     passes the rule and explains the residual at least as well, no pose is claimed
     (``left_to_range``, outcome 'range': a range error outside the catalogue that
     follows range). Otherwise the data cannot tell the two: with nothing named, the tie

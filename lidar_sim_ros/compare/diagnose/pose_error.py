@@ -140,7 +140,7 @@ class PoseError:
     # (``run.pose_beside_a_stand_in``): what the stand-in leaves is the rest of that bias,
     # which a per-cloud pose takes too: not reported (the stand-in, its test's figures).
     left_by_stand_in: dict | None = None
-    # Per cloud: a function of range alone with as many parameters, on the same halves
+    # A function of range alone on the same halves, and the pose on top of it
     # (``range_alone.PoseAgainstRange``): a range error of the sensor that follows range
     # moves the clouds of an approach as a per-cloud pose does.
     against_range: 'range_alone.PoseAgainstRange | None' = None
@@ -760,13 +760,11 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
     gain_scan = np.zeros(len(r))      # a range offset over the scan instead (constant, rate)
-    # A function of range alone instead, with as many parameters (``range_alone``), and
+    # A function of range alone instead (``range_alone.range_fit``), and
     # the correction on top of it (nested: the pose beyond range alone), rigid and with
     # the rate.
     gain_rng, gain_wr, gain12_wr = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
-    range_cols = range_alone.range_grid_columns(
-        np.where(ok, model.expected_range_m, 0.0), use,
-        range_alone.range_knots(len(clouds), int(use.sum())))
+    knots = []
     for k in (0, 1):
         test, train = use & (half != k), use & (half == k)
         x = fit_clouds(a, r, s, cloud, train, clouds, prior, TEST_RIDGE, group)
@@ -781,6 +779,9 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         if not constant:
             off = per_cloud_offset(r, s, row, train, len(clouds))
             gain1[test] = heldout_gain(r[test], off[test], s[test])
+        range_cols = range_alone.range_fit(np.where(ok, model.expected_range_m, 0.0), r, s,
+                                           use, train, len(clouds), seed)
+        knots.append(range_cols.shape[1])
         rng_corr = with_offsets(range_alone.fit_range_function(range_cols, r, s, train), r,
                                 group, train)
         gain_rng[test] = heldout_gain(r[test], rng_corr[test], s[test])
@@ -848,7 +849,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # The correction as reported against range alone, and on top of it, on the same
     # points (``range_alone.PoseAgainstRange``).
     against_range = range_alone.PoseAgainstRange(
-        range_cols.shape[1], *judged(gain_rng),
+        max(knots), *judged(gain_rng),
         *judged((gain12_wr if supported else gain_wr) - gain_rng),
         judged((gain12 if supported else gain) - gain_rng)[0])
     cols = a12 if supported else a

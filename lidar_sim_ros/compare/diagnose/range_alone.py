@@ -187,9 +187,11 @@ def weigh_range_alone(name: str, residual_m: np.ndarray, sigma_m: np.ndarray,
 # it, and a pose was claimed on exact poses (the twelfth holdout's out_cyclic). Before
 # a per-cloud pose is claimed it is weighed against a smooth function of range alone
 # on the pose test's own footing (``pose_error.fit_reference_pose``: the same residual,
-# sigmas, points and held-out halves), with as many parameters as the pose has (six a
-# cloud): a piecewise-linear function of the model's range on a uniform grid of knots.
-RANGE_KNOTS_PER_CLOUD = 6        # the pose's parameters a cloud
+# sigmas, points and held-out halves): a piecewise-linear function of the model's range
+# on a uniform grid of knots, as fine as the training half supports (``range_fit``: the
+# knots chosen among ``knot_ladder`` by a held-out split of the training points alone).
+RANGE_KNOTS_PER_CLOUD = 6        # the pose's parameters a cloud: the coarsest grid
+KNOT_SPACINGS_M = (1.0, 0.5, 0.25, 0.125)   # and grids this fine (m)
 MIN_KNOTS = 4
 POINTS_PER_KNOT = 50             # fewer usable points a knot: fewer knots
 RANGE_RIDGE = 1e-6               # relative ridge, as the pose test's (TEST_RIDGE)
@@ -216,11 +218,38 @@ def range_grid_columns(range_m: np.ndarray, use: np.ndarray, n_knots: int) -> np
     return cols
 
 
-def range_knots(n_clouds: int, n_use: int) -> int:
-    """Knots of the function of range weighed against a per-cloud pose: the pose's
-    parameters (RANGE_KNOTS_PER_CLOUD a cloud), at most one per POINTS_PER_KNOT usable
-    points, at least MIN_KNOTS."""
-    return int(max(MIN_KNOTS, min(RANGE_KNOTS_PER_CLOUD * n_clouds, n_use // POINTS_PER_KNOT)))
+def knot_ladder(n_clouds: int, span_m: float, n_use: int) -> list[int]:
+    """Knot counts to choose among: the pose's parameters (RANGE_KNOTS_PER_CLOUD a cloud)
+    and grids KNOT_SPACINGS_M apart over the range span (m), each at most one knot per
+    POINTS_PER_KNOT usable points and at least MIN_KNOTS."""
+    cap = max(MIN_KNOTS, n_use // POINTS_PER_KNOT)
+    wanted = [RANGE_KNOTS_PER_CLOUD * n_clouds,
+              *[int(np.ceil(span_m / h)) + 1 for h in KNOT_SPACINGS_M]]
+    return sorted({int(min(max(MIN_KNOTS, k), cap)) for k in wanted})
+
+
+def range_fit(range_m: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
+              use: np.ndarray, train: np.ndarray, n_clouds: int, seed: int = 0
+              ) -> np.ndarray:
+    """(N, K) the columns of the function of range alone for one held-out fold: the
+    knot count of ``knot_ladder`` that, fitted on one half of the ``train`` points,
+    scores best on the other (Gaussian NLL in sigma units); the test points are never
+    seen."""
+    r = np.where(np.isfinite(range_m), range_m, 0.0)
+    span = float(np.ptp(r[use])) if np.any(use) else 0.0
+    ladder = knot_ladder(n_clouds, span, int(use.sum()))
+    idx = np.flatnonzero(train)
+    inner = np.random.default_rng([seed, 67]).integers(0, 2, len(idx)).astype(bool)
+    fit_on, score_on = np.zeros(len(r), bool), np.zeros(len(r), bool)
+    fit_on[idx[inner]], score_on[idx[~inner]] = True, True
+    best, best_cols = np.inf, None
+    for k in ladder:
+        cols = range_grid_columns(r, use, k)
+        c = fit_range_function(cols, residual_m, sigma_m, fit_on)
+        nll = float(np.sum(((residual_m - c)[score_on] / sigma_m[score_on]) ** 2))
+        if nll < best:
+            best, best_cols = nll, cols
+    return best_cols
 
 
 def fit_range_function(cols: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,

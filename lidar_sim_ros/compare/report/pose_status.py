@@ -82,7 +82,7 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                else 'explains it nearly as well, the pose short of the rule beyond it')
         return _out(False, None, f'its test passes ({_f(to_range["test_gain_per_matched_point"])} '
                     f'nats/point, z = {_f(to_range["test_z"], 1)}), but a function of range '
-                    f'alone with as many parameters {how} '
+                    f'alone {how} '
                     f'({_f(to_range["gain_per_matched_point"])} nats/point; the pose on top '
                     f'of it {_f(to_range["pose_gain_beyond"])} more, z = '
                     f'{_f(to_range["pose_z_beyond"], 1)}): a range error of the sensor that '

@@ -1007,7 +1007,7 @@ def range_of_range_words(left: dict) -> str:
     pose = (f'{kind} would take it ({left["translation_rms_cm"]:.2f} cm '
             f'and {left["rotation_rms_deg"]:.3f} deg RMS, held-out gain '
             f'{left["test_gain_per_matched_point"]:.4f} nats/point, z = {left["test_z"]:.1f}), '
-            f'but a function of range alone with as many parameters ({left["knots"]} knots), '
+            f'but a smooth function of range alone ({left["knots"]} knots), '
             f'on the same held-out points, gains {left["gain_per_matched_point"]:.4f} '
             f'nats/point (z = {left["z"]:.1f}), and the pose fitted on top of it ')
     beyond = (f'{left["pose_gain_beyond"]:.4f} nats/point more '
@@ -1037,7 +1037,7 @@ def range_tie_words(pose, summary: dict) -> str:
     return (f'A range offset of the sensor or the reference pose along the line of sight: '
             f'{_correction(pose)[0].lower()}{_correction(pose)[1:]} gains {pose.gain:.4f} '
             f'nats/point held out (z = {pose.z:.1f}; {pose.words()}), and a function of '
-            f'range alone with as many parameters ({a.knots} knots), a range error of the '
+            f'range alone ({a.knots} knots), a range error of the '
             f'sensor outside the catalogue that follows range, gains {a.range_gain:.4f} '
             f'(z = {a.range_z:.1f}) on the same held-out points; fitted on top of it the '
             f'pose gains {a.pose_beyond_gain:.4f} nats/point more (z = '
