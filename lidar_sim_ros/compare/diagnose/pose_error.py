@@ -780,8 +780,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
             off = per_cloud_offset(r, s, row, train, len(clouds))
             gain1[test] = heldout_gain(r[test], off[test], s[test])
         range_cols = range_alone.range_fit(np.where(ok, model.expected_range_m, 0.0), r, s,
-                                           use, train, len(clouds), seed)
-        knots.append(range_cols.shape[1])
+                                           use, train, len(clouds), seed, materials)
+        knots.append(range_cols.shape[1] - len(np.unique(materials)))
         rng_corr = with_offsets(range_alone.fit_range_function(range_cols, r, s, train), r,
                                 group, train)
         gain_rng[test] = heldout_gain(r[test], rng_corr[test], s[test])

@@ -228,13 +228,25 @@ def knot_ladder(n_clouds: int, span_m: float, n_use: int) -> list[int]:
     return sorted({int(min(max(MIN_KNOTS, k), cap)) for k in wanted})
 
 
+def with_materials(cols: np.ndarray, material: np.ndarray | None) -> np.ndarray:
+    """``cols`` and one intercept column per material id (none where ``material`` is
+    None): the materials' offsets refitted with the function of range, as each
+    material's median taken out before does not leave a function of range where the
+    materials sit at different ranges (the nozzle at the far end)."""
+    if material is None:
+        return cols
+    m = np.asarray(material)
+    ids = np.unique(m)
+    return np.hstack([cols, (m[:, None] == ids[None, :]).astype(float)])
+
+
 def range_fit(range_m: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
-              use: np.ndarray, train: np.ndarray, n_clouds: int, seed: int = 0
-              ) -> np.ndarray:
-    """(N, K) the columns of the function of range alone for one held-out fold: the
-    knot count of ``knot_ladder`` that, fitted on one half of the ``train`` points,
-    scores best on the other (Gaussian NLL in sigma units); the test points are never
-    seen."""
+              use: np.ndarray, train: np.ndarray, n_clouds: int, seed: int = 0,
+              material: np.ndarray | None = None) -> np.ndarray:
+    """(N, K) the columns of the function of range alone for one held-out fold (with
+    one intercept per ``material``, ``with_materials``): the knot count of
+    ``knot_ladder`` that, fitted on one half of the ``train`` points, scores best on
+    the other (Gaussian NLL in sigma units); the test points are never seen."""
     r = np.where(np.isfinite(range_m), range_m, 0.0)
     span = float(np.ptp(r[use])) if np.any(use) else 0.0
     ladder = knot_ladder(n_clouds, span, int(use.sum()))
@@ -244,7 +256,7 @@ def range_fit(range_m: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
     fit_on[idx[inner]], score_on[idx[~inner]] = True, True
     best, best_cols = np.inf, None
     for k in ladder:
-        cols = range_grid_columns(r, use, k)
+        cols = with_materials(range_grid_columns(r, use, k), material)
         c = fit_range_function(cols, residual_m, sigma_m, fit_on)
         nll = float(np.sum(((residual_m - c)[score_on] / sigma_m[score_on]) ** 2))
         if nll < best:
