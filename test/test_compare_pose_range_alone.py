@@ -73,12 +73,24 @@ def _test(cloud, t, data, constant: bool = False) -> pose_error.PoseError:
 
 def test_the_grid_of_range_is_a_piecewise_linear_function_of_range_alone():
     r = np.linspace(6.0, 20.0, 1001)
-    cols = range_alone.range_grid_columns(r, np.ones(len(r), bool), 8)
-    assert cols.shape == (1001, 8) and np.allclose(cols.sum(axis=1), 1.0)
-    # a line in range is reproduced exactly by the hats (knots at its ends)
-    coef = np.linalg.lstsq(cols, 0.01 * r, rcond=None)[0]
-    assert np.allclose(cols @ coef, 0.01 * r)
-    assert range_alone.range_grid_columns(np.full(5, 9.0), np.ones(5, bool), 8).shape == (5, 1)
+    every = np.ones(len(r), bool)
+    hats = range_alone.range_design(r, every, 8)
+    assert hats.size == 8 and np.allclose(hats.predict(np.ones(8)), 1.0)
+    # a line in range is reproduced by the hats (knots at its ends), and a step between
+    # two materials by their intercepts
+    sigma = np.full(len(r), 0.01)
+    fit = range_alone.fit_range_function(hats, 0.01 * r, sigma, every)
+    assert np.allclose(fit, 0.01 * r, atol=1e-6)
+    mat = (np.arange(len(r)) % 2)
+    both = range_alone.range_design(r, every, 8, mat)
+    assert both.size == 10
+    y = 0.01 * r + np.where(mat == 1, 0.03, 0.0)
+    assert np.allclose(range_alone.fit_range_function(both, y, sigma, every), y, atol=1e-5)
+    # its normal equations as an explicit matrix would give them
+    dense = np.column_stack([both.predict(np.eye(10)[j]) for j in range(10)])
+    at, w = np.flatnonzero(every), 1.0 / sigma
+    assert np.allclose(both.gram(at, w), (dense * w[:, None]).T @ (dense * w[:, None]))
+    assert np.allclose(both.cross(at, w, y), (dense * w[:, None] ** 2).T @ y)
     # the ladder: the pose's six a cloud and grids 1 m to 12.5 cm apart, capped by points
     assert range_alone.knot_ladder(10, 14.0, 100_000) == [15, 29, 57, 60, 113]
     assert range_alone.knot_ladder(1, 3.0, 150) == [4]
@@ -193,3 +205,17 @@ def test_no_pose_is_claimed_where_range_alone_explains_it_as_well():
                                         Z_CRIT)[0].pose is bare
     tied = diagnosis.Decision(None, [diagnosis.POSE_ERROR, 'range_drift'], pose=pose)
     assert run.pose_against_range_alone(tied, pose, Z_CRIT)[0] is tied
+
+
+def test_the_tie_with_a_range_error_of_range_is_said_as_one():
+    """The verdict of the tie [pose_error, range_error_of_range]: both sides, the
+    figures, that it cannot be told, and the recording that separates them."""
+    from lidar_sim_ros.compare.report.verdict import pose_tie_words
+    pose = _pose(PoseAgainstRange(18, 0.05, 9.0, 0.002, 1.2, 0.003))
+    tie = diagnosis.Decision(None, [diagnosis.POSE_ERROR, diagnosis.RANGE_OF_RANGE], pose=pose)
+    plan = [{'distance_m': 8.0}, {'distance_m': 16.0}]
+    words = pose_tie_words(tie, {'separation_plan': plan}, [])
+    assert words.startswith('A range offset of the sensor or the reference pose along the '
+                            'line of sight')
+    assert 'cannot be told' in words and 'none is named' in words
+    assert '18 knots' in words and '0.0500' in words and '8.0 m' in words

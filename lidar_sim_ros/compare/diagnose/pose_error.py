@@ -417,37 +417,38 @@ def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
     return out
 
 
-def fit_clouds_with(a: np.ndarray, shared: np.ndarray, residual_m: np.ndarray,
-                    sigma_m: np.ndarray, cloud: np.ndarray, use: np.ndarray,
-                    clouds: np.ndarray, ridge: float = TEST_RIDGE) -> np.ndarray:
+def fit_clouds_with(a: np.ndarray, shared: 'range_alone.RangeDesign',
+                    residual_m: np.ndarray, sigma_m: np.ndarray, cloud: np.ndarray,
+                    use: np.ndarray, clouds: np.ndarray, ridge: float = TEST_RIDGE
+                    ) -> np.ndarray:
     """(N,) the range correction (m) of a per-cloud correction (columns ``a``) fitted
     by weighted least squares on the ``use`` points jointly with columns ``shared`` by
-    every cloud (a function of range alone, ``range_alone.range_grid_columns``), at every
-    point: each cloud's motion eliminated (Schur complement), the shared coefficients
-    solved, then each cloud's. Light relative ridges on both blocks."""
-    n_par, n_sh = a.shape[1], shared.shape[1]
+    every cloud (a function of range alone and the materials' intercepts,
+    ``range_alone.range_fit``), at every point: each cloud's motion eliminated (Schur
+    complement), the shared coefficients solved, then each cloud's. Light relative
+    ridges on both blocks."""
+    n_par, n_sh = a.shape[1], shared.size
     w_all = 1.0 / np.asarray(sigma_m, float)
     lhs, rhs_s = np.zeros((n_sh, n_sh)), np.zeros(n_sh)
     per = []
     for c in clouds:
-        sel = use & (cloud == c)
-        w = w_all[sel]
-        aw, bw, rw = a[sel] * w[:, None], shared[sel] * w[:, None], residual_m[sel] * w
-        bb, br = bw.T @ bw, bw.T @ rw
-        if sel.sum() < MIN_CLOUD_POINTS * n_par // 6:
+        at = np.flatnonzero(use & (cloud == c))
+        w, y = w_all[at], residual_m[at]
+        bb, br = shared.gram(at, w), shared.cross(at, w, y)
+        if len(at) < MIN_CLOUD_POINTS * n_par // 6:
             lhs += bb
             rhs_s += br
             continue
+        aw = a[at] * w[:, None]
         ata = aw.T @ aw
         ata += np.diag(np.full(n_par, ridge * np.trace(ata) / n_par))
-        ab, ar = aw.T @ bw, aw.T @ rw
+        ab, ar = shared.cross(at, w, a[at]).T, aw.T @ (y * w)
         inv_ab, inv_ar = _solve(ata, ab), _solve(ata, ar)
         lhs += bb - ab.T @ inv_ab
         rhs_s += br - ab.T @ inv_ar
         per.append((c, inv_ab, inv_ar))
-    lhs += np.diag(np.full(n_sh, RANGE_RIDGE * max(np.trace(lhs), 1e-12) / n_sh))
-    beta = np.linalg.lstsq(lhs, rhs_s, rcond=None)[0]
-    out = shared @ beta
+    beta = range_alone.solve_ridged(lhs, rhs_s, RANGE_RIDGE)
+    out = shared.predict(beta)
     for c, inv_ab, inv_ar in per:
         sel = cloud == c
         out[sel] += a[sel] @ (inv_ar - inv_ab @ beta)
@@ -781,7 +782,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
             gain1[test] = heldout_gain(r[test], off[test], s[test])
         range_cols = range_alone.range_fit(np.where(ok, model.expected_range_m, 0.0), r, s,
                                            use, train, len(clouds), seed, materials)
-        knots.append(range_cols.shape[1] - len(np.unique(materials)))
+        knots.append(range_cols.n_knots)
         rng_corr = with_offsets(range_alone.fit_range_function(range_cols, r, s, train), r,
                                 group, train)
         gain_rng[test] = heldout_gain(r[test], rng_corr[test], s[test])

@@ -197,25 +197,78 @@ POINTS_PER_KNOT = 50             # fewer usable points a knot: fewer knots
 RANGE_RIDGE = 1e-6               # relative ridge, as the pose test's (TEST_RIDGE)
 
 
-def range_grid_columns(range_m: np.ndarray, use: np.ndarray, n_knots: int) -> np.ndarray:
-    """(N, K) hat functions of range (m) on ``n_knots`` knots spread evenly over the
-    ``use`` points' range (a piecewise-linear function of range alone; the columns sum
-    to one, so a constant range offset is among them). K = 1 where the range spans
-    nothing."""
+@dataclass(frozen=True)
+class RangeDesign:
+    """A piecewise-linear function of range (hat functions on ``n_knots`` knots evenly
+    over the usable points' range: point i weighs knot ``k[i]`` by 1 - ``f[i]`` and the
+    next by ``f[i]``; the hats sum to one) and one intercept per material (``m``: each
+    point's material row of ``n_mat``). Its normal equations are sums over the points
+    (``np.bincount``): two hats a point, never an (N, K) matrix."""
+
+    k: np.ndarray
+    f: np.ndarray
+    m: np.ndarray
+    n_knots: int
+    n_mat: int
+
+    @property
+    def size(self) -> int:
+        return self.n_knots + self.n_mat
+
+    def _parts(self, at: np.ndarray):
+        """(index, weight) pairs of the rows ``at``: the two hats and the intercept."""
+        k, f = self.k[at], self.f[at]
+        hats = ((k, 1.0 - f), (k + 1, f))
+        return hats + ((self.n_knots + self.m[at], np.ones(len(at))),) if self.n_mat else hats
+
+    def gram(self, at: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """(K, K) B' W^2 B over the rows ``at`` (``w``: their weights)."""
+        n = self.size
+        out = np.zeros(n * n)
+        parts = self._parts(at)
+        for i, (ci, vi) in enumerate(parts):
+            for cj, vj in parts[i:]:
+                v = np.bincount(ci * n + cj, weights=w ** 2 * vi * vj, minlength=n * n)
+                out += v
+                if cj is not ci:
+                    out += v.reshape(n, n).T.ravel()
+        return out.reshape(n, n)
+
+    def cross(self, at: np.ndarray, w: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """B' W^2 y over the rows ``at``: (K,) for y (len(at),), (K, P) for y (len(at), P)."""
+        y = np.asarray(y, float)
+        flat = y.reshape(len(at), -1)
+        out = np.zeros((self.size, flat.shape[1]))
+        for c, v in self._parts(at):
+            for j in range(flat.shape[1]):
+                out[:, j] += np.bincount(c, weights=w ** 2 * v * flat[:, j],
+                                         minlength=self.size)
+        return out[:, 0] if y.ndim == 1 else out
+
+    def predict(self, coef: np.ndarray) -> np.ndarray:
+        """(N,) the function and intercepts at every point."""
+        all_ = np.arange(len(self.k))
+        return sum(coef[c] * v for c, v in self._parts(all_))
+
+
+def range_design(range_m: np.ndarray, use: np.ndarray, n_knots: int,
+                 material: np.ndarray | None = None) -> RangeDesign:
+    """The hats of range (m) on ``n_knots`` knots spread evenly over the ``use`` points'
+    range (one knot pair spanning nothing where the range spans nothing) and one
+    intercept per ``material`` id (none where None): the materials' offsets refitted
+    with the function of range, as each material's median taken out before does not
+    leave a function of range where the materials sit at different ranges (the nozzle
+    at the far end)."""
     r = np.asarray(range_m, float)
     lo, hi = (float(np.min(r[use])), float(np.max(r[use]))) if np.any(use) else (0.0, 0.0)
-    if not hi > lo or n_knots < 2:
-        return np.ones((len(r), 1))
-    knots = np.linspace(lo, hi, n_knots)
-    step = knots[1] - knots[0]
+    n_knots = max(int(n_knots), 2)
+    step = (hi - lo) / (n_knots - 1) if hi > lo else 1.0
     x = np.clip((np.where(np.isfinite(r), r, lo) - lo) / step, 0.0, n_knots - 1.0)
     k = np.minimum(np.floor(x).astype(int), n_knots - 2)
-    f = x - k
-    cols = np.zeros((len(r), n_knots))
-    rows = np.arange(len(r))
-    cols[rows, k] = 1.0 - f
-    cols[rows, k + 1] = f
-    return cols
+    if material is None:
+        return RangeDesign(k, x - k, np.zeros(len(r), int), n_knots, 0)
+    ids, m = np.unique(np.asarray(material), return_inverse=True)
+    return RangeDesign(k, x - k, m, n_knots, len(ids))
 
 
 def knot_ladder(n_clouds: int, span_m: float, n_use: int) -> list[int]:
@@ -228,25 +281,13 @@ def knot_ladder(n_clouds: int, span_m: float, n_use: int) -> list[int]:
     return sorted({int(min(max(MIN_KNOTS, k), cap)) for k in wanted})
 
 
-def with_materials(cols: np.ndarray, material: np.ndarray | None) -> np.ndarray:
-    """``cols`` and one intercept column per material id (none where ``material`` is
-    None): the materials' offsets refitted with the function of range, as each
-    material's median taken out before does not leave a function of range where the
-    materials sit at different ranges (the nozzle at the far end)."""
-    if material is None:
-        return cols
-    m = np.asarray(material)
-    ids = np.unique(m)
-    return np.hstack([cols, (m[:, None] == ids[None, :]).astype(float)])
-
-
 def range_fit(range_m: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
               use: np.ndarray, train: np.ndarray, n_clouds: int, seed: int = 0,
-              material: np.ndarray | None = None) -> np.ndarray:
-    """(N, K) the columns of the function of range alone for one held-out fold (with
-    one intercept per ``material``, ``with_materials``): the knot count of
-    ``knot_ladder`` that, fitted on one half of the ``train`` points, scores best on
-    the other (Gaussian NLL in sigma units); the test points are never seen."""
+              material: np.ndarray | None = None) -> RangeDesign:
+    """The function of range alone for one held-out fold (with one intercept per
+    ``material``): the knot count of ``knot_ladder`` that, fitted on one half of the
+    ``train`` points, scores best on the other (Gaussian NLL in sigma units); the test
+    points are never seen."""
     r = np.where(np.isfinite(range_m), range_m, 0.0)
     span = float(np.ptp(r[use])) if np.any(use) else 0.0
     ladder = knot_ladder(n_clouds, span, int(use.sum()))
@@ -254,28 +295,36 @@ def range_fit(range_m: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
     inner = np.random.default_rng([seed, 67]).integers(0, 2, len(idx)).astype(bool)
     fit_on, score_on = np.zeros(len(r), bool), np.zeros(len(r), bool)
     fit_on[idx[inner]], score_on[idx[~inner]] = True, True
-    best, best_cols = np.inf, None
+    best, best_design = np.inf, None
     for k in ladder:
-        cols = with_materials(range_grid_columns(r, use, k), material)
-        c = fit_range_function(cols, residual_m, sigma_m, fit_on)
+        design = range_design(r, use, k, material)
+        c = fit_range_function(design, residual_m, sigma_m, fit_on)
         nll = float(np.sum(((residual_m - c)[score_on] / sigma_m[score_on]) ** 2))
         if nll < best:
-            best, best_cols = nll, cols
-    return best_cols
+            best, best_design = nll, design
+    return best_design
 
 
-def fit_range_function(cols: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
+def solve_ridged(gram: np.ndarray, rhs: np.ndarray, ridge: float) -> np.ndarray:
+    """``gram`` x = ``rhs`` with a relative ridge (``ridge`` x its mean diagonal)."""
+    n = len(gram)
+    g = gram + np.diag(np.full(n, ridge * max(np.trace(gram), 1e-12) / n))
+    try:
+        return np.linalg.solve(g, rhs)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(g, rhs, rcond=None)[0]
+
+
+def fit_range_function(design: RangeDesign, residual_m: np.ndarray, sigma_m: np.ndarray,
                        train: np.ndarray) -> np.ndarray:
-    """(N,) the range correction (m) of a function of range alone (``cols``) fitted by
-    weighted least squares on the ``train`` points (light relative ridge), at every
+    """(N,) the range correction (m) of a function of range alone (``design``) fitted
+    by weighted least squares on the ``train`` points (light relative ridge), at every
     point."""
-    w = 1.0 / np.asarray(sigma_m, float)[train]
-    aw = cols[train] * w[:, None]
-    ata = aw.T @ aw
-    ata += np.diag(np.full(len(ata), RANGE_RIDGE * max(np.trace(ata), 1e-12) / len(ata)))
-    coef = np.linalg.lstsq(ata, aw.T @ (np.asarray(residual_m, float)[train] * w),
-                           rcond=None)[0]
-    return cols @ coef
+    at = np.flatnonzero(train)
+    w = 1.0 / np.asarray(sigma_m, float)[at]
+    coef = solve_ridged(design.gram(at, w),
+                        design.cross(at, w, np.asarray(residual_m, float)[at]), RANGE_RIDGE)
+    return design.predict(coef)
 
 
 @dataclass(frozen=True)
