@@ -150,7 +150,11 @@ def test_one_cloud_per_range_along_the_line_of_sight_is_a_tie_or_the_pose():
     (0.001, 1.0, 0.06, 12.0, -0.01, 'range'),
     (0.001, 1.0, 0.06, 12.0, 0.0, 'range'),  # at least as well
     (0.002, 1.5, 0.05, 9.0, 0.002, 'tie'),   # the pose ahead, short of the rule
-    (0.001, 0.5, 0.001, 0.5, -0.001, 'tie'),  # range alone short of the rule: no claim of it
+    # range alone short of the rule: no rival, the pose stays (the battery's extrinsic_los,
+    # a constant pose along the line of sight that every material's offset follows, range
+    # alone 0.0013 nats/point, z 2.0, and the pose beyond it 0.0009, z 1.8)
+    (0.0009, 1.8, 0.0013, 2.0, 0.0016, 'pose'),
+    (0.001, 0.5, 0.001, 0.5, -0.001, 'pose'),
 ])
 def test_the_outcome_follows_the_rule(beyond, z, range_gain, range_z, margin, want):
     a = PoseAgainstRange(12, range_gain, range_z, beyond, z, margin)

@@ -350,13 +350,15 @@ class PoseAgainstRange:
         return self.pose_beyond_z >= z_crit and self.pose_beyond_gain >= min_gain
 
     def outcome(self, z_crit: float, min_gain: float) -> str:
-        """'pose': the pose gains beyond range alone by the rule (a range error of the
-        sensor may be there too; the pose is); 'range': range alone passes the rule and
-        explains the residual at least as well as the pose (a range error of the sensor
-        that follows range); 'tie': the data cannot tell the two."""
-        if self.pose_passes(z_crit, min_gain):
+        """'pose': range alone does not pass the rule (no rival: as every name in a tie,
+        a range error is weighed only where its own test passes), or the pose gains
+        beyond range alone by the rule (a range error of the sensor may be there too;
+        the pose is); 'range': range alone explains the residual at least as well as
+        the pose (a range error of the sensor that follows range); 'tie': the data
+        cannot tell the two."""
+        if not self.range_passes(z_crit, min_gain) or self.pose_passes(z_crit, min_gain):
             return 'pose'
-        if self.range_passes(z_crit, min_gain) and self.pose_margin <= 0.0:
+        if self.pose_margin <= 0.0:
             return 'range'
         return 'tie'
 
