@@ -223,3 +223,22 @@ def test_the_tie_with_a_range_error_of_range_is_said_as_one():
                             'line of sight')
     assert 'cannot be told' in words and 'none is named' in words
     assert '18 knots' in words and '0.0500' in words and '8.0 m' in words
+
+
+def test_the_plan_of_the_tie_with_a_range_error_of_range(tmp_path):
+    """plan.yaml of the tie [pose_error, range_error_of_range]: a scenario load_scenario
+    accepts (the static target near, the far one in its header), and no
+    '--effect range_error_of_range' advice (no such effect)."""
+    from lidar_sim_ros.compare.diagnose import plan
+    from lidar_sim_ros.core.scenario import load_scenario
+    from lidar_sim_ros.paths import config_path, mesh_path
+    rec = plan.Recording('this recording', '', (10.0, 0.3, 0.0), (0.0, 0.0, 0.0, 1.0), 0.0,
+                         (0.0, 0.0, 1.0), 1.0, 10, 0.1)
+    rows, text = plan.pose_range_plan(rec, diagnosis.RANGE_OF_RANGE, 5,
+                                      mesh_path('rocket_body.obj'),
+                                      config_path('cepton_vista_p60.yaml'),
+                                      config_path('materials.yaml'), [], 0.1)
+    assert len(rows) == 2 and diagnosis.RANGE_OF_RANGE in rows[0]['ways']
+    assert f'--effect {diagnosis.RANGE_OF_RANGE}' not in text and 'surveyed' in text
+    (tmp_path / 'plan.yaml').write_text(text)
+    load_scenario(tmp_path / 'plan.yaml')
