@@ -39,6 +39,9 @@ What differs from our simulator, on purpose:
   same mirror ray, cast at the satellite (with ``fins``: two diffuse radiator fins
   standing out of the mirror-like MLI sides, a concave corner), returns with probability
   p at r + |AB| (``target_multipath_returns``);
+* a cyclic range error of the receiver (``range_cyclic``: ``a_m`` cos(2 pi r /
+  ``period_m``), outside the catalogue), a function of the range alone, which on an
+  approach moves each cloud as a per-cloud reference pose would;
 * lasers (``lasers`` > 0): the shots are fired round-robin by that many lasers over the
   whole scan (as multi-laser Risley scanners do), written as a laser id field; the
   hidden ``laser_bias`` gives each laser its own range offset (a seeded draw of sd
