@@ -67,7 +67,6 @@ CONSTANT_RIDGE = 1e-6     # the same for one correction for all the clouds, fitt
                           # cloud's points: the test's (1e-4 held a 1 deg mount tilt at
                           # 1.5 deg and 12.4 cm for 1.0 and 14.05)
 TEST_RIDGE = 1e-6         # relative ridge of the held-out test (the rule's footing, as before the re-cast)
-RANGE_RIDGE = 1e-6        # the same for a function of range alone weighed against the pose
 
 
 @dataclass(frozen=True)
@@ -447,7 +446,7 @@ def fit_clouds_with(a: np.ndarray, shared: 'range_alone.RangeDesign',
         lhs += bb - ab.T @ inv_ab
         rhs_s += br - ab.T @ inv_ar
         per.append((c, inv_ab, inv_ar))
-    beta = range_alone.solve_ridged(lhs, rhs_s, RANGE_RIDGE)
+    beta = range_alone.solve_ridged(lhs, rhs_s, range_alone.RANGE_RIDGE)
     out = shared.predict(beta)
     for c, inv_ab, inv_ar in per:
         sel = cloud == c
@@ -761,9 +760,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
     gain_scan = np.zeros(len(r))      # a range offset over the scan instead (constant, rate)
-    # A function of range alone instead (``range_alone.range_fit``), and
-    # the correction on top of it (nested: the pose beyond range alone), rigid and with
-    # the rate.
+    # A function of range alone instead (``range_alone.range_fit``), and the correction
+    # on top of it (nested: the pose beyond range alone), rigid and with the rate.
     gain_rng, gain_wr, gain12_wr = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     knots = []
     for k in (0, 1):
