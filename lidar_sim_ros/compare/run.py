@@ -492,6 +492,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
                             sunlight, opts.seed, cal.rays)
         decision, pose = pose_beyond_a_bound(diag.decision, diag.pose, fitted)
         decision, pose = pose_beside_a_stand_in(decision, pose, diag.range_alone)
+        decision, pose = pose_against_range_alone(decision, pose, diag.z_crit)
         diag = replace(diag, decision=decision, pose=pose)
     else:
         diag = Diagnosed([], diagnosis.Decision(None, []), None, None, cal.calibrated)
@@ -524,7 +525,8 @@ def pose_rival(diag: Diagnosed) -> str | None:
     tie = diag.decision.confounded_with
     if diagnosis.POSE_ERROR not in tie:
         return None
-    return next((n for n in tie if n in diagnosis.POSE_RIVALS), None)
+    return next((n for n in tie if n in (*diagnosis.POSE_RIVALS, diagnosis.RANGE_OF_RANGE)),
+                None)
 
 
 def pose_range_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated,
@@ -1098,7 +1100,7 @@ def withhold_pose(decision: diagnosis.Decision, pose: pose_error.PoseError, why:
                   figures: dict) -> tuple[diagnosis.Decision, pose_error.PoseError]:
     """``decision`` without its pose, and the pose with its test marked failed, carrying
     under ``why`` (a PoseError field: ``too_small``, ``left_by_bound``,
-    ``left_by_stand_in``) ``figures`` and its test's own."""
+    ``left_by_stand_in``, ``left_to_range``) ``figures`` and its test's own."""
     left = replace(pose, significant=False, **{why: {
         **figures, 'test_gain_per_matched_point': round(pose.gain, 6),
         'test_z': round(pose.z, 2), 'translation_rms_cm': round(pose.size_cm, 3),
@@ -1136,6 +1138,39 @@ def pose_beside_a_stand_in(decision: diagnosis.Decision, pose: pose_error.PoseEr
             or not pose_reported(decision, pose)):
         return decision, pose
     return withhold_pose(decision, pose, 'left_by_stand_in', {'named': alone.name})
+
+
+def pose_against_range_alone(decision: diagnosis.Decision,
+                             pose: pose_error.PoseError | None, z_crit: float
+                             ) -> tuple[diagnosis.Decision, pose_error.PoseError | None]:
+    """The decision and its pose (reported alone or beside a named effect, not in a tie;
+    per cloud or one for the recording, with its rate within the clouds where it has
+    one), weighed against a smooth function of range alone on the pose test's own
+    halves (``PoseError.against_range``,
+    ``range_alone.PoseAgainstRange``): a range error of the sensor that follows range
+    moves the clouds of an approach, each at its own range, as a per-cloud pose does
+    (the twelfth holdout's out_cyclic, 5 cm cos(2 pi r / 3 m), read as the tracking
+    system's). The pose stays where, fitted on top of range alone, it gains beyond it by
+    the rule (nested: a pose error beside such a range error stays). Where range alone
+    passes the rule and explains the residual at least as well, no pose is claimed
+    (``left_to_range``, outcome 'range': a range error outside the catalogue that
+    follows range). Otherwise the data cannot tell the two: with nothing named, the tie
+    ``confounded_with`` [pose_error, RANGE_OF_RANGE]; beside a named effect, the pose is
+    not claimed (outcome 'tie')."""
+    if not pose_reported(decision, pose):
+        return decision, pose
+    against = pose.against_range
+    if against is None:
+        return decision, pose
+    outcome = against.outcome(z_crit, diagnosis.MIN_PRACTICAL_GAIN)
+    if outcome == 'pose':
+        return decision, pose
+    if outcome == 'tie' and not decision.missing and not decision.also:
+        return replace(decision, confounded_with=[diagnosis.POSE_ERROR,
+                                                  diagnosis.RANGE_OF_RANGE]), pose
+    return withhold_pose(decision, pose, 'left_to_range',
+                         {'outcome': outcome, 'constant': bool(pose.constant),
+                          **against.as_dict()})
 
 
 def pose_points(rays: diagnosis.RaySet, sample: diagnosis.RaySet,

@@ -133,6 +133,10 @@ POSE_ERROR = 'pose_error'
 # same footing when it passes (``Diagnosis.weigh_pose_rivals``); no default candidates.
 POSE_RIVALS = ('range_drift', 'range_scale')
 RANGE_DRIFT = POSE_RIVALS[0]     # a range offset of the sensor changing over the recording
+# A range error of the sensor outside the catalogue that follows range, tied with a
+# per-cloud pose where the data cannot tell the two (``run.pose_against_range_alone``):
+# judged by its own test (``range_alone.PoseAgainstRange``), as pose_error is by its own.
+RANGE_OF_RANGE = 'range_error_of_range'
 # The target's surfaces off its mesh (as-built vs CAD): no sensor effect, and no default
 # candidate; weighed against a named effect as the range errors are (``weigh_rivals``):
 # a surface moved along its normal shifts ranges as 1 / cos(incidence), as a footprint

@@ -437,8 +437,10 @@ def pose_range_plan(rec: Recording, rival: str, scenario_seed: int, mesh: Path, 
         '#      n.d / (n.u), which changes across the wide view; a range offset does not.',
         f'#   2. {far.what}: initial_pose position_m {far_keys["initial_pose"]["position_m"]}',
         '#      (same attitude): a range scale grows with the distance, a pose error does not.',
-        '# Then compare each with --effect pose_error --fit and with --effect '
-        f'{rival} --fit.',
+        ('# Then compare each with --effect pose_error --fit and with --effect '
+         f'{rival} --fit.' if rival != diagnosis.RANGE_OF_RANGE else
+         '# Then compare each with --effect pose_error --fit: a range error that follows '
+         'range stays.'),
         f'#   lidar-sim simulate plan.yaml --frames {near.frames} --out DIR',
     ]
     body = {'seed': int(scenario_seed), 'mesh': str(mesh), 'sensor': str(sensor),

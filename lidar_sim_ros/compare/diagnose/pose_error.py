@@ -56,6 +56,7 @@ from lidar_sim_ros.core.pose import Poses
 
 from lidar_sim_ros.compare.model import likelihood as lk
 from lidar_sim_ros.compare.diagnose.features import block_mean_z
+from lidar_sim_ros.compare.diagnose import range_alone
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock, beyond_direction
 
 OUTLIER_SIGMAS = 5.0      # residuals beyond this many sigma are not fitted (edges, outliers)
@@ -138,6 +139,13 @@ class PoseError:
     # (``run.pose_beside_a_stand_in``): what the stand-in leaves is the rest of that bias,
     # which a per-cloud pose takes too: not reported (the stand-in, its test's figures).
     left_by_stand_in: dict | None = None
+    # A function of range alone on the same halves, and the pose on top of it
+    # (``range_alone.PoseAgainstRange``): a range error of the sensor that follows range
+    # moves the clouds of an approach as a per-cloud pose does.
+    against_range: 'range_alone.PoseAgainstRange | None' = None
+    # Its test passed, but not beyond a function of range alone
+    # (``run.pose_against_range_alone``): not reported (the outcome, its test's figures).
+    left_to_range: dict | None = None
 
     @property
     def size_cm(self) -> float:
@@ -219,6 +227,9 @@ class PoseError:
                 **({'left_by_bound': self.left_by_bound} if self.left_by_bound else {}),
                 **({'left_by_stand_in': self.left_by_stand_in}
                    if self.left_by_stand_in else {}),
+                **({'against_range_alone': self.against_range.as_dict()}
+                   if self.against_range is not None else {}),
+                **({'left_to_range': self.left_to_range} if self.left_to_range else {}),
                 'recast_passes': self.passes,
                 'last_step_m_deg': [round(float(x), 6) for x in self.last_step],
                 'rate': self.rate_dict()}
@@ -402,6 +413,44 @@ def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
         offset = np.zeros(n_m)
     for k, inv_b, inv_r in coupling:
         out[k] = inv_r - inv_b @ offset
+    return out
+
+
+def fit_clouds_with(a: np.ndarray, shared: 'range_alone.RangeDesign',
+                    residual_m: np.ndarray, sigma_m: np.ndarray, cloud: np.ndarray,
+                    use: np.ndarray, clouds: np.ndarray, ridge: float = TEST_RIDGE
+                    ) -> np.ndarray:
+    """(N,) the range correction (m) of a per-cloud correction (columns ``a``) fitted
+    by weighted least squares on the ``use`` points jointly with columns ``shared`` by
+    every cloud (a function of range alone and the materials' intercepts,
+    ``range_alone.range_fit``), at every point: each cloud's motion eliminated (Schur
+    complement), the shared coefficients solved, then each cloud's. Light relative
+    ridges on both blocks."""
+    n_par, n_sh = a.shape[1], shared.size
+    w_all = 1.0 / np.asarray(sigma_m, float)
+    lhs, rhs_s = np.zeros((n_sh, n_sh)), np.zeros(n_sh)
+    per = []
+    for c in clouds:
+        at = np.flatnonzero(use & (cloud == c))
+        w, y = w_all[at], residual_m[at]
+        bb, br = shared.gram(at, w), shared.cross(at, w, y)
+        if len(at) < MIN_CLOUD_POINTS * n_par // 6:
+            lhs += bb
+            rhs_s += br
+            continue
+        aw = a[at] * w[:, None]
+        ata = aw.T @ aw
+        ata += np.diag(np.full(n_par, ridge * np.trace(ata) / n_par))
+        ab, ar = shared.cross(at, w, a[at]).T, aw.T @ (y * w)
+        inv_ab, inv_ar = _solve(ata, ab), _solve(ata, ar)
+        lhs += bb - ab.T @ inv_ab
+        rhs_s += br - ab.T @ inv_ar
+        per.append((c, inv_ab, inv_ar))
+    beta = range_alone.solve_ridged(lhs, rhs_s, range_alone.RANGE_RIDGE)
+    out = shared.predict(beta)
+    for c, inv_ab, inv_ar in per:
+        sel = cloud == c
+        out[sel] += a[sel] @ (inv_ar - inv_ab @ beta)
     return out
 
 
@@ -711,6 +760,10 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
     gain_scan = np.zeros(len(r))      # a range offset over the scan instead (constant, rate)
+    # A function of range alone instead (``range_alone.range_fit``), and the correction
+    # on top of it (nested: the pose beyond range alone), rigid and with the rate.
+    gain_rng, gain_wr, gain12_wr = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
+    knots = []
     for k in (0, 1):
         test, train = use & (half != k), use & (half == k)
         x = fit_clouds(a, r, s, cloud, train, clouds, prior, TEST_RIDGE, group)
@@ -725,6 +778,19 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         if not constant:
             off = per_cloud_offset(r, s, row, train, len(clouds))
             gain1[test] = heldout_gain(r[test], off[test], s[test])
+        range_cols = range_alone.range_fit(np.where(ok, model.expected_range_m, 0.0), r, s,
+                                           use, train, len(clouds), seed, materials)
+        knots.append(range_cols.n_knots)
+        rng_corr = with_offsets(range_alone.fit_range_function(range_cols, r, s, train), r,
+                                group, train)
+        gain_rng[test] = heldout_gain(r[test], rng_corr[test], s[test])
+        both = with_offsets(fit_clouds_with(a, range_cols, r, s, cloud, train, clouds), r,
+                           group, train)
+        gain_wr[test] = heldout_gain(r[test], both[test], s[test])
+        if rate:
+            both = with_offsets(fit_clouds_with(a12t, range_cols, r, s, cloud, train, clouds),
+                               r, group, train)
+            gain12_wr[test] = heldout_gain(r[test], both[test], s[test])
         if rate and constant:
             over_scan = range_over_scan(tau_beyond, r, s, group, train)
             gain_scan[test] = heldout_gain(r[test], over_scan[test], s[test])
@@ -779,6 +845,12 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     if supported:
         # The drifting correction against none: the test of what is reported.
         per_point, z = judged(gain12)
+    # The correction as reported against range alone, and on top of it, on the same
+    # points (``range_alone.PoseAgainstRange``).
+    against_range = range_alone.PoseAgainstRange(
+        max(knots), *judged(gain_rng),
+        *judged((gain12_wr if supported else gain_wr) - gain_rng),
+        judged((gain12 if supported else gain) - gain_rng)[0])
     cols = a12 if supported else a
     if constant and supported:
         # One correction for the recording and its rate, on the rigid one's footing.
@@ -805,7 +877,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      joint=joint is not None, through_materials=through is not None,
                      scan=scan if constant and rate else None, scan_tie=scan_tie,
                      offset_gain=offset_gain, offset_z=offset_z,
-                     beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z)
+                     beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z,
+                     against_range=against_range)
 
 
 def applied_gain(pose: PoseError, data: lk.FitData, cloud: np.ndarray) -> float:

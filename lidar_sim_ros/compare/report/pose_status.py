@@ -12,7 +12,7 @@ decision and the candidates recorded; it decides nothing.
 """
 from __future__ import annotations
 
-from lidar_sim_ros.compare.diagnose.diagnosis import MIN_PRACTICAL_GAIN, POSE_ERROR
+from lidar_sim_ros.compare.diagnose.diagnosis import MIN_PRACTICAL_GAIN, POSE_ERROR, RANGE_OF_RANGE
 from lidar_sim_ros.compare.report.verdict import LINE_OF_SIGHT_SHARE
 
 
@@ -30,6 +30,11 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
     shown = _figures(pose, on_top)
     named = [n for n in (decision.missing, *decision.confounded_with) if n and n != POSE_ERROR]
     if decision.pose is not None:
+        if POSE_ERROR in decision.confounded_with and RANGE_OF_RANGE in named:
+            return _out(True, 'tie', 'it explains the residual as well as a function of range '
+                        'alone (a range error of the sensor that follows range) with as many '
+                        'parameters, held out on the same points: a tie (confounded_with), '
+                        'none named', shown)
         if POSE_ERROR in decision.confounded_with:
             return _out(True, 'tie', f'it explains the residual as well as {_join(named)}: a '
                         'tie (confounded_with), none named', shown)
@@ -71,6 +76,17 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                     f'{_f(small["applied_gain_per_matched_point"])} nats/point, below the '
                     f'{MIN_PRACTICAL_GAIN:g} that matters: the test\'s gain is not the pose\'s',
                     shown)
+    to_range = pose.get('left_to_range')
+    if to_range:
+        how = ('explains the residual at least as well' if to_range['outcome'] == 'range'
+               else 'explains it nearly as well, the pose short of the rule beyond it')
+        return _out(False, None, f'its test passes ({_f(to_range["test_gain_per_matched_point"])} '
+                    f'nats/point, z = {_f(to_range["test_z"], 1)}), but a function of range '
+                    f'alone {how} '
+                    f'({_f(to_range["gain_per_matched_point"])} nats/point; the pose on top '
+                    f'of it {_f(to_range["pose_gain_beyond"])} more, z = '
+                    f'{_f(to_range["pose_z_beyond"], 1)}): a range error of the sensor that '
+                    'follows range moves the clouds alike, so the pose is not claimed', shown)
     left = pose.get('left_by_bound') or pose.get('left_by_stand_in')
     if left:
         what = (f'on top of {_join(list(left["effects"]))}, which --fit left at its search '

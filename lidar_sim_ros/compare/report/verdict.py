@@ -96,6 +96,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     missing = decision.missing
     beyond_bound = (summary.get('reference_pose') or {}).get('left_by_bound')
     beside_stand_in = (summary.get('reference_pose') or {}).get('left_by_stand_in')
+    to_range = (summary.get('reference_pose') or {}).get('left_to_range')
     if missing == 'sunlight':
         parts.append(_sunlight_named(summary, next(c for c in cands
                                                    if c.name == decision.evidence)))
@@ -166,12 +167,14 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'named. {advice} If you know which it is, add it with --effect NAME --fit.')
     elif decision.pose is not None:
         parts.append(pose_words(decision.pose, cands))
-    elif not beyond_bound:
+    elif not beyond_bound and not to_range:
         parts.append(_nothing_named(summary, attribution, cands))
     if beyond_bound:
         parts.append(bound_remainder_words(beyond_bound))
     if beside_stand_in:
         parts.append(stand_in_remainder_words(beside_stand_in))
+    if to_range:
+        parts.append(range_of_range_words(to_range))
     if decision.pose is not None and (missing or decision.confounded_with) and \
             diagnosis.POSE_ERROR not in decision.confounded_with:
         kind = _correction(decision.pose)
@@ -788,6 +791,8 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
                 'recording; none is named. Points with their own times (a time field) would '
                 'separate them; if the tracking system is known to be right, try --effect '
                 'time_offset --fit, else --effect pose_error --fit.')
+    if other == [diagnosis.RANGE_OF_RANGE]:
+        return range_tie_words(pose, summary)
     if any(n in diagnosis.POSE_RIVALS for n in other):
         plan = summary.get('separation_plan') or []
         where = (f' A static target on a surveyed pose, at {plan[0]["distance_m"]:.1f} m (seen '
@@ -996,6 +1001,55 @@ def stand_in_remainder_words(left: dict) -> str:
             f'held-out gain {left["test_gain_per_matched_point"]:.4f} nats/point, '
             f'z = {left["test_z"]:.1f}), but the data do not tell the two apart: no pose '
             'error is claimed.')
+
+
+def range_of_range_words(left: dict) -> str:
+    """Why a per-cloud pose that a function of range alone explains as well is not
+    claimed (``run.pose_against_range_alone``; ``left``: the pose's ``left_to_range``)."""
+    kind = ('One rigid correction of the pose for the recording' if left.get('constant')
+            else 'A per-cloud pose correction')
+    pose = (f'{kind} would take it ({left["translation_rms_cm"]:.2f} cm '
+            f'and {left["rotation_rms_deg"]:.3f} deg RMS, held-out gain '
+            f'{left["test_gain_per_matched_point"]:.4f} nats/point, z = {left["test_z"]:.1f}), '
+            f'but a smooth function of range alone ({left["knots"]} knots), '
+            f'on the same held-out points, gains {left["gain_per_matched_point"]:.4f} '
+            f'nats/point (z = {left["z"]:.1f}), and the pose fitted on top of it ')
+    beyond = (f'{left["pose_gain_beyond"]:.4f} nats/point more '
+              f'(z = {left["pose_z_beyond"]:.1f})')
+    if left['outcome'] == 'range':
+        return (f'A range error of the sensor outside the catalogue that follows range: '
+                f'the residual changes with range as no catalogue term does. {pose}'
+                f'{beyond}, no more: the ranges move as such a range error moves them; no '
+                'pose error is claimed. An effect of your own that '
+                'follows range (docs/effects.md, "Write your own effect") would fit it; a '
+                'static target on a surveyed pose at several distances would show its shape.')
+    return (f'What is left may be a range error of the sensor that follows range as much '
+            f'as a reference pose error. {pose}{beyond}: the data do not tell the two apart, '
+            'so no pose error is claimed.')
+
+
+def range_tie_words(pose, summary: dict) -> str:
+    """The tie of a per-cloud pose with a range error of the sensor that follows range
+    (``confounded_with`` [pose_error, RANGE_OF_RANGE], ``run.pose_against_range_alone``)."""
+    a = pose.against_range
+    plan = summary.get('separation_plan') or []
+    where = (f' A static target on a surveyed pose, at {plan[0]["distance_m"]:.1f} m (seen '
+             f'across a wide angle) and at {plan[1]["distance_m"]:.1f} m, would separate '
+             'them (plan.yaml).' if len(plan) >= 2 else
+             ' A static target on a surveyed pose, seen across a wide angle and at two '
+             'distances, would separate them.')
+    return (f'A range offset of the sensor or the reference pose along the line of sight: '
+            f'{_correction(pose)[0].lower()}{_correction(pose)[1:]} gains {pose.gain:.4f} '
+            f'nats/point held out (z = {pose.z:.1f}; {pose.words()}), and a function of '
+            f'range alone ({a.knots} knots), a range error of the '
+            f'sensor outside the catalogue that follows range, gains {a.range_gain:.4f} '
+            f'(z = {a.range_z:.1f}) on the same held-out points; fitted on top of it the '
+            f'pose gains {a.pose_beyond_gain:.4f} nats/point more (z = '
+            f'{a.pose_beyond_z:.1f}), short of the rule, so which of them it is cannot be '
+            'told from this recording, '
+            f'and none is named.{where} If the sensor is known to be right, --effect '
+            'pose_error --fit; if the tracking system is, an effect of your own that follows '
+            'range (docs/effects.md, "Write your own effect").')
 
 
 _PER_LASER_ANGLE = re.compile(r'^laser_\d+_(az|el)_deg$')
