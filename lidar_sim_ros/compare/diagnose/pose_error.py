@@ -26,6 +26,17 @@ motion composed with the recorded pose, ``PoseCorrection``) and the model is ray
 again; the fit is repeated on the re-matched residual and composed (Gauss-Newton,
 ``iterate``), until the step is small.
 
+A per-cloud correction is six parameters, but a pose error need not have both parts: a
+tracking system's position may jitter while its attitude holds (or the reverse). Each
+part is claimed only if it passes the rule on its own, nested: the six-parameter
+correction's held-out gain over the translation alone (the rotation's part) and over
+the rotation alone (the translation's), on the same halves as the pose test
+(``shown_parts``). Where only one part shows, the correction, its test, the re-casts and
+``--effect pose_error --fit`` use that part alone (``PoseError.parts``,
+``PoseCorrection.parts``), and the other is given as a bound (the six-parameter fit's
+part plus two standard errors, per cloud), not as a size. Whether the pose is off stays
+the six-parameter test's: the parts say what of it is claimed.
+
 A reference pose that drifts within a cloud (a tracking system's lag: a rotation
 growing over each scan) is a correction linear in time within the cloud: six more
 parameters per cloud, the rate, ``a tau`` with tau = (t - t_c) / h_c the point's time
@@ -138,6 +149,12 @@ class PoseError:
     # (``run.pose_beside_a_stand_in``): what the stand-in leaves is the rest of that bias,
     # which a per-cloud pose takes too: not reported (the stand-in, its test's figures).
     left_by_stand_in: dict | None = None
+    # Which parts of the per-cloud correction the data show (``shown_parts``): 'both',
+    # 'translation' (no rotation shown: the correction is a translation per cloud),
+    # 'attitude' (a rotation per cloud only) or 'either' (the whole passes, neither part
+    # beyond the other: which cannot be told); and its figures (None: not tested).
+    parts: str = 'both'
+    parts_test: dict | None = None
 
     @property
     def size_cm(self) -> float:
@@ -219,6 +236,8 @@ class PoseError:
                 **({'left_by_bound': self.left_by_bound} if self.left_by_bound else {}),
                 **({'left_by_stand_in': self.left_by_stand_in}
                    if self.left_by_stand_in else {}),
+                **({'parts': {'reported': self.parts, **self.parts_test}}
+                   if self.parts_test else {}),
                 'recast_passes': self.passes,
                 'last_step_m_deg': [round(float(x), 6) for x in self.last_step],
                 'rate': self.rate_dict()}
@@ -283,14 +302,113 @@ class PoseError:
                     f'{self.size_deg:.2f} deg{where}, the same in every cloud (one rigid '
                     'correction for the whole recording: an extrinsic calibration or '
                     'tracking-frame error)')
-        text = (f'the reference pose is off by about {self.size_cm:.1f} cm and '
-                f'{self.size_deg:.2f} deg, varying over {self.span_s:.1f} s')
+        text = (f'the reference pose is off by about {self.part_words()}, varying over '
+                f'{self.span_s:.1f} s')
         if self.rate_supported:
             text += (f', and it drifts within each cloud by about {self.drift_cm:.1f} cm and '
                      f'{self.drift_deg:.2f} deg over the scan (a per-cloud rate, from the '
                      f'point times: held-out gain over a rigid correction {self.rate_gain:.4f} '
                      f'nats/point, z = {self.rate_z:.1f})')
         return text
+
+
+    def part_words(self) -> str:
+        """The per-cloud correction's size, each part said only where the data show it
+        (``shown_parts``): the other part as a bound."""
+        test = self.parts_test or {}
+        if self.parts == 'translation':
+            rot = test.get('rotation', {})
+            return (f'{self.size_cm:.1f} cm in translation alone: no rotation shows '
+                    f'(below about {test.get("rotation_bound_deg", 0.0):.2f} deg per cloud, '
+                    'two standard errors; a rotation beside the translation gains '
+                    f'{rot.get("gain_beyond", 0.0):.4f} nats/point held out, '
+                    f'z = {rot.get("z", 0.0):.1f}, short of the rule)')
+        if self.parts == 'attitude':
+            tr = test.get('translation', {})
+            return (f'{self.size_deg:.2f} deg in attitude alone: no translation shows '
+                    f'(below about {test.get("translation_bound_cm", 0.0):.1f} cm per cloud, '
+                    'two standard errors; a translation beside the rotation gains '
+                    f'{tr.get("gain_beyond", 0.0):.4f} nats/point held out, '
+                    f'z = {tr.get("z", 0.0):.1f}, short of the rule)')
+        if self.parts == 'either':
+            return (f'{self.size_cm:.1f} cm and {self.size_deg:.2f} deg (a translation or a '
+                    'rotation: neither part passes the rule beyond the other, so which of '
+                    'them cannot be told)')
+        return f'{self.size_cm:.1f} cm and {self.size_deg:.2f} deg'
+
+
+PART_COLUMNS = {'both': slice(0, 6), 'either': slice(0, 6), 'translation': slice(0, 3),
+                'attitude': slice(3, 6)}
+
+
+def only_part(a: np.ndarray, parts: str) -> np.ndarray:
+    """(N, 6) ``a`` (``design``) with the columns of the part not kept zeroed: a fit on it
+    leaves that part at zero (``fit_clouds``' ridge holds an empty column there)."""
+    if parts in ('both', 'either'):
+        return a
+    out = np.zeros_like(a)
+    out[:, PART_COLUMNS[parts]] = a[:, PART_COLUMNS[parts]]
+    return out
+
+
+def part_bounds(a: np.ndarray, x: np.ndarray, sigma_m: np.ndarray, cloud: np.ndarray,
+                use: np.ndarray, clouds: np.ndarray) -> tuple[float, float]:
+    """Upper bounds (RMS over clouds) of the translation (cm) and rotation (deg) per cloud
+    the data could hide: the six-parameter fit's part (``x``, (C, 6) m and rad) plus two
+    standard errors of it, from its normal equations (weights 1 / sigma^2)."""
+    tr, rot = [], []
+    for k, c in enumerate(clouds):
+        sel = use & (cloud == c)
+        if sel.sum() < MIN_CLOUD_POINTS:
+            continue
+        aw = a[sel] / sigma_m[sel][:, None]
+        d = np.clip(np.diag(np.linalg.pinv(aw.T @ aw)), 0.0, None)
+        tr.append((np.linalg.norm(x[k, :3]) + 2 * np.sqrt(np.sum(d[:3]))) ** 2)
+        rot.append((np.linalg.norm(x[k, 3:6]) + 2 * np.sqrt(np.sum(d[3:6]))) ** 2)
+    if not tr:
+        return 0.0, 0.0
+    return (float(100 * np.sqrt(np.mean(tr))), float(np.degrees(np.sqrt(np.mean(rot)))))
+
+
+def shown_parts(a: np.ndarray, r: np.ndarray, s: np.ndarray, cloud: np.ndarray,
+                use: np.ndarray, clouds: np.ndarray, prior: np.ndarray | None,
+                half: np.ndarray, judged: Callable[[np.ndarray], tuple[float, float]],
+                z_crit: float, min_gain: float) -> tuple[str, dict]:
+    """Which parts of a per-cloud rigid correction the data show, on the pose test's
+    held-out halves (``half``) and footing (``judged``: nats per matched point and z of a
+    per-point gain): the six-parameter correction's gain over the translation alone (the
+    rotation's part) and over the rotation alone (the translation's), each judged by the
+    rule. 'both', 'translation', 'attitude', or 'either' (neither beyond the other); and
+    the figures, with each part's bound (``part_bounds``). Where the whole correction
+    does not pass the rule there is nothing to split: 'both' and None."""
+    row = np.searchsorted(clouds, cloud)
+    gains = {k: np.zeros(len(r)) for k in ('both', 'translation', 'attitude')}
+    for k in (0, 1):
+        test, train = use & (half != k), use & (half == k)
+        for part, g in gains.items():
+            cols = only_part(a, part)
+            x = fit_clouds(cols, r, s, cloud, train, clouds, prior, TEST_RIDGE)
+            corr = np.einsum('ij,ij->i', cols, x[row])
+            g[test] = heldout_gain(r[test], corr[test], s[test])
+    whole = judged(gains['both'])
+    if not (whole[1] >= z_crit and whole[0] >= min_gain):
+        return 'both', None        # nothing to split: the whole does not pass
+    rot = judged(gains['both'] - gains['translation'])
+    tr = judged(gains['both'] - gains['attitude'])
+    shows_rot = rot[1] >= z_crit and rot[0] >= min_gain
+    shows_tr = tr[1] >= z_crit and tr[0] >= min_gain
+    parts = ('both' if shows_rot and shows_tr else 'translation' if shows_tr
+             else 'attitude' if shows_rot else 'either')
+    x = fit_clouds(a, r, s, cloud, use, clouds, prior, TEST_RIDGE)
+    bound_cm, bound_deg = part_bounds(a, x, s, cloud, use, clouds)
+    figures = {'rotation': {'gain_beyond': round(rot[0], 6), 'z': round(rot[1], 3),
+                            'shown': bool(shows_rot)},
+               'translation': {'gain_beyond': round(tr[0], 6), 'z': round(tr[1], 3),
+                               'shown': bool(shows_tr)},
+               'rotation_bound_deg': round(bound_deg, 4),
+               'translation_bound_cm': round(bound_cm, 3),
+               'whole': {'gain': round(whole[0], 6), 'z': round(whole[1], 3)}}
+    return parts, figures
 
 
 def design(direction: np.ndarray, normal: np.ndarray, expected_m: np.ndarray,
@@ -447,6 +565,9 @@ class PoseCorrection:
     # One correction for the recording (one row) with a rate: tau on the recording's
     # time base within each cloud's scan (``ScanClock``), not the row's span.
     scan: ScanClock | None = None
+    # The parts the first fit showed (``shown_parts``): a refit on the re-cast model fits
+    # these alone, as the first did.
+    parts: str = 'both'
 
     @classmethod
     def identity(cls, cloud: np.ndarray, t_s: np.ndarray) -> 'PoseCorrection':
@@ -479,7 +600,8 @@ class PoseCorrection:
             first = ~np.isfinite(g[:, 0])
             g[first] = g_step[first]
         out = replace(self, rotation=rw * self.rotation,
-                      translation_m=rw.apply(self.translation_m) + move, centroid_m=g)
+                      translation_m=rw.apply(self.translation_m) + move, centroid_m=g,
+                      parts=step.parts)
         size = (float(np.max(np.linalg.norm(step.translation_m, axis=1), initial=0.0)),
                 float(np.max(np.linalg.norm(step.rotation_deg, axis=1), initial=0.0)))
         if step.rate_supported and step.rate_translation_mps is not None:
@@ -708,6 +830,23 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # fit generalises better, so the stronger ridge would make the test more eager,
     # e.g. on top of a fitted time offset; the correction applied is the damped one.
     half = np.random.default_rng([seed, 61]).integers(0, 2, len(r))
+
+    def judged(g: np.ndarray) -> tuple[float, float]:
+        z = block_mean_z(g[use], blocks[use])[1] if use.sum() > 1 else 0.0
+        return float(np.sum(g[use]) / max(len(r), 1)), z
+    # Per cloud: the parts the data show (``shown_parts``), asked where the whole passes;
+    # a refit on the re-cast model (``applied``) keeps the first fit's.
+    parts, parts_test = 'both', None
+    if not constant and applied is not None:
+        parts = applied.parts
+    elif not constant:
+        parts, parts_test = shown_parts(a, r, s, cloud, use, clouds, prior, half, judged,
+                                        z_crit, min_gain)
+    if parts in ('translation', 'attitude'):
+        # The rigid part only: a drift within the cloud is the rate's own test.
+        a12 = np.hstack([only_part(a, parts), a * tau[:, None]]) if rate else None
+        a = only_part(a, parts)
+        a12t = a12
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
     gain_scan = np.zeros(len(r))      # a range offset over the scan instead (constant, rate)
@@ -739,10 +878,6 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                 corr12 = with_offsets(np.einsum('ij,ij->i', a12t, x12[row]), r, materials,
                                       train)
                 gain12_t[test] = heldout_gain(r[test], corr12[test], s[test])
-
-    def judged(g: np.ndarray) -> tuple[float, float]:
-        z = block_mean_z(g[use], blocks[use])[1] if use.sum() > 1 else 0.0
-        return float(np.sum(g[use]) / max(len(r), 1)), z
     per_point, z = judged(gain)
     if through is not None:
         per_point_t, z_t = judged(gain_t)
@@ -754,6 +889,12 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     rate_gain, rate_z = judged(gain12 - gain) if rate else (0.0, 0.0)
     offset_gain, offset_z = judged(gain1) if not constant else (0.0, 0.0)
     beyond_gain, beyond_z = judged(gain - gain1) if not constant else (0.0, 0.0)
+    if parts_test is not None and parts != 'both':
+        # Whether the pose is off is the six-parameter test's (``shown_parts``); the
+        # part alone is what is claimed and applied, its own test kept beside.
+        parts_test = {**parts_test, 'part_alone': {'gain': round(per_point, 6),
+                                                   'z': round(z, 3)}}
+        per_point, z = parts_test['whole']['gain'], parts_test['whole']['z']
     # A refinement of a pose error that is there: the rigid correction passes first.
     # Within one cloud a point's time follows its place in the scan (a raster's rows),
     # so on its own the rate is six more spatial patterns per cloud, which a sensor's
@@ -805,7 +946,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      joint=joint is not None, through_materials=through is not None,
                      scan=scan if constant and rate else None, scan_tie=scan_tie,
                      offset_gain=offset_gain, offset_z=offset_z,
-                     beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z)
+                     beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z,
+                     parts=parts, parts_test=parts_test)
 
 
 def applied_gain(pose: PoseError, data: lk.FitData, cloud: np.ndarray) -> float:

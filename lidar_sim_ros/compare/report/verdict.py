@@ -966,6 +966,20 @@ def range_alone_words(alone: dict) -> str:
             f'z = {alone["z"]:.1f}), so {name} is not its cause.')
 
 
+def pose_size_words(pose: dict) -> str:
+    """A per-cloud pose correction's size as summary.json holds it (``reference_pose``,
+    ``pose_correction``): each part only where the data show it
+    (``pose_error.shown_parts``), the other as its bound."""
+    parts = pose.get('parts') or {}
+    if parts.get('reported') == 'translation':
+        return (f'{pose["translation_rms_cm"]:.2f} cm in translation alone (no rotation '
+                f'shown: below about {parts["rotation_bound_deg"]:.2f} deg)')
+    if parts.get('reported') == 'attitude':
+        return (f'{pose["rotation_rms_deg"]:.3f} deg in attitude alone (no translation '
+                f'shown: below about {parts["translation_bound_cm"]:.1f} cm)')
+    return f'{pose["translation_rms_cm"]:.2f} cm and {pose["rotation_rms_deg"]:.3f} deg'
+
+
 def bound_remainder_words(left: dict) -> str:
     """Why a pose that would take what a fit at its search bound left is not claimed
     (``run.pose_beyond_a_bound``; ``left``: the pose's ``left_by_bound``)."""
@@ -1096,7 +1110,7 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
                  f'{rate["drift_per_cloud_rms_deg"]:.3f} deg RMS over the scan'
                  if rate.get('supported') else '')
         lines.append(f'fitted pose_error: reference pose corrected per cloud by '
-                     f'{pc["translation_rms_cm"]:.2f} cm and {pc["rotation_rms_deg"]:.3f} deg RMS '
+                     f'{pose_size_words(pc)} RMS '
                      f'over {len(pc["clouds"])} clouds{drift} (held-out gain '
                      f'{pc["gain_per_matched_point"]:.4f} nats/point, z = {pc["z"]:.1f})')
     lines.append('features: ' + ', '.join(f'{f["name"]} {f["score"]:.4f}'
@@ -1114,9 +1128,8 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
     lines.append(f'missing effect: {s["missing_effect"]}')
     rp = s.get('reference_pose')
     if s.get('reference_pose_off') and rp:
-        lines.append(f'reference pose: off by {rp["translation_rms_cm"]:.2f} cm and '
-                     f'{rp["rotation_rms_deg"]:.3f} deg RMS per cloud (z = {rp["z"]:.1f}): '
-                     'run again with --effect pose_error --fit')
+        lines.append(f'reference pose: off by {pose_size_words(rp)} RMS per cloud '
+                     f'(z = {rp["z"]:.1f}): run again with --effect pose_error --fit')
     region = s.get('region_offset') or {}
     if region.get('outcome') in ('region', 'tie') and not s.get('reference_pose_off'):
         said = ('part of the target reads off the rest' if region['outcome'] == 'region'
