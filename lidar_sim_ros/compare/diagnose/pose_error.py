@@ -319,14 +319,17 @@ class PoseError:
         if self.parts == 'translation':
             rot = test.get('rotation', {})
             return (f'{self.size_cm:.1f} cm in translation alone: no rotation shows '
-                    f'(below about {test.get("rotation_bound_deg", 0.0):.2f} deg per cloud, '
-                    'two standard errors; a rotation beside the translation gains '
+                    f'(below about {test.get("rotation_bound_deg", 0.0):.2f} deg per cloud: '
+                    'the rotation a six-parameter fit takes, plus two standard errors; a '
+                    'rotation beside the translation gains '
                     f'{rot.get("gain_beyond", 0.0):.4f} nats/point held out, '
                     f'z = {rot.get("z", 0.0):.1f}, short of the rule)')
         if self.parts == 'attitude':
             tr = test.get('translation', {})
-            return (f'{self.size_deg:.2f} deg in attitude alone: no translation shows '
-                    f'(below about {test.get("translation_bound_cm", 0.0):.1f} cm per cloud, '
+            return (f'{self.size_deg:.2f} deg in attitude alone, about the centroid of the '
+                    'points seen: no translation of it shows '
+                    f'(below about {test.get("translation_bound_cm", 0.0):.1f} cm per cloud: '
+                    'the translation of the points\' centroid a six-parameter fit takes, plus '
                     'two standard errors; a translation beside the rotation gains '
                     f'{tr.get("gain_beyond", 0.0):.4f} nats/point held out, '
                     f'z = {tr.get("z", 0.0):.1f}, short of the rule)')
