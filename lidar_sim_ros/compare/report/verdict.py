@@ -975,8 +975,9 @@ def pose_size_words(pose: dict) -> str:
         return (f'{pose["translation_rms_cm"]:.2f} cm in translation alone (no rotation '
                 f'shown: below about {parts["rotation_bound_deg"]:.2f} deg)')
     if parts.get('reported') == 'attitude':
-        return (f'{pose["rotation_rms_deg"]:.3f} deg in attitude alone (about the points\' centroid; no translation '
-                f'shown: below about {parts["translation_bound_cm"]:.1f} cm)')
+        return (f'{pose["rotation_rms_deg"]:.3f} deg in attitude alone (about the points\' '
+                'centroid; no translation shown: below about '
+                f'{parts["translation_bound_cm"]:.1f} cm)')
     return f'{pose["translation_rms_cm"]:.2f} cm and {pose["rotation_rms_deg"]:.3f} deg'
 
 
