@@ -155,6 +155,10 @@ class PoseError:
     # beyond the other: which cannot be told); and its figures (None: not tested).
     parts: str = 'both'
     parts_test: dict | None = None
+    # The same for a supported rate per cloud, on top of the rigid part (its bounds over
+    # the scan).
+    rate_parts: str = 'both'
+    rate_parts_test: dict | None = None
 
     @property
     def size_cm(self) -> float:
@@ -262,6 +266,8 @@ class PoseError:
                         'translation_mps': [round(float(x), 5) for x in v],
                         'rotation_deg_s': [round(float(x), 4) for x in w]})
         elif self.rate_supported and self.rate_translation_mps is not None:
+            if self.rate_parts_test:
+                out['parts'] = {'reported': self.rate_parts, **self.rate_parts_test}
             out.update({'drift_per_cloud_rms_cm': round(self.drift_cm, 3),
                         'drift_per_cloud_rms_deg': round(self.drift_deg, 4),
                         'clouds': [{'cloud': int(c),
@@ -305,11 +311,29 @@ class PoseError:
         text = (f'the reference pose is off by about {self.part_words()}, varying over '
                 f'{self.span_s:.1f} s')
         if self.rate_supported:
-            text += (f', and it drifts within each cloud by about {self.drift_cm:.1f} cm and '
-                     f'{self.drift_deg:.2f} deg over the scan (a per-cloud rate, from the '
-                     f'point times: held-out gain over a rigid correction {self.rate_gain:.4f} '
-                     f'nats/point, z = {self.rate_z:.1f})')
+            text += (f', and it drifts within each cloud by about {self.rate_part_words()} '
+                     'over the scan (a per-cloud rate, from the point times: held-out gain '
+                     f'over a rigid correction {self.rate_gain:.4f} nats/point, '
+                     f'z = {self.rate_z:.1f})')
         return text
+
+    def rate_part_words(self) -> str:
+        """A per-cloud rate's drift over the scan, each part said only where the data show
+        it (``shown_parts`` on top of the rigid part): the other as a bound."""
+        test = self.rate_parts_test or {}
+        if self.rate_parts == 'translation':
+            return (f'{self.drift_cm:.1f} cm in translation alone (no turning within the '
+                    f'cloud shows: below about {test.get("rotation_bound_deg", 0.0):.2f} deg)')
+        if self.rate_parts == 'attitude':
+            return (f'{self.drift_deg:.2f} deg in attitude alone (no translation of the '
+                    'points\' centroid within the cloud shows: below about '
+                    f'{test.get("translation_bound_cm", 0.0):.1f} cm)')
+        if self.rate_parts == 'either':
+            return (f'{self.drift_cm:.1f} cm and {self.drift_deg:.2f} deg (a translation or a '
+                    'turning within the cloud: neither passes the rule beyond the other, so '
+                    'which of them cannot be told)')
+        return f'{self.drift_cm:.1f} cm and {self.drift_deg:.2f} deg'
+
 
 
     def part_words(self) -> str:
@@ -355,19 +379,20 @@ def only_part(a: np.ndarray, parts: str) -> np.ndarray:
 
 
 def part_bounds(a: np.ndarray, x: np.ndarray, sigma_m: np.ndarray, cloud: np.ndarray,
-                use: np.ndarray, clouds: np.ndarray) -> tuple[float, float]:
+                use: np.ndarray, clouds: np.ndarray, at: int = 0) -> tuple[float, float]:
     """Upper bounds (RMS over clouds) of the translation (cm) and rotation (deg) per cloud
-    the data could hide: the six-parameter fit's part (``x``, (C, 6) m and rad) plus two
-    standard errors of it, from its normal equations (weights 1 / sigma^2)."""
+    the data could hide: the fit's part (``x``, (C, n) m and rad, the six columns from
+    ``at`` of ``a``'s) plus two standard errors of it, from its normal equations
+    (weights 1 / sigma^2)."""
     tr, rot = [], []
     for k, c in enumerate(clouds):
         sel = use & (cloud == c)
-        if sel.sum() < MIN_CLOUD_POINTS:
+        if sel.sum() < MIN_CLOUD_POINTS * a.shape[1] // 6:
             continue
         aw = a[sel] / sigma_m[sel][:, None]
-        d = np.clip(np.diag(np.linalg.pinv(aw.T @ aw)), 0.0, None)
-        tr.append((np.linalg.norm(x[k, :3]) + 2 * np.sqrt(np.sum(d[:3]))) ** 2)
-        rot.append((np.linalg.norm(x[k, 3:6]) + 2 * np.sqrt(np.sum(d[3:6]))) ** 2)
+        d = np.clip(np.diag(np.linalg.pinv(aw.T @ aw)), 0.0, None)[at:at + 6]
+        tr.append((np.linalg.norm(x[k, at:at + 3]) + 2 * np.sqrt(np.sum(d[:3]))) ** 2)
+        rot.append((np.linalg.norm(x[k, at + 3:at + 6]) + 2 * np.sqrt(np.sum(d[3:6]))) ** 2)
     if not tr:
         return 0.0, 0.0
     return (float(100 * np.sqrt(np.mean(tr))), float(np.degrees(np.sqrt(np.mean(rot)))))
@@ -376,25 +401,32 @@ def part_bounds(a: np.ndarray, x: np.ndarray, sigma_m: np.ndarray, cloud: np.nda
 def shown_parts(a: np.ndarray, r: np.ndarray, s: np.ndarray, cloud: np.ndarray,
                 use: np.ndarray, clouds: np.ndarray, prior: np.ndarray | None,
                 half: np.ndarray, judged: Callable[[np.ndarray], tuple[float, float]],
-                z_crit: float, min_gain: float) -> tuple[str, dict]:
-    """Which parts of a per-cloud rigid correction the data show, on the pose test's
-    held-out halves (``half``) and footing (``judged``: nats per matched point and z of a
-    per-point gain): the six-parameter correction's gain over the translation alone (the
-    rotation's part) and over the rotation alone (the translation's), each judged by the
-    rule. 'both', 'translation', 'attitude', or 'either' (neither beyond the other); and
-    the figures, with each part's bound (``part_bounds``). Where the whole correction
-    does not pass the rule there is nothing to split: 'both' and None."""
+                z_crit: float, min_gain: float,
+                fixed: np.ndarray | None = None) -> tuple[str, dict | None]:
+    """Which parts of a per-cloud correction ``a`` (N, 6: translation, rotation) the data
+    show, on the pose test's held-out halves (``half``) and footing (``judged``: nats per
+    matched point and z of a per-point gain): the six columns' gain over their
+    translation alone (the rotation's part) and over their rotation alone (the
+    translation's), each judged by the rule. 'both', 'translation', 'attitude', or
+    'either' (neither beyond the other); and the figures, with each part's bound
+    (``part_bounds``). ``fixed`` (N, 6): columns fitted beside every variant (the rigid
+    correction, where ``a`` is its rate; ``prior`` then has twelve). Without ``fixed``,
+    where the whole correction does not pass the rule there is nothing to split: 'both'
+    and None."""
     row = np.searchsorted(clouds, cloud)
+
+    def columns(part: str) -> np.ndarray:
+        return only_part(a, part) if fixed is None else np.hstack([fixed, only_part(a, part)])
     gains = {k: np.zeros(len(r)) for k in ('both', 'translation', 'attitude')}
     for k in (0, 1):
         test, train = use & (half != k), use & (half == k)
         for part, g in gains.items():
-            cols = only_part(a, part)
+            cols = columns(part)
             x = fit_clouds(cols, r, s, cloud, train, clouds, prior, TEST_RIDGE)
             corr = np.einsum('ij,ij->i', cols, x[row])
             g[test] = heldout_gain(r[test], corr[test], s[test])
     whole = judged(gains['both'])
-    if not (whole[1] >= z_crit and whole[0] >= min_gain):
+    if fixed is None and not (whole[1] >= z_crit and whole[0] >= min_gain):
         return 'both', None        # nothing to split: the whole does not pass
     rot = judged(gains['both'] - gains['translation'])
     tr = judged(gains['both'] - gains['attitude'])
@@ -402,8 +434,10 @@ def shown_parts(a: np.ndarray, r: np.ndarray, s: np.ndarray, cloud: np.ndarray,
     shows_tr = tr[1] >= z_crit and tr[0] >= min_gain
     parts = ('both' if shows_rot and shows_tr else 'translation' if shows_tr
              else 'attitude' if shows_rot else 'either')
-    x = fit_clouds(a, r, s, cloud, use, clouds, prior, TEST_RIDGE)
-    bound_cm, bound_deg = part_bounds(a, x, s, cloud, use, clouds)
+    cols = columns('both')
+    x = fit_clouds(cols, r, s, cloud, use, clouds, prior, TEST_RIDGE)
+    bound_cm, bound_deg = part_bounds(cols, x, s, cloud, use, clouds,
+                                      0 if fixed is None else fixed.shape[1])
     figures = {'rotation': {'gain_beyond': round(rot[0], 6), 'z': round(rot[1], 3),
                             'shown': bool(shows_rot)},
                'translation': {'gain_beyond': round(tr[0], 6), 'z': round(tr[1], 3),
@@ -568,9 +602,10 @@ class PoseCorrection:
     # One correction for the recording (one row) with a rate: tau on the recording's
     # time base within each cloud's scan (``ScanClock``), not the row's span.
     scan: ScanClock | None = None
-    # The parts the first fit showed (``shown_parts``): a refit on the re-cast model fits
-    # these alone, as the first did.
+    # The parts the first fit showed (``shown_parts``), of the rigid correction and of its
+    # rate: a refit on the re-cast model fits these alone, as the first did.
     parts: str = 'both'
+    rate_parts: str = 'both'
 
     @classmethod
     def identity(cls, cloud: np.ndarray, t_s: np.ndarray) -> 'PoseCorrection':
@@ -604,7 +639,8 @@ class PoseCorrection:
             g[first] = g_step[first]
         out = replace(self, rotation=rw * self.rotation,
                       translation_m=rw.apply(self.translation_m) + move, centroid_m=g,
-                      parts=step.parts)
+                      parts=step.parts,
+                      rate_parts=step.rate_parts if step.rate_supported else self.rate_parts)
         size = (float(np.max(np.linalg.norm(step.translation_m, axis=1), initial=0.0)),
                 float(np.max(np.linalg.norm(step.rotation_deg, axis=1), initial=0.0)))
         if step.rate_supported and step.rate_translation_mps is not None:
@@ -845,9 +881,10 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     elif not constant:
         parts, parts_test = shown_parts(a, r, s, cloud, use, clouds, prior, half, judged,
                                         z_crit, min_gain)
+    a_rate = a * tau[:, None]          # the rate's six columns, whatever the rigid part
     if parts in ('translation', 'attitude'):
         # The rigid part only: a drift within the cloud is the rate's own test.
-        a12 = np.hstack([only_part(a, parts), a * tau[:, None]]) if rate else None
+        a12 = np.hstack([only_part(a, parts), a_rate]) if rate else None
         a = only_part(a, parts)
         a12t = a12
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
@@ -920,6 +957,23 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     else:
         supported = bool(rate and rigid_passes and rate_z >= z_crit
                          and rate_gain >= min_gain)
+    # A supported rate per cloud claims its parts as the rigid correction does: each on
+    # its own, nested on top of the rigid part (``shown_parts`` with it fixed); a refit
+    # on the re-cast model keeps the first fit's.
+    rate_parts, rate_parts_test = 'both', None
+    if supported and not constant:
+        if applied is not None:
+            rate_parts = applied.rate_parts
+        else:
+            rate_parts, rate_parts_test = shown_parts(
+                a_rate, r, s, cloud, use, clouds, prior12, half, judged, z_crit, min_gain,
+                fixed=a)
+            # Its bounds per unit tau: over the scan (tau from -1 to 1), twice that.
+            rate_parts_test.update(
+                rotation_bound_deg=round(2 * rate_parts_test['rotation_bound_deg'], 4),
+                translation_bound_cm=round(2 * rate_parts_test['translation_bound_cm'], 3))
+        if rate_parts in ('translation', 'attitude'):
+            a12 = np.hstack([a, only_part(a_rate, rate_parts)])
     if supported:
         # The drifting correction against none: the test of what is reported.
         per_point, z = judged(gain12)
@@ -950,7 +1004,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      scan=scan if constant and rate else None, scan_tie=scan_tie,
                      offset_gain=offset_gain, offset_z=offset_z,
                      beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z,
-                     parts=parts, parts_test=parts_test)
+                     parts=parts, parts_test=parts_test, rate_parts=rate_parts,
+                     rate_parts_test=rate_parts_test)
 
 
 def applied_gain(pose: PoseError, data: lk.FitData, cloud: np.ndarray) -> float:

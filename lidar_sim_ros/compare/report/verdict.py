@@ -1107,9 +1107,11 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
     pc = s.get('pose_correction')
     if pc:
         rate = pc.get('rate') or {}
-        drift = (f', drifting within each cloud by {rate["drift_per_cloud_rms_cm"]:.2f} cm and '
-                 f'{rate["drift_per_cloud_rms_deg"]:.3f} deg RMS over the scan'
-                 if rate.get('supported') else '')
+        drift = (', drifting within each cloud by '
+                 + pose_size_words({'translation_rms_cm': rate['drift_per_cloud_rms_cm'],
+                                    'rotation_rms_deg': rate['drift_per_cloud_rms_deg'],
+                                    'parts': rate.get('parts')})
+                 + ' RMS over the scan' if rate.get('supported') else '')
         lines.append(f'fitted pose_error: reference pose corrected per cloud by '
                      f'{pose_size_words(pc)} RMS '
                      f'over {len(pc["clouds"])} clouds{drift} (held-out gain '
