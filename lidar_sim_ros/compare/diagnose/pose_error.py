@@ -401,8 +401,8 @@ def part_bounds(a: np.ndarray, x: np.ndarray, sigma_m: np.ndarray, cloud: np.nda
 def shown_parts(a: np.ndarray, r: np.ndarray, s: np.ndarray, cloud: np.ndarray,
                 use: np.ndarray, clouds: np.ndarray, prior: np.ndarray | None,
                 half: np.ndarray, judged: Callable[[np.ndarray], tuple[float, float]],
-                z_crit: float, min_gain: float,
-                fixed: np.ndarray | None = None) -> tuple[str, dict | None]:
+                z_crit: float, min_gain: float, fixed: np.ndarray | None = None,
+                part_z: float | None = None) -> tuple[str, dict | None]:
     """Which parts of a per-cloud correction ``a`` (N, 6: translation, rotation) the data
     show, on the pose test's held-out halves (``half``) and footing (``judged``: nats per
     matched point and z of a per-point gain): the six columns' gain over their
@@ -412,7 +412,7 @@ def shown_parts(a: np.ndarray, r: np.ndarray, s: np.ndarray, cloud: np.ndarray,
     (``part_bounds``). ``fixed`` (N, 6): columns fitted beside every variant (the rigid
     correction, where ``a`` is its rate; ``prior`` then has twelve). Without ``fixed``,
     where the whole correction does not pass the rule there is nothing to split: 'both'
-    and None."""
+    and None. ``part_z``: the z each part needs (default and at least ``z_crit``)."""
     row = np.searchsorted(clouds, cloud)
 
     def columns(part: str) -> np.ndarray:
@@ -430,8 +430,9 @@ def shown_parts(a: np.ndarray, r: np.ndarray, s: np.ndarray, cloud: np.ndarray,
         return 'both', None        # nothing to split: the whole does not pass
     rot = judged(gains['both'] - gains['translation'])
     tr = judged(gains['both'] - gains['attitude'])
-    shows_rot = rot[1] >= z_crit and rot[0] >= min_gain
-    shows_tr = tr[1] >= z_crit and tr[0] >= min_gain
+    z_part = max(z_crit, part_z if part_z is not None else z_crit)
+    shows_rot = rot[1] >= z_part and rot[0] >= min_gain
+    shows_tr = tr[1] >= z_part and tr[0] >= min_gain
     parts = ('both' if shows_rot and shows_tr else 'translation' if shows_tr
              else 'attitude' if shows_rot else 'either')
     cols = columns('both')
@@ -804,7 +805,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                        effects: list | None = None,
                        applied: 'PoseCorrection | None' = None,
                        rate: bool = False, constant: bool = False,
-                       scan: ScanClock | None = None) -> PoseError:
+                       scan: ScanClock | None = None,
+                       parts_z_crit: float | None = None) -> PoseError:
     """Fit and judge per-cloud rigid pose corrections on ``data``'s matched points
     (``cloud``, ``t_s``, ``blocks``: per matched point) under the model with
     ``effects`` on top of its own (module doc). ``rate``: the points carry their own
@@ -814,7 +816,10 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     rate): an extrinsic error of the reference pose, the same in every cloud, which six
     parameters per cloud test with far less power. With ``rate`` too, one rate for the
     recording on top of it, tau on ``scan`` (``ScanClock``; None: each cloud's first
-    point time is its stamp): the same drift within every cloud's scan."""
+    point time is its stamp): the same drift within every cloud's scan. ``parts_z_crit``:
+    the z each part of a per-cloud correction needs on its own (``shown_parts``; default
+    ``z_crit``): ``--effect pose_error --fit``'s test is one test, but the parts it claims
+    are the diagnosis's, asked at the diagnosis's bound."""
     tau_scan = None
     if constant:
         scan = (scan if scan is not None else ScanClock.of(cloud, t_s)) if rate else None
@@ -880,7 +885,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         parts = applied.parts
     elif not constant:
         parts, parts_test = shown_parts(a, r, s, cloud, use, clouds, prior, half, judged,
-                                        z_crit, min_gain)
+                                        z_crit, min_gain, part_z=parts_z_crit)
     a_rate = a * tau[:, None]          # the rate's six columns, whatever the rigid part
     if parts in ('translation', 'attitude'):
         # The rigid part only: a drift within the cloud is the rate's own test.
@@ -967,7 +972,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         else:
             rate_parts, rate_parts_test = shown_parts(
                 a_rate, r, s, cloud, use, clouds, prior12, half, judged, z_crit, min_gain,
-                fixed=a)
+                fixed=a, part_z=parts_z_crit)
             # Its bounds per unit tau: over the scan (tau from -1 to 1), twice that.
             rate_parts_test.update(
                 rotation_bound_deg=round(2 * rate_parts_test['rotation_bound_deg'], 4),
