@@ -383,7 +383,7 @@ def test_a_rate_per_cloud_claims_a_part_only_where_it_passes_the_rule_on_its_own
     assert moved.drift_deg == 0.0 and 3.0 < moved.drift_cm < 4.5
     assert not moved.rate_parts_test['rotation']['shown']
     assert 'drifts within each cloud by about' in moved.words()
-    assert 'in translation alone (no turning within the cloud shows' in moved.words()
+    assert 'in translation alone (no rotation within the cloud shows' in moved.words()
     assert moved.rate_dict()['parts']['reported'] == 'translation'
     corr, _ = pose_error.PoseCorrection.identity(cloud, t).compose(moved)
     assert corr.rate_parts == 'translation'

@@ -318,50 +318,39 @@ class PoseError:
         return text
 
     def rate_part_words(self) -> str:
-        """A per-cloud rate's drift over the scan, each part said only where the data show
-        it (``shown_parts`` on top of the rigid part): the other as a bound."""
-        test = self.rate_parts_test or {}
-        if self.rate_parts == 'translation':
-            return (f'{self.drift_cm:.1f} cm in translation alone (no turning within the '
-                    f'cloud shows: below about {test.get("rotation_bound_deg", 0.0):.2f} deg)')
-        if self.rate_parts == 'attitude':
-            return (f'{self.drift_deg:.2f} deg in attitude alone (no translation of the '
-                    'points\' centroid within the cloud shows: below about '
-                    f'{test.get("translation_bound_cm", 0.0):.1f} cm)')
-        if self.rate_parts == 'either':
-            return (f'{self.drift_cm:.1f} cm and {self.drift_deg:.2f} deg (a translation or a '
-                    'turning within the cloud: neither passes the rule beyond the other, so '
-                    'which of them cannot be told)')
-        return f'{self.drift_cm:.1f} cm and {self.drift_deg:.2f} deg'
-
-
+        """A per-cloud rate's drift over the scan, its parts as the data show them."""
+        return part_words(self.rate_parts, self.rate_parts_test, self.drift_cm,
+                          self.drift_deg, ' within the cloud')
 
     def part_words(self) -> str:
-        """The per-cloud correction's size, each part said only where the data show it
-        (``shown_parts``): the other part as a bound."""
-        test = self.parts_test or {}
-        if self.parts == 'translation':
-            rot = test.get('rotation', {})
-            return (f'{self.size_cm:.1f} cm in translation alone: no rotation shows '
-                    f'(below about {test.get("rotation_bound_deg", 0.0):.2f} deg per cloud: '
-                    'the rotation a six-parameter fit takes, plus two standard errors; a '
-                    'rotation beside the translation gains '
-                    f'{rot.get("gain_beyond", 0.0):.4f} nats/point held out, '
-                    f'z = {rot.get("z", 0.0):.1f}, short of the rule)')
-        if self.parts == 'attitude':
-            tr = test.get('translation', {})
-            return (f'{self.size_deg:.2f} deg in attitude alone, about the centroid of the '
-                    'points seen: no translation of it shows '
-                    f'(below about {test.get("translation_bound_cm", 0.0):.1f} cm per cloud: '
-                    'the translation of the points\' centroid a six-parameter fit takes, plus '
-                    'two standard errors; a translation beside the rotation gains '
-                    f'{tr.get("gain_beyond", 0.0):.4f} nats/point held out, '
-                    f'z = {tr.get("z", 0.0):.1f}, short of the rule)')
-        if self.parts == 'either':
-            return (f'{self.size_cm:.1f} cm and {self.size_deg:.2f} deg (a translation or a '
-                    'rotation: neither part passes the rule beyond the other, so which of '
-                    'them cannot be told)')
-        return f'{self.size_cm:.1f} cm and {self.size_deg:.2f} deg'
+        """The per-cloud correction's size, its parts as the data show them."""
+        return part_words(self.parts, self.parts_test, self.size_cm, self.size_deg)
+
+
+def part_words(parts: str, test: dict | None, size_cm: float, size_deg: float,
+               within: str = '') -> str:
+    """A correction's size (cm, deg), each part said only where the data show it
+    (``shown_parts``: ``parts`` and its figures ``test``), the other as its bound (the
+    part a six-parameter fit takes plus two standard errors); ``within``: ' within the
+    cloud' for a rate."""
+    test = test or {}
+    if parts == 'translation':
+        noun, other = 'rotation', test.get('rotation', {})
+        said = (f'{size_cm:.1f} cm in translation alone (no rotation{within} shows: below '
+                f'about {test.get("rotation_bound_deg", 0.0):.2f} deg')
+    elif parts == 'attitude':
+        noun, other = 'translation', test.get('translation', {})
+        said = (f'{size_deg:.2f} deg in attitude alone, about the centroid of the points '
+                f'seen (no translation of it{within} shows: below about '
+                f'{test.get("translation_bound_cm", 0.0):.1f} cm')
+    elif parts == 'either':
+        return (f'{size_cm:.1f} cm and {size_deg:.2f} deg (a translation or a rotation'
+                f'{within}: neither passes the rule beyond the other, so which of them '
+                'cannot be told)')
+    else:
+        return f'{size_cm:.1f} cm and {size_deg:.2f} deg'
+    return (f'{said}; a {noun} beside it gains {other.get("gain_beyond", 0.0):.4f} '
+            f'nats/point held out, z = {other.get("z", 0.0):.1f}, short of the rule)')
 
 
 PART_COLUMNS = {'both': slice(0, 6), 'either': slice(0, 6), 'translation': slice(0, 3),

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare.diagnose import beside, diagnosis
+from lidar_sim_ros.compare.diagnose import beside, diagnosis, pose_error
 from lidar_sim_ros.compare.model.materials import common_offset_m
 
 EFFECT_WORDS = {
@@ -968,17 +968,11 @@ def range_alone_words(alone: dict) -> str:
 
 def pose_size_words(pose: dict) -> str:
     """A per-cloud pose correction's size as summary.json holds it (``reference_pose``,
-    ``pose_correction``): each part only where the data show it
-    (``pose_error.shown_parts``), the other as its bound."""
+    ``pose_correction``, a rate's drift): each part only where the data show it
+    (``pose_error.part_words``)."""
     parts = pose.get('parts') or {}
-    if parts.get('reported') == 'translation':
-        return (f'{pose["translation_rms_cm"]:.2f} cm in translation alone (no rotation '
-                f'shown: below about {parts["rotation_bound_deg"]:.2f} deg)')
-    if parts.get('reported') == 'attitude':
-        return (f'{pose["rotation_rms_deg"]:.3f} deg in attitude alone (about the points\' '
-                'centroid; no translation shown: below about '
-                f'{parts["translation_bound_cm"]:.1f} cm)')
-    return f'{pose["translation_rms_cm"]:.2f} cm and {pose["rotation_rms_deg"]:.3f} deg'
+    return pose_error.part_words(parts.get('reported', 'both'), parts,
+                                 pose['translation_rms_cm'], pose['rotation_rms_deg'])
 
 
 def bound_remainder_words(left: dict) -> str:
