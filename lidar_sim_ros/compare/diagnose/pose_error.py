@@ -31,11 +31,13 @@ tracking system's position may jitter while its attitude holds (or the reverse).
 part is claimed only if it passes the rule on its own, nested: the six-parameter
 correction's held-out gain over the translation alone (the rotation's part) and over
 the rotation alone (the translation's), on the same halves as the pose test
-(``shown_parts``). Where only one part shows, the correction, its test, the re-casts and
-``--effect pose_error --fit`` use that part alone (``PoseError.parts``,
-``PoseCorrection.parts``), and the other is given as a bound (the six-parameter fit's
-part plus two standard errors, per cloud), not as a size. Whether the pose is off stays
-the six-parameter test's: the parts say what of it is claimed.
+(``shown_parts``). Where only one part shows, the verdict, the summary's sizes and
+``--effect pose_error --fit``'s report claim that part alone (``PoseError.parts``), the
+other given as a bound (the six-parameter fit's part plus two standard errors, per
+cloud), not as a size. Whether the pose is off stays the six-parameter test's, and the
+correction applied stays the six-parameter fit (the best estimate; the part not shown
+is within its bound): applied alone, a part not shown on the test's footing (grazing
+rays left out) lost a tie with a clock offset on the rays it leaves out.
 
 A reference pose that drifts within a cloud (a tracking system's lag: a rotation
 growing over each scan) is a correction linear in time within the cloud: six more
@@ -162,12 +164,18 @@ class PoseError:
 
     @property
     def size_cm(self) -> float:
-        """RMS over clouds of the translation's length (cm)."""
+        """RMS over clouds of the translation's length (cm); 0 where the data do not show
+        it (``parts`` 'attitude': the correction applied keeps it, within its bound)."""
+        if self.parts == 'attitude':
+            return 0.0
         return float(100 * np.sqrt(np.mean(np.sum(self.translation_m ** 2, axis=1))))
 
     @property
     def size_deg(self) -> float:
-        """RMS over clouds of the rotation angle (deg)."""
+        """RMS over clouds of the rotation angle (deg); 0 where the data do not show it
+        (``parts`` 'translation')."""
+        if self.parts == 'translation':
+            return 0.0
         return float(np.sqrt(np.mean(np.sum(self.rotation_deg ** 2, axis=1))))
 
     @property
@@ -203,7 +211,8 @@ class PoseError:
     def drift_cm(self) -> float:
         """RMS over clouds of the translation of the rotation centre over one cloud's
         span due to the rate (cm); 0 without a supported rate."""
-        if not self.rate_supported or self.rate_translation_mps is None:
+        if (not self.rate_supported or self.rate_translation_mps is None
+                or self.rate_parts == 'attitude'):
             return 0.0
         span = 2 * self.half_span_s[:, None]
         return float(100 * np.sqrt(np.mean(np.sum((self.rate_translation_mps * span) ** 2, 1))))
@@ -211,7 +220,8 @@ class PoseError:
     @property
     def drift_deg(self) -> float:
         """RMS over clouds of the rotation over one cloud's span due to the rate (deg)."""
-        if not self.rate_supported or self.rate_rotation_deg_s is None:
+        if (not self.rate_supported or self.rate_rotation_deg_s is None
+                or self.rate_parts == 'translation'):
             return 0.0
         span = 2 * self.half_span_s[:, None]
         return float(np.sqrt(np.mean(np.sum((self.rate_rotation_deg_s * span) ** 2, 1))))
@@ -240,7 +250,8 @@ class PoseError:
                 **({'left_by_bound': self.left_by_bound} if self.left_by_bound else {}),
                 **({'left_by_stand_in': self.left_by_stand_in}
                    if self.left_by_stand_in else {}),
-                **({'parts': {'reported': self.parts, **self.parts_test}}
+                **({'parts': {'reported': self.parts, **self.parts_test,
+                              'applied': 'the six-parameter fit (per cloud above)'}}
                    if self.parts_test else {}),
                 'recast_passes': self.passes,
                 'last_step_m_deg': [round(float(x), 6) for x in self.last_step],
@@ -592,10 +603,6 @@ class PoseCorrection:
     # One correction for the recording (one row) with a rate: tau on the recording's
     # time base within each cloud's scan (``ScanClock``), not the row's span.
     scan: ScanClock | None = None
-    # The parts the first fit showed (``shown_parts``), of the rigid correction and of its
-    # rate: a refit on the re-cast model fits these alone, as the first did.
-    parts: str = 'both'
-    rate_parts: str = 'both'
 
     @classmethod
     def identity(cls, cloud: np.ndarray, t_s: np.ndarray) -> 'PoseCorrection':
@@ -628,9 +635,7 @@ class PoseCorrection:
             first = ~np.isfinite(g[:, 0])
             g[first] = g_step[first]
         out = replace(self, rotation=rw * self.rotation,
-                      translation_m=rw.apply(self.translation_m) + move, centroid_m=g,
-                      parts=step.parts,
-                      rate_parts=step.rate_parts if step.rate_supported else self.rate_parts)
+                      translation_m=rw.apply(self.translation_m) + move, centroid_m=g)
         size = (float(np.max(np.linalg.norm(step.translation_m, axis=1), initial=0.0)),
                 float(np.max(np.linalg.norm(step.rotation_deg, axis=1), initial=0.0)))
         if step.rate_supported and step.rate_translation_mps is not None:
@@ -867,20 +872,12 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     def judged(g: np.ndarray) -> tuple[float, float]:
         z = block_mean_z(g[use], blocks[use])[1] if use.sum() > 1 else 0.0
         return float(np.sum(g[use]) / max(len(r), 1)), z
-    # Per cloud: the parts the data show (``shown_parts``), asked where the whole passes;
-    # a refit on the re-cast model (``applied``) keeps the first fit's.
+    # Per cloud: the parts the data show (``shown_parts``), asked where the whole passes
+    # (not on a refit on the re-cast model, ``applied``: the first fit's claim stands).
     parts, parts_test = 'both', None
-    if not constant and applied is not None:
-        parts = applied.parts
-    elif not constant:
+    if not constant and applied is None:
         parts, parts_test = shown_parts(a, r, s, cloud, use, clouds, prior, half, judged,
                                         z_crit, min_gain, part_z=parts_z_crit)
-    a_rate = a * tau[:, None]          # the rate's six columns, whatever the rigid part
-    if parts in ('translation', 'attitude'):
-        # The rigid part only: a drift within the cloud is the rate's own test.
-        a12 = np.hstack([only_part(a, parts), a_rate]) if rate else None
-        a = only_part(a, parts)
-        a12t = a12
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
     gain_scan = np.zeros(len(r))      # a range offset over the scan instead (constant, rate)
@@ -923,12 +920,6 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     rate_gain, rate_z = judged(gain12 - gain) if rate else (0.0, 0.0)
     offset_gain, offset_z = judged(gain1) if not constant else (0.0, 0.0)
     beyond_gain, beyond_z = judged(gain - gain1) if not constant else (0.0, 0.0)
-    if parts_test is not None and parts != 'both':
-        # Whether the pose is off is the six-parameter test's (``shown_parts``); the
-        # part alone is what is claimed and applied, its own test kept beside.
-        parts_test = {**parts_test, 'part_alone': {'gain': round(per_point, 6),
-                                                   'z': round(z, 3)}}
-        per_point, z = parts_test['whole']['gain'], parts_test['whole']['z']
     # A refinement of a pose error that is there: the rigid correction passes first.
     # Within one cloud a point's time follows its place in the scan (a raster's rows),
     # so on its own the rate is six more spatial patterns per cloud, which a sensor's
@@ -952,22 +943,16 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         supported = bool(rate and rigid_passes and rate_z >= z_crit
                          and rate_gain >= min_gain)
     # A supported rate per cloud claims its parts as the rigid correction does: each on
-    # its own, nested on top of the rigid part (``shown_parts`` with it fixed); a refit
-    # on the re-cast model keeps the first fit's.
+    # its own, nested on top of the rigid part (``shown_parts`` with it fixed).
     rate_parts, rate_parts_test = 'both', None
-    if supported and not constant:
-        if applied is not None:
-            rate_parts = applied.rate_parts
-        else:
-            rate_parts, rate_parts_test = shown_parts(
-                a_rate, r, s, cloud, use, clouds, prior12, half, judged, z_crit, min_gain,
-                fixed=a, part_z=parts_z_crit)
-            # Its bounds per unit tau: over the scan (tau from -1 to 1), twice that.
-            rate_parts_test.update(
-                rotation_bound_deg=round(2 * rate_parts_test['rotation_bound_deg'], 4),
-                translation_bound_cm=round(2 * rate_parts_test['translation_bound_cm'], 3))
-        if rate_parts in ('translation', 'attitude'):
-            a12 = np.hstack([a, only_part(a_rate, rate_parts)])
+    if supported and not constant and applied is None:
+        rate_parts, rate_parts_test = shown_parts(
+            a * tau[:, None], r, s, cloud, use, clouds, prior12, half, judged, z_crit,
+            min_gain, fixed=a, part_z=parts_z_crit)
+        # Its bounds per unit tau: over the scan (tau from -1 to 1), twice that.
+        rate_parts_test.update(
+            rotation_bound_deg=round(2 * rate_parts_test['rotation_bound_deg'], 4),
+            translation_bound_cm=round(2 * rate_parts_test['translation_bound_cm'], 3))
     if supported:
         # The drifting correction against none: the test of what is reported.
         per_point, z = judged(gain12)
