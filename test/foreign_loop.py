@@ -161,6 +161,22 @@ def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
         why.append('the reference-pose error was not reported')
     if pose_off[-1]:
         why.append('the reference-pose error is still reported after --effect pose_error')
+    if pose_off[0] and spec.pose_error[0] > 0 and spec.pose_error[1] == 0:
+        # A translation only: no rotation claimed with a size. (An attitude error turns
+        # the target about its body origin, which moves the points' centroid, the
+        # reported translation's reference point: there both parts are the data's.)
+        pose = first.get('reference_pose') or {}
+        rot = pose.get('rotation_rms_deg') or 0.0
+        if rot > 0.0:
+            why.append(f'a rotation the data do not have reported: {rot} deg RMS')
+        # Nor a turning within each cloud, unless said to be one of two the data cannot
+        # tell apart.
+        rate = pose.get('rate') or {}
+        turn = rate.get('drift_per_cloud_rms_deg') or 0.0
+        if (rate.get('supported') and turn > 0.0
+                and (rate.get('parts') or {}).get('reported') != 'either'):
+            why.append(f'a turning within each cloud the data do not have reported: {turn} '
+                       'deg RMS')
     if not any(spec.pose_error) and any(pose_off[1:] if with_pose else pose_off):
         why.append(f'a reference-pose error reported on a correct pose (steps {pose_off})')
     if spec.clutter:

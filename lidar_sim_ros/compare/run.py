@@ -683,6 +683,10 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     re-cast and pose."""
     extra_var = rays.extra_var_m2
     scan = scan_clock(meas)
+    # The parts of the correction it claims are asked at the diagnosis's bound (the
+    # candidates' family), so that --fit claims what the diagnosis said.
+    parts_z = float(norm.isf(diagnosis.FAMILY_ALPHA
+                             / max(len(candidate_classes(opts, effects)), 1)))
 
     def fit(r: diagnosis.RaySet, applied: pose_error.PoseCorrection | None = None,
             constant: bool = False) -> pose_error.PoseError:
@@ -692,7 +696,8 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
                                              float(norm.isf(diagnosis.FAMILY_ALPHA)),
                                              diagnosis.MIN_PRACTICAL_GAIN, opts.seed,
                                              applied=applied, rate=has_point_times(meas),
-                                             constant=constant, scan=scan)
+                                             constant=constant, scan=scan,
+                                             parts_z_crit=parts_z)
 
     def rematch(corr: pose_error.PoseCorrection):
         moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))

@@ -26,6 +26,19 @@ motion composed with the recorded pose, ``PoseCorrection``) and the model is ray
 again; the fit is repeated on the re-matched residual and composed (Gauss-Newton,
 ``iterate``), until the step is small.
 
+A per-cloud correction is six parameters, but a pose error need not have both parts: a
+tracking system's position may jitter while its attitude holds (or the reverse). Each
+part is claimed only if it passes the rule on its own, nested: the six-parameter
+correction's held-out gain over the translation alone (the rotation's part) and over
+the rotation alone (the translation's), on the same halves as the pose test
+(``shown_parts``). Where only one part shows, the verdict, the summary's sizes and
+``--effect pose_error --fit``'s report claim that part alone (``PoseError.parts``), the
+other given as a bound (the six-parameter fit's part plus two standard errors, per
+cloud), not as a size. Whether the pose is off stays the six-parameter test's, and the
+correction applied stays the six-parameter fit (the best estimate; the part not shown
+is within its bound): applied alone, a part not shown on the test's footing (grazing
+rays left out) lost a tie with a clock offset on the rays it leaves out.
+
 A reference pose that drifts within a cloud (a tracking system's lag: a rotation
 growing over each scan) is a correction linear in time within the cloud: six more
 parameters per cloud, the rate, ``a tau`` with tau = (t - t_c) / h_c the point's time
@@ -146,15 +159,31 @@ class PoseError:
     # Its test passed, but not beyond a function of range alone
     # (``run.pose_against_range_alone``): not reported (the outcome, its test's figures).
     left_to_range: dict | None = None
+    # Which parts of the per-cloud correction the data show (``shown_parts``): 'both',
+    # 'translation' (no rotation shown: the correction is a translation per cloud),
+    # 'attitude' (a rotation per cloud only) or 'either' (the whole passes, neither part
+    # beyond the other: which cannot be told); and its figures (None: not tested).
+    parts: str = 'both'
+    parts_test: dict | None = None
+    # The same for a supported rate per cloud, on top of the rigid part (its bounds over
+    # the scan).
+    rate_parts: str = 'both'
+    rate_parts_test: dict | None = None
 
     @property
     def size_cm(self) -> float:
-        """RMS over clouds of the translation's length (cm)."""
+        """RMS over clouds of the translation's length (cm); 0 where the data do not show
+        it (``parts`` 'attitude': the correction applied keeps it, within its bound)."""
+        if self.parts == 'attitude':
+            return 0.0
         return float(100 * np.sqrt(np.mean(np.sum(self.translation_m ** 2, axis=1))))
 
     @property
     def size_deg(self) -> float:
-        """RMS over clouds of the rotation angle (deg)."""
+        """RMS over clouds of the rotation angle (deg); 0 where the data do not show it
+        (``parts`` 'translation')."""
+        if self.parts == 'translation':
+            return 0.0
         return float(np.sqrt(np.mean(np.sum(self.rotation_deg ** 2, axis=1))))
 
     @property
@@ -190,7 +219,8 @@ class PoseError:
     def drift_cm(self) -> float:
         """RMS over clouds of the translation of the rotation centre over one cloud's
         span due to the rate (cm); 0 without a supported rate."""
-        if not self.rate_supported or self.rate_translation_mps is None:
+        if (not self.rate_supported or self.rate_translation_mps is None
+                or self.rate_parts == 'attitude'):
             return 0.0
         span = 2 * self.half_span_s[:, None]
         return float(100 * np.sqrt(np.mean(np.sum((self.rate_translation_mps * span) ** 2, 1))))
@@ -198,7 +228,8 @@ class PoseError:
     @property
     def drift_deg(self) -> float:
         """RMS over clouds of the rotation over one cloud's span due to the rate (deg)."""
-        if not self.rate_supported or self.rate_rotation_deg_s is None:
+        if (not self.rate_supported or self.rate_rotation_deg_s is None
+                or self.rate_parts == 'translation'):
             return 0.0
         span = 2 * self.half_span_s[:, None]
         return float(np.sqrt(np.mean(np.sum((self.rate_rotation_deg_s * span) ** 2, 1))))
@@ -230,6 +261,9 @@ class PoseError:
                 **({'against_range_alone': self.against_range.as_dict()}
                    if self.against_range is not None else {}),
                 **({'left_to_range': self.left_to_range} if self.left_to_range else {}),
+                **({'parts': {'reported': self.parts, **self.parts_test,
+                              'applied': 'the six-parameter fit (per cloud above)'}}
+                   if self.parts_test else {}),
                 'recast_passes': self.passes,
                 'last_step_m_deg': [round(float(x), 6) for x in self.last_step],
                 'rate': self.rate_dict()}
@@ -254,6 +288,8 @@ class PoseError:
                         'translation_mps': [round(float(x), 5) for x in v],
                         'rotation_deg_s': [round(float(x), 4) for x in w]})
         elif self.rate_supported and self.rate_translation_mps is not None:
+            if self.rate_parts_test:
+                out['parts'] = {'reported': self.rate_parts, **self.rate_parts_test}
             out.update({'drift_per_cloud_rms_cm': round(self.drift_cm, 3),
                         'drift_per_cloud_rms_deg': round(self.drift_deg, 4),
                         'clouds': [{'cloud': int(c),
@@ -294,14 +330,134 @@ class PoseError:
                     f'{self.size_deg:.2f} deg{where}, the same in every cloud (one rigid '
                     'correction for the whole recording: an extrinsic calibration or '
                     'tracking-frame error)')
-        text = (f'the reference pose is off by about {self.size_cm:.1f} cm and '
-                f'{self.size_deg:.2f} deg, varying over {self.span_s:.1f} s')
+        text = (f'the reference pose is off by about {self.part_words()}, varying over '
+                f'{self.span_s:.1f} s')
         if self.rate_supported:
-            text += (f', and it drifts within each cloud by about {self.drift_cm:.1f} cm and '
-                     f'{self.drift_deg:.2f} deg over the scan (a per-cloud rate, from the '
-                     f'point times: held-out gain over a rigid correction {self.rate_gain:.4f} '
-                     f'nats/point, z = {self.rate_z:.1f})')
+            text += (f', and it drifts within each cloud by about {self.rate_part_words()} '
+                     'over the scan (a per-cloud rate, from the point times: held-out gain '
+                     f'over a rigid correction {self.rate_gain:.4f} nats/point, '
+                     f'z = {self.rate_z:.1f})')
         return text
+
+    def rate_part_words(self) -> str:
+        """A per-cloud rate's drift over the scan, its parts as the data show them."""
+        return part_words(self.rate_parts, self.rate_parts_test, self.drift_cm,
+                          self.drift_deg, ' within the cloud')
+
+    def part_words(self) -> str:
+        """The per-cloud correction's size, its parts as the data show them."""
+        return part_words(self.parts, self.parts_test, self.size_cm, self.size_deg)
+
+
+def part_words(parts: str, test: dict | None, size_cm: float, size_deg: float,
+               within: str = '') -> str:
+    """A correction's size (cm, deg), each part said only where the data show it
+    (``shown_parts``: ``parts`` and its figures ``test``), the other as its bound (the
+    part a six-parameter fit takes plus two standard errors); ``within``: ' within the
+    cloud' for a rate."""
+    test = test or {}
+    if parts == 'translation':
+        noun, other = 'rotation', test.get('rotation', {})
+        said = (f'{size_cm:.1f} cm in translation alone (no rotation{within} shows: below '
+                f'about {test.get("rotation_bound_deg", 0.0):.2f} deg')
+    elif parts == 'attitude':
+        noun, other = 'translation', test.get('translation', {})
+        said = (f'{size_deg:.2f} deg in attitude alone, about the centroid of the points '
+                f'seen (no translation of it{within} shows: below about '
+                f'{test.get("translation_bound_cm", 0.0):.1f} cm')
+    elif parts == 'either':
+        return (f'{size_cm:.1f} cm and {size_deg:.2f} deg (a translation or a rotation'
+                f'{within}: neither passes the rule beyond the other, so which of them '
+                'cannot be told)')
+    else:
+        return f'{size_cm:.1f} cm and {size_deg:.2f} deg'
+    return (f'{said}; a {noun} beside it gains {other.get("gain_beyond", 0.0):.4f} '
+            f'nats/point held out, z = {other.get("z", 0.0):.1f}, short of the rule)')
+
+
+PART_COLUMNS = {'both': slice(0, 6), 'either': slice(0, 6), 'translation': slice(0, 3),
+                'attitude': slice(3, 6)}
+
+
+def only_part(a: np.ndarray, parts: str) -> np.ndarray:
+    """(N, 6) ``a`` (``design``) with the columns of the part not kept zeroed: a fit on it
+    leaves that part at zero (``fit_clouds``' ridge holds an empty column there)."""
+    if parts in ('both', 'either'):
+        return a
+    out = np.zeros_like(a)
+    out[:, PART_COLUMNS[parts]] = a[:, PART_COLUMNS[parts]]
+    return out
+
+
+def part_bounds(a: np.ndarray, x: np.ndarray, sigma_m: np.ndarray, cloud: np.ndarray,
+                use: np.ndarray, clouds: np.ndarray, at: int = 0) -> tuple[float, float]:
+    """Upper bounds (RMS over clouds) of the translation (cm) and rotation (deg) per cloud
+    the data could hide: the fit's part (``x``, (C, n) m and rad, the six columns from
+    ``at`` of ``a``'s) plus two standard errors of it, from its normal equations
+    (weights 1 / sigma^2)."""
+    tr, rot = [], []
+    for k, c in enumerate(clouds):
+        sel = use & (cloud == c)
+        if sel.sum() < MIN_CLOUD_POINTS * a.shape[1] // 6:
+            continue
+        aw = a[sel] / sigma_m[sel][:, None]
+        d = np.clip(np.diag(np.linalg.pinv(aw.T @ aw)), 0.0, None)[at:at + 6]
+        tr.append((np.linalg.norm(x[k, at:at + 3]) + 2 * np.sqrt(np.sum(d[:3]))) ** 2)
+        rot.append((np.linalg.norm(x[k, at + 3:at + 6]) + 2 * np.sqrt(np.sum(d[3:6]))) ** 2)
+    if not tr:
+        return 0.0, 0.0
+    return (float(100 * np.sqrt(np.mean(tr))), float(np.degrees(np.sqrt(np.mean(rot)))))
+
+
+def shown_parts(a: np.ndarray, r: np.ndarray, s: np.ndarray, cloud: np.ndarray,
+                use: np.ndarray, clouds: np.ndarray, prior: np.ndarray | None,
+                half: np.ndarray, judged: Callable[[np.ndarray], tuple[float, float]],
+                z_crit: float, min_gain: float, fixed: np.ndarray | None = None,
+                part_z: float | None = None) -> tuple[str, dict | None]:
+    """Which parts of a per-cloud correction ``a`` (N, 6: translation, rotation) the data
+    show, on the pose test's held-out halves (``half``) and footing (``judged``: nats per
+    matched point and z of a per-point gain): the six columns' gain over their
+    translation alone (the rotation's part) and over their rotation alone (the
+    translation's), each judged by the rule. 'both', 'translation', 'attitude', or
+    'either' (neither beyond the other); and the figures, with each part's bound
+    (``part_bounds``). ``fixed`` (N, 6): columns fitted beside every variant (the rigid
+    correction, where ``a`` is its rate; ``prior`` then has twelve). Without ``fixed``,
+    where the whole correction does not pass the rule there is nothing to split: 'both'
+    and None. ``part_z``: the z each part needs (default and at least ``z_crit``)."""
+    row = np.searchsorted(clouds, cloud)
+
+    def columns(part: str) -> np.ndarray:
+        return only_part(a, part) if fixed is None else np.hstack([fixed, only_part(a, part)])
+    gains = {k: np.zeros(len(r)) for k in ('both', 'translation', 'attitude')}
+    for k in (0, 1):
+        test, train = use & (half != k), use & (half == k)
+        for part, g in gains.items():
+            cols = columns(part)
+            x = fit_clouds(cols, r, s, cloud, train, clouds, prior, TEST_RIDGE)
+            corr = np.einsum('ij,ij->i', cols, x[row])
+            g[test] = heldout_gain(r[test], corr[test], s[test])
+    whole = judged(gains['both'])
+    if fixed is None and not (whole[1] >= z_crit and whole[0] >= min_gain):
+        return 'both', None        # nothing to split: the whole does not pass
+    rot = judged(gains['both'] - gains['translation'])
+    tr = judged(gains['both'] - gains['attitude'])
+    z_part = max(z_crit, part_z if part_z is not None else z_crit)
+    shows_rot = rot[1] >= z_part and rot[0] >= min_gain
+    shows_tr = tr[1] >= z_part and tr[0] >= min_gain
+    parts = ('both' if shows_rot and shows_tr else 'translation' if shows_tr
+             else 'attitude' if shows_rot else 'either')
+    cols = columns('both')
+    x = fit_clouds(cols, r, s, cloud, use, clouds, prior, TEST_RIDGE)
+    bound_cm, bound_deg = part_bounds(cols, x, s, cloud, use, clouds,
+                                      0 if fixed is None else fixed.shape[1])
+    figures = {'rotation': {'gain_beyond': round(rot[0], 6), 'z': round(rot[1], 3),
+                            'shown': bool(shows_rot)},
+               'translation': {'gain_beyond': round(tr[0], 6), 'z': round(tr[1], 3),
+                               'shown': bool(shows_tr)},
+               'rotation_bound_deg': round(bound_deg, 4),
+               'translation_bound_cm': round(bound_cm, 3),
+               'whole': {'gain': round(whole[0], 6), 'z': round(whole[1], 3)}}
+    return parts, figures
 
 
 def design(direction: np.ndarray, normal: np.ndarray, expected_m: np.ndarray,
@@ -692,7 +848,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                        effects: list | None = None,
                        applied: 'PoseCorrection | None' = None,
                        rate: bool = False, constant: bool = False,
-                       scan: ScanClock | None = None) -> PoseError:
+                       scan: ScanClock | None = None,
+                       parts_z_crit: float | None = None) -> PoseError:
     """Fit and judge per-cloud rigid pose corrections on ``data``'s matched points
     (``cloud``, ``t_s``, ``blocks``: per matched point) under the model with
     ``effects`` on top of its own (module doc). ``rate``: the points carry their own
@@ -702,7 +859,10 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     rate): an extrinsic error of the reference pose, the same in every cloud, which six
     parameters per cloud test with far less power. With ``rate`` too, one rate for the
     recording on top of it, tau on ``scan`` (``ScanClock``; None: each cloud's first
-    point time is its stamp): the same drift within every cloud's scan."""
+    point time is its stamp): the same drift within every cloud's scan. ``parts_z_crit``:
+    the z each part of a per-cloud correction needs on its own (``shown_parts``; default
+    ``z_crit``): ``--effect pose_error --fit``'s test is one test, but the parts it claims
+    are the diagnosis's, asked at the diagnosis's bound."""
     tau_scan = None
     if constant:
         scan = (scan if scan is not None else ScanClock.of(cloud, t_s)) if rate else None
@@ -757,6 +917,16 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # fit generalises better, so the stronger ridge would make the test more eager,
     # e.g. on top of a fitted time offset; the correction applied is the damped one.
     half = np.random.default_rng([seed, 61]).integers(0, 2, len(r))
+
+    def judged(g: np.ndarray) -> tuple[float, float]:
+        z = block_mean_z(g[use], blocks[use])[1] if use.sum() > 1 else 0.0
+        return float(np.sum(g[use]) / max(len(r), 1)), z
+    # Per cloud: the parts the data show (``shown_parts``), asked where the whole passes
+    # (not on a refit on the re-cast model, ``applied``: the first fit's claim stands).
+    parts, parts_test = 'both', None
+    if not constant and applied is None:
+        parts, parts_test = shown_parts(a, r, s, cloud, use, clouds, prior, half, judged,
+                                        z_crit, min_gain, part_z=parts_z_crit)
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
     gain_scan = np.zeros(len(r))      # a range offset over the scan instead (constant, rate)
@@ -805,10 +975,6 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                 corr12 = with_offsets(np.einsum('ij,ij->i', a12t, x12[row]), r, materials,
                                       train)
                 gain12_t[test] = heldout_gain(r[test], corr12[test], s[test])
-
-    def judged(g: np.ndarray) -> tuple[float, float]:
-        z = block_mean_z(g[use], blocks[use])[1] if use.sum() > 1 else 0.0
-        return float(np.sum(g[use]) / max(len(r), 1)), z
     per_point, z = judged(gain)
     if through is not None:
         per_point_t, z_t = judged(gain_t)
@@ -842,6 +1008,17 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     else:
         supported = bool(rate and rigid_passes and rate_z >= z_crit
                          and rate_gain >= min_gain)
+    # A supported rate per cloud claims its parts as the rigid correction does: each on
+    # its own, nested on top of the rigid part (``shown_parts`` with it fixed).
+    rate_parts, rate_parts_test = 'both', None
+    if supported and not constant and applied is None:
+        rate_parts, rate_parts_test = shown_parts(
+            a * tau[:, None], r, s, cloud, use, clouds, prior12, half, judged, z_crit,
+            min_gain, fixed=a, part_z=parts_z_crit)
+        # Its bounds per unit tau: over the scan (tau from -1 to 1), twice that.
+        rate_parts_test.update(
+            rotation_bound_deg=round(2 * rate_parts_test['rotation_bound_deg'], 4),
+            translation_bound_cm=round(2 * rate_parts_test['translation_bound_cm'], 3))
     if supported:
         # The drifting correction against none: the test of what is reported.
         per_point, z = judged(gain12)
@@ -878,7 +1055,9 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      scan=scan if constant and rate else None, scan_tie=scan_tie,
                      offset_gain=offset_gain, offset_z=offset_z,
                      beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z,
-                     against_range=against_range)
+                     against_range=against_range,
+                     parts=parts, parts_test=parts_test, rate_parts=rate_parts,
+                     rate_parts_test=rate_parts_test)
 
 
 def applied_gain(pose: PoseError, data: lk.FitData, cloud: np.ndarray) -> float:

@@ -20,6 +20,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from lidar_sim_ros.compare.report import opening
+from lidar_sim_ros.compare.report.verdict import pose_size_words
 from lidar_sim_ros.compare.diagnose.features import CATEGORICAL, LABELS  # noqa: E402
 from lidar_sim_ros.compare.model.materials import robust_sigma  # noqa: E402
 
@@ -398,7 +399,7 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
                 else 'that would explain the residual')
         parts += ['<h2>Reference pose: the correction per cloud</h2>',
                   f'<p>The rigid correction of the target pose {what}: RMS '
-                  f'{pose["translation_rms_cm"]:.2f} cm and {pose["rotation_rms_deg"]:.3f} deg '
+                  f'{pose_size_words(pose)} '
                   f'(held-out gain {pose["gain_per_matched_point"]:.4f} nats/point, '
                   f'z = {pose["z"]:.1f}). A reference error (tracking system, extrinsic '
                   'calibration), not a sensor effect.</p>',

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare.diagnose import beside, diagnosis
+from lidar_sim_ros.compare.diagnose import beside, diagnosis, pose_error
 from lidar_sim_ros.compare.model.materials import common_offset_m
 
 EFFECT_WORDS = {
@@ -975,6 +975,15 @@ def range_alone_words(alone: dict) -> str:
             f'z = {alone["z"]:.1f}), so {name} is not its cause.')
 
 
+def pose_size_words(pose: dict) -> str:
+    """A per-cloud pose correction's size as summary.json holds it (``reference_pose``,
+    ``pose_correction``, a rate's drift): each part only where the data show it
+    (``pose_error.part_words``)."""
+    parts = pose.get('parts') or {}
+    return pose_error.part_words(parts.get('reported', 'both'), parts,
+                                 pose['translation_rms_cm'], pose['rotation_rms_deg'])
+
+
 def bound_remainder_words(left: dict) -> str:
     """Why a pose that would take what a fit at its search bound left is not claimed
     (``run.pose_beyond_a_bound``; ``left``: the pose's ``left_by_bound``)."""
@@ -1150,11 +1159,13 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
     pc = s.get('pose_correction')
     if pc:
         rate = pc.get('rate') or {}
-        drift = (f', drifting within each cloud by {rate["drift_per_cloud_rms_cm"]:.2f} cm and '
-                 f'{rate["drift_per_cloud_rms_deg"]:.3f} deg RMS over the scan'
-                 if rate.get('supported') else '')
+        drift = (', drifting within each cloud by '
+                 + pose_size_words({'translation_rms_cm': rate['drift_per_cloud_rms_cm'],
+                                    'rotation_rms_deg': rate['drift_per_cloud_rms_deg'],
+                                    'parts': rate.get('parts')})
+                 + ' RMS over the scan' if rate.get('supported') else '')
         lines.append(f'fitted pose_error: reference pose corrected per cloud by '
-                     f'{pc["translation_rms_cm"]:.2f} cm and {pc["rotation_rms_deg"]:.3f} deg RMS '
+                     f'{pose_size_words(pc)} RMS '
                      f'over {len(pc["clouds"])} clouds{drift} (held-out gain '
                      f'{pc["gain_per_matched_point"]:.4f} nats/point, z = {pc["z"]:.1f})')
     lines.append('features: ' + ', '.join(f'{f["name"]} {f["score"]:.4f}'
@@ -1172,9 +1183,8 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
     lines.append(f'missing effect: {s["missing_effect"]}')
     rp = s.get('reference_pose')
     if s.get('reference_pose_off') and rp:
-        lines.append(f'reference pose: off by {rp["translation_rms_cm"]:.2f} cm and '
-                     f'{rp["rotation_rms_deg"]:.3f} deg RMS per cloud (z = {rp["z"]:.1f}): '
-                     'run again with --effect pose_error --fit')
+        lines.append(f'reference pose: off by {pose_size_words(rp)} RMS per cloud '
+                     f'(z = {rp["z"]:.1f}): run again with --effect pose_error --fit')
     region = s.get('region_offset') or {}
     if region.get('outcome') in ('region', 'tie') and not s.get('reference_pose_off'):
         said = ('part of the target reads off the rest' if region['outcome'] == 'region'
