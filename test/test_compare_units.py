@@ -44,6 +44,21 @@ def test_feature_with_a_conditional_mean_ranks_first():
     assert all(f.score < 0.01 for f in ranked[1:])
 
 
+def test_a_feature_without_information_is_left_out_not_fatal():
+    """range_rate all NaN (a target closing at 14 m/s: a foreign approach stopped
+    compare with sklearn's "window shape cannot be larger than input array shape") and a
+    constant elevation: both left out of the ranking; the time trend still ranks first."""
+    rng = np.random.default_rng(5)
+    values = _feature_values(rng, 3000)
+    values['range_rate'] = np.full(3000, np.nan)
+    values['elevation'] = np.full(3000, 2.5)
+    z = rng.standard_normal(3000) + 0.6 * (values['time'] - 0.05) / 0.029
+    att = attribute(values, 0.03 * z, z)
+    names = [f.name for f in att.features]
+    assert 'range_rate' not in names and 'elevation' not in names
+    assert names[0] == 'time'
+
+
 def test_a_per_laser_offset_ranks_laser_first():
     """A range offset per laser (24 lasers, 0.5 sigma RMS): laser explains it, given the
     others; the angles (independent of the laser here) do not."""

@@ -219,6 +219,18 @@ def _information(z: np.ndarray, idx: np.ndarray, n: int) -> tuple[float, float]:
     return float(mean_part), float(spread_part)
 
 
+def varies(x: np.ndarray) -> bool:
+    """Whether a feature can explain anything: two distinct finite values at least (a
+    column all NaN, as range_rate is on a target closing faster than 5 m/s, whose 5 ms
+    step moves every range past ``matching.range_rate_mps``'s 2.5 cm jump cut, or one
+    value everywhere, carries no information and stopped the trees' binning)."""
+    x = np.asarray(x)
+    if x.dtype.kind not in 'fc':
+        return len(np.unique(x)) > 1
+    finite = x[np.isfinite(x)]
+    return finite.size > 1 and bool(np.any(finite != finite[0]))
+
+
 def score_features(values: dict[str, np.ndarray], residual_m: np.ndarray, z: np.ndarray,
                    seed: int = 0, blocks: np.ndarray | None = None) -> list[FeatureScore]:
     """Every feature's attribution, best first (``attribute(...).features``)."""
@@ -231,7 +243,7 @@ def attribute(values: dict[str, np.ndarray], residual_m: np.ndarray, z: np.ndarr
     conditional score. ``residual_m`` and ``z`` are over matched points; ``blocks``
     (optional, per point) groups neighbouring points whose residuals may share a misfit,
     for the standard errors (default: every point its own block)."""
-    names = [n for n in FEATURE_NAMES if n in values]
+    names = [n for n in FEATURE_NAMES if n in values and varies(values[n])]
     marginal = [marginal_score(n, values[n], residual_m, z, seed) for n in names]
     by_name = {f.name: f for f in marginal}
     blocks = np.arange(len(z)) if blocks is None else np.asarray(blocks)
