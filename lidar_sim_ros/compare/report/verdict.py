@@ -794,12 +794,7 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
     if other == [diagnosis.RANGE_OF_RANGE]:
         return range_tie_words(pose, summary)
     if any(n in diagnosis.POSE_RIVALS for n in other):
-        plan = summary.get('separation_plan') or []
-        where = (f' A static target on a surveyed pose, at {plan[0]["distance_m"]:.1f} m (seen '
-                 f'across a wide angle) and at {plan[1]["distance_m"]:.1f} m, would separate '
-                 'them (plan.yaml).' if len(plan) >= 2 else
-                 ' A static target on a surveyed pose, seen across a wide angle and at two '
-                 'distances, would separate them.')
+        where = separating_recording(summary)
         steps = getattr(decision, 'beside_pose', None)
         if steps is not None:
             held += (f'; one range offset per cloud gains {steps.offset_gain:.4f} nats/point '
@@ -1037,16 +1032,23 @@ def range_of_range_words(left: dict) -> str:
             'so no pose error is claimed.')
 
 
+def separating_recording(summary: dict) -> str:
+    """The sentence naming the recording that separates a pose from a range term of the
+    sensor: plan.yaml's two distances where the plan has them."""
+    plan = summary.get('separation_plan') or []
+    if len(plan) >= 2:
+        return (f' A static target on a surveyed pose, at {plan[0]["distance_m"]:.1f} m (seen '
+                f'across a wide angle) and at {plan[1]["distance_m"]:.1f} m, would separate '
+                'them (plan.yaml).')
+    return (' A static target on a surveyed pose, seen across a wide angle and at two '
+            'distances, would separate them.')
+
+
 def range_tie_words(pose, summary: dict) -> str:
     """The tie of a per-cloud pose with a range error of the sensor that follows range
     (``confounded_with`` [pose_error, RANGE_OF_RANGE], ``run.pose_against_range_alone``)."""
     a = pose.against_range
-    plan = summary.get('separation_plan') or []
-    where = (f' A static target on a surveyed pose, at {plan[0]["distance_m"]:.1f} m (seen '
-             f'across a wide angle) and at {plan[1]["distance_m"]:.1f} m, would separate '
-             'them (plan.yaml).' if len(plan) >= 2 else
-             ' A static target on a surveyed pose, seen across a wide angle and at two '
-             'distances, would separate them.')
+    where = separating_recording(summary)
     return (f'A range offset of the sensor or the reference pose along the line of sight: '
             f'{_correction(pose)[0].lower()}{_correction(pose)[1:]} gains {pose.gain:.4f} '
             f'nats/point held out (z = {pose.z:.1f}; {pose.words()}), and a function of '
