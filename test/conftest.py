@@ -163,3 +163,44 @@ def sensor(scan: dict | None = None, **det) -> SensorConfig:
                       'min_range_m': 0.1, 'max_range_m': 500.0, **det},
     }
     return parse(SensorConfig, data, '<test>')
+
+
+def plane_fit_data(expected_m, measured_m, normal, u, t_s, sigma_m: float,
+                   range_window_m: tuple[float, float]):
+    """A ``FitData`` builder over the rays ``idx`` of a closed-form scene (no raycast):
+    each ray ``u`` expects ``expected_m`` on a surface of ``normal`` (material 0, normal
+    incidence, one power), measured ``measured_m`` at ``t_s``, sigma ``sigma_m``."""
+    from lidar_sim_ros.compare.model import likelihood as lk
+    from lidar_sim_ros.core.effects.base import ReturnContext
+    from lidar_sim_ros.core.geometry import Hits
+    from lidar_sim_ros.core.pipeline import Prediction
+
+    def data(idx: np.ndarray) -> 'lk.FitData':
+        m = len(idx)
+        one, zero = np.ones(m), np.zeros(m, int)
+        ctx = ReturnContext(range_m=expected_m[idx], incidence_rad=0 * one, material=zero,
+                            power_w=1e-6 * one, intensity=one, t_s=t_s[idx], az_rad=0 * one,
+                            el_rad=0 * one, laser=zero, divergence_rad=1e-3,
+                            hit=np.ones(m, bool), threshold_power_w=1e-9, direction=u[idx],
+                            normal=-normal[idx])
+        hits = Hits(np.ones(m, bool), expected_m[idx], -normal[idx], 0 * one, zero, zero, None,
+                    one)
+        pred = Prediction(ctx, hits, u[idx], 0 * one, sigma_m * one)
+        return lk.FitData(measured_range_m=measured_m[idx], baseline=pred, cast=lambda e: pred,
+                          unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
+                          range_window_m=range_window_m)
+    return data
+
+
+def three_plane_rays(rng: np.random.Generator, n_clouds: int, per_cloud: int):
+    """Rays over three tilted planes, 12 x 8 deg across, in ``n_clouds`` clouds of 0.1 s:
+    (cloud index, time s, unit direction, the plane's normal) per ray, drawn from ``rng``."""
+    n = n_clouds * per_cloud
+    az, el = rng.uniform(-0.1, 0.1, n), rng.uniform(-0.07, 0.07, n)
+    cloud = np.repeat(np.arange(n_clouds), per_cloud)
+    t = cloud * 0.1 + rng.uniform(0.0, 0.09, n)
+    u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    normals = np.array([[-0.8, -0.5, 0.33], [-0.9, 0.1, -0.42], [-0.75, 0.6, 0.28]])
+    normal = (normals / np.linalg.norm(normals, axis=1, keepdims=True))[
+        np.digitize(az, [-0.033, 0.033])]
+    return cloud, t, u, normal

@@ -11,6 +11,8 @@ from scipy.spatial.transform import Rotation
 from lidar_sim_ros.compare.diagnose import diagnosis, pose_error, range_alone
 from lidar_sim_ros.compare.diagnose.range_alone import PoseAgainstRange
 
+from conftest import plane_fit_data, three_plane_rays
+
 Z_CRIT = 3.0
 
 
@@ -22,19 +24,9 @@ def _approach(n_clouds: int, per_cloud: int, sigma_m: float, seed: int = 0,
     pose off by ``jitter`` x (1 cm, 0.2 deg) per axis and cloud, the range read
     ``cyclic_m`` cos(2 pi r / 3 m) long (the sensor's cyclic error), range noise
     ``sigma_m``: (cloud, times, FitData of the rays ``idx``, as a function)."""
-    from lidar_sim_ros.compare.model import likelihood as lk
-    from lidar_sim_ros.core.effects.base import ReturnContext
-    from lidar_sim_ros.core.geometry import Hits
-    from lidar_sim_ros.core.pipeline import Prediction
     rng = np.random.default_rng(seed)
     n = n_clouds * per_cloud
-    az, el = rng.uniform(-0.1, 0.1, n), rng.uniform(-0.07, 0.07, n)
-    cloud = np.repeat(np.arange(n_clouds), per_cloud)
-    t = cloud * 0.1 + rng.uniform(0.0, 0.09, n)
-    u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    normals = np.array([[-0.8, -0.5, 0.33], [-0.9, 0.1, -0.42], [-0.75, 0.6, 0.28]])
-    normal = (normals / np.linalg.norm(normals, axis=1, keepdims=True))[
-        np.digitize(az, [-0.033, 0.033])]
+    cloud, t, u, normal = three_plane_rays(rng, n_clouds, per_cloud)
     centre = np.column_stack([start_m - step_m * cloud, np.zeros(n), np.zeros(n)])
     rot = Rotation.from_rotvec(np.radians(rng.normal(0, 0.2 * jitter, (n_clouds, 3))))[cloud]
     move = rng.normal(0, 0.01 * jitter, (n_clouds, 3))[cloud]
@@ -43,20 +35,7 @@ def _approach(n_clouds: int, per_cloud: int, sigma_m: float, seed: int = 0,
                 + sigma_m * rng.standard_normal(n))
     expected = _plane_range(centre, normal, u)
 
-    def data(idx: np.ndarray) -> 'lk.FitData':
-        m = len(idx)
-        one, zero = np.ones(m), np.zeros(m, int)
-        ctx = ReturnContext(range_m=expected[idx], incidence_rad=0 * one, material=zero,
-                            power_w=1e-6 * one, intensity=one, t_s=t[idx], az_rad=0 * one,
-                            el_rad=0 * one, laser=zero, divergence_rad=1e-3,
-                            hit=np.ones(m, bool), threshold_power_w=1e-9, direction=u[idx],
-                            normal=-normal[idx])
-        hits = Hits(np.ones(m, bool), expected[idx], -normal[idx], 0 * one, zero, zero, None,
-                    one)
-        pred = Prediction(ctx, hits, u[idx], 0 * one, sigma_m * one)
-        return lk.FitData(measured_range_m=measured[idx], baseline=pred, cast=lambda e: pred,
-                          unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
-                          range_window_m=(3.0, 25.0))
+    data = plane_fit_data(expected, measured, normal, u, t, sigma_m, (3.0, 25.0))
     return cloud, t, data
 
 
