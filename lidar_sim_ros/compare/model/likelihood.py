@@ -54,6 +54,9 @@ MIN_SIGMA_M = 1e-4            # noise floor of the likelihood (m): a zero sigma 
 MIN_MATERIAL_POINTS = 30      # fewer matched points: no per-material nuisance for that material
 MODEL_FLOOR = 1e-6            # least outlier weight of the predictive density (module doc)
 ROBUST_FLOOR = 1e-3           # outlier weight assumed while fitting non-outlier effects
+# A surface moved by a few cm changes a ray's range on the same surface by at most
+# sqrt(2 R s) at a limb (R 1.5 m, s 5 cm: 0.39 m); a larger jump is another surface.
+SILHOUETTE_JUMP_M = 0.5
 MISS_WEIGHT = 1e-3            # least outlier weight of a point the model cannot place
 UNMATCHED_Z = 5.0             # an unmatched ray that now hits within this many sigma is explained
 CHI2_1_MEDIAN = 0.454936423   # median of z^2 for z ~ N(0, 1)
@@ -332,9 +335,44 @@ def model_on_rays(data: FitData, effects: Sequence[Effect]) -> ModelOnRays:
         expected = np.where(lost, base_expected, expected)
         sigma = np.where(lost, base_sigma, sigma)
         placed = placed | lost
+    if moves_surfaces(effects):
+        crossed = crossed_silhouette(data.baseline, pred)
+        if crossed.any():
+            _, base_expected, base_sigma = apply_hooks(data.baseline, everything,
+                                                       data.measured_power_w, data.extra_var_m2)
+            expected = np.where(crossed, base_expected, expected)
+            sigma = np.where(crossed, base_sigma, sigma)
+            placed = np.where(crossed, np.isfinite(base_expected) & np.isfinite(base_sigma),
+                              placed)
     w = _outlier_weight(everything, ctx, n)
     ghost_range, ghost_sigma, ghost_w = ghost_component(pred, everything, n)
     return ModelOnRays(ctx, expected, sigma, w, placed, ghost_range, ghost_sigma, ghost_w)
+
+
+def moves_surfaces(effects: Sequence[Effect]) -> bool:
+    """Whether one of ``effects`` moves the target's surfaces (``Effect.seen_target``:
+    a standoff, a scale), rather than the rays or the pose."""
+    return any(type(e).seen_target is not Effect.seen_target for e in effects)
+
+
+def crossed_silhouette(base: Prediction, pred: Prediction) -> np.ndarray:
+    """Per matched ray, whether moving the surfaces took it across a silhouette or a
+    seam: it now meets another material than on the mesh, or a surface more than
+    SILHOUETTE_JUMP_M nearer or farther (a ray past a limb now stopped by the proud
+    limb, the part behind it lost). A standoff of a few cm decides such a ray only
+    through the shape of the surface's edge within those cm, which the mesh does not
+    give (a blanket's rim, a ramp, or a lab's surface moved along its normal with the
+    silhouette left where it was): it keeps the mesh's placement, neither evidence for
+    the standoff nor against it. Both predictions must place the ray."""
+    a = np.asarray(base.ctx.material)
+    b = np.asarray(pred.ctx.material)
+    r0 = np.asarray(base.expected_range_m, float)
+    r1 = np.asarray(pred.expected_range_m, float)
+    both = (np.asarray(base.ctx.hit, bool) & np.asarray(pred.ctx.hit, bool)
+            & np.isfinite(r0) & np.isfinite(r1))
+    with np.errstate(invalid='ignore'):
+        jump = np.abs(r1 - r0)
+    return both & ((a != b) | (jump > SILHOUETTE_JUMP_M))
 
 
 def recast_unmatched(data: FitData, effects: Sequence[Effect]):
