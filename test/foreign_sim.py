@@ -227,14 +227,22 @@ def directions_lidar(az_rad: np.ndarray, el_rad: np.ndarray) -> np.ndarray:
 
 
 # -------------------------------------------------------------------- target
-def satellite_parts(fins: bool = False) -> dict[str, trimesh.Trimesh]:
+def satellite_parts(fins: bool = False, bus_shape: str = 'box') -> dict[str, trimesh.Trimesh]:
     """The satellite in its body frame (long axis +z), one mesh per material name; with
     ``fins``, two diffuse (PIF) radiator fins 0.9 m out of the MLI sides, in the plane
-    y = 0: MLI mirrors them."""
-    bus = trimesh.creation.box(extents=(1.6, 1.6, 2.0))
+    y = 0: MLI mirrors them. ``bus_shape`` 'drum': the bus a cylinder (radius 0.8 m,
+    48 sides) wrapped in MLI all round, so its MLI is seen at every incidence."""
+    if bus_shape == 'drum':
+        bus = trimesh.creation.cylinder(radius=0.8, height=2.0, sections=48)
+    elif bus_shape == 'box':
+        bus = trimesh.creation.box(extents=(1.6, 1.6, 2.0))
+    else:
+        raise ValueError(f'bus_shape must be box or drum, got {bus_shape!r}')
     n = bus.face_normals
-    groups = {'MLI': np.abs(n[:, 0]) > 0.5, 'PIF': np.abs(n[:, 1]) > 0.5,
-              'BULKHEAD': n[:, 2] > 0.5}
+    side = np.abs(n[:, 2]) < 0.5
+    groups = ({'MLI': side, 'BULKHEAD': n[:, 2] > 0.5} if bus_shape == 'drum' else
+              {'MLI': np.abs(n[:, 0]) > 0.5, 'PIF': np.abs(n[:, 1]) > 0.5,
+               'BULKHEAD': n[:, 2] > 0.5})
     parts = {name: bus.submesh([np.flatnonzero(sel)], append=True) for name, sel in groups.items()}
     if fins:
         plates = [trimesh.creation.box(extents=(0.9, 0.04, 1.6)) for _ in range(2)]
@@ -659,6 +667,7 @@ class ForeignSpec:
     lasers: int = 0                      # lasers firing round-robin; 0 = no laser field
     layout: str = 'generic'              # generic | cepton (the SDK3 driver's fields)
     fins: bool = False                   # radiator fins beside the MLI sides (satellite_parts)
+    bus_shape: str = 'box'               # box | drum (satellite_parts)
     expected: str | None = 'same'
     expected_feature: str | None = None  # the feature the residual should be attributed to
     note: str = ''
@@ -1267,7 +1276,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
         raise ValueError('crosstalk and dual_return need lasers (a channel to leak into, a '
                          'shot to share) and an unorganized cloud (a shot may return twice)')
     sensor = sensor or Sensor(frame_rate_hz=spec.frame_rate_hz, max_range_m=spec.max_range_m)
-    parts = satellite_parts(spec.fins)
+    parts = satellite_parts(spec.fins, spec.bus_shape)
     mesh = write_obj(parts, out / 'satellite.obj')
     target = Target(parts)
     traj = trajectory_for(spec)
@@ -1605,11 +1614,12 @@ V4: tuple[ForeignSpec, ...] = (
 STANDOFF: tuple[ForeignSpec, ...] = (
     ForeignSpec('mli_proud_normal', 'surface_offset', {'material': 'MLI', 'standoff_m': 0.025},
                 seed=301, frames=8, distance_m=10.5, speed_mps=0.4, spin_dps=5.0,
-                intensity='reflectivity', lasers=4, shots_per_frame=12_000,
-                note='MLI read 2.5 cm out along its normal, the silhouette the mesh\'s'),
+                intensity='reflectivity', lasers=4, shots_per_frame=12_000, bus_shape='drum',
+                note='drum bus in MLI read 2.5 cm out along its normal, the silhouette the mesh\'s'),
     ForeignSpec('mli_proud_rosette', 'surface_offset', {'material': 'MLI', 'standoff_m': 0.03},
                 seed=311, frames=8, distance_m=10.5, speed_mps=0.4, spin_dps=5.0,
                 intensity='reflectivity', lasers=4, shots_per_frame=12_000, scan='rosette',
+                bus_shape='drum',
                 note='the same at 3 cm, rosette scan'),
 )
 
