@@ -45,7 +45,7 @@ def test_rays_past_a_proud_limb_keep_the_mesh_placement():
     recast = data.cast([effect])
     crossed = crossed_silhouette(data.baseline, recast)
     base_mat = np.asarray(data.baseline.ctx.material)
-    past_limb = crossed & (base_mat == PANEL)      # (the others: the caps' rims, a seam)
+    past_limb = crossed & (base_mat == PANEL)
     assert past_limb.sum() >= 5
     jump = recast.expected_range_m[past_limb] - data.baseline.expected_range_m[past_limb]
     assert np.all(jump < -1.0)

@@ -356,23 +356,21 @@ def moves_surfaces(effects: Sequence[Effect]) -> bool:
 
 
 def crossed_silhouette(base: Prediction, pred: Prediction) -> np.ndarray:
-    """Per matched ray, whether moving the surfaces took it across a silhouette or a
-    seam: it now meets another material than on the mesh, or a surface more than
-    SILHOUETTE_JUMP_M nearer or farther (a ray past a limb now stopped by the proud
-    limb, the part behind it lost). A standoff of a few cm decides such a ray only
-    through the shape of the surface's edge within those cm, which the mesh does not
-    give (a blanket's rim, a ramp, or a lab's surface moved along its normal with the
-    silhouette left where it was): it keeps the mesh's placement, neither evidence for
-    the standoff nor against it. Both predictions must place the ray."""
-    a = np.asarray(base.ctx.material)
-    b = np.asarray(pred.ctx.material)
+    """Per matched ray, whether moving the surfaces took it across a silhouette: it now
+    meets a surface more than SILHOUETTE_JUMP_M nearer or farther than on the mesh (a
+    ray past a limb now stopped by the proud limb, the part behind it lost). A standoff
+    of a few cm decides such a ray only through the shape of the surface's edge within
+    those cm, which the mesh does not give (a blanket's rim, or a lab's surface read
+    proud along each ray with its silhouette left where the mesh has it): it keeps the
+    mesh's placement, neither evidence for the standoff nor against it. A ray moved
+    within a surface, or over a seam to the next face (a few cm), still counts. Both
+    predictions must place the ray."""
     r0 = np.asarray(base.expected_range_m, float)
     r1 = np.asarray(pred.expected_range_m, float)
     both = (np.asarray(base.ctx.hit, bool) & np.asarray(pred.ctx.hit, bool)
             & np.isfinite(r0) & np.isfinite(r1))
     with np.errstate(invalid='ignore'):
-        jump = np.abs(r1 - r0)
-    return both & ((a != b) | (jump > SILHOUETTE_JUMP_M))
+        return both & (np.abs(r1 - r0) > SILHOUETTE_JUMP_M)
 
 
 def recast_unmatched(data: FitData, effects: Sequence[Effect]):
