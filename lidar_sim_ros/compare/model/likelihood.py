@@ -336,7 +336,7 @@ def model_on_rays(data: FitData, effects: Sequence[Effect]) -> ModelOnRays:
         sigma = np.where(lost, base_sigma, sigma)
         placed = placed | lost
     if moves_surfaces(effects):
-        crossed = crossed_silhouette(data.baseline, pred)
+        crossed = crossed_silhouette(data.baseline, pred, material_standoffs_m(pred, effects))
         if crossed.any():
             _, base_expected, base_sigma = apply_hooks(data.baseline, everything,
                                                        data.measured_power_w, data.extra_var_m2)
@@ -355,22 +355,44 @@ def moves_surfaces(effects: Sequence[Effect]) -> bool:
     return any(type(e).seen_target is not Effect.seen_target for e in effects)
 
 
-def crossed_silhouette(base: Prediction, pred: Prediction) -> np.ndarray:
-    """Per matched ray, whether moving the surfaces took it across a silhouette: it now
-    meets a surface more than SILHOUETTE_JUMP_M nearer or farther than on the mesh (a
-    ray past a limb now stopped by the proud limb, the part behind it lost). A standoff
-    of a few cm decides such a ray only through the shape of the surface's edge within
-    those cm, which the mesh does not give (a blanket's rim, or a lab's surface read
-    proud along each ray with its silhouette left where the mesh has it): it keeps the
-    mesh's placement, neither evidence for the standoff nor against it. A ray moved
-    within a surface, or over a seam to the next face (a few cm), still counts. Both
-    predictions must place the ray."""
+def crossed_silhouette(base: Prediction, pred: Prediction,
+                       standoff_m: np.ndarray | None = None) -> np.ndarray:
+    """Per matched ray, whether moving the surfaces took it across a silhouette or a
+    blanket's edge: it now meets a surface more than SILHOUETTE_JUMP_M nearer or farther
+    than on the mesh (a ray past a limb now stopped by the proud limb, the part behind
+    it lost), or moved from a bare face to a proud one or back (``standoff_m``: per
+    material id, m; the rim of a blanket over some materials onto bare structure). A
+    standoff of a few cm decides such a ray only through the shape of the edge within
+    those cm, which the mesh does not give (a rim, a ramp, or a lab's surface read proud
+    along each ray with its silhouette left where the mesh has it): it keeps the mesh's
+    placement, neither evidence for the standoff nor against it. A ray moved within a
+    surface, or over a seam between faces that both move (a box proud all over, by one
+    standoff or by its materials' own), still counts.
+    Both predictions must place the ray."""
     r0 = np.asarray(base.expected_range_m, float)
     r1 = np.asarray(pred.expected_range_m, float)
     both = (np.asarray(base.ctx.hit, bool) & np.asarray(pred.ctx.hit, bool)
             & np.isfinite(r0) & np.isfinite(r1))
     with np.errstate(invalid='ignore'):
-        return both & (np.abs(r1 - r0) > SILHOUETTE_JUMP_M)
+        out = both & (np.abs(r1 - r0) > SILHOUETTE_JUMP_M)
+    if standoff_m is not None:
+        last = len(standoff_m) - 1
+        a = np.clip(np.asarray(base.ctx.material, np.int64), -1, last)
+        b = np.clip(np.asarray(pred.ctx.material, np.int64), -1, last)
+        a, b = np.where(a < 0, last, a), np.where(b < 0, last, b)
+        bare = np.abs(standoff_m) < 1e-12
+        out |= both & (bare[a] != bare[b])
+    return out
+
+
+def material_standoffs_m(pred: Prediction, effects: Sequence[Effect]) -> np.ndarray | None:
+    """Per material id, how far ``effects`` move its faces (m; ``standoffs_by_material_m``
+    of a surface offset), or None where none says or the material names are unknown."""
+    scene = pred.ctx.scene
+    names = None if scene is None else getattr(scene.target, 'material_names', None)
+    tables = [e.standoffs_by_material_m(names) for e in effects
+              if names is not None and hasattr(e, 'standoffs_by_material_m')]
+    return np.sum(tables, axis=0) if tables else None
 
 
 def recast_unmatched(data: FitData, effects: Sequence[Effect]):

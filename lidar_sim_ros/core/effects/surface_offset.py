@@ -191,6 +191,13 @@ class SurfaceOffset(Effect):
                                  f'+-{MAX_STANDOFF_M} m, got {dict(list(bad.items())[:3])}')
             return v
 
+    def standoffs_by_material_m(self, material_names) -> np.ndarray:
+        """How far (m) the faces of each material id stand proud (``face_offsets_m``'s
+        table), one more entry for faces of no listed material."""
+        p = self.params
+        return np.array([p.standoff_m + p.material_standoff_m.get(n, 0.0)
+                         for n in material_names] + [p.standoff_m])
+
     def seen_target(self, target: 'Target') -> 'Target | None':
         """The real surface (``offset_target``), built once per mesh; None at zero offset."""
         cache = self.__dict__.setdefault('_seen', {})
