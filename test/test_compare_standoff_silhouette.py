@@ -11,14 +11,14 @@ from __future__ import annotations
 import numpy as np
 
 from lidar_sim_ros.compare.model.fit import fit_data_from_rays
-from lidar_sim_ros.compare.model.likelihood import (crossed_silhouette, model_on_rays,
-                                                    point_nll)
+from lidar_sim_ros.compare.model.likelihood import (crossed_silhouette, material_standoffs_m,
+                                                    model_on_rays, point_nll)
 from lidar_sim_ros.core.effects import make_effect
 from lidar_sim_ros.core.pipeline import Simulator
 
 from test_fitting import MATERIALS, scene
 
-PAINT, PANEL = 0, 2
+PAINT, FOIL, PANEL = 0, 1, 2
 
 
 def limb_data(seed: int = 5):
@@ -68,3 +68,29 @@ def test_only_rays_at_an_edge_are_crossed():
     counts = [int(crossed_silhouette(data.baseline, data.cast([proud_paint(s)])).sum())
               for s in (0.001, 0.01, 0.08)]
     assert counts[0] <= 2 < counts[1] < counts[2] < 0.06 * len(data.measured_range_m)
+
+
+def test_a_blankets_rim_over_bare_faces_keeps_the_mesh_placement_a_proud_seam_counts():
+    """PAINT alone 3 cm proud (the FOIL caps bare): rays moved over the side's rim between
+    the caps and the side are crossed and keep the mesh's range (before: re-cast onto the
+    ramp or the rim). The same cylinder proud all over (one standoff): a ray over the
+    same seam moves with both faces and still counts (only limb jumps are crossed)."""
+    data = limb_data()
+    base_mat = np.asarray(data.baseline.ctx.material)
+    one = proud_paint(0.03)
+    recast = data.cast([one])
+    table = material_standoffs_m(recast, [one])
+    assert table is not None and table[PAINT] == 0.03 and table[FOIL] == 0.0
+    crossed = crossed_silhouette(data.baseline, recast, table)
+    jump = np.abs(recast.expected_range_m - data.baseline.expected_range_m)
+    rim = crossed & (jump < 0.5)
+    assert rim.sum() >= 3
+    assert np.all(base_mat[rim] != np.asarray(recast.ctx.material)[rim])
+    before, after = model_on_rays(data, []), model_on_rays(data, [one])
+    np.testing.assert_allclose(after.expected_range_m[rim], before.expected_range_m[rim])
+    every = make_effect('surface_offset', {'standoff_m': 0.03})
+    recast_all = data.cast([every])
+    crossed_all = crossed_silhouette(data.baseline, recast_all,
+                                     material_standoffs_m(recast_all, [every]))
+    jump_all = np.abs(recast_all.expected_range_m - data.baseline.expected_range_m)
+    assert np.all(jump_all[crossed_all] > 0.5)
