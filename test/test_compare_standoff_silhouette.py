@@ -72,8 +72,8 @@ def test_only_rays_at_an_edge_are_crossed():
 
 def test_a_blankets_rim_over_bare_faces_keeps_the_mesh_placement_a_proud_seam_counts():
     """PAINT alone 3 cm proud (the FOIL caps bare): rays moved over the side's rim between
-    the caps and the side are crossed and keep the mesh's range (before: re-cast onto the
-    ramp or the rim). The same cylinder proud all over (one standoff): a ray over the
+    the caps and the side are crossed and placed on their own face of the mesh, moved
+    (before: re-cast onto the ramp or the rim). The same cylinder proud all over (one standoff): a ray over the
     same seam moves with both faces and still counts (only limb jumps are crossed)."""
     data = limb_data()
     base_mat = np.asarray(data.baseline.ctx.material)
@@ -87,7 +87,15 @@ def test_a_blankets_rim_over_bare_faces_keeps_the_mesh_placement_a_proud_seam_co
     assert rim.sum() >= 3
     assert np.all(base_mat[rim] != np.asarray(recast.ctx.material)[rim])
     before, after = model_on_rays(data, []), model_on_rays(data, [one])
-    np.testing.assert_allclose(after.expected_range_m[rim], before.expected_range_m[rim])
+    shift = after.expected_range_m - before.expected_range_m
+    bare_side, proud_side = rim & (base_mat == FOIL), rim & (base_mat == PAINT)
+    assert bare_side.sum() + proud_side.sum() == rim.sum()
+    # On its own face of the mesh, that face moved: a bare cap's ray stays, a side's
+    # moves by its standoff along the ray (-s / cos(theta)), whatever the rim does.
+    np.testing.assert_allclose(shift[bare_side], 0.0, atol=1e-9)
+    own = one.first_order_shift_m(data.baseline.ctx, MATERIALS.names)
+    np.testing.assert_allclose(shift[proud_side], own[proud_side], atol=1e-6)
+    assert np.all(own[proud_side] <= -0.0299)
     every = make_effect('surface_offset', {'standoff_m': 0.03})
     recast_all = data.cast([every])
     crossed_all = crossed_silhouette(data.baseline, recast_all,

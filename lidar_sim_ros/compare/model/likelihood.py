@@ -340,6 +340,7 @@ def model_on_rays(data: FitData, effects: Sequence[Effect]) -> ModelOnRays:
         if crossed.any():
             _, base_expected, base_sigma = apply_hooks(data.baseline, everything,
                                                        data.measured_power_w, data.extra_var_m2)
+            base_expected = base_expected + own_face_shift_m(data.baseline, effects)
             expected = np.where(crossed, base_expected, expected)
             sigma = np.where(crossed, base_sigma, sigma)
             placed = np.where(crossed, np.isfinite(base_expected) & np.isfinite(base_sigma),
@@ -364,8 +365,9 @@ def crossed_silhouette(base: Prediction, pred: Prediction,
     material id, m; the rim of a blanket over some materials onto bare structure). A
     standoff of a few cm decides such a ray only through the shape of the edge within
     those cm, which the mesh does not give (a rim, a ramp, or a lab's surface read proud
-    along each ray with its silhouette left where the mesh has it): it keeps the mesh's
-    placement, neither evidence for the standoff nor against it. A ray moved within a
+    along each ray with its silhouette left where the mesh has it): it is placed on its
+    own face of the mesh, that face moved (``own_face_shift_m``), neither evidence for
+    the standoff's edges nor against them. A ray moved within a
     surface, or over a seam between faces that both move (a box proud all over, by one
     standoff or by its materials' own), still counts.
     Both predictions must place the ray."""
@@ -383,6 +385,20 @@ def crossed_silhouette(base: Prediction, pred: Prediction,
         bare = np.abs(standoff_m) < 1e-12
         out |= both & (bare[a] != bare[b])
     return out
+
+
+def own_face_shift_m(base: Prediction, effects: Sequence[Effect]) -> np.ndarray | float:
+    """Per ray, the range change (m) ``effects`` make to first order on the face it meets
+    on the mesh (``first_order_shift_m`` of a surface offset): where a crossed ray is
+    placed, on its own face moved, so that it neither pulls its material's profiled
+    offset nor is pulled by it (the faces around it moved, it would be off by their
+    standoff). 0 without a surface offset or the material names."""
+    scene = base.ctx.scene
+    names = None if scene is None else getattr(scene.target, 'material_names', None)
+    if names is None:
+        return 0.0
+    return sum((e.first_order_shift_m(base.ctx, names) for e in effects
+                if hasattr(e, 'first_order_shift_m')), 0.0)
 
 
 def material_standoffs_m(pred: Prediction, effects: Sequence[Effect]) -> np.ndarray | None:
