@@ -83,7 +83,8 @@ EPOCH_NS = 1_712_000_000 * 1_000_000_000
 NS_PER_S = 1_000_000_000
 
 EFFECTS = ('range_walk', 'incidence_angle', 'snr_noise', 'solar_background',
-           'beam_divergence', 'time_offset', 'laser_bias', 'multipath', 'laser_pointing')
+           'beam_divergence', 'time_offset', 'laser_bias', 'multipath', 'laser_pointing',
+           'surface_offset')
 CEPTON_TOPIC = '/cepton_pcl2'
 CEPTON_FRAME = 'cepton3'
 CEPTON_SATURATED, CEPTON_NO_RETURN = 1, 32
@@ -229,14 +230,22 @@ def directions_lidar(az_rad: np.ndarray, el_rad: np.ndarray) -> np.ndarray:
 
 
 # -------------------------------------------------------------------- target
-def satellite_parts(fins: bool = False) -> dict[str, trimesh.Trimesh]:
+def satellite_parts(fins: bool = False, bus_shape: str = 'box') -> dict[str, trimesh.Trimesh]:
     """The satellite in its body frame (long axis +z), one mesh per material name; with
     ``fins``, two diffuse (PIF) radiator fins 0.9 m out of the MLI sides, in the plane
-    y = 0: MLI mirrors them."""
-    bus = trimesh.creation.box(extents=(1.6, 1.6, 2.0))
+    y = 0: MLI mirrors them. ``bus_shape`` 'drum': the bus a cylinder (radius 0.8 m,
+    48 sides) wrapped in MLI all round, so its MLI is seen at every incidence."""
+    if bus_shape == 'drum':
+        bus = trimesh.creation.cylinder(radius=0.8, height=2.0, sections=48)
+    elif bus_shape == 'box':
+        bus = trimesh.creation.box(extents=(1.6, 1.6, 2.0))
+    else:
+        raise ValueError(f'bus_shape must be box or drum, got {bus_shape!r}')
     n = bus.face_normals
-    groups = {'MLI': np.abs(n[:, 0]) > 0.5, 'PIF': np.abs(n[:, 1]) > 0.5,
-              'BULKHEAD': n[:, 2] > 0.5}
+    side = np.abs(n[:, 2]) < 0.5
+    groups = ({'MLI': side, 'BULKHEAD': n[:, 2] > 0.5} if bus_shape == 'drum' else
+              {'MLI': np.abs(n[:, 0]) > 0.5, 'PIF': np.abs(n[:, 1]) > 0.5,
+               'BULKHEAD': n[:, 2] > 0.5})
     parts = {name: bus.submesh([np.flatnonzero(sel)], append=True) for name, sel in groups.items()}
     if fins:
         plates = [trimesh.creation.box(extents=(0.9, 0.04, 1.6)) for _ in range(2)]
@@ -669,6 +678,7 @@ class ForeignSpec:
     lasers: int = 0                      # lasers firing round-robin; 0 = no laser field
     layout: str = 'generic'              # generic | cepton (the SDK3 driver's fields)
     fins: bool = False                   # radiator fins beside the MLI sides (satellite_parts)
+    bus_shape: str = 'box'               # box | drum (satellite_parts)
     expected: str | None = 'same'
     expected_feature: str | None = None  # the feature the residual should be attributed to
     note: str = ''
@@ -813,6 +823,13 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
             b = np.where(hit, r_hit * p['ppm'] * 1e-6, 0.0)
         elif eff == 'range_cyclic':
             b = np.where(hit, range_cyclic_bias_m(r_hit, p), 0.0)
+        elif eff == 'surface_offset':
+            # One material's blankets standing proud as this lab models them: each hit on
+            # the material is read where the ray meets the plane standoff_m out along
+            # its normal (range - s / cos(theta)); the silhouette stays the mesh's.
+            k = MATERIALS.index(p.get('material', 'MLI'))
+            b = np.where(on_target & (mat == k),
+                         -p['standoff_m'] / np.maximum(cos_i, STANDOFF_MIN_COS), 0.0)
         elif eff == 'range_drift':
             # The sensor warming up: its range offset settles exponentially toward a_m
             # (time constant tau_s) from the start of the recording.
@@ -981,6 +998,7 @@ def with_ghosts(frame: dict, d: np.ndarray, t: np.ndarray, laser: np.ndarray, at
     return out
 
 
+STANDOFF_MIN_COS = 0.05   # a standoff read along the ray: at most 20 x s at grazing
 SPECULAR_MIN = 0.5     # specular albedo of a mirror-like material (MLI, PSS)
 
 
@@ -1271,7 +1289,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
         raise ValueError('crosstalk and dual_return need lasers (a channel to leak into, a '
                          'shot to share) and an unorganized cloud (a shot may return twice)')
     sensor = sensor or Sensor(frame_rate_hz=spec.frame_rate_hz, max_range_m=spec.max_range_m)
-    parts = satellite_parts(spec.fins)
+    parts = satellite_parts(spec.fins, spec.bus_shape)
     mesh = write_obj(parts, out / 'satellite.obj')
     target = Target(parts)
     traj = trajectory_for(spec)
@@ -1652,12 +1670,29 @@ RANGE_OUTSIDE: tuple[ForeignSpec, ...] = (
 )
 
 
+# A material's blankets standing proud of the mesh, read along each ray to the plane
+# standoff_m out (the silhouette left where the mesh has it): the situation of an
+# independent lab's recording (8 clouds at 9-12 m, reflectivity, a t and a ring field).
+# By name only (bench --only NAME).
+STANDOFF: tuple[ForeignSpec, ...] = (
+    ForeignSpec('mli_proud_normal', 'surface_offset', {'material': 'MLI', 'standoff_m': 0.025},
+                seed=301, frames=8, distance_m=10.5, speed_mps=0.4, spin_dps=5.0,
+                intensity='reflectivity', lasers=4, shots_per_frame=12_000, bus_shape='drum',
+                note='drum bus in MLI read 2.5 cm out along its normal, the silhouette the mesh\'s'),
+    ForeignSpec('mli_proud_rosette', 'surface_offset', {'material': 'MLI', 'standoff_m': 0.03},
+                seed=311, frames=8, distance_m=10.5, speed_mps=0.4, spin_dps=5.0,
+                intensity='reflectivity', lasers=4, shots_per_frame=12_000, scan='rosette',
+                bus_shape='drum',
+                note='the same at 3 cm, rosette scan'),
+)
+
+
 def battery(names: list[str] | None = None) -> list[ForeignSpec]:
-    """The battery, or the named datasets of it, of VENDOR, of V4 or of RANGE_OUTSIDE
+    """The battery, or the named datasets of it, of VENDOR, V4, RANGE_OUTSIDE or STANDOFF
     (in that order)."""
     if not names:
         return list(BATTERY)
-    every = BATTERY + VENDOR + V4 + RANGE_OUTSIDE
+    every = BATTERY + VENDOR + V4 + RANGE_OUTSIDE + STANDOFF
     known = {s.name: s for s in every}
     bad = [n for n in names if n not in known]
     if bad:

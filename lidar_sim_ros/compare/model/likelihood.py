@@ -54,6 +54,9 @@ MIN_SIGMA_M = 1e-4            # noise floor of the likelihood (m): a zero sigma 
 MIN_MATERIAL_POINTS = 30      # fewer matched points: no per-material nuisance for that material
 MODEL_FLOOR = 1e-6            # least outlier weight of the predictive density (module doc)
 ROBUST_FLOOR = 1e-3           # outlier weight assumed while fitting non-outlier effects
+# A surface moved by a few cm changes a ray's range on the same surface by at most
+# sqrt(2 R s) at a limb (R 1.5 m, s 5 cm: 0.39 m); a larger jump is another surface.
+SILHOUETTE_JUMP_M = 0.5
 MISS_WEIGHT = 1e-3            # least outlier weight of a point the model cannot place
 UNMATCHED_Z = 5.0             # an unmatched ray that now hits within this many sigma is explained
 CHI2_1_MEDIAN = 0.454936423   # median of z^2 for z ~ N(0, 1)
@@ -332,9 +335,80 @@ def model_on_rays(data: FitData, effects: Sequence[Effect]) -> ModelOnRays:
         expected = np.where(lost, base_expected, expected)
         sigma = np.where(lost, base_sigma, sigma)
         placed = placed | lost
+    if moves_surfaces(effects):
+        crossed = crossed_silhouette(data.baseline, pred, material_standoffs_m(pred, effects))
+        if crossed.any():
+            _, base_expected, base_sigma = apply_hooks(data.baseline, everything,
+                                                       data.measured_power_w, data.extra_var_m2)
+            base_expected = base_expected + own_face_shift_m(data.baseline, effects)
+            expected = np.where(crossed, base_expected, expected)
+            sigma = np.where(crossed, base_sigma, sigma)
+            placed = np.where(crossed, np.isfinite(base_expected) & np.isfinite(base_sigma),
+                              placed)
     w = _outlier_weight(everything, ctx, n)
     ghost_range, ghost_sigma, ghost_w = ghost_component(pred, everything, n)
     return ModelOnRays(ctx, expected, sigma, w, placed, ghost_range, ghost_sigma, ghost_w)
+
+
+def moves_surfaces(effects: Sequence[Effect]) -> bool:
+    """Whether one of ``effects`` moves the target's surfaces (``Effect.seen_target``:
+    a standoff, a scale), rather than the rays or the pose."""
+    return any(type(e).seen_target is not Effect.seen_target for e in effects)
+
+
+def crossed_silhouette(base: Prediction, pred: Prediction,
+                       standoff_m: np.ndarray | None = None) -> np.ndarray:
+    """Per matched ray, whether moving the surfaces took it across a silhouette or a
+    blanket's edge: it now meets a surface more than SILHOUETTE_JUMP_M nearer or farther
+    than on the mesh (a ray past a limb now stopped by the proud limb, the part behind
+    it lost), or moved from a bare face to a proud one or back (``standoff_m``: per
+    material id, m; the rim of a blanket over some materials onto bare structure). A
+    standoff of a few cm decides such a ray only through the shape of the edge within
+    those cm, which the mesh does not give (a rim, a ramp, or a lab's surface read proud
+    along each ray with its silhouette left where the mesh has it): it is placed on its
+    own face of the mesh, that face moved (``own_face_shift_m``), neither evidence for
+    the standoff's edges nor against them. A ray moved within a
+    surface, or over a seam between faces that both move (a box proud all over, by one
+    standoff or by its materials' own), still counts.
+    Both predictions must place the ray."""
+    r0 = np.asarray(base.expected_range_m, float)
+    r1 = np.asarray(pred.expected_range_m, float)
+    both = (np.asarray(base.ctx.hit, bool) & np.asarray(pred.ctx.hit, bool)
+            & np.isfinite(r0) & np.isfinite(r1))
+    with np.errstate(invalid='ignore'):
+        out = both & (np.abs(r1 - r0) > SILHOUETTE_JUMP_M)
+    if standoff_m is not None:
+        last = len(standoff_m) - 1
+        a = np.clip(np.asarray(base.ctx.material, np.int64), -1, last)
+        b = np.clip(np.asarray(pred.ctx.material, np.int64), -1, last)
+        a, b = np.where(a < 0, last, a), np.where(b < 0, last, b)
+        bare = np.abs(standoff_m) < 1e-12
+        out |= both & (bare[a] != bare[b])
+    return out
+
+
+def own_face_shift_m(base: Prediction, effects: Sequence[Effect]) -> np.ndarray | float:
+    """Per ray, the range change (m) ``effects`` make to first order on the face it meets
+    on the mesh (``first_order_shift_m`` of a surface offset): where a crossed ray is
+    placed, on its own face moved, so that it neither pulls its material's profiled
+    offset nor is pulled by it (the faces around it moved, it would be off by their
+    standoff). 0 without a surface offset or the material names."""
+    scene = base.ctx.scene
+    names = None if scene is None else getattr(scene.target, 'material_names', None)
+    if names is None:
+        return 0.0
+    return sum((e.first_order_shift_m(base.ctx, names) for e in effects
+                if hasattr(e, 'first_order_shift_m')), 0.0)
+
+
+def material_standoffs_m(pred: Prediction, effects: Sequence[Effect]) -> np.ndarray | None:
+    """Per material id, how far ``effects`` move its faces (m; ``standoffs_by_material_m``
+    of a surface offset), or None where none says or the material names are unknown."""
+    scene = pred.ctx.scene
+    names = None if scene is None else getattr(scene.target, 'material_names', None)
+    tables = [e.standoffs_by_material_m(names) for e in effects
+              if names is not None and hasattr(e, 'standoffs_by_material_m')]
+    return np.sum(tables, axis=0) if tables else None
 
 
 def recast_unmatched(data: FitData, effects: Sequence[Effect]):

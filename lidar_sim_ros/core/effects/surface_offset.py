@@ -191,6 +191,23 @@ class SurfaceOffset(Effect):
                                  f'+-{MAX_STANDOFF_M} m, got {dict(list(bad.items())[:3])}')
             return v
 
+    def standoffs_by_material_m(self, material_names) -> np.ndarray:
+        """How far (m) the faces of each material id stand proud (``face_offsets_m``'s
+        table), one more entry for faces of no listed material."""
+        p = self.params
+        return np.array([p.standoff_m + p.material_standoff_m.get(n, 0.0)
+                         for n in material_names] + [p.standoff_m])
+
+    def first_order_shift_m(self, ctx: ReturnContext, material_names) -> np.ndarray:
+        """The range change (m) to first order on the surface each ray meets on the mesh
+        (``first_order_columns``): its own face's plane moved, whatever the moved mesh's
+        edges do; 0 on a miss."""
+        cols = first_order_columns(ctx, self.params.max_incidence_deg)
+        table = self.standoffs_by_material_m(material_names)
+        mat = np.asarray(ctx.material, np.int64)
+        mat = np.where((mat >= 0) & (mat < len(table) - 1), mat, len(table) - 1)
+        return table[mat] * cols['standoff_m'] + self.params.scale * cols['scale']
+
     def seen_target(self, target: 'Target') -> 'Target | None':
         """The real surface (``offset_target``), built once per mesh; None at zero offset."""
         cache = self.__dict__.setdefault('_seen', {})
