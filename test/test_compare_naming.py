@@ -1446,3 +1446,33 @@ def test_a_walk_set_aside_that_the_incidence_bias_takes_is_no_model_to_judge_it_
     held = {**passes, ('range_walk', ('beam_divergence', 'incidence_angle')): True}
     d = AsideHand(adds, held).decide(ranked)
     assert d.also == 'solar_background' and d.also_more == []
+
+
+def test_a_pose_rival_passes_the_share_rule_as_every_candidate_does():
+    """Thirteenth holdout walk_laser_graze_2 (a walk and per-laser offsets): range_scale,
+    weighed against the reference pose, was named as a stand-in while it explained 22 %
+    of a residual structure the lasers' offsets hold (0.0340 of 0.1536 nats/point): the
+    pose's rivals were scored without the share rule every candidate passes. Vetoed, it
+    changes nothing; explaining most of the structure, it is weighed as before."""
+    pose = SimpleNamespace(significant=True, gain=0.04, z=11.0)
+
+    def weigh(structure_gain):
+        scale = cand('range_scale', 0.034, -2.07, seed=10)
+        scale.effect = make_effect('range_scale', {'scale': 0.001})
+        again = cand('range_scale', 0.03, -2.08, seed=10)
+
+        class WithRival(Hand):
+            def score(self, effect_cls):
+                return scale
+        att = SimpleNamespace(significant=True, structure_gain=structure_gain,
+                              driver='laser', confounded=[], features=[])
+        d, _ = WithRival().weigh_pose_rivals(
+            dg.Decision(None, [], pose=pose), [Scale],
+            lambda on_top: SimpleNamespace(significant=False, gain=0.0, z=0.0),
+            lambda: Hand(again={'range_scale': again}), attribution=att)
+        return d, scale
+    d, scale = weigh(0.1536)
+    assert scale.vetoed is not None and '22 %' in scale.vetoed and 'laser' in scale.vetoed
+    assert d.missing is None and d.confounded_with == [] and d.pose is pose
+    d, scale = weigh(0.05)
+    assert scale.vetoed is None and d.missing == 'range_scale' and d.pose is None

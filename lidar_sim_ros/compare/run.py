@@ -1017,7 +1017,8 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decided = decision
     decision, scored = diag.weigh_pose_rivals(
         decision, rivals, lambda on_top: pose_test(on_top, constant=constant),
-        lambda: recast(pose_test([], constant=constant))[0], {c.name: c for c in weighed})
+        lambda: recast(pose_test([], constant=constant))[0], {c.name: c for c in weighed},
+        ana.attribution)
     cands = diagnosis.rank(cands + [c for c in scored if all(c is not w for w in weighed)])
     decision = diag.lasers_beside_rival(decided, decision, cands)
     decision = diag.offsets_beside_also(decision, cands)

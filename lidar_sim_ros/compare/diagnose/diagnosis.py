@@ -2152,7 +2152,9 @@ class Diagnosis:
                        also=again.also, pair_z=again.pair_z), scored
 
     def weigh_pose_rivals(self, decision: Decision, rivals: list[type[Effect]], pose_test,
-                          on_pose, scored: dict | None = None) -> tuple[Decision, list[Candidate]]:
+                          on_pose, scored: dict | None = None,
+                          attribution: Attribution | None = None
+                          ) -> tuple[Decision, list[Candidate]]:
         """A reported pose error against range errors of the sensor (POSE_RIVALS: a
         range offset drifting over the recording, a range scale), on the same footing:
         each rival that passes the naming rule is weighed both ways, the pose's test on
@@ -2165,13 +2167,19 @@ class Diagnosis:
         pose-corrected model's; MIN_PRACTICAL_GAIN apart, the better one stands (the
         rival named, or the pose alone); closer, they explain the data as well: a tie,
         ``confounded_with`` [pose_error, rival]. Returns the decision and the rivals
-        scored (for the summary's candidates)."""
+        scored (for the summary's candidates). A rival scored here passes the vetoes
+        every candidate does (``share_veto`` on ``attribution``): a range scale that
+        explains a fifth of a structure the lasers' offsets hold is no rival of the
+        pose (thirteenth holdout walk_laser_graze_2: named as a stand-in)."""
         if decision.pose is None or decision.missing or decision.confounded_with:
             return decision, []
         done = dict(scored or {})
         scored, wins, ties = [], [], []
         for cls in rivals:
-            r = done.get(cls.name) or self.score(cls)
+            r = done.get(cls.name)
+            if r is None:
+                r = self.score(cls)
+                self.share_veto(r, attribution)
             scored.append(r)
             if not self.nameable(r):
                 continue
