@@ -414,7 +414,10 @@ def test_interrupted_cli_campaign_resumes(cluster, tmp_path):
     out = tmp_path / 'out'
     cmd = [sys.executable, '-m', 'lidar_sim_ros.cli', 'campaign', str(path), '--out', str(out),
            '--address', cluster, '--no-progress']
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # SIGINT as a foreground job has it (a suite started in the background of a
+    # non-interactive shell passes it on ignored).
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
         if (out / MANIFEST).is_file() and len(read_manifest(out)) >= 2:
