@@ -19,7 +19,12 @@ What differs from our simulator, on purpose:
 * radiometry: a Blinn-Phong BRDF with its own reflectances and a single cos(theta)
   link budget (paper Eqs. 1-3 have cos^2), in its own units;
 * intensity: 8-bit log counts, 16-bit saturating counts, range-compensated
-  reflectivity, or no intensity field at all;
+  reflectivity, a reflectivity compensated for range and for a Lambertian incidence law
+  (``reflectivity_lambert``: P r^2 / cos(theta) ** ``intensity_cos_exponent``, 1 by
+  default, as a sensor calibrated on white panels
+  reports it; on the Blinn-Phong surfaces it is not a monotone function of the received
+  power, which is what the timing walk follows: two returns of one power read apart by
+  1 / cos(theta)), or no intensity field at all;
 * per-point time: ``t`` float32 seconds, ``t`` uint32 nanoseconds, a float64 absolute
   ``timestamp`` field (another name), or none (cloud stamped mid-scan);
 * baseline range error: the paper's Table 2 per material, each bias moved by up to
@@ -373,8 +378,11 @@ def received_power_w(sensor: Sensor, range_m: np.ndarray, cos_i: np.ndarray,
 
 
 def intensity_units(power_w: np.ndarray, range_m: np.ndarray, mode: str,
-                    sensor: Sensor) -> np.ndarray | None:
-    """The sensor's own intensity: not proportional to power in any mode."""
+                    sensor: Sensor, cos_i: np.ndarray | None = None,
+                    cos_exponent: float = 1.0) -> np.ndarray | None:
+    """The sensor's own intensity: not proportional to power in any mode. ``cos_i``:
+    the cosine of each return's incidence (-), for ``reflectivity_lambert``, which
+    divides by cos_i ** ``cos_exponent`` (1: a Lambertian law; less: a partial one)."""
     p = np.maximum(power_w, sensor.threshold_power_w)
     if mode == 'counts8':       # log-compressed 8-bit counts, 1 at threshold, clipped
         u = np.log(p / sensor.threshold_power_w) / np.log(2e-3 / sensor.threshold_power_w)
@@ -383,12 +391,15 @@ def intensity_units(power_w: np.ndarray, range_m: np.ndarray, mode: str,
         return np.round(65535 * (1 - np.exp(-np.sqrt(p / 4e-4)))).astype(np.uint16)
     if mode == 'reflectivity':  # range-compensated, float
         return (p * range_m ** 2 * 1e3).astype(np.float32)
+    if mode == 'reflectivity_lambert':   # range- and Lambert-compensated, float
+        c = np.clip(np.ones(len(p)) if cos_i is None else np.asarray(cos_i, float), 0.05, 1.0)
+        return (p * range_m ** 2 * 1e3 / c ** cos_exponent).astype(np.float32)
     if mode == 'linear':        # proportional to the received power, arbitrary units
         return (p * 2.5e7).astype(np.float32)
     if mode == 'none':
         return None
-    raise ValueError(f'intensity mode must be counts8, counts16, reflectivity, linear or '
-                     f'none, got {mode!r}')
+    raise ValueError(f'intensity mode must be counts8, counts16, reflectivity, '
+                     f'reflectivity_lambert, linear or none, got {mode!r}')
 
 
 # ------------------------------------------------------- effects (own forms)
@@ -642,7 +653,8 @@ class ForeignSpec:
     frames: int = 3
     distance_m: float = 11.0
     storage: str = 'mcap'                # mcap | sqlite3
-    intensity: str = 'counts8'           # counts8 | counts16 | reflectivity | none
+    intensity: str = 'counts8'           # counts8 | counts16 | reflectivity | reflectivity_lambert | linear | none
+    intensity_cos_exponent: float = 1.0  # reflectivity_lambert: P r^2 / cos(theta) ** this
     point_time: str = 't_s'              # t_s | t_ns | timestamp | none
     spin_dps: float = 7.0
     precession_dps: float = 2.0
@@ -885,7 +897,7 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     frame = {'xyz_m': d[i] * measured[i, None], 'power_w': power[i], 't_s': t[i],
              'laser': laser[i], 'silent_t_s': t[silent], 'silent_laser': laser[silent],
              'range_m': measured[i], 'true_range_m': r_hit[i], 'material': mat[i],
-             'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid,
+             'cos_i': cos_i[i], 'shot': i, 'n_shots': len(d), 'shot_t_s': t, 'grid': grid,
              'base_sigma_m': base_sigma[i], 'multipath': multipath[i], 'hidden': hidden[i],
              'effects': {k: (b[i], v[i]) for k, (b, v) in contrib.items()}}
     frame['return_index'] = np.zeros(len(i), np.int64)
@@ -986,7 +998,7 @@ def with_ghosts(frame: dict, d: np.ndarray, t: np.ndarray, laser: np.ndarray, at
            'material': np.full(n, CROSSTALK) if material is None else material, 'shot': at,
            'base_sigma_m': np.full(n, 0.01), 'return_index': np.full(n, index, np.int64),
            'multipath': np.zeros(n, bool), 'hidden': np.zeros(n, bool),
-           'second': np.ones(n, bool)}
+           'second': np.ones(n, bool), 'cos_i': np.ones(n)}
     frame = {**frame, 'second': frame.get('second', np.zeros(len(frame['shot']), bool))}
     order = np.argsort(np.concatenate([frame['shot'], at]), kind='stable')
     out = dict(frame)
@@ -1321,7 +1333,8 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
             t0 = k * gap
             frame = simulate_frame(spec, sensor, target, traj, t0, rng, errors)
             stamp_s = t0 + stamp_offset_s(spec, sensor)
-            inten = intensity_units(frame['power_w'], frame['range_m'], spec.intensity, sensor)
+            inten = intensity_units(frame['power_w'], frame['range_m'], spec.intensity, sensor,
+                                    frame['cos_i'], spec.intensity_cos_exponent)
             rec = cloud_fields(spec, frame, inten, stamp_s, t0)
             cepton = spec.layout == 'cepton'
             write_cloud(writer, rec, EPOCH_NS + int(round(stamp_s * NS_PER_S)),

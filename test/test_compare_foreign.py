@@ -235,3 +235,22 @@ def test_crosstalk_ghosts_sit_behind_the_shot_before_on_another_laser():
     np.testing.assert_allclose(frame['power_w'][ghost], 0.15 * frame['power_w'][src])
     assert frame['power_w'][src].min() > 20 * sensor.threshold_power_w
     assert np.all(np.diff(frame['shot']) >= 0)                 # in shot order
+
+
+def test_reflectivity_lambert_divides_by_cos_to_the_exponent():
+    """``reflectivity_lambert`` reads P r^2 / cos(theta)^q (q = intensity_cos_exponent):
+    two returns of one power and range at 60 and 0 deg read apart by 2^q, so it is not a
+    function of the power alone (the range-only mode reads them alike)."""
+    sensor = Sensor()
+    p = np.full(2, 1e-5)
+    r = np.full(2, 10.0)
+    cos_i = np.array([1.0, 0.5])
+    plain = foreign_sim.intensity_units(p, r, 'reflectivity', sensor)
+    assert plain[0] == plain[1]
+    for q in (1.0, 0.5):
+        u = foreign_sim.intensity_units(p, r, 'reflectivity_lambert', sensor, cos_i, q)
+        assert u[0] == pytest.approx(plain[0], rel=1e-6)
+        assert u[1] / u[0] == pytest.approx(2.0 ** q, rel=1e-5)
+    spec = replace(battery(['laser_bias'])[0], intensity='reflectivity_lambert',
+                   intensity_cos_exponent=0.7)
+    assert spec.intensity_cos_exponent == 0.7
