@@ -487,6 +487,16 @@ def _jittered_planes(n_clouds: int, per_cloud: int, sigma_m: float, seed: int = 
     return _Recording(u, measured, cloud), data, t
 
 
+def _planes_pose(**kw) -> tuple['_Recording', pose_error.PoseError]:
+    """The per-cloud pose test on 20 clouds of 1500 rays over the three planes
+    (``_jittered_planes`` with ``kw``, seed 3, 1 cm noise), every ray tested: the
+    recording and the test."""
+    rec, data, t = _jittered_planes(20, 1500, 0.01, seed=3, **kw)
+    idx = np.arange(len(rec))
+    return rec, pose_error.fit_reference_pose(data(idx), rec.cloud, t, idx // 30, 3.0,
+                                              diagnosis.MIN_PRACTICAL_GAIN)
+
+
 def _plane_range_each(origin, normal, u):
     """Range along each unit ray of u (N, 3) to its own plane (origin, normal: N, 3)."""
     return np.einsum('ij,ij->i', normal, origin) / np.einsum('ij,ij->i', u, normal)
@@ -534,10 +544,7 @@ def test_a_pose_part_is_claimed_only_where_it_passes_the_rule_on_its_own():
     give the rotation as a bound. A rotation about the points' centroid alone (0.2 deg
     per axis) is the attitude alone; both at once are both."""
     def test(jitter, turn):
-        rec, data, t = _jittered_planes(20, 1500, 0.01, seed=3, jitter=jitter, turn=turn)
-        idx = np.arange(len(rec))
-        return pose_error.fit_reference_pose(data(idx), rec.cloud, t, idx // 30, 3.0,
-                                             diagnosis.MIN_PRACTICAL_GAIN)
+        return _planes_pose(jitter=jitter, turn=turn)[1]
     moved = test(1.0, 0.0)
     assert moved.significant and moved.parts == 'translation'
     assert moved.size_deg == 0.0 and 1.4 < moved.size_cm < 2.2
@@ -590,10 +597,7 @@ def test_a_range_step_of_the_sensor_is_no_more_than_one_range_offset_per_cloud()
     correction gains nothing beyond it. A pose jittering by 1 cm and 0.2 deg per axis
     gains beyond the offsets (rotations, motions across the line of sight): it stays."""
     def test(jitter, step_m):
-        rec, data, t = _jittered_planes(20, 1500, 0.01, seed=3, jitter=jitter, step_m=step_m)
-        idx = np.arange(len(rec))
-        return pose_error.fit_reference_pose(data(idx), rec.cloud, t, idx // 30, 3.0,
-                                             diagnosis.MIN_PRACTICAL_GAIN)
+        return _planes_pose(jitter=jitter, step_m=step_m)[1]
     step = test(0.0, 0.02)
     assert step.significant and step.z > 10
     assert step.offset_z > 10 and step.offset_gain >= step.gain
@@ -612,13 +616,8 @@ def test_a_pose_that_only_moves_clouds_as_a_range_offset_is_a_tie_with_range_dri
     cloud is the tie [pose_error, range_drift] beside it, the pose no longer reported
     alone; with nothing named, the tie itself (range_drift passing the rule). A pose
     that gains beyond the offsets, or one correction for the recording, stays."""
-    rec, data, t = _jittered_planes(20, 1500, 0.01, seed=3, jitter=0.0, step_m=0.02)
-    idx = np.arange(len(rec))
-    step = pose_error.fit_reference_pose(data(idx), rec.cloud, t, idx // 30, 3.0,
-                                         diagnosis.MIN_PRACTICAL_GAIN)
-    rec_j, data_j, t_j = _jittered_planes(20, 1500, 0.01, seed=3)
-    jit = pose_error.fit_reference_pose(data_j(idx), rec_j.cloud, t_j, idx // 30, 3.0,
-                                        diagnosis.MIN_PRACTICAL_GAIN)
+    _, step = _planes_pose(jitter=0.0, step_m=0.02)
+    _, jit = _planes_pose()
 
     class Judge:                      # the two attributes the weighing reads
         z_crit = 3.0
