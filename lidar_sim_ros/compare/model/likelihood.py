@@ -47,6 +47,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from lidar_sim_ros.core.effects.base import Effect, ReturnContext, apply_effects
+from lidar_sim_ros.core.effects.surface_offset import by_material_id
 from lidar_sim_ros.core.pipeline import Prediction
 from lidar_sim_ros.core.pose import PoseCoverageError
 
@@ -378,12 +379,9 @@ def crossed_silhouette(base: Prediction, pred: Prediction,
     with np.errstate(invalid='ignore'):
         out = both & (np.abs(r1 - r0) > SILHOUETTE_JUMP_M)
     if standoff_m is not None:
-        last = len(standoff_m) - 1
-        a = np.clip(np.asarray(base.ctx.material, np.int64), -1, last)
-        b = np.clip(np.asarray(pred.ctx.material, np.int64), -1, last)
-        a, b = np.where(a < 0, last, a), np.where(b < 0, last, b)
         bare = np.abs(standoff_m) < 1e-12
-        out |= both & (bare[a] != bare[b])
+        out |= both & (by_material_id(bare, base.ctx.material)
+                       != by_material_id(bare, pred.ctx.material))
     return out
 
 

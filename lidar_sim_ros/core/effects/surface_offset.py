@@ -78,14 +78,28 @@ def plane_offset_m(ctx: ReturnContext) -> np.ndarray:
     return out
 
 
+def standoff_table_m(material_names, standoff_m: float,
+                     by_material_m: dict[str, float]) -> np.ndarray:
+    """Per material id, how far (m) its faces stand proud: ``standoff_m`` plus the
+    standoff the material has in ``by_material_m`` (a name the target lacks: nothing);
+    one more entry, ``standoff_m``, for faces of no listed material."""
+    return np.array([standoff_m + by_material_m.get(n, 0.0) for n in material_names]
+                    + [standoff_m])
+
+
+def by_material_id(table: np.ndarray, material_id) -> np.ndarray:
+    """``table``'s entry per material id (``standoff_table_m``'s layout): an id outside
+    the listed materials (-1: none) takes the last entry."""
+    mat = np.asarray(material_id, np.int64)
+    last = len(table) - 1
+    return table[np.where((mat >= 0) & (mat < last), mat, last)]
+
+
 def face_offsets_m(target: 'Target', standoff_m: float,
                    by_material_m: dict[str, float]) -> np.ndarray:
-    """Per face of ``target``, how far (m) it stands proud: ``standoff_m`` plus the
-    standoff its material has in ``by_material_m`` (a name the target lacks: nothing)."""
-    names = list(target.material_names)
-    table = np.array([standoff_m + by_material_m.get(n, 0.0) for n in names] + [standoff_m])
-    mat = np.asarray(target.face_material, np.int64)
-    return table[np.where((mat >= 0) & (mat < len(names)), mat, len(names))]
+    """Per face of ``target``, how far (m) it stands proud (``standoff_table_m``)."""
+    return by_material_id(standoff_table_m(target.material_names, standoff_m, by_material_m),
+                          target.face_material)
 
 
 def mitred_offset_m(vertices_m: np.ndarray, faces: np.ndarray, face_normals: np.ndarray,
@@ -192,21 +206,18 @@ class SurfaceOffset(Effect):
             return v
 
     def standoffs_by_material_m(self, material_names) -> np.ndarray:
-        """How far (m) the faces of each material id stand proud (``face_offsets_m``'s
-        table), one more entry for faces of no listed material."""
-        p = self.params
-        return np.array([p.standoff_m + p.material_standoff_m.get(n, 0.0)
-                         for n in material_names] + [p.standoff_m])
+        """How far (m) the faces of each material id stand proud (``standoff_table_m``),
+        one more entry for faces of no listed material."""
+        return standoff_table_m(material_names, self.params.standoff_m,
+                                self.params.material_standoff_m)
 
     def first_order_shift_m(self, ctx: ReturnContext, material_names) -> np.ndarray:
         """The range change (m) to first order on the surface each ray meets on the mesh
         (``first_order_columns``): its own face's plane moved, whatever the moved mesh's
         edges do; 0 on a miss."""
         cols = first_order_columns(ctx, self.params.max_incidence_deg)
-        table = self.standoffs_by_material_m(material_names)
-        mat = np.asarray(ctx.material, np.int64)
-        mat = np.where((mat >= 0) & (mat < len(table) - 1), mat, len(table) - 1)
-        return table[mat] * cols['standoff_m'] + self.params.scale * cols['scale']
+        standoff = by_material_id(self.standoffs_by_material_m(material_names), ctx.material)
+        return standoff * cols['standoff_m'] + self.params.scale * cols['scale']
 
     def seen_target(self, target: 'Target') -> 'Target | None':
         """The real surface (``offset_target``), built once per mesh; None at zero offset."""
