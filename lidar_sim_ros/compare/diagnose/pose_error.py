@@ -479,16 +479,6 @@ def design(direction: np.ndarray, normal: np.ndarray, expected_m: np.ndarray,
     return np.where(use[:, None], a, 0.0), use
 
 
-def _solve(ata: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """``ata x = rhs``; least squares where ``ata`` is singular (a block of columns that
-    carries nothing: one rate for the recording on a single cloud, whose times the
-    directions fix, ``scan_clock.beyond_direction``)."""
-    try:
-        return np.linalg.solve(ata, rhs)
-    except np.linalg.LinAlgError:
-        return np.linalg.lstsq(np.nan_to_num(ata), np.nan_to_num(rhs), rcond=None)[0]
-
-
 def range_over_scan(tau: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
                     group: np.ndarray | None, train: np.ndarray) -> np.ndarray:
     """(N,) a range offset of the sensor growing linearly over the scan, the same in
@@ -540,7 +530,7 @@ def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
         systems.append((k, sel, w, aw, ata, rhs))
     if group is None or not systems:
         for k, _, _, _, ata, rhs in systems:
-            out[k] = _solve(ata, rhs)
+            out[k] = range_alone.solve_or_lstsq(ata, rhs)
         return out
     # Joint: eliminate each cloud's motion (Schur complement) and solve for the
     # offsets of the materials with enough points; the others keep theirs.
@@ -558,8 +548,8 @@ def fit_clouds(a: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
         np.add.at(b.T, j[keep], aw[keep] * w[keep, None])
         d = np.bincount(j[keep], weights=w[keep] ** 2, minlength=n_m)
         e = np.bincount(j[keep], weights=residual_m[sel][keep] * w[keep] ** 2, minlength=n_m)
-        inv_b = _solve(ata, b)
-        inv_r = _solve(ata, rhs)
+        inv_b = range_alone.solve_or_lstsq(ata, b)
+        inv_r = range_alone.solve_or_lstsq(ata, rhs)
         lhs += np.diag(d) - b.T @ inv_b
         rhs_m += e - b.T @ inv_r
         coupling.append((k, inv_b, inv_r))
@@ -598,7 +588,8 @@ def fit_clouds_with(a: np.ndarray, shared: 'range_alone.RangeDesign',
         ata = aw.T @ aw
         ata += np.diag(np.full(n_par, ridge * np.trace(ata) / n_par))
         ab, ar = shared.cross(at, w, a[at]).T, aw.T @ (y * w)
-        inv_ab, inv_ar = _solve(ata, ab), _solve(ata, ar)
+        inv_ab = range_alone.solve_or_lstsq(ata, ab)
+        inv_ar = range_alone.solve_or_lstsq(ata, ar)
         lhs += bb - ab.T @ inv_ab
         rhs_s += br - ab.T @ inv_ar
         per.append((c, inv_ab, inv_ar))

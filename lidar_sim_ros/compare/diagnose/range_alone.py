@@ -308,11 +308,18 @@ def range_fit(range_m: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
 def solve_ridged(gram: np.ndarray, rhs: np.ndarray, ridge: float) -> np.ndarray:
     """``gram`` x = ``rhs`` with a relative ridge (``ridge`` x its mean diagonal)."""
     n = len(gram)
-    g = gram + np.diag(np.full(n, ridge * max(np.trace(gram), 1e-12) / n))
+    return solve_or_lstsq(gram + np.diag(np.full(n, ridge * max(np.trace(gram), 1e-12) / n)),
+                          rhs)
+
+
+def solve_or_lstsq(ata: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``ata`` x = ``rhs``; least squares where ``ata`` is singular (a block of columns
+    that carries nothing, e.g. one pose rate for the recording on a single cloud, whose
+    times the directions fix: ``scan_clock.beyond_direction``)."""
     try:
-        return np.linalg.solve(g, rhs)
+        return np.linalg.solve(ata, rhs)
     except np.linalg.LinAlgError:
-        return np.linalg.lstsq(g, rhs, rcond=None)[0]
+        return np.linalg.lstsq(np.nan_to_num(ata), np.nan_to_num(rhs), rcond=None)[0]
 
 
 def fit_range_function(design: RangeDesign, residual_m: np.ndarray, sigma_m: np.ndarray,
