@@ -39,12 +39,13 @@ demo-loop: $(STAMP)
 
 # Two parts: the tests that start nodes or a cluster of their own (marker serial, see
 # test/conftest.py) alone, the rest first on TEST_WORKERS pytest-xdist workers. Both
-# parts always run; the target fails if either failed.
+# parts always run; the target fails if either failed. Each part prints its slowest
+# tests (--durations), so a CI log shows where the time budget goes.
 TEST_WORKERS ?= 2
 test: $(STAMP)
 	status=0; \
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope -m 'not serial' test || status=1; \
-	$(BIN)/python -m pytest -q -m serial test || status=1; \
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope --durations=20 -m 'not serial' test || status=1; \
+	$(BIN)/python -m pytest -q --durations=10 -m serial test || status=1; \
 	exit $$status
 
 bench: $(STAMP)
