@@ -152,3 +152,59 @@ def test_no_pose_is_claimed_from_what_a_fit_at_its_bound_left():
     # A tie says the pose as a tie, whatever the fit.
     tie = diagnosis.Decision(None, [diagnosis.POSE_ERROR, 'range_drift'], pose=pose)
     assert run.pose_beyond_a_bound(tie, pose, [scale({'scale': hi})])[0].pose is pose
+
+
+def _snr_data(c_m: float, exponent: float, seed: int = 5) -> FitData:
+    """Matched points at 10 m on one material, received power log-uniform from the
+    threshold (0.1 W) to 10^6 times it, their residual 1 cm noise plus SNR noise
+    c_m (P_threshold / P)^exponent in quadrature."""
+    rng = np.random.default_rng(seed)
+    n = 6000
+    power = 0.1 * 10.0 ** rng.uniform(0.0, 6.0, n)
+    r = np.full(n, 10.0)
+    ctx = ReturnContext(range_m=r, incidence_rad=np.zeros(n), material=np.zeros(n, int),
+                        power_w=power, intensity=power, t_s=np.zeros(n),
+                        az_rad=np.zeros(n), el_rad=np.zeros(n), laser=np.zeros(n, int),
+                        divergence_rad=0.002, hit=np.ones(n, bool), threshold_power_w=0.1,
+                        time_s=np.zeros(n))
+    hits = Hits(np.ones(n, bool), r, np.zeros((n, 3)), np.zeros(n), np.zeros(n, int),
+                np.zeros(n, int))
+    pred = Prediction(ctx, hits, np.tile([1.0, 0, 0], (n, 1)), np.zeros(n), np.full(n, 0.01))
+    sigma = np.hypot(0.01, c_m * (0.1 / power) ** exponent)
+    measured = r + rng.normal(0.0, 1.0, n) * sigma
+    return FitData(measured_range_m=measured, baseline=pred, cast=lambda e: pred,
+                   unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
+                   range_window_m=(0.0, 100.0))
+
+
+def _named_fault(fit) -> str | None:
+    """``naming_fault`` of a decisive, practical candidate with a lower NLL that carries
+    ``fit``'s parameters at their bound: None when nothing but the bound could stop it."""
+    from lidar_sim_ros.compare.diagnose import diagnosis as dg
+    c = dg.Candidate('snr_noise', score=0.05, z=30.0, significant=True, practical=True,
+                     nll_after=fit.nll_per_point, at_bound=at_bounds(fit.effect))
+    return dg.naming_fault(c, fit.nll_before_per_point)
+
+
+def test_snr_noise_above_two_metres_at_the_threshold_is_fitted_and_named():
+    """The battery's snr_and_beam: the footprint's weak edge returns asked for c_m above
+    the old search box (0, 2) m; the fit ended at 2.0, at its bound, and the SNR noise
+    was never named. The box now reaches the physical limit MAX_C_M."""
+    snr = get_effect_class('snr_noise')
+    fit = fit_effect(snr, _snr_data(3.0, 0.5))
+    assert abs(fit.params['c_m'] - 3.0) < 0.3                # within 10 %
+    assert abs(fit.params['exponent'] - 0.5) < 0.05
+    assert at_bounds(fit.effect) == []
+    assert fit.nll_per_point < fit.nll_before_per_point
+    assert _named_fault(fit) is None
+
+
+def test_snr_noise_beyond_its_physical_limit_is_still_at_its_bound():
+    """A noise the data put beyond 10 m at the threshold is no detector's: the fit stops
+    at MAX_C_M, says so, and the candidate is not named."""
+    from lidar_sim_ros.core.effects.snr_noise import MAX_C_M
+    snr = get_effect_class('snr_noise')
+    fit = fit_effect(snr, _snr_data(40.0, 0.5))
+    assert fit.params['c_m'] == MAX_C_M
+    assert at_bounds(fit.effect) == ['c_m']
+    assert 'edge of its search box' in _named_fault(fit)

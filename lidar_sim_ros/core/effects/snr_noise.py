@@ -8,7 +8,12 @@ detection, 1 for a fixed amplifier noise):
     sigma_extra = c_m * (P_threshold / P) ** exponent
 
 c_m is the extra noise at the threshold; it adds in quadrature to the material
-sigma. Fitted by the generic bounded maximum likelihood (c_m and the exponent).
+sigma. Fitted by the generic bounded maximum likelihood (c_m and the exponent), c_m
+searched up to its physical limit MAX_C_M: c_m is the noise extrapolated to the
+threshold, where few points lie, so a footprint's weak edge returns or a steep
+exponent can put it well above the typical noise, and a search box narrower than the
+limit left such a fit at its edge (never named, ``fit.at_bounds``). A fit at MAX_C_M
+is still at its bound: no detector ranges with 10 m of noise.
 """
 from __future__ import annotations
 
@@ -36,7 +41,7 @@ class SnrNoise(Effect):
     """Extra range noise c_m (P_threshold / P)^exponent."""
 
     name = 'snr_noise'
-    bounds = {'c_m': (0.0, 2.0), 'exponent': (0.1, 2.0)}
+    bounds = {'c_m': (0.0, MAX_C_M), 'exponent': (0.1, 2.0)}
     initial = {'c_m': 0.0, 'exponent': 0.5}
     power_driven = True
 
