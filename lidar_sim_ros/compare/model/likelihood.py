@@ -337,12 +337,11 @@ def model_on_rays(data: FitData, effects: Sequence[Effect]) -> ModelOnRays:
         sigma = np.where(lost, base_sigma, sigma)
         placed = placed | lost
     if moves_surfaces(effects):
-        ref = unmoved_surfaces(data, effects)
-        crossed = crossed_silhouette(ref, pred, material_standoffs_m(pred, effects))
+        crossed = crossed_silhouette(data.baseline, pred, material_standoffs_m(pred, effects))
         if crossed.any():
-            _, base_expected, base_sigma = apply_hooks(ref, everything,
+            _, base_expected, base_sigma = apply_hooks(data.baseline, everything,
                                                        data.measured_power_w, data.extra_var_m2)
-            base_expected = base_expected + own_face_shift_m(ref, effects)
+            base_expected = base_expected + own_face_shift_m(data.baseline, effects)
             expected = np.where(crossed, base_expected, expected)
             sigma = np.where(crossed, base_sigma, sigma)
             placed = np.where(crossed, np.isfinite(base_expected) & np.isfinite(base_sigma),
@@ -350,18 +349,6 @@ def model_on_rays(data: FitData, effects: Sequence[Effect]) -> ModelOnRays:
     w = _outlier_weight(everything, ctx, n)
     ghost_range, ghost_sigma, ghost_w = ghost_component(pred, everything, n)
     return ModelOnRays(ctx, expected, sigma, w, placed, ghost_range, ghost_sigma, ghost_w)
-
-
-def unmoved_surfaces(data: FitData, effects: Sequence[Effect]) -> Prediction:
-    """The rays as the model and ``effects`` place them with the target's surfaces left
-    where the mesh has them: the reference a surface mover's crossed rays are told by
-    and placed on (``crossed_silhouette``). Beside a footprint that is the footprint's
-    cast, not the mesh's: its edge returns jump by metres (a sub-ray meets the part in
-    front) and are none of the standoff's doing."""
-    others = [e for e in moving(effects) if not moves_surfaces([e])]
-    if not others:
-        return data.baseline
-    return data.cast(moving([*data.base_effects, *others]))
 
 
 def moves_surfaces(effects: Sequence[Effect]) -> bool:
