@@ -7,14 +7,18 @@ and a footprint on top of a standoff exactly 0):
 
 * the fit returned a standoff worse, on its own objective, than none: the first-order
   columns it selects and steps on do not see the rays a sunken face loses through the
-  gaps at its edges (scored as spurious returns). Mended.
+  gaps at its edges (scored as spurious returns). Open (a known failure below): mended
+  alone (the iterate with the lowest objective kept, none included), the standoff fitted
+  soundly was named in place of a footprint and an incidence bias on the held-out
+  beam_solar_incid@6 (0.130 against the footprint's 0.071 nats/point; on main its broken
+  fit scores -0.028).
 * a standoff beside a footprint undoes the footprint: its rays are checked for a jump
   across a silhouette against the mesh's placement without the footprint, so every edge
   return of the footprint counts as crossed and is put back on the bare mesh. Open (a
-  known failure below): mended alone, the standoff then gains on top of a footprint and
-  ``Diagnosis.stands_in_beside`` named it in the footprint's place on the battery's
-  beam_divergence_first (docs/compare.md, "A phantom standoff beside incidence and a
-  footprint").
+  known failure below): mended with the first, the standoff then gains on top of a
+  footprint and ``Diagnosis.stands_in_beside`` named it in the footprint's place on the
+  battery's beam_divergence_first (docs/compare.md, "A phantom standoff beside incidence
+  and a footprint").
 """
 from __future__ import annotations
 
@@ -30,10 +34,12 @@ from test_fitting import dataset
 SURFACE_OFFSET = get_effect_class('surface_offset')
 
 
+@pytest.mark.xfail(strict=True, reason='open: the fit keeps its last step on the exact surface '
+                   '(module doc)')
 def test_a_fitted_standoff_is_never_worse_than_none():
     """A range walk, no standoff: the linearised fit asks for a standoff of -0.46 cm that,
     cast on the exact surface, loses 29 rays through the gaps of the sunken faces
-    (objective 300 nats above no standoff before). The fit keeps no standoff."""
+    (objective 300 nats above no standoff). The fit should keep no standoff."""
     data, _ = dataset('range_walk')
     fit = fit_effect(SURFACE_OFFSET, data)
     none = objective(data, [], floor=ROBUST_FLOOR)

@@ -676,14 +676,8 @@ def _fit_surface_offset(cls: type[Effect], data: FitData,
         best, best_cost = values, cost
     effect = effect_of(best) if best else cls(zero)
     free = tuple(best)
-    # Each iterate on the exact surface is kept only if it lowers the fit's own
-    # objective (``objective``, robust), and none that is worse than no standoff at all:
-    # the first-order columns do not see the rays a moved face loses (a sunken face opens
-    # gaps at its edges, scored as spurious returns) or moves onto another part.
-    tried = [(objective(data, base_effects, floor=ROBUST_FLOOR), cls(zero))]
     for _ in range(SURFACE_OFFSET_STEPS if free else 0):
         at = model_on_rays(data, [*base_effects, effect])
-        tried.append((objective(data, [*base_effects, effect], floor=ROBUST_FLOOR), effect))
         shift = {k: (bounds[k][0] - best[k], bounds[k][1] - best[k]) for k in free}
         step = linear_bias_coefficients(data, at, columns(at, free), [shift[k] for k in free])
         stepped = {k: best[k] + float(d) for k, d in zip(free, step)}
@@ -695,9 +689,6 @@ def _fit_surface_offset(cls: type[Effect], data: FitData,
         best, effect = stepped, moved
         if done:
             break
-    if free:
-        tried.append((objective(data, [*base_effects, effect], floor=ROBUST_FLOOR), effect))
-    effect = min(tried, key=lambda t: t[0] if np.isfinite(t[0]) else math.inf)[1]
     p = effect.params
     params = {'scale': float(p.scale), 'standoff_m': float(p.standoff_m),
               **{f'standoff_{m}_m': float(v) for m, v in p.material_standoff_m.items()}}
