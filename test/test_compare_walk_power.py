@@ -91,3 +91,20 @@ def test_the_fit_keeps_the_measured_power_where_it_carries_the_shot_to_shot_spre
     fit, _ = dg.fit_best_variant(get_effect_class('range_walk'), _recording(seed, 'speckle'))
     assert fit.effect.params.power == 'measured'
     assert abs(fit.effect.params.k_m - K_M) < 0.1 * K_M
+
+
+@pytest.mark.parametrize('power', ['measured', 'model'])
+def test_the_range_alone_test_reads_the_power_the_named_walk_reads(monkeypatch, power):
+    """``run.named_range_alone`` weighs a named walk against a bias of range alone on the
+    power the walk was fitted on: the model's for ``power: model``."""
+    from lidar_sim_ros.compare import run
+    p_model = np.array([1e-6, 1e-5, 1e-4, 3e-5])
+    data = _points(p_model, np.full(4, 10.0), p_model * 4.0)
+    seen = {}
+
+    def record(named, residual_m, sigma_m, range_m, power_w, *rest):
+        seen['power_w'] = np.asarray(power_w)
+    monkeypatch.setattr(run.range_alone, 'weigh_range_alone', record)
+    walk = make_effect('range_walk', {'k_m': 0.02, 'power': power})
+    run.named_range_alone('range_walk', walk, data, np.zeros(4, int), 3.0, 0)
+    np.testing.assert_allclose(seen['power_w'], p_model * (4.0 if power == 'measured' else 1.0))
