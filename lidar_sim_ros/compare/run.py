@@ -1062,14 +1062,14 @@ def named_range_alone(named: str | None, effect: Effect | None, data: lk.FitData
                       ) -> 'range_alone.RangeAlone | None':
     """``range_alone.weigh_range_alone`` for the named effect (``effect``: as fitted) on
     the diagnosed points ``data`` (the model without it; the power a power-driven term is
-    fitted on: the measured where known, else the model's), or None where it is no range
-    term."""
+    fitted on: the measured where known and the term reads it, else the model's), or None
+    where it is no range term."""
     if named not in range_alone.DRIVER or effect is None:
         return None
     model = lk.model_on_rays(data, [])
     bias = lk.model_on_rays(data, [effect]).expected_range_m - model.expected_range_m
     power = np.asarray(model.ctx.power_w, float)
-    if data.measured_power_w is not None:
+    if data.measured_power_w is not None and lk.reads_measured_power(effect):
         measured = np.asarray(data.measured_power_w, float)
         power = np.where(np.isfinite(measured) & (measured > 0), measured, power)
     return range_alone.weigh_range_alone(
@@ -1422,6 +1422,10 @@ def laser_intensity(decision: diagnosis.Decision, cands: list, effects: list[Eff
         return None
     if lasers is None or k is None:
         return None
+    if (walk.params.power if walk is not None
+            else (tog.get('params') if decision.missing == RANGE_WALK
+                  else tog.get('with_params') or {}).get('power', 'measured')) == 'model':
+        return None     # a walk on the model's power reads no laser's intensity gain
     offsets = (tog.get('offsets_m') or {}).get(LASER_BIAS) if both else None
     if offsets is None:
         offsets = [float(lasers.params.get(f'laser_{i}_m', np.nan))

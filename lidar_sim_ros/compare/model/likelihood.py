@@ -291,6 +291,13 @@ def needs_repredict(effects: Sequence[Effect]) -> bool:
     return bool(moving(effects))
 
 
+def reads_measured_power(effect: Effect) -> bool:
+    """A power-driven effect (``Effect.power_driven``) that reads the measured intensity's
+    power, not the model's (a walk's ``power`` option, ``range_walk.py``)."""
+    return (bool(getattr(effect, 'power_driven', False))
+            and getattr(effect.params, 'power', 'measured') == 'measured')
+
+
 def apply_hooks(pred: Prediction, effects: Sequence[Effect],
                 measured_power_w: np.ndarray | None = None,
                 extra_var_m2: np.ndarray | float = 0.0) -> tuple[ReturnContext, np.ndarray,
@@ -302,7 +309,7 @@ def apply_hooks(pred: Prediction, effects: Sequence[Effect],
     model's power; ``extra_var_m2`` adds to every point's variance.
     """
     effects = list(effects)
-    driven = ([e for e in effects if getattr(e, 'power_driven', False)]
+    driven = ([e for e in effects if reads_measured_power(e)]
               if measured_power_w is not None else [])
     rest = [e for e in effects if not any(e is d for d in driven)]
     var0 = np.asarray(pred.sigma_m, float) ** 2 + extra_var_m2

@@ -12,8 +12,16 @@ apart from the per-material range bias of the paper's model, so the fit never
 estimates it: ``offset_m`` stays 0 and the slope ``k_m`` is measured from how the
 residual varies with ln P within each material (the material offsets are nuisance
 parameters of every fit). The material biases then absorb the walk's mean.
+
+``power`` says which P the comparison reads for the walk: the sensor's own measure of
+the pulse (``measured``, its intensity mapped to power) or the model's predicted power
+(``model``). A sensor whose intensity is not the power its discriminator saw (a
+reflectivity compensated for range and incidence) misreads P at grazing incidence;
+the comparison fits both and keeps the better. The simulator always uses its own power.
 """
 from __future__ import annotations
+
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -57,6 +65,9 @@ class RangeWalk(Effect):
         reference_power_w: float | None = Field(
             None, gt=0.0, le=MAX_REFERENCE_POWER_W,
             description='P_ref (W); None = detection threshold')
+        power: Literal['measured', 'model'] = Field(
+            'measured', description="the power compare reads for P: the measured "
+                                    "intensity's or the model's (module doc)")
 
     def range_bias_m(self, ctx: ReturnContext) -> np.ndarray:
         p = self.params

@@ -1,0 +1,110 @@
+"""Which power a range walk reads in the comparison: the measured intensity's or the
+model's (``range_walk``'s ``power`` option, ``likelihood.reads_measured_power``), chosen
+by the fit as any discrete option is (``diagnosis.fit_best_variant``). Hand-made matched
+points at 10 m; the fits are the comparison's own."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from lidar_sim_ros.compare.diagnose import diagnosis as dg
+from lidar_sim_ros.compare.model import likelihood as lk
+from lidar_sim_ros.core.effects import ReturnContext, get_effect_class, make_effect
+from lidar_sim_ros.core.geometry import Hits
+from lidar_sim_ros.core.pipeline import Prediction
+
+P_TH = 1e-7      # detection threshold (W)
+SIGMA = 0.01     # range noise (m)
+K_M = 0.035      # the true walk (m per e-fold of power)
+
+
+def _points(p_model: np.ndarray, measured_m: np.ndarray, p_measured: np.ndarray) -> lk.FitData:
+    """Matched points on two materials at 10 m: the model's power ``p_model`` (W), the
+    measured ranges (m) and the power read from the measured intensity (W)."""
+    n = len(p_model)
+    material = np.arange(n) % 2
+    rng_m = np.full(n, 10.0)
+    ctx = ReturnContext(range_m=rng_m, incidence_rad=np.zeros(n), material=material,
+                        power_w=p_model, intensity=p_model, t_s=np.zeros(n),
+                        az_rad=np.zeros(n), el_rad=np.zeros(n), laser=np.zeros(n, int),
+                        divergence_rad=0.002, hit=np.ones(n, bool), threshold_power_w=P_TH)
+    hits = Hits(np.ones(n, bool), rng_m, np.zeros((n, 3)), np.zeros(n), material,
+                np.zeros(n, int))
+    pred = Prediction(ctx, hits, np.tile([1.0, 0.0, 0.0], (n, 1)), np.zeros(n),
+                      np.full(n, SIGMA))
+    data = lk.FitData(measured_range_m=measured_m, baseline=pred, cast=lambda e: pred,
+                      unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
+                      range_window_m=(0.0, 100.0))
+    return replace(data, measured_power_w=p_measured)
+
+
+def _recording(seed: int, intensity: str) -> lk.FitData:
+    """A walk -K_M ln(P_true / P_TH) plus noise. The true power falls as cos(theta)
+    (theta 0-80 deg) with a reflectance spread; ``intensity``: 'lambert' reads
+    P_true / cos(theta) (a reflectivity compensated for incidence; the model's power is
+    the true one within 10 %), 'speckle' reads P_true itself, whose shot-to-shot
+    spread (ln sd 0.7) the model does not have."""
+    rng = np.random.default_rng(seed)
+    n = 4000
+    cos_t = np.cos(np.radians(rng.uniform(0.0, 80.0, n)))
+    reflect = np.exp(rng.normal(0.0, 0.5, n))
+    p_true = 3e-5 * cos_t * reflect
+    if intensity == 'lambert':
+        p_model, p_meas = p_true * np.exp(rng.normal(0.0, 0.1, n)), p_true / cos_t
+    else:
+        p_true = p_true * np.exp(rng.normal(0.0, 0.7, n))
+        p_model, p_meas = 3e-5 * cos_t * reflect, p_true
+    measured = 10.0 - K_M * np.log(p_true / P_TH) + SIGMA * rng.standard_normal(n)
+    return _points(p_model, measured, p_meas)
+
+
+def test_a_walk_on_the_model_power_reads_the_model_not_the_intensity():
+    """``power: model`` drives the walk by the model's power even where the measured
+    intensity gives one; ``measured`` (the default) by the measured one."""
+    p_model = np.array([1e-6, 1e-5, 1e-4])
+    data = _points(p_model, np.full(3, 10.0), p_model * 4.0)
+    on_model = make_effect('range_walk', {'k_m': 0.02, 'power': 'model'})
+    on_meas = make_effect('range_walk', {'k_m': 0.02})
+    base = lk.model_on_rays(data, []).expected_range_m
+    got_model = lk.model_on_rays(data, [on_model]).expected_range_m - base
+    got_meas = lk.model_on_rays(data, [on_meas]).expected_range_m - base
+    np.testing.assert_allclose(got_model, -0.02 * np.log(p_model / P_TH), atol=1e-9)
+    np.testing.assert_allclose(got_meas, -0.02 * np.log(4.0 * p_model / P_TH), atol=1e-9)
+    assert lk.reads_measured_power(on_meas) and not lk.reads_measured_power(on_model)
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_the_fit_keeps_the_model_power_where_the_intensity_is_compensated_for_incidence(seed):
+    """Read through P / cos(theta), the walk misses -k ln cos(theta); the fit tries both
+    powers and keeps the model's, with the walk's slope within 10 %."""
+    fit, _ = dg.fit_best_variant(get_effect_class('range_walk'), _recording(seed, 'lambert'))
+    assert fit.effect.params.power == 'model'
+    assert abs(fit.effect.params.k_m - K_M) < 0.1 * K_M
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_the_fit_keeps_the_measured_power_where_it_carries_the_shot_to_shot_spread(seed):
+    """Where the intensity is the power the walk followed, shot by shot (speckle the
+    model cannot know), the measured one is kept."""
+    fit, _ = dg.fit_best_variant(get_effect_class('range_walk'), _recording(seed, 'speckle'))
+    assert fit.effect.params.power == 'measured'
+    assert abs(fit.effect.params.k_m - K_M) < 0.1 * K_M
+
+
+@pytest.mark.parametrize('power', ['measured', 'model'])
+def test_the_range_alone_test_reads_the_power_the_named_walk_reads(monkeypatch, power):
+    """``run.named_range_alone`` weighs a named walk against a bias of range alone on the
+    power the walk was fitted on: the model's for ``power: model``."""
+    from lidar_sim_ros.compare import run
+    p_model = np.array([1e-6, 1e-5, 1e-4, 3e-5])
+    data = _points(p_model, np.full(4, 10.0), p_model * 4.0)
+    seen = {}
+
+    def record(named, residual_m, sigma_m, range_m, power_w, *rest):
+        seen['power_w'] = np.asarray(power_w)
+    monkeypatch.setattr(run.range_alone, 'weigh_range_alone', record)
+    walk = make_effect('range_walk', {'k_m': 0.02, 'power': power})
+    run.named_range_alone('range_walk', walk, data, np.zeros(4, int), 3.0, 0)
+    np.testing.assert_allclose(seen['power_w'], p_model * (4.0 if power == 'measured' else 1.0))
