@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import norm
 
-from lidar_sim_ros.compare.diagnose import (diagnosis, features, laser_gains,
+from lidar_sim_ros.compare.diagnose import (clock_footing, diagnosis, features, laser_gains,
                                             plan as sep_plan, pose_error, range_alone,
                                             region_offset, row_clock, stamp_place)
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
@@ -1043,6 +1043,13 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             diag.finalize(c)      # what a run with --effect NAME --fit would show
         if c.significant and np.isfinite(c.nll_after):
             c.false_returns = diag.false_return_budget(c)
+    # A named clock against the pose on the pose test's own rays (``clock_footing``).
+    decision = diag.clock_off_footing(decision, cands, lambda clock: (
+        clock_footing.clock_on_pose_footing(
+            tested_data, meas.cloud[tested.matched], meas.t_s[tested.matched],
+            sample.blocks[tested.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN,
+            row_clock.clock_column_m(tested_data, clock), seed,
+            rate=has_point_times(meas))))
     decision = diag.clock_tie(decision, cands, meas.time_source == 'stamp')
     stamp = _stamp_place(diag, decision, cands, meas, scenario)
     decision = sunlit_decision(decision, sunlight)
