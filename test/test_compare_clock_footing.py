@@ -174,3 +174,25 @@ def test_the_battery_judges_the_tie_of_a_drifting_pose_and_a_clock_as_honest():
     done = {'missing_effect': None, 'confounded_with': [], 'reference_pose_off': False,
             'nll_calibrated': -1.76}
     assert not judge_v4(spec, [named, done], {})['ok']
+
+
+def test_the_plan_of_the_tie_is_the_target_tumbling_faster_and_held_still():
+    """plan.pose_clock_plan: two rows, not simulated (the target tumbling twice as fast,
+    and held still on a surveyed pose), and plan.yaml the faster tumble as a scenario;
+    the verdict points at it."""
+    import yaml
+    from pathlib import Path
+    from lidar_sim_ros.compare.diagnose import plan
+    from lidar_sim_ros.compare.report.verdict import clock_off_footing_words
+    rec = plan.Recording('this recording', 'as recorded', (10.0, 0.0, 0.0),
+                         (0.0, 0.0, 0.0, 1.0), 0.0, (0.0, 0.0, 1.0), 6.0, 5, 0.1)
+    rows, text = plan.pose_clock_plan(rec, 7, Path('/m.obj'), Path('/s.yaml'),
+                                      Path('/mat.yaml'), [])
+    assert [r['simulated'] for r in rows] == [False, False]
+    assert set(rows[0]['ways']) == {'pose_error', 'time_offset'}
+    assert rows[0]['motion']['tumble_rate_dps'] == 12.0
+    assert rows[1]['motion']['tumble_rate_dps'] == 0.0
+    body = yaml.safe_load(text)
+    assert body['motion']['tumble_rate_dps'] == 12.0 and body['seed'] == 7
+    assert '--effect time_offset --fit' in text
+    assert '(plan.yaml)' in clock_off_footing_words(_on(False, False).as_dict(), '', True)

@@ -749,7 +749,7 @@ def rolling_rows_words(rows: dict, pose_part: str, held: str, clock) -> str:
             'time_offset --fit models the mean delay.')
 
 
-def clock_off_footing_words(on: dict, held: str) -> str:
+def clock_off_footing_words(on: dict, held: str, plan: bool = False) -> str:
     """The tie of a clock offset with a pose drifting within the cloud, the clock not
     shown on the rays the pose is tested on (``clock_footing.ClockFooting.as_dict``)."""
     if on.get('clock_passes'):
@@ -768,7 +768,8 @@ def clock_off_footing_words(on: dict, held: str) -> str:
             'recording; none is named. A recording in which the target turns at another '
             'rate (a clock offset moves it by its motion over the offset; a tracking '
             'system\'s drift need not follow the motion), or a static target on a surveyed '
-            'pose (no tracking system), would separate them; if the tracking system is known '
+            'pose (no tracking system), would separate them' + (' (plan.yaml)' if plan else '')
+            + '; if the tracking system is known '
             'to be right, try --effect time_offset --fit, else --effect pose_error --fit.')
 
 
@@ -792,7 +793,8 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
     if other == ['time_offset'] and rows.get('significant'):
         return rolling_rows_words(rows, pose_part, held, c)
     if other == ['time_offset'] and pose is None and footings.get('pose_footing'):
-        return clock_off_footing_words(footings['pose_footing'], held)
+        return clock_off_footing_words(footings['pose_footing'], held,
+                                       bool(summary.get('separation_plan')))
     if other == ['time_offset'] and footings.get('fitted_margin') is not None \
             and summary.get('point_times') not in ('stamp', 'scan pattern'):
         return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
