@@ -793,8 +793,9 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
     if other == ['time_offset'] and rows.get('significant'):
         return rolling_rows_words(rows, pose_part, held, c)
     if other == ['time_offset'] and pose is None and footings.get('pose_footing'):
-        return clock_off_footing_words(footings['pose_footing'], held,
-                                       bool(summary.get('separation_plan')))
+        return clock_off_footing_words(
+            footings['pose_footing'], f' ({c.name}: held-out gain {c.score:.4f} nats/point, '
+            f'z = {c.z:.1f}, on every matched point)', bool(summary.get('separation_plan')))
     if other == ['time_offset'] and footings.get('fitted_margin') is not None \
             and summary.get('point_times') not in ('stamp', 'scan pattern'):
         return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
