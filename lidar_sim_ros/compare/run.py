@@ -1070,13 +1070,16 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             diag.finalize(c)      # what a run with --effect NAME --fit would show
         if c.significant and np.isfinite(c.nll_after):
             c.false_returns = diag.false_return_budget(c)
-    # A named clock against the pose on the pose test's own rays (``clock_footing``).
-    decision = diag.clock_off_footing(decision, cands, lambda clock: (
+    # A named clock against the pose drifting within the cloud, on the pose test's own
+    # rays (``clock_footing``): where the points carry their own times, so that a drift
+    # within the cloud is a hypothesis of its own. Without them the clock and a rigid pose
+    # per cloud are weighed by ``clock_tie`` and ``rows_under_clock``.
+    decision = diag.clock_off_footing(decision, cands, (lambda clock: (
         clock_footing.clock_on_pose_footing(
             tested_data, meas.cloud[tested.matched], meas.t_s[tested.matched],
             sample.blocks[tested.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN,
-            row_clock.clock_column_m(tested_data, clock), seed,
-            rate=has_point_times(meas))))
+            row_clock.clock_column_m(tested_data, clock), seed, rate=True)))
+        if has_point_times(meas) else None)
     decision = diag.clock_tie(decision, cands, meas.time_source == 'stamp')
     stamp = _stamp_place(diag, decision, cands, meas, scenario)
     decision = sunlit_decision(decision, sunlight)
