@@ -2364,7 +2364,9 @@ class Diagnosis:
         """A named clock offset (``time_offset``) with the reference pose not reported,
         weighed against the per-cloud pose on the pose test's own rays and halves
         (``footing_test(effect)``: ``clock_footing.clock_on_pose_footing`` with the
-        clock's effect; its figures on the clock's ``against_pose['pose_footing']``).
+        clock's effect; its figures on the clock's ``against_pose['pose_footing']``;
+        None where the points carry no time within their cloud: no drift within it to
+        weigh, the clock against a rigid pose is ``clock_tie``'s and ``rows_under_clock``'s).
         Where the clock does not pass the rule there, or the pose passes on top of it
         there, its gain lies on rays the pose test cannot weigh (grazing, beyond five
         sigma) or the pose does as well: a clock offset and a pose drifting within the
