@@ -118,7 +118,8 @@ def test_a_named_clock_not_shown_on_the_pose_tests_rays_is_a_tie_with_the_pose()
     nats/point, z 0.1, on the pose test's): the tie [pose_error, time_offset], none
     named, the footing's figures on the clock. The pose passing on top of the clock
     there is a tie too. A clock that stands, a pose already reported, a tie already
-    said or another effect named are left as they were."""
+    said, another effect named or no footing test (points without times) are left as
+    they were."""
     judge = _Judge()
     named = diagnosis.Decision('time_offset', [])
     for passes, pose_over in ((False, False), (True, True)):
@@ -136,6 +137,8 @@ def test_a_named_clock_not_shown_on_the_pose_tests_rays_is_a_tie_with_the_pose()
         assert settled.missing is None and settled.confounded_with == out.confounded_with
     clock = _clock()
     assert judge.clock_off_footing(named, [clock], lambda e: _on(True, False)) is named
+    # Not asked where the points carry no time within their cloud (``run.diagnose``).
+    assert judge.clock_off_footing(named, [clock], None) is named
     for other in (diagnosis.Decision('time_offset', [], pose=object()),
                   diagnosis.Decision(None, ['pose_error', 'time_offset']),
                   diagnosis.Decision('range_walk', [])):
