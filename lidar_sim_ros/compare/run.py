@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import norm
 
-from lidar_sim_ros.compare.diagnose import (diagnosis, features, laser_gains,
+from lidar_sim_ros.compare.diagnose import (clock_footing, diagnosis, features, laser_gains,
                                             plan as sep_plan, pose_error, range_alone,
                                             region_offset, row_clock, stamp_place)
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
@@ -501,6 +501,8 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     rival = pose_rival(diag)
     if rival and opts.plan:
         plan = pose_range_plan(opts, inp, cal, effects, rival)
+    elif pose_clock_tie(diag) and opts.plan:
+        plan = pose_clock_plan(opts, inp, effects)
     elif tied and opts.plan:
         with stage('plan', ' against '.join(c.name for c in tied)):
             try:
@@ -527,6 +529,31 @@ def pose_rival(diag: Diagnosed) -> str | None:
         return None
     return next((n for n in tie if n in (*diagnosis.POSE_RIVALS, diagnosis.RANGE_OF_RANGE)),
                 None)
+
+
+def pose_clock_tie(diag: Diagnosed) -> bool:
+    """The tie of a clock offset with a pose drifting within the cloud, the pose not
+    reported (``Diagnosis.clock_off_footing``)."""
+    return (diag.decision.confounded_with == [diagnosis.POSE_ERROR, 'time_offset']
+            and diag.decision.pose is None)
+
+
+def pose_clock_plan(opts: CompareOptions, inp: Inputs, effects: list[Effect]) -> Plan:
+    """The recordings that separate a clock offset from a pose drifting within the cloud
+    (``plan.pose_clock_plan``): the target tumbling faster, and static on a surveyed
+    pose."""
+    meas, scenario = inp.meas, inp.scenario
+    stamps = meas.cloud_stamps_s
+    recorded = sep_plan.recorded_motion(meas.poses, float(stamps.min()),
+                                        float(stamps.max()) + frame_period_s(meas, scenario),
+                                        scenario.sensor.frame_period_s,
+                                        getattr(meas.poses, 't_s', None))
+    base_dir = scenario.source.parent if scenario.source else config_path('.')
+    rows, text = sep_plan.pose_clock_plan(recorded, scenario.seed, Path(opts.mesh).resolve(),
+                                          resolve(scenario.config.sensor, base_dir),
+                                          resolve(scenario.config.materials, base_dir),
+                                          effects)
+    return Plan(rows, [diagnosis.POSE_ERROR, 'time_offset'], text)
 
 
 def pose_range_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated,
@@ -1043,6 +1070,16 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             diag.finalize(c)      # what a run with --effect NAME --fit would show
         if c.significant and np.isfinite(c.nll_after):
             c.false_returns = diag.false_return_budget(c)
+    # A named clock against the pose drifting within the cloud, on the pose test's own
+    # rays (``clock_footing``): where the points carry their own times, so that a drift
+    # within the cloud is a hypothesis of its own. Without them the clock and a rigid pose
+    # per cloud are weighed by ``clock_tie`` and ``rows_under_clock``.
+    decision = diag.clock_off_footing(decision, cands, (lambda clock: (
+        clock_footing.clock_on_pose_footing(
+            tested_data, meas.cloud[tested.matched], meas.t_s[tested.matched],
+            sample.blocks[tested.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN,
+            row_clock.clock_column_m(tested_data, clock), seed, rate=True)))
+        if has_point_times(meas) else None)
     decision = diag.clock_tie(decision, cands, meas.time_source == 'stamp')
     stamp = _stamp_place(diag, decision, cands, meas, scenario)
     decision = sunlit_decision(decision, sunlight)

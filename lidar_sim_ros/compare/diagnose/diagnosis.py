@@ -2359,6 +2359,35 @@ class Diagnosis:
             return Decision(None, [POSE_ERROR, r.name], pose=alone, withheld=withheld)
         return decision
 
+    def clock_off_footing(self, decision: Decision, cands: list[Candidate],
+                          footing_test) -> Decision:
+        """A named clock offset (``time_offset``) with the reference pose not reported,
+        weighed against the per-cloud pose on the pose test's own rays and halves
+        (``footing_test(effect)``: ``clock_footing.clock_on_pose_footing`` with the
+        clock's effect; its figures on the clock's ``against_pose['pose_footing']``;
+        None where the points carry no time within their cloud: no drift within it to
+        weigh, the clock against a rigid pose is ``clock_tie``'s and ``rows_under_clock``'s).
+        Where the clock does not pass the rule there, or the pose passes on top of it
+        there, its gain lies on rays the pose test cannot weigh (grazing, beyond five
+        sigma) or the pose does as well: a clock offset and a pose drifting within the
+        cloud move a rigid target alike, so the two are a tie (``confounded_with``:
+        pose_error and time_offset), not the clock."""
+        if (decision.missing != beside.CLOCK or decision.pose is not None
+                or decision.confounded_with or footing_test is None):
+            return decision
+        clock = next((c for c in cands if c.name == beside.CLOCK), None)
+        if clock is None or clock.effect is None or not self.nameable(clock):
+            return decision
+        try:
+            on = footing_test(clock.effect)
+        except Exception:  # noqa: BLE001 - not weighed: the decision stands
+            return decision
+        clock.against_pose = {**(clock.against_pose or {}), 'pose_footing': on.as_dict()}
+        if on.stands:
+            return decision
+        return Decision(None, [POSE_ERROR, beside.CLOCK], also=decision.also,
+                        withheld=dict(decision.withheld))
+
     def clock_tie(self, decision: Decision, cands: list[Candidate],
                   no_point_times: bool) -> Decision:
         """Clouds without usable point times, the reference pose reported off and a

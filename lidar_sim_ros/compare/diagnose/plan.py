@@ -448,3 +448,43 @@ def pose_range_plan(rec: Recording, rival: str, scenario_seed: int, mesh: Path, 
             **near.scenario_keys(), 'effects': [_entry(e) for e in base]}
     return rows, '\n'.join(head) + '\n' + yaml.safe_dump(body, sort_keys=False,
                                                          default_flow_style=None)
+
+
+def pose_clock_plan(rec: Recording, scenario_seed: int, mesh: Path, sensor: Path,
+                    materials: Path, base: list[Effect]) -> tuple[list[dict], str]:
+    """The separation plan of a reference pose drifting within each cloud tied with a
+    clock offset (``clock_footing``): summary rows (not simulated: a reference pose error
+    is no sensor effect the simulator flies) and plan.yaml, the same recording with the
+    target tumbling TUMBLE_FACTOR x as fast. A clock offset moves the target by its
+    motion over the offset, so its displacement grows with the tumble rate; a tracking
+    system's drift need not. A static target on a surveyed pose, in the header: neither
+    moves it there, so any residual left is neither."""
+    fast = replace(rec, label=f'{TUMBLE_FACTOR:g}x the tumble rate',
+                   what=f'the target tumbling {TUMBLE_FACTOR:g} x as fast '
+                        f'({TUMBLE_FACTOR * rec.tumble_rate_dps:.2g} deg/s)',
+                   tumble_rate_dps=TUMBLE_FACTOR * rec.tumble_rate_dps)
+    still = replace(rec, label='static, surveyed', what='the target held still on a surveyed '
+                    'pose (no tumble, no tracking system between it and the truth)',
+                    approach_speed_mps=0.0, tumble_rate_dps=0.0)
+    rows = [{'recording': r.label, 'what': r.what, 'distance_m': round(r.distance_m, 3),
+             'frames': r.frames, 'duration_s': round(r.duration_s, 3), 'points': 0,
+             'margin': None, 'z': None, 'separates': None, 'simulated': False,
+             'ways': {diagnosis.POSE_ERROR: {'margin': None, 'z': None},
+                      'time_offset': {'margin': None, 'z': None}},
+             **r.scenario_keys()} for r in (fast, still)]
+    head = [
+        '# Separation plan written by lidar-sim compare: the recordings that tell a clock',
+        '# offset between the pose and LiDAR stamps from a reference pose drifting within',
+        '# each cloud; they explained the recording compared equally well.',
+        f'#   1. {fast.what} (this scenario): a clock offset moves the target by its',
+        f'#      motion over the offset, {TUMBLE_FACTOR:g} x as far here; a tracking',
+        '#      system\'s drift need not follow the motion.',
+        f'#   2. {still.what}: a residual left there is neither.',
+        '# Then compare each with --effect time_offset --fit and with --effect pose_error --fit.',
+        f'#   lidar-sim simulate plan.yaml --frames {fast.frames} --out DIR',
+    ]
+    body = {'seed': int(scenario_seed), 'mesh': str(mesh), 'sensor': str(sensor),
+            'materials': str(materials), 'frame_id': 'lidar',
+            **fast.scenario_keys(), 'effects': [_entry(e) for e in base]}
+    return rows, '\n'.join(head) + '\n' + yaml.safe_dump(body, sort_keys=False,
+                                                         default_flow_style=None)

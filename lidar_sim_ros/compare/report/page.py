@@ -404,7 +404,16 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
                   f'z = {pose["z"]:.1f}). A reference error (tracking system, extrinsic '
                   'calibration), not a sensor effect.</p>',
                   _img(figs['pose'], 'reference pose correction per cloud')]
-    if s.get('separation_plan') and s['separation_plan'][0].get('simulated') is False:
+    if (s.get('separation_plan') and s['separation_plan'][0].get('simulated') is False
+            and 'time_offset' in s['separation_plan'][0].get('ways', {})):
+        parts += ['<h2>Which recording would separate the tie</h2>',
+                  '<p>The reference pose drifting within each cloud against a clock offset: '
+                  'not simulated (a reference pose error is no sensor effect the simulator '
+                  'flies). The target tumbling faster (a clock offset moves it by its motion '
+                  'over the offset, a tracking system\'s drift need not follow the motion), '
+                  'and held still on a surveyed pose. The first is written as plan.yaml.</p>',
+                  plan_table(s['separation_plan'])]
+    elif s.get('separation_plan') and s['separation_plan'][0].get('simulated') is False:
         parts += ['<h2>Which recording would separate the tie</h2>',
                   '<p>The reference pose against a range error of the sensor: not simulated (a '
                   'reference pose error is no sensor effect the simulator flies). The target '

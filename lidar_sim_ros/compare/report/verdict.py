@@ -749,6 +749,30 @@ def rolling_rows_words(rows: dict, pose_part: str, held: str, clock) -> str:
             'time_offset --fit models the mean delay.')
 
 
+def clock_off_footing_words(on: dict, held: str, plan: bool = False) -> str:
+    """The tie of a clock offset with a pose drifting within the cloud, the clock not
+    shown on the rays the pose is tested on (``clock_footing.ClockFooting.as_dict``)."""
+    if on.get('clock_passes'):
+        there = (f'the per-cloud pose gains {on["pose_over_clock_gain"]:.4f} nats/point on '
+                 f'top of it there (z = {on["pose_over_clock_z"]:.1f})')
+    else:
+        there = ('it does not pass the rule there, and a rigid correction per cloud'
+                 + (' with its drift over the cloud' if on.get('rate') else '')
+                 + f' gains {on["pose_gain"]:.4f} (z = {on["pose_z"]:.1f})')
+    return ('A clock offset between the pose and LiDAR stamps, or the reference pose '
+            f'drifting within each cloud: a clock offset explains the residual{held}, but on '
+            f'the rays the reference pose is tested on ({on["rays"]} not grazing, within '
+            f'five sigma) it gains {on["clock_gain"]:.4f} nats/point held out (z = '
+            f'{on["clock_z"]:.1f}) and {there}. On a rigid target the two move every point '
+            'by its velocity times a time, so which of them it is cannot be told from this '
+            'recording; none is named. A recording in which the target turns at another '
+            'rate (a clock offset moves it by its motion over the offset; a tracking '
+            'system\'s drift need not follow the motion), or a static target on a surveyed '
+            'pose (no tracking system), would separate them' + (' (plan.yaml)' if plan else '')
+            + '; if the tracking system is known '
+            'to be right, try --effect time_offset --fit, else --effect pose_error --fit.')
+
+
 def pose_tie_words(decision, summary: dict, cands: list) -> str:
     """The verdict when the reference pose and a candidate explain the data equally
     (``confounded_with`` holds ``pose_error`` and the candidate)."""
@@ -768,6 +792,10 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
     rows = footings.get('row_time') or {}
     if other == ['time_offset'] and rows.get('significant'):
         return rolling_rows_words(rows, pose_part, held, c)
+    if other == ['time_offset'] and pose is None and footings.get('pose_footing'):
+        return clock_off_footing_words(
+            footings['pose_footing'], f' ({c.name}: held-out gain {c.score:.4f} nats/point, '
+            f'z = {c.z:.1f}, on every matched point)', bool(summary.get('separation_plan')))
     if other == ['time_offset'] and footings.get('fitted_margin') is not None \
             and summary.get('point_times') not in ('stamp', 'scan pattern'):
         return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
