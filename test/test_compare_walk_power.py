@@ -108,3 +108,33 @@ def test_the_range_alone_test_reads_the_power_the_named_walk_reads(monkeypatch, 
     walk = make_effect('range_walk', {'k_m': 0.02, 'power': power})
     run.named_range_alone('range_walk', walk, data, np.zeros(4, int), 3.0, 0)
     np.testing.assert_allclose(seen['power_w'], p_model * (4.0 if power == 'measured' else 1.0))
+
+
+def _lasers_beside_walk(power: str) -> dict | None:
+    """``run.laser_intensity`` where laser_bias is named beside a walk in the model that
+    reads ``power``: four lasers whose measured power is off the model's by a per-laser
+    gain, the offsets k times its log: what the lasers take back of a walk that reads
+    the measured power."""
+    from types import SimpleNamespace
+
+    from lidar_sim_ros.compare import run
+    n, k = 4000, K_M
+    laser = np.arange(n) % 4
+    gain = np.array([-0.4, -0.1, 0.2, 0.5])
+    p_model = np.full(n, 3e-5)
+    rays = dg.RaySet(SimpleNamespace(laser=laser), np.arange(n), np.zeros(0, int),
+                     measured_power_w=p_model * np.exp(gain[laser]))
+    pred = SimpleNamespace(ctx=SimpleNamespace(power_w=p_model))
+    walk = make_effect('range_walk', {'k_m': k, 'power': power})
+    lasers = dg.Candidate('laser_bias', score=0.1, z=20.0, significant=True, practical=True,
+                          params={f'laser_{i}_m': float(k * g) for i, g in enumerate(gain)})
+    return run.laser_intensity(dg.Decision('laser_bias', []), [lasers], [walk], rays, pred, 3.0)
+
+
+def test_the_lasers_intensity_tie_is_read_only_through_a_walk_on_the_measured_power():
+    """Per-laser offsets equal to k times each laser's log intensity gain are what a walk
+    on the measured power makes of gains (summary.json's laser_intensity says so); a walk
+    on the model's power reads no laser's intensity, so there is nothing to tie."""
+    tie = _lasers_beside_walk('measured')
+    assert tie is not None and tie['ties'], tie
+    assert _lasers_beside_walk('model') is None

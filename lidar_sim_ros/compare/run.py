@@ -1451,17 +1451,14 @@ def laser_intensity(decision: diagnosis.Decision, cands: list, effects: list[Eff
     tog = (named.together or {}) if named is not None else {}
     both = {decision.missing, tog.get('with')} == {RANGE_WALK, LASER_BIAS}
     if walk is not None:
-        k = float(walk.params.k_m)
+        k, power = float(walk.params.k_m), walk.params.power
     elif both:
-        k = (tog.get('params') if decision.missing == RANGE_WALK
-             else tog.get('with_params') or {}).get('k_m')
+        fitted = (tog.get('params') if decision.missing == RANGE_WALK
+                  else tog.get('with_params')) or {}
+        k, power = fitted.get('k_m'), fitted.get('power', 'measured')
     else:
         return None
-    if lasers is None or k is None:
-        return None
-    if (walk.params.power if walk is not None
-            else (tog.get('params') if decision.missing == RANGE_WALK
-                  else tog.get('with_params') or {}).get('power', 'measured')) == 'model':
+    if lasers is None or k is None or power == 'model':
         return None     # a walk on the model's power reads no laser's intensity gain
     offsets = (tog.get('offsets_m') or {}).get(LASER_BIAS) if both else None
     if offsets is None:
