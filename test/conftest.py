@@ -165,11 +165,37 @@ def sensor(scan: dict | None = None, **det) -> SensorConfig:
     return parse(SensorConfig, data, '<test>')
 
 
+def ahead_fit_data(material, p_model_w, measured_m, sigma_m: float, threshold_power_w: float):
+    """A ``FitData`` of matched points 10 m ahead along +x (no raycast, normal
+    incidence): on ``material``, the model's power ``p_model_w`` (W, the intensity the
+    same), measured ``measured_m`` (m), range noise ``sigma_m`` (m)."""
+    from lidar_sim_ros.compare.model import likelihood as lk
+    from lidar_sim_ros.core.effects.base import ReturnContext
+    from lidar_sim_ros.core.geometry import Hits
+    from lidar_sim_ros.core.pipeline import Prediction
+    material = np.asarray(material, int)
+    n = len(material)
+    rng_m = np.full(n, 10.0)
+    ctx = ReturnContext(range_m=rng_m, incidence_rad=np.zeros(n), material=material,
+                        power_w=p_model_w, intensity=p_model_w, t_s=np.zeros(n),
+                        az_rad=np.zeros(n), el_rad=np.zeros(n), laser=np.zeros(n, int),
+                        divergence_rad=0.002, hit=np.ones(n, bool),
+                        threshold_power_w=threshold_power_w)
+    hits = Hits(np.ones(n, bool), rng_m, np.zeros((n, 3)), np.zeros(n), material,
+                np.zeros(n, int))
+    pred = Prediction(ctx, hits, np.tile([1.0, 0.0, 0.0], (n, 1)), np.zeros(n),
+                      np.full(n, sigma_m))
+    return lk.FitData(measured_range_m=measured_m, baseline=pred, cast=lambda e: pred,
+                      unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
+                      range_window_m=(0.0, 100.0))
+
+
 def plane_fit_data(expected_m, measured_m, normal, u, t_s, sigma_m: float,
-                   range_window_m: tuple[float, float]):
+                   range_window_m: tuple[float, float], az_rad=None, el_rad=None):
     """A ``FitData`` builder over the rays ``idx`` of a closed-form scene (no raycast):
     each ray ``u`` expects ``expected_m`` on a surface of ``normal`` (material 0, normal
-    incidence, one power), measured ``measured_m`` at ``t_s``, sigma ``sigma_m``."""
+    incidence, one power), measured ``measured_m`` at ``t_s``, sigma ``sigma_m``; the
+    rays' azimuth and elevation (rad) where given, else 0."""
     from lidar_sim_ros.compare.model import likelihood as lk
     from lidar_sim_ros.core.effects.base import ReturnContext
     from lidar_sim_ros.core.geometry import Hits
@@ -179,8 +205,10 @@ def plane_fit_data(expected_m, measured_m, normal, u, t_s, sigma_m: float,
         m = len(idx)
         one, zero = np.ones(m), np.zeros(m, int)
         ctx = ReturnContext(range_m=expected_m[idx], incidence_rad=0 * one, material=zero,
-                            power_w=1e-6 * one, intensity=one, t_s=t_s[idx], az_rad=0 * one,
-                            el_rad=0 * one, laser=zero, divergence_rad=1e-3,
+                            power_w=1e-6 * one, intensity=one, t_s=t_s[idx],
+                            az_rad=0 * one if az_rad is None else az_rad[idx],
+                            el_rad=0 * one if el_rad is None else el_rad[idx],
+                            laser=zero, divergence_rad=1e-3,
                             hit=np.ones(m, bool), threshold_power_w=1e-9, direction=u[idx],
                             normal=-normal[idx])
         hits = Hits(np.ones(m, bool), expected_m[idx], -normal[idx], 0 * one, zero, zero, None,
@@ -192,15 +220,32 @@ def plane_fit_data(expected_m, measured_m, normal, u, t_s, sigma_m: float,
     return data
 
 
-def three_plane_rays(rng: np.random.Generator, n_clouds: int, per_cloud: int):
-    """Rays over three tilted planes, 12 x 8 deg across, in ``n_clouds`` clouds of 0.1 s:
-    (cloud index, time s, unit direction, the plane's normal) per ray, drawn from ``rng``."""
-    n = n_clouds * per_cloud
+def three_planes(rng: np.random.Generator, n: int):
+    """``n`` rays over three tilted planes, 12 x 8 deg across, through one point 10 m
+    ahead: azimuth and elevation (rad), unit direction and the plane's unit normal per
+    ray, and that point (m), drawn from ``rng``."""
     az, el = rng.uniform(-0.1, 0.1, n), rng.uniform(-0.07, 0.07, n)
-    cloud = np.repeat(np.arange(n_clouds), per_cloud)
-    t = cloud * 0.1 + rng.uniform(0.0, 0.09, n)
     u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     normals = np.array([[-0.8, -0.5, 0.33], [-0.9, 0.1, -0.42], [-0.75, 0.6, 0.28]])
     normal = (normals / np.linalg.norm(normals, axis=1, keepdims=True))[
         np.digitize(az, [-0.033, 0.033])]
+    return az, el, u, normal, np.array([10.0, 0.0, 0.0])
+
+
+def turned_plane_ranges(normal, u, centre, rotvec_rad):
+    """Range (m) along each ray ``u`` to its plane (``normal``, through ``centre``) turned
+    by ``rotvec_rad`` (rad; one per ray) about ``centre``."""
+    from scipy.spatial.transform import Rotation
+    n_rot = Rotation.from_rotvec(rotvec_rad).apply(normal)
+    return np.einsum('ij,ij->i', n_rot, np.tile(centre, (len(u), 1))) / np.einsum(
+        'ij,ij->i', u, n_rot)
+
+
+def three_plane_rays(rng: np.random.Generator, n_clouds: int, per_cloud: int):
+    """Rays over three tilted planes (``three_planes``) in ``n_clouds`` clouds of 0.1 s:
+    (cloud index, time s, unit direction, the plane's normal) per ray, drawn from ``rng``."""
+    n = n_clouds * per_cloud
+    _, _, u, normal, _ = three_planes(rng, n)
+    cloud = np.repeat(np.arange(n_clouds), per_cloud)
+    t = cloud * 0.1 + rng.uniform(0.0, 0.09, n)
     return cloud, t, u, normal

@@ -2,7 +2,7 @@
 reference pose on the pose test's own rays, and the tie where it shows only off them
 (``Diagnosis.clock_off_footing``; the verdict's words)."""
 import numpy as np
-from scipy.spatial.transform import Rotation
+from conftest import plane_fit_data, three_planes, turned_plane_ranges
 
 from lidar_sim_ros.compare.diagnose import clock_footing, diagnosis
 
@@ -20,44 +20,23 @@ def _planes(kind: str, seed: int = 0, n: int = 12_000):
     axis by its end: a tracking system's lag) or 'none'. Returns the FitData, each
     point's cloud and time, and the range change a 60 ms clock makes at each point (the
     column of the clock a fit names)."""
-    from lidar_sim_ros.compare.model import likelihood as lk
-    from lidar_sim_ros.core.effects.base import ReturnContext
-    from lidar_sim_ros.core.geometry import Hits
-    from lidar_sim_ros.core.pipeline import Prediction
     rng = np.random.default_rng(seed)
-    az, el = rng.uniform(-0.1, 0.1, n), rng.uniform(-0.07, 0.07, n)
-    u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    normals = np.array([[-0.8, -0.5, 0.33], [-0.9, 0.1, -0.42], [-0.75, 0.6, 0.28]])
-    normal = (normals / np.linalg.norm(normals, axis=1, keepdims=True))[
-        np.digitize(az, [-0.033, 0.033])]
-    centre = np.array([10.0, 0.0, 0.0])
+    az, el, u, normal, centre = three_planes(rng, n)
     cloud = np.sort(rng.integers(0, CLOUDS, n))
     t_s = cloud * 0.5 + rng.uniform(0.0, SCAN_S, n)
 
-    def ranges(rotvec_rad):
-        n_rot = Rotation.from_rotvec(rotvec_rad).apply(normal)
-        return np.einsum('ij,ij->i', n_rot, np.tile(centre, (n, 1))) / np.einsum(
-            'ij,ij->i', u, n_rot)
-
     def turned(t):
         return np.outer(np.radians(RATE_DPS) * t, [0.0, 0.0, 1.0])
-    expected = ranges(turned(t_s))
-    clock = ranges(turned(t_s + 0.06)) - expected
+    expected = turned_plane_ranges(normal, u, centre, turned(t_s))
+    clock = turned_plane_ranges(normal, u, centre, turned(t_s + 0.06)) - expected
     w = np.radians(0.5) * rng.standard_normal((CLOUDS, 3))
     drift = w[cloud] * ((t_s - cloud * 0.5) / SCAN_S)[:, None]
-    truth = {'clock': expected + clock, 'drift': ranges(turned(t_s) + drift),
+    truth = {'clock': expected + clock,
+             'drift': turned_plane_ranges(normal, u, centre, turned(t_s) + drift),
              'none': expected}[kind]
     measured = truth + SIGMA_M * rng.standard_normal(n)
-    one, zero = np.ones(n), np.zeros(n, int)
-    ctx = ReturnContext(range_m=expected, incidence_rad=0 * one, material=zero,
-                        power_w=1e-6 * one, intensity=one, t_s=t_s, az_rad=az,
-                        el_rad=el, laser=zero, divergence_rad=1e-3, hit=np.ones(n, bool),
-                        threshold_power_w=1e-9, direction=u, normal=-normal)
-    hits = Hits(np.ones(n, bool), expected, -normal, 0 * one, zero, zero, None, one)
-    pred = Prediction(ctx, hits, u, 0 * one, SIGMA_M * one)
-    data = lk.FitData(measured_range_m=measured, baseline=pred, cast=lambda e: pred,
-                      unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
-                      range_window_m=(5.0, 15.0))
+    data = plane_fit_data(expected, measured, normal, u, t_s, SIGMA_M, (5.0, 15.0),
+                          az, el)(np.arange(n))
     return data, cloud, t_s, clock
 
 

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import ahead_fit_data
 
 from lidar_sim_ros.compare.model.fit import fit_effect
 from lidar_sim_ros.compare.recording.intensity import calibrate_intensity
 from lidar_sim_ros.compare.model.likelihood import FitData
-from lidar_sim_ros.core.effects import ReturnContext, get_effect_class
-from lidar_sim_ros.core.geometry import Hits
-from lidar_sim_ros.core.pipeline import Prediction
+from lidar_sim_ros.core.effects import get_effect_class
 
 P_TH = 1e-7
 
@@ -54,18 +53,7 @@ def _fit_data(material: np.ndarray, p_model: np.ndarray, measured: np.ndarray,
               sigma: float) -> FitData:
     """Matched points at 10 m along +x with the model's power ``p_model`` (W) and the
     measured ranges ``measured`` (m), range noise ``sigma`` (m)."""
-    n = len(material)
-    rng_m = np.full(n, 10.0)
-    ctx = ReturnContext(range_m=rng_m, incidence_rad=np.zeros(n), material=material,
-                        power_w=p_model, intensity=p_model, t_s=np.zeros(n),
-                        az_rad=np.zeros(n), el_rad=np.zeros(n), laser=np.zeros(n, int),
-                        divergence_rad=0.002, hit=np.ones(n, bool), threshold_power_w=P_TH)
-    hits = Hits(np.ones(n, bool), rng_m, np.zeros((n, 3)), np.zeros(n), material,
-                np.zeros(n, int))
-    pred = Prediction(ctx, hits, np.tile([1.0, 0, 0], (n, 1)), np.zeros(n), np.full(n, sigma))
-    return FitData(measured_range_m=measured, baseline=pred, cast=lambda e: pred,
-                   unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
-                   range_window_m=(0.0, 100.0))
+    return ahead_fit_data(material, p_model, measured, sigma, P_TH)
 
 
 def _walk_data(k_m: float, seed: int = 4) -> tuple[FitData, np.ndarray]:

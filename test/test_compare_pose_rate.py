@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from conftest import three_planes
 
 from lidar_sim_ros.compare.model import likelihood as lk
 from lidar_sim_ros.compare.diagnose import pose_error, scan_clock
@@ -22,15 +23,10 @@ def _planes(n: int, seed: int):
     azimuth), and each ray's time within one of four 0.1 s clouds (the scan sweeps
     elevation with time, as a raster does)."""
     rng = np.random.default_rng(seed)
-    az = rng.uniform(-0.1, 0.1, n)
-    el = rng.uniform(-0.07, 0.07, n)
+    _, el, u, normal, centre = three_planes(rng, n)
     cloud = rng.integers(0, 4, n)
     t = cloud * 0.1 + (el + 0.07) / 0.14 * 0.09
-    u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    part = np.digitize(az, [-0.033, 0.033])
-    normals = np.array([[-0.8, -0.5, 0.33], [-0.9, 0.1, -0.42], [-0.75, 0.6, 0.28]])
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    return u, normals[part], np.array([10.0, 0.0, 0.0]), cloud, t, rng
+    return u, normal, centre, cloud, t, rng
 
 
 def _range(origin, normal, u):

@@ -2,7 +2,7 @@
 recorded as a global exposure) against a clock offset, a rigid pose error and a range
 bias per row."""
 import numpy as np
-from scipy.spatial.transform import Rotation
+from conftest import plane_fit_data, three_planes, turned_plane_ranges
 
 from lidar_sim_ros.compare.diagnose import diagnosis, row_clock
 
@@ -23,25 +23,12 @@ def _flash(kind: str, seed: int = 0, n: int = 12_000):
     column and the closed-form gain of the clock's growth over the rows on top of the
     clock (least squares of the noise-free residual on each model's columns and an
     offset, the mean square it removes over 2 sigma^2, nats per point)."""
-    from lidar_sim_ros.compare.model import likelihood as lk
-    from lidar_sim_ros.core.effects.base import ReturnContext
-    from lidar_sim_ros.core.geometry import Hits
-    from lidar_sim_ros.core.pipeline import Prediction
     rng = np.random.default_rng(seed)
-    az, el = rng.uniform(-0.1, 0.1, n), rng.uniform(-0.07, 0.07, n)
-    u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    normals = np.array([[-0.8, -0.5, 0.33], [-0.9, 0.1, -0.42], [-0.75, 0.6, 0.28]])
-    normal = (normals / np.linalg.norm(normals, axis=1, keepdims=True))[
-        np.digitize(az, [-0.033, 0.033])]
-    centre = np.array([10.0, 0.0, 0.0])
-
-    def ranges(rotvec_rad):
-        n_rot = Rotation.from_rotvec(rotvec_rad).apply(normal)
-        return np.einsum('ij,ij->i', n_rot, np.tile(centre, (n, 1))) / np.einsum(
-            'ij,ij->i', u, n_rot)
+    az, el, u, normal, centre = three_planes(rng, n)
 
     def turned(t_s):
-        return ranges(np.outer(np.radians(RATE_DPS) * t_s, [0.0, 0.0, 1.0]))
+        return turned_plane_ranges(normal, u, centre,
+                                   np.outer(np.radians(RATE_DPS) * t_s, [0.0, 0.0, 1.0]))
     t_row = 0.1 * (0.07 - el) / 0.14
     expected = turned(np.zeros(n))
     clock = turned(np.full(n, 0.05)) - expected
@@ -57,16 +44,8 @@ def _flash(kind: str, seed: int = 0, n: int = 12_000):
     closed = float(np.mean(left([clock]) ** 2 - left([clock, clock * tau]) ** 2)
                    / (2 * SIGMA_M ** 2))
     measured = truth + SIGMA_M * rng.standard_normal(n)
-    one, zero = np.ones(n), np.zeros(n, int)
-    ctx = ReturnContext(range_m=expected, incidence_rad=0 * one, material=zero,
-                        power_w=1e-6 * one, intensity=one, t_s=0 * one, az_rad=az,
-                        el_rad=el, laser=zero, divergence_rad=1e-3, hit=np.ones(n, bool),
-                        threshold_power_w=1e-9, direction=u, normal=-normal)
-    hits = Hits(np.ones(n, bool), expected, -normal, 0 * one, zero, zero, None, one)
-    pred = Prediction(ctx, hits, u, 0 * one, SIGMA_M * one)
-    data = lk.FitData(measured_range_m=measured, baseline=pred, cast=lambda e: pred,
-                      unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
-                      range_window_m=(5.0, 15.0))
+    data = plane_fit_data(expected, measured, normal, u, np.zeros(n), SIGMA_M, (5.0, 15.0),
+                          az, el)(np.arange(n))
     return data, clock, closed
 
 

@@ -8,12 +8,11 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import ahead_fit_data
 
 from lidar_sim_ros.compare.diagnose import diagnosis as dg
 from lidar_sim_ros.compare.model import likelihood as lk
-from lidar_sim_ros.core.effects import ReturnContext, get_effect_class, make_effect
-from lidar_sim_ros.core.geometry import Hits
-from lidar_sim_ros.core.pipeline import Prediction
+from lidar_sim_ros.core.effects import get_effect_class, make_effect
 
 P_TH = 1e-7      # detection threshold (W)
 SIGMA = 0.01     # range noise (m)
@@ -23,20 +22,7 @@ K_M = 0.035      # the true walk (m per e-fold of power)
 def _points(p_model: np.ndarray, measured_m: np.ndarray, p_measured: np.ndarray) -> lk.FitData:
     """Matched points on two materials at 10 m: the model's power ``p_model`` (W), the
     measured ranges (m) and the power read from the measured intensity (W)."""
-    n = len(p_model)
-    material = np.arange(n) % 2
-    rng_m = np.full(n, 10.0)
-    ctx = ReturnContext(range_m=rng_m, incidence_rad=np.zeros(n), material=material,
-                        power_w=p_model, intensity=p_model, t_s=np.zeros(n),
-                        az_rad=np.zeros(n), el_rad=np.zeros(n), laser=np.zeros(n, int),
-                        divergence_rad=0.002, hit=np.ones(n, bool), threshold_power_w=P_TH)
-    hits = Hits(np.ones(n, bool), rng_m, np.zeros((n, 3)), np.zeros(n), material,
-                np.zeros(n, int))
-    pred = Prediction(ctx, hits, np.tile([1.0, 0.0, 0.0], (n, 1)), np.zeros(n),
-                      np.full(n, SIGMA))
-    data = lk.FitData(measured_range_m=measured_m, baseline=pred, cast=lambda e: pred,
-                      unmatched_range_m=np.zeros(0), cast_unmatched=lambda e: pred,
-                      range_window_m=(0.0, 100.0))
+    data = ahead_fit_data(np.arange(len(p_model)) % 2, p_model, measured_m, SIGMA, P_TH)
     return replace(data, measured_power_w=p_measured)
 
 
