@@ -89,7 +89,7 @@ from scipy.optimize import minimize_scalar
 from scipy.stats import kstest, norm
 
 from lidar_sim_ros.compare.model import likelihood as lk
-from lidar_sim_ros.compare.diagnose import beside, laser_tiles
+from lidar_sim_ros.compare.diagnose import beside, laser_tiles, standoff_part
 from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se, block_mean_z
 from lidar_sim_ros.compare.model import pointing
 from lidar_sim_ros.compare.model.fit import at_bounds, fit_effect, shift_offsets_along
@@ -474,6 +474,9 @@ class Candidate:
     # Lasers' pointing: the score of each laser's own offsets, their common turn projected
     # out (``own_part_veto``).
     own_part: dict | None = None
+    # A surface standoff beside an incidence-shaped rival: its per-material part, the
+    # common standoff's gain taken out (``standoff_part_veto``).
+    standoff_part: dict | None = None
     beside: str | None = None          # passed the tile test on top of this one (``lasers_beside``)
     beside_gain: dict | None = None    # its gain on top of the named and 'also' (``lasers_beside_named``)
     together: dict | None = None       # refitted with the 'also' effect (``fit_together``)
@@ -522,6 +525,7 @@ class Candidate:
                 **({'passes_beside': self.beside} if self.beside else {}),
                 **({'gain_beside': self.beside_gain} if self.beside_gain else {}),
                 **({'own_offsets': self.own_part} if self.own_part else {}),
+                **({'per_material_part': self.standoff_part} if self.standoff_part else {}),
                 **({'fitted_together': self.together} if self.together else {}),
                 **({'against_pose': self.against_pose} if self.against_pose else {}),
                 **({'pose_beside': self.pose_beside} if self.pose_beside else {}),
@@ -1004,6 +1008,35 @@ class Diagnosis:
                 f'projected out, gains {part.score:.4f} nats/point held out (z = '
                 f'{part.z:.1f}), which does not pass the rule')
 
+    def standoff_part_veto(self, cand: Candidate, cands: list[Candidate]) -> str | None:
+        """Why a surface standoff may not be named beside an incidence-shaped rival that
+        may (``standoff_part``: a standoff common to every material is, after the
+        materials' offsets, an incidence-shaped bias), or None: its per-material part,
+        its held-out gain over the same standoff fitted common to every material
+        (``standoff_part.CommonStandoff``, cross-fitted as the score), must pass the rule
+        (z, total and per-point gain). Figures in ``cand.standoff_part``."""
+        if (cand.effect is None or cand.heldout_nll is None or cand.error is not None
+                or standoff_part.common_part_of(cand.variant) is None
+                or not self.nameable(cand)):
+            return None
+        rival = standoff_part.rival_of(cand, cands, self.nameable)
+        if rival is None:
+            return None
+        common, _ = self.cross_fit(standoff_part.CommonStandoff, [])
+        gain, z = standoff_part.part_gain(cand.heldout_nll, common, self.blocks,
+                                          self.n_total, block_mean_se)
+        passes = self.passes_rule(gain, z)
+        cand.standoff_part = {'score': _num(gain), 'z': _num(z), 'beside': rival.name,
+                              'passes': passes}
+        if passes:
+            return None
+        return (f'beside {rival.name} only its part that differs between materials would '
+                f'show a surface standing proud (a standoff common to every surface moves '
+                f'ranges as 1 / cos(incidence), which after the materials\' offsets is an '
+                f'incidence-shaped bias): over the same standoff common to every material '
+                f'it gains {gain:.4f} nats/point held out (z = {z:.1f}), which does not '
+                f'pass the rule')
+
     def split_nll(self, variant: type[Effect], group: np.ndarray,
                   on_top: list[Effect] = ()) -> np.ndarray:
         """Held-out per-point NLL (order of ``rays.matched``) of ``variant`` fitted on each
@@ -1145,6 +1178,9 @@ class Diagnosis:
     def decide(self, cands: list[Candidate]) -> Decision:
         """The missing effect, ties and confounding (module doc), among the candidates
         that may be named at all (``naming_fault``)."""
+        for c in cands:
+            if c.vetoed is None and c.standoff_part is None:
+                c.vetoed = self.standoff_part_veto(c, cands)
         ok = [c for c in rank(cands) if self.nameable(c)]
         if not ok:
             return Decision(None, [])
@@ -1337,6 +1373,8 @@ class Diagnosis:
                 # Lasers' pointing set aside as mostly a turn of the whole sensor: that
                 # turn is the pose's (or the mount's) to explain, not a model to judge in.
                 continue
+            if c.standoff_part and not c.standoff_part.get('passes'):
+                continue    # a standoff set aside as the rival's shape: the rival's part
             key = (best.name, c.name)
             if key not in memo:
                 adds = self.adds_to(best, c)

@@ -640,7 +640,8 @@ def _fit_surface_offset(cls: type[Effect], data: FitData,
     group = _groups(data)
     names = list(getattr(getattr(data.baseline.ctx.scene, 'target', None), 'material_names', []))
     counts = np.bincount(group[group >= 0], minlength=len(names)) if len(names) else []
-    own = [names[m] for m in range(len(names)) if counts[m] >= MIN_MATERIAL_STANDOFF_POINTS]
+    own = [names[m] for m in range(len(names)) if counts[m] >= MIN_MATERIAL_STANDOFF_POINTS
+           and not getattr(cls, 'common_only', False)]   # the common part alone
     bounds = {**cls.bounds, **{m: cls.entry_bounds['material_standoff_m'] for m in own}}
 
     def columns(model: ModelOnRays, free: Sequence[str]) -> np.ndarray:
