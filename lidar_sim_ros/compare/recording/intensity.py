@@ -356,3 +356,42 @@ def _monotone_map(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     if x_hi > bx[-1]:
         bx, fy = np.append(bx, x_hi), np.append(fy, fy[-1] + hi_slope * (x_hi - bx[-1]))
     return bx, fy
+
+
+# The measured range in the intensity (``measured_range_exponent``): a range-compensated
+# reflectivity scales the intensity by the measured range squared; the exponent is taken
+# as that 2 when the fitted one is nearer 2 than 0 and this many standard errors above 0.
+RANGE_IN_INTENSITY_Z = 4.0
+COMPENSATION_EXPONENT = 2.0
+
+
+def measured_range_exponent(log_intensity: np.ndarray, log_range_ratio: np.ndarray,
+                            log_model_power: np.ndarray, log_cos: np.ndarray,
+                            material: np.ndarray) -> float:
+    """The exponent b of the measured range in the intensity, I ~ (r_meas / r_model)^b
+    at a given model power: COMPENSATION_EXPONENT (2) for a sensor that compensated its
+    intensity with the range it measured, else 0. Least squares of ln I on
+    ln(r_meas / r_model) (``log_range_ratio``, the range's own error, -), the model's ln P
+    (W), ln cos(incidence) and a constant per material; the two readings as
+    ``calibrate_intensity``'s range exponents. A walk on the power moves the range with
+    the power, which the controls hold; a walk on a speckled intensity gives a negative
+    slope, taken as 0."""
+    y = np.asarray(log_intensity, float)
+    d = np.asarray(log_range_ratio, float)
+    cols = [d, np.asarray(log_model_power, float), np.asarray(log_cos, float)]
+    ok = np.all([np.isfinite(c) for c in [y, *cols]], axis=0)
+    mats = np.unique(np.asarray(material)[ok])
+    if ok.sum() < MIN_POINTS + len(mats) + 3 or np.std(d[ok]) <= 0:
+        return 0.0
+    X = np.column_stack([c[ok] for c in cols]
+                        + [(np.asarray(material)[ok] == m).astype(float) for m in mats])
+    coef, *_ = np.linalg.lstsq(X, y[ok], rcond=None)
+    resid = y[ok] - X @ coef
+    dof = max(int(ok.sum()) - X.shape[1], 1)
+    try:
+        cov = np.linalg.inv(X.T @ X) * float(resid @ resid) / dof
+    except np.linalg.LinAlgError:
+        return 0.0
+    b, se = float(coef[0]), float(np.sqrt(max(cov[0, 0], 0.0)))
+    near_two = b > 0.5 * COMPENSATION_EXPONENT
+    return COMPENSATION_EXPONENT if near_two and b > RANGE_IN_INTENSITY_Z * se else 0.0
