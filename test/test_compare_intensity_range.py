@@ -76,7 +76,7 @@ def test_the_attribution_power_does_not_carry_the_measured_range():
     pred = SimpleNamespace(ctx=SimpleNamespace(range_m=r, power_w=p, incidence_rad=inc,
                                                material=mat))
     lsel = np.ones(len(p), bool)
-    feature = attribution_power_w(measured, cal, sub, pred, lsel)
+    feature = attribution_power_w(measured, cal, sub, pred, lsel, r_meas - r)
     res = r_meas - r
     before = abs(_partial_corr(np.log(measured), res, np.log(p), mat))
     after = abs(_partial_corr(np.log(feature), res, np.log(p), mat))
@@ -93,5 +93,6 @@ def test_the_attribution_power_is_the_measured_one_for_an_intensity_of_the_power
     sub = SimpleNamespace(intensity=inten, range_m=r_meas, cloud=cloud)
     pred = SimpleNamespace(ctx=SimpleNamespace(range_m=r, power_w=p, incidence_rad=inc,
                                                material=mat))
-    feature = attribution_power_w(measured, cal, sub, pred, np.ones(len(p), bool))
+    feature = attribution_power_w(measured, cal, sub, pred, np.ones(len(p), bool),
+                                  r_meas - r)
     assert np.array_equal(feature, measured)

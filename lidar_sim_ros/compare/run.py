@@ -880,7 +880,8 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
         # is computed with the measured range and would leak its noise to the
         # attribution (the calibration divides it out again).
         mp = attribution_power_w(cal.rays.measured_power_w[picked][lsel], calibration,
-                                 sub, sub_pred, lsel)
+                                 sub, sub_pred, lsel, cal.residual_m[picked][lsel],
+                                 sample.blocks[picked][lsel])
         values['intensity'] = np.log10(np.where(np.isfinite(mp) & (mp > 0), mp,
                                                 np.nanmin(mp[mp > 0]) if np.any(mp > 0)
                                                 else 1e-12))
@@ -897,7 +898,8 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
 
 def attribution_power_w(measured_power_w: np.ndarray, calibration: IntensityCalibration | None,
                         sub: Measurements, sub_pred: Prediction,
-                        lsel: np.ndarray) -> np.ndarray:
+                        lsel: np.ndarray, residual_m: np.ndarray,
+                        blocks: np.ndarray | None = None) -> np.ndarray:
     """The intensity feature's power (W) on the matched sample points: the measured
     intensity with the measured range taken out of it. A sensor that compensates its
     intensity for range does it with the range it measured (I ~ P r_meas^2), and the
@@ -908,13 +910,16 @@ def attribution_power_w(measured_power_w: np.ndarray, calibration: IntensityCali
     "structure" no catalogue effect can explain). Where the calibration reads the
     intensity as range-compensated, or ``measured_range_exponent`` finds it so, the
     intensity is moved to the model's range, I (r_model / r_meas)^2, and read there.
-    ``measured_power_w`` as it is otherwise (or without a calibration)."""
+    r_model is the model's expected range on the ray, r_meas - ``residual_m`` (m; its
+    bias and a reference-pose correction included, so that a corrected pose is not taken
+    for the range's error). ``measured_power_w`` as it is otherwise (or without a
+    calibration)."""
     if calibration is None or sub.intensity is None:
         return measured_power_w
     ctx = sub_pred.ctx
     inten = np.asarray(sub.intensity, float)[lsel]
     r_meas = np.asarray(sub.range_m, float)[lsel]
-    r_model = np.asarray(ctx.range_m, float)[lsel]
+    r_model = r_meas - np.asarray(residual_m, float)
     ok = (np.isfinite(inten) & (inten > 0) & np.isfinite(r_meas) & (r_meas > 0)
           & np.isfinite(r_model) & (r_model > 0))
     log_i = np.log(np.where(ok, inten, 1.0))
@@ -927,7 +932,8 @@ def attribution_power_w(measured_power_w: np.ndarray, calibration: IntensityCali
     else:
         b = intensity_mod.measured_range_exponent(
             log_i[use], ratio[use], np.log(p_model[use]), np.log(cos_i[use]),
-            np.asarray(ctx.material, int)[lsel][use])
+            np.asarray(ctx.material, int)[lsel][use],
+            None if blocks is None else np.asarray(blocks)[use])
     if b == 0.0:
         return measured_power_w
     moved = np.where(ok, np.exp(log_i - b * ratio), np.nan)

@@ -362,12 +362,13 @@ def _monotone_map(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 # reflectivity scales the intensity by the measured range squared; the exponent is taken
 # as that 2 when the fitted one is nearer 2 than 0 and this many standard errors above 0.
 RANGE_IN_INTENSITY_Z = 4.0
+RANGE_EXPONENT_SE = 3.0      # ... and within this many standard errors of 2
 COMPENSATION_EXPONENT = 2.0
 
 
 def measured_range_exponent(log_intensity: np.ndarray, log_range_ratio: np.ndarray,
                             log_model_power: np.ndarray, log_cos: np.ndarray,
-                            material: np.ndarray) -> float:
+                            material: np.ndarray, blocks: np.ndarray | None = None) -> float:
     """The exponent b of the measured range in the intensity, I ~ (r_meas / r_model)^b
     at a given model power: COMPENSATION_EXPONENT (2) for a sensor that compensated its
     intensity with the range it measured, else 0. Least squares of ln I on
@@ -375,11 +376,20 @@ def measured_range_exponent(log_intensity: np.ndarray, log_range_ratio: np.ndarr
     (W), ln cos(incidence) and a constant per material; the two readings as
     ``calibrate_intensity``'s range exponents. A walk on the power moves the range with
     the power, which the controls hold; a walk on a speckled intensity gives a negative
-    slope, taken as 0."""
+    slope, taken as 0. ``blocks`` (per point, optional): neighbourhoods whose means are
+    taken out of every column first, so that only the point-to-point scatter of the
+    range within a neighbourhood (its noise) decides; a smooth error of the model (a
+    reference pose off) moves a neighbourhood's range and power together."""
     y = np.asarray(log_intensity, float)
     d = np.asarray(log_range_ratio, float)
     cols = [d, np.asarray(log_model_power, float), np.asarray(log_cos, float)]
     ok = np.all([np.isfinite(c) for c in [y, *cols]], axis=0)
+    if blocks is not None:
+        _, b = np.unique(np.asarray(blocks)[ok], return_inverse=True)
+        cnt = np.bincount(b)
+        y, cols = y.copy(), [c.copy() for c in cols]
+        for arr in [y, *cols]:
+            arr[ok] -= (np.bincount(b, weights=arr[ok]) / cnt)[b]
     mats = np.unique(np.asarray(material)[ok])
     if ok.sum() < MIN_POINTS + len(mats) + 3 or np.std(d[ok]) <= 0:
         return 0.0
@@ -393,5 +403,5 @@ def measured_range_exponent(log_intensity: np.ndarray, log_range_ratio: np.ndarr
     except np.linalg.LinAlgError:
         return 0.0
     b, se = float(coef[0]), float(np.sqrt(max(cov[0, 0], 0.0)))
-    near_two = b > 0.5 * COMPENSATION_EXPONENT
-    return COMPENSATION_EXPONENT if near_two and b > RANGE_IN_INTENSITY_Z * se else 0.0
+    consistent = abs(b - COMPENSATION_EXPONENT) < RANGE_EXPONENT_SE * se
+    return COMPENSATION_EXPONENT if consistent and b > RANGE_IN_INTENSITY_Z * se else 0.0
