@@ -47,7 +47,6 @@ from lidar_sim_ros.compare.model import (crosstalk as xtalk, likelihood as lk,
                                          materials as mat, neighbours, occlusion as occ,
                                          point_times)
 from lidar_sim_ros.compare.recording.cepton_pcap import side_bag
-from lidar_sim_ros.compare.recording import intensity as intensity_mod
 from lidar_sim_ros.compare.recording.intensity import IntensityCalibration, calibrate_intensity
 from lidar_sim_ros.compare.model.fit import at_bounds
 from lidar_sim_ros.compare.model.matching import (Matching, Model, edge_distance_rad, match,
@@ -484,8 +483,7 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         sample, grazing = on_corrected_pose(sample, cal.matching.pred, pose_fit)
         picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
     with stage('features', f'{len(sample.matched)} matched points'):
-        ana = replace(attribute(cal, effects, inp.meas, sample, picked, isolated, opts.seed,
-                                power.calibration),
+        ana = replace(attribute(cal, effects, inp.meas, sample, picked, isolated, opts.seed),
                       grazing_left_out=grazing)
     classes = candidate_classes(opts, effects)
     if classes:
@@ -852,11 +850,9 @@ def diagnosis_sample(rays: diagnosis.RaySet, meas: Measurements,
 
 def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
               sample: diagnosis.RaySet, picked: np.ndarray, isolated: np.ndarray,
-              seed: int, calibration: IntensityCalibration | None = None) -> Analysed:
+              seed: int) -> Analysed:
     """Silhouette distances and range rates of the sample, and what the residual depends
-    on (``features.attribute``, each material's offset and sigma scale removed).
-    ``calibration`` (the intensity's, ``IntensityCalibration``): the intensity feature is
-    the power it reads at the model's range (``attribution_power_w``)."""
+    on (``features.attribute``, each material's offset and sigma scale removed)."""
     model, pred, sel = cal.model, cal.matching.pred, cal.matching.matched
     sub = meas.subset(picked)
     sub_pred = diagnosis.take_prediction(pred, picked)
@@ -879,9 +875,7 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
         # The measured power, not the raw intensity: a range-compensated reflectivity
         # is computed with the measured range and would leak its noise to the
         # attribution (the calibration divides it out again).
-        mp = attribution_power_w(cal.rays.measured_power_w[picked][lsel], calibration,
-                                 sub, sub_pred, lsel, cal.residual_m[picked][lsel],
-                                 sample.blocks[picked][lsel])
+        mp = cal.rays.measured_power_w[picked][lsel]
         values['intensity'] = np.log10(np.where(np.isfinite(mp) & (mp > 0), mp,
                                                 np.nanmin(mp[mp > 0]) if np.any(mp > 0)
                                                 else 1e-12))
@@ -894,51 +888,6 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
                                      (res / (sig * scale))[near], seed,
                                      sample.blocks[picked][lsel][near])
     return Analysed(sample, picked, isolated, local, res, values, labels, attribution)
-
-
-def attribution_power_w(measured_power_w: np.ndarray, calibration: IntensityCalibration | None,
-                        sub: Measurements, sub_pred: Prediction,
-                        lsel: np.ndarray, residual_m: np.ndarray,
-                        blocks: np.ndarray | None = None) -> np.ndarray:
-    """The intensity feature's power (W) on the matched sample points: the measured
-    intensity with the measured range taken out of it. A sensor that compensates its
-    intensity for range does it with the range it measured (I ~ P r_meas^2), and the
-    map to power (``calibrate_intensity``) passes that on wherever its slope is not 1,
-    steeply where the intensity hardly varies (a Lambertian compensation on one
-    material); the joint feature model then reads the range's own error from it with
-    the model's range beside it (issue 30, walk_graze: 0.25-0.36 nats/point of a
-    "structure" no catalogue effect can explain). Where the calibration reads the
-    intensity as range-compensated, or ``measured_range_exponent`` finds it so, the
-    intensity is moved to the model's range, I (r_model / r_meas)^2, and read there.
-    r_model is the model's expected range on the ray, r_meas - ``residual_m`` (m; its
-    bias and a reference-pose correction included, so that a corrected pose is not taken
-    for the range's error). ``measured_power_w`` as it is otherwise (or without a
-    calibration)."""
-    if calibration is None or sub.intensity is None:
-        return measured_power_w
-    ctx = sub_pred.ctx
-    inten = np.asarray(sub.intensity, float)[lsel]
-    r_meas = np.asarray(sub.range_m, float)[lsel]
-    r_model = r_meas - np.asarray(residual_m, float)
-    ok = (np.isfinite(inten) & (inten > 0) & np.isfinite(r_meas) & (r_meas > 0)
-          & np.isfinite(r_model) & (r_model > 0))
-    log_i = np.log(np.where(ok, inten, 1.0))
-    ratio = np.where(ok, np.log(np.where(ok, r_meas, 1.0) / np.where(ok, r_model, 1.0)), 0.0)
-    p_model = np.asarray(ctx.power_w, float)[lsel]
-    cos_i = np.cos(np.asarray(ctx.incidence_rad, float)[lsel])
-    use = ok & (p_model > 0) & (cos_i > 0)
-    if calibration.range_exponent != 0.0:
-        b = -calibration.range_exponent
-    else:
-        b = intensity_mod.measured_range_exponent(
-            log_i[use], ratio[use], np.log(p_model[use]), np.log(cos_i[use]),
-            np.asarray(ctx.material, int)[lsel][use],
-            None if blocks is None else np.asarray(blocks)[use])
-    if b == 0.0:
-        return measured_power_w
-    moved = np.where(ok, np.exp(log_i - b * ratio), np.nan)
-    return calibration.power_w(moved, np.where(ok, r_model, r_meas), p_model,
-                               cloud=np.asarray(sub.cloud)[lsel])
 
 
 def beyond_the_target(range_m: np.ndarray, residual_m: np.ndarray, raw_residual_m: np.ndarray,
