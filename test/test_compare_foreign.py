@@ -74,6 +74,11 @@ BENCH_ONLY: dict[str, str] = {
     'beam_solar_incid': 'three effects at once (up to four compare runs): run by '
                         'bench/hidden_effect_eval.py; docs/compare.md, "A footprint beside '
                         'an incidence bias and false returns"',
+    **{name: 'a variant of a loop the suite runs (time_offset, time_offset_no_time: the '
+             'same clock, another size or stamp convention; ~17 s each): run by '
+             'bench/hidden_effect_eval.py'
+       for name in ('time_offset_small', 'time_offset_no_time_end',
+                    'time_offset_no_time_start')},
     **{name: 'crosstalk: test_compare_crosstalk.py runs crosstalk_walk through compare; '
              'the five loops are run by bench/hidden_effect_eval.py'
        for name in ('crosstalk', 'crosstalk_small_near', 'crosstalk_far', 'crosstalk_walk',

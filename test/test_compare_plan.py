@@ -64,7 +64,8 @@ def test_a_tie_gets_a_plan_that_loads_as_a_scenario(tie):
 def test_the_planned_recording_names_the_hypothesis_it_separates(tie):
     """The plan's best recording separates the tie both ways (the approach from 2x to
     0.5x the distance: margins 0.057 and 0.010 nats/point, z 13.5 and 6.8); flown as
-    plan.yaml says with either hypothesis, compare names that one."""
+    plan.yaml says with the hypothesis it separates by the smaller margin (the harder
+    way; both took 90 s of the suite), compare names that one."""
     _, res, tmp = tie
     best = res.summary['separation_plan'][0]
     assert best['separates'] and best['recording'].startswith('approach'), best
@@ -73,8 +74,8 @@ def test_the_planned_recording_names_the_hypothesis_it_separates(tie):
              for line in text.splitlines() if line.startswith('#   --effect')}
     ways = [n for n, w in best['ways'].items() if not w.get('skipped')
             and w['margin'] >= diagnosis.MIN_PRACTICAL_GAIN and w['z'] >= best['z_bound']]
-    assert ways, best
-    for name in ways:
+    assert len(ways) == 2, best
+    for name in [min(ways, key=lambda n: best['ways'][n]['margin'])]:
         out = tmp / f'fly_{name}'
         sim = simulate_to_bag(res.out / 'plan.yaml', out, frames=best['frames'],
                               effects=[specs[name]], figures=False)
