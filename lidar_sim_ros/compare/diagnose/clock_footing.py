@@ -35,8 +35,6 @@ from lidar_sim_ros.compare.diagnose import pose_error, row_clock
 from lidar_sim_ros.compare.diagnose.features import block_mean_z
 from lidar_sim_ros.compare.model import likelihood as lk
 
-HALVES_SEED = 61        # the per-cloud pose test's halves (``pose_error.fit_reference_pose``)
-
 
 @dataclass(frozen=True)
 class ClockFooting:
@@ -120,7 +118,7 @@ def clock_on_pose_footing(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
             a = pose_error.rate_columns(a, tau)
     p = per_cloud_columns(np.where(use[:, None], a, 0.0), cloud)
     models = {'clock': c, 'pose': p, 'both': np.hstack([c, p])}
-    half = np.random.default_rng([seed, HALVES_SEED]).integers(0, 2, n)
+    half = np.random.default_rng([seed, pose_error.HALVES_SEED]).integers(0, 2, n)
     gain = {k: np.zeros(n) for k in models}
     for k in (0, 1):
         test, train = use & (half != k), use & (half == k)

@@ -80,6 +80,7 @@ CONSTANT_RIDGE = 1e-6     # the same for one correction for all the clouds, fitt
                           # cloud's points: the test's (1e-4 held a 1 deg mount tilt at
                           # 1.5 deg and 12.4 cm for 1.0 and 14.05)
 TEST_RIDGE = 1e-6         # relative ridge of the held-out test (the rule's footing, as before the re-cast)
+HALVES_SEED = 61          # the held-out test's random halves: default_rng([seed, HALVES_SEED])
 
 
 @dataclass(frozen=True)
@@ -907,7 +908,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # The test (held-out halves) keeps the light ridge it was validated with: a damped
     # fit generalises better, so the stronger ridge would make the test more eager,
     # e.g. on top of a fitted time offset; the correction applied is the damped one.
-    half = np.random.default_rng([seed, 61]).integers(0, 2, len(r))
+    half = np.random.default_rng([seed, HALVES_SEED]).integers(0, 2, len(r))
 
     def judged(g: np.ndarray) -> tuple[float, float]:
         z = block_mean_z(g[use], blocks[use])[1] if use.sum() > 1 else 0.0
