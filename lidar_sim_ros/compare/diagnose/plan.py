@@ -336,6 +336,18 @@ def separation_plan(model: Model, base: list[Effect], a: Hypothesis, b: Hypothes
                                        -(r['z'] if r['z'] is not None else -np.inf)))
 
 
+def scenario_yaml(head: list[str], keys: dict, scenario_seed: int, mesh: Path,
+                  sensor: Path, materials: Path, base: list[Effect]) -> str:
+    """plan.yaml's text: the comment lines ``head``, then a scenario with the
+    configuration's files, the recording's ``initial_pose`` and ``motion`` (``keys``,
+    ``Recording.scenario_keys``) and the effects ``base``."""
+    body = {'seed': int(scenario_seed), 'mesh': str(mesh), 'sensor': str(sensor),
+            'materials': str(materials), 'frame_id': 'lidar',
+            **keys, 'effects': [_entry(e) for e in base]}
+    return '\n'.join(head) + '\n' + yaml.safe_dump(body, sort_keys=False,
+                                                   default_flow_style=None)
+
+
 def plan_yaml(row: dict, a: Hypothesis, b: Hypothesis, scenario_seed: int, mesh: Path,
               sensor: Path, materials: Path, base: list[Effect], period_s: float) -> str:
     """plan.yaml: the best recording as a scenario ``lidar-sim simulate`` flies (and a lab
@@ -366,12 +378,8 @@ def plan_yaml(row: dict, a: Hypothesis, b: Hypothesis, scenario_seed: int, mesh:
         f'#   --effect "{spec(a)}"',
         f'#   --effect "{spec(b)}"',
     ]
-    body = {'seed': int(scenario_seed), 'mesh': str(mesh), 'sensor': str(sensor),
-            'materials': str(materials), 'frame_id': 'lidar',
-            'initial_pose': row['initial_pose'], 'motion': row['motion'],
-            'effects': [_entry(e) for e in base]}
-    return '\n'.join(head) + '\n' + yaml.safe_dump(body, sort_keys=False,
-                                                   default_flow_style=None)
+    return scenario_yaml(head, {'initial_pose': row['initial_pose'], 'motion': row['motion']},
+                         scenario_seed, mesh, sensor, materials, base)
 
 
 def _entry(effect: Effect) -> dict:
@@ -411,6 +419,18 @@ def pose_range_recordings(rec: Recording) -> list[Recording]:
     return out
 
 
+def unflown_rows(recs: list[Recording], rival: str) -> list[dict]:
+    """Summary rows of a plan not simulated (a reference pose error is no sensor effect
+    the simulator flies): each recording's geometry and scenario keys, the pose and
+    ``rival`` as its two ways, no margin or z."""
+    return [{'recording': r.label, 'what': r.what, 'distance_m': round(r.distance_m, 3),
+             'frames': r.frames, 'duration_s': round(r.duration_s, 3), 'points': 0,
+             'margin': None, 'z': None, 'separates': None, 'simulated': False,
+             'ways': {diagnosis.POSE_ERROR: {'margin': None, 'z': None},
+                      rival: {'margin': None, 'z': None}},
+             **r.scenario_keys()} for r in recs]
+
+
 def pose_range_plan(rec: Recording, rival: str, scenario_seed: int, mesh: Path, sensor: Path,
                     materials: Path, base: list[Effect], period_s: float
                     ) -> tuple[list[dict], str]:
@@ -419,12 +439,7 @@ def pose_range_plan(rec: Recording, rival: str, scenario_seed: int, mesh: Path, 
     the simulator flies, and the separation is geometric) and plan.yaml, the near
     recording as a scenario with the far one in its header."""
     recs = pose_range_recordings(rec)
-    rows = [{'recording': r.label, 'what': r.what, 'distance_m': round(r.distance_m, 3),
-             'frames': r.frames, 'duration_s': round(r.duration_s, 3), 'points': 0,
-             'margin': None, 'z': None, 'separates': None, 'simulated': False,
-             'ways': {diagnosis.POSE_ERROR: {'margin': None, 'z': None},
-                      rival: {'margin': None, 'z': None}},
-             **r.scenario_keys()} for r in recs]
+    rows = unflown_rows(recs, rival)
     near, far = recs
     far_keys = far.scenario_keys()
     head = [
@@ -443,11 +458,8 @@ def pose_range_plan(rec: Recording, rival: str, scenario_seed: int, mesh: Path, 
          'range stays.'),
         f'#   lidar-sim simulate plan.yaml --frames {near.frames} --out DIR',
     ]
-    body = {'seed': int(scenario_seed), 'mesh': str(mesh), 'sensor': str(sensor),
-            'materials': str(materials), 'frame_id': 'lidar',
-            **near.scenario_keys(), 'effects': [_entry(e) for e in base]}
-    return rows, '\n'.join(head) + '\n' + yaml.safe_dump(body, sort_keys=False,
-                                                         default_flow_style=None)
+    return rows, scenario_yaml(head, near.scenario_keys(), scenario_seed, mesh, sensor,
+                               materials, base)
 
 
 def pose_clock_plan(rec: Recording, scenario_seed: int, mesh: Path, sensor: Path,
@@ -466,12 +478,7 @@ def pose_clock_plan(rec: Recording, scenario_seed: int, mesh: Path, sensor: Path
     still = replace(rec, label='static, surveyed', what='the target held still on a surveyed '
                     'pose (no tumble, no tracking system between it and the truth)',
                     approach_speed_mps=0.0, tumble_rate_dps=0.0)
-    rows = [{'recording': r.label, 'what': r.what, 'distance_m': round(r.distance_m, 3),
-             'frames': r.frames, 'duration_s': round(r.duration_s, 3), 'points': 0,
-             'margin': None, 'z': None, 'separates': None, 'simulated': False,
-             'ways': {diagnosis.POSE_ERROR: {'margin': None, 'z': None},
-                      'time_offset': {'margin': None, 'z': None}},
-             **r.scenario_keys()} for r in (fast, still)]
+    rows = unflown_rows([fast, still], 'time_offset')
     head = [
         '# Separation plan written by lidar-sim compare: the recordings that tell a clock',
         '# offset between the pose and LiDAR stamps from a reference pose drifting within',
@@ -483,8 +490,5 @@ def pose_clock_plan(rec: Recording, scenario_seed: int, mesh: Path, sensor: Path
         '# Then compare each with --effect time_offset --fit and with --effect pose_error --fit.',
         f'#   lidar-sim simulate plan.yaml --frames {fast.frames} --out DIR',
     ]
-    body = {'seed': int(scenario_seed), 'mesh': str(mesh), 'sensor': str(sensor),
-            'materials': str(materials), 'frame_id': 'lidar',
-            **fast.scenario_keys(), 'effects': [_entry(e) for e in base]}
-    return rows, '\n'.join(head) + '\n' + yaml.safe_dump(body, sort_keys=False,
-                                                         default_flow_style=None)
+    return rows, scenario_yaml(head, fast.scenario_keys(), scenario_seed, mesh, sensor,
+                               materials, base)
