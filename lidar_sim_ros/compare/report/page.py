@@ -286,6 +286,32 @@ border-left:4px solid #e0a000}img{max-width:100%}code{background:#f3f3f3}
 white-space:pre-wrap;word-break:break-all;border-left:4px solid #2a7ae2}"""
 
 
+def _plan_words(rows: list[dict]) -> str:
+    """What the separation plan's rows are: the recordings a tie of the reference pose
+    with a clock offset or with a range error would need (not simulated), or both
+    confounded candidates flown by the simulator."""
+    if rows[0].get('simulated') is False and 'time_offset' in rows[0].get('ways', {}):
+        return ('The reference pose drifting within each cloud against a clock offset: '
+                'not simulated (a reference pose error is no sensor effect the simulator '
+                'flies). The target tumbling faster (a clock offset moves it by its motion '
+                'over the offset, a tracking system\'s drift need not follow the motion), '
+                'and held still on a surveyed pose. The first is written as plan.yaml.')
+    if rows[0].get('simulated') is False:
+        return ('The reference pose against a range error of the sensor: not simulated (a '
+                'reference pose error is no sensor effect the simulator flies). The target '
+                'held still on a surveyed pose, near (seen across a wide angle: a pose error '
+                'changes the range differently across the view, a range offset does not) '
+                'and far (a range scale grows with the distance, a pose error does not). '
+                'The near one is written as plan.yaml.')
+    return ('Both confounded candidates as fitted (materials refit with each) flown '
+            'by the simulator on each recording, and each simulated recording diagnosed '
+            'as compare would: the held-out margin of the true hypothesis over the other '
+            '(nats per point, the weaker of the two ways) and its z with the points '
+            'compare would diagnose. It separates them when both ways clear the rule '
+            '(margin at least 0.005 nats/point and z above the bound). The best is '
+            'written as plan.yaml.')
+
+
 def write_report(out: Path, summary: dict, matching, configured, residual_m: np.ndarray,
                  stats, feats, cands, runs: list[dict], model, values: dict,
                  isolated: np.ndarray | None = None, labels: dict | None = None) -> list[Path]:
@@ -404,33 +430,9 @@ def write_report(out: Path, summary: dict, matching, configured, residual_m: np.
                   f'z = {pose["z"]:.1f}). A reference error (tracking system, extrinsic '
                   'calibration), not a sensor effect.</p>',
                   _img(figs['pose'], 'reference pose correction per cloud')]
-    if (s.get('separation_plan') and s['separation_plan'][0].get('simulated') is False
-            and 'time_offset' in s['separation_plan'][0].get('ways', {})):
+    if s.get('separation_plan'):
         parts += ['<h2>Which recording would separate the tie</h2>',
-                  '<p>The reference pose drifting within each cloud against a clock offset: '
-                  'not simulated (a reference pose error is no sensor effect the simulator '
-                  'flies). The target tumbling faster (a clock offset moves it by its motion '
-                  'over the offset, a tracking system\'s drift need not follow the motion), '
-                  'and held still on a surveyed pose. The first is written as plan.yaml.</p>',
-                  plan_table(s['separation_plan'])]
-    elif s.get('separation_plan') and s['separation_plan'][0].get('simulated') is False:
-        parts += ['<h2>Which recording would separate the tie</h2>',
-                  '<p>The reference pose against a range error of the sensor: not simulated (a '
-                  'reference pose error is no sensor effect the simulator flies). The target '
-                  'held still on a surveyed pose, near (seen across a wide angle: a pose error '
-                  'changes the range differently across the view, a range offset does not) '
-                  'and far (a range scale grows with the distance, a pose error does not). '
-                  'The near one is written as plan.yaml.</p>',
-                  plan_table(s['separation_plan'])]
-    elif s.get('separation_plan'):
-        parts += ['<h2>Which recording would separate the tie</h2>',
-                  '<p>Both confounded candidates as fitted (materials refit with each) flown '
-                  'by the simulator on each recording, and each simulated recording diagnosed '
-                  'as compare would: the held-out margin of the true hypothesis over the other '
-                  '(nats per point, the weaker of the two ways) and its z with the points '
-                  'compare would diagnose. It separates them when both ways clear the rule '
-                  '(margin at least 0.005 nats/point and z above the bound). The best is '
-                  'written as plan.yaml.</p>',
+                  f'<p>{_plan_words(s["separation_plan"])}</p>',
                   plan_table(s['separation_plan'])]
     parts += ['<h2>History: the error across runs</h2>',
               f'<p>From {html.escape(s.get("history", ""))}. RMSE and NLL with each '
