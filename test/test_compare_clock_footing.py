@@ -178,3 +178,14 @@ def test_the_plan_of_the_tie_is_the_target_tumbling_faster_and_held_still():
     assert body['motion']['tumble_rate_dps'] == 12.0 and body['seed'] == 7
     assert '--effect time_offset --fit' in text
     assert '(plan.yaml)' in clock_off_footing_words(_on(False, False).as_dict(), '', True)
+
+
+def test_the_page_says_which_plan_it_shows():
+    """The report page's plan section says what its rows are: the clock tie's unflown
+    recordings, the range tie's, or the simulated candidates."""
+    from lidar_sim_ros.compare.report import page
+    unflown = {'simulated': False, 'ways': {'pose_error': {}, 'time_offset': {}}}
+    assert 'clock offset' in page._plan_words([unflown])
+    assert 'range error of the sensor' in page._plan_words(
+        [{**unflown, 'ways': {'pose_error': {}, 'range_drift': {}}}])
+    assert 'flown by the simulator' in page._plan_words([{'simulated': True}])

@@ -538,21 +538,32 @@ def pose_clock_tie(diag: Diagnosed) -> bool:
             and diag.decision.pose is None)
 
 
+def own_motion(inp: Inputs) -> 'sep_plan.Recording':
+    """The recording's own motion as a scenario trajectory (``plan.recorded_motion``),
+    from its first cloud stamp to the end of its last frame."""
+    meas, scenario = inp.meas, inp.scenario
+    stamps = meas.cloud_stamps_s
+    return sep_plan.recorded_motion(meas.poses, float(stamps.min()),
+                                    float(stamps.max()) + frame_period_s(meas, scenario),
+                                    scenario.sensor.frame_period_s,
+                                    getattr(meas.poses, 't_s', None))
+
+
+def sensor_and_materials(scenario) -> tuple[Path, Path]:
+    """The scenario's sensor and materials files, resolved against its own folder (a
+    plan.yaml names them)."""
+    base_dir = scenario.source.parent if scenario.source else config_path('.')
+    return (resolve(scenario.config.sensor, base_dir),
+            resolve(scenario.config.materials, base_dir))
+
+
 def pose_clock_plan(opts: CompareOptions, inp: Inputs, effects: list[Effect]) -> Plan:
     """The recordings that separate a clock offset from a pose drifting within the cloud
     (``plan.pose_clock_plan``): the target tumbling faster, and static on a surveyed
     pose."""
-    meas, scenario = inp.meas, inp.scenario
-    stamps = meas.cloud_stamps_s
-    recorded = sep_plan.recorded_motion(meas.poses, float(stamps.min()),
-                                        float(stamps.max()) + frame_period_s(meas, scenario),
-                                        scenario.sensor.frame_period_s,
-                                        getattr(meas.poses, 't_s', None))
-    base_dir = scenario.source.parent if scenario.source else config_path('.')
-    rows, text = sep_plan.pose_clock_plan(recorded, scenario.seed, Path(opts.mesh).resolve(),
-                                          resolve(scenario.config.sensor, base_dir),
-                                          resolve(scenario.config.materials, base_dir),
-                                          effects)
+    rows, text = sep_plan.pose_clock_plan(own_motion(inp), inp.scenario.seed,
+                                          Path(opts.mesh).resolve(),
+                                          *sensor_and_materials(inp.scenario), effects)
     return Plan(rows, [diagnosis.POSE_ERROR, 'time_offset'], text)
 
 
@@ -560,18 +571,11 @@ def pose_range_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated,
                     effects: list[Effect], rival: str) -> Plan:
     """The recordings that separate a reference pose from a range error of the sensor
     (``plan.pose_range_plan``): a static target on a surveyed pose, near and far."""
-    meas, scenario = inp.meas, inp.scenario
-    period = scenario.sensor.frame_period_s
-    stamps = meas.cloud_stamps_s
-    recorded = sep_plan.recorded_motion(meas.poses, float(stamps.min()),
-                                        float(stamps.max()) + frame_period_s(meas, scenario),
-                                        period, getattr(meas.poses, 't_s', None))
-    base_dir = scenario.source.parent if scenario.source else config_path('.')
-    rows, text = sep_plan.pose_range_plan(recorded, rival, scenario.seed,
+    scenario = inp.scenario
+    rows, text = sep_plan.pose_range_plan(own_motion(inp), rival, scenario.seed,
                                           Path(opts.mesh).resolve(),
-                                          resolve(scenario.config.sensor, base_dir),
-                                          resolve(scenario.config.materials, base_dir),
-                                          effects, period)
+                                          *sensor_and_materials(scenario), effects,
+                                          scenario.sensor.frame_period_s)
     return Plan(rows, [diagnosis.POSE_ERROR, rival], text)
 
 
@@ -579,19 +583,13 @@ def separation_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated, effects:
                     diag: Diagnosed, tied: list) -> Plan:
     """Which recording would separate the tied pair (``plan.py``): both fitted hypotheses
     (materials refit with each) flown on candidate recordings derived from this one."""
-    model, meas, scenario = cal.model, inp.meas, inp.scenario
+    model, scenario = cal.model, inp.scenario
     a, b = sep_plan.hypotheses(model, diag.full, [c.effect for c in tied])
-    period = scenario.sensor.frame_period_s
-    stamps = meas.cloud_stamps_s
-    recorded = sep_plan.recorded_motion(meas.poses, float(stamps.min()),
-                                        float(stamps.max()) + frame_period_s(meas, scenario),
-                                        period, getattr(meas.poses, 't_s', None))
-    rows = sep_plan.separation_plan(model, effects, a, b, recorded, opts.seed, diag.z_crit,
-                                    DIAGNOSIS_MAX_MATCHED)
-    base_dir = scenario.source.parent if scenario.source else config_path('.')
+    rows = sep_plan.separation_plan(model, effects, a, b, own_motion(inp), opts.seed,
+                                    diag.z_crit, DIAGNOSIS_MAX_MATCHED)
     text = sep_plan.plan_yaml(rows[0], a, b, scenario.seed, Path(opts.mesh).resolve(),
-                              resolve(scenario.config.sensor, base_dir),
-                              resolve(scenario.config.materials, base_dir), effects, period)
+                              *sensor_and_materials(scenario), effects,
+                              scenario.sensor.frame_period_s)
     return Plan(rows, [a.name, b.name], text)
 
 
