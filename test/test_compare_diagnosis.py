@@ -113,7 +113,7 @@ def _far_uniform(n: int, seed: int):
 def test_far_sides_closed_form_on_a_hand_made_case():
     """Window 0-20 m, threshold 1 m: a surface at 10 m has 9 m of window on each side
     (p = 1/2), one at 5 m has 4 m in front and 14 m behind (p = 4/18)."""
-    from lidar_sim_ros.compare.diagnose.diagnosis import far_sides
+    from lidar_sim_ros.compare.diagnose.far_returns import far_sides
     residual = np.array([-3.0, 4.0, 2.0])
     expected = np.array([10.0, 10.0, 5.0])
     threshold = np.ones(3)
@@ -128,7 +128,7 @@ def test_far_sides_closed_form_on_a_hand_made_case():
 
 def test_far_positions_closed_form_on_a_hand_made_case():
     """Same window: in front, u = r / (e - thr); behind, u = (r - e - thr) / (hi - e - thr)."""
-    from lidar_sim_ros.compare.diagnose.diagnosis import far_positions
+    from lidar_sim_ros.compare.diagnose.far_returns import far_positions
     residual = np.array([-8.0, 3.0, -2.0, 15.0])   # ranges 2, 13, 8, 20 m
     expected = np.array([10.0, 10.0, 10.0, 5.0])
     u = far_positions(residual, expected, np.ones(4), (0.0, 20.0))
@@ -142,7 +142,7 @@ def test_random_ranges_pass_the_background_light_signature(seed):
     positions pass Kolmogorov-Smirnov (p not small)."""
     from scipy.stats import kstest
 
-    from lidar_sim_ros.compare.diagnose.diagnosis import far_positions, far_sides
+    from lidar_sim_ros.compare.diagnose.far_returns import far_positions, far_sides
     residual, expected, threshold = _far_uniform(400, seed)
     front, mu, var = far_sides(residual, expected, threshold, WINDOW_M)
     assert abs(front - mu) < 3 * np.sqrt(var)
@@ -163,7 +163,7 @@ def test_returns_bunched_behind_the_surface_are_flagged():
     far below its expectation and the positions fail Kolmogorov-Smirnov."""
     from scipy.stats import kstest
 
-    from lidar_sim_ros.compare.diagnose.diagnosis import far_positions, far_sides
+    from lidar_sim_ros.compare.diagnose.far_returns import far_positions, far_sides
     rng = np.random.default_rng(7)
     n = 60
     expected = rng.uniform(8.0, 14.0, n)
@@ -193,7 +193,7 @@ def _far_exponential(n: int, seed: int, mean_m: float):
 
 
 def test_arrival_cdf_closed_form():
-    from lidar_sim_ros.compare.diagnose.diagnosis import arrival_cdf
+    from lidar_sim_ros.compare.diagnose.far_returns import arrival_cdf
     x = np.array([-0.5, 0.0, 0.25, 1.0, 2.0])
     np.testing.assert_allclose(arrival_cdf(x, 0.0), [0.0, 0.0, 0.25, 1.0, 1.0])
     rate = 3.0
@@ -233,7 +233,7 @@ def test_strong_background_first_arrivals_pass_with_the_fitted_rate(seed):
     are consistent; the uniform law (rate 0) would call them bunched."""
     from scipy.stats import kstest
 
-    from lidar_sim_ros.compare.diagnose.diagnosis import background_rate, far_positions, far_sides
+    from lidar_sim_ros.compare.diagnose.far_returns import background_rate, far_positions, far_sides
     far = _far_exponential(600, seed, 10.0)
     rate = background_rate(*far, WINDOW_M)
     assert rate == pytest.approx(4.0, rel=0.2)
@@ -253,7 +253,7 @@ def test_a_first_return_receivers_false_returns_all_in_front_pass(seed):
     background aside), the side count is no veto, and the positions pass KS."""
     from scipy.stats import kstest
 
-    from lidar_sim_ros.compare.diagnose.diagnosis import background_rate, far_positions, far_sides
+    from lidar_sim_ros.compare.diagnose.far_returns import background_rate, far_positions, far_sides
     rng = np.random.default_rng(seed)
     lo, hi = 0.5, 150.0
     expected = rng.uniform(10.0, 15.0, 400)
@@ -270,7 +270,7 @@ def test_a_first_return_receivers_false_returns_all_in_front_pass(seed):
 def test_fitted_rate_is_small_for_even_ranges_and_bunches_stay_flagged():
     """Uniform ranges fit a rate near 0; returns 2-4 m behind the surface (multipath)
     are still far too few in front under the fitted law."""
-    from lidar_sim_ros.compare.diagnose.diagnosis import background_rate, far_sides
+    from lidar_sim_ros.compare.diagnose.far_returns import background_rate, far_sides
     assert background_rate(*_far_uniform(600, 3), WINDOW_M) < 0.5
     rng = np.random.default_rng(8)
     n = 80

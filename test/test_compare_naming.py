@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from lidar_sim_ros.compare.diagnose import diagnosis as dg
+from lidar_sim_ros.compare.diagnose import far_returns as fr
 from lidar_sim_ros.compare.report import verdict as vd
 from lidar_sim_ros.core.effects import make_effect
 
@@ -801,15 +802,15 @@ def test_pose_correction_along_the_line_of_sight_is_said_as_pose_or_sensor_range
 
 
 def test_an_outlier_effect_without_false_returns_is_set_aside():
-    """diagnosis.no_false_returns: an outlier effect claiming less than one false return
+    """far_returns.no_false_returns: an outlier effect claiming less than one false return
     on the target needs MIN_FAR_POINTS far or credited off-target points (the sixth
     holdout: solar_background named on mild tails beside a 3 cm lateral pose error,
     no far point, no credited one)."""
-    assert 'no false return' in dg.no_false_returns(0, 0.0)
-    assert dg.no_false_returns(0, 0.0).count('0 ') >= 1
-    assert dg.no_false_returns(5, dg.MIN_FAR_POINTS - 6.0) is not None
-    assert dg.no_false_returns(5, dg.MIN_FAR_POINTS - 5.0) is None
-    assert dg.no_false_returns(dg.MIN_FAR_POINTS, 0.0) is None
+    assert 'no false return' in fr.no_false_returns(0, 0.0)
+    assert fr.no_false_returns(0, 0.0).count('0 ') >= 1
+    assert fr.no_false_returns(5, fr.MIN_FAR_POINTS - 6.0) is not None
+    assert fr.no_false_returns(5, fr.MIN_FAR_POINTS - 5.0) is None
+    assert fr.no_false_returns(fr.MIN_FAR_POINTS, 0.0) is None
 
 
 def test_material_offsets_beside_a_reported_pose_are_said_as_measured_on_it():

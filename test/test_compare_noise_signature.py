@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from lidar_sim_ros.compare.diagnose import diagnosis as dg
+from lidar_sim_ros.compare.diagnose import far_returns as fr
 from lidar_sim_ros.core.effects import get_effect_class, make_effect
 
 from test_compare_naming import Hand
@@ -35,7 +36,7 @@ class Noise(Hand):
         self.fold_order = np.arange(N)
         self.blocks = np.arange(N) // 20
         self._z_crit = 3.0
-        self._core = np.abs(residual) <= dg.CORE_SIGMAS * SIGMA
+        self._core = np.abs(residual) <= fr.CORE_SIGMAS * SIGMA
         self.base = _nll(residual, SIGMA)
         self.cand = dg.Candidate('snr_noise', effect=make_effect('snr_noise', {'c_m': 0.1}))
         self.cand.heldout_nll = _nll(residual, sigma_cand)

@@ -10,6 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.compare.diagnose import diagnosis, pose_error
+from lidar_sim_ros.compare.diagnose import unmatched_credit as credit
 
 from conftest import plane_fit_data, three_plane_rays
 from test_compare_pose_status import _Judge
@@ -199,12 +200,12 @@ def test_footprint_is_credited_only_with_edge_returns_at_its_power_fraction():
     eff = BeamDivergence({'footprint_scale': 4.0})
     measured = np.array([2e-7, 1e-6, 2.4e-7, np.nan, 9e-7])
     data = _edge_rays(0.2, measured)
-    np.testing.assert_array_equal(diagnosis.footprint_signature(data, [eff]),
+    np.testing.assert_array_equal(credit.footprint_signature(data, [eff]),
                                   [True, False, True, False, False])
-    assert diagnosis.unmatched_credit(data, [eff], eff, 5.0) == 2.0
+    assert credit.unmatched_credit(data, [eff], eff, 5.0) == 2.0
     # Without measured power, no edge point is credited to a footprint.
     from dataclasses import replace
-    assert diagnosis.unmatched_credit(replace(data, unmatched_power_w=None), [eff], eff,
+    assert credit.unmatched_credit(replace(data, unmatched_power_w=None), [eff], eff,
                                       5.0) == 0.0
 
 
@@ -226,16 +227,16 @@ def test_a_rigid_effect_is_credited_only_with_points_that_return_a_whole_beam():
     baseline = type('B', (), {'ctx': type('C', (), {'power_w': base_w})()})()
     data = replace(data, baseline=baseline,
                    measured_power_w=base_w * np.exp(rng.normal(0.0, 0.1, 400)))
-    np.testing.assert_array_equal(diagnosis.full_power_placed(data, [eff]),
+    np.testing.assert_array_equal(credit.full_power_placed(data, [eff]),
                                   [False, True, False, True, True])
-    assert diagnosis.unmatched_credit(data, [eff], eff, 5.0) == 3.0
+    assert credit.unmatched_credit(data, [eff], eff, 5.0) == 3.0
     # Weak everywhere (the matched points too, an intensity scale): a whole beam still.
     data_dim = replace(data, measured_power_w=0.2 * data.measured_power_w)
-    assert diagnosis.unmatched_credit(data_dim, [eff], eff, 5.0) == 5.0
-    assert diagnosis.unmatched_credit(replace(data, unmatched_power_w=None), [eff], eff,
+    assert credit.unmatched_credit(data_dim, [eff], eff, 5.0) == 5.0
+    assert credit.unmatched_credit(replace(data, unmatched_power_w=None), [eff], eff,
                                       5.0) == 5.0
     # Point times unknown: nothing is re-cast, so nothing is judged.
-    assert diagnosis.full_power_placed(replace(data, placement_uncertain=True), [eff]) is None
+    assert credit.full_power_placed(replace(data, placement_uncertain=True), [eff]) is None
 
 
 class _RangeSplit(diagnosis.Diagnosis):

@@ -35,9 +35,9 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import norm
 
-from lidar_sim_ros.compare.diagnose import (clock_footing, diagnosis, features, laser_gains,
-                                            plan as sep_plan, pose_error, range_alone,
-                                            region_offset, row_clock, stamp_place)
+from lidar_sim_ros.compare.diagnose import (clock_footing, diagnosis, far_returns, features,
+                                            laser_gains, plan as sep_plan, pose_error,
+                                            range_alone, region_offset, row_clock, stamp_place)
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
@@ -652,7 +652,7 @@ def leave_out_occluded(inp: Inputs) -> Inputs:
     m = match(geometry(model, inp.scenario_effects), meas, model.divergence_rad, edges=False)
     expected = np.where(m.matched, m.pred.expected_range_m, np.nan)
     sigma = np.nan_to_num(np.asarray(m.pred.sigma_m, float), nan=0.0)
-    mask = occ.occluded(meas.range_m, expected, diagnosis.far_threshold_m(sigma),
+    mask = occ.occluded(meas.range_m, expected, far_returns.far_threshold_m(sigma),
                         meas.directions, meas.cloud)
     found = occ.summarise(mask, meas.range_m, expected, meas.cloud, len(meas.cloud_stamps_s))
     ghost, xt = xtalk.crosstalk_ghosts(meas.range_m, expected, sigma, meas.t_s, meas.cloud,
@@ -801,7 +801,7 @@ def calibrate_materials(model: Model, effects: list[Effect], matching: Matching,
     pred, sel = matching.pred, matching.matched
     residual, sigma = model_residuals(diagnosis.make_fit_data(model, effects, rays), rays)
     stats = mat.material_stats(model.materials, replace(pred, sigma_m=sigma), residual, sel,
-                               diagnosis.far_threshold_m(sigma))
+                               far_returns.far_threshold_m(sigma))
     refit = mat.refit_materials(model.materials, stats)
     configured = replace(matching, residual_m=residual)
     if fit:
@@ -880,7 +880,7 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
         labels['intensity'] = features.POWER_LABEL
     near = ~beyond_the_target(np.asarray(sub.range_m, float)[lsel], res,
                               cal.residual_m[picked][lsel],
-                              diagnosis.far_threshold_m(sig, scale),
+                              far_returns.far_threshold_m(sig, scale),
                               np.asarray(sub.cloud)[lsel])
     attribution = features.attribute({k: v[near] for k, v in values.items()}, res[near],
                                      (res / (sig * scale))[near], seed,

@@ -107,7 +107,7 @@ class FitData:
     placement_uncertain: bool = False
     # (M,) received power (W, model units) of the unmatched points from the measured
     # intensity (NaN where unknown; None: no intensity): a footprint's edge returns must
-    # show its power fraction to be credited to it (``diagnosis.footprint_signature``).
+    # show its power fraction to be credited to it (``unmatched_credit.footprint_signature``).
     unmatched_power_w: np.ndarray | None = None
     # Where a false return on a shot that misses the target can lie (m): the sensor's
     # range gate, which a miss listens over whole (None: ``range_window_m``). The

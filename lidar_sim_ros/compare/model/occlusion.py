@@ -13,7 +13,7 @@ A measured point is taken as occlusion when
 
 * its ray hits the target under the model and its measured range lies in front of the
   target's nearest modelled surface in its cloud by more than the far threshold
-  (``diagnosis.far_threshold_m``: max(FAR_MIN_M, FAR_SIGMAS sigma)): no range effect,
+  (``far_returns.far_threshold_m``: max(FAR_MIN_M, FAR_SIGMAS sigma)): no range effect,
   pose error or beam footprint of the target puts a return there, while a return
   within the target's own depth span (a depth step, a silhouette under a pose error)
   is the target's business and stays;
