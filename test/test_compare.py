@@ -19,7 +19,7 @@ import yaml
 from matplotlib.image import imread
 
 from lidar_sim_ros.cli import main
-from lidar_sim_ros.compare.diagnose import diagnosis
+from lidar_sim_ros.compare.diagnose import diagnosis, fit_data
 from lidar_sim_ros.compare.diagnose.features import FEATURE_NAMES
 from lidar_sim_ros.compare.model.matching import Model, match
 from lidar_sim_ros.compare.recording.measurements import load_measurements
@@ -110,8 +110,8 @@ def truth_metrics(ds, effects) -> tuple[float, float]:
                   load_target(ds.mesh, scenario.materials.names))
     meas = load_measurements(ds.bag)
     m = match(model.simulator(effects=effects), meas, model.divergence_rad, edges=False)
-    rays = diagnosis.RaySet(meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched))
-    nll, rmse, _ = evaluate(diagnosis.make_fit_data(model, effects, rays), [],
+    rays = fit_data.RaySet(meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched))
+    nll, rmse, _ = evaluate(fit_data.make_fit_data(model, effects, rays), [],
                             profile_materials=False)
     return nll, rmse
 

@@ -211,7 +211,7 @@ def test_off_target_positions_spread_for_background_and_bunch_for_a_surface(seed
     solar_background with p = 0.043) do not."""
     from scipy.stats import kstest, norm
 
-    from lidar_sim_ros.compare.diagnose.diagnosis import off_target_positions
+    from lidar_sim_ros.compare.diagnose.far_returns import off_target_positions
     rng = np.random.default_rng(seed)
     window = (0.5, 250.0)
     alpha = norm.sf(3.09)
@@ -324,7 +324,8 @@ def test_off_target_points_that_bunch_show_no_background_even_with_none_claimed_
     edge points of a strut at 1.25-1.39 m; background arrivals over the gate pass."""
     from types import SimpleNamespace
 
-    from lidar_sim_ros.compare.diagnose.diagnosis import Diagnosis, off_target_positions
+    from lidar_sim_ros.compare.diagnose.diagnosis import Diagnosis
+    from lidar_sim_ros.compare.diagnose.far_returns import off_target_positions
     rng = np.random.default_rng(3)
     window = (0.5, 250.0)
 

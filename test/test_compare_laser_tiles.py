@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from lidar_sim_ros.compare.diagnose import diagnosis as dg
-from lidar_sim_ros.compare.diagnose import laser_tiles
+from lidar_sim_ros.compare.diagnose import laser_tiles, variants
 
 from test_compare_naming import Hand, cand
 
@@ -363,8 +363,8 @@ def _loss(parts, at_random, free_level: bool = True) -> float:
     def both_ways(halves):
         data = [_half(*h) for h in halves]
         if free_level:
-            return np.concatenate(dg.transfer_both_ways(LaserBias, data))
-        return np.concatenate([dg.heldout_nll(data[k], [fit_effect(LaserBias, data[1 - k]).effect])
+            return np.concatenate(variants.transfer_both_ways(LaserBias, data))
+        return np.concatenate([variants.heldout_nll(data[k], [fit_effect(LaserBias, data[1 - k]).effect])
                                for k in range(2)])
     n = sum(len(p[0]) for p in parts)
     return float((both_ways(parts).sum() - both_ways(at_random).sum()) / n)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidar_sim_ros.compare.diagnose.diagnosis import far_threshold_m
+from lidar_sim_ros.compare.diagnose.far_returns import far_threshold_m
 from lidar_sim_ros.compare.model import materials as mat
 from lidar_sim_ros.core.config import load_materials
 from lidar_sim_ros.core.effects import ReturnContext

@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from foreign_sim import battery, generate
 
-from lidar_sim_ros.compare.diagnose import diagnosis, plan
+from lidar_sim_ros.compare.diagnose import diagnosis, fit_data, plan
 from lidar_sim_ros.compare.run import CompareOptions, run_compare
 from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.pose import PoseTrack
@@ -172,9 +172,9 @@ def test_materials_refit_on_top_of_a_hypothesis_recover_those_flown():
                          (0.0, 0.0, 1.0), 6.0, 1, 0.1)
     meas, _ = plan.simulate_measurements(model, flown, [walk], rec, 0)
     m = match(model.simulator(effects=[]), meas, model.divergence_rad, edges=False)
-    rays = diagnosis.RaySet(meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
+    rays = fit_data.RaySet(meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
                             pred=m.pred)
-    data = diagnosis.make_fit_data(model, [], rays)
+    data = fit_data.make_fit_data(model, [], rays)
     refit = plan.materials_under(model, data, walk)
     plain = plan.materials_under(model, data, get_effect_class('range_walk')({'k_m': 0.0}))
     mat_id = np.asarray(data.baseline.ctx.material)

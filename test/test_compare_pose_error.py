@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.compare.diagnose import diagnosis, pose_error
+from lidar_sim_ros.compare.diagnose import diagnosis, fit_data, pose_error
 from lidar_sim_ros.compare.diagnose import unmatched_credit as credit
 
 from conftest import plane_fit_data, three_plane_rays
@@ -247,7 +247,7 @@ class _RangeSplit(diagnosis.Diagnosis):
     def __init__(self, transfer: dict):
         n = 4000
         meas = type('Meas', (), {'range_m': np.linspace(6.0, 9.0, n)})()
-        self.rays = diagnosis.RaySet.__new__(diagnosis.RaySet)
+        self.rays = fit_data.RaySet.__new__(fit_data.RaySet)
         object.__setattr__(self.rays, 'meas', meas)
         object.__setattr__(self.rays, 'matched', np.arange(n))
         object.__setattr__(self.rays, 'unmatched', np.zeros(0, int))
@@ -420,11 +420,11 @@ def test_the_corrected_pose_is_scored_on_a_sample_drawn_anew_not_the_old_one_re_
     d = rng.normal(size=(n + u, 3)) * [0.05, 0.05, 0.05] + [1.0, 0.0, 0.0]
     rec = _Recording(d / np.linalg.norm(d, axis=1, keepdims=True),
                      10.0 + rng.normal(0, 0.01, n + u), np.arange(n + u) % 4)
-    before = diagnosis.RaySet(rec, np.arange(n), np.arange(n, n + u))
+    before = fit_data.RaySet(rec, np.arange(n), np.arange(n, n + u))
     sample, _, _ = run.diagnosis_sample(before, rec, 0)
     assert len(sample.matched) == run.DIAGNOSIS_MAX_MATCHED and len(sample.unmatched) == u
     newly = np.arange(n, n + moved_in)                 # on the target once corrected
-    after = diagnosis.RaySet(rec, np.r_[np.arange(n), newly], np.arange(n + moved_in, n + u))
+    after = fit_data.RaySet(rec, np.r_[np.arange(n), newly], np.arange(n + moved_in, n + u))
     # The old sample re-cast: its points, matched anew.
     picked = np.r_[sample.matched, sample.unmatched]
     recast_old = np.intersect1d(picked, after.matched)
@@ -515,7 +515,7 @@ def test_a_pose_jittering_over_many_clouds_is_tested_on_enough_points_a_cloud():
     rec, data, t = _jittered_planes(80, 1000, 0.05)
     n = len(rec)
     blocks = np.arange(n) // 30
-    rays = diagnosis.RaySet(rec, np.arange(n), np.zeros(0, int), blocks=blocks)
+    rays = fit_data.RaySet(rec, np.arange(n), np.zeros(0, int), blocks=blocks)
     sample = rays.sample(12_000, 0)
 
     def test(points):
@@ -532,7 +532,7 @@ def test_a_pose_jittering_over_many_clouds_is_tested_on_enough_points_a_cloud():
     # planes 2 m across, is known far less well)
     assert 1.4 < on_all.size_cm < 2.2
     few, _, _ = _jittered_planes(5, 3000, 0.05)
-    rays5 = diagnosis.RaySet(few, np.arange(len(few)), np.zeros(0, int))
+    rays5 = fit_data.RaySet(few, np.arange(len(few)), np.zeros(0, int))
     sample5 = rays5.sample(12_000, 0)
     assert run.pose_points(rays5, sample5, few) is sample5
 
@@ -855,7 +855,7 @@ def test_beside_a_per_cloud_pose_the_candidates_are_scored_on_the_rays_it_is_fit
     grazing = np.abs(0.001 * np.tan(inc) * np.cos(phi))[~use]
     assert np.max(grazing) > 0.05 > 0.001 * tan_max
     rec = _Recording(u, np.full(n, 10.0), np.zeros(n, int))
-    sample = diagnosis.RaySet(rec, np.arange(n), np.zeros(0, int))
+    sample = fit_data.RaySet(rec, np.arange(n), np.zeros(0, int))
     kept = run.fitted_rays_only(sample, SimpleNamespace(hits=SimpleNamespace(
         incidence_rad=inc)))
     assert np.array_equal(np.isin(np.arange(n), kept.matched), use)
@@ -958,7 +958,7 @@ def test_a_fit_of_the_pose_per_cloud_scores_the_candidates_on_the_rays_it_is_fit
     n = 1000
     inc = np.radians(np.linspace(0.0, 89.0, n))
     rec = _Recording(np.tile([1.0, 0.0, 0.0], (n, 1)), np.full(n, 10.0), np.zeros(n, int))
-    sample = diagnosis.RaySet(rec, np.arange(n), np.array([5000]))
+    sample = fit_data.RaySet(rec, np.arange(n), np.array([5000]))
     pred = SimpleNamespace(hits=SimpleNamespace(incidence_rad=inc))
 
     def fit(constant, passes):

@@ -1,6 +1,6 @@
 """Which power a range walk reads in the comparison: the measured intensity's or the
 model's (``range_walk``'s ``power`` option, ``likelihood.reads_measured_power``), chosen
-by the fit as any discrete option is (``diagnosis.fit_best_variant``). Hand-made matched
+by the fit as any discrete option is (``variants.fit_best_variant``). Hand-made matched
 points at 10 m; the fits are the comparison's own."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import ahead_fit_data
 
-from lidar_sim_ros.compare.diagnose import diagnosis as dg
+from lidar_sim_ros.compare.diagnose import diagnosis as dg, fit_data, variants
 from lidar_sim_ros.compare.model import likelihood as lk
 from lidar_sim_ros.core.effects import get_effect_class, make_effect
 
@@ -65,7 +65,7 @@ def test_a_walk_on_the_model_power_reads_the_model_not_the_intensity():
 def test_the_fit_keeps_the_model_power_where_the_intensity_is_compensated_for_incidence(seed):
     """Read through P / cos(theta), the walk misses -k ln cos(theta); the fit tries both
     powers and keeps the model's, with the walk's slope within 10 %."""
-    fit, _ = dg.fit_best_variant(get_effect_class('range_walk'), _recording(seed, 'lambert'))
+    fit, _ = variants.fit_best_variant(get_effect_class('range_walk'), _recording(seed, 'lambert'))
     assert fit.effect.params.power == 'model'
     assert abs(fit.effect.params.k_m - K_M) < 0.1 * K_M
 
@@ -74,7 +74,7 @@ def test_the_fit_keeps_the_model_power_where_the_intensity_is_compensated_for_in
 def test_the_fit_keeps_the_measured_power_where_it_carries_the_shot_to_shot_spread(seed):
     """Where the intensity is the power the walk followed, shot by shot (speckle the
     model cannot know), the measured one is kept."""
-    fit, _ = dg.fit_best_variant(get_effect_class('range_walk'), _recording(seed, 'speckle'))
+    fit, _ = variants.fit_best_variant(get_effect_class('range_walk'), _recording(seed, 'speckle'))
     assert fit.effect.params.power == 'measured'
     assert abs(fit.effect.params.k_m - K_M) < 0.1 * K_M
 
@@ -108,7 +108,7 @@ def _lasers_beside_walk(power: str) -> dict | None:
     laser = np.arange(n) % 4
     gain = np.array([-0.4, -0.1, 0.2, 0.5])
     p_model = np.full(n, 3e-5)
-    rays = dg.RaySet(SimpleNamespace(laser=laser), np.arange(n), np.zeros(0, int),
+    rays = fit_data.RaySet(SimpleNamespace(laser=laser), np.arange(n), np.zeros(0, int),
                      measured_power_w=p_model * np.exp(gain[laser]))
     pred = SimpleNamespace(ctx=SimpleNamespace(power_w=p_model))
     walk = make_effect('range_walk', {'k_m': k, 'power': power})

@@ -283,9 +283,9 @@ def test_two_effects_that_share_the_residual_are_refitted_together(seed):
     """A range walk (k 0.02) and an incidence elongation (bias_gain 0.5) at once: grazing
     returns are weak and long, so the walk fitted first takes much of the incidence's
     share (k 0.030-0.032, the incidence on top 0.10-0.12 over seeds 8-10); refitted each
-    with the other in the model until they settle (``diagnosis.refit_in_turn``, what --fit does
+    with the other in the model until they settle (``variants.refit_in_turn``, what --fit does
     with several effects), both come back to the truth."""
-    from lidar_sim_ros.compare.diagnose.diagnosis import refit_in_turn
+    from lidar_sim_ros.compare.diagnose.variants import refit_in_turn
     sensor, target, traj = scene()
     hidden = [make_effect('range_walk', {'k_m': 0.02}),
               make_effect('incidence_angle', {'bias_gain': 0.5})]

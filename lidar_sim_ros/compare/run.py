@@ -36,8 +36,9 @@ import numpy as np
 from scipy.stats import norm
 
 from lidar_sim_ros.compare.diagnose import (clock_footing, diagnosis, far_returns, features,
-                                            laser_gains, plan as sep_plan, pose_error,
-                                            range_alone, region_offset, row_clock, stamp_place)
+                                            fit_data, laser_gains, plan as sep_plan,
+                                            pose_error, range_alone, region_offset,
+                                            row_clock, stamp_place, variants)
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
@@ -169,7 +170,7 @@ def fit_user_effects(model: Model, base: list[Effect], user: list[Effect], meas:
                      seed: int) -> tuple[list[Effect], SunFit | None]:
     """ML-fit each user effect in turn on top of the base and the previously fitted ones
     (on the diagnosis sample of points), then, several that move no rays, each again
-    with all the others in the model until they settle (``diagnosis.refit_in_turn``);
+    with all the others in the model until they settle (``variants.refit_in_turn``);
     also the sunlight fit, if one was made.
 
     The likelihood profiles each material's offset and sigma scale, so a constant
@@ -189,20 +190,20 @@ def fit_user_effects(model: Model, base: list[Effect], user: list[Effect], meas:
         m = match(geometry(model, base + done), meas, model.divergence_rad, edges=False)
         rays = replace(rays_of(m, power(m), model), extra_var_m2=extra_var)
         if isinstance(eff, Sunlight):
-            residual, sigma = model_residuals(diagnosis.make_fit_data(model, base + done, rays),
+            residual, sigma = model_residuals(fit_data.make_fit_data(model, base + done, rays),
                                               rays)
             sun_fit = sunlight_of_recording(m, residual, sigma)
             done.append(Sunlight({'background_scale': sun_fit.background_scale}))
             continue
-        data = diagnosis.make_fit_data(model, base + done,
+        data = fit_data.make_fit_data(model, base + done,
                                        rays.sample(sample_size(meas), seed))
-        fit, _ = diagnosis.fit_best_variant(cls, data, fixed)
-        done.append(diagnosis.plain(cls, fit.effect))
+        fit, _ = variants.fit_best_variant(cls, data, fixed)
+        done.append(variants.plain(cls, fit.effect))
     if len(done) > 1 and sun_fit is None and not lk.moving(done):
         # None moves the rays: the last match above (``geometry`` of the base and the
         # effects before the last) is the base's; the model without them on its sample.
-        data = diagnosis.make_fit_data(model, base, rays.sample(sample_size(meas), seed))
-        done = diagnosis.refit_in_turn(data, done, fixed_of)
+        data = fit_data.make_fit_data(model, base, rays.sample(sample_size(meas), seed))
+        done = variants.refit_in_turn(data, done, fixed_of)
     return done, sun_fit
 
 
@@ -249,12 +250,12 @@ def geometry(model: Model, effects: list[Effect]):
 
 
 def rays_of(m: Matching, measured_power_w: np.ndarray | None,
-            model: Model | None = None) -> diagnosis.RaySet:
+            model: Model | None = None) -> fit_data.RaySet:
     """The matched and unmatched rays of ``m``; with ``model``, how many shots missed the
     target per unmatched point (``shots.py``)."""
     missed = (missed_per_unmatched(m.meas, m.matched, len(model.simulator().shots))
               if model is not None else None)
-    return diagnosis.RaySet(m.meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
+    return fit_data.RaySet(m.meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
                             pred=m.pred, measured_power_w=measured_power_w,
                             missed_per_unmatched=missed)
 
@@ -311,10 +312,10 @@ def unknown_time_variance(model: Model, effects: list[Effect], meas: Measurement
     m = match(sim, meas, model.divergence_rad, edges=False)
     rays = rays_of(m, None)
     sample = rays.sample(DIAGNOSIS_MAX_MATCHED, seed)
-    data = diagnosis.make_fit_data(model, effects, sample)
+    data = fit_data.make_fit_data(model, effects, sample)
     on = lk.model_on_rays(data, [])
     sub = meas.subset(sample.matched)
-    rr = range_rate_mps(sim, sub, diagnosis.take_prediction(m.pred, sample.matched))
+    rr = range_rate_mps(sim, sub, fit_data.take_prediction(m.pred, sample.matched))
     period = frame_period_s(meas, scenario)
     spread = point_times.time_spread_s(data.measured_range_m - on.expected_range_m, on.sigma_m,
                                        np.asarray(data.baseline.ctx.material, int), rr, period)
@@ -322,7 +323,7 @@ def unknown_time_variance(model: Model, effects: list[Effect], meas: Measurement
         return None, 0.0
     rr_all = np.full(len(meas), np.nan)
     hit = np.flatnonzero(m.matched)
-    rr_all[hit] = range_rate_mps(sim, meas.subset(hit), diagnosis.take_prediction(m.pred, hit))
+    rr_all[hit] = range_rate_mps(sim, meas.subset(hit), fit_data.take_prediction(m.pred, hit))
     return point_times.extra_variance_m2(rr_all, spread), spread
 
 
@@ -374,7 +375,7 @@ class Calibrated:
     model: Model                  # materials refit with --fit
     matching: Matching            # residual_m: under ``model``
     configured: Matching          # residual_m: materials as configured
-    rays: diagnosis.RaySet
+    rays: fit_data.RaySet
     residual_m: np.ndarray
     sigma_m: np.ndarray
     stats: list
@@ -389,7 +390,7 @@ class Analysed:
     """The diagnosis sample (matched and unmatched points drawn at random, with their
     neighbourhoods and silhouette distances) and the residual's feature attribution."""
 
-    sample: diagnosis.RaySet
+    sample: fit_data.RaySet
     picked: np.ndarray            # indices into the measurements: the sample's points
     isolated: np.ndarray          # (len(meas),) bool
     local: Matching               # the sample as a Matching of its own (features, report)
@@ -690,10 +691,10 @@ def leave_out_occluded(inp: Inputs) -> Inputs:
 
 
 def correct_reference_pose(model: Model, effects: list[Effect], matching: Matching,
-                           rays: diagnosis.RaySet, meas: Measurements,
+                           rays: fit_data.RaySet, meas: Measurements,
                            power: PowerFromIntensity, opts: CompareOptions,
                            blocks: np.ndarray
-                           ) -> tuple[Matching, diagnosis.RaySet, Measurements,
+                           ) -> tuple[Matching, fit_data.RaySet, Measurements,
                                       pose_error.PoseError]:
     """``--effect pose_error``: the per-cloud rigid correction of the reference pose
     (``pose_error.fit_reference_pose`` on every matched point), applied to the pose
@@ -713,9 +714,9 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
     parts_z = float(norm.isf(diagnosis.FAMILY_ALPHA
                              / max(len(candidate_classes(opts, effects)), 1)))
 
-    def fit(r: diagnosis.RaySet, applied: pose_error.PoseCorrection | None = None,
+    def fit(r: fit_data.RaySet, applied: pose_error.PoseCorrection | None = None,
             constant: bool = False) -> pose_error.PoseError:
-        data = diagnosis.make_fit_data(model, effects, r)
+        data = fit_data.make_fit_data(model, effects, r)
         idx = r.matched
         return pose_error.fit_reference_pose(data, meas.cloud[idx], meas.t_s[idx], blocks[idx],
                                              float(norm.isf(diagnosis.FAMILY_ALPHA)),
@@ -778,7 +779,7 @@ def with_range_correction(pred: Prediction, idx: np.ndarray,
 
 def match_rays(model: Model, effects: list[Effect], meas: Measurements,
                power: PowerFromIntensity, extra_var: np.ndarray | None,
-               opts: CompareOptions) -> tuple[Matching, diagnosis.RaySet]:
+               opts: CompareOptions) -> tuple[Matching, fit_data.RaySet]:
     """Every analysed ray matched to the model's target (raycast with the effects' ray
     geometry); an error naming the inputs when (almost) none hit."""
     matching = match(geometry(model, effects), meas, model.divergence_rad, edges=False)
@@ -792,14 +793,14 @@ def match_rays(model: Model, effects: list[Effect], meas: Measurements,
 
 
 def calibrate_materials(model: Model, effects: list[Effect], matching: Matching,
-                        rays: diagnosis.RaySet, fit: bool,
+                        rays: fit_data.RaySet, fit: bool,
                         range_correction_m: np.ndarray | None = None) -> Calibrated:
     """Per-material bias/sigma as measured vs configured; with ``fit`` the model takes
     the refit materials (as the paper's Table 2 calibration); the headline figures.
     ``range_correction_m``: a reference-pose correction per matched point, kept in the
     range bias when the materials' biases are replaced."""
     pred, sel = matching.pred, matching.matched
-    residual, sigma = model_residuals(diagnosis.make_fit_data(model, effects, rays), rays)
+    residual, sigma = model_residuals(fit_data.make_fit_data(model, effects, rays), rays)
     stats = mat.material_stats(model.materials, replace(pred, sigma_m=sigma), residual, sel,
                                far_returns.far_threshold_m(sigma))
     refit = mat.refit_materials(model.materials, stats)
@@ -813,14 +814,14 @@ def calibrate_materials(model: Model, effects: list[Effect], matching: Matching,
             pred = with_range_correction(pred, rays.matched, range_correction_m)
         matching = replace(matching, pred=pred)
         rays = replace(rays, pred=pred)
-    everything = diagnosis.make_fit_data(model, effects, rays)
+    everything = fit_data.make_fit_data(model, effects, rays)
     residual, sigma = model_residuals(everything, rays)
     matching = replace(matching, residual_m=residual)
     # Headline: the model (materials as configured, or refit with --fit). Calibrated:
     # each material's offset and sigma scale profiled out (what --fit delivers).
     nll, rmse, _ = lk.evaluate(everything, [], profile_materials=False)
     return Calibrated(model, matching, configured, rays, residual, sigma, stats, refit, nll,
-                      rmse, diagnosis.calibrated_figures(everything, []))
+                      rmse, variants.calibrated_figures(everything, []))
 
 
 def sunlight_stage(cal: Calibrated, effects: list[Effect], sun: SunTrack,
@@ -833,8 +834,8 @@ def sunlight_stage(cal: Calibrated, effects: list[Effect], sun: SunTrack,
                            in_model[-1] if in_model else None)
 
 
-def diagnosis_sample(rays: diagnosis.RaySet, meas: Measurements,
-                     seed: int) -> tuple[diagnosis.RaySet, np.ndarray, np.ndarray]:
+def diagnosis_sample(rays: fit_data.RaySet, meas: Measurements,
+                     seed: int) -> tuple[fit_data.RaySet, np.ndarray, np.ndarray]:
     """At most ``sample_size`` matched (and as many unmatched) points with their
     neighbourhoods: (sample, its point indices, isolated mask over the measurements)."""
     sample = rays.sample(sample_size(meas), seed)
@@ -847,13 +848,13 @@ def diagnosis_sample(rays: diagnosis.RaySet, meas: Measurements,
 
 
 def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
-              sample: diagnosis.RaySet, picked: np.ndarray, isolated: np.ndarray,
+              sample: fit_data.RaySet, picked: np.ndarray, isolated: np.ndarray,
               seed: int) -> Analysed:
     """Silhouette distances and range rates of the sample, and what the residual depends
     on (``features.attribute``, each material's offset and sigma scale removed)."""
     model, pred, sel = cal.model, cal.matching.pred, cal.matching.matched
     sub = meas.subset(picked)
-    sub_pred = diagnosis.take_prediction(pred, picked)
+    sub_pred = fit_data.take_prediction(pred, picked)
     sim = geometry(model, effects)
     edge = edge_distance_rad(sim.target, sub, sub_pred, model.divergence_rad)
     edge_all = np.full(len(meas), np.nan)
@@ -920,7 +921,7 @@ def candidate_classes(opts: CompareOptions, effects: list[Effect]) -> list[type[
 
 def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[type[Effect]],
              meas: Measurements, scenario: Scenario, sunlight: dict | None,
-             seed: int, rays: diagnosis.RaySet) -> Diagnosed:
+             seed: int, rays: fit_data.RaySet) -> Diagnosed:
     """Score every candidate, decide (``diagnosis``), test the reference pose and the
     stamp's place, fit the best few on all the sampled points."""
     sample = ana.sample
@@ -943,7 +944,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     # One FitData for them all: the tests on top of the same effects share their casts.
     tested = pose_points(rays, sample, meas)
     tested_data = (diag.full if tested is sample
-                   else diagnosis.make_fit_data(model, effects, tested))
+                   else fit_data.make_fit_data(model, effects, tested))
     scan = scan_clock(meas)
 
     def pose_test(on_top: list[Effect], constant: bool = False,
@@ -989,11 +990,11 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         moved = recast_with_rays(pose)[2]
         common = np.intersect1d(sample.matched, moved.matched)
         none = np.zeros(0, dtype=common.dtype)
-        on_pose = diagnosis.calibrated_figures(
-            diagnosis.make_fit_data(model, effects, replace(moved, matched=common,
+        on_pose = variants.calibrated_figures(
+            fit_data.make_fit_data(model, effects, replace(moved, matched=common,
                                                             unmatched=none)), [])[0]
-        with_effect = diagnosis.calibrated_figures(
-            diagnosis.make_fit_data(model, effects, replace(sample, matched=common,
+        with_effect = variants.calibrated_figures(
+            fit_data.make_fit_data(model, effects, replace(sample, matched=common,
                                                             unmatched=none)),
             [effect] if effect is not None else [])[0]
         return on_pose, with_effect
@@ -1003,7 +1004,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             return pose_test([], constant)        # the same fit: every matched point
         idx = rays.matched
         return pose_error.fit_reference_pose(
-            diagnosis.make_fit_data(model, effects, rays), meas.cloud[idx], meas.t_s[idx],
+            fit_data.make_fit_data(model, effects, rays), meas.cloud[idx], meas.t_s[idx],
             sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
             rate=has_point_times(meas), constant=constant, scan=scan)
     # Points without a time within their cloud: a residual growing with the row is a
@@ -1021,13 +1022,13 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         test on top of ``effect``) and the per-cloud test on the re-cast matching."""
         idx = rays.matched
         fitted = pose_error.fit_reference_pose(
-            diagnosis.make_fit_data(model, effects, rays), meas.cloud[idx], meas.t_s[idx],
+            fit_data.make_fit_data(model, effects, rays), meas.cloud[idx], meas.t_s[idx],
             sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed, [effect],
             rate=has_point_times(meas), constant=True)
         diag_c, report, moved = recast_all_points(model, effects, rays, sample, meas, fitted,
                                                   len(classes), seed, True, (effect,))
         test = pose_test([effect], constant=True)
-        data_c = diagnosis.make_fit_data(model, effects, moved)
+        data_c = fit_data.make_fit_data(model, effects, moved)
 
         def per_cloud(on_top: list[Effect]) -> pose_error.PoseError:
             at = moved.matched
@@ -1088,7 +1089,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     named_effect = next((c.effect for c in cands if c.name == decision.missing), None)
     alone = named_range_alone(decision.missing, named_effect, diag.full,
                               sample.blocks[sample.matched], diag.z_crit, seed)
-    return Diagnosed(cands, decision, stamp, pose, diagnosis.calibrated_figures(diag.full, []),
+    return Diagnosed(cands, decision, stamp, pose, variants.calibrated_figures(diag.full, []),
                      diag.full, diag.z_crit, on_top, alone)
 
 
@@ -1214,8 +1215,8 @@ def pose_against_range_alone(decision: diagnosis.Decision,
                           **against.as_dict()})
 
 
-def pose_points(rays: diagnosis.RaySet, sample: diagnosis.RaySet,
-                meas: Measurements) -> diagnosis.RaySet:
+def pose_points(rays: fit_data.RaySet, sample: fit_data.RaySet,
+                meas: Measurements) -> fit_data.RaySet:
     """The matched points the reference pose is tested on: the diagnosis sample where its
     points a cloud pay for the per-cloud correction's parameters (the held-out cost,
     POSE_PARAMS clouds / points, at most MIN_PRACTICAL_GAIN nats per point), else every
@@ -1229,11 +1230,11 @@ def pose_points(rays: diagnosis.RaySet, sample: diagnosis.RaySet,
                    blocks=sample.blocks, edge_rad=None, isolated=None)
 
 
-def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySet,
-                      sample: diagnosis.RaySet, meas: Measurements,
+def recast_all_points(model: Model, effects: list[Effect], rays: fit_data.RaySet,
+                      sample: fit_data.RaySet, meas: Measurements,
                       pose: pose_error.PoseError, n_candidates: int, seed: int,
                       constant: bool = False, on_top: tuple[Effect, ...] = ()
-                      ) -> tuple[diagnosis.Diagnosis, pose_error.PoseError, diagnosis.RaySet]:
+                      ) -> tuple[diagnosis.Diagnosis, pose_error.PoseError, fit_data.RaySet]:
     """The diagnosis on the pose-corrected model as a ``--effect pose_error --fit`` run
     builds it: ``pose`` (a fit on every matched point of ``rays``) applied and every
     ray raycast again (``pose_error.iterate``, each step refit on every re-matched
@@ -1262,7 +1263,7 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
     def refit(state, applied: pose_error.PoseCorrection) -> pose_error.PoseError:
         _, r, moved = state
         idx = r.matched
-        return pose_error.fit_reference_pose(diagnosis.make_fit_data(model, effects, r),
+        return pose_error.fit_reference_pose(fit_data.make_fit_data(model, effects, r),
                                              moved.cloud[idx], moved.t_s[idx],
                                              sample.blocks[idx], float(norm.isf(
                                                  diagnosis.FAMILY_ALPHA)),
@@ -1282,15 +1283,15 @@ def recast_all_points(model: Model, effects: list[Effect], rays: diagnosis.RaySe
     picked = np.sort(np.concatenate([fresh.matched, fresh.unmatched]))
     edge = np.full(len(moved), np.nan)
     edge[picked] = edge_distance_rad(sim.target, moved.subset(picked),
-                                     diagnosis.take_prediction(m.pred, picked),
+                                     fit_data.take_prediction(m.pred, picked),
                                      model.divergence_rad)
     diag = diagnosis.Diagnosis(model, effects, replace(fresh, edge_rad=edge), seed)
     diag.set_family(n_candidates)
     return diag, report, moved_rays
 
 
-def on_corrected_pose(sample: diagnosis.RaySet, pred: Prediction,
-                      pose_fit: pose_error.PoseError | None) -> tuple[diagnosis.RaySet, int]:
+def on_corrected_pose(sample: fit_data.RaySet, pred: Prediction,
+                      pose_fit: pose_error.PoseError | None) -> tuple[fit_data.RaySet, int]:
     """The diagnosis sample of a ``--effect pose_error --fit`` run and how many of its
     matched rays were left out: where the correction is per cloud and was raycast again
     (``correct_reference_pose``), the rays it is fitted on (``fitted_rays_only``), as
@@ -1304,7 +1305,7 @@ def on_corrected_pose(sample: diagnosis.RaySet, pred: Prediction,
     return kept, len(sample.matched) - len(kept.matched)
 
 
-def fitted_rays_only(sample: diagnosis.RaySet, pred: Prediction) -> diagnosis.RaySet:
+def fitted_rays_only(sample: fit_data.RaySet, pred: Prediction) -> fit_data.RaySet:
     """``sample`` without the matched rays a per-cloud pose correction is not fitted on:
     grazing rays (|cos incidence| below ``pose_error.MIN_COS``, ``pred`` per ray). Their
     range moves with the pose as 1 / cos(incidence), so what the correction leaves
@@ -1318,7 +1319,7 @@ def fitted_rays_only(sample: diagnosis.RaySet, pred: Prediction) -> diagnosis.Ra
     return replace(sample, matched=sample.matched[keep])
 
 
-def recast_sample(rays: diagnosis.RaySet, meas: Measurements, seed: int) -> diagnosis.RaySet:
+def recast_sample(rays: fit_data.RaySet, meas: Measurements, seed: int) -> fit_data.RaySet:
     """The points the candidates are scored on against a corrected pose: a diagnosis
     sample drawn anew from the re-cast matching ``rays`` (``diagnosis_sample``), as a
     --fit run draws it; not the recorded pose's sample matched anew, whose unmatched
@@ -1329,7 +1330,7 @@ def recast_sample(rays: diagnosis.RaySet, meas: Measurements, seed: int) -> diag
 
 def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
                   fitted: list[Effect], cal: Calibrated, ana: Analysed, diag: Diagnosed,
-                  sunlight: dict | None, rays: diagnosis.RaySet, time_spread: float,
+                  sunlight: dict | None, rays: fit_data.RaySet, time_spread: float,
                   power: PowerFromIntensity,
                   pose_fit: pose_error.PoseError | None = None,
                   plan: Plan | None = None) -> dict:
@@ -1431,7 +1432,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
 
 
 def laser_intensity(decision: diagnosis.Decision, cands: list, effects: list[Effect],
-                    rays: diagnosis.RaySet, pred: Prediction, z_crit: float) -> dict | None:
+                    rays: fit_data.RaySet, pred: Prediction, z_crit: float) -> dict | None:
     """summary.json's ``laser_intensity``: where laser_bias is named (or 'also') beside a
     range walk read from the measured intensity (in the model, named or 'also'), how
     closely its offsets follow k times each laser's mean ln(measured / model power) on
@@ -1497,7 +1498,7 @@ def write_outputs(opts: CompareOptions, summary: dict, stage: Stages, inp: Input
     return CompareResult(summary, opts.out, files, fitted, summary_lines(summary, files))
 
 
-def model_residuals(data: lk.FitData, rays: diagnosis.RaySet) -> tuple[np.ndarray, np.ndarray]:
+def model_residuals(data: lk.FitData, rays: fit_data.RaySet) -> tuple[np.ndarray, np.ndarray]:
     """Measured minus expected range (m) and predicted sigma (m) of every measured point
     under the model with its effects (NaN where unmatched)."""
     n = len(rays.meas)
@@ -1522,7 +1523,7 @@ def _effect_record(e: Effect, fitted_only: bool = False) -> dict:
     if fitted_only:
         # The free parameters, the discrete options, and whatever the fit set away from
         # its default (per-material standoffs, per-laser angles: not in ``bounds`` by name).
-        keep = set(type(e).bounds) | set(diagnosis.literal_choices(type(e)))
+        keep = set(type(e).bounds) | set(variants.literal_choices(type(e)))
         defaults = _defaults(type(e))
         params = {k: v for k, v in params.items() if k in keep or v != defaults.get(k, v)}
     bound = at_bounds(e) if fitted_only else []

@@ -43,7 +43,8 @@ def clock_on_top(diag, best, clock) -> dict | None:
     the rule there: held out on top of ``best`` (``_passes_on_top``) and, fitted, the
     NLL of both below that of ``best`` alone. Returns {'effect', 'gain', 'z', 'dt_s'}
     or None."""
-    from lidar_sim_ros.compare.diagnose.diagnosis import calibrated_figures, fit_effect
+    from lidar_sim_ros.compare.diagnose.variants import calibrated_figures
+    from lidar_sim_ros.compare.model.fit import fit_effect
     if (clock is None or clock is best or clock.variant is None or clock.error is not None
             or best.effect is None):
         return None

@@ -78,13 +78,11 @@ nothing else is named; they are weighed against a named effect
 from __future__ import annotations
 
 import copy
-import itertools
 import time
 from dataclasses import dataclass, field, is_dataclass, replace
-from typing import Callable, Literal, get_args, get_origin
+from typing import Callable
 
 import numpy as np
-from pydantic import create_model
 from scipy.stats import kstest, norm
 
 from lidar_sim_ros.compare.model import likelihood as lk
@@ -94,18 +92,17 @@ from lidar_sim_ros.compare.diagnose.far_returns import (
     core_points, far_from_surface, far_positions, far_sides, no_false_returns,
     off_target_positions)
 from lidar_sim_ros.compare.diagnose.unmatched_credit import unmatched_credit
+from lidar_sim_ros.compare.diagnose.fit_data import RaySet, make_fit_data
+from lidar_sim_ros.compare.diagnose.variants import (
+    calibrated_figures, fit_best_variant, heldout_nll, literal_choices, missed_shots_gain,
+    plain, refit_in_turn, transfer_both_ways, variants)
 from lidar_sim_ros.compare.diagnose.features import Attribution, block_mean_se, block_mean_z
 from lidar_sim_ros.compare.model import pointing
-from lidar_sim_ros.compare.model.fit import at_bounds, fit_effect, shift_offsets_along
+from lidar_sim_ros.compare.model.fit import at_bounds, fit_effect
 from lidar_sim_ros.compare.model.likelihood import is_outlier_effect  # noqa: F401 (re-exported)
-from lidar_sim_ros.compare.model.matching import Model, predict_rays
-from lidar_sim_ros.compare.model.materials import robust_sigma
-from lidar_sim_ros.compare.recording.measurements import Measurements
+from lidar_sim_ros.compare.model.matching import Model
 from lidar_sim_ros.core.effects import Effect
-from lidar_sim_ros.core.geometry import Hits
-from lidar_sim_ros.core.pipeline import Prediction
 
-OUTLIER_FLOOR = 1e-5        # outlier weight every held-out likelihood carries (robustness)
 UNMATCHED_NATS = 3.0        # gain credited per unmatched point a candidate explains
 MIN_TOTAL_GAIN = 15.0       # nats of held-out log-likelihood ratio (odds e^15 : 1)
 FAMILY_ALPHA = 0.01         # family-wise error rate of the candidate tests (one-sided)
@@ -117,7 +114,6 @@ MAX_ALSO_TRIES = 2         # candidates decisively worse than the named one trie
 # surface obliquely, as an incidence bias does, so fitted alone it takes the bias's part
 # and the bias, ranked behind effects of other shapes, was never tried beside it.
 SHARES_DILATION = {'beam_divergence': 'incidence_angle'}
-JOINT_ROUNDS = 8           # passes refitting several effects each with the others (refit_in_turn)
 MIN_UNMATCHED_EXPLAINED = 20   # unmatched points explained count only from this many ...
 MIN_UNMATCHED_FRACTION = 0.002  # ... and this share of all points (grazing rays aside)
 N_FOLDS = 2
@@ -138,302 +134,6 @@ RANGE_OF_RANGE = 'range_error_of_range'
 # a surface moved along its normal shifts ranges as 1 / cos(incidence), as a footprint
 # effect does.
 GEOMETRY_RIVALS = ('surface_offset',)
-
-
-@dataclass(frozen=True)
-class RaySet:
-    """Measured points split into matched and unmatched rays, as index arrays into
-    ``meas``, with what the comparison knows about every point (arrays over ``meas``):
-    the model's geometry prediction (``pred``: raycast, reflection and per-material
-    bias/sigma with the model's ray-moving effects, no effect hooks), the received power
-    from the measured intensity, and any variance the model adds (unknown point times)."""
-
-    meas: Measurements
-    matched: np.ndarray
-    unmatched: np.ndarray
-    pred: Prediction | None = None
-    measured_power_w: np.ndarray | None = None
-    extra_var_m2: np.ndarray | None = None
-    isolated: np.ndarray | None = None     # bool: no neighbouring ray sees the same range
-    blocks: np.ndarray | None = None       # int: neighbourhood of each point (for SEs)
-    edge_rad: np.ndarray | None = None     # distance to the nearest edge (NaN: unknown)
-    # Shots without a matched point per unmatched point, in the whole recording (``shots``);
-    # a sample keeps it: matched and unmatched rays are drawn separately.
-    missed_per_unmatched: float | None = None
-
-    def _with(self, matched: np.ndarray, unmatched: np.ndarray) -> 'RaySet':
-        return replace(self, matched=matched, unmatched=unmatched)
-
-    def sample(self, max_points: int, seed: int) -> 'RaySet':
-        """At most ``max_points`` matched and as many unmatched rays, drawn at random."""
-        rng = np.random.default_rng(seed)
-
-        def pick(idx: np.ndarray) -> np.ndarray:
-            return idx if len(idx) <= max_points else np.sort(rng.choice(idx, max_points, False))
-        return self._with(pick(self.matched), pick(self.unmatched))
-
-    def split(self, n_folds: int, seed: int) -> list['RaySet']:
-        rng = np.random.default_rng(seed)
-        fm = rng.permutation(len(self.matched)) % n_folds
-        fu = rng.permutation(len(self.unmatched)) % n_folds
-        return [self._with(np.sort(self.matched[fm == k]), np.sort(self.unmatched[fu == k]))
-                for k in range(n_folds)]
-
-
-def take_prediction(pred: Prediction, index: np.ndarray) -> Prediction:
-    """The prediction on a subset of its rays (integer indices or a mask)."""
-    h = pred.hits
-    hits = Hits(*(None if v is None else v[index] for v in (
-        h.hit, h.range_m, h.normal, h.incidence_rad, h.material, h.face, h.power_fraction,
-        h.cos_incidence)))
-    return Prediction(pred.ctx.subset(index), hits, pred.directions[index], pred.bias_m[index],
-                      pred.sigma_m[index])
-
-
-def range_window_m(meas: Measurements) -> tuple[float, float]:
-    """Support of spurious-return ranges: the measured ranges, at least 1 m wide."""
-    lo, hi = float(meas.range_m.min()), float(meas.range_m.max())
-    if hi - lo < 1.0:
-        lo, hi = max(0.0, lo - 0.5), hi + 0.5
-    return lo, hi
-
-
-def miss_window_m(meas: Measurements, model) -> tuple[float, float]:
-    """Support of a false return on a shot that misses the target: the sensor's range
-    gate (what a miss listens over), widened to the measured ranges."""
-    lo, hi = range_window_m(meas)
-    det = model.sensor.detection
-    return min(lo, float(det.min_range_m)), max(hi, float(det.max_range_m))
-
-
-def put_prediction(pred: Prediction, index: np.ndarray, part: Prediction) -> Prediction:
-    """``pred`` with the rays ``index`` replaced by ``part`` (a prediction of those rays)."""
-    def put(full, sub):
-        if full is None and sub is None:
-            return None
-        if full is None:      # e.g. power_fraction: the whole beam elsewhere
-            full = np.ones(len(pred.bias_m), np.asarray(sub).dtype)
-        out = np.array(full, copy=True)
-        out[index] = sub
-        return out
-
-    h, q = pred.hits, part.hits
-    hits = Hits(*(put(getattr(h, k), getattr(q, k)) for k in (
-        'hit', 'range_m', 'normal', 'incidence_rad', 'material', 'face', 'power_fraction',
-        'cos_incidence')))
-    ctx = replace(pred.ctx, **{k: put(v, getattr(part.ctx, k)) for k, v in pred.ctx.__dict__.items()
-                               if isinstance(v, np.ndarray) and len(v) == len(pred.bias_m)})
-    return Prediction(ctx, hits, pred.directions, put(pred.bias_m, part.bias_m),
-                      put(pred.sigma_m, part.sigma_m))
-
-
-def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet,
-                  parent: tuple[lk.FitData, RaySet] | None = None) -> lk.FitData:
-    """FitData for ``rays``: the model with ``base_effects`` (their hooks applied by the
-    likelihood); ``cast(effects)`` re-predicts the rays with extra ray-moving effects.
-    The baseline is sliced from ``rays.pred`` when given (it must have been predicted
-    with the ray geometry of ``base_effects``), else predicted here. With ``parent`` (a
-    FitData of a superset of the rays), casts are sliced from the parent's, so folds
-    share the raycasts of the whole. An effect whose cast reaches only so far from its
-    axis (``Effect.cast_reach_rad``) is re-cast on the rays near an edge only
-    (``rays.edge_rad``), the others keep the baseline."""
-    meas = rays.meas
-    m_sub, u_sub = meas.subset(rays.matched), meas.subset(rays.unmatched)
-    base_moving = lk.moving(base_effects)
-
-    def caster(index: np.ndarray, sub: Measurements, base: Prediction | None) -> lk.PredictionCache:
-        edge = None if rays.edge_rad is None else rays.edge_rad[index]
-
-        def cast(effects: list[Effect]) -> Prediction:
-            sim = model.simulator(effects=[lk.RaysOnly(e) for e in effects])
-            reach = [e.cast_reach_rad(model.divergence_rad) for e in effects]
-            if (base is not None and edge is not None and effects and not base_moving
-                    and all(r is not None for r in reach)):
-                near = np.flatnonzero(~(edge > max(reach) + 1e-9))   # NaN edge: near
-                if len(near) == 0:
-                    return base
-                return put_prediction(base, near, predict_rays(sim, sub.subset(near)))
-            return predict_rays(sim, sub)
-        return lk.PredictionCache(cast)
-
-    if parent is not None:
-        pdata, prays = parent
-        im = np.searchsorted(prays.matched, rays.matched)
-        iu = np.searchsorted(prays.unmatched, rays.unmatched)
-        cast = lk.PredictionCache(lambda e: take_prediction(pdata.cast(e), im))
-        cast_un = lk.PredictionCache(lambda e: take_prediction(pdata.cast_unmatched(e), iu))
-        baseline = take_prediction(pdata.baseline, im)
-    else:
-        base_m = (take_prediction(rays.pred, rays.matched) if rays.pred is not None else None)
-        base_u = (take_prediction(rays.pred, rays.unmatched) if rays.pred is not None else None)
-        cast = caster(rays.matched, m_sub, base_m)
-        cast_un = caster(rays.unmatched, u_sub, base_u)
-        baseline = base_m if base_m is not None else cast(base_moving)
-    power = None if rays.measured_power_w is None else rays.measured_power_w[rays.matched]
-    power_u = (None if rays.measured_power_w is None
-               else rays.measured_power_w[rays.unmatched])
-    extra = 0.0 if rays.extra_var_m2 is None else rays.extra_var_m2[rays.matched]
-    isolated = None if rays.isolated is None else rays.isolated[rays.unmatched]
-    return lk.FitData(
-        measured_range_m=m_sub.range_m, baseline=baseline, cast=cast,
-        unmatched_range_m=u_sub.range_m, cast_unmatched=cast_un,
-        range_window_m=range_window_m(meas), miss_window_m=miss_window_m(meas, model),
-        base_effects=tuple(base_effects), measured_power_w=power, extra_var_m2=extra,
-        unmatched_isolated=isolated,
-        placement_uncertain=rays.extra_var_m2 is not None,
-        missed_per_unmatched=rays.missed_per_unmatched, unmatched_power_w=power_u)
-
-
-def calibrated_figures(data, effects: list[Effect]) -> tuple[float, float, float]:
-    """(nll_per_point, range_rmse_m, range_robust_sigma_m) of ``data``'s matched points
-    under baseline + ``effects``, each material's range offset and sigma scale profiled
-    out: the "calibrated" basis, i.e. what a ``--fit`` run (materials refit) reports.
-    The robust sigma (MAD) of the same residuals is not swayed by far outliers."""
-    model = lk.model_on_rays(data, effects)
-    nll, residual = lk.point_nll(data, model)
-    if len(nll) == 0:
-        return float('nan'), float('nan'), float('nan')
-    use = model.placed & np.isfinite(residual)
-    robust = robust_sigma(residual[use]) if use.any() else float('nan')
-    return float(np.mean(nll)), float(np.sqrt(np.mean(residual ** 2))), robust
-
-
-def missed_shots_gain(data, effect: Effect) -> float:
-    """What a false-return ``effect`` gains over the model without it on the shots that
-    missed the target (``lk.missed_shots_nll``: the binomial count of false returns
-    among them), nats per matched point of ``data``; 0 for an effect that adds none, or
-    when the shots fired are unknown. With ``calibrated_figures``' NLL it is the
-    fitted footing on the likelihood such an effect is fitted and held out on: a
-    background's evidence sits mostly on the misses, which listen over the whole window."""
-    n = len(data.measured_range_m)
-    if not is_outlier_effect(type(effect)) or n == 0:
-        return 0.0
-    before = lk.missed_shots_nll(data, lk.model_on_rays(data, []), [])
-    after = lk.missed_shots_nll(data, lk.model_on_rays(data, [effect]), [effect])
-    return float((before - after) / n) if np.isfinite(before - after) else 0.0
-
-
-def heldout_nll(data, effects: list[Effect]) -> np.ndarray:
-    """Per-point NLL (nats) of ``data``'s matched ranges under baseline + ``effects``:
-    the fitting likelihood (per-material nuisance profiled) with an outlier floor."""
-    model = lk.model_on_rays(data, effects)
-    return lk.point_nll(data, model, OUTLIER_FLOOR)[0]
-
-
-def transfer_both_ways(variant: type[Effect], data: list, on_top: list[Effect] = ()
-                       ) -> list[np.ndarray]:
-    """Per-point held-out NLL of each of two halves (``data``: two FitData) under
-    ``variant`` fitted on the other half, with ``on_top`` (fitted effects) in the model:
-    the tile test's transfer (``Diagnosis.transfer_nll``). NaN on the points of a laser
-    whose offsets the training half does not determine (``laser_tiles.undetermined``)."""
-    fits = [fit_effect(variant, data[1 - k], list(on_top)) for k in range(len(data))]
-    info = [f.extras.get('laser_information') for f in fits]
-    cells = [f.extras.get('offset_cells') for f in fits]
-    out = []
-    for k, part in enumerate(data):
-        effect = fits[k].effect
-        # The lasers' offsets that the other half leaves as loose as a few shared points
-        # do (groups of lasers linked through a material's intercept only there) are no
-        # evidence of a pattern: their level is taken on this half
-        # (``laser_tiles.poorly_linked``).
-        free = laser_tiles.poorly_linked(cells[k], cells[1 - k])
-        if free is not None and free.shape[1]:
-            effect = shift_offsets_along(effect, part, list(on_top), free)
-        nll = heldout_nll(part, [*on_top, effect])
-        # A laser whose offsets the other half does not determine (two per laser, seen
-        # through the surface's slope there) is not scored (``laser_tiles.undetermined``).
-        unknown = laser_tiles.undetermined(info[k], info[1 - k])
-        if unknown is not None:
-            laser = np.asarray(part.baseline.ctx.laser, np.int64)
-            nll = np.where(unknown[np.clip(laser, 0, len(unknown) - 1)]
-                           & (laser < len(unknown)), np.nan, nll)
-        out.append(nll)
-    return out
-
-
-def literal_choices(effect_cls: type[Effect]) -> dict[str, tuple]:
-    """The effect's discrete options (``Literal`` params that are not fitted), e.g. a
-    beam footprint's range mode: the fit is run for each and the best kept."""
-    out = {}
-    for name, info in effect_cls.Params.model_fields.items():
-        if name not in effect_cls.bounds and get_origin(info.annotation) is Literal:
-            out[name] = get_args(info.annotation)
-    return out
-
-
-def with_defaults(effect_cls: type[Effect], defaults: dict) -> type[Effect]:
-    """``effect_cls`` whose Params default to ``defaults`` (fixed, non-fitted values),
-    so the generic fit keeps them while it estimates the free parameters."""
-    if not defaults:
-        return effect_cls
-    fields = {k: (effect_cls.Params.model_fields[k].annotation, v) for k, v in defaults.items()}
-    params = create_model(effect_cls.Params.__name__, __base__=effect_cls.Params, **fields)
-    return type(effect_cls.__name__, (effect_cls,), {
-        'Params': params, '__module__': effect_cls.__module__,
-        '__qualname__': effect_cls.__qualname__, '__doc__': effect_cls.__doc__})
-
-
-def variants(effect_cls: type[Effect], fixed: dict | None = None,
-             max_variants: int = 4) -> list[type[Effect]]:
-    """``effect_cls`` with ``fixed`` params, once per combination of its discrete options
-    (the combination closest to the class's own defaults first)."""
-    fixed = dict(fixed or {})
-    choices = {k: v for k, v in literal_choices(effect_cls).items() if k not in fixed}
-    own = effect_cls.Params.model_fields
-    combos = [dict(zip(choices, combo)) for combo in itertools.product(*choices.values())]
-    combos.sort(key=lambda c: sum(c[k] != own[k].default for k in c))
-    return [with_defaults(effect_cls, {**fixed, **c}) for c in combos[:max_variants]]
-
-
-def fit_best_variant(effect_cls: type[Effect], data, fixed: dict | None = None,
-                     on_top: list[Effect] = ()):
-    """ML fit over the free parameters and the discrete options, with ``on_top`` (fitted
-    effects) in the model: (FitResult, variant class)."""
-    best = None
-    for v in variants(effect_cls, fixed):
-        fit = fit_effect(v, data, list(on_top))
-        if best is None or fit.nll_per_point < best[0].nll_per_point - 1e-9:
-            best = (fit, v)
-    return best
-
-
-def refit_in_turn(data, effects: list[Effect], fixed_of: list[dict],
-                  rounds: int = JOINT_ROUNDS, on_top: list[Effect] = ()) -> list[Effect]:
-    """``effects`` (fitted each on top of those before it) refitted each with all the
-    others in the model, in turn, until their parameters settle (within 1 %) or
-    ``rounds`` passes: the joint maximum of the likelihood, not the first effect's
-    value alone. Two effects that share part of the residual (a range walk and an
-    incidence elongation: grazing returns are weak and long) otherwise leave the first
-    with the other's share (the eighth holdout: walk k 0.0236 alone, 0.0156 together,
-    for a true 0.015). ``fixed_of``: per effect, the parameters the user fixed; ``on_top``:
-    fitted effects kept as they are in the model."""
-    done = list(effects)
-    for _ in range(rounds):
-        before = [e.params.model_dump() for e in done]
-        for i, eff in enumerate(done):
-            cls = type(eff)
-            fit, _ = fit_best_variant(cls, data, fixed_of[i],
-                                      on_top=[*on_top, *done[:i], *done[i + 1:]])
-            done[i] = plain(cls, fit.effect)
-        if all(_settled(a, b.params.model_dump()) for a, b in zip(before, done)):
-            break
-    return done
-
-
-def _settled(before: dict, after: dict) -> bool:
-    """Every numeric parameter within 1 % of its value (or 1e-9) before."""
-    for k, v in after.items():
-        was = before.get(k)
-        for a, b in zip(np.ravel(was if was is not None else v), np.ravel(v)):
-            if isinstance(b, (int, float, np.floating)) and not isinstance(b, bool) and \
-                    abs(float(b) - float(a)) > max(0.01 * abs(float(b)), 1e-9):
-                return False
-    return True
-
-
-def plain(effect_cls: type[Effect], effect: Effect) -> Effect:
-    """A variant's fitted instance as an instance of the original class (same params)."""
-    return effect_cls(effect.params.model_dump())
 
 
 @dataclass

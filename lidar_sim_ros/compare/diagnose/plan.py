@@ -38,7 +38,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.compare.diagnose import diagnosis
+from lidar_sim_ros.compare.diagnose import diagnosis, fit_data
 from lidar_sim_ros.compare.model import likelihood as lk, materials as mat, neighbours
 from lidar_sim_ros.compare.model.matching import Model, match
 from lidar_sim_ros.compare.recording.measurements import Measurements
@@ -232,7 +232,7 @@ def one_way(model: Model, base: list[Effect], true: Effect, other: Effect,
     one's held-out gain and fitted parameters."""
     geom = model.simulator(effects=[lk.RaysOnly(e) for e in lk.moving(base)])
     m = match(geom, meas, model.divergence_rad, edges=False)
-    rays = diagnosis.RaySet(meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
+    rays = fit_data.RaySet(meas, np.flatnonzero(m.matched), np.flatnonzero(~m.matched),
                             pred=m.pred, blocks=neighbours.blocks(meas.directions, meas.cloud))
     diag = diagnosis.Diagnosis(model, base, rays, seed)
     diag.z_crit = z_crit         # the bound of the comparison that found the tie
