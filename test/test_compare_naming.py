@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from lidar_sim_ros.compare.diagnose import diagnosis as dg
-from lidar_sim_ros.compare.diagnose import far_returns as fr
+from lidar_sim_ros.compare.diagnose import far_returns as fr, pose_weighing
 from lidar_sim_ros.compare.report import verdict as vd
 from lidar_sim_ros.core.effects import make_effect
 
@@ -673,12 +673,12 @@ def test_the_pose_test_with_the_larger_held_out_gain_is_the_one_weighed():
 def test_better_of_closed_form():
     """The three footings of a candidate against the pose (``_better_of``)."""
     m = dg.MIN_PRACTICAL_GAIN
-    assert dg._better_of(2 * m, -2 * m, 0.0) == 1          # charged: no disagreement
-    assert dg._better_of(2 * m, -3 * m, -2 * m) == 0       # disagree by a margin: a tie
-    assert dg._better_of(-2 * m, 3 * m, 2 * m) == 0
-    assert dg._better_of(-2 * m, -2 * m, -2 * m) == -1
-    assert dg._better_of(0.5 * m, 2 * m, -2 * m) == 1      # held out close: fitted decides
-    assert dg._better_of(0.5 * m, 0.5 * m, 0.0) == 0
+    assert pose_weighing._better_of(2 * m, -2 * m, 0.0) == 1          # charged: no disagreement
+    assert pose_weighing._better_of(2 * m, -3 * m, -2 * m) == 0       # disagree by a margin: a tie
+    assert pose_weighing._better_of(-2 * m, 3 * m, 2 * m) == 0
+    assert pose_weighing._better_of(-2 * m, -2 * m, -2 * m) == -1
+    assert pose_weighing._better_of(0.5 * m, 2 * m, -2 * m) == 1      # held out close: fitted decides
+    assert pose_weighing._better_of(0.5 * m, 0.5 * m, 0.0) == 0
 
 
 def test_pose_off_beside_the_named_effect_decides_again_on_the_corrected_pose():

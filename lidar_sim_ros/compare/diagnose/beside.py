@@ -77,7 +77,7 @@ def weigh_beside(diag, decision, best, cands: list, beside: list, test, pose, on
     passes on the corrected pose): ``judge_pose``'s decision then stands as without
     this (the pose reported beside ``best`` where its test passed on top of it and what
     the decision holds beside it, else not)."""
-    from lidar_sim_ros.compare.diagnose.diagnosis import POSE_ERROR, _num
+    from lidar_sim_ros.compare.diagnose.candidate import POSE_ERROR, _num
     by_name = {c.name: c for c in cands}
     clock = by_name.get(CLOCK)
     fitted_clock = (clock_on_top(diag, best, clock)

@@ -12,7 +12,7 @@ decision and the candidates recorded; it decides nothing.
 """
 from __future__ import annotations
 
-from lidar_sim_ros.compare.diagnose.diagnosis import MIN_PRACTICAL_GAIN, POSE_ERROR, RANGE_OF_RANGE
+from lidar_sim_ros.compare.diagnose.candidate import MIN_PRACTICAL_GAIN, POSE_ERROR, RANGE_OF_RANGE
 from lidar_sim_ros.compare.report.verdict import LINE_OF_SIGHT_SHARE
 
 
