@@ -1498,8 +1498,11 @@ class Diagnosis:
         beside a range walk (ninth holdout ``walk+snr``: fitted together with the walk
         its bias gain is -0.012). Where each passes on top of the other (two effects)
         or neither does (the data cannot tell which), nothing changes. A footprint
-        stands in for its own dilation partner (``SHARES_DILATION``) only where what it
-        gains on top of it is too small to matter, whatever its z (``_own_part_on_top``)."""
+        (``SHARES_DILATION``) as ``other`` is judged on the gain that matters on both
+        sides, z aside (``_own_part_on_top``): its evidence lies on a few edge returns, so
+        its z is small at any size and cannot be weighed against another's; it stands in
+        for ``c`` only where it gains too little to matter on top of ``best`` and ``c``
+        while ``c`` passes the whole rule on top of ``best`` and the footprint."""
         if best.effect is None or other.effect is None:
             return None
         memo = self.memo('stands_in')
@@ -1516,11 +1519,11 @@ class Diagnosis:
                 self.finalized(best, other, c)
                 if self._passes_on_top(self._fitted_together([best.effect, c.effect]), other):
                     continue
-                if (SHARES_DILATION.get(other.name) == c.name
-                        and self._own_part_on_top([best.effect, c.effect], other)):
+                footprint = other.name in SHARES_DILATION
+                if footprint and self._own_part_on_top([best.effect, c.effect], other):
                     continue
                 if self._passes_on_top(self._fitted_together([best.effect, other.effect]), c,
-                                       practical=False):
+                                       practical=footprint):
                     memo[key] = c.name
                     return c.name
             except Exception:  # noqa: BLE001 - not shown to stand in
@@ -1529,14 +1532,15 @@ class Diagnosis:
 
     def _own_part_on_top(self, on_top: list[Effect], other: Candidate) -> bool:
         """Whether ``other`` (a footprint) still gains what matters on top of ``on_top``
-        fitted together (one of them its dilation partner, ``SHARES_DILATION``): held out
-        at least MIN_PRACTICAL_GAIN per point and MIN_TOTAL_GAIN in all, whatever its z.
-        The two share the bias of oblique faces by construction; a footprint's own part
-        is its edge returns beyond the silhouette and mixed ranges at depth steps, a few
-        per cent of the points carrying most of its gain, so its block z is small for any
-        size there (foreign beam_solar_incid@1: 0.1029 nats/point alone at z 4.2, 0.0203
-        on top of false returns and the incidence bias at z 1.1). A z that small says the
-        size is uncertain, not that the footprint stands in for its partner."""
+        fitted together: held out at least MIN_PRACTICAL_GAIN per point and
+        MIN_TOTAL_GAIN in all, whatever its z. A footprint's own part is its edge returns
+        beyond the silhouette and mixed ranges at depth steps, a few per cent of the
+        points carrying most of its gain, so its block z is small for any size there
+        (foreign beam_solar_incid@1: 0.1029 nats/point alone at z 4.2, 0.0203 on top of
+        false returns and the incidence bias at z 1.1); beside its dilation partner
+        (``SHARES_DILATION``: an incidence bias) the two share the bias of oblique faces
+        by construction. A z that small says the size is uncertain, not that the
+        footprint stands in for the other."""
         try:
             gain, _, _ = self._on_top(self._fitted_together(on_top), other)
         except Exception:  # noqa: BLE001 - not shown to keep a part of its own
