@@ -1477,3 +1477,72 @@ def test_a_pose_rival_passes_the_share_rule_as_every_candidate_does():
     assert d.missing is None and d.confounded_with == [] and d.pose is pose
     d, scale = weigh(0.05)
     assert scale.vetoed is None and d.missing == 'range_scale' and d.pose is None
+
+
+def test_a_footprint_does_not_stand_in_by_its_z_alone():
+    """decide(): foreign beam_solar_incid@1 (a footprint, false returns of sunlight, an
+    incidence bias). The footprint ranks first (0.1029 nats/point alone, z 4.2: its
+    gain sits on the few edge returns), the false returns are not decisively apart and
+    add to it. On top of the false returns and the incidence bias fitted together the
+    footprint gains 0.0203 nats/point held out at z 1.1, the bias 0.0109 (z 7.0) on top
+    of the false returns and the footprint: ``stands_in_beside`` took the footprint for
+    a stand-in of the bias and named the false returns. The two share the bias of
+    oblique faces by construction (``SHARES_DILATION``); a gain four times the margin
+    is the footprint's own part (edges), uncertain in size, not the bias's. So the
+    footprint is named, the bias 'also' (tried beside it), the false returns after it.
+    Where the footprint gains too little to matter on top of the two, it still stands
+    in. Beside a third that gains what matters neither way (a walk), no stand-in either;
+    a walk in the footprint's place is judged as before."""
+    beam = cand('beam_divergence', 0.1029, -2.100, seed=80)
+    solar = cand('solar_background', 0.1000, -2.099, seed=80)
+    solar.unmatched_gain_points = 25.0
+    inc = cand('incidence_angle', 0.0453, -2.060, seed=80)
+    ranked = dg.rank([beam, solar, inc])
+    adds = {('beam_divergence', 'solar_background'): True,
+            ('beam_divergence', 'incidence_angle'): True}
+    base = np.zeros(N)
+    s_i = frozenset({'solar_background', 'incidence_angle'})
+    s_b = frozenset({'solar_background', 'beam_divergence'})
+    b_i = frozenset({'beam_divergence', 'incidence_angle'})
+    figs = {(s_b, 'incidence_angle'): _on(base, 0.0109, 1, z=7.0),
+            (b_i, 'solar_background'): _on(base, 0.0500, 2, z=12.0),
+            (frozenset({'beam_divergence'}), 'incidence_angle'): _on(base, 0.0100, 3, z=5.9)}
+    d = Beside(adds, {**figs, (s_i, 'beam_divergence'): _on(base, 0.0203, 4, z=1.1)}
+               ).decide(ranked)
+    assert d.missing == 'beam_divergence' and d.confounded_with == []
+    assert d.also == 'incidence_angle' and d.also_more == ['solar_background']
+    # Too little to matter on top of the two: it stood in for the bias, as before.
+    d = Beside(adds, {**figs, (s_i, 'beam_divergence'): _on(base, 0.0020, 4, z=1.1)}
+               ).decide(ranked)
+    assert d.missing == 'solar_background'
+    assert d.pair_z['beam_divergence']['stands_in_for'] == 'incidence_angle'
+    # After that mend the same run took the footprint for a stand-in of a range walk
+    # read on the model's power (the footprint cuts that power at its edges): on top of
+    # the false returns and the walk the footprint loses 0.0305 nats/point, the walk
+    # gains 0.0011 (z 3.4) on top of the false returns and the footprint (here 0.0040, to
+    # pass the total on these 4000 points). Neither gains
+    # what matters on top of the other (the data cannot tell): no stand-in.
+    walk = cand('range_walk', 0.0414, -2.050, seed=80)
+    s_w = frozenset({'solar_background', 'range_walk'})
+    d = Beside(adds, {**figs, (s_i, 'beam_divergence'): _on(base, 0.0203, 4, z=1.1),
+                      (s_w, 'beam_divergence'): _on(base, -0.0305, 5, z=-1.6),
+                      (s_b, 'range_walk'): _on(base, 0.0040, 6, z=3.4)}
+               ).decide(dg.rank([beam, solar, inc, walk]))
+    assert d.missing == 'beam_divergence' and d.also == 'incidence_angle'
+    # Where the walk gains what matters on top of the two, the footprint stood in for it.
+    d = Beside(adds, {**figs, (s_i, 'beam_divergence'): _on(base, 0.0203, 4, z=1.1),
+                      (s_w, 'beam_divergence'): _on(base, -0.0305, 5, z=-1.6),
+                      (s_b, 'range_walk'): _on(base, 0.0090, 6, z=5.0)}
+               ).decide(dg.rank([beam, solar, inc, walk]))
+    assert d.missing == 'solar_background'
+    assert d.pair_z['beam_divergence']['stands_in_for'] == 'range_walk'
+    # A range walk in the footprint's place is no footprint: judged by the rule.
+    walk = cand('range_walk', 0.1029, -2.100, seed=80)
+    hand = Beside({('range_walk', 'solar_background'): True},
+                  {(s_b, 'incidence_angle'): _on(base, 0.0109, 1, z=7.0),
+                   (frozenset({'range_walk', 'incidence_angle'}), 'solar_background'):
+                       _on(base, 0.0500, 2, z=12.0),
+                   (frozenset({'range_walk', 'solar_background'}), 'incidence_angle'):
+                       _on(base, 0.0109, 1, z=7.0),
+                   (s_i, 'range_walk'): _on(base, 0.0203, 4, z=1.1)})
+    assert hand.decide(dg.rank([walk, solar, inc])).missing == 'solar_background'
