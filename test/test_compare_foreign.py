@@ -94,6 +94,25 @@ def test_the_loops_left_to_the_bench_are_battery_datasets():
         (set(WRONG) | set(BENCH_ONLY)) - names
 
 
+def test_the_loop_judges_the_nll_on_the_same_returns_at_every_step():
+    """A footprint named first puts the edge returns back: the NLL per matched point
+    rises (snr_and_beam@2: -1.419 -> -1.403) while the NLL per analysed return falls
+    (unmatched 7.3 % -> 0 %). The judge compares the latter; a step that raises it (the
+    same returns, fitted worse) is still wrong."""
+    spec = next(s for s in battery() if s.name == 'beam_divergence')
+
+    def step(named, effects, nll, unmatched):
+        return {'missing_effect': named, 'fitted_effects': [{'name': e} for e in effects],
+                'nll_calibrated': nll, 'unmatched_fraction': unmatched,
+                'nll_per_return': nll + 3.0 * unmatched}
+
+    right = [step('beam_divergence', [], -1.419, 0.073),
+             step(None, ['beam_divergence'], -1.403, 0.0)]
+    assert judge(spec, right, {})['ok'], judge(spec, right, {})
+    worse = [right[0], step(None, ['beam_divergence'], -1.0, 0.0)]
+    assert 'NLL did not fall' in judge(spec, worse, {})['why']
+
+
 def _small(spec: ForeignSpec) -> ForeignSpec:
     """Fewer frames for the suite; the short passes keep their second of small frames, and
     a time offset in clouds without point times keeps its frames: on 2 frames the offset
