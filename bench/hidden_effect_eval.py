@@ -62,7 +62,7 @@ def run_one(spec: ForeignSpec, root: Path, report: bool) -> dict:
                                               'vetoed', 'error') if k in c}
                        for c in (s.get('candidates') or [])[:4]],
         'range_rmse_m': s.get('range_rmse_m'), 'nll_per_point': s.get('nll_per_point'),
-        'nll_calibrated': s.get('nll_calibrated'),
+        'nll_calibrated': s.get('nll_calibrated'), 'nll_per_return': s.get('nll_per_return'),
         'unmatched_fraction': s.get('unmatched_fraction'),
         'crosstalk_points': (s.get('crosstalk') or {}).get('points'),
         'later_returns': (s.get('multiple_returns') or {}).get('points'),

@@ -114,6 +114,14 @@ def pose_tie(summary: dict, name: str) -> bool:
     return margin is not None and abs(margin) < BORDERLINE[1] * PRACTICAL_NATS
 
 
+def step_nll(step: dict) -> float | None:
+    """A step's NLL on a footing the next step shares: per analysed return
+    (``nll_per_return``: the returns the model leaves off the target counted), as the NLL
+    per matched point is not when a fitted footprint puts edge returns back; the matched
+    figure on an older summary without it."""
+    return step.get('nll_per_return', step.get('nll_calibrated'))
+
+
 def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
     """Right or wrong, and why, from the loop's summaries."""
     if spec.name.split('@')[0] in V4_NAMES:
@@ -149,7 +157,7 @@ def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
     if len(steps) > len(expected) + len(either) + 1 + (1 if pose_steps else 0):
         why.append('too many steps')
     ties = [s.get('confounded_with') for s in steps if s.get('confounded_with')]
-    nll = [s.get('nll_calibrated') for s in steps]
+    nll = [step_nll(s) for s in steps]
     if any(b is None or a is None or b >= a for a, b in zip(nll, nll[1:])):
         why.append(f'NLL did not fall at every step: {nll}')
     if spec.expected_feature:

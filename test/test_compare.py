@@ -173,8 +173,10 @@ def test_hidden_effect_is_named_and_fitting_it_reaches_the_noise_floor(name, dat
         assert abs(margin) < 0.005 and 'or the reference pose' in before['verdict']
     else:
         assert 'raises the' not in before['verdict'] and 'widens' not in before['verdict']
-        # A false-return effect is quoted with its gain on the missed shots counted.
-        footing = quoted['nll_after'] - quoted.get('missed_shots_gain_after', 0.0)
+        # A false-return effect is quoted with its gain on the missed shots counted, a
+        # ray-moving one with the returns it puts back on the target.
+        footing = (quoted['nll_after'] - quoted.get('missed_shots_gain_after', 0.0)
+                   - quoted.get('unmatched_gain_after', 0.0))
         assert (f'{before["nll_calibrated"]:.3f} to {footing:.3f}'
                 in before['verdict'])
 

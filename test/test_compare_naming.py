@@ -107,6 +107,57 @@ def test_a_false_return_effect_is_footed_on_its_missed_shots_too():
     assert 'missed_shots_gain_after' not in replace(real, missed_gain_after=0.0).as_dict()
 
 
+def test_a_footprint_is_footed_on_the_returns_it_puts_back():
+    """Battery snr_and_beam (docs/compare.md, "The same returns before and after"): a
+    footprint puts the weak edge returns beyond the silhouette back on the target, and on
+    the points matched without it, it loses a little (seed 4: 0.0069 nats/point). Its
+    score credits the returns it puts back (UNMATCHED_NATS each, its own signature only:
+    ``unmatched_gain_points``); the fitted footing must count them too, or the rule
+    refuses the right model for matching more returns. A worse model is still refused:
+    one that loses more on the matched points than its returns bring, or one that
+    brings none back."""
+    fp = cand('beam_divergence', 0.04, BEFORE_NLL + 0.0069, seed=13)
+    fp.effect = make_effect('beam_divergence', {})
+    fp.unmatched_gain_points = 300.0                   # 7 % of the N matched points
+    fp.unmatched_gain_after = dg.UNMATCHED_NATS * 300 / N   # as ``finalize`` sets it
+    assert fault(fp) is None
+    assert Hand().decide([fp]).missing == 'beam_divergence'
+    assert dg.unmatched_gain(fp, N) == pytest.approx(fp.unmatched_gain_after)
+    # Worse: the matched points lose more than the returns put back gain.
+    worse = replace(fp, nll_after=BEFORE_NLL + 0.3)
+    assert 'gained on the returns it puts back' in fault(worse)
+    assert Hand().decide([worse]).missing is None
+    # None put back (no credit): the matched points alone, and they are worse.
+    none_back = replace(fp, unmatched_gain_points=0.0)
+    none_back.unmatched_gain_after = dg.unmatched_gain(none_back, N)
+    assert none_back.unmatched_gain_after == 0.0
+    assert 'not below' in fault(none_back)
+    assert Hand().decide([none_back]).missing is None
+    # A false-return effect is footed on its missed shots, not on this credit.
+    solar = replace(fp, name='solar_background')
+    solar.effect = make_effect('solar_background', {'probability': 0.002})
+    assert dg.unmatched_gain(solar, N) == 0.0
+    # The verdict quotes that footing, with the matched points' NLL beside it.
+    fp.range_rmse_after_m = 0.05
+    text, _ = vd._gain_words({'nll_calibrated': BEFORE_NLL, 'range_rmse_calibrated_m': 0.05,
+                              'range_robust_sigma_calibrated_m': 0.05}, fp)
+    assert ('lowers the NLL from -2.022 to -2.240 per point, counting the returns it puts '
+            'back on the target (-2.015 on the matched points alone)') in text
+    assert fp.as_dict()['unmatched_gain_after'] == pytest.approx(0.225)
+
+
+def test_the_nll_per_return_counts_the_returns_left_off_the_target():
+    """Between models that match different returns, the NLL per matched point is no
+    footing (snr_and_beam@1: -1.279 with 8.6 % unmatched -> -1.216 with the footprint
+    and none unmatched); per analysed return, each left off the target charged
+    UNMATCHED_NATS more, the right model is lower, and a model that only loses
+    returns is higher."""
+    before = dg.per_return_nll(-1.279, 0.086)
+    assert dg.per_return_nll(-1.216, 0.0) < before
+    assert dg.per_return_nll(-1.279, 0.12) > before        # returns lost: worse
+    assert dg.per_return_nll(-1.0, 0.0) > before             # edge returns fitted badly
+
+
 def test_missing_path_never_names_a_worse_nll_or_a_rule_failure():
     """decide(): the best score whose fitted NLL is worse than before (beam_divergence on
     25 silhouette points, -2.022 -> -2.021) and a better-scoring one that fails the rule

@@ -1358,6 +1358,10 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'unmatched_fraction': float(matching.unmatched_fraction),
         'range_rmse_m': float(cal.rmse_m), 'nll_per_point': float(cal.nll),
         'range_rmse_calibrated_m': float(cal_rmse), 'nll_calibrated': float(cal_nll),
+        # Between models that match different returns (a footprint puts edge returns
+        # back): the same returns on both sides (``diagnosis.per_return_nll``).
+        'nll_per_return': diagnosis.per_return_nll(float(cal_nll),
+                                                   float(matching.unmatched_fraction)),
         'range_robust_sigma_calibrated_m': float(cal_robust),
         'materials_refit': bool(opts.fit),
         'range_residual_robust_sigma_m': mat.robust_sigma(ana.residual_m),

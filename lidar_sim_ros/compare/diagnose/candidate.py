@@ -63,6 +63,11 @@ class Candidate:
     # term of the likelihood it is fitted and held out on), nats per matched point;
     # 0 for an effect that adds no false returns (``Diagnosis.finalize``).
     missed_gain_after: float = 0.0
+    # A ray-moving effect (a footprint): what the returns it puts back on the target
+    # gain, UNMATCHED_NATS each for the ``unmatched_gain_points`` credited to it, nats
+    # per matched point: the score's footing, on which the rays that return are the same
+    # before and after; 0 for a false-return effect (``missed_gain_after``).
+    unmatched_gain_after: float = 0.0
     unmatched_explained: float = 0.0
     matched_gain: float = 0.0          # held-out, nats per matched point
     z: float = 0.0                     # score in standard errors (``total_z``): the rule's z
@@ -116,6 +121,8 @@ class Candidate:
                 'nll_after': _num(self.nll_after),
                 **({'missed_shots_gain_after': _num(self.missed_gain_after)}
                    if self.missed_gain_after else {}),
+                **({'unmatched_gain_after': _num(self.unmatched_gain_after)}
+                   if self.unmatched_gain_after else {}),
                 'range_robust_sigma_after_m': _num(self.range_robust_sigma_after_m),
                 'unmatched_explained': _num(self.unmatched_explained),
                 'heldout_gain_per_matched_point': _num(self.matched_gain), 'z': _num(self.z),

@@ -194,6 +194,7 @@ class Diagnosis(PoseWeighing):
         cand.nll_after, cand.range_rmse_after_m, cand.range_robust_sigma_after_m = \
             calibrated_figures(self.full, [cand.effect])
         cand.missed_gain_after = missed_shots_gain(self.full, cand.effect)
+        cand.unmatched_gain_after = unmatched_gain(cand, len(self.full.measured_range_m))
         cand.seconds += time.perf_counter() - t0
 
     def finalized(self, *cands: Candidate) -> None:
@@ -1546,6 +1547,39 @@ def total_z(matched_gain: float, se_matched: float, n_matched: int,
     return float(total / np.sqrt(var))
 
 
+def unmatched_gain(cand: 'Candidate', n_matched: int) -> float:
+    """What the returns ``cand`` puts back on the target gain, nats per matched point:
+    UNMATCHED_NATS for each unmatched point credited to it (``unmatched_gain_points``,
+    its own signature only). The matched points alone are not the same returns before
+    and after a footprint: its weak edge returns join them, so their NLL per point rises
+    for the right model; with this term the fitted footing counts the same returns as
+    the score. 0 for a false-return effect (its footing is ``missed_shots_gain``)."""
+    if (n_matched <= 0 or cand.effect is None or is_outlier_effect(type(cand.effect))
+            or cand.unmatched_gain_points <= 0):
+        return 0.0
+    return float(UNMATCHED_NATS * cand.unmatched_gain_points / n_matched)
+
+
+def fitted_footing(cand: 'Candidate') -> float:
+    """The NLL per matched point ``cand`` gives fitted as --fit leaves it, on the footing
+    of the score (all the analysed returns): the matched points' NLL (``nll_after``)
+    less its gain on the missed shots (a false-return effect) or on the unmatched
+    returns it puts back on the target (a footprint). ``naming_fault`` compares it with
+    the model's without it; the verdict quotes it."""
+    missed, back = (float(getattr(cand, k, 0.0) or 0.0)
+                    for k in ('missed_gain_after', 'unmatched_gain_after'))
+    return float(cand.nll_after - (missed if np.isfinite(missed) else 0.0)
+                 - (back if np.isfinite(back) else 0.0))
+
+
+def per_return_nll(nll_matched: float, unmatched_fraction: float) -> float:
+    """NLL per analysed return (nats): the matched points' mean, each return the model
+    leaves off the target charged UNMATCHED_NATS more (the credit a candidate earns for
+    putting one back). Comparable between models that match different returns, as the
+    NLL per matched point is not: a footprint's weak edge returns raise that mean."""
+    return float(nll_matched + UNMATCHED_NATS * unmatched_fraction)
+
+
 def naming_fault(cand: Candidate, before_nll: float) -> str | None:
     """The one rule at the point of naming: why ``cand`` may not be named as a missing
     effect, a member of a tie or an effect explaining a separate part, or None. Its
@@ -1554,8 +1588,10 @@ def naming_fault(cand: Candidate, before_nll: float) -> str | None:
     calibrated NLL per point it gives (``nll_after``, the "after" the verdict quotes) is
     below the model's without it (``before_nll``), with no parameter at the edge of its
     search box (``at_bound``). For a false-return effect that NLL
-    takes in what it gains on the missed shots (``missed_gain_after``): the likelihood it
-    is fitted and held out on, not the matched points alone."""
+    takes in what it gains on the missed shots (``missed_gain_after``), and for a
+    footprint what the returns it puts back on the target gain (``unmatched_gain_after``):
+    the footing it is scored on, the same returns before and after, not the matched
+    points alone (``fitted_footing``)."""
     if cand.error is not None:
         return f'its fit failed: {cand.error}'
     if not cand.significant:
@@ -1571,11 +1607,14 @@ def naming_fault(cand: Candidate, before_nll: float) -> str | None:
                 'its search box: the data ask for more of it than the catalogue allows, so '
                 'its form does not fit them; it stands in for something outside the '
                 'catalogue')
-    gain = cand.missed_gain_after if np.isfinite(cand.missed_gain_after) else 0.0
-    after = cand.nll_after - gain
+    after = fitted_footing(cand)
     if not (np.isfinite(after) and np.isfinite(before_nll) and after < before_nll):
+        gain = cand.missed_gain_after if np.isfinite(cand.missed_gain_after) else 0.0
+        back = cand.unmatched_gain_after if np.isfinite(cand.unmatched_gain_after) else 0.0
         missed = (f' ({cand.nll_after:.4f} on the matched points, {gain:+.4f} gained on '
-                  'the missed shots)' if gain else '')
+                  'the missed shots)' if gain else
+                  f' ({cand.nll_after:.4f} on the matched points, {back:+.4f} gained on '
+                  'the returns it puts back on the target)' if back else '')
         return (f'fitted as --fit leaves it, the NLL per point is {after:.4f}{missed}, not '
                 f'below the {before_nll:.4f} without it')
     return None

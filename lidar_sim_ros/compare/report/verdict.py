@@ -1135,12 +1135,17 @@ def _gain_words(summary: dict, c) -> tuple[str, str]:
     dominated by the far outliers, which stay in the data whether or not the model
     expects them."""
     missed = getattr(c, 'missed_gain_after', 0.0) or 0.0
-    nll = _change('the NLL', summary['nll_calibrated'], c.nll_after - missed, '', '.3f',
-                  'lowers') + ' per point'
+    back = getattr(c, 'unmatched_gain_after', 0.0) or 0.0
+    nll = _change('the NLL', summary['nll_calibrated'], diagnosis.fitted_footing(c), '',
+                  '.3f', 'lowers') + ' per point'
     if missed:
         # A false-return effect's footing (``diagnosis.naming_fault``): its evidence
         # sits mostly on the shots that missed the target.
         nll += (', counting the false returns among the shots that missed the target '
+                f'({c.nll_after:.3f} on the matched points alone)')
+    elif back:
+        # A footprint's footing: the returns it puts back on the target count.
+        nll += (', counting the returns it puts back on the target '
                 f'({c.nll_after:.3f} on the matched points alone)')
     if c.effect is None or not diagnosis.is_outlier_effect(type(c.effect)):
         rmse = _change('the range RMSE', summary['range_rmse_calibrated_m'],
