@@ -82,8 +82,10 @@ def test_walk_and_incidence_that_neither_passes_on_top_of_the_other_name_nothing
     assert fig['outcome'] == same_part.TIE
     assert fig['named_on_top'] == [0.0012, 1.1] and fig['rival_on_top'] == [0.0009, 0.6]
     text = vd.verdict({'materials': {}, 'unmatched': {'points': 0}, 'withheld': d.withheld,
+                       'against_named': d.pair_z,
                        'nll_calibrated': BEFORE_NLL}, None, [inc, walk], d)
-    assert 'incidence_angle is not named: range_walk explains the same part' in text
+    assert 'is not named: range_walk explains the same part' in text
+    assert 'outside the catalogue' not in text and 'would separate them' in text
 
 
 def test_a_rival_that_explains_all_the_named_one_does_and_more_withholds_it():

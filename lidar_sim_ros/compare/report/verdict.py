@@ -897,7 +897,9 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     elif best is not None and best.practical and fault:
         why = f' The best candidate, {best.name}, is not named: {fault}.'
     elif best is not None and best.practical and held:
-        # Beside a rival the rule keeps from naming (``Diagnosis.rival_takes``).
+        rival = same_part_rival(summary)
+        if rival is not None:
+            return same_part_words(best, held, rival, summary)
         why = f' {best.name} is not named: {held}.'
     elif best is not None and not best.practical:
         why = (f' The best candidate, {best.name}, gains {best.score:.4f} nats/point held out '
@@ -915,6 +917,24 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     beside = f' once the {" and ".join(left_out)} below are left out' if left_out else ''
     return ('No catalogue effect improves the held-out likelihood by a margin that matters: '
             f'the model matches the measurements up to noise{beside}.' + why)
+
+
+def same_part_rival(summary: dict) -> str | None:
+    """The rival a named candidate was withheld beside (``Diagnosis.rival_takes``:
+    ``against_named[NAME]['same_part']``, its outcome not 'named'), or None."""
+    for name, w in (summary.get('against_named') or {}).items():
+        part = w.get('same_part') if isinstance(w, dict) else None
+        if part and part.get('outcome') != 'named':
+            return name
+    return None
+
+
+def same_part_words(best, held: str, rival: str, summary: dict) -> str:
+    """Nothing named because ``best`` and ``rival`` explain the same part of the residual
+    and ``best`` does not pass the rule on top of ``rival`` (``held``: why, in figures)."""
+    return (f'{best.name} gains {best.score:.4f} nats/point held out (z = {best.z:.1f}) and '
+            f'is not named: {held}. {_separation([best.name, rival], summary)} If you know '
+            'which it is, add it with --effect NAME --fit.')
 
 
 def line_of_sight_words(best) -> str:
