@@ -64,7 +64,9 @@ its z, ``total_z``), whatever part of the data the gain is on:
   next; if not, they are confounded in this recording (``confounded_with``), none is
   named, and the verdict says which recording would separate them.
   A candidate with a parameter per laser passes on top of a simpler one that it does not
-  beat decisively, not instead of it (``simpler_instead``).
+  beat decisively, not instead of it (``simpler_instead``). A candidate the rule keeps
+  from naming only by its z or its share, not decisively worse, must be passed on top
+  of too, else nothing is named (``rival_takes``, ``same_part``).
 
 Otherwise ``missing_effect`` is null, and the verdict says what the residual depends
 on, if anything, and that no catalogue effect explains it.
