@@ -93,7 +93,7 @@ def test_a_rival_that_explains_all_the_named_one_does_and_more_withholds_it():
     on top of incidence, incidence not on top of it: incidence is withheld; the walk is
     not named by this (its share still keeps it)."""
     inc = cand('incidence_angle', INCIDENCE, 0.0271, 10.0, -2.05, 1)
-    walk = cand('range_walk', WALK, 0.0265, 9.0, -2.049, 2, share=0.16,
+    walk = cand('range_walk', WALK, 0.0290, 9.0, -2.049, 2, share=0.16,
                 vetoed='it explains only 16 % of the residual\'s dependence on intensity')
     diag = OnTop({('incidence_angle', 'range_walk'): (0.0010, 0.9),
                   ('range_walk', 'incidence_angle'): (0.0090, 7.5)})
@@ -101,6 +101,11 @@ def test_a_rival_that_explains_all_the_named_one_does_and_more_withholds_it():
     assert d.missing is None and d.confounded_with == []
     assert 'explains all it explains and more' in d.withheld['incidence_angle']
     assert d.pair_z['range_walk']['same_part']['outcome'] == same_part.RIVAL
+    # The walk, set aside, ranks first; the verdict says why incidence is not named.
+    text = vd.verdict({'materials': {}, 'unmatched': {'points': 0}, 'withheld': d.withheld,
+                       'against_named': d.pair_z, 'nll_calibrated': BEFORE_NLL},
+                      None, dg.rank([inc, walk]), d)
+    assert 'incidence_angle gains 0.0271 nats/point held out (z = 10.0) and is not named' in text
 
 
 def test_the_named_one_passing_on_top_of_the_rival_stays_named():

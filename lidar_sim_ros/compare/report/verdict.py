@@ -889,18 +889,20 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     fault = (diagnosis.naming_fault(best, summary['nll_calibrated'])
              if best is not None else None)
     along = (best.against_pose or {}) if best is not None else {}
-    held = (summary.get('withheld') or {}).get(best.name) if best is not None else None
+    rival = same_part_rival(summary)
+    for name, held in (summary.get('withheld') or {}).items():
+        # Withheld beside a rival the rule keeps from naming (``Diagnosis.rival_takes``),
+        # whatever ranks first.
+        c = next((c for c in cands if c.name == name), None)
+        if rival is not None and c is not None and held.startswith(
+                f'{rival} explains the same part'):
+            return same_part_words(c, held, rival, summary)
     if best is not None and best.vetoed:
         why = f' The best candidate, {best.name}, is set aside: {best.vetoed}.'
     elif along.get('pose_line_of_sight') and not along.get('passes_on_pose'):
         return line_of_sight_words(best)
     elif best is not None and best.practical and fault:
         why = f' The best candidate, {best.name}, is not named: {fault}.'
-    elif best is not None and best.practical and held:
-        rival = same_part_rival(summary)
-        if rival is not None:
-            return same_part_words(best, held, rival, summary)
-        why = f' {best.name} is not named: {held}.'
     elif best is not None and not best.practical:
         why = (f' The best candidate, {best.name}, gains {best.score:.4f} nats/point held out '
                f'(z = {best.z:.1f}), less than the {diagnosis.MIN_PRACTICAL_GAIN:g} nats/point '
