@@ -3,7 +3,7 @@ compensated for range and partly for a Lambertian incidence law (reflectivity_la
 the foreign reproduction of issue 30's walk_laser_graze runs, walked through the loop.
 
     python bench/walk_graze_eval.py --out F.json --runs 1:0.02:0.7 2:0.01:1.0
-    (each run seed:laser_sd_m:q)
+    (each run seed:laser_sd_m:q; --keep DIR keeps each dataset and its compare outputs)
 """
 from __future__ import annotations
 
@@ -33,9 +33,14 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument('--out', type=Path, required=True)
     ap.add_argument('--runs', nargs='+', required=True, metavar='SEED:SD:Q')
+    ap.add_argument('--keep', type=Path, default=None, metavar='DIR',
+                    help='write datasets and compare outputs here instead of a temp dir')
     a = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
+        if a.keep is not None:
+            a.keep.mkdir(parents=True, exist_ok=True)
+            tmp = str(a.keep)
         for run in a.runs:
             s, sd, q = run.split(':')
             row = run_one(graze_spec(int(s), float(sd), float(q)), Path(tmp), False)

@@ -64,7 +64,9 @@ its z, ``total_z``), whatever part of the data the gain is on:
   next; if not, they are confounded in this recording (``confounded_with``), none is
   named, and the verdict says which recording would separate them.
   A candidate with a parameter per laser passes on top of a simpler one that it does not
-  beat decisively, not instead of it (``simpler_instead``).
+  beat decisively, not instead of it (``simpler_instead``). A candidate the rule keeps
+  from naming only by its z or its share, not decisively worse, must be passed on top
+  of too, else nothing is named (``rival_takes``, ``same_part``).
 
 Otherwise ``missing_effect`` is null, and the verdict says what the residual depends
 on, if anything, and that no catalogue effect explains it.
@@ -85,7 +87,7 @@ import numpy as np
 from scipy.stats import kstest, norm
 
 from lidar_sim_ros.compare.model import likelihood as lk
-from lidar_sim_ros.compare.diagnose import beside, laser_tiles, standoff_part
+from lidar_sim_ros.compare.diagnose import beside, laser_tiles, same_part, standoff_part
 from lidar_sim_ros.compare.diagnose.candidate import (
     FAMILY_ALPHA, GEOMETRY_RIVALS, MAX_ALSO_TRIES, MIN_PRACTICAL_GAIN, MIN_SHARE,
     MIN_TOTAL_GAIN, MIN_UNMATCHED_EXPLAINED, MIN_UNMATCHED_FRACTION, N_FOLDS, POSE_ERROR,
@@ -754,6 +756,9 @@ class Diagnosis(PoseWeighing):
                 best, also = lead, None     # 'also' was judged beside the other
         if tied:
             return Decision(None, [best.name, *tied], also, pair_z)
+        held = self.rival_takes(best, cands, pair_z)
+        if held is not None:
+            return Decision(None, [], None, pair_z, withheld={best.name: held})
         taken = self.pointing_takes(best, cands)
         if taken is not None:
             return Decision(None, [], None, pair_z, withheld={best.name: taken})
@@ -796,6 +801,48 @@ class Diagnosis(PoseWeighing):
         if (fair and self.adds_to(best, c)
                 and self.beside_set_aside(best, c, cands, but_taken=True)):
             return c.name
+        return None
+
+    def rival_takes(self, best: Candidate, cands: list[Candidate],
+                    pair_z: dict) -> str | None:
+        """Why ``best`` may not be named beside a rival the rule keeps from naming that
+        explains the same part (``same_part``), or None. A rival ``best`` is not
+        decisively better than (``apart``) is weighed on top: each cross-fitted on the
+        other fitted together with the effects set aside beside ``best``
+        (``set_aside_beside``: the lasers' offsets); unless ``best`` passes the rule on
+        top of it, ``best`` is withheld. The figures go to ``pair_z[rival]['same_part']``."""
+        if best.effect is None or best.variant is None or best.name == POSE_ERROR:
+            return None
+        rivals = same_part.rivals_of(
+            best, rank(cands), self.nameable, laser_tiles.per_laser,
+            lambda e: not (is_outlier_effect(type(e)) or lk.is_ghost_effect(e)),
+            MIN_SHARE, MIN_TOTAL_GAIN, self.n_total)
+        for c in rivals:
+            try:
+                margin, z = self.paired(best, c)
+                fitted = self.fitted_margin(best, c)
+                if self.apart(margin, z, fitted):
+                    continue      # decisively better than this one, as decide asks
+                rest = self.set_aside_beside(best, cands, but=(c.name,))
+                self.finalized(best, c, *rest)
+                others = [r.effect for r in rest]
+                on_rival = self._on_top(self._fitted_together([c.effect, *others]), best)[:2]
+                # Only where the named one does not pass on top is the other way asked.
+                on_best = (None if self.passes_rule(*on_rival) else
+                           self._on_top(self._fitted_together([best.effect, *others]), c)[:2])
+            except Exception:  # noqa: BLE001 - not shown to explain the same part
+                continue
+            kind = same_part.outcome(on_rival, on_best, self.passes_rule)
+            pair_z[c.name] = {**pair_z.get(c.name, {}), 'margin': _num(margin),
+                              'z': _num(z), 'fitted_margin': _num(fitted),
+                              'same_part': {'with': [r.name for r in rest],
+                                            'named_on_top': [_num(v) for v in on_rival],
+                                            'rival_on_top': ([_num(v) for v in on_best]
+                                                             if on_best else None),
+                                            'outcome': kind}}
+            if kind != same_part.NAMED:
+                return same_part.withheld_words(best.name, c, on_rival, on_best, kind,
+                                                [r.name for r in rest])
         return None
 
     def pointing_takes(self, best: Candidate, cands: list[Candidate]) -> str | None:

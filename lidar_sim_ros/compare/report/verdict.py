@@ -889,6 +889,14 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     fault = (diagnosis.naming_fault(best, summary['nll_calibrated'])
              if best is not None else None)
     along = (best.against_pose or {}) if best is not None else {}
+    rival = same_part_rival(summary)
+    for name, held in (summary.get('withheld') or {}).items():
+        # Withheld beside a rival the rule keeps from naming (``Diagnosis.rival_takes``),
+        # whatever ranks first.
+        c = next((c for c in cands if c.name == name), None)
+        if rival is not None and c is not None and held.startswith(
+                f'{rival} explains the same part'):
+            return same_part_words(c, held, rival, summary)
     if best is not None and best.vetoed:
         why = f' The best candidate, {best.name}, is set aside: {best.vetoed}.'
     elif along.get('pose_line_of_sight') and not along.get('passes_on_pose'):
@@ -911,6 +919,24 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     beside = f' once the {" and ".join(left_out)} below are left out' if left_out else ''
     return ('No catalogue effect improves the held-out likelihood by a margin that matters: '
             f'the model matches the measurements up to noise{beside}.' + why)
+
+
+def same_part_rival(summary: dict) -> str | None:
+    """The rival a named candidate was withheld beside (``Diagnosis.rival_takes``:
+    ``against_named[NAME]['same_part']``, its outcome not 'named'), or None."""
+    for name, w in (summary.get('against_named') or {}).items():
+        part = w.get('same_part') if isinstance(w, dict) else None
+        if part and part.get('outcome') != 'named':
+            return name
+    return None
+
+
+def same_part_words(best, held: str, rival: str, summary: dict) -> str:
+    """Nothing named because ``best`` and ``rival`` explain the same part of the residual
+    and ``best`` does not pass the rule on top of ``rival`` (``held``: why, in figures)."""
+    return (f'{best.name} gains {best.score:.4f} nats/point held out (z = {best.z:.1f}) and '
+            f'is not named: {held}. {_separation([best.name, rival], summary)} If you know '
+            'which it is, add it with --effect NAME --fit.')
 
 
 def line_of_sight_words(best) -> str:
