@@ -556,13 +556,13 @@ class PoseWeighing:
                   and c.practical]
         for r in sorted(rivals, key=lambda c: -c.score):
             test = constant_test([r.effect])
-            if not getattr(test, 'joint', False):
-                continue
-            if not test.significant:
-                tie = self.range_term_beside_line_of_sight(decision, cands, r, test,
-                                                           on_constant_pose)
-                if tie is not None:
-                    return tie
+            r.against_pose = {**(r.against_pose or {}), 'constant_on_top': {
+                'gain': _num(getattr(test, 'gain', None)), 'z': _num(getattr(test, 'z', None)),
+                'significant': bool(test.significant),
+                'joint': bool(getattr(test, 'joint', False)),
+                'line_of_sight_share': _num(getattr(test, 'line_of_sight_share', None)),
+                'translation_cm': _num(getattr(test, 'size_cm', None))}}
+            if not (test.significant and getattr(test, 'joint', False)):
                 continue
             on_pose, pose, per_cloud = on_constant_pose(r.effect)
             again = on_pose.score(type(r.effect))
@@ -609,54 +609,6 @@ class PoseWeighing:
             # could take too) with the range term: the pose quoted is that correction.
             return Decision(None, [POSE_ERROR, r.name], pose=alone, withheld=withheld)
         return decision
-
-    def range_term_beside_line_of_sight(self, decision: Decision, cands: list[Candidate],
-                                        r: Candidate, test, on_constant_pose
-                                        ) -> Decision | None:
-        """A range term of the sensor ``r`` (POSE_RIVALS, passing the rule, not named)
-        beside effects the decision named or tied, where one correction of the reference
-        pose for the recording fitted on top of ``r`` took the materials' common offset
-        (``test``: ``PoseError.joint``, along the line of sight) but its own held-out test
-        does not pass. That test is linear and leaves grazing rays out, while a target
-        moved along the line of sight changes each flat face's ranges by
-        (t.n) / (d.n), most at grazing incidence: the pattern ``incidence_angle``,
-        ``range_walk`` or ``surface_offset`` take (a 1 % range scale on a box held at
-        10 m, the pose 6 cm off along the line of sight: the tie [incidence_angle,
-        range_walk] was said, the scale only 'also'). So the named effects are scored
-        again on that corrected pose, raycast (``on_constant_pose(r.effect)``): where
-        ``r`` passes the rule there and none of them does, what they gained is what the
-        pose leaves, and ``r`` what neither the pose nor they explain; the pose's own
-        test does not pass, so it is neither claimed nor ruled out: the tie
-        ``confounded_with`` [pose_error, ``r``], no pose reported. None (the decision
-        stands) otherwise. Figures on ``r.against_pose``."""
-        names = [n for n in (decision.missing, *decision.confounded_with, decision.also)
-                 if n and n not in (POSE_ERROR, r.name)]
-        named = [c for c in cands if c.name in names and c.effect is not None
-                 and c.error is None and self.nameable(c)]
-        if not named:
-            return None
-        on_pose, pose, _ = on_constant_pose(r.effect)
-        again = on_pose.score(type(r.effect))
-        fault = on_pose.naming_fault(again)
-        displaced = {}
-        for c in named:
-            a = on_pose.score(type(c.effect))
-            displaced[c.name] = [_num(a.score), _num(a.z), bool(on_pose.nameable(a))]
-        r.against_pose = {**(r.against_pose or {}), 'pose_constant': True,
-                          'pose_line_of_sight': True, 'pose_significant': False,
-                          'pose_gain_on_top': _num(test.gain), 'pose_z_on_top': _num(test.z),
-                          'pose_translation_cm': _num(getattr(pose, 'size_cm', None)),
-                          'score_on_pose': _num(again.score), 'z_on_pose': _num(again.z),
-                          'passes_on_pose': fault is None,
-                          **({'fault_on_pose': fault} if fault else {}),
-                          'displaced': displaced}
-        if fault is not None or any(v[2] for v in displaced.values()):
-            return None
-        why = ('with one correction of the reference pose along the line of sight fitted '
-               f'on top of {r.name} and the model raycast again, it does not pass the rule: '
-               'it took what the moved target leaves at grazing faces')
-        return Decision(None, [POSE_ERROR, r.name],
-                        withheld={**decision.withheld, **{n: why for n in displaced}})
 
     def clock_off_footing(self, decision: Decision, cands: list[Candidate],
                           footing_test) -> Decision:

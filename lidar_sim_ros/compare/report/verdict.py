@@ -773,22 +773,6 @@ def clock_off_footing_words(on: dict, held: str, plan: bool = False) -> str:
             'to be right, try --effect time_offset --fit, else --effect pose_error --fit.')
 
 
-def constant_los_tie_words(footings: dict) -> str | None:
-    """The constant pose along the line of sight whose own test did not pass, as
-    ``range_term_beside_line_of_sight`` weighed it beside a range term (the term's
-    ``against_pose``); None where it was not weighed so."""
-    if not (footings.get('pose_line_of_sight') and footings.get('pose_significant') is False
-            and footings.get('displaced')):
-        return None
-    size = footings.get('pose_translation_cm')
-    took = ', '.join(footings['displaced'])
-    return ('one correction of the target pose for the recording along the line of sight'
-            + (f' ({size:.1f} cm)' if size is not None else '')
-            + ', whose own held-out test does not pass (it leaves the grazing faces out, '
-            f'where a moved target shows most); raycast again with it, {took} gain nothing '
-            'that passes the rule')
-
-
 def pose_tie_words(decision, summary: dict, cands: list) -> str:
     """The verdict when the reference pose and a candidate explain the data equally
     (``confounded_with`` holds ``pose_error`` and the candidate)."""
@@ -797,11 +781,10 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
     c = next((c for c in cands if c.name in other), None)
     held = (f' ({c.name}: held-out gain {c.score:.4f} nats/point, z = {c.z:.1f}, before the '
             'pose correction)' if c is not None else '')
-    footings = (c.against_pose or {}) if c is not None else {}
     pose_part = (f'{_correction(pose)[0].lower()}{_correction(pose)[1:]} gains {pose.gain:.4f} '
                  f'nats/point held out (z = {pose.z:.1f}; {pose.words()})'
-                 if pose is not None else constant_los_tie_words(footings)
-                 or 'a rigid correction of the target pose per cloud')
+                 if pose is not None else 'a rigid correction of the target pose per cloud')
+    footings = (c.against_pose or {}) if c is not None else {}
     how = _corrected_how(getattr(pose, 'constant', False) is True)
     charged = footings.get('fitted_margin_charged')
     if charged is None:
