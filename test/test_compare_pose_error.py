@@ -742,6 +742,11 @@ def test_a_range_drift_beside_a_constant_pose_along_the_line_of_sight_is_named_w
     assert ap['veto_on_recorded_pose'] == veto and ap['passes_on_pose']
     assert ap['displaced'] == {'surface_offset': [-0.0004, -0.5]}
     assert ap['heldout_margin'] == pytest.approx(0.0618 - 0.045)
+    # the constant test on top of the term is recorded whatever it says (where it is not
+    # joint, the path stops there: a scale on a hold took the common offset itself)
+    assert ap['constant_on_top'] == {'gain': 0.0222, 'z': 25.0, 'significant': True,
+                                     'joint': True, 'line_of_sight_share': None,
+                                     'translation_cm': None}
     from lidar_sim_ros.compare.report.verdict import constant_pose_beside_words
     said = ' '.join(constant_pose_beside_words(drift))
     assert 'moves the target 2.9 cm' in said and 'surface_offset gains -0.0004' in said
@@ -756,6 +761,7 @@ def test_a_range_drift_beside_a_constant_pose_along_the_line_of_sight_is_named_w
         kept, before, drift, _ = judge(**kw)
         assert kept is before, kw
         assert drift.vetoed == veto, kw
+        assert drift.against_pose['constant_on_top']['joint'] is kw.get('joint', True), kw
     # range_drift already named: not asked; one of a tie with surface_offset: asked
     kept, before, _, asked = judge(named='range_drift')
     assert kept is before and asked == []

@@ -556,6 +556,12 @@ class PoseWeighing:
                   and c.practical]
         for r in sorted(rivals, key=lambda c: -c.score):
             test = constant_test([r.effect])
+            r.against_pose = {**(r.against_pose or {}), 'constant_on_top': {
+                'gain': _num(getattr(test, 'gain', None)), 'z': _num(getattr(test, 'z', None)),
+                'significant': bool(test.significant),
+                'joint': bool(getattr(test, 'joint', False)),
+                'line_of_sight_share': _num(getattr(test, 'line_of_sight_share', None)),
+                'translation_cm': _num(getattr(test, 'size_cm', None))}}
             if not (test.significant and getattr(test, 'joint', False)):
                 continue
             on_pose, pose, per_cloud = on_constant_pose(r.effect)
