@@ -63,8 +63,10 @@ def private_domain_id(base: int, span: int) -> int:
 SERIAL_MODULES = {'test_node_dds', 'test_node_plugins', 'test_node_cepton_dds', 'test_node_sun_dds', 'test_node_demo', 'test_gnc_demo',
                   'test_gnc_node', 'test_warm_up', 'test_recorder', 'test_campaign',
                   'test_node_latency', 'test_loop_dds', 'test_node_cepton_udp', 'test_loop_nodes'}
-# Tests that share no module fixture and each run long: pytest-xdist spreads them one by one.
-SPREAD_TESTS = {'test_compare_foreign.py::test_foreign_loop'}
+# Tests that share no module fixture and each run long: pytest-xdist spreads them one by one
+# (the docs pages' transcripts were one unit of about two minutes of CPU).
+SPREAD_TESTS = {'test_compare_foreign.py::test_foreign_loop',
+                'test_docs.py::test_documented_commands_print_what_the_page_quotes'}
 
 
 def _spread(nodeid: str) -> bool:
