@@ -890,7 +890,9 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
         values['intensity'] = np.log10(np.where(np.isfinite(mp) & (mp > 0), mp,
                                                 np.nanmin(mp[mp > 0]) if np.any(mp > 0)
                                                 else 1e-12))
-        labels['intensity'] = features.POWER_LABEL
+        labels['intensity'] = (features.POWER_LABEL if in_intensity is None
+                               or not in_intensity.re_expressed
+                               else features.POWER_LABEL_MODEL_RANGE)
     near = ~beyond_the_target(np.asarray(sub.range_m, float)[lsel], res,
                               cal.residual_m[picked][lsel],
                               far_returns.far_threshold_m(sig, scale),
