@@ -86,14 +86,14 @@ def test_a_noise_free_compensated_intensity_leaves_no_structure_once_re_expresse
 
 
 def test_a_compare_run_on_a_compensated_null_claims_no_structure(tmp_path):
-    """A foreign null whose intensity is P r_meas^2 without noise (develop seed 1 of
-    null_reflectivity_box, where the structure read 0.027 nats/point at z 4.1 and the
+    """A foreign null whose intensity is P r_meas^2 / cos without noise (develop seed 1 of
+    null_reflectivity_lambert, where the structure read 0.129 nats/point at z 9.9 and the
     verdict said the missing physics was outside the catalogue)."""
     sys.path.insert(0, str(Path(__file__).parent))
     from foreign_loop import compare_once
     from foreign_sim import battery, generate
-    spec = battery(['null_reflectivity_box'])[0]
-    spec = replace(spec, name='null_reflectivity_box@1', seed=spec.seed + 1000)
+    spec = battery(['null_reflectivity_lambert'])[0]
+    spec = replace(spec, name='null_reflectivity_lambert@1', seed=spec.seed + 1000)
     ds = generate(spec, tmp_path / 'ds')
     s = compare_once(ds, tmp_path / 'out', tmp_path / 'history.json', [], False)
     assert s['intensity_measured_range']['re_expressed']
