@@ -36,8 +36,8 @@ import numpy as np
 from scipy.stats import norm
 
 from lidar_sim_ros.compare.diagnose import (clock_footing, diagnosis, far_returns, features,
-                                            intensity_range,
-                                            fit_data, laser_gains, plan as sep_plan,
+                                            fit_data, intensity_range, laser_gains,
+                                            plan as sep_plan,
                                             pose_error, range_alone, region_offset,
                                             row_clock, stamp_place, variants)
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
