@@ -1700,12 +1700,38 @@ STANDOFF: tuple[ForeignSpec, ...] = (
 )
 
 
+# A null recording whose intensity is a reflectivity compensated with the *measured*
+# range (P r_meas^2) and carries no noise of its own (no speckle): at a fixed geometry the
+# intensity moves only with the range's own error, 2 dr / r in ln I. The situation of an
+# independent lab's null (exact poses, 8 clouds at 9-12 m, a t and a ring field), on the
+# box bus with panels and on the drum bus; and the same lab's incidence-bias recording.
+# The right answer on a null is null; no structure outside the catalogue. By name only.
+COMPENSATED: tuple[ForeignSpec, ...] = (
+    ForeignSpec('null_reflectivity_box', None, seed=401, frames=8, distance_m=10.5,
+                speed_mps=0.4, spin_dps=5.0, intensity='reflectivity', lasers=4,
+                shots_per_frame=12_000, fins=True,
+                note='no effect, exact poses; intensity P r_meas^2, noise-free; box bus, panels'),
+    ForeignSpec('null_reflectivity_drum', None, seed=411, frames=8, distance_m=10.5,
+                speed_mps=0.4, spin_dps=5.0, intensity='reflectivity', lasers=4,
+                shots_per_frame=12_000, bus_shape='drum',
+                note='no effect, exact poses; intensity P r_meas^2, noise-free; drum bus'),
+    ForeignSpec('null_reflectivity_lambert', None, seed=431, frames=8, distance_m=10.5,
+                speed_mps=0.4, spin_dps=5.0, intensity='reflectivity_lambert', lasers=4,
+                shots_per_frame=12_000, fins=True,
+                note='no effect, exact poses; intensity P r_meas^2 / cos, noise-free; box bus'),
+    ForeignSpec('incidence_reflectivity', 'incidence_angle', {'g_m': 0.012, 'h': 0.4},
+                seed=421, frames=8, distance_m=10.5, speed_mps=0.4, spin_dps=5.0,
+                intensity='reflectivity', lasers=4, shots_per_frame=12_000, fins=True,
+                note='incidence bias; intensity P r_meas^2, noise-free; box bus, panels'),
+)
+
+
 def battery(names: list[str] | None = None) -> list[ForeignSpec]:
-    """The battery, or the named datasets of it, of VENDOR, V4, RANGE_OUTSIDE or STANDOFF
-    (in that order)."""
+    """The battery, or the named datasets of it, of VENDOR, V4, RANGE_OUTSIDE, STANDOFF
+    or COMPENSATED (in that order)."""
     if not names:
         return list(BATTERY)
-    every = BATTERY + VENDOR + V4 + RANGE_OUTSIDE + STANDOFF
+    every = BATTERY + VENDOR + V4 + RANGE_OUTSIDE + STANDOFF + COMPENSATED
     known = {s.name: s for s in every}
     bad = [n for n in names if n not in known]
     if bad:

@@ -36,7 +36,8 @@ import numpy as np
 from scipy.stats import norm
 
 from lidar_sim_ros.compare.diagnose import (clock_footing, diagnosis, far_returns, features,
-                                            fit_data, laser_gains, plan as sep_plan,
+                                            fit_data, intensity_range, laser_gains,
+                                            plan as sep_plan,
                                             pose_error, range_alone, region_offset,
                                             row_clock, stamp_place, variants)
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
@@ -399,6 +400,8 @@ class Analysed:
     labels: dict
     attribution: features.Attribution
     grazing_left_out: int = 0     # matched rays below pose_error.MIN_COS left out (--fit pose)
+    # The intensity's test for the measured range in it (None: no usable intensity).
+    range_in_intensity: intensity_range.RangeInIntensity | None = None
 
 
 @dataclass
@@ -484,7 +487,8 @@ def run_compare(opts: CompareOptions) -> CompareResult:
         sample, grazing = on_corrected_pose(sample, cal.matching.pred, pose_fit)
         picked = np.sort(np.concatenate([sample.matched, sample.unmatched]))
     with stage('features', f'{len(sample.matched)} matched points'):
-        ana = replace(attribute(cal, effects, inp.meas, sample, picked, isolated, opts.seed),
+        ana = replace(attribute(cal, effects, inp.meas, sample, picked, isolated, opts.seed,
+                                power.calibration),
                       grazing_left_out=grazing)
     classes = candidate_classes(opts, effects)
     if classes:
@@ -849,9 +853,11 @@ def diagnosis_sample(rays: fit_data.RaySet, meas: Measurements,
 
 def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
               sample: fit_data.RaySet, picked: np.ndarray, isolated: np.ndarray,
-              seed: int) -> Analysed:
+              seed: int, calibration: IntensityCalibration | None = None) -> Analysed:
     """Silhouette distances and range rates of the sample, and what the residual depends
-    on (``features.attribute``, each material's offset and sigma scale removed)."""
+    on (``features.attribute``, each material's offset and sigma scale removed).
+    ``calibration``: the intensity's map to power, to read an intensity that carries the
+    measured range at the model's range (``intensity_range``)."""
     model, pred, sel = cal.model, cal.matching.pred, cal.matching.matched
     sub = meas.subset(picked)
     sub_pred = fit_data.take_prediction(pred, picked)
@@ -870,15 +876,23 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
     res = res - offset
     values = features.feature_values(local)
     labels = {}
+    in_intensity = None
     if cal.rays.measured_power_w is not None:
         # The measured power, not the raw intensity: a range-compensated reflectivity
         # is computed with the measured range and would leak its noise to the
         # attribution (the calibration divides it out again).
         mp = cal.rays.measured_power_w[picked][lsel]
+        if calibration is not None and sub.intensity is not None:
+            # ... but only as far as its map's slope is 1: where the intensity carries
+            # the measured range (intensity_range), it is read at the model's range.
+            in_intensity, moved = model_range_power(calibration, sub, sub_pred, lsel)
+            mp = moved if in_intensity.re_expressed else mp
         values['intensity'] = np.log10(np.where(np.isfinite(mp) & (mp > 0), mp,
                                                 np.nanmin(mp[mp > 0]) if np.any(mp > 0)
                                                 else 1e-12))
-        labels['intensity'] = features.POWER_LABEL
+        labels['intensity'] = (features.POWER_LABEL if in_intensity is None
+                               or not in_intensity.re_expressed
+                               else features.POWER_LABEL_MODEL_RANGE)
     near = ~beyond_the_target(np.asarray(sub.range_m, float)[lsel], res,
                               cal.residual_m[picked][lsel],
                               far_returns.far_threshold_m(sig, scale),
@@ -886,7 +900,27 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
     attribution = features.attribute({k: v[near] for k, v in values.items()}, res[near],
                                      (res / (sig * scale))[near], seed,
                                      sample.blocks[picked][lsel][near])
-    return Analysed(sample, picked, isolated, local, res, values, labels, attribution)
+    return Analysed(sample, picked, isolated, local, res, values, labels, attribution,
+                    range_in_intensity=in_intensity)
+
+
+def model_range_power(calibration: IntensityCalibration, sub: Measurements,
+                      sub_pred, lsel: np.ndarray
+                      ) -> tuple[intensity_range.RangeInIntensity, np.ndarray]:
+    """Whether the sample's intensity carries the measured range (``intensity_range``),
+    and the power (W) the calibration reads from it moved to the model's range (the
+    matched points ``lsel`` of the sample ``sub``)."""
+    inten = np.asarray(sub.intensity, float)[lsel]
+    r_meas = np.asarray(sub.range_m, float)[lsel]
+    r_model = np.asarray(sub_pred.ctx.range_m, float)[lsel]
+    p_model = np.asarray(sub_pred.ctx.power_w, float)[lsel]
+    test = intensity_range.range_in_intensity(
+        inten, r_meas, r_model, p_model, np.asarray(sub.directions)[lsel],
+        np.asarray(sub.cloud)[lsel], np.asarray(sub_pred.ctx.material, int)[lsel])
+    moved = calibration.power_w(intensity_range.on_model_range(inten, r_meas, r_model),
+                                np.where(r_model > 0, r_model, r_meas), p_model,
+                                cloud=np.asarray(sub.cloud)[lsel])
+    return test, moved
 
 
 def beyond_the_target(range_m: np.ndarray, residual_m: np.ndarray, raw_residual_m: np.ndarray,
@@ -1373,6 +1407,8 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'materials': {s.name: s.as_dict() for s in cal.stats},
         'features': [f.as_dict() for f in ana.attribution.features],
         'residual_structure': ana.attribution.as_dict(),
+        **({'intensity_measured_range': ana.range_in_intensity.as_dict()}
+           if ana.range_in_intensity is not None else {}),
         'candidates': [c.as_dict() for c in diag.cands],
         'candidates_basis': {'points': int(len(ana.sample.matched)),
                              'nll_calibrated': before[0], 'range_rmse_calibrated_m': before[1],

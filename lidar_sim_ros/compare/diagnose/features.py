@@ -57,6 +57,9 @@ LABELS = {'range': 'range (m)', 'incidence': 'incidence angle (deg)',
           'material': 'material', 'edge': 'distance to edge (mrad)',
           'range_rate': 'range rate along the ray (m/s)', 'laser': 'laser (ring / channel id)'}
 POWER_LABEL = 'log10 measured power (W)'
+# ... where the intensity carried the measured range and is read at the model's
+# (intensity_range).
+POWER_LABEL_MODEL_RANGE = "log10 measured power at the model's range (W)"
 MIN_BIN_POINTS = 30
 MAX_BINS = 16
 N_SHUFFLES = 4
