@@ -166,7 +166,8 @@ def test_hidden_effect_is_named_and_fitting_it_reaches_the_noise_floor(name, dat
     # the other (``Diagnosis.rival_takes``), the verdict saying which recording separates
     # them; the fit below is what the user then runs.
     same_part = (name == 'snr_noise' and before['missing_effect'] is None
-                 and 'incidence_angle explains the same part' in (before['withheld'] or {}).get(name, '')
+                 and 'incidence_angle explains the same part'
+                 in (before['withheld'] or {}).get(name, '')
                  and 'another distance' in before['verdict'])
     assert before['missing_effect'] == name or tie or same_part, before['candidates']
     assert before['candidates'][0]['name'] == name
