@@ -3,12 +3,16 @@ from __future__ import annotations
 
 import re
 import sys
+import time
 from pathlib import Path
 from typing import Callable, Sequence
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+
+# How long an error raised while spinning waits for a SIGINT's shutdown to show (s).
+SHUTDOWN_WAIT_S = 0.5
 
 
 def run_node(make_node: Callable[[], Node], args: list[str] | None,
@@ -41,13 +45,29 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None,
         pass
     except Exception:  # noqa: BLE001 - re-raised unless it is the shutdown race below
         # SIGINT landing between two waits shuts the context down under the executor,
-        # which then fails to build its wait set (RCLError): a clean stop all the same.
-        if rclpy.ok():
+        # which then fails to build its wait set (RCLError) or to take a message from a
+        # subscription torn down under it (RuntimeError): a clean stop all the same.
+        if not shutting_down():
             raise
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def shutting_down(wait_s: float = SHUTDOWN_WAIT_S) -> bool:
+    """Whether the ROS context is shut down, or goes down within ``wait_s`` (s). rclpy's
+    SIGINT handler shuts the contexts down from its own thread, so the executor can fail
+    on an entity torn down under it a moment before ``rclpy.ok()`` turns False."""
+    deadline = time.monotonic() + wait_s
+    try:
+        while rclpy.ok():
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+    except KeyboardInterrupt:
+        return True
+    return True
 
 
 def ros_args_problem(argv: Sequence[str]) -> str | None:
