@@ -91,6 +91,14 @@ BENCH_ONLY: dict[str, str] = {
              'time budget)'
        for name in ('solar_background_far', 'range_walk_poly', 'short_range_walk_speckle',
                     'time_offset', 'pose_jitter_translation')},
+    **{name: 'the suite\'s time budget: the footprint is named on the suite\'s own data '
+             '(test_compare.py, beam_divergence) and the footing of its edge returns is '
+             'tested in test_compare_naming.py; a clock offset is named on the suite\'s '
+             'own data (test_compare.py, time_offset), and clouds without point times are '
+             'left unnamed on a null (clean_no_time_end) and read against a pattern that '
+             'is off (test_foreign_loop_v4[pattern_off_no_time]): run by '
+             'bench/hidden_effect_eval.py'
+       for name in ('beam_divergence', 'time_offset_no_time')},
     **{name: 'crosstalk: test_compare_crosstalk.py runs crosstalk_walk through compare; '
              'the five loops are run by bench/hidden_effect_eval.py'
        for name in ('crosstalk', 'crosstalk_small_near', 'crosstalk_far', 'crosstalk_walk',
