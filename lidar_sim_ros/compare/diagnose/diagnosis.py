@@ -1103,7 +1103,6 @@ class Diagnosis(PoseWeighing):
             gain, _, _ = self._on_top(self._fitted_together(on_top), other)
         except Exception:  # noqa: BLE001 - not shown to keep a part of its own
             return False
-        self.memo('own_part_on_top')[(other.name, *sorted(e.name for e in on_top))] = _num(gain)
         return bool(gain >= MIN_PRACTICAL_GAIN and gain * self.n_total >= MIN_TOTAL_GAIN)
 
     def tie_beside_set_aside(self, best: Candidate, tied: list[str],
