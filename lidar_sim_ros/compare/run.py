@@ -886,7 +886,7 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
             # ... but only as far as its map's slope is 1: where the intensity carries
             # the measured range (intensity_range), it is read at the model's range.
             in_intensity, moved = model_range_power(calibration, sub, sub_pred, lsel)
-            mp = moved if in_intensity.re_expressed else mp
+            mp = mp if moved is None else moved
         values['intensity'] = np.log10(np.where(np.isfinite(mp) & (mp > 0), mp,
                                                 np.nanmin(mp[mp > 0]) if np.any(mp > 0)
                                                 else 1e-12))
@@ -906,10 +906,10 @@ def attribute(cal: Calibrated, effects: list[Effect], meas: Measurements,
 
 def model_range_power(calibration: IntensityCalibration, sub: Measurements,
                       sub_pred, lsel: np.ndarray
-                      ) -> tuple[intensity_range.RangeInIntensity, np.ndarray]:
+                      ) -> tuple[intensity_range.RangeInIntensity, np.ndarray | None]:
     """Whether the sample's intensity carries the measured range (``intensity_range``),
-    and the power (W) the calibration reads from it moved to the model's range (the
-    matched points ``lsel`` of the sample ``sub``)."""
+    and, where it does, the power (W) the calibration reads from it moved to the model's
+    range (None otherwise; the matched points ``lsel`` of the sample ``sub``)."""
     inten = np.asarray(sub.intensity, float)[lsel]
     r_meas = np.asarray(sub.range_m, float)[lsel]
     r_model = np.asarray(sub_pred.ctx.range_m, float)[lsel]
@@ -917,6 +917,8 @@ def model_range_power(calibration: IntensityCalibration, sub: Measurements,
     test = intensity_range.range_in_intensity(
         inten, r_meas, r_model, p_model, np.asarray(sub.directions)[lsel],
         np.asarray(sub.cloud)[lsel], np.asarray(sub_pred.ctx.material, int)[lsel])
+    if not test.re_expressed:
+        return test, None
     moved = calibration.power_w(intensity_range.on_model_range(inten, r_meas, r_model),
                                 np.where(r_model > 0, r_model, r_meas), p_model,
                                 cloud=np.asarray(sub.cloud)[lsel])
