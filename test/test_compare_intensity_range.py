@@ -47,6 +47,23 @@ def test_a_reflectivity_with_the_measured_range_shows_slope_two():
     assert abs(t.slope - 2.0) < 0.2 and t.pairs > 1000
 
 
+@pytest.mark.parametrize('glints', [0.01, 0.1])
+def test_glints_in_the_intensity_do_not_hide_the_measured_range(glints):
+    """A few intensities far off (glints, saturated counts: e^2..e^7 times) among a
+    compensated reflectivity: the slope is still 2 (least squares alone gave -2 +- 2.5 at
+    1 %, not re-expressed); a raw power with the same glints is still never re-expressed."""
+    s = scene(2)
+    rng = np.random.default_rng(5)
+    far = np.where(rng.random(s['az'].size) < glints,
+                   np.exp(rng.uniform(2.0, 7.0, s['az'].size)), 1.0)
+    for intensity, expect in ((s['p_true'] * s['r_meas'] ** 2 * far, True),
+                              (s['p_true'] * 2.5e7 * far, False)):
+        t = ir.range_in_intensity(intensity, s['r_meas'], s['r_model'], s['p_model'], s['d'],
+                                  s['cloud'], s['material'])
+        assert t.re_expressed is expect, t
+        assert abs(t.slope - (2.0 if expect else 0.0)) < 0.2, t
+
+
 @pytest.mark.parametrize('pose_error_m', [0.0, 0.02])
 def test_a_raw_power_is_never_re_expressed_even_with_a_pose_error(pose_error_m):
     s = scene(1, pose_error_m)
