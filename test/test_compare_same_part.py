@@ -79,7 +79,7 @@ def test_walk_and_incidence_that_neither_passes_on_top_of_the_other_name_nothing
     assert 'cannot tell which of the two' in d.withheld['incidence_angle']
     assert 'not decisive' in d.withheld['incidence_angle']
     fig = d.pair_z['range_walk']['same_part']
-    assert fig['outcome'] == same_part.TIE
+    assert fig['outcome'] == same_part.TIE and fig['of'] == 'incidence_angle'
     assert fig['named_on_top'] == [0.0012, 1.1] and fig['rival_on_top'] == [0.0009, 0.6]
     text = vd.verdict({'materials': {}, 'unmatched': {'points': 0}, 'withheld': d.withheld,
                        'against_named': d.pair_z,

@@ -835,7 +835,8 @@ class Diagnosis(PoseWeighing):
             kind = same_part.outcome(on_rival, on_best, self.passes_rule)
             pair_z[c.name] = {**pair_z.get(c.name, {}), 'margin': _num(margin),
                               'z': _num(z), 'fitted_margin': _num(fitted),
-                              'same_part': {'with': [r.name for r in rest],
+                              'same_part': {'of': best.name,
+                                            'with': [r.name for r in rest],
                                             'named_on_top': [_num(v) for v in on_rival],
                                             'rival_on_top': ([_num(v) for v in on_best]
                                                              if on_best else None),

@@ -889,14 +889,13 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     fault = (diagnosis.naming_fault(best, summary['nll_calibrated'])
              if best is not None else None)
     along = (best.against_pose or {}) if best is not None else {}
-    rival = same_part_rival(summary)
-    for name, held in (summary.get('withheld') or {}).items():
-        # Withheld beside a rival the rule keeps from naming (``Diagnosis.rival_takes``),
-        # whatever ranks first.
-        c = next((c for c in cands if c.name == name), None)
-        if rival is not None and c is not None and held.startswith(
-                f'{rival} explains the same part'):
-            return same_part_words(c, held, rival, summary)
+    rival, name = same_part_rival(summary)
+    # Withheld beside a rival the rule keeps from naming (``Diagnosis.rival_takes``),
+    # whatever ranks first.
+    held = (summary.get('withheld') or {}).get(name) if name else None
+    c = next((c for c in cands if c.name == name), None)
+    if held and c is not None:
+        return same_part_words(c, held, rival, summary)
     if best is not None and best.vetoed:
         why = f' The best candidate, {best.name}, is set aside: {best.vetoed}.'
     elif along.get('pose_line_of_sight') and not along.get('passes_on_pose'):
@@ -921,14 +920,15 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
             f'the model matches the measurements up to noise{beside}.' + why)
 
 
-def same_part_rival(summary: dict) -> str | None:
-    """The rival a named candidate was withheld beside (``Diagnosis.rival_takes``:
-    ``against_named[NAME]['same_part']``, its outcome not 'named'), or None."""
+def same_part_rival(summary: dict) -> tuple[str | None, str | None]:
+    """(rival, withheld): the rival a candidate was withheld beside and that candidate
+    (``Diagnosis.rival_takes``: ``against_named[RIVAL]['same_part']``, its outcome not
+    'named', ``of`` the candidate weighed), or (None, None)."""
     for name, w in (summary.get('against_named') or {}).items():
         part = w.get('same_part') if isinstance(w, dict) else None
         if part and part.get('outcome') != 'named':
-            return name
-    return None
+            return name, part.get('of')
+    return None, None
 
 
 def same_part_words(best, held: str, rival: str, summary: dict) -> str:
