@@ -809,9 +809,10 @@ class Diagnosis(PoseWeighing):
         """Where ``dilation_beside`` tried ``best``'s dilation partner (nameable alone:
         in ``ok``) on top of it and it failed the rule there, its figures on top go to
         ``pair_z[partner]`` (``shares_faces_with``, ``gain_z_on_top``) for the verdict: a
-        partner that passes alone is not dropped without a word. Battery ``beam_solar_incid``: an incidence
-        bias gains 0.0506 nats/point alone, 0.0032 (z 3.2) on top of a footprint read at
-        its nearest sub-ray, which shortens the same oblique faces."""
+        partner that passes alone is not dropped without a word. Battery
+        ``beam_solar_incid``: an incidence bias gains 0.0506 nats/point alone, 0.0032
+        (z 3.2) on top of a footprint read at its nearest sub-ray, which shortens the same
+        oblique faces."""
         name = SHARES_DILATION.get(best.name)
         figs = self.memo('on_top_figures').get((name, best.name))
         if (name is None or name == also or figs is None or None in figs
