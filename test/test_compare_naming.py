@@ -1619,7 +1619,8 @@ def test_a_footprints_partner_failing_on_top_is_said_not_dropped():
     assert w['shares_faces_with'] == 'beam_divergence'
     assert w['gain_z_on_top'] == pytest.approx([0.0032, 3.2])
     (words,) = vd.shares_faces_words(d, ranked)
-    assert words.startswith('incidence_angle shares the oblique faces with beam_divergence')
+    assert words.startswith('incidence_angle (alone 0.0506, z = 30.0) shares the oblique '
+                            'faces with beam_divergence')
     assert '0.0032 nats/point (z = 3.2)' in words and 'not named' in words
     # Passing on top: 'also', as before, and no such sentence.
     d = Beside(adds, {on_fp: _on(base, 0.0100, 1, z=5.9)}).decide(ranked)

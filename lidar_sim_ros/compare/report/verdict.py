@@ -384,8 +384,8 @@ def shares_faces_words(decision, cands: list) -> list[str]:
         c = next((c for c in cands if c.name == name), None)
         gain, z = w['gain_z_on_top']
         alone = f' (alone {c.score:.4f}, z = {c.z:.1f})' if c is not None else ''
-        out.append(f'{name} shares the oblique faces with {w["shares_faces_with"]} (a beam '
-                   f'footprint moves their ranges as an incidence bias does){alone}: held out '
+        out.append(f'{name}{alone} shares the oblique faces with {w["shares_faces_with"]}, '
+                   'whose footprint moves their ranges as an incidence bias does: held out '
                    f'on top of it, it gains {gain:.4f} nats/point (z = {z:.1f}), which does '
                    'not pass the rule, so it is not named: what it gains alone is mostly '
                    'the footprint\'s.')
