@@ -1073,19 +1073,10 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
                 diagnosis.MIN_PRACTICAL_GAIN, seed, on_top, rate=has_point_times(meas))
         return diag_c, replace(report, gain=test.gain, z=test.z,
                                significant=test.significant), per_cloud
-    if decision.pose is not None and not (decision.missing or decision.confounded_with):
-        # The pose reported alone: the sensor's range terms (POSE_RIVALS) are scored
-        # here (``weigh_rivals`` scores them only beside a name), so that the one
-        # correction for the recording fitted on top of each is weighed too
-        # (``range_term_beside_constant_pose``), not only the pose fitted alone
-        # (``weigh_pose_rivals``): on a body tilted toward the line of sight a range
-        # scale is partly a turn of the pose, which the pose fitted alone takes.
-        have = {c.name for c in cands}
-        extra = [diag.score(cls) for cls in rivals if cls.name not in have]
-        for c in extra:
-            diag.share_veto(c, ana.attribution)
-        weighed = [*weighed, *extra]
-        cands = diagnosis.rank(cands + extra)
+    # With the pose alone, the range terms too: the constant pose on top of each.
+    extra = diag.rivals_beside_pose(decision, cands, rivals, ana.attribution)
+    weighed = [*weighed, *extra]
+    cands = diagnosis.rank(cands + extra)
     decision = diag.range_term_beside_constant_pose(
         decision, cands, lambda on_top: pose_test(on_top, constant=True), on_constant_pose)
     constant = decision.pose is not None and decision.pose.constant
