@@ -28,6 +28,11 @@ CASES = {
     'both': ForeignSpec('ps_both', 'range_scale', SCALE, pose_offset_m=(0.06, 0.0, 0.0), **HOLD),
     'scale': ForeignSpec('ps_scale', 'range_scale', SCALE, **HOLD),
     'offset': ForeignSpec('ps_offset', None, pose_offset_m=(0.06, 0.0, 0.0), **HOLD),
+    'both_near': ForeignSpec('ps_both_near', 'range_scale', SCALE,
+                             pose_offset_m=(-0.06, 0.0, 0.0), **HOLD),
+    'both_az': ForeignSpec('ps_both_az', 'range_scale', SCALE, pose_offset_m=(0.06, 0.0, 0.0),
+                           **{**HOLD, 'tilt_from': 'y'}),
+    'scale_az': ForeignSpec('ps_scale_az', 'range_scale', SCALE, **{**HOLD, 'tilt_from': 'y'}),
     'box_both': ForeignSpec('ps_box_both', 'range_scale', SCALE, pose_offset_m=(0.06, 0.0, 0.0),
                             **{**HOLD, 'bus_shape': 'box'}),
 }
@@ -50,7 +55,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument('--out', required=True)
     ap.add_argument('--seeds', type=int, nargs='+', required=True)
-    ap.add_argument('--cases', nargs='+', default=list(CASES))
+    ap.add_argument('--cases', nargs='+', default=['both', 'scale', 'offset', 'box_both'])
     ap.add_argument('--data', default='/tmp/posescale_data')
     ap.add_argument('--tag', default='run')
     a = ap.parse_args()

@@ -695,6 +695,7 @@ class ForeignSpec:
     # (None: the seeded attitude); the spin is then about the long axis, no precession,
     # so the tilt holds over the recording.
     tilt_deg: float | None = None
+    tilt_from: str = 'z'                 # the lidar axis the long axis lies on before the tilt: z | y
     expected: str | None = 'same'
     expected_feature: str | None = None  # the feature the residual should be attributed to
     note: str = ''
@@ -746,7 +747,12 @@ def trajectory_for(spec: ForeignSpec) -> Trajectory:
         # Body +z from lidar +z (across the line of sight) toward +x (the boresight):
         # the body's far end is the nozzle's, deeper by its length x sin(tilt).
         roll = rng.uniform(0, 360)
-        attitude = (Rotation.from_euler('y', spec.tilt_deg, degrees=True)
+        # From across the line of sight in elevation (z) or in azimuth (y, the wider
+        # field: the whole body in view).
+        attitude = ((Rotation.from_euler('y', spec.tilt_deg, degrees=True)
+                     if spec.tilt_from == 'z' else
+                     Rotation.from_euler('z', -spec.tilt_deg, degrees=True)
+                     * Rotation.from_euler('x', -90.0, degrees=True))
                     * Rotation.from_euler('z', roll, degrees=True))
         return Trajectory(tuple(pos), tuple(vel), attitude, (0.0, 0.0, 1.0), spec.spin_dps,
                           (1.0, 0.0, 0.0), 0.0)
