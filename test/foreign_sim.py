@@ -744,11 +744,10 @@ def trajectory_for(spec: ForeignSpec) -> Trajectory:
     attitude = Rotation.from_euler('zyx', [rng.uniform(-60, 60), rng.uniform(-70, -20),
                                            rng.uniform(-30, 30)], degrees=True)
     if spec.tilt_deg is not None:
-        # Body +z from lidar +z (across the line of sight) toward +x (the boresight):
-        # the body's far end is the nozzle's, deeper by its length x sin(tilt).
+        # Body +z from lidar +z (across the line of sight, in elevation) or from lidar +y
+        # (in azimuth) toward +x (the boresight): the body's +z end (the adapter's) is
+        # the far one, deeper by the length between them x sin(tilt).
         roll = rng.uniform(0, 360)
-        # From across the line of sight in elevation (z) or in azimuth (y, the wider
-        # field: the whole body in view).
         attitude = ((Rotation.from_euler('y', spec.tilt_deg, degrees=True)
                      if spec.tilt_from == 'z' else
                      Rotation.from_euler('z', -spec.tilt_deg, degrees=True)
