@@ -691,6 +691,11 @@ class ForeignSpec:
     layout: str = 'generic'              # generic | cepton (the SDK3 driver's fields)
     fins: bool = False                   # radiator fins beside the MLI sides (satellite_parts)
     bus_shape: str = 'box'               # box | drum (satellite_parts)
+    # The body's long axis tilted this far (deg) from across the line of sight toward it
+    # (None: the seeded attitude); the spin is then about the long axis, no precession,
+    # so the tilt holds over the recording.
+    tilt_deg: float | None = None
+    tilt_from: str = 'z'                 # the lidar axis the long axis lies on before the tilt: z | y
     expected: str | None = 'same'
     expected_feature: str | None = None  # the feature the residual should be attributed to
     note: str = ''
@@ -738,6 +743,18 @@ def trajectory_for(spec: ForeignSpec) -> Trajectory:
     # Body +z roughly across the line of sight, tipped so the top or bottom shows.
     attitude = Rotation.from_euler('zyx', [rng.uniform(-60, 60), rng.uniform(-70, -20),
                                            rng.uniform(-30, 30)], degrees=True)
+    if spec.tilt_deg is not None:
+        # Body +z from lidar +z (across the line of sight, in elevation) or from lidar +y
+        # (in azimuth) toward +x (the boresight): the body's +z end (the adapter's) is
+        # the far one, deeper by the length between them x sin(tilt).
+        roll = rng.uniform(0, 360)
+        attitude = ((Rotation.from_euler('y', spec.tilt_deg, degrees=True)
+                     if spec.tilt_from == 'z' else
+                     Rotation.from_euler('z', -spec.tilt_deg, degrees=True)
+                     * Rotation.from_euler('x', -90.0, degrees=True))
+                    * Rotation.from_euler('z', roll, degrees=True))
+        return Trajectory(tuple(pos), tuple(vel), attitude, (0.0, 0.0, 1.0), spec.spin_dps,
+                          (1.0, 0.0, 0.0), 0.0)
     return Trajectory(tuple(pos), tuple(vel), attitude, tuple(rng.normal(0, 0.3, 3) + [0, 0, 1]),
                       spec.spin_dps, tuple(_unit(rng.normal(size=3))), spec.precession_dps)
 

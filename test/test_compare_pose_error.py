@@ -1012,3 +1012,94 @@ def test_a_pose_whose_correction_would_gain_less_than_the_margin_is_not_reported
     # In a tie the pose stays as the tie says it.
     tie = diagnosis.Decision(None, [diagnosis.POSE_ERROR, 'range_drift'], pose=tiny)
     assert run.pose_that_matters(tie, tiny, data(idx), rec.cloud)[0].pose is tiny
+
+
+def test_a_range_scale_beside_a_pose_reported_alone_is_weighed_with_the_constant_pose_on_top():
+    """A 1 % range scale on a hold beside the pose 6 cm off along the line of sight, the
+    body tilted toward the line of sight: nothing was named (the pose fitted alone, 1 cm
+    turned and across the line of sight, took the scale: a turn of a tilted body moves
+    its ranges in proportion to depth), and range_scale, scored only beside a name
+    (``weigh_rivals``), never reached ``range_term_beside_constant_pose``. Now the range
+    terms are scored where the pose is reported alone (``rivals_beside_pose``) and the
+    constant pose fitted on top of the scale (5 cm along the line of sight, joint with
+    the materials) leaves it passing: range_scale is named, that pose beside it. Beside
+    a name, or without a pose, nothing is scored here; one scored already is not again."""
+    from types import SimpleNamespace as NS
+
+    class Scale:
+        name = 'range_scale'
+
+    class Drift:
+        name = 'range_drift'
+
+    def cand(name, kind, score, z):
+        return diagnosis.Candidate(name, score=score, z=z, significant=z >= 3.0,
+                                   practical=score >= diagnosis.MIN_PRACTICAL_GAIN,
+                                   effect=kind(), params={'x': score})
+
+    class Judge:
+        def __init__(self):
+            self.scored, self.vetoed = [], []
+
+        def score(self, cls):
+            self.scored.append(cls.name)
+            return (cand('range_scale', Scale, 0.0124, 7.5) if cls is Scale
+                    else cand('range_drift', Drift, -0.0001, -0.7))
+
+        def share_veto(self, c, attribution):
+            self.vetoed.append(c.name)
+
+        @staticmethod
+        def nameable(c):
+            return c.significant and c.practical and c.vetoed is None
+
+    class OnPose:
+        @staticmethod
+        def score(cls):
+            return cand('range_scale', Scale, 0.0150, 9.4)
+
+        @staticmethod
+        def nameable(c):
+            return True
+
+        @staticmethod
+        def naming_fault(c):
+            return None
+
+    alone = NS(significant=True, gain=0.0062, z=8.0, constant=False)
+    constant = NS(size_cm=5.2, constant=True)
+
+    def constant_test(on_top):
+        return (NS(significant=True, joint=True, gain=0.0116, z=7.2, size_cm=5.2,
+                   line_of_sight_share=0.99) if on_top else
+                NS(significant=True, joint=False, gain=0.0213, z=10.4))
+
+    def per_cloud(on_top):
+        return NS(significant=False, gain=-0.0038, z=-6.9) if on_top else alone
+
+    def on_constant_pose(effect):
+        return OnPose(), constant, per_cloud
+
+    weigh = diagnosis.Diagnosis.range_term_beside_constant_pose
+    reported = diagnosis.Decision(None, [], pose=NS(constant=True, size_cm=0.9))
+    # as before: nothing scored beside the pose alone, nothing weighed
+    assert weigh(Judge(), reported, [], constant_test, on_constant_pose) is reported
+    judge = Judge()
+    extra = diagnosis.Diagnosis.rivals_beside_pose(judge, reported, [], [Drift, Scale])
+    assert [c.name for c in extra] == ['range_drift', 'range_scale']
+    assert judge.vetoed == ['range_drift', 'range_scale']     # the vetoes of every candidate
+    out = weigh(judge, reported, extra, constant_test, on_constant_pose)
+    assert out.missing == 'range_scale' and out.pose is constant and not out.confounded_with
+    scale = extra[1]
+    assert scale.against_pose['constant_on_top']['translation_cm'] == 5.2
+    assert scale.against_pose['heldout_margin'] == pytest.approx(0.0150 - 0.0062)
+    # not beside a name, a tie, or without a pose; not one scored already
+    for d in (diagnosis.Decision('incidence_angle', [], pose=reported.pose),
+              diagnosis.Decision(None, ['a', 'b'], pose=reported.pose),
+              diagnosis.Decision(None, [])):
+        assert diagnosis.Diagnosis.rivals_beside_pose(Judge(), d, [], [Drift, Scale]) == []
+    judge = Judge()
+    have = [cand('range_scale', Scale, 0.0124, 7.5)]
+    assert [c.name for c in diagnosis.Diagnosis.rivals_beside_pose(
+        judge, reported, have, [Drift, Scale])] == ['range_drift']
+    assert judge.scored == ['range_drift']

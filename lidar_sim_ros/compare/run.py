@@ -1073,6 +1073,10 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
                 diagnosis.MIN_PRACTICAL_GAIN, seed, on_top, rate=has_point_times(meas))
         return diag_c, replace(report, gain=test.gain, z=test.z,
                                significant=test.significant), per_cloud
+    # With the pose alone, the range terms too: the constant pose on top of each.
+    extra = diag.rivals_beside_pose(decision, cands, rivals, ana.attribution)
+    weighed = [*weighed, *extra]
+    cands = diagnosis.rank(cands + extra)
     decision = diag.range_term_beside_constant_pose(
         decision, cands, lambda on_top: pose_test(on_top, constant=True), on_constant_pose)
     constant = decision.pose is not None and decision.pose.constant

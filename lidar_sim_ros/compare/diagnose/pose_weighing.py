@@ -518,6 +518,35 @@ class PoseWeighing:
         return replace(decision, confounded_with=[POSE_ERROR, RANGE_DRIFT],
                        beside_pose=test)
 
+    def rivals_beside_pose(self, decision: Decision, cands: list[Candidate],
+                           rivals: list[type[Effect]],
+                           attribution: Attribution | None = None) -> list[Candidate]:
+        """The sensor's range terms (``rivals``: POSE_RIVALS) not scored yet, scored with
+        the vetoes every candidate passes (``share_veto``), where the decision reports
+        the pose and names nothing; else none. ``weigh_rivals`` scores them only beside a
+        name, so with the pose alone ``range_term_beside_constant_pose`` had none to fit
+        the constant pose on top of, and only the pose fitted alone was weighed against
+        them (``weigh_pose_rivals``). On a body tilted toward the line of sight a range
+        scale on a hold is, beyond the materials' common offset, a turn of the pose
+        (delta ~ s tan(tilt)): the pose fitted alone takes it, turned a little and
+        across the line of sight, and the scale then gains nothing on the corrected
+        pose; fitted on top of the scale, the constant correction is the motion along
+        the line of sight the pose has (a 1 % scale beside 6 cm along the line of
+        sight: the pose alone 0.6-1.1 cm, 2-17 % along the line of sight; on top of the
+        scale 5.2 cm, 99 %). Returns the candidates scored here."""
+        if decision.pose is None or decision.missing or decision.confounded_with:
+            return []
+        have = {c.name for c in cands}
+        scored = []
+        for cls in rivals:
+            name = getattr(cls, 'name', '') or cls.__name__
+            if name in have:
+                continue
+            r = self.score(cls)
+            self.share_veto(r, attribution)
+            scored.append(r)
+        return scored
+
     def range_term_beside_constant_pose(self, decision: Decision, cands: list[Candidate],
                                         constant_test, on_constant_pose) -> Decision:
         """A range error of the sensor (POSE_RIVALS) that passes the held-out rule but is
