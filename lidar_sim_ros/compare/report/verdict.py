@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare.diagnose import beside, diagnosis, pose_error
+from lidar_sim_ros.compare.diagnose import beside, diagnosis, pose_error, power_incidence
 from lidar_sim_ros.compare.model.materials import common_offset_m
 
 EFFECT_WORDS = {
@@ -165,6 +165,12 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'{_join(names)} explain the data equally well within their uncertainty (held-out '
             f'gains {scores} nats/point): they are confounded in this recording, so none is '
             f'named. {advice} If you know which it is, add it with --effect NAME --fit.')
+        own = next((v['power_incidence'] for v in (decision.pair_z or {}).values()
+                    if isinstance(v, dict) and 'power_incidence' in v), {})
+        if own.get('outcome') == 'tie':
+            # ``Diagnosis.power_or_incidence``: neither has a part of its own.
+            words = power_incidence.tie_words(own)
+            parts.append(words[0].upper() + words[1:] + '.')
     elif decision.pose is not None:
         parts.append(pose_words(decision.pose, cands))
     elif not beyond_bound and not to_range:
