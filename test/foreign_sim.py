@@ -1744,38 +1744,48 @@ COMPENSATED: tuple[ForeignSpec, ...] = (
 # named, or a tie holding it; a walk alone is wrong (``foreign_loop.judge``). The box bus
 # with panels and the drum bus (a rocket-like cylinder); a hold at ~10 m and a short
 # approach; the intensity deterministic (P r_meas^2 or linear) or with speckle. By name.
-_LAW = {'law': 'range_sin', 'g': -1.5, 'a': 0.7, 'sigma_frac': 0.3}
+_LAW = {'law': 'range_sin', 'g': -3.5, 'a': 0.5, 'sigma_frac': 0.15}
+_HOLD = dict(frames=8, distance_m=10.0, speed_mps=0.0, spin_dps=4.0, precession_dps=1.0,
+             shots_per_frame=12_000)
 INCIDENCE_LAW: tuple[ForeignSpec, ...] = (
-    ForeignSpec('incid_law_box_hold', 'incidence_angle', _LAW, seed=501, frames=8,
-                distance_m=10.0, speed_mps=0.0, spin_dps=4.0, precession_dps=1.0,
-                intensity='reflectivity', lasers=4, shots_per_frame=12_000, fins=True,
-                note='incidence law g r dtheta sin/cos^0.7, g -1.5; box bus, panels; held '
-                     'at 10 m; intensity P r_meas^2, noise-free'),
-    ForeignSpec('incid_law_box_hold_a5', 'incidence_angle', {**_LAW, 'a': 0.5, 'g': -2.0},
-                seed=511, frames=8, distance_m=10.0, speed_mps=0.0, spin_dps=4.0,
-                precession_dps=1.0, intensity='linear', shots_per_frame=12_000, fins=True,
-                note='the same law with a 0.5, g -2.0; intensity linear, noise-free'),
-    ForeignSpec('incid_law_box_speckle', 'incidence_angle', _LAW, seed=521, frames=8,
-                distance_m=10.0, speed_mps=0.0, spin_dps=4.0, precession_dps=1.0,
-                intensity='reflectivity', amplitude_cv=0.2, lasers=4,
-                shots_per_frame=12_000, fins=True,
+    ForeignSpec('incid_law_box_hold', 'incidence_angle', _LAW, seed=501, **_HOLD,
+                intensity='linear', fins=True,
+                note='incidence law g r dtheta sin/cos^0.5, g -3.5, sigma 0.15 |bias|; box bus, '
+                     'panels; held at 10 m; intensity linear in power, noise-free'),
+    ForeignSpec('incid_law_box_hold_a7', 'incidence_angle', {**_LAW, 'a': 0.7, 'g': -3.0},
+                seed=511, **_HOLD, intensity='reflectivity', lasers=4, fins=True,
+                note='the law with a 0.7, g -3.0; intensity P r_meas^2, noise-free'),
+    ForeignSpec('incid_law_box_speckle', 'incidence_angle', _LAW, seed=521, **_HOLD,
+                intensity='linear', amplitude_cv=0.2, fins=True,
                 note='the hold on the box bus with speckle (20 %) on the pulse'),
     ForeignSpec('incid_law_box_approach', 'incidence_angle', _LAW, seed=531, frames=8,
-                distance_m=12.0, speed_mps=4.0, spin_dps=4.0, intensity='reflectivity',
-                lasers=4, shots_per_frame=12_000, fins=True,
+                distance_m=12.0, speed_mps=4.0, spin_dps=4.0, intensity='linear',
+                shots_per_frame=12_000, fins=True,
                 note='a short approach 12 m -> ~9 m on the box bus, noise-free intensity'),
-    ForeignSpec('incid_law_drum_hold', 'incidence_angle', {**_LAW, 'a': 0.8}, seed=541,
-                frames=8, distance_m=10.0, speed_mps=0.0, spin_dps=4.0, precession_dps=1.0,
-                intensity='reflectivity', lasers=4, shots_per_frame=12_000,
-                bus_shape='drum',
+    ForeignSpec('incid_law_drum_hold', 'incidence_angle', {**_LAW, 'a': 0.8, 'g': -3.0},
+                seed=541, **_HOLD, intensity='reflectivity', lasers=4, bus_shape='drum',
                 note='the law (a 0.8) on the drum bus, held at 10 m, noise-free intensity'),
-    ForeignSpec('incid_law_drum_speckle', 'incidence_angle', {**_LAW, 'a': 0.6}, seed=551,
-                frames=8, distance_m=10.0, speed_mps=3.0, spin_dps=4.0,
+    ForeignSpec('incid_law_drum_speckle', 'incidence_angle', {**_LAW, 'a': 0.6, 'g': -3.0},
+                seed=551, frames=8, distance_m=10.0, speed_mps=3.0, spin_dps=4.0,
                 intensity='counts16', amplitude_cv=0.2, shots_per_frame=12_000,
                 bus_shape='drum',
                 note='the law (a 0.6) on the drum bus, a short approach, speckle 20 %'),
+    # The probe that reproduced the lab's answer on c0f6953 (range_walk named alone,
+    # 0.0071 nats/point over incidence_angle): the box hold at seed 604.
+    ForeignSpec('incid_law_box_repro', 'incidence_angle', _LAW, seed=604, **_HOLD,
+                intensity='linear', fins=True,
+                note='the box hold of incid_law_box_hold at the seed that reproduced the lab'),
+    # Controls: a true walk on the same box bus must still be named where the power moves
+    # at a fixed incidence (speckle; an approach).
+    ForeignSpec('walk_box_speckle', 'range_walk', {'form': 'ln', 'g_m': 0.02}, seed=561,
+                **_HOLD, intensity='linear', amplitude_cv=0.2, fins=True,
+                note='a walk 0.02 ln P on the box bus held at 10 m, speckle 20 %'),
+    ForeignSpec('walk_box_approach', 'range_walk', {'form': 'ln', 'g_m': 0.02}, seed=571,
+                frames=8, distance_m=12.0, speed_mps=4.0, spin_dps=4.0, intensity='linear',
+                shots_per_frame=12_000, fins=True,
+                note='a walk 0.02 ln P on the box bus, approach 12 m -> ~9 m, no speckle'),
 )
-INCIDENCE_LAW_NAMES = frozenset(s.name for s in INCIDENCE_LAW)
+INCIDENCE_LAW_NAMES = frozenset(s.name for s in INCIDENCE_LAW if s.effect == 'incidence_angle')
 
 
 def battery(names: list[str] | None = None) -> list[ForeignSpec]:
