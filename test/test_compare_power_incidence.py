@@ -87,6 +87,18 @@ def test_a_walk_on_an_approach_has_a_part_of_its_own():
     assert passes(parts_of(e, mat, theta, r, log_p)[pi.WALK])
 
 
+def test_the_foreign_law_on_an_approach_leaves_the_walk_no_part_of_its_own():
+    """The foreign law is in proportion to range, so at a fixed incidence it moves with
+    the range as a walk in ln P would; but it vanishes at normal incidence, where a
+    walk's range part does not: ln P is taken beyond the range times a smooth function
+    of incidence that vanishes there, and the law leaves the walk nothing (it passed
+    the rule, 0.027 nats/point z 12.9, with ln P taken beyond the incidence alone)."""
+    rng = np.random.default_rng(6)
+    mat, theta, r, log_p = hold(rng, range_spread_m=4.0)
+    e = foreign_law_m(theta, r) + 0.01 * rng.standard_normal(N)
+    assert not passes(parts_of(e, mat, theta, r, log_p)[pi.WALK])
+
+
 def test_residual_part_removes_a_smooth_function_per_group():
     rng = np.random.default_rng(5)
     x = rng.uniform(0, 1, 400)

@@ -60,13 +60,18 @@ class OwnPart:
 
 
 def residual_part(y: np.ndarray, x: np.ndarray, group: np.ndarray,
-                  degree: int = DEGREE) -> np.ndarray:
+                  degree: int = DEGREE, scale: np.ndarray | None = None) -> np.ndarray:
     """``y`` less a least-squares polynomial of ``degree`` in ``x`` fitted per group
-    (x standardised per group); a group of fewer than MIN_GROUP_POINTS points loses its
-    mean only. NaN where y or x is not finite."""
+    (x standardised per group), and with ``scale`` given, less ``scale`` times a
+    polynomial in x of the same degree without its constant (x as given, so the term
+    vanishes at x = 0); a group of fewer than MIN_GROUP_POINTS points loses its mean
+    only. NaN where y, x or scale is not finite."""
     y, x = np.asarray(y, float), np.asarray(x, float)
     out = np.full(len(y), np.nan)
     ok = np.isfinite(y) & np.isfinite(x)
+    if scale is not None:
+        scale = np.asarray(scale, float)
+        ok &= np.isfinite(scale)
     for g in np.unique(group[ok]):
         idx = np.flatnonzero(ok & (group == g))
         if len(idx) < MIN_GROUP_POINTS:
@@ -76,15 +81,22 @@ def residual_part(y: np.ndarray, x: np.ndarray, group: np.ndarray,
         span = np.std(xs)
         t = (xs - np.mean(xs)) / (span if span > 0 else 1.0)
         basis = np.vander(t, degree + 1)
+        if scale is not None:
+            s = scale[idx] - np.mean(scale[idx])
+            basis = np.column_stack([basis, s[:, None] * np.vander(xs, degree + 1)[:, :-1]])
         coef, *_ = np.linalg.lstsq(basis, y[idx], rcond=None)
         out[idx] = y[idx] - basis @ coef
     return out
 
 
-def walk_driver(log_power: np.ndarray, incidence_rad: np.ndarray,
-                material: np.ndarray) -> np.ndarray:
-    """ln P's part a smooth per-material function of the incidence does not predict."""
-    return residual_part(log_power, incidence_rad, material)
+def walk_driver(log_power: np.ndarray, incidence_rad: np.ndarray, material: np.ndarray,
+                range_m: np.ndarray | None = None) -> np.ndarray:
+    """ln P's part a smooth per-material function of the incidence does not predict, nor,
+    with ``range_m``, the range times a smooth function of the incidence that vanishes at
+    normal incidence (the footprint family's bias, r f(theta), f(0) = 0, moves with the
+    range at a fixed incidence as a walk does: its range part is not the walk's own; a
+    walk's range part at normal incidence is)."""
+    return residual_part(log_power, incidence_rad, material, scale=range_m)
 
 
 def incidence_driver(range_m: np.ndarray, incidence_rad: np.ndarray, log_power: np.ndarray,
@@ -161,7 +173,8 @@ def both_parts(residual_m, sigma_m, material, log_power, incidence_rad, range_m,
     ``walk_driver``, incidence's on ``incidence_driver``."""
     material = np.asarray(material, int)
     return {WALK: own_part(residual_m, sigma_m, material,
-                           walk_driver(log_power, incidence_rad, material), fold, blocks),
+                           walk_driver(log_power, incidence_rad, material, range_m), fold,
+                           blocks),
             INCIDENCE: own_part(residual_m, sigma_m, material,
                                 incidence_driver(range_m, incidence_rad, log_power, material),
                                 fold, blocks)}
