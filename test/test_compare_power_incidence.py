@@ -199,15 +199,24 @@ def test_incidence_is_named_where_only_its_part_of_its_own_passes():
     assert d.missing == 'incidence_angle' and d.confounded_with == []
 
 
-def test_an_other_that_may_not_be_named_is_not_tied_the_walk_is_withheld():
+def test_a_walk_beside_an_incidence_that_may_not_be_named_stays_named():
     """Incidence failing the rule alone (z 2) may not stand in a tie (issue 30 rule 1):
-    the walk without a part of its own is withheld, nothing named, the reason said."""
+    the walk is named as before, nothing asked (battery range_walk_poly)."""
     walk = cand('range_walk', WALK, 0.0183, 9.1, -2.038, 2)
     inc = cand('incidence_angle', INCIDENCE, 0.0030, 2.0, -2.023, 1)
     diag = OwnParts(NONE_OWN)
-    d = dg.settle(diag.decide(dg.rank([walk, inc])), [walk, inc], diag.naming_fault)
-    assert d.missing is None and d.confounded_with == []
-    assert 'follows the incidence and the received power together' in d.withheld['range_walk']
+    d = diag.decide(dg.rank([walk, inc]))
+    assert d.missing == 'range_walk' and diag.asked == 0
+
+
+def test_a_named_incidence_is_not_asked():
+    """Incidence named (its own form decisively better than the walk): not asked
+    (battery short_incidence)."""
+    walk = cand('range_walk', WALK, 0.0109, 4.6, -2.029, 2)
+    inc = cand('incidence_angle', INCIDENCE, 0.0252, 7.4, -2.045, 1)
+    diag = OwnParts(NONE_OWN)
+    assert diag.decide(dg.rank([walk, inc])).missing == 'incidence_angle'
+    assert diag.asked == 0
 
 
 def test_no_incidence_candidate_no_question():

@@ -20,10 +20,13 @@ matched points' arrays):
   (``own_part``): the held-out Gaussian log-likelihood gain over the offsets alone, per
   point, and its block-robust z.
 
-``Diagnosis.power_or_incidence`` asks each own part to pass the naming rule: the named one
-keeps its name where its own part passes; the other is named where only its own part
-passes; where neither passes, the answer is the tie (the bias follows the incidence and
-the power together; ``plan.yaml`` names the recording that separates them).
+``Diagnosis.power_or_incidence`` asks a named walk, beside an incidence bias that may be
+named too, for its own part by the naming rule: the walk stays where it passes;
+incidence is named where only its own part passes; where neither passes, the answer is
+their tie (the bias follows the incidence and the power together; ``plan.yaml`` names the
+recording that separates them). A walk's range part is taken beyond the range times a
+smooth function of incidence vanishing at normal incidence (``walk_driver``): a bias in
+proportion to range, as the footprint family's is, moves with the range as a walk does.
 """
 from __future__ import annotations
 
