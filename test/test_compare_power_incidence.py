@@ -235,3 +235,18 @@ def test_the_tie_verdict_says_the_bias_follows_incidence_and_power_together():
                       None, [walk, inc], d)
     assert 'none is named' in text
     assert 'The range bias follows the incidence and the received power together' in text
+
+
+def test_the_plan_of_an_own_part_tie_names_another_recording_than_this_one():
+    """The two forms as fitted separate on this very recording (the walk fitted the law
+    better); that is not what is in doubt, so the verdict names the best other recording."""
+    from lidar_sim_ros.compare.report import verdict as vd
+    ways = {'a': {'diagnosed_points': 12000}}
+    rows = [{'recording': 'this recording', 'separates': True, 'margin': 0.0058, 'z': 5.6,
+             'ways': ways, 'what': 'again'},
+            {'recording': 'approach 2x to 0.5x', 'separates': True, 'margin': 0.02, 'z': 9.0,
+             'ways': ways, 'what': 'the range spread'}]
+    assert 'may come from the diagnosis' in vd.plan_words(rows)
+    text = vd.plan_words(rows, by_form_only=True)
+    assert 'only by the forms fitted' in text and 'approach 2x to 0.5x' in text
+    assert 'may come from the diagnosis' not in text
