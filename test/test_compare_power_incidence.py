@@ -250,3 +250,18 @@ def test_the_plan_of_an_own_part_tie_names_another_recording_than_this_one():
     text = vd.plan_words(rows, by_form_only=True)
     assert 'only by the forms fitted' in text and 'approach 2x to 0.5x' in text
     assert 'may come from the diagnosis' not in text
+
+
+def test_a_walk_of_the_leading_edge_sign_stays_named_without_a_part_of_its_own():
+    """A walk fitted with k_m > 0 (weak returns read long, a leading edge's sign; no
+    footprint's early edge reads grazing returns long) on a hold without intensity noise
+    (battery short_range_walk: k 0.020, 0.0232 nats/point against incidence's 0.0115):
+    named as before, its own parts reported."""
+    walk = cand('range_walk', {'k_m': 0.020, 'power': 'model'}, 0.0232, 9.0, -2.043, 2)
+    inc = cand('incidence_angle', INCIDENCE, 0.0115, 7.4, -2.031, 1)
+    diag = OwnParts(NONE_OWN)
+    d = diag.decide(dg.rank([walk, inc]))
+    assert d.missing == 'range_walk' and d.confounded_with == []
+    fig = d.pair_z['incidence_angle']['power_incidence']
+    assert fig['outcome'] == 'named_by_sign' and fig['walk_k_m'] == 0.02
+    assert pi.reads_as_incidence(-0.026) and not pi.reads_as_incidence(0.02)

@@ -881,8 +881,10 @@ class Diagnosis(PoseWeighing):
         """A range walk named where an incidence bias may be named too (``nameable``) must
         show its own part (``power_incidence``): a dependence on the power at a fixed
         incidence, passing the rule (held-out gain over the matched points counted per
-        analysed point, and z). Where it passes, the walk stays (None); where it does not
-        and incidence's own part (a dependence on the incidence at a fixed power) passes,
+        analysed point, and z). Where it passes, the walk stays (None); so it does where
+        its fitted k_m reads weak returns long, as a leading edge does and no footprint's
+        early edge at grazing incidence can (``power_incidence.reads_as_incidence``);
+        where neither holds and incidence's own part (a dependence on the incidence at a fixed power) passes,
         incidence is named; where neither passes, their tie. A named incidence bias is not
         asked (its own form, r tan(theta), is one function of the geometry; a walk free in
         sign is any function of the incidence on a hold: battery ``short_incidence``,
@@ -908,8 +910,13 @@ class Diagnosis(PoseWeighing):
 
         figures = {n: {**p.as_dict(), 'passes': passes(n)} for n, p in parts.items()}
         pair_z[other.name] = {**pair_z.get(other.name, {}), 'power_incidence': figures}
+        k_m = float(getattr(best.effect.params, 'k_m', 0.0))
+        figures['walk_k_m'] = float(f'{k_m:.5g}')
         if passes(best.name):
             figures['outcome'] = 'named'
+            return None
+        if not power_incidence.reads_as_incidence(k_m):
+            figures['outcome'] = 'named_by_sign'
             return None
         if passes(other.name):
             figures['outcome'] = 'other'
