@@ -884,8 +884,9 @@ class Diagnosis(PoseWeighing):
         analysed point, and z). Where it passes, the walk stays (None); so it does where
         its fitted k_m reads weak returns long, as a leading edge does and no footprint's
         early edge at grazing incidence can (``power_incidence.reads_as_incidence``);
-        where neither holds and incidence's own part (a dependence on the incidence at a fixed power) passes,
-        incidence is named; where neither passes, their tie. A named incidence bias is not
+        where neither holds and incidence's own part (a dependence on the incidence at a
+        fixed power) passes, incidence is named; where neither passes, their tie. A named
+        incidence bias is not
         asked (its own form, r tan(theta), is one function of the geometry; a walk free in
         sign is any function of the incidence on a hold: battery ``short_incidence``,
         incidence 0.0252 nats/point against the walk's 0.0109, has no own part either
