@@ -1427,6 +1427,10 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'also_confounded_with': list(decision.beside_tie),
         'withheld': decision.withheld or None,
         'against_named': decision.pair_z,
+        # A walk or an incidence bias named beside the other: each one's own part
+        # (``Diagnosis.power_or_incidence``).
+        'power_incidence': next((v['power_incidence'] for v in (decision.pair_z or {}).values()
+                                 if isinstance(v, dict) and 'power_incidence' in v), None),
         'separation_plan': plan.rows if plan is not None and plan.rows else None,
         'unmatched': _unmatched_summary(ana.local, cal.model.divergence_rad, int((~sel).sum()),
                                         float(matching.unmatched_fraction),

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare.diagnose import beside, diagnosis, pose_error
+from lidar_sim_ros.compare.diagnose import beside, diagnosis, pose_error, power_incidence
 from lidar_sim_ros.compare.model.materials import common_offset_m
 
 EFFECT_WORDS = {
@@ -160,12 +160,23 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         scores = ', '.join(f'{n} {next(c.score for c in cands if c.name == n):.4f}'
                            for n in names)
         advice = _separation(names, summary)
+        own = next((v['power_incidence'] for v in (decision.pair_z or {}).values()
+                    if isinstance(v, dict) and 'power_incidence' in v), {})
         if summary.get('separation_plan'):
-            advice += ' ' + plan_words(summary['separation_plan'])
+            advice += ' ' + plan_words(summary['separation_plan'],
+                                       by_form_only=own.get('outcome') == 'tie')
+        alike = ('explain the data equally well within their uncertainty' if
+                 own.get('outcome') != 'tie' else
+                 'each explain the data, the one by its form better than the other, but '
+                 'neither by a part of its own')
         parts.append(
-            f'{_join(names)} explain the data equally well within their uncertainty (held-out '
+            f'{_join(names)} {alike} (held-out '
             f'gains {scores} nats/point): they are confounded in this recording, so none is '
             f'named. {advice} If you know which it is, add it with --effect NAME --fit.')
+        if own.get('outcome') == 'tie':
+            # ``Diagnosis.power_or_incidence``: neither has a part of its own.
+            words = power_incidence.tie_words(own)
+            parts.append(words[0].upper() + words[1:] + '.')
     elif decision.pose is not None:
         parts.append(pose_words(decision.pose, cands))
     elif not beyond_bound and not to_range:
@@ -990,9 +1001,22 @@ def _separation(names: list[str], summary: dict) -> str:
             'would separate them.')
 
 
-def plan_words(rows: list[dict]) -> str:
+def plan_words(rows: list[dict], by_form_only: bool = False) -> str:
     """One sentence on the separation plan (``compare/diagnose/plan.py``): the best recording and
-    its expected z, from simulating both fitted hypotheses on each candidate recording."""
+    its expected z, from simulating both fitted hypotheses on each candidate recording.
+    ``by_form_only``: the tie is one of parts of their own (``power_incidence``), so
+    this very recording flown again separates the two only by their forms as fitted,
+    which is not what is in doubt: the best other recording is said."""
+    if by_form_only:
+        again = next((r for r in rows if r['recording'] == 'this recording'), None)
+        others = [r for r in rows if r['recording'] != 'this recording']
+        if others:
+            head = ''
+            if again is not None and again['separates'] and again['z'] is not None:
+                head = (f'Simulating both as fitted on this very recording separates them '
+                        f'({again["margin"]:.4f} nats/point, z = {again["z"]:.1f}) only by '
+                        'the forms fitted, not by a part of their own. ')
+            return head + plan_words(others)
     best = rows[0]
     ways = best['ways']
     n = min(w['diagnosed_points'] for w in ways.values() if 'skipped' not in w)
