@@ -1597,33 +1597,3 @@ def test_a_footprint_does_not_stand_in_by_its_z_alone():
                        _on(base, 0.0109, 1, z=7.0),
                    (s_i, 'range_walk'): _on(base, 0.0203, 4, z=1.1)})
     assert hand.decide(dg.rank([walk, solar, inc])).missing == 'solar_background'
-
-
-def test_a_footprints_partner_failing_on_top_is_said_not_dropped():
-    """decide(), verdict: battery beam_solar_incid@0. With the footprint re-cast on every
-    ray (a footprint read at its nearest sub-ray shortens every oblique face,
-    ``fit_data.make_fit_data``), the incidence bias gains 0.0506 nats/point alone (z 7.7)
-    but 0.0032 (z 3.2) on top of the footprint: not 'also' (the next step, with the
-    footprint fitted, finds 0.0024, z 2.6), and the verdict says why instead of dropping
-    it without a word. Where it passes on top, it is 'also' as before, and nothing more
-    is said."""
-    beam = cand('beam_divergence', 0.2472, -2.200, seed=81)
-    inc = cand('incidence_angle', 0.0506, -2.060, seed=82)
-    ranked = dg.rank([beam, inc])
-    base = np.zeros(N)
-    adds = {('beam_divergence', 'incidence_angle'): True}
-    on_fp = (frozenset({'beam_divergence'}), 'incidence_angle')
-    d = Beside({}, {on_fp: _on(base, 0.0032, 1, z=3.2)}).decide(ranked)   # adds_to: no
-    assert d.missing == 'beam_divergence' and d.also is None and d.confounded_with == []
-    w = d.pair_z['incidence_angle']
-    assert w['shares_faces_with'] == 'beam_divergence'
-    assert w['gain_z_on_top'] == pytest.approx([0.0032, 3.2])
-    (words,) = vd.shares_faces_words(d, ranked)
-    assert words.startswith('incidence_angle (alone 0.0506, z = 30.0) shares the oblique '
-                            'faces with beam_divergence')
-    assert '0.0032 nats/point (z = 3.2)' in words and 'not named' in words
-    # Passing on top: 'also', as before, and no such sentence.
-    d = Beside(adds, {on_fp: _on(base, 0.0100, 1, z=5.9)}).decide(ranked)
-    assert d.also == 'incidence_angle'
-    assert 'shares_faces_with' not in d.pair_z.get('incidence_angle', {})
-    assert vd.shares_faces_words(d, ranked) == []

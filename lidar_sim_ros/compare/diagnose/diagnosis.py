@@ -772,7 +772,6 @@ class Diagnosis(PoseWeighing):
                 or self.material_beside(best, cands))
         partner = self.dilation_beside(best, ok, cands, also)
         if partner is None:
-            self.faces_beside(best, ok, also, pair_z)
             return Decision(best.name, [], also, pair_z)
         # The one sharing the named effect's dilation first: it is fitted together with
         # it (``fit_together``), the value of the named effect alone being off by it.
@@ -807,25 +806,6 @@ class Diagnosis(PoseWeighing):
                 and self.beside_set_aside(best, c, cands, but_taken=True)):
             return c.name
         return None
-
-    def faces_beside(self, best: Candidate, ok: list[Candidate], also: str | None,
-                     pair_z: dict) -> None:
-        """Where ``dilation_beside`` tried ``best``'s dilation partner (nameable alone:
-        in ``ok``) on top of it and it failed the rule there, its figures on top go to
-        ``pair_z[partner]`` (``shares_faces_with``, ``gain_z_on_top``) for the verdict: a
-        partner that passes alone is not dropped without a word. Battery
-        ``beam_solar_incid``: an incidence bias gains 0.0506 nats/point alone, 0.0032
-        (z 3.2) on top of a footprint read at its nearest sub-ray, which shortens the same
-        oblique faces."""
-        name = SHARES_DILATION.get(best.name)
-        figs = self.memo('on_top_figures').get((name, best.name))
-        if (name is None or name == also or figs is None or None in figs
-                or all(c.name != name for c in ok)):
-            return
-        if self.passes_rule(*figs):
-            return      # passed on top, set aside for another reason: said elsewhere
-        pair_z[name] = {**pair_z.get(name, {}), 'shares_faces_with': best.name,
-                        'gain_z_on_top': list(figs)}
 
     def rival_takes(self, best: Candidate, cands: list[Candidate],
                     pair_z: dict) -> str | None:

@@ -113,10 +113,7 @@ def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet,
     FitData of a superset of the rays), casts are sliced from the parent's, so folds
     share the raycasts of the whole. An effect whose cast reaches only so far from its
     axis (``Effect.cast_reach_rad``) is re-cast on the rays near an edge only
-    (``rays.edge_rad``), the others keep the baseline, unless it moves the ranges of rays
-    away from edges too (``Effect.ranges_off_edges``: a footprint read at its nearest
-    sub-ray shortens every oblique face; re-cast near edges only, a first run's footprint
-    left those faces to an incidence bias the footprint as --fit fits it takes back)."""
+    (``rays.edge_rad``), the others keep the baseline."""
     meas = rays.meas
     m_sub, u_sub = meas.subset(rays.matched), meas.subset(rays.unmatched)
     base_moving = lk.moving(base_effects)
@@ -128,8 +125,7 @@ def make_fit_data(model: Model, base_effects: list[Effect], rays: RaySet,
             sim = model.simulator(effects=[lk.RaysOnly(e) for e in effects])
             reach = [e.cast_reach_rad(model.divergence_rad) for e in effects]
             if (base is not None and edge is not None and effects and not base_moving
-                    and all(r is not None for r in reach)
-                    and not any(e.ranges_off_edges() for e in effects)):
+                    and all(r is not None for r in reach)):
                 near = np.flatnonzero(~(edge > max(reach) + 1e-9))   # NaN edge: near
                 if len(near) == 0:
                     return base

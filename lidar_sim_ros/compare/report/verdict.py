@@ -142,7 +142,6 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
                          f'{_on_top_words(cands, more, missing)}: add it after '
                          f'{decision.also}.')
         parts.extend(stands_in_words(decision))
-        parts.extend(shares_faces_words(decision, cands))
         parts.extend(range_split_words(decision))
         lasers = laser_intensity_words(summary.get('laser_intensity'))
         if lasers:
@@ -381,25 +380,6 @@ def stands_in_words(decision) -> list[str]:
                     f'on top of {beside} and {name})')
         out.append(f'{name} explains about as much alone, but beside {beside} it only '
                    f'stands in for {third}{nums}, so it is not named.')
-    return out
-
-
-def shares_faces_words(decision, cands: list) -> list[str]:
-    """Why the named footprint's dilation partner (an incidence bias), which passes the
-    rule alone, is not 'also': on top of the footprint it does not
-    (``Diagnosis.faces_beside``; ``against_named[NAME]['gain_z_on_top']``)."""
-    out = []
-    for name, w in (decision.pair_z or {}).items():
-        if not isinstance(w, dict) or 'shares_faces_with' not in w:
-            continue
-        c = next((c for c in cands if c.name == name), None)
-        gain, z = w['gain_z_on_top']
-        alone = f' (alone {c.score:.4f}, z = {c.z:.1f})' if c is not None else ''
-        out.append(f'{name}{alone} shares the oblique faces with {w["shares_faces_with"]}, '
-                   'whose footprint moves their ranges as an incidence bias does: held out '
-                   f'on top of it, it gains {gain:.4f} nats/point (z = {z:.1f}), which does '
-                   'not pass the rule, so it is not named: what it gains alone is mostly '
-                   'the footprint\'s.')
     return out
 
 

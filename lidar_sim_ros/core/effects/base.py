@@ -217,19 +217,10 @@ class Effect:
         return None
 
     def cast_reach_rad(self, divergence_rad: float) -> float | None:
-        """How far (rad) from its axis a ``cast`` override looks: no ray farther than this
-        from any silhouette or depth step meets another surface (a miss stays a miss).
-        None = any ray may change (the default; the comparison then re-casts every ray).
-        Whether such a ray's range is the single ray's too: ``ranges_off_edges``."""
+        """How far (rad) from its axis a ``cast`` override looks: rays farther than this
+        from any silhouette or depth step return as with the single-ray cast. None =
+        any ray may change (the default; the comparison then re-casts every ray)."""
         return None
-
-    def ranges_off_edges(self) -> bool:
-        """Whether a ``cast`` override moves the range of a ray farther than
-        ``cast_reach_rad`` from any edge (a footprint read at its nearest sub-ray does: on
-        an oblique face it reads the near side of the spot, about r a tan(incidence) short
-        for a cone of half-angle a). False (the default): such rays return as the single
-        ray, and the comparison re-casts only the rays near an edge."""
-        return False
 
     def power_scale(self, ctx: ReturnContext) -> np.ndarray | float:
         """Multiplier on received power (-)."""

@@ -885,12 +885,6 @@ class BeamDivergence(Effect):
         """Half-angle of the cone (rad): rays farther from an edge see one plane only."""
         return 0.5 * self.params.footprint_scale * divergence_rad
 
-    def ranges_off_edges(self) -> bool:
-        """On one plane the nearest sub-ray ('first') is nearer than the axis by about
-        r a tan(incidence) (cone half-angle a): every oblique face, not only its edges.
-        The energy-weighted mean stays at the axis range to first order."""
-        return self.params.range_mode == 'first' and self.params.footprint_scale > 0
-
     def cast(self, target, directions_lidar: np.ndarray, poses,
              divergence_rad: float) -> Hits | None:
         half_angle = 0.5 * self.params.footprint_scale * divergence_rad
