@@ -24,10 +24,11 @@ matched points' arrays):
 as an incidence bias reads grazing returns through the power: ``reads_as_incidence``),
 beside an incidence bias that may be named too, for its own part by the naming rule:
 the walk stays where it passes; incidence is named where only its own part passes; where
-neither passes, the answer is their tie (the bias follows the incidence and the power together; ``plan.yaml`` names the
-recording that separates them). A walk's range part is taken beyond the range times a
-smooth function of incidence vanishing at normal incidence (``walk_driver``): a bias in
-proportion to range, as the footprint family's is, moves with the range as a walk does.
+neither passes, the answer is their tie (the bias follows the incidence and the power
+together; ``plan.yaml`` names the recording that separates them). A walk's range part
+is taken beyond the range times a smooth function of incidence vanishing at normal
+incidence (``walk_driver``): a bias in proportion to range, as the footprint family's
+is, moves with the range as a walk does.
 """
 from __future__ import annotations
 
