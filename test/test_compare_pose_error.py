@@ -1049,6 +1049,8 @@ def test_a_range_scale_beside_a_pose_reported_alone_is_weighed_with_the_constant
         def share_veto(self, c, attribution):
             self.vetoed.append(c.name)
 
+        scored_with_vetoes = diagnosis.Diagnosis.scored_with_vetoes
+
         @staticmethod
         def nameable(c):
             return c.significant and c.practical and c.vetoed is None

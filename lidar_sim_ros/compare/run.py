@@ -37,7 +37,7 @@ from scipy.stats import norm
 
 from lidar_sim_ros.compare.diagnose import (clock_footing, diagnosis, far_returns, features,
                                             fit_data, intensity_range, laser_gains,
-                                            plan as sep_plan,
+                                            plan as sep_plan, power_incidence,
                                             pose_error, range_alone, region_offset,
                                             row_clock, stamp_place, variants)
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
@@ -1435,8 +1435,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'against_named': decision.pair_z,
         # A walk or an incidence bias named beside the other: each one's own part
         # (``Diagnosis.power_or_incidence``).
-        'power_incidence': next((v['power_incidence'] for v in (decision.pair_z or {}).values()
-                                 if isinstance(v, dict) and 'power_incidence' in v), None),
+        'power_incidence': power_incidence.figures_in(decision.pair_z),
         'separation_plan': plan.rows if plan is not None and plan.rows else None,
         'unmatched': _unmatched_summary(ana.local, cal.model.divergence_rad, int((~sel).sum()),
                                         float(matching.unmatched_fraction),

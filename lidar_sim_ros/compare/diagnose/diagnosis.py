@@ -1510,11 +1510,7 @@ class Diagnosis(PoseWeighing):
         decision). Returns the decision and the rivals scored."""
         if not (decision.missing or decision.confounded_with) or not rivals:
             return decision, []
-        scored = []
-        for cls in rivals:
-            r = self.score(cls)
-            self.share_veto(r, attribution)
-            scored.append(r)
+        scored = self.scored_with_vetoes(rivals, attribution)
         if not any(self.nameable(r) for r in scored):
             # None may be named instead; one set aside by the material split may still
             # be 'also', with the named effect in the model (``material_beside``).
@@ -1528,6 +1524,17 @@ class Diagnosis(PoseWeighing):
         again = self.decide(rank([*cands, *scored]))
         return replace(decision, missing=again.missing, confounded_with=again.confounded_with,
                        also=again.also, pair_z=again.pair_z), scored
+
+    def scored_with_vetoes(self, classes: list[type[Effect]],
+                           attribution: Attribution | None = None) -> list[Candidate]:
+        """Each of ``classes`` scored (``score``) and passed through the share veto, one
+        after the other."""
+        scored = []
+        for cls in classes:
+            r = self.score(cls)
+            self.share_veto(r, attribution)
+            scored.append(r)
+        return scored
 
     def fitted_margin(self, a: Candidate, b: Candidate) -> float:
         """How much better ``a`` explains the data than ``b`` as --fit would leave them:
@@ -1693,10 +1700,16 @@ def fitted_footing(cand: 'Candidate') -> float:
     less its gain on the missed shots (a false-return effect) or on the unmatched
     returns it puts back on the target (a footprint). ``naming_fault`` compares it with
     the model's without it; the verdict quotes it."""
+    missed, back = footing_gains(cand)
+    return float(cand.nll_after - missed - back)
+
+
+def footing_gains(cand: 'Candidate') -> tuple[float, float]:
+    """(on the missed shots, on the returns put back) nats per matched point that
+    ``fitted_footing`` takes off ``nll_after``; 0 where not finite or absent."""
     missed, back = (float(getattr(cand, k, 0.0) or 0.0)
                     for k in ('missed_gain_after', 'unmatched_gain_after'))
-    return float(cand.nll_after - (missed if np.isfinite(missed) else 0.0)
-                 - (back if np.isfinite(back) else 0.0))
+    return (missed if np.isfinite(missed) else 0.0), (back if np.isfinite(back) else 0.0)
 
 
 def per_return_nll(nll_matched: float, unmatched_fraction: float) -> float:
@@ -1736,8 +1749,7 @@ def naming_fault(cand: Candidate, before_nll: float) -> str | None:
                 'catalogue')
     after = fitted_footing(cand)
     if not (np.isfinite(after) and np.isfinite(before_nll) and after < before_nll):
-        gain = cand.missed_gain_after if np.isfinite(cand.missed_gain_after) else 0.0
-        back = cand.unmatched_gain_after if np.isfinite(cand.unmatched_gain_after) else 0.0
+        gain, back = footing_gains(cand)
         missed = (f' ({cand.nll_after:.4f} on the matched points, {gain:+.4f} gained on '
                   'the missed shots)' if gain else
                   f' ({cand.nll_after:.4f} on the matched points, {back:+.4f} gained on '

@@ -537,15 +537,9 @@ class PoseWeighing:
         if decision.pose is None or decision.missing or decision.confounded_with:
             return []
         have = {c.name for c in cands}
-        scored = []
-        for cls in rivals:
-            name = getattr(cls, 'name', '') or cls.__name__
-            if name in have:
-                continue
-            r = self.score(cls)
-            self.share_veto(r, attribution)
-            scored.append(r)
-        return scored
+        return self.scored_with_vetoes(
+            [cls for cls in rivals if (getattr(cls, 'name', '') or cls.__name__) not in have],
+            attribution)
 
     def range_term_beside_constant_pose(self, decision: Decision, cands: list[Candidate],
                                         constant_test, on_constant_pose) -> Decision:

@@ -185,6 +185,13 @@ def both_parts(residual_m, sigma_m, material, log_power, incidence_rad, range_m,
                                 fold, blocks)}
 
 
+def figures_in(pair_z: dict | None) -> dict | None:
+    """The own parts' figures ``Diagnosis.power_or_incidence`` put beside the named
+    candidates (``pair_z[incidence_angle]['power_incidence']``), or None."""
+    return next((v['power_incidence'] for v in (pair_z or {}).values()
+                 if isinstance(v, dict) and 'power_incidence' in v), None)
+
+
 def reads_as_incidence(k_m: float) -> bool:
     """Whether a walk -k_m ln(P / P_th) fitted with this k_m (m) reads weak returns short
     (k_m < 0): the way an incidence bias of the footprint family reads through the power

@@ -159,8 +159,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         scores = ', '.join(f'{n} {next(c.score for c in cands if c.name == n):.4f}'
                            for n in names)
         advice = _separation(names, summary)
-        own = next((v['power_incidence'] for v in (decision.pair_z or {}).values()
-                    if isinstance(v, dict) and 'power_incidence' in v), {})
+        own = power_incidence.figures_in(decision.pair_z) or {}
         if summary.get('separation_plan'):
             advice += ' ' + plan_words(summary['separation_plan'],
                                        by_form_only=own.get('outcome') == 'tie')
