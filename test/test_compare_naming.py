@@ -144,6 +144,13 @@ def test_a_footprint_is_footed_on_the_returns_it_puts_back():
     assert ('lowers the NLL from -2.022 to -2.240 per point, counting the returns it puts '
             'back on the target (-2.015 on the matched points alone)') in text
     assert fp.as_dict()['unmatched_gain_after'] == pytest.approx(0.225)
+    # A put-back gain that could not be computed (NaN) is no footing: the verdict quotes
+    # the matched points' NLL alone, as the rule judges it (``footing_gains``).
+    text, _ = vd._gain_words({'nll_calibrated': BEFORE_NLL, 'range_rmse_calibrated_m': 0.05,
+                              'range_robust_sigma_calibrated_m': 0.05},
+                             replace(fp, unmatched_gain_after=float('nan')))
+    assert 'puts back' not in text and 'nan' not in text
+    assert 'from -2.022 to -2.015 per point' in text
 
 
 def test_the_nll_per_return_counts_the_returns_left_off_the_target():

@@ -136,7 +136,7 @@ class Diagnosis(PoseWeighing):
                                       for k in range(N_FOLDS)])
         # Per matched point of the folds' test sides (``cross_fit`` order): its place in
         # ``rays.matched``; and the neighbourhoods in that order.
-        self.fold_order = np.searchsorted(rays.matched, np.concatenate(
+        self.fold_order = self.places(np.concatenate(
             [self.folds[(k + 1) % N_FOLDS].matched for k in range(N_FOLDS)]))
         self.matched_blocks = blocks[rays.matched]
         far, residual, expected, threshold = far_from_surface(self.full, details=True)
@@ -400,7 +400,7 @@ class Diagnosis(PoseWeighing):
                 for h in halves]
         out = np.full(len(self.rays.matched), np.nan)
         for h, nll in zip(halves, transfer_both_ways(variant, data, on_top)):
-            out[np.searchsorted(self.rays.matched, h.matched)] = nll
+            out[self.places(h.matched)] = nll
         return out
 
     def worst_transfer(self, cand: Candidate, splits: dict, at_random: np.ndarray,
@@ -868,7 +868,7 @@ class Diagnosis(PoseWeighing):
                 log_power = np.where(power > 0, np.log(power), np.nan)
             fold = np.zeros(len(self.rays.matched), int)
             for k, f in enumerate(self.folds):
-                fold[np.searchsorted(self.rays.matched, f.matched)] = k
+                fold[self.places(f.matched)] = k
             hit = np.asarray(ctx.hit, bool)
             residual = np.where(hit, np.asarray(full.measured_range_m, float) - expected, np.nan)
             memo[key] = power_incidence.both_parts(
@@ -1455,6 +1455,12 @@ class Diagnosis(PoseWeighing):
                 return c
             return None
         return None
+
+    def places(self, points: np.ndarray) -> np.ndarray:
+        """Each of ``points`` (indices of matched points of the recording, as a fold's
+        ``matched``) as its place in ``rays.matched``: the index into ``self.full``'s
+        arrays and every per-matched-point array of the diagnosis."""
+        return np.searchsorted(self.rays.matched, points)
 
     def memo(self, name: str) -> dict:
         """This diagnosis's cache ``name`` (results that depend on its model: effects

@@ -78,7 +78,7 @@ class PoseWeighing:
         from lidar_sim_ros.compare.diagnose.pose_error import corrected
         out = copy.copy(self)
         out.full = corrected(self.full, correction_m)
-        out.fold_data = [corrected(d, correction_m[np.searchsorted(self.rays.matched, f.matched)])
+        out.fold_data = [corrected(d, correction_m[self.places(f.matched)])
                          for d, f in zip(self.fold_data, self.folds)]
         out._base_nll = [heldout_nll(d, []) for d in out.fold_data]
         out._before_nll = None

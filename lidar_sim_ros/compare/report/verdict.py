@@ -1183,8 +1183,7 @@ def _gain_words(summary: dict, c) -> tuple[str, str]:
     An outlier effect is judged by the NLL and the robust (MAD) spread: a plain RMSE is
     dominated by the far outliers, which stay in the data whether or not the model
     expects them."""
-    missed = getattr(c, 'missed_gain_after', 0.0) or 0.0
-    back = getattr(c, 'unmatched_gain_after', 0.0) or 0.0
+    missed, back = diagnosis.footing_gains(c)
     nll = _change('the NLL', summary['nll_calibrated'], diagnosis.fitted_footing(c), '',
                   '.3f', 'lowers') + ' per point'
     if missed:
