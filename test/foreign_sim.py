@@ -96,7 +96,7 @@ CEPTON_SATURATED, CEPTON_NO_RETURN = 1, 32
 SATURATION_POWER_W = 1.0e-3      # this sensor's detector clips above this
 # Hidden effects compare has no candidate for: expected answer null (and the feature).
 OUTSIDE_CATALOGUE = ('azimuth_bias', 'range_scale', 'crosstalk',   # range_scale: by name only
-                     'dual_return', 'range_cyclic')
+                     'dual_return', 'range_cyclic', 'veil')
 # Range errors of the sensor that compare weighs against the reference pose (issue 30).
 POSE_RIVALS = ('range_drift',)
 
@@ -933,6 +933,10 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
         real = detected & (mat >= 0)
         at, ghost_r, ghost_p = crosstalk_returns(measured, power, real, laser, sensor, rng, xt)
         frame = with_ghosts(frame, d, t, laser, at, ghost_r, ghost_p)
+    veil = spec.params_of('veil')
+    if veil is not None:
+        frame = through_veil(frame, d, t, laser, measured, power, detected, r_hit, mat, sensor,
+                             spec.distance_m, rng, veil)
     dual = spec.params_of('dual_return')
     if dual is not None:
         first = detected & on_target & (mat >= 0)
@@ -1035,6 +1039,70 @@ def with_ghosts(frame: dict, d: np.ndarray, t: np.ndarray, laser: np.ndarray, at
                           np.concatenate([v, np.zeros(n)])[order])
                       for k, (b, v) in frame['effects'].items()}
     return out
+
+
+VEIL = -3         # material id of a veil's return (a film in front of the target, not the target)
+
+
+def through_veil(frame: dict, d: np.ndarray, t: np.ndarray, laser: np.ndarray,
+                 measured: np.ndarray, power: np.ndarray, detected: np.ndarray,
+                 r_hit: np.ndarray, mat: np.ndarray, sensor: Sensor, distance_m: float,
+                 rng: np.random.Generator, p: dict) -> dict:
+    """A thin film (a veil: a thermal blanket's loose foil, a net, a lab curtain) across
+    the line of sight at ``at`` (0.55) x the target's distance, ``half_w_m`` x
+    ``half_h_m`` (1.2 x 0.6 m) in the lidar's y and z, outside the catalogue. A shot
+    through it returns the film first (index 0: its range with CLUTTER_SIGMA_M of noise,
+    a weak power ``reflect`` (4) x the threshold with a 30 % spread) and, behind it, the
+    target's echo as a later return (index 1) where that echo, ``transmission`` (0.95)
+    squared of its power, is still above the threshold. ``frame`` with the film's returns
+    in place of the shots' own and the target's behind them."""
+    x = p.get('at', 0.55) * distance_m
+    with np.errstate(divide='ignore', invalid='ignore'):
+        r_v = np.where(d[:, 0] > 0, x / d[:, 0], np.inf)
+    y, z = d[:, 1] * r_v, d[:, 2] * r_v
+    cross = (np.isfinite(r_v) & (np.abs(y) <= p.get('half_w_m', 1.2))
+             & (np.abs(z) <= p.get('half_h_m', 0.6))
+             & (~detected | ~np.isfinite(measured) | (r_v < measured)))
+    shots = np.asarray(frame['shot'])
+    in_frame = np.zeros(len(d), bool)
+    in_frame[shots] = True
+    # The target's echo behind the film, where the shot had one: moved to index 1.
+    behind = cross & in_frame & (power * p.get('transmission', 0.95) ** 2
+                                 >= sensor.threshold_power_w)
+    film_r = r_v + CLUTTER_SIGMA_M * rng.standard_normal(len(d))
+    film_p = sensor.threshold_power_w * p.get('reflect', 4.0) * rng.uniform(0.7, 1.3, len(d))
+    out = dict(frame)
+    row = np.full(len(d), -1)
+    row[shots] = np.arange(len(shots))
+    hit_rows = row[cross & in_frame]
+    at_target = np.flatnonzero(behind)
+    target = {k: np.asarray(frame[k])[row[at_target]] for k in ('range_m', 'power_w')}
+    target_mat = np.asarray(frame['material'])[row[at_target]]
+    target_true = np.asarray(frame['true_range_m'])[row[at_target]]
+    # The film replaces the shots' own first return (or adds one where there was none).
+    fresh = np.flatnonzero(cross & ~in_frame & (film_r > sensor.min_range_m))
+    for k, v in (('range_m', film_r), ('power_w', film_p)):
+        arr = np.asarray(out[k], float).copy()
+        arr[hit_rows] = v[cross & in_frame]
+        out[k] = arr
+    out['xyz_m'] = np.asarray(out['xyz_m']).copy()
+    out['xyz_m'][hit_rows] = d[cross & in_frame] * film_r[cross & in_frame, None]
+    for k, v in (('material', VEIL), ('true_range_m', np.nan)):
+        arr = np.asarray(out[k]).copy()
+        arr[hit_rows] = v
+        out[k] = arr
+    eff = {}
+    for k, (b, var) in frame['effects'].items():
+        b, var = np.asarray(b, float).copy(), np.asarray(var, float).copy()
+        b[hit_rows], var[hit_rows] = 0.0, 0.0
+        eff[k] = (b, var)
+    out['effects'] = eff
+    if len(fresh):
+        out = with_ghosts(out, d, t, laser, fresh, film_r[fresh], film_p[fresh],
+                          material=np.full(len(fresh), VEIL))
+    return with_ghosts(out, d, t, laser, at_target, target['range_m'],
+                       target['power_w'] * p.get('transmission', 0.95) ** 2,
+                       material=target_mat, index=1, true_range_m=target_true)
 
 
 STANDOFF_MIN_COS = 0.05   # a standoff read along the ray: at most 20 x s at grazing
@@ -1181,7 +1249,7 @@ def cloud_fields(spec: ForeignSpec, frame: dict, intensity: np.ndarray | None,
         full = np.zeros(n_out, np.uint16)
         full[at] = frame['laser']
         names.append('ring'), formats.append('<u2'), values.append(full)
-    dual = spec.params_of('dual_return')
+    dual = spec.params_of('dual_return') or spec.params_of('veil')
     if dual is not None and dual.get('field', 'return'):
         # The receiver's return index: from ``base`` (0 or 1) for the first return.
         full = np.zeros(n_out, np.uint8)
@@ -1338,7 +1406,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
     # Pose clock minus lidar clock: the pose stamped s shows the target at lidar time s - dt.
     offset = spec.params_of('time_offset')
     dt_s = float(offset.get('dt_s', 0.05)) if offset is not None else 0.0
-    n_points = n_clutter = n_false = n_multipath = n_hidden = n_ghost = n_second = 0
+    n_points = n_clutter = n_false = n_multipath = n_hidden = n_ghost = n_second = n_veil = 0
     kept: list[dict] = []
     bag = out / 'bag'
     gap = spec.frame_gap_s or period
@@ -1373,6 +1441,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
             n_clutter += int(np.sum(frame['material'] == CLUTTER))
             n_false += int(np.sum(frame['material'] == -1))
             n_ghost += int(np.sum(frame['material'] == CROSSTALK))
+            n_veil += int(np.sum(frame['material'] == VEIL))
             n_second += int(np.sum(frame['return_index'] > 0))
             n_multipath += int(np.sum(frame['multipath']))
             n_hidden += int(np.sum(frame['hidden']))
@@ -1390,7 +1459,7 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
              'multipath_fraction': n_multipath / max(n_points, 1),
              'occluded_fraction': n_hidden / max(n_points, 1),
              'crosstalk_fraction': n_ghost / max(n_points, 1),
-             'second_returns': n_second}
+             'second_returns': n_second, 'veil_returns': n_veil}
     scen = write_compare_scenario(out / 'scenario.yaml', mesh, traj)
     return ForeignDataset(spec, bag, mesh, scen, n_points, truth)
 
@@ -1549,6 +1618,12 @@ BATTERY: tuple[ForeignSpec, ...] = (
     # rays it cuts lie metres short of the target; no pose error, no material refit
     ForeignSpec('occluder', None, seed=90, occluder=True,
                 note='a pillar 0.4 m wide at 60 % of the distance hides a strip of the target'),
+    # A film across the line of sight (outside the catalogue): the shots through it return
+    # the film first and the target behind it as a later return of the shot (a return
+    # field); the film is not the target, and the target is still seen through it.
+    ForeignSpec('veil', None, seed=98, lasers=6, distance_m=9.0,
+                also=(('veil', {'at': 0.55, 'half_w_m': 1.2, 'half_h_m': 0.6}),),
+                note='a film 1.2 x 2.4 m at 55 % of the distance, the target behind it'),
     ForeignSpec('occluder_walk', 'range_walk', {'form': 'poly_log', 'a_m': 0.03, 'b_m': 0.006},
                 seed=91, occluder=True, distance_m=9.0, intensity='counts16',
                 note='the pillar, and a range walk to be named through it'),

@@ -99,6 +99,8 @@ BENCH_ONLY: dict[str, str] = {
              'is off (test_foreign_loop_v4[pattern_off_no_time]): run by '
              'bench/hidden_effect_eval.py'
        for name in ('beam_divergence', 'time_offset_no_time')},
+    'veil': 'test_compare_occlusion.py runs it through compare (one frame) and asserts '
+            'what is left out and kept: run by bench/hidden_effect_eval.py',
     **{name: 'crosstalk: test_compare_crosstalk.py runs crosstalk_walk through compare; '
              'the five loops are run by bench/hidden_effect_eval.py'
        for name in ('crosstalk', 'crosstalk_small_near', 'crosstalk_far', 'crosstalk_walk',

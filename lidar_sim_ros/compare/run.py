@@ -706,6 +706,17 @@ def leave_out_occluded(inp: Inputs) -> Inputs:
                                       meas.time_source == 'field', meas.time_quantum_s, source,
                                       exclude=ghost)
     later &= ~mask
+    if mask.any() and later.any():
+        # The target seen through an occluder: its later return of the shot is kept.
+        shot = mret.shot_groups(meas.t_frame_s, meas.cloud, meas.laser, meas.directions,
+                                meas.time_quantum_s)
+        behind = occ.seen_through(meas.range_m, expected, far_returns.far_threshold_m(sigma),
+                                  shot, mask, later)
+        if behind.any():
+            later &= ~behind
+            found = replace(found, seen_through=int(behind.sum()))
+            multi = replace(multi, with_first=multi.with_first - int(behind.sum()),
+                            behind_first_m=multi.behind_first_m if later.any() else None)
     if later.any():
         # How many lie where the model's own multipath would put a ghost (said, not kept:
         # ``multiple_returns`` module doc).

@@ -17,6 +17,7 @@ SPACING_REACH = 4.0            # ... within this many times the typical ray spac
 SAME_SURFACE_M = 0.2           # a neighbour this close in range (or ...
 SAME_SURFACE_FRACTION = 0.02   # ... this fraction of the range) sees the same surface
 BLOCKS_PER_AXIS = 12           # angular neighbourhoods per cloud, per axis of the view
+SAME_RAY = 1e-6                # directions closer than this (chord of unit vectors): one ray
 _CLOUD_GAP = 10.0              # separates clouds in the search space (unit vectors: |d| = 1)
 
 
@@ -43,10 +44,14 @@ def isolated(directions: np.ndarray, range_m: np.ndarray, cloud: np.ndarray,
     dist, idx = dist[:, 1:], idx[:, 1:]          # the point itself comes first
     if dist.size == 0:
         return np.ones(len(query), bool)
-    spacing = float(np.median(dist[:, 0])) if np.isfinite(dist[:, 0]).any() else 0.0
+    # The spacing to the nearest *other* ray: another return of the same shot (a
+    # multi-return receiver) shares the point's direction and says nothing of it (with
+    # it, the reach fell to zero and every return with a later one was isolated).
+    gap = np.min(np.where(dist > SAME_RAY, dist, np.inf), axis=1, keepdims=True)
+    spacing = float(np.median(gap[np.isfinite(gap)])) if np.isfinite(gap).any() else 0.0
     reach = SPACING_REACH * max(spacing, 1e-6)
     if local_reach:
-        reach = SPACING_REACH * np.maximum(np.nan_to_num(dist[:, :1], posinf=0.0), 1e-6)
+        reach = SPACING_REACH * np.maximum(np.where(np.isfinite(gap), gap, 0.0), 1e-6)
     r = np.asarray(range_m, float)
     if same_surface_m is None:
         tol = np.maximum(SAME_SURFACE_M, SAME_SURFACE_FRACTION * r[query])[:, None]

@@ -23,6 +23,14 @@ A measured point is taken as occlusion when
   (``solar_background``, ``sunlight``: catalogue effects) and stays.
 
 Points far *behind* the target (multipath ghosts, a wall) are never occlusion.
+
+Something partly transparent in front of the target (a film, a net, a curtain) gives a
+multi-return receiver two returns of a shot: its own first, the target's behind it. Its
+returns are occlusion as above, and the target's later return of the same shot, on the
+target (within the far threshold of the model's range on its ray), is the target seen
+through it (``seen_through``): kept as the shot's return, not left out as a later one.
+The other returns of a shot share its direction: the neighbour test measures the ray
+spacing to other rays (``neighbours.isolated``), or every such film was isolated.
 """
 from __future__ import annotations
 
@@ -66,6 +74,31 @@ def occluded(range_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarra
     return out
 
 
+def seen_through(range_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
+                 shot: np.ndarray, occluded_: np.ndarray, later: np.ndarray) -> np.ndarray:
+    """Bool per point: the target's return behind an occluder on the same shot (module
+    doc): a later return (``later``) of a shot (``shot``: group id per point) whose other
+    return is occluded (``occluded_``), within ``threshold_m`` of the model's range on its
+    ray (``expected_m``, NaN off the target); of several in a shot, the nearest."""
+    r = np.asarray(range_m, float)
+    expected = np.asarray(expected_m, float)
+    shot = np.asarray(shot, np.int64)
+    out = np.zeros(len(r), bool)
+    if len(r) == 0 or not np.any(occluded_):
+        return out
+    hidden = np.zeros(int(shot.max()) + 1, bool)
+    hidden[shot[np.asarray(occluded_, bool)]] = True
+    with np.errstate(invalid='ignore'):
+        on = (np.asarray(later, bool) & np.isfinite(expected)
+              & (np.abs(r - expected) <= np.nan_to_num(threshold_m, nan=-1.0)) & hidden[shot])
+    idx = np.flatnonzero(on)
+    idx = idx[np.lexsort((r[idx], shot[idx]))]
+    first = np.ones(len(idx), bool)
+    first[1:] = shot[idx[1:]] != shot[idx[:-1]]
+    out[idx[first]] = True
+    return out
+
+
 @dataclass(frozen=True)
 class Occlusion(LeftOut):
     """What was left out as occlusion (``points``: occluded returns): counts over the
@@ -73,10 +106,12 @@ class Occlusion(LeftOut):
 
     range_median_m: float | None     # the occluder's measured range
     shortfall_median_m: float | None   # how far in front of the modelled surface
+    seen_through: int = 0            # of the shots, with the target's own return behind
 
     def as_dict(self) -> dict:
         return {**self.counts(), 'range_median_m': self.range_median_m,
                 'in_front_of_target_median_m': self.shortfall_median_m,
+                'target_seen_through': self.seen_through,
                 'interpretation': words(self)}
 
 
@@ -101,4 +136,8 @@ def words(occ: Occlusion) -> str | None:
             f'{occ.clouds} of {occ.clouds_total} clouds) come from something in front of the '
             f'target: an occluding object at about {occ.range_median_m:.1f} m, '
             f'{occ.shortfall_median_m:.1f} m short of the modelled surface on the same rays '
-            '(lab clutter); left out of the material refit, the pose test and the diagnosis')
+            '(lab clutter); left out of the material refit, the pose test and the diagnosis'
+            + (f'. On {occ.seen_through} of their shots the target\'s own return lies behind '
+               'it as a later return of the shot, on the modelled surface: the object is '
+               'partly transparent (a film, a net, a curtain), and those returns of the '
+               'target are kept' if occ.seen_through else ''))
