@@ -265,3 +265,42 @@ def test_a_walk_of_the_leading_edge_sign_stays_named_without_a_part_of_its_own()
     fig = d.pair_z['incidence_angle']['power_incidence']
     assert fig['outcome'] == 'named_by_sign' and fig['walk_k_m'] == 0.02
     assert pi.reads_as_incidence(-0.026) and not pi.reads_as_incidence(0.02)
+
+
+class OnTop(OwnParts):
+    """As OwnParts, incidence adding on top of the walk by the rule (an 'also')."""
+
+    def adds_to(self, best, other):
+        return True
+
+    def beside_set_aside(self, best, other, cands):
+        return True
+
+
+def test_an_incidence_also_beside_a_walk_must_show_a_part_of_its_own():
+    """An independent lab's walk on raw counts clipped at 4095 (k 0.0258 for 0.03): the
+    walk named, incidence adding on top of it by the rule, yet at a fixed power its
+    dependence on the incidence gains 0.0010 nats/point (z 1.3): what it adds follows the
+    power (the walk's remainder). Before, 'also explains a separate part: expect it in the
+    next run', and the next run named incidence, absent from the data. Now it is not said
+    as also; with a part of its own it is, as before."""
+    from lidar_sim_ros.compare.report import verdict as vd
+    walk = cand('range_walk', {'k_m': 0.0258, 'power': 'measured'}, 0.1624, 18.5, -2.18, 2)
+    inc = cand('incidence_angle', INCIDENCE, 0.1326, 18.5, -2.15, 1)
+    lab = {pi.WALK: pi.OwnPart(0.0003, 0.4, -0.007, N, 0.2),
+           pi.INCIDENCE: pi.OwnPart(0.0010, 1.3, 0.001, N, 1.3)}
+    diag = OnTop(lab)
+    d = diag.decide(dg.rank([walk, inc]))
+    assert d.missing == 'range_walk' and d.also is None
+    fig = d.pair_z['incidence_angle']['power_incidence']
+    assert fig['also'] == 'not_shown' and fig['outcome'] == 'named_by_sign'
+    text = vd.verdict({'materials': {}, 'unmatched': {'points': 0}, 'against_named': d.pair_z,
+                       'nll_calibrated': BEFORE_NLL, 'range_rmse_calibrated_m': 0.0414},
+                      None, [walk, inc], d)
+    assert 'also explains a separate part' not in text
+    assert 'incidence_angle gains on top of range_walk too, but shows no part of its own' in text
+    shown = {**lab, pi.INCIDENCE: pi.OwnPart(0.0200, 8.0, 0.01, N, 1.3)}
+    diag = OnTop(shown)
+    d = diag.decide(dg.rank([walk, inc]))
+    assert d.missing == 'range_walk' and d.also == 'incidence_angle'
+    assert d.pair_z['incidence_angle']['power_incidence']['also'] == 'shown'

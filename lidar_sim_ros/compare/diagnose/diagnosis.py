@@ -770,6 +770,7 @@ class Diagnosis(PoseWeighing):
         # part of any pattern the tiles cut up, an incidence elongation's too.
         also = (also or self.next_beside(best, ok, cands) or self.lasers_beside(best, cands)
                 or self.material_beside(best, cands))
+        also = self.incidence_beside_walk(best, also, cands, pair_z)
         partner = self.dilation_beside(best, ok, cands, also)
         if partner is None:
             return Decision(best.name, [], also, pair_z)
@@ -925,6 +926,35 @@ class Diagnosis(PoseWeighing):
             return Decision(other.name, [], None, pair_z)
         figures['outcome'] = 'tie'
         return Decision(None, [best.name, other.name], None, pair_z)
+
+    def incidence_beside_walk(self, best: Candidate, also: str | None,
+                              cands: list[Candidate], pair_z: dict) -> str | None:
+        """``also``, unless it is an incidence bias beside a named walk that shows no part
+        of its own (``power_incidence``: its depth beyond a smooth function of ln P, by the
+        rule): then None. A walk of another law in ln P, or one read on a noisy or clipped
+        intensity (its k attenuated), leaves a part that follows the power, and the
+        incidence form, which follows the power through the geometry, takes it on top of
+        the walk (an independent lab's walk on raw counts clipped at 4095: the walk named,
+        incidence 'also' on top, its own part 0.0010 nats/point, z 1.3; none in the
+        data). The figures go to ``pair_z[incidence_angle]['power_incidence']``, with
+        ``also``: 'shown' or 'not_shown'."""
+        if also != power_incidence.INCIDENCE or best.name != power_incidence.WALK \
+                or best.effect is None:
+            return also
+        try:
+            parts = self.own_parts(best)
+        except Exception:  # noqa: BLE001 - not measured: the decision stands
+            return also
+        p = parts[power_incidence.INCIDENCE]
+        shown = self.passes_rule(p.gain_per_point * p.points / max(self.n_total, 1), p.z)
+        figures = power_incidence.figures_in(pair_z)
+        if figures is None:
+            figures = {n: {**q.as_dict(), 'passes': self.passes_rule(
+                q.gain_per_point * q.points / max(self.n_total, 1), q.z)}
+                for n, q in parts.items()}
+            pair_z[also] = {**pair_z.get(also, {}), 'power_incidence': figures}
+        figures['also'] = 'shown' if shown else 'not_shown'
+        return also if shown else None
 
     def pointing_takes(self, best: Candidate, cands: list[Candidate]) -> str | None:
         """Why ``best`` may not be named beside lasers' pointing offsets set aside because

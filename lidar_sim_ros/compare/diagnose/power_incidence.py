@@ -204,6 +204,18 @@ def reads_as_incidence(k_m: float) -> bool:
     return bool(k_m < 0.0)
 
 
+def also_not_shown_words(figures: dict[str, dict], walk: str = WALK) -> str:
+    """The verdict's words where an incidence bias adds on top of a named walk but shows
+    no part of its own (``Diagnosis.incidence_beside_walk``)."""
+    i = figures[INCIDENCE]
+    return (f'{INCIDENCE} gains on top of {walk} too, but shows no part of its own: at a '
+            f'fixed received power its dependence on the incidence gains '
+            f'{i["gain_per_point"]:.4f} nats/point held out (z = {i["z"]:.1f}), which does '
+            f'not pass the rule. What it adds follows the power, as a walk of another law '
+            f'in ln P, or one read on a noisy or clipped intensity, leaves it; it is not '
+            f'said as a separate effect.')
+
+
 def tie_words(figures: dict[str, dict], rule: str = 'the rule') -> str:
     """The verdict's words where neither has an own part that passes the rule
     (``figures``: each name's ``OwnPart.as_dict``)."""

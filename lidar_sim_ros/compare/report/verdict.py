@@ -137,6 +137,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             parts.append(f'{decision.also} also explains a separate part of the residual'
                          f'{_on_top_words(cands, decision.also, missing)}: '
                          f'expect it in the next run.{_together_words(c)}')
+        own = power_incidence.figures_in(decision.pair_z) or {}
+        if own.get('also') == 'not_shown':
+            parts.append(power_incidence.also_not_shown_words(own, missing))
         for more in decision.also_more:
             parts.append(f'{more} also explains a separate part of the residual'
                          f'{_on_top_words(cands, more, missing)}: add it after '
