@@ -909,8 +909,12 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     c = next((c for c in cands if c.name == name), None)
     if held and c is not None:
         return same_part_words(c, held, rival, summary)
+    kept = (summary.get('withheld') or {}).get(best.name) if best is not None else None
     if best is not None and best.vetoed:
         why = f' The best candidate, {best.name}, is set aside: {best.vetoed}.'
+    elif kept:
+        # Withheld by the diagnosis (``Decision.withheld``): its reason, in its figures.
+        why = f' The best candidate, {best.name}, is not named: {kept}.'
     elif along.get('pose_line_of_sight') and not along.get('passes_on_pose'):
         return line_of_sight_words(best)
     elif best is not None and best.practical and fault:
