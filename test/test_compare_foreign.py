@@ -99,6 +99,12 @@ BENCH_ONLY: dict[str, str] = {
              'is off (test_foreign_loop_v4[pattern_off_no_time]): run by '
              'bench/hidden_effect_eval.py'
        for name in ('beam_divergence', 'time_offset_no_time')},
+    **{name: 'a one-effect loop whose effect other loops of the suite name and fit away on '
+             'foreign data (solar_background: clutter_solar, beside lab clutter, and '
+             'incidence_and_solar; incidence_angle: short_incidence, on the short pass), and '
+             'test_compare.py on its own data (named, fitted to the noise floor): run by '
+             'bench/hidden_effect_eval.py (the suite\'s time budget)'
+       for name in ('solar_background', 'incidence_angle')},
     **{name: 'the same data (2 frames) compared by test_compare_diagnosis.py, whose one step '
              'is judged there as this loop judges it (the loop is that one step: null); '
              'run by bench/hidden_effect_eval.py'
