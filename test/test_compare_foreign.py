@@ -83,14 +83,16 @@ BENCH_ONLY: dict[str, str] = {
              'bench/hidden_effect_eval.py'
        for name in ('time_offset_small', 'time_offset_no_time_end',
                     'time_offset_no_time_start')},
-    **{name: 'a variant of a loop the suite runs (solar_background at another distance; '
+    **{name: 'a variant of a loop the suite runs (solar_background_far: the false returns '
+             'of clutter_solar and incidence_and_solar at another distance; '
              'range_walk_sqrt and short_range_walk with another walk law or speckle; '
              'time_offset_no_time and clean_no_time_end, the clocks without point times, '
-             'and test_compare.py\'s time_offset with them; the pose parts are tested in '
-             'test_compare_pose_error.py): run by bench/hidden_effect_eval.py (the suite\'s '
-             'time budget)'
+             'and test_compare.py\'s time_offset with them; pose_jitter_translation and '
+             'pose_jitter_attitude, pose_error_rigid\'s per-cloud pose with one part exact: '
+             'the pose parts, each alone and both, are tested in test_compare_pose_error.py): '
+             'run by bench/hidden_effect_eval.py (the suite\'s time budget)'
        for name in ('solar_background_far', 'range_walk_poly', 'short_range_walk_speckle',
-                    'time_offset', 'pose_jitter_translation')},
+                    'time_offset', 'pose_jitter_translation', 'pose_jitter_attitude')},
     **{name: 'the suite\'s time budget: the footprint is named on the suite\'s own data '
              '(test_compare.py, beam_divergence) and the footing of its edge returns is '
              'tested in test_compare_naming.py; a clock offset is named on the suite\'s '
