@@ -107,6 +107,14 @@ BENCH_ONLY: dict[str, str] = {
              'test_compare.py on its own data (named, fitted to the noise floor): run by '
              'bench/hidden_effect_eval.py (the suite\'s time budget)'
        for name in ('solar_background', 'incidence_angle')},
+    'azimuth_bias_short': 'azimuth_bias (outside the catalogue, its feature named) on the '
+                          'short pass, whose reading the suite\'s short_incidence, '
+                          'short_range_walk and short_snr_noise loops run: a variant of two '
+                          'loops the suite runs; run by bench/hidden_effect_eval.py',
+    'occluder': 'the pillar alone: occluder_walk\'s loop is judged on the same occluded '
+                'share (foreign_loop.judge) with a walk named through it, and '
+                'test_compare_occlusion.py runs these data through compare\'s occlusion '
+                'stage; run by bench/hidden_effect_eval.py',
     **{name: 'the same data (2 frames) compared by test_compare_diagnosis.py, whose one step '
              'is judged there as this loop judges it (the loop is that one step: null); '
              'run by bench/hidden_effect_eval.py'
