@@ -18,7 +18,7 @@ from lidar_sim_ros.compare.recording.measurements import find_time_field, load_m
 from lidar_sim_ros.compare.run import CompareOptions, run_compare
 from lidar_sim_ros.core.scenario import load_scenario
 from lidar_sim_ros.core.driver_layout import reflectivity_estimate
-from lidar_sim_ros.io.bag import read_clouds
+from lidar_sim_ros.io.bag import read_clouds, read_poses
 from lidar_sim_ros.offline import simulate_to_bag
 from lidar_sim_ros.core.driver_layout import OutputLayout
 
@@ -54,11 +54,39 @@ def bags(tmp_path_factory):
     walk = ['range_walk={k_m: 0.02}']
     walk_native = simulate_to_bag(scenario, root / 'walk_native', FRAMES, figures=False,
                                   effects=walk)
+    # The same frames also as the sensor sends them (a pcap) and their poses as a CSV
+    # (test_compare_cepton_pcap.py's recording): their verdict is the bag's.
     walk_cep = simulate_to_bag(scenario, root / 'walk_cepton', FRAMES, figures=False,
-                               effects=walk, layout=OutputLayout(point_layout='cepton'))
+                               effects=walk, layout=OutputLayout(point_layout='cepton'),
+                               pcap=root / 'walk_cepton.pcap')
+    poses = read_poses(walk_cep.bag_path)
+    csv = root / 'poses.csv'
+    rows = np.column_stack([poses.stamp_ns / 1e9, poses.position_m, poses.quat_xyzw])
+    np.savetxt(csv, rows, delimiter=',', fmt='%.9f', header='t_s,x_m,y_m,z_m,qx,qy,qz,qw',
+               comments='')
     return {'native': native.bag_path, 'cepton': cep.bag_path, 'root': root,
             'walk_native': walk_native.bag_path, 'walk_cepton': walk_cep.bag_path,
-            'mesh': load_scenario(scenario).mesh_path}
+            'walk_pcap': root / 'walk_cepton.pcap', 'walk_csv': csv,
+            'mesh': load_scenario(scenario).mesh_path, 'walk_compares': {}}
+
+
+WALK_CANDIDATES = ['range_walk', 'incidence_angle', 'laser_bias']
+
+
+def walk_compare(bags, kind: str) -> dict:
+    """compare's summary on the walk's frames read as ``kind`` (the native bag, the Cepton
+    driver's bag, its pcap with the bag's poses or with the CSV's), on 6000 points with
+    WALK_CANDIDATES; each run once in the module."""
+    done = bags['walk_compares']
+    if kind not in done:
+        source = {'native': dict(bag=bags['walk_native'], cloud_topic='/lidar/points'),
+                  'cepton': dict(bag=bags['walk_cepton'], cloud_topic='/cepton_pcl2'),
+                  'pcap': dict(bag=bags['walk_pcap'], poses=bags['walk_cepton']),
+                  'csv': dict(bag=bags['walk_pcap'], poses=bags['walk_csv'])}[kind]
+        done[kind] = run_compare(CompareOptions(
+            mesh=bags['mesh'], out=bags['root'] / f'out_walk_{kind}', max_points=6000,
+            report=False, progress=False, candidates=WALK_CANDIDATES, **source)).summary
+    return done[kind]
 
 
 def test_cepton_cloud_is_the_driver_layout(bags):
@@ -166,12 +194,7 @@ def test_saturated_returns_below_the_configured_level_say_so():
 def test_same_verdict_on_a_walk_in_both_layouts(bags):
     """The same simulated frames with a range walk (k_m 0.02): both layouts name it and fit
     the same slope and figures, up to what the 1 % reflectivity steps lose of the power."""
-    out = {}
-    for kind, topic in (('walk_native', '/lidar/points'), ('walk_cepton', '/cepton_pcl2')):
-        out[kind] = run_compare(CompareOptions(
-            bag=bags[kind], mesh=bags['mesh'], out=bags['root'] / f'out_{kind}',
-            cloud_topic=topic, max_points=6000, report=False, progress=False,
-            candidates=['range_walk', 'incidence_angle', 'laser_bias'])).summary
+    out = {f'walk_{kind}': walk_compare(bags, kind) for kind in ('native', 'cepton')}
     nat, cep = out['walk_native'], out['walk_cepton']
     assert nat['missing_effect'] == cep['missing_effect'] == 'range_walk'
     k = {n: next(c for c in s['candidates'] if c['name'] == 'range_walk')
@@ -182,6 +205,26 @@ def test_same_verdict_on_a_walk_in_both_layouts(bags):
     assert k['walk_cepton']['range_rmse_after_m'] == pytest.approx(
         k['walk_native']['range_rmse_after_m'], rel=0.05)
     assert cep['intensity_gain']['range_exponent'] == -2.0
+
+
+def test_pcap_gives_the_bags_verdict(bags):
+    """compare / a Cepton pcap (compare/recording/cepton_pcap.py) with poses from the bag or
+    a CSV: the bag's verdict on the same frames (test_compare_cepton_pcap.py tests the
+    decoder; the bag's run is test_same_verdict_on_a_walk_in_both_layouts's)."""
+    bag, pcap, csv = (walk_compare(bags, kind) for kind in ('cepton', 'pcap', 'csv'))
+    assert bag['missing_effect'] == pcap['missing_effect'] == csv['missing_effect'] == 'range_walk'
+    k = {n: next(c for c in s['candidates'] if c['name'] == 'range_walk')['params']['k_m']
+         for n, s in (('bag', bag), ('pcap', pcap), ('csv', csv))}
+    # The wire's 5 mm positions against the driver's float32: the same slope to a few %.
+    assert k['pcap'] == pytest.approx(k['bag'], rel=0.06) and k['csv'] == pytest.approx(k['pcap'], rel=1e-6)
+
+
+def test_cli_compare_pcap_needs_poses(bags, capsys):
+    from lidar_sim_ros import cli
+    rc = cli.main(['compare', str(bags['walk_pcap']), '--mesh', str(bags['mesh']),
+                   '--out', str(bags['root'] / 'cli')])
+    assert rc == 2
+    assert '--poses BAG_OR_CSV' in capsys.readouterr().err
 
 
 def test_no_return_points_are_misses_wherever_the_driver_puts_them(bags, tmp_path):

@@ -1,7 +1,8 @@
 """A Cepton sensor's pcap as a recording (compare/recording/cepton_pcap.py): the decoder against
 hand-packed packets (struct, from the specification's section 3), its refusals, and
-``lidar-sim compare`` / ``calibrate range-errors`` on ``simulate --pcap`` output with
-poses from the bag or a CSV: the same verdict as the bag of the same frames."""
+``calibrate range-errors`` on a pcap with poses from a CSV: the same biases as from the bag.
+``lidar-sim compare`` on ``simulate --pcap`` output (the same verdict as the bag of the same
+frames) is in test_cepton_layout.py, beside that bag's own run."""
 from __future__ import annotations
 
 import struct
@@ -9,19 +10,12 @@ import struct
 import numpy as np
 import pytest
 
-from lidar_sim_ros import cli
 from lidar_sim_ros.compare.recording.cepton_pcap import (PcapError, PcapStats, frame_count,
                                                          is_pcap, iter_frames, read_pose_csv)
-from lidar_sim_ros.compare.run import CompareOptions, run_compare
-from lidar_sim_ros.core.driver_layout import OutputLayout
-from lidar_sim_ros.io.bag import read_poses
 from lidar_sim_ros.io.pcap import PcapWriter, udp_frame
-from lidar_sim_ros.offline import simulate_to_bag
 
-from datasets import REPO
 
 T0_US = 1_700_000_000_000_000
-CANDIDATES = ['range_walk', 'incidence_angle', 'laser_bias']
 
 
 def stdv(t_us: int, points: list[tuple], version: int = 2) -> bytes:
@@ -187,44 +181,9 @@ def test_pose_csv_rows_are_bounded_and_quaternions_normalised(tmp_path, monkeypa
         read_pose_csv(p)
 
 
-@pytest.fixture(scope='module')
-def recording(tmp_path_factory):
-    root = tmp_path_factory.mktemp('pcap_compare')
-    res = simulate_to_bag(REPO / 'config' / 'scenario.yaml', root / 'sim', 2, figures=False,
-                          effects=['range_walk={k_m: 0.02}'], pcap=root / 'cepton.pcap',
-                          layout=OutputLayout(point_layout='cepton'))
-    poses = read_poses(res.bag_path)
-    csv = root / 'poses.csv'
-    rows = np.column_stack([poses.stamp_ns / 1e9, poses.position_m, poses.quat_xyzw])
-    np.savetxt(csv, rows, delimiter=',', fmt='%.9f', header='t_s,x_m,y_m,z_m,qx,qy,qz,qw',
-               comments='')
-    from lidar_sim_ros.core.scenario import load_scenario
-    return {'root': root, 'bag': res.bag_path, 'pcap': root / 'cepton.pcap', 'csv': csv,
-            'mesh': load_scenario(REPO / 'config' / 'scenario.yaml').mesh_path}
-
-
-def _compare(rec, name, **kw):
-    return run_compare(CompareOptions(mesh=rec['mesh'], out=rec['root'] / name, max_points=6000,
-                                      report=False, progress=False, candidates=CANDIDATES,
-                                      **kw)).summary
-
-
-def test_pcap_gives_the_bags_verdict(recording):
-    bag = _compare(recording, 'bag', bag=recording['bag'], cloud_topic='/cepton_pcl2')
-    pcap = _compare(recording, 'pcap', bag=recording['pcap'], poses=recording['bag'])
-    csv = _compare(recording, 'csv', bag=recording['pcap'], poses=recording['csv'])
-    assert bag['missing_effect'] == pcap['missing_effect'] == csv['missing_effect'] == 'range_walk'
-    k = {n: next(c for c in s['candidates'] if c['name'] == 'range_walk')['params']['k_m']
-         for n, s in (('bag', bag), ('pcap', pcap), ('csv', csv))}
-    # The wire's 5 mm positions against the driver's float32: the same slope to a few %.
-    assert k['pcap'] == pytest.approx(k['bag'], rel=0.06) and k['csv'] == pytest.approx(k['pcap'], rel=1e-6)
-
-
-def test_cli_compare_pcap_needs_poses(recording, capsys):
-    rc = cli.main(['compare', str(recording['pcap']), '--mesh', str(recording['mesh']),
-                   '--out', str(recording['root'] / 'cli')])
-    assert rc == 2
-    assert '--poses BAG_OR_CSV' in capsys.readouterr().err
+# compare on ``simulate --pcap`` output with poses from the bag or a CSV (the bag's verdict)
+# and the CLI refusing a pcap without --poses: test_cepton_layout.py, whose walk bag is
+# the same frames (its compare of the bag is the one the pcap's verdict is checked against).
 
 
 def test_calibrate_range_errors_from_a_pcap(tmp_path):

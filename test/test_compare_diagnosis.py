@@ -15,13 +15,22 @@ from lidar_sim_ros.compare.run import CompareOptions, run_compare
 from lidar_sim_ros.core.effects import make_effect
 
 from datasets import make_dataset
-from foreign_sim import ForeignSpec, generate
+from foreign_loop import judge
+from foreign_sim import ForeignSpec, battery, generate
 
 
-def _foreign(spec: ForeignSpec, root: Path) -> dict:
-    ds = generate(replace(spec, frames=2), root / spec.name)
-    return run_compare(CompareOptions(bag=ds.bag, mesh=ds.mesh, out=root / spec.name / 'out',
-                                      config=ds.scenario, report=False)).summary
+def _foreign(spec: ForeignSpec, root: Path, judged: bool = False) -> dict:
+    """compare on ``spec`` at 2 frames; ``judged``: the one step also judged as
+    test_compare_foreign's loop judges it (that loop, on these very data, left to the
+    bench: test_compare_foreign.BENCH_ONLY)."""
+    spec = replace(spec, frames=2)
+    ds = generate(spec, root / spec.name)
+    s = run_compare(CompareOptions(bag=ds.bag, mesh=ds.mesh, out=root / spec.name / 'out',
+                                   config=ds.scenario, report=False)).summary
+    if judged:
+        result = judge(spec, [s], ds.truth)
+        assert result['ok'], result['why'] + ' | ' + str(s.get('verdict', ''))[:400]
+    return s
 
 
 def test_material_sigma_with_varying_effect_noise_is_unbiased():
@@ -37,7 +46,7 @@ def test_material_sigma_with_varying_effect_noise_is_unbiased():
 def test_heavy_tailed_clean_data_is_not_solar_background(tmp_path):
     """Student t (6 dof) noise: outlier-tolerant fits gain on the tails, but no point lies
     metres off the surface, so solar background is vetoed and the verdict is null."""
-    s = _foreign(ForeignSpec('heavy', None, seed=7, noise='student6'), tmp_path)
+    s = _foreign(battery(['clean_heavy_tails'])[0], tmp_path, judged=True)
     assert s['missing_effect'] is None, s['candidates'][:2]
     solar = next(c for c in s['candidates'] if c['name'] == 'solar_background')
     assert not solar['significant'] or 'heavy noise tails' in solar['vetoed']
@@ -53,8 +62,7 @@ def test_real_false_returns_are_still_solar_background(tmp_path):
 
 def test_absolute_timestamp_field_is_used_and_clean_data_stays_null(tmp_path):
     """Hesai-style absolute float64 "timestamp": read, so no half-scan time offset."""
-    s = _foreign(ForeignSpec('ts', None, seed=4, point_time='timestamp', spin_dps=12.0),
-                 tmp_path)
+    s = _foreign(battery(['clean_timestamp_field'])[0], tmp_path, judged=True)
     assert s['point_times'] == 'field'
     assert s['point_time_field']['name'] == 'timestamp'
     assert s['point_time_field']['read_as'] == ['absolute s']

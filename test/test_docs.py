@@ -224,7 +224,7 @@ NOT_RUN = {
         'ros2 run of a node that runs until stopped; test_node_cepton_udp.py sends its packets live',
     ('real-data.md', 'lidar-sim compare lab/cepton.pcap --poses lab/poses.csv --mesh'
                      ' lab/target.obj --out runs/lab'):
-        'lab/ files are placeholders for a real recording; test_compare_cepton_pcap.py '
+        'lab/ files are placeholders for a real recording; test_cepton_layout.py '
         'compares a simulated pcap with bag and CSV poses',
 }
 
