@@ -664,21 +664,38 @@ class PoseWeighing:
         if not los.significant:
             return decision
         on_pose = on_shift(los)
+        again, passing = {}, []
         for c in named:
-            a = on_pose.score(type(c.effect))
+            a = again[c.name] = on_pose.score(type(c.effect))
             passes = on_pose.nameable(a)
             c.against_pose = {**(c.against_pose or {}), 'line_of_sight': {
                 'shift_cm': _num(100 * los.shift_m), 'pose_gain': _num(los.gain),
                 'pose_z': _num(los.z), 'score_on_pose': _num(a.score),
                 'z_on_pose': _num(a.z), 'passes_on_pose': bool(passes)}}
             if passes:
-                self.line_of_sight['stands'] = c.name
-                return decision
+                passing.append(c)
         why = ('explained by the target moved along the line of sight, raycast again and '
                'scored as the candidates are (it gains nothing on the moved target)')
-        withheld = {**decision.withheld, **{c.name: why for c in named}}
-        explains = [c.name for c in named]
+        withheld = {**decision.withheld,
+                    **{c.name: why for c in named if c not in passing}}
+        explains = [c.name for c in named if c not in passing]
         by_name = {c.name: c for c in cands}
+        if passing:
+            self.line_of_sight['stands'] = [c.name for c in passing]
+            if decision.missing is not None or len(passing) == len(named):
+                return decision
+            if len(passing) > 1:
+                return replace(decision, confounded_with=[c.name for c in passing],
+                               withheld=withheld)
+            # One member of a tie keeps a decisive part on the moved target: it is
+            # named, its figures those there, the pose beside it if the move passes
+            # with it in the model.
+            lead, a = passing[0], again[passing[0].name]
+            under = los_fit([a.effect])
+            a.against_pose = lead.against_pose
+            vars(lead).update(vars(a))
+            return Decision(lead.name, [], pose=as_pose(under, None) if under.significant
+                            else None, withheld=withheld)
         for cls in rivals:
             name = getattr(cls, 'name', '') or cls.__name__
             a = on_pose.score(cls)
@@ -695,7 +712,7 @@ class PoseWeighing:
             else:
                 cands.append(a)
             self.line_of_sight['named'] = name
-            pose = as_pose(under, explains) if under.significant else None
+            pose = as_pose(under, None) if under.significant else None
             return Decision(name, [], pose=pose, withheld=withheld)
         for c in cands:
             if c.name not in POSE_RIVALS or c.effect is None or not self.nameable(c):
