@@ -31,6 +31,10 @@ CASES = {
     'both': ForeignSpec('lp_both', 'range_scale', {'ppm': 10000.0}, pose_offset_m=LOS, **HOLD),
     'scale': ForeignSpec('lp_scale', 'range_scale', {'ppm': 10000.0}, **HOLD),
     'pointing': ForeignSpec('lp_pointing', 'laser_pointing', {'sd_deg': 0.15}, **HOLD),
+    # Nearer (the lab's points centred ~6 m away): a larger perspective for the same 6 cm.
+    'pose6': ForeignSpec('lp_pose6', None, pose_offset_m=LOS, **{**HOLD, 'distance_m': 6.3}),
+    'both6': ForeignSpec('lp_both6', 'range_scale', {'ppm': 10000.0}, pose_offset_m=LOS,
+                         **{**HOLD, 'distance_m': 6.3}),
     'pointing_pose': ForeignSpec('lp_pointing_pose', 'laser_pointing', {'sd_deg': 0.15},
                                  pose_offset_m=LOS, **HOLD),
 }
