@@ -641,13 +641,15 @@ class PoseWeighing:
         again, each point scored by the likelihood a candidate is scored by, the points
         put back or lost counted as a candidate's unmatched points, each material's
         offset profiled (the common offset stays the materials'). ``los_fit(on_top)``:
-        the shift that fits best with ``on_top`` in the model and its gain
-        (``line_of_sight.LineOfSightPose``); ``on_shift(m)``: the diagnosis raycast with
-        the target moved by m along the line of sight; ``as_pose(los, explains)``: the
-        pose to report.
-        - The shift does not pass the rule: the decision stands.
-        - A named effect passes the rule on the moved target: it explains what the
-          pose cannot; the decision stands.
+        the translation that fits best with ``on_top`` in the model (along the line of
+        sight, then across it) and its gain (``line_of_sight.LineOfSightPose``);
+        ``on_shift(los)``: the diagnosis with every ray raycast with the target so moved;
+        ``as_pose(los, explains)``: the pose to report (``explains`` None: beside a name).
+        - The move does not pass the rule: the decision stands.
+        - The named effect (or every member of a tie) passes the rule on the moved
+          target: it explains what the pose cannot; the decision stands. Of a tie, the
+          members that pass there stay tied; one alone is named, its figures there,
+          the pose beside it if the move passes with it in the model.
         - None does: they took what the pose leaves (its perspective at the limbs and
           the returns beyond them), none is named. A range term of the sensor
           (``rivals``) that passes the rule on the moved target is named (its figures
