@@ -38,7 +38,8 @@ from scipy.stats import norm
 from lidar_sim_ros.compare.diagnose import (clock_footing, diagnosis, far_returns, features,
                                             fit_data, intensity_range, laser_gains,
                                             plan as sep_plan, power_incidence,
-                                            pose_error, range_alone, region_offset,
+                                            line_of_sight, pose_error, range_alone,
+                                            region_offset,
                                             row_clock, stamp_place, variants)
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
@@ -450,6 +451,9 @@ class Diagnosed:
     pose_on_top: list = field(default_factory=list)   # what the pose test had in the model
     # Whether the named range term stands in for a bias of range alone (``range_alone``).
     range_alone: object | None = None
+    # The named effects against the target moved along the line of sight
+    # (``Diagnosis.weigh_on_ray_footing``), where it was asked.
+    line_of_sight: dict | None = None
 
 
 @dataclass
@@ -1110,6 +1114,14 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = region_offset.weigh_pose(decision, cands, tested_data,
                                         sample.blocks[tested.matched], pose_test, diag.z_crit,
                                         diagnosis.MIN_PRACTICAL_GAIN, seed)
+    # The named sensor effects against the target moved along the line of sight, on
+    # the candidates' own footing (``line_of_sight``).
+    los = LineOfSight(model, effects, rays, meas, sample.blocks, diag.z_crit, len(classes),
+                      seed)
+    decision = diag.weigh_on_ray_footing(
+        decision, cands, rivals, los.fit, los.diagnosis,
+        lambda fit, explains: los.as_pose(pose_test([], constant=True), fit, explains))
+    cands = diagnosis.rank(cands)
     named = [c for c in cands if c.name == decision.missing and c.effect is not None]
     if decision.pose is not None:
         on_top = list(getattr(diag, 'pose_on_top', []))     # as judge_pose tested it
@@ -1147,7 +1159,8 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     alone = named_range_alone(decision.missing, named_effect, diag.full,
                               sample.blocks[sample.matched], diag.z_crit, seed)
     return Diagnosed(cands, decision, stamp, pose, variants.calibrated_figures(diag.full, []),
-                     diag.full, diag.z_crit, on_top, alone)
+                     diag.full, diag.z_crit, on_top, alone,
+                     getattr(diag, 'line_of_sight', None))
 
 
 def named_range_alone(named: str | None, effect: Effect | None, data: lk.FitData,
@@ -1334,6 +1347,20 @@ def recast_all_points(model: Model, effects: list[Effect], rays: fit_data.RaySet
     (m, moved_rays, moved), _, report = pose_error.iterate(
         pose, start, rematch, refit,
         pose_error.CONSTANT_RECAST_PASSES if constant else pose_error.RECAST_PASSES)
+    return (diagnosis_on_moved(model, effects, sim, m, moved_rays, moved, n_candidates,
+                               seed, constant), report, moved_rays)
+
+
+# The points the target moved along the line of sight is scored on (``LineOfSight``).
+LINE_OF_SIGHT_POINTS = 20_000
+
+
+def diagnosis_on_moved(model: Model, effects: list[Effect], sim, m: Matching,
+                       moved_rays: fit_data.RaySet, moved: Measurements, n_candidates: int,
+                       seed: int, constant: bool) -> diagnosis.Diagnosis:
+    """The diagnosis on a re-cast matching ``m`` (its rays ``moved_rays``, the
+    measurements with the corrected pose ``moved``): a sample drawn anew from it
+    (``recast_sample``), the edge distances cast there (``sim``: ``geometry``)."""
     fresh = recast_sample(moved_rays, moved, seed)
     if not constant:
         fresh = fitted_rays_only(fresh, m.pred)
@@ -1344,7 +1371,90 @@ def recast_all_points(model: Model, effects: list[Effect], rays: fit_data.RaySet
                                      model.divergence_rad)
     diag = diagnosis.Diagnosis(model, effects, replace(fresh, edge_rad=edge), seed)
     diag.set_family(n_candidates)
-    return diag, report, moved_rays
+    return diag
+
+
+class LineOfSight:
+    """The recording with the target moved (``line_of_sight``): every ray of a random
+    subset of the points (LINE_OF_SIGHT_POINTS) raycast again per translation (cached),
+    scored by the likelihood the candidates are scored by, and the diagnosis on every
+    ray raycast with the best one."""
+
+    def __init__(self, model: Model, effects: list[Effect], rays: fit_data.RaySet,
+                 meas: Measurements, blocks: np.ndarray, z_crit: float, n_candidates: int,
+                 seed: int):
+        self.model, self.effects, self.rays, self.meas = model, effects, rays, meas
+        self.z_crit, self.n_candidates, self.seed = z_crit, n_candidates, seed
+        self.sim = geometry(model, effects)
+        seen = rays.matched
+        u = np.mean(meas.directions[seen], axis=0) if len(seen) else np.array([1.0, 0, 0])
+        self.direction = u / max(float(np.linalg.norm(u)), 1e-12)
+        n = len(meas)
+        self.points = (np.arange(n) if n <= LINE_OF_SIGHT_POINTS else np.sort(
+            np.random.default_rng([seed, 37]).choice(n, LINE_OF_SIGHT_POINTS, False)))
+        self.blocks = np.asarray(blocks)[self.points]
+        self.part = meas.subset(self.points)
+        self.base = pose_error.PoseCorrection.identity(np.zeros_like(meas.cloud), meas.t_s)
+        self._cast: dict[tuple, tuple] = {}
+        self._fits: dict[tuple, line_of_sight.LineOfSightPose] = {}
+
+    def _moved(self, meas: Measurements, translation_m: np.ndarray) -> Measurements:
+        corr = replace(self.base, translation_m=np.asarray(translation_m, float)[None, :],
+                       centroid_m=np.zeros((1, 3)))
+        return replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
+
+    def _rays(self, m: Matching, idx: np.ndarray | None) -> fit_data.RaySet:
+        def take(a):
+            return a if a is None or idx is None else a[idx]
+        return replace(rays_of(m, take(self.rays.measured_power_w), self.model),
+                       extra_var_m2=take(self.rays.extra_var_m2))
+
+    def score(self, translation_m: np.ndarray, on_top: list[Effect]) -> line_of_sight.RayScore:
+        """The subset's points scored with the target moved by ``translation_m``."""
+        key = tuple(np.round(translation_m, 6))
+        if key not in self._cast:
+            m = match(self.sim, self._moved(self.part, translation_m),
+                      self.model.divergence_rad, edges=False)
+            r = self._rays(m, self.points)
+            self._cast[key] = (r, fit_data.make_fit_data(self.model, self.effects, r))
+        r, data = self._cast[key]
+        return line_of_sight.RayScore(r.matched, variants.heldout_nll(data, list(on_top)),
+                                      r.unmatched)
+
+    def fit(self, on_top: list[Effect]) -> line_of_sight.LineOfSightPose:
+        key = tuple(_effect_key(e) for e in on_top)
+        if key not in self._fits:
+            self._fits[key] = line_of_sight.fit(
+                lambda t: self.score(t, on_top), len(self.points), self.blocks,
+                self.direction, self.z_crit, diagnosis.MIN_PRACTICAL_GAIN)
+        return self._fits[key]
+
+    def diagnosis(self, los: line_of_sight.LineOfSightPose) -> diagnosis.Diagnosis:
+        """The diagnosis with the target moved by ``los``, every ray raycast again."""
+        moved = self._moved(self.meas, los.translation_m)
+        m = match(self.sim, moved, self.model.divergence_rad, edges=False)
+        return diagnosis_on_moved(self.model, self.effects, self.sim, m, self._rays(m, None),
+                                  moved, self.n_candidates, self.seed, True)
+
+    def as_pose(self, constant: pose_error.PoseError, los: line_of_sight.LineOfSightPose,
+                explains: list[str] | None) -> pose_error.PoseError:
+        """``constant`` (one correction for the recording, its own test's figures) as
+        the translation ``los``, no turn."""
+        return replace(constant, translation_m=np.asarray(los.translation_m)[None, :],
+                       rotation_deg=np.zeros((1, 3)), significant=True, joint=False,
+                       through_materials=False, rate_supported=False,
+                       raycast=None if explains is None else {
+                           'explains': list(explains),
+                           'fitted_margin_charged': _num_or_none(los.gain),
+                           'line_of_sight': los.as_dict()})
+
+
+def _effect_key(e: Effect) -> tuple:
+    return (e.name, repr(getattr(e, 'params', None)))
+
+
+def _num_or_none(x: float) -> float | None:
+    return round(float(x), 6) if np.isfinite(x) else None
 
 
 def on_corrected_pose(sample: fit_data.RaySet, pred: Prediction,
@@ -1464,6 +1574,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
             **diag.pose.as_dict(),
             **pose_status(diag.pose.as_dict(), decision, diag.cands, diag.pose_on_top)}),
         'reference_pose_off': decision.pose is not None,
+        'pose_along_line_of_sight': diag.line_of_sight,
         'region_offset': decision.region.as_dict() if decision.region is not None else None,
         'laser_intensity': laser_intensity(decision, diag.cands, effects, cal.rays,
                                            cal.matching.pred, diag.z_crit),

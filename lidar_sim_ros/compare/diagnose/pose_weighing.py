@@ -633,6 +633,102 @@ class PoseWeighing:
             return Decision(None, [POSE_ERROR, r.name], pose=alone, withheld=withheld)
         return decision
 
+    def weigh_on_ray_footing(self, decision: Decision, cands: list[Candidate],
+                             rivals: list[type[Effect]], los_fit, on_shift,
+                             as_pose) -> Decision:
+        """The named (or tied) sensor effects against the target moved along the line of
+        sight, on the candidates' own footing (``line_of_sight``): every ray raycast
+        again, each point scored by the likelihood a candidate is scored by, the points
+        put back or lost counted as a candidate's unmatched points, each material's
+        offset profiled (the common offset stays the materials'). ``los_fit(on_top)``:
+        the translation that fits best with ``on_top`` in the model (along the line of
+        sight, then across it) and its gain (``line_of_sight.LineOfSightPose``);
+        ``on_shift(los)``: the diagnosis with every ray raycast with the target so moved;
+        ``as_pose(los, explains)``: the pose to report (``explains`` None: beside a name).
+        - The move does not pass the rule: the decision stands.
+        - The named effect (or every member of a tie) passes the rule on the moved
+          target: it explains what the pose cannot; the decision stands. Of a tie, the
+          members that pass there stay tied; one alone is named, its figures there,
+          the pose beside it if the move passes with it in the model.
+        - None does: they took what the pose leaves (its perspective at the limbs and
+          the returns beyond them), none is named. A range term of the sensor
+          (``rivals``) that passes the rule on the moved target is named (its figures
+          those on the moved target), the pose reported beside it if the shift still
+          passes with the term in the model; one that passed on the recorded pose and
+          does not on the moved one, while the shift does not pass on top of it, is
+          tied with the pose; else the pose is reported alone."""
+        named = [c for c in cands if c.name in (decision.missing, *decision.confounded_with)
+                 and c.name != POSE_ERROR and c.effect is not None and c.error is None]
+        if not named:
+            return decision
+        los = los_fit([])
+        self.line_of_sight = {'tested_against': [c.name for c in named], **los.as_dict()}
+        if not los.significant:
+            return decision
+        on_pose = on_shift(los)
+        again, passing = {}, []
+        for c in named:
+            a = again[c.name] = on_pose.score(type(c.effect))
+            passes = on_pose.nameable(a)
+            c.against_pose = {**(c.against_pose or {}), 'line_of_sight': {
+                'shift_cm': _num(100 * los.shift_m), 'pose_gain': _num(los.gain),
+                'pose_z': _num(los.z), 'score_on_pose': _num(a.score),
+                'z_on_pose': _num(a.z), 'passes_on_pose': bool(passes)}}
+            if passes:
+                passing.append(c)
+        why = ('explained by the target moved along the line of sight, raycast again and '
+               'scored as the candidates are (it gains nothing on the moved target)')
+        withheld = {**decision.withheld,
+                    **{c.name: why for c in named if c not in passing}}
+        explains = [c.name for c in named if c not in passing]
+        by_name = {c.name: c for c in cands}
+        if passing:
+            self.line_of_sight['stands'] = [c.name for c in passing]
+            if decision.missing is not None or len(passing) == len(named):
+                return decision
+            if len(passing) > 1:
+                return replace(decision, confounded_with=[c.name for c in passing],
+                               withheld=withheld)
+            # One member of a tie keeps a decisive part on the moved target: it is
+            # named, its figures those there, the pose beside it if the move passes
+            # with it in the model.
+            lead, a = passing[0], again[passing[0].name]
+            under = los_fit([a.effect])
+            a.against_pose = lead.against_pose
+            vars(lead).update(vars(a))
+            return Decision(lead.name, [], pose=as_pose(under, None) if under.significant
+                            else None, withheld=withheld)
+        for cls in rivals:
+            name = getattr(cls, 'name', '') or cls.__name__
+            a = on_pose.score(cls)
+            if a.effect is None or not on_pose.nameable(a):
+                continue
+            under = los_fit([a.effect])
+            a.against_pose = {**(a.against_pose or {}), 'line_of_sight': {
+                'scored_on_moved_target': True, 'shift_cm': _num(100 * los.shift_m),
+                'pose_gain_on_top': _num(under.gain), 'pose_z_on_top': _num(under.z),
+                'pose_shift_on_top_cm': _num(100 * under.shift_m)}}
+            # The candidate the verdict quotes is the one scored on the moved target.
+            if name in by_name:
+                vars(by_name[name]).update(vars(a))
+            else:
+                cands.append(a)
+            self.line_of_sight['named'] = name
+            pose = as_pose(under, None) if under.significant else None
+            return Decision(name, [], pose=pose, withheld=withheld)
+        for c in cands:
+            if c.name not in POSE_RIVALS or c.effect is None or not self.nameable(c):
+                continue
+            under = los_fit([c.effect])
+            c.against_pose = {**(c.against_pose or {}), 'line_of_sight': {
+                'passes_on_moved_target': False, 'pose_gain_on_top': _num(under.gain),
+                'pose_z_on_top': _num(under.z)}}
+            if not under.significant:
+                self.line_of_sight['tie'] = c.name
+                return Decision(None, [POSE_ERROR, c.name], pose=as_pose(los, explains),
+                                withheld=withheld)
+        return Decision(None, [], pose=as_pose(los, explains), withheld=withheld)
+
     def clock_off_footing(self, decision: Decision, cands: list[Candidate],
                           footing_test) -> Decision:
         """A named clock offset (``time_offset``) with the reference pose not reported,

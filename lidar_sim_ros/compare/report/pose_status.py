@@ -38,6 +38,11 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
         if POSE_ERROR in decision.confounded_with:
             return _out(True, 'tie', f'it explains the residual as well as {_join(named)}: a '
                         'tie (confounded_with), none named', shown)
+        if (pose.get('raycast') or {}).get('line_of_sight'):
+            return _out(True, 'off', 'moved along the line of sight and every ray raycast '
+                        'again, scored as the candidates are, it passes the rule and the '
+                        'named candidates gain nothing on the moved target (line_of_sight)',
+                        {**shown, 'raycast': pose['raycast']})
         if pose.get('raycast'):
             return _out(True, 'off', 'its own held-out test does not pass, but raycast again '
                         'with it the model fits better than with the named candidates as '

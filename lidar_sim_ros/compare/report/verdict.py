@@ -500,6 +500,18 @@ def pose_words(pose, cands: list = ()) -> str:
         said += ('. Its own held-out test is linear and leaves grazing rays out, and there it '
                  'gains no more than a range offset of the sensor would '
                  f'({pose.gain:.4f} nats/point, z = {pose.z:.1f}); but raycast again with it, ')
+    if raycast and raycast.get('line_of_sight'):
+        # Weighed on the candidates' footing (``Diagnosis.weigh_on_ray_footing``).
+        los = raycast['line_of_sight']
+        return (f'{said}. Its own held-out test is linear and leaves the rays near the limbs '
+                f'out ({pose.gain:.4f} nats/point, z = {pose.z:.1f}); moved '
+                f'{los["shift_cm"]:+.1f} cm along the line of sight and every ray raycast '
+                'again, each point scored as the candidates are (each material\'s offset '
+                f'refit, {los["put_back"]} returns put back on the target), it gains '
+                f'{los["gain_per_point"]:.4f} nats/point (z = {los["z"]:.1f}), and on the '
+                f'moved target {_join(raycast["explains"])} gain nothing: they took the '
+                'perspective of a target recorded nearer or farther, at its limbs. No sensor '
+                'effect is named.')
     if raycast and not raycast['explains']:
         return (f'{said}the model fits {raycast["fitted_margin_charged"]:.4f} nats/point '
                 'better than without it as --fit leaves them, its six parameters charged, '
