@@ -179,6 +179,8 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         parts.append(pose_words(decision.pose, cands))
     elif not beyond_bound and not to_range:
         parts.append(_nothing_named(summary, attribution, cands))
+    if getattr(decision, 'held_beside', None) and not missing:
+        parts.append(held_beside_words(decision.held_beside, summary, cands))
     if beyond_bound:
         parts.append(bound_remainder_words(beyond_bound))
     if beside_stand_in:
@@ -928,6 +930,29 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     beside = f' once the {" and ".join(left_out)} below are left out' if left_out else ''
     return ('No catalogue effect improves the held-out likelihood by a margin that matters: '
             f'the model matches the measurements up to noise{beside}.' + why)
+
+
+def held_beside_words(held: list[str], summary: dict, cands: list) -> str:
+    """What the reference pose and the sensor's range terms were judged on top of where a
+    candidate was withheld beside a rival the rule keeps from naming
+    (``Decision.held_beside``: the withheld one, the rival, what was set aside beside
+    them): one of the two explains the part they share, so neither the pose nor a range
+    term is judged alone."""
+    pose = summary.get('reference_pose') or {}
+    text = (f'The reference pose and the sensor\'s range terms were judged on top of '
+            f'{_join(held)} fitted together, not alone: one of {held[0]} and {held[1]} '
+            'explains the part of the residual they share.')
+    if pose.get('gain_per_matched_point') is not None:
+        how = ('passes the rule there' if pose.get('significant')
+               else 'does not pass the rule there, so the pose is not reported')
+        text += (f' The pose test gains {pose["gain_per_matched_point"]:.4f} nats/point '
+                 f'(z = {pose.get("z") or 0.0:.1f}) and {how}.')
+    kept = [c.name for c in cands if ((c.against_pose or {}).get('on_held') or {}).get(
+        'passes') is False]
+    if kept:
+        text += (f' On top of them {_join(kept)} does not pass the rule either, so it is '
+                 'not weighed against the pose.')
+    return text
 
 
 def same_part_rival(summary: dict) -> tuple[str | None, str | None]:
