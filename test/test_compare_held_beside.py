@@ -1,6 +1,6 @@
 """A candidate withheld beside a rival the rule keeps from naming (``Diagnosis.rival_takes``):
 one of the two explains the part they share, so the reference pose and the sensor's range
-terms are judged on top of them fitted together (``Decision.held_beside``,
+terms are judged on top of what explains that part (``Decision.held_beside``,
 ``Diagnosis.held_effects``, ``pose_weighing.with_held``, ``range_term_on_held``), not on a
 model that explains none of it. Another lab's incidence bias on the rocket, with a
 footprint cast on every face: incidence withheld beside the footprint, then the pose judged
@@ -42,15 +42,22 @@ def test_a_name_withheld_beside_a_rival_holds_both_for_what_comes_after():
     inc, walk, diag = tied()
     d = diag.decide(dg.rank([inc, walk]))
     assert d.missing is None and 'incidence_angle' in d.withheld
-    assert d.held_beside == ['incidence_angle', 'range_walk']
-    assert [e.name for e in diag.held_effects(d, [inc, walk])] == ['incidence_angle',
-                                                                    'range_walk']
+    # Neither passes on top of the other: the withheld one explains the part they share.
+    assert d.held_beside == ['incidence_angle']
+    assert diag.held_effects(d, [inc, walk]) == [inc.effect]
+    # The rival explaining all it explains and more: the rival.
+    walk_kept = cand('range_walk', WALK, 0.0290, 9.0, -2.049, 2, share=0.16,
+                     vetoed='it explains only 16 % of the residual\'s dependence on intensity')
+    diag2 = OnTop({('incidence_angle', 'range_walk'): (0.0010, 0.9),
+                   ('range_walk', 'incidence_angle'): (0.0090, 7.5)})
+    d2 = diag2.decide(dg.rank([inc, walk_kept]))
+    assert 'incidence_angle' in d2.withheld and d2.held_beside == ['range_walk']
     # Nothing withheld so: nothing held, the pose judged as before.
     assert diag.held_effects(dg.Decision('incidence_angle', []), [inc, walk]) == []
 
 
 def test_the_pose_is_judged_on_top_of_the_held_effects_not_alone():
-    """The pose test passes alone and not on top of the two: it is not reported (before,
+    """The pose test passes alone and not on top of incidence: it is not reported (before,
     judged alone with nothing named, it was, and was then tied with range_scale)."""
     inc, walk, diag = tied()
     d = diag.decide(dg.rank([inc, walk]))
@@ -60,24 +67,22 @@ def test_the_pose_is_judged_on_top_of_the_held_effects_not_alone():
     out = diag.judge_pose(lambda on_top: test(pw.with_held(held, on_top)), [inc, walk], d)
     assert out.pose is None and out.missing is None and out.confounded_with == []
     assert out.withheld == d.withheld
-    assert asked == [['incidence_angle', 'range_walk']]
+    assert asked == [['incidence_angle']]
     # With a named effect in the model too, each effect is there once.
-    assert [e.name for e in pw.with_held(held, [inc.effect])] == ['range_walk',
-                                                                  'incidence_angle']
+    assert pw.with_held([inc.effect, walk.effect], [inc.effect]) == [walk.effect, inc.effect]
     assert pw.with_held([], [inc.effect]) == [inc.effect]
 
 
 def test_a_range_term_is_weighed_against_the_pose_only_on_top_of_the_held_effects():
-    """range_scale passes the rule alone but not on top of the incidence bias and the
-    walk fitted together: it is not weighed against a reported pose (before it was, and
-    tied with it)."""
+    """range_scale passes the rule alone but not on top of the incidence bias: it is not
+    weighed against a reported pose (before it was, and tied with it)."""
     inc, walk, _ = tied()
     scale = cand('range_scale', {'scale': 3e-4}, 0.0200, 6.0, -2.042, 4)
     diag = OnTop({('range_scale', 'incidence_angle'): (0.0008, 0.7)})
     assert diag.range_term_on_held(scale)          # nothing held: as before
-    diag.held_on_top = [inc.effect, walk.effect]
+    diag.held_on_top = [inc.effect]
     assert not diag.range_term_on_held(scale)
-    assert scale.against_pose['on_held'] == {'with': ['incidence_angle', 'range_walk'],
+    assert scale.against_pose['on_held'] == {'with': ['incidence_angle'],
                                              'gain': 0.0008, 'z': 0.7, 'passes': False}
     asked = []
     pose = SimpleNamespace(constant=False, significant=True, gain=0.02, z=9.0)
@@ -96,13 +101,13 @@ def test_a_range_term_is_weighed_against_the_pose_only_on_top_of_the_held_effect
 def test_the_verdict_says_what_the_pose_was_judged_on_top_of():
     inc, walk, diag = tied()
     d = dg.settle(diag.decide(dg.rank([inc, walk])), [inc, walk], diag.naming_fault)
-    assert d.held_beside == ['incidence_angle', 'range_walk']
+    assert d.held_beside == ['incidence_angle']
     text = vd.verdict({'materials': {}, 'unmatched': {'points': 0}, 'withheld': d.withheld,
                        'against_named': d.pair_z, 'nll_calibrated': BEFORE_NLL,
                        'reference_pose': {'gain_per_matched_point': 0.0011, 'z': 0.8,
                                           'significant': False}},
                       None, [inc, walk], d)
-    assert ('judged on top of incidence_angle and range_walk fitted together, not alone'
-            in text)
+    assert ('judged on top of incidence_angle, not alone: incidence_angle explains the part '
+            'of the residual it shares with range_walk' in text)
     assert 'gains 0.0011 nats/point (z = 0.8) and does not pass the rule there' in text
     assert 'is not named: range_walk explains the same part' in text

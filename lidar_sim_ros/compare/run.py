@@ -982,7 +982,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     cands = diagnosis.rank(cands + weighed)
     # Withheld beside a rival the rule keeps from naming (``Diagnosis.rival_takes``): one
     # of the two explains the part they share, so the reference pose and the range terms
-    # are judged on top of them fitted together, not on a model that explains none of it
+    # are judged on top of it, not on a model that explains none of that part
     # (``Diagnosis.held_effects``; empty otherwise).
     held = diag.held_effects(decision, cands)
     diag.held_on_top = held

@@ -847,22 +847,26 @@ class Diagnosis(PoseWeighing):
                                                              if on_best else None),
                                             'outcome': kind}}
             if kind != same_part.NAMED:
-                self.memo('held_beside')[best.name] = [best.name, c.name,
-                                                       *[r.name for r in rest]]
+                # What explains the part they share: the rival where it explains all the
+                # withheld one does and more, else the withheld one (neither passes on
+                # top of the other); with what was set aside beside them, as fitted above.
+                lead = c if kind == same_part.RIVAL else best
+                self.memo('held_beside')[best.name] = [lead.name, *[r.name for r in rest]]
                 return same_part.withheld_words(best.name, c, on_rival, on_best, kind,
                                                 [r.name for r in rest])
         return None
 
     def held_effects(self, decision: Decision, cands: list[Candidate]) -> list[Effect]:
-        """The effects a candidate was withheld beside (``Decision.held_beside``: the
-        withheld one, its rival and what was set aside beside them), fitted together as
-        --fit fits them: one of the two explains the part they share, so the reference
-        pose and the range terms are judged on top of these, not on a model that explains
-        none of it. Empty where nothing was withheld so (or a fit fails)."""
+        """The effects that explain the part a withheld candidate shares with its rival
+        (``Decision.held_beside``: the rival where it explains all the withheld one does
+        and more, else the withheld one; with what was set aside beside them), fitted
+        together as ``rival_takes`` fitted them: the reference pose and the range terms are
+        judged on top of these, not on a model that explains none of that part. Empty
+        where nothing was withheld so (or a fit fails)."""
         by_name = {c.name: c for c in cands}
         held = [by_name[n] for n in decision.held_beside if n in by_name]
         held = [c for c in held if c.effect is not None and c.error is None]
-        if len(held) < 2:
+        if not held:
             return []
         try:
             self.finalized(*held)

@@ -935,13 +935,15 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
 def held_beside_words(held: list[str], summary: dict, cands: list) -> str:
     """What the reference pose and the sensor's range terms were judged on top of where a
     candidate was withheld beside a rival the rule keeps from naming
-    (``Decision.held_beside``: the withheld one, the rival, what was set aside beside
-    them): one of the two explains the part they share, so neither the pose nor a range
-    term is judged alone."""
+    (``Decision.held_beside``: what explains the part the two share, and what was set
+    aside beside them): neither the pose nor a range term is judged alone."""
     pose = summary.get('reference_pose') or {}
+    rival, withheld = same_part_rival(summary)
+    other = withheld if held[0] == rival else rival
+    beside = f' (with {_join(held[1:])})' if len(held) > 1 else ''
     text = (f'The reference pose and the sensor\'s range terms were judged on top of '
-            f'{_join(held)} fitted together, not alone: one of {held[0]} and {held[1]} '
-            'explains the part of the residual they share.')
+            f'{held[0]}{beside}, not alone: {held[0]} explains the part of the residual '
+            f'it shares with {other or "the candidate withheld"}.')
     if pose.get('gain_per_matched_point') is not None:
         how = ('passes the rule there' if pose.get('significant')
                else 'does not pass the rule there, so the pose is not reported')
