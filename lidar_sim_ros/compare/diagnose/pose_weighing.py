@@ -405,12 +405,12 @@ class PoseWeighing:
         return replace(decision, pose=_with_raycast(pose, {
             'explains': [], 'fitted_margin_charged': _num(margin)}))
 
-    def range_term_on_held(self, r: Candidate) -> bool:
-        """Whether the range term ``r`` passes the rule on top of the effects a candidate
-        was withheld beside (``held_on_top``, ``Diagnosis.held_effects``: one of them
-        explains the part they share); True where there are none. Its figures go to
-        ``r.against_pose['on_held']``."""
-        held = list(getattr(self, 'held_on_top', None) or [])
+    def range_term_on_held(self, r: Candidate, held: list[Effect] | None = None) -> bool:
+        """Whether the range term ``r`` passes the rule on top of the effects that explain
+        the part a withheld candidate shares with its rival (``held``, default
+        ``held_on_top``: ``Diagnosis.held_effects``); True where there are none. Its
+        figures go to ``r.against_pose['on_held']``."""
+        held = list(held if held is not None else getattr(self, 'held_on_top', None) or [])
         if not held or r.effect is None or r.variant is None:
             return True
         try:
@@ -446,6 +446,7 @@ class PoseWeighing:
         if decision.pose is None or decision.missing or decision.confounded_with:
             return decision, []
         done = dict(scored or {})
+        held = getattr(self, 'held_on_top', None)
         scored, wins, ties = [], [], []
         for cls in rivals:
             r = done.get(cls.name)
@@ -453,12 +454,13 @@ class PoseWeighing:
                 r = self.score(cls)
                 self.share_veto(r, attribution)
             scored.append(r)
-            if not self.nameable(r) or not self.range_term_on_held(r):
+            if not self.nameable(r) or (held and not self.range_term_on_held(r)):
                 continue
             pose_on_top = pose_test([r.effect])
             corrected = on_pose()
             again = corrected.score(cls)
-            passes_on_pose = corrected.nameable(again) and corrected.range_term_on_held(again)
+            passes_on_pose = corrected.nameable(again) and (
+                not held or PoseWeighing.range_term_on_held(corrected, again, held))
             # As --fit leaves them: the rival fitted, against the pose corrected and the
             # model raycast again (rays at silhouettes and depth steps meet the surfaces
             # the corrected pose puts there, which a range offset does not move).
@@ -604,8 +606,9 @@ class PoseWeighing:
         rivals = [c for c in cands if c.name in POSE_RIVALS and c.name != decision.missing
                   and c.effect is not None and c.error is None and c.significant
                   and c.practical]
+        held = getattr(self, 'held_on_top', None)
         for r in sorted(rivals, key=lambda c: -c.score):
-            if not self.range_term_on_held(r):
+            if held and not self.range_term_on_held(r):
                 continue
             test = constant_test([r.effect])
             r.against_pose = {**(r.against_pose or {}), 'constant_on_top': {
