@@ -1120,7 +1120,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         on_top = [n for n in (decision.missing, decision.also) if n]
     else:
         on_top = [c.name for c in named]
-    # What the pose test had in the model: the effects held beside each other too.
+    # What the pose test had in the model: what explains a withheld name's shared part too.
     on_top = [*[e.name for e in held if e.name not in on_top], *on_top]
     pose = (decision.pose if decision.pose is not None else decision.beside_pose
             if decision.beside_pose is not None else pose_test([c.effect for c in named]))

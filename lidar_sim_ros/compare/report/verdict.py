@@ -952,7 +952,7 @@ def held_beside_words(held: list[str], summary: dict, cands: list) -> str:
     kept = [c.name for c in cands if ((c.against_pose or {}).get('on_held') or {}).get(
         'passes') is False]
     if kept:
-        text += (f' On top of them {_join(kept)} does not pass the rule either, so it is '
+        text += (f' On top of {_join(held)}, {_join(kept)} does not pass the rule, so it is '
                  'not weighed against the pose.')
     return text
 
