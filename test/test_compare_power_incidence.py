@@ -326,6 +326,9 @@ def test_incidence_after_a_walk_in_the_model_must_show_a_part_of_its_own():
                'nll_calibrated': BEFORE_NLL, 'withheld': d.withheld}
     text = vd.verdict(summary, None, [inc], d)
     assert 'incidence_angle' in text and 'follows the power' in text
+    assert text.startswith('No catalogue effect is named. The best candidate, '
+                           'incidence_angle, is not named: with the range walk in the model')
+    assert 'up to noise' not in text
     diag = OwnParts({**lab, pi.INCIDENCE: pi.OwnPart(0.0200, 8.0, 0.01, N, 1.3)})
     diag.base = [make_effect('range_walk', {'k_m': 0.0258, 'power': 'measured'})]
     assert diag.decide([inc]).missing == 'incidence_angle'

@@ -937,6 +937,9 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
         why = (f' The best candidate, {best.name}, gains {best.score:.4f} nats/point held out '
                f'(z = {best.z:.1f}), less than the {diagnosis.MIN_PRACTICAL_GAIN:g} nats/point '
                'that would matter (an RMS change of the expected range of 10 % of the noise).')
+    if kept and not (best is not None and best.vetoed):
+        # It explains the residual by the rule's gain; what keeps it is said, not "noise".
+        return 'No catalogue effect is named.' + why
     if attribution is not None and attribution.significant:
         return ('No catalogue effect explains it by a margin that matters.' + why
                 + ' The missing physics is outside the catalogue: write an effect '
