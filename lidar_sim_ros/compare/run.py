@@ -38,9 +38,9 @@ from scipy.stats import norm
 from lidar_sim_ros.compare.diagnose import (clock_footing, diagnosis, far_returns, features,
                                             fit_data, intensity_range, laser_gains,
                                             plan as sep_plan, power_incidence,
-                                            line_of_sight, pose_error, pose_weighing,
-                                            range_alone, region_offset, row_clock,
-                                            stamp_place, variants)
+                                            line_of_sight, pose_error, range_alone,
+                                            region_offset,
+                                            row_clock, stamp_place, variants)
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
@@ -995,15 +995,6 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision, weighed = diag.weigh_rivals(decision, cands, rivals + geometry,
                                           ana.attribution)
     cands = diagnosis.rank(cands + weighed)
-    # Withheld beside a rival the rule keeps from naming (``Diagnosis.rival_takes``): one
-    # of the two explains the part they share, so the reference pose and the range terms
-    # are judged on top of it, not on a model that explains none of that part
-    # (``Diagnosis.held_effects``; empty otherwise).
-    held = diag.held_effects(decision, cands)
-    diag.held_on_top = held
-
-    def with_held(on_top) -> list[Effect]:
-        return pose_weighing.with_held(held, on_top)
 
     # The pose tests' points: the sample, or every matched point where the sample holds
     # too few a cloud for six parameters each (``pose_points``).
@@ -1019,7 +1010,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         return pose_error.fit_reference_pose(
             tested_data if data is None else data, meas.cloud[idx], meas.t_s[idx],
             sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
-            with_held(on_top), rate=has_point_times(meas), constant=constant, scan=scan)
+            on_top, rate=has_point_times(meas), constant=constant, scan=scan)
     recast_cache: dict = {}
 
     def recast(pose: pose_error.PoseError):
@@ -1039,8 +1030,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         if pose.constant not in recast_cache:
             diag_p, report, moved = recast_all_points(model, effects, rays, sample, meas,
                                                       all_points_pose(pose.constant),
-                                                      len(classes), seed, pose.constant,
-                                                      tuple(held))
+                                                      len(classes), seed, pose.constant)
             # The test stays the sample's; its gain is the rigid one's where the rate
             # showed on every matched point only (``PoseError.rate_in_test``).
             recast_cache[pose.constant] = (diag_p, replace(
@@ -1073,13 +1063,12 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         return pose_error.fit_reference_pose(
             fit_data.make_fit_data(model, effects, rays), meas.cloud[idx], meas.t_s[idx],
             sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
-            with_held([]), rate=has_point_times(meas), constant=constant, scan=scan)
+            rate=has_point_times(meas), constant=constant, scan=scan)
     # Points without a time within their cloud: a residual growing with the row is a
     # time within the exposure they do not carry (``row_clock``).
     row_test = (None if scan is not None else lambda clock: row_clock.row_time_test(
         tested_data, sample.blocks[tested.matched], diag.z_crit,
         diagnosis.MIN_PRACTICAL_GAIN, row_clock.clock_column_m(tested_data, clock), seed))
-    held_beside = list(decision.held_beside) if held else []
     decision = diag.judge_pose(pose_test, cands, decision, recast,
                                lambda on_top: pose_test(on_top, constant=True), same_points,
                                row_test)
@@ -1091,11 +1080,10 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         idx = rays.matched
         fitted = pose_error.fit_reference_pose(
             fit_data.make_fit_data(model, effects, rays), meas.cloud[idx], meas.t_s[idx],
-            sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
-            with_held([effect]), rate=has_point_times(meas), constant=True)
+            sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed, [effect],
+            rate=has_point_times(meas), constant=True)
         diag_c, report, moved = recast_all_points(model, effects, rays, sample, meas, fitted,
-                                                  len(classes), seed, True,
-                                                  tuple(with_held([effect])))
+                                                  len(classes), seed, True, (effect,))
         test = pose_test([effect], constant=True)
         data_c = fit_data.make_fit_data(model, effects, moved)
 
@@ -1103,8 +1091,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             at = moved.matched
             return pose_error.fit_reference_pose(
                 data_c, meas.cloud[at], meas.t_s[at], sample.blocks[at], diag.z_crit,
-                diagnosis.MIN_PRACTICAL_GAIN, seed, with_held(on_top),
-                rate=has_point_times(meas))
+                diagnosis.MIN_PRACTICAL_GAIN, seed, on_top, rate=has_point_times(meas))
         return diag_c, replace(report, gain=test.gain, z=test.z,
                                significant=test.significant), per_cloud
     # With the pose alone, the range terms too: the constant pose on top of each.
@@ -1143,8 +1130,6 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         on_top = [n for n in (decision.missing, decision.also) if n]
     else:
         on_top = [c.name for c in named]
-    # What the pose test had in the model: what explains a withheld name's shared part too.
-    on_top = [*[e.name for e in held if e.name not in on_top], *on_top]
     pose = (decision.pose if decision.pose is not None else decision.beside_pose
             if decision.beside_pose is not None else pose_test([c.effect for c in named]))
     decision, pose = pose_that_matters(decision, pose, tested_data, meas.cloud[tested.matched])
@@ -1166,7 +1151,6 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = diag.clock_tie(decision, cands, meas.time_source == 'stamp')
     stamp = _stamp_place(diag, decision, cands, meas, scenario)
     decision = sunlit_decision(decision, sunlight)
-    decision = replace(decision, held_beside=held_beside)
     # The one gate every name passes (missing, tie, also): the rule and the NLL.
     decision = diagnosis.settle(decision, cands, diag.naming_fault)
     diag.fit_together(decision, cands)
@@ -1569,8 +1553,6 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'also_explains_more': list(decision.also_more),
         'also_confounded_with': list(decision.beside_tie),
         'withheld': decision.withheld or None,
-        # Withheld beside a rival: what the pose and the range terms were judged on top of.
-        'held_beside': list(decision.held_beside) or None,
         'against_named': decision.pair_z,
         # A walk or an incidence bias named beside the other: each one's own part
         # (``Diagnosis.power_or_incidence``).

@@ -179,9 +179,3 @@ class Decision:
     # Further effects that also explain a separate part, beside ``also`` (in the order
     # found); each passed the rule on top of the named effect as ``also`` did.
     also_more: list[str] = field(default_factory=list)
-    # Withheld beside a rival the rule keeps from naming (``Diagnosis.rival_takes``): what
-    # explains the part the two share (the rival where it explains all the withheld one
-    # does and more, else the withheld one) and what was set aside beside them. The
-    # reference pose and the range terms are judged on top of these
-    # (``Diagnosis.held_effects``), not alone.
-    held_beside: list[str] = field(default_factory=list)

@@ -760,8 +760,7 @@ class Diagnosis(PoseWeighing):
             return Decision(None, [best.name, *tied], also, pair_z)
         held = self.rival_takes(best, cands, pair_z)
         if held is not None:
-            return Decision(None, [], None, pair_z, withheld={best.name: held},
-                            held_beside=self.memo('held_beside').get(best.name, []))
+            return Decision(None, [], None, pair_z, withheld={best.name: held})
         taken = self.pointing_takes(best, cands)
         if taken is not None:
             return Decision(None, [], None, pair_z, withheld={best.name: taken})
@@ -852,32 +851,9 @@ class Diagnosis(PoseWeighing):
                                                              if on_best else None),
                                             'outcome': kind}}
             if kind != same_part.NAMED:
-                # What explains the part they share: the rival where it explains all the
-                # withheld one does and more, else the withheld one (neither passes on
-                # top of the other); with what was set aside beside them, as fitted above.
-                lead = c if kind == same_part.RIVAL else best
-                self.memo('held_beside')[best.name] = [lead.name, *[r.name for r in rest]]
                 return same_part.withheld_words(best.name, c, on_rival, on_best, kind,
                                                 [r.name for r in rest])
         return None
-
-    def held_effects(self, decision: Decision, cands: list[Candidate]) -> list[Effect]:
-        """The effects that explain the part a withheld candidate shares with its rival
-        (``Decision.held_beside``: the rival where it explains all the withheld one does
-        and more, else the withheld one; with what was set aside beside them), fitted
-        together as ``rival_takes`` fitted them: the reference pose and the range terms are
-        judged on top of these, not on a model that explains none of that part. Empty
-        where nothing was withheld so (or a fit fails)."""
-        by_name = {c.name: c for c in cands}
-        held = [by_name[n] for n in decision.held_beside if n in by_name]
-        held = [c for c in held if c.effect is not None and c.error is None]
-        if not held:
-            return []
-        try:
-            self.finalized(*held)
-            return self._fitted_together([c.effect for c in held])
-        except Exception:  # noqa: BLE001 - judged as before, alone
-            return []
 
     def own_parts(self, walk: Candidate) -> dict[str, 'power_incidence.OwnPart']:
         """The walk's and incidence's own parts (``power_incidence.both_parts``) on the

@@ -30,15 +30,6 @@ def _with_raycast(pose, raycast: dict):
     return out
 
 
-def with_held(held: list[Effect], on_top) -> list[Effect]:
-    """``on_top`` with ``held`` in front, each effect once by name: the model a pose test
-    or a range term is judged in where a candidate was withheld beside a rival
-    (``Diagnosis.held_effects``; ``held`` empty: ``on_top`` as given)."""
-    on_top = list(on_top)
-    names = {o.name for o in on_top}
-    return [*[e for e in held if e.name not in names], *on_top]
-
-
 def _better_of(held: float, fitted: float, charged: float) -> int:
     """A named candidate against the reference pose that explains the same residual:
     1 the candidate, -1 the pose, 0 a tie. ``held``: the candidate's held-out gain less
@@ -248,7 +239,7 @@ class PoseWeighing:
             if self.rows_under_clock(named, row_test):
                 return Decision(None, [POSE_ERROR, beside.CLOCK], pose=pose,
                                 withheld=dict(decision.withheld))
-            return Decision(None, [], pose=pose, withheld=dict(decision.withheld))
+            return Decision(None, [], pose=pose)
         # The pose is off beside what was named (its test passes on top of it): the
         # candidates are decided again on the pose-corrected model, which is named, a
         # tie, and what also explains another part. On the recorded pose a drifting
@@ -405,24 +396,6 @@ class PoseWeighing:
         return replace(decision, pose=_with_raycast(pose, {
             'explains': [], 'fitted_margin_charged': _num(margin)}))
 
-    def range_term_on_held(self, r: Candidate, held: list[Effect] | None = None) -> bool:
-        """Whether the range term ``r`` passes the rule on top of the effects that explain
-        the part a withheld candidate shares with its rival (``held``, default
-        ``held_on_top``: ``Diagnosis.held_effects``); True where there are none. Its
-        figures go to ``r.against_pose['on_held']``."""
-        held = list(held if held is not None else getattr(self, 'held_on_top', None) or [])
-        if not held or r.effect is None or r.variant is None:
-            return True
-        try:
-            gain, z, _ = self._on_top(held, r)
-        except Exception:  # noqa: BLE001 - not shown to add: not weighed
-            return False
-        ok = self.passes_rule(gain, z)
-        r.against_pose = {**(r.against_pose or {}), 'on_held': {
-            'with': [e.name for e in held], 'gain': _num(gain), 'z': _num(z),
-            'passes': bool(ok)}}
-        return ok
-
     def weigh_pose_rivals(self, decision: Decision, rivals: list[type[Effect]], pose_test,
                           on_pose, scored: dict | None = None,
                           attribution: Attribution | None = None
@@ -446,7 +419,6 @@ class PoseWeighing:
         if decision.pose is None or decision.missing or decision.confounded_with:
             return decision, []
         done = dict(scored or {})
-        held = getattr(self, 'held_on_top', None)
         scored, wins, ties = [], [], []
         for cls in rivals:
             r = done.get(cls.name)
@@ -454,13 +426,12 @@ class PoseWeighing:
                 r = self.score(cls)
                 self.share_veto(r, attribution)
             scored.append(r)
-            if not self.nameable(r) or (held and not self.range_term_on_held(r)):
+            if not self.nameable(r):
                 continue
             pose_on_top = pose_test([r.effect])
             corrected = on_pose()
             again = corrected.score(cls)
-            passes_on_pose = corrected.nameable(again) and (
-                not held or PoseWeighing.range_term_on_held(corrected, again, held))
+            passes_on_pose = corrected.nameable(again)
             # As --fit leaves them: the rival fitted, against the pose corrected and the
             # model raycast again (rays at silhouettes and depth steps meet the surfaces
             # the corrected pose puts there, which a range offset does not move).
@@ -606,10 +577,7 @@ class PoseWeighing:
         rivals = [c for c in cands if c.name in POSE_RIVALS and c.name != decision.missing
                   and c.effect is not None and c.error is None and c.significant
                   and c.practical]
-        held = getattr(self, 'held_on_top', None)
         for r in sorted(rivals, key=lambda c: -c.score):
-            if held and not self.range_term_on_held(r):
-                continue
             test = constant_test([r.effect])
             r.against_pose = {**(r.against_pose or {}), 'constant_on_top': {
                 'gain': _num(getattr(test, 'gain', None)), 'z': _num(getattr(test, 'z', None)),

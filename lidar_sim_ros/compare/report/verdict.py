@@ -182,8 +182,6 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         parts.append(pose_words(decision.pose, cands))
     elif not beyond_bound and not to_range:
         parts.append(_nothing_named(summary, attribution, cands))
-    if getattr(decision, 'held_beside', None) and not missing:
-        parts.append(held_beside_words(decision.held_beside, summary, cands))
     if beyond_bound:
         parts.append(bound_remainder_words(beyond_bound))
     if beside_stand_in:
@@ -952,31 +950,6 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     beside = f' once the {" and ".join(left_out)} below are left out' if left_out else ''
     return ('No catalogue effect improves the held-out likelihood by a margin that matters: '
             f'the model matches the measurements up to noise{beside}.' + why)
-
-
-def held_beside_words(held: list[str], summary: dict, cands: list) -> str:
-    """What the reference pose and the sensor's range terms were judged on top of where a
-    candidate was withheld beside a rival the rule keeps from naming
-    (``Decision.held_beside``: what explains the part the two share, and what was set
-    aside beside them): neither the pose nor a range term is judged alone."""
-    pose = summary.get('reference_pose') or {}
-    rival, withheld = same_part_rival(summary)
-    other = withheld if held[0] == rival else rival
-    beside = f' (with {_join(held[1:])})' if len(held) > 1 else ''
-    text = (f'The reference pose and the sensor\'s range terms were judged on top of '
-            f'{held[0]}{beside}, not alone: {held[0]} explains the part of the residual '
-            f'it shares with {other or "the candidate withheld"}.')
-    if pose.get('gain_per_matched_point') is not None:
-        how = ('passes the rule there' if pose.get('significant')
-               else 'does not pass the rule there, so the pose is not reported')
-        text += (f' The pose test gains {pose["gain_per_matched_point"]:.4f} nats/point '
-                 f'(z = {pose.get("z") or 0.0:.1f}) and {how}.')
-    kept = [c.name for c in cands if ((c.against_pose or {}).get('on_held') or {}).get(
-        'passes') is False]
-    if kept:
-        text += (f' On top of {_join(held)}, {_join(kept)} does not pass the rule, so it is '
-                 'not weighed against the pose.')
-    return text
 
 
 def same_part_rival(summary: dict) -> tuple[str | None, str | None]:
