@@ -857,6 +857,15 @@ def test_pose_correction_along_the_line_of_sight_is_said_as_pose_or_sensor_range
     assert 'every material' in text
     assert 'along the line of sight' not in vd.pose_words(replace(
         const, translation_m=np.array([[0.0, 0.05, 0.0]])), [])
+    # Reported on the candidates' footing (``weigh_on_ray_footing``): the linear test's
+    # figures are said once, then the move's (the fourteenth holdout's los_only_1 said
+    # the linear test twice, the first sentence cut off at "but raycast again with it, .").
+    moved = replace(const, raycast={'explains': ['laser_pointing'], 'line_of_sight': {
+        'shift_cm': -6.07, 'put_back': 122, 'gain_per_point': 0.2058, 'z': 15.2}})
+    text = vd.pose_words(moved, [])
+    assert text.count('Its own held-out test is linear') == 1
+    assert 'raycast again with it, .' not in text and ', .' not in text
+    assert 'moved -6.1 cm along the line of sight' in text and 'laser_pointing gain nothing' in text
 
 
 def test_an_outlier_effect_without_false_returns_is_set_aside():

@@ -494,7 +494,7 @@ def pose_words(pose, cands: list = ()) -> str:
                      'per-material offsets)')
     said = f'{pose.words()[0].upper()}{pose.words()[1:]}{what}'
     raycast = getattr(pose, 'raycast', None)
-    if raycast:
+    if raycast and not raycast.get('line_of_sight'):
         # Reported on the raycast footing (``Diagnosis.weigh_line_of_sight``,
         # ``line_of_sight_alone``): its own test did not pass.
         said += ('. Its own held-out test is linear and leaves grazing rays out, and there it '
