@@ -865,7 +865,7 @@ def test_pose_correction_along_the_line_of_sight_is_said_as_pose_or_sensor_range
     text = vd.pose_words(moved, [])
     assert text.count('Its own held-out test is linear') == 1
     assert 'raycast again with it, .' not in text and ', .' not in text
-    assert 'moved -6.1 cm along the line of sight' in text and 'laser_pointing gain nothing' in text
+    assert 'moved -6.1 cm along the line of sight' in text and 'laser_pointing gains nothing: it took' in text
 
 
 def test_an_outlier_effect_without_false_returns_is_set_aside():

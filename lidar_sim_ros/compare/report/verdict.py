@@ -509,7 +509,9 @@ def pose_words(pose, cands: list = ()) -> str:
                 'again, each point scored as the candidates are (each material\'s offset '
                 f'refit, {los["put_back"]} returns put back on the target), it gains '
                 f'{los["gain_per_point"]:.4f} nats/point (z = {los["z"]:.1f}), and on the '
-                f'moved target {_join(raycast["explains"])} gain nothing: they took the '
+                f'moved target {_join(raycast["explains"])} '
+                f'{"gain" if len(raycast["explains"]) > 1 else "gains"} nothing: '
+                f'{"they" if len(raycast["explains"]) > 1 else "it"} took the '
                 'perspective of a target recorded nearer or farther, at its limbs. No sensor '
                 'effect is named.')
     if raycast and not raycast['explains']:
