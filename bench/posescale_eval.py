@@ -51,18 +51,22 @@ def row(summary: dict) -> dict:
             'error': summary.get('error'), 'seconds': round(summary.get('seconds', 0), 1)}
 
 
-def main() -> None:
+def run_cases(cases: dict, default_cases: list[str], default_data: str,
+              top: int = 4) -> None:
+    """The command line of a case runner: each of ``--cases`` (keys of ``cases``,
+    ForeignSpecs) at each of ``--seeds``, its recording generated once under ``--data``,
+    compared once (the diagnosis); the rows to ``--out`` (JSON) as they come."""
     ap = argparse.ArgumentParser()
     ap.add_argument('--out', required=True)
     ap.add_argument('--seeds', type=int, nargs='+', required=True)
-    ap.add_argument('--cases', nargs='+', default=['both', 'scale', 'offset', 'box_both'])
-    ap.add_argument('--data', default='/tmp/posescale_data')
+    ap.add_argument('--cases', nargs='+', default=default_cases)
+    ap.add_argument('--data', default=default_data)
     ap.add_argument('--tag', default='run')
     a = ap.parse_args()
     out = {}
     for seed in a.seeds:
         for case in a.cases:
-            spec = replace(CASES[case], seed=seed)
+            spec = replace(cases[case], seed=seed)
             root = Path(a.data) / f'{spec.name}_{seed}'
             data = root / 'data'
             ds = (ForeignDataset(spec, data / 'bag', data / 'satellite.obj',
@@ -72,9 +76,13 @@ def main() -> None:
             out[f'{case}_{seed}'] = r = {**row(s), 'full': s}
             print(case, seed, r['missing_effect'], r['confounded_with'],
                   r['reference_pose_off'], [(c['name'], c.get('score'), c.get('z'),
-                                             c.get('params')) for c in r['candidates'][:4]],
+                                             c.get('params')) for c in r['candidates'][:top]],
                   r['seconds'], flush=True)
             Path(a.out).write_text(json.dumps(out, indent=1, default=str))
+
+
+def main() -> None:
+    run_cases(CASES, ['both', 'scale', 'offset', 'box_both'], '/tmp/posescale_data')
 
 
 if __name__ == '__main__':

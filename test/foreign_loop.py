@@ -37,6 +37,24 @@ BORDERLINE = (0.7, 1.5)
 V4_NAMES = {s.name for s in V4} | {'range_scale_approach'}
 
 
+def one_frame_summary(name: str, tmp_path: Path, **options):
+    """The battery dataset ``name`` made with one frame under ``tmp_path``, compared once
+    in-process (the diagnosis only: no report, no plan; ``options`` to CompareOptions,
+    default candidates ['range_walk']): (the dataset, the summary)."""
+    from dataclasses import replace
+
+    from foreign_sim import battery, generate
+
+    from lidar_sim_ros.compare import run
+
+    ds = generate(replace(battery([name])[0], frames=1), tmp_path / 'd')
+    opts = {'candidates': ['range_walk'], **options}
+    res = run.run_compare(run.CompareOptions(bag=ds.bag, mesh=ds.mesh, out=tmp_path / 'out',
+                                             config=ds.scenario, progress=False, report=False,
+                                             plan=False, **opts))
+    return ds, res.summary
+
+
 def compare_once(ds, out: Path, history: Path, effects: list[str], report: bool) -> dict:
     """One ``lidar-sim compare`` run; the summary, or {'error': ...}."""
     argv = ['compare', str(ds.bag), '--mesh', str(ds.mesh), '--config', str(ds.scenario),

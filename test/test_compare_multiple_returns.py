@@ -202,16 +202,9 @@ def _bag(path, name, dtype, bad=None):
 def test_compare_leaves_a_dual_return_receivers_later_returns_out(tmp_path: Path, name):
     """The foreign dual-return recordings (1 frame): every second return made is counted
     in ``multiple_returns`` and left out, none is called crosstalk, nothing is named."""
-    from foreign_sim import battery, generate
+    from foreign_loop import one_frame_summary
 
-    from lidar_sim_ros.compare import run
-
-    spec = replace(battery([name])[0], frames=1)
-    ds = generate(spec, tmp_path / 'd')
-    res = run.run_compare(run.CompareOptions(bag=ds.bag, mesh=ds.mesh, out=tmp_path / 'out',
-                                             config=ds.scenario, progress=False, report=False,
-                                             plan=False, candidates=['range_walk']))
-    s = res.summary
+    ds, s = one_frame_summary(name, tmp_path)
     made = ds.truth['second_returns']
     assert made > 30
     mr = s['multiple_returns']

@@ -187,16 +187,9 @@ def test_compare_sees_the_target_through_a_film(tmp_path: Path):
     the target's rays are occlusion, the target's returns behind them are kept (none is
     left out as a later return), nothing is named, and the ranges match the target (on
     main they were matched to it: a range RMSE of 2.8 m)."""
-    from foreign_sim import battery, generate
+    from foreign_loop import one_frame_summary
 
-    from lidar_sim_ros.compare import run
-
-    spec = replace(battery(['veil'])[0], frames=1)
-    ds = generate(spec, tmp_path / 'v')
-    res = run.run_compare(run.CompareOptions(bag=ds.bag, mesh=ds.mesh, out=tmp_path / 'out',
-                                             config=ds.scenario, progress=False, report=False,
-                                             plan=False, candidates=['range_walk']))
-    s = res.summary
+    ds, s = one_frame_summary('veil', tmp_path)
     behind = ds.truth['second_returns']
     assert behind > 1000 and ds.truth['veil_returns'] > behind
     occ = s['occlusion']
