@@ -335,3 +335,21 @@ def test_incidence_after_a_walk_in_the_model_must_show_a_part_of_its_own():
     diag = OwnParts(lab)
     diag.base = []
     assert diag.decide([inc]).missing == 'incidence_angle' and diag.asked == 0
+
+
+def test_a_range_scale_also_beside_a_walk_must_show_a_part_of_its_own():
+    """The same lab's walk on its own stage target (k 0.0302, exact): range_scale said to
+    explain a separate part (absent). A range scale beside a walk must show a dependence
+    on the range at a fixed received power; without one it is not said, with one it is."""
+    walk = cand('range_walk', {'k_m': 0.0302, 'power': 'measured'}, 0.1759, 18.0, -2.18, 2)
+    scale = cand('range_scale', {'scale': 0.004}, 0.0789, 13.1, -2.10, 3)
+    none = {pi.WALK: pi.OwnPart(0.0003, 0.4, -0.007, N, 0.2),
+            pi.INCIDENCE: pi.OwnPart(0.0010, 1.3, 0.001, N, 1.3),
+            pi.SCALE: pi.OwnPart(0.0004, 0.9, 0.001, N, 0.4)}
+    d = OnTop(none).decide(dg.rank([walk, scale]))
+    assert d.missing == 'range_walk' and d.also is None
+    fig = d.pair_z['range_scale']['power_incidence']
+    assert fig['also'] == 'not_shown' and fig['also_name'] == 'range_scale'
+    assert 'its dependence on the range gains' in pi.also_not_shown_words(fig)
+    shown = {**none, pi.SCALE: pi.OwnPart(0.0300, 9.0, 0.004, N, 0.4)}
+    assert OnTop(shown).decide(dg.rank([walk, scale])).also == 'range_scale'

@@ -774,7 +774,7 @@ class Diagnosis(PoseWeighing):
         # part of any pattern the tiles cut up, an incidence elongation's too.
         also = (also or self.next_beside(best, ok, cands) or self.lasers_beside(best, cands)
                 or self.material_beside(best, cands))
-        also = self.incidence_beside_walk(best, also, cands, pair_z)
+        also = self.also_beside_walk(best, also, cands, pair_z)
         partner = self.dilation_beside(best, ok, cands, also)
         if partner is None:
             return Decision(best.name, [], also, pair_z)
@@ -935,7 +935,7 @@ class Diagnosis(PoseWeighing):
         """Why an incidence bias may not be named where the model has a range walk of its
         own (``--effect range_walk``), or None: it must show a part of its own beyond a
         smooth function of ln P on the residual the model leaves (``power_incidence``, as
-        ``incidence_beside_walk`` asks of an 'also'). A walk fitted on a noisy or clipped
+        ``also_beside_walk`` asks of an 'also'). A walk fitted on a noisy or clipped
         intensity is attenuated, and what it leaves follows the power; the incidence form
         takes it (an independent lab's walk on clipped raw counts, fitted by --fit with
         k 0.0258 for 0.03: the next run named incidence, bias_gain +0.36, absent from the
@@ -967,25 +967,25 @@ class Diagnosis(PoseWeighing):
                 f'k read low), or a walk of another law in ln P, leaves; refit the walk with '
                 f'power: model, or one of your own law, before adding an incidence bias')
 
-    def incidence_beside_walk(self, best: Candidate, also: str | None,
-                              cands: list[Candidate], pair_z: dict) -> str | None:
-        """``also``, unless it is an incidence bias beside a named walk that shows no part
-        of its own (``power_incidence``: its depth beyond a smooth function of ln P, by the
-        rule): then None. A walk of another law in ln P, or one read on a noisy or clipped
+    def also_beside_walk(self, best: Candidate, also: str | None,
+                         cands: list[Candidate], pair_z: dict) -> str | None:
+        """``also``, unless it is an incidence bias or a range scale beside a named walk
+        that shows no part of its own (``power_incidence``: its depth, or the range, beyond
+        a smooth function of ln P, by the rule): then None. A walk of another law in ln P, or one read on a noisy or clipped
         intensity (its k attenuated), leaves a part that follows the power, and the
         incidence form, which follows the power through the geometry, takes it on top of
         the walk (an independent lab's walk on raw counts clipped at 4095: the walk named,
         incidence 'also' on top, its own part 0.0010 nats/point, z 1.3; none in the
         data). The figures go to ``pair_z[incidence_angle]['power_incidence']``, with
         ``also``: 'shown' or 'not_shown'."""
-        if also != power_incidence.INCIDENCE or best.name != power_incidence.WALK \
-                or best.effect is None:
+        if also not in (power_incidence.INCIDENCE, power_incidence.SCALE) \
+                or best.name != power_incidence.WALK or best.effect is None:
             return also
         try:
             parts = self.own_parts(best)
         except Exception:  # noqa: BLE001 - not measured: the decision stands
             return also
-        p = parts[power_incidence.INCIDENCE]
+        p = parts[also]
         shown = self.passes_rule(p.gain_per_point * p.points / max(self.n_total, 1), p.z)
         figures = power_incidence.figures_in(pair_z)
         if figures is None:
@@ -994,6 +994,7 @@ class Diagnosis(PoseWeighing):
                 for n, q in parts.items()}
             pair_z[also] = {**pair_z.get(also, {}), 'power_incidence': figures}
         figures['also'] = 'shown' if shown else 'not_shown'
+        figures['also_name'] = also
         return also if shown else None
 
     def pointing_takes(self, best: Candidate, cands: list[Candidate]) -> str | None:

@@ -38,7 +38,7 @@ import numpy as np
 
 from lidar_sim_ros.compare.diagnose.features import block_mean_se
 
-WALK, INCIDENCE = 'range_walk', 'incidence_angle'
+WALK, INCIDENCE, SCALE = 'range_walk', 'incidence_angle', 'range_scale'
 PAIR = (WALK, INCIDENCE)
 DEGREE = 3                  # the smooth function a driver's part is taken beyond
 MIN_GROUP_POINTS = 20       # a material with fewer keeps its driver about its mean
@@ -112,6 +112,13 @@ def incidence_driver(range_m: np.ndarray, incidence_rad: np.ndarray, log_power: 
     return residual_part(np.asarray(range_m, float) * np.tan(theta), log_power, material)
 
 
+def scale_driver(range_m: np.ndarray, log_power: np.ndarray,
+                 material: np.ndarray) -> np.ndarray:
+    """A range scale's own driver, the range (m), its part a smooth per-material function
+    of ln P does not predict."""
+    return residual_part(np.asarray(range_m, float), log_power, material)
+
+
 def _fit(e: np.ndarray, w: np.ndarray, group: np.ndarray, x: np.ndarray | None):
     """Weighted least squares of ``e`` on per-group offsets (and a common slope on ``x``):
     (per-group offsets as a dict, slope)."""
@@ -175,14 +182,17 @@ def own_part(residual_m: np.ndarray, sigma_m: np.ndarray, group: np.ndarray,
 def both_parts(residual_m, sigma_m, material, log_power, incidence_rad, range_m, fold,
                blocks) -> dict[str, OwnPart]:
     """Each of the pair's own part (``own_part``) on the same points: the walk's on
-    ``walk_driver``, incidence's on ``incidence_driver``."""
+    ``walk_driver``, incidence's on ``incidence_driver``; and a range scale's beyond the
+    power (``scale_driver``), asked of one said beside a walk."""
     material = np.asarray(material, int)
     return {WALK: own_part(residual_m, sigma_m, material,
                            walk_driver(log_power, incidence_rad, material, range_m), fold,
                            blocks),
             INCIDENCE: own_part(residual_m, sigma_m, material,
                                 incidence_driver(range_m, incidence_rad, log_power, material),
-                                fold, blocks)}
+                                fold, blocks),
+            SCALE: own_part(residual_m, sigma_m, material,
+                            scale_driver(range_m, log_power, material), fold, blocks)}
 
 
 def figures_in(pair_z: dict | None) -> dict | None:
@@ -205,11 +215,13 @@ def reads_as_incidence(k_m: float) -> bool:
 
 
 def also_not_shown_words(figures: dict[str, dict], walk: str = WALK) -> str:
-    """The verdict's words where an incidence bias adds on top of a named walk but shows
-    no part of its own (``Diagnosis.incidence_beside_walk``)."""
-    i = figures[INCIDENCE]
-    return (f'{INCIDENCE} gains on top of {walk} too, but shows no part of its own: at a '
-            f'fixed received power its dependence on the incidence gains '
+    """The verdict's words where an incidence bias or a range scale adds on top of a named
+    walk but shows no part of its own (``Diagnosis.also_beside_walk``)."""
+    name = figures.get('also_name', INCIDENCE)
+    i = figures[name]
+    what = 'the incidence' if name == INCIDENCE else 'the range'
+    return (f'{name} gains on top of {walk} too, but shows no part of its own: at a '
+            f'fixed received power its dependence on {what} gains '
             f'{i["gain_per_point"]:.4f} nats/point held out (z = {i["z"]:.1f}), which does '
             f'not pass the rule. What it adds follows the power, as a walk of another law '
             f'in ln P, or one read on a noisy or clipped intensity, leaves it; it is not '
