@@ -1595,6 +1595,8 @@ class Diagnosis(PoseWeighing):
             if best is not None and decision.also is None:
                 lifted = (self.material_beside(best, scored)
                           or self.geometry_beside(best, scored, cands))
+                # Beside a walk, as in ``decide``: a part of its own beyond the power.
+                lifted = self.also_beside_walk(best, lifted, cands, decision.pair_z)
                 if lifted is not None:
                     return replace(decision, also=lifted), scored
             return decision, scored
