@@ -353,3 +353,32 @@ def test_a_range_scale_also_beside_a_walk_must_show_a_part_of_its_own():
     assert 'its dependence on the range gains' in pi.also_not_shown_words(fig)
     shown = {**none, pi.SCALE: pi.OwnPart(0.0300, 9.0, 0.004, N, 0.4)}
     assert OnTop(shown).decide(dg.rank([walk, scale])).also == 'range_scale'
+
+
+def test_a_range_scale_lifted_beside_a_walk_after_the_rivals_must_show_its_part():
+    """The lab's stage target again, the way it went: range_scale is a range term kept
+    out of the default candidates, scored after the walk is named (``weigh_rivals``), not
+    nameable itself, and lifted to 'also' beside the walk by the material split. That
+    path asks the same question: without a part of its own beyond the power, not said."""
+    walk = cand('range_walk', {'k_m': 0.0302, 'power': 'measured'}, 0.1759, 18.0, -2.18, 2)
+    scale = cand('range_scale', {'scale': 0.004}, 0.0789, 13.1, -2.10, 3)
+
+    class Lifting(OwnParts):
+        def scored_with_vetoes(self, classes, attribution=None):
+            return [scale]
+
+        def nameable(self, c):
+            return c is not scale and super().nameable(c)
+
+        def material_beside(self, best, cands):
+            return 'range_scale'
+
+    parts = {pi.WALK: pi.OwnPart(0.0003, 0.4, -0.007, N, 0.2),
+             pi.INCIDENCE: pi.OwnPart(0.0010, 1.3, 0.001, N, 1.3),
+             pi.SCALE: pi.OwnPart(0.0004, 0.9, 0.001, N, 0.4)}
+    named = dg.Decision('range_walk', [], None, {})
+    d, _ = Lifting(parts).weigh_rivals(named, [walk], [type(scale.effect)])
+    assert d.missing == 'range_walk' and d.also is None
+    shown = {**parts, pi.SCALE: pi.OwnPart(0.0300, 9.0, 0.004, N, 0.4)}
+    d, _ = Lifting(shown).weigh_rivals(named, [walk], [type(scale.effect)])
+    assert d.also == 'range_scale'
