@@ -48,7 +48,7 @@ from lidar_sim_ros.compare.report.pose_status import pose_status
 from lidar_sim_ros.compare.model import multiple_returns as mret
 from lidar_sim_ros.compare.model import (crosstalk as xtalk, likelihood as lk,
                                          materials as mat, neighbours, occlusion as occ,
-                                         point_times)
+                                         point_times, pointing)
 from lidar_sim_ros.compare.recording.cepton_pcap import side_bag
 from lidar_sim_ros.compare.recording.intensity import IntensityCalibration, calibrate_intensity
 from lidar_sim_ros.compare.model.fit import at_bounds
@@ -1148,6 +1148,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     pose = (decision.pose if decision.pose is not None else decision.beside_pose
             if decision.beside_pose is not None else pose_test([c.effect for c in named]))
     decision, pose = pose_that_matters(decision, pose, tested_data, meas.cloud[tested.matched])
+    decision, pose = pose_left_to_pointing(decision, pose, cands, diag.finalized, pose_test)
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
@@ -1234,6 +1235,38 @@ def withhold_pose(decision: diagnosis.Decision, pose: pose_error.PoseError, why:
         'test_z': round(pose.z, 2), 'translation_rms_cm': round(pose.size_cm, 3),
         'rotation_rms_deg': round(pose.size_deg, 4)}})
     return replace(decision, pose=None), left
+
+
+def pose_left_to_pointing(decision: diagnosis.Decision, pose: pose_error.PoseError | None,
+                          cands: list, finalized, pose_test
+                          ) -> tuple[diagnosis.Decision, pose_error.PoseError | None]:
+    """The decision and its pose, unless the pose is reported alone (nothing named, no
+    tie) while lasers' pointing offsets (``laser_pointing``, fitted with the beams'
+    common turn) were set aside by a test of their shape (the own part, the tiles) yet
+    gain more than the pose's test and leave it nothing: the pose's test
+    (``pose_test(effects, constant)``, of the kind reported) fails on top of them. The
+    pose then explains no part the lasers' offsets do not (a few beams off their
+    direction read as a turned target on the tiles they hit); it is not claimed, and
+    carries the offsets' name, its figures on top of them and its test's
+    (``left_to_pointing``), its test marked failed. ``finalized(c)``: the candidate
+    fitted on all the diagnosed points (its ``effect``)."""
+    if (not pose_reported(decision, pose) or decision.missing or decision.confounded_with
+            or pose.rate_supported):
+        return decision, pose
+    for c in cands:
+        if (c.effect is None or c.error is not None or c.vetoed is None
+                or pointing.own_part_of(c.variant) is None or not c.significant
+                or not c.practical or not c.score > pose.gain):
+            continue
+        finalized(c)
+        on_top = pose_test([c.effect], constant=bool(pose.constant))
+        if on_top.significant:
+            continue
+        return withhold_pose(decision, pose, 'left_to_pointing', {
+            'named': c.name, 'score': round(float(c.score), 6),
+            'pose_gain_on_top': round(float(on_top.gain), 6),
+            'pose_z_on_top': round(float(on_top.z), 2)})
+    return decision, pose
 
 
 def pose_beyond_a_bound(decision: diagnosis.Decision, pose: pose_error.PoseError | None,
