@@ -1148,7 +1148,8 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     pose = (decision.pose if decision.pose is not None else decision.beside_pose
             if decision.beside_pose is not None else pose_test([c.effect for c in named]))
     decision, pose = pose_that_matters(decision, pose, tested_data, meas.cloud[tested.matched])
-    decision, pose = pose_left_to_pointing(decision, pose, cands, diag.finalized, pose_test)
+    decision, pose = pose_left_to_pointing(decision, pose, cands, diag.finalized, pose_test,
+                                           recast)
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
@@ -1238,23 +1239,28 @@ def withhold_pose(decision: diagnosis.Decision, pose: pose_error.PoseError, why:
 
 
 def pose_left_to_pointing(decision: diagnosis.Decision, pose: pose_error.PoseError | None,
-                          cands: list, finalized, pose_test
+                          cands: list, finalized, pose_test, recast
                           ) -> tuple[diagnosis.Decision, pose_error.PoseError | None]:
     """The decision and its pose, unless the pose is reported alone (nothing named, no
     tie) while lasers' pointing offsets (``laser_pointing``, fitted with the beams'
-    common turn) were set aside by a test of their shape (the own part, the tiles) yet
-    gain more than the pose's test and leave it nothing: the pose's test
-    (``pose_test(effects, constant)``, of the kind reported) fails on top of them. The
-    pose then explains no part the lasers' offsets do not (a few beams off their
-    direction read as a turned target on the tiles they hit); it is not claimed, and
-    carries the offsets' name, its figures on top of them and its test's
-    (``left_to_pointing``), its test marked failed. ``finalized(c)``: the candidate
-    fitted on all the diagnosed points (its ``effect``)."""
+    common turn) were set aside by a test of their shape (the own part, the tiles) or
+    withheld (``Decision.withheld``: a spurious offset at the fit's box on a laser that
+    barely sees the target), and the two are nested one way: the pose's test
+    (``pose_test(effects, constant)``, of the kind reported) fails on top of the
+    offsets, and the offsets still pass the rule on the pose-corrected model
+    (``recast(pose)``: the diagnosis raycast again, scored as the candidates are). The
+    offsets then explain all the pose does and more (a few beams off their direction
+    read as a turned target on the tiles they hit); the pose is not claimed, and
+    carries the offsets' name, the figures both ways and its test's
+    (``left_to_pointing``), its test marked failed. A true pose leaves the offsets
+    nothing once corrected. ``finalized(c)``: the candidate fitted on all the diagnosed
+    points (its ``effect``)."""
     if (not pose_reported(decision, pose) or decision.missing or decision.confounded_with
             or pose.rate_supported):
         return decision, pose
     for c in cands:
-        if (c.effect is None or c.error is not None or c.vetoed is None
+        if (c.effect is None or c.error is not None
+                or (c.vetoed is None and c.name not in (decision.withheld or {}))
                 or pointing.own_part_of(c.variant) is None or not c.significant
                 or not c.practical or not c.score > pose.gain):
             continue
@@ -1262,10 +1268,15 @@ def pose_left_to_pointing(decision: diagnosis.Decision, pose: pose_error.PoseErr
         on_top = pose_test([c.effect], constant=bool(pose.constant))
         if on_top.significant:
             continue
+        on_pose = recast(pose)[0].score(type(c.effect))
+        if not (on_pose.significant and on_pose.practical):
+            continue
         return withhold_pose(decision, pose, 'left_to_pointing', {
             'named': c.name, 'score': round(float(c.score), 6),
             'pose_gain_on_top': round(float(on_top.gain), 6),
-            'pose_z_on_top': round(float(on_top.z), 2)})
+            'pose_z_on_top': round(float(on_top.z), 2),
+            'score_on_pose': round(float(on_pose.score), 6),
+            'z_on_pose': round(float(on_pose.z), 2)})
     return decision, pose
 
 

@@ -99,8 +99,10 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                     f'{_f(to_lasers["test_z"], 1)}), but on top of {to_lasers["named"]} '
                     f'(fitted with the beams\' common turn; {_f(to_lasers["score"])} '
                     f'nats/point) it gains {_f(to_lasers["pose_gain_on_top"])} (z = '
-                    f'{_f(to_lasers["pose_z_on_top"], 1)}), which does not pass the rule: a '
-                    'few beams off their direction read as a turned target, so the pose is '
+                    f'{_f(to_lasers["pose_z_on_top"], 1)}), which does not pass the rule, '
+                    f'while on the corrected pose they still gain '
+                    f'{_f(to_lasers["score_on_pose"])} (z = {_f(to_lasers["z_on_pose"], 1)}): '
+                    'a few beams off their direction read as a turned target, so the pose is '
                     'not claimed', shown)
     left = pose.get('left_by_bound') or pose.get('left_by_stand_in')
     if left:
