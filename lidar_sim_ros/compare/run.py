@@ -1148,8 +1148,6 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     pose = (decision.pose if decision.pose is not None else decision.beside_pose
             if decision.beside_pose is not None else pose_test([c.effect for c in named]))
     decision, pose = pose_that_matters(decision, pose, tested_data, meas.cloud[tested.matched])
-    decision, pose = pose_left_to_pointing(decision, pose, cands, diag.finalized, pose_test,
-                                           recast)
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
@@ -1171,6 +1169,9 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = replace(decision, held_beside=held_beside)
     # The one gate every name passes (missing, tie, also): the rule and the NLL.
     decision = diagnosis.settle(decision, cands, diag.naming_fault)
+    # After the gate: a name it withheld (a fit at its box) leaves the pose alone.
+    decision, pose = pose_left_to_pointing(decision, pose, cands, diag.finalized, pose_test,
+                                           recast)
     diag.fit_together(decision, cands)
     diag.lasers_beside_named(decision, cands)
     named_effect = next((c.effect for c in cands if c.name == decision.missing), None)
