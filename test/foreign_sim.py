@@ -1880,12 +1880,41 @@ INCIDENCE_LAW: tuple[ForeignSpec, ...] = (
 INCIDENCE_LAW_NAMES = frozenset(s.name for s in INCIDENCE_LAW if s.effect == 'incidence_angle')
 
 
+# A few lasers of the 24-laser P-60 pattern off in pointing (pointpose37), the rest
+# exact, on the box bus with fins, held or slowly tumbling at ~9 m, exact poses: some
+# lasers' tiles barely see the target. Right: laser_pointing named (or its tie with
+# laser_bias); wrong: the reference pose claimed off, or another effect alone. By name.
+def _few_turns(turns: dict[int, tuple[float, float]], lasers: int = 24) -> list[float]:
+    """turns_deg (lasers x (az, el) deg, flattened): ``turns`` on their lasers, 0 else."""
+    out = np.zeros((lasers, 2))
+    for k, v in turns.items():
+        out[k] = v
+    return out.ravel().tolist()
+
+
+_FEW = dict(scan='lissajous', lasers=24, fins=True, frames=8, distance_m=9.0,
+            speed_mps=0.0, spin_dps=4.0, precession_dps=1.0)
+POINTING_FEW: tuple[ForeignSpec, ...] = (
+    ForeignSpec('pointing_few_b', 'laser_pointing',
+                {'turns_deg': _few_turns({4: (0.3, 0.0), 12: (0.0, -0.25),
+                                          13: (0.2, 0.15), 20: (-0.2, 0.0)})},
+                seed=701, **_FEW,
+                note='lasers 4, 12, 13, 20 off (0.2-0.3 deg), the rest exact; box bus, fins'),
+    ForeignSpec('pointing_few_c', 'laser_pointing',
+                {'turns_deg': _few_turns({4: (0.0, 0.3), 20: (0.0, 0.3),
+                                          12: (0.0, -0.3), 13: (0.0, -0.3)})},
+                seed=711, **_FEW,
+                note='el +0.3 on lasers 4 and 20, -0.3 on 12 and 13 (no common turn)'),
+)
+
+
 def battery(names: list[str] | None = None) -> list[ForeignSpec]:
     """The battery, or the named datasets of it, of VENDOR, V4, RANGE_OUTSIDE, STANDOFF,
-    COMPENSATED or INCIDENCE_LAW (in that order)."""
+    COMPENSATED, INCIDENCE_LAW or POINTING_FEW (in that order)."""
     if not names:
         return list(BATTERY)
-    every = BATTERY + VENDOR + V4 + RANGE_OUTSIDE + STANDOFF + COMPENSATED + INCIDENCE_LAW
+    every = (BATTERY + VENDOR + V4 + RANGE_OUTSIDE + STANDOFF + COMPENSATED + INCIDENCE_LAW
+             + POINTING_FEW)
     known = {s.name: s for s in every}
     bad = [n for n in names if n not in known]
     if bad:

@@ -48,7 +48,7 @@ from lidar_sim_ros.compare.report.pose_status import pose_status
 from lidar_sim_ros.compare.model import multiple_returns as mret
 from lidar_sim_ros.compare.model import (crosstalk as xtalk, likelihood as lk,
                                          materials as mat, neighbours, occlusion as occ,
-                                         point_times)
+                                         point_times, pointing)
 from lidar_sim_ros.compare.recording.cepton_pcap import side_bag
 from lidar_sim_ros.compare.recording.intensity import IntensityCalibration, calibrate_intensity
 from lidar_sim_ros.compare.model.fit import at_bounds
@@ -1153,6 +1153,9 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = sunlit_decision(decision, sunlight)
     # The one gate every name passes (missing, tie, also): the rule and the NLL.
     decision = diagnosis.settle(decision, cands, diag.naming_fault)
+    # After the gate: a name it withheld (a fit at its box) leaves the pose alone.
+    decision, pose = pose_left_to_pointing(decision, pose, cands, diag.finalized, pose_test,
+                                           recast)
     diag.fit_together(decision, cands)
     diag.lasers_beside_named(decision, cands)
     named_effect = next((c.effect for c in cands if c.name == decision.missing), None)
@@ -1218,6 +1221,48 @@ def withhold_pose(decision: diagnosis.Decision, pose: pose_error.PoseError, why:
         'test_z': round(pose.z, 2), 'translation_rms_cm': round(pose.size_cm, 3),
         'rotation_rms_deg': round(pose.size_deg, 4)}})
     return replace(decision, pose=None), left
+
+
+def pose_left_to_pointing(decision: diagnosis.Decision, pose: pose_error.PoseError | None,
+                          cands: list, finalized, pose_test, recast
+                          ) -> tuple[diagnosis.Decision, pose_error.PoseError | None]:
+    """The decision and its pose, unless the pose is reported alone (nothing named, no
+    tie) while lasers' pointing offsets (``laser_pointing``, fitted with the beams'
+    common turn) were set aside by a test of their shape (the own part, the tiles) or
+    withheld (``Decision.withheld``: a spurious offset at the fit's box on a laser that
+    barely sees the target), and the two are nested one way: the pose's test
+    (``pose_test(effects, constant)``, of the kind reported) fails on top of the
+    offsets, and the offsets still pass the rule on the pose-corrected model
+    (``recast(pose)``: the diagnosis raycast again, scored as the candidates are). The
+    offsets then explain all the pose does and more (a few beams off their direction
+    read as a turned target on the tiles they hit); the pose is not claimed, and
+    carries the offsets' name, the figures both ways and its test's
+    (``left_to_pointing``), its test marked failed. A true pose leaves the offsets
+    nothing once corrected. ``finalized(c)``: the candidate fitted on all the diagnosed
+    points (its ``effect``)."""
+    if (not pose_reported(decision, pose) or decision.missing or decision.confounded_with
+            or pose.rate_supported):
+        return decision, pose
+    for c in cands:
+        if (c.effect is None or c.error is not None
+                or (c.vetoed is None and c.name not in (decision.withheld or {}))
+                or pointing.own_part_of(c.variant) is None or not c.significant
+                or not c.practical or not c.score > pose.gain):
+            continue
+        finalized(c)
+        on_top = pose_test([c.effect], constant=bool(pose.constant))
+        if on_top.significant:
+            continue
+        on_pose = recast(pose)[0].score(type(c.effect))
+        if not (on_pose.significant and on_pose.practical):
+            continue
+        return withhold_pose(decision, pose, 'left_to_pointing', {
+            'named': c.name, 'score': round(float(c.score), 6),
+            'pose_gain_on_top': round(float(on_top.gain), 6),
+            'pose_z_on_top': round(float(on_top.z), 2),
+            'score_on_pose': round(float(on_pose.score), 6),
+            'z_on_pose': round(float(on_pose.z), 2)})
+    return decision, pose
 
 
 def pose_beyond_a_bound(decision: diagnosis.Decision, pose: pose_error.PoseError | None,

@@ -160,6 +160,10 @@ class PoseError:
     # Its test passed, but not beyond a function of range alone
     # (``run.pose_against_range_alone``): not reported (the outcome, its test's figures).
     left_to_range: dict | None = None
+    # Its test passed alone, but fails on top of lasers' pointing offsets that gain more
+    # and were set aside for their shape (``run.pose_left_to_pointing``): not reported
+    # (the offsets' name, the pose on top of them, its test's figures).
+    left_to_pointing: dict | None = None
     # Which parts of the per-cloud correction the data show (``shown_parts``): 'both',
     # 'translation' (no rotation shown: the correction is a translation per cloud),
     # 'attitude' (a rotation per cloud only) or 'either' (the whole passes, neither part
@@ -262,6 +266,8 @@ class PoseError:
                 **({'against_range_alone': self.against_range.as_dict()}
                    if self.against_range is not None else {}),
                 **({'left_to_range': self.left_to_range} if self.left_to_range else {}),
+                **({'left_to_pointing': self.left_to_pointing}
+                   if self.left_to_pointing else {}),
                 **({'parts': {'reported': self.parts, **self.parts_test,
                               'applied': 'the six-parameter fit (per cloud above)'}}
                    if self.parts_test else {}),

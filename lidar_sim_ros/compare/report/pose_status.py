@@ -92,6 +92,18 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                     f'of it {_f(to_range["pose_gain_beyond"])} more, z = '
                     f'{_f(to_range["pose_z_beyond"], 1)}): a range error of the sensor that '
                     'follows range moves the clouds alike, so the pose is not claimed', shown)
+    to_lasers = pose.get('left_to_pointing')
+    if to_lasers:
+        return _out(False, None, f'its test passes alone '
+                    f'({_f(to_lasers["test_gain_per_matched_point"])} nats/point, z = '
+                    f'{_f(to_lasers["test_z"], 1)}), but on top of {to_lasers["named"]} '
+                    f'(fitted with the beams\' common turn; {_f(to_lasers["score"])} '
+                    f'nats/point) it gains {_f(to_lasers["pose_gain_on_top"])} (z = '
+                    f'{_f(to_lasers["pose_z_on_top"], 1)}), which does not pass the rule, '
+                    f'while on the corrected pose they still gain '
+                    f'{_f(to_lasers["score_on_pose"])} (z = {_f(to_lasers["z_on_pose"], 1)}): '
+                    'a few beams off their direction read as a turned target, so the pose is '
+                    'not claimed', shown)
     left = pose.get('left_by_bound') or pose.get('left_by_stand_in')
     if left:
         what = (f'on top of {_join(list(left["effects"]))}, which --fit left at its search '
