@@ -20,9 +20,11 @@ import contextlib
 import io
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
-from foreign_sim import CEPTON_TOPIC, INCIDENCE_LAW_NAMES, V4, ForeignSpec
+from foreign_sim import (CEPTON_TOPIC, INCIDENCE_LAW_NAMES, V4, ForeignSpec, battery,
+                         generate)
 
 from lidar_sim_ros.cli import main
 
@@ -41,10 +43,6 @@ def one_frame_summary(name: str, tmp_path: Path, **options):
     """The battery dataset ``name`` made with one frame under ``tmp_path``, compared once
     in-process (the diagnosis only: no report, no plan; ``options`` to CompareOptions,
     default candidates ['range_walk']): (the dataset, the summary)."""
-    from dataclasses import replace
-
-    from foreign_sim import battery, generate
-
     from lidar_sim_ros.compare import run
 
     ds = generate(replace(battery([name])[0], frames=1), tmp_path / 'd')

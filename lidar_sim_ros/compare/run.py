@@ -41,6 +41,7 @@ from lidar_sim_ros.compare.diagnose import (clock_footing, diagnosis, far_return
                                             line_of_sight, pose_error, range_alone,
                                             region_offset,
                                             row_clock, stamp_place, variants)
+from lidar_sim_ros.compare.diagnose.candidate import _num
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
 from lidar_sim_ros.compare.report import history
@@ -1467,7 +1468,7 @@ class LineOfSight:
                                       r.unmatched)
 
     def fit(self, on_top: list[Effect]) -> line_of_sight.LineOfSightPose:
-        key = tuple(_effect_key(e) for e in on_top)
+        key = lk.effect_key(on_top)
         if key not in self._fits:
             self._fits[key] = line_of_sight.fit(
                 lambda t: self.score(t, on_top), len(self.points), self.blocks,
@@ -1490,16 +1491,8 @@ class LineOfSight:
                        through_materials=False, rate_supported=False,
                        raycast=None if explains is None else {
                            'explains': list(explains),
-                           'fitted_margin_charged': _num_or_none(los.gain),
+                           'fitted_margin_charged': _num(los.gain),
                            'line_of_sight': los.as_dict()})
-
-
-def _effect_key(e: Effect) -> tuple:
-    return (e.name, repr(getattr(e, 'params', None)))
-
-
-def _num_or_none(x: float) -> float | None:
-    return round(float(x), 6) if np.isfinite(x) else None
 
 
 def on_corrected_pose(sample: fit_data.RaySet, pred: Prediction,

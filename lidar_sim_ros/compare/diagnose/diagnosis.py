@@ -774,7 +774,7 @@ class Diagnosis(PoseWeighing):
         # part of any pattern the tiles cut up, an incidence elongation's too.
         also = (also or self.next_beside(best, ok, cands) or self.lasers_beside(best, cands)
                 or self.material_beside(best, cands))
-        also = self.also_beside_walk(best, also, cands, pair_z)
+        also = self.also_beside_walk(best, also, pair_z)
         partner = self.dilation_beside(best, ok, cands, also)
         if partner is None:
             return Decision(best.name, [], also, pair_z)
@@ -882,6 +882,18 @@ class Diagnosis(PoseWeighing):
                 self.matched_blocks)
         return memo[key]
 
+    def own_part_passes(self, part: 'power_incidence.OwnPart') -> bool:
+        """Whether an own part passes the naming rule: its held-out gain over the
+        matched points counted per analysed point, and its z."""
+        return self.passes_rule(part.gain_per_point * part.points / max(self.n_total, 1),
+                                part.z)
+
+    def own_part_figures(self, parts: dict) -> dict:
+        """The own parts' figures for the summary: each one's ``as_dict`` and whether it
+        passes (``own_part_passes``)."""
+        return {n: {**p.as_dict(), 'passes': self.own_part_passes(p)}
+                for n, p in parts.items()}
+
     def power_or_incidence(self, best: Candidate, cands: list[Candidate],
                            pair_z: dict) -> Decision | None:
         """A range walk named where an incidence bias may be named too (``nameable``) must
@@ -910,22 +922,17 @@ class Diagnosis(PoseWeighing):
             parts = self.own_parts(best)
         except Exception:  # noqa: BLE001 - not measured: the decision stands
             return None
-
-        def passes(name: str) -> bool:
-            p = parts[name]
-            return self.passes_rule(p.gain_per_point * p.points / max(self.n_total, 1), p.z)
-
-        figures = {n: {**p.as_dict(), 'passes': passes(n)} for n, p in parts.items()}
+        figures = self.own_part_figures(parts)
         pair_z[other.name] = {**pair_z.get(other.name, {}), 'power_incidence': figures}
         k_m = float(getattr(best.effect.params, 'k_m', 0.0))
         figures['walk_k_m'] = float(f'{k_m:.5g}')
-        if passes(best.name):
+        if figures[best.name]['passes']:
             figures['outcome'] = 'named'
             return None
         if not power_incidence.reads_as_incidence(k_m):
             figures['outcome'] = 'named_by_sign'
             return None
-        if passes(other.name):
+        if figures[other.name]['passes']:
             figures['outcome'] = 'other'
             return Decision(other.name, [], None, pair_z)
         figures['outcome'] = 'tie'
@@ -951,9 +958,7 @@ class Diagnosis(PoseWeighing):
             parts = self.own_parts(SimpleNamespace(effect=walk))
         except Exception:  # noqa: BLE001 - not measured: the decision stands
             return None
-        figures = {n: {**q.as_dict(), 'passes': self.passes_rule(
-            q.gain_per_point * q.points / max(self.n_total, 1), q.z)}
-            for n, q in parts.items()}
+        figures = self.own_part_figures(parts)
         shown = figures[power_incidence.INCIDENCE]['passes']
         figures['beside_model_walk'] = 'shown' if shown else 'not_shown'
         pair_z[best.name] = {**pair_z.get(best.name, {}), 'power_incidence': figures}
@@ -968,16 +973,17 @@ class Diagnosis(PoseWeighing):
                 f'power: model, or one of your own law, before adding an incidence bias')
 
     def also_beside_walk(self, best: Candidate, also: str | None,
-                         cands: list[Candidate], pair_z: dict) -> str | None:
+                         pair_z: dict) -> str | None:
         """``also``, unless it is an incidence bias or a range scale beside a named walk
-        that shows no part of its own (``power_incidence``: its depth, or the range, beyond
-        a smooth function of ln P, by the rule): then None. A walk of another law in ln P, or one read on a noisy or clipped
-        intensity (its k attenuated), leaves a part that follows the power, and the
-        incidence form, which follows the power through the geometry, takes it on top of
-        the walk (an independent lab's walk on raw counts clipped at 4095: the walk named,
-        incidence 'also' on top, its own part 0.0010 nats/point, z 1.3; none in the
-        data). The figures go to ``pair_z[incidence_angle]['power_incidence']``, with
-        ``also``: 'shown' or 'not_shown'."""
+        that shows no part of its own (``power_incidence``: its depth, or the range,
+        beyond a smooth function of ln P, by the rule): then None. A walk of another law
+        in ln P, or one read on a noisy or clipped intensity (its k attenuated), leaves a
+        part that follows the power, and the incidence form, which follows the power
+        through the geometry, takes it on top of the walk (an independent lab's walk on
+        raw counts clipped at 4095: the walk named, incidence 'also' on top, its own part
+        0.0010 nats/point, z 1.3; none in the data). The figures go to the own parts'
+        place in ``pair_z`` (``power_incidence.figures_in``; else ``pair_z[also]``), with
+        ``also``: 'shown' or 'not_shown', and ``also_name``."""
         if also not in (power_incidence.INCIDENCE, power_incidence.SCALE) \
                 or best.name != power_incidence.WALK or best.effect is None:
             return also
@@ -985,13 +991,10 @@ class Diagnosis(PoseWeighing):
             parts = self.own_parts(best)
         except Exception:  # noqa: BLE001 - not measured: the decision stands
             return also
-        p = parts[also]
-        shown = self.passes_rule(p.gain_per_point * p.points / max(self.n_total, 1), p.z)
+        shown = self.own_part_passes(parts[also])
         figures = power_incidence.figures_in(pair_z)
         if figures is None:
-            figures = {n: {**q.as_dict(), 'passes': self.passes_rule(
-                q.gain_per_point * q.points / max(self.n_total, 1), q.z)}
-                for n, q in parts.items()}
+            figures = self.own_part_figures(parts)
             pair_z[also] = {**pair_z.get(also, {}), 'power_incidence': figures}
         figures['also'] = 'shown' if shown else 'not_shown'
         figures['also_name'] = also
@@ -1596,7 +1599,7 @@ class Diagnosis(PoseWeighing):
                 lifted = (self.material_beside(best, scored)
                           or self.geometry_beside(best, scored, cands))
                 # Beside a walk, as in ``decide``: a part of its own beyond the power.
-                lifted = self.also_beside_walk(best, lifted, cands, decision.pair_z)
+                lifted = self.also_beside_walk(best, lifted, decision.pair_z)
                 if lifted is not None:
                     return replace(decision, also=lifted), scored
             return decision, scored

@@ -494,12 +494,6 @@ def pose_words(pose, cands: list = ()) -> str:
                      'per-material offsets)')
     said = f'{pose.words()[0].upper()}{pose.words()[1:]}{what}'
     raycast = getattr(pose, 'raycast', None)
-    if raycast and not raycast.get('line_of_sight'):
-        # Reported on the raycast footing (``Diagnosis.weigh_line_of_sight``,
-        # ``line_of_sight_alone``): its own test did not pass.
-        said += ('. Its own held-out test is linear and leaves grazing rays out, and there it '
-                 'gains no more than a range offset of the sensor would '
-                 f'({pose.gain:.4f} nats/point, z = {pose.z:.1f}); but raycast again with it, ')
     if raycast and raycast.get('line_of_sight'):
         # Weighed on the candidates' footing (``Diagnosis.weigh_on_ray_footing``).
         los = raycast['line_of_sight']
@@ -514,6 +508,12 @@ def pose_words(pose, cands: list = ()) -> str:
                 f'{"they" if len(raycast["explains"]) > 1 else "it"} took the '
                 'perspective of a target recorded nearer or farther, at its limbs. No sensor '
                 'effect is named.')
+    if raycast:
+        # Reported on the raycast footing (``Diagnosis.weigh_line_of_sight``,
+        # ``line_of_sight_alone``): its own test did not pass.
+        said += ('. Its own held-out test is linear and leaves grazing rays out, and there it '
+                 'gains no more than a range offset of the sensor would '
+                 f'({pose.gain:.4f} nats/point, z = {pose.z:.1f}); but raycast again with it, ')
     if raycast and not raycast['explains']:
         return (f'{said}the model fits {raycast["fitted_margin_charged"]:.4f} nats/point '
                 'better than without it as --fit leaves them, its six parameters charged, '
@@ -927,8 +927,10 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     if best is not None and best.vetoed:
         why = f' The best candidate, {best.name}, is set aside: {best.vetoed}.'
     elif kept:
-        # Withheld by the diagnosis (``Decision.withheld``): its reason, in its figures.
-        why = f' The best candidate, {best.name}, is not named: {kept}.'
+        # Withheld by the diagnosis (``Decision.withheld``): it explains the residual by
+        # the rule's gain, so what keeps it is said, not "noise".
+        return (f'No catalogue effect is named. The best candidate, {best.name}, is not '
+                f'named: {kept}.')
     elif along.get('pose_line_of_sight') and not along.get('passes_on_pose'):
         return line_of_sight_words(best)
     elif best is not None and best.practical and fault:
@@ -937,9 +939,6 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
         why = (f' The best candidate, {best.name}, gains {best.score:.4f} nats/point held out '
                f'(z = {best.z:.1f}), less than the {diagnosis.MIN_PRACTICAL_GAIN:g} nats/point '
                'that would matter (an RMS change of the expected range of 10 % of the noise).')
-    if kept and not (best is not None and best.vetoed):
-        # It explains the residual by the rule's gain; what keeps it is said, not "noise".
-        return 'No catalogue effect is named.' + why
     if attribution is not None and attribution.significant:
         return ('No catalogue effect explains it by a margin that matters.' + why
                 + ' The missing physics is outside the catalogue: write an effect '
