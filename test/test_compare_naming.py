@@ -1613,3 +1613,28 @@ def test_a_footprint_does_not_stand_in_by_its_z_alone():
                        _on(base, 0.0109, 1, z=7.0),
                    (s_i, 'range_walk'): _on(base, 0.0203, 4, z=1.1)})
     assert hand.decide(dg.rank([walk, solar, inc])).missing == 'solar_background'
+
+
+@pytest.mark.parametrize('second_z, says', [(3.7, 'that passes the z test'), (None, None)])
+def test_nothing_named_says_the_candidate_that_gains_most_though_not_significant(second_z,
+                                                                                 says):
+    """Nothing named; the candidate that gains most fails the z test. The verdict does not
+    call a smaller-gaining one 'the best candidate' without saying that the first gains
+    more, and why it still is not named."""
+    att = SimpleNamespace(features=[], driver=None, confounded=[], significant=False,
+                          structure_gain=0.0)
+    top = cand('time_offset', 0.0052, -2.03, significant=False)
+    top.z = 2.07
+    cands = [top]
+    if second_z is not None:
+        low = cand('laser_bias', 0.0040, -2.026, seed=1)
+        low.z = second_z
+        cands.append(low)
+    text = vd.verdict(_summary(), att, cands, dg.Decision(None, []))
+    assert 'up to noise' in text
+    assert 'time_offset' in text and 'not significantly (z = 2.1' in text
+    if says:
+        assert f'The best candidate {says}, laser_bias, gains 0.0040' in text
+        assert 'time_offset gains more (0.0052' in text
+    else:
+        assert 'The best candidate, time_offset, gains 0.0052' in text

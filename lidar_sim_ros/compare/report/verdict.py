@@ -939,6 +939,20 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
         why = (f' The best candidate, {best.name}, gains {best.score:.4f} nats/point held out '
                f'(z = {best.z:.1f}), less than the {diagnosis.MIN_PRACTICAL_GAIN:g} nats/point '
                'that would matter (an RMS change of the expected range of 10 % of the noise).')
+    louder = _louder_but_noisy(cands, best)
+    if louder is not None:
+        # The one ranked first on its gain fails the z: "the best candidate" above is the
+        # best of those that pass it, so the one that gains more is said too.
+        noisy = (f'(z = {louder.z:.1f}, below the rule\'s bound for the candidates tried): '
+                 'a gain that size is within what noise gives here.')
+        if why:
+            why = why.replace(' The best candidate,', ' The best candidate that passes the '
+                              'z test,', 1)
+            why += (f' {louder.name} gains more ({louder.score:.4f} nats/point held out) but '
+                    f'not significantly {noisy}')
+        else:
+            why = (f' The best candidate, {louder.name}, gains {louder.score:.4f} nats/point '
+                   f'held out but not significantly {noisy}')
     if attribution is not None and attribution.significant:
         return ('No catalogue effect explains it by a margin that matters.' + why
                 + ' The missing physics is outside the catalogue: write an effect '
@@ -951,6 +965,17 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     beside = f' once the {" and ".join(left_out)} below are left out' if left_out else ''
     return ('No catalogue effect improves the held-out likelihood by a margin that matters: '
             f'the model matches the measurements up to noise{beside}.' + why)
+
+
+def _louder_but_noisy(cands: list, best):
+    """The candidate ranked first on its held-out gain when it does not pass the z test
+    and gains more than ``best`` (the best that passes it, or None), else None."""
+    top = next((c for c in diagnosis.rank(cands) if c.error is None), None)
+    if top is None or top is best or top.significant or not top.practical:
+        return None
+    if best is not None and top.score <= best.score:
+        return None
+    return top
 
 
 def same_part_rival(summary: dict) -> tuple[str | None, str | None]:
