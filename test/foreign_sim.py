@@ -688,6 +688,9 @@ class ForeignSpec:
     # this far from the true one in the lidar frame (m; +x is the boresight, the line of
     # sight), the same in every pose.
     pose_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # A tracking lag growing within each scan, tied to the motion: the pose recorded at t
+    # is the true one at t - pose_lag_s u (u: 0 at the scan's start, 1 at its end).
+    pose_lag_s: float = 0.0
     frame_gap_s: float = 0.0             # time between cloud starts; 0: back to back
     scan_freq_scale: float = 1.0         # 'lissajous' scan: its frequencies x this
     max_range_m: float = 150.0           # the end of the range gate (m)
@@ -1413,7 +1416,12 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
     with BagWriter(bag, storage=spec.storage) as writer:
         span = (spec.frames - 1) * gap + period
         t_pose = np.arange(-0.2, span + 0.2, 1.0 / spec.pose_rate_hz)
-        rot, pos = traj.at(t_pose)
+        t_true = t_pose
+        if spec.pose_lag_s > 0:
+            k = np.clip(np.floor(t_pose / gap).astype(int), 0, spec.frames - 1)
+            u = np.clip((t_pose - k * gap) / period, 0.0, 1.0)
+            t_true = t_pose - spec.pose_lag_s * u
+        rot, pos = traj.at(t_true)
         pos_sigma_m, att_sigma_deg = spec.pose_noise
         if pos_sigma_m > 0 or att_sigma_deg > 0:
             noise = np.random.default_rng([spec.seed, 29])
