@@ -336,8 +336,14 @@ class PoseError:
                         f'{self.size_deg:.2f} deg on average over the scan{where}, and it '
                         f'drifts within each cloud {self.drift_words()}, the same in every '
                         'cloud (one correction for the whole recording and one rate over '
-                        'the scan, from the point times: a tracking pose sampled once a '
-                        'cloud and held while the target moves; held-out gain over '
+                        'the scan, from the point times'
+                        + (', along the target\'s own motion: a tracking pose that lags '
+                           'more and more over each scan, or one sampled once a cloud and '
+                           'held while the target moves'
+                           if (self.along_motion or {}).get('supported') else
+                           ': a tracking pose sampled once a cloud and held while the '
+                           'target moves')
+                        + '; held-out gain over '
                         f'the rigid correction {self.rate_gain:.4f} nats/point, '
                         f'z = {self.rate_z:.1f})')
             return (f'the reference pose is off by about {self.size_cm:.1f} cm and '
