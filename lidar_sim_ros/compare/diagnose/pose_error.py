@@ -65,7 +65,6 @@ from typing import Callable, TypeVar
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from lidar_sim_ros.core.effects.time_offset import TimeOffset
 from lidar_sim_ros.core.pose import Poses
 
 from lidar_sim_ros.compare.model import likelihood as lk
@@ -135,10 +134,6 @@ class PoseError:
     # the sensor growing over each scan (``range_over_scan``): the two cannot be told
     # apart (its figures; None where not asked or told apart).
     scan_tie: dict | None = None
-    # One rate for the recording along the target's motion (``motion_column``): the
-    # drift of a pose read later and later over each scan (a tracking lag tied to the
-    # motion), one parameter on tau whole; its figures (None where not asked).
-    along_motion: dict | None = None
     # Per cloud: one range offset per cloud (a sensor's range offset changing between
     # clouds, ``per_cloud_offset_columns``), its held-out gain and z, and the rigid
     # correction's gain over it (nested, on the same halves). A correction that gains
@@ -288,8 +283,6 @@ class PoseError:
                'z': round(self.rate_z, 3)}
         if self.scan_tie is not None:
             out['tied_with_range_over_scan'] = self.scan_tie
-        if self.along_motion is not None:
-            out['along_motion'] = self.along_motion
         if self.rate_supported and self.rate_translation_mps is not None and self.constant:
             v = np.asarray(self.rate_translation_mps, float)[0]
             w = np.asarray(self.rate_rotation_deg_s, float)[0]
@@ -336,14 +329,8 @@ class PoseError:
                         f'{self.size_deg:.2f} deg on average over the scan{where}, and it '
                         f'drifts within each cloud {self.drift_words()}, the same in every '
                         'cloud (one correction for the whole recording and one rate over '
-                        'the scan, from the point times'
-                        + (', along the target\'s own motion: a tracking pose that lags '
-                           'more and more over each scan, or one sampled once a cloud and '
-                           'held while the target moves'
-                           if (self.along_motion or {}).get('supported') else
-                           ': a tracking pose sampled once a cloud and held while the '
-                           'target moves')
-                        + '; held-out gain over '
+                        'the scan, from the point times: a tracking pose sampled once a '
+                        'cloud and held while the target moves; held-out gain over '
                         f'the rigid correction {self.rate_gain:.4f} nats/point, '
                         f'z = {self.rate_z:.1f})')
             return (f'the reference pose is off by about {self.size_cm:.1f} cm and '
@@ -640,30 +627,6 @@ def rate_columns(a: np.ndarray, tau: np.ndarray) -> np.ndarray:
     return np.hstack([a, a * np.asarray(tau, float)[:, None]])
 
 
-MOTION_STEP_S = 0.01     # the later pose read for the target's motion (s): a finite step
-
-
-def motion_column(data: lk.FitData, effects: list, expected_m: np.ndarray,
-                  ok: np.ndarray) -> np.ndarray:
-    """(N,) the range change per second (m/s) at each matched point of ``data`` were the
-    reference pose read later (the target's own motion: the model with a further
-    MOTION_STEP_S clock offset on top of ``effects`` less ``expected_m``, the model
-    without, divided by the step); 0 where either does not place the point (``ok``)."""
-    later = lk.model_on_rays(data, [*effects, TimeOffset({'dt_s': MOTION_STEP_S})])
-    keep = ok & later.placed & np.isfinite(later.expected_range_m)
-    return np.where(keep, (np.where(keep, later.expected_range_m, 0.0)
-                           - np.where(keep, expected_m, 0.0)) / MOTION_STEP_S, 0.0)
-
-
-def motion_rate(a: np.ndarray, motion_mps: np.ndarray, sigma_m: np.ndarray,
-                use: np.ndarray) -> np.ndarray:
-    """(6,) the target's rigid motion per second that ``motion_mps`` (m/s per point) is:
-    velocity (m/s) and angular velocity (rad/s) about the centroid of ``a``'s columns,
-    fitted by weighted least squares on the ``use`` points."""
-    w = np.where(use, 1.0 / np.asarray(sigma_m, float), 0.0)
-    return np.linalg.lstsq(a * w[:, None], motion_mps * w, rcond=None)[0]
-
-
 @dataclass(frozen=True)
 class PoseCorrection:
     """A rigid correction per cloud of the recorded target pose, lidar frame:
@@ -926,21 +889,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # not fix (``beyond_direction``); estimated on tau whole.
     tau_beyond = beyond_direction(tau, ctx.direction, use) if rate and constant else None
     a12t = rate_columns(a, tau_beyond) if rate and constant else a12
-    # And one parameter along the target's motion on tau whole (``motion_column``): a
-    # pose read later and later over each scan, which no pattern over the directions
-    # makes where the target moves (its padding keeps ``fit_clouds``' blocks of six).
-    motion, a_lag = None, None
-    if rate and constant:
-        raw = motion_column(data, list(effects or []), model.expected_range_m, ok)
-        # The target's rigid motion from the rays a small step leaves on their surface
-        # (a ray the later pose puts across a silhouette changes by metres), then its
-        # linear column at every ray, as the rigid correction's.
-        smooth = use & (raw != 0.0) & (np.abs(raw) * MOTION_STEP_S <= s)
-        motion = a @ motion_rate(a, raw, s, smooth) if smooth.sum() > 12 else np.zeros(len(a))
-        a_lag = np.hstack([a, (motion * tau)[:, None], np.zeros((len(a), 5))])
     prior = None if applied is None else applied.params(clouds)
     prior12 = None if applied is None else applied.params(clouds, rate=True)
-    prior_lag = None if prior is None else np.hstack([prior, np.zeros((len(prior), 6))])
     # Jointly with the material offsets for one correction for the recording only: a
     # common offset of the materials is the same in every cloud, and per cloud the
     # joint fit would move each cloud along the line of sight on the pattern alone.
@@ -978,8 +928,6 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
     gain_scan = np.zeros(len(r))      # a range offset over the scan instead (constant, rate)
-    gain_lag, gain_lag_t = np.zeros(len(r)), np.zeros(len(r))   # along the motion
-    gain_scan_w = np.zeros(len(r))    # the range offset over the scan on tau whole
     # A function of range alone instead (``range_alone.range_fit``), and the correction
     # on top of it (nested: the pose beyond range alone), rigid and with the rate.
     gain_rng, gain_wr, gain12_wr = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
@@ -1014,17 +962,6 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         if rate and constant:
             over_scan = range_over_scan(tau_beyond, r, s, group, train)
             gain_scan[test] = heldout_gain(r[test], over_scan[test], s[test])
-            over_scan = range_over_scan(tau, r, s, group, train)
-            gain_scan_w[test] = heldout_gain(r[test], over_scan[test], s[test])
-            x7 = fit_clouds(a_lag, r, s, cloud, train, clouds, prior_lag, TEST_RIDGE, group)
-            corr7 = with_offsets(np.einsum('ij,ij->i', a_lag, x7[row]), r, group, train)
-            gain_lag[test] = heldout_gain(r[test], corr7[test], s[test])
-            if through is not None:
-                x7 = fit_clouds(a_lag, r + offset, s, cloud, train, clouds, prior_lag,
-                                TEST_RIDGE)
-                corr7 = with_offsets(np.einsum('ij,ij->i', a_lag, x7[row]), r, materials,
-                                     train)
-                gain_lag_t[test] = heldout_gain(r[test], corr7[test], s[test])
         if rate:
             x12 = fit_clouds(a12t, r, s, cloud, train, clouds, prior12, TEST_RIDGE, group)
             corr12 = with_offsets(np.einsum('ij,ij->i', a12t, x12[row]), r, group, train)
@@ -1041,7 +978,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         per_point_t, z_t = judged(gain_t)
         if per_point_t > per_point - min_gain:
             per_point, z = per_point_t, z_t
-            gain, gain12, gain_lag = gain_t, gain12_t, gain_lag_t
+            gain, gain12 = gain_t, gain12_t
         else:
             through = None
     rate_gain, rate_z = judged(gain12 - gain) if rate else (0.0, 0.0)
@@ -1052,13 +989,10 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # so on its own the rate is six more spatial patterns per cloud, which a sensor's
     # own pattern (a bias periodic in azimuth) would pass for.
     rigid_passes = z >= z_crit and per_point >= min_gain
-    scan_tie, along = None, None
+    scan_tie = None
     if constant:
         supported = bool(rate and constant_rate_supported(
             (rate_gain, rate_z), judged(gain12), z_crit, min_gain))
-        if rate and not supported:
-            along = along_motion_test(judged(gain_lag - gain), judged(gain_lag),
-                                      judged(gain_lag - gain_scan_w), z_crit, min_gain)
         if supported:
             # Along the line of sight one rate of the pose is a range offset of the sensor
             # growing over each scan: claimed only if it gains beyond that, by the rule.
@@ -1083,12 +1017,9 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         rate_parts_test.update(
             rotation_bound_deg=round(2 * rate_parts_test['rotation_bound_deg'], 4),
             translation_bound_cm=round(2 * rate_parts_test['translation_bound_cm'], 3))
-    lag = along is not None and along['supported']
-    if lag:
-        supported, rate_gain, rate_z = True, *judged(gain_lag - gain)
     if supported:
         # The drifting correction against none: the test of what is reported.
-        per_point, z = judged(gain_lag if lag else gain12)
+        per_point, z = judged(gain12)
     # The correction as reported against range alone, and on top of it, on the same
     # points (``range_alone.PoseAgainstRange``).
     against_range = range_alone.PoseAgainstRange(
@@ -1096,13 +1027,7 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         *judged((gain12_wr if supported else gain_wr) - gain_rng),
         judged((gain12 if supported else gain) - gain_rng)[0])
     cols = a12 if supported else a
-    if lag:
-        # The rate along the motion: its one parameter times the target's motion.
-        x7 = fit_clouds(a_lag, r + offset if through is not None else r, s, cloud, use,
-                        clouds, prior_lag, ridge, group)
-        x = np.hstack([x7[:, :6], x7[:, 6:7] * motion_rate(a, motion, s, use)[None, :]])
-        # (``motion`` is ``a`` times one twist: the rate is the lag's share of it.)
-    elif constant and supported:
+    if constant and supported:
         # One correction for the recording and its rate, on the rigid one's footing.
         x = fit_clouds(a12, r + offset if through is not None else r, s, cloud, use,
                        clouds, prior12, ridge, group)
@@ -1126,7 +1051,6 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      t_centre_s=t_c, half_span_s=h_c, constant=constant,
                      joint=joint is not None, through_materials=through is not None,
                      scan=scan if constant and rate else None, scan_tie=scan_tie,
-                     along_motion=along,
                      offset_gain=offset_gain, offset_z=offset_z,
                      beyond_offset_gain=beyond_gain, beyond_offset_z=beyond_z,
                      against_range=against_range,
@@ -1173,26 +1097,6 @@ def constant_rate_supported(rate: tuple[float, float], drifting: tuple[float, fl
     offset takes, so that the rigid test sees little of it alone."""
     return bool(rate[1] >= z_crit and rate[0] >= min_gain
                 and drifting[1] >= z_crit and drifting[0] >= min_gain)
-
-
-def along_motion_test(over_rigid: tuple[float, float], drifting: tuple[float, float],
-                      beyond_scan: tuple[float, float], z_crit: float,
-                      min_gain: float) -> dict:
-    """Whether one rate for the recording along the target's motion (``motion_column``
-    times tau, one parameter) stands: on top of the rigid correction (``over_rigid``),
-    the drifting correction against none (``drifting``) and beyond a range offset of the
-    sensor growing over each scan (``beyond_scan``), each by the rule (nats per matched
-    point, z). Tau whole, not beyond the direction: a sensor's pattern over the field of
-    view is no motion of the target, and one parameter whose column follows the target's
-    motion cannot take a pattern the six free rate parameters took (an encoder's bias
-    periodic in azimuth on a raster)."""
-    def passes(fig):
-        return bool(fig[1] >= z_crit and fig[0] >= min_gain)
-    return {'supported': passes(over_rigid) and passes(drifting) and passes(beyond_scan),
-            'gain_over_rigid': round(over_rigid[0], 6), 'z': round(over_rigid[1], 2),
-            'drifting_gain': round(drifting[0], 6), 'drifting_z': round(drifting[1], 2),
-            'beyond_range_over_scan_gain': round(beyond_scan[0], 6),
-            'beyond_range_over_scan_z': round(beyond_scan[1], 2)}
 
 
 def pose_time_s(t_s: np.ndarray, effects: list) -> np.ndarray:
