@@ -106,3 +106,15 @@ def test_a_range_growing_over_the_scan_beside_a_clock_is_no_growth_of_the_clock(
         on = _footing('clock_rows', seed)
         assert on.clock_passes and not on.drift_passes, on
         assert on.drift_beyond_range_z < 3.0, on
+
+
+def test_the_tie_says_the_pose_is_read_later_within_each_scan():
+    """The tie's words, where the clock's growth over the scan passed: the pose read later
+    and later within each scan, no constant clock offset; else the per-cloud pose's."""
+    from lidar_sim_ros.compare.report.verdict import clock_off_footing_words
+    lag = _footing('lag', 5).as_dict()
+    words = clock_off_footing_words(lag, '')
+    assert 'later and later within each scan' in words and 'no' in words
+    assert f'{lag["drift_gain"]:.4f}' in words
+    clock = _footing('clock', 5).as_dict()
+    assert 'later and later' not in clock_off_footing_words(clock, '')
