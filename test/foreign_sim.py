@@ -1718,13 +1718,17 @@ V4: tuple[ForeignSpec, ...] = (
                 expected=None, note='the same, ~2 cm at the body end'),
     # A tracking lag tied to the motion (the fifteenth holdout's lag5): the pose recorded
     # at t is the true one at t - 96 ms x u, u the place in the scan (0..1); a 20 deg/s
-    # tumble, and a 6 deg/s one on a 1 m/s approach; point times in a field.
+    # tumble, and a 6 deg/s one on a 1 m/s approach; point times in a field. On the
+    # P-60 Lissajous, which meets a direction at several times within the scan: on a
+    # raster, whose rows fix the time, the drift is a pattern over the directions to
+    # first order (docs/compare.md, "A tracking lag growing over each scan").
     ForeignSpec('pose_lag', None, seed=83, frames=8, spin_dps=20.0, pose_lag_s=0.096,
-                pose_rate_hz=1000.0, shots_per_frame=12_000, expected=None,
+                pose_rate_hz=1000.0, shots_per_frame=12_000, scan='lissajous',
+                expected=None,
                 note='reference pose lagging 0 -> 96 ms over each scan, 20 deg/s tumble'),
     ForeignSpec('pose_lag_approach', None, seed=84, frames=8, spin_dps=6.0, speed_mps=1.0,
                 pose_lag_s=0.096, pose_rate_hz=1000.0, shots_per_frame=12_000,
-                expected=None,
+                scan='lissajous', expected=None,
                 note='the same lag on a 1 m/s approach, 6 deg/s tumble'),
     # The sensor warming up: its range offset settles toward +6 cm (tau 60 s), a cloud
     # every 6 s for a minute, the target held at 10 m.
