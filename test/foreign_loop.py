@@ -272,7 +272,7 @@ def judge_v4(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
     # So is the tie of a pose drifting within the cloud with the clock offset that moves a
     # rigid target alike, said where the clock shows only on rays the pose test cannot
     # weigh (``clock_footing``): no name, the loop ends there.
-    honest_tie = honest_tie or (base.startswith('pose_drift')
+    honest_tie = honest_tie or (base.startswith(('pose_drift', 'pose_lag'))
                                 and answer == 'tie:pose_error+time_offset')
     if (last.get('missing_effect') is not None or last.get('reference_pose_off')
             or last.get('confounded_with')) and not (honest_tie and last is first):
@@ -289,6 +289,14 @@ def judge_v4(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
         rate = ((first.get('reference_pose') or {}).get('rate') or {})
         if base == 'pose_drift_within_large' and not rate.get('supported'):
             why.append('the within-cloud rate was not found')
+    elif base.startswith('pose_lag'):
+        # A lag growing over each scan: the pose reported with its drift within the scan,
+        # or the honest tie with the clock; the clock named alone is a phantom (above).
+        rate = ((first.get('reference_pose') or {}).get('rate') or {})
+        if not (answer == 'tie:pose_error+time_offset'
+                or (first.get('reference_pose_off') and rate.get('supported'))):
+            why.append(f'first answer {answer}: the pose drifting within each scan was '
+                       'neither reported with its rate nor tied with the clock')
     elif base.startswith('extrinsic'):
         # One correction for the recording, about the size of the error, nothing named.
         truth_cm = 100 * sum(x * x for x in spec.pose_offset_m) ** 0.5

@@ -688,6 +688,9 @@ class ForeignSpec:
     # this far from the true one in the lidar frame (m; +x is the boresight, the line of
     # sight), the same in every pose.
     pose_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # A tracking lag growing within each scan, tied to the motion: the pose recorded at t
+    # is the true one at t - pose_lag_s u (u: 0 at the scan's start, 1 at its end).
+    pose_lag_s: float = 0.0
     frame_gap_s: float = 0.0             # time between cloud starts; 0: back to back
     scan_freq_scale: float = 1.0         # 'lissajous' scan: its frequencies x this
     max_range_m: float = 150.0           # the end of the range gate (m)
@@ -1413,7 +1416,12 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
     with BagWriter(bag, storage=spec.storage) as writer:
         span = (spec.frames - 1) * gap + period
         t_pose = np.arange(-0.2, span + 0.2, 1.0 / spec.pose_rate_hz)
-        rot, pos = traj.at(t_pose)
+        t_true = t_pose
+        if spec.pose_lag_s > 0:
+            k = np.clip(np.floor(t_pose / gap).astype(int), 0, spec.frames - 1)
+            u = np.clip((t_pose - k * gap) / period, 0.0, 1.0)
+            t_true = t_pose - spec.pose_lag_s * u
+        rot, pos = traj.at(t_true)
         pos_sigma_m, att_sigma_deg = spec.pose_noise
         if pos_sigma_m > 0 or att_sigma_deg > 0:
             noise = np.random.default_rng([spec.seed, 29])
@@ -1708,6 +1716,20 @@ V4: tuple[ForeignSpec, ...] = (
     ForeignSpec('pose_drift_within_small', None, seed=72, frames=5,
                 pose_error_ramp=(0.0, 0.35), pose_rate_hz=1000.0, shots_per_frame=12_000,
                 expected=None, note='the same, ~2 cm at the body end'),
+    # A tracking lag tied to the motion (the fifteenth holdout's lag5): the pose recorded
+    # at t is the true one at t - 96 ms x u, u the place in the scan (0..1); a 20 deg/s
+    # tumble, and a 6 deg/s one on a 1 m/s approach; point times in a field. On the
+    # P-60 Lissajous, which meets a direction at several times within the scan: on a
+    # raster, whose rows fix the time, the drift is a pattern over the directions to
+    # first order (docs/compare.md, "A tracking lag growing over each scan").
+    ForeignSpec('pose_lag', None, seed=83, frames=8, spin_dps=20.0, pose_lag_s=0.096,
+                pose_rate_hz=1000.0, shots_per_frame=12_000, scan='lissajous',
+                expected=None,
+                note='reference pose lagging 0 -> 96 ms over each scan, 20 deg/s tumble'),
+    ForeignSpec('pose_lag_approach', None, seed=84, frames=8, spin_dps=6.0, speed_mps=1.0,
+                pose_lag_s=0.096, pose_rate_hz=1000.0, shots_per_frame=12_000,
+                scan='lissajous', expected=None,
+                note='the same lag on a 1 m/s approach, 6 deg/s tumble'),
     # The sensor warming up: its range offset settles toward +6 cm (tau 60 s), a cloud
     # every 6 s for a minute, the target held at 10 m.
     ForeignSpec('range_drift', 'range_drift', {'a_m': 0.06, 'tau_s': 60.0}, seed=73,

@@ -19,8 +19,15 @@ its rate within the cloud where the points carry their own times) on the same ra
 * the clock alone (held out, nats per matched point, z over blocks);
 * the per-cloud pose alone;
 * each on top of the other (nested, the same halves).
+* where the points carry their own times, the clock growing over each cloud's scan on
+  top of the clock (its column and the same scaled by tau, the point's time within its
+  cloud), and on top of the clock and a range offset growing over the scan (the
+  sensor's own, which the growth must not be): a pose read later and later over each
+  scan (a tracking lag tied to the motion) is a clock offset at its mean and this
+  growth, which no constant clock offset makes (``drift_*``).
 The clock stands (``stands``) where it passes the rule on that footing (z at the
-family's bound, at least ``min_gain``) and the pose does not pass on top of it: then it
+family's bound, at least ``min_gain``), the pose does not pass on top of it and the
+clock's growth over the scan does not either: then it
 is shown where the pose is weighed too, and the pose adds nothing there. Else the clock
 is shown only on rays where the pose cannot be weighed, or the pose does as well: the
 two cannot be told apart on this recording (a tie, ``Diagnosis.clock_off_footing``).
@@ -54,11 +61,18 @@ class ClockFooting:
     rate: bool                      # the pose with its rate within each cloud
     clock_passes: bool
     pose_passes_over_clock: bool
+    drift_gain: float = 0.0         # the clock growing over the scan, on top of the clock
+    drift_z: float = 0.0
+    drift_beyond_range_gain: float = 0.0   # ... and on top of a range line over the scan
+    drift_beyond_range_z: float = 0.0
+    drift_passes: bool = False
 
     @property
     def stands(self) -> bool:
-        """The clock is shown where the pose is weighed, and the pose adds nothing."""
-        return bool(self.clock_passes and not self.pose_passes_over_clock)
+        """The clock is shown where the pose is weighed, and neither the pose nor the
+        clock's growth over the scan adds anything."""
+        return bool(self.clock_passes and not self.pose_passes_over_clock
+                    and not self.drift_passes)
 
     def as_dict(self) -> dict:
         return {'clock_gain': round(self.clock_gain, 6), 'clock_z': round(self.clock_z, 2),
@@ -70,6 +84,10 @@ class ClockFooting:
                 'rays': self.rays, 'matched': self.matched, 'rate': self.rate,
                 'clock_passes': self.clock_passes,
                 'pose_passes_over_clock': self.pose_passes_over_clock,
+                'drift_gain': round(self.drift_gain, 6), 'drift_z': round(self.drift_z, 2),
+                'drift_beyond_range_gain': round(self.drift_beyond_range_gain, 6),
+                'drift_beyond_range_z': round(self.drift_beyond_range_z, 2),
+                'drift_passes': self.drift_passes,
                 'stands': self.stands}
 
 
@@ -111,6 +129,7 @@ def clock_on_pose_footing(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     if use.sum() < 2:
         return empty
     c = np.where(use, c, 0.0)[:, None]
+    tau = None
     if rate:
         tau, _, h_c = pose_error.time_scale(t_s, cloud, np.unique(cloud))
         rate = bool(np.any(h_c > 1e-9))
@@ -118,6 +137,10 @@ def clock_on_pose_footing(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
             a = pose_error.rate_columns(a, tau)
     p = per_cloud_columns(np.where(use[:, None], a, 0.0), cloud)
     models = {'clock': c, 'pose': p, 'both': np.hstack([c, p])}
+    if rate:
+        line = np.where(use, tau, 0.0)[:, None]
+        models.update({'drift': np.hstack([c, c * line]), 'line': np.hstack([c, line]),
+                       'drift_line': np.hstack([c, line, c * line])})
     half = np.random.default_rng([seed, pose_error.HALVES_SEED]).integers(0, 2, n)
     gain = {k: np.zeros(n) for k in models}
     for k in (0, 1):
@@ -135,6 +158,11 @@ def clock_on_pose_footing(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     clock, pose = judged(gain['clock']), judged(gain['pose'])
     clock_over = judged(gain['both'] - gain['pose'])
     pose_over = judged(gain['both'] - gain['clock'])
+    drift = beyond = (0.0, 0.0)
+    if rate:
+        drift = judged(gain['drift'] - gain['clock'])
+        beyond = judged(gain['drift_line'] - gain['line'])
     return ClockFooting(clock[0], clock[1], pose[0], pose[1], clock_over[0], clock_over[1],
                         pose_over[0], pose_over[1], int(use.sum()), n, rate,
-                        passes(clock), passes(pose_over))
+                        passes(clock), passes(pose_over), drift[0], drift[1], beyond[0],
+                        beyond[1], bool(rate and passes(drift) and passes(beyond)))

@@ -779,7 +779,12 @@ def rolling_rows_words(rows: dict, pose_part: str, held: str, clock) -> str:
 def clock_off_footing_words(on: dict, held: str, plan: bool = False) -> str:
     """The tie of a clock offset with a pose drifting within the cloud, the clock not
     shown on the rays the pose is tested on (``clock_footing.ClockFooting.as_dict``)."""
-    if on.get('clock_passes'):
+    if on.get('clock_passes') and on.get('drift_passes'):
+        there = (f'the clock growing over each scan gains {on["drift_gain"]:.4f} nats/point '
+                 f'on top of it there (z = {on["drift_z"]:.1f}): the pose is read later and '
+                 'later within each scan (a tracking lag that grows over the scan), which no '
+                 'constant clock offset makes, and the clock offset stands for its mean')
+    elif on.get('clock_passes'):
         there = (f'the per-cloud pose gains {on["pose_over_clock_gain"]:.4f} nats/point on '
                  f'top of it there (z = {on["pose_over_clock_z"]:.1f})')
     else:
