@@ -67,7 +67,7 @@ def test_pose_alone_not_claimed_where_set_aside_pointing_leaves_it_nothing():
     assert left.as_dict()['left_to_pointing']['named'] == 'laser_pointing'
     status = pose_status(left.as_dict(), kept, [], [])
     assert not status['reported'] and 'laser_pointing' in status['reported_because']
-    assert pointing.own_part_of(c.variant) is not None
+    assert pointing.turn_of(c.variant) is not None
 
 
 def test_pose_kept_where_it_passes_on_top_or_pointing_is_named_or_weaker():
