@@ -1247,7 +1247,7 @@ def pose_left_to_pointing(decision: diagnosis.Decision, pose: pose_error.PoseErr
     for c in cands:
         if (c.effect is None or c.error is not None
                 or (c.vetoed is None and c.name not in (decision.withheld or {}))
-                or pointing.own_part_of(c.variant) is None or not c.significant
+                or pointing.turn_of(c.variant) is None or not c.significant
                 or not c.practical or not c.score > pose.gain):
             continue
         finalized(c)

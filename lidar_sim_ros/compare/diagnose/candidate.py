@@ -80,8 +80,8 @@ class Candidate:
     vetoed: str | None = None          # why it cannot be the missing effect despite its gain
     tile_vetoed: bool = False          # ``vetoed`` by the tile test (``tile_veto``)
     material_vetoed: bool = False      # ``vetoed`` by the cross-material test (``material_veto``)
-    # Lasers' pointing: the score of each laser's own offsets, their common turn projected
-    # out (``own_part_veto``).
+    # Lasers' pointing: what each laser's own offsets gain over their common turn alone
+    # (``own_part_veto``).
     own_part: dict | None = None
     # A surface standoff beside an incidence-shaped rival: its per-material part, the
     # common standoff's gain taken out (``standoff_part_veto``).

@@ -460,7 +460,7 @@ class Diagnosis(PoseWeighing):
         if worst is None:
             return None
         split, loss, z = worst
-        if pointing.own_part_of(cand.variant) is not None and loss < MIN_SHARE * cand.score:
+        if pointing.turn_of(cand.variant) is not None and loss < MIN_SHARE * cand.score:
             # Lasers' pointing offsets act through the surface's slope, fitted to first
             # order (and once more): over half a tile the slope's curvature and the
             # sensor's own angle convention leave a loss that grows with the offsets
@@ -500,28 +500,33 @@ class Diagnosis(PoseWeighing):
         (the lasers' mean pointing), but a common turn of every beam is a turn of the
         whole sensor: its mount, an extrinsic, or the reference pose turned about the
         sensor (the pose test's finding: a mount tilted with every laser right is no
-        laser's). So the offsets each laser has of its own, the turn projected out
-        (``pointing.OwnPointing``), must pass the rule alone (z above the bound, total
-        and per-point gain, cross-fitted as the score)."""
-        own = pointing.own_part_of(cand.variant)
-        if own is None or cand.effect is None:
+        laser's). So what the offsets gain over that turn alone (``pointing.SensorTurn``,
+        three rotations fitted on the points, cross-fitted as the score), each laser's
+        own part, must pass the rule (``paired``: z above the bound, total and per-point
+        gain); a turn that gains nothing held out leaves the offsets their own score.
+        Weighed against the fitted turn, not with a turn projected out of the offsets: a
+        few lasers off, the rest exact, are no turn, and a projection spreads their
+        offsets, and those of lasers that barely see the target, over every beam."""
+        turn_cls = pointing.turn_of(cand.variant)
+        if turn_cls is None or cand.effect is None or cand.heldout_nll is None:
             return None
-        part = Candidate(cand.name)
-        part.effect = cand.effect
-        nll, explained = self.cross_fit(own, [])
-        self._set_gain(part, nll, explained)
-        cand.own_part = {'score': _num(part.score), 'z': _num(part.z),
-                         'matched_gain': _num(part.matched_gain),
-                         'z_matched': _num(part.z_matched),
-                         'unmatched_points_credited': _num(part.unmatched_gain_points),
-                         'passes': bool(part.significant and part.practical)}
-        if part.significant and part.practical:
+        turn = Candidate(cand.name)
+        turn.effect = cand.effect
+        nll, explained = self.cross_fit(turn_cls, [])
+        self._set_gain(turn, nll, explained)
+        # Over the turn where it explains anything, else over nothing (the offsets' score).
+        gain, z = self.paired(cand, turn) if turn.score > 0 else (cand.score, cand.z)
+        passes = self.passes_rule(gain, z)
+        cand.own_part = {'score': _num(gain), 'z': _num(z),
+                         'turn_score': _num(turn.score), 'turn_z': _num(turn.z),
+                         'passes': passes}
+        if passes:
             return None
         return (f'its offsets are mostly a common turn of every beam, which is a turn of '
                 f'the whole sensor (its mount, or the reference pose turned about the '
-                f'sensor), not the lasers\' own: each laser\'s own part, that turn '
-                f'projected out, gains {part.score:.4f} nats/point held out (z = '
-                f'{part.z:.1f}), which does not pass the rule')
+                f'sensor), not the lasers\' own: over that turn alone (which gains '
+                f'{turn.score:.4f} nats/point held out) each laser\'s own part gains '
+                f'{gain:.4f} nats/point (z = {z:.1f}), which does not pass the rule')
 
     def standoff_part_veto(self, cand: Candidate, cands: list[Candidate]) -> str | None:
         """Why a surface standoff may not be named beside an incidence-shaped rival that
@@ -1448,13 +1453,13 @@ class Diagnosis(PoseWeighing):
         by_name = {c.name: c for c in cands}
         best, also = by_name.get(decision.missing), by_name.get(decision.also)
         if (best is None or also is None or best.effect is None or also.effect is None
-                or best.variant is None or pointing.own_part_of(best.variant) is None
+                or best.variant is None or pointing.turn_of(best.variant) is None
                 or laser_tiles.per_laser(also.effect)):
             return decision
         for c in rank(cands):
             if (c is best or not c.tile_vetoed or not c.significant or c.error is not None
                     or c.effect is None or c.variant is None
-                    or pointing.own_part_of(c.variant) is not None):
+                    or pointing.turn_of(c.variant) is not None):
                 continue
             try:
                 if self.tile_veto(c, [also.effect]) is not None or not self.adds_to(also, c):

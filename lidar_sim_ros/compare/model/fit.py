@@ -520,8 +520,7 @@ def _fit_laser_pointing(cls: type[Effect], data: FitData,
     estimate casts (the gradient and residual where the beams now hit: the second-order
     part of a curved surface). Scored by casting the rays again with the fitted offsets
     (``make_result_vector``): the held-out figures are of the exact geometry. A class
-    with ``own_offsets_only`` (``pointing.OwnPointing``) keeps each laser's own part, the
-    turn of the whole sensor projected out."""
+    with ``turn_only`` (``pointing.SensorTurn``) is fitted as one turn of the whole sensor."""
     base_effects = list(base_effects)
     laser = np.asarray(data.baseline.ctx.laser, np.int64)
     n_lasers = int(laser.max()) + 1 if len(laser) else 0
@@ -549,7 +548,7 @@ def _fit_laser_pointing(cls: type[Effect], data: FitData,
                                              _groups(data)[use], laser[use],
                                              np.asarray(data.baseline.directions)[use],
                                              data.window_width_m,
-                                             remove_turn=getattr(cls, 'own_offsets_only', False))
+                                             turn_only=getattr(cls, 'turn_only', False))
         total[:len(fitted)] += fitted
         information[:len(info)] = info
     effect = effect_of(total)

@@ -16,10 +16,12 @@ fit per laser (2 x 2), one intercept per material as nuisance, robust inlier wei
 A common turn of every beam is a turn of the whole sensor (its mount: an extrinsic, the
 same as the reference pose turned about the sensor), not a laser's own offset. The fit
 keeps it (the lasers' mean pointing is part of their calibration, and left out it would
-read as a reference pose off on exact poses); ``remove_turn`` projects the three
-rotations of the sensor out of the fitted offsets: what is each laser's own, which must
-pass the rule alone for the lasers to be named (``Diagnosis.own_part_veto``: a mount
-tilted with every laser right is the pose's finding). Pure functions over numpy arrays.
+read as a reference pose off on exact poses). With ``turn_only`` the offsets are that
+turn alone (three rotations of the sensor, ``common_turn_rad``, fitted by least squares
+on the points themselves, each laser weighing as its points do): the lasers' own offsets
+are what the full fit gains over it, which must pass the rule for the lasers to be named
+(``Diagnosis.own_part_veto``: a mount tilted with every laser right is the pose's
+finding; a few lasers off, the rest exact, are no turn). Pure functions over numpy arrays.
 """
 from __future__ import annotations
 
@@ -88,27 +90,24 @@ def rotation_columns(mean_directions: np.ndarray) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def without_sensor_turn(offsets_rad: np.ndarray, mean_directions: np.ndarray,
-                        fitted: np.ndarray, information: np.ndarray | None = None) -> np.ndarray:
-    """``offsets_rad`` (L, 2) less the turn of the whole sensor that fits them best over
-    the ``fitted`` lasers: weighted by each laser's ``information`` on its offsets (L, 2,
-    2; a laser that barely sees the surface's slope, its offsets poorly known, has little
-    say), else by least squares with az offsets weighted by cos el as the angles they
-    are: what is each laser's own. With fewer than two lasers fitted nothing is: one
-    laser's offset is a turn of the sensor."""
-    if fitted.sum() < 2:
-        return np.zeros_like(offsets_rad)
-    cols = rotation_columns(mean_directions).reshape(len(offsets_rad), 2, 3)
-    if information is None:
-        cos_el = np.hypot(mean_directions[:, 0], mean_directions[:, 1])
-        information = np.zeros((len(offsets_rad), 2, 2))
-        information[:, 0, 0], information[:, 1, 1] = cos_el ** 2, 1.0
-    r, a, d = cols[fitted], np.asarray(information, float)[fitted], offsets_rad[fitted]
-    normal = np.einsum('lji,ljk,lkm->im', r, a, r)
-    rhs = np.einsum('lji,ljk,lk->i', r, a, d)
-    w = np.linalg.pinv(normal, rcond=1e-10, hermitian=True) @ rhs
-    out = offsets_rad.copy()
-    out[fitted] -= np.einsum('lij,j->li', r, w)
+def common_turn_rad(normal: np.ndarray, rhs: np.ndarray, mean_directions: np.ndarray,
+                    fitted: np.ndarray) -> np.ndarray:
+    """(L, 2): the (az, el) offsets (rad) of every laser under the one turn of the whole
+    sensor that fits the points best: each laser's normal equations on its two offsets
+    (``normal`` (L, 2, 2) and ``rhs`` (L, 2), rad^-2 and rad^-1, sums over its points of
+    w g g^T and w g r) summed through ``rotation_columns`` over the ``fitted`` lasers and
+    solved for the three rotations. A laser weighs as its points do: one that barely sees
+    the surface's slope adds little, whatever its own solve would be. 0 where none is
+    fitted."""
+    out = np.zeros((len(rhs), 2))
+    if not np.any(fitted):
+        return out
+    cols = rotation_columns(mean_directions).reshape(len(rhs), 2, 3)
+    r = cols[fitted]
+    a = np.einsum('lji,ljk,lkm->im', r, np.asarray(normal, float)[fitted], r)
+    b = np.einsum('lji,lj->i', r, np.asarray(rhs, float)[fitted])
+    w = np.linalg.pinv(a, rcond=1e-10, hermitian=True) @ b
+    out[fitted] = np.einsum('lij,j->li', r, w)
     return out
 
 
@@ -123,13 +122,13 @@ def _centre_by(v: np.ndarray, group: np.ndarray, weight: np.ndarray) -> np.ndarr
 def laser_pointing_rad(residual_m: np.ndarray, gradient_m_per_rad: np.ndarray,
                        sigma_m: np.ndarray, material: np.ndarray, laser: np.ndarray,
                        directions: np.ndarray, window_width_m: float,
-                       remove_turn: bool = False,
+                       turn_only: bool = False,
                        iterations: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """ML pointing offsets (L, 2: az, el in rad) of each laser id 0..max(laser): the
     residual on ``gradient_m_per_rad`` . offset of the point's laser, one intercept per
-    material, alternating robust weighted least squares (module doc); with
-    ``remove_turn`` the turn of the whole sensor projected out (``without_sensor_turn``);
-    lasers with fewer than
+    material, alternating robust weighted least squares (module doc); with ``turn_only``
+    the offsets one turn of the whole sensor gives (``common_turn_rad``); lasers with
+    fewer than
     MIN_POINTS_PER_LASER points get 0. Also each laser's information on its offsets
     (L, 2, 2, rad^-2, with the last robust weights; ``marginal_information``): how well
     the points determine them, and in which direction."""
@@ -160,18 +159,20 @@ def laser_pointing_rad(residual_m: np.ndarray, gradient_m_per_rad: np.ndarray,
             b[:, i] = np.bincount(lz, weights=wt * g[:, i] * r, minlength=n_lasers)
             for j in range(2):
                 a[:, i, j] = np.bincount(lz, weights=wt * g[:, i] * g[:, j], minlength=n_lasers)
-        new = np.zeros_like(off)
-        for l in np.flatnonzero(enough):
-            vals, vecs = np.linalg.eigh(a[l])
-            if vals[-1] <= 0:
-                continue
-            keep = vals > MIN_EIGEN_SHARE * vals[-1]
-            new[l] = vecs[:, keep] @ ((vecs[:, keep].T @ b[l]) / vals[keep])
-        # A laser's free solve along a direction it barely sees can run off: kept to the
-        # fit's box (in rad) before the sensor's turn is taken out of all of them.
-        new = np.clip(new, -MAX_FIT_RAD, MAX_FIT_RAD)
-        off = (without_sensor_turn(new, mean_dir, enough & (a[:, 0, 0] + a[:, 1, 1] > 0), a)
-               if remove_turn else new)
+        if turn_only:
+            off = np.clip(common_turn_rad(a, b, mean_dir, enough & (a[:, 0, 0] + a[:, 1, 1] > 0)),
+                          -MAX_FIT_RAD, MAX_FIT_RAD)
+        else:
+            off = np.zeros_like(off)
+            for l in np.flatnonzero(enough):
+                vals, vecs = np.linalg.eigh(a[l])
+                if vals[-1] <= 0:
+                    continue
+                keep = vals > MIN_EIGEN_SHARE * vals[-1]
+                off[l] = vecs[:, keep] @ ((vecs[:, keep].T @ b[l]) / vals[keep])
+            # A laser's free solve along a direction it barely sees can run off: kept to
+            # the fit's box (in rad).
+            off = np.clip(off, -MAX_FIT_RAD, MAX_FIT_RAD)
         e = y - c - np.einsum('ij,ij->i', g, off[lz])
         _, scale = material_nuisance(e, sigma, group, np.ones(len(e), bool))
         s = sigma * scale
@@ -213,18 +214,19 @@ def marginal_information(gradient_m_per_rad: np.ndarray, weight: np.ndarray,
     return out
 
 
-class OwnPointing(LaserPointing):
-    """``laser_pointing`` fitted without the turn of the whole sensor (each laser's own
-    offsets, ``remove_turn``): the part the lasers are named on. Not registered: the
-    comparison's variant, written out as ``laser_pointing``."""
+class SensorTurn(LaserPointing):
+    """``laser_pointing`` fitted as one turn of the whole sensor (``turn_only``: three
+    rotations, every laser's offsets from them): what the lasers' own offsets are weighed
+    against. Not registered: the comparison's variant, written out as
+    ``laser_pointing``."""
 
-    own_offsets_only = True
+    turn_only = True
 
 
-def own_part_of(effect_cls) -> type | None:
-    """The variant of a ``laser_pointing`` class fitted on each laser's own offsets
-    (``OwnPointing``), or None for any other effect (or one that is that variant)."""
+def turn_of(effect_cls) -> type | None:
+    """The variant of a ``laser_pointing`` class fitted as one turn of the whole sensor
+    (``SensorTurn``), or None for any other effect (or one that is that variant)."""
     if (isinstance(effect_cls, type) and issubclass(effect_cls, LaserPointing)
-            and not getattr(effect_cls, 'own_offsets_only', False)):
-        return OwnPointing
+            and not getattr(effect_cls, 'turn_only', False)):
+        return SensorTurn
     return None
