@@ -121,6 +121,43 @@ def test_a_few_lasers_off_are_no_turn_of_the_sensor():
     np.testing.assert_allclose(turn9[:10], turn[:10], atol=2e-4)
 
 
+def test_lasers_that_barely_see_a_slope_are_shrunk_to_their_information():
+    """Three of twelve lasers off by 0.3 deg, the rest exact; lasers 10 and 11 see a slope
+    of 0.1 m/rad only (their free solves: 0.01 m / (0.1 m/rad sqrt(1000)) ~ 0.2 deg of
+    noise each way). The well-seen lasers keep their offsets; the two weak ones, whose
+    points cannot tell an offset from noise, are shrunk toward 0 by the lasers' spread
+    (el: two of twelve off 0.3 deg, tau ~ 0.12 deg; a factor tau^2 / (tau^2 + v) ~ 0.3):
+    a free solve gave them 0.12 deg here."""
+    rng = np.random.default_rng(12)
+    true = np.zeros((12, 2))
+    true[[2, 5, 9]] = np.radians([[0.3, 0.0], [0.0, -0.3], [0.0, 0.3]])
+    y, g, sigma, material, laser, u = synthetic(rng, true, n=12000)
+    weak = np.isin(laser, [10, 11])
+    g[weak] *= 0.01
+    y = (np.array([0.1, -0.05, 0.02])[material] + np.einsum('ij,ij->i', g, true[laser])
+         + sigma * rng.standard_normal(len(y)))
+    full, info = pointing.laser_pointing_rad(y, g, sigma, material, laser, u, 100.0)
+    np.testing.assert_allclose(full[:10], true[:10], atol=1.5e-4)
+    assert np.abs(np.degrees(full[10:])).max() < 0.06
+    assert np.all(np.linalg.eigvalsh(info[10:])[:, -1] < 1e-3 * np.linalg.eigvalsh(info[:10])[:, 0].min())
+
+
+def test_the_lasers_spread_is_what_they_are_off_by():
+    """``laser_spread_rad2``: none off, the floor; four of 24 off 0.3 deg (seen to 0.01
+    deg), sqrt(4 / 24) 0.3 ~ 0.12 deg; a laser seen to 1 deg whose estimate ran to 2 deg
+    moves it little."""
+    v = np.full(24, np.radians(0.01) ** 2)
+    zero = np.zeros(24)
+    assert pointing.laser_spread_rad2(zero, v) == pointing.LASER_SPREAD_FLOOR_RAD ** 2
+    four = zero.copy()
+    four[:4] = np.radians([0.3, -0.3, 0.3, -0.3])
+    tau = np.degrees(np.sqrt(pointing.laser_spread_rad2(four, v)))
+    assert tau == pytest.approx(0.3 * np.sqrt(4 / 24), rel=0.05)
+    wild, vw = four.copy(), v.copy()
+    wild[10], vw[10] = np.radians(2.0), np.radians(1.0) ** 2
+    assert np.degrees(np.sqrt(pointing.laser_spread_rad2(wild, vw))) == pytest.approx(tau, rel=0.1)
+
+
 def test_a_half_that_sees_one_slope_does_not_determine_two_offsets():
     full = np.array([[[4.0, 0.0], [0.0, 4.0]]] * 3)
     half = full / 2

@@ -34,9 +34,8 @@ from lidar_sim_ros.core.effects.laser_pointing import LaserPointing
 
 MAX_TAN_INCIDENCE = math.tan(math.radians(85.0))   # the gradient's r tan(theta) clipped here
 MIN_POINTS_PER_LASER = 20                          # fewer: the laser's offsets stay 0
-# A laser's 2 x 2 normal matrix whose smaller eigenvalue is below this share of the larger
-# sees its offsets along one direction only (a surface sloping one way): the other stays 0.
-MIN_EIGEN_SHARE = 1e-3
+# The least spread of the lasers' offsets (``laser_spread_rad2``): none off.
+LASER_SPREAD_FLOOR_RAD = math.radians(1e-3)
 MAX_FIT_RAD = math.radians(LaserPointing.bounds['az_offsets_deg'][1])   # the fit's box
 
 
@@ -148,8 +147,9 @@ def laser_pointing_rad(residual_m: np.ndarray, gradient_m_per_rad: np.ndarray,
         mean_dir[:, k] = np.bincount(lz, weights=directions[:, k], minlength=n_lasers)
     mean_dir /= np.maximum(np.linalg.norm(mean_dir, axis=1, keepdims=True), 1e-12)
     q = np.ones(len(y))
+    s = sigma
     for _ in range(iterations):
-        wt = q / sigma ** 2
+        wt = q / s ** 2
         pred = np.einsum('ij,ij->i', g, off[lz])
         c = _centre_by(y - pred, group, wt)
         r = y - c
@@ -163,16 +163,7 @@ def laser_pointing_rad(residual_m: np.ndarray, gradient_m_per_rad: np.ndarray,
             off = np.clip(common_turn_rad(a, b, mean_dir, enough & (a[:, 0, 0] + a[:, 1, 1] > 0)),
                           -MAX_FIT_RAD, MAX_FIT_RAD)
         else:
-            off = np.zeros_like(off)
-            for l in np.flatnonzero(enough):
-                vals, vecs = np.linalg.eigh(a[l])
-                if vals[-1] <= 0:
-                    continue
-                keep = vals > MIN_EIGEN_SHARE * vals[-1]
-                off[l] = vecs[:, keep] @ ((vecs[:, keep].T @ b[l]) / vals[keep])
-            # A laser's free solve along a direction it barely sees can run off: kept to
-            # the fit's box (in rad).
-            off = np.clip(off, -MAX_FIT_RAD, MAX_FIT_RAD)
+            off, c = shrunk_offsets_rad(g, y, wt, group, lz, n_lasers, enough)
         e = y - c - np.einsum('ij,ij->i', g, off[lz])
         _, scale = material_nuisance(e, sigma, group, np.ones(len(e), bool))
         s = sigma * scale
@@ -182,28 +173,92 @@ def laser_pointing_rad(residual_m: np.ndarray, gradient_m_per_rad: np.ndarray,
     return np.where(enough[:, None], off, 0.0), np.where(enough[:, None, None], info, 0.0)
 
 
-def marginal_information(gradient_m_per_rad: np.ndarray, weight: np.ndarray,
-                         material: np.ndarray, laser: np.ndarray, n_lasers: int) -> np.ndarray:
-    """(L, 2, 2): each laser's information on its two offsets (rad^-2) in the joint linear
-    model, the material intercepts and the other lasers' offsets profiled out: the
-    inverse of its block of the joint covariance. A laser that sees each material at one
-    slope only has its offsets along that slope taken by the material's intercept, however
-    large its gradient: its information there is small."""
+def joint_normal(gradient_m_per_rad: np.ndarray, weight: np.ndarray, material: np.ndarray,
+                 laser: np.ndarray, n_lasers: int,
+                 residual_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The joint linear model's normal matrix (M + 2 L square: the M materials'
+    intercepts, m^-2, then each laser's (az, el) offsets, rad^-2) and right-hand side
+    (sums of w y against the same columns; 0 without ``residual_m``)."""
     g = np.asarray(gradient_m_per_rad, float)
     w = np.asarray(weight, float)
+    y = np.zeros(len(w)) if residual_m is None else np.asarray(residual_m, float)
     mats, m_idx = np.unique(np.asarray(material), return_inverse=True)
     n_m, n_p = len(mats), 2 * n_lasers
     size = n_m + n_p
     normal = np.zeros((size, size))
+    rhs = np.zeros(size)
     normal[np.arange(n_m), np.arange(n_m)] = np.bincount(m_idx, weights=w, minlength=n_m)
+    rhs[:n_m] = np.bincount(m_idx, weights=w * y, minlength=n_m)
     cell = m_idx * n_lasers + laser
     for i in range(2):
         cross = np.bincount(cell, weights=w * g[:, i], minlength=n_m * n_lasers).reshape(n_m, n_lasers)
         normal[:n_m, n_m + i:size:2] = cross
         normal[n_m + i:size:2, :n_m] = cross.T
+        rhs[n_m + i:size:2] = np.bincount(laser, weights=w * g[:, i] * y, minlength=n_lasers)
         for j in range(2):
             normal[n_m + np.arange(n_lasers) * 2 + i, n_m + np.arange(n_lasers) * 2 + j] = \
                 np.bincount(laser, weights=w * g[:, i] * g[:, j], minlength=n_lasers)
+    return normal, rhs
+
+
+def laser_spread_rad2(offsets_rad: np.ndarray, variance_rad2: np.ndarray,
+                      iterations: int = 30) -> float:
+    """The spread tau^2 (rad^2) of the lasers' true offsets about 0 along one axis, by
+    maximum likelihood from their free estimates x_l and variances v_l (x_l ~ N(0, tau^2
+    + v_l)): tau^2 = sum w^2 (x^2 - v) / sum w^2, w = 1 / (v + tau^2), iterated, at least
+    LASER_SPREAD_FLOOR_RAD^2. A laser that barely sees its offsets (v large) weighs
+    little; four lasers of 24 off 0.3 deg give tau ~ 0.12 deg, none off ~ 0."""
+    x2 = np.minimum(np.asarray(offsets_rad, float) ** 2, MAX_FIT_RAD ** 2)
+    v = np.maximum(np.asarray(variance_rad2, float), 0.0)
+    floor = LASER_SPREAD_FLOOR_RAD ** 2
+    if len(x2) == 0:
+        return floor
+    tau2 = max(float(np.mean(x2 - v)), floor)
+    for _ in range(iterations):
+        w2 = 1.0 / (v + tau2) ** 2
+        tau2 = max(float(np.sum(w2 * (x2 - v)) / np.sum(w2)), floor)
+    return tau2
+
+
+def shrunk_offsets_rad(gradient_m_per_rad: np.ndarray, residual_m: np.ndarray,
+                       weight: np.ndarray, material: np.ndarray, laser: np.ndarray,
+                       n_lasers: int, fitted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each ``fitted`` laser's offsets (L, 2, rad) and each point's material intercept
+    (m), solved jointly by weighted least squares (``weight``: 1 / variance, m^-2) under a
+    prior N(0, tau^2) on every laser's offset along each axis, tau^2 the lasers' spread
+    (``laser_spread_rad2``, from the free solve's offsets and their variances, the
+    intercepts and the other lasers profiled out). A laser shrinks by its information:
+    one well seen keeps its offsets, one that barely sees the surface's slope (few
+    points, little slope across its tile, one material at one slope) keeps little, where
+    its free solve would run to noise. Clipped at the fit's box."""
+    normal, rhs = joint_normal(gradient_m_per_rad, weight, material, laser, n_lasers,
+                               residual_m)
+    m_idx = np.unique(np.asarray(material), return_inverse=True)[1]
+    n_m = len(normal) - 2 * n_lasers
+    lasers = np.flatnonzero(fitted)
+    cols = np.concatenate([np.arange(n_m), n_m + (2 * lasers[:, None] + np.arange(2)).ravel()])
+    nk = normal[np.ix_(cols, cols)]
+    cov = np.linalg.pinv(nk, rcond=1e-12, hermitian=True)
+    free = (cov @ rhs[cols])[n_m:].reshape(-1, 2)
+    var = np.diag(cov)[n_m:].reshape(-1, 2)
+    prior = np.array([1.0 / laser_spread_rad2(free[:, k], var[:, k]) for k in range(2)])
+    pen = nk.copy()
+    pen[np.arange(n_m, len(cols)), np.arange(n_m, len(cols))] += np.tile(prior, len(lasers))
+    x = np.linalg.pinv(pen, rcond=1e-12, hermitian=True) @ rhs[cols]
+    off = np.zeros((n_lasers, 2))
+    off[lasers] = np.clip(x[n_m:].reshape(-1, 2), -MAX_FIT_RAD, MAX_FIT_RAD)
+    return off, x[:n_m][m_idx]
+
+
+def marginal_information(gradient_m_per_rad: np.ndarray, weight: np.ndarray,
+                         material: np.ndarray, laser: np.ndarray, n_lasers: int) -> np.ndarray:
+    """(L, 2, 2): each laser's information on its two offsets (rad^-2) in the joint linear
+    model, the material intercepts and the other lasers' offsets profiled out: the
+    inverse of its block of the joint covariance (``joint_normal``). A laser that sees
+    each material at one slope only has its offsets along that slope taken by the
+    material's intercept, however large its gradient: its information there is small."""
+    normal, _ = joint_normal(gradient_m_per_rad, weight, material, laser, n_lasers)
+    n_m = len(normal) - 2 * n_lasers
     cov = np.linalg.pinv(normal, rcond=1e-12, hermitian=True)
     out = np.zeros((n_lasers, 2, 2))
     for l in range(n_lasers):
