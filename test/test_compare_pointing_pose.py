@@ -117,6 +117,8 @@ def test_four_lasers_off_are_not_read_as_the_pose(tmp_path):
     assert s['missing_effect'] in (None, 'laser_pointing'), s['verdict']
     lp = next(c for c in s['candidates'] if c['name'] == 'laser_pointing')
     assert lp['params']['laser_4_el_deg'] > 0.2 and lp['params']['laser_12_el_deg'] < -0.2
+    assert abs(lp['params']['laser_21_az_deg']) < 0.1, lp['params']
+    assert lp['score'] > 0.25, lp
 
 
 def test_four_lasers_off_are_not_set_aside_as_a_common_turn(tmp_path):
@@ -124,7 +126,10 @@ def test_four_lasers_off_are_not_set_aside_as_a_common_turn(tmp_path):
     lasers within 0.06 deg) were set aside as "mostly a common turn" (their own part, a
     turn projected out of them, 0.081 at z 2.8) and range_scale named. Weighed against
     one turn of the sensor fitted alone (which loses held out here), they pass and are
-    named (pointing38)."""
+    named (pointing38). The exact lasers that barely see their azimuth took 0.17-0.26
+    deg of noise there (20 az, 21 az), which cost the offsets held out (0.179 nats/point,
+    z 6.2); shrunk by their information they keep little and the offsets gain 0.29
+    (pointing39)."""
     spec = battery(['pointing_few_c'])[0]
     ds = generate(replace(spec, name='pointing_few_c@5', seed=spec.seed + 5000),
                   tmp_path / 'data')
@@ -136,3 +141,5 @@ def test_four_lasers_off_are_not_set_aside_as_a_common_turn(tmp_path):
     assert lp['own_offsets']['passes'], lp['own_offsets']
     assert s['missing_effect'] == 'laser_pointing', s['verdict']
     assert lp['params']['laser_4_el_deg'] > 0.2 and lp['params']['laser_12_el_deg'] < -0.2
+    assert abs(lp['params']['laser_21_az_deg']) < 0.1, lp['params']
+    assert lp['score'] > 0.25, lp
