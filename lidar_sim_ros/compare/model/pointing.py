@@ -10,8 +10,10 @@ r along the unit direction u, a ray turned by du meets the surface's plane at
 with du = a du/daz + e du/del: r tan(theta) along the surface's slope direction. The
 residual of a shot of laser l is then g . delta_l, with g = (dr/daz, dr/del) from the
 raycast's normal and range, linear in the laser's two offsets: a weighted least-squares
-fit per laser (2 x 2), one intercept per material as nuisance, robust inlier weights
-(Gaussian vs a uniform floor) as ``fit.laser_offsets_m``.
+fit of every laser's offsets and one intercept per material jointly, robust inlier
+weights (Gaussian vs a uniform floor) as ``fit.laser_offsets_m``. Each offset has a prior
+N(0, tau^2), tau^2 the lasers' spread fitted from the data (``shrunk_offsets_rad``): a
+laser that barely sees the surface's slope keeps what its points can tell, not noise.
 
 A common turn of every beam is a turn of the whole sensor (its mount: an extrinsic, the
 same as the reference pose turned about the sensor), not a laser's own offset. The fit
@@ -125,7 +127,8 @@ def laser_pointing_rad(residual_m: np.ndarray, gradient_m_per_rad: np.ndarray,
                        iterations: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """ML pointing offsets (L, 2: az, el in rad) of each laser id 0..max(laser): the
     residual on ``gradient_m_per_rad`` . offset of the point's laser, one intercept per
-    material, alternating robust weighted least squares (module doc); with ``turn_only``
+    material, robust weighted least squares, each laser shrunk by its information
+    (``shrunk_offsets_rad``; module doc); with ``turn_only``
     the offsets one turn of the whole sensor gives (``common_turn_rad``); lasers with
     fewer than
     MIN_POINTS_PER_LASER points get 0. Also each laser's information on its offsets
