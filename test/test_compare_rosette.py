@@ -48,3 +48,28 @@ def test_point_times_from_the_sensors_own_timing(tmp_path, scenario, start_s):
         # The frame's pattern matters: frame 0's shots leave most points of later frames unmatched.
         wrong = with_scan_times(meas, sim.shots)
         assert wrong.time_source == 'stamp'
+
+
+def test_a_global_exposure_on_another_pixel_grid_keeps_the_stamp_as_every_points_time(
+        tmp_path):
+    """A flash without a row readout exposes every pixel at the frame's start: a recorded
+    pixel grid that is not the configured one (here turned by half a pixel) leaves each
+    point's time at its cloud stamp all the same, known, not "the scan pattern is off"."""
+    from dataclasses import replace
+    from lidar_sim_ros.compare.report import verdict
+    from lidar_sim_ros.core.scan_flash import pixel_pitch
+    sc = load_scenario(CONFIG / 'scenario_flash.yaml')
+    sim = Simulator.from_scenario(sc)
+    assert np.ptp(sim.shots.t_s) == 0.0
+    run = simulate_to_bag(sc, tmp_path / 'run', frames=2, figures=False, simulator=sim)
+    without_time(run.bag_path, tmp_path / 'stripped')
+    meas = load_measurements(tmp_path / 'stripped')
+    half = 0.5 * pixel_pitch(sim.sensor.scan)[0]
+    c, s = np.cos(half), np.sin(half)
+    d = meas.directions @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    timed = with_scan_times(replace(meas, directions=d), sim.shots)
+    assert timed.time_source == 'scan pattern' and timed.scan_match_fraction is None
+    np.testing.assert_array_equal(timed.t_frame_s, 0.0)
+    np.testing.assert_allclose(timed.t_s, meas.cloud_stamps_s[meas.cloud])
+    assert not verdict.scan_pattern_off({'point_times': timed.time_source,
+                                         'scan_pattern_match': timed.scan_match_fraction})

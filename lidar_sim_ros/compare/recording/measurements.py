@@ -461,6 +461,19 @@ def with_scan_times(meas: Measurements, shots: Shots,
         clock = max(clocks_s, key=lambda c: _match_each_frame(meas, shots_of_frame, frame_period_s,
                                                               c, first)[0].mean())
         ok, t_shot, laser_shot = _match_each_frame(meas, shots_of_frame, frame_period_s, clock)
+    if ok.mean() < SCAN_MATCH_MIN_FRACTION and shots_of_frame is None \
+            and np.ptp(shots.t_s) == 0.0:
+        # One global exposure (a flash without a row readout): every shot is at the
+        # frame's start, so each point's time is its cloud stamp whatever its direction;
+        # a pixel grid that differs from the configured one says nothing about timing.
+        return replace(meas, t_frame_s=np.zeros(len(meas.cloud)),
+                       t_s=meas.cloud_stamps_s[meas.cloud].astype(float),
+                       has_point_time=True, time_source='scan pattern',
+                       notes=[n for n in meas.notes if 'no per-point time field' not in n] + [
+                           'clouds have no per-point time field; the scan pattern is one '
+                           'global exposure, so every point is at its cloud stamp (only '
+                           f'{100 * ok.mean():.0f} % of the directions match a pixel of the '
+                           'configured grid: the lasers stay as recorded)'])
     if ok.mean() < SCAN_MATCH_MIN_FRACTION:
         return replace(meas, scan_match_fraction=float(ok.mean()), notes=meas.notes + [
             f'clouds have no per-point time field and only {100 * ok.mean():.0f} % of the '
