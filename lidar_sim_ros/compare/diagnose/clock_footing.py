@@ -54,6 +54,18 @@ class ClockFooting:
     rate: bool                      # the pose with its rate within each cloud
     clock_passes: bool
     pose_passes_over_clock: bool
+    # The clock's column scaled by this in the fit with the pose on every ray of the
+    # footing: the clock offset beside the pose is this times the one fitted alone.
+    clock_scale: float = float('nan')
+    constant: bool = False          # one rigid pose for the recording, not one per cloud
+    z_crit: float = float('inf')    # the rule the parts were judged by
+    min_gain: float = float('inf')
+
+    @property
+    def clock_passes_over_pose(self) -> bool:
+        """The clock has a part of its own on top of the pose, by the rule."""
+        return bool(self.clock_passes and self.clock_over_pose_z >= self.z_crit
+                    and self.clock_over_pose_gain >= self.min_gain)
 
     @property
     def stands(self) -> bool:
@@ -70,7 +82,10 @@ class ClockFooting:
                 'rays': self.rays, 'matched': self.matched, 'rate': self.rate,
                 'clock_passes': self.clock_passes,
                 'pose_passes_over_clock': self.pose_passes_over_clock,
-                'stands': self.stands}
+                'stands': self.stands,
+                **({'constant': True, 'clock_scale': round(self.clock_scale, 4),
+                    'clock_passes_over_pose': self.clock_passes_over_pose}
+                   if self.constant else {})}
 
 
 def per_cloud_columns(a: np.ndarray, cloud: np.ndarray) -> np.ndarray:
@@ -87,11 +102,15 @@ def per_cloud_columns(a: np.ndarray, cloud: np.ndarray) -> np.ndarray:
 def clock_on_pose_footing(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                           blocks: np.ndarray, z_crit: float, min_gain: float,
                           clock_m: np.ndarray, seed: int = 0,
-                          rate: bool = False) -> ClockFooting:
+                          rate: bool = False, constant: bool = False) -> ClockFooting:
     """The clock (``clock_m``: its range change per matched point of ``data``, m,
     ``row_clock.clock_column_m``) and the per-cloud pose (``rate``: with its rate over
     each cloud, ``pose_error.rate_columns``) on the pose test's rays and halves (module
-    doc); ``cloud``, ``t_s``, ``blocks``: per matched point."""
+    doc); ``cloud``, ``t_s``, ``blocks``: per matched point. ``constant``: one rigid
+    pose for the recording instead (six parameters, rotation about the centroid of all
+    the points, no rate; ``clock_beside_constant_pose``)."""
+    if constant:
+        cloud, rate = np.zeros(len(np.asarray(cloud)), int), False
     model = lk.model_on_rays(data, [])
     ctx = model.ctx
     c = np.asarray(clock_m, float)
@@ -135,6 +154,7 @@ def clock_on_pose_footing(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     clock, pose = judged(gain['clock']), judged(gain['pose'])
     clock_over = judged(gain['both'] - gain['pose'])
     pose_over = judged(gain['both'] - gain['clock'])
+    scale = float(row_clock.coefficients_with_offsets(models['both'], r, s, group, use)[1][0])
     return ClockFooting(clock[0], clock[1], pose[0], pose[1], clock_over[0], clock_over[1],
                         pose_over[0], pose_over[1], int(use.sum()), n, rate,
-                        passes(clock), passes(pose_over))
+                        passes(clock), passes(pose_over), scale, constant, z_crit, min_gain)

@@ -758,6 +758,54 @@ class PoseWeighing:
         return Decision(None, [POSE_ERROR, beside.CLOCK], also=decision.also,
                         withheld=dict(decision.withheld))
 
+    def clock_beside_constant_pose(self, decision: Decision, cands: list[Candidate],
+                                   footing_test, pose_on_clock) -> Decision:
+        """One rigid correction for the recording reported alone, nothing named, and a
+        clock offset (``time_offset``) that passed the rule before the correction: the
+        two fitted jointly on the pose test's own rays and halves
+        (``footing_test(effect)``: ``clock_footing.clock_on_pose_footing`` with the
+        clock's effect and ``constant``; its figures on the clock's
+        ``against_pose['constant_pose_footing']``). On a target turning about a moving
+        axis (a spin on a tumble) a clock offset reads the attitude off by the spin
+        times dt about the body's spin axis, which turns with the body: one rotation for
+        the recording takes most of it, and with it beside the clock the pose fitted
+        alone reports a rotation the poses do not have and the clock is lost. Where the
+        clock passes the rule on top of the correction (its own part), it is named,
+        with the clock offset fitted beside the correction (the clock's alone times the
+        joint fit's scale of its column); the correction is reported beside it where it
+        passes on top of that clock (``pose_on_clock(effect)``: the constant test on top
+        of it, raycast as --fit corrects it), else not. Where the clock has no part of
+        its own, the decision stands (a clock and a constant pose on a target turning
+        about a fixed axis are the same data; the pose alone is an answer there)."""
+        pose = decision.pose
+        if (decision.missing or decision.confounded_with or pose is None
+                or not getattr(pose, 'constant', False) or footing_test is None):
+            return decision
+        clock = next((c for c in cands if c.name == beside.CLOCK), None)
+        if clock is None or clock.effect is None or not self.nameable(clock):
+            return decision
+        try:
+            on = footing_test(clock.effect)
+        except Exception:  # noqa: BLE001 - not weighed: the decision stands
+            return decision
+        clock.against_pose = {**(clock.against_pose or {}),
+                              'constant_pose_footing': on.as_dict()}
+        if not on.clock_passes_over_pose or not np.isfinite(on.clock_scale):
+            return decision
+        dt_alone = float(clock.effect.params.dt_s)
+        beside_pose = type(clock.effect)({'dt_s': float(on.clock_scale * dt_alone)})
+        clock.against_pose['constant_pose_footing'].update(
+            dt_alone_s=_num(dt_alone), dt_beside_pose_s=_num(beside_pose.params.dt_s))
+        decided = Decision(beside.CLOCK, [], also=decision.also,
+                           withheld=dict(decision.withheld))
+        if not on.pose_passes_over_clock:
+            return decided
+        try:
+            on_clock = pose_on_clock(beside_pose)
+        except Exception:  # noqa: BLE001 - the pose on top of the clock not fitted
+            return decided
+        return replace(decided, pose=on_clock if on_clock.significant else None)
+
     def clock_tie(self, decision: Decision, cands: list[Candidate],
                   no_point_times: bool) -> Decision:
         """Clouds without usable point times, the reference pose reported off and a
