@@ -145,3 +145,17 @@ def test_a_clock_with_its_own_part_beside_a_constant_pose_is_named_with_the_pose
         assert judge.clock_beside_constant_pose(other, [_clock()],
                                                 lambda e: _on(True, True), on_clock) is other
     assert judge.clock_beside_constant_pose(alone, [_clock()], None, on_clock) is alone
+
+
+def test_the_verdict_gives_the_clock_fitted_beside_the_constant_pose():
+    """The named clock's sentence: its own part on top of the correction and the clock
+    offset fitted beside it, not the one fitted alone as if it were the answer; the
+    line-of-sight sentence of a range term is not said."""
+    from lidar_sim_ros.compare.report import verdict
+    clock = _clock()
+    judge = _Judge()
+    judge.clock_beside_constant_pose(diagnosis.Decision(None, [], pose=_Pose()), [clock],
+                                     lambda e: _on(True, True), lambda e: _Pose())
+    words = verdict.clock_beside_pose_words(clock)
+    assert 'dt_s = 0.0312' in words and '0.0520' in words
+    assert 'part of its own: 0.0080 nats/point' in words

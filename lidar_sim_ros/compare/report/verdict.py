@@ -149,7 +149,10 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         lasers = laser_intensity_words(summary.get('laser_intensity'))
         if lasers:
             parts.append(lasers)
-        if c.against_pose:
+        if (c.against_pose or {}).get('constant_pose_footing', {}).get('dt_beside_pose_s') \
+                is not None:
+            parts.append(clock_beside_pose_words(c))
+        elif c.against_pose:
             parts.append(_against_pose_words(c))
             parts.extend(constant_pose_beside_words(c))
     elif diagnosis.POSE_ERROR in decision.confounded_with:
@@ -608,6 +611,24 @@ def constant_pose_beside_words(c) -> list[str]:
         out.append('On the recorded pose it was set aside (' + ap['veto_on_recorded_pose']
                    + '); with the pose corrected it holds across the materials.')
     return out
+
+
+def clock_beside_pose_words(c) -> str:
+    """Beside one rigid correction of the reference pose for the recording
+    (``Diagnosis.clock_beside_constant_pose``: ``c.against_pose['constant_pose_footing']``):
+    the clock's own part on top of the correction, and the clock offset fitted beside
+    it."""
+    on = c.against_pose['constant_pose_footing']
+    return (f'One rigid correction of the reference pose for the whole recording takes '
+            f'most of what the clock offset does (on a target turning about a moving axis a '
+            f'clock offset turns the recorded attitude about the spin axis), but fitted '
+            f'together on the rays the pose is tested on, the clock offset keeps a part of '
+            f'its own: {on["clock_over_pose_gain"]:.4f} nats/point held out on top of the '
+            f'correction (z = {on["clock_over_pose_z"]:.1f}), the correction '
+            f'{on["pose_over_clock_gain"]:.4f} (z = {on["pose_over_clock_z"]:.1f}) on top of '
+            f'the clock. Fitted beside the correction the clock offset is dt_s = '
+            f'{on["dt_beside_pose_s"]:.4f} (fitted alone, {on["dt_alone_s"]:.4f} takes part of '
+            'the pose\'s offset).')
 
 
 def _together_words(c) -> str:
