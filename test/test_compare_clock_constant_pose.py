@@ -101,40 +101,72 @@ def _on(clock_over: bool, pose_over: bool, scale: float = 0.6) -> clock_footing.
         pose_over, scale, True, 3.0, diagnosis.MIN_PRACTICAL_GAIN)
 
 
+class _OnPose:
+    """The re-cast diagnosis on the corrected pose: the clock scored again there at the
+    dt it is given (``dt_on_pose``), nameable or not."""
+
+    def __init__(self, dt_on_pose: float, nameable: bool = True):
+        self.dt, self.ok = dt_on_pose, nameable
+
+    def score(self, cls):
+        return diagnosis.Candidate('time_offset', score=0.03, z=6.0, significant=True,
+                                   practical=True, effect=cls({'dt_s': self.dt}),
+                                   params={'dt_s': self.dt})
+
+    def naming_fault(self, c):
+        return None if self.ok else 'its held-out gain does not pass the rule'
+
+
+class _OnClock:
+    significant = True
+    constant = True
+
+
 def test_a_clock_with_its_own_part_beside_a_constant_pose_is_named_with_the_pose():
     """The constant pose reported alone at first (clock_pose_spin seed 0 before: 4.6 cm
-    and 0.82 deg, nothing named): with the clock's own part on top of it, time_offset
-    is named, the clock beside the pose 0.6 x the one fitted alone, and the pose is
-    fitted again on top of that clock and reported beside it. Without the pose's part
-    on top of the clock, the clock alone. Without the clock's own part, or a pose per
-    cloud, a name already given or no test, as it was."""
+    and 0.82 deg, nothing named): with the clock's own part on top of it, the pose is
+    fitted again on top of the clock the joint fit gives (0.6 x the one fitted alone),
+    the clock is scored again on that corrected pose and named with those figures, the
+    pose reported beside it. Without the pose's part on top of the clock, the clock
+    alone. A clock not nameable on the corrected pose, or without a part of its own, a
+    pose per cloud, a name already given or no test: as it was."""
     judge = _Judge()
     pose = _Pose()
     alone = diagnosis.Decision(None, [], pose=pose)
     clock = _clock()
     fitted = []
 
-    class _OnClock:
-        significant = True
-        constant = True
-
-    def on_clock(effect):
+    def on_clock(effect, nameable=True):
         fitted.append(effect.params.dt_s)
-        return _OnClock()
-    out = judge.clock_beside_constant_pose(alone, [clock], lambda e: _on(True, True),
-                                           on_clock)
+        return _OnPose(0.031, nameable), _OnClock()
+    out, again = judge.clock_beside_constant_pose(alone, [clock], lambda e: _on(True, True),
+                                                  on_clock)
     assert out.missing == 'time_offset' and out.confounded_with == []
     assert isinstance(out.pose, _OnClock)
     assert np.isclose(fitted[0], 0.6 * 0.052)
-    footing = clock.against_pose['constant_pose_footing']
-    assert np.isclose(footing['dt_beside_pose_s'], 0.6 * 0.052) and footing['constant']
-    settled = diagnosis.settle(out, [clock], lambda c: None)
+    assert again.params == {'dt_s': 0.031} and again.score == 0.03
+    footing = again.against_pose['constant_pose_footing']
+    assert np.isclose(footing['dt_joint_s'], 0.6 * 0.052) and footing['constant']
+    assert footing['dt_beside_pose_s'] == 0.031 and footing['passes_on_pose']
+    assert again.against_pose['recorded_pose']['params'] == {'dt_s': 0.052}
+    settled = diagnosis.settle(out, [again], lambda c: None)
     assert settled.missing == 'time_offset'
-    out = judge.clock_beside_constant_pose(alone, [_clock()], lambda e: _on(True, False),
-                                           on_clock)
+    out, _ = judge.clock_beside_constant_pose(alone, [_clock()], lambda e: _on(True, False),
+                                              on_clock)
     assert out.missing == 'time_offset' and out.pose is None
-    assert judge.clock_beside_constant_pose(alone, [_clock()], lambda e: _on(False, True),
-                                            on_clock) is alone
+    # The clock fitted alone fails the rule (its dt fights the pose's offset): weighed
+    # all the same (clock_pose_spin seed 1: -0.10 nats/point alone).
+    failing = _clock()
+    failing.score, failing.z, failing.significant = -0.1037, -3.7, False
+    out, again = judge.clock_beside_constant_pose(alone, [failing], lambda e: _on(True, True),
+                                                  on_clock)
+    assert out.missing == 'time_offset' and again.score == 0.03
+    for footing, asked in ((lambda e: _on(False, True), on_clock),
+                           (lambda e: _on(True, True),
+                            lambda e: on_clock(e, nameable=False))):
+        clock = _clock()
+        assert judge.clock_beside_constant_pose(alone, [clock], footing, asked) \
+            == (alone, None)
 
     class _PerCloud(_Pose):
         constant = False
@@ -142,9 +174,9 @@ def test_a_clock_with_its_own_part_beside_a_constant_pose_is_named_with_the_pose
                   diagnosis.Decision('range_walk', [], pose=pose),
                   diagnosis.Decision(None, ['pose_error', 'time_offset'], pose=pose),
                   diagnosis.Decision(None, [])):
-        assert judge.clock_beside_constant_pose(other, [_clock()],
-                                                lambda e: _on(True, True), on_clock) is other
-    assert judge.clock_beside_constant_pose(alone, [_clock()], None, on_clock) is alone
+        assert judge.clock_beside_constant_pose(other, [_clock()], lambda e: _on(True, True),
+                                                on_clock) == (other, None)
+    assert judge.clock_beside_constant_pose(alone, [_clock()], None, on_clock) == (alone, None)
 
 
 def test_the_verdict_gives_the_clock_fitted_beside_the_constant_pose():
@@ -152,10 +184,10 @@ def test_the_verdict_gives_the_clock_fitted_beside_the_constant_pose():
     offset fitted beside it, not the one fitted alone as if it were the answer; the
     line-of-sight sentence of a range term is not said."""
     from lidar_sim_ros.compare.report import verdict
-    clock = _clock()
     judge = _Judge()
-    judge.clock_beside_constant_pose(diagnosis.Decision(None, [], pose=_Pose()), [clock],
-                                     lambda e: _on(True, True), lambda e: _Pose())
-    words = verdict.clock_beside_pose_words(clock)
-    assert 'dt_s = 0.0312' in words and '0.0520' in words
+    _, again = judge.clock_beside_constant_pose(
+        diagnosis.Decision(None, [], pose=_Pose()), [_clock()], lambda e: _on(True, True),
+        lambda e: (_OnPose(0.031), _OnClock()))
+    words = verdict.clock_beside_pose_words(again)
+    assert 'dt_s = 0.0310' in words and '0.0520' in words
     assert 'part of its own: 0.0080 nats/point' in words

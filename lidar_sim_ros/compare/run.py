@@ -1151,15 +1151,15 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         if has_point_times(meas) else None)
     # One rigid correction for the recording reported alone, against a clock offset
     # fitted jointly with it on the same rays (``clock_beside_constant_pose``).
-    before = decision
-    decision = diag.clock_beside_constant_pose(decision, cands, (lambda clock: (
+    decision, clock = diag.clock_beside_constant_pose(decision, cands, (lambda clock: (
         clock_footing.clock_on_pose_footing(
             tested_data, meas.cloud[tested.matched], meas.t_s[tested.matched],
             sample.blocks[tested.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN,
             row_clock.clock_column_m(tested_data, clock), seed, constant=True))),
-        lambda clock: on_constant_pose(clock)[1])
-    if decision is not before:
-        clock = next(c for c in cands if c.name == decision.missing)
+        lambda clock: on_constant_pose(clock)[:2])
+    if clock is not None:
+        # The clock as scored on the corrected pose is the one the verdict quotes.
+        cands = diagnosis.rank([clock if c.name == clock.name else c for c in cands])
         on_top = [clock.name]
         pose = (decision.pose if decision.pose is not None
                 else pose_test([clock.effect], constant=True))

@@ -759,52 +759,68 @@ class PoseWeighing:
                         withheld=dict(decision.withheld))
 
     def clock_beside_constant_pose(self, decision: Decision, cands: list[Candidate],
-                                   footing_test, pose_on_clock) -> Decision:
+                                   footing_test, pose_on_clock
+                                   ) -> tuple[Decision, Candidate | None]:
         """One rigid correction for the recording reported alone, nothing named, and a
-        clock offset (``time_offset``) that passed the rule before the correction: the
-        two fitted jointly on the pose test's own rays and halves
-        (``footing_test(effect)``: ``clock_footing.clock_on_pose_footing`` with the
-        clock's effect and ``constant``; its figures on the clock's
-        ``against_pose['constant_pose_footing']``). On a target turning about a moving
-        axis (a spin on a tumble) a clock offset reads the attitude off by the spin
-        times dt about the body's spin axis, which turns with the body: one rotation for
-        the recording takes most of it, and with it beside the clock the pose fitted
-        alone reports a rotation the poses do not have and the clock is lost. Where the
-        clock passes the rule on top of the correction (its own part), it is named,
-        with the clock offset fitted beside the correction (the clock's alone times the
-        joint fit's scale of its column); the correction is reported beside it where it
-        passes on top of that clock (``pose_on_clock(effect)``: the constant test on top
-        of it, raycast as --fit corrects it), else not. Where the clock has no part of
-        its own, the decision stands (a clock and a constant pose on a target turning
-        about a fixed axis are the same data; the pose alone is an answer there)."""
+        clock offset (``time_offset``) among the candidates: the two fitted jointly on
+        the pose test's own rays and halves (``footing_test(effect)``:
+        ``clock_footing.clock_on_pose_footing`` with the clock's effect and
+        ``constant``; its figures on the clock's ``against_pose['constant_pose_footing']``).
+        On a target turning about a moving axis (a spin on a tumble) a clock offset
+        reads the attitude off by the spin times dt about the body's spin axis, which
+        turns with the body: one rotation for the recording takes most of it, so the
+        pose fitted alone reports a rotation the poses do not have, and the clock
+        fitted alone fights the pose's offset (its dt off, its held-out gain even below
+        zero) and is lost. Where the clock passes the rule on top of the correction on
+        that footing (a part of its own), the correction is fitted again on top of the
+        clock offset the joint fit gives (the clock's alone times its column's scale)
+        and raycast as --fit corrects it (``pose_on_clock(effect)``: the re-cast
+        diagnosis without the clock, and the correction's report); the clock is scored
+        again there, on the candidates' own footing. It is named if it may be named
+        there (``naming_fault`` on the re-cast diagnosis), with the correction reported
+        beside it where the correction passes on top of the clock on the joint footing
+        and its test on top of the clock passes too. Returns the decision and the clock
+        as scored on the corrected pose (None: the decision stands). Where the clock
+        has no part of its own (a clock and a constant pose on a target turning about a
+        fixed axis are the same data; a pose alone), the decision stands."""
         pose = decision.pose
         if (decision.missing or decision.confounded_with or pose is None
                 or not getattr(pose, 'constant', False) or footing_test is None):
-            return decision
+            return decision, None
         clock = next((c for c in cands if c.name == beside.CLOCK), None)
-        if clock is None or clock.effect is None or not self.nameable(clock):
-            return decision
+        if clock is None or clock.effect is None or clock.error is not None:
+            return decision, None
         try:
             on = footing_test(clock.effect)
         except Exception:  # noqa: BLE001 - not weighed: the decision stands
-            return decision
-        clock.against_pose = {**(clock.against_pose or {}),
-                              'constant_pose_footing': on.as_dict()}
+            return decision, None
+        figures = on.as_dict()
+        clock.against_pose = {**(clock.against_pose or {}), 'constant_pose_footing': figures}
         if not on.clock_passes_over_pose or not np.isfinite(on.clock_scale):
-            return decision
+            return decision, None
         dt_alone = float(clock.effect.params.dt_s)
         beside_pose = type(clock.effect)({'dt_s': float(on.clock_scale * dt_alone)})
-        clock.against_pose['constant_pose_footing'].update(
-            dt_alone_s=_num(dt_alone), dt_beside_pose_s=_num(beside_pose.params.dt_s))
-        decided = Decision(beside.CLOCK, [], also=decision.also,
-                           withheld=dict(decision.withheld))
-        if not on.pose_passes_over_clock:
-            return decided
+        figures.update(dt_alone_s=_num(dt_alone), dt_joint_s=_num(beside_pose.params.dt_s))
         try:
-            on_clock = pose_on_clock(beside_pose)
-        except Exception:  # noqa: BLE001 - the pose on top of the clock not fitted
-            return decided
-        return replace(decided, pose=on_clock if on_clock.significant else None)
+            on_pose, report = pose_on_clock(beside_pose)
+            again = on_pose.score(type(clock.effect))
+            fault = on_pose.naming_fault(again)
+        except Exception:  # noqa: BLE001 - not weighed on the corrected pose
+            return decision, None
+        figures.update(score_on_pose=_num(again.score), z_on_pose=_num(again.z),
+                       dt_beside_pose_s=_num(getattr(again.effect.params, 'dt_s', None)
+                                             if again.effect is not None else None),
+                       passes_on_pose=fault is None,
+                       **({'why_not_on_pose': fault} if fault else {}))
+        if fault is not None:
+            return decision, None
+        again.against_pose = {**(again.against_pose or {}), 'constant_pose_footing': figures,
+                              'recorded_pose': {'score': _num(clock.score),
+                                                'z': _num(clock.z),
+                                                'params': dict(clock.params or {})}}
+        keep = on.pose_passes_over_clock and bool(getattr(report, 'significant', False))
+        return Decision(beside.CLOCK, [], also=None, withheld=dict(decision.withheld),
+                        pose=report if keep else None), again
 
     def clock_tie(self, decision: Decision, cands: list[Candidate],
                   no_point_times: bool) -> Decision:
