@@ -191,3 +191,4 @@ def test_the_verdict_gives_the_clock_fitted_beside_the_constant_pose():
     words = verdict.clock_beside_pose_words(again)
     assert 'dt_s = 0.0310' in words and '0.0520' in words
     assert 'part of its own: 0.0080 nats/point' in words
+    assert '0.2870 nats/point held out, z = 9.3' in words and 'correct the pose too' in words

@@ -619,6 +619,7 @@ def clock_beside_pose_words(c) -> str:
     the clock's own part on top of the correction, and the clock offset fitted beside
     it."""
     on = c.against_pose['constant_pose_footing']
+    rec = c.against_pose.get('recorded_pose') or {}
     return (f'One rigid correction of the reference pose for the whole recording takes '
             f'most of what the clock offset does (on a target turning about a moving axis a '
             f'clock offset turns the recorded attitude about the spin axis), but fitted '
@@ -627,8 +628,14 @@ def clock_beside_pose_words(c) -> str:
             f'correction (z = {on["clock_over_pose_z"]:.1f}), the correction '
             f'{on["pose_over_clock_gain"]:.4f} (z = {on["pose_over_clock_z"]:.1f}) on top of '
             f'the clock. Fitted beside the correction the clock offset is dt_s = '
-            f'{on["dt_beside_pose_s"]:.4f} (fitted alone, {on["dt_alone_s"]:.4f} takes part of '
-            'the pose\'s offset).')
+            f'{on["dt_beside_pose_s"]:.4f}; its figures above are on the reference pose '
+            'corrected by that correction (fitted on top of the clock and raycast again, as '
+            '--effect pose_error --fit corrects it), so the NLL after them holds the pose\'s '
+            'part too. Fitted alone on the recorded pose the clock offset is '
+            f'{on["dt_alone_s"]:.4f} s' + (
+                f' ({rec["score"]:.4f} nats/point held out, z = {rec["z"]:.1f})'
+                if rec.get('score') is not None and rec.get('z') is not None else '')
+            + ': it takes part of the pose\'s offset, so correct the pose too.')
 
 
 def _together_words(c) -> str:
