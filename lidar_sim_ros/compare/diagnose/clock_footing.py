@@ -63,8 +63,10 @@ class ClockFooting:
 
     @property
     def clock_passes_over_pose(self) -> bool:
-        """The clock has a part of its own on top of the pose, by the rule."""
-        return bool(self.clock_passes and self.clock_over_pose_z >= self.z_crit
+        """The clock has a part of its own on top of the pose, by the rule (whether or
+        not it passes alone: beside a constant pose offset the clock fitted alone
+        fights the offset)."""
+        return bool(self.clock_over_pose_z >= self.z_crit
                     and self.clock_over_pose_gain >= self.min_gain)
 
     @property
