@@ -197,3 +197,30 @@ def test_the_verdict_gives_the_clock_fitted_beside_the_constant_pose():
     assert 'dt_s = 0.0310' in words and '0.0520' in words
     assert 'part of its own: 0.0080 nats/point' in words
     assert '0.2870 nats/point held out, z = 9.3' in words and 'correct the pose too' in words
+
+
+def test_a_clock_part_decisive_but_below_the_margin_is_said_not_named():
+    """clock_pose_spin seed 0 on the corrected pose: the clock's own part 0.0042
+    nats/point, z 5.2, below the margin that matters: the pose alone stands, the
+    clock's figures on it and the verdict says the clock may sit beside the pose. A
+    pose alone (the own part z -0.3): nothing said."""
+    from lidar_sim_ros.compare.report import verdict
+    judge = _Judge()
+    alone = diagnosis.Decision(None, [], pose=_Pose())
+
+    def below(e, z=5.2):
+        return clock_footing.ClockFooting(
+            0.0, 0.03, -0.0004, -3.1, 0.0042, z, 0.0038, 4.8, 31942, 34266, False, False,
+            False, 0.31, True, 3.0, diagnosis.MIN_PRACTICAL_GAIN)
+    clock = _clock()
+    out = judge.clock_beside_constant_pose(alone, [clock], below,
+                                           lambda e: (_OnPose(0.03), _OnClock()))
+    assert out == (alone, None)
+    on = clock.against_pose['constant_pose_footing']
+    assert on['clock_decisive_over_pose'] and not on['clock_passes_over_pose']
+    words = verdict.clock_below_margin_words([clock])
+    assert 'z = 5.2' in words and '0.0042 nats/point' in words and 'not named' in words
+    clock = _clock()
+    judge.clock_beside_constant_pose(alone, [clock], lambda e: below(e, z=-0.3),
+                                     lambda e: (_OnPose(0.03), _OnClock()))
+    assert verdict.clock_below_margin_words([clock]) == ''

@@ -62,6 +62,12 @@ class ClockFooting:
     min_gain: float = float('inf')
 
     @property
+    def clock_decisive_over_pose(self) -> bool:
+        """The clock's part on top of the pose is decisive (z at the bound), whether or
+        not it is as large as matters."""
+        return bool(self.clock_over_pose_z >= self.z_crit)
+
+    @property
     def clock_passes_over_pose(self) -> bool:
         """The clock has a part of its own on top of the pose, by the rule (whether or
         not it passes alone: beside a constant pose offset the clock fitted alone
@@ -86,7 +92,8 @@ class ClockFooting:
                 'pose_passes_over_clock': self.pose_passes_over_clock,
                 'stands': self.stands,
                 **({'constant': True, 'clock_scale': round(self.clock_scale, 4),
-                    'clock_passes_over_pose': self.clock_passes_over_pose}
+                    'clock_passes_over_pose': self.clock_passes_over_pose,
+                    'clock_decisive_over_pose': self.clock_decisive_over_pose}
                    if self.constant else {})}
 
 

@@ -765,7 +765,11 @@ class PoseWeighing:
         clock offset (``time_offset``) among the candidates: the two fitted jointly on
         the pose test's own rays and halves (``footing_test(effect)``:
         ``clock_footing.clock_on_pose_footing`` with the clock's effect and
-        ``constant``; its figures on the clock's ``against_pose['constant_pose_footing']``).
+        ``constant``, on the model the correction leaves, raycast again, where what is
+        left of a pose off by centimetres is linear; on the recorded pose its remainder
+        lent a clock a part of its own with no clock in the data; its figures on the
+        clock's ``against_pose['constant_pose_footing']``; a part decisive but below the
+        margin that matters is said in the verdict, not named).
         On a target turning about a moving axis (a spin on a tumble) a clock offset
         reads the attitude off by the spin times dt about the body's spin axis, which
         turns with the body: one rotation for the recording takes most of it, so the

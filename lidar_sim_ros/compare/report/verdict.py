@@ -183,6 +183,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             parts.append(words[0].upper() + words[1:] + '.')
     elif decision.pose is not None:
         parts.append(pose_words(decision.pose, cands))
+        below = clock_below_margin_words(cands)
+        if below:
+            parts.append(below)
     elif not beyond_bound and not to_range:
         parts.append(_nothing_named(summary, attribution, cands))
     if beyond_bound:
@@ -611,6 +614,24 @@ def constant_pose_beside_words(c) -> list[str]:
         out.append('On the recorded pose it was set aside (' + ap['veto_on_recorded_pose']
                    + '); with the pose corrected it holds across the materials.')
     return out
+
+
+def clock_below_margin_words(cands: list) -> str:
+    """Beside one rigid correction reported alone: a clock offset whose part on top of
+    it, fitted together on the corrected pose, is decisive but below the margin that
+    matters (``Diagnosis.clock_beside_constant_pose``); '' otherwise."""
+    c = next((c for c in cands if c.name == 'time_offset'), None)
+    on = ((c.against_pose or {}).get('constant_pose_footing') or {}) if c is not None else {}
+    if not on.get('clock_decisive_over_pose') or on.get('clock_passes_over_pose'):
+        return ''
+    return (f'A clock offset between the pose and LiDAR stamps would move the target much as '
+            f'this correction does; fitted together with it on the corrected pose, a clock '
+            f'offset keeps a part of its own, decisive (z = {on["clock_over_pose_z"]:.1f}) but '
+            f'below the margin that matters ({on["clock_over_pose_gain"]:.4f} nats/point held '
+            'out), so it is not named: the reference pose may be off with a clock offset '
+            'beside it. A recording in which the target turns at another rate or about '
+            'another axis (a clock offset follows the motion, a pose offset does not) would '
+            'separate them.')
 
 
 def clock_beside_pose_words(c) -> str:
