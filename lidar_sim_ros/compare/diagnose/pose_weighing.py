@@ -780,8 +780,9 @@ class PoseWeighing:
         clock offset the joint fit gives (the clock's alone times its column's scale)
         and raycast as --fit corrects it (``pose_on_clock(effect)``: the re-cast
         diagnosis without the clock, and the correction's report); the clock is scored
-        again there, on the candidates' own footing. It is named if it may be named
-        there (``naming_fault`` on the re-cast diagnosis), with the correction reported
+        again there (its dt and fitted figures; the held-out gain quoted is its own part
+        on the joint footing). It is named if it may be named there (``naming_fault``
+        on the re-cast diagnosis), with the correction reported
         beside it where the correction passes on top of the clock on the joint footing
         and its test on top of the clock passes too. Returns the decision and the clock
         as scored on the corrected pose (None: the decision stands). Where the clock
@@ -818,6 +819,10 @@ class PoseWeighing:
                        **({'why_not_on_pose': fault} if fault else {}))
         if fault is not None:
             return decision, None
+        # The held-out gain quoted is the clock's own part on top of the correction: its
+        # score on a correction fitted beside the clock it assumed is not independent
+        # (that correction leaves the clock's pose-shaped part for the clock to find).
+        again.score, again.z = float(on.clock_over_pose_gain), float(on.clock_over_pose_z)
         again.against_pose = {**(again.against_pose or {}), 'constant_pose_footing': figures,
                               'recorded_pose': {'score': _num(clock.score),
                                                 'z': _num(clock.z),
