@@ -23,8 +23,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from foreign_sim import (CEPTON_TOPIC, CLOCK_SPIN_NAMES, INCIDENCE_LAW_NAMES, V4, ForeignSpec, battery,
-                         generate)
+from foreign_sim import (CEPTON_TOPIC, CLOCK_SPIN_NAMES, INCIDENCE_LAW_NAMES, V4, ForeignSpec,
+                         battery, generate)
 
 from lidar_sim_ros.cli import main
 
