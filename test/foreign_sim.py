@@ -1930,13 +1930,34 @@ POINTING_FEW: tuple[ForeignSpec, ...] = (
 )
 
 
+# A clock offset (poses stamped 30 ms late) with a constant reference-pose translation
+# (0, 3, 2) cm beside it, on the rocket-like drum body at 10 m closing 0.3 m/s, tumbling
+# 8 deg/s with a 25 deg/s spin about the body's long axis on top (the rotation axis moves):
+# 12 clouds over 5.5 s, point times given (clockspin38). Right: time_offset named with the
+# pose reported beside it, or the tie naming both; wrong: a tie with a range term that is
+# absent, or the clock missed. Controls: the clock alone (named) and the pose alone (no
+# clock gained), same motion. By name.
+_SPIN = dict(frames=12, frame_gap_s=0.5, distance_m=10.0, speed_mps=0.3, spin_dps=25.0,
+             precession_dps=8.0, bus_shape='drum', shots_per_frame=12_000)
+CLOCK_SPIN: tuple[ForeignSpec, ...] = (
+    ForeignSpec('clock_pose_spin', 'time_offset', {'dt_s': 0.03}, seed=801,
+                pose_offset_m=(0.0, 0.03, 0.02), **_SPIN,
+                note='poses 30 ms late and off by (0, 3, 2) cm; spin 25 deg/s on a tumble'),
+    ForeignSpec('clock_spin', 'time_offset', {'dt_s': 0.03}, seed=811, **_SPIN,
+                note='poses 30 ms late alone; spin 25 deg/s on a tumble'),
+    ForeignSpec('pose_spin', None, seed=821, pose_offset_m=(0.0, 0.03, 0.02), **_SPIN,
+                expected=None, note='poses off by (0, 3, 2) cm alone; spin 25 deg/s on a tumble'),
+)
+CLOCK_SPIN_NAMES = frozenset(s.name for s in CLOCK_SPIN)
+
+
 def battery(names: list[str] | None = None) -> list[ForeignSpec]:
     """The battery, or the named datasets of it, of VENDOR, V4, RANGE_OUTSIDE, STANDOFF,
-    COMPENSATED, INCIDENCE_LAW or POINTING_FEW (in that order)."""
+    COMPENSATED, INCIDENCE_LAW, POINTING_FEW or CLOCK_SPIN (in that order)."""
     if not names:
         return list(BATTERY)
     every = (BATTERY + VENDOR + V4 + RANGE_OUTSIDE + STANDOFF + COMPENSATED + INCIDENCE_LAW
-             + POINTING_FEW)
+             + POINTING_FEW + CLOCK_SPIN)
     known = {s.name: s for s in every}
     bad = [n for n in names if n not in known]
     if bad:

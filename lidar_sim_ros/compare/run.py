@@ -1149,6 +1149,26 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             sample.blocks[tested.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN,
             row_clock.clock_column_m(tested_data, clock), seed, rate=True)))
         if has_point_times(meas) else None)
+    # One rigid correction for the recording reported alone, against a clock offset
+    # fitted jointly with it on the same rays (``clock_beside_constant_pose``), on the
+    # model that correction leaves (raycast again): what is left of a pose off by
+    # centimetres is linear there, on the recorded pose it is not.
+    def clock_beside_corrected(clock: Effect) -> clock_footing.ClockFooting:
+        moved = recast_with_rays(decision.pose)[2]
+        at = moved.matched
+        data_m = fit_data.make_fit_data(model, effects, moved)
+        return clock_footing.clock_on_pose_footing(
+            data_m, meas.cloud[at], meas.t_s[at], sample.blocks[at], diag.z_crit,
+            diagnosis.MIN_PRACTICAL_GAIN, row_clock.clock_column_m(data_m, clock), seed,
+            constant=True)
+    decision, clock = diag.clock_beside_constant_pose(
+        decision, cands, clock_beside_corrected, lambda clock: on_constant_pose(clock)[:2])
+    if clock is not None:
+        # The clock as scored on the corrected pose is the one the verdict quotes.
+        cands = diagnosis.rank([clock if c.name == clock.name else c for c in cands])
+        on_top = [clock.name]
+        pose = (decision.pose if decision.pose is not None
+                else pose_test([clock.effect], constant=True))
     decision = diag.clock_tie(decision, cands, meas.time_source == 'stamp')
     stamp = _stamp_place(diag, decision, cands, meas, scenario)
     decision = sunlit_decision(decision, sunlight)

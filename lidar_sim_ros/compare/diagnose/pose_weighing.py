@@ -758,6 +758,79 @@ class PoseWeighing:
         return Decision(None, [POSE_ERROR, beside.CLOCK], also=decision.also,
                         withheld=dict(decision.withheld))
 
+    def clock_beside_constant_pose(self, decision: Decision, cands: list[Candidate],
+                                   footing_test, pose_on_clock
+                                   ) -> tuple[Decision, Candidate | None]:
+        """One rigid correction for the recording reported alone, nothing named, and a
+        clock offset (``time_offset``) among the candidates: the two fitted jointly on
+        the pose test's own rays and halves (``footing_test(effect)``:
+        ``clock_footing.clock_on_pose_footing`` with the clock's effect and
+        ``constant``, on the model the correction leaves, raycast again, where what is
+        left of a pose off by centimetres is linear; on the recorded pose its remainder
+        lent a clock a part of its own with no clock in the data; its figures on the
+        clock's ``against_pose['constant_pose_footing']``; a part decisive but below the
+        margin that matters is said in the verdict, not named).
+        On a target turning about a moving axis (a spin on a tumble) a clock offset
+        reads the attitude off by the spin times dt about the body's spin axis, which
+        turns with the body: one rotation for the recording takes most of it, so the
+        pose fitted alone reports a rotation the poses do not have, and the clock
+        fitted alone fights the pose's offset (its dt off, its held-out gain even below
+        zero) and is lost. Where the clock passes the rule on top of the correction on
+        that footing (a part of its own), the correction is fitted again on top of the
+        clock offset the joint fit gives (the clock's alone times its column's scale)
+        and raycast as --fit corrects it (``pose_on_clock(effect)``: the re-cast
+        diagnosis without the clock, and the correction's report); the clock is scored
+        again there (its dt and fitted figures; the held-out gain quoted is its own part
+        on the joint footing). It is named if it may be named there (``naming_fault``
+        on the re-cast diagnosis), with the correction reported
+        beside it where the correction passes on top of the clock on the joint footing
+        and its test on top of the clock passes too. Returns the decision and the clock
+        as scored on the corrected pose (None: the decision stands). Where the clock
+        has no part of its own (a clock and a constant pose on a target turning about a
+        fixed axis are the same data; a pose alone), the decision stands."""
+        pose = decision.pose
+        if (decision.missing or decision.confounded_with or pose is None
+                or not getattr(pose, 'constant', False) or footing_test is None):
+            return decision, None
+        clock = next((c for c in cands if c.name == beside.CLOCK), None)
+        if clock is None or clock.effect is None or clock.error is not None:
+            return decision, None
+        try:
+            on = footing_test(clock.effect)
+        except Exception:  # noqa: BLE001 - not weighed: the decision stands
+            return decision, None
+        figures = on.as_dict()
+        clock.against_pose = {**(clock.against_pose or {}), 'constant_pose_footing': figures}
+        if not on.clock_passes_over_pose or not np.isfinite(on.clock_scale):
+            return decision, None
+        dt_alone = float(clock.effect.params.dt_s)
+        beside_pose = type(clock.effect)({'dt_s': float(on.clock_scale * dt_alone)})
+        figures.update(dt_alone_s=_num(dt_alone), dt_joint_s=_num(beside_pose.params.dt_s))
+        try:
+            on_pose, report = pose_on_clock(beside_pose)
+            again = on_pose.score(type(clock.effect))
+            fault = on_pose.naming_fault(again)
+        except Exception:  # noqa: BLE001 - not weighed on the corrected pose
+            return decision, None
+        figures.update(score_on_pose=_num(again.score), z_on_pose=_num(again.z),
+                       dt_beside_pose_s=_num(getattr(again.effect.params, 'dt_s', None)
+                                             if again.effect is not None else None),
+                       passes_on_pose=fault is None,
+                       **({'why_not_on_pose': fault} if fault else {}))
+        if fault is not None:
+            return decision, None
+        # The held-out gain quoted is the clock's own part on top of the correction: its
+        # score on a correction fitted beside the clock it assumed is not independent
+        # (that correction leaves the clock's pose-shaped part for the clock to find).
+        again.score, again.z = float(on.clock_over_pose_gain), float(on.clock_over_pose_z)
+        again.against_pose = {**(again.against_pose or {}), 'constant_pose_footing': figures,
+                              'recorded_pose': {'score': _num(clock.score),
+                                                'z': _num(clock.z),
+                                                'params': dict(clock.params or {})}}
+        keep = on.pose_passes_over_clock and bool(getattr(report, 'significant', False))
+        return Decision(beside.CLOCK, [], also=None, withheld=dict(decision.withheld),
+                        pose=report if keep else None), again
+
     def clock_tie(self, decision: Decision, cands: list[Candidate],
                   no_point_times: bool) -> Decision:
         """Clouds without usable point times, the reference pose reported off and a
