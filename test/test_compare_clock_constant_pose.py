@@ -103,7 +103,8 @@ def _on(clock_over: bool, pose_over: bool, scale: float = 0.6,
         0.05 if alone else 0.0106, 12.0 if alone else 1.9, 0.06, 13.0,
         0.008 if clock_over else 0.0001, 6.0 if clock_over else 0.2,
         0.01 if pose_over else 0.0, 7.0 if pose_over else 0.1, 9000, 12000, False, alone,
-        pose_over, scale, True, 3.0, diagnosis.MIN_PRACTICAL_GAIN)
+        pose_over, clock_scale=scale, constant=True, z_crit=3.0,
+        min_gain=diagnosis.MIN_PRACTICAL_GAIN)
 
 
 class _OnPose:
