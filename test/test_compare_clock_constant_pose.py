@@ -215,7 +215,8 @@ def test_a_clock_part_decisive_but_below_the_margin_is_said_not_named():
     def below(e, z=5.2):
         return clock_footing.ClockFooting(
             0.0, 0.03, -0.0004, -3.1, 0.0042, z, 0.0038, 4.8, 31942, 34266, False, False,
-            False, 0.31, True, 3.0, diagnosis.MIN_PRACTICAL_GAIN)
+            False, clock_scale=0.31, constant=True, z_crit=3.0,
+            min_gain=diagnosis.MIN_PRACTICAL_GAIN)
     clock = _clock()
     out = judge.clock_beside_constant_pose(alone, [clock], below,
                                            lambda e: (_OnPose(0.03), _OnClock()))
