@@ -759,7 +759,7 @@ class PoseWeighing:
                         withheld=dict(decision.withheld))
 
     def clock_beside_constant_pose(self, decision: Decision, cands: list[Candidate],
-                                   footing_test, pose_on_clock
+                                   footing_test, pose_on_clock, nested=None
                                    ) -> tuple[Decision, Candidate | None]:
         """One rigid correction for the recording reported alone, nothing named, and a
         clock offset (``time_offset``) among the candidates: the two fitted jointly on
@@ -801,11 +801,22 @@ class PoseWeighing:
             return decision, None
         figures = on.as_dict()
         clock.against_pose = {**(clock.against_pose or {}), 'constant_pose_footing': figures}
-        if not on.clock_passes_over_pose or not np.isfinite(on.clock_scale):
-            return decision, None
         dt_alone = float(clock.effect.params.dt_s)
-        beside_pose = type(clock.effect)({'dt_s': float(on.clock_scale * dt_alone)})
-        figures.update(dt_alone_s=_num(dt_alone), dt_joint_s=_num(beside_pose.params.dt_s))
+        dt_joint = float(on.clock_scale * dt_alone) if np.isfinite(on.clock_scale) else dt_alone
+        figures.update(dt_alone_s=_num(dt_alone), dt_joint_s=_num(dt_joint))
+        if nested is None:
+            return decision, None
+        try:
+            nest = nested(clock.effect, dt_joint)
+        except Exception:  # noqa: BLE001 - not weighed on the candidates' footing
+            return decision, None
+        figures['nested'] = nest.as_dict()
+        if nest.outcome == 'tie' and self.nameable(clock):
+            return Decision(None, [POSE_ERROR, beside.CLOCK], withheld=dict(decision.withheld),
+                            pose=pose), None
+        if nest.outcome != 'clock':
+            return decision, None
+        beside_pose = type(clock.effect)({'dt_s': float(nest.dt_beside_pose_s)})
         try:
             on_pose, report = pose_on_clock(beside_pose)
             again = on_pose.score(type(clock.effect))
@@ -813,8 +824,9 @@ class PoseWeighing:
         except Exception:  # noqa: BLE001 - not weighed on the corrected pose
             return decision, None
         figures.update(score_on_pose=_num(again.score), z_on_pose=_num(again.z),
-                       dt_beside_pose_s=_num(getattr(again.effect.params, 'dt_s', None)
-                                             if again.effect is not None else None),
+                       dt_beside_pose_s=_num(nest.dt_beside_pose_s),
+                       dt_rescored_on_pose_s=_num(getattr(again.effect.params, 'dt_s', None)
+                                                  if again.effect is not None else None),
                        passes_on_pose=fault is None,
                        **({'why_not_on_pose': fault} if fault else {}))
         if fault is not None:
@@ -822,12 +834,13 @@ class PoseWeighing:
         # The held-out gain quoted is the clock's own part on top of the correction: its
         # score on a correction fitted beside the clock it assumed is not independent
         # (that correction leaves the clock's pose-shaped part for the clock to find).
-        again.score, again.z = float(on.clock_over_pose_gain), float(on.clock_over_pose_z)
+        again.score = float(nest.clock_over_pose.gain)
+        again.z = float(nest.clock_over_pose.z)
         again.against_pose = {**(again.against_pose or {}), 'constant_pose_footing': figures,
                               'recorded_pose': {'score': _num(clock.score),
                                                 'z': _num(clock.z),
                                                 'params': dict(clock.params or {})}}
-        keep = on.pose_passes_over_clock and bool(getattr(report, 'significant', False))
+        keep = nest.pose_over_clock.passes and bool(getattr(report, 'significant', False))
         return Decision(beside.CLOCK, [], also=None, withheld=dict(decision.withheld),
                         pose=report if keep else None), again
 

@@ -636,25 +636,28 @@ def clock_below_margin_words(cands: list) -> str:
 
 def clock_beside_pose_words(c) -> str:
     """Beside one rigid correction of the reference pose for the recording
-    (``Diagnosis.clock_beside_constant_pose``: ``c.against_pose['constant_pose_footing']``):
-    the clock's own part on top of the correction, and the clock offset fitted beside
-    it."""
+    (``Diagnosis.clock_beside_constant_pose``: ``c.against_pose['constant_pose_footing']``
+    and its ``nested`` figures, ``clock_nested``): the clock's own part on top of the
+    correction and the correction's on top of the clock, both raycast, and the clock
+    offset fitted beside it."""
     on = c.against_pose['constant_pose_footing']
+    nest = on.get('nested') or {}
+    own, pose = nest.get('clock_over_pose') or {}, nest.get('pose_over_clock') or {}
     rec = c.against_pose.get('recorded_pose') or {}
     return (f'One rigid correction of the reference pose for the whole recording takes '
             f'most of what the clock offset does (on a target turning about a moving axis a '
-            f'clock offset turns the recorded attitude about the spin axis), but fitted '
-            f'together with it on the corrected pose (raycast again), on the rays the pose '
-            f'is tested on, the clock offset keeps a part of '
-            f'its own: {on["clock_over_pose_gain"]:.4f} nats/point held out on top of the '
-            f'correction (z = {on["clock_over_pose_z"]:.1f}), the correction '
-            f'{on["pose_over_clock_gain"]:.4f} (z = {on["pose_over_clock_z"]:.1f}) on top of '
-            f'the clock. Fitted beside the correction the clock offset is dt_s = '
-            f'{on["dt_beside_pose_s"]:.4f}; the held-out gain above is its own part, the '
-            'RMSE and NLL are on the reference pose corrected by that correction (fitted on '
-            'top of the clock and raycast again, as --effect pose_error --fit corrects it), '
-            'so the NLL after them holds the pose\'s part too. Fitted alone on the recorded '
-            'pose the clock offset is '
+            f'clock offset turns the recorded attitude about the spin axis), but with the '
+            f'two fitted together and every ray raycast again (the returns each puts back '
+            f'counted, on {nest.get("n_points", 0)} points), the clock offset keeps a part of '
+            f'its own: {own.get("gain_per_point", float("nan")):.4f} nats/point on top of the '
+            f'correction (z = {own.get("z", float("nan")):.1f}), the correction '
+            f'{pose.get("gain_per_point", float("nan")):.4f} (z = '
+            f'{pose.get("z", float("nan")):.1f}) on top of the clock. Fitted beside the '
+            f'correction the clock offset is dt_s = {on["dt_beside_pose_s"]:.4f}; the '
+            'held-out gain above is its own part, the RMSE and NLL are on the reference pose '
+            'corrected by that correction (fitted on top of the clock and raycast again, as '
+            '--effect pose_error --fit corrects it), so the NLL after them holds the pose\'s '
+            'part too. Fitted alone on the recorded pose the clock offset is '
             f'{on["dt_alone_s"]:.4f} s' + (
                 f' ({rec["score"]:.4f} nats/point held out, z = {rec["z"]:.1f})'
                 if rec.get('score') is not None and rec.get('z') is not None else '')
