@@ -128,54 +128,69 @@ class _OnClock:
     constant = True
 
 
+def _nest(clock_over: bool, pose_over: bool = True, dt: float = 0.030):
+    """A nested test on the raycast footing (``clock_nested``) whose clock and pose own
+    parts pass or not (both pass alone)."""
+    from lidar_sim_ros.compare.diagnose import clock_nested
+
+    def part(ok, gain):
+        return clock_nested.Part(gain if ok else 0.0001, 8.0 if ok else 0.1, ok, 0)
+
+    def nested(effect, dt_joint):
+        return clock_nested.NestedClock(part(True, 0.7), part(True, 0.2),
+                                        part(clock_over, 0.04), part(pose_over, 0.5),
+                                        float(effect.params.dt_s), dt, 20000)
+    return nested
+
+
 def test_a_clock_with_its_own_part_beside_a_constant_pose_is_named_with_the_pose():
     """The constant pose reported alone at first (clock_pose_spin seed 0 before: 4.6 cm
-    and 0.82 deg, nothing named): with the clock's own part on top of it, the pose is
-    fitted again on top of the clock the joint fit gives (0.6 x the one fitted alone),
-    the clock is scored again on that corrected pose and named with those figures, the
-    pose reported beside it. Without the pose's part on top of the clock, the clock
-    alone. A clock not nameable on the corrected pose, or without a part of its own, a
-    pose per cloud, a name already given or no test: as it was."""
+    and 0.82 deg, nothing named). The linear joint footing no longer names: with its
+    own part passing there but not on the raycast nested test, or no nested test, the
+    decision stands. With it passing on the raycast footing, the pose is fitted again
+    on top of the clock at the nested profile's dt, the clock scored again there and
+    named, its own raycast part quoted, the pose beside it. A clock not nameable on the
+    corrected pose, a pose per cloud, a name already given or no test: as it was."""
     judge = _Judge()
     pose = _Pose()
     alone = diagnosis.Decision(None, [], pose=pose)
-    clock = _clock()
     fitted = []
 
     def on_clock(effect, nameable=True):
         fitted.append(effect.params.dt_s)
         return _OnPose(0.031, nameable), _OnClock()
-    out, again = judge.clock_beside_constant_pose(alone, [clock], lambda e: _on(True, True),
-                                                  on_clock)
+    for nested in (None, _nest(False)):
+        assert judge.clock_beside_constant_pose(
+            alone, [_clock()], lambda e: _on(True, True), on_clock, nested) == (alone, None)
+    out, again = judge.clock_beside_constant_pose(alone, [_clock()], lambda e: _on(True, True),
+                                                  on_clock, _nest(True))
     assert out.missing == 'time_offset' and out.confounded_with == []
     assert isinstance(out.pose, _OnClock)
-    assert np.isclose(fitted[0], 0.6 * 0.052)
+    assert fitted == [0.03]
     assert again.params == {'dt_s': 0.031}
-    # Quoted: its own part on top of the correction, not its score on a correction
-    # fitted beside the clock it assumed.
-    assert again.score == 0.008 and again.z == 6.0
+    # Quoted: its own part on top of the correction (raycast), not its score on a
+    # correction fitted beside the clock it assumed.
+    assert again.score == 0.04 and again.z == 8.0
     footing = again.against_pose['constant_pose_footing']
     assert np.isclose(footing['dt_joint_s'], 0.6 * 0.052) and footing['constant']
-    assert footing['dt_beside_pose_s'] == 0.031 and footing['passes_on_pose']
+    assert footing['dt_beside_pose_s'] == 0.03 and footing['dt_rescored_on_pose_s'] == 0.031
+    assert footing['passes_on_pose']
     assert again.against_pose['recorded_pose']['params'] == {'dt_s': 0.052}
     settled = diagnosis.settle(out, [again], lambda c: None)
     assert settled.missing == 'time_offset'
-    out, _ = judge.clock_beside_constant_pose(alone, [_clock()], lambda e: _on(True, False),
-                                              on_clock)
+    out, _ = judge.clock_beside_constant_pose(alone, [_clock()], lambda e: _on(True, True),
+                                              on_clock, _nest(True, pose_over=False))
     assert out.missing == 'time_offset' and out.pose is None
     # The clock fitted alone fails the rule (its dt fights the pose's offset): weighed
     # all the same (clock_pose_spin seed 1: -0.10 nats/point alone).
     failing = _clock()
     failing.score, failing.z, failing.significant = -0.1037, -3.7, False
     out, again = judge.clock_beside_constant_pose(
-        alone, [failing], lambda e: _on(True, True, alone=False), on_clock)
-    assert out.missing == 'time_offset' and again.score == 0.008
-    for footing, asked in ((lambda e: _on(False, True), on_clock),
-                           (lambda e: _on(True, True),
-                            lambda e: on_clock(e, nameable=False))):
-        clock = _clock()
-        assert judge.clock_beside_constant_pose(alone, [clock], footing, asked) \
-            == (alone, None)
+        alone, [failing], lambda e: _on(True, True, alone=False), on_clock, _nest(True))
+    assert out.missing == 'time_offset' and again.score == 0.04
+    assert judge.clock_beside_constant_pose(
+        alone, [_clock()], lambda e: _on(True, True), lambda e: on_clock(e, nameable=False),
+        _nest(True)) == (alone, None)
 
     class _PerCloud(_Pose):
         constant = False
@@ -184,22 +199,23 @@ def test_a_clock_with_its_own_part_beside_a_constant_pose_is_named_with_the_pose
                   diagnosis.Decision(None, ['pose_error', 'time_offset'], pose=pose),
                   diagnosis.Decision(None, [])):
         assert judge.clock_beside_constant_pose(other, [_clock()], lambda e: _on(True, True),
-                                                on_clock) == (other, None)
-    assert judge.clock_beside_constant_pose(alone, [_clock()], None, on_clock) == (alone, None)
+                                                on_clock, _nest(True)) == (other, None)
+    assert judge.clock_beside_constant_pose(alone, [_clock()], None, on_clock,
+                                            _nest(True)) == (alone, None)
 
 
 def test_the_verdict_gives_the_clock_fitted_beside_the_constant_pose():
-    """The named clock's sentence: its own part on top of the correction and the clock
-    offset fitted beside it, not the one fitted alone as if it were the answer; the
-    line-of-sight sentence of a range term is not said."""
+    """The named clock's sentence: its own part on top of the correction on the raycast
+    footing and the clock offset fitted beside it, not the one fitted alone as if it
+    were the answer."""
     from lidar_sim_ros.compare.report import verdict
     judge = _Judge()
     _, again = judge.clock_beside_constant_pose(
         diagnosis.Decision(None, [], pose=_Pose()), [_clock()], lambda e: _on(True, True),
-        lambda e: (_OnPose(0.031), _OnClock()))
+        lambda e: (_OnPose(0.031), _OnClock()), _nest(True))
     words = verdict.clock_beside_pose_words(again)
-    assert 'dt_s = 0.0310' in words and '0.0520' in words
-    assert 'part of its own: 0.0080 nats/point' in words
+    assert 'dt_s = 0.0300' in words and '0.0520' in words
+    assert 'part of its own: 0.0400 nats/point' in words and 'raycast again' in words
     assert '0.2870 nats/point held out, z = 9.3' in words and 'correct the pose too' in words
 
 
