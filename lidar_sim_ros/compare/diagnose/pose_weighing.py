@@ -775,19 +775,25 @@ class PoseWeighing:
         turns with the body: one rotation for the recording takes most of it, so the
         pose fitted alone reports a rotation the poses do not have, and the clock
         fitted alone fights the pose's offset (its dt off, its held-out gain even below
-        zero) and is lost. Where the clock passes the rule on top of the correction on
-        that footing (a part of its own), the correction is fitted again on top of the
-        clock offset the joint fit gives (the clock's alone times its column's scale)
-        and raycast as --fit corrects it (``pose_on_clock(effect)``: the re-cast
-        diagnosis without the clock, and the correction's report); the clock is scored
-        again there (its dt and fitted figures; the held-out gain quoted is its own part
-        on the joint footing). It is named if it may be named there (``naming_fault``
-        on the re-cast diagnosis), with the correction reported
-        beside it where the correction passes on top of the clock on the joint footing
-        and its test on top of the clock passes too. Returns the decision and the clock
-        as scored on the corrected pose (None: the decision stands). Where the clock
-        has no part of its own (a clock and a constant pose on a target turning about a
-        fixed axis are the same data; a pose alone), the decision stands.
+        zero) and is lost. The linear footing's part is only said: the decision is
+        the nested test on the candidates' own raycast footing (``nested(effect,
+        dt_joint)``: ``clock_nested``, the pose alone, the clock alone and both, raycast
+        on the same points, the clock beside the correction profiled over dt from the
+        linear joint fit's, the clock's alone times its column's scale; its figures
+        under ``['nested']``). Where the clock's own part passes the rule there, the
+        correction is fitted again on top of the clock at the profile's dt and raycast
+        as --fit corrects it (``pose_on_clock(effect)``: the re-cast diagnosis without
+        the clock, and the correction's report); the clock is scored again there (its
+        fitted figures; the held-out gain quoted is its own part on the nested
+        footing). It is named if it may be named there (``naming_fault`` on the re-cast
+        diagnosis), with the correction reported beside it where the correction's own
+        part passes on top of the clock there and its test on top of the clock passes
+        too. Where each passes alone and neither on top of the other (and the clock is
+        nameable alone): the tie [pose_error, time_offset]. Returns the decision and
+        the clock as scored on the corrected pose (None: the decision stands). Where
+        the clock has no part of its own (a clock and a constant pose on a target
+        turning about a fixed axis are the same data; a pose alone), or no nested test
+        is given, the decision stands.
         A tie of sensor effects beside the constant pose that the naming gate
         (``diagnosis.settle``) leaves none of is the pose alone here, as the verdict will
         give it (held-out clock_pose_spin seed 9: [incidence_angle, snr_noise], one
