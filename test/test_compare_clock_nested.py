@@ -192,3 +192,33 @@ def test_a_sensor_tie_the_gate_leaves_none_of_is_the_pose_alone_here():
     assert judge.clock_beside_constant_pose(
         tie, [sensor('incidence_angle'), sensor('snr_noise'), _clock()],
         lambda e: _on(True, True), lambda e: (_OnPose(0.031), _OnClock()), None) == (tie, None)
+
+
+def test_the_below_margin_sentence_follows_the_nested_test():
+    """clock_pose_spin seed 11: the linear footing's own part decisive (z 4.5, 0.0016)
+    but the nested raycast test's not (z 2.2): nothing said. The nested part decisive
+    and below the margin: said with its figures."""
+    from lidar_sim_ros.compare.report import verdict
+    judge = _Judge()
+    alone = diagnosis.Decision(None, [], pose=_Pose())
+    clock = _clock()
+    below = (lambda e: clock_nested_footing())
+
+    def clock_nested_footing():
+        from lidar_sim_ros.compare.diagnose import clock_footing
+        return clock_footing.ClockFooting(
+            0.0, 0.03, -0.0004, -3.1, 0.0016, 4.5, 0.0038, 4.8, 31942, 34266, False, False,
+            False, clock_scale=0.31, constant=True, z_crit=3.0,
+            min_gain=diagnosis.MIN_PRACTICAL_GAIN)
+    judge.clock_beside_constant_pose(alone, [clock], below,
+                                     lambda e: (_OnPose(0.03), _OnClock()),
+                                     _nested((0.0, 0.5))[0])
+    assert verdict.clock_below_margin_words([clock]) == ''
+    clock = _clock()
+    judge.clock_beside_constant_pose(alone, [clock], below,
+                                     lambda e: (_OnPose(0.03), _OnClock()),
+                                     _nested((0.004, 0.5))[0])
+    nest = clock.against_pose['constant_pose_footing']['nested']['clock_over_pose']
+    assert nest['decisive'] and not nest['passes']
+    words = verdict.clock_below_margin_words([clock])
+    assert 'raycast again' in words and f'z = {nest["z"]:.1f}' in words and 'not named' in words

@@ -42,10 +42,12 @@ class Part:
     z: float
     passes: bool
     put_back: int
+    decisive: bool = False     # z at the family's bound, whatever the margin
 
     def as_dict(self) -> dict:
         return {'gain_per_point': round(self.gain, 6), 'z': round(self.z, 2),
-                'passes': self.passes, 'put_back': self.put_back}
+                'passes': self.passes, 'put_back': self.put_back,
+                'decisive': self.decisive}
 
 
 @dataclass(frozen=True)
@@ -83,8 +85,9 @@ class NestedClock:
 def part(before: line_of_sight.RayScore, after: line_of_sight.RayScore, n_points: int,
          blocks: np.ndarray, z_crit: float, min_gain: float, params: int) -> Part:
     """``after`` against ``before`` on the same points (``line_of_sight.judge``)."""
-    return Part(*line_of_sight.judge(before, after, n_points, blocks, z_crit, min_gain,
-                                     params=params))
+    gain, z, ok, put_back = line_of_sight.judge(before, after, n_points, blocks, z_crit,
+                                                min_gain, params=params)
+    return Part(gain, z, ok, put_back, bool(z >= z_crit))
 
 
 def weigh(nothing: line_of_sight.RayScore, pose: line_of_sight.RayScore,

@@ -622,12 +622,20 @@ def clock_below_margin_words(cands: list) -> str:
     matters (``Diagnosis.clock_beside_constant_pose``); '' otherwise."""
     c = next((c for c in cands if c.name == 'time_offset'), None)
     on = ((c.against_pose or {}).get('constant_pose_footing') or {}) if c is not None else {}
-    if not on.get('clock_decisive_over_pose') or on.get('clock_passes_over_pose'):
+    own = (on.get('nested') or {}).get('clock_over_pose')
+    if own is not None:
+        # The nested raycast test decides (``clock_nested``): its figures are the ones said.
+        if not own.get('decisive') or own.get('passes'):
+            return ''
+        z, gain, where = own['z'], own['gain_per_point'], 'every ray raycast again'
+    elif not on.get('clock_decisive_over_pose') or on.get('clock_passes_over_pose'):
         return ''
+    else:
+        z, gain, where = on['clock_over_pose_z'], on['clock_over_pose_gain'], 'the corrected pose'
     return (f'A clock offset between the pose and LiDAR stamps would move the target much as '
-            f'this correction does; fitted together with it on the corrected pose, a clock '
-            f'offset keeps a part of its own, decisive (z = {on["clock_over_pose_z"]:.1f}) but '
-            f'below the margin that matters ({on["clock_over_pose_gain"]:.4f} nats/point held '
+            f'this correction does; fitted together with it on {where}, a clock '
+            f'offset keeps a part of its own, decisive (z = {z:.1f}) but '
+            f'below the margin that matters ({gain:.4f} nats/point held '
             'out), so it is not named: the reference pose may be off with a clock offset '
             'beside it. A recording in which the target turns at another rate or about '
             'another axis (a clock offset follows the motion, a pose offset does not) would '
