@@ -35,7 +35,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import norm
 
-from lidar_sim_ros.compare.diagnose import (clock_footing, clock_nested, diagnosis, far_returns, features,
+from lidar_sim_ros.compare.diagnose import (clock_footing, clock_nested, diagnosis,
+                                            far_returns, features,
                                             fit_data, intensity_range, laser_gains,
                                             plan as sep_plan, power_incidence,
                                             line_of_sight, pose_error, range_alone,
