@@ -23,8 +23,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from foreign_sim import (CEPTON_TOPIC, INCIDENCE_LAW_NAMES, V4, ForeignSpec, battery,
-                         generate)
+from foreign_sim import (CEPTON_TOPIC, CLOCK_SPIN_NAMES, INCIDENCE_LAW_NAMES, V4, ForeignSpec,
+                         battery, generate)
 
 from lidar_sim_ros.cli import main
 
@@ -142,6 +142,8 @@ def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
     """Right or wrong, and why, from the loop's summaries."""
     if spec.name.split('@')[0] in V4_NAMES:
         return judge_v4(spec, steps, truth)
+    if spec.name.split('@')[0] in CLOCK_SPIN_NAMES:
+        return judge_clock_spin(spec, steps)
     worth = truth.get('effect_gain_nats', {})
     expected = [n for n in spec.expected_effects
                 if worth.get(n, 1.0) >= BORDERLINE[1] * PRACTICAL_NATS]
@@ -244,6 +246,44 @@ def _first_answer(first: dict) -> str:
     if tie:
         return 'tie:' + '+'.join(sorted(tie))
     return str(first.get('missing_effect'))
+
+
+def judge_clock_spin(spec: ForeignSpec, steps: list[dict]) -> dict:
+    """Right or wrong for a clock offset and a constant pose under a spin
+    (``foreign_sim.CLOCK_SPIN``), on the first answer, as the lab judges it: with the
+    clock hidden, time_offset named (its dt within 40 % of the truth, positive) with
+    the pose reported beside it where the pose is off too, or the tie naming both;
+    wrong a tie with a term that is absent, or the clock missed. The pose alone: no
+    clock named or tied, the pose reported."""
+    if any('error' in s for s in steps):
+        return {'ok': False, 'why': 'error: ' + steps[-1]['error'][-300:]}
+    first = steps[0]
+    named = [s.get('missing_effect') for s in steps]
+    answer = _first_answer(first)
+    clock = spec.params_of('time_offset')
+    pose_off = any(spec.pose_offset_m)
+    why = []
+    if clock is not None:
+        if answer == 'time_offset':
+            cand = next((c for c in first.get('candidates', [])
+                         if c['name'] == 'time_offset'), {})
+            footing = (cand.get('against_pose') or {}).get('constant_pose_footing') or {}
+            dt = footing.get('dt_beside_pose_s', (cand.get('params') or {}).get('dt_s'))
+            if dt is None or not 0.6 * clock['dt_s'] <= dt <= 1.4 * clock['dt_s']:
+                why.append(f'time_offset named with dt {dt}, true {clock["dt_s"]}')
+            if pose_off and not first.get('reference_pose_off'):
+                why.append('the constant pose offset was not reported beside the clock')
+        elif answer != 'tie:pose_error+time_offset':
+            why.append(f'first answer {answer} (pose reported: '
+                       f'{bool(first.get("reference_pose_off"))}): the clock missed')
+    else:
+        if 'time_offset' in answer:
+            why.append(f'first answer {answer}: a clock on a pose alone')
+        if not first.get('reference_pose_off'):
+            why.append('the constant pose offset was not reported')
+    return {'ok': not why, 'why': '; '.join(why), 'named': named, 'first': answer,
+            'ties': [s.get('confounded_with') for s in steps if s.get('confounded_with')],
+            'nll': [s.get('nll_calibrated') for s in steps]}
 
 
 def judge_v4(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:

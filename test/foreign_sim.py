@@ -709,6 +709,9 @@ class ForeignSpec:
     # so the tilt holds over the recording.
     tilt_deg: float | None = None
     tilt_from: str = 'z'                 # the lidar axis the long axis lies on before the tilt: z | y
+    # The spin exactly about the body's long axis and the precession about this lidar
+    # axis (None: both seeded, the spin axis jittered about +z).
+    precession_axis: tuple[float, float, float] | None = None
     expected: str | None = 'same'
     expected_feature: str | None = None  # the feature the residual should be attributed to
     note: str = ''
@@ -768,8 +771,12 @@ def trajectory_for(spec: ForeignSpec) -> Trajectory:
                     * Rotation.from_euler('z', roll, degrees=True))
         return Trajectory(tuple(pos), tuple(vel), attitude, (0.0, 0.0, 1.0), spec.spin_dps,
                           (1.0, 0.0, 0.0), 0.0)
-    return Trajectory(tuple(pos), tuple(vel), attitude, tuple(rng.normal(0, 0.3, 3) + [0, 0, 1]),
-                      spec.spin_dps, tuple(_unit(rng.normal(size=3))), spec.precession_dps)
+    spin_axis = tuple(rng.normal(0, 0.3, 3) + [0, 0, 1])
+    precession_axis = tuple(_unit(rng.normal(size=3)))
+    if spec.precession_axis is not None:
+        spin_axis, precession_axis = (0.0, 0.0, 1.0), tuple(_unit(spec.precession_axis))
+    return Trajectory(tuple(pos), tuple(vel), attitude, spin_axis, spec.spin_dps,
+                      precession_axis, spec.precession_dps)
 
 
 def material_errors(spec: ForeignSpec) -> dict[str, tuple[float, float]]:
@@ -1930,13 +1937,39 @@ POINTING_FEW: tuple[ForeignSpec, ...] = (
 )
 
 
+# A clock offset (poses stamped 30 ms late) with a constant reference-pose translation
+# (0, 3, 2) cm beside it, on the rocket-like drum body at 10 m closing 0.3 m/s, tumbling
+# 8 deg/s with a 25 deg/s spin about the body's long axis on top (the rotation axis moves):
+# 12 clouds over 5.5 s, point times given (clockspin38). Right: time_offset named with the
+# pose reported beside it, or the tie naming both; wrong: a tie with a range term that is
+# absent, or the clock missed. Controls: the clock alone (named) and the pose alone (no
+# clock gained), same motion. By name.
+_SPIN = dict(frames=12, frame_gap_s=0.5, distance_m=10.0, speed_mps=0.3, spin_dps=25.0,
+             precession_dps=8.0, bus_shape='drum', shots_per_frame=12_000)
+CLOCK_SPIN: tuple[ForeignSpec, ...] = (
+    ForeignSpec('clock_pose_spin', 'time_offset', {'dt_s': 0.03}, seed=801,
+                pose_offset_m=(0.0, 0.03, 0.02), **_SPIN,
+                note='poses 30 ms late and off by (0, 3, 2) cm; spin 25 deg/s on a tumble'),
+    ForeignSpec('clock_spin', 'time_offset', {'dt_s': 0.03}, seed=811, **_SPIN,
+                note='poses 30 ms late alone; spin 25 deg/s on a tumble'),
+    ForeignSpec('pose_spin', None, seed=821, pose_offset_m=(0.0, 0.03, 0.02), **_SPIN,
+                expected=None, note='poses off by (0, 3, 2) cm alone; spin 25 deg/s on a tumble'),
+    # The lab's motion as it gave it: the spin about the body's long axis exactly, the
+    # tumble about lidar (0.2, 0, 1).
+    ForeignSpec('clock_pose_spin_lab', 'time_offset', {'dt_s': 0.03}, seed=831,
+                pose_offset_m=(0.0, 0.03, 0.02), precession_axis=(0.2, 0.0, 1.0), **_SPIN,
+                note="poses 30 ms late and off by (0, 3, 2) cm; the lab's spin and tumble axes"),
+)
+CLOCK_SPIN_NAMES = frozenset(s.name for s in CLOCK_SPIN)
+
+
 def battery(names: list[str] | None = None) -> list[ForeignSpec]:
     """The battery, or the named datasets of it, of VENDOR, V4, RANGE_OUTSIDE, STANDOFF,
-    COMPENSATED, INCIDENCE_LAW or POINTING_FEW (in that order)."""
+    COMPENSATED, INCIDENCE_LAW, POINTING_FEW or CLOCK_SPIN (in that order)."""
     if not names:
         return list(BATTERY)
     every = (BATTERY + VENDOR + V4 + RANGE_OUTSIDE + STANDOFF + COMPENSATED + INCIDENCE_LAW
-             + POINTING_FEW)
+             + POINTING_FEW + CLOCK_SPIN)
     known = {s.name: s for s in every}
     bad = [n for n in names if n not in known]
     if bad:

@@ -35,7 +35,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import norm
 
-from lidar_sim_ros.compare.diagnose import (clock_footing, diagnosis, far_returns, features,
+from lidar_sim_ros.compare.diagnose import (clock_footing, clock_nested, diagnosis,
+                                            far_returns, features,
                                             fit_data, intensity_range, laser_gains,
                                             plan as sep_plan, power_incidence,
                                             line_of_sight, pose_error, range_alone,
@@ -1149,6 +1150,35 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             sample.blocks[tested.matched], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN,
             row_clock.clock_column_m(tested_data, clock), seed, rate=True)))
         if has_point_times(meas) else None)
+    # One rigid correction for the recording reported alone, against a clock offset
+    # fitted jointly with it on the same rays (``clock_beside_constant_pose``), on the
+    # model that correction leaves (raycast again): what is left of a pose off by
+    # centimetres is linear there, on the recorded pose it is not.
+    def clock_beside_corrected(clock: Effect) -> clock_footing.ClockFooting:
+        moved = recast_with_rays(decision.pose)[2]
+        at = moved.matched
+        data_m = fit_data.make_fit_data(model, effects, moved)
+        return clock_footing.clock_on_pose_footing(
+            data_m, meas.cloud[at], meas.t_s[at], sample.blocks[at], diag.z_crit,
+            diagnosis.MIN_PRACTICAL_GAIN, row_clock.clock_column_m(data_m, clock), seed,
+            constant=True)
+    # And nested on the candidates' own footing, raycast (``clock_nested``): the pose
+    # alone against the pose fitted on top of the clock, the clock alone against the
+    # two, on the same points; this decides.
+    def clock_nested_cast(clock: Effect, dt_joint_s: float) -> clock_nested.NestedClock:
+        cast = ClockBesidePoseCast(model, effects, rays, meas, sample.blocks, type(clock),
+                                   diag.z_crit, seed)
+        return cast.weigh(float(clock.params.dt_s), float(dt_joint_s),
+                          diagnosis.MIN_PRACTICAL_GAIN)
+    decision, clock = diag.clock_beside_constant_pose(
+        decision, cands, clock_beside_corrected, lambda clock: on_constant_pose(clock)[:2],
+        clock_nested_cast)
+    if clock is not None:
+        # The clock as scored on the corrected pose is the one the verdict quotes.
+        cands = diagnosis.rank([clock if c.name == clock.name else c for c in cands])
+        on_top = [clock.name]
+        pose = (decision.pose if decision.pose is not None
+                else pose_test([clock.effect], constant=True))
     decision = diag.clock_tie(decision, cands, meas.time_source == 'stamp')
     stamp = _stamp_place(diag, decision, cands, meas, scenario)
     decision = sunlit_decision(decision, sunlight)
@@ -1493,6 +1523,93 @@ class LineOfSight:
                            'explains': list(explains),
                            'fitted_margin_charged': _num(los.gain),
                            'line_of_sight': los.as_dict()})
+
+
+class ClockBesidePoseCast:
+    """The recording raycast on a random subset of its points (LINE_OF_SIGHT_POINTS,
+    the same as ``LineOfSight``'s), the pose read ``dt`` later or not, one rigid
+    correction for the recording fitted on that model or not (raycast again until it
+    settles, ``pose_error.iterate``), scored by the likelihood the candidates are scored
+    by (``clock_nested``). The correction beside the clock is fitted with the clock in
+    the model at every ``dt`` tried (a profile: the two trade, so a correction fitted
+    at one ``dt`` holds the clock there)."""
+
+    def __init__(self, model: Model, effects: list[Effect], rays: fit_data.RaySet,
+                 meas: Measurements, blocks: np.ndarray, clock_cls: type[Effect],
+                 z_crit: float, seed: int):
+        self.model, self.effects, self.clock_cls = model, effects, clock_cls
+        self.z_crit, self.seed = z_crit, seed
+        n = len(meas)
+        self.points = (np.arange(n) if n <= LINE_OF_SIGHT_POINTS else np.sort(
+            np.random.default_rng([seed, 37]).choice(n, LINE_OF_SIGHT_POINTS, False)))
+        self.blocks = np.asarray(blocks)[self.points]
+        self.part = meas.subset(self.points)
+        take = (lambda a: None if a is None else a[self.points])
+        self.power, self.extra_var = take(rays.measured_power_w), take(rays.extra_var_m2)
+        self._poses: dict = {}
+
+    def _every(self, dt_s: float | None) -> list[Effect]:
+        return [*self.effects, *([] if dt_s is None else [self.clock_cls({'dt_s': dt_s})])]
+
+    def _cast(self, meas: Measurements, dt_s: float | None):
+        every = self._every(dt_s)
+        m = match(geometry(self.model, every), meas, self.model.divergence_rad, edges=False)
+        r = replace(rays_of(m, self.power, self.model), extra_var_m2=self.extra_var)
+        return r, fit_data.make_fit_data(self.model, every, r)
+
+    def score(self, meas: Measurements, dt_s: float | None) -> line_of_sight.RayScore:
+        """The subset ``meas`` (its poses as they are) with the pose read ``dt_s``
+        later (None: not)."""
+        r, data = self._cast(meas, dt_s)
+        return line_of_sight.RayScore(r.matched, variants.heldout_nll(data, []), r.unmatched)
+
+    def corrected(self, dt_s: float | None) -> Measurements:
+        """The subset with one rigid correction for the recording fitted on the model
+        with the clock at ``dt_s`` (None: without it), raycast again as it goes."""
+        key = None if dt_s is None else round(float(dt_s), 5)
+        if key in self._poses:
+            return self._poses[key]
+        part = self.part
+
+        def rematch(corr: pose_error.PoseCorrection):
+            moved = replace(part, poses=pose_error.CorrectedPoses(part.poses, corr))
+            r, data = self._cast(moved, key)
+            return r, data, moved
+
+        def refit(state, applied: pose_error.PoseCorrection | None) -> pose_error.PoseError:
+            r, data, moved = state
+            idx = r.matched
+            return pose_error.fit_reference_pose(
+                data, moved.cloud[idx], moved.t_s[idx], self.blocks[idx], self.z_crit,
+                diagnosis.MIN_PRACTICAL_GAIN, self.seed, [], applied=applied, constant=True)
+        start = pose_error.PoseCorrection.identity(np.zeros_like(part.cloud), part.t_s)
+        first = refit(rematch(start), None)
+        (_, _, moved), _, _ = pose_error.iterate(first, start, rematch, refit,
+                                                 pose_error.CONSTANT_RECAST_PASSES)
+        self._poses[key] = moved
+        return moved
+
+    def weigh(self, dt_alone_s: float, dt_joint_s: float,
+              min_gain: float) -> clock_nested.NestedClock:
+        """``clock_nested.weigh``: the clock alone at ``dt_alone_s`` (fitted alone on the
+        recorded pose), the clock beside the correction profiled from ``dt_joint_s``
+        (within 0.06 s, to 3 ms)."""
+        nothing = self.score(self.part, None)
+        pose = self.score(self.corrected(None), None)
+        clock = self.score(self.part, dt_alone_s)
+        n = len(self.points)
+        both: dict[float, line_of_sight.RayScore] = {}
+
+        def at(d: float) -> line_of_sight.RayScore:
+            d = round(float(d), 5)
+            if d not in both:
+                both[d] = self.score(self.corrected(dt_joint_s + d), dt_joint_s + d)
+            return both[d]
+        d, _ = line_of_sight.best_shift(
+            lambda d: -float(np.sum(line_of_sight.ray_gain(pose, at(d), n))),
+            step_m=0.01, span_m=0.06, tol_m=0.003)
+        return clock_nested.weigh(nothing, pose, clock, at(d), n, self.blocks, self.z_crit,
+                                  min_gain, dt_alone_s, dt_joint_s + d)
 
 
 def on_corrected_pose(sample: fit_data.RaySet, pred: Prediction,

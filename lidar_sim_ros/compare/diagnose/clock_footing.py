@@ -66,6 +66,26 @@ class ClockFooting:
     drift_beyond_range_gain: float = 0.0   # ... and on top of a range line over the scan
     drift_beyond_range_z: float = 0.0
     drift_passes: bool = False
+    # The clock's column scaled by this in the fit with the pose on every ray of the
+    # footing: the clock offset beside the pose is this times the one fitted alone.
+    clock_scale: float = float('nan')
+    constant: bool = False          # one rigid pose for the recording, not one per cloud
+    z_crit: float = float('inf')    # the rule the parts were judged by
+    min_gain: float = float('inf')
+
+    @property
+    def clock_decisive_over_pose(self) -> bool:
+        """The clock's part on top of the pose is decisive (z at the bound), whether or
+        not it is as large as matters."""
+        return bool(self.clock_over_pose_z >= self.z_crit)
+
+    @property
+    def clock_passes_over_pose(self) -> bool:
+        """The clock has a part of its own on top of the pose, by the rule (whether or
+        not it passes alone: beside a constant pose offset the clock fitted alone
+        fights the offset)."""
+        return bool(self.clock_over_pose_z >= self.z_crit
+                    and self.clock_over_pose_gain >= self.min_gain)
 
     @property
     def stands(self) -> bool:
@@ -88,7 +108,11 @@ class ClockFooting:
                 'drift_beyond_range_gain': round(self.drift_beyond_range_gain, 6),
                 'drift_beyond_range_z': round(self.drift_beyond_range_z, 2),
                 'drift_passes': self.drift_passes,
-                'stands': self.stands}
+                'stands': self.stands,
+                **({'constant': True, 'clock_scale': round(self.clock_scale, 4),
+                    'clock_passes_over_pose': self.clock_passes_over_pose,
+                    'clock_decisive_over_pose': self.clock_decisive_over_pose}
+                   if self.constant else {})}
 
 
 def per_cloud_columns(a: np.ndarray, cloud: np.ndarray) -> np.ndarray:
@@ -105,11 +129,15 @@ def per_cloud_columns(a: np.ndarray, cloud: np.ndarray) -> np.ndarray:
 def clock_on_pose_footing(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                           blocks: np.ndarray, z_crit: float, min_gain: float,
                           clock_m: np.ndarray, seed: int = 0,
-                          rate: bool = False) -> ClockFooting:
+                          rate: bool = False, constant: bool = False) -> ClockFooting:
     """The clock (``clock_m``: its range change per matched point of ``data``, m,
     ``row_clock.clock_column_m``) and the per-cloud pose (``rate``: with its rate over
     each cloud, ``pose_error.rate_columns``) on the pose test's rays and halves (module
-    doc); ``cloud``, ``t_s``, ``blocks``: per matched point."""
+    doc); ``cloud``, ``t_s``, ``blocks``: per matched point. ``constant``: one rigid
+    pose for the recording instead (six parameters, rotation about the centroid of all
+    the points, no rate; ``clock_beside_constant_pose``)."""
+    if constant:
+        cloud, rate = np.zeros(len(np.asarray(cloud)), int), False
     model = lk.model_on_rays(data, [])
     ctx = model.ctx
     c = np.asarray(clock_m, float)
@@ -162,7 +190,9 @@ def clock_on_pose_footing(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     if rate:
         drift = judged(gain['drift'] - gain['clock'])
         beyond = judged(gain['drift_line'] - gain['line'])
+    scale = float(row_clock.coefficients_with_offsets(models['both'], r, s, group, use)[1][0])
     return ClockFooting(clock[0], clock[1], pose[0], pose[1], clock_over[0], clock_over[1],
                         pose_over[0], pose_over[1], int(use.sum()), n, rate,
                         passes(clock), passes(pose_over), drift[0], drift[1], beyond[0],
-                        beyond[1], bool(rate and passes(drift) and passes(beyond)))
+                        beyond[1], bool(rate and passes(drift) and passes(beyond)),
+                        scale, constant, z_crit, min_gain)

@@ -758,6 +758,110 @@ class PoseWeighing:
         return Decision(None, [POSE_ERROR, beside.CLOCK], also=decision.also,
                         withheld=dict(decision.withheld))
 
+    def clock_beside_constant_pose(self, decision: Decision, cands: list[Candidate],
+                                   footing_test, pose_on_clock, nested=None
+                                   ) -> tuple[Decision, Candidate | None]:
+        """One rigid correction for the recording reported alone, nothing named, and a
+        clock offset (``time_offset``) among the candidates: the two fitted jointly on
+        the pose test's own rays and halves (``footing_test(effect)``:
+        ``clock_footing.clock_on_pose_footing`` with the clock's effect and
+        ``constant``, on the model the correction leaves, raycast again, where what is
+        left of a pose off by centimetres is linear; on the recorded pose its remainder
+        lent a clock a part of its own with no clock in the data; its figures on the
+        clock's ``against_pose['constant_pose_footing']``; a part decisive but below the
+        margin that matters is said in the verdict, not named).
+        On a target turning about a moving axis (a spin on a tumble) a clock offset
+        reads the attitude off by the spin times dt about the body's spin axis, which
+        turns with the body: one rotation for the recording takes most of it, so the
+        pose fitted alone reports a rotation the poses do not have, and the clock
+        fitted alone fights the pose's offset (its dt off, its held-out gain even below
+        zero) and is lost. The linear footing's part is only said: the decision is
+        the nested test on the candidates' own raycast footing (``nested(effect,
+        dt_joint)``: ``clock_nested``, the pose alone, the clock alone and both, raycast
+        on the same points, the clock beside the correction profiled over dt from the
+        linear joint fit's, the clock's alone times its column's scale; its figures
+        under ``['nested']``). Where the clock's own part passes the rule there, the
+        correction is fitted again on top of the clock at the profile's dt and raycast
+        as --fit corrects it (``pose_on_clock(effect)``: the re-cast diagnosis without
+        the clock, and the correction's report); the clock is scored again there (its
+        fitted figures; the held-out gain quoted is its own part on the nested
+        footing). It is named if it may be named there (``naming_fault`` on the re-cast
+        diagnosis), with the correction reported beside it where the correction's own
+        part passes on top of the clock there and its test on top of the clock passes
+        too. Where each passes alone and neither on top of the other (and the clock is
+        nameable alone): the tie [pose_error, time_offset]. Returns the decision and
+        the clock as scored on the corrected pose (None: the decision stands). Where
+        the clock has no part of its own (a clock and a constant pose on a target
+        turning about a fixed axis are the same data; a pose alone), or no nested test
+        is given, the decision stands.
+        A tie of sensor effects beside the constant pose that the naming gate
+        (``diagnosis.settle``) leaves none of is the pose alone here, as the verdict will
+        give it (held-out clock_pose_spin seed 9: [incidence_angle, snr_noise], one
+        withheld, the pose alone reported)."""
+        pose = decision.pose
+        if (not decision.missing and decision.confounded_with and nested is not None
+                and POSE_ERROR not in decision.confounded_with):
+            from lidar_sim_ros.compare.diagnose.diagnosis import settle
+            gated = settle(decision, cands, self.naming_fault)
+            if not gated.missing and not gated.confounded_with:
+                named, _ = self.clock_beside_constant_pose(gated, cands, footing_test,
+                                                           pose_on_clock, nested)
+                return (decision, None) if named is gated else (named, _)
+        if (decision.missing or decision.confounded_with or pose is None
+                or not getattr(pose, 'constant', False) or footing_test is None):
+            return decision, None
+        clock = next((c for c in cands if c.name == beside.CLOCK), None)
+        if clock is None or clock.effect is None or clock.error is not None:
+            return decision, None
+        try:
+            on = footing_test(clock.effect)
+        except Exception:  # noqa: BLE001 - not weighed: the decision stands
+            return decision, None
+        figures = on.as_dict()
+        clock.against_pose = {**(clock.against_pose or {}), 'constant_pose_footing': figures}
+        dt_alone = float(clock.effect.params.dt_s)
+        dt_joint = float(on.clock_scale * dt_alone) if np.isfinite(on.clock_scale) else dt_alone
+        figures.update(dt_alone_s=_num(dt_alone), dt_joint_s=_num(dt_joint))
+        if nested is None:
+            return decision, None
+        try:
+            nest = nested(clock.effect, dt_joint)
+        except Exception:  # noqa: BLE001 - not weighed on the candidates' footing
+            return decision, None
+        figures['nested'] = nest.as_dict()
+        if nest.outcome == 'tie' and self.nameable(clock):
+            return Decision(None, [POSE_ERROR, beside.CLOCK], withheld=dict(decision.withheld),
+                            pose=pose), None
+        if nest.outcome != 'clock':
+            return decision, None
+        beside_pose = type(clock.effect)({'dt_s': float(nest.dt_beside_pose_s)})
+        try:
+            on_pose, report = pose_on_clock(beside_pose)
+            again = on_pose.score(type(clock.effect))
+            fault = on_pose.naming_fault(again)
+        except Exception:  # noqa: BLE001 - not weighed on the corrected pose
+            return decision, None
+        figures.update(score_on_pose=_num(again.score), z_on_pose=_num(again.z),
+                       dt_beside_pose_s=_num(nest.dt_beside_pose_s),
+                       dt_rescored_on_pose_s=_num(getattr(again.effect.params, 'dt_s', None)
+                                                  if again.effect is not None else None),
+                       passes_on_pose=fault is None,
+                       **({'why_not_on_pose': fault} if fault else {}))
+        if fault is not None:
+            return decision, None
+        # The held-out gain quoted is the clock's own part on top of the correction: its
+        # score on a correction fitted beside the clock it assumed is not independent
+        # (that correction leaves the clock's pose-shaped part for the clock to find).
+        again.score = float(nest.clock_over_pose.gain)
+        again.z = float(nest.clock_over_pose.z)
+        again.against_pose = {**(again.against_pose or {}), 'constant_pose_footing': figures,
+                              'recorded_pose': {'score': _num(clock.score),
+                                                'z': _num(clock.z),
+                                                'params': dict(clock.params or {})}}
+        keep = nest.pose_over_clock.passes and bool(getattr(report, 'significant', False))
+        return Decision(beside.CLOCK, [], also=None, withheld=dict(decision.withheld),
+                        pose=report if keep else None), again
+
     def clock_tie(self, decision: Decision, cands: list[Candidate],
                   no_point_times: bool) -> Decision:
         """Clouds without usable point times, the reference pose reported off and a

@@ -104,6 +104,15 @@ def fit_with_offsets(cols: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarr
     material (``group``), offsets included: the footing of the pose test's joint fit
     (``pose_error.fit_clouds`` with ``group``), for any number of columns. A relative
     ridge of ``pose_error.TEST_RIDGE`` keeps a column the points do not see at zero."""
+    x, beta = coefficients_with_offsets(cols, residual_m, sigma_m, group, train)
+    return x @ beta
+
+
+def coefficients_with_offsets(cols: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarray,
+                              group: np.ndarray, train: np.ndarray
+                              ) -> tuple[np.ndarray, np.ndarray]:
+    """``fit_with_offsets``'s design (N, K + materials: ``cols`` then one offset column
+    per material) and its coefficients (the first K: per unit of each column)."""
     labels, col = np.unique(np.asarray(group, int), return_inverse=True)
     x = np.zeros((len(residual_m), cols.shape[1] + len(labels)))
     x[:, :cols.shape[1]] = cols
@@ -113,7 +122,7 @@ def fit_with_offsets(cols: np.ndarray, residual_m: np.ndarray, sigma_m: np.ndarr
     ata = xw.T @ xw
     ata += np.diag(pose_error.TEST_RIDGE * np.maximum(np.diag(ata), 1e-300))
     beta = np.linalg.lstsq(ata, xw.T @ (np.asarray(residual_m, float) * w), rcond=None)[0]
-    return x @ beta
+    return x, beta
 
 
 def row_time_test(data: lk.FitData, blocks: np.ndarray, z_crit: float, min_gain: float,

@@ -149,7 +149,10 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         lasers = laser_intensity_words(summary.get('laser_intensity'))
         if lasers:
             parts.append(lasers)
-        if c.against_pose:
+        if (c.against_pose or {}).get('constant_pose_footing', {}).get('dt_beside_pose_s') \
+                is not None:
+            parts.append(clock_beside_pose_words(c))
+        elif c.against_pose:
             parts.append(_against_pose_words(c))
             parts.extend(constant_pose_beside_words(c))
     elif diagnosis.POSE_ERROR in decision.confounded_with:
@@ -180,6 +183,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             parts.append(words[0].upper() + words[1:] + '.')
     elif decision.pose is not None:
         parts.append(pose_words(decision.pose, cands))
+        below = clock_below_margin_words(cands)
+        if below:
+            parts.append(below)
     elif not beyond_bound and not to_range:
         parts.append(_nothing_named(summary, attribution, cands))
     if beyond_bound:
@@ -608,6 +614,62 @@ def constant_pose_beside_words(c) -> list[str]:
         out.append('On the recorded pose it was set aside (' + ap['veto_on_recorded_pose']
                    + '); with the pose corrected it holds across the materials.')
     return out
+
+
+def clock_below_margin_words(cands: list) -> str:
+    """Beside one rigid correction reported alone: a clock offset whose part on top of
+    it, fitted together on the corrected pose, is decisive but below the margin that
+    matters (``Diagnosis.clock_beside_constant_pose``); '' otherwise."""
+    c = next((c for c in cands if c.name == 'time_offset'), None)
+    on = ((c.against_pose or {}).get('constant_pose_footing') or {}) if c is not None else {}
+    own = (on.get('nested') or {}).get('clock_over_pose')
+    if own is not None:
+        # The nested raycast test decides (``clock_nested``): its figures are the ones said.
+        if not own.get('decisive') or own.get('passes'):
+            return ''
+        z, gain, where = own['z'], own['gain_per_point'], 'every ray raycast again'
+    elif not on.get('clock_decisive_over_pose') or on.get('clock_passes_over_pose'):
+        return ''
+    else:
+        z, gain, where = on['clock_over_pose_z'], on['clock_over_pose_gain'], 'the corrected pose'
+    return (f'A clock offset between the pose and LiDAR stamps would move the target much as '
+            f'this correction does; fitted together with it on {where}, a clock '
+            f'offset keeps a part of its own, decisive (z = {z:.1f}) but '
+            f'below the margin that matters ({gain:.4f} nats/point held '
+            'out), so it is not named: the reference pose may be off with a clock offset '
+            'beside it. A recording in which the target turns at another rate or about '
+            'another axis (a clock offset follows the motion, a pose offset does not) would '
+            'separate them.')
+
+
+def clock_beside_pose_words(c) -> str:
+    """Beside one rigid correction of the reference pose for the recording
+    (``Diagnosis.clock_beside_constant_pose``: ``c.against_pose['constant_pose_footing']``
+    and its ``nested`` figures, ``clock_nested``): the clock's own part on top of the
+    correction and the correction's on top of the clock, both raycast, and the clock
+    offset fitted beside it."""
+    on = c.against_pose['constant_pose_footing']
+    nest = on.get('nested') or {}
+    own, pose = nest.get('clock_over_pose') or {}, nest.get('pose_over_clock') or {}
+    rec = c.against_pose.get('recorded_pose') or {}
+    return (f'One rigid correction of the reference pose for the whole recording takes '
+            f'most of what the clock offset does (on a target turning about a moving axis a '
+            f'clock offset turns the recorded attitude about the spin axis), but with the '
+            f'two fitted together and every ray raycast again (the returns each puts back '
+            f'counted, on {nest.get("n_points", 0)} points), the clock offset keeps a part of '
+            f'its own: {own.get("gain_per_point", float("nan")):.4f} nats/point on top of the '
+            f'correction (z = {own.get("z", float("nan")):.1f}), the correction '
+            f'{pose.get("gain_per_point", float("nan")):.4f} (z = '
+            f'{pose.get("z", float("nan")):.1f}) on top of the clock. Fitted beside the '
+            f'correction the clock offset is dt_s = {on["dt_beside_pose_s"]:.4f}; the '
+            'held-out gain above is its own part, the RMSE and NLL are on the reference pose '
+            'corrected by that correction (fitted on top of the clock and raycast again, as '
+            '--effect pose_error --fit corrects it), so the NLL after them holds the pose\'s '
+            'part too. Fitted alone on the recorded pose the clock offset is '
+            f'{on["dt_alone_s"]:.4f} s' + (
+                f' ({rec["score"]:.4f} nats/point held out, z = {rec["z"]:.1f})'
+                if rec.get('score') is not None and rec.get('z') is not None else '')
+            + ': it takes part of the pose\'s offset, so correct the pose too.')
 
 
 def _together_words(c) -> str:
