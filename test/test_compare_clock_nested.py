@@ -222,3 +222,23 @@ def test_the_below_margin_sentence_follows_the_nested_test():
     assert nest['decisive'] and not nest['passes']
     words = verdict.clock_below_margin_words([clock])
     assert 'raycast again' in words and f'z = {nest["z"]:.1f}' in words and 'not named' in words
+
+
+def test_a_pose_drifting_within_the_scan_is_not_weighed_against_a_clock():
+    """A constant correction reported with its rate over the scan passing on top of it (the
+    sixteenth holdout's lag5_1: a tracking lag growing 0 -> 54 ms over each scan, the rate
+    0.0079 nats/point over the rigid, z 14.0) is no constant offset: the clock, which makes
+    no growth over the scan, is not weighed against its constant part (there a tie
+    [pose_error, time_offset] replaced the right answer)."""
+    judge = _Judge()
+    drifting = _Pose()
+    drifting.rate_supported = True
+    alone = diagnosis.Decision(None, [], pose=drifting)
+    assert judge.clock_beside_constant_pose(
+        alone, [_clock()], lambda e: _on(False, True), lambda e: (_OnPose(0.03), _OnClock()),
+        _nested((0.0, 0.0))[0]) == (alone, None)
+    # the same figures on a constant pose without a rate: the tie (the test above)
+    out, _ = judge.clock_beside_constant_pose(
+        diagnosis.Decision(None, [], pose=_Pose()), [_clock()], lambda e: _on(False, True),
+        lambda e: (_OnPose(0.03), _OnClock()), _nested((0.0, 0.0))[0])
+    assert out.confounded_with == ['pose_error', 'time_offset']

@@ -808,7 +808,11 @@ class PoseWeighing:
                                                            pose_on_clock, nested)
                 return (decision, None) if named is gated else (named, _)
         if (decision.missing or decision.confounded_with or pose is None
-                or not getattr(pose, 'constant', False) or footing_test is None):
+                or not getattr(pose, 'constant', False) or footing_test is None
+                or getattr(pose, 'rate_supported', False)):
+            # A correction whose rate over the scan passed on top of it (a tracking lag
+            # growing within each scan) is no constant offset a clock could stand for:
+            # a clock offset makes no growth over the scan (``clock_footing``'s drift).
             return decision, None
         clock = next((c for c in cands if c.name == beside.CLOCK), None)
         if clock is None or clock.effect is None or clock.error is not None:
