@@ -31,12 +31,23 @@ target (within the far threshold of the model's range on its ray), is the target
 through it (``seen_through``): kept as the shot's return, not left out as a later one.
 The other returns of a shot share its direction: the neighbour test measures the ray
 spacing to other rays (``neighbours.isolated``), or every such film was isolated.
+
+A film near the target (about 1 m in front of its near surface): the cloud's nearest
+modelled surface lies within the far threshold of the film, so the test above leaves
+its returns in, and they were read as the target (the target's own returns behind them
+left out as later returns: range biases of -40 cm, pose claims). ``veiled`` looks at
+such a shot on its own ray: its later return lies on the model, its first lies in front
+of the nearest modelled surface on its own and its neighbouring rays by more than the
+far threshold, and on a surface; the first is occlusion, the later the target seen
+through it. A first return on the target with a later multipath echo or a depth step
+(the near edge on a neighbouring ray) is not in front of the model, and stays.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from lidar_sim_ros.compare.model import neighbours
 from lidar_sim_ros.compare.model.left_out import LeftOut
@@ -70,6 +81,47 @@ def occluded(range_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarra
         return front
     out = np.zeros(len(range_m), bool)
     out[found] = ~neighbours.isolated(directions, range_m, cloud, found,
+                                      min_agreeing=MIN_AGREEING, local_reach=True)
+    return out
+
+
+def veiled(range_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
+           shot: np.ndarray, later: np.ndarray, directions: np.ndarray,
+           cloud: np.ndarray) -> np.ndarray:
+    """Bool per point: a film's first return near the target (module doc, "A film near
+    the target"): a return that is not ``later`` of a shot (``shot``: group id per point)
+    whose later return lies on the model (within ``threshold_m`` of ``expected_m`` on its
+    ray, m), while the point itself lies in front of the nearest modelled surface on its
+    own and its NEIGHBOURS nearest rays of the cloud by more than ``threshold_m`` (a
+    depth step's near edge is on a neighbouring ray, and stays), and on a surface
+    (``neighbours.isolated``)."""
+    r = np.asarray(range_m, float)
+    expected = np.asarray(expected_m, float)
+    shot = np.asarray(shot, np.int64)
+    later = np.asarray(later, bool)
+    out = np.zeros(len(r), bool)
+    if len(r) == 0 or not later.any():
+        return out
+    margin = np.nan_to_num(np.asarray(threshold_m, float), nan=np.inf)
+    with np.errstate(invalid='ignore'):
+        fits = later & np.isfinite(expected) & (np.abs(r - expected) <= margin)
+    behind = np.zeros(int(shot.max()) + 1, bool)
+    behind[shot[fits]] = True
+    cand = np.flatnonzero(~later & behind[shot] & np.isfinite(r))
+    if len(cand) == 0:
+        return out
+    # The nearest modelled surface around the ray: its own and its neighbours' rays.
+    on = np.flatnonzero(np.isfinite(expected))
+    space = np.column_stack([np.asarray(directions, float),
+                             neighbours._CLOUD_GAP * np.asarray(cloud, float)])
+    tree = cKDTree(space[on])
+    k = min(neighbours.NEIGHBOURS + 1, len(on))
+    _, idx = tree.query(space[cand], k=k)
+    near = np.min(expected[on][np.asarray(idx).reshape(len(cand), -1)], axis=1)
+    front = cand[r[cand] < near - margin[cand]]
+    if len(front) == 0:
+        return out
+    out[front] = ~neighbours.isolated(directions, r, cloud, front,
                                       min_agreeing=MIN_AGREEING, local_reach=True)
     return out
 
