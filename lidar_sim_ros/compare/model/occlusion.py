@@ -123,6 +123,46 @@ def veiled(range_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
         return out
     out[front] = ~neighbours.isolated(directions, r, cloud, front,
                                       min_agreeing=MIN_AGREEING, local_reach=True)
+    # How far the shot's later return lies from the model (the nearest of several).
+    off = np.full(len(behind), np.inf)
+    np.minimum.at(off, shot[fits], np.abs(r - expected)[fits])
+    return grown(out, r, expected, off[shot], cand, directions, cloud)
+
+
+FILM_GROW_STEPS = 50                    # at most this many rings of neighbours
+
+
+def grown(film: np.ndarray, range_m: np.ndarray, expected_m: np.ndarray, later_off_m: np.ndarray,
+          cand: np.ndarray, directions: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+    """``film`` grown over the first returns ``cand`` (indices: of shots whose later
+    return lies on the model, ``later_off_m`` from it per point, m) that lie further in
+    front of the model on their ray than their later return lies off it (the later is the
+    target's) and next to a film return at the same range (``neighbours.SAME_SURFACE_M``,
+    among the NEIGHBOURS nearest rays of the cloud): the film where it comes within the
+    far threshold of the target's surface (a flat film before a curved body)."""
+    out = np.asarray(film, bool).copy()
+    r = np.asarray(range_m, float)
+    with np.errstate(invalid='ignore'):
+        c = cand[(r[cand] < expected_m[cand] - later_off_m[cand]) & ~out[cand]]
+    if len(c) == 0 or not out.any():
+        return out
+    pts = np.concatenate([np.flatnonzero(out), c])
+    space = np.column_stack([np.asarray(directions, float)[pts],
+                             neighbours._CLOUD_GAP * np.asarray(cloud, float)[pts]])
+    k = min(neighbours.NEIGHBOURS + 1, len(pts))
+    dist, idx = cKDTree(space).query(space[len(pts) - len(c):], k=k)
+    idx = np.asarray(idx).reshape(len(c), -1)
+    dist = np.asarray(dist).reshape(len(c), -1)
+    gap = np.min(np.where(dist > neighbours.SAME_RAY, dist, np.inf), axis=1, keepdims=True)
+    near = (dist > neighbours.SAME_RAY) & (dist <= neighbours.SPACING_REACH * gap)
+    tol = np.maximum(neighbours.SAME_SURFACE_M, neighbours.SAME_SURFACE_FRACTION * r[c])
+    same = near & (np.abs(r[pts][idx] - r[c][:, None]) <= tol[:, None])
+    for _ in range(FILM_GROW_STEPS):
+        on = out[pts][idx] & same
+        new = on.any(axis=1) & ~out[c]
+        if not new.any():
+            break
+        out[c[new]] = True
     return out
 
 
