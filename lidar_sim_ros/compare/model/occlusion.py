@@ -38,9 +38,14 @@ its returns in, and they were read as the target (the target's own returns behin
 left out as later returns: range biases of -40 cm, pose claims). ``veiled`` looks at
 such a shot on its own ray: its later return lies on the model, its first lies in front
 of the nearest modelled surface on its own and its neighbouring rays by more than the
-far threshold, and on a surface; the first is occlusion, the later the target seen
-through it. A first return on the target with a later multipath echo or a depth step
-(the near edge on a neighbouring ray) is not in front of the model, and stays.
+threshold it is given (``run.leave_out_occluded``: FAR_SIGMAS sigma, without the
+FAR_MIN_M floor, the shot's later return fitting the model), and on a surface; the
+first is occlusion, the later the target seen through it. ``grown`` extends the film
+over the neighbouring first returns at its range that lie further in front of the
+model than their shot's later return lies off it (a flat film comes within a few sigma
+of a curved body). A first return on the target with a later multipath echo, or a
+depth step (the near edge on a neighbouring ray), is not in front of the model, and
+stays.
 """
 from __future__ import annotations
 
