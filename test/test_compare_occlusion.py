@@ -199,3 +199,45 @@ def test_compare_sees_the_target_through_a_film(tmp_path: Path):
     assert s['range_rmse_m'] < 0.1
     assert 'partly transparent' in s['verdict']
     assert s['missing_effect'] is None and s['reference_pose'].get('reported_as') is None
+
+
+def test_a_film_near_the_target_is_told_on_its_own_rays():
+    """A film 0.4 m in front of the plane at 10 m, in a cloud whose nearest modelled
+    surface is the box at 9 m: ``occluded`` (the cloud's nearest surface less the far
+    threshold) leaves it in as the target, as main read the film39 recordings (their
+    material biases of -40 cm). ``veiled`` takes each such first return whose shot's
+    later return lies on the model, in front of the nearest modelled surface of its own
+    and its neighbouring rays. A depth step (the box's edge first, the plane behind on
+    the next ray) and a first return on the target with a later echo 1 m behind
+    (multipath) stay the target's."""
+    (d, cloud, expected, measured), n = _scene(clouds=1)
+    film = np.zeros((n, n), bool)
+    film[:20, :20] = True
+    k = np.flatnonzero(film.ravel())
+    step = np.flatnonzero(np.isin(np.arange(n * n) // n, [24]) & np.isfinite(expected))
+    echo = np.flatnonzero(np.isin(np.arange(n * n) // n, [5]) & np.isfinite(expected))[:10]
+    rng = np.random.default_rng(2)
+    film_r = 9.6 + 0.01 * rng.standard_normal(len(k))
+    step_r = 9.0 / d[step, 0] + 0.01 * rng.standard_normal(len(step))  # the box's edge
+    # Per point: the film's first returns, the depth step's first returns (the box),
+    # every shot's target return (later where the film or the step is in front), and a
+    # multipath echo 1 m behind a few shots off the film.
+    directions = np.concatenate([d[k], d[step], d, d[echo]])
+    ranges = np.concatenate([film_r, step_r, measured, measured[echo] + 1.0])
+    exp = np.concatenate([expected[k], expected[step], expected, expected[echo]])
+    clouds = np.zeros(len(ranges), int)
+    shot = np.concatenate([k, step, np.arange(n * n), echo])
+    in_front = np.zeros(n * n, bool)
+    in_front[k] = in_front[step] = True
+    later = np.concatenate([np.zeros(len(k) + len(step), bool), in_front,
+                            np.ones(len(echo), bool)])
+    tight = np.full(len(ranges), 0.1)                     # 10 sigma of the 1 cm noise
+    assert not occlusion.occluded(ranges, exp, np.full(len(ranges), THRESHOLD_M),
+                                  directions, clouds)[:len(k)].any()
+    film_mask = occlusion.veiled(ranges, exp, tight, shot, later, directions, clouds)
+    assert np.array_equal(np.flatnonzero(film_mask), np.arange(len(k)))
+    kept = occlusion.seen_through(ranges, exp, tight, shot, film_mask, later)
+    assert np.array_equal(np.flatnonzero(kept), len(k) + len(step) + k)
+    # Without a later return on the model, nothing is a film.
+    assert not occlusion.veiled(ranges, exp, tight, shot, np.zeros_like(later), directions,
+                                clouds).any()

@@ -711,6 +711,20 @@ def leave_out_occluded(inp: Inputs) -> Inputs:
                                       meas.directions, meas.return_index,
                                       meas.time_source == 'field', meas.time_quantum_s, source,
                                       exclude=ghost)
+    if later.any():
+        # A film near the target: its first returns in front of the model on their own
+        # rays, the target's later return behind them on it (``occlusion.veiled``).
+        shot = mret.shot_groups(meas.t_frame_s, meas.cloud, meas.laser, meas.directions,
+                                meas.time_quantum_s)
+        # Two returns of one shot, the later on the model: the noise's own far threshold
+        # (FAR_SIGMAS sigma, without the FAR_MIN_M floor) tells the film from the target.
+        tight = np.where(sigma > 0, far_returns.FAR_SIGMAS * sigma, np.nan)
+        film = occ.veiled(meas.range_m, expected, tight, shot, later, meas.directions,
+                          meas.cloud) & ~mask & ~ghost
+        if film.any():
+            mask = mask | film
+            found = occ.summarise(mask, meas.range_m, expected, meas.cloud,
+                                  len(meas.cloud_stamps_s))
     later &= ~mask
     if mask.any() and later.any():
         # The target seen through an occluder: its later return of the shot is kept.

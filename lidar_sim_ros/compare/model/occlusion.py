@@ -31,12 +31,28 @@ target (within the far threshold of the model's range on its ray), is the target
 through it (``seen_through``): kept as the shot's return, not left out as a later one.
 The other returns of a shot share its direction: the neighbour test measures the ray
 spacing to other rays (``neighbours.isolated``), or every such film was isolated.
+
+A film near the target (about 1 m in front of its near surface): the cloud's nearest
+modelled surface lies within the far threshold of the film, so the test above leaves
+its returns in, and they were read as the target (the target's own returns behind them
+left out as later returns: range biases of -40 cm, pose claims). ``veiled`` looks at
+such a shot on its own ray: its later return lies on the model, its first lies in front
+of the nearest modelled surface on its own and its neighbouring rays by more than the
+threshold it is given (``run.leave_out_occluded``: FAR_SIGMAS sigma, without the
+FAR_MIN_M floor, the shot's later return fitting the model), and on a surface; the
+first is occlusion, the later the target seen through it. ``grown`` extends the film
+over the neighbouring first returns at its range that lie further in front of the
+model than their shot's later return lies off it (a flat film comes within a few sigma
+of a curved body). A first return on the target with a later multipath echo, or a
+depth step (the near edge on a neighbouring ray), is not in front of the model, and
+stays.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from lidar_sim_ros.compare.model import neighbours
 from lidar_sim_ros.compare.model.left_out import LeftOut
@@ -71,6 +87,87 @@ def occluded(range_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarra
     out = np.zeros(len(range_m), bool)
     out[found] = ~neighbours.isolated(directions, range_m, cloud, found,
                                       min_agreeing=MIN_AGREEING, local_reach=True)
+    return out
+
+
+def veiled(range_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
+           shot: np.ndarray, later: np.ndarray, directions: np.ndarray,
+           cloud: np.ndarray) -> np.ndarray:
+    """Bool per point: a film's first return near the target (module doc, "A film near
+    the target"): a return that is not ``later`` of a shot (``shot``: group id per point)
+    whose later return lies on the model (within ``threshold_m`` of ``expected_m`` on its
+    ray, m), while the point itself lies in front of the nearest modelled surface on its
+    own and its NEIGHBOURS nearest rays of the cloud by more than ``threshold_m`` (a
+    depth step's near edge is on a neighbouring ray, and stays), and on a surface
+    (``neighbours.isolated``)."""
+    r = np.asarray(range_m, float)
+    expected = np.asarray(expected_m, float)
+    shot = np.asarray(shot, np.int64)
+    later = np.asarray(later, bool)
+    out = np.zeros(len(r), bool)
+    if len(r) == 0 or not later.any():
+        return out
+    margin = np.nan_to_num(np.asarray(threshold_m, float), nan=np.inf)
+    with np.errstate(invalid='ignore'):
+        fits = later & np.isfinite(expected) & (np.abs(r - expected) <= margin)
+    behind = np.zeros(int(shot.max()) + 1, bool)
+    behind[shot[fits]] = True
+    cand = np.flatnonzero(~later & behind[shot] & np.isfinite(r))
+    if len(cand) == 0:
+        return out
+    # The nearest modelled surface around the ray: its own and its neighbours' rays.
+    on = np.flatnonzero(np.isfinite(expected))
+    space = np.column_stack([np.asarray(directions, float),
+                             neighbours._CLOUD_GAP * np.asarray(cloud, float)])
+    tree = cKDTree(space[on])
+    k = min(neighbours.NEIGHBOURS + 1, len(on))
+    _, idx = tree.query(space[cand], k=k)
+    near = np.min(expected[on][np.asarray(idx).reshape(len(cand), -1)], axis=1)
+    front = cand[r[cand] < near - margin[cand]]
+    if len(front) == 0:
+        return out
+    out[front] = ~neighbours.isolated(directions, r, cloud, front,
+                                      min_agreeing=MIN_AGREEING, local_reach=True)
+    # How far the shot's later return lies from the model (the nearest of several).
+    off = np.full(len(behind), np.inf)
+    np.minimum.at(off, shot[fits], np.abs(r - expected)[fits])
+    return grown(out, r, expected, off[shot], cand, directions, cloud)
+
+
+FILM_GROW_STEPS = 50                    # at most this many rings of neighbours
+
+
+def grown(film: np.ndarray, range_m: np.ndarray, expected_m: np.ndarray, later_off_m: np.ndarray,
+          cand: np.ndarray, directions: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+    """``film`` grown over the first returns ``cand`` (indices: of shots whose later
+    return lies on the model, ``later_off_m`` from it per point, m) that lie further in
+    front of the model on their ray than their later return lies off it (the later is the
+    target's) and next to a film return at the same range (``neighbours.SAME_SURFACE_M``,
+    among the NEIGHBOURS nearest rays of the cloud): the film where it comes within the
+    far threshold of the target's surface (a flat film before a curved body)."""
+    out = np.asarray(film, bool).copy()
+    r = np.asarray(range_m, float)
+    with np.errstate(invalid='ignore'):
+        c = cand[(r[cand] < expected_m[cand] - later_off_m[cand]) & ~out[cand]]
+    if len(c) == 0 or not out.any():
+        return out
+    pts = np.concatenate([np.flatnonzero(out), c])
+    space = np.column_stack([np.asarray(directions, float)[pts],
+                             neighbours._CLOUD_GAP * np.asarray(cloud, float)[pts]])
+    k = min(neighbours.NEIGHBOURS + 1, len(pts))
+    dist, idx = cKDTree(space).query(space[len(pts) - len(c):], k=k)
+    idx = np.asarray(idx).reshape(len(c), -1)
+    dist = np.asarray(dist).reshape(len(c), -1)
+    gap = np.min(np.where(dist > neighbours.SAME_RAY, dist, np.inf), axis=1, keepdims=True)
+    near = (dist > neighbours.SAME_RAY) & (dist <= neighbours.SPACING_REACH * gap)
+    tol = np.maximum(neighbours.SAME_SURFACE_M, neighbours.SAME_SURFACE_FRACTION * r[c])
+    same = near & (np.abs(r[pts][idx] - r[c][:, None]) <= tol[:, None])
+    for _ in range(FILM_GROW_STEPS):
+        on = out[pts][idx] & same
+        new = on.any(axis=1) & ~out[c]
+        if not new.any():
+            break
+        out[c[new]] = True
     return out
 
 
