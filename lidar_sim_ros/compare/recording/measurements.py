@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.compare.recording.cepton_pcap import (PcapError, is_pcap, pcap_recording,
                                                          read_pose_source, skipped_line)
-from lidar_sim_ros.compare.recording.scan_curve import Curve, nearest_on_curve, on_shot_grid
+from lidar_sim_ros.compare.recording.scan_curve import Curve, nearest_on_curve, times_on_grid
 from lidar_sim_ros.compare.recording.fields import (FieldError, flag_counts, flag_lines,
                                                     point_time_ns, resolve_fields,
                                                     return_indices)
@@ -460,11 +460,9 @@ def with_scan_times(meas: Measurements, shots: Shots,
     if meas.time_source != 'stamp' or len(shots) == 0:
         return meas
     if (shots_of_frame is None or not frame_period_s) and curve is not None and interval_s:
-        dist, t_curve, laser_shot, t_sample = nearest_on_curve(meas.directions, shots, curve,
-                                                               interval_s)
-        group = meas.cloud.astype(np.int64) * (int(shots.laser.max()) + 1) + laser_shot
-        ok, t_shot = on_shot_grid(t_curve, t_sample, group, dist < SCAN_MATCH_TOL_RAD,
-                                  interval_s)
+        ok, t_shot, laser_shot = times_on_grid(
+            *nearest_on_curve(meas.directions, shots, curve, interval_s), meas.cloud,
+            SCAN_MATCH_TOL_RAD, interval_s)
     elif shots_of_frame is None or not frame_period_s:
         dist, idx = cKDTree(shots.directions()).query(meas.directions)
         ok = dist < SCAN_MATCH_TOL_RAD
