@@ -206,18 +206,24 @@ def rosette_scan(sensor: Sensor, n_shots: int, t0_s: float,
     return t, az, el
 
 
-def lissajous_p60_scan(freq_scale: float = 1.0) -> tuple[np.ndarray, ...]:
+def lissajous_p60_scan(freq_scale: float = 1.0, together: bool = False,
+                       shot_offset: float = 0.0) -> tuple[np.ndarray, ...]:
     """The P-60 pattern as config/cepton_vista_p60.yaml publishes it (paper Sec. 3): a
     60 x 22 deg field cut into 8 x 3 tiles, one laser each, firing round-robin at 880
     shots per laser in 0.1 s; each laser traces az = centre + A sin(2 pi 110 Hz t),
     el = centre + B sin(2 pi 100 Hz t + pi/4) over its tile, 12 % beyond it. Written
     here from those published numbers; ``freq_scale`` multiplies both frequencies (a
-    sensor whose scan runs 0.5 % off its data sheet: 1.005)."""
+    sensor whose scan runs 0.5 % off its data sheet: 1.005). ``together``: the 24 lasers
+    fire at the same 880 instants, not round-robin; ``shot_offset``: the instants sit this
+    many shot intervals later (0.5: t = (k + 1/2) T / N)."""
     tiles_az, tiles_el, per_laser, period = 8, 3, 880, 0.1
     fov_az, fov_el, over = 60.0, 22.0, 0.12
     lasers = tiles_az * tiles_el
     k = np.arange(per_laser * lasers)
-    t = k * period / len(k)
+    if together:
+        t = (k // lasers + shot_offset) * period / per_laser
+    else:
+        t = (k + shot_offset) * period / len(k)
     laser = k % lasers
     col, row = laser % tiles_az, laser // tiles_az
     w, h = fov_az / tiles_az, fov_el / tiles_el
@@ -693,6 +699,8 @@ class ForeignSpec:
     pose_lag_s: float = 0.0
     frame_gap_s: float = 0.0             # time between cloud starts; 0: back to back
     scan_freq_scale: float = 1.0         # 'lissajous' scan: its frequencies x this
+    scan_together: bool = False          # 'lissajous': all lasers fire at the same instants
+    scan_shot_offset: float = 0.0        # 'lissajous': instants this many shots later
     max_range_m: float = 150.0           # the end of the range gate (m)
     material_bias_shift_m: dict = field(default_factory=dict)   # on top of the +-1 cm jitter
     material_sigma_scale: dict = field(default_factory=dict)
@@ -806,7 +814,8 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
     elif spec.scan == 'rosette':
         t, az, el = rosette_scan(sensor, spec.shots_per_frame, t0_s)
     elif spec.scan == 'lissajous':
-        t, az, el = lissajous_p60_scan(spec.scan_freq_scale)
+        t, az, el = lissajous_p60_scan(spec.scan_freq_scale, spec.scan_together,
+                                       spec.scan_shot_offset)
     else:
         raise ValueError(f'scan must be raster, rosette or lissajous, got {spec.scan!r}')
     d = directions_lidar(az, el)
@@ -1750,6 +1759,15 @@ V4: tuple[ForeignSpec, ...] = (
     ForeignSpec('pattern_exact_no_time', None, seed=75, scan='lissajous', point_time='none',
                 stamp='start', spin_dps=12.0, expected=None,
                 note='the P-60 Lissajous as configured, no time field'),
+    # The same curve sampled at other instants: lasers firing together, half a shot later.
+    ForeignSpec('pattern_together_no_time', None, seed=76, scan='lissajous', point_time='none',
+                stamp='start', spin_dps=12.0, expected=None, scan_together=True,
+                scan_shot_offset=0.5,
+                note='the P-60 Lissajous curve, lasers firing together half a shot later'),
+    ForeignSpec('pattern_together_time_offset', 'time_offset', {'dt_s': 0.05}, seed=77,
+                scan='lissajous', point_time='none', stamp='start', spin_dps=15.0,
+                scan_together=True, scan_shot_offset=0.5,
+                note='as pattern_together_no_time, the pose clock 50 ms off'),
     # The fifth holdout's two causes (docs/compare.md): a range walk beside a reference
     # pose drifting within each cloud (incidence_angle was named, or "also"), and a
     # clock offset with lab clutter (the wall's isolated returns named solar_background).

@@ -21,7 +21,8 @@ from lidar_sim_ros import cli
 from lidar_sim_ros.calibrate.scan_pattern import (CalibrationInputError, fit_sine,
                                                   read_scan_samples, run_scan)
 from lidar_sim_ros.core.config import SensorConfig, load_sensor, parse, read_yaml
-from lidar_sim_ros.core.scan import directions_from_angles, frame_shots, lissajous_lasers
+from lidar_sim_ros.core.scan import (directions_from_angles, frame_shots, lissajous_angles,
+                                     lissajous_lasers)
 from lidar_sim_ros.io.bag import BagWriter
 from lidar_sim_ros.io.pointcloud import FLOAT32, make_points, ns_to_stamp
 from lidar_sim_ros.paths import config_path
@@ -288,3 +289,31 @@ def test_a_pattern_the_fit_cannot_match_stops_without_writing(lab, tmp_path, cap
                     rf'error of RMS ([\d.]+) deg, more than {MAX_FIT_RMS_DEG:g} deg', err)
     assert rms and float(rms.group(1)) > 10, err
     assert not (tmp_path / 'fit.yaml').exists()
+
+
+def simultaneous_frames(sensor: SensorConfig, n_frames: int = 2, seed: int = 11):
+    """(stamp_ns, points) per frame of a lab whose lasers fire together (not round-robin),
+    880 instants per frame half a shot later than ours: t_j = (j + 1/2) T / 880."""
+    lasers = lissajous_lasers(sensor.scan)
+    n_las, per = len(lasers.center_az_rad), sensor.scan.shots_per_laser
+    t = np.repeat((np.arange(per) + 0.5) * sensor.frame_period_s / per, n_las)
+    laser = np.tile(np.arange(n_las), per)
+    az, el = lissajous_angles(lasers, laser, t)
+    rng = np.random.default_rng(seed)
+    frames = []
+    for f in range(n_frames):
+        keep = rng.random(len(t)) > 0.2
+        xyz = directions_from_angles(az[keep], el[keep]) * rng.uniform(5.0, 30.0, keep.sum())[:, None]
+        pts = make_points(xyz, 0.5, t[keep], laser[keep].astype(np.uint16), 0)
+        frames.append((T0_NS + f * int(sensor.frame_period_s * 1e9), pts))
+    return frames
+
+
+@pytest.mark.parametrize('ring', [True, False])
+def test_lasers_firing_together_give_the_shots_per_laser_recorded(lab, tmp_path, ring):
+    """24 lasers at the same 880 instants: 880 shots per laser (the spacing of all shots
+    over 24 lasers said 37)."""
+    bag = write_bag(tmp_path / 'together', simultaneous_frames(lab['sensor']), ring=ring)
+    cal = run_scan(bag, tmp_path / 'together.yaml')
+    assert cal.shots_per_laser == 880
+    assert yaml.safe_load((tmp_path / 'together.yaml').read_text())['scan']['shots_per_laser'] == 880

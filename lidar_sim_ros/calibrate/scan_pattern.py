@@ -293,17 +293,26 @@ class ScanCalibration(AngularErrorSummary):
     report: str = ''
 
 
-def _shots_per_laser(samples: ScanSamples, period_s: float, n_lasers: int) -> int | None:
-    """N / n_lasers from the shot spacing in the densest frame; None if too sparse to tell."""
-    frames, counts = np.unique(samples.frame, return_counts=True)
-    t = np.unique(np.round(samples.t_s[samples.frame == frames[np.argmax(counts)]], 9))
-    d = np.diff(t)
-    if len(d) < 10:
+def _shots_per_laser(samples: ScanSamples, laser: np.ndarray, period_s: float) -> int | None:
+    """Shots per laser per frame: the frame period over one laser's own shot spacing (s),
+    median over the lasers (the densest frame of each); None if too sparse to tell.
+
+    Per laser, so the count does not depend on how the lasers share the time line: fired
+    round-robin (one laser at a time) or together (every laser at the same instants)."""
+    estimates = []
+    for i in np.unique(laser):
+        sel = laser == i
+        frames, counts = np.unique(samples.frame[sel], return_counts=True)
+        t = np.unique(np.round(samples.t_s[sel & (samples.frame == frames[np.argmax(counts)])], 9))
+        d = np.diff(t)
+        if len(d) < 10:
+            continue
+        dt = float(np.median(d))
+        if dt > 0 and np.mean(np.abs(d - dt) < 0.1 * dt) >= 0.5:
+            estimates.append(period_s / dt)
+    if not estimates:
         return None
-    dt = float(np.median(d))
-    if dt <= 0 or np.mean(np.abs(d - dt) < 0.1 * dt) < 0.5:
-        return None
-    return max(1, int(round(period_s / dt / n_lasers)))
+    return max(1, int(round(float(np.median(estimates)))))
 
 
 def _scan_doc(scan: dict, lasers: LissajousLaser, tiles: tuple[int, int], shots: int) -> dict:
@@ -381,7 +390,7 @@ def calibrate_scan(samples: ScanSamples, sensor_path: str | Path) -> ScanCalibra
             warnings.append(f'the bag has {n} lasers: tiling {tiles[0]} x {tiles[1]} inferred from '
                             f'their centres (the sensor config has {cfg_tiles[0]} x {cfg_tiles[1]})')
     n_lasers = tiles[0] * tiles[1]
-    shots = _shots_per_laser(samples, period, n_lasers)
+    shots = _shots_per_laser(samples, laser, period)
     if shots is None:
         shots = sensor.scan.shots_per_laser
         warnings.append('too few shots detected per frame to measure the shot spacing; '

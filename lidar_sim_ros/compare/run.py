@@ -666,8 +666,21 @@ def load_inputs(opts: CompareOptions) -> Inputs:
     from lidar_sim_ros.offline import DEFAULT_EPOCH_S
     meas = with_scan_times(meas, sim.shots,
                            sim.shots_of_frame if varies_by_frame(sim.sensor) else None,
-                           sim.frame_period_s, (0.0, DEFAULT_EPOCH_S))
+                           sim.frame_period_s, (0.0, DEFAULT_EPOCH_S), *scan_curve(sim.sensor))
     return Inputs(scenario, meas, sun, scenario_effects, user, model, pose_fit)
+
+
+def scan_curve(sensor) -> tuple:
+    """(curve, shot interval per laser in s) of a Lissajous array, else (None, None): the
+    continuous curve ``with_scan_times`` matches directions to."""
+    from functools import partial
+
+    from lidar_sim_ros.core.config import LissajousArrayScan
+    from lidar_sim_ros.core.scan import lissajous_angles, lissajous_lasers
+    if not isinstance(sensor.scan, LissajousArrayScan):
+        return None, None
+    return (partial(lissajous_angles, lissajous_lasers(sensor.scan)),
+            sensor.frame_period_s / sensor.scan.shots_per_laser)
 
 
 # The kinds of return ``leave_out_occluded`` leaves out, as ``meas.dropped`` counts them.

@@ -33,6 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.compare.recording.cepton_pcap import (PcapError, is_pcap, pcap_recording,
                                                          read_pose_source, skipped_line)
+from lidar_sim_ros.compare.recording.scan_curve import Curve, nearest_on_curve, times_on_grid
 from lidar_sim_ros.compare.recording.fields import (FieldError, flag_counts, flag_lines,
                                                     point_time_ns, resolve_fields,
                                                     return_indices)
@@ -438,7 +439,8 @@ def _usable_poses(bag: Path, topic: str, poses, notes: list[str]):
 def with_scan_times(meas: Measurements, shots: Shots,
                     shots_of_frame: Callable[[int], Shots] | None = None,
                     frame_period_s: float | None = None,
-                    clocks_s: tuple[float, ...] = (0.0,)) -> Measurements:
+                    clocks_s: tuple[float, ...] = (0.0,),
+                    curve: Curve | None = None, interval_s: float | None = None) -> Measurements:
     """Point times from the sensor's scan pattern, for clouds without a time field.
 
     Each measured direction is matched to the nearest shot of the configured frame
@@ -449,10 +451,19 @@ def with_scan_times(meas: Measurements, shots: Shots,
     period: each cloud is matched to the shots of its own frame, round((stamp - clock) /
     period), on the clock (one of ``clocks_s``, s) whose frames match the first cloud best:
     the node counts frames from ROS time 0, ``lidar-sim simulate`` from its epoch.
+    A pattern with a continuous ``curve`` (laser, t) -> (az, el) and a shot interval per
+    laser ``interval_s`` is matched to the curve, not only to our sampled shots
+    (``scan_curve``): shots fired at other instants of it (a start phase, lasers firing
+    together) take the time on the curve, if each laser's times in a cloud sit on one
+    grid of that interval.
     """
     if meas.time_source != 'stamp' or len(shots) == 0:
         return meas
-    if shots_of_frame is None or not frame_period_s:
+    if (shots_of_frame is None or not frame_period_s) and curve is not None and interval_s:
+        ok, t_shot, laser_shot = times_on_grid(
+            *nearest_on_curve(meas.directions, shots, curve, interval_s), meas.cloud,
+            SCAN_MATCH_TOL_RAD, interval_s)
+    elif shots_of_frame is None or not frame_period_s:
         dist, idx = cKDTree(shots.directions()).query(meas.directions)
         ok = dist < SCAN_MATCH_TOL_RAD
         t_shot, laser_shot = shots.t_s[idx], shots.laser[idx]
