@@ -30,6 +30,7 @@ import sys
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -63,12 +64,12 @@ from lidar_sim_ros.compare.diagnose.sunlight import (SunFit, fit_sunlight, read_
                                                      short_points, summary_section,
                                                      sunlit_decision)
 from lidar_sim_ros.compare.report.verdict import summary_lines, verdict
-from lidar_sim_ros.core.config import MaterialsConfig, resolve
+from lidar_sim_ros.core.config import LissajousArrayScan, MaterialsConfig, resolve
 from lidar_sim_ros.core.scenario import Scenario, load_scenario, scenario_effect_spec
 from lidar_sim_ros.core.effects import (Effect, catalogue, effect_from_spec, get_effect_class,
                                         parse_effect_spec)
 from lidar_sim_ros.core.geometry import load_target
-from lidar_sim_ros.core.scan import varies_by_frame
+from lidar_sim_ros.core.scan import lissajous_angles, lissajous_lasers, varies_by_frame
 from lidar_sim_ros.core.effects.multipath import Multipath
 from lidar_sim_ros.core.effects.sunlight import Sunlight
 from lidar_sim_ros.core.pipeline import Prediction
@@ -673,10 +674,6 @@ def load_inputs(opts: CompareOptions) -> Inputs:
 def scan_curve(sensor) -> tuple:
     """(curve, shot interval per laser in s) of a Lissajous array, else (None, None): the
     continuous curve ``with_scan_times`` matches directions to."""
-    from functools import partial
-
-    from lidar_sim_ros.core.config import LissajousArrayScan
-    from lidar_sim_ros.core.scan import lissajous_angles, lissajous_lasers
     if not isinstance(sensor.scan, LissajousArrayScan):
         return None, None
     return (partial(lissajous_angles, lissajous_lasers(sensor.scan)),
@@ -1458,6 +1455,15 @@ def recast_all_points(model: Model, effects: list[Effect], rays: fit_data.RaySet
 LINE_OF_SIGHT_POINTS = 20_000
 
 
+def raycast_subset(n: int, seed: int) -> np.ndarray:
+    """Sorted indices of the points raycast again per trial (``LineOfSight``,
+    ``ClockBesidePoseCast``): all ``n`` up to LINE_OF_SIGHT_POINTS, else that many drawn
+    with the run's seed; the same subset for both."""
+    if n <= LINE_OF_SIGHT_POINTS:
+        return np.arange(n)
+    return np.sort(np.random.default_rng([seed, 37]).choice(n, LINE_OF_SIGHT_POINTS, False))
+
+
 def diagnosis_on_moved(model: Model, effects: list[Effect], sim, m: Matching,
                        moved_rays: fit_data.RaySet, moved: Measurements, n_candidates: int,
                        seed: int, constant: bool) -> diagnosis.Diagnosis:
@@ -1493,8 +1499,7 @@ class LineOfSight:
         u = np.mean(meas.directions[seen], axis=0) if len(seen) else np.array([1.0, 0, 0])
         self.direction = u / max(float(np.linalg.norm(u)), 1e-12)
         n = len(meas)
-        self.points = (np.arange(n) if n <= LINE_OF_SIGHT_POINTS else np.sort(
-            np.random.default_rng([seed, 37]).choice(n, LINE_OF_SIGHT_POINTS, False)))
+        self.points = raycast_subset(n, seed)
         self.blocks = np.asarray(blocks)[self.points]
         self.part = meas.subset(self.points)
         self.base = pose_error.PoseCorrection.identity(np.zeros_like(meas.cloud), meas.t_s)
@@ -1567,8 +1572,7 @@ class ClockBesidePoseCast:
         self.model, self.effects, self.clock_cls = model, effects, clock_cls
         self.z_crit, self.seed = z_crit, seed
         n = len(meas)
-        self.points = (np.arange(n) if n <= LINE_OF_SIGHT_POINTS else np.sort(
-            np.random.default_rng([seed, 37]).choice(n, LINE_OF_SIGHT_POINTS, False)))
+        self.points = raycast_subset(n, seed)
         self.blocks = np.asarray(blocks)[self.points]
         self.part = meas.subset(self.points)
         take = (lambda a: None if a is None else a[self.points])
