@@ -21,6 +21,13 @@ SAME_RAY = 1e-6                # directions closer than this (chord of unit vect
 _CLOUD_GAP = 10.0              # separates clouds in the search space (unit vectors: |d| = 1)
 
 
+def search_space(directions: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+    """(N, 4) points whose Euclidean neighbours are rays of the same cloud: the unit
+    directions (N, 3) beside the cloud index times a gap no two unit vectors span."""
+    return np.column_stack([np.asarray(directions, float),
+                            _CLOUD_GAP * np.asarray(cloud, float)])
+
+
 def isolated(directions: np.ndarray, range_m: np.ndarray, cloud: np.ndarray,
              query: np.ndarray, same_surface_m: np.ndarray | None = None, slope: float = 0.0,
              min_agreeing: int = 1, local_reach: bool = False) -> np.ndarray:
@@ -37,7 +44,7 @@ def isolated(directions: np.ndarray, range_m: np.ndarray, cloud: np.ndarray,
     query = np.asarray(query, int)
     if len(query) == 0:
         return np.zeros(0, bool)
-    space = np.column_stack([directions, _CLOUD_GAP * np.asarray(cloud, float)])
+    space = search_space(directions, cloud)
     tree = cKDTree(space)
     k = min(NEIGHBOURS + 1, len(space))
     dist, idx = tree.query(space[query], k=k)

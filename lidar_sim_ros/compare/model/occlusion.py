@@ -117,8 +117,7 @@ def veiled(range_m: np.ndarray, expected_m: np.ndarray, threshold_m: np.ndarray,
         return out
     # The nearest modelled surface around the ray: its own and its neighbours' rays.
     on = np.flatnonzero(np.isfinite(expected))
-    space = np.column_stack([np.asarray(directions, float),
-                             neighbours._CLOUD_GAP * np.asarray(cloud, float)])
+    space = neighbours.search_space(directions, cloud)
     tree = cKDTree(space[on])
     k = min(neighbours.NEIGHBOURS + 1, len(on))
     _, idx = tree.query(space[cand], k=k)
@@ -152,8 +151,8 @@ def grown(film: np.ndarray, range_m: np.ndarray, expected_m: np.ndarray, later_o
     if len(c) == 0 or not out.any():
         return out
     pts = np.concatenate([np.flatnonzero(out), c])
-    space = np.column_stack([np.asarray(directions, float)[pts],
-                             neighbours._CLOUD_GAP * np.asarray(cloud, float)[pts]])
+    space = neighbours.search_space(np.asarray(directions, float)[pts],
+                                    np.asarray(cloud, float)[pts])
     k = min(neighbours.NEIGHBOURS + 1, len(pts))
     dist, idx = cKDTree(space).query(space[len(pts) - len(c):], k=k)
     idx = np.asarray(idx).reshape(len(c), -1)
