@@ -1759,6 +1759,9 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'point_time_spread_s': time_spread or None,
         'scan_pattern_match': (None if meas.scan_match_fraction is None
                                else round(meas.scan_match_fraction, 4)),
+        # A Lissajous running (1 + eps) fast against the configured one: eps (scan_rate).
+        'scan_pattern_rate_error': (None if meas.scan_rate_error is None
+                                    else round(meas.scan_rate_error, 6)),
         'stamp_place': diag.stamp.as_dict() if diag.stamp is not None else None,
         'reference_pose': (None if diag.pose is None else {
             **diag.pose.as_dict(),
