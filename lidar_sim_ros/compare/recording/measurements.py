@@ -485,7 +485,7 @@ def with_scan_times(meas: Measurements, shots: Shots,
                 rate_note = (f'the pattern runs {100 * abs(rate):.2f} % '
                              f'{"fast" if rate > 0 else "slow"}: times from its curve (its '
                              f'frequencies x {1 + rate:.5f} trace the configured figure; the '
-                             f'clouds agree within {100 * spread:.3f} %); ')
+                             f'clouds agree within {100 * spread:.4f} %); ')
             elif found is None:
                 rate_note = f' (no rate error recovers it: {why})'
     elif shots_of_frame is None or not frame_period_s:
