@@ -67,6 +67,8 @@ def run_one(spec: ForeignSpec, root: Path, report: bool) -> dict:
         'crosstalk_points': (s.get('crosstalk') or {}).get('points'),
         'later_returns': (s.get('multiple_returns') or {}).get('points'),
         'point_times': s.get('point_times'), 'verdict': s.get('verdict'),
+        'scan_pattern_match': s.get('scan_pattern_match'),
+        'scan_pattern_rate_error': s.get('scan_pattern_rate_error'),
         'error': s.get('error')} for s in steps]
     return row
 

@@ -296,8 +296,7 @@ def judge_v4(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
     answer = _first_answer(first)
     why = []
     hidden = {n for n, _ in spec.hidden}
-    phantom = [n for n in named if n is not None and n not in hidden
-               and not (base.startswith('pattern_off') and n == 'time_offset')]
+    phantom = [n for n in named if n is not None and n not in hidden]
     if phantom:
         why.append(f'named {phantom}, not hidden')
     rival = next((n for n in SENSOR_RIVALS if n in hidden), None)
@@ -348,8 +347,20 @@ def judge_v4(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
         elif not 0.5 * truth_cm <= size <= 1.5 * truth_cm:
             why.append(f'the pose correction is {size:.1f} cm for a {truth_cm:.1f} cm error')
     elif base.startswith('pattern_off'):
-        if not first.get('verdict', '').startswith('The scan pattern is off'):
-            why.append('the verdict does not open with the scan pattern')
+        # The same closed figure at a rate (1 + eps): the rate recovered within 0.02 % and
+        # the times taken from the curve, nothing named, no pose reported (the pose is
+        # exact); or, where it is not recovered, the pattern said first and still no pose.
+        eps = first.get('scan_pattern_rate_error')
+        if eps is None:
+            if not first.get('verdict', '').startswith('The scan pattern is off'):
+                why.append('the verdict does not open with the scan pattern')
+        elif abs(eps - (spec.scan_freq_scale - 1.0)) > 2e-4:
+            why.append(f'the pattern rate {eps:+.5f}, truth {spec.scan_freq_scale - 1.0:+.5f}')
+        elif first.get('point_times') != 'scan pattern':
+            why.append(f'point times {first.get("point_times")} with the rate recovered')
+        if answer != 'None' or first.get('reference_pose_off'):
+            why.append(f'first answer {answer}, pose reported: '
+                       f'{bool(first.get("reference_pose_off"))} (the pose is exact)')
     elif base.startswith('pattern_exact'):
         if first.get('point_times') != 'scan pattern' or answer != 'None':
             why.append(f'point times {first.get("point_times")}, answer {answer}')

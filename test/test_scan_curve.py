@@ -1,7 +1,7 @@
 """Tests for compare/recording/scan_curve.py via ``with_scan_times``: point times of a
 cloud without a time field whose shots sit at other instants of the configured Lissajous
 curve (lasers firing together, half a shot later), and a pattern 0.5 % off in frequency
-(the same closed figure, other instants drifting through the frame) still refused."""
+(the same closed figure, other instants drifting through the frame: ``scan_rate``)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -70,9 +70,34 @@ def test_the_configured_instants_keep_their_shot_times():
     assert np.mean(np.abs(timed.t_frame_s - truth) < 1e-9) > 0.99
 
 
-def test_a_pattern_half_a_percent_off_is_still_refused():
-    """Frequencies x 1.005: the same 11:10 closed figure, but the instants drift 4.4 shots
-    through the frame, off any one grid of the shot interval."""
-    meas, _ = lab_cloud(False, 0.0, freq_scale=1.005)
+@pytest.mark.parametrize('scale', [1.005, 0.995])
+def test_a_pattern_half_a_percent_off_takes_its_times_from_the_curve(scale):
+    """Frequencies x 1.005 (or 0.995): the same 11:10 closed figure, the instants drifting
+    4.4 shots through the frame; the rate is fitted and each point snapped to its laser's
+    drifting grid, to a small fraction of the 114 us shot interval (the old code refused
+    and left every point at its cloud stamp)."""
+    meas, truth = lab_cloud(False, 0.0, freq_scale=scale)
+    timed = times(meas)
+    interval = SENSOR.frame_period_s / SENSOR.scan.shots_per_laser
+    assert timed.time_source == 'scan pattern' and timed.scan_match_fraction > 0.99
+    assert abs(timed.scan_rate_error - (scale - 1.0)) < 2e-5
+    assert np.mean(np.abs(timed.t_frame_s - truth) < 0.05 * interval) > 0.99
+    assert any('runs 0.50 %' in n for n in timed.notes)
+
+
+def test_the_retraced_start_of_a_fast_pattern_goes_to_the_end_of_the_frame():
+    """eps > 0: the last 0.5 % of the frame retraces the figure's start; those shots'
+    curve times are near 0 and their instants near the frame's end."""
+    meas, truth = lab_cloud(False, 0.0, freq_scale=1.005, n_clouds=3, seed=5)
+    timed = times(meas)
+    late = truth > SENSOR.frame_period_s / 1.005
+    assert late.sum() > 20
+    assert np.mean(np.abs(timed.t_frame_s[late] - truth[late]) < 1e-6) > 0.9
+
+
+def test_a_pattern_off_beyond_the_bound_is_still_refused():
+    """Frequencies x 1.03: beyond the 2 % looked for; every point keeps its stamp."""
+    meas, _ = lab_cloud(False, 0.0, freq_scale=1.03)
     timed = times(meas)
     assert timed.time_source == 'stamp' and timed.scan_match_fraction < 0.5
+    assert timed.scan_rate_error is None

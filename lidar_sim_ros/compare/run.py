@@ -60,6 +60,7 @@ from lidar_sim_ros.compare.model.matching import (Matching, Model, edge_distance
 from lidar_sim_ros.compare.recording.measurements import (Measurements, MeasurementError,
                                                           load_measurements, with_scan_times)
 from lidar_sim_ros.compare.recording.shots import missed_per_unmatched
+from lidar_sim_ros.compare.recording.scan_rate import figure_period_s
 from lidar_sim_ros.compare.diagnose.sunlight import (SunFit, fit_sunlight, read_sun_track,
                                                      short_points, summary_section,
                                                      sunlit_decision)
@@ -672,12 +673,15 @@ def load_inputs(opts: CompareOptions) -> Inputs:
 
 
 def scan_curve(sensor) -> tuple:
-    """(curve, shot interval per laser in s) of a Lissajous array, else (None, None): the
-    continuous curve ``with_scan_times`` matches directions to."""
+    """(curve, shot interval per laser in s, the figure's period in s) of a Lissajous
+    array, else (None, None, None): the continuous curve ``with_scan_times`` matches
+    directions to."""
     if not isinstance(sensor.scan, LissajousArrayScan):
-        return None, None
-    return (partial(lissajous_angles, lissajous_lasers(sensor.scan)),
-            sensor.frame_period_s / sensor.scan.shots_per_laser)
+        return None, None, None
+    lasers = lissajous_lasers(sensor.scan)
+    return (partial(lissajous_angles, lasers),
+            sensor.frame_period_s / sensor.scan.shots_per_laser,
+            figure_period_s(np.concatenate([lasers.freq_az_hz, lasers.freq_el_hz])))
 
 
 # The kinds of return ``leave_out_occluded`` leaves out, as ``meas.dropped`` counts them.
@@ -1755,6 +1759,9 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'point_time_spread_s': time_spread or None,
         'scan_pattern_match': (None if meas.scan_match_fraction is None
                                else round(meas.scan_match_fraction, 4)),
+        # A Lissajous running (1 + eps) fast against the configured one: eps (scan_rate).
+        'scan_pattern_rate_error': (None if meas.scan_rate_error is None
+                                    else round(meas.scan_rate_error, 6)),
         'stamp_place': diag.stamp.as_dict() if diag.stamp is not None else None,
         'reference_pose': (None if diag.pose is None else {
             **diag.pose.as_dict(),

@@ -34,6 +34,7 @@ from scipy.spatial.transform import Rotation
 from lidar_sim_ros.compare.recording.cepton_pcap import (PcapError, is_pcap, pcap_recording,
                                                          read_pose_source, skipped_line)
 from lidar_sim_ros.compare.recording.scan_curve import Curve, nearest_on_curve, times_on_grid
+from lidar_sim_ros.compare.recording.scan_rate import drifting_times
 from lidar_sim_ros.compare.recording.fields import (FieldError, flag_counts, flag_lines,
                                                     point_time_ns, resolve_fields,
                                                     return_indices)
@@ -123,6 +124,10 @@ class Measurements:
     # Clouds without a time field: the share of directions within SCAN_MATCH_TOL_RAD of a
     # shot of the configured scan pattern (``with_scan_times``); None with a time field.
     scan_match_fraction: float | None = None
+    # Clouds without a time field whose Lissajous runs (1 + eps) fast against the
+    # configured one (``scan_rate``): eps; None where the configured rate matched or no
+    # rate was recovered.
+    scan_rate_error: float | None = None
     # (N,) int: the return index the recording gives each point (a return field, or the
     # Cepton SECOND_RETURN flag: 0 first, 1 later); None without either.
     return_index: np.ndarray | None = None
@@ -147,7 +152,8 @@ class Measurements:
                             poses=self.poses, material_names=self.material_names,
                             notes=self.notes, dropped=self.dropped,
                             time_source=self.time_source, time_field=self.time_field,
-                            scan_match_fraction=self.scan_match_fraction, **pick)
+                            scan_match_fraction=self.scan_match_fraction,
+                            scan_rate_error=self.scan_rate_error, **pick)
 
 
 def load_measurements(bag: str | Path, cloud_topic: str = CLOUD_TOPIC,
@@ -440,7 +446,8 @@ def with_scan_times(meas: Measurements, shots: Shots,
                     shots_of_frame: Callable[[int], Shots] | None = None,
                     frame_period_s: float | None = None,
                     clocks_s: tuple[float, ...] = (0.0,),
-                    curve: Curve | None = None, interval_s: float | None = None) -> Measurements:
+                    curve: Curve | None = None, interval_s: float | None = None,
+                    figure_period_s: float | None = None) -> Measurements:
     """Point times from the sensor's scan pattern, for clouds without a time field.
 
     Each measured direction is matched to the nearest shot of the configured frame
@@ -455,14 +462,32 @@ def with_scan_times(meas: Measurements, shots: Shots,
     laser ``interval_s`` is matched to the curve, not only to our sampled shots
     (``scan_curve``): shots fired at other instants of it (a start phase, lasers firing
     together) take the time on the curve, if each laser's times in a cloud sit on one
-    grid of that interval.
+    grid of that interval. If they do not, a pattern running a little fast or slow
+    (frequencies x (1 + eps), the same closed figure of period ``figure_period_s``) is
+    looked for (``scan_rate.drifting_times``): its times come from the curve, and eps is
+    kept in ``scan_rate_error`` and the notes.
     """
     if meas.time_source != 'stamp' or len(shots) == 0:
         return meas
+    rate, rate_note = None, ''
     if (shots_of_frame is None or not frame_period_s) and curve is not None and interval_s:
-        ok, t_shot, laser_shot = times_on_grid(
-            *nearest_on_curve(meas.directions, shots, curve, interval_s), meas.cloud,
-            SCAN_MATCH_TOL_RAD, interval_s)
+        cands = nearest_on_curve(meas.directions, shots, curve, interval_s)
+        ok, t_shot, laser_shot = times_on_grid(*cands, meas.cloud, SCAN_MATCH_TOL_RAD,
+                                               interval_s)
+        if ok.mean() < SCAN_MATCH_MIN_FRACTION and frame_period_s:
+            dist, t_curve, laser_c, _ = cands
+            found, why = drifting_times(dist, t_curve, laser_c, meas.cloud, SCAN_MATCH_TOL_RAD,
+                                        interval_s, figure_period_s or float('inf'),
+                                        frame_period_s)
+            if found is not None and found[0].mean() >= SCAN_MATCH_MIN_FRACTION:
+                ok, t_shot, laser_shot, rate, each = found
+                spread = float(np.nanmax(np.abs(each - rate))) if np.isfinite(each).any() else 0.0
+                rate_note = (f'the pattern runs {100 * abs(rate):.2f} % '
+                             f'{"fast" if rate > 0 else "slow"}: times from its curve (its '
+                             f'frequencies x {1 + rate:.5f} trace the configured figure; the '
+                             f'clouds agree within {100 * spread:.4f} %); ')
+            elif found is None:
+                rate_note = f' (no rate error recovers it: {why})'
     elif shots_of_frame is None or not frame_period_s:
         dist, idx = cKDTree(shots.directions()).query(meas.directions)
         ok = dist < SCAN_MATCH_TOL_RAD
@@ -488,16 +513,17 @@ def with_scan_times(meas: Measurements, shots: Shots,
     if ok.mean() < SCAN_MATCH_MIN_FRACTION:
         return replace(meas, scan_match_fraction=float(ok.mean()), notes=meas.notes + [
             f'clouds have no per-point time field and only {100 * ok.mean():.0f} % of the '
-            'directions match the configured scan pattern: every point takes its cloud stamp'])
+            'directions match the configured scan pattern: every point takes its cloud stamp'
+            + rate_note])
     t_frame = np.where(ok, t_shot, np.median(t_shot[ok]))
     laser = np.where(ok, laser_shot, meas.laser).astype(np.uint16)
     notes = [n for n in meas.notes if 'no per-point time field' not in n] + [
-        f'clouds have no per-point time field: point times taken from the scan pattern '
-        f'({100 * ok.mean():.1f} % of directions match a shot within '
+        f'clouds have no per-point time field: {rate_note}point times taken from the scan '
+        f'pattern ({100 * ok.mean():.1f} % of directions match a shot within '
         f'{np.degrees(SCAN_MATCH_TOL_RAD):g} deg)']
     return replace(meas, t_frame_s=t_frame, t_s=meas.cloud_stamps_s[meas.cloud] + t_frame,
                    laser=laser, has_point_time=True, time_source='scan pattern', notes=notes,
-                   scan_match_fraction=float(ok.mean()))
+                   scan_match_fraction=float(ok.mean()), scan_rate_error=rate)
 
 
 def _match_each_frame(meas: Measurements, shots_of_frame: Callable[[int], Shots],

@@ -266,7 +266,18 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     tie = ((summary.get('reference_pose') or {}).get('rate') or {}).get('tied_with_range_over_scan')
     if tie:
         parts.append(scan_tie_words(tie))
+    if summary.get('scan_pattern_rate_error') is not None:
+        parts.append(scan_rate_words(summary['scan_pattern_rate_error']))
     return ' '.join(parts)
+
+
+def scan_rate_words(eps: float) -> str:
+    """The verdict's sentence on a scan pattern running (1 + eps) fast (``scan_rate``): the
+    same figure at other instants, so its times come from the curve; nothing is named."""
+    return (f'The scan pattern runs {100 * abs(eps):.2f} % {"fast" if eps > 0 else "slow"} '
+            f'against the configuration (its frequencies x {1 + eps:.5f}): it traces the '
+            'configured figure at other instants, so the point times were taken from its '
+            'curve; lidar-sim calibrate scan writes the rate.')
 
 
 def scan_tie_words(tie: dict) -> str:
@@ -1338,6 +1349,11 @@ def summary_lines(s: dict, files: list[Path]) -> list[str]:
              f'range RMSE: {s["range_rmse_m"]:.4f} m   NLL: {s["nll_per_point"]:.3f} per point'
              f'   (per-material offsets refit: {s["range_rmse_calibrated_m"]:.4f} m, '
              f'{s["nll_calibrated"]:.3f})']
+    rate = s.get('scan_pattern_rate_error')
+    if rate is not None:
+        lines.append(f'scan pattern: the pattern runs {100 * abs(rate):.2f} % '
+                     f'{"fast" if rate > 0 else "slow"}: times from its curve (frequencies x '
+                     f'{1 + rate:.5f}; summary.json: scan_pattern_rate_error)')
     occluded = (s.get('occlusion') or {}).get('points')
     if occluded:
         lines.append(f'occluded: {occluded} returns from something in front of the target '
