@@ -838,6 +838,53 @@ class PoseWeighing:
                             pose=pose), None
         if nest.outcome != 'clock':
             return decision, None
+        return self.clock_named_beside(decision, clock, nest, figures, pose_on_clock)
+
+    def clock_beside_per_cloud_pose(self, decision: Decision, cands: list[Candidate],
+                                    nested, pose_on_clock
+                                    ) -> tuple[Decision, Candidate | None]:
+        """A correction per cloud reported alone (no rate over the scan), nothing named,
+        and a clock offset (``time_offset``) among the candidates: on a target spinning
+        about an axis that turns with a tumble, a clock offset reads each cloud's attitude
+        off about a different lidar-frame axis, so the pose test takes it as a pose
+        varying per cloud and the constant nested test (``clock_beside_constant_pose``)
+        is never asked. Here ``nested(effect)`` (``clock_nested.PerCloudClock``) weighs
+        the clock with one correction against the per-cloud correction on the same
+        raycast points, each charged its parameters (6 x clouds against 7), beside the
+        constant nested test. Its outcome 'clock': the clock named (``clock_named_beside``:
+        the correction fitted again on top of it at the profile's dt, reported beside it
+        where its own part passes); 'tie': [pose_error, time_offset] with the per-cloud
+        pose (the clock nameable alone); else the decision stands. Figures on the clock's
+        ``against_pose['constant_pose_footing']`` (``nested``, with ``per_cloud``)."""
+        pose = decision.pose
+        if (decision.missing or decision.confounded_with or pose is None or nested is None
+                or getattr(pose, 'constant', True) or getattr(pose, 'rate_supported', False)):
+            return decision, None
+        clock = next((c for c in cands if c.name == beside.CLOCK), None)
+        if clock is None or clock.effect is None or clock.error is not None:
+            return decision, None
+        try:
+            nest = nested(clock.effect)
+        except Exception:  # noqa: BLE001 - not weighed: the decision stands
+            return decision, None
+        figures = {'dt_alone_s': _num(float(clock.effect.params.dt_s)),
+                   'dt_joint_s': _num(nest.nested.dt_beside_pose_s), 'per_cloud_pose': True,
+                   'nested': nest.as_dict()}
+        clock.against_pose = {**(clock.against_pose or {}), 'constant_pose_footing': figures}
+        if nest.outcome == 'tie' and self.nameable(clock):
+            return Decision(None, [POSE_ERROR, beside.CLOCK], withheld=dict(decision.withheld),
+                            pose=pose), None
+        if nest.outcome != 'clock':
+            return decision, None
+        return self.clock_named_beside(decision, clock, nest, figures, pose_on_clock)
+
+    def clock_named_beside(self, decision: Decision, clock: Candidate, nest, figures: dict,
+                           pose_on_clock) -> tuple[Decision, Candidate | None]:
+        """The clock whose own part passed a nested test (``nest``: ``clock_nested``'s
+        ``NestedClock`` or ``PerCloudClock``) named, the correction beside it fitted
+        again on top of the clock at the profile's dt (``pose_on_clock``) where its own
+        part passes there too (``clock_beside_constant_pose``); the decision as it was
+        where the clock may not be named on the corrected pose."""
         beside_pose = type(clock.effect)({'dt_s': float(nest.dt_beside_pose_s)})
         try:
             on_pose, report = pose_on_clock(beside_pose)
