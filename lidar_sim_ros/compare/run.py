@@ -1207,6 +1207,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         decision, clock = diag.clock_beside_per_cloud_pose(
             decision, cands, clock_per_cloud_cast, lambda clock: on_constant_pose(clock)[:2])
     if clock is not None:
+        diag.turn_beside_clock(cands)
         # The clock as scored on the corrected pose is the one the verdict quotes.
         cands = diagnosis.rank([clock if c.name == clock.name else c for c in cands])
         on_top = [clock.name]

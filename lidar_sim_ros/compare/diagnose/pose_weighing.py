@@ -900,6 +900,7 @@ class PoseWeighing:
                        **({'why_not_on_pose': fault} if fault else {}))
         if fault is not None:
             return decision, None
+        self.clock_on_pose = (on_pose, copy.copy(again))   # ``turn_beside_clock``
         # The held-out gain quoted is the clock's own part on top of the correction: its
         # score on a correction fitted beside the clock it assumed is not independent
         # (that correction leaves the clock's pose-shaped part for the clock to find).
@@ -912,6 +913,49 @@ class PoseWeighing:
         keep = nest.pose_over_clock.passes and bool(getattr(report, 'significant', False))
         return Decision(beside.CLOCK, [], also=None, withheld=dict(decision.withheld),
                         pose=report if keep else None), again
+
+    def turn_beside_clock(self, cands: list[Candidate]) -> None:
+        """Lasers' pointing set aside as mostly a common turn of every beam
+        (``own_part_veto``) where a clock offset was named beside the pose
+        (``clock_named_beside``): a pose offset across the line of sight and a clock's
+        turn of the target are, seen from the sensor, a turn of every beam. The turn is
+        fitted again on the pose corrected beside the clock, on top of the clock there
+        (``pointing.SensorTurn``, cross-fitted); where it no longer passes the rule the
+        reason given says that the clock and the pose take it (not a mount), with its
+        figures under ``own_part['beside_clock']``. Where it still passes, the reason
+        stands."""
+        from lidar_sim_ros.compare.model import pointing
+        held = getattr(self, 'clock_on_pose', None)
+        lp = next((c for c in cands if c.vetoed and c.own_part and c.effect is not None
+                   and pointing.turn_of(c.variant) is not None), None)
+        if held is None or lp is None:
+            return
+        on_pose, clock = held
+        if clock.effect is None or clock.heldout_nll is None:
+            return
+        try:
+            turn = Candidate(lp.name)
+            turn.effect = lp.effect
+            nll, explained = on_pose.cross_fit(pointing.SensorTurn, [clock.effect])
+            on_pose._set_gain(turn, nll, explained)
+            gain, z = on_pose.paired(turn, clock)
+        except Exception:  # noqa: BLE001 - not weighed: the reason stands
+            return
+        passes = on_pose.passes_rule(gain, z)
+        lp.own_part = {**lp.own_part, 'beside_clock': {'score': _num(gain), 'z': _num(z),
+                                                       'passes': passes}}
+        if passes:
+            return
+        part = lp.own_part
+        lp.vetoed = (f'its offsets are mostly a common turn of every beam (it gains '
+                     f'{part["turn_score"]:.4f} nats/point held out on the recorded pose), '
+                     f'which the clock offset and the reference pose correction named here '
+                     f'take: seen from the sensor, a target moved across the line of sight '
+                     f'or turned by a clock is a turn of every beam. On the pose corrected '
+                     f'beside the clock, on top of the clock, that turn gains {gain:.4f} '
+                     f'nats/point (z = {z:.1f}), which does not pass the rule; over the turn '
+                     f'each laser\'s own part gains {part["score"]:.4f} nats/point '
+                     f'(z = {part["z"]:.1f})')
 
     def clock_tie(self, decision: Decision, cands: list[Candidate],
                   no_point_times: bool) -> Decision:
