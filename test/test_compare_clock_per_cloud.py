@@ -107,6 +107,12 @@ def test_a_pose_per_cloud_gives_way_to_the_clock_with_one_correction():
     constant = diagnosis.Decision(None, [], pose=_Pose())
     assert judge.clock_beside_per_cloud_pose(constant, [_clock()], nested,
                                              on_clock) == (constant, None)
+    # nor where a rate over the scan passed on top of the per-cloud correction (a
+    # tracking lag growing within each scan: a clock makes no growth over the scan)
+    drifting = _PerCloudPose()
+    drifting.rate_supported = True
+    lag = diagnosis.Decision(None, [], pose=drifting)
+    assert judge.clock_beside_per_cloud_pose(lag, [_clock()], nested, on_clock) == (lag, None)
 
 
 def test_a_tie_and_a_pose_per_cloud_that_stands():
