@@ -1201,7 +1201,17 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision, clock = diag.clock_beside_constant_pose(
         decision, cands, clock_beside_corrected, lambda clock: on_constant_pose(clock)[:2],
         clock_nested_cast)
+    # The same where the pose test reports a correction per cloud: the clock with one
+    # correction against the per-cloud correction, each charged its parameters.
+    if clock is None:
+        def clock_per_cloud_cast(clock: Effect) -> clock_nested.PerCloudClock:
+            cast = ClockBesidePerCloudCast(model, effects, rays, meas, sample.blocks,
+                                           type(clock), diag.z_crit, seed)
+            return cast.weigh_per_cloud(clock, diagnosis.MIN_PRACTICAL_GAIN)
+        decision, clock = diag.clock_beside_per_cloud_pose(
+            decision, cands, clock_per_cloud_cast, lambda clock: on_constant_pose(clock)[:2])
     if clock is not None:
+        diag.turn_beside_clock(cands)
         # The clock as scored on the corrected pose is the one the verdict quotes.
         cands = diagnosis.rank([clock if c.name == clock.name else c for c in cands])
         on_top = [clock.name]
@@ -1645,6 +1655,65 @@ class ClockBesidePoseCast:
             step_m=0.01, span_m=0.06, tol_m=0.003)
         return clock_nested.weigh(nothing, pose, clock, at(d), n, self.blocks, self.z_crit,
                                   min_gain, dt_alone_s, dt_joint_s + d)
+
+
+
+class ClockBesidePerCloudCast(ClockBesidePoseCast):
+    """``ClockBesidePoseCast`` where the pose test reports a correction per cloud: the
+    same points, and a rigid correction per cloud fitted on them too (raycast again as
+    it goes, ``pose_error.RECAST_PASSES``), weighed against the clock with one
+    correction (``clock_nested.weigh_per_cloud``). The profile over dt starts from the
+    clock fitted jointly with one correction, linearly, on the model that correction
+    leaves on these points (``clock_footing``, ``constant``)."""
+
+    def per_cloud(self) -> Measurements:
+        """The subset with a rigid correction per cloud fitted on the model without the
+        clock, raycast again as it goes."""
+        if 'per_cloud' in self._poses:
+            return self._poses['per_cloud']
+        part = self.part
+
+        def rematch(corr: pose_error.PoseCorrection):
+            moved = replace(part, poses=pose_error.CorrectedPoses(part.poses, corr))
+            r, data = self._cast(moved, None)
+            return r, data, moved
+
+        def refit(state, applied: pose_error.PoseCorrection | None) -> pose_error.PoseError:
+            r, data, moved = state
+            idx = r.matched
+            return pose_error.fit_reference_pose(
+                data, moved.cloud[idx], moved.t_s[idx], self.blocks[idx], self.z_crit,
+                diagnosis.MIN_PRACTICAL_GAIN, self.seed, [], applied=applied)
+        start = pose_error.PoseCorrection.identity(part.cloud, part.t_s)
+        first = refit(rematch(start), None)
+        (_, _, moved), _, _ = pose_error.iterate(first, start, rematch, refit)
+        self._poses['per_cloud'] = moved
+        return moved
+
+    def dt_joint(self, clock: Effect) -> float:
+        """The clock's dt fitted linearly beside one correction on the model that
+        correction leaves (its column scaled, ``clock_footing.ClockFooting.clock_scale``);
+        the clock's own where that fit fails."""
+        dt = float(clock.params.dt_s)
+        moved = self.corrected(None)
+        r, data = self._cast(moved, None)
+        idx = r.matched
+        on = clock_footing.clock_on_pose_footing(
+            data, moved.cloud[idx], moved.t_s[idx], self.blocks[idx], self.z_crit,
+            diagnosis.MIN_PRACTICAL_GAIN, row_clock.clock_column_m(data, clock), self.seed,
+            constant=True)
+        return float(on.clock_scale * dt) if np.isfinite(on.clock_scale) else dt
+
+    def weigh_per_cloud(self, clock: Effect, min_gain: float) -> clock_nested.PerCloudClock:
+        """The constant nested test (``weigh``) and the per-cloud correction against
+        its clock with one correction, on the same points."""
+        nest = self.weigh(float(clock.params.dt_s), self.dt_joint(clock), min_gain)
+        dt = nest.dt_beside_pose_s
+        both = self.score(self.corrected(dt), dt)
+        per_cloud = self.score(self.per_cloud(), None)
+        return clock_nested.weigh_per_cloud(
+            nest, self.score(self.part, None), per_cloud, both,
+            len(np.unique(self.part.cloud)), self.blocks, self.z_crit, min_gain)
 
 
 def on_corrected_pose(sample: fit_data.RaySet, pred: Prediction,

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lidar_sim_ros.compare.diagnose import line_of_sight
+from lidar_sim_ros.compare.diagnose import features, line_of_sight
 
 POSE_PARAMS = 6    # one rigid correction for the recording: 3 translations, 3 turns
 CLOCK_PARAMS = 1   # dt
@@ -104,3 +104,95 @@ def weigh(nothing: line_of_sight.RayScore, pose: line_of_sight.RayScore,
                        pose_over_clock=p(clock, both, POSE_PARAMS),
                        dt_alone_s=float(dt_alone_s),
                        dt_beside_pose_s=float(dt_beside_pose_s), n_points=int(n_points))
+
+
+# Where the pose test reports a correction per cloud (its rotation varying over the
+# recording), the clock and one rigid correction are weighed against that per-cloud
+# correction on the same footing: on a target spinning about an axis that turns with a
+# tumble, a clock offset reads each cloud's attitude off about a different lidar-frame
+# axis, which twelve rigid corrections take as well as one correction and a dt. Each
+# hypothesis is charged its parameters: six per cloud against seven.
+
+def charged_part(before: line_of_sight.RayScore, after: line_of_sight.RayScore,
+                 n_points: int, blocks: np.ndarray, z_crit: float, min_gain: float,
+                 charge: float) -> Part:
+    """``after`` against ``before`` with ``charge`` nats (the parameters ``after`` has
+    beyond ``before``'s; below zero where it has fewer) taken from the gain spread over
+    the points, so that z is the charged gain's too (``part`` charges the mean only:
+    nested hypotheses, where the charge is small beside the points; here it is not)."""
+    g = line_of_sight.ray_gain(before, after, n_points) - charge / max(n_points, 1)
+    mean, z = features.block_mean_z(g, blocks) if n_points > 1 else (0.0, 0.0)
+    put_back = int(len(before.unmatched) - len(after.unmatched))
+    return Part(float(mean), float(z), bool(z >= z_crit and mean >= min_gain), put_back,
+                bool(z >= z_crit))
+
+
+@dataclass(frozen=True)
+class PerCloudClock:
+    """The constant nested test (``NestedClock``) and the per-cloud correction weighed
+    against the clock with one correction: ``joint_over_per_cloud`` (the clock and one
+    correction against the per-cloud correction, 6 x clouds - 7 nats credited) and
+    ``per_cloud_over_joint`` (the reverse, as many charged)."""
+
+    nested: NestedClock
+    per_cloud_alone: Part
+    joint_over_per_cloud: Part
+    per_cloud_over_joint: Part
+    n_clouds: int
+
+    @property
+    def outcome(self) -> str | None:
+        """'clock' where the clock's own part on top of one correction passes and the
+        clock with that correction passes over the per-cloud correction (the clock is
+        named, the pose beside it as the nested test gives it); 'tie' where the clock's
+        own part passes but neither the clock with one correction nor the per-cloud
+        correction passes on top of the other; None otherwise (the per-cloud pose
+        stands)."""
+        if not self.nested.clock_over_pose.passes:
+            return None
+        if self.joint_over_per_cloud.passes:
+            return 'clock'
+        if not self.per_cloud_over_joint.passes:
+            return 'tie'
+        return None
+
+    # What the naming tail reads off a nested test (``Diagnosis.clock_named_beside``).
+    @property
+    def clock_over_pose(self) -> Part:
+        return self.nested.clock_over_pose
+
+    @property
+    def pose_over_clock(self) -> Part:
+        return self.nested.pose_over_clock
+
+    @property
+    def dt_beside_pose_s(self) -> float:
+        return self.nested.dt_beside_pose_s
+
+    def as_dict(self) -> dict:
+        return {**self.nested.as_dict(), 'outcome': self.outcome,
+                'per_cloud': {'n_clouds': self.n_clouds,
+                              'params': POSE_PARAMS * self.n_clouds,
+                              'alone': self.per_cloud_alone.as_dict(),
+                              'joint_over_per_cloud': self.joint_over_per_cloud.as_dict(),
+                              'per_cloud_over_joint': self.per_cloud_over_joint.as_dict()}}
+
+
+def weigh_per_cloud(nested: NestedClock, nothing: line_of_sight.RayScore,
+                    per_cloud: line_of_sight.RayScore, both: line_of_sight.RayScore,
+                    n_clouds: int, blocks: np.ndarray, z_crit: float,
+                    min_gain: float) -> PerCloudClock:
+    """``nested`` (the four comparisons on the same points) and the per-cloud
+    correction (``per_cloud``, fitted on those points, ``n_clouds`` x six parameters)
+    against nothing and against the clock with one correction (``both``)."""
+    n = nested.n_points
+    extra = POSE_PARAMS * n_clouds - (POSE_PARAMS + CLOCK_PARAMS)
+    return PerCloudClock(
+        nested=nested,
+        per_cloud_alone=charged_part(nothing, per_cloud, n, blocks, z_crit, min_gain,
+                                     POSE_PARAMS * n_clouds),
+        joint_over_per_cloud=charged_part(per_cloud, both, n, blocks, z_crit, min_gain,
+                                          -extra),
+        per_cloud_over_joint=charged_part(both, per_cloud, n, blocks, z_crit, min_gain,
+                                          extra),
+        n_clouds=int(n_clouds))

@@ -838,6 +838,53 @@ class PoseWeighing:
                             pose=pose), None
         if nest.outcome != 'clock':
             return decision, None
+        return self.clock_named_beside(decision, clock, nest, figures, pose_on_clock)
+
+    def clock_beside_per_cloud_pose(self, decision: Decision, cands: list[Candidate],
+                                    nested, pose_on_clock
+                                    ) -> tuple[Decision, Candidate | None]:
+        """A correction per cloud reported alone (no rate over the scan), nothing named,
+        and a clock offset (``time_offset``) among the candidates: on a target spinning
+        about an axis that turns with a tumble, a clock offset reads each cloud's attitude
+        off about a different lidar-frame axis, so the pose test takes it as a pose
+        varying per cloud and the constant nested test (``clock_beside_constant_pose``)
+        is never asked. Here ``nested(effect)`` (``clock_nested.PerCloudClock``) weighs
+        the clock with one correction against the per-cloud correction on the same
+        raycast points, each charged its parameters (6 x clouds against 7), beside the
+        constant nested test. Its outcome 'clock': the clock named (``clock_named_beside``:
+        the correction fitted again on top of it at the profile's dt, reported beside it
+        where its own part passes); 'tie': [pose_error, time_offset] with the per-cloud
+        pose (the clock nameable alone); else the decision stands. Figures on the clock's
+        ``against_pose['constant_pose_footing']`` (``nested``, with ``per_cloud``)."""
+        pose = decision.pose
+        if (decision.missing or decision.confounded_with or pose is None or nested is None
+                or getattr(pose, 'constant', True) or getattr(pose, 'rate_supported', False)):
+            return decision, None
+        clock = next((c for c in cands if c.name == beside.CLOCK), None)
+        if clock is None or clock.effect is None or clock.error is not None:
+            return decision, None
+        try:
+            nest = nested(clock.effect)
+        except Exception:  # noqa: BLE001 - not weighed: the decision stands
+            return decision, None
+        figures = {'dt_alone_s': _num(float(clock.effect.params.dt_s)),
+                   'dt_joint_s': _num(nest.nested.dt_beside_pose_s), 'per_cloud_pose': True,
+                   'nested': nest.as_dict()}
+        clock.against_pose = {**(clock.against_pose or {}), 'constant_pose_footing': figures}
+        if nest.outcome == 'tie' and self.nameable(clock):
+            return Decision(None, [POSE_ERROR, beside.CLOCK], withheld=dict(decision.withheld),
+                            pose=pose), None
+        if nest.outcome != 'clock':
+            return decision, None
+        return self.clock_named_beside(decision, clock, nest, figures, pose_on_clock)
+
+    def clock_named_beside(self, decision: Decision, clock: Candidate, nest, figures: dict,
+                           pose_on_clock) -> tuple[Decision, Candidate | None]:
+        """The clock whose own part passed a nested test (``nest``: ``clock_nested``'s
+        ``NestedClock`` or ``PerCloudClock``) named, the correction beside it fitted
+        again on top of the clock at the profile's dt (``pose_on_clock``) where its own
+        part passes there too (``clock_beside_constant_pose``); the decision as it was
+        where the clock may not be named on the corrected pose."""
         beside_pose = type(clock.effect)({'dt_s': float(nest.dt_beside_pose_s)})
         try:
             on_pose, report = pose_on_clock(beside_pose)
@@ -853,6 +900,7 @@ class PoseWeighing:
                        **({'why_not_on_pose': fault} if fault else {}))
         if fault is not None:
             return decision, None
+        self.clock_on_pose = (on_pose, copy.copy(again))   # ``turn_beside_clock``
         # The held-out gain quoted is the clock's own part on top of the correction: its
         # score on a correction fitted beside the clock it assumed is not independent
         # (that correction leaves the clock's pose-shaped part for the clock to find).
@@ -865,6 +913,49 @@ class PoseWeighing:
         keep = nest.pose_over_clock.passes and bool(getattr(report, 'significant', False))
         return Decision(beside.CLOCK, [], also=None, withheld=dict(decision.withheld),
                         pose=report if keep else None), again
+
+    def turn_beside_clock(self, cands: list[Candidate]) -> None:
+        """Lasers' pointing set aside as mostly a common turn of every beam
+        (``own_part_veto``) where a clock offset was named beside the pose
+        (``clock_named_beside``): a pose offset across the line of sight and a clock's
+        turn of the target are, seen from the sensor, a turn of every beam. The turn is
+        fitted again on the pose corrected beside the clock, on top of the clock there
+        (``pointing.SensorTurn``, cross-fitted); where it no longer passes the rule the
+        reason given says that the clock and the pose take it (not a mount), with its
+        figures under ``own_part['beside_clock']``. Where it still passes, the reason
+        stands."""
+        from lidar_sim_ros.compare.model import pointing
+        held = getattr(self, 'clock_on_pose', None)
+        lp = next((c for c in cands if c.vetoed and c.own_part and c.effect is not None
+                   and pointing.turn_of(c.variant) is not None), None)
+        if held is None or lp is None:
+            return
+        on_pose, clock = held
+        if clock.effect is None or clock.heldout_nll is None:
+            return
+        try:
+            turn = Candidate(lp.name)
+            turn.effect = lp.effect
+            nll, explained = on_pose.cross_fit(pointing.SensorTurn, [clock.effect])
+            on_pose._set_gain(turn, nll, explained)
+            gain, z = on_pose.paired(turn, clock)
+        except Exception:  # noqa: BLE001 - not weighed: the reason stands
+            return
+        passes = on_pose.passes_rule(gain, z)
+        lp.own_part = {**lp.own_part, 'beside_clock': {'score': _num(gain), 'z': _num(z),
+                                                       'passes': passes}}
+        if passes:
+            return
+        part = lp.own_part
+        lp.vetoed = (f'its offsets are mostly a common turn of every beam (it gains '
+                     f'{part["turn_score"]:.4f} nats/point held out on the recorded pose), '
+                     f'which the clock offset and the reference pose correction named here '
+                     f'take: seen from the sensor, a target moved across the line of sight '
+                     f'or turned by a clock is a turn of every beam. On the pose corrected '
+                     f'beside the clock, on top of the clock, that turn gains {gain:.4f} '
+                     f'nats/point (z = {z:.1f}), which does not pass the rule; over the turn '
+                     f'each laser\'s own part gains {part["score"]:.4f} nats/point '
+                     f'(z = {part["z"]:.1f})')
 
     def clock_tie(self, decision: Decision, cands: list[Candidate],
                   no_point_times: bool) -> Decision:
