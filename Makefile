@@ -41,9 +41,13 @@ demo-loop: $(STAMP)
 # test/conftest.py) alone, the rest first on TEST_WORKERS pytest-xdist workers. Both
 # parts always run; the target fails if either failed. Each part prints its slowest
 # tests (--durations), so a CI log shows where the time budget goes.
+# One BLAS thread per test process: the workers already fill the cores, and OpenBLAS's
+# own threads on the fits' small matrices spin against the other worker (a 52 x 52
+# pinv took 14 ms with them on a loaded 2-core machine, 0.5 ms without; the two
+# pointing_few_c compares 73 -> 46 s of CPU).
 TEST_WORKERS ?= 2
 test: $(STAMP)
-	status=0; \
+	export OPENBLAS_NUM_THREADS=1; status=0; \
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope --durations=20 -m 'not serial' test || status=1; \
 	$(BIN)/python -m pytest -q --durations=10 -m serial test || status=1; \
 	exit $$status

@@ -1105,3 +1105,29 @@ def test_a_range_scale_beside_a_pose_reported_alone_is_weighed_with_the_constant
     assert [c.name for c in diagnosis.Diagnosis.rivals_beside_pose(
         judge, reported, have, [Drift, Scale])] == ['range_drift']
     assert judge.scored == ['range_drift']
+
+
+@pytest.mark.parametrize('constant', [False, True])
+def test_a_step_of_the_re_casts_is_the_full_fits_correction_without_its_test(constant,
+                                                                             monkeypatch):
+    """``fit_reference_pose(step_only=True)``, as ``iterate``'s refits call it (the
+    report keeps the first fit's test): without a rate, the correction, its range
+    change and centroid are the full fit's, bit for bit, per cloud and for the
+    recording; the test (held-out halves, the range-alone rival) is not asked."""
+    rec, data, t = _jittered_planes(8, 1500, 0.01, seed=5)
+    idx = np.arange(len(rec))
+    applied = pose_error.PoseCorrection.identity(rec.cloud, t)
+    args = (data(idx), rec.cloud, t, idx // 30, 3.0, diagnosis.MIN_PRACTICAL_GAIN)
+    full = pose_error.fit_reference_pose(*args, applied=applied, constant=constant)
+    assert full.z > 3.0                            # a correction that is there
+
+    def no_test(*a, **k):
+        raise AssertionError('the test is asked in a step')
+    monkeypatch.setattr(pose_error.range_alone, 'range_fit', no_test)
+    step = pose_error.fit_reference_pose(*args, applied=applied, constant=constant,
+                                         step_only=True)
+    for k in ('clouds', 'translation_m', 'rotation_deg', 'correction_m', 'centroid_m'):
+        np.testing.assert_array_equal(getattr(step, k), getattr(full, k), err_msg=k)
+    assert (step.constant, step.joint, step.through_materials) == (
+        full.constant, full.joint, full.through_materials)
+    assert not step.significant and step.gain == 0.0

@@ -803,7 +803,8 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
                                              diagnosis.MIN_PRACTICAL_GAIN, opts.seed,
                                              applied=applied, rate=has_point_times(meas),
                                              constant=constant, scan=scan,
-                                             parts_z_crit=parts_z)
+                                             parts_z_crit=parts_z,
+                                             step_only=applied is not None)
 
     def rematch(corr: pose_error.PoseCorrection):
         moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
@@ -1454,7 +1455,7 @@ def recast_all_points(model: Model, effects: list[Effect], rays: fit_data.RaySet
                                              diagnosis.MIN_PRACTICAL_GAIN, seed,
                                              list(on_top), applied=applied,
                                              rate=has_point_times(meas), constant=constant,
-                                             scan=scan)
+                                             scan=scan, step_only=True)
 
     start = pose_error.PoseCorrection.identity(
         np.zeros_like(meas.cloud) if constant else meas.cloud, meas.t_s)
@@ -1626,7 +1627,8 @@ class ClockBesidePoseCast:
             idx = r.matched
             return pose_error.fit_reference_pose(
                 data, moved.cloud[idx], moved.t_s[idx], self.blocks[idx], self.z_crit,
-                diagnosis.MIN_PRACTICAL_GAIN, self.seed, [], applied=applied, constant=True)
+                diagnosis.MIN_PRACTICAL_GAIN, self.seed, [], applied=applied, constant=True,
+                step_only=True)     # the correction is what is kept, not its test
         start = pose_error.PoseCorrection.identity(np.zeros_like(part.cloud), part.t_s)
         first = refit(rematch(start), None)
         (_, _, moved), _, _ = pose_error.iterate(first, start, rematch, refit,

@@ -847,7 +847,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                        applied: 'PoseCorrection | None' = None,
                        rate: bool = False, constant: bool = False,
                        scan: ScanClock | None = None,
-                       parts_z_crit: float | None = None) -> PoseError:
+                       parts_z_crit: float | None = None, step_only: bool = False
+                       ) -> PoseError:
     """Fit and judge per-cloud rigid pose corrections on ``data``'s matched points
     (``cloud``, ``t_s``, ``blocks``: per matched point) under the model with
     ``effects`` on top of its own (module doc). ``rate``: the points carry their own
@@ -860,7 +861,12 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     point time is its stamp): the same drift within every cloud's scan. ``parts_z_crit``:
     the z each part of a per-cloud correction needs on its own (``shown_parts``; default
     ``z_crit``): ``--effect pose_error --fit``'s test is one test, but the parts it claims
-    are the diagnosis's, asked at the diagnosis's bound."""
+    are the diagnosis's, asked at the diagnosis's bound. ``step_only``: a step of
+    ``iterate`` (its test is the first fit's): without a rate, the correction alone is
+    fitted, the same as the full fit's, and its test is not asked (gain 0, z 0, not
+    significant); the held-out halves only where they choose the correction's footing
+    (through the materials or not). With a rate the test decides the correction: the
+    full fit."""
     tau_scan = None
     if constant:
         scan = (scan if scan is not None else ScanClock.of(cloud, t_s)) if rate else None
@@ -916,33 +922,56 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # e.g. on top of a fitted time offset; the correction applied is the damped one.
     half = np.random.default_rng([seed, HALVES_SEED]).integers(0, 2, len(r))
 
+    def per_point_of(g: np.ndarray) -> float:
+        return float(np.sum(g[use]) / max(len(r), 1))
+
     def judged(g: np.ndarray) -> tuple[float, float]:
         z = block_mean_z(g[use], blocks[use])[1] if use.sum() > 1 else 0.0
-        return float(np.sum(g[use]) / max(len(r), 1)), z
+        return per_point_of(g), z
+
+    def halves_gain(through_materials: bool) -> np.ndarray:
+        """Held-out gain per point of the rigid correction fitted on the other half: on
+        free offsets (``group``: with the common one where ``joint``) or through the
+        materials' configured ranges."""
+        g = np.zeros(len(r))
+        for k in (0, 1):
+            test, train = use & (half != k), use & (half == k)
+            if through_materials:
+                x = fit_clouds(a, r + offset, s, cloud, train, clouds, prior, TEST_RIDGE)
+                corr = with_offsets(np.einsum('ij,ij->i', a, x[row]), r, materials, train)
+            else:
+                x = fit_clouds(a, r, s, cloud, train, clouds, prior, TEST_RIDGE, group)
+                corr = with_offsets(np.einsum('ij,ij->i', a, x[row]), r, group, train)
+            g[test] = heldout_gain(r[test], corr[test], s[test])
+        return g
+    if step_only and not rate:
+        if through is not None and not (per_point_of(halves_gain(True))
+                                        > per_point_of(halves_gain(False)) - min_gain):
+            through = None
+        x = joint if joint is not None else through if through is not None else fit_clouds(
+            a, r, s, cloud, use, clouds, prior, ridge)
+        return _correction_only(x, a, ctx, model, ok, use, cloud, clouds, row, t_s,
+                                constant, joint is not None, through is not None)
     # Per cloud: the parts the data show (``shown_parts``), asked where the whole passes
     # (not on a refit on the re-cast model, ``applied``: the first fit's claim stands).
     parts, parts_test = 'both', None
     if not constant and applied is None:
         parts, parts_test = shown_parts(a, r, s, cloud, use, clouds, prior, half, judged,
                                         z_crit, min_gain, part_z=parts_z_crit)
-    gain, gain12, gain1 = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
+    gain12, gain1 = np.zeros(len(r)), np.zeros(len(r))
     gain_t, gain12_t = np.zeros(len(r)), np.zeros(len(r))
     gain_scan = np.zeros(len(r))      # a range offset over the scan instead (constant, rate)
     # A function of range alone instead (``range_alone.range_fit``), and the correction
     # on top of it (nested: the pose beyond range alone), rigid and with the rate.
     gain_rng, gain_wr, gain12_wr = np.zeros(len(r)), np.zeros(len(r)), np.zeros(len(r))
     knots = []
+    gain = halves_gain(False)
+    if through is not None:
+        # Fitted through the offsets, then each material's offset profiled on what it
+        # leaves, as the likelihood does: the same footing as ``gain``.
+        gain_t = halves_gain(True)
     for k in (0, 1):
         test, train = use & (half != k), use & (half == k)
-        x = fit_clouds(a, r, s, cloud, train, clouds, prior, TEST_RIDGE, group)
-        corr = with_offsets(np.einsum('ij,ij->i', a, x[row]), r, group, train)
-        gain[test] = heldout_gain(r[test], corr[test], s[test])
-        if through is not None:
-            # Fitted through the offsets, then each material's offset profiled on what
-            # it leaves, as the likelihood does: the same footing as ``gain``.
-            x = fit_clouds(a, r + offset, s, cloud, train, clouds, prior, TEST_RIDGE)
-            corr = with_offsets(np.einsum('ij,ij->i', a, x[row]), r, materials, train)
-            gain_t[test] = heldout_gain(r[test], corr[test], s[test])
         if not constant:
             off = per_cloud_offset(r, s, row, train, len(clouds))
             gain1[test] = heldout_gain(r[test], off[test], s[test])
@@ -1056,6 +1085,23 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                      against_range=against_range,
                      parts=parts, parts_test=parts_test, rate_parts=rate_parts,
                      rate_parts_test=rate_parts_test)
+
+
+def _correction_only(x: np.ndarray, a: np.ndarray, ctx, model, ok: np.ndarray,
+                     use: np.ndarray, cloud: np.ndarray, clouds: np.ndarray,
+                     row: np.ndarray, t_s: np.ndarray, constant: bool, joint: bool,
+                     through: bool) -> PoseError:
+    """``fit_reference_pose``'s correction ``x`` (per cloud: 3 translations m, 3 turns
+    rad) as a step of ``iterate``: its sizes, range change and centroid as the full
+    fit reports them, no test (gain 0, z 0, not significant)."""
+    correction = np.einsum('ij,ij->i', a, x[row])
+    t_mean = np.array([float(np.mean(t_s[cloud == c])) for c in clouds])
+    p = ctx.direction * np.where(ok, model.expected_range_m, 0.0)[:, None]
+    centroid = np.array([p[use & (cloud == c)].mean(axis=0) if np.any(use & (cloud == c))
+                         else np.zeros(3) for c in clouds])
+    return PoseError(clouds, t_mean, x[:, :3], np.degrees(x[:, 3:6]), 0.0, 0.0, False,
+                     correction, centroid, constant=constant, joint=joint,
+                     through_materials=through)
 
 
 def applied_gain(pose: PoseError, data: lk.FitData, cloud: np.ndarray) -> float:
