@@ -1685,7 +1685,8 @@ class ClockBesidePerCloudCast(ClockBesidePoseCast):
             idx = r.matched
             return pose_error.fit_reference_pose(
                 data, moved.cloud[idx], moved.t_s[idx], self.blocks[idx], self.z_crit,
-                diagnosis.MIN_PRACTICAL_GAIN, self.seed, [], applied=applied)
+                diagnosis.MIN_PRACTICAL_GAIN, self.seed, [], applied=applied,
+                step_only=applied is not None)    # a re-cast step: its correction only
         start = pose_error.PoseCorrection.identity(part.cloud, part.t_s)
         first = refit(rematch(start), None)
         (_, _, moved), _, _ = pose_error.iterate(first, start, rematch, refit)
