@@ -189,3 +189,65 @@ def test_a_sensor_turn_the_named_clock_and_pose_take_is_not_called_a_mount():
     judge.clock_on_pose = (_TurnOnPose(0.05, 9.0), clock)
     judge.turn_beside_clock([still])
     assert 'its mount' in still.vetoed and still.own_part['beside_clock']['passes']
+
+
+class _RivalOnPose(_OnPose):
+    """The re-cast diagnosis on the pose corrected beside the clock, where the range term
+    tied with the pose scores too: nameable there (``rival_passes``) or not."""
+
+    def __init__(self, rival_passes: bool):
+        super().__init__(0.03)
+        self.rival_passes = rival_passes
+
+    def score(self, cls):
+        if cls.__name__ == 'RangeScale' or getattr(cls, 'name', '') == 'range_scale':
+            return diagnosis.Candidate('range_scale', score=0.0147 if self.rival_passes
+                                       else -0.002, z=4.1 if self.rival_passes else -0.5,
+                                       significant=self.rival_passes, practical=True,
+                                       effect=cls({}))
+        return super().score(cls)
+
+    def naming_fault(self, c):
+        if c.name == 'range_scale' and not self.rival_passes:
+            return 'its held-out gain does not pass the rule'
+        return None
+
+
+def _range_scale():
+    from lidar_sim_ros.core.effects import get_effect_class
+    return diagnosis.Candidate('range_scale', score=0.0147, z=4.1, significant=True,
+                               practical=True, effect=get_effect_class('range_scale')({}))
+
+
+def test_a_range_term_tied_with_a_pose_per_cloud_gives_way_to_the_clock_where_it_has_nothing_left():
+    """The lab's clock + constant pose on a spinning, approaching rocket body (holdout:
+    a tie [pose_error, range_scale] with the pose per cloud, the clock never weighed):
+    where the clock with one correction wins over the per-cloud correction and the range
+    term, scored again on the pose corrected beside the clock, no longer passes, the
+    clock is named with the pose beside it; where the range term still passes there, the
+    tie stands. A tie of the pose with a term that is no range error: not asked."""
+    judge = _Judge()
+    tie = diagnosis.Decision(None, ['pose_error', 'range_scale'], pose=_PerCloudPose())
+    nested, asked = _cast(0.04, 0.5, 0.0)
+    out, again = judge.clock_beside_per_cloud_pose(
+        tie, [_clock(), _range_scale()], nested, lambda e: (_RivalOnPose(False), _OnClock()))
+    assert out.missing == 'time_offset' and out.confounded_with == []
+    footing = again.against_pose['constant_pose_footing']['range_rival_beside_clock']
+    assert footing['name'] == 'range_scale' and footing['passes'] is False
+    assert asked == [0.052]
+    # the range term still passing beside the clock and the pose: the tie stands
+    kept, none = judge.clock_beside_per_cloud_pose(
+        tie, [_clock(), _range_scale()], nested, lambda e: (_RivalOnPose(True), _OnClock()))
+    assert kept is tie and none is None and judge.clock_on_pose is None
+    # a tie of the pose with another sensor effect (no range term): not weighed here
+    other = diagnosis.Decision(None, ['pose_error', 'incidence_angle'], pose=_PerCloudPose())
+    nested2, asked2 = _cast(0.04, 0.5, 0.0)
+    assert judge.clock_beside_per_cloud_pose(other, [_clock()], nested2,
+                                             lambda e: (_RivalOnPose(False), _OnClock())
+                                             ) == (other, None)
+    assert asked2 == []
+    # the clock and the per-cloud pose tied (neither over the other): the range tie stands
+    nested3, _ = _cast(0.04, 0.5, 65 / N)
+    assert judge.clock_beside_per_cloud_pose(
+        tie, [_clock(), _range_scale()], nested3,
+        lambda e: (_RivalOnPose(False), _OnClock())) == (tie, None)

@@ -68,6 +68,20 @@ def _fitted_against_pose(pose, c: Candidate, on_pose: 'Diagnosis', same_points,
     return fitted, charged
 
 
+def _range_rival_tied(decision: Decision, cands: list[Candidate]) -> Candidate | None:
+    """The range term of the sensor (POSE_RIVALS) a reported pose is tied with, alone
+    beside it (``confounded_with`` [pose_error, that term], nothing named), as a scored
+    candidate; else None."""
+    tie = list(decision.confounded_with or [])
+    if decision.missing or len(tie) != 2 or POSE_ERROR not in tie:
+        return None
+    other = next(n for n in tie if n != POSE_ERROR)
+    if other not in POSE_RIVALS:
+        return None
+    return next((c for c in cands if c.name == other and c.effect is not None
+                 and c.error is None), None)
+
+
 class PoseWeighing:
     """The reference pose against the named effects: methods of ``Diagnosis`` (they use
     its folds, scores and rule), kept apart as one decision."""
@@ -857,8 +871,10 @@ class PoseWeighing:
         pose (the clock nameable alone); else the decision stands. Figures on the clock's
         ``against_pose['constant_pose_footing']`` (``nested``, with ``per_cloud``)."""
         pose = decision.pose
-        if (decision.missing or decision.confounded_with or pose is None or nested is None
-                or getattr(pose, 'constant', True) or getattr(pose, 'rate_supported', False)):
+        rival = _range_rival_tied(decision, cands)
+        if (decision.missing or (decision.confounded_with and rival is None) or pose is None
+                or nested is None or getattr(pose, 'constant', True)
+                or getattr(pose, 'rate_supported', False)):
             return decision, None
         clock = next((c for c in cands if c.name == beside.CLOCK), None)
         if clock is None or clock.effect is None or clock.error is not None:
@@ -871,12 +887,40 @@ class PoseWeighing:
                    'dt_joint_s': _num(nest.nested.dt_beside_pose_s), 'per_cloud_pose': True,
                    'nested': nest.as_dict()}
         clock.against_pose = {**(clock.against_pose or {}), 'constant_pose_footing': figures}
-        if nest.outcome == 'tie' and self.nameable(clock):
+        if nest.outcome == 'tie' and self.nameable(clock) and rival is None:
             return Decision(None, [POSE_ERROR, beside.CLOCK], withheld=dict(decision.withheld),
                             pose=pose), None
         if nest.outcome != 'clock':
             return decision, None
-        return self.clock_named_beside(decision, clock, nest, figures, pose_on_clock)
+        named, again = self.clock_named_beside(decision, clock, nest, figures, pose_on_clock)
+        if rival is None or again is None:
+            return named, again
+        return self.range_rival_beside_clock(decision, named, again, rival, figures)
+
+    def range_rival_beside_clock(self, decision: Decision, named: Decision,
+                                 clock: Candidate, rival: Candidate, figures: dict
+                                 ) -> tuple[Decision, Candidate | None]:
+        """A pose per cloud tied with a range term of the sensor (``rival``: POSE_RIVALS)
+        where the clock with one correction won over the per-cloud correction
+        (``clock_beside_per_cloud_pose``): the range term scored again on the pose
+        corrected beside the clock, on top of the clock there (``clock_on_pose``). The
+        clock is named (``named``) only where the range term no longer passes the rule
+        there (the clock and the pose took what it stood for); else the tie ``decision``
+        stands. Its figures under ``figures['range_rival_beside_clock']``."""
+        on_pose = self.clock_on_pose[0]
+        try:
+            again = on_pose.score(type(rival.effect))
+            fault = on_pose.naming_fault(again)
+        except Exception:  # noqa: BLE001 - not weighed: the tie stands
+            self.clock_on_pose = None
+            return decision, None
+        figures['range_rival_beside_clock'] = {
+            'name': rival.name, 'score': _num(again.score), 'z': _num(again.z),
+            'passes': fault is None, **({'why_not': fault} if fault else {})}
+        if fault is None:
+            self.clock_on_pose = None
+            return decision, None
+        return named, clock
 
     def clock_named_beside(self, decision: Decision, clock: Candidate, nest, figures: dict,
                            pose_on_clock) -> tuple[Decision, Candidate | None]:
