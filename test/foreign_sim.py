@@ -2025,6 +2025,9 @@ LOG_WALK: tuple[ForeignSpec, ...] = (
 )
 
 
+WALK_INCIDENCE_NAMES = frozenset({'walk_incidence_box'})
+
+
 def battery(names: list[str] | None = None) -> list[ForeignSpec]:
     """The battery, or the named datasets of it, of VENDOR, V4, RANGE_OUTSIDE, STANDOFF,
     COMPENSATED, INCIDENCE_LAW, POINTING_FEW, CLOCK_SPIN or LOG_WALK (in that order)."""
