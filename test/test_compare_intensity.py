@@ -273,3 +273,11 @@ def test_log_like_counts_of_another_shape_keep_the_map():
     cal = calibrate_intensity(counts, r, p)
     assert cal.scale == 'log' and cal.scale_test['read_through'] == 'map'
     assert not cal.reads_log
+
+
+def test_the_foreign_sensor_writes_log_counts_of_its_power():
+    import foreign_sim as fs
+    p = np.array([1e-8, 1e-6, 1e-4])
+    out = fs.intensity_units(p, np.full(3, 10.0), 'log', fs.Sensor())
+    assert out == pytest.approx(40.0 * np.log10(np.maximum(p, fs.Sensor().threshold_power_w)
+                                                / 1e-9), rel=1e-6)
