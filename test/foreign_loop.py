@@ -23,7 +23,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from foreign_sim import (CEPTON_TOPIC, CLOCK_SPIN_NAMES, INCIDENCE_LAW_NAMES, V4, ForeignSpec,
+from foreign_sim import (CEPTON_TOPIC, CLOCK_SPIN_NAMES, INCIDENCE_LAW_NAMES, V4,
+                         WALK_INCIDENCE_NAMES, ForeignSpec,
                          battery, generate)
 
 from lidar_sim_ros.cli import main
@@ -144,6 +145,8 @@ def judge(spec: ForeignSpec, steps: list[dict], truth: dict) -> dict:
         return judge_v4(spec, steps, truth)
     if spec.name.split('@')[0] in CLOCK_SPIN_NAMES:
         return judge_clock_spin(spec, steps)
+    if spec.name.split('@')[0] in WALK_INCIDENCE_NAMES:
+        return judge_walk_incidence(steps)
     worth = truth.get('effect_gain_nats', {})
     expected = [n for n in spec.expected_effects
                 if worth.get(n, 1.0) >= BORDERLINE[1] * PRACTICAL_NATS]
@@ -246,6 +249,24 @@ def _first_answer(first: dict) -> str:
     if tie:
         return 'tie:' + '+'.join(sorted(tie))
     return str(first.get('missing_effect'))
+
+
+def judge_walk_incidence(steps: list[dict]) -> dict:
+    """Right or wrong for a walk beside an incidence bias on a flat face
+    (``foreign_sim.LOG_WALK``'s walk_incidence_box), as the lab judges it: the first answer
+    holds both (one named, the other 'also'; or their tie), or the loop names both;
+    incidence (or the walk) alone is wrong."""
+    if any('error' in s for s in steps):
+        return {'ok': False, 'why': 'error: ' + steps[-1]['error'][-300:]}
+    first = steps[0]
+    pair = {'range_walk', 'incidence_angle'}
+    held = ({first.get('missing_effect'), first.get('also_explains')}
+            | set(first.get('confounded_with') or []))
+    named = {s.get('missing_effect') for s in steps}
+    ok = pair <= held or pair <= named
+    return {'ok': ok, 'named': [s.get('missing_effect') for s in steps],
+            'why': '' if ok else f'first answer {sorted(n for n in held if n)}, loop named '
+                                 f'{[s.get("missing_effect") for s in steps]}: not both'}
 
 
 def judge_clock_spin(spec: ForeignSpec, steps: list[dict]) -> dict:

@@ -24,7 +24,9 @@ What differs from our simulator, on purpose:
   default, as a sensor calibrated on white panels
   reports it; on the Blinn-Phong surfaces it is not a monotone function of the received
   power, which is what the timing walk follows: two returns of one power read apart by
-  1 / cos(theta)), or no intensity field at all;
+  1 / cos(theta)), or no intensity field at all; with ``intensity_scale='log'`` any of
+  them is replaced by log counts, 40 log10(P / 1 nW) (float32), another lab's flash
+  sensor's scale;
 * per-point time: ``t`` float32 seconds, ``t`` uint32 nanoseconds, a float64 absolute
   ``timestamp`` field (another name), or none (cloud stamped mid-scan);
 * baseline range error: the paper's Table 2 per material, each bias moved by up to
@@ -404,6 +406,8 @@ def intensity_units(power_w: np.ndarray, range_m: np.ndarray, mode: str,
         return (p * 2.5e7).astype(np.float32)
     if mode == 'none':
         return None
+    if mode == 'log':           # log counts: 40 log10 of the power in nW (float)
+        return (40.0 * np.log10(p / 1e-9)).astype(np.float32)
     raise ValueError(f'intensity mode must be counts8, counts16, reflectivity, '
                      f'reflectivity_lambert, linear or none, got {mode!r}')
 
@@ -485,8 +489,11 @@ def incidence_bias_m(cos_i: np.ndarray, p: dict, range_m: np.ndarray | None = No
     """Footprint smear read early: -g (1/cos(theta) - 1), theta clipped at 80 deg. With
     p['law'] 'range_sin' (another lab's law, in proportion to range): g r dtheta
     sin(theta) / cos(theta)^a (g < 0 reads grazing returns short; ``range_m`` and the
-    sensor's ``divergence_rad`` needed)."""
+    sensor's ``divergence_rad`` needed). With p['law'] 'tan' (a third lab's): g_m tan(theta),
+    positive (grazing returns read long)."""
     c = np.maximum(cos_i, np.cos(np.radians(80.0)))
+    if p.get('law') == 'tan':
+        return p['g_m'] * np.sqrt(1 - c ** 2) / c
     if p.get('law') == 'range_sin':
         return (p['g'] * range_m * sensor.divergence_rad * np.sqrt(1 - c ** 2)
                 / c ** p.get('a', 0.7))
@@ -496,8 +503,8 @@ def incidence_bias_m(cos_i: np.ndarray, p: dict, range_m: np.ndarray | None = No
 def incidence_sigma_m(range_m: np.ndarray, cos_i: np.ndarray, sensor: Sensor,
                       p: dict) -> np.ndarray:
     """Extra jitter h r dtheta tan(theta) (the footprint's depth), theta clipped at 80 deg;
-    with p['law'] 'range_sin', p['sigma_frac'] times the bias's size instead."""
-    if p.get('law') == 'range_sin':
+    with p['law'] 'range_sin' or 'tan', p['sigma_frac'] (default 0.3) times the bias's size."""
+    if p.get('law') in ('range_sin', 'tan'):
         return p.get('sigma_frac', 0.3) * np.abs(incidence_bias_m(cos_i, p, range_m, sensor))
     c = np.maximum(cos_i, np.cos(np.radians(80.0)))
     tan = np.sqrt(1 - c ** 2) / c
@@ -664,13 +671,14 @@ class ForeignSpec:
     effect: str | None = None
     params: dict = field(default_factory=dict)
     seed: int = 1
-    scan: str = 'raster'                 # raster | rosette
+    scan: str = 'raster'                 # raster | rosette | lissajous | flash (a raster grid exposed at once)
     shots_per_frame: int = 24_000
     frames: int = 3
     distance_m: float = 11.0
     storage: str = 'mcap'                # mcap | sqlite3
     intensity: str = 'counts8'           # counts8 | counts16 | reflectivity | reflectivity_lambert | linear | none
     intensity_cos_exponent: float = 1.0  # reflectivity_lambert: P r^2 / cos(theta) ** this
+    intensity_scale: str = 'native'      # native (the mode's own) | log: 40 log10(P / 1 nW)
     point_time: str = 't_s'              # t_s | t_ns | timestamp | none
     spin_dps: float = 7.0
     precession_dps: float = 2.0
@@ -813,11 +821,15 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
         grid = raster_shape(sensor, spec.shots_per_frame)
     elif spec.scan == 'rosette':
         t, az, el = rosette_scan(sensor, spec.shots_per_frame, t0_s)
+    elif spec.scan == 'flash':
+        # One global exposure per frame: the raster's angular grid, every pixel at once.
+        t, az, el = raster_scan(sensor, spec.shots_per_frame)
+        t = np.zeros(len(t))
     elif spec.scan == 'lissajous':
         t, az, el = lissajous_p60_scan(spec.scan_freq_scale, spec.scan_together,
                                        spec.scan_shot_offset)
     else:
-        raise ValueError(f'scan must be raster, rosette or lissajous, got {spec.scan!r}')
+        raise ValueError(f'scan must be raster, rosette, lissajous or flash, got {spec.scan!r}')
     d = directions_lidar(az, el)
     laser = np.arange(len(d)) % spec.lasers if spec.lasers else np.zeros(len(d), int)
     rot, pos = traj.at(t0_s + t)
@@ -1452,8 +1464,9 @@ def generate(spec: ForeignSpec, out_dir: str | Path,
             t0 = k * gap
             frame = simulate_frame(spec, sensor, target, traj, t0, rng, errors)
             stamp_s = t0 + stamp_offset_s(spec, sensor)
-            inten = intensity_units(frame['power_w'], frame['range_m'], spec.intensity, sensor,
-                                    frame['cos_i'], spec.intensity_cos_exponent)
+            inten = intensity_units(frame['power_w'], frame['range_m'],
+                                    'log' if spec.intensity_scale == 'log' else spec.intensity,
+                                    sensor, frame['cos_i'], spec.intensity_cos_exponent)
             rec = cloud_fields(spec, frame, inten, stamp_s, t0)
             cepton = spec.layout == 'cepton'
             write_cloud(writer, rec, EPOCH_NS + int(round(stamp_s * NS_PER_S)),
@@ -1494,6 +1507,7 @@ def describe(ds: ForeignDataset) -> dict[str, Any]:
     return {'name': s.name, 'effect': s.effect, 'expected': list(s.expected_effects),
             'hidden': [[n, p] for n, p in s.hidden], 'clutter': s.clutter,
             'amplitude_cv': s.amplitude_cv, 'scan': s.scan, 'storage': s.storage, 'intensity': s.intensity,
+            'intensity_scale': s.intensity_scale,
             'point_time': s.point_time, 'stamp': s.stamp, 'organized': s.organized,
             'noise': s.noise, 'distance_m': s.distance_m, 'frames': s.frames,
             'frame_rate_hz': s.frame_rate_hz, 'pose_rate_hz': s.pose_rate_hz,
@@ -1995,13 +2009,46 @@ CLOCK_SPIN: tuple[ForeignSpec, ...] = (
 CLOCK_SPIN_NAMES = frozenset(s.name for s in CLOCK_SPIN)
 
 
+# A range walk read through log counts (walk50): an intensity of 40 log10(P / 1 nW), not
+# proportional to the power; the walk -g ln(P / 1 uW). On the P-60 Lissajous (point times)
+# and on a flash sensor (one exposure per frame on a raster grid, no time field, stamped at
+# the exposure), and a null with the same scale. Right: range_walk named with k ~ g; the
+# null null. And the walk beside an incidence bias g tan(theta) on the flat-faced box bus
+# (no panels' fins), the Lissajous with point times: both named (or a pair), or their tie;
+# incidence alone then "outside the catalogue" is wrong. By name.
+_LOG = dict(scan='lissajous', lasers=24, frames=5, distance_m=10.0, intensity_scale='log')
+LOG_WALK: tuple[ForeignSpec, ...] = (
+    ForeignSpec('walk_log_lissajous', 'range_walk', {'form': 'ln', 'g_m': 0.03}, seed=901,
+                **_LOG, note='walk 0.03 ln P; intensity 40 log10(P / 1 nW); P-60 Lissajous'),
+    ForeignSpec('walk_log_lissajous_02', 'range_walk', {'form': 'ln', 'g_m': 0.02}, seed=902,
+                **_LOG, note='walk 0.02 ln P; intensity 40 log10(P / 1 nW); P-60 Lissajous'),
+    ForeignSpec('walk_log_flash', 'range_walk', {'form': 'ln', 'g_m': 0.03}, seed=903,
+                scan='flash', point_time='none', stamp='start', shots_per_frame=12_000,
+                frames=5, distance_m=10.0, intensity_scale='log',
+                note='walk 0.03 ln P; log intensity; flash: one exposure per frame, no t'),
+    ForeignSpec('walk_log_flash_02', 'range_walk', {'form': 'ln', 'g_m': 0.02}, seed=905,
+                scan='flash', point_time='none', stamp='start', shots_per_frame=12_000,
+                frames=5, distance_m=10.0, intensity_scale='log',
+                note='walk 0.02 ln P; log intensity; flash: one exposure per frame, no t'),
+    ForeignSpec('null_log_lissajous', None, seed=904, **_LOG,
+                note='no effect; intensity 40 log10(P / 1 nW); P-60 Lissajous'),
+    ForeignSpec('walk_incidence_box', 'range_walk', {'form': 'ln', 'g_m': 0.02}, seed=911,
+                scan='lissajous', lasers=24, frames=5, distance_m=10.0, intensity='linear',
+                also=(('incidence_angle', {'law': 'tan', 'g_m': 0.035, 'sigma_frac': 0.0}),),
+                note='walk 0.02 ln P beside an incidence bias 0.035 tan(theta); box bus'),
+)
+
+
+WALK_INCIDENCE_NAMES = frozenset({'walk_incidence_box'})
+
+
 def battery(names: list[str] | None = None) -> list[ForeignSpec]:
     """The battery, or the named datasets of it, of VENDOR, V4, RANGE_OUTSIDE, STANDOFF,
-    COMPENSATED, INCIDENCE_LAW, POINTING_FEW or CLOCK_SPIN (in that order)."""
+    COMPENSATED, INCIDENCE_LAW, POINTING_FEW, CLOCK_SPIN or LOG_WALK (in that order)."""
     if not names:
         return list(BATTERY)
     every = (BATTERY + VENDOR + V4 + RANGE_OUTSIDE + STANDOFF + COMPENSATED + INCIDENCE_LAW
-             + POINTING_FEW + CLOCK_SPIN)
+             + POINTING_FEW + CLOCK_SPIN + LOG_WALK)
     known = {s.name: s for s in every}
     bad = [n for n in names if n not in known]
     if bad:

@@ -226,3 +226,58 @@ def test_a_bright_cloud_at_the_top_of_the_scale_gets_its_whole_gain():
     cal = calibrate_intensity(counts, r, p_model, cloud=cloud)
     fitted = np.array([cal.cloud_log_gain[c] for c in range(12)])
     assert np.max(np.abs((fitted - np.median(fitted)) - (log_g - np.median(log_g)))) < 0.06
+
+
+def test_log_counts_are_read_as_log_counts_and_give_back_the_power():
+    # A flash sensor's 40 log10 P (P in nW): linear in ln P, not in P. The scale test
+    # chooses the log reading, its b is 40 / ln 10 per e-fold, the power comes back.
+    p, r = _powers(5000, 5)
+    counts = 40.0 * np.log10(p / 1e-9)
+    cal = calibrate_intensity(counts, r, p)
+    assert cal.scale == 'log'
+    assert cal.scale_test['log_b_per_efold'] == pytest.approx(40.0 / np.log(10.0), rel=1e-3)
+    assert cal.power_w(counts, r) == pytest.approx(p, rel=1e-3)
+
+
+def test_counts_proportional_to_power_are_not_read_as_log_counts():
+    p, r = _powers(5000, 6)
+    cal = calibrate_intensity(2.0e6 * p * np.random.default_rng(1).lognormal(0, 0.2, 5000),
+                              r, p)
+    assert cal.scale == 'linear'
+    assert cal.scale_test['power_law_exponent'] == pytest.approx(1.0, abs=0.1)
+
+
+def test_log_counts_at_or_below_zero_still_give_a_power():
+    # 40 log10 of a power below the unit is negative: a log reading keeps those points.
+    p, r = _powers(5000, 7)
+    counts = 40.0 * np.log10(p / 1e-5)        # P from 3e-7 to 3e-4 W: about half below 0
+    cal = calibrate_intensity(counts, r, p)
+    assert cal.scale == 'log'
+    assert np.all(np.isfinite(cal.power_w(counts, r)))
+
+
+def test_the_terminal_says_log_counts_and_b():
+    from lidar_sim_ros.compare.recording import fields
+    p, r = _powers(5000, 8)
+    cal = calibrate_intensity(40.0 * np.log10(p / 1e-9), r, p)
+    line = fields.intensity_reading(cal.as_dict(), 'intensity')
+    assert 'log counts' in line and 'b 17.4 per e-fold' in line
+
+
+def test_log_like_counts_of_another_shape_keep_the_map():
+    # 8-bit counts of u^0.85 (u ~ ln P) look like log counts but are not affine in ln P:
+    # the scale is called log, the power still read through the map.
+    p, r = _powers(20000, 2)
+    u = np.log(p / P_TH) / np.log(1e-3 / P_TH)
+    counts = np.clip(np.round(1 + 254 * u ** 0.85), 1, 255)
+    cal = calibrate_intensity(counts, r, p)
+    assert cal.scale == 'log' and cal.scale_test['read_through'] == 'map'
+    assert not cal.reads_log
+
+
+def test_the_foreign_sensor_writes_log_counts_of_its_power():
+    import foreign_sim as fs
+    p = np.array([1e-8, 1e-6, 1e-4])
+    out = fs.intensity_units(p, np.full(3, 10.0), 'log', fs.Sensor())
+    assert out == pytest.approx(40.0 * np.log10(np.maximum(p, fs.Sensor().threshold_power_w)
+                                                / 1e-9), rel=1e-6)

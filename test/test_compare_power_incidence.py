@@ -382,3 +382,67 @@ def test_a_range_scale_lifted_beside_a_walk_after_the_rivals_must_show_its_part(
     shown = {**parts, pi.SCALE: pi.OwnPart(0.0300, 9.0, 0.004, N, 0.4)}
     d, _ = Lifting(shown).weigh_rivals(named, [walk], [type(scale.effect)])
     assert d.also == 'range_scale'
+
+
+# ------------------------------------------- a named incidence beside a walk, jointly
+class Jointly(OwnParts):
+    """OwnParts whose walk and incidence, fitted together on each fold, leave the
+    held-out NLL ``joint`` (per point)."""
+
+    def __init__(self, joint):
+        super().__init__(NONE_OWN)
+        self.joint = joint
+
+    def jointly(self, a, b):
+        return self.joint
+
+
+def flat_face_case():
+    """A flat-faced bus (walk50 F2): incidence 0.0796 nats/point (z 7.8), the walk 0.0784
+    (z 9.1) but decisively apart from incidence as the harness pairs them, and the walk not
+    adding on top of incidence fitted alone (``adds_to`` False)."""
+    inc = cand('incidence_angle', INCIDENCE, 0.0900, 7.8, -2.045, 1)
+    walk = cand('range_walk', {'k_m': 0.04, 'power': 'measured'}, 0.0600, 9.1, -2.035, 2)
+    return inc, walk
+
+
+def joint_nll(gain, seed=5):
+    base = np.random.default_rng(0).normal(0.0, 1.0, N)
+    return base - gain + np.random.default_rng(seed).normal(0.0, 0.02, N)
+
+
+def test_a_walk_passing_on_top_of_incidence_refitted_with_it_is_also():
+    """Both fitted together gain 0.03 nats/point on incidence alone and more on the walk
+    alone: each passes on top of the other, so the walk is 'also' (before: incidence
+    alone, the walk nowhere)."""
+    inc, walk = flat_face_case()
+    d = Jointly(joint_nll(0.1200)).decide(dg.rank([inc, walk]))
+    assert d.missing == 'incidence_angle' and d.also == 'range_walk'
+    assert d.pair_z['range_walk']['jointly']['outcome'] == 'both'
+
+
+def test_neither_passing_on_top_of_the_other_refitted_is_a_tie():
+    """Together no better than incidence alone, and the walk alone close: the tie."""
+    inc = cand('incidence_angle', INCIDENCE, 0.0800, 7.8, -2.045, 1)
+    walk = cand('range_walk', {'k_m': 0.04, 'power': 'measured'}, 0.0780, 9.1, -2.044, 2)
+    diag = Jointly(joint_nll(0.0802))
+    diag.apart = lambda margin, z, fitted: True      # decisively apart alone, as F2's
+    d = dg.settle(diag.decide(dg.rank([inc, walk])), [inc, walk], diag.naming_fault)
+    assert d.missing is None
+    assert sorted(d.confounded_with) == ['incidence_angle', 'range_walk']
+
+
+def test_incidence_alone_stands_where_the_walk_gains_nothing_on_top():
+    """Together no better than incidence alone, which passes on top of the walk: incidence
+    alone, as before (battery short_incidence)."""
+    inc, walk = flat_face_case()
+    d = Jointly(joint_nll(0.0901)).decide(dg.rank([inc, walk]))
+    assert d.missing == 'incidence_angle' and d.also is None and d.confounded_with == []
+    assert d.pair_z['range_walk']['jointly']['outcome'] == 'named_alone'
+
+
+def test_joint_outcome():
+    assert pi.joint_outcome(True, True) == pi.BOTH
+    assert pi.joint_outcome(False, False) == pi.TIE
+    assert pi.joint_outcome(True, False) == pi.TIE
+    assert pi.joint_outcome(False, True) is None

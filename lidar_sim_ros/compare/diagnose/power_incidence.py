@@ -40,6 +40,9 @@ from lidar_sim_ros.compare.diagnose.features import block_mean_se
 
 WALK, INCIDENCE, SCALE = 'range_walk', 'incidence_angle', 'range_scale'
 PAIR = (WALK, INCIDENCE)
+# A named incidence bias and a walk weighed each on top of the other, both refitted
+# together (``Diagnosis.walk_beside_incidence``): both named, or their tie.
+BOTH, TIE = 'both', 'tie'
 DEGREE = 3                  # the smooth function a driver's part is taken beyond
 MIN_GROUP_POINTS = 20       # a material with fewer keeps its driver about its mean
 CORE_SIGMAS = 6.0           # points farther from their material's median are left out
@@ -240,3 +243,13 @@ def tie_words(figures: dict[str, dict], rule: str = 'the rule') -> str:
             'walk and an incidence bias cannot be told apart (two reflectivities at one '
             'incidence, a spread of ranges, or a target whose incidence and range vary apart '
             'would separate them)')
+
+
+def joint_outcome(walk_passes: bool, incidence_passes: bool) -> str | None:
+    """A named incidence bias beside a walk, each weighed on top of the other refitted
+    with it: BOTH where each passes the rule; TIE where neither does, or only the walk
+    (the named one then has no part of its own: which drives the bias cannot be told);
+    None where only incidence passes (it stands alone)."""
+    if walk_passes:
+        return BOTH if incidence_passes else TIE
+    return None if incidence_passes else TIE

@@ -292,15 +292,28 @@ def flag_lines(fmap: FieldMap, counts: dict[str, int], no_return: int,
 def intensity_reading(calibration: dict | None, field_name: str | None,
                       known: bool = False) -> str:
     """One terminal line: how the intensity was read (proportional to the received power,
-    or a range-compensated reflectivity: ``intensity.py``'s range exponent 0 or -2),
+    a range-compensated reflectivity: ``intensity.py``'s range exponent 0 or -2, or log
+    counts: its scale test),
     ``known`` from the layout or detected from the data."""
     if field_name is None:
         return 'intensity: none in the recording (the model\'s power drives power effects)'
     if calibration is None:
         return f'intensity ({field_name}): too few matched points to calibrate'
-    kind = ('a range-compensated reflectivity (~ P r^2)'
-            if calibration.get('range_exponent', 0.0) < -1.0
-            else 'grows with the received power (no range compensation detected)')
+    test = calibration.get('scale_test') or {}
+    if calibration.get('intensity_scale') == 'log':
+        kind = (f'log counts, a + b ln P (b {test.get("log_b_per_efold", float("nan")):.3g} '
+                'per e-fold of power; against a power law: unexplained '
+                f'{test.get("unexplained_log", 0):.3g} vs {test.get("unexplained_linear", 0):.3g} '
+                'in ln P), no range compensation; the power read '
+                + ('as exp((I - a) / b)' if test.get('read_through') == 'log'
+                   else 'through the monotone map (it fits the model\'s power better)'))
+    elif calibration.get('range_exponent', 0.0) < -1.0:
+        kind = 'a range-compensated reflectivity (~ P r^2)'
+    else:
+        kind = 'grows with the received power (no range compensation detected)'
+        if calibration.get('intensity_scale') == 'linear':
+            kind += (f'; a power law of it (P^{test.get("power_law_exponent", 1.0):.3g}), '
+                     'not log counts')
     kind += ' (as the layout says)' if known else ' (detected from the data)'
     use = ('used for power-driven effects' if calibration.get('used_for_power_driven_effects')
            else 'not used: it explains too little of the model\'s power')

@@ -39,6 +39,21 @@ log-likelihood in all and pass z CLOUD_GAIN_Z (the odds and the one-sided 1 % a
 catalogue candidate must reach). The gains come from the intensity against the model's
 power only, never from the ranges: they cannot take the walk itself.
 
+An intensity in log counts (a flash sensor's 40 log10 P: intensity = a + b ln P) is
+linear in ln P, not in P. The map above can follow it (it is monotone), but the reading
+is tested: on the same points (below a clip, no range term, no per-cloud gain) the
+model's ln P is fitted as a power law of the intensity, ln P = ln I / s + c (the linear
+reading, I = g P^s; s ~ 1 for counts proportional to the power), and as an affine
+function of it, ln P = (I - a) / b (the log reading). The one leaving at most
+1 - SCALE_MARGIN of the other's unexplained variance is the scale (``scale_test``);
+the terminal says which, with b for log counts (counts per e-fold of power: 40 log10 P
+has b = 17.4). With log counts the power is read as exp((I - a) / b) when that leaves
+at most 1 + SCALE_MARGIN times the map's unexplained variance (the map's freedom buys
+little); otherwise, and for the linear reading or no clear margin, through the map, as
+before (it is monotone, so it follows log counts as well). b is fitted against the model's
+power, so a walk read through it carries the model's scale of ln P (the forced fit on
+the model's power shows the same).
+
 The simulator keeps using its own predicted power; see docs/compare.md.
 """
 from __future__ import annotations
@@ -81,6 +96,12 @@ CLOUD_GAIN_MIN_POINTS = 2 * MIN_POINTS
 CLOUD_GAIN_ROUNDS = 4
 CLOUD_GAIN_MIN_NATS = 15.0
 CLOUD_GAIN_Z = 2.33
+# The scale test (module doc): the log reading replaces the map when it leaves at most
+# 1 - SCALE_MARGIN of the power law's unexplained variance of the model's ln P (the
+# range term's margin), the power law is called linear the other way round; the power
+# is read through the log reading when it leaves at most 1 + SCALE_MARGIN times the
+# map's (else the map, which follows any monotone scale, stays).
+SCALE_MARGIN = 0.2
 
 
 @dataclass(frozen=True)
@@ -102,10 +123,21 @@ class IntensityCalibration:
     # when not used; the held-out test that decided it (gain_nats, z, clouds, used).
     cloud_log_gain: dict = field(default_factory=dict)
     cloud_gain_test: dict | None = None
+    # The scale test (module doc): 'log' (read as ln P = (I - log_a) / log_b), 'linear'
+    # (a power law won: the map), None (no clear margin or not tried: the map).
+    scale: str | None = None
+    log_a: float = 0.0
+    log_b: float = 1.0
+    scale_test: dict | None = None
 
     @property
     def usable(self) -> bool:
         return self.explained >= MIN_EXPLAINED
+
+    @property
+    def reads_log(self) -> bool:
+        """The power is read through the log reading (module doc), not the map."""
+        return self.scale == 'log' and (self.scale_test or {}).get('read_through') == 'log'
 
     def power_w(self, intensity: np.ndarray, range_m: np.ndarray,
                 model_power_w: np.ndarray | None = None,
@@ -115,16 +147,20 @@ class IntensityCalibration:
         ``model_power_w`` (the model's power on the same points) and the clip's level.
         ``cloud`` (each point's cloud index): the per-cloud gain taken out, if used."""
         i = np.asarray(intensity, float)
-        ok = np.isfinite(i) & (i > 0) & np.isfinite(range_m) & (range_m > 0)
+        log_scale = self.reads_log
+        ok = (np.isfinite(i) & ((i > 0) | log_scale) & np.isfinite(range_m) & (range_m > 0))
         log_p = np.full(len(i), np.nan)
-        log_i = np.log(np.where(ok, i, 1.0))
-        log_p[ok] = (np.interp(log_i[ok], self.knots_log_i, self.knots_log_p,
-                               right=self._clip_log_p())
-                     + self.range_exponent * (np.log(range_m[ok]) - self.mean_log_range))
+        log_i = np.log(np.where(ok & (i > 0), i, 1.0))
+        if log_scale:
+            log_p[ok] = (i[ok] - self.log_a) / self.log_b
+        else:
+            log_p[ok] = np.interp(log_i[ok], self.knots_log_i, self.knots_log_p,
+                                  right=self._clip_log_p())
+        log_p[ok] += self.range_exponent * (np.log(range_m[ok]) - self.mean_log_range)
         if self.cloud_log_gain and cloud is not None:
             log_p[ok] -= cloud_lookup(self.cloud_log_gain, np.asarray(cloud)[ok])
         if self.clip_log_i is not None and model_power_w is not None:
-            at_clip = ok & (log_i >= self.clip_log_i)
+            at_clip = ok & (i > 0) & (log_i >= self.clip_log_i)
             model = np.log(np.maximum(np.asarray(model_power_w, float)[at_clip], 1e-300))
             log_p[at_clip] = np.maximum(log_p[at_clip], np.nan_to_num(model, nan=-np.inf))
         return np.exp(log_p)
@@ -146,6 +182,7 @@ class IntensityCalibration:
                 'clipped_value': (None if self.clip_log_i is None
                                   else float(np.exp(self.clip_log_i))),
                 'cloud_gain': self.cloud_gain_test,
+                'intensity_scale': self.scale, 'scale_test': self.scale_test,
                 'used_for_power_driven_effects': self.usable}
 
 
@@ -194,6 +231,19 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
             spread = float(np.var(y - np.interp(x, knots_x, knots_y) - c * lr
                                   + cloud_lookup(log_gain, np.asarray(cloud)[ok])))
     var_y = float(np.var(y))
+    scale, log_a, log_b, scale_test = None, 0.0, 1.0, None
+    if c == 0.0 and not log_gain:
+        scale, log_a, log_b, scale_test = intensity_scale(np.exp(x), y)
+        if scale == 'log':
+            log_spread = float(np.var(y - (np.exp(x) - log_a) / log_b))
+            # Read through the log reading only where the map's freedom buys little more:
+            # a log-like scale of another shape (8-bit counts of u^0.85) keeps the map.
+            read = log_spread <= (1.0 + SCALE_MARGIN) * spread
+            scale_test['read_through'] = 'log' if read else 'map'
+            if read:
+                spread = log_spread
+            else:
+                log_a, log_b = 0.0, 1.0
     explained = 1.0 - spread / var_y if var_y > 0 else 0.0
     d = x - (y if model_intensity is None
              else np.log(np.maximum(np.asarray(model_intensity, float)[ok], 1e-300)))
@@ -205,7 +255,40 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
         log_correlation=float(np.corrcoef(x, y)[0, 1]) if np.ptp(x) > 0 else 0.0,
         points=int(ok.sum()),
         clip_log_i=None if clip is None else float(np.log(clip)),
-        clipped_share=clipped_share, cloud_log_gain=log_gain, cloud_gain_test=test)
+        clipped_share=clipped_share, cloud_log_gain=log_gain, cloud_gain_test=test,
+        scale=scale, log_a=log_a, log_b=log_b, scale_test=scale_test)
+
+
+def intensity_scale(intensity: np.ndarray, log_p: np.ndarray
+                    ) -> tuple[str | None, float, float, dict | None]:
+    """The scale test (module doc) on positive intensities and the model's ln P (W):
+    ('log' | 'linear' | None, a, b, the test's record). Least squares of ln P on ln I (the
+    power law) and on I (the log reading, ln P = (I - a) / b); the reading leaving at most
+    1 - SCALE_MARGIN of the other's residual variance wins. None when neither does, or
+    the intensity does not grow with the power under the log reading (b <= 0)."""
+    i, y = np.asarray(intensity, float), np.asarray(log_p, float)
+    if len(i) < MIN_POINTS or np.ptp(i) <= 0:
+        return None, 0.0, 1.0, None
+    var = {}
+    coef = {}
+    for name, x in (('linear', np.log(i)), ('log', i)):
+        slope, icpt = np.polyfit(x, y, 1)
+        var[name] = float(np.var(y - (slope * x + icpt)))
+        coef[name] = (float(slope), float(icpt))
+    slope, icpt = coef['log']
+    b = 1.0 / slope if slope > 0 else float('nan')
+    a = -icpt * b if slope > 0 else float('nan')
+    if var['log'] <= (1.0 - SCALE_MARGIN) * var['linear'] and slope > 0:
+        scale = 'log'
+    elif var['linear'] <= (1.0 - SCALE_MARGIN) * var['log'] and coef['linear'][0] > 0:
+        scale = 'linear'
+    else:
+        scale = None
+    test = {'unexplained_linear': round(var['linear'], 5), 'unexplained_log': round(var['log'], 5),
+            'power_law_exponent': round(1.0 / coef['linear'][0], 4) if coef['linear'][0] > 0
+            else None, 'log_b_per_efold': round(b, 4) if np.isfinite(b) else None,
+            'chosen': scale}
+    return scale, (a if scale == 'log' else 0.0), (b if scale == 'log' else 1.0), test
 
 
 def cloud_gains(x: np.ndarray, y: np.ndarray, cloud: np.ndarray, knots_x: np.ndarray,
