@@ -155,3 +155,20 @@ def test_the_power_every_power_driven_effect_reads_leaves_the_range_noise_out():
     assert not power.in_intensity.re_expressed
     np.testing.assert_allclose(p, power.calibration.power_w(raw, s['r_meas'], s['p_model'],
                                                             cloud=s['cloud']))
+
+
+def test_points_with_no_neighbour_pairs_give_no_slope_and_no_warning():
+    """A spinning sensor's few rows on a small target: points far apart in direction
+    make no neighbour pairs; the test returns no slope (NaN, 0 pairs) without numpy's
+    'Mean of empty slice' (holdout 17's spinning-sensor runs printed it)."""
+    import warnings
+    n = 400
+    rng = np.random.default_rng(2)
+    d = rng.standard_normal((n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)           # scattered over the sphere
+    r = np.full(n, 10.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        slope, se, pairs = ir.measured_range_slope(np.ones(n), r, r, np.ones(n), d,
+                                                   np.arange(n), np.zeros(n, int))
+    assert np.isnan(slope) and np.isnan(se) and pairs < ir.MIN_PAIRS

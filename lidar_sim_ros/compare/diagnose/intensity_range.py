@@ -102,6 +102,8 @@ def measured_range_slope(intensity: np.ndarray, range_meas_m: np.ndarray,
         return float('nan'), float('nan'), 0
     a, b = neighbour_pairs(np.asarray(directions)[idx], np.asarray(cloud)[idx],
                            np.asarray(material)[idx], rp[idx])
+    if len(a) < MIN_PAIRS:      # neighbours too sparse (a spinning sensor's few rows)
+        return float('nan'), float('nan'), int(len(a))
     a, b = idx[a], idx[b]
     x = np.log(rm[a] / rp[a]) - np.log(rm[b] / rp[b])
     y = np.log(i_w[a]) - np.log(i_w[b])
