@@ -1030,6 +1030,8 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         diag.share_veto(c, ana.attribution)
     cands = diagnosis.rank(cands)
     decision = diag.decide(cands)
+    in_model = {e.name for e in effects}
+    rivals = [get_effect_class(n) for n in diagnosis.POSE_RIVALS if n not in in_model]
     decision, weighed = diag.weigh_rivals(decision, cands, rival_classes(effects, classes),
                                           ana.attribution)
     cands = diagnosis.rank(cands + weighed)
