@@ -61,7 +61,7 @@ def test_a_range_term_explaining_a_part_only_leaves_it_outside_the_catalogue_and
     decision, weighed, _ = _weigh(share=0.28)
     assert decision.missing is None and weighed == []
     said = range_outside.words({'against_named': decision.pair_z})
-    assert 'range_scale' in said and '28 %' in said and 'z = 5.6' in said
+    assert 'range_scale 0.0045' in said and '28 %' in said and 'z = 5.6' in said
 
 
 def test_no_structure_no_range_term_weighed():

@@ -67,17 +67,18 @@ def weigh(diag, decision: Decision, cands: list[Candidate], rivals: list,
 
 def words(summary: dict) -> str:
     """The verdict's sentence on the range terms weighed beside an empty decision (or '')."""
-    out = []
+    parts = []
     for name, w in (summary.get('against_named') or {}).items():
         f = w.get('weighed_outside') if isinstance(w, dict) else None
         if not f or f.get('score') is None:
             continue
         share = f.get('share')
-        part = (f', and explains {100 * share:.0f} % of the residual\'s dependence on the '
-                f'features' if share is not None else '')
-        why = (f'; it is set aside: {f["vetoed"]}' if f.get('vetoed')
-               else f' (named only where it explains at least {100 * NAME_SHARE:.0f} %)'
-               if f.get('significant') else ': not significant')
-        out.append(f'{name}, no default candidate, was weighed too: it gains '
-                   f'{f["score"]:.4f} nats/point held out (z = {f["z"]:.1f}){part}{why}.')
-    return (' ' + ' '.join(out)) if out else ''
+        what = (f', {100 * share:.0f} % of the residual\'s dependence on the features'
+                if share is not None else f'; set aside: {f["vetoed"]}' if f.get('vetoed')
+                else '')
+        parts.append(f'{name} {f["score"]:.4f} nats/point held out (z = {f["z"]:.1f}{what})')
+    if not parts:
+        return ''
+    return (' The range terms of the sensor, no default candidates, were weighed too: '
+            + '; '.join(parts) + '. None is named: one is named here only where it passes '
+            f'the rule and explains at least {100 * NAME_SHARE:.0f} % of that dependence.')
