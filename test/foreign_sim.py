@@ -1872,6 +1872,10 @@ SCALE_ALONE: tuple[ForeignSpec, ...] = (
                 spin_dps=3.0, material_bias_shift_m={'MLI': -0.20, 'PSS': -0.06},
                 note='range scale +0.4 %, MLI/PSS range biases -20/-6 cm off the config; '
                      '14 m to 12.9 m'),
+    ForeignSpec('range_scale_short_strong', 'range_scale', {'ppm': 10000.0}, seed=531,
+                frames=12, speed_mps=0.95, distance_m=14.0, shots_per_frame=24_000,
+                tilt_deg=40.0, spin_dps=3.0, material_bias_shift_m={'MLI': -0.20, 'PSS': -0.06},
+                note='as range_scale_short with a scale of +1 %'),
     ForeignSpec('range_scale_short_small', 'range_scale', {'ppm': 3000.0}, seed=521,
                 frames=12, speed_mps=1.4, distance_m=14.0, shots_per_frame=24_000,
                 note='range scale +0.3 % alone, 14 m to 12.5 m'),
