@@ -1007,6 +1007,16 @@ def candidate_classes(opts: CompareOptions, effects: list[Effect]) -> list[type[
     return [c for c in classes if c.name not in in_model]
 
 
+def rival_classes(effects: list[Effect], classes: list[type[Effect]]) -> list[type[Effect]]:
+    """The range terms (POSE_RIVALS) and surface offsets (GEOMETRY_RIVALS) to weigh against
+    the decision: those neither in the model (``effects``) nor already scored as a
+    candidate (``classes``, e.g. asked for with --candidates): one scored twice would tie
+    with itself."""
+    taken = {e.name for e in effects} | {c.name for c in classes}
+    return [get_effect_class(n) for n in (*diagnosis.POSE_RIVALS, *diagnosis.GEOMETRY_RIVALS)
+            if n not in taken]
+
+
 def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[type[Effect]],
              meas: Measurements, scenario: Scenario, sunlight: dict | None,
              seed: int, rays: fit_data.RaySet) -> Diagnosed:
@@ -1022,8 +1032,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     decision = diag.decide(cands)
     in_model = {e.name for e in effects}
     rivals = [get_effect_class(n) for n in diagnosis.POSE_RIVALS if n not in in_model]
-    geometry = [get_effect_class(n) for n in diagnosis.GEOMETRY_RIVALS if n not in in_model]
-    decision, weighed = diag.weigh_rivals(decision, cands, rivals + geometry,
+    decision, weighed = diag.weigh_rivals(decision, cands, rival_classes(effects, classes),
                                           ana.attribution)
     cands = diagnosis.rank(cands + weighed)
 

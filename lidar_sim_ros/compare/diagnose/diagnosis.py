@@ -88,8 +88,8 @@ import numpy as np
 from scipy.stats import kstest, norm
 
 from lidar_sim_ros.compare.model import likelihood as lk
-from lidar_sim_ros.compare.diagnose import (beside, laser_tiles, power_incidence, same_part,
-                                            standoff_part)
+from lidar_sim_ros.compare.diagnose import (beside, laser_tiles, power_incidence,
+                                            range_outside, same_part, standoff_part)
 from lidar_sim_ros.compare.diagnose.candidate import (
     FAMILY_ALPHA, GEOMETRY_RIVALS, MAX_ALSO_TRIES, MIN_PRACTICAL_GAIN, MIN_SHARE,
     MIN_TOTAL_GAIN, MIN_UNMATCHED_EXPLAINED, MIN_UNMATCHED_FRACTION, N_FOLDS, POSE_ERROR,
@@ -1652,9 +1652,14 @@ class Diagnosis(PoseWeighing):
         on an approach a walk in ln P follows the range as a scale does. They are
         scored here, with the same vetoes, and ``decide`` is run again among all: a
         rival decisively better by its rule is named instead, one within its margins
-        makes a tie, one decisively worse leaves the decision. Nothing is named that
-        was not before when nothing was (a rival never names itself on an empty
-        decision). Returns the decision and the rivals scored."""
+        makes a tie, one decisively worse leaves the decision. On an empty decision a
+        rival names itself only where the residual's structure would be left outside
+        the catalogue and a range term explains most of it (``range_outside``). Returns
+        the decision and the rivals scored."""
+        if range_outside.applies(decision, attribution):
+            # Where the structure would be left outside the catalogue, the range terms
+            # are weighed too, and named only where they explain most of it.
+            return range_outside.weigh(self, decision, cands, rivals, attribution, rank)
         if not (decision.missing or decision.confounded_with) or not rivals:
             return decision, []
         scored = self.scored_with_vetoes(rivals, attribution)

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare.diagnose import beside, diagnosis, pose_error, power_incidence
+from lidar_sim_ros.compare.diagnose import (beside, diagnosis, pose_error, power_incidence,
+                                            range_outside)
 from lidar_sim_ros.compare.model.materials import common_offset_m
 
 EFFECT_WORDS = {
@@ -1033,7 +1034,7 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
                    f'held out but not significantly {noisy}')
     if attribution is not None and attribution.significant:
         return ('No catalogue effect explains it by a margin that matters.' + why
-                + ' The missing physics is outside the catalogue: write an effect '
+                + range_outside.words(summary) + ' The missing physics is outside the catalogue: write an effect '
                 '(docs/effects.md, "Write your own effect") that depends on what the residual '
                 'depends on, and add it with --effect file.py:Class --fit.')
     left_out = [what for what, key in (('occluded returns', 'occlusion'),
