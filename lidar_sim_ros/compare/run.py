@@ -1212,8 +1212,9 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         decision, cands, clock_beside_corrected, lambda clock: on_constant_pose(clock)[:2],
         clock_nested_cast)
     # The same where the pose test reports a correction per cloud: the clock with one
-    # correction against the per-cloud correction, each charged its parameters.
-    if clock is None:
+    # correction against the per-cloud correction, each charged its parameters, on
+    # enough clouds for one dt's pattern over them to show (``MIN_CLOUDS_PER_CLOUD``).
+    if clock is None and len(np.unique(meas.cloud)) >= clock_nested.MIN_CLOUDS_PER_CLOUD:
         def clock_per_cloud_cast(clock: Effect) -> clock_nested.PerCloudClock:
             cast = ClockBesidePerCloudCast(model, effects, rays, meas, sample.blocks,
                                            type(clock), diag.z_crit, seed)

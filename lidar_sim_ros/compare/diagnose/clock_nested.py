@@ -31,6 +31,11 @@ from lidar_sim_ros.compare.diagnose import features, line_of_sight
 
 POSE_PARAMS = 6    # one rigid correction for the recording: 3 translations, 3 turns
 CLOCK_PARAMS = 1   # dt
+# A clock stands for a pose per cloud only through the pattern one dt lays over many
+# clouds: with fewer, the clock and one correction fit a few clouds' own offsets by
+# chance (pose_error_rigid on 2 clouds: a 144 ms clock 'passed' over a pose that was
+# off rigidly per cloud). The per-cloud weighing asks at least this many clouds.
+MIN_CLOUDS_PER_CLOUD = 6
 
 
 @dataclass(frozen=True)
