@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from lidar_sim_ros.compare.diagnose import features, line_of_sight
 
@@ -36,6 +37,10 @@ CLOCK_PARAMS = 1   # dt
 # chance (pose_error_rigid on 2 clouds: a 144 ms clock 'passed' over a pose that was
 # off rigidly per cloud). The per-cloud weighing asks at least this many clouds.
 MIN_CLOUDS_PER_CLOUD = 6
+# A clock is told from one rigid correction only by what it does beyond one rigid motion
+# of the target's points (``clock_beyond_rigid_m``): nothing on a constant-rate turn about
+# a fixed axis at a steady speed, where a clock IS one rigid correction.
+BEYOND_RIGID_POINTS = 5_000     # points (a fixed thinning) the motion is measured on
 
 
 @dataclass(frozen=True)
@@ -201,3 +206,25 @@ def weigh_per_cloud(nested: NestedClock, nothing: line_of_sight.RayScore,
         per_cloud_over_joint=charged_part(both, per_cloud, n, blocks, z_crit, min_gain,
                                           extra),
         n_clouds=int(n_clouds))
+
+
+def clock_beyond_rigid_m(xyz_m: np.ndarray, t_s: np.ndarray, poses, dt_s: float) -> float:
+    """RMS (m) of what reading the pose ``dt_s`` later does to the measured target points
+    ``xyz_m`` (N, 3), lidar frame, at their times ``t_s`` (each carried with the target
+    from its pose at t to its pose at t + dt), beyond the one rigid motion of them all
+    that fits it best (Kabsch): 0 where the target's motion makes a clock one constant
+    pose correction. ``poses.at(t)``: a pose source (``core.pose``)."""
+    xyz = np.asarray(xyz_m, float)
+    t = np.asarray(t_s, float)
+    ok = np.all(np.isfinite(xyz), axis=1) & np.isfinite(t)
+    xyz, t = xyz[ok], t[ok]
+    if len(xyz) < 3 or not np.isfinite(dt_s):
+        return float('nan')
+    if len(xyz) > BEYOND_RIGID_POINTS:
+        pick = np.linspace(0, len(xyz) - 1, BEYOND_RIGID_POINTS).astype(np.int64)
+        xyz, t = xyz[pick], t[pick]
+    moved = poses.at(t + float(dt_s)).to_lidar(poses.at(t).to_body(xyz))
+    a, b = xyz - xyz.mean(axis=0), moved - moved.mean(axis=0)
+    rot, _ = Rotation.align_vectors(b, a)
+    rest = b - rot.apply(a)
+    return float(np.sqrt(np.mean(np.sum(rest ** 2, axis=1))))
