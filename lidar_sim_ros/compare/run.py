@@ -1639,13 +1639,21 @@ class ClockBesidePoseCast:
         """The subset with one rigid correction for the recording fitted on the model
         with the clock at ``dt_s`` (None: without it), raycast again as it goes."""
         key = None if dt_s is None else round(float(dt_s), 5)
-        if key in self._poses:
-            return self._poses[key]
+        if key not in self._poses:
+            self._poses[key] = self.settled(key, constant=True)
+        return self._poses[key]
+
+    def settled(self, dt_s: float | None, constant: bool) -> Measurements:
+        """The subset with a rigid correction (one for the recording if ``constant``, else
+        one per cloud) fitted on the model with the clock at ``dt_s`` (None: without it),
+        raycast again until it settles (``pose_error.iterate``; CONSTANT_RECAST_PASSES for
+        one correction). A re-cast step fits its correction alone (``step_only``: the
+        first fit's test is the one kept; one correction's is never used)."""
         part = self.part
 
         def rematch(corr: pose_error.PoseCorrection):
             moved = replace(part, poses=pose_error.CorrectedPoses(part.poses, corr))
-            r, data = self._cast(moved, key)
+            r, data = self._cast(moved, dt_s)
             return r, data, moved
 
         def refit(state, applied: pose_error.PoseCorrection | None) -> pose_error.PoseError:
@@ -1653,13 +1661,13 @@ class ClockBesidePoseCast:
             idx = r.matched
             return pose_error.fit_reference_pose(
                 data, moved.cloud[idx], moved.t_s[idx], self.blocks[idx], self.z_crit,
-                diagnosis.MIN_PRACTICAL_GAIN, self.seed, [], applied=applied, constant=True,
-                step_only=True)     # the correction is what is kept, not its test
-        start = pose_error.PoseCorrection.identity(np.zeros_like(part.cloud), part.t_s)
+                diagnosis.MIN_PRACTICAL_GAIN, self.seed, [], applied=applied,
+                constant=constant, step_only=constant or applied is not None)
+        start = pose_error.PoseCorrection.identity(
+            np.zeros_like(part.cloud) if constant else part.cloud, part.t_s)
         first = refit(rematch(start), None)
-        (_, _, moved), _, _ = pose_error.iterate(first, start, rematch, refit,
-                                                 pose_error.CONSTANT_RECAST_PASSES)
-        self._poses[key] = moved
+        passes = pose_error.CONSTANT_RECAST_PASSES if constant else pose_error.RECAST_PASSES
+        (_, _, moved), _, _ = pose_error.iterate(first, start, rematch, refit, passes)
         return moved
 
     def weigh(self, dt_alone_s: float, dt_joint_s: float,
@@ -1697,27 +1705,9 @@ class ClockBesidePerCloudCast(ClockBesidePoseCast):
     def per_cloud(self) -> Measurements:
         """The subset with a rigid correction per cloud fitted on the model without the
         clock, raycast again as it goes."""
-        if 'per_cloud' in self._poses:
-            return self._poses['per_cloud']
-        part = self.part
-
-        def rematch(corr: pose_error.PoseCorrection):
-            moved = replace(part, poses=pose_error.CorrectedPoses(part.poses, corr))
-            r, data = self._cast(moved, None)
-            return r, data, moved
-
-        def refit(state, applied: pose_error.PoseCorrection | None) -> pose_error.PoseError:
-            r, data, moved = state
-            idx = r.matched
-            return pose_error.fit_reference_pose(
-                data, moved.cloud[idx], moved.t_s[idx], self.blocks[idx], self.z_crit,
-                diagnosis.MIN_PRACTICAL_GAIN, self.seed, [], applied=applied,
-                step_only=applied is not None)    # a re-cast step: its correction only
-        start = pose_error.PoseCorrection.identity(part.cloud, part.t_s)
-        first = refit(rematch(start), None)
-        (_, _, moved), _, _ = pose_error.iterate(first, start, rematch, refit)
-        self._poses['per_cloud'] = moved
-        return moved
+        if 'per_cloud' not in self._poses:
+            self._poses['per_cloud'] = self.settled(None, constant=False)
+        return self._poses['per_cloud']
 
     def dt_joint(self, clock: Effect) -> float:
         """The clock's dt fitted linearly beside one correction on the model that
