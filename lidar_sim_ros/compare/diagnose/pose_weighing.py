@@ -82,6 +82,13 @@ def _range_rival_tied(decision: Decision, cands: list[Candidate]) -> Candidate |
                  and c.error is None), None)
 
 
+def _fitted_clock(cands: list[Candidate]) -> Candidate | None:
+    """The clock offset (``time_offset``) among ``cands``, fitted without an error; else
+    None."""
+    clock = next((c for c in cands if c.name == beside.CLOCK), None)
+    return None if clock is None or clock.effect is None or clock.error is not None else clock
+
+
 class PoseWeighing:
     """The reference pose against the named effects: methods of ``Diagnosis`` (they use
     its folds, scores and rule), kept apart as one decision."""
@@ -828,8 +835,8 @@ class PoseWeighing:
             # growing within each scan) is no constant offset a clock could stand for:
             # a clock offset makes no growth over the scan (``clock_footing``'s drift).
             return decision, None
-        clock = next((c for c in cands if c.name == beside.CLOCK), None)
-        if clock is None or clock.effect is None or clock.error is not None:
+        clock = _fitted_clock(cands)
+        if clock is None:
             return decision, None
         try:
             on = footing_test(clock.effect)
@@ -876,8 +883,8 @@ class PoseWeighing:
                 or nested is None or getattr(pose, 'constant', True)
                 or getattr(pose, 'rate_supported', False)):
             return decision, None
-        clock = next((c for c in cands if c.name == beside.CLOCK), None)
-        if clock is None or clock.effect is None or clock.error is not None:
+        clock = _fitted_clock(cands)
+        if clock is None:
             return decision, None
         try:
             nest = nested(clock.effect)
