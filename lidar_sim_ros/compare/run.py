@@ -1222,8 +1222,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
         decision, clock = diag.clock_beside_per_cloud_pose(
             decision, cands, clock_per_cloud_cast, lambda clock: on_constant_pose(clock)[:2])
     if clock is not None:
-        clock_beyond_rigid(clock, cands, meas, tested.matched)
-    if clock is not None:
+        clock_beyond_rigid(clock, meas, tested.matched)
         diag.turn_beside_clock(cands)
         # The clock as scored on the corrected pose is the one the verdict quotes.
         cands = diagnosis.rank([clock if c.name == clock.name else c for c in cands])
@@ -1248,18 +1247,17 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
                      getattr(diag, 'line_of_sight', None))
 
 
-def clock_beyond_rigid(clock: diagnosis.Candidate, cands: list[diagnosis.Candidate],
-                       meas: Measurements, points: np.ndarray) -> None:
+def clock_beyond_rigid(clock: diagnosis.Candidate, meas: Measurements,
+                       points: np.ndarray) -> None:
     """What the named clock does to the pose test's points ``points`` beyond one rigid
-    motion of them all (``clock_nested.clock_beyond_rigid_m``, RMS m), kept as
-    ``against_pose['beyond_rigid_m']`` on the clock (and the candidate it came from): the
-    only part of a clock a constant pose correction beside it cannot take (0 on a
-    constant-rate turn about a fixed axis). Said, not yet decided on."""
+    motion of them all (``clock_nested.clock_beyond_rigid_m``, RMS m), kept as its
+    ``against_pose['beyond_rigid_m']`` (the clock that then replaces the candidate it
+    came from): the only part of a clock a constant pose correction beside it cannot
+    take (0 on a constant-rate turn about a fixed axis). Said, not yet decided on."""
     dt = float(getattr(clock.effect.params, 'dt_s', np.nan)) if clock.effect else np.nan
-    beyond = _num(clock_nested.clock_beyond_rigid_m(meas.xyz_m[points], meas.t_s[points],
-                                                    meas.poses, dt))
-    for c in [clock, *(c for c in cands if c.name == clock.name and c is not clock)]:
-        c.against_pose = {**(c.against_pose or {}), 'beyond_rigid_m': beyond}
+    beyond = clock_nested.clock_beyond_rigid_m(meas.xyz_m[points], meas.t_s[points],
+                                               meas.poses, dt)
+    clock.against_pose = {**(clock.against_pose or {}), 'beyond_rigid_m': _num(beyond)}
 
 
 def named_range_alone(named: str | None, effect: Effect | None, data: lk.FitData,

@@ -854,12 +854,7 @@ class PoseWeighing:
         except Exception:  # noqa: BLE001 - not weighed on the candidates' footing
             return decision, None
         figures['nested'] = nest.as_dict()
-        if nest.outcome == 'tie' and self.nameable(clock):
-            return Decision(None, [POSE_ERROR, beside.CLOCK], withheld=dict(decision.withheld),
-                            pose=pose), None
-        if nest.outcome != 'clock':
-            return decision, None
-        return self.clock_named_beside(decision, clock, nest, figures, pose_on_clock)
+        return self.decided_by_nest(decision, clock, nest, figures, pose_on_clock)
 
     def clock_beside_per_cloud_pose(self, decision: Decision, cands: list[Candidate],
                                     nested, pose_on_clock
@@ -894,15 +889,26 @@ class PoseWeighing:
                    'dt_joint_s': _num(nest.nested.dt_beside_pose_s), 'per_cloud_pose': True,
                    'nested': nest.as_dict()}
         clock.against_pose = {**(clock.against_pose or {}), 'constant_pose_footing': figures}
-        if nest.outcome == 'tie' and self.nameable(clock) and rival is None:
-            return Decision(None, [POSE_ERROR, beside.CLOCK], withheld=dict(decision.withheld),
-                            pose=pose), None
-        if nest.outcome != 'clock':
-            return decision, None
-        named, again = self.clock_named_beside(decision, clock, nest, figures, pose_on_clock)
+        named, again = self.decided_by_nest(decision, clock, nest, figures, pose_on_clock,
+                                            may_tie=rival is None)
         if rival is None or again is None:
             return named, again
         return self.range_rival_beside_clock(decision, named, again, rival, figures)
+
+    def decided_by_nest(self, decision: Decision, clock: Candidate, nest, figures: dict,
+                        pose_on_clock, may_tie: bool = True
+                        ) -> tuple[Decision, Candidate | None]:
+        """What a nested test (``nest``: ``clock_nested``'s ``NestedClock`` or
+        ``PerCloudClock``) decides beside the reported pose: its outcome 'tie' the tie
+        [pose_error, time_offset] with that pose (where the clock is nameable alone, which
+        fits it on all the points if not done yet, and ``may_tie``), 'clock' the clock
+        named (``clock_named_beside``), else the decision stands."""
+        if nest.outcome == 'tie' and self.nameable(clock) and may_tie:
+            return Decision(None, [POSE_ERROR, beside.CLOCK], withheld=dict(decision.withheld),
+                            pose=decision.pose), None
+        if nest.outcome != 'clock':
+            return decision, None
+        return self.clock_named_beside(decision, clock, nest, figures, pose_on_clock)
 
     def range_rival_beside_clock(self, decision: Decision, named: Decision,
                                  clock: Candidate, rival: Candidate, figures: dict
