@@ -119,6 +119,29 @@ def pytest_xdist_make_scheduler(config, log):
     return ModuleScheduling(config, log)
 
 
+# LIDAR_SIM_TEST_TIMES=FILE: one JSON line per test (its worker, wall start and end, and
+# the CPU seconds of the test process and of the child processes it waited for, fixture
+# setup included), to see where `make test`'s time budget goes (CPU, which a busy machine
+# does not inflate, and how the workers' units line up in wall time).
+_TIMES = os.environ.get('LIDAR_SIM_TEST_TIMES')
+if _TIMES:
+    import json
+    import time
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        wall0, cpu0 = time.time(), os.times()
+        yield
+        cpu = os.times()
+        row = {'test': item.nodeid, 'worker': os.environ.get('PYTEST_XDIST_WORKER', 'main'),
+               'start': wall0, 'end': time.time(),
+               'cpu': cpu.user + cpu.system - cpu0.user - cpu0.system,
+               'children': (cpu.children_user + cpu.children_system
+                            - cpu0.children_user - cpu0.children_system)}
+        with open(_TIMES, 'a') as f:
+            f.write(json.dumps(row) + '\n')
+
+
 def embree_range_tol_m(range_m) -> float:
     """Tolerance (m) on Embree ranges up to max(range_m): EMBREE_ULPS float32 ulps there."""
     return EMBREE_ULPS * float(np.spacing(np.float32(np.max(range_m))))
