@@ -191,16 +191,19 @@ def test_foreign_loop(spec: ForeignSpec, tmp_path: Path):
         assert m['measured_bias_m'] - m['model_bias_m'] == pytest.approx(shift, abs=0.015)
 
 
-# Issue 30's situations (foreign_sim.V4, judged by foreign_loop.judge_v4): the three the
+# Issue 30's situations (foreign_sim.V4, judged by foreign_loop.judge_v4): the two the
 # suite's CPU budget allows; all of them, over seeds, run in bench/hidden_effect_eval.py --v4.
-V4_IN_SUITE = ('range_drift', 'pattern_off_no_time', 'solar_first_return_p60')
+# range_drift's loop (30 s of CPU, the suite's longest) is left to the bench: its answer, the
+# tie of a range drift with a pose that moves clouds only as a range offset, is decided by
+# ``Diagnosis.range_offset_beside`` and ``range_term_beside_constant_pose``, tested in-process
+# in test_compare_pose_error.py (both ways: the tie, and the drift named beside the pose).
+V4_IN_SUITE = ('pattern_off_no_time', 'solar_first_return_p60')
 
 
 @pytest.mark.parametrize('name', V4_IN_SUITE)
 def test_foreign_loop_v4(name: str, tmp_path: Path):
-    """A range drift of the sensor ties with the reference pose (or is named), never a
-    pose error alone; a pattern 0.5 % off is said first; first-return false returns are
-    named and their fitted rate gives the count recorded within 30 %."""
+    """A pattern 0.5 % off is said first; first-return false returns are named and their
+    fitted rate gives the count recorded within 30 %."""
     spec = battery([name])[0]
     ds = generate(spec, tmp_path / spec.name)
     steps = walk_loop(spec, ds, tmp_path / spec.name, report=False)

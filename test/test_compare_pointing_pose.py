@@ -114,16 +114,12 @@ def _compare_pointing_few_c(k: int, tmp_path) -> dict:
     return json.loads((tmp_path / 'out' / 'summary.json').read_text())
 
 
-def test_four_lasers_off_are_not_read_as_the_pose(tmp_path):
-    """pointing_few_c at its second seed: el +0.3 deg on lasers 4 and 20, -0.3 on 12 and
-    13, exact poses. Before: the pose reported off (3.5 cm, 0.64 deg, constant)."""
-    s = _compare_pointing_few_c(2, tmp_path)
-    assert not s['reference_pose_off'], s['verdict']
-    assert s['missing_effect'] in (None, 'laser_pointing'), s['verdict']
-    lp = next(c for c in s['candidates'] if c['name'] == 'laser_pointing')
-    assert lp['params']['laser_4_el_deg'] > 0.2 and lp['params']['laser_12_el_deg'] < -0.2
-    assert abs(lp['params']['laser_21_az_deg']) < 0.1, lp['params']
-    assert lp['score'] > 0.25, lp
+# pointing_few_c at its second seed (el +0.3 deg on lasers 4 and 20, -0.3 on 12 and 13, exact
+# poses; before pointpose37 the pose was reported off, 3.5 cm and 0.64 deg, constant) is left
+# to `bench/hidden_effect_eval.py --only pointing_few_c --seeds 3` (its compare took 30 s of
+# the suite's CPU): the decision that kept the pose out there, ``run.pose_left_to_pointing``,
+# is tested above on stand-ins, and the fifth seed's compare below asserts the same offsets
+# and score on the same item end to end, with laser_pointing named.
 
 
 def test_four_lasers_off_are_not_set_aside_as_a_common_turn(tmp_path):
