@@ -960,7 +960,7 @@ class Diagnosis(PoseWeighing):
         (the walk short at normal incidence, the bias short at grazing) each alone takes
         their net (walk 0.02 beside -0.0117 tan(theta): the walk alone k 0.0099).
         The other one is any scored candidate not vetoed (alone it may pass nothing: the
-        net is what it sees). Returns (power_incidence.BOTH, other) where each passes the
+        net is what it sees), but a tie only one that may be named alone. Returns (power_incidence.BOTH, other) where each passes the
         rule on top of the other (the other is 'also'), (TIE, other) where the other does
         and the named one does not, or neither does, (None, other) where only the named
         one does (it stands alone), (None, None) where not weighed. The figures go to
@@ -982,6 +982,8 @@ class Diagnosis(PoseWeighing):
         named_on_top = self.gain_z(other.heldout_nll - joint)
         outcome = power_incidence.joint_outcome(self.passes_rule(*other_on_top),
                                                 self.passes_rule(*named_on_top))
+        if outcome == power_incidence.TIE and not self.nameable(other):
+            outcome = None    # a tie is with one that may be named alone (battery short_incidence)
         pair_z[other.name] = {**pair_z.get(other.name, {}), 'jointly': {
             'other_on_top_of_named': [_num(v) for v in other_on_top],
             'named_on_top_of_other': [_num(v) for v in named_on_top],
