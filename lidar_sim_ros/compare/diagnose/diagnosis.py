@@ -982,12 +982,14 @@ class Diagnosis(PoseWeighing):
         named_on_top = self.gain_z(other.heldout_nll - joint)
         outcome = power_incidence.joint_outcome(self.passes_rule(*other_on_top),
                                                 self.passes_rule(*named_on_top))
+        label = outcome or 'named_alone'
         if outcome == power_incidence.TIE and not self.nameable(other):
-            outcome = None    # a tie is with one that may be named alone (battery short_incidence)
+            # A tie is with one that may be named alone (battery short_incidence).
+            outcome, label = None, 'tie_with_unnameable'
         pair_z[other.name] = {**pair_z.get(other.name, {}), 'jointly': {
             'other_on_top_of_named': [_num(v) for v in other_on_top],
             'named_on_top_of_other': [_num(v) for v in named_on_top],
-            'outcome': outcome or 'named_alone'}}
+            'outcome': label}}
         return outcome, other.name
 
     def jointly(self, a: Candidate, b: Candidate) -> np.ndarray:
