@@ -389,8 +389,8 @@ class Jointly(OwnParts):
     """OwnParts whose walk and incidence, fitted together on each fold, leave the
     held-out NLL ``joint`` (per point)."""
 
-    def __init__(self, joint):
-        super().__init__(NONE_OWN)
+    def __init__(self, joint, parts=NONE_OWN):
+        super().__init__(parts)
         self.joint = joint
 
     def jointly(self, a, b):
@@ -439,6 +439,46 @@ def test_incidence_alone_stands_where_the_walk_gains_nothing_on_top():
     d = Jointly(joint_nll(0.0901)).decide(dg.rank([inc, walk]))
     assert d.missing == 'incidence_angle' and d.also is None and d.confounded_with == []
     assert d.pair_z['range_walk']['jointly']['outcome'] == 'named_alone'
+
+
+def cancelling_case():
+    """walkpair51's box at 6.5 m (walk 0.02 beside -0.0117 tan(theta), opposite signs):
+    the walk alone 0.0125 nats/point (z 4.3, k 0.0099, its net), incidence alone 0.0012
+    (z 2.5), nameable on its own by nothing."""
+    walk = cand('range_walk', {'k_m': 0.0099, 'power': 'model'}, 0.0125, 4.3, -2.032, 2)
+    inc = cand('incidence_angle', INCIDENCE, 0.0012, 2.5, -2.021, 1)
+    return walk, inc
+
+
+INCIDENCE_OWN = {**NONE_OWN, pi.INCIDENCE: pi.OwnPart(0.0200, 6.0, -0.01, N, 0.2)}
+
+
+def test_incidence_passing_on_top_of_a_named_walk_refitted_with_it_is_also():
+    """The symmetric case: the walk named, incidence weak alone (the pair's net is what
+    each sees); together 0.04 nats/point, so each passes on top of the other refitted
+    with it, and incidence (its own part shown) is 'also' (before: the walk alone)."""
+    walk, inc = cancelling_case()
+    d = Jointly(joint_nll(0.0400), INCIDENCE_OWN).decide(dg.rank([walk, inc]))
+    assert d.missing == 'range_walk' and d.also == 'incidence_angle'
+    assert d.pair_z['incidence_angle']['jointly']['outcome'] == 'both'
+
+
+def test_incidence_beside_a_named_walk_still_needs_its_own_part():
+    """The same joint gain, but incidence shows no part beyond a smooth function of ln P
+    (a walk read on clipped counts leaves such a part): not 'also' (``also_beside_walk``)."""
+    walk, inc = cancelling_case()
+    d = Jointly(joint_nll(0.0400)).decide(dg.rank([walk, inc]))
+    assert d.missing == 'range_walk' and d.also is None
+    assert d.pair_z['incidence_angle']['jointly']['outcome'] == 'both'
+
+
+def test_a_named_walk_stands_where_incidence_gains_too_little_on_top():
+    """walkpair51 seed 1: together 0.0034 nats/point over the walk alone, below the rule:
+    the walk alone, the figures recorded."""
+    walk, inc = cancelling_case()
+    d = Jointly(joint_nll(0.0159), INCIDENCE_OWN).decide(dg.rank([walk, inc]))
+    assert d.missing == 'range_walk' and d.also is None and d.confounded_with == []
+    assert d.pair_z['incidence_angle']['jointly']['outcome'] == 'named_alone'
 
 
 def test_joint_outcome():

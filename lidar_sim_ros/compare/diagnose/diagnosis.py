@@ -758,11 +758,11 @@ class Diagnosis(PoseWeighing):
                     continue
                 tied.append(c.name)
         if not tied and also is None:
-            joint = self.walk_beside_incidence(best, ok, pair_z)
+            joint, other = self.walk_beside_incidence(best, cands, pair_z)
             if joint == power_incidence.BOTH:
-                also = power_incidence.WALK
+                also = other
             elif joint == power_incidence.TIE:
-                tied = [power_incidence.WALK]
+                tied = [other]
         if tied:
             lead, tied = self.tie_beside_set_aside(best, tied, cands, pair_z)
             if lead is not best:
@@ -949,37 +949,48 @@ class Diagnosis(PoseWeighing):
         figures['outcome'] = 'tie'
         return Decision(None, [best.name, other.name], None, pair_z)
 
-    def walk_beside_incidence(self, best: Candidate, ok: list[Candidate],
-                              pair_z: dict) -> str | None:
-        """A named incidence bias beside a range walk that is neither tied with it nor
-        'also', each weighed on top of the other with both refitted together
-        (``jointly``): on a flat face the power falls with cos(theta), so incidence alone
-        takes most of a walk's part, and the walk on top of incidence fitted alone gains
-        little (walk 0.02 + 0.035 tan(theta) on a box bus: incidence alone bias_gain 3.2,
-        together 2.2 with k 0.020). Returns power_incidence.BOTH where each passes the
-        rule on top of the other (the walk is 'also'), TIE where the walk does and
-        incidence does not, or neither does (the data cannot tell which), None otherwise
-        (incidence alone stands: the walk does not pass on top of it). The figures go to
-        ``pair_z[range_walk]['jointly']``."""
-        if best.name != power_incidence.INCIDENCE or best.effect is None:
-            return None
-        walk = next((c for c in ok if c.name == power_incidence.WALK
-                     and c.effect is not None and c.variant is not None), None)
-        if walk is None or best.variant is None:
-            return None
+    def walk_beside_incidence(self, best: Candidate, cands: list[Candidate],
+                              pair_z: dict) -> tuple[str | None, str | None]:
+        """A named incidence bias beside a range walk, or a named walk beside an incidence
+        bias, that is neither tied with it nor 'also', each weighed on top of the other
+        with both refitted together (``jointly``). On a flat face the power falls with
+        cos(theta), so the one fitted alone takes most of the other's part: incidence
+        alone takes a walk's (walk 0.02 + 0.035 tan(theta) on a box bus: incidence alone
+        bias_gain 3.2, together 2.2 with k 0.020), and where the two have opposite signs
+        (the walk short at normal incidence, the bias short at grazing) each alone takes
+        their net (walk 0.02 beside -0.0117 tan(theta): the walk alone k 0.0099).
+        The other one is any scored candidate not vetoed (alone it may pass nothing: the
+        net is what it sees), but a tie only one that may be named alone. Returns (power_incidence.BOTH, other) where each passes the
+        rule on top of the other (the other is 'also'), (TIE, other) where the other does
+        and the named one does not, or neither does, (None, other) where only the named
+        one does (it stands alone), (None, None) where not weighed. The figures go to
+        ``pair_z[other]['jointly']``."""
+        partner = dict(zip(power_incidence.PAIR, reversed(power_incidence.PAIR)))
+        name = partner.get(best.name)
+        if name is None or best.effect is None or best.variant is None:
+            return None, None
+        other = next((c for c in cands if c.name == name and c.error is None
+                      and c.vetoed is None and c.effect is not None
+                      and c.variant is not None), None)
+        if other is None:
+            return None, None
         try:
-            joint = self.jointly(best, walk)
+            joint = self.jointly(best, other)
         except Exception:  # noqa: BLE001 - not measured: the decision stands
-            return None
-        walk_on_top = self.gain_z(best.heldout_nll - joint)
-        named_on_top = self.gain_z(walk.heldout_nll - joint)
-        outcome = power_incidence.joint_outcome(self.passes_rule(*walk_on_top),
+            return None, None
+        other_on_top = self.gain_z(best.heldout_nll - joint)
+        named_on_top = self.gain_z(other.heldout_nll - joint)
+        outcome = power_incidence.joint_outcome(self.passes_rule(*other_on_top),
                                                 self.passes_rule(*named_on_top))
-        pair_z[walk.name] = {**pair_z.get(walk.name, {}), 'jointly': {
-            'walk_on_top_of_named': [_num(v) for v in walk_on_top],
-            'named_on_top_of_walk': [_num(v) for v in named_on_top],
-            'outcome': outcome or 'named_alone'}}
-        return outcome
+        label = outcome or 'named_alone'
+        if outcome == power_incidence.TIE and not self.nameable(other):
+            # A tie is with one that may be named alone (battery short_incidence).
+            outcome, label = None, 'tie_with_unnameable'
+        pair_z[other.name] = {**pair_z.get(other.name, {}), 'jointly': {
+            'other_on_top_of_named': [_num(v) for v in other_on_top],
+            'named_on_top_of_other': [_num(v) for v in named_on_top],
+            'outcome': label}}
+        return outcome, other.name
 
     def jointly(self, a: Candidate, b: Candidate) -> np.ndarray:
         """Held-out NLL per matched point (``cross_fit`` order) of ``a`` and ``b`` fitted

@@ -40,8 +40,9 @@ from lidar_sim_ros.compare.diagnose.features import block_mean_se
 
 WALK, INCIDENCE, SCALE = 'range_walk', 'incidence_angle', 'range_scale'
 PAIR = (WALK, INCIDENCE)
-# A named incidence bias and a walk weighed each on top of the other, both refitted
-# together (``Diagnosis.walk_beside_incidence``): both named, or their tie.
+# A named incidence bias and a walk (or a named walk and an incidence bias) weighed each
+# on top of the other, both refitted together (``Diagnosis.walk_beside_incidence``): both
+# named, or their tie.
 BOTH, TIE = 'both', 'tie'
 DEGREE = 3                  # the smooth function a driver's part is taken beyond
 MIN_GROUP_POINTS = 20       # a material with fewer keeps its driver about its mean
@@ -245,11 +246,12 @@ def tie_words(figures: dict[str, dict], rule: str = 'the rule') -> str:
             'would separate them)')
 
 
-def joint_outcome(walk_passes: bool, incidence_passes: bool) -> str | None:
-    """A named incidence bias beside a walk, each weighed on top of the other refitted
-    with it: BOTH where each passes the rule; TIE where neither does, or only the walk
-    (the named one then has no part of its own: which drives the bias cannot be told);
-    None where only incidence passes (it stands alone)."""
-    if walk_passes:
-        return BOTH if incidence_passes else TIE
-    return None if incidence_passes else TIE
+def joint_outcome(other_passes: bool, named_passes: bool) -> str | None:
+    """A named incidence bias beside a walk (or a named walk beside an incidence bias),
+    each weighed on top of the other refitted with it: BOTH where each passes the rule;
+    TIE where neither does, or only the other (the named one then has no part of its
+    own: which drives the bias cannot be told); None where only the named one passes
+    (it stands alone)."""
+    if other_passes:
+        return BOTH if named_passes else TIE
+    return None if named_passes else TIE
