@@ -367,6 +367,7 @@ class Diagnosis(PoseWeighing):
     def share_veto(self, cand: Candidate, attribution: Attribution | None) -> None:
         """A bias/noise candidate must explain MIN_SHARE of the feature structure; a noise
         effect driven by the power, the driver's part too (``driver_veto``)."""
+        self._attribution = attribution    # the structure a pair is measured against
         if cand.vetoed is None:
             cand.vetoed = self.driver_veto(cand, attribution)
         if (attribution is None or not attribution.significant or cand.effect is None
@@ -703,7 +704,8 @@ class Diagnosis(PoseWeighing):
                 c.vetoed = self.standoff_part_veto(c, cands)
         ok = [c for c in rank(cands) if self.nameable(c)]
         if not ok:
-            return Decision(None, [])
+            # A walk and an incidence bias that partly cancel: each alone fits their net.
+            return self.pair_beside_nothing(cands)
         best = ok[0]
         tied, pair_z, also = [], {}, None
         simpler = self.simpler_instead(best, ok[1:], pair_z)
@@ -975,11 +977,9 @@ class Diagnosis(PoseWeighing):
         if other is None:
             return None, None
         try:
-            joint = self.jointly(best, other)
+            _, other_on_top, named_on_top = self.each_on_top(best, other)
         except Exception:  # noqa: BLE001 - not measured: the decision stands
             return None, None
-        other_on_top = self.gain_z(best.heldout_nll - joint)
-        named_on_top = self.gain_z(other.heldout_nll - joint)
         outcome = power_incidence.joint_outcome(self.passes_rule(*other_on_top),
                                                 self.passes_rule(*named_on_top))
         label = outcome or 'named_alone'
@@ -991,6 +991,87 @@ class Diagnosis(PoseWeighing):
             'named_on_top_of_other': [_num(v) for v in named_on_top],
             'outcome': label}}
         return outcome, other.name
+
+    def each_on_top(self, named: Candidate, other: Candidate
+                    ) -> tuple[np.ndarray, tuple[float, float], tuple[float, float]]:
+        """``named`` and ``other`` refitted together on each training fold (``jointly``):
+        their held-out NLL per matched point, ``other``'s gain and z on top of ``named``
+        alone and ``named``'s on top of ``other`` alone (``gain_z``). The one weighing of a
+        walk beside an incidence bias, whichever is named (``walk_beside_incidence``) or
+        neither (``pair_beside_nothing``)."""
+        memo = self.memo('each_on_top')
+        key = (named.name, other.name)
+        if key not in memo:
+            joint = self.jointly(named, other)
+            memo[key] = (joint, self.gain_z(named.heldout_nll - joint),
+                         self.gain_z(other.heldout_nll - joint))
+        return memo[key]
+
+    def pair_beside_nothing(self, cands: list[Candidate]) -> Decision:
+        """Where no candidate may be named alone: a range walk and an incidence bias of
+        opposite signs partly cancel (the walk short at normal incidence, the bias short
+        at grazing), so each alone fits only their net and passes nothing, and the verdict
+        would leave the structure outside the catalogue (an independent lab's box-wing at
+        6.5 m: "a range error of the sensor outside the catalogue that follows range";
+        both fitted together recover them). The two (scored, not vetoed) are weighed
+        refitted together on each training fold (``each_on_top``): the pair over the
+        model without either must pass the rule, give a fitted NLL (both refitted on all
+        the diagnosed points, as --fit leaves them) below the one without them, and,
+        where the features show a structure, explain at least PAIR_SHARE of it
+        (``power_incidence``);
+        then each passing on top of the other names both (the one gaining more alone
+        named, the other 'also'), else their tie (``power_incidence.pair_outcome``).
+        Otherwise nothing is named, as before. Figures in
+        ``pair_z[other]['jointly']``; each named one carries them (``Candidate.jointly``,
+        with 'passes': the names ``settle`` lets stand)."""
+        pair_z: dict = {}
+        two = [next((c for c in rank(cands) if c.name == n and c.error is None
+                     and c.vetoed is None and c.effect is not None and c.variant is not None
+                     and c.heldout_nll is not None), None) for n in power_incidence.PAIR]
+        if None in two:
+            return Decision(None, [])
+        named, other = rank(two)
+        try:
+            joint, other_on_top, named_on_top = self.each_on_top(named, other)
+            pair = self.gain_z(self.base_heldout() - joint)
+            after = self._together_nll([named.effect, other.effect])
+        except Exception:  # noqa: BLE001 - not measured: nothing named, as before
+            return Decision(None, [])
+        structure = self.pair_structure()
+        share = (float(pair[0] * self.n_total / max(len(self.rays.matched), 1) / structure)
+                 if structure else None)
+        pair_passes = bool(self.passes_rule(*pair) and np.isfinite(after)
+                           and after < self.before_nll
+                           and (share is None or share >= power_incidence.PAIR_SHARE))
+        outcome = power_incidence.pair_outcome(pair_passes, self.passes_rule(*other_on_top),
+                                               self.passes_rule(*named_on_top))
+        label = {power_incidence.BOTH: 'pair_both', power_incidence.TIE: 'pair_tie'}.get(
+            outcome, 'pair_not_shown')
+        figures = {'other_on_top_of_named': [_num(v) for v in other_on_top],
+                   'named_on_top_of_other': [_num(v) for v in named_on_top],
+                   'pair_over_none': [_num(v) for v in pair],
+                   'pair_nll_after': _num(after), 'before_nll': _num(self.before_nll),
+                   'structure_share': _num(share), 'named': named.name, 'outcome': label}
+        pair_z[other.name] = {'jointly': figures}
+        if outcome is None:
+            return Decision(None, [], None, pair_z)
+        for c, on_top in ((named, named_on_top), (other, other_on_top)):
+            c.jointly = {'with': (other if c is named else named).name,
+                         'on_top': [_num(v) for v in on_top],
+                         'pair_over_none': [_num(v) for v in pair],
+                         'pair_nll_after': _num(after), 'passes': True}
+        if outcome == power_incidence.BOTH:
+            return Decision(named.name, [], other.name, pair_z)
+        return Decision(None, [named.name, other.name], None, pair_z)
+
+    def pair_structure(self) -> float | None:
+        """The features' structure (nats per matched point) where the attribution shows
+        one (``share_veto`` keeps it), else None."""
+        att = getattr(self, '_attribution', None)
+        if att is None or not getattr(att, 'significant', False):
+            return None
+        gain = float(getattr(att, 'structure_gain', 0.0) or 0.0)
+        return gain if gain > 0 else None
 
     def jointly(self, a: Candidate, b: Candidate) -> np.ndarray:
         """Held-out NLL per matched point (``cross_fit`` order) of ``a`` and ``b`` fitted
@@ -1943,7 +2024,7 @@ def settle(decision: Decision, cands: list[Candidate],
         c = by_name.get(decision.evidence if name == decision.missing and decision.evidence
                         else name)
         why = ('not among the candidates' if c is None else
-               None if passed_on_top_of(c, beside_named) else fault(c))
+               None if passed_on_top_of(c, beside_named) or passed_jointly(c) else fault(c))
         if why is not None:
             withheld[name] = why
         return why
@@ -1970,6 +2051,12 @@ def passed_on_top_of(cand: Candidate, named: str | None) -> bool:
     on_top = (cand.against_pose or {}).get('beside') or {}
     return bool(named is not None and on_top.get('on_top_of') == named
                 and on_top.get('gain') is not None)
+
+
+def passed_jointly(cand: Candidate) -> bool:
+    """Whether ``cand`` passed the rule as one of a walk and an incidence bias refitted
+    together where neither may be named alone (``Diagnosis.pair_beside_nothing``)."""
+    return bool((cand.jointly or {}).get('passes'))
 
 
 def rank(candidates: list[Candidate]) -> list[Candidate]:

@@ -44,6 +44,11 @@ PAIR = (WALK, INCIDENCE)
 # on top of the other, both refitted together (``Diagnosis.walk_beside_incidence``): both
 # named, or their tie.
 BOTH, TIE = 'both', 'tie'
+# Least share of the features' structure a walk and an incidence bias weighed together,
+# where neither may be named alone, explain to be named (``Diagnosis.pair_beside_nothing``):
+# most of it, as a range term weighed where the structure is left outside the catalogue
+# (``range_outside.NAME_SHARE``); two forms fit part of any smooth pattern. Set before any run.
+PAIR_SHARE = 0.5
 DEGREE = 3                  # the smooth function a driver's part is taken beyond
 MIN_GROUP_POINTS = 20       # a material with fewer keeps its driver about its mean
 CORE_SIGMAS = 6.0           # points farther from their material's median are left out
@@ -255,3 +260,14 @@ def joint_outcome(other_passes: bool, named_passes: bool) -> str | None:
     if other_passes:
         return BOTH if named_passes else TIE
     return None if named_passes else TIE
+
+
+def pair_outcome(pair_passes: bool, walk_passes: bool, incidence_passes: bool) -> str | None:
+    """A walk and an incidence bias neither of which may be named alone (each alone sees
+    only their net where they partly cancel), fitted together on each training fold:
+    BOTH where the pair passes the rule over the model without either and each passes
+    on top of the other; TIE where the pair passes and the data do not split it; None
+    where the pair does not pass (what is left stays outside the catalogue)."""
+    if not pair_passes:
+        return None
+    return BOTH if walk_passes and incidence_passes else TIE
