@@ -527,6 +527,12 @@ def test_a_pair_neither_named_alone_is_named_where_each_passes_on_top_of_the_oth
     fig = d.pair_z['incidence_angle']['jointly']
     assert fig['outcome'] == 'pair_both' and fig['named'] == 'range_walk'
     assert fig['pair_over_none'][0] > 0.03 and walk.jointly['passes']
+    from lidar_sim_ros.compare.report import verdict as vd
+    text = vd.verdict({'materials': {}, 'unmatched': {'points': 0}, 'against_named': d.pair_z,
+                       'nll_calibrated': BEFORE_NLL, 'range_rmse_calibrated_m': 0.0414},
+                      None, [walk, inc], d)
+    assert 'refitted together on each training fold the pair gains 0.03' in text
+    assert '--effect range_walk --effect incidence_angle --fit' in text
 
 
 def test_a_pair_the_data_do_not_split_is_a_tie():
@@ -539,6 +545,11 @@ def test_a_pair_the_data_do_not_split_is_a_tie():
     assert d.missing is None
     assert sorted(d.confounded_with) == ['incidence_angle', 'range_walk']
     assert d.pair_z['incidence_angle']['jointly']['outcome'] == 'pair_tie'
+    from lidar_sim_ros.compare.report import verdict as vd
+    text = vd.verdict({'materials': {}, 'unmatched': {'points': 0}, 'against_named': d.pair_z,
+                       'nll_calibrated': BEFORE_NLL, 'range_rmse_calibrated_m': 0.0414},
+                      None, [walk, inc], d)
+    assert 'do not split it' in text
 
 
 def test_a_pair_that_does_not_pass_leaves_nothing_named():

@@ -271,3 +271,35 @@ def pair_outcome(pair_passes: bool, walk_passes: bool, incidence_passes: bool) -
     if not pair_passes:
         return None
     return BOTH if walk_passes and incidence_passes else TIE
+
+
+def pair_figures(pair_z: dict) -> dict | None:
+    """The figures of a walk and an incidence bias weighed as a pair where neither was
+    named alone (``Diagnosis.pair_beside_nothing``), if they were named (both or tied)."""
+    for w in pair_z.values():
+        f = w.get('jointly') if isinstance(w, dict) else None
+        if f and f.get('outcome') in ('pair_both', 'pair_tie'):
+            return f
+    return None
+
+
+def pair_words(pair_z: dict) -> str:
+    """The verdict's sentence on a walk and an incidence bias named as a pair (or '')."""
+    f = pair_figures(pair_z)
+    if f is None:
+        return ''
+    named = f['named']
+    other = INCIDENCE if named == WALK else WALK
+    (g, z), (go, zo), (gn, zn) = (f['pair_over_none'], f['other_on_top_of_named'],
+                                  f['named_on_top_of_other'])
+    head = (f'Alone, {named} and {other} each fit only their net (of opposite signs they '
+            f'partly cancel) and neither passes the rule; refitted together on each training '
+            f'fold the pair gains {g:.4f} nats/point held out over neither (z = {z:.1f}; '
+            f'fitted on all the points, NLL {f["before_nll"]:.4f} -> '
+            f'{f["pair_nll_after"]:.4f}), {other} {go:.4f} (z = {zo:.1f}) on top of {named} '
+            f'alone and {named} {gn:.4f} (z = {zn:.1f}) on top of {other} alone')
+    if f['outcome'] == 'pair_both':
+        return (head + f': both are there. Fit them together: --effect {named} --effect '
+                f'{other} --fit (each alone would be fitted at their net).')
+    return (head + ': the pair explains the residual, but these data do not split it '
+            'between the two (a spread of received power at one incidence would).')
