@@ -585,3 +585,36 @@ def test_pair_outcome():
     assert pi.pair_outcome(True, True, False) == pi.TIE
     assert pi.pair_outcome(True, False, False) == pi.TIE
     assert pi.pair_outcome(False, True, True) is None
+
+
+class PairWithRival(Pair):
+    """Pair, with a range term among the rivals (``weigh_rivals``) gaining ``rival_gain``."""
+
+    def __init__(self, joint, rival_gain):
+        super().__init__(joint)
+        self.rival = cand('range_scale', {'scale': 0.002}, rival_gain, 4.9, -2.030, 3)
+
+    def scored_with_vetoes(self, classes, attribution=None):
+        return [self.rival]
+
+
+def test_a_pair_not_told_from_a_range_term_names_nothing():
+    """The box-wing seed 1: the pair 0.0078 nats/point over none, range_scale 0.0054 alone
+    (z 4.9): the pair not decisively beyond it, so neither the pair nor (as before the
+    pair, the structure left outside the catalogue) the range term is named; a range
+    term far below the pair leaves the pair named."""
+    walk, inc = cancelling_alone()
+    diag = PairWithRival(joint_nll(0.0310), rival_gain=0.0290)
+    d = diag.decide(dg.rank([walk, inc]))
+    assert d.missing == 'range_walk'
+    d, _ = diag.weigh_rivals(d, [walk, inc], [type(diag.rival.effect)])
+    d = dg.settle(d, [walk, inc, diag.rival], diag.naming_fault)
+    assert d.missing is None and d.also is None and d.confounded_with == []
+    fig = d.pair_z['incidence_angle']['jointly']
+    assert fig['outcome'] == 'pair_not_beyond_rival' and 'range_scale' in fig['against_rivals']
+    assert diag.decide(dg.rank([walk, inc])).missing is None     # set aside for good
+    walk, inc = cancelling_alone()
+    diag = PairWithRival(joint_nll(0.0310), rival_gain=0.0050)
+    d, _ = diag.weigh_rivals(diag.decide(dg.rank([walk, inc])), [walk, inc],
+                             [type(diag.rival.effect)])
+    assert d.missing == 'range_walk' and d.also == 'incidence_angle'
