@@ -1014,7 +1014,9 @@ class Diagnosis(PoseWeighing):
         would leave the structure outside the catalogue (an independent lab's box-wing at
         6.5 m: "a range error of the sensor outside the catalogue that follows range";
         both fitted together recover them). The two (scored, not vetoed) are weighed
-        refitted together on each training fold (``each_on_top``): the pair over the
+        refitted together on each training fold (``each_on_top``; one set aside only for
+        explaining too little of the features' structure alone, ``share_veto``, is weighed
+        too: alone it sees the net; the pair's own share is asked): the pair over the
         model without either must pass the rule, give a fitted NLL (both refitted on all
         the diagnosed points, as --fit leaves them) below the one without them, and,
         where the features show a structure, explain at least PAIR_SHARE of it
@@ -1028,8 +1030,9 @@ class Diagnosis(PoseWeighing):
         if self.memo('pair').get('set_aside'):
             return Decision(None, [])     # not told from a range term (``pair_against_rivals``)
         two = [next((c for c in rank(cands) if c.name == n and c.error is None
-                     and c.vetoed is None and c.effect is not None and c.variant is not None
-                     and c.heldout_nll is not None), None) for n in power_incidence.PAIR]
+                     and (c.vetoed is None or share_vetoed(c)) and c.effect is not None
+                     and c.variant is not None and c.heldout_nll is not None), None)
+               for n in power_incidence.PAIR]
         if None in two:
             return Decision(None, [])
         named, other = rank(two)
@@ -2095,6 +2098,12 @@ def passed_on_top_of(cand: Candidate, named: str | None) -> bool:
     on_top = (cand.against_pose or {}).get('beside') or {}
     return bool(named is not None and on_top.get('on_top_of') == named
                 and on_top.get('gain') is not None)
+
+
+def share_vetoed(cand: Candidate) -> bool:
+    """Whether ``cand`` was set aside only by the share veto (``share_veto`` measures the
+    share only of a candidate no earlier veto set aside)."""
+    return bool(cand.vetoed and cand.share is not None and cand.share < MIN_SHARE)
 
 
 def passed_jointly(cand: Candidate) -> bool:
