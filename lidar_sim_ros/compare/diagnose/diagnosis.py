@@ -962,11 +962,13 @@ class Diagnosis(PoseWeighing):
         (the walk short at normal incidence, the bias short at grazing) each alone takes
         their net (walk 0.02 beside -0.0117 tan(theta): the walk alone k 0.0099).
         The other one is any scored candidate not vetoed (alone it may pass nothing: the
-        net is what it sees), but a tie only one that may be named alone. Returns (power_incidence.BOTH, other) where each passes the
-        rule on top of the other (the other is 'also'), (TIE, other) where the other does
-        and the named one does not, or neither does, (None, other) where only the named
-        one does (it stands alone), (None, None) where not weighed. The figures go to
-        ``pair_z[other]['jointly']``."""
+        net is what it sees), but a tie only one that may be named alone. Returns
+        (power_incidence.BOTH, other) where each passes the rule on top of the other
+        (the other is 'also'), (TIE, other) where the other does and the named one does
+        not, or neither does, (None, other) where only the named one does (it stands
+        alone), (None, None) where not weighed. The figures go to
+        ``pair_z[other]['jointly']``. Where neither is named: ``pair_beside_nothing``;
+        both weigh with ``each_on_top``."""
         partner = dict(zip(power_incidence.PAIR, reversed(power_incidence.PAIR)))
         name = partner.get(best.name)
         if name is None or best.effect is None or best.variant is None:
