@@ -89,6 +89,10 @@ class Candidate:
     beside: str | None = None          # passed the tile test on top of this one (``lasers_beside``)
     beside_gain: dict | None = None    # its gain on top of the named and 'also' (``lasers_beside_named``)
     together: dict | None = None       # refitted with the 'also' effect (``fit_together``)
+    # A walk or incidence bias weighed with the other refitted together on each fold where
+    # neither alone may be named (``Diagnosis.walk_beside_incidence``): its figures and
+    # whether, as one of the pair, it passes the rule ('passes').
+    jointly: dict | None = None
     far_points: float = 0.0            # outlier effects: far or unmatched points it explains
     effect: Effect | None = None
     variant: type | None = None
@@ -138,6 +142,7 @@ class Candidate:
                 **({'own_offsets': self.own_part} if self.own_part else {}),
                 **({'per_material_part': self.standoff_part} if self.standoff_part else {}),
                 **({'fitted_together': self.together} if self.together else {}),
+                **({'jointly': self.jointly} if self.jointly else {}),
                 **({'against_pose': self.against_pose} if self.against_pose else {}),
                 **({'pose_beside': self.pose_beside} if self.pose_beside else {}),
                 **({'pose_on_top': self.pose_on_top} if self.pose_on_top else {}),

@@ -367,6 +367,7 @@ class Diagnosis(PoseWeighing):
     def share_veto(self, cand: Candidate, attribution: Attribution | None) -> None:
         """A bias/noise candidate must explain MIN_SHARE of the feature structure; a noise
         effect driven by the power, the driver's part too (``driver_veto``)."""
+        self._attribution = attribution    # the structure a pair is measured against
         if cand.vetoed is None:
             cand.vetoed = self.driver_veto(cand, attribution)
         if (attribution is None or not attribution.significant or cand.effect is None
@@ -703,7 +704,8 @@ class Diagnosis(PoseWeighing):
                 c.vetoed = self.standoff_part_veto(c, cands)
         ok = [c for c in rank(cands) if self.nameable(c)]
         if not ok:
-            return Decision(None, [])
+            # A walk and an incidence bias that partly cancel: each alone fits their net.
+            return self.pair_beside_nothing(cands)
         best = ok[0]
         tied, pair_z, also = [], {}, None
         simpler = self.simpler_instead(best, ok[1:], pair_z)
@@ -758,11 +760,11 @@ class Diagnosis(PoseWeighing):
                     continue
                 tied.append(c.name)
         if not tied and also is None:
-            joint = self.walk_beside_incidence(best, ok, pair_z)
+            joint, other = self.walk_beside_incidence(best, cands, pair_z)
             if joint == power_incidence.BOTH:
-                also = power_incidence.WALK
+                also = other
             elif joint == power_incidence.TIE:
-                tied = [power_incidence.WALK]
+                tied = [other]
         if tied:
             lead, tied = self.tie_beside_set_aside(best, tied, cands, pair_z)
             if lead is not best:
@@ -949,37 +951,134 @@ class Diagnosis(PoseWeighing):
         figures['outcome'] = 'tie'
         return Decision(None, [best.name, other.name], None, pair_z)
 
-    def walk_beside_incidence(self, best: Candidate, ok: list[Candidate],
-                              pair_z: dict) -> str | None:
-        """A named incidence bias beside a range walk that is neither tied with it nor
-        'also', each weighed on top of the other with both refitted together
-        (``jointly``): on a flat face the power falls with cos(theta), so incidence alone
-        takes most of a walk's part, and the walk on top of incidence fitted alone gains
-        little (walk 0.02 + 0.035 tan(theta) on a box bus: incidence alone bias_gain 3.2,
-        together 2.2 with k 0.020). Returns power_incidence.BOTH where each passes the
-        rule on top of the other (the walk is 'also'), TIE where the walk does and
-        incidence does not, or neither does (the data cannot tell which), None otherwise
-        (incidence alone stands: the walk does not pass on top of it). The figures go to
-        ``pair_z[range_walk]['jointly']``."""
-        if best.name != power_incidence.INCIDENCE or best.effect is None:
-            return None
-        walk = next((c for c in ok if c.name == power_incidence.WALK
-                     and c.effect is not None and c.variant is not None), None)
-        if walk is None or best.variant is None:
-            return None
+    def walk_beside_incidence(self, best: Candidate, cands: list[Candidate],
+                              pair_z: dict) -> tuple[str | None, str | None]:
+        """A named incidence bias beside a range walk, or a named walk beside an incidence
+        bias, that is neither tied with it nor 'also', each weighed on top of the other
+        with both refitted together (``jointly``). On a flat face the power falls with
+        cos(theta), so the one fitted alone takes most of the other's part: incidence
+        alone takes a walk's (walk 0.02 + 0.035 tan(theta) on a box bus: incidence alone
+        bias_gain 3.2, together 2.2 with k 0.020), and where the two have opposite signs
+        (the walk short at normal incidence, the bias short at grazing) each alone takes
+        their net (walk 0.02 beside -0.0117 tan(theta): the walk alone k 0.0099).
+        The other one is any scored candidate not vetoed (alone it may pass nothing: the
+        net is what it sees), but a tie only one that may be named alone. Returns
+        (power_incidence.BOTH, other) where each passes the rule on top of the other
+        (the other is 'also'), (TIE, other) where the other does and the named one does
+        not, or neither does, (None, other) where only the named one does (it stands
+        alone), (None, None) where not weighed. The figures go to
+        ``pair_z[other]['jointly']``. Where neither is named: ``pair_beside_nothing``;
+        both weigh with ``each_on_top``."""
+        partner = dict(zip(power_incidence.PAIR, reversed(power_incidence.PAIR)))
+        name = partner.get(best.name)
+        if name is None or best.effect is None or best.variant is None:
+            return None, None
+        other = next((c for c in cands if c.name == name and c.error is None
+                      and c.vetoed is None and c.effect is not None
+                      and c.variant is not None), None)
+        if other is None:
+            return None, None
         try:
-            joint = self.jointly(best, walk)
+            _, other_on_top, named_on_top = self.each_on_top(best, other)
         except Exception:  # noqa: BLE001 - not measured: the decision stands
-            return None
-        walk_on_top = self.gain_z(best.heldout_nll - joint)
-        named_on_top = self.gain_z(walk.heldout_nll - joint)
-        outcome = power_incidence.joint_outcome(self.passes_rule(*walk_on_top),
+            return None, None
+        outcome = power_incidence.joint_outcome(self.passes_rule(*other_on_top),
                                                 self.passes_rule(*named_on_top))
-        pair_z[walk.name] = {**pair_z.get(walk.name, {}), 'jointly': {
-            'walk_on_top_of_named': [_num(v) for v in walk_on_top],
-            'named_on_top_of_walk': [_num(v) for v in named_on_top],
-            'outcome': outcome or 'named_alone'}}
-        return outcome
+        label = outcome or 'named_alone'
+        if outcome == power_incidence.TIE and not self.nameable(other):
+            # A tie is with one that may be named alone (battery short_incidence).
+            outcome, label = None, 'tie_with_unnameable'
+        pair_z[other.name] = {**pair_z.get(other.name, {}), 'jointly': {
+            'other_on_top_of_named': [_num(v) for v in other_on_top],
+            'named_on_top_of_other': [_num(v) for v in named_on_top],
+            'outcome': label}}
+        return outcome, other.name
+
+    def each_on_top(self, named: Candidate, other: Candidate
+                    ) -> tuple[np.ndarray, tuple[float, float], tuple[float, float]]:
+        """``named`` and ``other`` refitted together on each training fold (``jointly``):
+        their held-out NLL per matched point, ``other``'s gain and z on top of ``named``
+        alone and ``named``'s on top of ``other`` alone (``gain_z``). The one weighing of a
+        walk beside an incidence bias, whichever is named (``walk_beside_incidence``) or
+        neither (``pair_beside_nothing``)."""
+        memo = self.memo('each_on_top')
+        key = (named.name, other.name)
+        if key not in memo:
+            joint = self.jointly(named, other)
+            memo[key] = (joint, self.gain_z(named.heldout_nll - joint),
+                         self.gain_z(other.heldout_nll - joint))
+        return memo[key]
+
+    def pair_beside_nothing(self, cands: list[Candidate]) -> Decision:
+        """Where no candidate may be named alone: a range walk and an incidence bias of
+        opposite signs partly cancel (the walk short at normal incidence, the bias short
+        at grazing), so each alone fits only their net and passes nothing, and the verdict
+        would leave the structure outside the catalogue (an independent lab's box-wing at
+        6.5 m: "a range error of the sensor outside the catalogue that follows range";
+        both fitted together recover them). The two (scored, not vetoed) are weighed
+        refitted together on each training fold (``each_on_top``; one set aside only for
+        explaining too little of the features' structure alone, ``share_veto``, is weighed
+        too: alone it sees the net; the pair's own share is asked): the pair over the
+        model without either must pass the rule, give a fitted NLL (both refitted on all
+        the diagnosed points, as --fit leaves them) below the one without them, and,
+        where the features show a structure, explain at least PAIR_SHARE of it
+        (``power_incidence``);
+        then each passing on top of the other names both (the one gaining more alone
+        named, the other 'also'), else their tie (``power_incidence.pair_outcome``).
+        Otherwise nothing is named, as before. Figures in
+        ``pair_z[other]['jointly']``; each named one carries them (``Candidate.jointly``,
+        with 'passes': the names ``settle`` lets stand)."""
+        pair_z: dict = {}
+        if self.memo('pair').get('set_aside'):
+            return Decision(None, [])     # not told from a range term (``pair_against_rivals``)
+        two = [next((c for c in rank(cands) if c.name == n and c.error is None
+                     and (c.vetoed is None or share_vetoed(c)) and c.effect is not None
+                     and c.variant is not None and c.heldout_nll is not None), None)
+               for n in power_incidence.PAIR]
+        if None in two:
+            return Decision(None, [])
+        named, other = rank(two)
+        try:
+            joint, other_on_top, named_on_top = self.each_on_top(named, other)
+            pair = self.gain_z(self.base_heldout() - joint)
+            after = self._together_nll([named.effect, other.effect])
+        except Exception:  # noqa: BLE001 - not measured: nothing named, as before
+            return Decision(None, [])
+        structure = self.pair_structure()
+        share = (float(pair[0] * self.n_total / max(len(self.rays.matched), 1) / structure)
+                 if structure else None)
+        pair_passes = bool(self.passes_rule(*pair) and np.isfinite(after)
+                           and after < self.before_nll
+                           and (share is None or share >= power_incidence.PAIR_SHARE))
+        outcome = power_incidence.pair_outcome(pair_passes, self.passes_rule(*other_on_top),
+                                               self.passes_rule(*named_on_top))
+        label = {power_incidence.BOTH: 'pair_both', power_incidence.TIE: 'pair_tie'}.get(
+            outcome, 'pair_not_shown')
+        figures = {'other_on_top_of_named': [_num(v) for v in other_on_top],
+                   'named_on_top_of_other': [_num(v) for v in named_on_top],
+                   'pair_over_none': [_num(v) for v in pair],
+                   'pair_nll_after': _num(after), 'before_nll': _num(self.before_nll),
+                   'structure_share': _num(share), 'named': named.name, 'outcome': label}
+        pair_z[other.name] = {'jointly': figures}
+        if outcome is None:
+            return Decision(None, [], None, pair_z)
+        for c, on_top in ((named, named_on_top), (other, other_on_top)):
+            c.jointly = {'with': (other if c is named else named).name,
+                         'on_top': [_num(v) for v in on_top],
+                         'pair_over_none': [_num(v) for v in pair],
+                         'pair_nll_after': _num(after), 'passes': True}
+        if outcome == power_incidence.BOTH:
+            return Decision(named.name, [], other.name, pair_z)
+        return Decision(None, [named.name, other.name], None, pair_z)
+
+    def pair_structure(self) -> float | None:
+        """The features' structure (nats per matched point) where the attribution shows
+        one (``share_veto`` keeps it), else None."""
+        att = getattr(self, '_attribution', None)
+        if att is None or not getattr(att, 'significant', False):
+            return None
+        gain = float(getattr(att, 'structure_gain', 0.0) or 0.0)
+        return gain if gain > 0 else None
 
     def jointly(self, a: Candidate, b: Candidate) -> np.ndarray:
         """Held-out NLL per matched point (``cross_fit`` order) of ``a`` and ``b`` fitted
@@ -1656,6 +1755,12 @@ class Diagnosis(PoseWeighing):
         rival names itself only where the residual's structure would be left outside
         the catalogue and a range term explains most of it (``range_outside``). Returns
         the decision and the rivals scored."""
+        if power_incidence.pair_figures(decision.pair_z) is not None and rivals:
+            held, scored = self.pair_against_rivals(decision, cands, rivals, attribution)
+            if held is not None:
+                return held, scored
+            # Not told from a range term: as without the pair (nothing named).
+            decision = Decision(None, [], None, decision.pair_z)
         if range_outside.applies(decision, attribution):
             # Where the structure would be left outside the catalogue, the range terms
             # are weighed too, and named only where they explain most of it.
@@ -1678,6 +1783,42 @@ class Diagnosis(PoseWeighing):
         again = self.decide(rank([*cands, *scored]))
         return replace(decision, missing=again.missing, confounded_with=again.confounded_with,
                        also=again.also, pair_z=again.pair_z), scored
+
+    def pair_against_rivals(self, decision: Decision, cands: list[Candidate],
+                            rivals: list[type[Effect]], attribution: Attribution | None
+                            ) -> tuple[Decision | None, list[Candidate]]:
+        """A walk and an incidence bias named as a pair (``pair_beside_nothing``) against
+        the range terms kept out of the default candidates (``weigh_rivals``): each
+        nameable one scored, the pair refitted together must pass the rule over it (held
+        out, ``gain_z`` of the rival's NLL less the pair's). Where it does over all, the
+        pair stands (None of them named) and the rivals scored are returned; where it does
+        not, the pair is set aside (``pair_set_aside``: the names it carried withheld, a
+        later ``decide`` names nothing by it) and (None, []) is returned: the decision is
+        then weighed as without the pair. Figures in the pair's ``against_rivals``
+        (gain per point, z, per rival). A seed of the box-wing item: the pair 0.0078
+        nats/point, range_scale 0.0054 (z 4.9) alone, which the rivals' ``decide``
+        then named in its place."""
+        f = power_incidence.pair_figures(decision.pair_z)
+        by_name = {c.name: c for c in cands}
+        named = by_name.get(f['named'])
+        other = by_name.get(next(n for n in power_incidence.PAIR if n != f['named']))
+        scored = self.scored_with_vetoes(rivals, attribution)
+        try:
+            joint = self.each_on_top(named, other)[0]
+            over = {r.name: self.gain_z(r.heldout_nll - joint) for r in scored
+                    if self.nameable(r)}
+        except Exception:  # noqa: BLE001 - not shown beyond the rivals
+            over = None
+        f['against_rivals'] = ({n: [_num(v) for v in g] for n, g in over.items()}
+                               if over is not None else None)
+        if over is not None and all(self.passes_rule(*g) for g in over.values()):
+            return decision, scored
+        self.memo('pair')['set_aside'] = True
+        f['outcome'] = 'pair_not_beyond_rival'
+        for c in (named, other):
+            if c is not None and c.jointly:
+                c.jointly['passes'] = False
+        return None, []
 
     def scored_with_vetoes(self, classes: list[type[Effect]],
                            attribution: Attribution | None = None) -> list[Candidate]:
@@ -1932,7 +2073,7 @@ def settle(decision: Decision, cands: list[Candidate],
         c = by_name.get(decision.evidence if name == decision.missing and decision.evidence
                         else name)
         why = ('not among the candidates' if c is None else
-               None if passed_on_top_of(c, beside_named) else fault(c))
+               None if passed_on_top_of(c, beside_named) or passed_jointly(c) else fault(c))
         if why is not None:
             withheld[name] = why
         return why
@@ -1959,6 +2100,18 @@ def passed_on_top_of(cand: Candidate, named: str | None) -> bool:
     on_top = (cand.against_pose or {}).get('beside') or {}
     return bool(named is not None and on_top.get('on_top_of') == named
                 and on_top.get('gain') is not None)
+
+
+def share_vetoed(cand: Candidate) -> bool:
+    """Whether ``cand`` was set aside only by the share veto (``share_veto`` measures the
+    share only of a candidate no earlier veto set aside)."""
+    return bool(cand.vetoed and cand.share is not None and cand.share < MIN_SHARE)
+
+
+def passed_jointly(cand: Candidate) -> bool:
+    """Whether ``cand`` passed the rule as one of a walk and an incidence bias refitted
+    together where neither may be named alone (``Diagnosis.pair_beside_nothing``)."""
+    return bool((cand.jointly or {}).get('passes'))
 
 
 def rank(candidates: list[Candidate]) -> list[Candidate]:

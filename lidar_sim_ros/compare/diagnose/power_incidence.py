@@ -40,9 +40,15 @@ from lidar_sim_ros.compare.diagnose.features import block_mean_se
 
 WALK, INCIDENCE, SCALE = 'range_walk', 'incidence_angle', 'range_scale'
 PAIR = (WALK, INCIDENCE)
-# A named incidence bias and a walk weighed each on top of the other, both refitted
-# together (``Diagnosis.walk_beside_incidence``): both named, or their tie.
+# A named incidence bias and a walk (or a named walk and an incidence bias) weighed each
+# on top of the other, both refitted together (``Diagnosis.walk_beside_incidence``): both
+# named, or their tie.
 BOTH, TIE = 'both', 'tie'
+# Least share of the features' structure a walk and an incidence bias weighed together,
+# where neither may be named alone, explain to be named (``Diagnosis.pair_beside_nothing``):
+# most of it, as a range term weighed where the structure is left outside the catalogue
+# (``range_outside.NAME_SHARE``); two forms fit part of any smooth pattern. Set before any run.
+PAIR_SHARE = 0.5
 DEGREE = 3                  # the smooth function a driver's part is taken beyond
 MIN_GROUP_POINTS = 20       # a material with fewer keeps its driver about its mean
 CORE_SIGMAS = 6.0           # points farther from their material's median are left out
@@ -245,11 +251,55 @@ def tie_words(figures: dict[str, dict], rule: str = 'the rule') -> str:
             'would separate them)')
 
 
-def joint_outcome(walk_passes: bool, incidence_passes: bool) -> str | None:
-    """A named incidence bias beside a walk, each weighed on top of the other refitted
-    with it: BOTH where each passes the rule; TIE where neither does, or only the walk
-    (the named one then has no part of its own: which drives the bias cannot be told);
-    None where only incidence passes (it stands alone)."""
-    if walk_passes:
-        return BOTH if incidence_passes else TIE
-    return None if incidence_passes else TIE
+def joint_outcome(other_passes: bool, named_passes: bool) -> str | None:
+    """A named incidence bias beside a walk (or a named walk beside an incidence bias),
+    each weighed on top of the other refitted with it: BOTH where each passes the rule;
+    TIE where neither does, or only the other (the named one then has no part of its
+    own: which drives the bias cannot be told); None where only the named one passes
+    (it stands alone)."""
+    if other_passes:
+        return BOTH if named_passes else TIE
+    return None if named_passes else TIE
+
+
+def pair_outcome(pair_passes: bool, walk_passes: bool, incidence_passes: bool) -> str | None:
+    """A walk and an incidence bias neither of which may be named alone (each alone sees
+    only their net where they partly cancel), fitted together on each training fold:
+    BOTH where the pair passes the rule over the model without either and each passes
+    on top of the other; TIE where the pair passes and the data do not split it; None
+    where the pair does not pass (what is left stays outside the catalogue)."""
+    if not pair_passes:
+        return None
+    return BOTH if walk_passes and incidence_passes else TIE
+
+
+def pair_figures(pair_z: dict) -> dict | None:
+    """The figures of a walk and an incidence bias weighed as a pair where neither was
+    named alone (``Diagnosis.pair_beside_nothing``), if they were named (both or tied)."""
+    for w in pair_z.values():
+        f = w.get('jointly') if isinstance(w, dict) else None
+        if f and f.get('outcome') in ('pair_both', 'pair_tie'):
+            return f
+    return None
+
+
+def pair_words(pair_z: dict) -> str:
+    """The verdict's sentence on a walk and an incidence bias named as a pair (or '')."""
+    f = pair_figures(pair_z)
+    if f is None:
+        return ''
+    named = f['named']
+    other = INCIDENCE if named == WALK else WALK
+    (g, z), (go, zo), (gn, zn) = (f['pair_over_none'], f['other_on_top_of_named'],
+                                  f['named_on_top_of_other'])
+    head = (f'Alone, {named} and {other} each fit only their net (of opposite signs they '
+            f'partly cancel) and neither passes the rule; refitted together on each training '
+            f'fold the pair gains {g:.4f} nats/point held out over neither (z = {z:.1f}; '
+            f'fitted on all the points, NLL {f["before_nll"]:.4f} -> '
+            f'{f["pair_nll_after"]:.4f}), {other} {go:.4f} (z = {zo:.1f}) on top of {named} '
+            f'alone and {named} {gn:.4f} (z = {zn:.1f}) on top of {other} alone')
+    if f['outcome'] == 'pair_both':
+        return (head + f': both are there. Fit them together: --effect {named} --effect '
+                f'{other} --fit (each alone would be fitted at their net).')
+    return (head + ': the pair explains the residual, but these data do not split it '
+            'between the two (a spread of received power at one incidence would).')

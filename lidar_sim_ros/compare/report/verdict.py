@@ -138,6 +138,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             parts.append(f'{decision.also} also explains a separate part of the residual'
                          f'{_on_top_words(cands, decision.also, missing)}: '
                          f'expect it in the next run.{_together_words(c)}')
+        pair = power_incidence.pair_words(decision.pair_z)
+        if pair:
+            parts.append(pair)
         own = power_incidence.figures_in(decision.pair_z) or {}
         if own.get('also') == 'not_shown':
             parts.append(power_incidence.also_not_shown_words(own, missing))
@@ -178,6 +181,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'{_join(names)} {alike} (held-out '
             f'gains {scores} nats/point): they are confounded in this recording, so none is '
             f'named. {advice} If you know which it is, add it with --effect NAME --fit.')
+        pair = power_incidence.pair_words(decision.pair_z)
+        if pair:
+            parts.append(pair)
         if own.get('outcome') == 'tie':
             # ``Diagnosis.power_or_incidence``: neither has a part of its own.
             words = power_incidence.tie_words(own)
