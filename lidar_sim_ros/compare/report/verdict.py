@@ -1054,7 +1054,9 @@ def _between_words(summary: dict, best) -> str:
     (``mixed_edges.shown``): that sentence, else ''."""
     figures = summary.get('mixed_edges')
     before = summary.get('range_rmse_calibrated_m', float('nan'))
-    if not mixed_edges.shown(figures) or diagnosis.rmse_fault(best, before) is None:
+    why = diagnosis.rmse_fault(best, before)
+    if (not mixed_edges.shown(figures) or why is None
+            or diagnosis.naming_fault(best, summary['nll_calibrated'], before) != why):
         return ''
     return mixed_edges.words(figures)
 
