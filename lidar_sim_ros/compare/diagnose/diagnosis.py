@@ -68,6 +68,14 @@ its z, ``total_z``), whatever part of the data the gain is on:
   from naming only by its z or its share, not decisively worse, must be passed on top
   of too, else nothing is named (``rival_takes``, ``same_part``).
 
+And, fitted as --fit leaves it (``naming_fault``), its NLL is below the model's without it,
+no parameter sits at the edge of its search box, and, where the verdict quotes the range
+RMSE (an effect that moves ranges or rays), that RMSE does not rise (``rmse_fault``): a
+fit that gains likelihood while the ranges it predicts move away from those measured
+takes points its form does not reproduce (mixed pixels between an edge and a wall
+behind it read as a footprint 8-10 times the beam; the points' place is said,
+``mixed_edges``).
+
 Otherwise ``missing_effect`` is null, and the verdict says what the residual depends
 on, if anything, and that no catalogue effect explains it.
 
