@@ -8,9 +8,10 @@ a recording reads as a footprint many times the configured beam whose fit raises
 range RMSE (``diagnosis.rmse_fault``); these figures say where the points lie.
 
 ``between_edge_and_behind``: of the points off the model (the model's ray misses the
-target, or the measured range lies GAP_M beyond the model's), those with a return of
-the target (a matched point) nearer by GAP_M and at least MIN_BEHIND returns off the
-target farther by GAP_M among the rays within NEIGHBOUR_RAD. Ranges in m, angles in rad.
+target, or the measured range lies GAP_M beyond the model's) at the target's edge (a
+return of the target, a matched point, among the rays within NEIGHBOUR_RAD), those with
+such a return nearer by GAP_M and at least MIN_BEHIND returns off the target farther by
+GAP_M. Ranges in m, angles in rad.
 """
 from __future__ import annotations
 
@@ -33,31 +34,34 @@ def off_model(range_m: np.ndarray, matched: np.ndarray,
 
 def between_edge_and_behind(directions: np.ndarray, range_m: np.ndarray,
                             matched: np.ndarray, model_range_m: np.ndarray) -> dict:
-    """{'off_model': points off the model, 'between': those between the target's edge and
-    a surface behind it, 'share': between / off_model, 'behind_m': median distance of
-    that surface beyond the edge (NaN if none)}. ``directions`` (N, 3) unit, ``matched``
+    """{'off_model': points off the model at the target's edge, 'between': those between
+    the edge and a surface behind it, 'share': between / off_model, 'behind_m': median
+    distance of that surface beyond the edge (NaN if none)}. ``directions`` (N, 3) unit, ``matched``
     bool (N,), ``model_range_m`` (N,) NaN/inf where the model's ray misses."""
-    off = off_model(range_m, matched, model_range_m)
-    idx = np.flatnonzero(off)
-    out = {'off_model': int(len(idx)), 'between': 0, 'share': 0.0, 'behind_m': float('nan')}
+    idx = np.flatnonzero(off_model(range_m, matched, model_range_m))
+    out = {'off_model': 0, 'between': 0, 'share': 0.0, 'behind_m': float('nan')}
     if len(idx) == 0 or not matched.any():
         return out
     tree = cKDTree(directions)
-    between, behind = [], []
+    between, behind, at_edge = [], [], 0
     for i, nb in zip(idx, tree.query_ball_point(directions[idx], NEIGHBOUR_RAD)):
         nb = np.asarray(nb, int)
         near = range_m[nb[matched[nb]]]
+        if len(near) == 0:
+            continue          # not at the target's edge (the wall, clutter far off)
+        at_edge += 1
         far = range_m[nb[~matched[nb]]]
         r = range_m[i]
-        if len(near) == 0 or near.min() > r - GAP_M:
+        if near.min() > r - GAP_M:
             continue
         farther = far[far > r + GAP_M]
         if len(farther) < MIN_BEHIND:
             continue
         between.append(i)
         behind.append(float(np.median(farther) - near.min()))
+    out['off_model'] = at_edge
     out['between'] = len(between)
-    out['share'] = float(len(between) / len(idx))
+    out['share'] = float(len(between) / max(at_edge, 1))
     if behind:
         out['behind_m'] = float(np.median(behind))
     return out
