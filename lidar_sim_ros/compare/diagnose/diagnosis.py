@@ -690,7 +690,10 @@ class Diagnosis(PoseWeighing):
         """The calibrated NLL per matched point of the diagnosed points without a
         candidate: the "before" the verdict quotes (``calibrated_figures``)."""
         if getattr(self, '_before_nll', None) is None:
-            self._before_nll = calibrated_figures(self.full, [])[0]
+            nll, rmse, _ = calibrated_figures(self.full, [])
+            self._before_nll = nll
+            if getattr(self, '_before_rmse', None) is None:
+                self._before_rmse = rmse       # one model evaluation for both
         return self._before_nll
 
     @property

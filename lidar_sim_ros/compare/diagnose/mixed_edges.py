@@ -36,8 +36,8 @@ def between_edge_and_behind(directions: np.ndarray, range_m: np.ndarray,
                             matched: np.ndarray, model_range_m: np.ndarray) -> dict:
     """{'off_model': points off the model at the target's edge, 'between': those between
     the edge and a surface behind it, 'share': between / off_model, 'behind_m': median
-    distance of that surface beyond the edge (NaN if none)}. ``directions`` (N, 3) unit, ``matched``
-    bool (N,), ``model_range_m`` (N,) NaN/inf where the model's ray misses."""
+    distance of that surface beyond the edge (NaN if none)}. ``directions`` (N, 3) unit,
+    ``matched`` bool (N,), ``model_range_m`` (N,) NaN/inf where the model's ray misses."""
     idx = np.flatnonzero(off_model(range_m, matched, model_range_m))
     out = {'off_model': 0, 'between': 0, 'share': 0.0, 'behind_m': float('nan')}
     if len(idx) == 0 or not matched.any():
