@@ -344,3 +344,36 @@ def test_reflectivity_lambert_divides_by_cos_to_the_exponent():
     spec = replace(battery(['laser_bias'])[0], intensity='reflectivity_lambert',
                    intensity_cos_exponent=0.7)
     assert spec.intensity_cos_exponent == 0.7
+
+
+def test_mixed_pixels_lie_between_the_plate_edge_and_the_wall_behind():
+    """foreign_sim.mixed_pixel_returns (mixpix52): a 1 m plate 11 m ahead (body frame =
+    lidar frame), a wall 4 m behind its centre; shots across the plate's edge at y =
+    0.5 m. Those whose 4 mrad ring meets both report a range between 11 and 15 m; shots
+    well inside the plate or on the wall alone keep their echo."""
+    from scipy.spatial.transform import Rotation
+    plate = foreign_sim.trimesh.creation.box(extents=(0.05, 1.0, 1.0))
+    plate.apply_translation((11.0, 0.0, 0.0))
+    target = Target({'MLI': plate})
+    wall = foreign_sim.Backdrop((11.0, 0.0, 0.0), 4.0)
+    y = np.linspace(0.3, 0.7, 81)                       # across the edge at 0.5 m
+    d = np.stack([np.full_like(y, 11.0), y, np.zeros_like(y)], axis=1)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    sensor = Sensor()
+    origins = np.zeros((len(d), 3))
+    hit, r, cos_i, mat = target.cast(origins, d)
+    w_hit, w_r, w_cos = wall.cast(origins, d)
+    back = ~hit & w_hit
+    hit, r = hit | back, np.where(back, w_r, r)
+    mat = np.where(back, foreign_sim.CLUTTER, mat)
+    power = foreign_sim.received_power_w(sensor, r, cos_i, np.maximum(mat, 0))
+    rot = Rotation.identity(len(d))
+    out = foreign_sim.mixed_pixel_returns(target, origins, rot, d, [wall], sensor, hit, r,
+                                          power, cos_i, mat, np.random.default_rng(0),
+                                          {'ring_rad': 4e-3})
+    mixed, r_out = out[-1], out[1]
+    assert 5 <= mixed.sum() <= 40                       # a band ~ 2 x 4.4 cm of 0.4 m
+    assert np.all((r_out[mixed] > 11.0) & (r_out[mixed] < 15.0))
+    edge_far = np.abs(y - 0.5) > 0.06                  # the ring cannot reach the edge
+    assert not mixed[edge_far].any()
+    np.testing.assert_allclose(r_out[~mixed], r[~mixed])

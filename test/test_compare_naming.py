@@ -19,6 +19,7 @@ from lidar_sim_ros.core.effects import make_effect
 
 N = 4000
 BEFORE_NLL = -2.022
+BEFORE_RMSE = 0.186      # m: the mixed-pixel finding's "before" (mixpix52)
 
 
 class Hand(dg.Diagnosis):
@@ -31,6 +32,7 @@ class Hand(dg.Diagnosis):
         self.blocks = np.arange(N) // 20
         self._z_crit = 2.94
         self._before_nll = BEFORE_NLL
+        self._before_rmse = BEFORE_RMSE
         self.on_top = on_top or {}
         self.again = again or {}
 
@@ -262,6 +264,80 @@ def test_sunlight_path_withheld_when_its_evidence_fails():
     solar.nll_after = -2.1
     d = dg.settle(dg.Decision('sunlight', [], evidence='solar_background'), [solar], fault)
     assert d.missing == 'sunlight'
+
+
+def _wide_footprint(rmse_after_m):
+    """The mixed-pixel finding (mixpix52): a footprint 8.3 times the configured beam
+    whose fit lowers the NLL and takes the edge returns (credited as put back) while the
+    range RMSE it leaves goes 0.186 -> ``rmse_after_m``."""
+    fp = cand('beam_divergence', 0.04, BEFORE_NLL - 0.02, seed=21)
+    fp.effect = make_effect('beam_divergence', {'footprint_scale': 8.3})
+    fp.params = {'footprint_scale': 8.3, 'range_mode': 'mean', 'sampling': 'edges'}
+    fp.unmatched_gain_points = 300.0
+    fp.unmatched_gain_after = dg.UNMATCHED_NATS * 300 / N
+    fp.range_rmse_after_m = rmse_after_m
+    return fp
+
+
+def test_a_fit_that_raises_the_range_rmse_is_never_named():
+    """The one rule at the point of naming takes the range RMSE the verdict quotes too:
+    a footprint (8.3 x the beam) that lowers the NLL but raises the RMSE 0.186 -> 0.189 m
+    is withheld on every path (missing, tie, also, settle, the verdict's words); the
+    same footprint cutting the RMSE is named. Not for an effect whose verdict quotes
+    the robust spread (a false-return effect) or that moves no range (a noise effect)."""
+    up, down = _wide_footprint(0.189), _wide_footprint(0.180)
+    why = dg.naming_fault(up, BEFORE_NLL, BEFORE_RMSE)
+    assert 'raises the range RMSE from 0.1860 to 0.1890 m' in why
+    assert '8.3 times the configured beam' in why
+    assert dg.naming_fault(down, BEFORE_NLL, BEFORE_RMSE) is None
+    assert dg.naming_fault(up, BEFORE_NLL) is None          # no RMSE given: NLL alone
+    # Equal at the verdict's precision is no rise.
+    assert dg.naming_fault(_wide_footprint(0.18604), BEFORE_NLL, BEFORE_RMSE) is None
+    # Missing.
+    assert Hand().decide([up]).missing is None
+    assert Hand().decide([down]).missing == 'beam_divergence'
+    # Tie: a partner that passes stays alone (no tie), the footprint is not in it.
+    walk = cand('range_walk', 0.04, BEFORE_NLL - 0.02, seed=21)
+    d = Hand().decide(dg.rank([up, walk]))
+    assert 'beam_divergence' not in (d.missing, *d.confounded_with)
+    # Settle (the pose and re-cast paths, and 'also').
+    hand = Hand()
+    d = dg.settle(dg.Decision(None, ['beam_divergence', 'range_walk']), [up, walk],
+                  hand.naming_fault)
+    assert d.confounded_with == [] and 'beam_divergence' in d.withheld
+    d = dg.settle(dg.Decision('range_walk', [], 'beam_divergence'), [up, walk],
+                  hand.naming_fault)
+    assert d.missing == 'range_walk' and d.also is None
+    d = dg.settle(dg.Decision('beam_divergence', []), [up], hand.naming_fault)
+    assert d.missing is None and 'range RMSE' in d.withheld['beam_divergence']
+    # The verdict: nothing named, and why.
+    summary = {**_summary(), 'range_rmse_calibrated_m': BEFORE_RMSE}
+    text = vd.verdict(summary, None, [up], dg.Decision(None, []))
+    assert 'beam_divergence, is not named' in text and 'raises the range RMSE' in text
+    # A false-return effect and a noise effect: the RMSE is not their quantity.
+    solar = replace(up, name='solar_background')
+    solar.effect = make_effect('solar_background', {'probability': 0.002})
+    assert dg.rmse_fault(solar, BEFORE_RMSE) is None
+    noise = replace(up, name='snr_noise')
+    noise.effect = make_effect('snr_noise', {})
+    assert dg.rmse_fault(noise, BEFORE_RMSE) is None
+
+
+def test_points_between_the_edge_and_a_surface_behind_are_said_where_the_data_show_them():
+    """Beside a footprint withheld for raising the RMSE, the verdict says the points off
+    the model lie between the target's edge and a surface behind it (outside the
+    catalogue), from ``summary['mixed_edges']``; not when too few do, and never beside
+    a candidate withheld for another reason."""
+    up = _wide_footprint(0.189)
+    figures = {'off_model': 900, 'between': 420, 'share': 420 / 900, 'behind_m': 3.8}
+    summary = {**_summary(), 'range_rmse_calibrated_m': BEFORE_RMSE, 'mixed_edges': figures}
+    text = vd.verdict(summary, None, [up], dg.Decision(None, []))
+    assert "420 (47 %) lie between the target's edge and a surface about 3.8 m" in text
+    assert 'outside the catalogue' in text
+    few = {**summary, 'mixed_edges': {**figures, 'between': 10, 'share': 10 / 900}}
+    assert 'lie between' not in vd.verdict(few, None, [up], dg.Decision(None, []))
+    worse_nll = replace(_wide_footprint(0.189), nll_after=BEFORE_NLL + 0.3)
+    assert 'lie between' not in vd.verdict(summary, None, [worse_nll], dg.Decision(None, []))
 
 
 def test_settle_does_not_promote_the_last_member_of_a_broken_tie():

@@ -40,8 +40,8 @@ from lidar_sim_ros.compare.diagnose import (clock_footing, clock_nested, diagnos
                                             far_returns, features,
                                             fit_data, intensity_range, laser_gains,
                                             plan as sep_plan, power_incidence,
-                                            line_of_sight, pose_error, range_alone,
-                                            region_offset,
+                                            line_of_sight, mixed_edges, pose_error,
+                                            range_alone, region_offset,
                                             row_clock, stamp_place, variants)
 from lidar_sim_ros.compare.diagnose.candidate import _num
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
@@ -1880,6 +1880,11 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
            if plan is not None and plan.error else []),
         **({'sunlight': sunlight} if sunlight is not None else {}),
     }
+    if any(diagnosis.rmse_fault(c, before[1]) for c in diag.cands if c.significant):
+        # A fit that lowers the NLL and raises the RMSE: where the points off the model lie.
+        summary['mixed_edges'] = mixed_edges.between_edge_and_behind(
+            meas.directions, meas.range_m, np.asarray(sel, bool),
+            np.where(matching.pred.hits.hit, matching.pred.hits.range_m, np.nan))
     # The verdict quotes candidates against the figures of the points they were fitted on.
     basis = {**summary, 'nll_calibrated': before[0], 'range_rmse_calibrated_m': before[1],
              'range_robust_sigma_calibrated_m': before[2]}

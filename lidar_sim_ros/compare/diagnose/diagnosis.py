@@ -68,6 +68,14 @@ its z, ``total_z``), whatever part of the data the gain is on:
   from naming only by its z or its share, not decisively worse, must be passed on top
   of too, else nothing is named (``rival_takes``, ``same_part``).
 
+And, fitted as --fit leaves it (``naming_fault``), its NLL is below the model's without it,
+no parameter sits at the edge of its search box, and, where the verdict quotes the range
+RMSE (an effect that moves ranges or rays), that RMSE does not rise (``rmse_fault``): a
+fit that gains likelihood while the ranges it predicts move away from those measured
+takes points its form does not reproduce (mixed pixels between an edge and a wall
+behind it read as a footprint 8-10 times the beam; the points' place is said,
+``mixed_edges``).
+
 Otherwise ``missing_effect`` is null, and the verdict says what the residual depends
 on, if anything, and that no catalogue effect explains it.
 
@@ -683,15 +691,28 @@ class Diagnosis(PoseWeighing):
         """The calibrated NLL per matched point of the diagnosed points without a
         candidate: the "before" the verdict quotes (``calibrated_figures``)."""
         if getattr(self, '_before_nll', None) is None:
-            self._before_nll = calibrated_figures(self.full, [])[0]
+            nll, rmse, _ = calibrated_figures(self.full, [])
+            self._before_nll = nll
+            if getattr(self, '_before_rmse', None) is None:
+                self._before_rmse = rmse       # one model evaluation for both
         return self._before_nll
+
+    @property
+    def before_rmse(self) -> float:
+        """The calibrated range RMSE (m) of the diagnosed points without a candidate: the
+        "before" of the range RMSE the verdict quotes."""
+        if getattr(self, '_before_rmse', None) is None:
+            self._before_rmse = calibrated_figures(self.full, [])[1]
+        return self._before_rmse
 
     def naming_fault(self, cand: Candidate) -> str | None:
         """Why ``cand`` may not be named (``naming_fault``), fitting it on all the
         diagnosed points first if that was not done (its "after" figures)."""
         if cand.admissible and not np.isfinite(cand.nll_after):
             self.finalize(cand)
-        return naming_fault(cand, self.before_nll)
+        rmse = (self.before_rmse if np.isfinite(cand.range_rmse_after_m) and quotes_rmse(cand)
+                else float('nan'))
+        return naming_fault(cand, self.before_nll, rmse)
 
     def nameable(self, cand: Candidate) -> bool:
         return self.naming_fault(cand) is None
@@ -2015,7 +2036,41 @@ def per_return_nll(nll_matched: float, unmatched_fraction: float) -> float:
     return float(nll_matched + UNMATCHED_NATS * unmatched_fraction)
 
 
-def naming_fault(cand: Candidate, before_nll: float) -> str | None:
+def quotes_rmse(cand: Candidate) -> bool:
+    """Whether the verdict quotes the range RMSE for ``cand`` (``verdict._gain_words``):
+    an effect that moves ranges or rays. Not a false-return effect (its far outliers
+    stay in the data: the robust spread is quoted) nor one that only widens the sigma
+    (it moves no range)."""
+    return (cand.effect is not None and not is_outlier_effect(type(cand.effect))
+            and not is_noise_effect(type(cand.effect)))
+
+
+def rmse_fault(cand: Candidate, before_rmse: float) -> str | None:
+    """Why ``cand``, whose NLL falls, may not be named because the range RMSE the verdict
+    quotes rises with it (``quotes_rmse``), or None. At the verdict's precision (0.1 mm):
+    the likelihood gained by taking points the model did not place, or by widening what
+    it allows, while the ranges it predicts moved away from those measured; an effect
+    that is there places them better. Mixed pixels at the edges (a receiver averaging
+    the echoes of the target's edge and a surface behind it) read that way as a beam
+    footprint many times the configured beam (mixpix52)."""
+    after = cand.range_rmse_after_m
+    if not (np.isfinite(after) and np.isfinite(before_rmse) and quotes_rmse(cand)):
+        return None
+    if round(float(after), 4) <= round(float(before_rmse), 4):
+        return None
+    scale = ''
+    if cand.effect is not None and cand.effect.cast_reach_rad(1.0) is not None:
+        # A footprint: how far its cone is from the configured beam.
+        scale = (f' (its footprint {cand.params.get("footprint_scale", float("nan")):.1f} '
+                 'times the configured beam)')
+    return (f'fitted as --fit leaves it{scale}, it lowers the NLL but raises the range RMSE '
+            f'from {before_rmse:.4f} to {after:.4f} m: it does not place the measured ranges '
+            'better, it takes points its form does not reproduce. To be named it would have '
+            'to cut the range RMSE as well; it stands in for something outside the catalogue')
+
+
+def naming_fault(cand: Candidate, before_nll: float,
+                 before_rmse: float = float('nan')) -> str | None:
     """The one rule at the point of naming: why ``cand`` may not be named as a missing
     effect, a member of a tie or an effect explaining a separate part, or None. Its
     held-out gain (the score the verdict quotes, and its z) passes the rule (decisive,
@@ -2026,7 +2081,9 @@ def naming_fault(cand: Candidate, before_nll: float) -> str | None:
     takes in what it gains on the missed shots (``missed_gain_after``), and for a
     footprint what the returns it puts back on the target gain (``unmatched_gain_after``):
     the footing it is scored on, the same returns before and after, not the matched
-    points alone (``fitted_footing``)."""
+    points alone (``fitted_footing``). Where the verdict quotes the range RMSE
+    (``quotes_rmse``), it must not rise (``rmse_fault``; ``before_rmse``: the model's
+    without it, NaN to skip)."""
     if cand.error is not None:
         return f'its fit failed: {cand.error}'
     if not cand.significant:
@@ -2051,7 +2108,7 @@ def naming_fault(cand: Candidate, before_nll: float) -> str | None:
                   'the returns it puts back on the target)' if back else '')
         return (f'fitted as --fit leaves it, the NLL per point is {after:.4f}{missed}, not '
                 f'below the {before_nll:.4f} without it')
-    return None
+    return rmse_fault(cand, before_rmse)
 
 
 def settle(decision: Decision, cands: list[Candidate],

@@ -103,6 +103,7 @@ class PoseWeighing:
                          for d, f in zip(self.fold_data, self.folds)]
         out._base_nll = [heldout_nll(d, []) for d in out.fold_data]
         out._before_nll = None
+        out._before_rmse = None
         out._core = None
         out._memos = {}        # the copy shares them with this model otherwise
         return out

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar_sim_ros.compare.diagnose import (beside, diagnosis, pose_error, power_incidence,
-                                            range_outside)
+from lidar_sim_ros.compare.diagnose import (beside, diagnosis, mixed_edges, pose_error,
+                                            power_incidence, range_outside)
 from lidar_sim_ros.compare.model.materials import common_offset_m
 
 EFFECT_WORDS = {
@@ -998,7 +998,8 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     """Why no effect is named: nothing to explain, or nothing in the catalogue explains it."""
     best = next((c for c in diagnosis.rank(cands) if c.error is None and c.significant), None)
     why = ''
-    fault = (diagnosis.naming_fault(best, summary['nll_calibrated'])
+    fault = (diagnosis.naming_fault(best, summary['nll_calibrated'],
+                                    summary.get('range_rmse_calibrated_m', float('nan')))
              if best is not None else None)
     along = (best.against_pose or {}) if best is not None else {}
     rival, name = same_part_rival(summary)
@@ -1015,11 +1016,12 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
         # Withheld by the diagnosis (``Decision.withheld``): it explains the residual by
         # the rule's gain, so what keeps it is said, not "noise".
         return (f'No catalogue effect is named. The best candidate, {best.name}, is not '
-                f'named: {kept}.')
+                f'named: {kept}.' + _between_words(summary, best))
     elif along.get('pose_line_of_sight') and not along.get('passes_on_pose'):
         return line_of_sight_words(best)
     elif best is not None and best.practical and fault:
-        why = f' The best candidate, {best.name}, is not named: {fault}.'
+        why = (f' The best candidate, {best.name}, is not named: {fault}.'
+               + _between_words(summary, best))
     elif best is not None and not best.practical:
         why = (f' The best candidate, {best.name}, gains {best.score:.4f} nats/point held out '
                f'(z = {best.z:.1f}), less than the {diagnosis.MIN_PRACTICAL_GAIN:g} nats/point '
@@ -1050,6 +1052,19 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
     beside = f' once the {" and ".join(left_out)} below are left out' if left_out else ''
     return ('No catalogue effect improves the held-out likelihood by a margin that matters: '
             f'the model matches the measurements up to noise{beside}.' + why)
+
+
+def _between_words(summary: dict, best) -> str:
+    """Where ``best`` lowers the NLL and raises the range RMSE (``diagnosis.rmse_fault``)
+    and the points off the model lie between the target's edge and a surface behind it
+    (``mixed_edges.shown``): that sentence, else ''."""
+    figures = summary.get('mixed_edges')
+    before = summary.get('range_rmse_calibrated_m', float('nan'))
+    why = diagnosis.rmse_fault(best, before)
+    if (not mixed_edges.shown(figures) or why is None
+            or diagnosis.naming_fault(best, summary['nll_calibrated'], before) != why):
+        return ''
+    return mixed_edges.words(figures)
 
 
 def _louder_but_noisy(cands: list, best):
