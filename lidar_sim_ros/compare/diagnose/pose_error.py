@@ -1065,8 +1065,12 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     # A rigid correction that passes: does it hold across the surfaces' orientations?
     across = None
     if constant and not supported and z >= z_crit and per_point >= min_gain:
-        across = faces_agree(a, r, s, cloud, use, clouds, prior, ctx.normal, materials, row,
-                             blocks, z_crit, min_gain)
+        # On the test's footing: free offsets, or the materials at their configured
+        # ranges where the motion took their offsets (``through``).
+        across = faces_agree(a, r + offset if through is not None else r, s, cloud, use,
+                             clouds, prior, ctx.normal,
+                             None if through is not None else materials, row, blocks,
+                             z_crit, min_gain)
     cols = a12 if supported else a
     if constant and supported:
         # One correction for the recording and its rate, on the rigid one's footing.
@@ -1106,14 +1110,15 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
 
 def faces_agree(a: np.ndarray, r: np.ndarray, s: np.ndarray, cloud: np.ndarray,
                 use: np.ndarray, clouds: np.ndarray, prior: np.ndarray | None,
-                normal: np.ndarray, materials: np.ndarray, row: np.ndarray,
+                normal: np.ndarray, materials: np.ndarray | None, row: np.ndarray,
                 blocks: np.ndarray, z_crit: float, min_gain: float
                 ) -> tuple['face_transfer.AcrossOrientations', ...]:
     """The rigid correction (columns ``a``, per cloud as ``cloud`` says) fitted on the
     usable points of every orientation group of the surface normals (``normal``, sensor
-    frame) but one, jointly with the materials' offsets and damped (RIDGE: a motion the
-    other groups do not see is left near zero), the offsets then profiled on every usable
-    point, and scored held out on that group (``face_transfer``; residual ``r`` and sigma
+    frame) but one, jointly with the materials' offsets (``materials``; None: the
+    materials at their configured ranges, ``r`` holding their offsets) and damped (RIDGE:
+    a motion the other groups do not see is left near zero), the offsets then profiled on
+    every usable point, and scored held out on that group (``face_transfer``; residual ``r`` and sigma
     ``s`` in m, as the pose test's footing). Two groupings: clusters of the normals, and
     the halves facing along and against each cloud's fitted translation. Asked of one
     correction for the recording only (``fit_reference_pose``): per cloud, the few points
