@@ -804,7 +804,8 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
                                              applied=applied, rate=has_point_times(meas),
                                              constant=constant, scan=scan,
                                              parts_z_crit=parts_z,
-                                             step_only=applied is not None)
+                                             step_only=applied is not None,
+                                             orientations=False)
 
     def rematch(corr: pose_error.PoseCorrection):
         moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))

@@ -854,8 +854,8 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
                        applied: 'PoseCorrection | None' = None,
                        rate: bool = False, constant: bool = False,
                        scan: ScanClock | None = None,
-                       parts_z_crit: float | None = None, step_only: bool = False
-                       ) -> PoseError:
+                       parts_z_crit: float | None = None, step_only: bool = False,
+                       orientations: bool = True) -> PoseError:
     """Fit and judge per-cloud rigid pose corrections on ``data``'s matched points
     (``cloud``, ``t_s``, ``blocks``: per matched point) under the model with
     ``effects`` on top of its own (module doc). ``rate``: the points carry their own
@@ -873,7 +873,10 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
     fitted, the same as the full fit's, and its test is not asked (gain 0, z 0, not
     significant); the held-out halves only where they choose the correction's footing
     (through the materials or not). With a rate the test decides the correction: the
-    full fit."""
+    full fit. ``orientations``: one rigid correction for the recording that passes is
+    asked across the surfaces' orientations too (``faces_agree``), and not significant
+    where it does not hold there (False: ``--effect pose_error --fit``, which corrects
+    the pose the user names)."""
     tau_scan = None
     if constant:
         scan = (scan if scan is not None else ScanClock.of(cloud, t_s)) if rate else None
@@ -1064,13 +1067,12 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         judged((gain12 if supported else gain) - gain_rng)[0])
     # A rigid correction that passes: does it hold across the surfaces' orientations?
     across = None
-    if constant and not supported and z >= z_crit and per_point >= min_gain:
+    if orientations and constant and not supported and z >= z_crit and per_point >= min_gain:
         # On the test's footing: free offsets, or the materials at their configured
         # ranges where the motion took their offsets (``through``).
-        across = faces_agree(a, r + offset if through is not None else r, s, cloud, use,
-                             clouds, prior, ctx.normal,
-                             None if through is not None else materials, row, blocks,
-                             z_crit, min_gain)
+        across = faces_agree(a, r, s, cloud, use, clouds, prior, ctx.normal, materials, row,
+                             blocks, z_crit, min_gain,
+                             None if through is None else r + offset)
     cols = a12 if supported else a
     if constant and supported:
         # One correction for the recording and its rate, on the rigid one's footing.
@@ -1110,25 +1112,33 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
 
 def faces_agree(a: np.ndarray, r: np.ndarray, s: np.ndarray, cloud: np.ndarray,
                 use: np.ndarray, clouds: np.ndarray, prior: np.ndarray | None,
-                normal: np.ndarray, materials: np.ndarray | None, row: np.ndarray,
-                blocks: np.ndarray, z_crit: float, min_gain: float
+                normal: np.ndarray, materials: np.ndarray, row: np.ndarray,
+                blocks: np.ndarray, z_crit: float, min_gain: float,
+                through: np.ndarray | None = None
                 ) -> tuple['face_transfer.AcrossOrientations', ...]:
     """The rigid correction (columns ``a``, per cloud as ``cloud`` says) fitted on the
     usable points of every orientation group of the surface normals (``normal``, sensor
-    frame) but one, jointly with the materials' offsets (``materials``; None: the
-    materials at their configured ranges, ``r`` holding their offsets) and damped (RIDGE:
-    a motion the other groups do not see is left near zero), the offsets then profiled on
-    every usable point, and scored held out on that group (``face_transfer``; residual ``r`` and sigma
+    frame) but one, jointly with the materials' offsets (or, ``through``: the residual
+    with the materials at their configured ranges, the motion fitted to it alone, as the
+    test's footing where the motion took the offsets) and damped (RIDGE: a motion the
+    other groups do not see is left near zero), the materials' offsets then profiled on
+    every usable point (a face that is one material keeps its own offset: a material's
+    bias off the configuration is the model's nuisance, not the pose's), and scored held
+    out on that group (``face_transfer``; residual ``r`` and sigma
     ``s`` in m, as the pose test's footing). Two groupings: clusters of the normals, and
     the halves facing along and against each cloud's fitted translation. Asked of one
     correction for the recording only (``fit_reference_pose``): per cloud, the few points
     a cloud has on the surfaces facing some ways leave the motions those surfaces do not
     see to their noise (a true jitter over 20 and 80 clouds of three planes lost on a
     held-out plane at z -4 and, on the halves, -9)."""
+    def fit(train: np.ndarray) -> np.ndarray:
+        if through is not None:
+            return fit_clouds(a, through, s, cloud, train, clouds, prior, RIDGE)
+        return fit_clouds(a, r, s, cloud, train, clouds, prior, RIDGE, materials)
+
     def fit_on(train: np.ndarray) -> np.ndarray:
-        x = fit_clouds(a, r, s, cloud, train, clouds, prior, RIDGE, materials)
-        return with_offsets(np.einsum('ij,ij->i', a, x[row]), r, materials, use)
-    whole = fit_clouds(a, r, s, cloud, use, clouds, prior, RIDGE, materials)
+        return with_offsets(np.einsum('ij,ij->i', a, fit(train)[row]), r, materials, use)
+    whole = fit(use)
     return tuple(face_transfer.across_orientations(fit_on, r, s, groups, normal, blocks,
                                                    z_crit, min_gain, len(r))
                  for groups in (face_transfer.orientation_groups(normal, use),
