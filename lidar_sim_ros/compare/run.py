@@ -804,7 +804,8 @@ def correct_reference_pose(model: Model, effects: list[Effect], matching: Matchi
                                              applied=applied, rate=has_point_times(meas),
                                              constant=constant, scan=scan,
                                              parts_z_crit=parts_z,
-                                             step_only=applied is not None)
+                                             step_only=applied is not None,
+                                             orientations=False)
 
     def rematch(corr: pose_error.PoseCorrection):
         moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
@@ -1173,6 +1174,8 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     pose = (decision.pose if decision.pose is not None else decision.beside_pose
             if decision.beside_pose is not None else pose_test([c.effect for c in named]))
     decision, pose = pose_that_matters(decision, pose, tested_data, meas.cloud[tested.matched])
+    decision, pose = pose_across_all_points(decision, pose)
+    pose = pose_left_to_faces(decision, pose, lambda: pose_test([], constant=True))
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
             diag.finalize(c)      # what a run with --effect NAME --fit would show
@@ -1296,6 +1299,37 @@ def pose_that_matters(decision: diagnosis.Decision, pose: pose_error.PoseError,
         return decision, pose
     return withhold_pose(decision, pose, 'too_small',
                          {'applied_gain_per_matched_point': round(gain, 6)})
+
+
+def pose_across_all_points(decision: diagnosis.Decision, pose: pose_error.PoseError
+                           ) -> tuple[diagnosis.Decision, pose_error.PoseError]:
+    """The decision and its pose, unless the pose it reports (alone or beside a named
+    effect, rigid) is the correction fitted on every matched point (as --fit fits it)
+    and that correction does not hold across the surfaces' orientations
+    (``pose_error.faces_agree`` on every matched point: the sample's test asked it on
+    fewer): then the pose is not reported, its test marked failed."""
+    if not pose_reported(decision, pose) or pose.rate_supported:
+        return decision, pose
+    faces = pose.across_faces
+    if not faces or faces['transfers']:
+        return decision, pose
+    return replace(decision, pose=None), replace(pose, significant=False)
+
+
+def pose_left_to_faces(decision: diagnosis.Decision, pose: pose_error.PoseError,
+                       constant_test) -> pose_error.PoseError:
+    """The pose the summary carries: where nothing is named, no tie and no pose
+    reported, and the per-cloud test ``pose`` holds no correction that passed on random
+    halves but not across the surfaces' orientations (``pose_error.faces_agree``), the
+    one correction for the recording (``constant_test()``) if it is such a one (the
+    verdict then says why no pose is claimed); else ``pose``."""
+    if (decision.pose is not None or decision.beside_pose is not None or decision.missing
+            or decision.confounded_with or pose is None
+            or (pose.across_faces and not pose.across_faces['transfers'])):
+        return pose
+    constant = constant_test()
+    left = constant.across_faces and not constant.across_faces['transfers']
+    return constant if left else pose
 
 
 def pose_reported(decision: diagnosis.Decision, pose: pose_error.PoseError | None) -> bool:

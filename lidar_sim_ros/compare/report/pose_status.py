@@ -114,6 +114,14 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
         return _out(False, None, f'its test passes ({_f(left["test_gain_per_matched_point"])} '
                     f'nats/point, z = {_f(left["test_z"], 1)}) {what}, so the pose is not '
                     'claimed', shown)
+    faces = pose.get('across_faces')
+    if faces and not faces.get('transfers'):
+        return _out(False, None, f'its {"constant" if pose.get("constant") else "per-cloud"} '
+                    'test passes on random halves '
+                    f'({_f(pose.get("gain_per_matched_point"))} nats/point, z = '
+                    f'{_f(pose.get("z"), 1)}), but fitted on the surfaces facing some ways it '
+                    'loses on those facing others (across_faces): no rigid motion every '
+                    'surface agrees on, so the pose is not claimed', shown)
     if not pose.get('significant'):
         where = f' on top of {_join(on_top)}' if on_top else ''
         gain = pose.get('gain_per_matched_point')

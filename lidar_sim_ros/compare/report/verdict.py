@@ -98,6 +98,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     beyond_bound = (summary.get('reference_pose') or {}).get('left_by_bound')
     beside_stand_in = (summary.get('reference_pose') or {}).get('left_by_stand_in')
     to_range = (summary.get('reference_pose') or {}).get('left_to_range')
+    faces = across_faces_left(summary, decision)
     if missing == 'sunlight':
         parts.append(_sunlight_named(summary, next(c for c in cands
                                                    if c.name == decision.evidence)))
@@ -193,8 +194,10 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         below = clock_below_margin_words(cands)
         if below:
             parts.append(below)
-    elif not beyond_bound and not to_range:
+    elif not beyond_bound and not to_range and not faces:
         parts.append(_nothing_named(summary, attribution, cands))
+    if faces:
+        parts.append(across_faces_words(summary['reference_pose']))
     if beyond_bound:
         parts.append(bound_remainder_words(beyond_bound))
     if beside_stand_in:
@@ -1230,6 +1233,43 @@ def stand_in_remainder_words(left: dict) -> str:
             f'held-out gain {left["test_gain_per_matched_point"]:.4f} nats/point, '
             f'z = {left["test_z"]:.1f}), but the data do not tell the two apart: no pose '
             'error is claimed.')
+
+
+def across_faces_left(summary: dict, decision) -> bool:
+    """Whether the pose test passed but its correction did not hold across the surfaces'
+    orientations (``pose_error.faces_agree``), nothing named and no pose reported."""
+    faces = (summary.get('reference_pose') or {}).get('across_faces')
+    return bool(faces and not faces.get('transfers') and decision.pose is None
+                and not decision.missing and not decision.confounded_with)
+
+
+def across_faces_words(pose: dict) -> str:
+    """Why a pose correction that does not hold across the surfaces' orientations is
+    not claimed (``pose``: the summary's ``reference_pose`` with ``across_faces``)."""
+    faces = pose['across_faces']
+    kinds = [faces[k] for k in ('clusters', 'halves') if k in faces]
+    lost = [g for f in kinds for k, g in enumerate(f['groups']) if k in f['losing_groups']]
+    worst = min(lost or [g for f in kinds for g in f['groups']],
+                key=lambda g: g['gain_per_group_point'])
+    split = next(f for f in kinds if worst in f['groups'])
+    normal = ', '.join(f'{v:.2f}' for v in worst['normal'])
+    kind = ('One rigid correction of the pose for the recording' if pose.get('constant')
+            else 'A per-cloud pose correction')
+    return (f'A range error outside the catalogue that depends on which way a surface '
+            f'faces: {kind[0].lower()}{kind[1:]} would take part of the residual '
+            f'({pose["translation_rms_cm"]:.2f} cm and {pose["rotation_rms_deg"]:.3f} deg RMS, '
+            f'held-out gain {pose["gain_per_matched_point"]:.4f} nats/point on random '
+            f'halves, z = {pose["z"]:.1f}), but fitted on the surfaces facing some ways it '
+            f'does not hold on the others: held out on the surfaces whose normal (sensor '
+            f'frame) is near ({normal}), {100 * worst["share"]:.0f} % of the points, it '
+            f'loses {-worst["gain_per_group_point"]:.4f} nats per point there '
+            f'(z = {worst["z"]:.1f}); over the {len(split["groups"])} groups of that split '
+            f'it gains {split["total_gain_per_matched_point"]:.4f} nats/point '
+            f'(z = {split["total_z"]:.1f}). A reference pose that is off is one rigid motion '
+            'every surface agrees on; this is not, so no pose error is claimed. The ranges '
+            'of surfaces facing some ways read off (a sunlit, warmer face; a coating): an '
+            'effect of your own that depends on the surface normal (docs/effects.md, "Write '
+            'your own effect") would fit it.')
 
 
 def range_of_range_words(left: dict) -> str:
