@@ -98,11 +98,7 @@ CEPTON_SATURATED, CEPTON_NO_RETURN = 1, 32
 SATURATION_POWER_W = 1.0e-3      # this sensor's detector clips above this
 # Hidden effects compare has no candidate for: expected answer null (and the feature).
 OUTSIDE_CATALOGUE = ('azimuth_bias', 'range_scale', 'crosstalk',   # range_scale: by name only
-<<<<<<< HEAD
-                     'dual_return', 'range_cyclic', 'veil', 'mixed_pixels')
-=======
-                     'dual_return', 'range_cyclic', 'veil', 'face_bias')
->>>>>>> facepose52
+                     'dual_return', 'range_cyclic', 'veil', 'mixed_pixels', 'face_bias')
 # Range errors of the sensor that compare weighs against the reference pose (issue 30).
 POSE_RIVALS = ('range_drift',)
 
@@ -2255,21 +2251,12 @@ FACE_BIAS_NAMES = frozenset(s.name for s in FACE_BIAS)
 
 def battery(names: list[str] | None = None) -> list[ForeignSpec]:
     """The battery, or the named datasets of it, of VENDOR, V4, RANGE_OUTSIDE, STANDOFF,
-<<<<<<< HEAD
-    COMPENSATED, INCIDENCE_LAW, POINTING_FEW, CLOCK_SPIN, LOG_WALK, SCALE_ALONE or
-    MIXED_PIXELS (in that order)."""
+    COMPENSATED, INCIDENCE_LAW, POINTING_FEW, CLOCK_SPIN, LOG_WALK, SCALE_ALONE, MIXED_PIXELS
+    or FACE_BIAS (in that order)."""
     if not names:
         return list(BATTERY)
     every = (BATTERY + VENDOR + V4 + RANGE_OUTSIDE + STANDOFF + COMPENSATED + INCIDENCE_LAW
-             + POINTING_FEW + CLOCK_SPIN + LOG_WALK + SCALE_ALONE + MIXED_PIXELS)
-=======
-    COMPENSATED, INCIDENCE_LAW, POINTING_FEW, CLOCK_SPIN, LOG_WALK, SCALE_ALONE or FACE_BIAS
-    (in that order)."""
-    if not names:
-        return list(BATTERY)
-    every = (BATTERY + VENDOR + V4 + RANGE_OUTSIDE + STANDOFF + COMPENSATED + INCIDENCE_LAW
-             + POINTING_FEW + CLOCK_SPIN + LOG_WALK + SCALE_ALONE + FACE_BIAS)
->>>>>>> facepose52
+             + POINTING_FEW + CLOCK_SPIN + LOG_WALK + SCALE_ALONE + MIXED_PIXELS + FACE_BIAS)
     known = {s.name: s for s in every}
     bad = [n for n in names if n not in known]
     if bad:
