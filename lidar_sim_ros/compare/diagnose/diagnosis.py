@@ -1041,9 +1041,9 @@ class Diagnosis(PoseWeighing):
         explaining too little of the features' structure alone, ``share_veto``, is weighed
         too: alone it sees the net; the pair's own share is asked): the pair over the
         model without either must pass the rule, give a fitted NLL (both refitted on all
-        the diagnosed points, as --fit leaves them) below the one without them, and,
-        where the features show a structure, explain at least PAIR_SHARE of it
-        (``power_incidence``);
+        the diagnosed points, as --fit leaves them) below the one without them, and
+        explain at least PAIR_SHARE of the features' structure (``power_incidence``; where
+        the features show none, a null, the pair is not weighed);
         then each passing on top of the other names both (the one gaining more alone
         named, the other 'also'), else their tie (``power_incidence.pair_outcome``).
         Otherwise nothing is named, as before. Figures in
@@ -1052,6 +1052,11 @@ class Diagnosis(PoseWeighing):
         pair_z: dict = {}
         if self.memo('pair').get('set_aside'):
             return Decision(None, [])     # not told from a range term (``pair_against_rivals``)
+        structure = self.pair_structure()
+        if structure is None:
+            # No structure in the features for the pair to explain (a null): not weighed
+            # (the joint fit on every training fold cost ~3.7 s a compare).
+            return Decision(None, [])
         two = [next((c for c in rank(cands) if c.name == n and c.error is None
                      and (c.vetoed is None or share_vetoed(c)) and c.effect is not None
                      and c.variant is not None and c.heldout_nll is not None), None)
@@ -1065,12 +1070,9 @@ class Diagnosis(PoseWeighing):
             after = self._together_nll([named.effect, other.effect])
         except Exception:  # noqa: BLE001 - not measured: nothing named, as before
             return Decision(None, [])
-        structure = self.pair_structure()
-        share = (float(pair[0] * self.n_total / max(len(self.rays.matched), 1) / structure)
-                 if structure else None)
+        share = float(pair[0] * self.n_total / max(len(self.rays.matched), 1) / structure)
         pair_passes = bool(self.passes_rule(*pair) and np.isfinite(after)
-                           and after < self.before_nll
-                           and (share is None or share >= power_incidence.PAIR_SHARE))
+                           and after < self.before_nll and share >= power_incidence.PAIR_SHARE)
         outcome = power_incidence.pair_outcome(pair_passes, self.passes_rule(*other_on_top),
                                                self.passes_rule(*named_on_top))
         label = {power_incidence.BOTH: 'pair_both', power_incidence.TIE: 'pair_tie'}.get(
