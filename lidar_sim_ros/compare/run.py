@@ -1046,12 +1046,14 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     scan = scan_clock(meas)
 
     def pose_test(on_top: list[Effect], constant: bool = False,
-                  data: lk.FitData | None = None) -> pose_error.PoseError:
+                  data: lk.FitData | None = None,
+                  orientations: bool = True) -> pose_error.PoseError:
         idx = tested.matched
         return pose_error.fit_reference_pose(
             tested_data if data is None else data, meas.cloud[idx], meas.t_s[idx],
             sample.blocks[idx], diag.z_crit, diagnosis.MIN_PRACTICAL_GAIN, seed,
-            on_top, rate=has_point_times(meas), constant=constant, scan=scan)
+            on_top, rate=has_point_times(meas), constant=constant, scan=scan,
+            orientations=orientations)
     recast_cache: dict = {}
 
     def recast(pose: pose_error.PoseError):

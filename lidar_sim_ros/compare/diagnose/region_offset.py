@@ -310,7 +310,8 @@ def weigh_pose(decision, cands: list, data: lk.FitData, blocks: np.ndarray,
     on_top, constant, data)``: the diagnosis's pose test on ``data``'s matched points
     (``blocks`` per point). Asked only where the pose is reported on its own held-out
     test (not tied, not on the raycast footing alone), with the named effect and the
-    one that also explains a part in the model."""
+    one that also explains a part in the model. ``pose_test`` takes ``orientations``
+    (``pose_error.fit_reference_pose``): not asked again here."""
     pose = decision.pose
     if (pose is None or 'pose_error' in decision.confounded_with
             or getattr(pose, 'raycast', None) or not getattr(pose, 'significant', False)):
@@ -320,8 +321,12 @@ def weigh_pose(decision, cands: list, data: lk.FitData, blocks: np.ndarray,
                if n in by_name and by_name[n].effect is not None]
     constant = bool(getattr(pose, 'constant', False))
     try:
+        # The reported pose already held across the surfaces' orientations; here it is
+        # asked whether it gains beyond the split (with the split's offsets in, a true
+        # rigid motion need not hold across them: a 3 cm shift of a cylinder did not).
         region = region_against_pose(
-            data, effects, blocks, lambda d: pose_test(effects, constant, d), z_crit,
+            data, effects, blocks,
+            lambda d: pose_test(effects, constant, d, orientations=False), z_crit,
             min_gain, seed)
     except Exception:  # noqa: BLE001 - the pose judged as before (a failed fit names nothing)
         return decision
