@@ -45,9 +45,11 @@ demo-loop: $(STAMP)
 # own threads on the fits' small matrices spin against the other worker (a 52 x 52
 # pinv took 14 ms with them on a loaded 2-core machine, 0.5 ms without; the two
 # pointing_few_c compares 73 -> 46 s of CPU).
+# Bytecode cached (a machine exporting PYTHONDONTWRITEBYTECODE=1 otherwise recompiles the
+# package and re-rewrites every test module's asserts in each worker, node and CLI process).
 TEST_WORKERS ?= 2
 test: $(STAMP)
-	export OPENBLAS_NUM_THREADS=1; status=0; \
+	export OPENBLAS_NUM_THREADS=1; unset PYTHONDONTWRITEBYTECODE; status=0; \
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope --durations=20 -m 'not serial' test || status=1; \
 	$(BIN)/python -m pytest -q --durations=10 -m serial test || status=1; \
 	exit $$status
