@@ -1123,8 +1123,7 @@ class Diagnosis(PoseWeighing):
         ok = np.isfinite(d)
         if ok.sum() < 2:
             return 0.0, 0.0
-        mean, se = block_mean_se(d[ok], self.blocks[ok])
-        z = float(mean / se) if se > 0 and np.isfinite(se) else 0.0
+        _, z = block_mean_z(d[ok], self.blocks[ok])
         return float(np.sum(d[ok]) / max(self.n_total, 1)), z
 
     def incidence_beside_model_walk(self, best: Candidate, pair_z: dict) -> str | None:

@@ -18,11 +18,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from lidar_sim_ros.compare.diagnose.candidate import MIN_SHARE, MIN_UNMATCHED_EXPLAINED
+
 GAP_M = 0.15            # beyond range noise (cm) and the target's sub-footprint relief
 NEIGHBOUR_RAD = 0.01    # rays this close see the edge and the surface behind it
 MIN_BEHIND = 2          # farther off-target returns: a surface, not one false return
-MIN_POINTS = 20         # as MIN_UNMATCHED_EXPLAINED: fewer say nothing
-MIN_SHARE = 0.25        # as diagnosis.MIN_SHARE: the share of the off-model points
+MIN_POINTS = MIN_UNMATCHED_EXPLAINED   # fewer points between say nothing
+# MIN_SHARE (the share veto's): the least share of the off-model points at the edge
 
 
 def off_model(range_m: np.ndarray, matched: np.ndarray,

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar_sim_ros.compare.diagnose.features import block_mean_se
+from lidar_sim_ros.compare.diagnose.range_outside import NAME_SHARE
 
 WALK, INCIDENCE, SCALE = 'range_walk', 'incidence_angle', 'range_scale'
 PAIR = (WALK, INCIDENCE)
@@ -47,8 +48,9 @@ BOTH, TIE = 'both', 'tie'
 # Least share of the features' structure a walk and an incidence bias weighed together,
 # where neither may be named alone, explain to be named (``Diagnosis.pair_beside_nothing``):
 # most of it, as a range term weighed where the structure is left outside the catalogue
-# (``range_outside.NAME_SHARE``); two forms fit part of any smooth pattern. Set before any run.
-PAIR_SHARE = 0.5
+# (``range_outside.NAME_SHARE``, the same number); two forms fit part of any smooth
+# pattern. Set before any run.
+PAIR_SHARE = NAME_SHARE
 DEGREE = 3                  # the smooth function a driver's part is taken beyond
 MIN_GROUP_POINTS = 20       # a material with fewer keeps its driver about its mean
 CORE_SIGMAS = 6.0           # points farther from their material's median are left out

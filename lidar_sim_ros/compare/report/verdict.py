@@ -1019,12 +1019,12 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
         # Withheld by the diagnosis (``Decision.withheld``): it explains the residual by
         # the rule's gain, so what keeps it is said, not "noise".
         return (f'No catalogue effect is named. The best candidate, {best.name}, is not '
-                f'named: {kept}.' + _between_words(summary, best))
+                f'named: {kept}.' + _between_words(summary, best, fault))
     elif along.get('pose_line_of_sight') and not along.get('passes_on_pose'):
         return line_of_sight_words(best)
     elif best is not None and best.practical and fault:
         why = (f' The best candidate, {best.name}, is not named: {fault}.'
-               + _between_words(summary, best))
+               + _between_words(summary, best, fault))
     elif best is not None and not best.practical:
         why = (f' The best candidate, {best.name}, gains {best.score:.4f} nats/point held out '
                f'(z = {best.z:.1f}), less than the {diagnosis.MIN_PRACTICAL_GAIN:g} nats/point '
@@ -1045,7 +1045,8 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
                    f'held out but not significantly {noisy}')
     if attribution is not None and attribution.significant:
         return ('No catalogue effect explains it by a margin that matters.' + why
-                + range_outside.words(summary) + ' The missing physics is outside the catalogue: write an effect '
+                + range_outside.words(summary)
+                + ' The missing physics is outside the catalogue: write an effect '
                 '(docs/effects.md, "Write your own effect") that depends on what the residual '
                 'depends on, and add it with --effect file.py:Class --fit.')
     left_out = [what for what, key in (('occluded returns', 'occlusion'),
@@ -1057,15 +1058,14 @@ def _nothing_named(summary: dict, attribution, cands: list) -> str:
             f'the model matches the measurements up to noise{beside}.' + why)
 
 
-def _between_words(summary: dict, best) -> str:
-    """Where ``best`` lowers the NLL and raises the range RMSE (``diagnosis.rmse_fault``)
-    and the points off the model lie between the target's edge and a surface behind it
+def _between_words(summary: dict, best, fault: str | None) -> str:
+    """Where what keeps ``best`` from being named (``fault``: its ``naming_fault``) is
+    that it lowers the NLL and raises the range RMSE (``diagnosis.rmse_fault``) and the
+    points off the model lie between the target's edge and a surface behind it
     (``mixed_edges.shown``): that sentence, else ''."""
     figures = summary.get('mixed_edges')
-    before = summary.get('range_rmse_calibrated_m', float('nan'))
-    why = diagnosis.rmse_fault(best, before)
-    if (not mixed_edges.shown(figures) or why is None
-            or diagnosis.naming_fault(best, summary['nll_calibrated'], before) != why):
+    why = diagnosis.rmse_fault(best, summary.get('range_rmse_calibrated_m', float('nan')))
+    if not mixed_edges.shown(figures) or why is None or fault != why:
         return ''
     return mixed_edges.words(figures)
 
