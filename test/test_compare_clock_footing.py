@@ -2,6 +2,7 @@
 reference pose on the pose test's own rays, and the tie where it shows only off them
 (``Diagnosis.clock_off_footing``; the verdict's words)."""
 import numpy as np
+import pytest
 from conftest import plane_fit_data, three_planes, turned_plane_ranges
 
 from lidar_sim_ros.compare.diagnose import clock_footing, diagnosis
@@ -158,26 +159,63 @@ def test_the_battery_judges_the_tie_of_a_drifting_pose_and_a_clock_as_honest():
     assert not judge_v4(spec, [named, done], {})['ok']
 
 
-def test_the_plan_of_the_tie_is_the_target_tumbling_faster_and_held_still():
-    """plan.pose_clock_plan: two rows, not simulated (the target tumbling twice as fast,
+@pytest.mark.parametrize('rival', ['time_offset', 'laser_pointing'])
+def test_the_plan_of_the_tie_is_the_target_tumbling_faster_and_held_still(rival):
+    """plan.pose_motion_plan: two rows, not simulated (the target tumbling twice as fast,
     and held still on a surveyed pose), and plan.yaml the faster tumble as a scenario;
-    the verdict points at it."""
+    the verdict points at it. The same plan separates the pose from lasers off their
+    directions (the eighteenth holdout's pose lag tied with laser_pointing wrote none)."""
     import yaml
     from pathlib import Path
     from lidar_sim_ros.compare.diagnose import plan
     from lidar_sim_ros.compare.report.verdict import clock_off_footing_words
     rec = plan.Recording('this recording', 'as recorded', (10.0, 0.0, 0.0),
                          (0.0, 0.0, 0.0, 1.0), 0.0, (0.0, 0.0, 1.0), 6.0, 5, 0.1)
-    rows, text = plan.pose_clock_plan(rec, 7, Path('/m.obj'), Path('/s.yaml'),
-                                      Path('/mat.yaml'), [])
+    rows, text = plan.pose_motion_plan(rec, 7, Path('/m.obj'), Path('/s.yaml'),
+                                       Path('/mat.yaml'), [], rival)
     assert [r['simulated'] for r in rows] == [False, False]
-    assert set(rows[0]['ways']) == {'pose_error', 'time_offset'}
+    assert set(rows[0]['ways']) == {'pose_error', rival}
     assert rows[0]['motion']['tumble_rate_dps'] == 12.0
     assert rows[1]['motion']['tumble_rate_dps'] == 0.0
     body = yaml.safe_load(text)
     assert body['motion']['tumble_rate_dps'] == 12.0 and body['seed'] == 7
-    assert '--effect time_offset --fit' in text
+    assert f'--effect {rival} --fit' in text
     assert '(plan.yaml)' in clock_off_footing_words(_on(False, False).as_dict(), '', True)
+
+
+@pytest.mark.parametrize('tie, rival', [
+    (['pose_error', 'time_offset'], 'time_offset'),
+    (['pose_error', 'laser_pointing'], 'laser_pointing'),
+    (['time_offset', 'pose_error'], 'time_offset'),
+    (['pose_error', 'range_drift'], None),          # the range plan's (pose_rival)
+    (['pose_error', 'time_offset', 'laser_pointing'], None),
+    (['incidence_angle', 'range_walk'], None),
+])
+def test_a_tie_of_the_pose_with_a_clock_or_the_pointing_gets_the_motion_plan(tie, rival):
+    """run.pose_motion_rival: the tie of the reference pose with a clock offset, reported
+    or not, or with lasers off their directions writes the motion plan (the eighteenth
+    holdout's clock on a constant spin, tied with a reported pose, wrote no plan.yaml:
+    the old test asked for the pose not to be reported)."""
+    from types import SimpleNamespace
+    from lidar_sim_ros.compare.run import pose_motion_rival
+    diag = SimpleNamespace(decision=SimpleNamespace(confounded_with=tie))
+    assert pose_motion_rival(diag) == rival
+
+
+def test_the_pointing_tie_says_which_recording_separates_it():
+    """verdict.pose_tie_words: the pose tied with laser_pointing names the recordings and
+    plan.yaml when the plan was written."""
+    from types import SimpleNamespace
+    from lidar_sim_ros.compare.report import verdict as vd
+    pose = SimpleNamespace(gain=0.02, z=9.0, constant=False, words=lambda: 'off per cloud',
+                           translation_rms_cm=1.0, rotation_rms_deg=0.5)
+    decision = SimpleNamespace(pose=pose, confounded_with=['pose_error', 'laser_pointing'],
+                               beside_pose=None)
+    row = {'simulated': False, 'what': 'the target tumbling 2 x as fast (12 deg/s)'}
+    said = vd.pose_tie_words(decision, {'separation_plan': [row]}, [])
+    assert 'plan.yaml: the target tumbling 2 x as fast' in said
+    assert 'held still on a surveyed pose' in said
+    assert 'plan.yaml' not in vd.pose_tie_words(decision, {}, [])
 
 
 def test_the_page_says_which_plan_it_shows():
@@ -188,4 +226,6 @@ def test_the_page_says_which_plan_it_shows():
     assert 'clock offset' in page._plan_words([unflown])
     assert 'range error of the sensor' in page._plan_words(
         [{**unflown, 'ways': {'pose_error': {}, 'range_drift': {}}}])
+    assert 'lasers off their directions' in page._plan_words(
+        [{**unflown, 'ways': {'pose_error': {}, 'laser_pointing': {}}}])
     assert 'flown by the simulator' in page._plan_words([{'simulated': True}])

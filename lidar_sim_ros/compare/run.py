@@ -545,8 +545,8 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     rival = pose_rival(diag)
     if rival and opts.plan:
         plan = pose_range_plan(opts, inp, cal, effects, rival)
-    elif pose_clock_tie(diag) and opts.plan:
-        plan = pose_clock_plan(opts, inp, effects)
+    elif pose_motion_rival(diag) and opts.plan:
+        plan = pose_motion_plan(opts, inp, effects, pose_motion_rival(diag))
     elif tied and opts.plan:
         with stage('plan', ' against '.join(c.name for c in tied)):
             try:
@@ -575,11 +575,15 @@ def pose_rival(diag: Diagnosed) -> str | None:
                 None)
 
 
-def pose_clock_tie(diag: Diagnosed) -> bool:
-    """The tie of a clock offset with a pose drifting within the cloud, the pose not
-    reported (``Diagnosis.clock_off_footing``)."""
-    return (diag.decision.confounded_with == [diagnosis.POSE_ERROR, 'time_offset']
-            and diag.decision.pose is None)
+def pose_motion_rival(diag: Diagnosed) -> str | None:
+    """The effect tied with the reference pose that a faster tumble or a still target
+    separates from it (``plan.MOTION_RIVALS``: a clock offset, lasers off their
+    directions), if the tie is of those two alone."""
+    tie = diag.decision.confounded_with
+    if len(tie) != 2 or diagnosis.POSE_ERROR not in tie:
+        return None
+    other = next(n for n in tie if n != diagnosis.POSE_ERROR)
+    return other if other in sep_plan.MOTION_RIVALS else None
 
 
 def own_motion(inp: Inputs) -> 'sep_plan.Recording':
@@ -601,14 +605,15 @@ def sensor_and_materials(scenario) -> tuple[Path, Path]:
             resolve(scenario.config.materials, base_dir))
 
 
-def pose_clock_plan(opts: CompareOptions, inp: Inputs, effects: list[Effect]) -> Plan:
-    """The recordings that separate a clock offset from a pose drifting within the cloud
-    (``plan.pose_clock_plan``): the target tumbling faster, and static on a surveyed
-    pose."""
-    rows, text = sep_plan.pose_clock_plan(own_motion(inp), inp.scenario.seed,
-                                          Path(opts.mesh).resolve(),
-                                          *sensor_and_materials(inp.scenario), effects)
-    return Plan(rows, [diagnosis.POSE_ERROR, 'time_offset'], text)
+def pose_motion_plan(opts: CompareOptions, inp: Inputs, effects: list[Effect],
+                     rival: str) -> Plan:
+    """The recordings that separate ``rival`` (a clock offset, lasers off their
+    directions) from a reference pose error (``plan.pose_motion_plan``): the target
+    tumbling faster, and static on a surveyed pose."""
+    rows, text = sep_plan.pose_motion_plan(own_motion(inp), inp.scenario.seed,
+                                           Path(opts.mesh).resolve(),
+                                           *sensor_and_materials(inp.scenario), effects, rival)
+    return Plan(rows, [diagnosis.POSE_ERROR, rival], text)
 
 
 def pose_range_plan(opts: CompareOptions, inp: Inputs, cal: Calibrated,

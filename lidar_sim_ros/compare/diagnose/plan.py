@@ -462,15 +462,32 @@ def pose_range_plan(rec: Recording, rival: str, scenario_seed: int, mesh: Path, 
                                materials, base)
 
 
-def pose_clock_plan(rec: Recording, scenario_seed: int, mesh: Path, sensor: Path,
-                    materials: Path, base: list[Effect]) -> tuple[list[dict], str]:
-    """The separation plan of a reference pose drifting within each cloud tied with a
-    clock offset (``clock_footing``): summary rows (not simulated: a reference pose error
-    is no sensor effect the simulator flies) and plan.yaml, the same recording with the
-    target tumbling TUMBLE_FACTOR x as fast. A clock offset moves the target by its
-    motion over the offset, so its displacement grows with the tumble rate; a tracking
-    system's drift need not. A static target on a surveyed pose, in the header: neither
-    moves it there, so any residual left is neither."""
+# What a faster tumble and a still target show of each rival of a reference pose that
+# moves the target with its motion (``pose_motion_plan``): (rival's name, what it is,
+# how the faster tumble tells it from the pose).
+MOTION_RIVALS = {
+    'time_offset': ('a clock offset between the pose and LiDAR stamps',
+                    'a clock offset moves the target by its motion over the offset, '
+                    f'{TUMBLE_FACTOR:g} x as far here; a tracking system\'s error need not '
+                    'follow the motion'),
+    'laser_pointing': ('some lasers off their configured directions',
+                       'a tracking system\'s drift or lag grows with the motion; a laser\'s '
+                       'pointing does not, and it stays on the still target'),
+}
+
+
+def pose_motion_plan(rec: Recording, scenario_seed: int, mesh: Path, sensor: Path,
+                     materials: Path, base: list[Effect], rival: str = 'time_offset'
+                     ) -> tuple[list[dict], str]:
+    """The separation plan of a reference pose error (constant, or drifting within each
+    cloud) tied with ``rival`` (a key of MOTION_RIVALS: a clock offset, or lasers off
+    their directions): summary rows (not simulated: a reference pose error is no sensor
+    effect the simulator flies) and plan.yaml, the same recording with the target
+    tumbling TUMBLE_FACTOR x as fast. A clock offset moves the target by its motion over
+    the offset, so its displacement grows with the tumble rate; a tracking system's error
+    need not, and a laser's pointing does not. A static target on a surveyed pose, in the
+    header: no tracking system moves it there."""
+    what, how = MOTION_RIVALS[rival]
     fast = replace(rec, label=f'{TUMBLE_FACTOR:g}x the tumble rate',
                    what=f'the target tumbling {TUMBLE_FACTOR:g} x as fast '
                         f'({TUMBLE_FACTOR * rec.tumble_rate_dps:.2g} deg/s)',
@@ -478,16 +495,16 @@ def pose_clock_plan(rec: Recording, scenario_seed: int, mesh: Path, sensor: Path
     still = replace(rec, label='static, surveyed', what='the target held still on a surveyed '
                     'pose (no tumble, no tracking system between it and the truth)',
                     approach_speed_mps=0.0, tumble_rate_dps=0.0)
-    rows = unflown_rows([fast, still], 'time_offset')
+    rows = unflown_rows([fast, still], rival)
+    left = ('a residual left there is neither' if rival == 'time_offset' else
+            f'a residual left there is {rival}\'s, not the reference pose\'s')
     head = [
-        '# Separation plan written by lidar-sim compare: the recordings that tell a clock',
-        '# offset between the pose and LiDAR stamps from a reference pose drifting within',
-        '# each cloud; they explained the recording compared equally well.',
-        f'#   1. {fast.what} (this scenario): a clock offset moves the target by its',
-        f'#      motion over the offset, {TUMBLE_FACTOR:g} x as far here; a tracking',
-        '#      system\'s drift need not follow the motion.',
-        f'#   2. {still.what}: a residual left there is neither.',
-        '# Then compare each with --effect time_offset --fit and with --effect pose_error --fit.',
+        '# Separation plan written by lidar-sim compare: the recordings that tell',
+        f'# {what} ({rival}) from a reference pose error (constant or drifting within each',
+        '# cloud); they explained the recording compared equally well.',
+        f'#   1. {fast.what} (this scenario): {how}.',
+        f'#   2. {still.what}: {left}.',
+        f'# Then compare each with --effect {rival} --fit and with --effect pose_error --fit.',
         f'#   lidar-sim simulate plan.yaml --frames {fast.frames} --out DIR',
     ]
     return rows, scenario_yaml(head, fast.scenario_keys(), scenario_seed, mesh, sensor,

@@ -291,11 +291,17 @@ def _plan_words(rows: list[dict]) -> str:
     with a clock offset or with a range error would need (not simulated), or both
     confounded candidates flown by the simulator."""
     if rows[0].get('simulated') is False and 'time_offset' in rows[0].get('ways', {}):
-        return ('The reference pose drifting within each cloud against a clock offset: '
+        return ('The reference pose against a clock offset: '
                 'not simulated (a reference pose error is no sensor effect the simulator '
                 'flies). The target tumbling faster (a clock offset moves it by its motion '
                 'over the offset, a tracking system\'s drift need not follow the motion), '
                 'and held still on a surveyed pose. The first is written as plan.yaml.')
+    if rows[0].get('simulated') is False and 'laser_pointing' in rows[0].get('ways', {}):
+        return ('The reference pose against lasers off their directions: not simulated (a '
+                'reference pose error is no sensor effect the simulator flies). The target '
+                'tumbling faster (a tracking system\'s drift grows with the motion, a '
+                'laser\'s pointing does not) and held still on a surveyed pose (the '
+                'pointing stays there). The first is written as plan.yaml.')
     if rows[0].get('simulated') is False:
         return ('The reference pose against a range error of the sensor: not simulated (a '
                 'reference pose error is no sensor effect the simulator flies). The target '

@@ -924,8 +924,9 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
                 'the two it is cannot be told from this recording; none is named. A '
                 'recording in which the target turns at another rate (a clock offset moves '
                 'the target by its motion over the offset, a pose error does not follow the '
-                'motion) would separate them; if the tracking system is known to be right, '
-                'try --effect time_offset --fit, else --effect pose_error --fit.')
+                f'motion) would separate them{_motion_plan(summary)}; if the tracking system '
+                'is known to be right, try --effect time_offset --fit, else --effect '
+                'pose_error --fit.')
     if other == ['time_offset']:
         return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
                 f'{pose_part}, and a clock offset explains the residual as well{held}. The '
@@ -951,10 +952,24 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
                 'of them it is cannot be told from this recording, and none is named.'
                 f'{where} If the tracking system is known to be right, add --effect '
                 f'{other[0]} --fit; if the sensor is, --effect pose_error --fit.')
+    where = ''
+    if other == ['laser_pointing']:
+        where = (' The target tumbling faster (a tracking system\'s drift grows with the '
+                 'motion, a laser\'s pointing does not) or held still on a surveyed pose '
+                 f'would separate them{_motion_plan(summary)}.')
     return (f'{pose_part[0].upper()}{pose_part[1:]}, and {_join(other)} explains the '
             f'residual as well{held}: they are confounded in this recording, so none is '
-            'named. Add the one you know with --effect NAME --fit (pose_error corrects the '
-            'reference pose).')
+            f'named.{where} Add the one you know with --effect NAME --fit (pose_error '
+            'corrects the reference pose).')
+
+
+def _motion_plan(summary: dict) -> str:
+    """' (plan.yaml: ...)' where the tie of the pose with a clock or the lasers' pointing
+    wrote its plan (``plan.pose_motion_plan``), else ''."""
+    rows = summary.get('separation_plan') or []
+    if not rows or rows[0].get('simulated') is not False:
+        return ''
+    return (f' (plan.yaml: {rows[0]["what"]}; the still target in its header)')
 
 
 def _sunlight_named(summary: dict, c) -> str:
