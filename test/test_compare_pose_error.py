@@ -1131,3 +1131,53 @@ def test_a_step_of_the_re_casts_is_the_full_fits_correction_without_its_test(con
     assert (step.constant, step.joint, step.through_materials) == (
         full.constant, full.joint, full.through_materials)
     assert not step.significant and step.gain == 0.0
+
+
+def _cylinder_range(u: np.ndarray, centre: np.ndarray, radius_m: float):
+    """Range (m) along unit rays ``u`` to an infinite cylinder along z through ``centre``
+    (N, 3; its x and y), its outward unit normal there, and whether the ray meets it."""
+    a = u[:, 0] ** 2 + u[:, 1] ** 2
+    b = -2 * (u[:, 0] * centre[:, 0] + u[:, 1] * centre[:, 1])
+    c = centre[:, 0] ** 2 + centre[:, 1] ** 2 - radius_m ** 2
+    disc = b * b - 4 * a * c
+    s = (-b - np.sqrt(np.maximum(disc, 0.0))) / (2 * a)
+    p = s[:, None] * u
+    normal = np.column_stack([p[:, 0] - centre[:, 0], p[:, 1] - centre[:, 1], 0 * s]) / radius_m
+    return s, normal, disc > 0
+
+
+def test_a_shift_across_a_cylinder_is_said_at_its_size_as_either_part_alone():
+    """Twenty clouds of a cylinder (radius 1.5 m, 10 m away), each recorded 3 cm off
+    sideways (a translation only). On a cylinder a sideways shift is also a turn about the
+    centroid of the points seen, so neither part passes beyond the other ('either'); fitted
+    side by side the ridge split the shift into 1.1 cm and 0.87 deg, and the verdict said
+    "about 1.1 cm and 0.87 deg" for a 3.2 cm RMS shift (the eighteenth holdout's jitter, said
+    as half its size). Each part is now said as fitted alone: the translation alone within
+    15 % of the truth."""
+    rng = np.random.default_rng(3)
+    n_clouds, per = 20, 1500
+    n = n_clouds * per
+    az, el = rng.uniform(-0.11, 0.11, n), rng.uniform(-0.1, 0.1, n)
+    u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    cloud = np.repeat(np.arange(n_clouds), per)
+    t = cloud * 0.1 + rng.uniform(0.0, 0.09, n)
+    dy = rng.normal(0.0, 0.03, n_clouds)
+    nominal = np.tile([10.0, 0.0, 0.0], (n, 1))
+    expected, normal, met = _cylinder_range(u, nominal, 1.5)
+    shifted = nominal + np.column_stack([0 * dy, dy, 0 * dy])[cloud]
+    measured, _, met_too = _cylinder_range(u, shifted, 1.5)
+    measured = measured + 0.01 * rng.standard_normal(n)
+    data = plane_fit_data(expected, measured, normal, u, t, 0.01, (5.0, 15.0))
+    idx = np.flatnonzero(met & met_too)
+    pose = pose_error.fit_reference_pose(data(idx), cloud[idx], t[idx], idx // 30, 3.0,
+                                         diagnosis.MIN_PRACTICAL_GAIN)
+    truth_cm = 100 * np.sqrt(np.mean(dy ** 2))
+    assert pose.significant and pose.parts == 'either'
+    alone = pose.parts_test['translation_alone_cm']
+    assert abs(alone - truth_cm) < 0.15 * truth_cm
+    assert pose.size_cm < 0.6 * truth_cm          # the split's share: not what is said
+    words = pose.words()
+    assert f'{alone:.1f} cm as a translation alone, or' in words
+    assert f'{pose.size_cm:.1f} cm and' not in words
+    moved = replace(pose, parts='translation')
+    assert moved.size_cm == alone
