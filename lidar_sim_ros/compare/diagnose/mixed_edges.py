@@ -44,14 +44,17 @@ def between_edge_and_behind(directions: np.ndarray, range_m: np.ndarray,
     out = {'off_model': 0, 'between': 0, 'share': 0.0, 'behind_m': float('nan')}
     if len(idx) == 0 or not matched.any():
         return out
+    # At the target's edge: a matched point among the rays within NEIGHBOUR_RAD (the
+    # others, the wall or clutter far off, are most of them on a lab recording).
+    edge = cKDTree(directions[matched]).query_ball_point(
+        directions[idx], NEIGHBOUR_RAD, return_length=True) > 0
+    idx = idx[edge]
+    at_edge = len(idx)
     tree = cKDTree(directions)
-    between, behind, at_edge = [], [], 0
+    between, behind = [], []
     for i, nb in zip(idx, tree.query_ball_point(directions[idx], NEIGHBOUR_RAD)):
         nb = np.asarray(nb, int)
         near = range_m[nb[matched[nb]]]
-        if len(near) == 0:
-            continue          # not at the target's edge (the wall, clutter far off)
-        at_edge += 1
         far = range_m[nb[~matched[nb]]]
         r = range_m[i]
         if near.min() > r - GAP_M:
