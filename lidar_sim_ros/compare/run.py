@@ -42,7 +42,8 @@ from lidar_sim_ros.compare.diagnose import (clock_footing, clock_nested, diagnos
                                             plan as sep_plan, power_incidence,
                                             line_of_sight, mixed_edges, pose_error,
                                             range_alone, region_offset,
-                                            row_clock, stamp_place, variants)
+                                            row_clock, spin_clock, stamp_place,
+                                            variants)
 from lidar_sim_ros.compare.diagnose.candidate import _num
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
@@ -595,6 +596,21 @@ def own_motion(inp: Inputs) -> 'sep_plan.Recording':
                                     float(stamps.max()) + frame_period_s(meas, scenario),
                                     scenario.sensor.frame_period_s,
                                     getattr(meas.poses, 't_s', None))
+
+
+def spin_halves(inp: Inputs) -> np.ndarray:
+    """(2, 3) the recording's mean angular velocity (deg/s, lidar frame) over the first
+    and the second half of its clouds (``plan.recorded_motion``)."""
+    meas, scenario = inp.meas, inp.scenario
+    t0 = float(meas.cloud_stamps_s.min())
+    t1 = float(meas.cloud_stamps_s.max()) + frame_period_s(meas, scenario)
+    mid = 0.5 * (t0 + t1)
+    times = getattr(meas.poses, 't_s', None)
+    out = []
+    for a, b in ((t0, mid), (mid, t1)):
+        rec = sep_plan.recorded_motion(meas.poses, a, b, scenario.sensor.frame_period_s, times)
+        out.append(rec.tumble_rate_dps * np.asarray(rec.tumble_axis, float))
+    return np.array(out)
 
 
 def sensor_and_materials(scenario) -> tuple[Path, Path]:
@@ -1892,7 +1908,10 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
         'stamp_place': diag.stamp.as_dict() if diag.stamp is not None else None,
         'reference_pose': (None if diag.pose is None else {
             **diag.pose.as_dict(),
-            **pose_status(diag.pose.as_dict(), decision, diag.cands, diag.pose_on_top)}),
+            **pose_status(diag.pose.as_dict(), decision, diag.cands, diag.pose_on_top),
+            **({'clock_equivalent': spin_clock.clock_equivalent(
+                diag.pose.rotation_deg, spin_halves(inp))}
+               if decision.pose is diag.pose and diag.pose.constant else {})}),
         'reference_pose_off': decision.pose is not None,
         'pose_along_line_of_sight': diag.line_of_sight,
         'region_offset': decision.region.as_dict() if decision.region is not None else None,

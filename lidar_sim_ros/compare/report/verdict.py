@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from lidar_sim_ros.compare.diagnose import (beside, diagnosis, mixed_edges, pose_error,
-                                            power_incidence, range_outside)
+                                            power_incidence, range_outside, spin_clock)
 from lidar_sim_ros.compare.model.materials import common_offset_m
 
 EFFECT_WORDS = {
@@ -191,6 +191,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             parts.append(words[0].upper() + words[1:] + '.')
     elif decision.pose is not None:
         parts.append(pose_words(decision.pose, cands))
+        spin = (summary.get('reference_pose') or {}).get('clock_equivalent')
+        if spin and spin.get('shown'):
+            parts.append(spin_clock.words(spin))
         below = clock_below_margin_words(cands)
         if below:
             parts.append(below)
