@@ -58,3 +58,21 @@ def test_the_verdict_says_the_clock_beside_a_constant_pose_claimed_alone():
     not_along = {**figures, 'shown': False}
     assert 'LiDAR stamps' not in vd.verdict(
         {**base, 'reference_pose': {'clock_equivalent': not_along}}, None, [], decision)
+
+
+def test_on_a_fixed_spin_the_clock_has_no_part_of_its_own_to_say():
+    """fixed_spin: a constant rate about a fixed axis (the seventeenth holdout's 30 deg/s
+    tumble, where a clock was named beside a constant pose on a spurious own part of
+    0.0074 nats/point, dt 32.6 ms for 20) is one; a spin-up, a moving axis, a slow turn are
+    not. There the nested test is not asked and the verdict says no clock part."""
+    assert spin_clock.fixed_spin(np.array([[0.0, 9.0, 28.6], [0.1, 9.1, 28.5]]))
+    assert not spin_clock.fixed_spin(np.array([[0.0, 0.0, 10.0], [0.0, 0.0, 50.0]]))
+    assert not spin_clock.fixed_spin(np.array([[0.0, 0.0, 25.0], [0.0, 8.0, 24.0]]))
+    assert not spin_clock.fixed_spin(np.array([[0.0, 0.0, 0.4], [0.0, 0.0, 0.4]]))
+    clock = SimpleNamespace(name='time_offset', against_pose={'constant_pose_footing': {
+        'clock_decisive_over_pose': True, 'clock_passes_over_pose': False,
+        'clock_over_pose_z': 4.0, 'clock_over_pose_gain': 0.003,
+        'nested': {'not_asked': 'a spin at a constant rate about a fixed axis'}}})
+    assert vd.clock_below_margin_words([clock]) == ''
+    del clock.against_pose['constant_pose_footing']['nested']
+    assert 'keeps a part of its own' in vd.clock_below_margin_words([clock])

@@ -598,10 +598,9 @@ def own_motion(inp: Inputs) -> 'sep_plan.Recording':
                                     getattr(meas.poses, 't_s', None))
 
 
-def spin_halves(inp: Inputs) -> np.ndarray:
+def spin_halves(meas: Measurements, scenario: Scenario) -> np.ndarray:
     """(2, 3) the recording's mean angular velocity (deg/s, lidar frame) over the first
     and the second half of its clouds (``plan.recorded_motion``)."""
-    meas, scenario = inp.meas, inp.scenario
     t0 = float(meas.cloud_stamps_s.min())
     t1 = float(meas.cloud_stamps_s.max()) + frame_period_s(meas, scenario)
     mid = 0.5 * (t0 + t1)
@@ -1234,9 +1233,22 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
                                    diag.z_crit, seed)
         return cast.weigh(float(clock.params.dt_s), float(dt_joint_s),
                           diagnosis.MIN_PRACTICAL_GAIN)
+    # On a spin at a constant rate about a fixed axis a clock offset is one rotation
+    # about that axis, which one correction for the recording takes alike: the clock has
+    # no part of its own to find there, and a part the nested test finds is not the
+    # clock's (``spin_clock.fixed_spin``; the pose alone stands, its rotation said as
+    # the clock it equals).
+    fixed = spin_clock.fixed_spin(spin_halves(meas, scenario))
     decision, clock = diag.clock_beside_constant_pose(
         decision, cands, clock_beside_corrected, lambda clock: on_constant_pose(clock)[:2],
-        clock_nested_cast)
+        None if fixed else clock_nested_cast)
+    if fixed:
+        spun = next((c for c in cands if c.name == 'time_offset'
+                     and 'constant_pose_footing' in (c.against_pose or {})), None)
+        if spun is not None:
+            spun.against_pose['constant_pose_footing']['nested'] = {
+                'not_asked': 'a spin at a constant rate about a fixed axis: a clock offset '
+                             'is one rotation of the pose there'}
     # The same where the pose test reports a correction per cloud: the clock with one
     # correction against the per-cloud correction, each charged its parameters, on
     # enough clouds for one dt's pattern over them to show (``MIN_CLOUDS_PER_CLOUD``).
@@ -1910,7 +1922,7 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
             **diag.pose.as_dict(),
             **pose_status(diag.pose.as_dict(), decision, diag.cands, diag.pose_on_top),
             **({'clock_equivalent': spin_clock.clock_equivalent(
-                diag.pose.rotation_deg, spin_halves(inp))}
+                diag.pose.rotation_deg, spin_halves(inp.meas, inp.scenario))}
                if decision.pose is diag.pose and diag.pose.constant else {})}),
         'reference_pose_off': decision.pose is not None,
         'pose_along_line_of_sight': diag.line_of_sight,

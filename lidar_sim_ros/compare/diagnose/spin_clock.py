@@ -31,18 +31,26 @@ def clock_equivalent(rotation_deg: np.ndarray, spin_halves_dps: np.ndarray) -> d
     between them, 'tumble_rate_dps', 'rotation_deg', 'shown': alignment >=
     MIN_ALIGNMENT}."""
     rot = np.asarray(rotation_deg, float).reshape(-1, 3).mean(axis=0)
-    halves = np.asarray(spin_halves_dps, float).reshape(2, 3)
-    w = halves.mean(axis=0)
+    w = np.asarray(spin_halves_dps, float).reshape(2, 3).mean(axis=0)
     rate = float(np.linalg.norm(w))
     angle = float(np.linalg.norm(rot))
-    if (not np.all(np.isfinite(halves)) or not np.all(np.isfinite(rot))
-            or rate < MIN_RATE_DPS or angle < MIN_ROTATION_DEG
-            or np.linalg.norm(halves[0] - halves[1]) > MAX_RATE_CHANGE * rate):
+    if not fixed_spin(spin_halves_dps) or not np.isfinite(angle) or angle < MIN_ROTATION_DEG:
         return None
     alignment = float(rot @ w / (angle * rate))
     return {'dt_s': round(float(rot @ w / rate ** 2), 5), 'alignment': round(alignment, 4),
             'tumble_rate_dps': round(rate, 3), 'rotation_deg': round(angle, 4),
             'shown': bool(alignment >= MIN_ALIGNMENT)}
+
+
+def fixed_spin(spin_halves_dps: np.ndarray) -> bool:
+    """Whether the target spins at a constant rate about a fixed axis: ``spin_halves_dps``
+    (2, 3), the spatial angular velocity over the recording's two halves, at least
+    MIN_RATE_DPS and the same in both to MAX_RATE_CHANGE of the rate (a clock offset is
+    then one rotation of the pose about that axis)."""
+    halves = np.asarray(spin_halves_dps, float).reshape(2, 3)
+    rate = float(np.linalg.norm(halves.mean(axis=0)))
+    return bool(np.all(np.isfinite(halves)) and rate >= MIN_RATE_DPS
+                and np.linalg.norm(halves[0] - halves[1]) <= MAX_RATE_CHANGE * rate)
 
 
 def words(figures: dict) -> str:
