@@ -68,9 +68,10 @@ class RangeInIntensity:
                         "attribution reads it at the model's range, I (r_model / r_meas)^2, "
                         "so the range's own noise is not read back as structure"
                         if self.re_expressed else
-                        'the intensity does not carry the measured range: read as recorded, '
-                        "a compensation for range undone with the model's range (with the "
-                        "measured one it would put the range's noise into the power)"
+                        'the intensity does not carry the measured range: read as recorded '
+                        "(a compensation for range in its reading, if any, undone with the "
+                        "model's range: the measured one would put the range's noise into "
+                        'the power)'
                         if self.free else
                         'the intensity does not carry the measured range: read as recorded')}
 
