@@ -20,8 +20,9 @@ attribution reads the intensity moved to the model's range, I (r_model / r_meas)
 the measured range's noise taken out, nothing else. Where the slope is nearer 0 than 2
 and 4 standard errors below 2 (``free_of_measured_range``), a compensation for range in
 the intensity's reading (I ~ P r^2) is undone with the model's range, not the measured
-one: I / r_meas^2 would put the measured range's noise into the power. A raw-power intensity is never
-re-expressed (the mend that did so everywhere made phantom structure from pose errors).
+one: I / r_meas^2 would put the measured range's noise into the power. A raw-power
+intensity is never re-expressed (the mend that did so everywhere made phantom structure
+from pose errors).
 """
 from __future__ import annotations
 
