@@ -377,3 +377,31 @@ def test_mixed_pixels_lie_between_the_plate_edge_and_the_wall_behind():
     edge_far = np.abs(y - 0.5) > 0.06                  # the ring cannot reach the edge
     assert not mixed[edge_far].any()
     np.testing.assert_allclose(r_out[~mixed], r[~mixed])
+
+
+def test_the_loop_judges_outside_the_catalogue_on_the_box_wing_null_wrong():
+    """The box-wing null (boxnull53): null with the per-material offsets reported is
+    right; "the missing physics is outside the catalogue" is a phantom."""
+    spec = battery(['null_box_wing'])[0]
+    said = ('No catalogue effect explains it by a margin that matters. The missing physics '
+            'is outside the catalogue: write an effect ...')
+    null = ('No catalogue effect improves the held-out likelihood by a margin that matters: '
+            'the model matches the measurements up to noise. Per-material range bias/sigma '
+            'differ from the configuration for PIF (bias +1.8 cm, sigma x 0.95)')
+    for verdict, ok in ((said, False), (null, True)):
+        step = {'missing_effect': None, 'verdict': verdict, 'nll_calibrated': -2.03}
+        assert judge(spec, [step], {})['ok'] is ok, judge(spec, [step], {})
+
+
+def test_the_box_wing_and_its_true_range_compensation():
+    """The lab's box-wing: an MLI bus, PIF wings at y = +-2.75 m, PAF parts; its
+    reflectivity is compensated with the true range (a false return's, with none, with
+    the measured one)."""
+    parts = foreign_sim.box_wing_parts()
+    assert set(parts) == {'MLI', 'PIF', 'PAF'}
+    assert parts['PIF'].bounds[:, 1] == pytest.approx([-3.55, 3.55])
+    frame = {'range_m': np.array([9.03, 9.5]), 'true_range_m': np.array([9.0, np.nan])}
+    spec = battery(['null_box_wing'])[0]
+    assert foreign_sim.compensation_range_m(spec, frame) == pytest.approx([9.0, 9.5])
+    measured = replace(spec, intensity_range='measured')
+    assert foreign_sim.compensation_range_m(measured, frame) == pytest.approx([9.03, 9.5])

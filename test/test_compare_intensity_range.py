@@ -172,3 +172,47 @@ def test_points_with_no_neighbour_pairs_give_no_slope_and_no_warning():
         slope, se, pairs = ir.measured_range_slope(np.ones(n), r, r, np.ones(n), d,
                                                    np.arange(n), np.zeros(n, int))
     assert np.isnan(slope) and np.isnan(se) and pairs < ir.MIN_PAIRS
+
+
+def test_a_reflectivity_compensated_with_the_true_range_is_free_of_the_measured_one():
+    """An independent lab's reflectivity compensated with its *true* range (boxnull53):
+    slope about 0, not re-expressed, and shown free of the measured range; a slope that
+    is neither near 0 nor near 2 decisively is neither."""
+    s = scene(4)
+    r_true = s['r_meas'] - s['noise']
+    t = ir.range_in_intensity(s['p_true'] * r_true ** 2, s['r_meas'], s['r_model'],
+                              s['p_model'], s['d'], s['cloud'], s['material'])
+    assert not t.re_expressed and t.free and abs(t.slope) < 0.2
+    assert t.as_dict()['free']
+    assert not ir.free_of_measured_range(1.2, 0.05)          # nearer 2 than 0
+    assert not ir.free_of_measured_range(0.8, 0.5)           # not 4 se below 2
+    assert not ir.free_of_measured_range(float('nan'), 0.01)
+    assert ir.free_of_measured_range(0.05, 0.02)
+
+
+def test_a_reflectivity_free_of_the_measured_range_is_read_at_the_model_range():
+    """The box-wing null's phantom (boxnull53): a reflectivity compensated with the true
+    range, turned into power with the measured range, P (r / r_meas)^2, carried the range
+    noise (-2 noise / r in ln P) and the attribution's trees read the residual back from
+    it ("outside the catalogue", 0.069 and 0.106 nats/point on two seeds). Read at the
+    model's range, the power no longer follows the noise and no structure is left."""
+    from lidar_sim_ros.compare.run import PowerFromIntensity
+    s = scene(3)
+    r_true = s['r_meas'] - s['noise']
+    refl = s['p_true'] * r_true ** 2
+    power = PowerFromIntensity()
+    m = matching_of(refl, s)
+    m.meas.fields = {'layout': 'cepton'}       # the layout says: a compensated reflectivity
+    p = power(m)
+    assert power.calibration.range_exponent == -2.0
+    assert not power.in_intensity.re_expressed
+    # As the measured range read it: the noise in the power, and the phantom structure.
+    at_measured = power.calibration.power_w(refl, s['r_meas'], s['p_model'], cloud=s['cloud'])
+    assert np.polyfit(s['noise'], np.log(at_measured), 1)[0] == pytest.approx(-0.2, rel=0.1)
+    assert attribution_of(at_measured, s).significant
+    # Read at the model's range: none of the noise, no structure.
+    np.testing.assert_allclose(p, power.calibration.power_w(refl, s['r_model'], s['p_model'],
+                                                            cloud=s['cloud']), rtol=1e-9)
+    assert abs(np.polyfit(s['noise'], np.log(p), 1)[0]) < 0.02
+    assert not attribution_of(p, s).significant
+    assert power.in_intensity.free

@@ -312,9 +312,14 @@ class PowerFromIntensity:
         if self.calibration is None or not self.calibration.usable:
             return None
         intensity, range_m = m.meas.intensity, m.meas.range_m
-        if self.in_intensity is not None and self.in_intensity.re_expressed:
+        if self.in_intensity is not None and (self.in_intensity.re_expressed
+                                              or self.in_intensity.free):
+            # Carried: moved to the model's range, then read there. Free of it: a
+            # compensation for range (I ~ P r^2) read at the model's range as well, the
+            # measured range's noise kept out of the power (``free_of_measured_range``).
             r_model = np.asarray(m.pred.ctx.range_m, float)
-            intensity = intensity_range.on_model_range(intensity, range_m, r_model)
+            if self.in_intensity.re_expressed:
+                intensity = intensity_range.on_model_range(intensity, range_m, r_model)
             range_m = np.where(r_model > 0, r_model, range_m)
         return self.calibration.power_w(intensity, range_m, m.pred.ctx.power_w,
                                         cloud=m.meas.cloud)

@@ -17,8 +17,12 @@ where a reference-pose error moves the measured range off the model's: that part
 smooth between neighbours). A walk on a raw power gives a negative slope (weak returns
 read long). Where the slope is nearer 2 than 0 and 4 standard errors above 0, the
 attribution reads the intensity moved to the model's range, I (r_model / r_meas)^2:
-the measured range's noise taken out, nothing else. A raw-power intensity is never
-re-expressed (the mend that did so everywhere made phantom structure from pose errors).
+the measured range's noise taken out, nothing else. Where the slope is nearer 0 than 2
+and 4 standard errors below 2 (``free_of_measured_range``), a compensation for range in
+the intensity's reading (I ~ P r^2) is undone with the model's range, not the measured
+one: I / r_meas^2 would put the measured range's noise into the power. A raw-power
+intensity is never re-expressed (the mend that did so everywhere made phantom structure
+from pose errors).
 """
 from __future__ import annotations
 
@@ -51,13 +55,25 @@ class RangeInIntensity:
     pairs: int
     re_expressed: bool
 
+    @property
+    def free(self) -> bool:
+        """The intensity is shown not to carry the measured range (``free_of_measured_range``):
+        a compensation for range in its reading is undone with the model's range, not the
+        measured one (which would put the range's noise into the power)."""
+        return not self.re_expressed and free_of_measured_range(self.slope, self.se)
+
     def as_dict(self) -> dict:
         return {'slope': round(self.slope, 3), 'se': round(self.se, 3), 'pairs': self.pairs,
-                're_expressed': self.re_expressed,
+                're_expressed': self.re_expressed, 'free': self.free,
                 'why': ('the intensity carries the measured range (I ~ r_meas^2): the '
                         "attribution reads it at the model's range, I (r_model / r_meas)^2, "
                         "so the range's own noise is not read back as structure"
                         if self.re_expressed else
+                        'the intensity does not carry the measured range: read as recorded '
+                        "(a compensation for range in its reading, if any, undone with the "
+                        "model's range: the measured one would put the range's noise into "
+                        'the power)'
+                        if self.free else
                         'the intensity does not carry the measured range: read as recorded')}
 
 
@@ -141,6 +157,19 @@ def carries_measured_range(slope: float, se: float) -> bool:
     """Whether the slope is a compensation with the measured range's (module doc)."""
     return (bool(np.isfinite(slope) and np.isfinite(se)) and SLOPE_LOW <= slope <= SLOPE_HIGH
             and slope >= SLOPE_Z * se)
+
+
+def free_of_measured_range(slope: float, se: float) -> bool:
+    """Whether the slope shows an intensity that does not carry the measured range: nearer
+    0 than 2 and SLOPE_Z standard errors below 2 (``carries_measured_range`` mirrored). A
+    reflectivity compensated with a range the sensor knew otherwise (an independent lab's
+    true range; boxnull53) is one: its power is I / r^2 at the model's range, the best
+    estimate of that range; read at the measured range, P (r / r_meas)^2 carries the
+    range's own noise, 2 dr / r in ln P, and on flat faces of one power each the
+    attribution's trees read the residual back from it (a phantom "outside the catalogue",
+    0.07 nats/point on a null)."""
+    return (bool(np.isfinite(slope) and np.isfinite(se)) and slope < SLOPE_LOW
+            and slope <= 2.0 - SLOPE_Z * se)
 
 
 def on_model_range(intensity: np.ndarray, range_meas_m: np.ndarray,
