@@ -64,7 +64,8 @@ def test_on_a_fixed_spin_the_clock_has_no_part_of_its_own_to_say():
     """fixed_spin: a constant rate about a fixed axis (the seventeenth holdout's 30 deg/s
     tumble, where a clock was named beside a constant pose on a spurious own part of
     0.0074 nats/point, dt 32.6 ms for 20) is one; a spin-up, a moving axis, a slow turn are
-    not. There the nested test is not asked and the verdict says no clock part."""
+    not. There the nested test names no clock (its own part is not the clock's; a tie
+    stands) and the verdict says no clock part."""
     assert spin_clock.fixed_spin(np.array([[0.0, 9.0, 28.6], [0.1, 9.1, 28.5]]))
     assert not spin_clock.fixed_spin(np.array([[0.0, 0.0, 10.0], [0.0, 0.0, 50.0]]))
     assert not spin_clock.fixed_spin(np.array([[0.0, 0.0, 25.0], [0.0, 8.0, 24.0]]))
@@ -72,7 +73,22 @@ def test_on_a_fixed_spin_the_clock_has_no_part_of_its_own_to_say():
     clock = SimpleNamespace(name='time_offset', against_pose={'constant_pose_footing': {
         'clock_decisive_over_pose': True, 'clock_passes_over_pose': False,
         'clock_over_pose_z': 4.0, 'clock_over_pose_gain': 0.003,
-        'nested': {'not_asked': 'a spin at a constant rate about a fixed axis'}}})
+        'nested': {'fixed_spin': 'a spin at a constant rate about a fixed axis'}}})
     assert vd.clock_below_margin_words([clock]) == ''
     del clock.against_pose['constant_pose_footing']['nested']
     assert 'keeps a part of its own' in vd.clock_below_margin_words([clock])
+
+
+def test_a_clock_part_on_a_fixed_spin_names_no_clock_but_the_tie_stands():
+    """clock_nested.NestedClock: with ``own_part_possible`` False (a fixed spin) an own
+    part that passes is no outcome 'clock'; the tie (each alone, neither over the other:
+    the seventeenth holdout's clock alone on a 35 deg/s spin) is kept."""
+    from dataclasses import replace
+    from lidar_sim_ros.compare.diagnose.clock_nested import NestedClock, Part
+    yes, no = Part(0.01, 4.0, True, 0), Part(0.0, 0.0, False, 0)
+    named = NestedClock(yes, no, yes, yes, 0.05, 0.03, 20_000)
+    assert named.outcome == 'clock'
+    spun = replace(named, own_part_possible=False)
+    assert spun.outcome is None and 'fixed_spin' in spun.as_dict()
+    tie = NestedClock(yes, yes, no, no, 0.015, 0.015, 20_000, own_part_possible=False)
+    assert tie.outcome == 'tie'

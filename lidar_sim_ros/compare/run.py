@@ -1233,27 +1233,21 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     # And nested on the candidates' own footing, raycast (``clock_nested``): the pose
     # alone against the pose fitted on top of the clock, the clock alone against the
     # two, on the same points; this decides.
-    def clock_nested_cast(clock: Effect, dt_joint_s: float) -> clock_nested.NestedClock:
-        cast = ClockBesidePoseCast(model, effects, rays, meas, sample.blocks, type(clock),
-                                   diag.z_crit, seed)
-        return cast.weigh(float(clock.params.dt_s), float(dt_joint_s),
-                          diagnosis.MIN_PRACTICAL_GAIN)
     # On a spin at a constant rate about a fixed axis a clock offset is one rotation
     # about that axis, which one correction for the recording takes alike: the clock has
     # no part of its own to find there, and a part the nested test finds is not the
-    # clock's (``spin_clock.fixed_spin``; the pose alone stands, its rotation said as
-    # the clock it equals).
+    # clock's (``spin_clock.fixed_spin``: no clock named beside the pose; their tie
+    # stands, and a pose alone has its rotation said as the clock it equals).
     fixed = spin_clock.fixed_spin(spin_halves(meas, scenario))
+
+    def clock_nested_cast(clock: Effect, dt_joint_s: float) -> clock_nested.NestedClock:
+        cast = ClockBesidePoseCast(model, effects, rays, meas, sample.blocks, type(clock),
+                                   diag.z_crit, seed)
+        return replace(cast.weigh(float(clock.params.dt_s), float(dt_joint_s),
+                                  diagnosis.MIN_PRACTICAL_GAIN), own_part_possible=not fixed)
     decision, clock = diag.clock_beside_constant_pose(
         decision, cands, clock_beside_corrected, lambda clock: on_constant_pose(clock)[:2],
-        None if fixed else clock_nested_cast)
-    if fixed:
-        spun = next((c for c in cands if c.name == 'time_offset'
-                     and 'constant_pose_footing' in (c.against_pose or {})), None)
-        if spun is not None:
-            spun.against_pose['constant_pose_footing']['nested'] = {
-                'not_asked': 'a spin at a constant rate about a fixed axis: a clock offset '
-                             'is one rotation of the pose there'}
+        clock_nested_cast)
     # The same where the pose test reports a correction per cloud: the clock with one
     # correction against the per-cloud correction, each charged its parameters, on
     # enough clouds for one dt's pattern over them to show (``MIN_CLOUDS_PER_CLOUD``).

@@ -71,11 +71,15 @@ class NestedClock:
     dt_alone_s: float
     dt_beside_pose_s: float
     n_points: int
+    # False on a spin at a constant rate about a fixed axis (``spin_clock.fixed_spin``):
+    # a clock is one rigid rotation there, which the correction takes alike, so a part
+    # of its own found on top of it is not the clock's and names nothing.
+    own_part_possible: bool = True
 
     @property
     def outcome(self) -> str | None:
         """'clock', 'tie' or None (module docstring)."""
-        if self.clock_over_pose.passes:
+        if self.clock_over_pose.passes and self.own_part_possible:
             return 'clock'
         if (self.pose_alone.passes and self.clock_alone.passes
                 and not self.pose_over_clock.passes):
@@ -89,7 +93,10 @@ class NestedClock:
                 'pose_over_clock': self.pose_over_clock.as_dict(),
                 'dt_alone_s': round(self.dt_alone_s, 5),
                 'dt_beside_pose_s': round(self.dt_beside_pose_s, 5),
-                'n_points': self.n_points, 'outcome': self.outcome}
+                'n_points': self.n_points, 'outcome': self.outcome,
+                **({} if self.own_part_possible else {
+                    'fixed_spin': 'a spin at a constant rate about a fixed axis: a clock '
+                                  'offset is one rotation of the pose there'})}
 
 
 def part(before: line_of_sight.RayScore, after: line_of_sight.RayScore, n_points: int,

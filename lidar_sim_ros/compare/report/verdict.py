@@ -646,7 +646,7 @@ def clock_below_margin_words(cands: list) -> str:
     matters (``Diagnosis.clock_beside_constant_pose``); '' otherwise."""
     c = next((c for c in cands if c.name == 'time_offset'), None)
     on = ((c.against_pose or {}).get('constant_pose_footing') or {}) if c is not None else {}
-    if (on.get('nested') or {}).get('not_asked'):
+    if (on.get('nested') or {}).get('fixed_spin'):
         return ''        # a constant spin: the clock is the pose's rotation (spin_clock)
     own = (on.get('nested') or {}).get('clock_over_pose')
     if own is not None:
