@@ -567,12 +567,14 @@ def tied_pair(diag: Diagnosed) -> list:
 
 
 def pose_rival(diag: Diagnosed) -> str | None:
-    """The range error of the sensor tied with the reference pose, if any."""
+    """The range error of the sensor tied with the reference pose, if any (of a walk
+    and an incidence bias tied with it together, ``pair_against_moved_target``, the
+    first: a static target on a surveyed pose separates the pose from either)."""
     tie = diag.decision.confounded_with
     if diagnosis.POSE_ERROR not in tie:
         return None
-    return next((n for n in tie if n in (*diagnosis.POSE_RIVALS, diagnosis.RANGE_OF_RANGE)),
-                None)
+    return next((n for n in tie if n in (*diagnosis.POSE_RIVALS, diagnosis.RANGE_OF_RANGE,
+                                         *power_incidence.PAIR)), None)
 
 
 def pose_clock_tie(diag: Diagnosed) -> bool:
