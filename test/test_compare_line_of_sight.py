@@ -315,3 +315,19 @@ def test_the_pose_stays_where_it_beats_the_walk_and_incidence_pair():
     versus, _ = _versus((0.001, 0.9, False), (-0.001, -0.9, False), (0.001, 0.5, False))
     out, _ = _weigh_pair(_pair_judge(), versus)
     assert out.confounded_with == [] and out.pose is not None
+
+
+def test_the_pose_and_pair_tie_is_said_with_its_separating_recording():
+    from lidar_sim_ros.compare import run
+    from lidar_sim_ros.compare.report import verdict
+
+    summary = {'pose_along_line_of_sight': {
+        'shift_cm': -4.6, 'gain_per_point': 0.021, 'z': 6.2,
+        'pair': {'pair_over_pose': [0.0008, 0.7, False],
+                 'pose_on_top': {'gain': 0.0004, 'z': 0.9}}},
+        'separation_plan': [{'distance_m': 8.0}, {'distance_m': 16.0}]}
+    words = verdict.pair_pose_tie_words(summary)
+    assert 'range_walk and incidence_angle fitted together' in words
+    assert 'cannot be told' in words and 'plan.yaml' in words and '-4.6 cm' in words
+    tie = NS(decision=diagnosis.Decision(None, [POSE_ERROR, 'incidence_angle', 'range_walk']))
+    assert run.pose_rival(tie) == 'incidence_angle'

@@ -807,8 +807,6 @@ class PoseWeighing:
         if not weighed['pair_over_none'][2]:
             figures['outcome'] = 'pair_not_shown'
             return None
-        why = ('explained as well by a range walk and an incidence bias fitted together '
-               'as by the target moved along the line of sight')
         withheld = {k: v for k, v in withheld.items() if k not in power_incidence.PAIR}
         if not weighed['pair_over_pose'][2]:
             figures['outcome'] = 'tie'
@@ -816,7 +814,7 @@ class PoseWeighing:
                 c.jointly = {'with': (other if c is named else named).name,
                              'against_moved_target': figures, 'passes': True}
             return Decision(None, [POSE_ERROR, named.name, other.name], pose=pose,
-                            withheld={**withheld, POSE_ERROR: why})
+                            withheld=withheld)
         try:
             _, other_on_top, named_on_top = self.each_on_top(named, other)
         except Exception:  # noqa: BLE001 - not split: their tie
