@@ -2216,11 +2216,25 @@ LOG_WALK: tuple[ForeignSpec, ...] = (
                                            'sigma_frac': 0.0}),),
                 note='walk 0.02 ln P beside an incidence bias -1.2 r dtheta tan(theta); '
                      'box-wing tilted 55 deg at 6.5 m, noise about 1 cm'),
+    # A third lab's (loswalk53): the box-wing at 8 m turning 8 deg/s about its long axis,
+    # tilted 10 deg from lidar z toward the line of sight, so each flat face sweeps a wide
+    # range of incidence; the walk 0.02 m per e-fold (strong returns short) beside a bias
+    # -0.04 (1/cos(theta) - 1) (short at grazing, partly cancelling the walk); exact
+    # reference poses; the noise within each material about 1 cm, as walk_incidence_wings.
+    # On a flat face that bias is nearly a target moved along the line of sight: a pose
+    # claim alone is wrong. Seeds 0-1 developed on, 2-3 held out.
+    ForeignSpec('walk_incidence_wings_los', 'range_walk', {'form': 'ln', 'g_m': 0.02},
+                seed=5301, scan='lissajous', lasers=24, frames=5, distance_m=8.0,
+                intensity='linear', fins=True, tilt_deg=10.0, tilt_from='z', spin_dps=8.0,
+                material_sigma_scale={m: 0.35 for m in MATERIALS},
+                also=(('incidence_angle', {'g_m': 0.04, 'h': 0.0}),),
+                note='walk 0.02 ln P beside an incidence bias -0.04 (1/cos(theta) - 1); '
+                     'box-wing turning 8 deg/s, tilted 10 deg, at 8 m, exact poses'),
 )
 
 
 WALK_INCIDENCE_NAMES = frozenset({'walk_incidence_box', 'walk_incidence_box_neg',
-                                  'walk_incidence_wings'})
+                                  'walk_incidence_wings', 'walk_incidence_wings_los'})
 
 
 # Mixed pixels at the edges (mixpix52): the lab's wall 4 m behind the target in view, and

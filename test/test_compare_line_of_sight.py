@@ -100,7 +100,8 @@ def _judge():
 def _on_moved(scores):
     """A diagnosis on the moved target whose candidates score ``scores`` (name -> (gain, z))."""
     kinds = {'laser_pointing': _Pointing, 'beam_divergence': _Footprint,
-             'range_scale': _Scale, 'range_drift': _Drift}
+             'range_scale': _Scale, 'range_drift': _Drift, 'incidence_angle': _Incidence,
+             'range_walk': _Walk}
 
     class OnPose:
         @staticmethod
@@ -205,3 +206,128 @@ def test_one_member_of_a_tie_that_keeps_its_part_on_the_moved_target_is_named():
         _as_pose)
     assert out.missing == 'range_scale' and out.confounded_with == [] and out.pose is None
     assert cands[1].score == 0.0095 and 'beam_divergence' in out.withheld
+
+
+class _Walk:
+    name = 'range_walk'
+
+    def __init__(self, k=0.02):
+        self.params = NS(model_dump=lambda: {'k_m': k})
+
+
+class _Incidence:
+    name = 'incidence_angle'
+
+    def __init__(self, g=-1.2):
+        self.params = NS(model_dump=lambda: {'bias_gain': g})
+
+
+def _pair_judge(on_top_passes=(True, True)):
+    """``_judge`` that can weigh a walk and an incidence bias together: refitted
+    together they are themselves (``_fitted_together``), each passes on top of the
+    other as ``on_top_passes`` says (``each_on_top``)."""
+    class Judge:
+        weigh_on_ray_footing = diagnosis.Diagnosis.weigh_on_ray_footing
+        pair_against_moved_target = diagnosis.Diagnosis.pair_against_moved_target
+
+        @staticmethod
+        def nameable(c):
+            return c.significant and c.practical and c.vetoed is None
+
+        @staticmethod
+        def passes_rule(gain, z):
+            return z >= 3.0 and gain >= diagnosis.MIN_PRACTICAL_GAIN
+
+        @staticmethod
+        def _fitted_together(effects):
+            return list(effects)
+
+        @staticmethod
+        def each_on_top(named, other):
+            g = [(0.01, 5.0) if p else (0.0, 0.2) for p in on_top_passes]
+            return np.zeros(3), g[0], g[1]
+    return Judge()
+
+
+def _walk_incidence_cands():
+    """The lab's box-wing: incidence_angle named alone, the walk's lone fit the wrong sign
+    and nothing to name."""
+    inc = _cand('incidence_angle', _Incidence, 0.019, 3.5)
+    walk = _cand('range_walk', _Walk, 0.0019, 0.7)
+    for c in (inc, walk):
+        c.variant, c.heldout_nll = type(c.effect), np.zeros(3)
+    return [inc, walk]
+
+
+def _versus(pair_over_pose, pose_over_pair, pair_over_none=(0.03, 7.0, True)):
+    seen = []
+
+    def versus(effects, los):
+        seen.append(sorted(e.name for e in effects))
+        return {'pair_over_pose': pair_over_pose, 'pose_over_pair': pose_over_pair,
+                'pair_over_none': pair_over_none}
+    return versus, seen
+
+
+def _weigh_pair(judge, versus, pose_on_top_of_pair=False):
+    cands = _walk_incidence_cands()
+    out = judge.weigh_on_ray_footing(
+        diagnosis.Decision('incidence_angle', []), cands, [_Drift, _Scale],
+        lambda on_top: _los(significant=pose_on_top_of_pair or not on_top),
+        lambda f: _on_moved({}), _as_pose, versus)
+    return out, cands
+
+
+def test_a_walk_and_incidence_pair_as_good_as_the_moved_target_is_tied_with_the_pose():
+    """The lab's box-wing (walk 0.02 beside -0.04 (1/cos - 1)): incidence alone gains
+    nothing on the target moved along the line of sight, the pose was claimed alone.
+    The pair fitted together does as well as the moved target: their tie, no pose alone."""
+    versus, seen = _versus((0.001, 0.9, False), (-0.001, -0.9, False))
+    out, cands = _weigh_pair(_pair_judge(), versus)
+    assert out.missing is None and out.pose is not None
+    assert out.confounded_with == [POSE_ERROR, 'incidence_angle', 'range_walk']
+    assert seen == [['incidence_angle', 'range_walk']]
+    assert all(c.jointly['passes'] for c in cands)
+    assert 'incidence_angle' not in out.withheld
+
+
+def test_a_walk_and_incidence_pair_that_fits_better_than_the_moved_target_is_named():
+    versus, _ = _versus((0.012, 6.0, True), (-0.012, -6.0, False))
+    out, _ = _weigh_pair(_pair_judge(), versus)
+    assert out.missing == 'incidence_angle' and out.also == 'range_walk'
+    assert out.pose is None and out.confounded_with == []
+    # Neither passing on top of the other: the pair's tie, still no pose.
+    out, _ = _weigh_pair(_pair_judge((False, True)), versus)
+    assert out.missing is None and out.pose is None
+    assert out.confounded_with == ['incidence_angle', 'range_walk']
+
+
+def test_the_pose_stays_where_it_beats_the_walk_and_incidence_pair():
+    # The moved target fits better than the pair by the rule.
+    versus, _ = _versus((-0.012, -6.0, False), (0.012, 6.0, True))
+    out, _ = _weigh_pair(_pair_judge(), versus)
+    assert out.missing is None and out.confounded_with == [] and out.pose is not None
+    # The move still passes on top of the pair.
+    versus, _ = _versus((0.001, 0.9, False), (-0.001, -0.9, False))
+    out, _ = _weigh_pair(_pair_judge(), versus, pose_on_top_of_pair=True)
+    assert out.missing is None and out.confounded_with == [] and out.pose is not None
+    # The pair gains nothing over the recorded pose: not weighed further.
+    versus, _ = _versus((0.001, 0.9, False), (-0.001, -0.9, False), (0.001, 0.5, False))
+    out, _ = _weigh_pair(_pair_judge(), versus)
+    assert out.confounded_with == [] and out.pose is not None
+
+
+def test_the_pose_and_pair_tie_is_said_with_its_separating_recording():
+    from lidar_sim_ros.compare import run
+    from lidar_sim_ros.compare.report import verdict
+
+    summary = {'pose_along_line_of_sight': {
+        'shift_cm': -4.6, 'gain_per_point': 0.021, 'z': 6.2,
+        'pair': {'pair_over_pose': [0.0008, 0.7, False],
+                 'pose_on_top': {'gain': 0.0004, 'z': 0.9}}},
+        'separation_plan': [{'distance_m': 8.0}, {'distance_m': 16.0}]}
+    words = verdict.pair_pose_tie_words(summary)
+    assert 'range_walk and incidence_angle fitted together' in words
+    assert 'cannot be told' in words and 'plan.yaml' in words and '-4.6 cm' in words
+    tie = NS(decision=diagnosis.Decision(None, [POSE_ERROR, 'incidence_angle', 'range_walk']))
+    assert run.pose_rival(tie) == 'incidence_angle'

@@ -573,12 +573,14 @@ def tied_pair(diag: Diagnosed) -> list:
 
 
 def pose_rival(diag: Diagnosed) -> str | None:
-    """The range error of the sensor tied with the reference pose, if any."""
+    """The range error of the sensor tied with the reference pose, if any (of a walk
+    and an incidence bias tied with it together, ``pair_against_moved_target``, the
+    first: a static target on a surveyed pose separates the pose from either)."""
     tie = diag.decision.confounded_with
     if diagnosis.POSE_ERROR not in tie:
         return None
-    return next((n for n in tie if n in (*diagnosis.POSE_RIVALS, diagnosis.RANGE_OF_RANGE)),
-                None)
+    return next((n for n in tie if n in (*diagnosis.POSE_RIVALS, diagnosis.RANGE_OF_RANGE,
+                                         *power_incidence.PAIR)), None)
 
 
 def pose_motion_rival(diag: Diagnosed) -> str | None:
@@ -1188,7 +1190,8 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
                       seed)
     decision = diag.weigh_on_ray_footing(
         decision, cands, rivals, los.fit, los.diagnosis,
-        lambda fit, explains: los.as_pose(pose_test([], constant=True), fit, explains))
+        lambda fit, explains: los.as_pose(pose_test([], constant=True), fit, explains),
+        los.versus)
     cands = diagnosis.rank(cands)
     named = [c for c in cands if c.name == decision.missing and c.effect is not None]
     if decision.pose is not None:
@@ -1643,6 +1646,24 @@ class LineOfSight:
                 lambda t: self.score(t, on_top), len(self.points), self.blocks,
                 self.direction, self.z_crit, diagnosis.MIN_PRACTICAL_GAIN)
         return self._fits[key]
+
+    def versus(self, on_top: list[Effect], los: line_of_sight.LineOfSightPose
+               ) -> dict[str, tuple[float, float, bool]]:
+        """``on_top`` in the model on the recorded pose against the target moved by
+        ``los`` (nothing on top), and against the recorded pose alone, on the subset's
+        points as a candidate is scored (``line_of_sight.judge``; parameters fitted on
+        both sides, none charged): (gain per point, z, passes the rule) of
+        'pair_over_pose', 'pose_over_pair' and 'pair_over_none'."""
+        zero = np.zeros(3)
+        pair, moved, none = (self.score(zero, on_top), self.score(los.translation_m, []),
+                             self.score(zero, []))
+        n = len(self.points)
+
+        def over(a, b):
+            return line_of_sight.judge(b, a, n, self.blocks, self.z_crit,
+                                       diagnosis.MIN_PRACTICAL_GAIN, params=0)[:3]
+        return {'pair_over_pose': over(pair, moved), 'pose_over_pair': over(moved, pair),
+                'pair_over_none': over(pair, none)}
 
     def diagnosis(self, los: line_of_sight.LineOfSightPose) -> diagnosis.Diagnosis:
         """The diagnosis with the target moved by ``los``, every ray raycast again."""

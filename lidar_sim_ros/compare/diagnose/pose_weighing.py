@@ -11,7 +11,7 @@ from dataclasses import is_dataclass, replace
 
 import numpy as np
 
-from lidar_sim_ros.compare.diagnose import beside
+from lidar_sim_ros.compare.diagnose import beside, power_incidence
 from lidar_sim_ros.compare.diagnose.candidate import (MIN_PRACTICAL_GAIN, POSE_ERROR,
                                                       POSE_RIVALS, RANGE_DRIFT, Candidate,
                                                       Decision, _num)
@@ -657,7 +657,7 @@ class PoseWeighing:
 
     def weigh_on_ray_footing(self, decision: Decision, cands: list[Candidate],
                              rivals: list[type[Effect]], los_fit, on_shift,
-                             as_pose) -> Decision:
+                             as_pose, versus=None) -> Decision:
         """The named (or tied) sensor effects against the target moved along the line of
         sight, on the candidates' own footing (``line_of_sight``): every ray raycast
         again, each point scored by the likelihood a candidate is scored by, the points
@@ -678,7 +678,9 @@ class PoseWeighing:
           those on the moved target), the pose reported beside it if the shift still
           passes with the term in the model; one that passed on the recorded pose and
           does not on the moved one, while the shift does not pass on top of it, is
-          tied with the pose; else the pose is reported alone."""
+          tied with the pose; else, before the pose is reported alone, a range walk
+          and an incidence bias fitted together are weighed against it
+          (``pair_against_moved_target``, with ``versus``); else the pose alone."""
         named = [c for c in cands if c.name in (decision.missing, *decision.confounded_with)
                  and c.name != POSE_ERROR and c.effect is not None and c.error is None]
         if not named:
@@ -749,7 +751,84 @@ class PoseWeighing:
                 self.line_of_sight['tie'] = c.name
                 return Decision(None, [POSE_ERROR, c.name], pose=as_pose(los, explains),
                                 withheld=withheld)
-        return Decision(None, [], pose=as_pose(los, explains), withheld=withheld)
+        pose = as_pose(los, explains)
+        if versus is not None and any(c.name in power_incidence.PAIR for c in named):
+            paired = self.pair_against_moved_target(cands, los, los_fit, versus, pose,
+                                                    withheld)
+            if paired is not None:
+                return paired
+        return Decision(None, [], pose=pose, withheld=withheld)
+
+    def pair_against_moved_target(self, cands: list[Candidate], los, los_fit, versus,
+                                  pose, withheld: dict) -> Decision | None:
+        """A range walk and an incidence bias refitted together (``_fitted_together``)
+        against the target moved along the line of sight, before that move is reported
+        alone. On a flat face a bias c (1/cos(theta) - 1) is nearly what a target moved
+        along the line of sight gives (delta n.x / n.u), and beside a walk of the other
+        sign each alone fits only their net (the walk's lone fit even takes the wrong
+        sign): each alone gains nothing on the moved target, the pair may explain as
+        much. ``los_fit(on_top)`` as in ``weigh_on_ray_footing``; ``versus(effects, los)``:
+        on the same points, ray footing, the pair on the recorded pose against the
+        moved target and against the recorded pose alone, each a (gain per point, z,
+        passes) of the first over the second: {'pair_over_pose', 'pose_over_pair',
+        'pair_over_none'}.
+        - The move still passes on top of the pair, or the moved target fits better
+          than the pair by the rule: None (the pose is reported, as before).
+        - Else, the pair not passing over the recorded pose alone: None.
+        - The pair fits better than the moved target by the rule: the pair named (both,
+          the one gaining more alone named, the other 'also', where each passes on top of
+          the other, ``each_on_top``; else their tie), no pose.
+        - Else they explain the data alike: the tie [pose_error, walk, incidence], the
+          pose quoted as the moved target.
+        Figures in ``line_of_sight['pair']``; None where not weighed."""
+        two = [next((c for c in cands if c.name == n and c.error is None
+                     and c.effect is not None and c.variant is not None
+                     and c.heldout_nll is not None), None) for n in power_incidence.PAIR]
+        if None in two:
+            return None
+        named, other = sorted(two, key=lambda c: -c.score)
+        try:
+            effects = self._fitted_together([named.effect, other.effect])
+            under = los_fit(effects)
+            weighed = versus(effects, los)
+        except Exception:  # noqa: BLE001 - not weighed: the pose as before
+            return None
+        figures = {'with': [named.name, other.name],
+                   'params': {e.name: {k: _num(v) for k, v in e.params.model_dump().items()
+                                       if isinstance(v, (int, float))} for e in effects},
+                   'pose_on_top': {'gain': _num(under.gain), 'z': _num(under.z),
+                                   'significant': bool(under.significant),
+                                   'shift_cm': _num(100 * under.shift_m)},
+                   **{k: [_num(v[0]), _num(v[1]), bool(v[2])] for k, v in weighed.items()}}
+        self.line_of_sight['pair'] = figures
+        if under.significant or weighed['pose_over_pair'][2]:
+            figures['outcome'] = 'pose'
+            return None
+        if not weighed['pair_over_none'][2]:
+            figures['outcome'] = 'pair_not_shown'
+            return None
+        withheld = {k: v for k, v in withheld.items() if k not in power_incidence.PAIR}
+        if not weighed['pair_over_pose'][2]:
+            figures['outcome'] = 'tie'
+            for c in two:
+                c.jointly = {'with': (other if c is named else named).name,
+                             'against_moved_target': figures, 'passes': True}
+            return Decision(None, [POSE_ERROR, named.name, other.name], pose=pose,
+                            withheld=withheld)
+        try:
+            _, other_on_top, named_on_top = self.each_on_top(named, other)
+        except Exception:  # noqa: BLE001 - not split: their tie
+            other_on_top = named_on_top = (0.0, 0.0)
+        outcome = power_incidence.pair_outcome(True, self.passes_rule(*other_on_top),
+                                               self.passes_rule(*named_on_top))
+        figures['outcome'] = 'pair_both' if outcome == power_incidence.BOTH else 'pair_tie'
+        for c, on_top in ((named, named_on_top), (other, other_on_top)):
+            c.jointly = {'with': (other if c is named else named).name,
+                         'on_top': [_num(v) for v in on_top],
+                         'against_moved_target': figures, 'passes': True}
+        if outcome == power_incidence.BOTH:
+            return Decision(named.name, [], other.name, withheld=withheld)
+        return Decision(None, [named.name, other.name], withheld=withheld)
 
     def clock_off_footing(self, decision: Decision, cands: list[Candidate],
                           footing_test) -> Decision:

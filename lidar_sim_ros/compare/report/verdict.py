@@ -942,6 +942,8 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
                 'time_offset --fit, else --effect pose_error --fit.')
     if other == [diagnosis.RANGE_OF_RANGE]:
         return range_tie_words(pose, summary)
+    if sorted(other) == sorted(power_incidence.PAIR):
+        return pair_pose_tie_words(summary)
     if any(n in diagnosis.POSE_RIVALS for n in other):
         where = separating_recording(summary)
         steps = getattr(decision, 'beside_pose', None)
@@ -1315,6 +1317,29 @@ def range_of_range_words(left: dict) -> str:
     return (f'What is left may be a range error of the sensor that follows range as much '
             f'as a reference pose error. {pose}{beyond}: the data do not tell the two apart, '
             'so no pose error is claimed.')
+
+
+def pair_pose_tie_words(summary: dict) -> str:
+    """The tie of the target moved along the line of sight with a range walk and an
+    incidence bias fitted together (``Diagnosis.pair_against_moved_target``)."""
+    los = summary.get('pose_along_line_of_sight') or {}
+    f = los.get('pair') or {}
+    over = f.get('pair_over_pose') or [float('nan')] * 2
+    top = f.get('pose_on_top') or {}
+    walk, incidence = power_incidence.PAIR
+    return (f'The reference pose along the line of sight, or a range walk and an incidence '
+            f'bias together: the target moved {los.get("shift_cm", float("nan")):.1f} cm '
+            f'along the line of sight and raycast again gains '
+            f'{los.get("gain_per_point", float("nan")):.4f} nats/point (z = '
+            f'{los.get("z", float("nan")):.1f}); {walk} and {incidence} fitted together on '
+            f'the recorded pose fit the same points as well (the pair over the moved target '
+            f'{over[0]:.4f} nats/point, z = {over[1]:.1f}), and the move gains '
+            f'{top.get("gain", float("nan")):.4f} (z = {top.get("z", float("nan")):.1f}) on '
+            'top of the pair. On a flat face an incidence bias c (1/cos(theta) - 1) moves the '
+            'ranges as a target moved along the line of sight does, so which it is cannot be '
+            f'told from this recording; none is named.{separating_recording(summary)} If the '
+            f'tracking system is known to be right, add --effect {walk} --effect {incidence} '
+            '--fit; if the sensor is, --effect pose_error --fit.')
 
 
 def separating_recording(summary: dict) -> str:
