@@ -134,7 +134,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'z = {c.z:.1f}).{caveat} '
             + (f'--effect {missing} --fit adds it as a stand-in; an effect of your own that '
                'follows range (docs/effects.md, "Write your own effect") would fit it better.'
-               if stand_in else f'Run again with --effect {missing} --fit to add it.'))
+               if stand_in else f'Run again with --effect {missing} --fit to add it.')
+            + (walk_scale_words(summary.get('intensity_gain'), c.params)
+               if missing == 'range_walk' else ''))
         if decision.also:
             parts.append(f'{decision.also} also explains a separate part of the residual'
                          f'{_on_top_words(cands, decision.also, missing)}: '
@@ -1329,6 +1331,31 @@ def range_tie_words(pose, summary: dict) -> str:
 
 
 _PER_LASER_ANGLE = re.compile(r'^laser_\d+_(az|el)_deg$')
+
+
+def walk_scale_words(gain: dict | None, params: dict | None) -> str:
+    """How far the intensity's scale limits a walk's k read through it (the intensity
+    calibration's range lever, ``recording/intensity.py``); '' where k reads the model's
+    power or the layout fixes the scale."""
+    gain, params = gain or {}, params or {}
+    if (params.get('power', 'measured') != 'measured' or not gain.get('used_for_power_driven_effects')
+            or gain.get('unit_slope') or gain.get('range_exponent', 0.0) < -1.0):
+        return ''
+    lever = gain.get('range_lever')
+    if lever is None:
+        return (' k is read through the intensity, whose scale was taken from the model\'s '
+                'power alone (the range within surfaces could not be weighed): it carries '
+                'the model\'s span of received power, and is off by as much as that span is.')
+    rel = 100.0 * lever['k_scale_rel_se']
+    if lever['applied']:
+        return (f' The intensity\'s scale is taken from the range within surfaces (the map '
+                f'fitted on the model\'s power x {1.0 / lever["scale"]:.3g}): it leaves k '
+                f'uncertain by about {rel:.0f} %.')
+    return (f' k is read through the intensity, whose scale the range within surfaces pins '
+            f'only to {rel:.0f} %, too loosely to correct it (its estimate, {lever["scale"]:.2g} '
+            'of the scale of the map fitted on the model\'s power, would put k at that '
+            'share of the value fitted); a recording over a range of distances (an '
+            'approach) pins it.')
 
 
 def _summary_params(params: dict | None) -> tuple[dict, int]:
