@@ -341,7 +341,8 @@ def range_lever(read_log_p: np.ndarray, log_p: np.ndarray, log_r: np.ndarray,
     (ln W); ``log_r``: ln of the range (any centre); ``material``: the model's material
     id. Cells: each material's points in quantile bins of log_p + 2 log_r (LEVER_BINS at
     most, LEVER_BIN_POINTS each). Within cells, s = sum(read' z') / sum(log_p' z'),
-    z = ln r (' : less the cell's mean); its standard error clustered by cell. None
+    z = ln r (' : less the cell's mean, and what follows the reflectance term within the
+    cells, per material); its standard error clustered by cell. None
     with fewer than two cells or no range spread within them."""
     read, y = np.asarray(read_log_p, float), np.asarray(log_p, float)
     z, mat = np.asarray(log_r, float), np.asarray(material)
@@ -369,7 +370,17 @@ def range_lever(read_log_p: np.ndarray, log_p: np.ndarray, log_r: np.ndarray,
     def within(v):
         return v - (np.bincount(cell, v, next_id) / counts)[cell]
 
-    rz, yz, zc = within(read), within(y), within(z)
+    rz, yz, zc, tc = within(read), within(y), within(z), within(term[use])
+    # What is left of the reflectance term within a cell can still follow the range (the
+    # nearer part of a surface facing the sensor more): taken out linearly per material,
+    # or its truth-to-model scale leaks into s.
+    mat_use = mat[use]
+    for m in np.unique(mat_use):
+        sel = mat_use == m
+        tt = float(np.sum(tc[sel] ** 2))
+        if tt > 0:
+            for v in (rz, yz, zc):
+                v[sel] -= (np.sum(v[sel] * tc[sel]) / tt) * tc[sel]
     den = float(np.sum(yz * zc))
     if not np.isfinite(den) or abs(den) <= 1e-12 * len(y):
         return None
