@@ -373,12 +373,12 @@ def test_range_lever_holds_where_the_nearer_part_of_a_surface_is_brighter():
     face the sensor more): the lever takes that out, and reads the truth's scale."""
     from lidar_sim_ros.compare.recording.intensity import range_lever
     rng = np.random.default_rng(8)
-    n = 40000
+    n = 6000
     mat = rng.integers(0, 3, n)
-    r = rng.uniform(9.0, 11.0, n)
-    u = np.clip(1.0 - 2.0 * (r - 9.0) / 2.0 * 0.5 + rng.normal(0, 0.3, n), 0.0, 2.0)
+    r = rng.uniform(9.5, 10.5, n)
+    u = np.clip(1.0 - (r - 9.5) + rng.normal(0, 0.3, n), 0.0, 2.0)
     model_term = -12.0 + 0.5 * mat + 2.0 * u
     log_pm = model_term - 2 * np.log(r)
     log_pt = 1.7 * model_term - 2 * np.log(r)
     out = range_lever(0.6 * log_pt, log_pm, np.log(r), mat)
-    assert out['scale'] == pytest.approx(0.6, abs=0.03)
+    assert out['scale'] == pytest.approx(0.6, abs=0.02)   # 0.70 without
