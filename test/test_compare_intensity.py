@@ -316,17 +316,18 @@ def test_cepton_reflectivity_keeps_the_slope_of_ln_i_at_one():
 
 
 def test_range_lever_measures_the_scale_of_log_counts_where_the_model_is_narrow():
-    """Log counts a + b ln P (b 17.37): fitted on the model's narrower ln P, b reads 1.7x
-    too large; the range within cells of one material and reflectance level gives b."""
+    """Log counts a + b ln P (b 17.37): fitted on the model's narrower ln P, b reads too
+    large; the range within cells of one material and reflectance level gives b
+    (reported beside the fitted b, not applied)."""
     log_pt, log_pm, r, mat = _wide_truth(40000, 4)
     counts = 17.37 * (log_pt + 20.72) + np.random.default_rng(5).normal(0, 1.0, len(r))
     old = calibrate_intensity(counts, r, np.exp(log_pm))
     assert old.scale == 'log' and old.log_b > 1.2 * 17.37
     cal = calibrate_intensity(counts, r, np.exp(log_pm), material=mat)
     lever = cal.range_lever
-    assert lever['applied'] and lever['k_scale_rel_se'] < 0.1
-    assert cal.log_b == pytest.approx(17.37, rel=0.05)
-    assert _slope(np.log(cal.power_w(counts, r)), log_pt) == pytest.approx(1.0, abs=0.05)
+    assert lever['pinned'] and lever['k_scale_rel_se'] < 0.1
+    assert cal.scale_test['log_b_range_lever'] == pytest.approx(17.37, rel=0.05)
+    assert cal.log_b == old.log_b                  # reported, the reading unchanged
 
 
 def test_range_lever_leaves_the_reading_where_the_model_has_the_truths_scale():
@@ -339,7 +340,7 @@ def test_range_lever_leaves_the_reading_where_the_model_has_the_truths_scale():
     assert cal.power_w(i, r) == pytest.approx(np.exp(log_pm), rel=0.05)
 
 
-def test_range_lever_is_not_applied_without_range_spread():
+def test_range_lever_is_not_pinned_without_range_spread():
     """All at one range: nothing within a cell moves with the range; the reading is kept
     and the figures say the scale is not pinned."""
     from lidar_sim_ros.compare.recording.intensity import range_lever
@@ -348,7 +349,7 @@ def test_range_lever_is_not_applied_without_range_spread():
     mat = rng.integers(0, 2, 5000)
     lr = np.log(10.0) + rng.normal(0, 1e-4, 5000)
     out = range_lever(0.6 * y + rng.normal(0, 0.3, 5000), y, lr, mat)
-    assert out is None or not out['applied']
+    assert out is None or not out['pinned']
 
 
 def test_the_cepton_layouts_hold_the_slope():
@@ -359,9 +360,11 @@ def test_the_cepton_layouts_hold_the_slope():
 
 def test_the_verdict_says_how_far_the_scale_limits_a_walk():
     from lidar_sim_ros.compare.report.verdict import walk_scale_words
-    loose = {'used_for_power_driven_effects': True, 'range_exponent': 0.0,
-             'range_lever': {'scale': 0.48, 'se': 0.07, 'k_scale_rel_se': 0.145,
-                             'applied': False}}
+    lever = {'scale': 0.6, 'se': 0.03, 'k_scale_rel_se': 0.05, 'pinned': True}
+    gain = {'used_for_power_driven_effects': True, 'range_exponent': 0.0, 'range_lever': lever}
+    words = walk_scale_words(gain, {'k_m': 0.05, 'power': 'measured'})
+    assert '0.6 +- 0.03' in words and 'k about 0.03 m' in words
+    loose = dict(gain, range_lever=dict(lever, k_scale_rel_se=0.145, pinned=False))
     assert 'only to 14 %' in walk_scale_words(loose, {'k_m': 0.03, 'power': 'measured'})
     assert walk_scale_words(loose, {'k_m': 0.03, 'power': 'model'}) == ''
     assert walk_scale_words({'used_for_power_driven_effects': True, 'unit_slope': True},

@@ -1338,7 +1338,8 @@ def walk_scale_words(gain: dict | None, params: dict | None) -> str:
     calibration's range lever, ``recording/intensity.py``); '' where k reads the model's
     power or the layout fixes the scale."""
     gain, params = gain or {}, params or {}
-    if (params.get('power', 'measured') != 'measured' or not gain.get('used_for_power_driven_effects')
+    if (params.get('power', 'measured') != 'measured'
+            or not gain.get('used_for_power_driven_effects')
             or gain.get('unit_slope') or gain.get('range_exponent', 0.0) < -1.0):
         return ''
     lever = gain.get('range_lever')
@@ -1347,15 +1348,17 @@ def walk_scale_words(gain: dict | None, params: dict | None) -> str:
                 'power alone (the range within surfaces could not be weighed): it carries '
                 'the model\'s span of received power, and is off by as much as that span is.')
     rel = 100.0 * lever['k_scale_rel_se']
-    if lever['applied']:
-        return (f' The intensity\'s scale is taken from the range within surfaces (the map '
-                f'fitted on the model\'s power x {1.0 / lever["scale"]:.3g}): it leaves k '
-                f'uncertain by about {rel:.0f} %.')
-    return (f' k is read through the intensity, whose scale the range within surfaces pins '
-            f'only to {rel:.0f} %, too loosely to correct it (its estimate, {lever["scale"]:.2g} '
-            'of the scale of the map fitted on the model\'s power, would put k at that '
-            'share of the value fitted); a recording over a range of distances (an '
-            'approach) pins it.')
+    k = params.get('k_m')
+    if lever.get('pinned'):
+        at = f' (k about {lever["scale"] * k:.3g} m)' if isinstance(k, float) else ''
+        return (' k is read through the intensity, whose scale was taken from the model\'s '
+                f'power; the range within surfaces reads that scale at {lever["scale"]:.2g} '
+                f'+- {lever["se"]:.2g} of the truth\'s{at}: the model\'s span of received '
+                'power limits k by that much (the lever is reported, not applied).')
+    return (f' k is read through the intensity, whose scale was taken from the model\'s '
+            f'power; the range within surfaces pins it only to {rel:.0f} %, so k carries the '
+            'model\'s span of received power unchecked; a recording over a range of '
+            'distances (an approach) pins it.')
 
 
 def _summary_params(params: dict | None) -> tuple[dict, int]:
