@@ -329,10 +329,6 @@ def intensity_reading(calibration: dict | None, field_name: str | None,
     if gain.get('used'):
         use += (f'; scaled per cloud (a gain control: sd {gain["log_gain_sd"]:.2f} in ln over '
                 f'{gain["clouds"]} clouds, taken out)')
-    lever = calibration.get('range_lever')
-    if lever:
-        use += (f'; the reading\'s scale from the range within surfaces {lever["scale"]:.3g} '
-                f'+- {lever["se"]:.2g} (1: the true scale; reported, not applied)')
     return (f'intensity ({field_name}): read as {kind}; explains '
             f'{100 * calibration.get("power_explained", 0.0):.0f} % of the model\'s ln power, {use}')
 

@@ -72,10 +72,12 @@ intensity compresses the reading, and a walk fitted on it is over-read by the in
   clustered by cell, is at most LEVER_MAX_REL_SE of it). For a walk read through the
   reading, the true k is about s times the fitted one, and s's relative standard error
   is the share of k the scale leaves uncertain (``k_scale_rel_se``). The lever is
-  reported (summary ``intensity_gain.range_lever``, the verdict beside a walk read
-  through the intensity), not applied: on the foreign drum's log counts at 10 m (ln r
-  within a cell: sd 0.02) it scattered over 0.43-0.87 at 5-18 % standard error where the
-  fitted b says 0.57-0.63, and stretching by it turned a walk 7 % over into 12 % under.
+  reported in summary.json only (``intensity_gain.range_lever``), not applied nor quoted:
+  on the foreign drum's log counts at 10 m (ln r within a cell: sd 0.02) it scattered
+  over 0.43-0.87 at 5-18 % standard error where the fitted b says 0.57-0.63, stretching
+  by it turned a walk 7 % over into 12 % under, and on the battery's box bus with
+  speckle (a reading of the right scale: k 0.0204 for 0.02) it read 1.36 +- 0.06. The
+  verdict says instead what the scale leaves open of a walk read through the intensity.
 
 The simulator keeps using its own predicted power; see docs/compare.md.
 """
