@@ -391,14 +391,57 @@ def blinn_brdf_per_sr(surface: Surface, cos_half: np.ndarray) -> np.ndarray:
     return surface.diffuse / np.pi + lobe * np.power(cos_half, surface.exponent)
 
 
+@dataclass(frozen=True)
+class Coating:
+    """Another lab's reflection law of one material (``reflection='ts_km'``): a
+    Torrance-Sparrow lobe (Fresnel f0 at normal incidence (-), Beckmann slope rms
+    ``roughness`` (-)) over a Kubelka-Munk-like body of absorption/scattering ratio
+    ``k_over_s`` (-)."""
+
+    f0: float
+    roughness: float
+    k_over_s: float
+
+
+# Coatings whose powers span a wider range than the Blinn-Phong surfaces (and the
+# compare model's Phong table): narrow bright lobes on the foils and metals, dark or
+# bright bodies. Not fitted to anything.
+COATINGS = {
+    'PIF': Coating(0.04, 0.60, 0.08),
+    'MLI': Coating(0.90, 0.10, 6.0),
+    'PAF': Coating(0.55, 0.14, 1.5),
+    'PSS': Coating(0.75, 0.08, 4.0),
+    'NOZZLE': Coating(0.30, 0.25, 0.8),
+    'BULKHEAD': Coating(0.40, 0.18, 0.5),
+    'ADAPTER': Coating(0.45, 0.16, 0.7),
+}
+
+
+def coating_brdf_per_sr(c: Coating, cos_i: np.ndarray) -> np.ndarray:
+    """Monostatic Torrance-Sparrow lobe (Beckmann D, shadowing G = min(1, 2 cos^2),
+    F = f0) plus a Lambertian body of Kubelka-Munk albedo 1 + q - sqrt(q^2 + 2 q),
+    q = K/S, through (1 - f0) (1/sr)."""
+    cos = np.clip(np.asarray(cos_i, float), 1e-3, 1.0)
+    tan2 = (1.0 - cos ** 2) / cos ** 2
+    m2 = c.roughness ** 2
+    d = np.exp(-tan2 / m2) / (np.pi * m2 * cos ** 4)
+    g = np.minimum(1.0, 2.0 * cos ** 2)
+    lobe = c.f0 * d * g / (4.0 * cos ** 2)
+    q = c.k_over_s
+    albedo = 1.0 + q - np.sqrt(q * q + 2.0 * q)
+    return lobe + (1.0 - c.f0) * albedo / np.pi
+
+
 def received_power_w(sensor: Sensor, range_m: np.ndarray, cos_i: np.ndarray,
-                     material: np.ndarray) -> np.ndarray:
-    """Whole beam on an extended surface: P = P0 eta f cos(theta) A_rx / r^2 (W)."""
+                     material: np.ndarray, law: str = 'blinn') -> np.ndarray:
+    """Whole beam on an extended surface: P = P0 eta f cos(theta) A_rx / r^2 (W); f the
+    Blinn-Phong BRDF (``law='blinn'``) or the coatings' (``'ts_km'``)."""
     f = np.zeros(len(range_m))
     for k, name in enumerate(MATERIALS):
         sel = material == k
         if sel.any():
-            f[sel] = blinn_brdf_per_sr(SURFACES[name], cos_i[sel])
+            f[sel] = (coating_brdf_per_sr(COATINGS[name], cos_i[sel]) if law == 'ts_km'
+                      else blinn_brdf_per_sr(SURFACES[name], cos_i[sel]))
     r = np.where(np.isfinite(range_m), range_m, 1.0)
     return np.where(material >= 0, sensor.peak_power_w * sensor.efficiency * f * cos_i
                     * sensor.aperture_area_m2 / r ** 2, 0.0)
@@ -833,6 +876,7 @@ class ForeignSpec:
     occluder: bool = False               # a lab pillar between the sensor and the target
     lasers: int = 0                      # lasers firing round-robin; 0 = no laser field
     layout: str = 'generic'              # generic | cepton (the SDK3 driver's fields)
+    reflection: str = 'blinn'            # blinn (SURFACES) | ts_km (COATINGS: another lab's law)
     fins: bool = False                   # radiator fins beside the MLI sides (satellite_parts)
     bus_shape: str = 'box'               # box | drum (satellite_parts)
     # The body's long axis tilted this far (deg) from across the line of sight toward it
@@ -960,7 +1004,7 @@ def simulate_frame(spec: ForeignSpec, sensor: Sensor, target: Target, traj: Traj
                                                            rng, beam)
     else:
         hit, true_r, cos_i, mat = target.cast(origins_b, dirs_b)
-        power = received_power_w(sensor, true_r, cos_i, mat)
+        power = received_power_w(sensor, true_r, cos_i, mat, spec.reflection)
     bias = np.zeros(len(d))
     var = np.zeros(len(d))
     for k, name in enumerate(MATERIALS):
@@ -2233,6 +2277,31 @@ LOG_WALK: tuple[ForeignSpec, ...] = (
 )
 
 
+# The walk's slope over-read through the intensity calibration (walkscale53): another
+# lab's reflection law (``reflection='ts_km'``, a Torrance-Sparrow lobe over a
+# Kubelka-Munk-like body: powers spanning a wider range than the model's Phong table) on
+# the rocket-like drum body, a walk alone -0.03 ln(P / 1 uW). The Cepton layout (a
+# reflectivity ~ P r^2 compensated with the true range) and log counts (40 log10 P: 17.37
+# counts per e-fold) on the P-60 Lissajous; and a null of each. Right: range_walk named
+# and its fitted k ~ 0.03; the nulls null. Seeds 0-1 developed on, 2-3 held out.
+_TS = dict(reflection='ts_km', bus_shape='drum', frames=5, distance_m=10.0)
+WALK_SCALE: tuple[ForeignSpec, ...] = (
+    ForeignSpec('walk_ts_cepton', 'range_walk', {'form': 'ln', 'g_m': 0.03}, seed=5301,
+                layout='cepton', lasers=6, scan='rosette', shots_per_frame=12_000,
+                intensity_range='true', **_TS,
+                note="walk 0.03 ln P; another lab's reflection law; Cepton reflectivity"),
+    ForeignSpec('walk_ts_log', 'range_walk', {'form': 'ln', 'g_m': 0.03}, seed=5311,
+                scan='lissajous', lasers=24, intensity_scale='log', **_TS,
+                note="walk 0.03 ln P; another lab's reflection law; log counts"),
+    ForeignSpec('null_ts_cepton', None, seed=5321, layout='cepton', lasers=6, scan='rosette',
+                shots_per_frame=12_000, intensity_range='true', **_TS,
+                note="no effect; another lab's reflection law; Cepton reflectivity"),
+    ForeignSpec('null_ts_log', None, seed=5331, scan='lissajous', lasers=24,
+                intensity_scale='log', **_TS,
+                note="no effect; another lab's reflection law; log counts"),
+)
+
+
 WALK_INCIDENCE_NAMES = frozenset({'walk_incidence_box', 'walk_incidence_box_neg',
                                   'walk_incidence_wings', 'walk_incidence_wings_los'})
 
@@ -2317,12 +2386,12 @@ BOX_NULL_NAMES = frozenset(s.name for s in BOX_NULL)
 def battery(names: list[str] | None = None) -> list[ForeignSpec]:
     """The battery, or the named datasets of it, of VENDOR, V4, RANGE_OUTSIDE, STANDOFF,
     COMPENSATED, INCIDENCE_LAW, POINTING_FEW, CLOCK_SPIN, LOG_WALK, SCALE_ALONE, MIXED_PIXELS
-    FACE_BIAS or BOX_NULL (in that order)."""
+    FACE_BIAS, BOX_NULL or WALK_SCALE (in that order)."""
     if not names:
         return list(BATTERY)
     every = (BATTERY + VENDOR + V4 + RANGE_OUTSIDE + STANDOFF + COMPENSATED + INCIDENCE_LAW
              + POINTING_FEW + CLOCK_SPIN + LOG_WALK + SCALE_ALONE + MIXED_PIXELS + FACE_BIAS
-             + BOX_NULL)
+             + BOX_NULL + WALK_SCALE)
     known = {s.name: s for s in every}
     bad = [n for n in names if n not in known]
     if bad:

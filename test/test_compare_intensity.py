@@ -281,3 +281,105 @@ def test_the_foreign_sensor_writes_log_counts_of_its_power():
     out = fs.intensity_units(p, np.full(3, 10.0), 'log', fs.Sensor())
     assert out == pytest.approx(40.0 * np.log10(np.maximum(p, fs.Sensor().threshold_power_w)
                                                 / 1e-9), rel=1e-6)
+
+
+def _wide_truth(n: int, seed: int, r_lo: float = 6.0, r_hi: float = 25.0):
+    """A target whose true reflectance term spans 1.7x the model's in ln (per material
+    and incidence u), ranges r_lo..r_hi: (true ln P, model ln P, range, material)."""
+    rng = np.random.default_rng(seed)
+    mat = rng.integers(0, 4, n)
+    u = rng.uniform(0.0, 1.0, n)
+    model_term = -12.0 + 0.5 * mat + 2.0 * u        # the model's ln(reflectance x cos)
+    true_term = -12.0 + 1.7 * (model_term + 12.0)   # the truth's: 1.7x as wide
+    r = rng.uniform(r_lo, r_hi, n)
+    return true_term - 2 * np.log(r), model_term - 2 * np.log(r), r, mat
+
+
+def _slope(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.polyfit(b, a, 1)[0])
+
+
+def test_cepton_reflectivity_keeps_the_slope_of_ln_i_at_one():
+    """walkscale53: a reflectivity ~ P r^2 read through a map fitted on a model whose
+    powers are narrower than the truth's came out compressed (a walk over-read by the
+    inverse). With the layout's word (unit_slope) the reading is the true ln P + const."""
+    log_pt, log_pm, r, _ = _wide_truth(20000, 3)
+    refl = np.exp(log_pt) * r ** 2
+    cal = calibrate_intensity(refl, r, np.exp(log_pm), range_exponents=(-2.0,),
+                              unit_slope=True)
+    read = np.log(cal.power_w(refl, r))
+    assert _slope(read, log_pt) == pytest.approx(1.0, abs=1e-6)
+    assert cal.usable and cal.unit_slope and cal.as_dict()['unit_slope'] is True
+    # without it, the map carries the model's scale (the over-read's cause)
+    old = calibrate_intensity(refl, r, np.exp(log_pm), range_exponents=(-2.0,))
+    assert _slope(np.log(old.power_w(refl, r)), log_pt) < 0.8
+
+
+def test_range_lever_measures_the_scale_of_log_counts_where_the_model_is_narrow():
+    """Log counts a + b ln P (b 17.37): fitted on the model's narrower ln P, b reads too
+    large; the range within cells of one material and reflectance level gives b
+    (reported beside the fitted b, not applied)."""
+    log_pt, log_pm, r, mat = _wide_truth(40000, 4)
+    counts = 17.37 * (log_pt + 20.72) + np.random.default_rng(5).normal(0, 1.0, len(r))
+    old = calibrate_intensity(counts, r, np.exp(log_pm))
+    assert old.scale == 'log' and old.log_b > 1.2 * 17.37
+    cal = calibrate_intensity(counts, r, np.exp(log_pm), material=mat)
+    lever = cal.range_lever
+    assert lever['pinned'] and lever['k_scale_rel_se'] < 0.1
+    assert cal.scale_test['log_b_range_lever'] == pytest.approx(17.37, rel=0.05)
+    assert cal.log_b == old.log_b                  # reported, the reading unchanged
+
+
+def test_range_lever_leaves_the_reading_where_the_model_has_the_truths_scale():
+    """The model's power is the truth (our own simulator's recordings): the lever's scale
+    is 1 and the reading stays as the map fitted it."""
+    _, log_pm, r, mat = _wide_truth(40000, 6)
+    i = 3.0e6 * np.exp(log_pm)
+    cal = calibrate_intensity(i, r, np.exp(log_pm), material=mat)
+    assert cal.range_lever['scale'] == pytest.approx(1.0, abs=0.01)
+    assert cal.power_w(i, r) == pytest.approx(np.exp(log_pm), rel=0.05)
+
+
+def test_range_lever_is_not_pinned_without_range_spread():
+    """All at one range: nothing within a cell moves with the range; the reading is kept
+    and the figures say the scale is not pinned."""
+    from lidar_sim_ros.compare.recording.intensity import range_lever
+    rng = np.random.default_rng(7)
+    y = rng.normal(-14.0, 1.0, 5000)
+    mat = rng.integers(0, 2, 5000)
+    lr = np.log(10.0) + rng.normal(0, 1e-4, 5000)
+    out = range_lever(0.6 * y + rng.normal(0, 0.3, 5000), y, lr, mat)
+    assert out is None or not out['pinned']
+
+
+def test_the_cepton_layouts_hold_the_slope():
+    from lidar_sim_ros.compare.recording.fields import slope_known
+    assert slope_known({'layout': 'cepton sdk3 driver'})
+    assert not slope_known({'layout': 'generic'}) and not slope_known(None)
+
+
+def test_the_verdict_says_what_the_scale_leaves_open_of_a_walk():
+    from lidar_sim_ros.compare.report.verdict import walk_scale_words
+    gain = {'used_for_power_driven_effects': True, 'range_exponent': 0.0,
+            'range_lever': {'scale': 0.6, 'se': 0.03, 'k_scale_rel_se': 0.05, 'pinned': True}}
+    assert 'over-read by that ratio' in walk_scale_words(gain, {'k_m': 0.05,
+                                                               'power': 'measured'})
+    assert walk_scale_words(gain, {'k_m': 0.03, 'power': 'model'}) == ''
+    assert walk_scale_words({'used_for_power_driven_effects': True, 'unit_slope': True},
+                            {'k_m': 0.03}) == ''
+
+
+def test_range_lever_holds_where_the_nearer_part_of_a_surface_is_brighter():
+    """Within a cell the model's reflectance term still follows the range (near parts
+    face the sensor more): the lever takes that out, and reads the truth's scale."""
+    from lidar_sim_ros.compare.recording.intensity import range_lever
+    rng = np.random.default_rng(8)
+    n = 6000
+    mat = rng.integers(0, 3, n)
+    r = rng.uniform(9.5, 10.5, n)
+    u = np.clip(1.0 - (r - 9.5) + rng.normal(0, 0.3, n), 0.0, 2.0)
+    model_term = -12.0 + 0.5 * mat + 2.0 * u
+    log_pm = model_term - 2 * np.log(r)
+    log_pt = 1.7 * model_term - 2 * np.log(r)
+    out = range_lever(0.6 * log_pt, log_pm, np.log(r), mat)
+    assert out['scale'] == pytest.approx(0.6, abs=0.02)   # 0.70 without

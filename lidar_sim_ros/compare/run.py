@@ -306,7 +306,9 @@ class PowerFromIntensity:
                                                    m.pred.ctx.power_w[sel],
                                                    m.pred.ctx.intensity[sel],
                                                    fields.range_exponents(m.meas.fields),
-                                                   cloud=m.meas.cloud[sel])
+                                                   cloud=m.meas.cloud[sel],
+                                                   material=np.asarray(m.pred.ctx.material)[sel],
+                                                   unit_slope=fields.slope_known(m.meas.fields))
             self.in_intensity = self._range_test(m)
             self.done = True
         if self.calibration is None or not self.calibration.usable:

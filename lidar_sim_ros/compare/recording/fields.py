@@ -270,6 +270,12 @@ def range_exponents(field_map: dict | None) -> tuple[float, ...]:
     return (-2.0,) if layout.startswith('cepton') else RANGE_EXPONENTS
 
 
+def slope_known(field_map: dict | None) -> bool:
+    """Whether the layout says the intensity is proportional to P r^2 (the Cepton drivers'
+    reflectivity), so ``intensity.calibrate_intensity`` holds the slope of ln I at 1."""
+    return (field_map or {}).get('layout', '').startswith('cepton')
+
+
 def flag_lines(fmap: FieldMap, counts: dict[str, int], no_return: int,
                invalid: int) -> list[str]:
     """Terminal lines: the Cepton flags seen, the known misses, NOISE/BLOCKED kept, and
@@ -309,6 +315,8 @@ def intensity_reading(calibration: dict | None, field_name: str | None,
                    else 'through the monotone map (it fits the model\'s power better)'))
     elif calibration.get('range_exponent', 0.0) < -1.0:
         kind = 'a range-compensated reflectivity (~ P r^2)'
+        if calibration.get('unit_slope'):
+            kind += ', the slope of ln I held at 1'
     else:
         kind = 'grows with the received power (no range compensation detected)'
         if calibration.get('intensity_scale') == 'linear':

@@ -54,6 +54,31 @@ before (it is monotone, so it follows log counts as well). b is fitted against t
 power, so a walk read through it carries the model's scale of ln P (the forced fit on
 the model's power shows the same).
 
+The map is fitted against the model's power, so it carries the model's scale of ln P: where
+the model's reflectance law spans a narrower range of power than the truth's (another
+lab's coatings against our Phong table), the regression of the model's ln P on the
+intensity compresses the reading, and a walk fitted on it is over-read by the inverse
+(walkscale53: +31 to +34 %). Two corrections, each from what is exact in the model:
+
+* where the layout says what the intensity is (the Cepton drivers' reflectivity, ~ P r^2:
+  ``unit_slope``), ln P = ln I - 2 (ln r - mean ln r) + offset, the slope held at 1 and
+  only the offset fitted (``unit_slope_map``);
+* otherwise, for a reading without range compensation, the *range lever*
+  (``range_lever``): within cells of one material and one level of the model's
+  reflectance term (ln P + 2 ln r: the same incidence, so the same true reflectance), the
+  model's ln P moves with the range as the truth's does (-2 ln r exactly). The slope of
+  the reading against the model's ln P there, with ln r as the instrument, is its scale
+  s (1 when the reading has the truth's scale; ``pinned`` when its standard error,
+  clustered by cell, is at most LEVER_MAX_REL_SE of it). For a walk read through the
+  reading, the true k is about s times the fitted one, and s's relative standard error
+  is the share of k the scale leaves uncertain (``k_scale_rel_se``). The lever is
+  reported in summary.json only (``intensity_gain.range_lever``), not applied nor quoted:
+  on the foreign drum's log counts at 10 m (ln r within a cell: sd 0.02) it scattered
+  over 0.43-0.87 at 5-18 % standard error where the fitted b says 0.57-0.63, stretching
+  by it turned a walk 7 % over into 12 % under, and on the battery's box bus with
+  speckle (a reading of the right scale: k 0.0204 for 0.02) it read 1.36 +- 0.06. The
+  verdict says instead what the scale leaves open of a walk read through the intensity.
+
 The simulator keeps using its own predicted power; see docs/compare.md.
 """
 from __future__ import annotations
@@ -102,6 +127,13 @@ CLOUD_GAIN_Z = 2.33
 # is read through the log reading when it leaves at most 1 + SCALE_MARGIN times the
 # map's (else the map, which follows any monotone scale, stays).
 SCALE_MARGIN = 0.2
+# The range lever (module doc): cells of one material and one quantile bin of the model's
+# reflectance term, this many points a bin at least (at most LEVER_BINS bins a material);
+# the scale is called pinned when its relative standard error is at most this (the
+# scale, and so a walk's k, known to 10 %).
+LEVER_BIN_POINTS = 200
+LEVER_BINS = 40
+LEVER_MAX_REL_SE = 0.1
 
 
 @dataclass(frozen=True)
@@ -129,6 +161,9 @@ class IntensityCalibration:
     log_a: float = 0.0
     log_b: float = 1.0
     scale_test: dict | None = None
+    # The range lever (module doc): its figures (None: not tried), and the slope held at 1.
+    range_lever: dict | None = None
+    unit_slope: bool = False
 
     @property
     def usable(self) -> bool:
@@ -183,6 +218,7 @@ class IntensityCalibration:
                                   else float(np.exp(self.clip_log_i))),
                 'cloud_gain': self.cloud_gain_test,
                 'intensity_scale': self.scale, 'scale_test': self.scale_test,
+                'unit_slope': self.unit_slope, 'range_lever': self.range_lever,
                 'used_for_power_driven_effects': self.usable}
 
 
@@ -190,13 +226,18 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
                         model_intensity: np.ndarray | None = None,
                         range_exponents: tuple[float, ...] = RANGE_EXPONENTS,
                         cloud: np.ndarray | None = None,
+                        material: np.ndarray | None = None,
+                        unit_slope: bool = False,
                         ) -> IntensityCalibration | None:
     """Fit the map from measured intensity to the model's received power (module doc)
     on matched points; None if fewer than MIN_POINTS usable points. ``gain``: median
     measured / ``model_intensity`` (the model's intensity units; default its power).
     ``range_exponents``: the readings to choose from; ``(-2.0,)`` where the layout says
     the intensity is a range-compensated reflectivity (the Cepton drivers'). ``cloud``:
-    each point's cloud index, to try a gain per cloud (module doc)."""
+    each point's cloud index, to try a gain per cloud (module doc). ``material``: each
+    point's material id in the model, for the range lever (None: not tried).
+    ``unit_slope``: the layout says the intensity is ~ P r^(-c) (module doc): the slope of
+    ln I held at 1 (with the one range exponent given), no gain per cloud."""
     i = np.asarray(intensity, float)
     p = np.asarray(model_power_w, float)
     r = np.asarray(range_m, float)
@@ -223,8 +264,11 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
         if best is None or spread < best[0] * (1.0 - RANGE_TERM_GAIN):
             best = (spread, c, knots_x, knots_y)
     spread, c, knots_x, knots_y = best
+    if unit_slope:
+        knots_x, knots_y = unit_slope_map(x, y - c * lr)
+        spread = float(np.var(y - np.interp(x, knots_x, knots_y) - c * lr))
     log_gain, test = {}, None
-    if cloud is not None:
+    if cloud is not None and not unit_slope:
         knots_x, knots_y, log_gain, test = cloud_gains(x, y - c * lr,
                                                        np.asarray(cloud)[ok], knots_x, knots_y)
         if log_gain:
@@ -232,7 +276,7 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
                                   + cloud_lookup(log_gain, np.asarray(cloud)[ok])))
     var_y = float(np.var(y))
     scale, log_a, log_b, scale_test = None, 0.0, 1.0, None
-    if c == 0.0 and not log_gain:
+    if c == 0.0 and not log_gain and not unit_slope:
         scale, log_a, log_b, scale_test = intensity_scale(np.exp(x), y)
         if scale == 'log':
             log_spread = float(np.var(y - (np.exp(x) - log_a) / log_b))
@@ -245,6 +289,24 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
             else:
                 log_a, log_b = 0.0, 1.0
     explained = 1.0 - spread / var_y if var_y > 0 else 0.0
+    if unit_slope:
+        # The slope held at 1 is not the model's: how well the reading measures the
+        # power is its correlation with the model's (the share a line of any slope
+        # explains), not what the unit line leaves.
+        read = np.interp(x, knots_x, knots_y) + c * lr
+        explained = (float(np.corrcoef(read, y)[0, 1]) ** 2
+                     if np.ptp(read) > 0 and var_y > 0 else 0.0)
+    lever = None
+    if c == 0.0 and not unit_slope and material is not None:
+        reads_log = scale == 'log' and scale_test.get('read_through') == 'log'
+        read = ((np.exp(x) - log_a) / log_b if reads_log else np.interp(x, knots_x, knots_y))
+        if log_gain:
+            read = read - cloud_lookup(log_gain, np.asarray(cloud)[ok])
+        lever = range_lever(read, y, lr, np.asarray(material)[ok])
+        if lever is not None and scale == 'log':
+            b_fit = log_b if reads_log else scale_test.get('log_b_per_efold')
+            if b_fit:
+                scale_test['log_b_range_lever'] = round(float(b_fit) * lever['scale'], 4)
     d = x - (y if model_intensity is None
              else np.log(np.maximum(np.asarray(model_intensity, float)[ok], 1e-300)))
     return IntensityCalibration(
@@ -256,7 +318,83 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
         points=int(ok.sum()),
         clip_log_i=None if clip is None else float(np.log(clip)),
         clipped_share=clipped_share, cloud_log_gain=log_gain, cloud_gain_test=test,
-        scale=scale, log_a=log_a, log_b=log_b, scale_test=scale_test)
+        scale=scale, log_a=log_a, log_b=log_b, scale_test=scale_test,
+        range_lever=lever, unit_slope=unit_slope)
+
+
+def unit_slope_map(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Knots of y = x + offset over the range of x (x = ln I, y = the model's ln P with
+    the range term taken out): the slope held at 1, the offset the median of y - x
+    (module doc)."""
+    offset = float(np.median(y - x))
+    lo, hi = float(np.min(x)), float(np.max(x))
+    if hi <= lo:
+        lo, hi = lo - 1.0, lo + 1.0
+    # Far beyond the points' range, so the reading stays a line for every intensity.
+    knots_x = np.array([lo - 50.0, hi + 50.0])
+    return knots_x, knots_x + offset
+
+
+def range_lever(read_log_p: np.ndarray, log_p: np.ndarray, log_r: np.ndarray,
+                material: np.ndarray) -> dict | None:
+    """The scale of a reading against the model's ln P from the range alone (module doc).
+
+    ``read_log_p``: the power read from the intensity (ln W); ``log_p``: the model's
+    (ln W); ``log_r``: ln of the range (any centre); ``material``: the model's material
+    id. Cells: each material's points in quantile bins of log_p + 2 log_r (LEVER_BINS at
+    most, LEVER_BIN_POINTS each). Within cells, s = sum(read' z') / sum(log_p' z'),
+    z = ln r (' : less the cell's mean, and what follows the reflectance term within the
+    cells, per material); its standard error clustered by cell. None
+    with fewer than two cells or no range spread within them."""
+    read, y = np.asarray(read_log_p, float), np.asarray(log_p, float)
+    z, mat = np.asarray(log_r, float), np.asarray(material)
+    ok = np.isfinite(read) & np.isfinite(y) & np.isfinite(z)
+    read, y, z, mat = read[ok], y[ok], z[ok], mat[ok]
+    term = y + 2.0 * z
+    cell = np.full(len(y), -1, np.int64)
+    next_id = 0
+    for m in np.unique(mat):
+        sel = np.flatnonzero(mat == m)
+        n_bins = int(min(LEVER_BINS, len(sel) // LEVER_BIN_POINTS))
+        if n_bins < 1:
+            continue
+        edges = np.quantile(term[sel], np.linspace(0.0, 1.0, n_bins + 1))
+        b = np.clip(np.searchsorted(edges, term[sel], side='right') - 1, 0, n_bins - 1)
+        cell[sel] = next_id + b
+        next_id += n_bins
+    use = cell >= 0
+    if next_id < 2 or use.sum() < 2 * LEVER_BIN_POINTS:
+        return None
+    cell, read, y, z = cell[use], read[use], y[use], z[use]
+    counts = np.bincount(cell, minlength=next_id).astype(float)
+    counts[counts == 0] = 1.0
+
+    def within(v):
+        return v - (np.bincount(cell, v, next_id) / counts)[cell]
+
+    rz, yz, zc, tc = within(read), within(y), within(z), within(term[use])
+    # What is left of the reflectance term within a cell can still follow the range (the
+    # nearer part of a surface facing the sensor more): taken out linearly per material,
+    # or its truth-to-model scale leaks into s.
+    mat_use = mat[use]
+    for m in np.unique(mat_use):
+        sel = mat_use == m
+        tt = float(np.sum(tc[sel] ** 2))
+        if tt > 0:
+            for v in (rz, yz, zc):
+                v[sel] -= (np.sum(v[sel] * tc[sel]) / tt) * tc[sel]
+    den = float(np.sum(yz * zc))
+    if not np.isfinite(den) or abs(den) <= 1e-12 * len(y):
+        return None
+    s = float(np.sum(rz * zc)) / den
+    e = rz - s * yz
+    by_cell = np.bincount(cell, e * zc, next_id)
+    se = float(np.sqrt(np.sum(by_cell ** 2)) / abs(den))
+    rel = se / abs(s) if s != 0 else float('inf')
+    pinned = bool(s > 0 and rel <= LEVER_MAX_REL_SE)
+    return {'scale': round(s, 4), 'se': round(se, 4), 'k_scale_rel_se': round(rel, 4),
+            'cells': int(len(np.unique(cell))), 'points': int(len(y)),
+            'range_sd_within_cells': round(float(np.std(zc)), 4), 'pinned': pinned}
 
 
 def intensity_scale(intensity: np.ndarray, log_p: np.ndarray

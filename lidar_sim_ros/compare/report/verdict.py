@@ -134,7 +134,9 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
             f'z = {c.z:.1f}).{caveat} '
             + (f'--effect {missing} --fit adds it as a stand-in; an effect of your own that '
                'follows range (docs/effects.md, "Write your own effect") would fit it better.'
-               if stand_in else f'Run again with --effect {missing} --fit to add it.'))
+               if stand_in else f'Run again with --effect {missing} --fit to add it.')
+            + (walk_scale_words(summary.get('intensity_gain'), c.params)
+               if missing == 'range_walk' else ''))
         if decision.also:
             parts.append(f'{decision.also} also explains a separate part of the residual'
                          f'{_on_top_words(cands, decision.also, missing)}: '
@@ -1374,6 +1376,23 @@ def range_tie_words(pose, summary: dict) -> str:
 
 
 _PER_LASER_ANGLE = re.compile(r'^laser_\d+_(az|el)_deg$')
+
+
+def walk_scale_words(gain: dict | None, params: dict | None) -> str:
+    """What the intensity's scale leaves open of a walk's k read through it: '' where k
+    reads the model's power or the layout fixes the scale (``recording/intensity.py``).
+    The range lever's figures are in summary.json only: on foreign data they missed
+    the scale by up to 0.36 at 6 % standard error, no ground to quote a k from."""
+    gain, params = gain or {}, params or {}
+    if (params.get('power', 'measured') != 'measured'
+            or not gain.get('used_for_power_driven_effects')
+            or gain.get('unit_slope')):
+        return ''
+    return (' k is read through the intensity, whose scale was fitted on the model\'s '
+            'power: where the model\'s reflectance law spans less received power than the '
+            'true one, k is over-read by that ratio (more, under-read), which this recording '
+            'does not check; a sensor whose intensity convention is known, or a recording '
+            'over a range of distances, does.')
 
 
 def _summary_params(params: dict | None) -> tuple[dict, int]:
