@@ -1275,7 +1275,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     stamp = _stamp_place(diag, decision, cands, meas, scenario)
     decision = sunlit_decision(decision, sunlight)
     # The one gate every name passes (missing, tie, also): the rule and the NLL.
-    decision = diagnosis.settle(decision, cands, diag.naming_fault)
+    decision = diagnosis.settle(decision, cands, diag.naming_fault, diag.tile_fault)
     # After the gate: a name it withheld (a fit at its box) leaves the pose alone.
     decision, pose = pose_left_to_pointing(decision, pose, cands, diag.finalized, pose_test,
                                            recast)

@@ -80,6 +80,9 @@ class Candidate:
     vetoed: str | None = None          # why it cannot be the missing effect despite its gain
     tile_vetoed: bool = False          # ``vetoed`` by the tile test (``tile_veto``)
     material_vetoed: bool = False      # ``vetoed`` by the cross-material test (``material_veto``)
+    # A per-laser one: the tile test as last asked (``Diagnosis.tile_veto``: the worst
+    # split, its loss in nats per analysed point and z, the effects beside, 'passes').
+    tile_test: dict | None = None
     # Lasers' pointing: what each laser's own offsets gain over their common turn alone
     # (``own_part_veto``).
     own_part: dict | None = None
@@ -139,6 +142,7 @@ class Candidate:
                 **({'vetoed': self.vetoed} if self.vetoed else {}),
                 **({'passes_beside': self.beside} if self.beside else {}),
                 **({'gain_beside': self.beside_gain} if self.beside_gain else {}),
+                **({'tile_test': self.tile_test} if self.tile_test else {}),
                 **({'own_offsets': self.own_part} if self.own_part else {}),
                 **({'per_material_part': self.standoff_part} if self.standoff_part else {}),
                 **({'fitted_together': self.together} if self.together else {}),

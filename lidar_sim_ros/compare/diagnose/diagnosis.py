@@ -461,14 +461,28 @@ class Diagnosis(PoseWeighing):
         idx, meas = self.rays.matched, self.rays.meas
         if len(np.unique(meas.laser[idx])) < 2:
             return None
+        beside = [e.name for e in on_top]
+        memo = self.memo('tiles')
+        key = (cand.name, cand.n_params, _num(cand.score), tuple(beside))
+        if key not in memo:
+            memo[key] = self._tile_test(cand, list(on_top))
+        why, cand.tile_test = memo[key]
+        return why
+
+    def _tile_test(self, cand: Candidate, on_top: list[Effect]) -> tuple[str | None, dict]:
+        """``tile_veto`` asked (its reason or None, and its figures: the worst split, its
+        loss in nats per analysed point and z, the effects beside, whether it passes)."""
+        idx, meas = self.rays.matched, self.rays.meas
+        figures = {'beside': [e.name for e in on_top], 'passes': True}
         on_top = self.refitted_beside(cand, on_top)
         at_random = self.in_matched_order(
             self.cross_fit(cand.variant, list(on_top))[0] if on_top else cand.heldout_nll)
         worst = self.worst_transfer(cand, laser_tiles.tile_halves(
             meas.laser[idx], meas.directions[idx], meas.t_s[idx]), at_random, on_top)
         if worst is None:
-            return None
+            return None, figures
         split, loss, z = worst
+        figures.update(split=split, loss=_num(loss), z=_num(z))
         if pointing.turn_of(cand.variant) is not None and loss < MIN_SHARE * cand.score:
             # Lasers' pointing offsets act through the surface's slope, fitted to first
             # order (and once more): over half a tile the slope's curvature and the
@@ -476,7 +490,8 @@ class Diagnosis(PoseWeighing):
             # (2-2.5 % of the gain at 0.15-0.2 deg, on two foreign simulators). A
             # pattern on the target the tiles cut up loses a share of the gain: at least
             # MIN_SHARE, as a bias effect must explain that share of the structure.
-            return None
+            return None, figures
+        figures['passes'] = False
         halves = {'azimuth': 'the two halves of each laser\'s tile in azimuth',
                   'elevation': 'the two halves of each laser\'s tile in elevation',
                   'time': 'each laser\'s early and late points'}[split]
@@ -486,7 +501,33 @@ class Diagnosis(PoseWeighing):
                 'residual follows a pattern on the target that the tiles cut up (the '
                 'target off its CAD, or another effect\'s pattern), not the lasers alone; '
                 'offsets of the lasers\' own beside that pattern show only once it is '
-                'modelled')
+                'modelled'), figures
+
+    def tile_fault(self, cand: Candidate, named: Candidate | None = None) -> str | None:
+        """Why ``cand`` may not be named where it is (the missing effect or in a tie:
+        ``named`` None; 'also' beside ``named``), or None. A per-laser one: the tile test
+        (``tile_veto``) asked there, alone or with ``named`` in the model; every path that
+        names one asks it (``settle``), once per context (memo). A range term 'also'
+        beside a per-laser ``named``: the cross-material test it would face named
+        (``material_veto`` alone), as the lasers' offsets can take a part's pattern
+        that the tiles cut up, so that test beside them shows nothing (bend53)."""
+        if cand.heldout_nll is None or len(cand.heldout_nll) != len(self.fold_order):
+            return None     # scored on another model (a corrected pose): tested there
+        if (cand.effect is not None and cand.name in POSE_RIVALS and named is not None
+                and named.effect is not None and laser_tiles.per_laser(named.effect)):
+            try:
+                why = self.material_veto(cand)
+            except Exception as exc:  # noqa: BLE001 - not shown to read alike
+                why = f'its cross-material test failed: {type(exc).__name__}: {exc}'
+            return None if why is None else f'beside {named.name} (lasers\' offsets): {why}'
+        if cand.effect is None or not laser_tiles.per_laser(cand.effect):
+            return None
+        on_top = ([named.effect] if named is not None and named is not cand
+                  and named.effect is not None else [])
+        try:
+            return self.tile_veto(cand, on_top)
+        except Exception as exc:  # noqa: BLE001 - not shown to hold across the tiles
+            return f'its tile test failed: {type(exc).__name__}: {exc}'
 
     def refitted_beside(self, cand: Candidate, on_top: list[Effect]) -> list[Effect]:
         """``on_top`` refitted together with ``cand`` on all the diagnosed points
@@ -2113,7 +2154,9 @@ def naming_fault(cand: Candidate, before_nll: float,
 
 
 def settle(decision: Decision, cands: list[Candidate],
-           fault: 'Callable[[Candidate], str | None]') -> Decision:
+           fault: 'Callable[[Candidate], str | None]',
+           tiles: 'Callable[[Candidate, Candidate | None], str | None] | None' = None
+           ) -> Decision:
     """Every name a decision carries (``missing``, ``confounded_with``, ``also``; for
     ``sunlight``, the candidate that is its ``evidence``) passes ``naming_fault`` on the
     candidates the verdict quotes (``cands``; ``fault``: ``Diagnosis.naming_fault``, which
@@ -2121,7 +2164,10 @@ def settle(decision: Decision, cands: list[Candidate],
     "before" NLL), or is
     withheld (``Decision.withheld``: name -> why). A tie left with one member is no
     tie, and its last member is not promoted to missing. ``pose_error`` in a tie is
-    the reference pose, judged by its own test (``judge_pose``)."""
+    the reference pose, judged by its own test (``judge_pose``). ``tiles``
+    (``Diagnosis.tile_fault``): a per-laser name must also hold across the lasers'
+    tiles where it is named (alone, or beside the named one for an 'also'), whichever
+    path put it there (bend53: lasers' range offsets named for a body bent off its CAD)."""
     by_name = {c.name: c for c in cands}
     withheld = dict(decision.withheld)
 
@@ -2132,6 +2178,8 @@ def settle(decision: Decision, cands: list[Candidate],
                         else name)
         why = ('not among the candidates' if c is None else
                None if passed_on_top_of(c, beside_named) or passed_jointly(c) else fault(c))
+        if why is None and c is not None and tiles is not None:
+            why = tiles(c, by_name.get(beside_named) if beside_named else None)
         if why is not None:
             withheld[name] = why
         return why

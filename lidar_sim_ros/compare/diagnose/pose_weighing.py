@@ -903,7 +903,7 @@ class PoseWeighing:
         if (not decision.missing and decision.confounded_with and nested is not None
                 and POSE_ERROR not in decision.confounded_with):
             from lidar_sim_ros.compare.diagnose.diagnosis import settle
-            gated = settle(decision, cands, self.naming_fault)
+            gated = settle(decision, cands, self.naming_fault, self.tile_fault)
             if not gated.missing and not gated.confounded_with:
                 named, _ = self.clock_beside_constant_pose(gated, cands, footing_test,
                                                            pose_on_clock, nested)
