@@ -1083,13 +1083,16 @@ def fit_reference_pose(data: lk.FitData, cloud: np.ndarray, t_s: np.ndarray,
         x = joint if joint is not None else through if through is not None else fit_clouds(
             cols, r, s, cloud, use, clouds, prior12 if supported else prior, ridge)
     correction = np.einsum('ij,ij->i', cols, x[row])
-    # A rigid correction per cloud that passes: does its held-out gain hold on the
-    # surfaces facing every way? Reported (``across_faces``); the claim is withheld where
-    # it is made (the caller's), its test here left as it is.
-    if orientations and not constant and not supported and z >= z_crit \
-            and per_point >= min_gain:
+    # A correction per cloud that passes: does its held-out gain hold on the surfaces
+    # facing every way? The rigid one first (a rate refines a pose error that is there),
+    # then, where the rate is supported, the drifting one. Reported (``across_faces``);
+    # the claim is withheld where it is made (the caller's), its test here left as it is.
+    if orientations and not constant and z >= z_crit and per_point >= min_gain:
         across = per_cloud_faces(gain, use, ctx.normal, x[row, :3], blocks, z_crit,
                                  min_gain, len(r))
+        if supported and all(g.transfers for g in across):
+            across = per_cloud_faces(gain12, use, ctx.normal, x[row, :3], blocks, z_crit,
+                                     min_gain, len(r))
     t_mean = np.array([float(np.mean(t_s[cloud == c])) for c in clouds])
     p = ctx.direction * np.where(ok, model.expected_range_m, 0.0)[:, None]
     centroid = np.array([p[use & (cloud == c)].mean(axis=0) if np.any(use & (cloud == c))
