@@ -14,7 +14,10 @@ but one and scored held out on that one (``across_orientations``), for each grou
 A pose error gains on every held-out group (or nothing, where the other groups do not
 see the motion); a face-dependent bias loses on some. A group loses by the rule of every
 candidate mirrored: its held-out loss at least the practical margin (nats per point of
-the group) at a z of the family's bound. Gains in nats per point.
+the group) at a z of the family's bound (``by_group``). A per-cloud correction is scored
+otherwise (``pose_error.per_cloud_faces``): its own held-out gain on random halves summed
+within each group (fitted per cloud on some groups, a true jitter's motion the held-out
+group does not see is left to its noise). Gains in nats per point.
 """
 from __future__ import annotations
 

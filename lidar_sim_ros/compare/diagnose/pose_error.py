@@ -1141,7 +1141,8 @@ def faces_agree(a: np.ndarray, r: np.ndarray, s: np.ndarray, cloud: np.ndarray,
     correction for the recording only (``fit_reference_pose``): per cloud, the few points
     a cloud has on the surfaces facing some ways leave the motions those surfaces do not
     see to their noise (a true jitter over 20 and 80 clouds of three planes lost on a
-    held-out plane at z -4 and, on the halves, -9)."""
+    held-out plane at z -4 and, on the halves, -9); a per-cloud correction is asked by
+    ``per_cloud_faces``."""
     def fit(train: np.ndarray) -> np.ndarray:
         if through is not None:
             return fit_clouds(a, through, s, cloud, train, clouds, prior, RIDGE)
