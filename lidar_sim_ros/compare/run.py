@@ -1343,11 +1343,13 @@ def pose_that_matters(decision: diagnosis.Decision, pose: pose_error.PoseError,
 def pose_across_all_points(decision: diagnosis.Decision, pose: pose_error.PoseError
                            ) -> tuple[diagnosis.Decision, pose_error.PoseError]:
     """The decision and its pose, unless the pose it reports (alone or beside a named
-    effect, rigid) is the correction fitted on every matched point (as --fit fits it)
-    and that correction does not hold across the surfaces' orientations
-    (``pose_error.faces_agree`` on every matched point: the sample's test asked it on
-    fewer): then the pose is not reported, its test marked failed."""
-    if not pose_reported(decision, pose) or pose.rate_supported:
+    effect) does not hold across the surfaces' orientations: one rigid correction for
+    the recording fitted on every matched point (as --fit fits it) that fails
+    ``pose_error.faces_agree`` (the sample's test asked it on fewer), or a per-cloud
+    correction (with its rate or not) whose held-out gain loses on a group of them
+    (``pose_error.per_cloud_faces``): then the pose is not reported, its test marked
+    failed."""
+    if not pose_reported(decision, pose) or (pose.rate_supported and pose.constant):
         return decision, pose
     faces = pose.across_faces
     if not faces or faces['transfers']:

@@ -119,8 +119,11 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
         return _out(False, None, f'its {"constant" if pose.get("constant") else "per-cloud"} '
                     'test passes on random halves '
                     f'({_f(pose.get("gain_per_matched_point"))} nats/point, z = '
-                    f'{_f(pose.get("z"), 1)}), but fitted on the surfaces facing some ways it '
-                    'loses on those facing others (across_faces): no rigid motion every '
+                    f'{_f(pose.get("z"), 1)}), but '
+                    + ('fitted on the surfaces facing some ways it loses on those facing '
+                       'others' if pose.get('constant') else
+                       'held out it loses on the surfaces facing some ways')
+                    + ' (across_faces): no rigid motion every '
                     'surface agrees on, so the pose is not claimed', shown)
     if not pose.get('significant'):
         where = f' on top of {_join(on_top)}' if on_top else ''

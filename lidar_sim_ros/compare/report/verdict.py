@@ -1279,12 +1279,17 @@ def across_faces_words(pose: dict) -> str:
     normal = ', '.join(f'{v:.2f}' for v in worst['normal'])
     kind = ('One rigid correction of the pose for the recording' if pose.get('constant')
             else 'A per-cloud pose correction')
+    # One correction is fitted on the other groups and held out on each; a per-cloud
+    # one is scored on each group's share of its random held-out halves
+    # (``pose_error.per_cloud_faces``).
+    how = ('fitted on the surfaces facing some ways it does not hold on the others: held '
+           'out on' if pose.get('constant') else
+           'it does not hold on the surfaces facing every way: held out (random halves) on')
     return (f'A range error outside the catalogue that depends on which way a surface '
             f'faces: {kind[0].lower()}{kind[1:]} would take part of the residual '
             f'({pose["translation_rms_cm"]:.2f} cm and {pose["rotation_rms_deg"]:.3f} deg RMS, '
             f'held-out gain {pose["gain_per_matched_point"]:.4f} nats/point on random '
-            f'halves, z = {pose["z"]:.1f}), but fitted on the surfaces facing some ways it '
-            f'does not hold on the others: held out on the surfaces whose normal (sensor '
+            f'halves, z = {pose["z"]:.1f}), but {how} the surfaces whose normal (sensor '
             f'frame) is near ({normal}), {100 * worst["share"]:.0f} % of the points, it '
             f'loses {-worst["gain_per_group_point"]:.4f} nats per point there '
             f'(z = {worst["z"]:.1f}); over the {len(split["groups"])} groups of that split '
