@@ -67,7 +67,8 @@ def test_clean_cepton_recording(tmp_path, capsys):
     assert 'timestamp_s (INT32) + timestamp_us (INT32): point time' in out
     assert 'NO_RETURN shots: known misses' in out
     # The driver's intensity is a reflectivity: read so because the layout says so.
-    assert 'range-compensated reflectivity (~ P r^2) (as the layout says)' in out
+    assert ('range-compensated reflectivity (~ P r^2), the slope of ln I held at 1 '
+            '(as the layout says)') in out
     assert s['point_time_field']['name'] == 'timestamp_s+timestamp_us'
     assert s['point_times'] == 'field' and s['missing_effect'] is None, s['verdict']
     # The noise the generator put in, over the matched points of each material.
