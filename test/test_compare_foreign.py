@@ -101,6 +101,12 @@ BENCH_ONLY: dict[str, str] = {
              'is off (test_foreign_loop_v4[pattern_off_no_time]): run by '
              'bench/hidden_effect_eval.py'
        for name in ('beam_divergence', 'time_offset_no_time')},
+    'walk_and_offset': 'a walk (poly-log law) beside a clock offset (~20 s of the suite\'s '
+                       'CPU, three steps): each is named and fitted on the suite\'s own data '
+                       '(test_compare.py, range_walk and time_offset) and on foreign data '
+                       '(short_range_walk, range_walk_sqrt, clean_no_time_end), and two '
+                       'effects walked step by step are the suite\'s incidence_and_solar, '
+                       'clutter_solar and occluder_walk: run by bench/hidden_effect_eval.py',
     'veil': 'test_compare_occlusion.py runs it through compare (one frame) and asserts '
             'what is left out and kept: run by bench/hidden_effect_eval.py',
     **{name: 'a one-effect loop whose effect other loops of the suite name and fit away on '

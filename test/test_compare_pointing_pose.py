@@ -9,13 +9,10 @@ claimed (``run.pose_left_to_pointing``).
 """
 from __future__ import annotations
 
-import json
 from dataclasses import replace
 
 import numpy as np
 
-from foreign_sim import battery, generate
-from lidar_sim_ros.cli import main
 from lidar_sim_ros.compare import run
 from lidar_sim_ros.compare.diagnose import diagnosis, pose_error
 from lidar_sim_ros.compare.model import pointing
@@ -103,38 +100,13 @@ def test_pose_kept_where_it_passes_on_top_or_pointing_is_named_or_weaker():
                                      on)[0].pose is None
 
 
-def _compare_pointing_few_c(k: int, tmp_path) -> dict:
-    """summary.json of compare on pointing_few_c at its ``k``-th seed."""
-    spec = battery(['pointing_few_c'])[0]
-    ds = generate(replace(spec, name=f'pointing_few_c@{k}', seed=spec.seed + 1000 * k),
-                  tmp_path / 'data')
-    argv = ['compare', str(ds.bag), '--mesh', str(ds.mesh), '--config', str(ds.scenario),
-            '--out', str(tmp_path / 'out'), '--no-report']
-    assert main(argv) == 0
-    return json.loads((tmp_path / 'out' / 'summary.json').read_text())
-
-
-# pointing_few_c at its second seed (el +0.3 deg on lasers 4 and 20, -0.3 on 12 and 13, exact
-# poses; before pointpose37 the pose was reported off, 3.5 cm and 0.64 deg, constant) is left
-# to `bench/hidden_effect_eval.py --only pointing_few_c --seeds 3` (its compare took 30 s of
-# the suite's CPU): the decision that kept the pose out there, ``run.pose_left_to_pointing``,
-# is tested above on stand-ins, and the fifth seed's compare below asserts the same offsets
-# and score on the same item end to end, with laser_pointing named.
-
-
-def test_four_lasers_off_are_not_set_aside_as_a_common_turn(tmp_path):
-    """pointing_few_c at its fifth seed: the lasers' offsets (0.179 nats/point, the four
-    lasers within 0.06 deg) were set aside as "mostly a common turn" (their own part, a
-    turn projected out of them, 0.081 at z 2.8) and range_scale named. Weighed against
-    one turn of the sensor fitted alone (which loses held out here), they pass and are
-    named (pointing38). The exact lasers that barely see their azimuth took 0.17-0.26
-    deg of noise there (20 az, 21 az), which cost the offsets held out (0.179 nats/point,
-    z 6.2); shrunk by their information they keep little and the offsets gain 0.29
-    (pointing39)."""
-    s = _compare_pointing_few_c(5, tmp_path)
-    lp = next(c for c in s['candidates'] if c['name'] == 'laser_pointing')
-    assert lp['own_offsets']['passes'], lp['own_offsets']
-    assert s['missing_effect'] == 'laser_pointing', s['verdict']
-    assert lp['params']['laser_4_el_deg'] > 0.2 and lp['params']['laser_12_el_deg'] < -0.2
-    assert abs(lp['params']['laser_21_az_deg']) < 0.1, lp['params']
-    assert lp['score'] > 0.25, lp
+# pointing_few_c end to end (its second and fifth seeds; el +0.3 deg on lasers 4 and 20,
+# -0.3 on 12 and 13, exact poses) is left to `bench/hidden_effect_eval.py --only
+# pointing_few_c --seeds 6` (each compare took 20-30 s of the suite's CPU): before
+# pointpose37 the second seed's pose was reported off (3.5 cm and 0.64 deg, constant),
+# before pointing38/39 the fifth seed's offsets were set aside as "mostly a common turn"
+# and range_scale named. The decisions are tested above on stand-ins
+# (``run.pose_left_to_pointing``) and in test_compare_pointing.py (the offsets weighed
+# against one turn of the sensor, shrunk by their information); a few lasers off in
+# pointing are named and fitted end to end on the suite's own data
+# (test_compare_pointing.py).

@@ -182,6 +182,16 @@ def test_every_page_has_a_checked_block():
 
 # Command blocks no test runs, keyed by (page, the block's first line), with the reason.
 NOT_RUN = {
+    ('compare.md', '$ lidar-sim simulate config/scenario.yaml --frames 3 --out measured_drift'
+                   ' --no-figures \\'):
+        'the user-effect story (time first, the example DriftInFrame fitted from its file) '
+        'runs end to end in test_compare.py::test_effect_outside_catalogue_time_first_and_'
+        'user_effect_fixes_it; its two compares here took ~30 s of the suite (the time '
+        'budget): the quotes are from a run of 2026-11-30',
+    ('compare.md', '$ lidar-sim compare measured_drift/bag --mesh meshes/rocket_body.obj'
+                   ' --out drift_runs/drift \\'):
+        'the fit of the example effect from its file: test_compare.py::test_effect_outside_'
+        'catalogue_time_first_and_user_effect_fixes_it (the suite\'s time budget)',
     ('README.md', 'make demo    # pose player + simulator node over real'
                   ' DDS -> rosbag2 + figures in demo-output/'):
         'make demo is a ~70 s DDS run and make test the whole suite; the demo runs in '
