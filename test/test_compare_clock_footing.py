@@ -226,6 +226,6 @@ def test_the_page_says_which_plan_it_shows():
     assert 'clock offset' in page._plan_words([unflown])
     assert 'range error of the sensor' in page._plan_words(
         [{**unflown, 'ways': {'pose_error': {}, 'range_drift': {}}}])
-    assert 'lasers off their directions' in page._plan_words(
+    assert 'lasers off their configured directions' in page._plan_words(
         [{**unflown, 'ways': {'pose_error': {}, 'laser_pointing': {}}}])
     assert 'flown by the simulator' in page._plan_words([{'simulated': True}])

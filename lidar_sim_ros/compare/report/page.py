@@ -19,6 +19,7 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from lidar_sim_ros.compare.diagnose.plan import MOTION_RIVALS
 from lidar_sim_ros.compare.report import opening
 from lidar_sim_ros.compare.report.verdict import pose_size_words
 from lidar_sim_ros.compare.diagnose.features import CATEGORICAL, LABELS  # noqa: E402
@@ -290,18 +291,13 @@ def _plan_words(rows: list[dict]) -> str:
     """What the separation plan's rows are: the recordings a tie of the reference pose
     with a clock offset or with a range error would need (not simulated), or both
     confounded candidates flown by the simulator."""
-    if rows[0].get('simulated') is False and 'time_offset' in rows[0].get('ways', {}):
-        return ('The reference pose against a clock offset: '
-                'not simulated (a reference pose error is no sensor effect the simulator '
-                'flies). The target tumbling faster (a clock offset moves it by its motion '
-                'over the offset, a tracking system\'s drift need not follow the motion), '
-                'and held still on a surveyed pose. The first is written as plan.yaml.')
-    if rows[0].get('simulated') is False and 'laser_pointing' in rows[0].get('ways', {}):
-        return ('The reference pose against lasers off their directions: not simulated (a '
-                'reference pose error is no sensor effect the simulator flies). The target '
-                'tumbling faster (a tracking system\'s drift grows with the motion, a '
-                'laser\'s pointing does not) and held still on a surveyed pose (the '
-                'pointing stays there). The first is written as plan.yaml.')
+    rival = next((n for n in rows[0].get('ways', {}) if n in MOTION_RIVALS), None)
+    if rows[0].get('simulated') is False and rival is not None:
+        what, how = MOTION_RIVALS[rival]
+        return (f'The reference pose against {what}: not simulated (a reference pose error '
+                'is no sensor effect the simulator flies). The target tumbling faster '
+                f'({how}), and held still on a surveyed pose. The first is written as '
+                'plan.yaml.')
     if rows[0].get('simulated') is False:
         return ('The reference pose against a range error of the sensor: not simulated (a '
                 'reference pose error is no sensor effect the simulator flies). The target '
