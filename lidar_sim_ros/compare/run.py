@@ -466,6 +466,8 @@ class Diagnosed:
     # The named effects against the target moved along the line of sight
     # (``Diagnosis.weigh_on_ray_footing``), where it was asked.
     line_of_sight: dict | None = None
+    # The recording's mean angular velocity over its two halves (``spin_halves``, deg/s).
+    spin_dps: np.ndarray | None = None
 
 
 @dataclass
@@ -553,8 +555,8 @@ def run_compare(opts: CompareOptions) -> CompareResult:
     rival = pose_rival(diag)
     if rival and opts.plan:
         plan = pose_range_plan(opts, inp, cal, effects, rival)
-    elif pose_motion_rival(diag) and opts.plan:
-        plan = pose_motion_plan(opts, inp, effects, pose_motion_rival(diag))
+    elif (motion := pose_motion_rival(diag)) and opts.plan:
+        plan = pose_motion_plan(opts, inp, effects, motion)
     elif tied and opts.plan:
         with stage('plan', ' against '.join(c.name for c in tied)):
             try:
@@ -596,22 +598,25 @@ def pose_motion_rival(diag: Diagnosed) -> str | None:
     return other if other in sep_plan.MOTION_RIVALS else None
 
 
+def recorded_span(meas: Measurements, scenario: Scenario) -> tuple[float, float]:
+    """(s) the recording's first cloud stamp and the end of its last frame."""
+    stamps = meas.cloud_stamps_s
+    return float(stamps.min()), float(stamps.max()) + frame_period_s(meas, scenario)
+
+
 def own_motion(inp: Inputs) -> 'sep_plan.Recording':
     """The recording's own motion as a scenario trajectory (``plan.recorded_motion``),
-    from its first cloud stamp to the end of its last frame."""
+    over its span (``recorded_span``)."""
     meas, scenario = inp.meas, inp.scenario
-    stamps = meas.cloud_stamps_s
-    return sep_plan.recorded_motion(meas.poses, float(stamps.min()),
-                                    float(stamps.max()) + frame_period_s(meas, scenario),
+    return sep_plan.recorded_motion(meas.poses, *recorded_span(meas, scenario),
                                     scenario.sensor.frame_period_s,
                                     getattr(meas.poses, 't_s', None))
 
 
 def spin_halves(meas: Measurements, scenario: Scenario) -> np.ndarray:
     """(2, 3) the recording's mean angular velocity (deg/s, lidar frame) over the first
-    and the second half of its clouds (``plan.recorded_motion``)."""
-    t0 = float(meas.cloud_stamps_s.min())
-    t1 = float(meas.cloud_stamps_s.max()) + frame_period_s(meas, scenario)
+    and the second half of its span (``plan.recorded_motion``)."""
+    t0, t1 = recorded_span(meas, scenario)
     mid = 0.5 * (t0 + t1)
     times = getattr(meas.poses, 't_s', None)
     out = []
@@ -1243,7 +1248,8 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
     # no part of its own to find there, and a part the nested test finds is not the
     # clock's (``spin_clock.fixed_spin``: no clock named beside the pose; their tie
     # stands, and a pose alone has its rotation said as the clock it equals).
-    fixed = spin_clock.fixed_spin(spin_halves(meas, scenario))
+    spin = spin_halves(meas, scenario)
+    fixed = spin_clock.fixed_spin(spin)
 
     def clock_nested_cast(clock: Effect, dt_joint_s: float) -> clock_nested.NestedClock:
         cast = ClockBesidePoseCast(model, effects, rays, meas, sample.blocks, type(clock),
@@ -1286,7 +1292,7 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
                               sample.blocks[sample.matched], diag.z_crit, seed)
     return Diagnosed(cands, decision, stamp, pose, variants.calibrated_figures(diag.full, []),
                      diag.full, diag.z_crit, on_top, alone,
-                     getattr(diag, 'line_of_sight', None))
+                     getattr(diag, 'line_of_sight', None), spin)
 
 
 def clock_beyond_rigid(clock: diagnosis.Candidate, meas: Measurements,
@@ -1946,8 +1952,9 @@ def build_summary(opts: CompareOptions, inp: Inputs, effects: list[Effect],
             **diag.pose.as_dict(),
             **pose_status(diag.pose.as_dict(), decision, diag.cands, diag.pose_on_top),
             **({'clock_equivalent': spin_clock.clock_equivalent(
-                diag.pose.rotation_deg, spin_halves(inp.meas, inp.scenario))}
-               if decision.pose is diag.pose and diag.pose.constant else {})}),
+                diag.pose.rotation_deg, diag.spin_dps)}
+               if decision.pose is diag.pose and diag.pose.constant
+               and diag.spin_dps is not None else {})}),
         'reference_pose_off': decision.pose is not None,
         'pose_along_line_of_sight': diag.line_of_sight,
         'region_offset': decision.region.as_dict() if decision.region is not None else None,

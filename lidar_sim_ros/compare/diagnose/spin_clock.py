@@ -31,11 +31,11 @@ def clock_equivalent(rotation_deg: np.ndarray, spin_halves_dps: np.ndarray) -> d
     between them, 'tumble_rate_dps', 'rotation_deg', 'shown': alignment >=
     MIN_ALIGNMENT}."""
     rot = np.asarray(rotation_deg, float).reshape(-1, 3).mean(axis=0)
-    w = np.asarray(spin_halves_dps, float).reshape(2, 3).mean(axis=0)
-    rate = float(np.linalg.norm(w))
     angle = float(np.linalg.norm(rot))
     if not fixed_spin(spin_halves_dps) or not np.isfinite(angle) or angle < MIN_ROTATION_DEG:
         return None
+    w = np.asarray(spin_halves_dps, float).reshape(2, 3).mean(axis=0)
+    rate = float(np.linalg.norm(w))
     alignment = float(rot @ w / (angle * rate))
     return {'dt_s': round(float(rot @ w / rate ** 2), 5), 'alignment': round(alignment, 4),
             'tumble_rate_dps': round(rate, 3), 'rotation_deg': round(angle, 4),

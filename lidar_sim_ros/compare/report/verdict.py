@@ -16,6 +16,7 @@ import numpy as np
 
 from lidar_sim_ros.compare.diagnose import (beside, diagnosis, mixed_edges, pose_error,
                                             power_incidence, range_outside, spin_clock)
+from lidar_sim_ros.compare.diagnose.plan import MOTION_RIVALS
 from lidar_sim_ros.compare.model.materials import common_offset_m
 
 EFFECT_WORDS = {
@@ -963,9 +964,8 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
                 f'{other[0]} --fit; if the sensor is, --effect pose_error --fit.')
     where = ''
     if other == ['laser_pointing']:
-        where = (' The target tumbling faster (a tracking system\'s drift grows with the '
-                 'motion, a laser\'s pointing does not) or held still on a surveyed pose '
-                 f'would separate them{_motion_plan(summary)}.')
+        where = (f' The target tumbling faster ({MOTION_RIVALS["laser_pointing"][1]}) or '
+                 f'held still on a surveyed pose would separate them{_motion_plan(summary)}.')
     return (f'{pose_part[0].upper()}{pose_part[1:]}, and {_join(other)} explains the '
             f'residual as well{held}: they are confounded in this recording, so none is '
             f'named.{where} Add the one you know with --effect NAME --fit (pose_error '
