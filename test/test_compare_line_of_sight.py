@@ -101,7 +101,7 @@ def _on_moved(scores):
     """A diagnosis on the moved target whose candidates score ``scores`` (name -> (gain, z))."""
     kinds = {'laser_pointing': _Pointing, 'beam_divergence': _Footprint,
              'range_scale': _Scale, 'range_drift': _Drift, 'incidence_angle': _Incidence,
-             'range_walk': _Walk}
+             'range_walk': _Walk, 'laser_bias': _Lasers}
 
     class OnPose:
         @staticmethod
@@ -300,6 +300,36 @@ def test_a_walk_and_incidence_pair_that_fits_better_than_the_moved_target_is_nam
     out, _ = _weigh_pair(_pair_judge((False, True)), versus)
     assert out.missing is None and out.pose is None
     assert out.confounded_with == ['incidence_angle', 'range_walk']
+
+
+class _Lasers:
+    name = 'laser_bias'
+
+
+def test_the_pair_is_weighed_against_the_moved_target_whatever_was_named():
+    """The lab's walk_incneg_1 (walk 0.02 beside -0.04 (1/cos - 1), exact pose):
+    laser_bias, not the walk or the incidence bias, was named on the recorded pose and
+    gained nothing on the moved target; the pair was not asked and the pose was claimed
+    alone. Before the move is reported alone the pair is weighed against it, whichever
+    candidate the move set aside."""
+    versus, seen = _versus((0.001, 0.9, False), (-0.001, -0.9, False))
+    cands = [_cand('laser_bias', _Lasers, 0.021, 6.0), *_walk_incidence_cands()]
+    out = _pair_judge().weigh_on_ray_footing(
+        diagnosis.Decision('laser_bias', []), cands, [_Drift, _Scale],
+        lambda on_top: _los(significant=not on_top),
+        lambda f: _on_moved({'laser_bias': (0.001, 0.4)}), _as_pose, versus)
+    assert seen == [['incidence_angle', 'range_walk']]
+    assert out.missing is None and out.pose is not None
+    assert out.confounded_with == [POSE_ERROR, 'incidence_angle', 'range_walk']
+    assert 'laser_bias' in out.withheld
+    # The moved target better than the pair by the rule: the pose alone, as before.
+    versus, _ = _versus((-0.012, -6.0, False), (0.012, 6.0, True))
+    out = _pair_judge().weigh_on_ray_footing(
+        diagnosis.Decision('laser_bias', []),
+        [_cand('laser_bias', _Lasers, 0.021, 6.0), *_walk_incidence_cands()], [_Drift, _Scale],
+        lambda on_top: _los(significant=not on_top),
+        lambda f: _on_moved({'laser_bias': (0.001, 0.4)}), _as_pose, versus)
+    assert out.missing is None and out.confounded_with == [] and out.pose is not None
 
 
 def test_the_pose_stays_where_it_beats_the_walk_and_incidence_pair():

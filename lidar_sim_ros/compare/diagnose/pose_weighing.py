@@ -752,7 +752,7 @@ class PoseWeighing:
                 return Decision(None, [POSE_ERROR, c.name], pose=as_pose(los, explains),
                                 withheld=withheld)
         pose = as_pose(los, explains)
-        if versus is not None and any(c.name in power_incidence.PAIR for c in named):
+        if versus is not None:
             paired = self.pair_against_moved_target(cands, los, los_fit, versus, pose,
                                                     withheld)
             if paired is not None:
