@@ -20,6 +20,18 @@ from lidar_sim_ros.compare.diagnose.variants import heldout_nll
 from lidar_sim_ros.core.effects import Effect
 
 
+def _moved_target_words(on_moved) -> str:
+    """Why a candidate is withheld beside the target moved along the line of sight: its
+    figures there (``on_moved``: the candidate scored on the moved target) and, where a
+    test set it aside there, that test's reason."""
+    words = (f'explained by the target moved along the line of sight, raycast again and '
+             f'scored as the candidates are: on the moved target it gains '
+             f'{on_moved.score:.4f} nats/point (z = {on_moved.z:.1f})')
+    if on_moved.vetoed:
+        return f'{words} and is set aside there ({on_moved.vetoed})'
+    return f'{words}, which does not pass the rule'
+
+
 def _with_raycast(pose, raycast: dict):
     """``pose`` (a ``pose_error.PoseError``, or a stand-in) reported on the raycast
     footing: a copy carrying ``raycast``."""
@@ -700,10 +712,9 @@ class PoseWeighing:
                 'z_on_pose': _num(a.z), 'passes_on_pose': bool(passes)}}
             if passes:
                 passing.append(c)
-        why = ('explained by the target moved along the line of sight, raycast again and '
-               'scored as the candidates are (it gains nothing on the moved target)')
         withheld = {**decision.withheld,
-                    **{c.name: why for c in named if c not in passing}}
+                    **{c.name: _moved_target_words(again[c.name])
+                       for c in named if c not in passing}}
         explains = [c.name for c in named if c not in passing]
         by_name = {c.name: c for c in cands}
         if passing:
