@@ -44,6 +44,7 @@ from lidar_sim_ros.compare.diagnose import (clock_footing, clock_nested, diagnos
                                             range_alone, region_offset,
                                             row_clock, spin_clock, stamp_place,
                                             variants)
+from lidar_sim_ros.compare.diagnose import silhouette
 from lidar_sim_ros.compare.diagnose.candidate import _num
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
@@ -1212,6 +1213,8 @@ def diagnose(model: Model, effects: list[Effect], ana: Analysed, classes: list[t
             if decision.beside_pose is not None else pose_test([c.effect for c in named]))
     decision, pose = pose_that_matters(decision, pose, tested_data, meas.cloud[tested.matched])
     decision, pose = pose_across_all_points(decision, pose)
+    decision, pose = pose_on_silhouette(decision, pose, lambda p: silhouette_of(
+        model, effects, rays, meas, sample.blocks, p, diag.z_crit))
     pose = pose_left_to_faces(decision, pose, lambda: pose_test([], constant=True))
     for c in cands[:FINALIZED]:
         if (c.significant or c is cands[0]) and not np.isfinite(c.nll_after):
@@ -1361,6 +1364,52 @@ def pose_across_all_points(decision: diagnosis.Decision, pose: pose_error.PoseEr
     if not faces or faces['transfers']:
         return decision, pose
     return replace(decision, pose=None), replace(pose, significant=False)
+
+
+def pose_on_silhouette(decision: diagnosis.Decision, pose: pose_error.PoseError,
+                       test: 'Callable[[pose_error.PoseError], silhouette.Silhouette]'
+                       ) -> tuple[diagnosis.Decision, pose_error.PoseError]:
+    """The decision and its pose, asked the silhouette test (``test(pose)``,
+    ``silhouette_of``) where a pose is reported (alone or beside a named effect): its
+    figures on the pose (``silhouette``); where the edges contradict the correction or
+    do not support it (``Silhouette.withholds``) the pose is not reported, and carries
+    them under ``left_to_edges`` with its test marked failed. Where the edges cannot tell,
+    the decision stands."""
+    if not pose_reported(decision, pose):
+        return decision, pose
+    sil = test(pose)
+    pose = replace(pose, silhouette=sil.as_dict())
+    if not sil.withholds:
+        return decision, pose
+    return withhold_pose(decision, pose, 'left_to_edges', sil.as_dict())
+
+
+def silhouette_of(model: Model, effects: list[Effect], rays: fit_data.RaySet,
+                  meas: Measurements, blocks: np.ndarray, pose: pose_error.PoseError,
+                  z_crit: float) -> silhouette.Silhouette:
+    """The silhouette test of ``pose``'s correction: every point raycast once more with
+    it applied (one correction for the recording or one per cloud, its drift within the
+    cloud if any), against ``rays`` (the recorded pose), scored on the rays whose outcome
+    it changes (``silhouette.edge_gain``, ``silhouette.judge``)."""
+    cloud = np.zeros_like(meas.cloud) if pose.constant else meas.cloud
+    corr, _ = pose_error.PoseCorrection.identity(cloud, meas.t_s).compose(pose)
+    moved = replace(meas, poses=pose_error.CorrectedPoses(meas.poses, corr))
+    m = match(geometry(model, effects), moved, model.divergence_rad, edges=False)
+    before = np.zeros(len(meas), bool)
+    before[rays.matched] = True
+    on = rays.matched[::max(1, len(rays.matched) // 4000)]
+    reach = silhouette.largest_motion_m(corr, meas.xyz_m[on], meas.t_s[on])
+    extra = rays.extra_var_m2 if rays.extra_var_m2 is not None else 0.0
+
+    def nll(pred) -> np.ndarray:
+        sigma = np.sqrt(np.asarray(pred.sigma_m, float) ** 2 + extra)
+        return silhouette.capped_nll(meas.range_m - pred.expected_range_m, sigma)
+    with np.errstate(invalid='ignore'):
+        gain, edge, counts = silhouette.edge_gain(
+            before, np.asarray(m.matched, bool), rays.pred.expected_range_m,
+            m.pred.expected_range_m, nll(rays.pred), nll(m.pred), reach)
+    return silhouette.judge(gain, edge, blocks, counts, z_crit, diagnosis.MIN_PRACTICAL_GAIN,
+                            reach)
 
 
 def pose_left_to_faces(decision: diagnosis.Decision, pose: pose_error.PoseError,
