@@ -25,9 +25,10 @@ ranges only (never to which rays hit, and
 a jump is far beyond the range change it was fitted to make), so these rays are held out
 from it by construction. ``judge`` weighs their mean gain per edge ray over
 neighbourhood blocks by the rule of every test (z and margin): 'supports', 'contradicts'
-(the edges lose by the rule), 'no_support' (neither), or 'cannot_tell' where fewer than
-MIN_EDGE_RAYS rays change (a target filling the view, a correction too small to move an
-edge across a ray): the decision is then left as it is.
+(the edges lose by the rule: the pose claim is withheld), 'no_support' (neither: the
+claim stands, the figures said), or 'cannot_tell' where fewer than MIN_EDGE_RAYS rays
+change (a target filling the view, a correction too small to move an edge across a
+ray): the decision is then left as it is.
 
 Rays that came back empty are not seen here: a recording holds returns (a Cepton
 NO_RETURN shot carries no direction), so a ray just inside the model's silhouette that
@@ -66,8 +67,10 @@ class Silhouette:
     @property
     def withholds(self) -> bool:
         """Whether a pose claim with this correction is withheld: the edges contradict
-        it or do not support it, where they can tell."""
-        return self.outcome in ('contradicts', 'no_support')
+        it. Not where they only fail to support it: at a few centimetres against a beam
+        footprint of one or two, a true per-cloud pose's edges gain short of the rule
+        (docs/compare.md, "The silhouette test of a pose claim")."""
+        return self.outcome == 'contradicts'
 
     def as_dict(self) -> dict:
         return {'edge_rays': int(self.edge_rays), 'put_back': int(self.put_back),
