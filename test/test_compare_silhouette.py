@@ -133,3 +133,40 @@ def test_largest_motion_of_a_turn_per_cloud():
     want = np.linalg.norm(Rotation.from_rotvec([0, 0, np.radians(1.0)]).apply(p[1])
                           + [0, 0.01, 0] - p[1])
     assert np.isclose(got, want) and got > 0.12
+
+
+def _claimed():
+    pose = pose_error.PoseError(
+        clouds=np.arange(2), t_s=np.zeros(2), translation_m=np.full((2, 3), 0.004),
+        rotation_deg=np.full((2, 3), 0.4), gain=0.047, z=4.1, significant=True,
+        correction_m=np.zeros(4), constant=False)
+    from lidar_sim_ros.compare.diagnose import diagnosis
+    return diagnosis.Decision(None, [], pose=pose), pose
+
+
+def test_the_gate_withholds_a_pose_its_edges_contradict_and_says_why():
+    from lidar_sim_ros.compare import run
+    from lidar_sim_ros.compare.report.pose_status import pose_status
+    from lidar_sim_ros.compare.report.verdict import silhouette_words
+    decision, pose = _claimed()
+    against = silhouette.Silhouette(400, 60, 250, 90, -1.1, -6.3, 'contradicts', 0.016)
+    decision, left = run.pose_on_silhouette(decision, pose, lambda p: against)
+    assert decision.pose is None and not left.significant
+    figures = left.as_dict()
+    assert figures['silhouette']['outcome'] == 'contradicts'
+    assert figures['left_to_edges']['lost'] == 250
+    status = pose_status(figures, decision, [], [])
+    assert not status['reported'] and 'outline contradicts' in status['reported_because']
+    words = silhouette_words(figures)
+    assert '250 fall off the model' in words and 'no pose error is claimed' in words
+
+
+def test_the_gate_keeps_a_pose_its_edges_do_not_contradict():
+    from lidar_sim_ros.compare import run
+    for outcome, z in (('supports', 4.0), ('no_support', 2.2), ('cannot_tell', 0.0)):
+        decision, pose = _claimed()
+        sil = silhouette.Silhouette(300, 90, 50, 160, 0.46, z, outcome, 0.028)
+        kept, after = run.pose_on_silhouette(decision, pose, lambda p: sil)
+        assert kept.pose is after and after.significant
+        assert after.as_dict()['silhouette']['outcome'] == outcome
+        assert 'left_to_edges' not in after.as_dict()

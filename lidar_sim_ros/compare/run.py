@@ -1385,7 +1385,7 @@ def pose_on_silhouette(decision: diagnosis.Decision, pose: pose_error.PoseError,
     sil = test(pose)
     pose = replace(pose, silhouette=sil.as_dict())
     if not sil.withholds:
-        return decision, pose
+        return replace(decision, pose=pose), pose
     return withhold_pose(decision, pose, 'left_to_edges', sil.as_dict())
 
 
