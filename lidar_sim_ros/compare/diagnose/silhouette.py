@@ -16,7 +16,8 @@ scores only the rays whose outcome the correction changes there (``edge_gain``):
 return matched under one pose and not the other (put back: +UNMATCHED_NATS, the credit a
 candidate gets per unmatched point it explains; lost: -UNMATCHED_NATS), and a return
 matched under both whose expected range jumps by more than JUMP_M plus the correction's
-own largest motion (another surface across a depth step: the fall of its held-out NLL).
+own largest motion (another surface across a depth step, or a grazing ray at a curved
+limb, where the range follows the outline's place many times over).
 A jump is scored as the
 return's range fits the surface it lands on either way (``capped_nll``: half its squared
 normalised residual, capped at UNMATCHED_NATS, so that moving a return off the surface it
