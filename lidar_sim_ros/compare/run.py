@@ -32,6 +32,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from scipy.stats import norm
@@ -43,8 +44,7 @@ from lidar_sim_ros.compare.diagnose import (clock_footing, clock_nested, diagnos
                                             line_of_sight, mixed_edges, pose_error,
                                             range_alone, region_offset,
                                             row_clock, spin_clock, stamp_place,
-                                            variants)
-from lidar_sim_ros.compare.diagnose import silhouette
+                                            silhouette, variants)
 from lidar_sim_ros.compare.diagnose.candidate import _num
 from lidar_sim_ros.compare.diagnose.scan_clock import ScanClock
 from lidar_sim_ros.compare.recording import fields
@@ -1370,7 +1370,7 @@ def pose_across_all_points(decision: diagnosis.Decision, pose: pose_error.PoseEr
 
 
 def pose_on_silhouette(decision: diagnosis.Decision, pose: pose_error.PoseError,
-                       test: 'Callable[[pose_error.PoseError], silhouette.Silhouette]'
+                       test: Callable[[pose_error.PoseError], silhouette.Silhouette]
                        ) -> tuple[diagnosis.Decision, pose_error.PoseError]:
     """The decision and its pose, asked the silhouette test (``test(pose)``,
     ``silhouette_of``) where a pose is reported (alone or beside a named effect): its
