@@ -64,6 +64,9 @@ class Silhouette:
     z: float
     outcome: str          # one of OUTCOMES
     reach_m: float = 0.0  # the correction's largest motion of a matched point (m)
+    # Where the whole is contradicted: each part alone ('translation', 'rotation'), asked
+    # the same (``run.silhouette_of``); a part the edges do not contradict keeps the claim.
+    parts: dict | None = None
 
     @property
     def withholds(self) -> bool:
@@ -71,13 +74,23 @@ class Silhouette:
         it. Not where they only fail to support it: at a few centimetres against a beam
         footprint of one or two, a true per-cloud pose's edges gain short of the rule
         (docs/compare.md, "The silhouette test of a pose claim")."""
-        return self.outcome == 'contradicts'
+        return self.outcome == 'contradicts' and not self.part_left
+
+    @property
+    def part_left(self) -> bool:
+        """Whether a part of the correction alone (its translation or its rotation) is
+        not contradicted where the edges can judge it: the pose may be off, its claimed
+        size having taken a range error beside it too."""
+        return any(p.outcome in ('supports', 'no_support')
+                   for p in (self.parts or {}).values())
 
     def as_dict(self) -> dict:
         return {'edge_rays': int(self.edge_rays), 'put_back': int(self.put_back),
                 'lost': int(self.lost), 'jumped': int(self.jumped),
                 'gain_per_edge_ray': round(float(self.gain), 4), 'z': round(float(self.z), 2),
-                'outcome': self.outcome, 'reach_cm': round(100 * float(self.reach_m), 2)}
+                'outcome': self.outcome, 'reach_cm': round(100 * float(self.reach_m), 2),
+                **({'parts': {k: p.as_dict() for k, p in self.parts.items()}}
+                   if self.parts else {})}
 
 
 def edge_gain(matched_before: np.ndarray, matched_after: np.ndarray,
