@@ -4,6 +4,8 @@ supported by its edges, a range bias with an exact pose is not, and a plate fill
 view cannot tell."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -170,3 +172,18 @@ def test_the_gate_keeps_a_pose_its_edges_do_not_contradict():
         assert kept.pose is after and after.significant
         assert after.as_dict()['silhouette']['outcome'] == outcome
         assert 'left_to_edges' not in after.as_dict()
+
+
+def test_a_contradicted_correction_with_a_part_left_is_kept():
+    # A true pose beside a range error the correction took too: the whole loses on its
+    # edges, its translation alone does not; only where every part the edges can judge
+    # loses is the claim withheld.
+    whole = silhouette.Silhouette(116, 6, 25, 85, -0.76, -3.6, 'contradicts', 0.067)
+    part = {'translation': silhouette.Silhouette(147, 15, 8, 124, -0.05, -0.3, 'no_support'),
+            'rotation': silhouette.Silhouette(50, 2, 30, 18, -1.99, -7.1, 'contradicts')}
+    kept = replace(whole, parts=part)
+    assert kept.part_left and not kept.withholds
+    assert kept.as_dict()['parts']['translation']['outcome'] == 'no_support'
+    lost = replace(whole, parts={**part, 'translation': silhouette.Silhouette(
+        10, 0, 10, 0, -3.0, 0.0, 'cannot_tell')})
+    assert not lost.part_left and lost.withholds
