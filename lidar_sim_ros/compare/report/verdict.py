@@ -201,7 +201,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         below = clock_below_margin_words(cands)
         if below:
             parts.append(below)
-    elif not beyond_bound and not to_range and not faces:
+    elif not beyond_bound and not to_range and not faces and not edges:
         parts.append(_nothing_named(summary, attribution, cands))
     if faces:
         parts.append(across_faces_words(summary['reference_pose']))
