@@ -180,6 +180,11 @@ class PoseError:
     # the scan).
     rate_parts: str = 'both'
     rate_parts_test: dict | None = None
+    # What the target's outline says of the correction (``silhouette``, asked where a
+    # pose is about to be reported: ``run.pose_on_silhouette``), and, where the edges
+    # contradict it or do not support it, the same figures with its test's: not reported.
+    silhouette: dict | None = None
+    left_to_edges: dict | None = None
 
     @property
     def size_cm(self) -> float:
@@ -279,6 +284,8 @@ class PoseError:
                 **({'left_to_pointing': self.left_to_pointing}
                    if self.left_to_pointing else {}),
                 **({'across_faces': self.across_faces} if self.across_faces else {}),
+                **({'silhouette': self.silhouette} if self.silhouette else {}),
+                **({'left_to_edges': self.left_to_edges} if self.left_to_edges else {}),
                 **({'parts': {'reported': self.parts, **self.parts_test,
                               'applied': 'the six-parameter fit (per cloud above)'}}
                    if self.parts_test else {}),

@@ -125,6 +125,15 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                        'held out it loses on the surfaces facing some ways')
                     + ' (across_faces): no rigid motion every '
                     'surface agrees on, so the pose is not claimed', shown)
+    edges = pose.get('left_to_edges')
+    if edges:
+        return _out(False, None, f'its test passes ({_f(edges["test_gain_per_matched_point"])} '
+                    f'nats/point, z = {_f(edges["test_z"], 1)}), but the target\'s outline '
+                    f'contradicts it: on the {edges["edge_rays"]} returns whose outcome the '
+                    f'correction changes at the silhouette and depth steps it gains '
+                    f'{_f(edges["gain_per_edge_ray"])} nats per ray, z = {_f(edges["z"], 1)} '
+                    '(silhouette): a range error fixed to the body or its faces moves no '
+                    'edge, so the pose is not claimed', shown)
     if not pose.get('significant'):
         where = f' on top of {_join(on_top)}' if on_top else ''
         gain = pose.get('gain_per_matched_point')

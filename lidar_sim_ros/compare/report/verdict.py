@@ -100,6 +100,7 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
     beside_stand_in = (summary.get('reference_pose') or {}).get('left_by_stand_in')
     to_range = (summary.get('reference_pose') or {}).get('left_to_range')
     faces = across_faces_left(summary, decision)
+    edges = (summary.get('reference_pose') or {}).get('left_to_edges')
     if missing == 'sunlight':
         parts.append(_sunlight_named(summary, next(c for c in cands
                                                    if c.name == decision.evidence)))
@@ -200,10 +201,12 @@ def verdict(summary: dict, attribution, cands: list, decision) -> str:
         below = clock_below_margin_words(cands)
         if below:
             parts.append(below)
-    elif not beyond_bound and not to_range and not faces:
+    elif not beyond_bound and not to_range and not faces and not edges:
         parts.append(_nothing_named(summary, attribution, cands))
     if faces:
         parts.append(across_faces_words(summary['reference_pose']))
+    if edges:
+        parts.append(silhouette_words(summary['reference_pose']))
     if beyond_bound:
         parts.append(bound_remainder_words(beyond_bound))
     if beside_stand_in:
@@ -1299,6 +1302,29 @@ def across_faces_words(pose: dict) -> str:
             'of surfaces facing some ways read off (a sunlit, warmer face; a coating): an '
             'effect of your own that depends on the surface normal (docs/effects.md, "Write '
             'your own effect") would fit it.')
+
+
+def silhouette_words(pose: dict) -> str:
+    """Why a pose correction whose silhouette test the target's outline contradicts is
+    not claimed (``pose``: the summary's ``reference_pose`` with
+    ``left_to_edges``, ``run.pose_on_silhouette``)."""
+    left = pose['left_to_edges']
+    kind = ('one rigid correction of the pose for the recording' if pose.get('constant')
+            else 'a per-cloud pose correction')
+    took = (f'{kind} would take it ({left["translation_rms_cm"]:.2f} cm and '
+            f'{left["rotation_rms_deg"]:.3f} deg RMS, held-out gain '
+            f'{left["test_gain_per_matched_point"]:.4f} nats/point, z = {left["test_z"]:.1f})')
+    edges = (f'with it applied, of the {left["edge_rays"]} returns whose outcome it changes '
+             f'at the silhouette and depth steps {left["lost"]} fall off the model, '
+             f'{left["put_back"]} come onto it and {left["jumped"]} cross a depth step: '
+             f'{left["gain_per_edge_ray"]:+.2f} nats per ray (z = {left["z"]:.1f})')
+    return (f'A range error outside the catalogue fixed to the body or to some of its '
+            f'faces: {took}, but the target\'s outline contradicts it: {edges}. A '
+            'reference pose that is off moves the silhouette across the rays; this '
+            'correction moves it off returns that lay on it, so no pose error is claimed. '
+            'A body built off its CAD (bent, a part moved) or faces reading off (sunlit, '
+            'a coating) do this: an effect of your own on those faces (docs/effects.md, '
+            '"Write your own effect") or the as-built mesh would fit it.')
 
 
 def range_of_range_words(left: dict) -> str:
