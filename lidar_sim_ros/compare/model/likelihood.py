@@ -439,6 +439,21 @@ def _groups(data: FitData) -> np.ndarray:
     return np.asarray(data.baseline.ctx.material, int)
 
 
+def median(values: np.ndarray) -> np.float64:
+    """np.median of a 1-D float array, the same value (NaN if one is NaN), without
+    np.median's generic overhead: the fits take ~50 000 medians of a few hundred points
+    per compare (``material_nuisance``), where the overhead was 3/4 of their cost."""
+    n = values.size
+    h = n // 2
+    if n % 2:
+        part = np.partition(values, (h, n - 1))
+        mid = part[h]
+    else:
+        part = np.partition(values, (h - 1, h, n - 1))
+        mid = (part[h - 1] + part[h]) / 2.0
+    return np.float64(np.nan) if np.isnan(part[-1]) else mid
+
+
 def material_nuisance(residual_m: np.ndarray, sigma_m: np.ndarray, group: np.ndarray,
                       use: np.ndarray, members: list | None = None) -> tuple[np.ndarray,
                                                                             np.ndarray]:
@@ -455,9 +470,9 @@ def material_nuisance(residual_m: np.ndarray, sigma_m: np.ndarray, group: np.nda
         sel = idx[use[idx]]
         if len(sel) < MIN_MATERIAL_POINTS:
             continue
-        c = float(np.median(residual_m[sel]))
+        c = float(median(residual_m[sel]))
         z2 = ((residual_m[sel] - c) / sigma_m[sel]) ** 2
-        s = math.sqrt(max(float(np.median(z2)) / CHI2_1_MEDIAN, 1e-6))
+        s = math.sqrt(max(float(median(z2)) / CHI2_1_MEDIAN, 1e-6))
         offset[idx] = c
         scale[idx] = s
     return offset, scale
