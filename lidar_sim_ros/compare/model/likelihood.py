@@ -470,8 +470,9 @@ def material_nuisance(residual_m: np.ndarray, sigma_m: np.ndarray, group: np.nda
         sel = idx[use[idx]]
         if len(sel) < MIN_MATERIAL_POINTS:
             continue
-        c = float(median(residual_m[sel]))
-        z2 = ((residual_m[sel] - c) / sigma_m[sel]) ** 2
+        r = residual_m[sel]
+        c = float(median(r))
+        z2 = ((r - c) / sigma_m[sel]) ** 2
         s = math.sqrt(max(float(median(z2)) / CHI2_1_MEDIAN, 1e-6))
         offset[idx] = c
         scale[idx] = s
