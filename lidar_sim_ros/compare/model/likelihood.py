@@ -137,6 +137,12 @@ class FitData:
         return apply_hooks(self.baseline, list(self.base_effects), self.measured_power_w,
                            self.extra_var_m2)[1]
 
+    @cached_property
+    def false_returns(self) -> float:
+        """``false_returns_off_target`` (it reads the data only), computed once: a fit
+        asks it at every trial value (``missed_shots_nll``)."""
+        return false_returns_off_target(self)
+
 
 def group_members(group: np.ndarray) -> list[tuple[int, np.ndarray]]:
     """(value, indices) of every distinct value of ``group``."""
@@ -709,7 +715,7 @@ def missed_shots_nll(data: FitData, model: ModelOnRays, effects: Sequence[Effect
     if data.missed_per_unmatched is None or not len(data.unmatched_range_m):
         return 0.0
     n = float(data.missed_per_unmatched) * len(data.unmatched_range_m)
-    k = min(false_returns_off_target(data), n)
+    k = min(data.false_returns, n)
     w = min(max(miss_outlier_weight(model, [*data.base_effects, *effects]), MODEL_FLOOR),
             1.0 - 1e-12)
     return -float(k * math.log(w) + (n - k) * math.log1p(-w))
