@@ -35,7 +35,8 @@ from scipy.optimize import minimize_scalar
 from lidar_sim_ros.compare.model import pointing
 from lidar_sim_ros.compare.model.likelihood import (MIN_SIGMA_M, ROBUST_FLOOR, FitData,
                                                     ModelOnRays, PredictionCache, RaysOnly,
-                                                    _groups, is_outlier_effect, material_nuisance,
+                                                    _groups, group_members, is_outlier_effect,
+                                                    material_nuisance,
                                                     model_on_rays, moving, objective, point_nll,
                                                     scores)
 from lidar_sim_ros.core.effects.base import Effect
@@ -335,32 +336,36 @@ def linear_bias_coefficients(data: FitData, model: ModelOnRays, features: np.nda
     if use.sum() < 3:
         return a
     y, x, sigma, group = y[use], x[use], sigma[use], _groups(data)[use]
+    members = group_members(group)
     lo, hi = np.array([b[0] for b in bounds], float), np.array([b[1] for b in bounds], float)
     width = data.window_width_m
     q = np.ones(len(y))
     for _ in range(iterations):
         wt = q / sigma ** 2
-        xc = np.column_stack([_centre(x[:, j], group, wt) for j in range(k)])
-        yc = _centre(y, group, wt)
+        xc = np.column_stack([_centre(x[:, j], members, wt) for j in range(k)])
+        yc = _centre(y, members, wt)
         normal = (xc * wt[:, None]).T @ xc
         if not np.all(np.diag(normal) > 0):
             return np.zeros(k)
         rhs = (xc * wt[:, None]).T @ yc
         a = np.clip(np.linalg.lstsq(normal, rhs, rcond=None)[0], lo, hi)
         e = yc - xc @ a
-        _, scale = material_nuisance(e, sigma, group, np.ones(len(e), bool))
+        _, scale = material_nuisance(e, sigma, group, np.ones(len(e), bool), members)
         s = sigma * scale
         g = (1 - ROBUST_FLOOR) * np.exp(-0.5 * (e / s) ** 2) / (s * math.sqrt(2 * math.pi))
         q = g / (g + ROBUST_FLOOR / width)
     return a
 
 
-def _centre(v: np.ndarray, group: np.ndarray, weight: np.ndarray) -> np.ndarray:
+def _centre(v: np.ndarray, members: list[tuple[int, np.ndarray]],
+            weight: np.ndarray) -> np.ndarray:
+    """``v`` less its weighted mean over each group (``members``: ``group_members`` of the
+    groups, found once per fit rather than by a mask per group and call)."""
     out = np.empty_like(v)
-    for g in np.unique(group):
-        sel = group == g
-        wsum = weight[sel].sum()
-        out[sel] = v[sel] - (np.sum(weight[sel] * v[sel]) / wsum if wsum > 0 else 0.0)
+    for _, idx in members:
+        w = weight[idx]
+        wsum = w.sum()
+        out[idx] = v[idx] - (np.sum(w * v[idx]) / wsum if wsum > 0 else 0.0)
     return out
 
 
@@ -436,10 +441,11 @@ def laser_offsets_m(residual_m: np.ndarray, sigma_m: np.ndarray, material: np.nd
     if len(y) < MIN_LASER_POINTS:
         return off
     enough = np.bincount(lz, minlength=n_lasers) >= MIN_LASER_POINTS
+    members = group_members(group)
     q = np.ones(len(y))
     for _ in range(iterations):
         wt = q / sigma ** 2
-        c = y - off[lz] - _centre(y - off[lz], group, wt)        # per-material intercepts
+        c = y - off[lz] - _centre(y - off[lz], members, wt)      # per-material intercepts
         r = y - c
         wsum = np.bincount(lz, weights=wt, minlength=n_lasers)
         off = np.where(enough & (wsum > 0),
@@ -447,7 +453,7 @@ def laser_offsets_m(residual_m: np.ndarray, sigma_m: np.ndarray, material: np.nd
                        0.0)
         off -= np.sum(wt * off[lz]) / np.sum(wt)
         e = y - c - off[lz]
-        _, scale = material_nuisance(e, sigma, group, np.ones(len(e), bool))
+        _, scale = material_nuisance(e, sigma, group, np.ones(len(e), bool), members)
         s = sigma * scale
         g = (1 - ROBUST_FLOOR) * np.exp(-0.5 * (e / s) ** 2) / (s * math.sqrt(2 * math.pi))
         q = g / (g + ROBUST_FLOOR / window_width_m)
