@@ -308,7 +308,9 @@ class PowerFromIntensity:
                                                    fields.range_exponents(m.meas.fields),
                                                    cloud=m.meas.cloud[sel],
                                                    material=np.asarray(m.pred.ctx.material)[sel],
-                                                   unit_slope=fields.slope_known(m.meas.fields))
+                                                   unit_slope=fields.slope_known(m.meas.fields),
+                                                   model_range_m=np.asarray(m.pred.ctx.range_m)[sel],
+                                                   incidence=np.asarray(m.pred.ctx.incidence_rad)[sel])
             self.in_intensity = self._range_test(m)
             self.done = True
         if self.calibration is None or not self.calibration.usable:

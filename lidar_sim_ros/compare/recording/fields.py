@@ -313,6 +313,17 @@ def intensity_reading(calibration: dict | None, field_name: str | None,
                 'in ln P), no range compensation; the power read '
                 + ('as exp((I - a) / b)' if test.get('read_through') == 'log'
                    else 'through the monotone map (it fits the model\'s power better)'))
+        lever = calibration.get('counts_per_efold') or {}
+        if test.get('read_through') == 'range':
+            kind = (f'log counts, a + b ln P (b {lever["per_efold"]:.3g} +- {lever["se"]:.2g} per '
+                    'e-fold of power from the range within one material and incidence; '
+                    f'{lever["fitted_on_model"]:.3g} fitted on the model\'s power, whose '
+                    'reflectance law spans another range of power), no range compensation; '
+                    'the power read as exp((I - a) / b)')
+        elif lever:
+            kind += (f'; the range within one material and incidence gives b '
+                     f'{lever["per_efold"]:.3g} +- {lever["se"]:.2g}'
+                     + (', the same scale' if lever.get('pinned') else ', too loose to read'))
     elif calibration.get('range_exponent', 0.0) < -1.0:
         kind = 'a range-compensated reflectivity (~ P r^2)'
         if calibration.get('unit_slope'):
