@@ -430,3 +430,12 @@ def test_the_verdict_says_what_the_scale_leaves_open_of_a_walk():
                                            'fitted_on_model': 29.0,
                                            'range_sd_within_cells': 0.03}}
     assert walk_scale_words(pinned, {'k_m': 0.03, 'power': 'measured'}) == ''
+    # pinned, short of the margin: the ratio the model's fit may leave in k
+    short = {**gain, 'counts_per_efold': {**pinned['counts_per_efold'], 'used': False,
+                                          'fitted_on_model': 15.0,
+                                          'log_shape_from': 'scale test'}}
+    words = walk_scale_words(short, {'k_m': 0.027, 'power': 'measured'})
+    assert '-14 %' in words and '17.4' in words
+    # the same within its error: the model's scale confirmed
+    same = {**gain, 'counts_per_efold': {**short['counts_per_efold'], 'fitted_on_model': 17.5}}
+    assert walk_scale_words(same, {'k_m': 0.03, 'power': 'measured'}) == ''

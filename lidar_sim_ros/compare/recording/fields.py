@@ -320,10 +320,12 @@ def intensity_reading(calibration: dict | None, field_name: str | None,
                     f'{lever["fitted_on_model"]:.3g} fitted on the model\'s power, whose '
                     'reflectance law spans another range of power), no range compensation; '
                     'the power read as exp((I - a) / b)')
-        elif lever:
+        elif lever.get('log_shape_from'):
+            off = 100.0 * (lever['fitted_on_model'] / lever['per_efold'] - 1.0)
             kind += (f'; the range within one material and incidence gives b '
                      f'{lever["per_efold"]:.3g} +- {lever["se"]:.2g}'
-                     + (', the same scale' if lever.get('pinned') else ', too loose to read'))
+                     + (f' ({off:+.0f} % from it, short of the margin to replace it)'
+                        if lever.get('pinned') else ', too loose to read'))
     elif calibration.get('range_exponent', 0.0) < -1.0:
         kind = 'a range-compensated reflectivity (~ P r^2)'
         if calibration.get('unit_slope'):

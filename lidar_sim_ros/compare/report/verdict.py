@@ -1394,8 +1394,19 @@ def walk_scale_words(gain: dict | None, params: dict | None) -> str:
             or gain.get('unit_slope')):
         return ''
     lever = gain.get('counts_per_efold') or {}
-    if lever.get('pinned'):
+    if lever.get('used'):
         return ''
+    if not lever.get('log_shape_from'):
+        lever = {}          # not log counts: the range's b is not their scale
+    if lever.get('pinned'):
+        ratio = float(lever['fitted_on_model']) / float(lever['per_efold'])
+        if abs(ratio - 1.0) <= max(0.02, 2.0 * float(lever['rel_se'])):
+            return ''
+        return (f' k is read through log counts whose b was fitted on the model\'s power '
+                f'({lever["fitted_on_model"]:.3g} per e-fold); the range within one material '
+                f'and incidence gives {lever["per_efold"]:.3g} +- {lever["se"]:.2g}, so k may '
+                f'be off by their ratio ({100 * (ratio - 1):+.0f} %), short of the margin at '
+                'which the range\'s b replaces the fit (its own error where the pose is off).')
     words = (' k is read through the intensity, whose scale was fitted on the model\'s '
              'power: where the model\'s reflectance law spans less received power than the '
              'true one, k is over-read by that ratio (more, under-read)')
