@@ -63,22 +63,26 @@ intensity compresses the reading, and a walk fitted on it is over-read by the in
 * where the layout says what the intensity is (the Cepton drivers' reflectivity, ~ P r^2:
   ``unit_slope``), ln P = ln I - 2 (ln r - mean ln r) + offset, the slope held at 1 and
   only the offset fitted (``unit_slope_map``);
-* for log counts (the scale test's 'log'), the *range lever* (``range_lever``): b from
-  what is exact in the model, the range. Within cells of one material and one quantile
-  bin of the model's incidence (one reflectance, whatever the law), ln P moves with the
-  range as -2 ln r, so the counts against ln r (the model's range) have slope -2 b,
-  less what still follows the incidence within a cell (linearly, per material). One b a
-  material, its standard error clustered by cell; their inverse-variance mean, its error
-  widened by their spread about it (Birge ratio). Where that b is pinned (relative
-  standard error at most LEVER_MAX_REL_SE) and the b fitted on the model's power lies
-  outside it by more than the lever can be trusted to (LEVER_B_MARGIN, and LEVER_B_Z
-  standard errors), the power is read as
+* for log counts, the *range lever* (``range_lever``): b from what is exact in the
+  model, the range. Within cells of one material and one quantile bin of the model's
+  incidence (one reflectance, whatever the law), ln P moves with the range as -2 ln r, so
+  the counts against ln r (the model's range) have slope -2 b, less what still follows
+  the incidence within a cell (linearly, per material). One b a material, its standard
+  error clustered by cell; their inverse-variance mean, its error widened by their
+  spread about it (Birge ratio). Asked where the scale test said 'log', or had no
+  margin either way and the range says log: the lever on the counts at most 1 -
+  SCALE_MARGIN as inconsistent across materials (Birge ratio) as the same lever on ln I
+  (the power law), the materials sitting at different levels of the counts. Where b is
+  pinned (relative standard error at most LEVER_MAX_REL_SE) and the b fitted on the
+  model's power lies outside it by more than the lever can be trusted to
+  (LEVER_B_MARGIN, and LEVER_B_Z standard errors), the power is read as
   exp((I - a) / b) with the range's b (``read_through`` 'range'; a the median of
-  I - b ln P_model); otherwise as before. The figures: ``intensity_gain.counts_per_efold``.
-  It assumes the reflectance is one function of the incidence per material (a surface
-  whose brightness changes along it with the range at one incidence would bias it); on
-  the foreign drum and box at 10 m (ln r within a cell: sd 0.02-0.04) it read 17.1-17.8
-  for 17.37 over two reflection laws, speckle included (docs/compare.md, logwalk54).
+  I - b ln P_model); otherwise as before, and the verdict says what is left. The
+  figures: ``intensity_gain.counts_per_efold``. It assumes the reflectance is one
+  function of the incidence per material, and the model's range and incidence right
+  (a drifting reference pose moved it 16 % at 3 % standard error). On the foreign drum
+  (another lab's law) at 10 m it read 17.09-17.65 for 17.37 (15.7-17.8 with speckle
+  0.25), on the Blinn surfaces 17.37-17.41 (docs/compare.md, logwalk54).
 
 The simulator keeps using its own predicted power; see docs/compare.md.
 """
