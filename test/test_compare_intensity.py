@@ -439,3 +439,25 @@ def test_the_verdict_says_what_the_scale_leaves_open_of_a_walk():
     # the same within its error: the model's scale confirmed
     same = {**gain, 'counts_per_efold': {**short['counts_per_efold'], 'fitted_on_model': 17.5}}
     assert walk_scale_words(same, {'k_m': 0.03, 'power': 'measured'}) == ''
+
+
+def test_the_terminal_line_says_whence_b():
+    """The intensity line: b from the range where read with it; quoted beside the model's
+    fit where short of the margin; none where not log counts."""
+    from lidar_sim_ros.compare.recording.fields import intensity_reading
+    lever = {'per_efold': 17.4, 'se': 0.1, 'rel_se': 0.006, 'pinned': True,
+             'fitted_on_model': 29.1, 'log_shape_from': 'scale test', 'used': True}
+    base = {'intensity_scale': 'log', 'power_explained': 0.9,
+            'used_for_power_driven_effects': True}
+    used = intensity_reading({**base, 'counts_per_efold': lever,
+                              'scale_test': {'log_b_per_efold': 29.1, 'read_through': 'range'}},
+                             'intensity')
+    assert 'b 17.4 +- 0.1 per e-fold of power from the range' in used and '29.1 fitted' in used
+    short = intensity_reading({**base, 'counts_per_efold': {**lever, 'used': False,
+                                                            'fitted_on_model': 15.0},
+                               'scale_test': {'log_b_per_efold': 15.0, 'read_through': 'map'}},
+                              'intensity')
+    assert '-14 % from it, short of the margin' in short
+    plain = intensity_reading({**base, 'intensity_scale': 'linear', 'scale_test': {}},
+                              'intensity')
+    assert 'range within one material' not in plain

@@ -320,12 +320,6 @@ def intensity_reading(calibration: dict | None, field_name: str | None,
                     f'{lever["fitted_on_model"]:.3g} fitted on the model\'s power, whose '
                     'reflectance law spans another range of power), no range compensation; '
                     'the power read as exp((I - a) / b)')
-        elif lever.get('log_shape_from'):
-            off = 100.0 * (lever['fitted_on_model'] / lever['per_efold'] - 1.0)
-            kind += (f'; the range within one material and incidence gives b '
-                     f'{lever["per_efold"]:.3g} +- {lever["se"]:.2g}'
-                     + (f' ({off:+.0f} % from it, short of the margin to replace it)'
-                        if lever.get('pinned') else ', too loose to read'))
     elif calibration.get('range_exponent', 0.0) < -1.0:
         kind = 'a range-compensated reflectivity (~ P r^2)'
         if calibration.get('unit_slope'):
@@ -335,6 +329,15 @@ def intensity_reading(calibration: dict | None, field_name: str | None,
         if calibration.get('intensity_scale') == 'linear':
             kind += (f'; a power law of it (P^{test.get("power_law_exponent", 1.0):.3g}), '
                      'not log counts')
+    lever = calibration.get('counts_per_efold') or {}
+    if lever.get('log_shape_from') and not lever.get('used'):
+        off = 100.0 * (lever['fitted_on_model'] / lever['per_efold'] - 1.0)
+        kind += ('; the range within one material and incidence ' +
+                 ('gives b ' if calibration.get('intensity_scale') == 'log'
+                  else 'reads log counts, b ')
+                 + f'{lever["per_efold"]:.3g} +- {lever["se"]:.2g}'
+                 + (f' (the fit on the model\'s power {off:+.0f} % from it, short of the '
+                    'margin to replace it)' if lever.get('pinned') else ', too loose to read'))
     kind += ' (as the layout says)' if known else ' (detected from the data)'
     use = ('used for power-driven effects' if calibration.get('used_for_power_driven_effects')
            else 'not used: it explains too little of the model\'s power')

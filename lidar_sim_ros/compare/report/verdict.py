@@ -1406,7 +1406,8 @@ def walk_scale_words(gain: dict | None, params: dict | None) -> str:
                 f'({lever["fitted_on_model"]:.3g} per e-fold); the range within one material '
                 f'and incidence gives {lever["per_efold"]:.3g} +- {lever["se"]:.2g}, so k may '
                 f'be off by their ratio ({100 * (ratio - 1):+.0f} %), short of the margin at '
-                'which the range\'s b replaces the fit (its own error where the pose is off).')
+                'which the range\'s b replaces the fit (what the range itself can miss by '
+                'where the reference pose is off).')
     words = (' k is read through the intensity, whose scale was fitted on the model\'s '
              'power: where the model\'s reflectance law spans less received power than the '
              'true one, k is over-read by that ratio (more, under-read)')
