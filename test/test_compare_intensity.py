@@ -283,16 +283,19 @@ def test_the_foreign_sensor_writes_log_counts_of_its_power():
                                                 / 1e-9), rel=1e-6)
 
 
-def _wide_truth(n: int, seed: int, r_lo: float = 6.0, r_hi: float = 25.0):
+def _wide_truth(n: int, seed: int, r_lo: float = 6.0, r_hi: float = 25.0,
+                with_incidence: bool = False):
     """A target whose true reflectance term spans 1.7x the model's in ln (per material
-    and incidence u), ranges r_lo..r_hi: (true ln P, model ln P, range, material)."""
+    and incidence u), ranges r_lo..r_hi: (true ln P, model ln P, range, material), and
+    the incidence (rad, 0-1.2 with u) when asked."""
     rng = np.random.default_rng(seed)
     mat = rng.integers(0, 4, n)
     u = rng.uniform(0.0, 1.0, n)
     model_term = -12.0 + 0.5 * mat + 2.0 * u        # the model's ln(reflectance x cos)
     true_term = -12.0 + 1.7 * (model_term + 12.0)   # the truth's: 1.7x as wide
     r = rng.uniform(r_lo, r_hi, n)
-    return true_term - 2 * np.log(r), model_term - 2 * np.log(r), r, mat
+    out = true_term - 2 * np.log(r), model_term - 2 * np.log(r), r, mat
+    return out + (1.2 * u,) if with_incidence else out
 
 
 def _slope(a: np.ndarray, b: np.ndarray) -> float:
@@ -315,41 +318,97 @@ def test_cepton_reflectivity_keeps_the_slope_of_ln_i_at_one():
     assert _slope(np.log(old.power_w(refl, r)), log_pt) < 0.8
 
 
-def test_range_lever_measures_the_scale_of_log_counts_where_the_model_is_narrow():
-    """Log counts a + b ln P (b 17.37): fitted on the model's narrower ln P, b reads too
-    large; the range within cells of one material and reflectance level gives b
-    (reported beside the fitted b, not applied)."""
-    log_pt, log_pm, r, mat = _wide_truth(40000, 4)
-    counts = 17.37 * (log_pt + 20.72) + np.random.default_rng(5).normal(0, 1.0, len(r))
+B_LOG = 40.0 / np.log(10.0)    # 40 log10 P: counts per e-fold
+
+
+def _walk_k(range_error: np.ndarray, log_p: np.ndarray, mat: np.ndarray) -> float:
+    """Least squares k of range_error = -k ln P + a per material."""
+    x = log_p - np.array([log_p[mat == m].mean() for m in range(mat.max() + 1)])[mat]
+    y = range_error - np.array([range_error[mat == m].mean()
+                                for m in range(mat.max() + 1)])[mat]
+    return float(-np.sum(x * y) / np.sum(x * x))
+
+
+def test_range_lever_reads_log_counts_at_the_truths_b_where_the_model_is_narrow():
+    """logwalk54: log counts a + b ln P (b 17.37) fitted on the model's narrower ln P read
+    b too large, and a walk over-read by the same ratio; the range within one material and
+    incidence gives b, and the power is read with it: the walk's k comes back."""
+    log_pt, log_pm, r, mat, inc = _wide_truth(40000, 4, with_incidence=True)
+    log_pt = log_pt + np.random.default_rng(5).normal(0, 0.2, len(r))   # speckle
+    counts = B_LOG * (log_pt + 20.72)
+    walk = -0.03 * log_pt + np.random.default_rng(6).normal(0, 0.005, len(r))
     old = calibrate_intensity(counts, r, np.exp(log_pm))
-    assert old.scale == 'log' and old.log_b > 1.2 * 17.37
-    cal = calibrate_intensity(counts, r, np.exp(log_pm), material=mat)
-    lever = cal.range_lever
-    assert lever['pinned'] and lever['k_scale_rel_se'] < 0.1
-    assert cal.scale_test['log_b_range_lever'] == pytest.approx(17.37, rel=0.05)
-    assert cal.log_b == old.log_b                  # reported, the reading unchanged
+    assert old.scale == 'log' and old.log_b > 1.2 * B_LOG and old.counts_per_efold is None
+    k_old = _walk_k(walk, np.log(old.power_w(counts, r)), mat)
+    assert k_old > 1.2 * 0.03                              # the over-read
+    cal = calibrate_intensity(counts, r, np.exp(log_pm), material=mat, model_range_m=r,
+                              incidence=inc)
+    lever = cal.as_dict()['counts_per_efold']
+    assert lever['pinned'] and lever['used'] and lever['rel_se'] < 0.02
+    assert lever['per_efold'] == pytest.approx(B_LOG, rel=0.02)
+    assert lever['fitted_on_model'] == pytest.approx(old.log_b, rel=1e-3)
+    assert cal.reads_log and cal.scale_test['read_through'] == 'range'
+    assert cal.log_b == pytest.approx(B_LOG, rel=0.02)
+    assert _walk_k(walk, np.log(cal.power_w(counts, r)), mat) == pytest.approx(0.03, rel=0.03)
 
 
 def test_range_lever_leaves_the_reading_where_the_model_has_the_truths_scale():
-    """The model's power is the truth (our own simulator's recordings): the lever's scale
-    is 1 and the reading stays as the map fitted it."""
-    _, log_pm, r, mat = _wide_truth(40000, 6)
-    i = 3.0e6 * np.exp(log_pm)
-    cal = calibrate_intensity(i, r, np.exp(log_pm), material=mat)
-    assert cal.range_lever['scale'] == pytest.approx(1.0, abs=0.01)
-    assert cal.power_w(i, r) == pytest.approx(np.exp(log_pm), rel=0.05)
+    """The model's power is the truth (our own simulator's recordings): the range's b is
+    the fitted one, so the reading stays as the scale test left it."""
+    _, log_pm, r, mat, inc = _wide_truth(40000, 6, with_incidence=True)
+    counts = B_LOG * (log_pm + 20.72) + np.random.default_rng(7).normal(0, 1.0, len(r))
+    old = calibrate_intensity(counts, r, np.exp(log_pm))
+    cal = calibrate_intensity(counts, r, np.exp(log_pm), material=mat, model_range_m=r,
+                              incidence=inc)
+    lever = cal.counts_per_efold
+    assert lever['pinned'] and not lever['used']
+    assert lever['per_efold'] == pytest.approx(B_LOG, rel=0.02)
+    assert cal.log_b == old.log_b and cal.scale_test['read_through'] != 'range'
+    assert cal.power_w(counts, r) == pytest.approx(old.power_w(counts, r), rel=1e-9)
 
 
 def test_range_lever_is_not_pinned_without_range_spread():
-    """All at one range: nothing within a cell moves with the range; the reading is kept
-    and the figures say the scale is not pinned."""
+    """Every point at nearly one range: nothing within a cell moves with the range; the
+    reading is the model's fit, and the verdict beside a walk says the range was too
+    loose to read b."""
+    from lidar_sim_ros.compare.report.verdict import walk_scale_words
+    log_pt, log_pm, r, mat, inc = _wide_truth(20000, 8, 9.99, 10.01, with_incidence=True)
+    counts = B_LOG * (log_pt + 20.72) + np.random.default_rng(9).normal(0, 3.0, len(r))
+    cal = calibrate_intensity(counts, r, np.exp(log_pm), material=mat, model_range_m=r,
+                              incidence=inc)
+    lever = cal.counts_per_efold
+    assert not lever['pinned'] and not lever['used']
+    assert cal.scale_test['read_through'] != 'range'
+    words = walk_scale_words(cal.as_dict(), {'k_m': 0.04, 'power': 'measured'})
+    assert 'too loose to read' in words and 'over-read' in words
+
+
+def test_range_lever_holds_where_the_nearer_part_of_a_surface_faces_the_sensor_more():
+    """Within an incidence bin the incidence still follows the range (the nearer part of a
+    surface faces the sensor more): the lever takes that out, and reads the truth's b."""
     from lidar_sim_ros.compare.recording.intensity import range_lever
-    rng = np.random.default_rng(7)
-    y = rng.normal(-14.0, 1.0, 5000)
-    mat = rng.integers(0, 2, 5000)
-    lr = np.log(10.0) + rng.normal(0, 1e-4, 5000)
-    out = range_lever(0.6 * y + rng.normal(0, 0.3, 5000), y, lr, mat)
-    assert out is None or not out['pinned']
+    rng = np.random.default_rng(8)
+    n = 20000
+    mat = rng.integers(0, 3, n)
+    r = rng.uniform(9.5, 10.5, n)
+    inc = np.clip(0.6 - 0.5 * (r - 10.0) + rng.normal(0, 0.15, n), 0.0, 1.4)
+    log_pt = -12.0 + 0.5 * mat - 3.0 * inc ** 2 - 2 * np.log(r)
+    out = range_lever(B_LOG * (log_pt + 20.72), np.log(r), mat, inc)
+    assert out['pinned'] and out['per_efold'] == pytest.approx(B_LOG, rel=0.02)
+
+
+def test_range_lever_is_not_asked_off_log_counts():
+    """A reading proportional to the power (and a Cepton reflectivity): no lever, the
+    calibration as before."""
+    log_pt, log_pm, r, mat, inc = _wide_truth(20000, 10, with_incidence=True)
+    i = 3.0e6 * np.exp(log_pt)
+    cal = calibrate_intensity(i, r, np.exp(log_pm), material=mat, model_range_m=r,
+                              incidence=inc)
+    assert cal.scale != 'log' and cal.counts_per_efold is None
+    refl = np.exp(log_pt) * r ** 2
+    cep = calibrate_intensity(refl, r, np.exp(log_pm), range_exponents=(-2.0,),
+                              unit_slope=True, material=mat, model_range_m=r, incidence=inc)
+    assert cep.counts_per_efold is None and cep.as_dict()['counts_per_efold'] is None
 
 
 def test_the_cepton_layouts_hold_the_slope():
@@ -360,26 +419,45 @@ def test_the_cepton_layouts_hold_the_slope():
 
 def test_the_verdict_says_what_the_scale_leaves_open_of_a_walk():
     from lidar_sim_ros.compare.report.verdict import walk_scale_words
-    gain = {'used_for_power_driven_effects': True, 'range_exponent': 0.0,
-            'range_lever': {'scale': 0.6, 'se': 0.03, 'k_scale_rel_se': 0.05, 'pinned': True}}
-    assert 'over-read by that ratio' in walk_scale_words(gain, {'k_m': 0.05,
-                                                               'power': 'measured'})
+    gain = {'used_for_power_driven_effects': True, 'range_exponent': 0.0}
+    # not log counts: nothing checks the scale
+    assert 'does not check' in walk_scale_words(gain, {'k_m': 0.05, 'power': 'measured'})
     assert walk_scale_words(gain, {'k_m': 0.03, 'power': 'model'}) == ''
     assert walk_scale_words({'used_for_power_driven_effects': True, 'unit_slope': True},
                             {'k_m': 0.03}) == ''
+    pinned = {**gain, 'counts_per_efold': {'per_efold': 17.4, 'se': 0.2, 'rel_se': 0.01,
+                                           'pinned': True, 'used': True,
+                                           'fitted_on_model': 29.0,
+                                           'range_sd_within_cells': 0.03}}
+    assert walk_scale_words(pinned, {'k_m': 0.03, 'power': 'measured'}) == ''
+    # pinned, short of the margin: the ratio the model's fit may leave in k
+    short = {**gain, 'counts_per_efold': {**pinned['counts_per_efold'], 'used': False,
+                                          'fitted_on_model': 15.0,
+                                          'log_shape_from': 'scale test'}}
+    words = walk_scale_words(short, {'k_m': 0.027, 'power': 'measured'})
+    assert '-14 %' in words and '17.4' in words
+    # the same within its error: the model's scale confirmed
+    same = {**gain, 'counts_per_efold': {**short['counts_per_efold'], 'fitted_on_model': 17.5}}
+    assert walk_scale_words(same, {'k_m': 0.03, 'power': 'measured'}) == ''
 
 
-def test_range_lever_holds_where_the_nearer_part_of_a_surface_is_brighter():
-    """Within a cell the model's reflectance term still follows the range (near parts
-    face the sensor more): the lever takes that out, and reads the truth's scale."""
-    from lidar_sim_ros.compare.recording.intensity import range_lever
-    rng = np.random.default_rng(8)
-    n = 6000
-    mat = rng.integers(0, 3, n)
-    r = rng.uniform(9.5, 10.5, n)
-    u = np.clip(1.0 - (r - 9.5) + rng.normal(0, 0.3, n), 0.0, 2.0)
-    model_term = -12.0 + 0.5 * mat + 2.0 * u
-    log_pm = model_term - 2 * np.log(r)
-    log_pt = 1.7 * model_term - 2 * np.log(r)
-    out = range_lever(0.6 * log_pt, log_pm, np.log(r), mat)
-    assert out['scale'] == pytest.approx(0.6, abs=0.02)   # 0.70 without
+def test_the_terminal_line_says_whence_b():
+    """The intensity line: b from the range where read with it; quoted beside the model's
+    fit where short of the margin; none where not log counts."""
+    from lidar_sim_ros.compare.recording.fields import intensity_reading
+    lever = {'per_efold': 17.4, 'se': 0.1, 'rel_se': 0.006, 'pinned': True,
+             'fitted_on_model': 29.1, 'log_shape_from': 'scale test', 'used': True}
+    base = {'intensity_scale': 'log', 'power_explained': 0.9,
+            'used_for_power_driven_effects': True}
+    used = intensity_reading({**base, 'counts_per_efold': lever,
+                              'scale_test': {'log_b_per_efold': 29.1, 'read_through': 'range'}},
+                             'intensity')
+    assert 'b 17.4 +- 0.1 per e-fold of power from the range' in used and '29.1 fitted' in used
+    short = intensity_reading({**base, 'counts_per_efold': {**lever, 'used': False,
+                                                            'fitted_on_model': 15.0},
+                               'scale_test': {'log_b_per_efold': 15.0, 'read_through': 'map'}},
+                              'intensity')
+    assert '-14 % from it, short of the margin' in short
+    plain = intensity_reading({**base, 'intensity_scale': 'linear', 'scale_test': {}},
+                              'intensity')
+    assert 'range within one material' not in plain

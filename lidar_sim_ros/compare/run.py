@@ -303,13 +303,15 @@ class PowerFromIntensity:
             return None
         if not self.done:
             sel = m.matched
+            ctx = m.pred.ctx
             self.calibration = calibrate_intensity(m.meas.intensity[sel], m.meas.range_m[sel],
-                                                   m.pred.ctx.power_w[sel],
-                                                   m.pred.ctx.intensity[sel],
+                                                   ctx.power_w[sel], ctx.intensity[sel],
                                                    fields.range_exponents(m.meas.fields),
                                                    cloud=m.meas.cloud[sel],
-                                                   material=np.asarray(m.pred.ctx.material)[sel],
-                                                   unit_slope=fields.slope_known(m.meas.fields))
+                                                   material=np.asarray(ctx.material)[sel],
+                                                   unit_slope=fields.slope_known(m.meas.fields),
+                                                   model_range_m=np.asarray(ctx.range_m)[sel],
+                                                   incidence=np.asarray(ctx.incidence_rad)[sel])
             self.in_intensity = self._range_test(m)
             self.done = True
         if self.calibration is None or not self.calibration.usable:

@@ -306,6 +306,7 @@ def intensity_reading(calibration: dict | None, field_name: str | None,
     if calibration is None:
         return f'intensity ({field_name}): too few matched points to calibrate'
     test = calibration.get('scale_test') or {}
+    lever = calibration.get('counts_per_efold') or {}
     if calibration.get('intensity_scale') == 'log':
         kind = (f'log counts, a + b ln P (b {test.get("log_b_per_efold", float("nan")):.3g} '
                 'per e-fold of power; against a power law: unexplained '
@@ -313,6 +314,12 @@ def intensity_reading(calibration: dict | None, field_name: str | None,
                 'in ln P), no range compensation; the power read '
                 + ('as exp((I - a) / b)' if test.get('read_through') == 'log'
                    else 'through the monotone map (it fits the model\'s power better)'))
+        if test.get('read_through') == 'range':
+            kind = (f'log counts, a + b ln P (b {lever["per_efold"]:.3g} +- {lever["se"]:.2g} per '
+                    'e-fold of power from the range within one material and incidence; '
+                    f'{lever["fitted_on_model"]:.3g} fitted on the model\'s power, whose '
+                    'reflectance law spans another range of power), no range compensation; '
+                    'the power read as exp((I - a) / b)')
     elif calibration.get('range_exponent', 0.0) < -1.0:
         kind = 'a range-compensated reflectivity (~ P r^2)'
         if calibration.get('unit_slope'):
@@ -322,6 +329,14 @@ def intensity_reading(calibration: dict | None, field_name: str | None,
         if calibration.get('intensity_scale') == 'linear':
             kind += (f'; a power law of it (P^{test.get("power_law_exponent", 1.0):.3g}), '
                      'not log counts')
+    if lever.get('log_shape_from') and not lever.get('used'):
+        off = 100.0 * (lever['fitted_on_model'] / lever['per_efold'] - 1.0)
+        kind += ('; the range within one material and incidence ' +
+                 ('gives b ' if calibration.get('intensity_scale') == 'log'
+                  else 'reads log counts, b ')
+                 + f'{lever["per_efold"]:.3g} +- {lever["se"]:.2g}'
+                 + (f' (the fit on the model\'s power {off:+.0f} % from it, short of the '
+                    'margin to replace it)' if lever.get('pinned') else ', too loose to read'))
     kind += ' (as the layout says)' if known else ' (detected from the data)'
     use = ('used for power-driven effects' if calibration.get('used_for_power_driven_effects')
            else 'not used: it explains too little of the model\'s power')

@@ -63,21 +63,26 @@ intensity compresses the reading, and a walk fitted on it is over-read by the in
 * where the layout says what the intensity is (the Cepton drivers' reflectivity, ~ P r^2:
   ``unit_slope``), ln P = ln I - 2 (ln r - mean ln r) + offset, the slope held at 1 and
   only the offset fitted (``unit_slope_map``);
-* otherwise, for a reading without range compensation, the *range lever*
-  (``range_lever``): within cells of one material and one level of the model's
-  reflectance term (ln P + 2 ln r: the same incidence, so the same true reflectance), the
-  model's ln P moves with the range as the truth's does (-2 ln r exactly). The slope of
-  the reading against the model's ln P there, with ln r as the instrument, is its scale
-  s (1 when the reading has the truth's scale; ``pinned`` when its standard error,
-  clustered by cell, is at most LEVER_MAX_REL_SE of it). For a walk read through the
-  reading, the true k is about s times the fitted one, and s's relative standard error
-  is the share of k the scale leaves uncertain (``k_scale_rel_se``). The lever is
-  reported in summary.json only (``intensity_gain.range_lever``), not applied nor quoted:
-  on the foreign drum's log counts at 10 m (ln r within a cell: sd 0.02) it scattered
-  over 0.43-0.87 at 5-18 % standard error where the fitted b says 0.57-0.63, stretching
-  by it turned a walk 7 % over into 12 % under, and on the battery's box bus with
-  speckle (a reading of the right scale: k 0.0204 for 0.02) it read 1.36 +- 0.06. The
-  verdict says instead what the scale leaves open of a walk read through the intensity.
+* for log counts, the *range lever* (``range_lever``): b from what is exact in the
+  model, the range. Within cells of one material and one quantile bin of the model's
+  incidence (one reflectance, whatever the law), ln P moves with the range as -2 ln r, so
+  the counts against ln r (the model's range) have slope -2 b, less what still follows
+  the incidence within a cell (linearly, per material). One b a material, its standard
+  error clustered by cell; their inverse-variance mean, its error widened by their
+  spread about it (Birge ratio). Asked where the scale test said 'log', or had no
+  margin either way and the range says log: the lever on the counts at most 1 -
+  SCALE_MARGIN as inconsistent across materials (Birge ratio) as the same lever on ln I
+  (the power law), the materials sitting at different levels of the counts. Where b is
+  pinned (relative standard error at most LEVER_MAX_REL_SE) and the b fitted on the
+  model's power lies outside it by more than the lever can be trusted to
+  (LEVER_B_MARGIN, and LEVER_B_Z standard errors), the power is read as
+  exp((I - a) / b) with the range's b (``read_through`` 'range'; a the median of
+  I - b ln P_model); otherwise as before, and the verdict says what is left. The
+  figures: ``intensity_gain.counts_per_efold``. It assumes the reflectance is one
+  function of the incidence per material, and the model's range and incidence right
+  (a drifting reference pose moved it 16 % at 3 % standard error). On the foreign drum
+  (another lab's law) at 10 m it read 17.09-17.65 for 17.37 (15.7-17.8 with speckle
+  0.25), on the Blinn surfaces 17.37-17.41 (docs/compare.md, logwalk54).
 
 The simulator keeps using its own predicted power; see docs/compare.md.
 """
@@ -127,13 +132,20 @@ CLOUD_GAIN_Z = 2.33
 # is read through the log reading when it leaves at most 1 + SCALE_MARGIN times the
 # map's (else the map, which follows any monotone scale, stays).
 SCALE_MARGIN = 0.2
-# The range lever (module doc): cells of one material and one quantile bin of the model's
-# reflectance term, this many points a bin at least (at most LEVER_BINS bins a material);
-# the scale is called pinned when its relative standard error is at most this (the
-# scale, and so a walk's k, known to 10 %).
+# The range lever on log counts (module doc): per material, at most LEVER_BINS quantile
+# bins of the incidence, LEVER_BIN_POINTS points a bin at least; b is called pinned when
+# its relative standard error is at most LEVER_MAX_REL_SE (a walk's k known to 10 %), and
+# read instead of the b fitted on the model's power when that one lies outside it by more
+# than LEVER_B_MARGIN and LEVER_B_Z standard errors. The margin is the lever's own worst
+# systematic seen, not its standard error: a reference pose drifting 0.9 deg within each
+# scan (the battery's walk_with_drift, 8-bit counts) moved it 16 % above the counts' true
+# slope at 3 % standard error, 33 % away from the model's b; the over-reads it is for are
+# 55-110 % (the labs' 675 for 434, the foreign drum's 27-36 for 17.37).
 LEVER_BIN_POINTS = 200
 LEVER_BINS = 40
 LEVER_MAX_REL_SE = 0.1
+LEVER_B_MARGIN = 0.4
+LEVER_B_Z = 2.0
 
 
 @dataclass(frozen=True)
@@ -161,8 +173,9 @@ class IntensityCalibration:
     log_a: float = 0.0
     log_b: float = 1.0
     scale_test: dict | None = None
-    # The range lever (module doc): its figures (None: not tried), and the slope held at 1.
-    range_lever: dict | None = None
+    # Log counts' b from the range (module doc): its figures (None: not tried), and the
+    # slope held at 1.
+    counts_per_efold: dict | None = None
     unit_slope: bool = False
 
     @property
@@ -172,7 +185,8 @@ class IntensityCalibration:
     @property
     def reads_log(self) -> bool:
         """The power is read through the log reading (module doc), not the map."""
-        return self.scale == 'log' and (self.scale_test or {}).get('read_through') == 'log'
+        return (self.scale == 'log'
+                and (self.scale_test or {}).get('read_through') in ('log', 'range'))
 
     def power_w(self, intensity: np.ndarray, range_m: np.ndarray,
                 model_power_w: np.ndarray | None = None,
@@ -218,7 +232,7 @@ class IntensityCalibration:
                                   else float(np.exp(self.clip_log_i))),
                 'cloud_gain': self.cloud_gain_test,
                 'intensity_scale': self.scale, 'scale_test': self.scale_test,
-                'unit_slope': self.unit_slope, 'range_lever': self.range_lever,
+                'unit_slope': self.unit_slope, 'counts_per_efold': self.counts_per_efold,
                 'used_for_power_driven_effects': self.usable}
 
 
@@ -228,6 +242,8 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
                         cloud: np.ndarray | None = None,
                         material: np.ndarray | None = None,
                         unit_slope: bool = False,
+                        model_range_m: np.ndarray | None = None,
+                        incidence: np.ndarray | None = None,
                         ) -> IntensityCalibration | None:
     """Fit the map from measured intensity to the model's received power (module doc)
     on matched points; None if fewer than MIN_POINTS usable points. ``gain``: median
@@ -235,7 +251,9 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
     ``range_exponents``: the readings to choose from; ``(-2.0,)`` where the layout says
     the intensity is a range-compensated reflectivity (the Cepton drivers'). ``cloud``:
     each point's cloud index, to try a gain per cloud (module doc). ``material``: each
-    point's material id in the model, for the range lever (None: not tried).
+    point's material id in the model, ``incidence`` its incidence angle (rad) and
+    ``model_range_m`` its range (m; None: the measured), for the range lever on log counts
+    (module doc; either of the first two None: not tried).
     ``unit_slope``: the layout says the intensity is ~ P r^(-c) (module doc): the slope of
     ln I held at 1 (with the one range exponent given), no gain per cloud."""
     i = np.asarray(intensity, float)
@@ -297,16 +315,40 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
         explained = (float(np.corrcoef(read, y)[0, 1]) ** 2
                      if np.ptp(read) > 0 and var_y > 0 else 0.0)
     lever = None
-    if c == 0.0 and not unit_slope and material is not None:
-        reads_log = scale == 'log' and scale_test.get('read_through') == 'log'
-        read = ((np.exp(x) - log_a) / log_b if reads_log else np.interp(x, knots_x, knots_y))
-        if log_gain:
-            read = read - cloud_lookup(log_gain, np.asarray(cloud)[ok])
-        lever = range_lever(read, y, lr, np.asarray(material)[ok])
-        if lever is not None and scale == 'log':
-            b_fit = log_b if reads_log else scale_test.get('log_b_per_efold')
-            if b_fit:
-                scale_test['log_b_range_lever'] = round(float(b_fit) * lever['scale'], 4)
+    if (scale_test and scale != 'linear' and scale_test.get('log_b_per_efold')
+            and material is not None and incidence is not None):
+        # Log counts (or a reading the scale test could not tell from them): b from the
+        # range within one material and incidence (module doc).
+        lr_lever = (lr if model_range_m is None
+                    else np.log(np.maximum(np.asarray(model_range_m, float)[ok], 1e-9)))
+        mat_ok, inc_ok = np.asarray(material)[ok], np.asarray(incidence, float)[ok]
+        lever = range_lever(np.exp(x), lr_lever, mat_ok, inc_ok)
+        if lever is not None:
+            # The shape from the range where the scale test had no margin: the materials
+            # sit at different levels of the intensity, so only the right reading gives
+            # them one slope (the power law's: the same lever on ln I).
+            power_law = (None if scale == 'log' else range_lever(x, lr_lever, mat_ok, inc_ok))
+            shape = ('scale test' if scale == 'log' else
+                     'range' if (power_law is not None and lever['birge_ratio']
+                                 <= (1.0 - SCALE_MARGIN) * power_law['birge_ratio'])
+                     else None)
+            b_model = float(scale_test['log_b_per_efold'])
+            b_range = float(lever['per_efold'])
+            off = max(LEVER_B_MARGIN, LEVER_B_Z * float(lever['rel_se']))
+            used = bool(shape and lever['pinned']
+                        and abs(np.log(b_model / b_range)) > np.log1p(off))
+            lever = {**lever, 'fitted_on_model': round(b_model, 4), 'log_shape_from': shape,
+                     'power_law_birge_ratio': (None if power_law is None
+                                               else power_law['birge_ratio']),
+                     'used': used}
+            if used:
+                scale, log_b = 'log', b_range
+                log_a = float(np.median(np.exp(x) - log_b * y))
+                scale_test['read_through'] = 'range'
+                read = (np.exp(x) - log_a) / log_b
+                # As with the slope held at 1: the share a line of any slope explains.
+                explained = (float(np.corrcoef(read, y)[0, 1]) ** 2
+                             if np.ptp(read) > 0 and var_y > 0 else 0.0)
     d = x - (y if model_intensity is None
              else np.log(np.maximum(np.asarray(model_intensity, float)[ok], 1e-300)))
     return IntensityCalibration(
@@ -319,7 +361,7 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
         clip_log_i=None if clip is None else float(np.log(clip)),
         clipped_share=clipped_share, cloud_log_gain=log_gain, cloud_gain_test=test,
         scale=scale, log_a=log_a, log_b=log_b, scale_test=scale_test,
-        range_lever=lever, unit_slope=unit_slope)
+        counts_per_efold=lever, unit_slope=unit_slope)
 
 
 def unit_slope_map(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -335,66 +377,63 @@ def unit_slope_map(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return knots_x, knots_x + offset
 
 
-def range_lever(read_log_p: np.ndarray, log_p: np.ndarray, log_r: np.ndarray,
-                material: np.ndarray) -> dict | None:
-    """The scale of a reading against the model's ln P from the range alone (module doc).
+def range_lever(reading: np.ndarray, log_r: np.ndarray, material: np.ndarray,
+                incidence: np.ndarray) -> dict | None:
+    """The reading's slope per e-fold of received power from the range alone (module doc).
 
-    ``read_log_p``: the power read from the intensity (ln W); ``log_p``: the model's
-    (ln W); ``log_r``: ln of the range (any centre); ``material``: the model's material
-    id. Cells: each material's points in quantile bins of log_p + 2 log_r (LEVER_BINS at
-    most, LEVER_BIN_POINTS each). Within cells, s = sum(read' z') / sum(log_p' z'),
-    z = ln r (' : less the cell's mean, and what follows the reflectance term within the
-    cells, per material); its standard error clustered by cell. None
-    with fewer than two cells or no range spread within them."""
-    read, y = np.asarray(read_log_p, float), np.asarray(log_p, float)
-    z, mat = np.asarray(log_r, float), np.asarray(material)
-    ok = np.isfinite(read) & np.isfinite(y) & np.isfinite(z)
-    read, y, z, mat = read[ok], y[ok], z[ok], mat[ok]
-    term = y + 2.0 * z
-    cell = np.full(len(y), -1, np.int64)
-    next_id = 0
+    ``reading``: the intensity in its own units (log counts); ``log_r``: ln of the model's
+    range (any centre); ``material``: the model's material id; ``incidence``: the model's
+    incidence angle (rad). Per material, cells of LEVER_BINS quantile bins of the incidence
+    (LEVER_BIN_POINTS each at least); within them, less what still follows the incidence
+    (linearly, per material), the reading against ln r has slope -2 b. Each material's b
+    with its standard error clustered by cell; the materials' inverse-variance mean, its
+    error widened by the spread of the materials about it (the Birge ratio, where above 1).
+    None with no material of two cells or no range spread within them."""
+    y, z = np.asarray(reading, float), np.asarray(log_r, float)
+    mat, inc = np.asarray(material), np.asarray(incidence, float)
+    ok = np.isfinite(y) & np.isfinite(z) & np.isfinite(inc)
+    y, z, mat, inc = y[ok], z[ok], mat[ok], inc[ok]
+    per = []
     for m in np.unique(mat):
         sel = np.flatnonzero(mat == m)
         n_bins = int(min(LEVER_BINS, len(sel) // LEVER_BIN_POINTS))
-        if n_bins < 1:
+        if n_bins < 2:
             continue
-        edges = np.quantile(term[sel], np.linspace(0.0, 1.0, n_bins + 1))
-        b = np.clip(np.searchsorted(edges, term[sel], side='right') - 1, 0, n_bins - 1)
-        cell[sel] = next_id + b
-        next_id += n_bins
-    use = cell >= 0
-    if next_id < 2 or use.sum() < 2 * LEVER_BIN_POINTS:
-        return None
-    cell, read, y, z = cell[use], read[use], y[use], z[use]
-    counts = np.bincount(cell, minlength=next_id).astype(float)
-    counts[counts == 0] = 1.0
+        edges = np.quantile(inc[sel], np.linspace(0.0, 1.0, n_bins + 1))
+        cell = np.clip(np.searchsorted(edges, inc[sel], side='right') - 1, 0, n_bins - 1)
+        counts = np.bincount(cell, minlength=n_bins).astype(float)
+        counts[counts == 0] = 1.0
 
-    def within(v):
-        return v - (np.bincount(cell, v, next_id) / counts)[cell]
+        def within(v):
+            return v - (np.bincount(cell, v, n_bins) / counts)[cell]
 
-    rz, yz, zc, tc = within(read), within(y), within(z), within(term[use])
-    # What is left of the reflectance term within a cell can still follow the range (the
-    # nearer part of a surface facing the sensor more): taken out linearly per material,
-    # or its truth-to-model scale leaks into s.
-    mat_use = mat[use]
-    for m in np.unique(mat_use):
-        sel = mat_use == m
-        tt = float(np.sum(tc[sel] ** 2))
+        yc, zc, tc = within(y[sel]), within(z[sel]), within(inc[sel])
+        tt = float(np.sum(tc ** 2))
         if tt > 0:
-            for v in (rz, yz, zc):
-                v[sel] -= (np.sum(v[sel] * tc[sel]) / tt) * tc[sel]
-    den = float(np.sum(yz * zc))
-    if not np.isfinite(den) or abs(den) <= 1e-12 * len(y):
+            yc = yc - (np.sum(yc * tc) / tt) * tc
+            zc = zc - (np.sum(zc * tc) / tt) * tc
+        den = float(np.sum(zc ** 2))
+        if not np.isfinite(den) or den <= 1e-12 * len(sel):
+            continue
+        slope = float(np.sum(yc * zc)) / den
+        e = yc - slope * zc
+        se = float(np.sqrt(np.sum(np.bincount(cell, e * zc, n_bins) ** 2)) / den)
+        if se > 0 and np.isfinite(se):
+            per.append((-0.5 * slope, 0.5 * se, len(sel), float(np.std(zc))))
+    if not per:
         return None
-    s = float(np.sum(rz * zc)) / den
-    e = rz - s * yz
-    by_cell = np.bincount(cell, e * zc, next_id)
-    se = float(np.sqrt(np.sum(by_cell ** 2)) / abs(den))
-    rel = se / abs(s) if s != 0 else float('inf')
-    pinned = bool(s > 0 and rel <= LEVER_MAX_REL_SE)
-    return {'scale': round(s, 4), 'se': round(se, 4), 'k_scale_rel_se': round(rel, 4),
-            'cells': int(len(np.unique(cell))), 'points': int(len(y)),
-            'range_sd_within_cells': round(float(np.std(zc)), 4), 'pinned': pinned}
+    b, se, n, sd = (np.array(v, float) for v in zip(*per))
+    w = 1.0 / se ** 2
+    mean = float(np.sum(w * b) / np.sum(w))
+    birge = (float(np.sqrt(np.sum(w * (b - mean) ** 2) / (len(b) - 1))) if len(b) > 1
+             else 1.0)
+    err = float(np.sqrt(1.0 / np.sum(w))) * max(birge, 1.0)
+    rel = err / abs(mean) if mean != 0 else float('inf')
+    return {'per_efold': round(mean, 4), 'se': round(err, 4), 'rel_se': round(rel, 4),
+            'materials': int(len(b)), 'birge_ratio': round(birge, 3),
+            'points': int(n.sum()),
+            'range_sd_within_cells': round(float(np.sqrt(np.sum(n * sd ** 2) / n.sum())), 4),
+            'pinned': bool(mean > 0 and rel <= LEVER_MAX_REL_SE)}
 
 
 def intensity_scale(intensity: np.ndarray, log_p: np.ndarray

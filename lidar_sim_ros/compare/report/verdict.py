@@ -1411,19 +1411,41 @@ _PER_LASER_ANGLE = re.compile(r'^laser_\d+_(az|el)_deg$')
 
 def walk_scale_words(gain: dict | None, params: dict | None) -> str:
     """What the intensity's scale leaves open of a walk's k read through it: '' where k
-    reads the model's power or the layout fixes the scale (``recording/intensity.py``).
-    The range lever's figures are in summary.json only: on foreign data they missed
-    the scale by up to 0.36 at 6 % standard error, no ground to quote a k from."""
+    reads the model's power, the layout fixes the scale, or (log counts) the range within
+    one material and incidence pins b (``recording/intensity.py``: read with it, or the
+    model's fit confirmed). Otherwise which of these is missing."""
     gain, params = gain or {}, params or {}
     if (params.get('power', 'measured') != 'measured'
             or not gain.get('used_for_power_driven_effects')
             or gain.get('unit_slope')):
         return ''
-    return (' k is read through the intensity, whose scale was fitted on the model\'s '
-            'power: where the model\'s reflectance law spans less received power than the '
-            'true one, k is over-read by that ratio (more, under-read), which this recording '
-            'does not check; a sensor whose intensity convention is known, or a recording '
-            'over a range of distances, does.')
+    lever = gain.get('counts_per_efold') or {}
+    if lever.get('used'):
+        return ''
+    if not lever.get('log_shape_from'):
+        lever = {}          # not log counts: the range's b is not their scale
+    if lever.get('pinned'):
+        ratio = float(lever['fitted_on_model']) / float(lever['per_efold'])
+        if abs(ratio - 1.0) <= max(0.02, 2.0 * float(lever['rel_se'])):
+            return ''
+        return (f' k is read through log counts whose b was fitted on the model\'s power '
+                f'({lever["fitted_on_model"]:.3g} per e-fold); the range within one material '
+                f'and incidence gives {lever["per_efold"]:.3g} +- {lever["se"]:.2g}, so k may '
+                f'be off by their ratio ({100 * (ratio - 1):+.0f} %), short of the margin at '
+                'which the range\'s b replaces the fit (what the range itself can miss by '
+                'where the reference pose is off).')
+    words = (' k is read through the intensity, whose scale was fitted on the model\'s '
+             'power: where the model\'s reflectance law spans less received power than the '
+             'true one, k is over-read by that ratio (more, under-read)')
+    if lever:
+        return words + (f'; the range within one material and incidence gives the log '
+                        f'counts\' b {lever["per_efold"]:.3g} +- {lever["se"]:.2g} per e-fold '
+                        f'(fitted on the model: {lever["fitted_on_model"]:.3g}), too loose '
+                        f'to read (range sd {lever["range_sd_within_cells"]:.3g} in ln within '
+                        'a cell); a recording over a wider span of distances pins it.')
+    return words + (', which this recording does not check (not log counts, whose b the '
+                    'range checks); a sensor whose intensity convention is known, or a '
+                    'recording over a range of distances, does.')
 
 
 def _summary_params(params: dict | None) -> tuple[dict, int]:
