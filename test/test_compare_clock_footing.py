@@ -229,3 +229,27 @@ def test_the_page_says_which_plan_it_shows():
     assert 'lasers off their configured directions' in page._plan_words(
         [{**unflown, 'ways': {'pose_error': {}, 'laser_pointing': {}}}])
     assert 'flown by the simulator' in page._plan_words([{'simulated': True}])
+
+
+def test_the_clock_and_constant_pose_tie_on_timed_points_says_the_motion_not_the_times():
+    """The nineteenth holdout's timeoff (points with a time field, 20 ms late stamps on a
+    steady tumble): the nested test left the clock and a constant pose nothing over each
+    other. The verdict said the clouds carried no per-point time; it says what the
+    nested test showed and which recording separates them."""
+    from types import SimpleNamespace as NS
+
+    from lidar_sim_ros.compare.report.verdict import pose_tie_words
+    clock = NS(name='time_offset', score=0.0869, z=14.3, against_pose={
+        'constant_pose_footing': {'nested': {
+            'clock_over_pose': {'gain_per_point': 0.001033, 'z': 1.36},
+            'pose_over_clock': {'gain_per_point': 0.000789, 'z': 1.39}}}})
+    pose = NS(gain=0.0243, z=8.9, constant=True, per_cloud=False,
+              words=lambda: 'the reference pose is off by about 0.6 cm')
+    decision = diagnosis.Decision(None, ['pose_error', 'time_offset'], pose=pose)
+    for times in ('field', 'absolute s + us'):
+        words = pose_tie_words(decision, {'point_times': times}, [clock])
+        assert 'no per-point time' not in words
+        assert 'the clock over the pose gains 0.0010 nats/point, z = 1.4' in words
+        assert 'turns at another rate' in words and 'none is named' in words
+    words = pose_tie_words(decision, {'point_times': 'stamp'}, [clock])
+    assert 'no per-point time' in words

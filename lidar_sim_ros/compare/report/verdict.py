@@ -938,6 +938,9 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
                 f'motion) would separate them{_motion_plan(summary)}; if the tracking system '
                 'is known to be right, try --effect time_offset --fit, else --effect '
                 'pose_error --fit.')
+    if other == ['time_offset'] and summary.get('point_times') not in ('stamp',
+                                                                       'scan pattern'):
+        return clock_pose_timed_words(pose_part, held, footings, summary)
     if other == ['time_offset']:
         return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
                 f'{pose_part}, and a clock offset explains the residual as well{held}. The '
@@ -973,6 +976,31 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
             f'residual as well{held}: they are confounded in this recording, so none is '
             f'named.{where} Add the one you know with --effect NAME --fit (pose_error '
             'corrects the reference pose).')
+
+
+def clock_pose_timed_words(pose_part: str, held: str, footings: dict, summary: dict) -> str:
+    """The tie of a clock offset with the reference pose on points that carry their own
+    times (a time field, or times from the scan pattern's curve): each leaves the other
+    nothing (the nested test on the raycast footing where it ran, ``footings``: the clock
+    candidate's ``against_pose``), so the target's motion over the recording does not set
+    a clock offset (a move by the motion over the offset) apart from a fixed pose error
+    (the nineteenth holdout's timeoff: said before as 'no per-point time')."""
+    nested = ((footings.get('constant_pose_footing') or {}).get('nested') or {})
+    one, other = nested.get('clock_over_pose') or {}, nested.get('pose_over_clock') or {}
+    figures = ''
+    if one.get('gain_per_point') is not None and other.get('gain_per_point') is not None:
+        figures = (f' (raycast again, the clock over the pose gains '
+                   f'{one["gain_per_point"]:.4f} nats/point, z = {one["z"]:.1f}, the pose '
+                   f'over the clock {other["gain_per_point"]:.4f}, z = {other["z"]:.1f})')
+    return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
+            f'{pose_part}, and a clock offset explains the residual as well{held}. With the '
+            f'points\' own times each leaves the other nothing{figures}: over this recording '
+            'the target turns too steadily for a clock offset (which moves the target by its '
+            'motion over the offset) and a fixed pose error to differ, so which of the two it '
+            'is cannot be told; none is named. A recording in which the target turns at '
+            f'another rate would separate them{_motion_plan(summary)}; if the tracking '
+            'system is known to be right, try --effect time_offset --fit, else --effect '
+            'pose_error --fit.')
 
 
 def _motion_plan(summary: dict) -> str:
