@@ -85,8 +85,7 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
     if to_range:
         how = ('explains the residual at least as well' if to_range['outcome'] == 'range'
                else 'explains it nearly as well, the pose short of the rule beyond it')
-        return _out(False, None, f'its test passes ({_f(to_range["test_gain_per_matched_point"])} '
-                    f'nats/point, z = {_f(to_range["test_z"], 1)}), but a function of range '
+        return _out(False, None, f'{_test_passes(to_range)}, but a function of range '
                     f'alone {how} '
                     f'({_f(to_range["gain_per_matched_point"])} nats/point; the pose on top '
                     f'of it {_f(to_range["pose_gain_beyond"])} more, z = '
@@ -94,9 +93,8 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                     'follows range moves the clouds alike, so the pose is not claimed', shown)
     to_lasers = pose.get('left_to_pointing')
     if to_lasers:
-        return _out(False, None, f'its test passes alone '
-                    f'({_f(to_lasers["test_gain_per_matched_point"])} nats/point, z = '
-                    f'{_f(to_lasers["test_z"], 1)}), but on top of {to_lasers["named"]} '
+        return _out(False, None, f'{_test_passes(to_lasers, " alone")}, but on top of '
+                    f'{to_lasers["named"]} '
                     f'(fitted with the beams\' common turn; {_f(to_lasers["score"])} '
                     f'nats/point) it gains {_f(to_lasers["pose_gain_on_top"])} (z = '
                     f'{_f(to_lasers["pose_z_on_top"], 1)}), which does not pass the rule, '
@@ -111,9 +109,8 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                 if 'effects' in left else
                 f'beside {left["named"]}, which stands in for a bias of range alone: what the '
                 'stand-in leaves may be the rest of that bias')
-        return _out(False, None, f'its test passes ({_f(left["test_gain_per_matched_point"])} '
-                    f'nats/point, z = {_f(left["test_z"], 1)}) {what}, so the pose is not '
-                    'claimed', shown)
+        return _out(False, None, f'{_test_passes(left)} {what}, so the pose is not claimed',
+                    shown)
     faces = pose.get('across_faces')
     if faces and not faces.get('transfers'):
         return _out(False, None, f'its {"constant" if pose.get("constant") else "per-cloud"} '
@@ -127,8 +124,7 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                     'surface agrees on, so the pose is not claimed', shown)
     edges = pose.get('left_to_edges')
     if edges:
-        return _out(False, None, f'its test passes ({_f(edges["test_gain_per_matched_point"])} '
-                    f'nats/point, z = {_f(edges["test_z"], 1)}), but the target\'s outline '
+        return _out(False, None, f'{_test_passes(edges)}, but the target\'s outline '
                     f'contradicts it: on the {edges["edge_rays"]} returns whose outcome the '
                     f'correction changes at the silhouette and depth steps it gains '
                     f'{_f(edges["gain_per_edge_ray"])} nats per ray, z = {_f(edges["z"], 1)} '
@@ -179,6 +175,13 @@ def pose_status(pose: dict | None, decision, cands: list, on_top: list[str]) -> 
                      'z': ap.get('pose_z_on_top'), 'significant': False})
     return _out(False, None, f'weighed against {first.name} (judge_pose), {first.name} stands'
                 + after, shown)
+
+
+def _test_passes(left: dict, alone: str = '') -> str:
+    """'its test passes (gain nats/point, z = z)' of a pose left to another test (its
+    ``test_gain_per_matched_point`` and ``test_z``)."""
+    return (f'its test passes{alone} ({_f(left["test_gain_per_matched_point"])} nats/point, '
+            f'z = {_f(left["test_z"], 1)})')
 
 
 def _out(reported: bool, kind: str | None, reason: str, decided_by: dict | None) -> dict:
