@@ -126,7 +126,7 @@ def matching_of(intensity: np.ndarray, s: dict):
     meas = SimpleNamespace(intensity=intensity, range_m=s['r_meas'], cloud=s['cloud'],
                            directions=s['d'], fields=None)
     ctx = SimpleNamespace(power_w=s['p_model'], intensity=s['p_model'], range_m=s['r_model'],
-                          material=s['material'])
+                          material=s['material'], incidence_rad=np.arccos(s['cos_i']))
     return SimpleNamespace(meas=meas, pred=SimpleNamespace(ctx=ctx), matched=np.ones(n, bool))
 
 
