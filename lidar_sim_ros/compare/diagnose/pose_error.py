@@ -789,6 +789,25 @@ class PoseCorrection:
         edges = 0.5 * (self.t1_s[:-1] + self.t0_s[1:])
         return np.searchsorted(edges, np.asarray(t_s, float), side='right')
 
+    def apply(self, position_m: np.ndarray, t_s: np.ndarray,
+              rotation: Rotation | None = None) -> tuple[np.ndarray, Rotation | None]:
+        """Points (or target positions) ``position_m`` ((N, 3) m, lidar frame) at times
+        ``t_s`` moved by the correction of their cloud and its drift within the cloud;
+        ``rotation`` (N target attitudes, or None) turned with them."""
+        t = np.atleast_1d(np.asarray(t_s, float))
+        k = self.at_time(t)
+        rot = self.rotation[k]
+        position = rot.apply(position_m) + self.translation_m[k]
+        if rotation is not None:
+            rotation = rot * rotation
+        drift = self.drift_at(k, np.broadcast_to(t, (len(k),)))
+        if drift is not None:
+            r_d, t_d = drift
+            position = r_d.apply(position) + t_d
+            if rotation is not None:
+                rotation = r_d * rotation
+        return position, rotation
+
     def moved(self) -> tuple[np.ndarray, np.ndarray]:
         """(K, 3) motion of each cloud's reference point (m) and (K, 3) rotation vector
         (deg): the correction as the report states it (the target is really here + this)."""
@@ -824,16 +843,9 @@ class CorrectedPoses:
 
     def at(self, t_s: np.ndarray) -> Poses:
         poses = self.base.at(t_s)
-        t = np.atleast_1d(np.asarray(t_s, float))
-        k = self.correction.at_time(t)
-        rot = self.correction.rotation[k]
-        position = np.broadcast_to(poses.position_m.reshape(-1, 3), (len(k), 3)).copy()
-        rotation = rot * poses.rotation
-        position = rot.apply(position) + self.correction.translation_m[k]
-        drift = self.correction.drift_at(k, np.broadcast_to(t, (len(k),)))
-        if drift is not None:
-            r_d, t_d = drift
-            rotation, position = r_d * rotation, r_d.apply(position) + t_d
+        n = len(np.atleast_1d(np.asarray(t_s, float)))
+        position = np.broadcast_to(poses.position_m.reshape(-1, 3), (n, 3)).copy()
+        position, rotation = self.correction.apply(position, t_s, poses.rotation)
         return Poses(rotation, position)
 
 

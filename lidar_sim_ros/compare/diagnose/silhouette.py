@@ -156,10 +156,5 @@ def largest_motion_m(correction, xyz_m: np.ndarray, t_s: np.ndarray) -> float:
     p = np.asarray(xyz_m, float).reshape(-1, 3)
     if not len(p):
         return 0.0
-    t = np.asarray(t_s, float)
-    k = correction.at_time(t)
-    q = correction.rotation[k].apply(p) + correction.translation_m[k]
-    drift = correction.drift_at(k, t)
-    if drift is not None:
-        q = drift[0].apply(q) + drift[1]
+    q, _ = correction.apply(p, t_s)
     return float(np.max(np.linalg.norm(q - p, axis=1)))
