@@ -100,6 +100,7 @@ class Splits(Hand):
         self.random_fold = order
         self.fold_order = np.concatenate([np.flatnonzero(order == 1), np.flatnonzero(order == 0)])
         self.matched_blocks = np.arange(n) // 20
+        self.blocks = self.matched_blocks[self.fold_order]     # cross_fit order
         self._z_crit = 3.0
 
 

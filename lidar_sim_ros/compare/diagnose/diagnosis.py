@@ -517,14 +517,11 @@ class Diagnosis(PoseWeighing):
         ``tile_test['field']``."""
         if pointing.turn_of(cand.variant) is not None:
             return None, figures
-        field = self.in_matched_order(
-            self.cross_fit(field_pattern.FieldPattern, list(on_top))[0])
-        own = field - at_random
-        ok = np.isfinite(own)
-        if ok.sum() < 2:
+        field = self.cross_fit(field_pattern.FieldPattern, list(on_top))[0]
+        own = field - at_random[self.fold_order]        # cross_fit order, as gain_z reads
+        if np.isfinite(own).sum() < 2:
             return None, figures
-        _, z = block_mean_z(own[ok], self.matched_blocks[ok])
-        gain = float(np.sum(own[ok]) / max(self.n_total, 1))
+        gain, z = self.gain_z(own)
         passes = self.passes_rule(gain, z)
         figures['field'] = {'own_gain': _num(gain), 'own_z': _num(z), 'passes': bool(passes)}
         if passes:
