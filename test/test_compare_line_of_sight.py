@@ -112,6 +112,10 @@ def _on_moved(scores):
         @staticmethod
         def nameable(c):
             return c.significant and c.practical
+
+        @staticmethod
+        def naming_fault(c):
+            return None if c.significant and c.practical else 'short of the rule'
     return OnPose()
 
 

@@ -20,16 +20,14 @@ from lidar_sim_ros.compare.diagnose.variants import heldout_nll
 from lidar_sim_ros.core.effects import Effect
 
 
-def _moved_target_words(on_moved, fault: str | None) -> str:
+def _moved_target_words(on_moved, fault: str) -> str:
     """Why a candidate is withheld beside the target moved along the line of sight: its
     figures there (``on_moved``: the candidate scored on the moved target) and why it
-    may not be named there (``fault``: the naming rule's reason, None where unknown)."""
-    words = (f'explained by the target moved along the line of sight, raycast again and '
-             f'scored as the candidates are: on the moved target it gains '
-             f'{on_moved.score:.4f} nats/point (z = {on_moved.z:.1f})')
-    if fault:
-        return f'{words}, and may not be named there: {fault}'
-    return f'{words}, which does not pass the rule'
+    may not be named there (``fault``: the naming rule's reason, ``naming_fault``)."""
+    return (f'explained by the target moved along the line of sight, raycast again and '
+            f'scored as the candidates are: on the moved target it gains '
+            f'{on_moved.score:.4f} nats/point (z = {on_moved.z:.1f}), and may not be named '
+            f'there: {fault}')
 
 
 def _with_raycast(pose, raycast: dict):
@@ -705,9 +703,8 @@ class PoseWeighing:
         again, passing, faults = {}, [], {}
         for c in named:
             a = again[c.name] = on_pose.score(type(c.effect))
-            passes = on_pose.nameable(a)
-            if not passes and hasattr(on_pose, 'naming_fault'):
-                faults[c.name] = on_pose.naming_fault(a)
+            faults[c.name] = on_pose.naming_fault(a)
+            passes = faults[c.name] is None
             c.against_pose = {**(c.against_pose or {}), 'line_of_sight': {
                 'shift_cm': _num(100 * los.shift_m), 'pose_gain': _num(los.gain),
                 'pose_z': _num(los.z), 'score_on_pose': _num(a.score),
@@ -715,7 +712,7 @@ class PoseWeighing:
             if passes:
                 passing.append(c)
         withheld = {**decision.withheld,
-                    **{c.name: _moved_target_words(again[c.name], faults.get(c.name))
+                    **{c.name: _moved_target_words(again[c.name], faults[c.name])
                        for c in named if c not in passing}}
         explains = [c.name for c in named if c not in passing]
         by_name = {c.name: c for c in cands}
