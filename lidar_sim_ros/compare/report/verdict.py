@@ -922,10 +922,10 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
         return clock_off_footing_words(
             footings['pose_footing'], f' ({c.name}: held-out gain {c.score:.4f} nats/point, '
             f'z = {c.z:.1f}, on every matched point)', bool(summary.get('separation_plan')))
-    if other == ['time_offset'] and footings.get('fitted_margin') is not None \
-            and summary.get('point_times') not in ('stamp', 'scan pattern'):
-        return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
-                f'{pose_part}, and a clock offset explains the residual as well{held}. Held '
+    # The points carry times of their own (a time field), not the stamp's nor the pattern's.
+    timed = summary.get('point_times') not in ('stamp', 'scan pattern')
+    if other == ['time_offset'] and timed and footings.get('fitted_margin') is not None:
+        return (f'{_clock_or_pose(pose_part, held)} Held '
                 f'out the clock offset fits better by {footings["heldout_margin"]:.4f} '
                 f'nats/point; with the pose corrected {how} and the model raycast again, '
                 f'as --fit leaves them, the pose fits better by '
@@ -935,20 +935,15 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
                 'the two it is cannot be told from this recording; none is named. A '
                 'recording in which the target turns at another rate (a clock offset moves '
                 'the target by its motion over the offset, a pose error does not follow the '
-                f'motion) would separate them{_motion_plan(summary)}; if the tracking system '
-                'is known to be right, try --effect time_offset --fit, else --effect '
-                'pose_error --fit.')
-    if other == ['time_offset'] and summary.get('point_times') not in ('stamp',
-                                                                       'scan pattern'):
+                f'motion) would separate them{_motion_plan(summary)}; {_CLOCK_OR_POSE_FIT}')
+    if other == ['time_offset'] and timed:
         return clock_pose_timed_words(pose_part, held, footings, summary)
     if other == ['time_offset']:
-        return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
-                f'{pose_part}, and a clock offset explains the residual as well{held}. The '
+        return (f'{_clock_or_pose(pose_part, held)} The '
                 'clouds carry no per-point time and their directions do not follow the '
                 'configured scan pattern, so which of the two it is cannot be told from this '
                 'recording; none is named. Points with their own times (a time field) would '
-                'separate them; if the tracking system is known to be right, try --effect '
-                'time_offset --fit, else --effect pose_error --fit.')
+                f'separate them; {_CLOCK_OR_POSE_FIT}')
     if other == [diagnosis.RANGE_OF_RANGE]:
         return range_tie_words(pose, summary)
     if sorted(other) == sorted(power_incidence.PAIR):
@@ -978,9 +973,20 @@ def pose_tie_words(decision, summary: dict, cands: list) -> str:
             'corrects the reference pose).')
 
 
+_CLOCK_OR_POSE_FIT = ('if the tracking system is known to be right, try --effect time_offset '
+                      '--fit, else --effect pose_error --fit.')
+
+
+def _clock_or_pose(pose_part: str, held: str) -> str:
+    """The opening of a clock offset's tie with the reference pose: the pose's figures
+    (``pose_part``) and the clock's (``held``)."""
+    return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
+            f'{pose_part}, and a clock offset explains the residual as well{held}.')
+
+
 def clock_pose_timed_words(pose_part: str, held: str, footings: dict, summary: dict) -> str:
-    """The tie of a clock offset with the reference pose on points that carry their own
-    times (a time field, or times from the scan pattern's curve): each leaves the other
+    """The tie of a clock offset with the reference pose on points that carry times of
+    their own (a time field; not the stamp's nor the scan pattern's): each leaves the other
     nothing (the nested test on the raycast footing where it ran, ``footings``: the clock
     candidate's ``against_pose``), so the target's motion over the recording does not set
     a clock offset (a move by the motion over the offset) apart from a fixed pose error
@@ -992,15 +998,12 @@ def clock_pose_timed_words(pose_part: str, held: str, footings: dict, summary: d
         figures = (f' (raycast again, the clock over the pose gains '
                    f'{one["gain_per_point"]:.4f} nats/point, z = {one["z"]:.1f}, the pose '
                    f'over the clock {other["gain_per_point"]:.4f}, z = {other["z"]:.1f})')
-    return (f'A clock offset between the pose and LiDAR stamps, or the reference pose: '
-            f'{pose_part}, and a clock offset explains the residual as well{held}. With the '
+    return (f'{_clock_or_pose(pose_part, held)} With the '
             f'points\' own times each leaves the other nothing{figures}: over this recording '
             'the target turns too steadily for a clock offset (which moves the target by its '
             'motion over the offset) and a fixed pose error to differ, so which of the two it '
             'is cannot be told; none is named. A recording in which the target turns at '
-            f'another rate would separate them{_motion_plan(summary)}; if the tracking '
-            'system is known to be right, try --effect time_offset --fit, else --effect '
-            'pose_error --fit.')
+            f'another rate would separate them{_motion_plan(summary)}; {_CLOCK_OR_POSE_FIT}')
 
 
 def _motion_plan(summary: dict) -> str:
