@@ -311,9 +311,7 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
         # The slope held at 1 is not the model's: how well the reading measures the
         # power is its correlation with the model's (the share a line of any slope
         # explains), not what the unit line leaves.
-        read = np.interp(x, knots_x, knots_y) + c * lr
-        explained = (float(np.corrcoef(read, y)[0, 1]) ** 2
-                     if np.ptp(read) > 0 and var_y > 0 else 0.0)
+        explained = line_share(np.interp(x, knots_x, knots_y) + c * lr, y, var_y)
     lever = None
     if (scale_test and scale != 'linear' and scale_test.get('log_b_per_efold')
             and material is not None and incidence is not None):
@@ -345,10 +343,8 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
                 scale, log_b = 'log', b_range
                 log_a = float(np.median(np.exp(x) - log_b * y))
                 scale_test['read_through'] = 'range'
-                read = (np.exp(x) - log_a) / log_b
                 # As with the slope held at 1: the share a line of any slope explains.
-                explained = (float(np.corrcoef(read, y)[0, 1]) ** 2
-                             if np.ptp(read) > 0 and var_y > 0 else 0.0)
+                explained = line_share((np.exp(x) - log_a) / log_b, y, var_y)
     d = x - (y if model_intensity is None
              else np.log(np.maximum(np.asarray(model_intensity, float)[ok], 1e-300)))
     return IntensityCalibration(
@@ -362,6 +358,13 @@ def calibrate_intensity(intensity: np.ndarray, range_m: np.ndarray, model_power_
         clipped_share=clipped_share, cloud_log_gain=log_gain, cloud_gain_test=test,
         scale=scale, log_a=log_a, log_b=log_b, scale_test=scale_test,
         counts_per_efold=lever, unit_slope=unit_slope)
+
+
+def line_share(read: np.ndarray, y: np.ndarray, var_y: float) -> float:
+    """The share of the variance of ``y`` (the model's ln P, variance ``var_y``) that a
+    line of any slope through ``read`` (the power read from the intensity) explains."""
+    return (float(np.corrcoef(read, y)[0, 1]) ** 2
+            if np.ptp(read) > 0 and var_y > 0 else 0.0)
 
 
 def unit_slope_map(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
