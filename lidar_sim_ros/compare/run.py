@@ -1377,8 +1377,8 @@ def pose_on_silhouette(decision: diagnosis.Decision, pose: pose_error.PoseError,
     """The decision and its pose, asked the silhouette test (``test(pose)``,
     ``silhouette_of``) where a pose is reported (alone or beside a named effect): its
     figures on the pose (``silhouette``); where the edges contradict the correction and
-    each of its parts alone they can judge (``Silhouette.withholds``) the pose is not reported, and carries them under
-    ``left_to_edges`` with its test marked failed. Where the edges do not support it by
+    each of its parts alone they can judge (``Silhouette.withholds``) the pose is not
+    reported, and carries them under ``left_to_edges`` with its test marked failed. Where the edges do not support it by
     the rule, or cannot tell, the decision stands (docs/compare.md, "The silhouette test
     of a pose claim": a true per-cloud pose of 0.9 cm / 0.38 deg gains on its edges at
     z 2.2 only)."""
